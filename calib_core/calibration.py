@@ -1,0 +1,179 @@
+"""Calibration results: typed, JSON round-trippable, applicable to data.
+
+A `Calibration` is a set of canonical parameters (value, standard uncertainty,
+unit) plus what is needed to judge it (residuals per segment, warnings). The
+error model is the archive's matrix convention:
+
+    f_meas = (I + M_a) f_true + b_a
+    w_meas = (I + M_g) w_true + G f_true + b_g
+
+`Calibration.apply` inverts it; parameters that are absent count as zero.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from calib_core import __version__, params
+from calib_core.recording import Recording
+
+JSON_SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One estimated parameter. `std` is the standard uncertainty (1 sigma), or None."""
+
+    name: str
+    value: float
+    std: float | None = None
+    unit: str = ""
+
+    def __post_init__(self) -> None:
+        params.validate(self.name)
+        if not self.unit:
+            object.__setattr__(self, "unit", params.unit_of(self.name))
+        if not math.isfinite(self.value):
+            raise ValueError(f"parameter {self.name}: value is not finite ({self.value})")
+
+
+@dataclass(frozen=True)
+class SegmentResidual:
+    """Residual statistics (measured - model) of one segment for one sensor.
+
+    mean, std : (3,) per axis, in the sensor's SI unit.
+    """
+
+    segment: str
+    sensor: str  # "acc" or "gyr"
+    mean: tuple[float, float, float]
+    std: tuple[float, float, float]
+    n: int
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """What one pipeline step did: archived so every number can be traced."""
+
+    name: str
+    settings: dict[str, Any] = field(default_factory=dict)
+    statistics: dict[str, Any] = field(default_factory=dict)
+    software_version: str = __version__
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """One check against a limit. `limit` is None for checks without a number."""
+
+    name: str
+    value: float | None
+    limit: float | None
+    passed: bool
+    detail: str = ""
+
+
+@dataclass
+class Calibration:
+    """A solved calibration of one IMU (accelerometer and/or gyro triad)."""
+
+    procedure: str
+    gravity: float  # m/s^2 used for the reference specific force
+    parameters: dict[str, Parameter] = field(default_factory=dict)
+    residuals: list[SegmentResidual] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    info: dict[str, Any] = field(default_factory=dict)  # solver facts: condition number, turns...
+
+    # --- building -------------------------------------------------------
+    def add(self, name: str, value: float, std: float | None = None) -> None:
+        self.parameters[name] = Parameter(name, float(value), None if std is None else float(std))
+
+    def merged(self, other: Calibration) -> Calibration:
+        """This calibration with `other`'s parameters, residuals and warnings added."""
+        return replace(
+            self,
+            parameters={**self.parameters, **other.parameters},
+            residuals=[*self.residuals, *other.residuals],
+            warnings=[*self.warnings, *other.warnings],
+            info={**self.info, **other.info},
+        )
+
+    # --- reading --------------------------------------------------------
+    def value(self, name: str, default: float = 0.0) -> float:
+        p = self.parameters.get(name)
+        return default if p is None else p.value
+
+    def vector(self, sensor: str, kind: str) -> np.ndarray:
+        """(3,) vector of e.g. ("acc", "bias"); absent entries are 0."""
+        return np.array([self.value(f"{sensor}.{kind}.{a}") for a in params.AXES])
+
+    def matrix(self, sensor: str) -> np.ndarray:
+        """(3, 3) M of the sensor (scale errors on the diagonal); absent entries are 0."""
+        return np.array([[self.value(n) for n in row] for row in params.matrix_names(sensor)])
+
+    def gsens(self) -> np.ndarray:
+        """(3, 3) G, (rad/s)/(m/s^2); absent entries are 0."""
+        return np.array([[self.value(n) for n in row] for row in params.gsens_names()])
+
+    # --- applying -------------------------------------------------------
+    def correct(self, acc: np.ndarray, gyr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Invert the error model.
+
+        Parameters
+        ----------
+        acc : (N, 3) measured specific force, m/s^2.
+        gyr : (N, 3) measured angular rate, rad/s.
+
+        Returns
+        -------
+        (acc_true, gyr_true), each (N, 3).
+        """
+        acc_true = np.linalg.solve(
+            np.eye(3) + self.matrix("acc"), (np.asarray(acc) - self.vector("acc", "bias")).T
+        ).T
+        gyr_rhs = np.asarray(gyr) - self.vector("gyr", "bias") - acc_true @ self.gsens().T
+        gyr_true = np.linalg.solve(np.eye(3) + self.matrix("gyr"), gyr_rhs.T).T
+        return acc_true, gyr_true
+
+    def apply(self, recording: Recording) -> Recording:
+        """The recording with calibrated acc and gyr."""
+        acc, gyr = self.correct(recording.acc, recording.gyr)
+        return replace(recording, acc=acc, gyr=gyr)
+
+    # --- JSON -------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "schema_version": JSON_SCHEMA_VERSION,
+            "software_version": __version__,
+            "procedure": self.procedure,
+            "gravity": self.gravity,
+            "parameters": {
+                n: {"value": p.value, "std": p.std, "unit": p.unit}
+                for n, p in sorted(self.parameters.items())
+            },
+            "residuals": [asdict(r) for r in self.residuals],
+            "warnings": list(self.warnings),
+            "info": self.info,
+        }
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> Calibration:
+        version = doc.get("schema_version")
+        if version != JSON_SCHEMA_VERSION:
+            raise ValueError(
+                f"calibration JSON schema_version {version!r} is not supported "
+                f"(this software reads {JSON_SCHEMA_VERSION})"
+            )
+        cal = cls(procedure=doc["procedure"], gravity=float(doc["gravity"]))
+        for name, p in doc["parameters"].items():
+            cal.parameters[name] = Parameter(name, p["value"], p.get("std"), p.get("unit", ""))
+        cal.residuals = [
+            SegmentResidual(r["segment"], r["sensor"], tuple(r["mean"]), tuple(r["std"]), r["n"])
+            for r in doc.get("residuals", [])
+        ]
+        cal.warnings = list(doc.get("warnings", []))
+        cal.info = dict(doc.get("info", {}))
+        return cal

@@ -1,0 +1,74 @@
+"""Canonical parameter names, used by results, archive, exports and reports.
+
+Matrix convention (the archive's): f_meas = (I + M) f_true + b, so
+``acc.misalign.xy`` is element row x, column y of M (how true y leaks into
+measured x) and ``acc.scale.x`` is M[x, x] (K - 1).
+Gyro: w_meas = (I + M_g) w_true + G f_true + b_g; ``gyr.gsens.xy`` is G[x, y]
+in (rad/s)/(m/s^2).
+"""
+
+from __future__ import annotations
+
+import re
+
+AXES = ("x", "y", "z")
+AXIS_INDEX = {a: i for i, a in enumerate(AXES)}
+
+UNITS = {
+    "acc.bias": "m/s^2",
+    "acc.scale": "1",
+    "acc.misalign": "1",
+    "acc.k2": "1/(m/s^2)",
+    "acc.k3": "1/(m/s^2)^2",
+    "acc.noise": "m/s^2",
+    "gyr.bias": "rad/s",
+    "gyr.scale": "1",
+    "gyr.misalign": "1",
+    "gyr.gsens": "(rad/s)/(m/s^2)",
+    "gyr.noise": "rad/s",
+}
+
+_NAME = re.compile(r"^(acc|gyr)\.(bias|scale|misalign|k2|k3|noise|gsens)\.([xyz]{1,2})$")
+
+
+def unit_of(name: str) -> str:
+    """SI unit string of a canonical parameter name."""
+    validate(name)
+    return UNITS[name.rsplit(".", 1)[0]]
+
+
+def validate(name: str) -> str:
+    """Return `name` if it is a canonical parameter name, else raise ValueError."""
+    m = _NAME.match(name)
+    if not m or f"{m[1]}.{m[2]}" not in UNITS:
+        raise ValueError(f"not a canonical parameter name: {name!r}")
+    kind, axes = m[2], m[3]
+    two = kind in ("misalign", "gsens")
+    if two != (len(axes) == 2) or (kind == "misalign" and axes[0] == axes[1]):
+        raise ValueError(f"not a canonical parameter name: {name!r}")
+    return name
+
+
+def bias(sensor: str, axis: str) -> str:
+    return f"{sensor}.bias.{axis}"
+
+
+def matrix_names(sensor: str) -> list[list[str]]:
+    """Names of the elements of I + M: diagonal -> scale, off-diagonal -> misalign.
+
+    Returns a 3x3 nested list, e.g. ``[["acc.scale.x", "acc.misalign.xy", ...], ...]``.
+    """
+    return [
+        [f"{sensor}.scale.{r}" if r == c else f"{sensor}.misalign.{r}{c}" for c in AXES]
+        for r in AXES
+    ]
+
+
+def gsens_names() -> list[list[str]]:
+    """Names of the elements of G, 3x3 nested list."""
+    return [[f"gyr.gsens.{r}{c}" for c in AXES] for r in AXES]
+
+
+ACC_LINEAR = [bias("acc", a) for a in AXES] + [n for row in matrix_names("acc") for n in row]
+GYR_LINEAR = [bias("gyr", a) for a in AXES] + [n for row in matrix_names("gyr") for n in row]
+GSENS = [n for row in gsens_names() for n in row]

@@ -1,0 +1,86 @@
+"""The Recording: one stretch of IMU samples in SI units."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """IMU samples of one file or one segment, in SI units.
+
+    Attributes
+    ----------
+    t : (N,) float, s, strictly increasing.
+    acc : (N, 3) float, specific force, m/s^2.
+    gyr : (N, 3) float, angular rate, rad/s.
+    temp : (N,) float, deg C, or None.
+    reference : named reference channels on the same time base, e.g.
+        ``"table_angle"`` (N,) rad, ``"table_rate"`` (N,) rad/s.
+    label : segment label (``"x_up"``, ``"z_ccw"``, ...) or None.
+    source : where the samples came from (file name, line range), for messages.
+    """
+
+    t: np.ndarray
+    acc: np.ndarray
+    gyr: np.ndarray
+    temp: np.ndarray | None = None
+    reference: dict[str, np.ndarray] = field(default_factory=dict)
+    label: str | None = None
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        where = f" ({self.source})" if self.source else ""
+        n = np.shape(self.t)[0] if np.ndim(self.t) == 1 else -1
+        if n < 0:
+            raise ValueError(f"Recording{where}: t must be 1-D, got shape {np.shape(self.t)}")
+        for name in ("acc", "gyr"):
+            shape = np.shape(getattr(self, name))
+            if shape != (n, 3):
+                raise ValueError(f"Recording{where}: {name} must have shape ({n}, 3), got {shape}")
+        if self.temp is not None and np.shape(self.temp) != (n,):
+            raise ValueError(f"Recording{where}: temp must have shape ({n},), got {np.shape(self.temp)}")
+        for key, values in self.reference.items():
+            if np.shape(values)[:1] != (n,):
+                raise ValueError(
+                    f"Recording{where}: reference channel {key!r} has {np.shape(values)[0]} "
+                    f"samples, expected {n}"
+                )
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def duration(self) -> float:
+        """Time span covered, s."""
+        return float(self.t[-1] - self.t[0]) if len(self) else 0.0
+
+    @property
+    def sample_rate(self) -> float:
+        """Median sample rate, Hz."""
+        if len(self) < 2:
+            raise ValueError(f"Recording ({self.source}): need >= 2 samples for a sample rate")
+        return float(1.0 / np.median(np.diff(self.t)))
+
+    def window(self, start: float, end: float, label: str | None = None) -> Recording:
+        """Samples with start <= t < end (s), as a new Recording."""
+        keep = (self.t >= start) & (self.t < end)
+        return self.select(keep, label=label)
+
+    def select(self, mask_or_index: np.ndarray, label: str | None = None) -> Recording:
+        """Samples picked by a boolean mask or an index array."""
+        idx = mask_or_index
+        return replace(
+            self,
+            t=self.t[idx],
+            acc=self.acc[idx],
+            gyr=self.gyr[idx],
+            temp=None if self.temp is None else self.temp[idx],
+            reference={k: v[idx] for k, v in self.reference.items()},
+            label=self.label if label is None else label,
+        )
+
+    def with_label(self, label: str) -> Recording:
+        return replace(self, label=label)

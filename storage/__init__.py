@@ -1,0 +1,1 @@
+"""The archive: database schema, transactional run archiving, raw-data store, queries."""
