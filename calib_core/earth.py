@@ -73,14 +73,20 @@ def local_gravity(
         return STANDARD_GRAVITY
     if model == "measured":
         if measured is None or not (9.7 < measured < 9.9):
-            raise ValueError(f"measured gravity must be given in m/s^2 (9.7..9.9), got {measured!r}")
+            raise ValueError(
+                f"measured gravity must be given in m/s^2 (9.7..9.9), got {measured!r}"
+            )
         return float(measured)
     if model in ("helmert", "wgs84"):
         if latitude_deg is None or not -90.0 <= latitude_deg <= 90.0:
-            raise ValueError(f"gravity model {model!r} needs a latitude in degrees, got {latitude_deg!r}")
+            raise ValueError(
+                f"gravity model {model!r} needs a latitude in degrees, got {latitude_deg!r}"
+            )
         fn = gravity_helmert if model == "helmert" else gravity_wgs84
         return fn(latitude_deg, height_m)
-    raise ValueError(f"unknown gravity model {model!r}; expected standard, helmert, wgs84 or measured")
+    raise ValueError(
+        f"unknown gravity model {model!r}; expected standard, helmert, wgs84 or measured"
+    )
 
 
 def earth_rate_local(latitude_deg: float) -> np.ndarray:

@@ -41,7 +41,9 @@ class Recording:
             if shape != (n, 3):
                 raise ValueError(f"Recording{where}: {name} must have shape ({n}, 3), got {shape}")
         if self.temp is not None and np.shape(self.temp) != (n,):
-            raise ValueError(f"Recording{where}: temp must have shape ({n},), got {np.shape(self.temp)}")
+            raise ValueError(
+                f"Recording{where}: temp must have shape ({n},), got {np.shape(self.temp)}"
+            )
         for key, values in self.reference.items():
             if np.shape(values)[:1] != (n,):
                 raise ValueError(

@@ -59,7 +59,10 @@ def angle_factor(unit: str) -> float:
 
 
 def to_si(values: np.ndarray, unit: str, quantity: str) -> np.ndarray:
-    """Convert `values` from `unit` to SI for `quantity` in {acceleration, angular_rate, time, angle}."""
+    """Convert `values` from `unit` to SI.
+
+    quantity : "acceleration", "angular_rate", "time" or "angle".
+    """
     factor = {
         "acceleration": acceleration_factor,
         "angular_rate": angular_rate_factor,

@@ -19,7 +19,7 @@ def check_safe_name(value: str, what: str = "serial") -> str:
     """
     if not isinstance(value, str) or not _SAFE_NAME.match(value) or ".." in value:
         raise ValueError(
-            f"invalid {what} {value!r}: expected 1-64 characters of letters, digits, '.', '-', '_', "
-            "not starting with '.' and without '..'"
+            f"invalid {what} {value!r}: expected 1-64 characters of letters, digits, "
+            "'.', '-', '_', not starting with '.' and without '..'"
         )
     return value

@@ -1,0 +1,5 @@
+"""Preprocessing steps: outliers, zero-phase low-pass, clock alignment, segmentation.
+
+Each step is a plain function ``(input, settings) -> (output, StepRecord)``;
+import from the modules: ``outliers``, ``filters``, ``sync``, ``segments``.
+"""

@@ -1,0 +1,1 @@
+"""Solvers, one module per procedure (six_position, multi_position, integral, ...)."""

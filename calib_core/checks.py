@@ -1,0 +1,404 @@
+"""Checks of a calibration against a device type's tolerance profile.
+
+A tolerance profile is data, not code: the lab keeps one file per device type
+(TOML), parsed here into SI limits. Parameter limits are matched to canonical
+names by glob patterns, first match wins, so a specific pattern ("acc.bias.z")
+listed before a general one ("acc.bias.*") overrides it. Residual limits bound
+the per-segment residual statistics (methods.md 3: accel residual std <= 0.002 g,
+gyro residual std <= 0.1 deg/s, residual mean near zero).
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from calib_core import params, units
+from calib_core.calibration import Calibration, CheckResult
+
+# Every canonical name a limit pattern may match.
+ALL_NAMES: list[str] = (
+    params.ACC_LINEAR
+    + params.GYR_LINEAR
+    + params.GSENS
+    + [f"{s}.noise.{a}" for s in ("acc", "gyr") for a in params.AXES]
+    + [f"acc.{k}.{a}" for k in ("k2", "k3") for a in params.AXES]
+)
+
+# Physical dimension of each parameter family (what a limit's unit must be).
+_FAMILY_DIMENSION = {
+    "acc.bias": "acceleration",
+    "acc.noise": "acceleration",
+    "acc.scale": "dimensionless",
+    "acc.misalign": "dimensionless",
+    "acc.k2": "1/acceleration",
+    "acc.k3": "1/acceleration^2",
+    "gyr.bias": "angular rate",
+    "gyr.noise": "angular rate",
+    "gyr.scale": "dimensionless",
+    "gyr.misalign": "dimensionless",
+    "gyr.gsens": "angular rate/acceleration",
+}
+_DIMENSIONLESS = {"1": 1.0, "": 1.0, "%": 1e-2, "ppm": 1e-6}
+
+RESIDUAL_KEYS = ("acc_std", "gyr_std", "acc_mean", "gyr_mean")
+# methods.md 3; a residual mean as large as the allowed noise means the model misses something.
+DEFAULT_RESIDUAL_LIMITS: dict[str, float] = {
+    "acc_std": 0.002 * units.STANDARD_GRAVITY,
+    "gyr_std": 0.1 * units.DEG,
+    "acc_mean": 0.002 * units.STANDARD_GRAVITY,
+    "gyr_mean": 0.1 * units.DEG,
+}
+_RESIDUAL_DIMENSION = {"acc": "acceleration", "gyr": "angular rate"}
+
+
+def _strip_parens(text: str) -> str:
+    text = text.strip()
+    if text.startswith("(") and text.endswith(")") and text.count("(") == 1:
+        return text[1:-1].strip()
+    return text
+
+
+def parse_unit(unit: str) -> tuple[str, float]:
+    """Dimension and SI factor of a lab unit string.
+
+    Understands dimensionless ("1", "%", "ppm"), the acceleration and angular
+    rate units of calib_core.units, g-sensitivity "<rate>/<acceleration>"
+    (e.g. "(deg/s)/g", "deg/s/g", "(rad/s)/(m/s^2)") and "1/<acceleration>"
+    and "1/<acceleration>^2" for the nonlinear terms.
+
+    Returns
+    -------
+    (dimension name, factor): value_SI = value * factor.
+    """
+    u = unit.strip()
+    if u in _DIMENSIONLESS:
+        return "dimensionless", _DIMENSIONLESS[u]
+    if u in units.ACCELERATION_UNITS:
+        return "acceleration", units.ACCELERATION_UNITS[u]
+    if u in units.ANGULAR_RATE_UNITS:
+        return "angular rate", units.ANGULAR_RATE_UNITS[u]
+    # A ratio: try every '/' as the main division ("deg/s/g", "(rad/s)/(m/s^2)").
+    for i, ch in enumerate(u):
+        if ch != "/":
+            continue
+        num, den = _strip_parens(u[:i]), u[i + 1 :].strip()
+        if num == "1":
+            base = _strip_parens(den[:-2]) if den.endswith("^2") else ""
+            if base in units.ACCELERATION_UNITS:  # "1/g^2", "1/(m/s^2)^2"
+                return "1/acceleration^2", 1.0 / units.ACCELERATION_UNITS[base] ** 2
+            if _strip_parens(den) in units.ACCELERATION_UNITS:  # "1/g", "1/(m/s^2)"
+                return "1/acceleration", 1.0 / units.ACCELERATION_UNITS[_strip_parens(den)]
+        den_unit = _strip_parens(den)
+        if num in units.ANGULAR_RATE_UNITS and den_unit in units.ACCELERATION_UNITS:
+            factor = units.ANGULAR_RATE_UNITS[num] / units.ACCELERATION_UNITS[den_unit]
+            return "angular rate/acceleration", factor
+    raise ValueError(
+        f"unknown unit {unit!r}; expected 1, %, ppm, an acceleration unit "
+        f"({', '.join(units.ACCELERATION_UNITS)}), an angular rate unit "
+        f"({', '.join(units.ANGULAR_RATE_UNITS)}) or a ratio like (deg/s)/g"
+    )
+
+
+_SI_UNIT = {
+    "dimensionless": "1",
+    "acceleration": "m/s^2",
+    "angular rate": "rad/s",
+    "angular rate/acceleration": "(rad/s)/(m/s^2)",
+    "1/acceleration": "1/(m/s^2)",
+    "1/acceleration^2": "1/(m/s^2)^2",
+}
+
+
+def _family(name: str) -> str:
+    return name.rsplit(".", 1)[0]
+
+
+@dataclass(frozen=True)
+class ParameterLimit:
+    """Allowed range of the parameters whose canonical name matches `pattern`.
+
+    pattern : fnmatch glob on canonical names, e.g. "gyr.scale.*", "acc.bias.z".
+    low, high : SI bounds (inclusive); -inf / inf for a one-sided limit.
+    """
+
+    pattern: str
+    low: float
+    high: float
+
+    def matches(self, name: str) -> bool:
+        return fnmatch.fnmatchcase(name, self.pattern)
+
+    @property
+    def limit(self) -> float:
+        """The number a report prints: |bound| of a symmetric limit, else high (or low)."""
+        return self.high if math.isfinite(self.high) else self.low
+
+
+@dataclass
+class ToleranceProfile:
+    """Tolerances of one device type, SI units.
+
+    residual_limits : "acc_std", "gyr_std", "acc_mean", "gyr_mean" in m/s^2
+        and rad/s; missing keys take DEFAULT_RESIDUAL_LIMITS.
+    """
+
+    name: str
+    version: str
+    device_model: str
+    parameter_limits: list[ParameterLimit]
+    residual_limits: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.residual_limits = {**DEFAULT_RESIDUAL_LIMITS, **self.residual_limits}
+
+    def limit_for(self, name: str) -> ParameterLimit | None:
+        """The first limit whose pattern matches `name`, or None."""
+        return next((lim for lim in self.parameter_limits if lim.matches(name)), None)
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> ToleranceProfile:
+        """Build a profile from a parsed TOML document (lab units, explicit unit per limit).
+
+        Each ``[[limits]]`` entry has ``pattern``, ``unit`` and either ``bound``
+        (symmetric, -bound .. +bound) or ``low`` and/or ``high`` (a missing side
+        is unbounded). Residual limits are ``{value, unit}`` tables. Example
+        (the MPU-6000 paper's tolerances)::
+
+            name = "mpu6000"
+            version = "1"
+            device_model = "MPU-6000"
+
+            [residual_limits]
+            acc_std = { value = 2.0, unit = "mg" }
+            gyr_std = { value = 0.1, unit = "deg/s" }
+
+            [[limits]]
+            pattern = "gyr.scale.*"
+            bound = 0.03
+            unit = "1"
+            [[limits]]
+            pattern = "gyr.misalign.*"
+            bound = 0.02
+            unit = "1"
+            [[limits]]
+            pattern = "gyr.bias.*"
+            bound = 20
+            unit = "deg/s"
+            [[limits]]
+            pattern = "gyr.gsens.*"
+            bound = 0.1
+            unit = "(deg/s)/g"
+            [[limits]]
+            pattern = "gyr.noise.*"
+            high = 0.05
+            unit = "deg/s"
+            [[limits]]
+            pattern = "acc.scale.*"
+            bound = 0.03
+            unit = "1"
+            [[limits]]
+            pattern = "acc.misalign.*"
+            bound = 0.02
+            unit = "1"
+            [[limits]]
+            pattern = "acc.bias.z"     # before acc.bias.*: first match wins
+            bound = 0.8
+            unit = "m/s^2"
+            [[limits]]
+            pattern = "acc.bias.*"
+            bound = 0.5
+            unit = "m/s^2"
+
+        Raises
+        ------
+        ValueError naming the field (e.g. ``limits[3].unit``) and what was expected.
+        """
+        if not isinstance(doc, dict):
+            raise ValueError(f"tolerance profile: expected a table, got {type(doc).__name__}")
+        known = {"name", "version", "device_model", "limits", "residual_limits"}
+        unknown = sorted(set(doc) - known)
+        if unknown:
+            raise ValueError(
+                f"tolerance profile: unknown field(s) {unknown}; expected {sorted(known)}"
+            )
+        header = {}
+        for key in ("name", "version", "device_model"):
+            value = doc.get(key)
+            if isinstance(value, bool) or not isinstance(value, str | int | float) or value == "":
+                raise ValueError(f"tolerance profile field {key!r}: expected a non-empty string")
+            header[key] = str(value)
+        raw_limits = doc.get("limits", [])
+        if not isinstance(raw_limits, list):
+            raise ValueError("tolerance profile field 'limits': expected an array of tables")
+        limits = [_parse_limit(entry, f"limits[{i}]") for i, entry in enumerate(raw_limits)]
+        raw_res = doc.get("residual_limits", {})
+        if not isinstance(raw_res, dict):
+            raise ValueError("tolerance profile field 'residual_limits': expected a table")
+        residual: dict[str, float] = {}
+        for key, entry in raw_res.items():
+            where = f"residual_limits.{key}"
+            if key not in RESIDUAL_KEYS:
+                raise ValueError(f"{where}: unknown key; expected one of {list(RESIDUAL_KEYS)}")
+            value, factor = _value_in_si(entry, where, _RESIDUAL_DIMENSION[key.split("_")[0]])
+            if value <= 0:
+                raise ValueError(f"{where}.value: expected a positive number, got {value}")
+            residual[key] = value * factor
+        return cls(parameter_limits=limits, residual_limits=residual, **header)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The profile as a TOML-able document in SI units (from_dict reads it back)."""
+        limits = []
+        for lim in self.parameter_limits:
+            dims = {_FAMILY_DIMENSION[_family(n)] for n in ALL_NAMES if lim.matches(n)}
+            entry: dict[str, Any] = {"pattern": lim.pattern, "unit": _SI_UNIT[dims.pop()]}
+            if math.isfinite(lim.low):
+                entry["low"] = lim.low
+            if math.isfinite(lim.high):
+                entry["high"] = lim.high
+            limits.append(entry)
+        residual = {
+            key: {"value": value, "unit": _SI_UNIT[_RESIDUAL_DIMENSION[key.split("_")[0]]]}
+            for key, value in self.residual_limits.items()
+        }
+        return {
+            "name": self.name,
+            "version": self.version,
+            "device_model": self.device_model,
+            "limits": limits,
+            "residual_limits": residual,
+        }
+
+
+def _number(entry: dict[str, Any], key: str, where: str) -> float:
+    value = entry[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
+        raise ValueError(f"{where}.{key}: expected a number, got {value!r}")
+    return float(value)
+
+
+def _value_in_si(entry: Any, where: str, dimension: str) -> tuple[float, float]:
+    if not isinstance(entry, dict) or set(entry) != {"value", "unit"}:
+        raise ValueError(f"{where}: expected a table {{ value = <number>, unit = <string> }}")
+    unit = entry["unit"]
+    if not isinstance(unit, str):
+        raise ValueError(f"{where}.unit: expected a string, got {unit!r}")
+    try:
+        dim, factor = parse_unit(unit)
+    except ValueError as exc:
+        raise ValueError(f"{where}.unit: {exc}") from None
+    if dim != dimension:
+        raise ValueError(
+            f"{where}.unit: {unit!r} is a unit of {dim}, expected a unit of {dimension}"
+        )
+    return _number(entry, "value", where), factor
+
+
+def _parse_limit(entry: Any, where: str) -> ParameterLimit:
+    if not isinstance(entry, dict):
+        raise ValueError(f"{where}: expected a table with pattern, unit and bound or low/high")
+    allowed = {"pattern", "unit", "bound", "low", "high"}
+    unknown = sorted(set(entry) - allowed)
+    if unknown:
+        raise ValueError(f"{where}: unknown field(s) {unknown}; expected {sorted(allowed)}")
+    pattern = entry.get("pattern")
+    if not isinstance(pattern, str) or not pattern:
+        raise ValueError(f"{where}.pattern: expected a glob on parameter names like 'gyr.scale.*'")
+    matched = [n for n in ALL_NAMES if fnmatch.fnmatchcase(n, pattern)]
+    if not matched:
+        raise ValueError(f"{where}.pattern: {pattern!r} matches no canonical parameter name")
+    dims = {_FAMILY_DIMENSION[_family(n)] for n in matched}
+    if len(dims) > 1:
+        raise ValueError(
+            f"{where}.pattern: {pattern!r} matches parameters of different units ({sorted(dims)}); "
+            "split it into one limit per kind"
+        )
+    if "unit" not in entry:
+        raise ValueError(f"{where}.unit: missing; the unit of the bounds must be given")
+    unit = entry["unit"]
+    if not isinstance(unit, str):
+        raise ValueError(f"{where}.unit: expected a string, got {unit!r}")
+    try:
+        dim, factor = parse_unit(unit)
+    except ValueError as exc:
+        raise ValueError(f"{where}.unit: {exc}") from None
+    expected = dims.pop()
+    if dim != expected:
+        raise ValueError(
+            f"{where}.unit: {unit!r} is a unit of {dim}, but {pattern!r} needs a unit of {expected}"
+        )
+    if "bound" in entry:
+        if "low" in entry or "high" in entry:
+            raise ValueError(f"{where}: give either bound or low/high, not both")
+        bound = abs(_number(entry, "bound", where))
+        low, high = -bound, bound
+    elif "low" in entry or "high" in entry:
+        low = _number(entry, "low", where) if "low" in entry else -math.inf
+        high = _number(entry, "high", where) if "high" in entry else math.inf
+        if low > high:
+            raise ValueError(f"{where}: low ({low}) is above high ({high})")
+    else:
+        raise ValueError(f"{where}: missing bound (or low / high)")
+    return ParameterLimit(pattern, low * factor, high * factor)
+
+
+def check_parameters(cal: Calibration, profile: ToleranceProfile) -> list[CheckResult]:
+    """Each parameter against the first limit that matches its name.
+
+    Parameters without a matching limit are not checked.
+
+    Returns
+    -------
+    CheckResult "param:<canonical name>" with the value, limit = |bound| of a
+    symmetric limit (else high), passed = low <= value <= high.
+    """
+    out = []
+    for name, p in cal.parameters.items():
+        lim = profile.limit_for(name)
+        if lim is None:
+            continue
+        out.append(
+            CheckResult(
+                name=f"param:{name}",
+                value=p.value,
+                limit=lim.limit,
+                passed=bool(lim.low <= p.value <= lim.high),
+                detail=f"allowed {lim.low:.6g} .. {lim.high:.6g} {params.unit_of(name)}",
+            )
+        )
+    return out
+
+
+def check_residuals(cal: Calibration, profile: ToleranceProfile) -> list[CheckResult]:
+    """Residual std and |mean| of every segment and sensor, worst axis, against the limits.
+
+    Returns
+    -------
+    CheckResult "residual:<segment>:<sensor>:std" and "...:mean" (SI values).
+    """
+    out = []
+    for r in cal.residuals:
+        unit = params.UNITS[f"{r.sensor}.bias"]
+        for stat, values in (("std", r.std), ("mean", [abs(v) for v in r.mean])):
+            limit = profile.residual_limits.get(f"{r.sensor}_{stat}")
+            if limit is None:
+                continue
+            worst = int(max(range(3), key=lambda i, v=values: v[i]))
+            value = float(values[worst])
+            out.append(
+                CheckResult(
+                    name=f"residual:{r.segment}:{r.sensor}:{stat}",
+                    value=value,
+                    limit=limit,
+                    passed=bool(value <= limit),
+                    detail=f"worst axis {params.AXES[worst]}, {unit}, n={r.n}",
+                )
+            )
+    return out
+
+
+def verdict(checks: list[CheckResult]) -> str:
+    """ "pass" if every check passed, else "fail"."""
+    return "pass" if all(c.passed for c in checks) else "fail"

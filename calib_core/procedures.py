@@ -1,0 +1,275 @@
+"""Calibration procedures: from labelled segments to a Calibration.
+
+A procedure takes the segments of one lab run (Recordings keyed by label), the
+local gravity and its settings, and returns a Calibration with every parameter's
+standard uncertainty, residuals per segment and solver facts in `info`.
+
+Procedures
+----------
+six_position
+    Statics only (x_up, x_dn, y_up, y_dn, z_up, z_dn): accelerometer bias,
+    scale and misalignment (12), gyro bias and g-sensitivity (12), noise.
+six_position_integral
+    The statics plus n-turn ccw/cw rotations about each axis (x_ccw, x_cw, ...):
+    adds gyro scale and misalignment by the integral method (MPU-6000 paper).
+
+Settings
+--------
+turns : int or None (infer from the data), integral method only.
+gyro_range_dps : gyro full scale, deg/s (default 2000).
+accel_solver : "least_squares" (default) or "closed_form" (methods.md 2.1).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from calib_core import params
+from calib_core.calibration import Calibration, SegmentResidual, StepRecord
+from calib_core.recording import Recording
+from calib_core.solvers.integral import ROTATION_LABELS, solve_integral
+from calib_core.solvers.multi_position import solve_accel_linear, solve_gyro_static
+from calib_core.solvers.six_position import (
+    STATIC_LABELS,
+    accel_closed_form,
+    accel_closed_form_std,
+    axis_vector,
+)
+from calib_core.stats import ChannelStats, channel_stats, largest_std
+from calib_core.units import DEG
+
+DEFAULT_SETTINGS: dict[str, Any] = {
+    "turns": None,
+    "gyro_range_dps": 2000.0,
+    "accel_solver": "least_squares",
+}
+ACCEL_SOLVERS = ("least_squares", "closed_form")
+
+
+def _settings(settings: dict[str, Any] | None) -> dict[str, Any]:
+    """The solver's settings with defaults filled in, validated.
+
+    Other keys (preprocessing settings of the same run) are ignored.
+    """
+    given = dict(settings or {})
+    merged = {**DEFAULT_SETTINGS, **{k: v for k, v in given.items() if k in DEFAULT_SETTINGS}}
+    if merged["accel_solver"] not in ACCEL_SOLVERS:
+        raise ValueError(
+            f"settings.accel_solver: {merged['accel_solver']!r}; "
+            f"expected one of {list(ACCEL_SOLVERS)}"
+        )
+    rng = merged["gyro_range_dps"]
+    if not isinstance(rng, int | float) or isinstance(rng, bool) or rng <= 0:
+        raise ValueError(
+            f"settings.gyro_range_dps: expected a positive number (deg/s), got {rng!r}"
+        )
+    turns = merged["turns"]
+    if turns is not None and (isinstance(turns, bool) or not isinstance(turns, int) or turns < 1):
+        raise ValueError(f"settings.turns: expected a positive whole number or none, got {turns!r}")
+    return merged
+
+
+def _require(segments: dict[str, Recording], labels: tuple[str, ...], procedure: str) -> None:
+    missing = [label for label in labels if label not in segments]
+    if missing:
+        raise ValueError(
+            f"procedure {procedure!r}: missing segments {', '.join(missing)} "
+            f"(needs {', '.join(labels)})"
+        )
+
+
+def _static_stats(
+    segments: dict[str, Recording],
+) -> tuple[dict[str, ChannelStats], dict[str, ChannelStats]]:
+    acc: dict[str, ChannelStats] = {}
+    gyr: dict[str, ChannelStats] = {}
+    for label in STATIC_LABELS:
+        rec = segments[label]
+        try:
+            acc[label] = channel_stats(rec.acc)
+            gyr[label] = channel_stats(rec.gyr)
+        except ValueError as exc:
+            raise ValueError(f"segment {label} ({rec.source or 'no source'}): {exc}") from None
+    return acc, gyr
+
+
+def _residual(label: str, sensor: str, samples: np.ndarray, model: np.ndarray) -> SegmentResidual:
+    r = samples - model
+    return SegmentResidual(
+        segment=label,
+        sensor=sensor,
+        mean=tuple(float(v) for v in r.mean(axis=0)),
+        std=tuple(float(v) for v in r.std(axis=0, ddof=1)),
+        n=int(r.shape[0]),
+    )
+
+
+def _solve_statics(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any], procedure: str
+) -> tuple[Calibration, dict[str, ChannelStats]]:
+    """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals."""
+    acc, gyr = _static_stats(segments)
+    f_true = np.array([axis_vector(label, gravity) for label in STATIC_LABELS])  # (6, 3)
+
+    def stack(stats: dict[str, ChannelStats], field: str) -> np.ndarray:
+        return np.array([getattr(stats[label], field) for label in STATIC_LABELS])
+
+    cal = Calibration(procedure=procedure, gravity=gravity)
+    acc_fit = solve_accel_linear(f_true, stack(acc, "mean"), stack(acc, "sem"))
+    if settings["accel_solver"] == "closed_form":
+        values = accel_closed_form({k: s.mean for k, s in acc.items()}, gravity)
+        stds = accel_closed_form_std({k: s.sem for k, s in acc.items()}, gravity)
+    else:
+        values, stds = acc_fit.params, acc_fit.std
+    for name in params.ACC_LINEAR:
+        cal.add(name, values[name], stds[name])
+    gyr_fit = solve_gyro_static(f_true, stack(gyr, "mean"), stack(gyr, "sem"))
+    for name in gyr_fit.names:
+        cal.add(name, gyr_fit.params[name], gyr_fit.std[name])
+
+    # Noise: the paper's figure, the largest per-position std of each channel.
+    for sensor, stats in (("acc", acc), ("gyr", gyr)):
+        value, u = largest_std(stack(stats, "std"), stack(stats, "n_eff"))
+        for i, a in enumerate(params.AXES):
+            cal.add(f"{sensor}.noise.{a}", value[i], u[i])
+
+    for label in STATIC_LABELS:
+        rec = segments[label]
+        f = np.broadcast_to(axis_vector(label, gravity), rec.acc.shape)
+        cal.residuals.append(_residual(label, "acc", rec.acc, _acc_model(cal, f)))
+        cal.residuals.append(_residual(label, "gyr", rec.gyr, _gyr_static_model(cal, f)))
+
+    cal.info["condition_number"] = acc_fit.condition_number
+    cal.info["accel_solver"] = settings["accel_solver"]
+    cal.info["acc_fit_chi2"] = [float(v) for v in acc_fit.chi2]
+    cal.info["gyr_fit_chi2"] = [float(v) for v in gyr_fit.chi2]
+    cal.info["fit_dof_per_axis"] = len(STATIC_LABELS) - 4
+    cal.info["sample_counts"] = {label: len(segments[label]) for label in STATIC_LABELS}
+    cal.info["effective_sample_counts_min"] = {
+        label: float(min(acc[label].n_eff.min(), gyr[label].n_eff.min())) for label in STATIC_LABELS
+    }
+    return cal, gyr
+
+
+def _acc_model(cal: Calibration, f_true: np.ndarray) -> np.ndarray:
+    return f_true @ (np.eye(3) + cal.matrix("acc")).T + cal.vector("acc", "bias")
+
+
+def _gyr_static_model(cal: Calibration, f_true: np.ndarray) -> np.ndarray:
+    return f_true @ cal.gsens().T + cal.vector("gyr", "bias")
+
+
+def solve_six_position(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Six static positions: accelerometer 12, gyro bias and g-sensitivity, noise.
+
+    Parameters
+    ----------
+    segments : label -> Recording; needs x_up, x_dn, y_up, y_dn, z_up, z_dn.
+    gravity : local gravity, m/s^2.
+    settings : see the module docstring.
+    """
+    merged = _settings(settings)
+    _require(segments, STATIC_LABELS, "six_position")
+    cal, _ = _solve_statics(segments, gravity, merged, "six_position")
+    return cal
+
+
+def solve_six_position_integral(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Six static positions plus the integral method for gyro scale and misalignment.
+
+    Parameters
+    ----------
+    segments : label -> Recording; the six statics and x_ccw, x_cw, y_ccw,
+        y_cw, z_ccw, z_cw.
+    gravity : local gravity, m/s^2.
+    settings : see the module docstring.
+    """
+    merged = _settings(settings)
+    _require(segments, STATIC_LABELS + ROTATION_LABELS, "six_position_integral")
+    cal, gyr = _solve_statics(segments, gravity, merged, "six_position_integral")
+    rotations = {label: segments[label] for label in ROTATION_LABELS}
+    integral = solve_integral(
+        rotations,
+        {label: s.mean for label, s in gyr.items()},
+        {label: s.sem for label, s in gyr.items()},
+        merged["gyro_range_dps"] * DEG,
+        merged["turns"],
+        # The static record of the same orientation gives the noise the integral collects.
+        noise_std={label: s.std for label, s in gyr.items()},
+        gravity=gravity,
+    )
+    cal = cal.merged(integral)
+    # merged() takes the integral's info on top; keep this procedure's name.
+    cal.procedure = "six_position_integral"
+    # The accelerometer sees g along the rotation axis throughout a rotation.
+    for label in ROTATION_LABELS:
+        rec = segments[label]
+        f = np.broadcast_to(axis_vector(label, gravity), rec.acc.shape)
+        cal.residuals.append(_residual(label, "acc", rec.acc, _acc_model(cal, f)))
+        cal.info["sample_counts"][label] = len(rec)
+    return cal
+
+
+PROCEDURES: dict[str, Callable[[dict[str, Recording], float, dict[str, Any]], Calibration]] = {
+    "six_position": solve_six_position,
+    "six_position_integral": solve_six_position_integral,
+}
+
+
+def solve(
+    procedure: str, segments: dict[str, Recording], gravity: float, settings: dict[str, Any]
+) -> Calibration:
+    """Run the named procedure on labelled segments.
+
+    Parameters
+    ----------
+    procedure : a key of PROCEDURES.
+    segments : label -> Recording (SI units).
+    gravity : local gravity, m/s^2.
+    settings : procedure settings (see the module docstring).
+    """
+    try:
+        fn = PROCEDURES[procedure]
+    except KeyError:
+        raise ValueError(
+            f"unknown procedure {procedure!r}; expected one of {sorted(PROCEDURES)}"
+        ) from None
+    if not (9.7 < gravity < 9.9):
+        raise ValueError(f"gravity must be the local value in m/s^2 (9.7..9.9), got {gravity!r}")
+    return fn(segments, gravity, settings)
+
+
+def solve_step(
+    segments: dict[str, Recording], settings: dict[str, Any]
+) -> tuple[Calibration, StepRecord]:
+    """Pipeline step: settings {"procedure", "gravity", ...procedure settings}.
+
+    Returns the Calibration and the StepRecord (settings used, sample counts,
+    condition number) for the archive.
+    """
+    procedure = settings.get("procedure")
+    if procedure is None or "gravity" not in settings:
+        raise ValueError("solve step: settings need 'procedure' and 'gravity'")
+    proc_settings = {k: v for k, v in settings.items() if k not in ("procedure", "gravity")}
+    cal = solve(procedure, segments, float(settings["gravity"]), proc_settings)
+    used = _settings(proc_settings)
+    record = StepRecord(
+        name=f"solve:{procedure}",
+        settings={"procedure": procedure, "gravity": float(settings["gravity"]), **used},
+        statistics={
+            "parameters": len(cal.parameters),
+            "segments": len(segments),
+            "sample_counts": cal.info.get("sample_counts", {}),
+            "condition_number": cal.info.get("condition_number"),
+            "turns": cal.info.get("turns"),
+            "warnings": len(cal.warnings),
+        },
+    )
+    return cal, record

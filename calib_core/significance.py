@@ -1,0 +1,315 @@
+"""Ordinary least squares with significance statistics, and stepwise model reduction.
+
+Used wherever the product has to decide which terms a model needs: the
+centrifuge high-g model (methods.md 2.8) and the temperature fits.
+
+For n observations and p columns (k regressors plus, usually, a constant):
+
+    Q = sum (y - y_hat)^2                  residual sum of squares
+    U = sum (y_hat - mean(y))^2            regression sum of squares
+    R^2 = U / (U + Q)
+    F = (U / k) / (Q / (n - k - 1))        compared with F(k, n - k - 1) at 1 - alpha
+    t_j = beta_j / std_j                   compared with t(n - k - 1) at 1 - alpha/2
+
+Without a constant column the sums are taken about zero instead of the mean
+and the degrees of freedom are k = p, n - p (the usual regression-through-the-
+origin convention).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+CONST = "const"
+# Columns are scaled to unit norm before the decomposition; a design whose
+# scaled condition number exceeds this cannot give trustworthy t values.
+MAX_CONDITION = 1e10
+
+
+@dataclass(frozen=True, eq=False)
+class OlsFit:
+    """One least-squares fit with its significance statistics.
+
+    Attributes
+    ----------
+    names : (p,) term names, in column order.
+    coef, std, t, p : (p,) coefficients, standard errors, t values, two-sided p values.
+    cov : (p, p) coefficient covariance, sigma^2 (X^T X)^-1.
+    residuals : (n,) y - X coef.
+    n, k, dof : observations, regressors (constant not counted), n - k - 1.
+    Q, U, r2 : residual and regression sums of squares, coefficient of determination.
+    F, F_crit, F_p : model F statistic, its critical value F(k, dof) at 1 - alpha, p value.
+    t_crit : two-sided critical t(dof) at alpha.
+    alpha : significance level used.
+    has_const : whether a constant column (named ``"const"``) is in the model.
+    """
+
+    names: tuple[str, ...]
+    coef: np.ndarray
+    std: np.ndarray
+    t: np.ndarray
+    p: np.ndarray
+    cov: np.ndarray
+    residuals: np.ndarray
+    n: int
+    k: int
+    dof: int
+    Q: float
+    U: float
+    r2: float
+    F: float
+    F_crit: float
+    F_p: float
+    t_crit: float
+    alpha: float
+    has_const: bool
+
+    @property
+    def sigma(self) -> float:
+        """Residual standard deviation sqrt(Q / dof), in y's unit."""
+        return float(np.sqrt(self.Q / self.dof))
+
+    @property
+    def significant(self) -> np.ndarray:
+        """(p,) bool, |t| > t_crit."""
+        return np.abs(self.t) > self.t_crit
+
+    @property
+    def model_significant(self) -> bool:
+        """Whether the model as a whole passes the F test."""
+        return bool(self.F_crit < self.F)
+
+    def coefficient(self, name: str) -> float:
+        return float(self.coef[self._index(name)])
+
+    def _index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"term {name!r} is not in the model {list(self.names)}") from None
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """X (m, p) in the same column order -> (m,) fitted values."""
+        return np.asarray(X, dtype=float) @ self.coef
+
+    def table(self) -> list[dict[str, float | str]]:
+        """One row per term: name, coef, std, t, p."""
+        return [
+            {"name": n, "coef": float(c), "std": float(s), "t": float(t), "p": float(p)}
+            for n, c, s, t, p in zip(self.names, self.coef, self.std, self.t, self.p, strict=True)
+        ]
+
+
+def _check_inputs(
+    X: np.ndarray, y: np.ndarray, names: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    X = np.asarray(X, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if X.ndim != 2:
+        raise ValueError(f"X must be 2-D (n, p), got shape {X.shape}")
+    if y.shape != (X.shape[0],):
+        raise ValueError(f"y must have shape ({X.shape[0]},) to match X, got {y.shape}")
+    names = tuple(names)
+    if len(names) != X.shape[1]:
+        raise ValueError(f"{len(names)} names given for {X.shape[1]} columns of X")
+    if len(set(names)) != len(names):
+        raise ValueError(f"term names must be unique, got {list(names)}")
+    bad_cols = [names[j] for j in np.flatnonzero(~np.isfinite(X).all(axis=0))]
+    if bad_cols:
+        raise ValueError(f"X has non-finite values in columns {bad_cols}")
+    if not np.isfinite(y).all():
+        raise ValueError(f"y has non-finite values at rows {np.flatnonzero(~np.isfinite(y))[:10]}")
+    return X, y, names
+
+
+def fit_ols(
+    X: np.ndarray,
+    y: np.ndarray,
+    names: Sequence[str],
+    *,
+    alpha: float = 0.05,
+    add_constant: bool = False,
+) -> OlsFit:
+    """Least-squares fit of y on the columns of X, with F and t statistics.
+
+    Parameters
+    ----------
+    X : (n, p) design matrix. A column named ``"const"`` is the constant term
+        (it must hold one repeated non-zero value).
+    y : (n,) observations.
+    names : (p,) term names.
+    alpha : significance level of the F and t critical values.
+    add_constant : prepend a column of ones named ``"const"``.
+
+    Returns
+    -------
+    OlsFit
+
+    Raises
+    ------
+    ValueError
+        on bad shapes, non-finite values, too few observations (n <= p), or a
+        (nearly) rank-deficient design; the message names the dependent columns.
+    """
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+    X, y, names = _check_inputs(X, y, names)
+    if add_constant:
+        if CONST in names:
+            raise ValueError(f"add_constant=True but a column is already named {CONST!r}")
+        X = np.column_stack([np.ones(X.shape[0]), X])
+        names = (CONST, *names)
+    n, p = X.shape
+    has_const = CONST in names
+    if has_const:
+        c = X[:, names.index(CONST)]
+        if c[0] == 0.0 or not np.all(c == c[0]):
+            raise ValueError(f"column {CONST!r} must hold one repeated non-zero value")
+    k = p - 1 if has_const else p
+    dof = n - p
+    if dof < 1:
+        raise ValueError(f"need more observations than terms: n = {n}, terms = {p} ({list(names)})")
+
+    # Unit-norm columns make the singular values a fair rank test across terms
+    # of very different magnitude (a, a^2, a^3 at 200 m/s^2).
+    norms = np.linalg.norm(X, axis=0)
+    zero = [names[j] for j in np.flatnonzero(norms == 0.0)]
+    if zero:
+        raise ValueError(f"design matrix is rank deficient: columns {zero} are all zero")
+    Us, s, Vt = np.linalg.svd(X / norms, full_matrices=False)
+    condition = s[0] / s[-1] if s[-1] > 0 else np.inf
+    if condition > MAX_CONDITION:
+        null = np.abs(Vt[-1])
+        involved = [names[j] for j in np.flatnonzero(null > 0.1 * null.max())]
+        raise ValueError(
+            f"design matrix is rank deficient (scaled condition number {condition:.3g}): "
+            f"columns {involved} are (nearly) linearly dependent; drop one of them"
+        )
+    coef = (Vt.T @ ((Us.T @ y) / s)) / norms
+    xtx_inv = (Vt.T / s**2) @ Vt / np.outer(norms, norms)
+
+    fitted = X @ coef
+    residuals = y - fitted
+    Q = float(residuals @ residuals)
+    centre = y.mean() if has_const else 0.0
+    U = float(np.sum((fitted - centre) ** 2))
+    total = U + Q
+    r2 = U / total if total > 0 else np.nan
+
+    sigma2 = Q / dof
+    std = np.sqrt(sigma2 * np.diag(xtx_inv))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = coef / std
+        F = (U / k) / sigma2 if k > 0 else np.nan
+    pval = 2.0 * stats.t.sf(np.abs(t), dof)
+    F_crit = float(stats.f.ppf(1.0 - alpha, k, dof)) if k > 0 else np.nan
+    F_p = float(stats.f.sf(F, k, dof)) if k > 0 else np.nan
+    return OlsFit(
+        names=names,
+        coef=coef,
+        std=std,
+        t=t,
+        p=pval,
+        cov=sigma2 * xtx_inv,
+        residuals=residuals,
+        n=n,
+        k=k,
+        dof=dof,
+        Q=Q,
+        U=U,
+        r2=float(r2),
+        F=float(F),
+        F_crit=F_crit,
+        F_p=F_p,
+        t_crit=float(stats.t.ppf(1.0 - alpha / 2.0, dof)),
+        alpha=alpha,
+        has_const=has_const,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class RemovalStep:
+    """One removal of the stepwise reduction.
+
+    `fit` is the model the term was removed from (its F, R^2 and all t values);
+    `t` and `p` are the removed term's statistics in that fit.
+    """
+
+    removed: str
+    t: float
+    p: float
+    fit: OlsFit
+
+
+@dataclass(frozen=True, eq=False)
+class Reduction:
+    """Result of `stepwise_reduce`: the full fit, the final fit, and the removals in order."""
+
+    full: OlsFit
+    final: OlsFit
+    steps: tuple[RemovalStep, ...]
+
+    @property
+    def kept(self) -> tuple[str, ...]:
+        return self.final.names
+
+    @property
+    def removed(self) -> tuple[str, ...]:
+        return tuple(s.removed for s in self.steps)
+
+
+def stepwise_reduce(
+    X: np.ndarray,
+    y: np.ndarray,
+    names: Sequence[str],
+    alpha: float = 0.05,
+    keep: Sequence[str] = (CONST,),
+    *,
+    add_constant: bool = False,
+) -> Reduction:
+    """Backward elimination: drop the least significant term and refit until all are significant.
+
+    At each round the term (outside `keep`) with the smallest |t| is removed if
+    |t| < t_crit(dof) at `alpha` (two-sided); the model is refitted and the
+    round repeats. At least one column always stays.
+
+    Parameters
+    ----------
+    X, y, names, add_constant : as `fit_ols`.
+    alpha : significance level of the coefficient t tests (and the reported F test).
+    keep : terms never removed (default the constant). Names absent from the
+        model raise, except ``"const"`` when the model has no constant.
+
+    Returns
+    -------
+    Reduction
+    """
+    X, y, names = _check_inputs(X, y, names)
+    if add_constant:
+        X = np.column_stack([np.ones(X.shape[0]), X])
+        names = (CONST, *names)
+    unknown = set(keep) - set(names) - {CONST}
+    if unknown:
+        raise ValueError(f"keep names {sorted(unknown)} are not terms of the model {list(names)}")
+
+    cols = list(range(len(names)))
+    fit = fit_ols(X, y, names, alpha=alpha)
+    full = fit
+    steps: list[RemovalStep] = []
+    while len(cols) > 1:
+        candidates = [j for j, name in enumerate(fit.names) if name not in keep]
+        if not candidates:
+            break
+        weakest = min(candidates, key=lambda j: abs(fit.t[j]))
+        if abs(fit.t[weakest]) >= fit.t_crit:
+            break
+        steps.append(
+            RemovalStep(fit.names[weakest], float(fit.t[weakest]), float(fit.p[weakest]), fit)
+        )
+        del cols[weakest]
+        fit = fit_ols(X[:, cols], y, [names[j] for j in cols], alpha=alpha)
+    return Reduction(full=full, final=fit, steps=tuple(steps))

@@ -1,0 +1,192 @@
+"""Integral method: gyro scale and misalignment without a rate table (methods.md 2.6).
+
+The fixture is turned n whole turns counter-clockwise (+) and clockwise (-)
+about each axis A in turn, with A pointing up. With the true rotation only
+about A and the specific force constant (g along A), channel c reads
+
+    w_c(t) = (delta_cA + M_cA) w_A(t) + S_c,    S_c = b_c + (G f)_c,
+
+where S_c is exactly what the gyro reads at rest in the same orientation (the
+"A up" static position). Integrating over each record with the trapezoid rule
+and subtracting S_c times the record's own duration T explicitly,
+
+    J_c+- = I_c+- - S_c T+- = +-(delta_cA + M_cA) 2 pi n + noise,
+
+so (J_c+ - J_c-) / (4 pi n) = delta_cA + M_cA. This is the paper's formula
+(Gxx = (I^X_x+ - I^X_x-)/(2 * 360 n) - 1, ...) in radians, written directly in
+the matrix convention: gyr.misalign.cA is M[c, A] (the paper's Gxz is M[x, y],
+Gxy is -M[x, z], Gyz is -M[y, x], Gyx is M[y, z], Gzy is M[z, x], Gzx is
+-M[z, y]). Because the static reading is subtracted per record, cw and ccw
+records of different lengths do not bias the result.
+
+Uncertainty: white noise of std sigma_c gives the integral a std sigma_c ||w||
+(w: trapezoid weights); the subtracted static mean enters as (T+ - T-) times
+its standard error. Both are propagated.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from calib_core import params
+from calib_core.calibration import Calibration
+from calib_core.recording import Recording
+from calib_core.stats import trapezoid_weights
+from calib_core.units import DEG, STANDARD_GRAVITY
+
+# Rotation records: n whole turns about the axis, axis up; ccw = positive rate.
+ROTATION_LABELS = ("x_ccw", "x_cw", "y_ccw", "y_cw", "z_ccw", "z_cw")
+
+# A rate within this fraction of full scale counts as saturated (sensors clip at
+# 32767/32768 of the range, files round to the last digit).
+SATURATION_MARGIN = 1e-3
+# |n_est - round(n_est)| above this means the turn count cannot be inferred.
+TURN_TOLERANCE = 0.25
+
+
+def noise_from_differences(gyr: np.ndarray) -> np.ndarray:
+    """Per-sample white-noise std per channel from second differences, rad/s.
+
+    For white noise, the second difference has std sqrt(6) sigma; the smooth
+    rotation contributes little to it, and the median (MAD) ignores outliers.
+
+    Parameters
+    ----------
+    gyr : (N, 3) rad/s.
+
+    Returns
+    -------
+    (3,) rad/s.
+    """
+    d2 = np.diff(np.asarray(gyr, dtype=float), n=2, axis=0)
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return mad / 0.6744897501960817 / math.sqrt(6.0)
+
+
+def _check_range(rec: Recording, label: str, gyro_range: float) -> None:
+    peak = float(np.max(np.abs(rec.gyr)))
+    if peak >= gyro_range * (1.0 - SATURATION_MARGIN):
+        raise ValueError(
+            f"rotation {label}: gyro rate reached {peak / DEG:.1f} deg/s, the sensor range is "
+            f"{gyro_range / DEG:.1f} deg/s; the integral would be wrong: repeat the rotation "
+            "more slowly"
+        )
+
+
+def solve_integral(
+    rotations: dict[str, Recording],
+    static_means: dict[str, np.ndarray],
+    static_sems: dict[str, np.ndarray],
+    gyro_range: float,
+    turns: int | None = None,
+    *,
+    noise_std: dict[str, np.ndarray] | None = None,
+    gravity: float = STANDARD_GRAVITY,
+) -> Calibration:
+    """Gyro scale errors and misalignments by the integral method.
+
+    Parameters
+    ----------
+    rotations : label -> Recording for x_ccw, x_cw, y_ccw, y_cw, z_ccw, z_cw.
+    static_means : static label ("x_up", ...) -> (3,) mean gyro output at rest,
+        rad/s; the "A_up" mean is subtracted from the A rotations.
+    static_sems : static label -> (3,) standard uncertainty of that mean, rad/s.
+    gyro_range : gyro full scale, rad/s; a rotation reaching it is rejected.
+    turns : whole turns per rotation, or None to infer it from the rotation-axis
+        integrals (all three axes must show the same whole number).
+    noise_std : static label -> (3,) per-sample gyro noise std, rad/s (from the
+        static record of the same orientation). None: estimated from the second
+        differences of each rotation record.
+    gravity : m/s^2, recorded in the result only (the method does not use it).
+
+    Returns
+    -------
+    Calibration (procedure "integral") with gyr.scale.* and gyr.misalign.*,
+    each with its standard uncertainty; info["turns"] and
+    info["integral_closure_rad"] (ccw + cw angle mismatch per axis, rad).
+
+    Raises
+    ------
+    ValueError naming the segment: a missing rotation or static mean, a rotation
+    that reached the gyro range, a turn count that is not a whole number.
+    """
+    missing = [label for label in ROTATION_LABELS if label not in rotations]
+    missing += [f"{a}_up" for a in params.AXES if f"{a}_up" not in static_means]
+    if missing:
+        raise ValueError(f"integral method: missing segments {missing}")
+    if turns is not None and (int(turns) != turns or turns < 1):
+        raise ValueError(f"integral method: turns must be a positive whole number, got {turns!r}")
+    for label in ROTATION_LABELS:
+        rec = rotations[label]
+        if len(rec) < 3:
+            raise ValueError(f"rotation {label}: {len(rec)} samples, too short to integrate")
+        _check_range(rec, label, gyro_range)
+
+    # J[axis][sense] = (3,) bias-removed integrals, var[axis][sense] = (3,) their variances.
+    J: dict[str, dict[str, np.ndarray]] = {}
+    var: dict[str, dict[str, np.ndarray]] = {}
+    duration: dict[str, dict[str, float]] = {}
+    for a in params.AXES:
+        S = np.asarray(static_means[f"{a}_up"], dtype=float)
+        J[a], var[a], duration[a] = {}, {}, {}
+        for sense in ("ccw", "cw"):
+            rec = rotations[f"{a}_{sense}"]
+            w = trapezoid_weights(rec.t)
+            T = float(rec.t[-1] - rec.t[0])
+            sigma = (
+                noise_from_differences(rec.gyr)
+                if noise_std is None
+                else np.asarray(noise_std[f"{a}_up"], dtype=float)
+            )
+            J[a][sense] = w @ rec.gyr - S * T
+            var[a][sense] = sigma**2 * float(w @ w)
+            duration[a][sense] = T
+
+    # Turn count: the rotation-axis integrals are +-(1 + scale) 2 pi n.
+    n_est = {
+        a: (J[a]["ccw"][i] - J[a]["cw"][i]) / (4.0 * math.pi) for i, a in enumerate(params.AXES)
+    }
+    if turns is None:
+        rounded = {a: round(v) for a, v in n_est.items()}
+        bad = {
+            a: v for a, v in n_est.items() if rounded[a] < 1 or abs(v - rounded[a]) > TURN_TOLERANCE
+        }
+        if bad:
+            detail = ", ".join(f"{a}: {v:.2f}" for a, v in bad.items())
+            raise ValueError(
+                f"integral method: the rotations are not whole turns ({detail} turns); "
+                "give the number of turns in the settings or repeat the rotations"
+            )
+        if len(set(rounded.values())) != 1:
+            raise ValueError(
+                f"integral method: axes turned different whole numbers of turns: {rounded}"
+            )
+        n = rounded["x"]
+    else:
+        n = int(turns)
+        off = {a: v for a, v in n_est.items() if abs(v - n) > TURN_TOLERANCE * n}
+        if off:
+            detail = ", ".join(f"{a}_ccw/{a}_cw: {v:.2f}" for a, v in off.items())
+            raise ValueError(f"integral method: settings say {n} turns but the gyro shows {detail}")
+
+    cal = Calibration(procedure="integral", gravity=gravity)
+    denom = 4.0 * math.pi * n
+    closure: dict[str, float] = {}
+    for j, a in enumerate(params.AXES):
+        diff = J[a]["ccw"] - J[a]["cw"]
+        dT = duration[a]["ccw"] - duration[a]["cw"]
+        sem = np.asarray(static_sems[f"{a}_up"], dtype=float)
+        std = np.sqrt(var[a]["ccw"] + var[a]["cw"] + (dT * sem) ** 2) / denom
+        column = diff / denom  # column A of I + M_g
+        for i in range(3):
+            name = params.matrix_names("gyr")[i][j]
+            cal.add(name, column[i] - (1.0 if i == j else 0.0), std[i])
+        closure[a] = float((J[a]["ccw"][j] + J[a]["cw"][j]) / 2.0)
+    cal.info["turns"] = n
+    cal.info["integral_closure_rad"] = closure
+    cal.info["rotation_durations_s"] = {
+        f"{a}_{s}": duration[a][s] for a in params.AXES for s in ("ccw", "cw")
+    }
+    return cal

@@ -1,0 +1,114 @@
+"""Six-position closed form (methods.md 2.1, MPU-6000 paper).
+
+Positions, in order k = 1..6: x up, x down, y up, y down, z up, z down, where
+"up" means that axis reads +g. The paper writes the model with signed small
+angles,
+
+    Ax = (1+Axx) ax + Axz ay - Axy az + a0x
+    Ay = -Ayz ax + (1+Ayy) ay + Ayx az + a0y
+    Az =  Azy ax - Azx ay + (1+Azz) az + a0z,
+
+which maps onto the archive's matrix convention f_meas = (I + M) f_true + b as
+M[x,y] = Axz, M[x,z] = -Axy, M[y,x] = -Ayz, M[y,z] = Ayx, M[z,x] = Azy,
+M[z,y] = -Azx. The formulas below are the paper's, then converted.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib_core import params
+
+# Static positions in the paper's order k = 1..6; "x_up": the x axis reads +g.
+STATIC_LABELS = ("x_up", "x_dn", "y_up", "y_dn", "z_up", "z_dn")
+
+
+def axis_vector(label: str, gravity: float) -> np.ndarray:
+    """True specific force (3,) of an orientation label: "y_dn" -> (0, -g, 0), m/s^2.
+
+    Rotation labels ("x_ccw", "x_cw") have their axis up.
+    """
+    axis, sense = label.split("_")
+    f = np.zeros(3)
+    f[params.AXIS_INDEX[axis]] = -gravity if sense == "dn" else gravity
+    return f
+
+
+def _check_means(means: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    missing = [label for label in STATIC_LABELS if label not in means]
+    if missing:
+        raise ValueError(f"six-position closed form: missing position means {missing}")
+    out = {label: np.asarray(means[label], dtype=float) for label in STATIC_LABELS}
+    for label, m in out.items():
+        if m.shape != (3,):
+            raise ValueError(f"six-position closed form: mean of {label} must have shape (3,)")
+    return out
+
+
+def accel_closed_form(means: dict[str, np.ndarray], gravity: float) -> dict[str, float]:
+    """Accelerometer bias, scale and misalignment from six position means.
+
+    Parameters
+    ----------
+    means : label -> (3,) mean accelerometer output, m/s^2, for the labels
+        x_up, x_dn, y_up, y_dn, z_up, z_dn.
+    gravity : local gravity, m/s^2.
+
+    Returns
+    -------
+    dict of canonical names acc.bias.*, acc.scale.*, acc.misalign.* (matrix convention).
+    """
+    m = _check_means(means)
+    A1, A2, A3, A4, A5, A6 = (m[label] for label in STATIC_LABELS)
+    x, y, z = 0, 1, 2
+    g2 = 2.0 * gravity
+    # Paper convention, verbatim.
+    Axx = (A1[x] - A2[x]) / g2 - 1.0
+    Ayy = (A3[y] - A4[y]) / g2 - 1.0
+    Azz = (A5[z] - A6[z]) / g2 - 1.0
+    Axz = (A3[x] - A4[x]) / g2
+    Axy = -(A5[x] - A6[x]) / g2
+    Ayz = -(A1[y] - A2[y]) / g2
+    Ayx = (A5[y] - A6[y]) / g2
+    Azy = (A1[z] - A2[z]) / g2
+    Azx = -(A3[z] - A4[z]) / g2
+    # Three bias estimates per axis, one per pair of opposite positions, averaged.
+    bias = ((A1 + A2) / 2.0 + (A3 + A4) / 2.0 + (A5 + A6) / 2.0) / 3.0
+    return {
+        "acc.bias.x": float(bias[x]),
+        "acc.bias.y": float(bias[y]),
+        "acc.bias.z": float(bias[z]),
+        "acc.scale.x": float(Axx),
+        "acc.scale.y": float(Ayy),
+        "acc.scale.z": float(Azz),
+        "acc.misalign.xy": float(Axz),
+        "acc.misalign.xz": float(-Axy),
+        "acc.misalign.yx": float(-Ayz),
+        "acc.misalign.yz": float(Ayx),
+        "acc.misalign.zx": float(Azy),
+        "acc.misalign.zy": float(-Azx),
+    }
+
+
+def accel_closed_form_std(sems: dict[str, np.ndarray], gravity: float) -> dict[str, float]:
+    """Standard uncertainties of `accel_closed_form`, from those of the six means.
+
+    Parameters
+    ----------
+    sems : label -> (3,) standard uncertainty of each mean, m/s^2.
+    gravity : m/s^2.
+
+    Returns
+    -------
+    dict of the same canonical names -> standard uncertainty.
+    """
+    s = _check_means(sems)
+    out: dict[str, float] = {}
+    axes = "xyz"
+    for i, a in enumerate(axes):
+        out[f"acc.bias.{a}"] = float(np.sqrt(sum(s[label][i] ** 2 for label in STATIC_LABELS)) / 6)
+        for j, c in enumerate(axes):
+            # Element (i, j) uses the difference of the j-up and j-down means of channel i.
+            u = np.hypot(s[f"{c}_up"][i], s[f"{c}_dn"][i]) / (2.0 * gravity)
+            out[f"acc.scale.{a}" if i == j else f"acc.misalign.{a}{c}"] = float(u)
+    return out

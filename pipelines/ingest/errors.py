@@ -1,0 +1,57 @@
+"""The one error type of ingest: it always says where the bad input is.
+
+Every problem a lab can make in its files (a missing segment file, a truncated
+log, a typo in the manifest) is reported as an :class:`IngestError` that names
+the file, the line and/or the manifest field, and what was expected, so the
+operator can fix the input without reading a traceback.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class IngestError(ValueError):
+    """Bad input found while reading a run.
+
+    Parameters
+    ----------
+    problem : what is wrong and what was expected, e.g.
+        ``"expected 8 numeric columns, got 7"``.
+    file : the file (path or name) that holds the problem, if any.
+    line : 1-based line number in `file`, if known.
+    field : dotted manifest field (``"format.acc_unit"``, ``"segments[2].file"``)
+        or a column name of a data file, if the problem is tied to one.
+
+    The message reads ``"<file> line <line>: field '<field>': <problem>"`` with
+    the parts that are unknown left out.
+    """
+
+    def __init__(
+        self,
+        problem: str,
+        *,
+        file: str | Path | None = None,
+        line: int | None = None,
+        field: str | None = None,
+    ) -> None:
+        self.problem = problem
+        self.file = None if file is None else str(file)
+        self.line = line
+        self.field = field
+        super().__init__(self._message())
+
+    def _message(self) -> str:
+        where = self.file or ""
+        if self.line is not None:
+            where = f"{where} line {self.line}" if where else f"line {self.line}"
+        if self.field is not None:
+            where = f"{where}: field '{self.field}'" if where else f"field '{self.field}'"
+        return f"{where}: {self.problem}" if where else self.problem
+
+    def __reduce__(self):  # keep the attributes when the error crosses a process pool
+        return (_rebuild, (self.problem, self.file, self.line, self.field))
+
+
+def _rebuild(problem: str, file: str | None, line: int | None, field: str | None) -> IngestError:
+    return IngestError(problem, file=file, line=line, field=field)

@@ -1,0 +1,429 @@
+"""The run manifest (``run.toml``): what a lab run is, where, with what, and which data is which.
+
+The manifest is the lab's statement about a run: the unit under test, when and
+by whom, the site (for local gravity), the environment, the equipment with its
+calibration dates, the procedure and its settings, the tolerance profile, the
+layout of the data files and which file or time window holds which segment.
+docs/manifest.md describes every field with an example.
+
+Every section is a pydantic model that forbids unknown keys, so a typo in a
+field name is an error rather than a silently ignored value. The one exception
+is ``[format]``: readers of other formats (MAT, MCAP) keep their own keys there
+(``variables``, ``topics``, ...) and read them from ``FormatSpec.model_extra``.
+
+Times: ``run.started`` may be a TOML datetime or an ISO-8601 string. A value
+without a UTC offset is taken as UTC (labs log in UTC or say their offset); it
+is always stored converted to UTC.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+import tomllib
+from datetime import UTC, date, datetime
+from pathlib import Path, PurePosixPath
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from calib_core.earth import local_gravity
+from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
+from pipelines.ingest.errors import IngestError
+from storage.naming import check_safe_name
+
+SCHEMA_VERSION = 1
+
+# Segment labels of the six-position + integral procedures: the static
+# positions ("x_up": x axis reads +g) and the rotations about a vertical axis
+# (ccw = positive sense about that axis).
+STATIC_LABELS = ("x_up", "x_dn", "y_up", "y_dn", "z_up", "z_dn")
+ROTATION_LABELS = ("x_ccw", "x_cw", "y_ccw", "y_cw", "z_ccw", "z_cw")
+SIX_POSITION_LABELS = STATIC_LABELS + ROTATION_LABELS
+
+# Formats a reader exists (or is planned) for; format readers register in
+# pipelines.ingest.run_loader. Extend this tuple when adding a format.
+FORMAT_KINDS = ("csv", "mpu6000", "mat", "mcap")
+EQUIPMENT_KINDS = ("rate_table", "centrifuge", "thermal_chamber", "daq", "cube")
+DELIMITERS = {",": ",", ";": ";", "\t": "\t", "tab": "\t", "whitespace": "whitespace"}
+
+Column = str | int  # a column name, or a 0-based index when the file has no header
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
+
+
+class UnitSpec(_Section):
+    """The unit under test."""
+
+    serial: str
+    model: str
+    manufacturer: str
+    specification: str | None = None  # free text: ranges, grade, data sheet reference
+
+    @field_validator("serial")
+    @classmethod
+    def _safe_serial(cls, value: str) -> str:
+        # The serial becomes a folder name in the archive: no path tricks.
+        return check_safe_name(value, "serial")
+
+
+class RunSpec(_Section):
+    """When, who, which procedure and tolerance profile."""
+
+    started: datetime
+    operator: str
+    procedure: str
+    tolerance_profile: str
+    settings: dict[str, Any] = Field(default_factory=dict)  # turns, gyro_range_dps, solver...
+
+    @field_validator("started")
+    @classmethod
+    def _utc(cls, value: datetime) -> datetime:
+        if value.tzinfo is None:  # documented choice: a naive time is UTC
+            return value.replace(tzinfo=UTC)
+        return value.astimezone(UTC)
+
+    @field_validator("tolerance_profile")
+    @classmethod
+    def _safe_profile(cls, value: str) -> str:
+        return check_safe_name(value, "tolerance profile name")  # names a profile file
+
+
+class SiteSpec(_Section):
+    """Where: enough to compute local gravity by the chosen model."""
+
+    latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0)
+    height_m: float = 0.0
+    gravity_model: Literal["standard", "helmert", "wgs84", "measured"] = "standard"
+    gravity: float | None = Field(default=None, description="measured gravity, m/s^2")
+
+    @model_validator(mode="after")
+    def _complete(self) -> SiteSpec:
+        if self.gravity_model in ("helmert", "wgs84") and self.latitude_deg is None:
+            raise ValueError(f"gravity_model '{self.gravity_model}' needs latitude_deg")
+        if self.gravity_model == "measured" and self.gravity is None:
+            raise ValueError("gravity_model 'measured' needs gravity (m/s^2)")
+        if self.gravity is not None and not 9.7 < self.gravity < 9.9:
+            raise ValueError(f"gravity must be in m/s^2 (9.7 .. 9.9), got {self.gravity}")
+        return self
+
+
+class EnvironmentSpec(_Section):
+    """Lab conditions during the run; every field optional."""
+
+    temperature_c: float | None = None
+    humidity_pct: float | None = Field(default=None, ge=0.0, le=100.0)
+    pressure_hpa: float | None = Field(default=None, gt=0.0)
+    vibration: float | str | None = None  # a level (m/s^2 rms) or a description
+    warmup_min: float | None = Field(default=None, ge=0.0)
+
+
+class EquipmentSpec(_Section):
+    """One piece of lab equipment; its own calibration dates make lapses traceable."""
+
+    kind: str  # one of EQUIPMENT_KINDS or another short word
+    model: str
+    serial: str
+    accuracy_class: str | None = None
+    calibration_due: date
+    calibrated_on: date | None = None
+
+    @field_validator("calibration_due", "calibrated_on", mode="before")
+    @classmethod
+    def _date_only(cls, value: Any) -> Any:
+        if isinstance(value, datetime):
+            raise ValueError(f"expected a date (YYYY-MM-DD), got a date and time {value}")
+        return value
+
+
+class FormatSpec(BaseModel):
+    """Layout of the data files.
+
+    ``kind`` picks the reader. The CSV fields below describe a delimited text
+    file; readers of other kinds find their own keys in ``model_extra``.
+
+    Columns are header names, or 0-based indices when ``header = false``.
+    Units are names from calib_core.units (``m/s^2``, ``g``, ``mg``, ``deg/s``,
+    ``rad/s``, ``deg/h``, ... ; time ``s``, ``ms``, ``us``, ``ns`` or ``datenum``).
+    ``reference_columns`` maps reference channel names (``table_angle``,
+    ``table_rate``) to columns already in SI units (rad, rad/s).
+    """
+
+    model_config = ConfigDict(extra="allow", str_strip_whitespace=True)
+
+    kind: str
+    delimiter: str | None = None  # None: detect among , ; tab whitespace
+    header: bool = True
+    time_column: Column | None = None
+    time_unit: str = "s"
+    acc_columns: list[Column] | None = None
+    acc_unit: str = "m/s^2"
+    gyr_columns: list[Column] | None = None
+    gyr_unit: str = "rad/s"
+    temp_column: Column | None = None
+    reference_columns: dict[str, Column] = Field(default_factory=dict)
+
+    @field_validator("kind")
+    @classmethod
+    def _known_kind(cls, value: str) -> str:
+        if value not in FORMAT_KINDS:
+            known = ", ".join(FORMAT_KINDS)
+            raise ValueError(f"unknown format kind {value!r}; expected one of: {known}")
+        return value
+
+    @field_validator("delimiter")
+    @classmethod
+    def _known_delimiter(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        if value not in DELIMITERS:
+            raise ValueError(
+                f"unknown delimiter {value!r}; expected one of ',', ';', 'tab', 'whitespace' "
+                "(or leave it out to detect it)"
+            )
+        return DELIMITERS[value]
+
+    # The unit tables of calib_core.units are the one list of accepted names.
+    @field_validator("acc_unit")
+    @classmethod
+    def _acc_unit(cls, value: str) -> str:
+        acceleration_factor(value)
+        return value
+
+    @field_validator("gyr_unit")
+    @classmethod
+    def _gyr_unit(cls, value: str) -> str:
+        angular_rate_factor(value)
+        return value
+
+    @field_validator("time_unit")
+    @classmethod
+    def _time_unit(cls, value: str) -> str:
+        if value != "datenum":  # MATLAB serial day number, converted to Unix seconds
+            time_factor(value)
+        return value
+
+    @field_validator("acc_columns", "gyr_columns")
+    @classmethod
+    def _three(cls, value: list[Column] | None) -> list[Column] | None:
+        if value is not None and len(value) != 3:
+            raise ValueError(f"expected 3 columns (x, y, z), got {len(value)}")
+        return value
+
+    @model_validator(mode="after")
+    def _csv_complete(self) -> FormatSpec:
+        if self.kind == "csv":
+            missing = [
+                name
+                for name in ("time_column", "acc_columns", "gyr_columns")
+                if getattr(self, name) is None
+            ]
+            if missing:
+                raise ValueError(f"format kind 'csv' needs {', '.join(missing)}")
+        return self
+
+    def columns(self) -> list[Column]:
+        """All data columns named here, time first (CSV layouts)."""
+        cols: list[Column] = [self.time_column] if self.time_column is not None else []
+        cols += list(self.acc_columns or []) + list(self.gyr_columns or [])
+        if self.temp_column is not None:
+            cols.append(self.temp_column)
+        return cols + list(self.reference_columns.values())
+
+
+class SegmentSpec(_Section):
+    """Which file (and optionally which time window of it, s) holds one segment.
+
+    The window is ``start_s <= t < end_s`` on the file's own time axis after
+    conversion to seconds; a missing bound means the file's start / end.
+    ``verification = true`` keeps the segment out of the fit; it is used only
+    to verify the calibration.
+    """
+
+    label: str
+    file: str
+    start_s: float | None = None
+    end_s: float | None = None
+    verification: bool = False
+
+    @field_validator("label")
+    @classmethod
+    def _label(cls, value: str) -> str:
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}", value):
+            raise ValueError(
+                f"invalid segment label {value!r}: expected letters, digits, '_', '.', '+', '-'"
+            )
+        return value
+
+    @field_validator("file")
+    @classmethod
+    def _inside_run_folder(cls, value: str) -> str:
+        return check_relative_name(value)
+
+    @model_validator(mode="after")
+    def _window(self) -> SegmentSpec:
+        if self.start_s is not None and self.end_s is not None and not self.end_s > self.start_s:
+            raise ValueError(f"end_s ({self.end_s}) must be greater than start_s ({self.start_s})")
+        return self
+
+
+def check_relative_name(value: str) -> str:
+    """Return `value` if it names a file inside the run folder, else raise ValueError.
+
+    Accepted: a relative POSIX path such as ``imu.csv`` or ``raw/imu.csv``.
+    Refused: absolute paths, drive letters, backslashes, ``..`` components.
+    """
+    path = PurePosixPath(value)
+    if (
+        not value
+        or "\\" in value
+        or path.is_absolute()
+        or re.match(r"^[A-Za-z]:", value)
+        or any(part in ("..", "") for part in value.split("/"))
+    ):
+        raise ValueError(
+            f"segment file {value!r} must be a relative name inside the run folder "
+            "(no absolute path, no '..', '/' as separator)"
+        )
+    return value
+
+
+class RunManifest(_Section):
+    """A whole ``run.toml``. See docs/manifest.md."""
+
+    schema_version: Literal[1]
+    unit: UnitSpec
+    run: RunSpec
+    site: SiteSpec = Field(default_factory=SiteSpec)
+    environment: EnvironmentSpec = Field(default_factory=EnvironmentSpec)
+    equipment: list[EquipmentSpec] = Field(default_factory=list)
+    format: FormatSpec
+    segments: list[SegmentSpec] = Field(default_factory=list)
+
+    def gravity(self) -> float:
+        """Local gravity for this site by the manifest's model, m/s^2."""
+        s = self.site
+        return local_gravity(s.gravity_model, s.latitude_deg, s.height_m, s.gravity)
+
+    def verification_labels(self) -> set[str]:
+        """Labels of segments kept out of the fit."""
+        return {s.label for s in self.segments if s.verification}
+
+
+def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
+    """Parse and validate manifest text; errors name `source` and the field.
+
+    Parameters
+    ----------
+    text : TOML text of a run manifest.
+    source : file name used in error messages.
+    """
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"line (\d+)", str(exc))
+        raise IngestError(
+            f"not valid TOML: {exc}", file=source, line=int(m.group(1)) if m else None
+        ) from None
+    try:
+        manifest = RunManifest.model_validate(data)
+    except ValidationError as exc:
+        raise _as_ingest_error(exc, source) from None
+    check_segments(manifest, source)
+    return manifest
+
+
+def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:
+    """Cross-checks of the segment list that need the whole manifest.
+
+    Raises IngestError naming the segment field: a missing list (only
+    MPU-6000 folders may leave it out: their file names say it), repeated
+    labels, and, for the six-position procedures, labels that are not theirs
+    (typos) unless the segment is a verification segment.
+    """
+    segments = manifest.segments
+    if not segments and manifest.format.kind != "mpu6000":
+        raise IngestError(
+            f"format kind '{manifest.format.kind}' needs a [[segments]] list "
+            "(label and file of each segment)",
+            file=source,
+            field="segments",
+        )
+    seen: dict[str, int] = {}
+    for i, seg in enumerate(segments):
+        if seg.label in seen:
+            raise IngestError(
+                f"label {seg.label!r} repeats segments[{seen[seg.label]}]; labels must be unique",
+                file=source,
+                field=f"segments[{i}].label",
+            )
+        seen[seg.label] = i
+    procedure = manifest.run.procedure
+    if procedure.startswith("six_position"):
+        for i, seg in enumerate(segments):
+            if not seg.verification and seg.label not in SIX_POSITION_LABELS:
+                near = difflib.get_close_matches(seg.label, SIX_POSITION_LABELS, n=1)
+                hint = f" (did you mean '{near[0]}'?)" if near else ""
+                raise IngestError(
+                    f"{seg.label!r} is not a segment label of procedure '{procedure}'{hint}; "
+                    f"expected one of: {', '.join(SIX_POSITION_LABELS)} (or verification = true)",
+                    file=source,
+                    field=f"segments[{i}].label",
+                )
+
+
+def load_manifest(path: Path) -> RunManifest:
+    """Read and validate a ``run.toml``.
+
+    Raises
+    ------
+    IngestError naming the file and, for TOML syntax errors, the line; for
+    content errors the dotted field path and what was expected.
+    """
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise IngestError("manifest file not found", file=path) from None
+    except UnicodeDecodeError as exc:
+        raise IngestError(f"not UTF-8 text ({exc.reason} at byte {exc.start})", file=path) from None
+    return parse_manifest(text, str(path))
+
+
+def _field_path(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def _as_ingest_error(exc: ValidationError, source: str) -> IngestError:
+    """One IngestError for all problems pydantic found, the first one as `field`."""
+    errors = exc.errors(include_url=False)
+    # A misspelt key shows up as an unknown field plus a missing one: report
+    # the unknown one first, with the missing name as the likely intent.
+    missing = {(tuple(e["loc"][:-1]), e["loc"][-1]) for e in errors if e["type"] == "missing"}
+    errors.sort(key=lambda e: e["type"] != "extra_forbidden")
+    problems: list[tuple[str, str]] = []
+    for err in errors:
+        # Model-level validators report at the section; keep their text as is.
+        field = _field_path(err["loc"]) or "(top level)"
+        kind, msg = err["type"], err["msg"]
+        if kind == "value_error":
+            msg = msg.removeprefix("Value error, ")
+        elif kind == "missing":
+            msg = "required field is missing"
+        elif kind == "extra_forbidden":
+            section, name = tuple(err["loc"][:-1]), str(err["loc"][-1])
+            wanted = [str(m) for sec, m in missing if sec == section]
+            near = difflib.get_close_matches(name, wanted, n=1)
+            hint = f"did you mean '{near[0]}'?" if near else "check the spelling"
+            msg = f"unknown field; {hint} (see docs/manifest.md)"
+        elif not isinstance(err.get("input"), dict | list):
+            msg = f"{msg}, got {err.get('input')!r}"
+        problems.append((field, msg))
+    field, first = problems[0]
+    more = "".join(f"; field '{f}': {m}" for f, m in problems[1:])
+    return IngestError(first + more, file=source, field=field)

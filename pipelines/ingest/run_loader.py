@@ -1,0 +1,365 @@
+"""Find runs in the paths a user gives, and load one run: manifest, segments, raw file hashes.
+
+Two kinds of run folder are recognised:
+
+- a folder with a ``run.toml`` manifest (docs/manifest.md): its ``[format]``
+  section names the reader, its ``[[segments]]`` say which file or time
+  window is which segment;
+- a folder of MPU-6000 files ``<serial>_<axis>_<up|dn|cw|ccw>.txt`` without a
+  manifest: one run per serial, with a manifest synthesised from the file
+  names (model MPU-6000, procedure six_position_integral, tolerance profile
+  mpu6000, standard gravity, started = newest file modification time, UTC).
+
+Readers are looked up by ``format.kind`` in a registry, so a new format only
+needs ``register_reader(kind, fn)`` with ``fn(path, fmt) -> Recording``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+from calib_core.recording import Recording
+from pipelines.ingest.csv_reader import read_csv
+from pipelines.ingest.errors import IngestError
+from pipelines.ingest.manifest import (
+    FormatSpec,
+    RunManifest,
+    SegmentSpec,
+    check_segments,
+    load_manifest,
+)
+from pipelines.ingest.mpu6000 import (
+    check_complete,
+    find_mpu6000_runs,
+    parse_file_name,
+    read_mpu6000_file,
+)
+
+MANIFEST_NAME = "run.toml"
+_HASH_CHUNK = 1 << 20  # bytes per read while hashing
+
+Reader = Callable[[Path, FormatSpec], Recording]
+_READERS: dict[str, Reader] = {}
+# Readers that live in modules of their own, imported on first use. Such a
+# module calls register_reader() when imported, unless an adapter is given here.
+_PLUGIN_MODULES = {"mat": "pipelines.ingest.matlab", "mcap": "pipelines.ingest.mcap_reader"}
+
+
+def register_reader(kind: str, reader: Reader) -> None:
+    """Make `reader(path, fmt) -> Recording` the reader of files with ``format.kind == kind``."""
+    _READERS[kind] = reader
+
+
+def _read_mat(path: Path, fmt: FormatSpec) -> Recording:
+    """Adapter from the manifest's [format] (``variables``, ``sample_rate_hz``) to read_mat."""
+    from pipelines.ingest.matlab import read_mat
+
+    extra = fmt.model_extra or {}
+    if "variables" not in extra:
+        raise IngestError(
+            "format kind 'mat' needs a [format.variables] table (t, acc, gyr, temp)",
+            field="format.variables",
+        )
+    return read_mat(
+        path,
+        variables=extra["variables"],
+        time_unit=fmt.time_unit,
+        acc_unit=fmt.acc_unit,
+        gyr_unit=fmt.gyr_unit,
+        sample_rate_hz=extra.get("sample_rate_hz"),
+    )
+
+
+register_reader("csv", read_csv)
+register_reader("mpu6000", lambda path, fmt: read_mpu6000_file(path))
+register_reader("mat", _read_mat)
+
+
+def reader_for(kind: str) -> Reader:
+    """The registered reader of `kind`, importing its module on first use."""
+    if kind not in _READERS and kind in _PLUGIN_MODULES:
+        try:
+            importlib.import_module(_PLUGIN_MODULES[kind])
+        except ModuleNotFoundError as exc:
+            if exc.name != _PLUGIN_MODULES[kind]:  # a broken plugin must not pass unnoticed
+                raise
+    if kind not in _READERS:
+        raise IngestError(
+            f"no reader for format kind '{kind}' (readers: {', '.join(sorted(_READERS))})",
+            field="format.kind",
+        )
+    return _READERS[kind]
+
+
+@dataclass(frozen=True, order=True)
+class RunSource:
+    """One run found on disk, not yet read.
+
+    Attributes
+    ----------
+    folder : the run folder.
+    kind : ``"manifest"`` (a run.toml describes it) or ``"mpu6000"`` (file names only).
+    serial : the serial of an MPU-6000 run (a folder may hold several); None for manifests.
+    """
+
+    folder: Path
+    kind: str
+    serial: str | None = None
+
+    @property
+    def name(self) -> str:
+        """Short name for messages: the folder, plus the serial for MPU-6000 runs."""
+        return f"{self.folder} [{self.serial}]" if self.serial else str(self.folder)
+
+
+@dataclass(frozen=True)
+class RawFile:
+    """One input file of a run, identified by content.
+
+    Attributes
+    ----------
+    path : where it was read from.
+    name : its name relative to the run folder (as the manifest names it).
+    sha256 : hex digest of its bytes.
+    size : bytes.
+    format : ``"manifest"`` for run.toml, else the format kind (``"csv"``, ``"mpu6000"``, ...).
+    """
+
+    path: Path
+    name: str
+    sha256: str
+    size: int
+    format: str
+
+
+@dataclass
+class LoadedRun:
+    """A run read into memory.
+
+    Attributes
+    ----------
+    folder : the run folder.
+    manifest : the validated (or, for MPU-6000 folders, synthesised) manifest.
+    manifest_text : the run.toml text as read, None when synthesised.
+    segments : label -> Recording (SI units), in manifest order.
+    raw_files : every input file with its hash, run.toml first.
+    verification_labels : labels of segments kept out of the fit.
+    """
+
+    folder: Path
+    manifest: RunManifest
+    manifest_text: str | None
+    segments: dict[str, Recording]
+    raw_files: list[RawFile]
+    verification_labels: set[str]
+
+
+def sha256_file(path: Path) -> tuple[str, int]:
+    """(hex sha256, size in bytes) of a file, read in 1 MiB chunks."""
+    digest = hashlib.sha256()
+    size = 0
+    with Path(path).open("rb") as fh:
+        while chunk := fh.read(_HASH_CHUNK):
+            digest.update(chunk)
+            size += len(chunk)
+    return digest.hexdigest(), size
+
+
+def _sources_in(folder: Path) -> list[RunSource]:
+    """Runs held directly by `folder` (not its subfolders)."""
+    if (folder / MANIFEST_NAME).is_file():
+        return [RunSource(folder, "manifest")]
+    serials = find_mpu6000_runs(folder, complete=False)
+    return [RunSource(folder, "mpu6000", serial) for serial in serials]
+
+
+def discover_runs(paths: list[Path], depth: int = 2) -> list[RunSource]:
+    """The runs in `paths`, one entry per run, sorted by folder and serial.
+
+    Parameters
+    ----------
+    paths : run folders (with a run.toml), MPU-6000 folders (one run per serial
+        found), folders holding such folders (searched `depth` levels down),
+        or a run.toml file.
+    depth : how many folder levels below a given path are searched.
+
+    Raises
+    ------
+    IngestError for a path that does not exist or holds no recognisable run.
+    """
+    found: set[RunSource] = set()
+    for given in paths:
+        path = Path(given)
+        if not path.exists():
+            raise IngestError("path does not exist", file=path)
+        if path.is_file():
+            if path.name != MANIFEST_NAME:
+                raise IngestError(
+                    f"expected a run folder or a {MANIFEST_NAME}, got a file", file=path
+                )
+            path = path.parent
+        level = [path]
+        runs: list[RunSource] = []
+        for _ in range(depth + 1):
+            below: list[Path] = []
+            for folder in level:
+                here = _sources_in(folder)
+                runs += here
+                if not here:  # a run folder's own subfolders are not runs of their own
+                    below += sorted(
+                        p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")
+                    )
+            level = below
+        if not runs:
+            raise IngestError(
+                f"no run found: expected a folder with a {MANIFEST_NAME} or MPU-6000 files "
+                f"named <serial>_<x|y|z>_<up|dn|cw|ccw>.txt, or folders holding them "
+                f"(searched {depth} levels down)",
+                file=path,
+            )
+        found.update(runs)
+    return sorted(found)
+
+
+def load_run(source: RunSource) -> LoadedRun:
+    """Read a run: validate its manifest, read and cut its segments, hash its raw files.
+
+    Raises
+    ------
+    IngestError naming the file, line or manifest field of the first problem.
+    """
+    if source.kind == "mpu6000":
+        return _load_mpu6000_folder(source.folder, source.serial)
+    manifest_path = source.folder / MANIFEST_NAME
+    manifest = load_manifest(manifest_path)
+    text = manifest_path.read_text(encoding="utf-8")
+    return _load_described(source.folder, manifest, text, manifest_path)
+
+
+def _load_mpu6000_folder(folder: Path, serial: str | None) -> LoadedRun:
+    runs = find_mpu6000_runs(folder, complete=False)
+    if serial not in runs:
+        raise IngestError(f"no MPU-6000 files of serial '{serial}'", file=folder)
+    files = runs[serial]
+    check_complete(folder, serial, files)
+    newest = max(p.stat().st_mtime for p in files.values())
+    manifest = RunManifest.model_validate(
+        {
+            "schema_version": 1,
+            "unit": {"serial": serial, "model": "MPU-6000", "manufacturer": "InvenSense"},
+            "run": {
+                "started": datetime.fromtimestamp(newest, tz=UTC),
+                "operator": "unknown",
+                "procedure": "six_position_integral",
+                "tolerance_profile": "mpu6000",
+            },
+            "format": {"kind": "mpu6000"},
+            "segments": [{"label": label, "file": p.name} for label, p in files.items()],
+        }
+    )
+    return _load_described(folder, manifest, None, None)
+
+
+def _mpu6000_segments(folder: Path, manifest: RunManifest, source: str) -> list[SegmentSpec]:
+    """Segments of an MPU-6000 run whose manifest leaves them to the file names."""
+    serial = manifest.unit.serial
+    files = find_mpu6000_runs(folder, complete=False).get(serial, {})
+    if not files:
+        raise IngestError(
+            f"no MPU-6000 files of serial '{serial}' ({serial}_<axis>_<sense>.txt) in {folder}",
+            file=source,
+            field="segments",
+        )
+    check_complete(folder, serial, files)
+    return [SegmentSpec(label=label, file=p.name) for label, p in files.items()]
+
+
+def _load_described(
+    folder: Path, manifest: RunManifest, text: str | None, manifest_path: Path | None
+) -> LoadedRun:
+    """Read the segments a manifest describes (real or synthesised)."""
+    source = str(manifest_path or folder)
+    check_segments(manifest, source)
+    kind = manifest.format.kind
+    segments = manifest.segments or _mpu6000_segments(folder, manifest, source)
+    reader = reader_for(kind)
+
+    root = folder.resolve()
+    recordings: dict[str, Recording] = {}  # file name -> whole-file recording
+    raw_files: list[RawFile] = []
+    if manifest_path is not None:
+        raw_files.append(
+            RawFile(manifest_path, MANIFEST_NAME, *sha256_file(manifest_path), "manifest")
+        )
+
+    out: dict[str, Recording] = {}
+    for i, seg in enumerate(segments):
+        field = f"segments[{i}].file"
+        path = folder / seg.file
+        if not path.resolve().is_relative_to(root):  # a symlink out of the run folder
+            raise IngestError(
+                f"{seg.file!r} points outside the run folder", file=source, field=field
+            )
+        if not path.is_file():
+            raise IngestError(
+                f"segment '{seg.label}': file {seg.file!r} not found in {folder}",
+                file=source,
+                field=field,
+            )
+        if kind == "mpu6000":
+            parsed = parse_file_name(path.name)
+            if parsed is not None and parsed[0] != manifest.unit.serial:
+                raise IngestError(
+                    f"file {seg.file!r} is of serial '{parsed[0]}', the manifest's unit is "
+                    f"'{manifest.unit.serial}'",
+                    file=source,
+                    field=field,
+                )
+        if seg.file not in recordings:
+            try:
+                recordings[seg.file] = reader(path, manifest.format)
+            except IngestError as exc:
+                if exc.file is None:  # a reader's complaint about the manifest's format section
+                    raise IngestError(exc.problem, file=source, field=exc.field) from None
+                raise
+            raw_files.append(RawFile(path, seg.file, *sha256_file(path), kind))
+        out[seg.label] = _cut(recordings[seg.file], seg, i, source)
+    return LoadedRun(
+        folder=folder,
+        manifest=manifest,
+        manifest_text=text,
+        segments=out,
+        raw_files=raw_files,
+        verification_labels={s.label for s in segments if s.verification},
+    )
+
+
+def _cut(whole: Recording, seg: SegmentSpec, index: int, source: str) -> Recording:
+    """The segment's time window of a whole-file recording, labelled."""
+    if seg.start_s is None and seg.end_s is None:
+        return whole.with_label(seg.label)
+    start = -float("inf") if seg.start_s is None else seg.start_s
+    end = float("inf") if seg.end_s is None else seg.end_s
+    part = whole.window(start, end, label=seg.label)
+    if len(part) == 0:
+        raise IngestError(
+            f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s holds no samples; "
+            f"{seg.file} spans {whole.t[0]:.6g} .. {whole.t[-1]:.6g} s",
+            file=source,
+            field=f"segments[{index}]",
+        )
+    where = f"{whole.source} t in [{seg.start_s}, {seg.end_s}) s"
+    return Recording(
+        t=part.t,
+        acc=part.acc,
+        gyr=part.gyr,
+        temp=part.temp,
+        reference=part.reference,
+        label=seg.label,
+        source=where,
+    )

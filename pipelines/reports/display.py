@@ -1,0 +1,26 @@
+"""Lab display units for reports: SI inside, deg/s, (deg/s)/g, ppm where labs expect them."""
+
+from __future__ import annotations
+
+from calib_core.units import DEG, STANDARD_GRAVITY
+
+# parameter family -> (display unit, factor that turns SI into the display unit)
+DISPLAY_UNITS: dict[str, tuple[str, float]] = {
+    "acc.bias": ("m/s^2", 1.0),
+    "acc.noise": ("m/s^2", 1.0),
+    "acc.scale": ("1", 1.0),
+    "acc.misalign": ("1", 1.0),
+    "acc.k2": ("1/(m/s^2)", 1.0),
+    "acc.k3": ("1/(m/s^2)^2", 1.0),
+    "gyr.bias": ("deg/s", 1.0 / DEG),
+    "gyr.noise": ("deg/s", 1.0 / DEG),
+    "gyr.scale": ("1", 1.0),
+    "gyr.misalign": ("1", 1.0),
+    "gyr.gsens": ("(deg/s)/g", STANDARD_GRAVITY / DEG),
+}
+
+
+def display(name: str, value: float | None) -> tuple[float | None, str]:
+    """(value in display unit, display unit) of a canonical parameter value given in SI."""
+    unit, factor = DISPLAY_UNITS[name.rsplit(".", 1)[0]]
+    return (None if value is None else value * factor), unit

@@ -1,0 +1,40 @@
+"""Tolerance profiles: versioned data files per device type, shipped in pipelines/profiles/.
+
+A lab adds its own profiles in a folder named by the CALIB_PROFILES environment
+variable; those take precedence over the shipped ones.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from pathlib import Path
+
+from calib_core.checks import ToleranceProfile
+from storage.naming import check_safe_name
+
+SHIPPED = Path(__file__).resolve().parent / "profiles"
+
+
+def profile_dirs() -> list[Path]:
+    extra = os.environ.get("CALIB_PROFILES")
+    return ([Path(extra)] if extra else []) + [SHIPPED]
+
+
+def load_profile(name: str) -> ToleranceProfile:
+    """Load the tolerance profile `name` (file `<name>.toml`).
+
+    Raises ValueError naming the profile, the folders searched, and for a bad
+    file the file and the field.
+    """
+    check_safe_name(name, "tolerance profile name")
+    for folder in profile_dirs():
+        path = folder / f"{name}.toml"
+        if path.is_file():
+            try:
+                doc = tomllib.loads(path.read_text(encoding="utf-8"))
+                return ToleranceProfile.from_dict(doc)
+            except (tomllib.TOMLDecodeError, ValueError, KeyError, TypeError) as exc:
+                raise ValueError(f"tolerance profile {path}: {exc}") from exc
+    searched = ", ".join(str(d) for d in profile_dirs())
+    raise ValueError(f"tolerance profile {name!r} not found (looked for {name}.toml in {searched})")

@@ -1,0 +1,580 @@
+"""Archive one processed run: files first, then one database transaction.
+
+Identity is by content. A run is identified by ``raw_hash``, the SHA-256 over
+the sorted SHA-256s of its raw files, and its ``run_id`` is derived from it,
+so the same bytes always land in the same run. A processing of the run is a
+calibration identified by ``settings_hash`` (settings, procedure, tolerance
+profile) and the software version:
+
+- unknown raw_hash                      -> new run, revision 1          ("ok")
+- known raw_hash, known settings + software -> nothing written          ("duplicate")
+- known raw_hash, new settings or software  -> revision n+1, supersedes n ("revised")
+
+Order of writes: raw objects (content-addressed, harmless if orphaned), the
+samples Parquet file and the extra files (protocol...) into the run folder,
+then all rows in one transaction. If the transaction fails, the files this
+attempt created in the run folder are removed again. Concurrent archiving of
+the same run is resolved by the database's unique constraints: the loser gets
+an IntegrityError, looks again and reports "duplicate".
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from datetime import UTC, date, datetime
+from pathlib import Path
+from typing import Any, Literal
+
+import pyarrow as pa
+from sqlalchemy import Engine, func, select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from storage import rawstore
+from storage.db import Archive
+from storage.naming import check_safe_name
+from storage.schema import (
+    CalibrationRow,
+    CheckResultRow,
+    Device,
+    Equipment,
+    ParameterRow,
+    ProcessingStep,
+    RawFile,
+    Run,
+    RunEquipment,
+)
+
+Status = Literal["ok", "duplicate", "revised"]
+_MAX_ATTEMPTS = 3
+
+
+class ArchiveError(RuntimeError):
+    """The run could not be archived; nothing of it is in the database."""
+
+
+@dataclass
+class RawFileIn:
+    """A raw input file as read by the ingest step."""
+
+    path: Path  # where the bytes are now
+    name: str  # original file name, kept in the archive
+    sha256: str  # of the bytes, 64 lowercase hex digits
+    size: int  # bytes
+    format: str  # "mpu6000-txt", "csv", "mat", "mcap", "manifest"...
+
+
+@dataclass
+class RunIn:
+    """Everything the archive keeps about one processed run (plain data, SI units)."""
+
+    serial: str
+    device_model: str
+    manufacturer: str
+    specification: str | None
+    started_at: datetime  # time zone aware
+    operator: str | None
+    procedure: str
+    site: dict[str, Any]
+    gravity: float  # m/s^2 used by the solver
+    environment: dict[str, Any]
+    equipment: list[dict[str, Any]]  # kind, serial, model, accuracy_class, calibration_due...
+    manifest_text: str | None
+    tolerance_profile: str | None
+    raw_files: list[RawFileIn]
+    settings: dict[str, Any]
+    software_version: str
+    source_revision: str | None
+    steps: list[dict[str, Any]]  # name, settings, statistics, software_version
+    calibration: dict[str, Any]  # Calibration.to_dict()
+    parameters: list[dict[str, Any]]  # name, value, std, unit, temperature_c
+    checks: list[dict[str, Any]]  # name, value, limit, passed, detail
+    verdict: str  # "pass" or "fail"
+    profile_name: str | None
+    profile_version: str | None
+    samples: pa.Table | None = None
+
+
+@dataclass
+class ArchiveResult:
+    """What `archive_run` did. `files` maps each extra file name to where it was written."""
+
+    status: Status
+    run_id: str
+    revision: int
+    calibration_id: int
+    run_dir: Path
+    message: str
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+# --- identities -------------------------------------------------------------
+
+
+def raw_hash_of(sha256s: list[str]) -> str:
+    """SHA-256 over the sorted file hashes, one per line: order of listing does not matter."""
+    return hashlib.sha256("\n".join(sorted(sha256s)).encode()).hexdigest()
+
+
+def run_id_of(raw_hash: str) -> str:
+    """The run id derived from a raw hash ("R" + 12 hex digits = 48 bits)."""
+    return "R" + raw_hash[:12]
+
+
+def settings_hash_of(run: RunIn) -> str:
+    """SHA-256 of the canonical JSON of what decides the result besides the raw bytes."""
+    doc = {
+        "settings": run.settings,
+        "procedure": run.procedure,
+        "profile_name": run.profile_name,
+        "profile_version": run.profile_version,
+    }
+    return hashlib.sha256(_canonical_json(doc, "settings").encode()).hexdigest()
+
+
+def _canonical_json(value: Any, where: str) -> str:
+    try:
+        return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: not storable as JSON ({exc})") from exc
+
+
+# --- validation (before anything touches the disk) ---------------------------
+
+
+def _as_date(value: Any, where: str) -> date | None:
+    if value is None or (isinstance(value, date) and not isinstance(value, datetime)):
+        return value
+    if isinstance(value, datetime):
+        return value.date()
+    if isinstance(value, str):
+        try:
+            return date.fromisoformat(value)
+        except ValueError:
+            pass
+    raise ValueError(f"{where}: expected a date (YYYY-MM-DD), got {value!r}")
+
+
+def _number(value: Any, where: str, *, optional: bool) -> float | None:
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{where}: expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
+    check_safe_name(run.serial, "serial")
+    for name in extra_files:
+        check_safe_name(name, "extra file name")
+    if not isinstance(run.started_at, datetime) or run.started_at.utcoffset() is None:
+        raise ValueError(f"started_at: expected a time-zone-aware datetime, got {run.started_at!r}")
+    if not run.raw_files:
+        raise ValueError(f"run of {run.serial}: no raw files")
+    names = [f.name for f in run.raw_files]
+    if len(set(names)) != len(names):
+        raise ValueError(f"raw_files: file names repeat: {sorted(names)}")
+    for f in run.raw_files:
+        rawstore.object_path(Path("."), f.sha256)  # raises on a malformed hash
+        if not isinstance(f.size, int) or f.size < 0:
+            raise ValueError(f"raw file {f.name}: size {f.size!r} is not a byte count")
+    for key in ("device_model", "manufacturer", "procedure", "software_version", "verdict"):
+        if not isinstance(getattr(run, key), str) or not getattr(run, key):
+            raise ValueError(f"{key}: expected a non-empty string, got {getattr(run, key)!r}")
+    _number(run.gravity, "gravity", optional=False)
+    for i, eq in enumerate(run.equipment):
+        for key in ("kind", "serial"):
+            if not isinstance(eq.get(key), str) or not eq.get(key):
+                raise ValueError(f"equipment[{i}].{key}: expected a non-empty string")
+        for key in ("calibration_due", "calibrated_on"):
+            _as_date(eq.get(key), f"equipment[{i}].{key}")
+    for i, p in enumerate(run.parameters):
+        if not isinstance(p.get("name"), str):
+            raise ValueError(f"parameters[{i}].name: expected a string, got {p.get('name')!r}")
+        _number(p.get("value"), f"parameters[{i}] ({p['name']}).value", optional=False)
+        _number(p.get("std"), f"parameters[{i}] ({p['name']}).std", optional=True)
+        _number(
+            p.get("temperature_c"), f"parameters[{i}] ({p['name']}).temperature_c", optional=True
+        )
+    for what, items in (("steps", run.steps), ("checks", run.checks)):
+        for i, item in enumerate(items):
+            if not isinstance(item.get("name"), str) or not item.get("name"):
+                raise ValueError(f"{what}[{i}].name: expected a non-empty string")
+    for i, c in enumerate(run.checks):
+        _number(c.get("value"), f"checks[{i}] ({c['name']}).value", optional=True)
+        _number(c.get("limit"), f"checks[{i}] ({c['name']}).limit", optional=True)
+        if not isinstance(c.get("passed"), bool):
+            raise ValueError(f"checks[{i}].passed: expected true or false, got {c.get('passed')!r}")
+    for where, value in [
+        ("site", run.site),
+        ("environment", run.environment),
+        ("calibration", run.calibration),
+        ("steps", run.steps),
+    ]:
+        _canonical_json(value, where)
+    if run.samples is not None and not isinstance(run.samples, pa.Table):
+        raise TypeError(f"samples: expected a pyarrow.Table, got {type(run.samples).__name__}")
+
+
+# --- planning ----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Plan:
+    run_pk: int | None  # None: a new run
+    revision: int
+    previous_id: int | None  # the revision this one supersedes
+    duplicate_of: tuple[int, int] | None = None  # (calibration id, revision)
+    run_dir: str | None = None  # of an existing run, relative to the root
+
+
+def _plan(session: Session, run: RunIn, raw_hash: str, settings_hash: str) -> _Plan:
+    """What archiving `run` means given what the database holds now."""
+    row = session.execute(
+        select(Run.id, Run.run_id, Run.run_dir, Device.serial)
+        .join(Device, Device.id == Run.device_id)
+        .where(Run.raw_hash == raw_hash)
+    ).one_or_none()
+    if row is None:
+        return _Plan(run_pk=None, revision=1, previous_id=None)
+    if row.serial != run.serial:
+        raise ArchiveError(
+            f"these raw files are already archived as run {row.run_id} of serial {row.serial!r}, "
+            f"not {run.serial!r}: check the manifest"
+        )
+    same = session.execute(
+        select(CalibrationRow.id, CalibrationRow.revision).where(
+            CalibrationRow.run_id == row.id,
+            CalibrationRow.settings_hash == settings_hash,
+            CalibrationRow.software_version == run.software_version,
+        )
+    ).one_or_none()
+    last = session.execute(
+        select(func.max(CalibrationRow.revision)).where(CalibrationRow.run_id == row.id)
+    ).scalar_one()
+    current = session.execute(
+        select(CalibrationRow.id).where(
+            CalibrationRow.run_id == row.id, CalibrationRow.superseded_by.is_(None)
+        )
+    ).scalar_one_or_none()
+    return _Plan(
+        run_pk=row.id,
+        revision=(last or 0) + 1,
+        previous_id=current,
+        duplicate_of=None if same is None else (same.id, same.revision),
+        run_dir=row.run_dir,
+    )
+
+
+class _PlanChangedError(Exception):
+    """Another writer committed between planning and the transaction: plan again."""
+
+
+# --- writing -------------------------------------------------------------------
+
+
+def archive_run(
+    archive: Archive, run: RunIn, extra_files: dict[str, bytes] | None = None
+) -> ArchiveResult:
+    """Archive a processed run (idempotent; see the module docstring).
+
+    Parameters
+    ----------
+    archive : where to write; its schema must be current (`Archive.upgrade`).
+    run : the run, its processing and results.
+    extra_files : file name -> bytes written into the run folder (revision 1)
+        or its ``revision-<n>`` subfolder, e.g. the test protocol.
+
+    Returns
+    -------
+    ArchiveResult; ``status`` is "ok", "revised" or "duplicate".
+
+    Raises
+    ------
+    ValueError for invalid input (before anything is written), ArchiveError
+    when the transaction fails (nothing of the run is then in the database).
+    """
+    extra_files = dict(extra_files or {})
+    _validate(run, extra_files)
+    raw_hash = raw_hash_of([f.sha256 for f in run.raw_files])
+    run_id = run_id_of(raw_hash)
+    settings_hash = settings_hash_of(run)
+    root = archive.root
+    new_run_dir = rawstore.run_dir(root, run.serial, run.started_at.astimezone(UTC), run_id)
+    # SQLite: take the write lock at BEGIN so a concurrent writer waits instead of
+    # failing halfway; PostgreSQL ignores the option.
+    engine = archive.engine().execution_options(sqlite_begin="IMMEDIATE")
+
+    created: list[Path] = []  # files/folders this call created, removed again on failure
+    plan: _Plan | None = None
+    last_error: Exception | None = None
+    try:
+        for attempt in range(_MAX_ATTEMPTS):
+            with Session(engine) as session:
+                new_plan = _plan(session, run, raw_hash, settings_hash)
+            if new_plan.duplicate_of is not None:
+                return _duplicate(root, run, run_id, new_plan)
+            if last_error is not None and new_plan == plan and attempt > 1:
+                break  # the database state did not change: the error is in this run's data
+            plan = new_plan
+            rdir = new_run_dir if plan.run_dir is None else root / plan.run_dir
+            written = _write_files(root, run, run_id, rdir, plan, extra_files, created)
+            try:
+                cal_id = _write_rows(
+                    engine, run, raw_hash, settings_hash, root, rdir, plan, written
+                )
+            except _PlanChangedError:
+                continue
+            except IntegrityError as exc:
+                last_error = exc
+                continue
+            return _result(run, run_id, rdir, plan, cal_id, written.files)
+        raise ArchiveError(
+            f"run {run_id} of {run.serial}: the database refused the rows: {_reason(last_error)}"
+        ) from last_error
+    except BaseException:
+        _cleanup(created)
+        raise
+
+
+def _reason(exc: Exception | None) -> str:
+    orig = getattr(exc, "orig", None)
+    return (
+        str(orig or exc).strip().splitlines()[0] if exc else "concurrent writers kept changing it"
+    )
+
+
+def _duplicate(root: Path, run: RunIn, run_id: str, plan: _Plan) -> ArchiveResult:
+    cal_id, revision = plan.duplicate_of  # type: ignore[misc]
+    return ArchiveResult(
+        status="duplicate",
+        run_id=run_id,
+        revision=revision,
+        calibration_id=cal_id,
+        run_dir=root / plan.run_dir,  # type: ignore[operator]
+        message=(
+            f"already archived: run {run_id} (revision {revision}) holds these raw files "
+            f"of {run.serial}, processed with the same settings and software {run.software_version}"
+        ),
+    )
+
+
+def _result(
+    run: RunIn, run_id: str, rdir: Path, plan: _Plan, cal_id: int, files: dict[str, Path]
+) -> ArchiveResult:
+    if plan.run_pk is None:
+        status, message = "ok", f"archived run {run_id} of {run.serial}"
+    else:
+        status = "revised"
+        message = (
+            f"run {run_id} of {run.serial} processed again: revision {plan.revision} "
+            f"supersedes revision {plan.revision - 1}"
+        )
+    return ArchiveResult(status, run_id, plan.revision, cal_id, rdir, message, files)
+
+
+@dataclass
+class _Written:
+    files: dict[str, Path]  # extra file name -> path
+    samples: tuple[str, str] | None  # (path relative to the root, sha256) of a new samples file
+
+
+def _write_files(
+    root: Path,
+    run: RunIn,
+    run_id: str,
+    rdir: Path,
+    plan: _Plan,
+    extra_files: dict[str, bytes],
+    created: list[Path],
+) -> _Written:
+    """Raw objects, samples (new runs only) and extra files, each written atomically."""
+    for f in run.raw_files:
+        rawstore.store_raw(root, Path(f.path), f.sha256)
+    samples = None
+    if plan.run_pk is None and run.samples is not None:
+        day = run.started_at.astimezone(UTC)
+        path = rawstore.samples_path(root, run.serial, day, run_id)
+        _note_new(path, created)
+        rawstore.store_samples(root, run.serial, day, run_id, run.samples)
+        samples = (path.relative_to(root).as_posix(), rawstore.sha256_file(path))
+    # Later revisions get their own folder: an archived file is never overwritten.
+    target = rdir if plan.revision == 1 else rdir / f"revision-{plan.revision}"
+    _note_new(target, created)
+    files = {}
+    for name, data in extra_files.items():
+        rawstore.write_atomic(target / name, data)
+        files[name] = target / name
+    return _Written(files, samples)
+
+
+def _note_new(path: Path, created: list[Path]) -> None:
+    # Only the path itself, never a parent: a parent may be shared with another run
+    # being archived at the same time. Empty parents left behind are harmless.
+    if not path.exists() and path not in created:
+        created.append(path)
+
+
+def _cleanup(created: list[Path]) -> None:
+    for p in reversed(created):
+        if p.is_dir():
+            rawstore.remove_tree(p)
+        else:
+            p.unlink(missing_ok=True)
+
+
+def _write_rows(
+    engine: Engine,
+    run: RunIn,
+    raw_hash: str,
+    settings_hash: str,
+    root: Path,
+    rdir: Path,
+    plan: _Plan,
+    written: _Written,
+) -> int:
+    """All rows of the run in one transaction; return the new calibration's id."""
+    with Session(engine) as s, s.begin():
+        if _plan(s, run, raw_hash, settings_hash) != plan:
+            raise _PlanChangedError
+        run_pk = plan.run_pk
+        if run_pk is None:
+            rel_dir = rdir.relative_to(root).as_posix()
+            run_pk = _insert_run(s, run, raw_hash, run_id_of(raw_hash), rel_dir, written.samples)
+        cal = CalibrationRow(
+            run_id=run_pk,
+            revision=plan.revision,
+            settings_hash=settings_hash,
+            settings=run.settings,
+            software_version=run.software_version,
+            source_revision=run.source_revision,
+            document=run.calibration,
+            verdict=run.verdict,
+            profile_name=run.profile_name,
+            profile_version=run.profile_version,
+        )
+        s.add(cal)
+        s.flush()
+        if plan.previous_id is not None:
+            s.get(CalibrationRow, plan.previous_id).superseded_by = cal.id
+        s.add_all(
+            ProcessingStep(
+                run_id=run_pk,
+                calibration_id=cal.id,
+                seq=i,
+                name=st["name"],
+                settings=st.get("settings", {}),
+                statistics=st.get("statistics", {}),
+                software_version=st.get("software_version", run.software_version),
+                source_revision=run.source_revision,
+            )
+            for i, st in enumerate(run.steps)
+        )
+        s.add_all(
+            ParameterRow(
+                calibration_id=cal.id,
+                name=p["name"],
+                value=p["value"],
+                std=p.get("std"),
+                unit=p.get("unit", ""),
+                temperature_c=p.get("temperature_c"),
+            )
+            for p in run.parameters
+        )
+        s.add_all(
+            CheckResultRow(
+                calibration_id=cal.id,
+                name=c["name"],
+                value=c.get("value"),
+                limit=c.get("limit"),
+                passed=c["passed"],
+                detail=c.get("detail", ""),
+                profile_name=run.profile_name,
+                profile_version=run.profile_version,
+            )
+            for c in run.checks
+        )
+        s.flush()
+        return cal.id
+
+
+def _insert_run(
+    s: Session,
+    run: RunIn,
+    raw_hash: str,
+    run_id: str,
+    rel_dir: str,
+    samples: tuple[str, str] | None,
+) -> int:
+    device = s.scalars(select(Device).where(Device.serial == run.serial)).one_or_none()
+    if device is None:
+        device = Device(
+            serial=run.serial,
+            model=run.device_model,
+            manufacturer=run.manufacturer,
+            specification=run.specification,
+        )
+        s.add(device)
+        s.flush()
+    row = Run(
+        run_id=run_id,
+        device_id=device.id,
+        started_at=run.started_at,
+        operator=run.operator,
+        procedure=run.procedure,
+        site=run.site,
+        gravity=run.gravity,
+        environment=run.environment,
+        manifest_text=run.manifest_text,
+        raw_hash=raw_hash,
+        tolerance_profile=run.tolerance_profile,
+        run_dir=rel_dir,
+        samples_path=None if samples is None else samples[0],
+        samples_sha256=None if samples is None else samples[1],
+    )
+    s.add(row)
+    s.flush()
+    for i, eq in enumerate(run.equipment):
+        s.add(
+            RunEquipment(
+                run_id=row.id,
+                equipment_id=_equipment_id(s, eq),
+                calibration_due=_as_date(eq.get("calibration_due"), f"equipment[{i}]"),
+                calibrated_on=_as_date(eq.get("calibrated_on"), f"equipment[{i}]"),
+            )
+        )
+    s.add_all(
+        RawFile(
+            run_id=row.id,
+            name=f.name,
+            sha256=f.sha256,
+            size=f.size,
+            format=f.format,
+            stored_path=rawstore.object_path(Path("."), f.sha256).as_posix(),
+        )
+        for f in run.raw_files
+    )
+    s.flush()
+    return row.id
+
+
+def _equipment_id(s: Session, eq: dict[str, Any]) -> int:
+    found = s.scalars(
+        select(Equipment.id).where(Equipment.kind == eq["kind"], Equipment.serial == eq["serial"])
+    ).one_or_none()
+    if found is not None:
+        return found
+    row = Equipment(
+        kind=eq["kind"],
+        serial=eq["serial"],
+        model=eq.get("model"),
+        accuracy_class=eq.get("accuracy_class"),
+        calibration_due=_as_date(eq.get("calibration_due"), "equipment.calibration_due"),
+        calibrated_on=_as_date(eq.get("calibrated_on"), "equipment.calibrated_on"),
+    )
+    s.add(row)
+    s.flush()
+    return row.id

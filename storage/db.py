@@ -1,0 +1,161 @@
+"""Where the archive lives: database URL + file store root, engine, migrations.
+
+One machine: a SQLite file and the file store under one root directory
+(default ``./calib-archive``). A bigger lab: any SQLAlchemy URL (PostgreSQL,
+``postgresql+psycopg://user@host/db``) with the file store on shared storage
+(``CALIB_FILESTORE``). The schema is created and upgraded by Alembic
+(storage/migrations), run from here so no alembic.ini is needed at run time.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from alembic import command
+from alembic.config import Config
+from alembic.runtime.migration import MigrationContext
+from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy.engine import make_url
+
+DEFAULT_ROOT = Path("calib-archive")
+MIGRATIONS = Path(__file__).parent / "migrations"
+SQLITE_BUSY_TIMEOUT_MS = 30_000
+# Any constant works; it only has to be the same for every process upgrading the database.
+_PG_MIGRATION_LOCK = 0x63616C6962  # "calib"
+
+
+def default_archive_url(root: Path) -> str:
+    """SQLAlchemy URL of the SQLite archive file under `root` (root/archive.sqlite)."""
+    return f"sqlite:///{(Path(root) / 'archive.sqlite').resolve()}"
+
+
+@dataclass
+class Archive:
+    """An archive: its database URL and the root of its file store.
+
+    Attributes
+    ----------
+    url : SQLAlchemy URL of the database.
+    root : directory holding raw objects, run folders and Parquet samples.
+    """
+
+    url: str
+    root: Path
+    _engine: Engine | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self.root = Path(self.root)
+
+    def __repr__(self) -> str:
+        return f"Archive(url={self.display_url!r}, root={str(self.root)!r})"
+
+    @property
+    def display_url(self) -> str:
+        """The URL with any password hidden, for messages and logs."""
+        return make_url(self.url).render_as_string(hide_password=True)
+
+    @property
+    def is_sqlite(self) -> bool:
+        return make_url(self.url).get_backend_name() == "sqlite"
+
+    def engine(self) -> Engine:
+        """The (cached) engine; SQLite gets foreign keys, WAL and a busy timeout."""
+        if self._engine is None:
+            self._engine = _make_engine(self.url)
+        return self._engine
+
+    def upgrade(self) -> None:
+        """Bring the schema to the newest migration (no-op if it is there already).
+
+        Safe to call on every start and from several processes at once: on
+        SQLite the migration runs in a ``BEGIN IMMEDIATE`` transaction, on
+        PostgreSQL under an advisory lock, so concurrent callers queue up and
+        the later ones find nothing to do.
+        """
+        self.migrate("head")
+
+    def migrate(self, target: str, *, down: bool = False) -> None:
+        """Upgrade (or with `down`, downgrade) the schema to an Alembic revision."""
+        cfg = self.alembic_config()
+        with self.engine().connect() as conn:
+            conn.execution_options(sqlite_begin="IMMEDIATE")
+            with conn.begin():
+                if conn.dialect.name == "postgresql":
+                    conn.execute(
+                        text("SELECT pg_advisory_xact_lock(:k)"), {"k": _PG_MIGRATION_LOCK}
+                    )
+                cfg.attributes["connection"] = conn
+                (command.downgrade if down else command.upgrade)(cfg, target)
+
+    def alembic_config(self) -> Config:
+        """Alembic configuration for this archive (no alembic.ini needed)."""
+        cfg = Config()
+        cfg.set_main_option("script_location", str(MIGRATIONS))
+        cfg.set_main_option("sqlalchemy.url", self.url.replace("%", "%%"))
+        return cfg
+
+    def schema_revision(self) -> str | None:
+        """The Alembic revision the database is at (None: no schema yet)."""
+        with self.engine().connect() as conn:
+            return MigrationContext.configure(conn).get_current_revision()
+
+    def dispose(self) -> None:
+        """Close all pooled connections (tests, before deleting the database)."""
+        if self._engine is not None:
+            self._engine.dispose()
+            self._engine = None
+
+
+def _make_engine(url: str) -> Engine:
+    u = make_url(url)
+    if u.get_backend_name() != "sqlite":
+        return create_engine(url, pool_pre_ping=True)
+    if u.database and u.database != ":memory:":
+        Path(u.database).parent.mkdir(parents=True, exist_ok=True)
+    engine = create_engine(url)
+
+    # pysqlite's own transaction handling skips BEGIN before DDL and cannot take
+    # the write lock up front; take over (SQLAlchemy's documented recipe) so a
+    # transaction really is one, and writers can ask for BEGIN IMMEDIATE.
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_conn, _record) -> None:  # noqa: ANN001
+        dbapi_conn.isolation_level = None
+        cur = dbapi_conn.cursor()
+        cur.execute("PRAGMA foreign_keys=ON")
+        cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+        if u.database and u.database != ":memory:":
+            cur.execute("PRAGMA journal_mode=WAL")
+        cur.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(conn) -> None:  # noqa: ANN001
+        mode = conn.get_execution_options().get("sqlite_begin", "DEFERRED")
+        conn.exec_driver_sql(f"BEGIN {mode}")
+
+    return engine
+
+
+def resolve_archive(arg: str | None) -> Archive:
+    """The archive named by a CLI argument.
+
+    Parameters
+    ----------
+    arg : None (use env ``CALIB_ARCHIVE``, else ``./calib-archive``), a directory
+        (SQLite file and file store under it), or a SQLAlchemy URL (the file
+        store root is then env ``CALIB_FILESTORE``, else ``./calib-archive``).
+    """
+    if arg is None:
+        arg = os.environ.get("CALIB_ARCHIVE") or str(DEFAULT_ROOT)
+    if "://" in arg:
+        make_url(arg)  # raises ArgumentError with the reason if malformed
+        root = Path(os.environ.get("CALIB_FILESTORE") or DEFAULT_ROOT).resolve()
+        return Archive(url=arg, root=root)
+    root = Path(arg).expanduser().resolve()
+    if root.exists() and not root.is_dir():
+        raise ValueError(
+            f"archive {arg!r}: expected a directory or a database URL, found a file "
+            "(for a SQLite file give sqlite:///path/to/file.sqlite)"
+        )
+    return Archive(url=default_archive_url(root), root=root)

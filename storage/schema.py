@@ -1,0 +1,237 @@
+"""Archive tables: one SQLAlchemy 2 schema for SQLite and PostgreSQL.
+
+The archive is append-only. A run is the raw bytes of one lab session
+(identified by `raw_hash`, the SHA-256 over its sorted raw-file hashes); each
+processing of a run is a calibration *revision*. Re-processing with other
+settings or another software version adds a revision and sets `superseded_by`
+on the previous one; that column is the only value ever updated in place.
+
+Constraint names follow `NAMING` so that Alembic migrations (and SQLite batch
+mode, which rebuilds tables) can address them by name on both back ends.
+See docs/archive.md for the table-by-table description.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, date, datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    CheckConstraint,
+    Date,
+    DateTime,
+    Float,
+    ForeignKey,
+    Integer,
+    MetaData,
+    String,
+    Text,
+    UniqueConstraint,
+)
+from sqlalchemy.engine import Dialect
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+from sqlalchemy.types import TypeDecorator
+
+NAMING = {
+    "ix": "ix_%(table_name)s_%(column_0_N_name)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+SHA256_LEN = 64
+NAME_LEN = 64  # serials, run ids: see storage.naming.check_safe_name
+
+
+class UTCDateTime(TypeDecorator):
+    """Timezone-aware datetime stored as UTC and always returned UTC-aware.
+
+    SQLite has no time zone type and gives back naive datetimes even for
+    ``DateTime(timezone=True)``; PostgreSQL gives them in the session's zone.
+    Naive input is refused, because its meaning (local time? UTC?) is unknown.
+    """
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None or value.utcoffset() is None:
+            raise ValueError(f"naive datetime {value!r}: the archive needs a time zone")
+        value = value.astimezone(UTC)
+        return value.replace(tzinfo=None) if dialect.name == "sqlite" else value
+
+    def process_result_value(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING)
+    type_annotation_map = {dict[str, Any]: JSON, datetime: UTCDateTime, date: Date}
+
+
+class Device(Base):
+    """One IMU unit. First-seen model/manufacturer are kept (never updated)."""
+
+    __tablename__ = "devices"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    serial: Mapped[str] = mapped_column(String(NAME_LEN), unique=True)
+    model: Mapped[str] = mapped_column(String(200))
+    manufacturer: Mapped[str] = mapped_column(String(200))
+    specification: Mapped[str | None] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Equipment(Base):
+    """A rate table, centrifuge, chamber, DAQ... identified by (kind, serial)."""
+
+    __tablename__ = "equipment"
+    __table_args__ = (UniqueConstraint("kind", "serial"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    kind: Mapped[str] = mapped_column(String(100))
+    model: Mapped[str | None] = mapped_column(String(200))
+    serial: Mapped[str] = mapped_column(String(200))
+    accuracy_class: Mapped[str | None] = mapped_column(String(100))
+    # As first seen; the value valid for a given run is the snapshot in run_equipment.
+    calibration_due: Mapped[date | None]
+    calibrated_on: Mapped[date | None]
+
+
+class Run(Base):
+    """One lab session of one unit: its raw bytes and the circumstances."""
+
+    __tablename__ = "runs"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[str] = mapped_column(String(NAME_LEN), unique=True)
+    device_id: Mapped[int] = mapped_column(ForeignKey("devices.id"), index=True)
+    started_at: Mapped[datetime] = mapped_column(index=True)
+    operator: Mapped[str | None] = mapped_column(String(200))
+    procedure: Mapped[str] = mapped_column(String(100))
+    site: Mapped[dict[str, Any]]
+    gravity: Mapped[float] = mapped_column(Float)  # m/s^2 used by the solver
+    environment: Mapped[dict[str, Any]]
+    manifest_text: Mapped[str | None] = mapped_column(Text)
+    raw_hash: Mapped[str] = mapped_column(String(SHA256_LEN), unique=True)
+    tolerance_profile: Mapped[str | None] = mapped_column(String(200))
+    run_dir: Mapped[str] = mapped_column(String(500))  # relative to the file store root
+    samples_path: Mapped[str | None] = mapped_column(String(500))  # relative, Parquet
+    samples_sha256: Mapped[str | None] = mapped_column(String(SHA256_LEN))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class RunEquipment(Base):
+    """Equipment used in a run, with its calibration validity as it was then."""
+
+    __tablename__ = "run_equipment"
+    __table_args__ = (UniqueConstraint("run_id", "equipment_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id"), index=True)
+    equipment_id: Mapped[int] = mapped_column(ForeignKey("equipment.id"), index=True)
+    calibration_due: Mapped[date | None]
+    calibrated_on: Mapped[date | None]
+
+
+class RawFile(Base):
+    """One raw input file; the bytes live in the content-addressed store."""
+
+    __tablename__ = "raw_files"
+    __table_args__ = (UniqueConstraint("run_id", "name"), CheckConstraint("size >= 0", "size"))
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id"))
+    name: Mapped[str] = mapped_column(String(500))  # original file name
+    sha256: Mapped[str] = mapped_column(String(SHA256_LEN), index=True)
+    size: Mapped[int] = mapped_column(BigInteger)  # bytes
+    format: Mapped[str] = mapped_column(String(50))
+    stored_path: Mapped[str] = mapped_column(String(500))  # relative to the file store root
+
+
+class CalibrationRow(Base):
+    """One revision of the processing of a run."""
+
+    __tablename__ = "calibrations"
+    __table_args__ = (
+        UniqueConstraint("run_id", "revision"),
+        UniqueConstraint("run_id", "settings_hash", "software_version"),
+        CheckConstraint("revision >= 1", "revision"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id"))
+    revision: Mapped[int] = mapped_column(Integer)
+    settings_hash: Mapped[str] = mapped_column(String(SHA256_LEN))
+    settings: Mapped[dict[str, Any]]
+    software_version: Mapped[str] = mapped_column(String(100))
+    source_revision: Mapped[str | None] = mapped_column(String(100))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    superseded_by: Mapped[int | None] = mapped_column(ForeignKey("calibrations.id"))
+    document: Mapped[dict[str, Any]]  # Calibration.to_dict()
+    verdict: Mapped[str] = mapped_column(String(20))
+    profile_name: Mapped[str | None] = mapped_column(String(200))
+    profile_version: Mapped[str | None] = mapped_column(String(100))
+
+
+class ProcessingStep(Base):
+    """A pipeline step's StepRecord, in order, for one calibration revision."""
+
+    __tablename__ = "processing_steps"
+    __table_args__ = (UniqueConstraint("calibration_id", "seq"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id"), index=True)
+    calibration_id: Mapped[int] = mapped_column(ForeignKey("calibrations.id"))
+    seq: Mapped[int] = mapped_column(Integer)
+    name: Mapped[str] = mapped_column(String(200))
+    settings: Mapped[dict[str, Any]]
+    statistics: Mapped[dict[str, Any]]
+    software_version: Mapped[str] = mapped_column(String(100))
+    source_revision: Mapped[str | None] = mapped_column(String(100))
+
+
+class ParameterRow(Base):
+    """One estimated parameter (long table, for trend and fleet queries)."""
+
+    __tablename__ = "parameters"
+    __table_args__ = (CheckConstraint("std IS NULL OR std >= 0", "std_nonnegative"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    calibration_id: Mapped[int] = mapped_column(ForeignKey("calibrations.id"), index=True)
+    name: Mapped[str] = mapped_column(String(100), index=True)  # canonical, calib_core.params
+    value: Mapped[float] = mapped_column(Float)  # SI
+    std: Mapped[float | None] = mapped_column(Float)  # standard uncertainty, SI
+    unit: Mapped[str] = mapped_column(String(50))
+    temperature_c: Mapped[float | None] = mapped_column(Float)
+
+
+class CheckResultRow(Base):
+    """One check of a calibration against a limit of a tolerance profile."""
+
+    __tablename__ = "check_results"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    calibration_id: Mapped[int] = mapped_column(ForeignKey("calibrations.id"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    value: Mapped[float | None] = mapped_column(Float)
+    limit: Mapped[float | None] = mapped_column(Float)
+    passed: Mapped[bool] = mapped_column(Boolean)
+    detail: Mapped[str] = mapped_column(Text, default="")
+    profile_name: Mapped[str | None] = mapped_column(String(200))
+    profile_version: Mapped[str | None] = mapped_column(String(100))
+
+
+TABLES = [t.name for t in Base.metadata.sorted_tables]

@@ -1,0 +1,284 @@
+"""Headered CSV described by a run manifest: round trip, delimiters, bad input."""
+
+from __future__ import annotations
+
+import hashlib
+from datetime import date, datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib_core.recording import Recording
+from calib_core.units import (
+    DEG,
+    STANDARD_GRAVITY,
+    acceleration_factor,
+    angular_rate_factor,
+    time_factor,
+)
+from pipelines.ingest import FormatSpec, IngestError, discover_runs, load_run, read_csv
+from pipelines.ingest.manifest import SIX_POSITION_LABELS
+from pipelines.samples import (
+    CSV_ACC_DECIMALS,
+    CSV_GYR_DECIMALS,
+    CSV_REFERENCE_DECIMALS,
+    CSV_TEMP_DECIMALS,
+    CSV_TIME_DECIMALS,
+    dumps_toml,
+    write_csv_run,
+)
+
+N = 120  # samples per segment at 100 Hz
+
+
+def make_segments(rng: np.random.Generator, labels=SIX_POSITION_LABELS) -> dict[str, Recording]:
+    """Segments with +-g on one axis, 45 deg/s turns, noise, temperature and a table angle."""
+    out = {}
+    for label in labels:
+        t = np.arange(N) / 100.0 + rng.uniform(0.0, 50.0)  # each on its own clock
+        axis = "xyz".index(label[0])
+        acc = rng.normal(0.0, 0.02, (N, 3))
+        gyr = rng.normal(0.0, 0.005, (N, 3))
+        rate = 0.0
+        if label.endswith(("up", "dn")):
+            acc[:, axis] += STANDARD_GRAVITY if label.endswith("up") else -STANDARD_GRAVITY
+        else:
+            acc[:, axis] += STANDARD_GRAVITY
+            rate = (45.0 if label.endswith("ccw") else -45.0) * DEG
+            gyr[:, axis] += rate
+        temp = 21.0 + rng.normal(0.0, 0.1, N)
+        angle = rate * (t - t[0])
+        out[label] = Recording(t, acc, gyr, temp, {"table_angle": angle}, label)
+    return out
+
+
+def manifest_dict(**fmt) -> dict:
+    return {
+        "unit": {"serial": "IMU-7", "model": "ADIS16470", "manufacturer": "Analog Devices"},
+        "run": {
+            "started": datetime(2024, 5, 2, 9, 15),
+            "operator": "A. Tester",
+            "procedure": "six_position_integral",
+            "tolerance_profile": "mpu6000",
+            "settings": {"turns": 1},
+        },
+        "site": {"latitude_deg": 48.1, "height_m": 520.0, "gravity_model": "helmert"},
+        "environment": {"temperature_c": 21.0, "humidity_pct": 45.0},
+        "equipment": [
+            {
+                "kind": "rate_table",
+                "model": "AC1120",
+                "serial": "RT-3",
+                "accuracy_class": "0.01 %",
+                "calibration_due": date(2025, 1, 31),
+            }
+        ],
+        "format": fmt,
+    }
+
+
+def half_ulp(decimals: int, factor: float) -> float:
+    """Half a unit of the last printed decimal, converted to SI by `factor`.
+
+    1e-9 relative slack covers the binary representation of the decimal value.
+    """
+    return 0.5 * 10.0**-decimals * factor * (1 + 1e-9)
+
+
+@pytest.mark.parametrize(
+    ("seed", "units"),
+    [
+        (0, {}),
+        (1, {"acc_unit": "g", "gyr_unit": "deg/s", "time_unit": "ms", "delimiter": ";"}),
+        (2, {"acc_unit": "mg", "gyr_unit": "deg/h", "time_unit": "us", "delimiter": "tab"}),
+    ],
+)
+def test_round_trip_through_manifest(tmp_path: Path, seed: int, units: dict) -> None:
+    segments = make_segments(np.random.default_rng(seed))
+    manifest = manifest_dict(**units)
+    manifest["segments"] = [{"label": "z_cw", "verification": True}]
+    write_csv_run(segments, tmp_path, manifest)
+    (source,) = discover_runs([tmp_path])
+    run = load_run(source)
+
+    tu = units.get("time_unit", "s")
+    tol_acc = half_ulp(CSV_ACC_DECIMALS, acceleration_factor(units.get("acc_unit", "m/s^2")))
+    tol_gyr = half_ulp(CSV_GYR_DECIMALS, angular_rate_factor(units.get("gyr_unit", "rad/s")))
+    # Times are compared relative to each segment's first sample: two roundings.
+    tol_t = 2 * half_ulp(CSV_TIME_DECIMALS[tu], time_factor(tu))
+    assert list(run.segments) == list(SIX_POSITION_LABELS)
+    for label, truth in segments.items():
+        rec = run.segments[label]
+        assert rec.label == label and len(rec) == N
+        assert np.abs((rec.t - rec.t[0]) - (truth.t - truth.t[0])).max() <= tol_t
+        assert np.abs(rec.acc - truth.acc).max() <= tol_acc
+        assert np.abs(rec.gyr - truth.gyr).max() <= tol_gyr
+        assert np.abs(rec.temp - truth.temp).max() <= half_ulp(CSV_TEMP_DECIMALS, 1.0)
+        ref = rec.reference["table_angle"] - truth.reference["table_angle"]
+        assert np.abs(ref).max() <= half_ulp(CSV_REFERENCE_DECIMALS, 1.0)
+    assert run.verification_labels == {"z_cw"}
+    m = run.manifest
+    lat = np.radians(48.1)
+    helmert = 9.80616 * (1 - 0.0026373 * np.cos(2 * lat) + 0.0000059 * np.cos(2 * lat) ** 2)
+    assert m.gravity() == pytest.approx(helmert - 3.086e-6 * 520.0, abs=1e-12)
+    assert m.equipment[0].calibration_due == date(2025, 1, 31)
+    assert run.manifest_text == (tmp_path / "run.toml").read_text()
+    assert [(r.name, r.format) for r in run.raw_files] == [
+        ("run.toml", "manifest"),
+        ("imu.csv", "csv"),
+    ]
+    for raw in run.raw_files:
+        assert raw.sha256 == hashlib.sha256(raw.path.read_bytes()).hexdigest()
+
+
+def write_small_csv(path: Path, rows: list[str], header: str = "t,ax,ay,az,gx,gy,gz") -> Path:
+    path.write_text("\n".join([header, *rows]) + "\n")
+    return path
+
+
+FMT = FormatSpec(
+    kind="csv",
+    time_column="t",
+    acc_columns=["ax", "ay", "az"],
+    gyr_columns=["gx", "gy", "gz"],
+)
+GOOD = [f"{i * 0.01:.2f},0.1,0.2,9.8,0.01,0.02,0.03" for i in range(10)]
+
+
+@pytest.mark.parametrize(
+    ("value", "shown"),
+    [
+        ("abc", "'abc'"),
+        ("nan", "'nan'"),
+        ("inf", "'inf'"),
+        ("", "an empty value (missing column or blank line)"),
+    ],
+)
+def test_bad_value_names_line_and_column(tmp_path: Path, value: str, shown: str) -> None:
+    rows = list(GOOD)
+    rows[4] = rows[4].replace("9.8", value)  # data row 5 = line 6 after the header
+    path = write_small_csv(tmp_path / "imu.csv", rows)
+    with pytest.raises(IngestError) as err:
+        read_csv(path, FMT)
+    assert str(err.value) == f"{path} line 6: field 'az': expected a finite number, got {shown}"
+
+
+def test_short_row_is_an_empty_value(tmp_path: Path) -> None:
+    rows = list(GOOD)
+    rows[2] = rows[2].rsplit(",", 1)[0]  # line 4 lacks gz
+    path = write_small_csv(tmp_path / "imu.csv", rows)
+    with pytest.raises(IngestError, match=r"line 4: field 'gz': .*empty value"):
+        read_csv(path, FMT)
+
+
+def test_time_not_increasing_names_first_bad_line(tmp_path: Path) -> None:
+    rows = list(GOOD)
+    rows[6], rows[7] = rows[7], rows[6]  # line 9 goes back in time
+    path = write_small_csv(tmp_path / "imu.csv", rows)
+    with pytest.raises(IngestError, match="time must increase") as err:
+        read_csv(path, FMT)
+    assert (err.value.line, err.value.field) == (9, "t")
+
+
+def test_column_not_in_header(tmp_path: Path) -> None:
+    path = write_small_csv(tmp_path / "imu.csv", GOOD, header="t,ax,ay,acc_z,gx,gy,gz")
+    with pytest.raises(IngestError, match=r"column 'az'.*header has: t, ax, ay, acc_z") as err:
+        read_csv(path, FMT)
+    assert err.value.field == "format.acc_columns"
+
+
+@pytest.mark.parametrize(
+    ("delimiter", "sep"), [(None, ";"), (None, "\t"), (None, "  "), ("whitespace", " ")]
+)
+def test_delimiters(tmp_path: Path, delimiter: str | None, sep: str) -> None:
+    rows = [r.replace(",", sep) for r in GOOD]
+    path = write_small_csv(
+        tmp_path / "imu.txt", rows, header=sep.join(["t", "ax", "ay", "az", "gx", "gy", "gz"])
+    )
+    fmt = FMT.model_copy(update={"delimiter": delimiter, "gyr_unit": "deg/s", "acc_unit": "g"})
+    rec = read_csv(path, fmt)
+    assert np.allclose(rec.t, np.arange(10) * 0.01, rtol=0, atol=1e-15)
+    assert np.allclose(rec.acc[:, 2], 9.8 * STANDARD_GRAVITY, rtol=1e-15)
+    assert np.allclose(rec.gyr[:, 0], 0.01 * DEG, rtol=1e-15)
+
+
+def test_no_header_integer_columns(tmp_path: Path) -> None:
+    path = tmp_path / "imu.csv"
+    path.write_text("\n".join(r.replace(",", " ") for r in GOOD) + "\n")
+    fmt = FormatSpec(
+        kind="csv", header=False, time_column=0, acc_columns=[1, 2, 3], gyr_columns=[4, 5, 6]
+    )
+    rec = read_csv(path, fmt)
+    assert len(rec) == 10 and rec.acc[0, 2] == 9.8
+    bad = fmt.model_copy(update={"temp_column": 8})
+    with pytest.raises(IngestError, match=r"0-based indices below 7") as err:
+        read_csv(path, bad)
+    assert err.value.field == "format.temp_column"
+
+
+def test_empty_and_header_only(tmp_path: Path) -> None:
+    empty = tmp_path / "empty.csv"
+    empty.write_text("\n\n")
+    with pytest.raises(IngestError, match=r"empty\.csv: file is empty"):
+        read_csv(empty, FMT)
+    header_only = write_small_csv(tmp_path / "h.csv", [])
+    with pytest.raises(IngestError, match=r"h\.csv: no data rows"):
+        read_csv(header_only, FMT)
+
+
+def per_file_manifest(files: dict[str, str], acc_unit: str = "m/s^2") -> str:
+    """A run.toml with one CSV file per segment."""
+    doc = manifest_dict(acc_unit=acc_unit)
+    doc["schema_version"] = 1
+    doc["format"].update(
+        kind="csv", time_column="t", acc_columns=["ax", "ay", "az"], gyr_columns=["gx", "gy", "gz"]
+    )
+    doc["segments"] = [{"label": lab, "file": f} for lab, f in files.items()]
+    return dumps_toml(doc)
+
+
+def test_one_file_per_segment_and_missing_file(tmp_path: Path) -> None:
+    files = {lab: f"{lab}.csv" for lab in SIX_POSITION_LABELS}
+    for name in files.values():
+        write_small_csv(tmp_path / name, GOOD)
+    (tmp_path / "run.toml").write_text(per_file_manifest(files))
+    run = load_run(discover_runs([tmp_path])[0])
+    assert len(run.raw_files) == 13 and run.segments["y_dn"].source == str(tmp_path / "y_dn.csv")
+    (tmp_path / "x_dn.csv").unlink()
+    with pytest.raises(IngestError) as err:
+        load_run(discover_runs([tmp_path])[0])
+    assert str(err.value).startswith(f"{tmp_path / 'run.toml'}: field 'segments[1].file'")
+    assert "'x_dn.csv' not found" in str(err.value)
+
+
+def test_segment_file_outside_run_folder(tmp_path: Path) -> None:
+    write_small_csv(tmp_path / "x.csv", GOOD)
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "run.toml").write_text(per_file_manifest({"x_up": "../x.csv"}))
+    with pytest.raises(IngestError, match=r"field 'segments\[0\]\.file': .*'\.\./x\.csv'.*inside"):
+        load_run(discover_runs([run_dir])[0])
+
+
+def test_wrong_unit_in_manifest(tmp_path: Path) -> None:
+    write_small_csv(tmp_path / "x.csv", GOOD)
+    (tmp_path / "run.toml").write_text(per_file_manifest({"x_up": "x.csv"}, acc_unit="furlong/s^2"))
+    with pytest.raises(IngestError) as err:
+        load_run(discover_runs([tmp_path])[0])
+    assert str(err.value).startswith(
+        f"{tmp_path / 'run.toml'}: field 'format.acc_unit': unknown acceleration unit "
+        "'furlong/s^2'; expected one of: g, m/s"
+    )
+
+
+def test_window_without_samples(tmp_path: Path) -> None:
+    write_csv_run(make_segments(np.random.default_rng(4), ["x_up"]), tmp_path, manifest_dict())
+    toml = tmp_path / "run.toml"
+    toml.write_text(
+        toml.read_text().replace("end_s = ", "end_s = 1000").replace("start_s = ", "start_s = 999")
+    )
+    with pytest.raises(
+        IngestError, match=r"field 'segments\[0\]': segment 'x_up': the window .* no samples"
+    ):
+        load_run(discover_runs([tmp_path])[0])

@@ -1,0 +1,157 @@
+"""End to end: simulated lab runs in both layouts -> real Prefect flow -> real SQLite archive."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sqlalchemy import func, select
+
+from calib_core.simulate import random_errors, six_position_integral_run
+from pipelines.flows import process_batch
+from pipelines.samples import write_csv_run, write_mpu6000_run
+from storage import schema
+from storage.db import resolve_archive
+
+MANIFEST = {
+    "schema_version": 1,
+    "unit": {"serial": "SIM-CSV-1", "model": "MPU-6000", "manufacturer": "InvenSense"},
+    "run": {
+        "started": "2026-11-20T09:15:00+00:00",
+        "operator": "test",
+        "procedure": "six_position_integral",
+        "tolerance_profile": "mpu6000",
+    },
+    "site": {"gravity_model": "standard"},
+    "environment": {"temperature_c": 20.0},
+}
+
+
+def _simulate(seed: int):
+    rng = np.random.default_rng(seed)
+    return six_position_integral_run(random_errors(rng), rng)
+
+
+@pytest.fixture
+def lab_day(tmp_path: Path) -> dict[str, Path]:
+    """A folder with one MPU-6000 run, one CSV run and one broken run (a segment file missing)."""
+    day = tmp_path / "day"
+    sim_a, sim_b, sim_c = _simulate(1), _simulate(2), _simulate(3)
+    write_mpu6000_run(sim_a.segments, day / "mpu", "MPU0001", truth=sim_a.truth_dict())
+    write_csv_run(sim_b.segments, day / "csv", MANIFEST, truth=sim_b.truth_dict())
+    broken = day / "broken"
+    write_mpu6000_run(sim_c.segments, broken, "MPU0666", truth=sim_c.truth_dict())
+    (broken / "MPU0666_y_dn.txt").unlink()
+    return {
+        "day": day,
+        "mpu": day / "mpu",
+        "csv": day / "csv",
+        "broken": broken,
+        "truth_mpu": sim_a.truth_dict(),
+        "truth_csv": sim_b.truth_dict(),
+    }
+
+
+def _row_counts(arch) -> dict[str, int]:
+    with arch.engine().connect() as conn:
+        return {
+            t.name: conn.execute(select(func.count()).select_from(t)).scalar_one()
+            for t in schema.Base.metadata.sorted_tables
+        }
+
+
+def test_batch_archives_good_runs_and_reports_the_bad_one(prefect_harness, lab_day, tmp_path):
+    archive_dir = tmp_path / "archive"
+    outcomes = process_batch([str(lab_day["day"])], str(archive_dir))
+    by_serial = {o["serial"] or Path(o["source"]).name: o for o in outcomes}
+    assert by_serial["MPU0001"]["status"] == "ok", by_serial["MPU0001"]["error"]
+    assert by_serial["SIM-CSV-1"]["status"] == "ok", by_serial["SIM-CSV-1"]["error"]
+    broken = [o for o in outcomes if o["status"] == "failed"]
+    assert len(broken) == 1 and "MPU0666_y_dn" in broken[0]["error"]
+
+    # parameters against the simulator's truth, within 4 reported standard uncertainties
+    for serial, truth in (("MPU0001", lab_day["truth_mpu"]), ("SIM-CSV-1", lab_day["truth_csv"])):
+        got = by_serial[serial]["parameters"]
+        for name, p in got.items():
+            if ".noise." in name:
+                continue
+            assert p["std"] is not None and p["std"] > 0, name
+            err = abs(p["value"] - truth["parameters"][name])
+            assert err <= 4 * p["std"], f"{serial} {name}: error {err:.3g} > 4 x {p['std']:.3g}"
+        protocol = Path(by_serial[serial]["protocol"])
+        assert protocol.name == f"{serial}_result.txt" and protocol.is_file()
+        text = protocol.read_text()
+        assert serial in text and "Quality control" in text and "gyr.scale.x" in text
+
+    arch = resolve_archive(str(archive_dir))
+    counts = _row_counts(arch)
+    assert counts["runs"] == 2 and counts["calibrations"] == 2
+    assert not any(serial == "MPU0666" for serial in _serials(arch))
+
+    # the same files again: duplicates, and not one new row anywhere
+    again = process_batch([str(lab_day["mpu"]), str(lab_day["csv"])], str(archive_dir))
+    assert [o["status"] for o in again] == ["duplicate", "duplicate"]
+    assert all(o["run_id"] for o in again)
+    assert _row_counts(arch) == counts
+
+
+def _serials(arch) -> list[str]:
+    with arch.engine().connect() as conn:
+        return list(conn.execute(select(schema.Device.serial)).scalars())
+
+
+def test_cli_process_json_contract(lab_day, tmp_path):
+    """`calib process --json`: one JSON document on stdout, exit 1 when a run failed."""
+    env = {**os.environ, "CALIB_ARCHIVE": str(tmp_path / "cli-archive")}
+    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
+    proc = subprocess.run(
+        [calib, "process", str(lab_day["day"]), "--json"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    doc = json.loads(proc.stdout)
+    assert set(doc) == {"runs"} and len(doc["runs"]) == 3
+    for run in doc["runs"]:
+        assert {"run_id", "serial", "status", "error", "parameters", "checks", "protocol"} <= set(
+            run
+        )
+        assert run["status"] in ("ok", "failed", "duplicate")
+        if run["status"] == "ok":
+            assert run["error"] is None and run["parameters"]["acc.bias.x"]["unit"] == "m/s^2"
+            assert run["parameters"]["gyr.gsens.xy"]["unit"] == "(rad/s)/(m/s^2)"
+            assert all(isinstance(c["passed"], bool) for c in run["checks"])
+        else:
+            assert run["error"]
+    ok_ids = [r["run_id"] for r in doc["runs"] if r["status"] == "ok"]
+    proc = subprocess.run(
+        [calib, "process", str(lab_day["mpu"]), "--json"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    again = json.loads(proc.stdout)["runs"]
+    assert again[0]["status"] == "duplicate" and again[0]["run_id"] in ok_ids
+
+    shown = subprocess.run(
+        [calib, "show", ok_ids[0], "--json"], capture_output=True, text=True, env=env, timeout=120
+    )
+    assert shown.returncode == 0, shown.stderr[-2000:]
+    exported = subprocess.run(
+        [calib, "export", ok_ids[0], "--format", "json"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert exported.returncode == 0 and "acc.scale.x" in exported.stdout

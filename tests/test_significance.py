@@ -1,0 +1,150 @@
+"""Tests of calib_core.significance against independent closed forms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from calib_core.significance import fit_ols, stepwise_reduce
+
+
+def _data(seed: int, n: int = 60, k: int = 10, beta=None, sigma: float = 0.5):
+    rng = np.random.default_rng(seed)
+    X = np.column_stack([np.ones(n), rng.normal(size=(n, k))])
+    beta = rng.normal(size=k + 1) if beta is None else np.asarray(beta, dtype=float)
+    y = X @ beta + rng.normal(0.0, sigma, n)
+    return X, y, ["const", *(f"x{j}" for j in range(k))]
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_statistics_match_independent_normal_equations(seed):
+    X, y, names = _data(seed)
+    fit = fit_ols(X, y, names)
+    # Independent route: normal equations with numpy.linalg.inv, scipy.stats distributions.
+    n, p = X.shape
+    inv = np.linalg.inv(X.T @ X)
+    beta = inv @ X.T @ y
+    res = y - X @ beta
+    Q = res @ res
+    U = np.sum((X @ beta - y.mean()) ** 2)
+    s2 = Q / (n - p)
+    se = np.sqrt(s2 * np.diag(inv))
+    t = beta / se
+    F = (U / (p - 1)) / (Q / (n - p))
+    # Both are exact formulas in double precision; 1e-9 relative covers the rounding.
+    np.testing.assert_allclose(fit.coef, beta, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(fit.std, se, rtol=1e-9)
+    np.testing.assert_allclose(fit.t, t, rtol=1e-9)
+    np.testing.assert_allclose(fit.p, 2 * stats.t.sf(np.abs(t), n - p), rtol=1e-7, atol=1e-300)
+    assert pytest.approx(Q, rel=1e-9) == fit.Q
+    assert pytest.approx(U, rel=1e-9) == fit.U
+    assert fit.r2 == pytest.approx(1 - Q / np.sum((y - y.mean()) ** 2), rel=1e-9)
+    assert pytest.approx(F, rel=1e-9) == fit.F
+    assert fit.F_crit == pytest.approx(stats.f.ppf(0.95, p - 1, n - p), rel=1e-12)
+    assert fit.t_crit == pytest.approx(stats.t.ppf(0.975, n - p), rel=1e-12)
+    assert (fit.n, fit.k, fit.dof) == (60, 10, 49)
+
+
+@pytest.mark.parametrize(("k", "table_value"), [(10, 2.03), (5, 2.39)])
+def test_f_on_constructed_dataset_equals_closed_form(k, table_value):
+    """n = 60: F(10, 49) and F(5, 54) at 0.05, as in the centrifuge paper.
+
+    y = X b + e with e orthogonal to the columns of X, so the fit must return
+    exactly b, Q = |e|^2, U = |X b - mean|^2 and F = (U/k) / (Q/(n-k-1)).
+    """
+    n = 60
+    rng = np.random.default_rng(k)
+    X = np.column_stack([np.ones(n), rng.normal(size=(n, k))])
+    b = np.arange(1.0, k + 2)
+    e = rng.normal(size=n)
+    e -= X @ np.linalg.lstsq(X, e, rcond=None)[0]  # project out the column space
+    y = X @ b + e
+    fit = fit_ols(X, y, ["const", *(f"x{j}" for j in range(k))])
+    U = np.sum((X @ b - y.mean()) ** 2)
+    Q = e @ e
+    np.testing.assert_allclose(fit.coef, b, rtol=1e-10)
+    assert pytest.approx((U / k) / (Q / (n - k - 1)), rel=1e-10) == fit.F
+    # Published F tables give 2 decimals: F(10, 49) = 2.03, F(5, 54) = 2.39.
+    assert fit.F_crit == pytest.approx(table_value, abs=0.005)
+
+
+def test_paper_f_and_r2_are_consistent_with_the_formula():
+    """Paper: final 5-term model, n = 60, R^2 = 0.9637 (4 decimals), F = 286.95.
+
+    F = (R^2/k) / ((1-R^2)/(n-k-1)); R^2 rounded to +-5e-5 moves F by
+    dF/dR^2 * 5e-5 = 54/5/(1-R^2)^2 * 5e-5 = 0.41, the tolerance used.
+    """
+    r2, k, n = 0.9637, 5, 60
+    F = (r2 / k) / ((1 - r2) / (n - k - 1))
+    assert pytest.approx(286.95, abs=0.41) == F
+
+
+def test_no_constant_uses_uncentred_sums():
+    X, y, names = _data(7, k=3)
+    fit = fit_ols(X[:, 1:], y, names[1:])
+    beta = np.linalg.lstsq(X[:, 1:], y, rcond=None)[0]
+    assert not fit.has_const and fit.k == 3 and fit.dof == 57
+    assert pytest.approx(np.sum((X[:, 1:] @ beta) ** 2), rel=1e-9) == fit.U
+
+
+def test_add_constant_equals_explicit_column():
+    X, y, names = _data(3, k=4)
+    a = fit_ols(X, y, names)
+    b = fit_ols(X[:, 1:], y, names[1:], add_constant=True)
+    np.testing.assert_allclose(a.coef, b.coef, rtol=1e-12)
+    assert a.names == b.names
+
+
+def test_rank_deficiency_names_the_dependent_columns():
+    X, y, names = _data(1, k=4)
+    X[:, 3] = 2.0 * X[:, 1] - X[:, 2]
+    with pytest.raises(ValueError, match=r"rank deficient.*x0.*x1.*x2"):
+        fit_ols(X, y, names)
+    with pytest.raises(ValueError, match="more observations than terms"):
+        fit_ols(X[:5], y[:5], names)
+    with pytest.raises(ValueError, match="4 names given for 5 columns"):
+        fit_ols(X, y, names[:4])
+    with pytest.raises(ValueError, match="keep names"):
+        stepwise_reduce(X[:, :3], y, names[:3], keep=("nope",))
+
+
+def test_stepwise_keeps_strong_terms_and_records_the_removals():
+    k = 10
+    beta = np.zeros(k + 1)
+    beta[[0, 1, 4, 7]] = [1.0, 2.0, -1.5, 1.0]  # effects ~ 30 sigma of their estimates
+    X, y, names = _data(11, beta=beta, sigma=0.5)
+    red = stepwise_reduce(X, y, names)
+    assert {"const", "x0", "x3", "x6"} <= set(red.kept)
+    assert len(red.removed) + len(red.kept) == k + 1
+    # each removal: the smallest |t| of its fit, below t_crit of that fit
+    for step in red.steps:
+        ts = {n: abs(t) for n, t in zip(step.fit.names, step.fit.t, strict=True) if n != "const"}
+        assert abs(step.t) == pytest.approx(min(ts.values()))
+        assert abs(step.t) < step.fit.t_crit
+    assert np.all(np.abs(red.final.t[1:]) > red.final.t_crit)
+    assert red.full.k == 10 and red.final.k == len(red.kept) - 1
+
+
+def test_keep_protects_terms():
+    X, y, names = _data(2, k=4, beta=[1.0, 2.0, 0.0, 0.0, 0.0])
+    red = stepwise_reduce(X, y, names, keep=("const", "x3"))
+    assert "x3" in red.kept
+
+
+def test_false_keep_rate_matches_alpha():
+    """Null terms survive the reduction at about the test level.
+
+    With m null terms each kept with probability ~alpha, exact recovery happens
+    with probability ~(1 - alpha)^m. Over 300 seeds the binomial std of the
+    observed rate is sqrt(p (1-p) / 300); allow 4 of them.
+    """
+    m, alpha, trials = 6, 0.05, 300
+    beta = np.array([1.0, 2.0, -1.0, 1.5, 0, 0, 0, 0, 0, 0])
+    exact = 0
+    for seed in range(trials):
+        X, y, names = _data(1000 + seed, n=60, k=9, beta=beta, sigma=0.5)
+        red = stepwise_reduce(X, y, names, alpha=alpha)
+        exact += set(red.kept) == {"const", "x0", "x1", "x2"}
+    p = (1 - alpha) ** m
+    assert abs(exact / trials - p) < 4 * np.sqrt(p * (1 - p) / trials)
