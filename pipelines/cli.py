@@ -29,7 +29,7 @@ ArchiveOpt = Annotated[
 ]
 
 
-def _archive(arg: str | None):
+def open_archive(arg: str | None):
     from storage.db import resolve_archive
 
     arch = resolve_archive(arg)
@@ -37,12 +37,12 @@ def _archive(arg: str | None):
     return arch
 
 
-def _fail(message: str) -> None:
+def fail(message: str) -> None:
     err.print(f"[red]error:[/red] {message}")
     raise typer.Exit(2)
 
 
-def _print_json(doc: Any) -> None:
+def print_json(doc: Any) -> None:
     sys.stdout.write(json.dumps(doc, indent=2, default=str) + "\n")
 
 
@@ -57,7 +57,7 @@ def process(
 
     outcomes = process_batch([str(p) for p in paths], archive)
     if as_json:
-        _print_json({"runs": outcomes})
+        print_json({"runs": outcomes})
     else:
         table = Table(title="Processed runs")
         for col in ("run", "serial", "status", "verdict", "failed checks", "protocol / error"):
@@ -87,13 +87,13 @@ def history(
     """Every calibration revision of a serial, oldest first."""
     from storage import queries
 
-    df = queries.history(_archive(archive), serial)
+    df = queries.history(open_archive(archive), serial)
     if as_json:
-        _print_json(json.loads(df.to_json(orient="records", date_format="iso")))
+        print_json(json.loads(df.to_json(orient="records", date_format="iso")))
         return
     if df.empty:
-        _fail(f"no calibrations archived for serial {serial!r}")
-    _print_frame(df, f"History of {serial}")
+        fail(f"no calibrations archived for serial {serial!r}")
+    print_frame(df, f"History of {serial}")
 
 
 @app.command()
@@ -106,11 +106,11 @@ def show(
     from storage import queries
 
     try:
-        summary = queries.run_summary(_archive(archive), run_id)
+        summary = queries.run_summary(open_archive(archive), run_id)
     except (KeyError, LookupError, ValueError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     if as_json:
-        _print_json(summary)
+        print_json(summary)
         return
     out.print_json(json.dumps(summary, default=str))
 
@@ -126,11 +126,11 @@ def export(
     from storage import queries
 
     if fmt != "json":
-        _fail(f"unknown export format {fmt!r}; expected: json")
+        fail(f"unknown export format {fmt!r}; expected: json")
     try:
-        doc = queries.export_calibration(_archive(archive), run_id)
+        doc = queries.export_calibration(open_archive(archive), run_id)
     except (KeyError, LookupError, ValueError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     text = json.dumps(doc, indent=2, default=str) + "\n"
     if output is None:
         sys.stdout.write(text)
@@ -139,7 +139,7 @@ def export(
         err.print(f"wrote {output}")
 
 
-def _print_frame(df, title: str) -> None:
+def print_frame(df, title: str) -> None:
     table = Table(title=title)
     for col in df.columns:
         table.add_column(str(col))
@@ -147,6 +147,11 @@ def _print_frame(df, title: str) -> None:
         table.add_row(*("" if v is None else str(v) for v in row))
     out.print(table)
 
+
+# Commands of the other areas live in pipelines/commands/ and register themselves on `app`.
+from pipelines.commands import register_all  # noqa: E402
+
+register_all()
 
 if __name__ == "__main__":
     app()
