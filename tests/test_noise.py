@@ -1,0 +1,162 @@
+"""Allan deviation and noise parameters against independent references and simulated truth."""
+
+from __future__ import annotations
+
+import math
+
+import allantools
+import numpy as np
+import pytest
+
+from calib_core.noise import (
+    FLICKER_FACTOR,
+    allan_deviation,
+    arw_to_deg_per_sqrt_h,
+    noise_parameters,
+    rate_to_deg_per_h,
+    rrw_to_deg_per_h_per_sqrt_h,
+)
+from calib_core.simulate.noise import NoiseSpec, random_walk, white
+
+
+@pytest.mark.parametrize("taus", ["octave", "log", "array"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_matches_allantools(seed, taus):
+    rng = np.random.default_rng(seed)
+    rate = 100.0
+    n = 30_001
+    # an offset of 5 rad/s and a random walk: both stress the cumulative sum
+    x = 5.0 + white(n, rate, 0.01, rng) + random_walk(n, rate, 1e-3, rng)
+    if taus == "array":
+        taus = np.array([0.01, 0.05, 0.37, 2.0, 60.0, 150.0])
+    res = allan_deviation(x, rate, taus)
+    ref_taus, ref_adev, _, ref_n = allantools.oadev(x, rate=rate, data_type="freq", taus=res.taus)
+    np.testing.assert_array_equal(ref_taus, res.taus)
+    np.testing.assert_array_equal(ref_n, res.n_clusters)
+    np.testing.assert_allclose(res.adev, ref_adev, rtol=1e-9, atol=0)
+
+
+def test_triad_columns_match_single_channel():
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal((5000, 3)) * [1.0, 2.0, 3.0]
+    res = allan_deviation(x, 50.0, "log")
+    for c in range(3):
+        one = allan_deviation(x[:, c], 50.0, "log")
+        np.testing.assert_allclose(res.column(c).adev, one.adev, rtol=1e-12)
+        ref = allantools.oadev(x[:, c], rate=50.0, data_type="freq", taus=res.taus)[1]
+        np.testing.assert_allclose(res.adev[:, c], ref, rtol=1e-9)
+
+
+def test_white_noise_confidence_interval_coverage():
+    """The 68.3 % interval must contain the true N / sqrt(tau) in ~68 % of records.
+
+    200 records: binomial std of the coverage sqrt(0.683 * 0.317 / 200) = 0.033,
+    so we accept 0.683 +- 4 * 0.033. Only taus with >= 20 degrees of freedom,
+    where the chi-squared approximation of the Allan variance is sound.
+    """
+    rate, arw, n, runs = 100.0, 0.02, 4096, 200
+    hits = None
+    for seed in range(runs):
+        res = allan_deviation(white(n, rate, arw, np.random.default_rng(seed)), rate)
+        truth = arw / np.sqrt(res.taus)
+        inside = (res.ci_low <= truth) & (truth <= res.ci_high)
+        hits = inside.astype(int) if hits is None else hits + inside
+    use = res.edf >= 20
+    assert use.sum() >= 5
+    coverage = hits[use] / runs
+    half_width = 4 * math.sqrt(0.683 * 0.317 / runs)
+    assert np.all(np.abs(coverage - 0.683) < half_width), coverage
+
+
+# White + flicker + random walk with crossovers tau1 = N^2 / (0.664 B)^2 = 1 s and
+# tau2 = 3 (0.664 B)^2 / K^2 = 50 s, recorded for 2e5 s at 10 Hz (2 M samples).
+# The random-walk term has ~2e5 / 50 = 4000 crossover times of data, which puts the
+# scatter of K at ~2 % (measured over 8 seeds: std 2 %, worst 4.6 %), the flat level
+# and N at < 0.5 %, so 10 % is > 4 standard deviations away. (N reads ~2 % high
+# because a finite 1/f filter has more power at lags of a few samples.)
+_B = 1e-4  # rad/s
+_TAU1, _TAU2 = 1.0, 50.0
+_MIX = NoiseSpec(
+    arw=math.sqrt((FLICKER_FACTOR * _B) ** 2 * _TAU1),
+    bias_instability=_B,
+    rrw=math.sqrt(3 * (FLICKER_FACTOR * _B) ** 2 / _TAU2),
+)
+_RATE = 10.0
+_N = 2_000_000
+
+
+@pytest.fixture(scope="module")
+def mix_results():
+    out = []
+    for seed in (11, 12, 13, 14):
+        x = _MIX.sample(_N, _RATE, np.random.default_rng(seed), channels=1)[:, 0]
+        out.append(allan_deviation(x, _RATE))
+    return out
+
+
+def test_noise_parameters_model_within_10_percent(mix_results):
+    for res in mix_results:
+        p = noise_parameters(res)  # default: jointly fitted lines
+        assert p.method == "model"
+        assert abs(p.arw / _MIX.arw - 1) < 0.10
+        assert abs(p.bias_instability / _MIX.bias_instability - 1) < 0.10
+        assert abs(p.rrw / _MIX.rrw - 1) < 0.10
+        # the fitted model reproduces the true curve where the data are dense
+        taus = res.taus[res.edf > 100]
+        np.testing.assert_allclose(p.adev_model(taus), _MIX.allan_deviation(taus), rtol=0.10)
+
+
+def test_noise_parameters_lines_reading(mix_results):
+    """The textbook reading: slope -1/2 line at 1 s and min / 0.664.
+
+    The minimum also holds the white and random-walk terms; at the minimum of
+    N^2/tau + K^2 tau/3 that adds 2 N K / sqrt(3) in variance, so the reading
+    must equal sqrt((0.664 B)^2 + 2NK/sqrt(3)) / 0.664, to within 4 x the relative
+    std of the Allan deviation there, 1 / sqrt(2 edf).
+    """
+    for res in mix_results:
+        p = noise_parameters(res, method="lines")
+        assert p.arw_taus and p.arw_taus[0] == 1 / _RATE
+        # white region points carry up to ~10 % flicker variance, weighted towards the
+        # shortest tau (edf ~ 1/m): <= ~5 % high, plus the ~2 % short-lag flicker excess
+        assert abs(p.arw / _MIX.arw - 1) < 0.10
+        expected = (
+            math.sqrt((FLICKER_FACTOR * _B) ** 2 + 2 * _MIX.arw * _MIX.rrw / math.sqrt(3))
+            / FLICKER_FACTOR
+        )
+        i = int(np.argmin(res.adev))
+        assert res.taus[i] == p.bias_instability_tau
+        tol = 4 / math.sqrt(2 * res.edf[i])
+        assert abs(p.bias_instability / expected - 1) < tol + 0.02  # + the short-lag excess
+
+
+def test_lines_random_walk_alone():
+    """Pure rate random walk: the slope +1/2 line read at 3 s is K."""
+    rate, K = 1.0, 1e-3
+    for seed in (1, 2, 3):
+        x = random_walk(400_000, rate, K, np.random.default_rng(seed))
+        res = allan_deviation(x, rate)
+        p = noise_parameters(res, method="lines", slope_tol=0.15)
+        assert len(p.rrw_taus) >= 3
+        # rrw_taus start at m >= 2; the line fit is dominated by the first few taus with
+        # edf ~ N/m >= 1e5: relative std < 1 %; 10 % leaves room for the edf being
+        # smaller for random walk than for white noise
+        assert abs(p.rrw / K - 1) < 0.10
+
+
+def test_converters_closed_form():
+    assert arw_to_deg_per_sqrt_h(math.radians(1) / 60) == pytest.approx(1.0, rel=1e-12)
+    assert rate_to_deg_per_h(math.radians(1) / 3600) == pytest.approx(1.0, rel=1e-12)
+    assert rrw_to_deg_per_h_per_sqrt_h(math.radians(1) / 3600 / 60) == pytest.approx(1.0, rel=1e-12)
+
+
+def test_bad_input_messages():
+    x = np.zeros(100)
+    with pytest.raises(ValueError, match="out of range"):
+        allan_deviation(x, 10.0, np.array([100.0]))
+    with pytest.raises(ValueError, match="octave"):
+        allan_deviation(x, 10.0, "decade")
+    with pytest.raises(ValueError, match="NaN"):
+        allan_deviation(np.array([0.0, np.nan, 1.0, 2.0]), 10.0)
+    with pytest.raises(ValueError, match="column"):
+        noise_parameters(allan_deviation(np.zeros((100, 3)) + np.arange(100)[:, None], 10.0))

@@ -1,0 +1,206 @@
+"""Rate-table gyro calibration against simulated truth and the Cramer-Rao bound."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from calib_core.recording import Recording
+from calib_core.simulate.rate_table import GyroTruth, simulate_rate_table
+from calib_core.solvers.rate_table import rate_point, rate_points, solve_rate_table
+from calib_core.units import DEG
+
+RATE = 100.0  # Hz, the procedure's minimum; keeps the Monte Carlo small
+RECORD_S = 10.0
+DENSITY = 0.01 * DEG  # rad/s/sqrt(Hz): 0.1 deg/s per sample at 100 Hz (MEMS)
+RATES_DEG = (-100.0, -50.0, 0.0, 50.0, 100.0)
+TRUTH = GyroTruth(
+    bias=np.array([0.01, -0.02, 0.005]),
+    M=np.array([[0.01, 0.002, -0.001], [0.003, -0.02, 0.004], [-0.002, 0.001, 0.015]]),
+)
+NAMES = [
+    "gyr.bias.x", "gyr.bias.y", "gyr.bias.z",
+    "gyr.scale.x", "gyr.misalign.xy", "gyr.misalign.xz",
+    "gyr.misalign.yx", "gyr.scale.y", "gyr.misalign.yz",
+    "gyr.misalign.zx", "gyr.misalign.zy", "gyr.scale.z",
+]  # fmt: skip
+
+
+def _truth_vector(truth: GyroTruth) -> np.ndarray:
+    M = truth.M
+    return np.concatenate([truth.bias, M[0], M[1], M[2]])
+
+
+def _run(seed: int, truth: GyroTruth = TRUTH, **kw):
+    run = simulate_rate_table(
+        truth, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE, record_s=RECORD_S,
+        gyro_noise_density=DENSITY, table_stability=1e-4, rng=np.random.default_rng(seed), **kw,
+    )  # fmt: skip
+    return solve_rate_table(rate_points(run.recordings))
+
+
+def _crlb() -> np.ndarray:
+    """Cramer-Rao variances of NAMES, built here from the rate list and the noise alone.
+
+    Each point mean has variance sigma^2 / n (sigma = density sqrt(f_s), n samples in
+    the window); each output channel is linear in (b_i, M_i.) with the design
+    [1, w_x, w_y, w_z] over the 15 points, so the bound is sigma^2/n (A^T A)^-1.
+    """
+    rows = []
+    for axis in range(3):
+        for r in RATES_DEG:
+            w = np.zeros(3)
+            w[axis] = r * DEG
+            rows.append([1.0, *w])
+    A = np.array(rows)
+    var_mean = DENSITY**2 * RATE / (RECORD_S * RATE)
+    c = np.diag(np.linalg.inv(A.T @ A)) * var_mean  # same for every channel
+    return np.concatenate([np.full(3, c[0]), np.tile(c[1:], 3)])
+
+
+def test_truth_within_4u():
+    for seed in range(5):
+        cal = _run(seed)
+        est = np.array([cal.parameters[n].value for n in NAMES])
+        u = np.array([cal.parameters[n].std for n in NAMES])
+        assert np.all(np.abs(est - _truth_vector(TRUTH)) <= 4 * u), (
+            seed,
+            (est - _truth_vector(TRUTH)) / u,
+        )
+
+
+def test_scatter_matches_reported_uncertainty_and_crlb():
+    """200 seeds: observed std of each parameter error against the mean reported u and
+    the Cramer-Rao bound. The std of 200 draws is known to ~5 %, so a 1.2x bound is
+    3.6 sigma away for an efficient estimator."""
+    runs = 200
+    errs, us = [], []
+    for seed in range(100, 100 + runs):
+        cal = _run(seed)
+        errs.append([cal.parameters[n].value for n in NAMES] - _truth_vector(TRUTH))
+        us.append([cal.parameters[n].std for n in NAMES])
+    errs, us = np.array(errs), np.array(us)
+    observed = errs.std(axis=0, ddof=1)
+    ratio_u = us.mean(axis=0) / observed
+    assert np.all((ratio_u > 0.5) & (ratio_u < 2.0)), dict(zip(NAMES, ratio_u, strict=True))
+    crlb_std = np.sqrt(_crlb())
+    ratio = observed / crlb_std
+    assert np.all(ratio < 1.2), dict(zip(NAMES, ratio, strict=True))
+    assert np.all(ratio > 1 / 1.2), dict(zip(NAMES, ratio, strict=True))  # cannot beat the bound
+    # no bias either: the mean error is within 4 standard errors of the mean
+    assert np.all(np.abs(errs.mean(axis=0)) < 4 * observed / math.sqrt(runs))
+
+
+def test_nonlinearity_and_asymmetry():
+    """Cubic k3 on x and asymmetry a on y, with low noise (0.001 deg/s/sqrt(Hz)).
+
+    x: the fitted line absorbs k3 sum(w^4)/sum(w^2) into the slope (the cubic is odd,
+    so the bias is unaffected); residual at w is k3 (w^3 - w sum(w^4)/sum(w^2)), and the
+    nonlinearity is max |residual| / ((1 + M_xx + slope shift) * 100 deg/s).
+    Tolerance: a residual scatters by about the point sem, sigma / sqrt(n) ->
+    4 sem / full-scale output in ppm.
+    y: K+ / K- = (1 + a/2) / (1 - a/2) exactly, so the asymmetry is a; check it within
+    4 reported u.
+    """
+    k3 = 2e-4  # (rad/s)^-2 -> ~ 300 ppm of FS at 100 deg/s
+    a = 800e-6
+    truth = replace(TRUTH, k3=np.array([k3, 0.0, 0.0]), asymmetry=np.array([0.0, a, 0.0]))
+    density = 0.001 * DEG
+    run = simulate_rate_table(
+        truth, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE, record_s=RECORD_S,
+        gyro_noise_density=density, rng=np.random.default_rng(42),
+    )  # fmt: skip
+    cal = solve_rate_table(rate_points(run.recordings))
+    w = np.array([r for r in RATES_DEG if r]) * DEG
+    shift = k3 * np.sum(w**4) / np.sum(w**2)
+    resid = k3 * (w**3 - w * np.sum(w**4) / np.sum(w**2))
+    fs_out = (1 + truth.M[0, 0] + shift) * 100 * DEG
+    expected_ppm = np.abs(resid).max() / fs_out * 1e6
+    sem = density * math.sqrt(RATE) / math.sqrt(RECORD_S * RATE)
+    got = cal.info["nonlinearity"]["x"]["ppm_of_full_scale"]
+    assert abs(got - expected_ppm) < 4 * sem / fs_out * 1e6, (got, expected_ppm)
+    assert cal.value("gyr.scale.x") == pytest.approx(truth.M[0, 0] + shift, abs=4 * sem / w.max())
+    # z has neither: its nonlinearity is noise only
+    assert cal.info["nonlinearity"]["z"]["ppm_of_full_scale"] < 4 * sem / (100 * DEG) * 1e6
+    asym = cal.info["asymmetry"]
+    assert abs(asym["y"]["ppm"] - a * 1e6) < 4 * asym["y"]["u_ppm"]
+    assert abs(asym["z"]["ppm"]) < 4 * asym["z"]["u_ppm"]
+    assert asym["y"]["u_ppm"] < 50  # the test would be void if u were huge
+    # both effects break the linear model: the chi2 check must say so
+    assert any("gyr x" in w and "chi2" in w for w in cal.warnings)
+
+
+def test_zero_rate_bias_consistency():
+    run = simulate_rate_table(
+        TRUTH, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE, record_s=RECORD_S,
+        gyro_noise_density=DENSITY, rng=np.random.default_rng(3),
+    )  # fmt: skip
+    points = rate_points(run.recordings)
+    clean = solve_rate_table(points)
+    z = np.array(clean.info["zero_rate_bias"]["difference_sigma"])
+    assert np.all(np.abs(z) < 4) and not clean.warnings
+    # shift the 0-rate points' x channel by 10 of their combined standard uncertainties
+    u0 = clean.info["zero_rate_bias"]["u_zero_rate"][0]
+    u1 = clean.info["zero_rate_bias"]["u_moving"][0]
+    shifted = []
+    for p in points:
+        if p.table_rate == 0.0:
+            p = replace(p, gyro_mean=p.gyro_mean + np.array([10 * math.hypot(u0, u1), 0, 0]))
+        shifted.append(p)
+    bad = solve_rate_table(shifted)
+    assert any("gyr x" in w and "0 rate" in w for w in bad.warnings), bad.warnings
+    assert bad.info["zero_rate_bias"]["difference_sigma"][0] == pytest.approx(z[0] + 10, abs=1e-6)
+
+
+def test_single_axis_gives_one_column():
+    run = simulate_rate_table(
+        TRUTH, axes=("y",), rate_hz=RATE, record_s=RECORD_S, gyro_noise_density=DENSITY,
+        rng=np.random.default_rng(8),
+    )  # fmt: skip
+    cal = solve_rate_table(rate_points(run.recordings))
+    assert set(cal.parameters) == {
+        "gyr.bias.x", "gyr.bias.y", "gyr.bias.z", "gyr.scale.y", "gyr.misalign.xy",
+        "gyr.misalign.zy",
+    }  # fmt: skip
+    for name, true in [("gyr.scale.y", TRUTH.M[1, 1]), ("gyr.misalign.xy", TRUTH.M[0, 1])]:
+        p = cal.parameters[name]
+        assert abs(p.value - true) <= 4 * p.std
+
+
+def test_rate_point_drops_settle():
+    """The table ramps at 100 deg/s^2 from 0 to 100 deg/s in 1 s; keeping the ramp
+    biases the reference rate low by ~ 100 deg/s * 0.5 s / 30 s, dropping 20 s of
+    settle leaves exactly the plateau (no wobble, no feedback noise here)."""
+    run = simulate_rate_table(
+        TRUTH, rates=(100 * DEG,), axes=("x",), rate_hz=RATE, gyro_noise_density=DENSITY,
+        rng=np.random.default_rng(1),
+    )  # fmt: skip
+    rec = run.recordings[0]
+    p = rate_point(rec)
+    assert p.axis == "x" and p.n == int(RECORD_S * RATE)
+    assert p.table_rate == pytest.approx(100 * DEG, rel=1e-12)
+    expected = TRUTH.output(np.array([[100 * DEG, 0, 0]]))[0]
+    assert np.all(np.abs(p.gyro_mean - expected) <= 4 * p.gyro_sem)
+    ramp = rate_point(rec, settle_s=0.0)
+    assert ramp.table_rate < 100 * DEG * (1 - 0.5 / 30 / 2)
+
+
+def test_bad_input_messages():
+    rec = Recording(
+        t=np.arange(50) / 10.0, acc=np.zeros((50, 3)), gyr=np.zeros((50, 3)), label="q_1"
+    )
+    with pytest.raises(ValueError, match="table_rate"):
+        rate_point(rec)
+    rec = replace(rec, reference={"table_rate": np.zeros(50)})
+    with pytest.raises(ValueError, match="label 'q_1'"):
+        rate_point(rec)
+    with pytest.raises(ValueError, match="only 0 samples"):
+        rate_point(rec, axis="x")
+    with pytest.raises(ValueError, match="no rate points"):
+        solve_rate_table([])
+    # a constant channel has no scatter: its sem would claim infinite precision
+    with pytest.raises(ValueError, match="gyro_sem must be > 0"):
+        rate_point(rec, axis="x", settle_s=0.0)

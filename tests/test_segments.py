@@ -1,0 +1,154 @@
+"""Segmentation against a real hand-held Ferraris session and simulated rate plateaus."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib_core.preprocess.segments import (
+    detect_rate_plateaus,
+    detect_static,
+    label_position,
+    label_positions,
+    segment,
+)
+from calib_core.recording import Recording
+from calib_core.simulate.table import rate_table_run
+from calib_core.units import DEG, STANDARD_GRAVITY
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "imucal_ferraris"
+FS_FERRARIS = 102.4  # Hz (imucal examples/basic_ferraris.py)
+FACES = {"x_p": "x_up", "x_a": "x_dn", "y_p": "y_up", "y_a": "y_dn", "z_p": "z_up", "z_a": "z_dn"}
+TOL_S = 0.5
+
+
+@pytest.fixture(scope="module")
+def ferraris():
+    csv = REALDATA / "example_ferraris_session.csv"
+    if not csv.exists():
+        pytest.skip(f"real data not found at {REALDATA} (needs shared/realdata beside the repo)")
+    pd = pytest.importorskip("pandas")
+    df = pd.read_csv(csv)
+    sections = json.loads((REALDATA / "example_ferraris_session_list.json").read_text())
+    rec = Recording(
+        t=df["n_samples"].to_numpy() / FS_FERRARIS,
+        acc=df[["acc_x", "acc_y", "acc_z"]].to_numpy(),  # m/s^2
+        gyr=df[["gyr_x", "gyr_y", "gyr_z"]].to_numpy() * DEG,  # deg/s -> rad/s
+        source=csv.name,
+    )
+    # Hand-held: the first ~2.8 s are at rest, then the unit is picked up.
+    seg, record = segment(rec, gravity=STANDARD_GRAVITY, init_static_s=2.5)
+    return rec, sections, seg, record
+
+
+def test_ferraris_six_faces_found_and_labelled_by_gravity(ferraris):
+    rec, sections, seg, _ = ferraris
+    for name, label in FACES.items():
+        s0, s1 = sections[name]["start"] / FS_FERRARIS, sections[name]["end"] / FS_FERRARIS
+        hits = [
+            (iv, lab)
+            for iv, lab in zip(seg.statics, seg.static_labels, strict=True)
+            if iv.end_s > s0 and iv.start_s < s1
+        ]
+        assert len(hits) == 1, f"{name}: {len(hits)} static intervals overlap the section"
+        iv, lab = hits[0]
+        assert lab == label, f"{name}: labelled {lab}"
+        # The detector's rest interval (before the settle cut) covers the annotated
+        # face to within 0.5 s at both ends ...
+        assert iv.detected_start_s <= s0 + TOL_S, f"{name}: rest found from {iv.detected_start_s}"
+        assert iv.end_s >= s1 - TOL_S, f"{name}: rest found until {iv.end_s}"
+        # ... and after the settle cut the kept samples start inside the section.
+        assert iv.start_s >= s0 - TOL_S
+        # What lies beyond the annotated end is rest too (the annotation is a
+        # conservative sub-window): checked independently of the detector, the
+        # gyro stays within 1 deg/s of the section's mean there (hand motion is
+        # tens of deg/s; the noise is 0.05 deg/s, quantised at 0.061 deg/s).
+        extra = (rec.t >= s1) & (rec.t < iv.end_s)
+        inside = (rec.t >= s0) & (rec.t < s1)
+        if extra.any():
+            dev = np.abs(rec.gyr[extra] - rec.gyr[inside].mean(axis=0)).max()
+            assert dev < 1.0 * DEG, f"{name}: {np.degrees(dev):.2f} deg/s after the section"
+
+
+def test_ferraris_three_rotations_found_by_axis(ferraris):
+    rec, sections, seg, record = ferraris
+    assert len(seg.rotations) == 3
+    for axis in "xyz":
+        s0 = sections[f"{axis}_rot"]["start"] / FS_FERRARIS
+        s1 = sections[f"{axis}_rot"]["end"] / FS_FERRARIS
+        hits = [
+            (iv, lab)
+            for iv, lab in zip(seg.rotations, seg.rotation_labels, strict=True)
+            if iv.end_s > s0 and iv.start_s < s1
+        ]
+        assert len(hits) == 1, f"{axis}_rot: {len(hits)} rotations overlap the section"
+        iv, lab = hits[0]
+        assert iv.start_s <= s0 + TOL_S and iv.end_s >= s1 - TOL_S
+        # Sign: independent integral of the raw gyro over the annotated window.
+        inside = (rec.t >= s0) & (rec.t < s1)
+        raw_turn = rec.gyr[inside, "xyz".index(axis)].sum() / FS_FERRARIS
+        assert lab == f"{axis}_{'ccw' if raw_turn > 0 else 'cw'}"
+        # One whole turn; the uncalibrated gyro's scale error is a few percent.
+        assert np.degrees(abs(max(iv.angle, key=abs))) == pytest.approx(360.0, rel=0.06)
+    assert [r["label"][0] for r in record.statistics["rotations"]] == ["x", "y", "z"]
+
+
+def test_rate_plateaus_match_the_simulated_schedule():
+    rates = np.array([-100, -50, 0, 50, 100]) * DEG
+    run = rate_table_run(rates, imu_hz=100.0, hold_s=40.0, seed=2)
+    rec = run.recording
+    found = detect_rate_plateaus(rec.t, rec.gyr[:, 2])
+    truth = run.schedule.plateaus  # (start, end, rate) of each hold
+    # Rest before and after the run are plateaus too (rate 0).
+    for start, end, rate in truth:
+        hit = [iv for iv in found if iv.start_s < end and iv.end_s > start]
+        assert len(hit) == 1
+        iv = hit[0]
+        # Detected within one window (1 s) of the true hold; 20 s settle cut.
+        assert abs(iv.detected_start_s - start) < 1.0 and abs(iv.end_s - end) < 1.0
+        assert iv.settle_s == 20.0 and iv.start_s >= start + 19.0
+        # Level = true rate + bias (0.2 deg/s); 20 s at 100 Hz of 0.05 deg/s noise:
+        # standard error 0.001 deg/s; 5 of them.
+        assert iv.level == pytest.approx(rate + 0.2 * DEG, abs=5 * 0.05 * DEG / np.sqrt(2000))
+    assert len(found) == len(truth) + 2
+
+
+def test_settle_rule_for_short_intervals():
+    # 60 s at rest, then 25 s of turning, then 12 s at rest.
+    fs = 100.0
+    t = np.arange(int(97 * fs)) / fs
+    rng = np.random.default_rng(0)
+    gyr = rng.normal(0, 1e-3, (t.size, 3))
+    gyr[(t >= 60) & (t < 85), 2] += 1.0
+    acc = np.array([0, 0, 9.81]) + rng.normal(0, 0.01, (t.size, 3))
+    rec = Recording(t=t, acc=acc, gyr=gyr)
+    first, second = detect_static(rec, settle_s=30.0, min_keep_s=10.0)
+    assert first.settle_s == 30.0 and not first.short
+    # 12 s is shorter than 30 + 10: it loses max(25 % of it, all but 10 s).
+    duration = second.end_s - second.detected_start_s
+    assert second.short
+    assert second.settle_s == pytest.approx(max(0.25 * duration, duration - 10.0))
+    # The rest found is ~11.5 s (half a window less at each end): a quarter goes.
+    assert 11.0 < duration < 12.0
+    assert second.end_s - second.start_s == pytest.approx(0.75 * duration, abs=0.011)
+
+
+def test_position_labels_by_gravity_not_order():
+    g = STANDARD_GRAVITY
+    faces = {"x_up": [g, 0, 0], "z_dn": [0.1, -0.2, -g], "y_dn": [0, -1.02 * g, 0.3]}
+    segs = [
+        Recording(t=np.arange(5.0), acc=np.tile(v, (5, 1)), gyr=np.zeros((5, 3)), source=name)
+        for name, v in faces.items()
+    ]
+    assert label_positions(segs, g) == list(faces)
+    with pytest.raises(ValueError, match=r"45\.0 deg.*tilted"):
+        label_position(np.array([1.0, 1.0, 0.0]) * g / np.sqrt(2), g)
+    tilted = Recording(
+        t=np.arange(3.0),
+        acc=np.tile([0, 0, 0.5 * g], (3, 1)),
+        gyr=np.zeros((3, 3)),
+        source="pos7.csv",
+    )
+    with pytest.raises(ValueError, match=r"pos7\.csv.*not a static face"):
+        label_positions([tilted], g)
