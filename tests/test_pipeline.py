@@ -48,6 +48,11 @@ def lab_day(tmp_path: Path) -> dict[str, Path]:
     broken = day / "broken"
     write_mpu6000_run(sim_c.segments, broken, "MPU0666", truth=sim_c.truth_dict())
     (broken / "MPU0666_y_dn.txt").unlink()
+    bad_unit = day / "bad_unit"
+    write_csv_run(sim_c.segments, bad_unit, {**MANIFEST, "unit": {**MANIFEST["unit"],
+                  "serial": "SIM-BAD-UNIT"}})
+    toml = (bad_unit / "run.toml").read_text()
+    (bad_unit / "run.toml").write_text(toml.replace('acc_unit = "m/s^2"', 'acc_unit = "furlong"'))
     return {
         "day": day,
         "mpu": day / "mpu",
@@ -72,8 +77,10 @@ def test_batch_archives_good_runs_and_reports_the_bad_one(prefect_harness, lab_d
     by_serial = {o["serial"] or Path(o["source"]).name: o for o in outcomes}
     assert by_serial["MPU0001"]["status"] == "ok", by_serial["MPU0001"]["error"]
     assert by_serial["SIM-CSV-1"]["status"] == "ok", by_serial["SIM-CSV-1"]["error"]
-    broken = [o for o in outcomes if o["status"] == "failed"]
-    assert len(broken) == 1 and "MPU0666_y_dn" in broken[0]["error"]
+    failed = {Path(o["source"]).name: o["error"] for o in outcomes if o["status"] == "failed"}
+    assert set(failed) == {"broken", "bad_unit"}
+    assert "MPU0666_y_dn" in failed["broken"]
+    assert "run.toml" in failed["bad_unit"] and "furlong" in failed["bad_unit"]
 
     # parameters against the simulator's truth, within 4 reported standard uncertainties
     for serial, truth in (("MPU0001", lab_day["truth_mpu"]), ("SIM-CSV-1", lab_day["truth_csv"])):
@@ -92,7 +99,7 @@ def test_batch_archives_good_runs_and_reports_the_bad_one(prefect_harness, lab_d
     arch = resolve_archive(str(archive_dir))
     counts = _row_counts(arch)
     assert counts["runs"] == 2 and counts["calibrations"] == 2
-    assert not any(serial == "MPU0666" for serial in _serials(arch))
+    assert set(_serials(arch)) == {"MPU0001", "SIM-CSV-1"}  # nothing of the failed runs
 
     # the same files again: duplicates, and not one new row anywhere
     again = process_batch([str(lab_day["mpu"]), str(lab_day["csv"])], str(archive_dir))
@@ -117,9 +124,9 @@ def test_cli_process_json_contract(lab_day, tmp_path):
         env=env,
         timeout=300,
     )
-    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert proc.returncode == 1 and proc.stdout.startswith("{"), proc.stderr[-3000:]
     doc = json.loads(proc.stdout)
-    assert set(doc) == {"runs"} and len(doc["runs"]) == 3
+    assert set(doc) == {"runs"} and len(doc["runs"]) == 4
     for run in doc["runs"]:
         assert {"run_id", "serial", "status", "error", "parameters", "checks", "protocol"} <= set(
             run

@@ -68,7 +68,9 @@ def render_protocol(
             tol, mark = f"{'':>12}", " "
         else:
             limit, _ = display(p["name"], check["limit"])
-            tol, mark = f"{'+-':>3}{limit:>9.4g}", "+" if check["passed"] else "-"
+            # check_parameters writes "allowed LOW .. HIGH unit"; one-sided limits print as <=
+            relation = "<=" if check.get("detail", "").startswith("allowed -inf") else "+-"
+            tol, mark = f"{relation:>3}{limit:>9.4g}", "+" if check["passed"] else "-"
         lines.append(f"{p['name']:<18}{_fmt(value, 13)}{_fmt(std, 13)}  {unit:<10}{tol}  {mark}")
     other = [c for c in checks if not c["name"].startswith("param:")]
     if other:
