@@ -8,12 +8,14 @@ writer changes.
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
 import numpy as np
 
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_core.units import DEG
 from pipelines.samples import write_csv_run, write_mpu6000_run
 
 ROOT = Path(__file__).resolve().parent.parent / "data_samples"
@@ -65,23 +67,29 @@ def main() -> None:
     if ROOT.exists():
         shutil.rmtree(ROOT)
     # MPU-6000 layout: recognised by file names, no manifest
+    # a unit inside every MPU-6000 tolerance (gyro noise 0.03 deg/s < 0.05 deg/s): verdict pass
     rng = np.random.default_rng(20261120)
-    sim = six_position_integral_run(random_errors(rng), rng)
+    truth = dataclasses.replace(random_errors(rng), gyr_noise=np.full(3, 0.03 * DEG))
+    sim = six_position_integral_run(truth, rng)
     write_mpu6000_run(sim.segments, ROOT / "mpu6000_MPU0001", "MPU0001", truth=sim.truth_dict())
     # headered CSV + run.toml, Helmert gravity at the site
     from calib_core.earth import gravity_helmert
 
+    # a unit with a noisy gyro x channel (0.06 deg/s > 0.05 deg/s): verdict fail on noise
     rng = np.random.default_rng(20261121)
     g = gravity_helmert(48.137, 519.0)
-    sim = six_position_integral_run(random_errors(rng), rng, gravity=g, turns=2)
+    truth = dataclasses.replace(random_errors(rng), gyr_noise=np.array([0.06, 0.03, 0.03]) * DEG)
+    sim = six_position_integral_run(truth, rng, gravity=g, turns=2)
     write_csv_run(sim.segments, ROOT / "csv_IMU-2026-0042", CSV_MANIFEST, truth=sim.truth_dict())
     (ROOT / "README.md").write_text(
         "# data_samples\n\nSimulated lab runs with known truth, made by "
         "`scripts/make_data_samples.py` (calib_core.simulate); `make demo` processes them.\n\n"
         "- `mpu6000_MPU0001/`: the MPU-6000 text layout (`<serial>_<axis>_<up|dn|cw|ccw>.txt`, "
-        "no manifest), truth in `MPU0001_truth.json`.\n"
+        "no manifest), truth in `MPU0001_truth.json`; within tolerance (pass).\n"
         "- `csv_IMU-2026-0042/`: one headered CSV (`imu.csv`, g and deg/s) described by "
-        "`run.toml`, Helmert gravity at the site, 2-turn rotations, truth in `truth.json`.\n",
+        "`run.toml`, Helmert gravity at the site, 2-turn rotations, truth in `truth.json`; "
+        "gyro x noise 0.06 deg/s exceeds the "
+        "profile's 0.05 deg/s (fail).\n",
         encoding="utf-8",
     )
     print(f"wrote {ROOT}")
