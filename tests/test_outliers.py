@@ -104,3 +104,56 @@ def test_bad_settings_name_the_source():
         remove_outliers(rec, "median")
     with pytest.raises(ValueError, match="unknown policy"):
         remove_outliers(rec, policy="clip")
+
+
+def _plain_sigma_clip(x, n_sigma, max_iter=20):
+    """Reference: the textbook loop over all samples every pass (independent of the
+    candidate-set shortcut in sigma_mask)."""
+    flagged = np.zeros(x.size, dtype=bool)
+    for _ in range(max_iter):
+        good = x[~flagged]
+        if good.size < 3:
+            break
+        new = flagged | (np.abs(x - good.mean()) > n_sigma * good.std(ddof=1))
+        if np.array_equal(new, flagged):
+            break
+        flagged = new
+    return flagged
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_sigma_mask_equals_plain_clipping_on_every_column(seed):
+    rng = np.random.default_rng(seed)
+    # Gaussian and heavy-tailed columns with spikes, one near-constant column
+    # (large mean, tiny noise: tests the centring) and a tiny one (n < 3 rule).
+    x = np.column_stack(
+        [
+            rng.normal(9.81, 0.02, 5000),
+            rng.standard_t(3, 5000),
+            1e4 + rng.normal(0.0, 1e-6, 5000),
+        ]
+    )
+    x[rng.choice(5000, 50, replace=False), 0] += 0.3
+    got = sigma_mask(x, 3.0)
+    for j in range(x.shape[1]):
+        np.testing.assert_array_equal(got[:, j], _plain_sigma_clip(x[:, j], 3.0))
+    assert got[:, 0].sum() >= 50  # the spikes are 15 sigma: all found
+    assert not sigma_mask(np.array([1.0, 5.0]), 3.0).any()
+
+
+def test_interpolated_runs_match_numpy_interp_including_the_edges():
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.5, 1.5, 400))  # uneven spacing
+    acc = rng.normal(0.0, 1.0, (400, 3))
+    acc[[0, 1, 50, 51, 52, 200, 398, 399], 0] += 100.0  # runs, including both ends
+    before = acc.copy()
+    rec = Recording(t=t, acc=acc, gyr=np.zeros((400, 3)), source="runs.csv")
+    out, record = remove_outliers(rec, "sigma", n_sigma=5.0, channels=("acc",))
+    bad = np.array(record.statistics["flagged_indices"]["acc.x"])
+    assert set(bad) >= {0, 1, 50, 51, 52, 200, 398, 399}
+    good = np.setdiff1d(np.arange(400), bad)
+    # np.interp holds the edge values beyond the first / last good sample, as documented.
+    expected = np.interp(t[bad], t[good], acc[good, 0])
+    np.testing.assert_allclose(out.acc[bad, 0], expected, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(out.acc[good], acc[good])
+    np.testing.assert_array_equal(rec.acc, before)  # the input is not modified

@@ -54,17 +54,22 @@ def test_ferraris_six_faces_found_and_labelled_by_gravity(ferraris):
         assert len(hits) == 1, f"{name}: {len(hits)} static intervals overlap the section"
         iv, lab = hits[0]
         assert lab == label, f"{name}: labelled {lab}"
-        # The detector's rest interval (before the settle cut) covers the annotated
+        # The detector's rest interval (before the settle cuts) covers the annotated
         # face to within 0.5 s at both ends ...
         assert iv.detected_start_s <= s0 + TOL_S, f"{name}: rest found from {iv.detected_start_s}"
-        assert iv.end_s >= s1 - TOL_S, f"{name}: rest found until {iv.end_s}"
-        # ... and after the settle cut the kept samples start inside the section.
-        assert iv.start_s >= s0 - TOL_S
-        # What lies beyond the annotated end is rest too (the annotation is a
-        # conservative sub-window): checked independently of the detector, the
-        # gyro stays within 1 deg/s of the section's mean there (hand motion is
-        # tens of deg/s; the noise is 0.05 deg/s, quantised at 0.061 deg/s).
-        extra = (rec.t >= s1) & (rec.t < iv.end_s)
+        assert iv.detected_end_s >= s1 - TOL_S, f"{name}: rest found until {iv.detected_end_s}"
+        # ... and the samples kept after the settle cuts lie inside the section
+        # ("or better: inside them"): they are the ones a solver averages.
+        assert s0 <= iv.start_s and iv.end_s <= s1, (
+            f"{name}: kept [{iv.start_s:.2f}, {iv.end_s:.2f}) s, section [{s0:.2f}, {s1:.2f}) s"
+        )
+        assert iv.end_s - iv.start_s > 0.4 * (s1 - s0)  # and most of it is kept
+        # What the detector saw beyond the annotated end is rest too (the
+        # annotation is a conservative sub-window): checked independently of the
+        # detector, the gyro stays within 1 deg/s of the section's mean there
+        # (hand motion is tens of deg/s; the noise is 0.05 deg/s, quantised at
+        # 0.061 deg/s).
+        extra = (rec.t >= s1) & (rec.t < iv.detected_end_s)
         inside = (rec.t >= s0) & (rec.t < s1)
         if extra.any():
             dev = np.abs(rec.gyr[extra] - rec.gyr[inside].mean(axis=0)).max()
@@ -125,13 +130,36 @@ def test_settle_rule_for_short_intervals():
     rec = Recording(t=t, acc=acc, gyr=gyr)
     first, second = detect_static(rec, settle_s=30.0, min_keep_s=10.0)
     assert first.settle_s == 30.0 and not first.short
-    # 12 s is shorter than 30 + 10: it loses max(25 % of it, all but 10 s).
-    duration = second.end_s - second.detected_start_s
+    # 12 s is shorter than 30 + 10: it keeps its middle, losing 25 % at the end
+    # and max(25 %, all but 25 % and 10 s) = 25 % at the start.
+    duration = second.detected_end_s - second.detected_start_s
     assert second.short
-    assert second.settle_s == pytest.approx(max(0.25 * duration, duration - 10.0))
-    # The rest found is ~11.5 s (half a window less at each end): a quarter goes.
+    assert second.settle_s == pytest.approx(0.25 * duration)
+    assert second.end_cut_s == pytest.approx(0.25 * duration)
+    # The rest found is ~11.5 s (half a window less at each end): half is kept,
+    # to one sample (10 ms) at each end.
     assert 11.0 < duration < 12.0
-    assert second.end_s - second.start_s == pytest.approx(0.75 * duration, abs=0.011)
+    assert second.start_s == pytest.approx(second.detected_start_s + 0.25 * duration, abs=0.011)
+    assert second.end_s == pytest.approx(second.detected_end_s - 0.25 * duration, abs=0.011)
+    # Between short and long the kept length is continuous: min(d / 2, 10 s).
+    assert first.end_cut_s == 0.0 and first.end_s == first.detected_end_s
+
+
+def test_settle_rule_keeps_min_keep_for_medium_intervals():
+    # 25 s of rest: short (< 30 + 10), and d / 2 = 12.5 > 10: keeps 10 s, of
+    # which the end loses 25 % of 25 s and the start the rest.
+    fs = 100.0
+    t = np.arange(int(60 * fs)) / fs
+    rng = np.random.default_rng(1)
+    gyr = rng.normal(0, 1e-3, (t.size, 3))
+    gyr[(t >= 15) & (t < 35), 2] += 1.0
+    acc = np.array([0, 0, 9.81]) + rng.normal(0, 0.01, (t.size, 3))
+    rec = Recording(t=t, acc=acc, gyr=gyr)
+    _, second = detect_static(rec, init_static_s=10.0, settle_s=30.0, min_keep_s=10.0)
+    duration = second.detected_end_s - second.detected_start_s
+    assert second.short and 24.0 < duration < 25.5
+    assert second.end_s - second.start_s == pytest.approx(10.0, abs=0.011)
+    assert second.end_cut_s == pytest.approx(0.25 * duration)
 
 
 def test_position_labels_by_gravity_not_order():

@@ -18,8 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.fft import irfft, next_fast_len, rfft
 from scipy.ndimage import uniform_filter1d
-from scipy.signal import correlate
 
 from calib_core.calibration import StepRecord
 from calib_core.recording import Recording
@@ -134,7 +134,11 @@ def _ncc_peak(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """
     w = x.size
     x0 = x - x.mean()
-    num = correlate(y, x0, mode="valid", method="fft")  # (2L+1,), sum x0 * y[k:k+W]
+    # num[k] = sum_n x0[n] y[n + k] for k = 0 .. 2L, by FFT. A circular
+    # correlation of length >= y.size never wraps for these lags (n + k <= y.size - 1),
+    # so the transform needs only y's length, not the full linear w + y.size - 1.
+    nfft = next_fast_len(y.size, real=True)
+    num = irfft(rfft(y, nfft) * np.conj(rfft(x0, nfft)), nfft)[: y.size - w + 1]
     # Energy of each y window about its own mean, via cumulative sums.
     c1 = np.concatenate([[0.0], np.cumsum(y)])
     c2 = np.concatenate([[0.0], np.cumsum(y * y)])
@@ -158,7 +162,12 @@ def _ncc_peak(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
 def _on_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, gaps: np.ndarray):
     """x resampled at `grid` by linear interpolation, and a mask of valid grid points
     (inside the data and not strictly inside one of the (K, 2) `gaps`)."""
-    values = np.interp(grid, t, x)
+    # Only the stretch of (t, x) around the grid goes to np.interp: it copies
+    # non-contiguous inputs whole, which for short windows of a long run costs
+    # far more than the interpolation.
+    lo = max(int(np.searchsorted(t, grid[0], side="right")) - 1, 0)
+    hi = min(int(np.searchsorted(t, grid[-1], side="left")) + 1, t.size)
+    values = np.interp(grid, t[lo:hi], x[lo:hi])
     valid = (grid >= t[0]) & (grid <= t[-1])
     # A grid point is in a gap if the nearest gap start at or before it has its end after it.
     k = np.searchsorted(gaps[:, 0], grid, side="right") - 1
@@ -200,8 +209,8 @@ def estimate_clock(
     -------
     ClockModel with t0_s = imu_t[0] and the RMS fit residual.
     """
-    imu_t, imu_rate = np.asarray(imu_t, float), np.asarray(imu_rate, float)
-    ref_t, ref_rate = np.asarray(ref_t, float), np.asarray(ref_rate, float)
+    imu_t, imu_rate = np.asarray(imu_t, float), np.ascontiguousarray(imu_rate, float)
+    ref_t, ref_rate = np.asarray(ref_t, float), np.ascontiguousarray(ref_rate, float)
     for name, tt, xx in (("imu", imu_t, imu_rate), ("reference", ref_t, ref_rate)):
         if tt.shape != xx.shape or tt.ndim != 1:
             raise ValueError(
@@ -217,12 +226,14 @@ def estimate_clock(
     t0 = float(imu_t[0])
     grid = np.arange(imu_t[0], imu_t[-1], dt)
     imu_gaps, ref_gaps = find_gaps(imu_t, max_gap_s), find_gaps(ref_t, max_gap_s)
-    x, x_valid = _on_grid(imu_t, imu_rate, grid, imu_gaps)
 
     # Coarse offset: whole run, correlated over +-max_offset_s on a grid of at
     # most ~5 ms (enough to seed the windows; the drift only smears this peak).
     q = max(1, int(0.005 / dt))
-    grid_c, x_c = grid[::q], x[::q]
+    # The IMU rate is put on the uniform grid only where it is used: here
+    # every q-th point, below the windows (not the whole run at full rate).
+    grid_c = grid[::q]
+    x_c = np.interp(grid_c, imu_t, imu_rate)
     lag_max = int(np.ceil(max_offset_s / (q * dt))) + 1
     inner = slice(lag_max, grid_c.size - lag_max)
     if grid_c[inner].size < 10 * lag_max:
@@ -245,19 +256,20 @@ def estimate_clock(
         starts = starts[np.unique(np.linspace(0, starts.size - 1, max_windows).astype(int))]
     for start in starts:
         sl = slice(start, start + w)
-        if not x_valid[sl].all() or np.ptp(x[sl]) == 0:
+        x, x_valid = _on_grid(imu_t, imu_rate, grid[sl], imu_gaps)
+        if not x_valid.all() or np.ptp(x) == 0:
             continue
         g = grid[start - search : start + w + search] + coarse
         y, y_valid = _on_grid(ref_t, ref_rate, g, ref_gaps)
         if not y_valid.all():
             continue
-        lag, peak = _ncc_peak(x[sl], y)
+        lag, peak = _ncc_peak(x, y)
         if peak < min_correlation or abs(lag) >= search - 1:
             continue
         # A window measures the offset where its signal changes (the ramps), not
         # at its middle: with drift the two differ by up to drift * window / 2.
         # Weight times by the squared slope of the (noise-averaged) signal.
-        slope = np.gradient(uniform_filter1d(x[sl], smooth, mode="nearest"))
+        slope = np.gradient(uniform_filter1d(x, smooth, mode="nearest"))
         weight = slope * slope
         centres.append(np.sum(grid[sl] * weight) / np.sum(weight))
         offsets.append(coarse + lag * dt)
@@ -322,11 +334,17 @@ def align_reference(
         max_gap_s = 5.0 * float(np.median(np.diff(ref_t)))
     tq = clock.to_ref(np.asarray(imu_t, float))
     cols = values.reshape(ref_t.size, -1)
-    out = np.column_stack([np.interp(tq, ref_t, c) for c in cols.T])
+    out = np.empty((tq.size, cols.shape[1]))
+    for j in range(cols.shape[1]):
+        out[:, j] = np.interp(tq, ref_t, cols[:, j])
     bad = (tq < ref_t[0]) | (tq > ref_t[-1])
-    # Samples strictly inside a gap (the gap's end points are real table samples).
-    for start, end in find_gaps(ref_t, max_gap_s):
-        bad |= (tq > start) & (tq < end)
+    # Samples strictly inside a gap (the gap's end points are real table samples):
+    # the last gap starting before the sample ends after it. One search for all
+    # gaps, so many dropped samples do not cost one pass each.
+    gaps = find_gaps(ref_t, max_gap_s)
+    if gaps.size:
+        k = np.searchsorted(gaps[:, 0], tq, side="left") - 1
+        bad |= (k >= 0) & (tq < gaps[np.maximum(k, 0), 1])
     out[bad] = np.nan
     return out.reshape((-1,) + values.shape[1:])
 
