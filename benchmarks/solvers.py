@@ -1,5 +1,6 @@
 """Time per calibration procedure on realistic sizes (1 kHz, each procedure's full duration),
-and the CRLB efficiency of the linear rate-table least squares from a Monte Carlo run.
+and the CRLB efficiency of the linear least squares (rate table; multi-position and
+sensor-array accelerometer) from a Monte Carlo run.
 
 Run: ``.venv/bin/python benchmarks/solvers.py``. The last stdout line is one JSON object:
 {"seconds": {"<procedure>": float, ...}, "crlb_efficiency_worst": float}, where the
@@ -24,7 +25,7 @@ from calib_core.simulate.noise import NoiseSpec, simulate_static  # noqa: E402
 from calib_core.simulate.rate_table import GyroTruth, simulate_rate_table  # noqa: E402
 from calib_core.solvers.rate_table import rate_points, solve_rate_table  # noqa: E402
 from calib_core.solvers.static_bias import solve_static_bias  # noqa: E402
-from calib_core.units import DEG  # noqa: E402
+from calib_core.units import DEG, STANDARD_GRAVITY  # noqa: E402
 
 RATE_HZ = 1000.0
 RATES = tuple(r * DEG for r in (-100.0, -50.0, 0.0, 50.0, 100.0))
@@ -124,6 +125,118 @@ def crlb_efficiency_rate_table(runs: int = 200) -> float:
     return float(np.min(crlb / observed))
 
 
+def bench_multi_position() -> float:
+    """24 table positions x 60 s at 1 kHz (1.44 M samples), 18-coefficient nonlinear model."""
+    from calib_core.procedures import solve
+    from calib_core.simulate.attitudes import multi_position_run, scheme_angles
+    from calib_core.simulate.lab_run import random_errors
+
+    rng = np.random.default_rng(4)
+    run = multi_position_run(
+        random_errors(rng),
+        scheme_angles(24),
+        rng,
+        k2=np.array([2e-4, -3e-4, 1e-4]),
+        k3=np.array([1e-5, -2e-5, 3e-5]),
+        rate_hz=RATE_HZ,
+        static_s=60.0,
+    )
+    settings = {"model": "nonlinear", "attitudes": run.attitudes_setting()}
+    _, s = _timed(lambda: solve("multi_position", run.segments, run.gravity, settings))
+    return s
+
+
+def bench_equipment_free() -> float:
+    """Hand-held session at 1 kHz: 50 s first rest + 36 poses (4 s rest, 1.5 s move), ~250 s."""
+    from calib_core.procedures import solve
+    from calib_core.simulate.handheld import accelerometer_frame, handheld_run
+    from calib_core.simulate.lab_run import random_errors
+
+    rng = np.random.default_rng(5)
+    run = handheld_run(
+        accelerometer_frame(random_errors(rng)), rng, poses=36, rate_hz=RATE_HZ, init_s=50.0
+    )
+    _, s = _timed(lambda: solve("equipment_free", {"session": run.recording}, run.gravity, {}))
+    return s
+
+
+def bench_sensor_array() -> float:
+    """Six-IMU cube at 1 kHz: 60 s static + one ccw and one cw turn per sensor."""
+    from calib_core.procedures import solve
+    from calib_core.simulate.array import array_run
+    from calib_core.simulate.lab_run import random_errors
+    from calib_core.solvers.sensor_array import cube_mounts
+
+    rng = np.random.default_rng(6)
+    run = array_run(random_errors(rng), cube_mounts(), rng, rate_hz=RATE_HZ, static_s=60.0)
+    _, s = _timed(lambda: solve("sensor_array", run.segments, run.gravity, {}))
+    return s
+
+
+def _affine_crlb(f: np.ndarray, noise: np.ndarray, n: int) -> np.ndarray:
+    """CRLB std of (bias, row of I + M) per axis for means of n white samples, (12,)."""
+    a = np.column_stack([np.ones(len(f)), f])
+    unit = np.sqrt(np.diag(np.linalg.inv(a.T @ a)) / n)
+    return np.concatenate([noise[i] * unit for i in range(3)])
+
+
+def crlb_efficiency_static_linear(runs: int = 200) -> dict[str, float]:
+    """Worst CRLB variance / observed variance of the accelerometer 12 of the linear
+    static procedures: multi_position (18 table positions, full model) and
+    sensor_array (six-IMU cube). White noise, 100 Hz, 2 s per position (the
+    efficiency does not depend on the length)."""
+    from calib_core.attitude import specific_force, table_attitude
+    from calib_core.procedures import solve
+    from calib_core.simulate.array import array_run
+    from calib_core.simulate.attitudes import multi_position_run, scheme_angles
+    from calib_core.simulate.lab_run import random_errors
+    from calib_core.solvers.sensor_array import cube_mounts
+
+    truth = random_errors(np.random.default_rng(77))
+    rate_hz, static_s = 100.0, 2.0
+    n = int(rate_hz * static_s)
+    names = [
+        f"acc.bias.{a}"
+        if c == "b"
+        else f"acc.{'scale' if a == c else 'misalign'}.{a}" + ("" if a == c else c)
+        for a in "xyz"
+        for c in "bxyz"
+    ]
+    expected = truth.parameters()
+    angles = scheme_angles(18)
+    mounts = cube_mounts()
+    errs: dict[str, list] = {"multi_position": [], "sensor_array": []}
+    for seed in range(runs):
+        rng = np.random.default_rng(3000 + seed)
+        run = multi_position_run(truth, angles, rng, rate_hz=rate_hz, static_s=static_s)
+        cal = solve(
+            "multi_position",
+            run.segments,
+            run.gravity,
+            {"attitudes": run.attitudes_setting(), "gyro_gsens": False},
+        )
+        errs["multi_position"].append([cal.parameters[k].value - expected[k] for k in names])
+        arr = array_run(
+            truth,
+            mounts,
+            rng,
+            rate_hz=rate_hz,
+            static_s=static_s,
+            rotation_rate_dps=360.0,
+            pause_s=0.2,
+        )
+        cal = solve("sensor_array", arr.segments, arr.gravity, {"turns": 1})
+        errs["sensor_array"].append([cal.parameters[k].value - expected[k] for k in names])
+    f_table = specific_force(table_attitude(*angles.T), STANDARD_GRAVITY)
+    f_array = np.array([m @ [0.0, 0.0, STANDARD_GRAVITY] for m in mounts.values()])
+    out = {}
+    for proc, f in (("multi_position", f_table), ("sensor_array", f_array)):
+        crlb = _affine_crlb(f, truth.acc_noise, n) ** 2
+        observed = np.var(errs[proc], axis=0, ddof=1)
+        out[proc] = float(np.min(crlb / observed))
+    return out
+
+
 def main() -> None:
     seconds: dict[str, float] = {}
     seconds["allan_deviation_10M"] = bench_allan_10m()
@@ -132,10 +245,15 @@ def main() -> None:
     spi = bench_six_position_integral()
     if spi is not None:
         seconds["six_position_integral"] = spi
+    seconds["multi_position"] = bench_multi_position()
+    seconds["equipment_free"] = bench_equipment_free()
+    seconds["sensor_array"] = bench_sensor_array()
     for k, v in seconds.items():
         print(f"{k:24s} {v:8.3f} s")
-    eff = crlb_efficiency_rate_table()
-    print(f"rate_table CRLB efficiency (worst parameter, 200 runs): {eff:.3f}")
+    efficiencies = {"rate_table": crlb_efficiency_rate_table(), **crlb_efficiency_static_linear()}
+    for k, v in efficiencies.items():
+        print(f"{k} CRLB efficiency (worst parameter, 200 runs): {v:.3f}")
+    eff = min(efficiencies.values())
     print(json.dumps({"seconds": seconds, "crlb_efficiency_worst": eff}))
 
 

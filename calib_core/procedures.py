@@ -18,6 +18,13 @@ Settings
 turns : int or None (infer from the data), integral method only.
 gyro_range_dps : gyro full scale, deg/s (default 2000).
 accel_solver : "least_squares" (default) or "closed_form" (methods.md 2.1).
+accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
+    rate-table model of methods.md 1: bias and scale per axis, no cross-coupling).
+rotation_directions : "both" (default; ccw and cw about each axis) or "any"
+    (one rotation per axis suffices, Ferraris et al.; e.g. imucal sessions).
+
+multi_position, equipment_free, sensor_array, rate_table, static_bias, centrifuge: see
+their solver modules and docs/procedures.md for segment labels and settings.
 """
 
 from __future__ import annotations
@@ -28,16 +35,26 @@ from typing import Any
 import numpy as np
 
 from calib_core import params
-from calib_core.calibration import Calibration, SegmentResidual, StepRecord
+from calib_core.calibration import Calibration, StepRecord
 from calib_core.recording import Recording
+from calib_core.solvers.centrifuge import solve_centrifuge_segments
+from calib_core.solvers.equipment_free import solve_equipment_free
 from calib_core.solvers.integral import ROTATION_LABELS, solve_integral
-from calib_core.solvers.multi_position import solve_accel_linear, solve_gyro_static
+from calib_core.solvers.multi_position import (
+    segment_residual,
+    solve_accel_linear,
+    solve_gyro_static,
+    solve_multi_position,
+)
+from calib_core.solvers.rate_table import rate_points, solve_rate_table
+from calib_core.solvers.sensor_array import solve_sensor_array
 from calib_core.solvers.six_position import (
     STATIC_LABELS,
     accel_closed_form,
     accel_closed_form_std,
     axis_vector,
 )
+from calib_core.solvers.static_bias import solve_static_bias
 from calib_core.stats import ChannelStats, channel_stats, largest_std
 from calib_core.units import DEG
 
@@ -45,8 +62,11 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "turns": None,
     "gyro_range_dps": 2000.0,
     "accel_solver": "least_squares",
+    "accel_model": "linear",
+    "rotation_directions": "both",
 }
 ACCEL_SOLVERS = ("least_squares", "closed_form")
+ACCEL_MODELS = ("linear", "per_axis")
 
 
 def _settings(settings: dict[str, Any] | None) -> dict[str, Any]:
@@ -60,6 +80,15 @@ def _settings(settings: dict[str, Any] | None) -> dict[str, Any]:
         raise ValueError(
             f"settings.accel_solver: {merged['accel_solver']!r}; "
             f"expected one of {list(ACCEL_SOLVERS)}"
+        )
+    if merged["accel_model"] not in ACCEL_MODELS:
+        raise ValueError(
+            f"settings.accel_model: {merged['accel_model']!r}; expected one of {list(ACCEL_MODELS)}"
+        )
+    if merged["rotation_directions"] not in ("both", "any"):
+        raise ValueError(
+            f"settings.rotation_directions: {merged['rotation_directions']!r}; "
+            "expected 'both' (ccw and cw about each axis) or 'any' (one suffices)"
         )
     rng = merged["gyro_range_dps"]
     if not isinstance(rng, int | float) or isinstance(rng, bool) or rng <= 0:
@@ -96,17 +125,6 @@ def _static_stats(
     return acc, gyr
 
 
-def _residual(label: str, sensor: str, samples: np.ndarray, model: np.ndarray) -> SegmentResidual:
-    r = samples - model
-    return SegmentResidual(
-        segment=label,
-        sensor=sensor,
-        mean=tuple(float(v) for v in r.mean(axis=0)),
-        std=tuple(float(v) for v in r.std(axis=0, ddof=1)),
-        n=int(r.shape[0]),
-    )
-
-
 def _solve_statics(
     segments: dict[str, Recording], gravity: float, settings: dict[str, Any], procedure: str
 ) -> tuple[Calibration, dict[str, ChannelStats]]:
@@ -124,7 +142,10 @@ def _solve_statics(
         stds = accel_closed_form_std({k: s.sem for k, s in acc.items()}, gravity)
     else:
         values, stds = acc_fit.params, acc_fit.std
-    for name in params.ACC_LINEAR:
+    if settings["accel_model"] == "per_axis":
+        values, stds = _per_axis_fit(f_true, stack(acc, "mean"), stack(acc, "sem"))
+    linear = settings["accel_model"] == "linear"
+    for name in params.ACC_LINEAR if linear else values:
         cal.add(name, values[name], stds[name])
     gyr_fit = solve_gyro_static(f_true, stack(gyr, "mean"), stack(gyr, "sem"))
     for name in gyr_fit.names:
@@ -139,8 +160,8 @@ def _solve_statics(
     for label in STATIC_LABELS:
         rec = segments[label]
         f = np.broadcast_to(axis_vector(label, gravity), rec.acc.shape)
-        cal.residuals.append(_residual(label, "acc", rec.acc, _acc_model(cal, f)))
-        cal.residuals.append(_residual(label, "gyr", rec.gyr, _gyr_static_model(cal, f)))
+        cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
+        cal.residuals.append(segment_residual(label, "gyr", rec.gyr, _gyr_static_model(cal, f)))
 
     cal.info["condition_number"] = acc_fit.condition_number
     cal.info["accel_solver"] = settings["accel_solver"]
@@ -152,6 +173,32 @@ def _solve_statics(
         label: float(min(acc[label].n_eff.min(), gyr[label].n_eff.min())) for label in STATIC_LABELS
     }
     return cal, gyr
+
+
+def _per_axis_fit(
+    f_true: np.ndarray, means: np.ndarray, sem: np.ndarray
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Reduced model m_k,i = b_i + (1 + s_i) f_k,i: weighted least squares per axis.
+
+    Parameters
+    ----------
+    f_true : (K, 3) true specific force, m/s^2.
+    means, sem : (K, 3) mean output and its standard uncertainty, m/s^2.
+
+    Returns
+    -------
+    (values, stds) of acc.bias.* and acc.scale.* (no misalignment: the model has none).
+    """
+    values: dict[str, float] = {}
+    stds: dict[str, float] = {}
+    for i, a in enumerate(params.AXES):
+        w = 1.0 / sem[:, i]
+        design = np.column_stack([np.ones(len(f_true)), f_true[:, i]]) * w[:, None]
+        coef, *_ = np.linalg.lstsq(design, (means[:, i] - f_true[:, i]) * w, rcond=None)
+        cov = np.linalg.inv(design.T @ design)
+        values[f"acc.bias.{a}"], values[f"acc.scale.{a}"] = coef
+        stds[f"acc.bias.{a}"], stds[f"acc.scale.{a}"] = np.sqrt(np.diag(cov))
+    return values, stds
 
 
 def _acc_model(cal: Calibration, f_true: np.ndarray) -> np.ndarray:
@@ -192,9 +239,10 @@ def solve_six_position_integral(
     settings : see the module docstring.
     """
     merged = _settings(settings)
-    _require(segments, STATIC_LABELS + ROTATION_LABELS, "six_position_integral")
+    both = merged["rotation_directions"] == "both"
+    _require(segments, STATIC_LABELS + (ROTATION_LABELS if both else ()), "six_position_integral")
     cal, gyr = _solve_statics(segments, gravity, merged, "six_position_integral")
-    rotations = {label: segments[label] for label in ROTATION_LABELS}
+    rotations = {label: segments[label] for label in ROTATION_LABELS if label in segments}
     integral = solve_integral(
         rotations,
         {label: s.mean for label, s in gyr.items()},
@@ -204,22 +252,67 @@ def solve_six_position_integral(
         # The static record of the same orientation gives the noise the integral collects.
         noise_std={label: s.std for label, s in gyr.items()},
         gravity=gravity,
+        directions=merged["rotation_directions"],
     )
     cal = cal.merged(integral)
     # merged() takes the integral's info on top; keep this procedure's name.
     cal.procedure = "six_position_integral"
     # The accelerometer sees g along the rotation axis throughout a rotation.
-    for label in ROTATION_LABELS:
+    for label in rotations:
         rec = segments[label]
         f = np.broadcast_to(axis_vector(label, gravity), rec.acc.shape)
-        cal.residuals.append(_residual(label, "acc", rec.acc, _acc_model(cal, f)))
+        cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
         cal.info["sample_counts"][label] = len(rec)
     return cal
 
 
+def solve_rate_table_procedure(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Rate-table gyro calibration: one segment per rate plateau, labelled "<axis>_<rate>"
+    (e.g. "z_+100") with the table feedback in reference["table_rate"] (rad/s).
+
+    settings : settle_s (default 20 s), record_s (default: to the end), full_scale_dps.
+    """
+    s = dict(settings or {})
+    kwargs = {k: float(s[k]) for k in ("settle_s", "record_s") if s.get(k) is not None}
+    points = rate_points(list(segments.values()), **kwargs)
+    full = s.get("full_scale_dps")
+    cal = solve_rate_table(points, full_scale=None if full is None else float(full) * DEG)
+    cal.gravity = gravity
+    return cal
+
+
+def solve_static_bias_procedure(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Static bias and noise of one long static segment (any label).
+
+    settings : up_axis ("+z", ...), latitude_deg, heading_deg, remove_earth_rate,
+    n_sigma (see calib_core.solvers.static_bias.solve_static_bias).
+    """
+    if len(segments) != 1:
+        raise ValueError(
+            f"static_bias: expected one static segment, got {len(segments)} ({', '.join(segments)})"
+        )
+    s = dict(settings or {})
+    keys = ("up_axis", "latitude_deg", "heading_deg", "remove_earth_rate", "n_sigma")
+    return solve_static_bias(
+        next(iter(segments.values())),
+        gravity=gravity,
+        **{k: s[k] for k in keys if s.get(k) is not None},
+    )
+
+
 PROCEDURES: dict[str, Callable[[dict[str, Recording], float, dict[str, Any]], Calibration]] = {
     "six_position": solve_six_position,
+    "centrifuge": solve_centrifuge_segments,
     "six_position_integral": solve_six_position_integral,
+    "multi_position": solve_multi_position,
+    "equipment_free": solve_equipment_free,
+    "sensor_array": solve_sensor_array,
+    "rate_table": solve_rate_table_procedure,
+    "static_bias": solve_static_bias_procedure,
 }
 
 

@@ -102,7 +102,7 @@ def test_bad_procedure_settings_and_gravity():
         solve("six_position_integral", run.segments, run.gravity, {"turns": 1.5})
     with pytest.raises(ValueError, match="gravity"):
         solve("six_position", run.segments, 1.0, {})  # in g, not m/s^2
-    assert set(PROCEDURES) == {"six_position", "six_position_integral"}
+    assert {"six_position", "six_position_integral"} <= set(PROCEDURES)
 
 
 def test_rotation_beyond_range_rejected_through_procedure():

@@ -84,6 +84,7 @@ def solve_integral(
     *,
     noise_std: dict[str, np.ndarray] | None = None,
     gravity: float = STANDARD_GRAVITY,
+    directions: str = "both",
 ) -> Calibration:
     """Gyro scale errors and misalignments by the integral method.
 
@@ -100,6 +101,10 @@ def solve_integral(
         static record of the same orientation). None: estimated from the second
         differences of each rotation record.
     gravity : m/s^2, recorded in the result only (the method does not use it).
+    directions : "both" (default): ccw and cw about every axis. "any": per axis
+        one rotation suffices (Ferraris et al. 1995, e.g. imucal sessions); a
+        lone rotation gives the column J / (+-2 pi n), its bias removed by the
+        static mean alone instead of cancelling in the ccw - cw difference.
 
     Returns
     -------
@@ -112,13 +117,23 @@ def solve_integral(
     ValueError naming the segment: a missing rotation or static mean, a rotation
     that reached the gyro range, a turn count that is not a whole number.
     """
-    missing = [label for label in ROTATION_LABELS if label not in rotations]
+    if directions not in ("both", "any"):
+        raise ValueError(f"integral method: directions must be 'both' or 'any', got {directions!r}")
+    if directions == "both":
+        missing = [label for label in ROTATION_LABELS if label not in rotations]
+    else:
+        missing = [
+            f"{a}_ccw or {a}_cw"
+            for a in params.AXES
+            if f"{a}_ccw" not in rotations and f"{a}_cw" not in rotations
+        ]
     missing += [f"{a}_up" for a in params.AXES if f"{a}_up" not in static_means]
     if missing:
         raise ValueError(f"integral method: missing segments {missing}")
     if turns is not None and (int(turns) != turns or turns < 1):
         raise ValueError(f"integral method: turns must be a positive whole number, got {turns!r}")
-    for label in ROTATION_LABELS:
+    present = [label for label in ROTATION_LABELS if label in rotations]
+    for label in present:
         rec = rotations[label]
         if len(rec) < 3:
             raise ValueError(f"rotation {label}: {len(rec)} samples, too short to integrate")
@@ -132,6 +147,8 @@ def solve_integral(
         S = np.asarray(static_means[f"{a}_up"], dtype=float)
         J[a], var[a], duration[a] = {}, {}, {}
         for sense in ("ccw", "cw"):
+            if f"{a}_{sense}" not in rotations:
+                continue
             rec = rotations[f"{a}_{sense}"]
             w = trapezoid_weights(rec.t)
             T = float(rec.t[-1] - rec.t[0])
@@ -146,7 +163,7 @@ def solve_integral(
 
     # Turn count: the rotation-axis integrals are +-(1 + scale) 2 pi n.
     n_est = {
-        a: (J[a]["ccw"][i] - J[a]["cw"][i]) / (4.0 * math.pi) for i, a in enumerate(params.AXES)
+        a: _signed_sum(J[a])[i] / (2.0 * math.pi * len(J[a])) for i, a in enumerate(params.AXES)
     }
     if turns is None:
         rounded = {a: round(v) for a, v in n_est.items()}
@@ -172,21 +189,33 @@ def solve_integral(
             raise ValueError(f"integral method: settings say {n} turns but the gyro shows {detail}")
 
     cal = Calibration(procedure="integral", gravity=gravity)
-    denom = 4.0 * math.pi * n
     closure: dict[str, float] = {}
     for j, a in enumerate(params.AXES):
-        diff = J[a]["ccw"] - J[a]["cw"]
-        dT = duration[a]["ccw"] - duration[a]["cw"]
+        denom = 2.0 * math.pi * n * len(J[a])  # 4 pi n with both senses
+        diff = _signed_sum(J[a])
+        dT = _signed_sum(duration[a])
         sem = np.asarray(static_sems[f"{a}_up"], dtype=float)
-        std = np.sqrt(var[a]["ccw"] + var[a]["cw"] + (dT * sem) ** 2) / denom
+        std = np.sqrt(sum(var[a].values()) + (dT * sem) ** 2) / denom
         column = diff / denom  # column A of I + M_g
         for i in range(3):
             name = params.matrix_names("gyr")[i][j]
             cal.add(name, column[i] - (1.0 if i == j else 0.0), std[i])
-        closure[a] = float((J[a]["ccw"][j] + J[a]["cw"][j]) / 2.0)
+        if len(J[a]) == 2:
+            closure[a] = float((J[a]["ccw"][j] + J[a]["cw"][j]) / 2.0)
+    single = [a for a in params.AXES if len(J[a]) == 1]
+    if single:
+        cal.warnings.append(
+            f"integral method: one rotation direction only about {', '.join(single)}; the "
+            "gyro bias is removed by the static mean alone (no ccw/cw cancellation)"
+        )
     cal.info["turns"] = n
     cal.info["integral_closure_rad"] = closure
     cal.info["rotation_durations_s"] = {
-        f"{a}_{s}": duration[a][s] for a in params.AXES for s in ("ccw", "cw")
+        f"{a}_{s}": duration[a][s] for a in params.AXES for s in ("ccw", "cw") if s in duration[a]
     }
     return cal
+
+
+def _signed_sum(per_sense: dict):
+    """ccw value minus cw value, whichever of the two is present (the other counts as 0)."""
+    return per_sense.get("ccw", 0.0) - per_sense.get("cw", 0.0)

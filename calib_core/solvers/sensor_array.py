@@ -1,0 +1,229 @@
+"""Sensor-array single-position calibration (methods.md 2.7).
+
+Several IMUs of one type (or one IMU remounted) sit on a precision cube with
+known mounting rotations C_s (cube to sensor: v_s = C_s v_c) and share one
+error model. The cube stands with its z axis up; one static record, then one
+counter-clockwise (+) and one clockwise (-) turn of n whole turns about the
+vertical. In the sensor frame the specific force is f_s = C_s (0, 0, g) and
+the turn is theta_s = +-2 pi n C_s e_z, so every sensor is a different
+"position" of the shared model and everything is stacked least squares:
+
+- accelerometer: m_s = (I + M_a) f_s + b_a, three equations per sensor (the
+  patent's six IMUs: 18 equations for 12 unknowns), solved per output axis by
+  `solve_accel_multi`;
+- gyro bias and g-sensitivity: the static gyro means w_s = b_g + G f_s
+  (`solve_gyro_static`);
+- gyro scale and misalignment: the vertical turn keeps f_s constant, so the
+  static mean S_s is exactly the rest reading during the turn, and
+  J_s+- = integral (w - S_s) dt = (I + M_g) theta_s+-. The difference
+  J_s+ - J_s- = (I + M_g) 4 pi n C_s e_z gives three equations per sensor,
+  linear in the rows of I + M_g (the sum carries no information on them).
+
+The mountings must point e_z along all three sensor axes (in either sense)
+for every term to be separable; otherwise the solver says which terms are not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calib_core import params
+from calib_core.attitude import rot_x, rot_y
+from calib_core.calibration import Calibration, SegmentResidual
+from calib_core.recording import Recording
+from calib_core.solvers.integral import noise_from_differences
+from calib_core.solvers.multi_position import (
+    gyro_bias_and_gsens,
+    segment_residual,
+    solve_accel_multi,
+)
+from calib_core.stats import channel_stats, trapezoid_weights
+
+PHASES = ("static", "ccw", "cw")
+
+
+def cube_mounts() -> dict[str, np.ndarray]:
+    """The patent's six-IMU cube: pairs on three faces, the up axis +x, -x, +y, -y, +z, -z.
+
+    Returns name -> C_s (3, 3), cube to sensor.
+    """
+    return {
+        "s1": rot_y(math.pi / 2),
+        "s2": rot_y(-math.pi / 2),
+        "s3": rot_x(-math.pi / 2),
+        "s4": rot_x(math.pi / 2),
+        "s5": np.eye(3),
+        "s6": rot_x(math.pi),
+    }
+
+
+@dataclass(frozen=True)
+class ArrayRecords:
+    """The three records of one sensor of the array and its mounting."""
+
+    name: str
+    mount: np.ndarray  # (3, 3) cube -> sensor
+    static: Recording
+    ccw: Recording
+    cw: Recording
+
+
+def solve_array(
+    records: list[ArrayRecords], gravity: float, turns: int | None = None
+) -> Calibration:
+    """Shared 12 + 12 + 9 parameter model of an array from its static and turn records.
+
+    Parameters
+    ----------
+    records : one ArrayRecords per sensor (or mounting).
+    gravity : local gravity, m/s^2.
+    turns : whole turns of each rotation; None infers it from the integrals.
+
+    Returns
+    -------
+    Calibration "sensor_array": acc.bias/scale/misalign, gyr.bias, gyr.gsens,
+    gyr.scale/misalign with standard uncertainties; residuals per record.
+    """
+    if len(records) < 2:
+        raise ValueError(f"sensor_array: need >= 2 sensors or mountings, got {len(records)}")
+    up = np.array([0.0, 0.0, gravity])
+    f = np.array([r.mount @ up for r in records])  # (S, 3) specific force in each sensor
+    acc, gyr = [], []
+    for r in records:
+        try:
+            acc.append(channel_stats(r.static.acc))
+            gyr.append(channel_stats(r.static.gyr))
+        except ValueError as exc:
+            raise ValueError(f"sensor {r.name} static ({r.static.source}): {exc}") from None
+    cal = Calibration(procedure="sensor_array", gravity=gravity)
+    acc_fit = solve_accel_multi(
+        f, np.array([a.mean for a in acc]), np.array([a.sem for a in acc]), "full"
+    )
+    for name in acc_fit.names:
+        cal.add(name, acc_fit.params[name], acc_fit.std[name])
+    cal.warnings += acc_fit.warnings
+
+    g_means = np.array([g.mean for g in gyr])
+    g_sems = np.array([g.sem for g in gyr])
+    gyro_bias_and_gsens(cal, f, g_means, g_sems)
+    rest_model = f @ cal.gsens().T + cal.vector("gyr", "bias")
+
+    # Gyro matrix from the turns. Per sensor the ccw - cw difference
+    # D_s = J+ - J- = (I + M_g) 4 pi n d_s (d_s = C_s e_z): the static mean's error
+    # enters both integrals alike and cancels up to (T+ - T-), as in the integral
+    # method, and the sensors' rows are independent.
+    axis_up = np.array([0.0, 0.0, 1.0])
+    theta, D, U, sigmas, durations, inferred = [], [], [], [], [], []
+    for r, g in zip(records, gyr, strict=True):
+        sigma = noise_from_differences(r.static.gyr)
+        w_ccw, w_cw = trapezoid_weights(r.ccw.t), trapezoid_weights(r.cw.t)
+        diff = w_ccw @ (r.ccw.gyr - g.mean) - w_cw @ (r.cw.gyr - g.mean)
+        d_t = float(w_ccw.sum() - w_cw.sum())
+        var = sigma**2 * (w_ccw @ w_ccw + w_cw @ w_cw) + (d_t * g.sem) ** 2
+        d = r.mount @ axis_up
+        n = turns
+        if n is None:
+            n = max(1, round(abs(diff @ d) / (4 * math.pi)))
+            inferred.append(n)
+        theta.append(4 * math.pi * n * d)
+        D.append(diff)
+        U.append(np.sqrt(var))
+        sigmas.append(sigma)
+        durations.append(float(w_ccw.sum() + w_cw.sum()))
+    theta, D, U = np.array(theta), np.array(D), np.array(U)
+    if np.linalg.matrix_rank(theta / np.linalg.norm(theta, axis=1, keepdims=True), tol=1e-6) < 3:
+        raise ValueError(
+            "sensor_array: the mountings put the vertical along fewer than three sensor axes; "
+            "the gyro scale and misalignment of the other axes are not separable"
+        )
+    cond = float(np.linalg.cond(theta))
+    names = params.matrix_names("gyr")
+    for i in range(3):
+        w = 1.0 / U[:, i]
+        tw = theta * w[:, None]
+        x = np.linalg.lstsq(tw, D[:, i] * w, rcond=None)[0]
+        cov = np.linalg.inv(tw.T @ tw)
+        for j in range(3):
+            cal.add(names[i][j], x[j] - (1.0 if i == j else 0.0), math.sqrt(cov[j, j]))
+
+    acc_model = f @ (np.eye(3) + cal.matrix("acc")).T + cal.vector("acc", "bias")
+    gyr_matrix = np.eye(3) + cal.matrix("gyr")
+    for s, r in enumerate(records):
+        st = r.static
+        cal.residuals.append(
+            segment_residual(
+                f"{r.name}_static", "acc", st.acc, np.broadcast_to(acc_model[s], st.acc.shape)
+            )
+        )
+        cal.residuals.append(
+            segment_residual(
+                f"{r.name}_static", "gyr", st.gyr, np.broadcast_to(rest_model[s], st.gyr.shape)
+            )
+        )
+        # The turns: the misfit of D_s as a mean rate over both records, rad/s, with
+        # the sample noise of the gyro as the spread.
+        miss = (D[s] - gyr_matrix @ theta[s]) / durations[s]
+        cal.residuals.append(
+            SegmentResidual(
+                f"{r.name}_turns",
+                "gyr",
+                tuple(float(v) for v in miss),
+                tuple(float(v) for v in sigmas[s]),
+                len(r.ccw) + len(r.cw),
+            )
+        )
+    cal.info.update(
+        {
+            "sensors": [r.name for r in records],
+            "condition_number": acc_fit.condition_number,
+            "gyro_turn_condition_number": cond,
+            "acc_fit_chi2": [float(v) for v in acc_fit.chi2],
+            "equations_acc": 3 * len(records),
+            "turns": turns if turns is not None else sorted(set(inferred)),
+            "sample_counts": {f"{r.name}_{p}": len(getattr(r, p)) for r in records for p in PHASES},
+        }
+    )
+    return cal
+
+
+def array_records(
+    segments: dict[str, Recording], mounts: dict[str, np.ndarray]
+) -> list[ArrayRecords]:
+    """Group segments "<sensor>_static", "<sensor>_ccw", "<sensor>_cw" by sensor."""
+    out = []
+    for name, mount in mounts.items():
+        missing = [f"{name}_{p}" for p in PHASES if f"{name}_{p}" not in segments]
+        if missing:
+            raise ValueError(f"sensor_array: sensor {name!r} lacks segments {', '.join(missing)}")
+        m = np.asarray(mount, dtype=float)
+        if m.shape != (3, 3) or not np.allclose(m @ m.T, np.eye(3), atol=1e-6):
+            raise ValueError(
+                f"settings.mounts.{name}: expected a 3x3 rotation matrix, got {mount!r}"
+            )
+        out.append(ArrayRecords(name, m, *(segments[f"{name}_{p}"] for p in PHASES)))
+    return out
+
+
+def solve_sensor_array(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Procedure entry.
+
+    settings : mounts ({sensor: 3x3 cube-to-sensor rotation} or "cube6" for the
+        patent's six-IMU cube, the default), turns (int or None).
+    Segments are labelled "<sensor>_static", "<sensor>_ccw", "<sensor>_cw".
+    """
+    s = dict(settings or {})
+    mounts = s.get("mounts", "cube6")
+    if mounts == "cube6":
+        mounts = cube_mounts()
+    if not isinstance(mounts, dict) or not mounts:
+        raise ValueError('settings.mounts: expected "cube6" or {sensor = 3x3 rotation matrix}')
+    turns = s.get("turns")
+    if turns is not None and (isinstance(turns, bool) or not isinstance(turns, int) or turns < 1):
+        raise ValueError(f"settings.turns: expected a positive whole number or none, got {turns!r}")
+    return solve_array(array_records(segments, mounts), gravity, turns)
