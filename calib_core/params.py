@@ -5,6 +5,11 @@ Matrix convention (the archive's): f_meas = (I + M) f_true + b, so
 measured x) and ``acc.scale.x`` is M[x, x] (K - 1).
 Gyro: w_meas = (I + M_g) w_true + G f_true + b_g; ``gyr.gsens.xy`` is G[x, y]
 in (rad/s)/(m/s^2).
+
+High-g accelerometer terms (centrifuge): ``acc.k2.x`` / ``acc.k3.x`` multiply
+f_x^2 / f_x^3 in the x output; ``acc.k2.xy`` multiplies the cross-axis square
+f_y^2 in the x output; ``acc.kp.x_yz`` multiplies the product f_y f_z in the x
+output (the pair in axis order: ``acc.kp.x_xy``, ``acc.kp.x_xz``, ``acc.kp.x_yz``).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ UNITS = {
     "acc.misalign": "1",
     "acc.k2": "1/(m/s^2)",
     "acc.k3": "1/(m/s^2)^2",
+    "acc.kp": "1/(m/s^2)",
     "acc.noise": "m/s^2",
     "gyr.bias": "rad/s",
     "gyr.scale": "1",
@@ -28,7 +34,9 @@ UNITS = {
     "gyr.noise": "rad/s",
 }
 
-_NAME = re.compile(r"^(acc|gyr)\.(bias|scale|misalign|k2|k3|noise|gsens)\.([xyz]{1,2})$")
+_NAME = re.compile(
+    r"^(acc|gyr)\.(bias|scale|misalign|k2|k3|noise|gsens|kp)\.([xyz]{1,2}|[xyz]_[xyz]{2})$"
+)
 
 
 def unit_of(name: str) -> str:
@@ -43,7 +51,16 @@ def validate(name: str) -> str:
     if not m or f"{m[1]}.{m[2]}" not in UNITS:
         raise ValueError(f"not a canonical parameter name: {name!r}")
     kind, axes = m[2], m[3]
+    if kind == "kp":
+        # output axis, "_", a pair of distinct input axes in axis order
+        if "_" not in axes or AXIS_INDEX[axes[2]] >= AXIS_INDEX[axes[3]]:
+            raise ValueError(f"not a canonical parameter name: {name!r}")
+        return name
+    if "_" in axes:
+        raise ValueError(f"not a canonical parameter name: {name!r}")
     two = kind in ("misalign", "gsens")
+    if kind == "k2" and len(axes) == 2 and m[1] == "acc" and axes[0] != axes[1]:
+        return name  # cross-axis square, e.g. acc.k2.xy (f_y^2 in the x output)
     if two != (len(axes) == 2) or (kind == "misalign" and axes[0] == axes[1]):
         raise ValueError(f"not a canonical parameter name: {name!r}")
     return name

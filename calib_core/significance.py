@@ -14,6 +14,13 @@ For n observations and p columns (k regressors plus, usually, a constant):
 Without a constant column the sums are taken about zero instead of the mean
 and the degrees of freedom are k = p, n - p (the usual regression-through-the-
 origin convention).
+
+With weights w (inverse variances, up to a common factor) every sum is
+weighted: Q = sum w (y - y_hat)^2, U = sum w (y_hat - ybar_w)^2 with the
+weighted mean ybar_w. This is ordinary least squares on the rows scaled by
+sqrt(w), so the F and t distributions hold when the variance of each row is
+known up to that common factor (heteroscedastic data, e.g. centrifuge steps
+whose scale-factor instability grows with the input).
 """
 
 from __future__ import annotations
@@ -133,6 +140,7 @@ def fit_ols(
     *,
     alpha: float = 0.05,
     add_constant: bool = False,
+    weights: np.ndarray | None = None,
 ) -> OlsFit:
     """Least-squares fit of y on the columns of X, with F and t statistics.
 
@@ -144,6 +152,9 @@ def fit_ols(
     names : (p,) term names.
     alpha : significance level of the F and t critical values.
     add_constant : prepend a column of ones named ``"const"``.
+    weights : (n,) positive row weights, 1 / variance up to a common factor
+        (default: all equal). Q, U, R^2, F and t are then the weighted ones and
+        `residuals` stay unweighted (y - X coef).
 
     Returns
     -------
@@ -173,14 +184,22 @@ def fit_ols(
     dof = n - p
     if dof < 1:
         raise ValueError(f"need more observations than terms: n = {n}, terms = {p} ({list(names)})")
+    if weights is None:
+        w = np.ones(n)
+    else:
+        w = np.asarray(weights, dtype=float)
+        if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w <= 0.0):
+            raise ValueError(f"weights must be {n} finite positive numbers, got shape {w.shape}")
+    sw = np.sqrt(w)
+    Xw, yw = X * sw[:, None], y * sw
 
     # Unit-norm columns make the singular values a fair rank test across terms
     # of very different magnitude (a, a^2, a^3 at 200 m/s^2).
-    norms = np.linalg.norm(X, axis=0)
+    norms = np.linalg.norm(Xw, axis=0)
     zero = [names[j] for j in np.flatnonzero(norms == 0.0)]
     if zero:
         raise ValueError(f"design matrix is rank deficient: columns {zero} are all zero")
-    Us, s, Vt = np.linalg.svd(X / norms, full_matrices=False)
+    Us, s, Vt = np.linalg.svd(Xw / norms, full_matrices=False)
     condition = s[0] / s[-1] if s[-1] > 0 else np.inf
     if condition > MAX_CONDITION:
         null = np.abs(Vt[-1])
@@ -189,14 +208,14 @@ def fit_ols(
             f"design matrix is rank deficient (scaled condition number {condition:.3g}): "
             f"columns {involved} are (nearly) linearly dependent; drop one of them"
         )
-    coef = (Vt.T @ ((Us.T @ y) / s)) / norms
+    coef = (Vt.T @ ((Us.T @ yw) / s)) / norms
     xtx_inv = (Vt.T / s**2) @ Vt / np.outer(norms, norms)
 
     fitted = X @ coef
     residuals = y - fitted
-    Q = float(residuals @ residuals)
-    centre = y.mean() if has_const else 0.0
-    U = float(np.sum((fitted - centre) ** 2))
+    Q = float(np.sum(w * residuals**2))
+    centre = np.sum(w * y) / np.sum(w) if has_const else 0.0
+    U = float(np.sum(w * (fitted - centre) ** 2))
     total = U + Q
     r2 = U / total if total > 0 else np.nan
 
@@ -270,6 +289,7 @@ def stepwise_reduce(
     keep: Sequence[str] = (CONST,),
     *,
     add_constant: bool = False,
+    weights: np.ndarray | None = None,
 ) -> Reduction:
     """Backward elimination: drop the least significant term and refit until all are significant.
 
@@ -279,7 +299,7 @@ def stepwise_reduce(
 
     Parameters
     ----------
-    X, y, names, add_constant : as `fit_ols`.
+    X, y, names, add_constant, weights : as `fit_ols`.
     alpha : significance level of the coefficient t tests (and the reported F test).
     keep : terms never removed (default the constant). Names absent from the
         model raise, except ``"const"`` when the model has no constant.
@@ -297,7 +317,7 @@ def stepwise_reduce(
         raise ValueError(f"keep names {sorted(unknown)} are not terms of the model {list(names)}")
 
     cols = list(range(len(names)))
-    fit = fit_ols(X, y, names, alpha=alpha)
+    fit = fit_ols(X, y, names, alpha=alpha, weights=weights)
     full = fit
     steps: list[RemovalStep] = []
     while len(cols) > 1:
@@ -311,5 +331,5 @@ def stepwise_reduce(
             RemovalStep(fit.names[weakest], float(fit.t[weakest]), float(fit.p[weakest]), fit)
         )
         del cols[weakest]
-        fit = fit_ols(X[:, cols], y, [names[j] for j in cols], alpha=alpha)
+        fit = fit_ols(X[:, cols], y, [names[j] for j in cols], alpha=alpha, weights=weights)
     return Reduction(full=full, final=fit, steps=tuple(steps))

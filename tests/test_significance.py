@@ -148,3 +148,57 @@ def test_false_keep_rate_matches_alpha():
         exact += set(red.kept) == {"const", "x0", "x1", "x2"}
     p = (1 - alpha) ** m
     assert abs(exact / trials - p) < 4 * np.sqrt(p * (1 - p) / trials)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_weighted_statistics_match_independent_normal_equations(seed):
+    """Weighted fit against (X^T W X)^-1 X^T W y and scipy.stats, with and without a constant."""
+    X, y, names = _data(seed)
+    rng = np.random.default_rng(100 + seed)
+    w = rng.uniform(0.1, 10.0, len(y))
+    for cols in (slice(None), slice(1, None)):
+        Xc, nc = X[:, cols], names[cols]
+        fit = fit_ols(Xc, y, nc, weights=w)
+        n, p = Xc.shape
+        inv = np.linalg.inv(Xc.T @ (w[:, None] * Xc))
+        beta = inv @ Xc.T @ (w * y)
+        res = y - Xc @ beta
+        Q = np.sum(w * res**2)
+        centre = np.sum(w * y) / np.sum(w) if nc[0] == "const" else 0.0
+        U = np.sum(w * (Xc @ beta - centre) ** 2)
+        k = p - 1 if nc[0] == "const" else p
+        s2 = Q / (n - p)
+        t = beta / np.sqrt(s2 * np.diag(inv))
+        np.testing.assert_allclose(fit.coef, beta, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(fit.t, t, rtol=1e-9)
+        np.testing.assert_allclose(fit.residuals, res, rtol=1e-9, atol=1e-12)
+        assert pytest.approx(Q, rel=1e-9) == fit.Q
+        assert pytest.approx(U, rel=1e-9) == fit.U
+        assert pytest.approx((U / k) / s2, rel=1e-9) == fit.F
+        assert pytest.approx(stats.f.sf((U / k) / s2, k, n - p), rel=1e-6) == fit.F_p
+    # equal weights are ordinary least squares
+    a, b = fit_ols(X, y, names), fit_ols(X, y, names, weights=np.full(len(y), 3.0))
+    np.testing.assert_allclose(a.t, b.t, rtol=1e-10)
+    assert pytest.approx(b.F, rel=1e-10) == a.F
+    with pytest.raises(ValueError, match="weights must be 60 finite positive numbers"):
+        fit_ols(X, y, names, weights=-w)
+
+
+def test_weights_keep_the_test_level_under_heteroscedastic_noise():
+    """Noise std growing 20-fold along a (like a scale instability with g).
+
+    A null term a^2 is tested with weights 1/variance: its rejection rate
+    must be alpha within 4 binomial std over 300 seeds.
+    """
+    trials, alpha = 300, 0.05
+    rejected = 0
+    a = np.repeat(np.linspace(1.0, 20.0, 10), 6)
+    sd = 0.05 * a
+    for seed in range(trials):
+        rng = np.random.default_rng(5000 + seed)
+        y = 1.0 + 0.3 * a + rng.normal(0.0, sd)
+        fit = fit_ols(
+            np.column_stack([a, a**2]), y, ["a", "a2"], add_constant=True, weights=1 / sd**2
+        )
+        rejected += bool(fit.p[2] < alpha)
+    assert abs(rejected / trials - alpha) < 4 * np.sqrt(alpha * (1 - alpha) / trials)
