@@ -53,6 +53,24 @@ DEFAULT_RESIDUAL_LIMITS: dict[str, float] = {
 }
 _RESIDUAL_DIMENSION = {"acc": "acceleration", "gyr": "angular rate"}
 
+# methods.md 3, accuracy verification on points not used in the fit.
+VERIFICATION_KEYS = ("acc", "gyr")
+DEFAULT_VERIFICATION_LIMITS: dict[str, float] = {
+    "acc": 0.01 * units.STANDARD_GRAVITY,
+    "gyr": 0.5 * units.DEG,
+}
+# methods.md 3, repeatability: three complete runs, CV <= 1 %. `alpha` is the
+# family-wise false-alarm rate of the scatter-vs-uncertainty rule for the
+# parameters where a CV is meaningless; `temperature_tol_c` decides which runs
+# count as "the same conditions" (the lab's 20 +- 2 deg C); `max_runs` caps a group.
+DEFAULT_REPEATABILITY: dict[str, float | int] = {
+    "cv_max": 0.01,
+    "alpha": 0.01,
+    "min_runs": 3,
+    "max_runs": 5,
+    "temperature_tol_c": 2.0,
+}
+
 
 def _strip_parens(text: str) -> str:
     text = text.strip()
@@ -143,6 +161,11 @@ class ToleranceProfile:
 
     residual_limits : "acc_std", "gyr_std", "acc_mean", "gyr_mean" in m/s^2
         and rad/s; missing keys take DEFAULT_RESIDUAL_LIMITS.
+    verification_limits : "acc" (m/s^2) and "gyr" (rad/s), the largest error of
+        the compensated output at a held-out point; missing keys take
+        DEFAULT_VERIFICATION_LIMITS.
+    repeatability : "cv_max", "alpha", "min_runs", "max_runs",
+        "temperature_tol_c"; missing keys take DEFAULT_REPEATABILITY.
     """
 
     name: str
@@ -150,9 +173,13 @@ class ToleranceProfile:
     device_model: str
     parameter_limits: list[ParameterLimit]
     residual_limits: dict[str, float] = field(default_factory=dict)
+    verification_limits: dict[str, float] = field(default_factory=dict)
+    repeatability: dict[str, float | int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.residual_limits = {**DEFAULT_RESIDUAL_LIMITS, **self.residual_limits}
+        self.verification_limits = {**DEFAULT_VERIFICATION_LIMITS, **self.verification_limits}
+        self.repeatability = {**DEFAULT_REPEATABILITY, **self.repeatability}
 
     def limit_for(self, name: str) -> ParameterLimit | None:
         """The first limit whose pattern matches `name`, or None."""
@@ -218,7 +245,15 @@ class ToleranceProfile:
         """
         if not isinstance(doc, dict):
             raise ValueError(f"tolerance profile: expected a table, got {type(doc).__name__}")
-        known = {"name", "version", "device_model", "limits", "residual_limits"}
+        known = {
+            "name",
+            "version",
+            "device_model",
+            "limits",
+            "residual_limits",
+            "verification_limits",
+            "repeatability",
+        }
         unknown = sorted(set(doc) - known)
         if unknown:
             raise ValueError(
@@ -246,7 +281,13 @@ class ToleranceProfile:
             if value <= 0:
                 raise ValueError(f"{where}.value: expected a positive number, got {value}")
             residual[key] = value * factor
-        return cls(parameter_limits=limits, residual_limits=residual, **header)
+        return cls(
+            parameter_limits=limits,
+            residual_limits=residual,
+            verification_limits=_verification_limits(doc.get("verification_limits", {})),
+            repeatability=_repeatability(doc.get("repeatability", {})),
+            **header,
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """The profile as a TOML-able document in SI units (from_dict reads it back)."""
@@ -263,13 +304,58 @@ class ToleranceProfile:
             key: {"value": value, "unit": _SI_UNIT[_RESIDUAL_DIMENSION[key.split("_")[0]]]}
             for key, value in self.residual_limits.items()
         }
+        verification = {
+            key: {"value": value, "unit": _SI_UNIT[_RESIDUAL_DIMENSION[key]]}
+            for key, value in self.verification_limits.items()
+        }
         return {
             "name": self.name,
             "version": self.version,
             "device_model": self.device_model,
             "limits": limits,
             "residual_limits": residual,
+            "verification_limits": verification,
+            "repeatability": dict(self.repeatability),
         }
+
+
+def _verification_limits(raw: Any) -> dict[str, float]:
+    """``[verification_limits]``: acc / gyr as ``{value, unit}`` tables, SI out."""
+    if not isinstance(raw, dict):
+        raise ValueError("tolerance profile field 'verification_limits': expected a table")
+    out: dict[str, float] = {}
+    for key, entry in raw.items():
+        where = f"verification_limits.{key}"
+        if key not in VERIFICATION_KEYS:
+            raise ValueError(f"{where}: unknown key; expected one of {list(VERIFICATION_KEYS)}")
+        value, factor = _value_in_si(entry, where, _RESIDUAL_DIMENSION[key])
+        if value <= 0:
+            raise ValueError(f"{where}.value: expected a positive number, got {value}")
+        out[key] = value * factor
+    return out
+
+
+def _repeatability(raw: Any) -> dict[str, float | int]:
+    """``[repeatability]``: plain numbers (cv_max and alpha as fractions, counts, deg C)."""
+    if not isinstance(raw, dict):
+        raise ValueError("tolerance profile field 'repeatability': expected a table")
+    out: dict[str, float | int] = {}
+    for key, value in raw.items():
+        where = f"repeatability.{key}"
+        if key not in DEFAULT_REPEATABILITY:
+            raise ValueError(f"{where}: unknown key; expected one of {list(DEFAULT_REPEATABILITY)}")
+        number = _number(raw, key, "repeatability")
+        if key in ("min_runs", "max_runs") and (number != int(number) or number < 2):
+            raise ValueError(f"{where}: expected a whole number >= 2, got {value!r}")
+        if key in ("cv_max", "alpha") and not 0 < number < 1:
+            raise ValueError(f"{where}: expected a fraction between 0 and 1, got {value!r}")
+        if key == "temperature_tol_c" and number < 0:
+            raise ValueError(f"{where}: expected a number >= 0 (deg C), got {value!r}")
+        out[key] = int(number) if key in ("min_runs", "max_runs") else number
+    merged = {**DEFAULT_REPEATABILITY, **out}
+    if merged["max_runs"] < merged["min_runs"]:
+        raise ValueError("repeatability.max_runs: must not be below min_runs")
+    return out
 
 
 def _number(entry: dict[str, Any], key: str, where: str) -> float:

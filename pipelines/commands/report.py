@@ -1,0 +1,40 @@
+"""`calib report RUN_ID`: protocol, HTML certificate and PDF of an archived run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from pipelines.cli import ArchiveOpt, app, err, fail, open_archive, print_json
+
+
+@app.command()
+def report(
+    run_id: str,
+    archive: ArchiveOpt = None,
+    pdf: Annotated[bool, typer.Option("--pdf/--no-pdf", help="Also write the PDF.")] = True,
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Folder (default: the run's folder).")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the written paths.")] = False,
+) -> None:
+    """Write the test protocol, the HTML certificate and the PDF of an archived run.
+
+    Everything is read from the archive (run summary, checks, Parquet samples);
+    the files go into the run's archive folder unless --output names another.
+    """
+    from pipelines.reports.certificate import report_run
+
+    try:
+        written = report_run(open_archive(archive), run_id, output, pdf=pdf)
+    except (KeyError, LookupError, ValueError) as exc:
+        fail(str(exc))
+    verdict = written.pop("verdict")
+    if as_json:
+        print_json({"run_id": run_id, "verdict": verdict,
+                    **{k: str(v) for k, v in written.items()}})  # fmt: skip
+        return
+    for kind, path in written.items():
+        err.print(f"wrote {kind}: {path}")
