@@ -1,0 +1,194 @@
+"""`calib thermal fit|export`, `calib apply`, `calib trend`, `calib fleet` (pipelines.thermal).
+
+Tables go to stdout (or JSON with --json), messages to stderr. Exit codes: 0
+done, 2 invalid input or nothing to work on.
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, date, datetime, time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from pipelines.cli import ArchiveOpt, app, err, fail, open_archive, out, print_frame, print_json
+
+thermal_app = typer.Typer(no_args_is_help=True, help="Temperature compensation: fit and export.")
+app.add_typer(thermal_app, name="thermal")
+
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
+
+
+def parse_when(text: str | None) -> datetime | None:
+    """YYYY-MM-DD (the end of that day, UTC) or an ISO 8601 date and time (naive = UTC)."""
+    if text is None:
+        return None
+    try:
+        if len(text) == 10:
+            return datetime.combine(date.fromisoformat(text), time.max, tzinfo=UTC)
+        when = datetime.fromisoformat(text)
+    except ValueError:
+        raise typer.BadParameter(
+            f"{text!r}: expected YYYY-MM-DD or an ISO 8601 date and time"
+        ) from None
+    return when if when.tzinfo is not None else when.replace(tzinfo=UTC)
+
+
+def _run(fn, *args, **kwargs) -> Any:  # noqa: ANN001 - any pipeline function
+    from pipelines.ingest import IngestError
+
+    try:
+        return fn(*args, **kwargs)
+    except (ValueError, LookupError, IngestError, OSError) as exc:
+        fail(str(exc))
+
+
+@thermal_app.command("fit")
+def thermal_fit(
+    serial: str,
+    runs: Annotated[
+        list[str] | None, typer.Option("--runs", help="Run ids of the campaign (default: all).")
+    ] = None,
+    max_order: Annotated[int, typer.Option(help="Highest polynomial order tried.")] = 3,
+    alpha: Annotated[float, typer.Option(help="Significance level of the order test.")] = 0.01,
+    t_ref: Annotated[float | None, typer.Option(help="Reference temperature, deg C.")] = None,
+    archive: ArchiveOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Fit and archive the thermal model of SERIAL from its runs at several temperatures."""
+    from pipelines.thermal import thermal_fit as fit
+
+    run_ids = [r for item in runs or [] for r in item.split(",") if r]
+    settings = {"max_order": max_order, "alpha": alpha, "t_ref": t_ref}
+    summary = _run(fit, open_archive(archive), serial, run_ids or None, settings)
+    if as_json:
+        print_json(summary)
+        return
+    import pandas as pd
+
+    rows = [
+        {
+            "parameter": n,
+            "order": summary["orders"][n],
+            "rms before": f"{b['rms_before']:.3g}",
+            "rms after": f"{b['rms_after']:.3g}",
+            "rms held out": "-" if b["rms_holdout"] is None else f"{b['rms_holdout']:.3g}",
+            "hysteresis": _hyst(summary["hysteresis"].get(n)),
+        }
+        for n, b in summary["benefit"].items()
+    ]
+    print_frame(
+        pd.DataFrame(rows),
+        f"Thermal model {summary['model_id']} of {serial}: {summary['t_min']:g} .. "
+        f"{summary['t_max']:g} deg C, T_ref {summary['t_ref']:g}, {len(summary['runs'])} runs",
+    )
+
+
+def _hyst(h: dict | None) -> str:
+    if h is None:
+        return "-"
+    return f"{h['value']:.3g} ± {h['std']:.2g}" + (" DETECTED" if h["detected"] else "")
+
+
+@thermal_app.command("export")
+def thermal_export(
+    serial: str,
+    output: Path,
+    fmt: Annotated[str, typer.Option("--format", help="json, px4 or ardupilot")] = "json",
+    at: Annotated[str | None, typer.Option("--at", help="Calibration valid at this date.")] = None,
+    instance: Annotated[int, typer.Option(help="PX4 sensor instance / ArduPilot IMU number.")] = -1,
+    device_id: Annotated[int, typer.Option(help="PX4 TC_*_ID (the firmware's device id).")] = 0,
+    archive: ArchiveOpt = None,
+) -> None:
+    """Write SERIAL's calibration and thermal model for firmware (docs/exports.md)."""
+    from pipelines import exports
+    from pipelines.thermal import load_compensation
+    from storage import queries
+
+    arch = open_archive(archive)
+    cal, _, model, facts = _run(load_compensation, arch, serial, parse_when(at))
+    if model is None:
+        fail(f"{serial} has no thermal model: run `calib thermal fit {serial}` first")
+    header = f"{serial} calibration {facts['run_id']} thermal model {facts['thermal_model_id']}"
+    if fmt == "json":
+        doc = exports.canonical_json(
+            model, queries.export_calibration(arch, facts["run_id"]), {"serial": serial}
+        )
+        exports.write_json(output, doc)
+    elif fmt == "px4":
+        rows = _run(exports.px4_parameters, model, cal, instance=max(instance, 0),
+                    accel_id=device_id, gyro_id=device_id)  # fmt: skip
+        exports.write_px4_params(output, rows, header=header)
+    elif fmt == "ardupilot":
+        rows = _run(exports.ardupilot_parameters, model, cal, imu=instance if instance > 0 else 1)
+        exports.write_ardupilot_params(output, rows, header=header)
+    else:
+        fail(f"unknown export format {fmt!r}; expected json, px4 or ardupilot")
+    err.print(f"wrote {output}")
+
+
+@app.command("apply")
+def apply(
+    source: Annotated[
+        Path, typer.Argument(help="Raw data: run folder, run.toml or MPU-6000 file.")
+    ],
+    output: Annotated[Path, typer.Argument(help="Calibrated samples: .parquet or .csv.")],
+    serial: Annotated[str, typer.Option("--serial", help="The unit.")],
+    at: Annotated[str | None, typer.Option("--at", help="Calibration valid at this date.")] = None,
+    archive: ArchiveOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Apply SERIAL's latest valid calibration (and thermal model) to new raw data."""
+    from pipelines.thermal import apply_calibration
+
+    facts = _run(apply_calibration, open_archive(archive), serial, parse_when(at), source, output)
+    if as_json:
+        print_json(facts)
+        return
+    out.print(json.dumps(facts, indent=2, default=str))
+
+
+@app.command("trend")
+def trend(
+    serial: str,
+    param: str,
+    plot: Annotated[Path | None, typer.Option("--plot", help="PNG file to draw.")] = None,
+    profile: Annotated[str | None, typer.Option(help="Tolerance profile for the band.")] = None,
+    archive: ArchiveOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """PARAM of SERIAL against calibration date: trend and when it leaves tolerance."""
+    from pipelines.thermal import trend_report
+
+    plot = plot or Path(f"trend_{serial}_{param}.png")
+    rep = _run(trend_report, open_archive(archive), serial, param, profile=profile, plot=plot)
+    if as_json:
+        print_json({"summary": rep["summary"], "rows": json.loads(rep["table"].to_json(
+            orient="records", date_format="iso"))})  # fmt: skip
+        return
+    print_frame(rep["table"], f"{param} of {serial}")
+    for key, value in rep["summary"].items():
+        err.print(f"{key}: {value}")
+
+
+@app.command("fleet")
+def fleet(
+    model: str,
+    param: str,
+    bin_c: Annotated[float, typer.Option("--bin", help="Temperature bin width, deg C.")] = 5.0,
+    plot: Annotated[Path | None, typer.Option("--plot", help="PNG file to draw.")] = None,
+    archive: ArchiveOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """PARAM across every unit of device MODEL, per temperature bin."""
+    from pipelines.thermal import fleet_report
+
+    plot = plot or Path(f"fleet_{model}_{param}.png")
+    table = _run(fleet_report, open_archive(archive), model, param, bin_c=bin_c, plot=plot)
+    if as_json:
+        print_json(json.loads(table.to_json(orient="records")))
+        return
+    print_frame(table, f"{param} across {model}")
+    err.print(f"plot: {plot}")
