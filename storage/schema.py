@@ -25,6 +25,7 @@ from sqlalchemy import (
     DateTime,
     Float,
     ForeignKey,
+    Index,
     Integer,
     MetaData,
     String,
@@ -88,7 +89,7 @@ class Device(Base):
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     serial: Mapped[str] = mapped_column(String(NAME_LEN), unique=True)
-    model: Mapped[str] = mapped_column(String(200))
+    model: Mapped[str] = mapped_column(String(200), index=True)  # fleet and unit queries
     manufacturer: Mapped[str] = mapped_column(String(200))
     specification: Mapped[str | None] = mapped_column(Text)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
@@ -114,6 +115,8 @@ class Run(Base):
     """One lab session of one unit: its raw bytes and the circumstances."""
 
     __tablename__ = "runs"
+    # A unit's runs in time order: latest-valid and history queries (migration 0003).
+    __table_args__ = (Index("ix_runs_device_id_started_at", "device_id", "started_at"),)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     run_id: Mapped[str] = mapped_column(String(NAME_LEN), unique=True)
@@ -207,10 +210,15 @@ class ParameterRow(Base):
     """One estimated parameter (long table, for trend and fleet queries)."""
 
     __tablename__ = "parameters"
-    __table_args__ = (CheckConstraint("std IS NULL OR std >= 0", "std_nonnegative"),)
+    __table_args__ = (
+        CheckConstraint("std IS NULL OR std >= 0", "std_nonnegative"),
+        # One parameter of one calibration (history, lineage); also serves lookups
+        # by calibration alone, so 0003 replaced the single-column index with it.
+        Index("ix_parameters_calibration_id_name", "calibration_id", "name"),
+    )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    calibration_id: Mapped[int] = mapped_column(ForeignKey("calibrations.id"), index=True)
+    calibration_id: Mapped[int] = mapped_column(ForeignKey("calibrations.id"))
     name: Mapped[str] = mapped_column(String(100), index=True)  # canonical, calib_core.params
     value: Mapped[float] = mapped_column(Float)  # SI
     std: Mapped[float | None] = mapped_column(Float)  # standard uncertainty, SI
@@ -232,6 +240,29 @@ class CheckResultRow(Base):
     detail: Mapped[str] = mapped_column(Text, default="")
     profile_name: Mapped[str | None] = mapped_column(String(200))
     profile_version: Mapped[str | None] = mapped_column(String(100))
+
+
+class ThermalModelRow(Base):
+    """A temperature-compensation model of one device (calib_core.thermal.ThermalModel).
+
+    Fitted from several calibrations (a thermal campaign); a refit adds a row
+    and sets `superseded_by` on the previous one, as for calibrations.
+    """
+
+    __tablename__ = "thermal_models"
+    __table_args__ = (CheckConstraint("t_max > t_min", "t_range"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    device_id: Mapped[int] = mapped_column(ForeignKey("devices.id"), index=True)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    model_name: Mapped[str] = mapped_column(String(100))
+    model_version: Mapped[str] = mapped_column(String(100))
+    t_ref: Mapped[float] = mapped_column(Float)  # deg C
+    t_min: Mapped[float] = mapped_column(Float)  # deg C
+    t_max: Mapped[float] = mapped_column(Float)  # deg C
+    document: Mapped[dict[str, Any]]  # ThermalModel.to_dict()
+    calibration_ids: Mapped[list[int]] = mapped_column(JSON)
+    superseded_by: Mapped[int | None] = mapped_column(ForeignKey("thermal_models.id"))
 
 
 TABLES = [t.name for t in Base.metadata.sorted_tables]

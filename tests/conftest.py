@@ -3,12 +3,7 @@
 from __future__ import annotations
 
 import contextlib
-import glob
 import os
-import pwd
-import shutil
-import socket
-import subprocess
 import tempfile
 import uuid
 from collections.abc import Iterator
@@ -20,102 +15,24 @@ os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
 from storage.db import Archive, default_archive_url  # noqa: E402
-from storage.schema import TABLES
+from storage.pgserver import ServerUnavailableError, private_server  # noqa: E402
+from storage.schema import TABLES  # noqa: E402
 
 # --- PostgreSQL ---------------------------------------------------------------
-
-PG_START_TIMEOUT_S = 30
-
-
-def _pg_bindir() -> Path | None:
-    found = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"))
-    if found:
-        return Path(found[-1]).parent
-    initdb = shutil.which("initdb")
-    return Path(initdb).parent if initdb else None
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="session")
 def postgres_server() -> Iterator[str]:
-    """Start a private PostgreSQL server; yield the URL of its `postgres` database.
-
-    initdb refuses to run as root, so as root the server runs as the `postgres`
-    user (`runuser`), with its data directory in a fresh folder under /tmp.
-    """
-    bindir = _pg_bindir()
-    if bindir is None:
-        if os.environ.get("CI"):  # CI runs `make test`, which installs the server: never skip there
-            pytest.fail("PostgreSQL server binaries not found although `make test` installs them")
-        pytest.skip(
-            "PostgreSQL server binaries (initdb, pg_ctl) not found: `make test` installs "
-            "them (scripts/ensure_postgres.sh), or apt-get install postgresql"
-        )
-    as_root = os.geteuid() == 0
-    prefix: list[str] = []
-    if as_root:
-        try:
-            pw = pwd.getpwnam("postgres")
-        except KeyError:
-            pytest.skip("running as root but there is no `postgres` user to run the server as")
-        prefix = ["runuser", "-u", "postgres", "--"]
-    base = Path(tempfile.mkdtemp(prefix="calib-pg-", dir="/tmp"))
-    base.chmod(0o755)
-    data = base / "data"
-    data.mkdir()
-    if as_root:
-        for p in (base, data):
-            os.chown(p, pw.pw_uid, pw.pw_gid)
-    port = _free_port()
-
-    def run(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            [*prefix, *args], capture_output=True, text=True, timeout=PG_START_TIMEOUT_S
-        )
-
-    init = run(
-        str(bindir / "initdb"),
-        "-D",
-        str(data),
-        "-U",
-        "postgres",
-        "-A",
-        "trust",
-        "-E",
-        "UTF8",
-        "--no-sync",
-    )
-    if init.returncode:
-        shutil.rmtree(base, ignore_errors=True)
-        pytest.fail(f"initdb failed:\n{init.stderr}")
-    opts = f"-p {port} -k {base} -c listen_addresses=127.0.0.1 -c fsync=off"
-    start = run(
-        str(bindir / "pg_ctl"),
-        "-D",
-        str(data),
-        "-o",
-        opts,
-        "-l",
-        str(base / "log"),
-        "-w",
-        "-t",
-        str(PG_START_TIMEOUT_S),
-        "start",
-    )
-    if start.returncode:
-        log = (base / "log").read_text() if (base / "log").exists() else ""
-        shutil.rmtree(base, ignore_errors=True)
-        pytest.fail(f"PostgreSQL did not start:\n{start.stderr}\n{log}")
+    """Start a private PostgreSQL server (storage.pgserver); yield the URL of its `postgres` db."""
     try:
-        yield f"postgresql+psycopg://postgres@127.0.0.1:{port}/postgres"
-    finally:
-        run(str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop")
-        shutil.rmtree(base, ignore_errors=True)
+        with private_server() as url:
+            yield url
+    except ServerUnavailableError as exc:
+        if os.environ.get("CI"):  # CI runs `make test`, which installs the server: never skip there
+            pytest.fail(f"{exc} although `make test` installs the server")
+        pytest.skip(str(exc))
+    except RuntimeError as exc:  # initdb or the start failed: the message holds the log
+        pytest.fail(str(exc))
 
 
 def _admin_db(url: str, sql: str) -> None:

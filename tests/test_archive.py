@@ -175,6 +175,7 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
         "processing_steps": 2,
         "parameters": 4,
         "check_results": 1,
+        "thermal_models": 0,
     }
     s = queries.run_summary(archive, res.run_id)
     assert s["raw_hash"] == raw_hash

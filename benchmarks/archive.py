@@ -1,0 +1,459 @@
+"""Archive benchmark: 100k simulated runs (5M parameter rows) in SQLite and PostgreSQL.
+
+Bulk-loads a synthetic archive straight into the tables (SQLite ``executemany``,
+PostgreSQL ``COPY``; not `archive_run` per run, which would take hours), with
+the schema built by the real migrations, then times the queries of
+`storage.queries` as the CLI calls them:
+
+- latest_valid: `latest_valid(serial, as_of)` for random units and dates;
+- lineage: `lineage(run_id, parameter)` for random runs and parameters;
+- history: `serial_parameter_history(serial, parameter)`;
+- lapsed: `lapsed_runs(equipment_serial)` (a rate table with ~5k runs);
+- units: `units(model, date range, verdict)` over one month;
+- fleet: `fleet(model, parameter)` over the largest model (60% of the units).
+
+The archive: 10k units of three models, 10 runs each over 2020-2025, one
+calibration per run (90% pass), 25 parameters at two temperatures each (50
+rows per calibration), 3 raw files, 3 steps, 2 checks and one rate table (of
+20, with calibration due dates, some lapsed) per run.
+
+Targets (issue 9): latest_valid and lineage p95 < 10 ms, history p95 < 50 ms,
+fleet < 1 s, on both back ends. Progress goes to stderr; a table of p50/p95
+per query and back end to stdout; the LAST stdout line is one JSON object::
+
+    {"sqlite": {"latest_valid_p95_ms", "lineage_p95_ms", "history_p95_ms", "fleet_s"},
+     "postgresql": {...}, "runs": int, "parameter_rows": int}
+
+``fleet_s`` is the slowest of the timed fleet calls. Run:
+``.venv/bin/python benchmarks/archive.py [--runs N]`` (~5-8 min on 2 cores for 100k).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterable, Iterator
+from datetime import UTC, date, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+os.environ.setdefault("DO_NOT_TRACK", "1")
+
+from calib_core import params  # noqa: E402
+from storage import queries  # noqa: E402
+from storage.db import Archive, default_archive_url  # noqa: E402
+from storage.pgserver import admin_execute, libpq_dsn, private_server  # noqa: E402
+
+RUNS_PER_UNIT = 10
+MODELS = [("MPU-6000", 0.6), ("ADXL355", 0.3), ("BMI088", 0.1)]
+NAMES = params.ACC_LINEAR + params.GYR_LINEAR + ["acc.noise.x"]  # 25 canonical names
+TEMPS = (20.0, 40.0)  # deg C: each parameter at two temperatures -> 50 rows per calibration
+N_EQUIPMENT = 20
+CHUNK_RUNS = 5_000
+T0 = datetime(2020, 1, 1, tzinfo=UTC)
+SPAN_S = 6 * 365 * 86400
+SAMPLES = {"latest_valid": 300, "lineage": 300, "history": 200, "lapsed": 20, "units": 50}
+FLEET_CALLS = 5
+SEED = 20261122
+# JSON columns: the same small documents for every run (built once).
+SITE_JSON = json.dumps({"latitude_deg": 55.75, "height_m": 150.0})
+SETTINGS_JSON = json.dumps({"outlier_sigma": 3.0})
+DOCUMENT_JSON = json.dumps({"procedure": "six_position"})
+STEP_JSON = {n: json.dumps({"step": n}) for n in ("ingest", "outliers", "solve")}
+STATS_JSON = json.dumps({"n": 1000})
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+# --- synthetic archive -----------------------------------------------------------------
+
+
+class Synth:
+    """Deterministic synthetic archive; rows as tuples in table column order."""
+
+    def __init__(self, n_runs: int, seed: int = SEED) -> None:
+        rng = np.random.default_rng(seed)
+        self.n_runs = n_runs
+        self.n_units = max(1, n_runs // RUNS_PER_UNIT)
+        shares = np.array([s for _, s in MODELS])
+        self.unit_model = rng.choice(len(MODELS), self.n_units, p=shares / shares.sum())
+        self.run_unit = np.arange(n_runs) % self.n_units
+        self.run_t = np.sort(rng.uniform(0, SPAN_S, n_runs))  # s after T0, in run-id order
+        self.run_pass = rng.random(n_runs) < 0.9
+        self.run_eq = rng.integers(0, N_EQUIPMENT, n_runs)
+        self.run_temp = rng.uniform(18, 28, n_runs)
+        # Equipment due dates: 2021..2026, so runs after the date count as lapsed.
+        self.eq_due = [
+            date(2021, 1, 1) + timedelta(days=int(d)) for d in rng.integers(0, 1800, N_EQUIPMENT)
+        ]
+        self.rng = rng
+
+    def serial(self, unit: int) -> str:
+        return f"U{unit:06d}"
+
+    def run_id(self, run: int) -> str:
+        return f"R{run:012x}"
+
+    def started(self, run: int) -> datetime:
+        return T0 + timedelta(seconds=float(self.run_t[run]))
+
+    def devices(self) -> list[tuple]:
+        now = datetime.now(UTC)
+        return [
+            (u + 1, self.serial(u), MODELS[self.unit_model[u]][0], "Acme", None, now)
+            for u in range(self.n_units)
+        ]
+
+    def equipment(self) -> list[tuple]:
+        return [
+            (
+                e + 1,
+                "rate_table",
+                "AC1120",
+                f"RT-{e}",
+                "0.01%",
+                self.eq_due[e],
+                self.eq_due[e] - timedelta(days=365),
+            )
+            for e in range(N_EQUIPMENT)
+        ]
+
+    def chunk(self, lo: int, hi: int) -> dict[str, list[tuple]]:
+        """Rows of runs lo..hi-1 for every run-dependent table (ids are run index based)."""
+        rng = self.rng
+        now = datetime.now(UTC)
+        out: dict[str, Any] = {
+            k: []
+            for k in (
+                "runs",
+                "run_equipment",
+                "raw_files",
+                "calibrations",
+                "processing_steps",
+                "parameters",
+                "check_results",
+            )
+        }
+        n_p = len(NAMES) * len(TEMPS)
+        values = rng.normal(0, 0.05, (hi - lo, n_p))
+        stds = np.abs(rng.normal(0, 1e-3, (hi - lo, n_p)))
+        for r in range(lo, hi):
+            rid, pk = self.run_id(r), r + 1
+            started = self.started(r)
+            eq = int(self.run_eq[r])
+            out["runs"].append(
+                (
+                    pk,
+                    rid,
+                    int(self.run_unit[r]) + 1,
+                    started,
+                    "operator",
+                    "six_position",
+                    SITE_JSON,
+                    9.8155,
+                    f'{{"temperature_c": {self.run_temp[r]:.2f}}}',
+                    None,
+                    f"{r:064x}",
+                    "mpu6000",
+                    f"runs/{rid}",
+                    None,
+                    None,
+                    now,
+                )
+            )
+            out["run_equipment"].append((pk, pk, eq + 1, self.eq_due[eq], None))
+            for j in range(3):
+                sha = f"{r:056x}{j:08x}"
+                out["raw_files"].append(
+                    (3 * r + j + 1, pk, f"f{j}.txt", sha, 4096, "csv", f"objects/{sha[:2]}/{sha}")
+                )
+            verdict = "pass" if self.run_pass[r] else "fail"
+            out["calibrations"].append(
+                (
+                    pk,
+                    pk,
+                    1,
+                    f"{r:064x}",
+                    SETTINGS_JSON,
+                    "0.1.0",
+                    "abc123",
+                    now,
+                    None,
+                    DOCUMENT_JSON,
+                    verdict,
+                    "mpu6000",
+                    "1",
+                )
+            )
+            for j, name in enumerate(("ingest", "outliers", "solve")):
+                out["processing_steps"].append(
+                    (
+                        3 * r + j + 1,
+                        pk,
+                        pk,
+                        j,
+                        name,
+                        STEP_JSON[name],
+                        STATS_JSON,
+                        "0.1.0",
+                        "abc123",
+                    )
+                )
+            for j in range(2):
+                out["check_results"].append(
+                    (
+                        2 * r + j + 1,
+                        pk,
+                        f"check{j}",
+                        0.01,
+                        0.1,
+                        verdict == "pass" or j == 1,
+                        "",
+                        "mpu6000",
+                        "1",
+                    )
+                )
+        # Parameters (50 per run, 5M in all) built column-wise with numpy, then zipped:
+        # a Python loop per row would dominate the load.
+        n = hi - lo
+        names = np.repeat(NAMES, len(TEMPS)).tolist()
+        units = np.repeat([params.unit_of(x) for x in NAMES], len(TEMPS)).tolist()
+        out["parameters"] = zip(
+            range(lo * n_p + 1, hi * n_p + 1),
+            np.repeat(np.arange(lo, hi) + 1, n_p).tolist(),
+            names * n,
+            values.ravel().tolist(),
+            stds.ravel().tolist(),
+            units * n,
+            list(TEMPS) * (len(NAMES) * n),
+            strict=True,
+        )
+        return out
+
+
+COLUMNS = {
+    "devices": "id, serial, model, manufacturer, specification, created_at",
+    "equipment": "id, kind, model, serial, accuracy_class, calibration_due, calibrated_on",
+    "runs": "id, run_id, device_id, started_at, operator, procedure, site, gravity, environment, "
+    "manifest_text, raw_hash, tolerance_profile, run_dir, samples_path, samples_sha256, created_at",
+    "run_equipment": "id, run_id, equipment_id, calibration_due, calibrated_on",
+    "raw_files": "id, run_id, name, sha256, size, format, stored_path",
+    "calibrations": "id, run_id, revision, settings_hash, settings, software_version, "
+    "source_revision, created_at, superseded_by, document, verdict, profile_name, profile_version",
+    "processing_steps": "id, run_id, calibration_id, seq, name, settings, statistics, "
+    "software_version, source_revision",
+    "parameters": "id, calibration_id, name, value, std, unit, temperature_c",
+    "check_results": 'id, calibration_id, name, value, "limit", passed, detail, profile_name, '
+    "profile_version",
+}
+
+
+def _sqlite_value(v):  # noqa: ANN001, ANN202
+    # The formats SQLAlchemy's SQLite dialect writes (UTCDateTime stores naive UTC).
+    if isinstance(v, datetime):
+        return v.astimezone(UTC).strftime("%Y-%m-%d %H:%M:%S.%f")
+    if isinstance(v, date):
+        return v.isoformat()
+    return v
+
+
+def load_sqlite(archive: Archive, synth: Synth) -> None:
+    raw = archive.engine().raw_connection()
+    cur = raw.cursor()
+    cur.execute("PRAGMA synchronous=OFF")  # a benchmark load: durability is not measured
+
+    def put(table: str, rows: Iterable[tuple]) -> None:
+        marks = ", ".join("?" * len(COLUMNS[table].split(",")))
+        if table != "parameters":  # (numbers and strings only: no conversion needed)
+            rows = [tuple(_sqlite_value(v) for v in r) for r in rows]
+        cur.executemany(f"INSERT INTO {table} ({COLUMNS[table]}) VALUES ({marks})", rows)
+
+    _load(synth, put, lambda: cur.execute("BEGIN"), lambda: cur.execute("COMMIT"))
+    cur.execute("ANALYZE")
+    raw.close()
+
+
+def load_postgresql(archive: Archive, synth: Synth) -> None:
+    import psycopg
+
+    with psycopg.connect(libpq_dsn(archive.url)) as conn, conn.cursor() as cur:
+
+        def put(table: str, rows: Iterable[tuple]) -> None:
+            with cur.copy(f"COPY {table} ({COLUMNS[table]}) FROM STDIN") as cp:
+                for r in rows:
+                    cp.write_row(r)
+
+        _load(synth, put, lambda: None, conn.commit)
+        for table in COLUMNS:  # later inserts (archive_run) continue after the loaded ids
+            cur.execute(
+                f"SELECT setval(pg_get_serial_sequence('{table}', 'id'), "
+                f"(SELECT coalesce(max(id), 1) FROM {table}))"
+            )
+        conn.commit()
+    admin_execute(archive.url, "VACUUM ANALYZE")
+
+
+def _load(synth: Synth, put: Callable, begin: Callable, commit: Callable) -> None:
+    t0 = time.perf_counter()
+    begin()
+    put("devices", synth.devices())
+    put("equipment", synth.equipment())
+    commit()
+    for lo in range(0, synth.n_runs, CHUNK_RUNS):
+        rows = synth.chunk(lo, min(lo + CHUNK_RUNS, synth.n_runs))
+        begin()
+        for table in (
+            "runs",
+            "run_equipment",
+            "raw_files",
+            "calibrations",
+            "processing_steps",
+            "parameters",
+            "check_results",
+        ):
+            put(table, rows[table])
+        commit()
+        done = min(lo + CHUNK_RUNS, synth.n_runs)
+        if done % (5 * CHUNK_RUNS) == 0 or done == synth.n_runs:
+            log(f"  {done} runs loaded ({time.perf_counter() - t0:.0f} s)")
+
+
+# --- timing ----------------------------------------------------------------------------
+
+
+def timed(fn: Callable[[], object], n: int) -> np.ndarray:
+    out = np.empty(n)
+    for i in range(n):
+        t = time.perf_counter()
+        fn()
+        out[i] = time.perf_counter() - t
+    return out
+
+
+def cases(synth: Synth, rng: np.random.Generator) -> Iterator[tuple[str, Callable[[], Callable]]]:
+    """(query name, factory of one randomly chosen call)."""
+
+    def latest():  # noqa: ANN202
+        u = int(rng.integers(synth.n_units))
+        at = (T0 + timedelta(seconds=float(rng.uniform(0, SPAN_S)))).date()
+        return lambda a: queries.latest_valid(a, synth.serial(u), at)
+
+    def lineage():  # noqa: ANN202
+        r, n = int(rng.integers(synth.n_runs)), NAMES[int(rng.integers(len(NAMES)))]
+        return lambda a: queries.lineage(a, synth.run_id(r), n)
+
+    def history():  # noqa: ANN202
+        u, n = int(rng.integers(synth.n_units)), NAMES[int(rng.integers(len(NAMES)))]
+        return lambda a: queries.serial_parameter_history(a, synth.serial(u), n)
+
+    def lapsed():  # noqa: ANN202
+        e = int(rng.integers(N_EQUIPMENT))
+        return lambda a: queries.lapsed_runs(a, f"RT-{e}")
+
+    def units():  # noqa: ANN202
+        d = (T0 + timedelta(seconds=float(rng.uniform(0, SPAN_S - 40 * 86400)))).date()
+        return lambda a: queries.units(
+            a, model="MPU-6000", date_from=d, date_to=d + timedelta(days=30), verdict="pass"
+        )
+
+    yield from [
+        ("latest_valid", latest),
+        ("lineage", lineage),
+        ("history", history),
+        ("lapsed", lapsed),
+        ("units", units),
+    ]
+
+
+def bench(archive: Archive, synth: Synth) -> dict[str, dict[str, float]]:
+    rng = np.random.default_rng(SEED + 1)
+    result = {}
+    for name, make in cases(synth, rng):
+        calls = [make() for _ in range(SAMPLES[name])]
+        for c in calls[:5]:  # warm the caches and the statement cache
+            c(archive)
+        it = iter(calls)
+        s = timed(lambda it=it: next(it)(archive), len(calls))
+        result[name] = {
+            "p50_ms": 1e3 * float(np.median(s)),
+            "p95_ms": 1e3 * float(np.percentile(s, 95)),
+        }
+        log(f"  {name}: p50 {result[name]['p50_ms']:.2f} ms, p95 {result[name]['p95_ms']:.2f} ms")
+    queries.fleet(archive, "MPU-6000", "acc.bias.x")  # warm
+    s = timed(
+        lambda: queries.fleet(archive, "MPU-6000", NAMES[int(rng.integers(len(NAMES)))]),
+        FLEET_CALLS,
+    )
+    n = len(queries.fleet(archive, "MPU-6000", "acc.bias.x"))
+    result["fleet"] = {
+        "p50_ms": 1e3 * float(np.median(s)),
+        "p95_ms": 1e3 * float(np.percentile(s, 95)),
+        "max_s": float(s.max()),
+        "rows": n,
+    }
+    log(f"  fleet ({n} values): p50 {1e3 * np.median(s):.0f} ms, max {s.max():.3f} s")
+    return result
+
+
+def run_backend(kind: str, archive: Archive, synth: Synth) -> dict[str, dict[str, float]]:
+    log(f"{kind}: migrating")
+    archive.upgrade()
+    t = time.perf_counter()
+    (load_sqlite if kind == "sqlite" else load_postgresql)(archive, synth)
+    log(f"{kind}: loaded in {time.perf_counter() - t:.0f} s; timing queries")
+    archive.dispose()
+    return bench(archive, synth)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=100_000)
+    args = ap.parse_args()
+    synth = Synth(args.runs)
+    n_params = args.runs * len(NAMES) * len(TEMPS)
+    log(f"{args.runs} runs, {synth.n_units} units, {n_params} parameter rows")
+    work = Path(tempfile.mkdtemp(prefix="calib-bench-"))
+    results = {}
+    try:
+        sq = Archive(default_archive_url(work / "sqlite"), work / "sqlite")
+        results["sqlite"] = run_backend("sqlite", sq, Synth(args.runs))
+        sq.dispose()
+        with private_server(
+            shared_buffers="512MB", max_wal_size="4GB", synchronous_commit="off"
+        ) as server:
+            admin_execute(server, 'CREATE DATABASE "bench"')
+            pg = Archive(server.rsplit("/", 1)[0] + "/bench", work / "pg")
+            results["postgresql"] = run_backend("postgresql", pg, Synth(args.runs))
+            pg.dispose()
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+    print(f"{'query':<14}{'back end':<12}{'p50 ms':>10}{'p95 ms':>10}")
+    for backend, res in results.items():
+        for q, r in res.items():
+            print(f"{q:<14}{backend:<12}{r['p50_ms']:>10.2f}{r['p95_ms']:>10.2f}")
+    summary = {
+        b: {
+            "latest_valid_p95_ms": round(r["latest_valid"]["p95_ms"], 3),
+            "lineage_p95_ms": round(r["lineage"]["p95_ms"], 3),
+            "history_p95_ms": round(r["history"]["p95_ms"], 3),
+            "fleet_s": round(r["fleet"]["max_s"], 4),
+        }
+        for b, r in results.items()
+    }
+    print(json.dumps({**summary, "runs": args.runs, "parameter_rows": n_params}))
+
+
+if __name__ == "__main__":
+    main()

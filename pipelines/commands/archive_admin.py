@@ -1,0 +1,83 @@
+"""`calib verify`, `calib backup DEST`, `calib restore SRC`: the archive's integrity and backups."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from pipelines.cli import ArchiveOpt, app, err, fail, open_archive
+
+
+@app.command()
+def verify(
+    archive: ArchiveOpt = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
+    orphans: Annotated[
+        bool, typer.Option("--orphans/--no-orphans", help="List unreferenced files.")
+    ] = True,
+) -> None:
+    """Re-hash every archived raw file and samples file; exit 1 on any missing or changed file."""
+    from storage.verify import verify as run_verify
+
+    report = run_verify(open_archive(archive), orphans=orphans)
+    if as_json:
+        sys.stdout.write(json.dumps(report.to_dict(), indent=2) + "\n")
+    else:
+        for p in report.problems:
+            runs = ", ".join(p.runs)
+            sys.stdout.write(f"{p.kind.upper()}\t{p.path or '-'}\t{runs}\t{p.detail}\n")
+        for o in report.orphans:
+            err.print(f"orphan (not referenced, harmless): {o}")
+        mb = report.bytes_checked / 1e6
+        err.print(
+            f"{report.files_checked} files ({mb:.1f} MB) of {report.runs_checked} runs checked: "
+            + ("OK" if report.ok else f"[red]{len(report.problems)} problem(s)[/red]")
+        )
+    raise typer.Exit(0 if report.ok else 1)
+
+
+@app.command()
+def backup(
+    dest: Annotated[Path, typer.Argument(help="New (or empty) folder for the backup.")],
+    archive: ArchiveOpt = None,
+) -> None:
+    """Consistent backup: database snapshot, file store, hash manifest."""
+    from storage.backup import BackupError
+    from storage.backup import backup as run_backup
+
+    try:
+        manifest = run_backup(open_archive(archive), dest)
+    except (BackupError, FileNotFoundError) as exc:
+        fail(str(exc))
+    err.print(
+        f"backed up the {manifest['backend']} database (schema {manifest['schema_revision']}) "
+        f"and {len(manifest['files'])} files to {dest}"
+    )
+
+
+@app.command()
+def restore(
+    src: Annotated[Path, typer.Argument(help="A backup folder made by `calib backup`.")],
+    archive: ArchiveOpt = None,
+) -> None:
+    """Restore a backup into an empty archive location, then verify it (exit 1 if it fails)."""
+    from storage.backup import BackupError
+    from storage.backup import restore as run_restore
+    from storage.db import resolve_archive
+    from storage.verify import verify as run_verify
+
+    try:
+        target = resolve_archive(archive)
+        manifest = run_restore(src, target)
+    except (BackupError, FileNotFoundError, ValueError) as exc:
+        fail(str(exc))
+    report = run_verify(target, orphans=False)
+    err.print(
+        f"restored {len(manifest['files'])} files and the {manifest['backend']} database "
+        f"into {target!r}; verify: " + ("OK" if report.ok else f"{len(report.problems)} problem(s)")
+    )
+    raise typer.Exit(0 if report.ok else 1)

@@ -1,0 +1,227 @@
+"""`calib query ...`: the archive's questions (storage.queries) on the command line.
+
+Every subcommand prints to stdout as a table (default), CSV or JSON
+(``--format``); messages go to stderr. Exit codes: 0 answered (also with no
+rows for a list), 1 nothing found for `latest`, 2 invalid input or unknown run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from datetime import date, datetime
+from enum import StrEnum
+from typing import Annotated, Any
+
+import pandas as pd
+import typer
+from rich.table import Table
+
+from pipelines.cli import ArchiveOpt, app, err, fail, open_archive, out, print_frame
+
+query_app = typer.Typer(
+    no_args_is_help=True, help="Ask the archive: latest, lineage, lapsed, units, history, fleet."
+)
+app.add_typer(query_app, name="query")
+
+
+class Format(StrEnum):
+    table = "table"
+    csv = "csv"
+    json = "json"
+
+
+FormatOpt = Annotated[Format, typer.Option("--format", help="table, csv or json.")]
+
+
+def _plain(value: Any) -> Any:
+    """A JSON-ready value: ISO 8601 dates, None for NaN/NaT."""
+    if value is None or value is pd.NaT:
+        return None
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if isinstance(value, datetime | date | pd.Timestamp):
+        return value.isoformat()
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if hasattr(value, "item"):  # numpy scalars
+        return _plain(value.item())
+    return value
+
+
+def _records(df: pd.DataFrame) -> list[dict[str, Any]]:
+    return [_plain(r) for r in df.astype(object).to_dict(orient="records")]
+
+
+def emit(df: pd.DataFrame, fmt: Format, title: str) -> None:
+    """Print a DataFrame in the chosen format."""
+    if fmt is Format.json:
+        sys.stdout.write(json.dumps(_records(df), indent=2) + "\n")
+    elif fmt is Format.csv:
+        df.to_csv(sys.stdout, index=False, date_format="%Y-%m-%dT%H:%M:%S%z")
+    elif df.empty:
+        err.print(f"{title}: no rows")
+    else:
+        print_frame(df, title)
+
+
+def _ask(fn, *args, **kwargs):  # noqa: ANN001, ANN202 - any query function
+    try:
+        return fn(*args, **kwargs)
+    except (ValueError, LookupError) as exc:
+        fail(str(exc))
+
+
+@query_app.command("latest")
+def latest(
+    serial: str,
+    at: Annotated[
+        str | None, typer.Option("--at", help="Date (whole UTC day) or ISO date-time with zone.")
+    ] = None,
+    archive: ArchiveOpt = None,
+    fmt: FormatOpt = Format.table,
+) -> None:
+    """Parameters of the latest valid calibration of SERIAL as of a date (default now)."""
+    from storage import queries
+
+    df = _ask(queries.latest_valid, open_archive(archive), serial, at)
+    if df.empty:  # still print the empty CSV header / JSON list for scripts
+        err.print(f"no valid calibration of {serial!r}" + (f" as of {at}" if at else ""))
+    emit(df, fmt, f"Latest valid calibration of {serial}")
+    if df.empty:
+        raise typer.Exit(1)
+
+
+@query_app.command("lineage")
+def lineage(
+    run_id: str,
+    param: str,
+    revision: Annotated[int | None, typer.Option(help="Revision (default current).")] = None,
+    archive: ArchiveOpt = None,
+    fmt: FormatOpt = Format.table,
+) -> None:
+    """Where PARAM of run RUN_ID comes from: raw files, steps, software, equipment, conditions."""
+    from storage import queries
+
+    doc = _ask(queries.lineage, open_archive(archive), run_id, param, revision)
+    if fmt is Format.json:
+        sys.stdout.write(json.dumps(_plain(doc), indent=2) + "\n")
+        return
+    long = pd.DataFrame(_flatten(doc), columns=["section", "item", "field", "value"])
+    if fmt is Format.csv:
+        long.to_csv(sys.stdout, index=False)
+        return
+    for section, rows in long.groupby("section", sort=False):
+        table = Table(title=str(section))
+        for col in ("item", "field", "value"):
+            table.add_column(col)
+        for r in rows.itertuples(index=False):
+            table.add_row(str(r.item), str(r.field), str(r.value))
+        out.print(table)
+
+
+def _flatten(doc: dict[str, Any]) -> list[tuple[str, str, str, str]]:
+    """(section, item, field, value) rows: lists get one item per element, dicts JSON values."""
+    rows = []
+    for section, body in doc.items():
+        items = body if isinstance(body, list) else [body]
+        if section == "parameter":
+            items = [{"name": body["name"], **v} for v in body["values"]]
+        for i, item in enumerate(items):
+            for key, value in item.items():
+                v = _plain(value)
+                text = json.dumps(v, sort_keys=True) if isinstance(v, dict | list) else str(v)
+                rows.append((section, str(i), key, text))
+    return rows
+
+
+@query_app.command("lapsed")
+def lapsed(
+    equipment_serial: str,
+    kind: Annotated[str | None, typer.Option(help="Equipment kind, e.g. rate_table.")] = None,
+    archive: ArchiveOpt = None,
+    fmt: FormatOpt = Format.table,
+) -> None:
+    """Runs made on EQUIPMENT_SERIAL while its own calibration had lapsed."""
+    from storage import queries
+
+    df = _ask(queries.lapsed_runs, open_archive(archive), equipment_serial, kind)
+    emit(df, fmt, f"Runs on {equipment_serial} after its calibration was due")
+
+
+@query_app.command("units")
+def units(
+    model: Annotated[str | None, typer.Option(help="Device model.")] = None,
+    date_from: Annotated[str | None, typer.Option("--from", help="Runs from this date.")] = None,
+    date_to: Annotated[str | None, typer.Option("--to", help="Runs up to this date.")] = None,
+    verdict: Annotated[str | None, typer.Option(help="pass or fail.")] = None,
+    env_temp_min: Annotated[
+        float | None, typer.Option("--env-temp-min", help="Lab temperature >= this, deg C.")
+    ] = None,
+    env_temp_max: Annotated[
+        float | None, typer.Option("--env-temp-max", help="Lab temperature <= this, deg C.")
+    ] = None,
+    archive: ArchiveOpt = None,
+    fmt: FormatOpt = Format.table,
+) -> None:
+    """Calibrated units by model, date range, lab temperature and verdict."""
+    from storage import queries
+
+    df = _ask(
+        queries.units,
+        open_archive(archive),
+        model=model,
+        date_from=date_from,
+        date_to=date_to,
+        verdict=verdict,
+        env_temp_min=env_temp_min,
+        env_temp_max=env_temp_max,
+    )
+    emit(df, fmt, "Calibrated units")
+
+
+@query_app.command("history")
+def history(
+    serial: str,
+    param: str,
+    superseded: Annotated[
+        bool, typer.Option("--superseded", help="Also superseded revisions.")
+    ] = False,
+    archive: ArchiveOpt = None,
+    fmt: FormatOpt = Format.table,
+) -> None:
+    """Values of PARAM of SERIAL over its calibrations, oldest first."""
+    from storage import queries
+
+    df = _ask(
+        queries.serial_parameter_history,
+        open_archive(archive),
+        serial,
+        param,
+        include_superseded=superseded,
+    )
+    emit(df, fmt, f"{param} of {serial}")
+
+
+@query_app.command("fleet")
+def fleet(
+    model: str,
+    param: str,
+    at: Annotated[str | None, typer.Option("--at", help="As of this date.")] = None,
+    archive: ArchiveOpt = None,
+    fmt: FormatOpt = Format.table,
+) -> None:
+    """PARAM across every unit of MODEL (each unit's latest valid calibration)."""
+    from storage import queries
+
+    df = _ask(queries.fleet, open_archive(archive), model, param, at)
+    emit(df, fmt, f"{param} across {model}")
+    if fmt is Format.table and not df.empty:
+        v = df["value"]
+        err.print(
+            f"{len(df)} values of {df['serial'].nunique()} units: median {v.median():.6g}, "
+            f"5% {v.quantile(0.05):.6g}, 95% {v.quantile(0.95):.6g} [{df['unit'].iloc[0]}]"
+        )

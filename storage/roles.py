@@ -1,0 +1,123 @@
+"""PostgreSQL roles for the archive: a read-only role for queries, a writer for the pipeline.
+
+- reader (default ``calib_reader``): CONNECT, and SELECT on every table. For
+  auditors, dashboards and `calib query`.
+- writer (default ``calib_writer``): SELECT and INSERT on every table, the
+  sequences behind the ids, and UPDATE of the one column the archive ever
+  changes, ``superseded_by`` (calibrations, thermal models). No DELETE, no
+  other UPDATE, no DDL: the append-only rule is enforced by the server, not
+  only by the code.
+
+Schema migrations run as the database owner (the role that created the
+tables), never as these roles. Grants on tables are per table, so run
+`apply_roles` again after a migration that adds a table (it is idempotent);
+``ALTER DEFAULT PRIVILEGES`` covers SELECT for the reader on tables the owner
+creates later.
+
+Role and database names are quoted as identifiers and passwords as literals
+by psycopg's `sql` module (DDL takes no bound parameters).
+"""
+
+from __future__ import annotations
+
+import psycopg
+from psycopg import sql
+from sqlalchemy.engine import make_url
+
+from storage.db import Archive
+from storage.naming import check_safe_name
+from storage.pgserver import libpq_dsn
+from storage.schema import Base
+
+READER = "calib_reader"
+WRITER = "calib_writer"
+
+
+def _updatable() -> list[tuple[str, str]]:
+    """(table, column) pairs the writer may UPDATE: the supersession links."""
+    return [
+        (t.name, "superseded_by") for t in Base.metadata.sorted_tables if "superseded_by" in t.c
+    ]
+
+
+def role_statements(
+    database: str,
+    *,
+    reader: str = READER,
+    writer: str = WRITER,
+    tables: list[str] | None = None,
+) -> list[sql.Composed]:
+    """The GRANT statements for both roles (the roles must exist).
+
+    Parameters
+    ----------
+    database : the archive's database name.
+    reader, writer : role names (letters, digits, ``._-``).
+    tables : the archive's data tables (default: those of storage.schema).
+    """
+    for name, what in ((reader, "reader role"), (writer, "writer role"), (database, "database")):
+        check_safe_name(name, what)
+    tables = tables or [t.name for t in Base.metadata.sorted_tables]
+    r, w, db = sql.Identifier(reader), sql.Identifier(writer), sql.Identifier(database)
+    data = sql.SQL(", ").join(sql.Identifier(t) for t in tables)
+    version = sql.Identifier("alembic_version")  # read by Archive.upgrade at every start
+    stmts = [
+        sql.SQL("GRANT CONNECT ON DATABASE {} TO {}, {}").format(db, r, w),
+        sql.SQL("GRANT USAGE ON SCHEMA public TO {}, {}").format(r, w),
+        sql.SQL("REVOKE CREATE ON SCHEMA public FROM {}, {}").format(r, w),
+        sql.SQL("GRANT SELECT ON {}, {} TO {}, {}").format(data, version, r, w),
+        sql.SQL("REVOKE INSERT, UPDATE, DELETE, TRUNCATE ON {}, {} FROM {}").format(
+            data, version, r
+        ),
+        sql.SQL("REVOKE INSERT, UPDATE, DELETE, TRUNCATE ON {} FROM {}").format(version, w),
+        sql.SQL("REVOKE UPDATE, DELETE, TRUNCATE ON {} FROM {}").format(data, w),
+        sql.SQL("GRANT INSERT ON {} TO {}").format(data, w),
+        sql.SQL("GRANT USAGE, SELECT ON ALL SEQUENCES IN SCHEMA public TO {}").format(w),
+        sql.SQL("ALTER DEFAULT PRIVILEGES IN SCHEMA public GRANT SELECT ON TABLES TO {}").format(r),
+    ]
+    for table, column in _updatable():
+        if table in tables:
+            stmts.append(
+                sql.SQL("GRANT UPDATE ({}) ON {} TO {}").format(
+                    sql.Identifier(column), sql.Identifier(table), w
+                )
+            )
+    return stmts
+
+
+def apply_roles(
+    archive: Archive,
+    *,
+    reader: str = READER,
+    writer: str = WRITER,
+    reader_password: str | None = None,
+    writer_password: str | None = None,
+) -> None:
+    """Create the two login roles if missing and grant their privileges (idempotent).
+
+    Run as the database owner or a superuser, after `archive.upgrade()`.
+    Passwords, when given, are set (also on existing roles).
+    """
+    if archive.is_sqlite:
+        raise ValueError("roles exist only on PostgreSQL; a SQLite archive is a file")
+    url = make_url(archive.url)
+    database = url.database or "postgres"
+    with psycopg.connect(libpq_dsn(archive.url), autocommit=True) as conn, conn.transaction():
+        for role, password in ((reader, reader_password), (writer, writer_password)):
+            check_safe_name(role, "role")
+            exists = conn.execute("SELECT 1 FROM pg_roles WHERE rolname = %s", (role,)).fetchone()
+            verb = "ALTER" if exists else "CREATE"
+            stmt = sql.SQL(verb + " ROLE {} LOGIN NOSUPERUSER NOCREATEDB NOCREATEROLE").format(
+                sql.Identifier(role)
+            )
+            if password is not None:
+                stmt += sql.SQL(" PASSWORD {}").format(sql.Literal(password))
+            conn.execute(stmt)
+        for stmt in role_statements(database, reader=reader, writer=writer):
+            conn.execute(stmt)
+
+
+def role_sql(database: str, *, reader: str = READER, writer: str = WRITER) -> str:
+    """The grants as SQL text, for a DBA to read or run by hand (docs/archive.md)."""
+    stmts = role_statements(database, reader=reader, writer=writer)
+    return "".join(s.as_string(None) + ";\n" for s in stmts)

@@ -1,0 +1,223 @@
+"""Integrity check of an archive: every archived file against its hash in the database.
+
+`verify` re-hashes each raw object (``raw_files.stored_path`` /
+``raw_files.sha256`` / ``size``) and each Parquet samples file
+(``runs.samples_path`` / ``runs.samples_sha256``) and reports files that are
+missing or whose bytes changed. It also checks the database's own invariants
+that a crash or a manual edit could break: every run has raw files and
+exactly one current calibration revision, and a revision is superseded only
+by a later revision of the same run.
+
+Files the database does not reference (an archive attempt killed between
+writing its files and committing its rows leaves those) are listed as
+*orphans*: harmless, not problems. The file store only ever grows, so such a
+file is never mistaken for archived data.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import defaultdict
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from sqlalchemy import func, select
+from sqlalchemy.engine import make_url
+from sqlalchemy.orm import aliased
+
+from storage.db import Archive
+from storage.schema import CalibrationRow, RawFile, Run
+
+ProblemKind = Literal["missing", "mismatch", "outside", "database"]
+_CHUNK = 1 << 20
+
+
+@dataclass
+class Problem:
+    """One integrity problem.
+
+    Attributes
+    ----------
+    kind : "missing" (no file), "mismatch" (other bytes or size), "outside"
+        (a stored path that leaves the file store), "database" (a broken invariant).
+    path : the file, relative to the file store root ("" for database problems).
+    runs : run ids concerned.
+    detail : what was expected and what was found.
+    """
+
+    kind: ProblemKind
+    path: str
+    runs: list[str]
+    detail: str
+
+
+@dataclass
+class VerifyReport:
+    """What `verify` found. ``ok`` is true when there is no problem (orphans are allowed)."""
+
+    files_checked: int = 0
+    bytes_checked: int = 0
+    runs_checked: int = 0
+    problems: list[Problem] = field(default_factory=list)
+    orphans: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"ok": self.ok, **asdict(self)}
+
+
+def _hash_and_size(path: Path) -> tuple[str, int]:
+    h, n = hashlib.sha256(), 0
+    with open(path, "rb") as f:
+        while chunk := f.read(_CHUNK):
+            h.update(chunk)
+            n += len(chunk)
+    return h.hexdigest(), n
+
+
+def _inside(root: Path, rel: str) -> Path | None:
+    """root/rel if it stays inside root (a database row is not trusted to), else None."""
+    p = (root / rel).resolve()
+    return p if p.is_relative_to(root.resolve()) else None
+
+
+def _check_file(
+    report: VerifyReport, root: Path, rel: str, sha256: str, size: int | None, runs: list[str]
+) -> None:
+    path = _inside(root, rel)
+    if path is None:
+        report.problems.append(Problem("outside", rel, runs, "path leaves the file store"))
+        return
+    if not path.is_file():
+        report.problems.append(Problem("missing", rel, runs, f"expected sha256 {sha256}"))
+        return
+    actual, n = _hash_and_size(path)
+    report.files_checked += 1
+    report.bytes_checked += n
+    if actual != sha256 or (size is not None and n != size):
+        report.problems.append(
+            Problem(
+                "mismatch",
+                rel,
+                runs,
+                f"expected sha256 {sha256}"
+                + ("" if size is None else f" ({size} bytes)")
+                + f", found {actual} ({n} bytes)",
+            )
+        )
+
+
+def sqlite_file(archive: Archive) -> Path | None:
+    """The SQLite database file of the archive (None for other back ends)."""
+    if not archive.is_sqlite:
+        return None
+    db = make_url(archive.url).database
+    return Path(db).resolve() if db and db != ":memory:" else None
+
+
+def verify(archive: Archive, *, orphans: bool = True) -> VerifyReport:
+    """Re-hash every archived file and check the database invariants.
+
+    Parameters
+    ----------
+    archive : the archive (schema current).
+    orphans : also list files under objects/, samples/ and runs/ that no row
+        references (costs a walk of the file store).
+
+    Returns
+    -------
+    VerifyReport; ``report.ok`` is False when any file is missing or changed
+    or an invariant is broken.
+    """
+    report = VerifyReport()
+    root = archive.root
+    with archive.engine().connect() as conn:
+        raw_rows = conn.execute(
+            select(RawFile.stored_path, RawFile.sha256, RawFile.size, Run.run_id)
+            .join(Run, Run.id == RawFile.run_id)
+            .order_by(RawFile.stored_path, Run.run_id)
+        ).all()
+        sample_rows = conn.execute(
+            select(Run.samples_path, Run.samples_sha256, Run.run_id).where(
+                Run.samples_path.is_not(None)
+            )
+        ).all()
+        run_dirs = conn.execute(select(Run.run_dir)).scalars().all()
+        report.runs_checked = len(run_dirs)
+        _check_database(conn, report)
+
+    objects: dict[tuple[str, str, int], list[str]] = defaultdict(list)
+    for path, sha, size, run_id in raw_rows:
+        objects[(path, sha, size)].append(run_id)
+    for (path, sha, size), runs in objects.items():
+        _check_file(report, root, path, sha, size, runs)
+    for path, sha, run_id in sample_rows:
+        if sha is None:
+            report.problems.append(Problem("database", path, [run_id], "samples file has no hash"))
+            continue
+        _check_file(report, root, path, sha, None, [run_id])
+
+    if orphans:
+        known = {p for p, _, _ in objects} | {r.samples_path for r in sample_rows}
+        report.orphans = _orphans(root, known, set(run_dirs))
+    return report
+
+
+def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
+    current = (
+        select(Run.run_id, func.count(CalibrationRow.id).label("n"))
+        .select_from(Run)
+        .outerjoin(
+            CalibrationRow,
+            (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None),
+        )
+        .group_by(Run.run_id)
+    )
+    for run_id, n in conn.execute(current.having(func.count(CalibrationRow.id) != 1)):
+        report.problems.append(
+            Problem("database", "", [run_id], f"{n} current calibration revisions, expected 1")
+        )
+    no_raw = select(Run.run_id).where(~select(RawFile.id).where(RawFile.run_id == Run.id).exists())
+    for run_id in conn.execute(no_raw).scalars():
+        report.problems.append(Problem("database", "", [run_id], "run has no raw files"))
+    newer = aliased(CalibrationRow)
+    bad_chain = (
+        select(Run.run_id, CalibrationRow.revision)
+        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+        .join(newer, newer.id == CalibrationRow.superseded_by)
+        .where(
+            (newer.run_id != CalibrationRow.run_id) | (newer.revision <= CalibrationRow.revision)
+        )
+    )
+    for run_id, rev in conn.execute(bad_chain):
+        report.problems.append(
+            Problem(
+                "database", "", [run_id], f"revision {rev} is superseded by a revision that is "
+                "not a later revision of the same run"
+            )
+        )  # fmt: skip
+
+
+def _orphans(root: Path, known_files: set[str], run_dirs: set[str]) -> list[str]:
+    """Files under objects/ and samples/, and run folders, that the database does not list."""
+    found: list[str] = []
+    for top in ("objects", "samples"):
+        base = root / top
+        if base.is_dir():
+            found += [
+                rel
+                for p in sorted(base.rglob("*"))
+                if p.is_file() and (rel := p.relative_to(root).as_posix()) not in known_files
+            ]
+    runs = root / "runs"
+    if runs.is_dir():
+        # runs/<serial>/<day>/<run_id>: exactly three levels down
+        for p in sorted(runs.glob("*/*/*")):
+            rel = p.relative_to(root).as_posix()
+            if p.is_dir() and rel not in run_dirs:
+                found.append(rel + "/")
+    return found
