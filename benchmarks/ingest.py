@@ -13,7 +13,8 @@ file in the same run (best of `REPEATS`, so both see a warm page cache):
 
 Peak memory of each of this project's reads is measured in a fresh child process
 (resident-set high-water mark after the read minus before it, so C
-allocations of zstd, HDF5 and Arrow count too) and divided by the bytes of the
+allocations of zstd, HDF5 and Arrow count too, as does the one-time start of
+Arrow's thread pool and allocator, ~20 MB) and divided by the bytes of the
 decoded arrays (t, acc, gyr: 56 bytes per sample).
 
 Progress goes to stderr; the last stdout line is one JSON object:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import hashlib
-from datetime import date, datetime
+from datetime import UTC, date, datetime
 from pathlib import Path
 
 import numpy as np
@@ -281,4 +281,186 @@ def test_window_without_samples(tmp_path: Path) -> None:
     with pytest.raises(
         IngestError, match=r"field 'segments\[0\]': segment 'x_up': the window .* no samples"
     ):
+        load_run(discover_runs([tmp_path])[0])
+
+
+# --- layouts without a manifest's column names, units, time bases ---------------------------
+
+
+@pytest.mark.parametrize(
+    "names",
+    [
+        ["timestamp", "ax", "ay", "az", "gx", "gy", "gz", "temp"],
+        ["Time", "ACC_X", "ACC_Y", "ACC_Z", "Gyro_X", "Gyro_Y", "Gyro_Z", "Temperature"],
+        ["t", "linear_acceleration.x", "linear_acceleration.y", "linear_acceleration.z",
+         "angular_velocity.x", "angular_velocity.y", "angular_velocity.z", "temp_c"],
+        ["time", "accel_x", "accel_y", "accel_z", "wx", "wy", "wz", "temp"],
+    ],
+)  # fmt: skip
+def test_common_column_names_are_recognised(tmp_path: Path, names: list[str]) -> None:
+    order = [7, 3, 0, 5, 1, 6, 2, 4]  # shuffled: recognition must go by name, not position
+    rng = np.random.default_rng(5)
+    data = np.column_stack([np.arange(20) * 0.01, rng.normal(0, 1, (20, 7))])
+    header = ",".join(names[i] for i in order)
+    rows = [",".join(repr(float(v)) for v in row[order]) for row in data]
+    path = write_small_csv(tmp_path / "imu.csv", rows, header=header)
+    rec = read_csv(path, FormatSpec(kind="csv", gyr_unit="rad/s"))
+    assert np.array_equal(rec.t, data[:, 0])  # repr() round-trips float64 exactly
+    assert np.array_equal(rec.acc, data[:, 1:4])
+    assert np.array_equal(rec.gyr, data[:, 4:7])
+    assert np.array_equal(rec.temp, data[:, 7])
+
+
+def test_ambiguous_and_unrecognised_columns_list_the_candidates(tmp_path: Path) -> None:
+    path = write_small_csv(tmp_path / "a.csv", GOOD, header="t,ax,ay,az,gx,gy,gz")
+    (tmp_path / "b.csv").write_text(path.read_text().replace("t,ax,", "t,acc_x,ax,", 1))
+    with pytest.raises(IngestError, match=r"ambiguous acc_x column: acc_x, ax") as err:
+        read_csv(tmp_path / "b.csv", FormatSpec(kind="csv"))
+    assert err.value.line == 1 and err.value.field == "format"
+    (tmp_path / "c.csv").write_text(path.read_text().replace("gy,", "yaw_rate,", 1))
+    with pytest.raises(IngestError, match=r"no gyr_y column recognised .*expected one of gyr_y"):
+        read_csv(tmp_path / "c.csv", FormatSpec(kind="csv"))
+
+
+def test_raw_counts_with_scale_and_offset(tmp_path: Path) -> None:
+    """value = (raw - offset) / scale in the scale's unit, per axis (LSB per g, per deg/s)."""
+    rng = np.random.default_rng(6)
+    raw = rng.integers(-32768, 32767, (50, 6)).astype(float)
+    rows = [f"{i * 0.005:.3f}," + ",".join(f"{v:.0f}" for v in r) for i, r in enumerate(raw)]
+    path = write_small_csv(tmp_path / "imu.csv", rows)
+    scale_a, offset_a = [16384.0, 16390.0, 16370.0], [12.0, -40.0, 7.0]
+    scale_g, offset_g = [131.0, 131.5, 130.5], [-3.0, 5.0, 0.0]
+    fmt = FMT.model_copy(
+        update={
+            "acc_unit": "counts", "acc_scale": scale_a, "acc_offset": offset_a,
+            "acc_scale_unit": "g",
+            "gyr_unit": "counts", "gyr_scale": scale_g, "gyr_offset": offset_g,
+            "gyr_scale_unit": "deg/s",
+        }
+    )  # fmt: skip
+    rec = read_csv(path, fmt)
+    expected_acc = (raw[:, :3] - offset_a) / scale_a * STANDARD_GRAVITY
+    expected_gyr = (raw[:, 3:] - offset_g) / scale_g * DEG
+    # Same operations in another order: a few ulp apart.
+    assert np.allclose(rec.acc, expected_acc, rtol=4e-16 * 8, atol=0)
+    assert np.allclose(rec.gyr, expected_gyr, rtol=4e-16 * 8, atol=0)
+
+
+@pytest.mark.parametrize(
+    ("update", "problem"),
+    [
+        ({"acc_unit": "counts"}, "acc_unit = 'counts' needs acc_scale"),
+        ({"gyr_scale": [1.0, 1.0, 1.0]}, "gyr_scale applies only to gyr_unit = 'counts'"),
+        ({"acc_unit": "counts", "acc_scale": [1.0, 0.0, 1.0]}, "acc_scale must not be 0"),
+        ({"time_unit": "samples"}, "time_unit = 'samples' needs sample_rate_hz"),
+        ({"acc_scale_unit": "furlong"}, "unknown acceleration unit 'furlong'"),
+    ],
+)
+def test_format_mistakes_are_refused(update: dict, problem: str) -> None:
+    fields = {"kind": "csv", "time_column": "t", "acc_columns": ["ax", "ay", "az"],
+              "gyr_columns": ["gx", "gy", "gz"], **update}  # fmt: skip
+    with pytest.raises(ValueError, match=problem):
+        FormatSpec.model_validate(fields)
+
+
+def test_iso_8601_time(tmp_path: Path) -> None:
+    stamps = [
+        "2024-05-02T09:15:00Z",
+        "2024-05-02T11:15:00.25+02:00",  # the same clock, another zone
+        "2024-05-02T09:15:00.5",  # no offset: UTC, like the manifest's times
+        "2024-05-02 09:15:00.750000001Z",
+    ]
+    rows = [f"{s},0.1,0.2,9.8,0.01,0.02,0.03" for s in stamps]
+    path = write_small_csv(tmp_path / "imu.csv", rows)
+    rec = read_csv(path, FMT.model_copy(update={"time_unit": "iso"}))
+    t0 = datetime(2024, 5, 2, 9, 15, tzinfo=UTC).timestamp()
+    # float64 Unix seconds resolve 2.4e-7 s at this epoch: that is the tolerance.
+    assert np.abs(rec.t - (t0 + np.array([0.0, 0.25, 0.5, 0.750000001]))).max() <= 2.4e-7
+    rows[2] = rows[2].replace("09:15:00.5", "09:61:00")
+    write_small_csv(path, rows)
+    with pytest.raises(IngestError, match=r"line 4: field 't': expected an ISO-8601 time"):
+        read_csv(path, FMT.model_copy(update={"time_unit": "iso"}))
+
+
+def test_time_from_sample_rate_or_sample_index(tmp_path: Path) -> None:
+    rows = [f"{i + 100},0.1,0.2,9.8,0.01,0.02,0.03" for i in range(10)]
+    path = write_small_csv(tmp_path / "imu.csv", rows, header="n,ax,ay,az,gx,gy,gz")
+    no_time = FMT.model_copy(update={"time_column": None, "sample_rate_hz": 102.4})
+    assert np.array_equal(read_csv(path, no_time).t, np.arange(10) / 102.4)
+    index = FMT.model_copy(
+        update={"time_column": "n", "time_unit": "samples", "sample_rate_hz": 102.4}
+    )
+    assert np.array_equal(read_csv(path, index).t, np.arange(100, 110) / 102.4)
+
+
+def test_unix_nanoseconds(tmp_path: Path) -> None:
+    ns = 1_714_641_300_000_000_000 + 2_500_000 * np.arange(10)  # 400 Hz
+    rows = [f"{v},0.1,0.2,9.8,0.01,0.02,0.03" for v in ns]
+    path = write_small_csv(tmp_path / "imu.csv", rows)
+    rec = read_csv(path, FMT.model_copy(update={"time_unit": "ns"}))
+    # Parsed as float64 (ulp at 1.7e18 ns: 256 ns) then in seconds (ulp 2.4e-7 s).
+    assert np.abs(rec.t - ns / 1e9).max() <= 256e-9 + 2.4e-7
+
+
+def test_whitespace_without_header_leading_spaces(tmp_path: Path) -> None:
+    """The imu_tk text layout: right-aligned columns, no header, exponent notation."""
+    lines = [f"   {i * 0.01:.7e}   {33000 + i:.7e}   {-2.5:.7e}   {9.81:.7e}" for i in range(30)]
+    path = tmp_path / "acc.txt"
+    path.write_text("\n".join(lines) + "\n")
+    fmt = FormatSpec(
+        kind="csv", header=False, time_column=0, acc_columns=[1, 2, 3], gyr_columns=[1, 2, 3]
+    )
+    rec = read_csv(path, fmt)
+    assert np.array_equal(rec.acc[:, 0], 33000.0 + np.arange(30)) and len(rec) == 30
+    lines[17] = lines[17].replace("-2.5000000e+00", "x.5")
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(IngestError) as err:
+        read_csv(path, fmt)
+    assert (err.value.line, err.value.field) == (18, "2") and "'x.5'" in str(err.value)
+
+
+def test_streamed_blocks_equal_one_read_and_errors_keep_their_line(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """Tiny blocks (and the progress bar): same arrays as one block, same error lines."""
+    from pipelines.ingest import csv_reader
+
+    rng = np.random.default_rng(8)
+    data = rng.normal(0.0, 1.0, (3000, 6))
+    rows = [f"{i * 0.001:.3f}," + ",".join(repr(float(v)) for v in r) for i, r in enumerate(data)]
+    path = write_small_csv(tmp_path / "imu.csv", rows)
+    whole = read_csv(path, FMT)
+    monkeypatch.setattr(csv_reader, "BLOCK_BYTES", 4096)  # ~30 blocks
+    streamed = read_csv(path, FMT, progress=True)
+    assert np.array_equal(streamed.acc, whole.acc) and np.array_equal(streamed.gyr, data[:, 3:])
+    assert np.array_equal(streamed.t, whole.t)
+    # Data row 2500 (line 2502, in a late block): text in the ax column.
+    rows[2500] = f"{2500 * 0.001:.3f},abc," + ",".join(rows[2500].split(",")[2:])
+    write_small_csv(path, rows)
+    with pytest.raises(IngestError) as err:
+        read_csv(path, FMT)
+    assert (err.value.line, err.value.field) == (2502, "ax") and "'abc'" in str(err.value)
+
+
+def test_split_acc_and_gyr_files_through_the_manifest(tmp_path: Path) -> None:
+    acc_rows = [f"{i * 0.01:.2f},0.1,0.2,{9.8 + i:.1f}" for i in range(10)]
+    gyr_rows = [f"{i * 0.01:.2f},0.01,{i * 0.5:.1f},0.03" for i in range(10)]
+    write_small_csv(tmp_path / "acc.csv", acc_rows, header="t,x,y,z")
+    write_small_csv(tmp_path / "gyr.csv", gyr_rows, header="t,x,y,z")
+    doc = manifest_dict(time_column="t", acc_columns=["x", "y", "z"], gyr_columns=["x", "y", "z"])
+    doc["schema_version"] = 1
+    doc["format"]["kind"] = "csv"
+    doc["segments"] = [{"label": "x_up", "acc_file": "acc.csv", "gyr_file": "gyr.csv"}]
+    (tmp_path / "run.toml").write_text(dumps_toml(doc))
+    run = load_run(discover_runs([tmp_path])[0])
+    rec = run.segments["x_up"]
+    assert np.array_equal(rec.acc[:, 2], 9.8 + np.arange(10))
+    assert np.array_equal(rec.gyr[:, 1], 0.5 * np.arange(10))
+    assert [f.name for f in run.raw_files] == ["run.toml", "acc.csv", "gyr.csv"]
+    write_small_csv(tmp_path / "gyr.csv", gyr_rows[:-1], header="t,x,y,z")
+    with pytest.raises(IngestError, match=r"gyr\.csv: has 9 samples but .*acc\.csv has 10"):
+        load_run(discover_runs([tmp_path])[0])
+    doc["segments"] = [{"label": "x_up", "acc_file": "acc.csv"}]
+    (tmp_path / "run.toml").write_text(dumps_toml(doc))
+    with pytest.raises(IngestError, match=r"segments\[0\].*both 'acc_file' and 'gyr_file'"):
         load_run(discover_runs([tmp_path])[0])

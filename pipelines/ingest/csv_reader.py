@@ -1,23 +1,77 @@
 """Reader of delimited text files (CSV) described by the manifest's ``[format]`` section.
 
-The columns and units are the manifest's (``FormatSpec``); values are
-converted to SI with calib_core.units. The whole file is parsed by pandas' C
-engine in one pass; only when that pass finds a problem is the file read
-again as text to name the first bad line and column.
+The columns come from the manifest (header names, or 0-based indices without
+a header) or, when the manifest names none, are recognised among common names
+(`COMMON_NAMES`: ``acc_x``, ``ax``, ``linear_acceleration.x``, ``gyro_x``,
+``wx``, ``temp``, ...). Units are converted to SI with calib_core.units; raw
+counts with a per-axis scale and offset; time in s/ms/us/ns, MATLAB datenum,
+ISO-8601 text, a sample index, or no time column at all (``sample_rate_hz``).
+
+Speed and memory: only the needed columns are parsed, straight to float64,
+by pyarrow's streaming CSV reader in `BLOCK_BYTES` blocks on all cores
+(whitespace-separated text by pandas' C parser in chunks of rows). The
+output arrays are allocated once (for an estimate of the row count; their
+untouched tail takes no memory), each block is copied straight into its
+place and dropped, so the peak memory is
+the decoded arrays plus a bounded number of blocks in flight, whatever the
+size of the file (a multi-hour 1 kHz log). Files above
+`PROGRESS_THRESHOLD_BYTES` show a progress bar on stderr. Only when a block
+holds a problem is the file read again as text, in chunks, to name the first
+bad line and column.
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.csv as pacsv
 
 from calib_core.recording import Recording
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import Column, FormatSpec
+from pipelines.ingest.manifest import COUNTS, Column, FormatSpec
+
+PROGRESS_THRESHOLD_BYTES = 64 * 2**20  # above: a progress bar on stderr
+# Text per parsed block: pyarrow's streaming reader keeps a few dozen blocks in flight
+# (~40 MB at 1 MiB blocks, measured); 256 KiB keeps that near 10 MB for any file size,
+# at the speed of larger blocks.
+BLOCK_BYTES = 256 << 10
+ESTIMATE_PROBE_BYTES = 64 << 10  # bytes of the first lines that estimate the row count
+PANDAS_CHUNK_ROWS = 1_000_000  # rows per chunk of whitespace-separated text
+MATLAB_UNIX_EPOCH_DATENUM = 719529.0  # datenum of 1970-01-01
+
+AXES = "xyz"
+# Recognised column names (case-insensitive) when the manifest names no columns.
+# "{a}" is the axis letter. A name matching two roles, or a role matched by two
+# columns, is an error that lists the candidates.
+_PATTERNS = {
+    "acc": (
+        "acc_{a}", "acc{a}", "acc.{a}", "a{a}", "a_{a}", "accel_{a}", "accel{a}", "accel.{a}",
+        "accelerometer_{a}", "accelerometer.{a}", "linear_acceleration.{a}",
+        "linear_acceleration_{a}",
+    ),
+    "gyr": (
+        "gyr_{a}", "gyr{a}", "gyr.{a}", "gyro_{a}", "gyro{a}", "gyro.{a}", "g{a}", "g_{a}",
+        "w{a}", "w_{a}", "omega_{a}", "gyroscope_{a}", "gyroscope.{a}",
+        "angular_velocity.{a}", "angular_velocity_{a}",
+    ),
+}  # fmt: skip
+COMMON_NAMES: dict[str, tuple[str, ...]] = {
+    "time": ("t", "time", "time_s", "timestamp", "stamp", "header.stamp", "ts"),
+    **{
+        f"{sensor}_{a}": tuple(p.format(a=a) for p in patterns)
+        for sensor, patterns in _PATTERNS.items()
+        for a in AXES
+    },
+    "temp": ("temp", "temperature", "temp_c", "temperature_c", "temperature.temperature"),
+}
 
 
 def detect_delimiter(first_line: str) -> str:
@@ -29,6 +83,29 @@ def detect_delimiter(first_line: str) -> str:
     counts = {d: first_line.count(d) for d in (",", ";", "\t")}
     best = max(counts, key=counts.__getitem__)
     return best if counts[best] else "whitespace"
+
+
+@dataclass
+class _Layout:
+    """Where the data of one file is: delimiter, column names and the columns of each role."""
+
+    path: Path
+    delimiter: str
+    names: list[str]  # every column of the file (header names, or "c0", "c1", ...)
+    data_start: int  # 1-based line of the first line after the header (or of the file)
+    roles: dict[str, str]  # role ("time", "acc_x", ..., "temp", "ref:<name>") -> column name
+    fields: dict[str, str]  # column name -> manifest field or column name, for messages
+
+    def line_of_row(self, row: int) -> int:
+        """1-based line number of 0-based data row `row` (blank lines are not rows)."""
+        seen = -1
+        with self.path.open("r", encoding="utf-8-sig", errors="replace") as fh:
+            for number, line in enumerate(fh, start=1):
+                if number >= self.data_start and line.strip():
+                    seen += 1
+                    if seen == row:
+                        return number
+        return self.data_start + row
 
 
 def _first_line(path: Path) -> tuple[str, int]:
@@ -43,20 +120,140 @@ def _first_line(path: Path) -> tuple[str, int]:
     raise IngestError("file is empty", file=path)
 
 
-def read_csv(path: Path, fmt: FormatSpec) -> Recording:
+def _split(line: str, delimiter: str) -> list[str]:
+    parts = line.split() if delimiter == "whitespace" else line.split(delimiter)
+    return [p.strip().strip('"') for p in parts]
+
+
+def layout_of(path: Path, fmt: FormatSpec, sensors: tuple[str, ...] = ("acc", "gyr")) -> _Layout:
+    """Resolve the manifest's columns (or recognise common names) against the file's first line.
+
+    Parameters
+    ----------
+    path : the data file.
+    fmt : the ``[format]`` section.
+    sensors : the triads this file must hold (``("acc",)`` for a separate acc file).
+
+    Raises
+    ------
+    IngestError naming the file, the line and the manifest field of a column
+    that is not in the file, or listing the candidates of an ambiguous or
+    unrecognised column.
+    """
+    path = Path(path)
+    first, first_no = _first_line(path)
+    delimiter = fmt.delimiter or detect_delimiter(first)
+    present = _split(first, delimiter)
+    names = present if fmt.header else [f"c{i}" for i in range(len(present))]
+    if fmt.header and len(set(names)) != len(names):
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        raise IngestError(f"the header repeats column names {repeated}", file=path, line=first_no)
+    roles: dict[Column, str] = {}
+    if fmt.acc_columns is None and fmt.gyr_columns is None:
+        wanted = _recognise(path, present, first_no, sensors, fmt)
+    else:
+        wanted = {}
+        if fmt.time_column is not None:
+            wanted["time"] = (fmt.time_column, "format.time_column")
+        for sensor in sensors:
+            for a, col in zip(AXES, getattr(fmt, f"{sensor}_columns") or [], strict=True):
+                wanted[f"{sensor}_{a}"] = (col, f"format.{sensor}_columns")
+        if fmt.temp_column is not None and "acc" in sensors:
+            wanted["temp"] = (fmt.temp_column, "format.temp_column")
+    if "acc" in sensors:
+        for name, col in fmt.reference_columns.items():
+            wanted[f"ref:{name}"] = (col, f"format.reference_columns.{name}")
+    fields: dict[str, str] = {}
+    for role, (col, field) in wanted.items():
+        if fmt.header:
+            if col not in present:
+                raise IngestError(
+                    f"column {col!r} named in the manifest is not in the header; "
+                    f"the header has: {', '.join(present)}",
+                    file=path,
+                    line=first_no,
+                    field=field,
+                )
+            name = str(col)
+        else:
+            if not (isinstance(col, int) and 0 <= col < len(present)):
+                raise IngestError(
+                    f"column {col!r}: without a header, columns are 0-based indices "
+                    f"below {len(present)} (the first line has {len(present)} columns)",
+                    file=path,
+                    line=first_no,
+                    field=field,
+                )
+            name = names[col]
+        roles[role] = name
+        fields[name] = str(col)
+    return _Layout(
+        path=path,
+        delimiter=delimiter,
+        names=names,
+        data_start=first_no + 1 if fmt.header else first_no,
+        roles=roles,
+        fields=fields,
+    )
+
+
+def _recognise(
+    path: Path, header: list[str], line: int, sensors: tuple[str, ...], fmt: FormatSpec
+) -> dict[str, tuple[str, str]]:
+    """Map roles to header columns by `COMMON_NAMES`; errors list the candidates."""
+    wanted_roles = [f"{s}_{a}" for s in sensors for a in AXES]
+    if fmt.time_column is None and fmt.sample_rate_hz is None:
+        wanted_roles.insert(0, "time")
+    if "acc" in sensors and fmt.temp_column is None:
+        wanted_roles.append("temp")
+    out: dict[str, tuple[str, str]] = {}
+    if fmt.time_column is not None:
+        out["time"] = (fmt.time_column, "format.time_column")
+    for role in wanted_roles:
+        hits = [h for h in header if h.lower() in COMMON_NAMES[role]]
+        if len(hits) > 1:
+            raise IngestError(
+                f"ambiguous {role} column: {', '.join(hits)} all look like {role}; "
+                "name the columns in [format] (time_column, acc_columns, gyr_columns)",
+                file=path,
+                line=line,
+                field="format",
+            )
+        if hits:
+            out[role] = (hits[0], "format")
+        elif role != "temp":  # temperature is optional
+            raise IngestError(
+                f"no {role} column recognised in the header ({', '.join(header)}); expected "
+                f"one of {', '.join(COMMON_NAMES[role][:6])}, ... (any case), or name the "
+                "columns in [format]" + (" or give sample_rate_hz" if role == "time" else ""),
+                file=path,
+                line=line,
+                field="format",
+            )
+    if fmt.temp_column is not None and "acc" in sensors:
+        out["temp"] = (fmt.temp_column, "format.temp_column")
+    return out
+
+
+# --- reading -----------------------------------------------------------------------
+
+
+def read_csv(path: Path, fmt: FormatSpec, *, progress: bool | None = None) -> Recording:
     """Read a whole delimited text file into a Recording in SI units.
 
     Parameters
     ----------
     path : the data file.
     fmt : the manifest's format section (kind ``"csv"``): delimiter, header,
-        column names (or 0-based indices without a header) and units.
+        columns (or none: common names recognised), units, sample rate.
+    progress : show a progress bar on stderr; None: for files above
+        `PROGRESS_THRESHOLD_BYTES`.
 
     Returns
     -------
     Recording with t (N,) s, acc (N, 3) m/s^2, gyr (N, 3) rad/s, temp (N,)
-    deg C if ``temp_column`` is given, reference channels from
-    ``reference_columns``; no label; source = the path.
+    deg C if a temperature column is named or recognised, reference channels
+    from ``reference_columns``; no label; source = the path.
 
     Raises
     ------
@@ -65,66 +262,250 @@ def read_csv(path: Path, fmt: FormatSpec) -> Recording:
     missing or non-finite value, time that does not increase.
     """
     path = Path(path)
-    if fmt.time_column is None or fmt.acc_columns is None or fmt.gyr_columns is None:
-        raise IngestError("format needs time_column, acc_columns and gyr_columns", field="format")
-    first, first_no = _first_line(path)
-    delimiter = fmt.delimiter or detect_delimiter(first)
-    sep = r"\s+" if delimiter == "whitespace" else delimiter
-    wanted = list(dict.fromkeys(fmt.columns()))  # unique, in manifest order
-    header_lines = first_no if fmt.header else first_no - 1  # lines before the first data row
-    _check_columns(path, fmt, first, sep, wanted, first_no)
-
-    options = {
-        "sep": sep,
-        "header": 0 if fmt.header else None,
-        "usecols": wanted,
-        "skip_blank_lines": False,  # keep row i on line header_lines + 1 + i
-        "skiprows": first_no - 1,
-        "engine": "c",
-        "encoding": "utf-8-sig",
-    }
-    try:
-        frame = pd.read_csv(path, dtype=dict.fromkeys(wanted, "float64"), **options)
-        values = frame[wanted].to_numpy()
-    except pd.errors.ParserError as exc:
-        m = re.search(r"line (\d+)", str(exc))
-        line = int(m.group(1)) + first_no - 1 if m else None
-        raise IngestError(
-            f"cannot split the line into columns: {exc}", file=path, line=line
-        ) from None
-    except ValueError:  # text in a numeric column: find it below
-        values = None
-
-    if values is not None:
-        # A file may end in blank lines; they are not samples.
-        filled = ~np.isnan(values).all(axis=1)
-        values = values[: (np.flatnonzero(filled)[-1] + 1) if filled.any() else 0]
-    if values is None or not np.isfinite(values).all():
-        _diagnose(path, options, wanted, header_lines)
-        raise IngestError("could not parse the numeric columns", file=path)  # not reached
-    if values.shape[0] == 0:
-        raise IngestError("no data rows", file=path)
-
-    col = {c: i for i, c in enumerate(wanted)}
-    t = seconds(values[:, col[fmt.time_column]], fmt.time_unit)
-    bad = np.flatnonzero(np.diff(t) <= 0)
-    if bad.size:
-        i = bad[0] + 1
-        raise IngestError(
-            f"time {t[i]:.9g} s is not after the previous row's {t[i - 1]:.9g} s "
-            "(time must increase)",
-            file=path,
-            line=header_lines + 1 + i,
-            field=str(fmt.time_column),
-        )
-    acc = values[:, [col[c] for c in fmt.acc_columns]] * acceleration_factor(fmt.acc_unit)
-    gyr = values[:, [col[c] for c in fmt.gyr_columns]] * angular_rate_factor(fmt.gyr_unit)
-    temp = None if fmt.temp_column is None else values[:, col[fmt.temp_column]].copy()
-    reference = {name: values[:, col[c]].copy() for name, c in fmt.reference_columns.items()}
+    layout = layout_of(path, fmt)
+    data = _read_columns(layout, fmt, progress)
+    t = _time(layout, fmt, data.pop("time", None), len(data["acc"]))
+    acc = _to_si(data.pop("acc"), "acc", fmt)
+    gyr = _to_si(data.pop("gyr"), "gyr", fmt)
+    temp = data.pop("temp", None)
+    reference = {role[4:]: v for role, v in data.items() if role.startswith("ref:")}
     return Recording(t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=str(path))
 
 
-MATLAB_UNIX_EPOCH_DATENUM = 719529.0  # datenum of 1970-01-01
+def read_csv_pair(
+    acc_path: Path, gyr_path: Path, fmt: FormatSpec, *, progress: bool | None = None
+) -> Recording:
+    """Read an accelerometer file and a gyro file that share one time base.
+
+    Both files have the same layout (``[format]``): the acc file gives time,
+    ``acc_columns`` (and temperature, reference channels), the gyro file time
+    and ``gyr_columns``. Their time stamps must be the same, row for row.
+
+    Raises
+    ------
+    IngestError for anything `read_csv` refuses, and for files of different
+    lengths or time stamps (naming the gyro file's first differing line).
+    """
+    acc_layout = layout_of(Path(acc_path), fmt, ("acc",))
+    gyr_layout = layout_of(Path(gyr_path), fmt, ("gyr",))
+    acc_data = _read_columns(acc_layout, fmt, progress)
+    t = _time(acc_layout, fmt, acc_data.pop("time", None), len(acc_data["acc"]))
+    gyr_data = _read_columns(gyr_layout, fmt, progress)
+    t_gyr = _time(gyr_layout, fmt, gyr_data.pop("time", None), len(gyr_data["gyr"]))
+    if len(t_gyr) != len(t):
+        raise IngestError(
+            f"has {len(t_gyr)} samples but the accelerometer file {acc_layout.path.name} has "
+            f"{len(t)}; separate sensor files must share one time base",
+            file=gyr_layout.path,
+        )
+    differ = np.flatnonzero(t_gyr != t)
+    if differ.size:
+        i = int(differ[0])
+        raise IngestError(
+            f"time {t_gyr[i]:.9g} s differs from the accelerometer file's {t[i]:.9g} s "
+            f"({acc_layout.path.name} line {acc_layout.line_of_row(i)}); separate sensor "
+            "files must share one time base",
+            file=gyr_layout.path,
+            line=gyr_layout.line_of_row(i),
+        )
+    del t_gyr
+    acc = _to_si(acc_data.pop("acc"), "acc", fmt)
+    gyr = _to_si(gyr_data.pop("gyr"), "gyr", fmt)
+    temp = acc_data.pop("temp", None)
+    reference = {role[4:]: v for role, v in acc_data.items() if role.startswith("ref:")}
+    return Recording(
+        t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=f"{acc_path} + {gyr_path}"
+    )
+
+
+def estimate_rows(path: Path, data_start: int) -> int:
+    """Rows of a text file estimated from the mean length of its first lines (up to 64 KiB)."""
+    size = path.stat().st_size
+    with path.open("rb") as fh:
+        head = fh.read(ESTIMATE_PROBE_BYTES).split(b"\n")
+    lines = [line for line in head[data_start - 1 : -1] if line.strip()]
+    if not lines or len(head) < 2:
+        return 1
+    return int(size / (sum(map(len, lines)) / len(lines) + 1)) + 1
+
+
+def _read_columns(layout: _Layout, fmt: FormatSpec, progress: bool | None) -> dict[str, np.ndarray]:
+    """Parse the file once, filling preallocated output arrays as the blocks come.
+
+    Returns
+    -------
+    {"time": (N,) raw time values (ISO text already as Unix s), "acc": (N, 3),
+    "gyr": (N, 3) raw values, "temp": (N,), "ref:<name>": (N,)}, for the roles
+    this file has; every value finite. Each sample is copied once, from the
+    parser's block straight into its place. The arrays are allocated for 25 %
+    more rows than `estimate_rows` and returned as views of the rows read: the
+    pages of unused rows are never touched, so they take no memory (a rare
+    file whose later lines are much shorter makes them grow, with one copy).
+    """
+    iso_column = layout.roles.get("time") if fmt.time_unit == "iso" else None
+    capacity = int(estimate_rows(layout.path, layout.data_start) * 1.25) + 1024
+    # role -> (output array, column index in it or None)
+    out: dict[str, np.ndarray] = {}
+    target: dict[str, tuple[str, int | None]] = {}
+    for role in layout.roles:
+        sensor, _, axis = role.partition("_")
+        if sensor in ("acc", "gyr") and axis in AXES:
+            out.setdefault(sensor, np.empty((capacity, 3)))
+            target[role] = (sensor, AXES.index(axis))
+        else:
+            out[role] = np.empty(capacity)
+            target[role] = (role, None)
+    columns = list(dict.fromkeys(layout.roles.values()))
+    size = layout.path.stat().st_size
+    show = size > PROGRESS_THRESHOLD_BYTES if progress is None else progress
+    rows = 0
+    with _progress(layout.path, size, show) as advance:
+        for batch, consumed in _batches(layout, columns, iso_column):
+            n = len(next(iter(batch.values())))
+            if rows + n > capacity:
+                capacity = 2 * (rows + n)
+                for key, array in out.items():
+                    grown = np.empty((capacity, *array.shape[1:]))
+                    grown[:rows] = array[:rows]
+                    out[key] = grown
+            for role, name in layout.roles.items():
+                values = batch[name]
+                bad = np.flatnonzero(~np.isfinite(values))
+                if bad.size:
+                    _diagnose(layout, columns, iso_column, rows)
+                    raise IngestError(  # not reached unless the diagnosis disagrees
+                        f"expected a finite number, got {values[bad[0]]!r}",
+                        file=layout.path,
+                        line=layout.line_of_row(rows + int(bad[0])),
+                        field=layout.fields[name],
+                    )
+                key, col = target[role]
+                if col is None:
+                    out[key][rows : rows + n] = values
+                else:
+                    out[key][rows : rows + n, col] = values
+            rows += n
+            advance(consumed)
+    if rows == 0:
+        raise IngestError("no data rows", file=layout.path)
+    return {key: array[:rows] for key, array in out.items()}
+
+
+def _batches(
+    layout: _Layout, columns: list[str], iso_column: str | None
+) -> Iterator[tuple[dict[str, np.ndarray], int]]:
+    """Blocks of the file as ({column: float64 array}, bytes read so far).
+
+    An ISO time column comes as Unix seconds.
+
+    pyarrow's streaming CSV reader parses `BLOCK_BYTES` blocks on all cores
+    (as fast as its whole-file read here, with memory bounded by a few dozen
+    blocks in flight); whitespace-separated text goes through pandas' C parser
+    in chunks of rows.
+    """
+    if layout.delimiter == "whitespace":
+        yield from _pandas_batches(layout, columns, iso_column)
+        return
+    types = {c: pa.float64() for c in columns}
+    if iso_column is not None:
+        types[iso_column] = pa.string()
+    read = pacsv.ReadOptions(
+        column_names=layout.names,
+        skip_rows=layout.data_start - 1,
+        block_size=BLOCK_BYTES,
+        encoding="utf8",
+    )
+    parse = pacsv.ParseOptions(delimiter=layout.delimiter)
+    convert = pacsv.ConvertOptions(include_columns=columns, column_types=types)
+    try:
+        with layout.path.open("rb") as fh:  # its position tells the progress
+            for batch in pacsv.open_csv(fh, read, parse, convert):
+                # Nulls (empty cells, "nan") become NaN here and are reported by the caller.
+                yield (
+                    {
+                        c: _iso_seconds(batch.column(c))
+                        if c == iso_column
+                        else batch.column(c).to_numpy(zero_copy_only=False)
+                        for c in columns
+                    },
+                    fh.tell(),
+                )
+    except pa.ArrowInvalid as exc:
+        # Text in a numeric column, a row with too many fields, ...: find it.
+        _diagnose(layout, columns, iso_column, 0)
+        raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
+
+
+def _iso_seconds(text: pa.Array | np.ndarray) -> np.ndarray:
+    """ISO-8601 text as Unix seconds; a time without a UTC offset is taken as UTC.
+
+    Each value may carry its own offset (``Z``, ``+02:00``) or none. Text that
+    is not an ISO-8601 time becomes NaN, which the caller reports.
+    """
+    if isinstance(text, pa.Array | pa.ChunkedArray):
+        text = text.to_numpy(zero_copy_only=False)
+    stamps = pd.DatetimeIndex(pd.to_datetime(text, utc=True, format="ISO8601", errors="coerce"))
+    seconds = stamps.as_unit("ns").asi8 * 1e-9
+    seconds[stamps.isna()] = np.nan
+    return seconds
+
+
+def _pandas_batches(
+    layout: _Layout, columns: list[str], iso_column: str | None
+) -> Iterator[tuple[dict[str, np.ndarray], int]]:
+    """Whitespace-separated text through pandas' C parser, in chunks of rows."""
+    dtypes = {c: ("str" if c == iso_column else "float64") for c in columns}
+    try:
+        with layout.path.open("rb") as fh:  # its position tells the progress
+            reader = pd.read_csv(
+                fh,
+                sep=r"\s+",
+                header=None,
+                names=layout.names,
+                usecols=columns,
+                dtype=dtypes,
+                skiprows=layout.data_start - 1,
+                engine="c",
+                encoding="utf-8-sig",
+                chunksize=PANDAS_CHUNK_ROWS,
+            )
+            with reader:
+                for frame in reader:
+                    batch = {
+                        c: _iso_seconds(frame[c].to_numpy())
+                        if c == iso_column
+                        else frame[c].to_numpy(dtype=np.float64)
+                        for c in columns
+                    }
+                    yield batch, fh.tell()
+    except (ValueError, pd.errors.ParserError) as exc:
+        _diagnose(layout, columns, iso_column, 0)
+        raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
+
+
+@contextmanager
+def _progress(path: Path, size: int, show: bool) -> Iterator[Callable[[int], None]]:
+    """Yield `advance(bytes_read)`, which moves a rich bar on stderr (when `show`)."""
+    if not show:
+        yield lambda done: None
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, DownloadColumn, Progress, TimeRemainingColumn
+
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        DownloadColumn(),
+        TimeRemainingColumn(),
+        console=Console(stderr=True),
+        transient=True,
+    ) as bar:
+        task = bar.add_task(f"reading {path.name}", total=size)
+        yield lambda done: bar.update(task, completed=min(done, size))
+        bar.update(task, completed=size)
+
+
+# --- conversion to SI ----------------------------------------------------------------
 
 
 def seconds(values: np.ndarray, unit: str) -> np.ndarray:
@@ -137,60 +518,110 @@ def seconds(values: np.ndarray, unit: str) -> np.ndarray:
     return values * time_factor(unit)
 
 
-def _check_columns(
-    path: Path, fmt: FormatSpec, first: str, sep: str, wanted: list[Column], first_no: int
-) -> None:
-    """Every column the manifest names must exist in the file."""
-    present = re.split(sep, first.strip()) if sep == r"\s+" else first.split(sep)
-    present = [p.strip().strip('"') for p in present]
-    for name in wanted:
-        if fmt.header and name not in present:
-            raise IngestError(
-                f"column {name!r} named in the manifest is not in the header; "
-                f"the header has: {', '.join(present)}",
-                file=path,
-                line=first_no,
-                field=_field_of(fmt, name),
-            )
-        if not fmt.header and not (isinstance(name, int) and 0 <= name < len(present)):
-            raise IngestError(
-                f"column {name!r}: without a header, columns are 0-based indices "
-                f"below {len(present)} (the first line has {len(present)} columns)",
-                file=path,
-                line=first_no,
-                field=_field_of(fmt, name),
-            )
+def _time(layout: _Layout, fmt: FormatSpec, raw: np.ndarray | None, n: int) -> np.ndarray:
+    """Time in s from the raw time column, converted in place, or from the sample rate.
+
+    Raises IngestError at the first row whose time is not after the previous one.
+    """
+    if raw is None:  # no time column: the sample index at the manifest's rate
+        return np.arange(n) / fmt.sample_rate_hz
+    t = raw
+    if fmt.time_unit == "samples":
+        t /= fmt.sample_rate_hz
+    elif fmt.time_unit == "datenum":
+        t -= MATLAB_UNIX_EPOCH_DATENUM
+        t *= 86400.0
+    elif fmt.time_unit != "iso" and fmt.time_unit != "s":
+        t *= time_factor(fmt.time_unit)
+    bad = np.flatnonzero(t[1:] <= t[:-1])
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise IngestError(
+            f"time {t[i]:.9g} s is not after the previous row's {t[i - 1]:.9g} s "
+            "(time must increase)",
+            file=layout.path,
+            line=layout.line_of_row(i),
+            field=layout.fields[layout.roles["time"]],
+        )
+    return t
 
 
-def _field_of(fmt: FormatSpec, column: Column) -> str:
-    """The manifest field that names `column`, for error messages."""
-    for field in ("time_column", "temp_column"):
-        if getattr(fmt, field) == column:
-            return f"format.{field}"
-    for field in ("acc_columns", "gyr_columns"):
-        if column in (getattr(fmt, field) or []):
-            return f"format.{field}"
-    return "format.reference_columns"
+def _to_si(values: np.ndarray, sensor: str, fmt: FormatSpec) -> np.ndarray:
+    """Convert an (N, 3) triad to SI in place and return it.
+
+    Raw counts: value = (raw - offset) / scale * factor(scale_unit), per axis.
+    """
+    unit = getattr(fmt, f"{sensor}_unit")
+    convert = acceleration_factor if sensor == "acc" else angular_rate_factor
+    if unit == COUNTS:
+        offset = getattr(fmt, f"{sensor}_offset")
+        if offset is not None:
+            values -= np.asarray(offset, dtype=float)
+        values *= convert(getattr(fmt, f"{sensor}_scale_unit")) / np.asarray(
+            getattr(fmt, f"{sensor}_scale"), dtype=float
+        )
+    elif (factor := convert(unit)) != 1.0:
+        values *= factor
+    return values
 
 
-def _diagnose(path: Path, options: dict, wanted: list[Column], header_lines: int) -> None:
-    """Raise IngestError at the first value that is not a finite number (slow path)."""
-    text = pd.read_csv(path, dtype=str, keep_default_na=False, **options)[wanted]
+# --- diagnosis (slow path, only for bad input) --------------------------------------
+
+
+def _diagnose(layout: _Layout, columns: list[str], iso_column: str | None, from_row: int) -> None:
+    """Raise IngestError at the first value that is not a finite number (or valid ISO time).
+
+    Reads the file again as text in chunks (bounded memory), from data row
+    `from_row` on.
+    """
+    sep = r"\s+" if layout.delimiter == "whitespace" else layout.delimiter
+    try:
+        reader = pd.read_csv(
+            layout.path,
+            sep=sep,
+            header=None,
+            names=layout.names,
+            usecols=columns,
+            dtype=str,
+            keep_default_na=False,
+            skiprows=layout.data_start - 1,
+            engine="c",
+            encoding="utf-8-sig",
+            chunksize=PANDAS_CHUNK_ROWS,
+        )
+        row0 = 0
+        with reader:
+            for text in reader:
+                if row0 + len(text) > from_row:
+                    _first_bad(layout, text[columns], iso_column, row0)
+                row0 += len(text)
+    except pd.errors.ParserError as exc:
+        m = re.search(r"line (\d+)", str(exc))
+        line = int(m.group(1)) + layout.data_start - 1 if m else None
+        raise IngestError(
+            f"cannot split the line into columns: {exc}", file=layout.path, line=line
+        ) from None
+
+
+def _first_bad(layout: _Layout, text: pd.DataFrame, iso_column: str | None, row0: int) -> None:
     raw = text.to_numpy(dtype=str)
-    numbers = text.apply(pd.to_numeric, errors="coerce").to_numpy(dtype=float)
-    bad = ~np.isfinite(numbers)
-    # Trailing blank lines are not samples.
-    filled = (raw != "").any(axis=1)
-    last = np.flatnonzero(filled)[-1] + 1 if filled.any() else 0
-    bad[last:] = False
+    bad = np.zeros(raw.shape, dtype=bool)
+    for j, c in enumerate(text.columns):
+        if c == iso_column:
+            parsed = pd.to_datetime(text[c], errors="coerce", utc=True, format="ISO8601")
+            bad[:, j] = parsed.isna().to_numpy()
+        else:
+            numbers = pd.to_numeric(text[c], errors="coerce").to_numpy(dtype=float)
+            bad[:, j] = ~np.isfinite(numbers)
     rows, cols = np.nonzero(bad)
     if rows.size:
-        i, j = rows[0], cols[0]  # row-major order: the first bad cell
+        i, j = int(rows[0]), int(cols[0])  # row-major order: the first bad cell
         value = str(raw[i, j])
         got = "an empty value (missing column or blank line)" if value == "" else repr(value)
+        what = "an ISO-8601 time" if text.columns[j] == iso_column else "a finite number"
         raise IngestError(
-            f"expected a finite number, got {got}",
-            file=path,
-            line=header_lines + 1 + int(i),
-            field=str(wanted[j]),
+            f"expected {what}, got {got}",
+            file=layout.path,
+            line=layout.line_of_row(row0 + i),
+            field=layout.fields[text.columns[j]],
         )

@@ -19,6 +19,7 @@ is always stored converted to UTC.
 from __future__ import annotations
 
 import difflib
+import math
 import re
 import tomllib
 from datetime import UTC, date, datetime
@@ -48,6 +49,7 @@ EQUIPMENT_KINDS = ("rate_table", "centrifuge", "thermal_chamber", "daq", "cube")
 DELIMITERS = {",": ",", ";": ";", "\t": "\t", "tab": "\t", "whitespace": "whitespace"}
 
 Column = str | int  # a column name, or a 0-based index when the file has no header
+COUNTS = "counts"  # acc_unit / gyr_unit of raw sensor counts, with *_scale and *_offset
 
 
 class _Section(BaseModel):
@@ -164,6 +166,16 @@ class FormatSpec(BaseModel):
     gyr_unit: str = "rad/s"
     temp_column: Column | None = None
     reference_columns: dict[str, Column] = Field(default_factory=dict)
+    # Time from a sample rate: no time column, or time_unit = "samples" (a sample index).
+    sample_rate_hz: float | None = Field(default=None, gt=0.0)
+    # Raw counts (acc_unit / gyr_unit = "counts"): value = (raw - offset) / scale, where
+    # scale is counts per one `*_scale_unit` (e.g. LSB per g, LSB per deg/s), per axis.
+    acc_scale: list[float] | None = None
+    acc_offset: list[float] | None = None
+    acc_scale_unit: str = "m/s^2"
+    gyr_scale: list[float] | None = None
+    gyr_offset: list[float] | None = None
+    gyr_scale_unit: str = "rad/s"
 
     @field_validator("kind")
     @classmethod
@@ -189,20 +201,43 @@ class FormatSpec(BaseModel):
     @field_validator("acc_unit")
     @classmethod
     def _acc_unit(cls, value: str) -> str:
+        if value != COUNTS:
+            acceleration_factor(value)
+        return value
+
+    @field_validator("acc_scale_unit")
+    @classmethod
+    def _acc_scale_unit(cls, value: str) -> str:
         acceleration_factor(value)
         return value
 
     @field_validator("gyr_unit")
     @classmethod
     def _gyr_unit(cls, value: str) -> str:
+        if value != COUNTS:
+            angular_rate_factor(value)
+        return value
+
+    @field_validator("gyr_scale_unit")
+    @classmethod
+    def _gyr_scale_unit(cls, value: str) -> str:
         angular_rate_factor(value)
         return value
 
     @field_validator("time_unit")
     @classmethod
     def _time_unit(cls, value: str) -> str:
-        if value != "datenum":  # MATLAB serial day number, converted to Unix seconds
+        # datenum: MATLAB serial day number (-> Unix s); iso: ISO-8601 text (-> Unix s);
+        # samples: a sample index, divided by sample_rate_hz.
+        if value not in ("datenum", "iso", "samples"):
             time_factor(value)
+        return value
+
+    @field_validator("acc_scale", "acc_offset", "gyr_scale", "gyr_offset")
+    @classmethod
+    def _three_numbers(cls, value: list[float] | None) -> list[float] | None:
+        if value is not None and (len(value) != 3 or not all(math.isfinite(v) for v in value)):
+            raise ValueError(f"expected 3 finite numbers (x, y, z), got {value}")
         return value
 
     @field_validator("acc_columns", "gyr_columns")
@@ -215,14 +250,44 @@ class FormatSpec(BaseModel):
     @model_validator(mode="after")
     def _csv_complete(self) -> FormatSpec:
         if self.kind == "csv":
-            missing = [
-                name
-                for name in ("time_column", "acc_columns", "gyr_columns")
-                if getattr(self, name) is None
-            ]
-            if missing:
-                raise ValueError(f"format kind 'csv' needs {', '.join(missing)}")
+            needed = ["acc_columns", "gyr_columns"]
+            if self.sample_rate_hz is None or self.time_unit == "samples":
+                needed.insert(0, "time_column")
+            missing = [name for name in needed if getattr(self, name) is None]
+            # All three left out: the reader recognises common names in the header.
+            recognise = self.header and self.acc_columns is None and self.gyr_columns is None
+            if missing and not (recognise and self.time_column is None):
+                raise ValueError(
+                    f"format kind 'csv' needs {', '.join(missing)} (or, with a header, leave "
+                    "out time_column, acc_columns and gyr_columns to recognise common names)"
+                )
+        for sensor in ("acc", "gyr"):
+            counts = getattr(self, f"{sensor}_unit") == COUNTS
+            if counts and getattr(self, f"{sensor}_scale") is None:
+                raise ValueError(
+                    f"{sensor}_unit = 'counts' needs {sensor}_scale (counts per "
+                    f"{sensor}_scale_unit, per axis) and optionally {sensor}_offset (counts)"
+                )
+            given = [f for f in ("scale", "offset") if getattr(self, f"{sensor}_{f}") is not None]
+            if given and not counts:
+                raise ValueError(
+                    f"{sensor}_{given[0]} applies only to {sensor}_unit = 'counts', "
+                    f"got {sensor}_unit = {getattr(self, f'{sensor}_unit')!r}"
+                )
+            if counts and 0.0 in getattr(self, f"{sensor}_scale"):
+                raise ValueError(f"{sensor}_scale must not be 0")
+        if self.time_unit == "samples" and self.sample_rate_hz is None:
+            raise ValueError("time_unit = 'samples' needs sample_rate_hz")
         return self
+
+    def acc_reference_factor(self) -> float:
+        """Factor from the unit of segments' ``reference_acc`` to m/s^2.
+
+        That unit is ``acc_unit``; for raw counts it is ``acc_scale_unit`` (a
+        reference in counts would need the scale the calibration is to find).
+        """
+        unit = self.acc_scale_unit if self.acc_unit == COUNTS else self.acc_unit
+        return acceleration_factor(unit)
 
     def columns(self) -> list[Column]:
         """All data columns named here, time first (CSV layouts)."""
@@ -239,14 +304,31 @@ class SegmentSpec(_Section):
     The window is ``start_s <= t < end_s`` on the file's own time axis after
     conversion to seconds; a missing bound means the file's start / end.
     ``verification = true`` keeps the segment out of the fit; it is used only
-    to verify the calibration.
+    to verify the calibration. ``reference_acc`` is the true specific force of a
+    static verification segment in the format's ``acc_unit`` (x, y, z), needed
+    for attitudes other than "<axis>_<up|dn>..." labels.
+
+    A segment's data is one ``file`` holding time, acc and gyr (and temp), or,
+    for loggers that write each sensor to its own file, ``acc_file`` (time,
+    acc, temp) and ``gyr_file`` (time, gyr) with the same time stamps; both
+    are read with the same ``[format]`` columns (kind ``csv`` only).
     """
 
     label: str
-    file: str
+    file: str | None = None
+    acc_file: str | None = None
+    gyr_file: str | None = None
     start_s: float | None = None
     end_s: float | None = None
     verification: bool = False
+    reference_acc: list[float] | None = None
+
+    @field_validator("reference_acc")
+    @classmethod
+    def _three_finite(cls, value: list[float] | None) -> list[float] | None:
+        if value is not None and (len(value) != 3 or not all(math.isfinite(v) for v in value)):
+            raise ValueError(f"expected 3 finite numbers (x, y, z), got {value}")
+        return value
 
     @field_validator("label")
     @classmethod
@@ -257,10 +339,26 @@ class SegmentSpec(_Section):
             )
         return value
 
-    @field_validator("file")
+    @field_validator("file", "acc_file", "gyr_file")
     @classmethod
-    def _inside_run_folder(cls, value: str) -> str:
-        return check_relative_name(value)
+    def _inside_run_folder(cls, value: str | None) -> str | None:
+        return None if value is None else check_relative_name(value)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> SegmentSpec:
+        split = (self.acc_file is not None, self.gyr_file is not None)
+        if self.file is None and split != (True, True):
+            raise ValueError(
+                "a segment needs 'file', or both 'acc_file' and 'gyr_file' (separate sensor files)"
+            )
+        if self.file is not None and any(split):
+            raise ValueError("give either 'file' or 'acc_file' + 'gyr_file', not both")
+        return self
+
+    @property
+    def files(self) -> tuple[str, ...]:
+        """The data files of this segment: (file,) or (acc_file, gyr_file)."""
+        return (self.file,) if self.file is not None else (self.acc_file, self.gyr_file)
 
     @model_validator(mode="after")
     def _window(self) -> SegmentSpec:
@@ -361,7 +459,9 @@ def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:
             )
         seen[seg.label] = i
     procedure = manifest.run.procedure
-    if procedure.startswith("six_position"):
+    # With [run.settings.segmentation] the listed segments are continuous
+    # recordings that automatic segmentation cuts and labels (any label).
+    if procedure.startswith("six_position") and "segmentation" not in manifest.run.settings:
         for i, seg in enumerate(segments):
             if not seg.verification and seg.label not in SIX_POSITION_LABELS:
                 near = difflib.get_close_matches(seg.label, SIX_POSITION_LABELS, n=1)

@@ -9,6 +9,8 @@ Two kinds of run folder are recognised:
   manifest: one run per serial, with a manifest synthesised from the file
   names (model MPU-6000, procedure six_position_integral, tolerance profile
   mpu6000, standard gravity, started = newest file modification time, UTC).
+  Re-processing from the archive (`calib reprocess`) restores the files'
+  modification times to the archived start time, so the same manifest results.
 
 Readers are looked up by ``format.kind`` in a registry, so a new format only
 needs ``register_reader(kind, fn)`` with ``fn(path, fmt) -> Recording``.
@@ -24,7 +26,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from calib_core.recording import Recording
-from pipelines.ingest.csv_reader import read_csv
+from pipelines.ingest.csv_reader import read_csv, read_csv_pair
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import (
     FormatSpec,
@@ -71,13 +73,36 @@ def _read_mat(path: Path, fmt: FormatSpec) -> Recording:
         time_unit=fmt.time_unit,
         acc_unit=fmt.acc_unit,
         gyr_unit=fmt.gyr_unit,
-        sample_rate_hz=extra.get("sample_rate_hz"),
+        sample_rate_hz=fmt.sample_rate_hz,
     )
+
+
+MCAP_KEYS = ("imu_topic", "temperature_topic", "table_topic", "table_joint", "stamp")
+
+
+def _read_mcap(path: Path, fmt: FormatSpec) -> Recording:
+    """Adapter from the manifest's [format] (``imu_topic``, ``stamp``, ...) to read_mcap.
+
+    MCAP messages carry SI units by the ROS conventions, so the unit fields
+    of [format] do not apply; every key is optional (one Imu topic is found
+    by its schema).
+    """
+    from pipelines.ingest.mcap_reader import read_mcap
+
+    extra = dict(fmt.model_extra or {})
+    unknown = sorted(set(extra) - set(MCAP_KEYS))
+    if unknown:
+        raise IngestError(
+            f"unknown key {unknown[0]!r} for format kind 'mcap'; expected: {', '.join(MCAP_KEYS)}",
+            field=f"format.{unknown[0]}",
+        )
+    return read_mcap(path, **extra)
 
 
 register_reader("csv", read_csv)
 register_reader("mpu6000", lambda path, fmt: read_mpu6000_file(path))
 register_reader("mat", _read_mat)
+register_reader("mcap", _read_mcap)
 
 
 def reader_for(kind: str) -> Reader:
@@ -298,37 +323,41 @@ def _load_described(
         )
 
     out: dict[str, Recording] = {}
+    hashed: set[str] = set()
     for i, seg in enumerate(segments):
-        field = f"segments[{i}].file"
-        path = folder / seg.file
-        if not path.resolve().is_relative_to(root):  # a symlink out of the run folder
-            raise IngestError(
-                f"{seg.file!r} points outside the run folder", file=source, field=field
-            )
-        if not path.is_file():
-            raise IngestError(
-                f"segment '{seg.label}': file {seg.file!r} not found in {folder}",
-                file=source,
-                field=field,
-            )
+        names = seg.files
+        paths = [_data_file(folder, root, seg, i, name, source) for name in names]
         if kind == "mpu6000":
-            parsed = parse_file_name(path.name)
+            parsed = parse_file_name(paths[0].name)
             if parsed is not None and parsed[0] != manifest.unit.serial:
                 raise IngestError(
                     f"file {seg.file!r} is of serial '{parsed[0]}', the manifest's unit is "
                     f"'{manifest.unit.serial}'",
                     file=source,
-                    field=field,
+                    field=f"segments[{i}].file",
                 )
-        if seg.file not in recordings:
+        if len(names) == 2 and kind != "csv":
+            raise IngestError(
+                f"separate acc_file / gyr_file are read for format kind 'csv' only, not '{kind}'",
+                file=source,
+                field=f"segments[{i}].acc_file",
+            )
+        key = " + ".join(names)
+        if key not in recordings:
             try:
-                recordings[seg.file] = reader(path, manifest.format)
+                if len(names) == 2:
+                    recordings[key] = read_csv_pair(paths[0], paths[1], manifest.format)
+                else:
+                    recordings[key] = reader(paths[0], manifest.format)
             except IngestError as exc:
                 if exc.file is None:  # a reader's complaint about the manifest's format section
                     raise IngestError(exc.problem, file=source, field=exc.field) from None
                 raise
-            raw_files.append(RawFile(path, seg.file, *sha256_file(path), kind))
-        out[seg.label] = _cut(recordings[seg.file], seg, i, source)
+            for name, path in zip(names, paths, strict=True):
+                if name not in hashed:
+                    hashed.add(name)
+                    raw_files.append(RawFile(path, name, *sha256_file(path), kind))
+        out[seg.label] = _cut(recordings[key], seg, i, source)
     return LoadedRun(
         folder=folder,
         manifest=manifest,
@@ -337,6 +366,24 @@ def _load_described(
         raw_files=raw_files,
         verification_labels={s.label for s in segments if s.verification},
     )
+
+
+def _data_file(
+    folder: Path, root: Path, seg: SegmentSpec, index: int, name: str, source: str
+) -> Path:
+    """The path of one of a segment's files, which must exist inside the run folder."""
+    which = "file" if name == seg.file else ("acc_file" if name == seg.acc_file else "gyr_file")
+    field_ = f"segments[{index}].{which}"
+    path = folder / name
+    if not path.resolve().is_relative_to(root):  # a symlink out of the run folder
+        raise IngestError(f"{name!r} points outside the run folder", file=source, field=field_)
+    if not path.is_file():
+        raise IngestError(
+            f"segment '{seg.label}': file {name!r} not found in {folder}",
+            file=source,
+            field=field_,
+        )
+    return path
 
 
 def _cut(whole: Recording, seg: SegmentSpec, index: int, source: str) -> Recording:
@@ -349,7 +396,7 @@ def _cut(whole: Recording, seg: SegmentSpec, index: int, source: str) -> Recordi
     if len(part) == 0:
         raise IngestError(
             f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s holds no samples; "
-            f"{seg.file} spans {whole.t[0]:.6g} .. {whole.t[-1]:.6g} s",
+            f"{' + '.join(seg.files)} spans {whole.t[0]:.6g} .. {whole.t[-1]:.6g} s",
             file=source,
             field=f"segments[{index}]",
         )
