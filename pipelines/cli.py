@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -46,16 +48,75 @@ def print_json(doc: Any) -> None:
     sys.stdout.write(json.dumps(doc, indent=2, default=str) + "\n")
 
 
+@contextlib.contextmanager
+def _progress_bar(show: bool) -> Iterator[Callable[[int, int, dict], None]]:
+    """A callback(done, total, outcome) drawing a progress bar on stderr (stdout stays data)."""
+    if not show:
+        yield lambda done, total, outcome: None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn())
+    with Progress(*columns, TimeElapsedColumn(), console=err) as bar:
+        task = bar.add_task("runs", total=None)
+
+        def advance(done: int, total: int, outcome: dict) -> None:
+            failed = " (failed)" if outcome["status"] == "failed" else ""
+            label = outcome["serial"] or Path(outcome["source"]).name
+            bar.update(task, completed=done, total=total, description=f"{label}{failed}")
+
+        yield advance
+
+
 @app.command()
 def process(
     paths: Annotated[list[Path], typer.Argument(help="Run folders, or folders holding runs.")],
     archive: ArchiveOpt = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON document.")] = False,
+    runner: Annotated[
+        str,
+        typer.Option(
+            "--runner",
+            help="local (threads), process (local processes: CPU-bound solving on every "
+            "core) or dask (an existing scheduler with --scheduler, else a local cluster).",
+        ),
+    ] = "local",
+    workers: Annotated[
+        int | None, typer.Option("--workers", help="Runs in parallel (default: the cores).")
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler", help="Dask scheduler address, tcp://host:8786 (--runner dask)."
+        ),
+    ] = None,
+    progress: Annotated[
+        bool | None,
+        typer.Option(
+            "--progress/--no-progress",
+            help="Progress bar on stderr (default: when stderr is a terminal).",
+        ),
+    ] = None,
+    reports: Annotated[
+        bool,
+        typer.Option("--reports", help="Also write each archived run's HTML and PDF certificate."),
+    ] = False,
 ) -> None:
     """Ingest, solve, check and archive every run under PATHS (a Prefect flow)."""
-    from pipelines.flows import process_batch
+    from pipelines.flows import process_batch, report_progress
+    from pipelines.runners import check_runner
 
-    outcomes = process_batch([str(p) for p in paths], archive)
+    try:
+        check_runner(runner, workers, scheduler)
+    except ValueError as exc:
+        fail(str(exc))
+    show = err.is_terminal if progress is None else progress
+    with _progress_bar(show) as on_progress, report_progress(on_progress):
+        outcomes = process_batch(
+            [str(p) for p in paths], archive, runner=runner, workers=workers, scheduler=scheduler
+        )
+    if reports:
+        _write_reports(archive, outcomes)
     if as_json:
         print_json({"runs": outcomes})
     else:
@@ -76,6 +137,18 @@ def process(
             )
         out.print(table)
     raise typer.Exit(1 if any(o["status"] == "failed" for o in outcomes) else 0)
+
+
+def _write_reports(archive: str | None, outcomes: list[dict]) -> None:
+    """Certificates (HTML, PDF) of every archived run of the batch, from the archive."""
+    from pipelines.reports.certificate import report_run
+
+    arch = open_archive(archive)
+    for o in outcomes:
+        if o["status"] != "failed":
+            written = report_run(arch, o["run_id"])
+            paths = ", ".join(str(p) for k, p in written.items() if k != "verdict")
+            err.print(f"{o['run_id']}: wrote {paths}")
 
 
 @app.command()

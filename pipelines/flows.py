@@ -1,77 +1,296 @@
 """Prefect flows: a batch of lab runs, one task per run.
 
-Tasks wrap the plain functions of `pipelines.process`; their results are small
-JSON-able dicts (ids and summaries), never arrays.
+Tasks wrap the plain functions of `pipelines.process`; their inputs are run
+folders and the archive's URL and root, their results small JSON-able dicts
+(ids and summaries): arrays never pass through Prefect's result store, so the
+same flow runs on threads, local processes or a Dask cluster
+(`pipelines.runners`).
+
+Errors that may go away (a locked database, a dropped database connection, a
+network share that vanished for a moment) are retried; any other failure of a
+run is reported in its outcome and the batch goes on.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import time
+from collections.abc import Callable, Iterator
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
 from prefect import flow, get_run_logger, task
+from prefect.artifacts import (
+    create_progress_artifact,
+    create_table_artifact,
+    update_progress_artifact,
+)
+from prefect.cache_policies import NO_CACHE
+from prefect.futures import as_completed
 
-from pipelines.ingest import discover_runs
+from pipelines.ingest import RunSource, discover_runs
 from pipelines.ingest.errors import IngestError
 from pipelines.process import process_run, run_outcome
+from pipelines.runners import check_runner, make_task_runner, single_threaded_children
 from storage.db import Archive, resolve_archive
+
+RETRIES = 2  # attempts after the first
+RETRY_DELAYS_S = [1.0, 4.0]  # s before the 1st and 2nd retry: a lock or a share outage passes
+PROGRESS_EVERY_S = 2.0  # s between updates of the progress artifact in Prefect's UI
+
+# OS errors of a network file system or connection that is briefly away; ENOENT
+# is not among them (a missing file is a bad run; a vanished run folder is
+# recognised separately, because the folder was there when the batch began).
+TRANSIENT_ERRNOS = frozenset(
+    {
+        errno.ESTALE,
+        errno.EIO,
+        errno.EAGAIN,
+        errno.EBUSY,
+        errno.ENOTCONN,
+        errno.ETIMEDOUT,
+        errno.ECONNRESET,
+        errno.ECONNREFUSED,
+        errno.ECONNABORTED,
+        errno.EHOSTDOWN,
+        errno.EHOSTUNREACH,
+        errno.ENETDOWN,
+        errno.ENETUNREACH,
+    }
+)
+# Database errors that a later attempt can get past (SQLite and PostgreSQL wording).
+TRANSIENT_DB_TEXT = (
+    "database is locked",
+    "database table is locked",
+    "could not connect",
+    "connection refused",
+    "server closed the connection",
+    "terminating connection",
+    "connection is closed",
+    "deadlock detected",
+    "could not serialize access",
+    "too many clients",
+)
+
+# Callback(done, total, outcome) called as each run of a batch finishes (the CLI's progress bar).
+ProgressCallback = Callable[[int, int, dict[str, Any]], None]
+_progress: ContextVar[ProgressCallback | None] = ContextVar("calib_batch_progress", default=None)
+
+
+class TransientError(RuntimeError):
+    """A run failed for a reason that may go away; the batch flow retries it."""
+
+
+def is_transient(exc: BaseException) -> bool:
+    """Whether an error may go away on retry: a locked or unreachable database, a flaky share.
+
+    Looks through the exception's causes (and SQLAlchemy's wrapped driver
+    error), so an ``IngestError`` raised from an ``ESTALE`` counts as transient.
+    """
+    from sqlalchemy.exc import DBAPIError
+
+    seen: set[int] = set()
+    stack: list[BaseException | None] = [exc]
+    while stack:
+        e = stack.pop()
+        if e is None or id(e) in seen:
+            continue
+        seen.add(id(e))
+        if isinstance(e, TransientError | ConnectionError | TimeoutError):
+            return True
+        if isinstance(e, OSError) and e.errno in TRANSIENT_ERRNOS:
+            return True
+        if isinstance(e, DBAPIError):
+            if e.connection_invalidated:
+                return True
+            stack.append(e.orig)
+        is_db_error = isinstance(e, DBAPIError) or type(e).__name__ == "OperationalError"
+        if is_db_error and any(s in str(e).lower() for s in TRANSIENT_DB_TEXT):
+            return True
+        stack += [e.__cause__, e.__context__]
+    return False
+
+
+def _progress_callback() -> ProgressCallback | None:
+    # Read through a module-level function: the flow's own code must not refer to the
+    # ContextVar, which cannot be pickled when the flow is shipped to worker processes.
+    return _progress.get()
+
+
+@contextlib.contextmanager
+def report_progress(callback: ProgressCallback) -> Iterator[None]:
+    """Call ``callback(done, total, outcome)`` as each run of batches started inside finishes."""
+    token = _progress.set(callback)
+    try:
+        yield
+    finally:
+        _progress.reset(token)
+
+
+@contextlib.contextmanager
+def _api_for_workers(runner: str) -> Iterator[None]:
+    """Let worker processes report to this process's Prefect API.
+
+    Without a configured PREFECT_API_URL, Prefect runs a temporary local server
+    in this process; a worker process would start one of its own (many seconds
+    each). Naming this one's URL in the settings the task runner ships to its
+    workers makes them all use it. With a configured API nothing changes.
+    """
+    from prefect.client.orchestration import get_client
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    if runner == "local" or PREFECT_API_URL.value():
+        yield
+        return
+    with get_client(sync_client=True) as client:
+        url = str(client.api_url)
+    with temporary_settings({PREFECT_API_URL: url}):
+        yield
+
+
+def _retry_transient(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's hook signature
+    try:
+        state.result()
+    except TransientError:
+        return True
+    except Exception:  # noqa: BLE001 - anything else is not worth another attempt
+        return False
+    return False
 
 
 @task(
     name="process-run",
-    retries=2,
-    retry_delay_seconds=1,
-    retry_condition_fn=lambda task, run, state: _is_transient(state),
+    task_run_name="process {source.name}",
+    retries=RETRIES,
+    retry_delay_seconds=RETRY_DELAYS_S,
+    retry_condition_fn=_retry_transient,
+    # No Prefect caching or result persistence: the archive already makes a run idempotent
+    # (by content hash), and hashing inputs and task source for a cache key costs every run.
+    cache_policy=NO_CACHE,
+    persist_result=False,
 )
-def process_run_task(source, archive_url: str, archive_root: str) -> dict[str, Any]:
-    return process_run(source, Archive(url=archive_url, root=Path(archive_root)))
+def process_run_task(source: RunSource, archive_url: str, archive_root: str) -> dict[str, Any]:
+    """One run through `process_run`; transient errors raise ``TransientError`` (retried)."""
 
+    def transient(exc: BaseException) -> bool:
+        # The folder was found when the batch began: if it is gone now, its share went away.
+        return is_transient(exc) or not source.folder.is_dir()
 
-def _is_transient(state) -> bool:
-    """Retry only errors that may go away: a locked database, a vanished network share."""
+    archive = Archive(url=archive_url, root=Path(archive_root))
     try:
-        state.result()
-    except Exception as exc:  # noqa: BLE001 - classifying the failure
-        text = str(exc).lower()
-        return "database is locked" in text or isinstance(exc, ConnectionError | TimeoutError)
-    return False
+        return process_run(source, archive, reraise=transient)
+    except Exception as exc:  # only what `transient` let through
+        raise TransientError(f"{source.name}: {type(exc).__name__}: {exc}") from exc
+    finally:
+        archive.dispose()  # one engine per task: give its connections back now
 
 
 @flow(name="process-batch", log_prints=True)
-def process_batch(paths: list[str], archive: str | None = None) -> list[dict[str, Any]]:
+def process_batch(
+    paths: list[str],
+    archive: str | None = None,
+    runner: str = "local",
+    workers: int | None = None,
+    scheduler: str | None = None,
+) -> list[dict[str, Any]]:
     """Process every run found under `paths` into the archive; a failing run is reported, not fatal.
 
     Parameters
     ----------
     paths : run folders, MPU-6000 folders, or folders holding such folders.
     archive : archive directory or SQLAlchemy URL (default: $CALIB_ARCHIVE or ./calib-archive).
+        Every worker must reach it: with a Dask cluster, a PostgreSQL URL and a
+        file store root ($CALIB_FILESTORE) on a path every worker sees.
+    runner : ``"local"`` (threads), ``"process"`` (local processes, for
+        CPU-bound solving) or ``"dask"`` (see `pipelines.runners`).
+    workers : parallel runs (default: the usable cores); not with `scheduler`.
+    scheduler : address of an existing Dask scheduler, with ``runner="dask"``.
 
     Returns
     -------
-    One outcome dict per run, as in the `calib process --json` document.
+    One outcome dict per run, as in the `calib process --json` document:
+    discovery failures first, then the runs in discovery order.
     """
+    check_runner(runner, workers, scheduler)
     logger = get_run_logger()
     arch = resolve_archive(archive)
-    arch.upgrade()
+    arch.upgrade()  # once, before any worker archives
     outcomes: list[dict[str, Any]] = []
-    sources = []
+    sources: list[RunSource] = []
     for p in paths:
         try:
             sources.extend(discover_runs([Path(p)]))
         except (IngestError, OSError) as exc:
             outcomes.append(run_outcome(source=str(p), serial="", status="failed", error=str(exc)))
-    logger.info("%d run(s) found under %d path(s)", len(sources), len(paths))
-    futures = [process_run_task.submit(s, arch.url, str(arch.root)) for s in sources]
-    for source, fut in zip(sources, futures, strict=True):
-        try:
-            outcomes.append(fut.result())
-        except Exception as exc:  # noqa: BLE001 - retries exhausted: report, go on
-            outcomes.append(
-                run_outcome(
-                    source=str(source.folder),
-                    serial=source.serial or "",
-                    status="failed",
-                    error=f"{type(exc).__name__}: {exc}",
-                )
+    sources = list(dict.fromkeys(sources))  # overlapping paths name a run once
+    logger.info(
+        "%d run(s) found under %d path(s); runner %s%s",
+        len(sources),
+        len(paths),
+        runner,
+        f" at {scheduler}" if scheduler else "",
+    )
+    progress_id = create_progress_artifact(
+        progress=0.0, key="batch-progress", description=f"Runs of {len(sources)} processed (%)"
+    )
+    callback = _progress_callback()
+    results: dict[int, dict[str, Any]] = {}
+    with (
+        _api_for_workers(runner),
+        single_threaded_children(),
+        make_task_runner(runner, workers, scheduler) as task_runner,
+    ):
+        futures = [
+            task_runner.submit(
+                process_run_task,
+                {"source": s, "archive_url": arch.url, "archive_root": str(arch.root)},
             )
+            for s in sources
+        ]
+        index = {id(f): i for i, f in enumerate(futures)}
+        shown = time.monotonic()
+        for fut in as_completed(futures):
+            i = index[id(fut)]
+            results[i] = _outcome_of(fut, sources[i])
+            # Every call is an API request: at most one per PROGRESS_EVERY_S, and the last.
+            if len(results) == len(sources) or time.monotonic() - shown >= PROGRESS_EVERY_S:
+                update_progress_artifact(progress_id, 100.0 * len(results) / len(sources))
+                shown = time.monotonic()
+            if callback is not None:
+                callback(len(results), len(sources), results[i])
+    outcomes += [results[i] for i in range(len(sources))]
+    _summary_artifact(outcomes)
     return outcomes
+
+
+def _outcome_of(fut, source: RunSource) -> dict[str, Any]:  # noqa: ANN001 - a Prefect future
+    try:
+        return fut.result()
+    except Exception as exc:  # noqa: BLE001 - retries exhausted: report, go on
+        return run_outcome(
+            source=str(source.folder),
+            serial=source.serial or "",
+            status="failed",
+            error=f"gave up after {RETRIES + 1} attempts: {exc}",
+        )
+
+
+def _summary_artifact(outcomes: list[dict[str, Any]]) -> None:
+    """One table row per run in the flow run's Artifacts tab."""
+    create_table_artifact(
+        key="batch-outcomes",
+        table=[
+            {
+                "run_id": o["run_id"],
+                "serial": o["serial"],
+                "status": o["status"],
+                "verdict": o["verdict"],
+                "error": o["error"],
+                "source": o["source"],
+            }
+            for o in outcomes
+        ],
+        description=f"{sum(o['status'] == 'failed' for o in outcomes)} of {len(outcomes)} failed",
+    )
