@@ -1,13 +1,13 @@
 # Two commands do everything on a fresh machine (see README.md):
 #   make demo   process every run in data_samples/ into ./calib-archive and write the reports
-#   make test   the whole test suite (installs a PostgreSQL server if the machine lacks one)
+#   make test   the whole test suite (installs PostgreSQL and poppler-utils if the machine lacks them)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN     = $(VENV)/bin
 export DO_NOT_TRACK = 1
 export PREFECT_SERVER_ANALYTICS_ENABLED = false
 
-.PHONY: demo test lint bench venv postgres clean
+.PHONY: demo test bench venv system-packages clean
 
 $(BIN)/calib: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,12 +18,12 @@ $(BIN)/calib: pyproject.toml
 venv: $(BIN)/calib
 
 demo: venv
-	$(BIN)/calib process data_samples
+	$(BIN)/calib process data_samples --reports
 
-postgres:
-	bash scripts/ensure_postgres.sh
+system-packages:
+	bash scripts/ensure_system_packages.sh
 
-test: venv postgres
+test: venv system-packages
 	$(BIN)/ruff check calib_core storage pipelines tests benchmarks
 	$(BIN)/python -m pytest -q
 

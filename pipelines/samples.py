@@ -96,6 +96,31 @@ def write_mpu6000_run(
     return written
 
 
+def six_position_manifest(
+    serial: str,
+    *,
+    started: str = "2026-11-20T09:15:00+00:00",
+    operator: str = "test",
+    temperature_c: float = 20.0,
+) -> dict:
+    """A minimal run-manifest dict for a simulated six-position + integral run (write_csv_run).
+
+    MPU-6000 unit, standard gravity, the shipped ``mpu6000`` tolerance profile.
+    """
+    return {
+        "schema_version": 1,
+        "unit": {"serial": serial, "model": "MPU-6000", "manufacturer": "InvenSense"},
+        "run": {
+            "started": started,
+            "operator": operator,
+            "procedure": "six_position_integral",
+            "tolerance_profile": "mpu6000",
+        },
+        "site": {"gravity_model": "standard"},
+        "environment": {"temperature_c": temperature_c},
+    }
+
+
 def write_csv_run(
     segments: dict[str, Recording],
     folder: Path,

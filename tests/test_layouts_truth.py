@@ -26,8 +26,12 @@ SEEDS = range(12)
 CSV_MANIFEST = {
     "schema_version": 1,
     "unit": {"serial": "TRUTH-1", "model": "MPU-6000", "manufacturer": "InvenSense"},
-    "run": {"started": "2026-11-20T09:15:00Z", "operator": "test",
-            "procedure": "six_position_integral", "tolerance_profile": "mpu6000"},
+    "run": {
+        "started": "2026-11-20T09:15:00Z",
+        "operator": "test",
+        "procedure": "six_position_integral",
+        "tolerance_profile": "mpu6000",
+    },
     "site": {"latitude_deg": 52.0, "height_m": 100.0, "gravity_model": "helmert"},
     "format": {"kind": "csv", "acc_unit": "g", "gyr_unit": "deg/s", "time_unit": "ms"},
 }

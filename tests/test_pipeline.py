@@ -15,22 +15,11 @@ from sqlalchemy import func, select
 
 from calib_core.simulate import random_errors, six_position_integral_run
 from pipelines.flows import process_batch
-from pipelines.samples import write_csv_run, write_mpu6000_run
+from pipelines.samples import six_position_manifest, write_csv_run, write_mpu6000_run
 from storage import schema
 from storage.db import resolve_archive
 
-MANIFEST = {
-    "schema_version": 1,
-    "unit": {"serial": "SIM-CSV-1", "model": "MPU-6000", "manufacturer": "InvenSense"},
-    "run": {
-        "started": "2026-11-20T09:15:00+00:00",
-        "operator": "test",
-        "procedure": "six_position_integral",
-        "tolerance_profile": "mpu6000",
-    },
-    "site": {"gravity_model": "standard"},
-    "environment": {"temperature_c": 20.0},
-}
+MANIFEST = six_position_manifest("SIM-CSV-1")
 
 
 def _simulate(seed: int):
@@ -49,8 +38,11 @@ def lab_day(tmp_path: Path) -> dict[str, Path]:
     write_mpu6000_run(sim_c.segments, broken, "MPU0666", truth=sim_c.truth_dict())
     (broken / "MPU0666_y_dn.txt").unlink()
     bad_unit = day / "bad_unit"
-    write_csv_run(sim_c.segments, bad_unit, {**MANIFEST, "unit": {**MANIFEST["unit"],
-                  "serial": "SIM-BAD-UNIT"}})
+    write_csv_run(
+        sim_c.segments,
+        bad_unit,
+        {**MANIFEST, "unit": {**MANIFEST["unit"], "serial": "SIM-BAD-UNIT"}},
+    )
     toml = (bad_unit / "run.toml").read_text()
     (bad_unit / "run.toml").write_text(toml.replace('acc_unit = "m/s^2"', 'acc_unit = "furlong"'))
     return {
