@@ -137,7 +137,7 @@ def backup(archive: Archive, dest: Path) -> dict[str, Any]:
             env,
             "pg_dump",
         )  # fmt: skip
-    db_sha, db_size = _hash_and_size(dest / db_name)
+    db_sha, db_size = rawstore.hash_and_size(dest / db_name)
 
     files: dict[str, dict[str, Any]] = {}
     root = archive.root
@@ -155,15 +155,6 @@ def backup(archive: Archive, dest: Path) -> dict[str, Any]:
     }
     rawstore.write_atomic(dest / MANIFEST, json.dumps(manifest, indent=1).encode())
     return manifest
-
-
-def _hash_and_size(path: Path) -> tuple[str, int]:
-    h, n = hashlib.sha256(), 0
-    with open(path, "rb") as f:
-        while chunk := f.read(_CHUNK):
-            h.update(chunk)
-            n += len(chunk)
-    return h.hexdigest(), n
 
 
 def read_manifest(src: Path) -> dict[str, Any]:
@@ -210,7 +201,7 @@ def check_backup(src: Path) -> dict[str, Any]:
         if not p.is_file():
             bad.append(f"{rel}: missing")
             continue
-        sha, size = _hash_and_size(p)
+        sha, size = rawstore.hash_and_size(p)
         if sha != entry["sha256"] or size != entry.get("size", size):
             bad.append(f"{rel}: sha256 {sha} ({size} bytes), manifest says {entry['sha256']}")
     if bad:

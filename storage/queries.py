@@ -222,6 +222,10 @@ def history(archive: Archive, serial: str) -> pd.DataFrame:
     return df.astype({"superseded": bool})
 
 
+HISTORY_COLUMNS = ["run_id", "started_at", "revision", "verdict", "value", "std", "unit",
+                   "temperature_c"]  # fmt: skip
+
+
 def parameter_history(
     archive: Archive, serial: str, name: str, *, include_superseded: bool = False
 ) -> pd.DataFrame:
@@ -249,18 +253,8 @@ def parameter_history(
     )
     if not include_superseded:
         stmt = stmt.where(CalibrationRow.superseded_by.is_(None))
-    columns = [
-        "run_id",
-        "started_at",
-        "revision",
-        "verdict",
-        "value",
-        "std",
-        "unit",
-        "temperature_c",
-    ]
     with Session(archive.engine()) as s:
-        return pd.DataFrame(s.execute(stmt).all(), columns=columns)
+        return pd.DataFrame(s.execute(stmt).all(), columns=HISTORY_COLUMNS)
 
 
 def latest_calibration(
@@ -792,18 +786,6 @@ def units(
         stmt = stmt.where(temp <= hi)
     with archive.engine().connect() as conn:
         return _frame(conn.execute(stmt).all(), UNIT_COLUMNS)
-
-
-HISTORY_COLUMNS = [
-    "run_id",
-    "started_at",
-    "revision",
-    "verdict",
-    "value",
-    "std",
-    "unit",
-    "temperature_c",
-]
 
 
 def serial_parameter_history(

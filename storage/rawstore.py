@@ -38,13 +38,19 @@ def object_path(root: Path, sha256: str) -> Path:
     return Path(root) / "objects" / sha256[:2] / sha256
 
 
-def sha256_file(path: Path) -> str:
-    """SHA-256 hex digest of a file, read in 1 MiB chunks."""
-    h = hashlib.sha256()
+def hash_and_size(path: Path) -> tuple[str, int]:
+    """(SHA-256 hex digest, size in bytes) of a file, read in 1 MiB chunks."""
+    h, n = hashlib.sha256(), 0
     with open(path, "rb") as f:
         while chunk := f.read(_CHUNK):
             h.update(chunk)
-    return h.hexdigest()
+            n += len(chunk)
+    return h.hexdigest(), n
+
+
+def sha256_file(path: Path) -> str:
+    """SHA-256 hex digest of a file."""
+    return hash_and_size(path)[0]
 
 
 def _temp_beside(path: Path) -> tuple[int, Path]:

@@ -16,7 +16,6 @@ file is never mistaken for archived data.
 
 from __future__ import annotations
 
-import hashlib
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -26,6 +25,7 @@ from sqlalchemy import func, select
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import aliased
 
+from storage import rawstore
 from storage.db import Archive
 from storage.schema import CalibrationRow, RawFile, Run
 
@@ -70,15 +70,6 @@ class VerifyReport:
         return {"ok": self.ok, **asdict(self)}
 
 
-def _hash_and_size(path: Path) -> tuple[str, int]:
-    h, n = hashlib.sha256(), 0
-    with open(path, "rb") as f:
-        while chunk := f.read(_CHUNK):
-            h.update(chunk)
-            n += len(chunk)
-    return h.hexdigest(), n
-
-
 def _inside(root: Path, rel: str) -> Path | None:
     """root/rel if it stays inside root (a database row is not trusted to), else None."""
     p = (root / rel).resolve()
@@ -95,7 +86,7 @@ def _check_file(
     if not path.is_file():
         report.problems.append(Problem("missing", rel, runs, f"expected sha256 {sha256}"))
         return
-    actual, n = _hash_and_size(path)
+    actual, n = rawstore.hash_and_size(path)
     report.files_checked += 1
     report.bytes_checked += n
     if actual != sha256 or (size is not None and n != size):

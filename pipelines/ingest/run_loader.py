@@ -18,7 +18,6 @@ needs ``register_reader(kind, fn)`` with ``fn(path, fmt) -> Recording``.
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -41,9 +40,9 @@ from pipelines.ingest.mpu6000 import (
     parse_file_name,
     read_mpu6000_file,
 )
+from storage.rawstore import hash_and_size
 
 MANIFEST_NAME = "run.toml"
-_HASH_CHUNK = 1 << 20  # bytes per read while hashing
 
 Reader = Callable[[Path, FormatSpec], Recording]
 _READERS: dict[str, Reader] = {}
@@ -185,14 +184,8 @@ class LoadedRun:
 
 
 def sha256_file(path: Path) -> tuple[str, int]:
-    """(hex sha256, size in bytes) of a file, read in 1 MiB chunks."""
-    digest = hashlib.sha256()
-    size = 0
-    with Path(path).open("rb") as fh:
-        while chunk := fh.read(_HASH_CHUNK):
-            digest.update(chunk)
-            size += len(chunk)
-    return digest.hexdigest(), size
+    """(hex sha256, size in bytes) of a file: the raw store's content address."""
+    return hash_and_size(Path(path))
 
 
 def _sources_in(folder: Path) -> list[RunSource]:
