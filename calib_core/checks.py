@@ -269,22 +269,15 @@ class ToleranceProfile:
         if not isinstance(raw_limits, list):
             raise ValueError("tolerance profile field 'limits': expected an array of tables")
         limits = [_parse_limit(entry, f"limits[{i}]") for i, entry in enumerate(raw_limits)]
-        raw_res = doc.get("residual_limits", {})
-        if not isinstance(raw_res, dict):
-            raise ValueError("tolerance profile field 'residual_limits': expected a table")
-        residual: dict[str, float] = {}
-        for key, entry in raw_res.items():
-            where = f"residual_limits.{key}"
-            if key not in RESIDUAL_KEYS:
-                raise ValueError(f"{where}: unknown key; expected one of {list(RESIDUAL_KEYS)}")
-            value, factor = _value_in_si(entry, where, _RESIDUAL_DIMENSION[key.split("_")[0]])
-            if value <= 0:
-                raise ValueError(f"{where}.value: expected a positive number, got {value}")
-            residual[key] = value * factor
+        residual = _positive_limits(
+            doc.get("residual_limits", {}), "residual_limits", RESIDUAL_KEYS
+        )
         return cls(
             parameter_limits=limits,
             residual_limits=residual,
-            verification_limits=_verification_limits(doc.get("verification_limits", {})),
+            verification_limits=_positive_limits(
+                doc.get("verification_limits", {}), "verification_limits", VERIFICATION_KEYS
+            ),
             repeatability=_repeatability(doc.get("repeatability", {})),
             **header,
         )
@@ -319,16 +312,20 @@ class ToleranceProfile:
         }
 
 
-def _verification_limits(raw: Any) -> dict[str, float]:
-    """``[verification_limits]``: acc / gyr as ``{value, unit}`` tables, SI out."""
+def _positive_limits(raw: Any, field_name: str, keys: tuple[str, ...]) -> dict[str, float]:
+    """A table of positive limits as ``{value, unit}`` entries, keyed "acc..." / "gyr...", SI out.
+
+    Used for ``[residual_limits]`` (acc_std, gyr_mean, ...) and ``[verification_limits]``
+    (acc, gyr); the key's sensor prefix decides the unit's dimension.
+    """
     if not isinstance(raw, dict):
-        raise ValueError("tolerance profile field 'verification_limits': expected a table")
+        raise ValueError(f"tolerance profile field {field_name!r}: expected a table")
     out: dict[str, float] = {}
     for key, entry in raw.items():
-        where = f"verification_limits.{key}"
-        if key not in VERIFICATION_KEYS:
-            raise ValueError(f"{where}: unknown key; expected one of {list(VERIFICATION_KEYS)}")
-        value, factor = _value_in_si(entry, where, _RESIDUAL_DIMENSION[key])
+        where = f"{field_name}.{key}"
+        if key not in keys:
+            raise ValueError(f"{where}: unknown key; expected one of {list(keys)}")
+        value, factor = _value_in_si(entry, where, _RESIDUAL_DIMENSION[key.split("_")[0]])
         if value <= 0:
             raise ValueError(f"{where}.value: expected a positive number, got {value}")
         out[key] = value * factor
@@ -365,16 +362,21 @@ def _number(entry: dict[str, Any], key: str, where: str) -> float:
     return float(value)
 
 
+def _parse_entry_unit(unit: Any, where: str) -> tuple[str, float]:
+    """`parse_unit` of an entry's ``unit`` field, errors naming ``<where>.unit``."""
+    if not isinstance(unit, str):
+        raise ValueError(f"{where}.unit: expected a string, got {unit!r}")
+    try:
+        return parse_unit(unit)
+    except ValueError as exc:
+        raise ValueError(f"{where}.unit: {exc}") from None
+
+
 def _value_in_si(entry: Any, where: str, dimension: str) -> tuple[float, float]:
     if not isinstance(entry, dict) or set(entry) != {"value", "unit"}:
         raise ValueError(f"{where}: expected a table {{ value = <number>, unit = <string> }}")
     unit = entry["unit"]
-    if not isinstance(unit, str):
-        raise ValueError(f"{where}.unit: expected a string, got {unit!r}")
-    try:
-        dim, factor = parse_unit(unit)
-    except ValueError as exc:
-        raise ValueError(f"{where}.unit: {exc}") from None
+    dim, factor = _parse_entry_unit(unit, where)
     if dim != dimension:
         raise ValueError(
             f"{where}.unit: {unit!r} is a unit of {dim}, expected a unit of {dimension}"
@@ -404,12 +406,7 @@ def _parse_limit(entry: Any, where: str) -> ParameterLimit:
     if "unit" not in entry:
         raise ValueError(f"{where}.unit: missing; the unit of the bounds must be given")
     unit = entry["unit"]
-    if not isinstance(unit, str):
-        raise ValueError(f"{where}.unit: expected a string, got {unit!r}")
-    try:
-        dim, factor = parse_unit(unit)
-    except ValueError as exc:
-        raise ValueError(f"{where}.unit: {exc}") from None
+    dim, factor = _parse_entry_unit(unit, where)
     expected = dims.pop()
     if dim != expected:
         raise ValueError(
