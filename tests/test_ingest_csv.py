@@ -422,7 +422,7 @@ def test_whitespace_without_header_leading_spaces(tmp_path: Path) -> None:
 def test_streamed_blocks_equal_one_read_and_errors_keep_their_line(
     tmp_path: Path, monkeypatch
 ) -> None:
-    """Tiny blocks (and the progress bar): same arrays as one block, same error lines."""
+    """Tiny slices (and the progress bar): same arrays as one slice, same error lines."""
     from pipelines.ingest import csv_reader
 
     rng = np.random.default_rng(8)
@@ -430,7 +430,7 @@ def test_streamed_blocks_equal_one_read_and_errors_keep_their_line(
     rows = [f"{i * 0.001:.3f}," + ",".join(repr(float(v)) for v in r) for i, r in enumerate(data)]
     path = write_small_csv(tmp_path / "imu.csv", rows)
     whole = read_csv(path, FMT)
-    monkeypatch.setattr(csv_reader, "BLOCK_BYTES", 4096)  # ~30 blocks
+    monkeypatch.setattr(csv_reader, "SLICE_BYTES", 4096)  # ~30 slices, cut at line ends
     streamed = read_csv(path, FMT, progress=True)
     assert np.array_equal(streamed.acc, whole.acc) and np.array_equal(streamed.gyr, data[:, 3:])
     assert np.array_equal(streamed.t, whole.t)
