@@ -39,9 +39,9 @@ from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import COUNTS, Column, FormatSpec
 
 PROGRESS_THRESHOLD_BYTES = 64 * 2**20  # above: a progress bar on stderr
-# Text per parsed slice: large enough that pyarrow's threads share the parse (1.24x its
-# whole-file read, measured), small enough that a slice and its parse buffers stay well
-# below the decoded arrays (peak 1.7x the arrays on an 800k-row file; 16 MiB: 2.1x).
+# Text per parsed slice: large enough that pyarrow's threads share the parse, small enough
+# that a slice and its parse buffers stay well below the decoded arrays (peak 1.7x the
+# arrays on an 800k-row file, tests/test_large_csv.py).
 SLICE_BYTES = 8 << 20
 ESTIMATE_PROBE_BYTES = 64 << 10  # bytes of the first lines that estimate the row count
 PANDAS_CHUNK_ROWS = 1_000_000  # rows per chunk of whitespace-separated text
@@ -413,20 +413,20 @@ def _batches(
     try:
         for text, consumed in _slices(layout.path, layout.data_start):
             table = pacsv.read_csv(pa.BufferReader(text), read, parse, convert)
-            # Nulls (empty cells, "nan") become NaN here and are reported by the caller.
-            yield (
-                {
-                    c: _iso_seconds(table.column(c))
-                    if c == iso_column
-                    else table.column(c).to_numpy()
-                    for c in columns
-                },
-                consumed,
-            )
-            # Hand the slice's parse buffers back now: Arrow's allocator would keep them
-            # cached, and the peak would grow by a few slices.
+            # Record batch by record batch: each column is then one Arrow array, viewed
+            # without a copy (a whole-table column would be concatenated first). Nulls
+            # (empty cells, "nan") become NaN here and are reported by the caller.
+            for batch in table.to_batches():
+                yield (
+                    {
+                        c: _iso_seconds(batch.column(c))
+                        if c == iso_column
+                        else batch.column(c).to_numpy(zero_copy_only=False)
+                        for c in columns
+                    },
+                    consumed,
+                )
             del table
-            pa.default_memory_pool().release_unused()
     except pa.ArrowInvalid as exc:
         # Text in a numeric column, a row with too many fields, ...: find it.
         _diagnose(layout, columns, iso_column, 0)
