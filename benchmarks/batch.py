@@ -190,6 +190,12 @@ def stage_seconds(archive_dir: Path) -> dict[str, list[float]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=RUNS)
+    parser.add_argument(
+        "--runner",
+        default="process",
+        choices=("local", "process"),
+        help="task runner of the Prefect pass (threads or processes)",
+    )
     args = parser.parse_args()
     n = args.runs
     with tempfile.TemporaryDirectory(prefix="calib-batch-bench-") as tmp:
@@ -230,10 +236,10 @@ def main() -> None:
         with get_client(sync_client=True) as client:
             client.api_healthcheck()
         log(f"Prefect API ready ({time.perf_counter() - started:.1f} s, not counted)")
-        log(f"Prefect flow, process runner, {WORKERS} workers...")
+        log(f"Prefect flow, {args.runner} runner, {WORKERS} workers...")
         started = time.perf_counter()
         outcomes = process_batch(
-            [str(base / "day")], str(base / "archive-flow"), runner="process", workers=WORKERS
+            [str(base / "day")], str(base / "archive-flow"), runner=args.runner, workers=WORKERS
         )
         flow_s = time.perf_counter() - started
         bad = [o for o in outcomes if o["status"] != "ok"]
