@@ -22,7 +22,6 @@ never mix two archives. Afterwards `storage.verify.verify` should pass.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import sqlite3
@@ -48,26 +47,6 @@ PG_TIMEOUT_S = 3600
 
 class BackupError(RuntimeError):
     """A backup could not be made or restored; the message says which file and why."""
-
-
-def _copy_hashed(src: Path, dest: Path) -> tuple[str, int]:
-    """Copy src to dest through a temporary file + rename; return (sha256, size) of the bytes."""
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.restore.tmp")
-    h, n = hashlib.sha256(), 0
-    try:
-        with open(src, "rb") as fin, open(tmp, "wb") as fout:
-            while chunk := fin.read(_CHUNK):
-                h.update(chunk)
-                n += len(chunk)
-                fout.write(chunk)
-            fout.flush()
-            os.fsync(fout.fileno())
-        os.replace(tmp, dest)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return h.hexdigest(), n
 
 
 def _store_files(root: Path) -> list[Path]:
@@ -143,7 +122,7 @@ def backup(archive: Archive, dest: Path) -> dict[str, Any]:
     root = archive.root
     for p in _store_files(root):
         rel = p.relative_to(root).as_posix()
-        sha, size = _copy_hashed(p, dest / FILES / rel)
+        sha, size = rawstore.copy_atomic(p, dest / FILES / rel)
         files[rel] = {"sha256": sha, "size": size}
     manifest = {
         "format": FORMAT,
@@ -258,7 +237,7 @@ def restore(src: Path, archive: Archive) -> dict[str, Any]:
     archive.dispose()  # no pooled connection may see the database while it is replaced
 
     for rel, entry in manifest["files"].items():
-        sha, _ = _copy_hashed(src / FILES / rel, archive.root / rel)
+        sha, _ = rawstore.copy_atomic(src / FILES / rel, archive.root / rel)
         if sha != entry["sha256"]:  # changed since check_backup: refuse to go on
             raise BackupError(f"backup file {rel} changed while being restored")
     db_file = src / manifest["database"]["file"]

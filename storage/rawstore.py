@@ -74,6 +74,34 @@ def write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
+def copy_atomic(src: Path, dest: Path, expected_sha256: str | None = None) -> tuple[str, int]:
+    """Copy `src` to `dest` through a temporary file beside it + rename, hashing on the way.
+
+    Returns (sha256, size) of the bytes copied. With `expected_sha256`, a mismatch
+    stores nothing and raises ValueError naming the file.
+    """
+    fd, tmp = _temp_beside(Path(dest))
+    h, n = hashlib.sha256(), 0
+    try:
+        with open(src, "rb") as fin, os.fdopen(fd, "wb") as fout:
+            while chunk := fin.read(_CHUNK):
+                h.update(chunk)
+                n += len(chunk)
+                fout.write(chunk)
+            fout.flush()
+            os.fsync(fout.fileno())
+        if expected_sha256 is not None and h.hexdigest() != expected_sha256:
+            raise ValueError(
+                f"raw file {src}: content hashes to {h.hexdigest()}, expected "
+                f"{expected_sha256} (was the file changed after it was read?)"
+            )
+        os.replace(tmp, dest)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return h.hexdigest(), n
+
+
 def store_raw(root: Path, src: Path, sha256: str) -> Path:
     """Copy a raw file into the content-addressed store; return the stored path.
 
@@ -82,26 +110,8 @@ def store_raw(root: Path, src: Path, sha256: str) -> Path:
     already present is not written again.
     """
     dest = object_path(root, sha256)
-    if dest.exists():
-        return dest
-    fd, tmp = _temp_beside(dest)
-    h = hashlib.sha256()
-    try:
-        with open(src, "rb") as fin, os.fdopen(fd, "wb") as fout:
-            while chunk := fin.read(_CHUNK):
-                h.update(chunk)
-                fout.write(chunk)
-            fout.flush()
-            os.fsync(fout.fileno())
-        if h.hexdigest() != sha256:
-            raise ValueError(
-                f"raw file {src}: content hashes to {h.hexdigest()}, expected {sha256} "
-                "(was the file changed after it was read?)"
-            )
-        os.replace(tmp, dest)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    if not dest.exists():
+        copy_atomic(src, dest, sha256)
     return dest
 
 

@@ -87,6 +87,9 @@ def test_batch_archives_good_runs_and_reports_the_bad_one(prefect_harness, lab_d
         assert protocol.name == f"{serial}_result.txt" and protocol.is_file()
         text = protocol.read_text()
         assert serial in text and "Quality control" in text and "gyr.scale.x" in text
+        # the profile bounds gyro noise from above only, scale errors on both sides
+        lines = {line.split()[0]: line for line in text.splitlines() if line.startswith("gyr.")}
+        assert "<=" in lines["gyr.noise.x"] and "+-" in lines["gyr.scale.x"]
 
     arch = resolve_archive(str(archive_dir))
     counts = _row_counts(arch)

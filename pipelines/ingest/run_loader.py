@@ -18,6 +18,7 @@ needs ``register_reader(kind, fn)`` with ``fn(path, fmt) -> Recording``.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -394,12 +395,4 @@ def _cut(whole: Recording, seg: SegmentSpec, index: int, source: str) -> Recordi
             field=f"segments[{index}]",
         )
     where = f"{whole.source} t in [{seg.start_s}, {seg.end_s}) s"
-    return Recording(
-        t=part.t,
-        acc=part.acc,
-        gyr=part.gyr,
-        temp=part.temp,
-        reference=part.reference,
-        label=seg.label,
-        source=where,
-    )
+    return dataclasses.replace(part, label=seg.label, source=where)

@@ -43,7 +43,7 @@ from calib_core.verification import (  # noqa: E402
     diagnose_residuals,
 )
 from pipelines.reports import plots  # noqa: E402
-from pipelines.reports.display import display  # noqa: E402
+from pipelines.reports.display import display, tolerance  # noqa: E402
 from pipelines.reports.protocol import render_protocol  # noqa: E402
 
 MG = 1e-3 * STANDARD_GRAVITY
@@ -232,9 +232,8 @@ def sections(summary: dict[str, Any], samples: pa.Table) -> Certificate:
         value, unit = display(p["name"], p["value"])
         std, _ = display(p["name"], p["std"])
         c = by_param.get(p["name"])
-        tol = (
-            "" if c is None or c["limit"] is None else f"+-{display(p['name'], c['limit'])[0]:.4g}"
-        )
+        tol = tolerance(p["name"], c)
+        tol = "" if tol is None else f"{tol[0]}{tol[1]:.4g}"
         result = "" if c is None else ("pass" if c["passed"] else "FAIL")
         res_rows.append([p["name"], f"{value:+.6g}", _fmt(std, 3), unit, tol, result])
     out.append(

@@ -24,3 +24,15 @@ def display(name: str, value: float | None) -> tuple[float | None, str]:
     """(value in display unit, display unit) of a canonical parameter value given in SI."""
     unit, factor = DISPLAY_UNITS[name.rsplit(".", 1)[0]]
     return (None if value is None else value * factor), unit
+
+
+def tolerance(name: str, check: dict | None) -> tuple[str, float] | None:
+    """(relation, limit in display unit) of a parameter check, or None without a limit.
+
+    relation is "+-" for a symmetric bound and "<=" for an upper-only one (noise):
+    check_parameters writes its bounds into the detail as "allowed LOW .. HIGH unit".
+    """
+    if check is None or check.get("limit") is None:
+        return None
+    relation = "<=" if check.get("detail", "").startswith("allowed -inf") else "+-"
+    return relation, display(name, check["limit"])[0]

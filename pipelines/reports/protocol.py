@@ -12,7 +12,7 @@ from collections.abc import Iterable, Mapping
 from datetime import datetime
 from typing import Any
 
-from pipelines.reports.display import display
+from pipelines.reports.display import display, tolerance
 
 _RULE = "-" * 78
 
@@ -64,13 +64,11 @@ def render_protocol(
         value, unit = display(p["name"], p["value"])
         std, _ = display(p["name"], p.get("std"))
         check = by_param.get(p["name"])
-        if check is None or check.get("limit") is None:
+        tol = tolerance(p["name"], check)
+        if tol is None:
             tol, mark = f"{'':>12}", " "
         else:
-            limit, _ = display(p["name"], check["limit"])
-            # check_parameters writes "allowed LOW .. HIGH unit"; one-sided limits print as <=
-            relation = "<=" if check.get("detail", "").startswith("allowed -inf") else "+-"
-            tol, mark = f"{relation:>3}{limit:>9.4g}", "+" if check["passed"] else "-"
+            tol, mark = f"{tol[0]:>3}{tol[1]:>9.4g}", "+" if check["passed"] else "-"
         lines.append(f"{p['name']:<18}{_fmt(value, 13)}{_fmt(std, 13)}  {unit:<10}{tol}  {mark}")
     other = [c for c in checks if not c["name"].startswith("param:")]
     if other:
