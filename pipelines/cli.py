@@ -103,7 +103,7 @@ def process(
     ] = False,
 ) -> None:
     """Ingest, solve, check and archive every run under PATHS (a Prefect flow)."""
-    from pipelines.flows import process_batch, report_progress
+    from pipelines.flows import local_batch_settings, process_batch, report_progress
     from pipelines.runners import check_runner
 
     try:
@@ -111,7 +111,11 @@ def process(
     except ValueError as exc:
         fail(str(exc))
     show = err.is_terminal if progress is None else progress
-    with _progress_bar(show) as on_progress, report_progress(on_progress):
+    with (
+        _progress_bar(show) as on_progress,
+        report_progress(on_progress),
+        local_batch_settings(),
+    ):
         outcomes = process_batch(
             [str(p) for p in paths], archive, runner=runner, workers=workers, scheduler=scheduler
         )

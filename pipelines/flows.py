@@ -14,9 +14,9 @@ run is reported in its outcome and the batch goes on.
 from __future__ import annotations
 
 import contextlib
-import errno
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures.process import BrokenProcessPool
 from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
@@ -32,91 +32,52 @@ from prefect.futures import as_completed
 
 from pipelines.ingest import RunSource, discover_runs
 from pipelines.ingest.errors import IngestError
-from pipelines.process import process_run, run_outcome
-from pipelines.runners import check_runner, make_task_runner, single_threaded_children
-from storage.db import Archive, resolve_archive
+from pipelines.process import run_outcome
+from pipelines.run_task import TransientError, is_transient, process_run_for_batch
+from pipelines.runners import WorkerProcesses, check_runner, default_workers, make_task_runner
+from storage.db import resolve_archive
+
+__all__ = ["RETRIES", "TransientError", "is_transient", "process_batch", "report_progress"]
 
 RETRIES = 2  # attempts after the first
 RETRY_DELAYS_S = [1.0, 4.0]  # s before the 1st and 2nd retry: a lock or a share outage passes
 PROGRESS_EVERY_S = 2.0  # s between updates of the progress artifact in Prefect's UI
 
-# OS errors of a network file system or connection that is briefly away; ENOENT
-# is not among them (a missing file is a bad run; a vanished run folder is
-# recognised separately, because the folder was there when the batch began).
-TRANSIENT_ERRNOS = frozenset(
-    {
-        errno.ESTALE,
-        errno.EIO,
-        errno.EAGAIN,
-        errno.EBUSY,
-        errno.ENOTCONN,
-        errno.ETIMEDOUT,
-        errno.ECONNRESET,
-        errno.ECONNREFUSED,
-        errno.ECONNABORTED,
-        errno.EHOSTDOWN,
-        errno.EHOSTUNREACH,
-        errno.ENETDOWN,
-        errno.ENETUNREACH,
-    }
-)
-# Database errors that a later attempt can get past (SQLite and PostgreSQL wording).
-TRANSIENT_DB_TEXT = (
-    "database is locked",
-    "database table is locked",
-    "could not connect",
-    "connection refused",
-    "server closed the connection",
-    "terminating connection",
-    "connection is closed",
-    "deadlock detected",
-    "could not serialize access",
-    "too many clients",
-)
-
 # Callback(done, total, outcome) called as each run of a batch finishes (the CLI's progress bar).
 ProgressCallback = Callable[[int, int, dict[str, Any]], None]
 _progress: ContextVar[ProgressCallback | None] = ContextVar("calib_batch_progress", default=None)
+# The worker processes of a batch run with the process runner (seen by its tasks' threads).
+_batch_workers: ContextVar[WorkerProcesses | None] = ContextVar("calib_batch_workers", default=None)
 
 
-class TransientError(RuntimeError):
-    """A run failed for a reason that may go away; the batch flow retries it."""
-
-
-def is_transient(exc: BaseException) -> bool:
-    """Whether an error may go away on retry: a locked or unreachable database, a flaky share.
-
-    Looks through the exception's causes (and SQLAlchemy's wrapped driver
-    error), so an ``IngestError`` raised from an ``ESTALE`` counts as transient.
-    """
-    from sqlalchemy.exc import DBAPIError
-
-    seen: set[int] = set()
-    stack: list[BaseException | None] = [exc]
-    while stack:
-        e = stack.pop()
-        if e is None or id(e) in seen:
-            continue
-        seen.add(id(e))
-        if isinstance(e, TransientError | ConnectionError | TimeoutError):
-            return True
-        if isinstance(e, OSError) and e.errno in TRANSIENT_ERRNOS:
-            return True
-        if isinstance(e, DBAPIError):
-            if e.connection_invalidated:
-                return True
-            stack.append(e.orig)
-        is_db_error = isinstance(e, DBAPIError) or type(e).__name__ == "OperationalError"
-        if is_db_error and any(s in str(e).lower() for s in TRANSIENT_DB_TEXT):
-            return True
-        stack += [e.__cause__, e.__context__]
-    return False
-
-
+# Both ContextVars are read through module-level functions: a flow or task shipped to
+# another process (Dask) is pickled, and a ContextVar cannot be.
 def _progress_callback() -> ProgressCallback | None:
-    # Read through a module-level function: the flow's own code must not refer to the
-    # ContextVar, which cannot be pickled when the flow is shipped to worker processes.
     return _progress.get()
+
+
+def _worker_processes() -> WorkerProcesses | None:
+    return _batch_workers.get()
+
+
+def _import_pipeline() -> None:
+    """A worker's first call: load the pipeline while the flow is still starting."""
+    import pipelines.run_task  # noqa: F401
+
+
+@contextlib.contextmanager
+def _work_in_processes(runner: str, workers: int | None) -> Iterator[None]:
+    """With the process runner, the batch's tasks hand their runs to worker processes."""
+    if runner != "process":
+        yield
+        return
+    pool = WorkerProcesses(workers or default_workers(), warm_up=_import_pipeline)
+    token = _batch_workers.set(pool)
+    try:
+        yield
+    finally:
+        _batch_workers.reset(token)
+        pool.close()
 
 
 @contextlib.contextmanager
@@ -127,6 +88,29 @@ def report_progress(callback: ProgressCallback) -> Iterator[None]:
         yield
     finally:
         _progress.reset(token)
+
+
+@contextlib.contextmanager
+def local_batch_settings() -> Iterator[None]:
+    """Settings for running batches from this process on Prefect's temporary local API.
+
+    Flow-run heartbeats let a Prefect server mark runs whose process died as
+    crashed. The temporary API (no PREFECT_API_URL configured) ends with this
+    process, so nothing reads them, while Prefect's heartbeat thread holds up the
+    end of every flow by up to a second (it sleeps in 1 s steps and is joined at
+    exit): they are turned off here. With a configured API nothing changes.
+    """
+    from prefect.settings import (
+        PREFECT_API_URL,
+        PREFECT_FLOWS_HEARTBEAT_FREQUENCY,
+        temporary_settings,
+    )
+
+    if PREFECT_API_URL.value():
+        yield
+        return
+    with temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
+        yield
 
 
 @contextlib.contextmanager
@@ -141,7 +125,7 @@ def _api_for_workers(runner: str) -> Iterator[None]:
     from prefect.client.orchestration import get_client
     from prefect.settings import PREFECT_API_URL, temporary_settings
 
-    if runner == "local" or PREFECT_API_URL.value():
+    if runner != "dask" or PREFECT_API_URL.value():  # other runners' tasks stay here
         yield
         return
     with get_client(sync_client=True) as client:
@@ -172,19 +156,18 @@ def _retry_transient(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's
     persist_result=False,
 )
 def process_run_task(source: RunSource, archive_url: str, archive_root: str) -> dict[str, Any]:
-    """One run through `process_run`; transient errors raise ``TransientError`` (retried)."""
+    """One run through `process_run`; transient errors raise ``TransientError`` (retried).
 
-    def transient(exc: BaseException) -> bool:
-        # The folder was found when the batch began: if it is gone now, its share went away.
-        return is_transient(exc) or not source.folder.is_dir()
-
-    archive = Archive(url=archive_url, root=Path(archive_root))
+    With the process runner the work runs in one of the batch's worker processes
+    while this task (state, retries, logs) stays in a thread of the flow.
+    """
+    pool = _worker_processes()
+    if pool is None:
+        return process_run_for_batch(source, archive_url, archive_root)
     try:
-        return process_run(source, archive, reraise=transient)
-    except Exception as exc:  # only what `transient` let through
-        raise TransientError(f"{source.name}: {type(exc).__name__}: {exc}") from exc
-    finally:
-        archive.dispose()  # one engine per task: give its connections back now
+        return pool.run(process_run_for_batch, source, archive_url, archive_root)
+    except BrokenProcessPool as exc:
+        raise TransientError(f"{source.name}: its worker process died ({exc})") from exc
 
 
 @flow(name="process-batch", log_prints=True)
@@ -239,7 +222,7 @@ def process_batch(
     results: dict[int, dict[str, Any]] = {}
     with (
         _api_for_workers(runner),
-        single_threaded_children(),
+        _work_in_processes(runner, workers),  # closed after the task runner, which waits
         make_task_runner(runner, workers, scheduler) as task_runner,
     ):
         futures = [

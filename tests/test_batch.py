@@ -52,12 +52,13 @@ def write_runs(folder: Path, seeds: list[int]) -> list[Path]:
 
 
 def test_runner_choice_names_the_option_at_fault() -> None:
-    from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
+    from prefect.task_runners import ThreadPoolTaskRunner
     from prefect_dask import DaskTaskRunner
 
     assert isinstance(make_task_runner("local", 3), ThreadPoolTaskRunner)
     assert make_task_runner("local", 3)._max_workers == 3
-    assert isinstance(make_task_runner("process", 2), ProcessPoolTaskRunner)
+    # the process runner's tasks stay in threads and hand their runs to WorkerProcesses
+    assert isinstance(make_task_runner("process", 2), ThreadPoolTaskRunner)
     remote = make_task_runner("dask", scheduler="tcp://10.0.0.5:8786")
     assert isinstance(remote, DaskTaskRunner) and remote.address == "tcp://10.0.0.5:8786"
     with pytest.raises(ValueError, match="--runner 'threads': expected one of local, process"):
@@ -70,6 +71,39 @@ def test_runner_choice_names_the_option_at_fault() -> None:
         check_runner("dask", None, "10.0.0.5")
     with pytest.raises(ValueError, match="cannot be combined with --scheduler"):
         check_runner("dask", 2, "tcp://10.0.0.5:8786")
+
+
+def _worker_facts(_: int) -> tuple[int, str | None]:
+    return os.getpid(), os.environ.get("OMP_NUM_THREADS")
+
+
+def _die() -> None:
+    os._exit(3)  # as an out-of-memory kill or a crash in a native library would
+
+
+def test_worker_processes_run_single_threaded_and_survive_a_dying_worker() -> None:
+    """Calls run in 2 spawned worker processes with single-threaded numerical libraries;
+    a worker that dies fails its call with BrokenProcessPool (counted as transient, so
+    the batch retries that run), and the next calls run in a fresh pool."""
+    from concurrent.futures import ThreadPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    from pipelines.runners import WorkerProcesses
+
+    pool = WorkerProcesses(2)
+    try:
+        with ThreadPoolExecutor(2) as threads:
+            facts = list(threads.map(lambda i: pool.run(_worker_facts, i), range(8)))
+        pids = {pid for pid, _ in facts}
+        assert os.getpid() not in pids and 1 <= len(pids) <= 2
+        assert {omp for _, omp in facts} == {"1"}
+        with pytest.raises(BrokenProcessPool) as died:
+            pool.run(_die)
+        assert is_transient(died.value)
+        after = {pool.run(_worker_facts, i)[0] for i in range(4)}
+        assert after and not after & pids  # new workers
+    finally:
+        pool.close()
 
 
 # --- transient or permanent -------------------------------------------------------

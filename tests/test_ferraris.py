@@ -112,6 +112,15 @@ def test_gyro_y_turn_was_not_a_full_turn(both, session, capsys):
         assert abs(ratio - 1) < 0.005, a
     y_turn = next(label for label in segments if label.startswith("y_c"))
     rec = segments[y_turn]
+    # Not a section cut short: the 3 s on either side of it turn by < 0.1 deg about y.
+    whole, _, _ = session
+    start, end = np.searchsorted(whole.t, [rec.t[0], rec.t[-1]])
+    for side in (
+        slice(start - int(3 * RATE_HZ), start),
+        slice(end + 1, end + 1 + int(3 * RATE_HZ)),
+    ):
+        outside = whole.gyr[side, 1] - ferraris.value("gyr.bias.y")
+        assert abs(np.degrees(outside.sum() / RATE_HZ)) < 0.1
     integral = np.trapezoid(rec.gyr[:, 1] - ferraris.value("gyr.bias.y"), rec.t)
     angle = np.degrees(abs(integral)) / (1 + free.value("gyr.scale.y"))
     hybrid = Calibration("hybrid", GRAVITY, parameters=dict(free.parameters))
