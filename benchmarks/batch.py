@@ -9,15 +9,20 @@ first pass would be a cheap duplicate):
    with pyarrow's threads and once on one thread, as the pipeline's workers
    parse (their numerical libraries are single-threaded: the batch's
    parallelism is its worker processes);
-2. one worker: pipelines.process.process_run of every run in one worker
-   process, set up as the process runner's workers are (spawned, numerical
-   libraries single-threaded: pipelines.runners.single_threaded_children);
-   the stage split comes from the seconds the steps record
-   in the archive (ingest, preprocess, solve, check); archive = the rest
-   (protocol, Parquet samples, raw objects, database transaction);
+2. one worker: each run's work (pipelines.run_task.process_run_for_batch, what
+   a batch task does) in one worker process set up as the process runner's
+   workers are (pipelines.runners.forkserver_context: a forkserver that
+   imports the pipeline once; numerical libraries single-threaded), one run
+   at a time; the stage split comes from the seconds the steps record in the
+   archive (ingest, preprocess, solve, check); archive = the rest (protocol,
+   Parquet samples, raw objects, database transaction);
 3. plain parallel: the same calls in a pool of 2 such processes;
 4. Prefect: the process_batch flow with the process runner and 2 workers,
    as `calib process --runner process` runs it (local_batch_settings).
+
+Passes 2-4 each run in a fresh Python process, as a new `calib` process would
+(its own forkserver and imports), timed from discovery of the runs to the
+last outcome, pool start included.
 
 Figures: runs/min of the Prefect batch; speedup = one-worker time / plain
 parallel time (both with their pool's start); pipeline_to_parse_ratio = sum
@@ -43,6 +48,7 @@ import json
 import multiprocessing
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -82,18 +88,6 @@ def write_run(folder: str, seed: int) -> str:
     sim = six_position_integral_run(random_errors(rng), rng, rate_hz=RATE_HZ)
     manifest = six_position_manifest(f"BENCH{seed:03d}", operator="benchmark")
     return str(write_csv_run(sim.segments, Path(folder), manifest, truth=sim.truth_dict()))
-
-
-def process_one(folder: str, archive_dir: str) -> tuple[str, float, str | None]:
-    """process_run of one run folder (what a Prefect task does, without Prefect)."""
-    from pipelines.ingest import discover_runs
-    from pipelines.process import process_run
-    from storage.db import resolve_archive
-
-    started = time.perf_counter()
-    (source,) = discover_runs([Path(folder)])
-    outcome = process_run(source, resolve_archive(archive_dir))
-    return outcome["status"], time.perf_counter() - started, outcome["error"]
 
 
 def generate(base: Path, n: int) -> list[Path]:
@@ -145,32 +139,90 @@ def bare_parse(folders: list[Path], threads: bool = True) -> float:
     return time.perf_counter() - started
 
 
-def check_all_ok(outcomes: list[tuple[str, float, str | None]], what: str) -> None:
-    bad = [o for o in outcomes if o[0] != "ok"]
-    if bad:
-        raise SystemExit(f"{what}: {len(bad)} run(s) not ok, first: {bad[0]}")
+def plain_pass(day: Path, archive_dir: Path, workers: int) -> tuple[float, list[float]]:
+    """Every run's work (`process_run_for_batch`, what a batch task does) in a pool of
+    `workers` processes set up as the process runner's (forkserver importing the
+    pipeline once, numerical libraries single-threaded), without Prefect.
 
+    Returns the wall time (pool start included) and, with one worker, each run's time.
+    """
+    from concurrent.futures import ProcessPoolExecutor
 
-def plain_pass(folders: list[Path], archive_dir: Path, workers: int) -> tuple[float, list[float]]:
-    """process_run of every run in a pool of `workers` processes set up as the process
-    runner's (spawned, numerical libraries single-threaded); returns the wall time
-    (pool start included) and each run's time."""
-    from pipelines.runners import single_threaded_children
+    from pipelines.ingest import discover_runs
+    from pipelines.run_task import process_run_for_batch
+    from pipelines.runners import forkserver_context, single_threaded_children
     from storage.db import resolve_archive
 
-    resolve_archive(str(archive_dir)).upgrade()  # as the flow does, before the workers start
-    started = time.perf_counter()
-    ctx = multiprocessing.get_context("spawn")
-    with single_threaded_children(), ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-        futures = [pool.submit(process_one, str(f), str(archive_dir)) for f in folders]
-        outcomes = []
-        for i, fut in enumerate(futures, 1):
-            outcomes.append(fut.result())
-            if i % 10 == 0:
-                log(f"  {i}/{len(folders)} ({time.perf_counter() - started:.0f} s)")
+    started = time.perf_counter()  # from here on as the flow: discovery, upgrade, runs
+    sources = discover_runs([day])
+    arch = resolve_archive(str(archive_dir))
+    arch.upgrade()
+    context = forkserver_context(("pipelines.run_task",))
+    outcomes, per_run = [], []
+    with (
+        single_threaded_children(),
+        ProcessPoolExecutor(workers, mp_context=context) as pool,
+    ):
+        if workers == 1:  # one run at a time: each call's time is that run's pipeline time
+            pool.submit(int).result()  # (not the worker's start)
+            for i, source in enumerate(sources, 1):
+                t = time.perf_counter()
+                outcomes.append(
+                    pool.submit(process_run_for_batch, source, arch.url, str(arch.root)).result()
+                )
+                per_run.append(time.perf_counter() - t)
+                if i % 10 == 0:
+                    log(f"  {i}/{len(sources)} ({time.perf_counter() - started:.0f} s)")
+        else:
+            futures = [
+                pool.submit(process_run_for_batch, s, arch.url, str(arch.root)) for s in sources
+            ]
+            outcomes = [f.result() for f in futures]
     total = time.perf_counter() - started
-    check_all_ok(outcomes, f"pass with {workers} worker(s)")
-    return total, [o[1] for o in outcomes]
+    bad = [o for o in outcomes if o["status"] != "ok"]
+    if bad:
+        raise SystemExit(f"pass with {workers} worker(s): {len(bad)} run(s) not ok: {bad[0]}")
+    return total, per_run
+
+
+def flow_pass(day: Path, archive_dir: Path, workers: int, runner: str, n: int) -> float:
+    """The process_batch flow as `calib process --runner RUNNER` runs it; its wall time."""
+    from prefect.client.orchestration import get_client
+
+    from pipelines.flows import local_batch_settings, process_batch
+
+    started = time.perf_counter()
+    with get_client(sync_client=True) as client:
+        client.api_healthcheck()
+    log(f"  Prefect API ready ({time.perf_counter() - started:.1f} s, not counted)")
+    started = time.perf_counter()
+    with local_batch_settings():
+        outcomes = process_batch([str(day)], str(archive_dir), runner=runner, workers=workers)
+    flow_s = time.perf_counter() - started
+    bad = [o for o in outcomes if o["status"] != "ok"]
+    if len(outcomes) != n or bad:
+        raise SystemExit(f"flow: {len(outcomes)} outcomes, {len(bad)} not ok: {bad[:1]}")
+    return flow_s
+
+
+def timed_pass(what: str, day: Path, archive_dir: Path, workers: int, runner: str, n: int):
+    """One pass in a fresh Python process, as a new `calib` process would run it (its own
+    forkserver and imports); its progress goes to stderr, its figures come back as JSON."""
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--pass", what, "--day", str(day)]
+    cmd += ["--archive", str(archive_dir), "--workers", str(workers), "--runner", runner]
+    cmd += ["--runs", str(n)]
+    out = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def pass_main(args: argparse.Namespace) -> None:
+    """The child side of `timed_pass`."""
+    if args.pass_ == "flow":
+        seconds = flow_pass(args.day, args.archive, args.workers, args.runner, args.runs)
+        print(json.dumps({"seconds": seconds}))
+    else:
+        seconds, per_run = plain_pass(args.day, args.archive, args.workers)
+        print(json.dumps({"seconds": seconds, "per_run": per_run}))
 
 
 def stage_seconds(archive_dir: Path) -> dict[str, list[float]]:
@@ -205,7 +257,15 @@ def main() -> None:
         choices=("local", "process"),
         help="task runner of the Prefect pass (threads or processes)",
     )
+    # Internal: run one timed pass (timed_pass starts this script again with these).
+    parser.add_argument("--pass", dest="pass_", choices=("plain", "flow"), help=argparse.SUPPRESS)
+    parser.add_argument("--day", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--archive", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--workers", type=int, default=WORKERS, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.pass_:
+        pass_main(args)
+        return
     n = args.runs
     with tempfile.TemporaryDirectory(prefix="calib-batch-bench-") as tmp:
         base = Path(tmp)
@@ -224,8 +284,10 @@ def main() -> None:
 
         capacity = parallel_capacity()
         log(f"machine check: a CPU-only loop runs {capacity:.2f}x faster on {WORKERS} processes")
-        log("one worker (plain process_run in one worker process)...")
-        serial_s, per_run = plain_pass(folders, base / "archive-serial", 1)
+        day = base / "day"
+        log("one worker (plain calls, one worker process)...")
+        serial = timed_pass("plain", day, base / "archive-serial", 1, args.runner, n)
+        serial_s, per_run = serial["seconds"], serial["per_run"]
         stages = stage_seconds(base / "archive-serial")
         recorded = [sum(v) for v in zip(*stages.values(), strict=True)]
         archive_part = [t - r for t, r in zip(per_run, recorded, strict=True)]
@@ -234,31 +296,17 @@ def main() -> None:
         split["archive"] = statistics.median(archive_part)
         for name, sec in split.items():
             log(f"    {name:9s} {sec:7.3f} s")
-        ingest_ratio = sum(stages["ingest"]) / parse_s
-        log(f"  ingest stage / bare parse: {ingest_ratio:.2f}")
+        ingest_ratio = sum(stages["ingest"]) / parse_1_s
+        log(f"  ingest stage / bare parse on one thread: {ingest_ratio:.2f}")
 
         log(f"plain parallel pass ({WORKERS} processes)...")
-        plain_s, _ = plain_pass(folders, base / "archive-plain", WORKERS)
+        plain_s = timed_pass("plain", day, base / "archive-plain", WORKERS, args.runner, n)[
+            "seconds"
+        ]
         log(f"  {plain_s:.1f} s")
 
-        from prefect.client.orchestration import get_client
-
-        from pipelines.flows import local_batch_settings, process_batch
-
-        started = time.perf_counter()
-        with get_client(sync_client=True) as client:
-            client.api_healthcheck()
-        log(f"Prefect API ready ({time.perf_counter() - started:.1f} s, not counted)")
         log(f"Prefect flow, {args.runner} runner, {WORKERS} workers...")
-        started = time.perf_counter()
-        with local_batch_settings():
-            outcomes = process_batch(
-                [str(base / "day")], str(base / "archive-flow"), runner=args.runner, workers=WORKERS
-            )
-        flow_s = time.perf_counter() - started
-        bad = [o for o in outcomes if o["status"] != "ok"]
-        if len(outcomes) != n or bad:
-            raise SystemExit(f"flow: {len(outcomes)} outcomes, {len(bad)} not ok: {bad[:1]}")
+        flow_s = timed_pass("flow", day, base / "archive-flow", WORKERS, args.runner, n)["seconds"]
         log(f"  {flow_s:.1f} s")
 
     figures = {

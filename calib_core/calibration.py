@@ -12,8 +12,9 @@ error model is the archive's matrix convention:
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -41,6 +42,11 @@ class Parameter:
             raise ValueError(f"parameter {self.name}: value is not finite ({self.value})")
 
 
+def _fields_dict(record: Any) -> dict[str, Any]:
+    """A dataclass's fields by name, the values as they are (no deep copy)."""
+    return {f.name: getattr(record, f.name) for f in dataclasses.fields(record)}
+
+
 @dataclass(frozen=True)
 class SegmentResidual:
     """Residual statistics (measured - model) of one segment for one sensor.
@@ -54,6 +60,10 @@ class SegmentResidual:
     std: tuple[float, float, float]
     n: int
 
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as a dict (`dataclasses.asdict` without its deep copy)."""
+        return _fields_dict(self)
+
 
 @dataclass(frozen=True)
 class StepRecord:
@@ -63,6 +73,14 @@ class StepRecord:
     settings: dict[str, Any] = field(default_factory=dict)
     statistics: dict[str, Any] = field(default_factory=dict)
     software_version: str = __version__
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as a dict (`dataclasses.asdict` without its deep copy).
+
+        `settings` and `statistics` (which can hold long lists, e.g. the indices of
+        flagged samples) are the record's own dicts, not copies.
+        """
+        return _fields_dict(self)
 
 
 @dataclass(frozen=True)
@@ -74,6 +92,10 @@ class CheckResult:
     limit: float | None
     passed: bool
     detail: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as a dict (`dataclasses.asdict` without its deep copy)."""
+        return _fields_dict(self)
 
 
 @dataclass
@@ -154,7 +176,7 @@ class Calibration:
                 n: {"value": p.value, "std": p.std, "unit": p.unit}
                 for n, p in sorted(self.parameters.items())
             },
-            "residuals": [asdict(r) for r in self.residuals],
+            "residuals": [r.to_dict() for r in self.residuals],
             "warnings": list(self.warnings),
             "info": self.info,
         }

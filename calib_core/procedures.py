@@ -159,7 +159,8 @@ def _solve_statics(
 
     for label in STATIC_LABELS:
         rec = segments[label]
-        f = np.broadcast_to(axis_vector(label, gravity), rec.acc.shape)
+        # The true specific force is constant over a static: a (3,) model, not one per sample.
+        f = axis_vector(label, gravity)
         cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
         cal.residuals.append(segment_residual(label, "gyr", rec.gyr, _gyr_static_model(cal, f)))
 
@@ -260,7 +261,7 @@ def solve_six_position_integral(
     # The accelerometer sees g along the rotation axis throughout a rotation.
     for label in rotations:
         rec = segments[label]
-        f = np.broadcast_to(axis_vector(label, gravity), rec.acc.shape)
+        f = axis_vector(label, gravity)  # constant over the rotation: a (3,) model
         cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
         cal.info["sample_counts"][label] = len(rec)
     return cal

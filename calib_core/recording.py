@@ -67,12 +67,22 @@ class Recording:
         return float(1.0 / np.median(np.diff(self.t)))
 
     def window(self, start: float, end: float, label: str | None = None) -> Recording:
-        """Samples with start <= t < end (s), as a new Recording."""
+        """Samples with start <= t < end (s), as a new Recording.
+
+        Where those samples are one contiguous run (always, for increasing t),
+        the new Recording's arrays are views of this one's (no copy, as
+        `select` with a slice); otherwise copies.
+        """
         keep = (self.t >= start) & (self.t < end)
+        idx = np.flatnonzero(keep)
+        if idx.size == 0:
+            return self.select(slice(0, 0), label=label)
+        if idx[-1] - idx[0] + 1 == idx.size:
+            return self.select(slice(int(idx[0]), int(idx[-1]) + 1), label=label)
         return self.select(keep, label=label)
 
-    def select(self, mask_or_index: np.ndarray, label: str | None = None) -> Recording:
-        """Samples picked by a boolean mask or an index array."""
+    def select(self, mask_or_index: np.ndarray | slice, label: str | None = None) -> Recording:
+        """Samples picked by a boolean mask, an index array or a slice (views, no copy)."""
         idx = mask_or_index
         return replace(
             self,

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy import integrate, stats
 
 
@@ -29,19 +30,27 @@ def integrated_autocorrelation_time(x: np.ndarray, c: float = 5.0) -> float:
     c : window constant (Sokal recommends ~5).
     """
     x = np.asarray(x, dtype=float)
-    n = x.shape[0]
-    if n < 8:
+    if x.shape[0] < 8:
         return 1.0
-    d = x - x.mean()
-    var = float(d @ d) / n
-    if var == 0.0:
+    return _centred_iat(x - x.mean(), c)
+
+
+def _centred_iat(d: np.ndarray, c: float = 5.0) -> float:
+    """`integrated_autocorrelation_time` of a centred series d (N >= 8)."""
+    n = d.shape[0]
+    sum_sq = float(d @ d)
+    if sum_sq == 0.0:
         return 1.0
-    # Autocorrelation by FFT, zero-padded so it is not circular.
-    size = 1 << int(np.ceil(np.log2(2 * n)))
-    spec = np.fft.rfft(d, size)
-    acf = np.fft.irfft(spec * np.conj(spec), size)[:n] / (n * var)
-    if abs(acf[1]) < 3.0 / np.sqrt(n):
+    # rho_1 by one dot product: the white-noise test needs no more, and a white
+    # series (the usual static record) is then done without any FFT.
+    rho_1 = float(d[:-1] @ d[1:]) / sum_sq
+    if abs(rho_1) < 3.0 / np.sqrt(n):
         return 1.0
+    # All lags by FFT, zero-padded to >= 2N - 1 so it is not circular; a 5-smooth
+    # length (scipy's next_fast_len) instead of the next power of two, one thread.
+    size = sp_fft.next_fast_len(2 * n - 1, real=True)
+    spec = sp_fft.rfft(d, size, workers=1)
+    acf = sp_fft.irfft(spec.real**2 + spec.imag**2, size, workers=1)[:n] / sum_sq
     taus = 1.0 + 2.0 * np.cumsum(acf[1:])
     lags = np.arange(1, n)
     window = np.nonzero(lags >= c * taus)[0]
@@ -66,6 +75,38 @@ def effective_sample_size(x: np.ndarray) -> np.ndarray:
     return np.array([x.shape[0] / integrated_autocorrelation_time(col) for col in x.T])
 
 
+def column_mean_std(
+    x: np.ndarray | list[np.ndarray], ddof: int = 1
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Mean and std of each column of x, and the centred columns.
+
+    Column by column rather than ``x.mean(axis=0)`` / ``x.std(axis=0)``: a
+    reduction along axis 0 of an (N, 3) array sums row after row in an inner
+    loop of 3, ~10x slower than summing one (strided) column, and without
+    NumPy's pairwise summation, so these sums are also the more accurate ones.
+
+    Parameters
+    ----------
+    x : (N, k) samples, or the k columns as a list of (N,) arrays.
+    ddof : delta degrees of freedom of the std (N - ddof in the denominator).
+
+    Returns
+    -------
+    (mean (k,), std (k,), [centred column (N,), ...]).
+    """
+    if isinstance(x, list):
+        cols = [np.asarray(col, dtype=float) for col in x]
+    else:
+        x = np.asarray(x, dtype=float)
+        cols = [x[:, j] for j in range(x.shape[1])]
+    n = cols[0].shape[0] if cols else 0
+    mean = np.array([col.mean() for col in cols])
+    centred = [col - m for col, m in zip(cols, mean, strict=True)]
+    # As NumPy's std: N <= ddof gives nan (0 / 0) with a RuntimeWarning, no exception.
+    std = np.sqrt(np.array([d @ d for d in centred]) / max(n - ddof, 0))
+    return mean, std, centred
+
+
 @dataclass(frozen=True)
 class ChannelStats:
     """Per-channel statistics of a static stretch.
@@ -88,9 +129,10 @@ def channel_stats(x: np.ndarray) -> ChannelStats:
     n = x.shape[0]
     if n < 2:
         raise ValueError(f"need at least 2 samples for a mean and its uncertainty, got {n}")
-    std = x.std(axis=0, ddof=1)
-    n_eff = effective_sample_size(x)
-    return ChannelStats(x.mean(axis=0), std, std / np.sqrt(n_eff), n_eff, n)
+    mean, std, centred = column_mean_std(x, ddof=1)
+    # The centred columns serve the autocorrelation too (effective_sample_size).
+    n_eff = np.array([n / (_centred_iat(d) if n >= 8 else 1.0) for d in centred])
+    return ChannelStats(mean, std, std / np.sqrt(n_eff), n_eff, n)
 
 
 def trapezoid_weights(t: np.ndarray) -> np.ndarray:

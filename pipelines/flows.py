@@ -60,18 +60,13 @@ def _worker_processes() -> WorkerProcesses | None:
     return _batch_workers.get()
 
 
-def _import_pipeline() -> None:
-    """A worker's first call: load the pipeline while the flow is still starting."""
-    import pipelines.run_task  # noqa: F401
-
-
 @contextlib.contextmanager
 def _work_in_processes(runner: str, workers: int | None) -> Iterator[None]:
     """With the process runner, the batch's tasks hand their runs to worker processes."""
     if runner != "process":
         yield
         return
-    pool = WorkerProcesses(workers or default_workers(), warm_up=_import_pipeline)
+    pool = WorkerProcesses(workers or default_workers(), preload=("pipelines.run_task",))
     token = _batch_workers.set(pool)
     try:
         yield
@@ -198,8 +193,6 @@ def process_batch(
     """
     check_runner(runner, workers, scheduler)
     logger = get_run_logger()
-    arch = resolve_archive(archive)
-    arch.upgrade()  # once, before any worker archives
     outcomes: list[dict[str, Any]] = []
     sources: list[RunSource] = []
     for p in paths:
@@ -215,16 +208,19 @@ def process_batch(
         runner,
         f" at {scheduler}" if scheduler else "",
     )
-    progress_id = create_progress_artifact(
-        progress=0.0, key="batch-progress", description=f"Runs of {len(sources)} processed (%)"
-    )
-    callback = _progress_callback()
     results: dict[int, dict[str, Any]] = {}
-    with (
-        _api_for_workers(runner),
-        _work_in_processes(runner, workers),  # closed after the task runner, which waits
-        make_task_runner(runner, workers, scheduler) as task_runner,
-    ):
+    with contextlib.ExitStack() as stack:
+        if sources:  # worker processes first: they start while the archive gets ready
+            stack.enter_context(_work_in_processes(runner, workers))
+        arch = resolve_archive(archive)
+        arch.upgrade()  # once, before any worker archives
+        progress_id = create_progress_artifact(
+            progress=0.0, key="batch-progress", description=f"Runs of {len(sources)} processed (%)"
+        )
+        callback = _progress_callback()
+        stack.enter_context(_api_for_workers(runner))
+        # Entered last, so left first: it waits for its tasks before the workers stop.
+        task_runner = stack.enter_context(make_task_runner(runner, workers, scheduler))
         futures = [
             task_runner.submit(
                 process_run_task,

@@ -11,6 +11,7 @@ import dataclasses
 import logging
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -38,7 +39,7 @@ from pipelines.ingest.errors import IngestError
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
-from storage import queries
+from storage import queries, rawstore
 from storage.archive import ArchiveResult, RawFileIn, RunIn, archive_run, raw_hash_of, run_id_of
 from storage.db import Archive
 
@@ -256,23 +257,30 @@ def preprocess(
 
 def samples_table(segments: dict[str, Recording]) -> pa.Table:
     """All segments' samples as one Arrow table (segment, t, acc_*, gyr_*, temp), SI units."""
-    cols: dict[str, list[np.ndarray]] = {
-        k: []
-        for k in ("segment", "t", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z", "temp")
-    }
-    for label, rec in segments.items():
-        n = len(rec)
-        cols["segment"].append(np.full(n, label, dtype=object))
+    names = ("t", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z", "temp")
+    if not segments:
+        return pa.table({k: np.array([]) for k in ("segment", *names)})
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in names}
+    for rec in segments.values():
         cols["t"].append(rec.t)
         for i, a in enumerate("xyz"):
             cols[f"acc_{a}"].append(rec.acc[:, i])
             cols[f"gyr_{a}"].append(rec.gyr[:, i])
-        cols["temp"].append(np.full(n, np.nan) if rec.temp is None else rec.temp)
-    return pa.table({k: np.concatenate(v) if v else np.array([]) for k, v in cols.items()})
+        cols["temp"].append(np.full(len(rec), np.nan) if rec.temp is None else rec.temp)
+    # The label column from one code per sample and the labels once (a string per
+    # sample built in Python costs more than all the numeric columns together);
+    # decoded to plain strings, so the table and its Parquet file are as before.
+    codes = np.repeat(
+        np.arange(len(segments), dtype=np.int32), [len(rec) for rec in segments.values()]
+    )
+    label = pa.DictionaryArray.from_arrays(codes, pa.array(list(segments), pa.string()))
+    return pa.table(
+        {"segment": label.cast(pa.string()), **{k: np.concatenate(v) for k, v in cols.items()}}
+    )
 
 
 def _check_dicts(checks: list[CheckResult]) -> list[dict[str, Any]]:
-    return [dataclasses.asdict(c) for c in checks]
+    return [c.to_dict() for c in checks]
 
 
 def run_outcome(
@@ -410,9 +418,13 @@ def process_run(
     """
     where = str(source.folder)
     serial = source.serial or ""
+    # The raw files are copied towards the archive's object store as they are hashed
+    # at ingest, and archive_run commits those copies: each file is read and hashed
+    # once. Whatever is not archived (a failed run, a duplicate) is deleted on close.
+    pending = rawstore.PendingFiles()
     try:
         started = time.perf_counter()
-        loaded = load_run(source)
+        loaded = load_run(source, hash_file=partial(pending.stage_raw, archive.root))
         m = loaded.manifest
         serial = m.unit.serial
         ingest_step = StepRecord(
@@ -461,6 +473,7 @@ def process_run(
             }
             for p in sorted(cal.parameters.values(), key=lambda p: p.name)
         ]
+        check_dicts = _check_dicts(checks)
         protocol_name = f"{serial}_result.txt"
         protocol_text = render_protocol(
             device_model=m.unit.model,
@@ -472,7 +485,7 @@ def process_run(
             gravity=cal.gravity,
             operator=m.run.operator,
             parameters=params,
-            checks=_check_dicts(checks),
+            checks=check_dicts,
             verdict=verdict_,
         )
         result: ArchiveResult = archive_run(
@@ -497,21 +510,24 @@ def process_run(
                 settings=settings,
                 software_version=SOFTWARE_VERSION,
                 source_revision=source_revision(),
-                steps=[dataclasses.asdict(s) for s in steps],
+                steps=[s.to_dict() for s in steps],
                 calibration=cal.to_dict(),
                 parameters=params,
-                checks=_check_dicts(checks),
+                checks=check_dicts,
                 verdict=verdict_,
                 profile_name=profile.name,
                 profile_version=profile.version,
                 samples=samples_table(loaded.segments),
             ),
             extra_files={protocol_name: protocol_text.encode()},
+            pending=pending,
         )
     except Exception as exc:
         if reraise is not None and reraise(exc):
             raise
         return _failed(where, serial, exc)
+    finally:
+        pending.close()
     status = "duplicate" if result.status == "duplicate" else "ok"
     protocol_path = result.files.get(protocol_name)
     return run_outcome(

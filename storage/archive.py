@@ -12,6 +12,7 @@ profile) and the software version:
 
 Order of writes: raw objects (content-addressed, harmless if orphaned), the
 samples Parquet file and the extra files (protocol...) into the run folder,
+all made durable (fsync, rename, fsync of their folders: `rawstore.PendingFiles`),
 then all rows in one transaction. If the transaction fails, the files this
 attempt created in the run folder are removed again. Concurrent archiving of
 the same run is resolved by the database's unique constraints: the loser gets
@@ -31,7 +32,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import pyarrow as pa
-from sqlalchemy import Engine, func, select
+from sqlalchemy import Engine, func, insert, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -39,6 +40,7 @@ from storage import rawstore
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.schema import (
+    Base,
     CalibrationRow,
     CheckResultRow,
     Device,
@@ -284,7 +286,11 @@ class _PlanChangedError(Exception):
 
 
 def archive_run(
-    archive: Archive, run: RunIn, extra_files: dict[str, bytes] | None = None
+    archive: Archive,
+    run: RunIn,
+    extra_files: dict[str, bytes] | None = None,
+    *,
+    pending: rawstore.PendingFiles | None = None,
 ) -> ArchiveResult:
     """Archive a processed run (idempotent; see the module docstring).
 
@@ -294,6 +300,9 @@ def archive_run(
     run : the run, its processing and results.
     extra_files : file name -> bytes written into the run folder (revision 1)
         or its ``revision-<n>`` subfolder, e.g. the test protocol.
+    pending : where the run's files are queued and committed; raw files the
+        caller staged there at ingest (`rawstore.PendingFiles.stage_raw`) are
+        stored without another read. The caller closes it. None: one of its own.
 
     Returns
     -------
@@ -318,6 +327,8 @@ def archive_run(
     created: list[Path] = []  # files/folders this call created, removed again on failure
     plan: _Plan | None = None
     last_error: Exception | None = None
+    own = pending is None
+    pending = rawstore.PendingFiles() if pending is None else pending
     try:
         for attempt in range(_MAX_ATTEMPTS):
             with Session(engine) as session:
@@ -328,7 +339,7 @@ def archive_run(
                 break  # the database state did not change: the error is in this run's data
             plan = new_plan
             rdir = new_run_dir if plan.run_dir is None else root / plan.run_dir
-            written = _write_files(root, run, run_id, rdir, plan, extra_files, created)
+            written = _write_files(root, run, run_id, rdir, plan, extra_files, created, pending)
             _pause_point("files")
             try:
                 cal_id = _write_rows(
@@ -346,6 +357,9 @@ def archive_run(
     except BaseException:
         _cleanup(created)
         raise
+    finally:
+        if own:
+            pending.close()
 
 
 def _pause_point(stage: str) -> None:
@@ -406,24 +420,29 @@ def _write_files(
     plan: _Plan,
     extra_files: dict[str, bytes],
     created: list[Path],
+    pending: rawstore.PendingFiles,
 ) -> _Written:
-    """Raw objects, samples (new runs only) and extra files, each written atomically."""
+    """Raw objects, samples (new runs only) and extra files, durable on return.
+
+    All are queued in `pending` and committed together (`rawstore.PendingFiles`).
+    """
     for f in run.raw_files:
-        rawstore.store_raw(root, Path(f.path), f.sha256)
+        rawstore.store_raw(root, Path(f.path), f.sha256, pending)
     samples = None
     if plan.run_pk is None and run.samples is not None:
         day = run.started_at.astimezone(UTC)
         path = rawstore.samples_path(root, run.serial, day, run_id)
         _note_new(path, created)
-        rawstore.store_samples(root, run.serial, day, run_id, run.samples)
-        samples = (path.relative_to(root).as_posix(), rawstore.sha256_file(path))
+        path, sha = rawstore.write_samples(pending, root, run.serial, day, run_id, run.samples)
+        samples = (path.relative_to(root).as_posix(), sha)
     # Later revisions get their own folder: an archived file is never overwritten.
     target = rdir if plan.revision == 1 else rdir / f"revision-{plan.revision}"
     _note_new(target, created)
     files = {}
     for name, data in extra_files.items():
-        rawstore.write_atomic(target / name, data)
+        pending.write_bytes(target / name, data)
         files[name] = target / name
+    pending.commit()
     return _Written(files, samples)
 
 
@@ -476,42 +495,54 @@ def _write_rows(
         s.flush()
         if plan.previous_id is not None:
             s.get(CalibrationRow, plan.previous_id).superseded_by = cal.id
-        s.add_all(
-            ProcessingStep(
-                run_id=run_pk,
-                calibration_id=cal.id,
-                seq=i,
-                name=st["name"],
-                settings=st.get("settings", {}),
-                statistics=st.get("statistics", {}),
-                software_version=st.get("software_version", run.software_version),
-                source_revision=run.source_revision,
-            )
-            for i, st in enumerate(run.steps)
+        _insert_many(
+            s,
+            ProcessingStep,
+            [
+                {
+                    "run_id": run_pk,
+                    "calibration_id": cal.id,
+                    "seq": i,
+                    "name": st["name"],
+                    "settings": st.get("settings", {}),
+                    "statistics": st.get("statistics", {}),
+                    "software_version": st.get("software_version", run.software_version),
+                    "source_revision": run.source_revision,
+                }
+                for i, st in enumerate(run.steps)
+            ],
         )
-        s.add_all(
-            ParameterRow(
-                calibration_id=cal.id,
-                name=p["name"],
-                value=p["value"],
-                std=p.get("std"),
-                unit=p.get("unit", ""),
-                temperature_c=p.get("temperature_c"),
-            )
-            for p in run.parameters
+        _insert_many(
+            s,
+            ParameterRow,
+            [
+                {
+                    "calibration_id": cal.id,
+                    "name": p["name"],
+                    "value": p["value"],
+                    "std": p.get("std"),
+                    "unit": p.get("unit", ""),
+                    "temperature_c": p.get("temperature_c"),
+                }
+                for p in run.parameters
+            ],
         )
-        s.add_all(
-            CheckResultRow(
-                calibration_id=cal.id,
-                name=c["name"],
-                value=c.get("value"),
-                limit=c.get("limit"),
-                passed=c["passed"],
-                detail=c.get("detail", ""),
-                profile_name=run.profile_name,
-                profile_version=run.profile_version,
-            )
-            for c in run.checks
+        _insert_many(
+            s,
+            CheckResultRow,
+            [
+                {
+                    "calibration_id": cal.id,
+                    "name": c["name"],
+                    "value": c.get("value"),
+                    "limit": c.get("limit"),
+                    "passed": c["passed"],
+                    "detail": c.get("detail", ""),
+                    "profile_name": run.profile_name,
+                    "profile_version": run.profile_version,
+                }
+                for c in run.checks
+            ],
         )
         s.flush()
         _pause_point("commit")
@@ -563,19 +594,32 @@ def _insert_run(
                 calibrated_on=_as_date(eq.get("calibrated_on"), f"equipment[{i}]"),
             )
         )
-    s.add_all(
-        RawFile(
-            run_id=row.id,
-            name=f.name,
-            sha256=f.sha256,
-            size=f.size,
-            format=f.format,
-            stored_path=rawstore.object_path(Path("."), f.sha256).as_posix(),
-        )
-        for f in run.raw_files
+    _insert_many(
+        s,
+        RawFile,
+        [
+            {
+                "run_id": row.id,
+                "name": f.name,
+                "sha256": f.sha256,
+                "size": f.size,
+                "format": f.format,
+                "stored_path": rawstore.object_path(Path("."), f.sha256).as_posix(),
+            }
+            for f in run.raw_files
+        ],
     )
-    s.flush()
     return row.id
+
+
+def _insert_many(s: Session, model: type[Base], rows: list[dict[str, Any]]) -> None:
+    """INSERT the rows in one executemany (ORM bulk insert).
+
+    The tens of step, parameter and check rows of a run need no ORM objects,
+    whose bookkeeping cost more than the SQL.
+    """
+    if rows:  # an empty parameter list would insert one row of defaults
+        s.execute(insert(model), rows)
 
 
 def _equipment_id(s: Session, eq: dict[str, Any]) -> int:

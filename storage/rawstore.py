@@ -9,15 +9,26 @@ Layout under the file store root::
 Every write goes to a temporary file in the destination directory and is then
 renamed over the target (``os.replace`` is atomic on one file system), so a
 crash leaves either the old state or the new file, never half a file.
+
+The files of one archived run go through `PendingFiles`: written under temporary
+names, fsynced on a background I/O thread while the caller goes on, then
+renamed into place together and their directories fsynced, so all of them are
+durable before the database transaction that refers to them. `stage_raw` puts
+a raw file there while it is first read and hashed (at ingest), so archiving it
+later needs no second read or hash.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import hashlib
 import os
 import shutil
 import tempfile
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow as pa
@@ -27,6 +38,7 @@ import pyarrow.parquet as pq
 from storage.naming import check_safe_name
 
 _CHUNK = 1 << 20
+ZSTD_LEVEL = -1  # of the samples Parquet files (write_samples)
 # Hive partition columns are read as strings: inferred types would turn serial "0012" into 12.
 SAMPLES_PARTITIONING = pa.schema([("serial", pa.string()), ("date", pa.string())])
 
@@ -38,13 +50,24 @@ def object_path(root: Path, sha256: str) -> Path:
     return Path(root) / "objects" / sha256[:2] / sha256
 
 
+def _chunks(path: Path) -> Iterator[memoryview]:
+    """The bytes of a file in 1 MiB chunks, read into one reused buffer.
+
+    Each chunk is a view of that buffer: valid until the next one is asked for.
+    """
+    buf = bytearray(_CHUNK)
+    view = memoryview(buf)
+    with open(path, "rb", buffering=0) as f:
+        while n := f.readinto(buf):
+            yield view[:n]
+
+
 def hash_and_size(path: Path) -> tuple[str, int]:
     """(SHA-256 hex digest, size in bytes) of a file, read in 1 MiB chunks."""
     h, n = hashlib.sha256(), 0
-    with open(path, "rb") as f:
-        while chunk := f.read(_CHUNK):
-            h.update(chunk)
-            n += len(chunk)
+    for chunk in _chunks(path):
+        h.update(chunk)
+        n += len(chunk)
     return h.hexdigest(), n
 
 
@@ -74,6 +97,25 @@ def write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
+def _copy_hashing(src: Path, fd: int) -> tuple[str, int]:
+    """Copy the bytes of `src` into the open file `fd` (not closed); return (sha256, size)."""
+    h, n = hashlib.sha256(), 0
+    with os.fdopen(fd, "wb", closefd=False) as fout:  # buffered: loops over short writes
+        for chunk in _chunks(src):
+            h.update(chunk)
+            n += len(chunk)
+            fout.write(chunk)
+    return h.hexdigest(), n
+
+
+def _check_hash(src: Path, got: str, expected: str | None) -> None:
+    if expected is not None and got != expected:
+        raise ValueError(
+            f"raw file {src}: content hashes to {got}, expected "
+            f"{expected} (was the file changed after it was read?)"
+        )
+
+
 def copy_atomic(src: Path, dest: Path, expected_sha256: str | None = None) -> tuple[str, int]:
     """Copy `src` to `dest` through a temporary file beside it + rename, hashing on the way.
 
@@ -81,37 +123,221 @@ def copy_atomic(src: Path, dest: Path, expected_sha256: str | None = None) -> tu
     stores nothing and raises ValueError naming the file.
     """
     fd, tmp = _temp_beside(Path(dest))
-    h, n = hashlib.sha256(), 0
     try:
-        with open(src, "rb") as fin, os.fdopen(fd, "wb") as fout:
-            while chunk := fin.read(_CHUNK):
-                h.update(chunk)
-                n += len(chunk)
-                fout.write(chunk)
-            fout.flush()
-            os.fsync(fout.fileno())
-        if expected_sha256 is not None and h.hexdigest() != expected_sha256:
-            raise ValueError(
-                f"raw file {src}: content hashes to {h.hexdigest()}, expected "
-                f"{expected_sha256} (was the file changed after it was read?)"
-            )
+        try:
+            sha, n = _copy_hashing(src, fd)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        _check_hash(src, sha, expected_sha256)
         os.replace(tmp, dest)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    return h.hexdigest(), n
+    return sha, n
 
 
-def store_raw(root: Path, src: Path, sha256: str) -> Path:
+def _fsync_close(fd: int) -> None:
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a directory's entries (files renamed into it, new subfolders) durable."""
+    _fsync_close(os.open(path, os.O_RDONLY))
+
+
+def _make_dirs(path: Path) -> set[Path]:
+    """``mkdir -p path``; return the folders that got a new entry (parents of new folders)."""
+    missing: list[Path] = []
+    p = path
+    while not p.is_dir() and p.parent != p:
+        missing.append(p)
+        p = p.parent
+    if missing:
+        path.mkdir(parents=True, exist_ok=True)
+    return {m.parent for m in missing}
+
+
+@dataclass
+class _Pending:
+    tmp: Path
+    keep_existing: bool  # content-addressed: an existing target is never replaced
+    synced: Future[None]
+
+
+class PendingFiles:
+    """Files written under temporary names, then made durable and visible together.
+
+    Each file goes to a temporary file in its target's folder (``.<name>.*.tmp``,
+    skipped by readers and backups, an orphan to `verify`), except raw files
+    staged before their hash is known (`stage_raw`), which wait in ``objects/``.
+    Its fsync starts at once on a background I/O thread, so the disk writes one
+    file while the caller prepares the next one (or parses and solves the run)
+    instead of waiting for each in turn. `commit` waits for those fsyncs, renames
+    every file to its target (atomic) and fsyncs each folder that got a new
+    entry: on return the files are durable under their names, ready for database
+    rows to refer to them. `close` (also on leaving a ``with`` block) deletes
+    whatever was not committed. Not thread-safe: one owner.
+    """
+
+    def __init__(self) -> None:
+        self._pending: dict[Path, _Pending] = {}  # target -> its temporary file
+        self._dirs: set[Path] = set()  # folders to fsync at the commit
+        self._io: ThreadPoolExecutor | None = None
+
+    def __enter__(self) -> PendingFiles:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def __contains__(self, target: Path) -> bool:
+        return Path(target) in self._pending
+
+    def _temp(self, folder: Path, name: str) -> tuple[int, Path]:
+        self._dirs |= _make_dirs(folder)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
+        return fd, Path(tmp)
+
+    def _queue(self, fd: int, tmp: Path, target: Path, *, keep_existing: bool = False) -> None:
+        """Queue `tmp`, written through `fd` (closed here, after its fsync), for `target`."""
+        try:
+            if self._io is None:
+                self._io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-fsync")
+            synced = self._io.submit(_fsync_close, fd)
+        except BaseException:
+            os.close(fd)
+            tmp.unlink(missing_ok=True)
+            raise
+        _discard(self._pending.pop(target, None))
+        self._pending[target] = _Pending(tmp, keep_existing, synced)
+
+    def _write(self, target: Path, write: Callable[[int, Path], None]) -> Path:
+        """A temporary file for `target`, filled by ``write(fd, tmp)``, then queued."""
+        target = Path(target)
+        fd, tmp = self._temp(target.parent, target.name)
+        try:
+            write(fd, tmp)
+        except BaseException:
+            os.close(fd)
+            tmp.unlink(missing_ok=True)
+            raise
+        self._queue(fd, tmp, target)
+        return tmp
+
+    def write_bytes(self, target: Path, data: bytes) -> None:
+        """Queue `data` as the content of `target`."""
+
+        def write(fd: int, tmp: Path) -> None:
+            with os.fdopen(fd, "wb", closefd=False) as f:
+                f.write(data)
+
+        self._write(target, write)
+
+    def write_file(self, target: Path, write: Callable[[Path], None]) -> tuple[str, int]:
+        """Queue the file that ``write(path)`` writes for `target`; return its (sha256, size)."""
+        tmp = self._write(target, lambda fd, tmp: write(tmp))
+        return hash_and_size(tmp)
+
+    def copy(self, src: Path, target: Path, expected_sha256: str | None = None) -> tuple[str, int]:
+        """Queue a copy of `src` for `target`, hashed on the way; return (sha256, size).
+
+        With `expected_sha256`, a mismatch queues nothing and raises ValueError naming the file.
+        """
+        result: list[tuple[str, int]] = []
+
+        def write(fd: int, tmp: Path) -> None:
+            result.append(_copy_hashing(src, fd))
+            _check_hash(src, result[0][0], expected_sha256)
+
+        self._write(target, write)
+        return result[0]
+
+    def stage_raw(self, root: Path, src: Path) -> tuple[str, int]:
+        """Copy a raw file towards the object store while hashing it; return (sha256, size).
+
+        The one read and hash of the file at ingest: the copy is the bytes that
+        hashed to the returned digest, and `commit` moves it to its content
+        address (`object_path`), so `store_raw` with this `PendingFiles` has
+        nothing left to read or verify. Nothing is kept when the object is
+        already stored.
+        """
+        objects = Path(root) / "objects"
+        fd, tmp = self._temp(objects, "incoming")
+        try:
+            sha, n = _copy_hashing(Path(src), fd)
+            target = object_path(root, sha)
+            stored = target.exists() or target in self  # stored (or staged) already
+            if not stored:
+                self._dirs |= _make_dirs(target.parent)
+        except BaseException:
+            os.close(fd)
+            tmp.unlink(missing_ok=True)
+            raise
+        if stored:
+            os.close(fd)
+            tmp.unlink(missing_ok=True)
+        else:
+            self._queue(fd, tmp, target, keep_existing=True)
+        return sha, n
+
+    def commit(self) -> None:
+        """Make every queued file durable under its target name (see the class docstring).
+
+        Raises the OSError of a failed write or fsync; the files not yet renamed
+        stay queued (and are deleted by `close`).
+        """
+        for item in self._pending.values():
+            item.synced.result()
+        for target, item in list(self._pending.items()):
+            if item.keep_existing and target.exists():
+                item.tmp.unlink(missing_ok=True)  # stored meanwhile: the same bytes
+            else:
+                os.replace(item.tmp, target)
+                self._dirs.add(target.parent)
+            del self._pending[target]
+        for folder in sorted(self._dirs):
+            _fsync_dir(folder)
+        self._dirs.clear()
+
+    def close(self) -> None:
+        """Delete the temporary files not committed; stop the I/O thread."""
+        for item in self._pending.values():
+            _discard(item)
+        self._pending.clear()
+        self._dirs.clear()
+        if self._io is not None:
+            self._io.shutdown(wait=True)
+            self._io = None
+
+
+def _discard(item: _Pending | None) -> None:
+    if item is None:
+        return
+    # Wait until its descriptor is closed; a failed fsync of a file thrown away does not matter.
+    with contextlib.suppress(Exception):
+        item.synced.result()
+    item.tmp.unlink(missing_ok=True)
+
+
+def store_raw(root: Path, src: Path, sha256: str, pending: PendingFiles | None = None) -> Path:
     """Copy a raw file into the content-addressed store; return the stored path.
 
     The hash is verified while copying: if the bytes of `src` do not hash to
     `sha256` nothing is stored and ValueError names the file. An object that is
-    already present is not written again.
+    already present (or staged in `pending` by `PendingFiles.stage_raw`) is not
+    written again. With `pending`, the copy is queued there (stored at its commit).
     """
     dest = object_path(root, sha256)
-    if not dest.exists():
+    if dest.exists() or (pending is not None and dest in pending):
+        return dest
+    if pending is None:
         copy_atomic(src, dest, sha256)
+    else:
+        pending.copy(src, dest, sha256)
     return dest
 
 
@@ -136,14 +362,30 @@ def samples_path(root: Path, serial: str, date: dt.date, run_id: str) -> Path:
 
 
 def store_samples(root: Path, serial: str, date: dt.date, run_id: str, table: pa.Table) -> Path:
-    """Write one run's samples as zstd Parquet, atomically; return the path.
+    """Write one run's samples as zstd Parquet, atomically and durably; return the path.
+
+    See `write_samples` for the encodings.
+    """
+    with PendingFiles() as pending:
+        path, _ = write_samples(pending, root, serial, date, run_id, table)
+        pending.commit()
+    return path
+
+
+def write_samples(
+    pending: PendingFiles, root: Path, serial: str, date: dt.date, run_id: str, table: pa.Table
+) -> tuple[Path, str]:
+    """Queue one run's samples as zstd Parquet in `pending`; return (path, sha256 of the file).
 
     Integer columns (timestamps as int64 ns) use DELTA_BINARY_PACKED, which
     stores a steady sample clock in a few bits per row; floating-point columns
     use BYTE_STREAM_SPLIT (noisy samples have nearly as many distinct values as
     rows, so a dictionary would cost ~5x the write time for no smaller file);
-    other columns (segment labels) are dictionary encoded. Partition columns
-    must not be in `table`.
+    other columns (segment labels) are dictionary encoded. zstd at level -1, its
+    fast mode: on a 1 kHz six-position run (9 columns, 192k rows) 25 ms instead
+    of 34 ms at the default level 1, for a 2 % larger file (8.6 instead of
+    8.4 MB; no compression: 12.3 MB); higher levels gain < 1 %. Partition
+    columns must not be in `table`.
     """
     for col in ("serial", "date"):
         if col in table.column_names:
@@ -153,14 +395,14 @@ def store_samples(root: Path, serial: str, date: dt.date, run_id: str, table: pa
         f.name for f in table.schema if pa.types.is_int64(f.type) or pa.types.is_timestamp(f.type)
     ]
     split_cols = [f.name for f in table.schema if pa.types.is_floating(f.type)]
-    fd, tmp = _temp_beside(path)
-    os.close(fd)
-    try:
+
+    def write(tmp: Path) -> None:
         try:
             pq.write_table(
                 table,
                 tmp,
                 compression="zstd",
+                compression_level=ZSTD_LEVEL,
                 use_dictionary=[
                     c for c in table.column_names if c not in delta_cols and c not in split_cols
                 ],
@@ -172,11 +414,9 @@ def store_samples(root: Path, serial: str, date: dt.date, run_id: str, table: pa
         except (pa.ArrowNotImplementedError, pa.ArrowInvalid):
             # An older pyarrow without that encoding: plain zstd is still correct.
             pq.write_table(table, tmp, compression="zstd")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+
+    sha, _ = pending.write_file(path, write)
+    return path, sha
 
 
 def read_samples(root: Path, serial: str | None = None) -> pa.Table:

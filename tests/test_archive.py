@@ -451,6 +451,36 @@ def test_raw_store_is_content_addressed_and_verified(tmp_path: Path) -> None:
     )
 
 
+def test_pending_files_store_the_staged_bytes_under_their_hash(tmp_path: Path) -> None:
+    """stage_raw copies a file while hashing it: the object committed is exactly the bytes
+    that gave its name, whatever happens to the source afterwards; nothing is visible before
+    the commit, and nothing of an uncommitted batch is left."""
+    root, src = tmp_path / "root", tmp_path / "raw.bin"
+    src.write_bytes(b"first")
+    sha = hashlib.sha256(b"first").hexdigest()
+    with rawstore.PendingFiles() as pending:
+        assert pending.stage_raw(root, src) == (sha, 5)
+        src.write_bytes(b"changed after it was read")
+        # staged already: store_raw has nothing left to read or verify
+        assert rawstore.store_raw(root, src, sha, pending) == rawstore.object_path(root, sha)
+        pending.write_bytes(root / "runs" / "a.txt", b"a")
+        assert not rawstore.object_path(root, sha).exists()
+        assert not (root / "runs" / "a.txt").exists()
+        pending.commit()
+    assert rawstore.object_path(root, sha).read_bytes() == b"first"
+    assert (root / "runs" / "a.txt").read_bytes() == b"a"
+
+    with rawstore.PendingFiles() as pending:
+        staged, _ = pending.stage_raw(root, src)
+        assert pending.stage_raw(root, rawstore.object_path(root, sha)) == (sha, 5)  # stored
+        pending.write_bytes(root / "runs" / "b.txt", b"b")
+        with pytest.raises(ValueError, match="hashes to"):
+            pending.copy(src, rawstore.object_path(root, "0" * 64), "0" * 64)
+    files = sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
+    assert files == sorted([rawstore.object_path(Path("."), sha).as_posix(), "runs/a.txt"])
+    assert not rawstore.object_path(root, staged).exists()
+
+
 def test_samples_parquet_uses_delta_timestamps_and_string_partitions(tmp_path: Path) -> None:
     t = pa.table(
         {

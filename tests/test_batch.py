@@ -185,7 +185,7 @@ def test_transient_failures_are_retried_and_a_permanent_one_isolated(
             calls[folder.name] = calls.get(folder.name, 0) + 1
             return calls[folder.name]
 
-    def load_run(source):
+    def load_run(source, **kwargs):
         n = count(source.folder)
         if source.folder == vanishing:
             away = vanishing.with_name("away")
@@ -193,7 +193,7 @@ def test_transient_failures_are_retried_and_a_permanent_one_isolated(
                 vanishing.rename(away)
             elif away.exists():  # ...and is back for the retry
                 away.rename(vanishing)
-        return real_load(source)
+        return real_load(source, **kwargs)
 
     def archive_run(archive, run, **kwargs):
         if run.serial == "BATCH13" or (run.serial == "BATCH11" and calls["run11"] == 1):

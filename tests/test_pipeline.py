@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -15,9 +16,12 @@ from sqlalchemy import func, select
 
 from calib_core.simulate import random_errors, six_position_integral_run
 from pipelines.flows import process_batch
+from pipelines.ingest import discover_runs
+from pipelines.process import process_run
 from pipelines.samples import six_position_manifest, write_csv_run, write_mpu6000_run
 from storage import schema
 from storage.db import resolve_archive
+from storage.verify import verify
 
 MANIFEST = six_position_manifest("SIM-CSV-1")
 
@@ -101,6 +105,33 @@ def test_batch_archives_good_runs_and_reports_the_bad_one(prefect_harness, lab_d
     assert [o["status"] for o in again] == ["duplicate", "duplicate"]
     assert all(o["run_id"] for o in again)
     assert _row_counts(arch) == counts
+
+
+def test_process_run_stores_each_raw_file_once_and_nothing_of_failed_runs(tmp_path):
+    """Raw files are copied towards the object store while they are hashed at ingest: an
+    archived run's objects are its raw files byte for byte; a run that fails after ingest,
+    or a duplicate, leaves no file behind (verify finds no orphan)."""
+    sim = _simulate(4)
+    good = write_csv_run(sim.segments, tmp_path / "good", MANIFEST).parent
+    bad_manifest = {**MANIFEST, "run": {**MANIFEST["run"], "settings": {"accel_solver": "bogus"}}}
+    bad = write_csv_run(sim.segments, tmp_path / "bad", bad_manifest).parent
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+
+    def stored() -> list[Path]:
+        return sorted(p for p in (arch.root / "objects").rglob("*") if p.is_file())
+
+    failed = process_run(discover_runs([bad])[0], arch)
+    assert failed["status"] == "failed" and "accel_solver" in failed["error"], failed
+    assert stored() == []
+
+    assert process_run(discover_runs([good])[0], arch)["status"] == "ok"
+    raw = {hashlib.sha256((good / n).read_bytes()).hexdigest() for n in ("run.toml", "imu.csv")}
+    assert {p.name for p in stored()} == raw
+    assert all(hashlib.sha256(p.read_bytes()).hexdigest() == p.name for p in stored())
+    assert process_run(discover_runs([good])[0], arch)["status"] == "duplicate"
+    report = verify(arch)
+    assert report.ok and report.orphans == [], (report.problems, report.orphans)
 
 
 def _serials(arch) -> list[str]:

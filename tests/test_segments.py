@@ -180,3 +180,21 @@ def test_position_labels_by_gravity_not_order():
     )
     with pytest.raises(ValueError, match=r"pos7\.csv.*not a static face"):
         label_positions([tilted], g)
+
+
+def test_recording_window_is_a_view_when_contiguous():
+    """A time window of increasing t is a slice: its arrays share the recording's memory;
+    a window of scattered samples (t not monotonic) is a copy."""
+    n = 100
+    t = np.arange(n) / 10.0
+    rec = Recording(t, np.arange(3 * n, dtype=float).reshape(n, 3), np.ones((n, 3)), t + 20.0)
+    part = rec.window(2.0, 3.0, label="x_up")
+    assert part.label == "x_up" and np.array_equal(part.t, t[20:30])
+    assert all(np.shares_memory(a, b) for a, b in zip(
+        (part.t, part.acc, part.gyr, part.temp), (rec.t, rec.acc, rec.gyr, rec.temp), strict=True
+    ))  # fmt: skip
+    assert len(rec.window(50.0, 60.0)) == 0
+    twice = Recording(np.concatenate([t[:50], t[:50]]), rec.acc, rec.gyr)  # a clock restart
+    both = twice.window(2.0, 3.0)
+    picked = np.r_[20:30, 70:80]
+    assert np.array_equal(both.acc, rec.acc[picked]) and not np.shares_memory(both.acc, rec.acc)

@@ -11,7 +11,12 @@ from scipy.spatial.transform import Rotation
 from calib_core.simulate import STATIC_LABELS, axis_vector, random_errors
 from calib_core.solvers.multi_position import solve_accel_linear, solve_gyro_static
 from calib_core.solvers.six_position import accel_closed_form, accel_closed_form_std
-from calib_core.stats import channel_stats, effective_sample_size, largest_std
+from calib_core.stats import (
+    channel_stats,
+    effective_sample_size,
+    integrated_autocorrelation_time,
+    largest_std,
+)
 
 G = 9.80665
 
@@ -154,6 +159,25 @@ def test_effective_sample_size_white_and_correlated():
         x[k] = rho * x[k - 1] + e[k]
     # tau's estimator has relative std ~ sqrt(2 (2M + 1) / N) ~ 5 % at window M ~ 45: 4 of them.
     assert effective_sample_size(x) == pytest.approx(n / 9, rel=0.2)
+
+
+def test_autocorrelation_time_is_the_windowed_lag_sum():
+    """tau by FFT (zero-padded to a 5-smooth length) equals the direct sum over lags, and a
+    series with lag-1 autocorrelation within 3/sqrt(N) of zero is white (tau = 1 exactly)."""
+    rng = np.random.default_rng(21)
+    for n, rho in ((3001, 0.6), (4096, 0.95), (777, -0.5)):
+        e = rng.standard_normal(n)
+        x = np.empty(n)
+        x[0] = e[0]
+        for k in range(1, n):
+            x[k] = rho * x[k - 1] + e[k]
+        d = x - x.mean()
+        acf = np.array([d[: n - k] @ d[k:] for k in range(n)]) / (d @ d)
+        taus = 1.0 + 2.0 * np.cumsum(acf[1:])
+        window = np.nonzero(np.arange(1, n) >= 5.0 * taus)[0]
+        expected = max(taus[window[0]] if window.size else taus[-1], 1.0)
+        assert integrated_autocorrelation_time(x) == pytest.approx(expected, rel=1e-12)
+    assert integrated_autocorrelation_time(rng.standard_normal(5000)) == 1.0
 
 
 def test_sem_is_honest_for_filtered_data():

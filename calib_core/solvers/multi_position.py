@@ -39,7 +39,7 @@ from calib_core import params
 from calib_core.attitude import TABLE_AXES, specific_force, table_attitude
 from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.recording import Recording
-from calib_core.stats import channel_stats, largest_std
+from calib_core.stats import channel_stats, column_mean_std, largest_std
 from calib_core.units import DEG
 
 
@@ -444,14 +444,21 @@ def reference_force(
 def segment_residual(
     label: str, sensor: str, samples: np.ndarray, model: np.ndarray
 ) -> SegmentResidual:
-    """Residual statistics (measured - model) of one segment, per axis."""
-    r = np.asarray(samples) - model
+    """Residual statistics (measured - model) of one segment, per axis.
+
+    `model` is (N, 3), or (3,) for a model that is constant over the segment.
+    """
+    samples = np.asarray(samples, dtype=float)
+    model = np.asarray(model, dtype=float)
+    # Column by column: one (N,) subtraction per axis costs less than an (N, 3) one.
+    r = [samples[:, j] - model[..., j] for j in range(samples.shape[1])]
+    mean, std, _ = column_mean_std(r, ddof=1)
     return SegmentResidual(
         segment=label,
         sensor=sensor,
-        mean=tuple(float(v) for v in r.mean(axis=0)),
-        std=tuple(float(v) for v in r.std(axis=0, ddof=1)),
-        n=int(r.shape[0]),
+        mean=tuple(float(v) for v in mean),
+        std=tuple(float(v) for v in std),
+        n=int(samples.shape[0]),
     )
 
 

@@ -189,6 +189,10 @@ def sha256_file(path: Path) -> tuple[str, int]:
     return hash_and_size(Path(path))
 
 
+# (sha256, size) of a raw file, e.g. `sha256_file`.
+FileHasher = Callable[[Path], tuple[str, int]]
+
+
 def _sources_in(folder: Path) -> list[RunSource]:
     """Runs held directly by `folder` (not its subfolders)."""
     if (folder / MANIFEST_NAME).is_file():
@@ -245,22 +249,30 @@ def discover_runs(paths: list[Path], depth: int = 2) -> list[RunSource]:
     return sorted(found)
 
 
-def load_run(source: RunSource) -> LoadedRun:
+def load_run(source: RunSource, *, hash_file: FileHasher = sha256_file) -> LoadedRun:
     """Read a run: validate its manifest, read and cut its segments, hash its raw files.
+
+    Parameters
+    ----------
+    source : the run on disk.
+    hash_file : ``hash_file(path) -> (sha256, size)`` of each raw file, after the
+        file was read. `pipelines.process.process_run` passes
+        `storage.rawstore.PendingFiles.stage_raw`, which copies the file towards
+        the archive's object store while hashing it (one read and one hash per file).
 
     Raises
     ------
     IngestError naming the file, line or manifest field of the first problem.
     """
     if source.kind == "mpu6000":
-        return _load_mpu6000_folder(source.folder, source.serial)
+        return _load_mpu6000_folder(source.folder, source.serial, hash_file)
     manifest_path = source.folder / MANIFEST_NAME
     manifest = load_manifest(manifest_path)
     text = manifest_path.read_text(encoding="utf-8")
-    return _load_described(source.folder, manifest, text, manifest_path)
+    return _load_described(source.folder, manifest, text, manifest_path, hash_file)
 
 
-def _load_mpu6000_folder(folder: Path, serial: str | None) -> LoadedRun:
+def _load_mpu6000_folder(folder: Path, serial: str | None, hash_file: FileHasher) -> LoadedRun:
     runs = find_mpu6000_runs(folder, complete=False)
     if serial not in runs:
         raise IngestError(f"no MPU-6000 files of serial '{serial}'", file=folder)
@@ -281,7 +293,7 @@ def _load_mpu6000_folder(folder: Path, serial: str | None) -> LoadedRun:
             "segments": [{"label": label, "file": p.name} for label, p in files.items()],
         }
     )
-    return _load_described(folder, manifest, None, None)
+    return _load_described(folder, manifest, None, None, hash_file)
 
 
 def _mpu6000_segments(folder: Path, manifest: RunManifest, source: str) -> list[SegmentSpec]:
@@ -299,7 +311,11 @@ def _mpu6000_segments(folder: Path, manifest: RunManifest, source: str) -> list[
 
 
 def _load_described(
-    folder: Path, manifest: RunManifest, text: str | None, manifest_path: Path | None
+    folder: Path,
+    manifest: RunManifest,
+    text: str | None,
+    manifest_path: Path | None,
+    hash_file: FileHasher,
 ) -> LoadedRun:
     """Read the segments a manifest describes (real or synthesised)."""
     source = str(manifest_path or folder)
@@ -313,7 +329,7 @@ def _load_described(
     raw_files: list[RawFile] = []
     if manifest_path is not None:
         raw_files.append(
-            RawFile(manifest_path, MANIFEST_NAME, *sha256_file(manifest_path), "manifest")
+            RawFile(manifest_path, MANIFEST_NAME, *hash_file(manifest_path), "manifest")
         )
 
     out: dict[str, Recording] = {}
@@ -350,7 +366,7 @@ def _load_described(
             for name, path in zip(names, paths, strict=True):
                 if name not in hashed:
                     hashed.add(name)
-                    raw_files.append(RawFile(path, name, *sha256_file(path), kind))
+                    raw_files.append(RawFile(path, name, *hash_file(path), kind))
         out[seg.label] = _cut(recordings[key], seg, i, source)
     return LoadedRun(
         folder=folder,
