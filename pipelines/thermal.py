@@ -33,6 +33,7 @@ from calib_core.calibration import Calibration, StepRecord
 from calib_core.recording import Recording
 from pipelines.ingest import IngestError, RunSource, discover_runs, load_run, read_mpu6000_file
 from pipelines.ingest.mpu6000 import parse_file_name
+from pipelines.process import samples_table
 from storage import queries
 from storage import thermal as thermal_store
 from storage.db import Archive
@@ -251,20 +252,6 @@ def calibrate_segments(
     )
 
 
-def segments_table(segments: dict[str, Recording]) -> pa.Table:
-    """segment, t, acc_x..z (m/s^2), gyr_x..z (rad/s), temp (deg C) of every segment."""
-    names = ["segment", "t", *(f"{s}_{a}" for s in ("acc", "gyr") for a in params.AXES), "temp"]
-    cols: dict[str, list[np.ndarray]] = {k: [] for k in names}
-    for label, rec in segments.items():
-        cols["segment"].append(np.full(len(rec), label, dtype=object))
-        cols["t"].append(rec.t)
-        for i, a in enumerate(params.AXES):
-            cols[f"acc_{a}"].append(rec.acc[:, i])
-            cols[f"gyr_{a}"].append(rec.gyr[:, i])
-        cols["temp"].append(np.full(len(rec), np.nan) if rec.temp is None else rec.temp)
-    return pa.table({k: np.concatenate(v) for k, v in cols.items()})
-
-
 def write_samples(table: pa.Table, output: Path) -> Path:
     """Parquet for .parquet / .pq, CSV for .csv; anything else is refused."""
     output = Path(output)
@@ -293,7 +280,7 @@ def apply_calibration(
     cal, cal_temp, model, facts = load_compensation(archive, serial, at)
     segments, env_temp = read_input(Path(source), serial)
     done, step = calibrate_segments(segments, cal, cal_temp, model, env_temp)
-    write_samples(segments_table(done), Path(output))
+    write_samples(samples_table(done), Path(output))
     return {**facts, **step.statistics, "output": str(output)}
 
 
