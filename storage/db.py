@@ -10,6 +10,8 @@ One machine: a SQLite file and the file store under one root directory
 from __future__ import annotations
 
 import os
+import sqlite3
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -126,7 +128,7 @@ def _make_engine(url: str) -> Engine:
         cur.execute("PRAGMA foreign_keys=ON")
         cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
         if u.database and u.database != ":memory:":
-            cur.execute("PRAGMA journal_mode=WAL")
+            _enable_wal(cur)
         cur.close()
 
     @event.listens_for(engine, "begin")
@@ -135,6 +137,25 @@ def _make_engine(url: str) -> Engine:
         conn.exec_driver_sql(f"BEGIN {mode}")
 
     return engine
+
+
+def _enable_wal(cur) -> None:  # noqa: ANN001 - a sqlite3 cursor
+    """Put the database in WAL mode (stored in the file: a no-op once any connection did).
+
+    Switching into WAL needs the database to itself, and SQLite answers "database
+    is locked" at once instead of waiting out the busy timeout; so a connection
+    that races another one's first use of a new archive (two workers starting
+    together, one of them migrating) retries until the busy timeout.
+    """
+    deadline = time.monotonic() + SQLITE_BUSY_TIMEOUT_MS / 1000
+    while True:
+        try:
+            cur.execute("PRAGMA journal_mode=WAL")
+            return
+        except sqlite3.OperationalError as exc:
+            if "locked" not in str(exc) or time.monotonic() >= deadline:
+                raise
+            time.sleep(0.01)
 
 
 def resolve_archive(arg: str | None) -> Archive:
