@@ -108,6 +108,21 @@ def local_batch_settings() -> Iterator[None]:
         yield
 
 
+def stop_temporary_api() -> None:
+    """Stop the temporary local API server(s) this process started, if any.
+
+    Prefect stops them in an exit hook; a process that leaves with ``os._exit``
+    (an interrupted `calib process`) skips the hook and must do it here, or the
+    server outlives it.
+    """
+    from prefect.server.api.server import SubprocessASGIServer
+
+    # Prefect keeps its temporary servers in this class attribute (no public list).
+    for server in list(getattr(SubprocessASGIServer, "_instances", {}).values()):
+        with contextlib.suppress(Exception):
+            server.stop()
+
+
 @contextlib.contextmanager
 def _api_for_workers(runner: str) -> Iterator[None]:
     """Let worker processes report to this process's Prefect API.

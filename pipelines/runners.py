@@ -26,6 +26,7 @@ import contextlib
 import multiprocessing
 import os
 import threading
+import weakref
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -62,6 +63,10 @@ def single_threaded_children() -> Iterator[None]:
     finally:
         for key in added:
             os.environ.pop(key, None)
+
+
+# Every WorkerProcesses not yet garbage: kill_all_workers stops them when a batch is interrupted.
+_LIVE_POOLS: weakref.WeakSet[WorkerProcesses] = weakref.WeakSet()
 
 
 def forkserver_context(preload: tuple[str, ...] = ()) -> multiprocessing.context.BaseContext:
@@ -105,10 +110,12 @@ class WorkerProcesses:
         self._lock = threading.Lock()
         self._context = forkserver_context(preload)
         self._pool: ProcessPoolExecutor | None = None
+        self._killed = False  # by `kill`: a broken pool is not replaced any more
         # The first start (the forkserver's imports, ~2 s) goes on in the background while
         # the caller gets on with its own start; the first `run` waits for it.
         self._started: Future[None] = Future()
         threading.Thread(target=self._first_start, name="calib-workers-start", daemon=True).start()
+        _LIVE_POOLS.add(self)
 
     def _first_start(self) -> None:
         try:
@@ -157,9 +164,25 @@ class WorkerProcesses:
 
     def _replace(self, broken: ProcessPoolExecutor) -> None:
         with self._lock:
-            if self._pool is broken:  # the first caller to see it replaces it
+            if self._pool is broken and not self._killed:  # the first caller to see it
                 self._pool = self._start()
         broken.shutdown(wait=False, cancel_futures=True)
+
+    def kill(self) -> None:
+        """Stop the workers now, runs in progress and all (a batch interrupted by its user).
+
+        A worker forked from the forkserver holds pipes that keep it, the forkserver
+        and the resource tracker alive after this process is gone, so they are
+        stopped here. A run cut short is not archived (the archive is whole-or-nothing).
+        """
+        with self._lock:
+            self._killed = True
+            pool = self._pool
+        if pool is None:
+            return
+        # concurrent.futures has no public way to reach its processes before Python 3.14.
+        for process in list(getattr(pool, "_processes", {}).values()):
+            process.kill()
 
     def close(self) -> None:
         """Stop the workers once the calls under way are done."""
@@ -168,6 +191,12 @@ class WorkerProcesses:
         except Exception:  # noqa: BLE001 - never started: nothing to stop
             return
         pool.shutdown(wait=True)
+
+
+def kill_all_workers() -> None:
+    """`WorkerProcesses.kill` every pool of this process (before exiting on an interrupt)."""
+    for pool in list(_LIVE_POOLS):
+        pool.kill()
 
 
 def default_workers() -> int:

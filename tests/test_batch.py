@@ -10,6 +10,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import socket
 import sqlite3
 import subprocess
@@ -343,3 +344,90 @@ def test_cli_progress_goes_to_stderr_and_options_are_checked(prefect_harness, tm
         bad = run(str(tmp_path / "day"), "--json", *args)
         assert bad.returncode == 2 and message in bad.stderr, (args, bad.stderr[-2000:])
         assert bad.stdout == ""
+
+
+# --- interrupting a batch -----------------------------------------------------------
+
+
+def _helper_pids() -> set[int]:
+    """Processes a batch may leave behind: forkservers, their workers, Prefect API servers."""
+    found = set()
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                cmd = (d / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if b"multiprocessing.forkserver" in cmd or b"uvicorn" in cmd:
+                found.add(int(d.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> None:
+    """Ctrl-C (SIGINT) during `calib process --runner process` on Prefect's temporary API:
+    exit status 130 within seconds (Prefect alone spent 77-108 s retrying its reports),
+    a message saying how far it got, no worker, forkserver or API server left running,
+    an archive that verifies, and the same command run again archives the rest."""
+    import shutil
+    import signal
+    import time
+
+    seeds = list(range(60, 76))  # 16 runs: the batch is still going when the first one ends
+    write_runs(tmp_path / "day", seeds)
+    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
+    env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}  # temporary API
+    archive = str(tmp_path / "archive")
+    cmd = [calib, "process", str(tmp_path / "day"), "--archive", archive, "--no-progress"]
+    before = _helper_pids()
+    proc = subprocess.Popen(
+        [*cmd, "--runner", "process", "--workers", "2"],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+        env=env,
+    )
+    assert proc.stderr is not None
+    seen: list[str] = []
+    for line in proc.stderr:  # Prefect logs each finished task run on stderr
+        seen.append(line)
+        if "Finished in state Completed" in line:
+            break
+    else:
+        raise AssertionError(f"no run finished: {''.join(seen)[-3000:]}")
+    proc.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    _, rest = proc.communicate(timeout=SUBPROCESS_TIMEOUT_S)
+    took = time.monotonic() - sent
+    assert proc.returncode == 130, rest[-3000:]
+    assert took < 15.0, took  # stopping the API server may take a few seconds on a busy machine
+    said = " ".join(rest.split())  # the console wraps long lines
+    # how far it got: the runs whose outcome the flow had taken in (may be 0 of ? so early)
+    assert re.search(rf"interrupted after \d+ of ({len(seeds)}|\?) run\(s\)", said), said
+    assert "Run the same command again" in said
+
+    deadline = time.monotonic() + 10.0
+    while (
+        left := {p for p in _helper_pids() - before if _alive(p)}
+    ) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not left, [Path(f"/proc/{p}/cmdline").read_bytes()[:120] for p in left]
+
+    verify = subprocess.run(
+        [calib, "verify", "--archive", archive], capture_output=True, text=True, env=env
+    )
+    assert verify.returncode == 0, verify.stdout[-2000:] + verify.stderr[-2000:]
+    again = subprocess.run(
+        [*cmd, "--json"], capture_output=True, text=True, env=env, timeout=SUBPROCESS_TIMEOUT_S
+    )
+    assert again.returncode == 0, again.stderr[-3000:]
+    statuses = [r["status"] for r in json.loads(again.stdout)["runs"]]
+    assert len(statuses) == len(seeds) and set(statuses) <= {"ok", "duplicate"}
+    assert 1 <= statuses.count("duplicate") < len(seeds)
