@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures.process import BrokenProcessPool
 from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
@@ -147,10 +146,8 @@ def _api_for_workers(runner: str) -> Iterator[None]:
 def _retry_transient(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's hook signature
     try:
         state.result()
-    except TransientError:
-        return True
-    except Exception:  # noqa: BLE001 - anything else is not worth another attempt
-        return False
+    except Exception as exc:  # noqa: BLE001 - only what may go away is worth another attempt
+        return is_transient(exc)
     return False
 
 
@@ -166,18 +163,16 @@ def _retry_transient(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's
     persist_result=False,
 )
 def process_run_task(source: RunSource, archive_url: str, archive_root: str) -> dict[str, Any]:
-    """One run through `process_run`; transient errors raise ``TransientError`` (retried).
+    """One run through `process_run`; what `is_transient` accepts is retried.
 
     With the process runner the work runs in one of the batch's worker processes
-    while this task (state, retries, logs) stays in a thread of the flow.
+    while this task (state, retries, logs) stays in a thread of the flow; a
+    worker that died under it raises ``BrokenProcessPool``.
     """
     pool = _worker_processes()
     if pool is None:
         return process_run_for_batch(source, archive_url, archive_root)
-    try:
-        return pool.run(process_run_for_batch, source, archive_url, archive_root)
-    except BrokenProcessPool as exc:
-        raise TransientError(f"{source.name}: its worker process died ({exc})") from exc
+    return pool.run(process_run_for_batch, source, archive_url, archive_root)
 
 
 @flow(name="process-batch", log_prints=True)

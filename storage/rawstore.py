@@ -215,32 +215,26 @@ class PendingFiles:
         _discard(self._pending.pop(target, None))
         self._pending[target] = _Pending(tmp, keep_existing, synced)
 
-    def _write(self, target: Path, write: Callable[[int, Path], None]) -> Path:
-        """A temporary file for `target`, filled by ``write(fd, tmp)``, then queued."""
+    def _write(self, target: Path, write: Callable[[int], None]) -> None:
+        """A temporary file for `target`, filled by ``write(fd)``, then queued."""
         target = Path(target)
         fd, tmp = self._temp(target.parent, target.name)
         try:
-            write(fd, tmp)
+            write(fd)
         except BaseException:
             os.close(fd)
             tmp.unlink(missing_ok=True)
             raise
         self._queue(fd, tmp, target)
-        return tmp
 
-    def write_bytes(self, target: Path, data: bytes) -> None:
+    def write_bytes(self, target: Path, data: bytes | pa.Buffer) -> None:
         """Queue `data` as the content of `target`."""
 
-        def write(fd: int, tmp: Path) -> None:
+        def write(fd: int) -> None:
             with os.fdopen(fd, "wb", closefd=False) as f:
                 f.write(data)
 
         self._write(target, write)
-
-    def write_file(self, target: Path, write: Callable[[Path], None]) -> tuple[str, int]:
-        """Queue the file that ``write(path)`` writes for `target`; return its (sha256, size)."""
-        tmp = self._write(target, lambda fd, tmp: write(tmp))
-        return hash_and_size(tmp)
 
     def copy(self, src: Path, target: Path, expected_sha256: str | None = None) -> tuple[str, int]:
         """Queue a copy of `src` for `target`, hashed on the way; return (sha256, size).
@@ -249,7 +243,7 @@ class PendingFiles:
         """
         result: list[tuple[str, int]] = []
 
-        def write(fd: int, tmp: Path) -> None:
+        def write(fd: int) -> None:
             result.append(_copy_hashing(src, fd))
             _check_hash(src, result[0][0], expected_sha256)
 
@@ -396,27 +390,29 @@ def write_samples(
     ]
     split_cols = [f.name for f in table.schema if pa.types.is_floating(f.type)]
 
-    def write(tmp: Path) -> None:
-        try:
-            pq.write_table(
-                table,
-                tmp,
-                compression="zstd",
-                compression_level=ZSTD_LEVEL,
-                use_dictionary=[
-                    c for c in table.column_names if c not in delta_cols and c not in split_cols
-                ],
-                column_encoding={
-                    **dict.fromkeys(delta_cols, "DELTA_BINARY_PACKED"),
-                    **dict.fromkeys(split_cols, "BYTE_STREAM_SPLIT"),
-                },
-            )
-        except (pa.ArrowNotImplementedError, pa.ArrowInvalid):
-            # An older pyarrow without that encoding: plain zstd is still correct.
-            pq.write_table(table, tmp, compression="zstd")
-
-    sha, _ = pending.write_file(path, write)
-    return path, sha
+    # Written in memory first: the bytes are hashed there, not read back from the file.
+    sink = pa.BufferOutputStream()
+    try:
+        pq.write_table(
+            table,
+            sink,
+            compression="zstd",
+            compression_level=ZSTD_LEVEL,
+            use_dictionary=[
+                c for c in table.column_names if c not in delta_cols and c not in split_cols
+            ],
+            column_encoding={
+                **dict.fromkeys(delta_cols, "DELTA_BINARY_PACKED"),
+                **dict.fromkeys(split_cols, "BYTE_STREAM_SPLIT"),
+            },
+        )
+    except (pa.ArrowNotImplementedError, pa.ArrowInvalid):
+        # An older pyarrow without that encoding: plain zstd is still correct.
+        sink = pa.BufferOutputStream()
+        pq.write_table(table, sink, compression="zstd")
+    data = sink.getvalue()
+    pending.write_bytes(path, data)
+    return path, hashlib.sha256(data).hexdigest()
 
 
 def read_samples(root: Path, serial: str | None = None) -> pa.Table:

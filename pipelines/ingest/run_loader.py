@@ -184,12 +184,7 @@ class LoadedRun:
     verification_labels: set[str]
 
 
-def sha256_file(path: Path) -> tuple[str, int]:
-    """(hex sha256, size in bytes) of a file: the raw store's content address."""
-    return hash_and_size(Path(path))
-
-
-# (sha256, size) of a raw file, e.g. `sha256_file`.
+# (sha256, size) of a raw file, e.g. `storage.rawstore.hash_and_size`.
 FileHasher = Callable[[Path], tuple[str, int]]
 
 
@@ -249,7 +244,7 @@ def discover_runs(paths: list[Path], depth: int = 2) -> list[RunSource]:
     return sorted(found)
 
 
-def load_run(source: RunSource, *, hash_file: FileHasher = sha256_file) -> LoadedRun:
+def load_run(source: RunSource, *, hash_file: FileHasher = hash_and_size) -> LoadedRun:
     """Read a run: validate its manifest, read and cut its segments, hash its raw files.
 
     Parameters
