@@ -41,6 +41,10 @@ __all__ = ["RETRIES", "TransientError", "is_transient", "process_batch", "report
 RETRIES = 2  # attempts after the first
 RETRY_DELAYS_S = [1.0, 4.0]  # s before the 1st and 2nd retry: a lock or a share outage passes
 PROGRESS_EVERY_S = 2.0  # s between updates of the progress artifact in Prefect's UI
+# Task-run events the temporary API server records per transaction, and the longest wait
+# (whole seconds: Prefect rounds it down) before it records fewer (local_batch_settings).
+RECORDER_BATCH_SIZE = 100
+RECORDER_FLUSH_S = 1
 
 # Callback(done, total, outcome) called as each run of a batch finishes (the CLI's progress bar).
 ProgressCallback = Callable[[int, int, dict[str, Any]], None]
@@ -88,22 +92,41 @@ def report_progress(callback: ProgressCallback) -> Iterator[None]:
 def local_batch_settings() -> Iterator[None]:
     """Settings for running batches from this process on Prefect's temporary local API.
 
-    Flow-run heartbeats let a Prefect server mark runs whose process died as
-    crashed. The temporary API (no PREFECT_API_URL configured) ends with this
-    process, so nothing reads them, while Prefect's heartbeat thread holds up the
-    end of every flow by up to a second (it sleeps in 1 s steps and is joined at
-    exit): they are turned off here. With a configured API nothing changes.
+    Used around the first Prefect call of the process, so that the temporary
+    server Prefect starts then (no PREFECT_API_URL configured) gets them too:
+
+    - Flow-run heartbeats let a Prefect server mark runs whose process died as
+      crashed. The temporary API ends with this process, so nothing reads them,
+      while Prefect's heartbeat thread holds up the end of every flow by up to a
+      second (it sleeps in 1 s steps and is joined at exit): turned off.
+    - The server's task-run recorder, which turns the task-run events the flow
+      sends into the task runs the UI shows, writes each event in its own
+      transaction by default: ~35 ms of server CPU per task run on this
+      machine's cores, which the batch's runs need. Written in batches
+      (`RECORDER_BATCH_SIZE`, at least every `RECORDER_FLUSH_S`), it costs
+      ~10 ms; task states reach the UI up to a second later.
+
+    With a configured API nothing changes (docs/deployment.md says how to set
+    the recorder's batching on a lasting server).
     """
     from prefect.settings import (
         PREFECT_API_URL,
         PREFECT_FLOWS_HEARTBEAT_FREQUENCY,
+        PREFECT_SERVER_SERVICES_TASK_RUN_RECORDER_BATCH_SIZE,
+        PREFECT_SERVER_SERVICES_TASK_RUN_RECORDER_FLUSH_INTERVAL,
         temporary_settings,
     )
 
     if PREFECT_API_URL.value():
         yield
         return
-    with temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
+    with temporary_settings(
+        {
+            PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None,
+            PREFECT_SERVER_SERVICES_TASK_RUN_RECORDER_BATCH_SIZE: RECORDER_BATCH_SIZE,
+            PREFECT_SERVER_SERVICES_TASK_RUN_RECORDER_FLUSH_INTERVAL: RECORDER_FLUSH_S,
+        }
+    ):
         yield
 
 

@@ -346,6 +346,63 @@ def test_cli_progress_goes_to_stderr_and_options_are_checked(prefect_harness, tm
         assert bad.stdout == ""
 
 
+READ_TASK_RUNS = """
+import json
+from prefect.client.orchestration import get_client
+from prefect.client.schemas.filters import FlowRunFilter, FlowRunFilterId
+with get_client(sync_client=True) as client:
+    found = []
+    for flow_run in client.read_flow_runs():
+        tasks = client.read_task_runs(
+            flow_run_filter=FlowRunFilter(id=FlowRunFilterId(any_=[flow_run.id]))
+        )
+        found.append({
+            "flow": flow_run.flow_id and client.read_flow(flow_run.flow_id).name,
+            "state": flow_run.state_name,
+            "tasks": sorted((t.name, t.state_name) for t in tasks),
+        })
+print(json.dumps(found))
+"""
+
+
+def test_every_task_run_reaches_the_temporary_api_with_batched_recording(tmp_path: Path):
+    """On Prefect's temporary API, `calib process` has the server record task runs in
+    batches (local_batch_settings). None may be lost or left in an early state: the
+    last batch is smaller than the batch size and is written when the server stops
+    with the `calib` process. Read back through a new server on the same database."""
+    import shutil
+
+    from pipelines.flows import RECORDER_BATCH_SIZE
+
+    folders = write_runs(tmp_path / "day", [81, 82, 83])
+    assert len(folders) < RECORDER_BATCH_SIZE  # so only the periodic or final flush writes them
+    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
+    env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}  # temporary API
+    env["PREFECT_HOME"] = str(tmp_path / "prefect")  # its own Prefect database
+    done = subprocess.run(
+        [calib, "process", str(tmp_path / "day"), "--archive", str(tmp_path / "archive")]
+        + ["--json", "--no-progress"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=SUBPROCESS_TIMEOUT_S,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert [r["status"] for r in json.loads(done.stdout)["runs"]] == ["ok"] * 3
+
+    read = subprocess.run(
+        [sys.executable, "-c", READ_TASK_RUNS],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=SUBPROCESS_TIMEOUT_S,
+    )
+    assert read.returncode == 0, read.stderr[-3000:]
+    (flow_run,) = json.loads(read.stdout.strip().splitlines()[-1])
+    assert flow_run["flow"] == "process-batch" and flow_run["state"] == "Completed"
+    assert flow_run["tasks"] == [[f"process {f}", "Completed"] for f in sorted(folders)]
+
+
 # --- interrupting a batch -----------------------------------------------------------
 
 
