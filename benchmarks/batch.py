@@ -31,8 +31,10 @@ solve, check, archive) / single-threaded bare parse time, i.e. both on one
 core; pipeline_to_parse_ratio_machine = plain parallel time / threaded bare
 parse time, i.e. both on the whole machine (pool start included); Prefect
 overhead = (flow time - plain parallel time) / flow time. Prefect's temporary
-local API server is started before the timing (a lab runs `prefect server
-start` once, not per batch); its start-up time is printed on stderr.
+local API server is started before the timing, with the settings `calib
+process` gives it (local_batch_settings), and answers one request (a new
+server's first answer takes ~0.3 s longer): a lab runs `prefect server start`
+once, not per batch. Its start-up time is printed on stderr.
 
 Progress goes to stderr; the last stdout line is one JSON object:
 runs_per_min, speedup_2_cores, pipeline_to_parse_ratio, prefect_overhead_fraction (the
