@@ -101,10 +101,11 @@ def local_batch_settings() -> Iterator[None]:
       second (it sleeps in 1 s steps and is joined at exit): turned off.
     - The server's task-run recorder, which turns the task-run events the flow
       sends into the task runs the UI shows, writes each event in its own
-      transaction by default: ~35 ms of server CPU per task run on this
-      machine's cores, which the batch's runs need. Written in batches
-      (`RECORDER_BATCH_SIZE`, at least every `RECORDER_FLUSH_S`), it costs
-      ~10 ms; task states reach the UI up to a second later.
+      transaction by default: the server then spent ~44 ms of CPU per task run
+      on this machine, ~35 ms of it in the recorder, on the cores the batch's
+      runs need. With the events written in batches (`RECORDER_BATCH_SIZE`, at
+      least every `RECORDER_FLUSH_S`) it spends ~14 ms; task states reach the
+      UI up to a second later.
 
     With a configured API nothing changes (docs/deployment.md says how to set
     the recorder's batching on a lasting server).
