@@ -155,18 +155,21 @@ def plain_pass(day: Path, archive_dir: Path, workers: int) -> tuple[float, list[
     from pipelines.runners import forkserver_context, single_threaded_children
     from storage.db import resolve_archive
 
-    started = time.perf_counter()  # from here on as the flow: discovery, upgrade, runs
-    sources = discover_runs([day])
-    arch = resolve_archive(str(archive_dir))
-    arch.upgrade()
+    # From here on as the flow: the worker processes start (in the background), then
+    # discovery and the archive's upgrade, then the runs.
+    started = time.perf_counter()
     context = forkserver_context(("pipelines.run_task",))
     outcomes, per_run = [], []
     with (
         single_threaded_children(),
         ProcessPoolExecutor(workers, mp_context=context) as pool,
     ):
+        ready = pool.submit(int)  # starts the workers (the forkserver's imports) now
+        sources = discover_runs([day])
+        arch = resolve_archive(str(archive_dir))
+        arch.upgrade()
+        ready.result()
         if workers == 1:  # one run at a time: each call's time is that run's pipeline time
-            pool.submit(int).result()  # (not the worker's start)
             for i, source in enumerate(sources, 1):
                 t = time.perf_counter()
                 outcomes.append(
