@@ -87,7 +87,7 @@ class WorkerProcesses:
     Workers are forked from a forkserver: a clean single-threaded process that
     imports the `preload` modules once (forking the flow's own process, with
     Prefect's threads running, would be unsafe). So the pipeline's imports cost
-    one core for ~2 s once per `calib` process instead of every worker on every
+    one core for ~1.7 s once per `calib` process instead of every worker on every
     core, and a later batch (or a replaced pool) starts its workers at once.
     The forkserver and so every worker run with single-threaded numerical
     libraries (:func:`single_threaded_children`). Workers are started at once,
@@ -112,7 +112,7 @@ class WorkerProcesses:
         self._context = forkserver_context(preload)
         self._pool: ProcessPoolExecutor | None = None
         self._killed = False  # by `kill`: a broken pool is not replaced any more
-        # The first start (the forkserver's imports, ~2 s) goes on in the background while
+        # The first start (the forkserver's imports, ~1.7 s) goes on in the background while
         # the caller gets on with its own start; the first `run` waits for it.
         self._started: Future[None] = Future()
         threading.Thread(target=self._first_start, name="calib-workers-start", daemon=True).start()

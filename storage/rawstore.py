@@ -71,11 +71,6 @@ def hash_and_size(path: Path) -> tuple[str, int]:
     return h.hexdigest(), n
 
 
-def sha256_file(path: Path) -> str:
-    """SHA-256 hex digest of a file."""
-    return hash_and_size(path)[0]
-
-
 def _temp_beside(path: Path) -> tuple[int, Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -353,17 +348,6 @@ def samples_path(root: Path, serial: str, date: dt.date, run_id: str) -> Path:
     check_safe_name(serial, "serial")
     check_safe_name(run_id, "run id")
     return Path(root) / "samples" / f"serial={serial}" / f"date={_day(date)}" / f"{run_id}.parquet"
-
-
-def store_samples(root: Path, serial: str, date: dt.date, run_id: str, table: pa.Table) -> Path:
-    """Write one run's samples as zstd Parquet, atomically and durably; return the path.
-
-    See `write_samples` for the encodings.
-    """
-    with PendingFiles() as pending:
-        path, _ = write_samples(pending, root, serial, date, run_id, table)
-        pending.commit()
-    return path
 
 
 def write_samples(

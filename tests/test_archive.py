@@ -488,8 +488,10 @@ def test_samples_parquet_uses_delta_timestamps_and_string_partitions(tmp_path: P
             "ax": pa.array(np.zeros(1000)),
         }
     )
-    p1 = rawstore.store_samples(tmp_path, "0012", date(2024, 5, 1), "R1", t)
-    rawstore.store_samples(tmp_path, "12", date(2024, 5, 2), "R2", t)
+    with rawstore.PendingFiles() as pending:
+        p1, _ = rawstore.write_samples(pending, tmp_path, "0012", date(2024, 5, 1), "R1", t)
+        rawstore.write_samples(pending, tmp_path, "12", date(2024, 5, 2), "R2", t)
+        pending.commit()
     meta = pq.ParquetFile(p1).metadata.row_group(0)
     cols = {meta.column(i).path_in_schema: meta.column(i) for i in range(meta.num_columns)}
     assert "DELTA_BINARY_PACKED" in cols["t_ns"].encodings

@@ -83,9 +83,10 @@ def _die() -> None:
 
 
 def test_worker_processes_run_single_threaded_and_survive_a_dying_worker() -> None:
-    """Calls run in 2 spawned worker processes with single-threaded numerical libraries;
-    a worker that dies fails its call with BrokenProcessPool (counted as transient, so
-    the batch retries that run), and the next calls run in a fresh pool."""
+    """Calls run in 2 worker processes (forked from a forkserver) with single-threaded
+    numerical libraries; a worker that dies fails its call with BrokenProcessPool
+    (counted as transient, so the batch retries that run), and the next calls run in
+    a fresh pool."""
     from concurrent.futures import ThreadPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 

@@ -124,7 +124,7 @@ def test_backup_destroy_restore_verify(
     assert res.exit_code == 0, res.output
     manifest = json.loads((dest / MANIFEST).read_text())
     stored = {
-        p.relative_to(archive.root).as_posix(): rawstore.sha256_file(p)
+        p.relative_to(archive.root).as_posix(): rawstore.hash_and_size(p)[0]
         for top in ("objects", "runs", "samples")
         for p in (archive.root / top).rglob("*")
         if p.is_file()
