@@ -1,0 +1,105 @@
+"""The archive browser's FastAPI application: templates, error pages, the routers.
+
+Every page is rendered on the server by Jinja2 with autoescaping on (an archived
+string such as ``<script>alert(1)</script>`` is shown as text); charts are inline
+SVG; there is no JavaScript and nothing is fetched from elsewhere. The archive is
+opened read-only (storage.browse) and only GET (and HEAD) routes exist.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import jinja2
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import HTMLResponse, RedirectResponse
+from fastapi.templating import Jinja2Templates
+from starlette.exceptions import HTTPException
+
+from pipelines.web import present
+from storage.browse import ReadOnlyArchive
+
+TEMPLATES = Path(__file__).resolve().parent / "templates"
+SECURITY_HEADERS = {
+    # No script, no plugin, nothing from elsewhere: the pages need none of it.
+    "Content-Security-Policy": "default-src 'none'; style-src 'unsafe-inline'; img-src 'self' "
+    "data:; form-action 'self'; base-uri 'none'; frame-ancestors 'none'",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+}
+
+
+def _environment() -> jinja2.Environment:
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(TEMPLATES),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters.update(present.FILTERS)
+    env.globals.update(present.GLOBALS)
+    return env
+
+
+templates = Jinja2Templates(env=_environment())
+
+
+def render(request: Request, template: str, status_code: int = 200, **context: Any) -> HTMLResponse:
+    """Render `template` with `context` (plus the request and the archive's name)."""
+    archive = request.app.state.archive
+    context.setdefault("title", "")
+    return templates.TemplateResponse(
+        request,
+        template,
+        {"archive_name": archive.display_url, **context},
+        status_code=status_code,
+        headers=SECURITY_HEADERS,
+    )
+
+
+def create_app(archive: ReadOnlyArchive) -> FastAPI:
+    """The application on a read-only archive (storage.browse.open_readonly)."""
+    from pipelines.web import equipment, runs, units
+
+    app = FastAPI(
+        title="imu-calib archive",
+        docs_url=None,
+        redoc_url=None,
+        openapi_url=None,
+    )
+    app.state.archive = archive
+    for module in (runs, units, equipment):
+        app.include_router(module.router)
+
+    @app.get("/", include_in_schema=False)
+    def index() -> RedirectResponse:
+        return RedirectResponse("/runs", status_code=303)
+
+    @app.exception_handler(HTTPException)
+    async def _http_error(request: Request, exc: HTTPException) -> HTMLResponse:
+        return render(request, "error.html", exc.status_code, title=f"Error {exc.status_code}",
+                      status=exc.status_code, message=str(exc.detail))  # fmt: skip
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(request: Request, exc: RequestValidationError) -> HTMLResponse:
+        msgs = [
+            f"{'.'.join(str(p) for p in e.get('loc', ())[1:]) or 'request'}: {e.get('msg')}"
+            for e in exc.errors()
+        ]
+        return render(request, "error.html", 400, title="Error 400", status=400,
+                      message="; ".join(msgs))  # fmt: skip
+
+    @app.middleware("http")
+    async def _read_only(request: Request, call_next):  # noqa: ANN001, ANN202
+        if request.method not in ("GET", "HEAD"):
+            return HTMLResponse("the archive browser is read-only", status_code=405,
+                                headers={"Allow": "GET, HEAD", **SECURITY_HEADERS})  # fmt: skip
+        response = await call_next(request)
+        for k, v in SECURITY_HEADERS.items():
+            response.headers.setdefault(k, v)
+        return response
+
+    return app

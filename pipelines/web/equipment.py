@@ -1,0 +1,67 @@
+"""Pages of equipment (due dates, runs made while its calibration had lapsed) and of the
+archive's integrity (storage.verify, on request: it re-reads every archived file)."""
+
+from __future__ import annotations
+
+import time
+
+from fastapi import APIRouter, Request
+from fastapi.responses import HTMLResponse
+from sqlalchemy import func, select
+
+from pipelines.web import forms
+from pipelines.web.app import render
+from storage import browse, queries
+from storage.schema import Device, Run
+
+router = APIRouter()
+LAPSED_LIST_MAX = 500
+
+
+@router.get("/equipment", response_class=HTMLResponse)
+def equipment_list(request: Request) -> HTMLResponse:
+    """Every piece of equipment with its latest recorded due date and state today."""
+    forms.params(request, ())
+    items = [
+        {**e, "state": browse.due_state(e["calibration_due"])}
+        for e in browse.equipment_list(request.app.state.archive)
+    ]
+    return render(request, "equipment_list.html", title="Equipment", items=items)
+
+
+@router.get("/equipment/item", response_class=HTMLResponse)
+def equipment_item(request: Request) -> HTMLResponse:
+    """One piece of equipment: its calibration periods as recorded with runs, lapsed runs."""
+    archive = request.app.state.archive
+    q = forms.params(request, ("kind", "serial"))
+    kind, serial = q.get("kind", ""), q.get("serial", "")
+    item = forms.checked(browse.equipment_item, archive, kind, serial)
+    lapsed = forms.checked(queries.lapsed_runs, archive, serial, kind)
+    rows = lapsed.to_dict("records")
+    return render(request, "equipment.html", title=f"Equipment {kind} {serial}", item=item,
+                  lapsed=rows[:LAPSED_LIST_MAX], n_lapsed=len(rows),
+                  state=browse.due_state(max((p["calibration_due"] for p in item["periods"]
+                                              if p["calibration_due"]), default=None)))  # fmt: skip
+
+
+@router.get("/verify", response_class=HTMLResponse)
+def verify_page(request: Request) -> HTMLResponse:
+    """The archive's facts; with ``run=1`` the full integrity check (every file re-hashed)."""
+    from storage.verify import verify
+
+    archive = request.app.state.archive
+    q = forms.params(request, ("run",))
+    run = forms.choice(q, "run", ("0", "1"), "0") == "1"
+    with archive.engine().connect() as conn:
+        facts = {
+            "runs": conn.execute(select(func.count()).select_from(Run)).scalar_one(),
+            "units": conn.execute(select(func.count()).select_from(Device)).scalar_one(),
+        }
+    facts["schema_revision"] = archive.schema_revision()
+    report, seconds = None, None
+    if run:
+        t0 = time.perf_counter()
+        report = verify(archive, orphans=True)
+        seconds = time.perf_counter() - t0
+    return render(request, "verify.html", title="Verify", facts=facts, report=report,
+                  seconds=seconds)  # fmt: skip

@@ -1,0 +1,101 @@
+"""Numbers, units, dates and links as the pages show them (Jinja2 filters and globals)."""
+
+from __future__ import annotations
+
+import json
+import math
+from datetime import date, datetime
+from typing import Any
+from urllib.parse import quote, urlencode
+
+from pipelines.reports.display import DISPLAY_UNITS
+
+
+def display(name: str, value: float | None) -> tuple[float | None, str]:
+    """(value in the lab display unit, unit) of a canonical parameter value in SI.
+
+    Families without a display unit (e.g. centrifuge product terms) stay SI.
+    """
+    from calib_core import params
+
+    family = name.rsplit(".", 1)[0]
+    unit, factor = DISPLAY_UNITS.get(family, (params.UNITS.get(family, "SI"), 1.0))
+    return (None if value is None else value * factor), unit
+
+
+def num(value: Any, digits: int = 6) -> str:
+    """A number with `digits` significant digits; "-" for None or NaN."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return str(value)
+    return f"{value:.{digits}g}"
+
+
+def when(value: Any) -> str:
+    """A UTC date-time as YYYY-MM-DD HH:MM UTC (dates as YYYY-MM-DD)."""
+    if value is None:
+        return "-"
+    if isinstance(value, datetime):
+        return value.strftime("%Y-%m-%d %H:%M UTC")
+    if isinstance(value, date):
+        return value.isoformat()
+    return str(value)
+
+
+def size(n: int | None) -> str:
+    if n is None:
+        return "-"
+    for unit in ("B", "kB", "MB", "GB"):
+        if n < 1000 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    return str(n)
+
+
+def as_json(value: Any) -> str:
+    return json.dumps(value, indent=1, sort_keys=True, default=str)
+
+
+def path(*parts: str) -> str:
+    """A URL path from segments, each percent-encoded."""
+    return "/" + "/".join(quote(str(p), safe="") for p in parts)
+
+
+def url(base: str, **query: Any) -> str:
+    """`base` with the non-empty query parameters."""
+    q = {k: v for k, v in query.items() if v is not None and v != ""}
+    return base + ("?" + urlencode(q) if q else "")
+
+
+def run_url(run_id: str) -> str:
+    return path("runs", run_id)
+
+
+def lineage_url(run_id: str, name: str, revision: int | None = None) -> str:
+    return url(path("runs", run_id, "lineage", name), revision=revision)
+
+
+def unit_url(serial: str, parameter: str | None = None) -> str:
+    return url(path("units", serial), parameter=parameter)
+
+
+def fleet_url(model: str, parameter: str | None = None) -> str:
+    return url("/fleet", model=model, parameter=parameter)
+
+
+def equipment_url(kind: str, serial: str) -> str:
+    return url("/equipment/item", kind=kind, serial=serial)
+
+
+FILTERS = {"num": num, "when": when, "size": size, "as_json": as_json}
+GLOBALS = {
+    "display": display,
+    "url": url,
+    "path": path,
+    "run_url": run_url,
+    "lineage_url": lineage_url,
+    "unit_url": unit_url,
+    "fleet_url": fleet_url,
+    "equipment_url": equipment_url,
+}

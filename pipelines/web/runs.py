@@ -1,0 +1,204 @@
+"""Pages of runs: the filtered, paged, sortable list; one run; a value's lineage; raw
+files and the run's downloads (protocol, HTML/PDF certificate, canonical JSON)."""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from datetime import UTC
+from pathlib import Path
+from typing import Any
+
+from fastapi import APIRouter, Request
+from fastapi.responses import FileResponse, HTMLResponse, Response
+from starlette.exceptions import HTTPException
+
+from calib_core import params
+from calib_core.checks import ToleranceProfile
+from calib_core.units import DEG, STANDARD_GRAVITY
+from pipelines.web import forms, svg
+from pipelines.web.app import render
+from pipelines.web.present import display
+from storage import browse, queries
+from storage.naming import check_safe_name
+
+router = APIRouter()
+
+FILTERS = ("serial", "model", "from", "to", "procedure", "verdict", "temp_min", "temp_max")
+LIST_PARAMS = (*FILTERS, "sort", "order", "page", "per_page")
+RESIDUAL_UNITS = {"acc": ("mg", 1.0 / (1e-3 * STANDARD_GRAVITY)), "gyr": ("deg/s", 1.0 / DEG)}
+
+
+@router.get("/runs", response_class=HTMLResponse)
+def runs_list(request: Request) -> HTMLResponse:
+    """The runs (current revision each), filtered, sorted and paged."""
+    archive = request.app.state.archive
+    q = forms.params(request, LIST_PARAMS)
+    sort = forms.choice(q, "sort", browse.SORTS, "started")
+    order = forms.choice(q, "order", ("asc", "desc"), "desc")
+    per_page = int(forms.choice(q, "per_page", [str(n) for n in browse.PER_PAGE], "50"))
+    page = forms.integer(q, "page", 1, 1, browse.MAX_PAGE)
+    f = forms.checked(
+        browse.run_filter, serial=q.get("serial"), model=q.get("model"),
+        date_from=q.get("from"), date_to=q.get("to"), procedure=q.get("procedure"),
+        verdict=q.get("verdict"), env_temp_min=q.get("temp_min"), env_temp_max=q.get("temp_max"),
+    )  # fmt: skip
+    result = browse.runs_page(archive, f, sort=sort, descending=order == "desc", page=page,
+                              per_page=per_page)  # fmt: skip
+    kept = {k: q[k] for k in FILTERS if q.get(k)}
+    return render(request, "runs.html", title="Runs", result=result, filters=kept, sort=sort,
+                  order=order, per_page=per_page, choices=_choices(request),
+                  verdicts=queries.VERDICTS, sorts=browse.SORTS)  # fmt: skip
+
+
+def _choices(request: Request) -> dict[str, list[str]]:
+    """Models and procedures for the filter form (cached for a minute: distinct scans)."""
+    import time
+
+    cache = getattr(request.app.state, "choices", None)
+    if cache is None or time.monotonic() - cache[0] > 60.0:
+        cache = (time.monotonic(), browse.choices(request.app.state.archive))
+        request.app.state.choices = cache
+    return cache[1]
+
+
+def _run_id(run_id: str) -> str:
+    return forms.checked(check_safe_name, run_id, "run id")
+
+
+def _thresholds(summary: dict[str, Any]) -> ToleranceProfile | None:
+    """The tolerance profile archived with the verdict (the check step's settings)."""
+    step = next((s for s in summary["calibration"]["steps"] if s["name"] == "check"), {})
+    doc = (step.get("settings") or {}).get("thresholds")
+    try:
+        return None if doc is None else ToleranceProfile.from_dict(doc)
+    except (ValueError, KeyError, TypeError):
+        return None
+
+
+def _parameter_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
+    checks = {c["name"]: c for c in summary["calibration"]["checks"]}
+    rows = []
+    for p in summary["calibration"]["parameters"]:
+        value, unit = display(p["name"], p["value"])
+        std, _ = display(p["name"], p["std"])
+        check = checks.get(p["name"]) or checks.get(f"param:{p['name']}")
+        limit = None if check is None or check.get("limit") is None else display(
+            p["name"], check["limit"])[0]  # fmt: skip
+        rows.append({**p, "display_value": value, "display_std": std, "display_unit": unit,
+                     "check": check, "display_limit": limit})  # fmt: skip
+    return rows
+
+
+@router.get("/runs/{run_id}", response_class=HTMLResponse)
+def run_page(request: Request, run_id: str) -> HTMLResponse:
+    """Everything about one run and its current calibration revision."""
+    archive = request.app.state.archive
+    forms.params(request, ())
+    summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
+    revs = browse.revisions(archive, run_id)
+    day = summary["started_at"].astimezone(UTC).date()
+    equipment = [
+        {**e, "valid_at_run": None if e["calibration_due"] is None else day <= e["calibration_due"],
+         "state_now": browse.due_state(e["calibration_due"])}
+        for e in summary["equipment"]
+    ]  # fmt: skip
+    profile = _thresholds(summary)
+    residuals = summary["calibration"]["document"].get("residuals") or []
+    limits = profile.residual_limits if profile else {}
+    charts = [svg.residual_chart(residuals, s, *RESIDUAL_UNITS[s], limits) for s in ("acc", "gyr")]
+    return render(request, "run.html", title=f"Run {run_id}", s=summary, revisions=revs,
+                  equipment=equipment, parameters=_parameter_rows(summary),
+                  charts=[c for c in charts if c], profile=profile)  # fmt: skip
+
+
+@router.get("/runs/{run_id}/lineage/{name}", response_class=HTMLResponse)
+def lineage_page(request: Request, run_id: str, name: str) -> HTMLResponse:
+    """Where one archived value comes from: raw bytes, steps and settings, software, equipment."""
+    archive = request.app.state.archive
+    q = forms.params(request, ("revision",))
+    revision = forms.integer(q, "revision", 0, 1, 1_000_000) or None
+    forms.checked(params.validate, name)
+    lin = forms.checked(queries.lineage, archive, _run_id(run_id), name, revision)
+    values = [
+        {**v, "display": display(name, v["value"]), "display_std": display(name, v["std"])[0]}
+        for v in lin["parameter"]["values"]
+    ]
+    return render(request, "lineage.html", title=f"Lineage of {name} in {run_id}", lin=lin,
+                  values=values, name=name)  # fmt: skip
+
+
+@router.get("/runs/{run_id}/raw/{name}")
+def raw_file(request: Request, run_id: str, name: str) -> FileResponse:
+    """The archived bytes of one raw file of the run (as hashed at ingest)."""
+    archive = request.app.state.archive
+    forms.params(request, ())
+    summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
+    entry = next((r for r in summary["raw_files"] if r["name"] == name), None)
+    if entry is None:
+        raise HTTPException(404, f"run {run_id} has no raw file {name!r}")
+    root = archive.root.resolve()
+    path = (root / entry["stored_path"]).resolve()
+    if not path.is_relative_to(root) or not path.is_file():
+        raise HTTPException(404, f"raw file {name!r} of run {run_id} is missing from the store")
+    return FileResponse(path, media_type="application/octet-stream",
+                        filename=Path(name).name or "raw.bin")  # fmt: skip
+
+
+def _certificate(archive, run_id: str):  # noqa: ANN001, ANN202
+    from pipelines.reports.certificate import sections
+
+    summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
+    samples = forms.checked(queries.run_samples, archive, run_id)
+    return summary, sections(summary, samples)
+
+
+@router.get("/runs/{run_id}/protocol.txt")
+def protocol(request: Request, run_id: str) -> Response:
+    """The test protocol (MPU-6000 layout), built from the archive."""
+    forms.params(request, ())
+    summary, cert = _certificate(request.app.state.archive, run_id)
+    name = f"{summary['device']['serial']}_result.txt"
+    return _download(cert.protocol.encode(), "text/plain; charset=utf-8", name)
+
+
+@router.get("/runs/{run_id}/certificate.html")
+def certificate_html(request: Request, run_id: str) -> Response:
+    """The HTML certificate (a download: it embeds its plots as PNG)."""
+    from pipelines.reports.certificate import render_html
+
+    forms.params(request, ())
+    summary, cert = _certificate(request.app.state.archive, run_id)
+    name = f"{summary['device']['serial']}_{run_id}_certificate.html"
+    return _download(render_html(cert).encode(), "text/html; charset=utf-8", name)
+
+
+@router.get("/runs/{run_id}/certificate.pdf")
+def certificate_pdf(request: Request, run_id: str) -> Response:
+    """The PDF certificate, rendered into a temporary file (never into the archive)."""
+    from pipelines.reports.certificate import render_pdf
+
+    forms.params(request, ())
+    summary, cert = _certificate(request.app.state.archive, run_id)
+    with tempfile.TemporaryDirectory(prefix="calib-serve-") as tmp:
+        data = render_pdf(cert, Path(tmp) / "certificate.pdf").read_bytes()
+    name = f"{summary['device']['serial']}_{run_id}_certificate.pdf"
+    return _download(data, "application/pdf", name)
+
+
+@router.get("/runs/{run_id}/export.json")
+def export_json(request: Request, run_id: str) -> Response:
+    """The canonical calibration JSON of the current (or a given) revision."""
+    q = forms.params(request, ("revision",))
+    revision = forms.integer(q, "revision", 0, 1, 1_000_000) or None
+    doc = forms.checked(queries.export_calibration, request.app.state.archive, _run_id(run_id),
+                        revision)  # fmt: skip
+    text = json.dumps(doc, indent=2, default=str) + "\n"
+    suffix = f"_rev{doc['revision']}"
+    return _download(text.encode(), "application/json", f"{run_id}{suffix}.json")
+
+
+def _download(data: bytes, media_type: str, filename: str) -> Response:
+    safe = "".join(c if c.isalnum() or c in "._-" else "_" for c in filename)
+    return Response(data, media_type=media_type,
+                    headers={"Content-Disposition": f'attachment; filename="{safe}"'})  # fmt: skip

@@ -1,0 +1,286 @@
+"""Pages of units and fleets: a unit's parameter history with tolerance band, trend and
+forecast (calib_core.drift) and its thermal model curves; a device model's fleet."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+from datetime import timedelta
+from typing import Any
+
+import numpy as np
+from fastapi import APIRouter, Request
+from fastapi.responses import HTMLResponse
+
+from calib_core import drift, params
+from calib_core.checks import ToleranceProfile
+from calib_core.thermal import ThermalModel
+from pipelines.tolerances import load_profile
+from pipelines.web import forms, svg
+from pipelines.web.app import render
+from pipelines.web.present import display, lineage_url
+from storage import browse, queries
+
+router = APIRouter()
+
+REFERENCE_C = 20.0  # of temperature-dependent values, the trend takes the one nearest this
+FORECAST_HORIZON_DAYS = 3650.0
+FLEET_LIST_MAX = 200
+FLEET_PARAMETERS = (params.ACC_LINEAR + params.GYR_LINEAR + params.GSENS
+                    + [f"{s}.noise.{a}" for s in ("acc", "gyr") for a in params.AXES])  # fmt: skip
+THERMAL_GROUPS = ("acc.bias", "gyr.bias", "acc.scale", "gyr.scale")
+
+
+def _profile(name: str | None) -> ToleranceProfile | None:
+    """A tolerance profile by name (lab folder first), None when unnamed or not found."""
+    if not name:
+        return None
+    try:
+        return load_profile(name)
+    except ValueError:
+        return None
+
+
+def _band(profile: ToleranceProfile | None, name: str) -> tuple[float, float]:
+    lim = None if profile is None else profile.limit_for(name)
+    return (-math.inf, math.inf) if lim is None else (lim.low, lim.high)
+
+
+@dataclass
+class Series:
+    """One parameter of one unit over its runs (one value per run), SI."""
+
+    name: str
+    unit: str
+    rows: list[dict[str, Any]]
+    low: float = -math.inf
+    high: float = math.inf
+    trend: drift.Trend | None = None
+    forecast: drift.Forecast | None = None
+    note: str = ""
+
+    def fit(self) -> None:
+        """Trend and tolerance forecast (calib_core.drift); a note says why not when it can't."""
+        t = [svg.days(r["started_at"]) for r in self.rows]
+        stds = [r["std"] if r["std"] is not None and r["std"] > 0 else None for r in self.rows]
+        try:
+            self.trend = drift.fit_trend(t, [r["value"] for r in self.rows], stds)
+        except ValueError as exc:
+            self.note = str(exc)
+            return
+        if math.isfinite(self.low) or math.isfinite(self.high):
+            self.forecast = drift.forecast_exit(self.trend, self.low, self.high,
+                                                horizon_days=FORECAST_HORIZON_DAYS)  # fmt: skip
+
+    def summary(self) -> dict[str, Any]:
+        last = self.rows[-1]
+        scale = display(self.name, 1.0)[0]
+        out = {"name": self.name, "n": len(self.rows), "last": last,
+               "unit": display(self.name, 0.0)[1],
+               "last_value": last["value"] * scale,
+               "last_std": None if last["std"] is None else last["std"] * scale,
+               "slope_per_year": None, "slope_std_per_year": None, "leaves": None,
+               "earliest": None, "out_now": None, "note": self.note,
+               "spark": svg.sparkline([r["value"] for r in self.rows]),
+               "band": _band_text(self.low * scale, self.high * scale)}  # fmt: skip
+        if self.trend is not None:
+            out["slope_per_year"] = self.trend.slope * 365.25 * scale
+            out["slope_std_per_year"] = self.trend.slope_std * 365.25 * scale
+        if self.forecast is not None:
+            out["leaves"] = _date(self.forecast.crossing)
+            out["earliest"] = _date(self.forecast.earliest)
+            out["out_now"] = self.forecast.out_now
+        return out
+
+    def chart(self, serial: str) -> Any:
+        scale = display(self.name, 1.0)[0]
+        unit = display(self.name, 0.0)[1]
+        points = [
+            svg.TrendPoint(r["started_at"], r["value"] * scale,
+                           None if r["std"] is None else r["std"] * scale,
+                           f"{r['run_id']} {r['started_at']:%Y-%m-%d}: {r['value'] * scale:.6g} "
+                           f"{unit} ({r['verdict']})",
+                           lineage_url(r["run_id"], self.name), r["verdict"] != "pass")
+            for r in self.rows
+        ]  # fmt: skip
+        fit, until = None, None
+        if self.trend is not None:
+            end = self.trend.t_last + 365.0
+            if self.forecast is not None and self.forecast.earliest is not None:
+                end = max(end, min(self.forecast.earliest + 60.0, self.trend.t_last + 1825.0))
+            grid = np.linspace(self.trend.t_first, end, 120)
+            k = 1.96 if self.trend.dof <= 0 else float(_t95(self.trend.dof))
+            fit = (grid, self.trend.value(grid) * scale, k * self.trend.std(grid) * scale)
+            until = end
+        return svg.trend_chart(points, title=f"{self.name} of {serial}", unit=unit, fit=fit,
+                               limits=(self.low * scale, self.high * scale), until=until)
+
+
+def _band_text(low: float, high: float) -> str:
+    if not (math.isfinite(low) or math.isfinite(high)):
+        return "-"
+    if low == -high:
+        return f"± {high:.3g}"
+    if not math.isfinite(low):
+        return f"<= {high:.3g}"
+    return f">= {low:.3g}" if not math.isfinite(high) else f"{low:.3g} .. {high:.3g}"
+
+
+def _t95(dof: int) -> float:
+    from scipy import stats
+
+    return stats.t.ppf(0.975, dof)
+
+
+def _date(day: float | None) -> str | None:
+    return None if day is None else (svg.EPOCH + timedelta(days=day)).date().isoformat()
+
+
+def _series(rows: list[dict[str, Any]]) -> dict[str, Series]:
+    """Parameter -> Series, one value per run (nearest REFERENCE_C when temperature-dependent)."""
+    per: dict[tuple[str, str], dict[str, Any]] = {}
+    for r in rows:
+        key = (r["name"], r["run_id"])
+        t = r["temperature_c"]
+        old = per.get(key)
+        dist = abs((t if t is not None else REFERENCE_C) - REFERENCE_C)
+        if old is None or dist < old["_dist"]:
+            per[key] = {**r, "_dist": dist}
+    out: dict[str, Series] = {}
+    for (name, _), r in per.items():
+        out.setdefault(name, Series(name, r["unit"], [])).rows.append(r)
+    for s in out.values():
+        s.rows.sort(key=lambda r: r["started_at"])
+    return dict(sorted(out.items()))
+
+
+def _unit_profile(series: dict[str, Series], serial: str, archive) -> ToleranceProfile | None:  # noqa: ANN001
+    """The tolerance profile of the unit's latest calibration: its archived thresholds,
+    else the named profile file."""
+    latest = queries.latest_calibration(archive, serial)
+    if latest is not None:
+        step = next((s for s in latest["steps"] if s["name"] == "check"), {})
+        doc = (step.get("settings") or {}).get("thresholds")
+        if doc:
+            try:
+                return ToleranceProfile.from_dict(doc)
+            except (ValueError, KeyError, TypeError):
+                pass
+    names = [r["profile_name"] for s in series.values() for r in s.rows[-1:]]
+    return _profile(names[-1] if names else None)
+
+
+@router.get("/units/{serial}", response_class=HTMLResponse)
+def unit_page(request: Request, serial: str) -> HTMLResponse:
+    """A unit: its runs, every parameter's history with trend and forecast, thermal curves."""
+    archive = request.app.state.archive
+    q = forms.params(request, ("parameter",))
+    dev = forms.checked(browse.device, archive, serial)
+    series = _series(browse.unit_parameters(archive, serial))
+    profile = _unit_profile(series, serial, archive)
+    for s in series.values():
+        s.low, s.high = _band(profile, s.name)
+        s.fit()
+    chosen = q.get("parameter") or next(
+        (n for n, s in series.items() if math.isfinite(s.high) or math.isfinite(s.low)),
+        next(iter(series), None),
+    )
+    if chosen is not None and chosen not in series:
+        forms.checked(params.validate, chosen)
+        forms.checked(_missing, chosen, serial)
+    history = queries.history(archive, serial).to_dict("records")
+    return render(request, "unit.html", title=f"Unit {serial}", dev=dev, history=history,
+                  summaries=[s.summary() for s in series.values()], chosen=chosen,
+                  chart=series[chosen].chart(serial) if chosen else None,
+                  profile=profile, thermal=_thermal(archive, serial, series))  # fmt: skip
+
+
+def _missing(name: str, serial: str) -> None:
+    raise LookupError(f"unit {serial} has no archived value of {name}")
+
+
+def _thermal(archive, serial: str, series: dict[str, Series]) -> dict[str, Any] | None:  # noqa: ANN001
+    """The current thermal model's curves (by parameter family) with the campaign points."""
+    row = browse.thermal_model(archive, serial)
+    if row is None:
+        return None
+    model = ThermalModel.from_dict(row["document"])
+    temps = np.linspace(model.t_min, model.t_max, 60)
+    charts = []
+    for family in THERMAL_GROUPS:
+        names = sorted(n for n in model.curves if n.startswith(family + "."))
+        if not names:
+            continue
+        scale, unit = display(names[0], 1.0)
+        curves = {n: (model.value(n, temps) * scale, model.std(n, temps) * scale) for n in names}
+        points = {
+            n: [(r["env_temperature_c"], r["value"] * scale) for r in series[n].rows
+                if r["env_temperature_c"] is not None]
+            for n in names if n in series
+        }  # fmt: skip
+        charts.append(svg.curve_chart(temps, curves, points, title=f"{family} against temperature",
+                                      unit=unit))  # fmt: skip
+    orders = {n: c.order for n, c in sorted(model.curves.items())}
+    return {"row": row, "model": model, "charts": charts, "orders": orders}
+
+
+@router.get("/models", response_class=HTMLResponse)
+def models_page(request: Request) -> HTMLResponse:
+    """Device models in the archive, with their number of units."""
+    forms.params(request, ())
+    return render(request, "models.html", title="Device models",
+                  models=browse.models(request.app.state.archive))  # fmt: skip
+
+
+@router.get("/fleet", response_class=HTMLResponse)
+def fleet_page(request: Request) -> HTMLResponse:
+    """A model's fleet: one parameter's distribution over the units' latest valid calibration,
+    units out of tolerance, latest verdicts."""
+    archive = request.app.state.archive
+    q = forms.params(request, ("model", "parameter"))
+    model = q.get("model", "")
+    if not model:
+        forms.checked(queries.check_text, model, "model")
+    name = q.get("parameter") or FLEET_PARAMETERS[0]
+    forms.checked(params.validate, name)
+    units = forms.checked(browse.model_units, archive, model)
+    if not units:
+        forms.checked(_no_model, model)
+    values = forms.checked(queries.fleet, archive, model, name)
+    profiles = Counter(u["profile_name"] for u in units if u["profile_name"])
+    profile = _profile(profiles.most_common(1)[0][0] if profiles else None)
+    low, high = _band(profile, name)
+    scale, unit = display(name, 1.0)
+    one = _one_per_unit(values.to_dict("records"))
+    outside = [r for r in one if not low <= r["value"] <= high]
+    stats = drift.fleet_statistics([r["value"] * scale for r in one], [math.nan] * len(one),
+                                   [r["serial"] for r in one]) if one else []  # fmt: skip
+    chart = svg.histogram([r["value"] * scale for r in one], unit=unit,
+                          title=f"{name} over {len(one)} units of {model}",
+                          limits=(low * scale, high * scale))  # fmt: skip
+    latest = Counter(u["verdict"] or "no calibration" for u in units)
+    failing = [u for u in units if u["verdict"] != "pass"]
+    return render(request, "fleet.html", title=f"Fleet of {model}", model=model, name=name,
+                  names=FLEET_PARAMETERS, units=len(units), latest=dict(latest),
+                  failing=failing[:FLEET_LIST_MAX], n_failing=len(failing),
+                  outside=outside[:FLEET_LIST_MAX], n_outside=len(outside), scale=scale,
+                  unit=unit, stats=stats[0] if stats else None, chart=chart, profile=profile,
+                  low=low * scale, high=high * scale, n_values=len(one))  # fmt: skip
+
+
+def _no_model(model: str) -> None:
+    raise LookupError(f"no units of model {model!r} in the archive")
+
+
+def _one_per_unit(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per unit, its value nearest REFERENCE_C (or without a temperature)."""
+    best: dict[str, dict[str, Any]] = {}
+    for r in rows:
+        t = r["temperature_c"]
+        dist = 0.0 if t is None or (isinstance(t, float) and math.isnan(t)) else abs(
+            t - REFERENCE_C)  # fmt: skip
+        if r["serial"] not in best or dist < best[r["serial"]]["_dist"]:
+            best[r["serial"]] = {**r, "_dist": dist}
+    return sorted(best.values(), key=lambda r: r["serial"])
+

@@ -1,0 +1,495 @@
+"""Read-only access for browsing the archive (`calib serve`): a read-only engine and the
+list-and-page questions a web page asks.
+
+`ReadOnlyArchive` opens SQLite with a ``mode=ro`` file URI (and ``query_only``), and
+PostgreSQL in read-only transactions as the read-only role (storage.roles): a
+connecting role that may write switches to the reader role with ``SET ROLE``, and
+the start fails with the reason when it cannot. The queries of storage.queries
+take a ReadOnlyArchive like any Archive.
+
+Every filter is validated here (ValueError naming the filter, what was expected
+and what was found) and bound; sort keys are looked up in a fixed table, so no
+request string ever becomes SQL text.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from dataclasses import dataclass, field
+from datetime import UTC, date, datetime
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, event, func, select
+from sqlalchemy.engine import make_url
+
+from storage.db import SQLITE_BUSY_TIMEOUT_MS, Archive
+from storage.naming import check_safe_name
+from storage.queries import (
+    as_instant,
+    check_serial,
+    check_text,
+    check_verdict,
+)
+from storage.roles import READER
+from storage.schema import (
+    CalibrationRow,
+    Device,
+    Equipment,
+    ParameterRow,
+    Run,
+    RunEquipment,
+    ThermalModelRow,
+)
+
+
+class ReadOnlyArchive(Archive):
+    """An Archive whose engine cannot write (module docstring); `upgrade` refuses."""
+
+    def __init__(self, url: str, root: Path, reader_role: str = READER) -> None:
+        super().__init__(url, root)
+        self.reader_role = check_safe_name(reader_role, "reader role")
+
+    def engine(self) -> Engine:
+        if self._engine is None:
+            self._engine = _readonly_engine(self.url, self.reader_role)
+        return self._engine
+
+    def upgrade(self) -> None:
+        raise PermissionError("a read-only archive is never migrated")
+
+    def migrate(self, target: str, *, down: bool = False) -> None:
+        raise PermissionError("a read-only archive is never migrated")
+
+
+def open_readonly(archive: Archive, reader_role: str = READER) -> ReadOnlyArchive:
+    """The same archive, read-only; checks at once that it can be read.
+
+    Raises
+    ------
+    FileNotFoundError : SQLite file missing (a read-only open never creates one).
+    PermissionError : PostgreSQL role can write and cannot become `reader_role`.
+    LookupError : no archive schema in the database.
+    """
+    ro = ReadOnlyArchive(archive.url, archive.root, reader_role)
+    if ro.is_sqlite:
+        path = _sqlite_path(ro.url)
+        if path is None or not path.is_file():
+            raise FileNotFoundError(f"no archive database at {path or ro.url}")
+    revision = ro.schema_revision()
+    if revision is None:
+        raise LookupError(f"{ro.display_url} holds no archive (no schema revision)")
+    return ro
+
+
+def _sqlite_path(url: str) -> Path | None:
+    db = make_url(url).database
+    return Path(db).resolve() if db and db != ":memory:" else None
+
+
+def _readonly_engine(url: str, reader_role: str) -> Engine:
+    u = make_url(url)
+    if u.get_backend_name() == "sqlite":
+        path = _sqlite_path(url)
+        if path is None:
+            raise ValueError("an in-memory SQLite database cannot be opened read-only")
+        uri = path.as_uri().replace("file://", "file:", 1) + "?mode=ro"
+
+        def connect() -> sqlite3.Connection:
+            conn = sqlite3.connect(uri, uri=True, check_same_thread=False)
+            conn.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+            conn.execute("PRAGMA query_only=ON")
+            return conn
+
+        return create_engine("sqlite://", creator=connect)
+    engine = create_engine(
+        url,
+        pool_pre_ping=True,
+        connect_args={"options": "-c default_transaction_read_only=on"},
+    )
+
+    @event.listens_for(engine, "connect")
+    def _as_reader(dbapi_conn, _record) -> None:  # noqa: ANN001
+        with dbapi_conn.cursor() as cur:
+            cur.execute("SELECT has_table_privilege(current_user, 'runs', 'INSERT')")
+            (can_write,) = cur.fetchone()
+            if can_write:
+                try:  # the role name passed check_safe_name; quoted as an identifier
+                    cur.execute(f'SET ROLE "{reader_role}"')
+                except Exception as exc:
+                    raise PermissionError(
+                        f"the role of {u.render_as_string(hide_password=True)} may write to the "
+                        f"archive and cannot become the read-only role {reader_role!r} ({exc}); "
+                        f"connect as {reader_role} (storage.roles.apply_roles creates it)"
+                    ) from exc
+        dbapi_conn.commit()
+
+    return engine
+
+
+# --- runs list ---------------------------------------------------------------------
+
+SORTS = {
+    "started": Run.started_at,
+    "serial": Device.serial,
+    "model": Device.model,
+    "procedure": Run.procedure,
+    "operator": Run.operator,
+    "verdict": CalibrationRow.verdict,
+    "run": Run.run_id,
+}
+PER_PAGE = (25, 50, 100, 200)
+MAX_PAGE = 100_000
+
+
+@dataclass(frozen=True)
+class RunFilter:
+    """Validated filters of the runs list (None: not filtered). Build with `run_filter`."""
+
+    serial: str | None = None
+    model: str | None = None
+    date_from: datetime | None = None
+    date_to: datetime | None = None
+    procedure: str | None = None
+    verdict: str | None = None
+    env_temp_min: float | None = None
+    env_temp_max: float | None = None
+
+
+def _opt_float(text: str | None, what: str) -> float | None:
+    if text is None or text == "":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{what}: expected a number (deg C), got {text!r}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise ValueError(f"{what}: expected a finite number, got {text!r}")
+    return value
+
+
+def run_filter(
+    *,
+    serial: str | None = None,
+    model: str | None = None,
+    date_from: str | date | None = None,
+    date_to: str | date | None = None,
+    procedure: str | None = None,
+    verdict: str | None = None,
+    env_temp_min: str | float | None = None,
+    env_temp_max: str | float | None = None,
+) -> RunFilter:
+    """Validate the runs-list filters (empty strings mean "not filtered").
+
+    Dates are whole UTC days or ISO 8601 date-times with a zone (storage.queries.as_instant);
+    temperatures are the run environment's lab temperature, deg C, inclusive.
+    """
+    blank = lambda v: v is None or v == ""  # noqa: E731
+    t0 = None if blank(date_from) else as_instant(date_from, "from", end_of_day=False)
+    t1 = None if blank(date_to) else as_instant(date_to, "to", end_of_day=True)
+    if t0 is not None and t1 is not None and t0 > t1:
+        raise ValueError(f"date range: from {t0.date()} is after to {t1.date()}")
+    lo = env_temp_min if isinstance(env_temp_min, float) else _opt_float(env_temp_min, "temp_min")
+    hi = env_temp_max if isinstance(env_temp_max, float) else _opt_float(env_temp_max, "temp_max")
+    if lo is not None and hi is not None and lo > hi:
+        raise ValueError(f"temperature range: min {lo} is above max {hi}")
+    return RunFilter(
+        serial=None if blank(serial) else check_serial(serial),
+        model=None if blank(model) else check_text(model, "model"),
+        date_from=t0,
+        date_to=t1,
+        procedure=None if blank(procedure) else check_text(procedure, "procedure", 100),
+        verdict=None if blank(verdict) else check_verdict(verdict),
+        env_temp_min=lo,
+        env_temp_max=hi,
+    )
+
+
+@dataclass
+class RunsPage:
+    """One page of the runs list: rows (dicts) and the total matching the filters."""
+
+    rows: list[dict[str, Any]]
+    total: int
+    page: int
+    per_page: int
+    pages: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.pages = max(1, -(-self.total // self.per_page))
+
+
+def _filtered(stmt, f: RunFilter):  # noqa: ANN001, ANN202 - a select in, a select out
+    temp = Run.environment["temperature_c"].as_float()
+    conditions = [
+        (f.serial, lambda v: Device.serial == v),
+        (f.model, lambda v: Device.model == v),
+        (f.date_from, lambda v: Run.started_at >= v),
+        (f.date_to, lambda v: Run.started_at <= v),
+        (f.procedure, lambda v: Run.procedure == v),
+        (f.verdict, lambda v: CalibrationRow.verdict == v),
+        (f.env_temp_min, lambda v: temp >= v),
+        (f.env_temp_max, lambda v: temp <= v),
+    ]
+    for value, condition in conditions:
+        if value is not None:
+            stmt = stmt.where(condition(value))
+    return stmt
+
+
+def runs_page(
+    archive: Archive,
+    f: RunFilter,
+    *,
+    sort: str = "started",
+    descending: bool = True,
+    page: int = 1,
+    per_page: int = 50,
+) -> RunsPage:
+    """One page of runs (current revision of each) matching `f`, sorted by a key of SORTS.
+
+    Rows: run_id, started_at, serial, model, procedure, operator, temperature_c,
+    revision, verdict.
+    """
+    if sort not in SORTS:
+        raise ValueError(f"sort: expected one of {', '.join(SORTS)}, got {sort!r}")
+    if per_page not in PER_PAGE:
+        raise ValueError(f"per_page: expected one of {PER_PAGE}, got {per_page!r}")
+    if not 1 <= page <= MAX_PAGE:
+        raise ValueError(f"page: expected 1..{MAX_PAGE}, got {page!r}")
+    key = SORTS[sort]
+    order = [key.desc() if descending else key.asc()]
+    if sort != "started":
+        order.append(Run.started_at.desc())
+    order.append(Run.id.desc() if descending else Run.id.asc())
+    base = (
+        select(Run.run_id, Run.started_at, Device.serial, Device.model, Run.procedure,
+               Run.operator, Run.environment["temperature_c"].as_float().label("temperature_c"),
+               CalibrationRow.revision, CalibrationRow.verdict)
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, (CalibrationRow.run_id == Run.id)
+              & CalibrationRow.superseded_by.is_(None))
+    )  # fmt: skip
+    stmt = _filtered(base, f)
+    counted = _filtered(
+        select(func.count())
+        .select_from(Run)
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, (CalibrationRow.run_id == Run.id)
+              & CalibrationRow.superseded_by.is_(None)),
+        f,
+    )  # fmt: skip
+    with archive.engine().connect() as conn:
+        total = conn.execute(counted).scalar_one()
+        rows = conn.execute(
+            stmt.order_by(*order).limit(per_page).offset((page - 1) * per_page)
+        ).all()
+    return RunsPage([dict(r._mapping) for r in rows], total, page, per_page)
+
+
+def choices(archive: Archive) -> dict[str, list[str]]:
+    """Values the runs filters offer: device models and procedures in the archive."""
+    with archive.engine().connect() as conn:
+        models = conn.execute(select(Device.model).distinct().order_by(Device.model)).scalars()
+        procs = conn.execute(select(Run.procedure).distinct().order_by(Run.procedure)).scalars()
+        return {"models": list(models), "procedures": list(procs)}
+
+
+# --- one run, one unit ---------------------------------------------------------------
+
+_NEWER = CalibrationRow.__table__.alias("newer")
+
+
+def revisions(archive: Archive, run_id: str) -> list[dict[str, Any]]:
+    """Every calibration revision of a run, oldest first (LookupError if no such run).
+
+    Dicts: revision, created_at, verdict, software_version, source_revision,
+    settings_hash, profile_name, profile_version, superseded_by_revision.
+    """
+    check_safe_name(run_id, "run id")
+    stmt = (
+        select(CalibrationRow.revision, CalibrationRow.created_at, CalibrationRow.verdict,
+               CalibrationRow.software_version, CalibrationRow.source_revision,
+               CalibrationRow.settings_hash, CalibrationRow.profile_name,
+               CalibrationRow.profile_version,
+               _NEWER.c.revision.label("superseded_by_revision"))
+        .join(Run, Run.id == CalibrationRow.run_id)
+        .outerjoin(_NEWER, _NEWER.c.id == CalibrationRow.superseded_by)
+        .where(Run.run_id == run_id)
+        .order_by(CalibrationRow.revision)
+    )  # fmt: skip
+    with archive.engine().connect() as conn:
+        rows = conn.execute(stmt).all()
+    if not rows:
+        raise LookupError(f"no run {run_id!r} in the archive")
+    return [dict(r._mapping) for r in rows]
+
+
+def device(archive: Archive, serial: str) -> dict[str, Any]:
+    """A unit's device row: serial, model, manufacturer, specification (LookupError if none)."""
+    check_serial(serial)
+    stmt = select(Device.serial, Device.model, Device.manufacturer, Device.specification,
+                  Device.created_at).where(Device.serial == serial)  # fmt: skip
+    with archive.engine().connect() as conn:
+        row = conn.execute(stmt).one_or_none()
+    if row is None:
+        raise LookupError(f"no unit with serial {serial!r} in the archive")
+    return dict(row._mapping)
+
+
+def unit_parameters(archive: Archive, serial: str) -> list[dict[str, Any]]:
+    """Every parameter value of a unit's current revisions, by run start then name.
+
+    Dicts: run_id, started_at, env_temperature_c (the run's lab temperature),
+    revision, verdict, profile_name, name, value, std, unit, temperature_c (SI).
+    One query for the unit's whole history.
+    """
+    check_serial(serial)
+    stmt = (
+        select(Run.run_id, Run.started_at,
+               Run.environment["temperature_c"].as_float().label("env_temperature_c"),
+               CalibrationRow.revision, CalibrationRow.verdict,
+               CalibrationRow.profile_name, ParameterRow.name, ParameterRow.value,
+               ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c)
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, (CalibrationRow.run_id == Run.id)
+              & CalibrationRow.superseded_by.is_(None))
+        .join(ParameterRow, ParameterRow.calibration_id == CalibrationRow.id)
+        .where(Device.serial == serial)
+        .order_by(Run.started_at, Run.id, ParameterRow.name, ParameterRow.temperature_c)
+    )  # fmt: skip
+    with archive.engine().connect() as conn:
+        return [dict(r._mapping) for r in conn.execute(stmt).all()]
+
+
+def thermal_model(archive: Archive, serial: str) -> dict[str, Any] | None:
+    """The current thermal model of a unit (id, created_at, t_ref, t_min, t_max, document)."""
+    check_serial(serial)
+    stmt = (
+        select(ThermalModelRow.id, ThermalModelRow.created_at, ThermalModelRow.t_ref,
+               ThermalModelRow.t_min, ThermalModelRow.t_max, ThermalModelRow.document,
+               ThermalModelRow.calibration_ids)
+        .join(Device, Device.id == ThermalModelRow.device_id)
+        .where(Device.serial == serial, ThermalModelRow.superseded_by.is_(None))
+        .order_by(ThermalModelRow.id.desc())
+        .limit(1)
+    )  # fmt: skip
+    with archive.engine().connect() as conn:
+        row = conn.execute(stmt).one_or_none()
+    return None if row is None else dict(row._mapping)
+
+
+# --- fleets and equipment ---------------------------------------------------------------
+
+
+def models(archive: Archive) -> list[dict[str, Any]]:
+    """Device models with their number of units, by model."""
+    stmt = (
+        select(Device.model, func.count().label("units"))
+        .group_by(Device.model)
+        .order_by(Device.model)
+    )
+    with archive.engine().connect() as conn:
+        return [dict(r._mapping) for r in conn.execute(stmt).all()]
+
+
+def model_units(archive: Archive, model: str) -> list[dict[str, Any]]:
+    """Units of a model, each with its latest run's current revision (any verdict).
+
+    Dicts: serial, run_id, started_at, verdict, profile_name, runs (number of runs of
+    the unit).
+    """
+    check_text(model, "model")
+    last = (
+        select(Run.id)
+        .where(Run.device_id == Device.id)
+        .order_by(Run.started_at.desc(), Run.id.desc())
+        .limit(1)
+        .correlate(Device)
+        .scalar_subquery()
+    )
+    n_runs = (
+        select(func.count()).where(Run.device_id == Device.id).correlate(Device).scalar_subquery()
+    )
+    stmt = (
+        select(Device.serial, Run.run_id, Run.started_at, CalibrationRow.verdict,
+               CalibrationRow.profile_name, n_runs.label("runs"))
+        .select_from(Device)
+        .outerjoin(Run, Run.id == last)
+        .outerjoin(CalibrationRow, (CalibrationRow.run_id == Run.id)
+                   & CalibrationRow.superseded_by.is_(None))
+        .where(Device.model == model)
+        .order_by(Device.serial)
+    )  # fmt: skip
+    with archive.engine().connect() as conn:
+        return [dict(r._mapping) for r in conn.execute(stmt).all()]
+
+
+def equipment_list(archive: Archive) -> list[dict[str, Any]]:
+    """Every piece of equipment: kind, serial, model, accuracy_class, the latest due date
+    recorded with any of its runs (``calibration_due``), the run count and the first and
+    last run's start."""
+    stmt = (
+        select(Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class,
+               func.max(RunEquipment.calibration_due).label("calibration_due"),
+               func.count(RunEquipment.id).label("runs"))
+        .outerjoin(RunEquipment, RunEquipment.equipment_id == Equipment.id)
+        .group_by(Equipment.id, Equipment.kind, Equipment.serial, Equipment.model,
+                  Equipment.accuracy_class)
+        .order_by(Equipment.kind, Equipment.serial)
+    )  # fmt: skip
+    with archive.engine().connect() as conn:
+        return [dict(r._mapping) for r in conn.execute(stmt).all()]
+
+
+def equipment_item(archive: Archive, kind: str, serial: str) -> dict[str, Any]:
+    """One piece of equipment with its due-date history: the distinct (calibrated_on,
+    calibration_due) pairs recorded with its runs, each with its run count and span."""
+    check_text(kind, "equipment kind", 100)
+    check_text(serial, "equipment serial")
+    head = select(Equipment.id, Equipment.kind, Equipment.serial, Equipment.model,
+                  Equipment.accuracy_class).where(Equipment.kind == kind,
+                                                  Equipment.serial == serial)  # fmt: skip
+    with archive.engine().connect() as conn:
+        row = conn.execute(head).one_or_none()
+        if row is None:
+            raise LookupError(f"no equipment {kind} {serial!r} in the archive")
+        periods = conn.execute(
+            select(RunEquipment.calibrated_on, RunEquipment.calibration_due,
+                   func.count().label("runs"), func.min(Run.started_at).label("first_run"),
+                   func.max(Run.started_at).label("last_run"))
+            .join(Run, Run.id == RunEquipment.run_id)
+            .where(RunEquipment.equipment_id == row.id)
+            .group_by(RunEquipment.calibrated_on, RunEquipment.calibration_due)
+            .order_by(func.min(Run.started_at))
+        ).all()  # fmt: skip
+    item = dict(row._mapping)
+    del item["id"]
+    item["periods"] = [dict(p._mapping) for p in periods]
+    return item
+
+
+def verdict_counts(archive: Archive, model: str) -> dict[str, int]:
+    """Current revisions of a model's runs by verdict (all runs, not only the latest)."""
+    check_text(model, "model")
+    stmt = (
+        select(CalibrationRow.verdict, func.count())
+        .join(Run, Run.id == CalibrationRow.run_id)
+        .join(Device, Device.id == Run.device_id)
+        .where(Device.model == model, CalibrationRow.superseded_by.is_(None))
+        .group_by(CalibrationRow.verdict)
+    )
+    with archive.engine().connect() as conn:
+        return {v: int(n) for v, n in conn.execute(stmt).all()}
+
+
+def today_utc() -> date:
+    return datetime.now(UTC).date()
+
+
+def due_state(due: date | None, today: date | None = None) -> str:
+    """"lapsed", "due soon" (within 30 days), "valid" or "unknown" for a due date."""
+    if due is None:
+        return "unknown"
+    days = (due - (today or today_utc())).days
+    return "lapsed" if days < 0 else "due soon" if days <= 30 else "valid"
