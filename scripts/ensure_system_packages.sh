@@ -1,17 +1,19 @@
 #!/usr/bin/env bash
 # Make sure a PostgreSQL server (initdb, pg_ctl) is on this machine; the test
 # fixtures start their own throw-away server from these binaries. Also poppler's
-# pdftoppm, with which the report tests render PDF pages to PNG.
+# pdftoppm, with which the report tests render PDF pages to PNG, and Debian's
+# chromium, which the `calib serve` browser tests drive through Playwright
+# (Playwright's own browser download is not used).
 set -euo pipefail
 if { ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || command -v initdb >/dev/null 2>&1; } \
-    && command -v pdftoppm >/dev/null 2>&1; then
+    && command -v pdftoppm >/dev/null 2>&1 && [ -x /usr/bin/chromium ]; then
     exit 0
 fi
 if [ "$(id -u)" != 0 ]; then
-    echo "PostgreSQL server binaries or pdftoppm are missing; install them (apt-get install postgresql poppler-utils) or run as root" >&2
+    echo "PostgreSQL server binaries, pdftoppm or chromium are missing; install them (apt-get install postgresql poppler-utils chromium) or run as root" >&2
     exit 1
 fi
-echo "installing PostgreSQL server and poppler-utils from Debian's packages..." >&2
+echo "installing PostgreSQL server, poppler-utils and chromium from Debian's packages..." >&2
 export DEBIAN_FRONTEND=noninteractive
 apt-get update -q >/dev/null
-apt-get install -y -q --no-install-recommends postgresql poppler-utils >/dev/null
+apt-get install -y -q --no-install-recommends postgresql poppler-utils chromium >/dev/null

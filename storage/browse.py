@@ -138,7 +138,7 @@ SORTS = {
     "verdict": CalibrationRow.verdict,
     "run": Run.run_id,
 }
-PER_PAGE = (25, 50, 100, 200)
+PER_PAGE = (10, 25, 50, 100, 200)
 MAX_PAGE = 100_000
 
 

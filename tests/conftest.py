@@ -119,3 +119,14 @@ def prefect_harness() -> Iterator[None]:
 
     with prefect_test_harness(server_startup_timeout=120):
         yield
+
+
+# --- calib serve ---------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def serve_sample(tmp_path_factory: pytest.TempPathFactory):
+    """The archive of tests/serve_sample.py (real pipeline, real SQLite file), built once."""
+    import serve_sample as sample
+
+    return sample.build(tmp_path_factory.mktemp("serve"))

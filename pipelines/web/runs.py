@@ -48,7 +48,7 @@ def runs_list(request: Request) -> HTMLResponse:
     kept = {k: q[k] for k in FILTERS if q.get(k)}
     return render(request, "runs.html", title="Runs", result=result, filters=kept, sort=sort,
                   order=order, per_page=per_page, choices=_choices(request),
-                  verdicts=queries.VERDICTS, sorts=browse.SORTS)  # fmt: skip
+                  verdicts=queries.VERDICTS, per_pages=browse.PER_PAGE)  # fmt: skip
 
 
 def _choices(request: Request) -> dict[str, list[str]]:
