@@ -22,6 +22,7 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 from serve_sample import (
+    DATA_SAMPLES,
     DRIFT_PER_DAY,
     DRIFT_SERIAL,
     EVIL_SERIAL,
@@ -337,3 +338,56 @@ def test_calib_serve_command_serves_the_archive(serve_sample):
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+@pytest.mark.postgres
+def test_postgresql_is_browsed_as_the_read_only_role(postgres_url, tmp_path):
+    """Owner URL: the server acts as calib_reader in read-only transactions; a writer that
+    cannot become the reader is refused at the start."""
+    from sqlalchemy.engine import make_url
+
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+    from storage.db import Archive
+    from storage.roles import READER, WRITER, apply_roles
+
+    owner = Archive(postgres_url, tmp_path / "store")
+    owner.upgrade()
+    run_ids = [process_run(s, owner)["run_id"] for s in discover_runs([DATA_SAMPLES])]
+    apply_roles(owner)
+    owner.dispose()
+    ro = browse.open_readonly(owner)
+    with ro.engine().connect() as conn:
+        assert conn.execute(text("SELECT current_user")).scalar_one() == READER
+    with TestClient(create_app(ro)) as c:
+        for url in ["/runs", f"/runs/{run_ids[0]}", f"/runs/{run_ids[0]}/lineage/acc.bias.x",
+                    "/units/MPU0001", "/fleet?model=MPU-6000", "/equipment", "/models",
+                    "/verify", f"/runs/{run_ids[0]}/export.json"]:  # fmt: skip
+            assert c.get(url).status_code == 200, url
+        assert rows(get(c, "/runs?serial=MPU0001"), "runs") == 1
+    with pytest.raises(Exception, match="read-only transaction|permission denied"), \
+            ro.engine().begin() as conn:  # fmt: skip
+        conn.execute(text("DELETE FROM check_results"))
+    ro.dispose()
+    as_writer = make_url(postgres_url).set(username=WRITER).render_as_string(hide_password=False)
+    with pytest.raises(PermissionError, match=READER):
+        browse.open_readonly(Archive(as_writer, tmp_path / "store"))
+    as_reader = make_url(postgres_url).set(username=READER).render_as_string(hide_password=False)
+    direct = browse.open_readonly(Archive(as_reader, tmp_path / "store"))
+    with TestClient(create_app(direct)) as c:
+        assert c.get("/runs").status_code == 200
+    direct.dispose()
+
+
+def test_browse_fleet_equals_the_fleet_query(serve_sample):
+    """The fleet page's one-pass picks (storage.browse) answer as storage.queries.fleet."""
+    from calib_core import params
+
+    fleet = browse.model_fleet(serve_sample.archive, "MPU-6000")
+    assert {u["serial"] for u in fleet.units} == {"MPU0001", "IMU-2026-0042", DRIFT_SERIAL,
+                                                  THERMAL_SERIAL}  # fmt: skip
+    for name in params.ACC_LINEAR + params.GYR_LINEAR:
+        mine = browse.fleet_values(serve_sample.archive, fleet, name)
+        theirs = queries.fleet(serve_sample.archive, "MPU-6000", name).to_dict("records")
+        key = lambda r: (r["serial"], r["run_id"], r["value"])  # noqa: E731
+        assert sorted(map(key, mine)) == sorted(map(key, theirs)), name

@@ -71,6 +71,7 @@ def create_app(archive: ReadOnlyArchive) -> FastAPI:
         openapi_url=None,
     )
     app.state.archive = archive
+    app.state.fleets = {}  # pipelines.web.units: model -> units, keyed by archive version
     for module in (runs, units, equipment):
         app.include_router(module.router)
 

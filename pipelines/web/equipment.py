@@ -11,7 +11,7 @@ from sqlalchemy import func, select
 
 from pipelines.web import forms
 from pipelines.web.app import render
-from storage import browse, queries
+from storage import browse
 from storage.schema import Device, Run
 
 router = APIRouter()
@@ -36,10 +36,9 @@ def equipment_item(request: Request) -> HTMLResponse:
     q = forms.params(request, ("kind", "serial"))
     kind, serial = q.get("kind", ""), q.get("serial", "")
     item = forms.checked(browse.equipment_item, archive, kind, serial)
-    lapsed = forms.checked(queries.lapsed_runs, archive, serial, kind)
-    rows = lapsed.to_dict("records")
+    lapsed, n_lapsed = browse.lapsed_page(archive, kind, serial, LAPSED_LIST_MAX)
     return render(request, "equipment.html", title=f"Equipment {kind} {serial}", item=item,
-                  lapsed=rows[:LAPSED_LIST_MAX], n_lapsed=len(rows),
+                  lapsed=lapsed, n_lapsed=n_lapsed,
                   state=browse.due_state(max((p["calibration_due"] for p in item["periods"]
                                               if p["calibration_due"]), default=None)))  # fmt: skip
 

@@ -244,15 +244,16 @@ def fleet_page(request: Request) -> HTMLResponse:
         forms.checked(queries.check_text, model, "model")
     name = q.get("parameter") or FLEET_PARAMETERS[0]
     forms.checked(params.validate, name)
-    units = forms.checked(browse.model_units, archive, model)
+    fleet = _fleet(request, model)
+    units = fleet.units
     if not units:
         forms.checked(_no_model, model)
-    values = forms.checked(queries.fleet, archive, model, name)
+    values = browse.fleet_values(archive, fleet, name)
     profiles = Counter(u["profile_name"] for u in units if u["profile_name"])
     profile = _profile(profiles.most_common(1)[0][0] if profiles else None)
     low, high = _band(profile, name)
     scale, unit = display(name, 1.0)
-    one = _one_per_unit(values.to_dict("records"))
+    one = _one_per_unit(values)
     outside = [r for r in one if not low <= r["value"] <= high]
     stats = drift.fleet_statistics([r["value"] * scale for r in one], [math.nan] * len(one),
                                    [r["serial"] for r in one]) if one else []  # fmt: skip
@@ -267,6 +268,26 @@ def fleet_page(request: Request) -> HTMLResponse:
                   outside=outside[:FLEET_LIST_MAX], n_outside=len(outside), scale=scale,
                   unit=unit, stats=stats[0] if stats else None, chart=chart, profile=profile,
                   low=low * scale, high=high * scale, n_values=len(one))  # fmt: skip
+
+
+FLEET_CACHE_SIZE = 8
+
+
+def _fleet(request: Request, model: str) -> browse.Fleet:
+    """The model's units (browse.model_fleet), cached until the archive changes.
+
+    The key holds browse.version (newest run and calibration ids): the archive is
+    append-only, so an unchanged key means unchanged units and verdicts.
+    """
+    archive = request.app.state.archive
+    key = (model, browse.version(archive))
+    cache = request.app.state.fleets
+    if key not in cache:
+        fleet = forms.checked(browse.model_fleet, archive, model)
+        while len(cache) >= FLEET_CACHE_SIZE:
+            cache.pop(next(iter(cache)))
+        cache[key] = fleet
+    return cache[key]
 
 
 def _no_model(model: str) -> None:
