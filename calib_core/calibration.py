@@ -27,12 +27,23 @@ JSON_SCHEMA_VERSION = 1
 
 @dataclass(frozen=True)
 class Parameter:
-    """One estimated parameter. `std` is the standard uncertainty (1 sigma), or None."""
+    """One estimated parameter: the one form solvers return, reports show and the archive keeps.
+
+    Attributes
+    ----------
+    name : canonical name (`calib_core.params`), e.g. ``gyr.scale.x``.
+    value : estimate in the SI unit `unit`.
+    std : standard uncertainty (1 sigma) in `unit`, or None where the solver gives none.
+    unit : SI unit; filled from the name when empty.
+    cov_index : row/column of this parameter in its calibration's `covariance`,
+        or None when the solver gives only the standard uncertainty.
+    """
 
     name: str
     value: float
     std: float | None = None
     unit: str = ""
+    cov_index: int | None = None
 
     def __post_init__(self) -> None:
         params.validate(self.name)
@@ -40,6 +51,18 @@ class Parameter:
             object.__setattr__(self, "unit", params.unit_of(self.name))
         if not math.isfinite(self.value):
             raise ValueError(f"parameter {self.name}: value is not finite ({self.value})")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The document form ``{"value", "std", "unit"}`` (+ ``cov_index`` when set)."""
+        doc: dict[str, Any] = {"value": self.value, "std": self.std, "unit": self.unit}
+        if self.cov_index is not None:
+            doc["cov_index"] = self.cov_index
+        return doc
+
+    @classmethod
+    def from_dict(cls, name: str, doc: dict[str, Any]) -> Parameter:
+        """Inverse of `to_dict`."""
+        return cls(name, doc["value"], doc.get("std"), doc.get("unit", ""), doc.get("cov_index"))
 
 
 def _fields_dict(record: Any) -> dict[str, Any]:
@@ -108,16 +131,46 @@ class Calibration:
     residuals: list[SegmentResidual] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)  # solver facts: condition number, turns...
+    # (P, P) covariance of the parameters that have a cov_index (SI units); blocks of
+    # separate fits are uncorrelated.
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     # --- building -------------------------------------------------------
     def add(self, name: str, value: float, std: float | None = None) -> None:
         self.parameters[name] = Parameter(name, float(value), None if std is None else float(std))
 
+    def add_fit(self, names: list[str], values: dict[str, float], cov: np.ndarray) -> None:
+        """Parameters of one least-squares fit with their (len(names), len(names)) covariance.
+
+        Standard uncertainties are the square roots of the diagonal; the block is
+        appended to `covariance` (uncorrelated with earlier fits).
+        """
+        cov = np.asarray(cov, dtype=float)
+        start = len(self.covariance)
+        grown = np.zeros((start + len(names),) * 2)
+        grown[:start, :start] = self.covariance
+        grown[start:, start:] = cov
+        self.covariance = grown
+        for i, name in enumerate(names):
+            std = float(np.sqrt(cov[i, i]))
+            self.parameters[name] = Parameter(
+                name, float(values[name]), std, cov_index=start + i
+            )
+
     def merged(self, other: Calibration) -> Calibration:
         """This calibration with `other`'s parameters, residuals and warnings added."""
+        shift = len(self.covariance)
+        theirs = {
+            n: p if p.cov_index is None else replace(p, cov_index=p.cov_index + shift)
+            for n, p in other.parameters.items()
+        }
+        covariance = np.zeros((shift + len(other.covariance),) * 2)
+        covariance[:shift, :shift] = self.covariance
+        covariance[shift:, shift:] = other.covariance
         return replace(
             self,
-            parameters={**self.parameters, **other.parameters},
+            covariance=covariance,
+            parameters={**self.parameters, **theirs},
             residuals=[*self.residuals, *other.residuals],
             warnings=[*self.warnings, *other.warnings],
             info={**self.info, **other.info},
@@ -172,10 +225,8 @@ class Calibration:
             "software_version": __version__,
             "procedure": self.procedure,
             "gravity": self.gravity,
-            "parameters": {
-                n: {"value": p.value, "std": p.std, "unit": p.unit}
-                for n, p in sorted(self.parameters.items())
-            },
+            "parameters": {n: p.to_dict() for n, p in sorted(self.parameters.items())},
+            **({"covariance": self.covariance.tolist()} if self.covariance.size else {}),
             "residuals": [r.to_dict() for r in self.residuals],
             "warnings": list(self.warnings),
             "info": self.info,
@@ -191,7 +242,9 @@ class Calibration:
             )
         cal = cls(procedure=doc["procedure"], gravity=float(doc["gravity"]))
         for name, p in doc["parameters"].items():
-            cal.parameters[name] = Parameter(name, p["value"], p.get("std"), p.get("unit", ""))
+            cal.parameters[name] = Parameter.from_dict(name, p)
+        if "covariance" in doc:
+            cal.covariance = np.asarray(doc["covariance"], dtype=float)
         cal.residuals = [
             SegmentResidual(r["segment"], r["sensor"], tuple(r["mean"]), tuple(r["std"]), r["n"])
             for r in doc.get("residuals", [])

@@ -29,6 +29,7 @@ their solver modules and docs/procedures.md for segment labels and settings.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -145,11 +146,13 @@ def _solve_statics(
     if settings["accel_model"] == "per_axis":
         values, stds = _per_axis_fit(f_true, stack(acc, "mean"), stack(acc, "sem"))
     linear = settings["accel_model"] == "linear"
-    for name in params.ACC_LINEAR if linear else values:
-        cal.add(name, values[name], stds[name])
+    if values is acc_fit.params:  # the least-squares fit: keep its covariance
+        cal.add_fit(acc_fit.names, acc_fit.params, acc_fit.cov)
+    else:
+        for name in params.ACC_LINEAR if linear else values:
+            cal.add(name, values[name], stds[name])
     gyr_fit = solve_gyro_static(f_true, stack(gyr, "mean"), stack(gyr, "sem"))
-    for name in gyr_fit.names:
-        cal.add(name, gyr_fit.params[name], gyr_fit.std[name])
+    cal.add_fit(gyr_fit.names, gyr_fit.params, gyr_fit.cov)
 
     # Noise: the paper's figure, the largest per-position std of each channel.
     for sensor, stats in (("acc", acc), ("gyr", gyr)):
@@ -341,29 +344,46 @@ def solve(
 
 
 def solve_step(
-    segments: dict[str, Recording], settings: dict[str, Any]
+    segments: dict[str, Recording],
+    settings: dict[str, Any],
+    held_out: frozenset[str] | set[str] = frozenset(),
 ) -> tuple[Calibration, StepRecord]:
-    """Pipeline step: settings {"procedure", "gravity", ...procedure settings}.
+    """The solve step of a run: the one StepRecord a solve leaves in the archive.
 
-    Returns the Calibration and the StepRecord (settings used, sample counts,
-    condition number) for the archive.
+    Parameters
+    ----------
+    segments : label -> Recording, after preprocessing.
+    settings : {"procedure", "gravity" (m/s^2), ...} plus the run's settings; the
+        procedure's own keys (module docstring) are taken, preprocessing tables ignored.
+    held_out : labels of verification segments: kept out of the fit, checked after.
+
+    Returns the Calibration and the StepRecord "solve" (settings used, wall time,
+    sample counts, condition number, warnings, held-out labels).
     """
     procedure = settings.get("procedure")
     if procedure is None or "gravity" not in settings:
         raise ValueError("solve step: settings need 'procedure' and 'gravity'")
+    gravity = float(settings["gravity"])
     proc_settings = {k: v for k, v in settings.items() if k not in ("procedure", "gravity")}
-    cal = solve(procedure, segments, float(settings["gravity"]), proc_settings)
-    used = _settings(proc_settings)
+    fit = {k: v for k, v in segments.items() if k not in held_out}
+    started = time.perf_counter()
+    cal = solve(procedure, fit, gravity, proc_settings)
+    scalars = {k: v for k, v in cal.info.items() if isinstance(v, int | float | str)}
     record = StepRecord(
-        name=f"solve:{procedure}",
-        settings={"procedure": procedure, "gravity": float(settings["gravity"]), **used},
+        name="solve",
+        # The run's settings as given, the solver's defaults filled in.
+        settings={"procedure": procedure, "gravity": gravity, **proc_settings,
+                  **_settings(proc_settings)},  # fmt: skip
         statistics={
+            **scalars,
+            "seconds": round(time.perf_counter() - started, 4),
             "parameters": len(cal.parameters),
-            "segments": len(segments),
+            "segments": len(fit),
             "sample_counts": cal.info.get("sample_counts", {}),
             "condition_number": cal.info.get("condition_number"),
             "turns": cal.info.get("turns"),
-            "warnings": len(cal.warnings),
+            "held_out": sorted(held_out),
+            "warnings": list(cal.warnings),
         },
     )
     return cal, record

@@ -36,6 +36,7 @@ from sqlalchemy import Engine, func, insert, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
+from calib_core.calibration import Parameter
 from storage import rawstore
 from storage.db import Archive
 from storage.naming import check_safe_name
@@ -98,8 +99,8 @@ class RunIn:
     software_version: str
     source_revision: str | None
     steps: list[dict[str, Any]]  # name, settings, statistics, software_version
-    calibration: dict[str, Any]  # Calibration.to_dict()
-    parameters: list[dict[str, Any]]  # name, value, std, unit, temperature_c
+    calibration: dict[str, Any]  # Calibration.to_dict(); its "parameters" come from `parameters`
+    parameters: list[dict[str, Any]]  # name, value, std, unit, temperature_c (+ cov_index)
     checks: list[dict[str, Any]]  # name, value, limit, passed, detail
     verdict: str  # "pass" or "fail"
     profile_name: str | None
@@ -118,6 +119,24 @@ class ArchiveResult:
     run_dir: Path
     message: str
     files: dict[str, Path] = field(default_factory=dict)
+
+
+# --- parameters: one form for rows and document -------------------------------
+
+
+def parameters_of(run: RunIn) -> list[Parameter]:
+    """The run's parameters as `Parameter` objects, in the order of ``run.parameters``.
+
+    The archive writes both the ``parameters`` rows and the parameters of the stored
+    calibration document from these objects, so the two cannot disagree when written
+    (`storage.verify` reports any later disagreement).
+    """
+    return [Parameter.from_dict(p["name"], p) for p in run.parameters]
+
+
+def calibration_document(run: RunIn, params: list[Parameter]) -> dict[str, Any]:
+    """The stored calibration document: ``run.calibration`` with its parameters from `params`."""
+    return {**run.calibration, "parameters": {p.name: p.to_dict() for p in params}}
 
 
 # --- identities -------------------------------------------------------------
@@ -208,6 +227,10 @@ def _validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
         _number(
             p.get("temperature_c"), f"parameters[{i}] ({p['name']}).temperature_c", optional=True
         )
+        try:
+            Parameter.from_dict(p["name"], p)
+        except ValueError as exc:
+            raise ValueError(f"parameters[{i}]: {exc}") from None
     for what, items in (("steps", run.steps), ("checks", run.checks)):
         for i, item in enumerate(items):
             if not isinstance(item.get("name"), str) or not item.get("name"):
@@ -472,6 +495,7 @@ def _write_rows(
     written: _Written,
 ) -> int:
     """All rows of the run in one transaction; return the new calibration's id."""
+    params = parameters_of(run)
     with Session(engine) as s, s.begin():
         if _plan(s, run, raw_hash, settings_hash) != plan:
             raise _PlanChangedError
@@ -486,7 +510,7 @@ def _write_rows(
             settings=run.settings,
             software_version=run.software_version,
             source_revision=run.source_revision,
-            document=run.calibration,
+            document=calibration_document(run, params),
             verdict=run.verdict,
             profile_name=run.profile_name,
             profile_version=run.profile_version,
@@ -518,13 +542,13 @@ def _write_rows(
             [
                 {
                     "calibration_id": cal.id,
-                    "name": p["name"],
-                    "value": p["value"],
-                    "std": p.get("std"),
-                    "unit": p.get("unit", ""),
-                    "temperature_c": p.get("temperature_c"),
+                    "name": p.name,
+                    "value": p.value,
+                    "std": p.std,
+                    "unit": p.unit,
+                    "temperature_c": row.get("temperature_c"),
                 }
-                for p in run.parameters
+                for p, row in zip(params, run.parameters, strict=True)
             ],
         )
         _insert_many(

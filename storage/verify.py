@@ -6,7 +6,10 @@
 missing or whose bytes changed. It also checks the database's own invariants
 that a crash or a manual edit could break: every run has raw files and
 exactly one current calibration revision, and a revision is superseded only
-by a later revision of the same run.
+by a later revision of the same run. The ``parameters`` rows of every
+calibration must agree with the parameters of its stored document (both are
+written from the same objects): any difference, a missing or an extra row is a
+*record* problem naming run, revision, parameter, field and both values.
 
 Files the database does not reference (an archive attempt killed between
 writing its files and committing its rows leaves those) are listed as
@@ -27,9 +30,9 @@ from sqlalchemy.orm import aliased
 
 from storage import rawstore
 from storage.db import Archive
-from storage.schema import CalibrationRow, RawFile, Run
+from storage.schema import CalibrationRow, ParameterRow, RawFile, Run
 
-ProblemKind = Literal["missing", "mismatch", "outside", "database"]
+ProblemKind = Literal["missing", "mismatch", "outside", "database", "record"]
 _CHUNK = 1 << 20
 
 
@@ -40,8 +43,10 @@ class Problem:
     Attributes
     ----------
     kind : "missing" (no file), "mismatch" (other bytes or size), "outside"
-        (a stored path that leaves the file store), "database" (a broken invariant).
-    path : the file, relative to the file store root ("" for database problems).
+        (a stored path that leaves the file store), "database" (a broken invariant),
+        "record" (parameter rows and calibration document disagree).
+    path : the file, relative to the file store root ("" for database problems;
+        ``parameters/<name>`` for record problems).
     runs : run ids concerned.
     detail : what was expected and what was found.
     """
@@ -140,6 +145,7 @@ def verify(archive: Archive, *, orphans: bool = True) -> VerifyReport:
         run_dirs = conn.execute(select(Run.run_dir)).scalars().all()
         report.runs_checked = len(run_dirs)
         _check_database(conn, report)
+        _check_parameters(conn, report)
 
     objects: dict[tuple[str, str, int], list[str]] = defaultdict(list)
     for path, sha, size, run_id in raw_rows:
@@ -191,6 +197,72 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
                 "not a later revision of the same run"
             )
         )  # fmt: skip
+
+
+_PARAMETER_FIELDS = ("value", "std", "unit")
+
+
+def _check_parameters(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
+    """Every calibration's parameter rows against the parameters of its document."""
+    rows: dict[int, dict[str, tuple]] = defaultdict(dict)
+    for cal_id, name, *values in conn.execute(
+        select(
+            ParameterRow.calibration_id,
+            ParameterRow.name,
+            ParameterRow.value,
+            ParameterRow.std,
+            ParameterRow.unit,
+        )
+    ):
+        if name in rows[cal_id]:
+            report.problems.append(
+                Problem("record", f"parameters/{name}", [],
+                        f"{name}: more than one parameters row in calibration id {cal_id}")
+            )  # fmt: skip
+        rows[cal_id][name] = tuple(values)
+    docs = conn.execution_options(yield_per=2000).execute(
+        select(CalibrationRow.id, CalibrationRow.revision, CalibrationRow.document, Run.run_id)
+        .join(Run, Run.id == CalibrationRow.run_id)
+        .order_by(CalibrationRow.id)
+    )
+    for cal_id, revision, document, run_id in docs:
+        where = f"{run_id} revision {revision}"
+        in_doc = (document or {}).get("parameters") or {}
+        for detail in _parameter_differences(rows.pop(cal_id, {}), in_doc, where):
+            name = detail.split(" ", 1)[0]
+            report.problems.append(Problem("record", f"parameters/{name}", [run_id], detail))
+    for cal_id, stray in rows.items():
+        for name in sorted(stray):
+            report.problems.append(
+                Problem(
+                    "record", f"parameters/{name}", [],
+                    f"{name}: row of calibration id {cal_id}, which does not exist",
+                )
+            )  # fmt: skip
+
+
+def _parameter_differences(
+    rows: dict[str, tuple], in_doc: dict[str, dict[str, Any]], where: str
+) -> list[str]:
+    """What differs between one calibration's rows (name -> (value, std, unit)) and document."""
+    found: list[str] = []
+    for name in sorted(set(rows) | set(in_doc)):
+        if name not in in_doc:
+            found.append(f"{name} of {where}: a parameters row, absent from the document")
+            continue
+        if name not in rows:
+            found.append(f"{name} of {where}: in the document, no parameters row")
+            continue
+        for field_, row_value in zip(_PARAMETER_FIELDS, rows[name], strict=True):
+            doc_value = in_doc[name].get(field_)
+            if field_ == "unit":
+                doc_value = doc_value or ""
+            if row_value != doc_value:
+                found.append(
+                    f"{name} of {where}: {field_} is {row_value!r} in the parameters row, "
+                    f"{doc_value!r} in the calibration document"
+                )
+    return found
 
 
 def _orphans(root: Path, known_files: set[str], run_dirs: set[str]) -> list[str]:

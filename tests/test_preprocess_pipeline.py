@@ -25,7 +25,8 @@ from calib_core.simulate.table import rate_table_run
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.cli import app
 from pipelines.ingest import RunSource
-from pipelines.process import preprocess, process_run
+from calib_core.preprocess.chain import preprocess
+from pipelines.process import process_run
 from storage.db import Archive, default_archive_url
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "imucal_ferraris"

@@ -157,7 +157,8 @@ def test_solve_step_records_settings_and_counts():
     cal, step = solve_step(
         run.segments, {"procedure": "six_position_integral", "gravity": run.gravity}
     )
-    assert step.name == "solve:six_position_integral"
+    assert step.name == "solve"
+    assert step.settings["procedure"] == "six_position_integral"
     assert step.settings["gyro_range_dps"] == 2000.0
     assert step.statistics["turns"] == 1
     assert step.statistics["parameters"] == len(cal.parameters) == 39

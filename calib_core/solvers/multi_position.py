@@ -483,8 +483,7 @@ def gyro_bias_and_gsens(
             "gyr.gsens.* not estimated (gyr.bias includes G f)"
         )
         return
-    for name in fit.names:
-        cal.add(name, fit.params[name], fit.std[name])
+    cal.add_fit(fit.names, fit.params, fit.cov)
     cal.info["gyr_fit_chi2"] = [float(v) for v in fit.chi2]
 
 
@@ -550,8 +549,7 @@ def solve_multi_position(
         f_true, np.array([a.mean for a in acc]), np.array([a.sem for a in acc]), s["model"]
     )
     cal = Calibration(procedure="multi_position", gravity=gravity)
-    for name in fit.names:
-        cal.add(name, fit.params[name], fit.std[name])
+    cal.add_fit(fit.names, fit.params, fit.cov)
     if s["gyro_gsens"]:
         gyro_bias_and_gsens(
             cal, f_true, np.array([g.mean for g in gyr]), np.array([g.sem for g in gyr])

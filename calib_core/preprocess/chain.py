@@ -1,0 +1,234 @@
+"""Preprocessing chain of one run: sync -> segmentation -> outliers -> low-pass.
+
+The science half of the pipeline's preprocessing, one pure function (`preprocess`)
+over the run's segments and its ``run.settings`` tables: each step validates its
+table, runs, and returns a StepRecord for the archive. No I/O.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from calib_core.calibration import StepRecord
+from calib_core.preprocess.filters import lowpass
+from calib_core.preprocess.outliers import remove_outliers
+from calib_core.preprocess.segments import segment
+from calib_core.preprocess.sync import synchronise
+from calib_core.recording import Recording
+
+DEFAULT_OUTLIERS = {"method": "sigma", "n_sigma": 3.0, "policy": "interpolate"}
+# Keys each [run.settings.<step>] table may hold (docs/manifest.md, "Preprocessing settings").
+OUTLIER_KEYS = {"method", "n_sigma", "alpha", "window", "policy", "channels"}
+LOWPASS_KEYS = {"cutoff_hz", "bandwidth_hz", "fraction", "order", "apply_to"}
+SEGMENTATION_KEYS = {
+    "window_s",
+    "init_static_s",
+    "k",
+    "min_duration_s",
+    "settle_s",
+    "min_keep_s",
+    "settle_fraction",
+    "min_angle_deg",
+}
+SYNC_KEYS = {
+    "signal",
+    "signal_kind",
+    "imu_axis",
+    "max_offset_s",
+    "max_drift_ppm",
+    "window_s",
+    "max_gap_s",
+}
+
+
+def is_static(label: str) -> bool:
+    """Static positions are labelled `<axis>_up` / `<axis>_dn`."""
+    return label.endswith(("_up", "_dn"))
+
+
+def settings_table(settings: dict[str, Any], name: str, allowed: set[str]) -> dict[str, Any] | None:
+    """The ``[run.settings.<name>]`` table, checked against its known keys; None if absent."""
+    given = settings.get(name)
+    if given is None:
+        return None
+    if not isinstance(given, dict):
+        raise ValueError(f"run.settings.{name}: expected a table of settings, got {given!r}")
+    unknown = sorted(set(given) - allowed)
+    if unknown:
+        raise ValueError(
+            f"run.settings.{name}: unknown setting(s) {', '.join(unknown)}; "
+            f"expected some of: {', '.join(sorted(allowed))}"
+        )
+    return dict(given)
+
+
+def sync_segments(
+    segments: dict[str, Recording], cfg: dict[str, Any]
+) -> tuple[dict[str, Recording], StepRecord]:
+    """Align the rate-table feedback of every segment that has it with the IMU clock.
+
+    The table channels come from ``[format.reference_columns]``, logged on the
+    IMU's rows but on the table's clock (latency, drift); `synchronise`
+    estimates offset and drift from the gyro and puts them on the IMU time base.
+    """
+    signal = cfg.get("signal", "table_rate")
+    out: dict[str, Recording] = {}
+    per_segment: dict[str, Any] = {}
+    used: dict[str, Any] = dict(cfg)
+    for label, rec in segments.items():
+        if signal not in rec.reference:
+            out[label] = rec
+            continue
+        out[label], record = synchronise(rec, rec.t, dict(rec.reference), **cfg)
+        per_segment[label] = record.statistics
+        used = record.settings
+    if not per_segment:
+        raise ValueError(
+            f"run.settings.sync: no segment has the reference channel {signal!r} "
+            "(name it in [format.reference_columns])"
+        )
+    return out, StepRecord("synchronise", settings=used, statistics={"segments": per_segment})
+
+
+def segment_recordings(
+    recordings: dict[str, Recording], cfg: dict[str, Any], gravity: float
+) -> tuple[dict[str, Recording], StepRecord]:
+    """Cut continuous recordings into labelled statics and rotations (automatic segmentation).
+
+    Statics are labelled by the direction of gravity (x_up .. z_dn), rotations
+    by axis and sense (x_ccw, z_cw, ...): `calib_core.preprocess.segments.segment`.
+    Where a label is found more than once (a face held again, the rest around a
+    turn), the longest interval is kept; the others, and tilted statics, are
+    listed as unused in the step record.
+    """
+    candidates: dict[str, list[tuple[Recording, dict[str, Any]]]] = {}
+    unused: list[dict[str, Any]] = []
+    per_recording: dict[str, Any] = {}
+    for name, rec in recordings.items():
+        seg, record = segment(rec, gravity=gravity, **cfg)
+        per_recording[name] = record.statistics
+        intervals = list(zip(seg.statics, seg.static_labels, strict=True))
+        intervals += list(zip(seg.rotations, seg.rotation_labels, strict=True))
+        for iv, label in intervals:
+            where = {"recording": name, "start_s": iv.start_s, "end_s": iv.end_s}
+            if label is None:
+                unused.append({**where, "label": None, "reason": "tilted"})
+                continue
+            part = dataclasses.replace(
+                rec.select(iv.slice, label=label),
+                source=f"{rec.source or name} t in [{iv.start_s:.3f}, {iv.end_s:.3f}) s",
+            )
+            candidates.setdefault(label, []).append((part, {**where, "n_samples": len(part)}))
+    chosen: dict[str, Recording] = {}
+    used: dict[str, Any] = {}
+    for label, hits in candidates.items():
+        hits.sort(key=lambda hit: -len(hit[0]))  # longest first; stable: earliest of equals
+        (chosen[label], used[label]), rest = hits[0], hits[1:]
+        unused += [{**where, "label": label, "reason": "shorter repeat"} for _, where in rest]
+    if not chosen:
+        raise ValueError(
+            "automatic segmentation found no labelled static face or rotation in "
+            f"{', '.join(recordings)}; check run.settings.segmentation (init_static_s, k)"
+        )
+    ordered = dict(sorted(chosen.items(), key=lambda kv: used[kv[0]]["start_s"]))
+    return ordered, StepRecord(
+        "segment",
+        settings={**cfg, "gravity": gravity},
+        statistics={
+            "segments": {k: used[k] for k in ordered},
+            "unused": unused,
+            "recordings": per_recording,
+        },
+    )
+
+
+def lowpass_segments(
+    segments: dict[str, Recording], cfg: dict[str, Any]
+) -> tuple[dict[str, Recording], StepRecord]:
+    """Zero-phase low-pass of the static segments (``apply_to = "static"``) or of all.
+
+    Averages are unchanged (DC gain exactly 1), but filtered samples are
+    correlated: the uncertainty of a mean then comes from the effective sample
+    count (calib_core.stats), not from N.
+    """
+    kwargs = dict(cfg)
+    apply_to = kwargs.pop("apply_to", "static")
+    if apply_to not in ("static", "all"):
+        raise ValueError(
+            f"run.settings.lowpass.apply_to: expected 'static' or 'all', got {apply_to!r}"
+        )
+    out: dict[str, Recording] = {}
+    per_segment: dict[str, Any] = {}
+    used: dict[str, Any] = {}
+    for label, rec in segments.items():
+        if apply_to == "static" and not is_static(label):
+            out[label] = rec
+            continue
+        out[label], record = lowpass(rec, **kwargs)
+        per_segment[label] = record.statistics
+        used = record.settings
+    return out, StepRecord(
+        "lowpass", settings={**used, "apply_to": apply_to}, statistics={"segments": per_segment}
+    )
+
+
+def preprocess(
+    segments: dict[str, Recording], settings: dict[str, Any], gravity: float | None = None
+) -> tuple[dict[str, Recording], list[StepRecord]]:
+    """Preprocessing chain of one run, each step from its ``run.settings`` table.
+
+    In order: ``sync`` (table feedback onto the IMU clock; only if given),
+    ``segmentation`` (continuous recordings cut into labelled segments; only if
+    given, needs `gravity`, m/s^2), ``outliers`` (static segments only, never
+    across a rotation where the signal moves; DEFAULT_OUTLIERS, ``{"method":
+    "none"}`` turns it off), ``lowpass`` (only if given). Outliers go before
+    the low-pass, which would smear a spike over its neighbours.
+
+    Returns the segments and one StepRecord per step that ran (settings used,
+    what was found, removed or changed).
+    """
+    steps: list[StepRecord] = []
+    sync_cfg = settings_table(settings, "sync", SYNC_KEYS)
+    if sync_cfg is not None:
+        segments, record = sync_segments(segments, sync_cfg)
+        steps.append(record)
+    seg_cfg = settings_table(settings, "segmentation", SEGMENTATION_KEYS)
+    if seg_cfg is not None:
+        if gravity is None:
+            raise ValueError(
+                "run.settings.segmentation: automatic segmentation needs the local gravity"
+            )
+        segments, record = segment_recordings(segments, seg_cfg, gravity)
+        steps.append(record)
+
+    cfg = {**DEFAULT_OUTLIERS, **(settings_table(settings, "outliers", OUTLIER_KEYS) or {})}
+    segments, record = outliers_segments(segments, cfg)
+    steps.append(record)
+
+    lp_cfg = settings_table(settings, "lowpass", LOWPASS_KEYS)
+    if lp_cfg is not None:
+        segments, record = lowpass_segments(segments, lp_cfg)
+        steps.append(record)
+    return segments, steps
+
+
+def outliers_segments(
+    segments: dict[str, Recording], cfg: dict[str, Any]
+) -> tuple[dict[str, Recording], StepRecord]:
+    """Outlier removal on the static segments only (never across a rotation, where the
+    signal moves); ``{"method": "none"}`` records the step as skipped."""
+    if cfg["method"] == "none":
+        return segments, StepRecord("outliers", settings=cfg, statistics={"skipped": True})
+    kwargs = {k: v for k, v in cfg.items() if k != "method"}
+    if "channels" in kwargs:
+        kwargs["channels"] = tuple(kwargs["channels"])
+    cleaned: dict[str, Recording] = {}
+    per_segment: dict[str, Any] = {}
+    for label, rec in segments.items():
+        if not is_static(label):
+            cleaned[label] = rec
+            continue
+        cleaned[label], record = remove_outliers(rec, method=cfg["method"], **kwargs)
+        per_segment[label] = record.statistics
+    return cleaned, StepRecord("outliers", settings=cfg, statistics={"segments": per_segment})
