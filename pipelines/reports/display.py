@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from calib_core.params import UNITS
 from calib_core.units import DEG, STANDARD_GRAVITY
 
-# parameter family -> (display unit, factor that turns SI into the display unit)
-DISPLAY_UNITS: dict[str, tuple[str, float]] = {
+# Parameter family -> (display unit, factor that turns SI into the display unit), where
+# labs read another unit than SI; every other family of calib_core.params.UNITS shows
+# in its SI unit (`display_unit`), so a family added there cannot be forgotten here.
+LAB_UNITS: dict[str, tuple[str, float]] = {
     "acc.bias": ("m/s^2", 1.0),
     "acc.noise": ("m/s^2", 1.0),
     "acc.scale": ("1", 1.0),
@@ -17,6 +20,9 @@ DISPLAY_UNITS: dict[str, tuple[str, float]] = {
     "gyr.scale": ("1", 1.0),
     "gyr.misalign": ("1", 1.0),
     "gyr.gsens": ("(deg/s)/g", STANDARD_GRAVITY / DEG),
+}
+DISPLAY_UNITS: dict[str, tuple[str, float]] = {
+    family: LAB_UNITS.get(family, (si, 1.0)) for family, si in UNITS.items()
 }
 
 
