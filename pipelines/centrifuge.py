@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 from calib_core.calibration import StepRecord
-from calib_core.simulate.centrifuge import CentrifugeRun
 from calib_core.solvers.centrifuge import (
     AxisValidation,
     CentrifugeModel,
@@ -27,12 +26,10 @@ from calib_core.solvers.centrifuge import (
     model_summary,
     settings_from_dict,
     solve_centrifuge,
-    step_label,
     steps_from_segments,
     validation_errors,
 )
 from pipelines.ingest import LoadedRun, RunSource, load_run
-from pipelines.samples import write_csv_run
 
 REPORT_NAME = "centrifuge_report.txt"
 
@@ -226,29 +223,3 @@ def render_report(
 
 def _pm(value: float, std: float, digits: int) -> str:
     return f"{value:.{digits}f} +- {std:.2g}" if math.isfinite(std) else f"{value:.{digits}f}"
-
-
-def write_centrifuge_run(run: CentrifugeRun, folder: Path, manifest: dict) -> Path:
-    """Write a simulated centrifuge run as a CSV run folder (labels by `step_label`).
-
-    `manifest` holds the sections unit, run, site...; the procedure is set to
-    ``centrifuge`` and the truth goes to ``truth.json``. Returns the run.toml path.
-    """
-    segments = {}
-    for step in run.steps:
-        label = step_label(step)
-        if label in segments:
-            raise ValueError(f"two steps with the label {label!r}")
-        segments[label] = step.recording
-    doc = {**manifest, "run": {**manifest.get("run", {}), "procedure": "centrifuge"}}
-    t = run.truth
-    truth = {
-        "model": t.model,
-        "radius": t.radius,
-        "phi_h": t.phi_h,
-        "tilt": t.tilt,
-        "direction": t.direction,
-        "gravity": t.gravity,
-        "run_offset": [float(v) for v in t.run_offset],
-    }
-    return write_csv_run(segments, Path(folder), doc, truth)

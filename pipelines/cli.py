@@ -9,45 +9,22 @@ import signal
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
-import pipelines  # noqa: F401 - sets the no-telemetry environment before Prefect loads
-
-app = typer.Typer(
-    add_completion=False, no_args_is_help=True, help="IMU calibration pipeline and archive."
+from pipelines.cli_shared import (
+    ArchiveOpt,
+    app,
+    err,
+    fail,
+    open_archive,
+    out,
+    print_frame,
+    print_json,
 )
-out = Console()
-err = Console(stderr=True)
-
-ArchiveOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--archive",
-        envvar="CALIB_ARCHIVE",
-        help="Archive directory or SQLAlchemy URL (default ./calib-archive).",
-    ),
-]
-
-
-def open_archive(arg: str | None):
-    from storage.db import resolve_archive
-
-    arch = resolve_archive(arg)
-    arch.upgrade()
-    return arch
-
-
-def fail(message: str) -> None:
-    err.print(f"[red]error:[/red] {message}")
-    raise typer.Exit(2)
-
-
-def print_json(doc: Any) -> None:
-    sys.stdout.write(json.dumps(doc, indent=2, default=str) + "\n")
+from pipelines.commands import register_all
 
 
 @contextlib.contextmanager
@@ -275,18 +252,7 @@ def export(
         err.print(f"wrote {output}")
 
 
-def print_frame(df, title: str) -> None:
-    table = Table(title=title)
-    for col in df.columns:
-        table.add_column(str(col))
-    for row in df.itertuples(index=False):
-        table.add_row(*("" if v is None else str(v) for v in row))
-    out.print(table)
-
-
 # Commands of the other areas live in pipelines/commands/ and register themselves on `app`.
-from pipelines.commands import register_all  # noqa: E402
-
 register_all()
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import numpy as np
 
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.units import DEG
-from pipelines.samples import write_csv_run, write_mpu6000_run
+from pipelines.run_writers import write_csv_run, write_mpu6000_run
 
 ROOT = Path(__file__).resolve().parent.parent / "data_samples"
 

@@ -27,7 +27,7 @@ from calib_core.thermal import ThermalModel
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines import exports
 from pipelines.cli import app
-from pipelines.samples import write_csv_run, write_mpu6000_run
+from pipelines.run_writers import write_csv_run, write_mpu6000_run
 from storage import thermal as thermal_store
 from storage.archive import RawFileIn, RunIn, archive_run
 from storage.db import resolve_archive

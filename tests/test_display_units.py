@@ -12,11 +12,11 @@ from typer.testing import CliRunner
 
 from calib_core import params
 from calib_core.simulate.centrifuge import simulate_centrifuge
-from pipelines.centrifuge import write_centrifuge_run
 from pipelines.cli import app
 from pipelines.ingest import RunSource
 from pipelines.process import process_run
 from pipelines.reports.display import DISPLAY_UNITS, display
+from pipelines.run_writers import write_centrifuge_run
 from storage.db import resolve_archive
 
 # Every family the name grammar of calib_core.params admits, spelled out: a family

@@ -19,7 +19,7 @@ from calib_core.units import (
 )
 from pipelines.ingest import FormatSpec, IngestError, discover_runs, load_run, read_csv
 from pipelines.ingest.manifest import SIX_POSITION_LABELS
-from pipelines.samples import (
+from pipelines.run_writers import (
     CSV_ACC_DECIMALS,
     CSV_GYR_DECIMALS,
     CSV_REFERENCE_DECIMALS,

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from pipelines.ingest import IngestError, load_manifest
-from pipelines.samples import dumps_toml
+from pipelines.run_writers import dumps_toml
 
 EXAMPLE = """\
 schema_version = 1

@@ -18,6 +18,7 @@ import pytest
 from typer.testing import CliRunner
 
 from calib_core import procedures
+from calib_core.preprocess.chain import preprocess
 from calib_core.preprocess.segments import segment
 from calib_core.recording import Recording
 from calib_core.simulate import random_errors, six_position_integral_run
@@ -25,7 +26,6 @@ from calib_core.simulate.table import rate_table_run
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.cli import app
 from pipelines.ingest import RunSource
-from calib_core.preprocess.chain import preprocess
 from pipelines.process import process_run
 from storage.db import Archive, default_archive_url
 

@@ -30,7 +30,7 @@ from pipelines.ingest import discover_runs
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import parse_manifest
 from pipelines.process import process_run
-from pipelines.samples import write_csv_run
+from pipelines.run_writers import write_csv_run
 from storage import queries, schema
 from storage.db import Archive, resolve_archive
 

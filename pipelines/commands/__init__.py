@@ -1,7 +1,8 @@
 """Further `calib` commands, one module per area (report, query, thermal, ...).
 
-Every module in this package is imported by `pipelines.cli` and registers its
-commands on `pipelines.cli.app` with ``@app.command()``.
+Every module in this package is imported by `pipelines.cli` (`register_all`) and
+registers its commands on the shared app (`pipelines.cli_shared.app`) with
+``@app.command()``; none imports `pipelines.cli`.
 """
 
 import importlib

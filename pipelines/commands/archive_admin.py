@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli import ArchiveOpt, app, err, fail, open_archive
+from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive
 
 
 @app.command()

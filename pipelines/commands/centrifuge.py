@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli import app, fail, out, print_json
+from pipelines.cli_shared import app, fail, out, print_json
 
 
 @app.command()

@@ -18,7 +18,7 @@ import pandas as pd
 import typer
 from rich.table import Table
 
-from pipelines.cli import ArchiveOpt, app, err, fail, open_archive, out, print_frame
+from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, out, print_frame
 
 query_app = typer.Typer(
     no_args_is_help=True, help="Ask the archive: latest, lineage, lapsed, units, history, fleet."

@@ -13,7 +13,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from pipelines.cli import ArchiveOpt, app, fail, open_archive, out, print_json
+from pipelines.cli_shared import ArchiveOpt, app, fail, open_archive, out, print_json
 
 
 @app.command("repeatability")

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli import ArchiveOpt, app, err, fail, open_archive, print_json
+from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, print_json
 
 
 @app.command()

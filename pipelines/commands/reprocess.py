@@ -24,7 +24,7 @@ from typing import Annotated, Any
 
 import typer
 
-from pipelines.cli import ArchiveOpt, app, err, fail, open_archive, out, print_json
+from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, out, print_json
 from pipelines.ingest.manifest import check_relative_name
 from pipelines.ingest.run_loader import MANIFEST_NAME, RunSource
 from storage.db import Archive

@@ -13,7 +13,16 @@ from typing import Annotated, Any
 
 import typer
 
-from pipelines.cli import ArchiveOpt, app, err, fail, open_archive, out, print_frame, print_json
+from pipelines.cli_shared import (
+    ArchiveOpt,
+    app,
+    err,
+    fail,
+    open_archive,
+    out,
+    print_frame,
+    print_json,
+)
 
 thermal_app = typer.Typer(no_args_is_help=True, help="Temperature compensation: fit and export.")
 app.add_typer(thermal_app, name="thermal")

@@ -4,6 +4,7 @@
   (methods.md section 5), with the underscore line, means and standard deviations.
 - :func:`write_csv_run`: one headered CSV with all segments on one time base,
   and a ``run.toml`` whose segment windows point at them.
+- :func:`write_centrifuge_run`: a simulated centrifuge run as a CSV run folder.
 
 Both write the simulator's truth as JSON beside the data when given. The
 printed precision of every column is a module constant, so a test can derive
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from calib_core.recording import Recording
+from calib_core.solvers.centrifuge import step_label
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
 from pipelines.ingest.mpu6000 import COLUMN_DECIMALS
 from storage.naming import check_safe_name
@@ -315,3 +317,32 @@ def dumps_toml(doc: dict, _prefix: str = "") -> str:
                 f"{_key(k)} = {_value(v)}\n" for k, v in flat.items()
             )
     return out
+
+
+def write_centrifuge_run(run: Any, folder: Path, manifest: dict) -> Path:
+    """Write a simulated centrifuge run as a CSV run folder (labels by `step_label`).
+
+    `run` is a `calib_core.simulate.centrifuge.CentrifugeRun` (steps with their
+    recordings, truth); not imported here, production code stays free of the simulator.
+
+    `manifest` holds the sections unit, run, site...; the procedure is set to
+    ``centrifuge`` and the truth goes to ``truth.json``. Returns the run.toml path.
+    """
+    segments = {}
+    for step in run.steps:
+        label = step_label(step)
+        if label in segments:
+            raise ValueError(f"two steps with the label {label!r}")
+        segments[label] = step.recording
+    doc = {**manifest, "run": {**manifest.get("run", {}), "procedure": "centrifuge"}}
+    t = run.truth
+    truth = {
+        "model": t.model,
+        "radius": t.radius,
+        "phi_h": t.phi_h,
+        "tilt": t.tilt,
+        "direction": t.direction,
+        "gravity": t.gravity,
+        "run_offset": [float(v) for v in t.run_offset],
+    }
+    return write_csv_run(segments, Path(folder), doc, truth)

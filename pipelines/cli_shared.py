@@ -1,0 +1,58 @@
+"""The `calib` command's shared parts: the Typer app, consoles, common options, output helpers.
+
+`pipelines.cli` defines the run commands and imports `pipelines.commands`; the command
+modules import these from here, never from `pipelines.cli`, so imports go one way.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+import pipelines  # noqa: F401 - sets the no-telemetry environment before Prefect loads
+
+app = typer.Typer(
+    add_completion=False, no_args_is_help=True, help="IMU calibration pipeline and archive."
+)
+out = Console()
+err = Console(stderr=True)
+
+ArchiveOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--archive",
+        envvar="CALIB_ARCHIVE",
+        help="Archive directory or SQLAlchemy URL (default ./calib-archive).",
+    ),
+]
+
+
+def open_archive(arg: str | None):
+    from storage.db import resolve_archive
+
+    arch = resolve_archive(arg)
+    arch.upgrade()
+    return arch
+
+
+def fail(message: str) -> None:
+    err.print(f"[red]error:[/red] {message}")
+    raise typer.Exit(2)
+
+
+def print_json(doc: Any) -> None:
+    sys.stdout.write(json.dumps(doc, indent=2, default=str) + "\n")
+
+
+def print_frame(df, title: str) -> None:
+    table = Table(title=title)
+    for col in df.columns:
+        table.add_column(str(col))
+    for row in df.itertuples(index=False):
+        table.add_row(*("" if v is None else str(v) for v in row))
+    out.print(table)

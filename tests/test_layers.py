@@ -1,0 +1,117 @@
+"""The layer contract of docs/architecture.md, checked on every production module.
+
+- calib_core (the science) imports only the standard library's non-I/O modules,
+  numpy, scipy and itself: no storage, pipelines, database, workflow, file-format or
+  file-system module;
+- storage (the archive) imports no pipelines;
+- pipelines.commands never imports pipelines.cli (cli -> commands, one way);
+- no production module imports calib_core.simulate (tests, benchmarks, scripts and
+  the sample-data generator may).
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("calib_core", "storage", "pipelines")
+SCIENCE_THIRD_PARTY = {"numpy", "scipy"}
+# Standard-library modules that touch files, processes, the network or a database.
+IO_STDLIB = {
+    "os", "io", "pathlib", "shutil", "glob", "tempfile", "subprocess", "socket", "sqlite3",
+    "pickle", "shelve", "dbm", "urllib", "http", "ftplib", "smtplib", "mmap", "fileinput",
+    "multiprocessing", "concurrent", "asyncio", "logging", "zipfile", "tarfile", "csv",
+}  # fmt: skip
+
+
+def imported_modules(source: str, module: str) -> list[tuple[int, str]]:
+    """(line, absolute dotted name) of every import in `source` (relative ones resolved)."""
+    found: list[tuple[int, str]] = []
+    package = module.rsplit(".", 1)[0]
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
+            found.append((node.lineno, base))
+            # `from calib_core import simulate` names a module too
+            found += [(node.lineno, f"{base}.{alias.name}") for alias in node.names]
+    return found
+
+
+def _within(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def violations(module: str, source: str) -> list[str]:
+    """What `module` (dotted name, a production module) imports against the contract,
+    one line per offending import statement."""
+    bad: dict[int, str] = {}
+    for line, name in imported_modules(source, module):
+        if line in bad:
+            continue
+        top = name.split(".")[0]
+        why = None
+        if _within(name, "calib_core.simulate"):
+            if not _within(module, "calib_core.simulate"):
+                why = "production code imports the simulator"
+        elif _within(module, "calib_core"):
+            if top in ("storage", "pipelines"):
+                why = "calib_core imports a higher layer"
+            elif top in IO_STDLIB:
+                why = "calib_core imports an I/O module"
+            elif top not in sys.stdlib_module_names and top not in SCIENCE_THIRD_PARTY | {
+                "calib_core", "__future__",
+            }:  # fmt: skip
+                why = "calib_core imports a library other than numpy and scipy"
+        elif _within(module, "storage") and top == "pipelines":
+            why = "storage imports pipelines"
+        elif _within(module, "pipelines.commands") and _within(name, "pipelines.cli"):
+            why = "a command module imports pipelines.cli (cli -> commands only)"
+        if why:
+            bad[line] = f"{module} line {line}: imports {name}: {why}"
+    return list(bad.values())
+
+
+def production_modules() -> dict[str, Path]:
+    mods: dict[str, Path] = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            rel = path.relative_to(ROOT).with_suffix("")
+            parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+            if "migrations" in parts:
+                continue  # Alembic scripts: data definitions run by Alembic itself
+            mods[".".join(parts)] = path
+    return mods
+
+
+def test_every_production_module_keeps_the_layer_contract() -> None:
+    mods = production_modules()
+    assert len(mods) > 60, sorted(mods)  # the walk found the packages
+    bad = [v for mod, path in mods.items() for v in violations(mod, path.read_text("utf-8"))]
+    assert bad == [], "\n".join(bad)
+
+
+def test_the_checker_reports_each_kind_of_forbidden_import() -> None:
+    cases = {
+        ("calib_core.noise", "import sqlalchemy"): "library other than numpy",
+        ("calib_core.noise", "from pathlib import Path"): "I/O module",
+        ("calib_core.noise", "from storage import queries"): "higher layer",
+        ("calib_core.solvers.integral", "from ..simulate import noise"): "simulator",
+        ("storage.archive", "from pipelines.process import run_outcome"): "storage imports",
+        ("pipelines.commands.query", "from pipelines.cli import app"): "cli -> commands",
+        ("pipelines.process", "from calib_core import simulate"): "simulator",
+        ("pipelines.process", "import calib_core.simulate.table"): "simulator",
+    }
+    for (module, source), reason in cases.items():
+        found = violations(module, source)
+        assert len(found) == 1 and reason in found[0], (module, source, found)
+    # allowed: the science's own libraries, the simulator inside itself, glue importing all
+    assert violations("calib_core.noise", "import numpy as np\nfrom scipy import signal") == []
+    assert violations("calib_core.simulate.table", "from calib_core.simulate import noise") == []
+    assert violations("pipelines.process", "from storage import rawstore\nimport pyarrow") == []
