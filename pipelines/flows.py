@@ -307,3 +307,27 @@ def _summary_artifact(outcomes: list[dict[str, Any]]) -> None:
         ],
         description=f"{sum(o['status'] == 'failed' for o in outcomes)} of {len(outcomes)} failed",
     )
+
+
+@flow(name="thermal_campaign")
+def thermal_campaign(
+    paths: list[str],
+    archive: str | None = None,
+    serial: str | None = None,
+    settings: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Process a campaign's run folders (process_batch), then fit and archive the thermal model
+    (`pipelines.thermal_campaign.thermal_fit`)."""
+    from pipelines.thermal_campaign import thermal_fit
+
+    outcomes = process_batch(paths, archive)
+    ok = [o for o in outcomes if o["status"] in ("ok", "duplicate")]
+    serials = sorted({o["serial"] for o in ok})
+    if serial is None:
+        if len(serials) != 1:
+            raise ValueError(f"the campaign holds runs of {serials}; name the serial")
+        serial = serials[0]
+    arch = resolve_archive(archive)
+    arch.upgrade()
+    run_ids = [o["run_id"] for o in ok if o["serial"] == serial]
+    return {"runs": outcomes, "thermal": thermal_fit(arch, serial, run_ids, settings)}

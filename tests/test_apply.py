@@ -55,7 +55,7 @@ def _manifest(temp: float, started: datetime) -> dict:
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory, prefect_harness):
-    from pipelines.thermal import thermal_campaign as flow
+    from pipelines.flows import thermal_campaign as flow
 
     root = tmp_path_factory.mktemp("thermal")
     rng = np.random.default_rng(2024)

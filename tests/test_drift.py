@@ -167,7 +167,7 @@ def fleet_archive(tmp_path_factory):
 
 def test_trend_command_on_the_archive(fleet_archive, tmp_path):
     from pipelines.cli import app
-    from pipelines.thermal import trend_report
+    from pipelines.trends import trend_report
 
     arch, truth = fleet_archive
     png = tmp_path / "trend.png"

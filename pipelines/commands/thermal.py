@@ -1,4 +1,6 @@
-"""`calib thermal fit|export`, `calib apply`, `calib trend`, `calib fleet` (pipelines.thermal).
+"""`calib thermal fit|export`, `calib apply`, `calib trend`, `calib fleet`.
+
+The glue behind them: pipelines.thermal_campaign, pipelines.apply, pipelines.trends.
 
 Tables go to stdout (or JSON with --json), messages to stderr. Exit codes: 0
 done, 2 invalid input or nothing to work on.
@@ -67,7 +69,7 @@ def thermal_fit(
     as_json: JsonOpt = False,
 ) -> None:
     """Fit and archive the thermal model of SERIAL from its runs at several temperatures."""
-    from pipelines.thermal import thermal_fit as fit
+    from pipelines.thermal_campaign import thermal_fit as fit
 
     run_ids = [r for item in runs or [] for r in item.split(",") if r]
     settings = {"max_order": max_order, "alpha": alpha, "t_ref": t_ref}
@@ -113,7 +115,7 @@ def thermal_export(
 ) -> None:
     """Write SERIAL's calibration and thermal model for firmware (docs/exports.md)."""
     from pipelines import exports
-    from pipelines.thermal import load_compensation
+    from pipelines.apply import load_compensation
     from storage import queries
 
     arch = open_archive(archive)
@@ -150,7 +152,7 @@ def apply(
     as_json: JsonOpt = False,
 ) -> None:
     """Apply SERIAL's latest valid calibration (and thermal model) to new raw data."""
-    from pipelines.thermal import apply_calibration
+    from pipelines.apply import apply_calibration
 
     facts = _run(apply_calibration, open_archive(archive), serial, parse_when(at), source, output)
     if as_json:
@@ -169,7 +171,7 @@ def trend(
     as_json: JsonOpt = False,
 ) -> None:
     """PARAM of SERIAL against calibration date: trend and when it leaves tolerance."""
-    from pipelines.thermal import trend_report
+    from pipelines.trends import trend_report
 
     plot = plot or Path(f"trend_{serial}_{param}.png")
     rep = _run(trend_report, open_archive(archive), serial, param, profile=profile, plot=plot)
@@ -192,7 +194,7 @@ def fleet(
     as_json: JsonOpt = False,
 ) -> None:
     """PARAM across every unit of device MODEL, per temperature bin."""
-    from pipelines.thermal import fleet_report
+    from pipelines.trends import fleet_report
 
     plot = plot or Path(f"fleet_{model}_{param}.png")
     table = _run(fleet_report, open_archive(archive), model, param, bin_c=bin_c, plot=plot)
