@@ -23,7 +23,6 @@ from pipelines.ingest import IngestError, RunSource, discover_runs, load_run, re
 from pipelines.ingest.mpu6000 import parse_file_name
 from pipelines.process import samples_table
 from storage import queries
-from storage import thermal as thermal_store
 from storage.db import Archive
 
 
@@ -61,7 +60,7 @@ def load_compensation(
     cal = Calibration.from_dict(latest["document"])
     temps = {p["temperature_c"] for p in latest["parameters"] if p["temperature_c"] is not None}
     cal_temp = float(temps.pop()) if len(temps) == 1 else None
-    tm = thermal_store.latest_thermal_model(archive, serial, None)
+    tm = queries.latest_thermal_model(archive, serial, None)
     model = None if tm is None else thermal.ThermalModel.from_dict(tm["document"])
     facts = {
         "serial": serial,

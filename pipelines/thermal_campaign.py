@@ -14,6 +14,7 @@ from typing import Any
 
 from calib_core import thermal
 from calib_core.calibration import Calibration, StepRecord
+from storage import queries
 from storage import thermal as thermal_store
 from storage.db import Archive
 
@@ -35,7 +36,7 @@ def campaign_from_archive(
     entries (calibration ids, run ids) of the points, same order.
     Raises ValueError when runs lack environment.temperature_c.
     """
-    rows = thermal_store.campaign_calibrations(archive, serial, run_ids)
+    rows = queries.campaign_calibrations(archive, serial, run_ids)
     without = [r["run_id"] for r in rows if r["temperature_c"] is None]
     if without and run_ids:
         raise ValueError(

@@ -15,7 +15,6 @@ import pandas as pd
 
 from calib_core import drift, params
 from storage import queries
-from storage import thermal as thermal_store
 from storage.db import Archive
 
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
@@ -94,7 +93,7 @@ def fleet_report(
 ) -> pd.DataFrame:
     """Distribution of a parameter over the units of a device model, per temperature bin."""
     params.validate(name)
-    df = thermal_store.fleet_parameter(archive, model, name)
+    df = queries.fleet_history(archive, model, name)
     if df.empty:
         raise LookupError(f"no archived values of {name} for device model {model!r}")
     temps = df["temperature_c"].astype(float).to_numpy()

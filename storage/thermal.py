@@ -1,33 +1,22 @@
-"""Thermal models in the archive, and the queries thermal and drift analysis need.
+"""Thermal models, the archive: writing a fitted model (table thermal_models).
 
 A thermal model (calib_core.thermal.ThermalModel.to_dict) is fitted from
 several calibrations of one device. Archiving a new model of a device sets
 `superseded_by` on its current one, as re-processing does for calibrations; the
 list of calibration ids it was fitted from keeps it traceable to raw files.
-
-Campaign and fleet queries read *current* revisions (not superseded) of any
-verdict: a unit at -10 deg C may well fail its room-temperature tolerance and
-still be a valid point of its thermal curve.
+Reading models and campaigns: storage.queries.thermal.
 """
 
 from __future__ import annotations
 
-from datetime import datetime
 from typing import Any
 
-import pandas as pd
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from storage.db import Archive
-from storage.schema import CalibrationRow, Device, ParameterRow, Run, ThermalModelRow
-
-
-def _device_id(s: Session, serial: str) -> int:
-    dev = s.execute(select(Device.id).where(Device.serial == serial)).scalar_one_or_none()
-    if dev is None:
-        raise LookupError(f"no device with serial {serial!r} in the archive")
-    return dev
+from storage.queries.thermal import _device_id
+from storage.schema import CalibrationRow, Run, ThermalModelRow
 
 
 def archive_thermal_model(
@@ -85,139 +74,3 @@ def archive_thermal_model(
         ).scalars():
             old.superseded_by = row.id
         return row.id
-
-
-def _model_dict(row: ThermalModelRow, serial: str) -> dict[str, Any]:
-    return {
-        "id": row.id,
-        "serial": serial,
-        "created_at": row.created_at,
-        "model_name": row.model_name,
-        "model_version": row.model_version,
-        "t_ref": row.t_ref,
-        "t_min": row.t_min,
-        "t_max": row.t_max,
-        "calibration_ids": list(row.calibration_ids),
-        "superseded_by": row.superseded_by,
-        "document": row.document,
-    }
-
-
-def latest_thermal_model(
-    archive: Archive, serial: str, as_of: datetime | None = None
-) -> dict[str, Any] | None:
-    """The current thermal model of `serial` created at or before `as_of` (None: now).
-
-    Returns None when there is none, else a dict with the row's fields and
-    ``document`` (the ThermalModel JSON).
-    """
-    if as_of is not None and as_of.utcoffset() is None:
-        raise ValueError(f"as_of: expected a time-zone-aware datetime, got {as_of!r}")
-    with Session(archive.engine()) as s:
-        stmt = (
-            select(ThermalModelRow)
-            .join(Device, Device.id == ThermalModelRow.device_id)
-            .where(Device.serial == serial)
-            .order_by(ThermalModelRow.superseded_by.is_not(None), ThermalModelRow.id.desc())
-        )
-        if as_of is not None:
-            stmt = stmt.where(ThermalModelRow.created_at <= as_of)
-        rows = s.execute(stmt).scalars().all()
-        if not rows:
-            return None
-        # Newest not superseded by a model that already existed at as_of.
-        ids_then = {r.id for r in rows}
-        current = [r for r in rows if r.superseded_by is None or r.superseded_by not in ids_then]
-        return _model_dict(max(current, key=lambda r: r.id), serial)
-
-
-def thermal_models(archive: Archive, serial: str) -> pd.DataFrame:
-    """Every thermal model of a unit, oldest first (without the JSON document)."""
-    cols = ["id", "created_at", "model_name", "model_version", "t_ref", "t_min", "t_max",
-            "calibration_ids", "superseded_by"]  # fmt: skip
-    with Session(archive.engine()) as s:
-        rows = s.execute(
-            select(*(getattr(ThermalModelRow, c) for c in cols))
-            .join(Device, Device.id == ThermalModelRow.device_id)
-            .where(Device.serial == serial)
-            .order_by(ThermalModelRow.id)
-        ).all()
-    return pd.DataFrame(rows, columns=cols)
-
-
-def campaign_calibrations(
-    archive: Archive, serial: str, run_ids: list[str] | None = None
-) -> list[dict[str, Any]]:
-    """Current calibrations of a unit with their run's temperature, oldest run first.
-
-    Each dict: calibration_id, run_id, started_at, temperature_c (the run
-    manifest's environment.temperature_c, None if not given), verdict, document
-    (Calibration.to_dict()).
-
-    Raises LookupError for an unknown serial or run id of another unit.
-    """
-    with Session(archive.engine()) as s:
-        _device_id(s, serial)
-        stmt = (
-            select(
-                CalibrationRow.id,
-                Run.run_id,
-                Run.started_at,
-                Run.environment,
-                CalibrationRow.verdict,
-                CalibrationRow.document,
-            )
-            .join(Run, Run.id == CalibrationRow.run_id)
-            .join(Device, Device.id == Run.device_id)
-            .where(Device.serial == serial, CalibrationRow.superseded_by.is_(None))
-            .order_by(Run.started_at, Run.id)
-        )
-        if run_ids:
-            stmt = stmt.where(Run.run_id.in_(run_ids))
-        rows = s.execute(stmt).all()
-    if run_ids:
-        missing = sorted(set(run_ids) - {r.run_id for r in rows})
-        if missing:
-            raise LookupError(f"runs {missing} are not archived runs of {serial!r}")
-    return [
-        {
-            "calibration_id": r.id,
-            "run_id": r.run_id,
-            "started_at": r.started_at,
-            "temperature_c": (r.environment or {}).get("temperature_c"),
-            "verdict": r.verdict,
-            "document": r.document,
-        }
-        for r in rows
-    ]
-
-
-def fleet_parameter(archive: Archive, model: str, name: str) -> pd.DataFrame:
-    """One parameter over every unit of a device model (current revisions), oldest first.
-
-    Columns: serial, run_id, started_at, verdict, value, std, unit, temperature_c.
-    """
-    cols = ["serial", "run_id", "started_at", "verdict", "value", "std", "unit", "temperature_c"]
-    stmt = (
-        select(
-            Device.serial,
-            Run.run_id,
-            Run.started_at,
-            CalibrationRow.verdict,
-            ParameterRow.value,
-            ParameterRow.std,
-            ParameterRow.unit,
-            ParameterRow.temperature_c,
-        )
-        .join(Run, Run.device_id == Device.id)
-        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
-        .join(ParameterRow, ParameterRow.calibration_id == CalibrationRow.id)
-        .where(
-            Device.model == model,
-            ParameterRow.name == name,
-            CalibrationRow.superseded_by.is_(None),
-        )
-        .order_by(Run.started_at, Run.id)
-    )
-    with Session(archive.engine()) as s:
-        return pd.DataFrame(s.execute(stmt).all(), columns=cols)

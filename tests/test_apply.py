@@ -28,6 +28,7 @@ from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines import exports
 from pipelines.cli import app
 from pipelines.run_writers import write_csv_run, write_mpu6000_run
+from storage import queries
 from storage import thermal as thermal_store
 from storage.archive import RawFileIn, RunIn, archive_run
 from storage.db import resolve_archive
@@ -77,17 +78,17 @@ def test_flow_processed_and_fitted_the_campaign(campaign):
     assert (fit["t_min"], fit["t_max"], fit["t_ref"]) == (-10.0, 60.0, 25.0)
     assert fit["hysteresis"] == {}  # heating only: no hysteresis term
     assert len(fit["runs"]) == len(TEMPS)
-    row = thermal_store.latest_thermal_model(campaign["archive"], SERIAL)
+    row = queries.latest_thermal_model(campaign["archive"], SERIAL)
     assert row["id"] == fit["model_id"] and len(row["calibration_ids"]) == len(TEMPS)
 
 
 def test_thermal_fit_command_refits_and_supersedes(campaign):
     arch = campaign["archive"]
-    before = thermal_store.latest_thermal_model(arch, SERIAL)["id"]
+    before = queries.latest_thermal_model(arch, SERIAL)["id"]
     res = CliRunner().invoke(app, ["thermal", "fit", SERIAL, "--archive", str(arch.root), "--json"])
     assert res.exit_code == 0, res.output
     summary = json.loads(res.stdout)
-    models = thermal_store.thermal_models(arch, SERIAL)
+    models = queries.thermal_models(arch, SERIAL)
     assert summary["model_id"] > before
     assert models.set_index("id").loc[before, "superseded_by"] == summary["model_id"]
     # The benefit figures: the bias change over 70 deg C is many times the fit residual.
@@ -141,7 +142,7 @@ def test_apply_round_trip_at_an_untested_temperature(campaign, tmp_path):
     assert len(df) == sum(len(r) for r in sim.segments.values())
 
     err_acc, err_gyr, raw_acc = [], [], []
-    rows = thermal_store.campaign_calibrations(arch, SERIAL)
+    rows = queries.campaign_calibrations(arch, SERIAL)
     cal = Calibration.from_dict(next(r for r in rows if r["temperature_c"] == 20.0)["document"])
     for label, (f_true, w_true) in t["want"].items():
         seg = df[df["segment"] == label]
@@ -210,7 +211,7 @@ def test_thermal_export_command(campaign, tmp_path, fmt):
         app, ["thermal", "export", SERIAL, str(out), "--format", fmt, "--archive", str(arch.root)]
     )
     assert res.exit_code == 0, res.output
-    model = ThermalModel.from_dict(thermal_store.latest_thermal_model(arch, SERIAL)["document"])
+    model = ThermalModel.from_dict(queries.latest_thermal_model(arch, SERIAL)["document"])
     if fmt == "json":
         doc = json.loads(out.read_text())
         assert ThermalModel.from_dict(doc["thermal_model"]).parameters_at(
@@ -253,16 +254,16 @@ def test_thermal_models_are_stored_and_superseded(archive, tmp_path):
            "curves": {}}  # fmt: skip
     first = thermal_store.archive_thermal_model(archive, "S1", doc, ids)
     second = thermal_store.archive_thermal_model(archive, "S1", {**doc, "t_ref": 11.0}, ids[:2])
-    latest = thermal_store.latest_thermal_model(archive, "S1")
+    latest = queries.latest_thermal_model(archive, "S1")
     assert (
         latest["id"] == second and latest["t_ref"] == 11.0 and latest["calibration_ids"] == ids[:2]
     )
-    rows = thermal_store.thermal_models(archive, "S1").set_index("id")
+    rows = queries.thermal_models(archive, "S1").set_index("id")
     assert rows.loc[first, "superseded_by"] == second
-    assert thermal_store.latest_thermal_model(archive, "S2") is None
+    assert queries.latest_thermal_model(archive, "S2") is None
     with pytest.raises(ValueError, match=r"not calibrations of 'S1'"):
         thermal_store.archive_thermal_model(archive, "S1", doc, [ids[0], other])
     with pytest.raises(LookupError, match="no device with serial 'NOPE'"):
         thermal_store.archive_thermal_model(archive, "NOPE", doc, ids)
-    camp = thermal_store.campaign_calibrations(archive, "S1")
+    camp = queries.campaign_calibrations(archive, "S1")
     assert [c["temperature_c"] for c in camp] == [0.0, 10.0, 20.0]

@@ -1,0 +1,54 @@
+"""Questions asked of the archive, answered as dicts and pandas DataFrames; one module
+per kind of question:
+
+- `runs`: one run's summary, export, the lineage of a value, samples, repeatability group;
+- `history`: a unit over time (history, latest and latest valid calibration), units,
+  a model's fleet and its history;
+- `equipment`: runs made with equipment past its due date;
+- `thermal`: thermal models and campaigns.
+
+Every untrusted input (serial, run id, parameter name, date) is a bound parameter of a
+SQLAlchemy statement, never part of a SQL string (`_common`). The public functions are
+importable from here: ``from storage import queries; queries.history(...)``.
+"""
+
+from storage.queries._common import (
+    VERDICTS,
+    as_instant,
+    check_parameter,
+    check_serial,
+    check_text,
+    check_verdict,
+)
+from storage.queries.equipment import LAPSED_COLUMNS, lapsed_runs
+from storage.queries.history import (
+    FLEET_COLUMNS,
+    HISTORY_COLUMNS,
+    LATEST_COLUMNS,
+    UNIT_COLUMNS,
+    fleet,
+    fleet_history,
+    history,
+    latest_calibration,
+    latest_valid,
+    parameter_history,
+    serial_parameter_history,
+    units,
+)
+from storage.queries.runs import (
+    export_calibration,
+    lineage,
+    repeatability_candidates,
+    run_samples,
+    run_summary,
+)
+from storage.queries.thermal import campaign_calibrations, latest_thermal_model, thermal_models
+
+__all__ = [
+    "FLEET_COLUMNS", "HISTORY_COLUMNS", "LAPSED_COLUMNS", "LATEST_COLUMNS", "UNIT_COLUMNS",
+    "VERDICTS", "as_instant", "campaign_calibrations", "check_parameter", "check_serial",
+    "check_text", "check_verdict", "export_calibration", "fleet", "fleet_history", "history",
+    "lapsed_runs", "latest_calibration", "latest_thermal_model", "latest_valid", "lineage",
+    "parameter_history", "repeatability_candidates", "run_samples", "run_summary",
+    "serial_parameter_history", "thermal_models", "units",
+]  # fmt: skip

@@ -1,0 +1,117 @@
+"""Queries of the archive: input validation and helpers shared by the question modules.
+
+Every untrusted input (serial, run id, parameter name, date) is checked here and then
+bound as a parameter of a SQLAlchemy statement, never part of a SQL string.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import UTC, date, datetime, time
+from typing import Any
+
+import pandas as pd
+from sqlalchemy import Row, func
+
+from calib_core import params
+from storage.naming import check_safe_name
+from storage.schema import (
+    Run,
+)
+
+PASS = "pass"
+
+
+def _dict(row: Row) -> dict[str, Any]:
+    return dict(row._mapping)
+
+# --- issue 9: traceability, equipment validity, units, fleet -------------------------
+#
+# The functions below validate their filters (a clear ValueError naming the
+# filter) before any SQL runs, and bind every value. Dates given as `date` mean
+# whole UTC days: `as_of`/`date_to` include the whole day, `date_from` starts at
+# its midnight.
+
+VERDICTS = ("pass", "fail", "needs review")  # calib_core.verification.overall_verdict
+EQUIPMENT_SERIAL_LEN = 200
+
+
+def check_serial(serial: str) -> str:
+    """A unit serial as the archive stores it (storage.naming rules), else ValueError."""
+    return check_safe_name(serial, "serial")
+
+
+def check_parameter(name: str) -> str:
+    """A canonical parameter name (calib_core.params), else ValueError naming it."""
+    if not isinstance(name, str):
+        raise ValueError(f"parameter: expected a canonical name like 'acc.bias.x', got {name!r}")
+    return params.validate(name)
+
+
+def check_verdict(verdict: str) -> str:
+    if verdict not in VERDICTS:
+        raise ValueError(f"verdict: expected one of {', '.join(VERDICTS)}, got {verdict!r}")
+    return verdict
+
+
+def check_text(value: str, what: str, max_len: int = 200) -> str:
+    """A free-text filter (model, equipment serial): non-empty printable, bounded length."""
+    if not isinstance(value, str) or not value or len(value) > max_len or not value.isprintable():
+        raise ValueError(f"{what}: expected 1-{max_len} printable characters, got {value!r}")
+    return value
+
+
+def as_instant(
+    value: date | datetime | str | None, what: str, *, end_of_day: bool
+) -> datetime | None:
+    """A time-zone-aware UTC instant from a date, an aware datetime or ISO 8601 text.
+
+    A bare date (``2024-05-01``) means the start of that UTC day, or with
+    `end_of_day` its last microsecond, so ``--to 2024-05-01`` includes the day.
+    """
+    if value is None:
+        return None
+    if isinstance(value, str):
+        text_ = value.strip()
+        try:
+            value = (
+                date.fromisoformat(text_)
+                if len(text_) == 10
+                else datetime.fromisoformat(text_.replace("Z", "+00:00"))
+            )
+        except ValueError:
+            raise ValueError(
+                f"{what}: expected a date YYYY-MM-DD or a date-time with a zone "
+                f"(2024-05-01T08:30:00+00:00), got {value!r}"
+            ) from None
+    if isinstance(value, datetime):
+        if value.utcoffset() is None:
+            raise ValueError(f"{what}: {value.isoformat()} has no time zone (add +00:00 or Z)")
+        return value.astimezone(UTC)
+    if isinstance(value, date):
+        t = datetime.combine(value, time.max if end_of_day else time.min, tzinfo=UTC)
+        return t
+    raise ValueError(f"{what}: expected a date or datetime, got {type(value).__name__}")
+
+
+def _finite(value: float | None, what: str) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{what}: expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _run_day(dialect: str):  # noqa: ANN202 - a SQL expression
+    """The UTC calendar day a run started, as a SQL date on either back end."""
+    if dialect == "postgresql":
+        return func.date(func.timezone("UTC", Run.started_at))
+    return func.date(Run.started_at)  # SQLite keeps naive UTC text
+
+
+def _frame(rows: list[Row | tuple], columns: list[str]) -> pd.DataFrame:
+    return pd.DataFrame.from_records([tuple(r) for r in rows], columns=columns)
+
+
+# far future: "as of now" for the latest-valid questions
+_FOREVER = datetime(9999, 12, 31, tzinfo=UTC)

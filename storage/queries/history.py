@@ -1,0 +1,371 @@
+"""Queries of the archive about units over time: history, latest (valid) calibration,
+units, fleets and their history.
+
+"Valid" calibration, as used by `latest_calibration` and `parameter_history`:
+the current revision of a run (``superseded_by IS NULL``) whose verdict is
+"pass". Of several such runs the one that started last wins. Supersession is
+taken as it is now, not as it was at `as_of` (the archive answers "which run
+started before D holds the calibration we trust today").
+"""
+
+from __future__ import annotations
+
+from datetime import date, datetime
+from typing import Any
+
+import pandas as pd
+from sqlalchemy import bindparam, select
+from sqlalchemy.orm import Session, aliased
+
+from storage.db import Archive
+from storage.queries._common import (
+    _FOREVER,
+    PASS,
+    _finite,
+    _frame,
+    as_instant,
+    check_parameter,
+    check_serial,
+    check_text,
+    check_verdict,
+)
+from storage.queries.runs import _cal_dict
+from storage.schema import (
+    CalibrationRow,
+    Device,
+    ParameterRow,
+    Run,
+)
+
+
+def history(archive: Archive, serial: str) -> pd.DataFrame:
+    """One row per calibration revision of a unit, oldest run first.
+
+    Columns: run_id, started_at, procedure, revision, verdict, superseded,
+    software_version, created_at.
+    """
+    stmt = (
+        select(
+            Run.run_id,
+            Run.started_at,
+            Run.procedure,
+            CalibrationRow.revision,
+            CalibrationRow.verdict,
+            CalibrationRow.superseded_by.is_not(None).label("superseded"),
+            CalibrationRow.software_version,
+            CalibrationRow.created_at,
+        )
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+        .where(Device.serial == serial)
+        .order_by(Run.started_at, Run.id, CalibrationRow.revision)
+    )
+    columns = [
+        "run_id",
+        "started_at",
+        "procedure",
+        "revision",
+        "verdict",
+        "superseded",
+        "software_version",
+        "created_at",
+    ]
+    with Session(archive.engine()) as s:
+        df = pd.DataFrame(s.execute(stmt).all(), columns=columns)
+    return df.astype({"superseded": bool})
+
+
+HISTORY_COLUMNS = ["run_id", "started_at", "revision", "verdict", "value", "std", "unit",
+                   "temperature_c"]  # fmt: skip
+
+
+def _parameter_over_runs(name: str, include_superseded: bool):  # noqa: ANN202 - a select
+    """Rows of parameter `name` over runs (device serial first), oldest run first;
+    the callers add which devices."""
+    stmt = (
+        select(
+            Device.serial,
+            Run.run_id,
+            Run.started_at,
+            CalibrationRow.revision,
+            CalibrationRow.verdict,
+            ParameterRow.value,
+            ParameterRow.std,
+            ParameterRow.unit,
+            ParameterRow.temperature_c,
+        )
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+        .join(ParameterRow, ParameterRow.calibration_id == CalibrationRow.id)
+        .where(ParameterRow.name == name)
+        .order_by(Run.started_at, Run.id, CalibrationRow.revision, ParameterRow.temperature_c)
+    )
+    if not include_superseded:
+        stmt = stmt.where(CalibrationRow.superseded_by.is_(None))
+    return stmt
+
+
+def parameter_history(
+    archive: Archive, serial: str, name: str, *, include_superseded: bool = False
+) -> pd.DataFrame:
+    """Values of one parameter of a unit over its runs, oldest first (inputs validated).
+
+    Only current revisions unless `include_superseded`. Columns: run_id,
+    started_at, revision, verdict, value, std, unit, temperature_c.
+    """
+    stmt = _parameter_over_runs(check_parameter(name), include_superseded)
+    stmt = stmt.where(Device.serial == check_serial(serial))
+    with archive.engine().connect() as conn:
+        rows = [r[1:] for r in conn.execute(stmt)]
+    return pd.DataFrame(rows, columns=HISTORY_COLUMNS)
+
+
+# The CLI's name of the same question (`calib query history`).
+serial_parameter_history = parameter_history
+
+
+def fleet_history(archive: Archive, model: str, name: str) -> pd.DataFrame:
+    """One parameter over every unit of a device model (current revisions), oldest first.
+
+    Columns: serial, then HISTORY_COLUMNS.
+    """
+    stmt = _parameter_over_runs(check_parameter(name), include_superseded=False)
+    stmt = stmt.where(Device.model == check_text(model, "model"))
+    with archive.engine().connect() as conn:
+        return pd.DataFrame(conn.execute(stmt).all(), columns=["serial", *HISTORY_COLUMNS])
+
+
+def latest_calibration(
+    archive: Archive, serial: str, as_of: datetime | None = None
+) -> dict[str, Any] | None:
+    """The latest valid calibration of a unit from a run started at or before `as_of`.
+
+    Valid: current revision (not superseded) with verdict "pass" (module
+    docstring). `as_of` must be time zone aware; None means now.
+
+    Returns
+    -------
+    None if there is none, else a dict: run_id, started_at, serial and the
+    calibration fields as in `run_summary` (parameters, checks, steps, document).
+    """
+    if as_of is not None and as_of.utcoffset() is None:
+        raise ValueError(f"as_of: expected a time-zone-aware datetime, got {as_of!r}")
+    stmt = (
+        select(Run.run_id, Run.started_at, CalibrationRow)
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+        .where(
+            Device.serial == serial,
+            CalibrationRow.superseded_by.is_(None),
+            CalibrationRow.verdict == PASS,
+        )
+        .order_by(Run.started_at.desc(), Run.id.desc())
+        .limit(1)
+    )
+    if as_of is not None:
+        stmt = stmt.where(Run.started_at <= as_of)
+    with Session(archive.engine()) as s:
+        row = s.execute(stmt).one_or_none()
+        if row is None:
+            return None
+        return {
+            "run_id": row.run_id,
+            "started_at": row.started_at,
+            "serial": serial,
+            **_cal_dict(s, row.CalibrationRow),
+        }
+
+
+LATEST_COLUMNS = [
+    "serial",
+    "run_id",
+    "started_at",
+    "revision",
+    "calibration_id",
+    "software_version",
+    "name",
+    "value",
+    "std",
+    "unit",
+    "temperature_c",
+]
+
+
+# Statements built once: building a select costs more than running it on an index.
+_LATEST_PICK = (
+    select(CalibrationRow.id)
+    .join(Run, Run.id == CalibrationRow.run_id)
+    .join(Device, Device.id == Run.device_id)
+    .where(
+        Device.serial == bindparam("serial"),
+        CalibrationRow.superseded_by.is_(None),
+        CalibrationRow.verdict == PASS,
+        Run.started_at <= bindparam("at", type_=Run.started_at.type),
+    )
+    .order_by(Run.started_at.desc(), Run.id.desc())
+    .limit(1)
+    .scalar_subquery()
+)
+# One statement, one round trip: the pick runs once (an uncorrelated subquery).
+_LATEST = (
+    select(Run.run_id, Run.started_at, CalibrationRow.revision, CalibrationRow.id,
+           CalibrationRow.software_version, ParameterRow.name, ParameterRow.value,
+           ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c)
+    .select_from(ParameterRow)
+    .join(CalibrationRow, CalibrationRow.id == ParameterRow.calibration_id)
+    .join(Run, Run.id == CalibrationRow.run_id)
+    .where(ParameterRow.calibration_id == _LATEST_PICK)
+    .order_by(ParameterRow.name, ParameterRow.temperature_c)
+)  # fmt: skip
+
+
+def latest_valid(
+    archive: Archive, serial: str, as_of: date | datetime | str | None = None
+) -> pd.DataFrame:
+    """Parameters of the latest valid calibration of a unit as of a date.
+
+    Valid as in `latest_calibration` (current revision, verdict "pass"); the
+    run must have started at or before `as_of` (a date includes that whole
+    UTC day; None: now).
+
+    Returns
+    -------
+    DataFrame with LATEST_COLUMNS, one row per parameter value; empty if the
+    unit has no valid calibration by then.
+    """
+    check_serial(serial)
+    at = as_instant(as_of, "as_of", end_of_day=True) or _FOREVER
+    with archive.engine().connect() as conn:
+        rows = conn.execute(_LATEST, {"serial": serial, "at": at}).all()
+    return _frame([(serial, *r) for r in rows], LATEST_COLUMNS)
+
+
+UNIT_COLUMNS = [
+    "serial",
+    "model",
+    "manufacturer",
+    "run_id",
+    "started_at",
+    "procedure",
+    "operator",
+    "revision",
+    "verdict",
+    "env_temperature_c",
+]
+
+
+def units(
+    archive: Archive,
+    *,
+    model: str | None = None,
+    date_from: date | datetime | str | None = None,
+    date_to: date | datetime | str | None = None,
+    verdict: str | None = None,
+    env_temp_min: float | None = None,
+    env_temp_max: float | None = None,
+) -> pd.DataFrame:
+    """Calibrated units: one row per run (its current revision) matching every filter.
+
+    Parameters
+    ----------
+    model : device model, exact.
+    date_from, date_to : run start, inclusive (dates are whole UTC days).
+    verdict : "pass" or "fail" of the current revision.
+    env_temp_min, env_temp_max : lab temperature of the run's environment, deg C,
+        inclusive; runs without a recorded temperature are left out when either is given.
+
+    Returns
+    -------
+    DataFrame with UNIT_COLUMNS, by start time.
+    """
+    t0 = as_instant(date_from, "date_from", end_of_day=False)
+    t1 = as_instant(date_to, "date_to", end_of_day=True)
+    if t0 is not None and t1 is not None and t0 > t1:
+        raise ValueError(f"date range: from {t0.isoformat()} is after to {t1.isoformat()}")
+    lo = _finite(env_temp_min, "env_temp_min")
+    hi = _finite(env_temp_max, "env_temp_max")
+    if lo is not None and hi is not None and lo > hi:
+        raise ValueError(f"temperature range: min {lo} is above max {hi}")
+    temp = Run.environment["temperature_c"].as_float()
+    stmt = (
+        select(Device.serial, Device.model, Device.manufacturer, Run.run_id, Run.started_at,
+               Run.procedure, Run.operator, CalibrationRow.revision, CalibrationRow.verdict,
+               temp)
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+        .where(CalibrationRow.superseded_by.is_(None))
+        .order_by(Run.started_at, Run.id)
+    )  # fmt: skip
+    if model is not None:
+        stmt = stmt.where(Device.model == check_text(model, "model"))
+    if t0 is not None:
+        stmt = stmt.where(Run.started_at >= t0)
+    if t1 is not None:
+        stmt = stmt.where(Run.started_at <= t1)
+    if verdict is not None:
+        stmt = stmt.where(CalibrationRow.verdict == check_verdict(verdict))
+    if lo is not None:
+        stmt = stmt.where(temp >= lo)
+    if hi is not None:
+        stmt = stmt.where(temp <= hi)
+    with archive.engine().connect() as conn:
+        return _frame(conn.execute(stmt).all(), UNIT_COLUMNS)
+
+
+# Per unit of the model, its latest valid calibration picked by a correlated subquery
+# on ix_runs_device_id_started_at (a few index steps per unit), then the parameter by
+# ix_parameters_calibration_id_name: the cost grows with the units, not the 5M rows.
+_FLEET_DEVICE = aliased(Device)
+_FLEET_PICK = (
+    select(CalibrationRow.id)
+    .join(Run, Run.id == CalibrationRow.run_id)
+    .where(
+        Run.device_id == _FLEET_DEVICE.id,
+        CalibrationRow.superseded_by.is_(None),
+        CalibrationRow.verdict == PASS,
+        Run.started_at <= bindparam("at", type_=Run.started_at.type),
+    )
+    .order_by(Run.started_at.desc(), Run.id.desc())
+    .limit(1)
+    .correlate(_FLEET_DEVICE)
+    .scalar_subquery()
+)
+_FLEET = (
+    select(_FLEET_DEVICE.serial, Run.run_id, Run.started_at, ParameterRow.value,
+           ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c)
+    .select_from(_FLEET_DEVICE)
+    .join(CalibrationRow, CalibrationRow.id == _FLEET_PICK)
+    .join(Run, Run.id == CalibrationRow.run_id)
+    .join(
+        ParameterRow,
+        (ParameterRow.calibration_id == CalibrationRow.id)
+        & (ParameterRow.name == bindparam("name")),
+    )
+    .where(_FLEET_DEVICE.model == bindparam("model"))
+    .order_by(_FLEET_DEVICE.serial, ParameterRow.temperature_c)
+)  # fmt: skip
+
+
+FLEET_COLUMNS = ["serial", "run_id", "started_at", "value", "std", "unit", "temperature_c"]
+
+
+def fleet(
+    archive: Archive, model: str, name: str, as_of: date | datetime | str | None = None
+) -> pd.DataFrame:
+    """Fleet distribution of a parameter: its value in each unit's latest valid calibration.
+
+    One row per unit of `model` that has a valid calibration (current revision,
+    verdict "pass") from a run started at or before `as_of` (None: now), with
+    that calibration's value(s) of `name` (several rows for a unit when the value
+    is temperature-dependent).
+
+    Returns
+    -------
+    DataFrame with FLEET_COLUMNS, by serial.
+    """
+    check_text(model, "model")
+    check_parameter(name)
+    at = as_instant(as_of, "as_of", end_of_day=True) or _FOREVER
+    with archive.engine().connect() as conn:
+        rows = conn.execute(_FLEET, {"model": model, "name": name, "at": at}).all()
+    return _frame(rows, FLEET_COLUMNS)

@@ -1,0 +1,441 @@
+"""Queries of the archive about one run: summary, export, lineage of a value, samples,
+the runs a new one is compared with for repeatability.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, date, datetime
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+from sqlalchemy import Row, bindparam, select
+from sqlalchemy.orm import Session, aliased
+
+from storage.db import Archive
+from storage.naming import check_safe_name
+from storage.queries._common import (
+    _dict,
+    check_parameter,
+)
+from storage.schema import (
+    CalibrationRow,
+    CheckResultRow,
+    Device,
+    Equipment,
+    ParameterRow,
+    ProcessingStep,
+    RawFile,
+    Run,
+    RunEquipment,
+)
+
+
+def _run_row(s: Session, run_id: str) -> Row:
+    row = s.execute(
+        select(Run, Device).join(Device, Device.id == Run.device_id).where(Run.run_id == run_id)
+    ).one_or_none()
+    if row is None:
+        raise LookupError(f"no run {run_id!r} in the archive")
+    return row
+
+
+def _calibration(s: Session, run_pk: int, revision: int | None) -> CalibrationRow:
+    stmt = select(CalibrationRow).where(CalibrationRow.run_id == run_pk)
+    if revision is None:
+        stmt = stmt.where(CalibrationRow.superseded_by.is_(None))
+    else:
+        stmt = stmt.where(CalibrationRow.revision == revision)
+    cal = s.execute(stmt).scalar_one_or_none()
+    if cal is None:
+        raise LookupError(f"run has no calibration revision {revision}")
+    return cal
+
+
+def _cal_dict(s: Session, cal: CalibrationRow) -> dict[str, Any]:
+    params = s.execute(
+        select(
+            ParameterRow.name,
+            ParameterRow.value,
+            ParameterRow.std,
+            ParameterRow.unit,
+            ParameterRow.temperature_c,
+        )
+        .where(ParameterRow.calibration_id == cal.id)
+        .order_by(ParameterRow.name, ParameterRow.temperature_c)
+    ).all()
+    checks = s.execute(
+        select(
+            CheckResultRow.name,
+            CheckResultRow.value,
+            CheckResultRow.limit,
+            CheckResultRow.passed,
+            CheckResultRow.detail,
+        )
+        .where(CheckResultRow.calibration_id == cal.id)
+        .order_by(CheckResultRow.id)
+    ).all()
+    steps = s.execute(
+        select(
+            ProcessingStep.seq,
+            ProcessingStep.name,
+            ProcessingStep.settings,
+            ProcessingStep.statistics,
+            ProcessingStep.software_version,
+            ProcessingStep.source_revision,
+        )
+        .where(ProcessingStep.calibration_id == cal.id)
+        .order_by(ProcessingStep.seq)
+    ).all()
+    return {
+        "calibration_id": cal.id,
+        "revision": cal.revision,
+        "created_at": cal.created_at,
+        "settings_hash": cal.settings_hash,
+        "settings": cal.settings,
+        "software_version": cal.software_version,
+        "source_revision": cal.source_revision,
+        "verdict": cal.verdict,
+        "profile_name": cal.profile_name,
+        "profile_version": cal.profile_version,
+        "superseded_by": cal.superseded_by,
+        "parameters": [_dict(p) for p in params],
+        "checks": [_dict(c) for c in checks],
+        "steps": [_dict(s) for s in steps],
+        "document": cal.document,
+    }
+
+
+def _device_dict(dev: Device) -> dict[str, Any]:
+    return {
+        "serial": dev.serial,
+        "model": dev.model,
+        "manufacturer": dev.manufacturer,
+        "specification": dev.specification,
+    }
+
+
+def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
+    """Everything about one run and its current calibration revision.
+
+    Returns
+    -------
+    dict with the run's fields, ``device``, ``equipment`` (with the due dates
+    valid at run time), ``raw_files``, ``revisions`` (count) and
+    ``calibration`` (current revision: parameters, checks, steps, document).
+    Raises LookupError if there is no such run.
+    """
+    with Session(archive.engine()) as s:
+        run, dev = _run_row(s, run_id)
+        raw = s.execute(
+            select(RawFile.name, RawFile.sha256, RawFile.size, RawFile.format, RawFile.stored_path)
+            .where(RawFile.run_id == run.id)
+            .order_by(RawFile.name)
+        ).all()
+        equipment = s.execute(
+            select(
+                Equipment.kind,
+                Equipment.model,
+                Equipment.serial,
+                Equipment.accuracy_class,
+                RunEquipment.calibration_due,
+                RunEquipment.calibrated_on,
+            )
+            .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
+            .where(RunEquipment.run_id == run.id)
+            .order_by(Equipment.kind, Equipment.serial)
+        ).all()
+        revisions = s.execute(
+            select(CalibrationRow.revision).where(CalibrationRow.run_id == run.id)
+        ).all()
+        cal = _cal_dict(s, _calibration(s, run.id, None))
+    return {
+        "run_id": run.run_id,
+        "started_at": run.started_at,
+        "operator": run.operator,
+        "procedure": run.procedure,
+        "site": run.site,
+        "gravity": run.gravity,
+        "environment": run.environment,
+        "tolerance_profile": run.tolerance_profile,
+        "raw_hash": run.raw_hash,
+        "run_dir": run.run_dir,
+        "samples_path": run.samples_path,
+        "manifest_text": run.manifest_text,
+        "created_at": run.created_at,
+        "device": _device_dict(dev),
+        "equipment": [_dict(e) for e in equipment],
+        "raw_files": [_dict(r) for r in raw],
+        "revisions": len(revisions),
+        "calibration": cal,
+    }
+
+
+def export_calibration(
+    archive: Archive, run_id: str, revision: int | None = None
+) -> dict[str, Any]:
+    """The calibration JSON document of a run with the unit and run metadata.
+
+    Parameters
+    ----------
+    revision : None for the current revision.
+
+    Returns
+    -------
+    JSON-ready dict: ``unit`` (serial, model, manufacturer), ``run`` (run_id,
+    started_at ISO 8601 UTC, procedure, gravity, raw_hash), ``revision``,
+    ``software_version``, ``settings_hash``, ``verdict``, ``profile`` and
+    ``calibration`` (the `Calibration.to_dict()` document as archived).
+    """
+    with Session(archive.engine()) as s:
+        run, dev = _run_row(s, run_id)
+        cal = _calibration(s, run.id, revision)
+    return {
+        "unit": {"serial": dev.serial, "model": dev.model, "manufacturer": dev.manufacturer},
+        "run": {
+            "run_id": run.run_id,
+            "started_at": run.started_at.isoformat(),
+            "procedure": run.procedure,
+            "gravity": run.gravity,
+            "raw_hash": run.raw_hash,
+        },
+        "revision": cal.revision,
+        "superseded": cal.superseded_by is not None,
+        "software_version": cal.software_version,
+        "source_revision": cal.source_revision,
+        "settings_hash": cal.settings_hash,
+        "verdict": cal.verdict,
+        "profile": {"name": cal.profile_name, "version": cal.profile_version},
+        "calibration": cal.document,
+    }
+
+
+def _validity(started_at: datetime, due: date | None) -> dict[str, Any]:
+    """Was equipment within its calibration at a run? (The due date is its last valid UTC day.)"""
+    if due is None:
+        return {"valid_at_run": None, "days_overdue": None}
+    overdue = (started_at.astimezone(UTC).date() - due).days
+    return {"valid_at_run": overdue <= 0, "days_overdue": max(overdue, 0)}
+
+
+_NEWER = aliased(CalibrationRow)
+
+
+def _lineage_head(current: bool):  # noqa: ANN202 - a select
+    """Run, device, the chosen revision and the parameter's values, one row per value.
+
+    Outer joins: the run may lack the revision, the revision the parameter.
+    """
+    chosen = (
+        CalibrationRow.superseded_by.is_(None)
+        if current
+        else CalibrationRow.revision == bindparam("rev")
+    )
+    return (
+        select(
+            Run.id.label("run_pk"), Run.run_id, Run.started_at, Run.operator, Run.procedure,
+            Run.site, Run.gravity, Run.environment, Run.tolerance_profile, Run.raw_hash,
+            Run.run_dir, Run.samples_path, Run.samples_sha256, Run.manifest_text, Run.created_at,
+            Device.serial, Device.model, Device.manufacturer, Device.specification,
+            CalibrationRow.id.label("cal_id"), CalibrationRow.revision,
+            CalibrationRow.superseded_by, CalibrationRow.created_at.label("cal_created_at"),
+            CalibrationRow.settings_hash, CalibrationRow.settings,
+            CalibrationRow.software_version, CalibrationRow.source_revision,
+            CalibrationRow.verdict, CalibrationRow.profile_name, CalibrationRow.profile_version,
+            _NEWER.revision.label("superseding_revision"),
+            ParameterRow.id.label("param_id"), ParameterRow.value, ParameterRow.std,
+            ParameterRow.unit, ParameterRow.temperature_c,
+        )
+        .join(Device, Device.id == Run.device_id)
+        .outerjoin(CalibrationRow, (CalibrationRow.run_id == Run.id) & chosen)
+        .outerjoin(_NEWER, _NEWER.id == CalibrationRow.superseded_by)
+        .outerjoin(
+            ParameterRow,
+            (ParameterRow.calibration_id == CalibrationRow.id)
+            & (ParameterRow.name == bindparam("name")),
+        )
+        .where(Run.run_id == bindparam("run_id"))
+        .order_by(ParameterRow.temperature_c)
+    )  # fmt: skip
+
+
+_LIN_HEAD = {True: _lineage_head(True), False: _lineage_head(False)}
+_LIN_RAW = (
+    select(RawFile.name, RawFile.sha256, RawFile.size, RawFile.format, RawFile.stored_path)
+    .where(RawFile.run_id == bindparam("run"))
+    .order_by(RawFile.name)
+)
+_LIN_STEPS = (
+    select(ProcessingStep.seq, ProcessingStep.name, ProcessingStep.settings,
+           ProcessingStep.statistics, ProcessingStep.software_version,
+           ProcessingStep.source_revision)
+    .where(ProcessingStep.calibration_id == bindparam("cal"))
+    .order_by(ProcessingStep.seq)
+)  # fmt: skip
+_LIN_EQUIPMENT = (
+    select(Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class,
+           RunEquipment.calibrated_on, RunEquipment.calibration_due)
+    .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
+    .where(RunEquipment.run_id == bindparam("run"))
+    .order_by(Equipment.kind, Equipment.serial)
+)  # fmt: skip
+
+
+def lineage(
+    archive: Archive, run_id: str, name: str, revision: int | None = None
+) -> dict[str, Any]:
+    """Where one archived parameter value comes from.
+
+    Parameters
+    ----------
+    run_id : the run ("R" + 12 hex digits).
+    name : canonical parameter name.
+    revision : calibration revision; None for the current one.
+
+    Returns
+    -------
+    dict (JSON-ready apart from dates): ``parameter`` (name and its values:
+    value, std, unit, temperature_c; several when temperature-dependent),
+    ``run`` (started_at, operator, procedure, site, gravity in m/s^2,
+    environment, tolerance profile, raw hash, manifest as submitted, samples
+    file and hash), ``device``, ``calibration`` (revision, current or
+    superseded, settings and settings hash, software version and source
+    revision, verdict, profile name and version), ``raw_files`` (name, sha256,
+    size, format, stored path), ``steps`` (in order, with settings, statistics,
+    software version, source revision) and ``equipment`` (with the calibration
+    due date as it was at the run, ``valid_at_run`` and ``days_overdue``).
+
+    Raises
+    ------
+    LookupError when the run, revision or parameter is not archived.
+    """
+    check_safe_name(run_id, "run id")
+    check_parameter(name)
+    if revision is not None and (isinstance(revision, bool) or not isinstance(revision, int)
+                                 or revision < 1):  # fmt: skip
+        raise ValueError(f"revision: expected a whole number >= 1, got {revision!r}")
+    with archive.engine().connect() as conn:
+        found = conn.execute(
+            _LIN_HEAD[revision is None], {"run_id": run_id, "rev": revision or 0, "name": name}
+        ).all()
+        if not found:
+            raise LookupError(f"no run {run_id!r} in the archive")
+        head = found[0]
+        if head.cal_id is None:
+            what = "current revision" if revision is None else f"revision {revision}"
+            raise LookupError(f"run {run_id} has no calibration {what}")
+        if head.param_id is None:
+            raise LookupError(f"run {run_id} revision {head.revision} has no parameter {name!r}")
+        raw = conn.execute(_LIN_RAW, {"run": head.run_pk}).all()
+        steps = conn.execute(_LIN_STEPS, {"cal": head.cal_id}).all()
+        equipment = conn.execute(_LIN_EQUIPMENT, {"run": head.run_pk}).all()
+    started = head.started_at
+    return {
+        "parameter": {
+            "name": name,
+            "values": [
+                {"value": v.value, "std": v.std, "unit": v.unit, "temperature_c": v.temperature_c}
+                for v in found
+            ],
+        },
+        "run": {
+            "run_id": head.run_id,
+            "started_at": started,
+            "operator": head.operator,
+            "procedure": head.procedure,
+            "site": head.site,
+            "gravity": head.gravity,
+            "environment": head.environment,
+            "tolerance_profile": head.tolerance_profile,
+            "raw_hash": head.raw_hash,
+            "run_dir": head.run_dir,
+            "samples_path": head.samples_path,
+            "samples_sha256": head.samples_sha256,
+            "manifest_text": head.manifest_text,
+            "archived_at": head.created_at,
+        },
+        "device": {
+            "serial": head.serial,
+            "model": head.model,
+            "manufacturer": head.manufacturer,
+            "specification": head.specification,
+        },
+        "calibration": {
+            "calibration_id": head.cal_id,
+            "revision": head.revision,
+            "current": head.superseded_by is None,
+            "superseded_by_revision": head.superseding_revision,
+            "created_at": head.cal_created_at,
+            "settings_hash": head.settings_hash,
+            "settings": head.settings,
+            "software_version": head.software_version,
+            "source_revision": head.source_revision,
+            "verdict": head.verdict,
+            "profile_name": head.profile_name,
+            "profile_version": head.profile_version,
+        },
+        "raw_files": [_dict(r) for r in raw],
+        "steps": [_dict(s) for s in steps],
+        "equipment": [{**_dict(e), **_validity(started, e.calibration_due)} for e in equipment],
+    }
+
+
+def run_samples(archive: Archive, run_id: str) -> pa.Table:
+    """The archived samples of one run (segment, t, acc_*, gyr_*, temp; SI units).
+
+    Raises LookupError if there is no such run or it has no samples file.
+    """
+    with Session(archive.engine()) as s:
+        run, _ = _run_row(s, run_id)
+        rel = run.samples_path
+    if not rel:
+        raise LookupError(f"run {run_id!r} has no archived samples")
+    path = archive.root / rel
+    if not path.is_file():
+        raise LookupError(f"run {run_id!r}: samples file {path} is missing")
+    return pq.read_table(path)
+
+
+def repeatability_candidates(
+    archive: Archive, serial: str, procedure: str, *, exclude_run_id: str | None = None
+) -> list[dict[str, Any]]:
+    """Current calibrations of one unit by one procedure, most recent run first.
+
+    Returns
+    -------
+    list of dicts: run_id, started_at, environment, verdict, parameters
+    (canonical name -> (value, std), SI; parameters at one temperature only).
+    """
+    stmt = (
+        select(
+            Run.run_id, Run.started_at, Run.environment, CalibrationRow.id, CalibrationRow.verdict
+        )
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+        .where(
+            Device.serial == serial,
+            Run.procedure == procedure,
+            CalibrationRow.superseded_by.is_(None),
+        )
+        .order_by(Run.started_at.desc(), Run.id.desc())
+    )
+    if exclude_run_id is not None:
+        stmt = stmt.where(Run.run_id != exclude_run_id)
+    out = []
+    with Session(archive.engine()) as s:
+        for row in s.execute(stmt).all():
+            values = s.execute(
+                select(ParameterRow.name, ParameterRow.value, ParameterRow.std).where(
+                    ParameterRow.calibration_id == row.id
+                )
+            ).all()
+            out.append(
+                {
+                    "run_id": row.run_id,
+                    "started_at": row.started_at,
+                    "environment": row.environment,
+                    "verdict": row.verdict,
+                    "parameters": {v.name: (v.value, v.std) for v in values},
+                }
+            )
+    return out
