@@ -48,7 +48,7 @@ from storage.schema import (
     Equipment,
     ParameterRow,
     ProcessingStep,
-    RawFile,
+    RawFileRow,
     Run,
     RunEquipment,
 )
@@ -620,7 +620,7 @@ def _insert_run(
         )
     _insert_many(
         s,
-        RawFile,
+        RawFileRow,
         [
             {
                 "run_id": row.id,

@@ -149,7 +149,7 @@ class RunEquipment(Base):
     calibrated_on: Mapped[date | None]
 
 
-class RawFile(Base):
+class RawFileRow(Base):
     """One raw input file; the bytes live in the content-addressed store."""
 
     __tablename__ = "raw_files"

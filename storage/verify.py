@@ -30,7 +30,7 @@ from sqlalchemy.orm import aliased
 
 from storage import rawstore
 from storage.db import Archive
-from storage.schema import CalibrationRow, ParameterRow, RawFile, Run
+from storage.schema import CalibrationRow, ParameterRow, RawFileRow, Run
 
 ProblemKind = Literal["missing", "mismatch", "outside", "database", "record"]
 _CHUNK = 1 << 20
@@ -133,9 +133,9 @@ def verify(archive: Archive, *, orphans: bool = True) -> VerifyReport:
     root = archive.root
     with archive.engine().connect() as conn:
         raw_rows = conn.execute(
-            select(RawFile.stored_path, RawFile.sha256, RawFile.size, Run.run_id)
-            .join(Run, Run.id == RawFile.run_id)
-            .order_by(RawFile.stored_path, Run.run_id)
+            select(RawFileRow.stored_path, RawFileRow.sha256, RawFileRow.size, Run.run_id)
+            .join(Run, Run.id == RawFileRow.run_id)
+            .order_by(RawFileRow.stored_path, Run.run_id)
         ).all()
         sample_rows = conn.execute(
             select(Run.samples_path, Run.samples_sha256, Run.run_id).where(
@@ -178,7 +178,8 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
         report.problems.append(
             Problem("database", "", [run_id], f"{n} current calibration revisions, expected 1")
         )
-    no_raw = select(Run.run_id).where(~select(RawFile.id).where(RawFile.run_id == Run.id).exists())
+    has_raw = select(RawFileRow.id).where(RawFileRow.run_id == Run.id).exists()
+    no_raw = select(Run.run_id).where(~has_raw)
     for run_id in conn.execute(no_raw).scalars():
         report.problems.append(Problem("database", "", [run_id], "run has no raw files"))
     newer = aliased(CalibrationRow)

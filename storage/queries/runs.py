@@ -25,7 +25,7 @@ from storage.schema import (
     Equipment,
     ParameterRow,
     ProcessingStep,
-    RawFile,
+    RawFileRow,
     Run,
     RunEquipment,
 )
@@ -115,6 +115,15 @@ def _device_dict(dev: Device) -> dict[str, Any]:
     }
 
 
+# A run's raw files (bound parameter "run": the run's primary key), by name.
+_RAW_FILES = (
+    select(RawFileRow.name, RawFileRow.sha256, RawFileRow.size, RawFileRow.format,
+           RawFileRow.stored_path)
+    .where(RawFileRow.run_id == bindparam("run"))
+    .order_by(RawFileRow.name)
+)  # fmt: skip
+
+
 def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
     """Everything about one run and its current calibration revision.
 
@@ -127,11 +136,7 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
     """
     with Session(archive.engine()) as s:
         run, dev = _run_row(s, run_id)
-        raw = s.execute(
-            select(RawFile.name, RawFile.sha256, RawFile.size, RawFile.format, RawFile.stored_path)
-            .where(RawFile.run_id == run.id)
-            .order_by(RawFile.name)
-        ).all()
+        raw = s.execute(_RAW_FILES, {"run": run.id}).all()
         equipment = s.execute(
             select(
                 Equipment.kind,
@@ -260,11 +265,6 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
 
 
 _LIN_HEAD = {True: _lineage_head(True), False: _lineage_head(False)}
-_LIN_RAW = (
-    select(RawFile.name, RawFile.sha256, RawFile.size, RawFile.format, RawFile.stored_path)
-    .where(RawFile.run_id == bindparam("run"))
-    .order_by(RawFile.name)
-)
 _LIN_STEPS = (
     select(ProcessingStep.seq, ProcessingStep.name, ProcessingStep.settings,
            ProcessingStep.statistics, ProcessingStep.software_version,
@@ -326,7 +326,7 @@ def lineage(
             raise LookupError(f"run {run_id} has no calibration {what}")
         if head.param_id is None:
             raise LookupError(f"run {run_id} revision {head.revision} has no parameter {name!r}")
-        raw = conn.execute(_LIN_RAW, {"run": head.run_pk}).all()
+        raw = conn.execute(_RAW_FILES, {"run": head.run_pk}).all()
         steps = conn.execute(_LIN_STEPS, {"cal": head.cal_id}).all()
         equipment = conn.execute(_LIN_EQUIPMENT, {"run": head.run_pk}).all()
     started = head.started_at
