@@ -38,7 +38,7 @@ import numpy as np
 from calib_core import params
 from calib_core.calibration import Calibration, StepRecord
 from calib_core.recording import Recording
-from calib_core.solvers.centrifuge import solve_centrifuge_segments
+from calib_core.solvers.centrifuge_segments import solve_centrifuge_segments
 from calib_core.solvers.equipment_free import solve_equipment_free
 from calib_core.solvers.integral import ROTATION_LABELS, solve_integral
 from calib_core.solvers.multi_position import (

@@ -17,17 +17,17 @@ from pathlib import Path
 from typing import Any
 
 from calib_core.calibration import StepRecord
-from calib_core.solvers.centrifuge import (
-    AxisValidation,
+from calib_core.solvers.centrifuge import AxisValidation, solve_centrifuge, validation_errors
+from calib_core.solvers.centrifuge_model import (
     CentrifugeModel,
     CentrifugeSettings,
     CentrifugeStep,
     canonical_name,
+)
+from calib_core.solvers.centrifuge_segments import (
     model_summary,
     settings_from_dict,
-    solve_centrifuge,
     steps_from_segments,
-    validation_errors,
 )
 from pipelines.ingest import LoadedRun, RunSource, load_run
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from calib_core.recording import Recording
-from calib_core.solvers.centrifuge import step_label
+from calib_core.solvers.centrifuge_segments import step_label
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
 from pipelines.ingest.mpu6000 import COLUMN_DECIMALS
 from storage.naming import check_safe_name

@@ -9,16 +9,14 @@ import pytest
 from scipy import stats
 
 from calib_core.simulate.centrifuge import simulate_centrifuge
-from calib_core.solvers.centrifuge import (
+from calib_core.solvers.centrifuge import identifiable_terms, solve_centrifuge, validation_errors
+from calib_core.solvers.centrifuge_model import (
     MOUNTS,
     CentrifugeSettings,
     CentrifugeStep,
     compensate,
     full_terms,
-    identifiable_terms,
-    solve_centrifuge,
     term_values,
-    validation_errors,
     whole_revolution_mean,
 )
 

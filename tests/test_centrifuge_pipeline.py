@@ -11,7 +11,8 @@ from typer.testing import CliRunner
 
 from calib_core import params, procedures
 from calib_core.simulate.centrifuge import simulate_centrifuge
-from calib_core.solvers.centrifuge import canonical_name, step_label
+from calib_core.solvers.centrifuge_model import canonical_name
+from calib_core.solvers.centrifuge_segments import step_label
 from pipelines.centrifuge import REPORT_NAME
 from pipelines.cli import app
 from pipelines.ingest import RunSource

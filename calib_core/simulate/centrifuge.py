@@ -23,7 +23,7 @@ import numpy as np
 from calib_core.earth import EARTH_RATE
 from calib_core.params import AXES
 from calib_core.recording import Recording
-from calib_core.solvers.centrifuge import (
+from calib_core.solvers.centrifuge_model import (
     MOUNTS,
     ZERO_POSITIONS_DEG,
     CentrifugeStep,

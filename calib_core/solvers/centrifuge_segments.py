@@ -1,0 +1,186 @@
+"""Centrifuge procedure, the science: the generic procedure shape.
+
+Labelled segments (``xp_step_4g``, ``zm_1g``, ``xp_zero_90`` ...) -> centrifuge steps ->
+`solve_centrifuge` -> a Calibration with canonical names; the settings of a manifest's
+``[run.settings]``; a JSON summary of the model. Registered as the ``centrifuge``
+procedure in calib_core.procedures.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+
+from calib_core.calibration import Calibration, SegmentResidual
+from calib_core.params import AXES
+from calib_core.recording import Recording
+from calib_core.solvers.centrifuge import solve_centrifuge
+from calib_core.solvers.centrifuge_model import (
+    CentrifugeModel,
+    CentrifugeSettings,
+    CentrifugeStep,
+    Estimate,
+    compensate,
+    whole_revolution_mean,
+)
+
+# --- the generic procedure shape: labelled segments -> Calibration ---------------
+
+_LABEL = re.compile(r"^([xyz])([pm])_(?:zero_(\d+(?:\.\d+)?)|1g|step_(\d+(?:\.\d+)?)g)$")
+SETTINGS_KEYS = (
+    "latitude_deg",
+    "alpha",
+    "scale_1g",
+    "common_radius",
+    "iterations",
+    "scale_instability",
+)
+
+
+def step_label(step: CentrifugeStep) -> str:
+    """The segment label of a step: "xp_zero_90", "xm_1g", "zp_step_10g"."""
+    mount = step.mount[0] + ("p" if step.mount[1] == "+" else "m")
+    if step.kind == "zero":
+        return f"{mount}_zero_{step.table_position_deg:g}"
+    return f"{mount}_1g" if step.kind == "1g" else f"{mount}_step_{step.nominal_g:g}g"
+
+
+def steps_from_segments(segments: Mapping[str, Recording]) -> list[CentrifugeStep]:
+    """Centrifuge steps from labelled segments.
+
+    Labels: ``<axis><p|m>_zero_<table deg>`` (static zero output at that table
+    position), ``<axis><p|m>_1g`` (the near-1 g radius run) and
+    ``<axis><p|m>_step_<n>g`` (a high-g step); p = the axis points to the
+    table axis, m = away. Every recording needs the reference channels
+    ``table_angle`` (rad) and ``table_rate`` (rad/s, signed about up).
+    """
+    steps = []
+    for label, rec in segments.items():
+        m = _LABEL.match(label)
+        if not m:
+            raise ValueError(
+                f"segment {label!r}: not a centrifuge label; expected e.g. 'xp_zero_90', "
+                "'xm_1g' or 'zp_step_10g' (<axis><p|m>_zero_<deg> | _1g | _step_<n>g)"
+            )
+        mount = m[1] + ("+" if m[2] == "p" else "-")
+        if m[3] is not None:
+            steps.append(CentrifugeStep(mount, "zero", rec, 0.0, float(m[3])))
+        elif m[4] is not None:
+            steps.append(CentrifugeStep(mount, "step", rec, float(m[4])))
+        else:
+            steps.append(CentrifugeStep(mount, "1g", rec, 1.0))
+    return steps
+
+
+def settings_from_dict(settings: Mapping[str, object], gravity: float) -> CentrifugeSettings:
+    """CentrifugeSettings from a manifest's procedure settings (keys `SETTINGS_KEYS`).
+
+    ``latitude_deg`` is required; ``scale_1g`` is a table axis -> K - 1;
+    ``scale_instability`` a number, a table axis -> number, or absent (estimate).
+    Other keys (e.g. preprocessing settings of the same run) are ignored.
+    """
+    s = {k: settings[k] for k in SETTINGS_KEYS if settings.get(k) is not None}
+    if "latitude_deg" not in s:
+        raise ValueError(
+            "centrifuge: settings.latitude_deg is required (site latitude, deg: Earth rate)"
+        )
+    scale = s.get("scale_1g", {})
+    if not isinstance(scale, Mapping) or set(scale) - set(AXES):
+        raise ValueError(
+            f"centrifuge: settings.scale_1g must map axes x, y, z to K - 1, got {scale!r}"
+        )
+    try:
+        return CentrifugeSettings(
+            latitude_deg=float(s["latitude_deg"]),
+            gravity=gravity,
+            alpha=float(s.get("alpha", 0.05)),
+            scale_1g={a: float(v) for a, v in scale.items()},
+            common_radius=bool(s.get("common_radius", True)),
+            iterations=int(s.get("iterations", 4)),
+            scale_instability=s.get("scale_instability"),
+        )
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"centrifuge: bad settings {s}: {exc}") from None
+
+
+def solve_centrifuge_segments(
+    segments: dict[str, Recording], gravity: float, settings: dict | None = None
+) -> Calibration:
+    """The centrifuge as a procedure: labelled segments -> Calibration.
+
+    Parameters
+    ----------
+    segments : label -> Recording, labels as `steps_from_segments`.
+    gravity : local gravity, m/s^2.
+    settings : as `settings_from_dict`.
+
+    Returns
+    -------
+    Calibration with the kept terms by canonical name (acc.bias.x, acc.scale.x,
+    acc.k2.x, acc.k2.xy, acc.misalign.xy, ...), the residual of every high-g
+    step after compensation, and in `info` the geometry and per axis F,
+    F_crit, R^2, t values, removal sequence and the terms not identifiable.
+    """
+    cs = settings_from_dict(settings or {}, gravity)
+    model, record = solve_centrifuge(steps_from_segments(segments), cs)
+    cal = Calibration(procedure="centrifuge", gravity=gravity)
+    for name, est in model.parameters().items():
+        cal.add(name, est.value, est.std)
+    for label, rec in segments.items():
+        step = steps_from_segments({label: rec})[0]
+        if step.kind != "step":
+            continue
+        mean = whole_revolution_mean(rec)
+        f = model.input_force(step.mount, mean.rate)[0]
+        r = compensate(model, mean.acc[None, :])[0] - f
+        cal.residuals.append(
+            SegmentResidual(
+                segment=label,
+                sensor="acc",
+                mean=tuple(float(v) for v in r),
+                std=tuple(float(v) for v in rec.acc.std(axis=0, ddof=1)),
+                n=len(rec),
+            )
+        )
+    cal.info.update(model_summary(model))
+    cal.info["step_record"] = {"name": record.name, "settings": record.settings}
+    return cal
+
+
+def model_summary(model: CentrifugeModel) -> dict:
+    """JSON-ready facts of a solved model: geometry and per-axis statistics."""
+
+    def est(e: Estimate) -> list[float]:
+        return [e.value, e.std]
+
+    axes = {}
+    for axis, m in model.axes.items():
+        fit, full = m.fit, m.reduction.full
+        axes[axis] = {
+            "terms": list(m.terms),
+            "coef": [float(c) for c in m.coef],
+            "std": [float(s) for s in m.std],
+            "t": {n: float(t) for n, t in zip(fit.names, fit.t, strict=True)},
+            "F": fit.F,
+            "F_crit": fit.F_crit,
+            "r2": fit.r2,
+            "t_crit": fit.t_crit,
+            "n": fit.n,
+            "k": fit.k,
+            "full_F": full.F,
+            "full_F_crit": full.F_crit,
+            "full_r2": full.r2,
+            "removed": [{"term": s.removed, "t": s.t, "p": s.p} for s in m.reduction.steps],
+            "not_identifiable": list(m.not_identifiable),
+            "nuisance": list(m.nuisance),
+            "scale_instability": m.scale_instability,
+        }
+    return {
+        "radius_m": {k: est(v) for k, v in model.radius.items()},
+        "radius_1g_m": {k: est(v) for k, v in model.radius_raw.items()},
+        "phi_h_rad": {k: est(v) for k, v in model.phi_h.items()},
+        "phi_h_1g_rad": {k: est(v) for k, v in model.phi_h_1g.items()},
+        "omega_v": model.omega_v,
+        "alpha": next(iter(model.axes.values())).fit.alpha,
+        "axes": axes,
+    }
