@@ -32,7 +32,7 @@ def campaign_from_archive(
 ) -> tuple[list[thermal.CampaignPoint], list[dict[str, Any]]]:
     """The campaign of a serial: its current calibrations with a temperature, in run order.
 
-    Returns (points, rows) where rows are storage.thermal.campaign_calibrations
+    Returns (points, rows) where rows are storage.queries.campaign_calibrations
     entries (calibration ids, run ids) of the points, same order.
     Raises ValueError when runs lack environment.temperature_c.
     """

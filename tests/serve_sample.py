@@ -23,7 +23,7 @@ from calib_core.simulate.thermal import random_thermal_truth, thermal_campaign
 from calib_core.units import DEG
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.samples import write_csv_run
+from pipelines.run_writers import write_csv_run
 from storage.db import Archive, resolve_archive
 
 DATA_SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"
@@ -84,7 +84,7 @@ def _process(folder: Path, archive: Archive) -> str:
 
 def build(root: Path) -> Sample:
     """Write the lab files under root/lab and archive them into root/archive (SQLite)."""
-    from pipelines.thermal import thermal_fit
+    from pipelines.thermal_campaign import thermal_fit
 
     archive = resolve_archive(str(root / "archive"))
     archive.upgrade()

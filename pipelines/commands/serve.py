@@ -6,7 +6,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli import ArchiveOpt, app, err, fail
+from pipelines.cli_shared import ArchiveOpt, app, err, fail
 
 
 @app.command()
