@@ -165,7 +165,7 @@ def protocol(request: Request, run_id: str) -> Response:
 @router.get("/runs/{run_id}/certificate.html")
 def certificate_html(request: Request, run_id: str) -> Response:
     """The HTML certificate (a download: it embeds its plots as PNG)."""
-    from pipelines.reports.certificate import render_html
+    from pipelines.reports.render import render_html
 
     forms.params(request, ())
     summary, cert = _certificate(request.app.state.archive, run_id)
@@ -176,7 +176,7 @@ def certificate_html(request: Request, run_id: str) -> Response:
 @router.get("/runs/{run_id}/certificate.pdf")
 def certificate_pdf(request: Request, run_id: str) -> Response:
     """The PDF certificate, rendered into a temporary file (never into the archive)."""
-    from pipelines.reports.certificate import render_pdf
+    from pipelines.reports.render import render_pdf
 
     forms.params(request, ())
     summary, cert = _certificate(request.app.state.archive, run_id)
