@@ -12,12 +12,8 @@ minutes; so this reader never builds a per-message object for the IMU:
    (mcap's own record iterator builds a Python object per record and per
    message-index entry, which caps it at ~150-250k msg/s.)
 2. ``sensor_msgs/msg/Imu`` in CDR has a fixed layout once the header's
-   variable-length ``frame_id`` is known (see `IMU_LAYOUT`), so for every message
-   of a chunk at once we read the string length, compute the offsets of the
-   stamp, angular velocity and linear acceleration, and gather those bytes with
-   one fancy-indexing operation per field. The encapsulation header (first 4
-   bytes: 00 00 big-endian CDR, 00 01 little-endian CDR) gives the byte order;
-   doubles are 8-byte aligned relative to the end of that header.
+   variable-length ``frame_id`` is known, so every message of a chunk is decoded
+   at once by numpy gathers (pipelines.ingest.cdr).
 3. The low-rate channels (temperature is decoded the same way; JointState with
    mcap-ros2-support's decoder; JSON with the json module) are interpolated
    onto the IMU time base.
@@ -30,6 +26,10 @@ fields ``angle`` (rad) and ``rate`` (rad/s), stamped by its optional field
 ``stamp`` (Unix seconds) when ``stamp="header"``, else by the log time.
 Outside a reference channel's time span the interpolation holds its first /
 last value.
+
+The module is ~650 lines because one class, `_Reader`, holds the chunk-by-chunk
+state (channels, pending records, statistics) that its methods share; record-level
+helpers are in pipelines.ingest.mcap_records, the CDR decoder in pipelines.ingest.cdr.
 """
 
 from __future__ import annotations
@@ -45,49 +45,37 @@ from typing import Any, Literal
 import numpy as np
 
 from calib_core.recording import Recording
+from pipelines.ingest.cdr import (
+    IMU_LAYOUT,
+    NS,
+    TEMPERATURE_LAYOUT,
+    BadMessageError,
+    decode_fixed_cdr,
+    gather,
+)
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.mcap_records import (
+    MESSAGE_FIXED,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_FOOTER,
+    OP_MESSAGE,
+    OP_SCHEMA,
+    OP_STATISTICS,
+    RECORD_HEADER,
+    U64,
+    Cursor,
+    decompress,
+    record_starts,
+)
 
 MAGIC = b"\x89MCAP0\r\n"
 IMU_SCHEMA = "sensor_msgs/msg/Imu"
 TEMPERATURE_SCHEMA = "sensor_msgs/msg/Temperature"
 JOINT_STATE_SCHEMA = "sensor_msgs/msg/JointState"
 
-# MCAP record opcodes (https://mcap.dev/spec).
-_OP_FOOTER = 0x02
-_OP_SCHEMA = 0x03
-_OP_CHANNEL = 0x04
-_OP_MESSAGE = 0x05
-_OP_CHUNK = 0x06
-_OP_STATISTICS = 0x0B
-_RECORD_HEADER = 9  # opcode u8 + length u64
-_MESSAGE_FIXED = 22  # channel_id u16, sequence u32, log_time u64, publish_time u64
 _PENDING_FLUSH = 1 << 20  # bytes of unchunked message records decoded together
 _MAX_CHUNK = 1 << 30  # writers use ~1-10 MiB chunks; more is a damaged length field
-_U64 = struct.Struct("<Q")
-_NS = 1_000_000_000
-
-
-@dataclass(frozen=True)
-class FixedLayout:
-    """Where the float64 fields of a CDR message with a fixed layout after its Header lie.
-
-    The message starts with std_msgs/Header: stamp.sec int32 @0, stamp.nanosec
-    uint32 @4, frame_id length uint32 @8 (counting the NUL), the characters @12.
-    The rest starts at ``align8(12 + length)``; `fields` gives each float64
-    field's offset from there and its number of values, `size` the bytes of
-    that rest.
-    """
-
-    fields: dict[str, tuple[int, int]]
-    size: int
-
-
-# sensor_msgs/msg/Imu after the Header: orientation (4 doubles) @0, its covariance
-# (9) @32, angular_velocity (3) @104, covariance (9) @128, linear_acceleration (3)
-# @200, covariance (9) @224; 37 doubles in all.
-IMU_LAYOUT = FixedLayout({"gyr": (104, 3), "acc": (200, 3)}, 37 * 8)
-# sensor_msgs/msg/Temperature after the Header: temperature @0, variance @8.
-TEMPERATURE_LAYOUT = FixedLayout({"temp": (0, 1)}, 2 * 8)
 
 
 @dataclass
@@ -199,37 +187,37 @@ class _Reader:
         pos = 8
         pending = bytearray()  # message records outside chunks, decoded in batches
         while True:
-            head = f.read(_RECORD_HEADER)
-            if len(head) < _RECORD_HEADER:
+            head = f.read(RECORD_HEADER)
+            if len(head) < RECORD_HEADER:
                 raise IngestError(
                     f"file ends at byte {pos + len(head)} without a Footer record "
                     "(truncated: recording interrupted or copy incomplete?)",
                     file=self.name,
                 )
             opcode = head[0]
-            (length,) = _U64.unpack_from(head, 1)
-            if length > size - pos - _RECORD_HEADER:
+            (length,) = U64.unpack_from(head, 1)
+            if length > size - pos - RECORD_HEADER:
                 raise IngestError(
                     f"record at byte {pos} (opcode 0x{opcode:02x}) claims {length} bytes but "
-                    f"only {size - pos - _RECORD_HEADER} remain (truncated or damaged file)",
+                    f"only {size - pos - RECORD_HEADER} remain (truncated or damaged file)",
                     file=self.name,
                 )
-            if opcode == _OP_MESSAGE:
+            if opcode == OP_MESSAGE:
                 pending += head
                 pending += f.read(length)
                 if len(pending) >= _PENDING_FLUSH:
                     self._records(bytes(pending), pos)
                     pending.clear()
-            elif opcode in (_OP_CHUNK, _OP_SCHEMA, _OP_CHANNEL):
+            elif opcode in (OP_CHUNK, OP_SCHEMA, OP_CHANNEL):
                 if pending:
                     self._records(bytes(pending), pos)
                     pending.clear()
                 body = f.read(length)
-                if opcode == _OP_CHUNK:
+                if opcode == OP_CHUNK:
                     self._chunk(body, pos)
                 else:
                     self._definition(opcode, body, pos)
-            elif opcode == _OP_FOOTER:
+            elif opcode == OP_FOOTER:
                 f.seek(length, 1)
                 if f.read(8) != MAGIC:
                     raise IngestError(
@@ -239,7 +227,7 @@ class _Reader:
                 break
             else:  # indexes, statistics, attachments, metadata: not needed
                 f.seek(length, 1)
-            pos += _RECORD_HEADER + length
+            pos += RECORD_HEADER + length
         if pending:
             self._records(bytes(pending), pos)
 
@@ -248,7 +236,7 @@ class _Reader:
             uncompressed_size, crc = struct.unpack_from("<QI", body, 16)
             (comp_len,) = struct.unpack_from("<I", body, 28)
             compression = body[32 : 32 + comp_len].decode()
-            (records_len,) = _U64.unpack_from(body, 32 + comp_len)
+            (records_len,) = U64.unpack_from(body, 32 + comp_len)
         except (struct.error, UnicodeDecodeError):
             raise IngestError(f"damaged chunk header at byte {pos}", file=self.name) from None
         start = 40 + comp_len
@@ -260,7 +248,7 @@ class _Reader:
                 f"(limit {_MAX_CHUNK}; damaged file?)",
                 file=self.name,
             )
-        data = _decompress(self.name, pos, compression, body[start : start + records_len],
+        data = decompress(self.name, pos, compression, body[start : start + records_len],
                            uncompressed_size)  # fmt: skip
         if crc and zlib.crc32(data) != crc:
             raise IngestError(f"chunk at byte {pos} fails its CRC check (damaged file)",
@@ -275,27 +263,27 @@ class _Reader:
         and check at the end that no chunk went missing. A file without a
         summary is read all the same; a damaged footer is left to the data pass.
         """
-        footer = _RECORD_HEADER + 20 + len(MAGIC)  # summary_start, offset_start u64; crc u32
+        footer = RECORD_HEADER + 20 + len(MAGIC)  # summary_start, offset_start u64; crc u32
         if size < 8 + footer:
             return
         f.seek(size - footer)
         tail = f.read(footer)
-        if tail[0] != _OP_FOOTER or tail[-8:] != MAGIC:
+        if tail[0] != OP_FOOTER or tail[-8:] != MAGIC:
             return
-        (start,) = _U64.unpack_from(tail, _RECORD_HEADER)
+        (start,) = U64.unpack_from(tail, RECORD_HEADER)
         end = size - footer
         if not 8 <= start < end:
             return
         f.seek(start)
         summary = f.read(end - start)
         pos = 0
-        while pos + _RECORD_HEADER <= len(summary):
-            (length,) = _U64.unpack_from(summary, pos + 1)
-            if summary[pos] == _OP_STATISTICS:
-                body = summary[pos + _RECORD_HEADER : pos + _RECORD_HEADER + length]
+        while pos + RECORD_HEADER <= len(summary):
+            (length,) = U64.unpack_from(summary, pos + 1)
+            if summary[pos] == OP_STATISTICS:
+                body = summary[pos + RECORD_HEADER : pos + RECORD_HEADER + length]
                 self._statistics(body, start + pos)
                 return
-            pos += _RECORD_HEADER + length
+            pos += RECORD_HEADER + length
 
     def _statistics(self, body: bytes, pos: int) -> None:
         """Messages per channel from the summary: a check that no chunk went missing."""
@@ -309,15 +297,15 @@ class _Reader:
 
     def _definition(self, opcode: int, body: bytes, pos: int) -> None:
         try:
-            cur = _Cursor(body)
-            if opcode == _OP_SCHEMA:
+            cur = Cursor(body)
+            if opcode == OP_SCHEMA:
                 sid = cur.u16()
                 self.schemas[sid] = (cur.string(), cur.string(), cur.blob())
                 return
             cid, sid = cur.u16(), cur.u16()
             topic, encoding = cur.string(), cur.string()
         except (struct.error, UnicodeDecodeError, IndexError):
-            kind = "schema" if opcode == _OP_SCHEMA else "channel"
+            kind = "schema" if opcode == OP_SCHEMA else "channel"
             raise IngestError(f"damaged {kind} record near byte {pos}", file=self.name) from None
         if cid in self.channels:
             return
@@ -345,21 +333,21 @@ class _Reader:
     def _records(self, buf: bytes, pos: int) -> None:
         """Decode the records of one (decompressed) chunk or batch of message records."""
         arr = np.frombuffer(buf, np.uint8)
-        starts = _record_starts(buf, arr)
+        starts = record_starts(buf, arr)
         if starts is None:
             raise IngestError(f"damaged records in the chunk at byte {pos}", file=self.name)
         ops = arr[starts]
-        for i in np.flatnonzero((ops == _OP_SCHEMA) | (ops == _OP_CHANNEL)):
+        for i in np.flatnonzero((ops == OP_SCHEMA) | (ops == OP_CHANNEL)):
             s = int(starts[i])
-            (length,) = _U64.unpack_from(buf, s + 1)
+            (length,) = U64.unpack_from(buf, s + 1)
             self._definition(int(ops[i]), buf[s + 9 : s + 9 + length], pos)
-        msg = starts[ops == _OP_MESSAGE]
+        msg = starts[ops == OP_MESSAGE]
         if msg.size == 0:
             return
-        lengths = _gather(arr, msg + 1, "<u8").astype(np.int64)
-        if (lengths < _MESSAGE_FIXED).any():
+        lengths = gather(arr, msg + 1, "<u8").astype(np.int64)
+        if (lengths < MESSAGE_FIXED).any():
             raise IngestError(f"message record too short in chunk at byte {pos}", file=self.name)
-        chan = _gather(arr, msg + 9, "<u2")
+        chan = gather(arr, msg + 9, "<u2")
         for cid in np.unique(chan):
             channel = self.channels.get(int(cid))
             if channel is None:
@@ -372,9 +360,9 @@ class _Reader:
                 continue
             sel = chan == cid
             rec = msg[sel]
-            log_ns = _gather(arr, rec + 15, "<u8").astype(np.int64)
-            payload = rec + _RECORD_HEADER + _MESSAGE_FIXED
-            plen = lengths[sel] - _MESSAGE_FIXED
+            log_ns = gather(arr, rec + 15, "<u8").astype(np.int64)
+            payload = rec + RECORD_HEADER + MESSAGE_FIXED
+            plen = lengths[sel] - MESSAGE_FIXED
             part = self._decode(channel, buf, arr, payload, plen, log_ns)
             self._keep(channel, part, pos)
 
@@ -481,7 +469,7 @@ class _Reader:
         for k, (s, size) in enumerate(zip(start.tolist(), length.tolist(), strict=True)):
             try:
                 m = ch.decoder(buf[s : s + size])
-                out["stamp"][k] = m.header.stamp.sec * _NS + m.header.stamp.nanosec
+                out["stamp"][k] = m.header.stamp.sec * NS + m.header.stamp.nanosec
                 joints = list(m.name)
             except Exception as exc:  # the generated decoder raises assorted errors
                 raise IngestError(
@@ -529,7 +517,7 @@ class _Reader:
         part = {k: np.array(out[k], dtype=np.float64) for k in ("angle", "rate")}
         stamps = np.array(out["stamp"], dtype=np.float64)
         if np.isfinite(stamps).all() and (np.abs(stamps) < 9e9).all():
-            part["stamp"] = np.round(stamps * _NS).astype(np.int64)
+            part["stamp"] = np.round(stamps * NS).astype(np.int64)
         return part
 
     # --- assembling the Recording ------------------------------------------------
@@ -548,9 +536,9 @@ class _Reader:
         imu.parts.clear()
         t0 = stamp_ns[0]
         stamp_ns -= t0  # exact integer offsets (in place), then one rounding to seconds
-        rel = stamp_ns / _NS
+        rel = stamp_ns / NS
         del stamp_ns
-        t = rel + t0 / _NS
+        t = rel + t0 / NS
 
         temp = None
         ch = self._pick("temp")
@@ -632,178 +620,7 @@ class _Reader:
         where = f"topic {ch.topic!r}"
         _check_increasing(self.name, where, ref_ns)
         _check_finite(self.name, where, what, values)
-        return np.interp(rel, (ref_ns - t0) / _NS, values)
-
-
-# --- helpers -----------------------------------------------------------------------
-
-
-class _Cursor:
-    """Little-endian reader for the few variable-length MCAP records (schema, channel)."""
-
-    def __init__(self, buf: bytes) -> None:
-        self.buf, self.pos = buf, 0
-
-    def _take(self, n: int) -> bytes:
-        if self.pos + n > len(self.buf):
-            raise IndexError("record ends early")
-        out = self.buf[self.pos : self.pos + n]
-        self.pos += n
-        return out
-
-    def u16(self) -> int:
-        return int.from_bytes(self._take(2), "little")
-
-    def blob(self) -> bytes:
-        return self._take(int.from_bytes(self._take(4), "little"))
-
-    def string(self) -> str:
-        return self.blob().decode()
-
-
-def _record_starts(buf: bytes, arr: np.ndarray) -> np.ndarray | None:
-    """Offsets of the records in `buf` (opcode u8 + length u64 + body), or None if they overrun.
-
-    A Python loop hops from header to header. The usual chunk of an IMU log is,
-    after its first message, nothing but messages of one size (one topic, one
-    frame_id): that case is recognised once and checked with numpy instead.
-    """
-    starts: list[int] = []
-    append = starts.append
-    unpack = _U64.unpack_from
-    end = len(buf) - _RECORD_HEADER
-    pos = 0
-    tried = False
-    while pos <= end:
-        append(pos)
-        step = _RECORD_HEADER + unpack(buf, pos + 1)[0]
-        if not tried and buf[pos] == _OP_MESSAGE:
-            tried = True
-            rest = len(buf) - pos
-            if rest % step == 0:
-                regular = pos + step * np.arange(rest // step, dtype=np.int64)
-                if (arr[regular] == _OP_MESSAGE).all() and (
-                    _gather(arr, regular + 1, "<u8") == step - _RECORD_HEADER
-                ).all():
-                    return np.concatenate([np.array(starts[:-1], dtype=np.int64), regular])
-        pos += step
-    if pos != len(buf):
-        return None
-    return np.array(starts, dtype=np.int64)
-
-
-def _decompress(name: str, pos: int, compression: str, data: bytes, size: int) -> bytes:
-    try:
-        if compression == "":
-            out = data
-        elif compression == "zstd":
-            import zstandard
-
-            out = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-        elif compression == "lz4":
-            import lz4.frame
-
-            out = lz4.frame.decompress(data)
-        else:
-            raise IngestError(
-                f"chunk at byte {pos} uses compression {compression!r}; expected none, zstd or lz4",
-                file=name,
-            )
-    except IngestError:
-        raise
-    except Exception as exc:  # zstandard.ZstdError, RuntimeError from lz4, ...
-        raise IngestError(f"cannot decompress chunk at byte {pos}: {exc}", file=name) from None
-    if len(out) != size:
-        raise IngestError(
-            f"chunk at byte {pos} decompresses to {len(out)} bytes, expected {size}", file=name
-        )
-    return out
-
-
-def _gather(arr: np.ndarray, offsets: np.ndarray, dtype: str, count: int = 1) -> np.ndarray:
-    """Values of `dtype` (`count` per row) read at byte `offsets` of the uint8 array `arr`.
-
-    Returns (n,) for count 1, else (n, count).
-    """
-    dt = np.dtype(dtype)
-    # Rows of a sliding-window view: one copy of `width` bytes per offset (row-wise
-    # take is several times faster than indexing every byte).
-    windows = np.lib.stride_tricks.sliding_window_view(arr, dt.itemsize * count)
-    values = windows[offsets].view(dt)
-    return values[:, 0] if count == 1 else values
-
-
-class BadMessageError(Exception):
-    """A message of a chunk that does not fit its layout (index within the batch)."""
-
-    def __init__(self, index: int, problem: str) -> None:
-        super().__init__(problem)
-        self.index, self.problem = index, problem
-
-
-def decode_fixed_cdr(
-    arr: np.ndarray, start: np.ndarray, length: np.ndarray, layout: FixedLayout
-) -> dict[str, np.ndarray]:
-    """Decode CDR messages with a Header and a fixed layout after it, all at once.
-
-    Parameters
-    ----------
-    arr : (B,) uint8, the chunk's bytes.
-    start, length : (n,) int64, byte offset and length of each message payload.
-    layout : where the float64 fields lie after the Header.
-
-    Returns
-    -------
-    dict with ``stamp`` (n,) int64 ns from header.stamp and each layout field
-    as (n, count) float64.
-
-    Raises
-    ------
-    BadMessageError
-        For the first message that is too short, not plain CDR or has a
-        frame_id without its terminating NUL.
-    """
-
-    def first(bad: np.ndarray) -> int:
-        return int(np.flatnonzero(bad)[0])
-
-    if (length < 16).any():
-        k = first(length < 16)
-        raise BadMessageError(k, f"payload of {length[k]} bytes is too short for a Header")
-    kind = arr[start].astype(np.uint16) << 8 | arr[start + 1]
-    if (kind > 1).any():
-        k = first(kind > 1)
-        raise BadMessageError(
-            k,
-            f"CDR encapsulation 0x{int(kind[k]):04x} is not plain CDR "
-            "(0x0000 big-endian or 0x0001 little-endian)",
-        )
-    big = kind == 0
-    base = start + 4  # CDR alignment counts from the end of the encapsulation header
-
-    def num(offsets: np.ndarray, dtype: str, count: int = 1) -> np.ndarray:
-        values = _gather(arr, offsets, "<" + dtype, count)
-        if big.any():
-            values[big] = values[big].byteswap()
-        return values
-
-    strlen = num(base + 8, "u4").astype(np.int64)
-    rest = (12 + strlen + 7) // 8 * 8  # the fixed part starts 8-byte aligned
-    short = (strlen < 1) | (rest + layout.size > length - 4)
-    if short.any():
-        k = first(short)
-        raise BadMessageError(
-            k,
-            f"payload of {length[k]} bytes does not hold the message "
-            f"(frame_id length {strlen[k]}; needs {4 + rest[k] + layout.size} bytes)",
-        )
-    unterminated = arr[base + 11 + strlen] != 0
-    if unterminated.any():
-        raise BadMessageError(first(unterminated), "frame_id is not NUL-terminated")
-    out = {"stamp": num(base, "i4").astype(np.int64) * _NS + num(base + 4, "u4")}
-    for key, (offset, count) in layout.fields.items():
-        out[key] = num(base + rest + offset, "f8", count)
-    return out
+        return np.interp(rel, (ref_ns - t0) / NS, values)
 
 
 def _concat(ch: _Channel, key: str) -> np.ndarray:
