@@ -120,6 +120,11 @@ class CheckResult:
         """The fields as a dict (`dataclasses.asdict` without its deep copy)."""
         return _fields_dict(self)
 
+    @classmethod
+    def at_most(cls, name: str, value: float, limit: float, detail: str = "") -> CheckResult:
+        """A check that passes when ``value <= limit``."""
+        return cls(name, value, limit, bool(value <= limit), detail)
+
 
 @dataclass
 class Calibration:

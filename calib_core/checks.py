@@ -471,14 +471,11 @@ def check_residuals(cal: Calibration, profile: ToleranceProfile) -> list[CheckRe
             worst = int(max(range(3), key=lambda i, v=values: v[i]))
             value = float(values[worst])
             out.append(
-                CheckResult(
-                    name=f"residual:{r.segment}:{r.sensor}:{stat}",
-                    value=value,
-                    limit=limit,
-                    passed=bool(value <= limit),
-                    detail=f"worst axis {params.AXES[worst]}, {unit}, n={r.n}",
+                CheckResult.at_most(
+                    f"residual:{r.segment}:{r.sensor}:{stat}", value, limit,
+                    f"worst axis {params.AXES[worst]}, {unit}, n={r.n}",
                 )
-            )
+            )  # fmt: skip
     return out
 
 

@@ -306,14 +306,10 @@ def verify_points(
             value = float(np.linalg.norm(err))
             limit = profile.verification_limits[sensor]
             unit = params.UNITS[f"{sensor}.bias"]
+            detail = f"error x y z = {err[0]:+.4g} {err[1]:+.4g} {err[2]:+.4g} {unit}, "
             out.append(
-                CheckResult(
-                    name=f"{VERIFY_PREFIX}{ref.label}:{sensor}",
-                    value=value,
-                    limit=limit,
-                    passed=bool(value <= limit),
-                    detail=f"error x y z = {err[0]:+.4g} {err[1]:+.4g} {err[2]:+.4g} {unit}, "
-                    f"n={len(rec)}",
+                CheckResult.at_most(
+                    f"{VERIFY_PREFIX}{ref.label}:{sensor}", value, limit, f"{detail}n={len(rec)}"
                 )
             )
     return out

@@ -19,6 +19,7 @@ from pipelines.cli_shared import (
     app,
     err,
     fail,
+    frame_records,
     open_archive,
     out,
     print_frame,
@@ -202,7 +203,7 @@ def history(
 
     df = queries.history(open_archive(archive), serial)
     if as_json:
-        print_json(json.loads(df.to_json(orient="records", date_format="iso")))
+        print_json(frame_records(df))
         return
     if df.empty:
         fail(f"no calibrations archived for serial {serial!r}")

@@ -45,6 +45,11 @@ def fail(message: str) -> None:
     raise typer.Exit(2)
 
 
+def frame_records(df: Any) -> list[dict[str, Any]]:
+    """A DataFrame's rows as JSON-ready dicts (dates in ISO 8601)."""
+    return json.loads(df.to_json(orient="records", date_format="iso"))
+
+
 def print_json(doc: Any) -> None:
     sys.stdout.write(json.dumps(doc, indent=2, default=str) + "\n")
 

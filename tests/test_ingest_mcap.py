@@ -21,8 +21,8 @@ from mcap.writer import Writer as McapWriter
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 
-from pipelines.ingest.errors import IngestError
 from pipelines.ingest.cdr import FixedLayout, decode_fixed_cdr
+from pipelines.ingest.errors import IngestError
 from pipelines.ingest.mcap_reader import read_mcap
 
 # --- ROS 2 message definitions (sensor_msgs, std_msgs, geometry_msgs, builtin_interfaces) ---

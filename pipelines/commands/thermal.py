@@ -20,6 +20,7 @@ from pipelines.cli_shared import (
     app,
     err,
     fail,
+    frame_records,
     open_archive,
     out,
     print_frame,
@@ -176,8 +177,7 @@ def trend(
     plot = plot or Path(f"trend_{serial}_{param}.png")
     rep = _run(trend_report, open_archive(archive), serial, param, profile=profile, plot=plot)
     if as_json:
-        print_json({"summary": rep["summary"], "rows": json.loads(rep["table"].to_json(
-            orient="records", date_format="iso"))})  # fmt: skip
+        print_json({"summary": rep["summary"], "rows": frame_records(rep["table"])})
         return
     print_frame(rep["table"], f"{param} of {serial}")
     for key, value in rep["summary"].items():
@@ -199,7 +199,7 @@ def fleet(
     plot = plot or Path(f"fleet_{model}_{param}.png")
     table = _run(fleet_report, open_archive(archive), model, param, bin_c=bin_c, plot=plot)
     if as_json:
-        print_json(json.loads(table.to_json(orient="records")))
+        print_json(frame_records(table))
         return
     print_frame(table, f"{param} across {model}")
     err.print(f"plot: {plot}")

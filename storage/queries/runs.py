@@ -52,6 +52,16 @@ def _calibration(s: Session, run_pk: int, revision: int | None) -> CalibrationRo
     return cal
 
 
+_PROVENANCE = ("settings_hash", "settings", "software_version", "source_revision", "verdict",
+               "profile_name", "profile_version")  # fmt: skip
+
+
+def _provenance(cal: Any) -> dict[str, Any]:
+    """What produced and judged a calibration revision, from its row (or a row with the
+    same attribute names)."""
+    return {k: getattr(cal, k) for k in _PROVENANCE}
+
+
 def _cal_dict(s: Session, cal: CalibrationRow) -> dict[str, Any]:
     params = s.execute(
         select(
@@ -91,13 +101,7 @@ def _cal_dict(s: Session, cal: CalibrationRow) -> dict[str, Any]:
         "calibration_id": cal.id,
         "revision": cal.revision,
         "created_at": cal.created_at,
-        "settings_hash": cal.settings_hash,
-        "settings": cal.settings,
-        "software_version": cal.software_version,
-        "source_revision": cal.source_revision,
-        "verdict": cal.verdict,
-        "profile_name": cal.profile_name,
-        "profile_version": cal.profile_version,
+        **_provenance(cal),
         "superseded_by": cal.superseded_by,
         "parameters": [_dict(p) for p in params],
         "checks": [_dict(c) for c in checks],
@@ -366,13 +370,7 @@ def lineage(
             "current": head.superseded_by is None,
             "superseded_by_revision": head.superseding_revision,
             "created_at": head.cal_created_at,
-            "settings_hash": head.settings_hash,
-            "settings": head.settings,
-            "software_version": head.software_version,
-            "source_revision": head.source_revision,
-            "verdict": head.verdict,
-            "profile_name": head.profile_name,
-            "profile_version": head.profile_version,
+            **_provenance(head),
         },
         "raw_files": [_dict(r) for r in raw],
         "steps": [_dict(s) for s in steps],
