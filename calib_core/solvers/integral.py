@@ -117,76 +117,9 @@ def solve_integral(
     ValueError naming the segment: a missing rotation or static mean, a rotation
     that reached the gyro range, a turn count that is not a whole number.
     """
-    if directions not in ("both", "any"):
-        raise ValueError(f"integral method: directions must be 'both' or 'any', got {directions!r}")
-    if directions == "both":
-        missing = [label for label in ROTATION_LABELS if label not in rotations]
-    else:
-        missing = [
-            f"{a}_ccw or {a}_cw"
-            for a in params.AXES
-            if f"{a}_ccw" not in rotations and f"{a}_cw" not in rotations
-        ]
-    missing += [f"{a}_up" for a in params.AXES if f"{a}_up" not in static_means]
-    if missing:
-        raise ValueError(f"integral method: missing segments {missing}")
-    if turns is not None and (int(turns) != turns or turns < 1):
-        raise ValueError(f"integral method: turns must be a positive whole number, got {turns!r}")
-    present = [label for label in ROTATION_LABELS if label in rotations]
-    for label in present:
-        rec = rotations[label]
-        if len(rec) < 3:
-            raise ValueError(f"rotation {label}: {len(rec)} samples, too short to integrate")
-        _check_range(rec, label, gyro_range)
-
-    # J[axis][sense] = (3,) bias-removed integrals, var[axis][sense] = (3,) their variances.
-    J: dict[str, dict[str, np.ndarray]] = {}
-    var: dict[str, dict[str, np.ndarray]] = {}
-    duration: dict[str, dict[str, float]] = {}
-    for a in params.AXES:
-        S = np.asarray(static_means[f"{a}_up"], dtype=float)
-        J[a], var[a], duration[a] = {}, {}, {}
-        for sense in ("ccw", "cw"):
-            if f"{a}_{sense}" not in rotations:
-                continue
-            rec = rotations[f"{a}_{sense}"]
-            w = trapezoid_weights(rec.t)
-            T = float(rec.t[-1] - rec.t[0])
-            sigma = (
-                noise_from_differences(rec.gyr)
-                if noise_std is None
-                else np.asarray(noise_std[f"{a}_up"], dtype=float)
-            )
-            J[a][sense] = w @ rec.gyr - S * T
-            var[a][sense] = sigma**2 * float(w @ w)
-            duration[a][sense] = T
-
-    # Turn count: the rotation-axis integrals are +-(1 + scale) 2 pi n.
-    n_est = {
-        a: _signed_sum(J[a])[i] / (2.0 * math.pi * len(J[a])) for i, a in enumerate(params.AXES)
-    }
-    if turns is None:
-        rounded = {a: round(v) for a, v in n_est.items()}
-        bad = {
-            a: v for a, v in n_est.items() if rounded[a] < 1 or abs(v - rounded[a]) > TURN_TOLERANCE
-        }
-        if bad:
-            detail = ", ".join(f"{a}: {v:.2f}" for a, v in bad.items())
-            raise ValueError(
-                f"integral method: the rotations are not whole turns ({detail} turns); "
-                "give the number of turns in the settings or repeat the rotations"
-            )
-        if len(set(rounded.values())) != 1:
-            raise ValueError(
-                f"integral method: axes turned different whole numbers of turns: {rounded}"
-            )
-        n = rounded["x"]
-    else:
-        n = int(turns)
-        off = {a: v for a, v in n_est.items() if abs(v - n) > TURN_TOLERANCE * n}
-        if off:
-            detail = ", ".join(f"{a}_ccw/{a}_cw: {v:.2f}" for a, v in off.items())
-            raise ValueError(f"integral method: settings say {n} turns but the gyro shows {detail}")
+    _check_inputs(rotations, static_means, gyro_range, turns, directions)
+    J, var, duration = _integrals(rotations, static_means, noise_std)
+    n = _turn_count(J, turns)
 
     cal = Calibration(procedure="integral", gravity=gravity)
     closure: dict[str, float] = {}
@@ -219,3 +152,90 @@ def solve_integral(
 def _signed_sum(per_sense: dict):
     """ccw value minus cw value, whichever of the two is present (the other counts as 0)."""
     return per_sense.get("ccw", 0.0) - per_sense.get("cw", 0.0)
+
+
+def _check_inputs(
+    rotations: dict[str, Recording],
+    static_means: dict[str, np.ndarray],
+    gyro_range: float,
+    turns: int | None,
+    directions: str,
+) -> None:
+    """Refuse missing segments, a bad turn count and rotations that reached the range."""
+    if directions not in ("both", "any"):
+        raise ValueError(f"integral method: directions must be 'both' or 'any', got {directions!r}")
+    if directions == "both":
+        missing = [label for label in ROTATION_LABELS if label not in rotations]
+    else:
+        missing = [
+            f"{a}_ccw or {a}_cw"
+            for a in params.AXES
+            if f"{a}_ccw" not in rotations and f"{a}_cw" not in rotations
+        ]
+    missing += [f"{a}_up" for a in params.AXES if f"{a}_up" not in static_means]
+    if missing:
+        raise ValueError(f"integral method: missing segments {missing}")
+    if turns is not None and (int(turns) != turns or turns < 1):
+        raise ValueError(f"integral method: turns must be a positive whole number, got {turns!r}")
+    for label in (label for label in ROTATION_LABELS if label in rotations):
+        rec = rotations[label]
+        if len(rec) < 3:
+            raise ValueError(f"rotation {label}: {len(rec)} samples, too short to integrate")
+        _check_range(rec, label, gyro_range)
+
+
+def _integrals(
+    rotations: dict[str, Recording],
+    static_means: dict[str, np.ndarray],
+    noise_std: dict[str, np.ndarray] | None,
+) -> tuple[dict, dict, dict]:
+    """Per axis and sense: the bias-removed integral J (3,) rad, its variance (3,) rad^2,
+    and the rotation's duration, s (each a dict axis -> sense -> value)."""
+    J: dict[str, dict[str, np.ndarray]] = {}
+    var: dict[str, dict[str, np.ndarray]] = {}
+    duration: dict[str, dict[str, float]] = {}
+    for a in params.AXES:
+        S = np.asarray(static_means[f"{a}_up"], dtype=float)
+        J[a], var[a], duration[a] = {}, {}, {}
+        for sense in ("ccw", "cw"):
+            if f"{a}_{sense}" not in rotations:
+                continue
+            rec = rotations[f"{a}_{sense}"]
+            w = trapezoid_weights(rec.t)
+            T = float(rec.t[-1] - rec.t[0])
+            sigma = (
+                noise_from_differences(rec.gyr)
+                if noise_std is None
+                else np.asarray(noise_std[f"{a}_up"], dtype=float)
+            )
+            J[a][sense] = w @ rec.gyr - S * T
+            var[a][sense] = sigma**2 * float(w @ w)
+            duration[a][sense] = T
+    return J, var, duration
+
+
+def _turn_count(J: dict[str, dict[str, np.ndarray]], turns: int | None) -> int:
+    """Whole turns per rotation: the rotation-axis integrals are +-(1 + scale) 2 pi n."""
+    n_est = {
+        a: _signed_sum(J[a])[i] / (2.0 * math.pi * len(J[a])) for i, a in enumerate(params.AXES)
+    }
+    if turns is not None:
+        n = int(turns)
+        off = {a: v for a, v in n_est.items() if abs(v - n) > TURN_TOLERANCE * n}
+        if off:
+            detail = ", ".join(f"{a}_ccw/{a}_cw: {v:.2f}" for a, v in off.items())
+            raise ValueError(f"integral method: settings say {n} turns but the gyro shows {detail}")
+        return n
+    rounded = {a: round(v) for a, v in n_est.items()}
+    bad = {a: v for a, v in n_est.items() if rounded[a] < 1 or abs(v - rounded[a]) > TURN_TOLERANCE}
+    if bad:
+        detail = ", ".join(f"{a}: {v:.2f}" for a, v in bad.items())
+        raise ValueError(
+            f"integral method: the rotations are not whole turns ({detail} turns); "
+            "give the number of turns in the settings or repeat the rotations"
+        )
+    if len(set(rounded.values())) != 1:
+        raise ValueError(
+            f"integral method: axes turned different whole numbers of turns: {rounded}"
+        )
+    return rounded["x"]
