@@ -165,6 +165,9 @@ def fit_ols(
     ValueError
         on bad shapes, non-finite values, too few observations (n <= p), or a
         (nearly) rank-deficient design; the message names the dependent columns.
+
+    One function on purpose: the rank check, the covariance and the t statistics all
+    come from the one SVD of the weighted, column-normalised design.
     """
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")

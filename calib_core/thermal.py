@@ -28,6 +28,10 @@ its own t test ("detected" when significant).
 
 Compensation outside [T_min, T_max] is clipped (the fit says nothing there),
 like PX4 and ArduPilot do. A range narrower than MIN_RANGE_C is refused.
+
+Why one module of ~680 lines: the thermal model's fit (order selection by t tests),
+its JSON form and its application share the polynomial conventions (T - T_ref,
+clipping to the fitted range) that must not drift apart between files.
 """
 
 from __future__ import annotations

@@ -147,6 +147,9 @@ def write_csv_run(
     Returns
     -------
     Path of the written run.toml.
+
+    One function on purpose: the layout (time base, columns, manifest windows) is one
+    file's description, kept together so the reader's tests can follow it.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

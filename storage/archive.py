@@ -17,6 +17,10 @@ then all rows in one transaction. If the transaction fails, the files this
 attempt created in the run folder are removed again. Concurrent archiving of
 the same run is resolved by the database's unique constraints: the loser gets
 an IntegrityError, looks again and reports "duplicate".
+
+Why one module of ~650 lines: the write path (validation of the input, the plan, the
+files, the rows, the retry when a concurrent writer wins) is the story of one
+transaction and its invariants, read best top to bottom in one place.
 """
 
 from __future__ import annotations
@@ -519,58 +523,43 @@ def _write_rows(
         s.flush()
         if plan.previous_id is not None:
             s.get(CalibrationRow, plan.previous_id).superseded_by = cal.id
-        _insert_many(
-            s,
-            ProcessingStep,
-            [
-                {
-                    "run_id": run_pk,
-                    "calibration_id": cal.id,
-                    "seq": i,
-                    "name": st["name"],
-                    "settings": st.get("settings", {}),
-                    "statistics": st.get("statistics", {}),
-                    "software_version": st.get("software_version", run.software_version),
-                    "source_revision": run.source_revision,
-                }
-                for i, st in enumerate(run.steps)
-            ],
-        )
-        _insert_many(
-            s,
-            ParameterRow,
-            [
-                {
-                    "calibration_id": cal.id,
-                    "name": p.name,
-                    "value": p.value,
-                    "std": p.std,
-                    "unit": p.unit,
-                    "temperature_c": row.get("temperature_c"),
-                }
-                for p, row in zip(params, run.parameters, strict=True)
-            ],
-        )
-        _insert_many(
-            s,
-            CheckResultRow,
-            [
-                {
-                    "calibration_id": cal.id,
-                    "name": c["name"],
-                    "value": c.get("value"),
-                    "limit": c.get("limit"),
-                    "passed": c["passed"],
-                    "detail": c.get("detail", ""),
-                    "profile_name": run.profile_name,
-                    "profile_version": run.profile_version,
-                }
-                for c in run.checks
-            ],
-        )
+        _insert_children(s, run, params, run_pk, cal.id)
         s.flush()
         _pause_point("commit")
         return cal.id
+
+
+def _insert_children(
+    s: Session, run: RunIn, params: list[Parameter], run_pk: int, cal_id: int
+) -> None:
+    """The step, parameter and check rows of a new calibration revision."""
+    steps = [
+        {
+            "run_id": run_pk,
+            "calibration_id": cal_id,
+            "seq": i,
+            "name": st["name"],
+            "settings": st.get("settings", {}),
+            "statistics": st.get("statistics", {}),
+            "software_version": st.get("software_version", run.software_version),
+            "source_revision": run.source_revision,
+        }
+        for i, st in enumerate(run.steps)
+    ]
+    _insert_many(s, ProcessingStep, steps)
+    rows = [
+        {"calibration_id": cal_id, "name": p.name, "value": p.value, "std": p.std,
+         "unit": p.unit, "temperature_c": row.get("temperature_c")}
+        for p, row in zip(params, run.parameters, strict=True)
+    ]  # fmt: skip
+    _insert_many(s, ParameterRow, rows)
+    checks = [
+        {"calibration_id": cal_id, "name": c["name"], "value": c.get("value"),
+         "limit": c.get("limit"), "passed": c["passed"], "detail": c.get("detail", ""),
+         "profile_name": run.profile_name, "profile_version": run.profile_version}
+        for c in run.checks
+    ]  # fmt: skip
+    _insert_many(s, CheckResultRow, checks)
 
 
 def _insert_run(

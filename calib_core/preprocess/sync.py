@@ -208,6 +208,9 @@ def estimate_clock(
     Returns
     -------
     ClockModel with t0_s = imu_t[0] and the RMS fit residual.
+
+    One function on purpose: the coarse offset, the window offsets and the line fit
+    share the uniform time grid and the gap masks of both clocks.
     """
     imu_t, imu_rate = np.asarray(imu_t, float), np.ascontiguousarray(imu_rate, float)
     ref_t, ref_rate = np.asarray(ref_t, float), np.ascontiguousarray(ref_rate, float)

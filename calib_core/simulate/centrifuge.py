@@ -129,6 +129,8 @@ def simulate_centrifuge(
     -------
     CentrifugeRun with per-position zero records at 0/90/180/270 deg, a near-1 g
     run and the high-g steps, plus the truth.
+
+    One function on purpose: the simulated run is one sequence of steps in lab order.
     """
     if direction not in (1, -1):
         raise ValueError(f"direction must be +1 or -1, got {direction}")

@@ -116,25 +116,7 @@ def solve_array(
     # D_s = J+ - J- = (I + M_g) 4 pi n d_s (d_s = C_s e_z): the static mean's error
     # enters both integrals alike and cancels up to (T+ - T-), as in the integral
     # method, and the sensors' rows are independent.
-    axis_up = np.array([0.0, 0.0, 1.0])
-    theta, D, U, sigmas, durations, inferred = [], [], [], [], [], []
-    for r, g in zip(records, gyr, strict=True):
-        sigma = noise_from_differences(r.static.gyr)
-        w_ccw, w_cw = trapezoid_weights(r.ccw.t), trapezoid_weights(r.cw.t)
-        diff = w_ccw @ (r.ccw.gyr - g.mean) - w_cw @ (r.cw.gyr - g.mean)
-        d_t = float(w_ccw.sum() - w_cw.sum())
-        var = sigma**2 * (w_ccw @ w_ccw + w_cw @ w_cw) + (d_t * g.sem) ** 2
-        d = r.mount @ axis_up
-        n = turns
-        if n is None:
-            n = max(1, round(abs(diff @ d) / (4 * math.pi)))
-            inferred.append(n)
-        theta.append(4 * math.pi * n * d)
-        D.append(diff)
-        U.append(np.sqrt(var))
-        sigmas.append(sigma)
-        durations.append(float(w_ccw.sum() + w_cw.sum()))
-    theta, D, U = np.array(theta), np.array(D), np.array(U)
+    theta, D, U, sigmas, durations, inferred = _turn_differences(records, gyr, turns)
     if np.linalg.matrix_rank(theta / np.linalg.norm(theta, axis=1, keepdims=True), tol=1e-6) < 3:
         raise ValueError(
             "sensor_array: the mountings put the vertical along fewer than three sensor axes; "
@@ -227,3 +209,28 @@ def solve_sensor_array(
     if turns is not None and (isinstance(turns, bool) or not isinstance(turns, int) or turns < 1):
         raise ValueError(f"settings.turns: expected a positive whole number or none, got {turns!r}")
     return solve_array(array_records(segments, mounts), gravity, turns)
+
+
+def _turn_differences(records: list, gyr: list, turns: int | None) -> tuple:
+    """Per sensor: the turn vector theta_s = 4 pi n d_s, the ccw - cw integral difference
+    D_s (rad), its standard uncertainty U_s, the gyro noise, the turns' duration (s) and
+    the inferred turn counts (when `turns` is None)."""
+    axis_up = np.array([0.0, 0.0, 1.0])
+    theta, D, U, sigmas, durations, inferred = [], [], [], [], [], []
+    for r, g in zip(records, gyr, strict=True):
+        sigma = noise_from_differences(r.static.gyr)
+        w_ccw, w_cw = trapezoid_weights(r.ccw.t), trapezoid_weights(r.cw.t)
+        diff = w_ccw @ (r.ccw.gyr - g.mean) - w_cw @ (r.cw.gyr - g.mean)
+        d_t = float(w_ccw.sum() - w_cw.sum())
+        var = sigma**2 * (w_ccw @ w_ccw + w_cw @ w_cw) + (d_t * g.sem) ** 2
+        d = r.mount @ axis_up
+        n = turns
+        if n is None:
+            n = max(1, round(abs(diff @ d) / (4 * math.pi)))
+            inferred.append(n)
+        theta.append(4 * math.pi * n * d)
+        D.append(diff)
+        U.append(np.sqrt(var))
+        sigmas.append(sigma)
+        durations.append(float(w_ccw.sum() + w_cw.sum()))
+    return np.array(theta), np.array(D), np.array(U), sigmas, durations, inferred

@@ -17,6 +17,9 @@ slice, whatever the size of the file (a multi-hour 1 kHz log). Files above
 `PROGRESS_THRESHOLD_BYTES` show a progress bar on stderr. Only when a block
 holds a problem is the file read again as text, in chunks, to name the first
 bad line and column.
+
+Why one module of ~650 lines: header mapping, unit detection and the bounded-memory
+slice reader share the column plan of one file; split, each part would pass it around.
 """
 
 from __future__ import annotations
