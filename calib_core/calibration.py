@@ -64,6 +64,15 @@ class Parameter:
         """Inverse of `to_dict`."""
         return cls(name, doc["value"], doc.get("std"), doc.get("unit", ""), doc.get("cov_index"))
 
+    def to_row(self, temperature_c: float | None = None) -> dict[str, Any]:
+        """The archive's row form: ``name`` + `to_dict` + the run's ``temperature_c`` (degC)."""
+        return {"name": self.name, **self.to_dict(), "temperature_c": temperature_c}
+
+    @classmethod
+    def from_row(cls, row: dict[str, Any]) -> Parameter:
+        """Inverse of `to_row` (``temperature_c`` belongs to the run, not the parameter)."""
+        return cls.from_dict(row["name"], row)
+
 
 def _fields_dict(record: Any) -> dict[str, Any]:
     """A dataclass's fields by name, the values as they are (no deep copy)."""

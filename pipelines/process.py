@@ -222,12 +222,9 @@ def check_run(loaded: LoadedRun, cal: Calibration, archive: Archive, run_id: str
 
 
 def parameter_rows(cal: Calibration, temperature_c: float | None) -> list[dict[str, Any]]:
-    """The archive's parameter rows: each Parameter's document form, its name and the
-    run's temperature (the archive writes rows and document from these)."""
-    return [
-        {"name": p.name, **p.to_dict(), "temperature_c": temperature_c}
-        for p in sorted(cal.parameters.values(), key=lambda p: p.name)
-    ]
+    """The archive's parameter rows (`Parameter.to_row`) with the run's temperature (degC);
+    the archive writes rows and document from the Parameters read back from these."""
+    return [p.to_row(temperature_c) for p in sorted(cal.parameters.values(), key=lambda p: p.name)]
 
 
 def protocol_of(

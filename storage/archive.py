@@ -135,7 +135,7 @@ def parameters_of(run: RunIn) -> list[Parameter]:
     calibration document from these objects, so the two cannot disagree when written
     (`storage.verify` reports any later disagreement).
     """
-    return [Parameter.from_dict(p["name"], p) for p in run.parameters]
+    return [Parameter.from_row(p) for p in run.parameters]
 
 
 def calibration_document(run: RunIn, params: list[Parameter]) -> dict[str, Any]:
@@ -370,7 +370,7 @@ def archive_run(
             _pause_point("files")
             try:
                 cal_id = _write_rows(
-                    engine, run, raw_hash, settings_hash, root, rdir, plan, written
+                    engine, run, raw_hash, run_id, settings_hash, root, rdir, plan, written
                 )
             except _PlanChangedError:
                 continue
@@ -492,6 +492,7 @@ def _write_rows(
     engine: Engine,
     run: RunIn,
     raw_hash: str,
+    run_id: str,
     settings_hash: str,
     root: Path,
     rdir: Path,
@@ -506,7 +507,7 @@ def _write_rows(
         run_pk = plan.run_pk
         if run_pk is None:
             rel_dir = rdir.relative_to(root).as_posix()
-            run_pk = _insert_run(s, run, raw_hash, run_id_of(raw_hash), rel_dir, written.samples)
+            run_pk = _insert_run(s, run, raw_hash, run_id, rel_dir, written.samples)
         cal = CalibrationRow(
             run_id=run_pk,
             revision=plan.revision,

@@ -101,3 +101,15 @@ def test_duplicated_row_is_found(archive: Archive, tmp_path: Path) -> None:
         )
     details = [p.detail for p in _records(archive)]
     assert details == [f"{name}: more than one parameters row in calibration id {cal_id}"]
+
+
+def test_parameter_row_round_trip() -> None:
+    """One function each way between a Parameter and its archive row; nothing is lost."""
+    from calib_core.calibration import Parameter
+
+    p = Parameter("gyr.scale.x", 1.25e-3, 2.0e-5, cov_index=4)
+    row = p.to_row(23.5)
+    assert row == {"name": "gyr.scale.x", "value": 1.25e-3, "std": 2.0e-5, "unit": "1",
+                   "cov_index": 4, "temperature_c": 23.5}
+    assert Parameter.from_row(row) == p
+    assert Parameter.from_row(Parameter("acc.bias.y", -0.01).to_row()).cov_index is None
