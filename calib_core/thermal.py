@@ -1,4 +1,4 @@
-"""Temperature compensation: per-parameter polynomials in (T - T_ref), applied to data.
+"""Thermal compensation, the science: per-parameter polynomials in (T - T_ref), applied.
 
 A thermal campaign calibrates one unit at several temperature points (or logs
 a continuous static soak with its temperature channel). Every error-model

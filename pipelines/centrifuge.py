@@ -1,4 +1,4 @@
-"""A centrifuge run folder -> high-g model, repeat-run validation and text report.
+"""Centrifuge procedure, the pipeline glue: run folder -> high-g model, validation, report.
 
 The numerics are `calib_core.solvers.centrifuge`; this module reads run
 folders (run.toml with segments labelled ``xp_zero_0`` .. ``zm_step_20g`` and

@@ -1,5 +1,5 @@
-"""Thermal campaign, the pipeline glue: the runs of one serial at several temperature
-points fitted and archived as a thermal model.
+"""Thermal compensation, the pipeline glue: a campaign (the runs of one serial at several
+temperature points) fitted and archived as a thermal model.
 
 The numbers come from calib_core.thermal (the science of the same name), the rows
 from storage.queries. `fit_campaign_step` / `thermal_fit`: the runs of a serial

@@ -1,4 +1,4 @@
-"""Thermal models, the archive: writing a fitted model (table thermal_models).
+"""Thermal compensation, the archive: writing a fitted model (table thermal_models).
 
 A thermal model (calib_core.thermal.ThermalModel.to_dict) is fitted from
 several calibrations of one device. Archiving a new model of a device sets

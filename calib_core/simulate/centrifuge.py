@@ -1,4 +1,4 @@
-"""Simulated centrifuge runs with a known high-g accelerometer model (the test oracle).
+"""Centrifuge procedure, the simulator: runs with a known high-g model (the test oracle).
 
 The physics (frames and sign conventions as in `calib_core.solvers.centrifuge`):
 

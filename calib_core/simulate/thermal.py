@@ -1,4 +1,4 @@
-"""Temperature-dependent IMUs: campaigns at temperature points, soak sweeps, drift histories.
+"""Thermal compensation, the simulator: temperature-dependent IMUs, campaigns, soaks, drift.
 
 The truth of a parameter p at temperature T (deg C) is a polynomial around T_ref
 plus, when the unit is cooling, a hysteresis offset:

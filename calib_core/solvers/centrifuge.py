@@ -1,4 +1,4 @@
-"""Centrifuge high-g accelerometer modelling with significance-based reduction.
+"""Centrifuge procedure, the science: the high-g fit with significance-based reduction.
 
 Procedure (methods.md 2.8). The IMU is mounted on the centrifuge arm in six
 positions, each accelerometer axis once pointing to the table axis (``+``)

@@ -1,4 +1,4 @@
-"""`calib centrifuge RUN [--repeat RUN2]`: high-g model, validation, report.
+"""Centrifuge procedure, the CLI: `calib centrifuge RUN [--repeat RUN2]`.
 
 The report goes to stdout (or the JSON document with --json) and to a text
 file. Exit codes: 0 done, 2 invalid input.

@@ -1,4 +1,4 @@
-"""`calib thermal fit|export`, `calib apply`, `calib trend`, `calib fleet`.
+"""Thermal compensation, the CLI: `calib thermal fit|export`, `apply`, `trend`, `fleet`.
 
 The glue behind them: pipelines.thermal_campaign, pipelines.apply, pipelines.trends.
 

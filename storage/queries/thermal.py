@@ -1,4 +1,4 @@
-"""Queries of the archive for thermal and drift analysis: thermal models, campaigns.
+"""Thermal compensation, the archive queries: thermal models, campaigns, drift histories.
 
 Campaign queries read *current* revisions (not superseded) of any verdict: a unit at
 -10 deg C may well fail its room-temperature tolerance and still be a valid point of
