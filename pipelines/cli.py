@@ -26,6 +26,7 @@ from pipelines.cli_shared import (
     print_json,
 )
 from pipelines.commands import register_all
+from pipelines.direct import IN_PROCESS_MAX_RUNS
 
 
 @contextlib.contextmanager
@@ -128,9 +129,17 @@ def process(
         bool,
         typer.Option("--reports", help="Also write each archived run's HTML and PDF certificate."),
     ] = False,
+    flow: Annotated[
+        bool,
+        typer.Option(
+            "--flow",
+            help="Run as a Prefect flow even for a few runs (always so above "
+            f"{IN_PROCESS_MAX_RUNS} runs, with another runner or a configured Prefect API).",
+        ),
+    ] = False,
 ) -> None:
-    """Ingest, solve, check and archive every run under PATHS (a Prefect flow)."""
-    from pipelines.flows import local_batch_settings, process_batch, report_progress
+    """Ingest, solve, check and archive every run under PATHS (a Prefect flow for batches)."""
+    from pipelines.direct import discover, prefect_api_configured, process_in_process
     from pipelines.runners import check_runner
 
     try:
@@ -138,24 +147,14 @@ def process(
     except ValueError as exc:
         fail(str(exc))
     show = err.is_terminal if progress is None else progress
-    with (
-        _progress_bar(show) as draw,
-        _interrupt_exits_at_once() as count,
-        local_batch_settings(),
-    ):
-
-        def on_progress(done: int, total: int, outcome: dict) -> None:
-            draw(done, total, outcome)
-            count(done, total, outcome)
-
-        with report_progress(on_progress):
-            outcomes = process_batch(
-                [str(p) for p in paths],
-                archive,
-                runner=runner,
-                workers=workers,
-                scheduler=scheduler,
-            )
+    names = [str(p) for p in paths]
+    sources, failed = discover(names)
+    direct = not flow and runner == "local" and len(sources) <= IN_PROCESS_MAX_RUNS
+    if direct and not prefect_api_configured():
+        with _progress_bar(show) as draw:
+            outcomes = failed + process_in_process(sources, archive, draw)
+    else:
+        outcomes = _process_flow(names, archive, runner, workers, scheduler, show)
     if reports:
         _write_reports(archive, outcomes)
     if as_json:
@@ -178,6 +177,33 @@ def process(
             )
         out.print(table)
     raise typer.Exit(1 if any(o["status"] == "failed" for o in outcomes) else 0)
+
+
+def _process_flow(
+    paths: list[str],
+    archive: str | None,
+    runner: str,
+    workers: int | None,
+    scheduler: str | None,
+    show: bool,
+) -> list[dict]:
+    """The batch as the Prefect flow `process_batch`, with progress bar and Ctrl-C handling."""
+    from pipelines.flows import local_batch_settings, process_batch, report_progress
+
+    with (
+        _progress_bar(show) as draw,
+        _interrupt_exits_at_once() as count,
+        local_batch_settings(),
+    ):
+
+        def on_progress(done: int, total: int, outcome: dict) -> None:
+            draw(done, total, outcome)
+            count(done, total, outcome)
+
+        with report_progress(on_progress):
+            return process_batch(
+                paths, archive, runner=runner, workers=workers, scheduler=scheduler
+            )
 
 
 def _write_reports(archive: str | None, outcomes: list[dict]) -> None:

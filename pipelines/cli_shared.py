@@ -19,6 +19,24 @@ import pipelines  # noqa: F401 - sets the no-telemetry environment before Prefec
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="IMU calibration pipeline and archive."
 )
+
+
+def _version(show: bool) -> None:
+    if show:
+        from calib_core import __version__  # no numpy: calib_core/__init__ holds the version only
+
+        sys.stdout.write(f"calib {__version__}\n")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+    ] = False,
+) -> None:
+    """IMU calibration pipeline and archive."""
 out = Console()
 err = Console(stderr=True)
 

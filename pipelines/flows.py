@@ -17,7 +17,6 @@ import contextlib
 import time
 from collections.abc import Callable, Iterator
 from contextvars import ContextVar
-from pathlib import Path
 from typing import Any
 
 from prefect import flow, get_run_logger, task
@@ -29,17 +28,21 @@ from prefect.artifacts import (
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
-from pipelines.ingest import RunSource, discover_runs
-from pipelines.ingest.errors import IngestError
+from pipelines.direct import discover
+from pipelines.ingest import RunSource
 from pipelines.process import run_outcome
-from pipelines.run_task import TransientError, is_transient, process_run_for_batch
+from pipelines.run_task import (
+    RETRIES,
+    RETRY_DELAYS_S,
+    TransientError,
+    is_transient,
+    process_run_for_batch,
+)
 from pipelines.runners import WorkerProcesses, check_runner, default_workers, make_task_runner
 from storage.db import resolve_archive
 
 __all__ = ["RETRIES", "TransientError", "is_transient", "process_batch", "report_progress"]
 
-RETRIES = 2  # attempts after the first
-RETRY_DELAYS_S = [1.0, 4.0]  # s before the 1st and 2nd retry: a lock or a share outage passes
 PROGRESS_EVERY_S = 2.0  # s between updates of the progress artifact in Prefect's UI
 # Task-run events the temporary API server records per transaction, and the longest wait
 # (whole seconds: Prefect rounds it down) before it records fewer (local_batch_settings).
@@ -227,14 +230,7 @@ def process_batch(
     """
     check_runner(runner, workers, scheduler)
     logger = get_run_logger()
-    outcomes: list[dict[str, Any]] = []
-    sources: list[RunSource] = []
-    for p in paths:
-        try:
-            sources.extend(discover_runs([Path(p)]))
-        except (IngestError, OSError) as exc:
-            outcomes.append(run_outcome(source=str(p), serial="", status="failed", error=str(exc)))
-    sources = list(dict.fromkeys(sources))  # overlapping paths name a run once
+    sources, outcomes = discover(paths)
     logger.info(
         "%d run(s) found under %d path(s); runner %s%s",
         len(sources),

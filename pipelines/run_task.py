@@ -20,6 +20,9 @@ from storage.db import Archive
 # OS errors of a network file system or connection that is briefly away; ENOENT
 # is not among them (a missing file is a bad run; a vanished run folder is
 # recognised separately, because the folder was there when the batch began).
+RETRIES = 2  # attempts after the first
+RETRY_DELAYS_S = [1.0, 4.0]  # s before the 1st and 2nd retry: a lock or a share outage passes
+
 TRANSIENT_ERRNOS = frozenset(
     {
         errno.ESTALE,

@@ -381,7 +381,7 @@ def test_every_task_run_reaches_the_temporary_api_with_batched_recording(tmp_pat
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}  # temporary API
     env["PREFECT_HOME"] = str(tmp_path / "prefect")  # its own Prefect database
     done = subprocess.run(
-        [calib, "process", str(tmp_path / "day"), "--archive", str(tmp_path / "archive")]
+        [calib, "process", str(tmp_path / "day"), "--archive", str(tmp_path / "archive"), "--flow"]
         + ["--json", "--no-progress"],
         capture_output=True,
         text=True,

@@ -12,13 +12,15 @@ import math
 import sys
 from datetime import date, datetime
 from enum import StrEnum
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import pandas as pd
 import typer
 from rich.table import Table
 
 from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, out, print_frame
+
+if TYPE_CHECKING:  # pandas loads in the commands that use it, not for `calib --help`
+    import pandas as pd
 
 query_app = typer.Typer(
     no_args_is_help=True, help="Ask the archive: latest, lineage, lapsed, units, history, fleet."
@@ -37,6 +39,8 @@ FormatOpt = Annotated[Format, typer.Option("--format", help="table, csv or json.
 
 def _plain(value: Any) -> Any:
     """A JSON-ready value: ISO 8601 dates, None for NaN/NaT."""
+    import pandas as pd
+
     if value is None or value is pd.NaT:
         return None
     if isinstance(value, float) and math.isnan(value):
@@ -104,6 +108,8 @@ def lineage(
     fmt: FormatOpt = Format.table,
 ) -> None:
     """Where PARAM of run RUN_ID comes from: raw files, steps, software, equipment, conditions."""
+    import pandas as pd
+
     from storage import queries
 
     doc = _ask(queries.lineage, open_archive(archive), run_id, param, revision)
