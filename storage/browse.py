@@ -22,6 +22,7 @@ from typing import Any
 
 from sqlalchemy import Engine, bindparam, create_engine, event, func, select
 from sqlalchemy.engine import make_url
+from sqlalchemy.pool import QueuePool
 
 from storage.db import SQLITE_BUSY_TIMEOUT_MS, Archive
 from storage.naming import check_safe_name
@@ -101,7 +102,9 @@ def _readonly_engine(url: str, reader_role: str) -> Engine:
             conn.execute("PRAGMA query_only=ON")
             return conn
 
-        return create_engine("sqlite://", creator=connect)
+        # "sqlite://" alone would get the in-memory database's one-connection-per-thread
+        # pool; this is a file shared by the server's worker threads.
+        return create_engine("sqlite://", creator=connect, poolclass=QueuePool)
     engine = create_engine(
         url,
         pool_pre_ping=True,

@@ -261,6 +261,7 @@ def test_fleet_equipment_models_and_verify_pages(client, serve_sample):
     page = get(client, "/equipment/item?kind=cube&serial=CUBE-D")
     lapsed = queries.lapsed_runs(serve_sample.archive, "CUBE-D", "cube")
     assert rows(page, "lapsed") == len(lapsed) == 2
+    assert "cube CUBE-D lapsed" in page.body  # due 2025-06-30: lapsed today
     page = get(client, "/verify")
     assert "/verify?run=1" in page.links
     assert "OK" in get(client, "/verify?run=1").body

@@ -39,7 +39,7 @@ def equipment_item(request: Request) -> HTMLResponse:
     lapsed, n_lapsed = browse.lapsed_page(archive, kind, serial, LAPSED_LIST_MAX)
     return render(request, "equipment.html", title=f"Equipment {kind} {serial}", item=item,
                   lapsed=lapsed, n_lapsed=n_lapsed,
-                  state=browse.due_state(max((p["calibration_due"] for p in item["periods"]
+                  item_state=browse.due_state(max((p["calibration_due"] for p in item["periods"]
                                               if p["calibration_due"]), default=None)))  # fmt: skip
 
 

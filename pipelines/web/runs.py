@@ -83,8 +83,10 @@ def _parameter_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
         value, unit = display(p["name"], p["value"])
         std, _ = display(p["name"], p["std"])
         check = checks.get(p["name"]) or checks.get(f"param:{p['name']}")
-        limit = None if check is None or check.get("limit") is None else display(
-            p["name"], check["limit"])[0]  # fmt: skip
+        limit = None
+        if check is not None and check.get("limit") is not None:
+            relation = "<=" if check.get("detail", "").startswith("allowed -inf") else "±"
+            limit = f"{relation} {display(p['name'], check['limit'])[0]:.3g}"
         rows.append({**p, "display_value": value, "display_std": std, "display_unit": unit,
                      "check": check, "display_limit": limit})  # fmt: skip
     return rows
