@@ -20,7 +20,7 @@ from datetime import UTC, date, datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Engine, bindparam, create_engine, event, func, select
+from sqlalchemy import ARRAY, Engine, Integer, any_, bindparam, create_engine, event, func, select
 from sqlalchemy.engine import make_url
 from sqlalchemy.pool import QueuePool
 
@@ -420,6 +420,14 @@ def version(archive: Archive) -> tuple[int | None, int | None]:
 _IN_CHUNK = 5000  # bound parameters per IN list (SQLite allows 32766, PostgreSQL 65535)
 
 
+def _among(archive: Archive, column, n: int):  # noqa: ANN001, ANN202
+    """(column IN :ids, ids per statement): an expanding IN list on SQLite, one array
+    parameter on PostgreSQL (6k separate parameters cost it ~0.1 s of planning)."""
+    if archive.is_sqlite:
+        return column.in_(bindparam("ids", expanding=True)), _IN_CHUNK
+    return column == any_(bindparam("ids", type_=ARRAY(Integer))), max(n, 1)
+
+
 @dataclass
 class Fleet:
     """The units of a device model (storage.browse.model_fleet).
@@ -474,9 +482,10 @@ def model_fleet(archive: Archive, model: str) -> Fleet:
             else:
                 valid.pop(serial, None)
         rest = [u["_id"] for s, u in units.items() if s not in valid]
-        for i in range(0, len(rest), _IN_CHUNK):
+        among, chunk = _among(archive, Run.device_id, len(rest))
+        for i in range(0, len(rest), chunk):
             for cal_id, serial, run_id, started in conn.execute(
-                _older_valid(current), {"ids": rest[i:i + _IN_CHUNK]}
+                _older_valid(current, among), {"ids": rest[i:i + chunk]}
             ):
                 valid[serial] = (cal_id, run_id, started)
     for u in units.values():
@@ -485,13 +494,13 @@ def model_fleet(archive: Archive, model: str) -> Fleet:
                  {cal: (serial, run_id, t) for serial, (cal, run_id, t) in valid.items()})
 
 
-def _older_valid(current):  # noqa: ANN001, ANN202 - a condition in, a select out
+def _older_valid(current, among):  # noqa: ANN001, ANN202 - conditions in, a select out
     """Latest valid calibration of the units with ids :ids, by serial and run id."""
     passed = current & (CalibrationRow.verdict == "pass")
     newest_valid = (
         select(Run.device_id, func.max(Run.started_at).label("t"))
         .join(CalibrationRow, passed)
-        .where(Run.device_id.in_(bindparam("ids", expanding=True)))
+        .where(among)
         .group_by(Run.device_id)
         .subquery()
     )
@@ -518,14 +527,14 @@ def fleet_values(archive: Archive, fleet: Fleet, name: str) -> list[dict[str, An
 
     check_parameter(name)
     ids = list(fleet.valid)
+    among, chunk = _among(archive, ParameterRow.calibration_id, len(ids))
     stmt = select(ParameterRow.calibration_id, ParameterRow.value, ParameterRow.std,
                   ParameterRow.unit, ParameterRow.temperature_c).where(
-        ParameterRow.name == name, ParameterRow.calibration_id.in_(bindparam("ids", expanding=True))
-    )  # fmt: skip
+        ParameterRow.name == name, among)  # fmt: skip
     out = []
     with archive.engine().connect() as conn:
-        for i in range(0, len(ids), _IN_CHUNK):
-            for cal_id, value, std, unit, temp in conn.execute(stmt, {"ids": ids[i:i + _IN_CHUNK]}):
+        for i in range(0, len(ids), chunk):
+            for cal_id, value, std, unit, temp in conn.execute(stmt, {"ids": ids[i:i + chunk]}):
                 serial, run_id, started = fleet.valid[cal_id]
                 out.append({"serial": serial, "run_id": run_id, "started_at": started,
                             "value": value, "std": std, "unit": unit, "temperature_c": temp})
