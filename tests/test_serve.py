@@ -37,7 +37,7 @@ from typer.testing import CliRunner
 
 from pipelines.cli import app as cli
 from pipelines.web.app import create_app
-from storage import browse, queries
+from storage import browse, browse_fleet, queries
 from storage.db import resolve_archive
 
 HOSTILE = (HOSTILE_MODEL, HOSTILE_OPERATOR, HOSTILE_EQUIPMENT, HOSTILE_SERIAL, "<b>ACME</b>")
@@ -384,11 +384,11 @@ def test_browse_fleet_equals_the_fleet_query(serve_sample):
     """The fleet page's one-pass picks (storage.browse) answer as storage.queries.fleet."""
     from calib_core import params
 
-    fleet = browse.model_fleet(serve_sample.archive, "MPU-6000")
+    fleet = browse_fleet.model_fleet(serve_sample.archive, "MPU-6000")
     assert {u["serial"] for u in fleet.units} == {"MPU0001", "IMU-2026-0042", DRIFT_SERIAL,
                                                   THERMAL_SERIAL}  # fmt: skip
     for name in params.ACC_LINEAR + params.GYR_LINEAR:
-        mine = browse.fleet_values(serve_sample.archive, fleet, name)
+        mine = browse_fleet.fleet_values(serve_sample.archive, fleet, name)
         theirs = queries.fleet(serve_sample.archive, "MPU-6000", name).to_dict("records")
         key = lambda r: (r["serial"], r["run_id"], r["value"])  # noqa: E731
         assert sorted(map(key, mine)) == sorted(map(key, theirs)), name

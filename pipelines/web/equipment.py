@@ -7,12 +7,10 @@ import time
 
 from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse
-from sqlalchemy import func, select
 
 from pipelines.web import forms
 from pipelines.web.app import render
-from storage import browse
-from storage.schema import Device, Run
+from storage import browse, browse_fleet
 
 router = APIRouter()
 LAPSED_LIST_MAX = 500
@@ -24,7 +22,7 @@ def equipment_list(request: Request) -> HTMLResponse:
     forms.params(request, ())
     items = [
         {**e, "state": browse.due_state(e["calibration_due"])}
-        for e in browse.equipment_list(request.app.state.archive)
+        for e in browse_fleet.equipment_list(request.app.state.archive)
     ]
     return render(request, "equipment_list.html", title="Equipment", items=items)
 
@@ -35,8 +33,8 @@ def equipment_item(request: Request) -> HTMLResponse:
     archive = request.app.state.archive
     q = forms.params(request, ("kind", "serial"))
     kind, serial = q.get("kind", ""), q.get("serial", "")
-    item = forms.checked(browse.equipment_item, archive, kind, serial)
-    lapsed, n_lapsed = browse.lapsed_page(archive, kind, serial, LAPSED_LIST_MAX)
+    item = forms.checked(browse_fleet.equipment_item, archive, kind, serial)
+    lapsed, n_lapsed = browse_fleet.lapsed_page(archive, kind, serial, LAPSED_LIST_MAX)
     return render(request, "equipment.html", title=f"Equipment {kind} {serial}", item=item,
                   lapsed=lapsed, n_lapsed=n_lapsed,
                   item_state=browse.due_state(max((p["calibration_due"] for p in item["periods"]
@@ -51,12 +49,7 @@ def verify_page(request: Request) -> HTMLResponse:
     archive = request.app.state.archive
     q = forms.params(request, ("run",))
     run = forms.choice(q, "run", ("0", "1"), "0") == "1"
-    with archive.engine().connect() as conn:
-        facts = {
-            "runs": conn.execute(select(func.count()).select_from(Run)).scalar_one(),
-            "units": conn.execute(select(func.count()).select_from(Device)).scalar_one(),
-        }
-    facts["schema_revision"] = archive.schema_revision()
+    facts = browse.facts(archive)
     report, seconds = None, None
     if run:
         t0 = time.perf_counter()

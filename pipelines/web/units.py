@@ -20,7 +20,7 @@ from pipelines.tolerances import load_profile
 from pipelines.web import forms, svg
 from pipelines.web.app import render
 from pipelines.web.present import display, lineage_url
-from storage import browse, queries
+from storage import browse, browse_fleet, queries
 
 router = APIRouter()
 
@@ -230,7 +230,7 @@ def models_page(request: Request) -> HTMLResponse:
     """Device models in the archive, with their number of units."""
     forms.params(request, ())
     return render(request, "models.html", title="Device models",
-                  models=browse.models(request.app.state.archive))  # fmt: skip
+                  models=browse_fleet.models(request.app.state.archive))  # fmt: skip
 
 
 @router.get("/fleet", response_class=HTMLResponse)
@@ -248,7 +248,7 @@ def fleet_page(request: Request) -> HTMLResponse:
     units = fleet.units
     if not units:
         forms.checked(_no_model, model)
-    values = browse.fleet_values(archive, fleet, name)
+    values = browse_fleet.fleet_values(archive, fleet, name)
     profiles = Counter(u["profile_name"] for u in units if u["profile_name"])
     profile = _profile(profiles.most_common(1)[0][0] if profiles else None)
     low, high = _band(profile, name)
@@ -273,8 +273,8 @@ def fleet_page(request: Request) -> HTMLResponse:
 FLEET_CACHE_SIZE = 8
 
 
-def _fleet(request: Request, model: str) -> browse.Fleet:
-    """The model's units (browse.model_fleet), cached until the archive changes.
+def _fleet(request: Request, model: str) -> browse_fleet.Fleet:
+    """The model's units (browse_fleet.model_fleet), cached until the archive changes.
 
     The key holds browse.version (newest run and calibration ids): the archive is
     append-only, so an unchanged key means unchanged units and verdicts.
@@ -283,7 +283,7 @@ def _fleet(request: Request, model: str) -> browse.Fleet:
     key = (model, browse.version(archive))
     cache = request.app.state.fleets
     if key not in cache:
-        fleet = forms.checked(browse.model_fleet, archive, model)
+        fleet = forms.checked(browse_fleet.model_fleet, archive, model)
         while len(cache) >= FLEET_CACHE_SIZE:
             cache.pop(next(iter(cache)))
         cache[key] = fleet
