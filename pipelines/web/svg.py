@@ -36,6 +36,16 @@ def label(v: float) -> str:
     return f"{v:.4g}"
 
 
+def tick_labels(ticks: Sequence[float]) -> list[str]:
+    """Labels of the ticks with as many significant digits (4..12) as keep them distinct."""
+    for digits in range(4, 13):
+        out = ["0" if t == 0 or abs(t) < 1e-12 * max(map(abs, ticks)) else f"{t:.{digits}g}"
+               for t in ticks]  # fmt: skip
+        if len(set(out)) == len(out):
+            return out
+    return out
+
+
 def nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
     """About n round tick values covering [lo, hi]."""
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
@@ -92,13 +102,15 @@ class Chart:
         y0, y1 = self.height - bottom, top
         p = self.parts
         p.append(f'<rect x="{x0}" y="{y1}" width="{x1 - x0}" height="{y0 - y1}" class="frame"/>')
-        for t in nice_ticks(*self.y_range):
+        y_ticks = nice_ticks(*self.y_range)
+        for t, text in zip(y_ticks, tick_labels(y_ticks), strict=True):
             yy = _num(self.y(t))
             p.append(f'<line x1="{x0}" x2="{x1}" y1="{yy}" y2="{yy}" class="grid"/>')
             p.append(f'<text x="{x0 - 4}" y="{yy}" class="tick" text-anchor="end" '
-                     f'dominant-baseline="middle">{escape(label(t))}</text>')  # fmt: skip
+                     f'dominant-baseline="middle">{escape(text)}</text>')  # fmt: skip
         if x_ticks is None:
-            x_ticks = [(t, label(t)) for t in nice_ticks(*self.x_range, n=6)]
+            ticks = nice_ticks(*self.x_range, n=6)
+            x_ticks = list(zip(ticks, tick_labels(ticks), strict=True))
         for t, text in x_ticks:
             xx = _num(self.x(t))
             p.append(f'<line x1="{xx}" x2="{xx}" y1="{y0}" y2="{y0 + 4}" class="axis"/>')
@@ -200,7 +212,10 @@ def trend_chart(
     (days, centre, half-width) and the tolerance band (dashed)."""
     xs = [days(p.when) for p in points]
     x_hi = max(xs + ([until] if until is not None else []))
-    x_range = _span([min(xs), x_hi], 0.04)
+    x_lo = min(xs)
+    if x_hi - x_lo < 30.0:  # one date: a month either side, not a fraction of 50 years
+        x_lo, x_hi = x_lo - 30.0, x_hi + 30.0
+    x_range = _span([x_lo, x_hi], 0.04)
     ys = [p.value for p in points] + [p.value + (p.std or 0) for p in points]
     ys += [p.value - (p.std or 0) for p in points]
     if fit is not None:

@@ -193,6 +193,7 @@ def unit_page(request: Request, serial: str) -> HTMLResponse:
     return render(request, "unit.html", title=f"Unit {serial}", dev=dev, history=history,
                   summaries=[s.summary() for s in series.values()], chosen=chosen,
                   chart=series[chosen].chart(serial) if chosen else None,
+                  chosen_note=series[chosen].note if chosen else "",
                   profile=profile, thermal=_thermal(archive, serial, series))  # fmt: skip
 
 
