@@ -188,6 +188,7 @@ def test_run_page_shows_the_archived_run(client, serve_sample):
     for p in s["calibration"]["parameters"]:
         assert f"/runs/{run_id}/lineage/{p['name']}" in page.links
     assert "CUBE-D" in page.body and "valid" in page.body
+    assert "<= 0.05" in page.body  # gyro noise: an upper limit (deg/s), not +-
     last = get(client, f"/runs/{serve_sample.runs[DRIFT_SERIAL][-1]}")
     assert "lapsed" in last.body
     assert re.search(r"Accelerometer residuals per segment", client.get(f"/runs/{run_id}").text)

@@ -16,6 +16,7 @@ from starlette.exceptions import HTTPException
 from calib_core import params
 from calib_core.checks import ToleranceProfile
 from calib_core.units import DEG, STANDARD_GRAVITY
+from pipelines.reports.display import tolerance
 from pipelines.web import forms, svg
 from pipelines.web.app import render
 from pipelines.web.present import display
@@ -83,10 +84,8 @@ def _parameter_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
         value, unit = display(p["name"], p["value"])
         std, _ = display(p["name"], p["std"])
         check = checks.get(p["name"]) or checks.get(f"param:{p['name']}")
-        limit = None
-        if check is not None and check.get("limit") is not None:
-            relation = "<=" if check.get("detail", "").startswith("allowed -inf") else "±"
-            limit = f"{relation} {display(p['name'], check['limit'])[0]:.3g}"
+        tol = tolerance(p["name"], check)
+        limit = None if tol is None else f"{tol[0].replace('+-', '±')} {tol[1]:.3g}"
         rows.append({**p, "display_value": value, "display_std": std, "display_unit": unit,
                      "check": check, "display_limit": limit})  # fmt: skip
     return rows
