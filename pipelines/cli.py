@@ -21,6 +21,7 @@ from pipelines.cli_shared import (
     fail,
     frame_records,
     open_archive,
+    open_run,
     out,
     print_frame,
     print_json,
@@ -245,8 +246,9 @@ def show(
     """One archived run: unit, raw files, steps, parameters, checks."""
     from storage import queries
 
+    arch, run_id = open_run(archive, run_id)
     try:
-        summary = queries.run_summary(open_archive(archive), run_id)
+        summary = queries.run_summary(arch, run_id)
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
     if as_json:
@@ -267,8 +269,9 @@ def export(
 
     if fmt != "json":
         fail(f"unknown export format {fmt!r}; expected: json")
+    arch, run_id = open_run(archive, run_id)
     try:
-        doc = queries.export_calibration(open_archive(archive), run_id)
+        doc = queries.export_calibration(arch, run_id)
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
     text = json.dumps(doc, indent=2, default=str) + "\n"

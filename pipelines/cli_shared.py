@@ -58,6 +58,18 @@ def open_archive(arg: str | None):
     return arch
 
 
+def open_run(archive_arg: str | None, run_id: str):  # noqa: ANN201 - (Archive, str)
+    """The archive and the full id of the run that `run_id` names (the id or a unique
+    prefix, as git takes them); a clear error and exit 2 otherwise."""
+    from storage import queries
+
+    arch = open_archive(archive_arg)
+    try:
+        return arch, queries.full_run_id(arch, run_id)
+    except (LookupError, ValueError) as exc:
+        fail(str(exc))
+
+
 def fail(message: str) -> None:
     err.print(f"[red]error:[/red] {message}")
     raise typer.Exit(2)

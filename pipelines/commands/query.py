@@ -17,7 +17,16 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.table import Table
 
-from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, out, print_frame
+from pipelines.cli_shared import (
+    ArchiveOpt,
+    app,
+    err,
+    fail,
+    open_archive,
+    open_run,
+    out,
+    print_frame,
+)
 
 if TYPE_CHECKING:  # pandas loads in the commands that use it, not for `calib --help`
     import pandas as pd
@@ -112,7 +121,8 @@ def lineage(
 
     from storage import queries
 
-    doc = _ask(queries.lineage, open_archive(archive), run_id, param, revision)
+    arch, run_id = open_run(archive, run_id)
+    doc = _ask(queries.lineage, arch, run_id, param, revision)
     if fmt is Format.json:
         sys.stdout.write(json.dumps(_plain(doc), indent=2) + "\n")
         return

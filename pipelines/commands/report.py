@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, print_json
+from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_run, print_json
 
 
 @app.command()
@@ -27,8 +27,9 @@ def report(
     """
     from pipelines.reports.certificate import report_run
 
+    arch, run_id = open_run(archive, run_id)
     try:
-        written = report_run(open_archive(archive), run_id, output, pdf=pdf)
+        written = report_run(arch, run_id, output, pdf=pdf)
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
     verdict = written.pop("verdict")

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, out, print_json
+from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_run, out, print_json
 
 
 @app.command("reprocess")
@@ -23,7 +23,7 @@ def reprocess_command(
     """Process RUN_ID again from the archive alone (its archived raw files and manifest)."""
     from pipelines.reprocess import ReprocessError, reprocess_run
 
-    arch = open_archive(archive)
+    arch, run_id = open_run(archive, run_id)
     if keep is not None and keep.exists() and any(keep.iterdir()):
         fail(f"--keep {keep}: folder is not empty")
     try:

@@ -37,6 +37,7 @@ from storage.queries.history import (
 )
 from storage.queries.runs import (
     export_calibration,
+    full_run_id,
     lineage,
     repeatability_candidates,
     run_samples,
@@ -47,8 +48,8 @@ from storage.queries.thermal import campaign_calibrations, latest_thermal_model,
 __all__ = [
     "FLEET_COLUMNS", "HISTORY_COLUMNS", "LAPSED_COLUMNS", "LATEST_COLUMNS", "UNIT_COLUMNS",
     "VERDICTS", "as_instant", "campaign_calibrations", "check_parameter", "check_serial",
-    "check_text", "check_verdict", "export_calibration", "fleet", "fleet_history", "history",
-    "lapsed_runs", "latest_calibration", "latest_thermal_model", "latest_valid", "lineage",
-    "parameter_history", "repeatability_candidates", "run_samples", "run_summary",
-    "serial_parameter_history", "thermal_models", "units",
+    "check_text", "check_verdict", "export_calibration", "fleet", "fleet_history",
+    "full_run_id", "history", "lapsed_runs", "latest_calibration", "latest_thermal_model",
+    "latest_valid", "lineage", "parameter_history", "repeatability_candidates", "run_samples",
+    "run_summary", "serial_parameter_history", "thermal_models", "units",
 ]  # fmt: skip

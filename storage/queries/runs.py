@@ -4,6 +4,7 @@ the runs a new one is compared with for repeatability.
 
 from __future__ import annotations
 
+import re
 from datetime import UTC, date, datetime
 from typing import Any
 
@@ -17,6 +18,7 @@ from storage.naming import check_safe_name
 from storage.queries._common import (
     _dict,
     check_parameter,
+    check_text,
 )
 from storage.schema import (
     CalibrationRow,
@@ -29,6 +31,37 @@ from storage.schema import (
     Run,
     RunEquipment,
 )
+
+MIN_RUN_ID_PREFIX = 4  # characters, as git's shortest abbreviation
+
+
+def full_run_id(archive: Archive, given: str) -> str:
+    """The archived run id that `given` names: the id itself or a unique prefix (as git).
+
+    Raises LookupError naming what was given: no run, or a prefix several runs share
+    (listing up to five of them); ValueError for a prefix shorter than MIN_RUN_ID_PREFIX
+    or with characters a run id never has.
+    """
+    text = check_text(given, "run id", 100)
+    if not re.fullmatch(r"[A-Za-z0-9]+", text):
+        raise ValueError(f"run id {given!r}: letters and digits only")
+    with archive.engine().connect() as conn:
+        if conn.execute(select(Run.id).where(Run.run_id == text)).first() is not None:
+            return text
+        if len(text) < MIN_RUN_ID_PREFIX:
+            raise ValueError(
+                f"run id {given!r}: give at least {MIN_RUN_ID_PREFIX} characters of it"
+            )
+        # A bound LIKE pattern: the text is letters and digits only (checked above).
+        found = conn.execute(
+            select(Run.run_id).where(Run.run_id.like(text + "%")).order_by(Run.run_id).limit(6)
+        ).scalars().all()
+    if not found:
+        raise LookupError(f"no run {given!r} in the archive")
+    if len(found) > 1:
+        shown = ", ".join(found[:5]) + (", ..." if len(found) > 5 else "")
+        raise LookupError(f"run id prefix {given!r} is ambiguous: {shown}")
+    return found[0]
 
 
 def _run_row(s: Session, run_id: str) -> Row:
