@@ -15,8 +15,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from calib_core import params, units
+from calib_core import decision, params, units
 from calib_core.calibration import Calibration, CheckResult
+from calib_core.decision import DecisionRule
 
 # Every canonical name a limit pattern may match.
 ALL_NAMES: list[str] = (
@@ -166,6 +167,8 @@ class ToleranceProfile:
         DEFAULT_VERIFICATION_LIMITS.
     repeatability : "cv_max", "alpha", "min_runs", "max_runs",
         "temperature_tol_c"; missing keys take DEFAULT_REPEATABILITY.
+    decision_rule : ILAC-G8 rule of the statements of conformity (TOML
+        ``decision_rule = { name = "guard_band_r", r = 0.5 }``); simple acceptance if absent.
     """
 
     name: str
@@ -175,6 +178,7 @@ class ToleranceProfile:
     residual_limits: dict[str, float] = field(default_factory=dict)
     verification_limits: dict[str, float] = field(default_factory=dict)
     repeatability: dict[str, float | int] = field(default_factory=dict)
+    decision_rule: DecisionRule = field(default_factory=DecisionRule)
 
     def __post_init__(self) -> None:
         self.residual_limits = {**DEFAULT_RESIDUAL_LIMITS, **self.residual_limits}
@@ -184,6 +188,14 @@ class ToleranceProfile:
     def limit_for(self, name: str) -> ParameterLimit | None:
         """The first limit whose pattern matches `name`, or None."""
         return next((lim for lim in self.parameter_limits if lim.matches(name)), None)
+
+    def judge(self, name: str, value: float, U: float) -> str | None:
+        """ILAC-G8 verdict of parameter `name` (SI value and expanded uncertainty) under the
+        profile's decision rule; None when no limit applies."""
+        lim = self.limit_for(name)
+        if lim is None:
+            return None
+        return decision.verdict(value, U, lim.low, lim.high, self.decision_rule)
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> ToleranceProfile:
@@ -253,6 +265,7 @@ class ToleranceProfile:
             "residual_limits",
             "verification_limits",
             "repeatability",
+            "decision_rule",
         }
         unknown = sorted(set(doc) - known)
         if unknown:
@@ -279,6 +292,7 @@ class ToleranceProfile:
                 doc.get("verification_limits", {}), "verification_limits", VERIFICATION_KEYS
             ),
             repeatability=_repeatability(doc.get("repeatability", {})),
+            decision_rule=_decision_rule(doc.get("decision_rule", {})),
             **header,
         )
 
@@ -301,7 +315,7 @@ class ToleranceProfile:
             key: {"value": value, "unit": _SI_UNIT[_RESIDUAL_DIMENSION[key]]}
             for key, value in self.verification_limits.items()
         }
-        return {
+        doc = {
             "name": self.name,
             "version": self.version,
             "device_model": self.device_model,
@@ -310,6 +324,25 @@ class ToleranceProfile:
             "verification_limits": verification,
             "repeatability": dict(self.repeatability),
         }
+        if self.decision_rule != DecisionRule():  # absent means simple acceptance (older docs)
+            doc["decision_rule"] = {"name": self.decision_rule.name, "r": self.decision_rule.r}
+        return doc
+
+
+def _decision_rule(raw: Any) -> DecisionRule:
+    """``decision_rule = { name = ..., r = ... }`` of a profile; simple acceptance when empty."""
+    if not isinstance(raw, dict) or set(raw) - {"name", "r"}:
+        raise ValueError(
+            "tolerance profile field 'decision_rule': expected a table with 'name' "
+            f"(simple, guard_band, guard_band_r) and optional 'r', got {raw!r}"
+        )
+    r = raw.get("r", 1.0)
+    if isinstance(r, bool) or not isinstance(r, int | float):
+        raise ValueError(f"tolerance profile field 'decision_rule.r': expected a number, got {r!r}")
+    try:
+        return DecisionRule(str(raw.get("name", "simple")), float(r))
+    except ValueError as exc:
+        raise ValueError(f"tolerance profile field 'decision_rule': {exc}") from exc
 
 
 def _positive_limits(raw: Any, field_name: str, keys: tuple[str, ...]) -> dict[str, float]:

@@ -68,3 +68,24 @@ def test_bad_rule_and_inputs_refused():
         verdict(0.0, -1.0, -1.0, 1.0, DecisionRule())
     with pytest.raises(ValueError, match="lower limit"):
         verdict(0.0, 0.1, 1.0, -1.0, DecisionRule())
+
+
+def _profile_doc(rule):
+    return {"name": "t", "version": "1", "device_model": "X", "decision_rule": rule,
+            "limits": [{"pattern": "acc.scale.*", "bound": 1.0, "unit": "1"}]}
+
+
+def test_profile_names_its_rule_and_judges():
+    from calib_core.checks import ToleranceProfile
+
+    prof = ToleranceProfile.from_dict(_profile_doc({"name": "guard_band_r", "r": 0.5}))
+    assert prof.decision_rule == DecisionRule("guard_band_r", 0.5)
+    assert prof.judge("acc.scale.x", 0.9, 0.25) == COND_PASS
+    assert prof.judge("acc.bias.x", 0.9, 0.25) is None
+    back = ToleranceProfile.from_dict(prof.to_dict())
+    assert back.decision_rule == prof.decision_rule
+    plain = ToleranceProfile.from_dict({k: v for k, v in _profile_doc({}).items()})
+    assert plain.decision_rule == DecisionRule("simple")
+    assert "decision_rule" not in plain.to_dict()
+    with pytest.raises(ValueError, match="decision_rule"):
+        ToleranceProfile.from_dict(_profile_doc({"name": "lenient"}))
