@@ -24,6 +24,7 @@ slice reader share the column plan of one file; split, each part would pass it a
 
 from __future__ import annotations
 
+import dataclasses
 import mmap
 import re
 from collections.abc import Callable, Iterator
@@ -38,6 +39,7 @@ import pyarrow.csv as pacsv
 
 from calib_core.recording import Recording
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
+from pipelines.ingest.csv_dialect import sniff, split_unit
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import COUNTS, Column, FormatSpec
 
@@ -75,17 +77,8 @@ COMMON_NAMES: dict[str, tuple[str, ...]] = {
     },
     "temp": ("temp", "temperature", "temp_c", "temperature_c", "temperature.temperature"),
 }
-
-
-def detect_delimiter(first_line: str) -> str:
-    """The delimiter of a CSV file from its first line: ``,``, ``;``, tab or ``whitespace``.
-
-    The most frequent of ``, ; \\t`` wins; a line with none of them is
-    whitespace-separated.
-    """
-    counts = {d: first_line.count(d) for d in (",", ";", "\t")}
-    best = max(counts, key=counts.__getitem__)
-    return best if counts[best] else "whitespace"
+SECTION_NAMES = ("part", "label", "section")  # a column naming each row's segment
+TEMPERATURE_UNITS = {"degC": (1.0, 0.0), "K": (1.0, -273.15), "degF": (5 / 9, -32 * 5 / 9)}
 
 
 @dataclass
@@ -98,6 +91,9 @@ class _Layout:
     data_start: int  # 1-based line of the first line after the header (or of the file)
     roles: dict[str, str]  # role ("time", "acc_x", ..., "temp", "ref:<name>") -> column name
     fields: dict[str, str]  # column name -> manifest field or column name, for messages
+    decimal: str = "."
+    metadata: tuple[str, ...] = ()  # lines before the header
+    sections: dict[str, int] = dataclasses.field(default_factory=dict)  # value -> code
 
     def line_of_row(self, row: int) -> int:
         """1-based line number of 0-based data row `row` (blank lines are not rows)."""
@@ -111,24 +107,12 @@ class _Layout:
         return self.data_start + row
 
 
-def _first_line(path: Path) -> tuple[str, int]:
-    """First non-blank line of the file and its 1-based number."""
-    try:
-        with path.open("r", encoding="utf-8-sig", errors="replace") as fh:
-            for number, line in enumerate(fh, start=1):
-                if line.strip():
-                    return line.rstrip("\r\n"), number
-    except FileNotFoundError:
-        raise IngestError("file not found", file=path) from None
-    raise IngestError("file is empty", file=path)
-
-
-def _split(line: str, delimiter: str) -> list[str]:
-    parts = line.split() if delimiter == "whitespace" else line.split(delimiter)
-    return [p.strip().strip('"') for p in parts]
-
-
-def layout_of(path: Path, fmt: FormatSpec, sensors: tuple[str, ...] = ("acc", "gyr")) -> _Layout:
+def layout_of(
+    path: Path,
+    fmt: FormatSpec,
+    sensors: tuple[str, ...] = ("acc", "gyr"),
+    sections: bool = False,
+) -> _Layout:
     """Resolve the manifest's columns (or recognise common names) against the file's first line.
 
     Parameters
@@ -136,6 +120,8 @@ def layout_of(path: Path, fmt: FormatSpec, sensors: tuple[str, ...] = ("acc", "g
     path : the data file.
     fmt : the ``[format]`` section.
     sensors : the triads this file must hold (``("acc",)`` for a separate acc file).
+    sections : find the section column (``format.section_column`` or a ``part``,
+        ``label`` or ``section`` column) as role ``"section"``.
 
     Raises
     ------
@@ -144,10 +130,10 @@ def layout_of(path: Path, fmt: FormatSpec, sensors: tuple[str, ...] = ("acc", "g
     unrecognised column.
     """
     path = Path(path)
-    first, first_no = _first_line(path)
-    delimiter = fmt.delimiter or detect_delimiter(first)
-    present = _split(first, delimiter)
-    names = present if fmt.header else [f"c{i}" for i in range(len(present))]
+    dialect = sniff(path, fmt)
+    delimiter = dialect.delimiter
+    present = names = dialect.names
+    first_no = dialect.header_line or dialect.data_start
     if fmt.header and len(set(names)) != len(names):
         repeated = sorted({n for n in names if names.count(n) > 1})
         raise IngestError(f"the header repeats column names {repeated}", file=path, line=first_no)
@@ -166,9 +152,13 @@ def layout_of(path: Path, fmt: FormatSpec, sensors: tuple[str, ...] = ("acc", "g
     if "acc" in sensors:
         for name, col in fmt.reference_columns.items():
             wanted[f"ref:{name}"] = (col, f"format.reference_columns.{name}")
+    if sections:
+        wanted["section"] = _section_column(path, present, first_no, fmt)
     fields: dict[str, str] = {}
+    bases = {split_unit(name)[0]: name for name in present}
     for role, (col, field) in wanted.items():
         if fmt.header:
+            col = bases.get(col, col) if col not in present else col  # "acc_x" for "acc_x [g]"
             if col not in present:
                 raise IngestError(
                     f"column {col!r} named in the manifest is not in the header; "
@@ -194,10 +184,31 @@ def layout_of(path: Path, fmt: FormatSpec, sensors: tuple[str, ...] = ("acc", "g
         path=path,
         delimiter=delimiter,
         names=names,
-        data_start=first_no + 1 if fmt.header else first_no,
+        data_start=dialect.data_start,
         roles=roles,
         fields=fields,
+        decimal=dialect.decimal,
+        metadata=tuple(dialect.metadata),
     )
+
+
+def _section_column(
+    path: Path, header: list[str], line: int, fmt: FormatSpec
+) -> tuple[Column, str]:
+    """The section column: the manifest's, else the one 'part', 'label' or 'section' column."""
+    if fmt.section_column is not None:
+        return fmt.section_column, "format.section_column"
+    hits = [h for h in header if split_unit(h)[0].lower() in SECTION_NAMES]
+    if len(hits) != 1:
+        raise IngestError(
+            f"segments give 'section' but the file has {'no' if not hits else 'several'} "
+            f"section column ({', '.join(hits) or 'header: ' + ', '.join(header)}); expected one "
+            f"of {', '.join(SECTION_NAMES)} or format.section_column",
+            file=path,
+            line=line,
+            field="format.section_column",
+        )
+    return hits[0], "format.section_column"
 
 
 def _recognise(
@@ -213,7 +224,7 @@ def _recognise(
     if fmt.time_column is not None:
         out["time"] = (fmt.time_column, "format.time_column")
     for role in wanted_roles:
-        hits = [h for h in header if h.lower() in COMMON_NAMES[role]]
+        hits = [h for h in header if split_unit(h)[0].lower() in COMMON_NAMES[role]]
         if len(hits) > 1:
             raise IngestError(
                 f"ambiguous {role} column: {', '.join(hits)} all look like {role}; "
@@ -226,9 +237,10 @@ def _recognise(
             out[role] = (hits[0], "format")
         elif role != "temp":  # temperature is optional
             raise IngestError(
-                f"no {role} column recognised in the header ({', '.join(header)}); expected "
-                f"one of {', '.join(COMMON_NAMES[role][:6])}, ... (any case), or name the "
-                "columns in [format]" + (" or give sample_rate_hz" if role == "time" else ""),
+                f"no {role} column recognised in the header; found: {', '.join(header)}; "
+                f"expected one of {', '.join(COMMON_NAMES[role][:6])}, ... (any case, "
+                "optionally with a unit as 'acc_x [g]'), or name the columns in [format]"
+                + (" or give sample_rate_hz" if role == "time" else ""),
                 file=path,
                 line=line,
                 field="format",
@@ -264,15 +276,122 @@ def read_csv(path: Path, fmt: FormatSpec, *, progress: bool | None = None) -> Re
     empty file, a named column that is not in the file, a non-numeric,
     missing or non-finite value, time that does not increase.
     """
+    return _read(Path(path), fmt, progress, sections=False)[0]
+
+
+def read_csv_sections(
+    path: Path, fmt: FormatSpec, *, progress: bool | None = None
+) -> dict[str, Recording]:
+    """Read a file whose rows are grouped by a section column into one Recording per section.
+
+    The section column is ``format.section_column``, else the one column named
+    ``part``, ``label`` or ``section``; each section's rows must be contiguous.
+
+    Returns
+    -------
+    {section value: Recording (label = the value)}, in the order of the file.
+
+    Raises
+    ------
+    IngestError as `read_csv`, and for a section whose rows come in two separate
+    blocks (naming the first line of each).
+    """
     path = Path(path)
-    layout = layout_of(path, fmt)
+    whole, codes, layout = _read(path, fmt, progress, sections=True)
+    starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
+    ends = np.r_[starts[1:], len(codes)]
+    names = {code: value for value, code in layout.sections.items()}
+    out: dict[str, Recording] = {}
+    first_row: dict[str, int] = {}
+    for start, end in zip(starts.tolist(), ends.tolist(), strict=True):
+        value = names[int(codes[start])]
+        if value in out:
+            raise IngestError(
+                f"section {value!r} comes in two separate blocks (from line "
+                f"{layout.line_of_row(first_row[value])} and from this line); expected each "
+                "section's rows together",
+                file=path,
+                line=layout.line_of_row(start),
+                field=layout.fields[layout.roles["section"]],
+            )
+        first_row[value] = start
+        part = whole.select(slice(start, end), label=value)
+        out[value] = dataclasses.replace(part, source=f"{path} {layout.roles['section']}={value}")
+    return out
+
+
+def _read(
+    path: Path, fmt: FormatSpec, progress: bool | None, sections: bool
+) -> tuple[Recording, np.ndarray | None, _Layout]:
+    """(Recording, section codes per row or None, layout) of a whole file."""
+    layout = layout_of(path, fmt, sections=sections)
+    fmt = header_units(layout, fmt)
     data = _read_columns(layout, fmt, progress)
     t = _time(layout, fmt, data.pop("time", None), len(data["acc"]))
     acc = _to_si(data.pop("acc"), "acc", fmt)
     gyr = _to_si(data.pop("gyr"), "gyr", fmt)
-    temp = data.pop("temp", None)
+    temp = _celsius(layout, data.pop("temp", None))
+    codes = data.pop("section", None)
     reference = {role[4:]: v for role, v in data.items() if role.startswith("ref:")}
-    return Recording(t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=str(path))
+    rec = Recording(t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=str(path))
+    return rec, codes, layout
+
+
+def header_units(layout: _Layout, fmt: FormatSpec) -> FormatSpec:
+    """`fmt` with the units the header names give (``acc_x [g]``), unless the manifest sets them.
+
+    Raises IngestError naming the column when the three axes of a triad carry
+    different units or a unit is unknown.
+    """
+    update: dict[str, str] = {}
+    for key, roles in (
+        ("time_unit", ("time",)),
+        ("acc_unit", tuple(f"acc_{a}" for a in AXES)),
+        ("gyr_unit", tuple(f"gyr_{a}" for a in AXES)),
+    ):
+        units = {split_unit(layout.roles[r])[1] for r in roles if r in layout.roles}
+        units.discard(None)
+        if not units or key in fmt.model_fields_set:
+            continue
+        if len(units) > 1:
+            names = ", ".join(layout.roles[r] for r in roles if r in layout.roles)
+            raise IngestError(
+                f"the columns {names} carry different units; expected one unit per triad "
+                f"(or set format.{key})",
+                file=layout.path,
+                line=layout.data_start - 1,
+                field=f"format.{key}",
+            )
+        update[key] = units.pop()
+    if not update:
+        return fmt
+    try:
+        return FormatSpec.model_validate({**fmt.model_dump(exclude_unset=True), **update})
+    except ValueError as exc:
+        key = next(iter(update))
+        raise IngestError(
+            f"unit in the header not understood: {exc}; set format.{key} to override",
+            file=layout.path,
+            line=layout.data_start - 1,
+            field=f"format.{key}",
+        ) from None
+
+
+def _celsius(layout: _Layout, temp: np.ndarray | None) -> np.ndarray | None:
+    """Temperature in deg C from the header's unit (degC, K or degF; none: degC)."""
+    if temp is None:
+        return None
+    unit = split_unit(layout.roles["temp"])[1] or "degC"
+    if unit not in TEMPERATURE_UNITS:
+        raise IngestError(
+            f"temperature unit {unit!r} in the header; expected one of "
+            f"{', '.join(TEMPERATURE_UNITS)}",
+            file=layout.path,
+            line=layout.data_start - 1,
+            field=layout.roles["temp"],
+        )
+    scale, offset = TEMPERATURE_UNITS[unit]
+    return temp * scale + offset if unit != "degC" else temp
 
 
 def read_csv_pair(
@@ -408,11 +527,15 @@ def _batches(
         yield from _pandas_batches(layout, columns, iso_column)
         return
     types = {c: pa.float64() for c in columns}
-    if iso_column is not None:
-        types[iso_column] = pa.string()
+    section = layout.roles.get("section")
+    for text_column in (iso_column, section):
+        if text_column is not None:
+            types[text_column] = pa.string()
     read = pacsv.ReadOptions(column_names=layout.names, encoding="utf8")
     parse = pacsv.ParseOptions(delimiter=layout.delimiter)
-    convert = pacsv.ConvertOptions(include_columns=columns, column_types=types)
+    convert = pacsv.ConvertOptions(
+        include_columns=columns, column_types=types, decimal_point=layout.decimal
+    )
     try:
         for text, consumed in _slices(layout.path, layout.data_start):
             table = pacsv.read_csv(pa.BufferReader(text), read, parse, convert)
@@ -424,6 +547,8 @@ def _batches(
                     {
                         c: _iso_seconds(batch.column(c))
                         if c == iso_column
+                        else _codes(layout, batch.column(c))
+                        if c == section
                         else batch.column(c).to_numpy(zero_copy_only=False)
                         for c in columns
                     },
@@ -468,6 +593,15 @@ def _slices(path: Path, data_start: int) -> Iterator[tuple[pa.Buffer, int]]:
         start = end
 
 
+def _codes(layout: _Layout, text: pa.Array | np.ndarray) -> np.ndarray:
+    """Section names as float codes (`layout.sections` maps each name to its code)."""
+    if isinstance(text, pa.Array | pa.ChunkedArray):
+        text = text.to_numpy(zero_copy_only=False)
+    uniques, inverse = np.unique(np.asarray(text, dtype=str), return_inverse=True)
+    codes = np.array([layout.sections.setdefault(str(u), len(layout.sections)) for u in uniques])
+    return codes[inverse].astype(float)
+
+
 def _iso_seconds(text: pa.Array | np.ndarray) -> np.ndarray:
     """ISO-8601 text as Unix seconds; a time without a UTC offset is taken as UTC.
 
@@ -486,7 +620,8 @@ def _pandas_batches(
     layout: _Layout, columns: list[str], iso_column: str | None
 ) -> Iterator[tuple[dict[str, np.ndarray], int]]:
     """Whitespace-separated text through pandas' C parser, in chunks of rows."""
-    dtypes = {c: ("str" if c == iso_column else "float64") for c in columns}
+    section = layout.roles.get("section")
+    dtypes = {c: ("str" if c in (iso_column, section) else "float64") for c in columns}
     try:
         with layout.path.open("rb") as fh:  # its position tells the progress
             reader = pd.read_csv(
@@ -499,6 +634,7 @@ def _pandas_batches(
                 skiprows=layout.data_start - 1,
                 engine="c",
                 encoding="utf-8-sig",
+                decimal=layout.decimal,
                 chunksize=PANDAS_CHUNK_ROWS,
             )
             with reader:
@@ -506,6 +642,8 @@ def _pandas_batches(
                     batch = {
                         c: _iso_seconds(frame[c].to_numpy())
                         if c == iso_column
+                        else _codes(layout, frame[c].to_numpy())
+                        if c == section
                         else frame[c].to_numpy(dtype=np.float64)
                         for c in columns
                     }
@@ -642,15 +780,24 @@ def _first_bad(layout: _Layout, text: pd.DataFrame, iso_column: str | None, row0
         if c == iso_column:
             parsed = pd.to_datetime(text[c], errors="coerce", utc=True, format="ISO8601")
             bad[:, j] = parsed.isna().to_numpy()
+        elif c == layout.roles.get("section"):
+            bad[:, j] = (text[c] == "").to_numpy()
         else:
-            numbers = pd.to_numeric(text[c], errors="coerce").to_numpy(dtype=float)
+            column = text[c].str.replace(",", ".") if layout.decimal == "," else text[c]
+            numbers = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
             bad[:, j] = ~np.isfinite(numbers)
     rows, cols = np.nonzero(bad)
     if rows.size:
         i, j = int(rows[0]), int(cols[0])  # row-major order: the first bad cell
         value = str(raw[i, j])
         got = "an empty value (missing column or blank line)" if value == "" else repr(value)
-        what = "an ISO-8601 time" if text.columns[j] == iso_column else "a finite number"
+        what = (
+            "an ISO-8601 time"
+            if text.columns[j] == iso_column
+            else "a section name"
+            if text.columns[j] == layout.roles.get("section")
+            else "a finite number"
+        )
         raise IngestError(
             f"expected {what}, got {got}",
             file=layout.path,

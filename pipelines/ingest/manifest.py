@@ -157,7 +157,13 @@ class FormatSpec(BaseModel):
 
     kind: str
     delimiter: str | None = None  # None: detect among , ; tab whitespace
+    decimal: Literal[".", ","] | None = None  # None: detect (',' inside ';'/tab fields)
     header: bool = True
+    skip_lines: int | None = Field(default=None, ge=0)  # lines before the header; None: detect
+    # Column naming each row's segment (values such as "x_up", "x_p"); segments pick theirs
+    # by `section` (default: their label). None: a 'part', 'label' or 'section' column, used
+    # when a segment gives `section`.
+    section_column: Column | None = None
     time_column: Column | None = None
     time_unit: str = "s"
     acc_columns: list[Column] | None = None
@@ -320,6 +326,7 @@ class SegmentSpec(_Section):
     gyr_file: str | None = None
     start_s: float | None = None
     end_s: float | None = None
+    section: str | None = None  # the value of [format] section_column for this segment's rows
     verification: bool = False
     reference_acc: list[float] | None = None
 

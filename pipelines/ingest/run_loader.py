@@ -26,7 +26,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from calib_core.recording import Recording
-from pipelines.ingest.csv_reader import read_csv, read_csv_pair
+from pipelines.ingest.csv_reader import read_csv, read_csv_pair, read_csv_sections
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import (
     FormatSpec,
@@ -318,9 +318,15 @@ def _load_described(
     kind = manifest.format.kind
     segments = manifest.segments or _mpu6000_segments(folder, manifest, source)
     reader = reader_for(kind)
+    by_section = kind == "csv" and (
+        manifest.format.section_column is not None or any(s.section for s in segments)
+    )
+    if by_section:
+        reader = read_csv_sections  # type: ignore[assignment]
 
     root = folder.resolve()
-    recordings: dict[str, Recording] = {}  # file name -> whole-file recording
+    # file name -> whole-file recording, or {section: recording} when cut by a section column
+    recordings: dict[str, Recording | dict[str, Recording]] = {}
     raw_files: list[RawFile] = []
     if manifest_path is not None:
         raw_files.append(
@@ -362,7 +368,10 @@ def _load_described(
                 if name not in hashed:
                     hashed.add(name)
                     raw_files.append(RawFile(path, name, *hash_file(path), kind))
-        out[seg.label] = _cut(recordings[key], seg, i, source)
+        whole = recordings[key]
+        if isinstance(whole, dict):
+            whole = _section(whole, seg, i, source)
+        out[seg.label] = _cut(whole, seg, i, source)
     return LoadedRun(
         folder=folder,
         manifest=manifest,
@@ -389,6 +398,21 @@ def _data_file(
             field=field_,
         )
     return path
+
+
+def _section(
+    sections: dict[str, Recording], seg: SegmentSpec, index: int, source: str
+) -> Recording:
+    """The rows of the segment's section (``section``, else its label)."""
+    name = seg.section or seg.label
+    if name not in sections:
+        raise IngestError(
+            f"segment '{seg.label}': section {name!r} is not in {seg.file}; its sections are "
+            f"{', '.join(sections)}",
+            file=source,
+            field=f"segments[{index}].section",
+        )
+    return sections[name]
 
 
 def _cut(whole: Recording, seg: SegmentSpec, index: int, source: str) -> Recording:
