@@ -44,7 +44,7 @@ SIX_POSITION_LABELS = STATIC_LABELS + ROTATION_LABELS
 
 # Formats a reader exists (or is planned) for; format readers register in
 # pipelines.ingest.run_loader. Extend this tuple when adding a format.
-FORMAT_KINDS = ("csv", "mpu6000", "mat", "mcap")
+FORMAT_KINDS = ("csv", "mpu6000", "mat", "mcap", "ulog", "dataflash", "rosbag", "imutk")
 EQUIPMENT_KINDS = ("rate_table", "centrifuge", "thermal_chamber", "daq", "cube")
 DELIMITERS = {",": ",", ";": ";", "\t": "\t", "tab": "\t", "whitespace": "whitespace"}
 

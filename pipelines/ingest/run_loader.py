@@ -99,10 +99,64 @@ def _read_mcap(path: Path, fmt: FormatSpec) -> Recording:
     return read_mcap(path, **extra)
 
 
+def _extra_keys(fmt: FormatSpec, kind: str, keys: tuple[str, ...]) -> dict:
+    """The reader's own keys of [format]; IngestError for any other key."""
+    extra = dict(fmt.model_extra or {})
+    unknown = sorted(set(extra) - set(keys))
+    if unknown:
+        raise IngestError(
+            f"unknown key {unknown[0]!r} for format kind '{kind}'; expected: "
+            + (", ".join(keys) or "none"),
+            field=f"format.{unknown[0]}",
+        )
+    return extra
+
+
+def _read_ulog(path: Path, fmt: FormatSpec) -> Recording:
+    """Adapter of [format] ``source``, ``instance`` to read_ulog (units: PX4's SI)."""
+    from pipelines.ingest.ulog_reader import read_ulog
+
+    return read_ulog(path, **_extra_keys(fmt, "ulog", ("source", "instance")))
+
+
+def _read_dataflash(path: Path, fmt: FormatSpec) -> Recording:
+    """Adapter of [format] ``instance`` to read_dataflash (units: ArduPilot's SI)."""
+    from pipelines.ingest.dataflash_reader import read_dataflash
+
+    return read_dataflash(path, **_extra_keys(fmt, "dataflash", ("instance",)))
+
+
+def _read_rosbag(path: Path, fmt: FormatSpec) -> Recording:
+    """Adapter of [format] topics to read_rosbag (ROS 1 .bag or ROS 2 .db3, by content)."""
+    from pipelines.ingest.rosbag_reader import KEYS, read_rosbag
+
+    return read_rosbag(path, **_extra_keys(fmt, "rosbag", KEYS))
+
+
 register_reader("csv", read_csv)
+register_reader("ulog", _read_ulog)
+register_reader("dataflash", _read_dataflash)
+register_reader("rosbag", _read_rosbag)
 register_reader("mpu6000", lambda path, fmt: read_mpu6000_file(path))
 register_reader("mat", _read_mat)
 register_reader("mcap", _read_mcap)
+
+
+# imu_tk's text files: "t x y z" per line, whitespace-separated, no header, one file per
+# sensor (segments give acc_file and gyr_file) or one file for both.
+IMUTK_DEFAULTS = {
+    "header": False,
+    "delimiter": "whitespace",
+    "time_column": 0,
+    "acc_columns": [1, 2, 3],
+    "gyr_columns": [1, 2, 3],
+}
+
+
+def imutk_format(fmt: FormatSpec) -> FormatSpec:
+    """The CSV [format] of imu_tk text: `IMUTK_DEFAULTS` under the manifest's own fields."""
+    given = fmt.model_dump(exclude_unset=True)
+    return FormatSpec.model_validate({**IMUTK_DEFAULTS, **given, "kind": "csv"})
 
 
 def reader_for(kind: str) -> Reader:
@@ -315,6 +369,8 @@ def _load_described(
     """Read the segments a manifest describes (real or synthesised)."""
     source = str(manifest_path or folder)
     check_segments(manifest, source)
+    if manifest.format.kind == "imutk":
+        manifest = manifest.model_copy(update={"format": imutk_format(manifest.format)})
     kind = manifest.format.kind
     segments = manifest.segments or _mpu6000_segments(folder, manifest, source)
     reader = reader_for(kind)

@@ -1,0 +1,198 @@
+"""Writers of real log files for the reader tests, each through its ecosystem's own library.
+
+- PX4 ULog: pyulog's ``ULog.write_ulog`` on a ULog built from pyulog's own
+  message classes (MessageFormat, _MessageAddLogged, Data), with the PX4 field
+  layouts of sensor_combined, sensor_accel and sensor_gyro.
+- ArduPilot DataFlash: pymavlink has a reader only; the file is written
+  record by record as ArduPilot's logger does (FMT records, then IMU records)
+  with pymavlink's own format table types (DFReader.FORMAT_TO_STRUCT).
+- ROS 1 bags and ROS 2 sqlite3 bags: rosbags' Writer classes with its typestore's
+  sensor_msgs/msg/Imu and Temperature.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from calib_core.recording import Recording
+
+T0_US = 5_000_000  # boot time of the first sample, us
+ACCEL_FIELDS = [
+    ("uint64_t", "timestamp"), ("uint64_t", "timestamp_sample"), ("uint32_t", "device_id"),
+    ("float", "x"), ("float", "y"), ("float", "z"), ("float", "temperature"),
+    ("uint32_t", "error_count"), ("uint8_t[3]", "clip_counter"), ("uint8_t", "samples"),
+]  # fmt: skip
+COMBINED_FIELDS = [
+    ("uint64_t", "timestamp"), ("float[3]", "gyro_rad"), ("uint32_t", "gyro_integral_dt"),
+    ("int32_t", "accelerometer_timestamp_relative"), ("float[3]", "accelerometer_m_s2"),
+    ("uint32_t", "accelerometer_integral_dt"), ("uint8_t", "accelerometer_clipping"),
+    ("uint8_t", "gyro_clipping"), ("uint8_t", "accel_calibration_count"),
+    ("uint8_t", "gyro_calibration_count"),
+]  # fmt: skip
+_NUMPY = {"uint64_t": "<u8", "uint32_t": "<u4", "int32_t": "<i4", "uint8_t": "u1", "float": "<f4"}
+
+
+def _ulog_topic(ulog_cls, formats, name: str, fields, msg_id: int, multi_id: int, values):
+    """A pyulog Data of topic `name` from {field: (N,) or (N, k) values}."""
+    text = name + ":" + "".join(f"{t} {n};" for t, n in fields)
+    formats[name] = ulog_cls.MessageFormat(text.encode(), None)
+    added = ulog_cls._MessageAddLogged(
+        struct.pack("<BH", multi_id, msg_id) + name.encode(), None, formats
+    )
+    n = len(values["timestamp"])
+    array = np.zeros(n, dtype=added.dtype)
+    for field in added.dtype.names:
+        base, _, index = field.partition("[")
+        if base in values:
+            v = np.asarray(values[base])
+            array[field] = v[:, int(index[:-1])] if index else v
+    added.buffer = bytearray(array.tobytes())
+    return ulog_cls.Data(added)
+
+
+def write_ulog(path: Path, rec: Recording, *, topics: str = "separate") -> None:
+    """One segment as a ULog: ``separate`` (sensor_accel + sensor_gyro, with temperature),
+    ``combined`` (sensor_combined) or ``both``."""
+    from pyulog import ULog
+
+    ulog = ULog(None)
+    stamps = T0_US + np.round((rec.t - rec.t[0]) * 1e6).astype(np.uint64)
+    ulog._start_timestamp = int(stamps[0])
+    formats = ulog._message_formats
+    temp = rec.temp if rec.temp is not None else np.full(len(rec), 25.0)
+    data = []
+    if topics in ("separate", "both"):
+        for i, (name, v) in enumerate((("sensor_accel", rec.acc), ("sensor_gyro", rec.gyr))):
+            fields = ACCEL_FIELDS if name == "sensor_accel" else [
+                f for f in ACCEL_FIELDS if f[1] != "samples"
+            ]
+            values = {"timestamp": stamps, "timestamp_sample": stamps, "device_id": 1,
+                      "x": v[:, 0], "y": v[:, 1], "z": v[:, 2], "temperature": temp}  # fmt: skip
+            data.append(_ulog_topic(ULog, formats, name, fields, i, 0, values))
+    if topics in ("combined", "both"):
+        values = {"timestamp": stamps, "gyro_rad": rec.gyr, "accelerometer_m_s2": rec.acc}
+        data.append(_ulog_topic(ULog, formats, "sensor_combined", COMBINED_FIELDS, 2, 0, values))
+    ulog._data_list = data
+    ulog.write_ulog(str(path))
+
+
+# --- ArduPilot DataFlash -------------------------------------------------------------
+
+DF_HEAD = b"\xa3\x95"
+FMT_ID = 128
+IMU_FORMAT = ("QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz")
+IMU_OLD_FORMAT = ("QffffffIIfBB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH")
+
+
+def _df_struct(fmt: str) -> struct.Struct:
+    from pymavlink.DFReader import FORMAT_TO_STRUCT
+
+    return struct.Struct("<" + "".join(FORMAT_TO_STRUCT[c][0] for c in fmt))
+
+
+def _df_fmt_record(type_id: int, name: str, fmt: str, columns: str) -> bytes:
+    length = 3 + _df_struct(fmt).size
+    body = struct.pack("<BB4s16s64s", type_id, length, name.encode(), fmt.encode(),
+                       columns.encode())  # fmt: skip
+    return DF_HEAD + bytes([FMT_ID]) + body
+
+
+def write_dataflash(path: Path, rec: Recording, *, instances: int = 1, old: bool = False) -> None:
+    """One segment as an ArduPilot .bin: IMU records (``I`` = instance), or with `old`
+    the pre-4.1 layout: IMU, IMU2, ... messages without an instance field. Instances
+    after the first hold the same samples + 1 m/s^2 on x."""
+    stamps = (T0_US + np.round((rec.t - rec.t[0]) * 1e6)).astype(np.uint64)
+    temp = rec.temp if rec.temp is not None else np.full(len(rec), 25.0)
+    out = bytearray(_df_fmt_record(FMT_ID, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
+    fmt, columns = IMU_OLD_FORMAT if old else IMU_FORMAT
+    names = ([f"IMU{k + 1}" if k else "IMU" for k in range(instances)] if old else ["IMU"])
+    for k, name in enumerate(names):
+        out += _df_fmt_record(129 + k, name, fmt, columns)
+    pack = _df_struct(fmt).pack
+    for i in range(len(rec)):
+        for k in range(instances):
+            type_id = 129 + k if old else 129
+            acc = rec.acc[i] + (k, 0, 0)
+            g, a, ts = rec.gyr[i], acc, int(stamps[i])
+            values = (
+                (ts, *g, *a, 0, 0, float(temp[i]), 1, 1)
+                if old
+                else (ts, k, *g, *a, 0, 0, float(temp[i]), 1, 1, 1000, 1000)
+            )
+            out += DF_HEAD + bytes([type_id]) + pack(*values)
+    path.write_bytes(bytes(out))
+
+
+# --- ROS bags (rosbags' writers) ----------------------------------------------------
+
+T0_NS = 1_763_600_000_000_000_000  # 2025-11-20, Unix ns
+
+
+def _ros_messages(store, rec: Recording, stamps, table_rate: float | None):
+    """(topic, msgtype, stamp ns, message) of one segment: Imu, Temperature at 1/10 rate,
+    JointState (angle = table_rate * t) when `table_rate` is given."""
+    Imu = store.types["sensor_msgs/msg/Imu"]
+    Temperature = store.types["sensor_msgs/msg/Temperature"]
+    JointState = store.types["sensor_msgs/msg/JointState"]
+    Header = store.types["std_msgs/msg/Header"]
+    Time = store.types["builtin_interfaces/msg/Time"]
+    Vector3 = store.types["geometry_msgs/msg/Vector3"]
+    Quaternion = store.types["geometry_msgs/msg/Quaternion"]
+    zeros = np.zeros(9)
+    for i, ns in enumerate(stamps.tolist()):
+        time = Time(sec=ns // 10**9, nanosec=ns % 10**9)
+        extra = {"seq": i} if "seq" in Header.__dataclass_fields__ else {}  # ROS 1's Header
+        header = Header(stamp=time, frame_id="imu", **extra)
+        imu = Imu(
+            header=header,
+            orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=zeros,
+            angular_velocity=Vector3(x=rec.gyr[i, 0], y=rec.gyr[i, 1], z=rec.gyr[i, 2]),
+            angular_velocity_covariance=zeros,
+            linear_acceleration=Vector3(x=rec.acc[i, 0], y=rec.acc[i, 1], z=rec.acc[i, 2]),
+            linear_acceleration_covariance=zeros,
+        )
+        yield "/imu/data", "sensor_msgs/msg/Imu", ns, imu
+        if i % 10 == 0 and rec.temp is not None:
+            msg = Temperature(header=header, temperature=float(rec.temp[i]), variance=0.0)
+            yield "/imu/temperature", "sensor_msgs/msg/Temperature", ns, msg
+        if table_rate is not None and i % 5 == 0:
+            angle = table_rate * (ns - int(stamps[0])) / 1e9
+            msg = JointState(header=header, name=["table"], position=np.array([angle]),
+                             velocity=np.array([table_rate]), effort=np.array([0.0]))  # fmt: skip
+            yield "/table/joint_states", "sensor_msgs/msg/JointState", ns, msg
+
+
+def write_rosbag2(folder: Path, rec: Recording, *, table_rate: float | None = None) -> Path:
+    """One segment as a ROS 2 sqlite3 bag folder; returns its .db3 file."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
+    conns = {}
+    with Writer(folder, version=9, storage_plugin=StoragePlugin.SQLITE3) as writer:
+        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate):
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+            writer.write(conns[topic], ns, store.serialize_cdr(msg, msgtype))
+    (db3,) = folder.glob("*.db3")
+    return db3
+
+
+def write_rosbag1(path: Path, rec: Recording, *, table_rate: float | None = None) -> None:
+    """One segment as a ROS 1 bag (message definitions of ROS 1 Noetic)."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
+    conns = {}
+    with Writer(path) as writer:
+        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate):
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+            writer.write(conns[topic], ns, store.serialize_ros1(msg, msgtype))
