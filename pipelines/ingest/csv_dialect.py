@@ -87,7 +87,8 @@ def _data_like(line: str, delimiter: str) -> tuple[int, str] | None:
     fields = split_fields(line, delimiter)
     decimal = "," if delimiter != "," and any("," in f for f in fields) else "."
     numbers = sum(_number(f, decimal) for f in fields)
-    others = all(_number(f, decimal) or _ISO.match(f) or _WORD.match(f) for f in fields)
+    # Empty fields pass here (a trailing delimiter, a missing value): the reader names them.
+    others = all(not f or _number(f, decimal) or _ISO.match(f) or _WORD.match(f) for f in fields)
     return (len(fields), decimal) if numbers >= 2 and others else None
 
 
@@ -126,12 +127,18 @@ def sniff(path: Path, fmt: FormatSpec) -> Dialect:
             file=path,
             field="format.skip_lines",
         )
-    before = [i for i in nonblank if found is None or i < found[0]]
+    if found is None:
+        raise IngestError(
+            f"no data rows: no line of numbers separated by ',', ';', tab or spaces in the "
+            f"first {len(lines)} lines; the first line reads {lines[nonblank[0]][:60]!r}",
+            file=path,
+        )
+    before = [i for i in nonblank if i < found[0]]
     if fmt.header and (not before or _numeric(lines[before[-1]], found)):
         # No header-like line before the first data line: the first line is the header
         # and a data line is broken (or there are none); the reader names the bad line.
         found, before = None, nonblank[:1]
-    if found is None:
+    if found is None:  # a broken data line: as without metadata, the reader finds it
         first = lines[nonblank[0]]
         delimiter = fmt.delimiter or _count_delimiter(first)
         found = (nonblank[0] + 1 if fmt.header else nonblank[0], delimiter, fmt.decimal or ".")

@@ -39,7 +39,7 @@ import pyarrow.csv as pacsv
 
 from calib_core.recording import Recording
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
-from pipelines.ingest.csv_dialect import sniff, split_unit
+from pipelines.ingest.csv_dialect import sniff, split_fields, split_unit
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import COUNTS, Column, FormatSpec
 
@@ -765,12 +765,33 @@ def _diagnose(layout: _Layout, columns: list[str], iso_column: str | None, from_
                 if row0 + len(text) > from_row:
                     _first_bad(layout, text[columns], iso_column, row0)
                 row0 += len(text)
+    except UnicodeDecodeError:
+        data = layout.path.read_bytes()
+        try:
+            data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise IngestError(
+                f"not UTF-8 text: byte {data[exc.start]:#04x} at offset {exc.start}",
+                file=layout.path,
+                line=data.count(b"\n", 0, exc.start) + 1,
+            ) from None
+        raise
     except pd.errors.ParserError as exc:
         m = re.search(r"line (\d+)", str(exc))
-        line = int(m.group(1)) + layout.data_start - 1 if m else None
+        line = int(m.group(1)) + layout.data_start - 1 if m else _wrong_count_line(layout)
         raise IngestError(
             f"cannot split the line into columns: {exc}", file=layout.path, line=line
         ) from None
+
+
+def _wrong_count_line(layout: _Layout) -> int | None:
+    """1-based line of the first data line whose field count is not the header's."""
+    with layout.path.open("r", encoding="utf-8", errors="replace", newline="") as fh:
+        for number, line in enumerate(fh, start=1):
+            fields = split_fields(line.rstrip("\r\n"), layout.delimiter)
+            if number >= layout.data_start and line.strip() and len(fields) != len(layout.names):
+                return number
+    return None
 
 
 def _first_bad(layout: _Layout, text: pd.DataFrame, iso_column: str | None, row0: int) -> None:

@@ -57,6 +57,7 @@ FILE_PATTERN = re.compile(
 _NAMES = " ".join(COLUMN_NAMES)
 _UNDERLINE = re.compile(r"^\s*(_{3,}|-{3,}|={3,})\s*$")
 _COMMENT = ("#", "%", "//")
+_DECIMAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 _SUMMARY = re.compile(r"^\s*(?:(?P<label>[A-Za-z]+)\s*[=:]?)?\s*(?P<numbers>[-+0-9.,;\s eE]*)$")
 _LABELS = {"mean": "means", "std": "standard deviations"}
 
@@ -282,10 +283,8 @@ def _diagnose(lines: list[tuple[int, str]], path: Path, variant: TextVariant) ->
                 line=number,
             )
         for name, value in zip(COLUMN_NAMES, fields, strict=True):
-            try:
-                number_ = float(value)
-            except ValueError:
-                number_ = None
+            # Python's float() takes "1_000" and " nan"; the data parser does not.
+            number_ = float(value) if _DECIMAL.fullmatch(value) else None
             if number_ is None or not np.isfinite(number_):
                 raise IngestError(
                     f"expected a finite number, got {value!r}", file=path, line=number, field=name
