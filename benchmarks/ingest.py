@@ -11,6 +11,14 @@ file in the same run (best of `REPEATS`, so both see a warm page cache):
   ~30k msg/s, so it is timed on the first `ROS2_SUBSET` messages and scaled
   linearly to the whole file (its cost per message is constant).
 
+The logger routes (PX4 ULog, ArduPilot DataFlash, ROS 2 .db3 and ROS 1 .bag
+bags) are timed on `N_LOG` samples written by tests/log_writers.py, each
+against a bare read of the same file with the same library (pyulog's ULog
+parse of the IMU topics; pymavlink's DFReader_binary matching the IMU records
+and taking their fields; rosbags' Reader deserialising every Imu message and
+taking its stamp and vectors). These libraries decode message by message in
+Python, so `N_LOG` is smaller than `N`.
+
 Peak memory of each of this project's reads is measured in a fresh child process
 (resident-set high-water mark after the read minus before it, so C
 allocations of zstd, HDF5 and Arrow count too, as does the one-time start of
@@ -20,7 +28,9 @@ decoded arrays (t, acc, gyr: 56 bytes per sample).
 Progress goes to stderr; the last stdout line is one JSON object:
 csv_ratio_to_pyarrow, mat_ratio_to_library (the worse of v5 and v7.3; each is
 our time over the library's), mcap_msgs_per_s, mcap_speedup_vs_mcap_ros2 (the
-library's time over ours), peak_mem_ratio (the worst format).
+library's time over ours), peak_mem_ratio (the worst format), ulog_ratio_to_library,
+dataflash_ratio_to_library, rosbag2_ratio_to_library, rosbag1_ratio_to_library
+(ours over the bare library read; issue 17 asks <= 1.3).
 
 Run: ``.venv/bin/python benchmarks/ingest.py`` (about a minute on 2 cores).
 """
@@ -42,6 +52,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 N = 1_000_000
+N_LOG = 20_000  # samples of each logger route (100 s at 200 Hz)
+LOG_REPEATS = 4
 RATE_HZ = 1000.0
 REPEATS = 2
 ROS2_SUBSET = 100_000
@@ -234,6 +246,99 @@ def peak_memory(kind: str, path: Path) -> float:
     return int(out.stdout.strip().splitlines()[-1]) / DECODED_BYTES
 
 
+LOG_ROUTES = ("ulog", "dataflash", "rosbag2", "rosbag1")
+
+
+def write_log(route: str, folder: Path, data: dict) -> Path:
+    """One N_LOG-sample file of a logger route, by tests/log_writers.py."""
+    from log_writers import write_dataflash, write_rosbag1, write_rosbag2, write_ulog
+
+    from calib_core.recording import Recording
+
+    rec = Recording(
+        t=data["t"][:N_LOG] / 5.0,  # 200 Hz
+        acc=data["acc"][:N_LOG],
+        gyr=data["gyr"][:N_LOG],
+        temp=np.linspace(20.0, 30.0, N_LOG),
+    )
+    if route == "ulog":
+        write_ulog(folder / "run.ulg", rec)
+        return folder / "run.ulg"
+    if route == "dataflash":
+        write_dataflash(folder / "run.bin", rec)
+        return folder / "run.bin"
+    if route == "rosbag1":
+        write_rosbag1(folder / "run.bag", rec)
+        return folder / "run.bag"
+    return write_rosbag2(folder / "bag2", rec)
+
+
+def log_reads(route: str, path: Path) -> tuple[Callable[[], object], Callable[[], object]]:
+    """(this project's read, the bare library read) of a logger file."""
+    if route == "ulog":
+        from pyulog import ULog
+
+        from pipelines.ingest.ulog_reader import TOPICS, read_ulog
+
+        return (lambda: read_ulog(path)), (lambda: ULog(str(path), list(TOPICS)))
+    if route == "dataflash":
+        from pymavlink.DFReader import DFReader_binary
+
+        from pipelines.ingest.dataflash_reader import FIELDS, read_dataflash
+
+        def bare():
+            reader = DFReader_binary(str(path), zero_time_base=False)
+            rows = []
+            while (m := reader.recv_match(type=["IMU"])) is not None:
+                rows.append(tuple(getattr(m, f) for f in FIELDS))
+            return rows
+
+        return (lambda: read_dataflash(path)), bare
+    from pipelines.ingest.rosbag_reader import read_rosbag
+
+    def bare_bag():
+        from rosbags.typesys import Stores, get_typestore
+
+        if route == "rosbag1":
+            from rosbags.rosbag1 import Reader
+        else:
+            from rosbags.rosbag2 import Reader
+        store = get_typestore(Stores.ROS1_NOETIC if route == "rosbag1" else Stores.ROS2_HUMBLE)
+        decode = store.deserialize_ros1 if route == "rosbag1" else store.deserialize_cdr
+        rows = []
+        with Reader(path) as reader:
+            conns = [c for c in reader.connections if c.msgtype == "sensor_msgs/msg/Imu"]
+            for conn, _, raw in reader.messages(connections=conns):
+                m = decode(raw, conn.msgtype)
+                a, w, st = m.linear_acceleration, m.angular_velocity, m.header.stamp
+                rows.append((st.sec, st.nanosec, a.x, a.y, a.z, w.x, w.y, w.z))
+        return rows
+
+    return (lambda: read_rosbag(path)), bare_bag
+
+
+def log_ratios(data: dict, folder: Path) -> dict[str, float]:
+    """ours / library time of each logger route, best of REPEATS, in the same run."""
+    out = {}
+    for route in LOG_ROUTES:
+        path = write_log(route, folder, data)
+        ours_fn, lib_fn = log_reads(route, path)
+        rec = ours_fn()
+        assert len(rec) == N_LOG, f"{route}: {len(rec)} samples"
+        assert np.allclose(rec.acc, data["acc"][:N_LOG], rtol=1e-6, atol=1e-5), route
+        # Interleaved, best of LOG_REPEATS each: a busy machine slows both alike.
+        t_ours, t_lib = float("inf"), float("inf")
+        for _ in range(LOG_REPEATS):
+            t_ours = min(t_ours, best_time(ours_fn, 1))
+            t_lib = min(t_lib, best_time(lib_fn, 1))
+        out[f"{route}_ratio_to_library"] = t_ours / t_lib
+        log(
+            f"{route:9s} ours {t_ours:6.3f} s  library {t_lib:6.3f} s  ratio {t_ours / t_lib:5.2f}"
+            f"  ({N_LOG / t_ours:,.0f} samples/s, {path.stat().st_size / 1e6:.1f} MB)"
+        )
+    return out
+
+
 def main() -> None:
     total = time.perf_counter()
     data = simulated()
@@ -271,6 +376,7 @@ def main() -> None:
                 f"library {t_lib:7.3f} s  ratio ours/library {t_ours / t_lib:5.2f}  "
                 f"peak memory {mem:4.2f} x decoded arrays  ({path.stat().st_size / 1e6:.0f} MB)"
             )
+        logs = log_ratios(data, folder)
     mcap = results["mcap"]
     figures = {
         "csv_ratio_to_pyarrow": (
@@ -282,6 +388,7 @@ def main() -> None:
         "mcap_msgs_per_s": N / mcap["ours_s"],
         "mcap_speedup_vs_mcap_ros2": mcap["library_s"] / mcap["ours_s"],
         "peak_mem_ratio": max(r["peak_mem_ratio"] for r in results.values()),
+        **logs,
     }
     log(f"done in {time.perf_counter() - total:.0f} s")
     print(json.dumps(figures))

@@ -107,8 +107,13 @@ def _topic(reader, path: Path, msgtype: str, name: str | None, key: str, require
     )
 
 
-def _messages(reader, deserialize, conns, path: Path, stamp: str):
-    """(stamps in ns (N,), messages) of the connections, in log order."""
+def _messages(reader, deserialize, conns, path: Path, stamp: str, extract):
+    """(stamps in ns (N,), [extract(message)]) of the connections, in log order.
+
+    Only what `extract` takes is kept: holding 10^5 decoded messages (each with
+    numpy covariance arrays) would make the garbage collector's passes, and the
+    read, twice as slow.
+    """
     stamps, msgs = [], []
     try:
         for conn, log_ns, raw in reader.messages(connections=conns):
@@ -118,7 +123,7 @@ def _messages(reader, deserialize, conns, path: Path, stamp: str):
                 stamps.append(header.stamp.sec * 1_000_000_000 + header.stamp.nanosec)
             else:
                 stamps.append(log_ns)
-            msgs.append(msg)
+            msgs.append(extract(msg))
     except Exception as exc:  # a truncated record or a message that does not decode
         where = conns[0].topic if conns else "?"
         raise IngestError(
@@ -158,17 +163,17 @@ def read_rosbag(
     reader, deserialize = open_bag(path)
     try:
         conns = _topic(reader, path, IMU, imu_topic, "imu_topic", True)
-        t_ns, msgs = _messages(reader, deserialize, conns, path, stamp)
-        acc = np.array([_vec(m.linear_acceleration) for m in msgs], dtype=float).reshape(-1, 3)
-        gyr = np.array([_vec(m.angular_velocity) for m in msgs], dtype=float).reshape(-1, 3)
+        t_ns, rows = _messages(reader, deserialize, conns, path, stamp, _imu_values)
+        values = np.array(rows, dtype=float).reshape(-1, 6)
+        acc, gyr = values[:, :3].copy(), values[:, 3:].copy()
         t0 = int(t_ns[0]) if len(t_ns) else 0
         t = t0 / NS + (t_ns - t0) / NS
         temp = None
         tconns = _topic(reader, path, TEMPERATURE, temperature_topic, "temperature_topic", False)
         if tconns:
-            ts, tmsgs = _messages(reader, deserialize, tconns, path, stamp)
+            ts, temps = _messages(reader, deserialize, tconns, path, stamp, _temperature)
             if len(ts):
-                temp = np.interp(t_ns - t0, ts - t0, [m.temperature for m in tmsgs])
+                temp = np.interp(t_ns - t0, ts - t0, np.array(temps, dtype=float))
         reference = {}
         if table_topic:
             jconns = _topic(reader, path, JOINT_STATE, table_topic, "table_topic", True)
@@ -180,16 +185,25 @@ def read_rosbag(
     return rec
 
 
-def _vec(v) -> tuple[float, float, float]:
-    return (v.x, v.y, v.z)
+def _imu_values(m) -> tuple[float, ...]:
+    a, w = m.linear_acceleration, m.angular_velocity
+    return (a.x, a.y, a.z, w.x, w.y, w.z)
+
+
+def _temperature(m) -> float:
+    return m.temperature
+
+
+def _joint(m) -> tuple[list[str], list[float], list[float]]:
+    return list(m.name), list(m.position), list(m.velocity)
 
 
 def _table(reader, deserialize, conns, path, stamp, joint, t_ns) -> dict[str, np.ndarray]:
     """table_angle (unwrapped, rad) and table_rate (rad/s) of one joint on the IMU time."""
-    ts, msgs = _messages(reader, deserialize, conns, path, stamp)
+    ts, msgs = _messages(reader, deserialize, conns, path, stamp, _joint)
     if not msgs:
         raise IngestError("no table messages", file=path, field="format.table_topic")
-    names = list(msgs[0].name)
+    names = msgs[0][0]
     if isinstance(joint, str):
         if joint not in names:
             raise IngestError(
@@ -197,8 +211,8 @@ def _table(reader, deserialize, conns, path, stamp, joint, t_ns) -> dict[str, np
             )
         joint = names.index(joint)
     out = {}
-    for key, attr, unwrap in (("table_angle", "position", True), ("table_rate", "velocity", False)):
-        values = [list(getattr(m, attr)) for m in msgs]
+    for key, k, unwrap in (("table_angle", 1, True), ("table_rate", 2, False)):
+        values = [m[k] for m in msgs]
         if all(len(v) > joint for v in values):
             series = np.array([v[joint] for v in values], dtype=float)
             series = np.unwrap(series) if unwrap else series
