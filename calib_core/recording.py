@@ -96,3 +96,60 @@ class Recording:
 
     def with_label(self, label: str) -> Recording:
         return replace(self, label=label)
+
+
+# A reading within this fraction of full scale counts as clipped: sensors clip at
+# 32767/32768 of the range and files round to their last printed digit.
+RANGE_MARGIN = 1e-3
+
+
+@dataclass(frozen=True)
+class RangeHit:
+    """The first sample of a recording that reached the sensor's range.
+
+    Attributes
+    ----------
+    sensor : ``"gyr"`` or ``"acc"``.
+    axis : ``"x"``, ``"y"`` or ``"z"``.
+    index : sample index in the recording.
+    time : the sample's time, s (the recording's time base).
+    value : the reading, SI (rad/s or m/s^2).
+    full_scale : the range it reached, SI.
+    """
+
+    sensor: str
+    axis: str
+    index: int
+    time: float
+    value: float
+    full_scale: float
+
+
+def first_range_hit(
+    rec: Recording, gyro_range: float | None = None, acc_range: float | None = None
+) -> RangeHit | None:
+    """The first sample whose gyro or accelerometer reading reached full scale.
+
+    Parameters
+    ----------
+    rec : the samples.
+    gyro_range : gyro full scale, rad/s, or None (not checked).
+    acc_range : accelerometer full scale, m/s^2, or None (not checked).
+
+    Returns
+    -------
+    The earliest RangeHit (gyro first on a tie), or None when every reading stays
+    below full scale by more than RANGE_MARGIN of it. A clipped reading is not the
+    sensor's response to the motion: anything integrated or averaged over it is wrong.
+    """
+    hits = []
+    for sensor, data, full in (("gyr", rec.gyr, gyro_range), ("acc", rec.acc, acc_range)):
+        if full is None or len(rec) == 0:
+            continue
+        reached = np.abs(data) >= full * (1.0 - RANGE_MARGIN)
+        rows = np.flatnonzero(reached.any(axis=1))
+        if rows.size:
+            i = int(rows[0])
+            j = int(np.flatnonzero(reached[i])[0])
+            hits.append(RangeHit(sensor, "xyz"[j], i, float(rec.t[i]), float(data[i, j]), full))
+    return min(hits, key=lambda h: h.index) if hits else None

@@ -63,12 +63,35 @@ class UnitSpec(_Section):
     model: str
     manufacturer: str
     specification: str | None = None  # free text: ranges, grade, data sheet reference
+    # The sensor's full scale as set for this run; None: the model's (MODEL_RANGES), if known.
+    gyro_range_dps: float | None = Field(default=None, gt=0)
+    acc_range_g: float | None = Field(default=None, gt=0)
 
     @field_validator("serial")
     @classmethod
     def _safe_serial(cls, value: str) -> str:
         # The serial becomes a folder name in the archive: no path tricks.
         return check_safe_name(value, "serial")
+
+
+# Full scale (gyro deg/s, accelerometer g) of sensor models as their calibration program
+# sets them, by lower-case model name. MPU-6000: the program's manual keeps the readings
+# within +-250 deg/s and +-2 g (methods.md 5; the chip's smallest ranges). A run on other
+# settings says so in [unit] gyro_range_dps / acc_range_g or [run.settings] gyro_range_dps.
+MODEL_RANGES: dict[str, tuple[float, float]] = {"mpu-6000": (250.0, 2.0)}
+
+
+def sensor_ranges(unit: UnitSpec, settings: dict[str, Any]) -> tuple[float | None, float | None]:
+    """(gyro full scale deg/s, accelerometer full scale g) of a run, None where unknown.
+
+    The gyro range is [run.settings] gyro_range_dps, else [unit] gyro_range_dps, else the
+    model's (MODEL_RANGES); the accelerometer range [unit] acc_range_g, else the model's.
+    """
+    gyro_model, acc_model = MODEL_RANGES.get(unit.model.strip().lower(), (None, None))
+    gyro = settings.get("gyro_range_dps", unit.gyro_range_dps)
+    gyro = gyro_model if gyro is None else gyro
+    acc = acc_model if unit.acc_range_g is None else unit.acc_range_g
+    return (None if gyro is None else float(gyro)), acc
 
 
 class RunSpec(_Section):

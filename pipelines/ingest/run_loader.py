@@ -25,7 +25,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from calib_core.recording import Recording
+from calib_core.recording import Recording, first_range_hit
+from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.ingest.csv_reader import read_csv, read_csv_pair, read_csv_sections
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import (
@@ -34,6 +35,7 @@ from pipelines.ingest.manifest import (
     SegmentSpec,
     check_segments,
     load_manifest,
+    sensor_ranges,
 )
 from pipelines.ingest.mpu6000 import (
     check_complete,
@@ -428,6 +430,7 @@ def _load_described(
         if isinstance(whole, dict):
             whole = _section(whole, seg, i, source)
         out[seg.label] = _cut(whole, seg, i, source)
+        _check_range(out[seg.label], manifest, seg, source, paths)
     return LoadedRun(
         folder=folder,
         manifest=manifest,
@@ -435,6 +438,51 @@ def _load_described(
         segments=out,
         raw_files=raw_files,
         verification_labels={s.label for s in segments if s.verification},
+    )
+
+
+def _check_range(
+    rec: Recording, manifest: RunManifest, seg: SegmentSpec, source: str, paths: list[Path]
+) -> None:
+    """Refuse a segment whose readings reached the sensor's range (naming file, time, axis).
+
+    The resolved gyro range goes into the run's settings (the integral method's own
+    check and the archived settings use it).
+    """
+    settings = manifest.run.settings
+    given = settings.get("gyro_range_dps")
+    if given is not None and (
+        isinstance(given, bool) or not isinstance(given, int | float) or given <= 0
+    ):
+        raise IngestError(
+            f"expected a positive number (deg/s), got {given!r}",
+            file=source,
+            field="run.settings.gyro_range_dps",
+        )
+    gyro_dps, acc_g = sensor_ranges(manifest.unit, settings)
+    if gyro_dps is not None and given is None:
+        settings["gyro_range_dps"] = gyro_dps
+    hit = first_range_hit(
+        rec,
+        None if gyro_dps is None else gyro_dps * DEG,
+        None if acc_g is None else acc_g * STANDARD_GRAVITY,
+    )
+    if hit is None:
+        return
+    if hit.sensor == "gyr":
+        what = f"gyro {hit.axis} reads {hit.value / DEG:.3f} deg/s"
+        full = f"+-{hit.full_scale / DEG:g} deg/s"
+        hint = "repeat the rotation slower"
+    else:
+        what = f"accelerometer {hit.axis} reads {hit.value / STANDARD_GRAVITY:.4f} g"
+        full = f"+-{hit.full_scale / STANDARD_GRAVITY:g} g"
+        hint = "repeat the segment with less acceleration (a slower start and stop)"
+    raise IngestError(
+        f"segment '{seg.label}': {what} at t = {hit.time:.3f} s, at the sensor's range "
+        f"({full}, {manifest.unit.model}; set [unit] gyro_range_dps / acc_range_g if the "
+        f"sensor was set to another range): the reading is clipped, the result would be "
+        f"wrong; {hint}",
+        file=" + ".join(str(p) for p in paths),
     )
 
 
