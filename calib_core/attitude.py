@@ -13,6 +13,19 @@ Two-axis tables (angles in rad):
   the carried y axis, C = R_z(azimuth) R_y(pitch). Azimuth does not change f_b;
   labs reach the other faces by remounting (`mount`).
 
+Attitude conventions (the sign of the table's pitch), ``convention``:
+
+- ``"project"`` (default): pitch is a right-handed rotation about y, so a
+  positive pitch lowers +x: a_x = -g sin(pitch) (the formulas above).
+- ``"rate_table_procedure"``: the two-axis rate-table procedure (methods.md,
+  source 1) counts pitch the other way, a_x = +g sin(pitch): the same table
+  with the pitch angle negated. Roll keeps the project's sense (the procedure
+  states the x component only).
+
+A table read with the wrong convention puts the sensor's +x where the model
+expects -x: the fitted scale factor comes out near -2, which the solvers refuse
+(calib_core.checks.PHYSICAL_BOUNDS).
+
 Quaternions are (w, x, y, z), Hamilton product, q ⊗ v ⊗ q* maps body to level.
 """
 
@@ -21,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 TABLE_AXES = ("pitch_roll", "azimuth_pitch")
+ATTITUDE_CONVENTIONS = ("project", "rate_table_procedure")
 
 
 def rot_x(a: float | np.ndarray) -> np.ndarray:
@@ -58,6 +72,7 @@ def table_attitude(
     inner: float | np.ndarray,
     axes: str = "pitch_roll",
     mount: np.ndarray | None = None,
+    convention: str = "project",
 ) -> np.ndarray:
     """Body-to-level rotation C of an IMU on a two-axis table.
 
@@ -68,11 +83,23 @@ def table_attitude(
     axes : "pitch_roll" or "azimuth_pitch".
     mount : (3, 3) rotation from the IMU body to the table's inner frame
         (identity if None).
+    convention : "project" or "rate_table_procedure" (pitch counted the other
+        way: a_x = +g sin(pitch)); see the module docstring.
 
     Returns
     -------
     (3, 3) or (N, 3, 3) rotation matrices.
     """
+    if convention not in ATTITUDE_CONVENTIONS:
+        raise ValueError(
+            f"unknown attitude convention {convention!r}; expected one of "
+            f"{list(ATTITUDE_CONVENTIONS)}"
+        )
+    if convention == "rate_table_procedure":  # pitch counted the other way
+        if axes == "pitch_roll":
+            outer = -np.asarray(outer, dtype=float)
+        else:
+            inner = -np.asarray(inner, dtype=float)
     if axes == "pitch_roll":
         c = rot_y(outer) @ rot_x(inner)
     elif axes == "azimuth_pitch":
@@ -108,6 +135,53 @@ def pitch_roll_from_direction(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # At pitch +-90 deg roll is free; atan2(0, 0) = 0 picks roll 0.
     roll = np.arctan2(np.round(u[:, 1], 12), np.round(u[:, 2], 12))
     return pitch, roll
+
+
+def attitude_problems(
+    labels: list[str], forces: np.ndarray, gravity: float, same_deg: float = 1.0
+) -> tuple[list[str], list[str]]:
+    """Duplicate attitudes and axes not seen in both senses, before a static solve.
+
+    Parameters
+    ----------
+    labels : (K,) segment labels.
+    forces : (K, 3) reference specific force of each, m/s^2.
+    gravity : m/s^2.
+    same_deg : two attitudes whose gravity directions are closer than this
+        (degrees) are the same attitude.
+
+    Returns
+    -------
+    (duplicates, uncovered): messages naming the labels of each group of
+    duplicate attitudes, and naming each axis that never reads more than
+    +g/2 or never less than -g/2 (one sense missing: a scale factor then rests
+    on one sense only and a sign error of the attitudes cannot show).
+    """
+    f = np.asarray(forces, dtype=float)
+    u = f / np.linalg.norm(f, axis=1, keepdims=True)
+    cos_same = np.cos(np.radians(same_deg))
+    duplicates, seen = [], set()
+    for i in range(len(labels)):
+        if i in seen:
+            continue
+        group = [j for j in range(i, len(labels)) if u[i] @ u[j] >= cos_same]
+        seen.update(group)
+        if len(group) > 1:
+            names = ", ".join(labels[j] for j in group)
+            duplicates.append(
+                f"attitudes {names} are the same (gravity direction within {same_deg:g} deg): "
+                "the repeat adds no direction"
+            )
+    uncovered = []
+    for j, axis in enumerate("xyz"):
+        for sense, reached in (("+", (f[:, j] > 0.5 * gravity).any()),
+                               ("-", (f[:, j] < -0.5 * gravity).any())):  # fmt: skip
+            if not reached:
+                uncovered.append(
+                    f"no attitude has {sense}{axis} up (reading {sense}g); the {axis} axis is seen "
+                    "in one sense only: check the attitude list and its convention"
+                )
+    return duplicates, uncovered
 
 
 # --- quaternions ---------------------------------------------------------------

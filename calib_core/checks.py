@@ -73,6 +73,38 @@ DEFAULT_REPEATABILITY: dict[str, float | int] = {
 }
 
 
+# Physical bounds of the dimensionless linear terms: no working sensor is 50 % off in
+# scale or 30 deg misaligned. Beyond them the data were read wrongly (an attitude sign
+# convention, a face label, a unit), and the number must not pass as a result: an
+# inverted axis gives a scale near -2, a swapped one a misalignment near 1.
+PHYSICAL_BOUNDS: dict[str, float] = {
+    "acc.scale": 0.5,
+    "gyr.scale": 0.5,
+    "acc.misalign": 0.5,
+    "gyr.misalign": 0.5,
+}
+
+
+def check_physical_bounds(cal: Calibration, hint: str) -> None:
+    """Refuse a calibration whose scale factors or misalignments are not physical.
+
+    Raises ValueError naming every parameter outside PHYSICAL_BOUNDS, with `hint`
+    (what to check: the attitude convention, the labels, the units).
+    """
+    bad = [
+        f"{name} = {p.value:.4g}"
+        for name, p in cal.parameters.items()
+        if _family(name) in PHYSICAL_BOUNDS and abs(p.value) > PHYSICAL_BOUNDS[_family(name)]
+    ]
+    if bad:
+        bounds = ", ".join(f"|{k}| <= {v:g}" for k, v in PHYSICAL_BOUNDS.items())
+        seen = f" (the solver noted: {'; '.join(cal.warnings)})" if cal.warnings else ""
+        raise ValueError(
+            f"{cal.procedure}: {', '.join(bad)} outside physical bounds ({bounds}); "
+            f"not a sensor's error but input read wrongly: {hint}{seen}"
+        )
+
+
 def _strip_parens(text: str) -> str:
     text = text.strip()
     if text.startswith("(") and text.endswith(")") and text.count("(") == 1:

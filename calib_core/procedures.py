@@ -37,6 +37,7 @@ import numpy as np
 
 from calib_core import params
 from calib_core.calibration import Calibration, StepRecord
+from calib_core.checks import check_physical_bounds
 from calib_core.recording import Recording
 from calib_core.solvers.centrifuge_segments import solve_centrifuge_segments
 from calib_core.solvers.equipment_free import solve_equipment_free
@@ -340,7 +341,23 @@ def solve(
         ) from None
     if not (9.7 < gravity < 9.9):
         raise ValueError(f"gravity must be the local value in m/s^2 (9.7..9.9), got {gravity!r}")
-    return fn(segments, gravity, settings)
+    cal = fn(segments, gravity, settings)
+    check_physical_bounds(cal, _BOUNDS_HINT.get(procedure, _BOUNDS_HINT[None]))
+    return cal
+
+
+# What to check when a scale factor or misalignment is beyond physical bounds.
+_BOUNDS_HINT = {
+    "multi_position": (
+        "check the table's attitude convention (settings.attitude_convention: 'project' "
+        "a_x = -g sin(pitch), 'rate_table_procedure' a_x = +g sin(pitch)), settings.table_axes "
+        "and settings.mount"
+    ),
+    None: (
+        "check the segment labels (which axis was up, the rotation sense), the units and "
+        "the axis order of the columns"
+    ),
+}
 
 
 def solve_step(

@@ -36,7 +36,13 @@ from typing import Any
 import numpy as np
 
 from calib_core import params
-from calib_core.attitude import TABLE_AXES, specific_force, table_attitude
+from calib_core.attitude import (
+    ATTITUDE_CONVENTIONS,
+    TABLE_AXES,
+    attitude_problems,
+    specific_force,
+    table_attitude,
+)
 from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.recording import Recording
 from calib_core.stats import channel_stats, column_mean_std, largest_std
@@ -386,6 +392,7 @@ def solve_accel_multi(
 MULTI_POSITION_DEFAULTS: dict[str, Any] = {
     "model": "full",
     "table_axes": "pitch_roll",
+    "attitude_convention": "project",
     "attitudes": {},
     "mount": None,
     "gyro_gsens": True,
@@ -417,6 +424,7 @@ def reference_force(
         raise ValueError(f"settings.table_axes: {axes!r}; expected one of {list(TABLE_AXES)}")
     keys = ("pitch", "roll") if axes == "pitch_roll" else ("azimuth", "pitch")
     mount = settings.get("mount")
+    convention = settings.get("attitude_convention", "project")
     given = settings["attitudes"].get(label)
     if given is not None:
         try:
@@ -426,11 +434,11 @@ def reference_force(
                 f"settings.attitudes.{label}: expected numbers {keys[0]}_deg and {keys[1]}_deg "
                 f"for a {axes} table, got {given!r}"
             ) from None
-        return specific_force(table_attitude(outer, inner, axes, mount), gravity)
+        return specific_force(table_attitude(outer, inner, axes, mount, convention), gravity)
     channels = [f"table_{k}" for k in keys]
     if all(c in rec.reference for c in channels):
         outer, inner = (float(np.mean(rec.reference[c])) for c in channels)
-        return specific_force(table_attitude(outer, inner, axes, mount), gravity)
+        return specific_force(table_attitude(outer, inner, axes, mount, convention), gravity)
     face = _face_vector(label, gravity)
     if face is None:
         raise ValueError(
@@ -498,6 +506,11 @@ def multi_position_settings(settings: dict[str, Any] | None) -> dict[str, Any]:
         raise ValueError(
             f"settings.model: {merged['model']!r}; expected one of {list(ACCEL_MODELS)}"
         )
+    if merged["attitude_convention"] not in ATTITUDE_CONVENTIONS:
+        raise ValueError(
+            f"settings.attitude_convention: {merged['attitude_convention']!r}; expected one of "
+            f"{list(ATTITUDE_CONVENTIONS)}"
+        )
     if not isinstance(merged["attitudes"], dict):
         raise ValueError("settings.attitudes: expected a table {label = {pitch_deg, roll_deg}}")
     if merged["mount"] is not None:
@@ -520,15 +533,19 @@ def solve_multi_position(
     gravity : local gravity, m/s^2.
     settings : model ("full", "reduced", "quadratic", "nonlinear"), table_axes
         ("pitch_roll" or "azimuth_pitch"), attitudes ({label: {pitch_deg,
-        roll_deg}}), mount (3x3 body-to-table rotation), gyro_gsens (fit gyro
-        bias and g-sensitivity from the same statics, default true).
+        roll_deg}}), attitude_convention ("project": a_x = -g sin(pitch), or
+        "rate_table_procedure": a_x = +g sin(pitch)), mount (3x3 body-to-table
+        rotation), gyro_gsens (fit gyro bias and g-sensitivity from the same
+        statics, default true).
 
     Returns
     -------
     Calibration "multi_position": the accelerometer terms of the model, gyro bias
     and g-sensitivity, noise, residuals per position; info holds the condition
     number, chi2, the accelerometer covariance, the reference forces and
-    `not_separable` (warnings say why).
+    `not_separable` (warnings say why). Axes never seen in both senses are named in
+    warnings, with the duplicate attitudes when there are any (info
+    `duplicate_attitudes` always; calib_core.attitude.attitude_problems).
     """
     s = multi_position_settings(settings)
     labels = [lab for lab in segments if not lab.endswith(("_cw", "_ccw"))]
@@ -567,6 +584,11 @@ def solve_multi_position(
             w_model = cal.gsens() @ f + cal.vector("gyr", "bias")
             cal.residuals.append(segment_residual(lab, "gyr", rec.gyr, w_model))
     cal.warnings += fit.warnings
+    duplicates, uncovered = attitude_problems(labels, f_true, gravity)
+    # Repeats in a set that sees every axis both ways are a repeatability design; with a
+    # sense missing, a repeat is the likely stand-in for it (a convention slip): warn.
+    cal.warnings += (duplicates if uncovered else []) + uncovered
+    cal.info["duplicate_attitudes"] = duplicates
     cal.info.update(
         {
             "model": fit.model,
