@@ -341,6 +341,98 @@ def noise_parameters(
     )
 
 
+# The chosen fit must reproduce the data's Allan deviation within this fraction at every
+# tau it used, beyond the estimate's own scatter there (issue 18).
+MISFIT_LIMIT = 0.10
+# Cluster times with fewer equivalent degrees of freedom are too scattered to judge a fit
+# by (relative std of the deviation 1 / sqrt(2 edf) > 16 %).
+MISFIT_MIN_EDF = 20.0
+
+
+def fit_misfit(p: NoiseParameters, result: AllanResult) -> dict[str, float | None]:
+    """How far a fit's Allan deviation is from the data's at the taus it used.
+
+    The taus used: every tau for "model"; the white and random-walk line points and
+    the minimum for "lines"; those with edf >= MISFIT_MIN_EDF. At each, the relative
+    misfit |model / data - 1| less twice the data's relative scatter 1 / sqrt(2 edf)
+    (a correct model sits within that of the estimate 95 % of the time). Past the
+    curve's minimum the random walk dominates, whose estimate has far fewer degrees of
+    freedom than white noise's (NIST SP 1065, Table 5); there edf = N / (2 m) is used
+    (white noise: ~1.5 N / m), which covers the scatter seen on simulated white + flicker
+    + random walk records (tests/test_noise.py, benchmarks/solvers.py).
+
+    Returns
+    -------
+    {"misfit_max": the largest relative misfit beyond the scatter (0 if within it),
+    "misfit_raw_max": the largest |model / data - 1|, "misfit_tau": its tau, s};
+    None values when no used tau has enough degrees of freedom.
+    """
+    taus = result.taus
+    if p.method == "model":
+        used = np.ones(taus.size, dtype=bool)
+    else:
+        picked = set(p.arw_taus) | set(p.rrw_taus) | {p.bias_instability_tau}
+        used = np.isin(taus, [t for t in picked if t is not None])
+    edf = result.edf.astype(float)
+    past_min = np.arange(taus.size) > int(np.argmin(result.adev))
+    m = np.round(taus * result.rate_hz)
+    edf = np.where(past_min, np.minimum(edf, result.n_samples / (2.0 * m)), edf)
+    used &= (edf >= MISFIT_MIN_EDF) & (result.adev > 0)
+    if not used.any():
+        return {"misfit_max": None, "misfit_raw_max": None, "misfit_tau": None}
+    rel = np.abs(p.adev_model(taus[used]) / result.adev[used] - 1.0)
+    beyond = np.maximum(rel - 2.0 / np.sqrt(2.0 * edf[used]), 0.0)
+    i = int(np.argmax(beyond if beyond.max() > 0 else rel))
+    return {
+        "misfit_max": float(beyond.max()),
+        "misfit_raw_max": float(rel.max()),
+        "misfit_tau": float(taus[used][i]),
+    }
+
+
+def choose_noise_fit(
+    result: AllanResult, preferred: str = "model"
+) -> tuple[NoiseParameters, dict[str, float | None], str | None]:
+    """The noise fit of one channel that reproduces its Allan curve, or a warning.
+
+    The preferred method is taken when its misfit (`fit_misfit`) is within MISFIT_LIMIT;
+    else the other method when it is; else the one with the smaller misfit, with a
+    warning. (A three-term model cannot follow a curve whose flat region is not flat,
+    e.g. flicker over many decades; the IEEE 952 line reading then still can.)
+
+    Returns
+    -------
+    (parameters, misfit of the chosen fit (with "tried": the misfits of both), warning
+    or None).
+    """
+    other = "lines" if preferred == "model" else "model"
+    fits = {}
+    for method in (preferred, other):
+        try:
+            with np.errstate(divide="ignore", invalid="ignore"):  # log 0 of a constant channel
+                fits[method] = noise_parameters(result, method=method)
+        except ValueError:
+            continue  # "lines" needs >= 3 taus
+    misfits = {m: fit_misfit(p, result) for m, p in fits.items()}
+
+    def score(m: str) -> float:
+        v = misfits[m]["misfit_max"]
+        return -1.0 if v is None else v
+
+    ok = [m for m in fits if score(m) <= MISFIT_LIMIT]
+    chosen = ok[0] if ok else min(fits, key=score)
+    record = {**misfits[chosen], "tried": {m: misfits[m]["misfit_max"] for m in fits}}
+    warning = None
+    if not ok:
+        warning = (
+            f"noise fit: no method reproduces the Allan deviation within "
+            f"{100 * MISFIT_LIMIT:.0f} % (beyond its scatter); {chosen!r} is off by "
+            f"{100 * score(chosen):.0f} % at tau = {misfits[chosen]['misfit_tau']:g} s: "
+            "the noise parameters are not a description of this curve"
+        )
+    return fits[chosen], record, warning
+
+
 # --- converters to the units datasheets use ---------------------------------
 _DEG = 180.0 / math.pi
 

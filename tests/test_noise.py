@@ -7,11 +7,15 @@ import math
 import allantools
 import numpy as np
 import pytest
+from scipy import signal
 
 from calib_core.noise import (
     FLICKER_FACTOR,
+    MISFIT_LIMIT,
     allan_deviation,
     arw_to_deg_per_sqrt_h,
+    choose_noise_fit,
+    fit_misfit,
     noise_parameters,
     rate_to_deg_per_h,
     rrw_to_deg_per_h_per_sqrt_h,
@@ -160,3 +164,33 @@ def test_bad_input_messages():
         allan_deviation(np.array([0.0, np.nan, 1.0, 2.0]), 10.0)
     with pytest.raises(ValueError, match="column"):
         noise_parameters(allan_deviation(np.zeros((100, 3)) + np.arange(100)[:, None], 10.0))
+
+
+def test_chosen_fit_reproduces_the_curve_and_the_parameters(mix_results):
+    """Issue 18: the chosen fit matches the data's curve within 10 % (beyond its scatter).
+
+    On white + flicker + random walk the three-term model is the right model, so it is
+    chosen, its misfit is within MISFIT_LIMIT and the parameters come back within 10 %
+    (the scatter of K is ~2 %, see above).
+    """
+    for res in mix_results:
+        p, misfit, warning = choose_noise_fit(res)
+        assert p.method == "model" and warning is None
+        assert misfit["misfit_max"] <= MISFIT_LIMIT
+        for got, want in ((p.arw, _MIX.arw), (p.bias_instability, _B), (p.rrw, _MIX.rrw)):
+            assert abs(got / want - 1) < 0.10
+
+
+def test_model_that_misses_the_curve_is_not_taken():
+    """A correlated (Gauss-Markov, 20 s) bias puts a hump in the Allan curve that
+    N^2/tau + B'^2 + K^2 tau/3 cannot follow: the model misses it by far more than 10 %
+    (measured: ~5x at the longest dense tau), the line reading does not, and is taken."""
+    rng = np.random.default_rng(1)
+    n, fs, tau_c, sig = 1_000_000, 10.0, 20.0, 1e-3
+    a = math.exp(-1.0 / (fs * tau_c))
+    gm = signal.lfilter([math.sqrt(1 - a * a) * sig], [1.0, -a], rng.standard_normal(n))
+    res = allan_deviation(1e-3 * rng.standard_normal(n) + gm, fs)
+    assert fit_misfit(noise_parameters(res, method="model"), res)["misfit_max"] > 1.0
+    p, misfit, warning = choose_noise_fit(res)
+    assert p.method == "lines" and warning is None
+    assert misfit["misfit_max"] <= MISFIT_LIMIT and misfit["tried"]["model"] > 1.0

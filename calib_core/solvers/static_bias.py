@@ -18,7 +18,7 @@ import numpy as np
 
 from calib_core.calibration import Calibration
 from calib_core.earth import EARTH_RATE
-from calib_core.noise import AllanResult, NoiseParameters, allan_deviation, noise_parameters
+from calib_core.noise import allan_deviation, choose_noise_fit
 from calib_core.params import AXES
 from calib_core.recording import Recording
 from calib_core.units import STANDARD_GRAVITY
@@ -78,20 +78,24 @@ def _up_vector(up_axis: str) -> np.ndarray:
 
 def _channel_stats(
     x: np.ndarray, rate_hz: float, n_sigma: float, taus
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, AllanResult, list[NoiseParameters], np.ndarray]:
-    """mean, std, outlier counts, Allan result, noise parameters and u(mean) of (N, 3) samples."""
+) -> tuple:
+    """mean, std, outlier counts, Allan result, noise parameters, u(mean), fit misfits and
+    warnings (None or text, per channel) of (N, 3) samples (`choose_noise_fit`)."""
     keep = sigma_clip(x, n_sigma)
     counts = (~keep).sum(axis=0)
     mean = np.array([x[keep[:, c], c].mean() for c in range(3)])
     std = np.array([x[keep[:, c], c].std(ddof=1) for c in range(3)])
     allan = allan_deviation(_fill(x, keep), rate_hz, taus)
     duration = x.shape[0] / rate_hz
-    noise = [noise_parameters(allan.column(c), method="model") for c in range(3)]
+    chosen = [choose_noise_fit(allan.column(c)) for c in range(3)]
+    noise = [c[0] for c in chosen]
+    misfits = [c[1] for c in chosen]
+    warnings = [c[2] for c in chosen]
     sem_white = std / math.sqrt(x.shape[0])
     u = np.array([float(p.adev_model(duration)) for p in noise])
     # A fit that found no noise at all (constant data) still has the white-noise floor.
     u = np.where(np.isfinite(u) & (u > 0), u, sem_white)
-    return mean, std, counts, allan, noise, u
+    return mean, std, counts, allan, noise, u, misfits, warnings
 
 
 def solve_static_bias(
@@ -172,15 +176,21 @@ def solve_static_bias(
     sensors = [("gyr", rec.gyr, earth)]
     sensors.append(("acc", rec.acc, None if up_axis is None else gravity * _up_vector(up_axis)))
     for sensor, x, reference in sensors:
-        mean, std, counts, allan, noise, u = _channel_stats(
+        mean, std, counts, allan, noise, u, misfits, warns = _channel_stats(
             np.asarray(x, dtype=float), rate_hz, n_sigma, taus
         )
+        cal.warnings += [f"{sensor}.{a}: {w}" for a, w in zip(AXES, warns, strict=True) if w]
+        worst = [m["misfit_max"] for m in misfits if m["misfit_max"] is not None]
+        # A scalar: it goes into the solve step's record (statistics).
+        info[f"{sensor}_noise_fit_misfit_max"] = max(worst) if worst else None
         for i, a in enumerate(AXES):
             cal.add(f"{sensor}.noise.{a}", std[i])
             if reference is not None:
                 cal.add(f"{sensor}.bias.{a}", mean[i] - reference[i], u[i])
         info["allan"][sensor] = allan.to_dict()
-        info["noise_parameters"][sensor] = [p.to_dict() for p in noise]
+        info["noise_parameters"][sensor] = [
+            {**p.to_dict(), **m} for p, m in zip(noise, misfits, strict=True)
+        ]
         info["outliers"][sensor] = counts.tolist()
         if counts.max() > 0.01 * len(rec):
             cal.warnings.append(
