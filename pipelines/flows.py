@@ -39,6 +39,7 @@ from pipelines.run_task import (
     process_run_for_batch,
 )
 from pipelines.runners import WorkerProcesses, check_runner, default_workers, make_task_runner
+from pipelines.temporary_api import guard_temporary_api
 from storage.db import resolve_archive
 
 __all__ = ["RETRIES", "TransientError", "is_transient", "process_batch", "report_progress"]
@@ -110,8 +111,9 @@ def local_batch_settings() -> Iterator[None]:
       least every `RECORDER_FLUSH_S`) it spends ~14 ms; task states reach the
       UI up to a second later.
 
-    With a configured API nothing changes (docs/deployment.md says how to set
-    the recorder's batching on a lasting server).
+    The temporary server is also made to end with this process, whatever ends it
+    (`pipelines.temporary_api`). With a configured API nothing changes
+    (docs/deployment.md says how to set the recorder's batching on a lasting server).
     """
     from prefect.settings import (
         PREFECT_API_URL,
@@ -124,6 +126,7 @@ def local_batch_settings() -> Iterator[None]:
     if PREFECT_API_URL.value():
         yield
         return
+    guard_temporary_api()
     with temporary_settings(
         {
             PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None,

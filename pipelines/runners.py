@@ -25,7 +25,9 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import select
 import threading
+import time
 import weakref
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -64,6 +66,37 @@ def single_threaded_children() -> Iterator[None]:
     finally:
         for key in added:
             os.environ.pop(key, None)
+
+
+def exit_with(owner_pid: int) -> None:
+    """End this process when process `owner_pid` ends, however it ends (a worker's initializer).
+
+    A worker forked from the forkserver holds pipes that keep it, the forkserver
+    and the resource tracker alive after the process that started them is gone
+    (killed by signal 9, or crashed), waiting for work that never comes. A
+    daemon thread waits on a pidfd of the owner (Linux >= 5.3; elsewhere it
+    polls every second) and exits this process when the owner has ended.
+    """
+    threading.Thread(target=_wait_and_exit, args=(owner_pid,), daemon=True).start()
+
+
+def _wait_and_exit(owner_pid: int) -> None:
+    try:
+        fd = os.pidfd_open(owner_pid)
+    except (AttributeError, OSError):  # no pidfd: poll
+        fd = None
+    if fd is not None:
+        select.select([fd], [], [])  # readable once the owner has ended
+    else:
+        while True:
+            try:
+                os.kill(owner_pid, 0)
+            except ProcessLookupError:
+                break
+            except PermissionError:
+                pass
+            time.sleep(1.0)
+    os._exit(1)
 
 
 # Every WorkerProcesses not yet garbage: kill_all_workers stops them when a batch is interrupted.
@@ -130,7 +163,12 @@ class WorkerProcesses:
 
     def _start(self) -> ProcessPoolExecutor:
         with single_threaded_children():
-            pool = ProcessPoolExecutor(self._workers, mp_context=self._context)
+            pool = ProcessPoolExecutor(
+                self._workers,
+                mp_context=self._context,
+                initializer=exit_with,
+                initargs=(os.getpid(),),
+            )
             # concurrent.futures starts a worker per call until it has them all:
             # one call each starts them now, inside the single-threaded environment.
             for _ in range(self._workers):

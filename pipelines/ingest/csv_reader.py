@@ -24,6 +24,7 @@ slice reader share the column plan of one file; split, each part would pass it a
 
 from __future__ import annotations
 
+import codecs
 import dataclasses
 import mmap
 import re
@@ -766,15 +767,7 @@ def _diagnose(layout: _Layout, columns: list[str], iso_column: str | None, from_
                     _first_bad(layout, text[columns], iso_column, row0)
                 row0 += len(text)
     except UnicodeDecodeError:
-        data = layout.path.read_bytes()
-        try:
-            data.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise IngestError(
-                f"not UTF-8 text: byte {data[exc.start]:#04x} at offset {exc.start}",
-                file=layout.path,
-                line=data.count(b"\n", 0, exc.start) + 1,
-            ) from None
+        _raise_not_utf8(layout.path)
         raise
     except pd.errors.ParserError as exc:
         m = re.search(r"line (\d+)", str(exc))
@@ -792,6 +785,30 @@ def _wrong_count_line(layout: _Layout) -> int | None:
             if number >= layout.data_start and line.strip() and len(fields) != len(layout.names):
                 return number
     return None
+
+
+def _raise_not_utf8(path: Path) -> None:
+    """Raise IngestError at the first byte of `path` that is not UTF-8 (line, column, byte)."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    line, offset = 1, 0
+    with path.open("rb") as fh:
+        while block := fh.read(1 << 20):
+            try:
+                decoder.decode(block)
+            except UnicodeDecodeError as exc:
+                data = decoder.getstate()[0] + block  # undecoded bytes carried over + block
+                bad = exc.start
+                start = data.rfind(b"\n", 0, bad) + 1
+                line += data.count(b"\n", 0, bad)
+                column = len(data[start:bad].decode("utf-8", errors="replace")) + 1
+                raise IngestError(
+                    f"not UTF-8 text: byte 0x{data[bad]:02x} at column {column} (byte offset "
+                    f"{offset - len(decoder.getstate()[0]) + bad}); save the file as UTF-8",
+                    file=path,
+                    line=line,
+                ) from None
+            line += block.count(b"\n")
+            offset += len(block)
 
 
 def _first_bad(layout: _Layout, text: pd.DataFrame, iso_column: str | None, row0: int) -> None:

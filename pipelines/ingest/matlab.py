@@ -37,6 +37,7 @@ from calib_core.recording import Recording
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
 from pipelines.ingest.detect import detect_format
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.isolated import run_isolated
 
 ROLES = ("t", "acc", "gyr", "temp")
 TRIAD_ROLES = ("acc", "gyr")
@@ -89,9 +90,14 @@ def read_mat(
         _unit_factor(name, "format.time_unit", time_factor, time_unit)
 
     fmt = detect_format(name)
+    # A damaged file can crash scipy's or HDF5's native code: the file is first read in a
+    # worker process (pipelines.ingest.isolated), which returns nothing but its errors, and
+    # only a file that read there without crashing is read here.
     if fmt == "mat5":
+        run_isolated(_probe, _load_mat5, name, roles, file=name, what="the MAT v5 reader (scipy)")
         raw = _load_mat5(name, roles)
     elif fmt == "mat73":
+        run_isolated(_probe, _load_mat73, name, roles, file=name, what="the MAT v7.3 reader (HDF5)")
         raw = _load_mat73(name, roles)
     else:
         raise IngestError(f"not a MATLAB .mat file: content looks like {fmt}", file=name)
@@ -184,6 +190,11 @@ def _unit_factor(name: str, field: str, lookup: Any, unit: str) -> float:
 
 
 # --- loading -------------------------------------------------------------------
+
+
+def _probe(load: Any, name: str, roles: dict[str, list[str]]) -> None:
+    """``load(name, roles)`` for its errors only (the arrays stay in the worker process)."""
+    load(name, roles)
 
 
 def _load_mat5(name: str, roles: dict[str, list[str]]) -> dict[str, list[np.ndarray]]:
