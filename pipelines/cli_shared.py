@@ -7,6 +7,7 @@ modules import these from here, never from `pipelines.cli`, so imports go one wa
 from __future__ import annotations
 
 import json
+import os
 import sys
 from typing import Annotated, Any
 
@@ -48,6 +49,25 @@ ArchiveOpt = Annotated[
         help="Archive directory or SQLAlchemy URL (default ./calib-archive).",
     ),
 ]
+
+
+@app.callback()
+def _main() -> None:
+    """IMU calibration pipeline and archive."""
+    # A full disk, a read-only archive, a missing permission: one line saying which
+    # file and what to do instead of a traceback (typer has set its own hook by now).
+    previous = sys.excepthook
+
+    def explain(kind, exc, tb) -> None:  # noqa: ANN001 - sys.excepthook's signature
+        from storage.write_failures import describe
+
+        problem = describe(exc, os.environ.get("CALIB_ARCHIVE"))
+        if problem is None:
+            previous(kind, exc, tb)
+        else:
+            err.print(f"[red]error:[/red] {problem}")
+
+    sys.excepthook = explain
 
 
 def open_archive(arg: str | None):

@@ -36,7 +36,7 @@ from pipelines.ingest.errors import IngestError
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
-from storage import queries, rawstore
+from storage import queries, rawstore, write_failures
 from storage.archive import ArchiveResult, RawFileIn, RunIn, archive_run, raw_hash_of, run_id_of
 from storage.db import Archive
 
@@ -329,7 +329,7 @@ def process_run(
     except Exception as exc:
         if reraise is not None and reraise(exc):
             raise
-        return _failed(where, serial, exc)
+        return _failed(where, serial, exc, archive.url)
     finally:
         pending.close()
     protocol_path = result.files.get(protocol_name)
@@ -346,8 +346,15 @@ def process_run(
     )
 
 
-def _failed(where: str, serial: str, exc: Exception) -> dict[str, Any]:
-    """The failed outcome of a run: bad input is reported, a bug must not stop the batch."""
+def _failed(where: str, serial: str, exc: Exception, database_url: str) -> dict[str, Any]:
+    """The failed outcome of a run: bad input is reported, a bug must not stop the batch.
+
+    A full disk, a read-only archive or a missing permission is said as such,
+    with the file or database and what to do (`storage.write_failures`).
+    """
+    if (problem := write_failures.describe(exc, database_url)) is not None:
+        log.warning("run %s failed: %s", where, problem)
+        return run_outcome(source=where, serial=serial, status="failed", error=problem)
     if isinstance(exc, IngestError | ValueError | OSError):
         log.warning("run %s failed: %s", where, exc)
         return run_outcome(source=where, serial=serial, status="failed", error=str(exc))

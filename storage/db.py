@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
+from urllib.parse import quote
 
 from sqlalchemy import Engine, create_engine, event, text
 from sqlalchemy.engine import make_url
@@ -42,14 +43,21 @@ class Archive:
     ----------
     url : SQLAlchemy URL of the database.
     root : directory holding raw objects, run folders and Parquet samples.
+    read_only : open the database read-only. Default (None): read-only when the
+        SQLite file or its folder cannot be written (a read-only mount, an
+        auditor's copy without write permission), else read-write. Reading
+        commands then work as usual; a write fails with a message naming the file.
     """
 
     url: str
     root: Path
+    read_only: bool | None = None
     _engine: Engine | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.root = Path(self.root)
+        if self.read_only is None:
+            self.read_only = sqlite_read_only(self.url)
 
     def __repr__(self) -> str:
         return f"Archive(url={self.display_url!r}, root={str(self.root)!r})"
@@ -66,7 +74,7 @@ class Archive:
     def engine(self) -> Engine:
         """The (cached) engine; SQLite gets foreign keys, WAL and a busy timeout."""
         if self._engine is None:
-            self._engine = _make_engine(self.url)
+            self._engine = _make_engine(self.url, read_only=bool(self.read_only))
         return self._engine
 
     def upgrade(self) -> None:
@@ -75,9 +83,25 @@ class Archive:
         Safe to call on every start and from several processes at once: on
         SQLite the migration runs in a ``BEGIN IMMEDIATE`` transaction, on
         PostgreSQL under an advisory lock, so concurrent callers queue up and
-        the later ones find nothing to do.
+        the later ones find nothing to do. A read-only archive is only checked:
+        ReadOnlyArchiveError if its schema is not the newest.
         """
+        if self.read_only:
+            self._check_schema_current()
+            return
         self.migrate("head")
+
+    def _check_schema_current(self) -> None:
+        from alembic.script import ScriptDirectory
+
+        head = ScriptDirectory.from_config(self.alembic_config()).get_current_head()
+        current = self.schema_revision()
+        if current != head:
+            raise ReadOnlyArchiveError(
+                f"archive {self.display_url} is read-only and its schema is at revision "
+                f"{current or '(none)'}, this version of calib reads revision {head}: run any "
+                "calib command on a writable copy to upgrade it, or use the calib that wrote it"
+            )
 
     def migrate(self, target: str, *, down: bool = False) -> None:
         """Upgrade (or with `down`, downgrade) the schema to an Alembic revision."""
@@ -117,11 +141,49 @@ class Archive:
             self._engine = None
 
 
-def _make_engine(url: str) -> Engine:
+class ReadOnlyArchiveError(RuntimeError):
+    """A read-only archive cannot do what was asked (a write, a schema upgrade)."""
+
+
+def sqlite_read_only(url: str) -> bool:
+    """Whether the SQLite database of `url` exists but cannot be written (False otherwise).
+
+    ``os.access`` answers for the file system too: a read-only mount is not
+    writable even for root.
+    """
+    u = make_url(url)
+    if u.get_backend_name() != "sqlite" or not u.database or u.database == ":memory:":
+        return False
+    if u.query.get("mode") == "ro" or u.query.get("immutable") == "1":
+        return True
+    db = Path(u.database)
+    return db.is_file() and not (os.access(db, os.W_OK) and os.access(db.parent, os.W_OK))
+
+
+def _read_only_sqlite_url(u) -> str:  # noqa: ANN001 - a sqlalchemy URL
+    """A URI that opens the database read-only without creating or changing any file.
+
+    ``mode=ro`` where SQLite can read its write-ahead log (the -wal and -shm files
+    exist, or the folder is writable); otherwise (a read-only copy with no log,
+    which is all in the main file) ``immutable=1``, which takes no locks at all.
+    """
+    if u.database.startswith("file:"):
+        return u.render_as_string(hide_password=False)
+    db = Path(u.database).resolve()
+    wal = db.with_name(db.name + "-wal")
+    shm = db.with_name(db.name + "-shm")
+    can_log = (wal.exists() and shm.exists()) or os.access(db.parent, os.W_OK)
+    mode = "mode=ro" if can_log else "immutable=1"
+    return f"sqlite:///file:{quote(str(db))}?{mode}&uri=true"
+
+
+def _make_engine(url: str, *, read_only: bool = False) -> Engine:
     u = make_url(url)
     if u.get_backend_name() != "sqlite":
         return create_engine(url, pool_pre_ping=True)
-    if u.database and u.database != ":memory:":
+    if read_only:
+        url = _read_only_sqlite_url(u)
+    elif u.database and u.database != ":memory:":
         Path(u.database).parent.mkdir(parents=True, exist_ok=True)
     engine = create_engine(url)
 
@@ -134,7 +196,7 @@ def _make_engine(url: str) -> Engine:
         cur = dbapi_conn.cursor()
         cur.execute("PRAGMA foreign_keys=ON")
         cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
-        if u.database and u.database != ":memory:":
+        if u.database and u.database != ":memory:" and not read_only:
             _enable_wal(cur)
         cur.close()
 

@@ -24,8 +24,11 @@ import contextlib
 import datetime as dt
 import hashlib
 import os
+import re
 import shutil
+import socket
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -36,8 +39,13 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from storage.naming import check_safe_name
+from storage.write_failures import with_path
 
 _CHUNK = 1 << 20
+TEMP_SUFFIX = ".tmp"
+# Temporary files of another host (a shared file store) are removed only past this age, s.
+STALE_TEMP_S = 24 * 3600.0
+_WRITER = f"{socket.gethostname().replace('.', '_')}-{os.getpid()}"
 ZSTD_LEVEL = -1  # of the samples Parquet files (write_samples)
 # Hive partition columns are read as strings: inferred types would turn serial "0012" into 12.
 SAMPLES_PARTITIONING = pa.schema([("serial", pa.string()), ("date", pa.string())])
@@ -194,7 +202,10 @@ class PendingFiles:
 
     def _temp(self, folder: Path, name: str) -> tuple[int, Path]:
         self._dirs |= _make_dirs(folder)
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
+        # The writer's host and process in the name: `remove_stale_temp_files` can tell
+        # a file a live writer still needs from one a killed writer left behind.
+        prefix = f".{name}.{_WRITER}."
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=prefix, suffix=TEMP_SUFFIX)
         return fd, Path(tmp)
 
     def _queue(self, fd: int, tmp: Path, target: Path, *, keep_existing: bool = False) -> None:
@@ -216,9 +227,11 @@ class PendingFiles:
         fd, tmp = self._temp(target.parent, target.name)
         try:
             write(fd)
-        except BaseException:
+        except BaseException as exc:
             os.close(fd)
             tmp.unlink(missing_ok=True)
+            if isinstance(exc, OSError):
+                raise with_path(exc, target) from None
             raise
         self._queue(fd, tmp, target)
 
@@ -262,9 +275,11 @@ class PendingFiles:
             stored = target.exists() or target in self  # stored (or staged) already
             if not stored:
                 self._dirs |= _make_dirs(target.parent)
-        except BaseException:
+        except BaseException as exc:
             os.close(fd)
             tmp.unlink(missing_ok=True)
+            if isinstance(exc, OSError) and exc.filename is None:  # ENOSPC from write()
+                raise with_path(exc, tmp.parent) from None
             raise
         if stored:
             os.close(fd)
@@ -280,7 +295,10 @@ class PendingFiles:
         stay queued (and are deleted by `close`).
         """
         for item in self._pending.values():
-            item.synced.result()
+            try:
+                item.synced.result()
+            except OSError as exc:  # a full disk often shows only at fsync
+                raise with_path(exc, item.tmp) from None
         for target, item in list(self._pending.items()):
             if item.keep_existing and target.exists():
                 item.tmp.unlink(missing_ok=True)  # stored meanwhile: the same bytes
@@ -420,3 +438,54 @@ def read_samples(root: Path, serial: str | None = None) -> pa.Table:
 def remove_tree(path: Path) -> None:
     """Remove a directory tree if it exists (cleanup after a failed archive attempt)."""
     shutil.rmtree(path, ignore_errors=True)
+
+
+_TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<host>[^.]+)-(?P<pid>\d+)\.[^.]+\.tmp$")
+
+
+def _writer_gone(path: Path, now: float) -> bool:
+    """Whether the writer of a temporary file has ended (or the file is older than a day)."""
+    try:
+        age = now - path.stat().st_mtime
+    except FileNotFoundError:
+        return False
+    m = _TEMP_NAME.match(path.name)
+    host = socket.gethostname().replace(".", "_")
+    if m is None or m["host"] != host:  # older naming, or another host's writer
+        return age > STALE_TEMP_S
+    try:
+        os.kill(int(m["pid"]), 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # alive, another user's
+        return False
+    # Alive, or its pid taken by another process since: only a day-old file is let go.
+    return age > STALE_TEMP_S
+
+
+def stale_temp_files(root: Path) -> list[Path]:
+    """Temporary files under objects/, samples/ and runs/ whose writer has ended.
+
+    A writer killed before its commit (``kill -9``, a power cut) leaves its staged
+    files (``objects/.incoming.*.tmp`` and ``.<name>.*.tmp`` beside targets); a
+    failed run deletes its own. A file of a live writer on this host is never
+    listed; one of another host only when older than `STALE_TEMP_S`.
+    """
+    now = time.time()
+    found: list[Path] = []
+    for top in ("objects", "samples", "runs"):
+        base = Path(root) / top
+        if base.is_dir():
+            found += [p for p in sorted(base.rglob(f".*{TEMP_SUFFIX}"))
+                      if p.is_file() and _writer_gone(p, now)]  # fmt: skip
+    return found
+
+
+def remove_stale_temp_files(root: Path) -> list[Path]:
+    """Delete `stale_temp_files(root)`; return what was deleted."""
+    removed = []
+    for path in stale_temp_files(root):
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+            removed.append(path)
+    return removed

@@ -10,6 +10,7 @@ costs a retry, not the batch.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -107,10 +108,8 @@ def wait_gone(tag: str, timeout_s: float) -> list[tuple[int, str]]:
 
 def kill_tagged(tag: str) -> None:
     for pid, _ in tagged_processes(tag):
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
 
 
 @pytest.fixture
@@ -169,10 +168,8 @@ def test_calib_killed_leaves_no_server_or_worker(tmp_path: Path) -> None:
         time.sleep(1.0)
         proc.kill()
         started = time.monotonic()
-        try:  # EOF only when no process holds the pipe any more
+        with contextlib.suppress(subprocess.TimeoutExpired):  # EOF: no process holds stdout
             proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            pass
         eof_s = time.monotonic() - started
         left = wait_gone(tag, 10)
     finally:

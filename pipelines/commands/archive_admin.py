@@ -19,11 +19,23 @@ def verify(
     orphans: Annotated[
         bool, typer.Option("--orphans/--no-orphans", help="List unreferenced files.")
     ] = True,
+    repair_orphans: Annotated[
+        bool,
+        typer.Option(
+            "--repair-orphans",
+            help="First delete temporary files left by writers that were killed.",
+        ),
+    ] = False,
 ) -> None:
     """Re-hash every archived raw file and samples file; exit 1 on any missing or changed file."""
+    from storage.rawstore import remove_stale_temp_files
     from storage.verify import verify as run_verify
 
-    report = run_verify(open_archive(archive), orphans=orphans)
+    arch = open_archive(archive)
+    if repair_orphans:
+        for path in remove_stale_temp_files(arch.root):
+            err.print(f"removed {path.relative_to(arch.root)} (left by a killed writer)")
+    report = run_verify(arch, orphans=orphans)
     if as_json:
         sys.stdout.write(json.dumps(report.to_dict(), indent=2) + "\n")
     else:

@@ -32,6 +32,10 @@ def report(
         written = report_run(arch, run_id, output, pdf=pdf)
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
+    except OSError as exc:  # a read-only archive, a full disk
+        from storage.write_failures import describe
+
+        fail(f"{describe(exc) or exc}; the reports can go elsewhere with --output DIR")
     verdict = written.pop("verdict")
     if as_json:
         print_json({"run_id": run_id, "verdict": verdict,
