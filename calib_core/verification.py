@@ -36,6 +36,7 @@ from calib_core.recording import Recording
 
 PASS, FAIL, NEEDS_REVIEW = "pass", "fail", "needs review"
 REPEAT_PREFIX = "repeat:"
+DEVICE_PREFIX = "device:"  # the unit's description against the archive's (pipelines.process)
 VERIFY_PREFIX = "verify:"
 
 # A residual-pattern component counts as a suspected missing term above this
@@ -418,10 +419,10 @@ def repeatability(runs: list[RunValues], profile: ToleranceProfile) -> list[Chec
 
 
 def overall_verdict(checks: list[CheckResult]) -> str:
-    """ "pass"; "needs review" when only repeatability checks failed; else "fail"."""
+    """ "pass"; "needs review" when only repeatability or device checks failed; else "fail"."""
     failed = [c for c in checks if not c.passed]
     if not failed:
         return PASS
-    if all(c.name.startswith(REPEAT_PREFIX) for c in failed):
+    if all(c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX)) for c in failed):
         return NEEDS_REVIEW
     return FAIL

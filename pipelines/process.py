@@ -33,6 +33,7 @@ from calib_core.verification import (
 )
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.manifest import RunManifest
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
@@ -184,6 +185,28 @@ def verify_run(
     }
 
 
+def device_check(m: RunManifest, archived: dict[str, Any] | None) -> CheckResult:
+    """``device:description``: the unit's model and manufacturer as the archive knows the serial.
+
+    A serial archived before under another model or manufacturer is a relabelled
+    or swapped unit, or a typo: the check fails (verdict "needs review"), and the
+    run's own description stays in its archived manifest.
+    """
+    said = (m.unit.model, m.unit.manufacturer)
+    if archived is None or (archived["model"], archived["manufacturer"]) == said:
+        return CheckResult("device:description", None, None, True, "as archived before"
+                           if archived else "first run of this serial")  # fmt: skip
+    return CheckResult(
+        "device:description",
+        None,
+        None,
+        False,
+        f"serial {m.unit.serial} is archived as model {archived['model']!r} by "
+        f"{archived['manufacturer']!r}; this run says model {said[0]!r} by {said[1]!r}: "
+        "a relabelled or swapped unit, or a typo in run.toml? Review before use",
+    )
+
+
 @dataclass
 class Judged:
     """What the check stage found: checks, verdict, the profile and its step record."""
@@ -201,6 +224,8 @@ def check_run(loaded: LoadedRun, cal: Calibration, archive: Archive, run_id: str
     checks = check_parameters(cal, profile) + check_residuals(cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id)
     checks += more_checks
+    checks.append(device_check(loaded.manifest, queries.device_description(
+        archive, loaded.manifest.unit.serial)))  # fmt: skip
     verdict_ = overall_verdict(checks)
     step = StepRecord(
         "check",

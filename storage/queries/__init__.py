@@ -36,6 +36,7 @@ from storage.queries.history import (
     units,
 )
 from storage.queries.runs import (
+    device_description,
     export_calibration,
     full_run_id,
     lineage,
@@ -46,6 +47,7 @@ from storage.queries.runs import (
 from storage.queries.thermal import campaign_calibrations, latest_thermal_model, thermal_models
 
 __all__ = [
+    "device_description",
     "FLEET_COLUMNS", "HISTORY_COLUMNS", "LAPSED_COLUMNS", "LATEST_COLUMNS", "UNIT_COLUMNS",
     "VERDICTS", "as_instant", "campaign_calibrations", "check_parameter", "check_serial",
     "check_text", "check_verdict", "export_calibration", "fleet", "fleet_history",

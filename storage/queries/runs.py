@@ -427,6 +427,16 @@ def run_samples(archive: Archive, run_id: str) -> pa.Table:
     return pq.read_table(path)
 
 
+def device_description(archive: Archive, serial: str) -> dict[str, Any] | None:
+    """The archived description of a serial (model, manufacturer, specification), or None."""
+    with Session(archive.engine()) as s:
+        dev = s.scalars(select(Device).where(Device.serial == serial)).one_or_none()
+        if dev is None:
+            return None
+        return {"model": dev.model, "manufacturer": dev.manufacturer,
+                "specification": dev.specification}  # fmt: skip
+
+
 def repeatability_candidates(
     archive: Archive, serial: str, procedure: str, *, exclude_run_id: str | None = None
 ) -> list[dict[str, Any]]:

@@ -1,0 +1,92 @@
+"""Free text of a manifest is checked at ingest, the same on SQLite and PostgreSQL; a unit's
+description that changes between runs of one serial is flagged in the run's checks."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from pipelines.ingest import discover_runs
+from pipelines.ingest.errors import IngestError
+from pipelines.ingest.manifest import TEXT_MAX_CHARS, parse_manifest
+from pipelines.process import process_run
+from storage import queries
+
+ROOT = Path(__file__).resolve().parents[1]
+CSV_RUN = ROOT / "data_samples" / "csv_IMU-2026-0042"
+
+
+def manifest_with(old: str, new: str) -> str:
+    text = (CSV_RUN / "run.toml").read_text()
+    assert old in text
+    return text.replace(old, new)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "field", "problem"),
+    [
+        ('operator = "J. Doe"', f'operator = "{"x" * 100_000}"', "run.operator",
+         f"text of 100000 characters; at most {TEXT_MAX_CHARS}"),
+        ('operator = "J. Doe"', 'operator = "J. Doe\\u0000"', "run.operator",
+         "control character '\\x00' (U+0000) at character 7"),
+        ('model = "MPU-6000"', 'model = "MPU\\n6000"', "unit.model",
+         "control character '\\n' (U+000A) at character 4; expected printable text on one"),
+        ('operator = "J. Doe"', 'operator = "J. \\u001bDoe"', "run.operator", "U+001B"),
+    ],
+)  # fmt: skip
+def test_bad_text_names_the_field(old: str, new: str, field: str, problem: str) -> None:
+    with pytest.raises(IngestError) as info:
+        parse_manifest(manifest_with(old, new), "run.toml")
+    assert info.value.field == field and info.value.file == "run.toml"
+    assert problem in info.value.problem
+
+
+def test_description_may_span_lines() -> None:
+    spec = 'specification = "6-axis MEMS, +-2000 deg/s, +-16 g"'
+    m = parse_manifest(manifest_with(spec, 'specification = "line 1\\nline 2\\tend"'))
+    assert m.unit.specification == "line 1\nline 2\tend"
+
+
+def copy_run(tmp_path: Path, name: str, old: str, new: str, salt: str) -> Path:
+    """The CSV sample run with a changed manifest and other raw bytes (a new run id)."""
+    folder = tmp_path / name
+    shutil.copytree(CSV_RUN, folder)
+    (folder / "run.toml").write_text(manifest_with(old, new))
+    with open(folder / "imu.csv", "a") as f:
+        f.write(salt)
+    return folder
+
+
+def test_nul_in_operator_fails_alike_on_every_back_end(archive, tmp_path: Path) -> None:
+    folder = copy_run(tmp_path, "nul", 'operator = "J. Doe"', 'operator = "J. Doe\\u0000"', "")
+    (source,) = discover_runs([folder])
+    out = process_run(source, archive)
+    assert out["status"] == "failed" and "internal error" not in out["error"]
+    assert "field 'run.operator': control character" in out["error"]
+    with archive.engine().connect() as conn:
+        assert conn.exec_driver_sql("SELECT count(*) FROM runs").scalar() == 0
+
+
+def archived_check(archive, run_id: str) -> dict:  # noqa: ANN001
+    checks = queries.run_summary(archive, run_id)["calibration"]["checks"]
+    return {c["name"]: c for c in checks}["device:description"]
+
+
+def test_model_change_for_a_serial_is_flagged(archive, tmp_path: Path) -> None:
+    (first,) = discover_runs([CSV_RUN])
+    out = process_run(first, archive)
+    assert out["status"] == "ok"
+    check = archived_check(archive, out["run_id"])
+    assert check["passed"] and check["detail"] == "first run of this serial"
+
+    folder = copy_run(tmp_path, "swapped", 'model = "MPU-6000"', 'model = "ICM-20602"', "\n")
+    (second,) = discover_runs([folder])
+    out = process_run(second, archive)
+    assert out["status"] == "ok"
+    check = archived_check(archive, out["run_id"])
+    assert not check["passed"]
+    assert "archived as model 'MPU-6000' by 'InvenSense'" in check["detail"]
+    assert "this run says model 'ICM-20602'" in check["detail"]
+    assert out["verdict"] in ("needs review", "fail")
