@@ -82,7 +82,7 @@ def _launch(port: int | None, watch_fd: int) -> subprocess.Popen[Any]:
         "--log-level", "error", "--lifespan", "on",
     ]  # fmt: skip
     return subprocess.Popen(
-        [sys.executable, "-m", __name__, str(watch_fd), *uvicorn_args],
+        [sys.executable, "-m", __name__, str(watch_fd), "uvicorn", *uvicorn_args],
         env=env,
         pass_fds=(watch_fd,),
         stdin=subprocess.DEVNULL,
@@ -114,10 +114,10 @@ def _stop_when_closed(fd: int) -> None:
 
 
 def main(argv: list[str]) -> None:
-    """``python -m pipelines.temporary_api FD UVICORN_ARGS...``: uvicorn, stopped at FD's end."""
+    """``python -m pipelines.temporary_api FD uvicorn ARGS...``: uvicorn, stopped at FD's end."""
     fd = int(argv[0])
     threading.Thread(target=_stop_when_closed, args=(fd,), daemon=True).start()
-    sys.argv = ["uvicorn", *argv[1:]]
+    sys.argv = argv[1:]
     runpy.run_module("uvicorn", run_name="__main__", alter_sys=True)
 
 

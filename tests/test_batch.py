@@ -16,6 +16,7 @@ import sqlite3
 import subprocess
 import sys
 import threading
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -407,13 +408,20 @@ def test_every_task_run_reaches_the_temporary_api_with_batched_recording(tmp_pat
 # --- interrupting a batch -----------------------------------------------------------
 
 
-def _helper_pids() -> set[int]:
-    """Processes a batch may leave behind: forkservers, their workers, Prefect API servers."""
+def _helper_pids(tag: str) -> set[int]:
+    """Processes a batch may leave behind: forkservers, their workers, Prefect API servers.
+
+    Only those started under the environment marker CALIB_TEST_TAG=`tag` (children
+    inherit it), not those of other test runs on the machine.
+    """
     found = set()
+    marker = f"CALIB_TEST_TAG={tag}".encode()
     for d in Path("/proc").iterdir():
         if d.name.isdigit():
             try:
                 cmd = (d / "cmdline").read_bytes()
+                if marker not in (d / "environ").read_bytes().split(b"\0"):
+                    continue
             except OSError:
                 continue
             if b"multiprocessing.forkserver" in cmd or b"uvicorn" in cmd:
@@ -442,9 +450,10 @@ def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> N
     write_runs(tmp_path / "day", seeds)
     calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}  # temporary API
+    env["CALIB_TEST_TAG"] = tag = str(uuid.uuid4())
     archive = str(tmp_path / "archive")
     cmd = [calib, "process", str(tmp_path / "day"), "--archive", archive, "--no-progress"]
-    before = _helper_pids()
+    before = _helper_pids(tag)
     proc = subprocess.Popen(
         [*cmd, "--runner", "process", "--workers", "2"],
         stderr=subprocess.PIPE,
@@ -473,7 +482,7 @@ def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> N
 
     deadline = time.monotonic() + 10.0
     while (
-        left := {p for p in _helper_pids() - before if _alive(p)}
+        left := {p for p in _helper_pids(tag) - before if _alive(p)}
     ) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not left, [Path(f"/proc/{p}/cmdline").read_bytes()[:120] for p in left]
