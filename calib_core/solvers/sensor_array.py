@@ -41,7 +41,7 @@ from calib_core.solvers.multi_position import (
     segment_residual,
     solve_accel_multi,
 )
-from calib_core.stats import channel_stats, trapezoid_weights
+from calib_core.stats import ChannelStats, channel_stats, trapezoid_weights
 
 PHASES = ("static", "ccw", "cw")
 
@@ -92,13 +92,7 @@ def solve_array(
         raise ValueError(f"sensor_array: need >= 2 sensors or mountings, got {len(records)}")
     up = np.array([0.0, 0.0, gravity])
     f = np.array([r.mount @ up for r in records])  # (S, 3) specific force in each sensor
-    acc, gyr = [], []
-    for r in records:
-        try:
-            acc.append(channel_stats(r.static.acc))
-            gyr.append(channel_stats(r.static.gyr))
-        except ValueError as exc:
-            raise ValueError(f"sensor {r.name} static ({r.static.source}): {exc}") from None
+    acc, gyr = _static_stats(records)
     cal = Calibration(procedure="sensor_array", gravity=gravity)
     acc_fit = solve_accel_multi(
         f, np.array([a.mean for a in acc]), np.array([a.sem for a in acc]), "full"
@@ -110,19 +104,53 @@ def solve_array(
     g_means = np.array([g.mean for g in gyr])
     g_sems = np.array([g.sem for g in gyr])
     gyro_bias_and_gsens(cal, f, g_means, g_sems)
-    rest_model = f @ cal.gsens().T + cal.vector("gyr", "bias")
 
     # Gyro matrix from the turns. Per sensor the ccw - cw difference
     # D_s = J+ - J- = (I + M_g) 4 pi n d_s (d_s = C_s e_z): the static mean's error
     # enters both integrals alike and cancels up to (T+ - T-), as in the integral
     # method, and the sensors' rows are independent.
     theta, D, U, sigmas, durations, inferred = _turn_differences(records, gyr, turns)
+    cond = _fit_gyro_matrix(cal, theta, D, U)
+    _add_residuals(cal, records, f, theta, D, sigmas, durations)
+    cal.info.update(
+        {
+            "sensors": [r.name for r in records],
+            "condition_number": acc_fit.condition_number,
+            "gyro_turn_condition_number": cond,
+            "acc_fit_chi2": [float(v) for v in acc_fit.chi2],
+            "equations_acc": 3 * len(records),
+            "turns": turns if turns is not None else sorted(set(inferred)),
+            "sample_counts": {f"{r.name}_{p}": len(getattr(r, p)) for r in records for p in PHASES},
+        }
+    )
+    return cal
+
+
+def _static_stats(records: list[ArrayRecords]) -> tuple[list[ChannelStats], list[ChannelStats]]:
+    """Accelerometer and gyro statistics of each sensor's static record; errors name it."""
+    acc, gyr = [], []
+    for r in records:
+        try:
+            acc.append(channel_stats(r.static.acc))
+            gyr.append(channel_stats(r.static.gyr))
+        except ValueError as exc:
+            raise ValueError(f"sensor {r.name} static ({r.static.source}): {exc}") from None
+    return acc, gyr
+
+
+def _fit_gyro_matrix(
+    cal: Calibration, theta: np.ndarray, D: np.ndarray, U: np.ndarray
+) -> float:
+    """Add gyr.scale/misalign from the turn differences, row by row; their condition number.
+
+    theta : (S, 3) rotation vector of each sensor's turns, rad; D : (S, 3) ccw - cw
+    integral differences, rad; U : (S, 3) their standard uncertainties, rad.
+    """
     if np.linalg.matrix_rank(theta / np.linalg.norm(theta, axis=1, keepdims=True), tol=1e-6) < 3:
         raise ValueError(
             "sensor_array: the mountings put the vertical along fewer than three sensor axes; "
             "the gyro scale and misalignment of the other axes are not separable"
         )
-    cond = float(np.linalg.cond(theta))
     names = params.matrix_names("gyr")
     for i in range(3):
         w = 1.0 / U[:, i]
@@ -131,8 +159,21 @@ def solve_array(
         cov = np.linalg.inv(tw.T @ tw)
         for j in range(3):
             cal.add(names[i][j], x[j] - (1.0 if i == j else 0.0), math.sqrt(cov[j, j]))
+    return float(np.linalg.cond(theta))
 
+
+def _add_residuals(
+    cal: Calibration,
+    records: list[ArrayRecords],
+    f: np.ndarray,
+    theta: np.ndarray,
+    D: np.ndarray,
+    sigmas: np.ndarray,
+    durations: np.ndarray,
+) -> None:
+    """Residuals of each sensor's static record (acc, gyr) and of its turns (gyr)."""
     acc_model = f @ (np.eye(3) + cal.matrix("acc")).T + cal.vector("acc", "bias")
+    rest_model = f @ cal.gsens().T + cal.vector("gyr", "bias")
     gyr_matrix = np.eye(3) + cal.matrix("gyr")
     for s, r in enumerate(records):
         st = r.static
@@ -158,18 +199,6 @@ def solve_array(
                 len(r.ccw) + len(r.cw),
             )
         )
-    cal.info.update(
-        {
-            "sensors": [r.name for r in records],
-            "condition_number": acc_fit.condition_number,
-            "gyro_turn_condition_number": cond,
-            "acc_fit_chi2": [float(v) for v in acc_fit.chi2],
-            "equations_acc": 3 * len(records),
-            "turns": turns if turns is not None else sorted(set(inferred)),
-            "sample_counts": {f"{r.name}_{p}": len(getattr(r, p)) for r in records for p in PHASES},
-        }
-    )
-    return cal
 
 
 def array_records(
