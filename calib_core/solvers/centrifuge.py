@@ -387,30 +387,13 @@ def solve_centrifuge(
         f, E, dphi = _regression(means, radius, phi_used, settings.gravity, omega_v)
         axes, phi_fit = {}, {}
         for i, axis in enumerate(AXES):
-            terms, dropped = candidates[axis]
-            # phi_h of the positions where this axis is tangential is refined
-            # over all steps with the model: the 1 g run alone leaves an error
-            # that the high steps amplify 20-fold.
-            tangential = _tangential_mounts(axis, mounts)
-            nuisance = tuple(_nuisance_name(m) for m in tangential)
-            X = np.column_stack(
-                [np.where(step_mounts == m, dphi[:, i], 0.0) for m in tangential]
-                + [term_values(f, terms)]
+            axes[axis] = _fit_axis(
+                axis, i, candidates[axis], mounts, step_mounts, f, E, dphi, sem, settings
             )
-            names = (*nuisance, *terms)
-            y = E[:, i] - f[:, i]
-            w, kappa = step_weights(
-                X, y, names, sem[:, i], f[:, i], _instability_of(settings, axis)
-            )
-            red = stepwise_reduce(
-                X, y, names, settings.alpha, keep=(CONST, *nuisance), add_constant=True, weights=w
-            )
-            axes[axis] = AxisModel(axis, red, nuisance, dropped, kappa)
-            for m, name in zip(tangential, nuisance, strict=True):
-                j = red.final.names.index(name)
-                phi_fit[m] = Estimate(
-                    phi_used[m].value + float(red.final.coef[j]), float(red.final.std[j])
-                )
+            final = axes[axis].reduction.final
+            for m, name in zip(_tangential_mounts(axis, mounts), axes[axis].nuisance, strict=True):
+                j = final.names.index(name)
+                phi_fit[m] = Estimate(phi_used[m].value + float(final.coef[j]), float(final.std[j]))
     model = CentrifugeModel(
         axes=axes,
         radius=radius,
@@ -421,7 +404,50 @@ def solve_centrifuge(
         gravity=settings.gravity,
         omega_v=omega_v,
     )
-    record = StepRecord(
+    return model, _step_record(settings, means, model)
+
+
+def _fit_axis(
+    axis: str,
+    i: int,
+    candidates: tuple[tuple[str, ...], tuple[str, ...]],
+    mounts: list[str],
+    step_mounts: np.ndarray,
+    f: np.ndarray,
+    E: np.ndarray,
+    dphi: np.ndarray,
+    sem: np.ndarray,
+    settings: CentrifugeSettings,
+) -> AxisModel:
+    """Weighted stepwise fit of one accelerometer axis (index i) over all steps.
+
+    phi_h of the positions where this axis is tangential is refined over all
+    steps with the model (nuisance columns `dphi`, rad -> m/s^2 per rad): the
+    1 g run alone leaves an error that the high steps amplify 20-fold.
+    f, E : (steps, 3) reference specific force and step means, m/s^2; sem : (steps, 3)
+    standard errors of the step means, m/s^2.
+    """
+    terms, dropped = candidates
+    tangential = _tangential_mounts(axis, mounts)
+    nuisance = tuple(_nuisance_name(m) for m in tangential)
+    X = np.column_stack(
+        [np.where(step_mounts == m, dphi[:, i], 0.0) for m in tangential]
+        + [term_values(f, terms)]
+    )
+    names = (*nuisance, *terms)
+    y = E[:, i] - f[:, i]
+    w, kappa = step_weights(X, y, names, sem[:, i], f[:, i], _instability_of(settings, axis))
+    red = stepwise_reduce(
+        X, y, names, settings.alpha, keep=(CONST, *nuisance), add_constant=True, weights=w
+    )
+    return AxisModel(axis, red, nuisance, dropped, kappa)
+
+
+def _step_record(
+    settings: CentrifugeSettings, means: _Means, model: CentrifugeModel
+) -> StepRecord:
+    """The solve's step record: its settings and the fit's statistics per axis."""
+    return StepRecord(
         name="centrifuge",
         settings={
             "latitude_deg": settings.latitude_deg,
@@ -434,17 +460,16 @@ def solve_centrifuge(
         statistics={
             "steps": len(means.steps),
             "mounts": sorted(means.one_g),
-            "radius_m": {m: r.value for m, r in radius.items()},
-            "phi_h_rad": {m: p.value for m, p in phi_fit.items()},
-            **{f"{a}.not_identifiable": list(m.not_identifiable) for a, m in axes.items()},
-            **{f"{a}.terms": list(m.terms) for a, m in axes.items()},
-            **{f"{a}.removed": list(m.reduction.removed) for a, m in axes.items()},
-            **{f"{a}.F": m.fit.F for a, m in axes.items()},
-            **{f"{a}.F_crit": m.fit.F_crit for a, m in axes.items()},
-            **{f"{a}.r2": m.fit.r2 for a, m in axes.items()},
+            "radius_m": {m: r.value for m, r in model.radius.items()},
+            "phi_h_rad": {m: p.value for m, p in model.phi_h.items()},
+            **{f"{a}.not_identifiable": list(m.not_identifiable) for a, m in model.axes.items()},
+            **{f"{a}.terms": list(m.terms) for a, m in model.axes.items()},
+            **{f"{a}.removed": list(m.reduction.removed) for a, m in model.axes.items()},
+            **{f"{a}.F": m.fit.F for a, m in model.axes.items()},
+            **{f"{a}.F_crit": m.fit.F_crit for a, m in model.axes.items()},
+            **{f"{a}.r2": m.fit.r2 for a, m in model.axes.items()},
         },
     )
-    return model, record
 
 
 @dataclass(frozen=True)
