@@ -133,6 +133,61 @@ def _check_inputs(
     return X, y, names
 
 
+def _with_constant(
+    X: np.ndarray, names: tuple[str, ...], add_constant: bool
+) -> tuple[np.ndarray, tuple[str, ...], bool]:
+    """(X, names, has_const) with the constant column prepended if asked, and checked."""
+    if add_constant:
+        if CONST in names:
+            raise ValueError(f"add_constant=True but a column is already named {CONST!r}")
+        X = np.column_stack([np.ones(X.shape[0]), X])
+        names = (CONST, *names)
+    has_const = CONST in names
+    if has_const:
+        c = X[:, names.index(CONST)]
+        if c[0] == 0.0 or not np.all(c == c[0]):
+            raise ValueError(f"column {CONST!r} must hold one repeated non-zero value")
+    return X, names, has_const
+
+
+def _row_weights(weights: np.ndarray | None, n: int) -> np.ndarray:
+    """(n,) row weights, all ones by default; finite and positive, else ValueError."""
+    if weights is None:
+        return np.ones(n)
+    w = np.asarray(weights, dtype=float)
+    if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w <= 0.0):
+        raise ValueError(f"weights must be {n} finite positive numbers, got shape {w.shape}")
+    return w
+
+
+def _weighted_solve(
+    X: np.ndarray, y: np.ndarray, w: np.ndarray, names: tuple[str, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(coef, (X^T W X)^-1) of the weighted fit, from one SVD; ValueError if rank deficient.
+
+    Unit-norm columns make the singular values a fair rank test across terms
+    of very different magnitude (a, a^2, a^3 at 200 m/s^2).
+    """
+    sw = np.sqrt(w)
+    Xw, yw = X * sw[:, None], y * sw
+    norms = np.linalg.norm(Xw, axis=0)
+    zero = [names[j] for j in np.flatnonzero(norms == 0.0)]
+    if zero:
+        raise ValueError(f"design matrix is rank deficient: columns {zero} are all zero")
+    Us, s, Vt = np.linalg.svd(Xw / norms, full_matrices=False)
+    condition = s[0] / s[-1] if s[-1] > 0 else np.inf
+    if condition > MAX_CONDITION:
+        null = np.abs(Vt[-1])
+        involved = [names[j] for j in np.flatnonzero(null > 0.1 * null.max())]
+        raise ValueError(
+            f"design matrix is rank deficient (scaled condition number {condition:.3g}): "
+            f"columns {involved} are (nearly) linearly dependent; drop one of them"
+        )
+    coef = (Vt.T @ ((Us.T @ yw) / s)) / norms
+    xtx_inv = (Vt.T / s**2) @ Vt / np.outer(norms, norms)
+    return coef, xtx_inv
+
+
 def fit_ols(
     X: np.ndarray,
     y: np.ndarray,
@@ -166,53 +221,20 @@ def fit_ols(
         on bad shapes, non-finite values, too few observations (n <= p), or a
         (nearly) rank-deficient design; the message names the dependent columns.
 
-    One function on purpose: the rank check, the covariance and the t statistics all
-    come from the one SVD of the weighted, column-normalised design.
+    The rank check, the coefficients and their covariance all come from the one SVD
+    of the weighted, column-normalised design (`_weighted_solve`).
     """
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
     X, y, names = _check_inputs(X, y, names)
-    if add_constant:
-        if CONST in names:
-            raise ValueError(f"add_constant=True but a column is already named {CONST!r}")
-        X = np.column_stack([np.ones(X.shape[0]), X])
-        names = (CONST, *names)
+    X, names, has_const = _with_constant(X, names, add_constant)
     n, p = X.shape
-    has_const = CONST in names
-    if has_const:
-        c = X[:, names.index(CONST)]
-        if c[0] == 0.0 or not np.all(c == c[0]):
-            raise ValueError(f"column {CONST!r} must hold one repeated non-zero value")
     k = p - 1 if has_const else p
     dof = n - p
     if dof < 1:
         raise ValueError(f"need more observations than terms: n = {n}, terms = {p} ({list(names)})")
-    if weights is None:
-        w = np.ones(n)
-    else:
-        w = np.asarray(weights, dtype=float)
-        if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w <= 0.0):
-            raise ValueError(f"weights must be {n} finite positive numbers, got shape {w.shape}")
-    sw = np.sqrt(w)
-    Xw, yw = X * sw[:, None], y * sw
-
-    # Unit-norm columns make the singular values a fair rank test across terms
-    # of very different magnitude (a, a^2, a^3 at 200 m/s^2).
-    norms = np.linalg.norm(Xw, axis=0)
-    zero = [names[j] for j in np.flatnonzero(norms == 0.0)]
-    if zero:
-        raise ValueError(f"design matrix is rank deficient: columns {zero} are all zero")
-    Us, s, Vt = np.linalg.svd(Xw / norms, full_matrices=False)
-    condition = s[0] / s[-1] if s[-1] > 0 else np.inf
-    if condition > MAX_CONDITION:
-        null = np.abs(Vt[-1])
-        involved = [names[j] for j in np.flatnonzero(null > 0.1 * null.max())]
-        raise ValueError(
-            f"design matrix is rank deficient (scaled condition number {condition:.3g}): "
-            f"columns {involved} are (nearly) linearly dependent; drop one of them"
-        )
-    coef = (Vt.T @ ((Us.T @ yw) / s)) / norms
-    xtx_inv = (Vt.T / s**2) @ Vt / np.outer(norms, norms)
+    w = _row_weights(weights, n)
+    coef, xtx_inv = _weighted_solve(X, y, w, names)
 
     fitted = X @ coef
     residuals = y - fitted

@@ -98,6 +98,36 @@ def _channel_stats(
     return mean, std, counts, allan, noise, u, misfits, warnings
 
 
+def _earth_rate(
+    where: str,
+    n: int,
+    n_sigma: float,
+    remove_earth_rate: bool,
+    latitude_deg: float | None,
+    heading_deg: float | None,
+    up_axis: str | None,
+) -> np.ndarray:
+    """Check the settings; the Earth rate to remove from the gyro means, rad/s (zeros if not)."""
+    if n < 16:
+        raise ValueError(f"static bias ({where}): need >= 16 samples, got {n}")
+    if n_sigma <= 0:
+        raise ValueError(f"static bias: n_sigma must be > 0, got {n_sigma}")
+    earth = np.zeros(3)
+    if remove_earth_rate:
+        if latitude_deg is None or heading_deg is None:
+            raise ValueError(
+                f"static bias ({where}): remove_earth_rate needs latitude_deg and heading_deg, "
+                f"got latitude_deg={latitude_deg!r}, heading_deg={heading_deg!r}"
+            )
+        if up_axis not in (None, "+z"):
+            raise ValueError(
+                f"static bias ({where}): the Earth-rate correction is defined for the level "
+                f"z-up fixture, got up_axis={up_axis!r}"
+            )
+        earth = earth_rate_level_frame(latitude_deg, heading_deg)
+    return earth
+
+
 def solve_static_bias(
     rec: Recording,
     *,
@@ -135,23 +165,9 @@ def solve_static_bias(
     the Earth rate removed.
     """
     where = rec.source or rec.label or "recording"
-    if len(rec) < 16:
-        raise ValueError(f"static bias ({where}): need >= 16 samples, got {len(rec)}")
-    if n_sigma <= 0:
-        raise ValueError(f"static bias: n_sigma must be > 0, got {n_sigma}")
-    earth = np.zeros(3)
-    if remove_earth_rate:
-        if latitude_deg is None or heading_deg is None:
-            raise ValueError(
-                f"static bias ({where}): remove_earth_rate needs latitude_deg and heading_deg, "
-                f"got latitude_deg={latitude_deg!r}, heading_deg={heading_deg!r}"
-            )
-        if up_axis not in (None, "+z"):
-            raise ValueError(
-                f"static bias ({where}): the Earth-rate correction is defined for the level "
-                f"z-up fixture, got up_axis={up_axis!r}"
-            )
-        earth = earth_rate_level_frame(latitude_deg, heading_deg)
+    earth = _earth_rate(
+        where, len(rec), n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis
+    )
 
     rate_hz = rec.sample_rate
     cal = Calibration(procedure="static_bias", gravity=float(gravity))
