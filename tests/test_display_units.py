@@ -15,8 +15,10 @@ from calib_core.simulate.centrifuge import simulate_centrifuge
 from pipelines.cli import app
 from pipelines.ingest import RunSource
 from pipelines.process import process_run
+from pipelines.reports.certificate import write_reports
 from pipelines.reports.display import DISPLAY_UNITS, display
 from pipelines.run_writers import write_centrifuge_run
+from storage import queries
 from storage.db import resolve_archive
 
 # Every family the name grammar of calib_core.params admits, spelled out: a family
@@ -61,3 +63,30 @@ def test_centrifuge_run_certificate_end_to_end(tmp_path: Path) -> None:
     html = Path(written["html"]).read_text()
     assert "acc.k2.x" in html
     assert Path(written["pdf"]).read_bytes()[:5] == b"%PDF-"
+
+
+def test_certificate_shows_every_family(tmp_path: Path) -> None:
+    # The centrifuge solver never identifies the products acc.kp with its six mountings,
+    # so the archived run above cannot hold one; its archived summary, given one
+    # parameter of every family of the name grammar (acc.kp.x_yz among them), must
+    # still render (a family missing from the display table raised KeyError here).
+    sim = simulate_centrifuge(TRUTH, rng=np.random.default_rng(22), **SIM)
+    run = tmp_path / "run"
+    write_centrifuge_run(sim, run, _manifest(alpha=0.001))
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    outcome = process_run(RunSource(run, "manifest"), arch)
+    assert outcome["status"] == "ok", outcome["error"]
+    summary = queries.run_summary(arch, outcome["run_id"])
+    example = {"acc.kp": "acc.kp.x_yz", "acc.misalign": "acc.misalign.xy"}
+    example |= {"gyr.misalign": "gyr.misalign.xy", "gyr.gsens": "gyr.gsens.xy"}
+    names = [example.get(family, f"{family}.x") for family in sorted(params.UNITS)]
+    summary["calibration"]["parameters"] = [
+        {"name": params.validate(n), "value": 1e-3, "std": 1e-4} for n in names
+    ]
+    written = write_reports(summary, queries.run_samples(arch, outcome["run_id"]), tmp_path / "r")
+    html = written["html"].read_text()
+    for name in names:
+        unit = DISPLAY_UNITS[name.rsplit(".", 1)[0]][0]
+        assert f"<td>{name}</td>" in html and unit.replace("^", "") in html.replace("^", ""), name
+    assert written["pdf"].read_bytes()[:5] == b"%PDF-"
