@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from test_centrifuge_pipeline import SIM, TRUTH, _manifest
 from typer.testing import CliRunner
 
@@ -19,7 +20,7 @@ from pipelines.reports.certificate import write_reports
 from pipelines.reports.display import DISPLAY_UNITS, display
 from pipelines.run_writers import write_centrifuge_run
 from storage import queries
-from storage.db import resolve_archive
+from storage.db import Archive, resolve_archive
 
 # Every family the name grammar of calib_core.params admits, spelled out: a family
 # added to the grammar without a unit, or a unit without a display, fails here.
@@ -43,16 +44,23 @@ def test_every_family_has_an_si_unit_and_a_display_unit() -> None:
     assert display("gyr.bias.x", np.pi / 180) == (1.0, "deg/s")
 
 
-def test_centrifuge_run_certificate_end_to_end(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def centrifuge_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, dict]:
+    """A simulated centrifuge run processed into a real SQLite archive: (archive, outcome)."""
     # The products (acc.kp) are not identifiable with these mountings (the solver's
     # docstring): the run emits bias, scale, misalignment and the k2 squares.
+    tmp = tmp_path_factory.mktemp("centrifuge-cert")
     sim = simulate_centrifuge(TRUTH, rng=np.random.default_rng(21), **SIM)
-    run = tmp_path / "run"
-    write_centrifuge_run(sim, run, _manifest(alpha=0.001))
-    arch = resolve_archive(str(tmp_path / "archive"))
+    write_centrifuge_run(sim, tmp / "run", _manifest(alpha=0.001))
+    arch = resolve_archive(str(tmp / "archive"))
     arch.upgrade()
-    outcome = process_run(RunSource(run, "manifest"), arch)
+    outcome = process_run(RunSource(tmp / "run", "manifest"), arch)
     assert outcome["status"] == "ok", outcome["error"]
+    return arch, outcome
+
+
+def test_centrifuge_run_certificate_end_to_end(centrifuge_run, tmp_path: Path) -> None:
+    arch, outcome = centrifuge_run
     families = {n.rsplit(".", 1)[0] for n in outcome["parameters"]}
     assert {"acc.k2", "acc.bias"} <= families, families
     out = tmp_path / "report"
@@ -65,18 +73,12 @@ def test_centrifuge_run_certificate_end_to_end(tmp_path: Path) -> None:
     assert Path(written["pdf"]).read_bytes()[:5] == b"%PDF-"
 
 
-def test_certificate_shows_every_family(tmp_path: Path) -> None:
+def test_certificate_shows_every_family(centrifuge_run, tmp_path: Path) -> None:
     # The centrifuge solver never identifies the products acc.kp with its six mountings,
     # so the archived run above cannot hold one; its archived summary, given one
     # parameter of every family of the name grammar (acc.kp.x_yz among them), must
     # still render (a family missing from the display table raised KeyError here).
-    sim = simulate_centrifuge(TRUTH, rng=np.random.default_rng(22), **SIM)
-    run = tmp_path / "run"
-    write_centrifuge_run(sim, run, _manifest(alpha=0.001))
-    arch = resolve_archive(str(tmp_path / "archive"))
-    arch.upgrade()
-    outcome = process_run(RunSource(run, "manifest"), arch)
-    assert outcome["status"] == "ok", outcome["error"]
+    arch, outcome = centrifuge_run
     summary = queries.run_summary(arch, outcome["run_id"])
     example = {"acc.kp": "acc.kp.x_yz", "acc.misalign": "acc.misalign.xy"}
     example |= {"gyr.misalign": "gyr.misalign.xy", "gyr.gsens": "gyr.gsens.xy"}
