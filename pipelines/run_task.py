@@ -16,6 +16,7 @@ from typing import Any
 from pipelines.ingest import RunSource
 from pipelines.process import process_run
 from storage.db import Archive
+from storage.write_failures import exception_chain
 
 # OS errors of a network file system or connection that is briefly away; ENOENT
 # is not among them (a missing file is a bad run; a vanished run folder is
@@ -70,25 +71,16 @@ def is_transient(exc: BaseException) -> bool:
     """
     from sqlalchemy.exc import DBAPIError
 
-    seen: set[int] = set()
-    stack: list[BaseException | None] = [exc]
-    while stack:
-        e = stack.pop()
-        if e is None or id(e) in seen:
-            continue
-        seen.add(id(e))
+    for e in exception_chain(exc):
         if isinstance(e, TransientError | ConnectionError | TimeoutError | BrokenProcessPool):
             return True
         if isinstance(e, OSError) and e.errno in TRANSIENT_ERRNOS:
             return True
-        if isinstance(e, DBAPIError):
-            if e.connection_invalidated:
-                return True
-            stack.append(e.orig)
+        if isinstance(e, DBAPIError) and e.connection_invalidated:
+            return True
         is_db_error = isinstance(e, DBAPIError) or type(e).__name__ == "OperationalError"
         if is_db_error and any(s in str(e).lower() for s in TRANSIENT_DB_TEXT):
             return True
-        stack += [e.__cause__, e.__context__]
     return False
 
 

@@ -32,7 +32,9 @@ _DB_IO = ("disk i/o error",)
 AGAIN = "nothing of it was archived; run the same command again once that is done"
 
 
-def _chain(exc: BaseException) -> Iterator[BaseException]:
+def exception_chain(exc: BaseException) -> Iterator[BaseException]:
+    """`exc`, its causes and contexts and any wrapped driver error (SQLAlchemy's ``orig``),
+    each once."""
     seen: set[int] = set()
     stack: list[BaseException | None] = [exc]
     while stack:
@@ -62,7 +64,7 @@ def describe(exc: BaseException, database_url: str | None = None) -> str | None:
 
     Returns None when `exc` is none of those.
     """
-    for e in _chain(exc):
+    for e in exception_chain(exc):
         if isinstance(e, OSError) and e.errno is not None:
             where = e.filename or "the archive's file store"
             if e.errno in FULL_ERRNOS:
