@@ -37,7 +37,7 @@ clipping to the fitted range) that must not drift apart between files.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -415,17 +415,27 @@ class ThermalModel:
             cal.add(name, float(value[0]), std)
         return cal
 
+    def anchored(self, base: Calibration, base_temperature: float) -> ThermalModel:
+        """The model with each curve moved to pass through `base`'s value at `base_temperature`.
+
+        p'(T) = base value + p(T) - p(base_temperature) (T clipped): only the
+        curve's change with temperature is kept, the constant comes from `base`
+        (absent parameters count as 0), as ArduPilot combines its offsets with its
+        temperature calibration. Covariances are those of the original curves.
+        """
+        curves = {}
+        for name, curve in self.curves.items():
+            coef = curve.coef.astype(float)  # a copy
+            coef[0] += base.value(name) - float(self.value(name, base_temperature))
+            curves[name] = replace(curve, coef=coef)
+        return replace(self, curves=curves)
+
     def _values(
         self, base: Calibration, temperature: np.ndarray, base_temperature: float | None
     ) -> dict[str, np.ndarray]:
         """(N,) values of the modelled parameters at each temperature."""
-        out = {}
-        for name in self.curves:
-            v = self.value(name, temperature)
-            if base_temperature is not None:
-                v = base.value(name) + v - self.value(name, base_temperature)
-            out[name] = v
-        return out
+        model = self if base_temperature is None else self.anchored(base, base_temperature)
+        return {name: model.value(name, temperature) for name in self.curves}
 
     def correct(
         self,

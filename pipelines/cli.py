@@ -261,25 +261,48 @@ def show(
 def export(
     run_id: str,
     archive: ArchiveOpt = None,
-    fmt: Annotated[str, typer.Option("--format", help="json")] = "json",
-    output: Annotated[Path | None, typer.Option("--output", "-o")] = None,
+    fmt: Annotated[
+        str, typer.Option("--format", help="json, px4, ardupilot, csv or mat (docs/exports.md).")
+    ] = "json",
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="File to write (default: stdout).")
+    ] = None,
+    revision: Annotated[
+        int | None, typer.Option(help="Calibration revision (default: the current one).")
+    ] = None,
+    thermal: Annotated[
+        bool, typer.Option("--thermal/--no-thermal", help="Add the unit's thermal model.")
+    ] = True,
+    instance: Annotated[
+        int | None, typer.Option(help="PX4 sensor instance (0) / ArduPilot IMU number (1).")
+    ] = None,
+    accel_id: Annotated[int, typer.Option(help="PX4 accelerometer device id.")] = 0,
+    gyro_id: Annotated[int, typer.Option(help="PX4 gyro device id.")] = 0,
 ) -> None:
-    """Export a run's calibration (canonical JSON)."""
-    from storage import queries
+    """Export a run's calibration: canonical JSON, PX4 or ArduPilot parameters, CSV or MATLAB."""
+    from pipelines.run_export import FORMATS, export_run
 
-    if fmt != "json":
-        fail(f"unknown export format {fmt!r}; expected: json")
+    if fmt not in FORMATS:
+        fail(f"unknown export format {fmt!r}; expected one of: {', '.join(FORMATS)}")
+    if fmt == "mat" and output is None:
+        fail("--format mat writes a binary file: give --output FILE.mat")
     arch, run_id = open_run(archive, run_id)
     try:
-        doc = queries.export_calibration(arch, run_id)
+        result = export_run(arch, run_id, fmt, revision=revision, thermal=thermal,
+                            instance=instance, accel_id=accel_id, gyro_id=gyro_id)  # fmt: skip
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
-    text = json.dumps(doc, indent=2, default=str) + "\n"
+    from rich.markup import escape
+
+    for note in result.warnings:
+        err.print(f"[yellow]warning:[/yellow] {escape(note)}", soft_wrap=True)
     if output is None:
-        sys.stdout.write(text)
+        sys.stdout.flush()
+        sys.stdout.buffer.write(result.data)
+        sys.stdout.buffer.flush()
     else:
-        output.write_text(text, encoding="utf-8")
-        err.print(f"wrote {output}")
+        output.write_bytes(result.data)
+        err.print(f"wrote {output}", soft_wrap=True)
 
 
 # Commands of the other areas live in pipelines/commands/ and register themselves on `app`.

@@ -1,4 +1,11 @@
-"""Firmware exports of a calibration and its thermal model (docs/exports.md).
+"""Exports of a calibration and its thermal model (docs/exports.md).
+
+- a calibration's offsets and scales for PX4 (`CAL_ACC*` / `CAL_GYRO*`) and
+  ArduPilot (`INS_ACCOFFS` / `INS_ACCSCAL` / `INS_GYROFFS`), with what the
+  firmware cannot carry listed (`px4_calibration_parameters`,
+  `ardupilot_calibration_parameters`); every parameter as CSV or MATLAB
+  variables (`parameter_rows`, `mat_variables`). `calib export RUN` uses these
+  (pipelines/run_export.py).
 
 - canonical JSON: the unit, the calibration document and the thermal model
   document, as archived (SI units, canonical names).
@@ -131,16 +138,26 @@ def px4_parameters(
     return rows
 
 
-def write_px4_params(
-    path: Path, rows: list[tuple[str, float | int, int]], *, header: str = ""
-) -> Path:
+def _comment(header: str) -> list[str]:
+    """`# `-prefixed comment lines of a (multi-line) header; none for an empty header."""
+    return [f"# {line}".rstrip() for line in header.splitlines()]
+
+
+def px4_params_text(rows: list[tuple[str, float | int, int]], *, header: str = "") -> str:
     """QGroundControl parameter file: tab-separated vehicle id, component id, name, value, type."""
-    lines = ["# Onboard parameters for Vehicle 1", f"# {header}".rstrip(), "#",
+    lines = ["# Onboard parameters for Vehicle 1", *(_comment(header) or ["#"]), "#",
              "# Vehicle-Id Component-Id Name Value Type"]  # fmt: skip
     for name, value, kind in rows:
         text = str(int(value)) if kind == MAV_PARAM_TYPE_INT32 else f"{value:.9g}"
         lines.append(f"1\t1\t{name}\t{text}\t{kind}")
-    Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
+    return "\n".join(lines) + "\n"
+
+
+def write_px4_params(
+    path: Path, rows: list[tuple[str, float | int, int]], *, header: str = ""
+) -> Path:
+    """`px4_params_text` written to `path` (ASCII)."""
+    Path(path).write_text(px4_params_text(rows, header=header), encoding="ascii")
     return Path(path)
 
 
@@ -193,11 +210,15 @@ def ardupilot_parameters(
     return rows
 
 
-def write_ardupilot_params(path: Path, rows: list[tuple[str, float]], *, header: str = "") -> Path:
+def ardupilot_params_text(rows: list[tuple[str, float]], *, header: str = "") -> str:
     """ArduPilot parameter file (Mission Planner / MAVProxy): one `NAME,VALUE` per line."""
-    lines = [f"# {header}".rstrip()] if header else []
-    lines += [f"{name},{value:.9g}" for name, value in rows]
-    Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
+    lines = _comment(header) + [f"{name},{value:.9g}" for name, value in rows]
+    return "\n".join(lines) + "\n"
+
+
+def write_ardupilot_params(path: Path, rows: list[tuple[str, float]], *, header: str = "") -> Path:
+    """`ardupilot_params_text` written to `path` (ASCII)."""
+    Path(path).write_text(ardupilot_params_text(rows, header=header), encoding="ascii")
     return Path(path)
 
 
@@ -212,3 +233,244 @@ def read_ardupilot_params(path: Path) -> dict[str, float]:
             raise ValueError(f"{path}:{n}: expected NAME,VALUE, got {line!r}")
         out[fields[0]] = float(fields[1])
     return out
+
+
+# --- a calibration's offsets and scales (CAL_* / INS_*OFFS) --------------------
+
+# Firmware limits of the mapped values (their parameter metadata): outside them the
+# firmware refuses or resets the value, so the export is refused.
+PX4_SCALE_RANGE = (0.0, 1.5)  # CAL_ACC*_xSCALE: > 0 (Accelerometer::set_scale), @max 1.5
+ARDUPILOT_SCALE_RANGE = (0.8, 1.2)  # INS_ACCSCAL_*: @Range 0.8 1.2
+ARDUPILOT_OFFSET_MAX = 3.5  # INS_ACCOFFS_*: @Range -3.5 3.5 m/s/s
+ARDUPILOT_PREFIX = {
+    1: ("INS_ACC", "INS_GYR"),
+    2: ("INS_ACC2", "INS_GYR2"),
+    3: ("INS_ACC3", "INS_GYR3"),
+}
+
+
+def unrepresented(
+    cal: Calibration, mapped: set[str], model: ThermalModel | None, firmware: str
+) -> list[str]:
+    """One line per parameter family that `firmware`'s file cannot carry, with its values.
+
+    Noise densities are listed too: they describe the unit, they are not corrections.
+    """
+    notes = []
+    families: dict[str, list[str]] = {}
+    for name in sorted(set(cal.parameters) - mapped):
+        families.setdefault(name.rsplit(".", 1)[0], []).append(name)
+    for family, names in families.items():
+        values = ", ".join(f"{n.rsplit('.', 1)[1]} {cal.value(n):.6g}" for n in names)
+        why = "not a correction" if family.endswith(".noise") else f"no {firmware} parameter"
+        notes.append(f"not exported ({why}): {family} [{params.UNITS[family]}]: {values}")
+    if model is not None:
+        curves = sorted(n for n in model.curves if ".bias." not in n)
+        if curves:
+            notes.append(
+                f"not exported (no {firmware} parameter): thermal curves of {', '.join(curves)}; "
+                "the calibration's values are used at every temperature"
+            )
+    return notes
+
+
+def _scales(cal: Calibration, lo_hi: tuple[float, float], firmware: str) -> np.ndarray:
+    """(3,) accelerometer scales 1 / (1 + s): (raw - offset) * scale undoes raw = (1 + s) f."""
+    k = 1.0 / (1.0 + cal.vector("acc", "scale"))
+    for a, v in zip(params.AXES, k, strict=True):
+        if not lo_hi[0] < v <= lo_hi[1]:
+            raise ValueError(
+                f"acc.scale.{a} = {cal.value(f'acc.scale.{a}'):.6g} gives a {firmware} scale of "
+                f"{v:.6g}, outside the firmware's range {lo_hi[0]:g} .. {lo_hi[1]:g}"
+            )
+    return k
+
+
+def px4_calibration_parameters(
+    cal: Calibration,
+    *,
+    instance: int = 0,
+    accel_id: int = 0,
+    gyro_id: int = 0,
+    model: ThermalModel | None = None,
+    cal_temp: float | None = None,
+) -> tuple[list[tuple[str, float | int, int]], list[str]]:
+    """PX4 CAL_ACC<i>_* / CAL_GYRO<i>_* (+ TC_* with a thermal model): (rows, notes).
+
+    PX4 (src/lib/sensor_calibration/Accelerometer.hpp, Gyroscope.hpp) corrects
+    ``acc = (raw - thermal_offset - CAL_ACC_OFF) * CAL_ACC_SCALE`` and
+    ``gyr = raw - thermal_offset - CAL_GYRO_OFF``, in the sensor frame, so
+    xOFF = bias (m/s^2, rad/s) and xSCALE = 1 / (1 + acc.scale). With a thermal
+    model the bias curves go to TC_A/TC_G (`px4_parameters`), anchored at the
+    calibration's bias at `cal_temp` when it is known, and the CAL offsets are 0
+    (the bias would be removed twice). `notes` lists what PX4 cannot carry
+    (misalignment, gyro scale, g-sensitivity, ...), and device ids left at 0.
+    """
+    rows: list[tuple[str, float | int, int]] = []
+    if model is not None:
+        m = model if cal_temp is None else model.anchored(cal, cal_temp)
+        rows += px4_parameters(m, cal, instance=instance, accel_id=accel_id, gyro_id=gyro_id)
+    mapped = {params.bias(s, a) for s in ("acc", "gyr") for a in params.AXES}
+    mapped |= {f"acc.scale.{a}" for a in params.AXES}
+    scale = _scales(cal, PX4_SCALE_RANGE, "PX4")
+    for sensor, tag, dev in (("acc", "ACC", accel_id), ("gyr", "GYRO", gyro_id)):
+        p = f"CAL_{tag}{instance}"
+        rows.append((f"{p}_ID", int(dev), MAV_PARAM_TYPE_INT32))
+        for i, a in enumerate(params.AXES):
+            offset = 0.0 if model is not None else cal.value(params.bias(sensor, a))
+            rows.append((f"{p}_{a.upper()}OFF", offset, MAV_PARAM_TYPE_REAL32))
+            if sensor == "acc":
+                rows.append((f"{p}_{a.upper()}SCALE", float(scale[i]), MAV_PARAM_TYPE_REAL32))
+    notes = unrepresented(cal, mapped, model, "PX4")
+    if 0 in (accel_id, gyro_id):
+        notes.append(
+            "device id 0: PX4 applies CAL_ACC/CAL_GYRO (and TC_*) only to the sensor whose "
+            "device id matches; give the ids (calib export --accel-id/--gyro-id)"
+        )
+    if model is not None and cal_temp is None:
+        notes.append("calibration temperature unknown: thermal offsets from the model's curves")
+    return rows, notes
+
+
+def ardupilot_calibration_parameters(
+    cal: Calibration,
+    *,
+    imu: int = 1,
+    model: ThermalModel | None = None,
+    cal_temp: float | None = None,
+) -> tuple[list[tuple[str, float]], list[str]]:
+    """ArduPilot INS_ACCOFFS / INS_ACCSCAL / INS_GYROFFS of IMU `imu` (+ INS_TCAL): (rows, notes).
+
+    ArduPilot (AP_InertialSensor_Backend::_rotate_and_correct_accel / _gyro)
+    corrects ``acc = (raw - INS_ACCOFFS) * INS_ACCSCAL`` and ``gyr = raw -
+    INS_GYROFFS`` in the sensor frame, after its temperature correction
+    ``v -= poly(T - 35) - poly(CALTEMP - 35)``. So OFFS = bias (m/s^2, rad/s) at
+    CALTEMP, SCAL = 1 / (1 + acc.scale). With a thermal model, CALTEMP =
+    `cal_temp` (the model's t_ref when unknown: the offsets then come from the
+    model's curves) and INS_TCAL<imu>_* from `ardupilot_parameters`. IMUs 2 and 3
+    use INS_ACC2OFFS, INS_GYR2OFFS, ...
+    """
+    if imu not in ARDUPILOT_PREFIX:
+        raise ValueError(f"ArduPilot IMU {imu}: expected 1, 2 or 3")
+    acc_p, gyr_p = ARDUPILOT_PREFIX[imu]
+    names = {"acc": (f"{acc_p}OFFS" if imu > 1 else "INS_ACCOFFS"),
+             "gyr": (f"{gyr_p}OFFS" if imu > 1 else "INS_GYROFFS")}  # fmt: skip
+    t0 = None if model is None else (model.t_ref if cal_temp is None else cal_temp)
+    m = None if model is None else (model if cal_temp is None else model.anchored(cal, cal_temp))
+    rows: list[tuple[str, float]] = []
+    for sensor in ("acc", "gyr"):
+        for a in params.AXES:
+            name = params.bias(sensor, a)
+            curve = m is not None and name in m.curves
+            value = float(m.value(name, t0)) if curve else cal.value(name)
+            if sensor == "acc" and abs(value) > ARDUPILOT_OFFSET_MAX:
+                raise ValueError(
+                    f"{name} = {value:.6g} m/s^2 at the calibration temperature: outside "
+                    f"ArduPilot's INS_ACCOFFS range +-{ARDUPILOT_OFFSET_MAX:g} m/s^2"
+                )
+            rows.append((f"{names[sensor]}_{a.upper()}", value))
+    scale = _scales(cal, ARDUPILOT_SCALE_RANGE, "ArduPilot")
+    scal = f"{acc_p}SCAL" if imu > 1 else "INS_ACCSCAL"
+    rows += [(f"{scal}_{a.upper()}", float(k)) for a, k in zip(params.AXES, scale, strict=True)]
+    if model is not None:
+        rows += [(f"INS_ACC{imu}_CALTEMP", float(t0)), (f"INS_GYR{imu}_CALTEMP", float(t0))]
+        rows += ardupilot_parameters(model, cal, imu=imu)
+    mapped = {params.bias(s, a) for s in ("acc", "gyr") for a in params.AXES}
+    mapped |= {f"acc.scale.{a}" for a in params.AXES}
+    notes = unrepresented(cal, mapped, model, "ArduPilot")
+    if model is not None and cal_temp is None:
+        notes.append(
+            f"calibration temperature unknown: offsets from the model's curves at T_ref "
+            f"{model.t_ref:g} deg C (CALTEMP)"
+        )
+    return rows, notes
+
+
+# --- every parameter: CSV and MATLAB -----------------------------------------
+
+CSV_COLUMNS = ("name", "value", "std", "unit")
+
+
+def parameter_rows(
+    cal: Calibration, model: ThermalModel | None = None
+) -> list[tuple[str, float, float | None, str]]:
+    """(name, value, std, unit) of every parameter, then the thermal model's terms.
+
+    Thermal rows: ``thermal:t_ref`` / ``t_min`` / ``t_max`` (degC) and
+    ``thermal:<parameter>:c<k>``, the coefficient of (T - t_ref)^k with its
+    standard uncertainty, unit ``<unit>/degC^k``.
+    """
+    rows = [(n, p.value, p.std, p.unit) for n, p in sorted(cal.parameters.items())]
+    if model is None:
+        return rows
+    rows += [(f"thermal:{k}", float(getattr(model, k)), None, "degC")
+             for k in ("t_ref", "t_min", "t_max")]  # fmt: skip
+    for name, curve in sorted(model.curves.items()):
+        unit = params.unit_of(name)
+        for k, c in enumerate(curve.coef):
+            per = "" if k == 0 else ("/degC" if k == 1 else f"/degC^{k}")
+            std = float(np.sqrt(curve.cov[k, k]))
+            rows.append((f"thermal:{name}:c{k}", float(c), std, f"{unit}{per}"))
+    return rows
+
+
+def csv_text(rows: list[tuple[str, float, float | None, str]]) -> str:
+    """CSV with the header name,value,std,unit; an empty std where there is none."""
+    import csv
+    import io
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_COLUMNS)
+    for name, value, std, unit in rows:
+        w.writerow((name, repr(float(value)), "" if std is None else repr(float(std)), unit))
+    return buf.getvalue()
+
+
+def mat_variables(
+    cal: Calibration, meta: dict[str, Any], model: ThermalModel | None = None
+) -> dict[str, Any]:
+    """The MATLAB variables of docs/exports.md (`--format mat`), ready for scipy.io.savemat."""
+    names = sorted(cal.parameters)
+    ps = [cal.parameters[n] for n in names]
+
+    def column(values: list[Any], dtype: Any = float) -> np.ndarray:  # noqa: ANN401
+        return np.array(values, dtype=dtype).reshape(-1, 1)
+
+    out: dict[str, Any] = {
+        **{k: ("" if v is None else v) for k, v in meta.items()},
+        "procedure": cal.procedure,
+        "gravity": float(cal.gravity),
+        "parameter_names": column(names, object),
+        "parameter_values": column([p.value for p in ps]),
+        "parameter_std": column([np.nan if p.std is None else p.std for p in ps]),
+        "parameter_units": column([p.unit for p in ps], object),
+        "parameter_cov_index": column([0 if p.cov_index is None else p.cov_index + 1 for p in ps]),
+        "covariance": cal.covariance,
+        "acc_bias": cal.vector("acc", "bias").reshape(3, 1),
+        "acc_M": cal.matrix("acc"),
+        "gyr_bias": cal.vector("gyr", "bias").reshape(3, 1),
+        "gyr_M": cal.matrix("gyr"),
+        "gyr_G": cal.gsens(),
+    }
+    if model is not None:
+        curves = sorted(model.curves)
+        coef = np.zeros((len(curves), max((model.curves[n].order for n in curves), default=0) + 1))
+        for i, n in enumerate(curves):
+            coef[i, : model.curves[n].order + 1] = model.curves[n].coef
+        out |= {"thermal_t_ref": float(model.t_ref), "thermal_t_min": float(model.t_min),
+                "thermal_t_max": float(model.t_max),
+                "thermal_names": np.array(curves, dtype=object).reshape(-1, 1),
+                "thermal_coef": coef}  # fmt: skip
+    return out
+
+
+def mat_bytes(variables: dict[str, Any]) -> bytes:
+    """A MATLAB v5 .mat file (scipy.io.savemat) of `variables`."""
+    import io
+
+    from scipy.io import savemat
+
+    buf = io.BytesIO()
+    savemat(buf, variables, format="5", oned_as="column", do_compression=True)
+    return buf.getvalue()

@@ -19,6 +19,7 @@ from html.parser import HTMLParser
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from serve_sample import (
@@ -228,6 +229,37 @@ def test_downloads_are_the_archived_bytes_and_documents(client, serve_sample):
     assert r.status_code == 200 and r.content.startswith(b"%PDF")
 
 
+def test_export_downloads_are_the_calib_export_files(client, serve_sample, tmp_path):
+    from scipy.io import loadmat
+
+    from pipelines.run_export import export_run
+
+    run_id = serve_sample.runs[THERMAL_SERIAL][2]  # a unit with a thermal model
+    links = get(client, f"/runs/{run_id}").links
+    for fmt in ("px4", "ardupilot", "csv", "mat"):
+        url = f"/runs/{run_id}/export.{fmt}"
+        assert url in links
+        r = client.get(url)
+        assert r.status_code == 200, (url, r.text[-300:])
+        assert "attachment" in r.headers["content-disposition"]
+        want = export_run(serve_sample.archive, run_id, fmt)
+        assert want.filename in r.headers["content-disposition"]
+        if fmt != "mat":  # text: the same bytes as `calib export`
+            assert r.content == want.data
+            continue
+        (tmp_path / "a.mat").write_bytes(r.content)  # savemat stamps its creation time
+        (tmp_path / "b.mat").write_bytes(want.data)
+        got, ref = loadmat(tmp_path / "a.mat"), loadmat(tmp_path / "b.mat")
+        assert got.keys() == ref.keys()
+        np.testing.assert_array_equal(got["thermal_coef"], ref["thermal_coef"])
+        np.testing.assert_array_equal(got["parameter_values"], ref["parameter_values"])
+    assert b"TC_A0_X0_0" in client.get(f"/runs/{run_id}/export.px4").content
+    assert client.get(f"/runs/{run_id}/export.xls").status_code == 404
+    assert client.get(f"/runs/{run_id}/export.px4?revision=7").status_code == 404
+    assert client.get(f"/runs/{run_id}/export.px4?instance=1").status_code == 400
+    assert client.get("/runs/Rnothere0000/export.csv").status_code == 404
+
+
 def test_unit_page_trend_recovers_the_simulated_drift(client, serve_sample):
     page = get(client, f"/units/{DRIFT_SERIAL}?parameter=acc.bias.x")
     # Drift per year of acc.bias.x (m/s^2, its display unit) with its standard uncertainty.
@@ -364,7 +396,8 @@ def test_postgresql_is_browsed_as_the_read_only_role(postgres_url, tmp_path):
     with TestClient(create_app(ro)) as c:
         for url in ["/runs", f"/runs/{run_ids[0]}", f"/runs/{run_ids[0]}/lineage/acc.bias.x",
                     "/units/MPU0001", "/fleet?model=MPU-6000", "/equipment", "/models",
-                    "/verify", f"/runs/{run_ids[0]}/export.json"]:  # fmt: skip
+                    "/verify", *(f"/runs/{run_ids[0]}/export.{f}" for f in ("json", "px4", "mat"))
+                    ]:  # fmt: skip
             assert c.get(url).status_code == 200, url
         assert rows(get(c, "/runs?serial=MPU0001"), "runs") == 1
     with pytest.raises(Exception, match="read-only transaction|permission denied"), \

@@ -1,5 +1,6 @@
 """Pages of runs: the filtered, paged, sortable list; one run; a value's lineage; raw
-files and the run's downloads (protocol, HTML/PDF certificate, canonical JSON)."""
+files and the run's downloads (protocol, HTML/PDF certificate, canonical JSON and the
+exports of `calib export`: PX4, ArduPilot, CSV, MATLAB)."""
 
 from __future__ import annotations
 
@@ -197,6 +198,21 @@ def export_json(request: Request, run_id: str) -> Response:
     text = json.dumps(doc, indent=2, default=str) + "\n"
     suffix = f"_rev{doc['revision']}"
     return _download(text.encode(), "application/json", f"{run_id}{suffix}.json")
+
+
+@router.get("/runs/{run_id}/export.{fmt}")
+def export_file(request: Request, run_id: str, fmt: str) -> Response:
+    """The calibration as a PX4 or ArduPilot parameter file, CSV or MATLAB file (docs/exports.md),
+    with the unit's current thermal model; what the format cannot carry is listed in the file."""
+    from pipelines.run_export import FORMATS, export_run
+
+    if fmt not in FORMATS:
+        raise HTTPException(404, f"no export format {fmt!r}; formats: {', '.join(FORMATS)}")
+    q = forms.params(request, ("revision",))
+    revision = forms.integer(q, "revision", 0, 1, 1_000_000) or None
+    result = forms.checked(export_run, request.app.state.archive, _run_id(run_id), fmt,
+                           revision=revision)  # fmt: skip
+    return _download(result.data, result.media_type, result.filename)
 
 
 def _download(data: bytes, media_type: str, filename: str) -> Response:

@@ -1,0 +1,141 @@
+"""`calib export RUN`: one archived calibration in the format a lab or an autopilot reads.
+
+The formats (docs/exports.md): ``json`` (the archive's canonical document),
+``px4`` (QGroundControl .params), ``ardupilot`` (Mission Planner .param), ``csv``
+(one row per parameter) and ``mat`` (MATLAB v5). The unit's current thermal
+model is added when it has one (``thermal=False`` leaves it out). What a format
+cannot carry is returned as warnings and written into the file's comment
+header, never left out silently. The writers are in `pipelines.exports`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+from calib_core.calibration import Calibration
+from calib_core.thermal import ThermalModel
+from pipelines import exports
+from storage import queries
+from storage.db import Archive
+
+FORMATS = ("json", "px4", "ardupilot", "csv", "mat")
+SUFFIX = {"json": ".json", "px4": ".params", "ardupilot": ".param", "csv": ".csv", "mat": ".mat"}
+MEDIA_TYPE = {
+    "json": "application/json",
+    "px4": "text/plain; charset=us-ascii",
+    "ardupilot": "text/plain; charset=us-ascii",
+    "csv": "text/csv; charset=utf-8",
+    "mat": "application/x-matlab-data",
+}
+
+
+@dataclass
+class Export:
+    """One export: the file's bytes, its suggested name and media type, the warnings."""
+
+    data: bytes
+    filename: str
+    media_type: str
+    warnings: list[str] = field(default_factory=list)
+
+
+def _thermal(archive: Archive, serial: str) -> tuple[ThermalModel | None, int | None]:
+    tm = queries.latest_thermal_model(archive, serial, None)
+    return (None, None) if tm is None else (ThermalModel.from_dict(tm["document"]), tm["id"])
+
+
+def export_run(
+    archive: Archive,
+    run_id: str,
+    fmt: str,
+    *,
+    revision: int | None = None,
+    thermal: bool = True,
+    instance: int | None = None,
+    accel_id: int = 0,
+    gyro_id: int = 0,
+) -> Export:
+    """Export the calibration of run `run_id` (current revision unless `revision`).
+
+    Parameters
+    ----------
+    archive : the archive (`storage.db.Archive`).
+    run_id : the full run id.
+    fmt : one of FORMATS.
+    revision : calibration revision, None for the current one.
+    thermal : add the unit's current thermal model (px4, ardupilot, csv, mat).
+    instance : PX4 sensor instance (default 0) / ArduPilot IMU number (default 1).
+    accel_id, gyro_id : PX4 device ids (CAL_ACC<i>_ID, CAL_GYRO<i>_ID, TC_*_ID).
+
+    Returns
+    -------
+    Export. Raises ValueError for an unknown format or a value outside the
+    firmware's range, LookupError for an unknown run or revision.
+    """
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown export format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    doc = queries.export_calibration(archive, run_id, revision)
+    name = f"{doc['unit']['serial']}_{run_id}_rev{doc['revision']}{SUFFIX[fmt]}"
+    if fmt == "json":
+        text = json.dumps(doc, indent=2, default=str) + "\n"
+        return Export(text.encode(), name, MEDIA_TYPE[fmt])
+    cal = Calibration.from_dict(doc["calibration"])
+    model, model_id = _thermal(archive, doc["unit"]["serial"]) if thermal else (None, None)
+    env = queries.run_summary(archive, run_id)["environment"] or {}
+    cal_temp = env.get("temperature_c")
+    cal_temp = None if cal_temp is None else float(cal_temp)
+    data, notes = _encode(fmt, cal, model, cal_temp, doc, model_id, instance, accel_id, gyro_id)
+    return Export(data, name, MEDIA_TYPE[fmt], notes)
+
+
+def _header(doc: dict[str, Any], model_id: int | None, notes: list[str]) -> str:
+    unit = doc["unit"]
+    lines = [
+        f"imu-calib export of {unit['serial']} ({unit['model']}), run {doc['run']['run_id']} "
+        f"revision {doc['revision']}, verdict {doc['verdict']}, software {doc['software_version']}",
+        "thermal model: " + ("none" if model_id is None else f"id {model_id}"),
+    ]
+    return "\n".join(lines + [f"WARNING: {n}" for n in notes])
+
+
+def _encode(
+    fmt: str,
+    cal: Calibration,
+    model: ThermalModel | None,
+    cal_temp: float | None,
+    doc: dict[str, Any],
+    model_id: int | None,
+    instance: int | None,
+    accel_id: int,
+    gyro_id: int,
+) -> tuple[bytes, list[str]]:
+    """The file's bytes and the warnings of one format."""
+    if fmt == "px4":
+        rows, notes = exports.px4_calibration_parameters(
+            cal, instance=0 if instance is None else instance, accel_id=accel_id,
+            gyro_id=gyro_id, model=model, cal_temp=cal_temp,
+        )  # fmt: skip
+        text = exports.px4_params_text(rows, header=_header(doc, model_id, notes))
+        return text.encode("ascii", "backslashreplace"), notes
+    if fmt == "ardupilot":
+        rows, notes = exports.ardupilot_calibration_parameters(
+            cal, imu=1 if instance is None else instance, model=model, cal_temp=cal_temp
+        )
+        text = exports.ardupilot_params_text(rows, header=_header(doc, model_id, notes))
+        return text.encode("ascii", "backslashreplace"), notes
+    if fmt == "csv":
+        return exports.csv_text(exports.parameter_rows(cal, model)).encode(), []
+    meta = {
+        "serial": doc["unit"]["serial"],
+        "model": doc["unit"]["model"],
+        "run_id": doc["run"]["run_id"],
+        "started_at": doc["run"]["started_at"],
+        "revision": doc["revision"],
+        "verdict": doc["verdict"],
+        "software_version": doc["software_version"],
+        "calibration_temperature_c": float("nan") if cal_temp is None else cal_temp,
+        "thermal_model_id": 0 if model_id is None else model_id,
+    }
+    return exports.mat_bytes(exports.mat_variables(cal, meta, model)), []
