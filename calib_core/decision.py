@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from scipy import stats
+from calib_core.distributions import norm_sf
 
 RULES = ("simple", "guard_band", "guard_band_r")
 PASS, COND_PASS, COND_FAIL, FAIL = "pass", "conditional pass", "conditional fail", "fail"
@@ -50,7 +50,7 @@ class DecisionRule:
         if self.name == "simple":
             return ("Decision rule: simple acceptance (ILAC-G8:2019 4.2.1, shared risk, w = 0); "
                     "a value at a tolerance limit has up to 50 % probability of false accept.")
-        pfa = 100.0 * float(stats.norm.sf(self.factor * k))
+        pfa = 100.0 * norm_sf(self.factor * k)
         return (f"Decision rule: guarded acceptance (ILAC-G8:2019 4.2.2), guard band w = "
                 f"{self.factor:g} U; probability of false accept at the acceptance limit "
                 f"<= {pfa:.2g} % (normal, k = {k:g}).")

@@ -20,8 +20,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
+from calib_core.distributions import t_ppf
 from calib_core.significance import fit_ols
 
 
@@ -142,7 +142,7 @@ def forecast_exit(
         crossing = None
     # Confidence band on a day grid: closed forms exist, a grid is plainer and exact enough.
     grid = now + np.arange(0.0, horizon_days + step_days, step_days)
-    k = float(stats.t.ppf(confidence, trend.dof))
+    k = t_ppf(confidence, trend.dof)
     centre, half = trend.value(grid), k * trend.std(grid)
     outside = (centre + half > high) | (centre - half < low)
     earliest = float(grid[np.argmax(outside)]) if outside.any() else None

@@ -24,10 +24,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, stats
+
+from calib_core.distributions import chi2_ppf, norm_cdf
 
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643: flat ADEV level / B
-_ONE_SIGMA = stats.norm.cdf(1.0) - stats.norm.cdf(-1.0)  # 0.6827: coverage of the CI
+_ONE_SIGMA = norm_cdf(1.0) - norm_cdf(-1.0)  # 0.6827: coverage of the CI
 
 
 @dataclass(frozen=True)
@@ -171,8 +172,8 @@ def allan_deviation(
     adev = np.sqrt(avar)
 
     edf = white_noise_edf(n, m)
-    lo_q = stats.chi2.ppf(0.5 + _ONE_SIGMA / 2.0, edf)
-    hi_q = stats.chi2.ppf(0.5 - _ONE_SIGMA / 2.0, edf)
+    lo_q = chi2_ppf(0.5 + _ONE_SIGMA / 2.0, edf)
+    hi_q = chi2_ppf(0.5 - _ONE_SIGMA / 2.0, edf)
     shape = (-1,) + (1,) * (x.ndim - 1)
     ci_low = adev * np.sqrt(edf / lo_q).reshape(shape)
     ci_high = adev * np.sqrt(edf / hi_q).reshape(shape)
@@ -240,6 +241,8 @@ def _model_fit(result: AllanResult) -> np.ndarray:
     residuals are divided by that (iterated once with the fitted model in the
     denominator, to avoid favouring the downward-fluctuating points).
     """
+    from scipy import optimize  # ~0.2 s to import: only where a noise model is fitted
+
     taus, avar = result.taus, result.adev**2
     A = np.column_stack([1.0 / taus, np.ones_like(taus), taus / 3.0])
     if not np.any(avar > 0):

@@ -29,7 +29,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+
+from calib_core.distributions import f_ppf, f_sf, t_ppf, t_sf
 
 CONST = "const"
 # Columns are scaled to unit norm before the decomposition; a design whose
@@ -249,9 +250,9 @@ def fit_ols(
     with np.errstate(divide="ignore", invalid="ignore"):
         t = coef / std
         F = (U / k) / sigma2 if k > 0 else np.nan
-    pval = 2.0 * stats.t.sf(np.abs(t), dof)
-    F_crit = float(stats.f.ppf(1.0 - alpha, k, dof)) if k > 0 else np.nan
-    F_p = float(stats.f.sf(F, k, dof)) if k > 0 else np.nan
+    pval = 2.0 * t_sf(np.abs(t), dof)
+    F_crit = f_ppf(1.0 - alpha, k, dof) if k > 0 else np.nan
+    F_p = f_sf(F, k, dof) if k > 0 else np.nan
     return OlsFit(
         names=names,
         coef=coef,
@@ -269,7 +270,7 @@ def fit_ols(
         F=float(F),
         F_crit=F_crit,
         F_p=F_p,
-        t_crit=float(stats.t.ppf(1.0 - alpha / 2.0, dof)),
+        t_crit=t_ppf(1.0 - alpha / 2.0, dof),
         alpha=alpha,
         has_const=has_const,
     )

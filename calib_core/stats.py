@@ -12,7 +12,8 @@ from functools import lru_cache
 
 import numpy as np
 from scipy import fft as sp_fft
-from scipy import integrate, stats
+
+from calib_core.distributions import norm_cdf, norm_pdf
 
 
 def integrated_autocorrelation_time(x: np.ndarray, c: float = 5.0) -> float:
@@ -161,14 +162,13 @@ def max_normal_moments(k: int) -> tuple[float, float]:
     """Mean and variance of the largest of k independent standard normal variables."""
     if k < 1:
         raise ValueError(f"k must be >= 1, got {k}")
-    pdf = stats.norm.pdf
-    cdf = stats.norm.cdf
-
-    def density(z: float) -> float:
-        return k * pdf(z) * cdf(z) ** (k - 1)
-
-    m1 = integrate.quad(lambda z: z * density(z), -12.0, 12.0)[0]
-    m2 = integrate.quad(lambda z: z * z * density(z), -12.0, 12.0)[0]
+    # The trapezoid rule on a smooth integrand that vanishes at both ends converges
+    # geometrically: 4801 points agree with adaptive quadrature to 1e-13 for k <= 1000
+    # (and spare the ~0.2 s import of scipy.integrate at every start).
+    z = np.linspace(-12.0, 12.0, 4801)
+    density = k * norm_pdf(z) * norm_cdf(z) ** (k - 1)
+    m1 = float(np.trapezoid(z * density, z))
+    m2 = float(np.trapezoid(z * z * density, z))
     return m1, m2 - m1 * m1
 
 

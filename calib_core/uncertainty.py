@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
+
+from calib_core.distributions import norm_ppf, t_ppf
 
 # Divisor from a stated half-width a (or expanded U at k for "normal") to a standard uncertainty.
 _DIVISORS = {
@@ -139,10 +140,10 @@ def coverage_factor(nu_eff: float, coverage: float = 0.95) -> float:
     """k from Student's t at nu_eff degrees of freedom (normal when nu_eff is infinite)."""
     q = 0.5 + coverage / 2.0
     if math.isinf(nu_eff):
-        return float(stats.norm.ppf(q))
+        return norm_ppf(q)
     if nu_eff <= 0:
         raise ValueError(f"effective degrees of freedom must be > 0, got {nu_eff}")
-    return float(stats.t.ppf(q, nu_eff))
+    return t_ppf(q, nu_eff)
 
 
 def welch_satterthwaite(contributions: Sequence[float], dofs: Sequence[float]) -> float:

@@ -27,11 +27,11 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from calib_core import params
 from calib_core.calibration import Calibration, CheckResult
 from calib_core.checks import ToleranceProfile
+from calib_core.distributions import chi2_ppf
 from calib_core.recording import Recording
 
 PASS, FAIL, NEEDS_REVIEW = "pass", "fail", "needs review"
@@ -398,7 +398,7 @@ def repeatability(runs: list[RunValues], profile: ToleranceProfile) -> list[Chec
         )
     if scatter_names:
         dof = len(runs) - 1
-        crit = float(stats.chi2.ppf(1.0 - rules["alpha"] / len(scatter_names), dof))
+        crit = chi2_ppf(1.0 - rules["alpha"] / len(scatter_names), dof)
         for n in scatter_names:
             x = np.array([r.values[n][0] for r in runs])
             u = np.array([r.values[n][1] for r in runs])

@@ -30,14 +30,6 @@ def _version(show: bool) -> None:
         raise typer.Exit()
 
 
-@app.callback()
-def _main(
-    version: Annotated[
-        bool,
-        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
-    ] = False,
-) -> None:
-    """IMU calibration pipeline and archive."""
 out = Console()
 err = Console(stderr=True)
 
@@ -52,7 +44,12 @@ ArchiveOpt = Annotated[
 
 
 @app.callback()
-def _main() -> None:
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
+    ] = False,
+) -> None:
     """IMU calibration pipeline and archive."""
     # A full disk, a read-only archive, a missing permission: one line saying which
     # file and what to do instead of a traceback (typer has set its own hook by now).

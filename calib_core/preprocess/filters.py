@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
 from calib_core.calibration import StepRecord
 from calib_core.recording import Recording
@@ -48,6 +47,9 @@ def design_lowpass(fs_hz: float, cutoff_hz: float, order: int = 4) -> np.ndarray
         )
     if order < 1:
         raise ValueError(f"lowpass: order must be >= 1, got {order}")
+    # scipy.signal imports scipy.stats (~1 s): loaded only when a run is filtered.
+    from scipy.signal import butter
+
     return butter(order, cutoff_hz, btype="low", fs=fs_hz, output="sos")
 
 
@@ -65,6 +67,8 @@ def zero_phase(x: np.ndarray, sos: np.ndarray, axis: int = 0) -> np.ndarray:
             f"lowpass: {x.shape[axis]} samples are too few for this filter; "
             f"need more than {need} (3 x filter length for the edge padding)"
         )
+    from scipy.signal import sosfiltfilt
+
     return sosfiltfilt(sos, x, axis=axis)
 
 

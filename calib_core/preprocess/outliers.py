@@ -18,10 +18,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy import stats
 from scipy.ndimage import median_filter
 
 from calib_core.calibration import StepRecord
+from calib_core.distributions import t_isf
 from calib_core.recording import Recording
 
 MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): MAD of a Gaussian -> its std
@@ -105,7 +105,7 @@ def grubbs_critical(n: np.ndarray | int, alpha: float) -> np.ndarray:
     G_crit = (n-1)/sqrt(n) * sqrt(t^2 / (n - 2 + t^2)), t = t_{1 - alpha/(2n), n-2}.
     """
     n = np.asarray(n, dtype=float)
-    t = stats.t.isf(alpha / (2.0 * n), n - 2.0)
+    t = t_isf(alpha / (2.0 * n), n - 2.0)
     return (n - 1.0) / np.sqrt(n) * np.sqrt(t * t / (n - 2.0 + t * t))
 
 

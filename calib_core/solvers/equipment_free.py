@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from calib_core import params
 from calib_core.attitude import integrate_rotations
@@ -128,6 +127,8 @@ def _fit_norm(
         theta = np.zeros(9)
         theta[free] = x
         return _acc_residuals(theta, means, sems, gravity)
+
+    from scipy.optimize import least_squares  # ~0.2 s: only for equipment-free runs
 
     res = least_squares(
         fun,
@@ -224,6 +225,8 @@ def solve_gyro_rotations(
     bias : (3,) gyro bias, rad/s.
     """
     motions = _motions(rec, statics.intervals, bias)
+    from scipy.optimize import least_squares
+
     x0 = np.zeros(9)
     res = least_squares(
         _gyr_residuals, x0, args=(motions, up), x_scale=1e-2, xtol=1e-10, ftol=1e-10

@@ -25,9 +25,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from calib_core.calibration import Calibration, SegmentResidual
+from calib_core.distributions import chi2_sf
 from calib_core.params import AXES
 from calib_core.recording import Recording
 from calib_core.units import DEG, STANDARD_GRAVITY
@@ -201,7 +201,7 @@ def solve_rate_table(points: list[RatePoint], *, full_scale: float | None = None
         model[:, i] = A @ x + W[:, i]
         dof = len(points) - A.shape[1]
         chi2_dof.append(chi2 / dof)
-        p_value = float(stats.chi2.sf(chi2, dof))
+        p_value = chi2_sf(chi2, dof)
         if p_value < 1e-3:
             cal.warnings.append(
                 f"gyr {a}: rate-point residuals too large for the linear model "
