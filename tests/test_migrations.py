@@ -89,3 +89,20 @@ def test_concurrent_upgrades_of_an_empty_database(empty_archive: Archive) -> Non
         t.join(timeout=60)
     assert errors == []
     assert empty_archive.schema_revision() == _head(empty_archive)
+
+
+def test_upgrade_at_head_is_read_without_alembic(empty_archive: Archive) -> None:
+    """calib's start checks the revision with one SELECT (storage.db.migration_head reads the
+    scripts); an archive one revision behind is still upgraded by Alembic."""
+    from storage.db import migration_head
+
+    assert migration_head() == _head(empty_archive)
+    empty_archive.upgrade()
+    assert empty_archive._at_head()
+    previous = ScriptDirectory.from_config(empty_archive.alembic_config()).get_revision(
+        migration_head()
+    ).down_revision
+    empty_archive.migrate(previous, down=True)
+    assert not empty_archive._at_head()
+    empty_archive.upgrade()
+    assert empty_archive.schema_revision() == migration_head()
