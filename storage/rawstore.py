@@ -35,7 +35,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from storage.naming import check_safe_name
@@ -424,6 +423,8 @@ def read_samples(root: Path, serial: str | None = None) -> pa.Table:
         check_safe_name(serial, "serial")
     if not base.is_dir():
         return pa.table({"serial": pa.array([], pa.string()), "date": pa.array([], pa.string())})
+    import pyarrow.dataset as ds  # imports pandas (~0.4 s): only where samples are read
+
     dataset = ds.dataset(
         base,
         format="parquet",
