@@ -61,9 +61,12 @@ BREAKERS = [b"", b",", b";", b"\t", b" ", b"nan", b"inf", b"-", b"e", b"\r", b"\
             b"\x00", b"\xd0", b"\xe9", b"1e400", b"..", b"mean", b"std"]  # fmt: skip
 # Problems of a whole file (no one line or field to name).
 WHOLE_FILE = re.compile(
-    r"truncated|empty|not an? |NUL byte|no data|damaged|neither UTF-8|no (topic|IMU|\w+ column)"
-    r"|expected (one|topic)|missing|no header|header line|two separate|cannot (read|parse)"
+    r"truncated|empty|not an? |NUL byte|no data|damaged|neither UTF-8"
+    r"|no (topic|IMU|channel|\w+ column)|expected (one|topic)|missing|no header|header line"
+    r"|two separate|cannot (read|parse|open)"
 )
+# A binary file's place: a byte offset, a message, record or sample index, a channel.
+BINARY_PLACE = re.compile(r"(byte|offset|message|record|sample index) \d+|channel '[^']+'")
 
 
 def segment() -> Recording:
@@ -143,15 +146,22 @@ def apply(kind: str, edits, line_op, cut) -> Path:
     return path
 
 
+def assert_names_the_place(exc: IngestError, path: Path) -> None:
+    """The error names the file, and the line or field unless the whole file is bad."""
+    assert exc.file == str(path), str(exc)
+    located = exc.line is not None or exc.field is not None or BINARY_PLACE.search(exc.problem)
+    assert located or WHOLE_FILE.search(exc.problem), str(exc)
+    assert len(exc.problem) >= 10, str(exc)  # says what was expected / found
+    # bytes quoted from the damaged file reach no terminal or page as control characters
+    assert str(exc).replace("\n", " ").replace("\t", " ").isprintable(), repr(str(exc))
+
+
 def check(kind: str, case) -> None:
     path = apply(kind, *case)
     try:
         rec = READERS[kind](path)
     except IngestError as exc:
-        assert exc.file == str(path), str(exc)
-        located = exc.line is not None or exc.field is not None
-        assert located or WHOLE_FILE.search(exc.problem), str(exc)
-        assert len(exc.problem) >= 10, str(exc)  # says what was expected / found
+        assert_names_the_place(exc, path)
         return
     assert isinstance(rec, Recording) and len(rec) > 0
     assert np.isfinite(rec.acc).all() and np.isfinite(rec.gyr).all()

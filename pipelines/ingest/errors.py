@@ -35,10 +35,10 @@ class IngestError(ValueError):
         line: int | None = None,
         field: str | None = None,
     ) -> None:
-        self.problem = problem
+        self.problem = printable(problem)
         self.file = None if file is None else str(file)
         self.line = line
-        self.field = field
+        self.field = None if field is None else printable(field)
         super().__init__(self._message())
 
     def _message(self) -> str:
@@ -51,6 +51,21 @@ class IngestError(ValueError):
 
     def __reduce__(self):  # keep the attributes when the error crosses a process pool
         return (_rebuild, (self.problem, self.file, self.line, self.field))
+
+
+def printable(text: str) -> str:
+    """`text` with control and other unprintable characters escaped (``\\x00``).
+
+    Problems quote bytes from damaged files (a topic name, a header); a NUL or
+    an escape sequence must not reach the operator's terminal, a log or a page
+    as itself. Line breaks and tabs stay.
+    """
+    if text.isprintable():
+        return text
+    return "".join(
+        c if c.isprintable() or c in "\n\t" else c.encode("unicode_escape").decode("ascii")
+        for c in text
+    )
 
 
 def _rebuild(problem: str, file: str | None, line: int | None, field: str | None) -> IngestError:

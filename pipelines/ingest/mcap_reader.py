@@ -34,6 +34,8 @@ helpers are in pipelines.ingest.mcap_records, the CDR decoder in pipelines.inges
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import struct
@@ -449,7 +451,10 @@ class _Reader:
                 data=ch.schema_data,
             )
             try:
-                ch.decoder = DecoderFactory().decoder_for(ch.message_encoding, schema)
+                # Its vendored parser prints each bad definition line to stderr before
+                # raising; the IngestError below says it once, where the operator looks.
+                with contextlib.redirect_stderr(io.StringIO()):
+                    ch.decoder = DecoderFactory().decoder_for(ch.message_encoding, schema)
             except Exception as exc:  # a broken definition text raises assorted errors
                 raise IngestError(
                     f"cannot parse the message definition of topic {ch.topic!r}: {exc}",
