@@ -20,6 +20,7 @@ from pipelines.cli_shared import (
     err,
     fail,
     frame_records,
+    group_commands,
     open_archive,
     open_run,
     out,
@@ -307,6 +308,7 @@ def export(
 
 # Commands of the other areas live in pipelines/commands/ and register themselves on `app`.
 register_all()
+group_commands()
 
 if __name__ == "__main__":
     app()

@@ -17,9 +17,75 @@ from rich.table import Table
 
 import pipelines  # noqa: F401 - sets the no-telemetry environment before Prefect loads
 
+
+def _tidy_help(params: list[Any]) -> None:
+    """Metavars for people: none on a flag (typer shows ``<bool>``), the option's name
+    (``--archive ARCHIVE``) or its choices on the others, the argument's name in capitals."""
+    from typer.core import TyperArgument, TyperOption
+
+    for p in params:
+        if p.metavar is not None:
+            continue
+        if isinstance(p, TyperOption):
+            if p.is_flag or p.is_bool_flag:
+                p.metavar = ""
+            elif p.type_descriptor.is_choice:
+                p.metavar = p.display_type(None).strip("<>")
+            else:
+                p.metavar = max(p.opts, key=len).lstrip("-").upper().replace("-", "_")
+        elif isinstance(p, TyperArgument):
+            p.metavar = (p.name or "").upper()
+            p.display_type_rich = lambda ctx: None  # the name says it; no <str> column
+
+
+class CalibGroup(typer.core.TyperGroup):
+    """Typer's group with `_tidy_help` applied to its own and its commands' parameters."""
+
+    def get_params(self, ctx):  # noqa: ANN001, ANN201 - click's signature
+        params = super().get_params(ctx)
+        _tidy_help(params)
+        return params
+
+    def get_command(self, ctx, cmd_name):  # noqa: ANN001, ANN201 - click's signature
+        cmd = super().get_command(ctx, cmd_name)
+        if cmd is not None:
+            _tidy_help(cmd.get_params(ctx))
+        return cmd
+
+
+def sub_app(help: str) -> typer.Typer:  # noqa: A002 - typer's name
+    """A group of subcommands (`calib query ...`) with the same help conventions."""
+    return typer.Typer(cls=CalibGroup, no_args_is_help=True, help=help)
+
+
 app = typer.Typer(
-    add_completion=False, no_args_is_help=True, help="IMU calibration pipeline and archive."
+    cls=CalibGroup, no_args_is_help=True, help="IMU calibration pipeline and archive."
 )
+
+# `calib --help` lists the commands under these headings, by task (`group_commands`).
+PANELS = {
+    "Process": ("process", "reprocess", "centrifuge", "apply", "thermal"),
+    "Inspect": ("inspect", "show", "history", "repeatability"),
+    "Query": ("query", "trend", "fleet"),
+    "Report": ("report", "serve"),
+    "Export": ("export",),
+    "Admin": ("verify", "backup", "restore"),
+}
+
+
+def group_commands() -> None:
+    """Put every registered command and group under its `PANELS` heading.
+
+    Raises
+    ------
+    LookupError : a command that no heading lists (add it to PANELS).
+    """
+    where = {name: panel for panel, names in PANELS.items() for name in names}
+    for info in [*app.registered_commands, *app.registered_groups]:
+        name = info.name or info.callback.__name__.replace("_", "-")
+        if name not in where:
+            raise LookupError(f"calib {name}: no help panel; add it to cli_shared.PANELS")
+        info.rich_help_panel = where[name]
 
 
 def _version(show: bool) -> None:
@@ -49,8 +115,15 @@ def _main(
         bool,
         typer.Option("--version", callback=_version, is_eager=True, help="Print the version."),
     ] = False,
+    verbose: Annotated[
+        bool,
+        typer.Option(
+            "--verbose", "-v", help="Prefect's and the pipeline's progress logs on stderr."
+        ),
+    ] = False,
 ) -> None:
     """IMU calibration pipeline and archive."""
+    quiet_logs(verbose)
     # A full disk, a read-only archive, a missing permission: one line saying which
     # file and what to do instead of a traceback (typer has set its own hook by now).
     previous = sys.excepthook
@@ -65,6 +138,27 @@ def _main(
             err.print(f"[red]error:[/red] {problem}")
 
     sys.excepthook = explain
+
+
+def quiet_logs(verbose: bool) -> None:
+    """Prefect's logs at warning level unless `verbose` (its INFO lines of every flow and
+    task run are progress, which the progress bar and the result table already show).
+
+    Set in the environment before Prefect is imported (commands import it when they
+    need it), so the temporary API server it starts gets them too. Without --verbose
+    that server reports only critical errors: the ones it logs when calib ends it while
+    it still records task-run events (``Error flushing N events`` and a traceback) are
+    about Prefect's own run history of a server that ends with calib, never about a run's
+    outcome or the archive. A setting made by the user in the environment wins.
+    """
+    import logging
+
+    if verbose:
+        os.environ["PREFECT_LOGGING_LEVEL"] = "INFO"
+        logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+        return
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+    os.environ.setdefault("PREFECT_SERVER_LOGGING_LEVEL", "CRITICAL")
 
 
 def open_archive(arg: str | None):

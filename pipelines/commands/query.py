@@ -26,14 +26,13 @@ from pipelines.cli_shared import (
     open_run,
     out,
     print_frame,
+    sub_app,
 )
 
 if TYPE_CHECKING:  # pandas loads in the commands that use it, not for `calib --help`
     import pandas as pd
 
-query_app = typer.Typer(
-    no_args_is_help=True, help="Ask the archive: latest, lineage, lapsed, units, history, fleet."
-)
+query_app = sub_app("Ask the archive: latest, lineage, lapsed, units, history, fleet.")
 app.add_typer(query_app, name="query")
 
 

@@ -25,9 +25,10 @@ from pipelines.cli_shared import (
     out,
     print_frame,
     print_json,
+    sub_app,
 )
 
-thermal_app = typer.Typer(no_args_is_help=True, help="Temperature compensation: fit and export.")
+thermal_app = sub_app("Temperature compensation: fit and export.")
 app.add_typer(thermal_app, name="thermal")
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
