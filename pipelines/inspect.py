@@ -169,11 +169,19 @@ def _missing(procedure: str, labels: set[str], settings: dict) -> list[str]:
 
     if procedure not in PROCEDURES:
         return [f"procedure {procedure!r} is unknown; known: {', '.join(sorted(PROCEDURES))}"]
-    if procedure.startswith("six_position") and "segmentation" not in settings:
-        integral = procedure == "six_position_integral"
-        need = SIX_POSITION_LABELS if integral else SIX_POSITION_LABELS[:6]
-        return [label for label in need if label not in labels]
-    return []
+    if not procedure.startswith("six_position") or "segmentation" in settings:
+        return []
+    missing = [label for label in SIX_POSITION_LABELS[:6] if label not in labels]
+    if procedure != "six_position_integral":
+        return missing
+    for axis in "xyz":
+        turns = [f"{axis}_ccw", f"{axis}_cw"]
+        if settings.get("rotation_directions") == "any":  # one sense per axis suffices
+            if not labels.intersection(turns):
+                missing.append(f"{axis}_ccw or {axis}_cw")
+        else:
+            missing += [label for label in turns if label not in labels]
+    return missing
 
 
 def inspect_path(path: Path) -> dict[str, Any]:

@@ -27,7 +27,9 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize(("ours", "theirs", "args"), CASES, ids=lambda c: getattr(c, "__name__", ""))
+@pytest.mark.parametrize(
+    ("ours", "theirs", "args"), CASES, ids=lambda c: getattr(c, "__name__", "")
+)
 def test_same_values_as_scipy_stats(ours, theirs, args):
     # Both evaluate the same scipy.special routines: equal to rounding (a few ulp).
     np.testing.assert_allclose(ours(*args), theirs(*args), rtol=1e-12, atol=1e-300)

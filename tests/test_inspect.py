@@ -55,6 +55,32 @@ def test_csv_sample_folder() -> None:
     assert run["format"] == "csv" and run["missing"] == []
 
 
+def test_real_session_with_one_turn_per_axis_misses_nothing(tmp_path: Path) -> None:
+    """imucal's Ferraris session turns once per axis (rotation_directions = "any")."""
+    data = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "imucal_ferraris"
+    if not data.is_dir():
+        pytest.skip(f"real data not found at {data}")
+    run = tmp_path / "ferraris"
+    run.mkdir()
+    shutil.copyfile(data / "example_ferraris_session.csv", run / "example_ferraris_session.csv")
+    manifest = (Path(__file__).parent / "realdata" / "imucal_ferraris.toml").read_text()
+    (run / "run.toml").write_text(manifest)
+    code, doc = inspect(run)
+    assert code == 0 and doc["runs"][0]["missing"] == []
+    (run / "run.toml").write_text(manifest.replace('rotation_directions = "any"', ""))
+    code, doc = inspect(run)
+    assert doc["runs"][0]["missing"] == ["x_ccw", "y_ccw", "z_ccw"]
+
+
+def test_text_output_has_no_python_reprs(tmp_path: Path) -> None:
+    path = tmp_path / "imu.csv"
+    path.write_text("t,ax,ay,az,gx,gy,gz\n" + "".join(f"{i / 100},0,0,1,0,0,0\n" for i in range(9)))
+    res = CliRunner().invoke(app, ["inspect", str(path)])
+    assert res.exit_code == 0, res.stdout
+    assert "variant: delimiter ,, decimal ., header_line 1, metadata_lines none" in res.stdout
+    assert not any(mark in res.stdout for mark in ("{", "[]", "None", "'"))
+
+
 def test_csv_file_reports_dialect_and_units(tmp_path: Path) -> None:
     path = tmp_path / "imu.csv"
     rows = "\n".join(f"{i * 10};0,1;0,2;1,0;0,5;0,6;0,7;21,5" for i in range(50))

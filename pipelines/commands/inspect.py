@@ -45,9 +45,18 @@ def _print(doc: dict[str, Any], indent: str = "") -> None:
         elif key == "segments" and isinstance(value, dict):
             _say(f"{indent}segments:")
             for label, seg in value.items():
-                facts = ", ".join(f"{k} {v}" for k, v in seg.items() if k != "source")
+                facts = ", ".join(f"{k} {_text(v)}" for k, v in seg.items() if k != "source")
                 _say(f"{indent}  {label}: {facts}")
-        elif key == "error":
-            _say(f"{indent}error: {value}")
         else:
-            _say(f"{indent}{key}: {value}")
+            _say(f"{indent}{key}: {_text(value)}")
+
+
+def _text(value: Any) -> str:
+    """A value as a person reads it: no Python reprs, '-' for nothing."""
+    if value is None:
+        return "-"
+    if isinstance(value, dict):
+        return ", ".join(f"{k} {_text(v)}" for k, v in value.items()) or "-"
+    if isinstance(value, list | tuple):
+        return ", ".join(_text(v) for v in value) or "none"
+    return str(value)

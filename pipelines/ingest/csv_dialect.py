@@ -74,7 +74,8 @@ def split_fields(line: str, delimiter: str) -> list[str]:
     return [f.strip() for f in next(csv.reader([line], delimiter=delimiter))]
 
 
-def _number(field: str, decimal: str) -> bool:
+def is_number(field: str, decimal: str = ",") -> bool:
+    """Whether `field` reads as a number with `decimal` as its mark ("," also takes ".")."""
     try:
         float(field.replace(",", ".") if decimal == "," else field)
     except ValueError:
@@ -86,9 +87,9 @@ def _data_like(line: str, delimiter: str) -> tuple[int, str] | None:
     """(fields, decimal mark) if `line` reads as a data line with `delimiter`, else None."""
     fields = split_fields(line, delimiter)
     decimal = "," if delimiter != "," and any("," in f for f in fields) else "."
-    numbers = sum(_number(f, decimal) for f in fields)
+    numbers = sum(is_number(f, decimal) for f in fields)
     # Empty fields pass here (a trailing delimiter, a missing value): the reader names them.
-    others = all(not f or _number(f, decimal) or _ISO.match(f) or _WORD.match(f) for f in fields)
+    others = all(not f or is_number(f, decimal) or _ISO.match(f) or _WORD.match(f) for f in fields)
     return (len(fields), decimal) if numbers >= 2 and others else None
 
 
@@ -184,7 +185,7 @@ def _numeric(line: str, found: tuple[int, str, str] | None) -> bool:
     if found is None:
         return False
     fields = split_fields(line, found[1])
-    return 2 * sum(_number(f, found[2]) for f in fields) >= len(fields)
+    return 2 * sum(is_number(f, found[2]) for f in fields) >= len(fields)
 
 
 def _count_delimiter(line: str) -> str:

@@ -40,7 +40,7 @@ import pyarrow.csv as pacsv
 
 from calib_core.recording import Recording
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
-from pipelines.ingest.csv_dialect import sniff, split_fields, split_unit
+from pipelines.ingest.csv_dialect import is_number, sniff, split_fields, split_unit
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import COUNTS, Column, FormatSpec
 
@@ -244,7 +244,8 @@ def _recognise(
                 f"no {role} column recognised in the header; found: {', '.join(header)}; "
                 f"expected one of {', '.join(COMMON_NAMES[role][:6])}, ... (any case, "
                 "optionally with a unit as 'acc_x [g]'), or name the columns in [format]"
-                + (" or give sample_rate_hz" if role == "time" else ""),
+                + (" or give sample_rate_hz" if role == "time" else "")
+                + (_NO_HEADER_HINT if all(is_number(h) for h in header) else ""),
                 file=path,
                 line=line,
                 field="format",
@@ -694,6 +695,12 @@ def seconds(values: np.ndarray, unit: str) -> np.ndarray:
     if unit == "datenum":
         return (values - MATLAB_UNIX_EPOCH_DATENUM) * 86400.0
     return values * time_factor(unit)
+
+
+_NO_HEADER_HINT = (
+    "; that line holds only numbers: a file without a header (as imu_tk writes) needs "
+    "header = false and the columns by index in [format] (time_column = 0, acc_columns = [1, 2, 3])"
+)
 
 
 def _time(layout: _Layout, fmt: FormatSpec, raw: np.ndarray | None, n: int) -> np.ndarray:

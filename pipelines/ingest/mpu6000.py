@@ -36,6 +36,7 @@ import pandas as pd
 
 from calib_core.recording import Recording
 from calib_core.units import DEG
+from pipelines.ingest.csv_dialect import is_number
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import SIX_POSITION_LABELS
 from storage.naming import check_safe_name
@@ -196,14 +197,6 @@ def _decode_lines(path: Path, variant: TextVariant) -> list[str]:
     return re.split(r"\r\n|\r|\n", text)
 
 
-def _is_number(token: str) -> bool:
-    try:
-        float(token.replace(",", "."))
-    except ValueError:
-        return False
-    return True
-
-
 def _split_parts(
     lines: list[str], path: Path, variant: TextVariant
 ) -> tuple[list[tuple[int, str]], list[tuple[int, str]]]:
@@ -221,7 +214,7 @@ def _split_parts(
             summary.append((number, line))
         elif _UNDERLINE.match(line):
             underline = number
-        elif not data and not _is_number(re.split(r"[;\s]+", stripped)[0]):
+        elif not data and not is_number(re.split(r"[;\s]+", stripped)[0]):
             variant.header_lines += 1  # text before the first data line
         else:
             data.append((number, line))
