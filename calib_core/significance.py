@@ -9,7 +9,15 @@ For n observations and p columns (k regressors plus, usually, a constant):
     U = sum (y_hat - mean(y))^2            regression sum of squares
     R^2 = U / (U + Q)
     F = (U / k) / (Q / (n - k - 1))        compared with F(k, n - k - 1) at 1 - alpha
-    t_j = beta_j / std_j                   compared with t(n - k - 1) at 1 - alpha/2
+    t_j = beta_j / std_j                   |t_j| compared with t(n - k - 1) at 1 - alpha/2
+                                           (two-sided, default) or 1 - alpha (one-sided)
+
+The one-sided test is the centrifuge paper's: its critical values 1.676 and
+1.671 are the 0.95 points of t at 50 and 60 degrees of freedom (a printed
+table's rows; its models have n - k - 1 = 49 and 54, exactly 1.6766 and
+1.6736), where the two-sided 0.05 test would need 2.01. One-sided, |t| is
+compared with t(1 - alpha): a term is kept at half the evidence, so about
+2 alpha of null terms survive each test instead of alpha.
 
 Without a constant column the sums are taken about zero instead of the mean
 and the degrees of freedom are k = p, n - p (the usual regression-through-the-
@@ -33,6 +41,9 @@ import numpy as np
 from calib_core.distributions import f_ppf, f_sf, t_ppf, t_sf
 
 CONST = "const"
+T_TESTS = ("two-sided", "one-sided")
+# How the stepwise reduction decides: by the weakest term's t test, or by the model F.
+STEERING = ("t", "F")
 # Columns are scaled to unit norm before the decomposition; a design whose
 # scaled condition number exceeds this cannot give trustworthy t values.
 MAX_CONDITION = 1e10
@@ -45,14 +56,16 @@ class OlsFit:
     Attributes
     ----------
     names : (p,) term names, in column order.
-    coef, std, t, p : (p,) coefficients, standard errors, t values, two-sided p values.
+    coef, std, t, p : (p,) coefficients, standard errors, t values, p values of |t|
+        (two-sided, or one-sided P(T > |t|), as `t_test`).
     cov : (p, p) coefficient covariance, sigma^2 (X^T X)^-1.
     residuals : (n,) y - X coef.
     n, k, dof : observations, regressors (constant not counted), n - k - 1.
     Q, U, r2 : residual and regression sums of squares, coefficient of determination.
     F, F_crit, F_p : model F statistic, its critical value F(k, dof) at 1 - alpha, p value.
-    t_crit : two-sided critical t(dof) at alpha.
+    t_crit : critical t(dof) at alpha, two- or one-sided as `t_test`.
     alpha : significance level used.
+    t_test : "two-sided" or "one-sided".
     has_const : whether a constant column (named ``"const"``) is in the model.
     """
 
@@ -75,6 +88,7 @@ class OlsFit:
     t_crit: float
     alpha: float
     has_const: bool
+    t_test: str = "two-sided"
 
     @property
     def sigma(self) -> float:
@@ -197,6 +211,7 @@ def fit_ols(
     alpha: float = 0.05,
     add_constant: bool = False,
     weights: np.ndarray | None = None,
+    t_test: str = "two-sided",
 ) -> OlsFit:
     """Least-squares fit of y on the columns of X, with F and t statistics.
 
@@ -211,6 +226,8 @@ def fit_ols(
     weights : (n,) positive row weights, 1 / variance up to a common factor
         (default: all equal). Q, U, R^2, F and t are then the weighted ones and
         `residuals` stay unweighted (y - X coef).
+    t_test : "two-sided" (|t| against t(1 - alpha/2)) or "one-sided" (|t|
+        against t(1 - alpha), the centrifuge paper's); p values follow.
 
     Returns
     -------
@@ -227,6 +244,8 @@ def fit_ols(
     """
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+    _check_choice("t_test", t_test, T_TESTS)
+    sides = 2.0 if t_test == "two-sided" else 1.0
     X, y, names = _check_inputs(X, y, names)
     X, names, has_const = _with_constant(X, names, add_constant)
     n, p = X.shape
@@ -250,7 +269,7 @@ def fit_ols(
     with np.errstate(divide="ignore", invalid="ignore"):
         t = coef / std
         F = (U / k) / sigma2 if k > 0 else np.nan
-    pval = 2.0 * t_sf(np.abs(t), dof)
+    pval = sides * t_sf(np.abs(t), dof)
     F_crit = f_ppf(1.0 - alpha, k, dof) if k > 0 else np.nan
     F_p = f_sf(F, k, dof) if k > 0 else np.nan
     return OlsFit(
@@ -270,10 +289,16 @@ def fit_ols(
         F=float(F),
         F_crit=F_crit,
         F_p=F_p,
-        t_crit=t_ppf(1.0 - alpha / 2.0, dof),
+        t_crit=t_ppf(1.0 - alpha / sides, dof),
         alpha=alpha,
         has_const=has_const,
+        t_test=t_test,
     )
+
+
+def _check_choice(field_name: str, value: str, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ValueError(f"{field_name} must be one of {list(choices)}, got {value!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -316,24 +341,35 @@ def stepwise_reduce(
     *,
     add_constant: bool = False,
     weights: np.ndarray | None = None,
+    t_test: str = "two-sided",
+    steer: str = "t",
 ) -> Reduction:
-    """Backward elimination: drop the least significant term and refit until all are significant.
+    """Backward elimination: drop the least significant term and refit until done.
 
-    At each round the term (outside `keep`) with the smallest |t| is removed if
-    |t| < t_crit(dof) at `alpha` (two-sided); the model is refitted and the
-    round repeats. At least one column always stays.
+    Each round takes the term (outside `keep`) with the smallest |t|. With
+    ``steer="t"`` it is removed if |t| < t_crit(dof) at `alpha` (two- or
+    one-sided, `t_test`); the rounds end when every term is significant. With
+    ``steer="F"`` the model F test steers: the term is removed if the refitted
+    model's F statistic is larger and the refitted model still passes its F
+    test, so the reduction ends at the largest F along the path (the paper's
+    F grows from 139.34 to 286.95). Dropping a term raises F when roughly
+    t^2 < (dof + k) / (k - 1) for a strong model (k regressors), so the F
+    steering can remove terms the t test keeps; their t and p stay in `steps`.
+    At least one column always stays.
 
     Parameters
     ----------
-    X, y, names, add_constant, weights : as `fit_ols`.
-    alpha : significance level of the coefficient t tests (and the reported F test).
+    X, y, names, add_constant, weights, t_test : as `fit_ols`.
+    alpha : significance level of the coefficient t tests and the F test.
     keep : terms never removed (default the constant). Names absent from the
         model raise, except ``"const"`` when the model has no constant.
+    steer : "t" (default) or "F", as above.
 
     Returns
     -------
     Reduction
     """
+    _check_choice("steer", steer, STEERING)
     X, y, names = _check_inputs(X, y, names)
     if add_constant:
         X = np.column_stack([np.ones(X.shape[0]), X])
@@ -342,20 +378,29 @@ def stepwise_reduce(
     if unknown:
         raise ValueError(f"keep names {sorted(unknown)} are not terms of the model {list(names)}")
 
+    def refit(cols: list[int]) -> OlsFit:
+        cols_names = [names[j] for j in cols]
+        return fit_ols(X[:, cols], y, cols_names, alpha=alpha, weights=weights, t_test=t_test)
+
     cols = list(range(len(names)))
-    fit = fit_ols(X, y, names, alpha=alpha, weights=weights)
-    full = fit
+    fit = full = refit(cols)
     steps: list[RemovalStep] = []
     while len(cols) > 1:
         candidates = [j for j, name in enumerate(fit.names) if name not in keep]
         if not candidates:
             break
         weakest = min(candidates, key=lambda j: abs(fit.t[j]))
-        if abs(fit.t[weakest]) >= fit.t_crit:
-            break
+        reduced_cols = cols[:weakest] + cols[weakest + 1 :]
+        if steer == "t":
+            if abs(fit.t[weakest]) >= fit.t_crit:
+                break
+            reduced = refit(reduced_cols)
+        else:
+            reduced = refit(reduced_cols)
+            if not (reduced.F > fit.F and reduced.model_significant):
+                break
         steps.append(
             RemovalStep(fit.names[weakest], float(fit.t[weakest]), float(fit.p[weakest]), fit)
         )
-        del cols[weakest]
-        fit = fit_ols(X[:, cols], y, [names[j] for j in cols], alpha=alpha, weights=weights)
+        cols, fit = reduced_cols, reduced
     return Reduction(full=full, final=fit, steps=tuple(steps))

@@ -115,6 +115,8 @@ def process_centrifuge(
     repeat: Path | None = None,
     report_path: Path | None = None,
     alpha: float | None = None,
+    t_test: str | None = None,
+    steer: str | None = None,
 ) -> CentrifugeOutcome:
     """Solve a centrifuge run, validate on a repeat run, write the text report.
 
@@ -123,11 +125,12 @@ def process_centrifuge(
     folder : the run folder.
     repeat : a second run of the same unit on the same fixture (validation).
     report_path : where to write the report (default ``<folder>/centrifuge_report.txt``).
-    alpha : significance level, overriding the manifest's (default 0.05).
+    alpha, t_test, steer : significance level, t test sides and reduction
+        steering, overriding the manifest's (defaults 0.05, two-sided, t).
     """
     folder = Path(folder)
     loaded, steps = load_centrifuge_run(folder)
-    settings = centrifuge_settings(loaded, alpha=alpha)
+    settings = centrifuge_settings(loaded, alpha=alpha, t_test=t_test, steer=steer)
     try:
         model, record = solve_centrifuge(steps, settings)
     except ValueError as exc:
@@ -162,7 +165,8 @@ def render_report(
         "CENTRIFUGE HIGH-G ACCELEROMETER MODEL",
         f"unit: {serial}    run: {folder or ''}",
         f"latitude {settings.latitude_deg:g} deg, g = {settings.gravity:.6f} m/s^2, "
-        f"Omega_V = {model.omega_v:.4e} rad/s, alpha = {settings.alpha:g}",
+        f"Omega_V = {model.omega_v:.4e} rad/s, alpha = {settings.alpha:g} "
+        f"({settings.t_test} t test, reduction steered by {settings.steer})",
         "",
         "GEOMETRY (value +- standard uncertainty)",
         f"{'position':<9}{'R 1 g run, m':>24}{'R used, m':>24}"

@@ -143,3 +143,22 @@ def test_bad_centrifuge_input_is_named(runs):
         procedures.solve("centrifuge", no_ref, g, {"latitude_deg": 50.0})
     with pytest.raises(ValueError, match="scale_1g must map axes"):
         procedures.solve("centrifuge", segments, g, {"latitude_deg": 50.0, "scale_1g": {"w": 1}})
+
+
+def test_one_sided_t_and_f_steering_are_settings(runs, tmp_path):
+    """--t-test one-sided: t crit is t(1 - alpha, n - p), not t(1 - alpha/2); both settings
+    are recorded and printed; a bad value is refused naming the allowed ones."""
+    from calib_core.distributions import t_ppf
+
+    run, _ = runs["run"]
+    args = ["centrifuge", str(run), "--report", str(tmp_path / "r.txt"), "--json"]
+    res = CliRunner().invoke(app, [*args, "--t-test", "one-sided", "--steer", "F"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    assert doc["settings"]["t_test"] == "one-sided" and doc["settings"]["steer"] == "F"
+    for m in doc["model"]["axes"].values():
+        # alpha 0.001 from the manifest; p = the kept columns (constant, terms, phi_h)
+        assert m["t_crit"] == pytest.approx(float(t_ppf(1 - 0.001, m["n"] - len(m["t"]))))
+    assert "one-sided t test, reduction steered by F" in (tmp_path / "r.txt").read_text()
+    bad = CliRunner().invoke(app, [*args, "--t-test", "one"])
+    assert bad.exit_code == 2 and "t_test must be one of" in bad.output

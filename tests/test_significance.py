@@ -202,3 +202,78 @@ def test_weights_keep_the_test_level_under_heteroscedastic_noise():
         )
         rejected += bool(fit.p[2] < alpha)
     assert abs(rejected / trials - alpha) < 4 * np.sqrt(alpha * (1 - alpha) / trials)
+
+
+def test_one_sided_t_test_reproduces_the_papers_critical_values():
+    """The centrifuge paper tests t one-sided at alpha = 0.05: 1.676 and 1.671.
+
+    Its models (n = 60, F(10, 49) full, F(5, 54) final; see the F test above)
+    have n - k - 1 = 49 and 54. The printed values are the t table's rows 50
+    and 60 (t_0.95(50) = 1.67591, t_0.95(60) = 1.67065): at 3 decimals, as
+    printed, our one-sided critical values must equal them exactly. At the
+    models' own dofs the exact values lie between the two rows, while the
+    two-sided 0.05 test would need 2.01 (0.3 away), so one-sided is the paper's.
+    """
+    rng = np.random.default_rng(7)
+
+    def t_crit(n, k, t_test):
+        X = np.column_stack([np.ones(n), rng.normal(size=(n, k))])
+        fit = fit_ols(X, rng.normal(size=n), ["const", *(f"x{j}" for j in range(k))], t_test=t_test)
+        assert fit.dof == n - k - 1
+        return fit.t_crit
+
+    assert round(t_crit(61, 10, "one-sided"), 3) == 1.676  # dof 50
+    assert round(t_crit(71, 10, "one-sided"), 3) == 1.671  # dof 60
+    for k in (10, 5):  # the paper's full and final model, n = 60
+        one, two = t_crit(60, k, "one-sided"), t_crit(60, k, "two-sided")
+        assert 1.671 < one < 1.677
+        assert two > 2.0 and two - one > 0.3
+
+
+def test_one_sided_test_keeps_a_term_the_two_sided_test_removes():
+    """A term with t = 1.85 (dof 56: 1.6725 one-sided, 2.0032 two-sided) stays one-sided only.
+
+    y = X b + e with e orthogonal to the design, b of x2 set so that its t is
+    exactly 1.85 (std does not depend on b). p values follow the side: the
+    one-sided p is half the two-sided one.
+    """
+    n, k = 60, 3
+    rng = np.random.default_rng(3)
+    X = np.column_stack([np.ones(n), rng.normal(size=(n, k))])
+    names = ["const", *(f"x{j}" for j in range(k))]
+    e = rng.normal(size=n)
+    e -= X @ np.linalg.lstsq(X, e, rcond=None)[0]
+    b = np.array([1.0, 1.0, 1.0, 0.0])
+    b[3] = 1.85 * fit_ols(X, X @ b + e, names).std[3]
+    y = X @ b + e
+    two, one = fit_ols(X, y, names), fit_ols(X, y, names, t_test="one-sided")
+    assert one.t[3] == pytest.approx(1.85, rel=1e-9)
+    assert one.p[3] == pytest.approx(two.p[3] / 2, rel=1e-12)
+    assert stepwise_reduce(X, y, names, t_test="one-sided").kept == tuple(names)
+    assert stepwise_reduce(X, y, names).removed == ("x2",)
+    with pytest.raises(ValueError, match="t_test must be one of"):
+        fit_ols(X, y, names, t_test="one")
+
+
+def test_f_steering_ends_at_the_largest_model_f_along_the_path():
+    """steer="F": each removal raised F; removing the next weakest term would lower it.
+
+    The paper's F rose from 139.34 (10 terms) to 286.95 (5 terms). On the same
+    shape (n = 60, 10 candidates) F steering reaches an F at least the t
+    steering's, and its accepted removals are exactly those that raise F.
+    """
+    beta = np.array([1.0, 2.0, -1.5, 1.0, 0.3, 0.15, 0, 0, 0, 0, 0])
+    X, y, names = _data(21, beta=beta, sigma=0.5)
+    by_f = stepwise_reduce(X, y, names, steer="F")
+    by_t = stepwise_reduce(X, y, names)
+    fits = [s.fit for s in by_f.steps] + [by_f.final]
+    assert all(b.F > a.F for a, b in zip(fits[:-1], fits[1:], strict=True))
+    assert by_f.final.F >= by_t.final.F
+    # the next removal (weakest |t| of the final fit) would not raise F
+    cand = [j for j, nm in enumerate(by_f.final.names) if nm != "const"]
+    weakest = min(cand, key=lambda j: abs(by_f.final.t[j]))
+    cols = [names.index(nm) for nm in by_f.final.names if nm != by_f.final.names[weakest]]
+    assert fit_ols(X[:, cols], y, [names[j] for j in cols]).F <= by_f.final.F
+    assert {"const", "x0", "x1", "x2"} <= set(by_f.kept)
+    with pytest.raises(ValueError, match="steer must be one of"):
+        stepwise_reduce(X, y, names, steer="R2")

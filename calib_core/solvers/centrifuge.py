@@ -439,7 +439,15 @@ def _fit_axis(
     y = E[:, i] - f[:, i]
     w, kappa = step_weights(X, y, names, sem[:, i], f[:, i], _instability_of(settings, axis))
     red = stepwise_reduce(
-        X, y, names, settings.alpha, keep=(CONST, *nuisance), add_constant=True, weights=w
+        X,
+        y,
+        names,
+        settings.alpha,
+        keep=(CONST, *nuisance),
+        add_constant=True,
+        weights=w,
+        t_test=settings.t_test,
+        steer=settings.steer,
     )
     return AxisModel(axis, red, nuisance, dropped, kappa)
 
@@ -454,6 +462,8 @@ def _step_record(
             "latitude_deg": settings.latitude_deg,
             "gravity": settings.gravity,
             "alpha": settings.alpha,
+            "t_test": settings.t_test,
+            "steer": settings.steer,
             "scale_1g": dict(settings.scale_1g),
             "common_radius": settings.common_radius,
             "iterations": settings.iterations,

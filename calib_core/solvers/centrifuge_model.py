@@ -18,7 +18,7 @@ import numpy as np
 from calib_core.earth import EARTH_RATE
 from calib_core.params import AXES, AXIS_INDEX
 from calib_core.recording import Recording
-from calib_core.significance import CONST, OlsFit, Reduction
+from calib_core.significance import CONST, STEERING, T_TESTS, OlsFit, Reduction
 from calib_core.units import STANDARD_GRAVITY
 
 # Sensor axes in the mounting frame (r, t, u): row i of P is sensor axis i.
@@ -140,6 +140,11 @@ class CentrifugeSettings:
     latitude_deg : site latitude (Earth rate's vertical component).
     gravity : local gravity, m/s^2 (the vertical input).
     alpha : significance level of the t and F tests.
+    t_test : "two-sided" (default) or "one-sided" (the paper's: 1.676 at its
+        49 degrees of freedom instead of 2.010).
+    steer : what ends the stepwise reduction: "t" (default; every kept term
+        passes its t test) or "F" (remove while the model F grows and passes;
+        `calib_core.significance.stepwise_reduce`).
     scale_1g : per axis, the 1 g scale error K - 1 from a static calibration
         (the centrifuge cannot separate it from the radius); absent = 0.
     common_radius : one effective radius for all positions (inverse-variance
@@ -156,10 +161,18 @@ class CentrifugeSettings:
     latitude_deg: float
     gravity: float = STANDARD_GRAVITY
     alpha: float = 0.05
+    t_test: str = "two-sided"
+    steer: str = "t"
     scale_1g: Mapping[str, float] = field(default_factory=dict)
     common_radius: bool = True
     iterations: int = 4
     scale_instability: float | Mapping[str, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.t_test not in T_TESTS:
+            raise ValueError(f"t_test must be one of {list(T_TESTS)}, got {self.t_test!r}")
+        if self.steer not in STEERING:
+            raise ValueError(f"steer must be one of {list(STEERING)}, got {self.steer!r}")
 
 
 @dataclass(frozen=True)

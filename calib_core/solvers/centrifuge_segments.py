@@ -30,6 +30,8 @@ _LABEL = re.compile(r"^([xyz])([pm])_(?:zero_(\d+(?:\.\d+)?)|1g|step_(\d+(?:\.\d
 SETTINGS_KEYS = (
     "latitude_deg",
     "alpha",
+    "t_test",
+    "steer",
     "scale_1g",
     "common_radius",
     "iterations",
@@ -94,6 +96,8 @@ def settings_from_dict(settings: Mapping[str, object], gravity: float) -> Centri
             latitude_deg=float(s["latitude_deg"]),
             gravity=gravity,
             alpha=float(s.get("alpha", 0.05)),
+            t_test=str(s.get("t_test", "two-sided")),
+            steer=str(s.get("steer", "t")),
             scale_1g={a: float(v) for a, v in scale.items()},
             common_radius=bool(s.get("common_radius", True)),
             iterations=int(s.get("iterations", 4)),

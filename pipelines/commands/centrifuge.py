@@ -29,6 +29,18 @@ def centrifuge(
         float | None,
         typer.Option(help="Significance level of the F and t tests (default: manifest, 0.05)."),
     ] = None,
+    t_test: Annotated[
+        str | None,
+        typer.Option(
+            "--t-test",
+            help="two-sided or one-sided (the paper's) coefficient t test (default: manifest, "
+            "two-sided).",
+        ),
+    ] = None,
+    steer: Annotated[
+        str | None,
+        typer.Option(help="What ends the reduction: t (t tests) or F (model F) (default: t)."),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON document.")] = False,
 ) -> None:
     """Solve a centrifuge run: reduced high-g model per axis, F/t statistics, validation."""
@@ -38,7 +50,9 @@ def centrifuge(
     if alpha is not None and not 0.0 < alpha < 1.0:
         fail(f"--alpha must be in (0, 1), got {alpha}")
     try:
-        outcome = process_centrifuge(run, repeat=repeat, report_path=report, alpha=alpha)
+        outcome = process_centrifuge(
+            run, repeat=repeat, report_path=report, alpha=alpha, t_test=t_test, steer=steer
+        )
     except (ValueError, IngestError, OSError) as exc:
         fail(str(exc))
         return
