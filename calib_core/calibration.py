@@ -117,7 +117,16 @@ class StepRecord:
 
 @dataclass(frozen=True)
 class CheckResult:
-    """One check against a limit. `limit` is None for checks without a number."""
+    """One check against a limit.
+
+    Attributes
+    ----------
+    name : e.g. ``param:acc.bias.x``, ``residual:x_up:acc:std``.
+    value : the checked value (SI), or None.
+    limit : the limit (SI), or None for checks without a number.
+    passed : the outcome.
+    detail : the allowed range or the reason, for people.
+    """
 
     name: str
     value: float | None
@@ -137,7 +146,21 @@ class CheckResult:
 
 @dataclass
 class Calibration:
-    """A solved calibration of one IMU (accelerometer and/or gyro triad)."""
+    """A solved calibration of one IMU (accelerometer and/or gyro triad).
+
+    Attributes
+    ----------
+    procedure : the procedure that solved it (`calib_core.procedures.PROCEDURES`).
+    gravity : local gravity used for the reference specific force, m/s^2.
+    parameters : canonical name -> Parameter (value, std, unit; SI).
+    residuals : SegmentResidual per segment and sensor.
+    warnings : what the solver found doubtful.
+    info : solver facts (condition number, turns, sample counts, ...).
+    covariance : (P, P) covariance of the parameters with a ``cov_index``, SI.
+
+    The error model is ``f_meas = (I + M_a) f_true + b_a``, ``w_meas = (I + M_g)
+    w_true + G f_true + b_g``; `correct` and `apply` invert it.
+    """
 
     procedure: str
     gravity: float  # m/s^2 used for the reference specific force

@@ -192,6 +192,11 @@ class ParameterLimit:
 class ToleranceProfile:
     """Tolerances of one device type, SI units.
 
+    Attributes
+    ----------
+    name, version : the profile's name and version (archived with every verdict).
+    device_model : the device type it is written for.
+    parameter_limits : ParameterLimit per parameter pattern, first match wins.
     residual_limits : "acc_std", "gyr_std", "acc_mean", "gyr_mean" in m/s^2
         and rad/s; missing keys take DEFAULT_RESIDUAL_LIMITS.
     verification_limits : "acc" (m/s^2) and "gyr" (rad/s), the largest error of
@@ -544,6 +549,33 @@ def check_residuals(cal: Calibration, profile: ToleranceProfile) -> list[CheckRe
     return out
 
 
+def check_calibration(cal: Calibration, profile: ToleranceProfile) -> list[CheckResult]:
+    """Check a calibration against a tolerance profile: its parameters, then its residuals.
+
+    Parameters
+    ----------
+    cal : the solved calibration.
+    profile : the tolerance profile (`pipelines.load_profile` reads a shipped or lab one).
+
+    Returns
+    -------
+    list of CheckResult: ``param:<name>`` (`check_parameters`) then
+    ``residual:<segment>:<sensor>:<std|mean>`` (`check_residuals`). `verdict`
+    turns them into "pass" / "fail". The archive's check step adds held-out
+    verification points, repeatability and the unit's description to these.
+    """
+    return check_parameters(cal, profile) + check_residuals(cal, profile)
+
+
 def verdict(checks: list[CheckResult]) -> str:
-    """ "pass" if every check passed, else "fail"."""
+    """The verdict of a list of checks.
+
+    Parameters
+    ----------
+    checks : CheckResult list, e.g. from `check_calibration`.
+
+    Returns
+    -------
+    "pass" if every check passed, else "fail".
+    """
     return "pass" if all(c.passed for c in checks) else "fail"

@@ -332,6 +332,16 @@ def solve(
     segments : label -> Recording (SI units).
     gravity : local gravity, m/s^2.
     settings : procedure settings (see the module docstring).
+
+    Returns
+    -------
+    Calibration with every parameter's standard uncertainty, residuals per
+    segment and solver facts (`info`).
+
+    Raises
+    ------
+    ValueError for an unknown procedure, a gravity outside 9.7..9.9 m/s^2,
+    missing segments, or a parameter beyond physical bounds (with what to check).
     """
     try:
         fn = PROCEDURES[procedure]

@@ -367,7 +367,15 @@ def fit_campaign(campaign: Sequence[CampaignPoint], **kwargs: Any) -> ThermalMod
 
 @dataclass
 class ThermalModel:
-    """Temperature compensation of one unit: a curve per parameter over [t_min, t_max] deg C."""
+    """Temperature compensation of one unit: a curve per parameter over [t_min, t_max] deg C.
+
+    Attributes
+    ----------
+    t_ref : reference temperature of the curves, deg C.
+    t_min, t_max : the fitted range, deg C; temperatures outside are clipped.
+    curves : canonical parameter name -> ParameterCurve (coefficients of T - t_ref).
+    info : fit facts (serial, runs, benefit, order selection).
+    """
 
     t_ref: float
     t_min: float

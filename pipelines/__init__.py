@@ -1,6 +1,12 @@
-"""Glue from lab files to the archive: ingest, Prefect flows, reports, the `calib` CLI."""
+"""Glue from lab files to the archive: ingest, Prefect flows, reports, the `calib` CLI.
+
+The public API below (docs/api.md) is imported on first use, so ``import pipelines``
+(and `calib --help`) stays fast.
+"""
 
 import os
+
+from calib_core.lazy import lazy_exports
 
 # No telemetry: Prefect must not look up its analytics host (see docs/architecture.md).
 os.environ.setdefault("DO_NOT_TRACK", "1")
@@ -8,3 +14,18 @@ os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 # The ephemeral local API server may need longer than Prefect's 20 s default to start on a
 # busy 2-core machine; a timeout there would fail the whole batch.
 os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "180")
+
+_API = {
+    "read_run": "pipelines.ingest.run_loader",
+    "discover_runs": "pipelines.ingest.run_loader",
+    "load_run": "pipelines.ingest.run_loader",
+    "IngestError": "pipelines.ingest.errors",
+    "calibrate": "pipelines.process",
+    "load_profile": "pipelines.tolerances",
+    "process_run": "pipelines.process",
+    "apply_calibration": "pipelines.apply",
+    "report_run": "pipelines.reports.certificate",
+    "export_run": "pipelines.run_export",
+}
+__all__ = list(_API)
+__getattr__, __dir__ = lazy_exports(__name__, _API)

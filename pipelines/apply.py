@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 from calib_core import thermal
 from calib_core.calibration import Calibration, StepRecord
 from calib_core.recording import Recording
-from pipelines.ingest import IngestError, RunSource, discover_runs, load_run, read_mpu6000_file
+from pipelines.ingest import read_mpu6000_file, read_run
 from pipelines.ingest.mpu6000 import parse_file_name
 from pipelines.process import samples_table
 from storage import queries
@@ -36,16 +36,7 @@ def read_input(path: Path, serial: str | None = None) -> tuple[dict[str, Recordi
     if path.is_file() and parse_file_name(path.name) is not None:
         rec = read_mpu6000_file(path)
         return {rec.label or path.stem: rec}, None
-    sources = [s for s in discover_runs([path], depth=0) if s.serial in (None, serial)]
-    if len(sources) != 1:
-        raise IngestError(
-            f"expected one run (of serial {serial}) here, found {len(sources)}: "
-            f"give a run folder, its run.toml or one MPU-6000 file",
-            file=path,
-        )
-    loaded = load_run(
-        sources[0] if sources[0].kind == "manifest" else RunSource(path, "mpu6000", serial)
-    )
+    loaded = read_run(path, serial)
     return loaded.segments, loaded.manifest.environment.temperature_c
 
 
@@ -127,7 +118,17 @@ def apply_calibration(
 ) -> dict[str, Any]:
     """Calibrate new raw data with the calibration (and thermal model) valid at `at`.
 
-    Returns the facts: which calibration and thermal model were used, samples
+    Parameters
+    ----------
+    archive : the archive holding the unit's calibrations.
+    serial : the unit.
+    at : time-zone-aware date of validity; None for now (latest passed, current revision).
+    source : the new raw data: a run folder, its run.toml, or one MPU-6000 file.
+    output : the calibrated samples, ``.parquet`` / ``.pq`` or ``.csv`` (SI units).
+
+    Returns
+    -------
+    dict of facts: which calibration and thermal model were used, samples
     written, samples outside the thermal model's range (clipped), output path.
     """
     if Path(output).suffix.lower() not in (".parquet", ".pq", ".csv"):

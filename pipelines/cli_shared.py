@@ -162,11 +162,9 @@ def quiet_logs(verbose: bool) -> None:
 
 
 def open_archive(arg: str | None):
-    from storage.db import resolve_archive
+    from storage.db import open_archive as open_
 
-    arch = resolve_archive(arg)
-    arch.upgrade()
-    return arch
+    return open_(arg)
 
 
 def open_run(archive_arg: str | None, run_id: str):  # noqa: ANN201 - (Archive, str)

@@ -19,7 +19,7 @@ import pyarrow as pa
 
 from calib_core import procedures
 from calib_core.calibration import Calibration, CheckResult, StepRecord
-from calib_core.checks import ToleranceProfile, check_parameters, check_residuals
+from calib_core.checks import ToleranceProfile, check_calibration
 from calib_core.preprocess.chain import preprocess
 from calib_core.recording import Recording
 from calib_core.verification import (
@@ -117,23 +117,56 @@ def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
     )
 
 
-def solve_loaded(loaded: LoadedRun) -> tuple[Calibration, list[StepRecord], dict[str, Any]]:
+def solve_loaded(
+    loaded: LoadedRun, procedure: str | None = None, settings: dict[str, Any] | None = None
+) -> tuple[Calibration, list[StepRecord], dict[str, Any]]:
     """Preprocess and solve a loaded run; returns the calibration, step records and settings.
 
-    Verification segments stay out of the fit (docs/reports.md); they are checked after.
+    `procedure` and `settings` replace the manifest's procedure and update its
+    settings (see `calibrate`). Verification segments stay out of the fit
+    (docs/reports.md); they are checked after.
     """
     m = loaded.manifest
-    settings = dict(m.run.settings)
+    settings = {**m.run.settings, **(settings or {})}
     started = time.perf_counter()
     segments, steps = preprocess(loaded.segments, settings, gravity=m.gravity())
     # Wall time of the whole preprocessing chain, on its last step (batch benchmark).
     steps[-1].statistics["preprocess_seconds"] = round(time.perf_counter() - started, 4)
     cal, record = procedures.solve_step(
         segments,
-        {**settings, "procedure": m.run.procedure, "gravity": m.gravity()},
+        {**settings, "procedure": procedure or m.run.procedure, "gravity": m.gravity()},
         held_out=loaded.verification_labels,
     )
     return cal, [*steps, record], settings
+
+
+def calibrate(
+    run: LoadedRun, procedure: str | None = None, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Calibrate a run read with `read_run`: preprocess its segments, then solve.
+
+    Nothing is archived (`process_run` does the whole pipeline into an archive).
+
+    Parameters
+    ----------
+    run : the run in memory (`pipelines.read_run`).
+    procedure : the procedure to solve (a key of `calib_core.procedures.PROCEDURES`,
+        e.g. "six_position", "six_position_integral", "multi_position"); None for
+        the manifest's (an MPU-6000 folder: "six_position_integral").
+    settings : preprocessing and procedure settings that replace the manifest's
+        of the same name (docs/manifest.md, docs/procedures.md).
+
+    Returns
+    -------
+    Calibration: every parameter with its standard uncertainty (SI units),
+    residuals per segment, warnings and solver facts (`info`).
+
+    Raises
+    ------
+    ValueError when the segments do not fit the procedure (missing labels, a
+    parameter beyond physical bounds), with the reason.
+    """
+    return solve_loaded(run, procedure, settings)[0]
 
 
 def verify_run(
@@ -221,7 +254,7 @@ def check_run(loaded: LoadedRun, cal: Calibration, archive: Archive, run_id: str
     """Tolerances and residual limits of the run's profile, verification, repeatability."""
     started = time.perf_counter()
     profile = load_profile(loaded.manifest.run.tolerance_profile)
-    checks = check_parameters(cal, profile) + check_residuals(cal, profile)
+    checks = check_calibration(cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id)
     checks += more_checks
     checks.append(device_check(loaded.manifest, queries.device_description(
@@ -327,7 +360,11 @@ def process_run(
         becoming a failed outcome, so a caller can retry them (the batch flow
         does, for transient errors: a locked database, a vanished network share).
 
-    Returns the run's entry of the `calib process --json` document.
+    Returns
+    -------
+    dict, the run's entry of the `calib process --json` document (docs/cli.md):
+    ``status`` ("ok", "duplicate" or "failed"), ``run_id``, ``serial``,
+    ``verdict``, ``checks``, ``protocol`` and ``error`` (the reason of a failed run).
     """
     where = str(source.folder)
     serial = source.serial or ""

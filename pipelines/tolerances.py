@@ -24,8 +24,19 @@ def profile_dirs() -> list[Path]:
 def load_profile(name: str) -> ToleranceProfile:
     """Load the tolerance profile `name` (file `<name>.toml`).
 
-    Raises ValueError naming the profile, the folders searched, and for a bad
-    file the file and the field.
+    Parameters
+    ----------
+    name : the profile, e.g. "mpu6000"; a lab's folder in env ``CALIB_PROFILES``
+        is searched before the shipped profiles (pipelines/profiles/).
+
+    Returns
+    -------
+    ToleranceProfile (SI units).
+
+    Raises
+    ------
+    ValueError naming the profile, the folders searched, and for a bad file the
+    file and the field.
     """
     check_safe_name(name, "tolerance profile name")
     for folder in profile_dirs():

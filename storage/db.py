@@ -285,3 +285,23 @@ def resolve_archive(arg: str | None) -> Archive:
             "(for a SQLite file give sqlite:///path/to/file.sqlite)"
         )
     return Archive(url=default_archive_url(root), root=root)
+
+
+def open_archive(location: str | os.PathLike[str] | None = None) -> Archive:
+    """Open an archive, creating or upgrading its schema (what every `calib` command does).
+
+    Parameters
+    ----------
+    location : a directory (SQLite file ``archive.sqlite`` and the file store
+        under it, created when missing), a SQLAlchemy URL such as
+        ``postgresql+psycopg://user@host/db`` (file store: env ``CALIB_FILESTORE``),
+        or None (env ``CALIB_ARCHIVE``, else ``./calib-archive``).
+
+    Returns
+    -------
+    Archive, its schema at the newest migration. A read-only archive (file or
+    folder not writable) is opened read-only and only checked.
+    """
+    archive = resolve_archive(None if location is None else os.fspath(location))
+    archive.upgrade()
+    return archive

@@ -15,6 +15,7 @@ from pipelines.ingest.run_loader import (
     RunSource,
     discover_runs,
     load_run,
+    read_run,
     register_reader,
 )
 
@@ -32,5 +33,6 @@ __all__ = [
     "load_run",
     "read_csv",
     "read_mpu6000_file",
+    "read_run",
     "register_reader",
 ]

@@ -262,6 +262,11 @@ def discover_runs(paths: list[Path], depth: int = 2) -> list[RunSource]:
         or a run.toml file.
     depth : how many folder levels below a given path are searched.
 
+    Returns
+    -------
+    list of RunSource (folder, kind "manifest" or "mpu6000", serial), for
+    `load_run` or `process_run`.
+
     Raises
     ------
     IngestError for a path that does not exist or holds no recognisable run.
@@ -300,6 +305,40 @@ def discover_runs(paths: list[Path], depth: int = 2) -> list[RunSource]:
     return sorted(found)
 
 
+def read_run(path: str | Path, serial: str | None = None) -> LoadedRun:
+    """Read the one run at `path` into memory (nothing is archived).
+
+    Parameters
+    ----------
+    path : a run folder with a run.toml, the run.toml itself, or a folder of
+        MPU-6000 files (``<serial>_<x|y|z>_<up|dn|cw|ccw>.txt``).
+    serial : which unit, when an MPU-6000 folder holds the files of several.
+
+    Returns
+    -------
+    LoadedRun: ``manifest`` (unit, run, environment, segments), ``segments``
+    (label -> Recording in SI units: t s, acc m/s^2, gyr rad/s, temp deg C) and
+    ``raw_files`` with their SHA-256.
+
+    Raises
+    ------
+    IngestError naming the path when it holds no run or several (give `serial`),
+    or the file, line or manifest field of the first problem in the run.
+    """
+    sources = discover_runs([Path(path)], depth=0)
+    if serial is not None:  # a manifest's run (serial None here) names its unit itself
+        sources = [s for s in sources if s.serial in (None, serial)]
+    if len(sources) != 1:
+        which = f" of serial {serial}" if serial else ""
+        found = ", ".join(s.name for s in sources) or "none"
+        raise IngestError(
+            f"expected one run{which} here, found {len(sources)} ({found}): give a run "
+            "folder, its run.toml or (calib apply) one MPU-6000 file",
+            file=Path(path),
+        )
+    return load_run(sources[0])
+
+
 def load_run(source: RunSource, *, hash_file: FileHasher = hash_and_size) -> LoadedRun:
     """Read a run: validate its manifest, read and cut its segments, hash its raw files.
 
@@ -310,6 +349,10 @@ def load_run(source: RunSource, *, hash_file: FileHasher = hash_and_size) -> Loa
         file was read. `pipelines.process.process_run` passes
         `storage.rawstore.PendingFiles.stage_raw`, which copies the file towards
         the archive's object store while hashing it (one read and one hash per file).
+
+    Returns
+    -------
+    LoadedRun (manifest, segments as Recordings in SI units, raw files with hashes).
 
     Raises
     ------

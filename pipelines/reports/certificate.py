@@ -480,9 +480,14 @@ def report_run(archive, run_id: str, folder: Path | None = None, *, pdf: bool = 
     Parameters
     ----------
     archive : storage.db.Archive
+    run_id : the archived run.
     folder : where to write; default the run's folder in the archive.
+    pdf : also render the PDF certificate (the slowest part).
 
-    Returns the verdict and the written paths: {"verdict": str, "protocol": Path, ...}.
+    Returns
+    -------
+    dict: ``verdict`` and the written paths ``protocol`` (``<serial>_result.txt``),
+    ``html`` and (with `pdf`) ``pdf``.
     """
     from storage import queries
 

@@ -43,8 +43,15 @@ if TYPE_CHECKING:
 def history(archive: Archive, serial: str) -> pd.DataFrame:
     """One row per calibration revision of a unit, oldest run first.
 
-    Columns: run_id, started_at, procedure, revision, verdict, superseded,
-    software_version, created_at.
+    Parameters
+    ----------
+    archive : the archive.
+    serial : the unit.
+
+    Returns
+    -------
+    DataFrame with columns run_id, started_at, procedure, revision, verdict,
+    superseded, software_version, created_at.
     """
     import pandas as pd
 
@@ -114,8 +121,17 @@ def parameter_history(
 ) -> pd.DataFrame:
     """Values of one parameter of a unit over its runs, oldest first (inputs validated).
 
-    Only current revisions unless `include_superseded`. Columns: run_id,
-    started_at, revision, verdict, value, std, unit, temperature_c.
+    Parameters
+    ----------
+    archive : the archive.
+    serial : the unit.
+    name : canonical parameter name, e.g. ``gyr.bias.x``.
+    include_superseded : also the revisions replaced by a reprocessing.
+
+    Returns
+    -------
+    DataFrame with HISTORY_COLUMNS: run_id, started_at, revision, verdict,
+    value, std, unit (SI), temperature_c.
     """
     import pandas as pd
 
@@ -149,7 +165,13 @@ def latest_calibration(
     """The latest valid calibration of a unit from a run started at or before `as_of`.
 
     Valid: current revision (not superseded) with verdict "pass" (module
-    docstring). `as_of` must be time zone aware; None means now.
+    docstring).
+
+    Parameters
+    ----------
+    archive : the archive.
+    serial : the unit.
+    as_of : time-zone-aware date and time; None for now.
 
     Returns
     -------
@@ -276,6 +298,7 @@ def units(
 
     Parameters
     ----------
+    archive : the archive.
     model : device model, exact.
     date_from, date_to : run start, inclusive (dates are whole UTC days).
     verdict : "pass" or "fail" of the current revision.
@@ -366,6 +389,13 @@ def fleet(
     verdict "pass") from a run started at or before `as_of` (None: now), with
     that calibration's value(s) of `name` (several rows for a unit when the value
     is temperature-dependent).
+
+    Parameters
+    ----------
+    archive : the archive.
+    model : device model, exact.
+    name : canonical parameter name.
+    as_of : date or time of validity; None for now.
 
     Returns
     -------

@@ -164,6 +164,11 @@ _RAW_FILES = (
 def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
     """Everything about one run and its current calibration revision.
 
+    Parameters
+    ----------
+    archive : the archive.
+    run_id : the full run id (`full_run_id` resolves a prefix).
+
     Returns
     -------
     dict with the run's fields, ``device``, ``equipment`` (with the due dates
@@ -220,6 +225,8 @@ def export_calibration(
 
     Parameters
     ----------
+    archive : the archive.
+    run_id : the full run id.
     revision : None for the current revision.
 
     Returns
@@ -325,6 +332,7 @@ def lineage(
 
     Parameters
     ----------
+    archive : the archive.
     run_id : the run ("R" + 12 hex digits).
     name : canonical parameter name.
     revision : calibration revision; None for the current one.
@@ -412,9 +420,21 @@ def lineage(
 
 
 def run_samples(archive: Archive, run_id: str) -> pa.Table:
-    """The archived samples of one run (segment, t, acc_*, gyr_*, temp; SI units).
+    """The archived samples of one run (SI units).
 
-    Raises LookupError if there is no such run or it has no samples file.
+    Parameters
+    ----------
+    archive : the archive.
+    run_id : the full run id.
+
+    Returns
+    -------
+    pyarrow Table with columns segment, t (s), acc_x..z (m/s^2), gyr_x..z
+    (rad/s), temp (deg C); ``.to_pandas()`` gives a DataFrame.
+
+    Raises
+    ------
+    LookupError if there is no such run or it has no samples file.
     """
     with Session(archive.engine()) as s:
         run, _ = _run_row(s, run_id)
