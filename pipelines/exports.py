@@ -303,13 +303,23 @@ def px4_calibration_parameters(
     xOFF = bias (m/s^2, rad/s) and xSCALE = 1 / (1 + acc.scale). With a thermal
     model the bias curves go to TC_A/TC_G (`px4_parameters`), anchored at the
     calibration's bias at `cal_temp` when it is known, and the CAL offsets are 0
-    (the bias would be removed twice). `notes` lists what PX4 cannot carry
-    (misalignment, gyro scale, g-sensitivity, ...), and device ids left at 0.
+    (the bias would be removed twice). Without a model TC_A_ENABLE and
+    TC_G_ENABLE are 0: the offsets are the whole bias at the run's temperature,
+    and thermal offsets the vehicle already has would remove it twice. `notes`
+    lists what PX4 cannot carry (misalignment, gyro scale, g-sensitivity, ...),
+    device ids left at 0 and the thermal compensation switched off.
     """
     rows: list[tuple[str, float | int, int]] = []
+    notes = []
     if model is not None:
         m = model if cal_temp is None else model.anchored(cal, cal_temp)
         rows += px4_parameters(m, cal, instance=instance, accel_id=accel_id, gyro_id=gyro_id)
+    else:
+        rows += [("TC_A_ENABLE", 0, MAV_PARAM_TYPE_INT32), ("TC_G_ENABLE", 0, MAV_PARAM_TYPE_INT32)]
+        notes.append(
+            "no thermal model: TC_A_ENABLE and TC_G_ENABLE set to 0 (the offsets are the whole "
+            "bias at the run's temperature; the vehicle's thermal offsets would remove it twice)"
+        )
     mapped = {params.bias(s, a) for s in ("acc", "gyr") for a in params.AXES}
     mapped |= {f"acc.scale.{a}" for a in params.AXES}
     scale = _scales(cal, PX4_SCALE_RANGE, "PX4")
@@ -321,7 +331,7 @@ def px4_calibration_parameters(
             rows.append((f"{p}_{a.upper()}OFF", offset, MAV_PARAM_TYPE_REAL32))
             if sensor == "acc":
                 rows.append((f"{p}_{a.upper()}SCALE", float(scale[i]), MAV_PARAM_TYPE_REAL32))
-    notes = unrepresented(cal, mapped, model, "PX4")
+    notes = unrepresented(cal, mapped, model, "PX4") + notes
     if 0 in (accel_id, gyro_id):
         notes.append(
             "device id 0: PX4 applies CAL_ACC/CAL_GYRO (and TC_*) only to the sensor whose "
@@ -347,15 +357,17 @@ def ardupilot_calibration_parameters(
     ``v -= poly(T - 35) - poly(CALTEMP - 35)``. So OFFS = bias (m/s^2, rad/s) at
     CALTEMP, SCAL = 1 / (1 + acc.scale). With a thermal model, CALTEMP =
     `cal_temp` (the model's t_ref when unknown: the offsets then come from the
-    model's curves) and INS_TCAL<imu>_* from `ardupilot_parameters`. IMUs 2 and 3
-    use INS_ACC2OFFS, INS_GYR2OFFS, ...
+    model's curves) and INS_TCAL<imu>_* from `ardupilot_parameters`; without a
+    model CALTEMP = `cal_temp` when known (as ArduPilot's own accelerometer
+    calibration stores it), so a vehicle's own INS_TCAL stays consistent. IMUs 2
+    and 3 use INS_ACC2OFFS, INS_GYR2OFFS, ...
     """
     if imu not in ARDUPILOT_PREFIX:
         raise ValueError(f"ArduPilot IMU {imu}: expected 1, 2 or 3")
     acc_p, gyr_p = ARDUPILOT_PREFIX[imu]
     names = {"acc": (f"{acc_p}OFFS" if imu > 1 else "INS_ACCOFFS"),
              "gyr": (f"{gyr_p}OFFS" if imu > 1 else "INS_GYROFFS")}  # fmt: skip
-    t0 = None if model is None else (model.t_ref if cal_temp is None else cal_temp)
+    t0 = cal_temp if model is None or cal_temp is not None else model.t_ref
     m = None if model is None else (model if cal_temp is None else model.anchored(cal, cal_temp))
     rows: list[tuple[str, float]] = []
     for sensor in ("acc", "gyr"):
@@ -372,12 +384,18 @@ def ardupilot_calibration_parameters(
     scale = _scales(cal, ARDUPILOT_SCALE_RANGE, "ArduPilot")
     scal = f"{acc_p}SCAL" if imu > 1 else "INS_ACCSCAL"
     rows += [(f"{scal}_{a.upper()}", float(k)) for a, k in zip(params.AXES, scale, strict=True)]
-    if model is not None:
+    if t0 is not None:  # as ArduPilot's own calibration stores it with the offsets
         rows += [(f"INS_ACC{imu}_CALTEMP", float(t0)), (f"INS_GYR{imu}_CALTEMP", float(t0))]
+    if model is not None:
         rows += ardupilot_parameters(model, cal, imu=imu)
     mapped = {params.bias(s, a) for s in ("acc", "gyr") for a in params.AXES}
     mapped |= {f"acc.scale.{a}" for a in params.AXES}
     notes = unrepresented(cal, mapped, model, "ArduPilot")
+    if t0 is None:
+        notes.append(
+            f"run temperature unknown: INS_ACC{imu}_CALTEMP / INS_GYR{imu}_CALTEMP not written "
+            "(with INS_TCAL enabled the vehicle would refer these offsets to its old CALTEMP)"
+        )
     if model is not None and cal_temp is None:
         notes.append(
             f"calibration temperature unknown: offsets from the model's curves at T_ref "

@@ -62,7 +62,8 @@ def test_px4_golden_file():
     text = exports.px4_params_text(rows, header="\n".join(notes))
     golden = (GOLDEN / "px4_calibration.params").read_text()
     assert sorted(_param_lines(text)) == sorted(_param_lines(golden))
-    assert len(notes) == 3  # acc.misalign, gyr.noise, gyr.scale; never silently dropped
+    assert len(notes) == 4  # acc.misalign, gyr.noise, gyr.scale; never silently dropped; TC off
+    assert "TC_A_ENABLE and TC_G_ENABLE set to 0" in notes[-1]
     for family in ("acc.misalign", "gyr.scale", "gyr.noise"):
         assert any(family in n for n in notes) and f"{family} [" in text
     assert "acc.misalign [1]: xy 0.002" in text and "gyr.scale [1]: x 0.005" in text
@@ -75,6 +76,9 @@ def test_ardupilot_golden_file():
     golden = (GOLDEN / "ardupilot_calibration.param").read_text()
     assert sorted(_param_lines(text)) == sorted(_param_lines(golden))
     assert "acc.misalign [1]: xy 0.002" in text and "no ArduPilot parameter" in text
+    assert "INS_ACC1_CALTEMP / INS_GYR1_CALTEMP not written" in notes[-1]
+    at = dict(exports.ardupilot_calibration_parameters(_golden_cal(), cal_temp=21.5)[0])
+    assert at["INS_ACC1_CALTEMP"] == at["INS_GYR1_CALTEMP"] == 21.5  # as ArduPilot's accel cal
     second = dict(exports.ardupilot_calibration_parameters(_golden_cal(), imu=2)[0])
     assert {"INS_ACC2OFFS_X", "INS_GYR2OFFS_Z", "INS_ACC2SCAL_Y"} <= set(second)
     with pytest.raises(ValueError, match="IMU 4"):
