@@ -17,7 +17,9 @@ Settings
 --------
 turns : int or None (infer from the data), integral method only.
 gyro_range_dps : gyro full scale, deg/s (default 2000).
-accel_solver : "least_squares" (default) or "closed_form" (methods.md 2.1).
+accel_solver : "least_squares" (default), "closed_form" (methods.md 2.1) or
+    "kalman" (sequential filter over every sample, calib_core.solvers.kalman;
+    agrees with least squares within its uncertainty).
 accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
     rate-table model of methods.md 1: bias and scale per axis, no cross-coupling).
 rotation_directions : "both" (default; ccw and cw about each axis) or "any"
@@ -42,6 +44,7 @@ from calib_core.recording import Recording
 from calib_core.solvers.centrifuge_segments import solve_centrifuge_segments
 from calib_core.solvers.equipment_free import solve_equipment_free
 from calib_core.solvers.integral import ROTATION_LABELS, solve_integral
+from calib_core.solvers.kalman import kalman_accel_linear
 from calib_core.solvers.multi_position import (
     segment_residual,
     solve_accel_linear,
@@ -67,7 +70,7 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "accel_model": "linear",
     "rotation_directions": "both",
 }
-ACCEL_SOLVERS = ("least_squares", "closed_form")
+ACCEL_SOLVERS = ("least_squares", "closed_form", "kalman")
 ACCEL_MODELS = ("linear", "per_axis")
 
 
@@ -138,7 +141,10 @@ def _solve_statics(
         return np.array([getattr(stats[label], field) for label in STATIC_LABELS])
 
     cal = Calibration(procedure=procedure, gravity=gravity)
-    acc_fit = solve_accel_linear(f_true, stack(acc, "mean"), stack(acc, "sem"))
+    if settings["accel_solver"] == "kalman":
+        acc_fit = kalman_accel_linear(f_true, [segments[label].acc for label in STATIC_LABELS])
+    else:
+        acc_fit = solve_accel_linear(f_true, stack(acc, "mean"), stack(acc, "sem"))
     if settings["accel_solver"] == "closed_form":
         values = accel_closed_form({k: s.mean for k, s in acc.items()}, gravity)
         stds = accel_closed_form_std({k: s.sem for k, s in acc.items()}, gravity)

@@ -97,7 +97,7 @@ def test_bad_procedure_settings_and_gravity():
     with pytest.raises(ValueError, match="unknown procedure 'tumble'"):
         solve("tumble", run.segments, run.gravity, {})
     with pytest.raises(ValueError, match="settings.accel_solver"):
-        solve("six_position", run.segments, run.gravity, {"accel_solver": "kalman"})
+        solve("six_position", run.segments, run.gravity, {"accel_solver": "kalmann"})
     with pytest.raises(ValueError, match="settings.turns"):
         solve("six_position_integral", run.segments, run.gravity, {"turns": 1.5})
     with pytest.raises(ValueError, match="gravity"):

@@ -97,19 +97,10 @@ def fit_affine(
     """
     f_true, means, sem = _position_arrays(f_true, means, sem)
     k = f_true.shape[0]
-    if k < 4:
-        raise ValueError(f"the 12-parameter linear model needs at least 4 positions, got {k}")
     if not np.all(sem > 0):
         raise ValueError("every standard uncertainty of a position mean must be > 0")
+    condition = design_condition(f_true)
     design = np.hstack([np.ones((k, 1)), f_true])  # (K, 4)
-    # Condition number of the scale-free design: how well the positions pin the model.
-    scale = np.abs(f_true).max()
-    condition = float(np.linalg.cond(np.hstack([np.ones((k, 1)), f_true / scale])))
-    if not np.isfinite(condition) or condition > 1e8:
-        raise ValueError(
-            f"the positions do not determine the linear model (condition number {condition:.3g}); "
-            "use positions that excite every axis in both directions"
-        )
     x = np.empty((3, 4))
     cov = np.empty((3, 4, 4))
     for i in range(3):
@@ -122,10 +113,64 @@ def fit_affine(
     return x[:, 0], x[:, 1:], cov, condition, residual, chi2
 
 
+def design_condition(f_true: np.ndarray) -> float:
+    """Condition number of the scale-free design [1, f / |f|max] of K positions (K, 3).
+
+    How well the positions pin the 12-parameter linear model; ValueError below
+    4 positions or when it exceeds 1e8 (directions the data do not determine).
+    """
+    k = f_true.shape[0]
+    if k < 4:
+        raise ValueError(f"the 12-parameter linear model needs at least 4 positions, got {k}")
+    scale = np.abs(f_true).max()
+    condition = float(np.linalg.cond(np.hstack([np.ones((k, 1)), f_true / scale])))
+    if not np.isfinite(condition) or condition > 1e8:
+        raise ValueError(
+            f"the positions do not determine the linear model (condition number {condition:.3g}); "
+            "use positions that excite every axis in both directions"
+        )
+    return condition
+
+
 def _linear_fit(
     sensor: str, f_true: np.ndarray, means: np.ndarray, sem: np.ndarray, identity: bool
 ) -> LinearFit:
     b, A, cov, condition, residual, chi2 = fit_affine(f_true, means, sem)
+    return _named_fit(sensor, b, A, cov, condition, residual, chi2, identity)
+
+
+def linear_fit_from(
+    sensor: str,
+    f_true: np.ndarray,
+    means: np.ndarray,
+    sem: np.ndarray,
+    x: np.ndarray,
+    cov: np.ndarray,
+    identity: bool,
+) -> LinearFit:
+    """A LinearFit from per-axis estimates found another way (e.g. a Kalman filter).
+
+    x : (3, 4) rows (b_i, A_i0, A_i1, A_i2); cov : (3, 4, 4) their covariances;
+    f_true, means, sem : (K, 3) positions, for the residuals and chi2.
+    """
+    design = np.hstack([np.ones((len(f_true), 1)), f_true])
+    residual = means - design @ x.T
+    chi2 = ((residual / sem) ** 2).sum(axis=0)
+    condition = design_condition(f_true)
+    return _named_fit(sensor, x[:, 0], x[:, 1:], cov, condition, residual, chi2, identity)
+
+
+def _named_fit(
+    sensor: str,
+    b: np.ndarray,
+    A: np.ndarray,
+    cov: np.ndarray,
+    condition: float,
+    residual: np.ndarray,
+    chi2: np.ndarray,
+    identity: bool,
+) -> LinearFit:
+    """Canonical names, values, stds and the (12, 12) block covariance of an affine fit."""
     row_names = params.matrix_names("acc") if sensor == "acc" else params.gsens_names()
     M = A - np.eye(3) if identity else A
     names: list[str] = []
