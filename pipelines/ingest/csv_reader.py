@@ -43,6 +43,7 @@ from calib_core.units import acceleration_factor, angular_rate_factor, time_fact
 from pipelines.ingest.csv_dialect import is_number, sniff, split_fields, split_unit
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import COUNTS, Column, FormatSpec
+from pipelines.ingest.time_order import check_time_increases
 
 if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (~0.3 s at start)
@@ -718,16 +719,13 @@ def _time(layout: _Layout, fmt: FormatSpec, raw: np.ndarray | None, n: int) -> n
         t *= 86400.0
     elif fmt.time_unit != "iso" and fmt.time_unit != "s":
         t *= time_factor(fmt.time_unit)
-    bad = np.flatnonzero(t[1:] <= t[:-1])
-    if bad.size:
-        i = int(bad[0]) + 1
-        raise IngestError(
-            f"time {t[i]:.9g} s is not after the previous row's {t[i - 1]:.9g} s "
-            "(time must increase)",
-            file=layout.path,
-            line=layout.line_of_row(i),
-            field=layout.fields[layout.roles["time"]],
-        )
+    check_time_increases(
+        t,
+        file=layout.path,
+        sample="row",
+        line_of=layout.line_of_row,
+        field=layout.fields[layout.roles["time"]],
+    )
     return t
 
 

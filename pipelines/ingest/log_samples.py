@@ -15,6 +15,7 @@ import numpy as np
 
 from calib_core.recording import Recording
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.time_order import check_time_increases
 
 
 def checked_recording(
@@ -56,13 +57,5 @@ def checked_recording(
                 file=path,
                 field=f"{what}.{name}",
             )
-    step = np.flatnonzero(np.diff(t) <= 0)
-    if step.size:
-        i = int(step[0]) + 1
-        raise IngestError(
-            f"{what} record {i}: time {t[i]:.9f} s is not after the previous record's "
-            f"{t[i - 1]:.9f} s (time must increase)",
-            file=path,
-            field=f"{what}.time",
-        )
+    check_time_increases(t, file=path, sample="record", field=f"{what}.time", prefix=f"{what}: ")
     return Recording(t=t, acc=channels["acc"], gyr=channels["gyr"], temp=temp, source=str(path))

@@ -38,6 +38,7 @@ from calib_core.units import acceleration_factor, angular_rate_factor, time_fact
 from pipelines.ingest.detect import detect_format
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.isolated import run_isolated
+from pipelines.ingest.time_order import check_time_increases
 
 ROLES = ("t", "acc", "gyr", "temp")
 TRIAD_ROLES = ("acc", "gyr")
@@ -129,7 +130,8 @@ def read_mat(
         t = _time_to_seconds(name, roles["t"][0], t_raw, time_unit)
     else:
         t = _time_from_rate(name, n, sample_rate_hz)
-    _check_increasing(name, roles["t"][0] if t_raw is not None else "t", t)
+    dotted = roles["t"][0] if t_raw is not None else "t"
+    check_time_increases(t, file=name, sample="sample index", field=dotted)
 
     return Recording(
         t=t,
@@ -432,15 +434,3 @@ def _time_from_rate(name: str, n: int, sample_rate_hz: float | None) -> np.ndarr
             field="format.sample_rate_hz",
         )
     return np.arange(n, dtype=np.float64) / float(sample_rate_hz)
-
-
-def _check_increasing(name: str, dotted: str, t: np.ndarray) -> None:
-    bad = np.flatnonzero(np.diff(t) <= 0)
-    if bad.size:
-        i = int(bad[0]) + 1
-        raise IngestError(
-            f"time is not strictly increasing at sample index {i} (0-based): "
-            f"t[{i - 1}] = {t[i - 1]!r} s, t[{i}] = {t[i]!r} s",
-            file=name,
-            field=dotted,
-        )

@@ -70,6 +70,7 @@ from pipelines.ingest.mcap_records import (
     decompress,
     record_starts,
 )
+from pipelines.ingest.time_order import check_time_increases
 
 MAGIC = b"\x89MCAP0\r\n"
 IMU_SCHEMA = "sensor_msgs/msg/Imu"
@@ -533,7 +534,9 @@ class _Reader:
         where = f"topic {imu.topic!r}"
         # One field at a time, dropping its parts: peak memory stays near the final arrays.
         stamp_ns = _concat(imu, "stamp")
-        _check_increasing(self.name, where, stamp_ns)
+        check_time_increases(
+            stamp_ns, file=self.name, sample="message", unit="ns", prefix=f"{where}: "
+        )
         acc = _concat(imu, "acc")
         _check_finite(self.name, where, "linear_acceleration", acc)
         gyr = _concat(imu, "gyr")
@@ -623,7 +626,9 @@ class _Reader:
     ) -> np.ndarray:
         """Interpolate a reference channel onto the IMU time base (relative seconds)."""
         where = f"topic {ch.topic!r}"
-        _check_increasing(self.name, where, ref_ns)
+        check_time_increases(
+            ref_ns, file=self.name, sample="message", unit="ns", prefix=f"{where}: "
+        )
         _check_finite(self.name, where, what, values)
         return np.interp(rel, (ref_ns - t0) / NS, values)
 
@@ -633,18 +638,6 @@ def _concat(ch: _Channel, key: str) -> np.ndarray:
     if len(ch.parts) == 1:  # full-size arrays, or a single chunk: no copy
         return ch.parts[0].pop(key)[: ch.count]
     return np.concatenate([p.pop(key) for p in ch.parts])
-
-
-def _check_increasing(name: str, where: str, stamp_ns: np.ndarray) -> None:
-    bad = np.flatnonzero(np.diff(stamp_ns) <= 0)
-    if bad.size:
-        k = int(bad[0]) + 1
-        what = "duplicated" if stamp_ns[k] == stamp_ns[k - 1] else "going back"
-        raise IngestError(
-            f"{where}: time stamps not strictly increasing at message {k} (0-based; {what}: "
-            f"{stamp_ns[k - 1]} ns then {stamp_ns[k]} ns)",
-            file=name,
-        )
 
 
 def _check_finite(name: str, where: str, what: str, values: np.ndarray) -> None:

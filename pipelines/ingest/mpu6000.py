@@ -39,6 +39,7 @@ from calib_core.units import DEG
 from pipelines.ingest.csv_dialect import is_number
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import SIX_POSITION_LABELS
+from pipelines.ingest.time_order import check_time_increases
 from storage.naming import check_safe_name
 
 N_COLUMNS = 8
@@ -142,14 +143,7 @@ def read_mpu6000_text(path: Path) -> tuple[Recording, TextVariant]:
     data = _parse_data(data_lines, path, variant)
 
     t_ms = data[:, 0]
-    bad = np.flatnonzero(np.diff(t_ms) <= 0)
-    if bad.size:
-        raise IngestError(
-            f"time {t_ms[bad[0] + 1]:g} ms is not after the previous sample's "
-            f"{t_ms[bad[0]]:g} ms (time must increase)",
-            file=path,
-            line=data_lines[bad[0] + 1][0],
-        )
+    check_time_increases(t_ms, file=path, unit="ms", line_of=lambda i: data_lines[i][0])
     _check_summary(summary_lines, data, path, variant)
     rec = Recording(
         t=t_ms * 1e-3,
@@ -176,7 +170,7 @@ def _decode_lines(path: Path, variant: TextVariant) -> list[str]:
             f"NUL byte at offset {offset}: binary, not an MPU-6000 text file", file=path
         )
     if raw.startswith(codecs.BOM_UTF8):
-        variant.encoding, raw = "utf-8 with BOM", raw[len(codecs.BOM_UTF8):]
+        variant.encoding, raw = "utf-8 with BOM", raw[len(codecs.BOM_UTF8) :]
     try:
         text = raw.decode("utf-8")
         if variant.encoding == "ascii" and not raw.isascii():
@@ -228,9 +222,7 @@ def _split_parts(
             file=path,
         )
     if not data:
-        raise IngestError(
-            "no data lines before the line of underscores", file=path, line=underline
-        )
+        raise IngestError("no data lines before the line of underscores", file=path, line=underline)
     return data, summary
 
 
