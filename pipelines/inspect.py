@@ -107,7 +107,8 @@ def _read(path: Path, kind: str, doc: dict[str, Any]) -> Recording:
 
 def _read_csv(path: Path, doc: dict[str, Any]) -> Recording:
     from pipelines.ingest.csv_dialect import sniff, split_unit
-    from pipelines.ingest.csv_reader import layout_of, read_csv
+    from pipelines.ingest.csv_layout import layout_of
+    from pipelines.ingest.csv_reader import read_csv
 
     fmt = FormatSpec(kind="csv")
     dialect = sniff(path, fmt)

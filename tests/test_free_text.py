@@ -10,7 +10,8 @@ import pytest
 
 from pipelines.ingest import discover_runs
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import TEXT_MAX_CHARS, parse_manifest
+from pipelines.ingest.free_text import TEXT_MAX_CHARS
+from pipelines.ingest.manifest import parse_manifest
 from pipelines.process import process_run
 from storage import queries
 

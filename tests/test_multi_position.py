@@ -13,7 +13,8 @@ from calib_core.checks import ToleranceProfile, check_residuals
 from calib_core.procedures import solve
 from calib_core.simulate.attitudes import multi_position_run, scheme_angles
 from calib_core.simulate.lab_run import random_errors
-from calib_core.solvers.multi_position import solve_accel_linear, solve_accel_multi
+from calib_core.solvers.accel_models import solve_accel_multi
+from calib_core.solvers.multi_position import solve_accel_linear
 from calib_core.units import DEG
 
 G = 9.80665

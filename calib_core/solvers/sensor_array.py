@@ -35,12 +35,9 @@ from calib_core import params
 from calib_core.attitude import rot_x, rot_y
 from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.recording import Recording
+from calib_core.solvers.accel_models import solve_accel_multi
 from calib_core.solvers.integral import noise_from_differences
-from calib_core.solvers.multi_position import (
-    gyro_bias_and_gsens,
-    segment_residual,
-    solve_accel_multi,
-)
+from calib_core.solvers.multi_position import gyro_bias_and_gsens, segment_residual
 from calib_core.stats import ChannelStats, channel_stats, trapezoid_weights
 
 PHASES = ("static", "ccw", "cw")

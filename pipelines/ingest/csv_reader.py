@@ -2,7 +2,7 @@
 
 The columns come from the manifest (header names, or 0-based indices without
 a header) or, when the manifest names none, are recognised among common names
-(`COMMON_NAMES`: ``acc_x``, ``ax``, ``linear_acceleration.x``, ``gyro_x``,
+(`csv_layout.COMMON_NAMES`: ``acc_x``, ``ax``, ``linear_acceleration.x``, ``gyro_x``,
 ``wx``, ``temp``, ...). Units are converted to SI with calib_core.units; raw
 counts with a per-axis scale and offset; time in s/ms/us/ns, MATLAB datenum,
 ISO-8601 text, a sample index, or no time column at all (``sample_rate_hz``).
@@ -18,21 +18,17 @@ slice, whatever the size of the file (a multi-hour 1 kHz log). Files above
 holds a problem is the file read again as text, in chunks, to name the first
 bad line and column.
 
-Why one module of ~650 lines: header mapping, unit detection and the bounded-memory
-slice reader share the column plan of one file; split, each part would pass it around.
+The column plan of a file (which column is which role, header units) is
+pipelines.ingest.csv_layout; naming the first bad line, pipelines.ingest.csv_diagnosis.
 """
 
 from __future__ import annotations
 
-import codecs
 import dataclasses
 import mmap
-import re
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
@@ -40,13 +36,12 @@ import pyarrow.csv as pacsv
 
 from calib_core.recording import Recording
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
-from pipelines.ingest.csv_dialect import is_number, sniff, split_fields, split_unit
+from pipelines.ingest.csv_diagnosis import PANDAS_CHUNK_ROWS, diagnose
+from pipelines.ingest.csv_dialect import split_unit
+from pipelines.ingest.csv_layout import AXES, CsvLayout, header_units, layout_of
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import COUNTS, Column, FormatSpec
+from pipelines.ingest.manifest import COUNTS, FormatSpec
 from pipelines.ingest.time_order import check_time_increases
-
-if TYPE_CHECKING:
-    import pandas as pd  # imported where a frame is made (~0.3 s at start)
 
 PROGRESS_THRESHOLD_BYTES = 64 * 2**20  # above: a progress bar on stderr
 # Text per parsed slice: large enough that pyarrow's threads share the parse, small enough
@@ -54,206 +49,9 @@ PROGRESS_THRESHOLD_BYTES = 64 * 2**20  # above: a progress bar on stderr
 # arrays on an 800k-row file, tests/test_large_csv.py).
 SLICE_BYTES = 8 << 20
 ESTIMATE_PROBE_BYTES = 64 << 10  # bytes of the first lines that estimate the row count
-PANDAS_CHUNK_ROWS = 1_000_000  # rows per chunk of whitespace-separated text
 MATLAB_UNIX_EPOCH_DATENUM = 719529.0  # datenum of 1970-01-01
 
-AXES = "xyz"
-# Recognised column names (case-insensitive) when the manifest names no columns.
-# "{a}" is the axis letter. A name matching two roles, or a role matched by two
-# columns, is an error that lists the candidates.
-_PATTERNS = {
-    "acc": (
-        "acc_{a}", "acc{a}", "acc.{a}", "a{a}", "a_{a}", "accel_{a}", "accel{a}", "accel.{a}",
-        "accelerometer_{a}", "accelerometer.{a}", "linear_acceleration.{a}",
-        "linear_acceleration_{a}",
-    ),
-    "gyr": (
-        "gyr_{a}", "gyr{a}", "gyr.{a}", "gyro_{a}", "gyro{a}", "gyro.{a}", "g{a}", "g_{a}",
-        "w{a}", "w_{a}", "omega_{a}", "gyroscope_{a}", "gyroscope.{a}",
-        "angular_velocity.{a}", "angular_velocity_{a}",
-    ),
-}  # fmt: skip
-COMMON_NAMES: dict[str, tuple[str, ...]] = {
-    "time": ("t", "time", "time_s", "timestamp", "stamp", "header.stamp", "ts"),
-    **{
-        f"{sensor}_{a}": tuple(p.format(a=a) for p in patterns)
-        for sensor, patterns in _PATTERNS.items()
-        for a in AXES
-    },
-    "temp": ("temp", "temperature", "temp_c", "temperature_c", "temperature.temperature"),
-}
-SECTION_NAMES = ("part", "label", "section")  # a column naming each row's segment
 TEMPERATURE_UNITS = {"degC": (1.0, 0.0), "K": (1.0, -273.15), "degF": (5 / 9, -32 * 5 / 9)}
-
-
-@dataclass
-class _Layout:
-    """Where the data of one file is: delimiter, column names and the columns of each role."""
-
-    path: Path
-    delimiter: str
-    names: list[str]  # every column of the file (header names, or "c0", "c1", ...)
-    data_start: int  # 1-based line of the first line after the header (or of the file)
-    roles: dict[str, str]  # role ("time", "acc_x", ..., "temp", "ref:<name>") -> column name
-    fields: dict[str, str]  # column name -> manifest field or column name, for messages
-    decimal: str = "."
-    metadata: tuple[str, ...] = ()  # lines before the header
-    sections: dict[str, int] = dataclasses.field(default_factory=dict)  # value -> code
-
-    def line_of_row(self, row: int) -> int:
-        """1-based line number of 0-based data row `row` (blank lines are not rows)."""
-        seen = -1
-        with self.path.open("r", encoding="utf-8-sig", errors="replace") as fh:
-            for number, line in enumerate(fh, start=1):
-                if number >= self.data_start and line.strip():
-                    seen += 1
-                    if seen == row:
-                        return number
-        return self.data_start + row
-
-
-def layout_of(
-    path: Path,
-    fmt: FormatSpec,
-    sensors: tuple[str, ...] = ("acc", "gyr"),
-    sections: bool = False,
-) -> _Layout:
-    """Resolve the manifest's columns (or recognise common names) against the file's first line.
-
-    Parameters
-    ----------
-    path : the data file.
-    fmt : the ``[format]`` section.
-    sensors : the triads this file must hold (``("acc",)`` for a separate acc file).
-    sections : find the section column (``format.section_column`` or a ``part``,
-        ``label`` or ``section`` column) as role ``"section"``.
-
-    Raises
-    ------
-    IngestError naming the file, the line and the manifest field of a column
-    that is not in the file, or listing the candidates of an ambiguous or
-    unrecognised column.
-    """
-    path = Path(path)
-    dialect = sniff(path, fmt)
-    delimiter = dialect.delimiter
-    present = names = dialect.names
-    first_no = dialect.header_line or dialect.data_start
-    if fmt.header and len(set(names)) != len(names):
-        repeated = sorted({n for n in names if names.count(n) > 1})
-        raise IngestError(f"the header repeats column names {repeated}", file=path, line=first_no)
-    roles: dict[Column, str] = {}
-    if fmt.acc_columns is None and fmt.gyr_columns is None:
-        wanted = _recognise(path, present, first_no, sensors, fmt)
-    else:
-        wanted = {}
-        if fmt.time_column is not None:
-            wanted["time"] = (fmt.time_column, "format.time_column")
-        for sensor in sensors:
-            for a, col in zip(AXES, getattr(fmt, f"{sensor}_columns") or [], strict=True):
-                wanted[f"{sensor}_{a}"] = (col, f"format.{sensor}_columns")
-        if fmt.temp_column is not None and "acc" in sensors:
-            wanted["temp"] = (fmt.temp_column, "format.temp_column")
-    if "acc" in sensors:
-        for name, col in fmt.reference_columns.items():
-            wanted[f"ref:{name}"] = (col, f"format.reference_columns.{name}")
-    if sections:
-        wanted["section"] = _section_column(path, present, first_no, fmt)
-    fields: dict[str, str] = {}
-    bases = {split_unit(name)[0]: name for name in present}
-    for role, (col, field) in wanted.items():
-        if fmt.header:
-            col = bases.get(col, col) if col not in present else col  # "acc_x" for "acc_x [g]"
-            if col not in present:
-                raise IngestError(
-                    f"column {col!r} named in the manifest is not in the header; "
-                    f"the header has: {', '.join(present)}",
-                    file=path,
-                    line=first_no,
-                    field=field,
-                )
-            name = str(col)
-        else:
-            if not (isinstance(col, int) and 0 <= col < len(present)):
-                raise IngestError(
-                    f"column {col!r}: without a header, columns are 0-based indices "
-                    f"below {len(present)} (the first line has {len(present)} columns)",
-                    file=path,
-                    line=first_no,
-                    field=field,
-                )
-            name = names[col]
-        roles[role] = name
-        fields[name] = str(col)
-    return _Layout(
-        path=path,
-        delimiter=delimiter,
-        names=names,
-        data_start=dialect.data_start,
-        roles=roles,
-        fields=fields,
-        decimal=dialect.decimal,
-        metadata=tuple(dialect.metadata),
-    )
-
-
-def _section_column(
-    path: Path, header: list[str], line: int, fmt: FormatSpec
-) -> tuple[Column, str]:
-    """The section column: the manifest's, else the one 'part', 'label' or 'section' column."""
-    if fmt.section_column is not None:
-        return fmt.section_column, "format.section_column"
-    hits = [h for h in header if split_unit(h)[0].lower() in SECTION_NAMES]
-    if len(hits) != 1:
-        raise IngestError(
-            f"segments give 'section' but the file has {'no' if not hits else 'several'} "
-            f"section column ({', '.join(hits) or 'header: ' + ', '.join(header)}); expected one "
-            f"of {', '.join(SECTION_NAMES)} or format.section_column",
-            file=path,
-            line=line,
-            field="format.section_column",
-        )
-    return hits[0], "format.section_column"
-
-
-def _recognise(
-    path: Path, header: list[str], line: int, sensors: tuple[str, ...], fmt: FormatSpec
-) -> dict[str, tuple[str, str]]:
-    """Map roles to header columns by `COMMON_NAMES`; errors list the candidates."""
-    wanted_roles = [f"{s}_{a}" for s in sensors for a in AXES]
-    if fmt.time_column is None and fmt.sample_rate_hz is None:
-        wanted_roles.insert(0, "time")
-    if "acc" in sensors and fmt.temp_column is None:
-        wanted_roles.append("temp")
-    out: dict[str, tuple[str, str]] = {}
-    if fmt.time_column is not None:
-        out["time"] = (fmt.time_column, "format.time_column")
-    for role in wanted_roles:
-        hits = [h for h in header if split_unit(h)[0].lower() in COMMON_NAMES[role]]
-        if len(hits) > 1:
-            raise IngestError(
-                f"ambiguous {role} column: {', '.join(hits)} all look like {role}; "
-                "name the columns in [format] (time_column, acc_columns, gyr_columns)",
-                file=path,
-                line=line,
-                field="format",
-            )
-        if hits:
-            out[role] = (hits[0], "format")
-        elif role != "temp":  # temperature is optional
-            raise IngestError(
-                f"no {role} column recognised in the header; found: {', '.join(header)}; "
-                f"expected one of {', '.join(COMMON_NAMES[role][:6])}, ... (any case, "
-                "optionally with a unit as 'acc_x [g]'), or name the columns in [format]"
-                + (" or give sample_rate_hz" if role == "time" else "")
-                + (_NO_HEADER_HINT if all(is_number(h) for h in header) else ""),
-                file=path,
-                line=line,
-                field="format",
-            )
-    if fmt.temp_column is not None and "acc" in sensors:
-        out["temp"] = (fmt.temp_column, "format.temp_column")
-    return out
 
 
 # --- reading -----------------------------------------------------------------------
@@ -328,7 +126,7 @@ def read_csv_sections(
 
 def _read(
     path: Path, fmt: FormatSpec, progress: bool | None, sections: bool
-) -> tuple[Recording, np.ndarray | None, _Layout]:
+) -> tuple[Recording, np.ndarray | None, CsvLayout]:
     """(Recording, section codes per row or None, layout) of a whole file."""
     layout = layout_of(path, fmt, sections=sections)
     fmt = header_units(layout, fmt)
@@ -343,47 +141,7 @@ def _read(
     return rec, codes, layout
 
 
-def header_units(layout: _Layout, fmt: FormatSpec) -> FormatSpec:
-    """`fmt` with the units the header names give (``acc_x [g]``), unless the manifest sets them.
-
-    Raises IngestError naming the column when the three axes of a triad carry
-    different units or a unit is unknown.
-    """
-    update: dict[str, str] = {}
-    for key, roles in (
-        ("time_unit", ("time",)),
-        ("acc_unit", tuple(f"acc_{a}" for a in AXES)),
-        ("gyr_unit", tuple(f"gyr_{a}" for a in AXES)),
-    ):
-        units = {split_unit(layout.roles[r])[1] for r in roles if r in layout.roles}
-        units.discard(None)
-        if not units or key in fmt.model_fields_set:
-            continue
-        if len(units) > 1:
-            names = ", ".join(layout.roles[r] for r in roles if r in layout.roles)
-            raise IngestError(
-                f"the columns {names} carry different units; expected one unit per triad "
-                f"(or set format.{key})",
-                file=layout.path,
-                line=layout.data_start - 1,
-                field=f"format.{key}",
-            )
-        update[key] = units.pop()
-    if not update:
-        return fmt
-    try:
-        return FormatSpec.model_validate({**fmt.model_dump(exclude_unset=True), **update})
-    except ValueError as exc:
-        key = next(iter(update))
-        raise IngestError(
-            f"unit in the header not understood: {exc}; set format.{key} to override",
-            file=layout.path,
-            line=layout.data_start - 1,
-            field=f"format.{key}",
-        ) from None
-
-
-def _celsius(layout: _Layout, temp: np.ndarray | None) -> np.ndarray | None:
+def _celsius(layout: CsvLayout, temp: np.ndarray | None) -> np.ndarray | None:
     """Temperature in deg C from the header's unit (degC, K or degF; none: degC)."""
     if temp is None:
         return None
@@ -457,7 +215,9 @@ def estimate_rows(path: Path, data_start: int) -> int:
     return int(size / (sum(map(len, lines)) / len(lines) + 1)) + 1
 
 
-def _read_columns(layout: _Layout, fmt: FormatSpec, progress: bool | None) -> dict[str, np.ndarray]:
+def _read_columns(
+    layout: CsvLayout, fmt: FormatSpec, progress: bool | None
+) -> dict[str, np.ndarray]:
     """Parse the file once, filling preallocated output arrays as the blocks come.
 
     Returns
@@ -500,7 +260,7 @@ def _read_columns(layout: _Layout, fmt: FormatSpec, progress: bool | None) -> di
                 values = batch[name]
                 bad = np.flatnonzero(~np.isfinite(values))
                 if bad.size:
-                    _diagnose(layout, columns, iso_column, rows)
+                    diagnose(layout, columns, iso_column, rows)
                     raise IngestError(  # not reached unless the diagnosis disagrees
                         f"expected a finite number, got {values[bad[0]]!r}",
                         file=layout.path,
@@ -520,7 +280,7 @@ def _read_columns(layout: _Layout, fmt: FormatSpec, progress: bool | None) -> di
 
 
 def _batches(
-    layout: _Layout, columns: list[str], iso_column: str | None
+    layout: CsvLayout, columns: list[str], iso_column: str | None
 ) -> Iterator[tuple[dict[str, np.ndarray], int]]:
     """Blocks of the file as ({column: float64 array}, bytes read so far).
 
@@ -563,7 +323,7 @@ def _batches(
             del table
     except pa.ArrowInvalid as exc:
         # Text in a numeric column, a row with too many fields, ...: find it.
-        _diagnose(layout, columns, iso_column, 0)
+        diagnose(layout, columns, iso_column, 0)
         raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
 
 
@@ -599,7 +359,7 @@ def _slices(path: Path, data_start: int) -> Iterator[tuple[pa.Buffer, int]]:
         start = end
 
 
-def _codes(layout: _Layout, text: pa.Array | np.ndarray) -> np.ndarray:
+def _codes(layout: CsvLayout, text: pa.Array | np.ndarray) -> np.ndarray:
     """Section names as float codes (`layout.sections` maps each name to its code)."""
     if isinstance(text, pa.Array | pa.ChunkedArray):
         text = text.to_numpy(zero_copy_only=False)
@@ -625,7 +385,7 @@ def _iso_seconds(text: pa.Array | np.ndarray) -> np.ndarray:
 
 
 def _pandas_batches(
-    layout: _Layout, columns: list[str], iso_column: str | None
+    layout: CsvLayout, columns: list[str], iso_column: str | None
 ) -> Iterator[tuple[dict[str, np.ndarray], int]]:
     """Whitespace-separated text through pandas' C parser, in chunks of rows."""
     import pandas as pd
@@ -659,7 +419,7 @@ def _pandas_batches(
                     }
                     yield batch, fh.tell()
     except (ValueError, pd.errors.ParserError) as exc:
-        _diagnose(layout, columns, iso_column, 0)
+        diagnose(layout, columns, iso_column, 0)
         raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
 
 
@@ -698,13 +458,7 @@ def seconds(values: np.ndarray, unit: str) -> np.ndarray:
     return values * time_factor(unit)
 
 
-_NO_HEADER_HINT = (
-    "; that line holds only numbers: a file without a header (as imu_tk writes) needs "
-    "header = false and the columns by index in [format] (time_column = 0, acc_columns = [1, 2, 3])"
-)
-
-
-def _time(layout: _Layout, fmt: FormatSpec, raw: np.ndarray | None, n: int) -> np.ndarray:
+def _time(layout: CsvLayout, fmt: FormatSpec, raw: np.ndarray | None, n: int) -> np.ndarray:
     """Time in s from the raw time column, converted in place, or from the sample rate.
 
     Raises IngestError at the first row whose time is not after the previous one.
@@ -746,115 +500,3 @@ def _to_si(values: np.ndarray, sensor: str, fmt: FormatSpec) -> np.ndarray:
     elif (factor := convert(unit)) != 1.0:
         values *= factor
     return values
-
-
-# --- diagnosis (slow path, only for bad input) --------------------------------------
-
-
-def _diagnose(layout: _Layout, columns: list[str], iso_column: str | None, from_row: int) -> None:
-    """Raise IngestError at the first value that is not a finite number (or valid ISO time).
-
-    Reads the file again as text in chunks (bounded memory), from data row
-    `from_row` on.
-    """
-    import pandas as pd
-
-    sep = r"\s+" if layout.delimiter == "whitespace" else layout.delimiter
-    try:
-        reader = pd.read_csv(
-            layout.path,
-            sep=sep,
-            header=None,
-            names=layout.names,
-            usecols=columns,
-            dtype=str,
-            keep_default_na=False,
-            skiprows=layout.data_start - 1,
-            engine="c",
-            encoding="utf-8-sig",
-            chunksize=PANDAS_CHUNK_ROWS,
-        )
-        row0 = 0
-        with reader:
-            for text in reader:
-                if row0 + len(text) > from_row:
-                    _first_bad(layout, text[columns], iso_column, row0)
-                row0 += len(text)
-    except UnicodeDecodeError:
-        _raise_not_utf8(layout.path)
-        raise
-    except pd.errors.ParserError as exc:
-        m = re.search(r"line (\d+)", str(exc))
-        line = int(m.group(1)) + layout.data_start - 1 if m else _wrong_count_line(layout)
-        raise IngestError(
-            f"cannot split the line into columns: {exc}", file=layout.path, line=line
-        ) from None
-
-
-def _wrong_count_line(layout: _Layout) -> int | None:
-    """1-based line of the first data line whose field count is not the header's."""
-    with layout.path.open("r", encoding="utf-8", errors="replace", newline="") as fh:
-        for number, line in enumerate(fh, start=1):
-            fields = split_fields(line.rstrip("\r\n"), layout.delimiter)
-            if number >= layout.data_start and line.strip() and len(fields) != len(layout.names):
-                return number
-    return None
-
-
-def _raise_not_utf8(path: Path) -> None:
-    """Raise IngestError at the first byte of `path` that is not UTF-8 (line, column, byte)."""
-    decoder = codecs.getincrementaldecoder("utf-8")()
-    line, offset = 1, 0
-    with path.open("rb") as fh:
-        while block := fh.read(1 << 20):
-            try:
-                decoder.decode(block)
-            except UnicodeDecodeError as exc:
-                data = decoder.getstate()[0] + block  # undecoded bytes carried over + block
-                bad = exc.start
-                start = data.rfind(b"\n", 0, bad) + 1
-                line += data.count(b"\n", 0, bad)
-                column = len(data[start:bad].decode("utf-8", errors="replace")) + 1
-                raise IngestError(
-                    f"not UTF-8 text: byte 0x{data[bad]:02x} at column {column} (byte offset "
-                    f"{offset - len(decoder.getstate()[0]) + bad}); save the file as UTF-8",
-                    file=path,
-                    line=line,
-                ) from None
-            line += block.count(b"\n")
-            offset += len(block)
-
-
-def _first_bad(layout: _Layout, text: pd.DataFrame, iso_column: str | None, row0: int) -> None:
-    import pandas as pd
-
-    raw = text.to_numpy(dtype=str)
-    bad = np.zeros(raw.shape, dtype=bool)
-    for j, c in enumerate(text.columns):
-        if c == iso_column:
-            parsed = pd.to_datetime(text[c], errors="coerce", utc=True, format="ISO8601")
-            bad[:, j] = parsed.isna().to_numpy()
-        elif c == layout.roles.get("section"):
-            bad[:, j] = (text[c] == "").to_numpy()
-        else:
-            column = text[c].str.replace(",", ".") if layout.decimal == "," else text[c]
-            numbers = pd.to_numeric(column, errors="coerce").to_numpy(dtype=float)
-            bad[:, j] = ~np.isfinite(numbers)
-    rows, cols = np.nonzero(bad)
-    if rows.size:
-        i, j = int(rows[0]), int(cols[0])  # row-major order: the first bad cell
-        value = str(raw[i, j])
-        got = "an empty value (missing column or blank line)" if value == "" else repr(value)
-        what = (
-            "an ISO-8601 time"
-            if text.columns[j] == iso_column
-            else "a section name"
-            if text.columns[j] == layout.roles.get("section")
-            else "a finite number"
-        )
-        raise IngestError(
-            f"expected {what}, got {got}",
-            file=layout.path,
-            line=layout.line_of_row(row0 + i),
-            field=layout.fields[text.columns[j]],
-        )
