@@ -26,18 +26,21 @@ from storage import queries
 from storage.db import Archive
 
 
-def read_input(path: Path, serial: str | None = None) -> tuple[dict[str, Recording], float | None]:
-    """New raw data in any ingest format -> (segments, manifest temperature or None).
+def read_input(
+    path: Path, serial: str | None = None
+) -> tuple[dict[str, Recording], float | None, str | None]:
+    """New raw data in any ingest format -> (segments, manifest temperature or None, the
+    serial the data name: the manifest's unit or the MPU-6000 file name; None if none).
 
     path : a run folder with run.toml (or the run.toml), a folder of MPU-6000
         files (the runs of `serial`), or one MPU-6000 file.
     """
     path = Path(path)
-    if path.is_file() and parse_file_name(path.name) is not None:
+    if path.is_file() and (named := parse_file_name(path.name)) is not None:
         rec = read_mpu6000_file(path)
-        return {rec.label or path.stem: rec}, None
+        return {rec.label or path.stem: rec}, None, named[0]
     loaded = read_run(path, serial)
-    return loaded.segments, loaded.manifest.environment.temperature_c
+    return loaded.segments, loaded.manifest.environment.temperature_c, loaded.manifest.unit.serial
 
 
 def load_compensation(
@@ -134,7 +137,19 @@ def apply_calibration(
     if Path(output).suffix.lower() not in (".parquet", ".pq", ".csv"):
         raise ValueError(f"output {output}: expected a .parquet, .pq or .csv file name")
     cal, cal_temp, model, facts = load_compensation(archive, serial, at)
-    segments, env_temp = read_input(Path(source), serial)
+    segments, env_temp, data_serial = read_input(Path(source), serial)
+    warnings = []
+    if data_serial is not None and data_serial != serial:
+        warnings.append(
+            f"{source}: the data name serial {data_serial!r}, the calibration applied is "
+            f"{serial!r}'s (--serial); check that this is the unit that recorded it"
+        )
     done, step = calibrate_segments(segments, cal, cal_temp, model, env_temp)
     write_samples(samples_table(done), Path(output))
-    return {**facts, **step.statistics, "output": str(output)}
+    return {
+        **facts,
+        "data_serial": data_serial,
+        **step.statistics,
+        "output": str(output),
+        "warnings": warnings,
+    }

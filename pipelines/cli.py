@@ -26,6 +26,7 @@ from pipelines.cli_shared import (
     out,
     print_frame,
     print_json,
+    warn,
 )
 from pipelines.commands import register_all
 from pipelines.direct import IN_PROCESS_MAX_RUNS
@@ -293,10 +294,8 @@ def export(
                             instance=instance, accel_id=accel_id, gyro_id=gyro_id)  # fmt: skip
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
-    from rich.markup import escape
-
     for note in result.warnings:
-        err.print(f"[yellow]warning:[/yellow] {escape(note)}", soft_wrap=True)
+        warn(note)
     if output is None:
         sys.stdout.flush()
         sys.stdout.buffer.write(result.data)

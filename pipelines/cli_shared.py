@@ -200,3 +200,39 @@ def print_frame(df, title: str) -> None:
     for row in df.itertuples(index=False):
         table.add_row(*("" if v is None else str(v) for v in row))
     out.print(table)
+
+
+def print_facts(facts: dict[str, Any], title: str, paths: tuple[str, ...] = ()) -> None:
+    """A flat dict as a two-column table (what, value); long values wrap, never cut.
+
+    The values of the keys in `paths` (file paths) follow the table one per line, whole
+    (``output: /the/path``): a path wrapped inside a cell cannot be copied.
+    """
+    table = Table(title=title, show_header=False)
+    table.add_column("what", style="bold", no_wrap=True)
+    table.add_column("value", overflow="fold")
+    for key, value in facts.items():
+        if key in paths:
+            continue
+        if isinstance(value, list):
+            value = ", ".join(map(str, value)) or None
+        table.add_row(_label(key), "-" if value is None else str(value))
+    out.print(table)
+    for key in paths:
+        if facts.get(key) is not None:
+            out.print(f"{_label(key)}: {facts[key]}", soft_wrap=True, markup=False, highlight=False)
+
+
+def _label(key: str) -> str:
+    """A JSON key for people: ``calibration_temperature_c`` -> ``calibration temperature (°C)``."""
+    for suffix, unit in (("_c", "°C"), ("_s", "s"), ("_days", "days")):
+        if key.endswith(suffix):
+            return f"{key[: -len(suffix)].replace('_', ' ')} ({unit})"
+    return key.replace("_", " ")
+
+
+def warn(message: str) -> None:
+    """A warning on stderr (markup in `message` is not interpreted)."""
+    from rich.markup import escape
+
+    err.print(f"[yellow]warning:[/yellow] {escape(message)}", soft_wrap=True)

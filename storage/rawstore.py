@@ -78,10 +78,29 @@ def hash_and_size(path: Path) -> tuple[str, int]:
     return h.hexdigest(), n
 
 
+def _read_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+# The mode of every file the archive writes: what open() gives under the process's umask
+# (0644 under the usual 022), as for the reports and exports written beside them. mkstemp's
+# 0600 would survive the rename and leave archived files unreadable to the lab's other
+# accounts. Read once at import, before any thread (os.umask sets as it reads).
+FILE_MODE = 0o666 & ~_read_umask()
+
+
+def _mkstemp(folder: Path, prefix: str, suffix: str) -> tuple[int, Path]:
+    """A new temporary file in `folder` with the archive's `FILE_MODE`."""
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=prefix, suffix=suffix)
+    os.fchmod(fd, FILE_MODE)
+    return fd, Path(tmp)
+
+
 def _temp_beside(path: Path) -> tuple[int, Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    return fd, Path(tmp)
+    return _mkstemp(path.parent, f".{path.name}.", ".tmp")
 
 
 def write_atomic(path: Path, data: bytes) -> None:
@@ -204,8 +223,7 @@ class PendingFiles:
         # The writer's host and process in the name: `remove_stale_temp_files` can tell
         # a file a live writer still needs from one a killed writer left behind.
         prefix = f".{name}.{_WRITER}."
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=prefix, suffix=TEMP_SUFFIX)
-        return fd, Path(tmp)
+        return _mkstemp(folder, prefix, TEMP_SUFFIX)
 
     def _queue(self, fd: int, tmp: Path, target: Path, *, keep_existing: bool = False) -> None:
         """Queue `tmp`, written through `fd` (closed here, after its fsync), for `target`."""

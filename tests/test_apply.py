@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -187,6 +188,30 @@ def test_apply_to_one_mpu6000_file_writes_csv(campaign, tmp_path):
     tol = 5 * truth.base.acc_noise / np.sqrt(n) + 5e-5
     mean = df[["acc_x", "acc_y", "acc_z"]].mean().to_numpy()
     assert np.all(np.abs(mean - [0, 0, STANDARD_GRAVITY]) < tol), (mean, tol)
+
+
+def test_apply_prints_a_table_and_warns_of_another_serial(campaign, tmp_path):
+    """Without --json: a table of what was applied (no JSON on stdout); data whose file
+    names another serial than --serial is calibrated as asked, with a warning naming both."""
+    truth, rng = campaign["truth"], campaign["rng"]
+    sim = six_position_integral_run(truth.errors_at(UNTESTED_C), rng, temp_c=UNTESTED_C)
+    files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "mpu", "OTHER-7")
+    out = tmp_path / "z_up.csv"
+    args = ["apply", str(files[0]), str(out), "--serial", SERIAL, "--archive",
+            str(campaign["archive"].root)]  # fmt: skip
+    res = CliRunner().invoke(app, args, env={"COLUMNS": "80"})
+    assert res.exit_code == 0, res.output
+    assert not res.stdout.lstrip().startswith("{")
+    assert re.search(r"│ serial\s+│ TH-0042", res.stdout) and "data serial" in res.stdout
+    assert f"output: {out}\n" in res.stdout  # whole, on its own line
+    assert "warning:" in res.stderr and "'OTHER-7'" in res.stderr and "'TH-0042'" in res.stderr
+    res = CliRunner().invoke(app, [*args, "--json"])
+    facts = json.loads(res.stdout)
+    assert facts["data_serial"] == "OTHER-7" and len(facts["warnings"]) == 1
+    files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "own", SERIAL)
+    res = CliRunner().invoke(app, [*args[:1], str(files[0]), *args[2:], "--json"])
+    assert res.exit_code == 0 and "warning" not in res.stderr
+    assert json.loads(res.stdout)["warnings"] == []
 
 
 def test_apply_errors_are_clear(campaign, tmp_path):

@@ -8,7 +8,6 @@ done, 2 invalid input or nothing to work on.
 
 from __future__ import annotations
 
-import json
 from datetime import UTC, date, datetime, time
 from pathlib import Path
 from typing import Annotated, Any
@@ -22,10 +21,11 @@ from pipelines.cli_shared import (
     fail,
     frame_records,
     open_archive,
-    out,
+    print_facts,
     print_frame,
     print_json,
     sub_app,
+    warn,
 )
 
 thermal_app = sub_app("Temperature compensation: fit and export.")
@@ -157,10 +157,13 @@ def apply(
     from pipelines.apply import apply_calibration
 
     facts = _run(apply_calibration, open_archive(archive), serial, parse_when(at), source, output)
+    for message in facts["warnings"]:
+        warn(message)
     if as_json:
         print_json(facts)
         return
-    out.print(json.dumps(facts, indent=2, default=str))
+    shown = {k: v for k, v in facts.items() if k != "warnings"}
+    print_facts(shown, "Calibration applied", paths=("output",))
 
 
 @app.command("trend")

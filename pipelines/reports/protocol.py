@@ -17,8 +17,12 @@ from pipelines.reports.display import display, tolerance
 _RULE = "-" * 78
 
 
-def _fmt(value: float | None, width: int = 12) -> str:
-    return f"{'':>{width}}" if value is None else f"{value:>+{width}.6f}"
+def _fmt(value: float | None, width: int = 12, signed: bool = True) -> str:
+    """A value right-aligned in `width`, 6 decimals; with its sign when `signed` (a
+    parameter value), without for an uncertainty (never negative: no ``+``)."""
+    if value is None:
+        return f"{'':>{width}}"
+    return f"{value:>+{width}.6f}" if signed else f"{value:>{width}.6f}"
 
 
 def render_protocol(
@@ -69,7 +73,8 @@ def render_protocol(
             tol, mark = f"{'':>12}", " "
         else:
             tol, mark = f"{tol[0]:>3}{tol[1]:>9.4g}", "+" if check["passed"] else "-"
-        lines.append(f"{p['name']:<18}{_fmt(value, 13)}{_fmt(std, 13)}  {unit:<10}{tol}  {mark}")
+        u = _fmt(std, 13, signed=False)
+        lines.append(f"{p['name']:<18}{_fmt(value, 13)}{u}  {unit:<10}{tol}  {mark}")
     other = [c for c in checks if not c["name"].startswith("param:")]
     if other:
         lines += [_RULE, "Checks", f"{'Check':<44}{'Value':>13}{'Limit':>13}  Result"]
