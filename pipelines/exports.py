@@ -35,6 +35,7 @@ import numpy as np
 from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.thermal import ThermalModel, shift_polynomial
+from calib_core.units import STANDARD_GRAVITY
 
 EXPORT_FORMAT = "imu-calib-export"
 EXPORT_VERSION = 1
@@ -263,7 +264,10 @@ def unrepresented(
     for family, names in families.items():
         values = ", ".join(f"{n.rsplit('.', 1)[1]} {cal.value(n):.6g}" for n in names)
         why = "not a correction" if family.endswith(".noise") else f"no {firmware} parameter"
-        notes.append(f"not exported ({why}): {family} [{params.UNITS[family]}]: {values}")
+        notes.append(
+            f"not exported ({why}): {family} [{params.UNITS[family]}]: {values}"
+            + _left_over(family, max(abs(cal.value(n)) for n in names))
+        )
     if model is not None:
         curves = sorted(n for n in model.curves if ".bias." not in n)
         if curves:
@@ -272,6 +276,16 @@ def unrepresented(
                 "the calibration's values are used at every temperature"
             )
     return notes
+
+
+def _left_over(family: str, largest: float) -> str:
+    """What the largest term of a family leaves uncorrected, in words, or ''."""
+    kind = family.split(".")[1]
+    if kind in ("scale", "misalign"):  # dimensionless: a share of the input
+        return f" (up to {100 * largest:.2g} % of the input left uncorrected)"
+    if kind == "gsens":  # (rad/s)/(m/s^2): a rate error under 1 g
+        return f" (up to {largest * STANDARD_GRAVITY:.2g} rad/s left uncorrected at 1 g)"
+    return ""
 
 
 def _scales(cal: Calibration, lo_hi: tuple[float, float], firmware: str) -> np.ndarray:

@@ -67,6 +67,8 @@ def test_px4_golden_file():
     for family in ("acc.misalign", "gyr.scale", "gyr.noise"):
         assert any(family in n for n in notes) and f"{family} [" in text
     assert "acc.misalign [1]: xy 0.002" in text and "gyr.scale [1]: x 0.005" in text
+    assert "xy 0.002 (up to 0.2 % of the input left uncorrected)" in text
+    assert "x 0.005 (up to 0.5 % of the input left uncorrected)" in text
     assert "device id 0" not in text
 
 
