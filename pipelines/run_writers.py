@@ -148,19 +148,54 @@ def write_csv_run(
     -------
     Path of the written run.toml.
 
-    One function on purpose: the layout (time base, columns, manifest windows) is one
-    file's description, kept together so the reader's tests can follow it.
+    The layout (time base, columns, manifest windows) is one file's description:
+    `_csv_format` names the columns, `_csv_blocks` places the segments on the
+    time base, `_csv_decimals` gives each column its printed precision.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     doc = {k: v for k, v in manifest.items() if k not in ("format", "segments")}
     doc.setdefault("schema_version", 1)
     given = dict(manifest.get("format", {}))
-    time_unit = given.get("time_unit", "s")
-    acc_unit = given.get("acc_unit", "m/s^2")
-    gyr_unit = given.get("gyr_unit", "rad/s")
-    delimiter = given.get("delimiter", ",")
-    sep = {"tab": "\t", "whitespace": " "}.get(delimiter, delimiter)
+    fmt, refs = _csv_format(segments, given)
+    flags = {s["label"]: s for s in manifest.get("segments", [])}
+    unknown = set(flags) - set(segments)
+    if unknown:
+        raise ValueError(f"manifest segments name labels with no data: {sorted(unknown)}")
+    blocks, seg_docs = _csv_blocks(segments, fmt, refs, flags)
+
+    names = ["time", *fmt["acc_columns"], *fmt["gyr_columns"]]
+    names += ["temp"] if "temp_column" in fmt else []
+    names += [f"ref_{name}" for name in refs]
+    sep = {"tab": "\t", "whitespace": " "}.get(fmt["delimiter"], fmt["delimiter"])
+    buf = io.StringIO()
+    np.savetxt(
+        buf,
+        np.concatenate(blocks),
+        fmt=[f"%.{d}f" for d in _csv_decimals(fmt, len(refs))],
+        delimiter=sep,
+        header=sep.join(names),
+        comments="",
+    )
+    (folder / CSV_NAME).write_text(buf.getvalue(), encoding="utf-8")
+
+    doc["format"] = {**fmt, **{k: v for k, v in given.items() if k not in fmt}}
+    doc["segments"] = seg_docs
+    path = folder / "run.toml"
+    path.write_text(dumps_toml(doc), encoding="utf-8")
+    if truth is not None:
+        write_json(folder / "truth.json", truth)
+    return path
+
+
+def _csv_format(
+    segments: dict[str, Recording], given: dict[str, Any]
+) -> tuple[dict[str, Any], list[str]]:
+    """The ``[format]`` section of the CSV (units from `given`) and the reference channels.
+
+    Raises ValueError when only some segments have a temperature channel or the
+    segments do not share their reference channels.
+    """
     with_temp = [rec.temp is not None for rec in segments.values()]
     if any(with_temp) and not all(with_temp):
         raise ValueError("either every segment has a temperature channel or none")
@@ -168,29 +203,40 @@ def write_csv_run(
     for label, rec in segments.items():
         if sorted(rec.reference) != refs:
             raise ValueError(f"segment {label!r} lacks reference channels of the others: {refs}")
-
     fmt: dict[str, Any] = {
         "kind": "csv",
-        "delimiter": delimiter,
+        "delimiter": given.get("delimiter", ","),
         "header": True,
         "time_column": "time",
-        "time_unit": time_unit,
+        "time_unit": given.get("time_unit", "s"),
         "acc_columns": ["acc_x", "acc_y", "acc_z"],
-        "acc_unit": acc_unit,
+        "acc_unit": given.get("acc_unit", "m/s^2"),
         "gyr_columns": ["gyr_x", "gyr_y", "gyr_z"],
-        "gyr_unit": gyr_unit,
+        "gyr_unit": given.get("gyr_unit", "rad/s"),
     }
     if all(with_temp) and with_temp:
         fmt["temp_column"] = "temp"
     if refs:
         fmt["reference_columns"] = {name: f"ref_{name}" for name in refs}
-    flags = {s["label"]: s for s in manifest.get("segments", [])}
+    return fmt, refs
 
+
+def _csv_blocks(
+    segments: dict[str, Recording],
+    fmt: dict[str, Any],
+    refs: list[str],
+    flags: dict[str, dict[str, Any]],
+) -> tuple[list[np.ndarray], list[dict[str, Any]]]:
+    """Each segment's rows in the file's units on the common time base, and its manifest entry.
+
+    Segment k starts ``CSV_GAP_S`` after segment k-1 ends (the first at
+    ``CSV_START_S``); its window reaches half a gap either side.
+    """
     blocks, seg_docs, offset = [], [], CSV_START_S
     for label, rec in segments.items():
         t = rec.t - rec.t[0] + offset
-        block = [t / time_factor(time_unit), rec.acc / acceleration_factor(acc_unit)]
-        block.append(rec.gyr / angular_rate_factor(gyr_unit))
+        block = [t / time_factor(fmt["time_unit"]), rec.acc / acceleration_factor(fmt["acc_unit"])]
+        block.append(rec.gyr / angular_rate_factor(fmt["gyr_unit"]))
         if "temp_column" in fmt:
             block.append(rec.temp[:, None])
         block += [rec.reference[name][:, None] for name in refs]
@@ -206,35 +252,15 @@ def write_csv_run(
             }
         )
         offset = t[-1] + CSV_GAP_S
-    unknown = set(flags) - set(segments)
-    if unknown:
-        raise ValueError(f"manifest segments name labels with no data: {sorted(unknown)}")
+    return blocks, seg_docs
 
-    names = ["time", *fmt["acc_columns"], *fmt["gyr_columns"]]
-    decimals = [CSV_TIME_DECIMALS[time_unit]] + [CSV_ACC_DECIMALS] * 3 + [CSV_GYR_DECIMALS] * 3
-    if "temp_column" in fmt:
-        names.append("temp")
-        decimals.append(CSV_TEMP_DECIMALS)
-    names += [f"ref_{name}" for name in refs]
-    decimals += [CSV_REFERENCE_DECIMALS] * len(refs)
-    buf = io.StringIO()
-    np.savetxt(
-        buf,
-        np.concatenate(blocks),
-        fmt=[f"%.{d}f" for d in decimals],
-        delimiter=sep,
-        header=sep.join(names),
-        comments="",
-    )
-    (folder / CSV_NAME).write_text(buf.getvalue(), encoding="utf-8")
 
-    doc["format"] = {**fmt, **{k: v for k, v in given.items() if k not in fmt}}
-    doc["segments"] = seg_docs
-    path = folder / "run.toml"
-    path.write_text(dumps_toml(doc), encoding="utf-8")
-    if truth is not None:
-        write_json(folder / "truth.json", truth)
-    return path
+def _csv_decimals(fmt: dict[str, Any], n_refs: int) -> list[int]:
+    """Printed decimals per column: time, acc (3), gyr (3), temperature, references."""
+    decimals = [CSV_TIME_DECIMALS[fmt["time_unit"]]] + [CSV_ACC_DECIMALS] * 3
+    decimals += [CSV_GYR_DECIMALS] * 3
+    decimals += [CSV_TEMP_DECIMALS] if "temp_column" in fmt else []
+    return decimals + [CSV_REFERENCE_DECIMALS] * n_refs
 
 
 def write_json(path: Path, doc: dict) -> None:

@@ -209,34 +209,71 @@ def estimate_clock(
     -------
     ClockModel with t0_s = imu_t[0] and the RMS fit residual.
 
-    One function on purpose: the coarse offset, the window offsets and the line fit
-    share the uniform time grid and the gap masks of both clocks.
+    Steps: `_coarse_offset` over the whole run, `_window_offsets` (the local
+    offsets in windows, searched around it), `_fit_line` through them; all on
+    one uniform time grid of the IMU's median sample interval.
     """
-    imu_t, imu_rate = np.asarray(imu_t, float), np.ascontiguousarray(imu_rate, float)
-    ref_t, ref_rate = np.asarray(ref_t, float), np.ascontiguousarray(ref_rate, float)
-    for name, tt, xx in (("imu", imu_t, imu_rate), ("reference", ref_t, ref_rate)):
-        if tt.shape != xx.shape or tt.ndim != 1:
-            raise ValueError(
-                f"estimate_clock: {name} times {tt.shape} and values {xx.shape} differ"
-            )
-        if np.any(np.diff(tt) <= 0):
-            raise ValueError(
-                f"estimate_clock: {name} times are not strictly increasing (use repair_timestamps)"
-            )
+    imu_t, imu_rate = _checked_series("imu", imu_t, imu_rate)
+    ref_t, ref_rate = _checked_series("reference", ref_t, ref_rate)
     dt = float(np.median(np.diff(imu_t)))
     if max_gap_s is None:
         max_gap_s = 5.0 * dt
-    t0 = float(imu_t[0])
     grid = np.arange(imu_t[0], imu_t[-1], dt)
-    imu_gaps, ref_gaps = find_gaps(imu_t, max_gap_s), find_gaps(ref_t, max_gap_s)
-
-    # Coarse offset: whole run, correlated over +-max_offset_s on a grid of at
-    # most ~5 ms (enough to seed the windows; the drift only smears this peak).
+    # A grid of at most ~5 ms seeds the windows (the drift only smears the coarse peak).
     q = max(1, int(0.005 / dt))
+    coarse = _coarse_offset(grid, dt, q, (imu_t, imu_rate), (ref_t, ref_rate), max_offset_s)
+    # The window search covers the drift over the run and the coarse step.
+    search = int(np.ceil(max_drift_ppm * 1e-6 * (grid[-1] - grid[0]) / dt)) + 2 * q + 2
+    centres, offsets = _window_offsets(
+        grid,
+        dt,
+        coarse,
+        search,
+        (imu_t, imu_rate, find_gaps(imu_t, max_gap_s)),
+        (ref_t, ref_rate, find_gaps(ref_t, max_gap_s)),
+        window_s=window_s,
+        min_correlation=min_correlation,
+        max_windows=max_windows,
+    )
+    t0 = float(imu_t[0])
+    coef, rms, n_windows = _fit_line(centres, offsets, t0, dt)
+    return ClockModel(
+        offset_s=float(coef[0]),
+        drift_ppm=float(coef[1] * 1e6),
+        t0_s=t0,
+        residual_ms=rms * 1e3,
+        n_windows=n_windows,
+    )
+
+
+def _checked_series(name: str, t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) times and values as float arrays; ValueError unless same shape, 1-D, increasing."""
+    t, x = np.asarray(t, float), np.ascontiguousarray(x, float)
+    if t.shape != x.shape or t.ndim != 1:
+        raise ValueError(f"estimate_clock: {name} times {t.shape} and values {x.shape} differ")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError(
+            f"estimate_clock: {name} times are not strictly increasing (use repair_timestamps)"
+        )
+    return t, x
+
+
+def _coarse_offset(
+    grid: np.ndarray,
+    dt: float,
+    q: int,
+    imu: tuple[np.ndarray, np.ndarray],
+    ref: tuple[np.ndarray, np.ndarray],
+    max_offset_s: float,
+) -> float:
+    """Offset (s) of the whole run, correlated over +-max_offset_s on every q-th grid point.
+
+    `grid` is uniform with step `dt` (s); `imu` and `ref` are (times, values).
+    """
     # The IMU rate is put on the uniform grid only where it is used: here
     # every q-th point, below the windows (not the whole run at full rate).
     grid_c = grid[::q]
-    x_c = np.interp(grid_c, imu_t, imu_rate)
+    x_c = np.interp(grid_c, *imu)
     lag_max = int(np.ceil(max_offset_s / (q * dt))) + 1
     inner = slice(lag_max, grid_c.size - lag_max)
     if grid_c[inner].size < 10 * lag_max:
@@ -244,13 +281,28 @@ def estimate_clock(
             f"estimate_clock: run of {grid[-1] - grid[0]:.1f} s is too short for offsets "
             f"up to {max_offset_s} s (need > 20 x max_offset_s)"
         )
-    lag0, _ = _ncc_peak(x_c[inner], np.interp(grid_c, ref_t, ref_rate))
-    coarse = lag0 * q * dt
+    lag0, _ = _ncc_peak(x_c[inner], np.interp(grid_c, *ref))
+    return lag0 * q * dt
 
-    # Local offsets in windows; the search range covers the drift over the run
-    # and the coarse step.
-    span = grid[-1] - grid[0]
-    search = int(np.ceil(max_drift_ppm * 1e-6 * span / dt)) + 2 * q + 2
+
+def _window_offsets(
+    grid: np.ndarray,
+    dt: float,
+    coarse: float,
+    search: int,
+    imu: tuple[np.ndarray, np.ndarray, np.ndarray],
+    ref: tuple[np.ndarray, np.ndarray, np.ndarray],
+    *,
+    window_s: float,
+    min_correlation: float,
+    max_windows: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(weighted centre time, offset) in s of every window that correlates well.
+
+    `imu` and `ref` are (times, values, gaps) of each clock; the reference is
+    searched +-`search` grid points around the coarse offset. Windows touching a
+    gap, without motion or below `min_correlation` are skipped.
+    """
     w = max(int(round(window_s / dt)), 8)
     smooth = max(1, int(round(0.25 / dt)))  # 0.25 s moving average for the slope weights
     centres, offsets = [], []
@@ -259,11 +311,11 @@ def estimate_clock(
         starts = starts[np.unique(np.linspace(0, starts.size - 1, max_windows).astype(int))]
     for start in starts:
         sl = slice(start, start + w)
-        x, x_valid = _on_grid(imu_t, imu_rate, grid[sl], imu_gaps)
+        x, x_valid = _on_grid(imu[0], imu[1], grid[sl], imu[2])
         if not x_valid.all() or np.ptp(x) == 0:
             continue
         g = grid[start - search : start + w + search] + coarse
-        y, y_valid = _on_grid(ref_t, ref_rate, g, ref_gaps)
+        y, y_valid = _on_grid(ref[0], ref[1], g, ref[2])
         if not y_valid.all():
             continue
         lag, peak = _ncc_peak(x, y)
@@ -276,14 +328,22 @@ def estimate_clock(
         weight = slope * slope
         centres.append(np.sum(grid[sl] * weight) / np.sum(weight))
         offsets.append(coarse + lag * dt)
-    centres, offsets = np.array(centres), np.array(offsets)
-    if centres.size < 2:
+    if len(centres) < 2:
         raise ValueError(
-            f"estimate_clock: only {centres.size} window(s) of {window_s} s with a correlation "
+            f"estimate_clock: only {len(centres)} window(s) of {window_s} s with a correlation "
             f">= {min_correlation}; the signals need motion (ramps) in several windows"
         )
-    # Straight-line fit with one pass of outlier rejection (a window hit by a
-    # spike or an unmodelled event should not tilt the drift).
+    return np.array(centres), np.array(offsets)
+
+
+def _fit_line(
+    centres: np.ndarray, offsets: np.ndarray, t0: float, dt: float
+) -> tuple[np.ndarray, float, int]:
+    """offset = c0 + c1 (t - t0): (c0, c1), the RMS residual (s) and the windows kept.
+
+    One pass of outlier rejection (5 robust sigmas): a window hit by a spike or
+    an unmodelled event should not tilt the drift.
+    """
     keep = np.ones(centres.size, dtype=bool)
     for _ in range(2):
         A = np.column_stack([np.ones(keep.sum()), centres[keep] - t0])
@@ -293,14 +353,7 @@ def estimate_clock(
         keep = np.abs(resid) <= 5.0 * scale
         if keep.sum() < 2:
             keep[:] = True
-    rms = float(np.sqrt(np.mean(resid[keep] ** 2)))
-    return ClockModel(
-        offset_s=float(coef[0]),
-        drift_ppm=float(coef[1] * 1e6),
-        t0_s=t0,
-        residual_ms=rms * 1e3,
-        n_windows=int(keep.sum()),
-    )
+    return coef, float(np.sqrt(np.mean(resid[keep] ** 2))), int(keep.sum())
 
 
 def align_reference(

@@ -77,6 +77,64 @@ def _per_mount(value: float | Mapping[str, float], mounts: Sequence[str]) -> dic
     return {m: float(value) for m in mounts}
 
 
+@dataclass(frozen=True)
+class _SensorNoise:
+    """The random parts of every record: white noise and per-record gain / offset, SI."""
+
+    rng: np.random.Generator
+    sample_rate: float  # Hz
+    noise: float  # m/s^2 per sample
+    scale_instability: float  # relative, per record and axis
+    bias_instability: float  # m/s^2, per record and axis
+
+
+def _record(
+    truth: CentrifugeTruth,
+    sensor: _SensorNoise,
+    mount: str,
+    rate: float,
+    duration: float,
+    angle0: float,
+) -> Recording:
+    """One record of `duration` s at table rate `rate` (rad/s) from table angle `angle0` (rad).
+
+    Specific force at the mount: centripetal (with the Earth's vertical rate),
+    the tilted table's gravity turning with the arm, and the Coriolis term of
+    the horizontal Earth rate; then the error model, the run offset and noise.
+    """
+    rng = sensor.rng
+    n = int(round(duration * sensor.sample_rate))
+    t = np.arange(n) / sensor.sample_rate
+    angle = angle0 + rate * t
+    radius, phi, g, tilt = truth.radius[mount], truth.phi_h[mount], truth.gravity, truth.tilt
+    a = radius * rate * (rate + 2.0 * truth.omega_v)
+    phase = angle - truth.tilt_azimuth  # tilt direction as seen from the rotating arm
+    f_mount = np.column_stack(
+        [
+            a * math.cos(phi) + g * tilt * np.cos(phase),
+            a * math.sin(phi) - g * tilt * np.sin(phase),
+            np.full(n, g * math.cos(tilt)) + 2.0 * truth.omega_h * rate * radius * np.cos(angle),
+        ]
+    )
+    f = f_mount @ MOUNTS[mount].T
+    gain = rng.normal(0.0, sensor.scale_instability, 3) if sensor.scale_instability > 0 else 0.0
+    offset = rng.normal(0.0, sensor.bias_instability, 3) if sensor.bias_instability > 0 else 0.0
+    acc = (
+        f * (1.0 + gain)
+        + truth.error(f)
+        + truth.run_offset
+        + offset
+        + rng.normal(0.0, sensor.noise, f.shape)
+    )
+    return Recording(
+        t=t,
+        acc=acc,
+        gyr=np.zeros_like(acc),
+        reference={"table_angle": angle, "table_rate": np.full(n, rate)},
+        source=f"simulated centrifuge {mount}",
+    )
+
+
 def simulate_centrifuge(
     model: Mapping[str, Mapping[str, float]],
     *,
@@ -130,7 +188,8 @@ def simulate_centrifuge(
     CentrifugeRun with per-position zero records at 0/90/180/270 deg, a near-1 g
     run and the high-g steps, plus the truth.
 
-    One function on purpose: the simulated run is one sequence of steps in lab order.
+    The steps are simulated in lab order (`_record` one at a time), so a seed
+    gives the same run whatever is asked of it afterwards.
     """
     if direction not in (1, -1):
         raise ValueError(f"direction must be +1 or -1, got {direction}")
@@ -151,40 +210,13 @@ def simulate_centrifuge(
         run_offset=rng.normal(0.0, run_offset_std, 3) if run_offset_std > 0 else np.zeros(3),
     )
 
-    def record(mount: str, rate: float, duration: float, angle0: float) -> Recording:
-        n = int(round(duration * sample_rate))
-        t = np.arange(n) / sample_rate
-        angle = angle0 + rate * t
-        a = radii[mount] * rate * (rate + 2.0 * truth.omega_v)
-        phase = angle - tilt_azimuth  # tilt direction as seen from the rotating arm
-        f_mount = np.column_stack(
-            [
-                a * math.cos(phis[mount]) + gravity * tilt * np.cos(phase),
-                a * math.sin(phis[mount]) - gravity * tilt * np.sin(phase),
-                np.full(n, gravity * math.cos(tilt))
-                + 2.0 * truth.omega_h * rate * radii[mount] * np.cos(angle),
-            ]
-        )
-        f = f_mount @ MOUNTS[mount].T
-        gain = rng.normal(0.0, scale_instability, 3) if scale_instability > 0 else np.zeros(3)
-        offset = rng.normal(0.0, bias_instability, 3) if bias_instability > 0 else np.zeros(3)
-        acc = (
-            f * (1.0 + gain)
-            + truth.error(f)
-            + truth.run_offset
-            + offset
-            + rng.normal(0.0, noise, f.shape)
-        )
-        return Recording(
-            t=t,
-            acc=acc,
-            gyr=np.zeros_like(acc),
-            reference={"table_angle": angle, "table_rate": np.full(n, rate)},
-            source=f"simulated centrifuge {mount}",
-        )
-
     def rate_for(n_g: float) -> float:
         return direction * math.sqrt(n_g * gravity / r_nom)
+
+    sensor = _SensorNoise(rng, sample_rate, noise, scale_instability, bias_instability)
+
+    def record(mount: str, rate: float, duration: float, angle0: float) -> Recording:
+        return _record(truth, sensor, mount, rate, duration, angle0)
 
     steps: list[CentrifugeStep] = []
     for mount in mounts:
