@@ -560,11 +560,18 @@ def check_calibration(cal: Calibration, profile: ToleranceProfile) -> list[Check
     Returns
     -------
     list of CheckResult: ``param:<name>`` (`check_parameters`) then
-    ``residual:<segment>:<sensor>:<std|mean>`` (`check_residuals`). `verdict`
+    ``residual:<segment>:<sensor>:<std|mean>`` (`check_residuals`), then the
+    procedure's own (`solver_checks`, e.g. ``zero_shift:<position>:<axis>``). `verdict`
     turns them into "pass" / "fail". The archive's check step adds held-out
     verification points, repeatability and the unit's description to these.
     """
-    return check_parameters(cal, profile) + check_residuals(cal, profile)
+    return check_parameters(cal, profile) + check_residuals(cal, profile) + solver_checks(cal)
+
+
+def solver_checks(cal: Calibration) -> list[CheckResult]:
+    """Checks a procedure made itself (``cal.info["solver_checks"]``), e.g. the
+    centrifuge's zero output before and after each position's run."""
+    return [CheckResult(**c) for c in cal.info.get("solver_checks", [])]
 
 
 def verdict(checks: list[CheckResult]) -> str:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from calib_core.calibration import StepRecord
+from calib_core.params import AXES
 from calib_core.solvers.centrifuge import AxisValidation, solve_centrifuge, validation_errors
 from calib_core.solvers.centrifuge_model import (
     CentrifugeModel,
@@ -178,6 +179,7 @@ def render_report(
             f"{mount:<9}{_pm(r1.value, r1.std, 7):>24}{_pm(r.value, r.std, 7):>24}"
             f"{_pm(p1.value * 1e3, p1.std * 1e3, 4):>22}{_pm(p.value * 1e3, p.std * 1e3, 4):>22}"
         )
+    lines += _zero_shift_lines(model)
     for axis, m in model.axes.items():
         full, fit = m.reduction.full, m.fit
         lines += [
@@ -223,6 +225,25 @@ def render_report(
                 f"{100 * v.rms_reduction:>10.1f}%{v.max_before:>12.4f}{v.max_after:>12.4f}"
             )
     return "\n".join(lines) + "\n"
+
+
+def _zero_shift_lines(model: CentrifugeModel) -> list[str]:
+    """The zero output after each position's run against before: shift per axis and verdict."""
+    if not model.zero_shift:
+        return ["", "ZERO OUTPUT BEFORE / AFTER: no zero records after the runs (not checked)"]
+    limit = next(iter(model.zero_shift.values())).limit
+    lines = [
+        "",
+        f"ZERO OUTPUT AFTER - BEFORE (m/s^2, limit {limit:.4g} per axis)",
+        f"{'position':<9}" + "".join(f"{a:>22}" for a in AXES) + "  result",
+    ]
+    for mount, z in model.zero_shift.items():
+        cells = "".join(f"{_pm(d, u, 5):>22}" for d, u in zip(z.shift, z.std, strict=True))
+        lines.append(f"{mount:<9}{cells}  {'pass' if z.passed.all() else 'FAIL'}")
+    missing = sorted(set(model.radius) - set(model.zero_shift))
+    if missing:
+        lines.append(f"no zero records after the run (not checked): {', '.join(missing)}")
+    return lines
 
 
 def _pm(value: float, std: float, digits: int) -> str:

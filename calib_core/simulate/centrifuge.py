@@ -95,12 +95,14 @@ def _record(
     rate: float,
     duration: float,
     angle0: float,
+    drift: Sequence[float] = (0.0, 0.0, 0.0),
 ) -> Recording:
     """One record of `duration` s at table rate `rate` (rad/s) from table angle `angle0` (rad).
 
     Specific force at the mount: centripetal (with the Earth's vertical rate),
     the tilted table's gravity turning with the arm, and the Coriolis term of
-    the horizontal Earth rate; then the error model, the run offset and noise.
+    the horizontal Earth rate; then the error model, the run offset, a zero
+    drift (m/s^2, for the records after a run) and noise.
     """
     rng = sensor.rng
     n = int(round(duration * sensor.sample_rate))
@@ -124,6 +126,7 @@ def _record(
         + truth.error(f)
         + truth.run_offset
         + offset
+        + np.asarray(drift, dtype=float)
         + rng.normal(0.0, sensor.noise, f.shape)
     )
     return Recording(
@@ -157,6 +160,8 @@ def simulate_centrifuge(
     one_g_duration: float = 60.0,
     step_duration: float = 10.0,
     nominal_radius: float | None = None,
+    zero_after: bool = False,
+    zero_drift: Mapping[str, Sequence[float]] | None = None,
 ) -> CentrifugeRun:
     """Simulate one centrifuge run.
 
@@ -182,6 +187,10 @@ def simulate_centrifuge(
     bias_instability : std of an offset drawn per record and axis, m/s^2.
     sample_rate : Hz. zero_duration, one_g_duration, step_duration : s per record.
     nominal_radius : radius the operator sets the rates from (default the mean radius).
+    zero_after : also record the zero output after each position's run (``zero_after``
+        records at the same four table positions).
+    zero_drift : per position the (3,) change of the zero output between before and
+        after, m/s^2 (default none).
 
     Returns
     -------
@@ -215,8 +224,8 @@ def simulate_centrifuge(
 
     sensor = _SensorNoise(rng, sample_rate, noise, scale_instability, bias_instability)
 
-    def record(mount: str, rate: float, duration: float, angle0: float) -> Recording:
-        return _record(truth, sensor, mount, rate, duration, angle0)
+    def record(mount: str, rate: float, duration: float, angle0: float, drift=(0, 0, 0)):
+        return _record(truth, sensor, mount, rate, duration, angle0, drift)
 
     steps: list[CentrifugeStep] = []
     for mount in mounts:
@@ -231,4 +240,8 @@ def simulate_centrifuge(
             start = rng.uniform(0, 2 * math.pi)
             rec = record(mount, rate_for(n_g), step_duration, start)
             steps.append(CentrifugeStep(mount, "step", rec, float(n_g)))
+        drift = (zero_drift or {}).get(mount, (0.0, 0.0, 0.0))
+        for pos in ZERO_POSITIONS_DEG if zero_after else ():
+            rec = record(mount, 0.0, zero_duration, math.radians(pos), drift)
+            steps.append(CentrifugeStep(mount, "zero_after", rec, 0.0, pos))
     return CentrifugeRun(steps=steps, truth=truth)

@@ -90,12 +90,14 @@ from calib_core.solvers.centrifuge_model import (
     whole_revolution_mean,
     zero_output,
 )
+from calib_core.solvers.centrifuge_plan import zero_shift
 from calib_core.units import STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)
 class _Means:
     zero: dict[str, tuple[np.ndarray, np.ndarray]]
+    zero_after: dict[str, tuple[np.ndarray, np.ndarray]]
     one_g: dict[str, RevolutionMean]
     steps: list[tuple[str, float, RevolutionMean]]  # (mount, nominal g, mean)
 
@@ -104,7 +106,7 @@ def _collect(steps: Sequence[CentrifugeStep]) -> _Means:
     by_mount: dict[str, list[CentrifugeStep]] = {m: [] for m in MOUNTS}
     for s in steps:
         by_mount[s.mount].append(s)
-    zero, one_g, highs = {}, {}, []
+    zero, zero_after, one_g, highs = {}, {}, {}, []
     for mount, recs in by_mount.items():
         if not recs:
             continue
@@ -113,6 +115,9 @@ def _collect(steps: Sequence[CentrifugeStep]) -> _Means:
         if len(ones) != 1:
             raise ValueError(f"mount {mount}: expected one near-1 g run, got {len(ones)}")
         zero[mount] = zero_output(zeros)
+        afters = [r for r in recs if r.kind == "zero_after"]
+        if afters:
+            zero_after[mount] = zero_output(afters)
         one_g[mount] = whole_revolution_mean(ones[0].recording)
         highs += [
             (mount, r.nominal_g, whole_revolution_mean(r.recording))
@@ -121,7 +126,7 @@ def _collect(steps: Sequence[CentrifugeStep]) -> _Means:
         ]
     if not highs:
         raise ValueError("centrifuge run has no high-g steps")
-    return _Means(zero, one_g, highs)
+    return _Means(zero, zero_after, one_g, highs)
 
 
 def _geometry(
@@ -404,6 +409,10 @@ def solve_centrifuge(
         zero={m: z[0] for m, z in means.zero.items()},
         gravity=settings.gravity,
         omega_v=omega_v,
+        zero_shift={
+            m: zero_shift(m, means.zero[m], after, settings.zero_shift_limit)
+            for m, after in means.zero_after.items()
+        },
     )
     return model, _step_record(settings, means, model)
 
@@ -467,8 +476,10 @@ def _step_record(
             "scale_1g": dict(settings.scale_1g),
             "common_radius": settings.common_radius,
             "iterations": settings.iterations,
+            "zero_shift_limit": settings.zero_shift_limit,
         },
         statistics={
+            "zero_shift": {m: z.shift.tolist() for m, z in model.zero_shift.items()},
             "steps": len(means.steps),
             "mounts": sorted(means.one_g),
             "radius_m": {m: r.value for m, r in model.radius.items()},

@@ -12,6 +12,7 @@ import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +21,9 @@ from calib_core.params import AXES, AXIS_INDEX
 from calib_core.recording import Recording
 from calib_core.significance import CONST, STEERING, T_TESTS, OlsFit, Reduction
 from calib_core.units import STANDARD_GRAVITY
+
+if TYPE_CHECKING:
+    from calib_core.solvers.centrifuge_plan import ZeroShift
 
 # Sensor axes in the mounting frame (r, t, u): row i of P is sensor axis i.
 # Positions keep the frame right-handed (for "-": axis = -r, the next = -t).
@@ -32,7 +36,10 @@ MOUNTS: dict[str, np.ndarray] = {
     "z-": np.array([[0, -1, 0], [0, 0, 1], [-1, 0, 0]], dtype=float),
 }
 ZERO_POSITIONS_DEG = (0.0, 90.0, 180.0, 270.0)
-STEP_KINDS = ("zero", "1g", "step")
+STEP_KINDS = ("zero", "zero_after", "1g", "step")
+# methods.md 3: accelerometer residual std <= 0.002 g. A zero that moved by more
+# than the model may leave unexplained is a run to repeat.
+DEFAULT_ZERO_SHIFT_LIMIT = 0.002 * STANDARD_GRAVITY
 
 _TERM = re.compile(r"^a_([xyz])(?:\^([23]))?(?:\*a_([xyz]))?$")
 
@@ -108,7 +115,8 @@ class CentrifugeStep:
     """One record of a centrifuge run.
 
     mount : one of `MOUNTS` ("x+", ..., "z-").
-    kind : "zero" (static at `table_position_deg`), "1g" (the radius run) or "step".
+    kind : "zero" (static at `table_position_deg`, before the run), "zero_after" (the
+        same after the run), "1g" (the radius run) or "step".
     recording : samples with reference channels ``"table_angle"`` (rad,
         unwrapped or wrapped) and ``"table_rate"`` (rad/s, signed about up).
     nominal_g : nominal input in g (0 for zero records), for labels and reports.
@@ -129,7 +137,7 @@ class CentrifugeStep:
         for ch in ("table_angle", "table_rate"):
             if ch not in self.recording.reference:
                 raise ValueError(f"{where}: reference channel {ch!r} is missing")
-        if self.kind == "zero" and self.table_position_deg is None:
+        if self.kind in ("zero", "zero_after") and self.table_position_deg is None:
             raise ValueError(f"{where}: a zero record needs table_position_deg")
 
 
@@ -156,6 +164,8 @@ class CentrifugeSettings:
         (one value or one per axis), which makes a step's error grow with its
         input; None (default) estimates it per axis from the full model's
         residuals (`step_weights`). The steps are weighted by 1 / variance.
+    zero_shift_limit : allowed change of a position's zero output between the
+        records before and after its run, m/s^2 (default 0.002 g).
     """
 
     latitude_deg: float
@@ -167,12 +177,17 @@ class CentrifugeSettings:
     common_radius: bool = True
     iterations: int = 4
     scale_instability: float | Mapping[str, float] | None = None
+    zero_shift_limit: float = DEFAULT_ZERO_SHIFT_LIMIT
 
     def __post_init__(self) -> None:
         if self.t_test not in T_TESTS:
             raise ValueError(f"t_test must be one of {list(T_TESTS)}, got {self.t_test!r}")
         if self.steer not in STEERING:
             raise ValueError(f"steer must be one of {list(STEERING)}, got {self.steer!r}")
+        if not (math.isfinite(self.zero_shift_limit) and self.zero_shift_limit > 0.0):
+            raise ValueError(
+                f"zero_shift_limit must be a positive number (m/s^2), got {self.zero_shift_limit}"
+            )
 
 
 @dataclass(frozen=True)
@@ -349,6 +364,8 @@ class CentrifugeModel:
         steps together with the model of the tangential axis (used for the inputs).
     phi_h_1g : per position phi_h = atan(a_t / a_r) from the near-1 g run alone.
     zero : per position the zero output (3,), m/s^2.
+    zero_shift : per position with zero records after the run, the change of the
+        zero output and its check (`calib_core.solvers.centrifuge_plan.ZeroShift`).
     """
 
     axes: dict[str, AxisModel]
@@ -359,6 +376,7 @@ class CentrifugeModel:
     zero: dict[str, np.ndarray]
     gravity: float
     omega_v: float
+    zero_shift: dict[str, ZeroShift] = field(default_factory=dict)
 
     def error(self, f: np.ndarray) -> np.ndarray:
         """(N, 3) inputs -> (N, 3) modelled errors, m/s^2."""

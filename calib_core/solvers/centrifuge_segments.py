@@ -11,11 +11,12 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 
-from calib_core.calibration import Calibration, SegmentResidual
+from calib_core.calibration import Calibration, CheckResult, SegmentResidual
 from calib_core.params import AXES
 from calib_core.recording import Recording
 from calib_core.solvers.centrifuge import solve_centrifuge
 from calib_core.solvers.centrifuge_model import (
+    DEFAULT_ZERO_SHIFT_LIMIT,
     CentrifugeModel,
     CentrifugeSettings,
     CentrifugeStep,
@@ -26,7 +27,9 @@ from calib_core.solvers.centrifuge_model import (
 
 # --- the generic procedure shape: labelled segments -> Calibration ---------------
 
-_LABEL = re.compile(r"^([xyz])([pm])_(?:zero_(\d+(?:\.\d+)?)|1g|step_(\d+(?:\.\d+)?)g)$")
+_LABEL = re.compile(
+    r"^([xyz])([pm])_(?:zero_(after_)?(\d+(?:\.\d+)?)|1g|step_(\d+(?:\.\d+)?)g)$"
+)
 SETTINGS_KEYS = (
     "latitude_deg",
     "alpha",
@@ -36,14 +39,16 @@ SETTINGS_KEYS = (
     "common_radius",
     "iterations",
     "scale_instability",
+    "zero_shift_limit",
 )
 
 
 def step_label(step: CentrifugeStep) -> str:
     """The segment label of a step: "xp_zero_90", "xm_1g", "zp_step_10g"."""
     mount = step.mount[0] + ("p" if step.mount[1] == "+" else "m")
-    if step.kind == "zero":
-        return f"{mount}_zero_{step.table_position_deg:g}"
+    if step.kind in ("zero", "zero_after"):
+        after = "after_" if step.kind == "zero_after" else ""
+        return f"{mount}_zero_{after}{step.table_position_deg:g}"
     return f"{mount}_1g" if step.kind == "1g" else f"{mount}_step_{step.nominal_g:g}g"
 
 
@@ -51,7 +56,8 @@ def steps_from_segments(segments: Mapping[str, Recording]) -> list[CentrifugeSte
     """Centrifuge steps from labelled segments.
 
     Labels: ``<axis><p|m>_zero_<table deg>`` (static zero output at that table
-    position), ``<axis><p|m>_1g`` (the near-1 g radius run) and
+    position, before the run), ``<axis><p|m>_zero_after_<table deg>`` (the same
+    after the run, compared with it), ``<axis><p|m>_1g`` (the near-1 g radius run) and
     ``<axis><p|m>_step_<n>g`` (a high-g step); p = the axis points to the
     table axis, m = away. Every recording needs the reference channels
     ``table_angle`` (rad) and ``table_rate`` (rad/s, signed about up).
@@ -62,13 +68,15 @@ def steps_from_segments(segments: Mapping[str, Recording]) -> list[CentrifugeSte
         if not m:
             raise ValueError(
                 f"segment {label!r}: not a centrifuge label; expected e.g. 'xp_zero_90', "
-                "'xm_1g' or 'zp_step_10g' (<axis><p|m>_zero_<deg> | _1g | _step_<n>g)"
+                "'xm_1g' or 'zp_step_10g' (<axis><p|m>_zero_<deg> | _zero_after_<deg> | _1g | "
+                "_step_<n>g)"
             )
         mount = m[1] + ("+" if m[2] == "p" else "-")
-        if m[3] is not None:
-            steps.append(CentrifugeStep(mount, "zero", rec, 0.0, float(m[3])))
-        elif m[4] is not None:
-            steps.append(CentrifugeStep(mount, "step", rec, float(m[4])))
+        if m[4] is not None:
+            kind = "zero_after" if m[3] else "zero"
+            steps.append(CentrifugeStep(mount, kind, rec, 0.0, float(m[4])))
+        elif m[5] is not None:
+            steps.append(CentrifugeStep(mount, "step", rec, float(m[5])))
         else:
             steps.append(CentrifugeStep(mount, "1g", rec, 1.0))
     return steps
@@ -102,6 +110,7 @@ def settings_from_dict(settings: Mapping[str, object], gravity: float) -> Centri
             common_radius=bool(s.get("common_radius", True)),
             iterations=int(s.get("iterations", 4)),
             scale_instability=s.get("scale_instability"),
+            zero_shift_limit=float(s.get("zero_shift_limit", DEFAULT_ZERO_SHIFT_LIMIT)),
         )
     except (TypeError, ValueError) as exc:
         raise ValueError(f"centrifuge: bad settings {s}: {exc}") from None
@@ -147,8 +156,21 @@ def solve_centrifuge_segments(
             )
         )
     cal.info.update(model_summary(model))
+    cal.info["solver_checks"] = [c.to_dict() for c in zero_shift_checks(model)]
+    cal.warnings += [c.detail for c in zero_shift_checks(model) if not c.passed]
     cal.info["step_record"] = {"name": record.name, "settings": record.settings}
     return cal
+
+
+def zero_shift_checks(model: CentrifugeModel) -> list[CheckResult]:
+    """One check per position and axis: |zero after - zero before| <= zero_shift_limit."""
+    return [
+        CheckResult.at_most(
+            f"zero_shift:{mount}:{axis}", abs(float(z.shift[i])), z.limit, z.describe(axis)
+        )
+        for mount, z in model.zero_shift.items()
+        for i, axis in enumerate(AXES)
+    ]
 
 
 def model_summary(model: CentrifugeModel) -> dict:
@@ -186,5 +208,9 @@ def model_summary(model: CentrifugeModel) -> dict:
         "phi_h_1g_rad": {k: est(v) for k, v in model.phi_h_1g.items()},
         "omega_v": model.omega_v,
         "alpha": next(iter(model.axes.values())).fit.alpha,
+        "zero_shift_m_s2": {
+            m: {"shift": z.shift.tolist(), "std": z.std.tolist(), "limit": z.limit}
+            for m, z in model.zero_shift.items()
+        },
         "axes": axes,
     }
