@@ -29,6 +29,13 @@ ALL_NAMES: list[str] = (
 )
 
 # Physical dimension of each parameter family (what a limit's unit must be).
+PASS, FAIL, NEEDS_REVIEW = "pass", "fail", "needs review"
+REPEAT_PREFIX = "repeat:"
+DEVICE_PREFIX = "device:"  # the unit's description against the archive's (pipelines.process)
+# What the run could not determine or where its model misfits (the solvers' info
+# "solver_checks"): the numbers may be right, a person must look before signing.
+MODEL_PREFIX = "model:"
+
 _FAMILY_DIMENSION = {
     "acc.bias": "acceleration",
     "acc.noise": "acceleration",
@@ -561,8 +568,9 @@ def check_calibration(cal: Calibration, profile: ToleranceProfile) -> list[Check
     -------
     list of CheckResult: ``param:<name>`` (`check_parameters`) then
     ``residual:<segment>:<sensor>:<std|mean>`` (`check_residuals`), then the
-    procedure's own (`solver_checks`, e.g. ``zero_shift:<position>:<axis>``). `verdict`
-    turns them into "pass" / "fail". The archive's check step adds held-out
+    procedure's own (`solver_checks`, e.g. ``zero_shift:<position>:<axis>``, or
+    ``model:...`` for what the run could not determine). `verdict` turns them
+    into "pass" / "needs review" / "fail". The archive's check step adds held-out
     verification points, repeatability and the unit's description to these.
     """
     return check_parameters(cal, profile) + check_residuals(cal, profile) + solver_checks(cal)
@@ -570,7 +578,9 @@ def check_calibration(cal: Calibration, profile: ToleranceProfile) -> list[Check
 
 def solver_checks(cal: Calibration) -> list[CheckResult]:
     """Checks a procedure made itself (``cal.info["solver_checks"]``), e.g. the
-    centrifuge's zero output before and after each position's run."""
+    centrifuge's zero output before and after each position's run, and the
+    ``model:`` checks: degrees of freedom, sensitivity to the static detector,
+    the face-pair bias spread."""
     return [CheckResult(**c) for c in cal.info.get("solver_checks", [])]
 
 
@@ -583,6 +593,14 @@ def verdict(checks: list[CheckResult]) -> str:
 
     Returns
     -------
-    "pass" if every check passed, else "fail".
+    "pass" if every check passed; "needs review" when only repeatability
+    (``repeat:``), device (``device:``) or model (``model:``) checks failed: the
+    numbers are within tolerance but do not repeat, belong to another unit, or
+    were not determined by the run; else "fail".
     """
-    return "pass" if all(c.passed for c in checks) else "fail"
+    failed = [c for c in checks if not c.passed]
+    if not failed:
+        return PASS
+    if all(c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX, MODEL_PREFIX)) for c in failed):
+        return NEEDS_REVIEW
+    return FAIL

@@ -58,6 +58,7 @@ from calib_core.solvers.six_position import (
     accel_closed_form,
     accel_closed_form_std,
     axis_vector,
+    face_bias_checks,
 )
 from calib_core.solvers.static_bias import solve_static_bias
 from calib_core.stats import ChannelStats, channel_stats, largest_std
@@ -174,6 +175,10 @@ def _solve_statics(
         cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
         cal.residuals.append(segment_residual(label, "gyr", rec.gyr, _gyr_static_model(cal, f)))
 
+    face_bias = face_bias_checks(
+        {k: s.mean for k, s in acc.items()}, {k: s.sem for k, s in acc.items()}
+    )
+    cal.info.setdefault("solver_checks", []).extend(face_bias)
     cal.info["condition_number"] = acc_fit.condition_number
     cal.info["accel_solver"] = settings["accel_solver"]
     cal.info["acc_fit_chi2"] = [float(v) for v in acc_fit.chi2]

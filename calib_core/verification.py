@@ -30,13 +30,19 @@ import numpy as np
 
 from calib_core import params
 from calib_core.calibration import Calibration, CheckResult
-from calib_core.checks import ToleranceProfile
+from calib_core.checks import (  # noqa: F401  (the verdict's names, re-exported)
+    DEVICE_PREFIX,
+    FAIL,
+    MODEL_PREFIX,
+    NEEDS_REVIEW,
+    PASS,
+    REPEAT_PREFIX,
+    ToleranceProfile,
+)
+from calib_core.checks import verdict as overall_verdict  # noqa: F401
 from calib_core.distributions import chi2_ppf
 from calib_core.recording import Recording
 
-PASS, FAIL, NEEDS_REVIEW = "pass", "fail", "needs review"
-REPEAT_PREFIX = "repeat:"
-DEVICE_PREFIX = "device:"  # the unit's description against the archive's (pipelines.process)
 VERIFY_PREFIX = "verify:"
 
 # A residual-pattern component counts as a suspected missing term above this
@@ -416,13 +422,3 @@ def repeatability(runs: list[RunValues], profile: ToleranceProfile) -> list[Chec
                 )  # fmt: skip
             )
     return out
-
-
-def overall_verdict(checks: list[CheckResult]) -> str:
-    """ "pass"; "needs review" when only repeatability or device checks failed; else "fail"."""
-    failed = [c for c in checks if not c.passed]
-    if not failed:
-        return PASS
-    if all(c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX)) for c in failed):
-        return NEEDS_REVIEW
-    return FAIL

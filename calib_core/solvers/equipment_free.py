@@ -63,38 +63,84 @@ EQUIPMENT_FREE_DEFAULTS: dict[str, Any] = {
 }
 
 
+# imu_tk (Tedaldi et al.) searches the static threshold over multiples of the
+# initial variance and keeps the one whose accelerometer fit has the least
+# residual. We do the same, but only when the operator's k finds too few rests.
+THRESHOLD_SEARCH_K = (2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0)
+# Fewer accelerometer degrees of freedom than this and the residual scale (Birge
+# ratio) is itself uncertain by more than 1/sqrt(2 * 9) = 24 %: too few poses to
+# judge the fit or to scale the covariance by it.
+MIN_ACC_DOF = 9
+# A parameter that moves by more than its standard uncertainty when the detector
+# threshold takes its neighbouring grid values is not determined by the session.
+DETECTOR_SHIFT_LIMIT_SIGMA = 1.0
+
+
 @dataclass(frozen=True)
 class StaticSet:
     """Static intervals of a recording with their accelerometer statistics.
 
     intervals : detected intervals in time order.
     acc_mean, acc_sem : (K, 3) mean and standard uncertainty of the mean, m/s^2.
+    k : the detector threshold factor that found them.
     """
 
     intervals: list[Interval]
     acc_mean: np.ndarray
     acc_sem: np.ndarray
+    k: float
 
 
-def find_statics(rec: Recording, settings: dict[str, Any]) -> StaticSet:
-    """Static intervals (calib_core.preprocess.segments.detect_static) and their means."""
+def statics_at(rec: Recording, settings: dict[str, Any], k: float) -> StaticSet:
+    """Static intervals found with threshold factor `k` (detect_static) and their means."""
     intervals = detect_static(
         rec,
         window_s=settings["window_s"],
         init_static_s=settings["init_static_s"],
-        k=settings["k"],
+        k=k,
         min_duration_s=settings["min_duration_s"],
         settle_s=settings["settle_s"],
         min_keep_s=settings["min_keep_s"],
     )
-    if len(intervals) < settings["min_intervals"]:
-        raise ValueError(
-            f"equipment_free ({rec.source or 'recording'}): found {len(intervals)} static "
-            f"intervals, need >= {settings['min_intervals']} (9 accelerometer unknowns); "
-            "hold the IMU still in more orientations or relax k / min_duration_s"
-        )
     stats = [channel_stats(rec.acc[iv.slice]) for iv in intervals]
-    return StaticSet(intervals, np.array([s.mean for s in stats]), np.array([s.sem for s in stats]))
+    shape = (len(stats), 3)
+    return StaticSet(
+        intervals,
+        np.array([st.mean for st in stats]).reshape(shape),
+        np.array([st.sem for st in stats]).reshape(shape),
+        float(k),
+    )
+
+
+def find_statics(rec: Recording, settings: dict[str, Any], gravity: float) -> StaticSet:
+    """The static intervals at settings["k"], or from the threshold search if too few.
+
+    The search tries every factor of THRESHOLD_SEARCH_K and keeps, among those
+    finding >= min_intervals rests, the one whose norm-condition fit has the
+    smallest Birge ratio (imu_tk's criterion). Raises ValueError naming the
+    counts found when no factor finds enough.
+    """
+    need = settings["min_intervals"]
+    found = statics_at(rec, settings, settings["k"])
+    if len(found.intervals) >= need:
+        return found
+    tried = {k: statics_at(rec, settings, k) for k in THRESHOLD_SEARCH_K if k != settings["k"]}
+    usable = [st for st in tried.values() if len(st.intervals) >= need]
+    if not usable:
+        counts = ", ".join(f"k={k:g}: {len(st.intervals)}" for k, st in tried.items())
+        raise ValueError(
+            f"equipment_free ({rec.source or 'recording'}): found {len(found.intervals)} static "
+            f"intervals, need >= {need} (9 accelerometer unknowns); the threshold search found "
+            f"{counts}; hold the IMU still in more orientations or relax min_duration_s"
+        )
+    return min(usable, key=lambda st: solve_accel_norm(st, gravity)[2]["acc_birge_ratio"])
+
+
+ACC_NAMES = (
+    [params.bias("acc", x) for x in params.AXES]
+    + [f"acc.scale.{x}" for x in params.AXES]
+    + [f"acc.misalign.{params.AXES[i]}{params.AXES[j]}" for i, j in ACC_MISALIGN]
+)
 
 
 def acc_matrix(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -281,7 +327,7 @@ def calibrate_equipment_free(
     fit statistics, the number of intervals and the frame convention.
     """
     s = equipment_free_settings(settings)
-    statics = find_statics(rec, s)
+    statics = find_statics(rec, s, gravity)
     theta_a, cov_a, info_a = solve_accel_norm(statics, gravity)
     a, b = acc_matrix(theta_a)
     f_cal = np.linalg.solve(a, (statics.acc_mean - b).T).T
@@ -292,11 +338,7 @@ def calibrate_equipment_free(
 
     cal = Calibration(procedure="equipment_free", gravity=gravity)
     std_a = np.sqrt(np.diag(cov_a))
-    names_a = (
-        [params.bias("acc", x) for x in params.AXES]
-        + [f"acc.scale.{x}" for x in params.AXES]
-        + [f"acc.misalign.{params.AXES[i]}{params.AXES[j]}" for i, j in ACC_MISALIGN]
-    )
+    names_a = ACC_NAMES
     n_acc = 9 if info_a["acc_misalign_observable"] else 6
     for name, v, u in list(zip(names_a, theta_a, std_a, strict=True))[:n_acc]:
         cal.add(name, v, u)
@@ -338,12 +380,87 @@ def calibrate_equipment_free(
             ),
         }
     )
+    cal.info["static_threshold_k"] = statics.k
+    if statics.k != s["k"]:
+        cal.warnings.append(
+            f"equipment_free: k = {s['k']:g} found too few rests; the threshold search "
+            f"took k = {statics.k:g} ({len(statics.intervals)} rests)"
+        )
+    cal.info.setdefault("solver_checks", []).extend(
+        [
+            _dof_check(info_a["acc_dof"]),
+            _detector_check(detector_shifts(rec, s, statics, theta_a, cov_a, gravity)),
+        ]
+    )
     if info_a["acc_outliers_huber"]:
         cal.warnings.append(
             f"{info_a['acc_outliers_huber']} of {len(statics.intervals)} static intervals miss "
             f"the norm condition by more than {HUBER_SCALE:g} sigma (down-weighted)"
         )
     return cal
+
+
+def detector_shifts(
+    rec: Recording,
+    settings: dict[str, Any],
+    statics: StaticSet,
+    theta: np.ndarray,
+    cov: np.ndarray,
+    gravity: float,
+) -> dict[str, float]:
+    """How far each accelerometer parameter moves, in its standard uncertainties,
+    when the detector threshold takes the neighbouring values of the search grid.
+
+    Only the accelerometer fit is repeated: it is what the rests decide directly
+    (the gyro fit then follows from the same rests). Neighbours that find too few
+    rests are skipped; returns name -> largest |change| / std (empty if none).
+    """
+    grid = sorted({*THRESHOLD_SEARCH_K, statics.k})
+    i = grid.index(statics.k)
+    std = np.sqrt(np.diag(cov))
+    shifts: dict[str, float] = {}
+    for k in grid[max(i - 1, 0) : i] + grid[i + 1 : i + 2]:
+        other = statics_at(rec, settings, k)
+        if len(other.intervals) < settings["min_intervals"]:
+            continue
+        theta_k, cov_k, _ = solve_accel_norm(other, gravity)
+        both = (std > 0) & (np.diag(cov_k) > 0)  # misalignments may be fixed in one fit
+        for j in np.flatnonzero(both):
+            z = abs(theta_k[j] - theta[j]) / std[j]
+            shifts[ACC_NAMES[j]] = max(shifts.get(ACC_NAMES[j], 0.0), float(z))
+    return shifts
+
+
+def _dof_check(dof: int) -> dict[str, Any]:
+    return {
+        "name": "model:acc_dof",
+        "value": float(dof),
+        "limit": float(MIN_ACC_DOF),
+        "passed": dof >= MIN_ACC_DOF,
+        "detail": "accelerometer degrees of freedom (rests minus free parameters), at least; "
+        "fewer and the fit cannot be judged: hold the IMU in more poses",
+    }
+
+
+def _detector_check(shifts: dict[str, float]) -> dict[str, Any]:
+    detail = (
+        "largest change of an accelerometer parameter, in its standard uncertainties, "
+        "between the static detector's threshold and its neighbours"
+    )
+    if not shifts:  # sensitivity unknown: not a pass
+        detail += "; no neighbouring threshold found enough rests to compare"
+        worst = None
+    else:
+        worst = max(shifts.values())
+        moved = sorted(n for n, z in shifts.items() if z > DETECTOR_SHIFT_LIMIT_SIGMA)
+        detail += f"; not determined by this session: {', '.join(moved)}" if moved else ""
+    return {
+        "name": "model:detector_sensitivity",
+        "value": worst,
+        "limit": DETECTOR_SHIFT_LIMIT_SIGMA,
+        "passed": worst is not None and worst <= DETECTOR_SHIFT_LIMIT_SIGMA,
+        "detail": detail,
+    }
 
 
 def solve_equipment_free(
@@ -379,7 +496,7 @@ def transport_residual_rms(
     rms miss |u_k+1 - R_k^T u_k| per degree of freedom (2 per motion).
     """
     s = equipment_free_settings(settings)
-    statics = find_statics(rec, s)
+    statics = find_statics(rec, s, cal.gravity)
     f_cal, _ = cal.correct(statics.acc_mean, np.zeros_like(statics.acc_mean))
     up = f_cal / np.linalg.norm(f_cal, axis=1, keepdims=True)
     motions = _motions(rec, statics.intervals, cal.vector("gyr", "bias"))

@@ -90,6 +90,43 @@ def accel_closed_form(means: dict[str, np.ndarray], gravity: float) -> dict[str,
     }
 
 
+# chi2 with 2 degrees of freedom exceeded with probability 0.001: -2 ln(0.001).
+FACE_BIAS_CHI2_LIMIT = 13.8155
+
+
+def face_bias_checks(means: dict[str, np.ndarray], sems: dict[str, np.ndarray]) -> list[dict]:
+    """Model-misfit check: the accelerometer bias seen by each pair of opposite faces.
+
+    Each channel's bias is estimated three times, as the mean of its readings
+    on the x, y and z face pairs; under the linear model the three agree within
+    their noise (the misalignment and scale terms cancel in each pair's mean).
+    A spread beyond it (chi2 of the three about their weighted mean, 2 degrees of
+    freedom, p < 0.001) means the model misses something: a non-linearity, a
+    tilted face, a temperature step between faces.
+
+    Returns one check dict (name, value = chi2, limit, passed, detail) per axis.
+    """
+    m, u = _check_means(means), _check_means(sems)
+    checks = []
+    for i, a in enumerate("xyz"):
+        b = np.array([(m[f"{c}_up"][i] + m[f"{c}_dn"][i]) / 2.0 for c in "xyz"])
+        ub = np.array([np.hypot(u[f"{c}_up"][i], u[f"{c}_dn"][i]) / 2.0 for c in "xyz"])
+        w = 1.0 / np.maximum(ub, 1e-300) ** 2
+        chi2 = float(np.sum(w * (b - np.sum(w * b) / np.sum(w)) ** 2))
+        faces = ", ".join(f"{c} {v * 1e3:.3f}" for c, v in zip("xyz", b, strict=True))
+        checks.append(
+            {
+                "name": f"model:face_bias.{a}",
+                "value": chi2,
+                "limit": FACE_BIAS_CHI2_LIMIT,
+                "passed": chi2 <= FACE_BIAS_CHI2_LIMIT,
+                "detail": f"acc.bias.{a} from the x, y, z face pairs (mm/s^2): {faces}; "
+                f"spread {np.ptp(b) * 1e3:.3f} mm/s^2; chi2 of the three, 2 dof, p = 0.001",
+            }
+        )
+    return checks
+
+
 def accel_closed_form_std(sems: dict[str, np.ndarray], gravity: float) -> dict[str, float]:
     """Standard uncertainties of `accel_closed_form`, from those of the six means.
 
