@@ -20,11 +20,11 @@ from datetime import datetime
 import numpy as np
 
 from calib_core.calibration import CheckResult
+from calib_core.checks import solver_checks, verdict
 from calib_core.procedures import solve
 from calib_core.recording import Recording
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.simulate.handheld import accelerometer_frame, handheld_run
-from calib_core.checks import solver_checks, verdict
 from pipelines.reports.protocol import render_protocol
 
 INIT_S, MOVE_S, HOLD_S = 20.0, 1.5, 4.0  # handheld_run's defaults: first rest, motion, hold
