@@ -10,10 +10,12 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+import numpy as np
+
 from calib_core.calibration import StepRecord
 from calib_core.preprocess.filters import lowpass
 from calib_core.preprocess.outliers import remove_outliers
-from calib_core.preprocess.segments import segment
+from calib_core.preprocess.segments import Interval, Segmentation, segment
 from calib_core.preprocess.sync import synchronise
 from calib_core.recording import Recording
 
@@ -30,7 +32,10 @@ SEGMENTATION_KEYS = {
     "min_keep_s",
     "settle_fraction",
     "min_angle_deg",
+    "labels",
 }
+# How segmentation names what it finds: by face and axis, or by sensor and phase.
+SEGMENT_LABELLING = ("faces", "array")
 SYNC_KEYS = {
     "signal",
     "signal_kind",
@@ -43,8 +48,8 @@ SYNC_KEYS = {
 
 
 def is_static(label: str) -> bool:
-    """Static positions are labelled `<axis>_up` / `<axis>_dn`."""
-    return label.endswith(("_up", "_dn"))
+    """Static positions: `<axis>_up` / `<axis>_dn`; a sensor array's `<sensor>_static`."""
+    return label.endswith(("_up", "_dn", "_static"))
 
 
 def settings_table(settings: dict[str, Any], name: str, allowed: set[str]) -> dict[str, Any] | None:
@@ -98,18 +103,34 @@ def segment_recordings(
 
     Statics are labelled by the direction of gravity (x_up .. z_dn), rotations
     by axis and sense (x_ccw, z_cw, ...): `calib_core.preprocess.segments.segment`.
+    With ``labels = "array"`` (a sensor array, methods.md 2.7) each recording is
+    one sensor's session (static, cw, static, ccw, static about the vertical),
+    named by its segment label: statics become ``<sensor>_static`` whatever
+    their face, turns ``<sensor>_ccw`` / ``<sensor>_cw`` by their sense about
+    the vertical (`array_labels`).
+
     Where a label is found more than once (a face held again, the rest around a
     turn), the longest interval is kept; the others, and tilted statics, are
     listed as unused in the step record.
     """
+    cfg = dict(cfg)
+    labelling = cfg.pop("labels", "faces")
+    if labelling not in SEGMENT_LABELLING:
+        raise ValueError(
+            f"run.settings.segmentation.labels: {labelling!r}; expected one of "
+            f"{list(SEGMENT_LABELLING)}"
+        )
     candidates: dict[str, list[tuple[Recording, dict[str, Any]]]] = {}
     unused: list[dict[str, Any]] = []
     per_recording: dict[str, Any] = {}
     for name, rec in recordings.items():
         seg, record = segment(rec, gravity=gravity, **cfg)
         per_recording[name] = record.statistics
-        intervals = list(zip(seg.statics, seg.static_labels, strict=True))
-        intervals += list(zip(seg.rotations, seg.rotation_labels, strict=True))
+        if labelling == "array":
+            intervals = array_labels(name, rec, seg)
+        else:
+            intervals = list(zip(seg.statics, seg.static_labels, strict=True))
+            intervals += list(zip(seg.rotations, seg.rotation_labels, strict=True))
         for iv, label in intervals:
             where = {"recording": name, "start_s": iv.start_s, "end_s": iv.end_s}
             if label is None:
@@ -134,13 +155,32 @@ def segment_recordings(
     ordered = dict(sorted(chosen.items(), key=lambda kv: used[kv[0]]["start_s"]))
     return ordered, StepRecord(
         "segment",
-        settings={**cfg, "gravity": gravity},
+        settings={**cfg, "labels": labelling, "gravity": gravity},
         statistics={
             "segments": {k: used[k] for k in ordered},
             "unused": unused,
             "recordings": per_recording,
         },
     )
+
+
+def array_labels(
+    name: str, rec: Recording, seg: Segmentation
+) -> list[tuple[Interval, str | None]]:
+    """Labels of one sensor's session of a sensor array: ``<name>_static|_ccw|_cw``.
+
+    The sense of a turn is that of its angle about the vertical, which the
+    sensor sees as the direction of the specific force in the static before the
+    turn (ccw seen from above = positive about up), so any mounting gives the
+    right sense; the face of a static does not matter.
+    """
+    out: list[tuple[Interval, str | None]] = [(iv, f"{name}_static") for iv in seg.statics]
+    for rot in seg.rotations:
+        before = [iv for iv in seg.statics if iv.start_index < rot.start_index]
+        up = rec.acc[before[-1].slice].mean(axis=0)
+        about_up = float(np.dot(rot.angle, up) / np.linalg.norm(up))
+        out.append((rot, f"{name}_{'ccw' if about_up > 0 else 'cw'}"))
+    return out
 
 
 def lowpass_segments(

@@ -50,23 +50,66 @@ def array_run(
     gravity : m/s^2; rate_hz : Hz; static_s : static record length, s.
     turns, rotation_rate_dps, pause_s : the turns (see `rotation_profile`).
     """
-    up = np.array([0.0, 0.0, 1.0])
     t_static = np.arange(int(round(static_s * rate_hz))) / rate_hz
     t_turn, rate = rotation_profile(rate_hz, turns, rotation_rate_dps * DEG, pause_s)
     segments: dict[str, Recording] = {}
     for name, mount in mounts.items():
         c = np.asarray(mount, dtype=float)
-        f_s = gravity * (c @ up)
         for phase, t, sign in (
             ("static", t_static, 0.0),
             ("ccw", t_turn, 1.0),
             ("cw", t_turn, -1.0),
         ):
-            n = t.shape[0]
-            w_true = np.outer(sign * rate if sign else np.zeros(n), c @ up)
-            f_true = np.broadcast_to(f_s, (n, 3))
-            acc = truth.acc_measured(f_true) + rng.standard_normal((n, 3)) * truth.acc_noise
-            gyr = truth.gyr_measured(w_true, f_true) + rng.standard_normal((n, 3)) * truth.gyr_noise
+            acc, gyr = _outputs(truth, c, sign * rate if sign else np.zeros(len(t)), gravity, rng)
             label = f"{name}_{phase}"
             segments[label] = Recording(t, acc, gyr, label=label, source=f"simulated {label}")
     return ArrayRun(segments, {k: np.asarray(v, float) for k, v in mounts.items()}, truth, gravity)
+
+
+def _outputs(
+    truth: TrueErrors, mount: np.ndarray, rate: np.ndarray, gravity: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Accelerometer and gyro outputs (N, 3) of a sensor with mounting `mount` on the cube
+    standing z up, turning at `rate` (N,) rad/s about the vertical."""
+    up = mount @ np.array([0.0, 0.0, 1.0])
+    n = rate.shape[0]
+    w_true = np.outer(rate, up)
+    f_true = np.broadcast_to(gravity * up, (n, 3))
+    acc = truth.acc_measured(f_true) + rng.standard_normal((n, 3)) * truth.acc_noise
+    gyr = truth.gyr_measured(w_true, f_true) + rng.standard_normal((n, 3)) * truth.gyr_noise
+    return acc, gyr
+
+
+def array_session(
+    truth: TrueErrors,
+    mounts: dict[str, np.ndarray],
+    rng: np.random.Generator,
+    *,
+    gravity: float = STANDARD_GRAVITY,
+    rate_hz: float = 100.0,
+    static_s: float = 40.0,
+    turns: int = 1,
+    rotation_rate_dps: float = 90.0,
+    pause_s: float = 2.0,
+) -> dict[str, Recording]:
+    """One continuous recording per sensor: static, cw turn, static, ccw turn, static.
+
+    All sensors are recorded at once (same time base). The unlabelled sessions
+    are what automatic segmentation (``labels = "array"``) cuts into the
+    ``<sensor>_static``, ``_cw`` and ``_ccw`` segments of `array_run`.
+
+    Parameters as `array_run`; static_s is each of the three static stretches, s.
+
+    Returns
+    -------
+    sensor name -> Recording of the whole session.
+    """
+    rest = np.zeros(int(round(static_s * rate_hz)))
+    _, turn = rotation_profile(rate_hz, turns, rotation_rate_dps * DEG, pause_s)
+    rate = np.concatenate([rest, -turn, rest, turn, rest])
+    t = np.arange(rate.shape[0]) / rate_hz
+    out = {}
+    for name, mount in mounts.items():
+        acc, gyr = _outputs(truth, np.asarray(mount, dtype=float), rate, gravity, rng)
+        out[name] = Recording(t, acc, gyr, label=name, source=f"simulated array session {name}")
+    return out
