@@ -22,7 +22,7 @@ from calib_core.simulate.array import array_session
 from calib_core.solvers.sensor_array import cube_mounts
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.cli import app
-from pipelines.run_writers import dumps_toml
+from pipelines.run_writers import dumps_toml, six_position_manifest
 
 G = STANDARD_GRAVITY
 SENSORS = tuple(cube_mounts())
@@ -35,21 +35,13 @@ def _write_run(folder, sessions):
         frame |= {f"acc_{a} [g]": rec.acc[:, i] / G for i, a in enumerate("xyz")}
         frame |= {f"gyro_{a} [deg/s]": rec.gyr[:, i] / DEG for i, a in enumerate("xyz")}
         pd.DataFrame(frame).to_csv(folder / f"{name}.csv", index=False, float_format="%.8g")
-    manifest = {
-        "schema_version": 1,
-        "unit": {"serial": "CUBE-6", "model": "MPU-6000", "manufacturer": "InvenSense"},
-        "run": {
-            "started": "2026-11-20T09:15:00+00:00",
-            "operator": "lab",
-            "procedure": "sensor_array",
-            "tolerance_profile": "mpu6000",
-            "settings": {"mounts": "cube6", "segmentation": {"labels": "array"}},
-        },
-        "site": {"gravity_model": "standard"},
-        "environment": {"temperature_c": 20.0},
-        "format": {"kind": "csv"},
-        "segments": [{"label": name, "file": f"{name}.csv"} for name in sessions],
+    manifest = six_position_manifest("CUBE-6", operator="lab")
+    manifest["run"] |= {
+        "procedure": "sensor_array",
+        "settings": {"mounts": "cube6", "segmentation": {"labels": "array"}},
     }
+    manifest["format"] = {"kind": "csv"}
+    manifest["segments"] = [{"label": name, "file": f"{name}.csv"} for name in sessions]
     (folder / "run.toml").write_text(dumps_toml(manifest), encoding="utf-8")
 
 
