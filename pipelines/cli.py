@@ -2,12 +2,8 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
-import signal
 import sys
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated
 
@@ -19,6 +15,7 @@ from pipelines.cli_shared import (
     app,
     err,
     fail,
+    flow_batch_console,
     frame_records,
     group_commands,
     open_archive,
@@ -26,77 +23,11 @@ from pipelines.cli_shared import (
     out,
     print_frame,
     print_json,
+    progress_bar,
     warn,
 )
 from pipelines.commands import register_all
 from pipelines.direct import IN_PROCESS_MAX_RUNS
-
-
-@contextlib.contextmanager
-def _progress_bar(show: bool) -> Iterator[Callable[[int, int, dict], None]]:
-    """A callback(done, total, outcome) drawing a progress bar on stderr (stdout stays data)."""
-    if not show:
-        yield lambda done, total, outcome: None
-        return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
-
-    columns = ("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn())
-    with Progress(*columns, TimeElapsedColumn(), console=err) as bar:
-        task = bar.add_task("runs", total=None)
-
-        def advance(done: int, total: int, outcome: dict) -> None:
-            failed = " (failed)" if outcome["status"] == "failed" else ""
-            label = outcome["serial"] or Path(outcome["source"]).name
-            bar.update(task, completed=done, total=total, description=f"{label}{failed}")
-
-        yield advance
-
-
-@contextlib.contextmanager
-def _interrupt_exits_at_once() -> Iterator[Callable[[int, int, dict], None]]:
-    """Ctrl-C during a batch on Prefect's temporary local API: say where it stood, exit 130.
-
-    The same Ctrl-C stops the temporary API server (it is in the terminal's process
-    group), after which Prefect spends a minute or more retrying its reports to it
-    (measured: 77 s with threads, 108 s with worker processes). Exiting at once is
-    as safe as a kill at that moment, which the archive is built and tested for
-    (tests/test_crash.py): each run is archived whole or not at all, and running
-    the same command again skips the archived runs as duplicates. With a
-    configured PREFECT_API_URL the server lives on, and Prefect's own handling
-    (the flow run marked crashed) is kept.
-
-    Yields a progress callback(done, total, outcome) that counts finished runs.
-    """
-    from prefect.settings import PREFECT_API_URL
-
-    seen = {"done": 0, "total": 0}
-
-    def count(done: int, total: int, _outcome: dict) -> None:
-        seen.update(done=done, total=total)
-
-    if PREFECT_API_URL.value():
-        yield count
-        return
-
-    def stop(_signum: int, _frame: object) -> None:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut this short
-        from pipelines.flows import stop_temporary_api
-        from pipelines.runners import kill_all_workers
-
-        kill_all_workers()
-        stop_temporary_api()
-        err.print(
-            f"\n[yellow]interrupted[/yellow] after {seen['done']} of {seen['total'] or '?'} "
-            "run(s); runs in progress are not archived. Run the same command again to go on "
-            "(archived runs are skipped as duplicates)."
-        )
-        os._exit(130)
-
-    previous = signal.signal(signal.SIGINT, stop)
-    try:
-        yield count
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 @app.command()
@@ -154,7 +85,7 @@ def process(
     sources, failed = discover(names)
     direct = not flow and runner == "local" and len(sources) <= IN_PROCESS_MAX_RUNS
     if direct and not prefect_api_configured():
-        with _progress_bar(show) as draw:
+        with progress_bar(show) as draw:
             outcomes = failed + process_in_process(sources, archive, draw)
     else:
         outcomes = _process_flow(names, archive, runner, workers, scheduler, show)
@@ -191,22 +122,10 @@ def _process_flow(
     show: bool,
 ) -> list[dict]:
     """The batch as the Prefect flow `process_batch`, with progress bar and Ctrl-C handling."""
-    from pipelines.flows import local_batch_settings, process_batch, report_progress
+    from pipelines.flows import process_batch
 
-    with (
-        _progress_bar(show) as draw,
-        _interrupt_exits_at_once() as count,
-        local_batch_settings(),
-    ):
-
-        def on_progress(done: int, total: int, outcome: dict) -> None:
-            draw(done, total, outcome)
-            count(done, total, outcome)
-
-        with report_progress(on_progress):
-            return process_batch(
-                paths, archive, runner=runner, workers=workers, scheduler=scheduler
-            )
+    with flow_batch_console(show):
+        return process_batch(paths, archive, runner=runner, workers=workers, scheduler=scheduler)
 
 
 def _write_reports(archive: str | None, outcomes: list[dict]) -> None:

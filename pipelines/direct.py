@@ -13,7 +13,6 @@ of transient errors (`pipelines.run_task`).
 from __future__ import annotations
 
 import os
-import time
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -88,20 +87,9 @@ def process_in_process(
 
 
 def _with_retries(source: RunSource, url: str, root: str) -> dict[str, Any]:
-    from pipelines.process import run_outcome
-    from pipelines.run_task import RETRIES, RETRY_DELAYS_S, TransientError, process_run_for_batch
+    from pipelines.run_task import call_with_retries, gave_up, process_run_for_batch
 
-    for delay in RETRY_DELAYS_S[:RETRIES]:
-        try:
-            return process_run_for_batch(source, url, root)
-        except TransientError:
-            time.sleep(delay)
-    try:
-        return process_run_for_batch(source, url, root)
-    except TransientError as exc:
-        return run_outcome(
-            source=str(source.folder),
-            serial=source.serial or "",
-            status="failed",
-            error=f"gave up after {RETRIES + 1} attempts: {exc}",
-        )
+    return call_with_retries(
+        lambda: process_run_for_batch(source, url, root),
+        lambda exc: gave_up(str(source.folder), source.serial or "", exc),
+    )

@@ -30,11 +30,11 @@ from prefect.futures import as_completed
 
 from pipelines.direct import discover
 from pipelines.ingest import RunSource
-from pipelines.process import run_outcome
 from pipelines.run_task import (
     RETRIES,
     RETRY_DELAYS_S,
     TransientError,
+    gave_up,
     is_transient,
     process_run_for_batch,
 )
@@ -42,7 +42,14 @@ from pipelines.runners import WorkerProcesses, check_runner, default_workers, ma
 from pipelines.temporary_api import guard_temporary_api
 from storage.db import resolve_archive
 
-__all__ = ["RETRIES", "TransientError", "is_transient", "process_batch", "report_progress"]
+__all__ = [
+    "RETRIES",
+    "TransientError",
+    "is_transient",
+    "process_batch",
+    "report_progress",
+    "reprocess_batch",
+]
 
 PROGRESS_EVERY_S = 2.0  # s between updates of the progress artifact in Prefect's UI
 # Task-run events the temporary API server records per transaction, and the longest wait
@@ -241,52 +248,72 @@ def process_batch(
         runner,
         f" at {scheduler}" if scheduler else "",
     )
-    results: dict[int, dict[str, Any]] = {}
     with contextlib.ExitStack() as stack:
         if sources:  # worker processes first: they start while the archive gets ready
             stack.enter_context(_work_in_processes(runner, workers))
         arch = resolve_archive(archive)
         arch.upgrade()  # once, before any worker archives
-        progress_id = create_progress_artifact(
-            progress=0.0, key="batch-progress", description=f"Runs of {len(sources)} processed (%)"
-        )
-        callback = _progress_callback()
-        stack.enter_context(_api_for_workers(runner))
-        # Entered last, so left first: it waits for its tasks before the workers stop.
-        task_runner = stack.enter_context(make_task_runner(runner, workers, scheduler))
-        futures = [
-            task_runner.submit(
-                process_run_task,
-                {"source": s, "archive_url": arch.url, "archive_root": str(arch.root)},
-            )
-            for s in sources
+        task_runner = stack.enter_context(_task_runner(runner, workers, scheduler))
+        parameters = [
+            {"source": s, "archive_url": arch.url, "archive_root": str(arch.root)} for s in sources
         ]
-        index = {id(f): i for i, f in enumerate(futures)}
-        shown = time.monotonic()
-        for fut in as_completed(futures):
-            i = index[id(fut)]
-            results[i] = _outcome_of(fut, sources[i])
-            # Every call is an API request: at most one per PROGRESS_EVERY_S, and the last.
-            if len(results) == len(sources) or time.monotonic() - shown >= PROGRESS_EVERY_S:
-                update_progress_artifact(progress_id, 100.0 * len(results) / len(sources))
-                shown = time.monotonic()
-            if callback is not None:
-                callback(len(results), len(sources), results[i])
-    outcomes += [results[i] for i in range(len(sources))]
+        outcomes += _run_tasks(
+            task_runner,
+            process_run_task,
+            parameters,
+            lambda i, exc: gave_up(str(sources[i].folder), sources[i].serial or "", exc),
+        )
     _summary_artifact(outcomes)
     return outcomes
 
 
-def _outcome_of(fut, source: RunSource) -> dict[str, Any]:  # noqa: ANN001 - a Prefect future
-    try:
-        return fut.result()
-    except Exception as exc:  # noqa: BLE001 - retries exhausted: report, go on
-        return run_outcome(
-            source=str(source.folder),
-            serial=source.serial or "",
-            status="failed",
-            error=f"gave up after {RETRIES + 1} attempts: {exc}",
-        )
+@contextlib.contextmanager
+def _task_runner(runner: str, workers: int | None, scheduler: str | None) -> Iterator[Any]:
+    """The batch's started task runner; on leaving, it waits for its tasks first."""
+    with _api_for_workers(runner), make_task_runner(runner, workers, scheduler) as task_runner:
+        yield task_runner
+
+
+def _run_tasks(
+    task_runner: Any,
+    task_: Any,
+    parameters: list[dict[str, Any]],
+    gave_up: Callable[[int, Exception], dict[str, Any]],
+    *,
+    done_before: int = 0,
+) -> list[dict[str, Any]]:
+    """Submit `task_` once per parameter dict; the outcomes in that order.
+
+    Progress goes to the flow run's progress artifact and to the callback of
+    `report_progress` as each task ends; `done_before` runs of the batch (counted
+    in the total) were settled before any task. A task whose retries are spent
+    gets the outcome ``gave_up(index, exception)``.
+    """
+    total = done_before + len(parameters)
+    progress_id = create_progress_artifact(
+        progress=100.0 * done_before / max(total, 1),
+        key="batch-progress",
+        description=f"Runs of {total} processed (%)",
+    )
+    callback = _progress_callback()
+    futures = [task_runner.submit(task_, p) for p in parameters]
+    index = {id(f): i for i, f in enumerate(futures)}
+    results: dict[int, dict[str, Any]] = {}
+    shown = time.monotonic()
+    for fut in as_completed(futures):
+        i = index[id(fut)]
+        try:
+            results[i] = fut.result()
+        except Exception as exc:  # noqa: BLE001 - retries exhausted: report, go on
+            results[i] = gave_up(i, exc)
+        done = done_before + len(results)
+        # Every call is an API request: at most one per PROGRESS_EVERY_S, and the last.
+        if done == total or time.monotonic() - shown >= PROGRESS_EVERY_S:
+            update_progress_artifact(progress_id, 100.0 * done / total)
+            shown = time.monotonic()
+        if callback is not None:
+            callback(done, total, results[i])
+    return [results[i] for i in range(len(parameters))]
 
 
 def _summary_artifact(outcomes: list[dict[str, Any]]) -> None:
@@ -306,6 +333,90 @@ def _summary_artifact(outcomes: list[dict[str, Any]]) -> None:
         ],
         description=f"{sum(o['status'] == 'failed' for o in outcomes)} of {len(outcomes)} failed",
     )
+
+
+@task(
+    name="reprocess-run",
+    task_run_name="reprocess {run_id}",
+    retries=RETRIES,
+    retry_delay_seconds=RETRY_DELAYS_S,
+    retry_condition_fn=_retry_transient,
+    cache_policy=NO_CACHE,  # the archive's duplicate rule makes a run idempotent
+    persist_result=False,
+)
+def reprocess_run_task(
+    run_id: str, archive_url: str, archive_root: str, reason: str
+) -> dict[str, Any]:
+    """One archived run through `reprocess_run_for_batch` (in a worker process with the
+    process runner, as `process_run_task`); what `is_transient` accepts is retried."""
+    from pipelines.reprocess import reprocess_run_for_batch
+
+    pool = _worker_processes()
+    if pool is None:
+        return reprocess_run_for_batch(run_id, archive_url, archive_root, reason)
+    return pool.run(reprocess_run_for_batch, run_id, archive_url, archive_root, reason)
+
+
+@flow(name="reprocess-batch", log_prints=True)
+def reprocess_batch(
+    reason: str,
+    selection: dict[str, Any] | None = None,
+    archive: str | None = None,
+    runner: str = "local",
+    workers: int | None = None,
+    scheduler: str | None = None,
+) -> list[dict[str, Any]]:
+    """Process every selected archived run again from its raw bytes, as a new revision.
+
+    Parameters
+    ----------
+    reason : why (kept with every new revision); non-empty.
+    selection : filters of `storage.queries.select_runs` (serial, model, since, until,
+        software_version, profile); None or {}: every run of the archive.
+    archive, runner, workers, scheduler : as `process_batch`.
+
+    Returns
+    -------
+    One outcome per selected run (`calib process --json` entries; status "revised",
+    "duplicate" or "failed"): first the runs already reprocessed by this software
+    with these settings (`pipelines.reprocess.plan_reprocess`, so running it again
+    after an interruption goes on), then the others, oldest first.
+    """
+    from pipelines.reprocess import check_reason, plan_reprocess
+
+    check_runner(runner, workers, scheduler)
+    check_reason(reason)
+    logger = get_run_logger()
+    arch = resolve_archive(archive)
+    arch.upgrade()
+    todo, skipped = plan_reprocess(arch, selection or {})
+    logger.info(
+        "%d run(s) selected, %d already reprocessed with this software and settings; runner %s",
+        len(todo) + len(skipped),
+        len(skipped),
+        runner,
+    )
+    callback = _progress_callback()
+    for n, outcome in enumerate(skipped, 1):
+        if callback is not None:
+            callback(n, len(skipped) + len(todo), outcome)
+    with contextlib.ExitStack() as stack:
+        if todo:
+            stack.enter_context(_work_in_processes(runner, workers))
+        task_runner = stack.enter_context(_task_runner(runner, workers, scheduler))
+        parameters = [
+            {"run_id": r, "archive_url": arch.url, "archive_root": str(arch.root), "reason": reason}
+            for r in todo
+        ]
+        outcomes = skipped + _run_tasks(
+            task_runner,
+            reprocess_run_task,
+            parameters,
+            lambda i, exc: gave_up(f"archive:{todo[i]}", "", exc, todo[i]),
+            done_before=len(skipped),
+        )
+    _summary_artifact(outcomes)
+    return outcomes
 
 
 @flow(name="thermal_campaign")

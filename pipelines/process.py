@@ -349,6 +349,7 @@ def process_run(
     archive: Archive,
     *,
     reraise: Callable[[BaseException], bool] | None = None,
+    reason: str | None = None,
 ) -> dict[str, Any]:
     """Ingest, preprocess, solve, check and archive one run. Never raises for bad input.
 
@@ -359,6 +360,9 @@ def process_run(
     reraise : errors for which ``reraise(exc)`` is true are raised instead of
         becoming a failed outcome, so a caller can retry them (the batch flow
         does, for transient errors: a locked database, a vanished network share).
+    reason : why an archived run is processed again (`pipelines.reprocess`): kept as
+        the settings of a first step ``reprocess`` of the new revision. It is not
+        part of the settings hash, so it never makes a duplicate a new revision.
 
     Returns
     -------
@@ -377,6 +381,8 @@ def process_run(
         loaded = load_run(source, hash_file=partial(pending.stage_raw, archive.root))
         serial = loaded.manifest.unit.serial
         steps = [ingest_step(loaded, time.perf_counter() - started)]
+        if reason is not None:
+            steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
         cal, solve_steps, settings = solve_loaded(loaded)
         run_id = run_id_of(raw_hash_of([f.sha256 for f in loaded.raw_files]))
         judged = check_run(loaded, cal, archive, run_id)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -95,7 +96,14 @@ def restore_run(archive: Archive, run_id: str, folder: Path) -> RunSource:
     return RunSource(folder, "mpu6000", summary["device"]["serial"])
 
 
-def reprocess_run(archive: Archive, run_id: str, keep: Path | None = None) -> dict[str, Any]:
+def reprocess_run(
+    archive: Archive,
+    run_id: str,
+    keep: Path | None = None,
+    *,
+    reason: str | None = None,
+    reraise: Callable[[BaseException], bool] | None = None,
+) -> dict[str, Any]:
     """Process an archived run again from its archived raw files.
 
     Parameters
@@ -103,18 +111,208 @@ def reprocess_run(archive: Archive, run_id: str, keep: Path | None = None) -> di
     archive : the archive to read the run from and to archive the result to.
     run_id : the run.
     keep : rebuild the run folder here and leave it; None: a temporary folder.
+    reason : why, kept with a new revision (`pipelines.process.process_run`).
+    reraise : errors to raise rather than report (`process_run`).
 
     Returns
     -------
     The run's entry of the `calib process --json` document; ``source`` is
     ``archive:<run_id>``. Status "duplicate" when the settings and software are
-    unchanged, "revised"-as-"ok" with a new revision otherwise.
+    unchanged, "revised" with a new revision otherwise, or "failed".
+
+    Raises
+    ------
+    ReprocessError when the archive cannot give the run back (`restore_run`).
     """
     from pipelines.process import process_run
 
     with tempfile.TemporaryDirectory(prefix=f"reprocess_{run_id}_") as tmp:
         folder = Path(keep) if keep is not None else Path(tmp) / run_id
         source = restore_run(archive, run_id, folder)
-        outcome = process_run(source, archive)
+        outcome = process_run(source, archive, reraise=reraise, reason=reason)
     outcome["source"] = f"archive:{run_id}"
+    if outcome["status"] == "ok":  # the run was archived before: "ok" is a new revision
+        outcome["status"] = "revised"
     return outcome
+
+
+# --- a selection of archived runs (calib reprocess --all / --serial / ...) -----------
+
+
+def reprocess_run_for_batch(
+    run_id: str, archive_url: str, archive_root: str, reason: str
+) -> dict[str, Any]:
+    """One run of a reprocessing batch, in whichever process the task's work runs.
+
+    Returns the run's outcome (status "revised", "duplicate" or "failed" with the
+    reason, e.g. a raw object missing from the file store); raises
+    ``pipelines.run_task.TransientError`` for a failure worth another attempt.
+    """
+    from pipelines.process import run_outcome
+    from pipelines.run_task import TransientError, is_transient
+
+    archive = Archive(url=archive_url, root=Path(archive_root))
+    try:
+        return reprocess_run(archive, run_id, reason=reason, reraise=is_transient)
+    except ReprocessError as exc:
+        return run_outcome(source=f"archive:{run_id}", serial="", status="failed",
+                           run_id=run_id, error=str(exc))  # fmt: skip
+    except Exception as exc:  # only what is_transient let through
+        raise TransientError(f"{run_id}: {type(exc).__name__}: {exc}") from exc
+    finally:
+        archive.dispose()
+
+
+def plan_reprocess(
+    archive: Archive, selection: dict[str, Any]
+) -> tuple[list[str], list[dict[str, Any]]]:
+    """The selected runs still to reprocess, and the outcomes of those already done.
+
+    A run is already done when one of its calibrations was made by this software
+    with the settings it would get now: its own settings and procedure, and the
+    tolerance profile it names at the version that profile has now. That is the
+    archive's own duplicate rule (same settings hash, same software version;
+    storage.archive), applied before any work, so running an interrupted
+    reprocessing again goes on where it stopped.
+
+    Parameters
+    ----------
+    archive : the archive.
+    selection : filters of `storage.queries.select_runs` (serial, model, since,
+        until, software_version, profile); None values are left out.
+
+    Returns
+    -------
+    (run ids to reprocess, oldest first; "duplicate" outcomes of the others).
+    """
+    from pipelines import process
+    from storage import queries
+
+    unknown = set(selection) - set(queries.SELECTION_KEYS)
+    if unknown:
+        raise ValueError(f"selection: unknown filter(s) {sorted(unknown)}")
+    runs = queries.select_runs(archive, **{k: v for k, v in selection.items() if v is not None})
+    version_of = _profile_versions()
+    todo: list[str] = []
+    skipped: list[dict[str, Any]] = []
+    for run in runs:
+        done = _done_by(run, process.SOFTWARE_VERSION, version_of)
+        if done is None:
+            todo.append(run["run_id"])
+            continue
+        skipped.append(process.run_outcome(
+            source=f"archive:{run['run_id']}", serial=run["serial"], status="duplicate",
+            run_id=run["run_id"], verdict_=done["verdict"],
+            message=f"already processed by software {done['software_version']} with these settings "
+            f"(revision {done['revision']})",
+        ))  # fmt: skip
+    return todo, skipped
+
+
+def _profile_versions():  # noqa: ANN202 - a cached lookup
+    """name -> version of the tolerance profile as it is now (None: cannot be loaded)."""
+    from functools import cache
+
+    from pipelines.tolerances import load_profile
+
+    @cache
+    def version(name: str | None) -> str | None:
+        if name is None:
+            return None
+        try:
+            return load_profile(name).version
+        except ValueError:  # the reprocessing itself reports it, with the run
+            return None
+
+    return version
+
+
+def _done_by(run: dict[str, Any], software: str, version_of) -> dict[str, Any] | None:  # noqa: ANN001
+    """The calibration of `run` that reprocessing it now would duplicate, or None."""
+    from storage.archive import settings_hash
+
+    for cal in run["calibrations"]:
+        if cal["software_version"] != software:
+            continue
+        version = version_of(cal["profile_name"])
+        if version is None:
+            continue
+        if cal["settings_hash"] == settings_hash(
+            cal["settings"], run["procedure"], cal["profile_name"], version
+        ):
+            return cal
+    return None
+
+
+REASON_MAX = 500  # characters of a reprocessing reason
+
+
+def check_reason(reason: str) -> str:
+    """The reason of a reprocessing: 1-REASON_MAX printable characters, else ValueError."""
+    if not isinstance(reason, str) or not reason.strip():
+        raise ValueError("--reason: say why the runs are processed again (e.g. 'software 0.4')")
+    if len(reason) > REASON_MAX or not reason.isprintable():
+        raise ValueError(
+            f"--reason: expected at most {REASON_MAX} printable characters, got {reason[:80]!r}"
+        )
+    return reason
+
+
+def summarize(outcomes: list[dict[str, Any]]) -> dict[str, Any]:
+    """Counts of a reprocessing batch and the reason of every failure.
+
+    Returns
+    -------
+    dict: runs, revised, duplicate, failed (counts) and ``failures``, a list of
+    {run_id, error}.
+    """
+    count = {s: sum(o["status"] == s for o in outcomes) for s in ("revised", "duplicate", "failed")}
+    failures = [{"run_id": o["run_id"], "error": o["error"]} for o in outcomes
+                if o["status"] == "failed"]  # fmt: skip
+    return {"runs": len(outcomes), **count, "failures": failures}
+
+
+def reprocess_in_process(
+    archive: Archive,
+    todo: list[str],
+    skipped: list[dict[str, Any]],
+    reason: str,
+    on_progress: Callable[[int, int, dict[str, Any]], None] | None = None,
+) -> list[dict[str, Any]]:
+    """A small reprocessing without Prefect (as `pipelines.direct` for `calib process`).
+
+    `todo` and `skipped` are what `plan_reprocess` gave; the outcomes come in the
+    order of `reprocess_batch`'s (skipped first), with the same retries.
+    """
+    from pipelines.run_task import call_with_retries, gave_up
+
+    outcomes = list(skipped)
+    total = len(skipped) + len(todo)
+    for n, outcome in enumerate(skipped, 1):
+        if on_progress is not None:
+            on_progress(n, total, outcome)
+    for run_id in todo:
+        outcomes.append(
+            call_with_retries(
+                lambda r=run_id: reprocess_run_for_batch(r, archive.url, str(archive.root), reason),
+                lambda exc, r=run_id: gave_up(f"archive:{r}", "", exc, r),
+            )
+        )
+        if on_progress is not None:
+            on_progress(len(outcomes), total, outcomes[-1])
+    return outcomes
+
+
+def changed_pairs(archive: Archive, outcomes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The revision pairs (`storage.queries.revision_pairs`) of a reprocessing's runs whose
+    current revision this software made: revised now, or by an earlier, interrupted pass
+    of the same reprocessing (skipped now as duplicates)."""
+    from pipelines import process
+    from storage import queries
+
+    run_ids = [o["run_id"] for o in outcomes if o["status"] in ("revised", "duplicate")]
+    return [
+        p
+        for p in queries.revision_pairs(archive, run_ids)
+        if p["new"]["software_version"] == process.SOFTWARE_VERSION
+    ]

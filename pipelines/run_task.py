@@ -9,12 +9,14 @@ retries what raises `TransientError`.
 from __future__ import annotations
 
 import errno
+import time
+from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
 from pipelines.ingest import RunSource
-from pipelines.process import process_run
+from pipelines.process import process_run, run_outcome
 from storage.db import Archive
 from storage.write_failures import exception_chain
 
@@ -103,3 +105,28 @@ def process_run_for_batch(source: RunSource, archive_url: str, archive_root: str
         raise TransientError(f"{source.name}: {type(exc).__name__}: {exc}") from exc
     finally:
         archive.dispose()  # one engine per task: give its connections back now
+
+
+def call_with_retries(
+    call: Callable[[], dict[str, Any]], gave_up: Callable[[TransientError], dict[str, Any]]
+) -> dict[str, Any]:
+    """``call()`` in this process, retried as the batch flow retries its tasks.
+
+    A `TransientError` is tried again after each of RETRY_DELAYS_S (RETRIES more
+    attempts); after the last, the outcome is ``gave_up(error)``.
+    """
+    for delay in RETRY_DELAYS_S[:RETRIES]:
+        try:
+            return call()
+        except TransientError:
+            time.sleep(delay)
+    try:
+        return call()
+    except TransientError as exc:
+        return gave_up(exc)
+
+
+def gave_up(source: str, serial: str, exc: BaseException, run_id: str = "") -> dict[str, Any]:
+    """The failed outcome of a run whose attempts (1 + RETRIES) all met transient errors."""
+    return run_outcome(source=source, serial=serial, status="failed", run_id=run_id,
+                       error=f"gave up after {RETRIES + 1} attempts: {exc}")  # fmt: skip

@@ -158,11 +158,21 @@ def run_id_of(raw_hash: str) -> str:
 
 def settings_hash_of(run: RunIn) -> str:
     """SHA-256 of the canonical JSON of what decides the result besides the raw bytes."""
+    return settings_hash(run.settings, run.procedure, run.profile_name, run.profile_version)
+
+
+def settings_hash(
+    settings: dict[str, Any],
+    procedure: str,
+    profile_name: str | None,
+    profile_version: str | None,
+) -> str:
+    """The settings hash of a calibration (`settings_hash_of`) from its parts."""
     doc = {
-        "settings": run.settings,
-        "procedure": run.procedure,
-        "profile_name": run.profile_name,
-        "profile_version": run.profile_version,
+        "settings": settings,
+        "procedure": procedure,
+        "profile_name": profile_name,
+        "profile_version": profile_version,
     }
     return hashlib.sha256(_canonical_json(doc, "settings").encode()).hexdigest()
 

@@ -96,7 +96,7 @@ def test_new_software_version_gives_a_new_revision_with_the_same_values(
     first = _first_processing(tmp_path / "run", arch)
     monkeypatch.setattr(process_module, "SOFTWARE_VERSION", "9.9.9-reprocess-test")
     again = reprocess_run(arch, first["run_id"])
-    assert again["status"] == "ok", again["error"]  # archived as revision 2 of the same run
+    assert again["status"] == "revised", again["error"]  # revision 2 of the same run
     assert again["parameters"] == first["parameters"]
     assert queries.run_summary(arch, first["run_id"])["revisions"] == 2
 
@@ -123,10 +123,26 @@ def test_cli_reprocess_json(tmp_path: Path, arch) -> None:
     write_csv_run(sim.segments, tmp_path / "run", MANIFEST)
     first = _first_processing(tmp_path / "run", arch)
     result = CliRunner().invoke(
-        app, ["reprocess", first["run_id"], "--archive", str(arch.root), "--json"]
+        app,
+        ["reprocess", first["run_id"], "--archive", str(arch.root), "--json", "--reason", "check"],
     )
     assert result.exit_code == 0, result.output
-    (outcome,) = json.loads(result.stdout)["runs"]
+    doc = json.loads(result.stdout)
+    (outcome,) = doc["runs"]
+    assert doc["summary"] == {"runs": 1, "revised": 0, "duplicate": 1, "failed": 0,
+                              "failures": []}  # fmt: skip
     assert outcome["status"] == "duplicate" and outcome["parameters"] == first["parameters"]
-    result = CliRunner().invoke(app, ["reprocess", "R000000000000", "--archive", str(arch.root)])
+    result = CliRunner().invoke(
+        app, ["reprocess", "R000000000000", "--archive", str(arch.root), "--reason", "check"]
+    )
     assert result.exit_code == 2
+    for args, said in (
+        ([first["run_id"]], "--reason"),  # required
+        ([first["run_id"], "--reason", " "], "say why"),
+        (["--reason", "why"], "name the runs"),
+        ([first["run_id"], "--all", "--reason", "why"], "not both"),
+        (["--all", "--serial", "X", "--reason", "why"], "--all selects every run"),
+        (["--since", "yesterday", "--reason", "why"], "since: expected a date"),
+    ):
+        result = CliRunner().invoke(app, ["reprocess", *args, "--archive", str(arch.root)])
+        assert result.exit_code == 2 and said in result.output, (args, result.output)

@@ -1,43 +1,204 @@
-"""`calib reprocess RUN_ID` (the work: pipelines.reprocess)."""
+"""`calib reprocess`: archived runs processed again from their raw bytes, as new revisions
+(the work: pipelines.reprocess; the batch: pipelines.flows.reprocess_batch; what changed:
+pipelines.changes)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from rich.table import Table
 
-from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_run, out, print_json
+from pipelines.cli_shared import (
+    ArchiveOpt,
+    app,
+    err,
+    fail,
+    flow_batch_console,
+    open_archive,
+    open_run,
+    out,
+    print_json,
+    progress_bar,
+)
+from pipelines.direct import IN_PROCESS_MAX_RUNS
+
+Opt = typer.Option
 
 
 @app.command("reprocess")
 def reprocess_command(
-    run_id: str,
-    archive: ArchiveOpt = None,
-    keep: Annotated[
-        Path | None,
-        typer.Option("--keep", help="Rebuild the run folder here and keep it (for inspection)."),
+    run_id: Annotated[str | None, typer.Argument(help="One run (else a selection).")] = None,
+    reason: Annotated[
+        str, Opt("--reason", help="Why the runs are processed again (kept with each revision).")
+    ] = ...,  # type: ignore[assignment] - required
+    every: Annotated[bool, Opt("--all", help="Every run of the archive.")] = False,
+    serial: Annotated[str | None, Opt(help="Runs of this unit.")] = None,
+    model: Annotated[str | None, Opt(help="Runs of units of this device model.")] = None,
+    since: Annotated[str | None, Opt(help="Runs started on or after (YYYY-MM-DD).")] = None,
+    until: Annotated[str | None, Opt(help="Runs started on or before (YYYY-MM-DD).")] = None,
+    software_version: Annotated[
+        str | None, Opt(help="Runs whose current calibration this software version made.")
     ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON document.")] = False,
+    profile: Annotated[
+        str | None, Opt(help="Runs whose current calibration this tolerance profile judged.")
+    ] = None,
+    archive: ArchiveOpt = None,
+    runner: Annotated[str, Opt(help="local (threads), process or dask.")] = "local",
+    workers: Annotated[int | None, Opt(help="Runs in parallel (default: the cores).")] = None,
+    scheduler: Annotated[str | None, Opt(help="Dask scheduler, tcp://host:8786.")] = None,
+    k: Annotated[
+        float, Opt("--k", help="Changed: |new-old| > k x combined standard uncertainty.")
+    ] = 3.0,
+    progress: Annotated[
+        bool | None, Opt("--progress/--no-progress", help="Progress bar on stderr.")
+    ] = None,
+    flow: Annotated[
+        bool, Opt("--flow", help=f"A Prefect flow even for {IN_PROCESS_MAX_RUNS} runs or fewer.")
+    ] = False,
+    keep: Annotated[
+        Path | None, Opt("--keep", help="One run: rebuild its folder here and keep it.")
+    ] = None,
+    as_json: Annotated[bool, Opt("--json", help="Print the JSON document.")] = False,
 ) -> None:
-    """Process RUN_ID again from the archive alone (its archived raw files and manifest)."""
+    """Process archived runs again from their raw bytes: RUN_ID, --all, or a selection.
+
+    Each run becomes a new revision (with REASON) unless this software already made
+    one with the same settings ("duplicate"), so running the same command again after
+    an interruption goes on where it stopped. Prints each run's outcome, a summary and
+    the change report (parameters changed beyond their uncertainty, flipped verdicts).
+    """
+    from pipelines.reprocess import check_reason
+
+    selection = {"serial": serial, "model": model, "since": since, "until": until,
+                 "software_version": software_version, "profile": profile}  # fmt: skip
+    try:
+        check_reason(reason)
+        _check_choice(run_id, every, selection, keep)
+    except ValueError as exc:
+        fail(str(exc))
+    if run_id is not None:
+        outcomes = [_one_run(archive, run_id, reason, keep)]
+    else:
+        show = err.is_terminal if progress is None else progress
+        outcomes = _batch(archive, selection, reason, runner, workers, scheduler, flow, show)
+    _report(archive, outcomes, k, as_json)
+    raise typer.Exit(1 if any(o["status"] == "failed" for o in outcomes) else 0)
+
+
+def _check_choice(
+    run_id: str | None, every: bool, selection: dict[str, Any], keep: Path | None
+) -> None:
+    """Exactly one of RUN_ID, --all or filters; --keep only for one run."""
+    filters = [f"--{k.replace('_', '-')}" for k, v in selection.items() if v is not None]
+    if run_id is not None and (every or filters):
+        raise ValueError(f"give RUN_ID or a selection ({', '.join(filters) or '--all'}), not both")
+    if run_id is None and not every and not filters:
+        raise ValueError(
+            "name the runs: RUN_ID, --all, or filters (--serial, --model, --since, --until, "
+            "--software-version, --profile)"
+        )
+    if every and filters:
+        raise ValueError(f"--all selects every run: drop it or {', '.join(filters)}")
+    if keep is not None and run_id is None:
+        raise ValueError("--keep rebuilds one run's folder: give RUN_ID")
+    if keep is not None and keep.exists() and any(keep.iterdir()):
+        raise ValueError(f"--keep {keep}: folder is not empty")
+
+
+def _one_run(archive: str | None, run_id: str, reason: str, keep: Path | None) -> dict:
     from pipelines.reprocess import ReprocessError, reprocess_run
 
     arch, run_id = open_run(archive, run_id)
-    if keep is not None and keep.exists() and any(keep.iterdir()):
-        fail(f"--keep {keep}: folder is not empty")
     try:
-        outcome = reprocess_run(arch, run_id, keep)
+        return reprocess_run(arch, run_id, keep, reason=reason)
     except ReprocessError as exc:
         fail(str(exc))
-    if as_json:
-        print_json({"runs": [outcome]})
-    elif outcome["status"] == "failed":
-        err.print(f"[red]failed:[/red] {outcome['error']}")
-    else:
-        out.print(
-            f"{outcome['run_id']} {outcome['serial']}: {outcome['status']}, "
-            f"verdict {outcome['verdict']}"
-            + (f" ({outcome['message']})" if outcome["message"] else "")
+    raise AssertionError  # fail() exits
+
+
+def _batch(
+    archive: str | None,
+    selection: dict[str, Any],
+    reason: str,
+    runner: str,
+    workers: int | None,
+    scheduler: str | None,
+    flow: bool,
+    show: bool,
+) -> list[dict]:
+    """The selection in this process when it is small (as `calib process`), else the flow."""
+    from pipelines.direct import prefect_api_configured
+    from pipelines.reprocess import plan_reprocess, reprocess_in_process
+    from pipelines.runners import check_runner
+
+    try:
+        check_runner(runner, workers, scheduler)
+        arch = open_archive(archive)
+        arch.upgrade()
+        todo, skipped = plan_reprocess(arch, selection)
+    except ValueError as exc:
+        fail(str(exc))
+    small = not flow and runner == "local" and len(todo) <= IN_PROCESS_MAX_RUNS
+    if small and not prefect_api_configured():
+        with progress_bar(show) as draw:
+            return reprocess_in_process(arch, todo, skipped, reason, draw)
+    from pipelines.flows import reprocess_batch
+
+    with flow_batch_console(show):
+        return reprocess_batch(
+            reason,
+            {k: v for k, v in selection.items() if v is not None},
+            archive=archive,
+            runner=runner,
+            workers=workers,
+            scheduler=scheduler,
         )
-    raise typer.Exit(1 if outcome["status"] == "failed" else 0)
+
+
+def _report(archive: str | None, outcomes: list[dict], k: float, as_json: bool) -> None:
+    """Outcomes, summary and change report: one JSON document, or tables."""
+    from pipelines.changes import change_report
+    from pipelines.reprocess import changed_pairs, summarize
+
+    summary = summarize(outcomes)
+    try:
+        changes = change_report(changed_pairs(open_archive(archive), outcomes), k)
+    except ValueError as exc:
+        fail(str(exc))
+    if as_json:
+        print_json({"runs": outcomes, "summary": summary, "changes": changes})
+        return
+    table = Table(title="Reprocessed runs")
+    for col in ("run", "serial", "status", "verdict", "message / error"):
+        table.add_column(col)
+    style = {"revised": "green", "duplicate": "yellow", "failed": "red"}
+    for o in outcomes:
+        detail = o["error"] if o["status"] == "failed" else (o["message"] or "")
+        status = f"[{style[o['status']]}]{o['status']}[/]"
+        table.add_row(o["run_id"] or "-", o["serial"] or "-", status, o["verdict"] or "-", detail)
+    out.print(table)
+    out.print(
+        f"{summary['runs']} run(s): {summary['revised']} revised, {summary['duplicate']} "
+        f"skipped as duplicate, {summary['failed']} failed"
+    )
+    _print_changes(changes)
+
+
+def _print_changes(changes: dict[str, Any]) -> None:
+    table = Table(
+        title=f"Changes against the superseded revision ({changes['runs']} run(s); "
+        f"changed: |new-old| > {changes['k']:g} x combined standard uncertainty)"
+    )
+    for col in ("family", "runs", "changed", "unjudged (no std)", "max |z|"):
+        table.add_column(col)
+    for name, row in changes["families"].items():
+        table.add_row(name, str(row["runs"]), str(row["changed"]), str(row["unjudged"]),
+                      f"{row['max_z']:.2f}")  # fmt: skip
+    out.print(table)
+    flips = ", ".join(f"{key}: {n}" for key, n in changes["verdicts"].items()) or "none"
+    out.print(f"verdicts changed: {flips}")
+    for key, run_ids in changes["flipped"].items():
+        if run_ids:
+            out.print(f"  {key}: {' '.join(run_ids)}")

@@ -5,7 +5,8 @@ per kind of question:
 - `history`: a unit over time (history, latest and latest valid calibration), units,
   a model's fleet and its history;
 - `equipment`: runs made with equipment past its due date;
-- `thermal`: thermal models and campaigns.
+- `thermal`: thermal models and campaigns;
+- `selection`: the runs a reprocessing takes, and current vs. superseded revisions.
 
 Every untrusted input (serial, run id, parameter name, date) is a bound parameter of a
 SQLAlchemy statement, never part of a SQL string (`_common`). The public functions are
@@ -44,6 +45,7 @@ from storage.queries.runs import (
     run_samples,
     run_summary,
 )
+from storage.queries.selection import SELECTION_KEYS, revision_pairs, select_runs
 from storage.queries.thermal import campaign_calibrations, latest_thermal_model, thermal_models
 
 __all__ = [
@@ -54,4 +56,5 @@ __all__ = [
     "full_run_id", "history", "lapsed_runs", "latest_calibration", "latest_thermal_model",
     "latest_valid", "lineage", "parameter_history", "repeatability_candidates", "run_samples",
     "run_summary", "serial_parameter_history", "thermal_models", "units",
+    "SELECTION_KEYS", "revision_pairs", "select_runs",
 ]  # fmt: skip

@@ -1,0 +1,148 @@
+"""Queries of the archive about a selection of runs: which runs a reprocessing takes, and
+each run's current calibration beside the revision it superseded (the change report).
+"""
+
+from __future__ import annotations
+
+from datetime import date, datetime
+from typing import Any
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session, aliased
+
+from storage.db import Archive
+from storage.queries._common import as_instant, check_serial, check_text
+from storage.schema import CalibrationRow, Device, ParameterRow, Run
+
+SELECTION_KEYS = ("serial", "model", "since", "until", "software_version", "profile")
+_CHUNK = 500  # ids bound per statement (well below SQLite's and PostgreSQL's limits)
+
+
+def select_runs(
+    archive: Archive,
+    *,
+    serial: str | None = None,
+    model: str | None = None,
+    since: date | datetime | str | None = None,
+    until: date | datetime | str | None = None,
+    software_version: str | None = None,
+    profile: str | None = None,
+) -> list[dict[str, Any]]:
+    """The archived runs matching every filter given (none: all), oldest run first.
+
+    Parameters
+    ----------
+    serial, model : the unit's serial, its device model.
+    since, until : run start, inclusive (dates are whole UTC days).
+    software_version, profile : of the run's current calibration (the software that
+        made it, the tolerance profile name it was judged by).
+
+    Returns
+    -------
+    list of dicts: run_id, serial, procedure, started_at, and ``calibrations``, every
+    revision of the run as dicts (revision, settings_hash, settings, software_version,
+    profile_name, current), oldest first.
+
+    Raises ValueError naming the filter for a malformed value, before any SQL runs.
+    """
+    t0 = as_instant(since, "since", end_of_day=False)
+    t1 = as_instant(until, "until", end_of_day=True)
+    current = aliased(CalibrationRow)
+    stmt = (
+        select(Run.id, Run.run_id, Device.serial, Run.procedure, Run.started_at)
+        .join(Device, Device.id == Run.device_id)
+        .join(current, (current.run_id == Run.id) & current.superseded_by.is_(None))
+        .order_by(Run.started_at, Run.run_id)
+    )
+    if serial is not None:
+        stmt = stmt.where(Device.serial == check_serial(serial))
+    if model is not None:
+        stmt = stmt.where(Device.model == check_text(model, "model"))
+    if t0 is not None:
+        stmt = stmt.where(Run.started_at >= t0)
+    if t1 is not None:
+        stmt = stmt.where(Run.started_at <= t1)
+    if software_version is not None:
+        stmt = stmt.where(
+            current.software_version == check_text(software_version, "software version")
+        )
+    if profile is not None:
+        stmt = stmt.where(current.profile_name == check_text(profile, "profile"))
+    with Session(archive.engine()) as s:
+        runs = s.execute(stmt).all()
+        cals: dict[int, list[dict[str, Any]]] = {r.id: [] for r in runs}
+        rows = s.execute(
+            select(
+                CalibrationRow.run_id, CalibrationRow.revision, CalibrationRow.settings_hash,
+                CalibrationRow.settings, CalibrationRow.software_version,
+                CalibrationRow.profile_name, CalibrationRow.verdict,
+                CalibrationRow.superseded_by,
+            ).order_by(CalibrationRow.run_id, CalibrationRow.revision)
+        ).all()  # fmt: skip
+    for c in rows:
+        if c.run_id in cals:
+            cals[c.run_id].append({
+                "revision": c.revision, "settings_hash": c.settings_hash,
+                "settings": c.settings, "software_version": c.software_version,
+                "profile_name": c.profile_name, "verdict": c.verdict,
+                "current": c.superseded_by is None,
+            })  # fmt: skip
+    return [
+        {"run_id": r.run_id, "serial": r.serial, "procedure": r.procedure,
+         "started_at": r.started_at, "calibrations": cals[r.id]}
+        for r in runs
+    ]  # fmt: skip
+
+
+def revision_pairs(archive: Archive, run_ids: list[str]) -> list[dict[str, Any]]:
+    """Each run's current calibration and the revision it superseded, for the change report.
+
+    Runs whose current calibration superseded none (revision 1 only) are left out.
+
+    Returns
+    -------
+    list of dicts, in the order of `run_ids`: run_id, serial, and ``new`` / ``old``
+    each with revision, software_version, profile_name, profile_version, verdict and
+    parameters (canonical name -> (value, std), SI).
+    """
+    new, old = aliased(CalibrationRow), aliased(CalibrationRow)
+    wanted = set(run_ids)
+    stmt = (
+        select(Run.run_id, Device.serial, new, old)
+        .join(Device, Device.id == Run.device_id)
+        .join(new, (new.run_id == Run.id) & new.superseded_by.is_(None))
+        .join(old, old.superseded_by == new.id)
+    )
+    found: dict[str, dict[str, Any]] = {}
+    with Session(archive.engine()) as s:
+        # All pairs at once, filtered here: a selection may hold thousands of run ids,
+        # more than a statement may bind.
+        for row in s.execute(stmt).all():
+            if row.run_id in wanted:
+                found[row.run_id] = {"run_id": row.run_id, "serial": row.serial,
+                                     "new": row[2], "old": row[3]}  # fmt: skip
+        ids = [c.id for p in found.values() for c in (p["new"], p["old"])]
+        values: dict[int, dict[str, tuple[float, float | None]]] = {i: {} for i in ids}
+        for start in range(0, len(ids), _CHUNK):
+            params = select(
+                ParameterRow.calibration_id, ParameterRow.name, ParameterRow.value,
+                ParameterRow.std,
+            ).where(ParameterRow.calibration_id.in_(ids[start : start + _CHUNK]))  # fmt: skip
+            for p in s.execute(params).all():
+                values[p.calibration_id][p.name] = (p.value, p.std)
+        return [
+            {**found[r], "new": _revision(found[r]["new"], values),
+             "old": _revision(found[r]["old"], values)}
+            for r in run_ids if r in found
+        ]  # fmt: skip
+
+
+def _revision(cal: CalibrationRow, values: dict[int, dict]) -> dict[str, Any]:
+    return {
+        "revision": cal.revision,
+        "software_version": cal.software_version,
+        "profile_name": cal.profile_name,
+        "profile_version": cal.profile_version,
+        "verdict": cal.verdict,
+        "parameters": values[cal.id],
+    }
