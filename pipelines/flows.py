@@ -206,10 +206,13 @@ def process_run_task(source: RunSource, archive_url: str, archive_root: str) -> 
     while this task (state, retries, logs) stays in a thread of the flow; a
     worker that died under it raises ``BrokenProcessPool``.
     """
+    return _in_worker(process_run_for_batch, source, archive_url, archive_root)
+
+
+def _in_worker(fn: Callable[..., dict[str, Any]], *args: Any) -> dict[str, Any]:
+    """``fn(*args)`` in a worker process of the batch (process runner), else right here."""
     pool = _worker_processes()
-    if pool is None:
-        return process_run_for_batch(source, archive_url, archive_root)
-    return pool.run(process_run_for_batch, source, archive_url, archive_root)
+    return fn(*args) if pool is None else pool.run(fn, *args)
 
 
 @flow(name="process-batch", log_prints=True)
@@ -351,10 +354,7 @@ def reprocess_run_task(
     process runner, as `process_run_task`); what `is_transient` accepts is retried."""
     from pipelines.reprocess import reprocess_run_for_batch
 
-    pool = _worker_processes()
-    if pool is None:
-        return reprocess_run_for_batch(run_id, archive_url, archive_root, reason)
-    return pool.run(reprocess_run_for_batch, run_id, archive_url, archive_root, reason)
+    return _in_worker(reprocess_run_for_batch, run_id, archive_url, archive_root, reason)
 
 
 @flow(name="reprocess-batch", log_prints=True)

@@ -15,6 +15,7 @@ from sqlalchemy import Row, func
 from calib_core import params
 from storage.naming import check_safe_name
 from storage.schema import (
+    Device,
     Run,
 )
 
@@ -109,6 +110,17 @@ def _run_day(dialect: str):  # noqa: ANN202 - a SQL expression
     if dialect == "postgresql":
         return func.date(func.timezone("UTC", Run.started_at))
     return func.date(Run.started_at)  # SQLite keeps naive UTC text
+
+
+def where_model_and_start(stmt, model: str | None, t0: datetime | None, t1: datetime | None):  # noqa: ANN001, ANN201 - a select
+    """`stmt` (over Run joined to Device) limited to a device model and a run start range."""
+    if model is not None:
+        stmt = stmt.where(Device.model == check_text(model, "model"))
+    if t0 is not None:
+        stmt = stmt.where(Run.started_at >= t0)
+    if t1 is not None:
+        stmt = stmt.where(Run.started_at <= t1)
+    return stmt
 
 
 def _frame(rows: list[Row | tuple], columns: list[str]) -> pd.DataFrame:

@@ -27,6 +27,7 @@ from storage.queries._common import (
     check_serial,
     check_text,
     check_verdict,
+    where_model_and_start,
 )
 from storage.queries.runs import _cal_dict
 from storage.schema import (
@@ -327,12 +328,7 @@ def units(
         .where(CalibrationRow.superseded_by.is_(None))
         .order_by(Run.started_at, Run.id)
     )  # fmt: skip
-    if model is not None:
-        stmt = stmt.where(Device.model == check_text(model, "model"))
-    if t0 is not None:
-        stmt = stmt.where(Run.started_at >= t0)
-    if t1 is not None:
-        stmt = stmt.where(Run.started_at <= t1)
+    stmt = where_model_and_start(stmt, model, t0, t1)
     if verdict is not None:
         stmt = stmt.where(CalibrationRow.verdict == check_verdict(verdict))
     if lo is not None:

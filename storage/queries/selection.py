@@ -11,7 +11,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, aliased
 
 from storage.db import Archive
-from storage.queries._common import as_instant, check_serial, check_text
+from storage.queries._common import as_instant, check_serial, check_text, where_model_and_start
 from storage.schema import CalibrationRow, Device, ParameterRow, Run
 
 SELECTION_KEYS = ("serial", "model", "since", "until", "software_version", "profile")
@@ -56,12 +56,7 @@ def select_runs(
     )
     if serial is not None:
         stmt = stmt.where(Device.serial == check_serial(serial))
-    if model is not None:
-        stmt = stmt.where(Device.model == check_text(model, "model"))
-    if t0 is not None:
-        stmt = stmt.where(Run.started_at >= t0)
-    if t1 is not None:
-        stmt = stmt.where(Run.started_at <= t1)
+    stmt = where_model_and_start(stmt, model, t0, t1)
     if software_version is not None:
         stmt = stmt.where(
             current.software_version == check_text(software_version, "software version")
