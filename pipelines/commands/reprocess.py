@@ -64,10 +64,10 @@ def reprocess_command(
 ) -> None:
     """Process archived runs again from their raw bytes: RUN_ID, --all, or a selection.
 
-    Each run becomes a new revision (with REASON) unless this software already made
-    one with the same settings ("duplicate"), so running the same command again after
-    an interruption goes on where it stopped. Prints each run's outcome, a summary and
-    the change report (parameters changed beyond their uncertainty, flipped verdicts).
+    Each run becomes a new revision, kept with REASON.
+    A run this software already made with the same settings is skipped (duplicate),
+    so the same command run again after an interruption goes on where it stopped.
+    Prints each run's outcome, a summary and the change report.
     """
     from pipelines.reprocess import check_reason
 
