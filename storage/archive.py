@@ -41,7 +41,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from calib_core.calibration import Parameter
-from storage import rawstore
+from storage import rawstore, seal
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.schema import (
@@ -328,6 +328,7 @@ def archive_run(
     extra_files: dict[str, bytes] | None = None,
     *,
     pending: rawstore.PendingFiles | None = None,
+    reason: str | None = None,
 ) -> ArchiveResult:
     """Archive a processed run (idempotent; see the module docstring).
 
@@ -340,6 +341,8 @@ def archive_run(
     pending : where the run's files are queued and committed; raw files the
         caller staged there at ingest (`rawstore.PendingFiles.stage_raw`) are
         stored without another read. The caller closes it. None: one of its own.
+    reason : why, for the audit trail; a revision without one records what
+        changed (settings, software version).
 
     Returns
     -------
@@ -352,6 +355,7 @@ def archive_run(
     """
     extra_files = dict(extra_files or {})
     _validate(run, extra_files)
+    seal.check_reason(reason)
     raw_hash = raw_hash_of([f.sha256 for f in run.raw_files])
     run_id = run_id_of(raw_hash)
     settings_hash = settings_hash_of(run)
@@ -380,8 +384,9 @@ def archive_run(
             _pause_point("files")
             try:
                 cal_id = _write_rows(
-                    engine, run, raw_hash, run_id, settings_hash, root, rdir, plan, written
-                )
+                    engine, run, (raw_hash, run_id, settings_hash), root, rdir, plan, written,
+                    reason,
+                )  # fmt: skip
             except _PlanChangedError:
                 continue
             except IntegrityError as exc:
@@ -446,6 +451,7 @@ def _result(
 @dataclass
 class _Written:
     files: dict[str, Path]  # extra file name -> path
+    sha256s: dict[str, str]  # path relative to the root -> sha256, of the extra files
     samples: tuple[str, str] | None  # (path relative to the root, sha256) of a new samples file
 
 
@@ -475,12 +481,13 @@ def _write_files(
     # Later revisions get their own folder: an archived file is never overwritten.
     target = rdir if plan.revision == 1 else rdir / f"revision-{plan.revision}"
     _note_new(target, created)
-    files = {}
+    files, sha256s = {}, {}
     for name, data in extra_files.items():
         pending.write_bytes(target / name, data)
         files[name] = target / name
+        sha256s[(target / name).relative_to(root).as_posix()] = hashlib.sha256(data).hexdigest()
     pending.commit()
-    return _Written(files, samples)
+    return _Written(files, sha256s, samples)
 
 
 def _note_new(path: Path, created: list[Path]) -> None:
@@ -501,15 +508,18 @@ def _cleanup(created: list[Path]) -> None:
 def _write_rows(
     engine: Engine,
     run: RunIn,
-    raw_hash: str,
-    run_id: str,
-    settings_hash: str,
+    ids: tuple[str, str, str],
     root: Path,
     rdir: Path,
     plan: _Plan,
     written: _Written,
+    reason: str | None,
 ) -> int:
-    """All rows of the run in one transaction; return the new calibration's id."""
+    """All rows of the run and its seal in one transaction; return the new calibration's id.
+
+    `ids` is (raw hash, run id, settings hash).
+    """
+    raw_hash, run_id, settings_hash = ids
     params = parameters_of(run)
     with Session(engine) as s, s.begin():
         if _plan(s, run, raw_hash, settings_hash) != plan:
@@ -536,8 +546,23 @@ def _write_rows(
             s.get(CalibrationRow, plan.previous_id).superseded_by = cal.id
         _insert_children(s, run, params, run_pk, cal.id)
         s.flush()
+        if plan.previous_id is not None and reason is None:
+            reason = _revision_reason(s, plan.previous_id, settings_hash, run.software_version)
+        action = "archived" if plan.run_pk is None else "revised"
+        seal.seal_calibration(s.connection(), cal.id, action, files=written.sha256s, reason=reason)
         _pause_point("commit")
         return cal.id
+
+
+def _revision_reason(s: Session, previous_id: int, settings_hash: str, software: str) -> str:
+    """What changed since the revision a new one supersedes, when no reason was given."""
+    prev = s.get(CalibrationRow, previous_id)
+    changed = []
+    if prev.settings_hash != settings_hash:
+        changed.append(f"settings {prev.settings_hash[:12]} -> {settings_hash[:12]}")
+    if prev.software_version != software:
+        changed.append(f"software {prev.software_version} -> {software}")
+    return "processed again (no reason given): " + ", ".join(changed)
 
 
 def _insert_children(

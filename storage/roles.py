@@ -28,6 +28,7 @@ from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.pgserver import libpq_dsn
 from storage.schema import Base
+from storage.seal import record_event
 
 READER = "calib_reader"
 WRITER = "calib_writer"
@@ -115,6 +116,9 @@ def apply_roles(
             conn.execute(stmt)
         for stmt in role_statements(database, reader=reader, writer=writer):
             conn.execute(stmt)
+    passwords = [r for r, p in ((reader, reader_password), (writer, writer_password)) if p]
+    record_event(archive, "roles", detail={"reader": reader, "writer": writer,
+                                           "password_set": passwords})  # fmt: skip
 
 
 def role_sql(database: str, *, reader: str = READER, writer: str = WRITER) -> str:

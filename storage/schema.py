@@ -265,4 +265,43 @@ class ThermalModelRow(Base):
     superseded_by: Mapped[int | None] = mapped_column(ForeignKey("thermal_models.id"))
 
 
+class Seal(Base):
+    """The sealed record of one calibration revision (storage.seal).
+
+    ``record`` is the canonical content of the revision's rows and files as
+    archived; ``digest`` its SHA-256, also carried by the revision's event in
+    the audit chain. Never updated or deleted.
+    """
+
+    __tablename__ = "seals"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    calibration_id: Mapped[int] = mapped_column(ForeignKey("calibrations.id"), unique=True)
+    digest: Mapped[str] = mapped_column(String(SHA256_LEN))
+    record: Mapped[dict[str, Any]]
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class AuditEvent(Base):
+    """One event of the append-only audit chain (storage.seal): who, when, what, why.
+
+    ``hash`` is the SHA-256 over the other fields, ``prev_hash`` that of the event
+    ``seq - 1`` (zeros for the first), so the events form one chain.
+    """
+
+    __tablename__ = "audit_events"
+
+    seq: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    at: Mapped[datetime] = mapped_column(index=True)
+    actor: Mapped[str] = mapped_column(String(200))
+    action: Mapped[str] = mapped_column(String(50))
+    run_id: Mapped[str | None] = mapped_column(String(NAME_LEN), index=True)
+    revision: Mapped[int | None] = mapped_column(Integer)
+    reason: Mapped[str | None] = mapped_column(Text)
+    detail: Mapped[dict[str, Any]]
+    digest: Mapped[str | None] = mapped_column(String(SHA256_LEN))
+    prev_hash: Mapped[str] = mapped_column(String(SHA256_LEN), unique=True)
+    hash: Mapped[str] = mapped_column(String(SHA256_LEN), unique=True)
+
+
 TABLES = [t.name for t in Base.metadata.sorted_tables]

@@ -14,6 +14,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from storage import seal
 from storage.db import Archive
 from storage.queries.thermal import _device_id
 from storage.schema import CalibrationRow, Run, ThermalModelRow
@@ -41,7 +42,8 @@ def archive_thermal_model(
             raise ValueError(f"thermal model document lacks {key!r}")
     if not calibration_ids:
         raise ValueError("a thermal model must name the calibrations it was fitted from")
-    with Session(archive.engine()) as s, s.begin():
+    # SQLite: the write lock at BEGIN (the audit chain is read and appended to).
+    with Session(archive.engine().execution_options(sqlite_begin="IMMEDIATE")) as s, s.begin():
         device_id = _device_id(s, serial)
         known = set(
             s.execute(
@@ -73,4 +75,15 @@ def archive_thermal_model(
             )
         ).scalars():
             old.superseded_by = row.id
+        s.flush()
+        seal.append_event(
+            s.connection(),
+            "thermal model",
+            detail={
+                "serial": serial,
+                "thermal_model_id": row.id,
+                "model": row.model_name,
+                "calibration_ids": row.calibration_ids,
+            },
+        )
         return row.id

@@ -32,7 +32,7 @@ from storage import rawstore
 from storage.db import Archive
 from storage.schema import CalibrationRow, ParameterRow, RawFileRow, Run
 
-ProblemKind = Literal["missing", "mismatch", "outside", "database", "record"]
+ProblemKind = Literal["missing", "mismatch", "outside", "database", "record", "chain", "signature"]
 _CHUNK = 1 << 20
 
 
@@ -44,9 +44,12 @@ class Problem:
     ----------
     kind : "missing" (no file), "mismatch" (other bytes or size), "outside"
         (a stored path that leaves the file store), "database" (a broken invariant),
-        "record" (parameter rows and calibration document disagree).
+        "record" (parameter rows and calibration document disagree, or a row or
+        file differs from its seal), "chain" (the audit chain or a seal was changed,
+        a sealed event has no rows or rows no seal), "signature" (an approval
+        no longer verifies).
     path : the file, relative to the file store root ("" for database problems;
-        ``parameters/<name>`` for record problems).
+        for record problems ``<table>/<row>/<field>``, e.g. ``parameters/acc.bias.x/value``).
     runs : run ids concerned.
     detail : what was expected and what was found.
     """
@@ -64,6 +67,8 @@ class VerifyReport:
     files_checked: int = 0
     bytes_checked: int = 0
     runs_checked: int = 0
+    seals_checked: int = 0
+    chain_head: tuple[int, str] = (0, "")  # (seq, hash) of the newest audit event: note it down
     problems: list[Problem] = field(default_factory=list)
     orphans: list[str] = field(default_factory=list)
 
@@ -115,14 +120,16 @@ def sqlite_file(archive: Archive) -> Path | None:
     return Path(db).resolve() if db and db != ":memory:" else None
 
 
-def verify(archive: Archive, *, orphans: bool = True) -> VerifyReport:
-    """Re-hash every archived file and check the database invariants.
+def verify(archive: Archive, *, orphans: bool = True, seals: bool = True) -> VerifyReport:
+    """Re-hash every archived file, check the database invariants, the seals and the chain.
 
     Parameters
     ----------
     archive : the archive (schema current).
     orphans : also list files under objects/, samples/ and runs/ that no row
         references (costs a walk of the file store).
+    seals : also recompute every seal, the audit chain and the approval
+        signatures (storage.seal, storage.approval).
 
     Returns
     -------
@@ -146,6 +153,8 @@ def verify(archive: Archive, *, orphans: bool = True) -> VerifyReport:
         report.runs_checked = len(run_dirs)
         _check_database(conn, report)
         _check_parameters(conn, report)
+        if seals:
+            _check_seals(conn, root, report)
 
     objects: dict[tuple[str, str, int], list[str]] = defaultdict(list)
     for path, sha, size, run_id in raw_rows:
@@ -198,6 +207,15 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
                 "not a later revision of the same run"
             )
         )  # fmt: skip
+
+
+def _check_seals(conn, root: Path, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
+    from storage import approval, seal
+
+    found = seal.check(conn, root)
+    report.chain_head, report.seals_checked = found.head, found.seals_checked
+    findings = found.findings + approval.check(conn, found.digests_now)
+    report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]
 
 
 _PARAMETER_FIELDS = ("value", "std", "unit")

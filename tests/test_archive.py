@@ -31,6 +31,7 @@ from storage.archive import (
 )
 from storage.db import Archive, default_archive_url, resolve_archive
 from storage.schema import TABLES, Base
+from storage.verify import verify
 
 PROTOCOL = "0012_result.txt"
 
@@ -176,6 +177,8 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
         "parameters": 4,
         "check_results": 1,
         "thermal_models": 0,
+        "seals": 1,  # the revision's sealed record (storage.seal)
+        "audit_events": 1,  # "archived"
     }
     s = queries.run_summary(archive, res.run_id)
     assert s["raw_hash"] == raw_hash
@@ -259,7 +262,8 @@ def test_new_settings_or_software_add_revisions_that_supersede(
     assert (r3.status, r3.revision) == ("revised", 3)
 
     # Only the per-calibration rows grew; nothing was deleted.
-    per_cal = {"calibrations": 1, "processing_steps": 2, "parameters": 4, "check_results": 1}
+    per_cal = {"calibrations": 1, "processing_steps": 2, "parameters": 4, "check_results": 1,
+               "seals": 1, "audit_events": 1}  # fmt: skip
     assert counts(archive) == {t: n + 2 * per_cal.get(t, 0) for t, n in rows1.items()}
     # Every revision's protocol kept, none overwritten.
     assert (r1.run_dir / PROTOCOL).read_bytes() == b"rev 1"
@@ -546,3 +550,6 @@ def test_concurrent_new_runs_of_one_new_unit_share_one_device(
     assert [r.status for r in results] == ["ok"] * len(runs)
     c = counts(archive)
     assert (c["devices"], c["equipment"], c["runs"], c["run_equipment"]) == (1, 1, 3, 3)
+    # the concurrent writers appended to the audit chain one after the other: one unbroken chain
+    assert (c["seals"], c["audit_events"]) == (3, 3)
+    assert verify(archive, orphans=False).ok

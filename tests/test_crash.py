@@ -87,6 +87,7 @@ def assert_consistent(archive: Archive) -> None:
         c["calibrations"],
     )
     assert c["calibrations"] == c["runs"]
+    assert c["seals"] == c["audit_events"] == c["calibrations"]  # sealed in the same transaction
 
 
 @pytest.mark.parametrize("stage", ["files", "commit"])

@@ -83,9 +83,38 @@ def test_writer_appends_and_cannot_change_history(roles, tmp_path: Path) -> None
     _denied(writer, "CREATE TABLE evil (id int)")
 
 
+def test_sealed_rows_and_the_audit_chain_are_guarded(roles, tmp_path: Path) -> None:  # noqa: ANN001
+    """Issue 20: the writer appends runs and events, and changes nothing sealed.
+
+    Grants refuse UPDATE and DELETE; the triggers of migration 0004 refuse what a
+    grant cannot tell apart (a row added to an archived calibration), and refuse
+    changes to seals and events even to the owner.
+    """
+    owner, _, writer = roles
+    archive_run(writer, make_run(tmp_path / "in"))
+    _denied(writer, "UPDATE seals SET digest = repeat('0', 64)")
+    _denied(writer, "DELETE FROM seals")
+    _denied(writer, "UPDATE audit_events SET actor = 'mallory'")
+    _denied(writer, "DELETE FROM audit_events")
+    _denied(writer, "TRUNCATE audit_events")
+    _denied(writer, "INSERT INTO parameters (calibration_id, name, value, std, unit) "
+                    "VALUES (1, 'gyr.bias.z', 1.0, 0.1, 'rad/s')")  # fmt: skip
+    _denied(writer, "INSERT INTO check_results (calibration_id, name, passed, detail) "
+                    "VALUES (1, 'forged', true, '')")  # fmt: skip
+    _denied(
+        writer,
+        "INSERT INTO raw_files (run_id, name, sha256, size, format, stored_path) "
+        "SELECT 1, 'x', sha256, size, format, stored_path FROM raw_files LIMIT 1",
+    )
+    _denied(owner, "UPDATE audit_events SET actor = 'mallory'")
+    _denied(owner, "DELETE FROM seals")
+    assert archive_run(writer, make_run(tmp_path / "in2", seed=3)).status == "ok"
+
+
 def test_role_sql_quotes_names_and_refuses_unsafe_ones() -> None:
     text_ = role_sql("calib")
-    assert 'GRANT SELECT ON "devices"' in text_
+    grant_select = next(line for line in text_.splitlines() if line.startswith("GRANT SELECT ON"))
+    assert '"devices"' in grant_select and '"audit_events"' in grant_select
     assert 'GRANT UPDATE ("superseded_by") ON "calibrations" TO "calib_writer"' in text_
     assert "DELETE" not in text_.replace("REVOKE INSERT, UPDATE, DELETE", "").replace(
         "REVOKE UPDATE, DELETE", ""

@@ -29,12 +29,17 @@ def verify(
 ) -> None:
     """Re-hash every archived raw file and samples file; exit 1 on any missing or changed file."""
     from storage.rawstore import remove_stale_temp_files
+    from storage.seal import record_event
     from storage.verify import verify as run_verify
 
     arch = open_archive(archive)
     if repair_orphans:
-        for path in remove_stale_temp_files(arch.root):
-            err.print(f"removed {path.relative_to(arch.root)} (left by a killed writer)")
+        removed = [p.relative_to(arch.root).as_posix() for p in remove_stale_temp_files(arch.root)]
+        for rel in removed:
+            err.print(f"removed {rel} (left by a killed writer)")
+        if removed:
+            record_event(arch, "repaired", reason="temporary files left by killed writers",
+                         detail={"removed": len(removed), "first": removed[:20]})  # fmt: skip
     report = run_verify(arch, orphans=orphans)
     if as_json:
         sys.stdout.write(json.dumps(report.to_dict(), indent=2) + "\n")
@@ -45,10 +50,13 @@ def verify(
         for o in report.orphans:
             err.print(f"orphan (not referenced, harmless): {o}")
         mb = report.bytes_checked / 1e6
+        seq, head = report.chain_head
         err.print(
-            f"{report.files_checked} files ({mb:.1f} MB) of {report.runs_checked} runs checked: "
+            f"{report.files_checked} files ({mb:.1f} MB) of {report.runs_checked} runs and "
+            f"{report.seals_checked} seals checked: "
             + ("OK" if report.ok else f"[red]{len(report.problems)} problem(s)[/red]")
         )
+        err.print(f"audit chain head: event {seq}, hash {head} (note it to detect truncation)")
     raise typer.Exit(0 if report.ok else 1)
 
 
@@ -80,6 +88,7 @@ def restore(
     from storage.backup import BackupError
     from storage.backup import restore as run_restore
     from storage.db import resolve_archive
+    from storage.seal import record_event
     from storage.verify import verify as run_verify
 
     try:
@@ -87,6 +96,8 @@ def restore(
         manifest = run_restore(src, target)
     except (BackupError, FileNotFoundError, ValueError) as exc:
         fail(str(exc))
+    record_event(target, "restored", detail={"files": len(manifest["files"]),
+                                             "schema": manifest["schema_revision"]})  # fmt: skip
     report = run_verify(target, orphans=False)
     err.print(
         f"restored {len(manifest['files'])} files and the {manifest['backend']} database "

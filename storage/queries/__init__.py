@@ -21,6 +21,7 @@ from storage.queries._common import (
     check_text,
     check_verdict,
 )
+from storage.queries.audit import AUDIT_COLUMNS, audit_trail
 from storage.queries.equipment import LAPSED_COLUMNS, lapsed_runs
 from storage.queries.history import (
     FLEET_COLUMNS,
@@ -49,7 +50,7 @@ from storage.queries.selection import SELECTION_KEYS, revision_pairs, select_run
 from storage.queries.thermal import campaign_calibrations, latest_thermal_model, thermal_models
 
 __all__ = [
-    "device_description",
+    "AUDIT_COLUMNS", "audit_trail", "device_description",
     "FLEET_COLUMNS", "HISTORY_COLUMNS", "LAPSED_COLUMNS", "LATEST_COLUMNS", "UNIT_COLUMNS",
     "VERDICTS", "as_instant", "campaign_calibrations", "check_parameter", "check_serial",
     "check_text", "check_verdict", "export_calibration", "fleet", "fleet_history",

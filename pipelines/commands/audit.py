@@ -1,0 +1,110 @@
+"""`calib audit`, `calib keygen`, `calib approve`: the audit trail and signed approvals."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, open_run, print_json
+
+PASSPHRASE_ENV = "CALIB_KEY_PASSPHRASE"
+
+
+@app.command()
+def audit(
+    target: Annotated[
+        str | None, typer.Argument(help="A unit serial or a run id (prefix); default: all.")
+    ] = None,
+    since: Annotated[
+        str | None, typer.Option("--since", help="Only events from this date (YYYY-MM-DD) on.")
+    ] = None,
+    archive: ArchiveOpt = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the events as JSON.")] = False,
+) -> None:
+    """Show the audit trail: who changed what in the archive, when and why (oldest first)."""
+    from storage import queries
+
+    arch = open_archive(archive)
+    try:
+        events = queries.audit_trail(arch, target, since)
+    except (LookupError, ValueError) as exc:
+        fail(str(exc))
+    if as_json:
+        print_json(events)
+        return
+    for ev in events:
+        what = ev["run_id"] + f" revision {ev['revision']}" if ev["run_id"] else ""
+        detail = ev["detail"] or {}
+        if ev["action"] == "approved":
+            what += f" {detail.get('meaning')} by {detail.get('signer')} " \
+                    f"(key {detail.get('public_key', '')[:16]}...)"  # fmt: skip
+        elif detail:
+            what += " " + ", ".join(f"{k}={v}" for k, v in sorted(detail.items()))
+        why = f"  reason: {ev['reason']}" if ev["reason"] else ""
+        sys.stdout.write(
+            f"{ev['seq']}\t{ev['at'].isoformat(timespec='seconds')}\t{ev['actor']}\t"
+            f"{ev['action']}\t{what.strip()}{why}\n"
+        )
+    err.print(f"{len(events)} event(s)")
+
+
+def _passphrase(confirm: bool) -> str:
+    given = os.environ.get(PASSPHRASE_ENV)
+    if given:
+        return given
+    return typer.prompt("Passphrase of the key", hide_input=True, confirmation_prompt=confirm)
+
+
+@app.command()
+def keygen(
+    key: Annotated[Path, typer.Argument(help="New private key file (FILE.pub is written too).")],
+    name: Annotated[str, typer.Option("--name", help="The signer's full name.")],
+) -> None:
+    """Make a personal Ed25519 signing key, encrypted with a passphrase (env CALIB_KEY_PASSPHRASE
+    or asked)."""
+    from storage.approval import generate_key
+
+    try:
+        public = generate_key(key, name, _passphrase(confirm=True))
+    except (ValueError, FileExistsError) as exc:
+        fail(str(exc))
+    err.print(f"key of {name} written to {key} (public key {public} in {key}.pub)")
+
+
+@app.command()
+def approve(
+    run_id: Annotated[str, typer.Argument(help="Run id or a unique prefix of it.")],
+    key: Annotated[Path, typer.Option("--key", help="Your private key file (calib keygen).")],
+    meaning: Annotated[
+        str, typer.Option("--meaning", help="approved (default) or reviewed.")
+    ] = "approved",
+    name: Annotated[
+        str | None, typer.Option("--name", help="Signer name (default: from KEY.pub).")
+    ] = None,
+    revision: Annotated[
+        int | None, typer.Option("--revision", help="Revision to sign (default: current).")
+    ] = None,
+    archive: ArchiveOpt = None,
+) -> None:
+    """Sign the seal of a run's calibration with your key; `calib verify` checks it."""
+    import json
+
+    from storage.approval import ApprovalError, load_key
+    from storage.approval import approve as sign
+
+    arch, full = open_run(archive, run_id)
+    try:
+        if name is None:
+            pub = key.with_name(key.name + ".pub")
+            name = json.loads(pub.read_text())["name"] if pub.is_file() else None
+        if not name:
+            fail(f"no --name given and no {key}.pub to take it from")
+        ev = sign(arch, full, load_key(key, _passphrase(confirm=False)), signer=name,
+                  meaning=meaning, revision=revision)  # fmt: skip
+    except (ApprovalError, ValueError, KeyError) as exc:
+        fail(str(exc))
+    err.print(f"run {full} revision {ev.revision} {meaning} by {name} (audit event {ev.seq})")

@@ -1,0 +1,51 @@
+"""The audit trail (storage.seal): who changed what in the archive, when and why."""
+
+from __future__ import annotations
+
+from datetime import date, datetime
+from typing import Any
+
+from sqlalchemy import select
+
+from storage.db import Archive
+from storage.queries._common import as_instant, check_serial
+from storage.queries.runs import full_run_id
+from storage.schema import AuditEvent, Device, Run
+
+AUDIT_COLUMNS = ["seq", "at", "actor", "action", "run_id", "revision", "reason", "detail",
+                 "digest", "hash"]  # fmt: skip
+
+
+def audit_trail(
+    archive: Archive, target: str | None = None, since: date | datetime | str | None = None
+) -> list[dict[str, Any]]:
+    """Audit events, oldest first.
+
+    Parameters
+    ----------
+    archive : the archive.
+    target : None (every event), a unit serial (the events of its runs) or a run id
+        or unique prefix of one (its events). A serial wins over a run id prefix.
+    since : only events at or after this instant (a date means 00:00 UTC).
+
+    Raises
+    ------
+    ValueError, LookupError naming the target or date when they name nothing.
+    """
+    q = select(*(getattr(AuditEvent, c) for c in AUDIT_COLUMNS)).order_by(AuditEvent.seq)
+    start = as_instant(since, "since", end_of_day=False)
+    if start is not None:
+        q = q.where(AuditEvent.at >= start)
+    if target is not None:
+        q = q.where(AuditEvent.run_id.in_(_run_ids(archive, target)))
+    with archive.engine().connect() as conn:
+        return [dict(r._mapping) for r in conn.execute(q)]
+
+
+def _run_ids(archive: Archive, target: str) -> list[str]:
+    with archive.engine().connect() as conn:
+        serial_runs = conn.execute(
+            select(Run.run_id).join(Device, Device.id == Run.device_id)
+            .where(Device.serial == check_serial(target))
+        ).scalars().all()  # fmt: skip
+    return list(serial_runs) or [full_run_id(archive, target)]
