@@ -36,11 +36,20 @@ process` gives it (local_batch_settings), and answers one request (a new
 server's first answer takes ~0.3 s longer): a lab runs `prefect server start`
 once, not per batch. Its start-up time is printed on stderr.
 
-Progress goes to stderr; the last stdout line is one JSON object:
-runs_per_min, speedup_2_cores, pipeline_to_parse_ratio, prefect_overhead_fraction (the
-issue's keys), and pipeline_to_parse_ratio_machine.
+Floor: the mandatory work of every archived run done bare in one process
+(`floor_pass`: read, hash and copy the raw files, parse the CSV, write Parquet, one
+insert transaction of as many rows as the archive holds per run);
+pipeline_to_floor_ratio = one-worker per-run time / floor per-run time. Steady
+speedup (speedup_2_cores_steady): the same two passes timed from the moment their
+workers have started and the archive is ready (the pools' start left out).
 
-Run: ``.venv/bin/python benchmarks/batch.py [--runs N]`` (about 1.5 minutes on 2 cores).
+Progress goes to stderr; the last stdout line is one JSON object:
+runs_per_min, speedup_2_cores, speedup_2_cores_steady, pipeline_to_floor_ratio,
+pipeline_to_parse_ratio, prefect_overhead_fraction (issue keys), and
+pipeline_to_parse_ratio_machine, runs, parallel_capacity (the CPU-only loop's speedup on
+2 processes at the start: how much of the second core was free).
+
+Run: ``.venv/bin/python benchmarks/batch.py [--runs N]`` (200 runs: ~10 minutes on 2 idle cores).
 """
 
 from __future__ import annotations
@@ -63,7 +72,7 @@ os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-RUNS = 50
+RUNS = 200  # the steady speedup is asked on at least 200 runs
 RATE_HZ = 1000.0
 WORKERS = 2
 # Stage -> (step name or None for any step, statistics key) as process_run records them.
@@ -79,25 +88,25 @@ def log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def write_run(folder: str, seed: int) -> str:
-    """Simulate one 1 kHz run with its own random errors and write it as a CSV run."""
+def write_run(folder: str, seed: int, rate_hz: float = RATE_HZ) -> str:
+    """Simulate one run (1 kHz by default) with its own random errors; write it as a CSV run."""
     import numpy as np
 
     from calib_core.simulate import random_errors, six_position_integral_run
     from pipelines.run_writers import six_position_manifest, write_csv_run
 
     rng = np.random.default_rng(seed)
-    sim = six_position_integral_run(random_errors(rng), rng, rate_hz=RATE_HZ)
+    sim = six_position_integral_run(random_errors(rng), rng, rate_hz=rate_hz)
     manifest = six_position_manifest(f"BENCH{seed:03d}", operator="benchmark")
     return str(write_csv_run(sim.segments, Path(folder), manifest, truth=sim.truth_dict()))
 
 
-def generate(base: Path, n: int) -> list[Path]:
+def generate(base: Path, n: int, rate_hz: float = RATE_HZ) -> list[Path]:
     folders = [base / "day" / f"run{i:03d}" for i in range(n)]
     started = time.perf_counter()
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(WORKERS, mp_context=ctx) as pool:
-        futures = [pool.submit(write_run, str(f), 1000 + i) for i, f in enumerate(folders)]
+        futures = [pool.submit(write_run, str(f), 1000 + i, rate_hz) for i, f in enumerate(folders)]
         for done, fut in enumerate(as_completed(futures), 1):
             fut.result()
             if done % 5 == 0 or done == n:
@@ -141,12 +150,14 @@ def bare_parse(folders: list[Path], threads: bool = True) -> float:
     return time.perf_counter() - started
 
 
-def plain_pass(day: Path, archive_dir: Path, workers: int) -> tuple[float, list[float]]:
+def plain_pass(day: Path, archive_dir: Path, workers: int) -> tuple[float, float, list[float]]:
     """Every run's work (`process_run_for_batch`, what a batch task does) in a pool of
     `workers` processes set up as the process runner's (forkserver importing the
     pipeline once, numerical libraries single-threaded), without Prefect.
 
-    Returns the wall time (pool start included) and, with one worker, each run's time.
+    Returns the wall time (pool start included), the steady time (from the moment
+    every worker has started and the archive is ready to the last outcome) and,
+    with one worker, each run's time.
     """
     from concurrent.futures import ProcessPoolExecutor
 
@@ -171,6 +182,7 @@ def plain_pass(day: Path, archive_dir: Path, workers: int) -> tuple[float, list[
         arch.upgrade()
         for call in ready:
             call.result()
+        steady_from = time.perf_counter()
         if workers == 1:  # one run at a time: each call's time is that run's pipeline time
             for i, source in enumerate(sources, 1):
                 t = time.perf_counter()
@@ -185,11 +197,11 @@ def plain_pass(day: Path, archive_dir: Path, workers: int) -> tuple[float, list[
                 pool.submit(process_run_for_batch, s, arch.url, str(arch.root)) for s in sources
             ]
             outcomes = [f.result() for f in futures]
-    total = time.perf_counter() - started
+    total, steady = time.perf_counter() - started, time.perf_counter() - steady_from
     bad = [o for o in outcomes if o["status"] != "ok"]
     if bad:
         raise SystemExit(f"pass with {workers} worker(s): {len(bad)} run(s) not ok: {bad[0]}")
-    return total, per_run
+    return total, steady, per_run
 
 
 def flow_pass(day: Path, archive_dir: Path, workers: int, runner: str, n: int) -> float:
@@ -213,12 +225,92 @@ def flow_pass(day: Path, archive_dir: Path, workers: int, runner: str, n: int) -
     return flow_s
 
 
-def timed_pass(what: str, day: Path, archive_dir: Path, workers: int, runner: str, n: int):
+def floor_pass(day: Path, scratch: Path, rows_per_run: int) -> list[float]:
+    """Per-run seconds of the work every archived run must do, done bare in this process.
+
+    For each run folder, one after the other, on one thread (pyarrow's pools set to
+    one, as the pipeline's workers run): read and SHA-256 every raw file and copy it
+    into an object store (write, fsync), parse its CSV (pyarrow.csv.read_csv),
+    write the parsed table as zstd Parquet with the archive's encodings (write,
+    fsync), and insert `rows_per_run` rows (as many as the archive holds per run)
+    in one SQLite transaction (WAL, as the archive). No validation, no solving,
+    no checks, no temporary-and-rename: the floor the pipeline's per-run time is
+    compared with (pipeline_to_floor_ratio).
+    """
+    import hashlib
+    import sqlite3
+
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    pa.set_cpu_count(1)
+    pa.set_io_thread_count(1)
+    (scratch / "objects").mkdir(parents=True)
+    (scratch / "samples").mkdir()
+    db = sqlite3.connect(scratch / "floor.sqlite", isolation_level=None)
+    db.execute("PRAGMA journal_mode=WAL")
+    db.execute("CREATE TABLE rows (run TEXT, name TEXT, value REAL, doc TEXT)")
+    one_thread = pacsv.ReadOptions(use_threads=False)
+    per_run = []
+    for folder in sorted(p for p in day.iterdir() if p.is_dir()):
+        started = time.perf_counter()
+        for raw in sorted(p for p in folder.iterdir() if p.is_file()):
+            data = raw.read_bytes()
+            _durable_write(scratch / "objects" / hashlib.sha256(data).hexdigest(), data)
+        table = pacsv.read_csv(folder / "imu.csv", read_options=one_thread)
+        floats = [f.name for f in table.schema if pa.types.is_floating(f.type)]
+        sink = pa.BufferOutputStream()
+        pq.write_table(
+            table,
+            sink,
+            compression="zstd",
+            compression_level=-1,
+            use_dictionary=[c for c in table.column_names if c not in floats],
+            column_encoding=dict.fromkeys(floats, "BYTE_STREAM_SPLIT"),
+        )
+        _durable_write(scratch / "samples" / f"{folder.name}.parquet", sink.getvalue().to_pybytes())
+        rows = [(folder.name, f"p{i}", float(i), "{}") for i in range(rows_per_run)]
+        db.execute("BEGIN")
+        db.executemany("INSERT INTO rows VALUES (?, ?, ?, ?)", rows)
+        db.execute("COMMIT")
+        per_run.append(time.perf_counter() - started)
+    db.close()
+    return per_run
+
+
+def _durable_write(path: Path, data: bytes) -> None:
+    with path.open("wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def rows_per_run(archive_dir: Path, n: int) -> int:
+    """Database rows the archive holds per run (every table), rounded."""
+    from sqlalchemy import func, select
+
+    from storage import schema
+    from storage.db import resolve_archive
+
+    arch = resolve_archive(str(archive_dir))
+    with arch.engine().connect() as conn:
+        total = sum(
+            conn.execute(select(func.count()).select_from(t)).scalar_one()
+            for t in schema.Base.metadata.sorted_tables
+        )
+    arch.dispose()
+    return round(total / n)
+
+
+def timed_pass(
+    what: str, day: Path, archive_dir: Path, workers: int, runner: str, n: int, rows: int = 0
+):
     """One pass in a fresh Python process, as a new `calib` process would run it (its own
     forkserver and imports); its progress goes to stderr, its figures come back as JSON."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--pass", what, "--day", str(day)]
     cmd += ["--archive", str(archive_dir), "--workers", str(workers), "--runner", runner]
-    cmd += ["--runs", str(n)]
+    cmd += ["--runs", str(n), "--rows", str(rows)]
     out = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -228,9 +320,11 @@ def pass_main(args: argparse.Namespace) -> None:
     if args.pass_ == "flow":
         seconds = flow_pass(args.day, args.archive, args.workers, args.runner, args.runs)
         print(json.dumps({"seconds": seconds}))
+    elif args.pass_ == "floor":
+        print(json.dumps({"per_run": floor_pass(args.day, args.archive, args.rows)}))
     else:
-        seconds, per_run = plain_pass(args.day, args.archive, args.workers)
-        print(json.dumps({"seconds": seconds, "per_run": per_run}))
+        seconds, steady, per_run = plain_pass(args.day, args.archive, args.workers)
+        print(json.dumps({"seconds": seconds, "steady": steady, "per_run": per_run}))
 
 
 def stage_seconds(archive_dir: Path) -> dict[str, list[float]]:
@@ -266,7 +360,10 @@ def main() -> None:
         help="task runner of the Prefect pass (threads or processes)",
     )
     # Internal: run one timed pass (timed_pass starts this script again with these).
-    parser.add_argument("--pass", dest="pass_", choices=("plain", "flow"), help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--pass", dest="pass_", choices=("plain", "flow", "floor"), help=argparse.SUPPRESS
+    )
+    parser.add_argument("--rows", type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument("--day", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--archive", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--workers", type=int, default=WORKERS, help=argparse.SUPPRESS)
@@ -295,7 +392,7 @@ def main() -> None:
         day = base / "day"
         log("one worker (plain calls, one worker process)...")
         serial = timed_pass("plain", day, base / "archive-serial", 1, args.runner, n)
-        serial_s, per_run = serial["seconds"], serial["per_run"]
+        serial_s, serial_steady, per_run = serial["seconds"], serial["steady"], serial["per_run"]
         stages = stage_seconds(base / "archive-serial")
         recorded = [sum(v) for v in zip(*stages.values(), strict=True)]
         archive_part = [t - r for t, r in zip(per_run, recorded, strict=True)]
@@ -307,11 +404,15 @@ def main() -> None:
         ingest_ratio = sum(stages["ingest"]) / parse_1_s
         log(f"  ingest stage / bare parse on one thread: {ingest_ratio:.2f}")
 
+        rows = rows_per_run(base / "archive-serial", n)
+        log(f"floor: the mandatory work of each run done bare ({rows} rows a transaction)...")
+        floor = timed_pass("floor", day, base / "floor", 1, args.runner, n, rows)["per_run"]
+        log(f"  {statistics.median(floor):.3f} s per run (median)")
+
         log(f"plain parallel pass ({WORKERS} processes)...")
-        plain_s = timed_pass("plain", day, base / "archive-plain", WORKERS, args.runner, n)[
-            "seconds"
-        ]
-        log(f"  {plain_s:.1f} s")
+        plain = timed_pass("plain", day, base / "archive-plain", WORKERS, args.runner, n)
+        plain_s, plain_steady = plain["seconds"], plain["steady"]
+        log(f"  {plain_s:.1f} s ({plain_steady:.1f} s once the workers had started)")
 
         log(f"Prefect flow, {args.runner} runner, {WORKERS} workers...")
         flow_s = timed_pass("flow", day, base / "archive-flow", WORKERS, args.runner, n)["seconds"]
@@ -320,9 +421,13 @@ def main() -> None:
     figures = {
         "runs_per_min": round(60.0 * n / flow_s, 2),
         "speedup_2_cores": round(serial_s / plain_s, 3),
+        "speedup_2_cores_steady": round(serial_steady / plain_steady, 3),
+        "pipeline_to_floor_ratio": round(sum(per_run) / sum(floor), 3),
         "pipeline_to_parse_ratio": round(sum(per_run) / parse_1_s, 2),
         "pipeline_to_parse_ratio_machine": round(plain_s / parse_s, 2),
         "prefect_overhead_fraction": round((flow_s - plain_s) / flow_s, 4),
+        "runs": n,
+        "parallel_capacity": round(capacity, 3),
     }
     log(f"machine check after the passes: {parallel_capacity():.2f}x on {WORKERS} processes")
     log(
