@@ -59,6 +59,9 @@ NAMES = params.ACC_LINEAR + params.GYR_LINEAR + ["acc.noise.x"]  # 25 canonical 
 TEMPS = (20.0, 40.0)  # deg C: each parameter at two temperatures -> 50 rows per calibration
 N_EQUIPMENT = 20
 CHUNK_RUNS = 5_000
+# Tables with rows per run, in the order their foreign keys need.
+RUN_TABLES = ("runs", "run_equipment", "raw_files", "calibrations", "processing_steps",
+              "parameters", "check_results")  # fmt: skip
 T0 = datetime(2020, 1, 1, tzinfo=UTC)
 SPAN_S = 6 * 365 * 86400
 SAMPLES = {"latest_valid": 300, "lineage": 300, "history": 200, "lapsed": 20, "units": 50}
@@ -133,18 +136,7 @@ class Synth:
         """Rows of runs lo..hi-1 for every run-dependent table (ids are run index based)."""
         rng = self.rng
         now = datetime.now(UTC)
-        out: dict[str, Any] = {
-            k: []
-            for k in (
-                "runs",
-                "run_equipment",
-                "raw_files",
-                "calibrations",
-                "processing_steps",
-                "parameters",
-                "check_results",
-            )
-        }
+        out: dict[str, Any] = {k: [] for k in RUN_TABLES}
         n_p = len(NAMES) * len(TEMPS)
         values = rng.normal(0, 0.05, (hi - lo, n_p))
         stds = np.abs(rng.normal(0, 1e-3, (hi - lo, n_p)))
@@ -313,15 +305,7 @@ def _load(synth: Synth, put: Callable, begin: Callable, commit: Callable) -> Non
     for lo in range(0, synth.n_runs, CHUNK_RUNS):
         rows = synth.chunk(lo, min(lo + CHUNK_RUNS, synth.n_runs))
         begin()
-        for table in (
-            "runs",
-            "run_equipment",
-            "raw_files",
-            "calibrations",
-            "processing_steps",
-            "parameters",
-            "check_results",
-        ):
+        for table in RUN_TABLES:
             put(table, rows[table])
         commit()
         done = min(lo + CHUNK_RUNS, synth.n_runs)

@@ -27,6 +27,7 @@ re-expansion, no refit.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -158,16 +159,13 @@ def write_px4_params(
     path: Path, rows: list[tuple[str, float | int, int]], *, header: str = ""
 ) -> Path:
     """`px4_params_text` written to `path` (ASCII)."""
-    Path(path).write_text(px4_params_text(rows, header=header), encoding="ascii")
-    return Path(path)
+    return _write_ascii(path, px4_params_text(rows, header=header))
 
 
 def read_px4_params(path: Path) -> dict[str, float]:
     """Name -> value of a QGroundControl parameter file (comments skipped)."""
     out: dict[str, float] = {}
-    for n, line in enumerate(Path(path).read_text(encoding="ascii").splitlines(), 1):
-        if not line.strip() or line.startswith("#"):
-            continue
+    for n, line in _param_lines(path):
         fields = line.split("\t")
         if len(fields) != 5:
             raise ValueError(f"{path}:{n}: expected 5 tab-separated fields, got {len(fields)}")
@@ -219,21 +217,30 @@ def ardupilot_params_text(rows: list[tuple[str, float]], *, header: str = "") ->
 
 def write_ardupilot_params(path: Path, rows: list[tuple[str, float]], *, header: str = "") -> Path:
     """`ardupilot_params_text` written to `path` (ASCII)."""
-    Path(path).write_text(ardupilot_params_text(rows, header=header), encoding="ascii")
-    return Path(path)
+    return _write_ascii(path, ardupilot_params_text(rows, header=header))
 
 
 def read_ardupilot_params(path: Path) -> dict[str, float]:
     """Name -> value of an ArduPilot parameter file (`NAME,VALUE` or `NAME VALUE`)."""
     out: dict[str, float] = {}
-    for n, line in enumerate(Path(path).read_text(encoding="ascii").splitlines(), 1):
-        if not line.strip() or line.startswith("#"):
-            continue
+    for n, line in _param_lines(path):
         fields = line.replace(",", " ").split()
         if len(fields) != 2:
             raise ValueError(f"{path}:{n}: expected NAME,VALUE, got {line!r}")
         out[fields[0]] = float(fields[1])
     return out
+
+
+def _write_ascii(path: Path, text: str) -> Path:
+    Path(path).write_text(text, encoding="ascii")
+    return Path(path)
+
+
+def _param_lines(path: Path) -> Iterator[tuple[int, str]]:
+    """(1-based line number, line) of a parameter file, blank and ``#`` comment lines skipped."""
+    for n, line in enumerate(Path(path).read_text(encoding="ascii").splitlines(), 1):
+        if line.strip() and not line.startswith("#"):
+            yield n, line
 
 
 # --- a calibration's offsets and scales (CAL_* / INS_*OFFS) --------------------

@@ -112,6 +112,28 @@ def kill_tagged(tag: str) -> None:
             os.kill(pid, signal.SIGKILL)
 
 
+def batch_cmd(runs: Path, archive: Path, runner: str = "process") -> list[str]:
+    """`calib process RUNS --json` into `archive` on two workers of `runner`, no progress bar."""
+    return [sys.executable, "-m", "pipelines.cli", "process", str(runs), "--json",
+            "--archive", str(archive), "--runner", runner, "--workers", "2",
+            "--no-progress"]  # fmt: skip
+
+
+def long_runs(folder: Path, n: int, prefix: str, seed: int) -> Path:
+    """`n` MAT v5 runs ``run<i>`` of 20 s static segments (a batch that lasts), serials prefix-i."""
+    for i in range(n):
+        write_mat5_run(folder / f"run{i}", f"{prefix}-{i}", seed=seed + i, static_s=20.0)
+    return folder
+
+
+def start_batch(runs: Path, archive: Path, stderr: int) -> tuple[subprocess.Popen, str]:
+    """`batch_cmd` started with a fresh tag (to find its processes); stdout piped."""
+    tag = uuid.uuid4().hex
+    proc = subprocess.Popen(batch_cmd(runs, archive), env=calib_env(tag),
+                            stdout=subprocess.PIPE, stderr=stderr)  # fmt: skip
+    return proc, tag
+
+
 @pytest.fixture
 def batch(tmp_path: Path) -> Path:
     """Three MAT v5 runs; the second has 8 zeroed bytes that segfault scipy."""
@@ -127,9 +149,7 @@ def batch(tmp_path: Path) -> Path:
 @pytest.mark.parametrize("runner", ["local", "process"])
 def test_segfaulting_file_is_one_failed_run(batch: Path, tmp_path: Path, runner: str) -> None:
     tag = uuid.uuid4().hex
-    cmd = [sys.executable, "-m", "pipelines.cli", "process", str(batch), "--json",
-           "--archive", str(tmp_path / f"archive-{runner}"), "--runner", runner,
-           "--workers", "2", "--no-progress"]  # fmt: skip
+    cmd = batch_cmd(batch, tmp_path / f"archive-{runner}", runner)
     try:
         # communicate() waits for EOF on stdout: a child holding it would hang here.
         done = subprocess.run(cmd, env=calib_env(tag), capture_output=True, timeout=120)
@@ -146,15 +166,8 @@ def test_segfaulting_file_is_one_failed_run(batch: Path, tmp_path: Path, runner:
 
 
 def test_calib_killed_leaves_no_server_or_worker(tmp_path: Path) -> None:
-    runs = tmp_path / "runs"
-    for i in range(8):
-        write_mat5_run(runs / f"run{i}", f"SIM-KILL-{i}", seed=60 + i, static_s=20.0)
-    tag = uuid.uuid4().hex
-    cmd = [sys.executable, "-m", "pipelines.cli", "process", str(runs), "--json",
-           "--archive", str(tmp_path / "archive"), "--runner", "process", "--workers", "2",
-           "--no-progress"]  # fmt: skip
-    proc = subprocess.Popen(cmd, env=calib_env(tag), stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL)  # fmt: skip
+    runs = long_runs(tmp_path / "runs", 8, "SIM-KILL", seed=60)
+    proc, tag = start_batch(runs, tmp_path / "archive", stderr=subprocess.DEVNULL)
     try:
         # Wait until the batch is under way: the API server and both workers are up.
         deadline = time.monotonic() + 120
@@ -180,15 +193,8 @@ def test_calib_killed_leaves_no_server_or_worker(tmp_path: Path) -> None:
 
 
 def test_worker_killed_costs_a_retry_not_the_batch(tmp_path: Path) -> None:
-    runs = tmp_path / "runs"
-    for i in range(4):
-        write_mat5_run(runs / f"run{i}", f"SIM-WK-{i}", seed=80 + i, static_s=20.0)
-    tag = uuid.uuid4().hex
-    cmd = [sys.executable, "-m", "pipelines.cli", "process", str(runs), "--json",
-           "--archive", str(tmp_path / "archive"), "--runner", "process", "--workers", "2",
-           "--no-progress"]  # fmt: skip
-    proc = subprocess.Popen(cmd, env=calib_env(tag), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE)  # fmt: skip
+    runs = long_runs(tmp_path / "runs", 4, "SIM-WK", seed=80)
+    proc, tag = start_batch(runs, tmp_path / "archive", stderr=subprocess.PIPE)
     try:
         deadline = time.monotonic() + 120
         victim = None

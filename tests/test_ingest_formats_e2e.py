@@ -28,7 +28,10 @@ from storage.db import resolve_archive
 T0_NS = 1_763_600_000_000_000_000  # 2025-11-20, Unix ns: MCAP stamps are Unix time
 
 
-def manifest(serial: str, fmt: dict, files: dict[str, str]) -> str:
+def manifest(serial: str, fmt: dict, segments: list[dict] | dict[str, str]) -> str:
+    """run.toml text of a simulated six_position_integral run (a dict: label -> file)."""
+    if isinstance(segments, dict):
+        segments = [{"label": label, "file": name} for label, name in segments.items()]
     return dumps_toml(
         {
             "schema_version": 1,
@@ -40,7 +43,7 @@ def manifest(serial: str, fmt: dict, files: dict[str, str]) -> str:
                 "tolerance_profile": "mpu6000",
             },
             "format": fmt,
-            "segments": [{"label": label, "file": name} for label, name in files.items()],
+            "segments": segments,
         }
     )
 

@@ -111,28 +111,11 @@ def test_valid_files_read(kind):
     assert len(rec) == 60
 
 
+@pytest.mark.parametrize("kind", ["mcap", "mcap_nocrc", "mat5", "mat73"])
 @FUZZ
-@given(mutated("mcap"))
-def test_mcap_mutations(case):
-    check("mcap", *case)
-
-
-@FUZZ
-@given(mutated("mcap_nocrc"))
-def test_mcap_without_crc_mutations(case):
-    check("mcap_nocrc", *case)
-
-
-@FUZZ
-@given(mutated("mat5"))
-def test_mat5_mutations(case):
-    check("mat5", *case)
-
-
-@FUZZ
-@given(mutated("mat73"))
-def test_mat73_mutations(case):
-    check("mat73", *case)
+@given(data=st.data())
+def test_mutations(kind: str, data: st.DataObject) -> None:
+    check(kind, *data.draw(mutated(kind), label="case"))
 
 
 @FUZZ

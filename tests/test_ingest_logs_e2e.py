@@ -24,27 +24,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from log_writers import write_dataflash, write_rosbag1, write_rosbag2, write_ulog
+from test_ingest_formats_e2e import manifest
 
 from calib_core.simulate import random_errors, six_position_integral_run
 from pipelines.ingest import IngestError, discover_runs, load_run
-from pipelines.run_writers import dumps_toml
-
-
-def manifest(serial: str, fmt: dict, segments: list[dict]) -> str:
-    return dumps_toml(
-        {
-            "schema_version": 1,
-            "unit": {"serial": serial, "model": "SIM", "manufacturer": "calib_core.simulate"},
-            "run": {
-                "started": "2025-11-20T09:00:00Z",
-                "operator": "test",
-                "procedure": "six_position_integral",
-                "tolerance_profile": "mpu6000",
-            },
-            "format": fmt,
-            "segments": segments,
-        }
-    )
 
 
 def write_run(folder: Path, route: str, segments) -> None:

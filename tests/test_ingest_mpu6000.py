@@ -196,14 +196,14 @@ def test_load_folder_synthesises_manifest_and_hashes(run_folder: Path) -> None:
         assert raw.format == "mpu6000" and raw.name == raw.path.name
 
 
-def test_run_toml_beside_mpu_files_takes_over(run_folder: Path) -> None:
-    (run_folder / "run.toml").write_text(
-        """schema_version = 1
+def mpu6000_run_toml(serial: str, unit_extra: str = "") -> str:
+    """run.toml beside MPU-6000 files (K. Lab, 08:00 at +02:00); `unit_extra`: more [unit] lines."""
+    return f"""schema_version = 1
 [unit]
-serial = "AB12"
+serial = "{serial}"
 model = "MPU-6000"
 manufacturer = "InvenSense"
-[run]
+{unit_extra}[run]
 started = 2024-06-01T08:00:00+02:00
 operator = "K. Lab"
 procedure = "six_position_integral"
@@ -211,7 +211,10 @@ tolerance_profile = "mpu6000"
 [format]
 kind = "mpu6000"
 """
-    )
+
+
+def test_run_toml_beside_mpu_files_takes_over(run_folder: Path) -> None:
+    (run_folder / "run.toml").write_text(mpu6000_run_toml("AB12"))
     (source,) = discover_runs([run_folder])
     run = load_run(source)
     assert run.manifest.run.operator == "K. Lab"

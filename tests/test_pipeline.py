@@ -143,13 +143,11 @@ def test_cli_process_json_contract(lab_day, tmp_path):
     """`calib process --json`: one JSON document on stdout, exit 1 when a run failed."""
     env = {**os.environ, "CALIB_ARCHIVE": str(tmp_path / "cli-archive")}
     calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
-    proc = subprocess.run(
-        [calib, "process", str(lab_day["day"]), "--json"],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-    )
+
+    def run_calib(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([calib, *args], capture_output=True, text=True, env=env, timeout=300)
+
+    proc = run_calib("process", str(lab_day["day"]), "--json")
     assert proc.returncode == 1 and proc.stdout.startswith("{"), proc.stderr[-3000:]
     doc = json.loads(proc.stdout)
     assert set(doc) == {"runs"} and len(doc["runs"]) == 4
@@ -165,26 +163,12 @@ def test_cli_process_json_contract(lab_day, tmp_path):
         else:
             assert run["error"]
     ok_ids = [r["run_id"] for r in doc["runs"] if r["status"] == "ok"]
-    proc = subprocess.run(
-        [calib, "process", str(lab_day["mpu"]), "--json"],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-    )
+    proc = run_calib("process", str(lab_day["mpu"]), "--json")
     assert proc.returncode == 0, proc.stderr[-2000:]
     again = json.loads(proc.stdout)["runs"]
     assert again[0]["status"] == "duplicate" and again[0]["run_id"] in ok_ids
 
-    shown = subprocess.run(
-        [calib, "show", ok_ids[0], "--json"], capture_output=True, text=True, env=env, timeout=120
-    )
+    shown = run_calib("show", ok_ids[0], "--json")
     assert shown.returncode == 0, shown.stderr[-2000:]
-    exported = subprocess.run(
-        [calib, "export", ok_ids[0], "--format", "json"],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=120,
-    )
+    exported = run_calib("export", ok_ids[0], "--format", "json")
     assert exported.returncode == 0 and "acc.scale.x" in exported.stdout

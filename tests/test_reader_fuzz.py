@@ -174,40 +174,11 @@ def test_valid_file_reads(kind: str) -> None:
     assert len(READERS[kind](valid_file(kind))) == N
 
 
+@pytest.mark.parametrize("kind", list(READERS))
 @FUZZ
-@given(mutations("mpu6000"))
-def test_mpu6000_mutations(case):
-    check("mpu6000", case)
-
-
-@FUZZ
-@given(mutations("csv"))
-def test_csv_mutations(case):
-    check("csv", case)
-
-
-@FUZZ
-@given(mutations("ulog"))
-def test_ulog_mutations(case):
-    check("ulog", case)
-
-
-@FUZZ
-@given(mutations("dataflash"))
-def test_dataflash_mutations(case):
-    check("dataflash", case)
-
-
-@FUZZ
-@given(mutations("rosbag1"))
-def test_rosbag1_mutations(case):
-    check("rosbag1", case)
-
-
-@FUZZ
-@given(mutations("rosbag2"))
-def test_rosbag2_mutations(case):
-    check("rosbag2", case)
+@given(data=st.data())
+def test_mutations(kind: str, data: st.DataObject) -> None:
+    check(kind, data.draw(mutations(kind), label="case"))
 
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data_samples" / "mpu6000_MPU0001"

@@ -19,12 +19,13 @@ import matplotlib.image as mpimg
 import numpy as np
 import pypdf
 import pytest
+from serve_sample import quiet_truth
 from sqlalchemy import select
 from typer.testing import CliRunner
 
 from calib_core.recording import Recording
-from calib_core.simulate import TrueErrors, random_errors, six_position_integral_run
-from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_core.simulate import TrueErrors, six_position_integral_run
+from calib_core.units import STANDARD_GRAVITY
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.ingest.errors import IngestError
@@ -57,21 +58,6 @@ def _manifest(serial: str, day: int, settings: dict | None = None, segments=None
         ],
         "segments": segments or [],
     }
-
-
-def _quiet_truth(rng: np.random.Generator) -> TrueErrors:
-    """A unit well inside every mpu6000 tolerance.
-
-    The simulator's MEMS grade reaches the limits themselves (scale 0.03, g-sensitivity
-    0.1 (deg/s)/g, gyro noise 0.05 deg/s); 80 % of them leaves a margin of > 100
-    standard uncertainties.
-    """
-    truth = random_errors(rng)
-    truth.gyr_noise = np.full(3, 0.04 * DEG)
-    truth.gsens *= 0.8
-    for m in (truth.acc_M, truth.gyr_M):
-        m[np.diag_indices(3)] *= 0.8
-    return truth
 
 
 def _tilt(truth: TrueErrors, rng: np.random.Generator, n: int = 1000) -> tuple[Recording, list]:
@@ -178,7 +164,7 @@ def _check_pdf(path: Path, tmp: Path, expected: list[str]) -> list[Path]:
 
 def test_clean_run_passes_all_and_report_is_complete(arch, tmp_path):
     rng = np.random.default_rng(21)
-    folder = _write_run(tmp_path / "clean", _quiet_truth(rng), rng, _manifest("SIM-R-1", 20))
+    folder = _write_run(tmp_path / "clean", quiet_truth(rng), rng, _manifest("SIM-R-1", 20))
     outcome = _process(folder, arch)
     assert outcome["verdict"] == "pass", [c for c in outcome["checks"] if not c["passed"]]
     names = {c["name"] for c in outcome["checks"]}
@@ -212,7 +198,7 @@ def test_clean_run_passes_all_and_report_is_complete(arch, tmp_path):
 
 def test_missing_cross_coupling_fails_and_report_names_it(arch, tmp_path):
     rng = np.random.default_rng(22)
-    truth = _quiet_truth(rng)
+    truth = quiet_truth(rng)
     truth.acc_M[2, 0] = -0.012  # true x leaks into measured z
     manifest = _manifest("SIM-R-2", 20, settings={"accel_model": "per_axis"})
     outcome = _process(_write_run(tmp_path / "reduced", truth, rng, manifest), arch)
@@ -231,7 +217,7 @@ def test_missing_cross_coupling_fails_and_report_names_it(arch, tmp_path):
 def test_verification_point_with_002_g_error_fails(arch, tmp_path):
     rng = np.random.default_rng(23)
     manifest = _manifest("SIM-R-3", 20)
-    folder = _write_run(tmp_path / "v", _quiet_truth(rng), rng, manifest, tilt_error_g=0.02)
+    folder = _write_run(tmp_path / "v", quiet_truth(rng), rng, manifest, tilt_error_g=0.02)
     outcome = _process(folder, arch)
     assert outcome["verdict"] == "fail"
     by_name = {c["name"]: c for c in outcome["checks"]}
@@ -245,7 +231,7 @@ def test_verification_point_with_002_g_error_fails(arch, tmp_path):
 
 def test_three_runs_with_2_percent_scale_change_fail_repeatability(arch, tmp_path):
     rng = np.random.default_rng(24)
-    truth = _quiet_truth(rng)
+    truth = quiet_truth(rng)
     changed = copy.deepcopy(truth)
     changed.acc_M[0, 0] = (1.0 + truth.acc_M[0, 0]) * 1.02 - 1.0  # K_x 2 % larger
     outcomes = []
@@ -308,7 +294,7 @@ def test_report_of_unknown_run_is_a_clear_error(arch):
 def test_manifest_reference_acc_is_validated(tmp_path):
     manifest = _manifest("SIM-R-5", 20)
     rng = np.random.default_rng(25)
-    folder = _write_run(tmp_path / "m", _quiet_truth(rng), rng, manifest)
+    folder = _write_run(tmp_path / "m", quiet_truth(rng), rng, manifest)
     text = (folder / "run.toml").read_text()
     assert "reference_acc = [0.49999999999999994, 0.0, 0.8660254037844387]" in text
     bad = text.replace("reference_acc = [0.49999999999999994, 0.0, ", "reference_acc = [")

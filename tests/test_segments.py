@@ -42,17 +42,19 @@ def ferraris():
     return rec, sections, seg, record
 
 
+def only_overlap(intervals, labels, s0: float, s1: float, what: str):  # noqa: ANN201
+    """(interval, label) of the one interval overlapping [s0, s1) s; fails unless exactly one."""
+    pairs = zip(intervals, labels, strict=True)
+    hits = [(iv, lab) for iv, lab in pairs if iv.end_s > s0 and iv.start_s < s1]
+    assert len(hits) == 1, f"{what}: {len(hits)} intervals overlap the section"
+    return hits[0]
+
+
 def test_ferraris_six_faces_found_and_labelled_by_gravity(ferraris):
     rec, sections, seg, _ = ferraris
     for name, label in FACES.items():
         s0, s1 = sections[name]["start"] / FS_FERRARIS, sections[name]["end"] / FS_FERRARIS
-        hits = [
-            (iv, lab)
-            for iv, lab in zip(seg.statics, seg.static_labels, strict=True)
-            if iv.end_s > s0 and iv.start_s < s1
-        ]
-        assert len(hits) == 1, f"{name}: {len(hits)} static intervals overlap the section"
-        iv, lab = hits[0]
+        iv, lab = only_overlap(seg.statics, seg.static_labels, s0, s1, f"{name} static")
         assert lab == label, f"{name}: labelled {lab}"
         # The detector's rest interval (before the settle cuts) covers the annotated
         # face to within 0.5 s at both ends ...
@@ -82,13 +84,7 @@ def test_ferraris_three_rotations_found_by_axis(ferraris):
     for axis in "xyz":
         s0 = sections[f"{axis}_rot"]["start"] / FS_FERRARIS
         s1 = sections[f"{axis}_rot"]["end"] / FS_FERRARIS
-        hits = [
-            (iv, lab)
-            for iv, lab in zip(seg.rotations, seg.rotation_labels, strict=True)
-            if iv.end_s > s0 and iv.start_s < s1
-        ]
-        assert len(hits) == 1, f"{axis}_rot: {len(hits)} rotations overlap the section"
-        iv, lab = hits[0]
+        iv, lab = only_overlap(seg.rotations, seg.rotation_labels, s0, s1, f"{axis}_rot")
         assert iv.start_s <= s0 + TOL_S and iv.end_s >= s1 - TOL_S
         # Sign: independent integral of the raw gyro over the annotated window.
         inside = (rec.t >= s0) & (rec.t < s1)
@@ -119,15 +115,20 @@ def test_rate_plateaus_match_the_simulated_schedule():
     assert len(found) == len(truth) + 2
 
 
+def rest_turn_rest(duration_s: float, turn: tuple[float, float], seed: int) -> Recording:
+    """100 Hz at rest (z up), turning at 1 rad/s about z from turn[0] to turn[1] s."""
+    fs = 100.0
+    t = np.arange(int(duration_s * fs)) / fs
+    rng = np.random.default_rng(seed)
+    gyr = rng.normal(0, 1e-3, (t.size, 3))
+    gyr[(t >= turn[0]) & (t < turn[1]), 2] += 1.0
+    acc = np.array([0, 0, 9.81]) + rng.normal(0, 0.01, (t.size, 3))
+    return Recording(t=t, acc=acc, gyr=gyr)
+
+
 def test_settle_rule_for_short_intervals():
     # 60 s at rest, then 25 s of turning, then 12 s at rest.
-    fs = 100.0
-    t = np.arange(int(97 * fs)) / fs
-    rng = np.random.default_rng(0)
-    gyr = rng.normal(0, 1e-3, (t.size, 3))
-    gyr[(t >= 60) & (t < 85), 2] += 1.0
-    acc = np.array([0, 0, 9.81]) + rng.normal(0, 0.01, (t.size, 3))
-    rec = Recording(t=t, acc=acc, gyr=gyr)
+    rec = rest_turn_rest(97.0, (60.0, 85.0), seed=0)
     first, second = detect_static(rec, settle_s=30.0, min_keep_s=10.0)
     assert first.settle_s == 30.0 and not first.short
     # 12 s is shorter than 30 + 10: it keeps its middle, losing 25 % at the end
@@ -148,13 +149,7 @@ def test_settle_rule_for_short_intervals():
 def test_settle_rule_keeps_min_keep_for_medium_intervals():
     # 25 s of rest: short (< 30 + 10), and d / 2 = 12.5 > 10: keeps 10 s, of
     # which the end loses 25 % of 25 s and the start the rest.
-    fs = 100.0
-    t = np.arange(int(60 * fs)) / fs
-    rng = np.random.default_rng(1)
-    gyr = rng.normal(0, 1e-3, (t.size, 3))
-    gyr[(t >= 15) & (t < 35), 2] += 1.0
-    acc = np.array([0, 0, 9.81]) + rng.normal(0, 0.01, (t.size, 3))
-    rec = Recording(t=t, acc=acc, gyr=gyr)
+    rec = rest_turn_rest(60.0, (15.0, 35.0), seed=1)
     _, second = detect_static(rec, init_static_s=10.0, settle_s=30.0, min_keep_s=10.0)
     duration = second.detected_end_s - second.detected_start_s
     assert second.short and 24.0 < duration < 25.5

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_ingest_mpu6000 import mpu6000_run_toml
 
 from calib_core import procedures
 from calib_core.recording import Recording, first_range_hit
@@ -72,22 +73,7 @@ def test_the_same_turn_slower_loads_and_solves(tmp_path: Path):
 def test_run_toml_states_a_larger_range(tmp_path: Path):
     # The same 300 deg/s turns recorded with the sensor set to +-500 deg/s: not clipped.
     write_mpu6000_run(clipped_run(range_dps=500.0).segments, tmp_path, "MPU0500")
-    (tmp_path / "run.toml").write_text(
-        """schema_version = 1
-[unit]
-serial = "MPU0500"
-model = "MPU-6000"
-manufacturer = "InvenSense"
-gyro_range_dps = 500
-[run]
-started = 2024-06-01T08:00:00+02:00
-operator = "K. Lab"
-procedure = "six_position_integral"
-tolerance_profile = "mpu6000"
-[format]
-kind = "mpu6000"
-"""
-    )
+    (tmp_path / "run.toml").write_text(mpu6000_run_toml("MPU0500", "gyro_range_dps = 500\n"))
     (source,) = discover_runs([tmp_path])
     run = load_run(source)
     assert run.manifest.run.settings["gyro_range_dps"] == 500.0

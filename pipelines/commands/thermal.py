@@ -32,6 +32,7 @@ thermal_app = sub_app("Temperature compensation: fit and export.")
 app.add_typer(thermal_app, name="thermal")
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
+PlotOpt = Annotated[Path | None, typer.Option("--plot", help="PNG file to draw.")]
 
 
 def parse_when(text: str | None) -> datetime | None:
@@ -170,7 +171,7 @@ def apply(
 def trend(
     serial: str,
     param: str,
-    plot: Annotated[Path | None, typer.Option("--plot", help="PNG file to draw.")] = None,
+    plot: PlotOpt = None,
     profile: Annotated[str | None, typer.Option(help="Tolerance profile for the band.")] = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
@@ -193,7 +194,7 @@ def fleet(
     model: str,
     param: str,
     bin_c: Annotated[float, typer.Option("--bin", help="Temperature bin width, deg C.")] = 5.0,
-    plot: Annotated[Path | None, typer.Option("--plot", help="PNG file to draw.")] = None,
+    plot: PlotOpt = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
 ) -> None:

@@ -26,7 +26,15 @@ from datetime import UTC, date, datetime
 from pathlib import Path, PurePosixPath
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from calib_core.earth import local_gravity
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
@@ -228,30 +236,14 @@ class FormatSpec(BaseModel):
         return DELIMITERS[value]
 
     # The unit tables of calib_core.units are the one list of accepted names.
-    @field_validator("acc_unit")
+    @field_validator("acc_unit", "acc_scale_unit", "gyr_unit", "gyr_scale_unit")
     @classmethod
-    def _acc_unit(cls, value: str) -> str:
-        if value != COUNTS:
-            acceleration_factor(value)
-        return value
-
-    @field_validator("acc_scale_unit")
-    @classmethod
-    def _acc_scale_unit(cls, value: str) -> str:
-        acceleration_factor(value)
-        return value
-
-    @field_validator("gyr_unit")
-    @classmethod
-    def _gyr_unit(cls, value: str) -> str:
-        if value != COUNTS:
-            angular_rate_factor(value)
-        return value
-
-    @field_validator("gyr_scale_unit")
-    @classmethod
-    def _gyr_scale_unit(cls, value: str) -> str:
-        angular_rate_factor(value)
+    def _sensor_unit(cls, value: str, info: ValidationInfo) -> str:
+        """A known unit of the sensor's quantity; raw counts for acc_unit / gyr_unit."""
+        if value == COUNTS and not info.field_name.endswith("scale_unit"):
+            return value
+        factor = acceleration_factor if info.field_name.startswith("acc") else angular_rate_factor
+        factor(value)
         return value
 
     @field_validator("time_unit")
