@@ -1,11 +1,12 @@
 """Read-only access for browsing the archive (`calib serve`): a read-only engine and the
 list-and-page questions a web page asks.
 
-`ReadOnlyArchive` opens SQLite with a ``mode=ro`` file URI (and ``query_only``), and
-PostgreSQL in read-only transactions as the read-only role (storage.roles): a
-connecting role that may write switches to the reader role with ``SET ROLE``, and
-the start fails with the reason when it cannot. The queries of storage.queries
-take a ReadOnlyArchive like any Archive.
+`open_readonly` gives the archive read-only (`storage.db.Archive` with
+``read_only=True``, the one read-only opener): SQLite with a ``mode=ro`` file URI
+(and ``query_only``), PostgreSQL in read-only transactions as the read-only role
+(storage.roles): a connecting role that may write switches to the reader role with
+``SET ROLE``, and the start fails with the reason when it cannot. The queries of
+storage.queries take it like any Archive.
 
 Every filter is validated here (ValueError naming the filter, what was expected
 and what was found) and bound; sort keys are looked up in a fixed table, so no
@@ -14,17 +15,15 @@ request string ever becomes SQL text.
 
 from __future__ import annotations
 
-import sqlite3
 from dataclasses import dataclass, field
 from datetime import UTC, date, datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Engine, create_engine, event, func, select
+from sqlalchemy import func, select
 from sqlalchemy.engine import make_url
-from sqlalchemy.pool import QueuePool
 
-from storage.db import SQLITE_BUSY_TIMEOUT_MS, Archive
+from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.queries import (
     as_instant,
@@ -42,27 +41,9 @@ from storage.schema import (
 )
 
 
-class ReadOnlyArchive(Archive):
-    """An Archive whose engine cannot write (module docstring); `upgrade` refuses."""
-
-    def __init__(self, url: str, root: Path, reader_role: str = READER) -> None:
-        super().__init__(url, root)
-        self.reader_role = check_safe_name(reader_role, "reader role")
-
-    def engine(self) -> Engine:
-        if self._engine is None:
-            self._engine = _readonly_engine(self.url, self.reader_role)
-        return self._engine
-
-    def upgrade(self) -> None:
-        raise PermissionError("a read-only archive is never migrated")
-
-    def migrate(self, target: str, *, down: bool = False) -> None:
-        raise PermissionError("a read-only archive is never migrated")
-
-
-def open_readonly(archive: Archive, reader_role: str = READER) -> ReadOnlyArchive:
-    """The same archive, read-only; checks at once that it can be read.
+def open_readonly(archive: Archive, reader_role: str = READER) -> Archive:
+    """The same archive, read-only (`Archive` with ``read_only=True``, `reader_role`);
+    checks at once that it can be read.
 
     Raises
     ------
@@ -70,62 +51,16 @@ def open_readonly(archive: Archive, reader_role: str = READER) -> ReadOnlyArchiv
     PermissionError : PostgreSQL role can write and cannot become `reader_role`.
     LookupError : no archive schema in the database.
     """
-    ro = ReadOnlyArchive(archive.url, archive.root, reader_role)
+    ro = Archive(archive.url, archive.root, read_only=True, reader_role=reader_role)
     if ro.is_sqlite:
-        path = _sqlite_path(ro.url)
+        db = make_url(ro.url).database
+        path = Path(db).resolve() if db and db != ":memory:" else None
         if path is None or not path.is_file():
             raise FileNotFoundError(f"no archive database at {path or ro.url}")
     revision = ro.schema_revision()
     if revision is None:
         raise LookupError(f"{ro.display_url} holds no archive (no schema revision)")
     return ro
-
-
-def _sqlite_path(url: str) -> Path | None:
-    db = make_url(url).database
-    return Path(db).resolve() if db and db != ":memory:" else None
-
-
-def _readonly_engine(url: str, reader_role: str) -> Engine:
-    u = make_url(url)
-    if u.get_backend_name() == "sqlite":
-        path = _sqlite_path(url)
-        if path is None:
-            raise ValueError("an in-memory SQLite database cannot be opened read-only")
-        uri = path.as_uri().replace("file://", "file:", 1) + "?mode=ro"
-
-        def connect() -> sqlite3.Connection:
-            conn = sqlite3.connect(uri, uri=True, check_same_thread=False)
-            conn.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
-            conn.execute("PRAGMA query_only=ON")
-            return conn
-
-        # "sqlite://" alone would get the in-memory database's one-connection-per-thread
-        # pool; this is a file shared by the server's worker threads.
-        return create_engine("sqlite://", creator=connect, poolclass=QueuePool)
-    engine = create_engine(
-        url,
-        pool_pre_ping=True,
-        connect_args={"options": "-c default_transaction_read_only=on"},
-    )
-
-    @event.listens_for(engine, "connect")
-    def _as_reader(dbapi_conn, _record) -> None:  # noqa: ANN001
-        with dbapi_conn.cursor() as cur:
-            cur.execute("SELECT has_table_privilege(current_user, 'runs', 'INSERT')")
-            (can_write,) = cur.fetchone()
-            if can_write:
-                try:  # the role name passed check_safe_name; quoted as an identifier
-                    cur.execute(f'SET ROLE "{reader_role}"')
-                except Exception as exc:
-                    raise PermissionError(
-                        f"the role of {u.render_as_string(hide_password=True)} may write to the "
-                        f"archive and cannot become the read-only role {reader_role!r} ({exc}); "
-                        f"connect as {reader_role} (storage.roles.apply_roles creates it)"
-                    ) from exc
-        dbapi_conn.commit()
-
-    return engine
 
 
 # --- runs list ---------------------------------------------------------------------

@@ -50,17 +50,27 @@ class Archive:
         SQLite file or its folder cannot be written (a read-only mount, an
         auditor's copy without write permission), else read-write. Reading
         commands then work as usual; a write fails with a message naming the file.
+        Read-only SQLite is opened ``mode=ro`` (or ``immutable=1``) with
+        ``query_only``; PostgreSQL in read-only transactions.
+    reader_role : PostgreSQL and read-only only: if the connecting role may write,
+        ``SET ROLE`` to this role (storage.roles) at every connection, and refuse
+        to connect (PermissionError) if it cannot. None: no switch.
     """
 
     url: str
     root: Path
     read_only: bool | None = None
+    reader_role: str | None = None
     _engine: Engine | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.root = Path(self.root)
         if self.read_only is None:
             self.read_only = sqlite_read_only(self.url)
+        if self.reader_role is not None:
+            from storage.naming import check_safe_name
+
+            check_safe_name(self.reader_role, "reader role")
 
     def __repr__(self) -> str:
         return f"Archive(url={self.display_url!r}, root={str(self.root)!r})"
@@ -77,7 +87,9 @@ class Archive:
     def engine(self) -> Engine:
         """The (cached) engine; SQLite gets foreign keys, WAL and a busy timeout."""
         if self._engine is None:
-            self._engine = _make_engine(self.url, read_only=bool(self.read_only))
+            self._engine = _make_engine(
+                self.url, read_only=bool(self.read_only), reader_role=self.reader_role
+            )
         return self._engine
 
     def upgrade(self) -> None:
@@ -122,6 +134,8 @@ class Archive:
 
     def migrate(self, target: str, *, down: bool = False) -> None:
         """Upgrade (or with `down`, downgrade) the schema to an Alembic revision."""
+        if self.read_only:
+            raise ReadOnlyArchiveError(f"archive {self.display_url} is read-only: never migrated")
         from alembic import command  # Alembic (~0.2 s to import) only where the schema is changed
 
         cfg = self.alembic_config()
@@ -213,11 +227,15 @@ def _read_only_sqlite_url(u) -> str:  # noqa: ANN001 - a sqlalchemy URL
     return f"sqlite:///file:{quote(str(db))}?{mode}&uri=true"
 
 
-def _make_engine(url: str, *, read_only: bool = False) -> Engine:
+def _make_engine(url: str, *, read_only: bool = False, reader_role: str | None = None) -> Engine:
     u = make_url(url)
     if u.get_backend_name() != "sqlite":
+        if read_only:
+            return _read_only_pg_engine(url, reader_role)
         return create_engine(url, pool_pre_ping=True)
     if read_only:
+        if not u.database or u.database == ":memory:":
+            raise ValueError("an in-memory SQLite database cannot be opened read-only")
         url = _read_only_sqlite_url(u)
     elif u.database and u.database != ":memory:":
         Path(u.database).parent.mkdir(parents=True, exist_ok=True)
@@ -232,7 +250,9 @@ def _make_engine(url: str, *, read_only: bool = False) -> Engine:
         cur = dbapi_conn.cursor()
         cur.execute("PRAGMA foreign_keys=ON")
         cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
-        if u.database and u.database != ":memory:" and not read_only:
+        if read_only:
+            cur.execute("PRAGMA query_only=ON")
+        elif u.database and u.database != ":memory:":
             _enable_wal(cur)
         cur.close()
 
@@ -240,6 +260,34 @@ def _make_engine(url: str, *, read_only: bool = False) -> Engine:
     def _on_begin(conn) -> None:  # noqa: ANN001
         mode = conn.get_execution_options().get("sqlite_begin", "DEFERRED")
         conn.exec_driver_sql(f"BEGIN {mode}")
+
+    return engine
+
+
+def _read_only_pg_engine(url: str, reader_role: str | None) -> Engine:
+    """PostgreSQL in read-only transactions, as `reader_role` if the login role may write."""
+    engine = create_engine(
+        url, pool_pre_ping=True, connect_args={"options": "-c default_transaction_read_only=on"}
+    )
+    if reader_role is None:
+        return engine
+    shown = make_url(url).render_as_string(hide_password=True)
+
+    @event.listens_for(engine, "connect")
+    def _as_reader(dbapi_conn, _record) -> None:  # noqa: ANN001
+        with dbapi_conn.cursor() as cur:
+            cur.execute("SELECT has_table_privilege(current_user, 'runs', 'INSERT')")
+            (can_write,) = cur.fetchone()
+            if can_write:
+                try:  # the role name passed check_safe_name; quoted as an identifier
+                    cur.execute(f'SET ROLE "{reader_role}"')
+                except Exception as exc:
+                    raise PermissionError(
+                        f"the role of {shown} may write to the archive and cannot become the "
+                        f"read-only role {reader_role!r} ({exc}); connect as {reader_role} "
+                        "(storage.roles.apply_roles creates it)"
+                    ) from exc
+        dbapi_conn.commit()
 
     return engine
 

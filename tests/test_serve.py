@@ -39,7 +39,7 @@ from typer.testing import CliRunner
 from pipelines.cli import app as cli
 from pipelines.web.app import create_app
 from storage import browse, browse_fleet, queries
-from storage.db import resolve_archive
+from storage.db import ReadOnlyArchiveError, resolve_archive
 
 HOSTILE = (HOSTILE_MODEL, HOSTILE_OPERATOR, HOSTILE_EQUIPMENT, HOSTILE_SERIAL, "<b>ACME</b>")
 
@@ -321,9 +321,27 @@ def test_the_server_cannot_write(client, serve_sample):
     ro = client.app.state.archive
     with pytest.raises(Exception, match="readonly|read-only|read only"), ro.engine().begin() as c:
         c.execute(text("DELETE FROM runs"))
-    with pytest.raises(PermissionError):
-        ro.upgrade()
+    with pytest.raises(ReadOnlyArchiveError):  # never migrated (upgrade only checks the head)
+        ro.migrate("head")
     assert hashlib.sha256(db.read_bytes()).hexdigest() == before
+
+
+def test_open_readonly_is_the_archive_read_only(serve_sample):
+    """One read-only opener (issue 20): the server's is storage.db.Archive(read_only=True)."""
+    from sqlalchemy.exc import OperationalError
+
+    from storage.db import Archive
+
+    ro = browse.open_readonly(serve_sample.archive)
+    assert type(ro) is Archive and ro.read_only
+    with ro.engine().connect() as conn:
+        assert conn.exec_driver_sql("PRAGMA query_only").scalar_one() == 1
+    with pytest.raises(OperationalError, match="readonly"), ro.engine().begin() as conn:
+        conn.exec_driver_sql("DELETE FROM check_results")
+    with pytest.raises(ReadOnlyArchiveError, match="read-only"):
+        ro.migrate("head")
+    ro.upgrade()  # at head: only checked, as for every read-only archive
+    ro.dispose()
 
 
 def test_open_readonly_never_creates_an_archive(tmp_path):

@@ -19,7 +19,7 @@ from fastapi.templating import Jinja2Templates
 from starlette.exceptions import HTTPException
 
 from pipelines.web import present
-from storage.browse import ReadOnlyArchive
+from storage.db import Archive
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 SECURITY_HEADERS = {
@@ -60,7 +60,7 @@ def render(request: Request, template: str, status_code: int = 200, **context: A
     )
 
 
-def create_app(archive: ReadOnlyArchive) -> FastAPI:
+def create_app(archive: Archive) -> FastAPI:
     """The application on a read-only archive (storage.browse.open_readonly)."""
     from pipelines.web import equipment, runs, units
 
