@@ -1,5 +1,6 @@
 # Two commands do everything on a fresh machine (see README.md):
-#   make demo   process every run in data_samples/ into ./calib-archive and write the reports
+#   make demo   process every run in data_samples/ into ./calib-archive, write the reports,
+#               fit and export a thermal model, show a trend and repeatability
 #   make test   the whole test suite (installs PostgreSQL and poppler-utils if the machine lacks them)
 PYTHON ?= python3
 VENV   ?= .venv
@@ -17,8 +18,26 @@ $(BIN)/calib: pyproject.toml
 
 venv: $(BIN)/calib
 
+# The whole product on the samples: every run processed and reported, the thermal campaign
+# fitted and exported for PX4 and ArduPilot, the quarterly unit's trend and repeatability.
+DEMO_OUT = demo-output
 demo: venv
 	$(BIN)/calib process data_samples --reports
+	$(BIN)/calib thermal fit IMU-T-0007
+	mkdir -p $(DEMO_OUT)
+	$(BIN)/calib thermal export IMU-T-0007 $(DEMO_OUT)/IMU-T-0007_px4.params --format px4
+	$(BIN)/calib thermal export IMU-T-0007 $(DEMO_OUT)/IMU-T-0007_ardupilot.parm --format ardupilot
+	$(BIN)/calib trend IMU-R-0003 acc.bias.z --plot $(DEMO_OUT)/IMU-R-0003_acc.bias.z_trend.png
+	$(BIN)/calib repeatability IMU-R-0003
+	@echo
+	@echo "Open: calib-archive/runs/<serial>/<date>/<run>/ (protocols, HTML and PDF certificates);"
+	@echo "      $(DEMO_OUT)/ (PX4 and ArduPilot parameter files, the trend plot)."
+	@echo "Try:  $(BIN)/calib history IMU-R-0003"
+	@echo "      $(BIN)/calib show <run id from the table above, or its first 4+ characters>"
+	@echo "      $(BIN)/calib query latest MPU0001"
+	@echo "      $(BIN)/calib export <run id> --format ardupilot"
+	@echo "      $(BIN)/calib serve        (browse the archive at http://127.0.0.1:8000/)"
+	@echo "      $(BIN)/calib --help       (every command, grouped by task)"
 
 system-packages:
 	bash scripts/ensure_system_packages.sh
@@ -31,4 +50,4 @@ bench: venv
 	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) calib-archive .pytest_cache
+	rm -rf $(VENV) calib-archive $(DEMO_OUT) .pytest_cache

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
+from rich.markup import escape
 
 from pipelines.cli_shared import (
     ArchiveOpt,
@@ -21,8 +20,10 @@ from pipelines.cli_shared import (
     open_archive,
     open_run,
     out,
+    print_facts,
     print_frame,
     print_json,
+    print_table,
     progress_bar,
     warn,
 )
@@ -94,23 +95,25 @@ def process(
     if as_json:
         print_json({"runs": outcomes})
     else:
-        table = Table(title="Processed runs")
-        for col in ("run", "serial", "status", "verdict", "failed checks", "protocol / error"):
-            table.add_column(col)
-        for o in outcomes:
-            failed = sum(not c["passed"] for c in o["checks"])
-            detail = o["error"] if o["status"] == "failed" else (o["protocol"] or "")
-            style = {"ok": "green", "duplicate": "yellow", "failed": "red"}[o["status"]]
-            table.add_row(
-                o["run_id"] or "-",
-                o["serial"] or "-",
-                f"[{style}]{o['status']}[/]",
-                o["verdict"] or "-",
-                str(failed),
-                detail,
-            )
-        out.print(table)
+        _print_outcomes(outcomes)
     raise typer.Exit(1 if any(o["status"] == "failed" for o in outcomes) else 0)
+
+
+def _print_outcomes(outcomes: list[dict]) -> None:
+    """The batch's table (ids whole), then each run's protocol path or error on its own line
+    (whole: a path cut or wrapped inside a table cell cannot be copied)."""
+    rows = []
+    for o in outcomes:
+        failed = str(sum(not c["passed"] for c in o["checks"]))
+        style = {"ok": "green", "duplicate": "yellow", "failed": "red"}[o["status"]]
+        status = f"[{style}]{o['status']}[/]"
+        rows.append([o["run_id"] or "-", o["serial"] or "-", status, o["verdict"] or "-", failed])
+    print_table("Processed runs", ["run", "serial", "status", "verdict", "failed checks"], rows)
+    for o in outcomes:
+        if o["status"] == "failed":
+            err.print(f"[red]failed[/red] {escape(o['source'])}: {escape(str(o['error']))}")
+        elif o["protocol"]:
+            out.print(f"{o['run_id']} protocol: {o['protocol']}", markup=False, highlight=False)
 
 
 def _process_flow(
@@ -175,7 +178,50 @@ def show(
     if as_json:
         print_json(summary)
         return
-    out.print_json(json.dumps(summary, default=str))
+    _print_run(summary, arch.root)
+
+
+def _print_run(summary: dict, root: Path) -> None:
+    """`calib show` for people: the unit, the run, its verdict, the parameters in display
+    units with their standard uncertainty, and the checks that failed."""
+    from pipelines.reports.display import display
+
+    cal = summary["calibration"]
+    unit = summary["device"]
+    print_facts(
+        {
+            "unit": f"{unit['serial']} ({unit['model']}, {unit['manufacturer']})",
+            "run": summary["run_id"],
+            "started": summary["started_at"],
+            "procedure": summary["procedure"],
+            "operator": summary["operator"],
+            "temperature_c": (summary["environment"] or {}).get("temperature_c"),
+            "verdict": f"{cal['verdict']} (profile {cal['profile_name']} "
+            f"v{cal['profile_version']})",
+            "revision": f"{cal['revision']} of {summary['revisions']}",
+            "folder": str(root / summary["run_dir"]),
+        },
+        f"Run {summary['run_id']}",
+        paths=("folder",),
+    )
+    rows = []
+    for p in cal["parameters"]:
+        value, shown_unit = display(p["name"], p["value"])
+        std, _ = display(p["name"], p["std"])
+        rows.append([p["name"], f"{value:.6g}", "-" if std is None else f"{std:.2g}", shown_unit])
+    print_table("Parameters (u: standard uncertainty)", ["name", "value", "u", "unit"], rows)
+    failed = [c for c in cal["checks"] if not c["passed"]]
+    if failed:
+        rows = [[c["name"], _num(c.get("value")), _num(c.get("limit")), c.get("detail") or ""]
+                for c in failed]  # fmt: skip
+        print_table("Failed checks", ["check", "value", "limit", "detail"], rows)
+    else:
+        out.print(f"all {len(cal['checks'])} checks passed")
+    out.print(f"(every field: calib show {summary['run_id']} --json)", markup=False)
+
+
+def _num(value: float | None) -> str:
+    return "" if value is None else f"{value:.4g}"
 
 
 @app.command()

@@ -100,8 +100,12 @@ def _version(show: bool) -> None:
         raise typer.Exit()
 
 
-out = Console()
-err = Console(stderr=True)
+# soft_wrap: printed text is never wrapped or cut by rich (a path stays one line the
+# terminal wraps, so it can be copied whole); tables still fit the width.
+out = Console(soft_wrap=True)
+err = Console(stderr=True, soft_wrap=True)
+# Display settings of this invocation (the global options of `calib`).
+DISPLAY = {"wide": False}
 
 ArchiveOpt = Annotated[
     str | None,
@@ -125,9 +129,18 @@ def _main(
             "--verbose", "-v", help="Prefect's and the pipeline's progress logs on stderr."
         ),
     ] = False,
+    wide: Annotated[
+        bool,
+        typer.Option(
+            "--wide",
+            help="Tables with every column, wider than the terminal if need be (default: "
+            "the columns that fit, the others named below the table).",
+        ),
+    ] = False,
 ) -> None:
     """IMU calibration pipeline and archive."""
     quiet_logs(verbose)
+    DISPLAY["wide"] = wide
     # A full disk, a read-only archive, a missing permission: one line saying which
     # file and what to do instead of a traceback (typer has set its own hook by now).
     previous = sys.excepthook
@@ -197,13 +210,72 @@ def print_json(doc: Any) -> None:
     sys.stdout.write(json.dumps(doc, indent=2, default=str) + "\n")
 
 
+def is_id_column(name: str) -> bool:
+    """Columns of identifiers (run ids, serials): never wrapped or cut in a table."""
+    return name in ("run_id", "serial", "run") or name.endswith("_id")
+
+
+def print_table(
+    title: str, columns: list[str], rows: list[list[str]], facts: str | None = None
+) -> None:
+    """Print `rows` (strings, rich markup allowed) under `columns` to fit the terminal.
+
+    Identifier columns (`is_id_column`) keep their values whole on one line; the other
+    cells wrap (long words fold) instead of being cut. When even so the table is wider
+    than the terminal, columns are left out from the right and named on stderr, unless
+    ``calib --wide``, which prints them all at the width they need. `facts` (text
+    common to every row) are printed above the table.
+    """
+    shown = list(columns)
+    while True:
+        candidate = Table(title=title)
+        for name in shown:
+            ident = is_id_column(name)
+            candidate.add_column(name.replace("_", " "), no_wrap=ident, overflow="fold")
+        for row in rows:
+            candidate.add_row(*(row[columns.index(n)] for n in shown))
+        # minimum: every cell's longest word on one line; maximum: no cell wrapped
+        need = candidate.__rich_measure__(out, out.options.update_width(10_000))
+        if DISPLAY["wide"] or need.minimum <= out.width or len(shown) <= 2:
+            break
+        shown.pop()
+    if facts:
+        from rich.text import Text
+
+        candidate.caption = Text(facts)
+    width = out.width
+    if DISPLAY["wide"]:
+        out.width = max(width, need.maximum)  # Console.print(width=) only narrows
+    try:
+        out.print(candidate)
+    finally:
+        out.width = width
+    if len(shown) < len(columns):
+        hidden = ", ".join(c for c in columns if c not in shown)
+        sys.stdout.flush()
+        err.print(f"(not shown at this width: {hidden}; calib --wide shows every column)")
+
+
 def print_frame(df, title: str) -> None:
-    table = Table(title=title)
-    for col in df.columns:
-        table.add_column(str(col))
-    for row in df.itertuples(index=False):
-        table.add_row(*("" if v is None else str(v) for v in row))
-    out.print(table)
+    """A DataFrame as a table that fits the terminal (`print_table`); columns with one
+    value in every row (the serial and run of a run's parameters) are said once above it."""
+    columns = [str(c) for c in df.columns]
+    rows = [[_cell(v) for v in row] for row in df.itertuples(index=False)]
+    same = [c for i, c in enumerate(columns) if len(rows) > 1 and len({r[i] for r in rows}) == 1]
+    if len(columns) - len(same) < 2:
+        same = []
+    facts = "; ".join(f"{c.replace('_', ' ')}: {rows[0][columns.index(c)]}" for c in same)
+    keep = [i for i, c in enumerate(columns) if c not in same]
+    print_table(title, [columns[i] for i in keep], [[r[i] for i in keep] for r in rows], facts)
+
+
+def _cell(value: Any) -> str:
+    """A table cell: floats to 6 significant digits (--json and csv keep every digit)."""
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
 
 
 def print_facts(facts: dict[str, Any], title: str, paths: tuple[str, ...] = ()) -> None:
@@ -219,8 +291,8 @@ def print_facts(facts: dict[str, Any], title: str, paths: tuple[str, ...] = ()) 
         if key in paths:
             continue
         if isinstance(value, list):
-            value = ", ".join(map(str, value)) or None
-        table.add_row(_label(key), "-" if value is None else str(value))
+            value = ", ".join(map(_cell, value)) or None
+        table.add_row(_label(key), "-" if value is None else _cell(value))
     out.print(table)
     for key in paths:
         if facts.get(key) is not None:

@@ -15,6 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_core.simulate.thermal import (
+    random_thermal_truth,
+    recalibration_history,
+    thermal_campaign,
+)
 from calib_core.units import DEG
 from pipelines.run_writers import write_csv_run, write_mpu6000_run
 
@@ -63,6 +68,54 @@ CSV_MANIFEST = {
 }
 
 
+# Small runs (25 Hz, 8 s per attitude) keep the campaign and the history under 2 MB in all.
+SMALL_RUN = {"rate_hz": 25.0, "static_s": 8.0}
+THERMAL_SERIAL, THERMAL_TEMPS_C = "IMU-T-0007", (0.0, 20.0, 40.0, 60.0)
+HISTORY_SERIAL = "IMU-R-0003"
+HISTORY_DATES = ("2026-02-03", "2026-05-05", "2026-08-04", "2026-11-03")
+STATICS = ("x_up", "x_dn", "y_up", "y_dn", "z_up", "z_dn")
+
+
+def _manifest(serial: str, started: str, procedure: str, temperature_c: float) -> dict:
+    """A CSV run's manifest: the unit, the run's start (its archive date), the procedure."""
+    doc = {k: v for k, v in CSV_MANIFEST.items() if k not in ("unit", "run", "site")}
+    return {
+        **doc,
+        "unit": {**CSV_MANIFEST["unit"], "serial": serial},
+        "run": {"started": started, "operator": "J. Doe", "procedure": procedure,
+                "tolerance_profile": "mpu6000", "settings": {"gyro_range_dps": 2000.0}},
+        "site": {"gravity_model": "standard"},
+        "environment": {**CSV_MANIFEST["environment"], "temperature_c": temperature_c},
+    }  # fmt: skip
+
+
+def write_thermal_campaign() -> None:
+    """One unit at four chamber temperatures, a day apart: `calib thermal fit` material."""
+    rng = np.random.default_rng(20261122)
+    base = dataclasses.replace(random_errors(rng), gyr_noise=np.full(3, 0.03 * DEG))
+    truth = random_thermal_truth(rng, base=base)
+    for i, run in enumerate(thermal_campaign(truth, rng, THERMAL_TEMPS_C, **SMALL_RUN)):
+        started = f"2026-10-{12 + i:02d}T09:00:00+02:00"
+        folder = ROOT / "thermal_IMU-T-0007" / f"run_{run.temperature:+03.0f}C"
+        manifest = _manifest(THERMAL_SERIAL, started, "six_position_integral", run.temperature)
+        write_csv_run(run.run.segments, folder, manifest, truth=run.run.truth_dict())
+
+
+def write_history() -> None:
+    """One unit re-calibrated quarterly (six statics), its z accelerometer bias drifting
+    by 2e-5 m/s^2 a day: `calib trend` and `calib repeatability` material."""
+    rng = np.random.default_rng(20261123)
+    base = dataclasses.replace(random_errors(rng), gyr_noise=np.full(3, 0.03 * DEG))
+    drift = {"acc.bias.z": 2e-5}
+    entries = recalibration_history(base, rng, n_runs=len(HISTORY_DATES), interval_days=91.0,
+                                    jitter_days=0.0, drift_per_day=drift)  # fmt: skip
+    for date, entry in zip(HISTORY_DATES, entries, strict=True):
+        sim = six_position_integral_run(entry.errors, rng, **SMALL_RUN)
+        statics = {label: sim.segments[label] for label in STATICS}
+        manifest = _manifest(HISTORY_SERIAL, f"{date}T10:00:00+01:00", "six_position", 20.0)
+        write_csv_run(statics, ROOT / "history_IMU-R-0003" / date, manifest, truth=sim.truth_dict())
+
+
 def main() -> None:
     if ROOT.exists():
         shutil.rmtree(ROOT)
@@ -81,6 +134,8 @@ def main() -> None:
     truth = dataclasses.replace(random_errors(rng), gyr_noise=np.array([0.06, 0.03, 0.03]) * DEG)
     sim = six_position_integral_run(truth, rng, gravity=g, turns=2)
     write_csv_run(sim.segments, ROOT / "csv_IMU-2026-0042", CSV_MANIFEST, truth=sim.truth_dict())
+    write_thermal_campaign()
+    write_history()
     (ROOT / "README.md").write_text(
         "# data_samples\n\nSimulated lab runs with known truth, made by "
         "`scripts/make_data_samples.py` (calib_core.simulate); `make demo` processes them.\n\n"
@@ -89,7 +144,15 @@ def main() -> None:
         "- `csv_IMU-2026-0042/`: one headered CSV (`imu.csv`, g and deg/s) described by "
         "`run.toml`, Helmert gravity at the site, 2-turn rotations, truth in `truth.json`; "
         "gyro x noise 0.06 deg/s exceeds the "
-        "profile's 0.05 deg/s (fail).\n",
+        "profile's 0.05 deg/s (fail).\n"
+        "- `thermal_IMU-T-0007/`: a thermal campaign, one unit at 0, 20, 40 and 60 deg C on four "
+        "days (CSV + run.toml each, `environment.temperature_c`), biases quadratic and scales "
+        "linear in temperature: `calib thermal fit IMU-T-0007`.\n"
+        "- `history_IMU-R-0003/`: one unit re-calibrated quarterly in 2026 (six statics; the "
+        "dates are the manifests' `run.started`), its z accelerometer bias drifting by "
+        "2e-5 m/s^2 a day: `calib trend`, `calib repeatability`.\n\n"
+        "All of them are simulated (no real sensor recorded them); the real recordings the "
+        "tests read are in `tests/realdata/`.\n",
         encoding="utf-8",
     )
     print(f"wrote {ROOT}")

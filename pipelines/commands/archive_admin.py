@@ -101,6 +101,7 @@ def restore(
     report = run_verify(target, orphans=False)
     err.print(
         f"restored {len(manifest['files'])} files and the {manifest['backend']} database "
-        f"into {target!r}; verify: " + ("OK" if report.ok else f"{len(report.problems)} problem(s)")
+        f"into {target.display_url} (files under {target.root}); verify: "
+        + ("OK" if report.ok else f"{len(report.problems)} problem(s)")
     )
     raise typer.Exit(0 if report.ok else 1)

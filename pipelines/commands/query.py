@@ -15,7 +15,6 @@ from enum import StrEnum
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.table import Table
 
 from pipelines.cli_shared import (
     ArchiveOpt,
@@ -129,13 +128,15 @@ def lineage(
     if fmt is Format.csv:
         long.to_csv(sys.stdout, index=False)
         return
+    # Sections of "field: value" lines, not tables: hashes, paths and settings stay whole.
     for section, rows in long.groupby("section", sort=False):
-        table = Table(title=str(section))
-        for col in ("item", "field", "value"):
-            table.add_column(col)
-        for r in rows.itertuples(index=False):
-            table.add_row(str(r.item), str(r.field), str(r.value))
-        out.print(table)
+        out.print(f"[bold]{section}[/bold]")
+        for item, fields in rows.groupby("item", sort=False):
+            lead = f"  [{item}] " if rows["item"].nunique() > 1 else "  "
+            for r in fields.itertuples(index=False):
+                value = str(r.value).replace("\n", "\n" + " " * (len(lead) + 4))
+                out.print(f"{lead}{r.field}: {value}", markup=False, highlight=False)
+                lead = " " * len(lead)
 
 
 def _flatten(doc: dict[str, Any]) -> list[tuple[str, str, str, str]]:

@@ -32,7 +32,7 @@ thermal_app = sub_app("Temperature compensation: fit and export.")
 app.add_typer(thermal_app, name="thermal")
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
-PlotOpt = Annotated[Path | None, typer.Option("--plot", help="PNG file to draw.")]
+PlotOpt = Annotated[Path | None, typer.Option("--plot", help="Also draw the plot into this PNG.")]
 
 
 def parse_when(text: str | None) -> datetime | None:
@@ -179,14 +179,12 @@ def trend(
     """PARAM of SERIAL against calibration date: trend and when it leaves tolerance."""
     from pipelines.trends import trend_report
 
-    plot = plot or Path(f"trend_{serial}_{param}.png")
     rep = _run(trend_report, open_archive(archive), serial, param, profile=profile, plot=plot)
     if as_json:
         print_json({"summary": rep["summary"], "rows": frame_records(rep["table"])})
         return
     print_frame(rep["table"], f"{param} of {serial}")
-    for key, value in rep["summary"].items():
-        err.print(f"{key}: {value}")
+    print_facts(rep["summary"], f"Trend of {param}", paths=("plot",))
 
 
 @app.command("fleet")
@@ -201,10 +199,10 @@ def fleet(
     """PARAM across every unit of device MODEL, per temperature bin."""
     from pipelines.trends import fleet_report
 
-    plot = plot or Path(f"fleet_{model}_{param}.png")
     table = _run(fleet_report, open_archive(archive), model, param, bin_c=bin_c, plot=plot)
     if as_json:
         print_json(frame_records(table))
         return
     print_frame(table, f"{param} across {model}")
-    err.print(f"plot: {plot}")
+    if plot is not None:
+        err.print(f"plot: {plot}")
