@@ -101,7 +101,7 @@ def _commands(demo: dict) -> list[list[str]]:
         ["export", run, *a, "--format", "px4", "--output", str(tmp / "unit.params")],
         ["export", run, *a, "--format", "csv"],
         ["report", run, *a, "--no-pdf"],
-        ["reprocess", run, *a],
+        ["reprocess", run, "--reason", "width test", *a],
         ["inspect", str(SAMPLES / "csv_IMU-2026-0042")],
         ["repeatability", "IMU-R-0003", *a],
         ["apply", str(mpu / "MPU0001_x_up.txt"), str(tmp / "applied.csv"), "--serial",
@@ -115,14 +115,21 @@ def _commands(demo: dict) -> list[list[str]]:
         ["query", "history", "IMU-R-0003", "acc.bias.z", *a],
         ["query", "fleet", "MPU-6000", "acc.bias.z", *a],
         ["thermal", "export", "IMU-T-0007", str(tmp / "thermal.params"), "--format", "px4", *a],
-        ["centrifuge", str(demo["centrifuge"])],
+        ["centrifuge", "solve", str(demo["centrifuge"])],
+        ["centrifuge", "plan", "--radius", "0.5"],
+        ["keygen", str(tmp / "me.key"), "--name", "A. Tester"],
+        ["approve", run, "--key", str(tmp / "me.key"), *a],
+        ["audit", *a],
         ["verify", *a],
         ["backup", str(tmp / "backup"), *a],
         ["restore", str(tmp / "backup"), "--archive", str(tmp / "restored")],
     ]
 
 
-def test_every_subcommand_keeps_run_ids_and_paths_whole(demo: dict) -> None:
+def test_every_subcommand_keeps_run_ids_and_paths_whole(
+    demo: dict, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("CALIB_KEY_PASSPHRASE", "a passphrase for the width test")
     for text in demo["outputs"]:
         _assert_nothing_cut(text, demo["ids"])
     for args in _commands(demo):
@@ -134,7 +141,8 @@ def test_every_subcommand_keeps_run_ids_and_paths_whole(demo: dict) -> None:
 
 def test_every_registered_command_is_driven(demo: dict) -> None:
     """The list above covers every subcommand calib has (serve, a server, aside)."""
-    driven = {tuple(c[:2]) if c[0] in ("query", "thermal") else (c[0],) for c in _commands(demo)}
+    groups = {g.name for g in app.registered_groups}
+    driven = {tuple(c[:2]) if c[0] in groups else (c[0],) for c in _commands(demo)}
     driven |= {("process",), ("thermal", "fit"), ("serve",)}
     known = {(i.name or i.callback.__name__,) for i in app.registered_commands}
     for group in app.registered_groups:
