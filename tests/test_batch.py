@@ -437,6 +437,17 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+def wait_first_run_finished(proc: subprocess.Popen) -> None:
+    """Read `proc`'s stderr (text) until Prefect logs the first finished task run."""
+    assert proc.stderr is not None
+    seen: list[str] = []
+    for line in proc.stderr:  # Prefect logs each finished task run on stderr
+        seen.append(line)
+        if "Finished in state Completed" in line:
+            return
+    raise AssertionError(f"no run finished: {''.join(seen)[-3000:]}")
+
+
 def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> None:
     """Ctrl-C (SIGINT) during `calib process --runner process` on Prefect's temporary API:
     exit status 130 within seconds (Prefect alone spent 77-108 s retrying its reports),
@@ -461,14 +472,7 @@ def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> N
         text=True,
         env=env,
     )
-    assert proc.stderr is not None
-    seen: list[str] = []
-    for line in proc.stderr:  # Prefect logs each finished task run on stderr
-        seen.append(line)
-        if "Finished in state Completed" in line:
-            break
-    else:
-        raise AssertionError(f"no run finished: {''.join(seen)[-3000:]}")
+    wait_first_run_finished(proc)
     proc.send_signal(signal.SIGINT)
     sent = time.monotonic()
     _, rest = proc.communicate(timeout=SUBPROCESS_TIMEOUT_S)

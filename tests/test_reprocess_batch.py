@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from sqlalchemy import func, select
+from test_batch import wait_first_run_finished
 
 import pipelines.process as process_module
 from calib_core.simulate import random_errors, six_position_integral_run
@@ -228,14 +229,7 @@ def test_kill_during_a_reprocess_batch_then_rerun_reprocesses_every_run_once(
     proc = subprocess.Popen(
         cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env
     )
-    assert proc.stderr is not None
-    seen: list[str] = []
-    for line in proc.stderr:  # Prefect logs each finished task run on stderr
-        seen.append(line)
-        if "Finished in state Completed" in line:
-            break
-    else:
-        raise AssertionError(f"no run finished: {''.join(seen)[-3000:]}")
+    wait_first_run_finished(proc)
     proc.send_signal(signal.SIGKILL)
     proc.communicate(timeout=SUBPROCESS_TIMEOUT_S)
     assert proc.returncode == -signal.SIGKILL
