@@ -4,11 +4,14 @@ Simulated runs with known truth: the true error model from calib_core.simulate.r
 the Type B sources (local gravity, fixture face angles, table rate error) drawn from their stated
 distributions in calib_core.uncertainty_sources.EquipmentSpec, and the noise of each plateau mean
 with a standard uncertainty estimated from n samples (so the Type A part has n - 1 degrees of
-freedom and the t coverage factor matters). Families: six-position accelerometer (static
-least squares) and rate-table gyro. Each run's budgets give U at about 95 %; the fraction of
-(run, parameter) intervals covering the truth is reported per parameter family. On a subset of
-runs the Monte Carlo interval (JCGM 101, numpy sampling through the same solver) is compared with
-the linearised U. Last line: one JSON object with coverage_worst, coverage_best,
+freedom and the t coverage factor matters). Procedures: six-position accelerometer (static
+least squares), six-position + integral gyro (statics and n-turn rotations whose actual angle and
+axis carry the turn-angle and face-angle errors) and rate-table gyro. Each run's budgets give U at
+about 95 % (k from Student's t, or from the linearised model's propagated distribution when a
+rectangular input contributes: calib_core.uncertainty.combine); the fraction of (run, parameter)
+intervals covering the truth is reported per procedure and parameter family. On a subset of runs
+the Monte Carlo interval (JCGM 101, numpy sampling through the same solver) is compared with the
+linearised U. Last line: one JSON object with coverage_worst, coverage_best,
 mc_vs_linear_max_rel, runs.
 
 Usage: python benchmarks/uncertainty.py [--runs N] [--mc-runs M] [--mc-draws D] [--seed S]
@@ -23,15 +26,20 @@ from collections import defaultdict
 
 import numpy as np
 
+from calib_core import params
 from calib_core.simulate import STATIC_LABELS, random_errors
+from calib_core.solvers.integral import ROTATION_LABELS
+from calib_core.solvers.multi_position import solve_accel_linear
 from calib_core.solvers.rate_table import RatePoint
-from calib_core.uncertainty import InputQuantity
+from calib_core.uncertainty import InputQuantity, budgets, monte_carlo
 from calib_core.uncertainty_sources import (
     EquipmentSpec,
+    integral_inputs,
     rate_table_budgets,
     static_accel_budgets,
     static_inputs,
     static_reference,
+    static_solve,
 )
 
 G = 9.80665
@@ -66,6 +74,49 @@ def six_position_run(rng, spec, mc_draws=0):
     return truth, b, mc
 
 
+TURNS = 2
+INTEGRAL_NOISE = 0.02 * DEG * np.sqrt(0.01 * 20.0)  # rad: 0.02 deg/s white noise, 100 Hz, 20 s
+
+
+def integral_run(rng, spec, mc_draws=0):
+    """(truth, budgets, mc) of one simulated six-position + integral gyro run.
+
+    The statics see gravity through the tilted faces; each rotation turns 2 pi n plus its drawn
+    turn-angle error about the vertical, which the face angle of "A_up" tilts in the body frame.
+    The rotation integrals J carry white noise of known std (INTEGRAL_NOISE, dof infinite).
+    """
+    err = random_errors(rng)
+    inputs = static_inputs(STATIC_LABELS, G, spec) + integral_inputs(ROTATION_LABELS, spec)
+    actual = {q.name: _draw(q, rng) for q in inputs}
+    f_true = static_reference(STATIC_LABELS, actual)
+    acc = _noisy(f_true @ (np.eye(3) + err.acc_M).T + err.acc_bias, np.full((6, 3), 2e-3), rng)
+    gyr = _noisy(f_true @ err.gsens.T + err.gyr_bias, np.full((6, 3), 0.02 * DEG), rng)
+    nominal = np.diag([2 * np.pi * TURNS * 2] * 3)  # ccw - cw per axis
+    true_angles = np.zeros((3, 3))
+    for label in ROTATION_LABELS:
+        j = "xyz".index(label[0])
+        up = static_reference([f"{label[0]}_up"], actual)[0]  # the vertical in the body frame
+        axis = up / np.linalg.norm(up)
+        true_angles[:, j] += (2 * np.pi * TURNS + actual[f"turn.{label}"]) * axis
+    J = (np.eye(3) + err.gyr_M) @ true_angles
+    J += INTEGRAL_NOISE * np.sqrt(2.0) * rng.standard_normal((3, 3))  # ccw and cw records
+    estimate = J @ np.linalg.inv(nominal)
+    solve = static_solve(STATIC_LABELS, acc, gyr, G, (estimate, TURNS, ROTATION_LABELS))
+    nominal_values = solve({})
+    std_j = INTEGRAL_NOISE * np.sqrt(2.0) / nominal[0, 0]
+    acc_fit = solve_accel_linear(static_reference(STATIC_LABELS, {"gravity": G}), *acc)
+    type_a = {n: (u, N_SAMPLES - 1) for n, u in acc_fit.std.items()}
+    type_a.update({n: (std_j, np.inf) for row in params.matrix_names("gyr") for n in row})
+    b = budgets(solve, inputs, type_a, estimates={n: nominal_values[n] for n in type_a})
+    mc = monte_carlo(solve, inputs, type_a, mc_draws, rng) if mc_draws else None
+    truth = {f"acc.bias.{a}": err.acc_bias[i] for i, a in enumerate("xyz")}
+    for i, row in enumerate(params.matrix_names("acc")):
+        truth.update({n: err.acc_M[i, j] for j, n in enumerate(row)})
+    for i, row in enumerate(params.matrix_names("gyr")):
+        truth.update({n: err.gyr_M[i, j] for j, n in enumerate(row)})
+    return truth, b, mc
+
+
 def rate_table_run(rng, spec, mc_draws=0):
     """(truth, budgets, mc) of one simulated single-axis (z) rate-table gyro run."""
     err = random_errors(rng)
@@ -91,7 +142,7 @@ def family(name: str) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=int, default=600, help="runs per procedure")
+    ap.add_argument("--runs", type=int, default=400, help="runs per procedure")
     ap.add_argument("--mc-runs", type=int, default=10, help="runs per procedure with MC check")
     ap.add_argument("--mc-draws", type=int, default=4000)
     ap.add_argument("--seed", type=int, default=21)
@@ -101,12 +152,14 @@ def main() -> None:
     hits, total = defaultdict(int), defaultdict(int)
     mc_rel = []
     t0 = time.perf_counter()
-    for make in (six_position_run, rate_table_run):
+    procedures = {"six_position": six_position_run, "integral": integral_run,
+                  "rate_table": rate_table_run}
+    for proc, make in procedures.items():
         for r in range(args.runs):
             draws = args.mc_draws if r < args.mc_runs else 0
             truth, b, mc = make(rng, spec, draws)
             for name, true in truth.items():
-                fam = family(name)
+                fam = f"{proc}:{family(name)}"
                 total[fam] += 1
                 hits[fam] += abs(b[name].value - true) <= b[name].U
                 if mc is not None:
@@ -114,12 +167,12 @@ def main() -> None:
                     mc_rel.append(abs(half - b[name].U) / b[name].U)
     coverage = {f: hits[f] / total[f] for f in total}
     for f, c in sorted(coverage.items()):
-        print(f"{f:18s} coverage {c:.4f} of {total[f]} intervals")
+        print(f"{f:28s} coverage {c:.4f} of {total[f]} intervals")
     print(json.dumps({
         "coverage_worst": round(min(coverage.values()), 4),
         "coverage_best": round(max(coverage.values()), 4),
         "mc_vs_linear_max_rel": round(max(mc_rel), 4),
-        "runs": 2 * args.runs,
+        "runs": len(procedures) * args.runs,
         "coverage": {f: round(c, 4) for f, c in coverage.items()},
         "seconds": round(time.perf_counter() - t0, 1),
     }))

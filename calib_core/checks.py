@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import fnmatch
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from calib_core import decision, params, units
 from calib_core.calibration import Calibration, CheckResult
 from calib_core.decision import DecisionRule
+from calib_core.uncertainty import Budget
 
 # Every canonical name a limit pattern may match.
 ALL_NAMES: list[str] = (
@@ -504,30 +506,39 @@ def _parse_limit(entry: Any, where: str) -> ParameterLimit:
     return ParameterLimit(pattern, low * factor, high * factor)
 
 
-def check_parameters(cal: Calibration, profile: ToleranceProfile) -> list[CheckResult]:
+def check_parameters(
+    cal: Calibration, profile: ToleranceProfile, budgets: Mapping[str, Budget] | None = None
+) -> list[CheckResult]:
     """Each parameter against the first limit that matches its name.
 
-    Parameters without a matching limit are not checked.
+    Parameters without a matching limit are not checked. With `budgets` (name -> GUM budget)
+    the statement of conformity follows the profile's decision rule (ILAC-G8): passed only for
+    "pass"; the detail says the verdict, U, k and the guard band w. A parameter without a
+    budget is judged with U = 0 and said so.
 
     Returns
     -------
     CheckResult "param:<canonical name>" with the value, limit = |bound| of a
-    symmetric limit (else high), passed = low <= value <= high.
+    symmetric limit (else high); the detail starts "allowed LOW .. HIGH unit".
     """
     out = []
     for name, p in cal.parameters.items():
         lim = profile.limit_for(name)
         if lim is None:
             continue
-        out.append(
-            CheckResult(
-                name=f"param:{name}",
-                value=p.value,
-                limit=lim.limit,
-                passed=bool(lim.low <= p.value <= lim.high),
-                detail=f"allowed {lim.low:.6g} .. {lim.high:.6g} {params.unit_of(name)}",
-            )
-        )
+        unit = params.unit_of(name)
+        detail = f"allowed {lim.low:.6g} .. {lim.high:.6g} {unit}"
+        passed = bool(lim.low <= p.value <= lim.high)
+        if budgets is not None:
+            b = budgets.get(name)
+            U = 0.0 if b is None else b.U
+            outcome = decision.verdict(p.value, U, lim.low, lim.high, profile.decision_rule)
+            passed = outcome == decision.PASS
+            w = profile.decision_rule.guard_band(U)
+            detail += (f"; {outcome} (rule {profile.decision_rule.name}, "
+                       + ("no uncertainty budget" if b is None else
+                          f"U = {U:.3g} {unit} at k = {b.k:.3g}") + f", w = {w:.3g} {unit})")
+        out.append(CheckResult(f"param:{name}", p.value, lim.limit, passed, detail))
     return out
 
 
@@ -556,13 +567,17 @@ def check_residuals(cal: Calibration, profile: ToleranceProfile) -> list[CheckRe
     return out
 
 
-def check_calibration(cal: Calibration, profile: ToleranceProfile) -> list[CheckResult]:
+def check_calibration(
+    cal: Calibration, profile: ToleranceProfile, budgets: Mapping[str, Budget] | None = None
+) -> list[CheckResult]:
     """Check a calibration against a tolerance profile: its parameters, then its residuals.
 
     Parameters
     ----------
     cal : the solved calibration.
     profile : the tolerance profile (`pipelines.load_profile` reads a shipped or lab one).
+    budgets : name -> GUM budget: the parameters are judged by the profile's decision rule
+        with their expanded uncertainty (`check_parameters`).
 
     Returns
     -------
@@ -573,7 +588,8 @@ def check_calibration(cal: Calibration, profile: ToleranceProfile) -> list[Check
     into "pass" / "needs review" / "fail". The archive's check step adds held-out
     verification points, repeatability and the unit's description to these.
     """
-    return check_parameters(cal, profile) + check_residuals(cal, profile) + solver_checks(cal)
+    return (check_parameters(cal, profile, budgets) + check_residuals(cal, profile)
+            + solver_checks(cal))
 
 
 def solver_checks(cal: Calibration) -> list[CheckResult]:
@@ -596,11 +612,18 @@ def verdict(checks: list[CheckResult]) -> str:
     "pass" if every check passed; "needs review" when only repeatability
     (``repeat:``), device (``device:``) or model (``model:``) checks failed: the
     numbers are within tolerance but do not repeat, belong to another unit, or
-    were not determined by the run; else "fail".
+    were not determined by the run; or parameters inside their tolerance but within the
+    guard band of a limit (ILAC-G8 conditional pass); else "fail".
     """
     failed = [c for c in checks if not c.passed]
     if not failed:
         return PASS
-    if all(c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX, MODEL_PREFIX)) for c in failed):
+    if all(c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX, MODEL_PREFIX)) or _conditional_pass(c)
+           for c in failed):
         return NEEDS_REVIEW
     return FAIL
+
+
+def _conditional_pass(c: CheckResult) -> bool:
+    """A parameter check inside its tolerance but within the guard band of a limit."""
+    return c.name.startswith("param:") and f"; {decision.COND_PASS} (" in c.detail

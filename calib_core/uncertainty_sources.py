@@ -3,22 +3,25 @@
 Science only. `EquipmentSpec` carries the reference equipment's specifications (SI); its
 defaults are documented in docs/uncertainty.md. `static_accel_budgets` propagates local gravity
 and the orientation-fixture (cube) angle errors through the static least-squares solver
-(calib_core.solvers.multi_position); `rate_table_budgets` propagates the table's rate accuracy
-through calib_core.solvers.rate_table. Passing ``spec=None`` (equipment unknown) gives budgets
-labelled Type A only.
+(calib_core.solvers.multi_position); `integral_gyro_budgets` propagates the turn angle error of
+each rotation and the same fixture angles through the integral method
+(calib_core.solvers.integral); `rate_table_budgets` propagates the table's rate accuracy through
+calib_core.solvers.rate_table. Passing ``spec=None`` (equipment unknown) gives budgets labelled
+Type A only; a field of the spec set to None is a source whose equipment the run does not name
+(not evaluated, and said in the budget's notes).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calib_core import params
-from calib_core.solvers.multi_position import solve_accel_linear
+from calib_core.solvers.multi_position import solve_accel_linear, solve_gyro_static
 from calib_core.solvers.rate_table import RatePoint, solve_rate_table
 from calib_core.solvers.six_position import axis_vector
 from calib_core.uncertainty import Budget, InputQuantity, budgets, monte_carlo
@@ -35,11 +38,21 @@ class EquipmentSpec:
     gravity_expanded : expanded uncertainty (k = 2) of the local gravity value, m/s^2.
     cube_angle : half-width of the rectangular error of each fixture face angle, rad.
     table_rate_rel : half-width of the rectangular relative rate error of the rate table, 1.
+    turn_angle : half-width of the rectangular error of the angle each integral-method rotation
+        turns (the fixture stopping off its start mark), rad.
+
+    None: the run does not name the equipment; the source is not evaluated.
     """
 
     gravity_expanded: float = 2.0e-3
-    cube_angle: float = 0.05 * DEG
-    table_rate_rel: float = 1.0e-4
+    cube_angle: float | None = 0.05 * DEG
+    table_rate_rel: float | None = 1.0e-4
+    turn_angle: float | None = 0.1 * DEG
+
+    def missing(self, *names: str) -> tuple[str, ...]:
+        """Notes for the named sources that are not evaluated (their equipment unknown)."""
+        return tuple(f"{n} not evaluated: equipment not named in the run"
+                     for n in names if getattr(self, n) is None)
 
 
 def static_inputs(
@@ -47,6 +60,8 @@ def static_inputs(
 ) -> list[InputQuantity]:
     """Gravity (normal, U at k = 2) and two tilt angles per position (rectangular)."""
     out = [InputQuantity("gravity", gravity, spec.gravity_expanded, "normal", 2.0, unit="m/s^2")]
+    if spec.cube_angle is None:
+        return out
     for label in labels:
         for t in _tilt_axes(label):
             out.append(InputQuantity(f"cube.{label}.tilt_{t}", 0.0, spec.cube_angle, unit="rad"))
@@ -62,14 +77,76 @@ def _tilt_axes(label: str) -> str:
 def static_reference(labels: Sequence[str], values: Mapping[str, float]) -> np.ndarray:
     """(K, 3) reference specific force of each position given gravity and the tilt angles."""
     g = values.get("gravity")
-    rows = []
-    for label in labels:
-        f0 = axis_vector(label, g)
-        rotvec = np.zeros(3)
-        for t in _tilt_axes(label):
-            rotvec[params.AXIS_INDEX[t]] = values.get(f"cube.{label}.tilt_{t}", 0.0)
-        rows.append(Rotation.from_rotvec(rotvec).apply(f0))
-    return np.array(rows)
+    return np.array([_tilt(label, values).apply(axis_vector(label, g)) for label in labels])
+
+
+def _tilt(label: str, values: Mapping[str, float]) -> Rotation:
+    """The fixture's face-angle error of position `label` (identity when not given)."""
+    rotvec = np.zeros(3)
+    for t in _tilt_axes(label):
+        rotvec[params.AXIS_INDEX[t]] = values.get(f"cube.{label}.tilt_{t}", 0.0)
+    return Rotation.from_rotvec(rotvec)
+
+
+
+def integral_inputs(rotations: Sequence[str], spec: EquipmentSpec) -> list[InputQuantity]:
+    """The turn angle error of each rotation record (rectangular), when the spec knows it."""
+    if spec.turn_angle is None:
+        return []
+    return [InputQuantity(f"turn.{label}", 0.0, spec.turn_angle, unit="rad") for label in rotations]
+
+
+def integral_matrix(
+    estimate: np.ndarray, turns: int, rotations: Sequence[str], values: Mapping[str, float]
+) -> np.ndarray:
+    """(3, 3) I + M of the integral method with the rotation angles and axes given by `values`.
+
+    The method divides the ccw - cw integral J_A by the nominal 2 pi n per record about body
+    axis A (`estimate` = I + M so found). A rotation that turned 2 pi n + delta about the
+    vertical, which the fixture's face-angle error of "A_up" tilts in the body frame exactly as
+    it tilts gravity, has J_A = (I + M) r_A with r_A = sum of +-(2 pi n + delta) R_tilt e_A;
+    solving with those r_A gives I + M = J R^-1.
+    """
+    nominal = np.zeros((3, 3))
+    actual = np.zeros((3, 3))
+    for label in rotations:
+        axis, sense = label.split("_")
+        j = params.AXIS_INDEX[axis]
+        angle = 2.0 * math.pi * turns
+        nominal[j, j] += angle  # both senses add: ccw +angle minus cw -angle
+        tilted = _tilt(f"{axis}_up", values).apply(np.eye(3)[j])
+        actual[:, j] += (angle + values.get(f"turn.{label}", 0.0)) * tilted
+    J = estimate @ nominal
+    return J @ np.linalg.inv(actual)
+
+
+def static_solve(
+    labels: Sequence[str], acc: tuple[np.ndarray, np.ndarray], gyr: tuple[np.ndarray, np.ndarray],
+    gravity: float, integral: tuple[np.ndarray, int, Sequence[str]] | None = None,
+) -> Callable[[Mapping[str, float]], dict[str, float]]:
+    """The static fits (and the integral method) as a function of the Type B inputs.
+
+    Parameters
+    ----------
+    labels : static position labels; acc, gyr : (means, sems), each (K, 3), SI.
+    gravity : m/s^2 (nominal; "gravity" in the values overrides it).
+    integral : (I + M estimated by the integral method, turns, rotation labels) or None.
+
+    Returns
+    -------
+    values -> {acc.bias/scale/misalign, gyr.bias/gsens, and gyr.scale/misalign with `integral`}.
+    """
+
+    def solve(values: Mapping[str, float]) -> dict[str, float]:
+        ref = static_reference(labels, {"gravity": gravity, **values})
+        out = {**solve_accel_linear(ref, *acc).params, **solve_gyro_static(ref, *gyr).params}
+        if integral is not None:
+            m = integral_matrix(*integral, values) - np.eye(3)
+            out.update({n: float(m[i, j]) for i, row in enumerate(params.matrix_names("gyr"))
+                        for j, n in enumerate(row)})
+        return out
+
+    return solve
 
 
 def static_accel_budgets(
@@ -98,11 +175,8 @@ def static_accel_budgets(
     return out, mc
 
 
-def rate_table_budgets(
-    points: Sequence[RatePoint], dof: float, spec: EquipmentSpec | None, mc_draws: int = 0,
-    rng: np.random.Generator | None = None,
-) -> tuple[dict[str, Budget], dict[str, tuple[float, float, float]] | None]:
-    """Budgets of the rate-table gyro parameters with the table's relative rate error (Type B)."""
+def rate_table_solve(points: Sequence[RatePoint]) -> Callable[[Mapping[str, float]], dict]:
+    """The rate-table solve with the table's rates scaled by 1 + "table.rate_rel"."""
     points = list(points)
 
     def solve(values: Mapping[str, float]) -> dict[str, float]:
@@ -110,9 +184,19 @@ def rate_table_budgets(
         cal = solve_rate_table([replace(p, table_rate=p.table_rate * (1 + e)) for p in points])
         return {n: p.value for n, p in cal.parameters.items()}
 
+    return solve
+
+
+def rate_table_budgets(
+    points: Sequence[RatePoint], dof: float, spec: EquipmentSpec | None, mc_draws: int = 0,
+    rng: np.random.Generator | None = None,
+) -> tuple[dict[str, Budget], dict[str, tuple[float, float, float]] | None]:
+    """Budgets of the rate-table gyro parameters with the table's relative rate error (Type B)."""
+    points = list(points)
+    solve = rate_table_solve(points)
     cal = solve_rate_table(points)
     type_a = {n: (p.std, dof) for n, p in cal.parameters.items()}
-    inputs = [] if spec is None else [
+    inputs = [] if spec is None or spec.table_rate_rel is None else [
         InputQuantity("table.rate_rel", 0.0, spec.table_rate_rel, unit="1")]
     units = {n: ("rad/s" if ".bias." in n else "1") for n in type_a}
     out = budgets(solve, inputs, type_a, units)

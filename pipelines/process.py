@@ -22,6 +22,7 @@ from calib_core.calibration import Calibration, CheckResult, StepRecord
 from calib_core.checks import ToleranceProfile, check_calibration
 from calib_core.preprocess.chain import preprocess
 from calib_core.recording import Recording
+from calib_core.uncertainty import Budget
 from calib_core.verification import (
     RunValues,
     comparable_runs,
@@ -37,6 +38,7 @@ from pipelines.ingest.manifest import RunManifest
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
+from pipelines.uncertainty import uncertainty_step
 from storage import queries, rawstore, write_failures
 from storage.archive import ArchiveResult, RawFileIn, RunIn, archive_run, raw_hash_of, run_id_of
 from storage.db import Archive
@@ -119,8 +121,9 @@ def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
 
 def solve_loaded(
     loaded: LoadedRun, procedure: str | None = None, settings: dict[str, Any] | None = None
-) -> tuple[Calibration, list[StepRecord], dict[str, Any]]:
-    """Preprocess and solve a loaded run; returns the calibration, step records and settings.
+) -> tuple[Calibration, list[StepRecord], dict[str, Any], dict[str, Budget]]:
+    """Preprocess and solve a loaded run; returns the calibration, step records, settings and
+    the GUM budget of each parameter (step "uncertainty").
 
     `procedure` and `settings` replace the manifest's procedure and update its
     settings (see `calibrate`). Verification segments stay out of the fit
@@ -137,7 +140,9 @@ def solve_loaded(
         {**settings, "procedure": procedure or m.run.procedure, "gravity": m.gravity()},
         held_out=loaded.verification_labels,
     )
-    return cal, [*steps, record], settings
+    fit = {k: v for k, v in segments.items() if k not in loaded.verification_labels}
+    budgets, budget_step = uncertainty_step(cal, fit, settings, m)
+    return cal, [*steps, record, budget_step], settings, budgets
 
 
 def calibrate(
@@ -250,11 +255,16 @@ class Judged:
     step: StepRecord
 
 
-def check_run(loaded: LoadedRun, cal: Calibration, archive: Archive, run_id: str) -> Judged:
-    """Tolerances and residual limits of the run's profile, verification, repeatability."""
+def check_run(
+    loaded: LoadedRun, cal: Calibration, archive: Archive, run_id: str,
+    budgets: dict[str, Budget] | None = None,
+) -> Judged:
+    """Tolerances (judged by the profile's decision rule with each parameter's expanded
+    uncertainty from `budgets`) and residual limits of the run's profile, verification,
+    repeatability."""
     started = time.perf_counter()
     profile = load_profile(loaded.manifest.run.tolerance_profile)
-    checks = check_calibration(cal, profile)
+    checks = check_calibration(cal, profile, budgets)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id)
     checks += more_checks
     checks.append(device_check(loaded.manifest, queries.device_description(
@@ -267,6 +277,7 @@ def check_run(loaded: LoadedRun, cal: Calibration, archive: Archive, run_id: str
             "profile": profile.name,
             "profile_version": profile.version,
             "thresholds": profile.to_dict(),
+            "decision_rule": profile.decision_rule.statement(),
         },
         statistics={
             "checks": len(checks),
@@ -286,9 +297,10 @@ def parameter_rows(cal: Calibration, temperature_c: float | None) -> list[dict[s
 
 
 def protocol_of(
-    loaded: LoadedRun, cal: Calibration, judged: Judged, run_id: str, rows: list[dict[str, Any]]
+    loaded: LoadedRun, cal: Calibration, judged: Judged, run_id: str, rows: list[dict[str, Any]],
+    budgets: dict[str, Budget] | None = None,
 ) -> str:
-    """The test protocol text (MPU-6000 layout) of the run."""
+    """The test protocol text (MPU-6000 layout) of the run, with the uncertainty budgets."""
     m = loaded.manifest
     return render_protocol(
         device_model=m.unit.model,
@@ -302,6 +314,8 @@ def protocol_of(
         parameters=rows,
         checks=[c.to_dict() for c in judged.checks],
         verdict=judged.verdict,
+        budgets={n: b.to_dict() for n, b in (budgets or {}).items()},
+        decision_rule=judged.profile.decision_rule.statement(),
     )
 
 
@@ -383,15 +397,17 @@ def process_run(
         steps = [ingest_step(loaded, time.perf_counter() - started)]
         if reason is not None:
             steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
-        cal, solve_steps, settings = solve_loaded(loaded)
+        cal, solve_steps, settings, budgets = solve_loaded(loaded)
         run_id = run_id_of(raw_hash_of([f.sha256 for f in loaded.raw_files]))
-        judged = check_run(loaded, cal, archive, run_id)
+        judged = check_run(loaded, cal, archive, run_id, budgets)
         rows = parameter_rows(cal, loaded.manifest.environment.temperature_c)
         protocol_name = f"{serial}_result.txt"
         result: ArchiveResult = archive_run(
             archive,
             run_record(loaded, cal, steps + solve_steps, settings, judged, rows),
-            extra_files={protocol_name: protocol_of(loaded, cal, judged, run_id, rows).encode()},
+            extra_files={
+                protocol_name: protocol_of(loaded, cal, judged, run_id, rows, budgets).encode()
+            },
             pending=pending,
         )
     except Exception as exc:

@@ -104,7 +104,7 @@ def test_ferraris_calibration_matches_imucal(ferraris_run) -> None:
     uncertainty of what acts on a resting sample: 3 x (bias std + |f| x the
     largest g-sensitivity std, a term imucal's model lacks).
     """
-    cal, _, _ = solve_loaded(ferraris_run)
+    cal, *_ = solve_loaded(ferraris_run)
     raw = pd.read_csv(FERRARIS / "example_ferraris_session.csv").iloc[:50]
     ref = pd.read_csv(FERRARIS / "reference" / "ferraris_example_calibrated_head50.csv")
     acc, gyr = cal.correct(

@@ -47,7 +47,7 @@ def _solve_layout(layout: str, seed: int, folder: Path) -> tuple[dict, dict]:
         sim = six_position_integral_run(random_errors(rng), rng, gravity=g, turns=2)
         write_csv_run(sim.segments, folder, CSV_MANIFEST, truth=sim.truth_dict())
     (source,) = discover_runs([folder])
-    cal, _, _ = solve_loaded(load_run(source))
+    cal, *_ = solve_loaded(load_run(source))
     truth = sim.truth_dict()["parameters"]
     return {n: (p.value, p.std) for n, p in cal.parameters.items()}, truth
 

@@ -92,7 +92,11 @@ def test_batch_archives_good_runs_and_reports_the_bad_one(prefect_harness, lab_d
         text = protocol.read_text()
         assert serial in text and "Quality control" in text and "gyr.scale.x" in text
         # the profile bounds gyro noise from above only, scale errors on both sides
-        lines = {line.split()[0]: line for line in text.splitlines() if line.startswith("gyr.")}
+        # (the parameter table's line: the uncertainty table after it repeats the names)
+        lines: dict[str, str] = {}
+        for line in text.splitlines():
+            if line.startswith("gyr."):
+                lines.setdefault(line.split()[0], line)
         assert "<=" in lines["gyr.noise.x"] and "+-" in lines["gyr.scale.x"]
 
     arch = resolve_archive(str(archive_dir))

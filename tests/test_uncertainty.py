@@ -6,10 +6,17 @@ import math
 
 import numpy as np
 import pytest
-from scipy import stats
+from scipy import signal, stats
 
 from calib_core.simulate import STATIC_LABELS
-from calib_core.uncertainty import InputQuantity, budgets, coverage_factor, monte_carlo
+from calib_core.uncertainty import (
+    K_PROPAGATED,
+    K_STUDENT,
+    InputQuantity,
+    budgets,
+    coverage_factor,
+    monte_carlo,
+)
 from calib_core.uncertainty_sources import EquipmentSpec, static_accel_budgets, static_reference
 
 
@@ -32,10 +39,45 @@ def test_budget_arithmetic_by_hand():
     assert rows["x2"].contribution == pytest.approx(1.0)
     assert b.uc == pytest.approx(3.0)  # sqrt(2^2 + 2^2 + 1^2)
     assert b.nu_eff == pytest.approx(81.0 / (16.0 / 4.0))  # 3^4 / (2^4 / 4) = 20.25
-    # Student t at 20.25 dof lies between the tabulated 2.086 (20) and 2.080 (21).
-    assert 2.080 < b.k < 2.086
     assert math.isclose(b.U, b.k * 3.0)
     assert not b.type_a_only and b.label == "Type A + Type B"
+    # A rectangular input contributes: k from the propagated distribution, not from t.
+    assert b.k_method == K_PROPAGATED
+    assert b.k == pytest.approx(_convolved_k(), rel=0.015)
+
+
+def _convolved_k() -> float:
+    """k of 2 t_4 + U(-2 sqrt 3, 2 sqrt 3) + N(0, 1) by numerical convolution of the pdfs.
+
+    Independent of the sampling in `propagated_coverage_factor`, whose 1e5 draws put the
+    quantiles ~0.4 % of U apart from the exact ones (sqrt(p (1 - p) / n) / f(q)), so 1.5 %
+    is over three of those.
+    """
+    dx = 1e-3
+    x = np.arange(-60.0, 60.0, dx)
+    pdf = stats.t.pdf(x / 2.0, 4) / 2.0
+    for other in (stats.uniform.pdf(x, -2 * math.sqrt(3), 4 * math.sqrt(3)), stats.norm.pdf(x)):
+        pdf = signal.fftconvolve(pdf, other, mode="same") * dx
+    cdf = np.cumsum(pdf) * dx
+    lo, hi = np.interp([0.025, 0.975], cdf, x)
+    return (hi - lo) / 2.0 / 3.0
+
+
+def test_normal_inputs_take_student_t():
+    inputs = [InputQuantity("x1", 1.0, 2.0, "normal", k=2.0), INPUTS[1]]  # u = 1 as before
+    b = budgets(_linear, inputs, {"y": (2.0, 4.0)})["y"]
+    assert b.nu_eff == pytest.approx(20.25) and b.k_method == K_STUDENT
+    # Student t at 20.25 dof lies between the tabulated 2.086 (20) and 2.080 (21).
+    assert 2.080 < b.k < 2.086
+
+
+def test_dominant_rectangular_coverage_factor():
+    # A lone rectangular input: the 95 % interval is +-0.95 a = +-1.645 u (GUM G.2.3 note).
+    b = budgets(lambda v: {"y": v["x1"]}, [InputQuantity("x1", 0.0, 1.0, "rectangular")],
+                {"y": (0.0, math.inf)})
+    assert b["y"].k == pytest.approx(0.95 * math.sqrt(3.0), rel=0.01)
+    back = type(b["y"]).from_dict(b["y"].to_dict())
+    assert back == b["y"]
 
 
 def test_distribution_divisors():

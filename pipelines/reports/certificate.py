@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 import pyarrow as pa  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
+from calib_core import params  # noqa: E402
 from calib_core.calibration import Calibration  # noqa: E402
 from calib_core.checks import ToleranceProfile  # noqa: E402
 from calib_core.units import DEG, STANDARD_GRAVITY  # noqa: E402
@@ -40,7 +41,11 @@ from calib_core.verification import (  # noqa: E402
 )
 from pipelines.reports import plots  # noqa: E402
 from pipelines.reports.display import display, tolerance  # noqa: E402
-from pipelines.reports.protocol import render_protocol  # noqa: E402
+from pipelines.reports.protocol import (  # noqa: E402
+    guard_band_of,
+    render_protocol,
+    verdict_of,
+)
 from pipelines.reports.render import Certificate, Section, render_html, render_pdf  # noqa: E402
 
 MG = 1e-3 * STANDARD_GRAVITY
@@ -130,6 +135,8 @@ def sections(summary: dict[str, Any], samples: pa.Table) -> Certificate:
         _environment_section(run),
         _procedure_section(run),
         _results_section(run),
+        _uncertainty_section(run),
+        _budget_section(run),
         _residuals_section(run, diagnosis),
         _repeatability_section(run),
         _verification_section(run),
@@ -270,6 +277,67 @@ def _results_section(run: _Archived) -> Section:
     )
 
 
+def _budgets(run: _Archived) -> dict[str, dict[str, Any]]:
+    """The archived GUM budgets (step "uncertainty"; empty for runs archived before it)."""
+    return _step(run.summary, "uncertainty").get("statistics", {}).get("budgets", {})
+
+
+def _decision_rule(run: _Archived) -> str:
+    """The statement of the decision rule the verdicts were judged by."""
+    said = _step(run.summary, "check").get("settings", {}).get("decision_rule")
+    if said:
+        return said
+    return run.profile.decision_rule.statement() if run.profile else "not recorded"
+
+
+def _uncertainty_section(run: _Archived) -> Section:
+    budgets = _budgets(run)
+    by_param = {
+        c["name"].removeprefix("param:"): c for c in run.checks if c["name"].startswith("param:")
+    }
+    rows = []
+    for name, b in budgets.items():
+        value, unit = display(name, b["value"])
+        U, _ = display(name, b["U"])
+        check = by_param.get(name)
+        w = guard_band_of(check)
+        rows.append([name, f"{value:+.6g}", f"{U:.2g}", unit, f"{b['k']:.2f}",
+                     f"{b['coverage']:.0%}", verdict_of(check), w])
+    methods = sorted({b["k_method"] for b in budgets.values()})
+    notes = sorted({n for b in budgets.values() for n in b["notes"]})
+    return Section(
+        "Measurement uncertainty and statement of conformity",
+        header=["parameter", "value", "U", "unit", "k", "coverage", "verdict", "guard band w"],
+        rows=rows,
+        paragraphs=[
+            "Expanded uncertainty U = k u_c (GUM, JCGM 100:2008), coverage probability about "
+            "95 %. Budget: " + ("; ".join(sorted({b["label"] for b in budgets.values()}))
+                                or "not evaluated (archived before uncertainty budgets)") + ".",
+            *(f"Coverage factor k: {m}." for m in methods),
+            *(f"Note: {n}." for n in notes),
+            _decision_rule(run),
+        ],
+    )
+
+
+def _budget_section(run: _Archived) -> Section:
+    rows = []
+    for name, b in _budgets(run).items():
+        for r in sorted(b["rows"], key=lambda r: -r["contribution"])[:3]:
+            if r["contribution"] <= 0:
+                continue
+            rows.append([name, r["source"], r["kind"], r["distribution"],
+                         f"{r['std_input']:.3g} {r['unit']}".strip(), f"{r['sensitivity']:.3g}",
+                         f"{r['contribution']:.3g} {params.unit_of(name)}",
+                         "inf" if r["dof"] is None else f"{r['dof']:.0f}"])
+    return Section(
+        "Uncertainty budget: dominant contributions (three largest per parameter, SI units)",
+        header=["parameter", "source", "type", "distribution", "u(x_i)", "c_i", "u_i(y)",
+                "dof"],
+        rows=rows,
+    )
+
+
 def _diagnosis(run: _Archived) -> ResidualDiagnosis | None:
     """The residual diagnosis archived with the check step, else made from the profile."""
     if "diagnosis" in run.check_stats:
@@ -364,6 +432,7 @@ def _verdict_section(run: _Archived) -> Section:
         pairs=[
             ("Overall result", calrow["verdict"].upper()),
             ("Judged by", f"profile {calrow['profile_name']} v{calrow['profile_version']}"),
+            ("Decision rule", _decision_rule(run).removeprefix("Decision rule: ")),
             ("Checks", f"{len(run.checks)} checked, {len(failed)} failed"),
             ("Failed", ", ".join(failed) or "none"),
         ],
@@ -415,6 +484,8 @@ def _protocol(run: _Archived) -> str:
         parameters=calrow["parameters"],
         checks=run.checks,
         verdict=calrow["verdict"],
+        budgets=_budgets(run),
+        decision_rule=_decision_rule(run),
     )
 
 

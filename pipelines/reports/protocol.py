@@ -38,6 +38,8 @@ def render_protocol(
     parameters: Iterable[Mapping[str, Any]],
     checks: Iterable[Mapping[str, Any]],
     verdict: str,
+    budgets: Mapping[str, Mapping[str, Any]] | None = None,
+    decision_rule: str | None = None,
 ) -> str:
     """Render the protocol text.
 
@@ -46,6 +48,8 @@ def render_protocol(
     parameters : dicts with name, value, std (SI units, canonical names).
     checks : dicts with name, value, limit, passed (``param:<name>`` checks
         give each parameter's tolerance; others are listed after the table).
+    budgets : name -> `calib_core.uncertainty.Budget.to_dict()` (SI): the uncertainty table.
+    decision_rule : the statement of the decision rule and its risk.
     """
     checks = list(checks)
     by_param = {
@@ -75,6 +79,7 @@ def render_protocol(
             tol, mark = f"{tol[0]:>3}{tol[1]:>9.4g}", "+" if check["passed"] else "-"
         u = _fmt(std, 13, signed=False)
         lines.append(f"{p['name']:<18}{_fmt(value, 13)}{u}  {unit:<10}{tol}  {mark}")
+    lines += uncertainty_lines(budgets or {}, by_param, decision_rule)
     other = [c for c in checks if not c["name"].startswith("param:")]
     if other:
         lines += [_RULE, "Checks", f"{'Check':<44}{'Value':>13}{'Limit':>13}  Result"]
@@ -92,3 +97,52 @@ def render_protocol(
         "",
     ]
     return "\n".join(lines)
+
+
+def verdict_of(check: Mapping[str, Any] | None) -> str:
+    """The ILAC-G8 verdict a parameter check's detail states ("" without one)."""
+    detail = "" if check is None else check.get("detail") or ""
+    _, sep, rest = detail.partition("; ")
+    return rest.split(" (", 1)[0] if sep else ""
+
+
+def guard_band_of(check: Mapping[str, Any] | None) -> str:
+    """The guard band "w = ..." a parameter check's detail states ("" without one)."""
+    detail = "" if check is None else check.get("detail") or ""
+    _, sep, rest = detail.rpartition(", w = ")
+    return rest.rstrip(")") if sep else ""
+
+
+def dominant_text(budget: Mapping[str, Any], n: int = 2) -> str:
+    """The `n` largest contributions as "source 61 %" (share of u_c^2)."""
+    uc2 = budget["uc"] ** 2
+    if uc2 == 0:
+        return ""
+    # Shares below 1 % say nothing on a certificate.
+    rows = sorted((r for r in budget["rows"] if r["contribution"] ** 2 >= 0.01 * uc2),
+                  key=lambda r: -r["contribution"])[:n]
+    return ", ".join(f"{r['source']} {100 * r['contribution'] ** 2 / uc2:.0f} %" for r in rows)
+
+
+def uncertainty_lines(
+    budgets: Mapping[str, Mapping[str, Any]], by_param: Mapping[str, Mapping[str, Any]],
+    decision_rule: str | None,
+) -> list[str]:
+    """The uncertainty table (value, U, k, coverage, verdict, dominant contributions)."""
+    if not budgets:
+        return []
+    lines = [_RULE, "Measurement uncertainty (GUM): expanded uncertainty U = k u_c",
+             f"{'Parameter':<18}{'Value':>13}{'U':>11}  {'Unit':<10}{'k':>5}{'p':>6}  "
+             f"{'Verdict':<17}Dominant contributions"]
+    for name in sorted(budgets):
+        b = budgets[name]
+        value, unit = display(name, b["value"])
+        U, _ = display(name, b["U"])
+        lines.append(f"{name:<18}{_fmt(value, 13)}{U:>11.3g}  {unit:<10}{b['k']:>5.2f}"
+                     f"{b['coverage']:>6.0%}  {verdict_of(by_param.get(name)):<17}"
+                     f"{dominant_text(b)}")
+    labels = sorted({b["label"] for b in budgets.values()})
+    lines.append("Budget: " + "; ".join(labels))
+    if decision_rule:
+        lines.append(decision_rule)
+    return lines

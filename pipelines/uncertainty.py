@@ -1,0 +1,81 @@
+"""The run's uncertainty budget (issue 21): equipment specifications from the manifest, the step.
+
+The Type B sources a run can claim follow from the equipment its manifest names
+(docs/uncertainty.md): a ``cube`` (fixture) gives the face-angle and turn-angle errors, a
+``rate_table`` the rate and turn-angle errors; local gravity's uncertainty follows the site's
+gravity model. Specifications default to `calib_core.uncertainty_sources.EquipmentSpec`'s values
+and can be set per run in ``[run.settings.uncertainty]``. A run that names no equipment gets
+budgets labelled Type A only (equipment unknown).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import asdict, replace
+from typing import Any
+
+from calib_core.calibration import Calibration, StepRecord
+from calib_core.preprocess.chain import settings_table
+from calib_core.recording import Recording
+from calib_core.run_budget import budgets_doc, run_budgets
+from calib_core.uncertainty import Budget
+from calib_core.uncertainty_sources import EquipmentSpec
+from calib_core.units import DEG
+from pipelines.ingest.manifest import RunManifest
+
+# Expanded uncertainty (k = 2) of local gravity by the site's gravity model, m/s^2: a survey
+# (measured), a latitude/height formula without local anomalies (helmert, wgs84: anomalies of
+# up to ~100 mGal), or the standard value used anywhere on Earth (9.780 .. 9.832).
+GRAVITY_EXPANDED = {"measured": 1e-4, "helmert": 2e-3, "wgs84": 2e-3, "standard": 3e-2}
+# [run.settings.uncertainty] keys: (EquipmentSpec field, factor to SI).
+SETTINGS = {
+    "gravity_expanded_mps2": ("gravity_expanded", 1.0),
+    "cube_angle_deg": ("cube_angle", DEG),
+    "table_rate_rel": ("table_rate_rel", 1.0),
+    "turn_angle_deg": ("turn_angle", DEG),
+}
+
+
+def equipment_spec(manifest: RunManifest) -> EquipmentSpec | None:
+    """The Type B specifications the run's equipment supports; None when it names none."""
+    kinds = {e.kind for e in manifest.equipment}
+    if not kinds:
+        return None
+    default = EquipmentSpec()
+    spec = EquipmentSpec(
+        gravity_expanded=GRAVITY_EXPANDED[manifest.site.gravity_model],
+        cube_angle=default.cube_angle if "cube" in kinds else None,
+        table_rate_rel=default.table_rate_rel if "rate_table" in kinds else None,
+        turn_angle=default.turn_angle if kinds & {"cube", "rate_table"} else None,
+    )
+    given = settings_table(manifest.run.settings, "uncertainty", set(SETTINGS)) or {}
+    for key, value in given.items():
+        if isinstance(value, bool) or not isinstance(value, int | float) or not (
+            value >= 0 and math.isfinite(value)
+        ):
+            raise ValueError(
+                f"run.settings.uncertainty.{key}: expected a number >= 0, got {value!r}"
+            )
+        field_name, factor = SETTINGS[key]
+        spec = replace(spec, **{field_name: float(value) * factor})
+    return spec
+
+
+def uncertainty_step(
+    cal: Calibration, segments: Mapping[str, Recording], settings: Mapping[str, Any],
+    manifest: RunManifest,
+) -> tuple[dict[str, Budget], StepRecord]:
+    """The budgets of the run and the step record that archives them with the specification."""
+    started = time.perf_counter()
+    spec = equipment_spec(manifest)
+    result = run_budgets(cal, segments, settings, spec)
+    step = StepRecord(
+        "uncertainty",
+        settings={"equipment_spec": None if spec is None else asdict(spec),
+                  "equipment": sorted({e.kind for e in manifest.equipment})},
+        statistics={"budgets": budgets_doc(result),
+                    "seconds": round(time.perf_counter() - started, 4)},
+    )
+    return result, step

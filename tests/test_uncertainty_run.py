@@ -1,0 +1,254 @@
+"""The uncertainty budget of a run (issue 21): coverage on simulated runs, the decision rule in the
+run's checks, and the budget in the archive, the protocol and the certificate (HTML and PDF)."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pypdf
+import pytest
+
+from calib_core import procedures
+from calib_core.calibration import Calibration
+from calib_core.checks import ToleranceProfile, check_parameters
+from calib_core.decision import COND_FAIL, COND_PASS, DecisionRule
+from calib_core.run_budget import run_budgets
+from calib_core.simulate import random_errors, six_position_integral_run
+from calib_core.uncertainty import budgets as make_budgets
+from calib_core.uncertainty_sources import EquipmentSpec
+from calib_core.units import STANDARD_GRAVITY
+from calib_core.verification import FAIL, NEEDS_REVIEW, overall_verdict
+from pipelines.ingest import discover_runs
+from pipelines.process import process_run
+from pipelines.reports.certificate import write_reports
+from pipelines.run_writers import write_csv_run
+from pipelines.tolerances import SHIPPED
+from storage import queries
+from storage.db import resolve_archive
+
+G_U = 0.02  # m/s^2, expanded (k = 2) uncertainty of the gravity the simulated runs use
+
+
+def _coverage_runs(n_runs: int) -> tuple[int, int]:
+    """(hits, intervals) of the 95 % intervals of simulated six-position runs.
+
+    Known truth: the error model, white noise, and the true local gravity drawn from the
+    stated normal distribution (U = G_U at k = 2) while the solver is given 9.80665 m/s^2;
+    only gravity is a Type B source (the simulator has no fixture or turn-angle errors).
+    """
+    rng = np.random.default_rng(2021)
+    spec = EquipmentSpec(gravity_expanded=G_U, cube_angle=None, table_rate_rel=None,
+                         turn_angle=None)
+    hits = total = 0
+    for _ in range(n_runs):
+        truth = random_errors(rng)
+        g_true = STANDARD_GRAVITY + G_U / 2 * rng.standard_normal()
+        run = six_position_integral_run(truth, rng, gravity=g_true, static_s=5.0)
+        cal = procedures.solve("six_position", run.segments, STANDARD_GRAVITY, {})
+        b = run_budgets(cal, run.segments, {}, spec)
+        for name, true in truth.parameters().items():
+            if name not in b or ".noise." in name:  # largest per-position std: biased upwards
+                continue
+            total += 1
+            hits += abs(b[name].value - true) <= b[name].U
+    return hits, total
+
+
+def test_budget_covers_the_truth_of_simulated_runs() -> None:
+    hits, total = _coverage_runs(12)
+    # 12 runs x 24 parameters = 288 intervals; at 95 % the count's binomial std is
+    # sqrt(288 0.95 0.05) = 3.7, so 0.90..0.99 is > 3.5 std either side (the intervals of
+    # one run share its noise and gravity, which widens the spread a little).
+    assert total == 288
+    assert 0.90 <= hits / total <= 0.99, hits / total
+
+
+def test_equipment_unknown_and_unmodelled_procedures_are_type_a_only() -> None:
+    rng = np.random.default_rng(5)
+    run = six_position_integral_run(random_errors(rng), rng, static_s=5.0)
+    cal = procedures.solve("six_position", run.segments, STANDARD_GRAVITY, {})
+    unknown = run_budgets(cal, run.segments, {}, None)["acc.scale.x"]
+    known = run_budgets(cal, run.segments, {}, EquipmentSpec())["acc.scale.x"]
+    assert unknown.type_a_only and unknown.label == "Type A only (equipment unknown)"
+    assert not known.type_a_only and known.U > unknown.U
+    other = Calibration(procedure="centrifuge", gravity=STANDARD_GRAVITY)
+    other.add("acc.scale.x", 0.01, 1e-4)
+    b = run_budgets(other, {}, {}, EquipmentSpec())["acc.scale.x"]
+    assert b.type_a_only and "procedure 'centrifuge' not modelled" in b.label
+
+
+def _judged(value: float, U: float, rule: DecisionRule):
+    cal = Calibration(procedure="six_position", gravity=STANDARD_GRAVITY)
+    cal.add("acc.scale.x", value, U / 2)
+    budgets = make_budgets(lambda v: {"acc.scale.x": value}, [], {"acc.scale.x": (U / 2, 1e9)})
+    profile = ToleranceProfile("t", "1", "X", [], decision_rule=rule)
+    profile.parameter_limits = ToleranceProfile.from_dict(
+        {"name": "t", "version": "1", "device_model": "X",
+         "limits": [{"pattern": "acc.scale.*", "bound": 0.01, "unit": "1"}]}
+    ).parameter_limits
+    (check,) = check_parameters(cal, profile, budgets)
+    return check, budgets["acc.scale.x"].U
+
+
+@pytest.mark.parametrize(
+    ("value", "verdict", "overall"),
+    [(0.0070, "pass", "pass"), (0.0095, COND_PASS, NEEDS_REVIEW), (0.0105, COND_FAIL, FAIL),
+     (0.0140, "fail", FAIL)],
+)
+def test_guard_band_verdicts_in_the_run_checks(value, verdict, overall) -> None:
+    # U = 1.96 u with u = 0.001: w = U ~ 0.00196; the limit is 0.01.
+    check, U = _judged(value, 0.002 / 1.0204, DecisionRule("guard_band"))
+    assert f"; {verdict} (rule guard_band, U = {U:.3g} 1" in check.detail
+    assert check.passed == (verdict == "pass")
+    assert overall_verdict([check]) == overall
+    simple, _ = _judged(0.0095, 0.002, DecisionRule("simple"))
+    assert simple.passed and "; pass (rule simple" in simple.detail
+
+
+# --- the archived run, its protocol and certificate ------------------------------------------
+
+ACC_SCALE_X = 0.0100  # truth, inside the 0.011 limit of the profile below by less than U
+
+
+def _guarded_profile(folder: Path) -> Path:
+    """The shipped mpu6000 profile with a guard band (w = U) and acc.scale.x within 0.011."""
+    text = (SHIPPED / "mpu6000.toml").read_text()
+    text = text.replace('name = "mpu6000"', 'name = "guarded"')
+    text = text.replace('decision_rule = { name = "simple" }',
+                        'decision_rule = { name = "guard_band" }')
+    first = text.index("[[limits]]")
+    limit = '[[limits]]\npattern = "acc.scale.x"\nbound = 0.011\nunit = "1"\n\n'
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "guarded.toml").write_text(text[:first] + limit + text[first:])
+    return folder
+
+
+def _manifest(serial: str, equipment: bool) -> dict:
+    return {
+        "schema_version": 1,
+        "unit": {"serial": serial, "model": "MPU-6000", "manufacturer": "InvenSense"},
+        "run": {"started": "2026-11-20T09:00:00+00:00", "operator": "test",
+                "procedure": "six_position_integral", "tolerance_profile": "guarded"},
+        "site": {"gravity_model": "standard"},  # U(g) = 0.03 m/s^2: acc.scale U ~ 3e-3
+        "environment": {"temperature_c": 20.0},
+        "format": {"acc_unit": "g"},
+        "equipment": [{"kind": "cube", "model": "PC-100", "serial": "CUBE-1",
+                       "calibration_due": "2027-11-15"}] if equipment else [],
+    }
+
+
+@pytest.fixture(scope="module")
+def archived(tmp_path_factory: pytest.TempPathFactory):
+    """Two simulated runs processed into a real SQLite archive, with their reports."""
+    tmp = tmp_path_factory.mktemp("budget-run")
+    arch = resolve_archive(str(tmp / "archive"))
+    arch.upgrade()
+    out = {}
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("CALIB_PROFILES", str(_guarded_profile(tmp / "profiles")))
+        for serial, equipment in (("U-KNOWN", True), ("U-BARE", False)):
+            rng = np.random.default_rng(7)
+            truth = copy.deepcopy(random_errors(rng))
+            truth.acc_M[np.diag_indices(3)] = ACC_SCALE_X, 0.0, -0.005  # y, z clear of limits
+            truth.gyr_noise[:] = np.radians(0.01)  # within the profile's 0.05 deg/s
+            run = six_position_integral_run(truth, rng, static_s=5.0)
+            write_csv_run(dict(run.segments), tmp / serial, _manifest(serial, equipment))
+            (source,) = discover_runs([tmp / serial])
+            outcome = process_run(source, arch)
+            assert outcome["status"] == "ok", outcome["error"]
+            summary = queries.run_summary(arch, outcome["run_id"])
+            # The PDF of one run (rendering its figures takes seconds on a busy machine).
+            files = write_reports(summary, queries.run_samples(arch, outcome["run_id"]),
+                                  tmp / f"{serial}-reports", pdf=equipment)
+            pdf = "\n".join(p.extract_text() for p in pypdf.PdfReader(files["pdf"]).pages
+                            ) if equipment else ""
+            out[serial] = (outcome, summary, files["html"].read_text(), pdf,
+                           files["protocol"].read_text())
+    return out
+
+
+def _budgets(summary: dict) -> dict:
+    step = next(s for s in summary["calibration"]["steps"] if s["name"] == "uncertainty")
+    return step["statistics"]["budgets"]
+
+
+def test_budget_archived_per_parameter(archived) -> None:
+    outcome, summary, *_ = archived["U-KNOWN"]
+    budgets = _budgets(summary)
+    with_std = {p["name"] for p in summary["calibration"]["parameters"] if p["std"] is not None}
+    assert set(budgets) == with_std
+    scale = budgets["acc.scale.x"]
+    assert scale["label"] == "Type A + Type B" and scale["coverage"] == 0.95
+    # Gravity dominates: d scale / d g = -(1 + s) / g, u(g) = 0.03 / 2 -> u ~ 1.5e-3.
+    top = max(scale["rows"], key=lambda r: r["contribution"])
+    assert top["source"] == "gravity"
+    assert top["contribution"] == pytest.approx((1 + ACC_SCALE_X) * 0.015 / STANDARD_GRAVITY,
+                                                rel=0.01)
+    assert scale["U"] == pytest.approx(scale["k"] * scale["uc"])
+    step = next(s for s in summary["calibration"]["steps"] if s["name"] == "uncertainty")
+    assert step["settings"]["equipment_spec"]["gravity_expanded"] == 0.03
+    assert step["settings"]["equipment"] == ["cube"]
+    assert _budgets(archived["U-BARE"][1])["acc.scale.x"]["label"] == (
+        "Type A only (equipment unknown)")
+
+
+def test_guard_band_verdict_of_the_run(archived) -> None:
+    outcome, summary, *_ = archived["U-KNOWN"]
+    check = next(c for c in summary["calibration"]["checks"] if c["name"] == "param:acc.scale.x")
+    assert f"; {COND_PASS} (rule guard_band" in check["detail"] and not check["passed"]
+    failed = [c["name"] for c in summary["calibration"]["checks"] if not c["passed"]]
+    assert failed == ["param:acc.scale.x"]
+    assert outcome["verdict"] == NEEDS_REVIEW
+
+
+def _expected_rows(summary: dict) -> list[tuple[str, str]]:
+    from pipelines.reports.display import display
+
+    return [(name, f"{display(name, b['U'])[0]:.2g}") for name, b in _budgets(summary).items()]
+
+
+@pytest.mark.parametrize("form", ["html", "pdf"])
+def test_certificate_states_uncertainty_and_rule(archived, form) -> None:
+    _, summary, html, pdf, _ = archived["U-KNOWN"]
+    text = html if form == "html" else pdf
+    assert "Measurement uncertainty and statement of conformity" in text
+    assert "guarded acceptance" in text and "w = 1 U" in text
+    assert "conditional pass" in text
+    assert "Coverage factor k" in text and "about 95 %" in text
+    assert "Uncertainty budget: dominant contributions" in text
+    for name, U in _expected_rows(summary):
+        assert name in text and U in text, (name, U)
+    assert "Type A + Type B" in text
+    assert "Type A only (equipment unknown)" in archived["U-BARE"][2]  # its HTML
+
+
+def test_protocol_has_the_uncertainty_table(archived) -> None:
+    _, summary, _, _, protocol = archived["U-KNOWN"]
+    assert "Measurement uncertainty (GUM)" in protocol
+    assert "Decision rule: guarded acceptance" in protocol
+    line = next(x for x in protocol.splitlines() if x.startswith("acc.scale.x") and "gravity" in x)
+    assert COND_PASS in line
+
+
+def test_equipment_spec_from_the_manifest() -> None:
+    from pipelines.ingest.manifest import RunManifest
+    from pipelines.uncertainty import equipment_spec
+
+    doc = {**_manifest("S", equipment=True), "format": {"kind": "csv"}}
+    m = RunManifest.model_validate(doc)
+    spec = equipment_spec(m)
+    assert spec.gravity_expanded == 3e-2 and spec.cube_angle is not None
+    assert spec.table_rate_rel is None  # no rate table named
+    doc["run"]["settings"] = {"uncertainty": {"cube_angle_deg": 0.01, "table_rate_rel": 5e-5}}
+    spec = equipment_spec(RunManifest.model_validate(doc))
+    assert spec.cube_angle == pytest.approx(np.radians(0.01)) and spec.table_rate_rel == 5e-5
+    doc["run"]["settings"] = {"uncertainty": {"cube_angle": 0.01}}
+    with pytest.raises(ValueError, match="run.settings.uncertainty: unknown setting.*cube_angle"):
+        equipment_spec(RunManifest.model_validate(doc))
+    doc["run"]["settings"] = {"uncertainty": {"cube_angle_deg": -1}}
+    with pytest.raises(ValueError, match="cube_angle_deg: expected a number >= 0, got -1"):
+        equipment_spec(RunManifest.model_validate(doc))
+    doc = {**_manifest("S", equipment=False), "format": {"kind": "csv"}}
+    assert equipment_spec(RunManifest.model_validate(doc)) is None
