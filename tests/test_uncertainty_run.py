@@ -22,7 +22,7 @@ from calib_core.units import STANDARD_GRAVITY
 from calib_core.verification import FAIL, NEEDS_REVIEW, overall_verdict
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.reports.certificate import write_reports
+from pipelines.reports.certificate import report_run
 from pipelines.run_writers import write_csv_run
 from pipelines.tolerances import SHIPPED
 from storage import queries
@@ -125,11 +125,11 @@ def _guarded_profile(folder: Path) -> Path:
     return folder
 
 
-def _manifest(serial: str, equipment: bool) -> dict:
+def _manifest(serial: str, equipment: bool, day: int = 20) -> dict:
     return {
         "schema_version": 1,
         "unit": {"serial": serial, "model": "MPU-6000", "manufacturer": "InvenSense"},
-        "run": {"started": "2026-11-20T09:00:00+00:00", "operator": "test",
+        "run": {"started": f"2026-11-{day}T09:00:00+00:00", "operator": "test",
                 "procedure": "six_position_integral", "tolerance_profile": "guarded"},
         "site": {"gravity_model": "standard"},  # U(g) = 0.03 m/s^2: acc.scale U ~ 3e-3
         "environment": {"temperature_c": 20.0},
@@ -139,31 +139,39 @@ def _manifest(serial: str, equipment: bool) -> dict:
     }
 
 
+# serial -> (equipment named, [(day, true acc.scale.x)]): U-BARE comes back a day later with
+# its scale factor drifted by -0.002 (as found / as left).
+RUNS = {"U-KNOWN": (True, [(20, ACC_SCALE_X)]),
+        "U-BARE": (False, [(19, ACC_SCALE_X), (20, ACC_SCALE_X - 0.002)])}
+
+
 @pytest.fixture(scope="module")
 def archived(tmp_path_factory: pytest.TempPathFactory):
-    """Two simulated runs processed into a real SQLite archive, with their reports."""
+    """Simulated runs processed into a real SQLite archive; each serial's last run reported."""
     tmp = tmp_path_factory.mktemp("budget-run")
     arch = resolve_archive(str(tmp / "archive"))
     arch.upgrade()
     out = {}
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("CALIB_PROFILES", str(_guarded_profile(tmp / "profiles")))
-        for serial, equipment in (("U-KNOWN", True), ("U-BARE", False)):
-            rng = np.random.default_rng(7)
-            truth = copy.deepcopy(random_errors(rng))
-            truth.acc_M[np.diag_indices(3)] = ACC_SCALE_X, 0.0, -0.005  # y, z clear of limits
-            truth.gyr_noise[:] = np.radians(0.01)  # within the profile's 0.05 deg/s
-            run = six_position_integral_run(truth, rng, static_s=5.0)
-            write_csv_run(dict(run.segments), tmp / serial, _manifest(serial, equipment))
-            (source,) = discover_runs([tmp / serial])
-            outcome = process_run(source, arch)
-            assert outcome["status"] == "ok", outcome["error"]
+        for serial, (equipment, days) in RUNS.items():
+            for day, scale_x in days:
+                rng = np.random.default_rng(7)
+                truth = copy.deepcopy(random_errors(rng))
+                truth.acc_M[np.diag_indices(3)] = scale_x, 0.0, -0.005  # y, z clear of limits
+                truth.gyr_noise[:] = np.radians(0.01)  # within the profile's 0.05 deg/s
+                run = six_position_integral_run(truth, rng, static_s=5.0)
+                folder = tmp / f"{serial}-{day}"
+                write_csv_run(dict(run.segments), folder, _manifest(serial, equipment, day))
+                (source,) = discover_runs([folder])
+                outcome = process_run(source, arch)
+                assert outcome["status"] == "ok", outcome["error"]
+                if day == 19:
+                    out["earlier"] = queries.run_summary(arch, outcome["run_id"])["calibration"]
+                    out["earlier"]["run_id"] = outcome["run_id"]
             summary = queries.run_summary(arch, outcome["run_id"])
-            # The PDF of one run (rendering its figures takes seconds on a busy machine).
-            files = write_reports(summary, queries.run_samples(arch, outcome["run_id"]),
-                                  tmp / f"{serial}-reports", pdf=equipment)
-            pdf = "\n".join(p.extract_text() for p in pypdf.PdfReader(files["pdf"]).pages
-                            ) if equipment else ""
+            files = report_run(arch, outcome["run_id"], tmp / f"{serial}-reports")
+            pdf = "\n".join(p.extract_text() for p in pypdf.PdfReader(files["pdf"]).pages)
             out[serial] = (outcome, summary, files["html"].read_text(), pdf,
                            files["protocol"].read_text())
     return out
@@ -221,7 +229,7 @@ def test_certificate_states_uncertainty_and_rule(archived, form) -> None:
     for name, U in _expected_rows(summary):
         assert name in text and U in text, (name, U)
     assert "Type A + Type B" in text
-    assert "Type A only (equipment unknown)" in archived["U-BARE"][2]  # its HTML
+    assert "Type A only (equipment unknown)" in archived["U-BARE"][2 if form == "html" else 3]
 
 
 def test_protocol_has_the_uncertainty_table(archived) -> None:
@@ -252,3 +260,22 @@ def test_equipment_spec_from_the_manifest() -> None:
         equipment_spec(RunManifest.model_validate(doc))
     doc = {**_manifest("S", equipment=False), "format": {"kind": "csv"}}
     assert equipment_spec(RunManifest.model_validate(doc)) is None
+
+
+@pytest.mark.parametrize("form", ["html", "pdf"])
+def test_as_found_and_as_left_of_a_recalibrated_unit(archived, form) -> None:
+    _, summary, html, pdf, _ = archived["U-BARE"]
+    text = html if form == "html" else pdf
+    assert "As found / as left (ISO/IEC 17025:2017 7.8.4.2)" in text
+    earlier = archived["earlier"]
+    assert f"run {earlier['run_id']} of 2026-11-19, revision 1" in text
+    before = {p["name"]: p["value"] for p in earlier["parameters"]}
+    after = {p["name"]: p["value"] for p in summary["calibration"]["parameters"]}
+    error = after["acc.scale.x"] - before["acc.scale.x"]
+    # The truth drifted by -0.002; each estimate's Type A u is ~2e-5, so the difference is
+    # within 2e-4 (~7 of its std) of the drift.
+    assert error == pytest.approx(-0.002, abs=2e-4)
+    for shown in (f"{before['acc.scale.x']:+.6g}", f"{after['acc.scale.x']:+.6g}",
+                  f"{error:+.3g}"):
+        assert shown in text, shown
+    assert "No earlier valid calibration" in archived["U-KNOWN"][2 if form == "html" else 3]

@@ -16,7 +16,7 @@ out as HTML and PDF.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import date, datetime
+from datetime import date, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -137,6 +137,7 @@ def sections(summary: dict[str, Any], samples: pa.Table) -> Certificate:
         _results_section(run),
         _uncertainty_section(run),
         _budget_section(run),
+        _as_found_section(run),
         _residuals_section(run, diagnosis),
         _repeatability_section(run),
         _verification_section(run),
@@ -311,8 +312,9 @@ def _uncertainty_section(run: _Archived) -> Section:
         rows=rows,
         paragraphs=[
             "Expanded uncertainty U = k u_c (GUM, JCGM 100:2008), coverage probability about "
-            "95 %. Budget: " + ("; ".join(sorted({b["label"] for b in budgets.values()}))
-                                or "not evaluated (archived before uncertainty budgets)") + ".",
+            "95 %.",
+            "Budget: " + ("; ".join(sorted({b["label"] for b in budgets.values()}))
+                          or "not evaluated (archived before uncertainty budgets)") + ".",
             *(f"Coverage factor k: {m}." for m in methods),
             *(f"Note: {n}." for n in notes),
             _decision_rule(run),
@@ -335,6 +337,42 @@ def _budget_section(run: _Archived) -> Section:
         header=["parameter", "source", "type", "distribution", "u(x_i)", "c_i", "u_i(y)",
                 "dof"],
         rows=rows,
+    )
+
+
+def _as_found_section(run: _Archived) -> Section:
+    """As found (the unit with its earlier calibration) and as left (this one), 7.8.4.2."""
+    title = "As found / as left (ISO/IEC 17025:2017 7.8.4.2)"
+    earlier = run.summary.get("as_found")
+    if not earlier:
+        return Section(title, paragraphs=[
+            "No earlier valid calibration of this unit in the archive: no as-found values."])
+    before = {p["name"]: p["value"] for p in earlier["parameters"]}
+    budgets = _budgets(run)
+    rows = []
+    for p in run.calrow["parameters"]:
+        name = p["name"]
+        if name not in before or ".noise." in name:
+            continue
+        error = p["value"] - before[name]
+        U = budgets.get(name, {}).get("U")
+        found = None if run.profile is None else run.profile.judge(name, error, U or 0.0)
+        rows.append([name, f"{display(name, before[name])[0]:+.6g}",
+                     f"{display(name, p['value'])[0]:+.6g}", display(name, 0.0)[1],
+                     f"{display(name, error)[0]:+.3g}",
+                     "-" if U is None else f"{display(name, U)[0]:.2g}", found or "-"])
+    return Section(
+        title,
+        header=["parameter", "as found", "as left", "unit", "error as found", "U",
+                "as-found verdict"],
+        rows=rows,
+        paragraphs=[
+            f"As found: the unit with its earlier calibration (run {earlier['run_id']} of "
+            f"{earlier['started_at']:%Y-%m-%d}, revision {earlier['revision']}); its parameters "
+            "evaluated on this run's data leave the error as found = as left - as found, judged "
+            "against the tolerance with this run's U by the decision rule. As left: this "
+            "calibration, to be loaded into the unit.",
+        ],
     )
 
 
@@ -563,6 +601,8 @@ def report_run(archive, run_id: str, folder: Path | None = None, *, pdf: bool = 
     from storage import queries
 
     summary = queries.run_summary(archive, run_id)
+    summary["as_found"] = queries.latest_calibration(
+        archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1))
     samples = queries.run_samples(archive, run_id)
     folder = folder if folder is not None else archive.root / summary["run_dir"]
     written = write_reports(summary, samples, folder, pdf=pdf)
