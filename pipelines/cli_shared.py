@@ -377,8 +377,21 @@ def interrupt_exits_at_once() -> Iterator[Callable[[int, int, dict], None]]:
     previous = signal.signal(signal.SIGINT, stop)
     try:
         yield count
-    finally:
+    except BaseException:
         signal.signal(signal.SIGINT, previous)
+        raise
+    # The batch is over and every run archived: a Ctrl-C while the results are printed or
+    # while Prefect stops its temporary server at exit only ends calib (no traceback).
+    signal.signal(signal.SIGINT, _quiet_exit)
+
+
+def _quiet_exit(_signum: int, _frame: object) -> None:
+    """SIGINT after a finished batch: stop Prefect's temporary server, exit 130 at once."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from pipelines.flows import stop_temporary_api
+
+    stop_temporary_api()
+    os._exit(130)
 
 
 @contextlib.contextmanager

@@ -115,3 +115,22 @@ def test_a_prefect_batch_prints_no_logs_or_tracebacks(tmp_path: Path) -> None:
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert done.stderr == "", done.stderr
+
+
+def test_ctrl_c_after_a_finished_batch_ends_without_a_traceback() -> None:
+    """After the batch (the table printed, Prefect stopping its temporary server), Ctrl-C
+    ends calib with 130 and nothing on stderr (a KeyboardInterrupt traceback before)."""
+    code = (
+        "import os, signal, time\n"
+        "from pipelines.cli_shared import interrupt_exits_at_once\n"
+        "with interrupt_exits_at_once():\n"
+        "    pass\n"
+        "os.kill(os.getpid(), signal.SIGINT)\n"
+        "time.sleep(5)\n"
+        "print('not interrupted')\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
+    env.update(PYTHONPATH=str(ROOT), DO_NOT_TRACK="1", PREFECT_SERVER_ANALYTICS_ENABLED="false")
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                          timeout=120)  # fmt: skip
+    assert done.returncode == 130 and done.stderr == "" and done.stdout == "", done.stderr
