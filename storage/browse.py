@@ -327,18 +327,6 @@ def thermal_model(archive: Archive, serial: str) -> dict[str, Any] | None:
 # --- archive-wide -------------------------------------------------------------------
 
 
-def version(archive: Archive) -> tuple[int | None, int | None]:
-    """A key that changes whenever the archive does: its newest run and calibration ids.
-
-    The archive is append-only: a new run adds a run row, processing again adds a
-    calibration row (and marks the older one superseded in the same transaction), so
-    derived page data can be cached under this key.
-    """
-    with archive.engine().connect() as conn:
-        return (conn.execute(select(func.max(Run.id))).scalar_one(),
-                conn.execute(select(func.max(CalibrationRow.id))).scalar_one())  # fmt: skip
-
-
 def facts(archive: Archive) -> dict[str, Any]:
     """The archive's size and schema: runs, units, schema_revision."""
     with archive.engine().connect() as conn:

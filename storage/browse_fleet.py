@@ -1,21 +1,29 @@
 """Read-only questions of the archive browser about fleets and equipment (`calib serve`).
 
-A device model's units with their latest run and latest valid calibration, one
-parameter's values over them, equipment with its due dates and the runs made while
-its calibration had lapsed. Inputs are validated and bound as in storage.browse.
+A device model's units by their latest run and one parameter's values over their latest
+valid calibrations (as storage.queries.fleet), equipment with its due dates and the runs
+made while its calibration had lapsed. Inputs are validated and bound as in storage.browse.
 """
 
 from __future__ import annotations
 
+import functools
+import math
+from collections import Counter
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import UTC
 from typing import Any
 
-from sqlalchemy import ARRAY, Integer, any_, bindparam, func, select
+from sqlalchemy import Integer, Select, bindparam, func, or_, select, true
+from sqlalchemy.orm import aliased
 
 from storage.db import Archive
 from storage.queries import check_parameter, check_text
+from storage.queries._common import _FOREVER, PASS
+from storage.queries.history import FLEET_DEVICE, FLEET_PICK
 from storage.schema import CalibrationRow, Device, Equipment, ParameterRow, Run, RunEquipment
+
+REFERENCE_C = 20.0  # of temperature-dependent values, the one nearest this (deg C)
 
 
 def models(archive: Archive) -> list[dict[str, Any]]:
@@ -29,140 +37,160 @@ def models(archive: Archive) -> list[dict[str, Any]]:
         return [dict(r._mapping) for r in conn.execute(stmt).all()]
 
 
-_IN_CHUNK = 5000  # bound parameters per IN list (SQLite allows 32766, PostgreSQL 65535)
-
-
-def _among(archive: Archive, column, n: int):  # noqa: ANN001, ANN202
-    """(column IN :ids, ids per statement): an expanding IN list on SQLite, one array
-    parameter on PostgreSQL (6k separate parameters cost it ~0.1 s of planning)."""
-    if archive.is_sqlite:
-        return column.in_(bindparam("ids", expanding=True)), _IN_CHUNK
-    return column == any_(bindparam("ids", type_=ARRAY(Integer))), max(n, 1)
+FAILING_MAX = 200
 
 
 @dataclass
-class Fleet:
-    """The units of a device model (storage.browse.model_fleet).
+class FleetUnits:
+    """The units of a device model as their latest runs leave them (`fleet_units`).
 
-    units : one dict per unit, by serial: serial, runs (count), and of its latest run
-        run_id, started_at, verdict, profile_name (current revision).
-    valid : calibration id -> (serial, run_id, started_at) of each unit's latest valid
-        calibration (current revision, verdict pass), as in storage.queries.fleet.
+    units : number of units of the model.
+    latest : verdict of each unit's latest run (current revision; None: no calibration)
+        -> number of units.
+    profiles : tolerance profile name of those calibrations -> number of units.
+    failing : the first `FAILING_MAX` units, by serial, whose latest run did not pass:
+        serial, run_id, started_at, verdict, runs (the unit's run count).
     """
 
-    units: list[dict[str, Any]]
-    valid: dict[int, tuple[str, str, datetime]]
+    units: int
+    latest: dict[str | None, int]
+    profiles: dict[str, int]
+    failing: list[dict[str, Any]]
+
+    @property
+    def n_failing(self) -> int:
+        return sum(n for v, n in self.latest.items() if v != PASS)
 
 
-def model_fleet(archive: Archive, model: str) -> Fleet:
-    """Every unit of `model` with its latest run and its latest valid calibration.
+def _per_unit(sqlite: bool, dev, pick: Select):  # noqa: ANN001, ANN202
+    """The units of model :model (`dev`, an aliased Device) with the one id `pick` selects
+    for each (a LIMIT 1 select correlated to `dev`): a subquery of (serial, device_id,
+    pick). Where `pick` finds nothing it is NULL (SQLite) or the unit is left out
+    (PostgreSQL).
 
-    One grouped pass over the model's runs (the newest start per unit, on
-    ix_runs_device_id_started_at) and one seek per unit for that run; only for units
-    whose latest run did not pass, a second grouped pass over their valid runs. 6k
-    units / 60k runs in ~0.2 s on SQLite, where fetching every run took ~0.6 s. Of runs
-    of one unit with the same start the later archived one counts, as in
-    storage.queries.fleet.
+    SQLite evaluates a correlated scalar subquery once per unit here; PostgreSQL plans
+    the same scalar subquery in a join condition as a hash join over every row of the
+    picked table (0.9 s for 6k units), so there it is a LATERAL join (one index walk per
+    unit, as on SQLite).
+    """
+    model = dev.model == bindparam("model")
+    if sqlite:
+        one = pick.correlate(dev).scalar_subquery()
+        stmt = select(dev.serial, dev.id.label("device_id"), one.label("pick")).where(model)
+    else:
+        one = pick.correlate(dev).lateral("one")
+        stmt = (select(dev.serial, dev.id.label("device_id"), one.c[0].label("pick"))
+                .select_from(dev).join(one, true()).where(model))  # fmt: skip
+    return stmt.subquery("per_unit")
+
+
+@functools.cache
+def _fleet_statements(sqlite: bool) -> tuple[Select, Select, Select]:
+    """(verdict and profile counts, failing units, values) of a fleet, with bound :model,
+    :n (failing units listed), :name and :at; built once per back end (building a select
+    costs more than running it, and a fresh alias would miss the compiled cache)."""
+    dev = aliased(Device)
+    latest_run = (select(Run.id).where(Run.device_id == dev.id)
+                  .order_by(Run.started_at.desc(), Run.id.desc()).limit(1))  # fmt: skip
+    units = _per_unit(sqlite, dev, latest_run)
+    current = (CalibrationRow.run_id == units.c.pick) & CalibrationRow.superseded_by.is_(None)
+    base = (select().select_from(units).outerjoin(CalibrationRow, current)
+            .where(units.c.pick.is_not(None)))  # a unit without runs has no latest run
+    grouped = base.add_columns(CalibrationRow.verdict, CalibrationRow.profile_name,
+                               func.count()).group_by(CalibrationRow.verdict,
+                                                      CalibrationRow.profile_name)  # fmt: skip
+    other = aliased(Run)
+    runs = (select(func.count()).select_from(other).where(other.device_id == units.c.device_id)
+            .correlate(units).scalar_subquery())  # fmt: skip
+    failing = (
+        base.add_columns(units.c.serial, Run.run_id, Run.started_at, CalibrationRow.verdict,
+                         runs.label("runs"))
+        .join(Run, Run.id == units.c.pick)
+        .where(or_(CalibrationRow.verdict.is_(None), CalibrationRow.verdict != PASS))
+        .order_by(units.c.serial).limit(bindparam("n", type_=Integer))
+    )  # fmt: skip
+    valid = _per_unit(sqlite, FLEET_DEVICE, FLEET_PICK.element)
+    values = (
+        select(valid.c.serial, ParameterRow.calibration_id, ParameterRow.value,
+               ParameterRow.temperature_c)
+        .join(ParameterRow, (ParameterRow.calibration_id == valid.c.pick)
+              & (ParameterRow.name == bindparam("name")))
+    )  # fmt: skip
+    return grouped, failing, values
+
+
+def fleet_units(archive: Archive, model: str, failing_max: int = FAILING_MAX) -> FleetUnits:
+    """Every unit of `model` by its latest run: verdict and profile counts, failing units.
+
+    Each unit's latest run is one backward step on ix_runs_device_id_started_at_id (the
+    later archived of runs with the same start, as in storage.queries.fleet), its current
+    revision one step on ix_calibrations_current; the counts are grouped in the
+    database, so no per-unit row reaches Python but the listed failing ones.
     """
     check_text(model, "model")
-    current = (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None)
-    newest = (
-        select(Run.device_id, func.max(Run.started_at).label("t"), func.count().label("n"))
-        .join(Device, Device.id == Run.device_id)
-        .where(Device.model == model)
-        .group_by(Run.device_id)
-        .subquery()
-    )
-    latest = (
-        select(Device.id, Device.serial, newest.c.n, Run.run_id, Run.started_at,
-               CalibrationRow.id, CalibrationRow.verdict, CalibrationRow.profile_name)
-        .select_from(newest)
-        .join(Device, Device.id == newest.c.device_id)
-        .join(Run, (Run.device_id == newest.c.device_id) & (Run.started_at == newest.c.t))
-        .outerjoin(CalibrationRow, current)
-        .order_by(Device.serial, Run.id)
-    )  # fmt: skip
-    units: dict[str, dict[str, Any]] = {}
-    valid: dict[str, tuple[int, str, datetime]] = {}
+    grouped, failing, _ = _fleet_statements(archive.is_sqlite)
+    latest: Counter[str | None] = Counter()
+    profiles: Counter[str] = Counter()
     with archive.engine().connect() as conn:
-        for dev_id, serial, n, run_id, started, cal_id, verdict, profile in conn.execute(latest):
-            units[serial] = {"serial": serial, "runs": n, "run_id": run_id,
-                             "started_at": started, "verdict": verdict,
-                             "profile_name": profile, "_id": dev_id}  # fmt: skip
-            if verdict == "pass":
-                valid[serial] = (cal_id, run_id, started)  # the later run id wins a tie
-            else:
-                valid.pop(serial, None)
-        rest = [u["_id"] for s, u in units.items() if s not in valid]
-        among, chunk = _among(archive, Run.device_id, len(rest))
-        for i in range(0, len(rest), chunk):
-            for cal_id, serial, run_id, started in conn.execute(
-                _older_valid(current, among), {"ids": rest[i:i + chunk]}
-            ):
-                valid[serial] = (cal_id, run_id, started)
-    for u in units.values():
-        del u["_id"]
-    return Fleet(list(units.values()),
-                 {cal: (serial, run_id, t) for serial, (cal, run_id, t) in valid.items()})
+        for verdict, profile, n in conn.execute(grouped, {"model": model}):
+            latest[verdict] += n
+            if profile:
+                profiles[profile] += n
+        rows = (conn.execute(failing, {"model": model, "n": failing_max}).all()
+                if latest.keys() - {PASS} else [])  # fmt: skip
+    return FleetUnits(sum(latest.values()), dict(latest), dict(profiles),
+                      [dict(r._mapping) for r in rows])
 
 
-def _older_valid(current, among):  # noqa: ANN001, ANN202 - conditions in, a select out
-    """Latest valid calibration of the units with ids :ids, by serial and run id."""
-    passed = current & (CalibrationRow.verdict == "pass")
-    newest_valid = (
-        select(Run.device_id, func.max(Run.started_at).label("t"))
-        .join(CalibrationRow, passed)
-        .where(among)
-        .group_by(Run.device_id)
-        .subquery()
-    )
-    return (
-        select(CalibrationRow.id, Device.serial, Run.run_id, Run.started_at)
-        .select_from(newest_valid)
-        .join(Device, Device.id == newest_valid.c.device_id)
-        .join(Run, (Run.device_id == newest_valid.c.device_id)
-              & (Run.started_at == newest_valid.c.t))
-        .join(CalibrationRow, passed)
-        .order_by(Device.serial, Run.id)
-    )  # fmt: skip
+def fleet_values(archive: Archive, model: str, name: str) -> list[dict[str, Any]]:
+    """Per unit of `model`, parameter `name` in its latest valid calibration: the value
+    nearest REFERENCE_C when temperature-dependent (the lower of two as near), by serial.
 
-
-
-
-def fleet_values(archive: Archive, fleet: Fleet, name: str) -> list[dict[str, Any]]:
-    """Values of parameter `name` in each unit's latest valid calibration, by serial.
-
-    Dicts: serial, run_id, started_at, value, std, unit, temperature_c (SI), the rows
-    of storage.queries.fleet.
+    The units and calibrations of storage.queries.fleet (its pick, FLEET_PICK), read
+    lean: serial, calibration id, value and temperature per row, 6k units without a date
+    to convert each; `fleet_lineage` adds the run of the few rows a page lists.
+    Dicts: serial, calibration_id, value (SI), temperature_c.
     """
+    check_text(model, "model")
     check_parameter(name)
-    ids = list(fleet.valid)
-    among, chunk = _among(archive, ParameterRow.calibration_id, len(ids))
-    stmt = select(ParameterRow.calibration_id, ParameterRow.value, ParameterRow.std,
-                  ParameterRow.unit, ParameterRow.temperature_c).where(
-        ParameterRow.name == name, among)  # fmt: skip
-    out = []
+    values = _fleet_statements(archive.is_sqlite)[2]
+    best: dict[str, tuple[tuple[float, float], tuple]] = {}
     with archive.engine().connect() as conn:
-        for i in range(0, len(ids), chunk):
-            for cal_id, value, std, unit, temp in conn.execute(stmt, {"ids": ids[i:i + chunk]}):
-                serial, run_id, started = fleet.valid[cal_id]
-                out.append({"serial": serial, "run_id": run_id, "started_at": started,
-                            "value": value, "std": std, "unit": unit, "temperature_c": temp})
-    out.sort(key=lambda r: (r["serial"], r["temperature_c"] is None, r["temperature_c"] or 0.0))
-    return out
+        for row in conn.execute(values, {"model": model, "name": name, "at": _FOREVER}):
+            t = row[3]
+            key = (0.0, 0.0) if t is None or math.isnan(t) else (abs(t - REFERENCE_C), t)
+            old = best.get(row[0])
+            if old is None or key < old[0]:
+                best[row[0]] = (key, row)
+    keys = ("serial", "calibration_id", "value", "temperature_c")
+    return [dict(zip(keys, best[s][1], strict=True)) for s in sorted(best)]
+
+
+def fleet_lineage(archive: Archive, rows: list[dict[str, Any]]) -> None:
+    """Add run_id and started_at of its calibration to each of `rows` (fleet_values)."""
+    ids = sorted({r["calibration_id"] for r in rows})
+    stmt = (select(CalibrationRow.id, Run.run_id, Run.started_at)
+            .join(Run, Run.id == CalibrationRow.run_id)
+            .where(CalibrationRow.id.in_(ids)))  # fmt: skip
+    with archive.engine().connect() as conn:
+        runs = {cal: (run_id, t) for cal, run_id, t in conn.execute(stmt)} if ids else {}
+    for r in rows:
+        r["run_id"], r["started_at"] = runs[r["calibration_id"]]
 
 
 def equipment_list(archive: Archive) -> list[dict[str, Any]]:
     """Every piece of equipment: kind, serial, model, accuracy_class, the latest due date
-    recorded with any of its runs (``calibration_due``), the run count and the first and
-    last run's start."""
+    recorded with any of its runs (``calibration_due``) and the run count.
+
+    Both per piece from ix_run_equipment_equipment_id_calibration_due alone (its last
+    entry; its entries counted), not by grouping the run_equipment rows."""
+    due = (select(func.max(RunEquipment.calibration_due))
+           .where(RunEquipment.equipment_id == Equipment.id).scalar_subquery())  # fmt: skip
+    runs = (select(func.count()).select_from(RunEquipment)
+            .where(RunEquipment.equipment_id == Equipment.id).scalar_subquery())  # fmt: skip
     stmt = (
         select(Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class,
-               func.max(RunEquipment.calibration_due).label("calibration_due"),
-               func.count(RunEquipment.id).label("runs"))
-        .outerjoin(RunEquipment, RunEquipment.equipment_id == Equipment.id)
-        .group_by(Equipment.id, Equipment.kind, Equipment.serial, Equipment.model,
-                  Equipment.accuracy_class)
+               due.label("calibration_due"), runs.label("runs"))
         .order_by(Equipment.kind, Equipment.serial)
     )  # fmt: skip
     with archive.engine().connect() as conn:

@@ -31,6 +31,7 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
@@ -115,8 +116,9 @@ class Run(Base):
     """One lab session of one unit: its raw bytes and the circumstances."""
 
     __tablename__ = "runs"
-    # A unit's runs in time order: latest-valid and history queries (migration 0003).
-    __table_args__ = (Index("ix_runs_device_id_started_at", "device_id", "started_at"),)
+    # A unit's runs in time order, the later archived last among equal starts: latest-valid
+    # and history queries (migrations 0003, 0004).
+    __table_args__ = (Index("ix_runs_device_id_started_at_id", "device_id", "started_at", "id"),)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     run_id: Mapped[str] = mapped_column(String(NAME_LEN), unique=True)
@@ -140,7 +142,11 @@ class RunEquipment(Base):
     """Equipment used in a run, with its calibration validity as it was then."""
 
     __tablename__ = "run_equipment"
-    __table_args__ = (UniqueConstraint("run_id", "equipment_id"),)
+    __table_args__ = (
+        UniqueConstraint("run_id", "equipment_id"),
+        # The latest due date recorded for each piece of equipment (migration 0004).
+        Index("ix_run_equipment_equipment_id_calibration_due", "equipment_id", "calibration_due"),
+    )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     run_id: Mapped[int] = mapped_column(ForeignKey("runs.id"), index=True)
@@ -172,6 +178,10 @@ class CalibrationRow(Base):
         UniqueConstraint("run_id", "revision"),
         UniqueConstraint("run_id", "settings_hash", "software_version"),
         CheckConstraint("revision >= 1", "revision"),
+        # A run's current revision and its verdict from the index alone (migration 0004).
+        Index("ix_calibrations_current", "run_id", "verdict", "profile_name",
+              sqlite_where=text("superseded_by IS NULL"),
+              postgresql_where=text("superseded_by IS NULL"), postgresql_include=["id"]),
     )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)

@@ -411,6 +411,7 @@ def test_postgresql_is_browsed_as_the_read_only_role(postgres_url, tmp_path):
     ro = browse.open_readonly(owner)
     with ro.engine().connect() as conn:
         assert conn.execute(text("SELECT current_user")).scalar_one() == READER
+    assert_fleet_pages_agree(ro, "MPU-6000")  # PostgreSQL's LATERAL picks
     with TestClient(create_app(ro)) as c:
         for url in ["/runs", f"/runs/{run_ids[0]}", f"/runs/{run_ids[0]}/lineage/acc.bias.x",
                     "/units/MPU0001", "/fleet?model=MPU-6000", "/equipment", "/models",
@@ -432,15 +433,34 @@ def test_postgresql_is_browsed_as_the_read_only_role(postgres_url, tmp_path):
     direct.dispose()
 
 
-def test_browse_fleet_equals_the_fleet_query(serve_sample):
-    """The fleet page's one-pass picks (storage.browse) answer as storage.queries.fleet."""
+def assert_fleet_pages_agree(archive, model: str) -> None:  # noqa: ANN001 - an Archive
+    """The fleet page's grouped and per-unit picks (storage.browse_fleet) answer as the
+    archive's own queries: storage.queries.units (latest run of each unit, the later
+    archived of equal starts) and storage.queries.fleet (values nearest 20 deg C)."""
     from calib_core import params
 
-    fleet = browse_fleet.model_fleet(serve_sample.archive, "MPU-6000")
-    assert {u["serial"] for u in fleet.units} == {"MPU0001", "IMU-2026-0042", DRIFT_SERIAL,
-                                                  THERMAL_SERIAL}  # fmt: skip
+    runs = queries.units(archive, model=model).sort_values(["started_at", "run_id"],
+                                                           kind="stable")  # fmt: skip
+    latest = runs.groupby("serial").tail(1)
+    fleet = browse_fleet.fleet_units(archive, model, failing_max=2)
+    want = latest["verdict"].value_counts().to_dict()
+    assert fleet.units == len(latest) > 0 and fleet.latest == want
+    failing = sorted(latest.loc[latest["verdict"] != "pass", "serial"])
+    assert [u["serial"] for u in fleet.failing] == failing[:2]
+    assert fleet.n_failing == len(failing)
+    for u in fleet.failing:
+        assert u["runs"] == (runs["serial"] == u["serial"]).sum()
+        assert u["run_id"] == latest.loc[latest["serial"] == u["serial"], "run_id"].item()
     for name in params.ACC_LINEAR + params.GYR_LINEAR:
-        mine = browse_fleet.fleet_values(serve_sample.archive, fleet, name)
-        theirs = queries.fleet(serve_sample.archive, "MPU-6000", name).to_dict("records")
-        key = lambda r: (r["serial"], r["run_id"], r["value"])  # noqa: E731
-        assert sorted(map(key, mine)) == sorted(map(key, theirs)), name
+        mine = browse_fleet.fleet_values(archive, model, name)
+        browse_fleet.fleet_lineage(archive, mine)
+        theirs = queries.fleet(archive, model, name)
+        dist = (theirs["temperature_c"].fillna(20.0) - 20.0).abs()
+        one = theirs.assign(d=dist).sort_values(["serial", "d", "temperature_c"]).groupby(
+            "serial").head(1)  # fmt: skip
+        assert [(r["serial"], r["run_id"], r["value"]) for r in mine] == list(
+            zip(one["serial"], one["run_id"], one["value"], strict=True)), name  # fmt: skip
+
+
+def test_browse_fleet_equals_the_archive_queries(serve_sample):
+    assert_fleet_pages_agree(serve_sample.archive, "MPU-6000")

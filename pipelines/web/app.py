@@ -71,7 +71,6 @@ def create_app(archive: Archive) -> FastAPI:
         openapi_url=None,
     )
     app.state.archive = archive
-    app.state.fleets = {}  # pipelines.web.units: model -> units, keyed by archive version
     for module in (runs, units, equipment):
         app.include_router(module.router)
 

@@ -13,7 +13,7 @@ from pipelines.web.app import render
 from storage import browse, browse_fleet
 
 router = APIRouter()
-LAPSED_LIST_MAX = 500
+LAPSED_LIST_MAX = 200  # rows listed (the count says how many there are), as the fleet lists
 
 
 @router.get("/equipment", response_class=HTMLResponse)

@@ -24,7 +24,7 @@ from storage import browse, browse_fleet, queries
 
 router = APIRouter()
 
-REFERENCE_C = 20.0  # of temperature-dependent values, the trend takes the one nearest this
+REFERENCE_C = browse_fleet.REFERENCE_C  # of temperature-dependent values, the trend's
 FORECAST_HORIZON_DAYS = 3650.0
 FLEET_LIST_MAX = 200
 FLEET_PARAMETERS = (params.ACC_LINEAR + params.GYR_LINEAR + params.GSENS
@@ -237,7 +237,8 @@ def models_page(request: Request) -> HTMLResponse:
 @router.get("/fleet", response_class=HTMLResponse)
 def fleet_page(request: Request) -> HTMLResponse:
     """A model's fleet: one parameter's distribution over the units' latest valid calibration,
-    units out of tolerance, latest verdicts."""
+    units out of tolerance, latest verdicts. Read afresh on every request (no cache to
+    go stale): the units' counts are grouped in the database (browse_fleet.fleet_units)."""
     archive = request.app.state.archive
     q = forms.params(request, ("model", "parameter"))
     model = q.get("model", "")
@@ -245,64 +246,30 @@ def fleet_page(request: Request) -> HTMLResponse:
         forms.checked(queries.check_text, model, "model")
     name = q.get("parameter") or FLEET_PARAMETERS[0]
     forms.checked(params.validate, name)
-    fleet = _fleet(request, model)
-    units = fleet.units
-    if not units:
+    fleet = forms.checked(browse_fleet.fleet_units, archive, model, FLEET_LIST_MAX)
+    if not fleet.units:
         forms.checked(_no_model, model)
-    values = browse_fleet.fleet_values(archive, fleet, name)
-    profiles = Counter(u["profile_name"] for u in units if u["profile_name"])
+    profiles = Counter(fleet.profiles)
     profile = _profile(profiles.most_common(1)[0][0] if profiles else None)
     low, high = _band(profile, name)
     scale, unit = display(name, 1.0)
-    one = _one_per_unit(values)
+    one = browse_fleet.fleet_values(archive, model, name)
     outside = [r for r in one if not low <= r["value"] <= high]
+    browse_fleet.fleet_lineage(archive, outside[:FLEET_LIST_MAX])
     stats = drift.fleet_statistics([r["value"] * scale for r in one], [math.nan] * len(one),
                                    [r["serial"] for r in one]) if one else []  # fmt: skip
     chart = svg.histogram([r["value"] * scale for r in one], unit=unit,
                           title=f"{name} over {len(one)} units of {model}",
                           limits=(low * scale, high * scale))  # fmt: skip
-    latest = Counter(u["verdict"] or "no calibration" for u in units)
-    failing = [u for u in units if u["verdict"] != "pass"]
+    latest = {v or "no calibration": n for v, n in sorted(fleet.latest.items(),
+                                                          key=lambda kv: -kv[1])}  # fmt: skip
     return render(request, "fleet.html", title=f"Fleet of {model}", model=model, name=name,
-                  names=FLEET_PARAMETERS, units=len(units), latest=dict(latest),
-                  failing=failing[:FLEET_LIST_MAX], n_failing=len(failing),
+                  names=FLEET_PARAMETERS, units=fleet.units, latest=latest,
+                  failing=fleet.failing, n_failing=fleet.n_failing,
                   outside=outside[:FLEET_LIST_MAX], n_outside=len(outside), scale=scale,
                   unit=unit, stats=stats[0] if stats else None, chart=chart, profile=profile,
                   low=low * scale, high=high * scale, n_values=len(one))  # fmt: skip
 
 
-FLEET_CACHE_SIZE = 8
-
-
-def _fleet(request: Request, model: str) -> browse_fleet.Fleet:
-    """The model's units (browse_fleet.model_fleet), cached until the archive changes.
-
-    The key holds browse.version (newest run and calibration ids): the archive is
-    append-only, so an unchanged key means unchanged units and verdicts.
-    """
-    archive = request.app.state.archive
-    key = (model, browse.version(archive))
-    cache = request.app.state.fleets
-    if key not in cache:
-        fleet = forms.checked(browse_fleet.model_fleet, archive, model)
-        while len(cache) >= FLEET_CACHE_SIZE:
-            cache.pop(next(iter(cache)))
-        cache[key] = fleet
-    return cache[key]
-
-
 def _no_model(model: str) -> None:
     raise LookupError(f"no units of model {model!r} in the archive")
-
-
-def _one_per_unit(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per unit, its value nearest REFERENCE_C (or without a temperature)."""
-    best: dict[str, dict[str, Any]] = {}
-    for r in rows:
-        t = r["temperature_c"]
-        dist = 0.0 if t is None or (isinstance(t, float) and math.isnan(t)) else abs(
-            t - REFERENCE_C)  # fmt: skip
-        if r["serial"] not in best or dist < best[r["serial"]]["_dist"]:
-            best[r["serial"]] = {**r, "_dist": dist}
-    return sorted(best.values(), key=lambda r: r["serial"])
-

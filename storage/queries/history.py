@@ -340,36 +340,36 @@ def units(
 
 
 # Per unit of the model, its latest valid calibration picked by a correlated subquery
-# on ix_runs_device_id_started_at (a few index steps per unit), then the parameter by
+# on ix_runs_device_id_started_at_id (a few index steps per unit), then the parameter by
 # ix_parameters_calibration_id_name: the cost grows with the units, not the 5M rows.
-_FLEET_DEVICE = aliased(Device)
-_FLEET_PICK = (
+FLEET_DEVICE = aliased(Device)
+FLEET_PICK = (
     select(CalibrationRow.id)
     .join(Run, Run.id == CalibrationRow.run_id)
     .where(
-        Run.device_id == _FLEET_DEVICE.id,
+        Run.device_id == FLEET_DEVICE.id,
         CalibrationRow.superseded_by.is_(None),
         CalibrationRow.verdict == PASS,
         Run.started_at <= bindparam("at", type_=Run.started_at.type),
     )
     .order_by(Run.started_at.desc(), Run.id.desc())
     .limit(1)
-    .correlate(_FLEET_DEVICE)
+    .correlate(FLEET_DEVICE)
     .scalar_subquery()
 )
 _FLEET = (
-    select(_FLEET_DEVICE.serial, Run.run_id, Run.started_at, ParameterRow.value,
+    select(FLEET_DEVICE.serial, Run.run_id, Run.started_at, ParameterRow.value,
            ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c)
-    .select_from(_FLEET_DEVICE)
-    .join(CalibrationRow, CalibrationRow.id == _FLEET_PICK)
+    .select_from(FLEET_DEVICE)
+    .join(CalibrationRow, CalibrationRow.id == FLEET_PICK)
     .join(Run, Run.id == CalibrationRow.run_id)
     .join(
         ParameterRow,
         (ParameterRow.calibration_id == CalibrationRow.id)
         & (ParameterRow.name == bindparam("name")),
     )
-    .where(_FLEET_DEVICE.model == bindparam("model"))
-    .order_by(_FLEET_DEVICE.serial, ParameterRow.temperature_c)
+    .where(FLEET_DEVICE.model == bindparam("model"))
+    .order_by(FLEET_DEVICE.serial, ParameterRow.temperature_c)
 )  # fmt: skip
 
 
