@@ -117,7 +117,7 @@ class Run(Base):
 
     __tablename__ = "runs"
     # A unit's runs in time order, the later archived last among equal starts: latest-valid
-    # and history queries (migrations 0003, 0004).
+    # and history queries (migrations 0003, 0005).
     __table_args__ = (Index("ix_runs_device_id_started_at_id", "device_id", "started_at", "id"),)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
@@ -144,7 +144,7 @@ class RunEquipment(Base):
     __tablename__ = "run_equipment"
     __table_args__ = (
         UniqueConstraint("run_id", "equipment_id"),
-        # The latest due date recorded for each piece of equipment (migration 0004).
+        # The latest due date recorded for each piece of equipment (migration 0005).
         Index("ix_run_equipment_equipment_id_calibration_due", "equipment_id", "calibration_due"),
     )
 
@@ -178,7 +178,7 @@ class CalibrationRow(Base):
         UniqueConstraint("run_id", "revision"),
         UniqueConstraint("run_id", "settings_hash", "software_version"),
         CheckConstraint("revision >= 1", "revision"),
-        # A run's current revision and its verdict from the index alone (migration 0004).
+        # A run's current revision and its verdict from the index alone (migration 0005).
         Index("ix_calibrations_current", "run_id", "verdict", "profile_name",
               sqlite_where=text("superseded_by IS NULL"),
               postgresql_where=text("superseded_by IS NULL"), postgresql_include=["id"]),
