@@ -195,6 +195,26 @@ def test_run_page_shows_the_archived_run(client, serve_sample):
     assert re.search(r"Accelerometer residuals per segment", client.get(f"/runs/{run_id}").text)
 
 
+def test_run_page_marks_model_checks_for_review(client, serve_sample):
+    """Identifiability (model:), repeatability and device checks come through the run's
+    checks list; failed, they are badged "needs review" as the run's verdict counts them,
+    any other failed check "fail"."""
+    from pipelines.web.present import check_result
+
+    assert check_result({"name": "model:acc_dof", "passed": False}) == "needs review"
+    assert check_result({"name": "model:face_bias.x", "passed": True}) == "pass"
+    assert check_result({"name": "gyr.noise.x", "passed": False}) == "fail"
+    run_id = serve_sample.runs[DRIFT_SERIAL][0]
+    checks = queries.run_summary(serve_sample.archive, run_id)["calibration"]["checks"]
+    html = client.get(f"/runs/{run_id}").text
+    model = [c for c in checks if c["name"].startswith("model:")]
+    assert model, "the pipeline archives its model checks with the run"
+    for c in model:
+        badge = "needs review" if not c["passed"] else "pass"
+        assert re.search(rf'{re.escape(c["name"])}</td>.*?<span class="badge '
+                         rf'{badge.replace(" ", "-")}">{badge}</span>', html, re.S), c["name"]
+
+
 def test_lineage_page_traces_the_value_to_raw_bytes(client, serve_sample):
     run_id = serve_sample.runs[DRIFT_SERIAL][0]
     lin = queries.lineage(serve_sample.archive, run_id, "gyr.scale.x")

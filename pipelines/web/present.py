@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from datetime import date, datetime
+from types import SimpleNamespace
 from typing import Any
 from urllib.parse import quote, urlencode
 
+from calib_core import checks
 from pipelines.reports.display import DISPLAY_UNITS
 
 
@@ -88,7 +91,15 @@ def equipment_url(kind: str, serial: str) -> str:
     return url("/equipment/item", kind=kind, serial=serial)
 
 
-FILTERS = {"num": num, "when": when, "size": size, "as_json": as_json}
+def check_result(check: Mapping[str, Any]) -> str:
+    """The badge of one archived check (a dict with name and passed): "pass", else what
+    its failure alone makes of the run's verdict (calib_core.checks.verdict): "needs
+    review" for a repeatability, device or model check (``model:acc_dof``), "fail"."""
+    return checks.verdict([SimpleNamespace(name=check["name"], passed=check["passed"])])
+
+
+FILTERS = {"num": num, "when": when, "size": size, "as_json": as_json,
+           "check_result": check_result}  # fmt: skip
 GLOBALS = {
     "display": display,
     "url": url,
