@@ -92,10 +92,13 @@ def equipment_url(kind: str, serial: str) -> str:
 
 
 def check_result(check: Mapping[str, Any]) -> str:
-    """The badge of one archived check (a dict with name and passed): "pass", else what
-    its failure alone makes of the run's verdict (calib_core.checks.verdict): "needs
-    review" for a repeatability, device or model check (``model:acc_dof``), "fail"."""
-    return checks.verdict([SimpleNamespace(name=check["name"], passed=check["passed"])])
+    """The badge of one archived check (a dict with name, passed, detail): "pass", else
+    what its failure alone makes of the run's verdict (calib_core.checks.verdict):
+    "needs review" for a repeatability, device or model check (``model:acc_dof``) or a
+    parameter's conditional pass, else "fail"."""
+    one = SimpleNamespace(name=check["name"], passed=check["passed"],
+                          detail=check.get("detail") or "")  # fmt: skip
+    return checks.verdict([one])
 
 
 FILTERS = {"num": num, "when": when, "size": size, "as_json": as_json,
