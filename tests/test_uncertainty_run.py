@@ -4,6 +4,7 @@ run's checks, and the budget in the archive, the protocol and the certificate (H
 from __future__ import annotations
 
 import copy
+from datetime import date, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -122,7 +123,28 @@ def _guarded_profile(folder: Path) -> Path:
     limit = '[[limits]]\npattern = "acc.scale.x"\nbound = 0.011\nunit = "1"\n\n'
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "guarded.toml").write_text(text[:first] + limit + text[first:])
+    (folder / "lab.toml").write_text(LAB_TOML)
     return folder
+
+
+LAB_TOML = """
+[laboratory]
+name = "IMU Lab GmbH"
+address = "Musterstrasse 1, 80331 Muenchen, Germany"
+
+[customer]
+name = "Example Drones AG"
+contact = "qa@example.com"
+
+[authorised_by]
+name = "Dr. A. Metrologist"
+function = "Head of calibration"
+
+[[equipment]]
+serial = "CUBE-1"
+certificate = "DAkkS 4711-2026"
+issued_by = "PTB"
+"""
 
 
 def _manifest(serial: str, equipment: bool, day: int = 20) -> dict:
@@ -171,7 +193,9 @@ def archived(tmp_path_factory: pytest.TempPathFactory):
                     out["earlier"]["run_id"] = outcome["run_id"]
             summary = queries.run_summary(arch, outcome["run_id"])
             files = report_run(arch, outcome["run_id"], tmp / f"{serial}-reports")
-            pdf = "\n".join(p.extract_text() for p in pypdf.PdfReader(files["pdf"]).pages)
+            pages = [p.extract_text() for p in pypdf.PdfReader(files["pdf"]).pages]
+            pdf = "\n".join(pages)
+            out[f"{serial}/pages"] = pages
             out[serial] = (outcome, summary, files["html"].read_text(), pdf,
                            files["protocol"].read_text())
     return out
@@ -279,3 +303,59 @@ def test_as_found_and_as_left_of_a_recalibrated_unit(archived, form) -> None:
                   f"{error:+.3g}"):
         assert shown in text, shown
     assert "No earlier valid calibration" in archived["U-KNOWN"][2 if form == "html" else 3]
+
+
+# ISO/IEC 17025:2017 items of a certificate the archive and the lab profile know.
+ITEMS = {
+    "7.8.2.1 a title": "Calibration certificate MPU-6000 U-KNOWN",
+    "7.8.2.1 b laboratory": "IMU Lab GmbH, Musterstrasse 1, 80331 Muenchen, Germany",
+    "7.8.2.1 e customer": "Example Drones AG, qa@example.com",
+    "7.8.2.1 f method": "procedure six_position_integral",
+    "7.8.2.1 g item": "MPU-6000, serial U-KNOWN, made by InvenSense",
+    "7.8.2.1 i date of calibration": "Date of calibration",
+    "7.8.2.1 l only the item": "The results relate only to the item calibrated",
+    "7.8.2.1 m results with units": "(deg/s)/g",
+    "7.8.2.1 o authorised by": "Dr. A. Metrologist, Head of calibration",
+    "7.8.4.1 a uncertainty": "coverage probability about 95 %",
+    "7.8.4.1 b conditions": "20.0 deg C",
+    "7.8.4.1 c traceability": "DAkkS 4711-2026",
+    "7.8.6 decision rule": "Decision rule: guarded acceptance",
+}
+
+
+@pytest.mark.parametrize("form", ["html", "pdf"])
+@pytest.mark.parametrize("item", sorted(ITEMS))
+def test_certificate_item(archived, item, form) -> None:
+    _, summary, html, pdf, _ = archived["U-KNOWN"]
+    assert ITEMS[item] in (html if form == "html" else pdf)
+
+
+@pytest.mark.parametrize("form", ["html", "pdf"])
+def test_certificate_number_dates_and_end(archived, form) -> None:
+    _, summary, html, pdf, _ = archived["U-KNOWN"]
+    text = html if form == "html" else pdf
+    number = f"{summary['run_id']}-{summary['calibration']['revision']}"
+    assert "Certificate number" in text and number in text
+    assert "2026-11-20" in text and "Date of issue" in text
+    issued = {(date.today() + timedelta(days=d)).isoformat() for d in (-1, 0, 1)}
+    assert any(f"{d}" in text for d in issued)  # today (UTC), whatever the local date
+    assert f"End of certificate {number}" in text
+    if form == "pdf":  # 7.8.2.1 d: the number and page x of y on every page
+        pages = archived["U-KNOWN/pages"]
+        for i, page in enumerate(pages, start=1):
+            assert number in page and f"page {i} of {len(pages)}" in page, i
+
+
+def test_lab_profile_checked_and_missing_items_said(archived, tmp_path, monkeypatch) -> None:
+    from pipelines.lab import load_lab_profile
+    from pipelines.reports.iso17025 import NOT_RECORDED, administrative_section
+
+    monkeypatch.setenv("CALIB_PROFILES", str(tmp_path))
+    assert load_lab_profile() is None
+    (tmp_path / "lab.toml").write_text('[laboratory]\nname = "X"\nphone = "1"\n')
+    with pytest.raises(ValueError, match=r"lab.toml: laboratory: missing \['address'\], "
+                                         r"unknown \['phone'\]"):
+        load_lab_profile()
+    summary = {**archived["U-KNOWN"][1], "lab": None}
+    pairs = dict(administrative_section(summary).pairs)
+    assert pairs["Calibration laboratory"] == NOT_RECORDED == pairs["Customer"]

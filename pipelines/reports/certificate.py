@@ -39,7 +39,7 @@ from calib_core.verification import (  # noqa: E402
     ResidualDiagnosis,
     diagnose_residuals,
 )
-from pipelines.reports import plots  # noqa: E402
+from pipelines.reports import iso17025, plots  # noqa: E402
 from pipelines.reports.display import display, tolerance  # noqa: E402
 from pipelines.reports.protocol import (  # noqa: E402
     guard_band_of,
@@ -129,9 +129,11 @@ def sections(summary: dict[str, Any], samples: pa.Table) -> Certificate:
     )
     diagnosis = _diagnosis(run)
     out = [
+        iso17025.administrative_section(summary),
         _unit_section(run),
         _run_section(run),
         _equipment_section(run),
+        iso17025.traceability_section(summary),
         _environment_section(run),
         _procedure_section(run),
         _results_section(run),
@@ -148,11 +150,12 @@ def sections(summary: dict[str, Any], samples: pa.Table) -> Certificate:
                 calrow["verdict"], run.cal, diagnosis, summary["environment"] or {}
             ),
         ),
-        _signatures_section(),
+        _signatures_section(summary),
     ]
     dev = summary["device"]
     title = f"Calibration certificate {dev['model']} {dev['serial']}"
-    return Certificate(title, calrow["verdict"], out, _figures(run), _protocol(run))
+    return Certificate(title, calrow["verdict"], out, _figures(run), _protocol(run),
+                       iso17025.certificate_number(summary))
 
 
 def _unit_section(run: _Archived) -> Section:
@@ -477,10 +480,11 @@ def _verdict_section(run: _Archived) -> Section:
     )
 
 
-def _signatures_section() -> Section:
+def _signatures_section(summary: dict[str, Any]) -> Section:
     return Section(
         "Signatures",
         pairs=[
+            *iso17025.authorisation_pairs(summary),
             ("Customer representative", "______________________   Date: __________"),
             ("Quality control", "______________________   Date: __________"),
             ("Production", "______________________   Date: __________"),
@@ -598,9 +602,12 @@ def report_run(archive, run_id: str, folder: Path | None = None, *, pdf: bool = 
     dict: ``verdict`` and the written paths ``protocol`` (``<serial>_result.txt``),
     ``html`` and (with `pdf`) ``pdf``.
     """
+    from pipelines.lab import load_lab_profile
     from storage import queries
 
     summary = queries.run_summary(archive, run_id)
+    lab = load_lab_profile()
+    summary["lab"] = None if lab is None else lab[0]
     summary["as_found"] = queries.latest_calibration(
         archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1))
     samples = queries.run_samples(archive, run_id)

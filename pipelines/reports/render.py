@@ -51,6 +51,12 @@ class Certificate:
     sections: list[Section]
     figures: dict[str, Figure]
     protocol: str
+    identifier: str = ""  # the certificate number, on every page (ISO/IEC 17025 7.8.2.1 d)
+
+    @property
+    def end(self) -> str:
+        """The line that marks the certificate's clear end."""
+        return f"End of certificate {self.identifier}".strip()
 
 
 _CSS = """
@@ -73,6 +79,7 @@ def render_html(cert: Certificate) -> str:
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>{e(cert.title)}</title><style>{_CSS}</style></head><body>",
         f"<h1>{e(cert.title)}</h1>",
+        f"<p>Certificate number {e(cert.identifier)}</p>" if cert.identifier else "",
         f'<p class="verdict {cert.verdict.replace(" ", "-")}">'
         f"Verdict: {e(cert.verdict.upper())}</p>",
     ]
@@ -100,7 +107,7 @@ def render_html(cert: Certificate) -> str:
             f'<figure><img alt="{e(name)}" src="data:image/png;base64,{data}">'
             f"<figcaption>{e(name)}</figcaption></figure>"
         )
-    parts.append("</body></html>")
+    parts.append(f"<p><strong>{e(cert.end)}</strong></p></body></html>")
     return "\n".join(parts) + "\n"
 
 
@@ -126,7 +133,8 @@ def _text_lines(cert: Certificate) -> list[tuple[str, str]]:
                 lines.append(("mono", text[:PDF_WIDTH_CHARS]))
         for p in sec.paragraphs:
             lines += [("mono", s) for s in wrap.wrap(p)]
-    return lines
+    end = cert.end if not cert.figures else f"{cert.end} (its plots follow on the next pages)"
+    return [*lines, ("mono", ""), ("head", end)]
 
 
 def render_pdf(cert: Certificate, path: Path) -> Path:
@@ -139,6 +147,7 @@ def render_pdf(cert: Certificate, path: Path) -> Path:
         pages = [
             lines[i : i + PDF_LINES_PER_PAGE] for i in range(0, len(lines), PDF_LINES_PER_PAGE)
         ]
+        total = len(pages) + len(cert.figures)
         for n, page in enumerate(pages, start=1):
             fig = Figure(figsize=A4)
             y = 0.965
@@ -154,11 +163,15 @@ def render_pdf(cert: Certificate, path: Path) -> Path:
                     colour = "#b00" if "FAIL" in text or text.endswith(": FAIL") else "black"
                     fig.text(0.06, y, text, size=PDF_FONT_PT, family="monospace", color=colour)
                 y -= 0.0102
-            fig.text(0.06, 0.02, f"{cert.title}  -  verdict {cert.verdict.upper()}", size=7)
-            fig.text(0.9, 0.02, f"page {n}", size=7)
+            fig.text(0.06, 0.02, f"{cert.title}  -  certificate {cert.identifier}  -  "
+                     f"verdict {cert.verdict.upper()}", size=7)
+            fig.text(0.86, 0.02, f"page {n} of {total}", size=7)
             pdf.savefig(fig)
-        for name, fig in cert.figures.items():
+        for n, (name, fig) in enumerate(cert.figures.items(), start=len(pages) + 1):
             fig.suptitle(name, fontsize=10)
             fig.tight_layout()
+            last = f"  -  {cert.end}" if n == total else ""
+            fig.text(0.01, 0.005, f"certificate {cert.identifier}  -  page {n} of {total}{last}",
+                     size=6)
             pdf.savefig(fig)
     return path

@@ -1,0 +1,92 @@
+"""The lab profile: what a certificate states that the archive cannot know (ISO/IEC 17025 7.8).
+
+``lab.toml`` in the profile folders (``CALIB_PROFILES`` first, pipelines.tolerances) holds the
+laboratory's name and address, the customer, who authorises certificates and the calibration
+certificates of the reference equipment (traceability, 7.8.4.1 c)::
+
+    [laboratory]
+    name = "IMU Lab GmbH"
+    address = "Musterstrasse 1, 80331 Muenchen, Germany"
+    accreditation = "D-K-12345-01-00"          # optional
+
+    [customer]
+    name = "Example Drones AG"
+    contact = "qa@example.com"
+
+    [authorised_by]
+    name = "Dr. A. Metrologist"
+    function = "Head of calibration laboratory"
+
+    [[equipment]]                             # one per reference, by its serial
+    serial = "CUBE-7"
+    certificate = "DAkkS 4711-2026"
+    issued_by = "PTB"
+
+Every key is checked; a certificate made without the file says so where the items belong.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from pipelines.tolerances import profile_dirs
+
+LAB_PROFILE = "lab.toml"
+TABLES = {
+    "laboratory": ({"name", "address"}, {"accreditation"}),
+    "customer": ({"name"}, {"contact"}),
+    "authorised_by": ({"name"}, {"function"}),
+}
+EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by"})
+
+
+def load_lab_profile() -> tuple[dict[str, Any], Path] | None:
+    """The lab profile and its file, or None when no folder holds one.
+
+    Raises ValueError naming the file and the field of a bad entry.
+    """
+    for folder in profile_dirs():
+        path = folder / LAB_PROFILE
+        if path.is_file():
+            try:
+                doc = tomllib.loads(path.read_text(encoding="utf-8"))
+            except tomllib.TOMLDecodeError as exc:
+                raise ValueError(f"lab profile {path}: {exc}") from exc
+            return _checked(doc, path), path
+    return None
+
+
+def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
+    unknown = sorted(set(doc) - {*TABLES, "equipment"})
+    if unknown:
+        raise ValueError(f"lab profile {path}: unknown table(s) {unknown}; "
+                         f"expected {sorted({*TABLES, 'equipment'})}")
+    for table, keys in TABLES.items():
+        if table in doc:
+            _check_table(doc[table], keys, path, table)
+    equipment = doc.get("equipment", [])
+    if not isinstance(equipment, list):
+        raise ValueError(f"lab profile {path}: equipment: expected an array of tables")
+    for i, entry in enumerate(equipment):
+        _check_table(entry, EQUIPMENT_KEYS, path, f"equipment[{i}]")
+    return doc
+
+
+def _check_table(
+    table: Any, keys: tuple[set[str], set[str]], path: Path, where: str
+) -> None:
+    required, optional = keys
+    if not isinstance(table, dict):
+        raise ValueError(f"lab profile {path}: {where}: expected a table")
+    missing, unknown = sorted(required - set(table)), sorted(set(table) - required - optional)
+    if missing or unknown:
+        raise ValueError(f"lab profile {path}: {where}: missing {missing}, unknown {unknown}; "
+                         f"expected {sorted(required)} and optionally {sorted(optional)}")
+    for key, value in table.items():
+        if not isinstance(value, str) or not value.strip() or len(value) > 200 or any(
+            ord(ch) < 32 for ch in value
+        ):
+            raise ValueError(f"lab profile {path}: {where}.{key}: expected one line of text "
+                             f"(1..200 characters), got {value!r}")
