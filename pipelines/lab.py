@@ -8,6 +8,7 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     name = "IMU Lab GmbH"
     address = "Musterstrasse 1, 80331 Muenchen, Germany"
     accreditation = "D-K-12345-01-00"          # optional
+    country = "DE"                             # optional, ISO 3166-1 (the DCC's coreData)
 
     [customer]
     name = "Example Drones AG"
@@ -35,7 +36,7 @@ from pipelines.tolerances import profile_dirs
 
 LAB_PROFILE = "lab.toml"
 TABLES = {
-    "laboratory": ({"name", "address"}, {"accreditation"}),
+    "laboratory": ({"name", "address"}, {"accreditation", "country"}),
     "customer": ({"name"}, {"contact"}),
     "authorised_by": ({"name"}, {"function"}),
 }
@@ -66,6 +67,10 @@ def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
     for table, keys in TABLES.items():
         if table in doc:
             _check_table(doc[table], keys, path, table)
+    country = doc.get("laboratory", {}).get("country")
+    if country is not None and not (len(country) == 2 and country.isascii() and country.isupper()):
+        raise ValueError(f"lab profile {path}: laboratory.country: expected an ISO 3166-1 "
+                         f"alpha-2 code such as 'DE', got {country!r}")
     equipment = doc.get("equipment", [])
     if not isinstance(equipment, list):
         raise ValueError(f"lab profile {path}: equipment: expected an array of tables")

@@ -4,6 +4,7 @@ run's checks, and the budget in the archive, the protocol and the certificate (H
 from __future__ import annotations
 
 import copy
+import json
 from datetime import date, timedelta
 from pathlib import Path
 
@@ -173,7 +174,7 @@ def archived(tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("budget-run")
     arch = resolve_archive(str(tmp / "archive"))
     arch.upgrade()
-    out = {}
+    out = {"archive": arch, "profiles": tmp / "profiles"}
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("CALIB_PROFILES", str(_guarded_profile(tmp / "profiles")))
         for serial, (equipment, days) in RUNS.items():
@@ -359,3 +360,54 @@ def test_lab_profile_checked_and_missing_items_said(archived, tmp_path, monkeypa
     summary = {**archived["U-KNOWN"][1], "lab": None}
     pairs = dict(administrative_section(summary).pairs)
     assert pairs["Calibration laboratory"] == NOT_RECORDED == pairs["Customer"]
+
+
+def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
+    """`calib report RUN --format dcc` read back: every value and U equal to the archive's.
+
+    Read with the standard library's XML parser: pydcc (the DCC reader the issue names) does
+    not import here (its oscrypto 1.3.0 cannot parse OpenSSL 3.0.19's version string).
+    """
+    import xml.etree.ElementTree as ET
+
+    from typer.testing import CliRunner
+
+    from pipelines.cli import app
+    from pipelines.reports.dcc import D_SI
+
+    _, summary, *_ = archived["U-KNOWN"]
+    monkeypatch.setenv("CALIB_PROFILES", str(archived["profiles"]))
+    args = ["report", summary["run_id"], "--archive", str(archived["archive"].root),
+            "--output", str(tmp_path), "--format", "dcc", "--json"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    path = Path(json.loads(result.stdout)["dcc"])
+    ns = {"dcc": "https://ptb.de/dcc", "si": "https://ptb.de/si"}
+    root = ET.parse(path).getroot()
+    assert root.tag == "{https://ptb.de/dcc}digitalCalibrationCertificate"
+    assert root.attrib["schemaVersion"].startswith("3.")
+    assert [c.tag.split("}")[1] for c in root] == ["administrativeData", "measurementResults"]
+    core = root.find("dcc:administrativeData/dcc:coreData", ns)
+    number = f"{summary['run_id']}-{summary['calibration']['revision']}"
+    assert core.find("dcc:uniqueIdentifier", ns).text == number
+    assert core.find("dcc:endPerformanceDate", ns).text == "2026-11-20"
+    admin = root.find("dcc:administrativeData", ns)
+    assert admin.find(".//dcc:identification/dcc:value", ns).text == "U-KNOWN"
+    assert admin.find("dcc:calibrationLaboratory//dcc:content", ns).text == "IMU Lab GmbH"
+    said = [e.text for e in admin.findall("dcc:statements//dcc:content", ns)]
+    assert any(s.startswith("Decision rule: guarded acceptance") for s in said)
+    results = {
+        r.find("dcc:name/dcc:content", ns).text: r.find(".//si:real", ns)
+        for r in root.findall("dcc:measurementResults//dcc:result", ns)
+    }
+    budgets = _budgets(summary)
+    assert set(results) == {p["name"] for p in summary["calibration"]["parameters"]}
+    for p in summary["calibration"]["parameters"]:
+        real = results[p["name"]]
+        assert float(real.find("si:value", ns).text) == p["value"]
+        assert real.find("si:unit", ns).text == D_SI[p["unit"]]
+        b = budgets[p["name"]]
+        assert float(real.find("si:expandedUnc/si:uncertainty", ns).text) == b["U"]
+        assert float(real.find("si:expandedUnc/si:coverageFactor", ns).text) == b["k"]
+        assert float(real.find("si:expandedUnc/si:coverageProbability", ns).text) == 0.95
+    assert root.find(".//dcc:influenceCondition//si:unit", ns).text == r"\kelvin"

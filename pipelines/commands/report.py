@@ -19,17 +19,22 @@ def report(
         Path | None, typer.Option("--output", "-o", help="Folder (default: the run's folder).")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the written paths.")] = False,
+    form: Annotated[
+        str, typer.Option("--format", help="certificate (protocol, HTML, PDF) or dcc "
+                                            "(Digital Calibration Certificate XML).")
+    ] = "certificate",
 ) -> None:
     """Write the test protocol, the HTML certificate and the PDF of an archived run.
 
-    Everything is read from the archive (run summary, checks, Parquet samples);
-    the files go into the run's archive folder unless --output names another.
+    Everything is read from the archive (run summary, checks, Parquet samples) and
+    the lab profile (lab.toml); the files go into the run's archive folder unless
+    --output names another. --format dcc writes the PTB DCC XML instead.
     """
     from pipelines.reports.certificate import report_run
 
     arch, run_id = open_run(archive, run_id)
     try:
-        written = report_run(arch, run_id, output, pdf=pdf)
+        written = report_run(arch, run_id, output, pdf=pdf, form=form)
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
     except OSError as exc:  # a read-only archive, a full disk

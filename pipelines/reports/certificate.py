@@ -587,7 +587,13 @@ def write_reports(
     return out
 
 
-def report_run(archive, run_id: str, folder: Path | None = None, *, pdf: bool = True) -> dict:
+REPORT_FORMATS = ("certificate", "dcc")
+
+
+def report_run(
+    archive, run_id: str, folder: Path | None = None, *, pdf: bool = True,
+    form: str = "certificate",
+) -> dict:
     """Write the reports of an archived run, from the archive alone (run summary + samples).
 
     Parameters
@@ -596,12 +602,16 @@ def report_run(archive, run_id: str, folder: Path | None = None, *, pdf: bool = 
     run_id : the archived run.
     folder : where to write; default the run's folder in the archive.
     pdf : also render the PDF certificate (the slowest part).
+    form : "certificate" (protocol, HTML and PDF) or "dcc" (the Digital Calibration
+        Certificate XML, `pipelines.reports.dcc`).
 
     Returns
     -------
     dict: ``verdict`` and the written paths ``protocol`` (``<serial>_result.txt``),
-    ``html`` and (with `pdf`) ``pdf``.
+    ``html`` and (with `pdf`) ``pdf``; or ``dcc``.
     """
+    if form not in REPORT_FORMATS:
+        raise ValueError(f"report format {form!r}: expected one of {list(REPORT_FORMATS)}")
     from pipelines.lab import load_lab_profile
     from storage import queries
 
@@ -610,7 +620,11 @@ def report_run(archive, run_id: str, folder: Path | None = None, *, pdf: bool = 
     summary["lab"] = None if lab is None else lab[0]
     summary["as_found"] = queries.latest_calibration(
         archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1))
-    samples = queries.run_samples(archive, run_id)
     folder = folder if folder is not None else archive.root / summary["run_dir"]
+    if form == "dcc":
+        from pipelines.reports.dcc import write_dcc
+
+        return {"verdict": summary["calibration"]["verdict"], "dcc": write_dcc(summary, folder)}
+    samples = queries.run_samples(archive, run_id)
     written = write_reports(summary, samples, folder, pdf=pdf)
     return {"verdict": summary["calibration"]["verdict"], **written}

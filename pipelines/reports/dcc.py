@@ -1,0 +1,175 @@
+"""The Digital Calibration Certificate (PTB DCC, schema 3.x structure) of one archived run.
+
+`dcc_xml(summary)` builds the document from the same archive summary the certificate reads
+(`pipelines.reports.certificate.report_run` adds the lab profile): ``administrativeData``
+(dccSoftware, coreData with the certificate number and performance dates, the item with its
+manufacturer, model and serial, calibrationLaboratory, respPersons, customer, statements: the
+decision rule, the results-relate-only statement and the uncertainty label) and
+``measurementResults`` (usedMethods, measuringEquipments, influenceConditions, one result per
+parameter as a D-SI ``si:real`` with value, unit and ``si:expandedUnc`` U, k and coverage
+probability). Values are SI as archived.
+
+The official XSD is not shipped with this package; the document follows its element order
+(DCC 3.2) so that a lab with the XSD can validate it.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+from calib_core import params
+from pipelines.reports import iso17025
+
+DCC_NS = "https://ptb.de/dcc"
+SI_NS = "https://ptb.de/si"
+SCHEMA_VERSION = "3.2.1"
+LANG = "en"
+# D-SI unit of each SI unit string of calib_core.params.UNITS.
+D_SI = {
+    "m/s^2": r"\metre\second\tothe{-2}",
+    "rad/s": r"\radian\second\tothe{-1}",
+    "1": r"\one",
+    "1/(m/s^2)": r"\metre\tothe{-1}\second\tothe{2}",
+    "1/(m/s^2)^2": r"\metre\tothe{-2}\second\tothe{4}",
+    "(rad/s)/(m/s^2)": r"\radian\metre\tothe{-1}\second",
+}
+
+ET.register_namespace("dcc", DCC_NS)
+ET.register_namespace("si", SI_NS)
+
+
+def _el(parent: ET.Element, tag: str, text: str | None = None, **attrib: str) -> ET.Element:
+    ns, name = tag.split(":")
+    el = ET.SubElement(parent, f"{{{DCC_NS if ns == 'dcc' else SI_NS}}}{name}", attrib)
+    if text is not None:
+        el.text = text
+    return el
+
+
+def _text(parent: ET.Element, tag: str, text: str) -> ET.Element:
+    """A DCC text element: <tag><dcc:content lang="en">text</dcc:content></tag>."""
+    el = _el(parent, tag)
+    _el(el, "dcc:content", text, lang=LANG)
+    return el
+
+
+def dcc_xml(summary: dict[str, Any]) -> bytes:
+    """The DCC of the run as UTF-8 XML bytes."""
+    root = ET.Element(f"{{{DCC_NS}}}digitalCalibrationCertificate",
+                      {"schemaVersion": SCHEMA_VERSION})
+    _administrative(_el(root, "dcc:administrativeData"), summary)
+    _results(_el(root, "dcc:measurementResults"), summary)
+    ET.indent(root)
+    return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+def _administrative(admin: ET.Element, summary: dict[str, Any]) -> None:
+    lab = summary.get("lab") or {}
+    software = _el(_el(admin, "dcc:dccSoftware"), "dcc:software")
+    _text(software, "dcc:name", "calib (IMU calibration pipeline)")
+    _el(software, "dcc:release", summary["calibration"]["software_version"])
+    core = _el(admin, "dcc:coreData")
+    laboratory = lab.get("laboratory", {})
+    _el(core, "dcc:countryCodeISO3166_1", laboratory.get("country", "ZZ"))  # ZZ: not recorded
+    _el(core, "dcc:usedLangCodeISO639_1", LANG)
+    _el(core, "dcc:mandatoryLangCodeISO639_1", LANG)
+    _el(core, "dcc:uniqueIdentifier", iso17025.certificate_number(summary))
+    day = f"{summary['started_at']:%Y-%m-%d}"
+    _el(core, "dcc:beginPerformanceDate", day)
+    _el(core, "dcc:endPerformanceDate", day)
+    _el(core, "dcc:performanceLocation", "laboratory")
+    _item(_el(admin, "dcc:items"), summary["device"])
+    _contact(_el(admin, "dcc:calibrationLaboratory"), laboratory, "address")
+    person = _el(_el(admin, "dcc:respPersons"), "dcc:respPerson")
+    who = lab.get("authorised_by", {})
+    _text(_el(person, "dcc:person"), "dcc:name", who.get("name", iso17025.NOT_RECORDED))
+    _el(person, "dcc:role", who.get("function", "authorised by"))
+    customer = _el(admin, "dcc:customer")
+    _text(customer, "dcc:name", lab.get("customer", {}).get("name", iso17025.NOT_RECORDED))
+    statements = _el(admin, "dcc:statements")
+    for said in _statements(summary):
+        _text(_el(statements, "dcc:statement"), "dcc:declaration", said)
+
+
+def _item(items: ET.Element, device: dict[str, Any]) -> None:
+    item = _el(items, "dcc:item")
+    _text(item, "dcc:name", f"IMU {device['model']}")
+    _text(_el(item, "dcc:manufacturer"), "dcc:name", device["manufacturer"])
+    _el(item, "dcc:model", device["model"])
+    ident = _el(_el(item, "dcc:identifications"), "dcc:identification")
+    _el(ident, "dcc:issuer", "manufacturer")
+    _el(ident, "dcc:value", device["serial"])
+    _text(ident, "dcc:name", "Serial number")
+
+
+def _contact(parent: ET.Element, entry: dict[str, str], where: str) -> None:
+    contact = _el(parent, "dcc:contact")
+    _text(contact, "dcc:name", entry.get("name", iso17025.NOT_RECORDED))
+    _text(_el(contact, "dcc:location"), "dcc:further", entry.get(where, iso17025.NOT_RECORDED))
+
+
+def _statements(summary: dict[str, Any]) -> list[str]:
+    check = next((s for s in summary["calibration"]["steps"] if s["name"] == "check"), {})
+    rule = check.get("settings", {}).get("decision_rule", "Decision rule: not recorded")
+    labels = sorted({b["label"] for b in _budgets(summary).values()}) or ["not evaluated"]
+    return [rule, iso17025.ONLY_ITEMS, "Uncertainty budget: " + "; ".join(labels),
+            f"Overall verdict: {summary['calibration']['verdict']}"]
+
+
+def _budgets(summary: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    step = next((s for s in summary["calibration"]["steps"] if s["name"] == "uncertainty"), {})
+    return step.get("statistics", {}).get("budgets", {})
+
+
+def _results(results_root: ET.Element, summary: dict[str, Any]) -> None:
+    result = _el(results_root, "dcc:measurementResult")
+    _text(result, "dcc:name", "IMU error model parameters")
+    method = _el(_el(result, "dcc:usedMethods"), "dcc:usedMethod")
+    _text(method, "dcc:name", f"procedure {summary['procedure']}")
+    equipment = _el(result, "dcc:measuringEquipments")
+    for e in summary["equipment"]:
+        eq = _el(equipment, "dcc:measuringEquipment")
+        _text(eq, "dcc:name", f"{e['kind']} {e.get('model') or ''}".strip())
+        ident = _el(_el(eq, "dcc:identifications"), "dcc:identification")
+        _el(ident, "dcc:issuer", "manufacturer")
+        _el(ident, "dcc:value", e["serial"])
+        _text(ident, "dcc:name", "Serial number")
+    temperature = (summary.get("environment") or {}).get("temperature_c")
+    if temperature is not None:
+        cond = _el(_el(result, "dcc:influenceConditions"), "dcc:influenceCondition")
+        _text(cond, "dcc:name", "Ambient temperature")
+        quantity = _el(_el(cond, "dcc:data"), "dcc:quantity")
+        _real(quantity, float(temperature) + 273.15, r"\kelvin")
+    _parameters(_el(result, "dcc:results"), summary)
+
+
+def _parameters(results: ET.Element, summary: dict[str, Any]) -> None:
+    budgets = _budgets(summary)
+    for p in summary["calibration"]["parameters"]:
+        res = _el(results, "dcc:result", refId=p["name"].replace(".", "_"))
+        _text(res, "dcc:name", p["name"])
+        quantity = _el(_el(res, "dcc:data"), "dcc:quantity")
+        _text(quantity, "dcc:name", p["name"])
+        _real(quantity, p["value"], D_SI[params.unit_of(p["name"])], budgets.get(p["name"]))
+
+
+def _real(parent: ET.Element, value: float, unit: str, budget: dict | None = None) -> None:
+    real = _el(parent, "si:real")
+    _el(real, "si:value", repr(float(value)))
+    _el(real, "si:unit", unit)
+    if budget is not None:
+        unc = _el(real, "si:expandedUnc")
+        _el(unc, "si:uncertainty", repr(float(budget["U"])))
+        _el(unc, "si:coverageFactor", repr(float(budget["k"])))
+        _el(unc, "si:coverageProbability", repr(float(budget["coverage"])))
+
+
+def write_dcc(summary: dict[str, Any], folder: Path) -> Path:
+    """Write `<serial>_<run>_dcc.xml` into `folder`; returns its path."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{summary['device']['serial']}_{summary['run_id']}_dcc.xml"
+    path.write_bytes(dcc_xml(summary))
+    return path
