@@ -20,7 +20,7 @@ from datetime import UTC, date, datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import bindparam, func, select
 from sqlalchemy.engine import make_url
 
 from storage.db import Archive
@@ -282,6 +282,22 @@ def device(archive: Archive, serial: str) -> dict[str, Any]:
     return dict(row._mapping)
 
 
+# Built once (a select costs more to build than to run on its index), bound per unit.
+_UNIT_PARAMETERS = (
+    select(Run.run_id, Run.started_at,
+           Run.environment["temperature_c"].as_float().label("env_temperature_c"),
+           CalibrationRow.revision, CalibrationRow.verdict,
+           CalibrationRow.profile_name, ParameterRow.name, ParameterRow.value,
+           ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c)
+    .join(Device, Device.id == Run.device_id)
+    .join(CalibrationRow, (CalibrationRow.run_id == Run.id)
+          & CalibrationRow.superseded_by.is_(None))
+    .join(ParameterRow, ParameterRow.calibration_id == CalibrationRow.id)
+    .where(Device.serial == bindparam("serial"))
+    .order_by(Run.started_at, Run.id, ParameterRow.name, ParameterRow.temperature_c)
+)  # fmt: skip
+
+
 def unit_parameters(archive: Archive, serial: str) -> list[dict[str, Any]]:
     """Every parameter value of a unit's current revisions, by run start then name.
 
@@ -290,37 +306,26 @@ def unit_parameters(archive: Archive, serial: str) -> list[dict[str, Any]]:
     One query for the unit's whole history.
     """
     check_serial(serial)
-    stmt = (
-        select(Run.run_id, Run.started_at,
-               Run.environment["temperature_c"].as_float().label("env_temperature_c"),
-               CalibrationRow.revision, CalibrationRow.verdict,
-               CalibrationRow.profile_name, ParameterRow.name, ParameterRow.value,
-               ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c)
-        .join(Device, Device.id == Run.device_id)
-        .join(CalibrationRow, (CalibrationRow.run_id == Run.id)
-              & CalibrationRow.superseded_by.is_(None))
-        .join(ParameterRow, ParameterRow.calibration_id == CalibrationRow.id)
-        .where(Device.serial == serial)
-        .order_by(Run.started_at, Run.id, ParameterRow.name, ParameterRow.temperature_c)
-    )  # fmt: skip
     with archive.engine().connect() as conn:
-        return [dict(r._mapping) for r in conn.execute(stmt).all()]
+        return [dict(r._mapping) for r in conn.execute(_UNIT_PARAMETERS, {"serial": serial})]
+
+
+_THERMAL_MODEL = (
+    select(ThermalModelRow.id, ThermalModelRow.created_at, ThermalModelRow.t_ref,
+           ThermalModelRow.t_min, ThermalModelRow.t_max, ThermalModelRow.document,
+           ThermalModelRow.calibration_ids)
+    .join(Device, Device.id == ThermalModelRow.device_id)
+    .where(Device.serial == bindparam("serial"), ThermalModelRow.superseded_by.is_(None))
+    .order_by(ThermalModelRow.id.desc())
+    .limit(1)
+)  # fmt: skip
 
 
 def thermal_model(archive: Archive, serial: str) -> dict[str, Any] | None:
     """The current thermal model of a unit (id, created_at, t_ref, t_min, t_max, document)."""
     check_serial(serial)
-    stmt = (
-        select(ThermalModelRow.id, ThermalModelRow.created_at, ThermalModelRow.t_ref,
-               ThermalModelRow.t_min, ThermalModelRow.t_max, ThermalModelRow.document,
-               ThermalModelRow.calibration_ids)
-        .join(Device, Device.id == ThermalModelRow.device_id)
-        .where(Device.serial == serial, ThermalModelRow.superseded_by.is_(None))
-        .order_by(ThermalModelRow.id.desc())
-        .limit(1)
-    )  # fmt: skip
     with archive.engine().connect() as conn:
-        row = conn.execute(stmt).one_or_none()
+        row = conn.execute(_THERMAL_MODEL, {"serial": serial}).one_or_none()
     return None if row is None else dict(row._mapping)
 
 
