@@ -287,6 +287,29 @@ def test_equipment_spec_from_the_manifest() -> None:
     assert equipment_spec(RunManifest.model_validate(doc)) is None
 
 
+def test_equipment_accuracy_class_read_when_it_states_one() -> None:
+    from pipelines.ingest.manifest import RunManifest
+    from pipelines.uncertainty import accuracy_of, equipment_spec_sources
+
+    assert accuracy_of("0.01 deg") == ("angle", pytest.approx(np.radians(0.01)))
+    assert accuracy_of("36 arcsec") == ("angle", pytest.approx(np.radians(0.01)))
+    assert accuracy_of("0.005 %") == ("relative", pytest.approx(5e-5))
+    assert accuracy_of("1 ms timestamp") is None and accuracy_of(None) is None
+    doc = {**_manifest("S", equipment=True), "format": {"kind": "csv"}}
+    doc["equipment"] = [
+        {**doc["equipment"][0], "accuracy_class": "0.01 deg"},
+        {"kind": "rate_table", "model": "T", "serial": "RT-1", "accuracy_class": "100 ppm",
+         "calibration_due": "2027-11-15"},
+        {"kind": "daq", "model": "D", "serial": "D-1", "accuracy_class": "1 ms timestamp",
+         "calibration_due": "2027-11-15"},
+    ]
+    spec, sources = equipment_spec_sources(RunManifest.model_validate(doc))
+    assert spec.cube_angle == pytest.approx(np.radians(0.01))
+    assert spec.table_rate_rel == pytest.approx(1e-4)
+    assert sources["cube_angle"] == "accuracy_class '0.01 deg' of cube CUBE-1"
+    assert sources["turn_angle"] == "default"
+
+
 @pytest.mark.parametrize("form", ["html", "pdf"])
 def test_as_found_and_as_left_of_a_recalibrated_unit(archived, form) -> None:
     _, summary, html, pdf, _ = archived["U-BARE"]
