@@ -27,9 +27,10 @@ from calib_core.simulate import random_errors, six_position_integral_run
 from pipelines.changes import change_report, family
 from pipelines.direct import discover, process_in_process
 from pipelines.flows import reprocess_batch
+from pipelines.provenance import SOFTWARE_VERSION
 from pipelines.reprocess import changed_pairs, plan_reprocess, reprocess_in_process
 from pipelines.run_writers import six_position_manifest, write_csv_run
-from storage import schema
+from storage import queries, schema
 from storage.db import resolve_archive
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -112,6 +113,23 @@ def test_selection_reprocessed_twice_gives_revisions_then_duplicates(
             select(schema.ProcessingStep.settings).where(schema.ProcessingStep.name == "reprocess")
         ).scalars().all()  # fmt: skip
     assert reasons == [{"reason": "solver upgrade"}] * 3
+    # Every filter, on the archive as it now is (3 runs revised by the new software).
+    for filters, expected in (
+        ({"software_version": "9.9.9-reprocess-batch"}, [o["run_id"] for o in once]),
+        ({"software_version": SOFTWARE_VERSION}, [first[0]["run_id"]]),  # left alone
+        ({"until": "2026-11-02"}, [first[0]["run_id"], once[0]["run_id"]]),
+        ({"since": "2026-11-03T00:00:00+00:00", "until": "2026-11-03"}, [once[1]["run_id"]]),
+        ({"serial": "LAB4"}, [once[2]["run_id"]]),
+        (
+            {"model": "MPU-6000", "profile": "lab"},
+            [first[0]["run_id"]] + [o["run_id"] for o in once],
+        ),
+        ({"model": "ADXL355"}, []),
+        ({"profile": "mpu6000"}, []),
+    ):
+        assert [r["run_id"] for r in queries.select_runs(arch, **filters)] == expected, filters
+    with pytest.raises(ValueError, match="until: expected a date"):
+        queries.select_runs(arch, until="last week")
     report = change_report(changed_pairs(arch, twice))  # the duplicates' revisions are current
     assert report["runs"] == 3 and report["verdicts"] == {}
     # Same bytes, same deterministic solver: every value equal, so no |z| above 0.

@@ -66,22 +66,25 @@ def select_runs(
     with Session(archive.engine()) as s:
         runs = s.execute(stmt).all()
         cals: dict[int, list[dict[str, Any]]] = {r.id: [] for r in runs}
-        rows = s.execute(
-            select(
-                CalibrationRow.run_id, CalibrationRow.revision, CalibrationRow.settings_hash,
-                CalibrationRow.settings, CalibrationRow.software_version,
-                CalibrationRow.profile_name, CalibrationRow.verdict,
-                CalibrationRow.superseded_by,
-            ).order_by(CalibrationRow.run_id, CalibrationRow.revision)
-        ).all()  # fmt: skip
-    for c in rows:
-        if c.run_id in cals:
-            cals[c.run_id].append({
-                "revision": c.revision, "settings_hash": c.settings_hash,
-                "settings": c.settings, "software_version": c.software_version,
-                "profile_name": c.profile_name, "verdict": c.verdict,
-                "current": c.superseded_by is None,
-            })  # fmt: skip
+        ids = list(cals)
+        for start in range(0, len(ids), _CHUNK):
+            rows = s.execute(
+                select(
+                    CalibrationRow.run_id, CalibrationRow.revision, CalibrationRow.settings_hash,
+                    CalibrationRow.settings, CalibrationRow.software_version,
+                    CalibrationRow.profile_name, CalibrationRow.verdict,
+                    CalibrationRow.superseded_by,
+                )
+                .where(CalibrationRow.run_id.in_(ids[start : start + _CHUNK]))
+                .order_by(CalibrationRow.run_id, CalibrationRow.revision)
+            ).all()  # fmt: skip
+            for c in rows:
+                cals[c.run_id].append({
+                    "revision": c.revision, "settings_hash": c.settings_hash,
+                    "settings": c.settings, "software_version": c.software_version,
+                    "profile_name": c.profile_name, "verdict": c.verdict,
+                    "current": c.superseded_by is None,
+                })  # fmt: skip
     return [
         {"run_id": r.run_id, "serial": r.serial, "procedure": r.procedure,
          "started_at": r.started_at, "calibrations": cals[r.id]}
@@ -101,19 +104,17 @@ def revision_pairs(archive: Archive, run_ids: list[str]) -> list[dict[str, Any]]
     parameters (canonical name -> (value, std), SI).
     """
     new, old = aliased(CalibrationRow), aliased(CalibrationRow)
-    wanted = set(run_ids)
-    stmt = (
-        select(Run.run_id, Device.serial, new, old)
-        .join(Device, Device.id == Run.device_id)
-        .join(new, (new.run_id == Run.id) & new.superseded_by.is_(None))
-        .join(old, old.superseded_by == new.id)
-    )
     found: dict[str, dict[str, Any]] = {}
     with Session(archive.engine()) as s:
-        # All pairs at once, filtered here: a selection may hold thousands of run ids,
-        # more than a statement may bind.
-        for row in s.execute(stmt).all():
-            if row.run_id in wanted:
+        for start in range(0, len(run_ids), _CHUNK):
+            stmt = (
+                select(Run.run_id, Device.serial, new, old)
+                .join(Device, Device.id == Run.device_id)
+                .join(new, (new.run_id == Run.id) & new.superseded_by.is_(None))
+                .join(old, old.superseded_by == new.id)
+                .where(Run.run_id.in_(run_ids[start : start + _CHUNK]))
+            )
+            for row in s.execute(stmt).all():
                 found[row.run_id] = {"run_id": row.run_id, "serial": row.serial,
                                      "new": row[2], "old": row[3]}  # fmt: skip
         ids = [c.id for p in found.values() for c in (p["new"], p["old"])]
