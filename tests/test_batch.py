@@ -438,7 +438,8 @@ def _alive(pid: int) -> bool:
 
 
 def wait_first_run_finished(proc: subprocess.Popen) -> None:
-    """Read `proc`'s stderr (text) until Prefect logs the first finished task run."""
+    """Read `proc`'s stderr (text) until Prefect logs the first finished task run
+    (`calib --verbose`: Prefect logs at warning level otherwise)."""
     assert proc.stderr is not None
     seen: list[str] = []
     for line in proc.stderr:  # Prefect logs each finished task run on stderr
@@ -463,7 +464,8 @@ def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> N
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}  # temporary API
     env["CALIB_TEST_TAG"] = tag = str(uuid.uuid4())
     archive = str(tmp_path / "archive")
-    cmd = [calib, "process", str(tmp_path / "day"), "--archive", archive, "--no-progress"]
+    cmd = [calib, "--verbose", "process", str(tmp_path / "day"), "--archive", archive]
+    cmd.append("--no-progress")
     before = _helper_pids(tag)
     proc = subprocess.Popen(
         [*cmd, "--runner", "process", "--workers", "2"],

@@ -242,7 +242,8 @@ def test_kill_during_a_reprocess_batch_then_rerun_reprocesses_every_run_once(
     calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {**os.environ, "PREFECT_API_URL": PREFECT_API_URL.value(),
            "CALIB_PROFILES": str(profiles), "PYTHONPATH": str(ROOT)}  # fmt: skip
-    cmd = [calib, "reprocess", "--all", "--reason", "profile v2", "--archive", archive]
+    cmd = [calib, "--verbose", "reprocess", "--all", "--reason", "profile v2"]
+    cmd += ["--archive", archive]
     cmd += ["--flow", "--workers", "2", "--no-progress"]
     proc = subprocess.Popen(
         cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env
