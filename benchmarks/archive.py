@@ -25,12 +25,14 @@ per query and back end to stdout; the LAST stdout line is one JSON object::
      "postgresql": {...}, "runs": int, "parameter_rows": int}
 
 ``fleet_s`` is the slowest of the timed fleet calls. Run:
-``.venv/bin/python benchmarks/archive.py [--runs N]`` (~5-8 min on 2 cores for 100k).
+``.venv/bin/python benchmarks/archive.py [--runs N] [--verify-runs N]`` (~5-8 min on 2
+cores for 100k, plus ~10 min per back end for 1000 verify runs).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import shutil
@@ -390,6 +392,86 @@ def bench(archive: Archive, synth: Synth) -> dict[str, dict[str, float]]:
     return result
 
 
+# --- verify on real-looking runs ----------------------------------------------------------
+
+SAMPLE_RUN = ROOT / "data_samples" / "mpu6000_MPU0001"
+
+
+def template_run(work: Path):  # noqa: ANN201 - (RunIn, protocol bytes)
+    """The MPU-6000 sample processed once by the real pipeline (ingest, solve, checks)."""
+    from pipelines.ingest import RunSource, load_run
+    from pipelines.process import (
+        check_run,
+        ingest_step,
+        parameter_rows,
+        protocol_of,
+        run_record,
+        solve_loaded,
+    )
+
+    scratch = Archive(default_archive_url(work / "template"), work / "template")
+    scratch.upgrade()
+    loaded = load_run(RunSource(SAMPLE_RUN, "mpu6000", "MPU0001"))
+    cal, steps, settings = solve_loaded(loaded)
+    judged = check_run(loaded, cal, scratch, "R000000000000")
+    rows = parameter_rows(cal, loaded.manifest.environment.temperature_c)
+    run = run_record(loaded, cal, [ingest_step(loaded, 0.0), *steps], settings, judged, rows)
+    protocol = protocol_of(loaded, cal, judged, "R000000000000", rows).encode()
+    scratch.dispose()
+    return run, protocol
+
+
+def real_runs(n: int, work: Path) -> Iterator:
+    """`n` variants of the template: other raw bytes (one line), serial, time, values."""
+    from dataclasses import replace
+
+    from storage.archive import RawFileIn
+
+    run, protocol = template_run(work)
+    rng = np.random.default_rng(SEED + 2)
+    originals = [(f, Path(f.path).read_bytes()) for f in run.raw_files]
+    folder = work / "variant"
+    folder.mkdir()
+    for i in range(n):
+        raw = []
+        for f, data in originals:
+            body = f"# variant {i}\n".encode() + data
+            path = folder / f.name
+            path.write_bytes(body)
+            raw.append(RawFileIn(path, f.name, hashlib.sha256(body).hexdigest(), len(body),
+                                 f.format))  # fmt: skip
+        params_i = [{**p, "value": p["value"] * (1 + 1e-3 * rng.standard_normal())}
+                    for p in run.parameters]  # fmt: skip
+        yield replace(run, serial=f"MPU{i % 100:04d}", raw_files=raw, parameters=params_i,
+                      started_at=T0 + timedelta(hours=i)), protocol  # fmt: skip
+
+
+def bench_verify(archive: Archive, n: int, work: Path) -> dict[str, float]:
+    """Archive `n` real-looking runs, then time verify with and without the seals."""
+    from storage.archive import archive_run
+    from storage.verify import verify
+
+    archive.upgrade()
+    t = time.perf_counter()
+    for run, protocol in real_runs(n, work):
+        archive_run(archive, run, {f"{run.serial}_result.txt": protocol})
+    log(f"  {n} real-looking runs archived in {time.perf_counter() - t:.0f} s")
+    times = {}
+    for name, seals in (("files_only", False), ("full", True), ("files_only", False)):
+        t = time.perf_counter()
+        report = verify(archive, orphans=False, seals=seals)
+        times[name] = min(times.get(name, np.inf), time.perf_counter() - t)
+        assert report.ok and report.runs_checked == n, report.problems[:3]
+    per_1k = {k: v * 1000 / n for k, v in times.items()}
+    log(f"  verify: {per_1k['full']:.2f} s per 1k runs with seals, "
+        f"{per_1k['files_only']:.2f} s files only ({report.bytes_checked / 1e6:.0f} MB read)")
+    return {
+        "verify_s_per_1k_runs": round(per_1k["full"], 3),
+        "verify_files_only_s_per_1k_runs": round(per_1k["files_only"], 3),
+        "verify_ratio": round(per_1k["full"] / per_1k["files_only"], 3),
+    }
+
+
 def run_backend(kind: str, archive: Archive, synth: Synth) -> dict[str, dict[str, float]]:
     log(f"{kind}: migrating")
     archive.upgrade()
@@ -403,6 +485,7 @@ def run_backend(kind: str, archive: Archive, synth: Synth) -> dict[str, dict[str
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=100_000)
+    ap.add_argument("--verify-runs", type=int, default=1000)
     args = ap.parse_args()
     synth = Synth(args.runs)
     n_params = args.runs * len(NAMES) * len(TEMPS)
@@ -413,6 +496,10 @@ def main() -> None:
         sq = Archive(default_archive_url(work / "sqlite"), work / "sqlite")
         results["sqlite"] = run_backend("sqlite", sq, Synth(args.runs))
         sq.dispose()
+        log("sqlite: verify")
+        vq = Archive(default_archive_url(work / "vsqlite"), work / "vsqlite")
+        verify_results = {"sqlite": bench_verify(vq, args.verify_runs, work / "vs")}
+        vq.dispose()
         with private_server(
             shared_buffers="512MB", max_wal_size="4GB", synchronous_commit="off"
         ) as server:
@@ -420,6 +507,11 @@ def main() -> None:
             pg = Archive(server.rsplit("/", 1)[0] + "/bench", work / "pg")
             results["postgresql"] = run_backend("postgresql", pg, Synth(args.runs))
             pg.dispose()
+            log("postgresql: verify")
+            admin_execute(server, 'CREATE DATABASE "vbench"')
+            vp = Archive(server.rsplit("/", 1)[0] + "/vbench", work / "vpg")
+            verify_results["postgresql"] = bench_verify(vp, args.verify_runs, work / "vp")
+            vp.dispose()
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -433,10 +525,16 @@ def main() -> None:
             "lineage_p95_ms": round(r["lineage"]["p95_ms"], 3),
             "history_p95_ms": round(r["history"]["p95_ms"], 3),
             "fleet_s": round(r["fleet"]["max_s"], 4),
+            **verify_results[b],
         }
         for b, r in results.items()
     }
-    print(json.dumps({**summary, "runs": args.runs, "parameter_rows": n_params}))
+    print(f"verify per 1k real-looking runs ({args.verify_runs} archived), target ratio <= 2:")
+    for b, v in verify_results.items():
+        print(f"  {b:<12} {v['verify_s_per_1k_runs']:.2f} s with seals, "
+              f"{v['verify_files_only_s_per_1k_runs']:.2f} s files only, ratio {v['verify_ratio']}")
+    print(json.dumps({**summary, "runs": args.runs, "parameter_rows": n_params,
+                      "verify_runs": args.verify_runs}))  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -27,7 +27,8 @@ def verify(
         ),
     ] = False,
 ) -> None:
-    """Re-hash every archived raw file and samples file; exit 1 on any missing or changed file."""
+    """Re-hash every archived file, recompute every seal, the audit chain and the approval
+    signatures; exit 1 on any missing or changed file or value."""
     from storage.rawstore import remove_stale_temp_files
     from storage.seal import record_event
     from storage.verify import verify as run_verify
@@ -56,7 +57,7 @@ def verify(
             f"{report.seals_checked} seals checked: "
             + ("OK" if report.ok else f"[red]{len(report.problems)} problem(s)[/red]")
         )
-        err.print(f"audit chain head: event {seq}, hash {head} (note it to detect truncation)")
+        err.print(f"audit chain head: event {seq}, hash {head} (note it down)", soft_wrap=True)
     raise typer.Exit(0 if report.ok else 1)
 
 
