@@ -23,7 +23,7 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import serialization
@@ -169,6 +169,20 @@ def _sealed_revision(
     return row.id, row.revision, row.digest, row.record.get("files", {})
 
 
+def _signature_error(ev: Any) -> str | None:
+    """Why the signature of approval event `ev` does not verify (None: it does)."""
+    d = ev.detail or {}
+    try:
+        public = Ed25519PublicKey.from_public_bytes(bytes.fromhex(d["public_key"]))
+        public.verify(
+            bytes.fromhex(d["signature"]),
+            message(ev.run_id, ev.revision, ev.digest, d["meaning"], d["signer"], d["public_key"]),
+        )
+    except (InvalidSignature, KeyError, ValueError, TypeError) as exc:
+        return type(exc).__name__
+    return None
+
+
 def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[seal.Finding]:
     """Every approval's signature, and whether the record it signed is unchanged."""
     found: list[seal.Finding] = []
@@ -176,23 +190,11 @@ def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[sea
         d = ev.detail or {}
         who = f"{d.get('meaning', '?')} by {d.get('signer', '?')} (event {ev.seq})"
         where = f"{ev.run_id} revision {ev.revision}"
-        try:
-            public = Ed25519PublicKey.from_public_bytes(bytes.fromhex(d["public_key"]))
-            public.verify(
-                bytes.fromhex(d["signature"]),
-                message(ev.run_id, ev.revision, ev.digest, d["meaning"], d["signer"],
-                        d["public_key"]),
-            )  # fmt: skip
-        except (InvalidSignature, KeyError, ValueError, TypeError) as exc:
-            found.append(
-                seal.Finding(
-                    "signature",
-                    "audit_events",
-                    [ev.run_id],
-                    f"{where}: the signature of the approval {who} does not "
-                    f"verify ({type(exc).__name__}): the event was altered",
-                )
-            )
+        error = _signature_error(ev)
+        if error is not None:
+            found.append(seal.Finding("signature", "audit_events", [ev.run_id],
+                                      f"{where}: the signature of the approval {who} does not "
+                                      f"verify ({error}): the event was altered"))  # fmt: skip
             continue
         now = digests_now.get((ev.run_id, ev.revision))
         if now != ev.digest:
@@ -203,22 +205,36 @@ def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[sea
     return found
 
 
+def approval_status(archive: Archive, run_id: str, revision: int) -> list[tuple[Approval, bool]]:
+    """The approvals of one revision, each with whether it holds now: its signature
+    verifies and the revision's rows and files still give the digest it signed.
+    A revision without a seal has no approval that holds."""
+    with archive.engine().connect() as conn:
+        try:
+            cal_id, _, _, files = _sealed_revision(conn, run_id, revision)
+        except ApprovalError:
+            return []
+        rec = seal.records(conn, [cal_id], {cal_id: seal.rehash_files(archive.root, files)})
+        now = seal.digest_of(rec[cal_id])
+        events = conn.execute(
+            select(AuditEvent).where(AuditEvent.action == "approved",
+                                     AuditEvent.run_id == run_id, AuditEvent.revision == revision)
+            .order_by(AuditEvent.seq)
+        ).all()  # fmt: skip
+    return [(_approval(ev), _signature_error(ev) is None and ev.digest == now) for ev in events]
+
+
+def _approval(ev: Any) -> Approval:
+    d = ev.detail or {}
+    return Approval(ev.seq, ev.run_id, ev.revision, d.get("meaning", ""), d.get("signer", ""),
+                    d.get("public_key", ""), ev.at.isoformat())  # fmt: skip
+
+
 def approvals(archive: Archive, run_id: str) -> list[Approval]:
-    """The approvals of a run, oldest first (for certificates and `calib show`)."""
+    """The approvals of a run, oldest first."""
     with archive.engine().connect() as conn:
         rows = conn.execute(
             select(AuditEvent).where(AuditEvent.action == "approved", AuditEvent.run_id == run_id)
             .order_by(AuditEvent.seq)
         ).all()  # fmt: skip
-    return [
-        Approval(
-            ev.seq,
-            ev.run_id,
-            ev.revision,
-            ev.detail.get("meaning", ""),
-            ev.detail.get("signer", ""),
-            ev.detail.get("public_key", ""),
-            ev.at.isoformat(),
-        )  # fmt: skip
-        for ev in rows
-    ]
+    return [_approval(ev) for ev in rows]

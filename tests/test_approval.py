@@ -116,3 +116,32 @@ def test_audit_lists_by_serial_and_since(
     assert json.loads(res.stdout) == []
     res = cli(archive, "audit", "--since", "yesterday", monkeypatch=monkeypatch)
     assert res.exit_code == 2 and "since" in res.output
+
+
+def test_the_certificate_shows_the_approval(tmp_path: Path, key: Path) -> None:
+    """A real run (the MPU-6000 sample through the pipeline): its certificate says
+    NOT APPROVED, then who approved it and when, then that the approval no longer holds."""
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+    from pipelines.reports.certificate import report_run
+    from storage.db import resolve_archive
+
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    samples = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"
+    (source,) = discover_runs([samples])
+    run_id = process_run(source, arch)["run_id"]
+
+    def certificate() -> str:
+        written = report_run(arch, run_id, tmp_path / "out", pdf=False)
+        return Path(written["html"]).read_text()
+
+    assert "NOT APPROVED" in certificate()
+    event = approve(arch, run_id, load_key(key, PASS), signer="Jane Approver")
+    page = certificate()
+    assert "NOT APPROVED" not in page and "Electronically approved" in page
+    assert f"Jane Approver, {event.at.isoformat()[:19].replace('T', ' ')} UTC" in page
+    _tamper(arch, "UPDATE runs SET operator = 'Mallory' WHERE run_id = :r", r=run_id)
+    page = certificate()
+    assert "NO LONGER VALID" in page and "NOT APPROVED" in page
+    arch.dispose()

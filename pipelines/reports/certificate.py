@@ -110,13 +110,17 @@ class _Archived:
         return self.summary["started_at"]
 
 
-def sections(summary: dict[str, Any], samples: pa.Table) -> Certificate:
+def sections(
+    summary: dict[str, Any], samples: pa.Table, approvals: list[tuple[Any, bool]] | None = None
+) -> Certificate:
     """Gather the certificate of one archived run, section by section.
 
     Parameters
     ----------
     summary : `storage.queries.run_summary` of the run.
     samples : the run's archived samples (`storage.queries.run_samples`).
+    approvals : the electronic approvals of the revision with whether each holds
+        (`storage.approval.approval_status`); None or empty: marked not approved.
     """
     calrow = summary["calibration"]
     run = _Archived(
@@ -150,7 +154,7 @@ def sections(summary: dict[str, Any], samples: pa.Table) -> Certificate:
                 calrow["verdict"], run.cal, diagnosis, summary["environment"] or {}
             ),
         ),
-        _signatures_section(summary),
+        _signatures_section(summary, approvals or []),
     ]
     dev = summary["device"]
     title = f"Calibration certificate {dev['model']} {dev['serial']}"
@@ -480,11 +484,22 @@ def _verdict_section(run: _Archived) -> Section:
     )
 
 
-def _signatures_section(summary: dict[str, Any]) -> Section:
+def _signatures_section(summary: dict[str, Any], approvals: list[tuple[Any, bool]]) -> Section:
+    signed = [
+        (
+            f"Electronically {a.meaning}",
+            f"{a.signer}, {a.at[:19].replace('T', ' ')} UTC (Ed25519 key {a.public_key[:16]}...)"
+            + ("" if holds else ": NO LONGER VALID, the record changed after signing"),
+        )
+        for a, holds in approvals
+    ]
+    if not any(holds and a.meaning == "approved" for a, holds in approvals):
+        signed.append(("Electronic approval", "NOT APPROVED (no valid approval: calib approve)"))
     return Section(
         "Signatures",
         pairs=[
             *iso17025.authorisation_pairs(summary),
+            *signed,
             ("Customer representative", "______________________   Date: __________"),
             ("Quality control", "______________________   Date: __________"),
             ("Production", "______________________   Date: __________"),
@@ -564,9 +579,16 @@ def _recommendations(
 # --- HTML --------------------------------------------------------------------------------
 
 def write_reports(
-    summary: dict[str, Any], samples: pa.Table, folder: Path, *, pdf: bool = True
+    summary: dict[str, Any],
+    samples: pa.Table,
+    folder: Path,
+    *,
+    pdf: bool = True,
+    approvals: list[tuple[Any, bool]] | None = None,
 ) -> dict[str, Path]:
     """Write `<serial>_result.txt`, `<serial>_<run>_certificate.html` (and `.pdf`) into `folder`.
+
+    `approvals`: as for `sections`.
 
     Returns
     -------
@@ -574,7 +596,7 @@ def write_reports(
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    cert = sections(summary, samples)
+    cert = sections(summary, samples, approvals)
     serial, run_id = summary["device"]["serial"], summary["run_id"]
     out = {"protocol": folder / f"{serial}_result.txt"}
     out["protocol"].write_text(cert.protocol, encoding="utf-8")
@@ -614,6 +636,7 @@ def report_run(
         raise ValueError(f"report format {form!r}: expected one of {list(REPORT_FORMATS)}")
     from pipelines.lab import load_lab_profile
     from storage import queries
+    from storage.approval import approval_status
 
     summary = queries.run_summary(archive, run_id)
     lab = load_lab_profile()
@@ -626,5 +649,6 @@ def report_run(
 
         return {"verdict": summary["calibration"]["verdict"], "dcc": write_dcc(summary, folder)}
     samples = queries.run_samples(archive, run_id)
-    written = write_reports(summary, samples, folder, pdf=pdf)
+    approvals = approval_status(archive, run_id, summary["calibration"]["revision"])
+    written = write_reports(summary, samples, folder, pdf=pdf, approvals=approvals)
     return {"verdict": summary["calibration"]["verdict"], **written}

@@ -149,10 +149,12 @@ def raw_file(request: Request, run_id: str, name: str) -> FileResponse:
 
 def _certificate(archive, run_id: str):  # noqa: ANN001, ANN202
     from pipelines.reports.certificate import sections
+    from storage.approval import approval_status
 
     summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
     samples = forms.checked(queries.run_samples, archive, run_id)
-    return summary, sections(summary, samples)
+    approvals = approval_status(archive, summary["run_id"], summary["calibration"]["revision"])
+    return summary, sections(summary, samples, approvals)
 
 
 @router.get("/runs/{run_id}/protocol.txt")
