@@ -18,6 +18,7 @@ from typing import Any
 
 from calib_core import decision, params, units
 from calib_core.calibration import Calibration, CheckResult
+from calib_core.conditions import counts_against_verdict, parse_conditions
 from calib_core.decision import DecisionRule
 from calib_core.uncertainty import Budget
 
@@ -215,6 +216,11 @@ class ToleranceProfile:
         "temperature_tol_c"; missing keys take DEFAULT_REPEATABILITY.
     decision_rule : ILAC-G8 rule of the statements of conformity (TOML
         ``decision_rule = { name = "guard_band_r", r = 0.5 }``); simple acceptance if absent.
+    conditions : limits of the lab conditions and acquisition rules, key ->
+        {"low", "high"} in the key's unit (calib_core.conditions); missing keys and sides
+        take DEFAULT_CONDITIONS.
+    protocol_names : "canonical" (default) or "manual": the protocol also prints each
+        parameter under the MPU-6000 manual's name and sign (pipelines.reports.manual_names).
     """
 
     name: str
@@ -225,6 +231,8 @@ class ToleranceProfile:
     verification_limits: dict[str, float] = field(default_factory=dict)
     repeatability: dict[str, float | int] = field(default_factory=dict)
     decision_rule: DecisionRule = field(default_factory=DecisionRule)
+    conditions: dict[str, dict[str, float]] = field(default_factory=dict)
+    protocol_names: str = "canonical"
 
     def __post_init__(self) -> None:
         self.residual_limits = {**DEFAULT_RESIDUAL_LIMITS, **self.residual_limits}
@@ -312,6 +320,8 @@ class ToleranceProfile:
             "verification_limits",
             "repeatability",
             "decision_rule",
+            "conditions",
+            "protocol",
         }
         unknown = sorted(set(doc) - known)
         if unknown:
@@ -339,6 +349,8 @@ class ToleranceProfile:
             ),
             repeatability=_repeatability(doc.get("repeatability", {})),
             decision_rule=_decision_rule(doc.get("decision_rule", {})),
+            conditions=parse_conditions(doc.get("conditions", {})),
+            protocol_names=_protocol_names(doc.get("protocol", {})),
             **header,
         )
 
@@ -372,7 +384,26 @@ class ToleranceProfile:
         }
         if self.decision_rule != DecisionRule():  # absent means simple acceptance (older docs)
             doc["decision_rule"] = {"name": self.decision_rule.name, "r": self.decision_rule.r}
+        if self.conditions:
+            doc["conditions"] = {k: dict(v) for k, v in self.conditions.items()}
+        if self.protocol_names != "canonical":
+            doc["protocol"] = {"names": self.protocol_names}
         return doc
+
+
+PROTOCOL_NAMES = ("canonical", "manual")
+
+
+def _protocol_names(raw: Any) -> str:
+    """``[protocol] names = "canonical" | "manual"`` of a profile."""
+    if not isinstance(raw, dict) or set(raw) - {"names"}:
+        raise ValueError(
+            f"tolerance profile field 'protocol': expected a table with 'names', got {raw!r}"
+        )
+    names = raw.get("names", "canonical")
+    if names not in PROTOCOL_NAMES:
+        raise ValueError(f"protocol.names: expected one of {list(PROTOCOL_NAMES)}, got {names!r}")
+    return names
 
 
 def _decision_rule(raw: Any) -> DecisionRule:
@@ -613,9 +644,11 @@ def verdict(checks: list[CheckResult]) -> str:
     (``repeat:``), device (``device:``) or model (``model:``) checks failed: the
     numbers are within tolerance but do not repeat, belong to another unit, or
     were not determined by the run; or parameters inside their tolerance but within the
-    guard band of a limit (ILAC-G8 conditional pass); else "fail".
+    guard band of a limit (ILAC-G8 conditional pass); else "fail". A lab condition that
+    is only a warning or was not recorded (calib_core.conditions) leaves the verdict as
+    it is.
     """
-    failed = [c for c in checks if not c.passed]
+    failed = [c for c in checks if counts_against_verdict(c)]
     if not failed:
         return PASS
     if all(c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX, MODEL_PREFIX)) or _conditional_pass(c)

@@ -89,3 +89,45 @@ def gsens_names() -> list[list[str]]:
 ACC_LINEAR = [bias("acc", a) for a in AXES] + [n for row in matrix_names("acc") for n in row]
 GYR_LINEAR = [bias("gyr", a) for a in AXES] + [n for row in matrix_names("gyr") for n in row]
 GSENS = [n for row in gsens_names() for n in row]
+
+
+# --- the MPU-6000 manual's names and signs (methods.md 1 and 5) ---------------------------
+# The manual writes the misalignments as small angles with signs,
+#     Ax = (1+Axx) ax + Axz ay - Axy az + a0x
+#     Ay = -Ayz ax + (1+Ayy) ay + Ayx az + a0y
+#     Az =  Azy ax - Azx ay + (1+Azz) az + a0z
+# and the gyro the same way with G (the integral method's Gxz = M[x, y], Gxy = -M[x, z],
+# ...); its protocol prints the gyro noise as Gstdx. Only names the manual defines are
+# mapped (no g-sensitivity, gyro bias or accelerometer noise). canonical = sign * manual.
+
+# Canonical row/column of the misalignment -> (manual suffix, sign): M[x, y] = +Axz, ...
+_MISALIGN = {
+    "xy": ("xz", +1.0), "xz": ("xy", -1.0),
+    "yx": ("yz", -1.0), "yz": ("yx", +1.0),
+    "zx": ("zy", +1.0), "zy": ("zx", -1.0),
+}  # fmt: skip
+
+
+def _table() -> dict[str, tuple[str, float]]:
+    out: dict[str, tuple[str, float]] = {}
+    for sensor, letter in (("acc", "A"), ("gyr", "G")):
+        for a in "xyz":
+            out[f"{sensor}.scale.{a}"] = (f"{letter}{a}{a}", 1.0)
+        for rc, (suffix, sign) in _MISALIGN.items():
+            out[f"{sensor}.misalign.{rc}"] = (f"{letter}{suffix}", sign)
+    for a in "xyz":
+        out[f"acc.bias.{a}"] = (f"a0{a}", 1.0)
+        out[f"gyr.noise.{a}"] = (f"Gstd{a}", 1.0)
+    return out
+
+
+MANUAL_NAMES: dict[str, tuple[str, float]] = _table()
+
+
+def manual_name(name: str, value: float | None) -> tuple[str, float | None]:
+    """(the manual's name, the value in the manual's sign) of a canonical parameter;
+    ("", None) when the manual does not name it."""
+    if name not in MANUAL_NAMES:
+        return "", None
+    manual, sign = MANUAL_NAMES[name]
+    return manual, None if value is None else sign * value

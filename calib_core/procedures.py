@@ -9,6 +9,9 @@ Procedures
 six_position
     Statics only (x_up, x_dn, y_up, y_dn, z_up, z_dn): accelerometer bias,
     scale and misalignment (12), gyro bias and g-sensitivity (12), noise.
+integral
+    The six rotations alone (stage 2 of the MPU-6000 program): gyro scale and
+    misalignment, each axis's static reading from its own ccw and cw records.
 six_position_integral
     The statics plus n-turn ccw/cw rotations about each axis (x_ccw, x_cw, ...):
     adds gyro scale and misalignment by the integral method (MPU-6000 paper).
@@ -43,7 +46,7 @@ from calib_core.checks import check_physical_bounds
 from calib_core.recording import Recording
 from calib_core.solvers.centrifuge_segments import solve_centrifuge_segments
 from calib_core.solvers.equipment_free import solve_equipment_free
-from calib_core.solvers.integral import ROTATION_LABELS, solve_integral
+from calib_core.solvers.integral import ROTATION_LABELS, rotation_static_means, solve_integral
 from calib_core.solvers.kalman import kalman_accel_linear
 from calib_core.solvers.multi_position import (
     segment_residual,
@@ -282,19 +285,54 @@ def solve_six_position_integral(
     return cal
 
 
+def solve_integral_procedure(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Stage 2 of the MPU-6000 program alone: the six rotations, no orientations.
+
+    Gyro scale and misalignment by the integral method, each axis's static reading taken
+    from its own ccw and cw rotations (`rotation_static_means`); no biases, g-sensitivity,
+    accelerometer or noise (those are stage 1, procedure six_position).
+
+    settings : turns, gyro_range_dps (see the module docstring).
+    """
+    merged = _settings(settings)
+    _require(segments, ROTATION_LABELS, "integral")
+    rotations = {label: segments[label] for label in ROTATION_LABELS}
+    means, sems = rotation_static_means(rotations)
+    cal = solve_integral(
+        rotations, means, sems, merged["gyro_range_dps"] * DEG, merged["turns"], gravity=gravity
+    )
+    cal.info["static_reading_from"] = "rotations (stage 2 alone)"
+    cal.info["sample_counts"] = {label: len(rec) for label, rec in rotations.items()}
+    return cal
+
+
 def solve_rate_table_procedure(
     segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
 ) -> Calibration:
     """Rate-table gyro calibration: one segment per rate plateau, labelled "<axis>_<rate>"
     (e.g. "z_+100") with the table feedback in reference["table_rate"] (rad/s).
 
-    settings : settle_s (default 20 s), record_s (default: to the end), full_scale_dps.
+    settings : settle_s (default 20 s), record_s (default: to the end), full_scale_dps;
+        gyro_bias "joint" (default, fitted with the scale factors) or "static" (fixed
+        from the static run: the 0-rate points, or static_bias_dps [x, y, z] with
+        static_bias_std_dps [x, y, z] of a separate static-bias run).
     """
     s = dict(settings or {})
     kwargs = {k: float(s[k]) for k in ("settle_s", "record_s") if s.get(k) is not None}
     points = rate_points(list(segments.values()), **kwargs)
     full = s.get("full_scale_dps")
-    cal = solve_rate_table(points, full_scale=None if full is None else float(full) * DEG)
+    given = None
+    if s.get("static_bias_dps") is not None:
+        std = s.get("static_bias_std_dps", [0.0, 0.0, 0.0])
+        given = (np.asarray(s["static_bias_dps"], float) * DEG, np.asarray(std, float) * DEG)
+    cal = solve_rate_table(
+        points,
+        full_scale=None if full is None else float(full) * DEG,
+        gyro_bias=str(s.get("gyro_bias", "joint")),
+        static_bias=given,
+    )
     cal.gravity = gravity
     return cal
 
@@ -324,6 +362,7 @@ PROCEDURES: dict[str, Callable[[dict[str, Recording], float, dict[str, Any]], Ca
     "six_position": solve_six_position,
     "centrifuge": solve_centrifuge_segments,
     "six_position_integral": solve_six_position_integral,
+    "integral": solve_integral_procedure,
     "multi_position": solve_multi_position,
     "equipment_free": solve_equipment_free,
     "sensor_array": solve_sensor_array,

@@ -104,7 +104,7 @@ def _print_outcomes(outcomes: list[dict]) -> None:
     (whole: a path cut or wrapped inside a table cell cannot be copied)."""
     rows = []
     for o in outcomes:
-        failed = str(sum(not c["passed"] for c in o["checks"]))
+        failed = str(sum(c.get("status") == "fail" for c in o["checks"]))
         style = {"ok": "green", "duplicate": "yellow", "failed": "red"}[o["status"]]
         status = f"[{style}]{o['status']}[/]"
         rows.append([o["run_id"] or "-", o["serial"] or "-", status, o["verdict"] or "-", failed])
@@ -210,13 +210,22 @@ def _print_run(summary: dict, root: Path) -> None:
         std, _ = display(p["name"], p["std"])
         rows.append([p["name"], f"{value:.6g}", "-" if std is None else f"{std:.2g}", shown_unit])
     print_table("Parameters (u: standard uncertainty)", ["name", "value", "u", "unit"], rows)
-    failed = [c for c in cal["checks"] if not c["passed"]]
+    from calib_core.conditions import NOT_RECORDED, WARNING
+    from calib_core.conditions import status as condition_status
+
+    failed = [c for c in cal["checks"] if condition_status(c) == "fail"]
     if failed:
         rows = [[c["name"], _num(c.get("value")), _num(c.get("limit")), c.get("detail") or ""]
                 for c in failed]  # fmt: skip
         print_table("Failed checks", ["check", "value", "limit", "detail"], rows)
     else:
-        out.print(f"all {len(cal['checks'])} checks passed")
+        out.print(f"no check of {len(cal['checks'])} failed")
+    noted = [c for c in cal["checks"] if condition_status(c) in (WARNING, NOT_RECORDED)]
+    if noted:  # conditions that leave the verdict as it is
+        rows = [[c["name"], condition_status(c), _num(c.get("value")), c.get("detail") or ""]
+                for c in noted]  # fmt: skip
+        print_table("Conditions: warnings, not recorded", ["check", "status", "value", "detail"],
+                    rows)  # fmt: skip
     out.print(f"(every field: calib show {summary['run_id']} --json)", markup=False)
 
 

@@ -20,6 +20,8 @@ import pyarrow as pa
 from calib_core import procedures
 from calib_core.calibration import Calibration, CheckResult, StepRecord
 from calib_core.checks import ToleranceProfile, check_calibration
+from calib_core.conditions import check_conditions, counts_against_verdict
+from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess
 from calib_core.recording import Recording
 from calib_core.uncertainty import Budget
@@ -96,7 +98,8 @@ def run_outcome(
             for n, p in sorted(cal.parameters.items())
         },
         "checks": [
-            {"name": c.name, "value": c.value, "limit": c.limit, "passed": c.passed}
+            {"name": c.name, "value": c.value, "limit": c.limit, "passed": c.passed,
+             "status": condition_status(c.to_dict())}
             for c in (checks or [])
         ],
         "protocol": protocol,
@@ -245,6 +248,23 @@ def device_check(m: RunManifest, archived: dict[str, Any] | None) -> CheckResult
     )
 
 
+def run_conditions(
+    loaded: LoadedRun, cal: Calibration, profile: ToleranceProfile
+) -> list[CheckResult]:
+    """The lab conditions and acquisition rules of the run (calib_core.conditions), from
+    what the manifest records and the segments as acquired."""
+    m = loaded.manifest
+    return check_conditions(
+        loaded.segments,
+        m.recorded_conditions(),
+        procedure=m.run.procedure,
+        settings=m.run.settings,
+        gravity=cal.gravity,
+        gravity_source=m.site.source(),
+        overrides=profile.conditions,
+    )
+
+
 @dataclass
 class Judged:
     """What the check stage found: checks, verdict, the profile and its step record."""
@@ -265,6 +285,7 @@ def check_run(
     started = time.perf_counter()
     profile = load_profile(loaded.manifest.run.tolerance_profile)
     checks = check_calibration(cal, profile, budgets)
+    checks += run_conditions(loaded, cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id)
     checks += more_checks
     checks.append(device_check(loaded.manifest, queries.device_description(
@@ -281,7 +302,7 @@ def check_run(
         },
         statistics={
             "checks": len(checks),
-            "failed": sum(not c.passed for c in checks),
+            "failed": sum(counts_against_verdict(c) for c in checks),
             "verdict": verdict_,
             **judged,
             "seconds": round(time.perf_counter() - started, 4),
@@ -316,6 +337,7 @@ def protocol_of(
         verdict=judged.verdict,
         budgets={n: b.to_dict() for n, b in (budgets or {}).items()},
         decision_rule=judged.profile.decision_rule.statement(),
+        names=judged.profile.protocol_names,
     )
 
 

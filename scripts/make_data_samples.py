@@ -47,7 +47,10 @@ CSV_MANIFEST = {
         "pressure_hpa": 957.0,
         "vibration": "isolated granite table",
         "warmup_min": 20.0,
+        "temperature_drift_c_per_h": 0.2,
     },
+    # Sample values (the data are simulated): what a lab records of its acquisition.
+    "acquisition": {"settle_s": 30.0, "resolution_bits": 16},
     "equipment": [
         {
             "kind": "cube",

@@ -52,7 +52,8 @@ def _manifest(**settings) -> dict:
                 **settings,
             },
         },
-        "site": {"latitude_deg": 50.0},
+        # the simulation's gravity (standard); a latitude alone would mean Helmert's
+        "site": {"latitude_deg": 50.0, "gravity_model": "standard"},
         "equipment": [
             {"kind": "centrifuge", "model": "C-20", "serial": "C1", "calibration_due": "2027-01-31"}
         ],

@@ -8,9 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from calib_core import procedures
 from calib_core.recording import Recording
 from calib_core.simulate.rate_table import GyroTruth, simulate_rate_table
-from calib_core.solvers.rate_table import rate_point, rate_points, solve_rate_table
+from calib_core.solvers.rate_table import RatePoint, rate_point, rate_points, solve_rate_table
 from calib_core.units import DEG
 
 RATE = 100.0  # Hz, the procedure's minimum; keeps the Monte Carlo small
@@ -204,3 +205,97 @@ def test_bad_input_messages():
     # a constant channel has no scatter: its sem would claim infinite precision
     with pytest.raises(ValueError, match="gyro_sem must be > 0"):
         rate_point(rec, axis="x", settle_s=0.0)
+
+
+# --- bias fixed from the static run (issue 22 item 2) ---------------------------------
+
+
+def test_fixed_bias_reproduces_truth_within_its_reported_uncertainty():
+    """100 seeds at the procedure's rate points (-100 .. 100 deg/s, 10 s at 100 Hz):
+    with gyro_bias = "static" the bias is the mean of the three 0-rate points. Each
+    error over its reported u is N(0, 1); the std of 1200 such values is known to
+    1/sqrt(2400) ~ 2 %, so 0.85 .. 1.15 is a > 5 sigma band; |mean| < 4/sqrt(1200)."""
+    z = []
+    for seed in range(300, 400):
+        run = simulate_rate_table(
+            TRUTH, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE, record_s=RECORD_S,
+            gyro_noise_density=DENSITY, table_stability=1e-4, rng=np.random.default_rng(seed),
+        )  # fmt: skip
+        cal = solve_rate_table(rate_points(run.recordings), gyro_bias="static")
+        est = np.array([cal.parameters[n].value for n in NAMES])
+        u = np.array([cal.parameters[n].std for n in NAMES])
+        z.append((est - _truth_vector(TRUTH)) / u)
+    z = np.array(z).ravel()
+    assert 0.85 < z.std() < 1.15 and abs(z.mean()) < 4 / math.sqrt(z.size), (z.std(), z.mean())
+    # the bias rests on the 3 zero-rate points only: u = sigma_mean / sqrt(3)
+    sigma_mean = DENSITY * math.sqrt(RATE) / math.sqrt(RECORD_S * RATE)
+    assert cal.parameters["gyr.bias.x"].std == pytest.approx(sigma_mean / math.sqrt(3), rel=0.15)
+    assert cal.info["gyro_bias"] == "static"
+
+
+def _exact_points(k2: float) -> list[RatePoint]:
+    """Noise-free rate points of TRUTH plus an on-axis quadratic k2 w^2 (rad/s per (rad/s)^2)."""
+    points = []
+    for j, axis in enumerate("xyz"):
+        for r in RATES_DEG:
+            w = np.zeros(3)
+            w[j] = r * DEG
+            mean = (np.eye(3) + TRUTH.M) @ w + TRUTH.bias
+            mean[j] += k2 * w[j] ** 2
+            points.append(RatePoint(axis, w[j], mean, np.full(3, 1e-4), 1000, f"{axis}_{r:+g}"))
+    return points
+
+
+def test_fixed_bias_differs_from_joint_as_the_models_say():
+    """A quadratic scale-factor term k2 w^2 (outside both models): the joint fit's intercept
+    absorbs its mean over the 15 points (the rate columns are orthogonal to the constant:
+    the rates are symmetric), shift k2 sum(w^2)/15 on the on-axis channel; the bias fixed
+    from the static run stays the true one. The scale factors agree (sum w = 0 per axis),
+    and so do their uncertainties; the joint bias, from 15 points instead of 3, has
+    sqrt(5) times smaller uncertainty."""
+    k2 = 0.05  # 1/(rad/s): 0.15 deg/s at 100 deg/s
+    joint = solve_rate_table(_exact_points(k2))
+    fixed = solve_rate_table(_exact_points(k2), gyro_bias="static")
+    shift = k2 * 2 * ((50 * DEG) ** 2 + (100 * DEG) ** 2) / 15
+    for i, a in enumerate("xyz"):
+        assert fixed.parameters[f"gyr.bias.{a}"].value == pytest.approx(TRUTH.bias[i], abs=1e-12)
+        assert joint.parameters[f"gyr.bias.{a}"].value == pytest.approx(
+            TRUTH.bias[i] + shift, abs=1e-12
+        )
+        for name in (f"gyr.scale.{a}", f"gyr.misalign.{a}{'yzx'[i]}"):
+            assert fixed.parameters[name].value == pytest.approx(joint.parameters[name].value)
+            assert fixed.parameters[name].std == pytest.approx(joint.parameters[name].std)
+        ratio = fixed.parameters[f"gyr.bias.{a}"].std / joint.parameters[f"gyr.bias.{a}"].std
+        assert ratio == pytest.approx(math.sqrt(5))
+    # without the quadratic both reproduce the truth exactly
+    clean = solve_rate_table(_exact_points(0.0), gyro_bias="static")
+    assert clean.parameters["gyr.scale.y"].value == pytest.approx(TRUTH.M[1, 1], abs=1e-12)
+
+
+def test_fixed_bias_from_a_static_run_and_settings():
+    """static_bias_dps of a separate static run: its value is the bias, its uncertainty
+    is propagated; through the procedure's settings too. Bad settings are named."""
+    points = _exact_points(0.0)
+    given = (TRUTH.bias + 1e-3, np.full(3, 2e-4))
+    cal = solve_rate_table(points, gyro_bias="static", static_bias=given)
+    assert cal.parameters["gyr.bias.z"].value == pytest.approx(TRUTH.bias[2] + 1e-3)
+    assert cal.parameters["gyr.bias.z"].std == pytest.approx(2e-4)
+    # asymmetric rates (0, 50, 100 deg/s): the slope depends on the fixed bias by
+    # g = -sum(w)/sum(w^2), so u(scale)^2 = sem^2/sum(w^2) + g^2 u_b^2
+    positive = [p for p in points if p.table_rate >= 0]
+    lone = solve_rate_table(positive, gyro_bias="static", static_bias=given)
+    w = np.array([50.0, 100.0]) * DEG
+    expected = math.hypot(1e-4 / math.sqrt((w**2).sum()), w.sum() / (w**2).sum() * 2e-4)
+    assert lone.parameters["gyr.scale.x"].std == pytest.approx(expected, rel=1e-9)
+    run = simulate_rate_table(TRUTH, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE,
+                              record_s=RECORD_S + 20, gyro_noise_density=DENSITY,
+                              rng=np.random.default_rng(7))  # fmt: skip
+    segments = {r.label: r for r in run.recordings}
+    via = procedures.solve("rate_table", segments, 9.81, {"gyro_bias": "static",
+                           "static_bias_dps": [0.5, 0.0, 0.0]})  # fmt: skip
+    assert via.parameters["gyr.bias.x"].value == pytest.approx(0.5 * DEG)
+    with pytest.raises(ValueError, match="gyro_bias must be one of"):
+        procedures.solve("rate_table", segments, 9.81, {"gyro_bias": "fixed"})
+    moving = {k: r for k, r in segments.items() if not k.endswith(("_+0", "_0"))}
+    with pytest.raises(ValueError, match="needs the static run"):
+        procedures.solve("rate_table", moving, 9.81, {"gyro_bias": "static"})

@@ -179,7 +179,7 @@ def test_clean_run_passes_all_and_report_is_complete(arch, tmp_path):
     # the fit did not see the tilt: its residuals list only the twelve fit segments
     assert "tilt_30" not in {r["segment"] for r in cal["document"]["residuals"]}
     thresholds = check["settings"]["thresholds"]
-    assert check["settings"]["profile_version"] == thresholds["version"] == "2"
+    assert check["settings"]["profile_version"] == thresholds["version"] == "3"
     assert thresholds["verification_limits"]["acc"]["value"] == pytest.approx(0.01 * 9.80665)
 
     written = _report(arch, outcome["run_id"], tmp_path / "out")
@@ -226,7 +226,7 @@ def test_verification_point_with_002_g_error_fails(arch, tmp_path):
     # the error is the planted 0.02 g give or take the fit's own error (<< 1 mg here)
     assert acc["value"] == pytest.approx(0.02 * STANDARD_GRAVITY, abs=0.001 * STANDARD_GRAVITY)
     assert by_name["verify:tilt_30:gyr"]["passed"]
-    assert [n for n, c in by_name.items() if not c["passed"]] == ["verify:tilt_30:acc"]
+    assert [n for n, c in by_name.items() if c["status"] == "fail"] == ["verify:tilt_30:acc"]
 
 
 def test_three_runs_with_2_percent_scale_change_fail_repeatability(arch, tmp_path):
@@ -240,7 +240,7 @@ def test_three_runs_with_2_percent_scale_change_fail_repeatability(arch, tmp_pat
         outcomes.append(_process(folder, arch))
     assert [o["verdict"] for o in outcomes[:2]] == ["pass", "pass"]  # fewer than 3 runs
     third = outcomes[2]
-    failed = [c["name"] for c in third["checks"] if not c["passed"]]
+    failed = [c["name"] for c in third["checks"] if c["status"] == "fail"]
     assert failed == ["repeat:acc.scale.x"]
     assert third["verdict"] == "needs review"
     # the archive holds the verdict with the profile version; every check row too
@@ -249,8 +249,8 @@ def test_three_runs_with_2_percent_scale_change_fail_repeatability(arch, tmp_pat
             select(schema.CalibrationRow.verdict, schema.CalibrationRow.profile_version)
         ).all()
         check_versions = set(conn.execute(select(schema.CheckResultRow.profile_version)).scalars())
-    assert sorted(rows) == [("needs review", "2"), ("pass", "2"), ("pass", "2")]
-    assert check_versions == {"2"}
+    assert sorted(rows) == [("needs review", "3"), ("pass", "3"), ("pass", "3")]
+    assert check_versions == {"3"}
     summary = queries.run_summary(arch, third["run_id"])
     group = next(s for s in summary["calibration"]["steps"] if s["name"] == "check")
     assert group["statistics"]["repeatability_group"] == [o["run_id"] for o in outcomes[::-1]]

@@ -210,7 +210,7 @@ def test_comparable_runs_by_temperature():
 
 
 def test_profile_verification_and_repeatability_fields(profile):
-    assert profile.version == "2"
+    assert profile.version == "3"
     assert profile.verification_limits["acc"] == pytest.approx(0.01 * G)
     assert profile.verification_limits["gyr"] == pytest.approx(0.5 * DEG)
     assert profile.repeatability["cv_max"] == 0.01 and profile.repeatability["min_runs"] == 3

@@ -281,3 +281,37 @@ def _turn_count(J: dict[str, dict[str, np.ndarray]], turns: int | None) -> int:
             f"integral method: axes turned different whole numbers of turns: {rounded}"
         )
     return rounded["x"]
+
+
+def rotation_static_means(
+    rotations: dict[str, Recording],
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The "A up" static reading S_A of each axis from its ccw and cw rotations alone.
+
+    For stage 2 of the MPU-6000 program (rotations without the six orientations): with
+    I+- = +-(1 + M_AA) 2 pi n + S T+- (whole turns, S constant over both records),
+    S = (I+ + I-) / (T+ + T-), the bias and g-sensitivity term the rotations carry.
+
+    Returns
+    -------
+    ({"x_up": (3,) rad/s, ...}, {"x_up": (3,) standard uncertainty, ...}); the
+    uncertainty is that of (I+ + I-) / (T+ + T-) from the white noise of both records.
+    Using it in `solve_integral` as an independent static mean is exact for equal record
+    lengths and approximate (first order in (T+ - T-)/(T+ + T-)) otherwise.
+    """
+    missing = [label for label in ROTATION_LABELS if label not in rotations]
+    if missing:
+        raise ValueError(f"integral method (rotations only): missing segments {missing}")
+    means, sems = {}, {}
+    for a in params.AXES:
+        total, var, span = np.zeros(3), np.zeros(3), 0.0
+        for sense in ("ccw", "cw"):
+            rec = rotations[f"{a}_{sense}"]
+            w = trapezoid_weights(rec.t)
+            sigma = noise_from_differences(rec.gyr)
+            gyr, _ = despike(rec.gyr, sigma)
+            total += w @ gyr
+            var += sigma**2 * float(w @ w)
+            span += float(rec.t[-1] - rec.t[0])
+        means[f"{a}_up"], sems[f"{a}_up"] = total / span, np.sqrt(var) / span
+    return means, sems

@@ -155,7 +155,16 @@ def _rates(points: list[RatePoint]) -> np.ndarray:
     return W
 
 
-def solve_rate_table(points: list[RatePoint], *, full_scale: float | None = None) -> Calibration:
+GYRO_BIAS_MODES = ("joint", "static")
+
+
+def solve_rate_table(
+    points: list[RatePoint],
+    *,
+    full_scale: float | None = None,
+    gyro_bias: str = "joint",
+    static_bias: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Calibration:
     """Least-squares gyro bias, scale factors and misalignments from rate points.
 
     Parameters
@@ -163,14 +172,25 @@ def solve_rate_table(points: list[RatePoint], *, full_scale: float | None = None
     points : rate points, about one or more axes, both directions, with 0-rate points.
     full_scale : input full scale, rad/s, for the nonlinearity; default: the largest
         |table rate| about each axis.
+    gyro_bias : "joint" (default): the bias is fitted with the scale factors from all
+        points. "static": the procedure's model (methods.md 2.4, 2.5): the bias is fixed
+        from the static run, and the moving points give the scale factors and
+        misalignments alone, ``mean_i - w_i - b_i = sum_j M_ij w_j``; the bias's
+        uncertainty is propagated into them (with its covariance).
+    static_bias : (value (3,), standard uncertainty (3,)) in rad/s of a separate static
+        run (procedure static_bias); None: the weighted mean of the 0-rate points.
 
     Returns
     -------
     Calibration "rate_table" with gyr.bias.*, gyr.scale.j and gyr.misalign.ij for
     every excited axis j (standard uncertainties from the sems), residuals per rate
     point, and in `info`: chi2/dof per channel, bias consistency at 0 rate,
-    nonlinearity (ppm of full scale) and asymmetry (ppm) per excited axis.
+    nonlinearity (ppm of full scale) and asymmetry (ppm) per excited axis, gyro_bias.
     """
+    if gyro_bias not in GYRO_BIAS_MODES:
+        raise ValueError(
+            f"rate table: gyro_bias must be one of {GYRO_BIAS_MODES}, got {gyro_bias!r}"
+        )
     if not points:
         raise ValueError("rate table: no rate points")
     W = _rates(points)
@@ -187,27 +207,10 @@ def solve_rate_table(points: list[RatePoint], *, full_scale: float | None = None
             "rates about each axis"
         )
     cal = Calibration(procedure="rate_table", gravity=STANDARD_GRAVITY)
-    model = np.zeros_like(Y)
-    chi2_dof = []
-    fitted_bias = np.zeros(3)
-    for i, a in enumerate(AXES):
-        x, cov, chi2 = _wls(A, Y[:, i] - W[:, i], S[:, i])
-        u = np.sqrt(np.diag(cov))
-        cal.add(f"gyr.bias.{a}", x[0], u[0])
-        fitted_bias[i] = x[0]
-        for k, j in enumerate(excited):
-            kind = f"scale.{a}" if i == j else f"misalign.{a}{AXES[j]}"
-            cal.add(f"gyr.{kind}", x[k + 1], u[k + 1])
-        model[:, i] = A @ x + W[:, i]
-        dof = len(points) - A.shape[1]
-        chi2_dof.append(chi2 / dof)
-        p_value = chi2_sf(chi2, dof)
-        if p_value < 1e-3:
-            cal.warnings.append(
-                f"gyr {a}: rate-point residuals too large for the linear model "
-                f"(chi2/dof = {chi2 / dof:.2f}, p = {p_value:.1e}): nonlinearity, table error "
-                "or correlated noise"
-            )
+    if gyro_bias == "static":
+        model, chi2_dof = _fit_fixed_bias(cal, W, Y, S, excited, _static_bias(W, Y, S, static_bias))
+    else:
+        model, chi2_dof = _fit_joint(cal, A, W, Y, S, excited)
     for p, pt in enumerate(points):
         resid = Y[p] - model[p]
         cal.residuals.append(
@@ -219,6 +222,7 @@ def solve_rate_table(points: list[RatePoint], *, full_scale: float | None = None
                 n=pt.n,
             )
         )
+    cal.info["gyro_bias"] = gyro_bias
     cal.info["chi2_dof"] = chi2_dof
     cal.info["excited_axes"] = [AXES[j] for j in excited]
     cal.info["zero_rate_bias"] = _zero_rate_consistency(points, W, Y, S, excited, cal)
@@ -233,6 +237,85 @@ def solve_rate_table(points: list[RatePoint], *, full_scale: float | None = None
     cal.info["nonlinearity"] = nonlin
     cal.info["asymmetry"] = asym
     return cal
+
+
+def _column_names(i: int, excited: list[int]) -> list[str]:
+    a = AXES[i]
+    return [f"gyr.scale.{a}" if i == j else f"gyr.misalign.{a}{AXES[j]}" for j in excited]
+
+
+def _chi2_warning(cal: Calibration, axis: str, chi2: float, dof: int) -> None:
+    p_value = chi2_sf(chi2, dof)
+    if p_value < 1e-3:
+        cal.warnings.append(
+            f"gyr {axis}: rate-point residuals too large for the linear model "
+            f"(chi2/dof = {chi2 / dof:.2f}, p = {p_value:.1e}): nonlinearity, table error "
+            "or correlated noise"
+        )
+
+
+def _fit_joint(cal, A, W, Y, S, excited) -> tuple[np.ndarray, list[float]]:
+    """Bias and scale column fitted together per output channel; (model (P, 3), chi2/dof)."""
+    model = np.zeros_like(Y)
+    chi2_dof = []
+    for i, a in enumerate(AXES):
+        x, cov, chi2 = _wls(A, Y[:, i] - W[:, i], S[:, i])
+        u = np.sqrt(np.diag(cov))
+        cal.add(f"gyr.bias.{a}", x[0], u[0])
+        for k, name in enumerate(_column_names(i, excited)):
+            cal.add(name, x[k + 1], u[k + 1])
+        model[:, i] = A @ x + W[:, i]
+        dof = len(Y) - A.shape[1]
+        chi2_dof.append(chi2 / dof)
+        _chi2_warning(cal, a, chi2, dof)
+    return model, chi2_dof
+
+
+def _static_bias(W, Y, S, given) -> tuple[np.ndarray, np.ndarray]:
+    """The fixed bias (3,) and its standard uncertainty (3,), rad/s: as given, else the
+    weighted mean of the 0-rate points."""
+    if given is not None:
+        value, u = (np.asarray(v, dtype=float) for v in given)
+        if value.shape != (3,) or u.shape != (3,) or not (u >= 0).all():
+            raise ValueError("rate table: static_bias must be (3,) values and (3,) stds >= 0")
+        return value, u
+    zero = np.abs(W).max(axis=1) <= ZERO_RATE
+    if not zero.any():
+        raise ValueError(
+            "rate table: gyro_bias = 'static' needs the static run: a 0-rate point, or the "
+            "bias of a static-bias run in settings (static_bias_dps)"
+        )
+    w = 1.0 / S[zero] ** 2
+    return (w * Y[zero]).sum(axis=0) / w.sum(axis=0), 1.0 / np.sqrt(w.sum(axis=0))
+
+
+def _fit_fixed_bias(cal, W, Y, S, excited, bias) -> tuple[np.ndarray, list[float]]:
+    """Scale column per channel from the moving points with the bias fixed; the bias's
+    uncertainty u_b enters as cov(x) += g g^T u_b^2, cov(b, x) = g u_b^2, with
+    g = dx/db = -(A^T A)^-1 A^T 1 (weighted)."""
+    b, u_b = bias
+    moving = np.abs(W).max(axis=1) > ZERO_RATE
+    A = W[moving][:, excited]
+    if moving.sum() <= A.shape[1] - 1 or np.linalg.matrix_rank(A) < A.shape[1]:
+        raise ValueError("rate table: too few moving points for the scale factors")
+    model = np.zeros_like(Y)
+    chi2_dof = []
+    for i, a in enumerate(AXES):
+        sem = S[moving, i]
+        x, cov_y, chi2 = _wls(A, Y[moving, i] - W[moving, i] - b[i], sem)
+        g = -cov_y @ (A / sem[:, None] ** 2).sum(axis=0)
+        cov = np.zeros((len(x) + 1,) * 2)
+        cov[0, 0] = u_b[i] ** 2
+        cov[0, 1:] = cov[1:, 0] = g * u_b[i] ** 2
+        cov[1:, 1:] = cov_y + np.outer(g, g) * u_b[i] ** 2
+        names = [f"gyr.bias.{a}", *_column_names(i, excited)]
+        cal.add_fit(names, dict(zip(names, [b[i], *x], strict=True)), cov)
+        model[:, i] = b[i] + W[:, excited] @ x + W[:, i]
+        dof = int(moving.sum()) - A.shape[1]
+        chi2_dof.append(chi2 / dof if dof > 0 else float("nan"))
+        if dof > 0:
+            _chi2_warning(cal, a, chi2, dof)
+    return model, chi2_dof
 
 
 def _zero_rate_consistency(points, W, Y, S, excited, cal) -> dict | None:

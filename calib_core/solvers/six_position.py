@@ -74,20 +74,13 @@ def accel_closed_form(means: dict[str, np.ndarray], gravity: float) -> dict[str,
     Azx = -(A3[z] - A4[z]) / g2
     # Three bias estimates per axis, one per pair of opposite positions, averaged.
     bias = ((A1 + A2) / 2.0 + (A3 + A4) / 2.0 + (A5 + A6) / 2.0) / 3.0
-    return {
-        "acc.bias.x": float(bias[x]),
-        "acc.bias.y": float(bias[y]),
-        "acc.bias.z": float(bias[z]),
-        "acc.scale.x": float(Axx),
-        "acc.scale.y": float(Ayy),
-        "acc.scale.z": float(Azz),
-        "acc.misalign.xy": float(Axz),
-        "acc.misalign.xz": float(-Axy),
-        "acc.misalign.yx": float(-Ayz),
-        "acc.misalign.yz": float(Ayx),
-        "acc.misalign.zx": float(Azy),
-        "acc.misalign.zy": float(-Azx),
-    }
+    manual = {"Axx": Axx, "Ayy": Ayy, "Azz": Azz, "Axz": Axz, "Axy": Axy, "Ayz": Ayz,
+              "Ayx": Ayx, "Azy": Azy, "Azx": Azx}  # fmt: skip
+    out = {f"acc.bias.{a}": float(bias[i]) for i, a in enumerate(params.AXES)}
+    for canonical, (name, sign) in params.MANUAL_NAMES.items():
+        if name in manual:  # canonical = sign * manual (params.MANUAL_NAMES)
+            out[canonical] = float(sign * manual[name])
+    return out
 
 
 # chi2 with 2 degrees of freedom exceeded with probability 0.001: -2 ln(0.001).

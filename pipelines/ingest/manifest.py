@@ -130,8 +130,28 @@ class SiteSpec(_Section):
 
     latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0)
     height_m: float = 0.0
-    gravity_model: Literal["standard", "helmert", "wgs84", "measured"] = "standard"
+    # None: Helmert's formula with the height correction when latitude_deg is known (the
+    # MPU-6000 manual's choice), else the standard value, which the run's checks warn about.
+    gravity_model: Literal["standard", "helmert", "wgs84", "measured"] | None = None
     gravity: float | None = Field(default=None, description="measured gravity, m/s^2")
+    # Where latitude and height came from when the lab file (pipelines.tolerances) gave them.
+    from_file: str | None = None
+
+    @property
+    def model(self) -> str:
+        """The gravity model in use: as given, else helmert with a latitude, else standard."""
+        if self.gravity_model is not None:
+            return self.gravity_model
+        return "helmert" if self.latitude_deg is not None else "standard"
+
+    def source(self) -> str | None:
+        """How local gravity is obtained, for the run's checks; None for the standard value."""
+        if self.model == "standard":
+            return None
+        if self.model == "measured":
+            return f"measured {self.gravity} m/s^2"
+        where = f" (lab file {self.from_file})" if self.from_file else ""
+        return f"{self.model} at latitude {self.latitude_deg} deg, height {self.height_m} m{where}"
 
     @model_validator(mode="after")
     def _complete(self) -> SiteSpec:
@@ -148,10 +168,23 @@ class EnvironmentSpec(_Section):
     """Lab conditions during the run; every field optional."""
 
     temperature_c: float | None = None
+    temperature_drift_c_per_h: float | None = None  # ambient drift during the run
     humidity_pct: float | None = Field(default=None, ge=0.0, le=100.0)
     pressure_hpa: float | None = Field(default=None, gt=0.0)
     vibration: float | str | None = None  # a level (m/s^2 rms) or a description
     warmup_min: float | None = Field(default=None, ge=0.0)
+
+
+class AcquisitionSpec(_Section):
+    """How the data were taken, where the files do not say it; every field optional."""
+
+    settle_s: float | None = Field(default=None, ge=0.0)  # wait before recording each attitude
+    resolution_bits: int | None = Field(default=None, gt=0)  # of the sensor's converter
+
+
+# Converter resolution of sensor models (bits), by lower-case model name: the MPU-6000's
+# accelerometer and gyro converters are 16 bit (InvenSense data sheet).
+MODEL_RESOLUTION_BITS: dict[str, int] = {"mpu-6000": 16}
 
 
 class EquipmentSpec(_Section):
@@ -419,6 +452,7 @@ class RunManifest(_Section):
     run: RunSpec
     site: SiteSpec = Field(default_factory=SiteSpec)
     environment: EnvironmentSpec = Field(default_factory=EnvironmentSpec)
+    acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)
     equipment: list[EquipmentSpec] = Field(default_factory=list)
     format: FormatSpec
     segments: list[SegmentSpec] = Field(default_factory=list)
@@ -426,7 +460,23 @@ class RunManifest(_Section):
     def gravity(self) -> float:
         """Local gravity for this site by the manifest's model, m/s^2."""
         s = self.site
-        return local_gravity(s.gravity_model, s.latitude_deg, s.height_m, s.gravity)
+        return local_gravity(s.model, s.latitude_deg, s.height_m, s.gravity)
+
+    def recorded_conditions(self) -> dict[str, float | None]:
+        """The conditions the lab states, keyed as calib_core.conditions checks them."""
+        env, acq = self.environment, self.acquisition
+        bits = acq.resolution_bits
+        if bits is None:
+            bits = MODEL_RESOLUTION_BITS.get(self.unit.model.strip().lower())
+        return {
+            "ambient_temperature_c": env.temperature_c,
+            "temperature_drift_c_per_h": env.temperature_drift_c_per_h,
+            "humidity_pct": env.humidity_pct,
+            "pressure_hpa": env.pressure_hpa,
+            "warmup_min": env.warmup_min,
+            "settle_s": acq.settle_s,
+            "resolution_bits": None if bits is None else float(bits),
+        }
 
     def verification_labels(self) -> set[str]:
         """Labels of segments kept out of the fit."""
@@ -485,7 +535,8 @@ def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:
     procedure = manifest.run.procedure
     # With [run.settings.segmentation] the listed segments are continuous
     # recordings that automatic segmentation cuts and labels (any label).
-    if procedure.startswith("six_position") and "segmentation" not in manifest.run.settings:
+    labelled = procedure.startswith("six_position") or procedure == "integral"
+    if labelled and "segmentation" not in manifest.run.settings:
         for i, seg in enumerate(segments):
             if not seg.verification and seg.label not in SIX_POSITION_LABELS:
                 near = difflib.get_close_matches(seg.label, SIX_POSITION_LABELS, n=1)

@@ -38,7 +38,7 @@ from calib_core.recording import Recording
 from calib_core.units import DEG
 from pipelines.ingest.csv_dialect import is_number
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import SIX_POSITION_LABELS
+from pipelines.ingest.manifest import ROTATION_LABELS, SIX_POSITION_LABELS, STATIC_LABELS
 from pipelines.ingest.time_order import check_time_increases
 from storage.naming import check_safe_name
 
@@ -428,12 +428,37 @@ def find_mpu6000_runs(folder: Path, complete: bool = True) -> dict[str, dict[str
     return {s: dict(sorted(runs[s].items(), key=lambda kv: order[kv[0]])) for s in sorted(runs)}
 
 
-def check_complete(folder: Path, serial: str, files: dict[str, Path]) -> None:
-    """Raise IngestError if `files` lacks any of the 12 six-position + integral segments."""
-    missing = [label for label in SIX_POSITION_LABELS if label not in files]
-    if missing:
-        names = ", ".join(f"{serial}_{label}.txt" for label in missing)
-        raise IngestError(
-            f"serial '{serial}' has {len(files)} of the 12 MPU-6000 files; missing {names}",
-            file=folder,
-        )
+# The MPU-6000 program's stages: stage 1 the six orientations, stage 2 the six rotations;
+# a folder with one stage only is a valid run of that stage's procedure.
+STAGE_PROCEDURES = (
+    (SIX_POSITION_LABELS, "six_position_integral"),
+    (STATIC_LABELS, "six_position"),
+    (ROTATION_LABELS, "integral"),
+)
+
+
+def check_complete(folder: Path, serial: str, files: dict[str, Path]) -> str:
+    """The procedure of a serial's files: all 12 (six_position_integral), the six
+    orientations only (stage 1, six_position) or the six rotations only (stage 2, integral).
+
+    Raises IngestError naming the missing files of the nearest complete set otherwise.
+    """
+    have = set(files)
+    for labels, procedure in STAGE_PROCEDURES:
+        if have == set(labels):
+            return procedure
+    # The nearest complete set: a stage whose labels hold all files, else both stages.
+    labels, what = next(
+        ((labels, name) for labels, name in _STAGE_NAMES if have <= set(labels)),
+        (SIX_POSITION_LABELS, "stages 1 and 2"),
+    )
+    missing = [label for label in labels if label not in files]
+    names = ", ".join(f"{serial}_{label}.txt" for label in missing)
+    raise IngestError(
+        f"serial '{serial}' has {len(files)} of the {len(labels)} MPU-6000 files of {what}; "
+        f"missing {names}",
+        file=folder,
+    )
+
+
+_STAGE_NAMES = ((STATIC_LABELS, "stage 1 (orientations)"), (ROTATION_LABELS, "stage 2 (rotations)"))

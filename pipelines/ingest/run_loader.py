@@ -43,6 +43,7 @@ from pipelines.ingest.mpu6000 import (
     parse_file_name,
     read_mpu6000_file,
 )
+from pipelines.tolerances import load_lab_site
 from storage.rawstore import hash_and_size
 
 MANIFEST_NAME = "run.toml"
@@ -371,7 +372,7 @@ def _load_mpu6000_folder(folder: Path, serial: str | None, hash_file: FileHasher
     if serial not in runs:
         raise IngestError(f"no MPU-6000 files of serial '{serial}'", file=folder)
     files = runs[serial]
-    check_complete(folder, serial, files)
+    procedure = check_complete(folder, serial, files)
     newest = max(p.stat().st_mtime for p in files.values())
     manifest = RunManifest.model_validate(
         {
@@ -380,7 +381,7 @@ def _load_mpu6000_folder(folder: Path, serial: str | None, hash_file: FileHasher
             "run": {
                 "started": datetime.fromtimestamp(newest, tz=UTC),
                 "operator": "unknown",
-                "procedure": "six_position_integral",
+                "procedure": procedure,
                 "tolerance_profile": "mpu6000",
             },
             "format": {"kind": "mpu6000"},
@@ -388,6 +389,24 @@ def _load_mpu6000_folder(folder: Path, serial: str | None, hash_file: FileHasher
         }
     )
     return _load_described(folder, manifest, None, None, hash_file)
+
+
+def with_lab_site(manifest: RunManifest, source: str) -> RunManifest:
+    """The manifest with the lab file's site when it gives neither a latitude nor a gravity
+    model (pipelines.tolerances.load_lab_site); the archived site says which file."""
+    site = manifest.site
+    if site.latitude_deg is not None or site.gravity_model is not None:
+        return manifest
+    try:
+        lab = load_lab_site()
+    except ValueError as exc:
+        raise IngestError(str(exc), file=source, field="site") from None
+    if lab is None:
+        return manifest
+    values, path = lab
+    return manifest.model_copy(
+        update={"site": site.model_copy(update={**values, "from_file": str(path)})}
+    )
 
 
 def _mpu6000_segments(folder: Path, manifest: RunManifest, source: str) -> list[SegmentSpec]:
@@ -414,6 +433,7 @@ def _load_described(
     """Read the segments a manifest describes (real or synthesised)."""
     source = str(manifest_path or folder)
     check_segments(manifest, source)
+    manifest = with_lab_site(manifest, source)
     if manifest.format.kind == "imutk":
         manifest = manifest.model_copy(update={"format": imutk_format(manifest.format)})
     kind = manifest.format.kind

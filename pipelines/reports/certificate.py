@@ -7,10 +7,10 @@ thresholds used and the residual diagnosis); the archived Parquet samples give
 the raw-vs-calibrated plot.
 
 Both outputs print the same sections (`sections`): unit, run, equipment,
-environment, procedure, results with uncertainties, residual table and
-diagnosis, repeatability, verification, verdict, recommendations and a
-signature block, one function per section; pipelines.reports.render lays them
-out as HTML and PDF.
+environment, conditions (one verdict line per lab condition), procedure,
+results with uncertainties, residual table and diagnosis, repeatability,
+verification, verdict, recommendations and a signature block, one function
+per section; pipelines.reports.render lays them out as HTML and PDF.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 import pyarrow as pa  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from calib_core import params  # noqa: E402
+from calib_core import conditions, params  # noqa: E402
 from calib_core.calibration import Calibration  # noqa: E402
 from calib_core.checks import ToleranceProfile  # noqa: E402
 from calib_core.units import DEG, STANDARD_GRAVITY  # noqa: E402
@@ -139,6 +139,7 @@ def sections(
         _equipment_section(run),
         iso17025.traceability_section(summary),
         _environment_section(run),
+        _conditions_section(run),
         _procedure_section(run),
         _results_section(run),
         _uncertainty_section(run),
@@ -228,6 +229,34 @@ def _environment_section(run: _Archived) -> Section:
         ]
         or [("-", "not recorded")],
     )
+
+
+_RESULT_WORD = {"pass": "pass", "fail": "FAIL", conditions.WARNING: "WARNING",
+                conditions.NOT_RECORDED: "not recorded"}  # fmt: skip
+
+
+def _conditions_section(run: _Archived) -> Section:
+    """Lab conditions and acquisition rules, one verdict line each (calib_core.conditions)."""
+    rows = []
+    for c in run.checks:
+        key = c["name"].removeprefix(conditions.CONDITION_PREFIX)
+        if key == c["name"]:
+            continue
+        _, _, severity, text, unit = conditions.DEFAULT_CONDITIONS.get(
+            key, (0, 0, "", key, ""))  # fmt: skip
+        value = "" if c.get("value") is None else f"{c['value']:.6g} {unit}"
+        rows.append([text, value, _RESULT_WORD[conditions.status(c)], severity,
+                     conditions.requirement(c)])  # fmt: skip
+    if not rows:
+        return Section("Conditions", paragraphs=["Not checked for this run (archived before "
+                                                 "conditions were checked)."])  # fmt: skip
+    return Section(
+        "Conditions",
+        header=["condition", "value", "result", "if not met", "requirement"],
+        rows=rows,
+        paragraphs=["A warning or an unrecorded condition leaves the verdict as it is; a "
+                    "failed acquisition rule fails the run."],
+    )  # fmt: skip
 
 
 def _segments(samples: pa.Table) -> tuple[np.ndarray, np.ndarray]:
@@ -471,7 +500,10 @@ def _verification_section(run: _Archived) -> Section:
 
 def _verdict_section(run: _Archived) -> Section:
     calrow = run.calrow
-    failed = [c["name"] for c in run.checks if not c["passed"]]
+    by_status: dict[str, list[str]] = {}
+    for c in run.checks:
+        by_status.setdefault(conditions.status(c), []).append(c["name"])
+    failed = by_status.get("fail", [])
     return Section(
         "Verdict",
         pairs=[
@@ -480,6 +512,8 @@ def _verdict_section(run: _Archived) -> Section:
             ("Decision rule", _decision_rule(run).removeprefix("Decision rule: ")),
             ("Checks", f"{len(run.checks)} checked, {len(failed)} failed"),
             ("Failed", ", ".join(failed) or "none"),
+            ("Warnings", ", ".join(by_status.get(conditions.WARNING, [])) or "none"),
+            ("Not recorded", ", ".join(by_status.get(conditions.NOT_RECORDED, [])) or "none"),
         ],
     )
 
@@ -543,6 +577,7 @@ def _protocol(run: _Archived) -> str:
         verdict=calrow["verdict"],
         budgets=_budgets(run),
         decision_rule=_decision_rule(run),
+        names=run.profile.protocol_names if run.profile else "canonical",
     )
 
 

@@ -1,7 +1,8 @@
 """The test protocol `<serial>_result.txt` in the MPU-6000 paper's layout.
 
 Header with device type, serial, date and time; each parameter on its own line
-with its tolerance and `+` when within, `-` when not; then the residual checks,
+with its tolerance and `+` when within, `-` when not; then the lab conditions (one
+verdict line each: +, -, warning or not recorded), the residual checks,
 the verdict and signature lines for customer representative, quality control
 and production.
 """
@@ -12,6 +13,8 @@ from collections.abc import Iterable, Mapping
 from datetime import datetime
 from typing import Any
 
+from calib_core import conditions
+from calib_core.params import manual_name
 from pipelines.reports.display import display, tolerance
 
 _RULE = "-" * 78
@@ -23,6 +26,25 @@ def _fmt(value: float | None, width: int = 12, signed: bool = True) -> str:
     if value is None:
         return f"{'':>{width}}"
     return f"{value:>+{width}.6f}" if signed else f"{value:>{width}.6f}"
+
+
+# The result column of a condition line: the manual's + and -, or what else it is.
+RESULT_MARK = {"pass": "+", "fail": "-", conditions.WARNING: "warning",
+               conditions.NOT_RECORDED: "not recorded"}  # fmt: skip
+
+
+def condition_lines(checks: Iterable[Mapping[str, Any]]) -> list[str]:
+    """The "Conditions" block: one verdict line per lab condition / acquisition rule."""
+    rows = [c for c in checks if c["name"].startswith(conditions.CONDITION_PREFIX)]
+    if not rows:
+        return []
+    lines = [_RULE, "Conditions", f"{'Condition':<30}{'Value':>12}  {'Result':<13}Requirement"]
+    for c in rows:
+        value = "" if c.get("value") is None else f"{c['value']:.6g}"
+        mark = RESULT_MARK[conditions.status(c)]
+        name = c["name"].removeprefix(conditions.CONDITION_PREFIX)
+        lines.append(f"{name:<30}{value:>12}  {mark:<13}{conditions.requirement(c)}")
+    return lines
 
 
 def render_protocol(
@@ -40,6 +62,7 @@ def render_protocol(
     verdict: str,
     budgets: Mapping[str, Mapping[str, Any]] | None = None,
     decision_rule: str | None = None,
+    names: str = "canonical",
 ) -> str:
     """Render the protocol text.
 
@@ -50,6 +73,9 @@ def render_protocol(
         give each parameter's tolerance; others are listed after the table).
     budgets : name -> `calib_core.uncertainty.Budget.to_dict()` (SI): the uncertainty table.
     decision_rule : the statement of the decision rule and its risk.
+    names : "canonical", or "manual": each line also gives the MPU-6000 manual's name
+        and the value in the manual's sign (calib_core.params.MANUAL_NAMES), so a lab
+        compares line by line with its old protocols.
     """
     checks = list(checks)
     by_param = {
@@ -66,8 +92,11 @@ def render_protocol(
         f"Profile     : {profile}    Gravity used: {gravity:.6f} m/s^2",
         "Convention  : f_meas = (I + M) f_true + b; misalign.rc = M[r, c]",
         _RULE,
-        f"{'Parameter':<18}{'Value':>13}{'Std. unc.':>13}  {'Unit':<10}{'Tolerance':>12}  Result",
+        f"{'Parameter':<18}{'Value':>13}{'Std. unc.':>13}  {'Unit':<10}{'Tolerance':>12}  Result"
+        + (f"  {'Manual':<7}{'Value':>13}" if names == "manual" else ""),
     ]
+    if names == "manual":
+        lines.insert(-2, "Manual names: the MPU-6000 manual's (Axz = M[x,y], Axy = -M[x,z], ...)")
     for p in parameters:
         value, unit = display(p["name"], p["value"])
         std, _ = display(p["name"], p.get("std"))
@@ -78,9 +107,16 @@ def render_protocol(
         else:
             tol, mark = f"{tol[0]:>3}{tol[1]:>9.4g}", "+" if check["passed"] else "-"
         u = _fmt(std, 13, signed=False)
-        lines.append(f"{p['name']:<18}{_fmt(value, 13)}{u}  {unit:<10}{tol}  {mark}")
+        line = f"{p['name']:<18}{_fmt(value, 13)}{u}  {unit:<10}{tol}  {mark}"
+        if names == "manual":
+            manual, signed = manual_name(p["name"], value)
+            line += f"       {manual:<7}{_fmt(signed, 13)}" if manual else ""
+        lines.append(line)
     lines += uncertainty_lines(budgets or {}, by_param, decision_rule)
-    other = [c for c in checks if not c["name"].startswith("param:")]
+    lines += condition_lines(checks)
+    other = [
+        c for c in checks if not c["name"].startswith(("param:", conditions.CONDITION_PREFIX))
+    ]
     if other:
         lines += [_RULE, "Checks", f"{'Check':<44}{'Value':>13}{'Limit':>13}  Result"]
         for c in other:

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 from typing import Any
 from urllib.parse import quote, urlencode
 
-from calib_core import checks
+from calib_core import checks, conditions
 from pipelines.reports.display import DISPLAY_UNITS
 
 
@@ -95,7 +95,11 @@ def check_result(check: Mapping[str, Any]) -> str:
     """The badge of one archived check (a dict with name, passed, detail): "pass", else
     what its failure alone makes of the run's verdict (calib_core.checks.verdict):
     "needs review" for a repeatability, device or model check (``model:acc_dof``) or a
-    parameter's conditional pass, else "fail"."""
+    parameter's conditional pass, "warning" or "not recorded" for a lab condition
+    (calib_core.conditions), else "fail"."""
+    state = conditions.status(check)
+    if state in (conditions.WARNING, conditions.NOT_RECORDED):
+        return state
     one = SimpleNamespace(name=check["name"], passed=check["passed"],
                           detail=check.get("detail") or "")  # fmt: skip
     return checks.verdict([one])

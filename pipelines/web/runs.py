@@ -16,6 +16,7 @@ from starlette.exceptions import HTTPException
 
 from calib_core import params
 from calib_core.checks import ToleranceProfile
+from calib_core.conditions import status as condition_status
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.reports.display import tolerance
 from pipelines.web import forms, svg
@@ -106,6 +107,8 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
         for e in summary["equipment"]
     ]  # fmt: skip
     profile = _thresholds(summary)
+    for c in summary["calibration"]["checks"]:  # pass, fail, warning or not recorded
+        c["status"] = condition_status(c)
     residuals = summary["calibration"]["document"].get("residuals") or []
     limits = profile.residual_limits if profile else {}
     charts = [svg.residual_chart(residuals, s, *RESIDUAL_UNITS[s], limits) for s in ("acc", "gyr")]

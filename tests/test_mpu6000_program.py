@@ -1,0 +1,203 @@
+"""The MPU-6000 program's defaults (issue 22 items 3 and 4): local gravity by Helmert's
+formula with the height correction from the lab's site, the standard value only with a
+warning; stage 1 (six orientations) and stage 2 (six rotations) as runs of their own; the
+protocol in the manual's names and signs."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib_core import conditions
+from calib_core.calibration import Calibration
+from calib_core.checks import ToleranceProfile
+from calib_core.earth import gravity_helmert
+from calib_core.params import MANUAL_NAMES
+from calib_core.solvers.six_position import accel_closed_form
+from calib_core.units import DEG, STANDARD_GRAVITY
+from pipelines.ingest import IngestError, discover_runs, load_run
+from pipelines.process import process_run
+from pipelines.reports.protocol import render_protocol
+from storage.db import resolve_archive
+
+SAMPLE = Path(__file__).resolve().parents[1] / "data_samples" / "mpu6000_MPU0001"
+TRUTH = json.loads((SAMPLE / "MPU0001_truth.json").read_text())["parameters"]
+STATICS = ("x_up", "x_dn", "y_up", "y_dn", "z_up", "z_dn")
+ROTATIONS = ("x_ccw", "x_cw", "y_ccw", "y_cw", "z_ccw", "z_cw")
+
+
+@pytest.fixture(autouse=True)
+def _no_lab_file(monkeypatch, tmp_path):
+    monkeypatch.setenv("CALIB_PROFILES", str(tmp_path / "profiles"))  # empty: shipped only
+
+
+def _folder(tmp_path: Path, labels: tuple[str, ...]) -> Path:
+    folder = tmp_path / "run"
+    folder.mkdir(parents=True)
+    for label in labels:
+        shutil.copy(SAMPLE / f"MPU0001_{label}.txt", folder)
+    return folder
+
+
+def _process(folder: Path, tmp_path: Path) -> dict:
+    """Process the one run in `folder` into a fresh archive; its `calib process` entry."""
+    archive = resolve_archive(str(tmp_path / "archive"))
+    archive.upgrade()
+    outcome = process_run(discover_runs([folder])[0], archive)
+    archive.dispose()
+    assert outcome["status"] == "ok", outcome["error"]
+    return outcome
+
+
+def _within_4u(outcome: dict, prefix: tuple[str, ...]) -> list[str]:
+    names = [n for n in outcome["parameters"] if n.startswith(prefix) and ".noise." not in n]
+    for name in names:
+        p = outcome["parameters"][name]
+        assert abs(p["value"] - TRUTH[name]) <= 4 * p["std"], (name, p, TRUTH[name])
+    return names
+
+
+def test_stage_1_alone_is_a_six_position_run(tmp_path):
+    outcome = _process(_folder(tmp_path, STATICS), tmp_path)
+    names = _within_4u(outcome, ("acc.",))
+    assert len(names) == 12 and "gyr.bias.x" in outcome["parameters"]
+    assert not any(n.startswith(("gyr.scale", "gyr.misalign")) for n in outcome["parameters"])
+    gravity = {c["name"]: c for c in outcome["checks"]}["condition:gravity"]
+    # no site known: the standard value, with a warning that leaves the verdict alone
+    assert gravity["value"] == STANDARD_GRAVITY and gravity["status"] == conditions.WARNING
+
+
+def test_stage_2_alone_is_an_integral_run(tmp_path):
+    outcome = _process(_folder(tmp_path, ROTATIONS), tmp_path)
+    names = _within_4u(outcome, ("gyr.",))
+    assert sorted(names) == sorted(
+        [f"gyr.scale.{a}" for a in "xyz"] + [f"gyr.misalign.{r}{c}" for r in "xyz"
+                                             for c in "xyz" if r != c]
+    )  # fmt: skip
+    loaded = load_run(discover_runs([_folder(tmp_path / "again", ROTATIONS)])[0])
+    assert loaded.manifest.run.procedure == "integral"
+
+
+def test_an_incomplete_stage_names_its_missing_files(tmp_path):
+    folder = _folder(tmp_path, STATICS[:5] + ROTATIONS[:1])
+    with pytest.raises(IngestError, match=r"of stages 1 and 2; missing MPU0001_z_dn.txt"):
+        load_run(discover_runs([folder])[0])
+    only = _folder(tmp_path / "b", STATICS[1:])
+    with pytest.raises(IngestError, match=r"5 of the 6 .* stage 1 \(orientations\); missing "
+                                          r"MPU0001_x_up.txt$"):  # fmt: skip
+        load_run(discover_runs([only])[0])
+
+
+def test_helmert_gravity_from_the_lab_file(tmp_path, monkeypatch):
+    """The manual: Helmert's formula with the free-air correction -3.086e-6 m/s^2 per metre."""
+    profiles = tmp_path / "lab"
+    profiles.mkdir()
+    (profiles / "lab.toml").write_text("[site]\nlatitude_deg = 55.75\nheight_m = 150.0\n")
+    monkeypatch.setenv("CALIB_PROFILES", str(profiles))
+    outcome = _process(_folder(tmp_path, STATICS), tmp_path)
+    g = gravity_helmert(55.75, 150.0)
+    assert g == pytest.approx(gravity_helmert(55.75, 0.0) - 3.086e-6 * 150.0, abs=1e-12)
+    check = {c["name"]: c for c in outcome["checks"]}["condition:gravity"]
+    assert check["value"] == pytest.approx(g, abs=1e-12) and check["status"] == "pass"
+    # the archived run says where the site came from
+    loaded = load_run(discover_runs([_folder(tmp_path / "x", STATICS)])[0])
+    assert loaded.manifest.site.from_file == str(profiles / "lab.toml")
+    assert loaded.manifest.gravity() == pytest.approx(g, abs=1e-12)
+    (profiles / "lab.toml").write_text("[site]\nlatitude_deg = '55'\nheight_m = 1\n")
+    with pytest.raises(IngestError, match=r"site.latitude_deg: expected a number"):
+        load_run(discover_runs([_folder(tmp_path / "y", STATICS)])[0])
+
+
+def test_manifest_latitude_means_helmert_unless_a_model_is_named():
+    from pipelines.ingest.manifest import SiteSpec
+
+    assert SiteSpec(latitude_deg=48.0, height_m=500.0).model == "helmert"
+    assert SiteSpec().model == "standard" and SiteSpec().source() is None
+    assert SiteSpec(latitude_deg=48.0, gravity_model="standard").source() is None
+    assert "wgs84" in SiteSpec(latitude_deg=48.0, gravity_model="wgs84").source()
+
+
+# --- the manual's names and signs in the protocol (item 4) ----------------------------------
+
+# The manual's parameters of one unit (methods.md 1 sign convention), chosen distinct.
+MANUAL = {"Axx": 0.011, "Ayy": -0.021, "Azz": 0.015, "Axz": 0.004, "Axy": 0.003,
+          "Ayz": -0.002, "Ayx": 0.0012, "Azy": 0.005, "Azx": -0.006}  # fmt: skip
+A0 = np.array([0.12, -0.21, 0.33])  # a0x, a0y, a0z, m/s^2
+
+
+def _manual_means(g: float) -> dict[str, np.ndarray]:
+    """Per-position means from the manual's own model equations (methods.md 1)."""
+    m = MANUAL
+
+    def output(f):
+        ax, ay, az = f
+        return A0 + np.array([
+            (1 + m["Axx"]) * ax + m["Axz"] * ay - m["Axy"] * az,
+            -m["Ayz"] * ax + (1 + m["Ayy"]) * ay + m["Ayx"] * az,
+            m["Azy"] * ax - m["Azx"] * ay + (1 + m["Azz"]) * az,
+        ])  # fmt: skip
+
+    axes = {"x": 0, "y": 1, "z": 2}
+    return {f"{a}_{s}": output(np.eye(3)[axes[a]] * (g if s == "up" else -g))
+            for a in "xyz" for s in ("up", "dn")}  # fmt: skip
+
+
+def _protocol(cal: Calibration, names: str) -> str:
+    from datetime import UTC, datetime
+
+    rows = [{"name": n, "value": p.value, "std": p.std} for n, p in sorted(cal.parameters.items())]
+    return render_protocol(
+        device_model="MPU-6000", serial="S1", started_at=datetime(2026, 1, 1, tzinfo=UTC),
+        run_id="R1", procedure="six_position", profile="mpu6000 v3", gravity=9.81,
+        operator="lab", parameters=rows, checks=[], verdict="pass", names=names,
+    )  # fmt: skip
+
+
+def test_protocol_prints_the_manuals_names_and_signs():
+    """The manual's numbers through its closed form (methods.md 2.1) and back out of the
+    protocol under the manual's names: each equal to the number put in, sign included;
+    its protocol's noise line `Gstdx = 0,02089` (deg/s) reads back as Gstdx too."""
+    g = 9.81
+    canonical = accel_closed_form(_manual_means(g), g)
+    cal = Calibration("six_position", g)
+    for name, value in canonical.items():
+        cal.add(name, value, 1e-6)
+    cal.add("gyr.noise.x", 0.02089 * DEG, 1e-4 * DEG)
+    cal.add("gyr.gsens.xy", 0.001, 1e-5)  # the manual does not name it
+    text = _protocol(cal, "manual")
+    found = {}
+    for line in text.splitlines():
+        m = re.match(r"(\S+)\s.*\s([AG][a-z0-9]+)\s+([+-]\d+\.\d+)$", line)
+        if m:
+            found[m.group(2)] = (m.group(1), float(m.group(3)))
+    for name, value in MANUAL.items():
+        assert found[name][1] == pytest.approx(value, abs=1e-6), name
+    # the misalignments whose manual sign differs: Axy = -M[x,z], Ayz = -M[y,x], Azx = -M[z,y]
+    assert found["Axy"][0] == "acc.misalign.xz" and canonical["acc.misalign.xz"] < 0 < MANUAL["Axy"]
+    assert found["Ayz"][0] == "acc.misalign.yx" and found["Azx"][0] == "acc.misalign.zy"
+    assert found["Gstdx"] == ("gyr.noise.x", pytest.approx(0.02089, abs=1e-6))
+    gsens = next(line for line in text.splitlines() if line.startswith("gyr.gsens.xy"))
+    assert not re.search(r"\s[AG][a-z]{2}\s", gsens)  # no manual name invented
+    # canonical protocol: no manual column; the rest of each line unchanged
+    plain = _protocol(cal, "canonical")
+    assert "Manual" not in plain and " Axz " not in plain
+    for line in plain.splitlines():
+        if line.startswith("acc.misalign.xy"):
+            assert next(x for x in text.splitlines() if x.startswith(line.rstrip()))
+    assert len(MANUAL_NAMES) == 2 * 9 + 3 + 3  # scales and misalignments, a0*, Gstd*
+
+
+def test_protocol_names_setting_of_the_profile():
+    doc = {"name": "p", "version": "1", "device_model": "M"}
+    assert ToleranceProfile.from_dict(doc).protocol_names == "canonical"
+    manual = ToleranceProfile.from_dict({**doc, "protocol": {"names": "manual"}})
+    assert ToleranceProfile.from_dict(manual.to_dict()).protocol_names == "manual"
+    with pytest.raises(ValueError, match=r"protocol.names: expected one of"):
+        ToleranceProfile.from_dict({**doc, "protocol": {"names": "russian"}})
+    assert math.isfinite(STANDARD_GRAVITY)
