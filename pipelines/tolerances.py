@@ -39,6 +39,8 @@ def load_profile(name: str) -> ToleranceProfile:
     file and the field.
     """
     check_safe_name(name, "tolerance profile name")
+    if f"{name}.toml" == LAB_FILE:
+        raise ValueError(f"{LAB_FILE} holds the lab's site, not a tolerance profile")
     for folder in profile_dirs():
         path = folder / f"{name}.toml"
         if path.is_file():
@@ -51,11 +53,11 @@ def load_profile(name: str) -> ToleranceProfile:
     raise ValueError(f"tolerance profile {name!r} not found (looked for {name}.toml in {searched})")
 
 
-LAB_FILE = "lab.toml"
+LAB_FILE = "lab_site.toml"  # not a tolerance profile: load_profile refuses the name
 
 
 def load_lab_site() -> tuple[dict[str, float], Path] | None:
-    """The lab's site from ``lab.toml`` in the profile folders (CALIB_PROFILES first).
+    """The lab's site from ``lab_site.toml`` in the profile folders (CALIB_PROFILES first).
 
     The file holds ``[site] latitude_deg = ..., height_m = ...``: runs whose manifest
     gives no latitude (and every MPU-6000 folder without a manifest) take local gravity

@@ -45,7 +45,7 @@ def lab_profile(folder: Path, version: str, acc_bias: float = LOOSE, gyr_bias: f
     text = SHIPPED
     for old, new in (
         ('name = "mpu6000"', 'name = "lab"'),
-        ('version = "2"', f'version = "{version}"'),
+        ('version = "3"', f'version = "{version}"'),
         ('"gyr.noise.*"\nhigh = 0.05', '"gyr.noise.*"\nhigh = 1000'),
         ('"gyr.bias.*"\nbound = 20', f'"gyr.bias.*"\nbound = {gyr_bias!r}'),
         ("pattern wins\nbound = 0.8", f"pattern wins\nbound = {acc_bias!r}"),
