@@ -71,8 +71,9 @@ CSV_MANIFEST = {
 }
 
 
-# Small runs (25 Hz, 8 s per attitude) keep the campaign and the history under 2 MB in all.
-SMALL_RUN = {"rate_hz": 25.0, "static_s": 8.0}
+# Small runs that still keep the acquisition rules the checks judge (calib_core.conditions:
+# the MPU-6000 program's ~50 Hz, >= 10 s per attitude): about 3.5 MB for both in all.
+SMALL_RUN = {"rate_hz": 50.0, "static_s": 10.5}
 THERMAL_SERIAL, THERMAL_TEMPS_C = "IMU-T-0007", (0.0, 20.0, 40.0, 60.0)
 HISTORY_SERIAL = "IMU-R-0003"
 HISTORY_DATES = ("2026-02-03", "2026-05-05", "2026-08-04", "2026-11-03")
@@ -147,7 +148,10 @@ def main() -> None:
         "- `csv_IMU-2026-0042/`: one headered CSV (`imu.csv`, g and deg/s) described by "
         "`run.toml`, Helmert gravity at the site, 2-turn rotations, truth in `truth.json`; "
         "gyro x noise 0.06 deg/s exceeds the "
-        "profile's 0.05 deg/s (fail).\n"
+        "profile's 0.05 deg/s (fail). Its lab conditions (`[environment]`, `[acquisition]`) "
+        "are plausible sample values, not measurements (so are the two below); the MPU-6000 "
+        "folder records none, so its certificate shows them \"not recorded\" and standard "
+        "gravity with a warning.\n"
         "- `thermal_IMU-T-0007/`: a thermal campaign, one unit at 0, 20, 40 and 60 deg C on four "
         "days (CSV + run.toml each, `environment.temperature_c`), biases quadratic and scales "
         "linear in temperature: `calib thermal fit IMU-T-0007`.\n"
