@@ -23,6 +23,10 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     certificate = "DAkkS 4711-2026"
     issued_by = "PTB"
 
+    [site]                                    # local gravity by Helmert (the MPU-6000 manual)
+    latitude_deg = 48.137                     # for runs whose manifest gives no site
+    height_m = 519.0
+
 Every key is checked; a certificate made without the file says so where the items belong.
 """
 
@@ -60,10 +64,12 @@ def load_lab_profile() -> tuple[dict[str, Any], Path] | None:
 
 
 def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
-    unknown = sorted(set(doc) - {*TABLES, "equipment"})
+    unknown = sorted(set(doc) - {*TABLES, "equipment", "site"})
     if unknown:
         raise ValueError(f"lab profile {path}: unknown table(s) {unknown}; "
-                         f"expected {sorted({*TABLES, 'equipment'})}")
+                         f"expected {sorted({*TABLES, 'equipment', 'site'})}")
+    if "site" in doc:
+        _check_site(doc["site"], path)
     for table, keys in TABLES.items():
         if table in doc:
             _check_table(doc[table], keys, path, table)
@@ -95,3 +101,27 @@ def _check_table(
         ):
             raise ValueError(f"lab profile {path}: {where}.{key}: expected one line of text "
                              f"(1..200 characters), got {value!r}")
+
+
+def _check_site(site: Any, path: Path) -> None:
+    """``[site]``: latitude_deg (-90 .. 90) and height_m, numbers."""
+    if not isinstance(site, dict) or set(site) != {"latitude_deg", "height_m"}:
+        raise ValueError(f"lab profile {path}: site: expected a table with latitude_deg and "
+                         f"height_m, got {site!r}")
+    for key, value in site.items():
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ValueError(f"lab profile {path}: site.{key}: expected a number, got {value!r}")
+    if not -90.0 <= site["latitude_deg"] <= 90.0:
+        raise ValueError(f"lab profile {path}: site.latitude_deg: expected -90 .. 90 degrees")
+
+
+def lab_site() -> tuple[dict[str, float], Path] | None:
+    """The lab's site (latitude_deg, height_m) from the lab profile's ``[site]`` and the
+    file, or None: runs whose manifest gives no site take local gravity by Helmert's
+    formula there, as the MPU-6000 manual does (pipelines.ingest.run_loader.with_lab_site).
+    """
+    found = load_lab_profile()
+    if found is None or "site" not in found[0]:
+        return None
+    doc, path = found
+    return {k: float(doc["site"][k]) for k in ("latitude_deg", "height_m")}, path

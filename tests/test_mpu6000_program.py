@@ -98,7 +98,7 @@ def test_helmert_gravity_from_the_lab_file(tmp_path, monkeypatch):
     """The manual: Helmert's formula with the free-air correction -3.086e-6 m/s^2 per metre."""
     profiles = tmp_path / "lab"
     profiles.mkdir()
-    (profiles / "lab_site.toml").write_text("[site]\nlatitude_deg = 55.75\nheight_m = 150.0\n")
+    (profiles / "lab.toml").write_text("[site]\nlatitude_deg = 55.75\nheight_m = 150.0\n")
     monkeypatch.setenv("CALIB_PROFILES", str(profiles))
     outcome = _process(_folder(tmp_path, STATICS), tmp_path)
     g = gravity_helmert(55.75, 150.0)
@@ -107,9 +107,9 @@ def test_helmert_gravity_from_the_lab_file(tmp_path, monkeypatch):
     assert check["value"] == pytest.approx(g, abs=1e-12) and check["status"] == "pass"
     # the archived run says where the site came from
     loaded = load_run(discover_runs([_folder(tmp_path / "x", STATICS)])[0])
-    assert loaded.manifest.site.from_file == str(profiles / "lab_site.toml")
+    assert loaded.manifest.site.from_file == str(profiles / "lab.toml")
     assert loaded.manifest.gravity() == pytest.approx(g, abs=1e-12)
-    (profiles / "lab_site.toml").write_text("[site]\nlatitude_deg = '55'\nheight_m = 1\n")
+    (profiles / "lab.toml").write_text("[site]\nlatitude_deg = '55'\nheight_m = 1\n")
     with pytest.raises(IngestError, match=r"site.latitude_deg: expected a number"):
         load_run(discover_runs([_folder(tmp_path / "y", STATICS)])[0])
 

@@ -134,7 +134,7 @@ class SiteSpec(_Section):
     # MPU-6000 manual's choice), else the standard value, which the run's checks warn about.
     gravity_model: Literal["standard", "helmert", "wgs84", "measured"] | None = None
     gravity: float | None = Field(default=None, description="measured gravity, m/s^2")
-    # Where latitude and height came from when the lab file (pipelines.tolerances) gave them.
+    # Where latitude and height came from when the lab profile (pipelines.lab) gave them.
     from_file: str | None = None
 
     @property

@@ -43,7 +43,7 @@ from pipelines.ingest.mpu6000 import (
     parse_file_name,
     read_mpu6000_file,
 )
-from pipelines.tolerances import load_lab_site
+from pipelines.lab import lab_site
 from storage.rawstore import hash_and_size
 
 MANIFEST_NAME = "run.toml"
@@ -393,12 +393,13 @@ def _load_mpu6000_folder(folder: Path, serial: str | None, hash_file: FileHasher
 
 def with_lab_site(manifest: RunManifest, source: str) -> RunManifest:
     """The manifest with the lab file's site when it gives neither a latitude nor a gravity
-    model (pipelines.tolerances.load_lab_site); the archived site says which file."""
+    model (the lab profile's [site], pipelines.lab.lab_site); the archived site says which
+    file."""
     site = manifest.site
     if site.latitude_deg is not None or site.gravity_model is not None:
         return manifest
     try:
-        lab = load_lab_site()
+        lab = lab_site()
     except ValueError as exc:
         raise IngestError(str(exc), file=source, field="site") from None
     if lab is None:
