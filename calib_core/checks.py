@@ -220,7 +220,7 @@ class ToleranceProfile:
         {"low", "high"} in the key's unit (calib_core.conditions); missing keys and sides
         take DEFAULT_CONDITIONS.
     protocol_names : "canonical" (default) or "manual": the protocol also prints each
-        parameter under the MPU-6000 manual's name and sign (pipelines.reports.manual_names).
+        parameter under the MPU-6000 manual's name and sign (params.MANUAL_NAMES).
     """
 
     name: str
