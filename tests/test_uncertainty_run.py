@@ -15,6 +15,7 @@ import pytest
 from calib_core import procedures
 from calib_core.calibration import Calibration
 from calib_core.checks import ToleranceProfile, check_parameters
+from calib_core.conditions import status as condition_status
 from calib_core.decision import COND_FAIL, COND_PASS, DecisionRule
 from calib_core.run_budget import run_budgets
 from calib_core.simulate import random_errors, six_position_integral_run
@@ -120,6 +121,9 @@ def _guarded_profile(folder: Path) -> Path:
     text = text.replace('name = "mpu6000"', 'name = "guarded"')
     text = text.replace('decision_rule = { name = "simple" }',
                         'decision_rule = { name = "guard_band" }')
+    # these runs hold 5 s per attitude (the uncertainty they test is sized by it): the
+    # procedure's record >= 10 s (calib_core.conditions) is relaxed to what they hold
+    text = text.replace("sample_rate_hz = {", "record_s = { low = 4.9 }\nsample_rate_hz = {")
     first = text.index("[[limits]]")
     limit = '[[limits]]\npattern = "acc.scale.x"\nbound = 0.011\nunit = "1"\n\n'
     folder.mkdir(parents=True, exist_ok=True)
@@ -231,7 +235,8 @@ def test_guard_band_verdict_of_the_run(archived) -> None:
     outcome, summary, *_ = archived["U-KNOWN"]
     check = next(c for c in summary["calibration"]["checks"] if c["name"] == "param:acc.scale.x")
     assert f"; {COND_PASS} (rule guard_band" in check["detail"] and not check["passed"]
-    failed = [c["name"] for c in summary["calibration"]["checks"] if not c["passed"]]
+    # lab conditions this simulated run does not record are not failures (calib_core.conditions)
+    failed = [c["name"] for c in summary["calibration"]["checks"] if condition_status(c) == "fail"]
     assert failed == ["param:acc.scale.x"]
     assert outcome["verdict"] == NEEDS_REVIEW
 
