@@ -431,6 +431,7 @@ def process_run(
                 protocol_name: protocol_of(loaded, cal, judged, run_id, rows, budgets).encode()
             },
             pending=pending,
+            reason=reason,  # into the audit trail's event of the revision
         )
     except Exception as exc:
         if reraise is not None and reraise(exc):

@@ -113,6 +113,9 @@ def test_selection_reprocessed_twice_gives_revisions_then_duplicates(
             select(schema.ProcessingStep.settings).where(schema.ProcessingStep.name == "reprocess")
         ).scalars().all()  # fmt: skip
     assert reasons == [{"reason": "solver upgrade"}] * 3
+    assert [(e["action"], e["reason"]) for e in queries.audit_trail(arch)][-3:] == [
+        ("revised", "solver upgrade")
+    ] * 3  # the audit trail keeps the reason given (issue 20)
     # Every filter, on the archive as it now is (3 runs revised by the new software).
     for filters, expected in (
         ({"software_version": "9.9.9-reprocess-batch"}, [o["run_id"] for o in once]),
