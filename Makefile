@@ -28,7 +28,8 @@ demo: venv
 	$(BIN)/calib thermal export IMU-T-0007 $(DEMO_OUT)/IMU-T-0007_px4.params --format px4
 	$(BIN)/calib thermal export IMU-T-0007 $(DEMO_OUT)/IMU-T-0007_ardupilot.parm --format ardupilot
 	$(BIN)/calib trend IMU-R-0003 acc.bias.z --plot $(DEMO_OUT)/IMU-R-0003_acc.bias.z_trend.png
-	$(BIN)/calib repeatability IMU-R-0003
+	@# IMU-R-0003's acc.bias.z drifts on purpose: repeatability fails it and exits 1.
+	-$(BIN)/calib repeatability IMU-R-0003
 	@echo
 	@echo "Open: calib-archive/runs/<serial>/<date>/<run>/ (protocols, HTML and PDF certificates);"
 	@echo "      $(DEMO_OUT)/ (PX4 and ArduPilot parameter files, the trend plot)."

@@ -537,6 +537,15 @@ def _parse_limit(entry: Any, where: str) -> ParameterLimit:
     return ParameterLimit(pattern, low * factor, high * factor)
 
 
+def _allowed(lim: ParameterLimit, unit: str) -> str:
+    """The limit in words: "allowed -0.03 .. 0.03 1", "allowed at most 0.000873 rad/s"."""
+    if math.isinf(lim.low) and not math.isinf(lim.high):
+        return f"allowed at most {lim.high:.6g} {unit}"
+    if math.isinf(lim.high) and not math.isinf(lim.low):
+        return f"allowed at least {lim.low:.6g} {unit}"
+    return f"allowed {lim.low:.6g} .. {lim.high:.6g} {unit}"
+
+
 def check_parameters(
     cal: Calibration, profile: ToleranceProfile, budgets: Mapping[str, Budget] | None = None
 ) -> list[CheckResult]:
@@ -550,7 +559,8 @@ def check_parameters(
     Returns
     -------
     CheckResult "param:<canonical name>" with the value, limit = |bound| of a
-    symmetric limit (else high); the detail starts "allowed LOW .. HIGH unit".
+    symmetric limit (else high); the detail starts "allowed LOW .. HIGH unit"
+    ("allowed at most HIGH unit" for an upper bound only, as noise has).
     """
     out = []
     for name, p in cal.parameters.items():
@@ -558,7 +568,7 @@ def check_parameters(
         if lim is None:
             continue
         unit = params.unit_of(name)
-        detail = f"allowed {lim.low:.6g} .. {lim.high:.6g} {unit}"
+        detail = _allowed(lim, unit)
         passed = bool(lim.low <= p.value <= lim.high)
         if budgets is not None:
             b = budgets.get(name)

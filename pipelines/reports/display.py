@@ -36,9 +36,12 @@ def tolerance(name: str, check: dict | None) -> tuple[str, float] | None:
     """(relation, limit in display unit) of a parameter check, or None without a limit.
 
     relation is "+-" for a symmetric bound and "<=" for an upper-only one (noise):
-    check_parameters writes its bounds into the detail as "allowed LOW .. HIGH unit".
+    check_parameters writes its bounds into the detail as "allowed LOW .. HIGH unit"
+    or "allowed at most HIGH unit".
     """
     if check is None or check.get("limit") is None:
         return None
-    relation = "<=" if check.get("detail", "").startswith("allowed -inf") else "+-"
+    # "allowed -inf .." is how archives before 2026-11-25 wrote an upper bound only.
+    upper_only = check.get("detail", "").startswith(("allowed at most", "allowed -inf"))
+    relation = "<=" if upper_only else "+-"
     return relation, display(name, check["limit"])[0]
