@@ -437,16 +437,21 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-def wait_first_run_finished(proc: subprocess.Popen) -> None:
-    """Read `proc`'s stderr (text) until Prefect logs the first finished task run
-    (`calib --verbose`: Prefect logs at warning level otherwise)."""
-    assert proc.stderr is not None
-    seen: list[str] = []
-    for line in proc.stderr:  # Prefect logs each finished task run on stderr
-        seen.append(line)
-        if "Finished in state Completed" in line:
+def wait_first_run_finished(proc: subprocess.Popen, log: Path) -> None:
+    """Wait until Prefect logs the first finished task run into `log`, `proc`'s stderr
+    (`calib --verbose`: Prefect logs at warning level otherwise).
+
+    stderr goes to a file, not a pipe: a pipe stays open while any child that inherited
+    it lives, so reading it to its end would time a leftover process, not calib's exit
+    (the test checks leftovers itself, naming them)."""
+    import time
+
+    deadline = time.monotonic() + SUBPROCESS_TIMEOUT_S
+    while time.monotonic() < deadline and proc.poll() is None:
+        if "Finished in state Completed" in log.read_text(errors="replace"):
             return
-    raise AssertionError(f"no run finished: {''.join(seen)[-3000:]}")
+        time.sleep(0.1)
+    raise AssertionError(f"no run finished: {log.read_text(errors='replace')[-3000:]}")
 
 
 def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> None:
@@ -467,18 +472,20 @@ def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> N
     cmd = [calib, "--verbose", "process", str(tmp_path / "day"), "--archive", archive]
     cmd.append("--no-progress")
     before = _helper_pids(tag)
-    proc = subprocess.Popen(
-        [*cmd, "--runner", "process", "--workers", "2"],
-        stderr=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        text=True,
-        env=env,
-    )
-    wait_first_run_finished(proc)
+    log = tmp_path / "stderr.txt"
+    with log.open("w") as stderr:
+        proc = subprocess.Popen(
+            [*cmd, "--runner", "process", "--workers", "2"],
+            stderr=stderr,
+            stdout=subprocess.DEVNULL,
+            env=env,
+        )
+    wait_first_run_finished(proc, log)
     proc.send_signal(signal.SIGINT)
     sent = time.monotonic()
-    _, rest = proc.communicate(timeout=SUBPROCESS_TIMEOUT_S)
+    proc.wait(timeout=SUBPROCESS_TIMEOUT_S)
     took = time.monotonic() - sent
+    rest = log.read_text(errors="replace")
     assert proc.returncode == 130, rest[-3000:]
     assert took < 15.0, took  # stopping the API server may take a few seconds on a busy machine
     said = " ".join(rest.split())  # the console wraps long lines

@@ -248,12 +248,12 @@ def test_kill_during_a_reprocess_batch_then_rerun_reprocesses_every_run_once(
     cmd = [calib, "--verbose", "reprocess", "--all", "--reason", "profile v2"]
     cmd += ["--archive", archive]
     cmd += ["--flow", "--workers", "2", "--no-progress"]
-    proc = subprocess.Popen(
-        cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env
-    )
-    wait_first_run_finished(proc)
+    log = tmp_path / "stderr.txt"
+    with log.open("w") as stderr:
+        proc = subprocess.Popen(cmd, stderr=stderr, stdout=subprocess.DEVNULL, env=env)
+    wait_first_run_finished(proc, log)
     proc.send_signal(signal.SIGKILL)
-    proc.communicate(timeout=SUBPROCESS_TIMEOUT_S)
+    proc.wait(timeout=SUBPROCESS_TIMEOUT_S)
     assert proc.returncode == -signal.SIGKILL
     cut = calibrations_per_run(archive)
     assert 1 <= sum(n == 2 for n in cut.values()) < len(seeds), cut  # killed mid-batch
