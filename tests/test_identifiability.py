@@ -83,7 +83,7 @@ def test_parameters_that_move_with_the_detector_are_named() -> None:
     """Every other hold trembles (variance 7x the first rest's: between the k = 6 and
     k = 8 thresholds) while the operator presses the unit (+0.05 m/s^2 along x). At
     k = 6 those 15 holds are not rests (16 rests, a clean fit); at k = 8 they are, and
-    their 50 mm/s^2 offset moves the fit by many of its ~1 mm/s^2 uncertainties (over
+    their 50 mm/s^2 offset moves the fit by many of its standard uncertainties (over
     seeds 0-5: 51, 10, 11, 21, 1.0, 2.7 sigma; this is seed 1)."""
     run, rng = _session(1)
     r, truth = run.recording, run.truth
@@ -103,7 +103,7 @@ def test_parameters_that_move_with_the_detector_are_named() -> None:
 def test_face_bias_spread_finds_a_non_linearity() -> None:
     """A quadratic term k2 = 2e-4 (m/s^2)^-1 adds k2 g^2 = 19 mm/s^2 to a channel's
     face-pair mean only on its own axis's faces; the pair means' uncertainty is
-    ~0.4 mm/s^2 (noise / sqrt(1000 samples)), so chi2 >> 13.8 (p = 0.001). The same
+    0.18-0.25 mm/s^2 (measured on this run), so chi2 >> 13.8 (p = 0.001). The same
     unit without it passes (probability 0.999 per axis)."""
     rng = np.random.default_rng(11)
     run = six_position_integral_run(random_errors(rng), rng)
