@@ -14,7 +14,7 @@ _API = {
     "Parameter": "calib_core.calibration",
     "CheckResult": "calib_core.calibration",
     "ThermalModel": "calib_core.thermal",
-    "ToleranceProfile": "calib_core.checks",
+    "ToleranceProfile": "calib_core.tolerances",
     "PROCEDURES": "calib_core.procedures",
     "solve": "calib_core.procedures",
     "check_calibration": "calib_core.checks",

@@ -37,11 +37,11 @@ from calib_core.checks import (  # noqa: F401  (the verdict's names, re-exported
     NEEDS_REVIEW,
     PASS,
     REPEAT_PREFIX,
-    ToleranceProfile,
 )
 from calib_core.checks import verdict as overall_verdict  # noqa: F401
 from calib_core.distributions import chi2_ppf
 from calib_core.recording import Recording
+from calib_core.tolerances import ToleranceProfile
 
 VERIFY_PREFIX = "verify:"
 

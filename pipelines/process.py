@@ -19,11 +19,12 @@ import pyarrow as pa
 
 from calib_core import procedures
 from calib_core.calibration import Calibration, CheckResult, StepRecord
-from calib_core.checks import ToleranceProfile, check_calibration
+from calib_core.checks import check_calibration
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess
 from calib_core.recording import Recording
+from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
 from calib_core.verification import (
     RunValues,

@@ -10,7 +10,7 @@ import os
 import tomllib
 from pathlib import Path
 
-from calib_core.checks import ToleranceProfile
+from calib_core.tolerances import ToleranceProfile
 from storage.naming import check_safe_name
 
 SHIPPED = Path(__file__).resolve().parent / "profiles"

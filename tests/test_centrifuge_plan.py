@@ -10,13 +10,14 @@ import pytest
 from typer.testing import CliRunner
 
 from calib_core import procedures
-from calib_core.checks import ToleranceProfile, check_calibration
+from calib_core.checks import check_calibration
 from calib_core.earth import EARTH_RATE
 from calib_core.simulate.centrifuge import simulate_centrifuge
 from calib_core.solvers.centrifuge import solve_centrifuge
 from calib_core.solvers.centrifuge_model import CentrifugeSettings
 from calib_core.solvers.centrifuge_plan import DEFAULT_G_LEVELS, plan_rates
 from calib_core.solvers.centrifuge_segments import step_label
+from calib_core.tolerances import ToleranceProfile
 from calib_core.units import STANDARD_GRAVITY
 from pipelines.centrifuge import render_report
 from pipelines.cli import app

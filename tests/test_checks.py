@@ -11,16 +11,10 @@ import numpy as np
 import pytest
 
 from calib_core.calibration import Calibration, CheckResult, SegmentResidual
-from calib_core.checks import (
-    ParameterLimit,
-    ToleranceProfile,
-    check_parameters,
-    check_residuals,
-    parse_unit,
-    verdict,
-)
+from calib_core.checks import check_parameters, check_residuals, verdict
 from calib_core.procedures import solve
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_core.tolerances import ParameterLimit, ToleranceProfile, parse_unit
 from calib_core.units import DEG, STANDARD_GRAVITY
 
 

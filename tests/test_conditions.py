@@ -18,8 +18,8 @@ from typer.testing import CliRunner
 
 from calib_core import conditions
 from calib_core.calibration import CheckResult
-from calib_core.checks import ToleranceProfile
 from calib_core.recording import Recording
+from calib_core.tolerances import ToleranceProfile
 from calib_core.units import DEG
 from calib_core.verification import overall_verdict
 from pipelines.cli import app

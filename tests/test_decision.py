@@ -76,7 +76,7 @@ def _profile_doc(rule):
 
 
 def test_profile_names_its_rule_and_judges():
-    from calib_core.checks import ToleranceProfile
+    from calib_core.tolerances import ToleranceProfile
 
     prof = ToleranceProfile.from_dict(_profile_doc({"name": "guard_band_r", "r": 0.5}))
     assert prof.decision_rule == DecisionRule("guard_band_r", 0.5)

@@ -16,11 +16,12 @@ from calib_core.attitude import (
     rot_x,
     rot_y,
 )
-from calib_core.checks import ToleranceProfile, check_residuals
+from calib_core.checks import check_residuals
 from calib_core.procedures import solve
 from calib_core.recording import Recording
 from calib_core.simulate.handheld import accelerometer_frame, handheld_run
 from calib_core.simulate.lab_run import random_errors
+from calib_core.tolerances import ToleranceProfile
 
 XSENS = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "imutk_xsens"
 XSENS_GRAVITY = 9.81744  # the value imu_tk's test application uses for this session

@@ -16,10 +16,10 @@ import pytest
 
 from calib_core import conditions
 from calib_core.calibration import Calibration
-from calib_core.checks import ToleranceProfile
 from calib_core.earth import gravity_helmert
 from calib_core.params import MANUAL_NAMES
 from calib_core.solvers.six_position import accel_closed_form
+from calib_core.tolerances import ToleranceProfile
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.ingest import IngestError, discover_runs, load_run
 from pipelines.process import process_run

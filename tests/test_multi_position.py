@@ -9,12 +9,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calib_core.attitude import pitch_roll_from_direction, specific_force, table_attitude
-from calib_core.checks import ToleranceProfile, check_residuals
+from calib_core.checks import check_residuals
 from calib_core.procedures import solve
 from calib_core.simulate.attitudes import multi_position_run, scheme_angles
 from calib_core.simulate.lab_run import random_errors
 from calib_core.solvers.accel_models import solve_accel_multi
 from calib_core.solvers.multi_position import solve_accel_linear
+from calib_core.tolerances import ToleranceProfile
 from calib_core.units import DEG
 
 G = 9.80665

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib_core.checks import ToleranceProfile, check_residuals
+from calib_core.checks import check_residuals
 from calib_core.procedures import solve
 from calib_core.simulate.array import array_run
 from calib_core.simulate.lab_run import random_errors
 from calib_core.solvers.sensor_array import cube_mounts
+from calib_core.tolerances import ToleranceProfile
 
 G = 9.80665
 

@@ -14,11 +14,12 @@ import pytest
 
 from calib_core import procedures
 from calib_core.calibration import Calibration
-from calib_core.checks import ToleranceProfile, check_parameters
+from calib_core.checks import check_parameters
 from calib_core.conditions import status as condition_status
 from calib_core.decision import COND_FAIL, COND_PASS, DecisionRule
 from calib_core.run_budget import run_budgets
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import budgets as make_budgets
 from calib_core.uncertainty_sources import EquipmentSpec
 from calib_core.units import STANDARD_GRAVITY

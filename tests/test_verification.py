@@ -11,14 +11,14 @@ import pytest
 
 from calib_core import procedures
 from calib_core.calibration import CheckResult
-from calib_core.checks import (
+from calib_core.checks import check_residuals
+from calib_core.recording import Recording
+from calib_core.simulate import TrueErrors, axis_vector, random_errors, six_position_integral_run
+from calib_core.tolerances import (
     DEFAULT_REPEATABILITY,
     DEFAULT_VERIFICATION_LIMITS,
     ToleranceProfile,
-    check_residuals,
 )
-from calib_core.recording import Recording
-from calib_core.simulate import TrueErrors, axis_vector, random_errors, six_position_integral_run
 from calib_core.units import DEG, STANDARD_GRAVITY
 from calib_core.verification import (
     FAIL,

@@ -29,7 +29,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from calib_core import conditions, params  # noqa: E402
 from calib_core.calibration import Calibration  # noqa: E402
-from calib_core.checks import ToleranceProfile  # noqa: E402
+from calib_core.tolerances import ToleranceProfile  # noqa: E402
 from calib_core.units import DEG, STANDARD_GRAVITY  # noqa: E402
 from calib_core.verification import (  # noqa: E402
     NEEDS_REVIEW,

@@ -15,8 +15,8 @@ from fastapi.responses import FileResponse, HTMLResponse, Response
 from starlette.exceptions import HTTPException
 
 from calib_core import params
-from calib_core.checks import ToleranceProfile
 from calib_core.conditions import status as condition_status
+from calib_core.tolerances import ToleranceProfile
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.reports.display import tolerance
 from pipelines.web import forms, svg

@@ -14,8 +14,8 @@ from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse
 
 from calib_core import drift, params
-from calib_core.checks import ToleranceProfile
 from calib_core.thermal import ThermalModel
+from calib_core.tolerances import ToleranceProfile
 from pipelines.tolerances import load_profile
 from pipelines.web import forms, svg
 from pipelines.web.app import render

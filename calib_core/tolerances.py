@@ -1,0 +1,499 @@
+"""Tolerance profiles, the science side: a device type's limits parsed into SI.
+
+A tolerance profile is data, not code: the lab keeps one file per device type
+(TOML; `pipelines.tolerances` finds and reads the files), parsed here into SI
+limits. Parameter limits are matched to canonical names by glob patterns, first
+match wins, so a specific pattern ("acc.bias.z") listed before a general one
+("acc.bias.*") overrides it. Residual limits bound the per-segment residual
+statistics (methods.md 3: accel residual std <= 0.002 g, gyro residual std
+<= 0.1 deg/s, residual mean near zero). `calib_core.checks` judges a
+calibration against a profile.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from calib_core import decision, params, units
+from calib_core.conditions import parse_conditions
+from calib_core.decision import DecisionRule
+
+# Every canonical name a limit pattern may match.
+ALL_NAMES: list[str] = (
+    params.ACC_LINEAR
+    + params.GYR_LINEAR
+    + params.GSENS
+    + [f"{s}.noise.{a}" for s in ("acc", "gyr") for a in params.AXES]
+    + [f"acc.{k}.{a}" for k in ("k2", "k3") for a in params.AXES]
+)
+
+
+# Physical dimension of each parameter family (what a limit's unit must be).
+_FAMILY_DIMENSION = {
+    "acc.bias": "acceleration",
+    "acc.noise": "acceleration",
+    "acc.scale": "dimensionless",
+    "acc.misalign": "dimensionless",
+    "acc.k2": "1/acceleration",
+    "acc.k3": "1/acceleration^2",
+    "gyr.bias": "angular rate",
+    "gyr.noise": "angular rate",
+    "gyr.scale": "dimensionless",
+    "gyr.misalign": "dimensionless",
+    "gyr.gsens": "angular rate/acceleration",
+}
+_DIMENSIONLESS = {"1": 1.0, "": 1.0, "%": 1e-2, "ppm": 1e-6}
+
+RESIDUAL_KEYS = ("acc_std", "gyr_std", "acc_mean", "gyr_mean")
+# methods.md 3; a residual mean as large as the allowed noise means the model misses something.
+DEFAULT_RESIDUAL_LIMITS: dict[str, float] = {
+    "acc_std": 0.002 * units.STANDARD_GRAVITY,
+    "gyr_std": 0.1 * units.DEG,
+    "acc_mean": 0.002 * units.STANDARD_GRAVITY,
+    "gyr_mean": 0.1 * units.DEG,
+}
+_RESIDUAL_DIMENSION = {"acc": "acceleration", "gyr": "angular rate"}
+
+# methods.md 3, accuracy verification on points not used in the fit.
+VERIFICATION_KEYS = ("acc", "gyr")
+DEFAULT_VERIFICATION_LIMITS: dict[str, float] = {
+    "acc": 0.01 * units.STANDARD_GRAVITY,
+    "gyr": 0.5 * units.DEG,
+}
+# methods.md 3, repeatability: three complete runs, CV <= 1 %. `alpha` is the
+# family-wise false-alarm rate of the scatter-vs-uncertainty rule for the
+# parameters where a CV is meaningless; `temperature_tol_c` decides which runs
+# count as "the same conditions" (the lab's 20 +- 2 deg C); `max_runs` caps a group.
+DEFAULT_REPEATABILITY: dict[str, float | int] = {
+    "cv_max": 0.01,
+    "alpha": 0.01,
+    "min_runs": 3,
+    "max_runs": 5,
+    "temperature_tol_c": 2.0,
+}
+
+
+def _strip_parens(text: str) -> str:
+    text = text.strip()
+    if text.startswith("(") and text.endswith(")") and text.count("(") == 1:
+        return text[1:-1].strip()
+    return text
+
+
+def parse_unit(unit: str) -> tuple[str, float]:
+    """Dimension and SI factor of a lab unit string.
+
+    Understands dimensionless ("1", "%", "ppm"), the acceleration and angular
+    rate units of calib_core.units, g-sensitivity "<rate>/<acceleration>"
+    (e.g. "(deg/s)/g", "deg/s/g", "(rad/s)/(m/s^2)") and "1/<acceleration>"
+    and "1/<acceleration>^2" for the nonlinear terms.
+
+    Returns
+    -------
+    (dimension name, factor): value_SI = value * factor.
+    """
+    u = unit.strip()
+    if u in _DIMENSIONLESS:
+        return "dimensionless", _DIMENSIONLESS[u]
+    if u in units.ACCELERATION_UNITS:
+        return "acceleration", units.ACCELERATION_UNITS[u]
+    if u in units.ANGULAR_RATE_UNITS:
+        return "angular rate", units.ANGULAR_RATE_UNITS[u]
+    # A ratio: try every '/' as the main division ("deg/s/g", "(rad/s)/(m/s^2)").
+    for i, ch in enumerate(u):
+        if ch != "/":
+            continue
+        num, den = _strip_parens(u[:i]), u[i + 1 :].strip()
+        if num == "1":
+            base = _strip_parens(den[:-2]) if den.endswith("^2") else ""
+            if base in units.ACCELERATION_UNITS:  # "1/g^2", "1/(m/s^2)^2"
+                return "1/acceleration^2", 1.0 / units.ACCELERATION_UNITS[base] ** 2
+            if _strip_parens(den) in units.ACCELERATION_UNITS:  # "1/g", "1/(m/s^2)"
+                return "1/acceleration", 1.0 / units.ACCELERATION_UNITS[_strip_parens(den)]
+        den_unit = _strip_parens(den)
+        if num in units.ANGULAR_RATE_UNITS and den_unit in units.ACCELERATION_UNITS:
+            factor = units.ANGULAR_RATE_UNITS[num] / units.ACCELERATION_UNITS[den_unit]
+            return "angular rate/acceleration", factor
+    raise ValueError(
+        f"unknown unit {unit!r}; expected 1, %, ppm, an acceleration unit "
+        f"({', '.join(units.ACCELERATION_UNITS)}), an angular rate unit "
+        f"({', '.join(units.ANGULAR_RATE_UNITS)}) or a ratio like (deg/s)/g"
+    )
+
+
+_SI_UNIT = {
+    "dimensionless": "1",
+    "acceleration": "m/s^2",
+    "angular rate": "rad/s",
+    "angular rate/acceleration": "(rad/s)/(m/s^2)",
+    "1/acceleration": "1/(m/s^2)",
+    "1/acceleration^2": "1/(m/s^2)^2",
+}
+
+
+def family(name: str) -> str:
+    """The parameter family of a canonical name: "acc.bias.z" -> "acc.bias"."""
+    return name.rsplit(".", 1)[0]
+
+
+@dataclass(frozen=True)
+class ParameterLimit:
+    """Allowed range of the parameters whose canonical name matches `pattern`.
+
+    pattern : fnmatch glob on canonical names, e.g. "gyr.scale.*", "acc.bias.z".
+    low, high : SI bounds (inclusive); -inf / inf for a one-sided limit.
+    """
+
+    pattern: str
+    low: float
+    high: float
+
+    def matches(self, name: str) -> bool:
+        return fnmatch.fnmatchcase(name, self.pattern)
+
+    @property
+    def limit(self) -> float:
+        """The number a report prints: |bound| of a symmetric limit, else high (or low)."""
+        return self.high if math.isfinite(self.high) else self.low
+
+
+@dataclass
+class ToleranceProfile:
+    """Tolerances of one device type, SI units.
+
+    Attributes
+    ----------
+    name, version : the profile's name and version (archived with every verdict).
+    device_model : the device type it is written for.
+    parameter_limits : ParameterLimit per parameter pattern, first match wins.
+    residual_limits : "acc_std", "gyr_std", "acc_mean", "gyr_mean" in m/s^2
+        and rad/s; missing keys take DEFAULT_RESIDUAL_LIMITS.
+    verification_limits : "acc" (m/s^2) and "gyr" (rad/s), the largest error of
+        the compensated output at a held-out point; missing keys take
+        DEFAULT_VERIFICATION_LIMITS.
+    repeatability : "cv_max", "alpha", "min_runs", "max_runs",
+        "temperature_tol_c"; missing keys take DEFAULT_REPEATABILITY.
+    decision_rule : ILAC-G8 rule of the statements of conformity (TOML
+        ``decision_rule = { name = "guard_band_r", r = 0.5 }``); simple acceptance if absent.
+    conditions : limits of the lab conditions and acquisition rules, key ->
+        {"low", "high"} in the key's unit (calib_core.conditions); missing keys and sides
+        take DEFAULT_CONDITIONS.
+    protocol_names : "canonical" (default) or "manual": the protocol also prints each
+        parameter under the MPU-6000 manual's name and sign (params.MANUAL_NAMES).
+    """
+
+    name: str
+    version: str
+    device_model: str
+    parameter_limits: list[ParameterLimit]
+    residual_limits: dict[str, float] = field(default_factory=dict)
+    verification_limits: dict[str, float] = field(default_factory=dict)
+    repeatability: dict[str, float | int] = field(default_factory=dict)
+    decision_rule: DecisionRule = field(default_factory=DecisionRule)
+    conditions: dict[str, dict[str, float]] = field(default_factory=dict)
+    protocol_names: str = "canonical"
+
+    def __post_init__(self) -> None:
+        self.residual_limits = {**DEFAULT_RESIDUAL_LIMITS, **self.residual_limits}
+        self.verification_limits = {**DEFAULT_VERIFICATION_LIMITS, **self.verification_limits}
+        self.repeatability = {**DEFAULT_REPEATABILITY, **self.repeatability}
+
+    def limit_for(self, name: str) -> ParameterLimit | None:
+        """The first limit whose pattern matches `name`, or None."""
+        return next((lim for lim in self.parameter_limits if lim.matches(name)), None)
+
+    def judge(self, name: str, value: float, U: float) -> str | None:
+        """ILAC-G8 verdict of parameter `name` (SI value and expanded uncertainty) under the
+        profile's decision rule; None when no limit applies."""
+        lim = self.limit_for(name)
+        if lim is None:
+            return None
+        return decision.verdict(value, U, lim.low, lim.high, self.decision_rule)
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> ToleranceProfile:
+        """Build a profile from a parsed TOML document (lab units, explicit unit per limit).
+
+        Each ``[[limits]]`` entry has ``pattern``, ``unit`` and either ``bound``
+        (symmetric, -bound .. +bound) or ``low`` and/or ``high`` (a missing side
+        is unbounded). Residual limits are ``{value, unit}`` tables. Example
+        (the MPU-6000 paper's tolerances)::
+
+            name = "mpu6000"
+            version = "1"
+            device_model = "MPU-6000"
+
+            [residual_limits]
+            acc_std = { value = 2.0, unit = "mg" }
+            gyr_std = { value = 0.1, unit = "deg/s" }
+
+            [[limits]]
+            pattern = "gyr.scale.*"
+            bound = 0.03
+            unit = "1"
+            [[limits]]
+            pattern = "gyr.misalign.*"
+            bound = 0.02
+            unit = "1"
+            [[limits]]
+            pattern = "gyr.bias.*"
+            bound = 20
+            unit = "deg/s"
+            [[limits]]
+            pattern = "gyr.gsens.*"
+            bound = 0.1
+            unit = "(deg/s)/g"
+            [[limits]]
+            pattern = "gyr.noise.*"
+            high = 0.05
+            unit = "deg/s"
+            [[limits]]
+            pattern = "acc.scale.*"
+            bound = 0.03
+            unit = "1"
+            [[limits]]
+            pattern = "acc.misalign.*"
+            bound = 0.02
+            unit = "1"
+            [[limits]]
+            pattern = "acc.bias.z"     # before acc.bias.*: first match wins
+            bound = 0.8
+            unit = "m/s^2"
+            [[limits]]
+            pattern = "acc.bias.*"
+            bound = 0.5
+            unit = "m/s^2"
+
+        Raises
+        ------
+        ValueError naming the field (e.g. ``limits[3].unit``) and what was expected.
+        """
+        if not isinstance(doc, dict):
+            raise ValueError(f"tolerance profile: expected a table, got {type(doc).__name__}")
+        known = {
+            "name",
+            "version",
+            "device_model",
+            "limits",
+            "residual_limits",
+            "verification_limits",
+            "repeatability",
+            "decision_rule",
+            "conditions",
+            "protocol",
+        }
+        unknown = sorted(set(doc) - known)
+        if unknown:
+            raise ValueError(
+                f"tolerance profile: unknown field(s) {unknown}; expected {sorted(known)}"
+            )
+        header = {}
+        for key in ("name", "version", "device_model"):
+            value = doc.get(key)
+            if isinstance(value, bool) or not isinstance(value, str | int | float) or value == "":
+                raise ValueError(f"tolerance profile field {key!r}: expected a non-empty string")
+            header[key] = str(value)
+        raw_limits = doc.get("limits", [])
+        if not isinstance(raw_limits, list):
+            raise ValueError("tolerance profile field 'limits': expected an array of tables")
+        limits = [_parse_limit(entry, f"limits[{i}]") for i, entry in enumerate(raw_limits)]
+        residual = _positive_limits(
+            doc.get("residual_limits", {}), "residual_limits", RESIDUAL_KEYS
+        )
+        return cls(
+            parameter_limits=limits,
+            residual_limits=residual,
+            verification_limits=_positive_limits(
+                doc.get("verification_limits", {}), "verification_limits", VERIFICATION_KEYS
+            ),
+            repeatability=_repeatability(doc.get("repeatability", {})),
+            decision_rule=_decision_rule(doc.get("decision_rule", {})),
+            conditions=parse_conditions(doc.get("conditions", {})),
+            protocol_names=_protocol_names(doc.get("protocol", {})),
+            **header,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """The profile as a TOML-able document in SI units (from_dict reads it back)."""
+        limits = []
+        for lim in self.parameter_limits:
+            dims = {_FAMILY_DIMENSION[family(n)] for n in ALL_NAMES if lim.matches(n)}
+            entry: dict[str, Any] = {"pattern": lim.pattern, "unit": _SI_UNIT[dims.pop()]}
+            if math.isfinite(lim.low):
+                entry["low"] = lim.low
+            if math.isfinite(lim.high):
+                entry["high"] = lim.high
+            limits.append(entry)
+        residual = {
+            key: {"value": value, "unit": _SI_UNIT[_RESIDUAL_DIMENSION[key.split("_")[0]]]}
+            for key, value in self.residual_limits.items()
+        }
+        verification = {
+            key: {"value": value, "unit": _SI_UNIT[_RESIDUAL_DIMENSION[key]]}
+            for key, value in self.verification_limits.items()
+        }
+        doc = {
+            "name": self.name,
+            "version": self.version,
+            "device_model": self.device_model,
+            "limits": limits,
+            "residual_limits": residual,
+            "verification_limits": verification,
+            "repeatability": dict(self.repeatability),
+        }
+        if self.decision_rule != DecisionRule():  # absent means simple acceptance (older docs)
+            doc["decision_rule"] = {"name": self.decision_rule.name, "r": self.decision_rule.r}
+        if self.conditions:
+            doc["conditions"] = {k: dict(v) for k, v in self.conditions.items()}
+        if self.protocol_names != "canonical":
+            doc["protocol"] = {"names": self.protocol_names}
+        return doc
+
+
+PROTOCOL_NAMES = ("canonical", "manual")
+
+
+def _protocol_names(raw: Any) -> str:
+    """``[protocol] names = "canonical" | "manual"`` of a profile."""
+    if not isinstance(raw, dict) or set(raw) - {"names"}:
+        raise ValueError(
+            f"tolerance profile field 'protocol': expected a table with 'names', got {raw!r}"
+        )
+    names = raw.get("names", "canonical")
+    if names not in PROTOCOL_NAMES:
+        raise ValueError(f"protocol.names: expected one of {list(PROTOCOL_NAMES)}, got {names!r}")
+    return names
+
+
+def _decision_rule(raw: Any) -> DecisionRule:
+    """``decision_rule = { name = ..., r = ... }`` of a profile; simple acceptance when empty."""
+    if not isinstance(raw, dict) or set(raw) - {"name", "r"}:
+        raise ValueError(
+            "tolerance profile field 'decision_rule': expected a table with 'name' "
+            f"(simple, guard_band, guard_band_r) and optional 'r', got {raw!r}"
+        )
+    r = raw.get("r", 1.0)
+    if isinstance(r, bool) or not isinstance(r, int | float):
+        raise ValueError(f"tolerance profile field 'decision_rule.r': expected a number, got {r!r}")
+    try:
+        return DecisionRule(str(raw.get("name", "simple")), float(r))
+    except ValueError as exc:
+        raise ValueError(f"tolerance profile field 'decision_rule': {exc}") from exc
+
+
+def _positive_limits(raw: Any, field_name: str, keys: tuple[str, ...]) -> dict[str, float]:
+    """A table of positive limits as ``{value, unit}`` entries, keyed "acc..." / "gyr...", SI out.
+
+    Used for ``[residual_limits]`` (acc_std, gyr_mean, ...) and ``[verification_limits]``
+    (acc, gyr); the key's sensor prefix decides the unit's dimension.
+    """
+    if not isinstance(raw, dict):
+        raise ValueError(f"tolerance profile field {field_name!r}: expected a table")
+    out: dict[str, float] = {}
+    for key, entry in raw.items():
+        where = f"{field_name}.{key}"
+        if key not in keys:
+            raise ValueError(f"{where}: unknown key; expected one of {list(keys)}")
+        value, factor = _value_in_si(entry, where, _RESIDUAL_DIMENSION[key.split("_")[0]])
+        if value <= 0:
+            raise ValueError(f"{where}.value: expected a positive number, got {value}")
+        out[key] = value * factor
+    return out
+
+
+def _repeatability(raw: Any) -> dict[str, float | int]:
+    """``[repeatability]``: plain numbers (cv_max and alpha as fractions, counts, deg C)."""
+    if not isinstance(raw, dict):
+        raise ValueError("tolerance profile field 'repeatability': expected a table")
+    out: dict[str, float | int] = {}
+    for key, value in raw.items():
+        where = f"repeatability.{key}"
+        if key not in DEFAULT_REPEATABILITY:
+            raise ValueError(f"{where}: unknown key; expected one of {list(DEFAULT_REPEATABILITY)}")
+        number = _number(raw, key, "repeatability")
+        if key in ("min_runs", "max_runs") and (number != int(number) or number < 2):
+            raise ValueError(f"{where}: expected a whole number >= 2, got {value!r}")
+        if key in ("cv_max", "alpha") and not 0 < number < 1:
+            raise ValueError(f"{where}: expected a fraction between 0 and 1, got {value!r}")
+        if key == "temperature_tol_c" and number < 0:
+            raise ValueError(f"{where}: expected a number >= 0 (deg C), got {value!r}")
+        out[key] = int(number) if key in ("min_runs", "max_runs") else number
+    merged = {**DEFAULT_REPEATABILITY, **out}
+    if merged["max_runs"] < merged["min_runs"]:
+        raise ValueError("repeatability.max_runs: must not be below min_runs")
+    return out
+
+
+def _number(entry: dict[str, Any], key: str, where: str) -> float:
+    value = entry[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
+        raise ValueError(f"{where}.{key}: expected a number, got {value!r}")
+    return float(value)
+
+
+def _parse_entry_unit(unit: Any, where: str) -> tuple[str, float]:
+    """`parse_unit` of an entry's ``unit`` field, errors naming ``<where>.unit``."""
+    if not isinstance(unit, str):
+        raise ValueError(f"{where}.unit: expected a string, got {unit!r}")
+    try:
+        return parse_unit(unit)
+    except ValueError as exc:
+        raise ValueError(f"{where}.unit: {exc}") from None
+
+
+def _value_in_si(entry: Any, where: str, dimension: str) -> tuple[float, float]:
+    if not isinstance(entry, dict) or set(entry) != {"value", "unit"}:
+        raise ValueError(f"{where}: expected a table {{ value = <number>, unit = <string> }}")
+    unit = entry["unit"]
+    dim, factor = _parse_entry_unit(unit, where)
+    if dim != dimension:
+        raise ValueError(
+            f"{where}.unit: {unit!r} is a unit of {dim}, expected a unit of {dimension}"
+        )
+    return _number(entry, "value", where), factor
+
+
+def _parse_limit(entry: Any, where: str) -> ParameterLimit:
+    if not isinstance(entry, dict):
+        raise ValueError(f"{where}: expected a table with pattern, unit and bound or low/high")
+    allowed = {"pattern", "unit", "bound", "low", "high"}
+    unknown = sorted(set(entry) - allowed)
+    if unknown:
+        raise ValueError(f"{where}: unknown field(s) {unknown}; expected {sorted(allowed)}")
+    pattern = entry.get("pattern")
+    if not isinstance(pattern, str) or not pattern:
+        raise ValueError(f"{where}.pattern: expected a glob on parameter names like 'gyr.scale.*'")
+    matched = [n for n in ALL_NAMES if fnmatch.fnmatchcase(n, pattern)]
+    if not matched:
+        raise ValueError(f"{where}.pattern: {pattern!r} matches no canonical parameter name")
+    dims = {_FAMILY_DIMENSION[family(n)] for n in matched}
+    if len(dims) > 1:
+        raise ValueError(
+            f"{where}.pattern: {pattern!r} matches parameters of different units ({sorted(dims)}); "
+            "split it into one limit per kind"
+        )
+    if "unit" not in entry:
+        raise ValueError(f"{where}.unit: missing; the unit of the bounds must be given")
+    unit = entry["unit"]
+    dim, factor = _parse_entry_unit(unit, where)
+    expected = dims.pop()
+    if dim != expected:
+        raise ValueError(
+            f"{where}.unit: {unit!r} is a unit of {dim}, but {pattern!r} needs a unit of {expected}"
+        )
+    if "bound" in entry:
+        if "low" in entry or "high" in entry:
+            raise ValueError(f"{where}: give either bound or low/high, not both")
+        bound = abs(_number(entry, "bound", where))
+        low, high = -bound, bound
+    elif "low" in entry or "high" in entry:
+        low = _number(entry, "low", where) if "low" in entry else -math.inf
+        high = _number(entry, "high", where) if "high" in entry else math.inf
+        if low > high:
+            raise ValueError(f"{where}: low ({low}) is above high ({high})")
+    else:
+        raise ValueError(f"{where}: missing bound (or low / high)")
+    return ParameterLimit(pattern, low * factor, high * factor)
