@@ -6,10 +6,6 @@
   (history, lineage, fleet); it replaces ``parameters(calibration_id)``, whose
   lookups it serves as well, so that bulk loads maintain one index less;
 - ``devices(model)``: units and fleet of one model.
-
-Revision ID: 0003
-Revises: 0002
-Create Date: 2026-11-22
 """
 
 from __future__ import annotations
@@ -18,8 +14,6 @@ from alembic import op
 
 revision = "0003"
 down_revision = "0002"
-branch_labels = None
-depends_on = None
 
 
 def upgrade() -> None:

@@ -6,12 +6,6 @@ were not recorded before, so those records list none). On PostgreSQL, triggers
 guard what grants cannot: ``seals`` and ``audit_events`` refuse UPDATE and
 DELETE for every role, and no row can be added to a sealed calibration (its
 parameters, checks, steps) or to the run of one (raw files, equipment links).
-The tables are written out in full (not imported from storage.schema) so this
-migration keeps creating exactly them while storage/schema.py moves on.
-
-Revision ID: 0004
-Revises: 0003
-Create Date: 2026-11-25
 """
 
 from __future__ import annotations
@@ -19,10 +13,10 @@ from __future__ import annotations
 import sqlalchemy as sa
 from alembic import op
 
+from storage.migrations.ddl import create_index, create_table, drop_index
+
 revision = "0004"
 down_revision = "0003"
-branch_labels = None
-depends_on = None
 
 _APPEND_ONLY = """
 CREATE FUNCTION calib_append_only() RETURNS trigger LANGUAGE plpgsql AS $$
@@ -64,24 +58,17 @@ _GUARDS = [
 
 
 def upgrade() -> None:
-    op.create_table(
+    create_table(
         "seals",
-        sa.Column("id", sa.Integer(), nullable=False),
         sa.Column("calibration_id", sa.Integer(), nullable=False),
         sa.Column("digest", sa.String(length=64), nullable=False),
         sa.Column("record", sa.JSON(), nullable=False),
         sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
-        sa.ForeignKeyConstraint(
-            ["calibration_id"],
-            ["calibrations.id"],
-            name=op.f("fk_seals_calibration_id_calibrations"),
-        ),
-        sa.PrimaryKeyConstraint("id", name=op.f("pk_seals")),
-        sa.UniqueConstraint("calibration_id", name=op.f("uq_seals_calibration_id")),
+        references={"calibration_id": "calibrations"},
+        unique=[("calibration_id",)],
     )
-    op.create_table(
+    create_table(
         "audit_events",
-        sa.Column("seq", sa.Integer(), autoincrement=False, nullable=False),
         sa.Column("at", sa.DateTime(timezone=True), nullable=False),
         sa.Column("actor", sa.String(length=200), nullable=False),
         sa.Column("action", sa.String(length=50), nullable=False),
@@ -92,12 +79,11 @@ def upgrade() -> None:
         sa.Column("digest", sa.String(length=64), nullable=True),
         sa.Column("prev_hash", sa.String(length=64), nullable=False),
         sa.Column("hash", sa.String(length=64), nullable=False),
-        sa.PrimaryKeyConstraint("seq", name=op.f("pk_audit_events")),
-        sa.UniqueConstraint("prev_hash", name=op.f("uq_audit_events_prev_hash")),
-        sa.UniqueConstraint("hash", name=op.f("uq_audit_events_hash")),
+        key=sa.Column("seq", sa.Integer(), autoincrement=False, nullable=False),
+        unique=[("prev_hash",), ("hash",)],
     )
-    op.create_index(op.f("ix_audit_events_at"), "audit_events", ["at"], unique=False)
-    op.create_index(op.f("ix_audit_events_run_id"), "audit_events", ["run_id"], unique=False)
+    create_index("audit_events", "at")
+    create_index("audit_events", "run_id")
 
     from storage.seal import seal_unsealed  # the sealing code of this version of calib
 
@@ -117,7 +103,7 @@ def downgrade() -> None:
             op.execute(f"DROP TRIGGER IF EXISTS {name} ON {table}")
         for fn in ("calib_append_only", "calib_sealed_calibration", "calib_sealed_run"):
             op.execute(f"DROP FUNCTION IF EXISTS {fn}()")
-    op.drop_index(op.f("ix_audit_events_run_id"), table_name="audit_events")
-    op.drop_index(op.f("ix_audit_events_at"), table_name="audit_events")
+    drop_index("audit_events", "run_id")
+    drop_index("audit_events", "at")
     op.drop_table("audit_events")
     op.drop_table("seals")

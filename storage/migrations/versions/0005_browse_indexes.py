@@ -9,10 +9,6 @@
   the row id already, so there it only renames the index);
 - ``run_equipment(equipment_id, calibration_due)``: the latest due date recorded for
   each piece of equipment without reading its runs.
-
-Revision ID: 0005
-Revises: 0004
-Create Date: 2026-11-25
 """
 
 from __future__ import annotations
@@ -22,8 +18,6 @@ from alembic import op
 
 revision = "0005"
 down_revision = "0004"
-branch_labels = None
-depends_on = None
 
 CURRENT = sa.text("superseded_by IS NULL")
 
