@@ -391,18 +391,62 @@ def test_lab_profile_checked_and_missing_items_said(archived, tmp_path, monkeypa
     assert pairs["Calibration laboratory"] == NOT_RECORDED == pairs["Customer"]
 
 
+def _as_list(node) -> list:
+    """dccXMLJSONConv gives a repeated element as a list, a single one as a dict."""
+    return node if isinstance(node, list) else [node]
+
+
+def _read_dcc(xml: str) -> dict:
+    """The DCC read back with dccXMLJSONConv (PTB's DCC XML <-> JSON converter, a reader written
+    by others): the root element as the reader's dict."""
+    import warnings
+
+    from dccXMLJSONConv.dccConv import XMLToJson
+
+    with warnings.catch_warnings():  # it warns each time a repeated element becomes a list
+        warnings.simplefilter("ignore", RuntimeWarning)
+        warnings.simplefilter("ignore", DeprecationWarning)  # its importlib.resources call
+        return XMLToJson(xml)["dcc:digitalCalibrationCertificate"]
+
+
+def _dcc_results(xml: str) -> dict[str, dict]:
+    """{parameter name: its si:real} of the DCC as dccXMLJSONConv reads it."""
+    results = _read_dcc(xml)["dcc:measurementResults"]
+    out = {}
+    for result in _as_list(results["dcc:measurementResult"]):
+        for r in _as_list(result["dcc:results"]["dcc:result"]):
+            out[r["dcc:name"]["dcc:content"]["#text"]] = r["dcc:data"]["dcc:quantity"]["si:real"]
+    return out
+
+
+def _assert_dcc_matches_archive(xml: str, summary: dict) -> None:
+    """Every archived parameter's value, D-SI unit, U, k and coverage found in the DCC, exactly
+    (the writer prints repr(float): the round trip is lossless, so equality, not a tolerance)."""
+    from pipelines.reports.dcc import D_SI
+
+    read = _dcc_results(xml)
+    budgets = _budgets(summary)
+    assert set(read) == {p["name"] for p in summary["calibration"]["parameters"]}
+    for p in summary["calibration"]["parameters"]:
+        real = read[p["name"]]
+        assert float(real["si:value"]["#text"]) == p["value"], p["name"]
+        assert real["si:unit"]["#text"] == D_SI[p["unit"]], p["name"]
+        b, unc = budgets[p["name"]], real["si:expandedUnc"]
+        assert float(unc["si:uncertainty"]["#text"]) == b["U"], p["name"]
+        assert float(unc["si:coverageFactor"]["#text"]) == b["k"], p["name"]
+        assert float(unc["si:coverageProbability"]["#text"]) == b["coverage"] == 0.95
+
+
 def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
     """`calib report RUN --format dcc` read back: every value and U equal to the archive's.
 
-    Read with the standard library's XML parser: pydcc (the DCC reader the issue names) does
-    not import here (its oscrypto 1.3.0 cannot parse OpenSSL 3.0.19's version string).
+    Read with dccXMLJSONConv (PTB); pydcc, the reader the issue names, does not import here
+    (its oscrypto 1.3.0 cannot parse OpenSSL 3.0.19's version string; docs/reports.md).
+    No package on PyPI ships the DCC XSD and tests have no network: not schema-validated.
     """
-    import xml.etree.ElementTree as ET
-
     from typer.testing import CliRunner
 
     from pipelines.cli import app
-    from pipelines.reports.dcc import D_SI
 
     _, summary, *_ = archived["U-KNOWN"]
     monkeypatch.setenv("CALIB_PROFILES", str(archived["profiles"]))
@@ -410,33 +454,52 @@ def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
             "--output", str(tmp_path), "--format", "dcc", "--json"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
-    path = Path(json.loads(result.stdout)["dcc"])
-    ns = {"dcc": "https://ptb.de/dcc", "si": "https://ptb.de/si"}
-    root = ET.parse(path).getroot()
-    assert root.tag == "{https://ptb.de/dcc}digitalCalibrationCertificate"
-    assert root.attrib["schemaVersion"].startswith("3.")
-    assert [c.tag.split("}")[1] for c in root] == ["administrativeData", "measurementResults"]
-    core = root.find("dcc:administrativeData/dcc:coreData", ns)
+    xml = Path(json.loads(result.stdout)["dcc"]).read_text(encoding="utf-8")
+    _assert_dcc_matches_archive(xml, summary)
+    root = _read_dcc(xml)
+    assert root["@schemaVersion"].startswith("3.")
+    assert [k for k in root if not k.startswith("@")] == ["dcc:administrativeData",
+                                                         "dcc:measurementResults"]
+    admin = root["dcc:administrativeData"]
     number = f"{summary['run_id']}-{summary['calibration']['revision']}"
-    assert core.find("dcc:uniqueIdentifier", ns).text == number
-    assert core.find("dcc:endPerformanceDate", ns).text == "2026-11-20"
-    admin = root.find("dcc:administrativeData", ns)
-    assert admin.find(".//dcc:identification/dcc:value", ns).text == "U-KNOWN"
-    assert admin.find("dcc:calibrationLaboratory//dcc:content", ns).text == "IMU Lab GmbH"
-    said = [e.text for e in admin.findall("dcc:statements//dcc:content", ns)]
+    assert admin["dcc:coreData"]["dcc:uniqueIdentifier"]["#text"] == number
+    assert admin["dcc:coreData"]["dcc:endPerformanceDate"]["#text"] == "2026-11-20"
+    ident = admin["dcc:items"]["dcc:item"]["dcc:identifications"]["dcc:identification"]
+    assert ident["dcc:value"]["#text"] == "U-KNOWN"
+    lab = admin["dcc:calibrationLaboratory"]["dcc:contact"]["dcc:name"]["dcc:content"]
+    assert lab["#text"] == "IMU Lab GmbH"
+    said = [s["dcc:declaration"]["dcc:content"]["#text"]
+            for s in _as_list(admin["dcc:statements"]["dcc:statement"])]
     assert any(s.startswith("Decision rule: guarded acceptance") for s in said)
-    results = {
-        r.find("dcc:name/dcc:content", ns).text: r.find(".//si:real", ns)
-        for r in root.findall("dcc:measurementResults//dcc:result", ns)
-    }
-    budgets = _budgets(summary)
-    assert set(results) == {p["name"] for p in summary["calibration"]["parameters"]}
-    for p in summary["calibration"]["parameters"]:
-        real = results[p["name"]]
-        assert float(real.find("si:value", ns).text) == p["value"]
-        assert real.find("si:unit", ns).text == D_SI[p["unit"]]
-        b = budgets[p["name"]]
-        assert float(real.find("si:expandedUnc/si:uncertainty", ns).text) == b["U"]
-        assert float(real.find("si:expandedUnc/si:coverageFactor", ns).text) == b["k"]
-        assert float(real.find("si:expandedUnc/si:coverageProbability", ns).text) == 0.95
-    assert root.find(".//dcc:influenceCondition//si:unit", ns).text == r"\kelvin"
+    result = root["dcc:measurementResults"]["dcc:measurementResult"]
+    condition = result["dcc:influenceConditions"]["dcc:influenceCondition"]
+    assert condition["dcc:data"]["dcc:quantity"]["si:real"]["si:unit"]["#text"] == r"\kelvin"
+
+
+def _broken(xml: str, how: str) -> str:
+    """The DCC with one value changed in its last digit, or one element removed."""
+    import re
+
+    if how == "value":
+        first = re.search(r"<si:value>([^<]*)</si:value>", xml.split("dcc:results>")[1])
+        old = first.group(1)
+        new = old[:-1] + ("1" if old[-1] != "1" else "2")
+        return xml.replace(f"<si:value>{old}</si:value>", f"<si:value>{new}</si:value>", 1)
+    if how == "uncertainty":
+        return re.sub(r"<si:uncertainty>[^<]*</si:uncertainty>\s*", "", xml, count=1)
+    start = xml.rindex("<dcc:result ")
+    return xml[:start] + xml[xml.index("</dcc:result>", start) + len("</dcc:result>"):]
+
+
+@pytest.mark.parametrize("how", ["value", "uncertainty", "result"])
+def test_dcc_round_trip_fails_on_a_broken_dcc(archived, how) -> None:
+    """The round-trip comparison can fail: a changed value or a missing element is caught."""
+    from pipelines.reports.dcc import dcc_xml
+
+    _, summary, *_ = archived["U-KNOWN"]
+    xml = dcc_xml(summary).decode("utf-8")
+    _assert_dcc_matches_archive(xml, summary)
+    broken = _broken(xml, how)
+    assert broken != xml
+    with pytest.raises((AssertionError, KeyError)):
+        _assert_dcc_matches_archive(broken, summary)
