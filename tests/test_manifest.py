@@ -135,92 +135,14 @@ def test_format_keeps_extra_keys_for_other_readers(tmp_path: Path) -> None:
     assert m.format.model_extra == {"topics": ["/imu"]}
 
 
+# One case per kind of mistake: the edit of EXAMPLE, the field named, part of the message.
+MISTAKES = tomllib.loads((Path(__file__).parent / "manifest_mistakes.toml").read_text("utf-8"))
+
+
 @pytest.mark.parametrize(
     ("old", "new", "field", "expected"),
-    [
-        (
-            'acc_unit = "g"',
-            'acc_unit = "furlong/s^2"',
-            "format.acc_unit",
-            "unknown acceleration unit 'furlong/s^2'; expected one of: g, m/s2, m/s^2, mg, ug",
-        ),
-        (
-            'gyr_unit = "deg/s"',
-            'gyr_unit = "deg/min"',
-            "format.gyr_unit",
-            "unknown angular rate unit 'deg/min'",
-        ),
-        ('time_unit = "ms"', 'time_unit = "fortnight"', "format.time_unit", "unknown time unit"),
-        ('serial = "SN-0042"', 'serial = "../../etc"', "unit.serial", "invalid serial '../../etc'"),
-        (
-            'file = "verify.csv"',
-            'file = "../x.csv"',
-            "segments[2].file",
-            "'../x.csv' must be a relative name inside the run folder",
-        ),
-        ('file = "verify.csv"', 'file = "/etc/passwd"', "segments[2].file", "relative name"),
-        (
-            'file = "verify.csv"',
-            'file = "C:\\\\data\\\\x.csv"',
-            "segments[2].file",
-            "relative name",
-        ),
-        (
-            'label = "x_dn"',
-            'label = "x_dwn"',
-            "segments[1].label",
-            "'x_dwn' is not a segment label of procedure 'six_position_integral' "
-            "(did you mean 'x_dn'?)",
-        ),
-        ('label = "x_dn"', 'label = "x_up"', "segments[1].label", "repeats segments[0]"),
-        (
-            'operator = "A. Tester"',
-            'opertor = "A. Tester"',
-            "run.opertor",
-            "unknown field; did you mean 'operator'?",
-        ),
-        ('model = "MPU-6000"\n', "", "unit.model", "required field is missing"),
-        ("schema_version = 1", "schema_version = 2", "schema_version", "Input should be 1"),
-        (
-            'gravity_model = "helmert"',
-            'gravity_model = "egm2008"',
-            "site.gravity_model",
-            "Input should be 'standard', 'helmert', 'wgs84' or 'measured'",
-        ),
-        ("latitude_deg = 55.75\n", "", "site", "gravity_model 'helmert' needs latitude_deg"),
-        (
-            "latitude_deg = 55.75",
-            "latitude_deg = 155.75",
-            "site.latitude_deg",
-            "less than or equal to 90",
-        ),
-        (
-            "calibration_due = 2025-01-31",
-            'calibration_due = "next year"',
-            "equipment[0].calibration_due",
-            "got 'next year'",
-        ),
-        ('kind = "csv"', 'kind = "xlsx"', "format.kind", "unknown format kind 'xlsx'"),
-        ('time_column = "t"\n', "", "format", "format kind 'csv' needs time_column"),
-        (
-            'acc_columns = ["ax", "ay", "az"]',
-            'acc_columns = ["ax", "ay"]',
-            "format.acc_columns",
-            "expected 3 columns (x, y, z), got 2",
-        ),
-        (
-            "end_s = 60.0",
-            "end_s = 20.0",
-            "segments[1]",
-            "end_s (20.0) must be greater than start_s (30.0)",
-        ),
-        (
-            'tolerance_profile = "mpu6000"',
-            'tolerance_profile = "../secret"',
-            "run.tolerance_profile",
-            "invalid tolerance profile name",
-        ),
-    ],
+    [(c["old"], c["new"], c["field"], c["expected"]) for c in MISTAKES["case"]],
+    ids=[f"{c['field']}:{c['new'].strip()}" for c in MISTAKES["case"]],
 )
 def test_mistakes_name_their_field(
     tmp_path: Path, old: str, new: str, field: str, expected: str
