@@ -9,16 +9,12 @@ from calib_core.lazy import lazy_exports
 __version__ = "0.1.0"
 
 _API = {
-    "Recording": "calib_core.recording",
-    "Calibration": "calib_core.calibration",
-    "Parameter": "calib_core.calibration",
-    "CheckResult": "calib_core.calibration",
-    "ThermalModel": "calib_core.thermal",
-    "ToleranceProfile": "calib_core.tolerances",
-    "PROCEDURES": "calib_core.procedures",
-    "solve": "calib_core.procedures",
-    "check_calibration": "calib_core.checks",
-    "verdict": "calib_core.checks",
+    "calib_core.recording": ["Recording"],
+    "calib_core.calibration": ["Calibration", "Parameter", "CheckResult"],
+    "calib_core.thermal": ["ThermalModel"],
+    "calib_core.tolerances": ["ToleranceProfile"],
+    "calib_core.procedures": ["PROCEDURES", "solve"],
+    "calib_core.checks": ["check_calibration", "verdict"],
 }
-__all__ = [*_API, "__version__"]
-__getattr__, __dir__ = lazy_exports(__name__, _API)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _API)
+__all__ += ["__version__"]

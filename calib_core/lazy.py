@@ -14,23 +14,25 @@ from typing import Any
 
 
 def lazy_exports(
-    package: str, api: dict[str, str]
-) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
-    """The ``__getattr__`` and ``__dir__`` of `package` for the names of `api`.
+    package: str, api: dict[str, list[str]]
+) -> tuple[Callable[[str], Any], Callable[[], list[str]], list[str]]:
+    """The ``__getattr__``, ``__dir__`` and ``__all__`` of `package` for the names of `api`.
 
     Parameters
     ----------
     package : the package's ``__name__``.
-    api : public name -> the module that defines it under the same name.
+    api : module -> the public names it defines, as in ``from module import names``.
 
     Returns
     -------
-    (__getattr__, __dir__) to assign at the package's top level. A name is
-    imported once, then kept in the package's namespace.
+    (__getattr__, __dir__, __all__) to assign at the package's top level. A name is
+    imported once, then kept in the package's namespace; ``__all__`` lists the names
+    in the order of `api`.
     """
+    module_of = {name: module for module, names in api.items() for name in names}
 
     def get_attribute(name: str) -> Any:  # noqa: ANN401 - any public object
-        module = api.get(name)
+        module = module_of.get(name)
         if module is None:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
         value = getattr(importlib.import_module(module), name)
@@ -38,6 +40,6 @@ def lazy_exports(
         return value
 
     def names() -> list[str]:
-        return sorted(set(vars(sys.modules[package])) | set(api))
+        return sorted(set(vars(sys.modules[package])) | set(module_of))
 
-    return get_attribute, names
+    return get_attribute, names, list(module_of)

@@ -16,16 +16,12 @@ os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "180")
 
 _API = {
-    "read_run": "pipelines.ingest.run_loader",
-    "discover_runs": "pipelines.ingest.run_loader",
-    "load_run": "pipelines.ingest.run_loader",
-    "IngestError": "pipelines.ingest.errors",
-    "calibrate": "pipelines.process",
-    "load_profile": "pipelines.tolerances",
-    "process_run": "pipelines.process",
-    "apply_calibration": "pipelines.apply",
-    "report_run": "pipelines.reports.certificate",
-    "export_run": "pipelines.run_export",
+    "pipelines.ingest.run_loader": ["read_run", "discover_runs", "load_run"],
+    "pipelines.ingest.errors": ["IngestError"],
+    "pipelines.process": ["calibrate", "process_run"],
+    "pipelines.tolerances": ["load_profile"],
+    "pipelines.apply": ["apply_calibration"],
+    "pipelines.reports.certificate": ["report_run"],
+    "pipelines.run_export": ["export_run"],
 }
-__all__ = list(_API)
-__getattr__, __dir__ = lazy_exports(__name__, _API)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _API)
