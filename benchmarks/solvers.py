@@ -189,7 +189,7 @@ def crlb_efficiency_static_linear(runs: int = 200) -> dict[str, float]:
     from calib_core.procedures import solve
     from calib_core.simulate.array import array_run
     from calib_core.simulate.attitudes import multi_position_run, scheme_angles
-    from calib_core.simulate.lab_run import random_errors
+    from calib_core.simulate.lab_run import Turns, random_errors
     from calib_core.solvers.sensor_array import cube_mounts
 
     truth = random_errors(np.random.default_rng(77))
@@ -222,8 +222,7 @@ def crlb_efficiency_static_linear(runs: int = 200) -> dict[str, float]:
             rng,
             rate_hz=rate_hz,
             static_s=static_s,
-            rotation_rate_dps=360.0,
-            pause_s=0.2,
+            turns=Turns(rotation_rate_dps=360.0, pause_s=0.2),
         )
         cal = solve("sensor_array", arr.segments, arr.gravity, {"turns": 1})
         errs["sensor_array"].append([cal.parameters[k].value - expected[k] for k in names])

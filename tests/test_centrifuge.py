@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from calib_core.simulate.centrifuge import simulate_centrifuge
+from calib_core.simulate.centrifuge import CentrifugeNoise, CentrifugeSchedule, simulate_centrifuge
 from calib_core.solvers.centrifuge import identifiable_terms, solve_centrifuge, validation_errors
 from calib_core.solvers.centrifuge_model import (
     MOUNTS,
@@ -72,7 +72,7 @@ def test_radius_and_earth_rate_sign_both_senses(direction):
         rng=np.random.default_rng(3),
         phi_h=PHI,
         radius=1.2,
-        noise=1e-3,
+        noise=CentrifugeNoise(noise=1e-3),
         direction=direction,
         latitude_deg=50.0,
     )
@@ -97,7 +97,11 @@ def test_horizontal_misalignment_within_3_sigma(direction):
     position-group offset, sigma ~2e-5 rad; 3 sigma.
     """
     run = simulate_centrifuge(
-        TRUTH, rng=np.random.default_rng(5), phi_h=PHI, noise=0.05, direction=direction
+        TRUTH,
+        rng=np.random.default_rng(5),
+        phi_h=PHI,
+        noise=CentrifugeNoise(noise=0.05),
+        direction=direction,
     )
     model, _ = solve_centrifuge(run.steps, CentrifugeSettings(50.0, scale_1g=SCALE))
     for mount in MOUNTS:
@@ -141,10 +145,9 @@ def test_whole_revolution_average_removes_tilt():
         {"x": {}, "y": {}, "z": {}},
         rng=np.random.default_rng(8),
         mounts=("x+",),
-        g_steps=(2,),
         tilt=5e-3,
-        noise=0.01,
-        step_duration=7.3,
+        noise=CentrifugeNoise(noise=0.01),
+        schedule=CentrifugeSchedule(g_steps=(2,), step_duration=7.3),
     )
     step = next(s for s in run.steps if s.kind == "step")
     mean = whole_revolution_mean(step.recording)
@@ -169,7 +172,10 @@ def test_reduction_keeps_exactly_the_true_terms_in_9_of_10_seeds():
     exact, kappas, z_phi, z_radius = 0, [], [], []
     for seed in range(10):
         run = simulate_centrifuge(
-            TRUTH, rng=np.random.default_rng(seed), phi_h=PHI, scale_instability=2e-4
+            TRUTH,
+            rng=np.random.default_rng(seed),
+            phi_h=PHI,
+            noise=CentrifugeNoise(scale_instability=2e-4),
         )
         model, _ = solve_centrifuge(
             run.steps, CentrifugeSettings(50.0, alpha=0.001, scale_1g=SCALE)
@@ -203,7 +209,7 @@ def test_compensation_on_repeat_run(seed):
     (std 0.02 m/s^2), which compensation cannot know: the after-compensation RMS
     must be close to that offset difference (within 0.03 m/s^2, the scale
     instability 2e-4 x ~100 m/s^2 RMS input plus model error), and the cut >= 65 %."""
-    kw = dict(phi_h=PHI, scale_instability=2e-4, run_offset_std=0.02)
+    kw = dict(phi_h=PHI, noise=CentrifugeNoise(scale_instability=2e-4, run_offset_std=0.02))
     run = simulate_centrifuge(TRUTH, rng=np.random.default_rng(seed), **kw)
     repeat = simulate_centrifuge(TRUTH, rng=np.random.default_rng(100 + seed), **kw)
     model, _ = solve_centrifuge(run.steps, CentrifugeSettings(50.0, alpha=0.001, scale_1g=SCALE))
@@ -226,7 +232,8 @@ def test_compensate_inverts_the_model():
 
 
 def test_bad_input_is_named():
-    run = simulate_centrifuge(TRUTH, rng=np.random.default_rng(2), mounts=("x+",), g_steps=(2,))
+    step = CentrifugeSchedule(g_steps=(2,))
+    run = simulate_centrifuge(TRUTH, rng=np.random.default_rng(2), mounts=("x+",), schedule=step)
     rec = run.steps[0].recording
     with pytest.raises(ValueError, match="mount must be one of"):
         CentrifugeStep("w+", "zero", rec, 0.0, 0.0)

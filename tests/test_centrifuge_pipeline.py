@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from calib_core import params, procedures
-from calib_core.simulate.centrifuge import simulate_centrifuge
+from calib_core.simulate.centrifuge import CentrifugeNoise, CentrifugeSchedule, simulate_centrifuge
 from calib_core.solvers.centrifuge_model import canonical_name
 from calib_core.solvers.centrifuge_segments import step_label
 from pipelines.centrifuge import REPORT_NAME
@@ -30,12 +30,10 @@ PHI = {"x+": 0.01, "x-": -0.006, "y+": 0.004, "y-": 0.012, "z+": -0.008, "z-": 0
 # Short records at 50 Hz keep the CSV small (~23k rows); >= 2 table turns per step.
 SIM = dict(
     phi_h=PHI,
-    scale_instability=2e-4,
-    run_offset_std=0.02,
-    sample_rate=50.0,
-    zero_duration=4.0,
-    one_g_duration=20.0,
-    step_duration=4.0,
+    noise=CentrifugeNoise(scale_instability=2e-4, run_offset_std=0.02),
+    schedule=CentrifugeSchedule(
+        sample_rate=50.0, zero_duration=4.0, one_g_duration=20.0, step_duration=4.0
+    ),
 )
 
 

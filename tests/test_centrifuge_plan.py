@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from calib_core import procedures
 from calib_core.checks import check_calibration
 from calib_core.earth import EARTH_RATE
-from calib_core.simulate.centrifuge import simulate_centrifuge
+from calib_core.simulate.centrifuge import CentrifugeSchedule, simulate_centrifuge
 from calib_core.solvers.centrifuge import solve_centrifuge
 from calib_core.solvers.centrifuge_model import CentrifugeSettings
 from calib_core.solvers.centrifuge_plan import DEFAULT_G_LEVELS, plan_rates
@@ -78,12 +78,14 @@ def _run_with_zero_after(drift):
     return simulate_centrifuge(
         truth,
         rng=np.random.default_rng(4),
-        g_steps=(2, 6, 10, 14, 20),
-        sample_rate=50.0,
-        zero_duration=4.0,
-        one_g_duration=20.0,
-        step_duration=4.0,
-        zero_after=True,
+        schedule=CentrifugeSchedule(
+            g_steps=(2, 6, 10, 14, 20),
+            sample_rate=50.0,
+            zero_duration=4.0,
+            one_g_duration=20.0,
+            step_duration=4.0,
+            zero_after=True,
+        ),
         zero_drift=drift,
     )
 

@@ -62,14 +62,15 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 def _centrifuge_run(folder: Path) -> Path:
-    from calib_core.simulate.centrifuge import simulate_centrifuge
+    from calib_core.simulate.centrifuge import CentrifugeSchedule, simulate_centrifuge
     from pipelines.run_writers import write_centrifuge_run
 
     truth = {"x": {"const": 0.2, "a_x": 1.5e-3}, "y": {"const": -0.25, "a_y": 1.2e-3},
              "z": {"const": 0.3, "a_z": -1e-3}}  # fmt: skip
-    short = {"sample_rate": 50.0, "zero_duration": 4.0, "one_g_duration": 20.0,
-             "step_duration": 4.0}  # fmt: skip
-    sim = simulate_centrifuge(truth, rng=np.random.default_rng(3), **short)
+    short = CentrifugeSchedule(
+        sample_rate=50.0, zero_duration=4.0, one_g_duration=20.0, step_duration=4.0
+    )
+    sim = simulate_centrifuge(truth, rng=np.random.default_rng(3), schedule=short)
     manifest = {
         "unit": {"serial": "HG-7", "model": "MEMS-HG", "manufacturer": "ACME"},
         "run": {"started": "2026-03-02T09:00:00", "operator": "lab",

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from calib_core.checks import check_residuals
 from calib_core.procedures import solve
 from calib_core.simulate.array import array_run
-from calib_core.simulate.lab_run import random_errors
+from calib_core.simulate.lab_run import Turns, random_errors
 from calib_core.solvers.sensor_array import cube_mounts
 from calib_core.tolerances import ToleranceProfile
 
@@ -75,8 +75,7 @@ def test_static_part_reaches_the_cramer_rao_bound():
             rng,
             static_s=static_s,
             rate_hz=rate_hz,
-            rotation_rate_dps=360.0,
-            pause_s=0.2,
+            turns=Turns(rotation_rate_dps=360.0, pause_s=0.2),
         )
         cal = solve("sensor_array", run.segments, G, {"turns": 1})
         errors.append([cal.parameters[k].value - expected[k] for k in names])

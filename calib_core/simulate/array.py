@@ -3,7 +3,7 @@
 Every sensor s has the mounting C_s (cube to sensor) and the same error model
 (`TrueErrors`). The cube stands z up; the static record reads f_s = C_s (0, 0, g);
 the turns are n whole turns about the vertical, ccw (+) then cw (-), with the
-smooth rate profile of `calib_core.simulate.lab_run.rotation_profile`, so the
+smooth rate profile of `calib_core.simulate.lab_run.Turns`, so the
 sensor rate is w_s(t) = +-rate(t) C_s e_z and f_s stays constant.
 """
 
@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.recording import Recording
-from calib_core.simulate.lab_run import TrueErrors, rotation_profile
-from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_core.simulate.lab_run import ONE_TURN, TrueErrors, Turns
+from calib_core.units import STANDARD_GRAVITY
 
 
 @dataclass
@@ -36,9 +36,7 @@ def array_run(
     gravity: float = STANDARD_GRAVITY,
     rate_hz: float = 100.0,
     static_s: float = 30.0,
-    turns: int = 1,
-    rotation_rate_dps: float = 90.0,
-    pause_s: float = 2.0,
+    turns: Turns = ONE_TURN,
 ) -> ArrayRun:
     """Simulate the static record and the ccw / cw turns of every sensor of an array.
 
@@ -48,10 +46,10 @@ def array_run(
     mounts : sensor name -> (3, 3) cube-to-sensor rotation.
     rng : random generator (independent white noise per sensor and channel).
     gravity : m/s^2; rate_hz : Hz; static_s : static record length, s.
-    turns, rotation_rate_dps, pause_s : the turns (see `rotation_profile`).
+    turns : the ccw and cw turns (whole turns, peak rate, pauses).
     """
     t_static = np.arange(int(round(static_s * rate_hz))) / rate_hz
-    t_turn, rate = rotation_profile(rate_hz, turns, rotation_rate_dps * DEG, pause_s)
+    t_turn, rate = turns.profile(rate_hz)
     segments: dict[str, Recording] = {}
     for name, mount in mounts.items():
         c = np.asarray(mount, dtype=float)
@@ -88,9 +86,7 @@ def array_session(
     gravity: float = STANDARD_GRAVITY,
     rate_hz: float = 100.0,
     static_s: float = 40.0,
-    turns: int = 1,
-    rotation_rate_dps: float = 90.0,
-    pause_s: float = 2.0,
+    turns: Turns = ONE_TURN,
 ) -> dict[str, Recording]:
     """One continuous recording per sensor: static, cw turn, static, ccw turn, static.
 
@@ -105,7 +101,7 @@ def array_session(
     sensor name -> Recording of the whole session.
     """
     rest = np.zeros(int(round(static_s * rate_hz)))
-    _, turn = rotation_profile(rate_hz, turns, rotation_rate_dps * DEG, pause_s)
+    _, turn = turns.profile(rate_hz)
     rate = np.concatenate([rest, -turn, rest, turn, rest])
     t = np.arange(rate.shape[0]) / rate_hz
     out = {}

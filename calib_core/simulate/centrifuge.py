@@ -78,19 +78,51 @@ def _per_mount(value: float | Mapping[str, float], mounts: Sequence[str]) -> dic
 
 
 @dataclass(frozen=True)
-class _SensorNoise:
-    """The random parts of every record: white noise and per-record gain / offset, SI."""
+class CentrifugeNoise:
+    """The random parts of the accelerometer's output, SI.
 
-    rng: np.random.Generator
-    sample_rate: float  # Hz
-    noise: float  # m/s^2 per sample
-    scale_instability: float  # relative, per record and axis
-    bias_instability: float  # m/s^2, per record and axis
+    noise : white noise per sample, m/s^2.
+    run_offset_std : std of a bias offset drawn once per run and axis (turn-on
+        repeatability), m/s^2.
+    scale_instability : std of a relative gain error drawn per record and axis
+        (in-run scale-factor instability, e.g. temperature); it grows with the
+        input, so it dominates the high-g steps as in the paper's residuals.
+    bias_instability : std of an offset drawn per record and axis, m/s^2.
+    """
+
+    noise: float = 0.05
+    run_offset_std: float = 0.0
+    scale_instability: float = 0.0
+    bias_instability: float = 0.0
+
+
+@dataclass(frozen=True)
+class CentrifugeSchedule:
+    """What the lab records at each mounting position, in this order.
+
+    Zero output at table positions 0/90/180/270 deg (`zero_duration` s each), a
+    near-1 g run (`one_g_duration` s), one record per high-g step in `g_steps`
+    (g, `step_duration` s each) and, with `zero_after`, the zero output again at
+    the same four positions; every record sampled at `sample_rate` Hz.
+    """
+
+    g_steps: tuple[float, ...] = tuple(range(2, 21, 2))
+    sample_rate: float = 200.0
+    zero_duration: float = 10.0
+    one_g_duration: float = 60.0
+    step_duration: float = 10.0
+    zero_after: bool = False
+
+
+DEFAULT_NOISE = CentrifugeNoise()
+DEFAULT_SCHEDULE = CentrifugeSchedule()
 
 
 def _record(
     truth: CentrifugeTruth,
-    sensor: _SensorNoise,
+    noise: CentrifugeNoise,
+    sample_rate: float,
+    rng: np.random.Generator,
     mount: str,
     rate: float,
     duration: float,
@@ -104,9 +136,8 @@ def _record(
     the horizontal Earth rate; then the error model, the run offset, a zero
     drift (m/s^2, for the records after a run) and noise.
     """
-    rng = sensor.rng
-    n = int(round(duration * sensor.sample_rate))
-    t = np.arange(n) / sensor.sample_rate
+    n = int(round(duration * sample_rate))
+    t = np.arange(n) / sample_rate
     angle = angle0 + rate * t
     radius, phi, g, tilt = truth.radius[mount], truth.phi_h[mount], truth.gravity, truth.tilt
     a = radius * rate * (rate + 2.0 * truth.omega_v)
@@ -119,15 +150,15 @@ def _record(
         ]
     )
     f = f_mount @ MOUNTS[mount].T
-    gain = rng.normal(0.0, sensor.scale_instability, 3) if sensor.scale_instability > 0 else 0.0
-    offset = rng.normal(0.0, sensor.bias_instability, 3) if sensor.bias_instability > 0 else 0.0
+    gain = rng.normal(0.0, noise.scale_instability, 3) if noise.scale_instability > 0 else 0.0
+    offset = rng.normal(0.0, noise.bias_instability, 3) if noise.bias_instability > 0 else 0.0
     acc = (
         f * (1.0 + gain)
         + truth.error(f)
         + truth.run_offset
         + offset
         + np.asarray(drift, dtype=float)
-        + rng.normal(0.0, sensor.noise, f.shape)
+        + rng.normal(0.0, noise.noise, f.shape)
     )
     return Recording(
         t=t,
@@ -143,7 +174,6 @@ def simulate_centrifuge(
     *,
     rng: np.random.Generator,
     mounts: Sequence[str] = tuple(MOUNTS),
-    g_steps: Sequence[float] = tuple(range(2, 21, 2)),
     radius: float | Mapping[str, float] = 1.0,
     phi_h: float | Mapping[str, float] = 0.0,
     tilt: float = 1e-3,
@@ -151,16 +181,9 @@ def simulate_centrifuge(
     latitude_deg: float = 50.0,
     direction: int = 1,
     gravity: float = STANDARD_GRAVITY,
-    noise: float = 0.05,
-    run_offset_std: float = 0.0,
-    scale_instability: float = 0.0,
-    bias_instability: float = 0.0,
-    sample_rate: float = 200.0,
-    zero_duration: float = 10.0,
-    one_g_duration: float = 60.0,
-    step_duration: float = 10.0,
+    noise: CentrifugeNoise = DEFAULT_NOISE,
+    schedule: CentrifugeSchedule = DEFAULT_SCHEDULE,
     nominal_radius: float | None = None,
-    zero_after: bool = False,
     zero_drift: Mapping[str, Sequence[float]] | None = None,
 ) -> CentrifugeRun:
     """Simulate one centrifuge run.
@@ -171,24 +194,15 @@ def simulate_centrifuge(
         `calib_core.solvers.centrifuge.term_values`), m/s^2 per input unit.
     rng : random generator (noise, table start angles, run offset).
     mounts : mounting positions to run.
-    g_steps : nominal high-g steps, in g.
     radius, phi_h : effective radius (m) and horizontal misalignment (rad),
         one value or one per position.
     tilt, tilt_azimuth : table-axis tilt from vertical and its direction, rad.
     latitude_deg : site latitude (Earth rate).
     direction : +1 anticlockwise seen from above, -1 clockwise.
     gravity : m/s^2.
-    noise : white noise per sample, m/s^2.
-    run_offset_std : std of a bias offset drawn once per run and axis (turn-on
-        repeatability), m/s^2.
-    scale_instability : std of a relative gain error drawn per record and axis
-        (in-run scale-factor instability, e.g. temperature); it grows with the
-        input, so it dominates the high-g steps as in the paper's residuals.
-    bias_instability : std of an offset drawn per record and axis, m/s^2.
-    sample_rate : Hz. zero_duration, one_g_duration, step_duration : s per record.
+    noise : the sensor's white noise, run offset and per-record instabilities.
+    schedule : the records per position (g steps, durations, sample rate, zero after).
     nominal_radius : radius the operator sets the rates from (default the mean radius).
-    zero_after : also record the zero output after each position's run (``zero_after``
-        records at the same four table positions).
     zero_drift : per position the (3,) change of the zero output between before and
         after, m/s^2 (default none).
 
@@ -216,32 +230,32 @@ def simulate_centrifuge(
         omega_h=EARTH_RATE * math.cos(lat),
         gravity=gravity,
         direction=direction,
-        run_offset=rng.normal(0.0, run_offset_std, 3) if run_offset_std > 0 else np.zeros(3),
+        run_offset=(
+            rng.normal(0.0, noise.run_offset_std, 3) if noise.run_offset_std > 0 else np.zeros(3)
+        ),
     )
 
     def rate_for(n_g: float) -> float:
         return direction * math.sqrt(n_g * gravity / r_nom)
 
-    sensor = _SensorNoise(rng, sample_rate, noise, scale_instability, bias_instability)
-
     def record(mount: str, rate: float, duration: float, angle0: float, drift=(0, 0, 0)):
-        return _record(truth, sensor, mount, rate, duration, angle0, drift)
+        fs = schedule.sample_rate
+        return _record(truth, noise, fs, rng, mount, rate, duration, angle0, drift)
 
     steps: list[CentrifugeStep] = []
     for mount in mounts:
         for pos in ZERO_POSITIONS_DEG:
-            rec = record(mount, 0.0, zero_duration, math.radians(pos))
+            rec = record(mount, 0.0, schedule.zero_duration, math.radians(pos))
             steps.append(CentrifugeStep(mount, "zero", rec, 0.0, pos))
         start = rng.uniform(0, 2 * math.pi)
-        steps.append(
-            CentrifugeStep(mount, "1g", record(mount, rate_for(1.0), one_g_duration, start), 1.0)
-        )
-        for n_g in g_steps:
+        rec = record(mount, rate_for(1.0), schedule.one_g_duration, start)
+        steps.append(CentrifugeStep(mount, "1g", rec, 1.0))
+        for n_g in schedule.g_steps:
             start = rng.uniform(0, 2 * math.pi)
-            rec = record(mount, rate_for(n_g), step_duration, start)
+            rec = record(mount, rate_for(n_g), schedule.step_duration, start)
             steps.append(CentrifugeStep(mount, "step", rec, float(n_g)))
         drift = (zero_drift or {}).get(mount, (0.0, 0.0, 0.0))
-        for pos in ZERO_POSITIONS_DEG if zero_after else ():
-            rec = record(mount, 0.0, zero_duration, math.radians(pos), drift)
+        for pos in ZERO_POSITIONS_DEG if schedule.zero_after else ():
+            rec = record(mount, 0.0, schedule.zero_duration, math.radians(pos), drift)
             steps.append(CentrifugeStep(mount, "zero_after", rec, 0.0, pos))
     return CentrifugeRun(steps=steps, truth=truth)

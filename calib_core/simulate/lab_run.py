@@ -168,6 +168,26 @@ def rotation_profile(
     return t, rate
 
 
+@dataclass(frozen=True)
+class Turns:
+    """The rotations of a simulated session: whole turns between pauses (`rotation_profile`).
+
+    turns : whole turns per rotation. rotation_rate_dps : peak rate, deg/s.
+    pause_s : static time before and after each rotation, s.
+    """
+
+    turns: int = 1
+    rotation_rate_dps: float = 90.0
+    pause_s: float = 2.0
+
+    def profile(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        """Sample times (s) and rate (rad/s, >= 0) of one rotation at `rate_hz` Hz."""
+        return rotation_profile(rate_hz, self.turns, self.rotation_rate_dps * DEG, self.pause_s)
+
+
+ONE_TURN = Turns()  # the default: one turn at 90 deg/s peak, 2 s pauses
+
+
 def six_position_integral_run(
     truth: TrueErrors,
     rng: np.random.Generator,
