@@ -10,19 +10,26 @@ import math
 from datetime import UTC, date, datetime, time
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import Row, func
+from sqlalchemy import Row, bindparam, func
 
 from calib_core import params
 from storage.naming import check_safe_name
-from storage.schema import (
-    Device,
-    Run,
-)
+from storage.schema import CalibrationRow, Device, ParameterRow, Run
 
 if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (~0.3 s at start)
 
 PASS = "pass"
+
+# A parameter's value as every question reports it: value and standard uncertainty (SI),
+# unit, and the temperature it belongs to (deg C; None for a value without one).
+PARAMETER_VALUE = (
+    ParameterRow.value, ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c,
+)  # fmt: skip
+# Join condition: the row of parameter :name (bound at execution) of the calibration joined.
+NAMED_PARAMETER = (ParameterRow.calibration_id == CalibrationRow.id) & (
+    ParameterRow.name == bindparam("name")
+)
 
 
 def _dict(row: Row) -> dict[str, Any]:

@@ -19,6 +19,8 @@ from sqlalchemy.orm import Session, aliased
 from storage.db import Archive
 from storage.queries._common import (
     _FOREVER,
+    NAMED_PARAMETER,
+    PARAMETER_VALUE,
     PASS,
     _finite,
     _frame,
@@ -101,10 +103,7 @@ def _parameter_over_runs(name: str, include_superseded: bool):  # noqa: ANN202 -
             Run.started_at,
             CalibrationRow.revision,
             CalibrationRow.verdict,
-            ParameterRow.value,
-            ParameterRow.std,
-            ParameterRow.unit,
-            ParameterRow.temperature_c,
+            *PARAMETER_VALUE,
         )
         .join(Device, Device.id == Run.device_id)
         .join(CalibrationRow, CalibrationRow.run_id == Run.id)
@@ -240,8 +239,7 @@ _LATEST_PICK = (
 # One statement, one round trip: the pick runs once (an uncorrelated subquery).
 _LATEST = (
     select(Run.run_id, Run.started_at, CalibrationRow.revision, CalibrationRow.id,
-           CalibrationRow.software_version, ParameterRow.name, ParameterRow.value,
-           ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c)
+           CalibrationRow.software_version, ParameterRow.name, *PARAMETER_VALUE)
     .select_from(ParameterRow)
     .join(CalibrationRow, CalibrationRow.id == ParameterRow.calibration_id)
     .join(Run, Run.id == CalibrationRow.run_id)
@@ -358,16 +356,11 @@ FLEET_PICK = (
     .scalar_subquery()
 )
 _FLEET = (
-    select(FLEET_DEVICE.serial, Run.run_id, Run.started_at, ParameterRow.value,
-           ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c)
+    select(FLEET_DEVICE.serial, Run.run_id, Run.started_at, *PARAMETER_VALUE)
     .select_from(FLEET_DEVICE)
     .join(CalibrationRow, CalibrationRow.id == FLEET_PICK)
     .join(Run, Run.id == CalibrationRow.run_id)
-    .join(
-        ParameterRow,
-        (ParameterRow.calibration_id == CalibrationRow.id)
-        & (ParameterRow.name == bindparam("name")),
-    )
+    .join(ParameterRow, NAMED_PARAMETER)
     .where(FLEET_DEVICE.model == bindparam("model"))
     .order_by(FLEET_DEVICE.serial, ParameterRow.temperature_c)
 )  # fmt: skip

@@ -16,6 +16,8 @@ from sqlalchemy.orm import Session, aliased
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.queries._common import (
+    NAMED_PARAMETER,
+    PARAMETER_VALUE,
     _dict,
     check_parameter,
     check_text,
@@ -99,10 +101,7 @@ def _cal_dict(s: Session, cal: CalibrationRow) -> dict[str, Any]:
     params = s.execute(
         select(
             ParameterRow.name,
-            ParameterRow.value,
-            ParameterRow.std,
-            ParameterRow.unit,
-            ParameterRow.temperature_c,
+            *PARAMETER_VALUE,
         )
         .where(ParameterRow.calibration_id == cal.id)
         .order_by(ParameterRow.name, ParameterRow.temperature_c)
@@ -292,17 +291,12 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
             CalibrationRow.software_version, CalibrationRow.source_revision,
             CalibrationRow.verdict, CalibrationRow.profile_name, CalibrationRow.profile_version,
             _NEWER.revision.label("superseding_revision"),
-            ParameterRow.id.label("param_id"), ParameterRow.value, ParameterRow.std,
-            ParameterRow.unit, ParameterRow.temperature_c,
+            ParameterRow.id.label("param_id"), *PARAMETER_VALUE,
         )
         .join(Device, Device.id == Run.device_id)
         .outerjoin(CalibrationRow, (CalibrationRow.run_id == Run.id) & chosen)
         .outerjoin(_NEWER, _NEWER.id == CalibrationRow.superseded_by)
-        .outerjoin(
-            ParameterRow,
-            (ParameterRow.calibration_id == CalibrationRow.id)
-            & (ParameterRow.name == bindparam("name")),
-        )
+        .outerjoin(ParameterRow, NAMED_PARAMETER)
         .where(Run.run_id == bindparam("run_id"))
         .order_by(ParameterRow.temperature_c)
     )  # fmt: skip
