@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 from calib_core import procedures
 from calib_core.preprocess.chain import preprocess
-from calib_core.preprocess.segments import segment
+from calib_core.preprocess.segments import StaticDetector, segment
 from calib_core.recording import Recording
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.simulate.table import rate_table_run
@@ -267,7 +267,7 @@ def test_continuous_recording_is_segmented_solved_and_archived(ferraris_run: Pat
         acc=df[["acc_x", "acc_y", "acc_z"]].to_numpy(),
         gyr=df[["gyr_x", "gyr_y", "gyr_z"]].to_numpy() * DEG,
     )
-    direct, _ = segment(rec, gravity=STANDARD_GRAVITY, init_static_s=2.5)
+    direct, _ = segment(rec, gravity=STANDARD_GRAVITY, detector=StaticDetector(init_static_s=2.5))
     sections = json.loads((REALDATA / "example_ferraris_session_list.json").read_text())
     faces = {"x_p": "x_up", "x_a": "x_dn", "y_p": "y_up", "y_a": "y_dn", "z_p": "z_up"}
     faces["z_a"] = "z_dn"

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from calib_core.preprocess.segments import (
+    StaticDetector,
     detect_rate_plateaus,
     detect_static,
     label_position,
@@ -38,7 +39,7 @@ def ferraris():
         source=csv.name,
     )
     # Hand-held: the first ~2.8 s are at rest, then the unit is picked up.
-    seg, record = segment(rec, gravity=STANDARD_GRAVITY, init_static_s=2.5)
+    seg, record = segment(rec, gravity=STANDARD_GRAVITY, detector=StaticDetector(init_static_s=2.5))
     return rec, sections, seg, record
 
 
@@ -129,7 +130,7 @@ def rest_turn_rest(duration_s: float, turn: tuple[float, float], seed: int) -> R
 def test_settle_rule_for_short_intervals():
     # 60 s at rest, then 25 s of turning, then 12 s at rest.
     rec = rest_turn_rest(97.0, (60.0, 85.0), seed=0)
-    first, second = detect_static(rec, settle_s=30.0, min_keep_s=10.0)
+    first, second = detect_static(rec, StaticDetector(settle_s=30.0, min_keep_s=10.0))
     assert first.settle_s == 30.0 and not first.short
     # 12 s is shorter than 30 + 10: it keeps its middle, losing 25 % at the end
     # and max(25 %, all but 25 % and 10 s) = 25 % at the start.
@@ -150,7 +151,9 @@ def test_settle_rule_keeps_min_keep_for_medium_intervals():
     # 25 s of rest: short (< 30 + 10), and d / 2 = 12.5 > 10: keeps 10 s, of
     # which the end loses 25 % of 25 s and the start the rest.
     rec = rest_turn_rest(60.0, (15.0, 35.0), seed=1)
-    _, second = detect_static(rec, init_static_s=10.0, settle_s=30.0, min_keep_s=10.0)
+    _, second = detect_static(
+        rec, StaticDetector(init_static_s=10.0, settle_s=30.0, min_keep_s=10.0)
+    )
     duration = second.detected_end_s - second.detected_start_s
     assert second.short and 24.0 < duration < 25.5
     assert second.end_s - second.start_s == pytest.approx(10.0, abs=0.011)

@@ -15,7 +15,7 @@ import numpy as np
 from calib_core.calibration import StepRecord
 from calib_core.preprocess.filters import lowpass
 from calib_core.preprocess.outliers import remove_outliers
-from calib_core.preprocess.segments import Interval, Segmentation, segment
+from calib_core.preprocess.segments import Interval, Segmentation, StaticDetector, segment
 from calib_core.preprocess.sync import synchronise
 from calib_core.recording import Recording
 
@@ -120,11 +120,13 @@ def segment_recordings(
             f"run.settings.segmentation.labels: {labelling!r}; expected one of "
             f"{list(SEGMENT_LABELLING)}"
         )
+    rotations = {"min_angle_deg": cfg.pop("min_angle_deg")} if "min_angle_deg" in cfg else {}
+    detector = StaticDetector(**cfg)
     candidates: dict[str, list[tuple[Recording, dict[str, Any]]]] = {}
     unused: list[dict[str, Any]] = []
     per_recording: dict[str, Any] = {}
     for name, rec in recordings.items():
-        seg, record = segment(rec, gravity=gravity, **cfg)
+        seg, record = segment(rec, gravity=gravity, detector=detector, **rotations)
         per_recording[name] = record.statistics
         if labelling == "array":
             intervals = array_labels(name, rec, seg)

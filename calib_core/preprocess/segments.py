@@ -30,7 +30,8 @@ s there) keeps the kept samples inside the annotated faces at both ends.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
@@ -159,65 +160,89 @@ def _intervals(
     return out
 
 
-def static_mask(
-    rec: Recording,
-    *,
-    window_s: float = 1.0,
-    init_static_s: float = 10.0,
-    k: float = 6.0,
-    threshold: tuple[float, float] | None = None,
-) -> tuple[np.ndarray, dict]:
-    """Per-sample rest flag from local variances (see `detect_static`) and the thresholds used."""
-    where = rec.source or "recording"
-    fs = rec.sample_rate
-    w = max(3, int(round(window_s * fs)))
-    if len(rec) < 2 * w:
-        raise ValueError(
-            f"detect_static ({where}): {len(rec)} samples, need >= 2 windows ({2 * w})"
-        )
-    var_acc = _local_variance(rec.acc, w)
-    var_gyr = _local_variance(rec.gyr, w)
-    n0 = int(round(init_static_s * fs))
-    init = rec.gyr[:n0]
-    if threshold is None:
-        if len(rec) < n0 or n0 < w:
+@dataclass(frozen=True)
+class StaticDetector:
+    """Settings of the static detector (`detect_static`; the run's ``[segmentation]`` table).
+
+    window_s : local-variance window, s.
+    init_static_s : initial rest period for the automatic threshold, s.
+    k : threshold factor (Tedaldi et al.'s multiple of the initial variance).
+        Windows of w samples estimate a variance to a relative std of
+        sqrt(2/(3w)) (three axes), so k = 6 leaves noise far below the line.
+    threshold : explicit (acc (m/s^2)^2, gyro (rad/s)^2) thresholds instead.
+    min_duration_s : rest runs shorter than this are ignored, s.
+    settle_s, min_keep_s, settle_fraction : settle-time rule (module docstring).
+    """
+
+    window_s: float = 1.0
+    init_static_s: float = 10.0
+    k: float = 6.0
+    threshold: tuple[float, float] | None = None
+    min_duration_s: float = 2.0
+    settle_s: float = POSITION_SETTLE_S
+    min_keep_s: float = 10.0
+    settle_fraction: float = 0.25
+
+    def settings(self) -> dict[str, Any]:
+        """The settings for a step record (``threshold`` only when given)."""
+        return {k: v for k, v in asdict(self).items() if k != "threshold" or v is not None}
+
+    def mask(self, rec: Recording) -> tuple[np.ndarray, dict]:
+        """Per-sample rest flag from local variances (see `detect_static`) and the thresholds."""
+        where = rec.source or "recording"
+        fs = rec.sample_rate
+        w = max(3, int(round(self.window_s * fs)))
+        if len(rec) < 2 * w:
             raise ValueError(
-                f"detect_static ({where}): init_static_s = {init_static_s} s needs {n0} samples "
-                f"(>= one window of {w}); the record has {len(rec)}. Give a shorter initial "
-                "static period or explicit thresholds"
+                f"detect_static ({where}): {len(rec)} samples, need >= 2 windows ({2 * w})"
             )
-        thr_acc = k * float(rec.acc[:n0].var(axis=0).sum())
-        thr_gyr = k * float(init.var(axis=0).sum())
-    else:
-        thr_acc, thr_gyr = threshold
-    # The window-mean gyro must stay near its value at rest: its squared distance
-    # from the initial mean is held to the same threshold as the variance.
-    bias = init.mean(axis=0) if n0 >= w else np.median(rec.gyr, axis=0)
-    mean_gyr = uniform_filter1d(rec.gyr, w, axis=0, mode="nearest")
-    rate_sq = ((mean_gyr - bias) ** 2).sum(axis=1)
-    rest = (var_acc < thr_acc) & (var_gyr < thr_gyr) & (rate_sq < thr_gyr)
-    info = {
-        "window_samples": w,
-        "threshold_acc": thr_acc,
-        "threshold_gyr": thr_gyr,
-        "k": k,
-        "init_static_s": init_static_s,
-    }
-    return rest, info
+        var_acc = _local_variance(rec.acc, w)
+        var_gyr = _local_variance(rec.gyr, w)
+        n0 = int(round(self.init_static_s * fs))
+        init = rec.gyr[:n0]
+        if self.threshold is None:
+            if len(rec) < n0 or n0 < w:
+                raise ValueError(
+                    f"detect_static ({where}): init_static_s = {self.init_static_s} s needs "
+                    f"{n0} samples (>= one window of {w}); the record has {len(rec)}. Give a "
+                    "shorter initial static period or explicit thresholds"
+                )
+            thr_acc = self.k * float(rec.acc[:n0].var(axis=0).sum())
+            thr_gyr = self.k * float(init.var(axis=0).sum())
+        else:
+            thr_acc, thr_gyr = self.threshold
+        # The window-mean gyro must stay near its value at rest: its squared distance
+        # from the initial mean is held to the same threshold as the variance.
+        bias = init.mean(axis=0) if n0 >= w else np.median(rec.gyr, axis=0)
+        mean_gyr = uniform_filter1d(rec.gyr, w, axis=0, mode="nearest")
+        rate_sq = ((mean_gyr - bias) ** 2).sum(axis=1)
+        rest = (var_acc < thr_acc) & (var_gyr < thr_gyr) & (rate_sq < thr_gyr)
+        info = {
+            "window_samples": w,
+            "threshold_acc": thr_acc,
+            "threshold_gyr": thr_gyr,
+            "k": self.k,
+            "init_static_s": self.init_static_s,
+        }
+        return rest, info
+
+    def intervals(self, rec: Recording, rest: np.ndarray) -> list[Interval]:
+        """The static Intervals of the rest flag `rest` (N,), settled (module docstring)."""
+        return _intervals(
+            rec.t,
+            _runs(rest),
+            "static",
+            self.min_duration_s,
+            self.settle_s,
+            self.min_keep_s,
+            self.settle_fraction,
+        )
 
 
-def detect_static(
-    rec: Recording,
-    *,
-    window_s: float = 1.0,
-    init_static_s: float = 10.0,
-    k: float = 6.0,
-    threshold: tuple[float, float] | None = None,
-    min_duration_s: float = 2.0,
-    settle_s: float = POSITION_SETTLE_S,
-    min_keep_s: float = 10.0,
-    settle_fraction: float = 0.25,
-) -> list[Interval]:
+DEFAULT_STATICS = StaticDetector()
+
+
+def detect_static(rec: Recording, detector: StaticDetector = DEFAULT_STATICS) -> list[Interval]:
     """Static intervals of a recording.
 
     A sample is at rest when, over a centred window of `window_s`, the summed
@@ -229,25 +254,14 @@ def detect_static(
     Parameters
     ----------
     rec : the whole run, SI units.
-    window_s : local-variance window, s.
-    init_static_s : initial rest period for the automatic threshold, s.
-    k : threshold factor (Tedaldi et al.'s multiple of the initial variance).
-        Windows of w samples estimate a variance to a relative std of
-        sqrt(2/(3w)) (three axes), so k = 6 leaves noise far below the line.
-    threshold : explicit (acc (m/s^2)^2, gyro (rad/s)^2) thresholds instead.
-    min_duration_s : rest runs shorter than this are ignored, s.
-    settle_s, min_keep_s, settle_fraction : settle-time rule (module docstring).
+    detector : the settings (window, initial rest, k or explicit thresholds, settle rule).
 
     Returns
     -------
     list of Interval(kind="static"), in time order.
     """
-    rest, _ = static_mask(
-        rec, window_s=window_s, init_static_s=init_static_s, k=k, threshold=threshold
-    )
-    return _intervals(
-        rec.t, _runs(rest), "static", min_duration_s, settle_s, min_keep_s, settle_fraction
-    )
+    rest, _ = detector.mask(rec)
+    return detector.intervals(rec, rest)
 
 
 def detect_rotations(
@@ -430,28 +444,21 @@ def segment(
     rec: Recording,
     *,
     gravity: float,
-    window_s: float = 1.0,
-    init_static_s: float = 10.0,
-    k: float = 6.0,
-    min_duration_s: float = 2.0,
-    settle_s: float = POSITION_SETTLE_S,
-    min_keep_s: float = 10.0,
-    settle_fraction: float = 0.25,
+    detector: StaticDetector = DEFAULT_STATICS,
     min_angle_deg: float = 270.0,
 ) -> tuple[Segmentation, StepRecord]:
     """Find and label static faces and rotations of a multi-position / integral run.
 
     Statics whose gravity direction is not near an axis (tilted positions) get
-    the label None. Settings as in `detect_static` and `detect_rotations`.
+    the label None. `detector` as in `detect_static`, min_angle_deg as in
+    `detect_rotations`.
 
     Returns
     -------
     (Segmentation, StepRecord listing every interval with its label).
     """
-    rest, info = static_mask(rec, window_s=window_s, init_static_s=init_static_s, k=k)
-    statics = _intervals(
-        rec.t, _runs(rest), "static", min_duration_s, settle_s, min_keep_s, settle_fraction
-    )
+    rest, info = detector.mask(rec)
+    statics = detector.intervals(rec, rest)
     labels: list[str | None] = []
     for iv in statics:
         try:
@@ -462,17 +469,7 @@ def segment(
     rot_labels = label_rotations(rotations)
     record = StepRecord(
         name="segment",
-        settings={
-            "window_s": window_s,
-            "init_static_s": init_static_s,
-            "k": k,
-            "min_duration_s": min_duration_s,
-            "settle_s": settle_s,
-            "min_keep_s": min_keep_s,
-            "settle_fraction": settle_fraction,
-            "min_angle_deg": min_angle_deg,
-            "gravity": gravity,
-        },
+        settings={**detector.settings(), "min_angle_deg": min_angle_deg, "gravity": gravity},
         statistics={
             "source": rec.source,
             "threshold_acc": info["threshold_acc"],

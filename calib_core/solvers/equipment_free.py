@@ -37,7 +37,7 @@ import numpy as np
 from calib_core import params
 from calib_core.attitude import integrate_rotations
 from calib_core.calibration import Calibration, SegmentResidual
-from calib_core.preprocess.segments import Interval, detect_static
+from calib_core.preprocess.segments import Interval, StaticDetector, detect_static
 from calib_core.recording import Recording
 from calib_core.solvers.multi_position import segment_residual
 from calib_core.stats import channel_stats
@@ -93,8 +93,7 @@ class StaticSet:
 
 def statics_at(rec: Recording, settings: dict[str, Any], k: float) -> StaticSet:
     """Static intervals found with threshold factor `k` (detect_static) and their means."""
-    intervals = detect_static(
-        rec,
+    detector = StaticDetector(
         window_s=settings["window_s"],
         init_static_s=settings["init_static_s"],
         k=k,
@@ -102,6 +101,7 @@ def statics_at(rec: Recording, settings: dict[str, Any], k: float) -> StaticSet:
         settle_s=settings["settle_s"],
         min_keep_s=settings["min_keep_s"],
     )
+    intervals = detect_static(rec, detector)
     stats = [channel_stats(rec.acc[iv.slice]) for iv in intervals]
     shape = (len(stats), 3)
     return StaticSet(
