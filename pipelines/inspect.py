@@ -94,7 +94,7 @@ def _read(path: Path, kind: str, doc: dict[str, Any]) -> Recording:
         return rec
     if kind == "csv":
         return _read_csv(path, doc)
-    from pipelines.ingest.run_loader import reader_for
+    from pipelines.ingest.readers import reader_for
 
     doc["columns"] = SI_COLUMNS
     if kind == "mat":

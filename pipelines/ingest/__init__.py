@@ -9,6 +9,7 @@ from pipelines.ingest.csv_reader import read_csv
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import FormatSpec, RunManifest, SegmentSpec, load_manifest
 from pipelines.ingest.mpu6000 import find_mpu6000_runs, read_mpu6000_file
+from pipelines.ingest.readers import register_reader
 from pipelines.ingest.run_loader import (
     LoadedRun,
     RawFile,
@@ -16,7 +17,6 @@ from pipelines.ingest.run_loader import (
     discover_runs,
     load_run,
     read_run,
-    register_reader,
 )
 
 __all__ = [
