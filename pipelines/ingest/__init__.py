@@ -6,8 +6,9 @@ naming the file, line or manifest field.
 """
 
 from pipelines.ingest.csv_reader import read_csv
+from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import FormatSpec, RunManifest, SegmentSpec, load_manifest
+from pipelines.ingest.manifest import RunManifest, SegmentSpec, load_manifest
 from pipelines.ingest.mpu6000 import find_mpu6000_runs, read_mpu6000_file
 from pipelines.ingest.readers import register_reader
 from pipelines.ingest.run_loader import (

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipelines.ingest.csv_dialect import is_number, sniff, split_unit
+from pipelines.ingest.data_format import Column, FormatSpec
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import Column, FormatSpec
 
 AXES = "xyz"
 # Recognised column names (case-insensitive) when the manifest names no columns.

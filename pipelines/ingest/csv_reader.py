@@ -39,8 +39,8 @@ from calib_core.units import acceleration_factor, angular_rate_factor, time_fact
 from pipelines.ingest.csv_diagnosis import PANDAS_CHUNK_ROWS, diagnose
 from pipelines.ingest.csv_dialect import split_unit
 from pipelines.ingest.csv_layout import AXES, CsvLayout, header_units, layout_of
+from pipelines.ingest.data_format import COUNTS, FormatSpec
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import COUNTS, FormatSpec
 from pipelines.ingest.time_order import check_time_increases
 
 PROGRESS_THRESHOLD_BYTES = 64 * 2**20  # above: a progress bar on stderr

@@ -13,8 +13,8 @@ from pathlib import Path
 
 from calib_core.recording import Recording
 from pipelines.ingest.csv_reader import read_csv
+from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import FormatSpec
 from pipelines.ingest.mpu6000 import read_mpu6000_file
 
 Reader = Callable[[Path, FormatSpec], Recording]
