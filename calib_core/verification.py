@@ -205,39 +205,48 @@ def diagnose_residuals(
         limit = profile.residual_limits.get(f"{sensor}_mean")
         if limit is not None:
             suspects += _pattern_terms(cal, sensor, limit)
-    advice = []
-    missing_linear = [s for s in suspects if s.kind == "linear" and not s.in_model]
-    quadratic = [s for s in suspects if s.kind == "quadratic"]
-    if missing_linear:
-        names = ", ".join(f"{s.term} ~ {s.estimate:.4g}" for s in missing_linear)
-        advice.append(
-            f"The residual means flip sign between up and down positions as cross-coupling "
-            f"terms the model lacks would make them: {names}. Solve with the full linear "
-            'model (12 parameters, cross-coupling included; accel_model = "linear").'
-        )
-    if quadratic:
-        names = ", ".join(f"{s.term} ~ {s.estimate:.3g} {s.unit}" for s in quadratic)
-        advice.append(
-            f"The residual means keep their sign between up and down positions, as an even "
-            f"(quadratic) term would: {names}. Add nonlinear terms (k2, k3) and tilted "
-            "positions (12/18/24-position scheme or tumble) that separate them from the bias."
-        )
-    noisy = sorted({w.segment for w in failed if w.stat == "std"})
-    if noisy:
-        advice.append(
-            f"Residual scatter above the limit at {', '.join(noisy)}: check the data "
-            "(vibration, settle time, outliers, temperature drift) and repeat those segments."
-        )
-    biased = sorted({w.segment for w in failed if w.stat == "mean"})
-    if biased and not missing_linear and not quadratic:
-        advice.append(
-            f"Residual mean above the limit at {', '.join(biased)} without a model-term "
-            "pattern: check those segments (wrong label, fixture not level, position moved) "
-            "or add more positions."
-        )
+    return ResidualDiagnosis(not failed, ranked[:n_worst], suspects, _advice(suspects, failed))
+
+
+# What a pattern of the residuals suggests, "{}" standing for the terms or segments.
+_MISSING_LINEAR = (
+    "The residual means flip sign between up and down positions as cross-coupling "
+    "terms the model lacks would make them: {}. Solve with the full linear "
+    'model (12 parameters, cross-coupling included; accel_model = "linear").'
+)
+_QUADRATIC = (
+    "The residual means keep their sign between up and down positions, as an even "
+    "(quadratic) term would: {}. Add nonlinear terms (k2, k3) and tilted "
+    "positions (12/18/24-position scheme or tumble) that separate them from the bias."
+)
+_NOISY = (
+    "Residual scatter above the limit at {}: check the data "
+    "(vibration, settle time, outliers, temperature drift) and repeat those segments."
+)
+_BIASED = (
+    "Residual mean above the limit at {} without a model-term "
+    "pattern: check those segments (wrong label, fixture not level, position moved) "
+    "or add more positions."
+)
+
+
+def _advice(suspects: list[SuspectTerm], failed: list[WorstSegment]) -> list[str]:
+    """The report's sentences: suspected terms first, then the segments to look at."""
+    linear = ", ".join(
+        f"{s.term} ~ {s.estimate:.4g}" for s in suspects if s.kind == "linear" and not s.in_model
+    )
+    quadratic = ", ".join(
+        f"{s.term} ~ {s.estimate:.3g} {s.unit}" for s in suspects if s.kind == "quadratic"
+    )
+    noisy = ", ".join(sorted({w.segment for w in failed if w.stat == "std"}))
+    biased = ", ".join(sorted({w.segment for w in failed if w.stat == "mean"}))
+    found = [(linear, _MISSING_LINEAR), (quadratic, _QUADRATIC), (noisy, _NOISY)]
+    found.append(("" if linear or quadratic else biased, _BIASED))
+    advice = [text.format(items) for items, text in found if items]
     if not failed:
         advice.append("Residuals are within the limits at every segment.")
-    return ResidualDiagnosis(not failed, ranked[:n_worst], suspects, advice)
+    return advice
+
 
 
 # --- 2. accuracy verification on held-out points ----------------------------------------
