@@ -318,21 +318,27 @@ def parameter_rows(cal: Calibration, temperature_c: float | None) -> list[dict[s
     return [p.to_row(temperature_c) for p in sorted(cal.parameters.values(), key=lambda p: p.name)]
 
 
+def _run_identity(m: RunManifest) -> dict[str, Any]:
+    """The unit and the run as the protocol and the archive name them (keyword arguments)."""
+    return {
+        "serial": m.unit.serial,
+        "device_model": m.unit.model,
+        "started_at": m.run.started,
+        "operator": m.run.operator,
+        "procedure": m.run.procedure,
+    }
+
+
 def protocol_of(
     loaded: LoadedRun, cal: Calibration, judged: Judged, run_id: str, rows: list[dict[str, Any]],
     budgets: dict[str, Budget] | None = None,
 ) -> str:
     """The test protocol text (MPU-6000 layout) of the run, with the uncertainty budgets."""
-    m = loaded.manifest
     return render_protocol(
-        device_model=m.unit.model,
-        serial=m.unit.serial,
-        started_at=m.run.started,
+        **_run_identity(loaded.manifest),
         run_id=run_id,
-        procedure=m.run.procedure,
         profile=f"{judged.profile.name} v{judged.profile.version}",
         gravity=cal.gravity,
-        operator=m.run.operator,
         parameters=rows,
         checks=[c.to_dict() for c in judged.checks],
         verdict=judged.verdict,
@@ -353,13 +359,9 @@ def run_record(
     """Everything the archive keeps of the run, from the manifest and the results."""
     m = loaded.manifest
     return RunIn(
-        serial=m.unit.serial,
-        device_model=m.unit.model,
+        **_run_identity(m),
         manufacturer=m.unit.manufacturer,
         specification=m.unit.specification,
-        started_at=m.run.started,
-        operator=m.run.operator,
-        procedure=m.run.procedure,
         site=m.site.model_dump(mode="json"),
         gravity=cal.gravity,
         environment=m.environment.model_dump(mode="json"),
