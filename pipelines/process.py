@@ -35,6 +35,7 @@ from calib_core.verification import (
     static_reference,
     verify_points,
 )
+from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import RunManifest
@@ -125,9 +126,11 @@ def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
 
 def solve_loaded(
     loaded: LoadedRun, procedure: str | None = None, settings: dict[str, Any] | None = None
-) -> tuple[Calibration, list[StepRecord], dict[str, Any], dict[str, Budget]]:
-    """Preprocess and solve a loaded run; returns the calibration, step records, settings and
-    the GUM budget of each parameter (step "uncertainty").
+) -> tuple[
+    Calibration, list[StepRecord], dict[str, Any], dict[str, Budget], dict[str, Recording]
+]:
+    """Preprocess and solve a loaded run; returns the calibration, step records, settings,
+    the GUM budget of each parameter (step "uncertainty") and the preprocessed fit segments.
 
     `procedure` and `settings` replace the manifest's procedure and update its
     settings (see `calibrate`). Verification segments stay out of the fit
@@ -146,7 +149,7 @@ def solve_loaded(
     )
     fit = {k: v for k, v in segments.items() if k not in loaded.verification_labels}
     budgets, budget_step = uncertainty_step(cal, fit, settings, m)
-    return cal, [*steps, record, budget_step], settings, budgets
+    return cal, [*steps, record, budget_step], settings, budgets, fit
 
 
 def calibrate(
@@ -422,9 +425,13 @@ def process_run(
         steps = [ingest_step(loaded, time.perf_counter() - started)]
         if reason is not None:
             steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
-        cal, solve_steps, settings, budgets = solve_loaded(loaded)
+        cal, solve_steps, settings, budgets, fit = solve_loaded(loaded)
         run_id = run_id_of(raw_hash_of([f.sha256 for f in loaded.raw_files]))
         judged = check_run(loaded, cal, archive, run_id, budgets)
+        earlier = earlier_calibration(archive, serial, loaded.manifest.run.started)
+        if earlier is not None:  # the unit comes back: as found beside as left
+            solve_steps.append(as_found_step(earlier, cal, fit, settings, budgets,
+                                             judged.profile))  # fmt: skip
         rows = parameter_rows(cal, loaded.manifest.environment.temperature_c)
         protocol_name = f"{serial}_result.txt"
         result: ArchiveResult = archive_run(

@@ -376,13 +376,50 @@ def _budget_section(run: _Archived) -> Section:
     )
 
 
+AS_FOUND_TITLE = "As found / as left (ISO/IEC 17025:2017 7.8.4.2)"
+AS_FOUND_HEADER = ["parameter", "as found", "as left", "unit", "error as found", "U",
+                   "as-found verdict"]  # fmt: skip
+
+
 def _as_found_section(run: _Archived) -> Section:
     """As found (the unit with its earlier calibration) and as left (this one), 7.8.4.2."""
-    title = "As found / as left (ISO/IEC 17025:2017 7.8.4.2)"
+    step = _step(run.summary, "as_found")
+    if step:
+        return _as_found_evaluated(step)
     earlier = run.summary.get("as_found")
     if not earlier:
-        return Section(title, paragraphs=[
+        return Section(AS_FOUND_TITLE, paragraphs=[
             "No earlier valid calibration of this unit in the archive: no as-found values."])
+    return _as_found_difference(run, earlier)
+
+
+def _as_found_evaluated(step: dict[str, Any]) -> Section:
+    """The archived step "as_found" (pipelines.as_found): the earlier calibration evaluated on
+    this run's data."""
+    said, stats = step["settings"], step.get("statistics", {})
+    earlier = (f"run {said['earlier_run_id']} of {said['earlier_started_at'][:10]}, revision "
+               f"{said['earlier_revision']}")
+    if "refused" in stats:
+        return Section(AS_FOUND_TITLE, paragraphs=[
+            f"As found: the earlier calibration ({earlier}) could not be evaluated on this "
+            f"run's data: {stats['refused']}"])
+    rows = []
+    for r in stats["parameters"]:
+        name, U = r["parameter"], r["U"]
+        rows.append([name, f"{display(name, r['earlier'])[0]:+.6g}",
+                     f"{display(name, r['as_left'])[0]:+.6g}", display(name, 0.0)[1],
+                     f"{display(name, r['error'])[0]:+.3g}",
+                     "-" if U is None else f"{display(name, U)[0]:.2g}", r["verdict"] or "-"])
+    return Section(AS_FOUND_TITLE, header=AS_FOUND_HEADER, rows=rows, paragraphs=[
+        f"As found: the unit with its earlier calibration ({earlier}). Its parameters were "
+        "applied to this run's raw samples and the error model solved again on the corrected "
+        f"samples ({said['method']}): the error as found, judged against the tolerance with "
+        "this run's U by the decision rule. As left: this calibration, to be loaded into the "
+        "unit."])
+
+
+def _as_found_difference(run: _Archived, earlier: dict[str, Any]) -> Section:
+    """As found for runs archived before the step "as_found": as left - as found."""
     before = {p["name"]: p["value"] for p in earlier["parameters"]}
     budgets = _budgets(run)
     rows = []
@@ -397,19 +434,12 @@ def _as_found_section(run: _Archived) -> Section:
                      f"{display(name, p['value'])[0]:+.6g}", display(name, 0.0)[1],
                      f"{display(name, error)[0]:+.3g}",
                      "-" if U is None else f"{display(name, U)[0]:.2g}", found or "-"])
-    return Section(
-        title,
-        header=["parameter", "as found", "as left", "unit", "error as found", "U",
-                "as-found verdict"],
-        rows=rows,
-        paragraphs=[
-            f"As found: the unit with its earlier calibration (run {earlier['run_id']} of "
-            f"{earlier['started_at']:%Y-%m-%d}, revision {earlier['revision']}); its parameters "
-            "evaluated on this run's data leave the error as found = as left - as found, judged "
-            "against the tolerance with this run's U by the decision rule. As left: this "
-            "calibration, to be loaded into the unit.",
-        ],
-    )
+    return Section(AS_FOUND_TITLE, header=AS_FOUND_HEADER, rows=rows, paragraphs=[
+        f"As found: the unit with its earlier calibration (run {earlier['run_id']} of "
+        f"{earlier['started_at']:%Y-%m-%d}, revision {earlier['revision']}). This run was "
+        "archived before as-found evaluation: the error as found is the first-order "
+        "difference as left - as found, judged against the tolerance with this run's U by the "
+        "decision rule. As left: this calibration, to be loaded into the unit."])
 
 
 def _diagnosis(run: _Archived) -> ResidualDiagnosis | None:
