@@ -10,7 +10,7 @@ import math
 from datetime import UTC, date, datetime, time
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import Row, bindparam, func
+from sqlalchemy import Row, Select, bindparam, func, select
 
 from calib_core import params
 from storage.naming import check_safe_name
@@ -30,6 +30,17 @@ PARAMETER_VALUE = (
 NAMED_PARAMETER = (ParameterRow.calibration_id == CalibrationRow.id) & (
     ParameterRow.name == bindparam("name")
 )
+
+
+def select_run_calibrations(*columns: Any) -> Select:
+    """``select(*columns)`` over the runs joined to their unit (Device) and to every
+    calibration revision of theirs (filter ``superseded_by`` for the current ones)."""
+    return (
+        select(*columns)
+        .select_from(Run)
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+    )
 
 
 def _dict(row: Row) -> dict[str, Any]:

@@ -29,6 +29,7 @@ from storage.queries._common import (
     check_serial,
     check_text,
     check_verdict,
+    select_run_calibrations,
     where_model_and_start,
 )
 from storage.queries.runs import _cal_dict
@@ -59,7 +60,7 @@ def history(archive: Archive, serial: str) -> pd.DataFrame:
     import pandas as pd
 
     stmt = (
-        select(
+        select_run_calibrations(
             Run.run_id,
             Run.started_at,
             Run.procedure,
@@ -69,8 +70,6 @@ def history(archive: Archive, serial: str) -> pd.DataFrame:
             CalibrationRow.software_version,
             CalibrationRow.created_at,
         )
-        .join(Device, Device.id == Run.device_id)
-        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
         .where(Device.serial == serial)
         .order_by(Run.started_at, Run.id, CalibrationRow.revision)
     )
@@ -97,7 +96,7 @@ def _parameter_over_runs(name: str, include_superseded: bool):  # noqa: ANN202 -
     """Rows of parameter `name` over runs (device serial first), oldest run first;
     the callers add which devices."""
     stmt = (
-        select(
+        select_run_calibrations(
             Device.serial,
             Run.run_id,
             Run.started_at,
@@ -105,8 +104,6 @@ def _parameter_over_runs(name: str, include_superseded: bool):  # noqa: ANN202 -
             CalibrationRow.verdict,
             *PARAMETER_VALUE,
         )
-        .join(Device, Device.id == Run.device_id)
-        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
         .join(ParameterRow, ParameterRow.calibration_id == CalibrationRow.id)
         .where(ParameterRow.name == name)
         .order_by(Run.started_at, Run.id, CalibrationRow.revision, ParameterRow.temperature_c)
@@ -181,9 +178,7 @@ def latest_calibration(
     if as_of is not None and as_of.utcoffset() is None:
         raise ValueError(f"as_of: expected a time-zone-aware datetime, got {as_of!r}")
     stmt = (
-        select(Run.run_id, Run.started_at, CalibrationRow)
-        .join(Device, Device.id == Run.device_id)
-        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+        select_run_calibrations(Run.run_id, Run.started_at, CalibrationRow)
         .where(
             Device.serial == serial,
             CalibrationRow.superseded_by.is_(None),
@@ -318,11 +313,10 @@ def units(
         raise ValueError(f"temperature range: min {lo} is above max {hi}")
     temp = Run.environment["temperature_c"].as_float()
     stmt = (
-        select(Device.serial, Device.model, Device.manufacturer, Run.run_id, Run.started_at,
-               Run.procedure, Run.operator, CalibrationRow.revision, CalibrationRow.verdict,
-               temp)
-        .join(Device, Device.id == Run.device_id)
-        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+        select_run_calibrations(
+            Device.serial, Device.model, Device.manufacturer, Run.run_id, Run.started_at,
+            Run.procedure, Run.operator, CalibrationRow.revision, CalibrationRow.verdict, temp,
+        )
         .where(CalibrationRow.superseded_by.is_(None))
         .order_by(Run.started_at, Run.id)
     )  # fmt: skip

@@ -21,6 +21,7 @@ from storage.queries._common import (
     _dict,
     check_parameter,
     check_text,
+    select_run_calibrations,
 )
 from storage.schema import (
     CalibrationRow,
@@ -462,11 +463,9 @@ def repeatability_candidates(
     (canonical name -> (value, std), SI; parameters at one temperature only).
     """
     stmt = (
-        select(
+        select_run_calibrations(
             Run.run_id, Run.started_at, Run.environment, CalibrationRow.id, CalibrationRow.verdict
         )
-        .join(Device, Device.id == Run.device_id)
-        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
         .where(
             Device.serial == serial,
             Run.procedure == procedure,

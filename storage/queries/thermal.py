@@ -14,6 +14,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from storage.db import Archive
+from storage.queries._common import select_run_calibrations
 from storage.schema import (
     CalibrationRow,
     Device,
@@ -106,7 +107,7 @@ def campaign_calibrations(
     with Session(archive.engine()) as s:
         _device_id(s, serial)
         stmt = (
-            select(
+            select_run_calibrations(
                 CalibrationRow.id,
                 Run.run_id,
                 Run.started_at,
@@ -114,8 +115,6 @@ def campaign_calibrations(
                 CalibrationRow.verdict,
                 CalibrationRow.document,
             )
-            .join(Run, Run.id == CalibrationRow.run_id)
-            .join(Device, Device.id == Run.device_id)
             .where(Device.serial == serial, CalibrationRow.superseded_by.is_(None))
             .order_by(Run.started_at, Run.id)
         )
