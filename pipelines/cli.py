@@ -11,6 +11,8 @@ from rich.markup import escape
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    JsonOpt,
+    RevisionOpt,
     app,
     err,
     fail,
@@ -35,7 +37,7 @@ from pipelines.direct import IN_PROCESS_MAX_RUNS
 def process(
     paths: Annotated[list[Path], typer.Argument(help="Run folders, or folders holding runs.")],
     archive: ArchiveOpt = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON document.")] = False,
+    as_json: JsonOpt = False,
     runner: Annotated[
         str,
         typer.Option(
@@ -144,11 +146,7 @@ def _write_reports(archive: str | None, outcomes: list[dict]) -> None:
 
 
 @app.command()
-def history(
-    serial: str,
-    archive: ArchiveOpt = None,
-    as_json: Annotated[bool, typer.Option("--json")] = False,
-) -> None:
+def history(serial: str, archive: ArchiveOpt = None, as_json: JsonOpt = False) -> None:
     """Every calibration revision of a serial, oldest first."""
     from storage import queries
 
@@ -162,11 +160,7 @@ def history(
 
 
 @app.command()
-def show(
-    run_id: str,
-    archive: ArchiveOpt = None,
-    as_json: Annotated[bool, typer.Option("--json")] = False,
-) -> None:
+def show(run_id: str, archive: ArchiveOpt = None, as_json: JsonOpt = False) -> None:
     """One archived run: unit, raw files, steps, parameters, checks."""
     from storage import queries
 
@@ -243,9 +237,7 @@ def export(
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="File to write (default: stdout).")
     ] = None,
-    revision: Annotated[
-        int | None, typer.Option(help="Calibration revision (default: the current one).")
-    ] = None,
+    revision: RevisionOpt = None,
     thermal: Annotated[
         bool, typer.Option("--thermal/--no-thermal", help="Add the unit's thermal model.")
     ] = True,

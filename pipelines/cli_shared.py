@@ -115,6 +115,12 @@ ArchiveOpt = Annotated[
         help="Archive directory or SQLAlchemy URL (default ./calib-archive).",
     ),
 ]
+JsonOpt = Annotated[
+    bool, typer.Option("--json", help="Print the JSON document (for scripts) instead of text.")
+]
+RevisionOpt = Annotated[
+    int | None, typer.Option("--revision", help="Calibration revision (default: the current one).")
+]
 
 
 @app.callback()

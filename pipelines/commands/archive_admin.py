@@ -9,13 +9,13 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive
+from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, err, fail, open_archive
 
 
 @app.command()
 def verify(
     archive: ArchiveOpt = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
+    as_json: JsonOpt = False,
     orphans: Annotated[
         bool, typer.Option("--orphans/--no-orphans", help="List unreferenced files.")
     ] = True,

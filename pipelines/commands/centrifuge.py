@@ -14,7 +14,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import CalibGroup, app, fail, out, print_json
+from pipelines.cli_shared import CalibGroup, JsonOpt, app, fail, out, print_json
 
 
 class _SolveByDefault(CalibGroup):
@@ -64,7 +64,7 @@ def solve(
         str | None,
         typer.Option(help="What ends the reduction: t (t tests) or F (model F) (default: t)."),
     ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON document.")] = False,
+    as_json: JsonOpt = False,
 ) -> None:
     """Solve a centrifuge run: high-g model per axis, F/t tests, zero drift, validation."""
     from pipelines.centrifuge import process_centrifuge
@@ -111,7 +111,7 @@ def plan(
     max_rpm: Annotated[
         float | None, typer.Option("--max-rpm", help="The table's highest rate, rpm.")
     ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    as_json: JsonOpt = False,
 ) -> None:
     """Table rates for the g levels: R w (w + 2 Omega_V) = n g, from the equivalent radius."""
     from calib_core.solvers.centrifuge_plan import plan_rates

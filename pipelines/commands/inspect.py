@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import typer
 
-from pipelines.cli_shared import app, out, print_json
+from pipelines.cli_shared import JsonOpt, app, out, print_json
 
 
 @app.command("inspect")
 def inspect_command(
     path: Path,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON document.")] = False,
+    as_json: JsonOpt = False,
 ) -> None:
     """Format, variant, columns with units, rate, gaps, temperature, segments, what is missing.
 

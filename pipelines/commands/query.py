@@ -18,6 +18,7 @@ import typer
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    RevisionOpt,
     app,
     err,
     fail,
@@ -110,7 +111,7 @@ def latest(
 def lineage(
     run_id: str,
     param: str,
-    revision: Annotated[int | None, typer.Option(help="Revision (default current).")] = None,
+    revision: RevisionOpt = None,
     archive: ArchiveOpt = None,
     fmt: FormatOpt = Format.table,
 ) -> None:

@@ -13,7 +13,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from pipelines.cli_shared import ArchiveOpt, app, fail, open_archive, out, print_json
+from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, fail, open_archive, out, print_json
 
 
 @app.command("repeatability")
@@ -23,7 +23,7 @@ def repeatability_command(
     procedure: Annotated[
         str | None, typer.Option(help="Procedure (default: that of the latest run).")
     ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON document.")] = False,
+    as_json: JsonOpt = False,
 ) -> None:
     """Repeatability of SERIAL's latest runs: CV of scale factors, scatter of the rest."""
     from calib_core.verification import RunValues, comparable_runs, overall_verdict, repeatability

@@ -16,6 +16,7 @@ import typer
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    JsonOpt,
     app,
     err,
     fail,
@@ -31,7 +32,6 @@ from pipelines.cli_shared import (
 thermal_app = sub_app("Temperature compensation: fit and export.")
 app.add_typer(thermal_app, name="thermal")
 
-JsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")]
 PlotOpt = Annotated[Path | None, typer.Option("--plot", help="Also draw the plot into this PNG.")]
 
 
