@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from calib_core import procedures
+from calib_core import procedures, verification
 from calib_core.calibration import Calibration, CheckResult, StepRecord
 from calib_core.checks import check_calibration
 from calib_core.conditions import check_conditions, counts_against_verdict
@@ -26,15 +26,6 @@ from calib_core.preprocess.chain import preprocess
 from calib_core.recording import Recording
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
-from calib_core.verification import (
-    RunValues,
-    comparable_runs,
-    diagnose_residuals,
-    overall_verdict,
-    repeatability,
-    static_reference,
-    verify_points,
-)
 from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError
@@ -201,30 +192,34 @@ def verify_run(
     factor = m.format.acc_reference_factor()  # acc_unit, or acc_scale_unit for counts
     given = {s.label: s.reference_acc for s in m.segments}
     refs = [
-        static_reference(
+        verification.static_reference(
             label,
             cal.gravity,
             None if given.get(label) is None else np.asarray(given[label]) * factor,
         )
         for label in sorted(loaded.verification_labels)
     ]
-    checks = verify_points(cal, loaded.segments, refs, profile)
-    current = RunValues(
+    checks = verification.verify_points(cal, loaded.segments, refs, profile)
+    current = verification.RunValues(
         run_id,
         m.environment.temperature_c,
         {n: (p.value, p.std) for n, p in cal.parameters.items()},
     )
     others = [
-        RunValues(c["run_id"], (c["environment"] or {}).get("temperature_c"), c["parameters"])
+        verification.RunValues(
+            c["run_id"], (c["environment"] or {}).get("temperature_c"), c["parameters"]
+        )
         for c in queries.repeatability_candidates(
             archive, m.unit.serial, m.run.procedure, exclude_run_id=run_id
         )
     ]
     rules = profile.repeatability
-    group = comparable_runs(current, others, rules["temperature_tol_c"], int(rules["max_runs"]))
-    checks += repeatability(group, profile)
+    group = verification.comparable_runs(
+        current, others, rules["temperature_tol_c"], int(rules["max_runs"])
+    )
+    checks += verification.repeatability(group, profile)
     return checks, {
-        "diagnosis": diagnose_residuals(cal, profile).to_dict(),
+        "diagnosis": verification.diagnose_residuals(cal, profile).to_dict(),
         "repeatability_group": [r.run_id for r in group],
         "verification_points": [r.label for r in refs],
     }
@@ -294,7 +289,7 @@ def check_run(
     checks += more_checks
     checks.append(device_check(loaded.manifest, queries.device_description(
         archive, loaded.manifest.unit.serial)))  # fmt: skip
-    verdict_ = overall_verdict(checks)
+    verdict_ = verification.overall_verdict(checks)
     step = StepRecord(
         "check",
         # The thresholds themselves, so every verdict can be re-read as judged.

@@ -11,6 +11,11 @@ environment, conditions (one verdict line per lab condition), procedure,
 results with uncertainties, residual table and diagnosis, repeatability,
 verification, verdict, recommendations and a signature block, one function
 per section; pipelines.reports.render lays them out as HTML and PDF.
+
+Why one module of ~720 lines: the sections are written in the certificate's own
+print order and share one view of the archived run (`_Archived`) and its number
+formatting; split across files, a reviewer checking an item of ISO/IEC 17025 7.8
+against the printed page would have to jump between them.
 """
 
 from __future__ import annotations
