@@ -159,6 +159,9 @@ class Synth:
                     f'{{"temperature_c": {self.run_temp[r]:.2f}}}',
                     None,
                     f"{r:064x}",
+                    MODELS[self.unit_model[self.run_unit[r]]][0],  # as the devices row
+                    "Acme",
+                    None,
                     "mpu6000",
                     f"runs/{rid}",
                     None,
@@ -240,7 +243,8 @@ COLUMNS = {
     "devices": "id, serial, model, manufacturer, specification, created_at",
     "equipment": "id, kind, model, serial, accuracy_class, calibration_due, calibrated_on",
     "runs": "id, run_id, device_id, started_at, operator, procedure, site, gravity, environment, "
-    "manifest_text, raw_hash, tolerance_profile, run_dir, samples_path, samples_sha256, created_at",
+    "manifest_text, raw_hash, model, manufacturer, specification, tolerance_profile, run_dir, "
+    "samples_path, samples_sha256, created_at",
     "run_equipment": "id, run_id, equipment_id, calibration_due, calibrated_on",
     "raw_files": "id, run_id, name, sha256, size, format, stored_path",
     "calibrations": "id, run_id, revision, settings_hash, settings, software_version, "

@@ -225,25 +225,31 @@ def verify_run(
     }
 
 
-def device_check(m: RunManifest, archived: dict[str, Any] | None) -> CheckResult:
-    """``device:description``: the unit's model and manufacturer as the archive knows the serial.
+def device_check(m: RunManifest, earlier: list[dict[str, Any]]) -> CheckResult:
+    """``device:description``: the unit's model and manufacturer against the serial's
+    earlier runs (`storage.queries.earlier_descriptions`).
 
     A serial archived before under another model or manufacturer is a relabelled
-    or swapped unit, or a typo: the check fails (verdict "needs review"), and the
-    run's own description stays in its archived manifest.
+    or swapped unit, or a typo: the check fails (verdict "needs review") and names
+    each other description with the latest run that gave it. Every run keeps its
+    own description in the archive.
     """
     said = (m.unit.model, m.unit.manufacturer)
-    if archived is None or (archived["model"], archived["manufacturer"]) == said:
-        return CheckResult("device:description", None, None, True, "as archived before"
-                           if archived else "first run of this serial")  # fmt: skip
+    other = [e for e in earlier if (e["model"], e["manufacturer"]) != said]
+    if not other:
+        detail = "as archived before" if earlier else "first run of this serial"
+        return CheckResult("device:description", None, None, True, detail)
+    before = "; and as ".join(
+        f"model {e['model']!r} by {e['manufacturer']!r} (run {e['run_id']}, started "
+        f"{e['started_at']:%Y-%m-%d})" for e in other
+    )  # fmt: skip
     return CheckResult(
         "device:description",
         None,
         None,
         False,
-        f"serial {m.unit.serial} is archived as model {archived['model']!r} by "
-        f"{archived['manufacturer']!r}; this run says model {said[0]!r} by {said[1]!r}: "
-        "a relabelled or swapped unit, or a typo in run.toml? Review before use",
+        f"serial {m.unit.serial} is archived as {before}; this run says model {said[0]!r} by "
+        f"{said[1]!r}: a relabelled or swapped unit, or a typo in run.toml? Review before use",
     )
 
 
@@ -287,8 +293,8 @@ def check_run(
     checks += run_conditions(loaded, cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id)
     checks += more_checks
-    checks.append(device_check(loaded.manifest, queries.device_description(
-        archive, loaded.manifest.unit.serial)))  # fmt: skip
+    checks.append(device_check(loaded.manifest, queries.earlier_descriptions(
+        archive, loaded.manifest.unit.serial, run_id)))  # fmt: skip
     verdict_ = verification.overall_verdict(checks)
     step = StepRecord(
         "check",

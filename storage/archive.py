@@ -627,6 +627,9 @@ def _insert_run(
         environment=run.environment,
         manifest_text=run.manifest_text,
         raw_hash=raw_hash,
+        model=run.device_model,  # the run's own description, whatever the device row says
+        manufacturer=run.manufacturer,
+        specification=run.specification,
         tolerance_profile=run.tolerance_profile,
         run_dir=rel_dir,
         samples_path=None if samples is None else samples[0],

@@ -84,7 +84,13 @@ class Base(DeclarativeBase):
 
 
 class Device(Base):
-    """One IMU unit. First-seen model/manufacturer are kept (never updated)."""
+    """One IMU unit: its serial, and the description it was first archived under.
+
+    The description (model, manufacturer, specification) is the unit's *registered*
+    one, never updated; what each run said is kept with the run (``runs.model``...,
+    migration 0006), and a run that names another model or manufacturer fails its
+    ``device:description`` check.
+    """
 
     __tablename__ = "devices"
 
@@ -131,6 +137,11 @@ class Run(Base):
     environment: Mapped[dict[str, Any]]
     manifest_text: Mapped[str | None] = mapped_column(Text)
     raw_hash: Mapped[str] = mapped_column(String(SHA256_LEN), unique=True)
+    # The unit as this run's manifest describes it (migration 0006; runs archived
+    # before got their device row's description).
+    model: Mapped[str] = mapped_column(String(200))
+    manufacturer: Mapped[str] = mapped_column(String(200))
+    specification: Mapped[str | None] = mapped_column(Text)
     tolerance_profile: Mapped[str | None] = mapped_column(String(200))
     run_dir: Mapped[str] = mapped_column(String(500))  # relative to the file store root
     samples_path: Mapped[str | None] = mapped_column(String(500))  # relative, Parquet

@@ -1,12 +1,12 @@
 """Seals and the audit chain: what makes a change behind the archive's back visible.
 
 Every calibration revision is *sealed* in the transaction that archives it: its
-*record* is read back from the rows just written (run, device, equipment links,
-raw files, calibration with its document, steps, parameters, checks) together
-with the SHA-256 of every file the revision wrote (protocol...), serialised as
-canonical JSON, and hashed (the *digest*). The record is kept in ``seals`` so a
-later mismatch can be shown field by field; the digest goes into an event of the
-audit chain.
+*record* is read back from the rows just written (run with the unit as it
+describes it, device, equipment links, raw files, calibration with its document,
+steps, parameters, checks) together with the SHA-256 of every file the revision
+wrote (protocol...), serialised as canonical JSON, and hashed (the *digest*). The
+record is kept in ``seals`` so a later mismatch can be shown field by field; the
+digest goes into an event of the audit chain.
 
 The audit chain (``audit_events``) is append-only: every write to the archive
 (run archived, revision, approval, repair, restore, thermal model, role change,
@@ -32,7 +32,7 @@ from datetime import date, datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Connection, insert, select, text
+from sqlalchemy import Connection, insert, inspect, select, text
 
 from storage.db import Archive
 from storage.rawstore import hash_and_size
@@ -112,6 +112,7 @@ _RUN = ("run_id", "started_at", "operator", "procedure", "site", "gravity", "env
 _CAL = ("revision", "settings_hash", "settings", "software_version", "source_revision",
         "created_at", "document", "verdict", "profile_name", "profile_version")  # fmt: skip
 _DEVICE = ("serial", "model", "manufacturer", "specification")
+_DESCRIPTION = ("model", "manufacturer", "specification")  # of the unit, kept per run
 _RAW = ("name", "sha256", "size", "format", "stored_path")
 _STEP = ("seq", "name", "settings", "statistics", "software_version", "source_revision")
 _PARAM = ("name", "value", "std", "unit", "temperature_c")
@@ -123,7 +124,11 @@ def _cols(model: type, names: tuple[str, ...], prefix: str = "") -> list:
 
 
 def records(
-    conn: Connection, cal_ids: list[int], files: dict[int, dict[str, str]] | None = None
+    conn: Connection,
+    cal_ids: list[int],
+    files: dict[int, dict[str, str]] | None = None,
+    *,
+    per_run_description: bool = True,
 ) -> dict[int, dict[str, Any]]:
     """The record of each calibration revision, as its rows are now.
 
@@ -133,6 +138,8 @@ def records(
     cal_ids : calibration ids (a few hundred at a time: they go into IN lists).
     files : calibration id -> {path relative to the file store: sha256} of the files
         the revision wrote; missing ids get ``{}``.
+    per_run_description : False only for a schema before migration 0006, whose runs
+        have no description of their own (`seal_unsealed` decides).
 
     Returns
     -------
@@ -140,6 +147,13 @@ def records(
     ``run_equipment``, ``raw_files``, ``calibrations``, ``processing_steps``,
     ``parameters``, ``check_results``) plus ``files``. Rows of a table are keyed
     by a label (parameter name, step ``seq:name``...) so a difference names the row.
+
+    ``devices`` is the unit's row (serial and registered description); the run's
+    own description (``runs.model``, ``manufacturer``, ``specification``, migration
+    0006) is in ``runs`` field by field where it differs from the registered one.
+    So both are sealed, and a record sealed when they agreed (every record sealed
+    before 0006, which copied the device row's description into the runs) keeps its
+    digest; a run's field changed to differ shows as sealed "(absent)".
     """
     head = conn.execute(
         select(
@@ -148,6 +162,7 @@ def records(
             *_cols(Run, _RUN, "r_"),
             *_cols(CalibrationRow, _CAL, "c_"),
             *_cols(Device, _DEVICE, "d_"),
+            *(_cols(Run, _DESCRIPTION, "u_") if per_run_description else ()),
         )  # fmt: skip
         .join(Run, Run.id == CalibrationRow.run_id)
         .join(Device, Device.id == Run.device_id)
@@ -158,7 +173,7 @@ def records(
     for m in head:
         run_of[m["cal_pk"]] = m["run_pk"]
         out[m["cal_pk"]] = {
-            "runs": {n: m["r_" + n] for n in _RUN},
+            "runs": {n: m["r_" + n] for n in _RUN} | _own_description(m, per_run_description),
             "calibrations": {n: m["c_" + n] for n in _CAL},
             "devices": {n: m["d_" + n] for n in _DEVICE},
             "files": dict(sorted((files or {}).get(m["cal_pk"], {}).items())),
@@ -169,6 +184,13 @@ def records(
         rec.update(by_run[run_of[cal_pk]])
         rec.update(by_cal[cal_pk])
     return out
+
+
+def _own_description(m: Any, per_run: bool) -> dict[str, Any]:
+    """The fields of the run's own description that differ from its device row's."""
+    if not per_run:
+        return {}
+    return {n: m["u_" + n] for n in _DESCRIPTION if m["u_" + n] != m["d_" + n]}
 
 
 def _labelled(rows: list[tuple[str, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
@@ -336,14 +358,17 @@ def seal_unsealed(conn: Connection, who: str) -> int:
     """Seal every calibration without a seal, in id order (migration 0004, bulk loads).
 
     The files of those revisions are not known (they were not recorded): their
-    records have no ``files``. Returns the number sealed.
+    records have no ``files``. Run by migration 0004, before 0006 gave runs their
+    own description (0006 copies it from the device row).
+    Returns the number sealed.
     """
+    per_run = "model" in {c["name"] for c in inspect(conn).get_columns("runs")}
     sealed = select(Seal.calibration_id)
     ids = conn.execute(
         select(CalibrationRow.id).where(CalibrationRow.id.not_in(sealed)).order_by(CalibrationRow.id)
     ).scalars().all()  # fmt: skip
     for chunk in _chunks(list(ids)):
-        recs = records(conn, chunk)
+        recs = records(conn, chunk, per_run_description=per_run)
         for cal_id in chunk:
             rec = recs[cal_id]
             digest = _insert_seal(conn, cal_id, rec)

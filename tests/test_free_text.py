@@ -79,7 +79,8 @@ def test_model_change_for_a_serial_is_flagged(archive, tmp_path: Path) -> None:
     (first,) = discover_runs([CSV_RUN])
     out = process_run(first, archive)
     assert out["status"] == "ok"
-    check = archived_check(archive, out["run_id"])
+    first_id = out["run_id"]
+    check = archived_check(archive, first_id)
     assert check["passed"] and check["detail"] == "first run of this serial"
 
     folder = copy_run(tmp_path, "swapped", 'model = "MPU-6000"', 'model = "ICM-20602"', "\n")
@@ -91,3 +92,18 @@ def test_model_change_for_a_serial_is_flagged(archive, tmp_path: Path) -> None:
     assert "archived as model 'MPU-6000' by 'InvenSense'" in check["detail"]
     assert "this run says model 'ICM-20602'" in check["detail"]
     assert out["verdict"] in ("needs review", "fail")
+    assert f"(run {first_id}, started " in check["detail"]
+    second_id = out["run_id"]
+    # Each run keeps its own description; the first one's check is as it was.
+    for run_id, model in ((first_id, "MPU-6000"), (second_id, "ICM-20602")):
+        assert queries.run_summary(archive, run_id)["device"]["model"] == model
+    assert queries.earlier_descriptions(archive, "IMU-2026-0042", first_id) == []
+
+    # Back to the first model: still flagged, naming the run that said otherwise.
+    folder = copy_run(tmp_path, "back", 'operator = "J. Doe"', 'operator = "J. Roe"', "\n\n")
+    (third,) = discover_runs([folder])
+    out = process_run(third, archive)
+    check = archived_check(archive, out["run_id"])
+    assert not check["passed"], check
+    assert f"archived as model 'ICM-20602' by 'InvenSense' (run {second_id}," in check["detail"]
+    assert "MPU-6000' by 'InvenSense' (run" not in check["detail"]

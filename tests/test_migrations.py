@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import threading
+from dataclasses import replace
+from pathlib import Path
 
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import insert, inspect, select
+from test_archive import make_run
 
+from storage.archive import archive_run
 from storage.db import Archive
-from storage.schema import TABLES, Base, Device
+from storage.schema import TABLES, Base, Device, Run
+from storage.verify import verify
 
 
 def _head(archive: Archive) -> str:
@@ -106,3 +111,26 @@ def test_upgrade_at_head_is_read_without_alembic(empty_archive: Archive) -> None
     assert not empty_archive._at_head()
     empty_archive.upgrade()
     assert empty_archive.schema_revision() == migration_head()
+
+
+def test_0006_gives_each_run_its_device_description(archive: Archive, tmp_path: Path) -> None:
+    """Runs archived before 0006 get their unit's description (two units, two descriptions),
+    and every seal, made over the device row's description, still verifies."""
+    runs = [make_run(tmp_path / "a", serial="0012", seed=1),
+            replace(make_run(tmp_path / "b", serial="77", seed=2), device_model="ADXL355",
+                    manufacturer="Analog Devices", specification=None)]  # fmt: skip
+    for run in runs:
+        archive_run(archive, run, {"protocol.txt": run.serial.encode()})
+    archive.migrate("0005", down=True)
+    with archive.engine().connect() as conn:
+        assert "model" not in {c["name"] for c in inspect(conn).get_columns("runs")}
+    archive.upgrade()
+    with archive.engine().connect() as conn:
+        rows = conn.execute(
+            select(Device.serial, Run.model, Run.manufacturer, Run.specification)
+            .join(Device, Device.id == Run.device_id).order_by(Device.serial)
+        ).all()  # fmt: skip
+    assert [tuple(r) for r in rows] == [("0012", "MPU-6000", "InvenSense", "consumer grade"),
+                                        ("77", "ADXL355", "Analog Devices", None)]  # fmt: skip
+    report = verify(archive, orphans=False)
+    assert report.ok and report.seals_checked == 2, report.problems

@@ -12,12 +12,16 @@ from __future__ import annotations
 import contextlib
 import json
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from sqlalchemy import Connection, select, text
+from test_archive import make_run
 from test_verify_backup import fill
 
+from storage import queries
+from storage.archive import archive_run
 from storage.db import Archive
 from storage.schema import AuditEvent, CalibrationRow, Run, Seal
 from storage.verify import Problem, verify
@@ -83,6 +87,8 @@ def test_fresh_archive_is_sealed_and_chained(archive: Archive, tmp_path: Path) -
         ("UPDATE calibrations SET settings = '{\"outlier_sigma\": 99}' WHERE id = 1",
          "calibrations/settings/outlier_sigma", "99"),
         ("UPDATE devices SET model = 'Other' WHERE id = 1", "devices/model", '"Other"'),
+        ("UPDATE runs SET model = 'Other' WHERE id = 1", "runs/model", '"Other"'),
+        ("UPDATE runs SET specification = NULL WHERE id = 1", "runs/specification", "null"),
         ("UPDATE run_equipment SET calibration_due = '2099-01-01' WHERE id = 1",
          "run_equipment/rate_table:RT-7/calibration_due", '"2099-01-01"'),
     ],
@@ -207,3 +213,21 @@ def test_migration_seals_an_existing_archive(archive: Archive, tmp_path: Path) -
     _tamper(archive, "UPDATE parameters SET std = 0.5 WHERE id = 3")
     assert [p.path.rsplit("/", 1)[1] for p in _problems(archive, "record")
             if "sealed" in p.detail] == ["std"]  # fmt: skip
+
+
+def test_each_run_keeps_its_own_description_sealed(archive: Archive, tmp_path: Path) -> None:
+    """A later run of serial 0012 that names another model keeps that model; so does the
+    first; both descriptions are sealed and a change of either is named."""
+    ids = fill(archive, tmp_path)
+    other = replace(make_run(tmp_path / "relabelled", serial="0012", seed=9),
+                    device_model="ICM-20602", manufacturer="TDK")  # fmt: skip
+    later = archive_run(archive, other, {"protocol.txt": b"run 9"}).run_id
+    assert verify(archive, orphans=False).ok
+    for run_id, model, maker in ((ids[0], "MPU-6000", "InvenSense"), (later, "ICM-20602", "TDK")):
+        device = queries.run_summary(archive, run_id)["device"]
+        assert (device["serial"], device["model"], device["manufacturer"]) == ("0012", model, maker)
+        assert queries.export_calibration(archive, run_id)["unit"]["model"] == model
+    _tamper(archive, "UPDATE runs SET model = 'MPU-6000' WHERE run_id = :r", r=later)
+    found = [p for p in _problems(archive, "record") if p.path == "runs/model"]
+    assert [p.runs for p in found] == [[later]], found
+    assert found[0].detail.endswith('sealed "ICM-20602", found (absent)'), found[0].detail

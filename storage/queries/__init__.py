@@ -39,6 +39,7 @@ from storage.queries.history import (
 )
 from storage.queries.runs import (
     device_description,
+    earlier_descriptions,
     export_calibration,
     full_run_id,
     lineage,
@@ -50,7 +51,7 @@ from storage.queries.selection import SELECTION_KEYS, revision_pairs, select_run
 from storage.queries.thermal import campaign_calibrations, latest_thermal_model, thermal_models
 
 __all__ = [
-    "AUDIT_COLUMNS", "audit_trail", "device_description",
+    "AUDIT_COLUMNS", "audit_trail", "device_description", "earlier_descriptions",
     "FLEET_COLUMNS", "HISTORY_COLUMNS", "LAPSED_COLUMNS", "LATEST_COLUMNS", "UNIT_COLUMNS",
     "VERDICTS", "as_instant", "campaign_calibrations", "check_parameter", "check_serial",
     "check_text", "check_verdict", "export_calibration", "fleet", "fleet_history",

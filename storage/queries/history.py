@@ -290,10 +290,15 @@ def units(
 ) -> pd.DataFrame:
     """Calibrated units: one row per run (its current revision) matching every filter.
 
+    Each row's model and manufacturer are the run's own (what its manifest said);
+    `model` filters by the unit's registered model (the one its serial was first
+    archived under), so a unit stays in one fleet even when a run misnames it (that
+    run fails its ``device:description`` check).
+
     Parameters
     ----------
     archive : the archive.
-    model : device model, exact.
+    model : the units' registered device model, exact.
     date_from, date_to : run start, inclusive (dates are whole UTC days).
     verdict : "pass" or "fail" of the current revision.
     env_temp_min, env_temp_max : lab temperature of the run's environment, deg C,
@@ -314,7 +319,7 @@ def units(
     temp = Run.environment["temperature_c"].as_float()
     stmt = (
         select_run_calibrations(
-            Device.serial, Device.model, Device.manufacturer, Run.run_id, Run.started_at,
+            Device.serial, Run.model, Run.manufacturer, Run.run_id, Run.started_at,
             Run.procedure, Run.operator, CalibrationRow.revision, CalibrationRow.verdict, temp,
         )
         .where(CalibrationRow.superseded_by.is_(None))

@@ -143,12 +143,13 @@ def _cal_dict(s: Session, cal: CalibrationRow) -> dict[str, Any]:
     }
 
 
-def _device_dict(dev: Device) -> dict[str, Any]:
+def _device_dict(run: Run, dev: Device) -> dict[str, Any]:
+    """The unit as the run describes it (its own model, manufacturer, specification)."""
     return {
         "serial": dev.serial,
-        "model": dev.model,
-        "manufacturer": dev.manufacturer,
-        "specification": dev.specification,
+        "model": run.model,
+        "manufacturer": run.manufacturer,
+        "specification": run.specification,
     }
 
 
@@ -210,7 +211,7 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
         "samples_path": run.samples_path,
         "manifest_text": run.manifest_text,
         "created_at": run.created_at,
-        "device": _device_dict(dev),
+        "device": _device_dict(run, dev),
         "equipment": [_dict(e) for e in equipment],
         "raw_files": [_dict(r) for r in raw],
         "revisions": len(revisions),
@@ -240,7 +241,7 @@ def export_calibration(
         run, dev = _run_row(s, run_id)
         cal = _calibration(s, run.id, revision)
     return {
-        "unit": {"serial": dev.serial, "model": dev.model, "manufacturer": dev.manufacturer},
+        "unit": {"serial": dev.serial, "model": run.model, "manufacturer": run.manufacturer},
         "run": {
             "run_id": run.run_id,
             "started_at": run.started_at.isoformat(),
@@ -285,7 +286,7 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
             Run.id.label("run_pk"), Run.run_id, Run.started_at, Run.operator, Run.procedure,
             Run.site, Run.gravity, Run.environment, Run.tolerance_profile, Run.raw_hash,
             Run.run_dir, Run.samples_path, Run.samples_sha256, Run.manifest_text, Run.created_at,
-            Device.serial, Device.model, Device.manufacturer, Device.specification,
+            Device.serial, Run.model, Run.manufacturer, Run.specification,
             CalibrationRow.id.label("cal_id"), CalibrationRow.revision,
             CalibrationRow.superseded_by, CalibrationRow.created_at.label("cal_created_at"),
             CalibrationRow.settings_hash, CalibrationRow.settings,
@@ -443,13 +444,43 @@ def run_samples(archive: Archive, run_id: str) -> pa.Table:
 
 
 def device_description(archive: Archive, serial: str) -> dict[str, Any] | None:
-    """The archived description of a serial (model, manufacturer, specification), or None."""
+    """The registered description of a serial (model, manufacturer, specification: as
+    its first archived run gave it), or None."""
     with Session(archive.engine()) as s:
         dev = s.scalars(select(Device).where(Device.serial == serial)).one_or_none()
         if dev is None:
             return None
         return {"model": dev.model, "manufacturer": dev.manufacturer,
                 "specification": dev.specification}  # fmt: skip
+
+
+def earlier_descriptions(archive: Archive, serial: str, run_id: str) -> list[dict[str, Any]]:
+    """How the runs of a serial archived before `run_id` describe the unit.
+
+    Before: all of the serial's runs if `run_id` is not archived yet, else those
+    archived earlier (a lower row id), so a reprocessed run is compared as when it
+    was first archived, whatever came later.
+
+    Returns
+    -------
+    One dict per distinct (model, manufacturer), for the latest archived run that
+    gave it, latest first: run_id, started_at, model, manufacturer, specification.
+    Empty for the serial's first run.
+    """
+    with archive.engine().connect() as conn:
+        own = conn.execute(select(Run.id).where(Run.run_id == run_id)).scalar_one_or_none()
+        stmt = (
+            select(Run.run_id, Run.started_at, Run.model, Run.manufacturer, Run.specification)
+            .join(Device, Device.id == Run.device_id)
+            .where(Device.serial == serial)
+            .order_by(Run.id.desc())
+        )
+        if own is not None:
+            stmt = stmt.where(Run.id < own)
+        out: dict[tuple[str, str], dict[str, Any]] = {}
+        for row in conn.execute(stmt):
+            out.setdefault((row.model, row.manufacturer), _dict(row))
+    return list(out.values())
 
 
 def repeatability_candidates(
