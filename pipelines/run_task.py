@@ -17,6 +17,7 @@ from typing import Any
 
 from pipelines.ingest import RunSource
 from pipelines.process import process_run, run_outcome
+from storage.archive import StaleCheckError
 from storage.db import Archive
 from storage.write_failures import exception_chain
 
@@ -69,12 +70,15 @@ def is_transient(exc: BaseException) -> bool:
     error), so an ``IngestError`` raised from an ``ESTALE`` counts as transient.
     A worker process that died under a run (``BrokenProcessPool``) counts too:
     the run is tried again in a new one, and a run that kills its worker every
-    time fails once its retries are spent.
+    time fails once its retries are spent. So does a run whose passed
+    ``device:description`` check another run of its unit made stale
+    (`storage.archive.StaleCheckError`): the retry checks it again.
     """
     from sqlalchemy.exc import DBAPIError
 
     for e in exception_chain(exc):
-        if isinstance(e, TransientError | ConnectionError | TimeoutError | BrokenProcessPool):
+        if isinstance(e, TransientError | ConnectionError | TimeoutError | BrokenProcessPool
+                      | StaleCheckError):  # fmt: skip
             return True
         if isinstance(e, OSError) and e.errno in TRANSIENT_ERRNOS:
             return True

@@ -18,7 +18,7 @@ attempt created in the run folder are removed again. Concurrent archiving of
 the same run is resolved by the database's unique constraints: the loser gets
 an IntegrityError, looks again and reports "duplicate".
 
-Why one module of ~650 lines: the write path (validation of the input, the plan, the
+Why one module of ~730 lines: the write path (validation of the input, the plan, the
 files, the rows, the retry when a concurrent writer wins) is the story of one
 transaction and its invariants, read best top to bottom in one place.
 """
@@ -68,6 +68,17 @@ PAUSE_ENV = "CALIB_TEST_ARCHIVE_PAUSE"
 
 class ArchiveError(RuntimeError):
     """The run could not be archived; nothing of it is in the database."""
+
+
+class StaleCheckError(ArchiveError):
+    """A run of the serial under another description was archived after this run's
+    passed ``device:description`` check was made: the run must be checked again (the
+    batch retries it, `pipelines.run_task.is_transient`)."""
+
+
+# The check that compares a run's unit description with the serial's earlier runs
+# (pipelines.process.device_check); a pass must still hold when the run is committed.
+DESCRIPTION_CHECK = "device:description"
 
 
 @dataclass
@@ -606,7 +617,13 @@ def _insert_run(
     rel_dir: str,
     samples: tuple[str, str] | None,
 ) -> int:
-    device = s.scalars(select(Device).where(Device.serial == run.serial)).one_or_none()
+    # Locked (PostgreSQL; SQLite writers queue at BEGIN IMMEDIATE): runs of one unit are
+    # committed one at a time, so the description guard sees every earlier one.
+    device = s.scalars(
+        select(Device).where(Device.serial == run.serial).with_for_update()
+    ).one_or_none()
+    if device is not None:
+        _guard_description(s, run, device.id, run_id)
     if device is None:
         device = Device(
             serial=run.serial,
@@ -662,6 +679,27 @@ def _insert_run(
         ],
     )
     return row.id
+
+
+def _guard_description(s: Session, run: RunIn, device_pk: int, run_id: str) -> None:
+    """Refuse a run whose passed `DESCRIPTION_CHECK` no longer holds: a run of the same
+    serial with another model or manufacturer was committed since (concurrent runs of
+    one unit in a batch). Runs without that check are not judged here."""
+    if not any(c["name"] == DESCRIPTION_CHECK and c["passed"] for c in run.checks):
+        return
+    other = s.execute(
+        select(Run.run_id, Run.model, Run.manufacturer)
+        .where(Run.device_id == device_pk,
+               (Run.model != run.device_model) | (Run.manufacturer != run.manufacturer))
+        .limit(1)
+    ).first()  # fmt: skip
+    if other is not None:
+        raise StaleCheckError(
+            f"run {run_id} of {run.serial}: run {other.run_id}, archived while this run was "
+            f"checked, describes the unit as model {other.model!r} by {other.manufacturer!r}, "
+            f"this run as {run.device_model!r} by {run.manufacturer!r}: its "
+            f"{DESCRIPTION_CHECK} check is out of date; process the run again"
+        )
 
 
 def _insert_many(s: Session, model: type[Base], rows: list[dict[str, Any]]) -> None:

@@ -4,16 +4,20 @@ description that changes between runs of one serial is flagged in the run's chec
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from test_archive import make_run
 
 from pipelines.ingest import discover_runs
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import TEXT_MAX_CHARS
 from pipelines.ingest.manifest import parse_manifest
 from pipelines.process import process_run
+from pipelines.run_task import is_transient
 from storage import queries
+from storage.archive import StaleCheckError, archive_run
 
 ROOT = Path(__file__).resolve().parents[1]
 CSV_RUN = ROOT / "data_samples" / "csv_IMU-2026-0042"
@@ -107,3 +111,23 @@ def test_model_change_for_a_serial_is_flagged(archive, tmp_path: Path) -> None:
     assert not check["passed"], check
     assert f"archived as model 'ICM-20602' by 'InvenSense' (run {second_id}," in check["detail"]
     assert "MPU-6000' by 'InvenSense' (run" not in check["detail"]
+
+
+def test_a_pass_made_stale_by_a_concurrent_run_is_refused(archive, tmp_path: Path) -> None:  # noqa: ANN001
+    """Two runs of one unit checked at once, the other committed first with another model:
+    the later one's passed device:description no longer holds, and it is not archived."""
+    archive_run(archive, make_run(tmp_path / "a", serial="0012", seed=1), {})
+    passed = {"name": "device:description", "value": None, "limit": None, "passed": True,
+              "detail": "as archived before"}  # fmt: skip
+    later = make_run(tmp_path / "b", serial="0012", seed=2)
+    later = replace(later, device_model="ICM-20602", checks=[*later.checks, passed])
+    with pytest.raises(StaleCheckError) as info:
+        archive_run(archive, later, {})
+    assert "describes the unit as model 'MPU-6000' by 'InvenSense'" in str(info.value)
+    assert is_transient(info.value)  # the batch processes the run again
+    with archive.engine().connect() as conn:
+        assert conn.exec_driver_sql("SELECT count(*) FROM runs").scalar() == 1
+    # The same run with its check failed (as a fresh check makes it) is archived.
+    failed = {**passed, "passed": False, "detail": "serial 0012 is archived as ..."}
+    relabelled = replace(later, checks=[*later.checks[:-1], failed])
+    assert archive_run(archive, relabelled, {}).status == "ok"
