@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import pyarrow as pa
-from sqlalchemy import Engine, func, insert, select
+from sqlalchemy import Engine, func, insert, select, text
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -79,6 +79,8 @@ class StaleCheckError(ArchiveError):
 # The check that compares a run's unit description with the serial's earlier runs
 # (pipelines.process.device_check); a pass must still hold when the run is committed.
 DESCRIPTION_CHECK = "device:description"
+# Class of the per-unit advisory locks (two-key form: apart from the chain's one-key lock).
+_PG_UNIT_LOCK = 0x756E6974  # "unit"
 
 
 @dataclass
@@ -617,11 +619,13 @@ def _insert_run(
     rel_dir: str,
     samples: tuple[str, str] | None,
 ) -> int:
-    # Locked (PostgreSQL; SQLite writers queue at BEGIN IMMEDIATE): runs of one unit are
-    # committed one at a time, so the description guard sees every earlier one.
-    device = s.scalars(
-        select(Device).where(Device.serial == run.serial).with_for_update()
-    ).one_or_none()
+    if s.bind.dialect.name == "postgresql":
+        # New runs of one unit are committed one at a time (SQLite writers queue at BEGIN
+        # IMMEDIATE), so the description guard sees every earlier one. An advisory lock,
+        # as the writer role may not lock rows (SELECT ... FOR UPDATE needs UPDATE).
+        s.execute(text("SELECT pg_advisory_xact_lock(:k, hashtext(:serial))"),
+                  {"k": _PG_UNIT_LOCK, "serial": run.serial})  # fmt: skip
+    device = s.scalars(select(Device).where(Device.serial == run.serial)).one_or_none()
     if device is not None:
         _guard_description(s, run, device.id, run_id)
     if device is None:
