@@ -51,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 os.environ.setdefault("DO_NOT_TRACK", "1")
 
 from calib_core import params  # noqa: E402
-from storage import queries  # noqa: E402
+from storage import queries, unit_latest  # noqa: E402
 from storage.db import Archive, default_archive_url  # noqa: E402
 from storage.pgserver import admin_execute, libpq_dsn, private_server  # noqa: E402
 
@@ -278,8 +278,10 @@ def load_sqlite(archive: Archive, synth: Synth) -> None:
         cur.executemany(f"INSERT INTO {table} ({COLUMNS[table]}) VALUES ({marks})", rows)
 
     _load(synth, put, lambda: cur.execute("BEGIN"), lambda: cur.execute("COMMIT"))
-    cur.execute("ANALYZE")
     raw.close()
+    _derive_unit_latest(archive)
+    with archive.engine().begin() as conn:
+        conn.exec_driver_sql("ANALYZE")
 
 
 def load_postgresql(archive: Archive, synth: Synth) -> None:
@@ -299,7 +301,14 @@ def load_postgresql(archive: Archive, synth: Synth) -> None:
                 f"(SELECT coalesce(max(id), 1) FROM {table}))"
             )
         conn.commit()
+    _derive_unit_latest(archive)
     admin_execute(archive.url, "VACUUM ANALYZE")
+
+
+def _derive_unit_latest(archive: Archive) -> None:
+    """The derived picks per unit (storage.unit_latest), as storage.archive keeps them."""
+    with archive.engine().begin() as conn:
+        unit_latest.rebuild(conn)
 
 
 def _load(synth: Synth, put: Callable, begin: Callable, commit: Callable) -> None:

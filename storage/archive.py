@@ -41,7 +41,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from calib_core.calibration import Parameter
-from storage import rawstore, seal
+from storage import rawstore, seal, unit_latest
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.schema import (
@@ -559,6 +559,8 @@ def _write_rows(
             s.get(CalibrationRow, plan.previous_id).superseded_by = cal.id
         _insert_children(s, run, params, run_pk, cal.id)
         s.flush()
+        device_id = s.scalar(select(Run.device_id).where(Run.id == run_pk))
+        unit_latest.refresh(s.connection(), device_id)  # the fleet's picks, never stale
         if plan.previous_id is not None and reason is None:
             reason = _revision_reason(s, plan.previous_id, settings_hash, run.software_version)
         action = "archived" if plan.run_pk is None else "revised"

@@ -8,20 +8,26 @@ made while its calibration had lapsed. Inputs are validated and bound as in stor
 from __future__ import annotations
 
 import functools
-import math
 from collections import Counter
 from dataclasses import dataclass
 from datetime import UTC
 from typing import Any
 
-from sqlalchemy import Integer, Select, bindparam, func, or_, select, true
+from sqlalchemy import Integer, Select, bindparam, func, or_, select
 from sqlalchemy.orm import aliased
 
 from storage.db import Archive
 from storage.queries import check_parameter, check_text
-from storage.queries._common import _FOREVER, PASS
-from storage.queries.history import FLEET_DEVICE, FLEET_PICK
-from storage.schema import CalibrationRow, Device, Equipment, ParameterRow, Run, RunEquipment
+from storage.queries._common import PASS
+from storage.schema import (
+    CalibrationRow,
+    Device,
+    Equipment,
+    ParameterRow,
+    Run,
+    RunEquipment,
+    UnitLatest,
+)
 
 REFERENCE_C = 20.0  # of temperature-dependent values, the one nearest this (deg C)
 
@@ -62,73 +68,48 @@ class FleetUnits:
         return sum(n for v, n in self.latest.items() if v != PASS)
 
 
-def _per_unit(sqlite: bool, dev, pick: Select):  # noqa: ANN001, ANN202
-    """The units of model :model (`dev`, an aliased Device) with the one id `pick` selects
-    for each (a LIMIT 1 select correlated to `dev`): a subquery of (serial, device_id,
-    pick). Where `pick` finds nothing it is NULL (SQLite) or the unit is left out
-    (PostgreSQL).
-
-    SQLite evaluates a correlated scalar subquery once per unit here; PostgreSQL plans
-    the same scalar subquery in a join condition as a hash join over every row of the
-    picked table (0.9 s for 6k units), so there it is a LATERAL join (one index walk per
-    unit, as on SQLite).
-    """
-    model = dev.model == bindparam("model")
-    if sqlite:
-        one = pick.correlate(dev).scalar_subquery()
-        stmt = select(dev.serial, dev.id.label("device_id"), one.label("pick")).where(model)
-    else:
-        one = pick.correlate(dev).lateral("one")
-        stmt = (select(dev.serial, dev.id.label("device_id"), one.c[0].label("pick"))
-                .select_from(dev).join(one, true()).where(model))  # fmt: skip
-    return stmt.subquery("per_unit")
-
-
 @functools.cache
-def _fleet_statements(sqlite: bool) -> tuple[Select, Select, Select]:
+def _fleet_statements() -> tuple[Select, Select, Select]:
     """(verdict and profile counts, failing units, values) of a fleet, with bound :model,
-    :n (failing units listed), :name and :at; built once per back end (building a select
-    costs more than running it, and a fresh alias would miss the compiled cache)."""
-    dev = aliased(Device)
-    latest_run = (select(Run.id).where(Run.device_id == dev.id)
-                  .order_by(Run.started_at.desc(), Run.id.desc()).limit(1))  # fmt: skip
-    units = _per_unit(sqlite, dev, latest_run)
-    current = (CalibrationRow.run_id == units.c.pick) & CalibrationRow.superseded_by.is_(None)
-    base = (select().select_from(units).outerjoin(CalibrationRow, current)
-            .where(units.c.pick.is_not(None)))  # a unit without runs has no latest run
-    grouped = base.add_columns(CalibrationRow.verdict, CalibrationRow.profile_name,
-                               func.count()).group_by(CalibrationRow.verdict,
-                                                      CalibrationRow.profile_name)  # fmt: skip
+    :n (failing units listed) and :name; built once (building a select costs more than
+    running it). Each unit's latest run, its current revision and the unit's latest
+    valid calibration, with the latest run's verdict and profile, are its row of
+    unit_latest (storage.unit_latest, kept by the archive's writes): one key lookup per
+    unit instead of a walk of its runs."""
+    units = (select().select_from(Device)
+             .join(UnitLatest, UnitLatest.device_id == Device.id)  # units with a run
+             .where(Device.model == bindparam("model")))  # fmt: skip
+    grouped = units.add_columns(UnitLatest.verdict, UnitLatest.profile_name,
+                                func.count()).group_by(UnitLatest.verdict,
+                                                       UnitLatest.profile_name)  # fmt: skip
     other = aliased(Run)
-    runs = (select(func.count()).select_from(other).where(other.device_id == units.c.device_id)
-            .correlate(units).scalar_subquery())  # fmt: skip
+    runs = (select(func.count()).select_from(other).where(other.device_id == Device.id)
+            .correlate(Device).scalar_subquery())  # fmt: skip
     failing = (
-        base.add_columns(units.c.serial, Run.run_id, Run.started_at, CalibrationRow.verdict,
-                         runs.label("runs"))
-        .join(Run, Run.id == units.c.pick)
-        .where(or_(CalibrationRow.verdict.is_(None), CalibrationRow.verdict != PASS))
-        .order_by(units.c.serial).limit(bindparam("n", type_=Integer))
+        units.add_columns(Device.serial, Run.run_id, Run.started_at, UnitLatest.verdict,
+                          runs.label("runs"))
+        .join(Run, Run.id == UnitLatest.run_id)
+        .where(or_(UnitLatest.verdict.is_(None), UnitLatest.verdict != PASS))
+        .order_by(Device.serial).limit(bindparam("n", type_=Integer))
     )  # fmt: skip
-    valid = _per_unit(sqlite, FLEET_DEVICE, FLEET_PICK.element)
-    values = (
-        select(valid.c.serial, ParameterRow.calibration_id, ParameterRow.value,
-               ParameterRow.temperature_c)
-        .join(ParameterRow, (ParameterRow.calibration_id == valid.c.pick)
-              & (ParameterRow.name == bindparam("name")))
-    )  # fmt: skip
+    values = units.add_columns(
+        Device.serial, ParameterRow.calibration_id, ParameterRow.value, ParameterRow.temperature_c
+    ).join(ParameterRow, (ParameterRow.calibration_id == UnitLatest.valid_calibration_id)
+           & (ParameterRow.name == bindparam("name")))  # fmt: skip
     return grouped, failing, values
 
 
 def fleet_units(archive: Archive, model: str, failing_max: int = FAILING_MAX) -> FleetUnits:
     """Every unit of `model` by its latest run: verdict and profile counts, failing units.
 
-    Each unit's latest run is one backward step on ix_runs_device_id_started_at_id (the
-    later archived of runs with the same start, as in storage.queries.fleet), its current
-    revision one step on ix_calibrations_current; the counts are grouped in the
-    database, so no per-unit row reaches Python but the listed failing ones.
+    Each unit's latest run (the later archived of runs with the same start, as in
+    storage.queries.fleet) and its current revision's verdict and profile are the unit's
+    row of unit_latest;
+    the counts are grouped in the database, so no per-unit row reaches Python but the
+    listed failing ones.
     """
     check_text(model, "model")
-    grouped, failing, _ = _fleet_statements(archive.is_sqlite)
+    grouped, failing, _ = _fleet_statements()
     latest: Counter[str | None] = Counter()
     profiles: Counter[str] = Counter()
     with archive.engine().connect() as conn:
@@ -146,24 +127,29 @@ def fleet_values(archive: Archive, model: str, name: str) -> list[dict[str, Any]
     """Per unit of `model`, parameter `name` in its latest valid calibration: the value
     nearest REFERENCE_C when temperature-dependent (the lower of two as near), by serial.
 
-    The units and calibrations of storage.queries.fleet (its pick, FLEET_PICK), read
-    lean: serial, calibration id, value and temperature per row, 6k units without a date
-    to convert each; `fleet_lineage` adds the run of the few rows a page lists.
+    The units and calibrations of storage.queries.fleet (its pick, FLEET_PICK, as of
+    now: kept in unit_latest), read lean: serial, calibration id, value and temperature
+    per row, 6k units without a date to convert each; `fleet_lineage` adds the run of
+    the few rows a page lists.
     Dicts: serial, calibration_id, value (SI), temperature_c.
     """
     check_text(model, "model")
     check_parameter(name)
-    values = _fleet_statements(archive.is_sqlite)[2]
-    best: dict[str, tuple[tuple[float, float], tuple]] = {}
-    with archive.engine().connect() as conn:
-        for row in conn.execute(values, {"model": model, "name": name, "at": _FOREVER}):
-            t = row[3]
-            key = (0.0, 0.0) if t is None or math.isnan(t) else (abs(t - REFERENCE_C), t)
-            old = best.get(row[0])
-            if old is None or key < old[0]:
-                best[row[0]] = (key, row)
-    keys = ("serial", "calibration_id", "value", "temperature_c")
-    return [dict(zip(keys, best[s][1], strict=True)) for s in sorted(best)]
+    values = _fleet_statements()[2]
+    with archive.engine().connect() as conn:  # fetched at once (per-row fetches cost more)
+        rows = conn.execute(values, {"model": model, "name": name}).all()
+    best: dict[str, tuple[float, float, Any]] = {}
+    for row in rows:
+        t = row[3]
+        d, tt = (0.0, 0.0) if t is None or t != t else (abs(t - REFERENCE_C), t)  # t != t: NaN
+        old = best.get(row[0])
+        if old is None or (d, tt) < old[:2]:
+            best[row[0]] = (d, tt, row)
+    out = []
+    for serial in sorted(best):
+        _, cal, value, t = best[serial][2]
+        out.append({"serial": serial, "calibration_id": cal, "value": value, "temperature_c": t})
+    return out
 
 
 def fleet_lineage(archive: Archive, rows: list[dict[str, Any]]) -> None:

@@ -4,9 +4,9 @@
   auditors, dashboards and `calib query`.
 - writer (default ``calib_writer``): SELECT and INSERT on every table, the
   sequences behind the ids, and UPDATE of the one column the archive ever
-  changes, ``superseded_by`` (calibrations, thermal models). No DELETE, no
-  other UPDATE, no DDL: the append-only rule is enforced by the server, not
-  only by the code.
+  changes, ``superseded_by`` (calibrations, thermal models), and of the derived
+  table ``unit_latest`` (storage.unit_latest). No DELETE, no other UPDATE, no
+  DDL: the append-only rule is enforced by the server, not only by the code.
 
 Schema migrations run as the database owner (the role that created the
 tables), never as these roles. Grants on tables are per table, so run
@@ -24,10 +24,11 @@ import psycopg
 from psycopg import sql
 from sqlalchemy.engine import make_url
 
+from storage import unit_latest
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.pgserver import libpq_dsn
-from storage.schema import Base
+from storage.schema import Base, UnitLatest
 from storage.seal import record_event
 
 READER = "calib_reader"
@@ -35,10 +36,12 @@ WRITER = "calib_writer"
 
 
 def _updatable() -> list[tuple[str, str]]:
-    """(table, column) pairs the writer may UPDATE: the supersession links."""
-    return [
+    """(table, column) pairs the writer may UPDATE: the supersession links, and the
+    derived picks of each unit (storage.unit_latest: rewritten when a run is archived)."""
+    links = [
         (t.name, "superseded_by") for t in Base.metadata.sorted_tables if "superseded_by" in t.c
     ]
+    return links + [(UnitLatest.__tablename__, c) for c in unit_latest.COLUMNS[1:]]
 
 
 def role_statements(

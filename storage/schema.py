@@ -325,4 +325,31 @@ class AuditEvent(Base):
     hash: Mapped[str] = mapped_column(String(SHA256_LEN), unique=True)
 
 
+class UnitLatest(Base):
+    """Each unit's latest run and latest valid calibration (storage.unit_latest).
+
+    Derived from runs and calibrations, never entered: rewritten for the unit in the
+    transaction that archives or revises one of its runs, built for every unit by
+    migration 0006, and compared with its recomputation by `calib verify`. It saves
+    the fleet page a walk of each unit's runs (thousands of units per request). The
+    ids have no foreign keys: a derived row must not stand in the way of what it is
+    derived from (verify reports it when they disagree).
+
+    run_id : the unit's latest run (by start, the later archived among equal starts).
+    calibration_id, verdict, profile_name : that run's current revision, its verdict
+        and tolerance profile (None if it has none).
+    valid_calibration_id : the current revision with verdict "pass" of the unit's
+        latest run that has one (None if none has).
+    """
+
+    __tablename__ = "unit_latest"
+
+    device_id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    run_id: Mapped[int] = mapped_column(Integer)
+    calibration_id: Mapped[int | None] = mapped_column(Integer)
+    verdict: Mapped[str | None] = mapped_column(String(20))
+    profile_name: Mapped[str | None] = mapped_column(String(200))
+    valid_calibration_id: Mapped[int | None] = mapped_column(Integer)
+
+
 TABLES = [t.name for t in Base.metadata.sorted_tables]

@@ -6,7 +6,9 @@
 missing or whose bytes changed. It also checks the database's own invariants
 that a crash or a manual edit could break: every run has raw files and
 exactly one current calibration revision, and a revision is superseded only
-by a later revision of the same run. The ``parameters`` rows of every
+by a later revision of the same run; the derived table of each unit's latest
+run and latest valid calibration (storage.unit_latest) must equal its
+derivation from the runs. The ``parameters`` rows of every
 calibration must agree with the parameters of its stored document (both are
 written from the same objects): any difference, a missing or an extra row is a
 *record* problem naming run, revision, parameter, field and both values.
@@ -28,7 +30,7 @@ from sqlalchemy import func, select
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import aliased
 
-from storage import rawstore
+from storage import rawstore, unit_latest
 from storage.db import Archive
 from storage.schema import CalibrationRow, ParameterRow, RawFileRow, Run
 
@@ -152,6 +154,7 @@ def verify(archive: Archive, *, orphans: bool = True, seals: bool = True) -> Ver
         run_dirs = conn.execute(select(Run.run_dir)).scalars().all()
         report.runs_checked = len(run_dirs)
         _check_database(conn, report)
+        _check_unit_latest(conn, report)
         _check_parameters(conn, report)
         if seals:
             _check_seals(conn, root, report)
@@ -207,6 +210,15 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
                 "not a later revision of the same run"
             )
         )  # fmt: skip
+
+
+def _check_unit_latest(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
+    """The derived table of each unit's picks (storage.unit_latest) against its derivation."""
+    for d in unit_latest.differences(conn):
+        report.problems.append(Problem(
+            "database", "", d["run_ids"], f"unit {d['serial']}: unit_latest holds {d['stored']}, "
+            f"its runs give {d['derived']} (storage.unit_latest.rebuild derives it again)",
+        ))  # fmt: skip
 
 
 def _check_seals(conn, root: Path, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
