@@ -227,20 +227,19 @@ def lapsed_page(
         day = func.date(func.timezone("UTC", Run.started_at))
     where = (Equipment.kind == kind, Equipment.serial == serial,
              RunEquipment.calibration_due.is_not(None), day > RunEquipment.calibration_due)
-    base = (select(Run.run_id, Device.serial, Run.started_at, Run.operator,
-                   RunEquipment.calibration_due)
+    stmt = (select(Run.run_id, Device.serial, Run.started_at, Run.operator,
+                   RunEquipment.calibration_due, func.count().over().label("total"))
             .select_from(Equipment)
             .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
             .join(Run, Run.id == RunEquipment.run_id)
             .join(Device, Device.id == Run.device_id)
-            .where(*where))  # fmt: skip
-    counted = (select(func.count()).select_from(Equipment)
-               .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
-               .join(Run, Run.id == RunEquipment.run_id).where(*where))  # fmt: skip
-    with archive.engine().connect() as conn:
-        total = conn.execute(counted).scalar_one()
-        rows = conn.execute(base.order_by(Run.started_at, Run.id).limit(limit)).all()
+            .where(*where)
+            .order_by(Run.started_at, Run.id).limit(limit))  # fmt: skip
+    with archive.engine().connect() as conn:  # counted in the same pass (before the LIMIT)
+        rows = conn.execute(stmt).all()
+    total = rows[0].total if rows else 0
     out = [dict(r._mapping) for r in rows]
     for r in out:
+        del r["total"]
         r["days_overdue"] = (r["started_at"].astimezone(UTC).date() - r["calibration_due"]).days
     return out, total

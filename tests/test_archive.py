@@ -179,6 +179,7 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
         "thermal_models": 0,
         "seals": 1,  # the revision's sealed record (storage.seal)
         "audit_events": 1,  # "archived"
+        "unit_latest": 1,  # the unit's latest run and valid calibration (derived)
     }
     s = queries.run_summary(archive, res.run_id)
     assert s["raw_hash"] == raw_hash
