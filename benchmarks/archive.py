@@ -306,7 +306,7 @@ def load_postgresql(archive: Archive, synth: Synth) -> None:
 
 
 def _derive_unit_latest(archive: Archive) -> None:
-    """The derived picks per unit (storage.unit_latest), as storage.archive keeps them."""
+    """The derived picks and values per unit (storage.unit_latest), as archive_run keeps them."""
     with archive.engine().begin() as conn:
         unit_latest.rebuild(conn)
 

@@ -16,6 +16,7 @@ from typing import Any
 from sqlalchemy import Integer, Select, bindparam, func, or_, select
 from sqlalchemy.orm import aliased
 
+from storage import unit_latest
 from storage.db import Archive
 from storage.queries import check_parameter, check_text
 from storage.queries._common import PASS
@@ -23,13 +24,13 @@ from storage.schema import (
     CalibrationRow,
     Device,
     Equipment,
-    ParameterRow,
     Run,
     RunEquipment,
     UnitLatest,
+    UnitLatestValue,
 )
 
-REFERENCE_C = 20.0  # of temperature-dependent values, the one nearest this (deg C)
+REFERENCE_C = unit_latest.REFERENCE_C  # of temperature-dependent values, the one nearest
 
 
 def models(archive: Archive) -> list[dict[str, Any]]:
@@ -69,9 +70,9 @@ class FleetUnits:
 
 
 @functools.cache
-def _fleet_statements() -> tuple[Select, Select, Select]:
-    """(verdict and profile counts, failing units, values) of a fleet, with bound :model,
-    :n (failing units listed) and :name; built once (building a select costs more than
+def _fleet_statements() -> tuple[Select, Select]:
+    """(verdict and profile counts, failing units) of a fleet, with bound :model and
+    :n (failing units listed); built once (building a select costs more than
     running it). Each unit's latest run, its current revision and the unit's latest
     valid calibration, with the latest run's verdict and profile, are its row of
     unit_latest (storage.unit_latest, kept by the archive's writes): one key lookup per
@@ -92,11 +93,7 @@ def _fleet_statements() -> tuple[Select, Select, Select]:
         .where(or_(UnitLatest.verdict.is_(None), UnitLatest.verdict != PASS))
         .order_by(Device.serial).limit(bindparam("n", type_=Integer))
     )  # fmt: skip
-    values = units.add_columns(
-        Device.serial, ParameterRow.calibration_id, ParameterRow.value, ParameterRow.temperature_c
-    ).join(ParameterRow, (ParameterRow.calibration_id == UnitLatest.valid_calibration_id)
-           & (ParameterRow.name == bindparam("name")))  # fmt: skip
-    return grouped, failing, values
+    return grouped, failing
 
 
 def fleet_units(archive: Archive, model: str, failing_max: int = FAILING_MAX) -> FleetUnits:
@@ -109,7 +106,7 @@ def fleet_units(archive: Archive, model: str, failing_max: int = FAILING_MAX) ->
     listed failing ones.
     """
     check_text(model, "model")
-    grouped, failing, _ = _fleet_statements()
+    grouped, failing = _fleet_statements()
     latest: Counter[str | None] = Counter()
     profiles: Counter[str] = Counter()
     with archive.engine().connect() as conn:
@@ -123,33 +120,31 @@ def fleet_units(archive: Archive, model: str, failing_max: int = FAILING_MAX) ->
                       [dict(r._mapping) for r in rows])
 
 
+_FLEET_VALUES = (
+    select(UnitLatestValue.serial, UnitLatestValue.calibration_id, UnitLatestValue.value,
+           UnitLatestValue.temperature_c)
+    .join(UnitLatest, unit_latest.LIVE)
+    .where(UnitLatestValue.model == bindparam("model"), UnitLatestValue.name == bindparam("name"))
+    .order_by(UnitLatestValue.serial)
+)  # fmt: skip
+
+
 def fleet_values(archive: Archive, model: str, name: str) -> list[dict[str, Any]]:
     """Per unit of `model`, parameter `name` in its latest valid calibration: the value
     nearest REFERENCE_C when temperature-dependent (the lower of two as near), by serial.
 
     The units and calibrations of storage.queries.fleet (its pick, FLEET_PICK, as of
-    now: kept in unit_latest), read lean: serial, calibration id, value and temperature
-    per row, 6k units without a date to convert each; `fleet_lineage` adds the run of
-    the few rows a page lists.
-    Dicts: serial, calibration_id, value (SI), temperature_c.
+    now), one value each, as unit_latest_values keeps them (storage.unit_latest): one
+    range of its key, in serial order, each row checked against its unit's latest
+    valid calibration (unit_latest.LIVE); `fleet_lineage` adds the run of the few rows a
+    page lists. Dicts: serial, calibration_id, value (SI), temperature_c.
     """
     check_text(model, "model")
     check_parameter(name)
-    values = _fleet_statements()[2]
     with archive.engine().connect() as conn:  # fetched at once (per-row fetches cost more)
-        rows = conn.execute(values, {"model": model, "name": name}).all()
-    best: dict[str, tuple[float, float, Any]] = {}
-    for row in rows:
-        t = row[3]
-        d, tt = (0.0, 0.0) if t is None or t != t else (abs(t - REFERENCE_C), t)  # t != t: NaN
-        old = best.get(row[0])
-        if old is None or (d, tt) < old[:2]:
-            best[row[0]] = (d, tt, row)
-    out = []
-    for serial in sorted(best):
-        _, cal, value, t = best[serial][2]
-        out.append({"serial": serial, "calibration_id": cal, "value": value, "temperature_c": t})
-    return out
+        rows = conn.execute(_FLEET_VALUES, {"model": model, "name": name}).all()
+    return [{"serial": s, "calibration_id": c, "value": v, "temperature_c": t}
+            for s, c, v, t in rows]  # fmt: skip
 
 
 def fleet_lineage(archive: Archive, rows: list[dict[str, Any]]) -> None:

@@ -5,8 +5,9 @@
 - writer (default ``calib_writer``): SELECT and INSERT on every table, the
   sequences behind the ids, and UPDATE of the one column the archive ever
   changes, ``superseded_by`` (calibrations, thermal models), and of the derived
-  table ``unit_latest`` (storage.unit_latest). No DELETE, no other UPDATE, no
-  DDL: the append-only rule is enforced by the server, not only by the code.
+  tables ``unit_latest`` and ``unit_latest_values`` (storage.unit_latest: a
+  unit's rows are upserted). No DELETE, no other UPDATE, no DDL: the
+  append-only rule is enforced by the server, not only by the code.
 
 Schema migrations run as the database owner (the role that created the
 tables), never as these roles. Grants on tables are per table, so run
@@ -41,7 +42,9 @@ def _updatable() -> list[tuple[str, str]]:
     links = [
         (t.name, "superseded_by") for t in Base.metadata.sorted_tables if "superseded_by" in t.c
     ]
-    return links + [(UnitLatest.__tablename__, c) for c in unit_latest.COLUMNS[1:]]
+    derived = [(UnitLatest.__tablename__, c) for c in unit_latest.COLUMNS[1:]]
+    values = [(unit_latest.VALUES_TABLE, c) for c in unit_latest.VALUE_COLUMNS[3:]]
+    return links + derived + values
 
 
 def role_statements(

@@ -352,4 +352,25 @@ class UnitLatest(Base):
     valid_calibration_id: Mapped[int | None] = mapped_column(Integer)
 
 
+class UnitLatestValue(Base):
+    """Each parameter of each unit's latest valid calibration (storage.unit_latest), one
+    value per name: of temperature-dependent values the one nearest 20 deg C.
+
+    Derived like unit_latest (rewritten with a unit's row, checked by `calib verify`);
+    keyed by model, name and serial, so a fleet's values for one parameter are one
+    range of the key, in serial order (SQLite: a table without row ids).
+    """
+
+    __tablename__ = "unit_latest_values"
+    __table_args__ = {"sqlite_with_rowid": False}
+
+    model: Mapped[str] = mapped_column(String(200), primary_key=True)
+    name: Mapped[str] = mapped_column(String(100), primary_key=True)
+    serial: Mapped[str] = mapped_column(String(NAME_LEN), primary_key=True)
+    device_id: Mapped[int] = mapped_column(Integer, index=True)
+    calibration_id: Mapped[int] = mapped_column(Integer)
+    value: Mapped[float] = mapped_column(Float)
+    temperature_c: Mapped[float | None] = mapped_column(Float)
+
+
 TABLES = [t.name for t in Base.metadata.sorted_tables]

@@ -1,15 +1,19 @@
-"""Each unit's latest run and latest valid calibration: the derived table ``unit_latest``.
+"""Each unit's latest run and latest valid calibration: the derived tables ``unit_latest``
+and ``unit_latest_values``.
 
 A fleet page asks, for each of thousands of units, which run is its latest and which
-calibration its latest valid one; walking every unit's runs for that on each request
-cost more than the rest of the page. The answer changes only when one of the unit's
-runs is archived or revised, so it is kept in a table (storage.schema.UnitLatest):
+calibration its latest valid one, and that calibration's value of one parameter;
+walking every unit's runs and parameter rows for that on each request cost more than
+the rest of the page. The answers change only when one of the unit's runs is archived
+or revised, so they are kept (storage.schema.UnitLatest, UnitLatestValue: per unit its
+picks, and the valid calibration's parameters one per name, of temperature-dependent
+values the one nearest REFERENCE_C, keyed by model, name and serial):
 
-- `refresh` rewrites one unit's row from its runs, in the transaction that archives or
-  revises a run of it (storage.archive), so a reader never sees it stale;
+- `refresh` rewrites one unit's rows from its runs, in the transaction that archives or
+  revises a run of it (storage.archive), so a reader never sees them stale;
 - `rebuild` derives every row (migration 0006, bulk loads);
-- `differences` compares the table with its derivation (`calib verify` reports each
-  unit whose row disagrees: never a silently wrong fleet).
+- `differences` and `value_differences` compare the tables with their derivation
+  (`calib verify` reports each unit whose rows disagree: never a silently wrong fleet).
 
 The picks are those of storage.queries.fleet and latest_valid: latest by run start, the
 later archived (larger id) among equal starts; of two current revisions of one run (a
@@ -18,6 +22,8 @@ broken archive, which verify reports too) the later one.
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterable
 from typing import Any
 
 from sqlalchemy import Connection, ScalarSelect, Select, delete, insert, select
@@ -25,11 +31,22 @@ from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 
 from storage.queries._common import PASS
-from storage.schema import CalibrationRow, Device, Run, UnitLatest
+from storage.schema import CalibrationRow, Device, ParameterRow, Run, UnitLatest, UnitLatestValue
 
 COLUMNS = (
     "device_id", "run_id", "calibration_id", "verdict", "profile_name", "valid_calibration_id",
 )  # fmt: skip
+VALUE_COLUMNS = ("model", "name", "serial", "device_id", "calibration_id", "value",
+                 "temperature_c")  # fmt: skip
+VALUES_TABLE = UnitLatestValue.__tablename__
+REFERENCE_C = 20.0  # of temperature-dependent values, the one nearest this (deg C)
+_CHUNK = 10_000  # rows per INSERT of a rebuild
+# The unit_latest_values rows a reader takes: those of the unit's latest valid calibration
+# (a unit's rows are upserted, never deleted, so a name the earlier calibration had and
+# the new one lacks keeps a row of the earlier one).
+LIVE = (UnitLatest.device_id == UnitLatestValue.device_id) & (
+    UnitLatest.valid_calibration_id == UnitLatestValue.calibration_id
+)
 
 
 def _latest_run() -> ScalarSelect:
@@ -89,13 +106,58 @@ def refresh(conn: Connection, device_id: int) -> None:
         index_elements=[UnitLatest.device_id],
         set_={c: stmt.excluded[c] for c in COLUMNS[1:]},
     ))  # fmt: skip
+    rows = _derived_values(conn, device_id)
+    if rows:  # upserted: rows of names the new calibration lacks stay, not read (no DELETE)
+        put = dialect_insert(UnitLatestValue)
+        conn.execute(put.on_conflict_do_update(
+            index_elements=[UnitLatestValue.model, UnitLatestValue.name, UnitLatestValue.serial],
+            set_={c: put.excluded[c] for c in VALUE_COLUMNS[3:]},
+        ), [dict(zip(VALUE_COLUMNS, r, strict=True)) for r in rows])  # fmt: skip
 
 
 def rebuild(conn: Connection) -> int:
-    """Derive every unit's row afresh (replacing the table's content); return the rows."""
+    """Derive every unit's rows afresh (replacing both tables' content); return the
+    number of units."""
+    conn.execute(delete(UnitLatestValue))
     conn.execute(delete(UnitLatest))
     conn.execute(insert(UnitLatest).from_select(list(COLUMNS), _derived()))
+    rows = iter(_derived_values(conn))
+    while chunk := list(itertools.islice(rows, _CHUNK)):
+        conn.execute(insert(UnitLatestValue),
+                     [dict(zip(VALUE_COLUMNS, r, strict=True)) for r in chunk])  # fmt: skip
     return len(conn.execute(select(UnitLatest.device_id)).all())
+
+
+def nearest(rows: Iterable[tuple[str, float, float | None]]) -> dict[str, tuple[float, Any]]:
+    """Per parameter name, the (value, temperature_c) of `rows` (name, value,
+    temperature_c) nearest REFERENCE_C: a value without a temperature (None or NaN)
+    counts as at it; of two as near the lower temperature, then the earlier row."""
+    best: dict[str, tuple[tuple[float, float], float, Any]] = {}
+    for name, value, t in rows:
+        key = (0.0, 0.0) if t is None or t != t else (abs(t - REFERENCE_C), t)  # t != t: NaN
+        old = best.get(name)
+        if old is None or key < old[0]:
+            best[name] = (key, value, t)
+    return {n: (v, t) for n, (_, v, t) in best.items()}
+
+
+def _derived_values(conn: Connection, device_id: int | None = None) -> list[tuple]:
+    """The unit_latest_values rows (VALUE_COLUMNS) of every unit (or of `device_id`):
+    the parameters of its latest valid calibration as derived from the runs, one per
+    name (`nearest`), by device then name."""
+    picks = _derived(device_id).subquery("derived")
+    stmt = (select(Device.model, Device.serial, Device.id, picks.c.valid_calibration_id,
+                   ParameterRow.name, ParameterRow.value, ParameterRow.temperature_c)
+            .join(picks, picks.c.device_id == Device.id)
+            .join(ParameterRow, ParameterRow.calibration_id == picks.c.valid_calibration_id)
+            .order_by(Device.id, ParameterRow.id))  # fmt: skip
+    out = []
+    for dev, group in itertools.groupby(conn.execute(stmt), key=lambda r: r[2]):
+        rows = list(group)
+        model, serial, _, cal = rows[0][:4]
+        for name, (value, t) in sorted(nearest((r[4], r[5], r[6]) for r in rows).items()):
+            out.append((model, name, serial, dev, cal, value, t))
+    return out
 
 
 def differences(conn: Connection) -> list[dict[str, Any]]:
@@ -122,5 +184,35 @@ def differences(conn: Connection) -> list[dict[str, Any]]:
             "stored": None if s is None else dict(zip(COLUMNS[1:], s, strict=True)),
             "derived": None if e is None else dict(zip(COLUMNS[1:], e, strict=True)),
             "run_ids": sorted({names[v[0]] for v in (s, e) if v is not None and v[0] in names}),
+        })  # fmt: skip
+    return out
+
+
+def value_differences(conn: Connection) -> list[dict[str, Any]]:
+    """Units whose unit_latest_values rows, as a fleet reads them (`LIVE`), disagree
+    with their derivation (a row missing, extra or different). Dicts: serial, names
+    (the parameters that differ), stored and derived (of the first such name:
+    ``{column: value}``, None if absent).
+    """
+
+    def key(r: tuple) -> tuple[tuple[int, str], tuple]:
+        t = r[6]
+        return (r[3], r[1]), (r[0], r[2], r[4], r[5], "NaN" if t is not None and t != t else t)
+
+    cols = [UnitLatestValue.__table__.c[c] for c in VALUE_COLUMNS]
+    stored = dict(key(tuple(r)) for r in conn.execute(select(*cols).join(UnitLatest, LIVE)))
+    derived = dict(key(r) for r in _derived_values(conn))
+    bad = sorted(k for k in stored.keys() | derived.keys() if stored.get(k) != derived.get(k))
+    shown = ("model", "serial", "calibration_id", "value", "temperature_c")
+    out = []
+    for _, group in itertools.groupby(bad, key=lambda k: k[0]):
+        names = list(group)
+        first = names[0]
+        s, e = stored.get(first), derived.get(first)
+        out.append({
+            "serial": (s or e)[1],
+            "names": [n for _, n in names],
+            "stored": None if s is None else dict(zip(shown, s, strict=True)),
+            "derived": None if e is None else dict(zip(shown, e, strict=True)),
         })  # fmt: skip
     return out

@@ -213,11 +213,18 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
 
 
 def _check_unit_latest(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
-    """The derived table of each unit's picks (storage.unit_latest) against its derivation."""
+    """The derived tables of each unit's picks and values (storage.unit_latest) against
+    their derivation."""
     for d in unit_latest.differences(conn):
         report.problems.append(Problem(
             "database", "", d["run_ids"], f"unit {d['serial']}: unit_latest holds {d['stored']}, "
             f"its runs give {d['derived']} (storage.unit_latest.rebuild derives it again)",
+        ))  # fmt: skip
+    for d in unit_latest.value_differences(conn):
+        report.problems.append(Problem(
+            "database", "", [], f"unit {d['serial']}: unit_latest_values of "
+            f"{', '.join(d['names'])} differ from its latest valid calibration's parameters "
+            f"({d['names'][0]}: {d['stored']} held, {d['derived']} derived)",
         ))  # fmt: skip
 
 

@@ -180,6 +180,7 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
         "seals": 1,  # the revision's sealed record (storage.seal)
         "audit_events": 1,  # "archived"
         "unit_latest": 1,  # the unit's latest run and valid calibration (derived)
+        "unit_latest_values": 4,  # that calibration's parameters, one per name (derived)
     }
     s = queries.run_summary(archive, res.run_id)
     assert s["raw_hash"] == raw_hash

@@ -47,6 +47,7 @@ def _fleet_agrees(archive: Archive) -> None:
                                                                  strict=True))  # fmt: skip
     with archive.engine().connect() as conn:
         assert unit_latest.differences(conn) == []
+        assert unit_latest.value_differences(conn) == []
 
 
 def test_kept_through_out_of_order_runs_and_revisions(archive: Archive, tmp_path: Path) -> None:
@@ -83,11 +84,28 @@ def test_verify_reports_a_row_that_disagrees(archive: Archive, tmp_path: Path) -
     with archive.engine().begin() as conn:  # what no code path does: a derived row edited
         conn.execute(text("UPDATE unit_latest SET valid_calibration_id = NULL, verdict = 'fail' "
                           "WHERE device_id = (SELECT id FROM devices WHERE serial = '0012')"))
-    report = verify(archive)
-    assert [(p.kind, p.runs) for p in report.problems] == [("database", [a])]
+    report = verify(archive)  # the row, and the values a fleet reads through it (none)
+    assert [(p.kind, p.runs) for p in report.problems] == [("database", [a]), ("database", [])]
     assert "unit 0012: unit_latest holds" in report.problems[0].detail
+    assert "unit 0012: unit_latest_values of acc.bias.x, acc.bias.y" in report.problems[1].detail
     assert "'verdict': 'fail'" in report.problems[0].detail
     assert "'verdict': 'pass'" in report.problems[0].detail
     with archive.engine().begin() as conn:
         assert unit_latest.rebuild(conn) == 2
     assert verify(archive).ok
+    with archive.engine().begin() as conn:  # a derived value edited
+        conn.execute(text("UPDATE unit_latest_values SET value = value + 1 "
+                          "WHERE serial = '77' AND name = 'acc.bias.y'"))
+    report = verify(archive)
+    assert [(p.kind, p.runs) for p in report.problems] == [("database", [])]
+    assert "unit 77: unit_latest_values of acc.bias.y differ" in report.problems[0].detail
+    with archive.engine().begin() as conn:
+        unit_latest.rebuild(conn)
+    assert verify(archive).ok
+
+
+def test_nearest_takes_the_value_nearest_20_c() -> None:
+    rows = [("a", 1.0, 40.0), ("a", 2.0, 25.0), ("a", 3.0, 15.0), ("a", 4.0, 15.0),
+            ("b", 5.0, None), ("b", 6.0, 20.5), ("c", 7.0, float("nan")), ("c", 8.0, 20.0)]
+    assert unit_latest.nearest(rows) == {"a": (3.0, 15.0), "b": (5.0, None),
+                                         "c": (7.0, rows[6][2])}  # fmt: skip
