@@ -330,7 +330,7 @@ class UnitLatest(Base):
 
     Derived from runs and calibrations, never entered: rewritten for the unit in the
     transaction that archives or revises one of its runs, built for every unit by
-    migration 0006, and compared with its recomputation by `calib verify`. It saves
+    migration 0007, and compared with its recomputation by `calib verify`. It saves
     the fleet page a walk of each unit's runs (thousands of units per request). The
     ids have no foreign keys: a derived row must not stand in the way of what it is
     derived from (verify reports it when they disagree).

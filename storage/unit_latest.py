@@ -11,7 +11,7 @@ values the one nearest REFERENCE_C, keyed by model, name and serial):
 
 - `refresh` rewrites one unit's rows from its runs, in the transaction that archives or
   revises a run of it (storage.archive), so a reader never sees them stale;
-- `rebuild` derives every row (migration 0006, bulk loads);
+- `rebuild` derives every row (migration 0007, bulk loads);
 - `differences` and `value_differences` compare the tables with their derivation
   (`calib verify` reports each unit whose rows disagree: never a silently wrong fleet).
 

@@ -18,8 +18,8 @@ from alembic import op
 
 from storage.migrations.ddl import create_index, create_table, drop_index
 
-revision = "0006"
-down_revision = "0005"
+revision = "0007"
+down_revision = "0006_run_device"
 
 
 def upgrade() -> None:
