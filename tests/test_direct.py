@@ -96,3 +96,42 @@ def test_prefect_api_configured_reads_the_environment_and_the_active_profile(
     (tmp_path / "profiles.toml").write_text("not [toml")
     monkeypatch.delenv("PREFECT_API_URL")
     assert not prefect_api_configured()  # an unreadable file is no configured API
+
+
+def _open_archive_count() -> int:
+    from pipelines import run_task
+
+    return len(run_task._open_archives)
+
+
+def test_a_batch_worker_keeps_one_engine_per_archive_file(lab_day, tmp_path) -> None:  # noqa: F811
+    """Runs of a batch in one process share the archive's engine (batch_archive); a database
+    file deleted and made again is reached afresh, not through the old connection (which
+    would still see the deleted file's rows and call the run a duplicate); a forked child
+    starts with no open archive."""
+    import multiprocessing
+    import shutil
+
+    from pipelines.ingest import discover_runs
+    from pipelines.run_task import batch_archive, process_run_for_batch
+
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    csv, mpu = discover_runs([lab_day["csv"]])[0], discover_runs([lab_day["mpu"]])[0]
+    first = process_run_for_batch(csv, arch.url, str(arch.root))
+    shared = batch_archive(arch.url, str(arch.root))
+    engine = shared.engine()
+    second = process_run_for_batch(mpu, arch.url, str(arch.root))
+    assert [first["status"], second["status"]] == ["ok", "ok"]
+    assert batch_archive(arch.url, str(arch.root)) is shared and shared.engine() is engine
+
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.apply(_open_archive_count) == 0
+    assert _open_archive_count() >= 1
+
+    shutil.rmtree(arch.root)
+    arch.dispose()
+    arch.upgrade()  # a new, empty archive at the same place
+    again = process_run_for_batch(csv, arch.url, str(arch.root))
+    assert again["status"] == "ok", again
+    assert batch_archive(arch.url, str(arch.root)) is not shared
