@@ -66,13 +66,20 @@ class Recording:
             raise ValueError(f"Recording ({self.source}): need >= 2 samples for a sample rate")
         return float(1.0 / np.median(np.diff(self.t)))
 
-    def window(self, start: float, end: float, label: str | None = None) -> Recording:
+    def window(
+        self, start: float, end: float, label: str | None = None, *, increasing: bool = False
+    ) -> Recording:
         """Samples with start <= t < end (s), as a new Recording.
 
         Where those samples are one contiguous run (always, for increasing t),
         the new Recording's arrays are views of this one's (no copy, as
-        `select` with a slice); otherwise copies.
+        `select` with a slice); otherwise copies. `increasing`: the caller knows
+        t strictly increases (`strictly_increasing`), so the window is found by
+        bisection instead of a pass over every sample (the same samples).
         """
+        if increasing and not (np.isnan(start) or np.isnan(end)):
+            lo, hi = (int(i) for i in np.searchsorted(self.t, [start, end], side="left"))
+            return self.select(slice(lo, hi) if hi > lo else slice(0, 0), label=label)
         keep = (self.t >= start) & (self.t < end)
         idx = np.flatnonzero(keep)
         if idx.size == 0:
@@ -96,6 +103,10 @@ class Recording:
 
     def with_label(self, label: str) -> Recording:
         return replace(self, label=label)
+
+    def strictly_increasing(self) -> bool:
+        """Whether t strictly increases (False with a NaN), one pass over it."""
+        return bool(np.all(self.t[1:] > self.t[:-1]))
 
 
 # A reading within this fraction of full scale counts as clipped: sensors clip at

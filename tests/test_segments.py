@@ -196,3 +196,22 @@ def test_recording_window_is_a_view_when_contiguous():
     both = twice.window(2.0, 3.0)
     picked = np.r_[20:30, 70:80]
     assert np.array_equal(both.acc, rec.acc[picked]) and not np.shares_memory(both.acc, rec.acc)
+
+
+def test_recording_window_by_bisection_picks_the_same_samples():
+    """With `increasing` (t known to increase) the window is found by bisection: the same
+    samples as the full comparison for windows inside, across, between and beyond the
+    samples, at sample times and between them, open-ended or empty; NaN bounds compare."""
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.5, 1.5, 200))
+    rec = Recording(t, rng.normal(size=(200, 3)), rng.normal(size=(200, 3)))
+    assert rec.strictly_increasing()
+    assert not Recording(t[::-1].copy(), rec.acc, rec.gyr).strictly_increasing()
+    inf, nan = float("inf"), float("nan")
+    bounds = [(-inf, inf), (-inf, t[10]), (t[10], inf), (t[10], t[20]), (t[10] + 0.1, t[20] - 0.1),
+              (t[20], t[10]), (t[5], t[5]), (t[-1], inf), (t[-1] + 1, inf), (-inf, t[0]),
+              (-5.0, t[0] + 1e-9), (nan, t[20]), (t[10], nan)]  # fmt: skip
+    bounds += [tuple(sorted(rng.uniform(t[0] - 5, t[-1] + 5, 2))) for _ in range(200)]
+    for start, end in bounds:
+        fast, full = rec.window(start, end, increasing=True), rec.window(start, end)
+        assert np.array_equal(fast.t, full.t) and np.array_equal(fast.acc, full.acc), (start, end)

@@ -324,6 +324,7 @@ def _load_described(
 
     out: dict[str, Recording] = {}
     hashed: set[str] = set()
+    increasing: dict[int, bool] = {}  # id of a whole-file recording -> its t strictly increases
     for i, seg in enumerate(segments):
         names = seg.files
         paths = [_data_file(folder, root, seg, i, name, source) for name in names]
@@ -360,7 +361,9 @@ def _load_described(
         whole = recordings[key]
         if isinstance(whole, dict):
             whole = _section(whole, seg, i, source)
-        out[seg.label] = _cut(whole, seg, i, source)
+        if id(whole) not in increasing:  # once per file (or section), not per segment
+            increasing[id(whole)] = whole.strictly_increasing()
+        out[seg.label] = _cut(whole, seg, i, source, increasing[id(whole)])
         _check_range(out[seg.label], manifest, seg, source, paths)
     return LoadedRun(
         folder=folder,
@@ -450,13 +453,16 @@ def _section(
     return sections[name]
 
 
-def _cut(whole: Recording, seg: SegmentSpec, index: int, source: str) -> Recording:
-    """The segment's time window of a whole-file recording, labelled."""
+def _cut(
+    whole: Recording, seg: SegmentSpec, index: int, source: str, increasing: bool = False
+) -> Recording:
+    """The segment's time window of a whole-file recording, labelled (`increasing`: its
+    t strictly increases, see `Recording.window`)."""
     if seg.start_s is None and seg.end_s is None:
         return whole.with_label(seg.label)
     start = -float("inf") if seg.start_s is None else seg.start_s
     end = float("inf") if seg.end_s is None else seg.end_s
-    part = whole.window(start, end, label=seg.label)
+    part = whole.window(start, end, label=seg.label, increasing=increasing)
     if len(part) == 0:
         raise IngestError(
             f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s holds no samples; "
