@@ -41,21 +41,10 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from calib_core.calibration import Parameter
-from storage import rawstore, seal, unit_latest
+from storage import rawstore, schema, seal, unit_latest
 from storage.db import Archive
 from storage.naming import check_safe_name
-from storage.schema import (
-    Base,
-    CalibrationRow,
-    CheckResultRow,
-    Device,
-    Equipment,
-    ParameterRow,
-    ProcessingStep,
-    RawFileRow,
-    Run,
-    RunEquipment,
-)
+from storage.schema import Base
 
 Status = Literal["ok", "duplicate", "revised"]
 _MAX_ATTEMPTS = 3
@@ -293,9 +282,9 @@ class _Plan:
 def _plan(session: Session, run: RunIn, raw_hash: str, settings_hash: str) -> _Plan:
     """What archiving `run` means given what the database holds now."""
     row = session.execute(
-        select(Run.id, Run.run_id, Run.run_dir, Device.serial)
-        .join(Device, Device.id == Run.device_id)
-        .where(Run.raw_hash == raw_hash)
+        select(schema.Run.id, schema.Run.run_id, schema.Run.run_dir, schema.Device.serial)
+        .join(schema.Device, schema.Device.id == schema.Run.device_id)
+        .where(schema.Run.raw_hash == raw_hash)
     ).one_or_none()
     if row is None:
         return _Plan(run_pk=None, revision=1, previous_id=None)
@@ -305,18 +294,19 @@ def _plan(session: Session, run: RunIn, raw_hash: str, settings_hash: str) -> _P
             f"not {run.serial!r}: check the manifest"
         )
     same = session.execute(
-        select(CalibrationRow.id, CalibrationRow.revision).where(
-            CalibrationRow.run_id == row.id,
-            CalibrationRow.settings_hash == settings_hash,
-            CalibrationRow.software_version == run.software_version,
+        select(schema.CalibrationRow.id, schema.CalibrationRow.revision).where(
+            schema.CalibrationRow.run_id == row.id,
+            schema.CalibrationRow.settings_hash == settings_hash,
+            schema.CalibrationRow.software_version == run.software_version,
         )
     ).one_or_none()
     last = session.execute(
-        select(func.max(CalibrationRow.revision)).where(CalibrationRow.run_id == row.id)
+        select(func.max(schema.CalibrationRow.revision))
+        .where(schema.CalibrationRow.run_id == row.id)
     ).scalar_one()
     current = session.execute(
-        select(CalibrationRow.id).where(
-            CalibrationRow.run_id == row.id, CalibrationRow.superseded_by.is_(None)
+        select(schema.CalibrationRow.id).where(
+            schema.CalibrationRow.run_id == row.id, schema.CalibrationRow.superseded_by.is_(None)
         )
     ).scalar_one_or_none()
     return _Plan(
@@ -541,7 +531,7 @@ def _write_rows(
         if run_pk is None:
             rel_dir = rdir.relative_to(root).as_posix()
             run_pk = _insert_run(s, run, raw_hash, run_id, rel_dir, written.samples)
-        cal = CalibrationRow(
+        cal = schema.CalibrationRow(
             run_id=run_pk,
             revision=plan.revision,
             settings_hash=settings_hash,
@@ -556,10 +546,10 @@ def _write_rows(
         s.add(cal)
         s.flush()
         if plan.previous_id is not None:
-            s.get(CalibrationRow, plan.previous_id).superseded_by = cal.id
+            s.get(schema.CalibrationRow, plan.previous_id).superseded_by = cal.id
         _insert_children(s, run, params, run_pk, cal.id)
         s.flush()
-        device_id = s.scalar(select(Run.device_id).where(Run.id == run_pk))
+        device_id = s.scalar(select(schema.Run.device_id).where(schema.Run.id == run_pk))
         unit_latest.refresh(s.connection(), device_id)  # the fleet's picks, never stale
         if plan.previous_id is not None and reason is None:
             reason = _revision_reason(s, plan.previous_id, settings_hash, run.software_version)
@@ -571,7 +561,7 @@ def _write_rows(
 
 def _revision_reason(s: Session, previous_id: int, settings_hash: str, software: str) -> str:
     """What changed since the revision a new one supersedes, when no reason was given."""
-    prev = s.get(CalibrationRow, previous_id)
+    prev = s.get(schema.CalibrationRow, previous_id)
     changed = []
     if prev.settings_hash != settings_hash:
         changed.append(f"settings {prev.settings_hash[:12]} -> {settings_hash[:12]}")
@@ -597,20 +587,20 @@ def _insert_children(
         }
         for i, st in enumerate(run.steps)
     ]
-    _insert_many(s, ProcessingStep, steps)
+    _insert_many(s, schema.ProcessingStep, steps)
     rows = [
         {"calibration_id": cal_id, "name": p.name, "value": p.value, "std": p.std,
          "unit": p.unit, "temperature_c": row.get("temperature_c")}
         for p, row in zip(params, run.parameters, strict=True)
     ]  # fmt: skip
-    _insert_many(s, ParameterRow, rows)
+    _insert_many(s, schema.ParameterRow, rows)
     checks = [
         {"calibration_id": cal_id, "name": c["name"], "value": c.get("value"),
          "limit": c.get("limit"), "passed": c["passed"], "detail": c.get("detail", ""),
          "profile_name": run.profile_name, "profile_version": run.profile_version}
         for c in run.checks
     ]  # fmt: skip
-    _insert_many(s, CheckResultRow, checks)
+    _insert_many(s, schema.CheckResultRow, checks)
 
 
 def _insert_run(
@@ -627,11 +617,13 @@ def _insert_run(
         # as the writer role may not lock rows (SELECT ... FOR UPDATE needs UPDATE).
         s.execute(text("SELECT pg_advisory_xact_lock(:k, hashtext(:serial))"),
                   {"k": _PG_UNIT_LOCK, "serial": run.serial})  # fmt: skip
-    device = s.scalars(select(Device).where(Device.serial == run.serial)).one_or_none()
+    device = s.scalars(
+        select(schema.Device).where(schema.Device.serial == run.serial)
+    ).one_or_none()
     if device is not None:
         _guard_description(s, run, device.id, run_id)
     if device is None:
-        device = Device(
+        device = schema.Device(
             serial=run.serial,
             model=run.device_model,
             manufacturer=run.manufacturer,
@@ -639,7 +631,7 @@ def _insert_run(
         )
         s.add(device)
         s.flush()
-    row = Run(
+    row = schema.Run(
         run_id=run_id,
         device_id=device.id,
         started_at=run.started_at,
@@ -662,7 +654,7 @@ def _insert_run(
     s.flush()
     for i, eq in enumerate(run.equipment):
         s.add(
-            RunEquipment(
+            schema.RunEquipment(
                 run_id=row.id,
                 equipment_id=_equipment_id(s, eq),
                 calibration_due=_as_date(eq.get("calibration_due"), f"equipment[{i}]"),
@@ -671,7 +663,7 @@ def _insert_run(
         )
     _insert_many(
         s,
-        RawFileRow,
+        schema.RawFileRow,
         [
             {
                 "run_id": row.id,
@@ -694,9 +686,10 @@ def _guard_description(s: Session, run: RunIn, device_pk: int, run_id: str) -> N
     if not any(c["name"] == DESCRIPTION_CHECK and c["passed"] for c in run.checks):
         return
     other = s.execute(
-        select(Run.run_id, Run.model, Run.manufacturer)
-        .where(Run.device_id == device_pk,
-               (Run.model != run.device_model) | (Run.manufacturer != run.manufacturer))
+        select(schema.Run.run_id, schema.Run.model, schema.Run.manufacturer)
+        .where(schema.Run.device_id == device_pk,
+               (schema.Run.model != run.device_model)
+               | (schema.Run.manufacturer != run.manufacturer))
         .limit(1)
     ).first()  # fmt: skip
     if other is not None:
@@ -721,11 +714,13 @@ def _insert_many(s: Session, model: type[Base], rows: list[dict[str, Any]]) -> N
 
 def _equipment_id(s: Session, eq: dict[str, Any]) -> int:
     found = s.scalars(
-        select(Equipment.id).where(Equipment.kind == eq["kind"], Equipment.serial == eq["serial"])
+        select(schema.Equipment.id).where(
+            schema.Equipment.kind == eq["kind"], schema.Equipment.serial == eq["serial"]
+        )
     ).one_or_none()
     if found is not None:
         return found
-    row = Equipment(
+    row = schema.Equipment(
         kind=eq["kind"],
         serial=eq["serial"],
         model=eq.get("model"),

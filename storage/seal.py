@@ -34,22 +34,10 @@ from typing import Any
 
 from sqlalchemy import Connection, insert, inspect, select, text
 
+from storage import schema
 from storage.db import Archive
 from storage.rawstore import hash_and_size
-from storage.schema import (
-    AuditEvent,
-    CalibrationRow,
-    CheckResultRow,
-    Device,
-    Equipment,
-    ParameterRow,
-    ProcessingStep,
-    RawFileRow,
-    Run,
-    RunEquipment,
-    Seal,
-    utcnow,
-)
+from storage.schema import AuditEvent, Seal, utcnow
 
 ACTOR_ENV = "CALIB_USER"
 GENESIS = "0" * 64  # prev_hash of the first event
@@ -157,16 +145,16 @@ def records(
     """
     head = conn.execute(
         select(
-            CalibrationRow.id.label("cal_pk"),
-            Run.id.label("run_pk"),
-            *_cols(Run, _RUN, "r_"),
-            *_cols(CalibrationRow, _CAL, "c_"),
-            *_cols(Device, _DEVICE, "d_"),
-            *(_cols(Run, _DESCRIPTION, "u_") if per_run_description else ()),
+            schema.CalibrationRow.id.label("cal_pk"),
+            schema.Run.id.label("run_pk"),
+            *_cols(schema.Run, _RUN, "r_"),
+            *_cols(schema.CalibrationRow, _CAL, "c_"),
+            *_cols(schema.Device, _DEVICE, "d_"),
+            *(_cols(schema.Run, _DESCRIPTION, "u_") if per_run_description else ()),
         )  # fmt: skip
-        .join(Run, Run.id == CalibrationRow.run_id)
-        .join(Device, Device.id == Run.device_id)
-        .where(CalibrationRow.id.in_(cal_ids))
+        .join(schema.Run, schema.Run.id == schema.CalibrationRow.run_id)
+        .join(schema.Device, schema.Device.id == schema.Run.device_id)
+        .where(schema.CalibrationRow.id.in_(cal_ids))
     ).mappings()
     out: dict[int, dict[str, Any]] = {}
     run_of: dict[int, int] = {}
@@ -209,25 +197,25 @@ def _run_children(conn: Connection, run_pks: list[int]) -> dict[int, dict[str, A
     eq_rows: dict[int, list] = defaultdict(list)
     for m in conn.execute(
         select(
-            RunEquipment.run_id,
-            Equipment.kind,
-            Equipment.serial,
-            Equipment.model,
-            Equipment.accuracy_class,
-            RunEquipment.calibration_due,
-            RunEquipment.calibrated_on,
+            schema.RunEquipment.run_id,
+            schema.Equipment.kind,
+            schema.Equipment.serial,
+            schema.Equipment.model,
+            schema.Equipment.accuracy_class,
+            schema.RunEquipment.calibration_due,
+            schema.RunEquipment.calibrated_on,
         )  # fmt: skip
-        .join(Equipment, Equipment.id == RunEquipment.equipment_id)
-        .where(RunEquipment.run_id.in_(run_pks))
-        .order_by(RunEquipment.run_id, Equipment.kind, Equipment.serial)
+        .join(schema.Equipment, schema.Equipment.id == schema.RunEquipment.equipment_id)
+        .where(schema.RunEquipment.run_id.in_(run_pks))
+        .order_by(schema.RunEquipment.run_id, schema.Equipment.kind, schema.Equipment.serial)
     ).mappings():
         row = {k: v for k, v in m.items() if k != "run_id"}
         eq_rows[m["run_id"]].append((f"{m['kind']}:{m['serial']}", row))
     raw_rows: dict[int, list] = defaultdict(list)
     for m in conn.execute(
-        select(RawFileRow.run_id, *_cols(RawFileRow, _RAW))
-        .where(RawFileRow.run_id.in_(run_pks))
-        .order_by(RawFileRow.run_id, RawFileRow.name)
+        select(schema.RawFileRow.run_id, *_cols(schema.RawFileRow, _RAW))
+        .where(schema.RawFileRow.run_id.in_(run_pks))
+        .order_by(schema.RawFileRow.run_id, schema.RawFileRow.name)
     ).mappings():
         raw_rows[m["run_id"]].append((m["name"], {n: m[n] for n in _RAW}))
     return {
@@ -239,9 +227,9 @@ def _run_children(conn: Connection, run_pks: list[int]) -> dict[int, dict[str, A
 def _calibration_children(conn: Connection, cal_pks: list[int]) -> dict[int, dict[str, Any]]:
     out: dict[int, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     tables = (
-        ("processing_steps", ProcessingStep, _STEP, ProcessingStep.seq),
-        ("parameters", ParameterRow, _PARAM, ParameterRow.name),
-        ("check_results", CheckResultRow, _CHECK, CheckResultRow.name),
+        ("processing_steps", schema.ProcessingStep, _STEP, schema.ProcessingStep.seq),
+        ("parameters", schema.ParameterRow, _PARAM, schema.ParameterRow.name),
+        ("check_results", schema.CheckResultRow, _CHECK, schema.CheckResultRow.name),
     )
     for table, model, names, order in tables:
         for cal_pk, *values in conn.execute(
@@ -365,7 +353,7 @@ def seal_unsealed(conn: Connection, who: str) -> int:
     per_run = "model" in {c["name"] for c in inspect(conn).get_columns("runs")}
     sealed = select(Seal.calibration_id)
     ids = conn.execute(
-        select(CalibrationRow.id).where(CalibrationRow.id.not_in(sealed)).order_by(CalibrationRow.id)
+        select(schema.CalibrationRow.id).where(schema.CalibrationRow.id.not_in(sealed)).order_by(schema.CalibrationRow.id)
     ).scalars().all()  # fmt: skip
     for chunk in _chunks(list(ids)):
         recs = records(conn, chunk, per_run_description=per_run)
@@ -434,9 +422,9 @@ def check(conn: Connection, root: Path) -> ChainCheck:
                                 f"revision {rev} was sealed (digest {digest[:12]}...) but its seal "
                                 "row is gone"))  # fmt: skip
     unsealed = conn.execute(
-        select(Run.run_id, CalibrationRow.revision)
-        .join(Run, Run.id == CalibrationRow.run_id)
-        .where(CalibrationRow.id.not_in(select(Seal.calibration_id)))
+        select(schema.Run.run_id, schema.CalibrationRow.revision)
+        .join(schema.Run, schema.Run.id == schema.CalibrationRow.run_id)
+        .where(schema.CalibrationRow.id.not_in(select(Seal.calibration_id)))
     ).all()
     for run_id, rev in unsealed:
         findings.append(
