@@ -16,15 +16,18 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from calib_core import params
 from calib_core.solvers.multi_position import solve_accel_linear, solve_gyro_static
 from calib_core.solvers.rate_table import RatePoint, solve_rate_table
 from calib_core.solvers.six_position import axis_vector
 from calib_core.uncertainty import Budget, InputQuantity, budgets, monte_carlo
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 DEG = math.pi / 180.0
 
@@ -82,6 +85,9 @@ def static_reference(labels: Sequence[str], values: Mapping[str, float]) -> np.n
 
 def _tilt(label: str, values: Mapping[str, float]) -> Rotation:
     """The fixture's face-angle error of position `label` (identity when not given)."""
+    # scipy.spatial takes ~0.15 s to import: only for the budgets of static positions.
+    from scipy.spatial.transform import Rotation
+
     rotvec = np.zeros(3)
     for t in _tilt_axes(label):
         rotvec[params.AXIS_INDEX[t]] = values.get(f"cube.{label}.tilt_{t}", 0.0)

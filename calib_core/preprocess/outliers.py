@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.ndimage import median_filter
 
 from calib_core.calibration import StepRecord
 from calib_core.distributions import t_isf
@@ -183,6 +182,8 @@ def hampel_mask(x: np.ndarray, n_sigma: float = 3.0, window: int = 201) -> np.nd
     -------
     (N,) bool, True for outliers.
     """
+    from scipy.ndimage import median_filter  # ~0.1 s to import: only where a filter runs
+
     x = np.asarray(x, dtype=float)
     if window < 3:
         raise ValueError(f"hampel_mask: window must be >= 3 samples, got {window}")

@@ -34,7 +34,6 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 
 from calib_core.calibration import StepRecord
 from calib_core.params import AXES
@@ -87,6 +86,8 @@ class Interval:
 
 def _local_variance(x: np.ndarray, w: int) -> np.ndarray:
     """Centred moving variance of each column of x (N, C) over w samples, summed over columns."""
+    from scipy.ndimage import uniform_filter1d  # ~0.1 s to import: only where segments are found
+
     x = x - np.median(x, axis=0)  # centring keeps E[x^2] - E[x]^2 from cancelling badly
     m1 = uniform_filter1d(x, w, axis=0, mode="nearest")
     m2 = uniform_filter1d(x * x, w, axis=0, mode="nearest")
@@ -189,6 +190,8 @@ class StaticDetector:
 
     def mask(self, rec: Recording) -> tuple[np.ndarray, dict]:
         """Per-sample rest flag from local variances (see `detect_static`) and the thresholds."""
+        from scipy.ndimage import uniform_filter1d
+
         where = rec.source or "recording"
         fs = rec.sample_rate
         w = max(3, int(round(self.window_s * fs)))
@@ -345,6 +348,8 @@ def detect_rate_plateaus(
     -------
     list of Interval(kind="plateau") with `level` = mean rate after settling, rad/s.
     """
+    from scipy.ndimage import uniform_filter1d
+
     t, rate = np.asarray(t, float), np.asarray(rate, float)
     if t.shape != rate.shape or t.ndim != 1:
         raise ValueError(f"detect_rate_plateaus: t {t.shape} and rate {rate.shape} must be (N,)")

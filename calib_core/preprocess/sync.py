@@ -19,7 +19,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.fft import irfft, next_fast_len, rfft
-from scipy.ndimage import uniform_filter1d
 
 from calib_core.calibration import StepRecord
 from calib_core.recording import Recording
@@ -303,6 +302,8 @@ def _window_offsets(
     searched +-`search` grid points around the coarse offset. Windows touching a
     gap, without motion or below `min_correlation` are skipped.
     """
+    from scipy.ndimage import uniform_filter1d  # ~0.1 s to import: only where clocks are synced
+
     w = max(int(round(window_s / dt)), 8)
     smooth = max(1, int(round(0.25 / dt)))  # 0.25 s moving average for the slope weights
     centres, offsets = [], []
