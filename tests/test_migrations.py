@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import threading
 from dataclasses import replace
 from pathlib import Path
@@ -9,7 +10,7 @@ from pathlib import Path
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import insert, inspect, select
+from sqlalchemy import insert, inspect, select, text
 from test_archive import make_run
 
 from storage.archive import archive_run
@@ -134,3 +135,29 @@ def test_0006_gives_each_run_its_device_description(archive: Archive, tmp_path: 
                                         ("77", "ADXL355", "Analog Devices", None)]  # fmt: skip
     report = verify(archive, orphans=False)
     assert report.ok and report.seals_checked == 2, report.problems
+
+
+def test_new_sqlite_archive_from_the_recorded_schema(tmp_path) -> None:
+    """storage/migrations/sqlite_head.json is what the migrations give a new SQLite database
+    (else: record it again with `python -m storage.db`), and `upgrade` of a new SQLite archive,
+    which executes it without Alembic, gives the schema, the revision and the stored CREATE
+    text of an archive upgraded by Alembic."""
+    from storage.db import SQLITE_HEAD, default_archive_url, migration_head, sqlite_schema
+
+    by_alembic = Archive(default_archive_url(tmp_path / "a"), tmp_path / "a")
+    by_alembic.migrate("head")
+    recorded = Archive(default_archive_url(tmp_path / "b"), tmp_path / "b")
+    recorded.upgrade()
+    with by_alembic.engine().connect() as a, recorded.engine().connect() as b:
+        expected = sqlite_schema(a)
+        assert json.loads(SQLITE_HEAD.read_text("utf-8")) == {
+            "revision": migration_head(),
+            "statements": expected,
+        }
+        assert sqlite_schema(b) == expected
+        master = "SELECT type, name, tbl_name, sql FROM sqlite_master ORDER BY rowid"
+        assert b.execute(text(master)).all() == a.execute(text(master)).all()
+    assert recorded.schema_revision() == by_alembic.schema_revision() == migration_head()
+    assert _snapshot(recorded) == _snapshot(by_alembic)
+    by_alembic.dispose()
+    recorded.dispose()
