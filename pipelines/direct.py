@@ -1,5 +1,5 @@
-"""Small batches processed in this process, without Prefect: the answer for one run in
-about a second.
+"""Small batches processed in this process, without Prefect: one run answered without
+starting a Prefect server (figures: docs/cli.md, "Latency of one run").
 
 Prefect orchestrates batches (`pipelines.flows.process_batch`); for one run or a handful
 at the lab table, starting Prefect's temporary API server costs far more than the runs
