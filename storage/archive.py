@@ -69,7 +69,7 @@ class StaleCheckError(ArchiveError):
 # (pipelines.process.device_check); a pass must still hold when the run is committed.
 DESCRIPTION_CHECK = "device:description"
 # Class of the per-unit advisory locks (two-key form: apart from the chain's one-key lock).
-_PG_UNIT_LOCK = 0x756E6974  # "unit"
+PG_UNIT_LOCK = 0x756E6974  # "unit"
 
 
 @dataclass
@@ -616,7 +616,7 @@ def _insert_run(
         # IMMEDIATE), so the description guard sees every earlier one. An advisory lock,
         # as the writer role may not lock rows (SELECT ... FOR UPDATE needs UPDATE).
         s.execute(text("SELECT pg_advisory_xact_lock(:k, hashtext(:serial))"),
-                  {"k": _PG_UNIT_LOCK, "serial": run.serial})  # fmt: skip
+                  {"k": PG_UNIT_LOCK, "serial": run.serial})  # fmt: skip
     device = s.scalars(
         select(schema.Device).where(schema.Device.serial == run.serial)
     ).one_or_none()

@@ -4,10 +4,14 @@ description that changes between runs of one serial is flagged in the run's chec
 from __future__ import annotations
 
 import shutil
+import threading
+import time
 from dataclasses import replace
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
+from sqlalchemy import insert, select, text
 from test_archive import make_run
 
 from pipelines.ingest import discover_runs
@@ -17,7 +21,8 @@ from pipelines.ingest.manifest import parse_manifest
 from pipelines.process import process_run
 from pipelines.run_task import is_transient
 from storage import queries
-from storage.archive import StaleCheckError, archive_run
+from storage.archive import PG_UNIT_LOCK, StaleCheckError, archive_run
+from storage.schema import Device, Run
 
 ROOT = Path(__file__).resolve().parents[1]
 CSV_RUN = ROOT / "data_samples" / "csv_IMU-2026-0042"
@@ -131,3 +136,39 @@ def test_a_pass_made_stale_by_a_concurrent_run_is_refused(archive, tmp_path: Pat
     failed = {**passed, "passed": False, "detail": "serial 0012 is archived as ..."}
     relabelled = replace(later, checks=[*later.checks[:-1], failed])
     assert archive_run(archive, relabelled, {}).status == "ok"
+
+
+def test_a_run_of_the_unit_committing_meanwhile_is_waited_for(archive, tmp_path: Path) -> None:  # noqa: ANN001
+    """A writer holds the unit (as archive_run does, PostgreSQL: its advisory lock;
+    SQLite: the write lock) and commits a run under another model: a run whose check
+    passed before that waits for it, then is refused rather than archived unflagged."""
+    archive_run(archive, make_run(tmp_path / "a", serial="0012", seed=1), {})
+    passed = {"name": "device:description", "value": None, "limit": None, "passed": True,
+              "detail": "as archived before"}  # fmt: skip
+    later = make_run(tmp_path / "b", serial="0012", seed=2)
+    later = replace(later, checks=[*later.checks, passed])
+    outcome: list[BaseException | str] = []
+
+    def archive_later() -> None:
+        try:
+            outcome.append(archive_run(archive, later, {}).status)
+        except StaleCheckError as exc:
+            outcome.append(exc)
+
+    engine = archive.engine().execution_options(sqlite_begin="IMMEDIATE")
+    with engine.begin() as conn:
+        if conn.dialect.name == "postgresql":
+            conn.execute(text("SELECT pg_advisory_xact_lock(:k, hashtext('0012'))"),
+                         {"k": PG_UNIT_LOCK})  # fmt: skip
+        device = conn.execute(select(Device.id).where(Device.serial == "0012")).scalar_one()
+        conn.execute(insert(Run).values(
+            run_id="R0000000000ff", device_id=device, started_at=datetime(2024, 6, 1, tzinfo=UTC),
+            procedure="six_position", site={}, gravity=9.81, environment={}, raw_hash="f" * 64,
+            model="ICM-20602", manufacturer="TDK", run_dir="runs/x"))  # fmt: skip
+        worker = threading.Thread(target=archive_later)
+        worker.start()
+        time.sleep(1.5)  # the worker checks its plan and reaches the unit's lock
+        assert worker.is_alive() and not outcome
+    worker.join(timeout=60)
+    assert len(outcome) == 1 and isinstance(outcome[0], StaleCheckError), outcome
+    assert "run R0000000000ff, archived while this run was checked" in str(outcome[0])
