@@ -26,7 +26,10 @@ reprocess_to_process_ratio (the issue's keys), reprocess_to_process_ratio_pg_das
 runs, rate_hz.
 
 Run: ``.venv/bin/python benchmarks/reprocess.py [--runs N] [--rate-hz F]`` (the issue's
-size is 2000 runs; on 2 idle cores at 1 kHz that is about an hour per back end).
+size is 2000 runs). Each back end's archive holds a raw copy of every run: the runs
+take ~15 MB each at 1 kHz, so 2000 runs need ~31 GB for the runs and as much again
+for one archive (the SQLite archive is removed before the PostgreSQL pass); the
+script refuses a back end the free disk cannot hold.
 """
 
 from __future__ import annotations
@@ -107,12 +110,25 @@ def main() -> None:
         # Before any worker process starts: the forkserver and Dask workers inherit it.
         os.environ["CALIB_PROFILES"] = str(profiles)
         batch.log(f"writing {n} simulated {args.rate_hz:g} Hz CSV runs to {base}...")
-        batch.generate(base, n, args.rate_hz)
-        figures = run_both(base, profiles, n)
+        folders = batch.generate(base, n, args.rate_hz)
+        size = sum(f.stat().st_size for d in folders for f in d.iterdir())
+        batch.log(f"  {size / 1e9:.1f} GB of runs")
+        figures = run_both(base, profiles, n, size)
     print(json.dumps({**figures, "runs": n, "rate_hz": args.rate_hz}))
 
 
-def run_both(base: Path, profiles: Path, n: int) -> dict[str, float]:
+def require_space(base: Path, size: int) -> None:
+    """Refuse before a back end whose archive (a raw copy of every run, Parquet samples, the
+    database) cannot fit: a full disk half-way through would measure nothing."""
+    free = shutil.disk_usage(base).free
+    if free < 1.5 * size:
+        raise SystemExit(
+            f"{base}: {free / 1e9:.1f} GB free, an archive of these runs needs about "
+            f"{1.5 * size / 1e9:.1f} GB; use fewer --runs or a lower --rate-hz"
+        )
+
+
+def run_both(base: Path, profiles: Path, n: int, size: int) -> dict[str, float]:
     from prefect.client.orchestration import get_client
 
     from pipelines.flows import local_batch_settings, process_batch
@@ -127,7 +143,10 @@ def run_both(base: Path, profiles: Path, n: int) -> dict[str, float]:
         shutil.copytree(day / "run000", base / "warm" / "run000")
         process_batch([str(base / "warm")], str(base / "warm-archive"), runner="process",
                       workers=WORKERS)  # fmt: skip
+        require_space(base, size)
         sq = backend("sqlite", str(base / "sqlite"), day, profiles, "process", n)
+        shutil.rmtree(base / "sqlite")  # its raw copies: the disk holds one archive at a time
+        require_space(base, size)
         with private_server(shared_buffers="256MB") as server:
             admin_execute(server, 'CREATE DATABASE "bench"')
             os.environ["CALIB_FILESTORE"] = str(base / "pg-files")
