@@ -132,10 +132,9 @@ def approve(
     _check_name(signer)
     engine = archive.engine().execution_options(sqlite_begin="IMMEDIATE")
     with engine.begin() as conn:
-        cal_id, rev, digest, files = _sealed_revision(conn, run_id, revision)
-        files_now = {cal_id: seal.rehash_files(archive.root, files)}
-        now = seal.digest_of(seal.records(conn, [cal_id], files_now)[cal_id])
-        if now != digest:
+        cal_id, rev, digest, sealed = _sealed_revision(conn, run_id, revision)
+        files_now = seal.rehash_files(archive.root, sealed.get("files", {}))
+        if seal.digest_now(conn, cal_id, files_now, sealed.get("format")) != digest:
             raise ApprovalError(
                 f"run {run_id} revision {rev}: its rows no longer match its seal; "
                 "run `calib verify` to see what changed; not signed"
@@ -150,8 +149,8 @@ def approve(
 
 def _sealed_revision(
     conn: Connection, run_id: str, revision: int | None
-) -> tuple[int, int, str, dict[str, str]]:
-    """(calibration id, revision, sealed digest, sealed files) of a run's revision."""
+) -> tuple[int, int, str, dict[str, Any]]:
+    """(calibration id, revision, sealed digest, sealed record) of a run's revision."""
     q = (
         select(CalibrationRow.id, CalibrationRow.revision, Seal.digest, Seal.record)
         .join(Run, Run.id == CalibrationRow.run_id)
@@ -166,7 +165,7 @@ def _sealed_revision(
         raise ApprovalError(f"run {run_id}: no {which} in the archive")
     if row.digest is None:
         raise ApprovalError(f"run {run_id} revision {row.revision} has no seal; not signed")
-    return row.id, row.revision, row.digest, row.record.get("files", {})
+    return row.id, row.revision, row.digest, row.record
 
 
 def _signature_error(ev: Any) -> str | None:
@@ -211,11 +210,11 @@ def approval_status(archive: Archive, run_id: str, revision: int) -> list[tuple[
     A revision without a seal has no approval that holds."""
     with archive.engine().connect() as conn:
         try:
-            cal_id, _, _, files = _sealed_revision(conn, run_id, revision)
+            cal_id, _, _, sealed = _sealed_revision(conn, run_id, revision)
         except ApprovalError:
             return []
-        rec = seal.records(conn, [cal_id], {cal_id: seal.rehash_files(archive.root, files)})
-        now = seal.digest_of(rec[cal_id])
+        files_now = seal.rehash_files(archive.root, sealed.get("files", {}))
+        now = seal.digest_now(conn, cal_id, files_now, sealed.get("format"))
         events = conn.execute(
             select(AuditEvent).where(AuditEvent.action == "approved",
                                      AuditEvent.run_id == run_id, AuditEvent.revision == revision)

@@ -8,6 +8,17 @@ wrote (protocol...), serialised as canonical JSON, and hashed (the *digest*). Th
 record is kept in ``seals`` so a later mismatch can be shown field by field; the
 digest goes into an event of the audit chain.
 
+Record formats. Format 1 (the records of before, no ``format`` key) holds every
+value as decoded from its row. Format 2 (``"format": 2``, written since) holds a
+JSON column (the calibration document and settings, a step's settings and
+statistics, a run's site and environment) as the SHA-256 of the text the database
+stores (``"sha256:<hex>"``), and the seal keeps that text beside the record
+(``texts``, outside the digest) to show a change field by field. So verify
+neither decodes nor re-encodes the large JSON values: with them the seal pass
+cost 1.9 times the file re-hashing (docs/archive.md, "Verify"). A migration that
+rewrote a JSON column's text, even to equal JSON, would break format 2 seals:
+that text is what they hold. Both formats verify; `records` builds either.
+
 The audit chain (``audit_events``) is append-only: every write to the archive
 (run archived, revision, approval, repair, restore, thermal model, role change,
 migration) is an event with who, when, what and why, numbered by ``seq`` and
@@ -32,7 +43,7 @@ from datetime import date, datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Connection, insert, inspect, select, text
+from sqlalchemy import JSON, Connection, Text, cast, insert, inspect, select, text
 
 from storage import schema
 from storage.db import Archive
@@ -47,6 +58,9 @@ _CHUNK = 500  # calibrations per round of record queries
 # Any constant: held while appending to the chain, so PostgreSQL writers take turns.
 _PG_CHAIN_LOCK = 0x63616C6963  # "calic"
 MAX_REASON = 2000  # characters of a reason
+FORMAT = 2  # record format of new seals (module docstring); 1: before it had a number
+FORMATS = (1, 2)  # the record formats this version reads
+TEXTS = "texts"  # key of a sealed record's JSON texts (format 2): outside the digest
 
 
 def actor() -> str:
@@ -107,8 +121,35 @@ _PARAM = ("name", "value", "std", "unit", "temperature_c")
 _CHECK = ("name", "value", "limit", "passed", "detail", "profile_name", "profile_version")
 
 
-def _cols(model: type, names: tuple[str, ...], prefix: str = "") -> list:
-    return [getattr(model, n).label(prefix + n) for n in names]
+class _Stored(str):
+    """The text a JSON column holds, read so at format 2 (`_hash_stored` replaces it)."""
+
+
+def _cols(model: type, names: tuple[str, ...], prefix: str = "", form: int = 1) -> list:
+    """Columns `names` of `model` labelled ``prefix + name``; from format 2 on, a JSON
+    column is read as the text it is stored as."""
+    stored = _stored_names(model, names, form)
+    return [_as_read(getattr(model, n), n in stored).label(prefix + n) for n in names]
+
+
+def _as_read(col: Any, stored: bool) -> Any:
+    return cast(col, Text) if stored else col
+
+
+def _stored_names(model: type, names: tuple[str, ...], form: int) -> frozenset[str]:
+    """The JSON columns among `names`: read as stored text from format 2 on."""
+    if form < 2:
+        return frozenset()
+    return frozenset(n for n in names if isinstance(getattr(model, n).type, JSON))
+
+
+def _fields(m: Any, names: tuple[str, ...], prefix: str, stored: frozenset[str]) -> dict:
+    """{name: value} of one result row; a stored JSON text is marked `_Stored`."""
+    return {n: _leaf(m[prefix + n], n in stored) for n in names}
+
+
+def _leaf(value: Any, stored: bool) -> Any:
+    return _Stored(value) if stored and value is not None else value
 
 
 def records(
@@ -117,6 +158,7 @@ def records(
     files: dict[int, dict[str, str]] | None = None,
     *,
     per_run_description: bool = True,
+    form: int = FORMAT,
 ) -> dict[int, dict[str, Any]]:
     """The record of each calibration revision, as its rows are now.
 
@@ -128,13 +170,16 @@ def records(
         the revision wrote; missing ids get ``{}``.
     per_run_description : False only for a schema before migration 0006, whose runs
         have no description of their own (`seal_unsealed` decides).
+    form : record format (module docstring): 1 every value decoded, 2 JSON columns
+        as the SHA-256 of their stored text, which goes under ``texts``.
 
     Returns
     -------
     calibration id -> record: one key per table (``runs``, ``devices``,
     ``run_equipment``, ``raw_files``, ``calibrations``, ``processing_steps``,
-    ``parameters``, ``check_results``) plus ``files``. Rows of a table are keyed
-    by a label (parameter name, step ``seq:name``...) so a difference names the row.
+    ``parameters``, ``check_results``) plus ``files`` (and, format 2, ``format``
+    and ``texts``: path -> stored text). Rows of a table are keyed by a label
+    (parameter name, step ``seq:name``...) so a difference names the row.
 
     ``devices`` is the unit's row (serial and registered description); the run's
     own description (``runs.model``, ``manufacturer``, ``specification``, migration
@@ -147,8 +192,8 @@ def records(
         select(
             schema.CalibrationRow.id.label("cal_pk"),
             schema.Run.id.label("run_pk"),
-            *_cols(schema.Run, _RUN, "r_"),
-            *_cols(schema.CalibrationRow, _CAL, "c_"),
+            *_cols(schema.Run, _RUN, "r_", form),
+            *_cols(schema.CalibrationRow, _CAL, "c_", form),
             *_cols(schema.Device, _DEVICE, "d_"),
             *(_cols(schema.Run, _DESCRIPTION, "u_") if per_run_description else ()),
         )  # fmt: skip
@@ -156,22 +201,71 @@ def records(
         .join(schema.Device, schema.Device.id == schema.Run.device_id)
         .where(schema.CalibrationRow.id.in_(cal_ids))
     ).mappings()
+    run_stored = _stored_names(schema.Run, _RUN, form)
+    cal_stored = _stored_names(schema.CalibrationRow, _CAL, form)
     out: dict[int, dict[str, Any]] = {}
     run_of: dict[int, int] = {}
     for m in head:
         run_of[m["cal_pk"]] = m["run_pk"]
         out[m["cal_pk"]] = {
-            "runs": {n: m["r_" + n] for n in _RUN} | _own_description(m, per_run_description),
-            "calibrations": {n: m["c_" + n] for n in _CAL},
+            "runs": _fields(m, _RUN, "r_", run_stored) | _own_description(m, per_run_description),
+            "calibrations": _fields(m, _CAL, "c_", cal_stored),
             "devices": {n: m["d_" + n] for n in _DEVICE},
             "files": dict(sorted((files or {}).get(m["cal_pk"], {}).items())),
         }
     by_run = _run_children(conn, sorted(set(run_of.values())))
-    by_cal = _calibration_children(conn, list(out))
+    by_cal = _calibration_children(conn, list(out), form)
     for cal_pk, rec in out.items():
         rec.update(by_run[run_of[cal_pk]])
         rec.update(by_cal[cal_pk])
+        if form >= 2:
+            rec["format"] = form
+            rec[TEXTS] = _hash_stored(rec)
     return out
+
+
+def _hash_stored(record: dict[str, Any]) -> dict[str, Any]:
+    """Replace every stored JSON text of `record` by ``"sha256:<hex>"``, in place; return
+    the texts, nested as the record is (``{table: {field: text}}`` or
+    ``{table: {row: {field: text}}}``)."""
+    texts: dict[str, Any] = {}
+    for table in _JSON_TABLES:
+        rows = record[table]
+        found: dict[str, Any] = _hash_fields(rows)  # runs, calibrations: their fields
+        for label, row in rows.items():
+            if isinstance(row, dict) and (in_row := _hash_fields(row)):  # a child table's row
+                found[label] = in_row
+        if found:
+            texts[table] = found
+    return texts
+
+
+def _hash_fields(fields: dict[str, Any]) -> dict[str, str]:
+    """Hash the stored texts among `fields` in place; return them by field name."""
+    texts = {}
+    for name, leaf in fields.items():
+        if isinstance(leaf, _Stored):
+            texts[name] = str(leaf)
+            fields[name] = text_digest(leaf)
+    return texts
+
+
+# The record's tables that have JSON columns: where `_hash_stored` looks.
+_JSON_TABLES = tuple(
+    table
+    for table, model, names in (
+        ("runs", schema.Run, _RUN), ("calibrations", schema.CalibrationRow, _CAL),
+        ("processing_steps", schema.ProcessingStep, _STEP),
+        ("parameters", schema.ParameterRow, _PARAM),
+        ("check_results", schema.CheckResultRow, _CHECK),
+    )  # fmt: skip
+    if _stored_names(model, names, 2)
+)
+
+
+def text_digest(stored: str) -> str:
+    """What a format 2 record holds for a JSON column's stored text."""
+    return "sha256:" + sha256_hex(stored.encode())
 
 
 def _own_description(m: Any, per_run: bool) -> dict[str, Any]:
@@ -224,7 +318,9 @@ def _run_children(conn: Connection, run_pks: list[int]) -> dict[int, dict[str, A
     }
 
 
-def _calibration_children(conn: Connection, cal_pks: list[int]) -> dict[int, dict[str, Any]]:
+def _calibration_children(
+    conn: Connection, cal_pks: list[int], form: int
+) -> dict[int, dict[str, Any]]:
     out: dict[int, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     tables = (
         ("processing_steps", schema.ProcessingStep, _STEP, schema.ProcessingStep.seq),
@@ -232,19 +328,29 @@ def _calibration_children(conn: Connection, cal_pks: list[int]) -> dict[int, dic
         ("check_results", schema.CheckResultRow, _CHECK, schema.CheckResultRow.name),
     )
     for table, model, names, order in tables:
+        stored = _stored_names(model, names, form)
         for cal_pk, *values in conn.execute(
-            select(model.calibration_id, *_cols(model, names))
+            select(model.calibration_id, *_cols(model, names, form=form))
             .where(model.calibration_id.in_(cal_pks))
             .order_by(model.calibration_id, order, model.id)
         ):
-            row = dict(zip(names, values, strict=True))
+            row = {n: _leaf(v, n in stored) for n, v in zip(names, values, strict=True)}
             label = f"{row['seq']}:{row['name']}" if table == "processing_steps" else row["name"]
             out[cal_pk][table].append((label, row))
     return {pk: {t: _labelled(out[pk][t]) for t, *_ in tables} for pk in cal_pks}
 
 
 def digest_of(record: dict[str, Any]) -> str:
-    return sha256_hex(canonical(record))
+    """SHA-256 of the record's canonical JSON, its stored texts (format 2) left out."""
+    return sha256_hex(canonical({k: v for k, v in record.items() if k != TEXTS}))
+
+
+def record_format(value: Any) -> int:
+    """The format a sealed record's ``format`` value names (module docstring): 1 where it
+    names none, 0 for a value no version of calib writes."""
+    if value is None:
+        return 1
+    return value if type(value) is int and value >= 1 else 0
 
 
 # --- the chain -------------------------------------------------------------------
@@ -325,7 +431,7 @@ def seal_calibration(
     who: str | None = None,
 ) -> str:
     """Seal one calibration revision (rows already written) and chain the event; its digest."""
-    record = records(conn, [cal_id], {cal_id: files or {}})[cal_id]
+    record = records(conn, [cal_id], {cal_id: files or {}}, form=FORMAT)[cal_id]
     digest = _insert_seal(conn, cal_id, record)
     append_event(
         conn, action, run_id=record["runs"]["run_id"],
@@ -335,11 +441,14 @@ def seal_calibration(
 
 
 def _insert_seal(conn: Connection, cal_id: int, record: dict[str, Any]) -> str:
-    """Store the record (as the JSON it hashes to) in ``seals``; return its digest."""
-    data = canonical(record)
-    conn.execute(insert(Seal).values(calibration_id=cal_id, digest=sha256_hex(data),
-                                     record=json.loads(data), created_at=utcnow()))  # fmt: skip
-    return sha256_hex(data)
+    """Store the record (as the JSON it hashes to, with its texts) in ``seals``; return
+    its digest."""
+    data = canonical({k: v for k, v in record.items() if k != TEXTS})
+    stored = json.loads(data) | ({TEXTS: record[TEXTS]} if TEXTS in record else {})
+    digest = sha256_hex(data)
+    conn.execute(insert(Seal).values(calibration_id=cal_id, digest=digest, record=stored,
+                                     created_at=utcnow()))  # fmt: skip
+    return digest
 
 
 def seal_unsealed(conn: Connection, who: str) -> int:
@@ -356,7 +465,7 @@ def seal_unsealed(conn: Connection, who: str) -> int:
         select(schema.CalibrationRow.id).where(schema.CalibrationRow.id.not_in(sealed)).order_by(schema.CalibrationRow.id)
     ).scalars().all()  # fmt: skip
     for chunk in _chunks(list(ids)):
-        recs = records(conn, chunk, per_run_description=per_run)
+        recs = records(conn, chunk, per_run_description=per_run, form=FORMAT)
         for cal_id in chunk:
             rec = recs[cal_id]
             digest = _insert_seal(conn, cal_id, rec)
@@ -402,11 +511,12 @@ def check(conn: Connection, root: Path) -> ChainCheck:
     for chunk in _chunks(list(seal_ids)):
         # The sealed record itself is read only where the rows no longer give its digest.
         seals = conn.execute(
-            select(Seal.id, Seal.calibration_id, Seal.digest, Seal.record["files"].label("files"))
+            select(Seal.id, Seal.calibration_id, Seal.digest, Seal.record["files"].label("files"),
+                   Seal.record["format"].label("format"))
             .where(Seal.id.in_(chunk))
         ).all()  # fmt: skip
         files = {s.calibration_id: rehash_files(root, s.files or {}) for s in seals}
-        now = records(conn, [s.calibration_id for s in seals], files)
+        now = _records_as_sealed(conn, {s.calibration_id: s.format for s in seals}, files)
         for s in seals:
             rec = now.get(s.calibration_id)
             if rec is not None:
@@ -436,6 +546,27 @@ def check(conn: Connection, root: Path) -> ChainCheck:
             )
         )
     return ChainCheck(findings, head(conn), len(seal_ids), digests_now)
+
+
+def _records_as_sealed(
+    conn: Connection, formats: dict[int, Any], files: dict[int, dict[str, str]]
+) -> dict[int, dict[str, Any]]:
+    """The record of each calibration now, in the format its seal names (calibration id ->
+    sealed ``format`` value); a format this version cannot read gets the current one."""
+    by_form: dict[int, list[int]] = defaultdict(list)
+    for cal_id, value in formats.items():
+        form = record_format(value)
+        by_form[form if form in FORMATS else FORMAT].append(cal_id)
+    out: dict[int, dict[str, Any]] = {}
+    for form, ids in by_form.items():
+        out |= records(conn, ids, files, form=form)
+    return out
+
+
+def digest_now(conn: Connection, cal_id: int, files: dict[str, str], sealed_format: Any) -> str:
+    """The digest of a calibration's rows and `files` (path: SHA-256 now) as they are now,
+    in the record format its seal names (the seal's ``format`` value)."""
+    return digest_of(_records_as_sealed(conn, {cal_id: sealed_format}, {cal_id: files})[cal_id])
 
 
 def rehash_files(root: Path, files: dict[str, str]) -> dict[str, str]:
@@ -485,12 +616,13 @@ def _check_chain(conn: Connection) -> tuple[list[Finding], dict[tuple[str, int],
 
 def _check_seal(
     digest: str,
-    sealed: dict[str, Any],
+    sealed: Any,
     now: dict[str, Any] | None,
     sealing: dict[tuple[str, int], str],
 ) -> list[Finding]:
-    run_id = sealed.get("runs", {}).get("run_id", "?")
-    rev = sealed.get("calibrations", {}).get("revision")
+    sealed = sealed if isinstance(sealed, dict) else {}
+    run_id = (sealed.get("runs") or {}).get("run_id", "?")
+    rev = (sealed.get("calibrations") or {}).get("revision")
     where = f"{run_id} revision {rev}"
     out: list[Finding] = []
     chained = sealing.pop((run_id, rev), None)
@@ -498,6 +630,11 @@ def _check_seal(
         out.append(Finding("chain", "seals", [run_id],
                            f"the seal of {where} was changed: it no longer matches the digest "
                            f"in the audit chain ({(chained or 'none')[:12]}...)"))  # fmt: skip
+    if record_format(sealed.get("format")) not in FORMATS:
+        return [*out, Finding("chain", "seals", [run_id],
+                              f"the seal of {where} is in record format {sealed.get('format')!r}, "
+                              f"which this version of calib (formats {FORMATS}) cannot read: "
+                              "verify with the version that wrote it")]  # fmt: skip
     if now is None:
         return [
             *out,
@@ -510,29 +647,60 @@ def _check_seal(
         ]
     if digest_of(now) == digest:
         return out
-    for path, expected, found in differences(sealed, now):
-        out.append(
-            Finding(
-                "record", path, [run_id], f"{where}: sealed {_show(expected)}, found {_show(found)}"
-            )
-        )
+    for keys, expected, found in _record_differences(sealed, now):
+        out.append(Finding("record", "/".join(keys), [run_id],
+                           f"{where}: sealed {_show(expected)}, found {_show(found)}"))  # fmt: skip
     return out
 
 
 _ABSENT = object()
 
 
-def differences(sealed: Any, now: Any, path: str = "") -> list[tuple[str, Any, Any]]:
-    """(path, sealed value, value now) of every leaf that differs; absent is `_ABSENT`."""
+def _record_differences(sealed: dict[str, Any], now: dict[str, Any]) -> list[tuple]:
+    """(keys, sealed value, value now) of every field that differs. A JSON column's
+    change (format 2: its hash) is followed into the JSON where both texts are at hand."""
+    out = []
+    for keys, expected, found in differences(_without_texts(sealed), _without_texts(now)):
+        out += _into_json(keys, expected, found, sealed.get(TEXTS), now.get(TEXTS))
+    return out
+
+
+def _without_texts(record: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in record.items() if k != TEXTS}
+
+
+def _into_json(keys: tuple[str, ...], expected: Any, found: Any, sealed_texts: Any,
+               now_texts: Any) -> list[tuple]:  # fmt: skip
+    """The differences inside a JSON column whose sealed and present texts hash to what
+    the records hold; else (or for equal JSON in other text) the hashes themselves."""
+    old, new = _text_at(sealed_texts, keys), _text_at(now_texts, keys)
+    if old is None or new is None or (text_digest(old), text_digest(new)) != (expected, found):
+        return [(keys, expected, found)]
+    try:
+        inner = differences(json.loads(old), json.loads(new), keys)
+    except ValueError:  # text that is not JSON, written behind the archive's back
+        return [(keys, expected, found)]
+    return inner or [(keys, expected, found)]
+
+
+def _text_at(texts: Any, keys: tuple[str, ...]) -> str | None:
+    for key in keys:
+        if not isinstance(texts, dict):
+            return None
+        texts = texts.get(key)
+    return texts if isinstance(texts, str) else None
+
+
+def differences(sealed: Any, now: Any, keys: tuple[str, ...] = ()) -> list[tuple]:
+    """(keys, sealed value, value now) of every leaf that differs; absent is `_ABSENT`."""
     if isinstance(sealed, dict) and isinstance(now, dict):
         out = []
         for key in sorted(set(sealed) | set(now), key=str):
-            sub = f"{path}/{key}" if path else str(key)
-            out += differences(sealed.get(key, _ABSENT), now.get(key, _ABSENT), sub)
+            out += differences(sealed.get(key, _ABSENT), now.get(key, _ABSENT), (*keys, str(key)))
         return out
     if canonical_or_none(sealed) == canonical_or_none(now):
         return []
-    return [(path, sealed, now)]
+    return [(keys, sealed, now)]
 
 
 def canonical_or_none(value: Any) -> bytes | None:

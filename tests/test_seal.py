@@ -86,6 +86,8 @@ def test_fresh_archive_is_sealed_and_chained(archive: Archive, tmp_path: Path) -
          '"forged"'),
         ("UPDATE calibrations SET settings = '{\"outlier_sigma\": 99}' WHERE id = 1",
          "calibrations/settings/outlier_sigma", "99"),
+        ("UPDATE processing_steps SET statistics = '{\"n\": -1}' WHERE id = 1",
+         "processing_steps/0:", "-1"),
         ("UPDATE devices SET model = 'Other' WHERE id = 1", "devices/model", '"Other"'),
         ("UPDATE runs SET model = 'Other' WHERE id = 1", "runs/model", '"Other"'),
         ("UPDATE runs SET specification = NULL WHERE id = 1", "runs/specification", "null"),
@@ -231,3 +233,57 @@ def test_each_run_keeps_its_own_description_sealed(archive: Archive, tmp_path: P
     found = [p for p in _problems(archive, "record") if p.path == "runs/model"]
     assert [p.runs for p in found] == [[later]], found
     assert found[0].detail.endswith('sealed "ICM-20602", found (absent)'), found[0].detail
+
+
+def _sealed_formats(archive: Archive) -> list:
+    with archive.engine().connect() as conn:
+        return conn.execute(select(Seal.record["format"]).order_by(Seal.id)).scalars().all()
+
+
+def test_seals_of_format_1_still_verify_and_name_a_change(
+    archive: Archive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Seals written before format 2 (every value decoded in the record) keep verifying
+    beside new ones, and a change to a JSON column is named inside the JSON."""
+    from storage import seal
+
+    monkeypatch.setattr(seal, "FORMAT", 1)
+    fill(archive, tmp_path)
+    monkeypatch.undo()
+    archive_run(archive, make_run(tmp_path / "new", serial="SN-NEW", seed=9), {})
+    assert _sealed_formats(archive) == [None] * 4 + [2]
+    assert verify(archive, orphans=False).ok
+    with behind_the_archive(archive) as conn:
+        cal = conn.execute(select(CalibrationRow.id, CalibrationRow.document).limit(1)).one()
+        conn.execute(CalibrationRow.__table__.update().where(CalibrationRow.id == cal.id)
+                     .values(document={**cal.document, "procedure": "forged"}))  # fmt: skip
+    assert [p.path for p in _problems(archive)] == ["calibrations/document/procedure"]
+
+
+def test_a_json_column_rewritten_as_equal_json_is_found(archive: Archive, tmp_path: Path) -> None:
+    """Format 2 seals the stored text of a JSON column: other text for the same JSON is
+    still a change, shown by the two hashes."""
+    fill(archive, tmp_path)
+    assert set(_sealed_formats(archive)) == {2}
+    with behind_the_archive(archive) as conn:
+        cast_ = "CAST(' ' || CAST(settings AS TEXT) AS JSON)" if conn.dialect.name == \
+            "postgresql" else "' ' || settings"  # fmt: skip
+        assert conn.execute(text(f"UPDATE calibrations SET settings = {cast_} WHERE id = 1")
+                            ).rowcount == 1  # fmt: skip
+    found = _problems(archive)
+    assert [p.path for p in found] == ["calibrations/settings"], found
+    assert found[0].detail.count('"sha256:') == 2, found[0].detail
+
+
+def test_a_seal_in_a_format_this_version_cannot_read_is_named(
+    archive: Archive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Seals a later version wrote (format 3 here) are named, not reported as tampered."""
+    from storage import seal
+
+    monkeypatch.setattr(seal, "FORMAT", 3)
+    fill(archive, tmp_path)
+    monkeypatch.undo()
+    found = _problems(archive)
+    assert len(found) == 4 and {p.kind for p in found} == {"chain"}, found
+    assert all("record format 3" in p.detail and "cannot read" in p.detail for p in found)
