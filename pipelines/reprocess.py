@@ -35,7 +35,7 @@ class ReprocessError(ValueError):
     """The archive cannot give back the run: unknown id, missing or altered raw object."""
 
 
-def restore_run(archive: Archive, run_id: str, folder: Path) -> RunSource:
+def restore_run(archive: Archive, run_id: str, folder: Path, *, link: bool = False) -> RunSource:
     """Write the raw files of an archived run into `folder` (empty or new) under their names.
 
     Parameters
@@ -43,6 +43,10 @@ def restore_run(archive: Archive, run_id: str, folder: Path) -> RunSource:
     archive : the archive holding the run.
     run_id : its run id (``R`` + 12 hex digits).
     folder : where the run folder is rebuilt.
+    link : hard-link each raw object into the folder where the file system allows
+        (else copy), for a folder that is read and then deleted (`reprocess_run`'s
+        temporary one). A run without a manifest is always copied: its files' times
+        are set, and the object's times must stay as they are.
 
     Returns
     -------
@@ -63,6 +67,7 @@ def restore_run(archive: Archive, run_id: str, folder: Path) -> RunSource:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     raw_files = summary["raw_files"]
+    has_manifest = any(r["name"] == MANIFEST_NAME for r in raw_files)
     for raw in raw_files:
         try:
             name = check_relative_name(raw["name"])
@@ -76,17 +81,13 @@ def restore_run(archive: Archive, run_id: str, folder: Path) -> RunSource:
             )
         dest = folder / name
         dest.parent.mkdir(parents=True, exist_ok=True)
-        digest = hashlib.sha256()
-        with src.open("rb") as fin, dest.open("wb") as fout:
-            while chunk := fin.read(_CHUNK):
-                digest.update(chunk)
-                fout.write(chunk)
-        if digest.hexdigest() != raw["sha256"]:
+        digest = _restore_file(src, dest, link and has_manifest)
+        if digest != raw["sha256"]:
             raise ReprocessError(
-                f"run {run_id}: raw object {src} of {name!r} hashes to {digest.hexdigest()}, "
+                f"run {run_id}: raw object {src} of {name!r} hashes to {digest}, "
                 f"archived as {raw['sha256']} (the file store was altered)"
             )
-    if any(r["name"] == MANIFEST_NAME for r in raw_files):
+    if has_manifest:
         return RunSource(folder, "manifest")
     # No manifest: the loader synthesises one, with `started` = the newest file mtime.
     started: datetime = summary["started_at"]
@@ -94,6 +95,27 @@ def restore_run(archive: Archive, run_id: str, folder: Path) -> RunSource:
     for raw in raw_files:
         os.utime(folder / raw["name"], ns=(ns, ns))
     return RunSource(folder, "mpu6000", summary["device"]["serial"])
+
+
+def _restore_file(src: Path, dest: Path, link: bool) -> str:
+    """Hard-link (if `link` and the file system allows) or copy `src` to `dest`; the SHA-256
+    of the bytes read. A link writes nothing: the copy wrote every raw byte of the archive
+    once more (restoring took 95 ms of a 500 Hz run's 830 ms reprocessing, cProfile)."""
+    from storage.rawstore import hash_and_size
+
+    if link:
+        try:
+            os.link(src, dest)
+        except OSError:  # another file system, no hard links there, ...: copy
+            pass
+        else:
+            return hash_and_size(dest)[0]
+    digest = hashlib.sha256()
+    with src.open("rb") as fin, dest.open("wb") as fout:
+        while chunk := fin.read(_CHUNK):
+            digest.update(chunk)
+            fout.write(chunk)
+    return digest.hexdigest()
 
 
 def reprocess_run(
@@ -128,7 +150,7 @@ def reprocess_run(
 
     with tempfile.TemporaryDirectory(prefix=f"reprocess_{run_id}_") as tmp:
         folder = Path(keep) if keep is not None else Path(tmp) / run_id
-        source = restore_run(archive, run_id, folder)
+        source = restore_run(archive, run_id, folder, link=keep is None)
         outcome = process_run(source, archive, reraise=reraise, reason=reason)
     outcome["source"] = f"archive:{run_id}"
     if outcome["status"] == "ok":  # the run was archived before: "ok" is a new revision

@@ -69,6 +69,27 @@ def test_reprocess_gives_identical_parameters_and_duplicate(tmp_path: Path, arch
     assert again["checks"] == first["checks"] and again["verdict"] == first["verdict"]
 
 
+@pytest.mark.parametrize("layout", ["csv", "mpu6000"])
+def test_reprocessing_leaves_the_raw_objects_as_they_were(tmp_path: Path, arch, layout) -> None:
+    """The temporary folder's hard links to the objects (a run with a manifest) are gone
+    afterwards, and no object's bytes, times or link count changed (a run without one is
+    copied: its files' times are set)."""
+    sim = _simulated(13)
+    folder = tmp_path / "run"
+    if layout == "csv":
+        write_csv_run(sim.segments, folder, MANIFEST)
+    else:
+        write_mpu6000_run(sim.segments, folder, "MPU0043")
+    first = _first_processing(folder, arch)
+    objects = sorted(p for p in (arch.root / "objects").rglob("*") if p.is_file())
+    before = {p: (p.stat().st_mtime_ns, p.stat().st_nlink, rawstore.hash_and_size(p)[0])
+              for p in objects}  # fmt: skip
+    assert reprocess_run(arch, first["run_id"])["status"] == "duplicate"
+    after = {p: (p.stat().st_mtime_ns, p.stat().st_nlink, rawstore.hash_and_size(p)[0])
+             for p in objects}  # fmt: skip
+    assert after == before and {n for _, n, _ in after.values()} == {1}
+
+
 def test_rebuilt_folder_is_the_original_run(tmp_path: Path, arch) -> None:
     """Same raw bytes, and for a manifest-less folder the same synthesised manifest."""
     sim = _simulated(13)
