@@ -25,11 +25,13 @@ reprocess_runs_per_min_sqlite, reprocess_runs_per_min_pg_dask,
 reprocess_to_process_ratio (the issue's keys), reprocess_to_process_ratio_pg_dask,
 runs, rate_hz.
 
-Run: ``.venv/bin/python benchmarks/reprocess.py [--runs N] [--rate-hz F]`` (the issue's
-size is 2000 runs). Each back end's archive holds a raw copy of every run: the runs
-take ~15 MB each at 1 kHz, so 2000 runs need ~31 GB for the runs and as much again
-for one archive (the SQLite archive is removed before the PostgreSQL pass); the
-script refuses a back end the free disk cannot hold.
+Run: ``.venv/bin/python benchmarks/reprocess.py [--runs N] [--rate-hz F] [--runs-dir DIR]
+[--backends sqlite,pg_dask]`` (the issue's size is 2000 runs; ``--runs-dir`` keeps the
+simulated runs for the next measurement: writing 2000 takes ~20 minutes). Each back
+end's archive holds a raw copy of every run: the runs take ~15 MB each at 1 kHz, so
+2000 runs need ~31 GB for the runs and as much again for one archive (the SQLite
+archive is removed before the PostgreSQL pass); the script refuses a back end the free
+disk cannot hold.
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ import batch  # noqa: E402 - benchmarks/batch.py: the run generator
 RUNS = 2000
 WORKERS = 2
 PROFILE = "mpu6000"  # the profile the simulated runs name (six_position_manifest)
+BACKENDS = ("sqlite", "pg_dask")
 
 
 def set_profile_version(folder: Path, version: str) -> None:
@@ -101,7 +104,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=RUNS)
     parser.add_argument("--rate-hz", type=float, default=batch.RATE_HZ)
+    parser.add_argument(
+        "--runs-dir",
+        type=Path,
+        help="keep the simulated runs in DIR/day (written there if missing) for later "
+        "measurements; default: a temporary folder",
+    )
+    parser.add_argument("--backends", default=",".join(BACKENDS),
+                        help=f"comma-separated, of {', '.join(BACKENDS)}")  # fmt: skip
     args = parser.parse_args()
+    backends = [b for b in args.backends.split(",") if b]
+    if not backends or set(backends) - set(BACKENDS):
+        parser.error(f"--backends: expected some of {', '.join(BACKENDS)}, got {args.backends!r}")
     n = args.runs
     with tempfile.TemporaryDirectory(prefix="calib-reprocess-bench-") as tmp:
         base = Path(tmp)
@@ -109,12 +123,37 @@ def main() -> None:
         profiles.mkdir()
         # Before any worker process starts: the forkserver and Dask workers inherit it.
         os.environ["CALIB_PROFILES"] = str(profiles)
-        batch.log(f"writing {n} simulated {args.rate_hz:g} Hz CSV runs to {base}...")
-        folders = batch.generate(base, n, args.rate_hz)
-        size = sum(f.stat().st_size for d in folders for f in d.iterdir())
+        day = runs_in(args.runs_dir or base, n, args.rate_hz)
+        size = sum(f.stat().st_size for d in list(day.iterdir())[:n] for f in d.iterdir())
         batch.log(f"  {size / 1e9:.1f} GB of runs")
-        figures = run_both(base, profiles, n, size)
+        figures = run_backends(base, day, profiles, n, size, backends)
     print(json.dumps({**figures, "runs": n, "rate_hz": args.rate_hz}))
+
+
+def runs_in(folder: Path, n: int, rate_hz: float) -> Path:
+    """`folder`/day holding `n` simulated runs at `rate_hz`, written unless there already
+    (their rate is noted beside them: runs of another rate are refused)."""
+    day, note = folder / "day", folder / "rate_hz.txt"
+    if note.is_file() and float(note.read_text()) != rate_hz:
+        raise SystemExit(f"{folder}: its runs are at {note.read_text().strip()} Hz, "
+                         f"not {rate_hz:g}")  # fmt: skip
+    have = sorted(day.glob("run*")) if day.is_dir() else []
+    if len(have) >= n and note.is_file():
+        batch.log(f"using {n} of the {len(have)} simulated {rate_hz:g} Hz runs in {day}")
+        if len(have) > n:  # the flows take a whole folder: the first n, linked into another
+            day = _first(have[:n], folder / f"day-{n}")
+        return day
+    batch.log(f"writing {n} simulated {rate_hz:g} Hz CSV runs to {folder}...")
+    batch.generate(folder, n, rate_hz)
+    note.write_text(f"{rate_hz:g}")
+    return day
+
+
+def _first(runs: list[Path], into: Path) -> Path:
+    if not into.is_dir():
+        for run in runs:
+            shutil.copytree(run, into / run.name, copy_function=os.link)
+    return into
 
 
 def require_space(base: Path, size: int) -> None:
@@ -128,13 +167,15 @@ def require_space(base: Path, size: int) -> None:
         )
 
 
-def run_both(base: Path, profiles: Path, n: int, size: int) -> dict[str, float]:
+def run_backends(
+    base: Path, day: Path, profiles: Path, n: int, size: int, backends: list[str]
+) -> dict[str, float]:
     from prefect.client.orchestration import get_client
 
     from pipelines.flows import local_batch_settings, process_batch
     from storage.pgserver import admin_execute, private_server
 
-    day = base / "day"
+    seconds: dict[str, tuple[float, float]] = {}
     with local_batch_settings():
         with get_client(sync_client=True) as client:
             client.api_healthcheck()
@@ -143,21 +184,28 @@ def run_both(base: Path, profiles: Path, n: int, size: int) -> dict[str, float]:
         shutil.copytree(day / "run000", base / "warm" / "run000")
         process_batch([str(base / "warm")], str(base / "warm-archive"), runner="process",
                       workers=WORKERS)  # fmt: skip
-        require_space(base, size)
-        sq = backend("sqlite", str(base / "sqlite"), day, profiles, "process", n)
-        shutil.rmtree(base / "sqlite")  # its raw copies: the disk holds one archive at a time
-        require_space(base, size)
-        with private_server(shared_buffers="256MB") as server:
-            admin_execute(server, 'CREATE DATABASE "bench"')
-            os.environ["CALIB_FILESTORE"] = str(base / "pg-files")
-            pg = backend("pg_dask", server.rsplit("/", 1)[0] + "/bench", day, profiles, "dask", n)
+        if "sqlite" in backends:
+            require_space(base, size)
+            seconds["sqlite"] = backend("sqlite", str(base / "sqlite"), day, profiles, "process", n)
+            shutil.rmtree(base / "sqlite")  # its raw copies: the disk holds one archive at a time
+        if "pg_dask" in backends:
+            require_space(base, size)
+            with private_server(shared_buffers="256MB") as server:
+                admin_execute(server, 'CREATE DATABASE "bench"')
+                os.environ["CALIB_FILESTORE"] = str(base / "pg-files")
+                url = server.rsplit("/", 1)[0] + "/bench"
+                seconds["pg_dask"] = backend("pg_dask", url, day, profiles, "dask", n)
+    return {key: value for name, (process_s, reprocess_s) in seconds.items()
+            for key, value in figures(name, n, process_s, reprocess_s).items()}  # fmt: skip
+
+
+def figures(backend_: str, n: int, process_s: float, reprocess_s: float) -> dict[str, float]:
+    """The figures of one back end (the issue names SQLite's ratio without a suffix)."""
+    ratio_key = "reprocess_to_process_ratio" + ("" if backend_ == "sqlite" else f"_{backend_}")
     return {
-        "reprocess_runs_per_min_sqlite": round(60 * n / sq[1], 2),
-        "reprocess_runs_per_min_pg_dask": round(60 * n / pg[1], 2),
-        "reprocess_to_process_ratio": round(sq[1] / sq[0], 3),
-        "reprocess_to_process_ratio_pg_dask": round(pg[1] / pg[0], 3),
-        "process_runs_per_min_sqlite": round(60 * n / sq[0], 2),
-        "process_runs_per_min_pg_dask": round(60 * n / pg[0], 2),
+        f"reprocess_runs_per_min_{backend_}": round(60 * n / reprocess_s, 2),
+        ratio_key: round(reprocess_s / process_s, 3),
+        f"process_runs_per_min_{backend_}": round(60 * n / process_s, 2),
     }
 
 
