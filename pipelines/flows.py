@@ -121,8 +121,9 @@ def local_batch_settings() -> Iterator[None]:
       that ends with this process cannot serve, are off: the event persister
       (the event feed of the UI; the task runs themselves are the recorder's) and
       the reactive triggers of automations (with the actions they would start).
-      Measured on 60-run batches (process runner, 2 workers, load 4-8): the
-      server's CPU per task run fell from 47-54 ms to 24-42 ms.
+      Measured on 60-run batches (process runner, 2 workers): the server's CPU
+      per task run fell from 45-54 ms to 24-42 ms (single runs, load 4-8), means
+      of interleaved runs from 55.6 to 48.5 ms (load 7-9).
 
     The temporary server is also made to end with this process, whatever ends it
     (`pipelines.temporary_api`). With a configured API nothing changes
