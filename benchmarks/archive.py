@@ -25,7 +25,8 @@ per query and back end to stdout; the LAST stdout line is one JSON object::
      "postgresql": {...}, "runs": int, "parameter_rows": int}
 
 ``fleet_s`` is the slowest of the timed fleet calls. Run:
-``.venv/bin/python benchmarks/archive.py [--runs N] [--verify-runs N]`` (~5-8 min on 2
+``.venv/bin/python benchmarks/archive.py [--runs N] [--verify-runs N] [--backends
+sqlite,postgresql]`` (~5-8 min on 2
 cores for 100k, plus ~10 min per back end for 1000 verify runs).
 """
 
@@ -499,32 +500,39 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=100_000)
     ap.add_argument("--verify-runs", type=int, default=1000)
+    ap.add_argument("--backends", default="sqlite,postgresql",
+                    help="comma-separated, of sqlite, postgresql")  # fmt: skip
     args = ap.parse_args()
+    backends = [b for b in args.backends.split(",") if b]
+    if not backends or set(backends) - {"sqlite", "postgresql"}:
+        ap.error(f"--backends: expected some of sqlite, postgresql, got {args.backends!r}")
     synth = Synth(args.runs)
     n_params = args.runs * len(NAMES) * len(TEMPS)
     log(f"{args.runs} runs, {synth.n_units} units, {n_params} parameter rows")
     work = Path(tempfile.mkdtemp(prefix="calib-bench-"))
-    results = {}
+    results, verify_results = {}, {}
     try:
-        sq = Archive(default_archive_url(work / "sqlite"), work / "sqlite")
-        results["sqlite"] = run_backend("sqlite", sq, Synth(args.runs))
-        sq.dispose()
-        log("sqlite: verify")
-        vq = Archive(default_archive_url(work / "vsqlite"), work / "vsqlite")
-        verify_results = {"sqlite": bench_verify(vq, args.verify_runs, work / "vs")}
-        vq.dispose()
-        with private_server(
-            shared_buffers="512MB", max_wal_size="4GB", synchronous_commit="off"
-        ) as server:
-            admin_execute(server, 'CREATE DATABASE "bench"')
-            pg = Archive(server.rsplit("/", 1)[0] + "/bench", work / "pg")
-            results["postgresql"] = run_backend("postgresql", pg, Synth(args.runs))
-            pg.dispose()
-            log("postgresql: verify")
-            admin_execute(server, 'CREATE DATABASE "vbench"')
-            vp = Archive(server.rsplit("/", 1)[0] + "/vbench", work / "vpg")
-            verify_results["postgresql"] = bench_verify(vp, args.verify_runs, work / "vp")
-            vp.dispose()
+        if "sqlite" in backends:
+            sq = Archive(default_archive_url(work / "sqlite"), work / "sqlite")
+            results["sqlite"] = run_backend("sqlite", sq, Synth(args.runs))
+            sq.dispose()
+            log("sqlite: verify")
+            vq = Archive(default_archive_url(work / "vsqlite"), work / "vsqlite")
+            verify_results["sqlite"] = bench_verify(vq, args.verify_runs, work / "vs")
+            vq.dispose()
+        if "postgresql" in backends:
+            with private_server(
+                shared_buffers="512MB", max_wal_size="4GB", synchronous_commit="off"
+            ) as server:
+                admin_execute(server, 'CREATE DATABASE "bench"')
+                pg = Archive(server.rsplit("/", 1)[0] + "/bench", work / "pg")
+                results["postgresql"] = run_backend("postgresql", pg, Synth(args.runs))
+                pg.dispose()
+                log("postgresql: verify")
+                admin_execute(server, 'CREATE DATABASE "vbench"')
+                vp = Archive(server.rsplit("/", 1)[0] + "/vbench", work / "vpg")
+                verify_results["postgresql"] = bench_verify(vp, args.verify_runs, work / "vp")
+                vp.dispose()
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
