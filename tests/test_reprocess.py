@@ -51,15 +51,20 @@ def _first_processing(folder: Path, arch) -> dict:
     return outcome
 
 
-@pytest.mark.parametrize("layout", ["csv", "mpu6000"])
-def test_reprocess_gives_identical_parameters_and_duplicate(tmp_path: Path, arch, layout) -> None:
-    sim = _simulated(11 if layout == "csv" else 12)
-    folder = tmp_path / "run"
+def _archived(folder: Path, arch, layout: str, seed: int) -> dict:
+    """A simulated run written in `layout` (a run.toml CSV run or a manifest-less MPU-6000
+    folder), processed, its folder deleted: its outcome."""
+    sim = _simulated(seed)
     if layout == "csv":
         write_csv_run(sim.segments, folder, MANIFEST)
     else:
-        write_mpu6000_run(sim.segments, folder, "MPU0042")
-    first = _first_processing(folder, arch)
+        write_mpu6000_run(sim.segments, folder, f"MPU{seed:04d}")
+    return _first_processing(folder, arch)
+
+
+@pytest.mark.parametrize("layout", ["csv", "mpu6000"])
+def test_reprocess_gives_identical_parameters_and_duplicate(tmp_path: Path, arch, layout) -> None:
+    first = _archived(tmp_path / "run", arch, layout, 11 if layout == "csv" else 12)
 
     again = reprocess_run(arch, first["run_id"])
     assert again["status"] == "duplicate", again["error"]
@@ -74,13 +79,7 @@ def test_reprocessing_leaves_the_raw_objects_as_they_were(tmp_path: Path, arch, 
     """The temporary folder's hard links to the objects (a run with a manifest) are gone
     afterwards, and no object's bytes, times or link count changed (a run without one is
     copied: its files' times are set)."""
-    sim = _simulated(13)
-    folder = tmp_path / "run"
-    if layout == "csv":
-        write_csv_run(sim.segments, folder, MANIFEST)
-    else:
-        write_mpu6000_run(sim.segments, folder, "MPU0043")
-    first = _first_processing(folder, arch)
+    first = _archived(tmp_path / "run", arch, layout, 13)
     objects = sorted(p for p in (arch.root / "objects").rglob("*") if p.is_file())
     before = {p: (p.stat().st_mtime_ns, p.stat().st_nlink, rawstore.hash_and_size(p)[0])
               for p in objects}  # fmt: skip
