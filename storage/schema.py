@@ -291,7 +291,10 @@ class Seal(Base):
 
     ``record`` is the canonical content of the revision's rows and files as
     archived; ``digest`` its SHA-256, also carried by the revision's event in
-    the audit chain. Never updated or deleted.
+    the audit chain. ``texts`` (record format 2, migration 0008): the stored text
+    of each JSON column the record holds by its hash, outside the digest, to show
+    a change field by field; a column of its own so that reading ``record``'s
+    ``files`` does not parse them. Never updated or deleted.
     """
 
     __tablename__ = "seals"
@@ -301,6 +304,7 @@ class Seal(Base):
     digest: Mapped[str] = mapped_column(String(SHA256_LEN))
     record: Mapped[dict[str, Any]]
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    texts: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
 
 
 class AuditEvent(Base):

@@ -13,7 +13,7 @@ value as decoded from its row. Format 2 (``"format": 2``, written since) holds a
 JSON column (the calibration document and settings, a step's settings and
 statistics, a run's site and environment) as the SHA-256 of the text the database
 stores (``"sha256:<hex>"``), and the seal keeps that text beside the record
-(``texts``, outside the digest) to show a change field by field. So verify
+(``seals.texts``, outside the digest) to show a change field by field. So verify
 neither decodes nor re-encodes the large JSON values: with them the seal pass
 cost 1.9 times the file re-hashing (docs/archive.md, "Verify"). A migration that
 rewrote a JSON column's text, even to equal JSON, would break format 2 seals:
@@ -60,7 +60,7 @@ _PG_CHAIN_LOCK = 0x63616C6963  # "calic"
 MAX_REASON = 2000  # characters of a reason
 FORMAT = 2  # record format of new seals (module docstring); 1: before it had a number
 FORMATS = (1, 2)  # the record formats this version reads
-TEXTS = "texts"  # key of a sealed record's JSON texts (format 2): outside the digest
+TEXTS = "texts"  # a record's JSON texts (format 2): outside the digest, in seals.texts
 
 
 def actor() -> str:
@@ -441,13 +441,15 @@ def seal_calibration(
 
 
 def _insert_seal(conn: Connection, cal_id: int, record: dict[str, Any]) -> str:
-    """Store the record (as the JSON it hashes to, with its texts) in ``seals``; return
-    its digest."""
+    """Store the record (as the JSON it hashes to; format 2's texts in ``seals.texts``) in
+    ``seals``; return its digest."""
     data = canonical({k: v for k, v in record.items() if k != TEXTS})
-    stored = json.loads(data) | ({TEXTS: record[TEXTS]} if TEXTS in record else {})
     digest = sha256_hex(data)
-    conn.execute(insert(Seal).values(calibration_id=cal_id, digest=digest, record=stored,
-                                     created_at=utcnow()))  # fmt: skip
+    row = {"calibration_id": cal_id, "digest": digest, "record": json.loads(data),
+           "created_at": utcnow()}  # fmt: skip
+    if TEXTS in record:  # format 2 (a schema before 0008 has no such column: format 1 there)
+        row["texts"] = record[TEXTS]
+    conn.execute(insert(Seal).values(**row))
     return digest
 
 
@@ -456,16 +458,18 @@ def seal_unsealed(conn: Connection, who: str) -> int:
 
     The files of those revisions are not known (they were not recorded): their
     records have no ``files``. Run by migration 0004, before 0006 gave runs their
-    own description (0006 copies it from the device row).
+    own description (0006 copies it from the device row) and before 0008 gave
+    seals their ``texts``: such seals are in record format 1.
     Returns the number sealed.
     """
     per_run = "model" in {c["name"] for c in inspect(conn).get_columns("runs")}
+    form = FORMAT if "texts" in {c["name"] for c in inspect(conn).get_columns("seals")} else 1
     sealed = select(Seal.calibration_id)
     ids = conn.execute(
         select(schema.CalibrationRow.id).where(schema.CalibrationRow.id.not_in(sealed)).order_by(schema.CalibrationRow.id)
     ).scalars().all()  # fmt: skip
     for chunk in _chunks(list(ids)):
-        recs = records(conn, chunk, per_run_description=per_run, form=FORMAT)
+        recs = records(conn, chunk, per_run_description=per_run, form=form)
         for cal_id in chunk:
             rec = recs[cal_id]
             digest = _insert_seal(conn, cal_id, rec)
@@ -525,7 +529,11 @@ def check(conn: Connection, root: Path) -> ChainCheck:
                 if digests_now[key] == s.digest == sealing.get(key):
                     del sealing[key]
                     continue
-            sealed = conn.execute(select(Seal.record).where(Seal.id == s.id)).scalar_one()
+            sealed, texts = conn.execute(
+                select(Seal.record, Seal.texts).where(Seal.id == s.id)
+            ).one()
+            if isinstance(sealed, dict) and texts is not None:
+                sealed = {**sealed, TEXTS: texts}
             findings += _check_seal(s.digest, sealed, rec, sealing)
     for (run_id, rev), digest in sorted(sealing.items()):
         findings.append(Finding("chain", "seals", [run_id],
