@@ -15,7 +15,7 @@ statistics, a run's site and environment) as the SHA-256 of the text the databas
 stores (``"sha256:<hex>"``), and the seal keeps that text beside the record
 (``seals.texts``, outside the digest) to show a change field by field. So verify
 neither decodes nor re-encodes the large JSON values: with them the seal pass
-cost 1.9 times the file re-hashing (docs/archive.md, "Verify"). A migration that
+cost 1.9 times the files-only verify (docs/archive.md, "Verify"). A migration that
 rewrote a JSON column's text, even to equal JSON, would break format 2 seals:
 that text is what they hold. Both formats verify; `records` builds either.
 
@@ -178,8 +178,8 @@ def records(
     calibration id -> record: one key per table (``runs``, ``devices``,
     ``run_equipment``, ``raw_files``, ``calibrations``, ``processing_steps``,
     ``parameters``, ``check_results``) plus ``files`` (and, format 2, ``format``
-    and ``texts``: path -> stored text). Rows of a table are keyed by a label
-    (parameter name, step ``seq:name``...) so a difference names the row.
+    and ``texts``: the stored texts, nested as the record). Rows of a table are keyed
+    by a label (parameter name, step ``seq:name``...) so a difference names the row.
 
     ``devices`` is the unit's row (serial and registered description); the run's
     own description (``runs.model``, ``manufacturer``, ``specification``, migration
@@ -342,7 +342,7 @@ def _calibration_children(
 
 def digest_of(record: dict[str, Any]) -> str:
     """SHA-256 of the record's canonical JSON, its stored texts (format 2) left out."""
-    return sha256_hex(canonical({k: v for k, v in record.items() if k != TEXTS}))
+    return sha256_hex(canonical(_without_texts(record)))
 
 
 def record_format(value: Any) -> int:
@@ -443,7 +443,7 @@ def seal_calibration(
 def _insert_seal(conn: Connection, cal_id: int, record: dict[str, Any]) -> str:
     """Store the record (as the JSON it hashes to; format 2's texts in ``seals.texts``) in
     ``seals``; return its digest."""
-    data = canonical({k: v for k, v in record.items() if k != TEXTS})
+    data = canonical(_without_texts(record))
     digest = sha256_hex(data)
     row = {"calibration_id": cal_id, "digest": digest, "record": json.loads(data),
            "created_at": utcnow()}  # fmt: skip
