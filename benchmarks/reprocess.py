@@ -124,7 +124,7 @@ def main() -> None:
         # Before any worker process starts: the forkserver and Dask workers inherit it.
         os.environ["CALIB_PROFILES"] = str(profiles)
         day = runs_in(args.runs_dir or base, n, args.rate_hz)
-        size = sum(f.stat().st_size for d in list(day.iterdir())[:n] for f in d.iterdir())
+        size = sum(f.stat().st_size for d in day.iterdir() for f in d.iterdir())
         batch.log(f"  {size / 1e9:.1f} GB of runs")
         figures = run_backends(base, day, profiles, n, size, backends)
     print(json.dumps({**figures, "runs": n, "rate_hz": args.rate_hz}))
@@ -141,7 +141,7 @@ def runs_in(folder: Path, n: int, rate_hz: float) -> Path:
     if len(have) >= n and note.is_file():
         batch.log(f"using {n} of the {len(have)} simulated {rate_hz:g} Hz runs in {day}")
         if len(have) > n:  # the flows take a whole folder: the first n, linked into another
-            day = _first(have[:n], folder / f"day-{n}")
+            day = _linked_runs(have[:n], folder / f"day-{n}")
         return day
     batch.log(f"writing {n} simulated {rate_hz:g} Hz CSV runs to {folder}...")
     batch.generate(folder, n, rate_hz)
@@ -149,7 +149,8 @@ def runs_in(folder: Path, n: int, rate_hz: float) -> Path:
     return day
 
 
-def _first(runs: list[Path], into: Path) -> Path:
+def _linked_runs(runs: list[Path], into: Path) -> Path:
+    """`into` holding hard links of `runs` (made once)."""
     if not into.is_dir():
         for run in runs:
             shutil.copytree(run, into / run.name, copy_function=os.link)
