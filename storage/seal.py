@@ -40,10 +40,22 @@ from collections import defaultdict
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import date, datetime
+from functools import cache
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import JSON, Connection, Text, cast, insert, inspect, select, text
+from sqlalchemy import (
+    JSON,
+    Connection,
+    Select,
+    Text,
+    bindparam,
+    cast,
+    insert,
+    inspect,
+    select,
+    text,
+)
 
 from storage import schema
 from storage.db import Archive
@@ -136,6 +148,7 @@ def _as_read(col: Any, stored: bool) -> Any:
     return cast(col, Text) if stored else col
 
 
+@cache
 def _stored_names(model: type, names: tuple[str, ...], form: int) -> frozenset[str]:
     """The JSON columns among `names`: read as stored text from format 2 on."""
     if form < 2:
@@ -188,19 +201,7 @@ def records(
     before 0006, which copied the device row's description into the runs) keeps its
     digest; a run's field changed to differ shows as sealed "(absent)".
     """
-    head = conn.execute(
-        select(
-            schema.CalibrationRow.id.label("cal_pk"),
-            schema.Run.id.label("run_pk"),
-            *_cols(schema.Run, _RUN, "r_", form),
-            *_cols(schema.CalibrationRow, _CAL, "c_", form),
-            *_cols(schema.Device, _DEVICE, "d_"),
-            *(_cols(schema.Run, _DESCRIPTION, "u_") if per_run_description else ()),
-        )  # fmt: skip
-        .join(schema.Run, schema.Run.id == schema.CalibrationRow.run_id)
-        .join(schema.Device, schema.Device.id == schema.Run.device_id)
-        .where(schema.CalibrationRow.id.in_(cal_ids))
-    ).mappings()
+    head = conn.execute(_head_query(form, per_run_description), {"ids": cal_ids}).mappings()
     run_stored = _stored_names(schema.Run, _RUN, form)
     cal_stored = _stored_names(schema.CalibrationRow, _CAL, form)
     out: dict[int, dict[str, Any]] = {}
@@ -222,6 +223,30 @@ def records(
             rec["format"] = form
             rec[TEXTS] = _hash_stored(rec)
     return out
+
+
+# The queries of `records` are built once per process (they depend on the schema and the
+# format only; their IN lists are expanding parameters ``ids``): building them cost
+# about as much as running them on one revision.
+_IDS = bindparam("ids", expanding=True)
+
+
+@cache
+def _head_query(form: int, per_run_description: bool) -> Select:
+    """Each revision's run, calibration and device fields, for calibration ids ``ids``."""
+    return (
+        select(
+            schema.CalibrationRow.id.label("cal_pk"),
+            schema.Run.id.label("run_pk"),
+            *_cols(schema.Run, _RUN, "r_", form),
+            *_cols(schema.CalibrationRow, _CAL, "c_", form),
+            *_cols(schema.Device, _DEVICE, "d_"),
+            *(_cols(schema.Run, _DESCRIPTION, "u_") if per_run_description else ()),
+        )  # fmt: skip
+        .join(schema.Run, schema.Run.id == schema.CalibrationRow.run_id)
+        .join(schema.Device, schema.Device.id == schema.Run.device_id)
+        .where(schema.CalibrationRow.id.in_(_IDS))
+    )
 
 
 def _hash_stored(record: dict[str, Any]) -> dict[str, Any]:
@@ -254,7 +279,8 @@ def _hash_fields(fields: dict[str, Any]) -> dict[str, str]:
 _JSON_TABLES = tuple(
     table
     for table, model, names in (
-        ("runs", schema.Run, _RUN), ("calibrations", schema.CalibrationRow, _CAL),
+        ("runs", schema.Run, _RUN),
+        ("calibrations", schema.CalibrationRow, _CAL),
         ("processing_steps", schema.ProcessingStep, _STEP),
         ("parameters", schema.ParameterRow, _PARAM),
         ("check_results", schema.CheckResultRow, _CHECK),
@@ -289,28 +315,12 @@ def _labelled(rows: list[tuple[str, dict[str, Any]]]) -> dict[str, dict[str, Any
 
 def _run_children(conn: Connection, run_pks: list[int]) -> dict[int, dict[str, Any]]:
     eq_rows: dict[int, list] = defaultdict(list)
-    for m in conn.execute(
-        select(
-            schema.RunEquipment.run_id,
-            schema.Equipment.kind,
-            schema.Equipment.serial,
-            schema.Equipment.model,
-            schema.Equipment.accuracy_class,
-            schema.RunEquipment.calibration_due,
-            schema.RunEquipment.calibrated_on,
-        )  # fmt: skip
-        .join(schema.Equipment, schema.Equipment.id == schema.RunEquipment.equipment_id)
-        .where(schema.RunEquipment.run_id.in_(run_pks))
-        .order_by(schema.RunEquipment.run_id, schema.Equipment.kind, schema.Equipment.serial)
-    ).mappings():
+    equipment_query, raw_query = _run_children_queries()
+    for m in conn.execute(equipment_query, {"ids": run_pks}).mappings():
         row = {k: v for k, v in m.items() if k != "run_id"}
         eq_rows[m["run_id"]].append((f"{m['kind']}:{m['serial']}", row))
     raw_rows: dict[int, list] = defaultdict(list)
-    for m in conn.execute(
-        select(schema.RawFileRow.run_id, *_cols(schema.RawFileRow, _RAW))
-        .where(schema.RawFileRow.run_id.in_(run_pks))
-        .order_by(schema.RawFileRow.run_id, schema.RawFileRow.name)
-    ).mappings():
+    for m in conn.execute(raw_query, {"ids": run_pks}).mappings():
         raw_rows[m["run_id"]].append((m["name"], {n: m[n] for n in _RAW}))
     return {
         pk: {"run_equipment": _labelled(eq_rows[pk]), "raw_files": _labelled(raw_rows[pk])}
@@ -322,22 +332,61 @@ def _calibration_children(
     conn: Connection, cal_pks: list[int], form: int
 ) -> dict[int, dict[str, Any]]:
     out: dict[int, dict[str, list]] = defaultdict(lambda: defaultdict(list))
-    tables = (
-        ("processing_steps", schema.ProcessingStep, _STEP, schema.ProcessingStep.seq),
-        ("parameters", schema.ParameterRow, _PARAM, schema.ParameterRow.name),
-        ("check_results", schema.CheckResultRow, _CHECK, schema.CheckResultRow.name),
-    )
-    for table, model, names, order in tables:
-        stored = _stored_names(model, names, form)
-        for cal_pk, *values in conn.execute(
-            select(model.calibration_id, *_cols(model, names, form=form))
-            .where(model.calibration_id.in_(cal_pks))
-            .order_by(model.calibration_id, order, model.id)
-        ):
+    for table, names, stored, query in _calibration_children_queries(form):
+        for cal_pk, *values in conn.execute(query, {"ids": cal_pks}):
             row = {n: _leaf(v, n in stored) for n, v in zip(names, values, strict=True)}
             label = f"{row['seq']}:{row['name']}" if table == "processing_steps" else row["name"]
             out[cal_pk][table].append((label, row))
-    return {pk: {t: _labelled(out[pk][t]) for t, *_ in tables} for pk in cal_pks}
+    return {pk: {t: _labelled(out[pk][t]) for t, *_ in _CHILD_TABLES} for pk in cal_pks}
+
+
+# A revision's child tables: (record key, model, sealed columns, order within a revision).
+_CHILD_TABLES = (
+    ("processing_steps", schema.ProcessingStep, _STEP, schema.ProcessingStep.seq),
+    ("parameters", schema.ParameterRow, _PARAM, schema.ParameterRow.name),
+    ("check_results", schema.CheckResultRow, _CHECK, schema.CheckResultRow.name),
+)
+
+
+@cache
+def _calibration_children_queries(form: int) -> list[tuple[str, tuple, frozenset, Select]]:
+    """(record key, columns, stored JSON columns, query) of each child table of a revision."""
+    return [
+        (
+            table,
+            names,
+            _stored_names(model, names, form),
+            select(model.calibration_id, *_cols(model, names, form=form))
+            .where(model.calibration_id.in_(_IDS))
+            .order_by(model.calibration_id, order, model.id),
+        )
+        for table, model, names, order in _CHILD_TABLES
+    ]
+
+
+@cache
+def _run_children_queries() -> tuple[Select, Select]:
+    """The queries of a run's equipment and raw files, for run ids ``ids``."""
+    equipment = (
+        select(
+            schema.RunEquipment.run_id,
+            schema.Equipment.kind,
+            schema.Equipment.serial,
+            schema.Equipment.model,
+            schema.Equipment.accuracy_class,
+            schema.RunEquipment.calibration_due,
+            schema.RunEquipment.calibrated_on,
+        )  # fmt: skip
+        .join(schema.Equipment, schema.Equipment.id == schema.RunEquipment.equipment_id)
+        .where(schema.RunEquipment.run_id.in_(_IDS))
+        .order_by(schema.RunEquipment.run_id, schema.Equipment.kind, schema.Equipment.serial)
+    )
+    raw = (
+        select(schema.RawFileRow.run_id, *_cols(schema.RawFileRow, _RAW))
+        .where(schema.RawFileRow.run_id.in_(_IDS))
+        .order_by(schema.RawFileRow.run_id, schema.RawFileRow.name)
+    )
+    return equipment, raw
 
 
 def digest_of(record: dict[str, Any]) -> str:
@@ -381,10 +430,11 @@ _EVENT_FIELDS = ("seq", "at", "actor", "action", "run_id", "revision", "reason",
 
 def head(conn: Connection) -> tuple[int, str]:
     """(seq, hash) of the newest event; (0, GENESIS) for an empty chain."""
-    row = conn.execute(
-        select(AuditEvent.seq, AuditEvent.hash).order_by(AuditEvent.seq.desc()).limit(1)
-    ).one_or_none()
+    row = conn.execute(_HEAD).one_or_none()
     return (0, GENESIS) if row is None else (row.seq, row.hash)
+
+
+_HEAD = select(AuditEvent.seq, AuditEvent.hash).order_by(AuditEvent.seq.desc()).limit(1)
 
 
 def append_event(
@@ -410,8 +460,7 @@ def append_event(
     seq, prev = head(conn)
     ev = Event(seq + 1, utcnow(), who or actor(), action, run_id, revision, reason,
                detail or {}, digest, prev)  # fmt: skip
-    conn.execute(insert(AuditEvent).values(**{k: getattr(ev, k) for k in _EVENT_FIELDS},
-                                           hash=ev.hash()))  # fmt: skip
+    conn.execute(_INSERT_EVENT, {**{k: getattr(ev, k) for k in _EVENT_FIELDS}, "hash": ev.hash()})
     return ev
 
 
@@ -449,8 +498,13 @@ def _insert_seal(conn: Connection, cal_id: int, record: dict[str, Any]) -> str:
            "created_at": utcnow()}  # fmt: skip
     if TEXTS in record:  # format 2 (a schema before 0008 has no such column: format 1 there)
         row["texts"] = record[TEXTS]
-    conn.execute(insert(Seal).values(**row))
+    conn.execute(_INSERT_SEAL, row)
     return digest
+
+
+# Built once: a statement's construction costs more than its cached compilation.
+_INSERT_EVENT = insert(AuditEvent)
+_INSERT_SEAL = insert(Seal)
 
 
 def seal_unsealed(conn: Connection, who: str) -> int:

@@ -24,9 +24,10 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterable
+from functools import cache
 from typing import Any
 
-from sqlalchemy import Connection, ScalarSelect, Select, delete, insert, select
+from sqlalchemy import Connection, ScalarSelect, Select, bindparam, delete, insert, select
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 
@@ -55,9 +56,15 @@ def _latest_run() -> ScalarSelect:
             .correlate(Device).scalar_subquery())  # fmt: skip
 
 
-def _derived(device_id: int | None = None) -> Select:
-    """The rows (COLUMNS) of every unit with a run (or of unit `device_id`), derived from
-    runs and calibrations (a backward step on the runs index per pick)."""
+# One unit's queries take its id as the parameter ``device_id``; they are built once per
+# process (`refresh` runs in every archiving transaction).
+_ONE_UNIT = bindparam("device_id")
+
+
+@cache
+def _derived(one_unit: bool = False) -> Select:
+    """The rows (COLUMNS) of every unit with a run (or of the unit ``device_id``), derived
+    from runs and calibrations (a backward step on the runs index per pick)."""
     latest = _latest_run()
     current = (select(CalibrationRow.id)
                .where(CalibrationRow.run_id == latest, CalibrationRow.superseded_by.is_(None))
@@ -73,8 +80,8 @@ def _derived(device_id: int | None = None) -> Select:
     )  # fmt: skip
     picks = select(Device.id.label("device_id"), latest.label("run_id"),
                    current.label("calibration_id"), valid.label("valid_calibration_id"))
-    if device_id is not None:
-        picks = picks.where(Device.id == device_id)
+    if one_unit:
+        picks = picks.where(Device.id == _ONE_UNIT)
     picks = picks.subquery("picks")
     return (select(picks.c.device_id, picks.c.run_id, picks.c.calibration_id,
                    CalibrationRow.verdict, CalibrationRow.profile_name,
@@ -93,26 +100,36 @@ def refresh(conn: Connection, device_id: int) -> None:
     seen (READ COMMITTED: each statement sees what was committed before it began). A new
     unit has no row to lock; its concurrent writers meet at the unique serial instead.
     """
-    lock = select(UnitLatest.device_id).where(UnitLatest.device_id == device_id)
-    conn.execute(lock.with_for_update())  # (no-op on SQLite, whose writers take turns)
-    row = conn.execute(_derived(device_id)).one_or_none()
+    one = {"device_id": device_id}
+    conn.execute(_LOCK, one)  # (no-op on SQLite, whose writers take turns)
+    row = conn.execute(_derived(one_unit=True), one).one_or_none()
     if row is None:  # no runs (not reached by storage.archive, which adds one first)
         conn.execute(delete(UnitLatest).where(UnitLatest.device_id == device_id))
         return
-    values = dict(row._mapping)
-    dialect_insert = pg_insert if conn.dialect.name == "postgresql" else sqlite_insert
-    stmt = dialect_insert(UnitLatest).values(**values)
-    conn.execute(stmt.on_conflict_do_update(
-        index_elements=[UnitLatest.device_id],
-        set_={c: stmt.excluded[c] for c in COLUMNS[1:]},
-    ))  # fmt: skip
+    put_unit, put_values = _upserts(conn.dialect.name)
+    conn.execute(put_unit, dict(row._mapping))
     rows = _derived_values(conn, device_id)
     if rows:  # upserted: rows of names the new calibration lacks stay, not read (no DELETE)
-        put = dialect_insert(UnitLatestValue)
-        conn.execute(put.on_conflict_do_update(
-            index_elements=[UnitLatestValue.model, UnitLatestValue.name, UnitLatestValue.serial],
-            set_={c: put.excluded[c] for c in VALUE_COLUMNS[3:]},
-        ), [dict(zip(VALUE_COLUMNS, r, strict=True)) for r in rows])  # fmt: skip
+        conn.execute(put_values, [dict(zip(VALUE_COLUMNS, r, strict=True)) for r in rows])
+
+
+_LOCK = select(UnitLatest.device_id).where(UnitLatest.device_id == _ONE_UNIT).with_for_update()
+
+
+@cache
+def _upserts(dialect: str) -> tuple[Any, Any]:
+    """The upserts of a unit's row and of its value rows, in `dialect`'s words."""
+    dialect_insert = pg_insert if dialect == "postgresql" else sqlite_insert
+    unit = dialect_insert(UnitLatest)
+    unit = unit.on_conflict_do_update(
+        index_elements=[UnitLatest.device_id], set_={c: unit.excluded[c] for c in COLUMNS[1:]}
+    )
+    values = dialect_insert(UnitLatestValue)
+    values = values.on_conflict_do_update(
+        index_elements=[UnitLatestValue.model, UnitLatestValue.name, UnitLatestValue.serial],
+        set_={c: values.excluded[c] for c in VALUE_COLUMNS[3:]},
+    )
+    return unit, values
 
 
 def rebuild(conn: Connection) -> int:
@@ -145,19 +162,26 @@ def _derived_values(conn: Connection, device_id: int | None = None) -> list[tupl
     """The unit_latest_values rows (VALUE_COLUMNS) of every unit (or of `device_id`):
     the parameters of its latest valid calibration as derived from the runs, one per
     name (`nearest`), by device then name."""
-    picks = _derived(device_id).subquery("derived")
-    stmt = (select(Device.model, Device.serial, Device.id, picks.c.valid_calibration_id,
-                   ParameterRow.name, ParameterRow.value, ParameterRow.temperature_c)
-            .join(picks, picks.c.device_id == Device.id)
-            .join(ParameterRow, ParameterRow.calibration_id == picks.c.valid_calibration_id)
-            .order_by(Device.id, ParameterRow.id))  # fmt: skip
+    one_unit = device_id is not None
+    rows = conn.execute(_values_query(one_unit), {"device_id": device_id} if one_unit else {})
     out = []
-    for dev, group in itertools.groupby(conn.execute(stmt), key=lambda r: r[2]):
+    for dev, group in itertools.groupby(rows, key=lambda r: r[2]):
         rows = list(group)
         model, serial, _, cal = rows[0][:4]
         for name, (value, t) in sorted(nearest((r[4], r[5], r[6]) for r in rows).items()):
             out.append((model, name, serial, dev, cal, value, t))
     return out
+
+
+@cache
+def _values_query(one_unit: bool) -> Select:
+    """The parameter rows of each unit's latest valid calibration (`_derived_values`)."""
+    picks = _derived(one_unit).subquery("derived")
+    return (select(Device.model, Device.serial, Device.id, picks.c.valid_calibration_id,
+                   ParameterRow.name, ParameterRow.value, ParameterRow.temperature_c)
+            .join(picks, picks.c.device_id == Device.id)
+            .join(ParameterRow, ParameterRow.calibration_id == picks.c.valid_calibration_id)
+            .order_by(Device.id, ParameterRow.id))  # fmt: skip
 
 
 def differences(conn: Connection) -> list[dict[str, Any]]:

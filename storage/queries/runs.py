@@ -483,6 +483,9 @@ def earlier_descriptions(archive: Archive, serial: str, run_id: str) -> list[dic
     return list(out.values())
 
 
+_IN_CHUNK = 500  # ids per IN list (SQLite allows 32766 bound values; keep statements small)
+
+
 def repeatability_candidates(
     archive: Archive, serial: str, procedure: str, *, exclude_run_id: str | None = None
 ) -> list[dict[str, Any]]:
@@ -506,21 +509,25 @@ def repeatability_candidates(
     )
     if exclude_run_id is not None:
         stmt = stmt.where(Run.run_id != exclude_run_id)
-    out = []
     with Session(archive.engine()) as s:
-        for row in s.execute(stmt).all():
-            values = s.execute(
-                select(ParameterRow.name, ParameterRow.value, ParameterRow.std).where(
-                    ParameterRow.calibration_id == row.id
-                )
-            ).all()
-            out.append(
-                {
-                    "run_id": row.run_id,
-                    "started_at": row.started_at,
-                    "environment": row.environment,
-                    "verdict": row.verdict,
-                    "parameters": {v.name: (v.value, v.std) for v in values},
-                }
-            )
-    return out
+        rows = s.execute(stmt).all()
+        values: dict[int, dict[str, tuple[float, float | None]]] = {r.id: {} for r in rows}
+        ids = list(values)
+        for i in range(0, len(ids), _IN_CHUNK):  # one query per chunk, not one per run
+            for cal_id, name, value, std in s.execute(
+                select(ParameterRow.calibration_id, ParameterRow.name, ParameterRow.value,
+                       ParameterRow.std)
+                .where(ParameterRow.calibration_id.in_(ids[i : i + _IN_CHUNK]))
+                .order_by(ParameterRow.id)
+            ):  # fmt: skip
+                values[cal_id][name] = (value, std)
+    return [
+        {
+            "run_id": row.run_id,
+            "started_at": row.started_at,
+            "environment": row.environment,
+            "verdict": row.verdict,
+            "parameters": values[row.id],
+        }
+        for row in rows
+    ]
