@@ -76,7 +76,10 @@ def test_version() -> None:
     assert done.exit_code == 0 and done.output == f"calib {__version__}\n"
 
 
-def test_shell_completion_of_commands() -> None:
+def test_shell_completion_of_commands(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The shell named on the command line, not the one that started the tests (Typer
+    # otherwise asks shellingham, and a run started from `sh` gets "Shell sh not supported").
+    monkeypatch.setenv("_TYPER_COMPLETE_TEST_DISABLE_SHELL_DETECTION", "1")
     env = {**os.environ, "_CALIB_COMPLETE": "complete_bash", "COMP_WORDS": "calib query l",
            "COMP_CWORD": "2", "PYTHONPATH": str(ROOT)}  # fmt: skip
     code = "from pipelines.cli import app; app(prog_name='calib')"
