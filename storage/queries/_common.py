@@ -11,6 +11,7 @@ from datetime import UTC, date, datetime, time
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import Row, Select, bindparam, func, select
+from sqlalchemy.orm import Session
 
 from calib_core import params
 from storage.naming import check_safe_name
@@ -45,6 +46,24 @@ def select_run_calibrations(*columns: Any) -> Select:
 
 def _dict(row: Row) -> dict[str, Any]:
     return dict(row._mapping)
+
+
+IN_CHUNK = 500  # ids bound per statement (well below SQLite's and PostgreSQL's limits)
+
+
+def parameter_values(s: Session, cal_ids: list[int]) -> dict[int, dict[str, tuple]]:
+    """{calibration id: {parameter name: (value, std)}} of `cal_ids`, SI, one query per
+    IN_CHUNK ids; of a name with rows at several temperatures, the last row written."""
+    values: dict[int, dict[str, tuple]] = {i: {} for i in cal_ids}
+    for start in range(0, len(cal_ids), IN_CHUNK):
+        for cal_id, name, value, std in s.execute(
+            select(ParameterRow.calibration_id, ParameterRow.name, ParameterRow.value,
+                   ParameterRow.std)
+            .where(ParameterRow.calibration_id.in_(cal_ids[start : start + IN_CHUNK]))
+            .order_by(ParameterRow.id)
+        ):  # fmt: skip
+            values[cal_id][name] = (value, std)
+    return values
 
 # --- issue 9: traceability, equipment validity, units, fleet -------------------------
 #

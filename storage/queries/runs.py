@@ -21,6 +21,7 @@ from storage.queries._common import (
     _dict,
     check_parameter,
     check_text,
+    parameter_values,
     select_run_calibrations,
 )
 from storage.schema import (
@@ -483,9 +484,6 @@ def earlier_descriptions(archive: Archive, serial: str, run_id: str) -> list[dic
     return list(out.values())
 
 
-_IN_CHUNK = 500  # ids per IN list (SQLite allows 32766 bound values; keep statements small)
-
-
 def repeatability_candidates(
     archive: Archive, serial: str, procedure: str, *, exclude_run_id: str | None = None
 ) -> list[dict[str, Any]]:
@@ -511,16 +509,7 @@ def repeatability_candidates(
         stmt = stmt.where(Run.run_id != exclude_run_id)
     with Session(archive.engine()) as s:
         rows = s.execute(stmt).all()
-        values: dict[int, dict[str, tuple[float, float | None]]] = {r.id: {} for r in rows}
-        ids = list(values)
-        for i in range(0, len(ids), _IN_CHUNK):  # one query per chunk, not one per run
-            for cal_id, name, value, std in s.execute(
-                select(ParameterRow.calibration_id, ParameterRow.name, ParameterRow.value,
-                       ParameterRow.std)
-                .where(ParameterRow.calibration_id.in_(ids[i : i + _IN_CHUNK]))
-                .order_by(ParameterRow.id)
-            ):  # fmt: skip
-                values[cal_id][name] = (value, std)
+        values = parameter_values(s, [r.id for r in rows])
     return [
         {
             "run_id": row.run_id,

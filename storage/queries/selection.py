@@ -11,11 +11,17 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, aliased
 
 from storage.db import Archive
-from storage.queries._common import as_instant, check_serial, check_text, where_model_and_start
-from storage.schema import CalibrationRow, Device, ParameterRow, Run
+from storage.queries._common import (
+    IN_CHUNK,
+    as_instant,
+    check_serial,
+    check_text,
+    parameter_values,
+    where_model_and_start,
+)
+from storage.schema import CalibrationRow, Device, Run
 
 SELECTION_KEYS = ("serial", "model", "since", "until", "software_version", "profile")
-_CHUNK = 500  # ids bound per statement (well below SQLite's and PostgreSQL's limits)
 
 
 def select_runs(
@@ -67,7 +73,7 @@ def select_runs(
         runs = s.execute(stmt).all()
         cals: dict[int, list[dict[str, Any]]] = {r.id: [] for r in runs}
         ids = list(cals)
-        for start in range(0, len(ids), _CHUNK):
+        for start in range(0, len(ids), IN_CHUNK):
             rows = s.execute(
                 select(
                     CalibrationRow.run_id, CalibrationRow.revision, CalibrationRow.settings_hash,
@@ -75,7 +81,7 @@ def select_runs(
                     CalibrationRow.profile_name, CalibrationRow.verdict,
                     CalibrationRow.superseded_by,
                 )
-                .where(CalibrationRow.run_id.in_(ids[start : start + _CHUNK]))
+                .where(CalibrationRow.run_id.in_(ids[start : start + IN_CHUNK]))
                 .order_by(CalibrationRow.run_id, CalibrationRow.revision)
             ).all()  # fmt: skip
             for c in rows:
@@ -106,26 +112,18 @@ def revision_pairs(archive: Archive, run_ids: list[str]) -> list[dict[str, Any]]
     new, old = aliased(CalibrationRow), aliased(CalibrationRow)
     found: dict[str, dict[str, Any]] = {}
     with Session(archive.engine()) as s:
-        for start in range(0, len(run_ids), _CHUNK):
+        for start in range(0, len(run_ids), IN_CHUNK):
             stmt = (
                 select(Run.run_id, Device.serial, new, old)
                 .join(Device, Device.id == Run.device_id)
                 .join(new, (new.run_id == Run.id) & new.superseded_by.is_(None))
                 .join(old, old.superseded_by == new.id)
-                .where(Run.run_id.in_(run_ids[start : start + _CHUNK]))
+                .where(Run.run_id.in_(run_ids[start : start + IN_CHUNK]))
             )
             for row in s.execute(stmt).all():
                 found[row.run_id] = {"run_id": row.run_id, "serial": row.serial,
                                      "new": row[2], "old": row[3]}  # fmt: skip
-        ids = [c.id for p in found.values() for c in (p["new"], p["old"])]
-        values: dict[int, dict[str, tuple[float, float | None]]] = {i: {} for i in ids}
-        for start in range(0, len(ids), _CHUNK):
-            params = select(
-                ParameterRow.calibration_id, ParameterRow.name, ParameterRow.value,
-                ParameterRow.std,
-            ).where(ParameterRow.calibration_id.in_(ids[start : start + _CHUNK]))  # fmt: skip
-            for p in s.execute(params).all():
-                values[p.calibration_id][p.name] = (p.value, p.std)
+        values = parameter_values(s, [c.id for p in found.values() for c in (p["new"], p["old"])])
         return [
             {**found[r], "new": _revision(found[r]["new"], values),
              "old": _revision(found[r]["old"], values)}
