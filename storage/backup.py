@@ -41,7 +41,6 @@ MANIFEST = "manifest.json"
 FORMAT = 1
 FILES = "files"
 STORE_DIRS = ("objects", "runs", "samples")
-_CHUNK = 1 << 20
 PG_TIMEOUT_S = 3600
 
 

@@ -35,7 +35,6 @@ from storage.db import Archive
 from storage.schema import CalibrationRow, ParameterRow, RawFileRow, Run
 
 ProblemKind = Literal["missing", "mismatch", "outside", "database", "record", "chain", "signature"]
-_CHUNK = 1 << 20
 
 
 @dataclass
