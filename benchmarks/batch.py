@@ -1,4 +1,4 @@
-"""Batch benchmark: 50 simulated 1 kHz lab runs through the pipeline, serial, parallel and Prefect.
+"""Batch benchmark: simulated 1 kHz lab runs through the pipeline, serial, parallel and Prefect.
 
 Writes `RUNS` six-position + integral runs (calib_core.simulate at 1 kHz, CSV
 layout of pipelines.run_writers.write_csv_run) into a temporary folder, then times
@@ -16,41 +16,46 @@ first pass would be a cheap duplicate):
    at a time; the stage split comes from the seconds the steps record in the
    archive (ingest, preprocess, solve, check); archive = the rest (protocol,
    Parquet samples, raw objects, database transaction);
-3. plain parallel: the same calls in a pool of 2 such processes;
-4. Prefect: the process_batch flow with the process runner and 2 workers,
-   as `calib process --runner process` runs it (local_batch_settings, and
-   Prefect's log levels of calib without --verbose: pipelines.cli_shared.quiet_logs).
+3. paired (`paired_pass`): the two target figures, measured block by block
+   (`--block`, 50 runs) so that the machine's drift weighs on both sides of
+   each ratio alike: every run of a block through a one-worker pool, each just
+   after the floor's work on the same run (`Floor`: read, hash and copy the raw
+   files, parse the CSV, write Parquet, one insert transaction of as many rows
+   as the archive holds per run, done bare in one process), then the same block
+   through a pool of 2;
+4. plain parallel and 5. Prefect, in the order plain, flow, flow, plain: the
+   same calls in a pool of 2 processes as in 2, and the process_batch flow with
+   the process runner and 2 workers, as `calib process --runner process` runs
+   it (local_batch_settings, and Prefect's log levels of calib without
+   --verbose: pipelines.cli_shared.quiet_logs).
 
-Passes 2-4 each run in a fresh Python process, as a new `calib` process would
-(its own forkserver and imports), timed from discovery of the runs to the
-last outcome, pool start included.
+Each pass runs in a fresh Python process, as a new `calib` process would (its own
+forkserver and imports); passes 2, 4 and 5 are timed from discovery of the runs to
+the last outcome, pool start included.
 
-Figures: runs/min of the Prefect batch; speedup = one-worker time / plain
-parallel time (both with their pool's start); pipeline_to_parse_ratio = sum
-of the one-worker per-run times (the whole pipeline: parse, preprocessing,
-solve, check, archive) / single-threaded bare parse time, i.e. both on one
-core; pipeline_to_parse_ratio_machine = plain parallel time / threaded bare
-parse time, i.e. both on the whole machine (pool start included); Prefect
-overhead = (flow time - plain parallel time) / flow time. Prefect's temporary
-local API server is started before the timing, with the settings `calib
-process` gives it (local_batch_settings), and answers one request (a new
-server's first answer takes ~0.3 s longer): a lab runs `prefect server start`
-once, not per batch. Its start-up time is printed on stderr.
+Figures (the issue's keys first):
+- pipeline_to_floor_ratio = sum of the paired one-worker runs' times / sum of
+  their floors' times;
+- speedup_2_cores_steady = sum of the paired one-worker blocks' times / sum of
+  the paired two-worker blocks' times (pools started: their start left out);
+- speedup_2_cores = one-worker pass time / mean plain parallel time, both with
+  their pool's start;
+- prefect_overhead_fraction = (mean flow time - mean plain time) / mean flow time.
+  Prefect's temporary local API server is started before the timing, with the
+  settings `calib process` gives it (local_batch_settings), and answers one
+  request (a new server's first answer takes ~0.3 s longer): a lab runs `prefect
+  server start` once, not per batch. Its start-up time is printed on stderr;
+- runs_per_min of the Prefect batch (mean of its two passes);
+- pipeline_to_parse_ratio = sum of the one-worker per-run times / single-threaded
+  bare parse time, both on one core; pipeline_to_parse_ratio_machine = mean plain
+  parallel time / threaded bare parse time, both on the whole machine;
+- the per-block ratios of the paired pass (their spread is the measurement's),
+  runs, and parallel_capacity (the CPU-only loop's speedup on 2 processes at
+  the start: how much of the second core was free).
 
-Floor: the mandatory work of every archived run done bare in one process
-(`floor_pass`: read, hash and copy the raw files, parse the CSV, write Parquet, one
-insert transaction of as many rows as the archive holds per run);
-pipeline_to_floor_ratio = one-worker per-run time / floor per-run time. Steady
-speedup (speedup_2_cores_steady): the same two passes timed from the moment their
-workers have started and the archive is ready (the pools' start left out).
+Progress goes to stderr; the last stdout line is one JSON object of these figures.
 
-Progress goes to stderr; the last stdout line is one JSON object:
-runs_per_min, speedup_2_cores, speedup_2_cores_steady, pipeline_to_floor_ratio,
-pipeline_to_parse_ratio, prefect_overhead_fraction (issue keys), and
-pipeline_to_parse_ratio_machine, runs, parallel_capacity (the CPU-only loop's speedup on
-2 processes at the start: how much of the second core was free).
-
-Run: ``.venv/bin/python benchmarks/batch.py [--runs N]`` (200 runs: ~10 minutes on 2 idle cores).
+Run: ``.venv/bin/python benchmarks/batch.py [--runs N]`` (200 runs: ~12 minutes on 2 idle cores).
 """
 
 from __future__ import annotations
@@ -76,6 +81,9 @@ sys.path.insert(0, str(ROOT))
 RUNS = 200  # the steady speedup is asked on at least 200 runs
 RATE_HZ = 1000.0
 WORKERS = 2
+# Runs per block of the paired pass: the two-worker pool idles for about half a run at
+# each block's end, ~2 % of a block of 50 (a bias against the speedup, as in any batch).
+BLOCK = 50
 # Stage -> (step name or None for any step, statistics key) as process_run records them.
 STAGES = {
     "ingest": ("ingest", "seconds"),
@@ -226,40 +234,48 @@ def flow_pass(day: Path, archive_dir: Path, workers: int, runner: str, n: int) -
     return flow_s
 
 
-def floor_pass(day: Path, scratch: Path, rows_per_run: int) -> list[float]:
-    """Per-run seconds of the work every archived run must do, done bare in this process.
+class Floor:
+    """The work every archived run must do, done bare in this process, one run at a time.
 
-    For each run folder, one after the other, on one thread (pyarrow's pools set to
-    one, as the pipeline's workers run): read and SHA-256 every raw file and copy it
-    into an object store (write, fsync), parse its CSV (pyarrow.csv.read_csv),
-    write the parsed table as zstd Parquet with the archive's encodings (write,
-    fsync), and insert `rows_per_run` rows (as many as the archive holds per run)
-    in one SQLite transaction (WAL, as the archive). No validation, no solving,
-    no checks, no temporary-and-rename: the floor the pipeline's per-run time is
-    compared with (pipeline_to_floor_ratio).
+    For a run folder, on one thread (pyarrow's pools set to one, as the pipeline's
+    workers run): read and SHA-256 every raw file and copy it into an object store
+    (write, fsync), parse its CSV (pyarrow.csv.read_csv), write the parsed table as
+    zstd Parquet with the archive's encodings (write, fsync), and insert
+    `rows_per_run` rows (as many as the archive holds per run) in one SQLite
+    transaction (WAL, as the archive). No validation, no solving, no checks, no
+    temporary-and-rename: the floor the pipeline's per-run time is compared with
+    (pipeline_to_floor_ratio).
     """
-    import hashlib
-    import sqlite3
 
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
-    import pyarrow.parquet as pq
+    def __init__(self, scratch: Path, rows_per_run: int) -> None:
+        import sqlite3
 
-    pa.set_cpu_count(1)
-    pa.set_io_thread_count(1)
-    (scratch / "objects").mkdir(parents=True)
-    (scratch / "samples").mkdir()
-    db = sqlite3.connect(scratch / "floor.sqlite", isolation_level=None)
-    db.execute("PRAGMA journal_mode=WAL")
-    db.execute("CREATE TABLE rows (run TEXT, name TEXT, value REAL, doc TEXT)")
-    one_thread = pacsv.ReadOptions(use_threads=False)
-    per_run = []
-    for folder in sorted(p for p in day.iterdir() if p.is_dir()):
+        import pyarrow as pa
+
+        pa.set_cpu_count(1)
+        pa.set_io_thread_count(1)
+        self.scratch, self.rows_per_run = scratch, rows_per_run
+        (scratch / "objects").mkdir(parents=True)
+        (scratch / "samples").mkdir()
+        self.db = sqlite3.connect(scratch / "floor.sqlite", isolation_level=None)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("CREATE TABLE rows (run TEXT, name TEXT, value REAL, doc TEXT)")
+
+    def run(self, folder: Path) -> float:
+        """Seconds of the floor's work for one run folder."""
+        import hashlib
+
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+        import pyarrow.parquet as pq
+
         started = time.perf_counter()
         for raw in sorted(p for p in folder.iterdir() if p.is_file()):
             data = raw.read_bytes()
-            _durable_write(scratch / "objects" / hashlib.sha256(data).hexdigest(), data)
-        table = pacsv.read_csv(folder / "imu.csv", read_options=one_thread)
+            _durable_write(self.scratch / "objects" / hashlib.sha256(data).hexdigest(), data)
+        table = pacsv.read_csv(
+            folder / "imu.csv", read_options=pacsv.ReadOptions(use_threads=False)
+        )
         floats = [f.name for f in table.schema if pa.types.is_floating(f.type)]
         sink = pa.BufferOutputStream()
         pq.write_table(
@@ -270,14 +286,78 @@ def floor_pass(day: Path, scratch: Path, rows_per_run: int) -> list[float]:
             use_dictionary=[c for c in table.column_names if c not in floats],
             column_encoding=dict.fromkeys(floats, "BYTE_STREAM_SPLIT"),
         )
-        _durable_write(scratch / "samples" / f"{folder.name}.parquet", sink.getvalue().to_pybytes())
-        rows = [(folder.name, f"p{i}", float(i), "{}") for i in range(rows_per_run)]
-        db.execute("BEGIN")
-        db.executemany("INSERT INTO rows VALUES (?, ?, ?, ?)", rows)
-        db.execute("COMMIT")
-        per_run.append(time.perf_counter() - started)
-    db.close()
-    return per_run
+        sample_file = self.scratch / "samples" / f"{folder.name}.parquet"
+        _durable_write(sample_file, sink.getvalue().to_pybytes())
+        rows = [(folder.name, f"p{i}", float(i), "{}") for i in range(self.rows_per_run)]
+        self.db.execute("BEGIN")
+        self.db.executemany("INSERT INTO rows VALUES (?, ?, ?, ?)", rows)
+        self.db.execute("COMMIT")
+        return time.perf_counter() - started
+
+    def close(self) -> None:
+        self.db.close()
+
+
+def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[str, list[float]]:
+    """The two target figures measured side by side in time, block by block.
+
+    The machine's speed drifts by 10-20 % from one minute to the next (a shared
+    VM), so a ratio of two passes made minutes apart measures the drift as much
+    as the code. Here one process holds a pool of one worker and a pool of two
+    (started first, both as `plain_pass` sets them up, into their own archives)
+    and the runs go in blocks of `block`: each run of the block through the
+    one-worker pool, one at a time, with the floor's work on the same run just
+    before it (`Floor`, in this process, while the worker waits); then the
+    same block through the two-worker pool. pipeline_to_floor_ratio = sum of the
+    one-worker runs' times / sum of their floors'; speedup_2_cores_steady = sum
+    of the one-worker blocks' times / sum of the two-worker blocks'.
+
+    Returns per-run "pipeline" and "floor" seconds, per-block "serial" and "plain" seconds.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    from pipelines.ingest import discover_runs
+    from pipelines.run_task import process_run_for_batch
+    from pipelines.runners import forkserver_context, single_threaded_children
+    from storage.db import resolve_archive
+
+    sources = discover_runs([day])
+    floor = Floor(base / "floor", rows_per_run)
+    context = forkserver_context(("pipelines.run_task",))
+    found: dict[str, list[float]] = {"pipeline": [], "floor": [], "serial": [], "plain": []}
+    with (
+        single_threaded_children(),
+        ProcessPoolExecutor(1, mp_context=context) as one,
+        ProcessPoolExecutor(WORKERS, mp_context=context) as two,
+    ):
+        archives = {}
+        for name, pool, workers in (("serial", one, 1), ("plain", two, WORKERS)):
+            ready = [pool.submit(int) for _ in range(workers)]
+            archives[name] = resolve_archive(str(base / f"archive-paired-{name}"))
+            archives[name].upgrade()
+            for call in ready:
+                call.result()
+        urls = {k: (a.url, str(a.root)) for k, a in archives.items()}
+        for first in range(0, len(sources), block):
+            runs = sources[first : first + block]
+            for source in runs:
+                found["floor"].append(floor.run(source.folder))
+                t = time.perf_counter()
+                _ok(one.submit(process_run_for_batch, source, *urls["serial"]).result())
+                found["pipeline"].append(time.perf_counter() - t)
+            found["serial"].append(sum(found["pipeline"][first:]))
+            t = time.perf_counter()
+            for call in [two.submit(process_run_for_batch, s, *urls["plain"]) for s in runs]:
+                _ok(call.result())
+            found["plain"].append(time.perf_counter() - t)
+            log(f"  {first + len(runs)}/{len(sources)} runs in both pools")
+    floor.close()
+    return found
+
+
+def _ok(outcome: dict) -> None:
+    if outcome["status"] != "ok":
+        raise SystemExit(f"a run was not archived: {outcome}")
 
 
 def _durable_write(path: Path, data: bytes) -> None:
@@ -311,13 +391,20 @@ def rows_per_run(archive_dir: Path, n: int) -> int:
 
 
 def timed_pass(
-    what: str, day: Path, archive_dir: Path, workers: int, runner: str, n: int, rows: int = 0
+    what: str,
+    day: Path,
+    archive_dir: Path,
+    workers: int,
+    runner: str,
+    n: int,
+    rows: int = 0,
+    block: int = BLOCK,
 ):
     """One pass in a fresh Python process, as a new `calib` process would run it (its own
     forkserver and imports); its progress goes to stderr, its figures come back as JSON."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--pass", what, "--day", str(day)]
     cmd += ["--archive", str(archive_dir), "--workers", str(workers), "--runner", runner]
-    cmd += ["--runs", str(n), "--rows", str(rows)]
+    cmd += ["--runs", str(n), "--rows", str(rows), "--block", str(block)]
     out = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -334,8 +421,8 @@ def pass_main(args: argparse.Namespace) -> None:
         quiet_logs(verbose=False)
         seconds = flow_pass(args.day, args.archive, args.workers, args.runner, args.runs)
         print(json.dumps({"seconds": seconds}))
-    elif args.pass_ == "floor":
-        print(json.dumps({"per_run": floor_pass(args.day, args.archive, args.rows)}))
+    elif args.pass_ == "paired":
+        print(json.dumps(paired_pass(args.day, args.archive, args.rows, args.block)))
     else:
         seconds, steady, per_run = plain_pass(args.day, args.archive, args.workers)
         print(json.dumps({"seconds": seconds, "steady": steady, "per_run": per_run}))
@@ -375,7 +462,10 @@ def main() -> None:
     )
     # Internal: run one timed pass (timed_pass starts this script again with these).
     parser.add_argument(
-        "--pass", dest="pass_", choices=("plain", "flow", "floor"), help=argparse.SUPPRESS
+        "--pass", dest="pass_", choices=("plain", "flow", "paired"), help=argparse.SUPPRESS
+    )
+    parser.add_argument(
+        "--block", type=int, default=BLOCK, help="runs per block of the paired pass"
     )
     parser.add_argument("--rows", type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument("--day", type=Path, help=argparse.SUPPRESS)
@@ -406,7 +496,7 @@ def main() -> None:
         day = base / "day"
         log("one worker (plain calls, one worker process)...")
         serial = timed_pass("plain", day, base / "archive-serial", 1, args.runner, n)
-        serial_s, serial_steady, per_run = serial["seconds"], serial["steady"], serial["per_run"]
+        serial_s, per_run = serial["seconds"], serial["per_run"]
         stages = stage_seconds(base / "archive-serial")
         recorded = [sum(v) for v in zip(*stages.values(), strict=True)]
         archive_part = [t - r for t, r in zip(per_run, recorded, strict=True)]
@@ -419,34 +509,53 @@ def main() -> None:
         log(f"  ingest stage / bare parse on one thread: {ingest_ratio:.2f}")
 
         rows = rows_per_run(base / "archive-serial", n)
-        log(f"floor: the mandatory work of each run done bare ({rows} rows a transaction)...")
-        floor = timed_pass("floor", day, base / "floor", 1, args.runner, n, rows)["per_run"]
-        log(f"  {statistics.median(floor):.3f} s per run (median)")
+        log(
+            f"paired: blocks of {args.block} runs, each through one worker (with the floor's "
+            f"work, {rows} rows a transaction, before each run) and then through {WORKERS}..."
+        )
+        paired = timed_pass("paired", day, base / "paired", 1, args.runner, n, rows, args.block)
+        block_ratio = [
+            sum(paired["pipeline"][i : i + args.block]) / sum(paired["floor"][i : i + args.block])
+            for i in range(0, n, args.block)
+        ]
+        block_speedup = [a / b for a, b in zip(paired["serial"], paired["plain"], strict=True)]
+        log(f"  floor {statistics.median(paired['floor']):.3f} s per run (median)")
+        log(f"  pipeline / floor by block: {', '.join(f'{r:.3f}' for r in block_ratio)}")
+        log(f"  speedup by block: {', '.join(f'{r:.3f}' for r in block_speedup)}")
 
-        log(f"plain parallel pass ({WORKERS} processes)...")
-        plain = timed_pass("plain", day, base / "archive-plain", WORKERS, args.runner, n)
-        plain_s, plain_steady = plain["seconds"], plain["steady"]
-        log(f"  {plain_s:.1f} s ({plain_steady:.1f} s once the workers had started)")
-
-        log(f"Prefect flow, {args.runner} runner, {WORKERS} workers...")
-        flow_s = timed_pass("flow", day, base / "archive-flow", WORKERS, args.runner, n)["seconds"]
-        log(f"  {flow_s:.1f} s")
-
+        # Plain and Prefect passes in the order plain, flow, flow, plain: a steady drift
+        # of the machine's speed then weighs on both means alike.
+        plain_s, flow_s = [], []
+        for what in ("plain", "flow", "flow", "plain"):
+            k = len(plain_s if what == "plain" else flow_s)
+            folder = base / f"archive-{what}-{k}"
+            if what == "plain":
+                log(f"plain parallel pass ({WORKERS} processes)...")
+                plain = timed_pass("plain", day, folder, WORKERS, args.runner, n)
+                plain_s.append(plain["seconds"])
+                log(f"  {plain['seconds']:.1f} s ({plain['steady']:.1f} s once started)")
+            else:
+                log(f"Prefect flow, {args.runner} runner, {WORKERS} workers...")
+                flow_s.append(timed_pass("flow", day, folder, WORKERS, args.runner, n)["seconds"])
+                log(f"  {flow_s[-1]:.1f} s")
+    plain_mean, flow_mean = statistics.mean(plain_s), statistics.mean(flow_s)
     figures = {
-        "runs_per_min": round(60.0 * n / flow_s, 2),
-        "speedup_2_cores": round(serial_s / plain_s, 3),
-        "speedup_2_cores_steady": round(serial_steady / plain_steady, 3),
-        "pipeline_to_floor_ratio": round(sum(per_run) / sum(floor), 3),
+        "runs_per_min": round(60.0 * n / flow_mean, 2),
+        "speedup_2_cores": round(serial_s / plain_mean, 3),
+        "speedup_2_cores_steady": round(sum(paired["serial"]) / sum(paired["plain"]), 3),
+        "pipeline_to_floor_ratio": round(sum(paired["pipeline"]) / sum(paired["floor"]), 3),
         "pipeline_to_parse_ratio": round(sum(per_run) / parse_1_s, 2),
-        "pipeline_to_parse_ratio_machine": round(plain_s / parse_s, 2),
-        "prefect_overhead_fraction": round((flow_s - plain_s) / flow_s, 4),
+        "pipeline_to_parse_ratio_machine": round(plain_mean / parse_s, 2),
+        "prefect_overhead_fraction": round((flow_mean - plain_mean) / flow_mean, 4),
         "runs": n,
         "parallel_capacity": round(capacity, 3),
+        "pipeline_to_floor_ratio_by_block": [round(r, 3) for r in block_ratio],
+        "speedup_2_cores_steady_by_block": [round(r, 3) for r in block_speedup],
     }
     log(f"machine check after the passes: {parallel_capacity():.2f}x on {WORKERS} processes")
     log(
-        f"serial {serial_s:.1f} s, plain x{WORKERS} {plain_s:.1f} s, "
-        f"flow x{WORKERS} {flow_s:.1f} s, parse {parse_s:.2f} s (one thread {parse_1_s:.2f} s)"
+        f"serial {serial_s:.1f} s, plain x{WORKERS} {plain_mean:.1f} s, flow x{WORKERS} "
+        f"{flow_mean:.1f} s (means), parse {parse_s:.2f} s (one thread {parse_1_s:.2f} s)"
     )
     print(json.dumps(figures))
 
