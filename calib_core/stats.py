@@ -137,6 +137,25 @@ def channel_stats(x: np.ndarray) -> ChannelStats:
     return ChannelStats(mean, std, std / np.sqrt(n_eff), n_eff, n)
 
 
+def row_medians(a: np.ndarray) -> np.ndarray:
+    """Median of each row of a 2-D array of finite values, (k, n) -> (k,); `a` is reordered.
+
+    The values of ``np.median(a, axis=1)`` (the middle element, or the mean of
+    the two middle ones), partitioned in place: without np.median's copy and NaN
+    scan, 0.7 instead of 1.9 ms for the robust noise of a 12 s rotation at 1 kHz
+    (`solvers.integral.noise_from_differences`). An empty row gives NaN.
+    """
+    n = a.shape[1]
+    k = n // 2
+    if n == 0:
+        return np.full(a.shape[0], np.nan)
+    if n % 2:
+        a.partition(k, axis=1)
+        return a[:, k].copy()
+    a.partition([k - 1, k], axis=1)
+    return 0.5 * (a[:, k - 1] + a[:, k])
+
+
 def trapezoid_weights(t: np.ndarray) -> np.ndarray:
     """Weights w with sum(w * y) equal to the trapezoid integral of y over t.
 

@@ -17,7 +17,7 @@ from calib_core.simulate import (
     six_position_integral_run,
 )
 from calib_core.solvers.integral import noise_from_differences, solve_integral
-from calib_core.stats import channel_stats, trapezoid_weights
+from calib_core.stats import channel_stats, row_medians, trapezoid_weights
 from calib_core.units import DEG
 
 RANGE = 2000 * DEG
@@ -168,6 +168,19 @@ def test_noise_estimate_from_differences():
     for name, p in a.parameters.items():
         assert p.value == b.parameters[name].value
         assert p.std == pytest.approx(b.parameters[name].std, rel=0.2)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 7, 8, 1201])
+def test_row_medians_are_numpys_medians(n):
+    """The in-place row medians behind noise_from_differences: np.median's values, odd
+    and even row lengths, ties; an empty row gives NaN as np.median does (without its
+    warning)."""
+    rng = np.random.default_rng(n)
+    a = np.round(rng.standard_t(3, (3, n)), 1)  # rounded: ties in the middle
+    if n == 0:
+        assert np.isnan(row_medians(a.copy())).all()
+        return
+    np.testing.assert_array_equal(row_medians(a.copy()), np.median(a, axis=1))
 
 
 def test_spikes_in_the_rotations_are_removed_before_integrating():

@@ -65,8 +65,9 @@ def _sigma_clip(d: np.ndarray, n_sigma: float, max_iter: int) -> np.ndarray:
     centre c; r starts at n_sigma * std / 2: 13 % of Gaussian noise at 3 sigma)
     and the rest enters only through its sums. A sample with |x - c| <= r has
     |x - mean| <= r + |mean - c|; while that stays within the limit no such
-    sample can be flagged, else the candidates are rebuilt (one full pass). The result is exactly that of clipping all samples
-    every pass: the flagged samples are summed in the same (index) order.
+    sample can be flagged, else the candidates are rebuilt (one full pass).
+    The result is exactly that of clipping all samples every pass: the flagged
+    samples are summed in the same (index) order.
     """
     n_all = d.size
     # einsum, not np.dot: BLAS dot spins up threads, which costs more than the

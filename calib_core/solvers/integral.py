@@ -33,7 +33,7 @@ import numpy as np
 from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.recording import Recording
-from calib_core.stats import trapezoid_weights
+from calib_core.stats import row_medians, trapezoid_weights
 from calib_core.units import DEG, STANDARD_GRAVITY
 
 # Rotation records: n whole turns about the axis, axis up; ccw = positive rate.
@@ -60,9 +60,10 @@ def noise_from_differences(gyr: np.ndarray) -> np.ndarray:
     -------
     (3,) rad/s.
     """
-    d2 = np.diff(np.asarray(gyr, dtype=float), n=2, axis=0)
-    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-    return mad / 0.6744897501960817 / math.sqrt(6.0)
+    # One contiguous row per channel: the medians partition rows in place.
+    d2 = np.diff(np.ascontiguousarray(np.asarray(gyr, dtype=float).T), n=2, axis=1)
+    deviation = np.abs(d2 - row_medians(d2.copy())[:, None])
+    return row_medians(deviation) / 0.6744897501960817 / math.sqrt(6.0)
 
 
 # A rotation sample further than this many stds (of r in `despike`) from its neighbours'
@@ -244,12 +245,9 @@ def _integrals(
             rec = rotations[f"{a}_{sense}"]
             w = trapezoid_weights(rec.t)
             T = float(rec.t[-1] - rec.t[0])
-            sigma = (
-                noise_from_differences(rec.gyr)
-                if noise_std is None
-                else np.asarray(noise_std[f"{a}_up"], dtype=float)
-            )
-            gyr, _ = despike(rec.gyr, noise_from_differences(rec.gyr))
+            robust = noise_from_differences(rec.gyr)
+            sigma = robust if noise_std is None else np.asarray(noise_std[f"{a}_up"], dtype=float)
+            gyr, _ = despike(rec.gyr, robust)
             J[a][sense] = w @ gyr - S * T
             var[a][sense] = sigma**2 * float(w @ w)
             duration[a][sense] = T
