@@ -18,11 +18,10 @@ first pass would be a cheap duplicate):
    Parquet samples, raw objects, database transaction);
 3. paired (`paired_pass`): the two target figures, measured block by block
    (`--block`, 50 runs) so that the machine's drift weighs on both sides of
-   each ratio alike: every run of a block through a one-worker pool, each just
-   after the floor's work on the same run (`Floor`: read, hash and copy the raw
-   files, parse the CSV, write Parquet, one insert transaction of as many rows
-   as the archive holds per run, done bare in one process), then the same block
-   through a pool of 2;
+   each ratio alike: the floor's work on every run of a block (`Floor`: read,
+   hash and copy the raw files, parse the CSV, write Parquet, one insert
+   transaction of as many rows as the archive holds per run, done bare in one
+   process), then the block through a one-worker pool, then through a pool of 2;
 4. plain parallel and 5. Prefect, in the order plain, flow, flow, plain: the
    same calls in a pool of 2 processes as in 2, and the process_batch flow with
    the process runner and 2 workers, as `calib process --runner process` runs
@@ -305,12 +304,15 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
     VM), so a ratio of two passes made minutes apart measures the drift as much
     as the code. Here one process holds a pool of one worker and a pool of two
     (started first, both as `plain_pass` sets them up, into their own archives)
-    and the runs go in blocks of `block`: each run of the block through the
-    one-worker pool, one at a time, with the floor's work on the same run just
-    before it (`Floor`, in this process, while the worker waits); then the
-    same block through the two-worker pool. pipeline_to_floor_ratio = sum of the
-    one-worker runs' times / sum of their floors'; speedup_2_cores_steady = sum
-    of the one-worker blocks' times / sum of the two-worker blocks'.
+    and the runs go in blocks of `block`: the floor's work on each run of the
+    block (`Floor`, in this process, while the workers wait), then each run
+    through the one-worker pool, one at a time, then the block through the
+    two-worker pool. Each side does its runs one after the other, as a batch
+    does: interleaving the floor run by run made each side evict the other's
+    memory (pipeline / floor 1.39 against 1.27-1.31 for the same code on 60
+    runs). pipeline_to_floor_ratio = sum of the one-worker runs' times / sum of
+    their floors'; speedup_2_cores_steady = sum of the one-worker blocks' times /
+    sum of the two-worker blocks'.
 
     Returns per-run "pipeline" and "floor" seconds, per-block "serial" and "plain" seconds.
     """
@@ -340,8 +342,8 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
         urls = {k: (a.url, str(a.root)) for k, a in archives.items()}
         for first in range(0, len(sources), block):
             runs = sources[first : first + block]
+            found["floor"] += [floor.run(source.folder) for source in runs]
             for source in runs:
-                found["floor"].append(floor.run(source.folder))
                 t = time.perf_counter()
                 _ok(one.submit(process_run_for_batch, source, *urls["serial"]).result())
                 found["pipeline"].append(time.perf_counter() - t)
@@ -510,8 +512,8 @@ def main() -> None:
 
         rows = rows_per_run(base / "archive-serial", n)
         log(
-            f"paired: blocks of {args.block} runs, each through one worker (with the floor's "
-            f"work, {rows} rows a transaction, before each run) and then through {WORKERS}..."
+            f"paired: blocks of {args.block} runs, each done bare (the floor, {rows} rows a "
+            f"transaction), then through one worker, then through {WORKERS}..."
         )
         paired = timed_pass("paired", day, base / "paired", 1, args.runner, n, rows, args.block)
         block_ratio = [
