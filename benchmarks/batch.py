@@ -63,6 +63,7 @@ import argparse
 import json
 import multiprocessing
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -511,6 +512,10 @@ def main() -> None:
         log(f"  ingest stage / bare parse on one thread: {ingest_ratio:.2f}")
 
         rows = rows_per_run(base / "archive-serial", n)
+        # Each pass's archive goes once its figures are read: the page cache holding
+        # earlier passes' files (~25 MB a run each) would crowd the later passes into
+        # reclaiming memory, which no single batch of a lab meets.
+        shutil.rmtree(base / "archive-serial")
         log(
             f"paired: blocks of {args.block} runs, each done bare (the floor, {rows} rows a "
             f"transaction), then through one worker, then through {WORKERS}..."
@@ -521,6 +526,14 @@ def main() -> None:
             for i in range(0, n, args.block)
         ]
         block_speedup = [a / b for a, b in zip(paired["serial"], paired["plain"], strict=True)]
+        shutil.rmtree(base / "paired")
+        for i, first in enumerate(range(0, n, args.block)):
+            runs = slice(first, first + args.block)
+            log(
+                f"  block {i + 1}: floor {statistics.mean(paired['floor'][runs]):.3f} s, "
+                f"one worker {statistics.mean(paired['pipeline'][runs]):.3f} s per run (means); "
+                f"{args.block} runs on {WORKERS} workers {paired['plain'][i]:.1f} s"
+            )
         log(f"  floor {statistics.median(paired['floor']):.3f} s per run (median)")
         log(f"  pipeline / floor by block: {', '.join(f'{r:.3f}' for r in block_ratio)}")
         log(f"  speedup by block: {', '.join(f'{r:.3f}' for r in block_speedup)}")
@@ -540,6 +553,7 @@ def main() -> None:
                 log(f"Prefect flow, {args.runner} runner, {WORKERS} workers...")
                 flow_s.append(timed_pass("flow", day, folder, WORKERS, args.runner, n)["seconds"])
                 log(f"  {flow_s[-1]:.1f} s")
+            shutil.rmtree(folder)
     plain_mean, flow_mean = statistics.mean(plain_s), statistics.mean(flow_s)
     figures = {
         "runs_per_min": round(60.0 * n / flow_mean, 2),
