@@ -60,6 +60,7 @@ Run: ``.venv/bin/python benchmarks/batch.py [--runs N]`` (200 runs: ~12 minutes 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import multiprocessing
 import os
@@ -69,8 +70,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
+from typing import BinaryIO
 
 os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
@@ -84,6 +87,11 @@ WORKERS = 2
 # Runs per block of the paired pass: the two-worker pool idles for about half a run at
 # each block's end, ~2 % of a block of 50 (a bias against the speedup, as in any batch).
 BLOCK = 50
+# The floor reads and writes its files in calls of this size, as the archive does
+# (storage.rawstore.IO_CHUNK): a write of 1 MiB or more into new page-cache pages costs
+# ~10x more on Linux 6.18 ext4 (benchmarks/write_chunks.py), a cost no more mandatory
+# for the floor than for the pipeline.
+FLOOR_CHUNK = 256 << 10
 # Stage -> (step name or None for any step, statistics key) as process_run records them.
 STAGES = {
     "ingest": ("ingest", "seconds"),
@@ -239,8 +247,9 @@ class Floor:
 
     For a run folder, on one thread (pyarrow's pools set to one, as the pipeline's
     workers run): read and SHA-256 every raw file and copy it into an object store
-    (write, fsync), parse its CSV (pyarrow.csv.read_csv), write the parsed table as
-    zstd Parquet with the archive's encodings (write, fsync), and insert
+    (through one reused buffer, `FLOOR_CHUNK` bytes a call, as the archive copies;
+    fsync), parse its CSV (pyarrow.csv.read_csv), write the parsed table as
+    zstd Parquet with the archive's encodings (from Arrow's buffer; fsync), and insert
     `rows_per_run` rows (as many as the archive holds per run) in one SQLite
     transaction (WAL, as the archive). No validation, no solving, no checks, no
     temporary-and-rename: the floor the pipeline's per-run time is compared with
@@ -255,6 +264,8 @@ class Floor:
         pa.set_cpu_count(1)
         pa.set_io_thread_count(1)
         self.scratch, self.rows_per_run = scratch, rows_per_run
+        self.buffer = bytearray(FLOOR_CHUNK)  # raw files are read, hashed and copied through it
+        self.view = memoryview(self.buffer)
         (scratch / "objects").mkdir(parents=True)
         (scratch / "samples").mkdir()
         self.db = sqlite3.connect(scratch / "floor.sqlite", isolation_level=None)
@@ -271,8 +282,13 @@ class Floor:
 
         started = time.perf_counter()
         for raw in sorted(p for p in folder.iterdir() if p.is_file()):
-            data = raw.read_bytes()
-            _durable_write(self.scratch / "objects" / hashlib.sha256(data).hexdigest(), data)
+            digest = hashlib.sha256()
+            copy = self.scratch / "objects" / f"{folder.name}-{raw.name}"
+            with raw.open("rb", buffering=0) as src, _durable(copy) as dest:
+                while n := src.readinto(self.buffer):
+                    digest.update(self.view[:n])
+                    _write_all(dest, self.view[:n])
+            digest.hexdigest()  # the archive names the copy by it
         table = pacsv.read_csv(
             folder / "imu.csv", read_options=pacsv.ReadOptions(use_threads=False)
         )
@@ -286,8 +302,8 @@ class Floor:
             use_dictionary=[c for c in table.column_names if c not in floats],
             column_encoding=dict.fromkeys(floats, "BYTE_STREAM_SPLIT"),
         )
-        sample_file = self.scratch / "samples" / f"{folder.name}.parquet"
-        _durable_write(sample_file, sink.getvalue().to_pybytes())
+        with _durable(self.scratch / "samples" / f"{folder.name}.parquet") as dest:
+            _write_all(dest, memoryview(sink.getvalue()))
         rows = [(folder.name, f"p{i}", float(i), "{}") for i in range(self.rows_per_run)]
         self.db.execute("BEGIN")
         self.db.executemany("INSERT INTO rows VALUES (?, ?, ?, ?)", rows)
@@ -363,17 +379,20 @@ def _ok(outcome: dict) -> None:
         raise SystemExit(f"a run was not archived: {outcome}")
 
 
-def _durable_write(path: Path, data: bytes) -> None:
-    """Write and fsync, in calls of 256 KiB: a call of 1 MiB or more into new page-cache
-    pages costs ~8x more on Linux 6.18 ext4 (benchmarks/write_chunks.py), a cost that is
-    no more mandatory for the floor than for the pipeline (storage.rawstore.IO_CHUNK)."""
-    view = memoryview(data)
+@contextlib.contextmanager
+def _durable(path: Path) -> Iterator[BinaryIO]:
+    """A new file, fsynced when the block ends."""
     with path.open("wb", buffering=0) as f:
-        for start in range(0, len(view), 256 << 10):
-            chunk = view[start : start + (256 << 10)]
-            while chunk:
-                chunk = chunk[f.write(chunk) :]
+        yield f
         os.fsync(f.fileno())
+
+
+def _write_all(f: BinaryIO, data: memoryview) -> None:
+    """Write `data` in calls of `FLOOR_CHUNK` bytes."""
+    for start in range(0, len(data), FLOOR_CHUNK):
+        chunk = data[start : start + FLOOR_CHUNK]
+        while chunk:
+            chunk = chunk[f.write(chunk) :]
 
 
 def rows_per_run(archive_dir: Path, n: int) -> int:
