@@ -48,6 +48,7 @@ PROGRESS_THRESHOLD_BYTES = 64 * 2**20  # above: a progress bar on stderr
 # that a slice and its parse buffers stay well below the decoded arrays (peak 1.7x the
 # arrays on an 800k-row file, tests/test_large_csv.py).
 SLICE_BYTES = 8 << 20
+_EMPTY = np.zeros(0, dtype=np.intp)
 ESTIMATE_PROBE_BYTES = 64 << 10  # bytes of the first lines that estimate the row count
 MATLAB_UNIX_EPOCH_DATENUM = 719529.0  # datenum of 1970-01-01
 
@@ -258,7 +259,9 @@ def _read_columns(
                     out[key] = grown
             for role, name in layout.roles.items():
                 values = batch[name]
-                bad = np.flatnonzero(~np.isfinite(values))
+                # A NaN or an infinity makes the sum non-finite: one pass, no temporary
+                # array; a sum overflowing from finite values is settled by the exact test.
+                bad = _EMPTY if np.isfinite(values.sum()) else np.flatnonzero(~np.isfinite(values))
                 if bad.size:
                     diagnose(layout, columns, iso_column, rows)
                     raise IngestError(  # not reached unless the diagnosis disagrees

@@ -325,9 +325,13 @@ def _load_described(
     out: dict[str, Recording] = {}
     hashed: set[str] = set()
     increasing: dict[int, bool] = {}  # id of a whole-file recording -> its t strictly increases
+    checked: dict[str, Path] = {}  # file name -> its path, checked once (segments share files)
     for i, seg in enumerate(segments):
         names = seg.files
-        paths = [_data_file(folder, root, seg, i, name, source) for name in names]
+        for name in names:
+            if name not in checked:
+                checked[name] = _data_file(folder, root, seg, i, name, source)
+        paths = [checked[name] for name in names]
         if kind == "mpu6000":
             parsed = parse_file_name(paths[0].name)
             if parsed is not None and parsed[0] != manifest.unit.serial:
