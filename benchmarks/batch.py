@@ -21,7 +21,8 @@ first pass would be a cheap duplicate):
    each ratio alike: the floor's work on every run of a block (`Floor`: read,
    hash and copy the raw files, parse the CSV, write Parquet, one insert
    transaction of as many rows as the archive holds per run, done bare in one
-   process), then the block through a one-worker pool, then through a pool of 2;
+   process), the block through a one-worker pool and through a pool of 2, in
+   this order and in the reverse one every other block;
 4. plain parallel and 5. Prefect, in the order plain, flow, flow, plain: the
    same calls in a pool of 2 processes as in 2, and the process_batch flow with
    the process runner and 2 workers, as `calib process --runner process` runs
@@ -321,13 +322,17 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
     VM), so a ratio of two passes made minutes apart measures the drift as much
     as the code. Here one process holds a pool of one worker and a pool of two
     (started first, both as `plain_pass` sets them up, into their own archives)
-    and the runs go in blocks of `block`: the floor's work on each run of the
-    block (`Floor`, in this process, while the workers wait), then each run
-    through the one-worker pool, one at a time, then the block through the
-    two-worker pool. Each side does its runs one after the other, as a batch
+    and the runs go in blocks of `block`, each block through three sides: the
+    floor's work on each run (`Floor`, in this process, while the workers wait),
+    each run through the one-worker pool, one at a time, and the block through
+    the two-worker pool. Each side does its runs one after the other, as a batch
     does: interleaving the floor run by run made each side evict the other's
     memory (pipeline / floor 1.39 against 1.27-1.31 for the same code on 60
-    runs). pipeline_to_floor_ratio = sum of the one-worker runs' times / sum of
+    runs). The sides go in turn, and in the reverse turn every other block
+    (floor first, then two workers first): whatever favours the first side of a
+    block (pages just freed by the previous pass's removal made a first floor
+    block 0.181 s a run against 0.243-0.279 s for the next ones) then falls on
+    each side alike. pipeline_to_floor_ratio = sum of the one-worker runs' times / sum of
     their floors'; speedup_2_cores_steady = sum of the one-worker blocks' times /
     sum of the two-worker blocks'.
 
@@ -357,19 +362,29 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
             for call in ready:
                 call.result()
         urls = {k: (a.url, str(a.root)) for k, a in archives.items()}
-        for first in range(0, len(sources), block):
-            runs = sources[first : first + block]
+
+        def floor_side(runs: list) -> None:
             found["floor"] += [floor.run(source.folder) for source in runs]
+
+        def one_worker(runs: list) -> None:
             for source in runs:
                 t = time.perf_counter()
                 _ok(one.submit(process_run_for_batch, source, *urls["serial"]).result())
                 found["pipeline"].append(time.perf_counter() - t)
-            found["serial"].append(sum(found["pipeline"][first:]))
+            found["serial"].append(sum(found["pipeline"][-len(runs) :]))
+
+        def two_workers(runs: list) -> None:
             t = time.perf_counter()
             for call in [two.submit(process_run_for_batch, s, *urls["plain"]) for s in runs]:
                 _ok(call.result())
             found["plain"].append(time.perf_counter() - t)
-            log(f"  {first + len(runs)}/{len(sources)} runs in both pools")
+
+        for i, first in enumerate(range(0, len(sources), block)):
+            runs = sources[first : first + block]
+            sides = (floor_side, one_worker, two_workers)
+            for side in sides if i % 2 == 0 else reversed(sides):
+                side(runs)
+            log(f"  {first + len(runs)}/{len(sources)} runs on each side")
     floor.close()
     return found
 
@@ -537,7 +552,7 @@ def main() -> None:
         shutil.rmtree(base / "archive-serial")
         log(
             f"paired: blocks of {args.block} runs, each done bare (the floor, {rows} rows a "
-            f"transaction), then through one worker, then through {WORKERS}..."
+            f"transaction), through one worker and through {WORKERS}, in turns..."
         )
         paired = timed_pass("paired", day, base / "paired", 1, args.runner, n, rows, args.block)
         block_ratio = [
