@@ -142,8 +142,8 @@ def row_medians(a: np.ndarray) -> np.ndarray:
 
     The values of ``np.median(a, axis=1)`` (the middle element, or the mean of
     the two middle ones), partitioned in place: without np.median's copy and NaN
-    scan, 0.7 instead of 1.9 ms for the robust noise of a 12 s rotation at 1 kHz
-    (`solvers.integral.noise_from_differences`). An empty row gives NaN.
+    scan, `solvers.integral.noise_from_differences` takes 1.0 instead of 2.2 ms on a
+    12 s rotation at 1 kHz. An empty row gives NaN.
     """
     n = a.shape[1]
     k = n // 2

@@ -40,10 +40,12 @@ import pyarrow.parquet as pq
 from storage.naming import check_safe_name
 from storage.write_failures import with_path
 
-# Bytes per read or write call. Writing 15.6 MB into a new file (new page-cache pages)
-# took 44-62 ms in calls of 1 MiB or more and 5.5 ms in calls of 512 KiB or less, on Linux
-# 6.18 ext4 (benchmarks/write_chunks.py): a large call makes the kernel allocate large
-# folios. Reads are as fast either way.
+# Bytes per read or write call. On Linux 6.18 ext4 (benchmarks/write_chunks.py), writing
+# 16 MB into new files took 66-73 ms in calls of 1 to 16 MiB and 6.8 ms in calls of 256
+# or 512 KiB in one run; in three later runs, with gigabytes of files just deleted,
+# every size took 5-8 ms but 4-16 MiB once more 69-71 ms. Calls of 256 KiB were never
+# slower than larger ones; why the kernel sometimes pays so much for a large call was
+# not looked into. Reads are as fast either way.
 IO_CHUNK = 256 << 10
 TEMP_SUFFIX = ".tmp"
 # Temporary files of another host (a shared file store) are removed only past this age, s.
@@ -107,11 +109,11 @@ def _temp_beside(path: Path) -> tuple[int, Path]:
     return _mkstemp(path.parent, f".{path.name}.", ".tmp")
 
 
-def write_all(fd: int, data: bytes | memoryview | pa.Buffer) -> None:
-    """Write all of `data` to the open file `fd`, `IO_CHUNK` bytes a call."""
+def write_all(fd: int, data: bytes | memoryview | pa.Buffer, call: int = IO_CHUNK) -> None:
+    """Write all of `data` to the open file `fd`, `call` bytes a call."""
     view = memoryview(data).cast("B")
-    for start in range(0, len(view), IO_CHUNK):
-        chunk = view[start : start + IO_CHUNK]
+    for start in range(0, len(view), call):
+        chunk = view[start : start + call]
         while chunk:  # a write may be short
             chunk = chunk[os.write(fd, chunk) :]
 

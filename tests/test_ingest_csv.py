@@ -164,6 +164,21 @@ def test_bad_value_names_line_and_column(tmp_path: Path, value: str, shown: str)
     assert str(err.value) == f"{path} line 6: field 'az': expected a finite number, got {shown}"
 
 
+def test_huge_finite_values_are_read_without_error_or_warning(tmp_path: Path) -> None:
+    """Finite values whose sum overflows: the reader's quick test (a block's sum) sends
+    them to the exact test, which finds nothing to refuse, and says nothing."""
+    import warnings
+
+    rows = list(GOOD)
+    for i in (3, 4):
+        rows[i] = rows[i].replace("9.8", "1.7e308")
+    path = write_small_csv(tmp_path / "imu.csv", rows)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rec = read_csv(path, FMT)
+    assert rec.acc[3, 2] == rec.acc[4, 2] == 1.7e308
+
+
 def test_short_row_is_an_empty_value(tmp_path: Path) -> None:
     rows = list(GOOD)
     rows[2] = rows[2].rsplit(",", 1)[0]  # line 4 lacks gz

@@ -98,10 +98,10 @@ def _sigma_clip(d: np.ndarray, n_sigma: float, max_iter: int) -> np.ndarray:
             d_cand = d[cand]
         # Flags only grow, as in plain clipping.
         out |= np.abs(d_cand - mean) > limit
-        flagged = int(np.count_nonzero(out))
-        if flagged == n_out:
+        count = int(np.count_nonzero(out))
+        if count == n_out:
             break
-        n_out = flagged
+        n_out = count
     return cand[out]
 
 

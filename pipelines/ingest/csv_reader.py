@@ -48,7 +48,6 @@ PROGRESS_THRESHOLD_BYTES = 64 * 2**20  # above: a progress bar on stderr
 # that a slice and its parse buffers stay well below the decoded arrays (peak 1.7x the
 # arrays on an 800k-row file, tests/test_large_csv.py).
 SLICE_BYTES = 8 << 20
-_EMPTY = np.zeros(0, dtype=np.intp)
 ESTIMATE_PROBE_BYTES = 64 << 10  # bytes of the first lines that estimate the row count
 MATLAB_UNIX_EPOCH_DATENUM = 719529.0  # datenum of 1970-01-01
 
@@ -260,9 +259,11 @@ def _read_columns(
             for role, name in layout.roles.items():
                 values = batch[name]
                 # A NaN or an infinity makes the sum non-finite: one pass, no temporary
-                # array; a sum overflowing from finite values is settled by the exact test.
-                bad = _EMPTY if np.isfinite(values.sum()) else np.flatnonzero(~np.isfinite(values))
-                if bad.size:
+                # array. A sum overflowing from finite values goes to the exact test.
+                with np.errstate(over="ignore"):
+                    suspect = not np.isfinite(values.sum())
+                bad = np.flatnonzero(~np.isfinite(values)) if suspect else ()
+                if len(bad):
                     diagnose(layout, columns, iso_column, rows)
                     raise IngestError(  # not reached unless the diagnosis disagrees
                         f"expected a finite number, got {values[bad[0]]!r}",
