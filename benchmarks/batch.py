@@ -85,14 +85,10 @@ sys.path.insert(0, str(ROOT))
 RUNS = 200  # the steady speedup is asked on at least 200 runs
 RATE_HZ = 1000.0
 WORKERS = 2
-# Runs per block of the paired pass: the two-worker pool idles for about half a run at
-# each block's end, ~2 % of a block of 50 (a bias against the speedup, as in any batch).
+# Runs per block of the paired pass. At a block's end one of the two workers waits for
+# the other, on average half a run of the 25 each does: ~2 % by that count, not
+# measured (a bias against the speedup, as at the end of any batch).
 BLOCK = 50
-# The floor reads and writes its files in calls of this size, as the archive does
-# (storage.rawstore.IO_CHUNK): a write of 1 MiB or more into new page-cache pages costs
-# ~10x more on Linux 6.18 ext4 (benchmarks/write_chunks.py), a cost no more mandatory
-# for the floor than for the pipeline.
-FLOOR_CHUNK = 256 << 10
 # Stage -> (step name or None for any step, statistics key) as process_run records them.
 STAGES = {
     "ingest": ("ingest", "seconds"),
@@ -248,8 +244,8 @@ class Floor:
 
     For a run folder, on one thread (pyarrow's pools set to one, as the pipeline's
     workers run): read and SHA-256 every raw file and copy it into an object store
-    (through one reused buffer, `FLOOR_CHUNK` bytes a call, as the archive copies;
-    fsync), parse its CSV (pyarrow.csv.read_csv), write the parsed table as
+    (`storage.rawstore.copy_hashing`, the archive's own copy: one reused buffer,
+    `IO_CHUNK` bytes a call; fsync), parse its CSV (pyarrow.csv.read_csv), write the parsed table as
     zstd Parquet with the archive's encodings (from Arrow's buffer; fsync), and insert
     `rows_per_run` rows (as many as the archive holds per run) in one SQLite
     transaction (WAL, as the archive). No validation, no solving, no checks, no
@@ -265,8 +261,6 @@ class Floor:
         pa.set_cpu_count(1)
         pa.set_io_thread_count(1)
         self.scratch, self.rows_per_run = scratch, rows_per_run
-        self.buffer = bytearray(FLOOR_CHUNK)  # raw files are read, hashed and copied through it
-        self.view = memoryview(self.buffer)
         (scratch / "objects").mkdir(parents=True)
         (scratch / "samples").mkdir()
         self.db = sqlite3.connect(scratch / "floor.sqlite", isolation_level=None)
@@ -275,21 +269,16 @@ class Floor:
 
     def run(self, folder: Path) -> float:
         """Seconds of the floor's work for one run folder."""
-        import hashlib
-
         import pyarrow as pa
         import pyarrow.csv as pacsv
         import pyarrow.parquet as pq
 
+        from storage.rawstore import copy_hashing, write_all
+
         started = time.perf_counter()
         for raw in sorted(p for p in folder.iterdir() if p.is_file()):
-            digest = hashlib.sha256()
-            copy = self.scratch / "objects" / f"{folder.name}-{raw.name}"
-            with raw.open("rb", buffering=0) as src, _durable(copy) as dest:
-                while n := src.readinto(self.buffer):
-                    digest.update(self.view[:n])
-                    _write_all(dest, self.view[:n])
-            digest.hexdigest()  # the archive names the copy by it
+            with _durable(self.scratch / "objects" / f"{folder.name}-{raw.name}") as dest:
+                copy_hashing(raw, dest.fileno())  # the archive names the copy by its hash
         table = pacsv.read_csv(
             folder / "imu.csv", read_options=pacsv.ReadOptions(use_threads=False)
         )
@@ -304,7 +293,7 @@ class Floor:
             column_encoding=dict.fromkeys(floats, "BYTE_STREAM_SPLIT"),
         )
         with _durable(self.scratch / "samples" / f"{folder.name}.parquet") as dest:
-            _write_all(dest, memoryview(sink.getvalue()))
+            write_all(dest.fileno(), sink.getvalue())
         rows = [(folder.name, f"p{i}", float(i), "{}") for i in range(self.rows_per_run)]
         self.db.execute("BEGIN")
         self.db.executemany("INSERT INTO rows VALUES (?, ?, ?, ?)", rows)
@@ -326,9 +315,10 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
     floor's work on each run (`Floor`, in this process, while the workers wait),
     each run through the one-worker pool, one at a time, and the block through
     the two-worker pool. Each side does its runs one after the other, as a batch
-    does: interleaving the floor run by run made each side evict the other's
-    memory (pipeline / floor 1.39 against 1.27-1.31 for the same code on 60
-    runs). The sides go in turn, and in the reverse turn every other block
+    does. (Interleaving the floor and the pipeline run by run gave 1.27 on 20 runs
+    and 1.39 on 60, against 1.31 for separate passes on 60 runs a few minutes
+    earlier: within the drift, so not a measured reason, only a setting no batch
+    has.) The sides go in turn, and in the reverse turn every other block
     (floor first, then two workers first): whatever favours the first side of a
     block (pages just freed by the previous pass's removal made a first floor
     block 0.181 s a run against 0.243-0.279 s for the next ones) then falls on
@@ -400,14 +390,6 @@ def _durable(path: Path) -> Iterator[BinaryIO]:
     with path.open("wb", buffering=0) as f:
         yield f
         os.fsync(f.fileno())
-
-
-def _write_all(f: BinaryIO, data: memoryview) -> None:
-    """Write `data` in calls of `FLOOR_CHUNK` bytes."""
-    for start in range(0, len(data), FLOOR_CHUNK):
-        chunk = data[start : start + FLOOR_CHUNK]
-        while chunk:
-            chunk = chunk[f.write(chunk) :]
 
 
 def rows_per_run(archive_dir: Path, n: int) -> int:

@@ -2,8 +2,9 @@
 
 The archive writes every raw file and every run's Parquet samples into new files
 (storage.rawstore). On Linux 6.18 with ext4 a large write() into new page-cache
-pages makes the kernel allocate large folios, which cost far more than the copy
-itself: this script measures it, so `storage.rawstore.IO_CHUNK` rests on a figure.
+pages has cost ten times a write of 256 KiB, and at other times the same (the
+state of the machine's memory seems to decide, not looked into): this script
+measures it, so `storage.rawstore.IO_CHUNK` rests on figures.
 
 For each call size (64 KiB to the whole file at once), in turns, `--rounds` times:
 write the bytes of a 16 MB buffer (a 1 kHz run's CSV is 15.6 MB) into a new file
@@ -30,6 +31,10 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from storage.rawstore import write_all  # noqa: E402 - after the path is set
+
 SIZES_KIB = (64, 256, 512, 1024, 4096)
 NBYTES = 16 << 20
 
@@ -39,10 +44,7 @@ def write_file(path: Path, data: memoryview, call: int) -> tuple[float, float]:
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
     try:
         started = time.perf_counter()
-        for start in range(0, len(data), call):
-            chunk = data[start : start + call]
-            while chunk:
-                chunk = chunk[os.write(fd, chunk) :]
+        write_all(fd, data, call)
         written = time.perf_counter() - started
         os.fsync(fd)
         return written, time.perf_counter() - started
