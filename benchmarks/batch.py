@@ -50,6 +50,9 @@ Figures (the issue's keys first):
   bare parse time, both on one core; pipeline_to_parse_ratio_machine = mean plain
   parallel time / threaded bare parse time, both on the whole machine;
 - the per-block ratios of the paired pass (their spread is the measurement's),
+  and the floor's copies and writes per run by block (floor_writes_s_by_block: read,
+  hash, write and fsync of the raw files, write and fsync of the Parquet bytes, the part
+  of the floor that follows the machine's memory and disk; the ratio moves with it),
   runs, and parallel_capacity (the CPU-only loop's speedup on 2 processes at
   the start: how much of the second core was free).
 
@@ -261,6 +264,10 @@ class Floor:
         pa.set_cpu_count(1)
         pa.set_io_thread_count(1)
         self.scratch, self.rows_per_run = scratch, rows_per_run
+        # Per run, the seconds of the copies and writes (read, hash, write and fsync of the
+        # raw files; write and fsync of the Parquet bytes): the part of the floor whose cost
+        # follows the machine's memory and disk rather than the CPU.
+        self.writes: list[float] = []
         (scratch / "objects").mkdir(parents=True)
         (scratch / "samples").mkdir()
         self.db = sqlite3.connect(scratch / "floor.sqlite", isolation_level=None)
@@ -279,6 +286,7 @@ class Floor:
         for raw in sorted(p for p in folder.iterdir() if p.is_file()):
             with _durable(self.scratch / "objects" / f"{folder.name}-{raw.name}") as dest:
                 copy_hashing(raw, dest.fileno())  # the archive names the copy by its hash
+        writes = time.perf_counter() - started
         table = pacsv.read_csv(
             folder / "imu.csv", read_options=pacsv.ReadOptions(use_threads=False)
         )
@@ -292,8 +300,10 @@ class Floor:
             use_dictionary=[c for c in table.column_names if c not in floats],
             column_encoding=dict.fromkeys(floats, "BYTE_STREAM_SPLIT"),
         )
+        written = time.perf_counter()
         with _durable(self.scratch / "samples" / f"{folder.name}.parquet") as dest:
             write_all(dest.fileno(), sink.getvalue())
+        self.writes.append(writes + time.perf_counter() - written)
         rows = [(folder.name, f"p{i}", float(i), "{}") for i in range(self.rows_per_run)]
         self.db.execute("BEGIN")
         self.db.executemany("INSERT INTO rows VALUES (?, ?, ?, ?)", rows)
@@ -326,7 +336,8 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
     their floors'; speedup_2_cores_steady = sum of the one-worker blocks' times /
     sum of the two-worker blocks'.
 
-    Returns per-run "pipeline" and "floor" seconds, per-block "serial" and "plain" seconds.
+    Returns per-run "pipeline", "floor" and "floor_writes" (`Floor.writes`) seconds, per-block
+    "serial" and "plain" seconds.
     """
     from concurrent.futures import ProcessPoolExecutor
 
@@ -338,7 +349,8 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
     sources = discover_runs([day])
     floor = Floor(base / "floor", rows_per_run)
     context = forkserver_context(("pipelines.run_task",))
-    found: dict[str, list[float]] = {"pipeline": [], "floor": [], "serial": [], "plain": []}
+    series = ("pipeline", "floor", "floor_writes", "serial", "plain")
+    found: dict[str, list[float]] = {name: [] for name in series}
     with (
         single_threaded_children(),
         ProcessPoolExecutor(1, mp_context=context) as one,
@@ -355,6 +367,7 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
 
         def floor_side(runs: list) -> None:
             found["floor"] += [floor.run(source.folder) for source in runs]
+            found["floor_writes"] += floor.writes[-len(runs) :]
 
         def one_worker(runs: list) -> None:
             for source in runs:
@@ -546,8 +559,9 @@ def main() -> None:
         for i, first in enumerate(range(0, n, args.block)):
             runs = slice(first, first + args.block)
             log(
-                f"  block {i + 1}: floor {statistics.mean(paired['floor'][runs]):.3f} s, "
-                f"one worker {statistics.mean(paired['pipeline'][runs]):.3f} s per run (means); "
+                f"  block {i + 1}: floor {statistics.mean(paired['floor'][runs]):.3f} s (copies "
+                f"and writes {statistics.mean(paired['floor_writes'][runs]):.3f} s), one worker "
+                f"{statistics.mean(paired['pipeline'][runs]):.3f} s per run (means); "
                 f"{args.block} runs on {WORKERS} workers {paired['plain'][i]:.1f} s"
             )
         log(f"  floor {statistics.median(paired['floor']):.3f} s per run (median)")
@@ -583,6 +597,10 @@ def main() -> None:
         "parallel_capacity": round(capacity, 3),
         "pipeline_to_floor_ratio_by_block": [round(r, 3) for r in block_ratio],
         "speedup_2_cores_steady_by_block": [round(r, 3) for r in block_speedup],
+        "floor_writes_s_by_block": [
+            round(statistics.mean(paired["floor_writes"][i : i + args.block]), 4)
+            for i in range(0, n, args.block)
+        ],
     }
     log(f"machine check after the passes: {parallel_capacity():.2f}x on {WORKERS} processes")
     log(
