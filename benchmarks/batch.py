@@ -329,12 +329,13 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
     and 1.39 on 60, against 1.31 for separate passes on 60 runs a few minutes
     earlier: within the drift, so not a measured reason, only a setting no batch
     has.) The sides go in turn, and in the reverse turn every other block
-    (floor first, then two workers first): whatever favours the first side of a
-    block (pages just freed by the previous pass's removal made a first floor
-    block 0.181 s a run against 0.243-0.279 s for the next ones) then falls on
-    each side alike. pipeline_to_floor_ratio = sum of the one-worker runs' times / sum of
-    their floors'; speedup_2_cores_steady = sum of the one-worker blocks' times /
-    sum of the two-worker blocks'.
+    (floor first, then two workers first), so a steady drift weighs on each side
+    alike. It does not spread what happens once: the first block, right after the
+    previous pass's archive is removed, had the lowest floor and the highest ratio
+    in all six runs of 2026-11-27 (S7b-S8c: ratios 1.47-2.20, the other blocks
+    1.13-1.42), probably from pages just freed. pipeline_to_floor_ratio = sum of
+    the one-worker runs' times / sum of their floors'; speedup_2_cores_steady =
+    sum of the one-worker blocks' times / sum of the two-worker blocks'.
 
     Returns per-run "pipeline", "floor" and "floor_writes" (`Floor.writes`) seconds, per-block
     "serial" and "plain" seconds.
@@ -367,7 +368,6 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
 
         def floor_side(runs: list) -> None:
             found["floor"] += [floor.run(source.folder) for source in runs]
-            found["floor_writes"] += floor.writes[-len(runs) :]
 
         def one_worker(runs: list) -> None:
             for source in runs:
@@ -389,6 +389,7 @@ def paired_pass(day: Path, base: Path, rows_per_run: int, block: int) -> dict[st
                 side(runs)
             log(f"  {first + len(runs)}/{len(sources)} runs on each side")
     floor.close()
+    found["floor_writes"] = floor.writes  # run by run, as found["floor"]
     return found
 
 
@@ -550,18 +551,16 @@ def main() -> None:
             f"transaction), through one worker and through {WORKERS}, in turns..."
         )
         paired = timed_pass("paired", day, base / "paired", 1, args.runner, n, rows, args.block)
-        block_ratio = [
-            sum(paired["pipeline"][i : i + args.block]) / sum(paired["floor"][i : i + args.block])
-            for i in range(0, n, args.block)
-        ]
-        block_speedup = [a / b for a, b in zip(paired["serial"], paired["plain"], strict=True)]
         shutil.rmtree(base / "paired")
-        for i, first in enumerate(range(0, n, args.block)):
-            runs = slice(first, first + args.block)
+        blocks = [slice(first, first + args.block) for first in range(0, n, args.block)]
+        block_ratio = [sum(paired["pipeline"][b]) / sum(paired["floor"][b]) for b in blocks]
+        block_speedup = [a / b for a, b in zip(paired["serial"], paired["plain"], strict=True)]
+        block_writes = [statistics.mean(paired["floor_writes"][b]) for b in blocks]
+        for i, b in enumerate(blocks):
             log(
-                f"  block {i + 1}: floor {statistics.mean(paired['floor'][runs]):.3f} s (copies "
-                f"and writes {statistics.mean(paired['floor_writes'][runs]):.3f} s), one worker "
-                f"{statistics.mean(paired['pipeline'][runs]):.3f} s per run (means); "
+                f"  block {i + 1}: floor {statistics.mean(paired['floor'][b]):.3f} s (copies "
+                f"and writes {block_writes[i]:.3f} s), one worker "
+                f"{statistics.mean(paired['pipeline'][b]):.3f} s per run (means); "
                 f"{args.block} runs on {WORKERS} workers {paired['plain'][i]:.1f} s"
             )
         log(f"  floor {statistics.median(paired['floor']):.3f} s per run (median)")
@@ -597,10 +596,7 @@ def main() -> None:
         "parallel_capacity": round(capacity, 3),
         "pipeline_to_floor_ratio_by_block": [round(r, 3) for r in block_ratio],
         "speedup_2_cores_steady_by_block": [round(r, 3) for r in block_speedup],
-        "floor_writes_s_by_block": [
-            round(statistics.mean(paired["floor_writes"][i : i + args.block]), 4)
-            for i in range(0, n, args.block)
-        ],
+        "floor_writes_s_by_block": [round(w, 4) for w in block_writes],
     }
     log(f"machine check after the passes: {parallel_capacity():.2f}x on {WORKERS} processes")
     log(
