@@ -52,9 +52,9 @@ sys.path.insert(0, str(ROOT))
 os.environ.setdefault("DO_NOT_TRACK", "1")
 
 from calib_core import params  # noqa: E402
+from calib_testing.pgserver import admin_execute, libpq_dsn, private_server  # noqa: E402
 from storage import queries, unit_latest  # noqa: E402
 from storage.db import Archive, default_archive_url  # noqa: E402
-from storage.pgserver import admin_execute, libpq_dsn, private_server  # noqa: E402
 
 RUNS_PER_UNIT = 10
 MODELS = [("MPU-6000", 0.6), ("ADXL355", 0.3), ("BMI088", 0.1)]

@@ -1,7 +1,7 @@
 """Batch benchmark: simulated 1 kHz lab runs through the pipeline, serial, parallel and Prefect.
 
 Writes `RUNS` six-position + integral runs (calib_core.simulate at 1 kHz, CSV
-layout of pipelines.run_writers.write_csv_run) into a temporary folder, then times
+layout of calib_testing.run_writers.write_csv_run) into a temporary folder, then times
 the same runs, each pass into a fresh SQLite archive (else every run after the
 first pass would be a cheap duplicate):
 
@@ -110,7 +110,7 @@ def write_run(folder: str, seed: int, rate_hz: float = RATE_HZ) -> str:
     import numpy as np
 
     from calib_core.simulate import random_errors, six_position_integral_run
-    from pipelines.run_writers import six_position_manifest, write_csv_run
+    from calib_testing.run_writers import six_position_manifest, write_csv_run
 
     rng = np.random.default_rng(seed)
     sim = six_position_integral_run(random_errors(rng), rng, rate_hz=rate_hz)

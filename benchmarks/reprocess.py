@@ -173,8 +173,8 @@ def run_backends(
 ) -> dict[str, float]:
     from prefect.client.orchestration import get_client
 
+    from calib_testing.pgserver import admin_execute, private_server
     from pipelines.flows import local_batch_settings, process_batch
-    from storage.pgserver import admin_execute, private_server
 
     seconds: dict[str, tuple[float, float]] = {}
     with local_batch_settings():

@@ -149,7 +149,7 @@ def sqlite_archive(folder: Path, synth: Synth) -> Archive:
 def postgresql_bench(synth: Synth, requests: int, work: Path) -> dict[str, dict[str, float]]:
     """Load into a private PostgreSQL server, grant the roles, time the pages as the owner
     (the server switches to calib_reader)."""
-    from storage.pgserver import admin_execute, private_server
+    from calib_testing.pgserver import admin_execute, private_server
     from storage.roles import apply_roles
 
     with private_server(shared_buffers="512MB", max_wal_size="4GB",

@@ -10,18 +10,22 @@ from __future__ import annotations
 
 import dataclasses
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from calib_core.simulate import random_errors, six_position_integral_run
-from calib_core.simulate.thermal import (
+# calib_testing (the run writers) is a support package of the repository, not installed
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from calib_core.simulate import random_errors, six_position_integral_run  # noqa: E402
+from calib_core.simulate.thermal import (  # noqa: E402
     random_thermal_truth,
     recalibration_history,
     thermal_campaign,
 )
-from calib_core.units import DEG
-from pipelines.run_writers import write_csv_run, write_mpu6000_run
+from calib_core.units import DEG  # noqa: E402
+from calib_testing.run_writers import write_csv_run, write_mpu6000_run  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent / "data_samples"
 

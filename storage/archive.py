@@ -28,8 +28,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
-import time
 from dataclasses import dataclass, field
 from datetime import UTC, date, datetime
 from pathlib import Path
@@ -48,11 +46,6 @@ from storage.schema import Base
 
 Status = Literal["ok", "duplicate", "revised"]
 _MAX_ATTEMPTS = 3
-# Crash tests only (tests/test_crash.py): "<stage>:<flag file>" makes archive_run write
-# the flag file and sleep at that stage ("files": files written, no transaction yet;
-# "commit": rows flushed inside the open transaction), so the test can kill the process
-# there. Unset in normal use, where the check costs one dictionary lookup.
-PAUSE_ENV = "CALIB_TEST_ARCHIVE_PAUSE"
 
 
 class ArchiveError(RuntimeError):
@@ -384,7 +377,6 @@ def archive_run(
             plan = new_plan
             rdir = new_run_dir if plan.run_dir is None else root / plan.run_dir
             written = _write_files(root, run, run_id, rdir, plan, extra_files, created, pending)
-            _pause_point("files")
             try:
                 cal_id = _write_rows(
                     engine, run, (raw_hash, run_id, settings_hash), root, rdir, plan, written,
@@ -405,14 +397,6 @@ def archive_run(
     finally:
         if own:
             pending.close()
-
-
-def _pause_point(stage: str) -> None:
-    spec = os.environ.get(PAUSE_ENV)
-    if not spec or spec.partition(":")[0] != stage:
-        return
-    Path(spec.partition(":")[2]).write_text(str(os.getpid()))
-    time.sleep(3600)  # the test kills the process here
 
 
 def _reason(exc: Exception | None) -> str:
@@ -555,7 +539,6 @@ def _write_rows(
             reason = _revision_reason(s, plan.previous_id, settings_hash, run.software_version)
         action = "archived" if plan.run_pk is None else "revised"
         seal.seal_calibration(s.connection(), cal.id, action, files=written.sha256s, reason=reason)
-        _pause_point("commit")
         return cal.id
 
 

@@ -33,7 +33,7 @@ from typing import Any
 from sqlalchemy import inspect
 from sqlalchemy.engine import make_url
 
-from storage import pgserver, rawstore
+from storage import pgtools, rawstore
 from storage.db import Archive
 from storage.verify import sqlite_file
 
@@ -68,7 +68,7 @@ def _pg_env(url: str) -> tuple[str, dict[str, str]]:
     env = dict(os.environ)
     if u.password:
         env["PGPASSWORD"] = str(u.password)
-    return pgserver.libpq_dsn(u.set(password=None).render_as_string(hide_password=False)), env
+    return pgtools.libpq_dsn(u.set(password=None).render_as_string(hide_password=False)), env
 
 
 def _run_tool(args: list[str], env: dict[str, str], what: str) -> None:
@@ -110,7 +110,7 @@ def backup(archive: Archive, dest: Path) -> dict[str, Any]:
         db_name = "database.pgdump"
         dsn, env = _pg_env(archive.url)
         _run_tool(
-            [str(pgserver.tool("pg_dump")), "--format=custom", "--no-owner", "--no-privileges",
+            [str(pgtools.tool("pg_dump")), "--format=custom", "--no-owner", "--no-privileges",
              f"--file={dest / db_name}", f"--dbname={dsn}"],
             env,
             "pg_dump",
@@ -253,7 +253,7 @@ def restore(src: Path, archive: Archive) -> dict[str, Any]:
     else:
         dsn, env = _pg_env(archive.url)
         _run_tool(
-            [str(pgserver.tool("pg_restore")), "--no-owner", "--no-privileges",
+            [str(pgtools.tool("pg_restore")), "--no-owner", "--no-privileges",
              "--exit-on-error", "--single-transaction", f"--dbname={dsn}", str(db_file)],
             env,
             "pg_restore",

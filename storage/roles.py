@@ -28,7 +28,7 @@ from sqlalchemy.engine import make_url
 from storage import unit_latest
 from storage.db import Archive
 from storage.naming import check_safe_name
-from storage.pgserver import libpq_dsn
+from storage.pgtools import libpq_dsn
 from storage.schema import Base, UnitLatest
 from storage.seal import record_event
 

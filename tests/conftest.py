@@ -1,9 +1,27 @@
-"""Shared fixtures: a throw-away PostgreSQL server, and archives on both back ends."""
+"""Shared fixtures: a throw-away PostgreSQL server, and archives on both back ends.
+
+Also the two test tiers and the session's cleanup:
+
+- tiers: `make test` runs everything; `make test-fast` (``-m "not slow and not postgres and
+  not browser and not e2e"``) the tests a contributor runs before every commit. A test
+  using the PostgreSQL server (fixture ``postgres_server``, directly or through another
+  fixture) is marked ``postgres`` and one using the Prefect server (``prefect_harness``)
+  ``e2e`` here, so a new test lands in its tier by what it uses; ``slow`` and ``browser``
+  are set in the modules (``pytestmark``) or on the tests.
+- cleanup: every temporary folder of the session (pytest's ``tmp_path``, ``tempfile``,
+  the PostgreSQL data directory, Prefect's) lies in one session folder, removed at the
+  end; SIGTERM and SIGHUP end the run like Ctrl-C (fixtures torn down), and a watchdog
+  process (calib_testing.watchdog) stops the server and removes the folder if the run is
+  killed outright. ``--basetemp DIR`` keeps pytest's folders in DIR instead.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
+import signal
+import subprocess
 import tempfile
 import uuid
 from collections.abc import Iterator
@@ -14,16 +32,61 @@ import pytest
 os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
+from calib_testing.pgserver import ServerUnavailableError, private_server  # noqa: E402
+from calib_testing.watchdog import clean_up_after, release  # noqa: E402
 from storage.db import Archive, default_archive_url  # noqa: E402
-from storage.pgserver import ServerUnavailableError, private_server  # noqa: E402
 from storage.schema import TABLES  # noqa: E402
+
+# --- tiers ------------------------------------------------------------------------
+
+# fixture -> marker of every test that uses it (directly or through other fixtures)
+MARK_BY_FIXTURE = {"postgres_server": "postgres", "prefect_harness": "e2e"}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        for fixture, marker in MARK_BY_FIXTURE.items():
+            if fixture in getattr(item, "fixturenames", ()):
+                item.add_marker(marker)
+
+
+# --- the session's folder and its cleanup -------------------------------------------
+
+_session: dict[str, object] = {}
+
+
+def _end_like_ctrl_c(signum: int, frame: object) -> None:
+    if os.getpid() != _session.get("pid"):  # a forked worker inherited the handler
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+        return
+    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    folder = Path(tempfile.mkdtemp(prefix="calib-tests-"))
+    folder.chmod(0o755)  # the PostgreSQL server (user postgres) keeps its data in here
+    _session.update(pid=os.getpid(), folder=folder, watchdog=clean_up_after(folder))
+    tempfile.tempdir = str(folder)  # pytest's tmp_path base too (resolved on first use)
+    os.environ["TMPDIR"] = str(folder)  # and every child process's
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, _end_like_ctrl_c)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    folder = _session.get("folder")
+    if isinstance(folder, Path):
+        shutil.rmtree(folder, ignore_errors=True)
+    watchdog = _session.get("watchdog")
+    if isinstance(watchdog, subprocess.Popen):
+        release(watchdog)
 
 # --- PostgreSQL ---------------------------------------------------------------
 
 
 @pytest.fixture(scope="session")
 def postgres_server() -> Iterator[str]:
-    """Start a private PostgreSQL server (storage.pgserver); yield the URL of its `postgres` db."""
+    """Start a private PostgreSQL server (calib_testing.pgserver); yield its `postgres` db URL."""
     try:
         with private_server() as url:
             yield url

@@ -21,9 +21,9 @@ import numpy as np
 from calib_core.simulate import TrueErrors, random_errors, six_position_integral_run
 from calib_core.simulate.thermal import random_thermal_truth, thermal_campaign
 from calib_core.units import DEG
+from calib_testing.run_writers import write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.run_writers import write_csv_run
 from storage.db import Archive, resolve_archive
 
 DATA_SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"

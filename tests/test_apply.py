@@ -26,9 +26,9 @@ from calib_core.simulate.thermal import random_thermal_truth, thermal_campaign
 from calib_core.solvers.six_position import axis_vector
 from calib_core.thermal import ThermalModel
 from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_testing.run_writers import write_csv_run, write_mpu6000_run
 from pipelines import exports
 from pipelines.cli import app
-from pipelines.run_writers import write_csv_run, write_mpu6000_run
 from storage import queries
 from storage import thermal as thermal_store
 from storage.archive import RawFileIn, RunIn, archive_run

@@ -26,9 +26,9 @@ from sqlalchemy.exc import OperationalError
 
 import pipelines.process as process_module
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
 from pipelines.flows import RETRIES, is_transient, process_batch, report_progress
 from pipelines.ingest import IngestError
-from pipelines.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
 from pipelines.runners import check_runner, make_task_runner
 from storage import schema
 from storage.db import resolve_archive

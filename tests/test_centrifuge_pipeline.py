@@ -13,11 +13,11 @@ from calib_core import params, procedures
 from calib_core.simulate.centrifuge import CentrifugeNoise, CentrifugeSchedule, simulate_centrifuge
 from calib_core.solvers.centrifuge_model import canonical_name
 from calib_core.solvers.centrifuge_segments import step_label
+from calib_testing.run_writers import write_centrifuge_run
 from pipelines.centrifuge import REPORT_NAME
 from pipelines.cli import app
 from pipelines.ingest import RunSource
 from pipelines.process import process_run
-from pipelines.run_writers import write_centrifuge_run
 from storage.db import resolve_archive
 
 # Paper-like: RMS error 0.3-0.4 m/s^2 per axis over 2..20 g before compensation.

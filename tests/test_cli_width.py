@@ -63,7 +63,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 def _centrifuge_run(folder: Path) -> Path:
     from calib_core.simulate.centrifuge import CentrifugeSchedule, simulate_centrifuge
-    from pipelines.run_writers import write_centrifuge_run
+    from calib_testing.run_writers import write_centrifuge_run
 
     truth = {"x": {"const": 0.2, "a_x": 1.5e-3}, "y": {"const": -0.25, "a_y": 1.2e-3},
              "z": {"const": 0.3, "a_z": -1e-3}}  # fmt: skip

@@ -2,10 +2,10 @@
 
 A child process archives runs; the test kills it
 
-- at fixed points, via the test-only environment variable
-  ``CALIB_TEST_ARCHIVE_PAUSE`` (storage.archive.PAUSE_ENV): after the files are
-  written but before the transaction ("files"), and inside the open
-  transaction after every row was sent ("commit");
+- at fixed points, where the child's own wrapper of an archive function writes a flag
+  file and sleeps: after the files are written but before the transaction ("files",
+  after ``storage.archive._write_files``), and inside the open transaction after every
+  row was sent ("commit", after ``storage.seal.seal_calibration``, the last statement);
 - at random moments while it archives a stream of runs (several seeds).
 
 Truth: the run is then either wholly in the database (run, calibration,
@@ -28,7 +28,7 @@ import pytest
 from sqlalchemy import func, select
 from test_archive import make_run
 
-from storage.archive import PAUSE_ENV, archive_run, raw_hash_of, run_id_of
+from storage.archive import archive_run, raw_hash_of, run_id_of
 from storage.db import Archive
 from storage.schema import Base
 from storage.verify import verify
@@ -36,12 +36,27 @@ from storage.verify import verify
 TESTS = Path(__file__).parent
 CHILD = textwrap.dedent(
     """
-    import sys
+    import os, sys, time
     from pathlib import Path
     sys.path.insert(0, {tests!r})
     from test_archive import make_run
+    from storage import archive as archive_module, seal
     from storage.archive import archive_run
     from storage.db import Archive
+
+    def pause_after(module, name, flag):
+        original = getattr(module, name)
+        def paused(*args, **kwargs):
+            out = original(*args, **kwargs)
+            Path(flag).write_text(str(os.getpid()))
+            time.sleep(3600)  # the test kills this process here
+            return out
+        setattr(module, name, paused)
+
+    PAUSE_AT = {{"files": (archive_module, "_write_files"), "commit": (seal, "seal_calibration")}}
+    if {pause!r}:
+        stage, flag = {pause!r}
+        pause_after(*PAUSE_AT[stage], flag)
 
     archive = Archive({url!r}, Path({root!r}))
     for seed in range({first}, {first} + {count}):
@@ -53,14 +68,14 @@ CHILD = textwrap.dedent(
 PAUSE_TIMEOUT_S = 60
 
 
-def child(archive: Archive, src: Path, first: int, count: int, env: dict | None = None):  # noqa: ANN201
+def child(archive: Archive, src: Path, first: int, count: int, pause: tuple | None = None):  # noqa: ANN201
+    """The archiving child; `pause`: (stage, flag file) where it stops until killed."""
     code = CHILD.format(
         tests=str(TESTS), url=archive.url, root=str(archive.root), src=str(src),
-        first=first, count=count,
+        first=first, count=count, pause=pause,
     )  # fmt: skip
     return subprocess.Popen(
         [sys.executable, "-c", code],
-        env={**os.environ, **(env or {})},
         stdout=subprocess.PIPE,
         text=True,
     )
@@ -93,7 +108,7 @@ def assert_consistent(archive: Archive) -> None:
 @pytest.mark.parametrize("stage", ["files", "commit"])
 def test_kill_between_file_writes_and_commit(archive: Archive, tmp_path: Path, stage: str) -> None:
     flag = tmp_path / "paused"
-    proc = child(archive, tmp_path / "src", 0, 1, {PAUSE_ENV: f"{stage}:{flag}"})
+    proc = child(archive, tmp_path / "src", 0, 1, (stage, str(flag)))
     deadline = time.monotonic() + PAUSE_TIMEOUT_S
     while not flag.exists():
         assert proc.poll() is None, "the child ended before reaching the pause point"

@@ -23,11 +23,11 @@ import pytest
 
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_testing.run_writers import dumps_toml
 from pipelines.ingest import IngestError, discover_runs, load_run
 from pipelines.ingest.csv_dialect import sniff
 from pipelines.ingest.manifest import FormatSpec
 from pipelines.process import process_run
-from pipelines.run_writers import dumps_toml
 from storage.db import resolve_archive
 
 NAMES = ["t", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z", "temp"]

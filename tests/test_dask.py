@@ -21,8 +21,8 @@ import pytest
 from sqlalchemy import func, select
 
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
 from pipelines.flows import process_batch
-from pipelines.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
 from storage import schema
 from storage.db import Archive
 

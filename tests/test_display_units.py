@@ -13,12 +13,12 @@ from typer.testing import CliRunner
 
 from calib_core import params
 from calib_core.simulate.centrifuge import simulate_centrifuge
+from calib_testing.run_writers import write_centrifuge_run
 from pipelines.cli import app
 from pipelines.ingest import RunSource
 from pipelines.process import process_run
 from pipelines.reports.certificate import write_reports
 from pipelines.reports.display import DISPLAY_UNITS, display
-from pipelines.run_writers import write_centrifuge_run
 from storage import queries
 from storage.db import Archive, resolve_archive
 

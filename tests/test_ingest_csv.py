@@ -17,9 +17,7 @@ from calib_core.units import (
     angular_rate_factor,
     time_factor,
 )
-from pipelines.ingest import FormatSpec, IngestError, discover_runs, load_run, read_csv
-from pipelines.ingest.manifest import SIX_POSITION_LABELS
-from pipelines.run_writers import (
+from calib_testing.run_writers import (
     CSV_ACC_DECIMALS,
     CSV_GYR_DECIMALS,
     CSV_REFERENCE_DECIMALS,
@@ -28,6 +26,8 @@ from pipelines.run_writers import (
     dumps_toml,
     write_csv_run,
 )
+from pipelines.ingest import FormatSpec, IngestError, discover_runs, load_run, read_csv
+from pipelines.ingest.manifest import SIX_POSITION_LABELS
 
 N = 120  # samples per segment at 100 Hz
 

@@ -20,9 +20,9 @@ from mcap_ros2.writer import Writer as Ros2Writer
 from test_ingest_mcap import IMU_MSGDEF, TEMPERATURE_MSGDEF, imu_message
 
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.run_writers import dumps_toml
 from pipelines.ingest import IngestError, discover_runs, load_run
 from pipelines.process import process_run
-from pipelines.run_writers import dumps_toml
 from storage.db import resolve_archive
 
 T0_NS = 1_763_600_000_000_000_000  # 2025-11-20, Unix ns: MCAP stamps are Unix time

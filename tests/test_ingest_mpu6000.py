@@ -12,10 +12,10 @@ import pytest
 
 from calib_core.recording import Recording
 from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_testing.run_writers import write_mpu6000_run
 from pipelines.ingest import IngestError, discover_runs, find_mpu6000_runs, load_run
 from pipelines.ingest.manifest import SIX_POSITION_LABELS
 from pipelines.ingest.mpu6000 import read_mpu6000_file
-from pipelines.run_writers import write_mpu6000_run
 
 RATE_HZ = 50.0
 N = 150  # samples per segment: 3 s at 50 Hz keeps files small and tests fast

@@ -5,8 +5,8 @@
   file-system module;
 - storage (the archive) imports no pipelines;
 - pipelines.commands never imports pipelines.cli (cli -> commands, one way);
-- no production module imports calib_core.simulate (tests, benchmarks, scripts and
-  the sample-data generator may).
+- no production module imports calib_core.simulate or the support package
+  calib_testing (tests, benchmarks, scripts and the sample-data generator may).
 """
 
 from __future__ import annotations
@@ -57,7 +57,9 @@ def violations(module: str, source: str) -> list[str]:
             continue
         top = name.split(".")[0]
         why = None
-        if _within(name, "calib_core.simulate"):
+        if top == "calib_testing":
+            why = "production code imports the test support package calib_testing"
+        elif _within(name, "calib_core.simulate"):
             if not _within(module, "calib_core.simulate"):
                 why = "production code imports the simulator"
         elif _within(module, "calib_core"):
@@ -107,6 +109,8 @@ def test_the_checker_reports_each_kind_of_forbidden_import() -> None:
         ("pipelines.commands.query", "from pipelines.cli import app"): "cli -> commands",
         ("pipelines.process", "from calib_core import simulate"): "simulator",
         ("pipelines.process", "import calib_core.simulate.table"): "simulator",
+        ("storage.backup", "from calib_testing.pgserver import private_server"): "support",
+        ("pipelines.cli", "from calib_testing import run_writers"): "support",
     }
     for (module, source), reason in cases.items():
         found = violations(module, source)

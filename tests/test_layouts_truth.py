@@ -17,9 +17,9 @@ import pytest
 
 from calib_core.earth import gravity_helmert
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.run_writers import write_csv_run, write_mpu6000_run
 from pipelines.ingest import discover_runs, load_run
 from pipelines.process import solve_loaded
-from pipelines.run_writers import write_csv_run, write_mpu6000_run
 
 SEEDS = range(12)
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from calib_testing.run_writers import dumps_toml
 from pipelines.ingest import IngestError, load_manifest
-from pipelines.run_writers import dumps_toml
 
 EXAMPLE = """\
 schema_version = 1

@@ -2,7 +2,7 @@
 
 Each reader gets 500 mutated inputs (hypothesis, derandomized, fixed
 max_examples, no deadline, no database): valid small files written by
-the test writers (MPU-6000 text by pipelines.run_writers, CSV, PX4 ULog by
+the test writers (MPU-6000 text by calib_testing.run_writers, CSV, PX4 ULog by
 pyulog, DataFlash, ROS 1 and ROS 2 bags by rosbags) with bytes replaced by
 characters that break parsers (separators, decimal marks, 'nan', 'inf', line
 ends, NUL, non-ASCII) or arbitrary bytes, lines dropped or repeated, and the
@@ -83,7 +83,7 @@ def valid_file(kind: str) -> Path:
     folder = _WORKDIR / f"valid_{kind}"
     folder.mkdir()
     if kind == "mpu6000":
-        from pipelines.run_writers import write_mpu6000_run
+        from calib_testing.run_writers import write_mpu6000_run
 
         return write_mpu6000_run({"x_up": rec.with_label("x_up")}, folder, "F1")[0]
     if kind == "csv":

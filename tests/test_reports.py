@@ -26,12 +26,12 @@ from typer.testing import CliRunner
 from calib_core.recording import Recording
 from calib_core.simulate import TrueErrors, six_position_integral_run
 from calib_core.units import STANDARD_GRAVITY
+from calib_testing.run_writers import write_csv_run
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import parse_manifest
 from pipelines.process import process_run
-from pipelines.run_writers import write_csv_run
 from storage import queries, schema
 from storage.db import Archive, resolve_archive
 

@@ -18,12 +18,12 @@ import pytest
 from typer.testing import CliRunner
 
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
 from pipelines import process as process_module
 from pipelines.cli import app
 from pipelines.ingest import discover_runs, load_run
 from pipelines.process import process_run
 from pipelines.reprocess import ReprocessError, reprocess_run, restore_run
-from pipelines.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
 from storage import queries, rawstore
 from storage.db import resolve_archive
 

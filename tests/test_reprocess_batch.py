@@ -24,12 +24,12 @@ from test_batch import wait_first_run_finished
 
 import pipelines.process as process_module
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.changes import change_report, family
 from pipelines.direct import discover, process_in_process
 from pipelines.flows import reprocess_batch
 from pipelines.provenance import SOFTWARE_VERSION
 from pipelines.reprocess import changed_pairs, plan_reprocess, reprocess_in_process
-from pipelines.run_writers import six_position_manifest, write_csv_run
 from storage import queries, schema
 from storage.db import resolve_archive
 

@@ -21,8 +21,8 @@ from calib_core.simulate import random_errors
 from calib_core.simulate.array import array_session
 from calib_core.solvers.sensor_array import cube_mounts
 from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_testing.run_writers import dumps_toml, six_position_manifest
 from pipelines.cli import app
-from pipelines.run_writers import dumps_toml, six_position_manifest
 
 G = STANDARD_GRAVITY
 SENSORS = tuple(cube_mounts())

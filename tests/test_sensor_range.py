@@ -18,8 +18,8 @@ from calib_core import procedures
 from calib_core.recording import Recording, first_range_hit
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_testing.run_writers import write_mpu6000_run
 from pipelines.ingest import IngestError, discover_runs, load_run
-from pipelines.run_writers import write_mpu6000_run
 
 TRUE_SCALE_X = 0.021  # the unit: gyr.scale.x = +0.021
 

@@ -24,10 +24,10 @@ from calib_core.uncertainty import budgets as make_budgets
 from calib_core.uncertainty_sources import EquipmentSpec
 from calib_core.units import STANDARD_GRAVITY
 from calib_core.verification import FAIL, NEEDS_REVIEW, overall_verdict
+from calib_testing.run_writers import write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
 from pipelines.reports.certificate import report_run
-from pipelines.run_writers import write_csv_run
 from pipelines.tolerances import SHIPPED
 from storage import queries
 from storage.db import resolve_archive

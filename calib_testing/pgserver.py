@@ -1,17 +1,17 @@
-"""A private, throw-away PostgreSQL server, and where the PostgreSQL client tools are.
+"""A private, throw-away PostgreSQL server for the tests and the benchmarks.
 
-Used by the test fixtures (tests/conftest.py), the archive benchmark and
-`storage.backup` (which needs pg_dump / pg_restore). The server runs from the
-distribution's binaries (``/usr/lib/postgresql/<version>/bin``) with a fresh
-data directory under /tmp, trust authentication on 127.0.0.1 and a free port;
-``initdb`` refuses to run as root, so as root it runs as the ``postgres`` user.
-It is for tests and benchmarks only (``fsync=off``).
+Used by the test fixtures (tests/conftest.py) and the benchmarks. The server runs from the
+distribution's binaries (``/usr/lib/postgresql/<version>/bin``, found by
+`storage.pgtools`) with a fresh data directory in the temporary folder, trust
+authentication on 127.0.0.1 and a free port; ``initdb`` refuses to run as root, so as root
+it runs as the ``postgres`` user. It is for tests and benchmarks only (``fsync=off``). A
+watchdog process (calib_testing.watchdog) stops it and removes its folder when the process
+that started it ends, however it ends.
 """
 
 from __future__ import annotations
 
 import contextlib
-import glob
 import os
 import pwd
 import shutil
@@ -21,37 +21,14 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from calib_testing.watchdog import clean, clean_up_after, release
+from storage.pgtools import bindir, libpq_dsn
+
 START_TIMEOUT_S = 30
 
 
 class ServerUnavailableError(RuntimeError):
     """The machine cannot run a private server (binaries or `postgres` user missing)."""
-
-
-def bindir() -> Path | None:
-    """Folder holding initdb, pg_ctl, pg_dump, pg_restore (newest version), or None."""
-    found = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"))
-    if found:
-        return Path(found[-1]).parent
-    initdb = shutil.which("initdb")
-    return Path(initdb).parent if initdb else None
-
-
-def tool(name: str) -> Path:
-    """Path of a PostgreSQL client tool (``pg_dump``, ``pg_restore``...).
-
-    Raises FileNotFoundError naming the tool when it is not installed.
-    """
-    d = bindir()
-    if d is not None and (d / name).exists():
-        return d / name
-    found = shutil.which(name)
-    if found:
-        return Path(found)
-    raise FileNotFoundError(
-        f"{name} not found (looked in /usr/lib/postgresql/*/bin and PATH): "
-        "install the PostgreSQL client tools (apt-get install postgresql-client)"
-    )
 
 
 def free_port() -> int:
@@ -90,8 +67,9 @@ def private_server(**settings: str) -> Iterator[str]:
                 "running as root but there is no `postgres` user to run the server as"
             ) from exc
         prefix = ["runuser", "-u", "postgres", "--"]
-    base = Path(tempfile.mkdtemp(prefix="calib-pg-", dir="/tmp"))
+    base = Path(tempfile.mkdtemp(prefix="calib-pg-"))
     base.chmod(0o755)
+    watchdog = clean_up_after(base)
     data = base / "data"
     data.mkdir()
     if as_root:
@@ -110,6 +88,7 @@ def private_server(**settings: str) -> Iterator[str]:
     )  # fmt: skip
     if init.returncode:
         shutil.rmtree(base, ignore_errors=True)
+        release(watchdog)
         raise RuntimeError(f"initdb failed:\n{init.stderr}")
     opts = f"-p {port} -k {base} -c listen_addresses=127.0.0.1 -c fsync=off"
     opts += "".join(f" -c {k}={v}" for k, v in settings.items())
@@ -119,21 +98,15 @@ def private_server(**settings: str) -> Iterator[str]:
     )  # fmt: skip
     if start.returncode:
         log = (base / "log").read_text() if (base / "log").exists() else ""
-        shutil.rmtree(base, ignore_errors=True)
+        clean(base)
+        release(watchdog)
         raise RuntimeError(f"PostgreSQL did not start:\n{start.stderr}\n{log}")
     try:
         yield f"postgresql+psycopg://postgres@127.0.0.1:{port}/postgres"
     finally:
         run(str(bd / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop")
-        shutil.rmtree(base, ignore_errors=True)
-
-
-def libpq_dsn(url: str) -> str:
-    """A SQLAlchemy PostgreSQL URL as a libpq connection string (for psycopg, pg_dump)."""
-    from sqlalchemy.engine import make_url
-
-    u = make_url(url)
-    return u.set(drivername="postgresql").render_as_string(hide_password=False)
+        clean(base)
+        release(watchdog)
 
 
 def admin_execute(url: str, sql: str) -> None:
