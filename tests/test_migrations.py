@@ -161,3 +161,56 @@ def test_new_sqlite_archive_from_the_recorded_schema(tmp_path) -> None:
     assert _snapshot(recorded) == _snapshot(by_alembic)
     by_alembic.dispose()
     recorded.dispose()
+
+
+# What a migration may import: it runs as written for as long as archives of its revision
+# exist, so it never imports the code of today's calib (which changes with it).
+MIGRATION_IMPORTS = {"__future__", "alembic", "sqlalchemy", "storage.migrations.ddl"}
+
+
+def test_every_migration_is_self_contained() -> None:
+    import ast
+    import sys
+
+    folder = Path(__file__).resolve().parents[1] / "storage" / "migrations"
+    bad = []
+    for path in sorted([folder / "ddl.py", *(folder / "versions").glob("*.py")]):
+        for node in ast.walk(ast.parse(path.read_text("utf-8"))):
+            names = (
+                [a.name for a in node.names] if isinstance(node, ast.Import)
+                else [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            )  # fmt: skip
+            for name in names:
+                top = name.split(".")[0]
+                if name not in MIGRATION_IMPORTS and top not in MIGRATION_IMPORTS and (
+                    top not in sys.stdlib_module_names
+                ):
+                    bad.append(f"{path.name} line {node.lineno}: imports {name}")
+    assert bad == [], "\n".join(bad)
+
+
+def test_0004_and_0007_derive_seals_and_unit_picks_of_archived_runs(
+    archive: Archive, tmp_path: Path
+) -> None:
+    """Runs archived, the archive taken back to 0003 (no seals, no chain, no unit_latest)
+    and upgraded: 0004 seals each revision (format 1, no files) with one "sealed" event,
+    0007 derives each unit's picks, and verify finds the seals, the chain and the picks
+    as today's code computes them."""
+    from storage.schema import AuditEvent, Seal, UnitLatest
+
+    runs = [make_run(tmp_path / "a", serial="0012", seed=1),
+            make_run(tmp_path / "b", serial="0012", seed=2),
+            make_run(tmp_path / "c", serial="77", seed=3)]  # fmt: skip
+    for run in runs:
+        archive_run(archive, run, {"protocol.txt": run.serial.encode()})
+    archive.migrate("0003", down=True)
+    archive.upgrade()
+    with archive.engine().connect() as conn:
+        actions = conn.execute(select(AuditEvent.action, AuditEvent.actor)).all()
+        records = conn.execute(select(Seal.record)).scalars().all()
+        units = conn.execute(select(UnitLatest.device_id)).all()
+    assert [tuple(a) for a in actions] == [("sealed", "migration 0004")] * 3
+    assert [r["files"] for r in records] == [{}] * 3 and all("format" not in r for r in records)
+    assert len(units) == 2
+    report = verify(archive, orphans=False)
+    assert report.ok and report.seals_checked == 3, report.problems
