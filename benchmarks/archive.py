@@ -17,7 +17,7 @@ calibration per run (90% pass), 25 parameters at two temperatures each (50
 rows per calibration), 3 raw files, 3 steps, 2 checks and one rate table (of
 20, with calibration due dates, some lapsed) per run.
 
-Targets (issue 9): latest_valid and lineage p95 < 10 ms, history p95 < 50 ms,
+Targets: latest_valid and lineage p95 < 10 ms, history p95 < 50 ms,
 fleet < 1 s, on both back ends. Progress goes to stderr; a table of p50/p95
 per query and back end to stdout; the LAST stdout line is one JSON object::
 

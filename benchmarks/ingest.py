@@ -30,7 +30,7 @@ csv_ratio_to_pyarrow, mat_ratio_to_library (the worse of v5 and v7.3; each is
 our time over the library's), mcap_msgs_per_s, mcap_speedup_vs_mcap_ros2 (the
 library's time over ours), peak_mem_ratio (the worst format), ulog_ratio_to_library,
 dataflash_ratio_to_library, rosbag2_ratio_to_library, rosbag1_ratio_to_library
-(ours over the bare library read; issue 17 asks <= 1.3).
+(ours over the bare library read; target <= 1.3).
 
 Run: ``.venv/bin/python benchmarks/ingest.py`` (about a minute on 2 cores).
 """

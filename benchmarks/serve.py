@@ -17,7 +17,7 @@ network) for randomly chosen runs, units, equipment and filters:
 - models, equipment, equipment_item (a rate table with ~5k runs, its lapsed runs), verify
   (the status page; the integrity check itself re-reads the file store and is not timed).
 
-Target (issue 23): page_p95_ms <= 200 for every page on SQLite and PostgreSQL.
+Target: page_p95_ms <= 200 for every page on SQLite and PostgreSQL.
 ``page_cpu_p95_ms`` is this process's CPU time per request (application, templates and,
 for SQLite, the database engine; not PostgreSQL's server): what a page costs a core of
 its own, since the wall time on a shared machine grows with its load average.

@@ -231,7 +231,7 @@ def crlb_efficiency_static_linear(runs: int = 200) -> dict[str, float]:
 
 
 def allan_param_rel_err_max(seeds: tuple[int, ...] = (21, 22, 23)) -> float:
-    """Worst relative error of N, B, K from the chosen noise fit (issue 18, <= 0.10).
+    """Worst relative error of N, B, K from the chosen noise fit (target <= 0.10).
 
     White + flicker + random walk, crossovers 1 s and 50 s, 2e5 s at 10 Hz per seed
     (tests/test_noise.py's mix): the scatter of K is ~2 %, of N and B < 0.5 %.
@@ -252,7 +252,7 @@ def allan_param_rel_err_max(seeds: tuple[int, ...] = (21, 22, 23)) -> float:
 
 
 def integral_spiky_to_clean(runs: int = 300) -> dict[str, float]:
-    """Worst per-parameter RMS error, runs with 0.5 % spikes / clean runs (issue 18, <= 1.2).
+    """Worst per-parameter RMS error, runs with 0.5 % spikes / clean runs (target <= 1.2).
 
     Six-position + integral runs through the pipeline's path (preprocess: outliers on
     the statics; the integral despikes its rotations), spikes of 30 noise stds on a

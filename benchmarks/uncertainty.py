@@ -1,4 +1,4 @@
-"""Validation of the GUM budgets (issue 21 item 3): coverage of the 95 % intervals and MC check.
+"""Validation of the GUM budgets: coverage of the 95 % intervals and MC check.
 
 Simulated runs with known truth: the true error model from calib_core.simulate.random_errors,
 the Type B sources (local gravity, fixture face angles, table rate error) drawn from their stated

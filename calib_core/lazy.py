@@ -1,6 +1,6 @@
 """Public names of a package imported on first use (PEP 562 module ``__getattr__``).
 
-``import pipelines`` must stay cheap (the `calib --help` latency of issue 19): the
+``import pipelines`` must stay cheap (the latency of `calib --help`): the
 package's ``__init__`` lists its public API by name and module, and a name's
 module is imported only when the name is first used.
 """

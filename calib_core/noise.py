@@ -241,7 +241,7 @@ def _model_fit(result: AllanResult) -> np.ndarray:
     residuals are divided by that (iterated once with the fitted model in the
     denominator, to avoid favouring the downward-fluctuating points).
     """
-    from scipy import optimize  # ~0.2 s to import: only where a noise model is fitted
+    from scipy import optimize  # slow to import: only where a noise model is fitted
 
     taus, avar = result.taus, result.adev**2
     A = np.column_stack([1.0 / taus, np.ones_like(taus), taus / 3.0])
@@ -345,7 +345,7 @@ def noise_parameters(
 
 
 # The chosen fit must reproduce the data's Allan deviation within this fraction at every
-# tau it used, beyond the estimate's own scatter there (issue 18).
+# tau it used, beyond the estimate's own scatter there.
 MISFIT_LIMIT = 0.10
 # Cluster times with fewer equivalent degrees of freedom are too scattered to judge a fit
 # by (relative std of the deviation 1 / sqrt(2 edf) > 16 %).

@@ -83,9 +83,8 @@ def column_mean_std(
 
     Column by column rather than ``x.mean(axis=0)`` / ``x.std(axis=0)``: a
     reduction along axis 0 of an (N, 3) array sums row after row in an inner
-    loop of 3, ~10x slower than summing one (strided) column (measured: 1131 vs
-    92 us for 60k x 3), and it does without NumPy's pairwise summation, so the
-    column sums are also the more accurate ones.
+    loop of 3, far slower than summing one (strided) column, and it does without
+    NumPy's pairwise summation, so the column sums are also the more accurate ones.
 
     Parameters
     ----------
@@ -142,8 +141,8 @@ def row_medians(a: np.ndarray) -> np.ndarray:
 
     The values of ``np.median(a, axis=1)`` (the middle element, or the mean of
     the two middle ones), partitioned in place: without np.median's copy and NaN
-    scan, `solvers.integral.noise_from_differences` takes 1.0 instead of 2.2 ms on a
-    12 s rotation at 1 kHz. An empty row gives NaN.
+    scan, which dominated `solvers.integral.noise_from_differences` on a long rotation
+    sampled at 1 kHz. An empty row gives NaN.
     """
     n = a.shape[1]
     k = n // 2
@@ -183,7 +182,7 @@ def max_normal_moments(k: int) -> tuple[float, float]:
         raise ValueError(f"k must be >= 1, got {k}")
     # The trapezoid rule on a smooth integrand that vanishes at both ends converges
     # geometrically: 4801 points agree with adaptive quadrature to 1e-13 for k <= 1000
-    # (and spare the ~0.2 s import of scipy.integrate at every start).
+    # (and spare the import of scipy.integrate, slow, at every start).
     z = np.linspace(-12.0, 12.0, 4801)
     density = k * norm_pdf(z) * norm_cdf(z) ** (k - 1)
     m1 = float(np.trapezoid(z * density, z))

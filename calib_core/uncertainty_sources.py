@@ -85,7 +85,7 @@ def static_reference(labels: Sequence[str], values: Mapping[str, float]) -> np.n
 
 def _tilt(label: str, values: Mapping[str, float]) -> Rotation:
     """The fixture's face-angle error of position `label` (identity when not given)."""
-    # scipy.spatial takes ~0.15 s to import: only for the budgets of static positions.
+    # scipy.spatial is slow to import: only for the budgets of static positions.
     from scipy.spatial.transform import Rotation
 
     rotvec = np.zeros(3)

@@ -11,8 +11,8 @@ from calib_core.lazy import lazy_exports
 # No telemetry: Prefect must not look up its analytics host (see docs/architecture.md).
 os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-# The ephemeral local API server may need longer than Prefect's 20 s default to start on a
-# busy 2-core machine; a timeout there would fail the whole batch.
+# The ephemeral local API server may need longer than Prefect's default to start on a
+# busy machine; a timeout there would fail the whole batch.
 os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "180")
 
 _API = {

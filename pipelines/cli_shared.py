@@ -345,8 +345,8 @@ def interrupt_exits_at_once() -> Iterator[Callable[[int, int, dict], None]]:
     """Ctrl-C during a batch on Prefect's temporary local API: say where it stood, exit 130.
 
     The same Ctrl-C stops the temporary API server (it is in the terminal's process
-    group), after which Prefect spends a minute or more retrying its reports to it
-    (measured: 77 s with threads, 108 s with worker processes). Exiting at once is
+    group), after which Prefect spends a minute or more retrying its reports to
+    it. Exiting at once is
     as safe as a kill at that moment, which the archive is built and tested for
     (tests/test_crash.py): each run is archived whole or not at all, and running
     the same command again skips the archived runs as duplicates. With a

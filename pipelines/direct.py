@@ -1,9 +1,9 @@
 """Small batches processed in this process, without Prefect: one run answered without
-starting a Prefect server (figures: docs/cli.md, "Latency of one run").
+starting a Prefect server (figures: benchmarks/README.md, "Latency").
 
 Prefect orchestrates batches (`pipelines.flows.process_batch`); for one run or a handful
 at the lab table, starting Prefect's temporary API server costs far more than the runs
-themselves (~8 s of CPU, 19-30 s of wall time on a busy 2-core machine). `calib process`
+themselves (seconds of CPU, more of wall time on a busy machine). `calib process`
 therefore runs a batch here when it is small, the runner is ``local``, no Prefect API is
 configured and ``--flow`` is not given. The outcomes and the archive are the same either
 way: the same discovery (`discover`), the same `process_run` per run with the same retries

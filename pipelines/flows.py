@@ -112,18 +112,15 @@ def local_batch_settings() -> Iterator[None]:
       second (it sleeps in 1 s steps and is joined at exit): turned off.
     - The server's task-run recorder, which turns the task-run events the flow
       sends into the task runs the UI shows, writes each event in its own
-      transaction by default: the server then spent ~44 ms of CPU per task run
-      on this machine, ~35 ms of it in the recorder, on the cores the batch's
-      runs need. With the events written in batches (`RECORDER_BATCH_SIZE`, at
-      least every `RECORDER_FLUSH_S`) it spends ~14 ms; task states reach the
-      UI up to a second later.
+      transaction by default: most of the server's CPU per task run went to the
+      recorder, on the cores the batch's runs need. With the events written in
+      batches (`RECORDER_BATCH_SIZE`, at least every `RECORDER_FLUSH_S`) it
+      spends a fraction of that; task states reach the UI up to a second later.
     - Two of the server's services that read every event, for features a server
       that ends with this process cannot serve, are off: the event persister
       (the event feed of the UI; the task runs themselves are the recorder's) and
-      the reactive triggers of automations (with the actions they would start).
-      Measured on 60-run batches (process runner, 2 workers): the server's CPU
-      per task run fell from 45-54 ms to 24-42 ms (single runs, load 4-8), means
-      of interleaved runs from 55.6 to 48.5 ms (load 7-9).
+      the reactive triggers of automations (with the actions they would start):
+      the server's CPU per task run falls with them (benchmarks/batch.py).
 
     The temporary server is also made to end with this process, whatever ends it
     (`pipelines.temporary_api`). With a configured API nothing changes

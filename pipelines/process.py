@@ -47,11 +47,11 @@ def samples_table(segments: dict[str, Recording]) -> pa.Table:
     Each numeric column is a chunked array, one chunk per segment, rather than one
     concatenated array: the same table (`pa.Table.equals`) and the same Parquet
     bytes (Arrow's writer pages a column the same whatever its chunks), for a
-    third of the copying (~5 ms instead of ~15 ms on a 1 kHz six-position run).
+    third of the copying.
 
     Built from the arrays' buffers: ``pa.array`` imports pandas (pyarrow asks whether
     every input is a pandas object) and the cast of a dictionary column imports
-    ``pyarrow.compute``, together ~0.4 s of the ~1 s that one run may take.
+    ``pyarrow.compute``, together a large part of what one run may take.
     """
     names = ("t", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z", "temp")
     if not segments:

@@ -87,7 +87,7 @@ def batch_archive(archive_url: str, archive_root: str) -> Archive:
     A batch's runs in one worker process share it: a new engine per run paid,
     every run, for a connection with its set-up and for compiling every SQL
     statement again (SQLAlchemy's statement cache belongs to the engine),
-    ~25 ms of CPU a run (benchmarks/batch.py). The key holds what a fresh
+    a cost per run that benchmarks/batch.py shows. The key holds what a fresh
     `Archive` would decide anew: for SQLite the database file's identity (a file
     deleted and made again is not reached through an old connection) and whether
     it can be written. At most MAX_OPEN_ARCHIVES stay open; thread-safe; a

@@ -11,9 +11,9 @@ pools are Prefect's, the cluster is Dask's.
   ``"local"``, and each task hands its run to a pool of worker processes
   (:class:`WorkerProcesses`), so solving really uses every core. Prefect keeps
   the tasks (states, retries, logs) in the flow's process, where a task costs
-  ~20 ms of Prefect's time; its own ``ProcessPoolTaskRunner`` re-creates the
-  flow's context in the worker for every task (measured: ~60 ms a task, and a
-  batch of 30 runs 50 % slower than a plain process pool). Task inputs must
+  little of Prefect's time; its own ``ProcessPoolTaskRunner`` re-creates the
+  flow's context in the worker for every task, which made a batch markedly
+  slower than a plain process pool. Task inputs must
   pickle (``RunSource`` is a frozen dataclass; archive URL and root are strings).
 - ``"dask"``: prefect-dask's ``DaskTaskRunner`` on an existing scheduler
   (``tcp://host:8786``) when `scheduler` is given, else on a temporary local
@@ -40,8 +40,8 @@ RUNNERS = ("local", "process", "dask")
 
 # One thread per worker process for the numerical libraries: the parallelism of
 # a batch is its worker processes, and nested BLAS / OpenMP / Arrow thread pools
-# only fight them for the cores (measured: a run took 1.7x the CPU time with
-# the default pools, for a slower wall time, even in a single worker).
+# only fight them for the cores (a run took more CPU time with the default pools, for
+# a slower wall time, even in a single worker).
 SINGLE_THREAD_ENV = {
     "OMP_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
@@ -120,7 +120,7 @@ class WorkerProcesses:
     Workers are forked from a forkserver: a clean single-threaded process that
     imports the `preload` modules once (forking the flow's own process, with
     Prefect's threads running, would be unsafe). So the pipeline's imports cost
-    one core for ~1.7 s once per `calib` process instead of every worker on every
+    one core once per `calib` process instead of every worker on every
     core, and a later batch (or a replaced pool) starts its workers at once.
     The forkserver and so every worker run with single-threaded numerical
     libraries (:func:`single_threaded_children`). Workers are started at once,
@@ -145,7 +145,7 @@ class WorkerProcesses:
         self._context = forkserver_context(preload)
         self._pool: ProcessPoolExecutor | None = None
         self._killed = False  # by `kill`: a broken pool is not replaced any more
-        # The first start (the forkserver's imports, ~1.7 s) goes on in the background while
+        # The first start (the forkserver's imports) goes on in the background while
         # the caller gets on with its own start; the first `run` waits for it.
         self._started: Future[None] = Future()
         threading.Thread(target=self._first_start, name="calib-workers-start", daemon=True).start()
@@ -299,8 +299,7 @@ def make_task_runner(
         if runner == "process":
             # The work goes on to WorkerProcesses. One task more than workers keeps a run
             # waiting at the pool, so no worker idles while a task thread spends its few ms
-            # in Prefect between runs (measured on 30 runs: 13 % instead of 18 % over
-            # plain processes).
+            # in Prefect between runs.
             threads += 1
         return ThreadPoolTaskRunner(max_workers=threads)
     from prefect_dask import DaskTaskRunner

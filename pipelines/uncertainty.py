@@ -1,4 +1,4 @@
-"""The run's uncertainty budget (issue 21): equipment specifications from the manifest, the step.
+"""The run's uncertainty budget: equipment specifications from the manifest, the step.
 
 The Type B sources a run can claim follow from the equipment its manifest names
 (docs/uncertainty.md): a ``cube`` (fixture) gives the face-angle and turn-angle errors, a

@@ -689,7 +689,7 @@ def _insert_many(s: Session, model: type[Base], rows: list[dict[str, Any]]) -> N
 
     The tens of step, parameter and check rows of a run need no ORM objects,
     whose bookkeeping cost more than the SQL; the ORM's bulk insert of the same
-    rows, the same statement and defaults, took ~2 ms more a run than Core.
+    rows, the same statement and defaults, still cost more than Core.
     """
     if rows:  # an empty parameter list would insert one row of defaults
         s.connection().execute(insert(model.__table__), rows)

@@ -109,9 +109,9 @@ class Archive:
             self._check_schema_current()
             return
         if self._at_head():
-            return  # the usual case; spares Alembic's import and script scan (~0.3 s)
+            return  # the usual case; spares Alembic's import and script scan
         if self._create_sqlite_head():
-            return  # a new SQLite archive, made without Alembic (~0.4 s of CPU spared)
+            return  # a new SQLite archive, made without Alembic (its import and scan spared)
         self.migrate("head")
 
     def _at_head(self) -> bool:
@@ -167,7 +167,7 @@ class Archive:
         """Upgrade (or with `down`, downgrade) the schema to an Alembic revision."""
         if self.read_only:
             raise ReadOnlyArchiveError(f"archive {self.display_url} is read-only: never migrated")
-        from alembic import command  # Alembic (~0.2 s to import) only where the schema is changed
+        from alembic import command  # Alembic (slow to import) only where the schema is changed
 
         cfg = self.alembic_config()
         with self.engine().connect() as conn:

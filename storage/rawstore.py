@@ -40,12 +40,10 @@ import pyarrow.parquet as pq
 from storage.naming import check_safe_name
 from storage.write_failures import with_path
 
-# Bytes per read or write call. On Linux 6.18 ext4 (benchmarks/write_chunks.py), writing
-# 16 MB into new files took 66-73 ms in calls of 1 to 16 MiB and 6.8 ms in calls of 256
-# or 512 KiB in one run; in three later runs, with gigabytes of files just deleted,
-# every size took 5-8 ms but 4-16 MiB once more 69-71 ms. Calls of 256 KiB were never
-# slower than larger ones; why the kernel sometimes pays so much for a large call was
-# not looked into. Reads are as fast either way.
+# Bytes per read or write call. Writing new files in calls of a few MiB was at times an
+# order of magnitude slower than in calls of 256 KiB, which were never slower than larger
+# ones (benchmarks/write_chunks.py measures it; benchmarks/README.md). Reads are as fast
+# either way.
 IO_CHUNK = 256 << 10
 TEMP_SUFFIX = ".tmp"
 # Temporary files of another host (a shared file store) are removed only past this age, s.
@@ -404,12 +402,10 @@ def write_samples(
     Integer columns (timestamps as int64 ns) use DELTA_BINARY_PACKED, which
     stores a steady sample clock in a few bits per row; floating-point columns
     use BYTE_STREAM_SPLIT (noisy samples have nearly as many distinct values as
-    rows, so a dictionary would cost ~5x the write time for no smaller file);
-    other columns (segment labels) are dictionary encoded. zstd at level -1, its
-    fast mode: on a 1 kHz six-position run (9 columns, 192k rows) 25 ms instead
-    of 34 ms at the default level 1, for a 2 % larger file (8.6 instead of
-    8.4 MB; no compression: 12.3 MB); higher levels gain < 1 %. Partition
-    columns must not be in `table`.
+    rows, so a dictionary would cost several times the write time for no smaller
+    file); other columns (segment labels) are dictionary encoded. zstd at level -1,
+    its fast mode: faster than the default level 1 for a file a few per cent larger;
+    higher levels gain under one per cent. Partition columns must not be in `table`.
     """
     for col in ("serial", "date"):
         if col in table.column_names:
@@ -452,7 +448,7 @@ def read_samples(root: Path, serial: str | None = None) -> pa.Table:
         check_safe_name(serial, "serial")
     if not base.is_dir():
         return pa.table({"serial": pa.array([], pa.string()), "date": pa.array([], pa.string())})
-    import pyarrow.dataset as ds  # imports pandas (~0.4 s): only where samples are read
+    import pyarrow.dataset as ds  # imports pandas (slow): only where samples are read
 
     dataset = ds.dataset(
         base,

@@ -14,8 +14,8 @@ JSON column (the calibration document and settings, a step's settings and
 statistics, a run's site and environment) as the SHA-256 of the text the database
 stores (``"sha256:<hex>"``), and the seal keeps that text beside the record
 (``seals.texts``, outside the digest) to show a change field by field. So verify
-neither decodes nor re-encodes the large JSON values: with them the seal pass
-cost 1.9 times the files-only verify (docs/archive.md, "Verify"). A migration that
+neither decodes nor re-encodes the large JSON values, which would cost more than
+the rest of the verify. A migration that
 rewrote a JSON column's text, even to equal JSON, would break format 2 seals:
 that text is what they hold. Both formats verify; `records` builds either.
 
@@ -227,8 +227,7 @@ def records(
 
 # The queries of `records` are built once per process (they depend on the schema and the
 # format only; their IN lists are expanding parameters ``ids``). Building them, the chain
-# head and the two inserts for every revision took about half of sealing one (12.5-13.9 ms
-# a run before, 6.1-6.7 ms after).
+# head and the two inserts for every revision was about half of the cost of sealing one.
 _IDS = bindparam("ids", expanding=True)
 
 

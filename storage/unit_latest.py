@@ -57,8 +57,8 @@ def _latest_run() -> ScalarSelect:
 
 
 # One unit's queries take its id as the parameter ``device_id``; they are built once per
-# process: `refresh` runs in every archiving transaction, and building its statements
-# anew took ~5 of its 6 ms a run (5.7-6.7 ms before, 0.7-0.8 ms after).
+# process: `refresh` runs in every archiving transaction, where building its statements
+# anew cost most of its time.
 _ONE_UNIT = bindparam("device_id")
 _LOCK = select(UnitLatest.device_id).where(UnitLatest.device_id == _ONE_UNIT).with_for_update()
 

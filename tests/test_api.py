@@ -1,4 +1,4 @@
-"""The public Python API (issue 19 item 4): the README's "From Python" blocks run, every
+"""The public Python API: the README's "From Python" blocks run, every
 public name has a NumPy-style docstring, docs/api.md is what scripts/api_doc.py writes,
 and importing the packages stays cheap (the names are imported on first use)."""
 

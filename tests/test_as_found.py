@@ -1,4 +1,4 @@
-"""As found / as left (issue 21 item 5, calib_core.as_found): the earlier calibration applied to
+"""As found / as left (calib_core.as_found): the earlier calibration applied to
 a recalibrated simulated unit's new raw samples, the error model solved again on them."""
 
 from __future__ import annotations

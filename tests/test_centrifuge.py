@@ -159,7 +159,7 @@ def test_whole_revolution_average_removes_tilt():
 
 
 def test_reduction_keeps_exactly_the_true_terms_in_9_of_10_seeds():
-    """Acceptance of issue 6, with the per-step scale instability (2e-4) the
+    """The centrifuge acceptance, with the per-step scale instability (2e-4) the
     estimator must weight out.
 
     alpha = 0.001 (the module default stays 0.05): with 12 null candidates per

@@ -1,4 +1,4 @@
-"""Lab conditions and acquisition rules (issue 22 item 1), judged at the procedure's limits.
+"""Lab conditions and acquisition rules, judged at the procedure's limits.
 
 Every limit below is the procedure's own number (methods.md 2.4, 3): ambient 20 +- 2 deg C,
 drift <= 0.5 deg C/h, humidity 40-60 %, warm-up >= 10 min (consumer grade), sampling

@@ -1,4 +1,4 @@
-"""Attitude conventions explicit (issue 18 item 2).
+"""Attitude conventions explicit.
 
 The rate-table procedure gives the reference force with a_x = +g sin(pitch); the project's
 convention has a_x = -g sin(pitch). Its attitude list of six (pitch, roll) pairs, pitch 0 with

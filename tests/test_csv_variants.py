@@ -1,4 +1,4 @@
-"""CSV variants (issue 17 item 2): each processes to the same parameters as the plain file.
+"""CSV variants: each processes to the same parameters as the plain file.
 
 A simulated six_position_integral run is written as plain CSV (one file per
 segment, ',' and '.', header ``t,acc_x,..,temp``, SI units, 17 significant

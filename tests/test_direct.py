@@ -1,4 +1,4 @@
-"""`calib process` of a few runs in this process, without Prefect (issue 19): the same
+"""`calib process` of a few runs in this process, without Prefect: the same
 outcomes and archive as the Prefect flow, and Prefect not even imported."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""What a run cannot determine is flagged (issue 18, item 3).
+"""What a run cannot determine is flagged.
 
 - The equipment-free static detector searches its threshold (as imu_tk does)
   before giving up: a session whose holds tremble more than the first rest.

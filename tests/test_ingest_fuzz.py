@@ -1,9 +1,8 @@
 """Property-based fuzzing of the binary readers: damaged files read or raise IngestError.
 
 Valid small files (MCAP from mcap-ros2-support, MAT v5 from scipy, v7.3 from
-hdf5storage) get 500 random byte mutations and truncations each (issue 17,
-item 6). Each reader must either return a valid Recording or raise an
-IngestError naming the file and the place (byte offset, message, variable)
+hdf5storage) get 500 random byte mutations and truncations each. Each reader
+must either return a valid Recording or raise an IngestError naming the file and the place (byte offset, message, variable)
 unless the whole file is unreadable; any other exception type (or a hang:
 hypothesis would sit on it) fails the test.
 """
@@ -33,7 +32,7 @@ from pipelines.ingest.matlab import read_mat
 from pipelines.ingest.mcap_reader import read_mcap
 
 FUZZ = settings(
-    max_examples=500,  # issue 17 item 6: at least 500 mutated inputs per reader
+    max_examples=500,  # at least 500 mutated inputs per reader
     deadline=None,
     derandomize=True,  # reproducible in CI; a new seed is a code change
     database=None,  # no .hypothesis folder in the repository

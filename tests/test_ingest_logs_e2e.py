@@ -1,4 +1,4 @@
-"""New routes in (issue 17 item 3): PX4 ULog, ArduPilot DataFlash, ROS 2 .db3 and ROS 1 .bag
+"""New routes in: PX4 ULog, ArduPilot DataFlash, ROS 2 .db3 and ROS 1 .bag
 bags, imu_tk text, each end to end through `calib process --json`.
 
 A simulated six_position_integral run is written one file per segment by each

@@ -1,4 +1,4 @@
-"""`calib inspect PATH [--json]` (issue 17 item 5): reads, reports, archives nothing."""
+"""`calib inspect PATH [--json]`: reads, reports, archives nothing."""
 
 from __future__ import annotations
 

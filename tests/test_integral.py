@@ -184,7 +184,7 @@ def test_row_medians_are_numpys_medians(n):
 
 
 def test_spikes_in_the_rotations_are_removed_before_integrating():
-    """Issue 18 item 5: 0.5 % spikes of 30 noise stds in the rotation records.
+    """Despiking: 0.5 % spikes of 30 noise stds in the rotation records.
 
     The same run with and without the spikes: the spiky run's parameters must be within
     0.3 standard uncertainties of the clean run's. Derivation: a replaced sample takes

@@ -1,4 +1,4 @@
-"""The MPU-6000 program's defaults (issue 22 items 3 and 4): local gravity by Helmert's
+"""The MPU-6000 program's defaults: local gravity by Helmert's
 formula with the height correction from the lab's site, the standard value only with a
 warning; stage 1 (six orientations) and stage 2 (six rotations) as runs of their own; the
 protocol in the manual's names and signs."""

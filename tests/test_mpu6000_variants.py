@@ -1,4 +1,4 @@
-"""MPU-6000 text variants (issue 17 item 1): every variant of the sample run processes to
+"""MPU-6000 text variants: every variant of the sample run processes to
 the same parameters as the plain files.
 
 Each variant rewrites the 12 files of data_samples/mpu6000_MPU0001 (summary lines

@@ -167,7 +167,7 @@ def test_bad_input_messages():
 
 
 def test_chosen_fit_reproduces_the_curve_and_the_parameters(mix_results):
-    """Issue 18: the chosen fit matches the data's curve within 10 % (beyond its scatter).
+    """The chosen fit matches the data's curve within 10 % (beyond its scatter).
 
     On white + flicker + random walk the three-term model is the right model, so it is
     chosen, its misfit is within MISFIT_LIMIT and the parameters come back within 10 %

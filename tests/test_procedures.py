@@ -1,4 +1,4 @@
-"""Procedures end to end on simulated runs: the acceptance of issue 2 for the science."""
+"""Procedures end to end on simulated runs: each recovers the simulator's truth."""
 
 from __future__ import annotations
 

@@ -207,7 +207,7 @@ def test_bad_input_messages():
         rate_point(rec, axis="x", settle_s=0.0)
 
 
-# --- bias fixed from the static run (issue 22 item 2) ---------------------------------
+# --- bias fixed from the static run ------------------------------------------------
 
 
 def test_fixed_bias_reproduces_truth_within_its_reported_uncertainty():

@@ -1,4 +1,4 @@
-"""Fuzzing every reader of issue 17 (item 6) and the bad-sample policy (item 4).
+"""Fuzzing every reader, and the bad-sample policy.
 
 Each reader gets 500 mutated inputs (hypothesis, derandomized, fixed
 max_examples, no deadline, no database): valid small files written by

@@ -115,7 +115,7 @@ def test_selection_reprocessed_twice_gives_revisions_then_duplicates(
     assert reasons == [{"reason": "solver upgrade"}] * 3
     assert [(e["action"], e["reason"]) for e in queries.audit_trail(arch)][-3:] == [
         ("revised", "solver upgrade")
-    ] * 3  # the audit trail keeps the reason given (issue 20)
+    ] * 3  # the audit trail keeps the reason given
     # Every filter, on the archive as it now is (3 runs revised by the new software).
     for filters, expected in (
         ({"software_version": "9.9.9-reprocess-batch"}, [o["run_id"] for o in once]),

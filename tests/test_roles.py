@@ -84,7 +84,7 @@ def test_writer_appends_and_cannot_change_history(roles, tmp_path: Path) -> None
 
 
 def test_sealed_rows_and_the_audit_chain_are_guarded(roles, tmp_path: Path) -> None:  # noqa: ANN001
-    """Issue 20: the writer appends runs and events, and changes nothing sealed.
+    """The writer appends runs and events, and changes nothing sealed.
 
     Grants refuse UPDATE and DELETE; the triggers of migration 0004 refuse what a
     grant cannot tell apart (a row added to an archived calibration), and refuse

@@ -1,4 +1,4 @@
-"""Run ids accepted by any unique prefix, as git takes commit ids (issue 19)."""
+"""Run ids accepted by any unique prefix, as git takes commit ids."""
 
 from __future__ import annotations
 

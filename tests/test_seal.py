@@ -4,7 +4,7 @@ Known truth: what `fill` archived (three runs, one of them revised, each with a
 protocol file). Each tamper changes exactly one thing with raw SQL on the real
 SQLite file or the real PostgreSQL server, as an attacker with database access
 would; verify must name the run and the table/row/field with both values.
-Before this issue, verify reported OK after every one of them (issue 20).
+Before seals, verify reported OK after every one of them.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Sensor range from the sensor (issue 18 item 1): a clipped reading is refused, not solved.
+"""Sensor range from the sensor: a clipped reading is refused, not solved.
 
 The MPU-6000 program's manual keeps the readings within +-250 deg/s and +-2 g and asks
 the operator to repeat a turn that went beyond (methods.md 2.6). An MPU-6000 folder

@@ -347,7 +347,7 @@ def test_the_server_cannot_write(client, serve_sample):
 
 
 def test_open_readonly_is_the_archive_read_only(serve_sample):
-    """One read-only opener (issue 20): the server's is storage.db.Archive(read_only=True)."""
+    """One read-only opener: the server's is storage.db.Archive(read_only=True)."""
     from sqlalchemy.exc import OperationalError
 
     from storage.db import Archive

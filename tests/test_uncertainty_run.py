@@ -1,4 +1,4 @@
-"""The uncertainty budget of a run (issue 21): coverage on simulated runs, the decision rule in the
+"""The uncertainty budget of a run: coverage on simulated runs, the decision rule in the
 run's checks, and the budget in the archive, the protocol and the certificate (HTML and PDF)."""
 
 from __future__ import annotations

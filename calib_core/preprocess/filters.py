@@ -47,7 +47,7 @@ def design_lowpass(fs_hz: float, cutoff_hz: float, order: int = 4) -> np.ndarray
         )
     if order < 1:
         raise ValueError(f"lowpass: order must be >= 1, got {order}")
-    # scipy.signal imports scipy.stats (~1 s): loaded only when a run is filtered.
+    # scipy.signal imports scipy.stats (slow): loaded only when a run is filtered.
     from scipy.signal import butter
 
     return butter(order, cutoff_hz, btype="low", fs=fs_hz, output="sos")

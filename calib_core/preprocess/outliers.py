@@ -189,7 +189,7 @@ def hampel_mask(x: np.ndarray, n_sigma: float = 3.0, window: int = 201) -> np.nd
     -------
     (N,) bool, True for outliers.
     """
-    from scipy.ndimage import median_filter  # ~0.1 s to import: only where a filter runs
+    from scipy.ndimage import median_filter  # slow to import: only where a filter runs
 
     x = np.asarray(x, dtype=float)
     if window < 3:

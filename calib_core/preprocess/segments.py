@@ -86,7 +86,7 @@ class Interval:
 
 def _local_variance(x: np.ndarray, w: int) -> np.ndarray:
     """Centred moving variance of each column of x (N, C) over w samples, summed over columns."""
-    from scipy.ndimage import uniform_filter1d  # ~0.1 s to import: only where segments are found
+    from scipy.ndimage import uniform_filter1d  # slow to import: only where segments are found
 
     x = x - np.median(x, axis=0)  # centring keeps E[x^2] - E[x]^2 from cancelling badly
     m1 = uniform_filter1d(x, w, axis=0, mode="nearest")

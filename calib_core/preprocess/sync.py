@@ -302,7 +302,7 @@ def _window_offsets(
     searched +-`search` grid points around the coarse offset. Windows touching a
     gap, without motion or below `min_correlation` are skipped.
     """
-    from scipy.ndimage import uniform_filter1d  # ~0.1 s to import: only where clocks are synced
+    from scipy.ndimage import uniform_filter1d  # slow to import: only where clocks are synced
 
     w = max(int(round(window_s / dt)), 8)
     smooth = max(1, int(round(0.25 / dt)))  # 0.25 s moving average for the slope weights

@@ -265,7 +265,7 @@ def step_weights(
         return weights(1e-9), 1e-9
     if excess(hi) > 0.0:
         raise ValueError("step residuals exceed 100 % scale instability: the model does not fit")
-    from scipy import optimize  # ~0.2 s to import: only where a centrifuge run is solved
+    from scipy import optimize  # slow to import: only where a centrifuge run is solved
 
     kappa = math.exp(optimize.brentq(excess, lo, hi, xtol=1e-3))
     return weights(kappa), kappa

@@ -174,7 +174,7 @@ def _fit_norm(
         theta[free] = x
         return _acc_residuals(theta, means, sems, gravity)
 
-    from scipy.optimize import least_squares  # ~0.2 s: only for equipment-free runs
+    from scipy.optimize import least_squares  # slow to import: only for equipment-free runs
 
     res = least_squares(
         fun,

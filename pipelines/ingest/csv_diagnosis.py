@@ -20,7 +20,7 @@ from pipelines.ingest.csv_layout import CsvLayout
 from pipelines.ingest.errors import IngestError
 
 if TYPE_CHECKING:
-    import pandas as pd  # imported where a frame is made (~0.3 s at start)
+    import pandas as pd  # imported where a frame is made (slow to import)
 
 PANDAS_CHUNK_ROWS = 1_000_000  # rows per chunk of text read by pandas (here and the reader's)
 

@@ -338,7 +338,7 @@ def _slices(path: Path, data_start: int) -> Iterator[tuple[pa.Buffer, int]]:
     are released (MADV_DONTNEED: clean file pages, re-readable) once parsed: resident
     memory stays bounded by a slice whatever the size of the file. Each slice goes
     through pyarrow's multithreaded whole-buffer parser, which is as fast as its
-    whole-file read (its streaming reader parses on one thread only, ~2x slower here).
+    whole-file read (its streaming reader parses on one thread only, the slower here).
     """
     size = path.stat().st_size
     if size == 0:
@@ -367,7 +367,7 @@ def _float_values(column: pa.Array) -> np.ndarray:
     """A float64 Arrow column as NumPy, nulls (empty cells, "nan") as NaN.
 
     Without a null, a view of its buffer: pyarrow's ``to_numpy`` imports pandas
-    (~0.3 s of a one-run process) even for a view.
+    (a large part of a one-run process) even for a view.
     """
     if column.null_count or column.type != pa.float64():
         return column.to_numpy(zero_copy_only=False)

@@ -9,14 +9,13 @@ reported as an :class:`IngestError` naming the file.
 
 The workers are forked from multiprocessing's forkserver (a clean
 single-threaded process, safe while the batch's threads run) and kept for
-the next read: a call costs ~1 ms plus the transfer of its result. The MAT
-reader uses a worker as a probe: the worker reads the file and returns only
-its errors, then the file is read again in the calling process (measured:
-+0.9 ms on a 60-sample file, 0.067 instead of 0.036 s on a 34 MB file;
-returning the arrays through the pipe instead cost ~0.3 s for that file). The
-first read of a process starts the workers (~1 s with the reader's imports,
-once). A read that kills its worker is tried once more in a fresh pool (two
-reads may share a pool, and the crash of one breaks both); a file that
+the next read: a call costs little more than the transfer of its result. The
+MAT reader uses a worker as a probe: the worker reads the file and returns only
+its errors, then the file is read again in the calling process (reading twice
+costs less than returning a large file's arrays through the pipe). The first
+read of a process starts the workers (with the reader's imports, once). A read
+that kills its worker is tried once more in a fresh pool (two reads may share a
+pool, and the crash of one breaks both); a file that
 crashes a reader twice is the cause. As with every multiprocessing start
 method but fork, a script that reads at the top level of its main module needs
 the ``if __name__ == "__main__":`` guard.

@@ -3,14 +3,14 @@
 A ROS 2 lab log holds ``sensor_msgs/msg/Imu`` at 100 Hz .. 2 kHz, often for
 hours, plus ``sensor_msgs/msg/Temperature`` and rate-table feedback
 (``sensor_msgs/msg/JointState`` or a JSON channel). Decoding one Python object
-per message (mcap-ros2-support, ~25-30k msg/s) makes a 1 kHz hour-long log take
-minutes; so this reader never builds a per-message object for the IMU:
+per message (mcap-ros2-support) makes a 1 kHz hour-long log take minutes; so
+this reader never builds a per-message object for the IMU:
 
 1. Records are read straight from the file, one chunk at a time (bounded
    memory): a Python loop only hops from record header to record header
    inside a decompressed chunk; everything else is numpy over the chunk.
    (mcap's own record iterator builds a Python object per record and per
-   message-index entry, which caps it at ~150-250k msg/s.)
+   message-index entry, which caps its speed.)
 2. ``sensor_msgs/msg/Imu`` in CDR has a fixed layout once the header's
    variable-length ``frame_id`` is known, so every message of a chunk is decoded
    at once by numpy gathers (pipelines.ingest.cdr).

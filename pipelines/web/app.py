@@ -67,7 +67,8 @@ def render(request: Request, template: str, status_code: int = 200, **context: A
 async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
     """At start, move every object there is (the imported libraries': ~160k) out of the
     garbage collector's sight (`gc.freeze`): none of them is ever garbage, and a full
-    collection scanning them cost ~150 ms of CPU every ~9 fleet pages (100k-run archive)."""
+    collection scanning them every few fleet pages of a large archive cost more CPU than
+    the pages."""
     import pandas  # noqa: F401 - imported by the unit page's history; frozen with the rest
 
     gc.collect()

@@ -18,7 +18,7 @@ from storage.naming import check_safe_name
 from storage.schema import CalibrationRow, Device, ParameterRow, Run
 
 if TYPE_CHECKING:
-    import pandas as pd  # imported where a frame is made (~0.3 s at start)
+    import pandas as pd  # imported where a frame is made (slow to import)
 
 PASS = "pass"
 
@@ -65,7 +65,7 @@ def parameter_values(s: Session, cal_ids: list[int]) -> dict[int, dict[str, tupl
             values[cal_id][name] = (value, std)
     return values
 
-# --- issue 9: traceability, equipment validity, units, fleet -------------------------
+# --- traceability, equipment validity, units, fleet ----------------------------------
 #
 # The functions below validate their filters (a clear ValueError naming the
 # filter) before any SQL runs, and bind every value. Dates given as `date` mean

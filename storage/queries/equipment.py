@@ -24,7 +24,7 @@ from storage.schema import (
 )
 
 if TYPE_CHECKING:
-    import pandas as pd  # imported where a frame is made (~0.3 s at start)
+    import pandas as pd  # imported where a frame is made (slow to import)
 
 LAPSED_COLUMNS = [
     "equipment_kind",

@@ -41,7 +41,7 @@ from storage.schema import (
 )
 
 if TYPE_CHECKING:
-    import pandas as pd  # imported where a frame is made (~0.3 s at start)
+    import pandas as pd  # imported where a frame is made (slow to import)
 
 
 def history(archive: Archive, serial: str) -> pd.DataFrame:

@@ -1,4 +1,4 @@
-"""Indexes for the archive's queries (issue 9).
+"""Indexes for the archive's queries.
 
 - ``runs(device_id, started_at)``: a unit's runs in time order (latest valid
   calibration as of a date, parameter history);

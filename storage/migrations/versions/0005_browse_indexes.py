@@ -1,4 +1,4 @@
-"""Indexes for the archive browser's fleet and equipment pages (issue 23).
+"""Indexes for the archive browser's fleet and equipment pages.
 
 - ``calibrations(run_id, verdict, profile_name) WHERE superseded_by IS NULL``
   (PostgreSQL: INCLUDE id): the current revision of a run and its verdict from the

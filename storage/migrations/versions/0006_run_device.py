@@ -1,4 +1,4 @@
-"""The device description of each run (issue 20 item 6): ``runs.model``,
+"""The device description of each run: ``runs.model``,
 ``runs.manufacturer``, ``runs.specification``.
 
 Before, only the unit's row in ``devices`` held a description, the one its serial

@@ -2,8 +2,8 @@
 
 Verify reads every seal's ``record -> 'files'`` and ``-> 'format'``; PostgreSQL's
 ``json`` type (and SQLite) parse the whole value for that. With the texts inside
-the record that was ~75 kB a seal, 1.3 s per 1000 runs on PostgreSQL, a quarter
-of the seal pass (storage.seal). Nullable: format 1 seals have no texts.
+the record that was tens of kB a seal, a large part of the seal pass on PostgreSQL
+(storage.seal). Nullable: format 1 seals have no texts.
 """
 
 from __future__ import annotations
