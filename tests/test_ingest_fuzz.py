@@ -2,9 +2,9 @@
 
 Valid small files (MCAP from mcap-ros2-support, MAT v5 from scipy, v7.3 from
 hdf5storage) get 500 random byte mutations and truncations each. Each reader
-must either return a valid Recording or raise an IngestError naming the file and the place (byte offset, message, variable)
-unless the whole file is unreadable; any other exception type (or a hang:
-hypothesis would sit on it) fails the test.
+must either return a valid Recording or raise an IngestError naming the file and
+the place (byte offset, message, variable) unless the whole file is unreadable;
+any other exception type (or a hang: hypothesis would sit on it) fails the test.
 """
 
 from __future__ import annotations
