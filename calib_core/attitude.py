@@ -17,8 +17,8 @@ Attitude conventions (the sign of the table's pitch), ``convention``:
 
 - ``"project"`` (default): pitch is a right-handed rotation about y, so a
   positive pitch lowers +x: a_x = -g sin(pitch) (the formulas above).
-- ``"rate_table_procedure"``: the two-axis rate-table procedure (methods.md,
-  source 1) counts pitch the other way, a_x = +g sin(pitch): the same table
+- ``"rate_table_procedure"``: the two-axis rate-table procedure (docs/methods.md
+  [RT]) counts pitch the other way, a_x = +g sin(pitch): the same table
   with the pitch angle negated. Roll keeps the project's sense (the procedure
   states the x component only).
 

@@ -91,7 +91,7 @@ GYR_LINEAR = [bias("gyr", a) for a in AXES] + [n for row in matrix_names("gyr") 
 GSENS = [n for row in gsens_names() for n in row]
 
 
-# --- the MPU-6000 manual's names and signs (methods.md 1 and 5) ---------------------------
+# --- the MPU-6000 manual's names and signs (docs/methods.md 1 and 5) ---------------------------
 # The manual writes the misalignments as small angles with signs,
 #     Ax = (1+Axx) ax + Axz ay - Axy az + a0x
 #     Ay = -Ayz ax + (1+Ayy) ay + Ayx az + a0y

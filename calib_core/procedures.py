@@ -20,11 +20,11 @@ Settings
 --------
 turns : int or None (infer from the data), integral method only.
 gyro_range_dps : gyro full scale, deg/s (default 2000).
-accel_solver : "least_squares" (default), "closed_form" (methods.md 2.1) or
+accel_solver : "least_squares" (default), "closed_form" (docs/methods.md 2.1) or
     "kalman" (sequential filter over every sample, calib_core.solvers.kalman;
     agrees with least squares within its uncertainty).
 accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
-    rate-table model of methods.md 1: bias and scale per axis, no cross-coupling).
+    rate-table model of docs/methods.md 1: bias and scale per axis, no cross-coupling).
 rotation_directions : "both" (default; ccw and cw about each axis) or "any"
     (one rotation per axis suffices, Ferraris et al.; e.g. imucal sessions).
 

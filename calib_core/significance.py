@@ -1,7 +1,7 @@
 """Ordinary least squares with significance statistics, and stepwise model reduction.
 
 Used wherever the product has to decide which terms a model needs: the
-centrifuge high-g model (methods.md 2.8) and the temperature fits.
+centrifuge high-g model (docs/methods.md 2.8) and the temperature fits.
 
 For n observations and p columns (k regressors plus, usually, a constant):
 

@@ -7,7 +7,7 @@ as
 
     p(T) = c_0 + c_1 (T - T_ref) + c_2 (T - T_ref)^2 + ...   T clipped to [T_min, T_max]
 
-Order selection (methods.md 3 "order chosen by significance"): start at the
+Order selection (docs/methods.md 3.9, "order chosen by significance"): start at the
 highest order the data allow and lower it while the top coefficient fails the
 two-sided t test at `alpha` (calib_core.significance.fit_ols). Going down
 rather than up matters: a low-order fit of a cubic has a misfit-inflated

@@ -5,7 +5,7 @@ A tolerance profile is data, not code: the lab keeps one file per device type
 limits. Parameter limits are matched to canonical names by glob patterns, first
 match wins, so a specific pattern ("acc.bias.z") listed before a general one
 ("acc.bias.*") overrides it. Residual limits bound the per-segment residual
-statistics (methods.md 3: accel residual std <= 0.002 g, gyro residual std
+statistics (docs/methods.md 3.6: accel residual std <= 0.002 g, gyro residual std
 <= 0.1 deg/s, residual mean near zero). `calib_core.checks` judges a
 calibration against a profile.
 """
@@ -48,7 +48,7 @@ _FAMILY_DIMENSION = {
 _DIMENSIONLESS = {"1": 1.0, "": 1.0, "%": 1e-2, "ppm": 1e-6}
 
 RESIDUAL_KEYS = ("acc_std", "gyr_std", "acc_mean", "gyr_mean")
-# methods.md 3; a residual mean as large as the allowed noise means the model misses something.
+# docs/methods.md 3.6; a residual mean as large as the allowed noise: the model misses something.
 DEFAULT_RESIDUAL_LIMITS: dict[str, float] = {
     "acc_std": 0.002 * units.STANDARD_GRAVITY,
     "gyr_std": 0.1 * units.DEG,
@@ -57,13 +57,13 @@ DEFAULT_RESIDUAL_LIMITS: dict[str, float] = {
 }
 _RESIDUAL_DIMENSION = {"acc": "acceleration", "gyr": "angular rate"}
 
-# methods.md 3, accuracy verification on points not used in the fit.
+# docs/methods.md 3.8, accuracy verification on points not used in the fit.
 VERIFICATION_KEYS = ("acc", "gyr")
 DEFAULT_VERIFICATION_LIMITS: dict[str, float] = {
     "acc": 0.01 * units.STANDARD_GRAVITY,
     "gyr": 0.5 * units.DEG,
 }
-# methods.md 3, repeatability: three complete runs, CV <= 1 %. `alpha` is the
+# docs/methods.md 3.7, repeatability: three complete runs, CV <= 1 %. `alpha` is the
 # family-wise false-alarm rate of the scatter-vs-uncertainty rule for the
 # parameters where a CV is meaningless; `temperature_tol_c` decides which runs
 # count as "the same conditions" (the lab's 20 +- 2 deg C); `max_runs` caps a group.

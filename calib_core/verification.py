@@ -1,6 +1,6 @@
 """Is the calibration believable? Residual diagnosis, accuracy on held-out points, repeatability.
 
-Three questions a lab asks before it accepts a solver's numbers (methods.md 3):
+Three questions a lab asks before it accepts a solver's numbers (docs/methods.md 3.6-3.8):
 
 1. Do the residuals (measured - model) stay within the profile's limits at
    every segment? When not, which segments are worst and what to try. At the
@@ -371,7 +371,7 @@ def comparable_runs(
 
 
 def repeatability(runs: list[RunValues], profile: ToleranceProfile) -> list[CheckResult]:
-    """Run-to-run agreement of every parameter all runs share (methods.md 3).
+    """Run-to-run agreement of every parameter all runs share (docs/methods.md 3.7).
 
     Rules (named in each result's detail):
 

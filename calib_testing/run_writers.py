@@ -1,7 +1,7 @@
 """Writers of lab runs in the layouts ingest reads: the sample data and the test fixtures.
 
 - :func:`write_mpu6000_run`: one text file per segment in the MPU-6000 layout
-  (methods.md section 5), with the underscore line, means and standard deviations.
+  (docs/methods.md section 5), with the underscore line, means and standard deviations.
 - :func:`write_csv_run`: one headered CSV with all segments on one time base,
   and a ``run.toml`` whose segment windows point at them.
 - :func:`write_centrifuge_run`: a simulated centrifuge run as a CSV run folder.

@@ -26,7 +26,7 @@ G = STANDARD_GRAVITY
 
 
 def test_rates_give_the_procedures_g_levels_exactly():
-    """methods.md 2.8: steps 2 g .. 20 g, input R w (w + 2 Omega_V).
+    """docs/methods.md 2.8: steps 2 g .. 20 g, input R w (w + 2 Omega_V).
 
     The planned rate must give n g through the procedure's own formula (to
     rounding, 1e-12 relative), and differ from the Earth-rate-free sqrt(n g / R)

@@ -1,6 +1,6 @@
 """Lab conditions and acquisition rules, judged at the procedure's limits.
 
-Every limit below is the procedure's own number (methods.md 2.4, 3): ambient 20 +- 2 deg C,
+Every limit below is the procedure's own number (docs/methods.md 2.4, 3.10): ambient 20 +- 2 deg C,
 drift <= 0.5 deg C/h, humidity 40-60 %, warm-up >= 10 min (consumer grade), sampling
 >= 100 Hz, resolution >= 16 bit, settle >= 30 s (positions) / >= 20 s (rate points),
 record >= 10 s, static temperature spread <= 0.2 deg C, table rate stability <= 0.1 deg/s

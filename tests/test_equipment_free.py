@@ -181,7 +181,7 @@ def test_real_xsens_session_against_the_datasheet(capsys):
     np.testing.assert_array_less(np.abs(acc_gain / DS_ACC_GAIN - 1), 0.01)
     np.testing.assert_array_less(np.abs(gyr_gain / DS_GYR_GAIN - 1), 0.01)
     # The calibration explains the data: |f| = g to the 0.002 g residual limit of
-    # methods.md 3 (from ~1 m/s^2 with the nominal factors), gravity carried between
+    # docs/methods.md 3.6 (from ~1 m/s^2 with the nominal factors), gravity carried between
     # rests at least twice as well as with the nominal gyro.
     assert cal.info["acc_norm_rms_before"] > 0.5
     assert cal.info["acc_norm_rms_after"] < 0.002 * 9.80665

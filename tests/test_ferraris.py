@@ -104,7 +104,7 @@ def test_gyro_y_turn_was_not_a_full_turn(both, session, capsys):
     them: with the same gravity directions and bias, the hypothesis "the Ferraris gyro
     matrix is the true one" is rejected by the F-test of a fixed parameter point,
     F = ((SSR_0 - SSR) / p) / (SSR / (n - p)) ~ F(p, n - p), p = 9 matrix terms,
-    n = 2 degrees of freedom per motion, at alpha = 0.05 (methods.md's level)."""
+    n = 2 degrees of freedom per motion, at alpha = 0.05 (docs/methods.md 2.8)."""
     ferraris, free = both
     _, segments, from_first_rest = session
     for a in ("x", "z"):
@@ -147,7 +147,7 @@ def test_matches_imucals_own_calibrated_output(both, session):
     """imucal calibrated the first 50 rows of this session with its Ferraris solution
     (reference/ferraris_example_calibrated_head50.csv). Our six-position + integral
     calibration applied to the same raw rows agrees within the residual limits of
-    methods.md 3 (0.002 g, 0.1 deg/s): two implementations of one method."""
+    docs/methods.md 3.6 (0.002 g, 0.1 deg/s): two implementations of one method."""
     ferraris, _ = both
     rec, _, _ = session
     ref = pd.read_csv(DATA / "reference" / "ferraris_example_calibrated_head50.csv")

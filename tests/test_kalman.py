@@ -14,7 +14,7 @@ from calib_core.stats import channel_stats
 from calib_core.units import STANDARD_GRAVITY
 
 G = STANDARD_GRAVITY
-# methods.md: record >= 10 s at >= 100 Hz per attitude; six positions x up .. z down.
+# docs/methods.md 2.4: record >= 10 s at >= 100 Hz per attitude; six positions x up .. z down.
 RATE_HZ, RECORD_S = 100.0, 10.0
 # Errors of the size the MPU-6000 protocol tolerates (scale 0.03, misalignment 0.02,
 # bias 0.5 m/s^2), noise 0.02 m/s^2 per sample.

@@ -125,14 +125,14 @@ def test_manifest_latitude_means_helmert_unless_a_model_is_named():
 
 # --- the manual's names and signs in the protocol (item 4) ----------------------------------
 
-# The manual's parameters of one unit (methods.md 1 sign convention), chosen distinct.
+# The manual's parameters of one unit (docs/methods.md 1 sign convention), chosen distinct.
 MANUAL = {"Axx": 0.011, "Ayy": -0.021, "Azz": 0.015, "Axz": 0.004, "Axy": 0.003,
           "Ayz": -0.002, "Ayx": 0.0012, "Azy": 0.005, "Azx": -0.006}  # fmt: skip
 A0 = np.array([0.12, -0.21, 0.33])  # a0x, a0y, a0z, m/s^2
 
 
 def _manual_means(g: float) -> dict[str, np.ndarray]:
-    """Per-position means from the manual's own model equations (methods.md 1)."""
+    """Per-position means from the manual's own model equations (docs/methods.md 1)."""
     m = MANUAL
 
     def output(f):
@@ -160,7 +160,7 @@ def _protocol(cal: Calibration, names: str) -> str:
 
 
 def test_protocol_prints_the_manuals_names_and_signs():
-    """The manual's numbers through its closed form (methods.md 2.1) and back out of the
+    """The manual's numbers through its closed form (docs/methods.md 2.1) and back out of the
     protocol under the manual's names: each equal to the number put in, sign included;
     its protocol's noise line `Gstdx = 0,02089` (deg/s) reads back as Gstdx too."""
     g = 9.81

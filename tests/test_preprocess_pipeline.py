@@ -162,7 +162,7 @@ def test_sync_step_realigns_delayed_table_feedback():
     )
     st = steps[0].statistics["segments"]["run"]
     assert steps[0].name == "synchronise"
-    # methods.md: residual timing error <= 1 ms.
+    # docs/methods.md 3.3: residual timing error <= 1 ms.
     # An event at IMU time t is stamped t + delay in the feedback: offset = +delay.
     assert st["offset_s"] == pytest.approx(delay, abs=1e-3)
     aligned = out["run"].reference["table_rate"]

@@ -1,6 +1,6 @@
 """The six-IMU array procedure end to end: CSV files -> `calib process` -> SQLite archive.
 
-methods.md 2.7 (the patent): six IMUs on a cube, pairs on three faces, one
+docs/methods.md 2.7 (the patent): six IMUs on a cube, pairs on three faces, one
 static record and one clockwise and one counter-clockwise full turn about the
 vertical. Each IMU logs one continuous recording (static, cw, static, ccw,
 static) as a lab's logger would, in g and deg/s; automatic segmentation
@@ -57,7 +57,7 @@ def test_six_imu_array_from_files_to_the_archive(tmp_path):
     """
     rng = np.random.default_rng(2207)
     truth = random_errors(rng)
-    # methods.md: settle >= 30 s, record >= 10 s at >= 100 Hz: 40 s statics keep 10 s
+    # docs/methods.md 3.4: settle >= 30 s, record >= 10 s at >= 100 Hz: 40 s statics keep 10 s
     sessions = array_session(truth, cube_mounts(), rng, rate_hz=100.0, static_s=40.0)
     folder = tmp_path / "cube"
     _write_run(folder, sessions)

@@ -1,7 +1,7 @@
 """Sensor range from the sensor: a clipped reading is refused, not solved.
 
 The MPU-6000 program's manual keeps the readings within +-250 deg/s and +-2 g and asks
-the operator to repeat a turn that went beyond (methods.md 2.6). An MPU-6000 folder
+the operator to repeat a turn that went beyond (docs/methods.md 2.6). An MPU-6000 folder
 without run.toml therefore gets those ranges; a run.toml may state others.
 """
 

@@ -103,7 +103,7 @@ def segment_recordings(
 
     Statics are labelled by the direction of gravity (x_up .. z_dn), rotations
     by axis and sense (x_ccw, z_cw, ...): `calib_core.preprocess.segments.segment`.
-    With ``labels = "array"`` (a sensor array, methods.md 2.7) each recording is
+    With ``labels = "array"`` (a sensor array, docs/methods.md 2.7) each recording is
     one sensor's session (static, cw, static, ccw, static about the vertical),
     named by its segment label: statics become ``<sensor>_static`` whatever
     their face, turns ``<sensor>_ccw`` / ``<sensor>_cw`` by their sense about

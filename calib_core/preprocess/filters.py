@@ -5,7 +5,7 @@ and cancels its phase, so the output has no group delay at any frequency (the
 timing of a rotation's start and end is untouched). Second-order sections keep
 high orders and low cutoffs numerically stable.
 
-Cutoff rule (methods.md): 1/5 .. 1/3 of the IMU bandwidth.
+Cutoff rule (docs/methods.md 3.2): 1/5 .. 1/3 of the IMU bandwidth.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Three detectors, all returning a boolean mask of the flagged samples:
 
-- `sigma_mask`: iterative n-sigma clipping about the mean (methods.md: 3-sigma).
+- `sigma_mask`: iterative n-sigma clipping about the mean (docs/methods.md 3.1: 3-sigma).
 - `grubbs_mask`: Grubbs' two-sided test at significance `alpha`, iterated,
   applied in blocks of `window` samples (the test's critical value grows with
   the sample count, so a block keeps its power against single spikes).

@@ -1,7 +1,7 @@
 """Multi-position least squares, the accelerometer models: full, reduced, quadratic, nonlinear.
 
 `solve_accel_multi` generalises the accelerometer fit to the models labs use
-(methods.md 1), still one independent fit per output axis i:
+(docs/methods.md 1), still one independent fit per output axis i:
 
     full       m_i = b_i + sum_j (delta_ij + M_ij) f_j                  4 terms
     reduced    m_i = K_i (f_i + b'_i) = K_i f_i + b_i  (b_i = K_i b'_i)  2 terms
@@ -161,7 +161,7 @@ def solve_accel_multi(
     Returns
     -------
     MultiPositionFit. On the six +-g positions with model "full" it equals
-    `solve_accel_linear` (and so the closed form of methods.md 2.1).
+    `solve_accel_linear` (and so the closed form of docs/methods.md 2.1).
     """
     if model not in ACCEL_MODELS:
         raise ValueError(

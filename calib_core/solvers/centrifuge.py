@@ -1,6 +1,6 @@
 """Centrifuge procedure, the science: the high-g fit with significance-based reduction.
 
-Procedure (methods.md 2.8). The IMU is mounted on the centrifuge arm in six
+Procedure (docs/methods.md 2.8). The IMU is mounted on the centrifuge arm in six
 positions, each accelerometer axis once pointing to the table axis (``+``)
 and once away from it (``-``). Per mounting position:
 

@@ -37,7 +37,7 @@ MOUNTS: dict[str, np.ndarray] = {
 }
 ZERO_POSITIONS_DEG = (0.0, 90.0, 180.0, 270.0)
 STEP_KINDS = ("zero", "zero_after", "1g", "step")
-# methods.md 3: accelerometer residual std <= 0.002 g. A zero that moved by more
+# docs/methods.md 3.6: accelerometer residual std <= 0.002 g. A zero that moved by more
 # than the model may leave unexplained is a run to repeat.
 DEFAULT_ZERO_SHIFT_LIMIT = 0.002 * STANDARD_GRAVITY
 

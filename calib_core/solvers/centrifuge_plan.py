@@ -1,6 +1,6 @@
 """Centrifuge procedure, before and around the run: table rates for the g levels, zero drift.
 
-Planning (methods.md 2.8: steps 2 g .. 20 g, 5 min each). The input along the
+Planning (docs/methods.md 2.8: steps 2 g .. 20 g, 5 min each). The input along the
 radial axis is the procedure's
 
     a = R w (w + 2 Omega_V)
@@ -33,7 +33,7 @@ from calib_core.params import AXES
 from calib_core.solvers.centrifuge_model import DEFAULT_ZERO_SHIFT_LIMIT, vertical_earth_rate
 from calib_core.units import STANDARD_GRAVITY
 
-# methods.md 2.8: 2 g .. 20 g; the paper's steps are every 2 g.
+# docs/methods.md 2.8: 2 g .. 20 g; the paper's steps are every 2 g.
 DEFAULT_G_LEVELS = tuple(float(n) for n in range(2, 21, 2))
 
 

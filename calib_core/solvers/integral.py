@@ -1,4 +1,4 @@
-"""Integral method: gyro scale and misalignment without a rate table (methods.md 2.6).
+"""Integral method: gyro scale and misalignment without a rate table (docs/methods.md 2.6).
 
 The fixture is turned n whole turns counter-clockwise (+) and clockwise (-)
 about each axis A in turn, with A pointing up. With the true rotation only

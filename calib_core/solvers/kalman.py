@@ -1,6 +1,6 @@
 """Sequential (Kalman) estimator of the static accelerometer model.
 
-methods.md 3: "least-squares solving; a Kalman-filter refinement is an
+docs/methods.md 3.5: "least-squares solving; a Kalman-filter refinement is an
 optional extra" (the rate-table procedure: "least squares or Kalman filter").
 The filter estimates the 12 parameters of f_meas = (I + M) f_true + b from
 the samples one at a time, as a lab would while the table still stands.

@@ -187,7 +187,7 @@ def solve_accel_linear(f_true: np.ndarray, means: np.ndarray, sem: np.ndarray) -
 
     Weighted least squares of the 12-parameter model f_meas = (I + M) f_true + b.
     On the six +-g positions with equal weights it is the closed form of
-    methods.md 2.1 (the normal matrix is diag(6, 2g^2, 2g^2, 2g^2)).
+    docs/methods.md 2.1 (the normal matrix is diag(6, 2g^2, 2g^2, 2g^2)).
 
     Parameters
     ----------
@@ -360,7 +360,7 @@ def multi_position_settings(settings: dict[str, Any] | None) -> dict[str, Any]:
 def solve_multi_position(
     segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
 ) -> Calibration:
-    """Multi-position static calibration from table attitudes (methods.md 2.2).
+    """Multi-position static calibration from table attitudes (docs/methods.md 2.2).
 
     Parameters
     ----------

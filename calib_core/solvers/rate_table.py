@@ -1,4 +1,4 @@
-"""Gyro rate-table calibration (methods.md procedure 4; IEEE Std 952 / 1431 practice).
+"""Gyro rate-table calibration (docs/methods.md 2.4; IEEE Std 952 / 1431 practice).
 
 Each rate point is the mean gyro output over the record window of one plateau
 with the table turning at a known rate about one body axis. Per output channel i
@@ -86,7 +86,7 @@ def rate_point(
     ----------
     rec : samples of one plateau with ``reference["table_rate"]`` (rad/s).
     axis : body axis on the table; default: the label's first field ("x_+100" -> "x").
-    settle_s : time dropped at the start of the plateau, s (>= 20 s per methods.md).
+    settle_s : time dropped at the start of the plateau, s (>= 20 s, docs/methods.md 2.4).
     record_s : length of the record window after the settle, s; default: to the end.
 
     Returns
@@ -173,7 +173,7 @@ def solve_rate_table(
     full_scale : input full scale, rad/s, for the nonlinearity; default: the largest
         |table rate| about each axis.
     gyro_bias : "joint" (default): the bias is fitted with the scale factors from all
-        points. "static": the procedure's model (methods.md 2.4, 2.5): the bias is fixed
+        points. "static": the procedure's model (docs/methods.md 2.4, 2.5): the bias is fixed
         from the static run, and the moving points give the scale factors and
         misalignments alone, ``mean_i - w_i - b_i = sum_j M_ij w_j``; the bias's
         uncertainty is propagated into them (with its covariance).

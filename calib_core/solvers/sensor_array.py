@@ -1,4 +1,4 @@
-"""Sensor-array single-position calibration (methods.md 2.7).
+"""Sensor-array single-position calibration (docs/methods.md 2.7).
 
 Several IMUs of one type (or one IMU remounted) sit on a precision cube with
 known mounting rotations C_s (cube to sensor: v_s = C_s v_c) and share one

@@ -1,4 +1,4 @@
-"""Six-position closed form (methods.md 2.1, MPU-6000 paper).
+"""Six-position closed form (docs/methods.md 2.1, MPU-6000 paper).
 
 Positions, in order k = 1..6: x up, x down, y up, y down, z up, z down, where
 "up" means that axis reads +g. The paper writes the model with signed small

@@ -1,4 +1,4 @@
-"""Static bias and noise from one long static record (methods.md procedure 5).
+"""Static bias and noise from one long static record (docs/methods.md 2.5).
 
 Frame of the Earth-rate correction: a level fixture, body z up, body x pointing
 at `heading_deg` (clockwise from true North seen from above), y completing the
@@ -23,7 +23,7 @@ from calib_core.params import AXES
 from calib_core.recording import Recording
 from calib_core.units import STANDARD_GRAVITY
 
-MIN_DURATION_S = 3600.0  # methods.md: >= 60 min static
+MIN_DURATION_S = 3600.0  # docs/methods.md 2.5: >= 60 min static
 BIAS_UNCERTAINTY_RULE = (
     "u(bias) = Allan deviation of the fitted noise model N^2/tau + (0.664 B)^2 + K^2 tau/3 "
     "at tau = record length: exact for white noise (= std/sqrt(n)) and for rate random "

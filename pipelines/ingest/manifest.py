@@ -77,7 +77,7 @@ class UnitSpec(_Section):
 
 # Full scale (gyro deg/s, accelerometer g) of sensor models as their calibration program
 # sets them, by lower-case model name. MPU-6000: the program's manual keeps the readings
-# within +-250 deg/s and +-2 g (methods.md 5; the chip's smallest ranges). A run on other
+# within +-250 deg/s and +-2 g (docs/methods.md 5; the chip's smallest ranges). A run on other
 # settings says so in [unit] gyro_range_dps / acc_range_g or [run.settings] gyro_range_dps.
 MODEL_RANGES: dict[str, tuple[float, float]] = {"mpu-6000": (250.0, 2.0)}
 

@@ -1,4 +1,4 @@
-"""Reader of the MPU-6000 text layout (methods.md section 5), recognised by file name.
+"""Reader of the MPU-6000 text layout (docs/methods.md section 5), recognised by file name.
 
 One file per position or rotation, named ``<serial>_<x|y|z>_<up|dn|cw|ccw>.txt``
 (any case, ``-`` or ``_`` between the parts, ``down`` for ``dn``). Each holds 8

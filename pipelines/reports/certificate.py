@@ -1,4 +1,4 @@
-"""The calibration certificate of one archived run, as HTML and PDF (methods.md section 4).
+"""The calibration certificate of one archived run, as HTML and PDF (docs/methods.md 4.2).
 
 Built from the archive, never from memory: `storage.queries.run_summary` gives
 the unit, run, equipment (with the due dates valid at run time), environment,
