@@ -177,7 +177,7 @@ def archive(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Archive]
 
 @pytest.fixture(scope="session")
 def prefect_harness() -> Iterator[None]:
-    """One real, temporary Prefect server and database for the whole session (~8 s to start)."""
+    """One real, temporary Prefect server and database for the whole session (slow to start)."""
     from prefect.testing.utilities import prefect_test_harness
 
     with prefect_test_harness(server_startup_timeout=120):
