@@ -2,13 +2,14 @@
 #   make demo   process every run in data_samples/ into ./calib-archive, write the reports,
 #               fit and export a thermal model, show a trend and repeatability
 #   make test   the whole test suite (installs PostgreSQL and poppler-utils if the machine lacks them)
+#   make test-fast  the tests to run before every commit (every package, without the slow tiers)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN     = $(VENV)/bin
 export DO_NOT_TRACK = 1
 export PREFECT_SERVER_ANALYTICS_ENABLED = false
 
-.PHONY: demo test bench venv system-packages clean
+.PHONY: demo test test-fast bench venv system-packages clean
 
 $(BIN)/calib: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -43,9 +44,19 @@ demo: venv
 system-packages:
 	bash scripts/ensure_system_packages.sh
 
+LINTED = calib_core storage pipelines calib_testing tests benchmarks scripts
+
 test: venv system-packages
-	$(BIN)/ruff check calib_core storage pipelines tests benchmarks
+	$(BIN)/ruff check $(LINTED)
 	$(BIN)/python -m pytest -q
+
+# The tiers `make test-fast` leaves out (pyproject.toml; tests/conftest.py marks the tests
+# using PostgreSQL or the Prefect server by their fixtures).
+FAST = not slow and not postgres and not browser and not e2e
+
+test-fast: venv system-packages
+	$(BIN)/ruff check $(LINTED)
+	$(BIN)/python -m pytest -q -m "$(FAST)"
 
 bench: venv
 	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done
