@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 import signal
 import subprocess
 import tempfile
@@ -33,7 +32,7 @@ os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
 from calib_testing.pgserver import ServerUnavailableError, private_server  # noqa: E402
-from calib_testing.watchdog import clean_up_after, release  # noqa: E402
+from calib_testing.watchdog import clean, clean_up_after, release  # noqa: E402
 from storage.db import Archive, default_archive_url  # noqa: E402
 from storage.schema import TABLES  # noqa: E402
 
@@ -76,7 +75,7 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_unconfigure(config: pytest.Config) -> None:
     folder = _session.get("folder")
     if isinstance(folder, Path):
-        shutil.rmtree(folder, ignore_errors=True)
+        clean(folder)  # a server a test started and left running is stopped too
     watchdog = _session.get("watchdog")
     if isinstance(watchdog, subprocess.Popen):
         release(watchdog)
