@@ -210,7 +210,7 @@ class Calibration:
             parameters={**self.parameters, **theirs},
             residuals=[*self.residuals, *other.residuals],
             warnings=[*self.warnings, *other.warnings],
-            info={**self.info, **other.info},
+            info=_merged_info(self.info, other.info),
         )
 
     # --- reading --------------------------------------------------------
@@ -289,3 +289,14 @@ class Calibration:
         cal.warnings = list(doc.get("warnings", []))
         cal.info = dict(doc.get("info", {}))
         return cal
+
+
+def _merged_info(mine: dict[str, Any], theirs: dict[str, Any]) -> dict[str, Any]:
+    """`theirs` on top of `mine`, except the checks and altered-sample counts both made:
+    "solver_checks" lists are joined, "replaced_samples" tables (step -> ...) united."""
+    out = {**mine, **theirs}
+    if "solver_checks" in mine and "solver_checks" in theirs:
+        out["solver_checks"] = [*mine["solver_checks"], *theirs["solver_checks"]]
+    if "replaced_samples" in mine and "replaced_samples" in theirs:
+        out["replaced_samples"] = {**mine["replaced_samples"], **theirs["replaced_samples"]}
+    return out

@@ -436,6 +436,80 @@ def choose_noise_fit(
     return fits[chosen], record, warning
 
 
+NOISE_TERMS = ("arw", "bias_instability", "rrw")
+NOT_DETERMINED = "not determined"
+
+
+def archived_terms(
+    p: NoiseParameters, result: AllanResult, described: bool, varies: bool = True
+) -> dict[str, float | str | None]:
+    """The three noise terms as the archive keeps them: never 0, each with its method.
+
+    A fit's 0 is not a measurement: the term was below what the curve resolves, or the
+    model could not place it. Where the fit describes the curve (`described`), a term
+    it found is kept ("<method> fit"); a term it put at 0 is read from the curve as the
+    upper bound the curve sets on it. Where it does not describe the curve, every term
+    is read from the curve (IEEE Std 952): N on the slope -1/2 line at tau = 1 s, B as
+    the minimum of the deviation / 0.664, K on the slope +1/2 line at tau = 3 s, or the
+    bound where the curve has no such region. A channel that does not vary gives no
+    reading: None, "not determined".
+
+    Parameters
+    ----------
+    p : the chosen fit (`choose_noise_fit`).
+    result : the channel's Allan deviation.
+    described : the fit reproduces the curve (no misfit warning).
+    varies : False for a channel whose samples do not vary beyond rounding (its Allan
+        deviation is rounding error): every term None, "not determined".
+
+    Returns
+    -------
+    {"arw": value or None, "arw_method": text, "bias_instability": ..., "rrw": ...}.
+    """
+    lines = None
+    if not described and result.taus.size >= 3:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lines = noise_parameters(result, method="lines")
+    out: dict[str, float | str | None] = {}
+    for term in NOISE_TERMS:
+        if not varies:
+            out[term], out[f"{term}_method"] = None, f"{NOT_DETERMINED}: the channel does not vary"
+            continue
+        fitted = float(getattr(p, term))
+        if described and fitted > 0 and math.isfinite(fitted):
+            value, method = fitted, f"{p.method} fit"
+        else:
+            value, method = _curve_reading(term, result, lines)
+            if described:
+                method += f" (the {p.method} fit puts it at 0)"
+        out[term], out[f"{term}_method"] = value, method
+    return out
+
+
+def _curve_reading(
+    term: str, result: AllanResult, lines: NoiseParameters | None
+) -> tuple[float | None, str]:
+    """One term read from the Allan curve: its IEEE 952 line where `lines` found one, else
+    the upper bound the curve sets; (None, "not determined ...") for a curve of zeros."""
+    taus, adev = result.taus, result.adev
+    if lines is not None and term == "arw" and lines.arw > 0:
+        return float(lines.arw), "slope -1/2 line read at tau = 1 s (IEEE 952)"
+    if lines is not None and term == "rrw" and lines.rrw > 0:
+        return float(lines.rrw), "slope +1/2 line read at tau = 3 s (IEEE 952)"
+    if term == "arw":
+        value = float(adev[0] * math.sqrt(taus[0]))
+        method = "upper bound: ADEV at the shortest tau x sqrt(tau)"
+    elif term == "bias_instability":
+        value = float(adev.min()) / FLICKER_FACTOR
+        method = "min of ADEV / 0.664 (IEEE 952; an upper bound)"
+    else:
+        value = float(adev[-1] * math.sqrt(3.0 / taus[-1]))
+        method = "upper bound: ADEV at the longest tau x sqrt(3 / tau)"
+    if not (value > 0 and math.isfinite(value)):
+        return None, f"{NOT_DETERMINED}: the channel's Allan deviation is 0"
+    return value, method
+
+
 # --- converters to the units datasheets use ---------------------------------
 _DEG = 180.0 / math.pi
 

@@ -459,6 +459,7 @@ def solve_step(
             "sample_counts": cal.info.get("sample_counts", {}),
             "condition_number": cal.info.get("condition_number"),
             "turns": cal.info.get("turns"),
+            "replaced_samples": cal.info.get("replaced_samples", {}),
             "held_out": sorted(held_out),
             "warnings": list(cal.warnings),
         },

@@ -12,7 +12,10 @@ from scipy import signal
 from calib_core.noise import (
     FLICKER_FACTOR,
     MISFIT_LIMIT,
+    NOISE_TERMS,
+    NOT_DETERMINED,
     allan_deviation,
+    archived_terms,
     arw_to_deg_per_sqrt_h,
     choose_noise_fit,
     fit_misfit,
@@ -20,7 +23,9 @@ from calib_core.noise import (
     rate_to_deg_per_h,
     rrw_to_deg_per_h_per_sqrt_h,
 )
+from calib_core.recording import Recording
 from calib_core.simulate.noise import NoiseSpec, random_walk, white
+from calib_core.solvers.static_bias import solve_static_bias
 
 
 @pytest.mark.parametrize("taus", ["octave", "log", "array"])
@@ -194,3 +199,80 @@ def test_model_that_misses_the_curve_is_not_taken():
     p, misfit, warning = choose_noise_fit(res)
     assert p.method == "lines" and warning is None
     assert misfit["misfit_max"] <= MISFIT_LIMIT and misfit["tried"]["model"] > 1.0
+
+
+def _white_and_random_walk(seed: int) -> np.ndarray:
+    """White noise and rate random walk, no flicker: 2e4 s at 10 Hz, (N, 3)."""
+    rng = np.random.default_rng(seed)
+    n = 200_000
+    return np.column_stack([white(n, 10.0, 1e-3, rng) + random_walk(n, 10.0, 1e-5, rng)
+                            for _ in range(3)])  # fmt: skip
+
+
+def test_a_term_the_fit_puts_at_zero_is_read_from_the_curve():
+    """White noise and random walk without flicker: the joint fit describes the curve with
+    no flat term (B = 0). The archive keeps the bound the curve sets instead, min ADEV /
+    0.664, with the method named; the terms the fit found are kept as fitted."""
+    x = _white_and_random_walk(22)  # on about half the channels of any seed B fits 0
+    res = allan_deviation(x[:, 0], 10.0)
+    p, _, warning = choose_noise_fit(res)
+    assert warning is None and p.method == "model"
+    assert p.bias_instability == 0.0  # the premise: the fit would archive 0
+    terms = archived_terms(p, res, described=True)
+    assert terms["bias_instability"] == pytest.approx(res.adev.min() / FLICKER_FACTOR, rel=1e-12)
+    assert terms["bias_instability_method"].startswith("min of ADEV / 0.664")
+    assert (terms["arw"], terms["rrw"]) == (p.arw, p.rrw)
+    assert terms["arw_method"] == terms["rrw_method"] == "model fit"
+
+
+def test_static_bias_never_archives_a_noise_term_as_zero():
+    """The same noise through `solve_static_bias`: every archived term of every channel is a
+    positive number with its method, none 0 (a gyro fit puts B at 0); no channel
+    is left undetermined."""
+    x = _white_and_random_walk(24)
+    t = np.arange(len(x)) / 10.0
+    acc = np.array([0.0, 0.0, 9.81]) + 0.01 * np.random.default_rng(23).standard_normal(x.shape)
+    cal = solve_static_bias(Recording(t, acc, x, source="white_rw.csv"))
+    for sensor in ("gyr", "acc"):
+        for p in cal.info["noise_parameters"][sensor]:
+            for term in NOISE_TERMS:
+                assert p[term] is not None and p[term] > 0, (sensor, term, p)
+                assert p[f"{term}_method"]
+    gyr = cal.info["noise_parameters"]["gyr"]
+    assert any("fit puts it at 0" in p["bias_instability_method"] for p in gyr)
+    assert not [c for c in cal.info["solver_checks"] if c["name"].startswith("model:noise:")]
+
+
+def test_a_curve_the_fit_does_not_describe_is_read_term_by_term():
+    """A Gauss-Markov hump (the model misses it by > 100 %): when no fit describes the
+    curve, each term is the curve's own reading: N on the slope -1/2 line at 1 s, B =
+    min ADEV / 0.664, K where the curve has no +1/2 region the bound of its last point."""
+    rng = np.random.default_rng(1)
+    n, fs, tau_c, sig = 1_000_000, 10.0, 20.0, 1e-3
+    a = math.exp(-1.0 / (fs * tau_c))
+    gm = signal.lfilter([math.sqrt(1 - a * a) * sig], [1.0, -a], rng.standard_normal(n))
+    res = allan_deviation(1e-3 * rng.standard_normal(n) + gm, fs)
+    model = noise_parameters(res, method="model")
+    terms = archived_terms(model, res, described=False)
+    lines = noise_parameters(res, method="lines")
+    assert lines.rrw == 0.0  # no +1/2 region: the line reading alone would archive 0
+    assert terms["arw"] == lines.arw and "slope -1/2" in terms["arw_method"]
+    assert terms["bias_instability"] == pytest.approx(res.adev.min() / FLICKER_FACTOR)
+    bound = res.adev[-1] * math.sqrt(3.0 / res.taus[-1])
+    assert terms["rrw"] == pytest.approx(bound) and "upper bound" in terms["rrw_method"]
+
+
+def test_a_channel_without_noise_is_not_determined_and_checked():
+    """A constant channel has an Allan deviation of 0: no term can be read. Archived as None
+    with "not determined", and a failed model:noise check names the channel."""
+    rng = np.random.default_rng(5)
+    n = 4000
+    gyr = 1e-3 * rng.standard_normal((n, 3))
+    gyr[:, 2] = 0.01  # a stuck channel
+    acc = np.array([0.0, 0.0, 9.81]) + 0.01 * rng.standard_normal((n, 3))
+    cal = solve_static_bias(Recording(np.arange(n) / 100.0, acc, gyr, source="stuck.csv"))
+    z = cal.info["noise_parameters"]["gyr"][2]
+    assert all(z[term] is None for term in NOISE_TERMS)
+    assert z["bias_instability_method"].startswith(NOT_DETERMINED)
+    check = next(c for c in cal.info["solver_checks"] if c["name"] == "model:noise:gyr.z")
+    assert not check["passed"] and NOT_DETERMINED in check["detail"]

@@ -29,9 +29,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d, median_filter
 
 from calib_core import params
 from calib_core.calibration import Calibration
+from calib_core.preprocess.replaced import replaced_check
 from calib_core.recording import Recording
 from calib_core.stats import row_medians, trapezoid_weights
 from calib_core.units import DEG, STANDARD_GRAVITY
@@ -66,14 +68,60 @@ def noise_from_differences(gyr: np.ndarray) -> np.ndarray:
     return row_medians(deviation) / 0.6744897501960817 / math.sqrt(6.0)
 
 
-# A rotation sample further than this many stds (of r in `despike`) from its neighbours'
-# mean, with both neighbours off by half as much the other way, is a spike (white noise
-# alone: ~6e-7 false alarms per sample for the first condition).
+# A rotation sample further than this many local stds (of r in `despike`) from its
+# neighbours' mean, with both neighbours off by half as much the other way, is a spike.
+# White noise alone passes the first test with probability 2 Q(5) = 5.7e-7 per sample.
 SPIKE_SIGMA = 5.0
+SPIKE_FALSE_ALARM = 5.733031438470704e-07  # 2 Q(SPIKE_SIGMA)
+# The local scatter a spike must stand out of: the largest |r| among the 19 samples on
+# each side of it beyond its neighbours (38 values a lone spike leaves untouched), over
+# its median for white noise (2.277, simulated). A hand-turned rotation's tremor,
+# heavy-tailed and spanning several samples at 100-200 Hz, raises it with the motion; a
+# second spike that close hides both.
+SPIKE_WINDOW_SIDE = 19
+SPIKE_LOCAL_TO_SIGMA = 1.0 / 2.277
+# The motion's jumps a spike must stand out of: the largest |x_j+1 - x_j| among the 19
+# on each side of the two the sample makes, over its median for white noise (2.323 std
+# of a difference, simulated). A turned-by-hand rate dips and recovers within 2-3
+# samples: its jumps are as large as a lone dip's, a glitch's are not.
+SPIKE_JUMP_TO_SIGMA = 1.0 / 2.323
+# Local stds within which both neighbours must be what a lone spike makes of them, and
+# beyond which another axis at the same sample counts as moving.
+SPIKE_NEIGHBOUR_SIGMA = 3.0
+
+
+def _window_max(x: np.ndarray, lo: int, hi: int, n_out: int) -> np.ndarray:
+    """Per row i < n_out, the largest of x[i + lo : i + hi + 1] (hi - lo even), each
+    column on its own; windows past the ends take the edge row's window."""
+    size = hi - lo + 1
+    centred = maximum_filter1d(x, size=size, axis=0, mode="nearest")
+    rows = np.clip(np.arange(n_out) + (lo + hi) // 2, 0, len(x) - 1)
+    return centred[rows]
+
+
+def _side_max(x: np.ndarray, before: tuple[int, int], after: tuple[int, int], n: int):
+    """Per sample, the largest of x over the rows `before` and `after` it (offsets)."""
+    return np.maximum(_window_max(x, *before, n), _window_max(x, *after, n))
 
 
 def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Replace isolated spikes in a rotation record by the mean of their neighbours.
+
+    A spike is one sample that stands out of its surroundings in every way a lone
+    glitch does and motion does not:
+
+    - off the line through its neighbours (r) by SPIKE_SIGMA times the larger of the
+      noise and the motion's own scatter of r over the 19 samples either side;
+    - both neighbours off by half as much the other way (within 3 local stds) and
+      agreeing with each other (a rate step leaves the sample near one of them);
+    - both its jumps (onto it, off it) SPIKE_SIGMA times beyond the motion's jumps
+      around it (a hand-turned rate dips and recovers within 2-3 samples);
+    - no other axis moving at that sample beyond 3 local stds without a spike's shape
+      (a jerk of the fixture shows on several axes; a glitch is spike-shaped wherever
+      it shows).
+
+    A hand-turned rotation is continuous over several samples at the rate it is
+    sampled, so its sharpest samples fail at least one of these.
 
     Parameters
     ----------
@@ -95,18 +143,67 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     # neighbours); a kink of the rate profile gives r at one sample only, a smooth rate ~0.
     r = np.zeros_like(gyr)
     r[1:-1] = gyr[1:-1] - 0.5 * (gyr[:-2] + gyr[2:])
-    # Candidates (rare: white noise passes the first test ~6e-7 of the time), then their
-    # neighbours' test on the candidates alone.
-    i, ch = np.nonzero((np.abs(r[1:-1]) > SPIKE_SIGMA * sigma) & (sigma > 0))
+    n, w = len(gyr), SPIKE_WINDOW_SIDE
+    # r beyond the neighbours: rows i - 1 - w .. i - 2 and i + 2 .. i + 1 + w.
+    local = SPIKE_LOCAL_TO_SIGMA * _side_max(np.abs(r), (-1 - w, -2), (2, 1 + w), n)
+    scale = np.maximum(local, sigma)
+    # Jumps d_j = x_j+1 - x_j about the local slope (their median over the window); the
+    # sample's own are d_i-1 and d_i: the others on either side.
+    d = np.diff(gyr, axis=0)
+    d -= median_filter(d, size=(2 * w + 1, 1), mode="nearest")
+    jumps = _side_max(np.abs(d), (-1 - w, -2), (1, w), n)
+    jump_scale = np.maximum(SPIKE_JUMP_TO_SIGMA * jumps, sigma / math.sqrt(0.75))
+    # Candidates (rare: the scale is never below the noise's, so white noise passes the
+    # first test at most SPIKE_FALSE_ALARM of the time), then their neighbours' tests.
+    i, ch = np.nonzero((np.abs(r[1:-1]) > SPIKE_SIGMA * scale[1:-1]) & (sigma > 0))
     i += 1
-    near = 0.5 * SPIKE_SIGMA * sigma[ch]
-    spike = (np.abs(r[i - 1, ch] + 0.5 * r[i, ch]) < near) & (
-        np.abs(r[i + 1, ch] + 0.5 * r[i, ch]) < near
+    # A lone spike h makes r_i+-1 = -h/2 exactly; what is left, r_i+-1 + r_i / 2, is the
+    # noise (std sqrt(14) / 4 sigma = 0.76 std of r) on a smooth rate, and the motion's
+    # own curvature when the turn shakes: held to 3 of the local stds.
+    near = SPIKE_NEIGHBOUR_SIGMA * math.sqrt(14.0 / 16.0 / 1.5) * scale[i, ch]
+    shaped = (
+        (np.abs(r[i - 1, ch] + 0.5 * r[i, ch]) < near)
+        & (np.abs(r[i + 1, ch] + 0.5 * r[i, ch]) < near)
+        # The neighbours agree with each other: the sample stands out from each by at
+        # least half its height. A step of the rate (a turn starting or stopping within
+        # a sample) leaves the sample near one neighbour: motion, not a spike.
+        & (np.abs(gyr[i + 1, ch] - gyr[i - 1, ch]) < np.abs(r[i, ch]))
+        # Both jumps, onto the sample and off it, beyond the motion's own jumps around it.
+        & (np.minimum(np.abs(d[i - 1, ch]), np.abs(d[i, ch])) > SPIKE_SIGMA * jump_scale[i, ch])
     )
-    i, ch = i[spike], ch[spike]
+    i, ch = i[shaped], ch[shaped]
+    # A jerk of the fixture moves the other axes at the same sample beyond their noise
+    # without a spike's shape; an electrical glitch is spike-shaped wherever it shows.
+    moving = np.abs(r[i]) > SPIKE_NEIGHBOUR_SIGMA * scale[i]
+    moving[np.arange(i.size), ch] = False
+    for j in range(i.size):  # candidates are rare: spike-shaped others do not count
+        moving[j, ch[(i == i[j])]] = False
+    lone = ~moving.any(axis=1)
+    i, ch = i[lone], ch[lone]
     cleaned = gyr.copy()
     cleaned[i, ch] = gyr[i, ch] - r[i, ch]  # the neighbours' mean
     return cleaned, np.bincount(ch, minlength=3)
+
+
+def _spike_counts(n_spikes: np.ndarray, n_samples: int) -> dict:
+    """One rotation's despiker counts: replaced samples per channel and samples tested."""
+    return {
+        "replaced": {f"gyr.{a}": int(n) for a, n in zip(params.AXES, n_spikes, strict=True)},
+        "tested": 3 * max(n_samples - 2, 0),
+    }
+
+
+def record_spikes(cal: Calibration, replaced: dict[str, dict]) -> None:
+    """Put the despiker's counts in ``cal.info["replaced_samples"]["despike"]`` (archived
+    with the solve step) and one ``model:replaced:despike:<segment>`` check per rotation:
+    failed when it replaced more samples than its false alarms explain."""
+    cal.info.setdefault("replaced_samples", {})["despike"] = {
+        label: c["replaced"] for label, c in replaced.items()
+    }
+    checks = cal.info.setdefault("solver_checks", [])
+    for label, c in replaced.items():
+        checks.append(replaced_check("despike", label, c["replaced"], c["tested"],
+                                     SPIKE_FALSE_ALARM))  # fmt: skip
 
 
 def _check_range(rec: Recording, label: str, gyro_range: float) -> None:
@@ -162,7 +259,8 @@ def solve_integral(
     that reached the gyro range, a turn count that is not a whole number.
     """
     _check_inputs(rotations, static_means, gyro_range, turns, directions)
-    J, var, duration = _integrals(rotations, static_means, noise_std)
+    replaced: dict[str, dict] = {}
+    J, var, duration = _integrals(rotations, static_means, noise_std, replaced)
     n = _turn_count(J, turns)
 
     cal = Calibration(procedure="integral", gravity=gravity)
@@ -186,6 +284,7 @@ def solve_integral(
             "gyro bias is removed by the static mean alone (no ccw/cw cancellation)"
         )
     cal.info["turns"] = n
+    record_spikes(cal, replaced)
     cal.info["integral_closure_rad"] = closure
     cal.info["rotation_durations_s"] = {
         f"{a}_{s}": duration[a][s] for a in params.AXES for s in ("ccw", "cw") if s in duration[a]
@@ -232,9 +331,11 @@ def _integrals(
     rotations: dict[str, Recording],
     static_means: dict[str, np.ndarray],
     noise_std: dict[str, np.ndarray] | None,
+    replaced: dict[str, dict],
 ) -> tuple[dict, dict, dict]:
     """Per axis and sense: the bias-removed integral J (3,) rad, its variance (3,) rad^2,
-    and the rotation's duration, s (each a dict axis -> sense -> value)."""
+    and the rotation's duration, s (each a dict axis -> sense -> value). The despiker's
+    counts go into `replaced` (label -> `_spike_counts`)."""
     J: dict[str, dict[str, np.ndarray]] = {}
     var: dict[str, dict[str, np.ndarray]] = {}
     duration: dict[str, dict[str, float]] = {}
@@ -249,7 +350,8 @@ def _integrals(
             T = float(rec.t[-1] - rec.t[0])
             robust = noise_from_differences(rec.gyr)
             sigma = robust if noise_std is None else np.asarray(noise_std[f"{a}_up"], dtype=float)
-            gyr, _ = despike(rec.gyr, robust)
+            gyr, n_spikes = despike(rec.gyr, robust)
+            replaced[f"{a}_{sense}"] = _spike_counts(n_spikes, len(rec))
             J[a][sense] = w @ gyr - S * T
             var[a][sense] = sigma**2 * float(w @ w)
             duration[a][sense] = T
@@ -309,7 +411,7 @@ def rotation_static_means(
             rec = rotations[f"{a}_{sense}"]
             w = trapezoid_weights(rec.t)
             sigma = noise_from_differences(rec.gyr)
-            gyr, _ = despike(rec.gyr, sigma)
+            gyr, _ = despike(rec.gyr, sigma)  # counted by solve_integral on the same records
             total += w @ gyr
             var += sigma**2 * float(w @ w)
             span += float(rec.t[-1] - rec.t[0])

@@ -18,7 +18,7 @@ import numpy as np
 
 from calib_core.calibration import Calibration
 from calib_core.earth import EARTH_RATE
-from calib_core.noise import allan_deviation, choose_noise_fit
+from calib_core.noise import NOISE_TERMS, allan_deviation, archived_terms, choose_noise_fit
 from calib_core.params import AXES
 from calib_core.recording import Recording
 from calib_core.units import STANDARD_GRAVITY
@@ -189,6 +189,7 @@ def solve_static_bias(
         "noise_parameters": {},
         "outliers": {},
     }
+    checks: list[dict] = []
     sensors = [("gyr", rec.gyr, earth)]
     sensors.append(("acc", rec.acc, None if up_axis is None else gravity * _up_vector(up_axis)))
     for sensor, x, reference in sensors:
@@ -204,9 +205,16 @@ def solve_static_bias(
             if reference is not None:
                 cal.add(f"{sensor}.bias.{a}", mean[i] - reference[i], u[i])
         info["allan"][sensor] = allan.to_dict()
-        info["noise_parameters"][sensor] = [
-            {**p.to_dict(), **m} for p, m in zip(noise, misfits, strict=True)
+        # A stuck channel's Allan deviation is the rounding of its constant value.
+        varies = std > 64 * np.finfo(float).eps * np.abs(mean)
+        terms = [
+            archived_terms(p, allan.column(c), warns[c] is None, bool(varies[c]))
+            for c, p in enumerate(noise)
         ]
+        info["noise_parameters"][sensor] = [
+            {**p.to_dict(), **m, **t} for p, m, t in zip(noise, misfits, terms, strict=True)
+        ]
+        checks += _undetermined_checks(sensor, terms)
         info["outliers"][sensor] = counts.tolist()
         if counts.max() > 0.01 * len(rec):
             cal.warnings.append(
@@ -214,4 +222,20 @@ def solve_static_bias(
                 f"{n_sigma} sigma in one channel; expected ~0.3 % for Gaussian noise"
             )
     cal.info.update(info)
+    cal.info.setdefault("solver_checks", []).extend(checks)
     return cal
+
+
+def _undetermined_checks(sensor: str, terms: list[dict]) -> list[dict]:
+    """A ``model:noise:<sensor>.<axis>`` check for each channel with a noise term the
+    record does not determine (archived as None, never as 0)."""
+    out = []
+    for a, t in zip(AXES, terms, strict=True):
+        missing = [k for k in NOISE_TERMS if t[k] is None]
+        if missing:
+            out.append({
+                "name": f"model:noise:{sensor}.{a}", "value": None, "limit": None,
+                "passed": False,
+                "detail": "; ".join(f"{k}: {t[f'{k}_method']}" for k in missing),
+            })  # fmt: skip
+    return out
