@@ -28,7 +28,7 @@ from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
 from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
-from pipelines.ingest.errors import IngestError
+from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.reports.protocol import render_protocol
@@ -515,7 +515,8 @@ def _failed(where: str, serial: str, exc: Exception, database_url: str) -> dict[
         return run_outcome(source=where, serial=serial, status="failed", error=problem)
     if isinstance(exc, IngestError | ValueError | OSError):
         log.warning("run %s failed: %s", where, exc)
-        return run_outcome(source=where, serial=serial, status="failed", error=str(exc))
+        error = naming_the_run(exc, where)
+        return run_outcome(source=where, serial=serial, status="failed", error=error)
     log.error("run %s failed with an internal error", where, exc_info=exc)
     return run_outcome(
         source=where,

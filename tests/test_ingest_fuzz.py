@@ -127,3 +127,107 @@ def test_random_bytes(data):
             reader(path)
         except IngestError as exc:
             assert str(path) in str(exc)
+
+
+# --- Whole runs: inputs that once escaped as internal errors or named no file -------------
+
+CSV_RUN = Path(__file__).resolve().parents[1] / "data_samples" / "csv_IMU-2026-0042"
+
+
+def _edit_csv_field(row: int, column: int, value: str):
+    def edit(folder: Path) -> None:
+        path = folder / "imu.csv"
+        lines = path.read_text().splitlines()
+        fields = lines[row].split(",")
+        fields[column] = value
+        lines[row] = ",".join(fields)
+        path.write_text("\n".join(lines) + "\n")
+
+    return edit
+
+
+def _edit_toml(old: str, new: str):
+    def edit(folder: Path) -> None:
+        path = folder / "run.toml"
+        assert old in path.read_text()
+        path.write_text(path.read_text().replace(old, new, 1))
+
+    return edit
+
+
+def _constant_segment(folder: Path) -> None:
+    """Every row of x_up (0 .. 21.98 s) the same: its means have no scatter (the solver's
+    refusal names no file of its own)."""
+    path = folder / "imu.csv"
+    lines = path.read_text().splitlines()
+    for i in range(2, 1100):
+        t = lines[i].split(",")[0]
+        lines[i] = ",".join([t, *lines[1].split(",")[1:]])
+    path.write_text("\n".join(lines) + "\n")
+
+
+# name -> (edit of a copy of the sample CSV run, the file and the place the refusal must
+# name; for run.toml the text starting the line it must name)
+RUN_CASES = {
+    "1M-character number": (_edit_csv_field(5, 1, "1" * 1_000_000), "imu.csv", "line 6"),
+    "1M-character word": (_edit_csv_field(5, 2, "x" * 1_000_000), "imu.csv", "line 6"),
+    "300-digit gyro rate": (_edit_csv_field(5, 4, "9" * 300), "imu.csv", "segment 'x_up'"),
+    "toml nested 1000 deep": (
+        _edit_toml("gyro_range_dps = 2000.0", "deep = " + "[" * 1000 + "]" * 1000),
+        "run.toml",
+        "deep =",
+    ),
+    "million-digit integer": (
+        _edit_toml("humidity_pct = 46.0", "humidity_pct = " + "9" * 1_000_000),
+        "run.toml",
+        "humidity_pct =",
+    ),
+    "segment without scatter": (_constant_segment, "", ""),
+}
+
+
+@pytest.fixture(scope="module")
+def fuzz_archive(tmp_path_factory):
+    from storage.db import resolve_archive
+
+    archive = resolve_archive(str(tmp_path_factory.mktemp("fuzz_archive") / "archive"))
+    archive.upgrade()
+    yield archive
+    archive.dispose()
+
+
+@pytest.mark.parametrize("case", list(RUN_CASES))
+def test_fuzzed_run_is_a_clean_refusal_naming_the_file(case, tmp_path, fuzz_archive) -> None:
+    """Refused, never an internal error; the refusal names the file and the line or
+    segment, and quotes no value in full (a message stays short)."""
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+
+    edit, name, place = RUN_CASES[case]
+    folder = tmp_path / "run"
+    shutil.copytree(CSV_RUN, folder)
+    edit(folder)
+    (source,) = discover_runs([folder])
+    outcome = process_run(source, fuzz_archive)
+    error = outcome["error"] or ""
+    if name == "run.toml":  # the refusal names file and line: "<file> line <n>: ..."
+        lines = (folder / name).read_text().splitlines()
+        place = f"line {next(i for i, s in enumerate(lines, 1) if s.startswith(place))}:"
+    assert outcome["status"] == "failed", case
+    assert "internal error" not in error, error[:500]
+    assert error.startswith(str(folder / name) if name else f"{folder}:"), error[:500]
+    assert place in error, error[:500]
+    assert len(error) < 600, error[:700]
+
+
+def test_refusal_texts_name_the_run_and_stay_short() -> None:
+    from pipelines.ingest.errors import naming_the_run
+
+    solver = ValueError("every standard uncertainty of a position mean must be > 0")
+    assert naming_the_run(solver, "/lab/run7") == f"/lab/run7: {solver}"
+    named = IngestError("expected a finite number", file="/lab/run7/imu.csv", line=3)
+    assert naming_the_run(named, "/lab/run7") == str(named)
+    huge = IngestError(f"gyro x reads {'9' * 300}.000 deg/s", file="f.csv")
+    assert huge.problem == "gyro x reads 1e+300 deg/s"
+    word = IngestError(f"unknown unit {'x' * 10**6}", file="f.csv")
+    assert word.problem.endswith("... (1000000 characters)") and len(word.problem) < 120

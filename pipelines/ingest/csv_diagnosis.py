@@ -17,7 +17,7 @@ import numpy as np
 
 from pipelines.ingest.csv_dialect import split_fields
 from pipelines.ingest.csv_layout import CsvLayout
-from pipelines.ingest.errors import IngestError
+from pipelines.ingest.errors import IngestError, quoted
 
 if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (slow to import)
@@ -102,7 +102,7 @@ def _raise_not_utf8(path: Path) -> None:
 def _first_bad(layout: CsvLayout, text: pd.DataFrame, iso_column: str | None, row0: int) -> None:
     import pandas as pd
 
-    raw = text.to_numpy(dtype=str)
+    raw = text.to_numpy(dtype=object)  # not dtype=str: one 1M-character field would size every cell
     bad = np.zeros(raw.shape, dtype=bool)
     for j, c in enumerate(text.columns):
         if c == iso_column:
@@ -118,7 +118,7 @@ def _first_bad(layout: CsvLayout, text: pd.DataFrame, iso_column: str | None, ro
     if rows.size:
         i, j = int(rows[0]), int(cols[0])  # row-major order: the first bad cell
         value = str(raw[i, j])
-        got = "an empty value (missing column or blank line)" if value == "" else repr(value)
+        got = "an empty value (missing column or blank line)" if value == "" else quoted(value)
         what = (
             "an ISO-8601 time"
             if text.columns[j] == iso_column

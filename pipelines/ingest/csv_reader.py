@@ -131,11 +131,11 @@ def _read(
     layout = layout_of(path, fmt, sections=sections)
     fmt = header_units(layout, fmt)
     data = _read_columns(layout, fmt, progress)
-    t = _time(layout, fmt, data.pop("time", None), len(data["acc"]))
+    codes = data.pop("section", None)
+    t = _time(layout, fmt, data.pop("time", None), len(data["acc"]), codes)
     acc = _to_si(data.pop("acc"), "acc", fmt)
     gyr = _to_si(data.pop("gyr"), "gyr", fmt)
     temp = _celsius(layout, data.pop("temp", None))
-    codes = data.pop("section", None)
     reference = {role[4:]: v for role, v in data.items() if role.startswith("ref:")}
     rec = Recording(t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=str(path))
     return rec, codes, layout
@@ -476,10 +476,20 @@ def seconds(values: np.ndarray, unit: str) -> np.ndarray:
     return values * time_factor(unit)
 
 
-def _time(layout: CsvLayout, fmt: FormatSpec, raw: np.ndarray | None, n: int) -> np.ndarray:
+def _time(
+    layout: CsvLayout,
+    fmt: FormatSpec,
+    raw: np.ndarray | None,
+    n: int,
+    sections: np.ndarray | None = None,
+) -> np.ndarray:
     """Time in s from the raw time column, converted in place, or from the sample rate.
 
-    Raises IngestError at the first row whose time is not after the previous one.
+    `sections` (one code per row) makes each section a time base of its own: a sample
+    counter may restart in every section, time is checked within each.
+
+    Raises IngestError at the first row whose time is not after the previous one (of
+    its section).
     """
     if raw is None:  # no time column: the sample index at the manifest's rate
         return np.arange(n) / fmt.sample_rate_hz
@@ -497,6 +507,7 @@ def _time(layout: CsvLayout, fmt: FormatSpec, raw: np.ndarray | None, n: int) ->
         sample="row",
         line_of=layout.line_of_row,
         field=layout.fields[layout.roles["time"]],
+        restarts=None if sections is None else np.r_[True, sections[1:] != sections[:-1]],
     )
     return t
 

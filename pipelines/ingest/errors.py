@@ -8,7 +8,15 @@ operator can fix the input without reading a traceback.
 
 from __future__ import annotations
 
+import math
+import re
 from pathlib import Path
+
+QUOTE_LIMIT = 40  # characters of a value quoted from a file that a message shows
+TOKEN_LIMIT = 300  # a longer run of characters without a space is cut (a 1M-character field)
+# A number of 31 or more digits (a 300-digit rate from a damaged file) is shown in short.
+_LONG_NUMBER = re.compile(r"""(?<![\w.'"])[-+]?\d[\d_]{30,}(?:\.\d*)?(?:[eE][-+]?\d+)?(?![\w.])""")
+_LONG_TOKEN = re.compile(rf"\S{{{TOKEN_LIMIT + 1},}}")
 
 
 class IngestError(ValueError):
@@ -35,10 +43,10 @@ class IngestError(ValueError):
         line: int | None = None,
         field: str | None = None,
     ) -> None:
-        self.problem = printable(problem)
+        self.problem = shortened(printable(problem))
         self.file = None if file is None else str(file)
         self.line = line
-        self.field = None if field is None else printable(field)
+        self.field = None if field is None else shortened(printable(field))
         super().__init__(self._message())
 
     def _message(self) -> str:
@@ -66,6 +74,44 @@ def printable(text: str) -> str:
         c if c.isprintable() or c in "\n\t" else c.encode("unicode_escape").decode("ascii")
         for c in text
     )
+
+
+def quoted(value: str, limit: int = QUOTE_LIMIT) -> str:
+    """``repr(value)``, cut to its first `limit` characters with its length said."""
+    if len(value) <= limit:
+        return repr(value)
+    return f"{value[:limit]!r}... ({len(value)} characters)"
+
+
+def shortened(text: str) -> str:
+    """`text` with numbers of 31+ digits in 6 significant digits and runs of more than
+    `TOKEN_LIMIT` characters without a space cut, their length said: a value from a
+    damaged file is named, not printed in full."""
+    text = _LONG_NUMBER.sub(_short_number, text)
+    return _LONG_TOKEN.sub(
+        lambda m: f"{m.group()[:60]}... ({len(m.group())} characters)", text
+    )
+
+
+def _short_number(match: re.Match) -> str:
+    digits = match.group()
+    try:
+        value = float(digits.replace("_", ""))
+    except ValueError:
+        value = math.inf
+    if math.isfinite(value):
+        return f"{value:.6g}"
+    return f"{digits[:8]}... (a number of {len(digits)} characters)"
+
+
+def naming_the_run(exc: Exception, run: str) -> str:
+    """The refusal text of `exc` for a run at `run` (its folder): an IngestError names its
+    file already; any other error (a solver's "every standard uncertainty ... must be
+    > 0") gets the run's folder put first, so every refusal says where."""
+    text = shortened(printable(str(exc)))
+    if isinstance(exc, IngestError) and exc.file is not None:
+        return text
+    return text if run in text else f"{run}: {text}"
 
 
 def _rebuild(problem: str, file: str | None, line: int | None, field: str | None) -> IngestError:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import difflib
 import math
 import re
+import sys
 import tomllib
 from datetime import UTC, date, datetime
 from pathlib import Path, PurePosixPath
@@ -342,13 +343,51 @@ def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
         raise IngestError(
             f"not valid TOML: {exc}", file=source, line=int(m.group(1)) if m else None
         ) from None
-    check_free_text(data, source)
+    except RecursionError:
+        raise _too_deep(text, source) from None
+    except ValueError:  # Python's limit on the digits of an integer (4300)
+        digits, line = _longest_number(text)
+        raise IngestError(
+            f"a number of {digits} digits; expected one of at most "
+            f"{sys.get_int_max_str_digits()} digits",
+            file=source,
+            line=line,
+        ) from None
     try:
+        check_free_text(data, source)
         manifest = RunManifest.model_validate(data)
     except ValidationError as exc:
         raise _as_ingest_error(exc, source) from None
+    except RecursionError:
+        raise _too_deep(text, source) from None
     check_segments(manifest, source)
     return manifest
+
+
+def _too_deep(text: str, source: str) -> IngestError:
+    return IngestError(
+        "arrays or tables nested too deep to read; a manifest nests a few levels",
+        file=source,
+        line=_deepest_line(text),
+    )
+
+
+def _deepest_line(text: str) -> int | None:
+    """1-based line where brackets and braces open deepest (strings not told apart)."""
+    depth, deepest, where = 0, 0, None
+    for number, line in enumerate(text.splitlines(), start=1):
+        for c in line:
+            depth += (c in "[{") - (c in "]}")
+            if depth > deepest:
+                deepest, where = depth, number
+    return where
+
+
+def _longest_number(text: str) -> tuple[int, int | None]:
+    """(digits, 1-based line) of the longest run of digits in `text`."""
+    runs = [(len(m.group()), text.count("\n", 0, m.start()) + 1)
+            for m in re.finditer(r"[\d_]{100,}", text)]  # fmt: skip
+    return max(runs) if runs else (0, None)
 
 
 def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:

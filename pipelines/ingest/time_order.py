@@ -26,6 +26,7 @@ def check_time_increases(
     line_of: Callable[[int], int] | None = None,
     field: str | None = None,
     prefix: str = "",
+    restarts: np.ndarray | None = None,
 ) -> None:
     """Raise IngestError at the first sample whose time is not after the previous one.
 
@@ -39,6 +40,9 @@ def check_time_increases(
     line_of : 0-based sample index -> 1-based line of `file`, for text formats.
     field : the column, variable or topic field holding the time.
     prefix : what the samples are (``"topic '/imu': "``), put before the message.
+    restarts : (N,) bool, True where a new block of samples begins whose time starts
+        afresh (a CSV section whose sample counter restarts): time is checked within
+        each block, not across the boundary.
 
     Raises
     ------
@@ -46,7 +50,10 @@ def check_time_increases(
         | going back: <t[i-1]> <unit> then <t[i]> <unit>; time must increase)"``
         with the file, the line (when `line_of` is given) and the field.
     """
-    bad = np.flatnonzero(t[1:] <= t[:-1])
+    back = t[1:] <= t[:-1]
+    if restarts is not None:
+        back &= ~restarts[1:]
+    bad = np.flatnonzero(back)
     if not bad.size:
         return
     i = int(bad[0]) + 1
