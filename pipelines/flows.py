@@ -30,6 +30,7 @@ from prefect.futures import as_completed
 
 from pipelines.direct import discover
 from pipelines.ingest import RunSource
+from pipelines.rejudge import as_archived_now
 from pipelines.run_task import (
     RETRIES,
     RETRY_DELAYS_S,
@@ -274,6 +275,8 @@ def process_batch(
             parameters,
             lambda i, exc: gave_up(str(sources[i].folder), sources[i].serial or "", exc),
         )
+        if sources:  # runs judged again by later tasks (pipelines.rejudge) say so
+            outcomes = as_archived_now(arch, outcomes)
     _summary_artifact(outcomes)
     return outcomes
 

@@ -31,6 +31,7 @@ from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
+from pipelines.rejudge import group_of, rejudge_from
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
 from pipelines.uncertainty import uncertainty_step
@@ -217,11 +218,11 @@ def verify_run(
 ) -> tuple[list[CheckResult], dict[str, Any]]:
     """Held-out verification points, repeatability against the archive, residual diagnosis.
 
-    Repeatability is judged when a run is archived, against the current
-    calibrations of the runs of the same serial and procedure already in the
-    archive under the same conditions (`comparable_runs`). Earlier runs keep
-    their verdicts (the archive is append-only); `calib repeatability SERIAL`
-    judges a whole group on demand.
+    Repeatability is judged against the current calibrations of the unit's runs by
+    the same procedure made before this one (by run time) under the same conditions
+    (`comparable_runs`), never against later runs. When an earlier run is archived
+    after later ones, `pipelines.rejudge` judges those again (new revisions);
+    `calib repeatability SERIAL` judges a whole group on demand.
 
     Returns
     -------
@@ -245,18 +246,10 @@ def verify_run(
         m.environment.temperature_c,
         {n: (p.value, p.std) for n, p in cal.parameters.items()},
     )
-    others = [
-        verification.RunValues(
-            c["run_id"], (c["environment"] or {}).get("temperature_c"), c["parameters"]
-        )
-        for c in queries.repeatability_candidates(
-            archive, m.unit.serial, m.run.procedure, exclude_run_id=run_id
-        )
-    ]
-    rules = profile.repeatability
-    group = verification.comparable_runs(
-        current, others, rules["temperature_tol_c"], int(rules["max_runs"])
+    earlier = queries.repeatability_candidates(
+        archive, m.unit.serial, m.run.procedure, before=m.run.started, exclude_run_id=run_id
     )
+    group = group_of(current, earlier, profile)
     checks += verification.repeatability(group, profile)
     return checks, {
         "diagnosis": verification.diagnose_residuals(cal, profile).to_dict(),
@@ -484,6 +477,15 @@ def process_run(
             pending=pending,
             reason=reason,  # into the audit trail's event of the revision
         )
+        checks, verdict_, message = judged.checks, judged.verdict, result.message
+        if result.status != "duplicate":  # the unit's later runs, and this one, by run time
+            again = rejudge_from(archive, serial, loaded.manifest.run.procedure, result.run_id)
+            if (own := again.get(result.run_id)) is not None:
+                checks, verdict_ = own["checks"], own["verdict"]
+                message += f"; judged again by run time as revision {own['revision']}"
+            for other, new in again.items():
+                if other != result.run_id:
+                    message += f"; run {other} judged again: {new['verdict']}"
     except Exception as exc:
         if reraise is not None and reraise(exc):
             raise
@@ -497,10 +499,10 @@ def process_run(
         status="duplicate" if result.status == "duplicate" else "ok",
         run_id=result.run_id,
         cal=cal,
-        checks=judged.checks,
+        checks=checks,
         protocol=None if protocol_path is None else str(protocol_path),
-        verdict_=judged.verdict,
-        message=result.message,
+        verdict_=verdict_,
+        message=message,
     )
 
 

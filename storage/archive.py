@@ -542,6 +542,146 @@ def _write_rows(
         return cal.id
 
 
+# --- judged again ----------------------------------------------------------------
+
+
+@dataclass
+class Rejudgement:
+    """A run's current revision judged again against the unit's earlier runs.
+
+    run_id : the run.
+    calibration_id : the revision judged again; it must still be the current one.
+    earlier : run ids of the unit's runs (same procedure) made before it, most recent first,
+        as the new checks saw them; they must still be the archive's.
+    checks : every check of the new revision (name, value, limit, passed, detail).
+    check_statistics : the statistics of its ``check`` step.
+    verdict : the new verdict.
+    step : the step record of the judgement (name, settings, statistics, software_version).
+    reason : why, into the audit trail.
+    """
+
+    run_id: str
+    calibration_id: int
+    earlier: list[str]
+    checks: list[dict[str, Any]]
+    check_statistics: dict[str, Any]
+    verdict: str
+    step: dict[str, Any]
+    reason: str
+
+
+def rejudge_run(archive: Archive, judged: Rejudgement) -> ArchiveResult | None:
+    """A new revision of a run with the same parameters, document and steps, judged again.
+
+    Its settings are the revision's, its settings hash that of the revision judged again
+    combined with the new revision number (a revision's raw bytes, settings and software
+    are unique within a run; these are the same). Sealed as "revised" with the reason.
+
+    Returns
+    -------
+    ArchiveResult ("revised"); None when the archive changed since the checks were made
+    (another revision of the run, another earlier run): judge again.
+    """
+    seal.check_reason(judged.reason)
+    engine = archive.engine().execution_options(sqlite_begin="IMMEDIATE")
+    try:
+        with Session(engine) as s, s.begin():
+            prev = s.get(schema.CalibrationRow, judged.calibration_id)
+            run = s.get(schema.Run, prev.run_id) if prev is not None else None
+            if run is None or run.run_id != judged.run_id or prev.superseded_by is not None:
+                return None
+            if _earlier_runs(s, run) != judged.earlier:
+                return None
+            cal = _judged_again(s, prev, judged)
+            unit_latest.refresh(s.connection(), run.device_id)
+            seal.seal_calibration(s.connection(), cal.id, "revised", reason=judged.reason)
+            result = ArchiveResult(
+                "revised", run.run_id, cal.revision, cal.id, archive.root / run.run_dir,
+                f"run {run.run_id} judged again: revision {cal.revision} supersedes "
+                f"revision {prev.revision} ({judged.reason})",
+            )  # fmt: skip
+    except IntegrityError:  # a concurrent revision of the same run won
+        return None
+    return result
+
+
+def _earlier_runs(s: Session, run: schema.Run) -> list[str]:
+    """Run ids of the unit's runs by the same procedure made before `run`, with a current
+    revision, most recent first (`storage.queries.repeatability_candidates`' order)."""
+    return list(
+        s.scalars(
+            select(schema.Run.run_id)
+            .join(schema.CalibrationRow, schema.CalibrationRow.run_id == schema.Run.id)
+            .where(
+                schema.Run.device_id == run.device_id,
+                schema.Run.procedure == run.procedure,
+                schema.Run.started_at < run.started_at,
+                schema.CalibrationRow.superseded_by.is_(None),
+            )
+            .order_by(schema.Run.started_at.desc(), schema.Run.id.desc())
+        )
+    )
+
+
+def _judged_again(
+    s: Session, prev: schema.CalibrationRow, judged: Rejudgement
+) -> schema.CalibrationRow:
+    """The rows of the new revision: `prev`'s, with the checks and verdict of `judged`."""
+    revision = 1 + s.scalar(
+        select(func.max(schema.CalibrationRow.revision))
+        .where(schema.CalibrationRow.run_id == prev.run_id)
+    )  # fmt: skip
+    cal = schema.CalibrationRow(
+        run_id=prev.run_id,
+        revision=revision,
+        settings_hash=hashlib.sha256(f"{prev.settings_hash} {revision}".encode()).hexdigest(),
+        settings=prev.settings,
+        software_version=prev.software_version,
+        source_revision=prev.source_revision,
+        document=prev.document,
+        verdict=judged.verdict,
+        profile_name=prev.profile_name,
+        profile_version=prev.profile_version,
+    )
+    s.add(cal)
+    s.flush()
+    prev.superseded_by = cal.id
+    steps = s.execute(
+        select(schema.ProcessingStep)
+        .where(schema.ProcessingStep.calibration_id == prev.id)
+        .order_by(schema.ProcessingStep.seq)
+    ).scalars().all()  # fmt: skip
+    rows = [
+        {"run_id": prev.run_id, "calibration_id": cal.id, "seq": i, "name": st.name,
+         "settings": st.settings,
+         "statistics": judged.check_statistics if st.name == "check" else st.statistics,
+         "software_version": st.software_version, "source_revision": st.source_revision}
+        for i, st in enumerate(steps)
+    ]  # fmt: skip
+    rows.append({"run_id": prev.run_id, "calibration_id": cal.id, "seq": len(rows),
+                 "name": judged.step["name"], "settings": judged.step.get("settings", {}),
+                 "statistics": judged.step.get("statistics", {}),
+                 "software_version": judged.step["software_version"],
+                 "source_revision": prev.source_revision})  # fmt: skip
+    _insert_many(s, schema.ProcessingStep, rows)
+    params = s.execute(
+        select(schema.ParameterRow.name, schema.ParameterRow.value, schema.ParameterRow.std,
+               schema.ParameterRow.unit, schema.ParameterRow.temperature_c)
+        .where(schema.ParameterRow.calibration_id == prev.id)
+        .order_by(schema.ParameterRow.id)
+    ).all()  # fmt: skip
+    _insert_many(s, schema.ParameterRow,
+                 [{"calibration_id": cal.id, **p._mapping} for p in params])  # fmt: skip
+    _insert_many(s, schema.CheckResultRow, [
+        {"calibration_id": cal.id, "name": c["name"], "value": c.get("value"),
+         "limit": c.get("limit"), "passed": c["passed"], "detail": c.get("detail", ""),
+         "profile_name": prev.profile_name, "profile_version": prev.profile_version}
+        for c in judged.checks
+    ])  # fmt: skip
+    s.flush()
+    return cal
+
+
 def _revision_reason(s: Session, previous_id: int, settings_hash: str, software: str) -> str:
     """What changed since the revision a new one supersedes, when no reason was given."""
     prev = s.get(schema.CalibrationRow, previous_id)

@@ -38,10 +38,12 @@ from storage.queries.history import (
     units,
 )
 from storage.queries.runs import (
+    current_judgements,
     device_description,
     earlier_descriptions,
     export_calibration,
     full_run_id,
+    judgement,
     lineage,
     repeatability_candidates,
     run_samples,
@@ -51,12 +53,12 @@ from storage.queries.selection import SELECTION_KEYS, revision_pairs, select_run
 from storage.queries.thermal import campaign_calibrations, latest_thermal_model, thermal_models
 
 __all__ = [
-    "AUDIT_COLUMNS", "audit_trail", "device_description", "earlier_descriptions",
-    "FLEET_COLUMNS", "HISTORY_COLUMNS", "LAPSED_COLUMNS", "LATEST_COLUMNS", "UNIT_COLUMNS",
-    "VERDICTS", "as_instant", "campaign_calibrations", "check_parameter", "check_serial",
-    "check_text", "check_verdict", "export_calibration", "fleet", "fleet_history",
-    "full_run_id", "history", "lapsed_runs", "latest_calibration", "latest_thermal_model",
+    "AUDIT_COLUMNS", "audit_trail", "device_description", "earlier_descriptions", "FLEET_COLUMNS",
+    "HISTORY_COLUMNS", "LAPSED_COLUMNS", "LATEST_COLUMNS", "UNIT_COLUMNS", "VERDICTS",
+    "as_instant", "campaign_calibrations", "check_parameter", "current_judgements", "check_serial",
+    "check_text", "check_verdict", "export_calibration", "fleet", "fleet_history", "full_run_id",
+    "history", "judgement", "lapsed_runs", "latest_calibration", "latest_thermal_model",
     "latest_valid", "lineage", "parameter_history", "repeatability_candidates", "run_samples",
-    "run_summary", "serial_parameter_history", "thermal_models", "units",
-    "SELECTION_KEYS", "revision_pairs", "select_runs",
+    "run_summary", "serial_parameter_history", "thermal_models", "units", "SELECTION_KEYS",
+    "revision_pairs", "select_runs",
 ]  # fmt: skip

@@ -1,5 +1,5 @@
 """Queries of the archive about one run: summary, export, lineage of a value, samples,
-the runs a new one is compared with for repeatability.
+the runs a new one is compared with for repeatability and how a revision was judged.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from sqlalchemy.orm import Session, aliased
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.queries._common import (
+    IN_CHUNK,
     NAMED_PARAMETER,
     PARAMETER_VALUE,
     _dict,
@@ -485,13 +486,24 @@ def earlier_descriptions(archive: Archive, serial: str, run_id: str) -> list[dic
 
 
 def repeatability_candidates(
-    archive: Archive, serial: str, procedure: str, *, exclude_run_id: str | None = None
+    archive: Archive,
+    serial: str,
+    procedure: str,
+    *,
+    before: datetime | None = None,
+    exclude_run_id: str | None = None,
 ) -> list[dict[str, Any]]:
     """Current calibrations of one unit by one procedure, most recent run first.
 
+    Parameters
+    ----------
+    before : only runs started before this instant (the runs a run started then is
+        judged against); None for all.
+    exclude_run_id : a run left out.
+
     Returns
     -------
-    list of dicts: run_id, started_at, environment, verdict, parameters
+    list of dicts: run_id, started_at, environment, calibration_id, verdict, parameters
     (canonical name -> (value, std), SI; parameters at one temperature only).
     """
     stmt = (
@@ -505,6 +517,8 @@ def repeatability_candidates(
         )
         .order_by(Run.started_at.desc(), Run.id.desc())
     )
+    if before is not None:
+        stmt = stmt.where(Run.started_at < before)
     if exclude_run_id is not None:
         stmt = stmt.where(Run.run_id != exclude_run_id)
     with Session(archive.engine()) as s:
@@ -515,8 +529,63 @@ def repeatability_candidates(
             "run_id": row.run_id,
             "started_at": row.started_at,
             "environment": row.environment,
+            "calibration_id": row.id,
             "verdict": row.verdict,
             "parameters": values[row.id],
         }
         for row in rows
     ]
+
+
+def judgement(archive: Archive, calibration_id: int) -> dict[str, Any]:
+    """The checks of one calibration revision as archived, and its ``check`` step.
+
+    Returns
+    -------
+    dict: ``checks`` (name, value, limit, passed, detail, in the order written) and
+    ``check_step`` (settings, statistics; None for a revision without that step).
+    """
+    with Session(archive.engine()) as s:
+        checks = s.execute(
+            select(CheckResultRow.name, CheckResultRow.value, CheckResultRow.limit,
+                   CheckResultRow.passed, CheckResultRow.detail)
+            .where(CheckResultRow.calibration_id == calibration_id)
+            .order_by(CheckResultRow.id)
+        ).all()  # fmt: skip
+        step = s.execute(
+            select(ProcessingStep.settings, ProcessingStep.statistics).where(
+                ProcessingStep.calibration_id == calibration_id, ProcessingStep.name == "check"
+            )
+        ).first()
+    return {
+        "checks": [_dict(c) for c in checks],
+        "check_step": None if step is None else _dict(step),
+    }
+
+
+def current_judgements(archive: Archive, run_ids: list[str]) -> dict[str, dict[str, Any]]:
+    """Verdict and checks of the current revision of each of `run_ids` (those archived).
+
+    Returns
+    -------
+    run id -> {"verdict": str, "checks": [{name, value, limit, passed, detail}, ...]}.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    with Session(archive.engine()) as s:
+        for start in range(0, len(run_ids), IN_CHUNK):
+            rows = s.execute(
+                select(Run.run_id, CalibrationRow.verdict, CheckResultRow.name,
+                       CheckResultRow.value, CheckResultRow.limit, CheckResultRow.passed,
+                       CheckResultRow.detail)
+                .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+                .outerjoin(CheckResultRow, CheckResultRow.calibration_id == CalibrationRow.id)
+                .where(Run.run_id.in_(run_ids[start : start + IN_CHUNK]),
+                       CalibrationRow.superseded_by.is_(None))
+                .order_by(Run.run_id, CheckResultRow.id)
+            ).all()  # fmt: skip
+            for r in rows:
+                judged = out.setdefault(r.run_id, {"verdict": r.verdict, "checks": []})
+                if r.name is not None:
+                    judged["checks"].append({"name": r.name, "value": r.value, "limit": r.limit,
+                                             "passed": r.passed, "detail": r.detail})  # fmt: skip
+    return out
