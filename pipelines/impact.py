@@ -111,6 +111,17 @@ def _corrector(equipment_serial: str, error: ReferenceError, impact: dict | None
     return correct
 
 
+def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corrector or None
+    """The reference correction of the run's current revision, to apply again when the run
+    is reprocessed (new software must not drop it), or None when it has none."""
+    settings = queries.run_summary(archive, run_id)["calibration"].get("settings") or {}
+    held = settings.get("reference_correction")
+    if not held:
+        return None
+    error = ReferenceError(str(held["quantity"]), float(held["value"]))
+    return _corrector(str(held["equipment_serial"]), error)
+
+
 def resolve_run(archive: Archive, run_id: str, equipment_serial: str,
                 error: ReferenceError) -> dict[str, Any]:  # fmt: skip
     """Solve one archived run again with the corrected reference; nothing is written.

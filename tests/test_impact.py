@@ -206,6 +206,26 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
     assert again["runs"][0]["status"] == "duplicate"
 
 
+def test_reprocessing_carries_the_correction(lab, monkeypatch):
+    """A later reprocessing (new software) solves the corrected run with its correction,
+    never silently with the reference that was found wrong."""
+    from pipelines import process
+    from pipelines.reprocess import reprocess_run
+
+    arch, run_a = lab["archive"], lab["runs"]["A"]
+    if queries.run_summary(arch, run_a)["calibration"]["revision"] == 1:  # run alone
+        impact(arch, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01",
+               "2026-03-31", apply=True)  # fmt: skip
+    corrected = _params(arch, run_a)["gyr.scale.x"]["value"]
+    monkeypatch.setattr(process, "SOFTWARE_VERSION", "99.0-test")
+    outcome = reprocess_run(arch, run_a, reason="software 99")
+    assert outcome["status"] == "revised", outcome
+    cal = queries.run_summary(arch, run_a)["calibration"]
+    assert cal["settings"]["reference_correction"]["quantity"] == "rate_error_ppm"
+    assert _params(arch, run_a)["gyr.scale.x"]["value"] == pytest.approx(corrected, rel=1e-12)
+    assert verify(arch).ok
+
+
 def test_wrong_kind_and_empty_period_are_refused(lab):
     arch = lab["archive"]
     runner = CliRunner()
