@@ -232,7 +232,11 @@ def export(
     run_id: str,
     archive: ArchiveOpt = None,
     fmt: Annotated[
-        str, typer.Option("--format", help="json, px4, ardupilot, csv or mat (docs/exports.md).")
+        str,
+        typer.Option(
+            "--format",
+            help="json, px4, ardupilot, csv, mat, kalibr or openvins (docs/exports.md).",
+        ),
     ] = "json",
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="File to write (default: stdout).")
@@ -246,8 +250,13 @@ def export(
     ] = None,
     accel_id: Annotated[int, typer.Option(help="PX4 accelerometer device id.")] = 0,
     gyro_id: Annotated[int, typer.Option(help="PX4 gyro device id.")] = 0,
+    rostopic: Annotated[str, typer.Option(help="kalibr / openvins: the IMU topic.")] = "/imu0",
+    update_rate: Annotated[
+        float | None, typer.Option(help="kalibr / openvins: update_rate, Hz (default: the run's).")
+    ] = None,
 ) -> None:
-    """Export a run's calibration: canonical JSON, PX4 or ArduPilot parameters, CSV or MATLAB."""
+    """Export a run's calibration: JSON, PX4 / ArduPilot parameters, CSV, MATLAB, or the noise
+    model of a static-bias run for Kalibr / OpenVINS."""
     from pipelines.run_export import FORMATS, export_run
 
     if fmt not in FORMATS:
@@ -257,7 +266,8 @@ def export(
     arch, run_id = open_run(archive, run_id)
     try:
         result = export_run(arch, run_id, fmt, revision=revision, thermal=thermal,
-                            instance=instance, accel_id=accel_id, gyro_id=gyro_id)  # fmt: skip
+                            instance=instance, accel_id=accel_id, gyro_id=gyro_id,
+                            rostopic=rostopic, update_rate_hz=update_rate)  # fmt: skip
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
     for note in result.warnings:

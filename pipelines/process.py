@@ -426,6 +426,7 @@ def process_run(
     *,
     reraise: Callable[[BaseException], bool] | None = None,
     reason: str | None = None,
+    correct: Callable[[LoadedRun], tuple[LoadedRun, StepRecord]] | None = None,
 ) -> dict[str, Any]:
     """Ingest, preprocess, solve, check and archive one run. Never raises for bad input.
 
@@ -439,6 +440,9 @@ def process_run(
     reason : why an archived run is processed again (`pipelines.reprocess`): kept as
         the settings of a first step ``reprocess`` of the new revision. It is not
         part of the settings hash, so it never makes a duplicate a new revision.
+    correct : the loaded run with its reference corrected, and the step saying how
+        (`pipelines.impact`); the step's settings join the run's settings as
+        ``reference_correction``, so the corrected solve is a revision of its own.
 
     Returns
     -------
@@ -459,7 +463,12 @@ def process_run(
         steps = [ingest_step(loaded, time.perf_counter() - started)]
         if reason is not None:
             steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
+        if correct is not None:
+            loaded, corrected = correct(loaded)
+            steps.append(corrected)
         cal, solve_steps, settings, budgets, fit = solve_loaded(loaded)
+        if correct is not None:
+            settings = {**settings, "reference_correction": corrected.settings}
         run_id = run_id_of(raw_hash_of([f.sha256 for f in loaded.raw_files]))
         judged = check_run(loaded, cal, archive, run_id, budgets)
         earlier = earlier_calibration(archive, serial, loaded.manifest.run.started)

@@ -122,6 +122,7 @@ def reprocess_run(
     *,
     reason: str | None = None,
     reraise: Callable[[BaseException], bool] | None = None,
+    correct: Callable[[Any], tuple[Any, Any]] | None = None,
 ) -> dict[str, Any]:
     """Process an archived run again from its archived raw files.
 
@@ -132,6 +133,8 @@ def reprocess_run(
     keep : rebuild the run folder here and leave it; None: a temporary folder.
     reason : why, kept with a new revision (`pipelines.process.process_run`).
     reraise : errors to raise rather than report (`process_run`).
+    correct : a correction of the loaded run's reference (`process_run`, `pipelines.impact`);
+        None: the current revision's own correction, if it has one (it is carried over).
 
     Returns
     -------
@@ -143,12 +146,18 @@ def reprocess_run(
     ------
     ReprocessError when the archive cannot give the run back (`restore_run`).
     """
+    from pipelines.impact import carried_correction
     from pipelines.process import process_run
 
+    if correct is None:
+        try:
+            correct = carried_correction(archive, run_id)
+        except LookupError as exc:
+            raise ReprocessError(str(exc)) from None
     with tempfile.TemporaryDirectory(prefix=f"reprocess_{run_id}_") as tmp:
         folder = Path(keep) if keep is not None else Path(tmp) / run_id
         source = restore_run(archive, run_id, folder, link=keep is None)
-        outcome = process_run(source, archive, reraise=reraise, reason=reason)
+        outcome = process_run(source, archive, reraise=reraise, reason=reason, correct=correct)
     outcome["source"] = f"archive:{run_id}"
     if outcome["status"] == "ok":  # the run was archived before: "ok" is a new revision
         outcome["status"] = "revised"

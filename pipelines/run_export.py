@@ -2,10 +2,12 @@
 
 The formats (docs/exports.md): ``json`` (the archive's canonical document),
 ``px4`` (QGroundControl .params), ``ardupilot`` (Mission Planner .param), ``csv``
-(one row per parameter) and ``mat`` (MATLAB v5). The unit's current thermal
-model is added when it has one (``thermal=False`` leaves it out). What a format
-cannot carry is returned as warnings and written into the file's comment
-header, never left out silently. The writers are in `pipelines.exports`.
+(one row per parameter), ``mat`` (MATLAB v5), and from a static-bias (Allan) run the
+noise models ``kalibr`` (imu.yaml) and ``openvins`` (kalibr_imu_chain.yaml). The
+unit's current thermal model is added when it has one (``thermal=False`` leaves it
+out). What a format cannot carry is returned as warnings and written into the file's
+comment header, never left out silently. The writers are in `pipelines.exports` and
+`pipelines.nav_exports`.
 """
 
 from __future__ import annotations
@@ -15,19 +17,24 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from calib_core.calibration import Calibration
+from calib_core.nav_noise import nav_noise
 from calib_core.thermal import ThermalModel
-from pipelines import exports
+from pipelines import exports, nav_exports
 from storage import queries
 from storage.db import Archive
 
-FORMATS = ("json", "px4", "ardupilot", "csv", "mat")
-SUFFIX = {"json": ".json", "px4": ".params", "ardupilot": ".param", "csv": ".csv", "mat": ".mat"}
+FORMATS = ("json", "px4", "ardupilot", "csv", "mat", "kalibr", "openvins")
+NOISE_FORMATS = ("kalibr", "openvins")  # noise models: static-bias runs only
+SUFFIX = {"json": ".json", "px4": ".params", "ardupilot": ".param", "csv": ".csv", "mat": ".mat",
+          "kalibr": "_imu.yaml", "openvins": "_kalibr_imu_chain.yaml"}  # fmt: skip
 MEDIA_TYPE = {
     "json": "application/json",
     "px4": "text/plain; charset=us-ascii",
     "ardupilot": "text/plain; charset=us-ascii",
     "csv": "text/csv; charset=utf-8",
     "mat": "application/x-matlab-data",
+    "kalibr": "application/yaml",
+    "openvins": "application/yaml",
 }
 
 
@@ -56,6 +63,8 @@ def export_run(
     instance: int | None = None,
     accel_id: int = 0,
     gyro_id: int = 0,
+    rostopic: str = nav_exports.DEFAULT_ROSTOPIC,
+    update_rate_hz: float | None = None,
 ) -> Export:
     """Export the calibration of run `run_id` (current revision unless `revision`).
 
@@ -68,11 +77,14 @@ def export_run(
     thermal : add the unit's current thermal model (px4, ardupilot, csv, mat).
     instance : PX4 sensor instance (default 0) / ArduPilot IMU number (default 1).
     accel_id, gyro_id : PX4 device ids (CAL_ACC<i>_ID, CAL_GYRO<i>_ID, TC_*_ID).
+    rostopic : the IMU topic written into kalibr / openvins files.
+    update_rate_hz : kalibr / openvins update_rate, Hz (None: the run's sample rate).
 
     Returns
     -------
-    Export. Raises ValueError for an unknown format or a value outside the
-    firmware's range, LookupError for an unknown run or revision.
+    Export. Raises ValueError for an unknown format, a value outside the
+    firmware's range or a noise model asked of a run that is not a static-bias run,
+    LookupError for an unknown run or revision.
     """
     if fmt not in FORMATS:
         raise ValueError(f"unknown export format {fmt!r}; expected one of {', '.join(FORMATS)}")
@@ -82,6 +94,9 @@ def export_run(
         text = json.dumps(doc, indent=2, default=str) + "\n"
         return Export(text.encode(), name, MEDIA_TYPE[fmt])
     cal = Calibration.from_dict(doc["calibration"])
+    if fmt in NOISE_FORMATS:
+        text = _noise_model(fmt, cal, doc, rostopic, update_rate_hz)
+        return Export(text.encode("ascii", "backslashreplace"), name, MEDIA_TYPE[fmt])
     model, model_id = _thermal(archive, doc["unit"]["serial"]) if thermal else (None, None)
     env = queries.run_summary(archive, run_id)["environment"] or {}
     cal_temp = env.get("temperature_c")
@@ -98,6 +113,24 @@ def _header(doc: dict[str, Any], model_id: int | None, notes: list[str]) -> str:
         "thermal model: " + ("none" if model_id is None else f"id {model_id}"),
     ]
     return "\n".join(lines + [f"WARNING: {n}" for n in notes])
+
+
+def _noise_model(
+    fmt: str, cal: Calibration, doc: dict[str, Any], rostopic: str, update_rate_hz: float | None
+) -> str:
+    """The kalibr / openvins file of a static-bias run (pipelines.nav_exports)."""
+    run = doc["run"]
+    if cal.procedure != "static_bias":
+        raise ValueError(
+            f"--format {fmt} needs a static-bias (Allan) run; run {run['run_id']} is a "
+            f"{cal.procedure!r} run"
+        )
+    nav = nav_noise(cal.info)
+    rate = nav.sample_rate_hz if update_rate_hz is None else float(update_rate_hz)
+    header = _header(doc, None, [f"run warning: {w}" for w in cal.warnings])
+    header = header.replace("\nthermal model: none", "")  # a noise model has no thermal part
+    write = nav_exports.kalibr_yaml if fmt == "kalibr" else nav_exports.openvins_yaml
+    return write(nav, update_rate_hz=rate, rostopic=rostopic, header=header)
 
 
 def _encode(

@@ -112,6 +112,7 @@ def _commands(demo: dict) -> list[list[str]]:
         ["query", "latest", "IMU-R-0003", *a],
         ["query", "lineage", run, "acc.bias.x", *a],
         ["query", "lapsed", "CUBE-7", *a],
+        ["impact", "DAQ-12", "--from", "2026-01-01", "--error", "clock_error_ppm=500", *a],
         ["query", "units", *a],
         ["query", "history", "IMU-R-0003", "acc.bias.z", *a],
         ["query", "fleet", "MPU-6000", "acc.bias.z", *a],

@@ -5,6 +5,7 @@ per kind of question:
 - `history`: a unit over time (history, latest and latest valid calibration), units,
   a model's fleet and its history;
 - `equipment`: runs made with equipment past its due date;
+- `impact`: the runs that used one piece of equipment in a period (`calib impact`);
 - `thermal`: thermal models and campaigns;
 - `selection`: the runs a reprocessing takes, and current vs. superseded revisions.
 
@@ -37,6 +38,7 @@ from storage.queries.history import (
     serial_parameter_history,
     units,
 )
+from storage.queries.impact import equipment_runs
 from storage.queries.runs import (
     current_judgements,
     device_description,
@@ -60,5 +62,5 @@ __all__ = [
     "history", "judgement", "lapsed_runs", "latest_calibration", "latest_thermal_model",
     "latest_valid", "lineage", "parameter_history", "repeatability_candidates", "run_samples",
     "run_summary", "serial_parameter_history", "thermal_models", "units", "SELECTION_KEYS",
-    "revision_pairs", "select_runs",
+    "revision_pairs", "select_runs", "equipment_runs",
 ]  # fmt: skip

@@ -1,0 +1,87 @@
+"""`calib impact EQUIPMENT_SERIAL --from D1 [--to D2] --error QUANTITY=VALUE`, the CLI: the
+runs an out-of-tolerance reference affected, solved again with the true reference
+(pipelines/impact.py, docs/impact.md). A dry run unless ``--apply``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from pipelines.cli_shared import (
+    ArchiveOpt,
+    JsonOpt,
+    app,
+    err,
+    fail,
+    open_archive,
+    out,
+    print_json,
+    print_table,
+)
+
+
+@app.command("impact")
+def impact_command(
+    equipment_serial: str,
+    since: Annotated[str, typer.Option("--from", help="First day of the period (YYYY-MM-DD).")],
+    error: Annotated[
+        str,
+        typer.Option(
+            "--error",
+            help="QUANTITY=VALUE: rate_error_ppm (rate table), clock_error_ppm (DAQ); "
+            "docs/impact.md lists the others.",
+        ),
+    ],
+    until: Annotated[
+        str | None, typer.Option("--to", help="Last day of the period (default: today).")
+    ] = None,
+    apply: Annotated[
+        bool, typer.Option("--apply", help="Archive the re-solves as new sealed revisions.")
+    ] = False,
+    csv_out: Annotated[
+        Path | None, typer.Option("--csv", help="Write the report as CSV to this file.")
+    ] = None,
+    archive: ArchiveOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Out-of-tolerance look-back: the runs made on EQUIPMENT_SERIAL in the period, solved
+    again from their raw bytes with the reference corrected; verdicts before and after."""
+    from calib_core.reference_errors import parse_error
+    from pipelines.impact import csv_report, impact
+
+    try:
+        err_ = parse_error(error)
+    except ValueError as exc:
+        fail(str(exc))
+    arch = open_archive(archive)
+    try:
+        doc = impact(arch, equipment_serial, err_, since, until, apply=apply)
+    except (LookupError, ValueError) as exc:
+        fail(str(exc))
+    if csv_out is not None:
+        csv_out.write_text(csv_report(doc), encoding="utf-8")
+        err.print(f"wrote {csv_out}", soft_wrap=True)
+    if as_json:
+        print_json(doc)
+        return
+    rows = [
+        [r["run_id"], r["serial"], r["started_at"][:10], r["procedure"], r["verdict_before"],
+         r["verdict_after"] or "failed",
+         "; ".join(f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"][:3])
+         or ("-" if r["affected"] else "not affected"),
+         r.get("status", "dry run")]
+        for r in doc["runs"]
+    ]  # fmt: skip
+    print_table(
+        f"Impact of {doc['reason']}",
+        ["run_id", "serial", "started", "procedure", "before", "after", "moved", "status"],
+        rows,
+        facts=f"customer: {doc['customer'] or 'not recorded'}; "
+        + ("revisions archived" if apply else "dry run: nothing archived (--apply archives)"),
+    )
+    for r in doc["runs"]:
+        if "error" in r:
+            out.print(f"{r['run_id']}: {r['error']}", markup=False)

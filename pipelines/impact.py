@@ -1,0 +1,243 @@
+"""Out-of-tolerance look-back, the pipeline glue (`calib impact`, ISO/IEC 17025 clause 7.10;
+docs/impact.md): every archived run made on a piece of reference equipment in a period,
+solved again from its archived raw bytes with the reference as it truly was.
+
+For each run: the raw files are restored (`pipelines.reprocess.restore_run`), loaded, the
+reference corrected (`calib_core.reference_errors`), solved and judged as `calib process`
+would, and compared with the run's current archived revision (what its certificate says):
+each parameter's change in units of that revision's expanded uncertainty U, the verdict
+before and after. Nothing is written unless `apply`: then each affected run gets a new
+sealed revision through the reprocessing path, its reason "out-of-tolerance reference
+SERIAL: QUANTITY=VALUE", its step ``reference_correction`` holding the correction and the
+impact record, and its settings the correction (so the revision is not a duplicate).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from calib_core.calibration import StepRecord
+from calib_core.reference_errors import ReferenceError, correct_segments
+from storage import queries
+from storage.db import Archive
+
+MOVED_MIN = 0.1  # |change| / U below which a parameter is not listed as moved
+CSV_COLUMNS = ("run_id", "serial", "model", "started_at", "procedure", "customer",
+               "affected", "verdict_before", "verdict_after", "largest_move_U",
+               "moved", "status")  # fmt: skip
+
+
+def reason_of(equipment_serial: str, error: ReferenceError) -> str:
+    """The reason written with every revision of an applied impact."""
+    return f"out-of-tolerance reference {equipment_serial}: {error}"
+
+
+def select_runs(
+    archive: Archive, equipment_serial: str, since: str, until: str | None, error: ReferenceError
+) -> list[dict[str, Any]]:
+    """The runs of `equipment_serial` in the period whose equipment kind the error is of.
+
+    Raises ValueError when the serial names equipment of other kinds only (the quantity
+    does not belong to it), LookupError when no run used it in the period.
+    """
+    runs = queries.equipment_runs(archive, equipment_serial, since, until)
+    if not runs:
+        raise LookupError(
+            f"no archived run used equipment {equipment_serial!r} between {since} and "
+            f"{until or 'now'}"
+        )
+    kinds = sorted({r["equipment_kind"] for r in runs})
+    mine = [r for r in runs if r["equipment_kind"] == error.kind]
+    if not mine:
+        raise ValueError(
+            f"{error.quantity} is an error of a {error.kind}; equipment {equipment_serial!r} "
+            f"is a {', '.join(kinds)} in the runs of the period"
+        )
+    return mine
+
+
+def _expanded(summary: dict[str, Any]) -> dict[str, float]:
+    """name -> U of the archived revision (its uncertainty step; 2 x std where absent)."""
+    out: dict[str, float] = {}
+    for step in summary["calibration"]["steps"]:
+        if step["name"] == "uncertainty":
+            for name, b in (step["statistics"] or {}).get("budgets", {}).items():
+                if b.get("U"):
+                    out[name] = float(b["U"])
+    for p in summary["calibration"]["parameters"]:
+        if p["name"] not in out and p.get("std"):
+            out[p["name"]] = 2.0 * float(p["std"])
+    return out
+
+
+def _moves(summary: dict[str, Any], after: dict[str, float]) -> list[dict[str, Any]]:
+    """Parameters whose value changed by >= MOVED_MIN of their archived U, largest first."""
+    U = _expanded(summary)
+    moved = []
+    for p in summary["calibration"]["parameters"]:
+        name = p["name"]
+        if name not in after or not U.get(name):
+            continue
+        in_U = (after[name] - float(p["value"])) / U[name]
+        if abs(in_U) >= MOVED_MIN:
+            moved.append({"name": name, "before": float(p["value"]), "after": after[name],
+                          "U_before": U[name], "change_in_U": in_U})  # fmt: skip
+    return sorted(moved, key=lambda m: -abs(m["change_in_U"]))
+
+
+def correction_step(
+    equipment_serial: str, error: ReferenceError, stats: dict[str, Any], impact: dict | None
+) -> StepRecord:
+    """The step record of a corrected solve: the correction (settings) and what it did."""
+    return StepRecord(
+        "reference_correction",
+        settings={"equipment_serial": equipment_serial, "equipment_kind": error.kind,
+                  "quantity": error.quantity, "value": error.value, "unit": error.unit},
+        statistics={**stats, **({"impact": impact} if impact is not None else {})},
+    )  # fmt: skip
+
+
+def _corrector(equipment_serial: str, error: ReferenceError, impact: dict | None = None):  # noqa: ANN202
+    def correct(loaded):  # noqa: ANN001, ANN202 - a LoadedRun in, (LoadedRun, StepRecord) out
+        segments, stats = correct_segments(loaded.segments, error)
+        step = correction_step(equipment_serial, error, stats, impact)
+        return replace(loaded, segments=segments), step
+
+    return correct
+
+
+def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corrector or None
+    """The reference correction of the run's current revision, to apply again when the run
+    is reprocessed (new software must not drop it), or None when it has none."""
+    settings = queries.run_summary(archive, run_id)["calibration"].get("settings") or {}
+    held = settings.get("reference_correction")
+    if not held:
+        return None
+    error = ReferenceError(str(held["quantity"]), float(held["value"]))
+    return _corrector(str(held["equipment_serial"]), error)
+
+
+def resolve_run(archive: Archive, run_id: str, equipment_serial: str,
+                error: ReferenceError) -> dict[str, Any]:  # fmt: skip
+    """Solve one archived run again with the corrected reference; nothing is written.
+
+    Returns
+    -------
+    dict: affected (bool), what (the correction in words), verdict_after, values_after
+    (name -> value) or, when the solve fails, error.
+    """
+    from pipelines.ingest.run_loader import load_run
+    from pipelines.process import check_run, solve_loaded
+    from pipelines.reprocess import restore_run
+
+    with tempfile.TemporaryDirectory(prefix=f"impact_{run_id}_") as tmp:
+        loaded = load_run(restore_run(archive, run_id, Path(tmp) / run_id, link=True))
+    loaded, step = _corrector(equipment_serial, error)(loaded)
+    out: dict[str, Any] = {"affected": step.statistics["affected"], "what": step.statistics["what"]}
+    if not out["affected"]:
+        return out
+    try:
+        cal, _, _, budgets, _ = solve_loaded(loaded)
+        judged = check_run(loaded, cal, archive, run_id, budgets)
+    except ValueError as exc:  # the corrected run no longer solves: say so, per run
+        return {**out, "error": str(exc)}
+    return {**out, "verdict_after": judged.verdict,
+            "values_after": {n: p.value for n, p in cal.parameters.items()}}  # fmt: skip
+
+
+def _customer() -> str | None:
+    """The customer of the lab profile (pipelines.lab), the one place it is recorded."""
+    from pipelines.lab import load_lab_profile
+
+    try:
+        found = load_lab_profile()
+    except ValueError:
+        return None
+    return None if found is None else found[0].get("customer", {}).get("name")
+
+
+def impact(
+    archive: Archive,
+    equipment_serial: str,
+    error: ReferenceError,
+    since: str,
+    until: str | None = None,
+    *,
+    apply: bool = False,
+) -> dict[str, Any]:
+    """The look-back of one equipment error over a period (module docstring).
+
+    Returns
+    -------
+    JSON-ready dict: equipment_serial, error (quantity, value, unit, kind), period, reason,
+    applied, customer, and ``runs``: per run its run_id, serial, model, started_at,
+    procedure, revision_before, verdict_before, affected, what, verdict_after, moved
+    (name, before, after, U_before, change_in_U), and with `apply` the status and
+    revision of the new revision (or the error).
+    """
+    runs = select_runs(archive, equipment_serial, since, until, error)
+    reason = reason_of(equipment_serial, error)
+    customer = _customer()
+    report = []
+    for run in runs:
+        summary = queries.run_summary(archive, run["run_id"])
+        entry = {k: run[k] for k in ("run_id", "serial", "model", "procedure")}
+        entry |= {"started_at": run["started_at"].isoformat(), "revision_before": run["revision"],
+                  "verdict_before": run["verdict"], "customer": customer}  # fmt: skip
+        found = resolve_run(archive, run["run_id"], equipment_serial, error)
+        entry |= {"affected": found["affected"], "what": found["what"],
+                  "verdict_after": found.get("verdict_after", run["verdict"]),
+                  "moved": _moves(summary, found.get("values_after", {}))}  # fmt: skip
+        if "error" in found:
+            entry |= {"verdict_after": None, "error": found["error"]}
+        if apply and found["affected"] and "error" not in found:
+            entry |= _apply(archive, run["run_id"], equipment_serial, error, reason, entry)
+        report.append(entry)
+    return {
+        "equipment_serial": equipment_serial,
+        "error": {"quantity": error.quantity, "value": error.value, "unit": error.unit,
+                  "kind": error.kind},
+        "period": {"from": str(since), "to": None if until is None else str(until)},
+        "reason": reason,
+        "applied": apply,
+        "customer": customer,
+        "runs": report,
+    }  # fmt: skip
+
+
+def _apply(archive: Archive, run_id: str, equipment_serial: str, error: ReferenceError,
+           reason: str, entry: dict[str, Any]) -> dict[str, Any]:  # fmt: skip
+    """Archive the corrected solve as a new sealed revision; its status and revision."""
+    from pipelines.reprocess import reprocess_run
+
+    record = {k: entry[k] for k in ("verdict_before", "verdict_after", "revision_before",
+                                    "moved")}  # fmt: skip
+    outcome = reprocess_run(archive, run_id, reason=reason,
+                            correct=_corrector(equipment_serial, error, record))  # fmt: skip
+    got = {"status": outcome["status"]}
+    if outcome["status"] == "failed":
+        got["error"] = outcome["error"]
+    else:
+        got["revision_after"] = queries.run_summary(archive, run_id)["calibration"]["revision"]
+        got["verdict_after"] = outcome["verdict"]
+    return got
+
+
+def csv_report(doc: dict[str, Any]) -> str:
+    """The look-back as CSV (one row per run, CSV_COLUMNS), for the nonconformity record."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_COLUMNS)
+    for r in doc["runs"]:
+        largest = r["moved"][0]["change_in_U"] if r["moved"] else 0.0
+        moved = "; ".join(f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"])
+        w.writerow((r["run_id"], r["serial"], r["model"], r["started_at"], r["procedure"],
+                    r["customer"] or "", r["affected"], r["verdict_before"],
+                    r["verdict_after"] or "", f"{largest:+.3f}", moved,
+                    r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}"))
+    return buf.getvalue()
