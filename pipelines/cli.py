@@ -173,6 +173,27 @@ def show(run_id: str, archive: ArchiveOpt = None, as_json: JsonOpt = False) -> N
         print_json(summary)
         return
     _print_run(summary, arch.root)
+    _print_approvals(arch, summary)
+
+
+def _print_approvals(arch, summary: dict) -> None:  # noqa: ANN001 - an Archive
+    """The approvals of the shown revision, marked by the lab's approvers file."""
+    from pipelines.trust import NOT_CHECKED, approval_line, lab_approvers
+    from storage.approval import approval_status
+
+    try:
+        trust = lab_approvers()
+    except ValueError as exc:
+        fail(str(exc))
+    found = approval_status(arch, summary["run_id"], summary["calibration"]["revision"], trust)
+    for a, holds in found:
+        changed = " (NO LONGER VALID: the record changed after signing)"
+        gone = "" if holds or a.untrusted else changed
+        out.print(f"{approval_line(a)}{gone}", markup=False)
+    if not found:
+        out.print("not approved (calib approve)", markup=False)
+    elif trust is None:
+        out.print(NOT_CHECKED, markup=False)
 
 
 def _print_run(summary: dict, root: Path) -> None:

@@ -73,7 +73,7 @@ PANELS = {
     "Query": ("query", "trend", "fleet"),
     "Report": ("report", "serve"),
     "Export": ("export",),
-    "Admin": ("verify", "audit", "approve", "keygen", "backup", "restore"),
+    "Admin": ("verify", "checkpoint", "audit", "approve", "keygen", "backup", "restore"),
 }
 
 

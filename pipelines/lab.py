@@ -27,6 +27,9 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     latitude_deg = 48.137                     # for runs whose manifest gives no site
     height_m = 519.0
 
+    [trust]                                   # the approvers the lab trusts (pipelines.trust)
+    approvers = "approvers"                   # a file of calib keygen .pub lines, beside lab.toml
+
 Every key is checked; a certificate made without the file says so where the items belong.
 """
 
@@ -43,6 +46,7 @@ TABLES = {
     "laboratory": ({"name", "address"}, {"accreditation", "country"}),
     "customer": ({"name"}, {"contact"}),
     "authorised_by": ({"name"}, {"function"}),
+    "trust": ({"approvers"}, set()),
 }
 EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by"})
 

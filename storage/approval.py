@@ -13,15 +13,22 @@ Keys are per person, kept in a file: the private key as PKCS #8 PEM encrypted
 with the person's passphrase (`generate_key`), the public key beside it as
 ``<file>.pub`` (name and 32-byte key in hex). The archive stores public keys
 only; it proves that the holder of a key signed this exact record, and whose key
-it is is a matter of the lab's key list (compare the public key shown by
-``calib audit``).
+it is is the lab's to say: its *approvers file* (`Approvers`), kept outside the
+archive in the manner of git's allowed-signers file, lists the public keys it
+trusts, each with the signer's name and optionally the dates it is valid for and
+a role. An approval made with a key the file does not hold for its date (a key
+made by anyone with write access, under an approver's name) is *untrusted*:
+`storage.verify` reports it and every display says so instead of "approved by".
 """
 
 from __future__ import annotations
 
+import base64
+import hashlib
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from datetime import date
 from pathlib import Path
 from typing import Any, Literal
 
@@ -54,10 +61,28 @@ class Approval:
     signer: str
     public_key: str  # hex, 32 bytes
     at: str  # ISO 8601, UTC
+    # Against the lab's approvers file: None not checked (no file), else why it is not
+    # trusted ("" when it is).
+    untrusted: str | None = None
+
+    @property
+    def trusted(self) -> bool | None:
+        """True/False when checked against an approvers file, None when not checked."""
+        return None if self.untrusted is None else not self.untrusted
 
 
 def _public_hex(key: Ed25519PublicKey) -> str:
     return key.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw).hex()
+
+
+def fingerprint(public_hex: str) -> str:
+    """The key's fingerprint as OpenSSH prints one: ``SHA256:`` and the unpadded base64
+    of the SHA-256 of the raw 32-byte public key."""
+    try:
+        raw = bytes.fromhex(public_hex)
+    except (TypeError, ValueError):
+        raw = str(public_hex).encode()
+    return "SHA256:" + base64.b64encode(hashlib.sha256(raw).digest()).decode().rstrip("=")
 
 
 def generate_key(path: Path, name: str, passphrase: str) -> str:
@@ -204,10 +229,14 @@ def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[sea
     return found
 
 
-def approval_status(archive: Archive, run_id: str, revision: int) -> list[tuple[Approval, bool]]:
+def approval_status(
+    archive: Archive, run_id: str, revision: int, approvers: Approvers | None = None
+) -> list[tuple[Approval, bool]]:
     """The approvals of one revision, each with whether it holds now: its signature
     verifies and the revision's rows and files still give the digest it signed.
-    A revision without a seal has no approval that holds."""
+    A revision without a seal has no approval that holds. With `approvers`, each
+    approval is marked trusted or not (`Approval.untrusted`); an untrusted one does
+    not hold."""
     with archive.engine().connect() as conn:
         try:
             cal_id, _, _, sealed = _sealed_revision(conn, run_id, revision)
@@ -220,7 +249,11 @@ def approval_status(archive: Archive, run_id: str, revision: int) -> list[tuple[
                                      AuditEvent.run_id == run_id, AuditEvent.revision == revision)
             .order_by(AuditEvent.seq)
         ).all()  # fmt: skip
-    return [(_approval(ev), _signature_error(ev) is None and ev.digest == now) for ev in events]
+    out = []
+    for ev in events:
+        a = _approval(ev) if approvers is None else approvers.mark(_approval(ev))
+        out.append((a, _signature_error(ev) is None and ev.digest == now and not a.untrusted))
+    return out
 
 
 def _approval(ev: Any) -> Approval:
@@ -229,11 +262,151 @@ def _approval(ev: Any) -> Approval:
                     d.get("public_key", ""), ev.at.isoformat())  # fmt: skip
 
 
-def approvals(archive: Archive, run_id: str) -> list[Approval]:
-    """The approvals of a run, oldest first."""
+def approvals(
+    archive: Archive, run_id: str, approvers: Approvers | None = None
+) -> list[Approval]:
+    """The approvals of a run, oldest first (marked trusted or not with `approvers`)."""
     with archive.engine().connect() as conn:
         rows = conn.execute(
             select(AuditEvent).where(AuditEvent.action == "approved", AuditEvent.run_id == run_id)
             .order_by(AuditEvent.seq)
         ).all()  # fmt: skip
-    return [_approval(ev) for ev in rows]
+    found = [_approval(ev) for ev in rows]
+    return found if approvers is None else [approvers.mark(a) for a in found]
+
+
+# --- the lab's approvers file ----------------------------------------------------
+
+APPROVERS_ENV = "CALIB_APPROVERS"
+ROLES = {"approver": MEANINGS, "reviewer": ("reviewed",)}  # role -> meanings it may sign
+_ENTRY_KEYS = {"name", "public_key", "valid_from", "valid_until", "role"}
+NOT_CHECKED = ("approvals were not checked against a list of trusted approvers (give one with "
+               "--approvers FILE, [trust] approvers in lab.toml or CALIB_APPROVERS)")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class TrustedKey:
+    """One line of an approvers file."""
+
+    name: str
+    public_key: str  # hex, 32 bytes
+    valid_from: date | None = None
+    valid_until: date | None = None  # inclusive
+    role: str = "approver"
+
+
+@dataclass(frozen=True)
+class Approvers:
+    """The public keys a lab trusts (`load_approvers`), and the file they came from."""
+
+    source: Path
+    keys: tuple[TrustedKey, ...]
+
+    def judge(self, a: Approval) -> str:
+        """Why approval `a` is not trusted ("" when it is): its key is not in the file, is
+        another person's, is not valid on the approval's date, or its role may not sign
+        this meaning."""
+        fp = fingerprint(a.public_key)
+        held = [k for k in self.keys if k.public_key == a.public_key.lower()]
+        if not held:
+            return f"key {fp} is not in the approvers file {self.source}"
+        named = [k for k in held if k.name == a.signer]
+        if not named:
+            return (f"key {fp} belongs to {held[0].name!r} in {self.source}, "
+                    f"not to {a.signer!r}")  # fmt: skip
+        day = date.fromisoformat(a.at[:10])
+        valid = [k for k in named if (k.valid_from is None or k.valid_from <= day)
+                 and (k.valid_until is None or day <= k.valid_until)]  # fmt: skip
+        if not valid:
+            spans = ", ".join(f"{k.valid_from or '...'} to {k.valid_until or '...'}" for k in named)
+            return f"key {fp} of {a.signer} is valid {spans} in {self.source}, not on {day}"
+        if not any(a.meaning in ROLES[k.role] for k in valid):
+            return (f"key {fp} of {a.signer} has role {valid[0].role} in {self.source}, "
+                    f"which may not sign {a.meaning!r}")  # fmt: skip
+        return ""
+
+    def mark(self, a: Approval) -> Approval:
+        return replace(a, untrusted=self.judge(a))
+
+
+def load_approvers(path: Path) -> Approvers:
+    """Read an approvers file: one JSON object a line, as `generate_key` writes ``.pub``
+    files (``name``, ``public_key``), optionally with ``valid_from`` and ``valid_until``
+    (YYYY-MM-DD, both days included) and ``role`` ("approver": approves and reviews,
+    the default; "reviewer": reviews only). Blank lines and lines starting with ``#``
+    are skipped. ValueError naming file, line and field for anything else."""
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise ValueError(f"approvers file {path}: cannot be read ({exc.strerror or exc})") from None
+    keys = [_trusted_key(line, path, n) for n, line in enumerate(lines, 1)
+            if line.strip() and not line.lstrip().startswith("#")]  # fmt: skip
+    if not keys:
+        raise ValueError(f"approvers file {path}: no key in it (expected lines of calib keygen "
+                         ".pub files)")  # fmt: skip
+    return Approvers(path, tuple(keys))
+
+
+def _trusted_key(line: str, path: Path, n: int) -> TrustedKey:
+    where = f"approvers file {path}, line {n}"
+    try:
+        d = json.loads(line)
+    except ValueError as exc:
+        raise ValueError(f"{where}: expected one JSON object (a calib keygen .pub line), "
+                         f"found {line[:60]!r} ({exc})") from None  # fmt: skip
+    if not isinstance(d, dict) or not {"name", "public_key"} <= set(d) or set(d) - _ENTRY_KEYS:
+        shown = sorted(d) if isinstance(d, dict) else d
+        raise ValueError(f"{where}: expected the keys name and public_key, optionally "
+                         f"valid_from, valid_until and role; found {shown!r}")  # fmt: skip
+    public = d["public_key"]
+    if not isinstance(public, str) or len(public) != 64 or not _is_hex(public):
+        raise ValueError(f"{where}: public_key: expected 64 hex digits, found {public!r}")
+    if not isinstance(d["name"], str):
+        raise ValueError(f"{where}: name: expected text, found {d['name']!r}")
+    _check_name(d["name"])
+    role = d.get("role", "approver")
+    if role not in ROLES:
+        raise ValueError(f"{where}: role: expected one of {sorted(ROLES)}, found {role!r}")
+    days = {k: _day(d.get(k), where, k) for k in ("valid_from", "valid_until")}
+    if days["valid_from"] and days["valid_until"] and days["valid_until"] < days["valid_from"]:
+        raise ValueError(f"{where}: valid_until {days['valid_until']} is before valid_from "
+                         f"{days['valid_from']}")  # fmt: skip
+    return TrustedKey(d["name"], public.lower(), days["valid_from"], days["valid_until"], role)
+
+
+def _is_hex(text_: str) -> bool:
+    try:
+        bytes.fromhex(text_)
+    except ValueError:
+        return False
+    return True
+
+
+def _day(value: Any, where: str, key: str) -> date | None:
+    if value is None:
+        return None
+    try:
+        if not isinstance(value, str) or len(value) != 10:
+            raise ValueError
+        return date.fromisoformat(value)
+    except ValueError:
+        raise ValueError(f"{where}: {key}: expected a date YYYY-MM-DD, found {value!r}") from None
+
+
+def check_trust(conn: Connection, approvers: Approvers) -> list[seal.Finding]:
+    """Every approval whose key the lab's approvers file does not hold for its date,
+    naming the run, the claimed signer and the key's fingerprint."""
+    found: list[seal.Finding] = []
+    for ev in conn.execute(select(AuditEvent).where(AuditEvent.action == "approved")
+                           .order_by(AuditEvent.seq)):  # fmt: skip
+        a = _approval(ev)
+        why = approvers.judge(a)
+        if why:
+            found.append(seal.Finding(
+                "untrusted", "audit_events", [a.run_id],
+                f"{a.run_id} revision {a.revision}: the approval ({a.meaning}) claimed by "
+                f"{a.signer} (event {a.seq}, key {fingerprint(a.public_key)}) is not trusted: "
+                f"{why}",
+            ))  # fmt: skip
+    return found

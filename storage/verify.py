@@ -34,7 +34,8 @@ from storage import rawstore, unit_latest
 from storage.db import Archive
 from storage.schema import CalibrationRow, ParameterRow, RawFileRow, Run
 
-ProblemKind = Literal["missing", "mismatch", "outside", "database", "record", "chain", "signature"]
+ProblemKind = Literal["missing", "mismatch", "outside", "database", "record", "chain", "signature",
+                      "untrusted", "checkpoint"]
 
 
 @dataclass
@@ -48,7 +49,9 @@ class Problem:
         "record" (parameter rows and calibration document disagree, or a row or
         file differs from its seal), "chain" (the audit chain or a seal was changed,
         a sealed event has no rows or rows no seal), "signature" (an approval
-        no longer verifies).
+        no longer verifies), "untrusted" (an approval made with a key the lab's
+        approvers file does not hold for its date), "checkpoint" (the chain does
+        not extend a checkpoint written earlier: rewritten, rolled back, truncated).
     path : the file, relative to the file store root ("" for database problems;
         for record problems ``<table>/<row>/<field>``, e.g. ``parameters/acc.bias.x/value``).
     runs : run ids concerned.
@@ -70,6 +73,9 @@ class VerifyReport:
     runs_checked: int = 0
     seals_checked: int = 0
     chain_head: tuple[int, str] = (0, "")  # (seq, hash) of the newest audit event: note it down
+    # The approvers file approvals were checked against ("": not checked against one).
+    approvers: str = ""
+    checkpoints: list[str] = field(default_factory=list)  # the checkpoint files compared
     problems: list[Problem] = field(default_factory=list)
     orphans: list[str] = field(default_factory=list)
 
@@ -121,7 +127,14 @@ def sqlite_file(archive: Archive) -> Path | None:
     return Path(db).resolve() if db and db != ":memory:" else None
 
 
-def verify(archive: Archive, *, orphans: bool = True, seals: bool = True) -> VerifyReport:
+def verify(
+    archive: Archive,
+    *,
+    orphans: bool = True,
+    seals: bool = True,
+    approvers: Any = None,
+    checkpoints: list[tuple[str, dict[str, Any]]] = (),
+) -> VerifyReport:
     """Re-hash every archived file, check the database invariants, the seals and the chain.
 
     Parameters
@@ -131,6 +144,11 @@ def verify(archive: Archive, *, orphans: bool = True, seals: bool = True) -> Ver
         references (costs a walk of the file store).
     seals : also recompute every seal, the audit chain and the approval
         signatures (storage.seal, storage.approval).
+    approvers : the lab's approvers file (storage.approval.Approvers): every
+        approval made with a key it does not hold for its date is a problem.
+        None: approvals are not checked against one (``report.approvers`` is "").
+    checkpoints : (file name, document) of checkpoints (storage.checkpoint.load):
+        the chain must extend each exactly.
 
     Returns
     -------
@@ -157,6 +175,7 @@ def verify(archive: Archive, *, orphans: bool = True, seals: bool = True) -> Ver
         _check_parameters(conn, report)
         if seals:
             _check_seals(conn, root, report)
+        _check_trust(conn, report, approvers, checkpoints)
 
     objects: dict[tuple[str, str, int], list[str]] = defaultdict(list)
     for path, sha, size, run_id in raw_rows:
@@ -233,6 +252,21 @@ def _check_seals(conn, root: Path, report: VerifyReport) -> None:  # noqa: ANN00
     found = seal.check(conn, root)
     report.chain_head, report.seals_checked = found.head, found.seals_checked
     findings = found.findings + approval.check(conn, found.digests_now)
+    report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]
+
+
+def _check_trust(conn, report: VerifyReport, approvers: Any,  # noqa: ANN001 - a Connection
+                 checkpoints: list[tuple[str, dict[str, Any]]]) -> None:  # fmt: skip
+    """Approvals against the lab's approvers file; the chain against each checkpoint."""
+    from storage import approval, checkpoint
+
+    findings = []
+    if approvers is not None:
+        report.approvers = str(approvers.source)
+        findings += approval.check_trust(conn, approvers)
+    for source, doc in checkpoints:
+        report.checkpoints.append(source)
+        findings += checkpoint.check(conn, doc, source)
     report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]
 
 

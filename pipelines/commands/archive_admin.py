@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, err, fail, open_archive
+from pipelines.commands.audit import ApproversOpt, load_trust
 
 
 @app.command()
@@ -26,13 +27,27 @@ def verify(
             help="First delete temporary files left by writers that were killed.",
         ),
     ] = False,
+    approvers: ApproversOpt = None,
+    checkpoint: Annotated[
+        list[Path] | None,
+        typer.Option("--checkpoint", help="A checkpoint written earlier (calib checkpoint): the "
+                     "audit chain must extend it exactly. Repeatable."),
+    ] = None,
 ) -> None:
     """Re-hash every archived file, recompute every seal, the audit chain and the approval
-    signatures; exit 1 on any missing or changed file or value."""
+    signatures; exit 1 on any missing or changed file or value, on an approval made with a
+    key the approvers file does not hold, or on a chain that does not extend a checkpoint."""
+    from pipelines.trust import NOT_CHECKED
+    from storage import checkpoint as checkpoints
     from storage.rawstore import remove_stale_temp_files
     from storage.seal import record_event
     from storage.verify import verify as run_verify
 
+    trust = load_trust(approvers)
+    try:
+        heads = [(str(p), checkpoints.load(p)) for p in checkpoint or []]
+    except ValueError as exc:
+        fail(str(exc))
     arch = open_archive(archive)
     if repair_orphans:
         removed = [p.relative_to(arch.root).as_posix() for p in remove_stale_temp_files(arch.root)]
@@ -41,7 +56,7 @@ def verify(
         if removed:
             record_event(arch, "repaired", reason="temporary files left by killed writers",
                          detail={"removed": len(removed), "first": removed[:20]})  # fmt: skip
-    report = run_verify(arch, orphans=orphans)
+    report = run_verify(arch, orphans=orphans, approvers=trust, checkpoints=heads)
     if as_json:
         sys.stdout.write(json.dumps(report.to_dict(), indent=2) + "\n")
     else:
@@ -57,7 +72,12 @@ def verify(
             f"{report.seals_checked} seals checked: "
             + ("OK" if report.ok else f"[red]{len(report.problems)} problem(s)[/red]")
         )
-        err.print(f"audit chain head: event {seq}, hash {head} (note it down)", soft_wrap=True)
+        err.print(f"audit chain head: event {seq}, hash {head} (note it down, or keep a "
+                  "calib checkpoint out of the writers' reach)", soft_wrap=True)  # fmt: skip
+        err.print(f"approvals checked against {report.approvers}" if report.approvers
+                  else NOT_CHECKED)  # fmt: skip
+        for source in report.checkpoints:
+            err.print(f"chain compared with the checkpoint {source}")
     raise typer.Exit(0 if report.ok else 1)
 
 

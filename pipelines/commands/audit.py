@@ -12,6 +12,21 @@ import typer
 from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, open_run, print_json
 
 PASSPHRASE_ENV = "CALIB_KEY_PASSPHRASE"
+ApproversOpt = Annotated[
+    Path | None,
+    typer.Option("--approvers", help="The lab's trusted approvers: a file of calib keygen .pub "
+                 "lines (default: env CALIB_APPROVERS, else [trust] approvers of lab.toml)."),
+]  # fmt: skip
+
+
+def load_trust(given: Path | None):  # noqa: ANN201 - Approvers | None
+    """The lab's approvers (pipelines.trust), or exit 2 naming the bad file and line."""
+    from pipelines.trust import lab_approvers
+
+    try:
+        return lab_approvers(given)
+    except ValueError as exc:
+        fail(str(exc))
 
 
 @app.command()
@@ -24,24 +39,38 @@ def audit(
     ] = None,
     archive: ArchiveOpt = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the events as JSON.")] = False,
+    approvers: ApproversOpt = None,
 ) -> None:
     """Show the audit trail: who changed what in the archive, when and why (oldest first)."""
+    from pipelines.trust import NOT_CHECKED, approval_line
     from storage import queries
+    from storage.approval import Approval, fingerprint
 
+    trust = load_trust(approvers)
     arch = open_archive(archive)
     try:
         events = queries.audit_trail(arch, target, since)
     except (LookupError, ValueError) as exc:
         fail(str(exc))
+    approved = 0
+    for ev in events:
+        if ev["action"] == "approved":
+            d = ev["detail"] or {}
+            a = Approval(ev["seq"], ev["run_id"], ev["revision"], d.get("meaning", ""),
+                         d.get("signer", ""), d.get("public_key", ""),
+                         ev["at"].isoformat())  # fmt: skip
+            ev["approval"] = a if trust is None else trust.mark(a)
+            ev["trusted"], ev["untrusted"] = ev["approval"].trusted, ev["approval"].untrusted
+            approved += 1
     if as_json:
-        print_json(events)
+        print_json([{k: v for k, v in ev.items() if k != "approval"} for ev in events])
         return
     for ev in events:
         what = ev["run_id"] + f" revision {ev['revision']}" if ev["run_id"] else ""
         detail = ev["detail"] or {}
         if ev["action"] == "approved":
-            what += f" {detail.get('meaning')} by {detail.get('signer')} " \
-                    f"(key {detail.get('public_key', '')[:16]}...)"  # fmt: skip
+            what += f" {approval_line(ev['approval'])} " \
+                    f"(key {fingerprint(detail.get('public_key', ''))})"  # fmt: skip
         elif detail:
             what += " " + ", ".join(f"{k}={v}" for k, v in sorted(detail.items()))
         why = f"  reason: {ev['reason']}" if ev["reason"] else ""
@@ -50,6 +79,8 @@ def audit(
             f"{ev['action']}\t{what.strip()}{why}\n"
         )
     err.print(f"{len(events)} event(s)")
+    if approved:
+        err.print(f"approvals checked against {trust.source}" if trust else NOT_CHECKED)
 
 
 def _passphrase(confirm: bool) -> str:

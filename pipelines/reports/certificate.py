@@ -556,14 +556,20 @@ def _verdict_section(run: _Archived) -> Section:
 def _signatures_section(summary: dict[str, Any], approvals: list[tuple[Any, bool]]) -> Section:
     signed = [
         (
-            f"Electronically {a.meaning}",
+            f"UNTRUSTED, claimed {a.meaning}" if a.untrusted else f"Electronically {a.meaning}",
             f"{a.signer}, {a.at[:19].replace('T', ' ')} UTC (Ed25519 key {a.public_key[:16]}...)"
-            + ("" if holds else ": NO LONGER VALID, the record changed after signing"),
+            + (f": {a.untrusted}" if a.untrusted else "" if holds
+               else ": NO LONGER VALID, the record changed after signing"),
         )
         for a, holds in approvals
-    ]
+    ]  # fmt: skip
     if not any(holds and a.meaning == "approved" for a, holds in approvals):
         signed.append(("Electronic approval", "NOT APPROVED (no valid approval: calib approve)"))
+    if approvals and all(a.trusted is None for a, _ in approvals):
+        signed.append(("Approvers", "keys not checked against the lab's list of trusted approvers"))
+    if "chain_head" in summary:  # the archive's audit chain when the certificate was issued
+        seq, head = summary["chain_head"]
+        signed.append(("Audit chain at issue", f"event {seq}, hash {head}"))
     return Section(
         "Signatures",
         pairs=[
@@ -705,8 +711,10 @@ def report_run(
     if form not in REPORT_FORMATS:
         raise ValueError(f"report format {form!r}: expected one of {list(REPORT_FORMATS)}")
     from pipelines.lab import load_lab_profile
+    from pipelines.trust import lab_approvers
     from storage import queries
     from storage.approval import approval_status
+    from storage.checkpoint import chain_head
 
     summary = queries.run_summary(archive, run_id)
     lab = load_lab_profile()
@@ -719,6 +727,8 @@ def report_run(
 
         return {"verdict": summary["calibration"]["verdict"], "dcc": write_dcc(summary, folder)}
     samples = queries.run_samples(archive, run_id)
-    approvals = approval_status(archive, run_id, summary["calibration"]["revision"])
+    approvals = approval_status(archive, run_id, summary["calibration"]["revision"],
+                                lab_approvers())  # fmt: skip
+    summary["chain_head"] = chain_head(archive)
     written = write_reports(summary, samples, folder, pdf=pdf, approvals=approvals)
     return {"verdict": summary["calibration"]["verdict"], **written}

@@ -152,11 +152,15 @@ def raw_file(request: Request, run_id: str, name: str) -> FileResponse:
 
 def _certificate(archive, run_id: str):  # noqa: ANN001, ANN202
     from pipelines.reports.certificate import sections
+    from pipelines.trust import lab_approvers
     from storage.approval import approval_status
+    from storage.checkpoint import chain_head
 
     summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
     samples = forms.checked(queries.run_samples, archive, run_id)
-    approvals = approval_status(archive, summary["run_id"], summary["calibration"]["revision"])
+    approvals = approval_status(archive, summary["run_id"], summary["calibration"]["revision"],
+                                lab_approvers())  # fmt: skip
+    summary["chain_head"] = chain_head(archive)
     return summary, sections(summary, samples, approvals)
 
 

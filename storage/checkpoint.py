@@ -1,0 +1,153 @@
+"""Checkpoints: the audit chain's head written down outside the archive, checked later.
+
+A hash chain shows an event changed or removed in its middle, but not a chain
+rewritten as a whole (a value, its document and seal changed, every later event
+rehashed with calib's own code) nor the newest runs removed together with their
+seals and events (a rollback): only the head differs. A *checkpoint* records
+the head at one time (sequence number, hash, time, counts of runs and seals)
+with the first 16 hex digits of every event's hash before it, optionally signed
+with an approval key (storage.approval). Kept where the archive's writers cannot
+reach it (docs/archive.md), it lets `check` say whether the chain now extends it
+exactly, and if not, which event is the first to differ.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+from sqlalchemy import Connection, func, select
+
+from storage import seal
+from storage.db import Archive
+from storage.schema import AuditEvent, Run, Seal, utcnow
+
+KIND = "calib-checkpoint"
+VERSION = 1
+PREFIX = 16  # hex digits of each event's hash kept: enough to name the first that differs
+_SIGNED = ("signer", "public_key", "signature")
+
+
+def make(
+    archive: Archive, key: Ed25519PrivateKey | None = None, signer: str | None = None
+) -> dict[str, Any]:
+    """The checkpoint document of the archive's chain now, signed with `key` if given."""
+    with archive.engine().connect() as conn:
+        hashes = conn.execute(select(AuditEvent.hash).order_by(AuditEvent.seq)).scalars().all()
+        seq, head = seal.head(conn)
+        runs = conn.execute(select(func.count()).select_from(Run)).scalar_one()
+        seals = conn.execute(select(func.count()).select_from(Seal)).scalar_one()
+    doc: dict[str, Any] = {
+        "kind": KIND, "version": VERSION, "archive": archive.display_url, "seq": seq,
+        "hash": head, "at": utcnow().isoformat(), "runs": runs, "seals": seals,
+        "events": [h[:PREFIX] for h in hashes],
+    }  # fmt: skip
+    if key is not None:
+        from storage.approval import _public_hex
+
+        if not signer:
+            raise ValueError("a signed checkpoint needs the signer's name")
+        doc["signer"], doc["public_key"] = signer, _public_hex(key.public_key())
+        doc["signature"] = key.sign(_message(doc)).hex()
+    return doc
+
+
+def _message(doc: dict[str, Any]) -> bytes:
+    return seal.canonical({k: v for k, v in doc.items() if k != "signature"})
+
+
+def write(doc: dict[str, Any], path: Path) -> None:
+    """Write `doc` to a new file `path` (never overwritten: a checkpoint is kept as made)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(json.dumps(doc, indent=1) + "\n")
+
+
+def load(path: Path) -> dict[str, Any]:
+    """A checkpoint file's document; ValueError naming the file and what is wrong."""
+    path = Path(path)
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ValueError(f"checkpoint {path}: cannot be read ({exc.strerror or exc})") from None
+    except ValueError as exc:
+        raise ValueError(f"checkpoint {path}: not JSON ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("kind") != KIND:
+        raise ValueError(f"checkpoint {path}: expected a document of kind {KIND!r} "
+                         "(calib checkpoint -o FILE)")  # fmt: skip
+    if doc.get("version") != VERSION:
+        raise ValueError(f"checkpoint {path}: version {doc.get('version')!r}, this calib reads "
+                         f"version {VERSION}")  # fmt: skip
+    events, seq, head = doc.get("events"), doc.get("seq"), doc.get("hash")
+    if (not isinstance(seq, int) or not isinstance(events, list) or len(events) != seq
+            or not isinstance(head, str)
+            or not all(isinstance(e, str) for e in events)):  # fmt: skip
+        raise ValueError(f"checkpoint {path}: expected seq (a count), hash and one hash prefix "
+                         "per event up to seq")  # fmt: skip
+    return doc
+
+
+def signature_error(doc: dict[str, Any]) -> str | None:
+    """Why a signed checkpoint's signature does not verify (None: it does, or unsigned)."""
+    if not any(k in doc for k in _SIGNED):
+        return None
+    try:
+        public = Ed25519PublicKey.from_public_bytes(bytes.fromhex(doc["public_key"]))
+        public.verify(bytes.fromhex(doc["signature"]), _message(doc))
+    except (InvalidSignature, KeyError, ValueError, TypeError) as exc:
+        return type(exc).__name__
+    return None
+
+
+def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal.Finding]:
+    """Whether the chain now extends the checkpoint `doc` (read from `source`) exactly;
+    a finding naming the first event that differs, or the events gone, if not."""
+    found: list[seal.Finding] = []
+    when = f"the checkpoint {source} of {doc.get('at', '?')[:19]}"
+    error = signature_error(doc)
+    if error is not None:
+        found.append(seal.Finding("checkpoint", source, [],
+                                  f"the signature of {when} does not verify ({error}): the "
+                                  "file was altered; it is not compared"))  # fmt: skip
+        return found
+    rows = conn.execution_options(yield_per=5000).execute(
+        select(AuditEvent.seq, AuditEvent.hash, AuditEvent.action, AuditEvent.run_id)
+        .where(AuditEvent.seq <= doc["seq"]).order_by(AuditEvent.seq)
+    )  # fmt: skip
+    expected, last = 1, 0
+    for seq, hash_, action, run_id in rows:
+        what = f"event {seq} ({action}{' of ' + run_id if run_id else ''})"
+        if seq != expected:
+            return [*found, _gone(when, expected, seq - 1, doc)]
+        kept = doc["events"][seq - 1]
+        full = doc["hash"] if seq == doc["seq"] else None
+        if hash_[:PREFIX] != kept or (full is not None and hash_ != full):
+            found.append(seal.Finding(
+                "checkpoint", "audit_events", [run_id] if run_id else [],
+                f"{what} differs from {when}: hash {hash_[:PREFIX]}... now, {kept}... then; "
+                "the chain was rewritten from this event on",
+            ))  # fmt: skip
+            return found
+        expected, last = seq + 1, seq
+    if last < doc["seq"]:
+        found.append(_gone(when, last + 1, doc["seq"], doc))
+    return found
+
+
+def _gone(when: str, first: int, last: int, doc: dict[str, Any]) -> seal.Finding:
+    return seal.Finding(
+        "checkpoint", "audit_events", [],
+        f"events {first}..{last} of {when} are gone (it held {doc['seq']} events, "
+        f"{doc.get('runs', '?')} runs, {doc.get('seals', '?')} seals): a rollback or truncation "
+        "of the chain",
+    )  # fmt: skip
+
+
+def chain_head(archive: Archive) -> tuple[int, str]:
+    """(seq, hash) of the archive's newest audit event (what a certificate prints)."""
+    with archive.engine().connect() as conn:
+        return seal.head(conn)
