@@ -22,7 +22,7 @@ from pipelines.impact import impact
 from pipelines.ingest import discover_runs
 from pipelines.ingest.run_loader import read_run
 from pipelines.process import calibrate, process_run
-from pipelines.run_writers import six_position_manifest, write_csv_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from storage import queries
 from storage.db import resolve_archive
 from storage.verify import verify

@@ -21,7 +21,7 @@ from pipelines import nav_exports
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.run_writers import six_position_manifest, write_csv_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from storage.db import resolve_archive
 
 DOCS = Path(__file__).parents[1] / "docs" / "exports.md"
