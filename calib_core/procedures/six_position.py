@@ -1,0 +1,211 @@
+"""The six-position procedure: six statics -> accelerometer 12, gyro bias and g-sensitivity,
+noise; and the statics' solver the six-position + integral procedure shares.
+
+Segments x_up, x_dn, y_up, y_dn, z_up, z_dn (the axis named reads +g or -g). Settings:
+`SIX_POSITION.settings` (docs/procedures.md).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from calib_core import params
+from calib_core.calibration import Calibration
+from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Setting, Settings
+from calib_core.recording import Recording
+from calib_core.solvers.integral import ROTATION_LABELS
+from calib_core.solvers.kalman import kalman_accel_linear
+from calib_core.solvers.multi_position import (
+    segment_residual,
+    solve_accel_linear,
+    solve_gyro_static,
+)
+from calib_core.solvers.six_position import (
+    STATIC_LABELS,
+    accel_closed_form,
+    accel_closed_form_std,
+    axis_vector,
+    face_bias_checks,
+)
+from calib_core.stats import ChannelStats, channel_stats, largest_std
+from calib_core.uncertainty_sources import static_model
+
+ACCEL_SOLVERS = ("least_squares", "closed_form", "kalman")
+ACCEL_MODELS = ("linear", "per_axis")
+ACCEL_SOLVER = Setting(
+    "accel_solver", "text", "", "least_squares",
+    "accelerometer fit: least squares, the closed form of methods.md 2.1, or the sequential "
+    "filter over every sample (calib_core.solvers.kalman)", choices=ACCEL_SOLVERS)  # fmt: skip
+ACCEL_MODEL = Setting(
+    "accel_model", "text", "", "linear",
+    "accelerometer model: 12 parameters, or bias and scale per axis (no cross-coupling)",
+    choices=ACCEL_MODELS)  # fmt: skip
+GYRO_RANGE_DPS = Setting(
+    "gyro_range_dps", "number", "deg/s", 2000.0,
+    "gyro full scale: the integral method's saturation check; readings at it are refused",
+    low=0.0, low_open=True)  # fmt: skip
+TURNS = Setting(
+    "turns", "integer", "1", None,
+    "whole turns of each rotation (absent: inferred from the data)", low=1)  # fmt: skip
+ROTATION_DIRECTIONS = Setting(
+    "rotation_directions", "text", "", "both",
+    "rotations per axis: ccw and cw (both), or one suffices (any; Ferraris et al.)",
+    choices=("both", "any"))  # fmt: skip
+# The settings the statics' solver reads (`_solve_statics`).
+STATICS_SETTINGS = Settings(ACCEL_SOLVER, ACCEL_MODEL)
+
+def _require(segments: dict[str, Recording], labels: tuple[str, ...], procedure: str) -> None:
+    missing = [label for label in labels if label not in segments]
+    if missing:
+        raise ValueError(
+            f"procedure {procedure!r}: missing segments {', '.join(missing)} "
+            f"(needs {', '.join(labels)})"
+        )
+
+
+def _static_stats(
+    segments: dict[str, Recording],
+) -> tuple[dict[str, ChannelStats], dict[str, ChannelStats]]:
+    acc: dict[str, ChannelStats] = {}
+    gyr: dict[str, ChannelStats] = {}
+    for label in STATIC_LABELS:
+        rec = segments[label]
+        try:
+            acc[label] = channel_stats(rec.acc)
+            gyr[label] = channel_stats(rec.gyr)
+        except ValueError as exc:
+            raise ValueError(f"segment {label} ({rec.source or 'no source'}): {exc}") from None
+    return acc, gyr
+
+
+def _solve_statics(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any], procedure: str
+) -> tuple[Calibration, dict[str, ChannelStats]]:
+    """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals."""
+    acc, gyr = _static_stats(segments)
+    f_true = np.array([axis_vector(label, gravity) for label in STATIC_LABELS])  # (6, 3)
+
+    def stack(stats: dict[str, ChannelStats], field: str) -> np.ndarray:
+        return np.array([getattr(stats[label], field) for label in STATIC_LABELS])
+
+    cal = Calibration(procedure=procedure, gravity=gravity)
+    if settings["accel_solver"] == "kalman":
+        acc_fit = kalman_accel_linear(f_true, [segments[label].acc for label in STATIC_LABELS])
+    else:
+        acc_fit = solve_accel_linear(f_true, stack(acc, "mean"), stack(acc, "sem"))
+    if settings["accel_solver"] == "closed_form":
+        values = accel_closed_form({k: s.mean for k, s in acc.items()}, gravity)
+        stds = accel_closed_form_std({k: s.sem for k, s in acc.items()}, gravity)
+    else:
+        values, stds = acc_fit.params, acc_fit.std
+    if settings["accel_model"] == "per_axis":
+        values, stds = _per_axis_fit(f_true, stack(acc, "mean"), stack(acc, "sem"))
+    linear = settings["accel_model"] == "linear"
+    if values is acc_fit.params:  # the least-squares fit: keep its covariance
+        cal.add_fit(acc_fit.names, acc_fit.params, acc_fit.cov)
+    else:
+        for name in params.ACC_LINEAR if linear else values:
+            cal.add(name, values[name], stds[name])
+    gyr_fit = solve_gyro_static(f_true, stack(gyr, "mean"), stack(gyr, "sem"))
+    cal.add_fit(gyr_fit.names, gyr_fit.params, gyr_fit.cov)
+
+    # Noise: the paper's figure, the largest per-position std of each channel.
+    for sensor, stats in (("acc", acc), ("gyr", gyr)):
+        value, u = largest_std(stack(stats, "std"), stack(stats, "n_eff"))
+        for i, a in enumerate(params.AXES):
+            cal.add(f"{sensor}.noise.{a}", value[i], u[i])
+
+    for label in STATIC_LABELS:
+        rec = segments[label]
+        # The true specific force is constant over a static: a (3,) model, not one per sample.
+        f = axis_vector(label, gravity)
+        cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
+        cal.residuals.append(segment_residual(label, "gyr", rec.gyr, _gyr_static_model(cal, f)))
+
+    face_bias = face_bias_checks(
+        {k: s.mean for k, s in acc.items()}, {k: s.sem for k, s in acc.items()}
+    )
+    cal.info.setdefault("solver_checks", []).extend(face_bias)
+    cal.info["condition_number"] = acc_fit.condition_number
+    cal.info["accel_solver"] = settings["accel_solver"]
+    cal.info["acc_fit_chi2"] = [float(v) for v in acc_fit.chi2]
+    cal.info["gyr_fit_chi2"] = [float(v) for v in gyr_fit.chi2]
+    cal.info["fit_dof_per_axis"] = len(STATIC_LABELS) - 4
+    cal.info["sample_counts"] = {label: len(segments[label]) for label in STATIC_LABELS}
+    cal.info["effective_sample_counts_min"] = {
+        label: float(min(acc[label].n_eff.min(), gyr[label].n_eff.min())) for label in STATIC_LABELS
+    }
+    return cal, gyr
+
+
+def _per_axis_fit(
+    f_true: np.ndarray, means: np.ndarray, sem: np.ndarray
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Reduced model m_k,i = b_i + (1 + s_i) f_k,i: weighted least squares per axis.
+
+    Parameters
+    ----------
+    f_true : (K, 3) true specific force, m/s^2.
+    means, sem : (K, 3) mean output and its standard uncertainty, m/s^2.
+
+    Returns
+    -------
+    (values, stds) of acc.bias.* and acc.scale.* (no misalignment: the model has none).
+    """
+    values: dict[str, float] = {}
+    stds: dict[str, float] = {}
+    for i, a in enumerate(params.AXES):
+        w = 1.0 / sem[:, i]
+        design = np.column_stack([np.ones(len(f_true)), f_true[:, i]]) * w[:, None]
+        coef, *_ = np.linalg.lstsq(design, (means[:, i] - f_true[:, i]) * w, rcond=None)
+        cov = np.linalg.inv(design.T @ design)
+        values[f"acc.bias.{a}"], values[f"acc.scale.{a}"] = coef
+        stds[f"acc.bias.{a}"], stds[f"acc.scale.{a}"] = np.sqrt(np.diag(cov))
+    return values, stds
+
+
+def _acc_model(cal: Calibration, f_true: np.ndarray) -> np.ndarray:
+    return f_true @ (np.eye(3) + cal.matrix("acc")).T + cal.vector("acc", "bias")
+
+
+def _gyr_static_model(cal: Calibration, f_true: np.ndarray) -> np.ndarray:
+    return f_true @ cal.gsens().T + cal.vector("gyr", "bias")
+
+
+def solve_six_position(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Six static positions: accelerometer 12, gyro bias and g-sensitivity, noise.
+
+    Parameters
+    ----------
+    segments : label -> Recording; needs x_up, x_dn, y_up, y_dn, z_up, z_dn.
+    gravity : local gravity, m/s^2.
+    settings : `SIX_POSITION.settings`.
+    """
+    merged = STATICS_SETTINGS.merged(settings)
+    _require(segments, STATIC_LABELS, "six_position")
+    cal, _ = _solve_statics(segments, gravity, merged, "six_position")
+    return cal
+
+
+
+
+SIX_POSITION = Procedure(
+    name="six_position",
+    summary="six statics: accelerometer bias, scale and misalignment (12), gyro bias and "
+    "g-sensitivity (12), noise",
+    segments="six statics x_up, x_dn, y_up, y_dn, z_up, z_dn (the named axis reads +g / -g), "
+    "listed by hand or cut by [run.settings.segmentation] (labels = \"faces\")",
+    solver=solve_six_position,
+    settings=STATICS_SETTINGS,
+    conditions=ENVIRONMENT + ATTITUDES,
+    reference="methods.md 2.1; MPU-6000 manual stage 1",
+    labels=STATIC_LABELS + ROTATION_LABELS,
+    required=STATIC_LABELS,
+    uncertainty=static_model,
+    model_checks="each face's bias from its up/down pair against the fit (face_bias); "
+    "chi2 of the accelerometer and gyro fits; residuals per static",
+)
