@@ -1,8 +1,36 @@
-"""The six-position procedure: six statics -> accelerometer 12, gyro bias and g-sensitivity,
-noise; and the statics' solver the six-position + integral procedure shares.
+"""The six-position family of procedures: from labelled segments to a Calibration.
 
-Segments x_up, x_dn, y_up, y_dn, z_up, z_dn (the axis named reads +g or -g). Settings:
-`SIX_POSITION.settings` (docs/procedures.md).
+A procedure takes the segments of one lab run (Recordings keyed by label), the
+local gravity and its settings, and returns a Calibration with every parameter's
+standard uncertainty, residuals per segment and solver facts in `info`. This module
+holds the solvers of the three procedures that share the statics' and the integral
+method's code, and the `six_position` procedure object; `six_position_integral` and
+`integral` have their objects in their own modules.
+
+Procedures
+----------
+six_position
+    Statics only (x_up, x_dn, y_up, y_dn, z_up, z_dn): accelerometer bias,
+    scale and misalignment (12), gyro bias and g-sensitivity (12), noise.
+integral
+    The six rotations alone (stage 2 of the MPU-6000 program): gyro scale and
+    misalignment, each axis's static reading from its own ccw and cw records.
+six_position_integral
+    The statics plus n-turn ccw/cw rotations about each axis (x_ccw, x_cw, ...):
+    adds gyro scale and misalignment by the integral method (MPU-6000 paper).
+
+Settings
+--------
+turns : int or None (infer from the data), integral method only.
+gyro_range_dps : gyro full scale, deg/s (default 2000).
+accel_solver : "least_squares" (default), "closed_form" (methods.md 2.1) or
+    "kalman" (sequential filter over every sample, calib_core.solvers.kalman;
+    agrees with least squares within its uncertainty).
+accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
+    rate-table model of methods.md 1: bias and scale per axis, no cross-coupling).
+rotation_directions : "both" (default; ccw and cw about each axis) or "any"
+    (one rotation per axis suffices, Ferraris et al.; e.g. imucal sessions).
+Each as a typed `Setting` below (docs/procedures.md).
 """
 
 from __future__ import annotations
@@ -15,7 +43,7 @@ from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Setting, Settings
 from calib_core.recording import Recording
-from calib_core.solvers.integral import ROTATION_LABELS
+from calib_core.solvers.integral import ROTATION_LABELS, rotation_static_means, solve_integral
 from calib_core.solvers.kalman import kalman_accel_linear
 from calib_core.solvers.multi_position import (
     segment_residual,
@@ -31,6 +59,7 @@ from calib_core.solvers.six_position import (
 )
 from calib_core.stats import ChannelStats, channel_stats, largest_std
 from calib_core.uncertainty_sources import static_model
+from calib_core.units import DEG
 
 ACCEL_SOLVERS = ("least_squares", "closed_form", "kalman")
 ACCEL_MODELS = ("linear", "per_axis")
@@ -53,8 +82,10 @@ ROTATION_DIRECTIONS = Setting(
     "rotation_directions", "text", "", "both",
     "rotations per axis: ccw and cw (both), or one suffices (any; Ferraris et al.)",
     choices=("both", "any"))  # fmt: skip
-# The settings the statics' solver reads (`_solve_statics`).
+# The settings the statics' solver reads (`_solve_statics`), with the integral method's.
 STATICS_SETTINGS = Settings(ACCEL_SOLVER, ACCEL_MODEL)
+INTEGRAL_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS)
+INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS)
 
 def _require(segments: dict[str, Recording], labels: tuple[str, ...], procedure: str) -> None:
     missing = [label for label in labels if label not in segments]
@@ -183,7 +214,7 @@ def solve_six_position(
     ----------
     segments : label -> Recording; needs x_up, x_dn, y_up, y_dn, z_up, z_dn.
     gravity : local gravity, m/s^2.
-    settings : `SIX_POSITION.settings`.
+    settings : see the module docstring.
     """
     merged = STATICS_SETTINGS.merged(settings)
     _require(segments, STATIC_LABELS, "six_position")
@@ -191,6 +222,70 @@ def solve_six_position(
     return cal
 
 
+
+
+
+def solve_six_position_integral(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Six static positions plus the integral method for gyro scale and misalignment.
+
+    Parameters
+    ----------
+    segments : label -> Recording; the six statics and x_ccw, x_cw, y_ccw,
+        y_cw, z_ccw, z_cw.
+    gravity : local gravity, m/s^2.
+    settings : see the module docstring.
+    """
+    merged = INTEGRAL_SETTINGS.merged(settings)
+    both = merged["rotation_directions"] == "both"
+    _require(segments, STATIC_LABELS + (ROTATION_LABELS if both else ()), "six_position_integral")
+    cal, gyr = _solve_statics(segments, gravity, merged, "six_position_integral")
+    rotations = {label: segments[label] for label in ROTATION_LABELS if label in segments}
+    integral = solve_integral(
+        rotations,
+        {label: s.mean for label, s in gyr.items()},
+        {label: s.sem for label, s in gyr.items()},
+        merged["gyro_range_dps"] * DEG,
+        merged["turns"],
+        # The static record of the same orientation gives the noise the integral collects.
+        noise_std={label: s.std for label, s in gyr.items()},
+        gravity=gravity,
+        directions=merged["rotation_directions"],
+    )
+    cal = cal.merged(integral)
+    # merged() takes the integral's info on top; keep this procedure's name.
+    cal.procedure = "six_position_integral"
+    # The accelerometer sees g along the rotation axis throughout a rotation.
+    for label in rotations:
+        rec = segments[label]
+        f = axis_vector(label, gravity)  # constant over the rotation: a (3,) model
+        cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
+        cal.info["sample_counts"][label] = len(rec)
+    return cal
+
+
+def solve_integral_procedure(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Stage 2 of the MPU-6000 program alone: the six rotations, no orientations.
+
+    Gyro scale and misalignment by the integral method, each axis's static reading taken
+    from its own ccw and cw rotations (`rotation_static_means`); no biases, g-sensitivity,
+    accelerometer or noise (those are stage 1, procedure six_position).
+
+    settings : turns, gyro_range_dps (see the module docstring).
+    """
+    merged = INTEGRAL_ONLY_SETTINGS.merged(settings)
+    _require(segments, ROTATION_LABELS, "integral")
+    rotations = {label: segments[label] for label in ROTATION_LABELS}
+    means, sems = rotation_static_means(rotations)
+    cal = solve_integral(
+        rotations, means, sems, merged["gyro_range_dps"] * DEG, merged["turns"], gravity=gravity
+    )
+    cal.info["static_reading_from"] = "rotations (stage 2 alone)"
+    cal.info["sample_counts"] = {label: len(rec) for label, rec in rotations.items()}
+    return cal
 
 
 SIX_POSITION = Procedure(
