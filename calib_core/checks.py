@@ -13,7 +13,7 @@ from collections.abc import Mapping
 
 from calib_core import decision, params
 from calib_core.calibration import Calibration, CheckResult
-from calib_core.conditions import counts_against_verdict
+from calib_core.condition_rules import counts_against_verdict
 from calib_core.tolerances import ParameterLimit, ToleranceProfile, family
 from calib_core.uncertainty import Budget
 

@@ -1,25 +1,11 @@
-"""Lab conditions and acquisition rules of a run, checked against the tolerance profile.
+"""Lab conditions and acquisition rules of a run, measured on its data and judged.
 
-docs/methods.md 3.10 sets conditions a run must be made under; recording them is not enough, each
+methods.md sets conditions a run must be made under; recording them is not enough, each
 is judged and printed as one verdict line of the "conditions" section of the protocol and
-the certificate. A check is named ``condition:<key>``; its value is in the unit the key
-names (deg C, %, hPa, min, Hz, bit, s, deg/s), not SI, so the line reads as the procedure
-writes it.
-
-Severity, from the procedure's wording:
-
-- warning (the verdict stands, the line says WARNING): the environment, which docs/methods.md 3.10
-  asks to be *recorded* with each run with *targets* (ambient 20 +- 2 deg C, drift
-  <= 0.5 deg C/h, humidity 40-60 %, pressure, warm-up time), and local gravity by the
-  standard value instead of the site's (the MPU-6000 manual computes it by Helmert).
-- failure (the run fails): the acquisition rules the numbers rest on, written as
-  requirements: "settle >= 20 s then record >= 10 s at >= 100 Hz" (rate points),
-  ">= 30 s settle for positions", the resolution, the temperature spread of the static
-  records the biases come from, and the table's rate from its feedback channel
-  (stability and deviation per plateau): a wrong reference rate is a wrong scale factor.
-
-A condition the run does not record is "not recorded": not a pass (``passed`` false) and
-not a failure (the verdict stands); the line says so.
+the certificate. Which conditions apply is the run's procedure's declaration
+(`calib_core.procedures`, its ``conditions``); their limits, severity and wording are the
+catalogue `calib_core.condition_rules` (re-exported here); this module measures each on the
+run's segments and judges it.
 """
 
 from __future__ import annotations
@@ -27,137 +13,34 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from calib_core import procedures
 from calib_core.calibration import CheckResult
+from calib_core.condition_rules import (  # noqa: F401  (the catalogue's names, re-exported)
+    CONDITION_PREFIX,
+    DEFAULT_CONDITIONS,
+    FAILURE,
+    INFO,
+    NOT_RECORDED,
+    WARNING,
+    Condition,
+    ConditionUse,
+    conditions,
+    counts_against_verdict,
+    judge,
+    parse_conditions,
+    requirement,
+    status,
+)
 from calib_core.recording import Recording
 from calib_core.units import DEG
 
-CONDITION_PREFIX = "condition:"
-NOT_RECORDED = "not recorded"
-WARNING, FAILURE = "warning", "failure"
 ZERO_RATE = 1e-6  # rad/s: a plateau below this is a 0-rate (static) point
-
-
-@dataclass(frozen=True)
-class Condition:
-    """One condition: its limits (inclusive, in the key's unit), severity and wording."""
-
-    key: str
-    low: float
-    high: float
-    severity: str
-    text: str  # what the line says is checked
-    unit: str
-
-    def allowed(self) -> str:
-        """The requirement as the line prints it: '18 .. 22 deg C', '>= 100 Hz', 'recorded'."""
-        lo, hi = math.isfinite(self.low), math.isfinite(self.high)
-        if lo and hi:
-            return f"{self.low:g} .. {self.high:g} {self.unit}"
-        if lo or hi:
-            return f"{'>=' if lo else '<='} {self.low if lo else self.high:g} {self.unit}"
-        return "to be recorded"
-
-
-_INF = math.inf
-# key: (low, high, severity, text, unit); docs/methods.md 2.4, 2.5 and 3.10.
-DEFAULT_CONDITIONS: dict[str, tuple[float, float, str, str, str]] = {
-    "ambient_temperature_c": (18.0, 22.0, WARNING, "ambient temperature", "deg C"),
-    "temperature_drift_c_per_h": (-_INF, 0.5, WARNING, "ambient temperature drift", "deg C/h"),
-    "humidity_pct": (40.0, 60.0, WARNING, "relative humidity", "%"),
-    "pressure_hpa": (-_INF, _INF, WARNING, "air pressure", "hPa"),
-    "warmup_min": (10.0, _INF, WARNING, "warm-up time", "min"),
-    "gravity": (-_INF, _INF, WARNING, "local gravity from the site", "m/s^2"),
-    "sample_rate_hz": (100.0, _INF, FAILURE, "sampling rate (slowest segment)", "Hz"),
-    "resolution_bits": (16.0, _INF, FAILURE, "sensor resolution", "bit"),
-    "settle_s": (30.0, _INF, FAILURE, "settle time before each attitude", "s"),
-    "settle_rate_s": (20.0, _INF, FAILURE, "settle time of each rate plateau", "s"),
-    "record_s": (10.0, _INF, FAILURE, "record time per attitude (shortest)", "s"),
-    "static_record_min": (60.0, _INF, FAILURE, "static-bias record", "min"),
-    "static_temperature_spread_c": (
-        -_INF, 0.2, FAILURE, "temperature spread over the static records", "deg C"),
-    "table_rate_stability_dps": (
-        -_INF, 0.1, FAILURE, "table rate stability (feedback std, worst plateau)", "deg/s"),
-    "table_rate_deviation_dps": (
-        -_INF, 0.5, FAILURE, "table rate deviation from nominal (worst plateau)", "deg/s"),
-}  # fmt: skip
-
-
-def conditions(overrides: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, Condition]:
-    """The conditions with a profile's ``[conditions]`` limits (``{low, high}``) applied."""
-    out = {}
-    for key, (low, high, severity, text, unit) in DEFAULT_CONDITIONS.items():
-        given = (overrides or {}).get(key, {})
-        out[key] = Condition(
-            key, float(given.get("low", low)), float(given.get("high", high)), severity, text, unit
-        )
-    return out
-
-
-def parse_conditions(raw: Any) -> dict[str, dict[str, float]]:
-    """Validate a profile's ``[conditions]`` table: key -> {low, high} numbers.
-
-    Raises ValueError naming ``conditions.<key>`` and what was expected.
-    """
-    if not isinstance(raw, dict):
-        raise ValueError("tolerance profile field 'conditions': expected a table")
-    out: dict[str, dict[str, float]] = {}
-    for key, entry in raw.items():
-        where = f"conditions.{key}"
-        if key not in DEFAULT_CONDITIONS:
-            known = list(DEFAULT_CONDITIONS)
-            raise ValueError(f"{where}: unknown condition; expected one of {known}")
-        if not isinstance(entry, dict) or not entry or set(entry) - {"low", "high"}:
-            raise ValueError(f"{where}: expected a table {{ low = <number>, high = <number> }}")
-        for side, value in entry.items():
-            if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
-                raise ValueError(f"{where}.{side}: expected a number, got {value!r}")
-        if entry.get("low", -_INF) > entry.get("high", _INF):
-            raise ValueError(f"{where}: low ({entry['low']}) is above high ({entry['high']})")
-        out[key] = {k: float(v) for k, v in entry.items()}
-    return out
-
-
-def judge(cond: Condition, value: float | None, note: str = "") -> CheckResult:
-    """One condition's check: ``value`` None is "not recorded"."""
-    finite = [v for v in (cond.high, cond.low) if math.isfinite(v)]
-    limit = finite[0] if finite else None
-    if value is None:
-        detail = f"{NOT_RECORDED}; required {cond.allowed()}" + (f"; {note}" if note else "")
-        return CheckResult(CONDITION_PREFIX + cond.key, None, limit, False, detail)
-    ok = bool(cond.low <= value <= cond.high)
-    detail = f"required {cond.allowed()}" + (f"; {note}" if note else "")
-    return CheckResult(CONDITION_PREFIX + cond.key, float(value), limit, ok, detail)
-
-
-def status(check: Mapping[str, Any]) -> str:
-    """"pass", "fail", "warning" or "not recorded" of an archived check dict (any check)."""
-    if check["passed"]:
-        return "pass"
-    name = str(check["name"])
-    if not name.startswith(CONDITION_PREFIX):
-        return "fail"
-    if check.get("value") is None and str(check.get("detail", "")).startswith(NOT_RECORDED):
-        return NOT_RECORDED
-    entry = DEFAULT_CONDITIONS.get(name.removeprefix(CONDITION_PREFIX))
-    return WARNING if entry is not None and entry[2] == WARNING else "fail"
-
-
-def requirement(check: Mapping[str, Any]) -> str:
-    """A condition check's detail without the "not recorded" its result already says."""
-    return str(check.get("detail") or "").removeprefix(f"{NOT_RECORDED}; ")
-
-
-def counts_against_verdict(check: Any) -> bool:
-    """True for a failed check (a CheckResult or any object with its fields) that counts
-    against the verdict: not a condition's warning, not "not recorded"."""
-    fields = {"name": check.name, "passed": check.passed,
-              "value": getattr(check, "value", None), "detail": getattr(check, "detail", "")}
-    return not check.passed and status(fields) == "fail"
+# Reference channels of the lab's own temperature (chamber or ambient), deg C.
+CHAMBER_CHANNELS = ("chamber_temperature", "ambient_temperature")
 
 
 def is_rotation(label: str) -> bool:
@@ -191,18 +74,28 @@ def _statics(segments: Mapping[str, Recording]) -> dict[str, Recording]:
     return out
 
 
-def temperature_spread(statics: Mapping[str, Recording]) -> tuple[float | None, str]:
-    """Largest minus smallest 1-s mean temperature over all static records, deg C.
+def _temperature(rec: Recording, channel: str | None) -> np.ndarray | None:
+    """The sensor's temperature (`channel` None) or a reference channel, deg C."""
+    temp = rec.temp if channel is None else rec.reference.get(channel)
+    return None if temp is None else np.asarray(temp, dtype=float)
 
-    1-s means keep the sensor's temperature noise and its 0.1 deg C display step from
-    counting as a spread. None when no static record has a temperature channel.
+
+def temperature_spread(
+    records: Mapping[str, Recording], channel: str | None = None
+) -> tuple[float | None, str]:
+    """Largest minus smallest 1-s mean temperature over all records, deg C.
+
+    `channel` None takes the sensor's temperature, else that reference channel (the
+    chamber's). 1-s means keep the temperature noise and the 0.1 deg C display step from
+    counting as a spread. None when no record has the channel.
     """
     means: list[tuple[float, str]] = []
-    for label, rec in statics.items():
-        if rec.temp is None or not np.isfinite(rec.temp).any():
+    for label, rec in records.items():
+        temp = _temperature(rec, channel)
+        if temp is None or not np.isfinite(temp).any():
             continue
         block = max(1, int(round(_rate_hz(rec))))
-        temp = rec.temp[np.isfinite(rec.temp)]
+        temp = temp[np.isfinite(temp)]
         k = max(1, len(temp) // block)
         means += [(float(chunk.mean()), label) for chunk in np.array_split(temp, k)]
     if not means:
@@ -254,7 +147,7 @@ def check_conditions(
     segments: Mapping[str, Recording],
     recorded: Mapping[str, float | None],
     *,
-    procedure: str,
+    procedure: str | procedures.Procedure,
     settings: Mapping[str, Any],
     gravity: float,
     gravity_source: str | None,
@@ -268,7 +161,7 @@ def check_conditions(
     recorded : what the lab recorded: the RECORDED_KEYS, ``temperature_drift_c_per_h``,
         ``resolution_bits`` and ``settle_s`` (before each attitude); None or absent: not
         recorded.
-    procedure : the run's procedure (``static_bias`` adds the 60-min record rule).
+    procedure : the run's procedure (or its name): its ``conditions`` are the ones judged.
     settings : the run's settings; a rate table's ``settle_s`` / ``record_s`` are the
         plateau's settle and record times (the solver drops the settle).
     gravity : the gravity used, m/s^2.
@@ -276,14 +169,17 @@ def check_conditions(
         the standard value for want of the site's (a warning).
     overrides : the profile's ``[conditions]`` limits.
     """
+    proc = procedures.get(procedure) if isinstance(procedure, str) else procedure
     conds = conditions(overrides)
     out = [judge(conds[k], recorded.get(k)) for k in RECORDED_KEYS]
     drift = recorded.get("temperature_drift_c_per_h")
     out.append(judge(conds["temperature_drift_c_per_h"], *(
         (abs(drift), "recorded") if drift is not None else temperature_drift(segments))))
     out.append(_gravity_check(conds["gravity"], gravity, gravity_source))
-    out += _acquisition_checks(segments, recorded, procedure, settings, conds)
-    return out
+    out += _acquisition_checks(segments, recorded, settings, conds)
+    out += _temperature_checks(segments, conds)
+    applies = {CONDITION_PREFIX + key for key in proc.condition_keys()}
+    return [c for c in out if c.name in applies]
 
 
 def _gravity_check(cond: Condition, gravity: float, source: str | None) -> CheckResult:
@@ -300,11 +196,10 @@ def _gravity_check(cond: Condition, gravity: float, source: str | None) -> Check
 def _acquisition_checks(
     segments: Mapping[str, Recording],
     recorded: Mapping[str, float | None],
-    procedure: str,
     settings: Mapping[str, Any],
     conds: dict[str, Condition],
 ) -> list[CheckResult]:
-    """Sampling, resolution, settle and record times, static temperature spread, table rate."""
+    """Sampling, resolution, settle and record times, static record length, table rate."""
     if not segments:
         return []
     rate = min((_rate_hz(r), label) for label, r in segments.items())
@@ -324,9 +219,22 @@ def _acquisition_checks(
         out.append(judge(conds["settle_s"], recorded.get("settle_s")))
     if records:
         out.append(judge(conds["record_s"], min(records)[0], f"segment {min(records)[1]}"))
-    if procedure == "static_bias":
-        longest = max(r.duration for r in segments.values()) / 60.0
-        out.append(judge(conds["static_record_min"], longest))
-    spread, note = temperature_spread(_statics(segments))
-    out.append(judge(conds["static_temperature_spread_c"], spread, note))
+    longest = max(r.duration for r in segments.values()) / 60.0
+    out.append(judge(conds["static_record_min"], longest))
+    return out
+
+
+def _temperature_checks(
+    segments: Mapping[str, Recording], conds: dict[str, Condition]
+) -> list[CheckResult]:
+    """The chamber's temperature spread over the static records (its reference channel,
+    else the sensor's own), and the sensor's spread over the whole run (information)."""
+    statics = _statics(segments)
+    channel = next((c for c in CHAMBER_CHANNELS
+                    if any(c in r.reference for r in statics.values())), None)  # fmt: skip
+    spread, note = temperature_spread(statics, channel)
+    where = f"reference channel {channel}" if channel else "no chamber channel: the sensor's"
+    out = [judge(conds["static_temperature_spread_c"], spread, f"{where}; {note}")]
+    spread, note = temperature_spread(segments)
+    out.append(judge(conds["sensor_temperature_spread_c"], spread, note))
     return out

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from calib_core import decision, params, units
-from calib_core.conditions import parse_conditions
+from calib_core.condition_rules import parse_conditions
 from calib_core.decision import DecisionRule
 
 # Every canonical name a limit pattern may match.

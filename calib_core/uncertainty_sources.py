@@ -9,6 +9,10 @@ each rotation and the same fixture angles through the integral method
 calib_core.solvers.rate_table. Passing ``spec=None`` (equipment unknown) gives budgets labelled
 Type A only; a field of the spec set to None is a source whose equipment the run does not name
 (not evaluated, and said in the budget's notes).
+
+A procedure's uncertainty model (`calib_core.procedures.Procedure.uncertainty`) is one of the
+`*_model` functions here: (cal, segments, settings, spec) -> (solve closure or None, the Type B
+inputs, notes); None as closure means Type A only, the first note saying why.
 """
 
 from __future__ import annotations
@@ -16,14 +20,18 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from calib_core import params
+from calib_core.calibration import Calibration
+from calib_core.recording import Recording
+from calib_core.solvers.integral import ROTATION_LABELS
 from calib_core.solvers.multi_position import solve_accel_linear, solve_gyro_static
-from calib_core.solvers.rate_table import RatePoint, solve_rate_table
-from calib_core.solvers.six_position import axis_vector
+from calib_core.solvers.rate_table import RatePoint, rate_points, solve_rate_table
+from calib_core.solvers.six_position import STATIC_LABELS, axis_vector
+from calib_core.stats import channel_stats
 from calib_core.uncertainty import Budget, InputQuantity, budgets, monte_carlo
 
 if TYPE_CHECKING:
@@ -208,3 +216,50 @@ def rate_table_budgets(
     out = budgets(solve, inputs, type_a, units)
     mc = monte_carlo(solve, inputs, type_a, mc_draws, rng) if mc_draws and inputs else None
     return out, mc
+
+
+Model = tuple["Callable[[Mapping[str, float]], dict] | None", list[InputQuantity], tuple[str, ...]]
+
+
+def static_model(
+    cal: Calibration, segments: Mapping[str, Recording], settings: Mapping[str, Any],
+    spec: EquipmentSpec,
+) -> Model:
+    """The six-position procedures' model: gravity and face angles through the static fits,
+    turn angles through the integral; only for the least-squares linear accelerometer fit."""
+    default = (settings.get("accel_solver", "least_squares") == "least_squares"
+               and settings.get("accel_model", "linear") == "linear")  # fmt: skip
+    if not default:
+        return None, [], ("Type B sources not modelled for accel_solver/accel_model "
+                          "other than least_squares/linear",)  # fmt: skip
+    labels = [label for label in STATIC_LABELS if label in segments]
+    stats = [(channel_stats(segments[label].acc), channel_stats(segments[label].gyr))
+             for label in labels]  # fmt: skip
+    acc_mean, acc_sem = (np.array([getattr(a, f) for a, _ in stats]) for f in ("mean", "sem"))
+    gyr_mean, gyr_sem = (np.array([getattr(g, f) for _, g in stats]) for f in ("mean", "sem"))
+    rotations = [label for label in ROTATION_LABELS if label in segments]
+    turns = cal.info.get("turns")
+    integral = None
+    if rotations and turns is not None:
+        integral = (np.eye(3) + cal.matrix("gyr"), int(turns), rotations)
+    solve = static_solve(labels, (acc_mean, acc_sem), (gyr_mean, gyr_sem), cal.gravity, integral)
+    inputs = static_inputs(labels, cal.gravity, spec)
+    notes = spec.missing("cube_angle")
+    if integral is not None:
+        inputs += integral_inputs(rotations, spec)
+        notes += spec.missing("turn_angle")
+    return solve, inputs, notes
+
+
+def rate_table_model(
+    cal: Calibration, segments: Mapping[str, Recording], settings: Mapping[str, Any],
+    spec: EquipmentSpec,
+) -> Model:
+    """The rate-table procedure's model: the table's relative rate error through its solver."""
+    kwargs = {k: float(settings[k]) for k in ("settle_s", "record_s")
+              if settings.get(k) is not None}  # fmt: skip
+    if spec.table_rate_rel is None:
+        return None, [], spec.missing("table_rate_rel")
+    solve = rate_table_solve(rate_points(list(segments.values()), **kwargs))
+    return solve, [InputQuantity("table.rate_rel", 0.0, spec.table_rate_rel, unit="1")], ()
+

@@ -69,7 +69,7 @@ app = typer.Typer(
 # `calib --help` lists the commands under these headings, by task (`group_commands`).
 PANELS = {
     "Process": ("process", "reprocess", "centrifuge", "apply", "thermal", "impact"),
-    "Inspect": ("inspect", "show", "history", "repeatability"),
+    "Inspect": ("inspect", "show", "history", "repeatability", "procedures"),
     "Query": ("query", "trend", "fleet"),
     "Report": ("report", "serve"),
     "Export": ("export",),

@@ -19,7 +19,7 @@ import numpy as np
 
 from calib_core.recording import Recording
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import SIX_POSITION_LABELS, FormatSpec
+from pipelines.ingest.manifest import FormatSpec
 
 GAP_FACTOR = 1.5  # a time step above 1.5 median steps is a gap
 SI_COLUMNS = ["t [s]", "acc x y z [m/s^2]", "gyr x y z [rad/s]", "temp [degC]"]
@@ -165,24 +165,15 @@ def inspect_folder(folder: Path) -> dict[str, Any]:
 
 
 def _missing(procedure: str, labels: set[str], settings: dict) -> list[str]:
-    """Labels the procedure needs and the run lacks (the six-position ones' twelve)."""
-    from calib_core.procedures import PROCEDURES
+    """Labels the procedure needs and the run lacks (`Procedure.missing`); none when
+    automatic segmentation cuts and labels the recordings."""
+    from calib_core.procedures import BY_NAME
 
-    if procedure not in PROCEDURES:
-        return [f"procedure {procedure!r} is unknown; known: {', '.join(sorted(PROCEDURES))}"]
-    if not procedure.startswith("six_position") or "segmentation" in settings:
+    if procedure not in BY_NAME:
+        return [f"procedure {procedure!r} is unknown; known: {', '.join(sorted(BY_NAME))}"]
+    if "segmentation" in settings:
         return []
-    missing = [label for label in SIX_POSITION_LABELS[:6] if label not in labels]
-    if procedure != "six_position_integral":
-        return missing
-    for axis in "xyz":
-        turns = [f"{axis}_ccw", f"{axis}_cw"]
-        if settings.get("rotation_directions") == "any":  # one sense per axis suffices
-            if not labels.intersection(turns):
-                missing.append(f"{axis}_ccw or {axis}_cw")
-        else:
-            missing += [label for label in turns if label not in labels]
-    return missing
+    return BY_NAME[procedure].missing(labels, settings)
 
 
 def inspect_path(path: Path) -> dict[str, Any]:

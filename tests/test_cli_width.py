@@ -104,6 +104,7 @@ def _commands(demo: dict) -> list[list[str]]:
         ["report", run, *a, "--no-pdf"],
         ["reprocess", run, "--reason", "width test", *a],
         ["inspect", str(SAMPLES / "csv_IMU-2026-0042")],
+        ["procedures"],
         ["repeatability", "IMU-R-0003", *a],
         ["apply", str(mpu / "MPU0001_x_up.txt"), str(tmp / "applied.csv"), "--serial",
          "MPU0001", *a],  # fmt: skip

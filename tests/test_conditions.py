@@ -115,14 +115,43 @@ def test_static_temperature_spread():
     def ramp(total):
         return lambda t: 25.0 + total * t / 20.0
 
-    ok = _checks([_static("x_up", temp=ramp(0.2))])["static_temperature_spread_c"]
-    bad = _checks([_static("x_up", temp=ramp(0.25)), _static("x_dn", temp=ramp(0.0))])[
-        "static_temperature_spread_c"
-    ]
+    # the rule of the static-bias run: without a chamber channel, the sensor's temperature
+    ok = _checks([_static("x_up", temp=ramp(0.2))], procedure="static_bias")[
+        "static_temperature_spread_c"]  # fmt: skip
+    bad = _checks([_static("x_up", temp=ramp(0.25)), _static("x_dn", temp=ramp(0.0))],
+                  procedure="static_bias")["static_temperature_spread_c"]  # fmt: skip
     assert ok.passed and ok.value < 0.2
     assert _status(bad) == "fail" and 0.2 < bad.value <= 0.25
-    none = _checks([_static("x_up")])["static_temperature_spread_c"]
+    none = _checks([_static("x_up")], procedure="static_bias")["static_temperature_spread_c"]
     assert _status(none) == conditions.NOT_RECORDED
+
+
+def test_static_bias_rule_judges_the_chamber_not_the_sensor():
+    """The 0.2 deg C spread is the static-bias run's chamber (ambient) temperature: its
+    reference channel when recorded; a warming sensor fails no other procedure."""
+
+    def ramp(total):
+        return lambda t: 25.0 + total * t / 20.0
+
+    def with_chamber(rec: Recording, total: float) -> Recording:
+        return Recording(t=rec.t, acc=rec.acc, gyr=rec.gyr, temp=rec.temp, label=rec.label,
+                         reference={"chamber_temperature": ramp(total)(rec.t)})  # fmt: skip
+
+    warming = _static("x_up", temp=ramp(1.0))  # the sensor warms by 1 deg C
+    steady = _checks([with_chamber(warming, 0.1)], procedure="static_bias")
+    drifting = _checks([with_chamber(warming, 0.3)], procedure="static_bias")
+    assert steady["static_temperature_spread_c"].passed
+    assert "chamber_temperature" in steady["static_temperature_spread_c"].detail
+    bad = drifting["static_temperature_spread_c"]
+    assert _status(bad) == "fail" and 0.2 < bad.value <= 0.3
+    assert overall_verdict([bad]) == "fail"
+    # other procedures: no spread rule; the sensor's trend is information, never a failure
+    for procedure in ("six_position", "six_position_integral", "multi_position"):
+        checks = _checks([warming], procedure=procedure)
+        assert "static_temperature_spread_c" not in checks
+        info = checks["sensor_temperature_spread_c"]
+        assert 0.9 < info.value <= 1.0 and _status(info) == conditions.INFO
+        assert overall_verdict(list(checks.values())) == "pass"
 
 
 def test_table_rate_stability_and_deviation_per_plateau():

@@ -201,3 +201,34 @@ def test_protocol_names_setting_of_the_profile():
     with pytest.raises(ValueError, match=r"protocol.names: expected one of"):
         ToleranceProfile.from_dict({**doc, "protocol": {"names": "russian"}})
     assert math.isfinite(STANDARD_GRAVITY)
+
+
+def test_a_warming_unit_in_tolerance_passes(tmp_path):
+    """The program's own unit (the sample's truth and noise) with its sensor warming by
+    0.4 deg C over the run's three minutes, as a powered MPU-6000 does: every parameter in
+    tolerance, so the verdict is pass (the statics alone span 0.26 deg C, which the 0.2 deg C
+    rule failed when it judged the sensor). That rule belongs to the static-bias run's
+    chamber temperature; the sensor's trend is shown as information."""
+    import dataclasses
+
+    from calib_core.simulate.lab_run import random_errors, six_position_integral_run
+    from pipelines.run_writers import write_mpu6000_run
+
+    rng = np.random.default_rng(20261120)  # scripts/make_data_samples.py's MPU0001
+    truth = dataclasses.replace(random_errors(rng), gyr_noise=np.full(3, 0.03 * DEG))
+    sim = six_position_integral_run(truth, rng)
+    total = sum(rec.duration for rec in sim.segments.values())
+    start, warm, warming = 0.0, 0.4, {}  # deg C over the run
+    for label, rec in sim.segments.items():  # the records follow one another
+        temp = rec.temp + warm * (start + rec.t - rec.t[0]) / total
+        warming[label] = dataclasses.replace(rec, temp=temp)
+        start += rec.duration
+    folder = tmp_path / "run"
+    write_mpu6000_run(warming, folder, "MPU0009", truth=sim.truth_dict())
+    outcome = _process(folder, tmp_path)
+    checks = {c["name"]: c for c in outcome["checks"]}
+    trend = checks["condition:sensor_temperature_spread_c"]
+    # the 1-s means of the printed 0.1 deg C steps: the ramp within a display step
+    assert 0.3 < trend["value"] <= warm + 0.1 and trend["status"] == conditions.INFO
+    assert "condition:static_temperature_spread_c" not in checks
+    assert outcome["verdict"] == "pass", [c for c in outcome["checks"] if not c["passed"]]

@@ -36,6 +36,7 @@ from pydantic import (
     model_validator,
 )
 
+from calib_core import procedures
 from calib_core.earth import local_gravity
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
@@ -361,6 +362,7 @@ def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
     except RecursionError:
         raise _too_deep(text, source) from None
     check_segments(manifest, source)
+    check_settings(manifest, source)
     return manifest
 
 
@@ -390,6 +392,20 @@ def _longest_number(text: str) -> tuple[int, int | None]:
     return max(runs) if runs else (0, None)
 
 
+def check_settings(manifest: RunManifest, source: str = "run.toml") -> None:
+    """The whole ``[run.settings]`` against the procedure's settings and the preprocessing
+    tables (calib_core.procedures): an unknown key (with the closest valid one), a wrong type
+    or a value out of bounds is an IngestError naming the file and the key. An unknown
+    procedure is left to the solve, which names the known ones."""
+    proc = procedures.BY_NAME.get(manifest.run.procedure)
+    if proc is None:
+        return
+    try:
+        proc.validate(manifest.run.settings)
+    except procedures.SettingError as exc:
+        raise IngestError(exc.problem, file=source, field=f"run.settings.{exc.key}") from None
+
+
 def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:
     """Cross-checks of the segment list that need the whole manifest.
 
@@ -416,17 +432,18 @@ def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:
             )
         seen[seg.label] = i
     procedure = manifest.run.procedure
-    # With [run.settings.segmentation] the listed segments are continuous
-    # recordings that automatic segmentation cuts and labels (any label).
-    labelled = procedure.startswith("six_position") or procedure == "integral"
-    if labelled and "segmentation" not in manifest.run.settings:
+    proc = procedures.BY_NAME.get(procedure)
+    # The procedure's own labels (none: any label); with [run.settings.segmentation] the
+    # listed segments are continuous recordings that automatic segmentation cuts and labels.
+    labels = () if proc is None else proc.labels
+    if labels and "segmentation" not in manifest.run.settings:
         for i, seg in enumerate(segments):
-            if not seg.verification and seg.label not in SIX_POSITION_LABELS:
-                near = difflib.get_close_matches(seg.label, SIX_POSITION_LABELS, n=1)
+            if not seg.verification and seg.label not in labels:
+                near = difflib.get_close_matches(seg.label, labels, n=1)
                 hint = f" (did you mean '{near[0]}'?)" if near else ""
                 raise IngestError(
                     f"{seg.label!r} is not a segment label of procedure '{procedure}'{hint}; "
-                    f"expected one of: {', '.join(SIX_POSITION_LABELS)} (or verification = true)",
+                    f"expected one of: {', '.join(labels)} (or verification = true)",
                     file=source,
                     field=f"segments[{i}].label",
                 )

@@ -237,7 +237,7 @@ def _environment_section(run: _Archived) -> Section:
 
 
 _RESULT_WORD = {"pass": "pass", "fail": "FAIL", conditions.WARNING: "WARNING",
-                conditions.NOT_RECORDED: "not recorded"}  # fmt: skip
+                conditions.NOT_RECORDED: "not recorded", conditions.INFO: "info"}  # fmt: skip
 
 
 def _conditions_section(run: _Archived) -> Section:

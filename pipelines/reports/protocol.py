@@ -30,7 +30,7 @@ def _fmt(value: float | None, width: int = 12, signed: bool = True) -> str:
 
 # The result column of a condition line: the manual's + and -, or what else it is.
 RESULT_MARK = {"pass": "+", "fail": "-", conditions.WARNING: "warning",
-               conditions.NOT_RECORDED: "not recorded"}  # fmt: skip
+               conditions.NOT_RECORDED: "not recorded", conditions.INFO: "info"}  # fmt: skip
 
 
 def condition_lines(checks: Iterable[Mapping[str, Any]]) -> list[str]:

@@ -98,7 +98,7 @@ def check_result(check: Mapping[str, Any]) -> str:
     parameter's conditional pass, "warning" or "not recorded" for a lab condition
     (calib_core.conditions), else "fail"."""
     state = conditions.status(check)
-    if state in (conditions.WARNING, conditions.NOT_RECORDED):
+    if state in (conditions.WARNING, conditions.NOT_RECORDED, conditions.INFO):
         return state
     one = SimpleNamespace(name=check["name"], passed=check["passed"],
                           detail=check.get("detail") or "")  # fmt: skip

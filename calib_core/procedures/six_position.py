@@ -1,8 +1,11 @@
-"""Calibration procedures: from labelled segments to a Calibration.
+"""The six-position family of procedures: from labelled segments to a Calibration.
 
 A procedure takes the segments of one lab run (Recordings keyed by label), the
 local gravity and its settings, and returns a Calibration with every parameter's
-standard uncertainty, residuals per segment and solver facts in `info`.
+standard uncertainty, residuals per segment and solver facts in `info`. This module
+holds the solvers of the three procedures that share the statics' and the integral
+method's code, and the `six_position` procedure object; `six_position_integral` and
+`integral` have their objects in their own modules.
 
 Procedures
 ----------
@@ -20,42 +23,33 @@ Settings
 --------
 turns : int or None (infer from the data), integral method only.
 gyro_range_dps : gyro full scale, deg/s (default 2000).
-accel_solver : "least_squares" (default), "closed_form" (docs/methods.md 2.1) or
+accel_solver : "least_squares" (default), "closed_form" (methods.md 2.1) or
     "kalman" (sequential filter over every sample, calib_core.solvers.kalman;
     agrees with least squares within its uncertainty).
 accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
-    rate-table model of docs/methods.md 1: bias and scale per axis, no cross-coupling).
+    rate-table model of methods.md 1: bias and scale per axis, no cross-coupling).
 rotation_directions : "both" (default; ccw and cw about each axis) or "any"
     (one rotation per axis suffices, Ferraris et al.; e.g. imucal sessions).
-
-multi_position, equipment_free, sensor_array, rate_table, static_bias, centrifuge: see
-their solver modules and docs/procedures.md for segment labels and settings.
+Each as a typed `Setting` below (docs/procedures.md).
 """
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from calib_core import params
-from calib_core.calibration import Calibration, StepRecord
-from calib_core.checks import check_physical_bounds
+from calib_core.calibration import Calibration
+from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Setting, Settings
 from calib_core.recording import Recording
-from calib_core.solvers.centrifuge_segments import solve_centrifuge_segments
-from calib_core.solvers.equipment_free import solve_equipment_free
 from calib_core.solvers.integral import ROTATION_LABELS, rotation_static_means, solve_integral
 from calib_core.solvers.kalman import kalman_accel_linear
 from calib_core.solvers.multi_position import (
     segment_residual,
     solve_accel_linear,
     solve_gyro_static,
-    solve_multi_position,
 )
-from calib_core.solvers.rate_table import rate_points, solve_rate_table
-from calib_core.solvers.sensor_array import solve_sensor_array
 from calib_core.solvers.six_position import (
     STATIC_LABELS,
     accel_closed_form,
@@ -63,52 +57,35 @@ from calib_core.solvers.six_position import (
     axis_vector,
     face_bias_checks,
 )
-from calib_core.solvers.static_bias import solve_static_bias
 from calib_core.stats import ChannelStats, channel_stats, largest_std
+from calib_core.uncertainty_sources import static_model
 from calib_core.units import DEG
 
-DEFAULT_SETTINGS: dict[str, Any] = {
-    "turns": None,
-    "gyro_range_dps": 2000.0,
-    "accel_solver": "least_squares",
-    "accel_model": "linear",
-    "rotation_directions": "both",
-}
 ACCEL_SOLVERS = ("least_squares", "closed_form", "kalman")
 ACCEL_MODELS = ("linear", "per_axis")
-
-
-def _settings(settings: dict[str, Any] | None) -> dict[str, Any]:
-    """The solver's settings with defaults filled in, validated.
-
-    Other keys (preprocessing settings of the same run) are ignored.
-    """
-    given = dict(settings or {})
-    merged = {**DEFAULT_SETTINGS, **{k: v for k, v in given.items() if k in DEFAULT_SETTINGS}}
-    if merged["accel_solver"] not in ACCEL_SOLVERS:
-        raise ValueError(
-            f"settings.accel_solver: {merged['accel_solver']!r}; "
-            f"expected one of {list(ACCEL_SOLVERS)}"
-        )
-    if merged["accel_model"] not in ACCEL_MODELS:
-        raise ValueError(
-            f"settings.accel_model: {merged['accel_model']!r}; expected one of {list(ACCEL_MODELS)}"
-        )
-    if merged["rotation_directions"] not in ("both", "any"):
-        raise ValueError(
-            f"settings.rotation_directions: {merged['rotation_directions']!r}; "
-            "expected 'both' (ccw and cw about each axis) or 'any' (one suffices)"
-        )
-    rng = merged["gyro_range_dps"]
-    if not isinstance(rng, int | float) or isinstance(rng, bool) or rng <= 0:
-        raise ValueError(
-            f"settings.gyro_range_dps: expected a positive number (deg/s), got {rng!r}"
-        )
-    turns = merged["turns"]
-    if turns is not None and (isinstance(turns, bool) or not isinstance(turns, int) or turns < 1):
-        raise ValueError(f"settings.turns: expected a positive whole number or none, got {turns!r}")
-    return merged
-
+ACCEL_SOLVER = Setting(
+    "accel_solver", "text", "", "least_squares",
+    "accelerometer fit: least squares, the closed form of methods.md 2.1, or the sequential "
+    "filter over every sample (calib_core.solvers.kalman)", choices=ACCEL_SOLVERS)  # fmt: skip
+ACCEL_MODEL = Setting(
+    "accel_model", "text", "", "linear",
+    "accelerometer model: 12 parameters, or bias and scale per axis (no cross-coupling)",
+    choices=ACCEL_MODELS)  # fmt: skip
+GYRO_RANGE_DPS = Setting(
+    "gyro_range_dps", "number", "deg/s", 2000.0,
+    "gyro full scale: the integral method's saturation check; readings at it are refused",
+    low=0.0, low_open=True)  # fmt: skip
+TURNS = Setting(
+    "turns", "integer", "1", None,
+    "whole turns of each rotation (absent: inferred from the data)", low=1)  # fmt: skip
+ROTATION_DIRECTIONS = Setting(
+    "rotation_directions", "text", "", "both",
+    "rotations per axis: ccw and cw (both), or one suffices (any; Ferraris et al.)",
+    choices=("both", "any"))  # fmt: skip
+# The settings the statics' solver reads (`_solve_statics`), with the integral method's.
+STATICS_SETTINGS = Settings(ACCEL_SOLVER, ACCEL_MODEL)
+INTEGRAL_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS)
+INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS)
 
 def _require(segments: dict[str, Recording], labels: tuple[str, ...], procedure: str) -> None:
     missing = [label for label in labels if label not in segments]
@@ -239,10 +216,13 @@ def solve_six_position(
     gravity : local gravity, m/s^2.
     settings : see the module docstring.
     """
-    merged = _settings(settings)
+    merged = STATICS_SETTINGS.merged(settings)
     _require(segments, STATIC_LABELS, "six_position")
     cal, _ = _solve_statics(segments, gravity, merged, "six_position")
     return cal
+
+
+
 
 
 def solve_six_position_integral(
@@ -257,7 +237,7 @@ def solve_six_position_integral(
     gravity : local gravity, m/s^2.
     settings : see the module docstring.
     """
-    merged = _settings(settings)
+    merged = INTEGRAL_SETTINGS.merged(settings)
     both = merged["rotation_directions"] == "both"
     _require(segments, STATIC_LABELS + (ROTATION_LABELS if both else ()), "six_position_integral")
     cal, gyr = _solve_statics(segments, gravity, merged, "six_position_integral")
@@ -296,7 +276,7 @@ def solve_integral_procedure(
 
     settings : turns, gyro_range_dps (see the module docstring).
     """
-    merged = _settings(settings)
+    merged = INTEGRAL_ONLY_SETTINGS.merged(settings)
     _require(segments, ROTATION_LABELS, "integral")
     rotations = {label: segments[label] for label in ROTATION_LABELS}
     means, sems = rotation_static_means(rotations)
@@ -308,160 +288,19 @@ def solve_integral_procedure(
     return cal
 
 
-def solve_rate_table_procedure(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
-) -> Calibration:
-    """Rate-table gyro calibration: one segment per rate plateau, labelled "<axis>_<rate>"
-    (e.g. "z_+100") with the table feedback in reference["table_rate"] (rad/s).
-
-    settings : settle_s (default 20 s), record_s (default: to the end), full_scale_dps;
-        gyro_bias "joint" (default, fitted with the scale factors) or "static" (fixed
-        from the static run: the 0-rate points, or static_bias_dps [x, y, z] with
-        static_bias_std_dps [x, y, z] of a separate static-bias run).
-    """
-    s = dict(settings or {})
-    kwargs = {k: float(s[k]) for k in ("settle_s", "record_s") if s.get(k) is not None}
-    points = rate_points(list(segments.values()), **kwargs)
-    full = s.get("full_scale_dps")
-    given = None
-    if s.get("static_bias_dps") is not None:
-        std = s.get("static_bias_std_dps", [0.0, 0.0, 0.0])
-        given = (np.asarray(s["static_bias_dps"], float) * DEG, np.asarray(std, float) * DEG)
-    cal = solve_rate_table(
-        points,
-        full_scale=None if full is None else float(full) * DEG,
-        gyro_bias=str(s.get("gyro_bias", "joint")),
-        static_bias=given,
-    )
-    cal.gravity = gravity
-    return cal
-
-
-def solve_static_bias_procedure(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
-) -> Calibration:
-    """Static bias and noise of one long static segment (any label).
-
-    settings : up_axis ("+z", ...), latitude_deg, heading_deg, remove_earth_rate,
-    n_sigma (see calib_core.solvers.static_bias.solve_static_bias).
-    """
-    if len(segments) != 1:
-        raise ValueError(
-            f"static_bias: expected one static segment, got {len(segments)} ({', '.join(segments)})"
-        )
-    s = dict(settings or {})
-    keys = ("up_axis", "latitude_deg", "heading_deg", "remove_earth_rate", "n_sigma")
-    return solve_static_bias(
-        next(iter(segments.values())),
-        gravity=gravity,
-        **{k: s[k] for k in keys if s.get(k) is not None},
-    )
-
-
-PROCEDURES: dict[str, Callable[[dict[str, Recording], float, dict[str, Any]], Calibration]] = {
-    "six_position": solve_six_position,
-    "centrifuge": solve_centrifuge_segments,
-    "six_position_integral": solve_six_position_integral,
-    "integral": solve_integral_procedure,
-    "multi_position": solve_multi_position,
-    "equipment_free": solve_equipment_free,
-    "sensor_array": solve_sensor_array,
-    "rate_table": solve_rate_table_procedure,
-    "static_bias": solve_static_bias_procedure,
-}
-
-
-def solve(
-    procedure: str, segments: dict[str, Recording], gravity: float, settings: dict[str, Any]
-) -> Calibration:
-    """Run the named procedure on labelled segments.
-
-    Parameters
-    ----------
-    procedure : a key of PROCEDURES.
-    segments : label -> Recording (SI units).
-    gravity : local gravity, m/s^2.
-    settings : procedure settings (see the module docstring).
-
-    Returns
-    -------
-    Calibration with every parameter's standard uncertainty, residuals per
-    segment and solver facts (`info`).
-
-    Raises
-    ------
-    ValueError for an unknown procedure, a gravity outside 9.7..9.9 m/s^2,
-    missing segments, or a parameter beyond physical bounds (with what to check).
-    """
-    try:
-        fn = PROCEDURES[procedure]
-    except KeyError:
-        raise ValueError(
-            f"unknown procedure {procedure!r}; expected one of {sorted(PROCEDURES)}"
-        ) from None
-    if not (9.7 < gravity < 9.9):
-        raise ValueError(f"gravity must be the local value in m/s^2 (9.7..9.9), got {gravity!r}")
-    cal = fn(segments, gravity, settings)
-    check_physical_bounds(cal, _BOUNDS_HINT.get(procedure, _BOUNDS_HINT[None]))
-    return cal
-
-
-# What to check when a scale factor or misalignment is beyond physical bounds.
-_BOUNDS_HINT = {
-    "multi_position": (
-        "check the table's attitude convention (settings.attitude_convention: 'project' "
-        "a_x = -g sin(pitch), 'rate_table_procedure' a_x = +g sin(pitch)), settings.table_axes "
-        "and settings.mount"
-    ),
-    None: (
-        "check the segment labels (which axis was up, the rotation sense), the units and "
-        "the axis order of the columns"
-    ),
-}
-
-
-def solve_step(
-    segments: dict[str, Recording],
-    settings: dict[str, Any],
-    held_out: frozenset[str] | set[str] = frozenset(),
-) -> tuple[Calibration, StepRecord]:
-    """The solve step of a run: the one StepRecord a solve leaves in the archive.
-
-    Parameters
-    ----------
-    segments : label -> Recording, after preprocessing.
-    settings : {"procedure", "gravity" (m/s^2), ...} plus the run's settings; the
-        procedure's own keys (module docstring) are taken, preprocessing tables ignored.
-    held_out : labels of verification segments: kept out of the fit, checked after.
-
-    Returns the Calibration and the StepRecord "solve" (settings used, wall time,
-    sample counts, condition number, warnings, held-out labels).
-    """
-    procedure = settings.get("procedure")
-    if procedure is None or "gravity" not in settings:
-        raise ValueError("solve step: settings need 'procedure' and 'gravity'")
-    gravity = float(settings["gravity"])
-    proc_settings = {k: v for k, v in settings.items() if k not in ("procedure", "gravity")}
-    fit = {k: v for k, v in segments.items() if k not in held_out}
-    started = time.perf_counter()
-    cal = solve(procedure, fit, gravity, proc_settings)
-    scalars = {k: v for k, v in cal.info.items() if isinstance(v, int | float | str)}
-    record = StepRecord(
-        name="solve",
-        # The run's settings as given, the solver's defaults filled in.
-        settings={"procedure": procedure, "gravity": gravity, **proc_settings,
-                  **_settings(proc_settings)},  # fmt: skip
-        statistics={
-            **scalars,
-            "seconds": round(time.perf_counter() - started, 4),
-            "parameters": len(cal.parameters),
-            "segments": len(fit),
-            "sample_counts": cal.info.get("sample_counts", {}),
-            "condition_number": cal.info.get("condition_number"),
-            "turns": cal.info.get("turns"),
-            "replaced_samples": cal.info.get("replaced_samples", {}),
-            "held_out": sorted(held_out),
-            "warnings": list(cal.warnings),
-        },
-    )
-    return cal, record
+SIX_POSITION = Procedure(
+    name="six_position",
+    summary="six statics: accelerometer bias, scale and misalignment (12), gyro bias and "
+    "g-sensitivity (12), noise",
+    segments="six statics x_up, x_dn, y_up, y_dn, z_up, z_dn (the named axis reads +g / -g), "
+    "listed by hand or cut by [run.settings.segmentation] (labels = \"faces\")",
+    solver=solve_six_position,
+    settings=STATICS_SETTINGS,
+    conditions=ENVIRONMENT + ATTITUDES,
+    reference="methods.md 2.1; MPU-6000 manual stage 1",
+    labels=STATIC_LABELS + ROTATION_LABELS,
+    required=STATIC_LABELS,
+    uncertainty=static_model,
+    model_checks="each face's bias from its up/down pair against the fit (face_bias); "
+    "chi2 of the accelerometer and gyro fits; residuals per static",
+)

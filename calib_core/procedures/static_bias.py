@@ -1,0 +1,71 @@
+"""The static-bias procedure: one long static record -> gyro bias and noise (Allan deviation),
+accelerometer bias when the up axis is given (methods.md 5).
+
+Settings: `STATIC_BIAS.settings` (docs/procedures.md).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from calib_core.calibration import Calibration
+from calib_core.condition_rules import ConditionUse
+from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, METHODS, Procedure, Setting, Settings
+from calib_core.recording import Recording
+from calib_core.solvers.static_bias import solve_static_bias
+
+UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
+SETTINGS = Settings(
+    Setting("up_axis", "text", "", None,
+            "body axis pointing up; given, acc.bias.* is the mean minus gravity along it",
+            choices=UP_AXES),
+    Setting("latitude_deg", "number", "deg", None,
+            "site latitude (the Earth rate's projection)", low=-90.0, high=90.0),
+    Setting("heading_deg", "number", "deg", None,
+            "fixture heading from north (the Earth rate's projection)", low=-360.0,
+            high=360.0),
+    Setting("remove_earth_rate", "bool", "", False,
+            "subtract the Earth rate from the gyro means (FOG/RLG grade; level z-up fixture)"),
+    Setting("n_sigma", "number", "1", 3.0,
+            "outlier rule: samples beyond n_sigma std are left out of mean and std", low=0.0,
+            low_open=True),
+)  # fmt: skip
+
+
+def solve_static_bias_procedure(
+    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+) -> Calibration:
+    """Static bias and noise of one long static segment (any label).
+
+    settings : `STATIC_BIAS.settings` (see calib_core.solvers.static_bias.solve_static_bias).
+    """
+    if len(segments) != 1:
+        raise ValueError(
+            f"static_bias: expected one static segment, got {len(segments)} ({', '.join(segments)})"
+        )
+    s = SETTINGS.merged(settings)
+    return solve_static_bias(
+        next(iter(segments.values())),
+        gravity=gravity,
+        **{k: v for k, v in s.items() if v is not None},
+    )
+
+
+STATIC_BIAS = Procedure(
+    name="static_bias",
+    summary="one long static record: gyro bias and noise (Allan deviation), accelerometer "
+    "bias when the up axis is known",
+    segments="one static segment (any label), >= 60 min at >= 100 Hz",
+    solver=solve_static_bias_procedure,
+    settings=SETTINGS,
+    conditions=ENVIRONMENT + ATTITUDES + (
+        ConditionUse("static_record_min", "length of the static record", f"{METHODS} 5"),
+        ConditionUse("static_temperature_spread_c",
+                     "chamber (ambient) temperature over the record: reference channel "
+                     "chamber_temperature or ambient_temperature; without one, the sensor's "
+                     "own temperature", "rate-table procedure, 60-min static bias run"),
+    ),  # fmt: skip
+    reference="methods.md 5; IEEE Std 952 (Allan variance)",
+    model_checks="record length (a warning under 60 min); outliers beyond n_sigma; Allan "
+    "deviation fits (angle random walk, bias instability, rate random walk)",
+)
