@@ -57,9 +57,16 @@ def _alive(pid: int) -> bool:
     return True
 
 
+# Where a server's pid file lies under a watched folder: `private_server` makes its folder
+# (calib-pg-*) in the temporary folder, which is the watched folder itself (a server) or
+# its parent (a test run's session folder). Not a walk of the whole tree: a test session's
+# folder holds thousands of files.
+PID_FILES = ("data/postmaster.pid", "calib-pg-*/data/postmaster.pid")
+
+
 def stop_servers(folder: Path) -> None:
     """Immediate shutdown (SIGQUIT, then SIGKILL) of every PostgreSQL server of `folder`."""
-    for pidfile in folder.glob("**/postmaster.pid"):
+    for pidfile in (p for pattern in PID_FILES for p in folder.glob(pattern)):
         try:
             pid = int(pidfile.read_text().split()[0])
         except (OSError, ValueError, IndexError):

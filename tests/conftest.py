@@ -9,10 +9,12 @@ Also the two test tiers and the session's cleanup:
   ``e2e`` here, so a new test lands in its tier by what it uses; ``slow`` and ``browser``
   are set in the modules (``pytestmark``) or on the tests.
 - cleanup: every temporary folder of the session (pytest's ``tmp_path``, ``tempfile``,
-  the PostgreSQL data directory, Prefect's) lies in one session folder, removed at the
-  end; SIGTERM and SIGHUP end the run like Ctrl-C (fixtures torn down), and a watchdog
-  process (calib_testing.watchdog) stops the server and removes the folder if the run is
-  killed outright. ``--basetemp DIR`` keeps pytest's folders in DIR instead.
+  the PostgreSQL data directory, Prefect's, multiprocessing's) lies in one session
+  folder. SIGTERM and SIGHUP end the run like Ctrl-C (fixtures torn down: the server
+  stops). A watchdog process (calib_testing.watchdog) removes the folder once the run's
+  process has ended, whatever ended it (after its own exit handlers, which may still use
+  the folder), and stops a server left running in it (a run killed outright).
+  ``--basetemp DIR`` keeps pytest's folders in DIR instead.
 """
 
 from __future__ import annotations
@@ -20,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import subprocess
 import tempfile
 import uuid
 from collections.abc import Iterator
@@ -32,7 +33,7 @@ os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
 from calib_testing.pgserver import ServerUnavailableError, private_server  # noqa: E402
-from calib_testing.watchdog import clean, clean_up_after, release  # noqa: E402
+from calib_testing.watchdog import clean_up_after  # noqa: E402
 from storage.db import Archive, default_archive_url  # noqa: E402
 from storage.schema import TABLES  # noqa: E402
 
@@ -71,14 +72,6 @@ def pytest_configure(config: pytest.Config) -> None:
     for signum in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(signum, _end_like_ctrl_c)
 
-
-def pytest_unconfigure(config: pytest.Config) -> None:
-    folder = _session.get("folder")
-    if isinstance(folder, Path):
-        clean(folder)  # a server a test started and left running is stopped too
-    watchdog = _session.get("watchdog")
-    if isinstance(watchdog, subprocess.Popen):
-        release(watchdog)
 
 # --- PostgreSQL ---------------------------------------------------------------
 

@@ -118,6 +118,7 @@ def test_audit_lists_by_serial_and_since(
     assert res.exit_code == 2 and "since" in res.output
 
 
+@pytest.mark.slow
 def test_the_certificate_shows_the_approval(tmp_path: Path, key: Path) -> None:
     """A real run (the MPU-6000 sample through the pipeline): its certificate says
     NOT APPROVED, then who approved it and when, then that the approval no longer holds."""

@@ -33,6 +33,8 @@ from pipelines.runners import check_runner, make_task_runner
 from storage import schema
 from storage.db import resolve_archive
 
+pytestmark = pytest.mark.e2e
+
 ROOT = Path(__file__).resolve().parents[1]
 SUBPROCESS_TIMEOUT_S = 240  # two spawned batches on a shared 2-core machine
 

@@ -27,6 +27,8 @@ from test_ingest_formats_e2e import manifest
 
 from calib_core.simulate import random_errors, six_position_integral_run
 
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+
 ROOT = Path(__file__).resolve().parents[1]
 # Zeroing these 8 bytes of the first variable's real part makes the data element's type
 # code 0, which scipy 1.17's reader dereferences as a null dtype (signal 11).

@@ -158,6 +158,7 @@ def test_whole_revolution_average_removes_tilt():
     assert mean.revolutions >= 1
 
 
+@pytest.mark.slow
 def test_reduction_keeps_exactly_the_true_terms_in_9_of_10_seeds():
     """The centrifuge acceptance, with the per-step scale instability (2e-4) the
     estimator must weight out.

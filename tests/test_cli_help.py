@@ -76,6 +76,7 @@ def test_version() -> None:
     assert done.exit_code == 0 and done.output == f"calib {__version__}\n"
 
 
+@pytest.mark.slow
 def test_shell_completion_of_commands(monkeypatch: pytest.MonkeyPatch) -> None:
     # The shell named on the command line, not the one that started the tests (Typer
     # otherwise asks shellingham, and a run started from `sh` gets "Shell sh not supported").
@@ -104,6 +105,7 @@ def test_quiet_logs_defaults_and_verbose(monkeypatch: pytest.MonkeyPatch) -> Non
     assert os.environ["PREFECT_LOGGING_LEVEL"] == "INFO"
 
 
+@pytest.mark.e2e
 def test_a_prefect_batch_prints_no_logs_or_tracebacks(tmp_path: Path) -> None:
     """A real flow run on Prefect's temporary server: stderr stays empty (no INFO lines of
     the flow, its tasks or the server, no traceback at the end)."""
@@ -120,6 +122,7 @@ def test_a_prefect_batch_prints_no_logs_or_tracebacks(tmp_path: Path) -> None:
     assert done.stderr == "", done.stderr
 
 
+@pytest.mark.e2e
 def test_ctrl_c_after_a_finished_batch_ends_without_a_traceback() -> None:
     """After the batch (the table printed, Prefect stopping its temporary server), Ctrl-C
     ends calib with 130 and nothing on stderr (a KeyboardInterrupt traceback before)."""

@@ -129,6 +129,7 @@ def _commands(demo: dict) -> list[list[str]]:
     ]
 
 
+@pytest.mark.slow
 def test_every_subcommand_keeps_run_ids_and_paths_whole(
     demo: dict, monkeypatch: pytest.MonkeyPatch
 ) -> None:

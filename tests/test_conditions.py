@@ -201,6 +201,7 @@ def test_profile_sets_the_limits_and_refuses_unknown_ones():
     assert shipped["conditions"]["sample_rate_hz"] == {"low": 45.0}  # the program's ~50 Hz
 
 
+@pytest.mark.slow
 def test_demo_certificates_show_the_conditions(tmp_path):
     """`make demo`: the sample runs' certificates and protocols carry the conditions (the
     CSV run records them, the MPU-6000 folder does not)."""

@@ -33,6 +33,8 @@ from storage.db import Archive
 from storage.schema import Base
 from storage.verify import verify
 
+pytestmark = pytest.mark.slow
+
 TESTS = Path(__file__).parent
 CHILD = textwrap.dedent(
     """

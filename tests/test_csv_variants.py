@@ -174,6 +174,7 @@ def plain(sim, tmp_path_factory: pytest.TempPathFactory) -> dict:
     return process(folder, folder.parent / "archive")
 
 
+@pytest.mark.slow  # a whole run processed per variant
 @pytest.mark.parametrize("name", sorted(set(VARIANTS) - {"plain"}))
 def test_variant_processes_to_plain_parameters(tmp_path: Path, name: str, sim, plain) -> None:
     folder = tmp_path / "run"

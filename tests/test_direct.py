@@ -39,6 +39,7 @@ def test_in_process_and_flow_give_the_same_outcomes_and_archive(
     )
 
 
+@pytest.mark.e2e
 def test_calib_process_of_one_run_never_imports_prefect(tmp_path: Path) -> None:
     run = str(ROOT / "data_samples" / "mpu6000_MPU0001")
     code = (

@@ -142,6 +142,7 @@ def written_archive(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, lis
     return root, outs
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("keep_log", [True, False], ids=["mode-ro", "immutable"])
 def test_read_only_archive(written_archive, tmp_path: Path, keep_log: bool) -> None:
     src, outs = written_archive
@@ -172,6 +173,7 @@ def test_read_only_archive(written_archive, tmp_path: Path, keep_log: bool) -> N
         assert sorted(p.relative_to(ro).as_posix() for p in ro.rglob("*")) == before
 
 
+@pytest.mark.slow
 def test_repair_orphans_removes_only_dead_writers_files(written_archive, tmp_path: Path) -> None:
     src, _ = written_archive
     root = tmp_path / "archive"

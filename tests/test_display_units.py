@@ -22,6 +22,8 @@ from pipelines.reports.display import DISPLAY_UNITS, display
 from storage import queries
 from storage.db import Archive, resolve_archive
 
+pytestmark = pytest.mark.slow
+
 # Every family the name grammar of calib_core.params admits, spelled out: a family
 # added to the grammar without a unit, or a unit without a display, fails here.
 EVERY_FAMILY = {

@@ -165,6 +165,7 @@ def fleet_archive(tmp_path_factory):
     return arch, truth
 
 
+@pytest.mark.slow
 def test_trend_command_on_the_archive(fleet_archive, tmp_path):
     from pipelines.cli import app
     from pipelines.trends import trend_report

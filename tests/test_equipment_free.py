@@ -61,6 +61,7 @@ def test_rotation_integration_is_exact_for_non_commuting_turns():
 FAMILIES = ("acc.bias", "acc.scale", "acc.misalign", "gyr.bias", "gyr.scale", "gyr.misalign")
 
 
+@pytest.mark.slow
 def test_simulated_truth_within_uncertainty_over_seeds():
     """12 simulated hand-held sessions (30 poses, 100 Hz): every estimate within 4
     reported standard uncertainties; per parameter family the scatter of the errors
@@ -91,6 +92,7 @@ def test_simulated_truth_within_uncertainty_over_seeds():
         assert 0.5 < scatter / reported < 2.0, (family, scatter, reported)
 
 
+@pytest.mark.slow
 def test_residual_check_and_robust_loss():
     """A pose held with a steady 0.3 m/s^2 push (0.3 m/s^2 >> sem ~ 1e-3) is down-weighted
     by the Huber loss and named in a warning; the Foundation's residual check passes on

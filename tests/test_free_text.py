@@ -84,6 +84,7 @@ def archived_check(archive, run_id: str) -> dict:  # noqa: ANN001
     return {c["name"]: c for c in checks}["device:description"]
 
 
+@pytest.mark.slow
 def test_model_change_for_a_serial_is_flagged(archive, tmp_path: Path) -> None:
     (first,) = discover_runs([CSV_RUN])
     out = process_run(first, archive)

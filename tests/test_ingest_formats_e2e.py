@@ -100,6 +100,7 @@ def write_mcap_run(folder: Path, segments) -> None:
 WRITERS = {"mat73": write_mat_run, "mcap": write_mcap_run}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("kind", "seed"), [("mat73", 21), ("mcap", 22)])
 def test_run_in_format_is_processed_to_truth(tmp_path: Path, kind: str, seed: int) -> None:
     rng = np.random.default_rng(seed)

@@ -31,6 +31,8 @@ from pipelines.ingest.errors import IngestError
 from pipelines.ingest.matlab import read_mat
 from pipelines.ingest.mcap_reader import read_mcap
 
+pytestmark = pytest.mark.slow
+
 FUZZ = settings(
     max_examples=500,  # at least 500 mutated inputs per reader
     deadline=None,

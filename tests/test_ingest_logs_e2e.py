@@ -69,6 +69,7 @@ def sim():
     return six_position_integral_run(random_errors(rng), rng, static_s=10.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("route", ROUTES)
 def test_route_reads_the_simulated_samples(tmp_path: Path, route: str, sim) -> None:
     write_run(tmp_path / route, route, sim.segments)

@@ -24,6 +24,8 @@ import pyarrow as pa
 import pyarrow.csv
 import pytest
 
+pytestmark = pytest.mark.slow
+
 ROWS = 800_000
 DECODED_BYTES = ROWS * 7 * 8
 

@@ -52,6 +52,7 @@ def _solve_layout(layout: str, seed: int, folder: Path) -> tuple[dict, dict]:
     return {n: (p.value, p.std) for n, p in cal.parameters.items()}, truth
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("layout", ["mpu6000", "csv"])
 def test_parameters_within_their_uncertainty_over_seeds(layout, tmp_path):
     errors: dict[str, list[float]] = {}

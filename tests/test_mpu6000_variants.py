@@ -141,6 +141,7 @@ def write_variant(folder: Path, name: str) -> None:
         os.utime(dst, ns=(stat.st_atime_ns, stat.st_mtime_ns))
 
 
+@pytest.mark.slow  # a whole run processed per variant
 @pytest.mark.parametrize("name", sorted(VARIANTS))
 def test_variant_processes_to_plain_parameters(
     tmp_path: Path, name: str, plain_parameters: dict

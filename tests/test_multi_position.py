@@ -118,6 +118,7 @@ def test_nonlinear_model_truth_and_uncertainty_over_seeds(n_positions):
     assert np.all((ratio > 0.5) & (ratio < 2.0)), dict(zip(names, np.round(ratio, 2), strict=True))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["full", "reduced", "nonlinear"])
 def test_linear_models_reach_the_cramer_rao_bound(model):
     """White noise: the scatter of the estimates is the CRLB sigma^2 / n (A^T A)^-1.

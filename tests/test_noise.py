@@ -103,6 +103,7 @@ def mix_results():
     return out
 
 
+@pytest.mark.slow
 def test_noise_parameters_model_within_10_percent(mix_results):
     for res in mix_results:
         p = noise_parameters(res)  # default: jointly fitted lines

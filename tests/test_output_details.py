@@ -9,6 +9,7 @@ import stat
 from datetime import UTC, datetime
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from pipelines.cli import app
@@ -32,6 +33,7 @@ def test_protocol_values_are_signed_and_uncertainties_are_not() -> None:
     assert "+0.0000" not in text
 
 
+@pytest.mark.slow
 def test_every_written_file_has_one_mode(tmp_path: Path) -> None:
     """Process a sample (in this process), write its reports and an export: every file
     has FILE_MODE, the mode open() gives under the umask (mkstemp alone gives 0600)."""

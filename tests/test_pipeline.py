@@ -143,6 +143,7 @@ def _serials(arch) -> list[str]:
         return list(conn.execute(select(schema.Device.serial)).scalars())
 
 
+@pytest.mark.e2e
 def test_cli_process_json_contract(lab_day, tmp_path):
     """`calib process --json`: one JSON document on stdout, exit 1 when a run failed."""
     env = {**os.environ, "CALIB_ARCHIVE": str(tmp_path / "cli-archive")}

@@ -41,6 +41,7 @@ def _solve(segments, outliers: str):
     return procedures.solve("six_position_integral", cleaned, STANDARD_GRAVITY, {}), steps
 
 
+@pytest.mark.slow
 def test_outlier_removal_keeps_the_spike_free_parameter_error():
     """Parameter error = RMS over parameters and seeds of (estimate - truth) / u, where u
     is the standard uncertainty the spike-free run of the same unit reports. One

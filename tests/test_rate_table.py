@@ -73,6 +73,7 @@ def test_truth_within_4u():
         )
 
 
+@pytest.mark.slow
 def test_scatter_matches_reported_uncertainty_and_crlb():
     """200 seeds: observed std of each parameter error against the mean reported u and
     the Cramer-Rao bound. The std of 200 draws is known to ~5 %, so a 1.2x bound is
@@ -210,6 +211,7 @@ def test_bad_input_messages():
 # --- bias fixed from the static run ------------------------------------------------
 
 
+@pytest.mark.slow
 def test_fixed_bias_reproduces_truth_within_its_reported_uncertainty():
     """100 seeds at the procedure's rate points (-100 .. 100 deg/s, 10 s at 100 Hz):
     with gyro_bias = "static" the bias is the mean of the three 0-rate points. Each

@@ -30,6 +30,8 @@ from pipelines.ingest.errors import IngestError
 from pipelines.ingest.matlab import read_mat
 from pipelines.ingest.mcap_reader import read_mcap
 
+pytestmark = pytest.mark.slow
+
 CASES = 500
 ROOT = Path(__file__).resolve().parents[1]
 VARIABLES = {"t": "imu.t", "acc": "imu.acc", "gyr": "imu.gyr"}

@@ -45,6 +45,8 @@ from pipelines.ingest.mpu6000 import read_mpu6000_file
 from pipelines.ingest.rosbag_reader import read_rosbag
 from pipelines.ingest.ulog_reader import read_ulog
 
+pytestmark = pytest.mark.slow
+
 EXAMPLES = 500
 FUZZ = settings(
     max_examples=EXAMPLES,

@@ -162,6 +162,7 @@ def _check_pdf(path: Path, tmp: Path, expected: list[str]) -> list[Path]:
     return pages
 
 
+@pytest.mark.slow
 def test_clean_run_passes_all_and_report_is_complete(arch, tmp_path):
     rng = np.random.default_rng(21)
     folder = _write_run(tmp_path / "clean", quiet_truth(rng), rng, _manifest("SIM-R-1", 20))
@@ -196,6 +197,7 @@ def test_clean_run_passes_all_and_report_is_complete(arch, tmp_path):
                                              "Accuracy verification", "PASS"])  # fmt: skip
 
 
+@pytest.mark.slow
 def test_missing_cross_coupling_fails_and_report_names_it(arch, tmp_path):
     rng = np.random.default_rng(22)
     truth = quiet_truth(rng)
@@ -229,6 +231,7 @@ def test_verification_point_with_002_g_error_fails(arch, tmp_path):
     assert [n for n, c in by_name.items() if c["status"] == "fail"] == ["verify:tilt_30:acc"]
 
 
+@pytest.mark.slow
 def test_three_runs_with_2_percent_scale_change_fail_repeatability(arch, tmp_path):
     rng = np.random.default_rng(24)
     truth = quiet_truth(rng)
@@ -269,8 +272,9 @@ def test_three_runs_with_2_percent_scale_change_fail_repeatability(arch, tmp_pat
     assert [c["name"] for c in doc["checks"] if not c["passed"]] == ["repeat:acc.scale.x"]
 
 
+@pytest.mark.slow
 def test_calib_report_on_data_samples_csv_run(arch, tmp_path):
-    """`calib report` on the CSV sample run; page 1 is kept at /tmp/report_page1.png."""
+    """`calib report` on the CSV sample run; its PDF pages rendered in the test's folder."""
     outcome = _process(DATA_SAMPLES / "csv_IMU-2026-0042", arch)
     written = _report(arch, outcome["run_id"], tmp_path / "out")
     assert set(written) >= {"protocol", "html", "pdf"}

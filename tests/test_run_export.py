@@ -270,6 +270,7 @@ def _invoke(*args: str):
     return CliRunner().invoke(app, ["export", *args])
 
 
+@pytest.mark.slow
 def test_cli_exports_with_the_thermal_model(serve_sample, tmp_path):
     root = str(serve_sample.archive.root)
     run_id = serve_sample.runs[THERMAL_SERIAL][2]  # the 20 deg C point of the campaign

@@ -33,6 +33,7 @@ def test_full_id_unique_prefix_and_the_errors(
         queries.full_run_id(archive, "R")  # every run id starts with R
 
 
+@pytest.mark.slow
 def test_cli_show_takes_a_cut_run_id(
     archive: Archive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -50,6 +50,7 @@ def test_truth_and_uncertainty_over_seeds():
     assert np.all((ratio > 0.5) & (ratio < 2.0)), dict(zip(names, np.round(ratio, 2), strict=True))
 
 
+@pytest.mark.slow
 def test_static_part_reaches_the_cramer_rao_bound():
     """Accelerometer 12 and gyro bias + g-sensitivity 12 are linear in the static means
     with white noise: the scatter over 200 runs equals the CRLB sigma^2 / n (A^T A)^-1,

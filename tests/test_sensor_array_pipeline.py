@@ -45,6 +45,7 @@ def _write_run(folder, sessions):
     (folder / "run.toml").write_text(dumps_toml(manifest), encoding="utf-8")
 
 
+@pytest.mark.slow
 def test_six_imu_array_from_files_to_the_archive(tmp_path):
     """Every archived parameter within 4 of its reported standard uncertainties of the truth.
 

@@ -229,6 +229,7 @@ def test_lineage_page_traces_the_value_to_raw_bytes(client, serve_sample):
     get(client, f"/runs/{run_id}/lineage/gyr.scale.x?revision=2", 404)
 
 
+@pytest.mark.slow
 def test_downloads_are_the_archived_bytes_and_documents(client, serve_sample):
     run_id = serve_sample.runs[DRIFT_SERIAL][0]
     s = queries.run_summary(serve_sample.archive, run_id)
@@ -401,6 +402,7 @@ def start_server(archive_root: Path) -> tuple[subprocess.Popen, str]:
     raise RuntimeError(f"calib serve did not start: {proc.stdout.read().decode()[-2000:]}")
 
 
+@pytest.mark.e2e
 def test_calib_serve_command_serves_the_archive(serve_sample):
     proc, base = start_server(serve_sample.archive.root)
     try:

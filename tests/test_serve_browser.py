@@ -30,6 +30,8 @@ from test_serve import start_server
 
 from storage import queries
 
+pytestmark = pytest.mark.browser
+
 CHROMIUM = Path("/usr/bin/chromium")
 
 

@@ -212,6 +212,7 @@ def _budgets(summary: dict) -> dict:
     return step["statistics"]["budgets"]
 
 
+@pytest.mark.slow
 def test_budget_archived_per_parameter(archived) -> None:
     outcome, summary, *_ = archived["U-KNOWN"]
     budgets = _budgets(summary)

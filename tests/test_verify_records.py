@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from sqlalchemy import select, text, update
 from sqlalchemy.orm import Session
 from test_seal import behind_the_archive
@@ -105,6 +106,7 @@ def test_duplicated_row_is_found(archive: Archive, tmp_path: Path) -> None:
     assert details == [f"{name}: more than one parameters row in calibration id {cal_id}"]
 
 
+@pytest.mark.slow
 def test_parameter_row_round_trip() -> None:
     """One function each way between a Parameter and its archive row; nothing is lost."""
     from calib_core.calibration import Parameter
