@@ -155,3 +155,20 @@ def test_calib_procedures_prints_the_same():
     assert "| `up_axis` | text |" in done.stdout and "static_temperature_spread_c" in done.stdout
     done = CliRunner().invoke(app, ["procedures", "static_bais"])
     assert done.exit_code != 0 and "unknown procedure 'static_bais'" in done.output
+
+
+def test_the_tables_are_the_steps_own_keys():
+    from calib_core.preprocess import chain
+    from pipelines.uncertainty import SETTINGS as UNCERTAINTY_KEYS
+
+    own = {"sync": chain.SYNC_KEYS, "segmentation": chain.SEGMENTATION_KEYS,
+           "outliers": chain.OUTLIER_KEYS, "lowpass": chain.LOWPASS_KEYS,
+           "uncertainty": set(UNCERTAINTY_KEYS)}  # fmt: skip
+    assert {name: set(t.items) for name, t in procedures.TABLES.items()} == own
+    assert procedures.TABLES["outliers"].items["method"].default == chain.DEFAULT_OUTLIERS["method"]
+    with pytest.raises(SettingError, match=r"run.settings.outliers.n_sigma: expected a "
+                                           r"positive number, got -1"):
+        procedures.validate_settings("six_position", {"outliers": {"n_sigma": -1}})
+    with pytest.raises(SettingError, match=r"run.settings.lowpass.apply_to must be one of "
+                                           r"'static', 'all', got 'some'"):
+        procedures.validate_settings("rate_table", {"lowpass": {"apply_to": "some"}})

@@ -18,26 +18,21 @@ from typing import Any
 
 from calib_core.calibration import Calibration, StepRecord
 from calib_core.checks import check_physical_bounds
-from calib_core.procedures.base import (
-    COMMON_SETTINGS,
-    TABLES,
-    Procedure,
-    Setting,
-    SettingError,
-    Settings,
-)
+from calib_core.procedures.base import COMMON_SETTINGS, Procedure
 from calib_core.procedures.centrifuge import CENTRIFUGE
 from calib_core.procedures.equipment_free import EQUIPMENT_FREE
 from calib_core.procedures.integral import INTEGRAL, solve_integral_procedure
 from calib_core.procedures.multi_position import MULTI_POSITION
 from calib_core.procedures.rate_table import RATE_TABLE, solve_rate_table_procedure
 from calib_core.procedures.sensor_array import SENSOR_ARRAY
+from calib_core.procedures.settings import Setting, SettingError, Settings
 from calib_core.procedures.six_position import SIX_POSITION, solve_six_position
 from calib_core.procedures.six_position_integral import (
     SIX_POSITION_INTEGRAL,
     solve_six_position_integral,
 )
 from calib_core.procedures.static_bias import STATIC_BIAS, solve_static_bias_procedure
+from calib_core.procedures.tables import TABLES
 from calib_core.recording import Recording
 
 __all__ = [

@@ -1,0 +1,158 @@
+"""Typed settings: `Setting` (name, kind, unit, default, bounds or choices, meaning), a
+`Settings` declaration and the `SettingError` that names the refused key."""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+# The value kinds a setting may take, as TOML writes them.
+KINDS = ("number", "integer", "bool", "text", "table", "list")
+
+
+class SettingError(ValueError):
+    """A ``[run.settings]`` key refused: ``key`` is its dotted name under run.settings."""
+
+    def __init__(self, key: str, problem: str) -> None:
+        self.key = key
+        self.problem = problem
+        # "run.settings.k: expected a positive number, got -1"; "run.settings.x must be ..."
+        super().__init__(f"run.settings.{key}{'' if problem.startswith('must') else ':'} {problem}")
+
+
+def _is_kind(value: Any, kind: str) -> bool:
+    if kind == "number":
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if kind == "integer":
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, {"bool": bool, "text": str, "table": dict, "list": list}[kind])
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting of a procedure.
+
+    name : the key in ``[run.settings]``.
+    kind : "number", "integer", "bool", "text", "table" or "list"; a tuple for a setting
+        that takes one of several kinds (e.g. "text" or "table").
+    unit : the value's unit as the manifest writes it ("s", "deg/s", "deg", "1", "").
+    default : the value when absent; None: absent means "not given" (inferred or unused).
+    meaning : one line for the documentation.
+    low, high : inclusive bounds of a number (None: unbounded); low_open excludes `low`.
+    choices : the allowed texts of a "text" setting.
+    length : the number of items of a "list" setting.
+    """
+
+    name: str
+    kind: str | tuple[str, ...]
+    unit: str
+    default: Any
+    meaning: str
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    choices: tuple[str, ...] = ()
+    length: int | None = None
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        return self.kind if isinstance(self.kind, tuple) else (self.kind,)
+
+    def allowed(self) -> str:
+        """What the setting accepts, as a refusal and the documentation print it."""
+        parts = []
+        for kind in self.kinds:
+            if kind == "text" and self.choices:
+                parts.append("one of " + ", ".join(repr(c) for c in self.choices))
+            elif kind in ("number", "integer"):
+                parts.append(self._number(kind))
+            elif kind == "list" and self.length is not None:
+                parts.append(f"a list of {self.length} numbers")
+            else:
+                parts.append({"bool": "true or false", "table": "a table"}.get(kind, kind))
+        return " or ".join(parts)
+
+    def _number(self, kind: str) -> str:
+        noun = "a number" if kind == "number" else "a whole number"
+        lo, hi = self.low is not None, self.high is not None
+        if lo and hi:
+            return f"{noun} in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}]"
+        if lo and self.low == 0.0:
+            return noun.replace("a ", "a positive " if self.low_open else "a non-negative ")
+        if lo:
+            return f"{noun} {'>' if self.low_open else '>='} {self.low:g}"
+        return f"{noun} <= {self.high:g}" if hi else noun
+
+    def check(self, value: Any) -> None:
+        """Raise SettingError naming the key, the value and what is allowed."""
+        if value is None and self.default is None:
+            return
+        kind = next((k for k in self.kinds if _is_kind(value, k)), None)
+        refused = kind is None or (
+            (kind in ("number", "integer") and not self._inside(float(value)))
+            or (kind == "list" and self.length is not None
+                and (len(value) != self.length or not all(_is_kind(v, "number") for v in value)))
+        )  # fmt: skip
+        if kind == "text" and self.choices and value not in self.choices:
+            raise SettingError(self.name, f"must be {self.allowed()}, got {value!r}")
+        if refused:
+            raise SettingError(self.name, f"expected {self.allowed()}, got {value!r}")
+
+    def _inside(self, x: float) -> bool:
+        if math.isnan(x):
+            return False
+        if self.low is not None and (x < self.low or (self.low_open and x == self.low)):
+            return False
+        return self.high is None or x <= self.high
+
+
+class Settings:
+    """A procedure's settings: the typed declaration its runs are validated against."""
+
+    def __init__(self, *settings: Setting) -> None:
+        self.items: dict[str, Setting] = {s.name: s for s in settings}
+
+    def __iter__(self):
+        return iter(self.items.values())
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.items
+
+    def defaults(self) -> dict[str, Any]:
+        """name -> default of every setting."""
+        return {s.name: s.default for s in self}
+
+    def validate(self, given: Mapping[str, Any], table: str) -> None:
+        """Check a whole table: unknown keys (with the closest valid one), types, bounds.
+
+        `table` is its name under run.settings ("outliers") or "" for run.settings itself.
+        """
+        where = f"{table}." if table else ""
+        for key, value in given.items():
+            if key not in self.items:
+                hint = did_you_mean(key, list(self.items))
+                raise SettingError(f"{where}{key}",
+                                   f"unknown setting of [run.settings.{table}]{hint}")
+            try:
+                self.items[key].check(value)
+            except SettingError as exc:
+                raise SettingError(f"{where}{key}", exc.problem) from None
+
+    def merged(self, given: Mapping[str, Any] | None) -> dict[str, Any]:
+        """The declared settings with defaults filled in, each checked; other keys left out."""
+        out = self.defaults()
+        for key, value in (given or {}).items():
+            if key in self.items:
+                self.items[key].check(value)
+                out[key] = value
+        return out
+
+
+def did_you_mean(key: str, known: list[str]) -> str:
+    near = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
+    if near:
+        return f"; did you mean {near[0]}?"
+    return f"; expected one of {', '.join(sorted(known))}"
