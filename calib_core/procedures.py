@@ -43,6 +43,7 @@ import numpy as np
 from calib_core import params
 from calib_core.calibration import Calibration, StepRecord
 from calib_core.checks import check_physical_bounds
+from calib_core.preprocess.motion import static_motion_checks
 from calib_core.recording import Recording
 from calib_core.solvers.centrifuge_segments import solve_centrifuge_segments
 from calib_core.solvers.equipment_free import solve_equipment_free
@@ -402,6 +403,7 @@ def solve(
     if not (9.7 < gravity < 9.9):
         raise ValueError(f"gravity must be the local value in m/s^2 (9.7..9.9), got {gravity!r}")
     cal = fn(segments, gravity, settings)
+    cal.info.setdefault("solver_checks", []).extend(static_motion_checks(procedure, segments))
     check_physical_bounds(cal, _BOUNDS_HINT.get(procedure, _BOUNDS_HINT[None]))
     return cal
 
