@@ -22,7 +22,7 @@ from calib_core.calibration import Calibration, CheckResult, StepRecord
 from calib_core.checks import check_calibration
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
-from calib_core.preprocess.chain import preprocess
+from calib_core.preprocess.chain import preprocess, replaced_checks
 from calib_core.recording import Recording
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
@@ -179,6 +179,7 @@ def solve_loaded(
         {**settings, "procedure": procedure or m.run.procedure, "gravity": m.gravity()},
         held_out=loaded.verification_labels,
     )
+    cal.info.setdefault("solver_checks", []).extend(replaced_checks(steps))
     fit = {k: v for k, v in segments.items() if k not in loaded.verification_labels}
     budgets, budget_step = uncertainty_step(cal, fit, settings, m)
     return cal, [*steps, record, budget_step], settings, budgets, fit

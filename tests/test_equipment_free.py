@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -188,3 +189,43 @@ def test_real_xsens_session_against_the_datasheet(capsys):
     assert cal.info["acc_norm_rms_before"] > 0.5
     assert cal.info["acc_norm_rms_after"] < 0.002 * 9.80665
     assert cal.info["gyr_residual_rms_rad_after"] < 0.5 * cal.info["gyr_residual_rms_rad_before"]
+
+
+def test_threshold_search_reaches_rests_that_appear_only_at_large_k():
+    """Holds trembling with 12 times the sensor's noise std after a first rest on the
+    table (variance ~145 times the first rest's, both sensors): no rest but the first is
+    below the grid's old end, k = 32; the search reaches them (k >= 128) and finds every
+    rest, with each accelerometer parameter within 4 standard uncertainties of the truth
+    (the tremor is white: the means' uncertainties see it)."""
+    rng = np.random.default_rng(61)
+    truth = accelerometer_frame(random_errors(rng))
+    run = handheld_run(truth, rng, poses=20)
+    r = run.recording
+    n0 = int(20.0 * 100)  # handheld_run's first rest, 20 s at 100 Hz
+    acc, gyr = r.acc.copy(), r.gyr.copy()
+    acc[n0:] += rng.normal(0.0, 12 * truth.acc_noise, acc[n0:].shape)
+    gyr[n0:] += rng.normal(0.0, 12 * truth.gyr_noise, gyr[n0:].shape)
+    cal = solve("equipment_free", {"s": Recording(r.t, acc, gyr)}, run.gravity, {})
+    assert cal.info["static_threshold_k"] >= 128 and cal.info["static_intervals"] == 21
+    expected = truth.parameters()
+    for name, p in cal.parameters.items():
+        if name.startswith("acc."):
+            assert abs(p.value - expected[name]) < 4 * p.std, name
+
+
+def test_refusal_names_the_setting_that_would_work():
+    """Holds of 1.3 s: shorter than the 1 s detector window plus its minimum duration, so
+    no threshold finds them. The refusal names a shorter min_duration_s or window_s that
+    does, and given to the run, that setting calibrates it. With too few poses instead
+    (4), the refusal asks for the missing orientations."""
+    rng = np.random.default_rng(42)
+    run = handheld_run(accelerometer_frame(random_errors(rng)), rng, poses=20, hold_s=1.3)
+    with pytest.raises(ValueError, match="the rests are shorter than the detector asks") as err:
+        solve("equipment_free", {"s": run.recording}, run.gravity, {})
+    key, value = re.search(r"settings\.(\w+) = ([\d.]+) \(instead", str(err.value)).groups()
+    cal = solve("equipment_free", {"s": run.recording}, run.gravity, {key: float(value)})
+    assert cal.info["static_intervals"] >= 9
+    rng = np.random.default_rng(41)
+    run = handheld_run(accelerometer_frame(random_errors(rng)), rng, poses=4)
+    with pytest.raises(ValueError, match="hold the IMU still in at least 4 more orientations"):
+        solve("equipment_free", {"s": run.recording}, run.gravity, {})

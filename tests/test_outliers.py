@@ -1,10 +1,14 @@
 """Outlier detectors against injected spikes with known positions (truth)."""
 
+import math
+
 import numpy as np
 import pytest
 
+from calib_core.preprocess.chain import preprocess, replaced_checks
 from calib_core.preprocess.outliers import (
     detect_outliers,
+    false_alarm_rate,
     grubbs_critical,
     remove_outliers,
     sigma_mask,
@@ -157,3 +161,57 @@ def test_interpolated_runs_match_numpy_interp_including_the_edges():
     np.testing.assert_allclose(out.acc[bad, 0], expected, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(out.acc[good], acc[good])
     np.testing.assert_array_equal(rec.acc, before)  # the input is not modified
+
+
+@pytest.mark.parametrize(
+    ("method", "kw"),
+    [
+        ("sigma", {"n_sigma": 3.0}),
+        ("sigma", {"n_sigma": 3.5}),
+        ("hampel", {"n_sigma": 3.0, "window": 201}),
+        ("grubbs", {"alpha": 0.05, "window": 100}),
+    ],
+)
+def test_false_alarm_rate_is_what_clean_noise_gives(method, kw):
+    """The rate each step's check is judged by: on clean Gaussian noise (3 x 200,000
+    samples) the flagged count is within 5 binomial stds of N p."""
+    n = 3 * N
+    x = np.random.default_rng(17).standard_normal(n)
+    p = false_alarm_rate(method, kw.get("n_sigma", 3.0), kw.get("alpha", 0.05), kw.get("window"))
+    flagged = int(detect_outliers(x, method, **kw).sum())
+    assert abs(flagged - n * p) < 5 * math.sqrt(n * p * (1 - p)), (flagged, n * p)
+
+
+def _statics(seed: int) -> dict[str, Recording]:
+    rng = np.random.default_rng(seed)
+    n = 6000
+    return {
+        label: Recording(np.arange(n) / 100.0, 0.02 * rng.standard_normal((n, 3)) + [0, 0, 9.81],
+                         0.001 * rng.standard_normal((n, 3)), source=f"{label}.csv")
+        for label in ("x_up", "x_dn")
+    }  # fmt: skip
+
+
+def test_outlier_step_counts_and_checks_what_it_altered():
+    """The default outlier step (3-sigma, interpolate) on clean statics: its counts per
+    segment and channel are in the step record, and its checks pass (the count is what
+    false alarms explain). With 1 % spikes of 6-12 stds in one channel of x_dn, that
+    segment's check fails with the channel's count; x_up's still passes."""
+    segments = _statics(3)
+    _, steps = preprocess(segments, {})
+    checks = {c["name"]: c for c in replaced_checks(steps)}
+    assert set(checks) == {"model:replaced:outliers:x_up", "model:replaced:outliers:x_dn"}
+    assert all(c["passed"] for c in checks.values()), checks
+    per_segment = steps[0].statistics["segments"]
+    for label, c in checks.items():
+        assert c["value"] == sum(per_segment[label.rsplit(":", 1)[1]]["n_flagged"].values())
+    rec = segments["x_dn"]
+    acc, _ = inject_spikes(rec.acc[:, :1], 0.01, 0.02, rng=np.random.default_rng(4))
+    spiked = np.column_stack([acc, rec.acc[:, 1:]])
+    segments["x_dn"] = Recording(rec.t, spiked, rec.gyr, source=rec.source)
+    _, steps = preprocess(segments, {})
+    checks = {c["name"]: c for c in replaced_checks(steps)}
+    assert checks["model:replaced:outliers:x_up"]["passed"]
+    bad = checks["model:replaced:outliers:x_dn"]
+    assert not bad["passed"] and bad["value"] > bad["limit"]
+    assert "acc.x " in bad["detail"] and "interpolated" in bad["detail"]

@@ -15,6 +15,7 @@ import numpy as np
 from calib_core.calibration import StepRecord
 from calib_core.preprocess.filters import lowpass
 from calib_core.preprocess.outliers import remove_outliers
+from calib_core.preprocess.replaced import replaced_check
 from calib_core.preprocess.segments import Interval, Segmentation, StaticDetector, segment
 from calib_core.preprocess.sync import synchronise
 from calib_core.recording import Recording
@@ -272,5 +273,22 @@ def outliers_segments(
             cleaned[label] = rec
             continue
         cleaned[label], record = remove_outliers(rec, method=cfg["method"], **kwargs)
-        per_segment[label] = record.statistics
+        st = record.statistics
+        verb = "deleted" if record.settings["policy"] == "delete" else "interpolated"
+        st["check"] = replaced_check("outliers", label, st["n_flagged"],
+                                     st["n_samples"] * len(st["n_flagged"]),
+                                     st["p_false_alarm"], verb)  # fmt: skip
+        per_segment[label] = st
     return cleaned, StepRecord("outliers", settings=cfg, statistics={"segments": per_segment})
+
+
+def replaced_checks(steps: list[StepRecord]) -> list[dict]:
+    """The ``model:replaced:<step>:<segment>`` checks the preprocessing steps made (one
+    per segment of the outlier step), for the run's checks: a segment with more samples
+    flagged than the detector's false alarms explain is sent for review."""
+    return [
+        seg["check"]
+        for step in steps
+        for seg in step.statistics.get("segments", {}).values()
+        if isinstance(seg, dict) and "check" in seg
+    ]

@@ -18,6 +18,7 @@ from typing import Any
 
 from calib_core.calibration import Calibration, StepRecord
 from calib_core.checks import check_physical_bounds
+from calib_core.preprocess.motion import static_motion_checks
 from calib_core.procedures.base import COMMON_SETTINGS, Procedure
 from calib_core.procedures.centrifuge import CENTRIFUGE
 from calib_core.procedures.equipment_free import EQUIPMENT_FREE
@@ -106,6 +107,7 @@ def solve(
     if not (9.7 < gravity < 9.9):
         raise ValueError(f"gravity must be the local value in m/s^2 (9.7..9.9), got {gravity!r}")
     cal = proc.solver(segments, gravity, settings)
+    cal.info.setdefault("solver_checks", []).extend(static_motion_checks(proc.name, segments))
     check_physical_bounds(cal, proc.bounds_hint)
     return cal
 

@@ -66,7 +66,13 @@ EQUIPMENT_FREE_DEFAULTS: dict[str, Any] = {
 # imu_tk (Tedaldi et al.) searches the static threshold over multiples of the
 # initial variance and keeps the one whose accelerometer fit has the least
 # residual. We do the same, but only when the operator's k finds too few rests.
-THRESHOLD_SEARCH_K = (2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0)
+# Up to 256: a hand holds a pose with tremor of 10-15 times the noise std of the first
+# rest on a table (variance 100-200 times: a hand-held MPU-6050 session's rests appear
+# at k >= 100), and the Birge ratio, not the grid's end, must decide.
+THRESHOLD_SEARCH_K = (2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0, 96.0,
+                      128.0, 192.0, 256.0)  # fmt: skip
+# Detector settings the refusal tries, as factors of the given ones, to name what works.
+RELAXED_FACTORS = (0.5, 0.25)
 # Fewer accelerometer degrees of freedom than this and the residual scale (Birge
 # ratio) is itself uncertain by more than 1/sqrt(2 * 9) = 24 %: too few poses to
 # judge the fit or to scale the covariance by it.
@@ -131,9 +137,39 @@ def find_statics(rec: Recording, settings: dict[str, Any], gravity: float) -> St
         raise ValueError(
             f"equipment_free ({rec.source or 'recording'}): found {len(found.intervals)} static "
             f"intervals, need >= {need} (9 accelerometer unknowns); the threshold search found "
-            f"{counts}; hold the IMU still in more orientations or relax min_duration_s"
+            f"{counts}; {_advice(rec, settings, [found, *tried.values()])}"
         )
     return min(usable, key=lambda st: solve_accel_norm(st, gravity)[2]["acc_birge_ratio"])
+
+
+def _advice(rec: Recording, settings: dict[str, Any], tried: list[StaticSet]) -> str:
+    """What would give enough rests: a shorter min_duration_s or window_s that does (tried
+    on the threshold grid), else how many more still orientations the session needs."""
+    need = settings["min_intervals"]
+    best: tuple[int, str, float, float] | None = None  # (rests, key, value, k)
+    for key in ("min_duration_s", "window_s"):
+        for factor in RELAXED_FACTORS:
+            relaxed = {**settings, key: settings[key] * factor}
+            for k in THRESHOLD_SEARCH_K:
+                try:
+                    n = len(statics_at(rec, relaxed, k).intervals)
+                except ValueError:
+                    break  # the relaxed windows do not fit the record
+                if n >= need and (best is None or n > best[0]):
+                    best = (n, key, relaxed[key], k)
+    if best is not None:
+        n, key, value, k = best
+        return (
+            f"settings.{key} = {value:g} (instead of {settings[key]:g}) finds {n} rests at "
+            f"k = {k:g}: the rests are shorter than the detector asks"
+        )
+    most = max(len(st.intervals) for st in tried)
+    return (
+        f"no threshold up to k = {THRESHOLD_SEARCH_K[-1]:g} nor a shorter min_duration_s or "
+        f"window_s finds more than {most}: hold the IMU still in at least {need - most} more "
+        f"orientations, each for >= {settings['min_duration_s']:g} s plus the settle time "
+        f"({settings['settle_s']:g} s)"
+    )
 
 
 ACC_NAMES = (

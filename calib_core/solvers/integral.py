@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import maximum_filter1d, median_filter
+from scipy.ndimage import median_filter, rank_filter
 
 from calib_core import params
 from calib_core.calibration import Calibration
@@ -73,35 +73,24 @@ def noise_from_differences(gyr: np.ndarray) -> np.ndarray:
 # White noise alone passes the first test with probability 2 Q(5) = 5.7e-7 per sample.
 SPIKE_SIGMA = 5.0
 SPIKE_FALSE_ALARM = 5.733031438470704e-07  # 2 Q(SPIKE_SIGMA)
-# The local scatter a spike must stand out of: the largest |r| among the 19 samples on
-# each side of it beyond its neighbours (38 values a lone spike leaves untouched), over
-# its median for white noise (2.277, simulated). A hand-turned rotation's tremor,
-# heavy-tailed and spanning several samples at 100-200 Hz, raises it with the motion; a
-# second spike that close hides both.
+# The local scatter a spike must stand out of: the 4th largest |r| among the 19 samples on
+# each side of it beyond its neighbours (38 values its own r's do not touch), over its
+# median for white noise (1.651, simulated). A hand-turned rotation's tremor, heavy-tailed
+# and spanning several samples at 100-200 Hz, raises it with the motion; another spike
+# within 20 samples (3 values) does not.
 SPIKE_WINDOW_SIDE = 19
-SPIKE_LOCAL_TO_SIGMA = 1.0 / 2.277
-# The motion's jumps a spike must stand out of: the largest |x_j+1 - x_j| among the 19
-# on each side of the two the sample makes, over its median for white noise (2.323 std
-# of a difference, simulated). A turned-by-hand rate dips and recovers within 2-3
-# samples: its jumps are as large as a lone dip's, a glitch's are not.
-SPIKE_JUMP_TO_SIGMA = 1.0 / 2.323
+SPIKE_LOCAL_RANK = 4
+SPIKE_LOCAL_TO_SIGMA = 1.0 / 1.651
+# The motion's jumps a spike must stand out of: the 3rd largest |x_j+1 - x_j| (about the
+# local slope) among the 39 around the two the sample makes, over its median for white
+# noise (1.80 std of a difference, simulated); another spike's two jumps do not count.
+# A turned-by-hand rate dips and recovers within 2-3 samples: its jumps are as large as
+# a lone dip's, a glitch's are not.
+SPIKE_JUMP_RANK = 3
+SPIKE_JUMP_TO_SIGMA = 1.0 / 1.80
 # Local stds within which both neighbours must be what a lone spike makes of them, and
 # beyond which another axis at the same sample counts as moving.
 SPIKE_NEIGHBOUR_SIGMA = 3.0
-
-
-def _window_max(x: np.ndarray, lo: int, hi: int, n_out: int) -> np.ndarray:
-    """Per row i < n_out, the largest of x[i + lo : i + hi + 1] (hi - lo even), each
-    column on its own; windows past the ends take the edge row's window."""
-    size = hi - lo + 1
-    centred = maximum_filter1d(x, size=size, axis=0, mode="nearest")
-    rows = np.clip(np.arange(n_out) + (lo + hi) // 2, 0, len(x) - 1)
-    return centred[rows]
-
-
-def _side_max(x: np.ndarray, before: tuple[int, int], after: tuple[int, int], n: int):
-    """Per sample, the largest of x over the rows `before` and `after` it (offsets)."""
-    return np.maximum(_window_max(x, *before, n), _window_max(x, *after, n))
 
 
 def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -111,7 +100,7 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     glitch does and motion does not:
 
     - off the line through its neighbours (r) by SPIKE_SIGMA times the larger of the
-      noise and the motion's own scatter of r over the 19 samples either side;
+      noise and the motion's own scatter of r over the 20 samples either side;
     - both neighbours off by half as much the other way (within 3 local stds) and
       agreeing with each other (a rate step leaves the sample near one of them);
     - both its jumps (onto it, off it) SPIKE_SIGMA times beyond the motion's jumps
@@ -143,15 +132,19 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     # neighbours); a kink of the rate profile gives r at one sample only, a smooth rate ~0.
     r = np.zeros_like(gyr)
     r[1:-1] = gyr[1:-1] - 0.5 * (gyr[:-2] + gyr[2:])
-    n, w = len(gyr), SPIKE_WINDOW_SIDE
-    # r beyond the neighbours: rows i - 1 - w .. i - 2 and i + 2 .. i + 1 + w.
-    local = SPIKE_LOCAL_TO_SIGMA * _side_max(np.abs(r), (-1 - w, -2), (2, 1 + w), n)
+    w = SPIKE_WINDOW_SIDE
+    size = (2 * w + 3, 1)  # i - w - 1 .. i + w + 1
+    # The sample's own three r values are the largest of a spike's window: rank past them.
+    local = SPIKE_LOCAL_TO_SIGMA * rank_filter(
+        np.abs(r), rank=-(3 + SPIKE_LOCAL_RANK), size=size, mode="nearest"
+    )
     scale = np.maximum(local, sigma)
     # Jumps d_j = x_j+1 - x_j about the local slope (their median over the window); the
-    # sample's own are d_i-1 and d_i: the others on either side.
+    # sample's own two are d_i-1 and d_i, the largest of a spike's window.
     d = np.diff(gyr, axis=0)
-    d -= median_filter(d, size=(2 * w + 1, 1), mode="nearest")
-    jumps = _side_max(np.abs(d), (-1 - w, -2), (1, w), n)
+    d -= median_filter(d, size=size, mode="nearest")
+    jumps = rank_filter(np.abs(d), rank=-(2 + SPIKE_JUMP_RANK), size=size, mode="nearest")
+    jumps = np.vstack([jumps, jumps[-1:]])  # one row per sample
     jump_scale = np.maximum(SPIKE_JUMP_TO_SIGMA * jumps, sigma / math.sqrt(0.75))
     # Candidates (rare: the scale is never below the noise's, so white noise passes the
     # first test at most SPIKE_FALSE_ALARM of the time), then their neighbours' tests.

@@ -17,9 +17,11 @@ import math
 import numpy as np
 
 from calib_core.calibration import Calibration
+from calib_core.distributions import norm_sf
 from calib_core.earth import EARTH_RATE
 from calib_core.noise import NOISE_TERMS, allan_deviation, archived_terms, choose_noise_fit
 from calib_core.params import AXES
+from calib_core.preprocess.replaced import replaced_check
 from calib_core.recording import Recording
 from calib_core.units import STANDARD_GRAVITY
 
@@ -222,6 +224,11 @@ def solve_static_bias(
                 f"{n_sigma} sigma in one channel; expected ~0.3 % for Gaussian noise"
             )
     cal.info.update(info)
+    clipped = {f"{sensor}.{a}": int(n) for sensor, counts in info["outliers"].items()
+               for a, n in zip(AXES, counts, strict=True)}  # fmt: skip
+    checks.append(replaced_check("static_bias", rec.label or "record", clipped, 6 * len(rec),
+                                 2.0 * float(norm_sf(n_sigma)), "left out"))  # fmt: skip
+    cal.info.setdefault("replaced_samples", {})["static_bias"] = clipped
     cal.info.setdefault("solver_checks", []).extend(checks)
     return cal
 

@@ -1,0 +1,117 @@
+"""A static record that moves fails its motion check; a still one passes.
+
+The check (calib_core.preprocess.motion) holds every window's scatter against the noise
+the same record shows in its quietest windows, at a false-alarm rate of 1e-3 per record.
+Simulated records with known motion, and the real Xsens session (imu_tk): its first
+45 s are still, the hand-held poses after them are not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from calib_core.checks import FAIL, PASS, solver_checks, verdict
+from calib_core.preprocess.motion import MOTION_ALPHA, motion_check
+from calib_core.procedures import solve
+from calib_core.recording import Recording
+from calib_core.simulate.handheld import handheld_run
+from calib_core.simulate.lab_run import random_errors, six_position_integral_run
+from calib_core.simulate.noise import NoiseSpec, simulate_static
+from calib_core.units import DEG
+
+XSENS = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "imutk_xsens"
+GYRO = NoiseSpec(arw=0.005 * DEG)  # rad/s/sqrt(Hz): 0.05 deg/s per sample at 100 Hz
+ACC = NoiseSpec(arw=0.002)  # m/s^2/sqrt(Hz)
+
+
+def _still(seed: int, duration_s: float = 120.0) -> Recording:
+    rng = np.random.default_rng(seed)
+    return simulate_static(duration_s, 100.0, gyro_bias=np.full(3, 0.01), gyro_noise=GYRO,
+                           acc_noise=ACC, rng=rng)  # fmt: skip
+
+
+def _vibrating(rec: Recording, seed: int, gyro_std: float = 0.052) -> Recording:
+    """The record on a moving vehicle for its middle third: band-limited (0.5-5 Hz) angular
+    rate of `gyro_std` rad/s (the DataFlash log's) and 0.3 m/s^2 of acceleration."""
+    rng = np.random.default_rng(seed)
+    n = len(rec)
+    mid = slice(n // 3, 2 * n // 3)
+    sos = signal.butter(2, [0.5, 5.0], btype="band", fs=rec.sample_rate, output="sos")
+    shake = signal.sosfilt(sos, rng.standard_normal((mid.stop - mid.start, 6)), axis=0)
+    shake /= shake.std(axis=0)
+    gyr, acc = rec.gyr.copy(), rec.acc.copy()
+    gyr[mid] += gyro_std * shake[:, :3]
+    acc[mid] += 0.3 * shake[:, 3:]
+    return dataclasses.replace(rec, gyr=gyr, acc=acc)
+
+
+def test_still_records_pass():
+    """20 still records (white noise, 2 min at 100 Hz, bias 0.01 rad/s): none fails. Each
+    fails with probability < 1e-3, all 20 pass with probability > 98 %."""
+    for seed in range(20):
+        check = motion_check("still", _still(seed))
+        assert check["passed"], check
+        assert check["value"] < check["limit"]
+    assert MOTION_ALPHA == 1e-3
+
+
+def test_a_vehicle_moving_through_static_bias_fails_the_motion_check():
+    """The issue's DataFlash case: a record of a moving vehicle (gyro scatter 0.052 rad/s)
+    through static_bias: the run fails the named check motion:<label>, naming the moving
+    window; the still record of the same unit passes it."""
+    still = _still(100)
+    moving = _vibrating(still, 101)
+    for rec, expected in ((still, PASS), (moving, FAIL)):
+        cal = solve("static_bias", {"long_static": rec}, 9.81, {})
+        check = next(c for c in cal.info["solver_checks"] if c["name"] == "motion:long_static")
+        assert check["passed"] is (expected == PASS), check
+        assert verdict(solver_checks(cal)) == expected
+    cal = solve("static_bias", {"long_static": moving}, 9.81, {})
+    check = next(c for c in cal.info["solver_checks"] if c["name"] == "motion:long_static")
+    assert "the unit moved" in check["detail"] and check["value"] > 100 * check["limit"]
+    start = float(check["detail"].split("(at ")[1].split(" s)")[0])
+    assert 40.0 - 1.0 <= start <= 80.0  # the moving middle third
+
+
+def test_a_hand_held_session_is_no_static_record():
+    """A hand-held session (rests and turns, calib_core.simulate.handheld) given to
+    static_bias as one static record: the turns fail the motion check."""
+    rng = np.random.default_rng(7)
+    run = handheld_run(random_errors(rng), rng, poses=6)
+    check = motion_check("session", run.recording)
+    assert not check["passed"] and "the unit moved" in check["detail"], check
+
+
+def test_a_moving_face_of_a_six_position_run_fails_only_its_own_check():
+    rng = np.random.default_rng(8)
+    run = six_position_integral_run(random_errors(rng), rng)
+    segments = dict(run.segments)
+    segments["x_up"] = _vibrating(segments["x_up"], 9, gyro_std=0.02)
+    cal = solve("six_position_integral", segments, run.gravity, {})
+    motion = {c["name"]: c["passed"] for c in cal.info["solver_checks"]
+              if c["name"].startswith("motion:")}  # fmt: skip
+    assert set(motion) == {f"motion:{a}_{s}" for a in "xyz" for s in ("up", "dn")}
+    assert [name for name, ok in motion.items() if not ok] == ["motion:x_up"]
+
+
+def test_real_xsens_session_still_start_passes_hand_held_poses_fail():
+    if not XSENS.is_dir():
+        pytest.skip(f"real Xsens session not found at {XSENS} (shared/realdata missing)")
+    acc = np.loadtxt(XSENS / "xsens_acc.mat")
+    gyr = np.loadtxt(XSENS / "xsens_gyro.mat")
+    # SOURCE.txt datasheet offsets and gains: counts to m/s^2 and rad/s.
+    rec = Recording(
+        acc[:, 0] - acc[0, 0],
+        (acc[:, 1:] - [33123.0, 33276.0, 32360.0]) / [415.0, 413.0, 415.0],
+        (gyr[:, 1:] - [32768.0, 32466.0, 32485.0]) / [4778.0, 4758.0, 4766.0],
+        source=str(XSENS),
+    )
+    first = rec.select(np.arange(0, 4500))  # the first 45 s: still on the table
+    assert motion_check("start", first)["passed"]
+    poses = rec.select(np.arange(0, 10_000))  # the first 100 s: the rest, then poses
+    assert not motion_check("poses", poses)["passed"]
