@@ -3,7 +3,9 @@
 For a file: the format found by content (and its variant: an MPU-6000 text's
 encoding, line ends, separators and summary lines; a CSV's metadata lines,
 delimiter, decimal mark and header units), its columns with units, and the
-samples read: count, rate, duration, gaps, temperature range, segments. For a
+samples read: count, rate, duration, gaps, temperature range (or "not recorded"),
+segments; for a log (ULog, DataFlash, ROS bag), every source of IMU samples it holds
+with its rate (the default reads the fastest). For a
 folder: every run found (discover_runs), its manifest's procedure, its segments
 as read, and what the procedure lacks (the six-position procedures' twelve
 labels). A file or run that cannot be read gives its IngestError: file, line or
@@ -42,6 +44,8 @@ def samples_summary(rec: Recording) -> dict[str, Any]:
     }
     if rec.temp is not None and n:
         out["temperature_c"] = [round(float(rec.temp.min()), 3), round(float(rec.temp.max()), 3)]
+    else:
+        out["temperature"] = "not recorded"  # never a 0 deg C the file does not hold
     if rec.reference:
         out["reference"] = sorted(rec.reference)
     return out
@@ -102,7 +106,32 @@ def _read(path: Path, kind: str, doc: dict[str, Any]) -> Recording:
             "a MATLAB file: its variables are named in a run.toml ([format.variables])",
             file=path,
         )
+    if kind in LOG_KINDS:
+        doc["sources"] = [s.summary() for s in log_sources(path, kind)]
     return reader_for(kind)(path, FormatSpec(kind=kind))
+
+
+LOG_KINDS = ("ulog", "dataflash", "rosbag")
+
+
+def log_sources(path: Path, kind: str) -> list:
+    """Every source of accelerometer + gyro samples a log holds, with its rate
+    (pipelines.ingest.log_samples.LogSource); the default reads the fastest."""
+    if kind == "ulog":
+        from pipelines.ingest.ulog_reader import load_ulog, ulog_sources
+
+        return ulog_sources(load_ulog(path))
+    if kind == "dataflash":
+        from pipelines.ingest.dataflash_reader import dataflash_sources, imu_rows, open_dataflash
+
+        return dataflash_sources(imu_rows(open_dataflash(path), path))
+    from pipelines.ingest.rosbag_reader import bag_sources, open_bag
+
+    reader, _ = open_bag(path)
+    try:
+        return bag_sources(reader, path)
+    finally:
+        reader.close()
 
 
 def _read_csv(path: Path, doc: dict[str, Any]) -> Recording:

@@ -53,9 +53,13 @@ def _ulog_topic(ulog_cls, formats, name: str, fields, msg_id: int, multi_id: int
     return ulog_cls.Data(added)
 
 
-def write_ulog(path: Path, rec: Recording, *, topics: str = "separate") -> None:
+def write_ulog(
+    path: Path, rec: Recording, *, topics: str = "separate", separate_every: int = 1
+) -> None:
     """One segment as a ULog: ``separate`` (sensor_accel + sensor_gyro, with temperature),
-    ``combined`` (sensor_combined) or ``both``."""
+    ``combined`` (sensor_combined) or ``both``. `separate_every` > 1 logs sensor_accel /
+    sensor_gyro with every so many samples only (PX4 logs them at 1 Hz beside a fast
+    sensor_combined)."""
     from pyulog import ULog
 
     ulog = ULog(None)
@@ -65,12 +69,13 @@ def write_ulog(path: Path, rec: Recording, *, topics: str = "separate") -> None:
     temp = rec.temp if rec.temp is not None else np.full(len(rec), 25.0)
     data = []
     if topics in ("separate", "both"):
+        k = slice(None, None, separate_every)
         for i, (name, v) in enumerate((("sensor_accel", rec.acc), ("sensor_gyro", rec.gyr))):
             fields = ACCEL_FIELDS if name == "sensor_accel" else [
                 f for f in ACCEL_FIELDS if f[1] != "samples"
             ]
-            values = {"timestamp": stamps, "timestamp_sample": stamps, "device_id": 1,
-                      "x": v[:, 0], "y": v[:, 1], "z": v[:, 2], "temperature": temp}  # fmt: skip
+            values = {"timestamp": stamps[k], "timestamp_sample": stamps[k], "device_id": 1,
+                      "x": v[k, 0], "y": v[k, 1], "z": v[k, 2], "temperature": temp[k]}  # fmt: skip
             data.append(_ulog_topic(ULog, formats, name, fields, i, 0, values))
     if topics in ("combined", "both"):
         values = {"timestamp": stamps, "gyro_rad": rec.gyr, "accelerometer_m_s2": rec.acc}
@@ -100,12 +105,24 @@ def _df_fmt_record(type_id: int, name: str, fmt: str, columns: str) -> bytes:
     return DF_HEAD + bytes([FMT_ID]) + body
 
 
-def write_dataflash(path: Path, rec: Recording, *, instances: int = 1, old: bool = False) -> None:
+def write_dataflash(
+    path: Path,
+    rec: Recording,
+    *,
+    instances: int = 1,
+    old: bool = False,
+    every: tuple[int, ...] | None = None,
+    temperature: bool = True,
+) -> None:
     """One segment as an ArduPilot .bin: IMU records (``I`` = instance), or with `old`
     the pre-4.1 layout: IMU, IMU2, ... messages without an instance field. Instances
-    after the first hold the same samples + 1 m/s^2 on x."""
+    after the first hold the same samples + 1 m/s^2 on x. `every` (one per instance)
+    logs an instance with every so many samples only; without `temperature` the ``T``
+    field is 0 (an IMU without a thermometer)."""
     stamps = (T0_US + np.round((rec.t - rec.t[0]) * 1e6)).astype(np.uint64)
     temp = rec.temp if rec.temp is not None else np.full(len(rec), 25.0)
+    temp = temp if temperature else np.zeros(len(rec))
+    every = every or (1,) * instances
     out = bytearray(_df_fmt_record(FMT_ID, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
     fmt, columns = IMU_OLD_FORMAT if old else IMU_FORMAT
     names = ([f"IMU{k + 1}" if k else "IMU" for k in range(instances)] if old else ["IMU"])
@@ -114,6 +131,8 @@ def write_dataflash(path: Path, rec: Recording, *, instances: int = 1, old: bool
     pack = _df_struct(fmt).pack
     for i in range(len(rec)):
         for k in range(instances):
+            if i % every[k]:
+                continue
             type_id = 129 + k if old else 129
             acc = rec.acc[i] + (k, 0, 0)
             g, a, ts = rec.gyr[i], acc, int(stamps[i])
@@ -131,9 +150,10 @@ def write_dataflash(path: Path, rec: Recording, *, instances: int = 1, old: bool
 T0_NS = 1_763_600_000_000_000_000  # 2025-11-20, Unix ns
 
 
-def _ros_messages(store, rec: Recording, stamps, table_rate: float | None):
+def _ros_messages(store, rec: Recording, stamps, table_rate: float | None, slow_every=None):
     """(topic, msgtype, stamp ns, message) of one segment: Imu, Temperature at 1/10 rate,
-    JointState (angle = table_rate * t) when `table_rate` is given."""
+    JointState (angle = table_rate * t) when `table_rate` is given, and with `slow_every`
+    a second Imu topic /imu/slow holding every so many samples (+1 m/s^2 on x)."""
     Imu = store.types["sensor_msgs/msg/Imu"]
     Temperature = store.types["sensor_msgs/msg/Temperature"]
     JointState = store.types["sensor_msgs/msg/JointState"]
@@ -156,6 +176,13 @@ def _ros_messages(store, rec: Recording, stamps, table_rate: float | None):
             linear_acceleration_covariance=zeros,
         )
         yield "/imu/data", "sensor_msgs/msg/Imu", ns, imu
+        if slow_every and i % slow_every == 0:
+            a = rec.acc[i] + (1.0, 0.0, 0.0)
+            slow = Imu(header=header, orientation=imu.orientation, orientation_covariance=zeros,
+                       angular_velocity=imu.angular_velocity, angular_velocity_covariance=zeros,
+                       linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
+                       linear_acceleration_covariance=zeros)  # fmt: skip
+            yield "/imu/slow", "sensor_msgs/msg/Imu", ns, slow
         if i % 10 == 0 and rec.temp is not None:
             msg = Temperature(header=header, temperature=float(rec.temp[i]), variance=0.0)
             yield "/imu/temperature", "sensor_msgs/msg/Temperature", ns, msg
@@ -166,7 +193,8 @@ def _ros_messages(store, rec: Recording, stamps, table_rate: float | None):
             yield "/table/joint_states", "sensor_msgs/msg/JointState", ns, msg
 
 
-def write_rosbag2(folder: Path, rec: Recording, *, table_rate: float | None = None) -> Path:
+def write_rosbag2(folder: Path, rec: Recording, *, table_rate: float | None = None,
+                  slow_every: int | None = None) -> Path:
     """One segment as a ROS 2 sqlite3 bag folder; returns its .db3 file."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
@@ -175,7 +203,7 @@ def write_rosbag2(folder: Path, rec: Recording, *, table_rate: float | None = No
     stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
     conns = {}
     with Writer(folder, version=9, storage_plugin=StoragePlugin.SQLITE3) as writer:
-        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate):
+        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate, slow_every):
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
             writer.write(conns[topic], ns, store.serialize_cdr(msg, msgtype))
@@ -183,7 +211,8 @@ def write_rosbag2(folder: Path, rec: Recording, *, table_rate: float | None = No
     return db3
 
 
-def write_rosbag1(path: Path, rec: Recording, *, table_rate: float | None = None) -> None:
+def write_rosbag1(path: Path, rec: Recording, *, table_rate: float | None = None,
+                  slow_every: int | None = None) -> None:
     """One segment as a ROS 1 bag (message definitions of ROS 1 Noetic)."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
@@ -192,7 +221,7 @@ def write_rosbag1(path: Path, rec: Recording, *, table_rate: float | None = None
     stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
     conns = {}
     with Writer(path) as writer:
-        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate):
+        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate, slow_every):
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
             writer.write(conns[topic], ns, store.serialize_ros1(msg, msgtype))

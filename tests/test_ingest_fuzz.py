@@ -5,6 +5,12 @@ hdf5storage) get 500 random byte mutations and truncations each. Each reader
 must either return a valid Recording or raise an IngestError naming the file and
 the place (byte offset, message, variable) unless the whole file is unreadable;
 any other exception type (or a hang: hypothesis would sit on it) fails the test.
+
+Then whole runs (a copy of the sample CSV run with run.toml or its data file
+mutated, and the inputs that once escaped: a 1M-character field, run.toml nested
+1000 deep, a million-digit integer, a 300-digit rate, a segment whose means have
+no scatter) go through `process_run`: none may end as an internal error, every
+refusal names the run's folder and the file (and line or segment) it is about.
 """
 
 from __future__ import annotations
@@ -233,3 +239,38 @@ def test_refusal_texts_name_the_run_and_stay_short() -> None:
     assert huge.problem == "gyro x reads 1e+300 deg/s"
     word = IngestError(f"unknown unit {'x' * 10**6}", file="f.csv")
     assert word.problem.endswith("... (1000000 characters)") and len(word.problem) < 120
+
+
+RUN_BREAKERS = ["", ",", "nan", "1e400", "[", "]]]", "=", '"', "\x00", "9" * 300, "x" * 100_000,
+                "[" * 1000, "9" * 5000, "-", "\n"]  # fmt: skip
+
+
+@pytest.mark.slow
+@settings(max_examples=100, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(file=st.sampled_from(["run.toml", "imu.csv"]), edits=st.lists(
+    st.tuples(st.floats(0.0, 1.0), st.sampled_from(RUN_BREAKERS)), min_size=1, max_size=3))
+def test_fuzzed_runs_end_as_outcomes_naming_the_run(fuzz_archive, file, edits) -> None:
+    """Whole runs with run.toml or the data file mutated (breakers, a 100k-character word,
+    nesting 1000 deep, a 5000-digit integer): every run ends ok or refused; a refusal is
+    never an internal error, names the run's folder (and the file when it is the file's),
+    and stays short."""
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+
+    folder = _WORKDIR / "fuzzed_run"
+    shutil.rmtree(folder, ignore_errors=True)
+    shutil.copytree(CSV_RUN, folder)
+    path = folder / file
+    text = path.read_text()
+    for where, value in sorted(edits, reverse=True):
+        pos = int(where * (len(text) - 1))
+        text = text[:pos] + value + text[pos + 1 :]
+    path.write_text(text)
+    (source,) = discover_runs([folder])
+    outcome = process_run(source, fuzz_archive)
+    error = outcome["error"] or ""
+    assert outcome["status"] in ("ok", "failed", "duplicate"), outcome
+    assert "internal error" not in error, error[:500]
+    assert outcome["status"] != "failed" or error.startswith(str(folder)), error[:500]
+    assert len(error) < 2000, error[:700]

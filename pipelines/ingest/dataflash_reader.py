@@ -3,7 +3,10 @@
 ArduPilot logs each IMU as ``IMU`` records: ``TimeUS`` (us since boot),
 ``GyrX..Z`` (rad/s), ``AccX..Z`` (m/s^2), ``T`` (deg C). Since 4.1 one ``IMU``
 message carries the instance in field ``I``; older logs write ``IMU``,
-``IMU2``, ``IMU3``. ``instance`` (0-based) picks one IMU in either layout.
+``IMU2``, ``IMU3``. ``instance`` (0-based) picks one IMU in either layout; left
+out, the IMU logged at the highest rate (the first on a tie; a rate below
+``min_rate_hz`` is refused with every IMU's rate, pipelines.ingest.log_samples).
+A ``T`` of 0 in every record is a sensor without a thermometer: no temperature.
 """
 
 from __future__ import annotations
@@ -14,7 +17,14 @@ import numpy as np
 
 from calib_core.recording import Recording
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.log_samples import checked_recording
+from pipelines.ingest.log_samples import (
+    MIN_RATE_HZ,
+    LogSource,
+    checked_recording,
+    choose_source,
+    recorded_temperature,
+    stamp_rate,
+)
 
 FIELDS = ("TimeUS", "GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ", "T")
 DF_HEAD = b"\xa3\x95"
@@ -37,61 +47,112 @@ def open_dataflash(path: Path):
             file=path,
         )
     try:
-        return DFReader_binary(str(path), zero_time_base=False)
+        reader = DFReader_binary(str(path), zero_time_base=False)
     except Exception as exc:  # pymavlink raises plain exceptions on damaged logs
         problem = f"damaged DataFlash log ({type(exc).__name__}: {exc})"
         raise IngestError(problem, file=path) from None
+    check_records(path, {t: f.len for t, f in reader.formats.items()})
+    return reader
 
 
-def imu_rows(reader, path: Path, instance: int) -> tuple[list[tuple], str]:
-    """The FIELDS of every IMU record of `instance` and the message name they came from."""
-    names = [f"IMU{instance + 1}" if instance else "IMU"]
-    rows: list[tuple] = []
-    name = "IMU"
+def check_records(path: Path, lengths: dict[int, int]) -> None:
+    """Refuse a log whose records do not follow each other to the end of the file.
+
+    Every record is the head a3 95, a type byte and the body its FMT gives; pymavlink
+    skips bytes it cannot parse and stops at a record the file cuts short, both
+    silently. `lengths` : record type -> record length in bytes (head included).
+    """
+    with path.open("rb") as fh:
+        data = fh.read()
+    size, pos = len(data), 0
+    while pos < size:
+        length = lengths.get(data[pos + 2]) if pos + 3 <= size else None
+        if data[pos : pos + 2] != DF_HEAD or length is None:
+            what = ("a record head a3 95 and a type with a FMT" if pos + 3 <= size
+                    else "a whole record")  # fmt: skip
+            raise IngestError(
+                f"damaged DataFlash log: expected {what} at byte offset {pos}, found "
+                f"{data[pos : pos + 3].hex(' ')}"
+                + (" (the file ends there: the log was cut while written)"
+                   if pos + 3 > size else ""),
+                file=path,
+            )  # fmt: skip
+        if pos + length > size:
+            raise IngestError(
+                f"truncated DataFlash log: the last record (byte offset {pos}, type "
+                f"{data[pos + 2]}, {length} bytes) runs past the end of the file ({size} "
+                "bytes); the log was cut while written",
+                file=path,
+            )
+        pos += length
+
+
+def imu_rows(reader, path: Path) -> dict[int, tuple[list[tuple], str]]:
+    """instance -> (the FIELDS of each of its IMU records, the message name they came from)."""
+    by_instance: dict[int, tuple[list[tuple], str]] = {}
+    count = 0
     try:
         while True:
-            m = reader.recv_match(type=["IMU", names[0]])
+            m = reader.recv_match(type=["IMU", "IMU2", "IMU3"])
             if m is None:
                 break
             mtype = m.get_type()
             if mtype == "IMU" and hasattr(m, "I"):
-                if instance != m.I:
-                    continue
-            elif mtype != names[0]:
-                continue
-            name = mtype
+                instance = int(m.I)
+            else:
+                instance = 0 if mtype == "IMU" else int(mtype[3:]) - 1
+            rows = by_instance.setdefault(instance, ([], mtype))[0]
             rows.append(tuple(getattr(m, f) for f in FIELDS))
+            count += 1
     except AttributeError as exc:
         raise IngestError(f"IMU record lacks a field: {exc}", file=path, field="IMU") from None
     except Exception as exc:
         raise IngestError(
-            f"damaged DataFlash log after {len(rows)} IMU records ({type(exc).__name__}: {exc})",
+            f"damaged DataFlash log after {count} IMU records ({type(exc).__name__}: {exc})",
             file=path,
         ) from None
-    return rows, name
+    return by_instance
 
 
-def read_dataflash(path: Path, *, instance: int = 0) -> Recording:
+def dataflash_sources(by_instance: dict[int, tuple[list[tuple], str]]) -> list[LogSource]:
+    """One source per IMU instance, in instance order."""
+    out = []
+    for instance in sorted(by_instance):
+        rows, name = by_instance[instance]
+        t = np.array([r[0] for r in rows], dtype=float) * 1e-6
+        temp = recorded_temperature(np.array([r[7] for r in rows], dtype=float))
+        label = f"{name}[{instance}]" if name == "IMU" else name
+        out.append(LogSource(label, instance, len(rows), stamp_rate(t), temp is not None))
+    return out
+
+
+def read_dataflash(
+    path: Path, *, instance: int | None = None, min_rate_hz: float = MIN_RATE_HZ
+) -> Recording:
     """Read one IMU of an ArduPilot DataFlash log.
 
     Parameters
     ----------
     path : a ``.bin`` log.
-    instance : 0-based IMU instance (field ``I``, or message IMU2 for 1, ...).
+    instance : 0-based IMU instance (field ``I``, or message IMU2 for 1, ...); None: the
+        one logged at the highest rate.
+    min_rate_hz : the slowest IMU accepted, Hz.
 
     Returns
     -------
-    Recording with t (N,) s since boot, acc (N, 3) m/s^2, gyr (N, 3) rad/s, temp (N,) deg C.
+    Recording with t (N,) s since boot, acc (N, 3) m/s^2, gyr (N, 3) rad/s, temp (N,)
+    deg C (None when the log carries none).
 
     Raises
     ------
     IngestError naming the file and message/field: not a DataFlash log, no IMU
-    records of that instance, a non-finite value, time not increasing.
+    records of that instance, an IMU below `min_rate_hz` (every IMU's rate listed),
+    a non-finite value, time not increasing.
     """
     path = Path(path)
     reader = open_dataflash(path)
-    rows, name = imu_rows(reader, path, instance)
-    if not rows:
+    by_instance = imu_rows(reader, path)
+    if instance is not None and instance not in by_instance:
         raise IngestError(
             f"no IMU records of instance {instance} (messages IMU with I = {instance}"
             + (f", or IMU{instance + 1}" if instance else "")
@@ -99,9 +160,12 @@ def read_dataflash(path: Path, *, instance: int = 0) -> Recording:
             file=path,
             field="format.instance" if instance else "IMU",
         )
+    chosen = choose_source(path, dataflash_sources(by_instance), instance,
+                           min_rate_hz=min_rate_hz, field="format.instance")  # fmt: skip
+    rows, name = by_instance[int(chosen.key)]
     data = np.array(rows, dtype=float)
-    what = f"{name}[{instance}]" if name == "IMU" else name
+    what = chosen.name
     return checked_recording(
         path, what, data[:, 0] * 1e-6, {"gyr": data[:, 1:4], "acc": data[:, 4:7]},
-        temp=data[:, 7], temp_field="T",
+        temp=recorded_temperature(data[:, 7]), temp_field="T",
     )  # fmt: skip

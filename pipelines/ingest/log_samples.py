@@ -1,14 +1,24 @@
-"""Checks shared by the readers of binary logs (ULog, DataFlash, ROS bags).
+"""Checks shared by the readers of binary logs (ULog, DataFlash, ROS bags), and the
+choice among the sources of IMU samples a log holds.
 
 A log has no lines: a bad sample is named by its topic or message type, its
 record index (0-based, in the order the log holds them) and its field. The
 policy is the one of every reader (docs/manifest.md, "Bad samples"): a
-non-finite value or a time stamp that does not increase refuses the run with
-file, record and field; nothing is dropped silently.
+non-finite value, a value no IMU can read (a damaged record of a log without
+checksum) or a time stamp that does not increase refuses the run with file,
+record and field; nothing is dropped silently.
+
+A log may hold the same IMU several times (PX4's ``sensor_combined`` beside
+``sensor_accel`` / ``sensor_gyro`` logged at 1 Hz; ArduPilot's IMU instances;
+several Imu topics of a bag). The default (``source = "auto"``) takes the one
+logged at the highest rate (on a tie, the first the reader lists: the one with
+its own temperature); a source below `MIN_RATE_HZ` (``format.min_rate_hz``) is
+refused with every source's rate listed.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +51,8 @@ def checked_recording(
     Raises
     ------
     IngestError naming the file, ``record <i>`` and the field of the first
-    non-finite value or non-increasing time stamp, or an empty topic.
+    non-finite value, value beyond any IMU's range (`ACC_LIMIT`, `GYR_LIMIT`) or
+    non-increasing time stamp, or an empty topic.
     """
     if len(t) == 0:
         raise IngestError(f"{what}: no samples", file=path, field=what)
@@ -57,5 +68,117 @@ def checked_recording(
                 file=path,
                 field=f"{what}.{name}",
             )
+    for name, limit, unit, scale in (("acc", ACC_LIMIT, "m/s^2", 1.0),
+                                     ("gyr", GYR_LIMIT, "deg/s", 180.0 / np.pi)):  # fmt: skip
+        beyond = np.flatnonzero(np.abs(channels[name]).max(axis=1) > limit)
+        if beyond.size:
+            i = int(beyond[0])
+            raise IngestError(
+                f"{what} record {i}: {name} {np.round(channels[name][i] * scale, 6).tolist()} "
+                f"{unit}, beyond what any IMU measures ({limit * scale:g} {unit}): a damaged "
+                "value",
+                file=path,
+                field=f"{what}.{name}",
+            )
     check_time_increases(t, file=path, sample="record", field=f"{what}.time", prefix=f"{what}: ")
     return Recording(t=t, acc=channels["acc"], gyr=channels["gyr"], temp=temp, source=str(path))
+
+
+# Beyond the range of any IMU (shock accelerometers reach 2000 g, gyros 20000 deg/s): a
+# value of a damaged record, not a reading.
+ACC_LIMIT = 2000.0 * 9.80665  # m/s^2
+GYR_LIMIT = np.deg2rad(20000.0)  # rad/s
+
+# No procedure turns 1 Hz samples into a calibration: a turn of a second is one sample, a
+# static mean of 10 s ten. A log below this rate is refused unless format.min_rate_hz says.
+MIN_RATE_HZ = 10.0
+TIE = 0.99  # rates within 1 % are the same rate (the preference order decides)
+
+
+@dataclass(frozen=True)
+class LogSource:
+    """One source of accelerometer + gyro samples in a log.
+
+    Attributes
+    ----------
+    name : as the log names it (``"sensor_combined"``, ``"sensor_accel[0] + sensor_gyro[0]"``,
+        ``"IMU[1]"``, ``"/imu/data"``).
+    key : what selects it (format.source, format.instance or format.imu_topic).
+    samples : how many samples it holds (the slower of accelerometer and gyro).
+    rate_hz : samples per second (from the median time step; the slower of both), None
+        with fewer than two samples.
+    temperature : whether it carries a temperature of its own.
+    """
+
+    name: str
+    key: str | int
+    samples: int
+    rate_hz: float | None
+    temperature: bool
+
+    def describe(self) -> str:
+        rate = "rate unknown" if self.rate_hz is None else f"{self.rate_hz:.4g} Hz"
+        return f"{self.name} {rate} ({self.samples} samples)"
+
+    def summary(self) -> dict:
+        """For `calib inspect`: name, rate, samples, temperature."""
+        rate = None if self.rate_hz is None else round(self.rate_hz, 3)
+        return {"source": self.name, "rate_hz": rate, "samples": self.samples,
+                "temperature": "recorded" if self.temperature else "not recorded"}  # fmt: skip
+
+
+def stamp_rate(t: np.ndarray) -> float | None:
+    """Samples per second of time stamps `t` (s, any order) from the median step."""
+    step = np.median(np.diff(np.sort(np.asarray(t, dtype=float)))) if len(t) > 1 else 0.0
+    return float(1.0 / step) if step > 0 else None
+
+
+def choose_source(
+    path: Path,
+    sources: list[LogSource],
+    wanted: str | int | None = None,
+    *,
+    min_rate_hz: float = MIN_RATE_HZ,
+    field: str = "format.source",
+) -> LogSource:
+    """The source to read: `wanted` (a key), else the highest-rate one.
+
+    Raises
+    ------
+    IngestError naming the file and `field`, listing every source with its rate: no
+    source, an unknown `wanted`, or the source's rate below `min_rate_hz`.
+    """
+    listed = "; ".join(s.describe() for s in sources) or "none"
+    if wanted is not None:
+        chosen = next((s for s in sources if s.key == wanted), None)
+        if chosen is None:
+            raise IngestError(
+                f"no source {wanted!r} of accelerometer and gyro; the log's sources: {listed}",
+                file=path,
+                field=field,
+            )
+    elif not sources:
+        raise IngestError("no accelerometer and gyro samples (no IMU source)", file=path,
+                          field=field)  # fmt: skip
+    else:
+        best = max(s.rate_hz or 0.0 for s in sources)
+        chosen = next(s for s in sources if (s.rate_hz or 0.0) >= TIE * best)
+    if (chosen.rate_hz or 0.0) < min_rate_hz:
+        raise IngestError(
+            f"source {chosen.name} is logged at "
+            f"{'an unknown rate' if chosen.rate_hz is None else f'{chosen.rate_hz:.4g} Hz'}, "
+            f"below the {min_rate_hz:g} Hz a calibration needs; the log's sources: {listed}",
+            file=path,
+            field=field,
+        )
+    return chosen
+
+
+def recorded_temperature(temp: np.ndarray | None) -> np.ndarray | None:
+    """`temp` (deg C), or None when the log does not carry one: a field that is 0 or NaN in
+    every record is a sensor without a thermometer, not a reading of 0 deg C."""
+    if temp is None or not len(temp):
+        return None
+    if np.all(np.isnan(temp)) or not np.any(temp):
+        return None
+    return temp

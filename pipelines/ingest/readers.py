@@ -78,17 +78,19 @@ def _extra_keys(fmt: FormatSpec, kind: str, keys: tuple[str, ...]) -> dict:
 
 
 def _read_ulog(path: Path, fmt: FormatSpec) -> Recording:
-    """Adapter of [format] ``source``, ``instance`` to read_ulog (units: PX4's SI)."""
+    """Adapter of [format] ``source``, ``instance``, ``min_rate_hz`` to read_ulog (units: PX4's
+    SI)."""
     from pipelines.ingest.ulog_reader import read_ulog
 
-    return read_ulog(path, **_extra_keys(fmt, "ulog", ("source", "instance")))
+    return read_ulog(path, **_extra_keys(fmt, "ulog", ("source", "instance", "min_rate_hz")))
 
 
 def _read_dataflash(path: Path, fmt: FormatSpec) -> Recording:
-    """Adapter of [format] ``instance`` to read_dataflash (units: ArduPilot's SI)."""
+    """Adapter of [format] ``instance``, ``min_rate_hz`` to read_dataflash (units: ArduPilot's
+    SI)."""
     from pipelines.ingest.dataflash_reader import read_dataflash
 
-    return read_dataflash(path, **_extra_keys(fmt, "dataflash", ("instance",)))
+    return read_dataflash(path, **_extra_keys(fmt, "dataflash", ("instance", "min_rate_hz")))
 
 
 def _read_rosbag(path: Path, fmt: FormatSpec) -> Recording:

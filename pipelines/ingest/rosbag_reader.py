@@ -13,7 +13,9 @@ position -> reference ``table_angle`` rad, unwrapped; velocity -> ``table_rate``
 rad/s; joint ``table_joint``, name or index). Low-rate channels are interpolated
 onto the IMU time, holding their first / last value outside their span. Time:
 ``stamp = "header"`` (default; the message header stamp) or ``"log"`` (the bag's
-receive time), Unix seconds.
+receive time), Unix seconds. A bag with several Imu topics and no ``imu_topic``
+is read from the one logged at the highest rate; an IMU topic below
+``min_rate_hz`` is refused with every Imu topic's rate (pipelines.ingest.log_samples).
 """
 
 from __future__ import annotations
@@ -24,14 +26,20 @@ import numpy as np
 
 from calib_core.recording import Recording
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.log_samples import checked_recording
+from pipelines.ingest.log_samples import (
+    MIN_RATE_HZ,
+    LogSource,
+    checked_recording,
+    choose_source,
+    stamp_rate,
+)
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 IMU = "sensor_msgs/msg/Imu"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
 JOINT_STATE = "sensor_msgs/msg/JointState"
-KEYS = ("imu_topic", "temperature_topic", "table_topic", "table_joint", "stamp")
+KEYS = ("imu_topic", "temperature_topic", "table_topic", "table_joint", "stamp", "min_rate_hz")
 NS = 1e9
 
 
@@ -142,6 +150,7 @@ def read_rosbag(
     table_topic: str | None = None,
     table_joint: str | int = 0,
     stamp: str = "header",
+    min_rate_hz: float = MIN_RATE_HZ,
 ) -> Recording:
     """Read sensor_msgs/Imu (+ Temperature, + JointState table feedback) from a ROS bag.
 
@@ -162,6 +171,10 @@ def read_rosbag(
         raise IngestError(f"stamp must be 'header' or 'log', got {stamp!r}", field="format.stamp")
     reader, deserialize = open_bag(path)
     try:
+        if imu_topic is None and len({c.topic for c in reader.connections if c.msgtype == IMU}) > 1:
+            sources = bag_sources(reader, path)
+            imu_topic = str(choose_source(path, sources, min_rate_hz=min_rate_hz,
+                                          field="format.imu_topic").key)  # fmt: skip
         conns = _topic(reader, path, IMU, imu_topic, "imu_topic", True)
         t_ns, rows = _messages(reader, deserialize, conns, path, stamp, _imu_values)
         values = np.array(rows, dtype=float).reshape(-1, 6)
@@ -181,8 +194,32 @@ def read_rosbag(
     finally:
         reader.close()
     rec = checked_recording(path, conns[0].topic, t, {"acc": acc, "gyr": gyr}, temp=temp)
+    rate, topic = stamp_rate(rec.t), conns[0].topic
+    if rate is None or rate < min_rate_hz:
+        choose_source(path, [LogSource(topic, topic, len(rec), rate, temp is not None)],
+                      min_rate_hz=min_rate_hz, field="format.imu_topic")  # fmt: skip
     rec.reference.update(reference)
     return rec
+
+
+def bag_sources(reader, path: Path) -> list[LogSource]:
+    """One source per sensor_msgs/Imu topic, its rate from the bag's log times (no message
+    is decoded), in topic order."""
+    topics = sorted({c.topic for c in reader.connections if c.msgtype == IMU})
+    has_temp = any(c.msgtype == TEMPERATURE for c in reader.connections)
+    out = []
+    for topic in topics:
+        conns = [c for c in reader.connections if c.topic == topic]
+        try:
+            stamps = np.array([ns for _, ns, _ in reader.messages(connections=conns)], float)
+        except Exception as exc:  # a damaged chunk or index
+            raise IngestError(
+                f"{topic}: cannot read its messages ({type(exc).__name__}: {exc})",
+                file=path,
+                field=topic,
+            ) from None
+        out.append(LogSource(topic, topic, len(stamps), stamp_rate(stamps / NS), has_temp))
+    return out
 
 
 def _imu_values(m) -> tuple[float, ...]:

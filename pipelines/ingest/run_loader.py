@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
+
 from calib_core.recording import Recording, first_range_hit
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.ingest.csv_reader import read_csv_pair, read_csv_sections
@@ -457,6 +459,34 @@ def _section(
     return sections[name]
 
 
+STILL_TURNING = 5.0 * DEG  # rad/s: a gyro this far from its reading at the segment's start
+
+
+def _check_window_end(
+    whole: Recording, part: Recording, seg: SegmentSpec, index: int, source: str
+) -> None:
+    """Refuse a window that runs past the end of the data while the unit still turns
+    there: the file was cut short mid-motion (a log that lost power), the turn would be
+    silently incomplete. A window padded past the end of a file that ends at rest reads
+    as before."""
+    if seg.end_s is None or len(part) < 20:
+        return
+    step = float(np.median(np.diff(part.t)))
+    if seg.end_s <= whole.t[-1] + 1.5 * max(step, 0.0):
+        return
+    at_start = np.median(part.gyr[:10], axis=0)
+    at_end = np.median(part.gyr[-10:], axis=0)
+    if np.linalg.norm(at_end - at_start) > STILL_TURNING:
+        raise IngestError(
+            f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s runs past the "
+            f"end of the data ({' + '.join(seg.files)} ends at {whole.t[-1]:.6g} s) while the "
+            f"unit still turns there (gyro {np.linalg.norm(at_end - at_start) / DEG:.1f} deg/s "
+            "from its reading at the segment's start): the file was cut short",
+            file=source,
+            field=f"segments[{index}]",
+        )
+
+
 def _cut(
     whole: Recording, seg: SegmentSpec, index: int, source: str, increasing: bool = False
 ) -> Recording:
@@ -474,5 +504,6 @@ def _cut(
             file=source,
             field=f"segments[{index}]",
         )
+    _check_window_end(whole, part, seg, index, source)
     where = f"{whole.source} t in [{seg.start_s}, {seg.end_s}) s"
     return dataclasses.replace(part, label=seg.label, source=where)

@@ -14,22 +14,39 @@ sampled at the accelerometer's time stamps or is linearly interpolated onto
 them (a rotation's integral is kept to the interpolation error of one sample
 step); ``"sensor_combined"`` takes that topic, with the temperature of
 ``sensor_accel`` interpolated onto its time when logged; ``"auto"`` (default)
-prefers ``sensor_accel`` + ``sensor_gyro`` (they carry temperature) and falls
-back to ``sensor_combined``.
+takes the one of both logged at the higher rate (PX4 often logs
+``sensor_accel`` / ``sensor_gyro`` at 1 Hz beside a fast ``sensor_combined``),
+``sensor_accel`` + ``sensor_gyro`` on a tie (they carry temperature). A source
+below ``min_rate_hz`` is refused with every source's rate
+(pipelines.ingest.log_samples).
 """
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
 
 from calib_core.recording import Recording
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.log_samples import checked_recording
+from pipelines.ingest.log_samples import (
+    MIN_RATE_HZ,
+    LogSource,
+    checked_recording,
+    choose_source,
+    recorded_temperature,
+    stamp_rate,
+)
 
 SOURCES = ("auto", "sensor_accel", "sensor_combined")
 ULOG_MAGIC = b"ULog\x01\x12\x35"
+ULOG_HEADER_BYTES = 16  # magic, version, start timestamp
+# The record types of the ULog format (flag bits, format, info, info multiple, parameter,
+# parameter default, subscription, unsubscription, data, logging, tagged logging, sync,
+# dropout).
+RECORD_TYPES = frozenset(b"BFIMPQARDLCSO")
+ADD_LOGGED = ord("A")  # record type of a subscription: uint8 multi_id, uint16 msg_id, name
 TOPICS = ("sensor_combined", "sensor_accel", "sensor_gyro")
 
 
@@ -49,9 +66,62 @@ def load_ulog(path: Path):
             file=path,
         )
     try:
-        return ULog(str(path), list(TOPICS))
+        ulog = ULog(str(path), list(TOPICS))
     except Exception as exc:  # pyulog raises plain exceptions on damaged logs
         raise IngestError(f"damaged ULog ({type(exc).__name__}: {exc})", file=path) from None
+    check_records(path)
+    if ulog.file_corruption:
+        raise IngestError(
+            "damaged ULog: records pyulog cannot parse (skipped bytes or an unknown message "
+            "type); ULog carries no checksum, so no sample of it can be trusted",
+            file=path,
+        )
+    return ulog
+
+
+def check_records(path: Path) -> None:
+    """Refuse a ULog whose records do not follow each other to the end of the file.
+
+    A ULog is a 16-byte header, then records of (uint16 size, uint8 type, size bytes);
+    pyulog stops silently at a record the file cuts short, skips a record of a type it
+    does not know (a damaged size or type byte then hides the samples it spans) and
+    starts a topic afresh when its subscription comes twice (a chunk written twice). Each
+    of these is refused, naming the byte offset.
+    """
+    with path.open("rb") as fh:
+        data = fh.read()
+    size, pos, start = len(data), ULOG_HEADER_BYTES, ULOG_HEADER_BYTES
+    subscribed: dict[int, int] = {}  # msg_id -> byte offset of its subscription
+    head = struct.Struct("<HB").unpack_from
+    while pos + 3 <= size:
+        start = pos
+        length, kind = head(data, pos)
+        pos += 3 + length
+        if kind not in RECORD_TYPES:  # pyulog skips it, and the samples inside
+            raise IngestError(
+                f"damaged ULog: a record of unknown type 0x{kind:02x} at byte offset "
+                f"{start} ({pos - start} bytes); ULog carries no checksum, so the records "
+                "around it cannot be trusted",
+                file=path,
+            )
+        if kind == ADD_LOGGED and pos <= size:
+            msg_id = int.from_bytes(data[start + 4 : start + 6], "little")
+            if msg_id in subscribed:  # pyulog would drop the samples logged before it
+                raise IngestError(
+                    f"damaged ULog: message id {msg_id} is subscribed at byte offset "
+                    f"{subscribed[msg_id]} and again at byte offset {start} (a chunk of the "
+                    "log written twice)",
+                    file=path,
+                )
+            subscribed[msg_id] = start
+    if pos == size:
+        return
+    if pos > size:
+        problem = (f"the last record (byte offset {start}, {pos - start} bytes) runs past the "
+                   f"end of the file ({size} bytes)")  # fmt: skip
+    else:
+        problem = f"{size - pos} byte(s) after the last record (byte offset {pos}), not a record"
+    raise IngestError(f"truncated ULog: {problem}; the log was cut while written", file=path)
 
 
 def _topic(ulog, path: Path, name: str, instance: int):
@@ -77,24 +147,60 @@ def _fields(data, path: Path, names: list[str]) -> np.ndarray:
     return np.column_stack([np.asarray(data.data[n], dtype=float) for n in names])
 
 
-def read_ulog(path: Path, *, source: str = "auto", instance: int = 0) -> Recording:
+def ulog_sources(ulog, instances: list[int] | None = None) -> list[LogSource]:
+    """The sources of accelerometer + gyro samples in a loaded ULog, separate topics first.
+
+    `instances` limits the ``sensor_accel`` / ``sensor_gyro`` pairs to those instances
+    (None: every instance the log holds both of).
+    """
+    topics = {(d.name, d.multi_id): d for d in ulog.data_list}
+    pairs = sorted(i for n, i in topics if n == "sensor_accel" and ("sensor_gyro", i) in topics)
+    out = []
+    for i in pairs if instances is None else [i for i in instances if i in pairs]:
+        accel, gyro = topics["sensor_accel", i], topics["sensor_gyro", i]
+        rates = [stamp_rate(_stamps(d)) for d in (accel, gyro)]
+        out.append(LogSource(
+            f"sensor_accel[{i}] + sensor_gyro[{i}]", "sensor_accel",
+            min(len(_stamps(accel)), len(_stamps(gyro))),
+            None if None in rates else min(rates),  # type: ignore[type-var]
+            "temperature" in accel.data,
+        ))  # fmt: skip
+    if ("sensor_combined", 0) in topics:
+        stamps = _stamps(topics["sensor_combined", 0])
+        out.append(LogSource("sensor_combined", "sensor_combined", len(stamps),
+                             stamp_rate(stamps), False))  # fmt: skip
+    return out
+
+
+def _stamps(data) -> np.ndarray:
+    """A topic's time stamps in s (timestamp_sample when logged), for its rate."""
+    stamp = "timestamp_sample" if "timestamp_sample" in data.data else "timestamp"
+    return np.asarray(data.data.get(stamp, ()), dtype=float) * 1e-6
+
+
+def read_ulog(
+    path: Path, *, source: str = "auto", instance: int = 0, min_rate_hz: float = MIN_RATE_HZ
+) -> Recording:
     """Read the IMU samples of a PX4 ULog.
 
     Parameters
     ----------
     path : a ``.ulg`` file.
-    source : ``"auto"``, ``"sensor_accel"`` (with ``sensor_gyro``) or ``"sensor_combined"``.
+    source : ``"auto"`` (the higher-rate one), ``"sensor_accel"`` (with ``sensor_gyro``)
+        or ``"sensor_combined"``.
     instance : the IMU instance (ULog ``multi_id``) of sensor_accel / sensor_gyro.
+    min_rate_hz : the slowest source accepted, Hz.
 
     Returns
     -------
     Recording with t (N,) s on the log's clock (us since boot), acc (N, 3) m/s^2,
-    gyr (N, 3) rad/s, temp (N,) deg C when logged.
+    gyr (N, 3) rad/s, temp (N,) deg C when logged (None when not).
 
     Raises
     ------
     IngestError naming the file and the topic / field: not a ULog, damaged,
-    a missing topic or field, a non-finite sample, time not increasing.
+    a missing topic or field, a source below `min_rate_hz` (every source's rate
+    listed), a non-finite sample, time not increasing.
     """
     path = Path(path)
     if source not in SOURCES:
@@ -103,9 +209,15 @@ def read_ulog(path: Path, *, source: str = "auto", instance: int = 0) -> Recordi
             field="format.source",
         )
     ulog = load_ulog(path)
-    names = {(d.name, d.multi_id) for d in ulog.data_list}
-    separate = ("sensor_accel", instance) in names and ("sensor_gyro", instance) in names
-    if source == "sensor_accel" or (source == "auto" and separate):
+    sources = ulog_sources(ulog, [instance])
+    if source != "auto" and source not in {s.key for s in sources}:
+        # the missing topic, named as the log has it
+        _topic(ulog, path, source, instance if source == "sensor_accel" else 0)
+        _topic(ulog, path, "sensor_gyro", instance)
+    chosen = choose_source(
+        path, sources, None if source == "auto" else source, min_rate_hz=min_rate_hz
+    )
+    if chosen.key == "sensor_accel":
         return _separate(ulog, path, instance)
     return _combined(ulog, path, instance)
 
@@ -119,6 +231,7 @@ def _separate(ulog, path: Path, instance: int) -> Recording:
     acc = _fields(accel, path, ["x", "y", "z"])
     gyr = _fields(gyro, path, ["x", "y", "z"])
     temp = _fields(accel, path, ["temperature"])[:, 0] if "temperature" in accel.data else None
+    temp = recorded_temperature(temp)
     if len(t_gyr) != len(t) or not np.array_equal(t_gyr, t):
         # Accelerometer samples outside the gyro's span have no gyro value: left out.
         keep = (t >= t_gyr[0]) & (t <= t_gyr[-1]) if len(t_gyr) else np.zeros(len(t), bool)
@@ -138,7 +251,9 @@ def _combined(ulog, path: Path, instance: int) -> Recording:
     for d in ulog.data_list:
         if d.name == "sensor_accel" and d.multi_id == instance and "temperature" in d.data:
             t_temp = np.asarray(d.data["timestamp"], dtype=float) * 1e-6
-            temp = np.interp(t, t_temp, np.asarray(d.data["temperature"], dtype=float))
+            logged = recorded_temperature(np.asarray(d.data["temperature"], dtype=float))
+            if logged is not None and len(t_temp) == len(logged):
+                temp = np.interp(t, t_temp, logged)
     return checked_recording(path, "sensor_combined", t, {"acc": acc, "gyr": gyr}, temp=temp)
 
 
