@@ -417,7 +417,6 @@ def template_run(work: Path):  # noqa: ANN201 - (RunIn, protocol bytes)
     from pipelines.process import (
         check_run,
         ingest_step,
-        parameter_rows,
         protocol_of,
         run_record,
         solve_loaded,
@@ -428,9 +427,8 @@ def template_run(work: Path):  # noqa: ANN201 - (RunIn, protocol bytes)
     loaded = load_run(RunSource(SAMPLE_RUN, "mpu6000", "MPU0001"))
     cal, steps, settings, *_ = solve_loaded(loaded)
     judged = check_run(loaded, cal, scratch, "R000000000000")
-    rows = parameter_rows(cal, loaded.manifest.environment.temperature_c)
-    run = run_record(loaded, cal, [ingest_step(loaded, 0.0), *steps], settings, judged, rows)
-    protocol = protocol_of(loaded, cal, judged, "R000000000000", rows).encode()
+    run = run_record(loaded, cal, [ingest_step(loaded, 0.0), *steps], settings, judged)
+    protocol = protocol_of(loaded, cal, judged, "R000000000000").encode()
     scratch.dispose()
     return run, protocol
 
@@ -454,7 +452,7 @@ def real_runs(n: int, work: Path) -> Iterator:
             path.write_bytes(body)
             raw.append(RawFileIn(path, f.name, hashlib.sha256(body).hexdigest(), len(body),
                                  f.format))  # fmt: skip
-        params_i = [{**p, "value": p["value"] * (1 + 1e-3 * rng.standard_normal())}
+        params_i = [replace(p, value=p.value * (1 + 1e-3 * rng.standard_normal()))
                     for p in run.parameters]  # fmt: skip
         yield replace(run, serial=f"MPU{i % 100:04d}", raw_files=raw, parameters=params_i,
                       started_at=T0 + timedelta(hours=i)), protocol  # fmt: skip

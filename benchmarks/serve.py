@@ -2,7 +2,7 @@
 
 Builds the synthetic archive of benchmarks/archive.py (10k units of three models, 100k
 runs, 5M parameter rows; bulk-loaded, schema by the real migrations), opens it as the
-server does (storage.browse.open_readonly: SQLite ``mode=ro``; PostgreSQL in read-only
+server does (storage.queries.open_readonly: SQLite ``mode=ro``; PostgreSQL in read-only
 transactions as the ``calib_reader`` role) and requests each page through the whole
 application (FastAPI's TestClient: routing, validation, queries, templates, SVG; no
 network) for randomly chosen runs, units, equipment and filters:
@@ -101,7 +101,7 @@ def bench(archive: Archive, synth: Synth, requests: int) -> dict[str, dict[str, 
     from fastapi.testclient import TestClient
 
     from pipelines.web.app import create_app
-    from storage.browse import open_readonly
+    from storage.queries import open_readonly
 
     ro = open_readonly(archive)
     rng = np.random.default_rng(SEED + 23)

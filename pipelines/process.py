@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 
 from calib_core import procedures, verification
-from calib_core.calibration import Calibration, CheckResult, StepRecord
+from calib_core.calibration import Calibration, CheckResult, Parameter, StepRecord
 from calib_core.checks import check_calibration
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
@@ -350,10 +350,9 @@ def check_run(
     return Judged(checks, verdict_, profile, step)
 
 
-def parameter_rows(cal: Calibration, temperature_c: float | None) -> list[dict[str, Any]]:
-    """The archive's parameter rows (`Parameter.to_row`) with the run's temperature (degC);
-    the archive writes rows and document from the Parameters read back from these."""
-    return [p.to_row(temperature_c) for p in sorted(cal.parameters.values(), key=lambda p: p.name)]
+def archived_parameters(cal: Calibration) -> list[Parameter]:
+    """The calibration's parameters in the order the archive keeps them (by name)."""
+    return sorted(cal.parameters.values(), key=lambda p: p.name)
 
 
 def _run_identity(m: RunManifest) -> dict[str, Any]:
@@ -368,7 +367,7 @@ def _run_identity(m: RunManifest) -> dict[str, Any]:
 
 
 def protocol_of(
-    loaded: LoadedRun, cal: Calibration, judged: Judged, run_id: str, rows: list[dict[str, Any]],
+    loaded: LoadedRun, cal: Calibration, judged: Judged, run_id: str,
     budgets: dict[str, Budget] | None = None,
 ) -> str:
     """The test protocol text (MPU-6000 layout) of the run, with the uncertainty budgets."""
@@ -377,7 +376,7 @@ def protocol_of(
         run_id=run_id,
         profile=f"{judged.profile.name} v{judged.profile.version}",
         gravity=cal.gravity,
-        parameters=rows,
+        parameters=[p.to_row() for p in archived_parameters(cal)],
         checks=[c.to_dict() for c in judged.checks],
         verdict=judged.verdict,
         budgets={n: b.to_dict() for n, b in (budgets or {}).items()},
@@ -392,7 +391,6 @@ def run_record(
     steps: list[StepRecord],
     settings: dict[str, Any],
     judged: Judged,
-    rows: list[dict[str, Any]],
 ) -> RunIn:
     """Everything the archive keeps of the run, from the manifest and the results."""
     m = loaded.manifest
@@ -410,14 +408,15 @@ def run_record(
         settings=settings,
         software_version=SOFTWARE_VERSION,
         source_revision=source_revision(),
-        steps=[s.to_dict() for s in [*steps, judged.step]],
+        steps=[*steps, judged.step],
         calibration=cal.to_dict(),
-        parameters=rows,
-        checks=[c.to_dict() for c in judged.checks],
+        parameters=archived_parameters(cal),
+        checks=list(judged.checks),
         verdict=judged.verdict,
         profile_name=judged.profile.name,
         profile_version=judged.profile.version,
         samples=samples_table(loaded.segments),
+        parameter_temperature_c=m.environment.temperature_c,
     )
 
 
@@ -476,26 +475,26 @@ def process_run(
         if earlier is not None:  # the unit comes back: as found beside as left
             solve_steps.append(as_found_step(earlier, cal, fit, settings, budgets,
                                              judged.profile))  # fmt: skip
-        rows = parameter_rows(cal, loaded.manifest.environment.temperature_c)
         protocol_name = f"{serial}_result.txt"
         result: ArchiveResult = archive_run(
             archive,
-            run_record(loaded, cal, steps + solve_steps, settings, judged, rows),
+            run_record(loaded, cal, steps + solve_steps, settings, judged),
             extra_files={
-                protocol_name: protocol_of(loaded, cal, judged, run_id, rows, budgets).encode()
+                protocol_name: protocol_of(loaded, cal, judged, run_id, budgets).encode()
             },
             pending=pending,
             reason=reason,  # into the audit trail's event of the revision
         )
         checks, verdict_, message = judged.checks, judged.verdict, result.message
-        if result.status != "duplicate":  # the unit's later runs, and this one, by run time
-            again = rejudge_from(archive, serial, loaded.manifest.run.procedure, result.run_id)
-            if (own := again.get(result.run_id)) is not None:
-                checks, verdict_ = own["checks"], own["verdict"]
-                message += f"; judged again by run time as revision {own['revision']}"
-            for other, new in again.items():
-                if other != result.run_id:
-                    message += f"; run {other} judged again: {new['verdict']}"
+        # The unit's later runs, and this one, judged again by run time where an earlier
+        # run came later (also for a duplicate: processing a run again completes that).
+        again = rejudge_from(archive, serial, loaded.manifest.run.procedure, result.run_id)
+        if (own := again.get(result.run_id)) is not None:
+            checks, verdict_ = own["checks"], own["verdict"]
+            message += f"; judged again by run time as revision {own['revision']}"
+        for other, new in again.items():
+            if other != result.run_id:
+                message += f"; run {other} judged again: {new['verdict']}"
     except Exception as exc:
         if reraise is not None and reraise(exc):
             raise

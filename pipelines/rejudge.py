@@ -78,7 +78,9 @@ def rejudge_from(archive: Archive, serial: str, procedure: str, run_id: str) -> 
         if at is None:  # not (or no longer) current: nothing from it to judge
             return done
         for i in range(at, -1, -1):  # the run itself, then the later runs, oldest first
-            cand, earlier = cands[i], cands[i + 1 :]
+            cand = cands[i]
+            # made before it: started earlier (a run started at the same instant is not)
+            earlier = [c for c in cands[i + 1 :] if c["started_at"] < cand["started_at"]]
             new = _judged_again(archive, cand, earlier, run_id)
             if new is None:
                 continue
@@ -130,10 +132,10 @@ def _judged_again(
         run_id=cand["run_id"],
         calibration_id=cand["calibration_id"],
         earlier=[e["run_id"] for e in earlier],
-        checks=[c.to_dict() for c in checks],
+        checks=checks,
         check_statistics=stats,
         verdict=verdict,
-        step=step_record.to_dict(),
+        step=step_record,
         reason=reason,
     )
     return judged, {"checks": checks, "verdict": verdict}

@@ -9,6 +9,8 @@ profile) and the software version:
 - unknown raw_hash                      -> new run, revision 1          ("ok")
 - known raw_hash, known settings + software -> nothing written          ("duplicate")
 - known raw_hash, new settings or software  -> revision n+1, supersedes n ("revised")
+- a run judged again against the unit's earlier runs (`rejudge_run`) -> revision n+1
+  with the same parameters, document and steps, its own checks and verdict ("revised")
 
 Order of writes: raw objects (content-addressed, harmless if orphaned), the
 samples Parquet file and the extra files (protocol...) into the run folder,
@@ -18,7 +20,7 @@ attempt created in the run folder are removed again. Concurrent archiving of
 the same run is resolved by the database's unique constraints: the loser gets
 an IntegrityError, looks again and reports "duplicate".
 
-Why one module of ~730 lines: the write path (validation of the input, the plan, the
+Why one module of ~870 lines: the write path (validation of the input, the plan, the
 files, the rows, the retry when a concurrent writer wins) is the story of one
 transaction and its invariants, read best top to bottom in one place.
 """
@@ -38,8 +40,9 @@ from sqlalchemy import Engine, func, insert, select, text
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from calib_core.calibration import Parameter
+from calib_core.calibration import CheckResult, Parameter, StepRecord
 from storage import rawstore, schema, seal, unit_latest
+from storage.current import CURRENT, LATEST_RUN_FIRST
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.schema import Base
@@ -78,7 +81,9 @@ class RawFileIn:
 
 @dataclass
 class RunIn:
-    """Everything the archive keeps about one processed run (plain data, SI units)."""
+    """Everything the archive keeps about one processed run (SI units): plain data, and the
+    parameters, checks and steps as calib_core objects, from which the archive writes its
+    rows and the sealed calibration document."""
 
     serial: str
     device_model: str
@@ -97,14 +102,17 @@ class RunIn:
     settings: dict[str, Any]
     software_version: str
     source_revision: str | None
-    steps: list[dict[str, Any]]  # name, settings, statistics, software_version
+    steps: list[StepRecord]  # in order; the rows of processing_steps
     calibration: dict[str, Any]  # Calibration.to_dict(); its "parameters" come from `parameters`
-    parameters: list[dict[str, Any]]  # name, value, std, unit, temperature_c (+ cov_index)
-    checks: list[dict[str, Any]]  # name, value, limit, passed, detail
-    verdict: str  # "pass" or "fail"
+    parameters: list[Parameter]  # the parameters rows and the document's, in this order
+    checks: list[CheckResult]  # the check_results rows
+    verdict: str  # "pass", "needs review" or "fail"
     profile_name: str | None
     profile_version: str | None
     samples: pa.Table | None = None
+    # The temperature the parameters belong to (deg C; None: not recorded), kept on
+    # every parameter row (the run's lab temperature).
+    parameter_temperature_c: float | None = None
 
 
 @dataclass
@@ -123,19 +131,15 @@ class ArchiveResult:
 # --- parameters: one form for rows and document -------------------------------
 
 
-def parameters_of(run: RunIn) -> list[Parameter]:
-    """The run's parameters as `Parameter` objects, in the order of ``run.parameters``.
+def calibration_document(run: RunIn) -> dict[str, Any]:
+    """The stored calibration document: ``run.calibration`` with its parameters from
+    ``run.parameters``.
 
     The archive writes both the ``parameters`` rows and the parameters of the stored
-    calibration document from these objects, so the two cannot disagree when written
-    (`storage.verify` reports any later disagreement).
+    calibration document from the same `Parameter` objects, so the two cannot disagree
+    when written (`storage.verify` reports any later disagreement).
     """
-    return [Parameter.from_row(p) for p in run.parameters]
-
-
-def calibration_document(run: RunIn, params: list[Parameter]) -> dict[str, Any]:
-    """The stored calibration document: ``run.calibration`` with its parameters from `params`."""
-    return {**run.calibration, "parameters": {p.name: p.to_dict() for p in params}}
+    return {**run.calibration, "parameters": {p.name: p.to_dict() for p in run.parameters}}
 
 
 # --- identities -------------------------------------------------------------
@@ -228,32 +232,29 @@ def _validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
                 raise ValueError(f"equipment[{i}].{key}: expected a non-empty string")
         for key in ("calibration_due", "calibrated_on"):
             _as_date(eq.get(key), f"equipment[{i}].{key}")
-    for i, p in enumerate(run.parameters):
-        if not isinstance(p.get("name"), str):
-            raise ValueError(f"parameters[{i}].name: expected a string, got {p.get('name')!r}")
-        _number(p.get("value"), f"parameters[{i}] ({p['name']}).value", optional=False)
-        _number(p.get("std"), f"parameters[{i}] ({p['name']}).std", optional=True)
-        _number(
-            p.get("temperature_c"), f"parameters[{i}] ({p['name']}).temperature_c", optional=True
-        )
-        try:
-            Parameter.from_dict(p["name"], p)
-        except ValueError as exc:
-            raise ValueError(f"parameters[{i}]: {exc}") from None
-    for what, items in (("steps", run.steps), ("checks", run.checks)):
+    _number(run.parameter_temperature_c, "parameter_temperature_c", optional=True)
+    for what, items, kind in (("parameters", run.parameters, Parameter),
+                              ("steps", run.steps, StepRecord),
+                              ("checks", run.checks, CheckResult)):  # fmt: skip
         for i, item in enumerate(items):
-            if not isinstance(item.get("name"), str) or not item.get("name"):
+            if not isinstance(item, kind):
+                raise TypeError(f"{what}[{i}]: expected a {kind.__name__}, "
+                                f"got {type(item).__name__}")  # fmt: skip
+            if not isinstance(item.name, str) or not item.name:
                 raise ValueError(f"{what}[{i}].name: expected a non-empty string")
+    for i, p in enumerate(run.parameters):
+        _number(p.value, f"parameters[{i}] ({p.name}).value", optional=False)
+        _number(p.std, f"parameters[{i}] ({p.name}).std", optional=True)
     for i, c in enumerate(run.checks):
-        _number(c.get("value"), f"checks[{i}] ({c['name']}).value", optional=True)
-        _number(c.get("limit"), f"checks[{i}] ({c['name']}).limit", optional=True)
-        if not isinstance(c.get("passed"), bool):
-            raise ValueError(f"checks[{i}].passed: expected true or false, got {c.get('passed')!r}")
+        _number(c.value, f"checks[{i}] ({c.name}).value", optional=True)
+        _number(c.limit, f"checks[{i}] ({c.name}).limit", optional=True)
+        if not isinstance(c.passed, bool):
+            raise ValueError(f"checks[{i}].passed: expected true or false, got {c.passed!r}")
     for where, value in [
         ("site", run.site),
         ("environment", run.environment),
         ("calibration", run.calibration),
-        ("steps", run.steps),
+        ("steps", [st.to_dict() for st in run.steps]),
     ]:
         _canonical_json(value, where)
     if run.samples is not None and not isinstance(run.samples, pa.Table):
@@ -507,7 +508,6 @@ def _write_rows(
     `ids` is (raw hash, run id, settings hash).
     """
     raw_hash, run_id, settings_hash = ids
-    params = parameters_of(run)
     with Session(engine) as s, s.begin():
         if _plan(s, run, raw_hash, settings_hash) != plan:
             raise _PlanChangedError
@@ -522,7 +522,7 @@ def _write_rows(
             settings=run.settings,
             software_version=run.software_version,
             source_revision=run.source_revision,
-            document=calibration_document(run, params),
+            document=calibration_document(run),
             verdict=run.verdict,
             profile_name=run.profile_name,
             profile_version=run.profile_version,
@@ -531,7 +531,7 @@ def _write_rows(
         s.flush()
         if plan.previous_id is not None:
             s.get(schema.CalibrationRow, plan.previous_id).superseded_by = cal.id
-        _insert_children(s, run, params, run_pk, cal.id)
+        _insert_children(s, run, run_pk, cal.id)
         s.flush()
         device_id = s.scalar(select(schema.Run.device_id).where(schema.Run.id == run_pk))
         unit_latest.refresh(s.connection(), device_id)  # the fleet's picks, never stale
@@ -553,20 +553,20 @@ class Rejudgement:
     calibration_id : the revision judged again; it must still be the current one.
     earlier : run ids of the unit's runs (same procedure) made before it, most recent first,
         as the new checks saw them; they must still be the archive's.
-    checks : every check of the new revision (name, value, limit, passed, detail).
+    checks : every check of the new revision.
     check_statistics : the statistics of its ``check`` step.
     verdict : the new verdict.
-    step : the step record of the judgement (name, settings, statistics, software_version).
+    step : the step record of the judgement, appended to the revision's steps.
     reason : why, into the audit trail.
     """
 
     run_id: str
     calibration_id: int
     earlier: list[str]
-    checks: list[dict[str, Any]]
+    checks: list[CheckResult]
     check_statistics: dict[str, Any]
     verdict: str
-    step: dict[str, Any]
+    step: StepRecord
     reason: str
 
 
@@ -616,9 +616,9 @@ def _earlier_runs(s: Session, run: schema.Run) -> list[str]:
                 schema.Run.device_id == run.device_id,
                 schema.Run.procedure == run.procedure,
                 schema.Run.started_at < run.started_at,
-                schema.CalibrationRow.superseded_by.is_(None),
+                CURRENT,
             )
-            .order_by(schema.Run.started_at.desc(), schema.Run.id.desc())
+            .order_by(*LATEST_RUN_FIRST)
         )
     )
 
@@ -659,9 +659,9 @@ def _judged_again(
         for i, st in enumerate(steps)
     ]  # fmt: skip
     rows.append({"run_id": prev.run_id, "calibration_id": cal.id, "seq": len(rows),
-                 "name": judged.step["name"], "settings": judged.step.get("settings", {}),
-                 "statistics": judged.step.get("statistics", {}),
-                 "software_version": judged.step["software_version"],
+                 "name": judged.step.name, "settings": judged.step.settings,
+                 "statistics": judged.step.statistics,
+                 "software_version": judged.step.software_version,
                  "source_revision": prev.source_revision})  # fmt: skip
     _insert_many(s, schema.ProcessingStep, rows)
     params = s.execute(
@@ -673,9 +673,9 @@ def _judged_again(
     _insert_many(s, schema.ParameterRow,
                  [{"calibration_id": cal.id, **p._mapping} for p in params])  # fmt: skip
     _insert_many(s, schema.CheckResultRow, [
-        {"calibration_id": cal.id, "name": c["name"], "value": c.get("value"),
-         "limit": c.get("limit"), "passed": c["passed"], "detail": c.get("detail", ""),
-         "profile_name": prev.profile_name, "profile_version": prev.profile_version}
+        {"calibration_id": cal.id, "name": c.name, "value": c.value, "limit": c.limit,
+         "passed": c.passed, "detail": c.detail, "profile_name": prev.profile_name,
+         "profile_version": prev.profile_version}
         for c in judged.checks
     ])  # fmt: skip
     s.flush()
@@ -693,19 +693,17 @@ def _revision_reason(s: Session, previous_id: int, settings_hash: str, software:
     return "processed again (no reason given): " + ", ".join(changed)
 
 
-def _insert_children(
-    s: Session, run: RunIn, params: list[Parameter], run_pk: int, cal_id: int
-) -> None:
+def _insert_children(s: Session, run: RunIn, run_pk: int, cal_id: int) -> None:
     """The step, parameter and check rows of a new calibration revision."""
     steps = [
         {
             "run_id": run_pk,
             "calibration_id": cal_id,
             "seq": i,
-            "name": st["name"],
-            "settings": st.get("settings", {}),
-            "statistics": st.get("statistics", {}),
-            "software_version": st.get("software_version", run.software_version),
+            "name": st.name,
+            "settings": st.settings,
+            "statistics": st.statistics,
+            "software_version": st.software_version,
             "source_revision": run.source_revision,
         }
         for i, st in enumerate(run.steps)
@@ -713,14 +711,14 @@ def _insert_children(
     _insert_many(s, schema.ProcessingStep, steps)
     rows = [
         {"calibration_id": cal_id, "name": p.name, "value": p.value, "std": p.std,
-         "unit": p.unit, "temperature_c": row.get("temperature_c")}
-        for p, row in zip(params, run.parameters, strict=True)
+         "unit": p.unit, "temperature_c": run.parameter_temperature_c}
+        for p in run.parameters
     ]  # fmt: skip
     _insert_many(s, schema.ParameterRow, rows)
     checks = [
-        {"calibration_id": cal_id, "name": c["name"], "value": c.get("value"),
-         "limit": c.get("limit"), "passed": c["passed"], "detail": c.get("detail", ""),
-         "profile_name": run.profile_name, "profile_version": run.profile_version}
+        {"calibration_id": cal_id, "name": c.name, "value": c.value, "limit": c.limit,
+         "passed": c.passed, "detail": c.detail, "profile_name": run.profile_name,
+         "profile_version": run.profile_version}
         for c in run.checks
     ]  # fmt: skip
     _insert_many(s, schema.CheckResultRow, checks)
@@ -806,7 +804,7 @@ def _guard_description(s: Session, run: RunIn, device_pk: int, run_id: str) -> N
     """Refuse a run whose passed `DESCRIPTION_CHECK` no longer holds: a run of the same
     serial with another model or manufacturer was committed since (concurrent runs of
     one unit in a batch). Runs without that check are not judged here."""
-    if not any(c["name"] == DESCRIPTION_CHECK and c["passed"] for c in run.checks):
+    if not any(c.name == DESCRIPTION_CHECK and c.passed for c in run.checks):
         return
     other = s.execute(
         select(schema.Run.run_id, schema.Run.model, schema.Run.manufacturer)

@@ -15,9 +15,10 @@ values the one nearest REFERENCE_C, keyed by model, name and serial):
 - `differences` and `value_differences` compare the tables with their derivation
   (`calib verify` reports each unit whose rows disagree: never a silently wrong fleet).
 
-The picks are those of storage.queries.fleet and latest_valid: latest by run start, the
-later archived (larger id) among equal starts; of two current revisions of one run (a
-broken archive, which verify reports too) the later one.
+The picks follow the one rule of storage.current (as storage.queries.fleet and
+latest_valid): latest by run start, the later archived (larger id) among equal starts;
+of two current revisions of one run (a broken archive, which verify reports too) the
+later one.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from sqlalchemy import Connection, ScalarSelect, Select, bindparam, delete, inse
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 
-from storage.queries._common import PASS
+from storage.current import CURRENT, LATEST_RUN_FIRST, latest_valid_pick
 from storage.schema import CalibrationRow, Device, ParameterRow, Run, UnitLatest, UnitLatestValue
 
 COLUMNS = (
@@ -52,7 +53,7 @@ LIVE = (UnitLatest.device_id == UnitLatestValue.device_id) & (
 
 def _latest_run() -> ScalarSelect:
     return (select(Run.id).where(Run.device_id == Device.id)
-            .order_by(Run.started_at.desc(), Run.id.desc()).limit(1)
+            .order_by(*LATEST_RUN_FIRST).limit(1)
             .correlate(Device).scalar_subquery())  # fmt: skip
 
 
@@ -69,17 +70,10 @@ def _derived(one_unit: bool = False) -> Select:
     from runs and calibrations (a backward step on the runs index per pick)."""
     latest = _latest_run()
     current = (select(CalibrationRow.id)
-               .where(CalibrationRow.run_id == latest, CalibrationRow.superseded_by.is_(None))
+               .where(CalibrationRow.run_id == latest, CURRENT)
                .order_by(CalibrationRow.id.desc()).limit(1)
                .correlate(Device).scalar_subquery())  # fmt: skip
-    valid = (
-        select(CalibrationRow.id)
-        .join(Run, Run.id == CalibrationRow.run_id)
-        .where(Run.device_id == Device.id, CalibrationRow.superseded_by.is_(None),
-               CalibrationRow.verdict == PASS)
-        .order_by(Run.started_at.desc(), Run.id.desc(), CalibrationRow.id.desc())
-        .limit(1).correlate(Device).scalar_subquery()
-    )  # fmt: skip
+    valid = latest_valid_pick(Run.device_id == Device.id).correlate(Device).scalar_subquery()
     picks = select(Device.id.label("device_id"), latest.label("run_id"),
                    current.label("calibration_id"), valid.label("valid_calibration_id"))
     if one_unit:

@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 import pytest
 from sqlalchemy import func, select
 
-from calib_core.calibration import Calibration
+from calib_core.calibration import Calibration, CheckResult, Parameter, StepRecord
 from storage import queries, rawstore
 from storage.archive import (
     ArchiveError,
@@ -93,38 +93,15 @@ def make_run(
         software_version="0.1.0",
         source_revision="abc123",
         steps=[
-            {
-                "name": "ingest",
-                "settings": {},
-                "statistics": {"rows": 3000},
-                "software_version": "0.1.0",
-            },
-            {
-                "name": "solve",
-                "settings": {"method": "lsq"},
-                "statistics": {"cond": 1.7},
-                "software_version": "0.1.0",
-            },
+            StepRecord("ingest", {}, {"rows": 3000}, "0.1.0"),
+            StepRecord("solve", {"method": "lsq"}, {"cond": 1.7}, "0.1.0"),
         ],
         calibration=doc,
         parameters=[
-            {
-                "name": k,
-                "value": v["value"],
-                "std": v["std"],
-                "unit": v["unit"],
-                "temperature_c": None,
-            }
-            for k, v in doc["parameters"].items()
+            Parameter(k, v["value"], v["std"], v["unit"]) for k, v in doc["parameters"].items()
         ],
         checks=[
-            {
-                "name": "acc.bias.x",
-                "value": doc["parameters"]["acc.bias.x"]["value"],
-                "limit": 0.5,
-                "passed": True,
-                "detail": "",
-            },
+            CheckResult("acc.bias.x", doc["parameters"]["acc.bias.x"]["value"], 0.5, True, ""),
         ],
         verdict=verdict,
         profile_name="mpu6000",
@@ -208,7 +185,7 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
     cal = s["calibration"]
     assert cal["revision"] == 1 and cal["verdict"] == "pass" and cal["superseded_by"] is None
     assert {p["name"]: (p["value"], p["std"]) for p in cal["parameters"]} == {
-        p["name"]: (p["value"], p["std"]) for p in run.parameters
+        p.name: (p.value, p.std) for p in run.parameters
     }
     assert [st["name"] for st in cal["steps"]] == ["ingest", "solve"]
     assert cal["steps"][1]["statistics"] == {"cond": 1.7}
@@ -256,7 +233,7 @@ def test_new_settings_or_software_add_revisions_that_supersede(
     run2 = replace(
         run,
         settings={**run.settings, "outlier_sigma": 4.0},
-        parameters=[{**p, "value": p["value"] + 1e-3} for p in run.parameters],
+        parameters=[replace(p, value=p.value + 1e-3) for p in run.parameters],
     )
     r2 = archive_run(archive, run2, {PROTOCOL: b"rev 2"})
     assert (r2.status, r2.run_id, r2.revision) == ("revised", r1.run_id, 2)
@@ -277,7 +254,7 @@ def test_new_settings_or_software_add_revisions_that_supersede(
     assert h["revision"].tolist() == [1, 2, 3]
     assert h["superseded"].tolist() == [True, True, False]
     ph = queries.parameter_history(archive, "0012", "acc.bias.x", include_superseded=True)
-    v1 = next(p["value"] for p in run.parameters if p["name"] == "acc.bias.x")
+    v1 = next(p.value for p in run.parameters if p.name == "acc.bias.x")
     assert ph["value"].tolist() == [v1, v1 + 1e-3, v1 + 1e-3]
     cur = queries.parameter_history(archive, "0012", "acc.bias.x")
     assert cur["revision"].tolist() == [3]
@@ -324,7 +301,7 @@ def test_failing_transaction_leaves_no_rows_and_no_run_folder(
     # std < 0 passes the Python checks but violates the parameters table's CHECK
     # constraint: the failure comes from the database after the run, calibration
     # and step rows have already been sent in the same transaction.
-    bad.parameters[-1]["std"] = -1.0
+    bad.parameters[-1] = replace(bad.parameters[-1], std=-1.0)
     with pytest.raises(ArchiveError, match="refused the rows"):
         archive_run(archive, bad, {PROTOCOL: b"p"})
     assert set(counts(archive).values()) == {0}
@@ -336,8 +313,7 @@ def test_failing_transaction_leaves_no_rows_and_no_run_folder(
     r1 = archive_run(archive, good, {PROTOCOL: b"rev 1"})
     rows = counts(archive)
     bad_rev = replace(good, settings={"other": True})
-    bad_rev.parameters = [dict(p) for p in good.parameters]
-    bad_rev.parameters[0]["std"] = -1.0
+    bad_rev.parameters = [replace(good.parameters[0], std=-1.0), *good.parameters[1:]]
     with pytest.raises(ArchiveError):
         archive_run(archive, bad_rev, {PROTOCOL: b"rev 2"})
     assert counts(archive) == rows

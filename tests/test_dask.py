@@ -176,3 +176,26 @@ def test_batch_on_a_dask_cluster_into_postgresql(
             assert conn.execute(select(func.count()).select_from(schema.Run)).scalar_one() == 4
     finally:
         archive.dispose()
+
+
+def test_dask_batch_in_any_order_gives_the_verdicts_of_time_order(
+    dask_cluster: str, postgres_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The sample unit's four runs, reversed, on two workers into PostgreSQL: each run
+    judged against the runs made before it, as in-process in time order
+    (tests/test_verdict_order.py)."""
+    from test_verdict_order import IN_TIME_ORDER, check_time_order, judgements, run_folders
+
+    store = tmp_path / "shared-store"
+    monkeypatch.setenv("CALIB_FILESTORE", str(store))
+    order = list(IN_TIME_ORDER)[::-1]
+    outcomes = process_batch(run_folders(order), postgres_url, runner="dask",
+                             scheduler=dask_cluster)  # fmt: skip
+    assert [o["status"] for o in outcomes] == ["ok"] * 4, outcomes
+    archive = Archive(postgres_url, store)
+    try:
+        seen = judgements(archive)
+    finally:
+        archive.dispose()
+    check_time_order(seen, "dask, reversed")
+    assert [o["verdict"] for o in outcomes] == [IN_TIME_ORDER[d] for d in order]

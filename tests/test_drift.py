@@ -13,6 +13,7 @@ from scipy import stats
 from typer.testing import CliRunner
 
 from calib_core import params
+from calib_core.calibration import Parameter
 from calib_core.drift import fit_trend, fleet_statistics, forecast_exit
 from calib_core.simulate.lab_run import random_errors
 from calib_core.simulate.thermal import recalibration_history
@@ -104,10 +105,7 @@ ACC_BIAS_TC = 2e-3  # m/s^2 per deg C of acc.bias.x, all units
 def _run_in(serial: str, started: datetime, temp: float, values: dict, raw: Path) -> RunIn:
     raw.write_text(f"{serial} {started.isoformat()} {temp}\n")
     digest = hashlib.sha256(raw.read_bytes()).hexdigest()
-    plist = [
-        {"name": n, "value": v, "std": s, "unit": params.unit_of(n), "temperature_c": temp}
-        for n, (v, s) in values.items()
-    ]
+    plist = [Parameter(n, v, s, params.unit_of(n)) for n, (v, s) in values.items()]
     return RunIn(
         serial=serial,
         device_model="SIM-IMU",
@@ -133,6 +131,7 @@ def _run_in(serial: str, started: datetime, temp: float, values: dict, raw: Path
         verdict="pass",
         profile_name="mpu6000",
         profile_version="2",
+        parameter_temperature_c=temp,
     )
 
 

@@ -14,6 +14,7 @@ import pytest
 from sqlalchemy import insert, select, text
 from test_archive import make_run
 
+from calib_core.calibration import CheckResult
 from pipelines.ingest import discover_runs
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import TEXT_MAX_CHARS
@@ -123,8 +124,7 @@ def test_a_pass_made_stale_by_a_concurrent_run_is_refused(archive, tmp_path: Pat
     """Two runs of one unit checked at once, the other committed first with another model:
     the later one's passed device:description no longer holds, and it is not archived."""
     archive_run(archive, make_run(tmp_path / "a", serial="0012", seed=1), {})
-    passed = {"name": "device:description", "value": None, "limit": None, "passed": True,
-              "detail": "as archived before"}  # fmt: skip
+    passed = CheckResult("device:description", None, None, True, "as archived before")
     later = make_run(tmp_path / "b", serial="0012", seed=2)
     later = replace(later, device_model="ICM-20602", checks=[*later.checks, passed])
     with pytest.raises(StaleCheckError) as info:
@@ -134,7 +134,7 @@ def test_a_pass_made_stale_by_a_concurrent_run_is_refused(archive, tmp_path: Pat
     with archive.engine().connect() as conn:
         assert conn.exec_driver_sql("SELECT count(*) FROM runs").scalar() == 1
     # The same run with its check failed (as a fresh check makes it) is archived.
-    failed = {**passed, "passed": False, "detail": "serial 0012 is archived as ..."}
+    failed = replace(passed, passed=False, detail="serial 0012 is archived as ...")
     relabelled = replace(later, checks=[*later.checks[:-1], failed])
     assert archive_run(archive, relabelled, {}).status == "ok"
 
@@ -144,8 +144,7 @@ def test_a_run_of_the_unit_committing_meanwhile_is_waited_for(archive, tmp_path:
     SQLite: the write lock) and commits a run under another model: a run whose check
     passed before that waits for it, then is refused rather than archived unflagged."""
     archive_run(archive, make_run(tmp_path / "a", serial="0012", seed=1), {})
-    passed = {"name": "device:description", "value": None, "limit": None, "passed": True,
-              "detail": "as archived before"}  # fmt: skip
+    passed = CheckResult("device:description", None, None, True, "as archived before")
     later = make_run(tmp_path / "b", serial="0012", seed=2)
     later = replace(later, checks=[*later.checks, passed])
     outcome: list[BaseException | str] = []

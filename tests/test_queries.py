@@ -76,7 +76,7 @@ def build(archive: Archive, tmp: Path) -> Scenario:
         settings={**r3.settings, "outlier_sigma": 4.0},
         software_version="0.2.0",
         source_revision="def456",
-        parameters=[{**p, "value": 2 * p["value"]} for p in r3.parameters],
+        parameters=[replace(p, value=2 * p.value) for p in r3.parameters],
     )
     res = archive_run(archive, runs["r3b"])
     assert (res.status, res.revision) == ("revised", 2)
@@ -84,7 +84,7 @@ def build(archive: Archive, tmp: Path) -> Scenario:
 
 
 def values(run: RunIn) -> dict[str, float]:
-    return {p["name"]: p["value"] for p in run.parameters}
+    return {p.name: p.value for p in run.parameters}
 
 
 @pytest.fixture
@@ -124,9 +124,10 @@ def test_lineage_of_a_value(archive: Archive, scenario: Scenario) -> None:
     rid = scenario.ids["r3"]
     lin = queries.lineage(archive, rid, "acc.bias.x")
     assert lin["parameter"]["values"] == [
-        {k: p[k] for k in ("value", "std", "unit", "temperature_c")}
+        {"value": p.value, "std": p.std, "unit": p.unit,
+         "temperature_c": r3b.parameter_temperature_c}
         for p in r3b.parameters
-        if p["name"] == "acc.bias.x"
+        if p.name == "acc.bias.x"
     ]
     cal = lin["calibration"]
     assert (cal["revision"], cal["current"], cal["superseded_by_revision"]) == (2, True, None)
@@ -139,7 +140,7 @@ def test_lineage_of_a_value(archive: Archive, scenario: Scenario) -> None:
         src = next(x for x in r3.raw_files if x.name == f["name"])
         assert (archive.root / f["stored_path"]).read_bytes() == src.path.read_bytes()
     assert [(s["seq"], s["name"], s["settings"]) for s in lin["steps"]] == [
-        (i, s["name"], s["settings"]) for i, s in enumerate(r3b.steps)
+        (i, s.name, s.settings) for i, s in enumerate(r3b.steps)
     ]
     assert lin["run"]["operator"] == r3.operator
     assert lin["run"]["environment"] == {"temperature_c": 30.0}

@@ -38,7 +38,7 @@ from typer.testing import CliRunner
 
 from pipelines.cli import app as cli
 from pipelines.web.app import create_app
-from storage import browse, browse_fleet, queries
+from storage import queries
 from storage.db import ReadOnlyArchiveError, resolve_archive
 
 HOSTILE = (HOSTILE_MODEL, HOSTILE_OPERATOR, HOSTILE_EQUIPMENT, HOSTILE_SERIAL, "<b>ACME</b>")
@@ -77,7 +77,7 @@ class Page(HTMLParser):
 
 @pytest.fixture(scope="module")
 def client(serve_sample):
-    ro = browse.open_readonly(serve_sample.archive)
+    ro = queries.open_readonly(serve_sample.archive)
     with TestClient(create_app(ro)) as c:
         yield c
     ro.dispose()
@@ -326,7 +326,7 @@ def test_verify_page_reports_a_changed_raw_file(serve_sample, tmp_path):
     shutil.copytree(serve_sample.archive.root, copy)
     obj = next(p for p in (copy / "objects").rglob("*") if p.is_file())
     obj.write_bytes(obj.read_bytes() + b"tampered")
-    ro = browse.open_readonly(resolve_archive(str(copy)))
+    ro = queries.open_readonly(resolve_archive(str(copy)))
     with TestClient(create_app(ro)) as c:
         page = get(c, "/verify?run=1")
     ro.dispose()
@@ -353,7 +353,7 @@ def test_open_readonly_is_the_archive_read_only(serve_sample):
 
     from storage.db import Archive
 
-    ro = browse.open_readonly(serve_sample.archive)
+    ro = queries.open_readonly(serve_sample.archive)
     assert type(ro) is Archive and ro.read_only
     with ro.engine().connect() as conn:
         assert conn.exec_driver_sql("PRAGMA query_only").scalar_one() == 1
@@ -367,7 +367,7 @@ def test_open_readonly_is_the_archive_read_only(serve_sample):
 
 def test_open_readonly_never_creates_an_archive(tmp_path):
     with pytest.raises(FileNotFoundError, match="no archive database"):
-        browse.open_readonly(resolve_archive(str(tmp_path / "none")))
+        queries.open_readonly(resolve_archive(str(tmp_path / "none")))
     assert not (tmp_path / "none").exists()
     result = CliRunner().invoke(cli, ["serve", "--archive", str(tmp_path / "none")])
     assert result.exit_code == 2 and "no archive database" in result.output
@@ -430,7 +430,7 @@ def test_postgresql_is_browsed_as_the_read_only_role(postgres_url, tmp_path):
     run_ids = [process_run(s, owner)["run_id"] for s in discover_runs([DATA_SAMPLES])]
     apply_roles(owner)
     owner.dispose()
-    ro = browse.open_readonly(owner)
+    ro = queries.open_readonly(owner)
     with ro.engine().connect() as conn:
         assert conn.execute(text("SELECT current_user")).scalar_one() == READER
     assert_fleet_pages_agree(ro, "MPU-6000")  # PostgreSQL's LATERAL picks
@@ -447,16 +447,16 @@ def test_postgresql_is_browsed_as_the_read_only_role(postgres_url, tmp_path):
     ro.dispose()
     as_writer = make_url(postgres_url).set(username=WRITER).render_as_string(hide_password=False)
     with pytest.raises(PermissionError, match=READER):
-        browse.open_readonly(Archive(as_writer, tmp_path / "store"))
+        queries.open_readonly(Archive(as_writer, tmp_path / "store"))
     as_reader = make_url(postgres_url).set(username=READER).render_as_string(hide_password=False)
-    direct = browse.open_readonly(Archive(as_reader, tmp_path / "store"))
+    direct = queries.open_readonly(Archive(as_reader, tmp_path / "store"))
     with TestClient(create_app(direct)) as c:
         assert c.get("/runs").status_code == 200
     direct.dispose()
 
 
 def assert_fleet_pages_agree(archive, model: str) -> None:  # noqa: ANN001 - an Archive
-    """The fleet page's grouped and per-unit picks (storage.browse_fleet) answer as the
+    """The fleet page's grouped and per-unit picks (storage.queries.fleets) answer as the
     archive's own queries: storage.queries.units (latest run of each unit, the later
     archived of equal starts) and storage.queries.fleet (values nearest 20 deg C)."""
     from calib_core import params
@@ -464,7 +464,7 @@ def assert_fleet_pages_agree(archive, model: str) -> None:  # noqa: ANN001 - an 
     runs = queries.units(archive, model=model).sort_values(["started_at", "run_id"],
                                                            kind="stable")  # fmt: skip
     latest = runs.groupby("serial").tail(1)
-    fleet = browse_fleet.fleet_units(archive, model, failing_max=2)
+    fleet = queries.fleet_units(archive, model, failing_max=2)
     want = latest["verdict"].value_counts().to_dict()
     assert fleet.units == len(latest) > 0 and fleet.latest == want
     failing = sorted(latest.loc[latest["verdict"] != "pass", "serial"])
@@ -474,8 +474,8 @@ def assert_fleet_pages_agree(archive, model: str) -> None:  # noqa: ANN001 - an 
         assert u["runs"] == (runs["serial"] == u["serial"]).sum()
         assert u["run_id"] == latest.loc[latest["serial"] == u["serial"], "run_id"].item()
     for name in params.ACC_LINEAR + params.GYR_LINEAR:
-        mine = browse_fleet.fleet_values(archive, model, name)
-        browse_fleet.fleet_lineage(archive, mine)
+        mine = queries.fleet_values(archive, model, name)
+        queries.fleet_lineage(archive, mine)
         theirs = queries.fleet(archive, model, name)
         dist = (theirs["temperature_c"].fillna(20.0) - 20.0).abs()
         one = theirs.assign(d=dist).sort_values(["serial", "d", "temperature_c"]).groupby(

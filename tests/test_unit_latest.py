@@ -13,7 +13,7 @@ from pathlib import Path
 from sqlalchemy import select, text
 from test_archive import make_run
 
-from storage import browse_fleet, queries, unit_latest
+from storage import queries, unit_latest
 from storage.archive import archive_run
 from storage.db import Archive
 from storage.schema import CalibrationRow, Device, Run, UnitLatest
@@ -41,7 +41,7 @@ def _row(archive: Archive, serial: str) -> dict:
 
 def _fleet_agrees(archive: Archive) -> None:
     """The browser's fleet (from unit_latest) gives the CLI's fleet (walking the runs)."""
-    mine = browse_fleet.fleet_values(archive, "MPU-6000", "acc.bias.x")
+    mine = queries.fleet_values(archive, "MPU-6000", "acc.bias.x")
     cli = queries.fleet(archive, "MPU-6000", "acc.bias.x")
     assert [(r["serial"], r["value"]) for r in mine] == list(zip(cli["serial"], cli["value"],
                                                                  strict=True))  # fmt: skip

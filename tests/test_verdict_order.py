@@ -10,6 +10,7 @@ seals verify.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -126,3 +127,29 @@ def test_process_runner_batches_in_any_order_give_the_same_verdicts(
             archive.dispose()
         check_time_order(seen[name], name)
     assert seen["reversed"] == seen["time"]
+
+
+def test_a_judgement_made_on_an_older_state_is_not_written(tmp_path: Path) -> None:
+    """`rejudge_run` writes only while the revision is current and the unit's earlier runs
+    are those the judgement saw; else nothing is written and the caller judges again."""
+    from calib_core.calibration import StepRecord
+    from storage.archive import Rejudgement, rejudge_run
+
+    archive = open_archive(tmp_path / "a")
+    try:
+        process_in_order(archive, ["2026-11-03", "2026-08-04"])  # Nov judged again once
+        assert len(queries.history(archive, SERIAL)) == 3  # Nov revisions 1, 2; Aug 1
+        cands = queries.repeatability_candidates(archive, SERIAL, "six_position")
+        nov, aug = cands  # newest first
+        record = queries.judgement(archive, nov["calibration_id"])
+        judged = Rejudgement(
+            run_id=nov["run_id"], calibration_id=nov["calibration_id"], earlier=[],
+            checks=[], check_statistics=record["check_step"]["statistics"], verdict="pass",
+            step=StepRecord("rejudge"), reason="test: judged without the August run",
+        )  # fmt: skip
+        assert rejudge_run(archive, judged) is None  # the August run is there now
+        stale = replace(judged, earlier=[aug["run_id"]], calibration_id=-1)
+        assert rejudge_run(archive, stale) is None  # no such revision
+        assert len(queries.history(archive, SERIAL)) == 3
+    finally:
+        archive.dispose()

@@ -23,8 +23,8 @@ def serve(
     import uvicorn
 
     from pipelines.web.app import create_app
-    from storage.browse import open_readonly
     from storage.db import resolve_archive
+    from storage.queries import open_readonly
 
     try:
         ro = open_readonly(resolve_archive(archive), reader_role)

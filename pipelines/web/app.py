@@ -1,9 +1,8 @@
-"""The archive browser's FastAPI application: templates, error pages, the routers.
+"""The archive browser's FastAPI application: the routers, error pages, read-only methods.
 
-Every page is rendered on the server by Jinja2 with autoescaping on (an archived
-string such as ``<script>alert(1)</script>`` is shown as text); charts are inline
-SVG; there is no JavaScript and nothing is fetched from elsewhere. The archive is
-opened read-only (storage.browse) and only GET (and HEAD) routes exist.
+Every page is rendered on the server (pipelines.web.pages); charts are inline SVG;
+there is no JavaScript and nothing is fetched from elsewhere. The archive is
+opened read-only (storage.queries.open_readonly) and only GET (and HEAD) routes exist.
 """
 
 from __future__ import annotations
@@ -11,56 +10,15 @@ from __future__ import annotations
 import contextlib
 import gc
 from collections.abc import AsyncIterator
-from pathlib import Path
-from typing import Any
 
-import jinja2
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, RedirectResponse
-from fastapi.templating import Jinja2Templates
 from starlette.exceptions import HTTPException
 
-from pipelines.web import present
+from pipelines.web import equipment, runs, units
+from pipelines.web.pages import SECURITY_HEADERS, render
 from storage.db import Archive
-
-TEMPLATES = Path(__file__).resolve().parent / "templates"
-SECURITY_HEADERS = {
-    # No script, no plugin, nothing from elsewhere: the pages need none of it.
-    "Content-Security-Policy": "default-src 'none'; style-src 'unsafe-inline'; img-src 'self' "
-    "data:; form-action 'self'; base-uri 'none'; frame-ancestors 'none'",
-    "X-Content-Type-Options": "nosniff",
-    "Referrer-Policy": "no-referrer",
-}
-
-
-def _environment() -> jinja2.Environment:
-    env = jinja2.Environment(
-        loader=jinja2.FileSystemLoader(TEMPLATES),
-        autoescape=True,
-        undefined=jinja2.StrictUndefined,
-        trim_blocks=True,
-        lstrip_blocks=True,
-    )
-    env.filters.update(present.FILTERS)
-    env.globals.update(present.GLOBALS)
-    return env
-
-
-templates = Jinja2Templates(env=_environment())
-
-
-def render(request: Request, template: str, status_code: int = 200, **context: Any) -> HTMLResponse:
-    """Render `template` with `context` (plus the request and the archive's name)."""
-    archive = request.app.state.archive
-    context.setdefault("title", "")
-    return templates.TemplateResponse(
-        request,
-        template,
-        {"archive_name": archive.display_url, **context},
-        status_code=status_code,
-        headers=SECURITY_HEADERS,
-    )
 
 
 @contextlib.asynccontextmanager
@@ -80,9 +38,7 @@ async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
 
 
 def create_app(archive: Archive) -> FastAPI:
-    """The application on a read-only archive (storage.browse.open_readonly)."""
-    from pipelines.web import equipment, runs, units
-
+    """The application on a read-only archive (storage.queries.open_readonly)."""
     app = FastAPI(
         title="imu-calib archive",
         docs_url=None,

@@ -9,8 +9,8 @@ from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse
 
 from pipelines.web import forms
-from pipelines.web.app import render
-from storage import browse, browse_fleet
+from pipelines.web.pages import render
+from storage import queries
 
 router = APIRouter()
 LAPSED_LIST_MAX = 200  # rows listed (the count says how many there are), as the fleet lists
@@ -21,8 +21,8 @@ def equipment_list(request: Request) -> HTMLResponse:
     """Every piece of equipment with its latest recorded due date and state today."""
     forms.params(request, ())
     items = [
-        {**e, "state": browse.due_state(e["calibration_due"])}
-        for e in browse_fleet.equipment_list(request.app.state.archive)
+        {**e, "state": queries.due_state(e["calibration_due"])}
+        for e in queries.equipment_list(request.app.state.archive)
     ]
     return render(request, "equipment_list.html", title="Equipment", items=items)
 
@@ -33,11 +33,11 @@ def equipment_item(request: Request) -> HTMLResponse:
     archive = request.app.state.archive
     q = forms.params(request, ("kind", "serial"))
     kind, serial = q.get("kind", ""), q.get("serial", "")
-    item = forms.checked(browse_fleet.equipment_item, archive, kind, serial)
-    lapsed, n_lapsed = browse_fleet.lapsed_page(archive, kind, serial, LAPSED_LIST_MAX)
+    item = forms.checked(queries.equipment_item, archive, kind, serial)
+    lapsed, n_lapsed = queries.lapsed_page(archive, kind, serial, LAPSED_LIST_MAX)
     return render(request, "equipment.html", title=f"Equipment {kind} {serial}", item=item,
                   lapsed=lapsed, n_lapsed=n_lapsed,
-                  item_state=browse.due_state(max((p["calibration_due"] for p in item["periods"]
+                  item_state=queries.due_state(max((p["calibration_due"] for p in item["periods"]
                                               if p["calibration_due"]), default=None)))  # fmt: skip
 
 
@@ -49,7 +49,7 @@ def verify_page(request: Request) -> HTMLResponse:
     archive = request.app.state.archive
     q = forms.params(request, ("run",))
     run = forms.choice(q, "run", ("0", "1"), "0") == "1"
-    facts = browse.facts(archive)
+    facts = queries.facts(archive)
     report, seconds = None, None
     if run:
         t0 = time.perf_counter()

@@ -20,9 +20,9 @@ from calib_core.tolerances import ToleranceProfile
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.reports.display import tolerance
 from pipelines.web import forms, svg
-from pipelines.web.app import render
+from pipelines.web.pages import render
 from pipelines.web.present import display
-from storage import browse, queries
+from storage import queries
 from storage.naming import check_safe_name
 
 router = APIRouter()
@@ -37,21 +37,21 @@ def runs_list(request: Request) -> HTMLResponse:
     """The runs (current revision each), filtered, sorted and paged."""
     archive = request.app.state.archive
     q = forms.params(request, LIST_PARAMS)
-    sort = forms.choice(q, "sort", browse.SORTS, "started")
+    sort = forms.choice(q, "sort", queries.SORTS, "started")
     order = forms.choice(q, "order", ("asc", "desc"), "desc")
-    per_page = int(forms.choice(q, "per_page", [str(n) for n in browse.PER_PAGE], "50"))
-    page = forms.integer(q, "page", 1, 1, browse.MAX_PAGE)
+    per_page = int(forms.choice(q, "per_page", [str(n) for n in queries.PER_PAGE], "50"))
+    page = forms.integer(q, "page", 1, 1, queries.MAX_PAGE)
     f = forms.checked(
-        browse.run_filter, serial=q.get("serial"), model=q.get("model"),
+        queries.run_filter, serial=q.get("serial"), model=q.get("model"),
         date_from=q.get("from"), date_to=q.get("to"), procedure=q.get("procedure"),
         verdict=q.get("verdict"), env_temp_min=q.get("temp_min"), env_temp_max=q.get("temp_max"),
     )  # fmt: skip
-    result = browse.runs_page(archive, f, sort=sort, descending=order == "desc", page=page,
+    result = queries.runs_page(archive, f, sort=sort, descending=order == "desc", page=page,
                               per_page=per_page)  # fmt: skip
     kept = {k: q[k] for k in FILTERS if q.get(k)}
     return render(request, "runs.html", title="Runs", result=result, filters=kept, sort=sort,
                   order=order, per_page=per_page, choices=_choices(request),
-                  verdicts=queries.VERDICTS, per_pages=browse.PER_PAGE)  # fmt: skip
+                  verdicts=queries.VERDICTS, per_pages=queries.PER_PAGE)  # fmt: skip
 
 
 def _choices(request: Request) -> dict[str, list[str]]:
@@ -60,7 +60,7 @@ def _choices(request: Request) -> dict[str, list[str]]:
 
     cache = getattr(request.app.state, "choices", None)
     if cache is None or time.monotonic() - cache[0] > 60.0:
-        cache = (time.monotonic(), browse.choices(request.app.state.archive))
+        cache = (time.monotonic(), queries.choices(request.app.state.archive))
         request.app.state.choices = cache
     return cache[1]
 
@@ -99,11 +99,11 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
     archive = request.app.state.archive
     forms.params(request, ())
     summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
-    revs = browse.revisions(archive, run_id)
+    revs = queries.revisions(archive, run_id)
     day = summary["started_at"].astimezone(UTC).date()
     equipment = [
         {**e, "valid_at_run": None if e["calibration_due"] is None else day <= e["calibration_due"],
-         "state_now": browse.due_state(e["calibration_due"])}
+         "state_now": queries.due_state(e["calibration_due"])}
         for e in summary["equipment"]
     ]  # fmt: skip
     profile = _thresholds(summary)

@@ -18,13 +18,13 @@ from calib_core.thermal import ThermalModel
 from calib_core.tolerances import ToleranceProfile
 from pipelines.tolerances import load_profile
 from pipelines.web import forms, svg
-from pipelines.web.app import render
+from pipelines.web.pages import render
 from pipelines.web.present import display, lineage_url
-from storage import browse, browse_fleet, queries
+from storage import queries, unit_latest
 
 router = APIRouter()
 
-REFERENCE_C = browse_fleet.REFERENCE_C  # of temperature-dependent values, the trend's
+REFERENCE_C = unit_latest.REFERENCE_C  # of temperature-dependent values, the trend's
 FORECAST_HORIZON_DAYS = 3650.0
 FLEET_LIST_MAX = 200
 FLEET_PARAMETERS = (params.ACC_LINEAR + params.GYR_LINEAR + params.GSENS
@@ -176,8 +176,8 @@ def unit_page(request: Request, serial: str) -> HTMLResponse:
     """A unit: its runs, every parameter's history with trend and forecast, thermal curves."""
     archive = request.app.state.archive
     q = forms.params(request, ("parameter",))
-    dev = forms.checked(browse.device, archive, serial)
-    series = _series(browse.unit_parameters(archive, serial))
+    dev = forms.checked(queries.device, archive, serial)
+    series = _series(queries.unit_parameters(archive, serial))
     profile = _unit_profile(series, serial, archive)
     for s in series.values():
         s.low, s.high = _band(profile, s.name)
@@ -203,7 +203,7 @@ def _missing(name: str, serial: str) -> None:
 
 def _thermal(archive, serial: str, series: dict[str, Series]) -> dict[str, Any] | None:  # noqa: ANN001
     """The current thermal model's curves (by parameter family) with the campaign points."""
-    row = browse.thermal_model(archive, serial)
+    row = queries.thermal_model(archive, serial)
     if row is None:
         return None
     model = ThermalModel.from_dict(row["document"])
@@ -231,14 +231,14 @@ def models_page(request: Request) -> HTMLResponse:
     """Device models in the archive, with their number of units."""
     forms.params(request, ())
     return render(request, "models.html", title="Device models",
-                  models=browse_fleet.models(request.app.state.archive))  # fmt: skip
+                  models=queries.models(request.app.state.archive))  # fmt: skip
 
 
 @router.get("/fleet", response_class=HTMLResponse)
 def fleet_page(request: Request) -> HTMLResponse:
     """A model's fleet: one parameter's distribution over the units' latest valid calibration,
     units out of tolerance, latest verdicts. Read afresh on every request (no cache to
-    go stale): the units' counts are grouped in the database (browse_fleet.fleet_units)."""
+    go stale): the units' counts are grouped in the database (queries.fleet_units)."""
     archive = request.app.state.archive
     q = forms.params(request, ("model", "parameter"))
     model = q.get("model", "")
@@ -246,16 +246,16 @@ def fleet_page(request: Request) -> HTMLResponse:
         forms.checked(queries.check_text, model, "model")
     name = q.get("parameter") or FLEET_PARAMETERS[0]
     forms.checked(params.validate, name)
-    fleet = forms.checked(browse_fleet.fleet_units, archive, model, FLEET_LIST_MAX)
+    fleet = forms.checked(queries.fleet_units, archive, model, FLEET_LIST_MAX)
     if not fleet.units:
         forms.checked(_no_model, model)
     profiles = Counter(fleet.profiles)
     profile = _profile(profiles.most_common(1)[0][0] if profiles else None)
     low, high = _band(profile, name)
     scale, unit = display(name, 1.0)
-    one = browse_fleet.fleet_values(archive, model, name)
+    one = queries.fleet_values(archive, model, name)
     outside = [r for r in one if not low <= r["value"] <= high]
-    browse_fleet.fleet_lineage(archive, outside[:FLEET_LIST_MAX])
+    queries.fleet_lineage(archive, outside[:FLEET_LIST_MAX])
     stats = drift.fleet_statistics([r["value"] * scale for r in one], [math.nan] * len(one),
                                    [r["serial"] for r in one]) if one else []  # fmt: skip
     chart = svg.histogram([r["value"] * scale for r in one], unit=unit,

@@ -14,13 +14,13 @@ from sqlalchemy import Row, Select, bindparam, func, select
 from sqlalchemy.orm import Session
 
 from calib_core import params
+from storage.current import PASS  # noqa: F401 - the verdict the questions call valid
 from storage.naming import check_safe_name
 from storage.schema import CalibrationRow, Device, ParameterRow, Run
 
 if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (slow to import)
 
-PASS = "pass"
 
 # A parameter's value as every question reports it: value and standard uncertainty (SI),
 # unit, and the temperature it belongs to (deg C; None for a value without one).

@@ -1,12 +1,14 @@
-"""Queries of the archive about equipment: the runs made while it was past its due date.
+"""Queries of the archive about equipment: every piece with its due dates, one piece's
+due-date history, the runs made while it was past its due date (a frame, or a page of
+the archive browser), the state of a due date.
 """
 
 from __future__ import annotations
 
-from datetime import UTC
-from typing import TYPE_CHECKING
+from datetime import UTC, date, datetime
+from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.engine import make_url
 
 from storage.db import Archive
@@ -80,3 +82,96 @@ def lapsed_runs(archive: Archive, equipment_serial: str, kind: str | None = None
         for t, due in zip(df["started_at"], df["calibration_due"], strict=True)
     ]
     return df.astype({"days_overdue": "int64"})
+
+
+def equipment_list(archive: Archive) -> list[dict[str, Any]]:
+    """Every piece of equipment: kind, serial, model, accuracy_class, the latest due date
+    recorded with any of its runs (``calibration_due``) and the run count.
+
+    Both per piece from ix_run_equipment_equipment_id_calibration_due alone (its last
+    entry; its entries counted), not by grouping the run_equipment rows."""
+    due = (select(func.max(RunEquipment.calibration_due))
+           .where(RunEquipment.equipment_id == Equipment.id).scalar_subquery())  # fmt: skip
+    runs = (select(func.count()).select_from(RunEquipment)
+            .where(RunEquipment.equipment_id == Equipment.id).scalar_subquery())  # fmt: skip
+    stmt = (
+        select(Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class,
+               due.label("calibration_due"), runs.label("runs"))
+        .order_by(Equipment.kind, Equipment.serial)
+    )  # fmt: skip
+    with archive.engine().connect() as conn:
+        return [dict(r._mapping) for r in conn.execute(stmt).all()]
+
+
+def equipment_item(archive: Archive, kind: str, serial: str) -> dict[str, Any]:
+    """One piece of equipment with its due-date history: the distinct (calibrated_on,
+    calibration_due) pairs recorded with its runs, each with its run count and span."""
+    check_text(kind, "equipment kind", 100)
+    check_text(serial, "equipment serial")
+    head = select(Equipment.id, Equipment.kind, Equipment.serial, Equipment.model,
+                  Equipment.accuracy_class).where(Equipment.kind == kind,
+                                                  Equipment.serial == serial)  # fmt: skip
+    with archive.engine().connect() as conn:
+        row = conn.execute(head).one_or_none()
+        if row is None:
+            raise LookupError(f"no equipment {kind} {serial!r} in the archive")
+        periods = conn.execute(
+            select(RunEquipment.calibrated_on, RunEquipment.calibration_due,
+                   func.count().label("runs"), func.min(Run.started_at).label("first_run"),
+                   func.max(Run.started_at).label("last_run"))
+            .join(Run, Run.id == RunEquipment.run_id)
+            .where(RunEquipment.equipment_id == row.id)
+            .group_by(RunEquipment.calibrated_on, RunEquipment.calibration_due)
+            .order_by(func.min(Run.started_at))
+        ).all()  # fmt: skip
+    item = dict(row._mapping)
+    del item["id"]
+    item["periods"] = [dict(p._mapping) for p in periods]
+    return item
+
+
+def lapsed_page(
+    archive: Archive, kind: str, serial: str, limit: int = 500
+) -> tuple[list[dict[str, Any]], int]:
+    """Runs made on one piece of equipment while its calibration had lapsed: the first
+    `limit` (oldest first) and how many there are, as storage.queries.lapsed_runs decides
+    (the run's UTC start day after the due date recorded with that run).
+
+    Dicts: run_id, serial, started_at, operator, calibration_due, days_overdue.
+    """
+    check_text(kind, "equipment kind", 100)
+    check_text(serial, "equipment serial")
+    if archive.is_sqlite:
+        day = func.date(Run.started_at)  # SQLite keeps naive UTC text
+    else:
+        day = func.date(func.timezone("UTC", Run.started_at))
+    where = (Equipment.kind == kind, Equipment.serial == serial,
+             RunEquipment.calibration_due.is_not(None), day > RunEquipment.calibration_due)
+    stmt = (select(Run.run_id, Device.serial, Run.started_at, Run.operator,
+                   RunEquipment.calibration_due, func.count().over().label("total"))
+            .select_from(Equipment)
+            .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
+            .join(Run, Run.id == RunEquipment.run_id)
+            .join(Device, Device.id == Run.device_id)
+            .where(*where)
+            .order_by(Run.started_at, Run.id).limit(limit))  # fmt: skip
+    with archive.engine().connect() as conn:  # counted in the same pass (before the LIMIT)
+        rows = conn.execute(stmt).all()
+    total = rows[0].total if rows else 0
+    out = [dict(r._mapping) for r in rows]
+    for r in out:
+        del r["total"]
+        r["days_overdue"] = (r["started_at"].astimezone(UTC).date() - r["calibration_due"]).days
+    return out, total
+
+
+def today_utc() -> date:
+    return datetime.now(UTC).date()
+
+
+def due_state(due: date | None, today: date | None = None) -> str:
+    """"lapsed", "due soon" (within 30 days), "valid" or "unknown" for a due date."""
+    if due is None:
+        return "unknown"
+    days = (due - (today or today_utc())).days
+    return "lapsed" if days < 0 else "due soon" if days <= 30 else "valid"

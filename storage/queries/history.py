@@ -1,11 +1,9 @@
 """Queries of the archive about units over time: history, latest (valid) calibration,
 units, fleets and their history.
 
-"Valid" calibration, as used by `latest_calibration` and `parameter_history`:
-the current revision of a run (``superseded_by IS NULL``) whose verdict is
-"pass". Of several such runs the one that started last wins. Supersession is
-taken as it is now, not as it was at `as_of` (the archive answers "which run
-started before D holds the calibration we trust today").
+"Current" and "valid" calibration, and which is a unit's latest: the one rule of
+storage.current (a current revision with verdict "pass"; of several such runs the one
+that started last wins; supersession taken as it is now, also at `as_of`).
 """
 
 from __future__ import annotations
@@ -16,12 +14,12 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy import bindparam, select
 from sqlalchemy.orm import Session, aliased
 
+from storage.current import CURRENT, LATEST_FIRST, VALID, latest_valid_pick
 from storage.db import Archive
 from storage.queries._common import (
     _FOREVER,
     NAMED_PARAMETER,
     PARAMETER_VALUE,
-    PASS,
     _finite,
     _frame,
     as_instant,
@@ -109,7 +107,7 @@ def _parameter_over_runs(name: str, include_superseded: bool):  # noqa: ANN202 -
         .order_by(Run.started_at, Run.id, CalibrationRow.revision, ParameterRow.temperature_c)
     )
     if not include_superseded:
-        stmt = stmt.where(CalibrationRow.superseded_by.is_(None))
+        stmt = stmt.where(CURRENT)
     return stmt
 
 
@@ -179,12 +177,8 @@ def latest_calibration(
         raise ValueError(f"as_of: expected a time-zone-aware datetime, got {as_of!r}")
     stmt = (
         select_run_calibrations(Run.run_id, Run.started_at, CalibrationRow)
-        .where(
-            Device.serial == serial,
-            CalibrationRow.superseded_by.is_(None),
-            CalibrationRow.verdict == PASS,
-        )
-        .order_by(Run.started_at.desc(), Run.id.desc())
+        .where(Device.serial == serial, VALID)
+        .order_by(*LATEST_FIRST)
         .limit(1)
     )
     if as_of is not None:
@@ -218,17 +212,9 @@ LATEST_COLUMNS = [
 
 # Statements built once: building a select costs more than running it on an index.
 _LATEST_PICK = (
-    select(CalibrationRow.id)
-    .join(Run, Run.id == CalibrationRow.run_id)
+    latest_valid_pick(Run.started_at <= bindparam("at", type_=Run.started_at.type))
     .join(Device, Device.id == Run.device_id)
-    .where(
-        Device.serial == bindparam("serial"),
-        CalibrationRow.superseded_by.is_(None),
-        CalibrationRow.verdict == PASS,
-        Run.started_at <= bindparam("at", type_=Run.started_at.type),
-    )
-    .order_by(Run.started_at.desc(), Run.id.desc())
-    .limit(1)
+    .where(Device.serial == bindparam("serial"))
     .scalar_subquery()
 )
 # One statement, one round trip: the pick runs once (an uncorrelated subquery).
@@ -322,7 +308,7 @@ def units(
             Device.serial, Run.model, Run.manufacturer, Run.run_id, Run.started_at,
             Run.procedure, Run.operator, CalibrationRow.revision, CalibrationRow.verdict, temp,
         )
-        .where(CalibrationRow.superseded_by.is_(None))
+        .where(CURRENT)
         .order_by(Run.started_at, Run.id)
     )  # fmt: skip
     stmt = where_model_and_start(stmt, model, t0, t1)
@@ -341,16 +327,10 @@ def units(
 # ix_parameters_calibration_id_name: the cost grows with the units, not the 5M rows.
 FLEET_DEVICE = aliased(Device)
 FLEET_PICK = (
-    select(CalibrationRow.id)
-    .join(Run, Run.id == CalibrationRow.run_id)
-    .where(
+    latest_valid_pick(
         Run.device_id == FLEET_DEVICE.id,
-        CalibrationRow.superseded_by.is_(None),
-        CalibrationRow.verdict == PASS,
         Run.started_at <= bindparam("at", type_=Run.started_at.type),
     )
-    .order_by(Run.started_at.desc(), Run.id.desc())
-    .limit(1)
     .correlate(FLEET_DEVICE)
     .scalar_subquery()
 )

@@ -13,6 +13,7 @@ import pyarrow.parquet as pq
 from sqlalchemy import Row, bindparam, select
 from sqlalchemy.orm import Session, aliased
 
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.queries._common import (
@@ -81,7 +82,7 @@ def _run_row(s: Session, run_id: str) -> Row:
 def _calibration(s: Session, run_pk: int, revision: int | None) -> CalibrationRow:
     stmt = select(CalibrationRow).where(CalibrationRow.run_id == run_pk)
     if revision is None:
-        stmt = stmt.where(CalibrationRow.superseded_by.is_(None))
+        stmt = stmt.where(CURRENT)
     else:
         stmt = stmt.where(CalibrationRow.revision == revision)
     cal = s.execute(stmt).scalar_one_or_none()
@@ -279,7 +280,7 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
     Outer joins: the run may lack the revision, the revision the parameter.
     """
     chosen = (
-        CalibrationRow.superseded_by.is_(None)
+        CURRENT
         if current
         else CalibrationRow.revision == bindparam("rev")
     )
@@ -513,7 +514,7 @@ def repeatability_candidates(
         .where(
             Device.serial == serial,
             Run.procedure == procedure,
-            CalibrationRow.superseded_by.is_(None),
+            CURRENT,
         )
         .order_by(Run.started_at.desc(), Run.id.desc())
     )
@@ -580,7 +581,7 @@ def current_judgements(archive: Archive, run_ids: list[str]) -> dict[str, dict[s
                 .join(CalibrationRow, CalibrationRow.run_id == Run.id)
                 .outerjoin(CheckResultRow, CheckResultRow.calibration_id == CalibrationRow.id)
                 .where(Run.run_id.in_(run_ids[start : start + IN_CHUNK]),
-                       CalibrationRow.superseded_by.is_(None))
+                       CURRENT)
                 .order_by(Run.run_id, CheckResultRow.id)
             ).all()  # fmt: skip
             for r in rows:

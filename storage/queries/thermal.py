@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.queries._common import select_run_calibrations
 from storage.schema import (
@@ -115,7 +116,7 @@ def campaign_calibrations(
                 CalibrationRow.verdict,
                 CalibrationRow.document,
             )
-            .where(Device.serial == serial, CalibrationRow.superseded_by.is_(None))
+            .where(Device.serial == serial, CURRENT)
             .order_by(Run.started_at, Run.id)
         )
         if run_ids:

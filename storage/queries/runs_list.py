@@ -1,12 +1,5 @@
-"""Read-only access for browsing the archive (`calib serve`): a read-only engine and the
-list-and-page questions a web page asks.
-
-`open_readonly` gives the archive read-only (`storage.db.Archive` with
-``read_only=True``, the one read-only opener): SQLite with a ``mode=ro`` file URI
-(and ``query_only``), PostgreSQL in read-only transactions as the read-only role
-(storage.roles): a connecting role that may write switches to the reader role with
-``SET ROLE``, and the start fails with the reason when it cannot. The queries of
-storage.queries take it like any Archive.
+"""Queries of the archive about many runs at once: the runs list (filters, sort, pages),
+the values its filters offer, the archive's size.
 
 Every filter is validated here (ValueError naming the filter, what was expected
 and what was found) and bound; sort keys are looked up in a fixed table, so no
@@ -16,54 +9,15 @@ request string ever becomes SQL text.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from datetime import UTC, date, datetime
-from pathlib import Path
+from datetime import date, datetime
 from typing import Any
 
-from sqlalchemy import bindparam, func, select
-from sqlalchemy.engine import make_url
+from sqlalchemy import func, select
 
+from storage.current import CURRENT
 from storage.db import Archive
-from storage.naming import check_safe_name
-from storage.queries import (
-    as_instant,
-    check_serial,
-    check_text,
-    check_verdict,
-)
-from storage.roles import READER
-from storage.schema import (
-    CalibrationRow,
-    Device,
-    ParameterRow,
-    Run,
-    ThermalModelRow,
-)
-
-
-def open_readonly(archive: Archive, reader_role: str = READER) -> Archive:
-    """The same archive, read-only (`Archive` with ``read_only=True``, `reader_role`);
-    checks at once that it can be read.
-
-    Raises
-    ------
-    FileNotFoundError : SQLite file missing (a read-only open never creates one).
-    PermissionError : PostgreSQL role can write and cannot become `reader_role`.
-    LookupError : no archive schema in the database.
-    """
-    ro = Archive(archive.url, archive.root, read_only=True, reader_role=reader_role)
-    if ro.is_sqlite:
-        db = make_url(ro.url).database
-        path = Path(db).resolve() if db and db != ":memory:" else None
-        if path is None or not path.is_file():
-            raise FileNotFoundError(f"no archive database at {path or ro.url}")
-    revision = ro.schema_revision()
-    if revision is None:
-        raise LookupError(f"{ro.display_url} holds no archive (no schema revision)")
-    return ro
-
-
-# --- runs list ---------------------------------------------------------------------
+from storage.queries._common import as_instant, check_serial, check_text, check_verdict
+from storage.schema import CalibrationRow, Device, Run
 
 SORTS = {
     "started": Run.started_at,
@@ -177,7 +131,7 @@ def _count_base(f: RunFilter):  # noqa: ANN202 - a select
     """COUNT of current revisions, joining runs and devices only when a filter needs them
     (the count dominates the page, and the joins dominate the count)."""
     stmt = select(func.count()).select_from(CalibrationRow).where(
-        CalibrationRow.superseded_by.is_(None)
+        CURRENT
     )
     device = f.serial is not None or f.model is not None
     run = device or any(v is not None for v in (f.date_from, f.date_to, f.procedure,
@@ -220,7 +174,7 @@ def runs_page(
                CalibrationRow.revision, CalibrationRow.verdict)
         .join(Device, Device.id == Run.device_id)
         .join(CalibrationRow, (CalibrationRow.run_id == Run.id)
-              & CalibrationRow.superseded_by.is_(None))
+              & CURRENT)
     )  # fmt: skip
     stmt = _filtered(base, f)
     counted = _filtered(_count_base(f), f)
@@ -240,113 +194,9 @@ def choices(archive: Archive) -> dict[str, list[str]]:
         return {"models": list(models), "procedures": list(procs)}
 
 
-# --- one run, one unit ---------------------------------------------------------------
-
-_NEWER = CalibrationRow.__table__.alias("newer")
-
-
-def revisions(archive: Archive, run_id: str) -> list[dict[str, Any]]:
-    """Every calibration revision of a run, oldest first (LookupError if no such run).
-
-    Dicts: revision, created_at, verdict, software_version, source_revision,
-    settings_hash, profile_name, profile_version, superseded_by_revision.
-    """
-    check_safe_name(run_id, "run id")
-    stmt = (
-        select(CalibrationRow.revision, CalibrationRow.created_at, CalibrationRow.verdict,
-               CalibrationRow.software_version, CalibrationRow.source_revision,
-               CalibrationRow.settings_hash, CalibrationRow.profile_name,
-               CalibrationRow.profile_version,
-               _NEWER.c.revision.label("superseded_by_revision"))
-        .join(Run, Run.id == CalibrationRow.run_id)
-        .outerjoin(_NEWER, _NEWER.c.id == CalibrationRow.superseded_by)
-        .where(Run.run_id == run_id)
-        .order_by(CalibrationRow.revision)
-    )  # fmt: skip
-    with archive.engine().connect() as conn:
-        rows = conn.execute(stmt).all()
-    if not rows:
-        raise LookupError(f"no run {run_id!r} in the archive")
-    return [dict(r._mapping) for r in rows]
-
-
-def device(archive: Archive, serial: str) -> dict[str, Any]:
-    """A unit's device row: serial, model, manufacturer, specification (LookupError if none)."""
-    check_serial(serial)
-    stmt = select(Device.serial, Device.model, Device.manufacturer, Device.specification,
-                  Device.created_at).where(Device.serial == serial)  # fmt: skip
-    with archive.engine().connect() as conn:
-        row = conn.execute(stmt).one_or_none()
-    if row is None:
-        raise LookupError(f"no unit with serial {serial!r} in the archive")
-    return dict(row._mapping)
-
-
-# Built once (a select costs more to build than to run on its index), bound per unit.
-_UNIT_PARAMETERS = (
-    select(Run.run_id, Run.started_at,
-           Run.environment["temperature_c"].as_float().label("env_temperature_c"),
-           CalibrationRow.revision, CalibrationRow.verdict,
-           CalibrationRow.profile_name, ParameterRow.name, ParameterRow.value,
-           ParameterRow.std, ParameterRow.unit, ParameterRow.temperature_c)
-    .join(Device, Device.id == Run.device_id)
-    .join(CalibrationRow, (CalibrationRow.run_id == Run.id)
-          & CalibrationRow.superseded_by.is_(None))
-    .join(ParameterRow, ParameterRow.calibration_id == CalibrationRow.id)
-    .where(Device.serial == bindparam("serial"))
-    .order_by(Run.started_at, Run.id, ParameterRow.name, ParameterRow.temperature_c)
-)  # fmt: skip
-
-
-def unit_parameters(archive: Archive, serial: str) -> list[dict[str, Any]]:
-    """Every parameter value of a unit's current revisions, by run start then name.
-
-    Dicts: run_id, started_at, env_temperature_c (the run's lab temperature),
-    revision, verdict, profile_name, name, value, std, unit, temperature_c (SI).
-    One query for the unit's whole history.
-    """
-    check_serial(serial)
-    with archive.engine().connect() as conn:
-        return [dict(r._mapping) for r in conn.execute(_UNIT_PARAMETERS, {"serial": serial})]
-
-
-_THERMAL_MODEL = (
-    select(ThermalModelRow.id, ThermalModelRow.created_at, ThermalModelRow.t_ref,
-           ThermalModelRow.t_min, ThermalModelRow.t_max, ThermalModelRow.document,
-           ThermalModelRow.calibration_ids)
-    .join(Device, Device.id == ThermalModelRow.device_id)
-    .where(Device.serial == bindparam("serial"), ThermalModelRow.superseded_by.is_(None))
-    .order_by(ThermalModelRow.id.desc())
-    .limit(1)
-)  # fmt: skip
-
-
-def thermal_model(archive: Archive, serial: str) -> dict[str, Any] | None:
-    """The current thermal model of a unit (id, created_at, t_ref, t_min, t_max, document)."""
-    check_serial(serial)
-    with archive.engine().connect() as conn:
-        row = conn.execute(_THERMAL_MODEL, {"serial": serial}).one_or_none()
-    return None if row is None else dict(row._mapping)
-
-
-# --- archive-wide -------------------------------------------------------------------
-
-
 def facts(archive: Archive) -> dict[str, Any]:
     """The archive's size and schema: runs, units, schema_revision."""
     with archive.engine().connect() as conn:
         out = {"runs": conn.execute(select(func.count()).select_from(Run)).scalar_one(),
                "units": conn.execute(select(func.count()).select_from(Device)).scalar_one()}
     return {**out, "schema_revision": archive.schema_revision()}
-
-
-def today_utc() -> date:
-    return datetime.now(UTC).date()
-
-
-def due_state(due: date | None, today: date | None = None) -> str:
-    """"lapsed", "due soon" (within 30 days), "valid" or "unknown" for a due date."""
-    if due is None:
-        return "unknown"
-    days = (due - (today or today_utc())).days
-    return "lapsed" if days < 0 else "due soon" if days <= 30 else "valid"
