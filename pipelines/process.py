@@ -26,6 +26,7 @@ from calib_core.preprocess.chain import preprocess
 from calib_core.recording import Recording
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
+from pipelines import shared_reference
 from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError
@@ -213,7 +214,8 @@ def calibrate(
 
 
 def verify_run(
-    loaded: LoadedRun, cal: Calibration, profile: ToleranceProfile, archive: Archive, run_id: str
+    loaded: LoadedRun, cal: Calibration, profile: ToleranceProfile, archive: Archive, run_id: str,
+    budgets: dict[str, Budget] | None = None,
 ) -> tuple[list[CheckResult], dict[str, Any]]:
     """Held-out verification points, repeatability against the archive, residual diagnosis.
 
@@ -221,7 +223,8 @@ def verify_run(
     calibrations of the runs of the same serial and procedure already in the
     archive under the same conditions (`comparable_runs`). Earlier runs keep
     their verdicts (the archive is append-only); `calib repeatability SERIAL`
-    judges a whole group on demand.
+    judges a whole group on demand. With `budgets`, runs on the same reference share
+    their Type B in the scatter rule (pipelines.shared_reference).
 
     Returns
     -------
@@ -257,6 +260,12 @@ def verify_run(
     group = verification.comparable_runs(
         current, others, rules["temperature_tol_c"], int(rules["max_runs"])
     )
+    if budgets and len(group) >= int(rules["min_runs"]):
+        rid = shared_reference.reference_id(
+            [e.model_dump(mode="json") for e in m.equipment], m.site.model_dump(mode="json")
+        )
+        mine = {n: (rid, shared_reference.split_budget(b.to_dict())[1]) for n, b in budgets.items()}
+        group = shared_reference.with_shared(archive, group, mine)
     checks += verification.repeatability(group, profile)
     return checks, {
         "diagnosis": verification.diagnose_residuals(cal, profile).to_dict(),
@@ -331,7 +340,7 @@ def check_run(
     profile = load_profile(loaded.manifest.run.tolerance_profile)
     checks = check_calibration(cal, profile, budgets)
     checks += run_conditions(loaded, cal, profile)
-    more_checks, judged = verify_run(loaded, cal, profile, archive, run_id)
+    more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
     checks += more_checks
     checks.append(device_check(loaded.manifest, queries.earlier_descriptions(
         archive, loaded.manifest.unit.serial, run_id)))  # fmt: skip

@@ -92,3 +92,81 @@ def test_repeatability_scatter_with_shared_references():
     # alpha = 0.05 over 400 repeatable units: 3 binomial std = 0.033
     assert alarms_shared / n <= 0.05 + 3 * math.sqrt(0.05 * 0.95 / n), alarms_shared / n
     assert alarms_type_a / n > 0.5, alarms_type_a / n
+
+
+# --- through the archive: `calib trend` and `calib repeatability` ------------------------
+
+
+def _budget(name: str, value: float) -> dict:
+    rows = [{"source": "noise", "kind": "A", "distribution": "normal", "std_input": U_A,
+             "sensitivity": 1.0, "contribution": U_A, "dof": 10.0, "unit": "rad/s"},
+            {"source": "table rate", "kind": "B", "distribution": "rectangular",
+             "std_input": U_B, "sensitivity": 1.0, "contribution": U_B, "dof": None,
+             "unit": "rad/s"}]  # fmt: skip
+    uc = math.hypot(U_A, U_B)
+    return {"parameter": name, "value": value, "unit": "rad/s", "rows": rows, "uc": uc,
+            "nu_eff": None, "k": 2.0, "U": 2 * uc, "coverage": 0.95}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def shared_archive(tmp_path_factory):
+    """Six runs of U-SH on table RT-A then RT-B, gyr.bias.x drifting, each with a budget."""
+    import hashlib
+    from datetime import UTC, datetime, timedelta
+
+    from storage.archive import RawFileIn, RunIn, archive_run
+    from storage.db import resolve_archive
+
+    root = tmp_path_factory.mktemp("shared")
+    arch = resolve_archive(str(root / "archive"))
+    arch.upgrade()
+    y = _draw(np.random.default_rng(5), TABLES)
+    start = datetime(2025, 1, 6, 9, tzinfo=UTC)
+    for k, (day, table, value) in enumerate(zip(T_DAYS, TABLES, y, strict=True)):
+        raw = root / f"run{k}.csv"
+        raw.write_text(f"U-SH {k}\n")
+        digest = hashlib.sha256(raw.read_bytes()).hexdigest()
+        name = "gyr.bias.x"
+        archive_run(arch, RunIn(
+            serial="U-SH", device_model="SIM-IMU", manufacturer="sim", specification=None,
+            started_at=start + timedelta(days=float(day)), operator="test",
+            procedure="rate_table", site={}, gravity=9.80665,
+            environment={"temperature_c": 20.0},
+            equipment=[{"kind": "rate_table", "model": "T", "serial": table,
+                        "calibration_due": "2030-01-01"}],
+            manifest_text=None, tolerance_profile="mpu6000",
+            raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
+            settings={}, software_version="test", source_revision=None,
+            steps=[{"name": "uncertainty", "settings": {},
+                    "statistics": {"budgets": {name: _budget(name, float(value))}},
+                    "software_version": "test"}],
+            calibration={"parameters": {}},
+            parameters=[{"name": name, "value": float(value), "std": U_A, "unit": "rad/s",
+                         "temperature_c": 20.0}],
+            checks=[], verdict="pass", profile_name="mpu6000", profile_version="3",
+        ))  # fmt: skip
+    return arch, y
+
+
+def test_trend_of_the_archive_uses_the_shared_reference(shared_archive):
+    from pipelines.trends import trend_report
+
+    arch, y = shared_archive
+    rep = trend_report(arch, "U-SH", "gyr.bias.x")
+    direct = fit_trend_shared(T_DAYS, y, [U_A] * 6, [U_B] * 6, TABLES)
+    assert rep["summary"]["fit"] == "shared reference (GLS)" and rep["summary"]["references"] == 2
+    assert rep["trend"].slope == pytest.approx(direct.slope, rel=1e-9)
+    assert rep["trend"].slope_std == pytest.approx(direct.slope_std, rel=1e-9)
+
+
+def test_repeatability_of_the_archive_names_the_references(shared_archive):
+    from pipelines.shared_reference import with_shared
+    from storage import queries
+
+    arch, _ = shared_archive
+    cands = queries.repeatability_candidates(arch, "U-SH", "rate_table")
+    values = [RunValues(c["run_id"], 20.0, c["parameters"]) for c in cands]
+    shared = with_shared(arch, values)
+    refs = {r.shared["gyr.bias.x"][0].split(" @ ")[0] for r in shared}
+    assert refs == {"rate_table:RT-A", "rate_table:RT-B"}
+    assert all(r.shared["gyr.bias.x"][1] == pytest.approx(U_B) for r in shared)

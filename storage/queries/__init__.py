@@ -38,7 +38,7 @@ from storage.queries.history import (
     serial_parameter_history,
     units,
 )
-from storage.queries.impact import equipment_runs
+from storage.queries.impact import equipment_runs, run_references
 from storage.queries.runs import (
     device_description,
     earlier_descriptions,
@@ -61,5 +61,5 @@ __all__ = [
     "latest_valid", "lineage", "parameter_history", "repeatability_candidates", "run_samples",
     "run_summary", "serial_parameter_history", "thermal_models", "units",
     "SELECTION_KEYS", "revision_pairs", "select_runs",
-    "equipment_runs",
+    "equipment_runs", "run_references",
 ]  # fmt: skip
