@@ -150,7 +150,7 @@ def resolve_run(archive: Archive, run_id: str, equipment_serial: str,
             "values_after": {n: p.value for n, p in cal.parameters.items()}}  # fmt: skip
 
 
-def _customer() -> str | None:
+def customer_name() -> str | None:
     """The customer of the lab profile (pipelines.lab), the one place it is recorded."""
     from pipelines.lab import load_lab_profile
 
@@ -182,7 +182,7 @@ def impact(
     """
     runs = select_runs(archive, equipment_serial, since, until, error)
     reason = reason_of(equipment_serial, error)
-    customer = _customer()
+    customer = customer_name()
     report = []
     for run in runs:
         summary = queries.run_summary(archive, run["run_id"])
