@@ -177,3 +177,22 @@ def test_query_due_lists_the_units_with_their_intervals(fleet_archive):
     assert [r["serial"] for r in json.loads(res.stdout)] == [
         r["serial"] for r in rows if r["due"] <= before
     ]
+
+
+def test_due_page_of_calib_serve(fleet_archive):
+    from fastapi.testclient import TestClient
+
+    from pipelines.web.app import create_app
+    from storage import browse
+
+    arch = fleet_archive[0]
+    with TestClient(create_app(browse.open_readonly(arch))) as client:
+        page = client.get("/due")
+        assert page.status_code == 200
+        assert page.text.count("<tr><td class=\"when\">") == 60
+        assert "gyr.scale.x" in page.text and "variables, R = 0.95" in page.text
+        first = page.text.split("<td class=\"when\">")[1][:10]
+        some = client.get(f"/due?before={first}")
+        assert some.status_code == 200 and 0 < some.text.count("<td class=\"when\">") < 60
+        bad = client.get("/due?before=next-week")
+        assert bad.status_code == 400 and "expected a date YYYY-MM-DD" in bad.text

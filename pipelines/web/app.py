@@ -80,7 +80,7 @@ async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
 
 def create_app(archive: Archive) -> FastAPI:
     """The application on a read-only archive (storage.browse.open_readonly)."""
-    from pipelines.web import equipment, runs, units
+    from pipelines.web import due, equipment, runs, units
 
     app = FastAPI(
         title="imu-calib archive",
@@ -90,7 +90,7 @@ def create_app(archive: Archive) -> FastAPI:
         lifespan=_lifespan,
     )
     app.state.archive = archive
-    for module in (runs, units, equipment):
+    for module in (runs, units, equipment, due):
         app.include_router(module.router)
 
     @app.get("/", include_in_schema=False)
