@@ -11,6 +11,15 @@ cautious lab would plan the next calibration by.
 
 Times are in days (float) from any origin the caller chooses; the pipeline uses
 days since 1970-01-01 UTC.
+
+Shared references (`fit_trend_shared`): runs made on the same reference share its
+systematic error, so their Type B parts are one draw, not independent ones. The trend
+is then a generalised least-squares fit with the covariance
+V = diag(u_A^2) + (u_B u_B^T on every pair of runs with the same reference): a common
+error moves every point alike and cancels in the slope (it stays in the intercept and
+does not shrink with more runs); a change of reference between runs enters the slope
+with its full size. Fitting as if independent gives slope intervals that cover the true
+slope far less often than stated when the reference changed (tests/test_drift.py).
 """
 
 from __future__ import annotations
@@ -94,6 +103,86 @@ def fit_trend(
         cov=fit.cov,
         dof=fit.dof,
         sigma=fit.sigma,
+        n=int(t.size),
+        t_first=float(t.min()),
+        t_last=float(t.max()),
+    )
+
+
+def shared_covariance(
+    stds_a: Sequence[float], stds_b: Sequence[float], references: Sequence[str | None]
+) -> np.ndarray:
+    """Covariance of values whose Type B parts are shared by runs on the same reference.
+
+    Parameters
+    ----------
+    stds_a : (n,) run-specific (Type A) standard uncertainties, SI.
+    stds_b : (n,) the reference's (Type B) standard uncertainty in each value, SI.
+    references : (n,) an identity of the reference each run used (e.g. its equipment
+        serials); None: a reference shared with no other run.
+
+    Returns
+    -------
+    (n, n) V = diag(u_A^2) + u_B,i u_B,j for i, j on the same reference (and i = j).
+    """
+    a = np.asarray(stds_a, dtype=float)
+    b = np.asarray(stds_b, dtype=float)
+    if a.shape != b.shape or a.ndim != 1 or len(references) != a.size:
+        raise ValueError(
+            f"stds_a, stds_b and references must be 1-D of equal length, got {a.shape}, "
+            f"{b.shape}, {len(references)}"
+        )
+    if not (np.all(np.isfinite(a)) and np.all(a >= 0) and np.all(np.isfinite(b))
+            and np.all(b >= 0)):  # fmt: skip
+        raise ValueError("standard uncertainties must be finite and >= 0")
+    ref = list(references)
+    same = np.array([[i == j or (ri is not None and ri == rj) for j, rj in enumerate(ref)]
+                     for i, ri in enumerate(ref)])  # fmt: skip
+    return np.diag(a**2) + np.outer(b, b) * same
+
+
+def fit_trend_shared(
+    t_days: Sequence[float],
+    values: Sequence[float],
+    stds_a: Sequence[float],
+    stds_b: Sequence[float],
+    references: Sequence[str | None],
+) -> Trend:
+    """Straight-line trend by generalised least squares with shared Type B (module docstring).
+
+    The covariance of (intercept, slope) is (X^T V^-1 X)^-1, V from `shared_covariance`:
+    the uncertainties are taken as known, not rescaled by the residuals (a reference
+    error shared by all runs leaves no scatter to see it by). ``sigma`` is the Birge
+    ratio sqrt(chi2 / dof) of the residuals: well above 1, the points scatter more than
+    their uncertainties say. Raises ValueError as `fit_trend`, and for a singular V
+    (a run with neither Type A nor Type B uncertainty).
+    """
+    t = np.asarray(t_days, dtype=float)
+    y = np.asarray(values, dtype=float)
+    if t.shape != y.shape or t.ndim != 1:
+        raise ValueError(f"t_days and values must be 1-D of equal length, got {t.shape}, {y.shape}")
+    if t.size < 3 or np.unique(t).size < 2:
+        raise ValueError(
+            f"a trend needs at least 3 calibrations on 2 or more dates, got {t.size} "
+            f"on {np.unique(t).size} date(s)"
+        )
+    V = shared_covariance(stds_a, stds_b, references)
+    if np.any(np.diag(V) <= 0):
+        raise ValueError("every point needs a Type A or Type B uncertainty > 0")
+    Vi = np.linalg.inv(V)
+    t0 = float(np.sum(Vi @ t) / np.sum(Vi))  # decorrelates intercept and slope
+    X = np.column_stack([np.ones_like(t), t - t0])
+    cov = np.linalg.inv(X.T @ Vi @ X)
+    beta = cov @ X.T @ Vi @ y
+    r = y - X @ beta
+    dof = int(t.size - 2)
+    return Trend(
+        t0=t0,
+        intercept=float(beta[0]),
+        slope=float(beta[1]),
+        cov=cov,
+        dof=dof,
+        sigma=float(math.sqrt(max(float(r @ Vi @ r), 0.0) / dof)) if dof > 0 else math.nan,
         n=int(t.size),
         t_first=float(t.min()),
         t_last=float(t.max()),

@@ -5,13 +5,16 @@ ISO/IEC 17025 clause 7.10; docs/impact.md).
 Each quantity belongs to one kind of equipment and enters the solve where the equipment
 does:
 
-- ``rate_error_ppm`` (rate_table, ppm): the table's rate reading was (1 + E) x the true
-  rate; corrected: ``reference["table_rate"] /= 1 + E``.
+- ``rate_error_ppm`` (rate_table or centrifuge, ppm): the table's rate reading was
+  (1 + E) x the true rate; corrected: ``reference["table_rate"] /= 1 + E``.
 - ``clock_error_ppm`` (daq, ppm): the DAQ clock ran fast, its time stamps were (1 + E) x
   true time; corrected: ``t /= 1 + E`` in every segment.
-- ``radius_error_mm`` (centrifuge, mm), ``temperature_offset_c`` (thermal_chamber, degC),
-  ``face_angle_error_arcsec`` (cube, arcsec): named, refused as not implemented (why:
-  `parse_error`'s message).
+- ``radius_error_mm`` (centrifuge, mm): the arm's nominal radius was off by E. The
+  centrifuge procedure estimates the effective radius from its near-1 g run
+  (`calib_core.solvers.centrifuge_model.effective_radius`), so no solve reads the nominal
+  radius: every run is reported as not affected, with that reason.
+- ``temperature_offset_c`` (thermal_chamber, degC), ``face_angle_error_arcsec`` (cube,
+  arcsec): named, refused as not implemented (why: `parse_error`'s message).
 
 A rate-table rate error reaches only the solves that read the table's rate (procedure
 rate_table, the centrifuge's table rate); the integral method takes angles from turns and
@@ -30,17 +33,15 @@ import numpy as np
 
 from calib_core.recording import Recording
 
-# quantity -> (equipment kind, unit, implemented)
-QUANTITIES: dict[str, tuple[str, str, bool]] = {
-    "rate_error_ppm": ("rate_table", "ppm", True),
-    "clock_error_ppm": ("daq", "ppm", True),
-    "radius_error_mm": ("centrifuge", "mm", False),
-    "temperature_offset_c": ("thermal_chamber", "degC", False),
-    "face_angle_error_arcsec": ("cube", "arcsec", False),
+# quantity -> (equipment kinds, unit, implemented)
+QUANTITIES: dict[str, tuple[tuple[str, ...], str, bool]] = {
+    "rate_error_ppm": (("rate_table", "centrifuge"), "ppm", True),
+    "clock_error_ppm": (("daq",), "ppm", True),
+    "radius_error_mm": (("centrifuge",), "mm", True),
+    "temperature_offset_c": (("thermal_chamber",), "degC", False),
+    "face_angle_error_arcsec": (("cube",), "arcsec", False),
 }
 _NOT_YET = {
-    "radius_error_mm": "the centrifuge's radius enters the centripetal reference through the "
-    "procedure's geometry settings, which this version does not correct",
     "temperature_offset_c": "a chamber's offset changes the temperatures of a thermal campaign; "
     "refit it (calib thermal fit) with the corrected temperatures",
     "face_angle_error_arcsec": "a face angle tilts one position's reference attitude; which "
@@ -64,8 +65,13 @@ class ReferenceError:
     value: float
 
     @property
-    def kind(self) -> str:
+    def kinds(self) -> tuple[str, ...]:
+        """The equipment kinds this error can belong to."""
         return QUANTITIES[self.quantity][0]
+
+    @property
+    def kind(self) -> str:
+        return " or ".join(self.kinds)
 
     @property
     def unit(self) -> str:
@@ -96,9 +102,11 @@ def parse_error(text: str) -> ReferenceError:
         raise ValueError(f"--error: {quantity}: expected a number, got {raw!r}") from None
     if not math.isfinite(value):
         raise ValueError(f"--error: {quantity}: expected a finite number, got {raw!r}")
-    kind, unit, implemented = QUANTITIES[quantity]
+    kinds, unit, implemented = QUANTITIES[quantity]
     if not implemented:
-        raise ValueError(f"--error: {quantity} ({kind}) is not implemented: {_NOT_YET[quantity]}")
+        raise ValueError(
+            f"--error: {quantity} ({', '.join(kinds)}) is not implemented: {_NOT_YET[quantity]}"
+        )
     if unit == "ppm" and abs(value) > MAX_PPM:
         raise ValueError(f"--error: {quantity} = {value:g} ppm is beyond +-{MAX_PPM:g} ppm")
     return ReferenceError(quantity, value)
@@ -126,6 +134,10 @@ def correct_segments(
         out = {k: replace(r, t=np.asarray(r.t, dtype=float) * factor) for k, r in segments.items()}
         what = f"time stamps x {factor:.12g} in all {len(segments)} segments"
         return out, {"affected": True, "what": what, "factor": factor}
+    if error.quantity == "radius_error_mm":
+        what = ("the centrifuge procedure estimates the effective radius from its near-1 g "
+                "run; the arm's nominal radius enters no solve")  # fmt: skip
+        return dict(segments), {"affected": False, "what": what, "factor": 1.0}
     raise ValueError(f"{error.quantity}: not implemented ({_NOT_YET.get(error.quantity, '')})")
 
 

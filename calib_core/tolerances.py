@@ -74,6 +74,16 @@ DEFAULT_REPEATABILITY: dict[str, float | int] = {
     "max_runs": 5,
     "temperature_tol_c": 2.0,
 }
+# ``[recall]``: how the recalibration interval is set (calib_core.interval, docs/interval.md):
+# "variables" (from the unit's and its fleet's drift, the in-tolerance probability at the
+# interval's end = reliability, at most max_months) or "fixed" (fixed_months).
+RECALL_METHODS = ("variables", "fixed")
+DEFAULT_RECALL: dict[str, str | float] = {
+    "method": "variables",
+    "reliability": 0.95,
+    "max_months": 60.0,
+    "fixed_months": 12.0,
+}
 
 
 def _strip_parens(text: str) -> str:
@@ -195,8 +205,10 @@ class ToleranceProfile:
     decision_rule: DecisionRule = field(default_factory=DecisionRule)
     conditions: dict[str, dict[str, float]] = field(default_factory=dict)
     protocol_names: str = "canonical"
+    recall: dict[str, str | float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        self.recall = {**DEFAULT_RECALL, **self.recall}
         self.residual_limits = {**DEFAULT_RESIDUAL_LIMITS, **self.residual_limits}
         self.verification_limits = {**DEFAULT_VERIFICATION_LIMITS, **self.verification_limits}
         self.repeatability = {**DEFAULT_REPEATABILITY, **self.repeatability}
@@ -284,6 +296,7 @@ class ToleranceProfile:
             "decision_rule",
             "conditions",
             "protocol",
+            "recall",
         }
         unknown = sorted(set(doc) - known)
         if unknown:
@@ -313,6 +326,7 @@ class ToleranceProfile:
             decision_rule=_decision_rule(doc.get("decision_rule", {})),
             conditions=parse_conditions(doc.get("conditions", {})),
             protocol_names=_protocol_names(doc.get("protocol", {})),
+            recall=_recall(doc.get("recall", {})),
             **header,
         )
 
@@ -350,6 +364,8 @@ class ToleranceProfile:
             doc["conditions"] = {k: dict(v) for k, v in self.conditions.items()}
         if self.protocol_names != "canonical":
             doc["protocol"] = {"names": self.protocol_names}
+        if self.recall != DEFAULT_RECALL:
+            doc["recall"] = dict(self.recall)
         return doc
 
 
@@ -424,6 +440,29 @@ def _repeatability(raw: Any) -> dict[str, float | int]:
     merged = {**DEFAULT_REPEATABILITY, **out}
     if merged["max_runs"] < merged["min_runs"]:
         raise ValueError("repeatability.max_runs: must not be below min_runs")
+    return out
+
+
+def _recall(raw: Any) -> dict[str, str | float]:
+    """``[recall]``: method name, reliability (a fraction), months (> 0)."""
+    if not isinstance(raw, dict):
+        raise ValueError("tolerance profile field 'recall': expected a table")
+    out: dict[str, str | float] = {}
+    for key, value in raw.items():
+        where = f"recall.{key}"
+        if key not in DEFAULT_RECALL:
+            raise ValueError(f"{where}: unknown key; expected one of {list(DEFAULT_RECALL)}")
+        if key == "method":
+            if value not in RECALL_METHODS:
+                raise ValueError(f"{where}: expected one of {list(RECALL_METHODS)}, got {value!r}")
+            out[key] = value
+            continue
+        number = _number(raw, key, "recall")
+        if key == "reliability" and not 0 < number < 1:
+            raise ValueError(f"{where}: expected a fraction between 0 and 1, got {value!r}")
+        if key != "reliability" and not number > 0:
+            raise ValueError(f"{where}: expected a number of months > 0, got {value!r}")
+        out[key] = float(number)
     return out
 
 

@@ -40,6 +40,7 @@ from calib_core.checks import (  # noqa: F401  (the verdict's names, re-exported
 )
 from calib_core.checks import verdict as overall_verdict  # noqa: F401
 from calib_core.distributions import chi2_ppf
+from calib_core.drift import shared_covariance
 from calib_core.recording import Recording
 from calib_core.tolerances import ToleranceProfile
 
@@ -338,12 +339,18 @@ def verify_points(
 class RunValues:
     """One run's parameters for a repeatability group.
 
-    values : canonical name -> (value, standard uncertainty or None), SI.
+    values : canonical name -> (value, standard uncertainty or None), SI; the
+        uncertainty is the run's own (Type A).
+    shared : canonical name -> (identity of the reference the run used, or None; the
+        reference's Type B standard uncertainty in the value, SI). Runs on the same
+        reference share that error (`calib_core.drift.shared_covariance`); without an
+        entry the values are judged on their own uncertainties alone.
     """
 
     run_id: str
     temperature_c: float | None
     values: dict[str, tuple[float, float | None]]
+    shared: dict[str, tuple[str | None, float]] = field(default_factory=dict)
 
 
 def comparable_runs(
@@ -370,6 +377,18 @@ def comparable_runs(
     return group
 
 
+def _scatter_chi2(x: np.ndarray, u: np.ndarray, shared: list) -> float:
+    """r^T V^-1 r about the generalised least-squares mean; V = diag(u^2) unless every run
+    names its shared reference (then `shared_covariance`)."""
+    if all(s is not None for s in shared):
+        V = shared_covariance(u, [s[1] for s in shared], [s[0] for s in shared])
+    else:
+        V = np.diag(u**2)
+    Vi = np.linalg.inv(V)
+    r = x - float(np.sum(Vi @ x) / np.sum(Vi))
+    return float(r @ Vi @ r)
+
+
 def repeatability(runs: list[RunValues], profile: ToleranceProfile) -> list[CheckResult]:
     """Run-to-run agreement of every parameter all runs share (docs/methods.md 3.7).
 
@@ -380,7 +399,11 @@ def repeatability(runs: list[RunValues], profile: ToleranceProfile) -> list[Chec
     - "scatter": every other parameter (near zero, where a CV is meaningless):
       chi2 = sum((x_i - x_w)^2 / u_i^2), x_w the inverse-variance weighted mean,
       which is chi-squared with n - 1 degrees of freedom when the runs differ by
-      their reported uncertainties only; the limit is its 1 - alpha/m quantile,
+      their reported uncertainties only. When every run gives the parameter's shared
+      reference (`RunValues.shared`), the runs' covariance V holds the Type B parts
+      shared by runs on the same reference, and chi2 = r^T V^-1 r about the
+      generalised least-squares mean (runs on one reference scatter by Type A only; a
+      change of reference adds its Type B). The limit is its 1 - alpha/m quantile,
       m the number of parameters so judged (Bonferroni: the chance that a
       repeatable unit fails any of them is <= alpha). Parameters without
       uncertainties in every run are not judged.
@@ -417,8 +440,7 @@ def repeatability(runs: list[RunValues], profile: ToleranceProfile) -> list[Chec
         for n in scatter_names:
             x = np.array([r.values[n][0] for r in runs])
             u = np.array([r.values[n][1] for r in runs])
-            w = 1.0 / u**2
-            chi2 = float(np.sum(w * (x - np.sum(w * x) / np.sum(w)) ** 2))
+            chi2 = _scatter_chi2(x, u, [r.shared.get(n) for r in runs])
             out.append(
                 CheckResult(
                     f"{REPEAT_PREFIX}{n}",

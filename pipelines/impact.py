@@ -52,7 +52,7 @@ def select_runs(
             f"{until or 'now'}"
         )
     kinds = sorted({r["equipment_kind"] for r in runs})
-    mine = [r for r in runs if r["equipment_kind"] == error.kind]
+    mine = [r for r in runs if r["equipment_kind"] in error.kinds]
     if not mine:
         raise ValueError(
             f"{error.quantity} is an error of a {error.kind}; equipment {equipment_serial!r} "
@@ -91,21 +91,23 @@ def _moves(summary: dict[str, Any], after: dict[str, float]) -> list[dict[str, A
 
 
 def correction_step(
-    equipment_serial: str, error: ReferenceError, stats: dict[str, Any], impact: dict | None
-) -> StepRecord:
+    equipment_serial: str, kind: str, error: ReferenceError, stats: dict[str, Any],
+    impact: dict | None,
+) -> StepRecord:  # fmt: skip
     """The step record of a corrected solve: the correction (settings) and what it did."""
     return StepRecord(
         "reference_correction",
-        settings={"equipment_serial": equipment_serial, "equipment_kind": error.kind,
+        settings={"equipment_serial": equipment_serial, "equipment_kind": kind,
                   "quantity": error.quantity, "value": error.value, "unit": error.unit},
         statistics={**stats, **({"impact": impact} if impact is not None else {})},
     )  # fmt: skip
 
 
-def _corrector(equipment_serial: str, error: ReferenceError, impact: dict | None = None):  # noqa: ANN202
+def _corrector(equipment_serial: str, kind: str, error: ReferenceError,  # noqa: ANN202
+               impact: dict | None = None):  # fmt: skip
     def correct(loaded):  # noqa: ANN001, ANN202 - a LoadedRun in, (LoadedRun, StepRecord) out
         segments, stats = correct_segments(loaded.segments, error)
-        step = correction_step(equipment_serial, error, stats, impact)
+        step = correction_step(equipment_serial, kind, error, stats, impact)
         return replace(loaded, segments=segments), step
 
     return correct
@@ -119,10 +121,10 @@ def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corre
     if not held:
         return None
     error = ReferenceError(str(held["quantity"]), float(held["value"]))
-    return _corrector(str(held["equipment_serial"]), error)
+    return _corrector(str(held["equipment_serial"]), str(held["equipment_kind"]), error)
 
 
-def resolve_run(archive: Archive, run_id: str, equipment_serial: str,
+def resolve_run(archive: Archive, run_id: str, equipment_serial: str, kind: str,
                 error: ReferenceError) -> dict[str, Any]:  # fmt: skip
     """Solve one archived run again with the corrected reference; nothing is written.
 
@@ -137,7 +139,7 @@ def resolve_run(archive: Archive, run_id: str, equipment_serial: str,
 
     with tempfile.TemporaryDirectory(prefix=f"impact_{run_id}_") as tmp:
         loaded = load_run(restore_run(archive, run_id, Path(tmp) / run_id, link=True))
-    loaded, step = _corrector(equipment_serial, error)(loaded)
+    loaded, step = _corrector(equipment_serial, kind, error)(loaded)
     out: dict[str, Any] = {"affected": step.statistics["affected"], "what": step.statistics["what"]}
     if not out["affected"]:
         return out
@@ -150,7 +152,7 @@ def resolve_run(archive: Archive, run_id: str, equipment_serial: str,
             "values_after": {n: p.value for n, p in cal.parameters.items()}}  # fmt: skip
 
 
-def _customer() -> str | None:
+def customer_name() -> str | None:
     """The customer of the lab profile (pipelines.lab), the one place it is recorded."""
     from pipelines.lab import load_lab_profile
 
@@ -182,21 +184,22 @@ def impact(
     """
     runs = select_runs(archive, equipment_serial, since, until, error)
     reason = reason_of(equipment_serial, error)
-    customer = _customer()
+    customer = customer_name()
     report = []
     for run in runs:
         summary = queries.run_summary(archive, run["run_id"])
         entry = {k: run[k] for k in ("run_id", "serial", "model", "procedure")}
         entry |= {"started_at": run["started_at"].isoformat(), "revision_before": run["revision"],
                   "verdict_before": run["verdict"], "customer": customer}  # fmt: skip
-        found = resolve_run(archive, run["run_id"], equipment_serial, error)
+        found = resolve_run(archive, run["run_id"], equipment_serial, run["equipment_kind"],
+                            error)  # fmt: skip
         entry |= {"affected": found["affected"], "what": found["what"],
                   "verdict_after": found.get("verdict_after", run["verdict"]),
                   "moved": _moves(summary, found.get("values_after", {}))}  # fmt: skip
         if "error" in found:
             entry |= {"verdict_after": None, "error": found["error"]}
         if apply and found["affected"] and "error" not in found:
-            entry |= _apply(archive, run["run_id"], equipment_serial, error, reason, entry)
+            entry |= _apply(archive, run, equipment_serial, error, reason, entry)
         report.append(entry)
     return {
         "equipment_serial": equipment_serial,
@@ -210,15 +213,17 @@ def impact(
     }  # fmt: skip
 
 
-def _apply(archive: Archive, run_id: str, equipment_serial: str, error: ReferenceError,
+def _apply(archive: Archive, run: dict[str, Any], equipment_serial: str, error: ReferenceError,
            reason: str, entry: dict[str, Any]) -> dict[str, Any]:  # fmt: skip
     """Archive the corrected solve as a new sealed revision; its status and revision."""
     from pipelines.reprocess import reprocess_run
 
+    run_id = run["run_id"]
     record = {k: entry[k] for k in ("verdict_before", "verdict_after", "revision_before",
                                     "moved")}  # fmt: skip
     outcome = reprocess_run(archive, run_id, reason=reason,
-                            correct=_corrector(equipment_serial, error, record))  # fmt: skip
+                            correct=_corrector(equipment_serial, run["equipment_kind"], error,
+                                               record))  # fmt: skip
     got = {"status": outcome["status"]}
     if outcome["status"] == "failed":
         got["error"] = outcome["error"]

@@ -26,6 +26,7 @@ from calib_core.preprocess.chain import preprocess, replaced_checks
 from calib_core.recording import Recording
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
+from pipelines import shared_reference
 from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError, naming_the_run
@@ -215,7 +216,8 @@ def calibrate(
 
 
 def verify_run(
-    loaded: LoadedRun, cal: Calibration, profile: ToleranceProfile, archive: Archive, run_id: str
+    loaded: LoadedRun, cal: Calibration, profile: ToleranceProfile, archive: Archive, run_id: str,
+    budgets: dict[str, Budget] | None = None,
 ) -> tuple[list[CheckResult], dict[str, Any]]:
     """Held-out verification points, repeatability against the archive, residual diagnosis.
 
@@ -223,7 +225,8 @@ def verify_run(
     the same procedure made before this one (by run time) under the same conditions
     (`comparable_runs`), never against later runs. When an earlier run is archived
     after later ones, `pipelines.rejudge` judges those again (new revisions);
-    `calib repeatability SERIAL` judges a whole group on demand.
+    `calib repeatability SERIAL` judges a whole group on demand. With `budgets`, runs
+    on the same reference share their Type B in the scatter rule (pipelines.shared_reference).
 
     Returns
     -------
@@ -250,7 +253,13 @@ def verify_run(
     earlier = queries.repeatability_candidates(
         archive, m.unit.serial, m.run.procedure, before=m.run.started, exclude_run_id=run_id
     )
-    group = group_of(current, earlier, profile)
+    mine = None
+    if budgets:
+        rid = shared_reference.reference_id(
+            [e.model_dump(mode="json") for e in m.equipment], m.site.model_dump(mode="json")
+        )
+        mine = {n: (rid, shared_reference.split_budget(b.to_dict())[1]) for n, b in budgets.items()}
+    group = group_of(current, earlier, profile, archive if budgets else None, mine)
     checks += verification.repeatability(group, profile)
     return checks, {
         "diagnosis": verification.diagnose_residuals(cal, profile).to_dict(),
@@ -325,7 +334,7 @@ def check_run(
     profile = load_profile(loaded.manifest.run.tolerance_profile)
     checks = check_calibration(cal, profile, budgets)
     checks += run_conditions(loaded, cal, profile)
-    more_checks, judged = verify_run(loaded, cal, profile, archive, run_id)
+    more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
     checks += more_checks
     checks.append(device_check(loaded.manifest, queries.earlier_descriptions(
         archive, loaded.manifest.unit.serial, run_id)))  # fmt: skip

@@ -20,6 +20,7 @@ from calib_core.calibration import CheckResult, StepRecord
 from calib_core.checks import DEVICE_PREFIX, REPEAT_PREFIX
 from calib_core.conditions import counts_against_verdict
 from calib_core.tolerances import ToleranceProfile
+from pipelines import shared_reference
 from storage import queries
 from storage.archive import ArchiveError, Rejudgement, rejudge_run
 from storage.db import Archive
@@ -39,14 +40,26 @@ def run_values(candidate: dict[str, Any]) -> verification.RunValues:
 
 
 def group_of(
-    current: verification.RunValues, earlier: list[dict[str, Any]], profile: ToleranceProfile
+    current: verification.RunValues,
+    earlier: list[dict[str, Any]],
+    profile: ToleranceProfile,
+    archive: Archive | None = None,
+    shared: dict[str, tuple] | None = None,
 ) -> list[verification.RunValues]:
-    """The repeatability group of `current` among the `earlier` runs (most recent first)."""
+    """The repeatability group of `current` among the `earlier` runs (most recent first).
+
+    With `archive`, a group large enough to be judged carries each run's shared reference
+    (pipelines.shared_reference: runs on the same reference share its Type B); `shared` is
+    that of `current` when it is not archived yet.
+    """
     rules = profile.repeatability
     others = [run_values(c) for c in earlier]
-    return verification.comparable_runs(
+    group = verification.comparable_runs(
         current, others, rules["temperature_tol_c"], int(rules["max_runs"])
     )
+    if archive is not None and len(group) >= int(rules["min_runs"]):
+        group = shared_reference.with_shared(archive, group, shared)
+    return group
 
 
 def with_repeatability(checks: list[CheckResult], repeat: list[CheckResult]) -> list[CheckResult]:
@@ -107,7 +120,7 @@ def _judged_again(
     if step is None or "thresholds" not in step["settings"]:
         return None  # judged before thresholds were archived: nothing to judge again by
     profile = ToleranceProfile.from_dict(step["settings"]["thresholds"])
-    group = group_of(current, earlier, profile)
+    group = group_of(current, earlier, profile, archive)
     ids = [r.run_id for r in group]
     if ids == step["statistics"].get("repeatability_group"):
         return None

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from calib_core import drift, params
+from pipelines import shared_reference
 from storage import queries
 from storage.db import Archive
 
@@ -55,7 +56,13 @@ def trend_report(
         raise LookupError(f"no archived values of {name} for serial {serial!r}")
     df = df.assign(day=[days_since_epoch(t) for t in df["started_at"]])
     stds = [None if s is None or (isinstance(s, float) and math.isnan(s)) else s for s in df["std"]]
-    trend = drift.fit_trend(df["day"].to_numpy(), df["value"].to_numpy(), stds)
+    # Runs on one reference share its Type B: a generalised least-squares trend when every
+    # point has a budget (pipelines.shared_reference), else the independent fit.
+    shared = shared_reference.trend_inputs(archive, list(df["run_id"]), name, stds)
+    if shared is None:
+        trend = drift.fit_trend(df["day"].to_numpy(), df["value"].to_numpy(), stds)
+    else:
+        trend = drift.fit_trend_shared(df["day"].to_numpy(), df["value"].to_numpy(), *shared)
     if profile is None:
         latest = queries.latest_calibration(archive, serial)
         profile = None if latest is None else latest["profile_name"]
@@ -70,6 +77,9 @@ def trend_report(
         "calibrations": int(len(df)),
         "slope_per_year": trend.slope * 365.25,
         "slope_std_per_year": trend.slope_std * 365.25,
+        "fit": "independent" if shared is None else "shared reference (GLS)",
+        "references": None if shared is None else len(set(shared[2])),
+        "birge_ratio": None if shared is None else trend.sigma,
         "profile": profile,
         "tolerance": [low, high],
         "leaves_tolerance": None

@@ -115,6 +115,7 @@ def _commands(demo: dict) -> list[list[str]]:
         ["query", "lapsed", "CUBE-7", *a],
         ["impact", "DAQ-12", "--from", "2026-01-01", "--error", "clock_error_ppm=500", *a],
         ["query", "units", *a],
+        ["query", "due", "--before", "2030-01-01", *a],
         ["query", "history", "IMU-R-0003", "acc.bias.z", *a],
         ["query", "fleet", "MPU-6000", "acc.bias.z", *a],
         ["thermal", "export", "IMU-T-0007", str(tmp / "thermal.params"), "--format", "px4", *a],

@@ -110,7 +110,7 @@ def test_parse_error_refuses_what_it_cannot_do():
         ("rate_error=120", "unknown quantity 'rate_error'"),
         ("rate_error_ppm", "expected QUANTITY=VALUE"),
         ("rate_error_ppm=1e9", "beyond"),
-        ("radius_error_mm=0.5", "radius_error_mm (centrifuge) is not implemented"),
+        ("temperature_offset_c=0.3", "temperature_offset_c (thermal_chamber) is not implemented"),
         ("temperature_offset_c=0.3", "refit it"),
         ("face_angle_error_arcsec=20", "not implemented"),
     ):
@@ -190,6 +190,7 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
     corr = steps["reference_correction"]
     assert corr["settings"]["quantity"] == "rate_error_ppm"
     assert corr["settings"]["value"] == RATE_PPM
+    assert corr["settings"]["equipment_kind"] == "rate_table"
     assert corr["statistics"]["impact"]["verdict_before"] == "pass"
     assert lin["calibration"]["settings"]["reference_correction"]["equipment_serial"] == "RT-7"
     assert lin["parameter"]["values"][0]["value"] == pytest.approx(r["moved"][0]["after"])
@@ -236,7 +237,8 @@ def test_wrong_kind_and_empty_period_are_refused(lab):
                               "rate_error_ppm=10", "--archive", str(arch.root)])  # fmt: skip
     assert res.exit_code != 0 and "no archived run used equipment 'RT-9'" in res.output
     res = runner.invoke(app, ["impact", "RT-7", "--from", "2026-03-01", "--error",
-                              "radius_error_mm=1", "--archive", str(arch.root)])  # fmt: skip
+                              "face_angle_error_arcsec=20",
+                              "--archive", str(arch.root)])  # fmt: skip
     assert res.exit_code != 0 and "not implemented" in res.output
 
 
@@ -245,3 +247,6 @@ def test_rate_error_leaves_runs_without_a_table_rate_alone():
     sim = six_position_integral_run(random_errors(rng), rng, static_s=2.0)
     same, stats = correct_segments(sim.segments, parse_error("rate_error_ppm=50"))
     assert not stats["affected"] and all(same[k] is sim.segments[k] for k in same)
+    # The centrifuge estimates its effective radius: a nominal-radius error reaches no solve.
+    same, stats = correct_segments(sim.segments, parse_error("radius_error_mm=0.5"))
+    assert not stats["affected"] and "effective radius" in stats["what"]

@@ -212,7 +212,7 @@ def test_a_warming_unit_in_tolerance_passes(tmp_path):
     import dataclasses
 
     from calib_core.simulate.lab_run import random_errors, six_position_integral_run
-    from pipelines.run_writers import write_mpu6000_run
+    from calib_testing.run_writers import write_mpu6000_run
 
     rng = np.random.default_rng(20261120)  # scripts/make_data_samples.py's MPU0001
     truth = dataclasses.replace(random_errors(rng), gyr_noise=np.full(3, 0.03 * DEG))

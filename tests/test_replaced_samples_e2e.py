@@ -21,7 +21,7 @@ from calib_core.solvers.integral import ROTATION_LABELS
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.run_writers import six_position_manifest, write_csv_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from storage import queries
 from storage.db import resolve_archive
 

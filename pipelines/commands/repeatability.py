@@ -27,6 +27,7 @@ def repeatability_command(
 ) -> None:
     """Repeatability of SERIAL's latest runs: CV of scale factors, scatter of the rest."""
     from calib_core.verification import RunValues, comparable_runs, overall_verdict, repeatability
+    from pipelines.shared_reference import with_shared
     from pipelines.tolerances import load_profile
     from storage import queries
 
@@ -51,6 +52,7 @@ def repeatability_command(
     group = comparable_runs(
         values[0], values[1:], rules["temperature_tol_c"], int(rules["max_runs"])
     )
+    group = with_shared(arch, group)  # runs on one reference share its Type B
     checks = repeatability(group, profile)
     doc = {
         "serial": serial,

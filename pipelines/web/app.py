@@ -16,7 +16,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, RedirectResponse
 from starlette.exceptions import HTTPException
 
-from pipelines.web import equipment, runs, units
+from pipelines.web import due, equipment, runs, units
 from pipelines.web.pages import SECURITY_HEADERS, render
 from storage.db import Archive
 
@@ -47,7 +47,7 @@ def create_app(archive: Archive) -> FastAPI:
         lifespan=_lifespan,
     )
     app.state.archive = archive
-    for module in (runs, units, equipment):
+    for module in (runs, units, equipment, due):
         app.include_router(module.router)
 
     @app.get("/", include_in_schema=False)

@@ -62,7 +62,7 @@ from storage.queries.history import (
     serial_parameter_history,
     units,
 )
-from storage.queries.impact import equipment_runs
+from storage.queries.impact import equipment_runs, run_references
 from storage.queries.readonly import open_readonly
 from storage.queries.runs import (
     current_judgements,
@@ -99,7 +99,7 @@ __all__ = [
     "history", "judgement", "lapsed_runs", "latest_calibration", "latest_thermal_model",
     "latest_valid", "lineage", "parameter_history", "repeatability_candidates", "run_samples",
     "run_summary", "serial_parameter_history", "thermal_models", "units", "SELECTION_KEYS",
-    "revision_pairs", "select_runs", "equipment_runs", "due_state", "equipment_item", "equipment_list",
+    "revision_pairs", "select_runs", "equipment_runs", "run_references", "due_state", "equipment_item", "equipment_list",
     "lapsed_page", "today_utc", "FAILING_MAX", "FleetUnits", "fleet_lineage", "fleet_units",
     "fleet_values", "models", "open_readonly", "MAX_PAGE", "PER_PAGE", "SORTS", "RunFilter",
     "RunsPage", "choices", "facts", "run_filter", "runs_page", "device", "revisions",

@@ -1,5 +1,7 @@
-"""Queries of the archive for an out-of-tolerance look-back: the runs that used one piece of
-reference equipment in a period (ISO/IEC 17025 clause 7.10; `calib impact`).
+"""Queries of the archive about reference equipment and its effect on results: the runs
+that used one piece of it in a period (an out-of-tolerance look-back, ISO/IEC 17025 clause
+7.10; `calib impact`), and each run's reference and Type B budget (shared references in
+trends and repeatability).
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from sqlalchemy import select
 from storage.db import Archive
 from storage.queries._common import (
     EQUIPMENT_SERIAL_LEN,
+    IN_CHUNK,
     as_instant,
     check_text,
     where_model_and_start,
@@ -65,3 +68,45 @@ def equipment_runs(
             "equipment_model", "calibration_due", "verdict", "revision")  # fmt: skip
     with archive.engine().connect() as conn:
         return [dict(zip(keys, row, strict=True)) for row in conn.execute(stmt).all()]
+
+
+def run_references(archive: Archive, run_ids: list[str]) -> dict[str, dict[str, Any]]:
+    """What each run's reference was and how much of each value's uncertainty it carries.
+
+    Parameters
+    ----------
+    run_ids : full run ids (unknown ones are left out of the answer).
+
+    Returns
+    -------
+    {run_id: {"equipment": [(kind, serial), ...] sorted, "site": the run's site document,
+    "budgets": {parameter: budget document of the current revision's uncertainty step}}}.
+    """
+    from storage.schema import ProcessingStep
+
+    out: dict[str, dict[str, Any]] = {}
+    ids = list(dict.fromkeys(run_ids))
+    with archive.engine().connect() as conn:
+        for start in range(0, len(ids), IN_CHUNK):
+            chunk = ids[start : start + IN_CHUNK]
+            for run_id, site, stats in conn.execute(
+                select(Run.run_id, Run.site, ProcessingStep.statistics)
+                .join(CalibrationRow,
+                      (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None))
+                .outerjoin(ProcessingStep,
+                           (ProcessingStep.calibration_id == CalibrationRow.id)
+                           & (ProcessingStep.name == "uncertainty"))
+                .where(Run.run_id.in_(chunk))
+            ):  # fmt: skip
+                out[run_id] = {"equipment": [], "site": site,
+                               "budgets": (stats or {}).get("budgets", {})}  # fmt: skip
+            for run_id, kind, serial in conn.execute(
+                select(Run.run_id, Equipment.kind, Equipment.serial)
+                .join(RunEquipment, RunEquipment.run_id == Run.id)
+                .join(Equipment, Equipment.id == RunEquipment.equipment_id)
+                .where(Run.run_id.in_(chunk))
+                .order_by(Equipment.kind, Equipment.serial)
+            ):  # fmt: skip
+                if run_id in out:
+                    out[run_id]["equipment"].append((kind, serial))
+    return out

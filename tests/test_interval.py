@@ -1,0 +1,198 @@
+"""Recalibration intervals from measured drift (calib_core.interval, pipelines/recall.py,
+`calib query due`; docs/interval.md): simulated drifting units get intervals whose
+in-tolerance rate at the interval's end matches the reliability target within its sampling
+error."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from calib_core.drift import fit_trend_shared
+from calib_core.interval import (
+    Prediction,
+    fleet_drift,
+    in_tolerance_probability,
+    interval,
+    predict_line,
+)
+from calib_core.tolerances import ToleranceProfile
+from pipelines.cli import app
+from storage.archive import RawFileIn, RunIn, archive_run
+from storage.db import resolve_archive
+
+LIMIT = 0.03  # gyr.scale.x of the mpu6000 profile
+MEAN_RATE, SPREAD_RATE = 2e-5, 1e-5  # per day: the fleet's drift rates
+U_MEAS = 2e-4  # each calibration's standard uncertainty
+CAL_DAYS = np.array([0.0, 365.0, 730.0])
+
+
+def _fleet(rng: np.random.Generator, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """True start values, true rates and measured values (k, 3) of k units."""
+    x0 = rng.normal(0.005, 0.002, k)
+    rate = rng.normal(MEAN_RATE, SPREAD_RATE, k)
+    measured = x0[:, None] + rate[:, None] * CAL_DAYS + rng.normal(0.0, U_MEAS, (k, 3))
+    return x0, rate, measured
+
+
+def _sampling_band(reliability: float, n: int) -> float:
+    return 3.0 * math.sqrt(reliability * (1.0 - reliability) / n)
+
+
+@pytest.mark.parametrize("reliability", [0.9, 0.95])
+def test_in_tolerance_rate_at_the_interval_end_matches_the_target(reliability):
+    """1,000 units, three calibrations each: the share of units in tolerance at the end of
+    their own interval (those the interval is not capped for or zero) is the target."""
+    rng = np.random.default_rng(24)
+    x0, rate, measured = _fleet(rng, 1000)
+    trends = [fit_trend_shared(CAL_DAYS, m, [U_MEAS] * 3, [0.0] * 3, [None] * 3)
+              for m in measured]  # fmt: skip
+    fleet = fleet_drift([t.slope for t in trends], [t.cov[1, 1] for t in trends])
+    assert abs(fleet.mean - MEAN_RATE) <= 3 * math.sqrt(fleet.mean_var)
+    hits = n = 0
+    for i in range(len(trends)):
+        line = predict_line(CAL_DAYS, measured[i], [U_MEAS] * 3, fleet)
+        iv = interval(line, -LIMIT, LIMIT, reliability)
+        if iv.capped or iv.days == 0:
+            continue
+        assert iv.probability == pytest.approx(reliability, abs=1e-3)
+        n += 1
+        hits += abs(x0[i] + rate[i] * (CAL_DAYS[-1] + iv.days)) <= LIMIT
+    assert n > 500, n
+    assert abs(hits / n - reliability) <= _sampling_band(reliability, n), (hits / n, n)
+
+
+def test_a_unit_without_history_takes_the_fleet():
+    """One calibration only: the fleet's rate and spread set its interval, and the
+    in-tolerance rate of such units is the target too."""
+    rng = np.random.default_rng(5)
+    _, _, measured = _fleet(rng, 400)
+    trends = [fit_trend_shared(CAL_DAYS, m, [U_MEAS] * 3, [0.0] * 3, [None] * 3)
+              for m in measured]  # fmt: skip
+    fleet = fleet_drift([t.slope for t in trends], [t.cov[1, 1] for t in trends])
+    x0, rate, _ = _fleet(np.random.default_rng(6), 800)  # new units, calibrated once at day 0
+    first = x0 + rng.normal(0.0, U_MEAS, x0.size)
+    hits = n = 0
+    for i in range(x0.size):
+        line = predict_line([0.0], [first[i]], [U_MEAS], fleet)
+        assert line.rate == pytest.approx(fleet.mean)
+        assert line.rate_var == pytest.approx(fleet.between_var + fleet.mean_var)
+        iv = interval(line, -LIMIT, LIMIT, 0.9)
+        if iv.capped or iv.days == 0:
+            continue
+        n += 1
+        hits += abs(x0[i] + rate[i] * iv.days) <= LIMIT
+    assert abs(hits / n - 0.9) <= _sampling_band(0.9, n), (hits / n, n)
+
+
+def test_interval_edges():
+    still = Prediction(0.0, 1e-8, 0.0, 0.0, 0.0, 0.0)
+    assert interval(still, -LIMIT, LIMIT, 0.95, max_days=100).capped
+    now_out = interval(Prediction(0.0299, 1e-6, 1e-5, 0.0, 0.0, 0.0), -LIMIT, LIMIT, 0.95)
+    assert now_out.days == 0 and not now_out.capped
+    unit = Prediction(0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+    assert in_tolerance_probability(unit, 0.0, -1.96, 1.96) == pytest.approx(0.95, abs=1e-3)
+    with pytest.raises(ValueError, match="reliability target"):
+        interval(unit, -1.0, 1.0, 1.5)
+    with pytest.raises(ValueError, match="no drift rate"):
+        predict_line([0.0], [0.01], [1e-4], None)
+
+
+def test_recall_section_of_the_profile():
+    doc = {"name": "t", "version": "1", "device_model": "X", "limits": [],
+           "recall": {"method": "fixed", "fixed_months": 6}}  # fmt: skip
+    prof = ToleranceProfile.from_dict(doc)
+    assert prof.recall["method"] == "fixed" and prof.recall["fixed_months"] == 6.0
+    assert prof.recall["reliability"] == 0.95  # default
+    assert ToleranceProfile.from_dict(prof.to_dict()).recall == prof.recall
+    for bad, message in (({"reliability": 1.2}, "between 0 and 1"),
+                         ({"method": "attributes"}, "expected one of"),
+                         ({"months": 3}, "unknown key")):  # fmt: skip
+        with pytest.raises(ValueError, match=message):
+            ToleranceProfile.from_dict({**doc, "recall": bad})
+
+
+# --- through the archive: `calib query due` ------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def fleet_archive(tmp_path_factory):
+    """60 MPU-6000 units, three calibrations a year apart, gyr.scale.x drifting."""
+    root = tmp_path_factory.mktemp("recall")
+    arch = resolve_archive(str(root / "archive"))
+    arch.upgrade()
+    x0, rate, measured = _fleet(np.random.default_rng(8), 60)
+    start = datetime(2024, 1, 8, 9, tzinfo=UTC)
+    for u in range(60):
+        for k, day in enumerate(CAL_DAYS):
+            raw = root / f"u{u}_{k}.csv"
+            raw.write_text(f"{u} {k}\n")
+            digest = hashlib.sha256(raw.read_bytes()).hexdigest()
+            archive_run(arch, RunIn(
+                serial=f"U{u:02d}", device_model="MPU-6000", manufacturer="sim",
+                specification=None, started_at=start + timedelta(days=float(day)),
+                operator="test", procedure="six_position_integral", site={}, gravity=9.80665,
+                environment={"temperature_c": 20.0}, equipment=[], manifest_text=None,
+                tolerance_profile="mpu6000",
+                raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
+                settings={}, software_version="test", source_revision=None, steps=[],
+                calibration={"parameters": {}},
+                parameters=[{"name": "gyr.scale.x", "value": float(measured[u, k]),
+                             "std": U_MEAS, "unit": "1", "temperature_c": 20.0}],
+                checks=[], verdict="pass", profile_name="mpu6000", profile_version="3",
+            ))  # fmt: skip
+    return arch, start, x0, rate
+
+
+def test_query_due_lists_the_units_with_their_intervals(fleet_archive):
+    arch, start, x0, rate = fleet_archive
+    res = CliRunner().invoke(app, ["query", "due", "--archive", str(arch.root), "--format",
+                                   "json"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    rows = json.loads(res.stdout)
+    assert len(rows) == 60 and [r["due"] for r in rows] == sorted(r["due"] for r in rows)
+    hits = n = 0
+    last = start + timedelta(days=float(CAL_DAYS[-1]))
+    for r in rows:
+        assert r["limiting_parameter"] == "gyr.scale.x" and r["reliability"] == 0.95
+        assert r["method"].startswith("variables")
+        due = datetime.fromisoformat(r["due"]).date()  # interval_days is rounded to 0.1 day
+        assert abs((due - (last + timedelta(days=r["interval_days"])).date()).days) <= 1
+        if "capped" in r["method"] or r["interval_days"] == 0:  # not limited / due at once
+            continue
+        u = int(r["serial"][1:])
+        days = r["interval_days"]
+        n += 1
+        hits += abs(x0[u] + rate[u] * (CAL_DAYS[-1] + days)) <= LIMIT
+    assert n >= 40 and abs(hits / n - 0.95) <= _sampling_band(0.95, n), (hits / n, n)
+    before = min(r["due"] for r in rows[5:])
+    res = CliRunner().invoke(app, ["query", "due", "--before", before, "--archive",
+                                   str(arch.root), "--format", "json"])  # fmt: skip
+    assert [r["serial"] for r in json.loads(res.stdout)] == [
+        r["serial"] for r in rows if r["due"] <= before
+    ]
+
+
+def test_due_page_of_calib_serve(fleet_archive):
+    from fastapi.testclient import TestClient
+
+    from pipelines.web.app import create_app
+    from storage import queries
+
+    arch = fleet_archive[0]
+    with TestClient(create_app(queries.open_readonly(arch))) as client:
+        page = client.get("/due")
+        assert page.status_code == 200
+        assert page.text.count("<tr><td class=\"when\">") == 60
+        assert "gyr.scale.x" in page.text and "variables, R = 0.95" in page.text
+        first = page.text.split("<td class=\"when\">")[1][:10]
+        some = client.get(f"/due?before={first}")
+        assert some.status_code == 200 and 0 < some.text.count("<td class=\"when\">") < 60
+        bad = client.get("/due?before=next-week")
+        assert bad.status_code == 400 and "expected a date YYYY-MM-DD" in bad.text
