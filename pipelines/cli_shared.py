@@ -71,7 +71,7 @@ PANELS = {
     "Process": ("process", "reprocess", "centrifuge", "apply", "thermal", "impact"),
     "Inspect": ("inspect", "show", "history", "repeatability", "procedures"),
     "Query": ("query", "trend", "fleet"),
-    "Report": ("report", "serve"),
+    "Report": ("report", "serve", "serve-user"),
     "Export": ("export",),
     "Admin": ("verify", "checkpoint", "audit", "approve", "keygen", "backup", "restore"),
 }
@@ -154,7 +154,8 @@ def _main(
     def explain(kind, exc, tb) -> None:  # noqa: ANN001 - sys.excepthook's signature
         from storage.write_failures import describe
 
-        problem = describe(exc, os.environ.get("CALIB_ARCHIVE"))
+        opened = OPENED.get("archive")
+        problem = describe(exc, opened.url if opened else os.environ.get("CALIB_ARCHIVE"))
         if problem is None:
             previous(kind, exc, tb)
         else:
@@ -184,10 +185,15 @@ def quiet_logs(verbose: bool) -> None:
     os.environ.setdefault("PREFECT_SERVER_LOGGING_LEVEL", "CRITICAL")
 
 
+# The archive this invocation opened: named by the error hook of `_main`.
+OPENED: dict[str, Any] = {}
+
+
 def open_archive(arg: str | None):
     from storage.db import open_archive as open_
 
-    return open_(arg)
+    OPENED["archive"] = archive = open_(arg)
+    return archive
 
 
 def open_run(archive_arg: str | None, run_id: str):  # noqa: ANN201 - (Archive, str)

@@ -41,7 +41,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from calib_core.calibration import CheckResult, Parameter, StepRecord
-from storage import rawstore, schema, seal, unit_latest
+from storage import rawstore, schema, seal, store_identity, unit_latest
 from storage.current import CURRENT, LATEST_RUN_FIRST
 from storage.db import Archive
 from storage.naming import check_safe_name
@@ -366,6 +366,7 @@ def archive_run(
     plan: _Plan | None = None
     last_error: Exception | None = None
     own = pending is None
+    store_identity.check(archive)  # PostgreSQL: the database's own file store, no other
     pending = rawstore.PendingFiles() if pending is None else pending
     try:
         for attempt in range(_MAX_ATTEMPTS):

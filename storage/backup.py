@@ -34,7 +34,7 @@ from sqlalchemy import inspect
 from sqlalchemy.engine import make_url
 
 from storage import pgtools, rawstore
-from storage.db import Archive
+from storage.db import Archive, read_only_sqlite_uri
 from storage.verify import sqlite_file
 
 MANIFEST = "manifest.json"
@@ -98,7 +98,8 @@ def backup(archive: Archive, dest: Path) -> dict[str, Any]:
         raise BackupError(f"archive {archive.display_url}: no schema, nothing to back up")
     if archive.is_sqlite:
         db_name = "database.sqlite"
-        src = sqlite3.connect(str(sqlite_file(archive)))
+        src = (sqlite3.connect(read_only_sqlite_uri(sqlite_file(archive)), uri=True)
+               if archive.read_only else sqlite3.connect(str(sqlite_file(archive))))  # fmt: skip
         dst = sqlite3.connect(str(dest / db_name))
         try:
             with dst:
@@ -259,4 +260,8 @@ def restore(src: Path, archive: Archive) -> dict[str, Any]:
             "pg_restore",
         )  # fmt: skip
     archive.upgrade()
+    if not archive.is_sqlite:  # the restored files are the database's store now
+        from storage.store_identity import adopt
+
+        adopt(archive)
     return manifest

@@ -283,12 +283,18 @@ def _read_only_sqlite_url(u) -> str:  # noqa: ANN001 - a sqlalchemy URL
     """
     if u.database.startswith("file:"):
         return u.render_as_string(hide_password=False)
-    db = Path(u.database).resolve()
+    return f"sqlite:///{read_only_sqlite_uri(Path(u.database))}&uri=true"
+
+
+def read_only_sqlite_uri(db: Path) -> str:
+    """The SQLite URI (``file:...?mode=ro`` or ``?immutable=1``, `_read_only_sqlite_url`)
+    that opens the file `db` read-only; for ``sqlite3.connect(uri, uri=True)``."""
+    db = Path(db).resolve()
     wal = db.with_name(db.name + "-wal")
     shm = db.with_name(db.name + "-shm")
     can_log = (wal.exists() and shm.exists()) or os.access(db.parent, os.W_OK)
     mode = "mode=ro" if can_log else "immutable=1"
-    return f"sqlite:///file:{quote(str(db))}?{mode}&uri=true"
+    return f"file:{quote(str(db))}?{mode}"
 
 
 def _make_engine(url: str, *, read_only: bool = False, reader_role: str | None = None) -> Engine:

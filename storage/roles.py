@@ -1,13 +1,20 @@
-"""PostgreSQL roles for the archive: a read-only role for queries, a writer for the pipeline.
+"""PostgreSQL roles for the archive: a reader for queries, a writer for the pipeline, an
+approver who signs.
 
 - reader (default ``calib_reader``): CONNECT, and SELECT on every table. For
   auditors, dashboards and `calib query`.
-- writer (default ``calib_writer``): SELECT and INSERT on every table, the
-  sequences behind the ids, and UPDATE of the one column the archive ever
-  changes, ``superseded_by`` (calibrations, thermal models), and of the derived
-  tables ``unit_latest`` and ``unit_latest_values`` (storage.unit_latest: a
-  unit's rows are upserted). No DELETE, no other UPDATE, no DDL: the
-  append-only rule is enforced by the server, not only by the code.
+- writer (default ``calib_writer``): SELECT and INSERT on every table but
+  ``audit_events``, the sequences behind the ids, and UPDATE of the one column
+  the archive ever changes, ``superseded_by`` (calibrations, thermal models; a
+  trigger of migration 0009 lets it change only from empty to a later revision
+  of the same run), and of the derived tables ``unit_latest`` and
+  ``unit_latest_values`` (storage.unit_latest: a unit's rows are upserted). Events
+  are appended only through ``calib_append_event`` (migration 0009), which
+  refuses an event that does not follow the chain's head or is not dated now.
+  No DELETE, no other UPDATE, no DDL: the append-only rule is enforced by the
+  server, not only by the code.
+- approver (default ``calib_approver``): SELECT on every table, and
+  ``calib_append_event`` for approvals only (`calib approve`).
 
 Schema migrations run as the database owner (the role that created the
 tables), never as these roles. Grants on tables are per table, so run
@@ -34,6 +41,9 @@ from storage.seal import record_event
 
 READER = "calib_reader"
 WRITER = "calib_writer"
+APPROVER = "calib_approver"
+APPEND_EVENT = ("calib_append_event(timestamptz, text, text, text, integer, text, json, text, "
+                "text, text, integer)")  # migration 0009  # fmt: skip
 
 
 def _updatable() -> list[tuple[str, str]]:
@@ -52,33 +62,41 @@ def role_statements(
     *,
     reader: str = READER,
     writer: str = WRITER,
+    approver: str = APPROVER,
     tables: list[str] | None = None,
 ) -> list[sql.Composed]:
-    """The GRANT statements for both roles (the roles must exist).
+    """The GRANT statements for the three roles (the roles must exist).
 
     Parameters
     ----------
     database : the archive's database name.
-    reader, writer : role names (letters, digits, ``._-``).
+    reader, writer, approver : role names (letters, digits, ``._-``).
     tables : the archive's data tables (default: those of storage.schema).
     """
-    for name, what in ((reader, "reader role"), (writer, "writer role"), (database, "database")):
+    for name, what in ((reader, "reader role"), (writer, "writer role"),
+                       (approver, "approver role"), (database, "database")):  # fmt: skip
         check_safe_name(name, what)
     tables = tables or [t.name for t in Base.metadata.sorted_tables]
     r, w, db = sql.Identifier(reader), sql.Identifier(writer), sql.Identifier(database)
+    a = sql.Identifier(approver)
     data = sql.SQL(", ").join(sql.Identifier(t) for t in tables)
     version = sql.Identifier("alembic_version")  # read by Archive.upgrade at every start
+    append = sql.SQL(APPEND_EVENT)  # a constant, not a name from outside
     stmts = [
-        sql.SQL("GRANT CONNECT ON DATABASE {} TO {}, {}").format(db, r, w),
-        sql.SQL("GRANT USAGE ON SCHEMA public TO {}, {}").format(r, w),
-        sql.SQL("REVOKE CREATE ON SCHEMA public FROM {}, {}").format(r, w),
-        sql.SQL("GRANT SELECT ON {}, {} TO {}, {}").format(data, version, r, w),
-        sql.SQL("REVOKE INSERT, UPDATE, DELETE, TRUNCATE ON {}, {} FROM {}").format(
-            data, version, r
+        sql.SQL("GRANT CONNECT ON DATABASE {} TO {}, {}, {}").format(db, r, w, a),
+        sql.SQL("GRANT USAGE ON SCHEMA public TO {}, {}, {}").format(r, w, a),
+        sql.SQL("REVOKE CREATE ON SCHEMA public FROM {}, {}, {}").format(r, w, a),
+        sql.SQL("GRANT SELECT ON {}, {} TO {}, {}, {}").format(data, version, r, w, a),
+        sql.SQL("REVOKE INSERT, UPDATE, DELETE, TRUNCATE ON {}, {} FROM {}, {}").format(
+            data, version, r, a
         ),
         sql.SQL("REVOKE INSERT, UPDATE, DELETE, TRUNCATE ON {} FROM {}").format(version, w),
         sql.SQL("REVOKE UPDATE, DELETE, TRUNCATE ON {} FROM {}").format(data, w),
         sql.SQL("GRANT INSERT ON {} TO {}").format(data, w),
+        # events only through the function that checks their link and date (0009)
+        sql.SQL("REVOKE INSERT ON {} FROM {}").format(sql.Identifier("audit_events"), w),
+        sql.SQL("REVOKE EXECUTE ON FUNCTION {} FROM PUBLIC, {}").format(append, r),
+        sql.SQL("GRANT EXECUTE ON FUNCTION {} TO {}, {}").format(append, w, a),
         sql.SQL("GRANT USAGE, SELECT ON ALL SEQUENCES IN SCHEMA public TO {}").format(w),
         sql.SQL("ALTER DEFAULT PRIVILEGES IN SCHEMA public GRANT SELECT ON TABLES TO {}").format(r),
     ]
@@ -97,10 +115,12 @@ def apply_roles(
     *,
     reader: str = READER,
     writer: str = WRITER,
+    approver: str = APPROVER,
     reader_password: str | None = None,
     writer_password: str | None = None,
+    approver_password: str | None = None,
 ) -> None:
-    """Create the two login roles if missing and grant their privileges (idempotent).
+    """Create the three login roles if missing and grant their privileges (idempotent).
 
     Run as the database owner or a superuser, after `archive.upgrade()`.
     Passwords, when given, are set (also on existing roles).
@@ -110,7 +130,9 @@ def apply_roles(
     url = make_url(archive.url)
     database = url.database or "postgres"
     with psycopg.connect(libpq_dsn(archive.url), autocommit=True) as conn, conn.transaction():
-        for role, password in ((reader, reader_password), (writer, writer_password)):
+        logins = ((reader, reader_password), (writer, writer_password),
+                  (approver, approver_password))  # fmt: skip
+        for role, password in logins:
             check_safe_name(role, "role")
             exists = conn.execute("SELECT 1 FROM pg_roles WHERE rolname = %s", (role,)).fetchone()
             verb = "ALTER" if exists else "CREATE"
@@ -120,14 +142,17 @@ def apply_roles(
             if password is not None:
                 stmt += sql.SQL(" PASSWORD {}").format(sql.Literal(password))
             conn.execute(stmt)
-        for stmt in role_statements(database, reader=reader, writer=writer):
+        for stmt in role_statements(database, reader=reader, writer=writer, approver=approver):
             conn.execute(stmt)
-    passwords = [r for r, p in ((reader, reader_password), (writer, writer_password)) if p]
+    passwords = [r for r, p in logins if p]
     record_event(archive, "roles", detail={"reader": reader, "writer": writer,
+                                           "approver": approver,
                                            "password_set": passwords})  # fmt: skip
 
 
-def role_sql(database: str, *, reader: str = READER, writer: str = WRITER) -> str:
+def role_sql(
+    database: str, *, reader: str = READER, writer: str = WRITER, approver: str = APPROVER
+) -> str:
     """The grants as SQL text, for a DBA to read or run by hand (docs/archive.md)."""
-    stmts = role_statements(database, reader=reader, writer=writer)
+    stmts = role_statements(database, reader=reader, writer=writer, approver=approver)
     return "".join(s.as_string(None) + ";\n" for s in stmts)

@@ -456,13 +456,45 @@ def append_event(
     makes concurrent writers append one after the other.
     """
     check_reason(reason)
-    if conn.dialect.name == "postgresql":
+    pg = conn.dialect.name == "postgresql"
+    if pg:
         conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _PG_CHAIN_LOCK})
     seq, prev = head(conn)
+    if PENDING_DETAIL and (more := _pending(conn)):
+        detail = {**(detail or {}), **more}
     ev = Event(seq + 1, utcnow(), who or actor(), action, run_id, revision, reason,
                detail or {}, digest, prev)  # fmt: skip
-    conn.execute(_INSERT_EVENT, {**{k: getattr(ev, k) for k in _EVENT_FIELDS}, "hash": ev.hash()})
+    row = {**{k: getattr(ev, k) for k in _EVENT_FIELDS}, "hash": ev.hash()}
+    if pg and _has_append_function(conn):
+        conn.execute(_APPEND_EVENT, {**row, "detail": json.dumps(row["detail"])})
+    else:
+        conn.execute(_INSERT_EVENT, row)
     return ev
+
+
+# Database URL -> what the next event appended there records besides its own detail: the
+# file store of a PostgreSQL archive's first write (storage.store_identity).
+PENDING_DETAIL: dict[str, dict[str, Any]] = {}
+
+
+def _pending(conn: Connection) -> dict[str, Any] | None:
+    return PENDING_DETAIL.pop(conn.engine.url.render_as_string(hide_password=False), None)
+
+
+# PostgreSQL from migration 0009 on: the writer and approver roles append only through
+# this function, which checks the link to the head and the date (docs/archive.md).
+_APPEND_EVENT = text(
+    "SELECT calib_append_event(:at, :actor, :action, :run_id, :revision, :reason, "
+    "CAST(:detail AS json), :digest, :prev_hash, :hash, :seq)"
+)
+_APPEND_FUNCTION = ("calib_append_event(timestamptz, text, text, text, integer, text, json, "
+                    "text, text, text, integer)")  # fmt: skip
+_HAS_FUNCTION = text("SELECT to_regprocedure(:f) IS NOT NULL")
+
+
+def _has_append_function(conn: Connection) -> bool:
+    """Whether the schema has it (a migration before 0009 runs without it)."""
+    return bool(conn.execute(_HAS_FUNCTION, {"f": _APPEND_FUNCTION}).scalar())
 
 
 def record_event(archive: Archive, action: str, **fields: Any) -> Event:

@@ -29,7 +29,7 @@ _DB_READ_ONLY = ("attempt to write a readonly database", "read-only transaction"
 _DB_CANNOT_OPEN = ("unable to open database file",)
 _DB_IO = ("disk i/o error",)
 
-AGAIN = "nothing of it was archived; run the same command again once that is done"
+AGAIN = "nothing was written; run the same command again once that is done"
 
 
 def exception_chain(exc: BaseException) -> Iterator[BaseException]:
@@ -47,8 +47,16 @@ def exception_chain(exc: BaseException) -> Iterator[BaseException]:
 
 
 def database_location(url: str) -> str:
-    """The SQLite file of `url`, or the URL with its password hidden."""
-    u = make_url(url)
+    """The SQLite file of `url`, or the URL with its password hidden; `url` may also be an
+    archive folder (as ``CALIB_ARCHIVE`` or ``--archive`` name one): its SQLite file."""
+    if "://" not in url:
+        from storage.db import default_archive_url
+
+        url = default_archive_url(Path(url).expanduser())
+    try:
+        u = make_url(url)
+    except Exception:  # noqa: BLE001 - any malformed name: shown as given
+        return url
     if u.get_backend_name() == "sqlite" and u.database:
         return u.database.removeprefix("file:").split("?")[0]
     return u.render_as_string(hide_password=True)
@@ -76,20 +84,21 @@ def describe(exc: BaseException, database_url: str | None = None) -> str | None:
             if e.errno in DENIED_ERRNOS:
                 return f"no permission to write {where}: check its owner and mode; {AGAIN}"
         text = str(e).lower()
-        db = database_location(database_url) if database_url else "the archive's database"
+        db = (f"the database {database_location(database_url)}" if database_url
+              else "the archive's database")  # fmt: skip
         if any(s in text for s in _DB_FULL):
-            return (f"no space left for the database {db}: free space on its disk "
+            return (f"no space left for {db}: free space on its disk "
                     f"(or move the archive); {AGAIN}")  # fmt: skip
         if any(s in text for s in _DB_READ_ONLY):
-            return (f"the database {db} is read-only (a read-only mount or copy, or no write "
+            return (f"{db} is read-only (a read-only mount or copy, or no write "
                     f"permission on the file or its folder); {AGAIN}")  # fmt: skip
         if any(s in text for s in _DB_IO):
-            return (f"the database {db} could not be written (SQLite: disk I/O error), "
+            return (f"{db} could not be written (SQLite: disk I/O error), "
                     f"most often because its disk is full: check the free space there; "
                     f"{AGAIN}")  # fmt: skip
         if any(s in text for s in _DB_CANNOT_OPEN):
-            folder = Path(db).parent if database_url else "its folder"
-            return (f"cannot open the database {db}: check that {folder} exists and can be "
+            folder = Path(database_location(database_url)).parent if database_url else "its folder"
+            return (f"cannot open {db}: check that {folder} exists and can be "
                     f"read (and written, to archive); {AGAIN}")  # fmt: skip
     return None
 

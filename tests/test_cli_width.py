@@ -125,6 +125,8 @@ def _commands(demo: dict) -> list[list[str]]:
         ["approve", run, "--key", str(tmp / "me.key"), *a],
         ["audit", *a],
         ["verify", *a],
+        ["checkpoint", "-o", str(tmp / "checkpoint.json"), *a],
+        ["serve-user", str(tmp / "users"), "tester"],
         ["backup", str(tmp / "backup"), *a],
         ["restore", str(tmp / "backup"), "--archive", str(tmp / "restored")],
     ]
@@ -135,6 +137,7 @@ def test_every_subcommand_keeps_run_ids_and_paths_whole(
     demo: dict, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setenv("CALIB_KEY_PASSPHRASE", "a passphrase for the width test")
+    monkeypatch.setenv("CALIB_SERVE_PASSWORD", "a password for the width test")
     for text in demo["outputs"]:
         _assert_nothing_cut(text, demo["ids"])
     for args in _commands(demo):

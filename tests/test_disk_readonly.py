@@ -124,8 +124,8 @@ def test_disk_full_while_writing_the_database(tmp_path: Path, leave_kb: int) -> 
         archive.dispose()
 
 
-def calib(*args: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+def calib(*args: str, **env_vars: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **env_vars}
     code = "import sys; from pipelines.cli import app; sys.argv[0] = 'calib'; app()"
     return subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True,
                           text=True, timeout=300)  # fmt: skip
@@ -190,3 +190,33 @@ def test_repair_orphans_removes_only_dead_writers_files(written_archive, tmp_pat
     assert done.returncode == 0, done.stderr
     assert f"removed objects/{stale.name}" in done.stderr
     assert not stale.exists() and live.exists()
+
+
+@pytest.mark.parametrize("naming", ["CALIB_ARCHIVE", "--archive"])
+def test_writes_to_a_read_only_archive_say_why_either_way_it_is_named(
+    written_archive, tmp_path: Path, naming: str
+) -> None:
+    """Every writing command on a read-only archive ends with one sentence naming the
+    database, never a traceback, whether the folder is given by env or option."""
+    from storage.approval import generate_key
+
+    src, outs = written_archive
+    copy = tmp_path / "copy"
+    shutil.copytree(src, copy)
+    generate_key(tmp_path / "k.key", "Jane Approver", "correct horse battery")
+    run_id = outs[0]["run_id"]
+    with read_only_view(copy, tmp_path / "ro") as ro:
+        env = {"CALIB_KEY_PASSPHRASE": "correct horse battery"}
+        a = ["--archive", str(ro)]
+        if naming == "CALIB_ARCHIVE":
+            env, a = {**env, "CALIB_ARCHIVE": str(ro)}, []
+        done = calib("approve", run_id, "--key", str(tmp_path / "k.key"), *a, **env)
+        said = " ".join(done.stderr.split())
+        assert done.returncode != 0 and "Traceback" not in done.stderr, done.stderr[-3000:]
+        assert f"error: the database {ro}/archive.sqlite is read-only" in said, said
+        assert "the database the archive" not in said
+        done = calib("process", str(SAMPLES / "csv_IMU-2026-0042"), *a, **env)
+        assert "Traceback" not in done.stderr
+        assert "read-only file system" in done.stdout + done.stderr
+        done = calib("backup", str(tmp_path / "bk"), *a, **env)  # reading: works
+        assert done.returncode == 0, done.stderr[-3000:]

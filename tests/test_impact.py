@@ -17,12 +17,12 @@ from typer.testing import CliRunner
 from calib_core.reference_errors import ReferenceError, correct_segments, parse_error
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.simulate.rate_table import GyroTruth, simulate_rate_table
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.cli import app
 from pipelines.impact import impact
 from pipelines.ingest import discover_runs
 from pipelines.ingest.run_loader import read_run
 from pipelines.process import calibrate, process_run
-from calib_testing.run_writers import six_position_manifest, write_csv_run
 from storage import queries
 from storage.db import resolve_archive
 from storage.verify import verify

@@ -17,11 +17,11 @@ from calib_core.nav_noise import NavNoise, NavTerm, bootstrap_terms, noise_recor
 from calib_core.noise import NoiseParameters, cluster_sizes
 from calib_core.simulate.noise import NoiseSpec, simulate_static
 from calib_core.solvers.static_bias import _channel_stats
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines import nav_exports
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from calib_testing.run_writers import six_position_manifest, write_csv_run
 from storage.db import resolve_archive
 
 DOCS = Path(__file__).parents[1] / "docs" / "exports.md"

@@ -16,10 +16,10 @@ import pytest
 from calib_core import procedures
 from calib_core.procedures import ALL, BY_NAME, SettingError, solve
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.run_writers import dumps_toml, six_position_manifest, write_csv_run
 from pipelines.ingest import IngestError, discover_runs
 from pipelines.ingest.manifest import parse_manifest
 from pipelines.process import process_run
-from calib_testing.run_writers import dumps_toml, six_position_manifest, write_csv_run
 from storage.db import resolve_archive
 
 # procedure: (misspelt key, the key it means), (key, value of a wrong type),

@@ -18,10 +18,10 @@ from typer.testing import CliRunner
 
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.solvers.integral import ROTATION_LABELS
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from calib_testing.run_writers import six_position_manifest, write_csv_run
 from storage import queries
 from storage.db import resolve_archive
 

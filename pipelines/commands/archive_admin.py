@@ -75,9 +75,9 @@ def verify(
         err.print(f"audit chain head: event {seq}, hash {head} (note it down, or keep a "
                   "calib checkpoint out of the writers' reach)", soft_wrap=True)  # fmt: skip
         err.print(f"approvals checked against {report.approvers}" if report.approvers
-                  else NOT_CHECKED)  # fmt: skip
+                  else NOT_CHECKED, markup=False)  # fmt: skip
         for source in report.checkpoints:
-            err.print(f"chain compared with the checkpoint {source}")
+            err.print(f"chain compared with the checkpoint {source}", markup=False)
     raise typer.Exit(0 if report.ok else 1)
 
 

@@ -80,7 +80,8 @@ def audit(
         )
     err.print(f"{len(events)} event(s)")
     if approved:
-        err.print(f"approvals checked against {trust.source}" if trust else NOT_CHECKED)
+        err.print(f"approvals checked against {trust.source}" if trust else NOT_CHECKED,
+                  markup=False)
 
 
 def _passphrase(confirm: bool) -> str:

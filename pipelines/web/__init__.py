@@ -1,6 +1,7 @@
 """`calib serve`: a read-only web browser of the archive (docs/serve.md).
 
 - app        the FastAPI application, templates, error pages
+- auth       the login beyond loopback: users file (scrypt) or a reverse proxy's header
 - forms      query-parameter validation (clear 400s naming the parameter)
 - present    numbers and units for display (lab units, lineage links)
 - runs       runs list, one run, lineage, raw files, downloads

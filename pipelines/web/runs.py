@@ -159,7 +159,7 @@ def _certificate(archive, run_id: str):  # noqa: ANN001, ANN202
     summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
     samples = forms.checked(queries.run_samples, archive, run_id)
     approvals = approval_status(archive, summary["run_id"], summary["calibration"]["revision"],
-                                lab_approvers())  # fmt: skip
+                                forms.checked(lab_approvers))  # fmt: skip
     summary["chain_head"] = chain_head(archive)
     return summary, sections(summary, samples, approvals)
 
