@@ -30,5 +30,15 @@ def serve(
         ro = open_readonly(resolve_archive(archive), reader_role)
     except (FileNotFoundError, LookupError, PermissionError, ValueError) as exc:
         fail(f"{exc}")
-    err.print(f"serving {ro.display_url} read-only on http://{host}:{port}/ (Ctrl-C stops)")
-    uvicorn.run(create_app(ro), host=host, port=port, log_level="warning")
+    message = f"serving {ro.display_url} read-only on http://{host}:{port}/ (Ctrl-C stops)"
+
+    class Announcing(uvicorn.Server):
+        """Says "serving" once the socket accepts connections, not before."""
+
+        async def startup(self, sockets=None) -> None:  # noqa: ANN001 - uvicorn's signature
+            await super().startup(sockets)
+            if self.started:
+                err.print(message, soft_wrap=True)
+
+    config = uvicorn.Config(create_app(ro), host=host, port=port, log_level="warning")
+    Announcing(config).run()
