@@ -7,7 +7,15 @@ For the MPU-6000 and the CSV sample of data_samples/, in the same run:
 - ``help_wall_s``: wall time of ``calib --help`` in a fresh process, median;
 - ``one_run_to_solve_ratio``: a run's wall time over the in-process time of its bare
   read + preprocess + solve (`load_run` + `solve_loaded`, imports warm), the larger
-  of the two samples.
+  of the two samples (a run's wall time includes typesetting its certificate);
+- ``history_wall_s``: wall time of ``calib history MPU0001`` on an archive of the
+  MPU-6000 sample, median of `PAIRS`;
+- ``bare_imports_wall_s``: wall time of ``python -c "import sqlalchemy.orm, typer,
+  rich"`` (what any read-only command needs), median of `PAIRS`, each run right after
+  a history run (paired: both see the same load);
+- ``history_to_bare_ratio``: the median of the pairs' ratios (target <= 1.5).
+
+``--history-only`` measures the last three alone.
 
 The command is started as the `calib` entry point of this interpreter's environment,
 after the project's packages are byte-compiled (`compile_project`) as an installation
@@ -39,6 +47,8 @@ SAMPLES = {
     "csv": ROOT / "data_samples" / "csv_IMU-2026-0042",
 }
 REPEATS = 5
+PAIRS = 9
+BARE_IMPORTS = "import sqlalchemy.orm, typer, rich"
 
 
 def log(msg: str) -> None:
@@ -84,12 +94,40 @@ def _bare_seconds(folder: Path) -> float:
     return statistics.median(times[1:])
 
 
-def main() -> None:
+def history_latency(calib: list[str], env: dict[str, str], tmp: Path) -> dict[str, float]:
+    """`calib history` against the bare imports of a read-only command, in pairs."""
+    archive = str(tmp / "history")
+    _timed([*calib, "process", str(SAMPLES["mpu6000"]), "--archive", archive, "--json",
+            "--no-progress"], env)  # fmt: skip
+    history, bare = [], []
+    for _ in range(PAIRS):
+        history.append(_timed([*calib, "history", "MPU0001", "--archive", archive], env)[0])
+        bare.append(_timed([sys.executable, "-c", BARE_IMPORTS], env)[0])
+    ratios = [h / b for h, b in zip(history, bare, strict=True)]
+    log(f"calib history: median {statistics.median(history):.3f} s of "
+        f"{[round(h, 3) for h in history]}; bare imports: median "
+        f"{statistics.median(bare):.3f} s of {[round(b, 3) for b in bare]}")  # fmt: skip
+    return {
+        "history_wall_s": round(statistics.median(history), 3),
+        "bare_imports_wall_s": round(statistics.median(bare), 3),
+        "history_to_bare_ratio": round(statistics.median(ratios), 2),
+    }
+
+
+def _env() -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
     env.update(DO_NOT_TRACK="1", PREFECT_SERVER_ANALYTICS_ENABLED="false")
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
-    calib = _calib()
+    return env
+
+
+def main() -> None:
+    env, calib = _env(), _calib()
     compile_project()
+    if "--history-only" in sys.argv[1:]:
+        with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
+            print(json.dumps(history_latency(calib, env, Path(tmp))))
+        return
     load = os.getloadavg()[0]
     helps = [_timed([*calib, "--help"], env)[0] for _ in range(REPEATS)]
     log(f"calib --help: median {statistics.median(helps):.3f} s of {helps}")
@@ -107,12 +145,14 @@ def main() -> None:
             figures[name] = {"wall_s": wall, "cpu_s": cpu, "bare_s": bare, "ratio": wall / bare}
             log(f"{name}: calib process median {wall:.3f} s (CPU {cpu:.3f} s), "
                 f"bare read + solve {bare:.3f} s")  # fmt: skip
+        history = history_latency(calib, env, Path(tmp))
     figures["load_average"] = {"start": load, "end": os.getloadavg()[0]}
     print(json.dumps(figures, indent=1))
     print(json.dumps({
         "one_run_wall_s": round(max(figures[n]["wall_s"] for n in SAMPLES), 3),
         "help_wall_s": round(statistics.median(helps), 3),
         "one_run_to_solve_ratio": round(max(figures[n]["ratio"] for n in SAMPLES), 2),
+        **history,
     }))  # fmt: skip
 
 

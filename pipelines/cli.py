@@ -14,6 +14,7 @@ from pipelines.cli_shared import (
     JsonOpt,
     RevisionOpt,
     app,
+    cell,
     err,
     fail,
     flow_batch_console,
@@ -23,7 +24,6 @@ from pipelines.cli_shared import (
     open_run,
     out,
     print_facts,
-    print_frame,
     print_json,
     print_table,
     progress_bar,
@@ -64,7 +64,7 @@ def process(
     ] = None,
     reports: Annotated[
         bool,
-        typer.Option("--reports", help="Also write each archived run's HTML and PDF certificate."),
+        typer.Option("--reports", help="Also list each archived run's protocol and certificate."),
     ] = False,
     flow: Annotated[
         bool,
@@ -134,15 +134,16 @@ def _process_flow(
 
 
 def _write_reports(archive: str | None, outcomes: list[dict]) -> None:
-    """Certificates (HTML, PDF) of every archived run of the batch, from the archive."""
-    from pipelines.reports.certificate import report_run
+    """The issued certificates (HTML, PDF) of every archived run of the batch: issued when
+    each run was archived; one that was not (its issue failed) is issued now."""
+    from pipelines.reports.issue import issue, issued
 
     arch = open_archive(archive)
     for o in outcomes:
         if o["status"] != "failed":
-            written = report_run(arch, o["run_id"])
-            paths = ", ".join(str(p) for k, p in written.items() if k != "verdict")
-            err.print(f"{o['run_id']}: wrote {paths}")
+            done = issued(arch, o["run_id"]) or issue(arch, o["run_id"])
+            paths = ", ".join(str(p) for p in done.files.values())
+            err.print(f"{o['run_id']}: certificate {done.number}: {paths}")
 
 
 @app.command()
@@ -150,13 +151,18 @@ def history(serial: str, archive: ArchiveOpt = None, as_json: JsonOpt = False) -
     """Every calibration revision of a serial, oldest first."""
     from storage import queries
 
-    df = queries.history(open_archive(archive), serial)
+    arch = open_archive(archive)
     if as_json:
-        print_json(frame_records(df))
+        print_json(frame_records(queries.history(arch, serial)))
         return
-    if df.empty:
+    rows = queries.history_rows(arch, serial)  # no pandas: the table starts fast
+    if not rows:
         fail(f"no calibrations archived for serial {serial!r}")
-    print_frame(df, f"History of {serial}")
+    # The row's identity and verdict first: a narrow terminal leaves out the right end.
+    columns = ["run_id", "verdict", "started_at", "revision", "superseded", "procedure",
+               "software_version", "created_at"]  # fmt: skip
+    print_table(f"History of {serial}", columns,
+                [[cell(r[c]) for c in columns] for r in rows])  # fmt: skip
 
 
 @app.command()
@@ -199,7 +205,7 @@ def _print_approvals(arch, summary: dict) -> None:  # noqa: ANN001 - an Archive
 def _print_run(summary: dict, root: Path) -> None:
     """`calib show` for people: the unit, the run, its verdict, the parameters in display
     units with their standard uncertainty, and the checks that failed."""
-    from pipelines.reports.display import display
+    from pipelines.reports.display import STANDARD_U, STANDARD_U_MEANING, check_counts, shown
 
     cal = summary["calibration"]
     unit = summary["device"]
@@ -221,24 +227,22 @@ def _print_run(summary: dict, root: Path) -> None:
     )
     rows = []
     for p in cal["parameters"]:
-        value, shown_unit = display(p["name"], p["value"])
-        std, _ = display(p["name"], p["std"])
-        rows.append([p["name"], f"{value:.6g}", "-" if std is None else f"{std:.2g}", shown_unit])
-    print_table("Parameters (u: standard uncertainty)", ["name", "value", "u", "unit"], rows)
+        s = shown(p["name"], p["value"], p["std"])
+        rows.append([p["name"], s.value, s.u or "-", s.unit])
+    print_table(f"Parameters ({STANDARD_U_MEANING})", ["name", "value", STANDARD_U, "unit"], rows)
     from calib_core.conditions import NOT_RECORDED, WARNING
     from calib_core.conditions import status as condition_status
 
     failed = [c for c in cal["checks"] if condition_status(c) == "fail"]
     if failed:
-        rows = [[c["name"], _num(c.get("value")), _num(c.get("limit")), c.get("detail") or ""]
-                for c in failed]  # fmt: skip
+        rows = [[c["name"], _num(c.get("value")), _num(c.get("limit")),
+                 cell(c.get("detail") or "")] for c in failed]  # fmt: skip
         print_table("Failed checks", ["check", "value", "limit", "detail"], rows)
-    else:
-        out.print(f"no check of {len(cal['checks'])} failed")
+    out.print(check_counts(cal["checks"]).sentence(), markup=False, highlight=False)
     noted = [c for c in cal["checks"] if condition_status(c) in (WARNING, NOT_RECORDED)]
     if noted:  # conditions that leave the verdict as it is
-        rows = [[c["name"], condition_status(c), _num(c.get("value")), c.get("detail") or ""]
-                for c in noted]  # fmt: skip
+        rows = [[c["name"], condition_status(c), _num(c.get("value")),
+                 cell(c.get("detail") or "")] for c in noted]  # fmt: skip
         print_table("Conditions: warnings, not recorded", ["check", "status", "value", "detail"],
                     rows)  # fmt: skip
     out.print(f"(every field: calib show {summary['run_id']} --json)", markup=False)

@@ -242,8 +242,8 @@ def print_table(
     while True:
         candidate = Table(title=title)
         for name in shown:
-            ident = is_id_column(name)
-            candidate.add_column(name.replace("_", " "), no_wrap=ident, overflow="fold")
+            whole = is_id_column(name) or name == "verdict"  # "needs review" on one line
+            candidate.add_column(name.replace("_", " "), no_wrap=whole, overflow="fold")
         for row in rows:
             candidate.add_row(*(row[columns.index(n)] for n in shown))
         # minimum: every cell's longest word on one line; maximum: no cell wrapped
@@ -281,13 +281,29 @@ def print_frame(df, title: str) -> None:
     print_table(title, [columns[i] for i in keep], [[r[i] for i in keep] for r in rows], facts)
 
 
-def _cell(value: Any) -> str:
-    """A table cell: floats to 6 significant digits (--json and csv keep every digit)."""
-    if value is None:
+def cell(value: Any) -> str:
+    """A value as a table cell, escaped (a value is data, never rich markup: "[site]"
+    stays): floats to 6 significant digits (--json and csv keep every digit), NaN and
+    None empty, instants in UTC to the second, booleans yes / no."""
+    import math
+    from datetime import UTC, datetime
+
+    from rich.markup import escape
+
+    if value is None or (isinstance(value, float) and math.isnan(value)):
         return ""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.6g}"
-    return str(value)
+    if isinstance(value, datetime):
+        if value.tzinfo is None:  # the archive's naive instants are UTC
+            return f"{value:%Y-%m-%d %H:%M:%S}"
+        return f"{value.astimezone(UTC):%Y-%m-%d %H:%M:%S} UTC"
+    return escape(str(value))
+
+
+_cell = cell
 
 
 def print_facts(facts: dict[str, Any], title: str, paths: tuple[str, ...] = ()) -> None:

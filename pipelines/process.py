@@ -510,6 +510,8 @@ def process_run(
         return _failed(where, serial, exc, archive.url)
     finally:
         pending.close()
+    if result.status != "duplicate":
+        issue_certificate(archive, result.run_id)
     protocol_path = result.files.get(protocol_name)
     return run_outcome(
         source=where,
@@ -522,6 +524,22 @@ def process_run(
         verdict_=verdict_,
         message=message,
     )
+
+
+def issue_certificate(archive: Archive, run_id: str) -> None:
+    """Issue the archived revision's certificate (HTML and PDF, `pipelines.reports.issue`).
+
+    The run stays archived if this fails (a missing font library, a full disk): the
+    failure is logged with how to issue it later (`calib report RUN`).
+    """
+    from pipelines.reports.issue import issue
+
+    try:
+        issue(archive, run_id)
+    except Exception as exc:  # noqa: BLE001 - the archived run stands; said, not hidden
+        problem = write_failures.describe(exc, archive.url) or f"{type(exc).__name__}: {exc}"
+        log.warning("run %s is archived but its certificate was not issued: %s; issue it "
+                    "with `calib report %s`", run_id, problem, run_id)  # fmt: skip
 
 
 def _failed(where: str, serial: str, exc: Exception, database_url: str) -> dict[str, Any]:

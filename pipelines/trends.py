@@ -6,6 +6,7 @@ The numbers come from calib_core.drift, the rows from storage.queries.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,61 @@ from storage import queries
 from storage.db import Archive
 
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+CONDITION_BIN_C = 5.0  # runs whose lab temperatures differ by less are one condition
+TREND_MIN_RUNS = 3  # a drift needs three calibrations (calib_core.drift.fit_trend)
+
+
+@dataclass(frozen=True)
+class Pooled:
+    """The runs a drift in time compares: those at one condition (lab temperature)."""
+
+    indices: list[int]  # into the runs given, oldest first as given
+    condition: str  # "20 deg C", "temperature not recorded"
+    conditions: list[str]  # every condition of the runs given, e.g. ["0 deg C", "20 deg C"]
+    note: str  # why fewer runs than given, or why no trend ("" when all pooled)
+
+    def said(self, n_runs: int) -> str:
+        """e.g. "4 of 4 runs, all at 20 deg C"."""
+        every = "all " if len(self.indices) == n_runs else ""
+        return f"{len(self.indices)} of {n_runs} runs, {every}at {self.condition}"
+
+
+def _condition(t: float | None) -> str:
+    if t is None or not math.isfinite(t):
+        return "temperature not recorded"
+    return f"{CONDITION_BIN_C * round(t / CONDITION_BIN_C):g} deg C"
+
+
+def pooled_runs(temperatures: list[float | None], reference_c: float = 20.0) -> Pooled:
+    """Which runs a drift in time may pool: like with like. Runs at different lab
+    temperatures (a thermal campaign) differ by the temperature effect, which a straight
+    line over the dates would read as drift; they are compared by temperature (the
+    thermal model) instead. The trend takes the runs of the condition with most runs
+    (ties: nearest `reference_c`); runs without a temperature form their own condition.
+    """
+    keys = [_condition(t) for t in temperatures]
+    groups: dict[str, list[int]] = {}
+    for i, k in enumerate(keys):
+        groups.setdefault(k, []).append(i)
+
+    def rank(item: tuple[str, list[int]]) -> tuple[int, float]:
+        name, idx = item
+        temps = [temperatures[i] for i in idx if temperatures[i] is not None]
+        dist = abs(temps[0] - reference_c) if temps else math.inf
+        return (-len(idx), dist)
+
+    condition, indices = min(groups.items(), key=rank)
+    conditions = sorted(groups, key=lambda k: rank((k, groups[k]))[1])
+    note = ""
+    if len(groups) > 1:
+        note = (f"the runs are at {len(groups)} conditions ({', '.join(conditions)}): "
+                f"a drift in time compares the {len(indices)} at {condition}; the others "
+                "differ by the temperature effect (thermal model), not by drift")  # fmt: skip
+        if len(indices) < TREND_MIN_RUNS:
+            note = (f"the runs are at {len(groups)} conditions ({', '.join(conditions)}), "
+                    f"at most {len(indices)} at one: compared by temperature (calib thermal "
+                    "show), not fitted as a drift in time")  # fmt: skip
+    return Pooled(indices, condition, conditions, note)
 def days_since_epoch(when: datetime | pd.Timestamp) -> float:
     """Time-zone-aware datetime -> days since 1970-01-01 UTC (the drift module's time axis)."""
     return (pd.Timestamp(when).to_pydatetime() - EPOCH).total_seconds() / 86400.0
@@ -55,6 +111,13 @@ def trend_report(
     if df.empty:
         raise LookupError(f"no archived values of {name} for serial {serial!r}")
     df = df.assign(day=[days_since_epoch(t) for t in df["started_at"]])
+    temps = [None if t is None or (isinstance(t, float) and math.isnan(t)) else float(t)
+             for t in df["temperature_c"]]  # fmt: skip
+    pooled = pooled_runs(temps)
+    if len(pooled.indices) < TREND_MIN_RUNS and len(pooled.conditions) > 1:
+        raise ValueError(f"{name} of {serial}: {pooled.note}")
+    all_runs = len(df)
+    df = df.iloc[pooled.indices].reset_index(drop=True)
     stds = [None if s is None or (isinstance(s, float) and math.isnan(s)) else s for s in df["std"]]
     # Runs on one reference share its Type B: a generalised least-squares trend when every
     # point has a budget (pipelines.shared_reference), else the independent fit.
@@ -75,6 +138,10 @@ def trend_report(
         "parameter": name,
         "unit": df["unit"].iloc[0],
         "calibrations": int(len(df)),
+        "pooled": pooled.said(all_runs),
+        "pooled_runs": df["run_id"].tolist(),
+        "conditions": pooled.conditions,
+        "note": pooled.note or None,
         "slope_per_year": trend.slope * 365.25,
         "slope_std_per_year": trend.slope_std * 365.25,
         "fit": "independent" if shared is None else "shared reference (GLS)",

@@ -3,17 +3,20 @@
 # fixtures start their own throw-away server from these binaries. Also poppler's
 # pdftoppm, with which the report tests render PDF pages to PNG, and Debian's
 # chromium, which the `calib serve` browser tests drive through Playwright
-# (Playwright's own browser download is not used).
+# (Playwright's own browser download is not used). And Pango, with which WeasyPrint
+# typesets the PDF certificate (pipelines/reports/render.py).
 set -euo pipefail
 if { ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || command -v initdb >/dev/null 2>&1; } \
-    && command -v pdftoppm >/dev/null 2>&1 && [ -x /usr/bin/chromium ]; then
+    && command -v pdftoppm >/dev/null 2>&1 && [ -x /usr/bin/chromium ] \
+    && ldconfig -p | grep -q 'libpangoft2-1.0.so.0'; then
     exit 0
 fi
 if [ "$(id -u)" != 0 ]; then
-    echo "PostgreSQL server binaries, pdftoppm or chromium are missing; install them (apt-get install postgresql poppler-utils chromium) or run as root" >&2
+    echo "PostgreSQL server binaries, pdftoppm, chromium or Pango are missing; install them (apt-get install postgresql poppler-utils chromium libpango-1.0-0 libpangoft2-1.0-0) or run as root" >&2
     exit 1
 fi
-echo "installing PostgreSQL server, poppler-utils and chromium from Debian's packages..." >&2
+echo "installing PostgreSQL server, poppler-utils, chromium and Pango from Debian's packages..." >&2
 export DEBIAN_FRONTEND=noninteractive
 apt-get update -q >/dev/null
-apt-get install -y -q --no-install-recommends postgresql poppler-utils chromium >/dev/null
+apt-get install -y -q --no-install-recommends postgresql poppler-utils chromium \
+    libpango-1.0-0 libpangoft2-1.0-0 >/dev/null

@@ -66,6 +66,9 @@ ACTOR_ENV = "CALIB_USER"
 GENESIS = "0" * 64  # prev_hash of the first event
 # Actions whose event carries the digest of the record they sealed.
 SEALING = ("archived", "revised", "sealed")
+# The event of an issued certificate (pipelines.reports.issue): its detail's "files" maps
+# each file (path relative to the root) to its SHA-256, rehashed by `check`.
+ISSUED = "certificate issued"
 _CHUNK = 500  # calibrations per round of record queries
 # Any constant: held while appending to the chain, so PostgreSQL writers take turns.
 _PG_CHAIN_LOCK = 0x63616C6963  # "calic"
@@ -635,7 +638,26 @@ def check(conn: Connection, root: Path) -> ChainCheck:
                 f"revision {rev} has no seal: added behind the archive's back",
             )
         )
+    findings += _check_issued(conn, root)
     return ChainCheck(findings, head(conn), len(seal_ids), digests_now)
+
+
+def _check_issued(conn: Connection, root: Path) -> list[Finding]:
+    """Every file of an issued certificate against the SHA-256 its event recorded."""
+    out: list[Finding] = []
+    rows = conn.execute(
+        select(AuditEvent.run_id, AuditEvent.revision, AuditEvent.detail)
+        .where(AuditEvent.action == ISSUED).order_by(AuditEvent.seq)
+    ).all()  # fmt: skip
+    for run_id, rev, detail in rows:
+        files = (detail or {}).get("files") or {}
+        for rel, now in rehash_files(root, files).items():
+            if now != files[rel]:
+                what = ("is missing" if now == "(missing)" else
+                        f"changed: issued with SHA-256 {files[rel][:12]}..., now {now[:12]}...")
+                out.append(Finding("record", "certificates", [run_id or "?"],
+                                   f"{run_id} revision {rev}: issued file {rel} {what}"))
+    return out
 
 
 def _records_as_sealed(

@@ -119,6 +119,7 @@ def _commands(demo: dict) -> list[list[str]]:
         ["query", "history", "IMU-R-0003", "acc.bias.z", *a],
         ["query", "fleet", "MPU-6000", "acc.bias.z", *a],
         ["thermal", "export", "IMU-T-0007", str(tmp / "thermal.params"), "--format", "px4", *a],
+        ["thermal", "show", "IMU-T-0007", *a],
         ["centrifuge", "solve", str(demo["centrifuge"])],
         ["centrifuge", "plan", "--radius", "0.5"],
         ["keygen", str(tmp / "me.key"), "--name", "A. Tester"],

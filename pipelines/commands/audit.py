@@ -71,8 +71,14 @@ def audit(
         if ev["action"] == "approved":
             what += f" {approval_line(ev['approval'])} " \
                     f"(key {fingerprint(detail.get('public_key', ''))})"  # fmt: skip
-        elif detail:
-            what += " " + ", ".join(f"{k}={v}" for k, v in sorted(detail.items()))
+        elif ev["action"] == "certificate issued":  # pipelines.reports.issue
+            what += f" certificate {detail.get('certificate')} (issue {detail.get('issue')}, " \
+                    f"{len(detail.get('files') or {})} files sealed)"  # fmt: skip
+        elif detail:  # nested values are named, not printed raw (--json has them)
+            what += " " + ", ".join(
+                f"{k}={v}" if not isinstance(v, dict | list) else f"{k}: {len(v)} entries"
+                for k, v in sorted(detail.items())
+            )
         why = f"  reason: {ev['reason']}" if ev["reason"] else ""
         sys.stdout.write(
             f"{ev['seq']}\t{ev['at'].isoformat(timespec='seconds')}\t{ev['actor']}\t"

@@ -68,8 +68,10 @@ def _records(df: pd.DataFrame) -> list[dict[str, Any]]:
     return [_plain(r) for r in df.astype(object).to_dict(orient="records")]
 
 
-def emit(df: pd.DataFrame, fmt: Format, title: str) -> None:
-    """Print a DataFrame in the chosen format."""
+def emit(df: pd.DataFrame, fmt: Format, title: str, param: str | None = None) -> None:
+    """Print a DataFrame in the chosen format: JSON and CSV in SI, as queried; the table
+    with parameter values in their display units (`pipelines.reports.display`), the
+    parameter named by a ``name`` column or by `param`."""
     if fmt is Format.json:
         sys.stdout.write(json.dumps(_records(df), indent=2) + "\n")
     elif fmt is Format.csv:
@@ -77,7 +79,23 @@ def emit(df: pd.DataFrame, fmt: Format, title: str) -> None:
     elif df.empty:
         err.print(f"{title}: no rows")
     else:
-        print_frame(df, title)
+        print_frame(_displayed(df, param), title)
+
+
+def _displayed(df: pd.DataFrame, param: str | None) -> pd.DataFrame:
+    """`df` with its value / std / unit columns as people read them: display unit, the
+    uncertainty to two significant digits (column ``u``), the value to the same place."""
+    from pipelines.reports.display import STANDARD_U, shown
+
+    if not {"value", "std", "unit"} <= set(df.columns) or ("name" not in df and param is None):
+        return df
+    names = df["name"] if "name" in df else [param] * len(df)
+    texts = [shown(n, v, u) for n, v, u in zip(names, df["value"], df["std"], strict=True)]
+    out = df.copy()
+    out["value"] = [t.value for t in texts]
+    out["std"] = [t.u or "-" for t in texts]
+    out["unit"] = [t.unit for t in texts]
+    return out.rename(columns={"std": STANDARD_U})
 
 
 def _ask(fn, *args, **kwargs):  # noqa: ANN001, ANN202 - any query function
@@ -125,19 +143,14 @@ def lineage(
     if fmt is Format.json:
         sys.stdout.write(json.dumps(_plain(doc), indent=2) + "\n")
         return
-    long = pd.DataFrame(_flatten(doc), columns=["section", "item", "field", "value"])
     if fmt is Format.csv:
+        long = pd.DataFrame(_flatten(doc), columns=["section", "item", "field", "value"])
         long.to_csv(sys.stdout, index=False)
         return
-    # Sections of "field: value" lines, not tables: hashes, paths and settings stay whole.
-    for section, rows in long.groupby("section", sort=False):
-        out.print(f"[bold]{section}[/bold]")
-        for item, fields in rows.groupby("item", sort=False):
-            lead = f"  [{item}] " if rows["item"].nunique() > 1 else "  "
-            for r in fields.itertuples(index=False):
-                value = str(r.value).replace("\n", "\n" + " " * (len(lead) + 4))
-                out.print(f"{lead}{r.field}: {value}", markup=False, highlight=False)
-                lead = " " * len(lead)
+    # What bears on PARAM only, wrapped to the terminal; --format json has the full record.
+    from pipelines.reports.lineage import lineage_text
+
+    sys.stdout.write(lineage_text(doc, param, width=max(out.width, 40)))
 
 
 def _flatten(doc: dict[str, Any]) -> list[tuple[str, str, str, str]]:
@@ -220,7 +233,7 @@ def history(
         param,
         include_superseded=superseded,
     )
-    emit(df, fmt, f"{param} of {serial}")
+    emit(df, fmt, f"{param} of {serial}", param)
 
 
 @query_app.command("fleet")
@@ -235,7 +248,7 @@ def fleet(
     from storage import queries
 
     df = _ask(queries.fleet, open_archive(archive), model, param, at)
-    emit(df, fmt, f"{param} across {model}")
+    emit(df, fmt, f"{param} across {model}", param)
     if fmt is Format.table and not df.empty:
         v = df["value"]
         err.print(

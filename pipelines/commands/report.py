@@ -1,7 +1,8 @@
-"""`calib report RUN_ID`: protocol, HTML certificate and PDF of an archived run."""
+"""`calib report RUN_ID`: the protocol and the issued certificate (HTML, PDF) of an archived run."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Annotated
 
@@ -14,27 +15,51 @@ from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_run, print_jso
 def report(
     run_id: str,
     archive: ArchiveOpt = None,
-    pdf: Annotated[bool, typer.Option("--pdf/--no-pdf", help="Also write the PDF.")] = True,
+    pdf: Annotated[bool, typer.Option("--pdf/--no-pdf", help="Also hand out the PDF.")] = True,
     output: Annotated[
-        Path | None, typer.Option("--output", "-o", help="Folder (default: the run's folder).")
+        Path | None, typer.Option("--output", "-o", help="Copy the files into this folder.")
     ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the written paths.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the paths.")] = False,
     form: Annotated[
         str, typer.Option("--format", help="certificate (protocol, HTML, PDF) or dcc "
                                             "(Digital Calibration Certificate XML).")
     ] = "certificate",
+    reissue: Annotated[
+        bool, typer.Option("--reissue", help="Issue the certificate again from the archive "
+                                             "as it is now (a new, sealed document).")
+    ] = False,
+    reason: Annotated[
+        str | None, typer.Option("--reason", help="Why it is issued again (audit trail).")
+    ] = None,
 ) -> None:
-    """Write the test protocol, the HTML certificate and the PDF of an archived run.
+    """The test protocol and the certificate (HTML and PDF) issued when the run was archived.
 
-    Everything is read from the archive (run summary, checks, Parquet samples) and
-    the lab profile (lab.toml); the files go into the run's archive folder unless
-    --output names another. --format dcc writes the PTB DCC XML instead.
+    The files are the archived ones, sealed by the audit chain (`calib verify` rehashes
+    them); --output copies them elsewhere. --reissue typesets the certificate again from
+    the archive as it is now (after an approval, a new lab profile): a new document with
+    its own number beside the earlier ones. A run archived before certificates were
+    issued at archive time gets its first issue here. --format dcc writes the PTB DCC XML.
     """
-    from pipelines.reports.certificate import report_run
+    from pipelines.reports.issue import issue, issued
 
     arch, run_id = open_run(archive, run_id)
+    if reason is not None and not reissue:
+        fail("--reason goes with --reissue (why the certificate is issued again)")
     try:
-        written = report_run(arch, run_id, output, pdf=pdf, form=form)
+        if form != "certificate":
+            from pipelines.reports.certificate import report_run
+
+            written = report_run(arch, run_id, output, pdf=pdf, form=form)
+        else:
+            current = None if reissue else issued(arch, run_id)
+            if current is None:
+                current = issue(arch, run_id, reason=reason or ("issued again" if reissue
+                                                                 else None))  # fmt: skip
+            files = {k: p for k, p in current.files.items() if pdf or k != "pdf"}
+            if output is not None:
+                output.mkdir(parents=True, exist_ok=True)
+                files = {k: Path(shutil.copy2(p, output / p.name)) for k, p in files.items()}
+            written = {"verdict": current.verdict, "certificate": current.number, **files}
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
     except OSError as exc:  # a read-only archive, a full disk
@@ -46,5 +71,8 @@ def report(
         print_json({"run_id": run_id, "verdict": verdict,
                     **{k: str(v) for k, v in written.items()}})  # fmt: skip
         return
+    number = written.pop("certificate", None)
+    if number is not None:
+        err.print(f"certificate {number}")
     for kind, path in written.items():
-        err.print(f"wrote {kind}: {path}")
+        err.print(f"{kind}: {path}")

@@ -51,9 +51,19 @@ def serve(
     if known is not None or proxy_user_header:
         require_login(app, known, proxy_user_header)
     login = " with a login" if known is not None or proxy_user_header else ""
-    err.print(f"serving {ro.display_url} read-only{login} on http://{host}:{port}/ "
-              "(Ctrl-C stops)")  # fmt: skip
-    uvicorn.run(app, host=host, port=port, log_level="warning")
+    message = (f"serving {ro.display_url} read-only{login} on http://{host}:{port}/ "
+               "(Ctrl-C stops)")  # fmt: skip
+
+    class Announcing(uvicorn.Server):
+        """Says "serving" once the socket accepts connections, not before."""
+
+        async def startup(self, sockets=None) -> None:  # noqa: ANN001 - uvicorn's signature
+            await super().startup(sockets)
+            if self.started:
+                err.print(message, soft_wrap=True)
+
+    config = uvicorn.Config(app, host=host, port=port, log_level="warning")
+    Announcing(config).run()
 
 
 @app.command("serve-user")

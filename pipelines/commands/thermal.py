@@ -1,4 +1,4 @@
-"""Thermal compensation, the CLI: `calib thermal fit|export`, `apply`, `trend`, `fleet`.
+"""Thermal compensation, the CLI: `calib thermal fit|show|export`, `apply`, `trend`, `fleet`.
 
 The glue behind them: pipelines.thermal_campaign, pipelines.apply, pipelines.trends.
 
@@ -25,11 +25,12 @@ from pipelines.cli_shared import (
     print_facts,
     print_frame,
     print_json,
+    print_table,
     sub_app,
     warn,
 )
 
-thermal_app = sub_app("Temperature compensation: fit and export.")
+thermal_app = sub_app("Temperature compensation: fit, show and export.")
 app.add_typer(thermal_app, name="thermal")
 
 PlotOpt = Annotated[Path | None, typer.Option("--plot", help="Also draw the plot into this PNG.")]
@@ -104,6 +105,51 @@ def _hyst(h: dict | None) -> str:
     if h is None:
         return "-"
     return f"{h['value']:.3g} ± {h['std']:.2g}" + (" DETECTED" if h["detected"] else "")
+
+
+@thermal_app.command("show")
+def thermal_show(
+    serial: str,
+    at: Annotated[str | None, typer.Option("--at", help="The model current at this date.")] = None,
+    archive: ArchiveOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """The archived thermal model of SERIAL: range, reference, each parameter's curve."""
+    from storage import queries
+
+    model = _run(queries.latest_thermal_model, open_archive(archive), serial, parse_when(at))
+    if model is None:
+        fail(f"{serial} has no thermal model" + (f" as of {at}" if at else "")
+             + f": run `calib thermal fit {serial}` first")  # fmt: skip
+    if as_json:
+        print_json(model)
+        return
+    doc = model["document"]
+    print_facts(
+        {
+            "unit": serial,
+            "model": f"{model['id']} ({model['model_name']} v{model['model_version']}, "
+                     f"software {doc.get('software_version', '-')})",
+            "created": model["created_at"],
+            "range": f"{model['t_min']:g} .. {model['t_max']:g} deg C",
+            "reference temperature": f"{model['t_ref']:g} deg C",
+            "calibrations": ", ".join(map(str, model["calibration_ids"])),
+            "superseded by": model["superseded_by"] or "not superseded",
+        },
+        f"Thermal model of {serial}",
+    )
+    print_table(f"Curves: value(T) = c0 + c1 (T - {model['t_ref']:g}) + ... (SI)",
+                ["parameter", "order", "coefficients c0, c1, ...", "residual sigma", "points",
+                 "hysteresis"],
+                [_curve_row(name, c) for name, c in sorted(doc["curves"].items())])  # fmt: skip
+
+
+def _curve_row(name: str, curve: dict[str, Any]) -> list[str]:
+    coef = ", ".join(f"{c:.4g}" for c in curve["coef"])
+    unit = curve.get("unit") or ""
+    return [name, str(len(curve["coef"]) - 1), f"{coef} ({unit})",
+            f"{curve.get('sigma', float('nan')):.3g}", str(curve.get("n_points", "-")),
+            _hyst(curve.get("hysteresis"))]  # fmt: skip
 
 
 @thermal_app.command("export")

@@ -678,7 +678,6 @@ def write_reports(
     out["protocol"].write_text(cert.protocol, encoding="utf-8")
     stem = f"{serial}_{run_id}_certificate"
     if pdf:
-        # PDF first: render_html closes the figures after embedding them.
         out["pdf"] = render_pdf(cert, folder / f"{stem}.pdf")
     out["html"] = folder / f"{stem}.html"
     out["html"].write_text(render_html(cert), encoding="utf-8")
@@ -710,10 +709,26 @@ def report_run(
     """
     if form not in REPORT_FORMATS:
         raise ValueError(f"report format {form!r}: expected one of {list(REPORT_FORMATS)}")
-    from pipelines.lab import load_lab_profile
-    from pipelines.trust import lab_approvers
+    summary = archived_summary(archive, run_id)
+    folder = folder if folder is not None else archive.root / summary["run_dir"]
+    if form == "dcc":
+        from pipelines.reports.dcc import write_dcc
+
+        return {"verdict": summary["calibration"]["verdict"], "dcc": write_dcc(summary, folder)}
     from storage import queries
-    from storage.approval import approval_status
+
+    samples = queries.run_samples(archive, run_id)
+    approvals = trusted_approvals(archive, summary)
+    written = write_reports(summary, samples, folder, pdf=pdf, approvals=approvals)
+    return {"verdict": summary["calibration"]["verdict"], **written}
+
+
+def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - Archive
+    """`storage.queries.run_summary` of the run with what the certificate adds: the lab
+    profile (``lab``), the unit's calibration before this run (``as_found``) and the audit
+    chain's head at issue (``chain_head``)."""
+    from pipelines.lab import load_lab_profile
+    from storage import queries
     from storage.checkpoint import chain_head
 
     summary = queries.run_summary(archive, run_id)
@@ -721,14 +736,28 @@ def report_run(
     summary["lab"] = None if lab is None else lab[0]
     summary["as_found"] = queries.latest_calibration(
         archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1))
-    folder = folder if folder is not None else archive.root / summary["run_dir"]
-    if form == "dcc":
-        from pipelines.reports.dcc import write_dcc
-
-        return {"verdict": summary["calibration"]["verdict"], "dcc": write_dcc(summary, folder)}
-    samples = queries.run_samples(archive, run_id)
-    approvals = approval_status(archive, run_id, summary["calibration"]["revision"],
-                                lab_approvers())  # fmt: skip
     summary["chain_head"] = chain_head(archive)
-    written = write_reports(summary, samples, folder, pdf=pdf, approvals=approvals)
-    return {"verdict": summary["calibration"]["verdict"], **written}
+    return summary
+
+
+def trusted_approvals(archive, summary: dict[str, Any]) -> list:  # noqa: ANN001 - Archive
+    """The approvals of the summary's revision, each judged against the lab's approvers file
+    (pipelines.trust; none given: marked as not checked against one)."""
+    from pipelines.trust import lab_approvers
+    from storage.approval import approval_status
+
+    return approval_status(archive, summary["run_id"], summary["calibration"]["revision"],
+                           lab_approvers())  # fmt: skip
+
+
+def certificate_of(
+    archive, run_id: str, *, issue: int = 1  # noqa: ANN001 - Archive
+) -> tuple[dict[str, Any], Certificate]:
+    """(summary, certificate) of an archived run, from the archive alone, as issue `issue`
+    (`pipelines.reports.issue`: a re-issue is a new document with its own number)."""
+    from storage import queries
+
+    summary = archived_summary(archive, run_id)
+    summary["issue"] = issue
+    samples = queries.run_samples(archive, run_id)
+    return summary, sections(summary, samples, trusted_approvals(archive, summary))

@@ -1,6 +1,16 @@
-"""Lab display units for reports: SI inside, deg/s, (deg/s)/g, ppm where labs expect them."""
+"""How a number is shown to people, in one place: per parameter family the display unit
+(SI inside; deg/s, (deg/s)/g where labs expect them), the digits (the uncertainty to two
+significant digits, the value to the same place), the uncertainty's wording ("u" for the
+standard uncertainty, "U (k=2)" for an expanded one) and how checks are counted.
+
+The CLI, the web pages, the protocol, the certificate and the exports' human parts
+use it; JSON documents and Python values stay SI with their units named."""
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
 
 from calib_core.params import UNITS
 from calib_core.units import DEG, STANDARD_GRAVITY
@@ -45,3 +55,85 @@ def tolerance(name: str, check: dict | None) -> tuple[str, float] | None:
     upper_only = check.get("detail", "").startswith(("allowed at most", "allowed -inf"))
     relation = "<=" if upper_only else "+-"
     return relation, display(name, check["limit"])[0]
+
+
+# --- one presentation of a number --------------------------------------------------------
+
+STANDARD_U = "u"  # the standard uncertainty (k = 1), as every table heads it
+STANDARD_U_MEANING = "u: standard uncertainty (k = 1)"
+U_DIGITS = 2  # significant digits of an uncertainty (GUM 7.2.6); the value to the same place
+
+
+def expanded_u(k: float) -> str:
+    """The heading of an expanded uncertainty: "U (k=2)"."""
+    return f"U (k={k:.3g})"
+
+
+@dataclass(frozen=True)
+class Shown:
+    """A parameter as people read it: value and uncertainty in the display unit, as text."""
+
+    value: str
+    u: str  # "" without an uncertainty
+    unit: str
+
+
+def _decimals(u: float) -> int:
+    """Decimal places that give `u` U_DIGITS significant digits (negative: tens, ...)."""
+    return U_DIGITS - 1 - math.floor(math.log10(abs(u)))
+
+
+def shown(name: str, value: float | None, std: float | None = None) -> Shown:
+    """`name`'s SI `value` and standard uncertainty `std` in its display unit: the
+    uncertainty to two significant digits, the value to the same decimal place (6
+    significant digits without an uncertainty). None and NaN show as "-"."""
+    v, unit = display(name, value)
+    u, _ = display(name, std)
+    if v is None or not math.isfinite(v):
+        return Shown("-", "", unit)
+    if u is None or not math.isfinite(u) or u <= 0:
+        return Shown(f"{v:.6g}", "", unit)
+    places = _decimals(u)
+    if places > 0:
+        return Shown(f"{v:.{places}f}", f"{u:.{places}f}", unit)
+    return Shown(f"{round(v, places):.0f}", f"{round(u, places):.0f}", unit)
+
+
+@dataclass(frozen=True)
+class CheckCounts:
+    """A calibration's checks counted one way everywhere: the tolerance checks (parameters,
+    residuals, verification, repeatability) and the lab conditions, apart."""
+
+    tolerance: int
+    tolerance_failed: int
+    conditions: int
+    conditions_failed: int
+    warnings: int
+    not_recorded: int
+
+    @property
+    def failed(self) -> int:
+        """Failed checks that count against the verdict."""
+        return self.tolerance_failed + self.conditions_failed
+
+    def sentence(self) -> str:
+        """e.g. "0 of 75 tolerance checks failed; 12 conditions: 0 failed, 2 warnings,
+        3 not recorded"."""
+        text = f"{self.tolerance_failed} of {self.tolerance} tolerance checks failed"
+        if self.conditions:
+            plural = "" if self.warnings == 1 else "s"
+            text += (f"; {self.conditions} conditions: {self.conditions_failed} failed, "
+                     f"{self.warnings} warning{plural}, {self.not_recorded} not recorded")
+        return text
+
+
+def check_counts(checks: list[dict[str, Any]]) -> CheckCounts:
+    """Count archived check dicts (``name``, ``passed``, ``value``, ``detail``)."""
+    from calib_core.conditions import CONDITION_PREFIX, NOT_RECORDED, WARNING, status
+
+    states = [(str(c["name"]).startswith(CONDITION_PREFIX), status(c)) for c in checks]
+    conditions = [s for is_condition, s in states if is_condition]
+    tolerance = [s for is_condition, s in states if not is_condition]
+    return CheckCounts(len(tolerance), tolerance.count("fail"), len(conditions),
+                       conditions.count("fail"), conditions.count(WARNING),
+                       conditions.count(NOT_RECORDED))  # fmt: skip

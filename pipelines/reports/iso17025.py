@@ -19,8 +19,11 @@ ONLY_ITEMS = "The results relate only to the item calibrated, as received (7.8.2
 
 
 def certificate_number(summary: dict[str, Any]) -> str:
-    """Unique per calibration revision: "<run id>-<revision>"."""
-    return f"{summary['run_id']}-{summary['calibration']['revision']}"
+    """Unique per calibration revision and issue: "<run id>-<revision>", then
+    "<run id>-<revision>-<issue>" for a re-issue (`pipelines.reports.issue`)."""
+    number = f"{summary['run_id']}-{summary['calibration']['revision']}"
+    issue = summary.get("issue") or 1
+    return number if issue == 1 else f"{number}-{issue}"
 
 
 def _lab(summary: dict[str, Any], table: str) -> dict[str, str]:

@@ -13,7 +13,7 @@ from collections.abc import AsyncIterator
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import HTMLResponse, RedirectResponse
+from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from starlette.exceptions import HTTPException
 
 from pipelines.web import due, equipment, runs, units
@@ -37,6 +37,20 @@ async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
         gc.unfreeze()
 
 
+MAX_ECHO = 80  # characters of one word of a request echoed into an error page
+
+
+def clipped(message: str) -> str:
+    """`message` with every word longer than MAX_ECHO characters cut (a query value of
+    100,000 characters is named by its length, not echoed back)."""
+    import re
+
+    def cut(m: re.Match[str]) -> str:
+        return f"{m.group()[: MAX_ECHO // 2]}... ({len(m.group())} characters)"
+
+    return re.sub(rf"\S{{{MAX_ECHO + 1},}}", cut, message)
+
+
 def create_app(archive: Archive) -> FastAPI:
     """The application on a read-only archive (storage.queries.open_readonly)."""
     app = FastAPI(
@@ -57,7 +71,7 @@ def create_app(archive: Archive) -> FastAPI:
     @app.exception_handler(HTTPException)
     async def _http_error(request: Request, exc: HTTPException) -> HTMLResponse:
         return render(request, "error.html", exc.status_code, title=f"Error {exc.status_code}",
-                      status=exc.status_code, message=str(exc.detail))  # fmt: skip
+                      status=exc.status_code, message=clipped(str(exc.detail)))  # fmt: skip
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(request: Request, exc: RequestValidationError) -> HTMLResponse:
@@ -66,16 +80,21 @@ def create_app(archive: Archive) -> FastAPI:
             for e in exc.errors()
         ]
         return render(request, "error.html", 400, title="Error 400", status=400,
-                      message="; ".join(msgs))  # fmt: skip
+                      message=clipped("; ".join(msgs)))  # fmt: skip
 
     @app.middleware("http")
     async def _read_only(request: Request, call_next):  # noqa: ANN001, ANN202
         if request.method not in ("GET", "HEAD"):
             return HTMLResponse("the archive browser is read-only", status_code=405,
                                 headers={"Allow": "GET, HEAD", **SECURITY_HEADERS})  # fmt: skip
+        head = request.method == "HEAD"
+        if head:  # answered as GET without the body (the routes are GET routes)
+            request.scope["method"] = "GET"
         response = await call_next(request)
         for k, v in SECURITY_HEADERS.items():
             response.headers.setdefault(k, v)
+        if head:
+            return Response(status_code=response.status_code, headers=dict(response.headers))
         return response
 
     return app

@@ -30,7 +30,9 @@ def num(value: Any, digits: int = 6) -> str:
     """A number with `digits` significant digits; "-" for None or NaN."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "-"
-    if isinstance(value, bool) or not isinstance(value, int | float):
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if not isinstance(value, int | float):
         return str(value)
     return f"{value:.{digits}g}"
 
@@ -58,6 +60,31 @@ def size(n: int | None) -> str:
 
 def as_json(value: Any) -> str:
     return json.dumps(value, indent=1, sort_keys=True, default=str)
+
+
+def readable(value: Any, indent: str = "") -> str:
+    """A nested value (settings, statistics, site) for people: one "key: value" line each,
+    nested ones indented, lists joined; "-" for nothing recorded (None, NaN), yes / no.
+    The JSON downloads keep the values as they are."""
+    if isinstance(value, dict):
+        if not value:
+            return "-"
+        lines = []
+        for k, v in sorted(value.items()):
+            if isinstance(v, dict) and v:
+                lines.append(f"{indent}{k}:\n{readable(v, indent + '  ')}")
+            else:
+                lines.append(f"{indent}{k}: {readable(v)}")
+        return "\n".join(lines)
+    if isinstance(value, list | tuple):
+        if len(value) > 12:
+            return f"{len(value)} values: " + ", ".join(readable(v) for v in value[:6]) + ", ..."
+        return ", ".join(readable(v) for v in value) or "none"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return num(value)
+    return "-" if value is None else str(value)
 
 
 def path(*parts: str) -> str:
@@ -105,7 +132,7 @@ def check_result(check: Mapping[str, Any]) -> str:
     return checks.verdict([one])
 
 
-FILTERS = {"num": num, "when": when, "size": size, "as_json": as_json,
+FILTERS = {"num": num, "when": when, "size": size, "as_json": as_json, "readable": readable,
            "check_result": check_result}  # fmt: skip
 GLOBALS = {
     "display": display,

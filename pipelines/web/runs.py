@@ -5,7 +5,6 @@ exports of `calib export`: PX4, ArduPilot, CSV, MATLAB)."""
 from __future__ import annotations
 
 import json
-import tempfile
 from datetime import UTC
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ from calib_core import params
 from calib_core.conditions import status as condition_status
 from calib_core.tolerances import ToleranceProfile
 from calib_core.units import DEG, STANDARD_GRAVITY
-from pipelines.reports.display import tolerance
+from pipelines.reports.display import check_counts, shown, tolerance
 from pipelines.web import forms, svg
 from pipelines.web.pages import render
 from pipelines.web.present import display
@@ -85,11 +84,12 @@ def _parameter_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
     for p in summary["calibration"]["parameters"]:
         value, unit = display(p["name"], p["value"])
         std, _ = display(p["name"], p["std"])
+        text = shown(p["name"], p["value"], p["std"])
         check = checks.get(p["name"]) or checks.get(f"param:{p['name']}")
         tol = tolerance(p["name"], check)
         limit = None if tol is None else f"{tol[0].replace('+-', '±')} {tol[1]:.3g}"
         rows.append({**p, "display_value": value, "display_std": std, "display_unit": unit,
-                     "check": check, "display_limit": limit})  # fmt: skip
+                     "shown": text, "check": check, "display_limit": limit})  # fmt: skip
     return rows
 
 
@@ -114,7 +114,8 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
     charts = [svg.residual_chart(residuals, s, *RESIDUAL_UNITS[s], limits) for s in ("acc", "gyr")]
     return render(request, "run.html", title=f"Run {run_id}", s=summary, revisions=revs,
                   equipment=equipment, parameters=_parameter_rows(summary),
-                  charts=[c for c in charts if c], profile=profile)  # fmt: skip
+                  charts=[c for c in charts if c], profile=profile,
+                  counts=check_counts(summary["calibration"]["checks"]))  # fmt: skip
 
 
 @router.get("/runs/{run_id}/lineage/{name}", response_class=HTMLResponse)
@@ -150,51 +151,51 @@ def raw_file(request: Request, run_id: str, name: str) -> FileResponse:
                         filename=Path(name).name or "raw.bin")  # fmt: skip
 
 
-def _certificate(archive, run_id: str):  # noqa: ANN001, ANN202
-    from pipelines.reports.certificate import sections
-    from pipelines.trust import lab_approvers
-    from storage.approval import approval_status
-    from storage.checkpoint import chain_head
+def _issued(archive, run_id: str, kind: str) -> Path:  # noqa: ANN001 - Archive
+    """The archived file `kind` ("protocol", "html", "pdf") of the run's issued certificate."""
+    from pipelines.reports.issue import issued
 
-    summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
-    samples = forms.checked(queries.run_samples, archive, run_id)
-    approvals = approval_status(archive, summary["run_id"], summary["calibration"]["revision"],
-                                forms.checked(lab_approvers))  # fmt: skip
-    summary["chain_head"] = chain_head(archive)
-    return summary, sections(summary, samples, approvals)
+    full = _run_id(run_id)
+    forms.checked(queries.run_summary, archive, full)  # 404 for an unknown run
+    current = issued(archive, full)
+    path = None if current is None else current.files.get(kind)
+    if path is None:
+        raise HTTPException(404, f"run {full} has no issued certificate: `calib report {full}` "
+                                 "issues it into the archive")  # fmt: skip
+    root = archive.root.resolve()
+    path = path.resolve()
+    if not path.is_relative_to(root) or not path.is_file():
+        raise HTTPException(404, f"the issued {kind} of run {full} is missing from the archive "
+                                 "(`calib verify` reports it)")  # fmt: skip
+    return path
+
+
+def _archived_file(path: Path, media_type: str) -> FileResponse:
+    return FileResponse(path, media_type=media_type, filename=path.name)
 
 
 @router.get("/runs/{run_id}/protocol.txt")
 def protocol(request: Request, run_id: str) -> Response:
-    """The test protocol (MPU-6000 layout), built from the archive."""
+    """The test protocol (MPU-6000 layout) archived with the run."""
     forms.params(request, ())
-    summary, cert = _certificate(request.app.state.archive, run_id)
-    name = f"{summary['device']['serial']}_result.txt"
-    return _download(cert.protocol.encode(), "text/plain; charset=utf-8", name)
+    path = _issued(request.app.state.archive, run_id, "protocol")
+    return _archived_file(path, "text/plain; charset=utf-8")
 
 
 @router.get("/runs/{run_id}/certificate.html")
 def certificate_html(request: Request, run_id: str) -> Response:
-    """The HTML certificate (a download: it embeds its plots as PNG)."""
-    from pipelines.reports.render import render_html
-
+    """The issued HTML certificate (a download: it embeds its plots as PNG)."""
     forms.params(request, ())
-    summary, cert = _certificate(request.app.state.archive, run_id)
-    name = f"{summary['device']['serial']}_{run_id}_certificate.html"
-    return _download(render_html(cert).encode(), "text/html; charset=utf-8", name)
+    path = _issued(request.app.state.archive, run_id, "html")
+    return _archived_file(path, "text/html; charset=utf-8")
 
 
 @router.get("/runs/{run_id}/certificate.pdf")
 def certificate_pdf(request: Request, run_id: str) -> Response:
-    """The PDF certificate, rendered into a temporary file (never into the archive)."""
-    from pipelines.reports.render import render_pdf
-
+    """The issued PDF certificate, as archived (never rendered by the server)."""
     forms.params(request, ())
-    summary, cert = _certificate(request.app.state.archive, run_id)
-    with tempfile.TemporaryDirectory(prefix="calib-serve-") as tmp:
-        data = render_pdf(cert, Path(tmp) / "certificate.pdf").read_bytes()
-    name = f"{summary['device']['serial']}_{run_id}_certificate.pdf"
-    return _download(data, "application/pdf", name)
+    path = _issued(request.app.state.archive, run_id, "pdf")
+    return _archived_file(path, "application/pdf")
 
 
 @router.get("/runs/{run_id}/export.json")

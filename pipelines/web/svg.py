@@ -69,6 +69,9 @@ def _span(values: Sequence[float], pad: float = 0.06) -> tuple[float, float]:
     return lo - d, hi + d
 
 
+LABEL_GAP = 13.0  # px between the baselines of two text lines of a chart (11 px font)
+
+
 @dataclass
 class Chart:
     """A plot area with linear axes; elements are added as SVG strings."""
@@ -134,8 +137,21 @@ class Chart:
         self.parts.append(f'<line x1="{left}" x2="{self.width - right}" y1="{yy}" y2="{yy}" '
                           f'class="{cls}"/>')  # fmt: skip
         if text:
-            self.parts.append(f'<text x="{self.width - right - 2}" y="{float(yy) - 3:.1f}" '
+            y_text = self._label_y(float(yy))
+            self.parts.append(f'<text x="{self.width - right - 2}" y="{y_text:.1f}" '
                               f'class="tick {cls}-text" text-anchor="end">{escape(text)}</text>')
+
+    def _label_y(self, y_line: float) -> float:
+        """Where a line's label goes: just above the line, else just below it when that
+        would overprint another label or the title (their baselines at least LABEL_GAP apart)."""
+        used = getattr(self, "_label_ys", [16.0])  # the title's baseline
+        for y in (y_line - 3.0, y_line + LABEL_GAP):
+            if all(abs(y - u) >= LABEL_GAP for u in used):
+                break
+        else:
+            y = max(used) + LABEL_GAP
+        self._label_ys = [*used, y]
+        return y
 
     def polyline(self, xs: Sequence[float], ys: Sequence[float], cls: str,
                  colour: str = "") -> None:  # fmt: skip
@@ -227,7 +243,9 @@ def trend_chart(
     chart.axes(date_ticks(*x_range))
     far = [label(v) for v in limits if math.isfinite(v) and v not in shown]
     if far:  # a band far wider than the data would flatten it: say where it is instead
-        chart.parts.append(f'<text x="{chart.width - chart.margin[1]}" y="16" text-anchor="end" '
+        # on its own line under the title (a long title reaches the right edge)
+        chart.parts.append(f'<text x="{chart.width - chart.margin[1]}" y="{16 + LABEL_GAP}" '
+                           'text-anchor="end" '
                            f'class="tick limit-text">tolerance {escape(" / ".join(far))} '
                            "outside the plotted range</text>")
     if fit is not None:

@@ -17,6 +17,7 @@ from calib_core import drift, params
 from calib_core.thermal import ThermalModel
 from calib_core.tolerances import ToleranceProfile
 from pipelines.tolerances import load_profile
+from pipelines.trends import TREND_MIN_RUNS, pooled_runs
 from pipelines.web import forms, svg
 from pipelines.web.pages import render
 from pipelines.web.present import display, lineage_url
@@ -60,12 +61,21 @@ class Series:
     forecast: drift.Forecast | None = None
     note: str = ""
 
+    pooled: str = ""  # which runs the trend compares ("3 of 4 runs, at 20 deg C")
+
     def fit(self) -> None:
-        """Trend and tolerance forecast (calib_core.drift); a note says why not when it can't."""
-        t = [svg.days(r["started_at"]) for r in self.rows]
-        stds = [r["std"] if r["std"] is not None and r["std"] > 0 else None for r in self.rows]
+        """Trend and tolerance forecast (calib_core.drift) of the runs at one condition
+        (`pipelines.trends.pooled_runs`: like with like); a note says why not when it can't."""
+        like = pooled_runs([r.get("env_temperature_c") for r in self.rows], REFERENCE_C)
+        rows = [self.rows[i] for i in like.indices]
+        self.pooled = like.said(len(self.rows))
+        if len(like.conditions) > 1 and len(rows) < TREND_MIN_RUNS:
+            self.note = like.note
+            return
+        t = [svg.days(r["started_at"]) for r in rows]
+        stds = [r["std"] if r["std"] is not None and r["std"] > 0 else None for r in rows]
         try:
-            self.trend = drift.fit_trend(t, [r["value"] for r in self.rows], stds)
+            self.trend = drift.fit_trend(t, [r["value"] for r in rows], stds)
         except ValueError as exc:
             self.note = str(exc)
             return
@@ -81,7 +91,7 @@ class Series:
                "last_value": last["value"] * scale,
                "last_std": None if last["std"] is None else last["std"] * scale,
                "slope_per_year": None, "slope_std_per_year": None, "leaves": None,
-               "earliest": None, "out_now": None, "note": self.note,
+               "earliest": None, "out_now": None, "note": self.note, "pooled": self.pooled,
                "spark": svg.sparkline([r["value"] for r in self.rows]),
                "band": _band_text(self.low * scale, self.high * scale)}  # fmt: skip
         if self.trend is not None:
@@ -113,7 +123,8 @@ class Series:
             k = 1.96 if self.trend.dof <= 0 else float(_t95(self.trend.dof))
             fit = (grid, self.trend.value(grid) * scale, k * self.trend.std(grid) * scale)
             until = end
-        return svg.trend_chart(points, title=f"{self.name} of {serial}", unit=unit, fit=fit,
+        title = f"{self.name} of {serial}" + (f" ({self.pooled})" if self.trend else "")
+        return svg.trend_chart(points, title=title, unit=unit, fit=fit,
                                limits=(self.low * scale, self.high * scale), until=until)
 
 
@@ -194,6 +205,7 @@ def unit_page(request: Request, serial: str) -> HTMLResponse:
                   summaries=[s.summary() for s in series.values()], chosen=chosen,
                   chart=series[chosen].chart(serial) if chosen else None,
                   chosen_note=series[chosen].note if chosen else "",
+                  chosen_pooled=series[chosen].pooled if chosen else "",
                   profile=profile, thermal=_thermal(archive, serial, series))  # fmt: skip
 
 

@@ -42,6 +42,33 @@ if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (slow to import)
 
 
+REVISION_COLUMNS = ["run_id", "started_at", "procedure", "revision", "verdict", "superseded",
+                    "software_version", "created_at"]  # fmt: skip
+
+
+def history_rows(archive: Archive, serial: str) -> list[dict[str, Any]]:
+    """`history` as dicts (keys `REVISION_COLUMNS`), without pandas: what a table printed
+    at the terminal needs, so `calib history` starts without loading pandas."""
+    stmt = (
+        select_run_calibrations(
+            Run.run_id,
+            Run.started_at,
+            Run.procedure,
+            CalibrationRow.revision,
+            CalibrationRow.verdict,
+            CalibrationRow.superseded_by.is_not(None).label("superseded"),
+            CalibrationRow.software_version,
+            CalibrationRow.created_at,
+        )
+        .where(Device.serial == serial)
+        .order_by(Run.started_at, Run.id, CalibrationRow.revision)
+    )
+    with Session(archive.engine()) as s:
+        rows = s.execute(stmt).all()
+    return [{**dict(zip(REVISION_COLUMNS, r, strict=True)), "superseded": bool(r.superseded)}
+            for r in rows]  # fmt: skip
+
+
 def history(archive: Archive, serial: str) -> pd.DataFrame:
     """One row per calibration revision of a unit, oldest run first.
 
@@ -57,32 +84,7 @@ def history(archive: Archive, serial: str) -> pd.DataFrame:
     """
     import pandas as pd
 
-    stmt = (
-        select_run_calibrations(
-            Run.run_id,
-            Run.started_at,
-            Run.procedure,
-            CalibrationRow.revision,
-            CalibrationRow.verdict,
-            CalibrationRow.superseded_by.is_not(None).label("superseded"),
-            CalibrationRow.software_version,
-            CalibrationRow.created_at,
-        )
-        .where(Device.serial == serial)
-        .order_by(Run.started_at, Run.id, CalibrationRow.revision)
-    )
-    columns = [
-        "run_id",
-        "started_at",
-        "procedure",
-        "revision",
-        "verdict",
-        "superseded",
-        "software_version",
-        "created_at",
-    ]
-    with Session(archive.engine()) as s:
-        df = pd.DataFrame(s.execute(stmt).all(), columns=columns)
+    df = pd.DataFrame(history_rows(archive, serial), columns=REVISION_COLUMNS)
     return df.astype({"superseded": bool})
 
 

@@ -6,10 +6,8 @@ from __future__ import annotations
 
 import re
 from datetime import UTC, date, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pyarrow as pa
-import pyarrow.parquet as pq
 from sqlalchemy import Row, bindparam, select
 from sqlalchemy.orm import Session, aliased
 
@@ -37,6 +35,9 @@ from storage.schema import (
     Run,
     RunEquipment,
 )
+
+if TYPE_CHECKING:  # pyarrow (with numpy) is loaded by run_samples only: read-only commands
+    import pyarrow as pa  # that never read samples start without it
 
 MIN_RUN_ID_PREFIX = 4  # characters, as git's shortest abbreviation
 
@@ -443,6 +444,8 @@ def run_samples(archive: Archive, run_id: str) -> pa.Table:
     path = archive.root / rel
     if not path.is_file():
         raise LookupError(f"run {run_id!r}: samples file {path} is missing")
+    import pyarrow.parquet as pq
+
     return pq.read_table(path)
 
 

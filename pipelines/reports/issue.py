@@ -1,0 +1,133 @@
+"""Issued certificates: the HTML and PDF of a revision written into the archive, sealed.
+
+A certificate is *issued* when its run is archived (`pipelines.process`): its HTML and
+the PDF typeset from that HTML go into the revision's folder beside the protocol, and
+an audit event ``certificate issued`` records the SHA-256 of each file, the issue
+number and the certificate number, so `calib verify` sees a file changed or removed
+behind the archive's back (`storage.seal.check`). The web pages and `calib report`
+hand out these files; they never render a certificate of their own. A re-issue (after
+an approval, a new lab profile) is a new document: the next issue number, its own
+certificate number ("<run>-<revision>-<issue>") and files, and an event of its own;
+the earlier issues stay as they were.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from storage import rawstore, seal
+from storage.db import Archive
+
+ISSUED = seal.ISSUED  # the audit action
+PROTOCOL = "protocol"
+
+
+@dataclass(frozen=True)
+class Issue:
+    """One issued certificate of a calibration revision."""
+
+    run_id: str
+    revision: int
+    issue: int  # 1 for the certificate issued when the revision was archived
+    number: str  # the certificate number printed on every page
+    files: dict[str, Path]  # "html", "pdf", "protocol" -> absolute path in the archive
+    verdict: str
+
+
+def _names(serial: str, run_id: str, issue: int) -> dict[str, str]:
+    stem = f"{serial}_{run_id}_certificate" + ("" if issue == 1 else f"_issue-{issue}")
+    return {"html": f"{stem}.html", "pdf": f"{stem}.pdf"}
+
+
+def _folder(summary: dict[str, Any]) -> str:
+    """The revision's folder, relative to the archive root (as `storage.archive` names it)."""
+    revision = summary["calibration"]["revision"]
+    base = summary["run_dir"]
+    return base if revision == 1 else f"{base}/revision-{revision}"
+
+
+def issues(archive: Archive, run_id: str) -> list[dict[str, Any]]:
+    """The ``certificate issued`` events of a run (oldest first), from the audit chain."""
+    from sqlalchemy import select
+
+    from storage.schema import AuditEvent
+
+    q = (
+        select(AuditEvent.revision, AuditEvent.detail, AuditEvent.at)
+        .where(AuditEvent.run_id == run_id, AuditEvent.action == ISSUED)
+        .order_by(AuditEvent.seq)
+    )
+    with archive.engine().connect() as conn:
+        return [dict(r._mapping) for r in conn.execute(q)]
+
+
+def issued(archive: Archive, run_id: str) -> Issue | None:
+    """The latest issued certificate of the run's current revision, None if none was issued."""
+    from storage import queries
+
+    summary = queries.run_summary(archive, run_id)
+    revision = summary["calibration"]["revision"]
+    mine = [e for e in issues(archive, run_id) if e["revision"] == revision]
+    if not mine:
+        return None
+    detail = mine[-1]["detail"]
+    files = {kind: archive.root / rel for kind, rel in detail["paths"].items()}
+    protocol = archive.root / _folder(summary) / f"{summary['device']['serial']}_result.txt"
+    if protocol.is_file():
+        files[PROTOCOL] = protocol
+    return Issue(run_id, revision, detail["issue"], detail["certificate"], files,
+                 summary["calibration"]["verdict"])  # fmt: skip
+
+
+def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
+    """Typeset the run's certificate (current revision) from the archive, write its HTML and
+    PDF into the revision's folder and record the event that seals them.
+
+    Parameters
+    ----------
+    archive : a writable archive.
+    run_id : the full run id.
+    reason : why it is issued again (kept in the audit event); None for the first issue.
+
+    Returns
+    -------
+    Issue, with the paths of the files written.
+    """
+    from pipelines.reports.certificate import certificate_of
+    from pipelines.reports.render import pdf_bytes, render_html
+
+    seal.check_reason(reason)
+    from storage import queries
+
+    revision = queries.run_summary(archive, run_id)["calibration"]["revision"]
+    number = 1 + sum(e["revision"] == revision for e in issues(archive, run_id))
+    summary, cert = certificate_of(archive, run_id, issue=number)
+    data = {"pdf": pdf_bytes(cert), "html": render_html(cert).encode()}
+    folder = _folder(summary)
+    rel = {k: f"{folder}/{name}" for k, name in
+           _names(summary["device"]["serial"], run_id, number).items()}  # fmt: skip
+    with rawstore.PendingFiles() as pending:
+        for kind, path in rel.items():
+            target = archive.root / path
+            if target.exists():  # an archived file is never overwritten
+                raise FileExistsError(f"{target} exists already: the certificate of issue "
+                                      f"{number} was written but not recorded; move it away")
+            pending.write_bytes(target, data[kind])
+        pending.commit()
+    detail = {
+        "issue": number,
+        "certificate": cert.identifier,
+        "paths": rel,
+        "files": {rel[k]: hashlib.sha256(data[k]).hexdigest() for k in rel},
+    }
+    seal.record_event(archive, ISSUED, run_id=run_id, revision=revision, reason=reason,
+                      detail=detail)  # fmt: skip
+    files = {k: archive.root / p for k, p in rel.items()}
+    protocol = archive.root / folder / f"{summary['device']['serial']}_result.txt"
+    if protocol.is_file():
+        files[PROTOCOL] = protocol
+    return Issue(run_id, revision, number, cert.identifier, files,
+                 summary["calibration"]["verdict"])  # fmt: skip

@@ -1,0 +1,163 @@
+"""The certificate issued at archive time: HTML and the PDF typeset from it (WeasyPrint),
+written into the run's folder and sealed by an audit event; `calib report`, the web pages
+and `calib verify` work on those archived files.
+
+The MPU-6000 sample of data_samples/ goes through the real `process_run` into a real
+SQLite archive; the PDF's text is read back with poppler's pdftotext.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+import subprocess
+from html.parser import HTMLParser
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+from typer.testing import CliRunner
+
+from pipelines.cli import app
+from pipelines.ingest import discover_runs
+from pipelines.process import process_run
+from pipelines.reports.issue import ISSUED, issued, issues
+from storage.db import Archive, resolve_archive
+from storage.verify import verify
+
+SAMPLE = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"
+
+
+class _Text(HTMLParser):
+    """The words a reader sees in an HTML document (not its style sheet or title)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.words: list[str] = []
+        self._hidden = 0
+
+    def handle_starttag(self, tag: str, attrs: list) -> None:
+        self._hidden += tag in ("style", "title")
+
+    def handle_endtag(self, tag: str) -> None:
+        self._hidden -= tag in ("style", "title")
+
+    def handle_data(self, data: str) -> None:
+        if not self._hidden:
+            self.words += data.split()
+
+
+def _pdf_pages(path: Path) -> list[str]:
+    pdftotext = shutil.which("pdftotext")
+    assert pdftotext, "pdftotext missing: scripts/ensure_system_packages.sh installs poppler-utils"
+    out = subprocess.run([pdftotext, str(path), "-"], capture_output=True, text=True, check=True)
+    return out.stdout.split("\f")[:-1]  # one form feed after every page
+
+
+@pytest.fixture(scope="module")
+def archived(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, str]:
+    arch = resolve_archive(str(tmp_path_factory.mktemp("issue") / "archive"))
+    arch.upgrade()
+    (source,) = discover_runs([SAMPLE])
+    outcome = process_run(source, arch)
+    assert outcome["status"] == "ok", outcome
+    return arch, outcome["run_id"]
+
+
+def test_certificate_is_issued_and_sealed_when_archived(archived) -> None:
+    arch, run_id = archived
+    current = issued(arch, run_id)
+    assert current is not None and current.issue == 1 and current.number == f"{run_id}-1"
+    assert set(current.files) == {"protocol", "html", "pdf"}
+    (event,) = [e for e in issues(arch, run_id)]
+    for rel, sha in event["detail"]["files"].items():
+        assert hashlib.sha256((arch.root / rel).read_bytes()).hexdigest() == sha
+    assert {arch.root / rel for rel in event["detail"]["files"]} == {
+        current.files["html"], current.files["pdf"]}  # fmt: skip
+    assert verify(arch).ok
+
+
+def test_every_word_of_the_html_certificate_is_in_the_pdf(archived) -> None:
+    """Typeset, not cut: each word of the HTML is in the PDF's text, the header and footer
+    give the certificate number and "page x of y" on every page."""
+    arch, run_id = archived
+    current = issued(arch, run_id)
+    parser = _Text()
+    parser.feed(current.files["html"].read_text(encoding="utf-8"))
+    pages = _pdf_pages(current.files["pdf"])
+    text = "\f".join(pages)
+    found, joined = set(text.split()), "".join(text.split())
+    # A word longer than its table cell (a SHA-256) is broken across lines: it is
+    # then found with the line breaks taken out.
+    missing = sorted({w for w in parser.words if w not in found and w not in joined})
+    assert len(parser.words) > 500 and not missing, missing
+    assert len(pages) >= 3
+    for n, page in enumerate(pages, start=1):
+        assert f"page {n} of {len(pages)}" in page
+        assert page.count(f"Certificate {current.number}") >= 2  # header and footer
+
+
+def test_calib_report_hands_out_the_archived_files_and_reissues(archived, tmp_path) -> None:
+    arch, run_id = archived
+    first = issued(arch, run_id)
+    before = {k: p.read_bytes() for k, p in first.files.items()}
+    args = ["report", run_id, "--archive", str(arch.root), "--json"]
+    got = json.loads(CliRunner().invoke(app, args).stdout)
+    assert got["certificate"] == first.number
+    assert {k: Path(got[k]) for k in ("protocol", "html", "pdf")} == first.files
+    copied = json.loads(CliRunner().invoke(app, [*args, "--output", str(tmp_path)]).stdout)
+    assert Path(copied["pdf"]).read_bytes() == before["pdf"]
+    assert len(issues(arch, run_id)) == 1  # handing out issues nothing
+
+    result = CliRunner().invoke(app, [*args, "--reissue", "--reason", "lab profile completed"])
+    assert result.exit_code == 0, result.output
+    second = json.loads(result.stdout)
+    assert second["certificate"] == f"{run_id}-1-2"
+    assert Path(second["pdf"]) != first.files["pdf"]
+    assert f"Certificate {run_id}-1-2" in "".join(_pdf_pages(Path(second["pdf"])))
+    assert {k: p.read_bytes() for k, p in first.files.items()} == before  # earlier issue kept
+    events = issues(arch, run_id)
+    assert [e["detail"]["issue"] for e in events] == [1, 2]
+    assert issued(arch, run_id).number == f"{run_id}-1-2"
+    assert verify(arch).ok
+
+
+def test_verify_reports_a_changed_issued_certificate(tmp_path) -> None:
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    (source,) = discover_runs([SAMPLE])
+    run_id = process_run(source, arch)["run_id"]
+    pdf = issued(arch, run_id).files["pdf"]
+    pdf.write_bytes(pdf.read_bytes() + b"%% one byte more than issued\n")
+    report = verify(arch)
+    assert not report.ok
+    said = " ".join(p.detail for p in report.problems)
+    assert re.search(rf"{run_id} revision 1: issued file \S+{pdf.name} changed", said), said
+    pdf.unlink()
+    assert "is missing" in " ".join(p.detail for p in verify(arch).problems)
+
+
+def test_web_pages_serve_the_archived_files(archived) -> None:
+    from pipelines.web.app import create_app
+    from storage import browse
+
+    arch, run_id = archived
+    current = issued(arch, run_id)
+    ro = browse.open_readonly(arch)
+    client = TestClient(create_app(ro))
+    for url, kind in (("certificate.pdf", "pdf"), ("certificate.html", "html"),
+                      ("protocol.txt", "protocol")):  # fmt: skip
+        r = client.get(f"/runs/{run_id}/{url}")
+        assert r.status_code == 200, r.text
+        assert r.content == current.files[kind].read_bytes()
+        assert "attachment" in r.headers["content-disposition"]
+    ro.dispose()
+
+
+def test_the_issue_event_is_in_the_audit_trail(archived) -> None:
+    arch, run_id = archived
+    result = CliRunner().invoke(app, ["audit", run_id, "--archive", str(arch.root), "--json"])
+    assert result.exit_code == 0, result.output
+    assert ISSUED in {e["action"] for e in json.loads(result.stdout)}

@@ -1,0 +1,142 @@
+"""One presentation of a number (pipelines.reports.display) in the CLI and the web pages;
+the lineage of one parameter at 80 columns; read-only commands that load only what they
+use; tables at 80 columns that keep the row's identity and verdict.
+
+The MPU-6000 sample of data_samples/ is processed into a real SQLite archive; the
+commands run in-process (CliRunner, 80 columns) and in a fresh interpreter.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+from typer.testing import CliRunner
+
+from calib_core.units import DEG
+from pipelines.cli import app
+from pipelines.ingest import discover_runs
+from pipelines.process import process_run
+from pipelines.reports.display import check_counts, expanded_u, shown
+from storage import queries
+from storage.db import Archive, resolve_archive
+
+ROOT = Path(__file__).resolve().parent.parent
+SAMPLE = ROOT / "data_samples" / "mpu6000_MPU0001"
+WIDTH = 80
+
+
+def _run(*args: str) -> str:
+    result = CliRunner().invoke(app, list(args), env={"COLUMNS": str(WIDTH)}, terminal_width=WIDTH)
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+@pytest.fixture(scope="module")
+def archived(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, str]:
+    arch = resolve_archive(str(tmp_path_factory.mktemp("display") / "archive"))
+    arch.upgrade()
+    (source,) = discover_runs([SAMPLE])
+    outcome = process_run(source, arch)
+    assert outcome["status"] == "ok", outcome
+    return arch, outcome["run_id"]
+
+
+def test_shown_rounds_the_value_to_its_uncertainty() -> None:
+    s = shown("gyr.bias.x", 2.70721 * DEG, 0.000384 * DEG)
+    assert (s.value, s.u, s.unit) == ("2.70721", "0.00038", "deg/s")
+    s = shown("acc.bias.x", 123.456, 12.3)  # u of two digits above the decimal point
+    assert (s.value, s.u) == ("123", "12")
+    assert shown("acc.bias.x", 0.5, None).u == ""
+    assert shown("acc.bias.x", math.nan, 0.1).value == "-"
+    assert expanded_u(2.0) == "U (k=2)" and expanded_u(1.9623) == "U (k=1.96)"
+
+
+def test_show_latest_and_web_agree_on_every_number(archived) -> None:
+    """`calib show`, `calib query latest` and the run page print each parameter in the
+    same display unit with the same digits; JSON stays SI."""
+    from pipelines.web.app import create_app
+    from storage import browse
+
+    arch, run_id = archived
+    summary = queries.run_summary(arch, run_id)
+    show = _run("show", run_id, "--archive", str(arch.root))
+    latest = _run("query", "latest", "MPU0001", "--archive", str(arch.root))
+    ro = browse.open_readonly(arch)
+    page = TestClient(create_app(ro)).get(f"/runs/{run_id}").text
+    ro.dispose()
+    for p in summary["calibration"]["parameters"]:
+        s = shown(p["name"], p["value"], p["std"])
+        for text in (show, latest):
+            row = next(line for line in text.splitlines() if f" {p['name']} " in line)
+            cells = [c.strip() for c in row.strip().strip("│").split("│")]
+            assert [s.value, s.u, s.unit] == cells[1:4], row
+        assert f">{s.value}</a>" in page and f">{s.u}</td>" in page
+    assert "deg/s" in latest and "rad/s" not in latest  # display units, not SI
+    doc = json.loads(_run("query", "latest", "MPU0001", "--archive", str(arch.root),
+                          "--format", "json"))  # fmt: skip
+    assert {r["unit"] for r in doc if r["name"].startswith("gyr.bias")} == {"rad/s"}
+    # The checks are counted the same way in the terminal and on the page.
+    sentence = check_counts(summary["calibration"]["checks"]).sentence()
+    assert sentence in " ".join(show.split()) and sentence in page
+    assert "tolerance checks failed" in sentence
+
+
+def test_markup_in_values_is_shown_as_written(archived) -> None:
+    """A hint naming the manifest's "[site]" table keeps its brackets (rich markup)."""
+    arch, run_id = archived
+    show = _run("show", run_id, "--archive", str(arch.root))
+    assert "[site]" in show
+
+
+def test_lineage_of_one_parameter_is_readable_at_80_columns(archived) -> None:
+    arch, run_id = archived
+    text = _run("query", "lineage", run_id, "gyr.scale.x", "--archive", str(arch.root))
+    lines = text.splitlines()
+    assert max(len(line) for line in lines) <= WIDTH
+    assert len(lines) < 120
+    summary = queries.run_summary(arch, run_id)
+    for f in summary["raw_files"]:
+        assert f["name"] in text and f"sha256 {f['sha256']}" in text
+    assert "Step 2: solve" in text and "replaced samples of gyr.x" in text
+    assert "Uncertainty budget of gyr.scale.x" in text and "U (k=" in text
+    for other in ("acc.bias.x", "gyr.scale.y", "flagged_indices", "{"):
+        assert other not in text, other
+    full = json.loads(_run("query", "lineage", run_id, "gyr.scale.x", "--archive",
+                           str(arch.root), "--format", "json"))  # fmt: skip
+    budgets = next(s for s in full["steps"] if s["name"] == "uncertainty")["statistics"]
+    assert "acc.bias.x" in budgets["budgets"]  # --format json: the full record
+
+
+def test_history_at_80_columns_keeps_identity_and_verdict(archived) -> None:
+    arch, run_id = archived
+    text = _run("history", "MPU0001", "--archive", str(arch.root))
+    row = next(line for line in text.splitlines() if run_id in line)
+    assert "pass" in row
+    assert max(len(line) for line in text.splitlines() if "│" in line) <= WIDTH
+    assert "." not in row.split("│")[3]  # the start time to the second, no microseconds
+
+
+@pytest.mark.parametrize("args", [["history", "MPU0001"], ["audit", "MPU0001"], ["--version"]])
+def test_read_only_commands_do_not_load_the_science_stack(archived, args) -> None:
+    """A fresh interpreter: after the command, neither pandas, pyarrow, numpy, scipy,
+    matplotlib, Prefect nor WeasyPrint was imported."""
+    arch, _ = archived
+    heavy = ("pandas", "pyarrow", "numpy", "scipy", "matplotlib", "prefect", "weasyprint")
+    argv = args + (["--archive", str(arch.root)] if args[0] != "--version" else [])
+    code = (
+        "import sys\nfrom pipelines.cli import app\n"
+        f"try:\n    app({argv!r})\n"
+        "except SystemExit as e:\n    assert not e.code, e.code\n"
+        f"print([m for m in {heavy!r} if m in sys.modules])\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                          timeout=300, check=True)  # fmt: skip
+    assert done.stdout.strip().splitlines()[-1] == "[]", done.stdout + done.stderr
