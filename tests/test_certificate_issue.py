@@ -141,11 +141,11 @@ def test_verify_reports_a_changed_issued_certificate(tmp_path) -> None:
 
 def test_web_pages_serve_the_archived_files(archived) -> None:
     from pipelines.web.app import create_app
-    from storage import browse
+    from storage.queries import open_readonly
 
     arch, run_id = archived
     current = issued(arch, run_id)
-    ro = browse.open_readonly(arch)
+    ro = open_readonly(arch)
     client = TestClient(create_app(ro))
     for url, kind in (("certificate.pdf", "pdf"), ("certificate.html", "html"),
                       ("protocol.txt", "protocol")):  # fmt: skip

@@ -62,13 +62,13 @@ def test_show_latest_and_web_agree_on_every_number(archived) -> None:
     """`calib show`, `calib query latest` and the run page print each parameter in the
     same display unit with the same digits; JSON stays SI."""
     from pipelines.web.app import create_app
-    from storage import browse
+    from storage.queries import open_readonly
 
     arch, run_id = archived
     summary = queries.run_summary(arch, run_id)
     show = _run("show", run_id, "--archive", str(arch.root))
     latest = _run("query", "latest", "MPU0001", "--archive", str(arch.root))
-    ro = browse.open_readonly(arch)
+    ro = open_readonly(arch)
     page = TestClient(create_app(ro)).get(f"/runs/{run_id}").text
     ro.dispose()
     for p in summary["calibration"]["parameters"]:

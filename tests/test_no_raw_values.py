@@ -20,7 +20,7 @@ from pipelines import cli_shared
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from storage import browse
+from storage.queries import open_readonly
 from storage.db import Archive, resolve_archive
 
 SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"
@@ -103,7 +103,7 @@ class _Page(HTMLParser):
 
 
 def test_no_page_shows_raw_values(sample_archive: Archive) -> None:
-    ro = browse.open_readonly(sample_archive)
+    ro = open_readonly(sample_archive)
     found: dict[str, list[str]] = {}
     seen: set[str] = set()
     todo = ["/runs", "/models", "/equipment", "/units/IMU-T-0007", "/units/IMU-R-0003"]

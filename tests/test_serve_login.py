@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 from pipelines.cli import app
 from pipelines.web.app import create_app
 from pipelines.web.auth import add_user, check_password, is_loopback, load_users, require_login
-from storage import browse
+from storage.queries import open_readonly
 from storage.db import Archive, default_archive_url
 
 PASSWORD = "correct horse battery"
@@ -44,7 +44,7 @@ def test_every_page_needs_a_login_from_the_users_file(small: Archive, tmp_path: 
     users = tmp_path / "users"
     add_user(users, "jane", PASSWORD)
     assert users.stat().st_mode & 0o077 == 0
-    ro = browse.open_readonly(small)
+    ro = open_readonly(small)
     web = create_app(ro)
     require_login(web, load_users(users))
     with TestClient(web) as c:
@@ -62,7 +62,7 @@ def test_every_page_needs_a_login_from_the_users_file(small: Archive, tmp_path: 
 
 
 def test_behind_a_reverse_proxy_its_header_is_the_login(small: Archive) -> None:
-    ro = browse.open_readonly(small)
+    ro = open_readonly(small)
     web = create_app(ro)
     require_login(web, None, "X-Remote-User")
     with TestClient(web) as c:

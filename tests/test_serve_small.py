@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from storage import browse
+from storage.queries import open_readonly
 from storage.db import resolve_archive
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -35,7 +35,7 @@ def archive(tmp_path: Path):
 def client(archive):
     from pipelines.web.app import create_app
 
-    ro = browse.open_readonly(archive)
+    ro = open_readonly(archive)
     with TestClient(create_app(ro)) as c:
         yield c
     ro.dispose()

@@ -19,7 +19,7 @@ from pipelines import cli_shared
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from storage import browse
+from storage.queries import open_readonly
 from storage.db import resolve_archive
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -111,7 +111,7 @@ def test_a_thermal_campaign_is_not_read_as_a_drift(campaign) -> None:
     root = str(campaign.root)
     code, text = _invoke("trend", "IMU-T-0007", "acc.bias.x", "--archive", root)
     assert code == 2 and "4 conditions" in text and "not fitted as a drift" in text, text
-    ro = browse.open_readonly(campaign)
+    ro = open_readonly(campaign)
     page = TestClient(create_app(ro)).get("/units/IMU-T-0007?parameter=acc.bias.x").text
     ro.dispose()
     plain = " ".join(re.sub(r"<[^>]+>", " ", page).split())
