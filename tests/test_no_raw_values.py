@@ -20,8 +20,8 @@ from pipelines import cli_shared
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from storage.queries import open_readonly
 from storage.db import Archive, resolve_archive
+from storage.queries import open_readonly
 
 SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"
 # What a person must never read: Python's None / nan, a repr, a JSON object.

@@ -20,8 +20,8 @@ from typer.testing import CliRunner
 from pipelines.cli import app
 from pipelines.web.app import create_app
 from pipelines.web.auth import add_user, check_password, is_loopback, load_users, require_login
-from storage.queries import open_readonly
 from storage.db import Archive, default_archive_url
+from storage.queries import open_readonly
 
 PASSWORD = "correct horse battery"
 

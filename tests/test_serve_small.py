@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from storage.queries import open_readonly
 from storage.db import resolve_archive
+from storage.queries import open_readonly
 
 ROOT = Path(__file__).resolve().parent.parent
 

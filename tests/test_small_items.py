@@ -19,8 +19,8 @@ from pipelines import cli_shared
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from storage.queries import open_readonly
 from storage.db import resolve_archive
+from storage.queries import open_readonly
 
 ROOT = Path(__file__).resolve().parent.parent
 CAMPAIGN = ROOT / "data_samples" / "thermal_IMU-T-0007"
