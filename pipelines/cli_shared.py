@@ -270,7 +270,12 @@ def print_table(
 
 def print_frame(df, title: str) -> None:
     """A DataFrame as a table that fits the terminal (`print_table`); columns with one
-    value in every row (the serial and run of a run's parameters) are said once above it."""
+    value in every row (the serial and run of a run's parameters) are said once above it.
+    The row's identity (serial, run id) and its verdict come first: a narrow terminal
+    leaves out columns from the right."""
+    first = [c for c in df.columns if is_id_column(str(c))] + [c for c in df.columns
+                                                              if c == "verdict"]  # fmt: skip
+    df = df[first + [c for c in df.columns if c not in first]]
     columns = [str(c) for c in df.columns]
     rows = [[_cell(v) for v in row] for row in df.itertuples(index=False)]
     same = [c for i, c in enumerate(columns) if len(rows) > 1 and len({r[i] for r in rows}) == 1]

@@ -140,3 +140,12 @@ def test_read_only_commands_do_not_load_the_science_stack(archived, args) -> Non
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                           timeout=300, check=True)  # fmt: skip
     assert done.stdout.strip().splitlines()[-1] == "[]", done.stdout + done.stderr
+
+
+def test_query_units_at_80_columns_keeps_identity_and_verdict(archived) -> None:
+    arch, run_id = archived
+    text = _run("query", "units", "--archive", str(arch.root))
+    header = next(line for line in text.splitlines() if "serial" in line)
+    assert header.index("serial") < header.index("run id") < header.index("verdict")
+    row = next(line for line in text.splitlines() if run_id in line)
+    assert "MPU0001" in row and "pass" in row
