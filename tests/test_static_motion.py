@@ -60,6 +60,21 @@ def test_still_records_pass():
     assert MOTION_ALPHA == 1e-3
 
 
+def test_low_passed_still_records_pass_and_a_low_passed_vehicle_fails():
+    """A 5 Hz low-pass (a sensor's DLPF at 100 Hz) correlates the noise: a window holds
+    ~10x fewer degrees of freedom than samples, and the limit follows (from the noise's
+    autocorrelation time). 10 still records pass; the vehicle of the next test fails."""
+    sos = signal.butter(4, 5.0, fs=100.0, output="sos")
+
+    def low_passed(rec: Recording) -> Recording:
+        return dataclasses.replace(rec, gyr=signal.sosfiltfilt(sos, rec.gyr, axis=0),
+                                   acc=signal.sosfiltfilt(sos, rec.acc, axis=0))  # fmt: skip
+
+    for seed in range(10):
+        assert motion_check("still", low_passed(_still(200 + seed)))["passed"]
+    assert not motion_check("moving", low_passed(_vibrating(_still(210), 211)))["passed"]
+
+
 def test_a_vehicle_moving_through_static_bias_fails_the_motion_check():
     """The issue's DataFlash case: a record of a moving vehicle (gyro scatter 0.052 rad/s)
     through static_bias: the run fails the named check motion:<label>, naming the moving
