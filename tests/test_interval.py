@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from calib_core.calibration import Parameter
 from calib_core.drift import fit_trend_shared
 from calib_core.interval import (
     Prediction,
@@ -143,8 +144,8 @@ def fleet_archive(tmp_path_factory):
                 raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
                 settings={}, software_version="test", source_revision=None, steps=[],
                 calibration={"parameters": {}},
-                parameters=[{"name": "gyr.scale.x", "value": float(measured[u, k]),
-                             "std": U_MEAS, "unit": "1", "temperature_c": 20.0}],
+                parameters=[Parameter("gyr.scale.x", float(measured[u, k]), U_MEAS, "1")],
+                parameter_temperature_c=20.0,
                 checks=[], verdict="pass", profile_name="mpu6000", profile_version="3",
             ))  # fmt: skip
     return arch, start, x0, rate

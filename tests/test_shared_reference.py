@@ -114,6 +114,7 @@ def shared_archive(tmp_path_factory):
     import hashlib
     from datetime import UTC, datetime, timedelta
 
+    from calib_core.calibration import Parameter, StepRecord
     from storage.archive import RawFileIn, RunIn, archive_run
     from storage.db import resolve_archive
 
@@ -137,12 +138,11 @@ def shared_archive(tmp_path_factory):
             manifest_text=None, tolerance_profile="mpu6000",
             raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
             settings={}, software_version="test", source_revision=None,
-            steps=[{"name": "uncertainty", "settings": {},
-                    "statistics": {"budgets": {name: _budget(name, float(value))}},
-                    "software_version": "test"}],
+            steps=[StepRecord("uncertainty", {},
+                              {"budgets": {name: _budget(name, float(value))}}, "test")],
             calibration={"parameters": {}},
-            parameters=[{"name": name, "value": float(value), "std": U_A, "unit": "rad/s",
-                         "temperature_c": 20.0}],
+            parameters=[Parameter(name, float(value), U_A, "rad/s")],
+            parameter_temperature_c=20.0,
             checks=[], verdict="pass", profile_name="mpu6000", profile_version="3",
         ))  # fmt: skip
     return arch, y
