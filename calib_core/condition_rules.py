@@ -8,7 +8,7 @@ deg/s), not SI, so the line reads as the procedure writes it.
 
 Severity, from the procedure's wording:
 
-- warning (the verdict stands, the line says WARNING): the environment, which methods.md 3
+- warning (the verdict stands, the line says WARNING): the environment, which docs/methods.md 3.10
   asks to be *recorded* with each run with *targets* (ambient 20 +- 2 deg C, drift
   <= 0.5 deg C/h, humidity 40-60 %, pressure, warm-up time), and local gravity by the
   standard value instead of the site's (the MPU-6000 manual computes it by Helmert).
@@ -60,7 +60,7 @@ class Condition:
 
 
 _INF = math.inf
-# key: (low, high, severity, text, unit); methods.md 2.4, 2.5 and 3.
+# key: (low, high, severity, text, unit); docs/methods.md 2.4, 2.5 and 3.10.
 DEFAULT_CONDITIONS: dict[str, tuple[float, float, str, str, str]] = {
     "ambient_temperature_c": (18.0, 22.0, WARNING, "ambient temperature", "deg C"),
     "temperature_drift_c_per_h": (-_INF, 0.5, WARNING, "ambient temperature drift", "deg C/h"),

@@ -1,6 +1,6 @@
 """Lab conditions and acquisition rules of a run, measured on its data and judged.
 
-methods.md sets conditions a run must be made under; recording them is not enough, each
+docs/methods.md 3.10 sets conditions a run must be made under; recording them is not enough, each
 is judged and printed as one verdict line of the "conditions" section of the protocol and
 the certificate. Which conditions apply is the run's procedure's declaration
 (`calib_core.procedures`, its ``conditions``); their limits, severity and wording are the

@@ -38,28 +38,28 @@ GYRO_RANGE = Setting(
     "refused as saturated", low=0.0, low_open=True)  # fmt: skip
 COMMON_SETTINGS = Settings(GYRO_RANGE)
 
-# Conditions of every procedure (each adds its own): the environment methods.md 3 asks to be
-# recorded, the site's gravity, sampling and resolution (methods.md 2.4), the sensor's
+# Conditions of every procedure (each adds its own): the environment docs/methods.md 3.10 asks to be
+# recorded, the site's gravity, sampling and resolution (docs/methods.md 2.4), the sensor's
 # temperature trend.
-METHODS = "methods.md"
+METHODS = "docs/methods.md"
 ENVIRONMENT = (
     ConditionUse("ambient_temperature_c", "ambient (lab) temperature, as recorded",
-                 f"{METHODS} 3"),
+                 f"{METHODS} 3.10"),
     ConditionUse("temperature_drift_c_per_h", "ambient temperature drift (recorded, else the "
-                 "sensor's over records of 10 min or more)", f"{METHODS} 3"),
-    ConditionUse("humidity_pct", "relative humidity, as recorded", f"{METHODS} 3"),
-    ConditionUse("pressure_hpa", "air pressure, as recorded", f"{METHODS} 3"),
-    ConditionUse("warmup_min", "warm-up time before the run, as recorded", f"{METHODS} 3"),
+                 "sensor's over records of 10 min or more)", f"{METHODS} 3.10"),
+    ConditionUse("humidity_pct", "relative humidity, as recorded", f"{METHODS} 3.10"),
+    ConditionUse("pressure_hpa", "air pressure, as recorded", f"{METHODS} 3.10"),
+    ConditionUse("warmup_min", "warm-up time before the run, as recorded", f"{METHODS} 3.10"),
     ConditionUse("gravity", "local gravity: from the site, not the standard value",
                  "MPU-6000 manual (Helmert's formula)"),
     ConditionUse("sample_rate_hz", "sampling rate of the slowest segment", f"{METHODS} 2.4"),
     ConditionUse("resolution_bits", "sensor resolution, as recorded", f"{METHODS} 2.4"),
     ConditionUse("sensor_temperature_spread_c", "sensor temperature (1-s means) over the "
-                 "whole run: recorded for the thermal model, not judged", f"{METHODS} 3"),
+                 "whole run: recorded for the thermal model, not judged", f"{METHODS} 3.10"),
 )  # fmt: skip
 ATTITUDES = (
     ConditionUse("settle_s", "settle time before each static attitude, as recorded",
-                 f"{METHODS} 2.5"),
+                 f"{METHODS} 3.4"),
     ConditionUse("record_s", "record time of the shortest static attitude", f"{METHODS} 2.4"),
 )  # fmt: skip
 RATE_PLATEAUS = (

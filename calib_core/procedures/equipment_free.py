@@ -1,6 +1,6 @@
 """The equipment-free procedure: one hand-held session of rests between rotations -> the
 accelerometer model from |f| = g at every rest, gyro parameters from the rotations between
-them (methods.md 3; Tedaldi et al., imu_tk).
+them (docs/methods.md 2.3; Tedaldi et al., imu_tk).
 
 The solver is calib_core.solvers.equipment_free. Settings: `EQUIPMENT_FREE.settings`.
 """
@@ -38,7 +38,7 @@ EQUIPMENT_FREE = Procedure(
     solver=solve_equipment_free,
     settings=SETTINGS,
     conditions=ENVIRONMENT + ATTITUDES,
-    reference="methods.md 3; Tedaldi et al. 2014 (imu_tk)",
+    reference="docs/methods.md 2.3; Tedaldi et al. 2014 (imu_tk)",
     model_checks="number of rests (threshold search when too few); accelerometer condition "
     "number; residual scale; transport residual of the rotations",
 )

@@ -1,5 +1,5 @@
 """The multi-position procedure: statics at known table attitudes -> the accelerometer model
-of the chosen order, gyro bias and g-sensitivity, noise (methods.md 2.2).
+of the chosen order, gyro bias and g-sensitivity, noise (docs/methods.md 2.2).
 
 The solver is calib_core.solvers.multi_position. Settings: `MULTI_POSITION.settings`.
 """
@@ -39,7 +39,7 @@ MULTI_POSITION = Procedure(
     solver=solve_multi_position,
     settings=SETTINGS,
     conditions=ENVIRONMENT + ATTITUDES,
-    reference="methods.md 2.2",
+    reference="docs/methods.md 2.2",
     bounds_hint=(
         "check the table's attitude convention (settings.attitude_convention: 'project' "
         "a_x = -g sin(pitch), 'rate_table_procedure' a_x = +g sin(pitch)), settings.table_axes "

@@ -1,5 +1,5 @@
 """The rate-table procedure: one segment per rate plateau -> gyro bias, scale factors,
-misalignment, nonlinearity and asymmetry (methods.md 4; IEEE Std 952 / 1431 practice).
+misalignment, nonlinearity and asymmetry (docs/methods.md 2.4; IEEE Std 952 / 1431 practice).
 
 Settings: `RATE_TABLE.settings` (docs/procedures.md).
 """
@@ -79,7 +79,7 @@ RATE_TABLE = Procedure(
     solver=solve_rate_table_procedure,
     settings=SETTINGS,
     conditions=ENVIRONMENT + ATTITUDES[:1] + RATE_PLATEAUS,
-    reference="methods.md 4; IEEE Std 952 / 1431",
+    reference="docs/methods.md 2.4; IEEE Std 952 / 1431",
     uncertainty=rate_table_model,
     model_checks="chi2 of the rate fit; 0-rate points against the fitted bias; nonlinearity "
     "and asymmetry of each scale factor",

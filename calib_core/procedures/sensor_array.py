@@ -1,5 +1,5 @@
 """The sensor-array procedure: several IMUs on one cube, each with a static and ccw/cw
-turns -> each sensor's accelerometer and gyro parameters (methods.md 2.7).
+turns -> each sensor's accelerometer and gyro parameters (docs/methods.md 2.7).
 
 The solver is calib_core.solvers.sensor_array. Settings: `SENSOR_ARRAY.settings`.
 """
@@ -26,6 +26,6 @@ SENSOR_ARRAY = Procedure(
     solver=solve_sensor_array,
     settings=SETTINGS,
     conditions=ENVIRONMENT + ATTITUDES,
-    reference="methods.md 2.7",
+    reference="docs/methods.md 2.7",
     model_checks="whole turns per sensor (inferred or given); residuals per sensor",
 )

@@ -23,11 +23,11 @@ Settings
 --------
 turns : int or None (infer from the data), integral method only.
 gyro_range_dps : gyro full scale, deg/s (default 2000).
-accel_solver : "least_squares" (default), "closed_form" (methods.md 2.1) or
+accel_solver : "least_squares" (default), "closed_form" (docs/methods.md 2.1) or
     "kalman" (sequential filter over every sample, calib_core.solvers.kalman;
     agrees with least squares within its uncertainty).
 accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
-    rate-table model of methods.md 1: bias and scale per axis, no cross-coupling).
+    rate-table model of docs/methods.md 1: bias and scale per axis, no cross-coupling).
 rotation_directions : "both" (default; ccw and cw about each axis) or "any"
     (one rotation per axis suffices, Ferraris et al.; e.g. imucal sessions).
 Each as a typed `Setting` below (docs/procedures.md).
@@ -65,7 +65,7 @@ ACCEL_SOLVERS = ("least_squares", "closed_form", "kalman")
 ACCEL_MODELS = ("linear", "per_axis")
 ACCEL_SOLVER = Setting(
     "accel_solver", "text", "", "least_squares",
-    "accelerometer fit: least squares, the closed form of methods.md 2.1, or the sequential "
+    "accelerometer fit: least squares, the closed form of docs/methods.md 2.1, or the sequential "
     "filter over every sample (calib_core.solvers.kalman)", choices=ACCEL_SOLVERS)  # fmt: skip
 ACCEL_MODEL = Setting(
     "accel_model", "text", "", "linear",
@@ -297,7 +297,7 @@ SIX_POSITION = Procedure(
     solver=solve_six_position,
     settings=STATICS_SETTINGS,
     conditions=ENVIRONMENT + ATTITUDES,
-    reference="methods.md 2.1; MPU-6000 manual stage 1",
+    reference="docs/methods.md 2.1; MPU-6000 manual stage 1",
     labels=STATIC_LABELS + ROTATION_LABELS,
     required=STATIC_LABELS,
     uncertainty=static_model,

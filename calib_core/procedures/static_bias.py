@@ -1,5 +1,5 @@
 """The static-bias procedure: one long static record -> gyro bias and noise (Allan deviation),
-accelerometer bias when the up axis is given (methods.md 5).
+accelerometer bias when the up axis is given (docs/methods.md 2.5).
 
 Settings: `STATIC_BIAS.settings` (docs/procedures.md).
 """
@@ -59,13 +59,13 @@ STATIC_BIAS = Procedure(
     solver=solve_static_bias_procedure,
     settings=SETTINGS,
     conditions=ENVIRONMENT + ATTITUDES + (
-        ConditionUse("static_record_min", "length of the static record", f"{METHODS} 5"),
+        ConditionUse("static_record_min", "length of the static record", f"{METHODS} 2.5"),
         ConditionUse("static_temperature_spread_c",
                      "chamber (ambient) temperature over the record: reference channel "
                      "chamber_temperature or ambient_temperature; without one, the sensor's "
                      "own temperature", "rate-table procedure, 60-min static bias run"),
     ),  # fmt: skip
-    reference="methods.md 5; IEEE Std 952 (Allan variance)",
+    reference="docs/methods.md 2.5; IEEE Std 952 (Allan variance)",
     model_checks="record length (a warning under 60 min); outliers beyond n_sigma; Allan "
     "deviation fits (angle random walk, bias instability, rate random walk)",
 )
