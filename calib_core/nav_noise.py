@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -38,6 +39,18 @@ BOOTSTRAP_RECORDS = 20  # replicates per axis: the std itself known to ~16 %
 BOOTSTRAP_SEED = 20260
 
 
+@lru_cache(maxsize=2)
+def _flicker_kernel(n: int) -> tuple[int, np.ndarray]:
+    """(FFT length, rfft of Kasdin's (1 - z^-1)^(-1/2) impulse response of length n): the
+    same for every channel and replicate of a bootstrap, so it is transformed once."""
+    from scipy import fft
+
+    k = np.arange(1, n)
+    h = np.concatenate([[1.0], np.cumprod((k - 0.5) / k)])
+    size = fft.next_fast_len(2 * n - 1, real=True)
+    return size, fft.rfft(h, size)
+
+
 def noise_records(
     terms: list[NoiseParameters], n: int, rate_hz: float, rng: np.random.Generator
 ) -> np.ndarray:
@@ -45,15 +58,15 @@ def noise_records(
     terms[c] (the conventions of `calib_core.noise`: sample std N sqrt(f_s); flicker by
     Kasdin's (1 - z^-1)^(-1/2) filter of white noise of variance B^2; random-walk increments
     of std K / sqrt(f_s))."""
-    from scipy import signal  # only where a bootstrap runs
+    from scipy import fft
 
-    k = np.arange(1, n)
-    h = np.concatenate([[1.0], np.cumprod((k - 0.5) / k)])
     out = np.empty((n, len(terms)))
     for c, p in enumerate(terms):
         x = p.arw * math.sqrt(rate_hz) * rng.standard_normal(n)
         if p.bias_instability > 0:
-            x += signal.fftconvolve(rng.standard_normal(n) * p.bias_instability, h)[:n]
+            size, kernel = _flicker_kernel(n)
+            w = fft.rfft(rng.standard_normal(n) * p.bias_instability, size)
+            x += fft.irfft(w * kernel, size)[:n]
         if p.rrw > 0:
             x += np.cumsum(rng.standard_normal(n)) * (p.rrw / math.sqrt(rate_hz))
         out[:, c] = x

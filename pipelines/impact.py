@@ -246,3 +246,40 @@ def csv_report(doc: dict[str, Any]) -> str:
                     r["verdict_after"] or "", f"{largest:+.3f}", moved,
                     r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}"))
     return buf.getvalue()
+
+
+def html_report(doc: dict[str, Any]) -> str:
+    """The look-back as a self-contained HTML page for the nonconformity record (every
+    archived string escaped)."""
+    from html import escape
+
+    def cell(v: Any) -> str:
+        return f"<td>{escape('' if v is None else str(v))}</td>"
+
+    head = ("<tr>" + "".join(f"<th>{escape(c)}</th>" for c in
+            ("Run", "Unit", "Model", "Started", "Procedure", "Verdict before", "Verdict after",
+             "Moved (change / U before)", "Status")) + "</tr>")  # fmt: skip
+    rows = []
+    for r in doc["runs"]:
+        moved = "; ".join(f"{m['name']} {m['before']:.6g} -> {m['after']:.6g} "
+                          f"({m['change_in_U']:+.2f} U)" for m in r["moved"])  # fmt: skip
+        status = r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}"
+        rows.append("<tr>" + "".join(cell(v) for v in (
+            r["run_id"], r["serial"], r["model"], r["started_at"], r["procedure"],
+            r["verdict_before"], r["verdict_after"],
+            moved or ("no parameter moved" if r["affected"] else f"not affected: {r['what']}"),
+            status)) + "</tr>")  # fmt: skip
+    period = f"{doc['period']['from']} to {doc['period']['to'] or 'now'}"
+    flipped = sum(r["verdict_before"] != r["verdict_after"] for r in doc["runs"])
+    return (
+        "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">"
+        f"<title>Impact of {escape(doc['reason'])}</title>"
+        "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
+        "td,th{border:1px solid #999;padding:3px 6px;text-align:left}</style></head><body>"
+        f"<h1>Out-of-tolerance look-back</h1><p>{escape(doc['reason'])}; runs started "
+        f"{escape(period)}; customer: {escape(doc['customer'] or 'not recorded')}; "
+        f"{len(doc['runs'])} run(s), {flipped} verdict(s) changed; "
+        + ("revisions archived" if doc["applied"] else "dry run: nothing archived")
+        + f" (ISO/IEC 17025 clause 7.10).</p><table>{head}{''.join(rows)}</table>"
+        "</body></html>\n"
+    )

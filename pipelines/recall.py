@@ -84,20 +84,26 @@ def drift_of_fleet(slopes: list[tuple[float, float]]) -> interval.FleetDrift | N
     return interval.fleet_drift([b for b, _ in slopes], [v for _, v in slopes])
 
 
-def recall_list(archive: Archive, before: date | None = None) -> list[dict[str, Any]]:
+def recall_list(
+    archive: Archive, before: date | None = None, *, serial: str | None = None
+) -> list[dict[str, Any]]:
     """Every unit with its last calibration, interval, due date; only those due on or before
-    `before` when given, earliest due first."""
+    `before` when given (only `serial` when given), earliest due first."""
     from pipelines.impact import customer_name
     from pipelines.tolerances import load_profile
 
     units = queries.units(archive)
     if units.empty:
         return []
+    units = units.sort_values(["started_at", "run_id"]).drop_duplicates("serial", keep="last")
+    if serial is not None:
+        units = units[units["model"].isin(units.loc[units["serial"] == serial, "model"])]
     profiles: dict[str, ToleranceProfile] = {}
     groups: dict[tuple[str, str], list[str]] = {}
     last: dict[str, dict[str, Any]] = {}
-    units = units.sort_values(["started_at", "run_id"]).drop_duplicates("serial", keep="last")
     for row in units.itertuples(index=False):  # each unit's latest run
+        if serial is not None and row.serial != serial:
+            continue
         name = queries.run_summary(archive, row.run_id)["tolerance_profile"]
         if name not in profiles:
             profiles[name] = load_profile(name)
@@ -111,24 +117,35 @@ def recall_list(archive: Archive, before: date | None = None) -> list[dict[str, 
         method = prof.recall["method"]
         found = (model_intervals(archive, model, prof, serials) if method == "variables"
                  else {})  # fmt: skip
-        for serial in serials:
-            entry = found.get(serial, {})
-            days = entry.get("days")
-            how = f"variables, R = {float(prof.recall['reliability']):g}" + (
-                f", capped at {prof.recall['max_months']:g} months" if entry.get("capped") else "")
-            if days is None:  # fixed method, or no parameter with a limit and a drift
-                days = float(prof.recall["fixed_months"]) * DAYS_PER_MONTH
-                how = (f"fixed {prof.recall['fixed_months']:g} months"
-                       + ("" if method == "fixed" else " (no drift to judge by)"))  # fmt: skip
-            start = last[serial]["started_at"]
-            due = (start + timedelta(days=days)).date()
-            out.append({
-                "serial": serial, "model": model, **last[serial], "owner": owner,
-                "interval_days": round(days, 1), "interval_months": round(days / DAYS_PER_MONTH, 1),
-                "limiting_parameter": entry.get("parameter"), "capped": entry.get("capped"),
-                "reliability": float(prof.recall["reliability"]), "method": how,
-                "due": due.isoformat(),
-            })  # fmt: skip
+        for unit in serials:
+            out.append(_entry(unit, model, prof, found.get(unit, {}), last[unit], owner))
     if before is not None:
         out = [e for e in out if date.fromisoformat(e["due"]) <= before]
     return sorted(out, key=lambda e: (e["due"], e["serial"]))
+
+
+def _entry(serial: str, model: str, prof: ToleranceProfile, entry: dict[str, Any],
+           last: dict[str, Any], owner: str | None) -> dict[str, Any]:  # fmt: skip
+    """One unit's row: its interval (or the profile's fixed one, saying why) and due date."""
+    days = entry.get("days")
+    how = f"variables, R = {float(prof.recall['reliability']):g}" + (
+        f", capped at {prof.recall['max_months']:g} months" if entry.get("capped") else "")
+    if days is None:  # fixed method, or no parameter with a limit and a drift
+        days = float(prof.recall["fixed_months"]) * DAYS_PER_MONTH
+        fallback = "" if prof.recall["method"] == "fixed" else " (no drift to judge by)"
+        how = f"fixed {prof.recall['fixed_months']:g} months{fallback}"
+    due = (last["started_at"] + timedelta(days=days)).date()
+    return {
+        "serial": serial, "model": model, **last, "owner": owner,
+        "interval_days": round(days, 1), "interval_months": round(days / DAYS_PER_MONTH, 1),
+        "limiting_parameter": entry.get("parameter"), "capped": entry.get("capped"),
+        "reliability": float(prof.recall["reliability"]), "method": how,
+        "due": due.isoformat(),
+    }  # fmt: skip
+
+
+def unit_recall(archive: Archive, serial: str, run_id: str) -> dict[str, Any] | None:
+    """The interval of `serial` when `run_id` is its latest run (the certificate's
+    recommendation), else None: an older run's certificate is not judged by later data."""
+    rows = recall_list(archive, serial=serial)
+    return rows[0] if rows and rows[0]["run_id"] == run_id else None

@@ -172,6 +172,7 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
     res = CliRunner().invoke(app, ["impact", "RT-7", "--from", "2026-03-01", "--to",
                                    "2026-03-31", "--error", f"rate_error_ppm={RATE_PPM}",
                                    "--apply", "--json", "--csv", str(out),
+                                   "--html", str(lab["tmp"] / "impact.html"),
                                    "--archive", str(arch.root)])  # fmt: skip
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
@@ -201,6 +202,9 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
         (runs["A"], "pass", "fail", "revised")
     ]
     assert "gyr.scale.x" in rows[0]["moved"]
+    page = (lab["tmp"] / "impact.html").read_text()
+    assert reason in page and runs["A"] in page and "1 verdict(s) changed" in page
+    assert "revisions archived" in page and "gyr.scale.x" in page
     # Applied again: the same correction is a duplicate, not a third revision.
     again = impact(arch, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01",
                    "2026-03-31", apply=True)  # fmt: skip

@@ -197,3 +197,21 @@ def test_due_page_of_calib_serve(fleet_archive):
         assert some.status_code == 200 and 0 < some.text.count("<td class=\"when\">") < 60
         bad = client.get("/due?before=next-week")
         assert bad.status_code == 400 and "expected a date YYYY-MM-DD" in bad.text
+
+
+def test_certificate_names_the_interval_and_its_method(fleet_archive):
+    from pipelines.recall import unit_recall
+    from pipelines.reports.certificate import _interval
+    from storage import queries
+
+    arch = fleet_archive[0]
+    runs = queries.history(arch, "U00")["run_id"].tolist()
+    found = unit_recall(arch, "U00", runs[-1])
+    assert found is not None and found["serial"] == "U00"
+    text = _interval(found)
+    assert text.startswith(f"{found['interval_months']:g} months, by {found['due']}")
+    if not found["capped"]:
+        assert "variables-data method (NCSL RP-1 / ILAC-G24)" in text
+        assert "probability 95% of gyr.scale.x being in tolerance at its end" in text
+    assert unit_recall(arch, "U00", runs[0]) is None  # an earlier run: not judged by later data
+    assert _interval(None) == "12 months"

@@ -108,20 +108,14 @@ def _budget(name: str, value: float) -> dict:
             "nu_eff": None, "k": 2.0, "U": 2 * uc, "coverage": 0.95}  # fmt: skip
 
 
-@pytest.fixture(scope="module")
-def shared_archive(tmp_path_factory):
-    """Six runs of U-SH on table RT-A then RT-B, gyr.bias.x drifting, each with a budget."""
+def _archive_runs(arch, root, y) -> None:
+    """Six runs of U-SH on table RT-A then RT-B, gyr.bias.x = y, each with a budget."""
     import hashlib
     from datetime import UTC, datetime, timedelta
 
     from calib_core.calibration import Parameter, StepRecord
     from storage.archive import RawFileIn, RunIn, archive_run
-    from storage.db import resolve_archive
 
-    root = tmp_path_factory.mktemp("shared")
-    arch = resolve_archive(str(root / "archive"))
-    arch.upgrade()
-    y = _draw(np.random.default_rng(5), TABLES)
     start = datetime(2025, 1, 6, 9, tzinfo=UTC)
     for k, (day, table, value) in enumerate(zip(T_DAYS, TABLES, y, strict=True)):
         raw = root / f"run{k}.csv"
@@ -145,7 +139,36 @@ def shared_archive(tmp_path_factory):
             parameter_temperature_c=20.0,
             checks=[], verdict="pass", profile_name="mpu6000", profile_version="3",
         ))  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def shared_archive(tmp_path_factory):
+    from storage.db import resolve_archive
+
+    root = tmp_path_factory.mktemp("shared")
+    arch = resolve_archive(str(root / "archive"))
+    arch.upgrade()
+    y = _draw(np.random.default_rng(5), TABLES)
+    _archive_runs(arch, root, y)
     return arch, y
+
+
+def test_equipment_queries_on_both_back_ends(archive, tmp_path):
+    """storage.queries.equipment_runs and run_references on SQLite and PostgreSQL."""
+    from storage import queries
+
+    _archive_runs(archive, tmp_path, _draw(np.random.default_rng(1), TABLES))
+    runs = queries.equipment_runs(archive, "RT-B", "2026-01-01", "2026-06-30")
+    assert [r["equipment_kind"] for r in runs] == ["rate_table"] * 2  # days 365, 480 (not 600)
+    assert all(r["serial"] == "U-SH" and r["verdict"] == "pass" for r in runs)
+    assert queries.equipment_runs(archive, "RT-B", "2026-01-01", kind="daq") == []
+    with pytest.raises(ValueError, match="from"):
+        queries.equipment_runs(archive, "RT-B", "next year")
+    refs = queries.run_references(archive, [r["run_id"] for r in runs] + ["R000000000000"])
+    assert set(refs) == {r["run_id"] for r in runs}
+    for ref in refs.values():
+        assert ref["equipment"] == [("rate_table", "RT-B")]
+        assert ref["budgets"]["gyr.bias.x"]["rows"][1]["kind"] == "B"
 
 
 def test_trend_of_the_archive_uses_the_shared_reference(shared_archive):

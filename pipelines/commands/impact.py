@@ -44,13 +44,16 @@ def impact_command(
     csv_out: Annotated[
         Path | None, typer.Option("--csv", help="Write the report as CSV to this file.")
     ] = None,
+    html_out: Annotated[
+        Path | None, typer.Option("--html", help="Write the report as an HTML page.")
+    ] = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Out-of-tolerance look-back: the runs made on EQUIPMENT_SERIAL in the period, solved
     again from their raw bytes with the reference corrected; verdicts before and after."""
     from calib_core.reference_errors import parse_error
-    from pipelines.impact import csv_report, impact
+    from pipelines.impact import csv_report, html_report, impact
 
     try:
         err_ = parse_error(error)
@@ -64,6 +67,9 @@ def impact_command(
     if csv_out is not None:
         csv_out.write_text(csv_report(doc), encoding="utf-8")
         err.print(f"wrote {csv_out}", soft_wrap=True)
+    if html_out is not None:
+        html_out.write_text(html_report(doc), encoding="utf-8")
+        err.print(f"wrote {html_out}", soft_wrap=True)
     if as_json:
         print_json(doc)
         return

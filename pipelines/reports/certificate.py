@@ -157,7 +157,8 @@ def sections(
         Section(
             "Recommendations",
             paragraphs=_recommendations(
-                calrow["verdict"], run.cal, diagnosis, summary["environment"] or {}
+                calrow["verdict"], run.cal, diagnosis, summary["environment"] or {},
+                summary.get("recall"),
             ),
         ),
         _signatures_section(summary, approvals or []),
@@ -623,13 +624,14 @@ def _protocol(run: _Archived) -> str:
 
 
 def _recommendations(
-    verdict: str, cal: Calibration, diagnosis: ResidualDiagnosis | None, env: dict[str, Any]
+    verdict: str, cal: Calibration, diagnosis: ResidualDiagnosis | None, env: dict[str, Any],
+    recall: dict[str, Any] | None = None,
 ) -> list[str]:
     out = []
     if verdict == PASS:
         out.append(
-            f"Release the unit with this calibration; recalibrate within {RECALIBRATION_MONTHS} "
-            "months, or earlier after a shock, a repair or a drift seen in use."
+            f"Release the unit with this calibration; recalibrate within {_interval(recall)}, "
+            "or earlier after a shock, a repair or a drift seen in use."
         )
     elif verdict == NEEDS_REVIEW:
         out.append(
@@ -650,6 +652,20 @@ def _recommendations(
             "campaign (e.g. -10, 0, 20, 40, 60 deg C) and apply temperature compensation."
         )
     return out
+
+
+def _interval(recall: dict[str, Any] | None) -> str:
+    """The recalibration interval in words: the unit's own (pipelines.recall, docs/interval.md)
+    with its method, or the default months."""
+    if recall is None:
+        return f"{RECALIBRATION_MONTHS} months"
+    why = recall["method"]
+    if recall.get("limiting_parameter") and why.startswith("variables"):
+        why = (f"from this unit's and its model's measured drift, variables-data method "
+               f"(NCSL RP-1 / ILAC-G24): probability {recall['reliability']:.0%} of "
+               f"{recall['limiting_parameter']} being in tolerance at its end"
+               + (", capped" if recall.get("capped") else ""))  # fmt: skip
+    return f"{recall['interval_months']:g} months, by {recall['due']} ({why})"
 
 
 # --- HTML --------------------------------------------------------------------------------
@@ -734,6 +750,9 @@ def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - 
     summary = queries.run_summary(archive, run_id)
     lab = load_lab_profile()
     summary["lab"] = None if lab is None else lab[0]
+    from pipelines.recall import unit_recall
+
+    summary["recall"] = unit_recall(archive, summary["device"]["serial"], run_id)
     summary["as_found"] = queries.latest_calibration(
         archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1))
     summary["chain_head"] = chain_head(archive)
