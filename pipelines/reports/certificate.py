@@ -741,17 +741,16 @@ def report_run(
 
 def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - Archive
     """`storage.queries.run_summary` of the run with what the certificate adds: the lab
-    profile (``lab``), the unit's calibration before this run (``as_found``) and the audit
-    chain's head at issue (``chain_head``)."""
+    profile (``lab``), the unit's recalibration interval (``recall``), its calibration
+    before this run (``as_found``) and the audit chain's head at issue (``chain_head``)."""
     from pipelines.lab import load_lab_profile
+    from pipelines.recall import unit_recall
     from storage import queries
     from storage.checkpoint import chain_head
 
     summary = queries.run_summary(archive, run_id)
     lab = load_lab_profile()
     summary["lab"] = None if lab is None else lab[0]
-    from pipelines.recall import unit_recall
-
     summary["recall"] = unit_recall(archive, summary["device"]["serial"], run_id)
     summary["as_found"] = queries.latest_calibration(
         archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1))
