@@ -267,6 +267,8 @@ def _check_trust(conn, report: VerifyReport, approvers: Any,  # noqa: ANN001 - a
     for source, doc in checkpoints:
         report.checkpoints.append(source)
         findings += checkpoint.check(conn, doc, source)
+        if approvers is not None and (why := checkpoint.untrusted_signer(doc, approvers)):
+            report.problems.append(Problem("checkpoint", source, [], why))
     report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]
 
 
