@@ -176,6 +176,7 @@ def verify(
         if seals:
             _check_seals(conn, root, report)
         _check_trust(conn, report, approvers, checkpoints)
+    _check_store(archive, report)
 
     objects: dict[tuple[str, str, int], list[str]] = defaultdict(list)
     for path, sha, size, run_id in raw_rows:
@@ -253,6 +254,18 @@ def _check_seals(conn, root: Path, report: VerifyReport) -> None:  # noqa: ANN00
     report.chain_head, report.seals_checked = found.head, found.seals_checked
     findings = found.findings + approval.check(conn, found.digests_now)
     report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]
+
+
+def _check_store(archive: Archive, report: VerifyReport) -> None:
+    """A PostgreSQL archive's files looked for in a folder that is not its file store
+    (storage.store_identity): said once, before the files it then reports missing."""
+    from storage import store_identity
+
+    if archive.is_sqlite:
+        return
+    why = store_identity.mismatch(archive)
+    if why:
+        report.problems.append(Problem("missing", "", [], why))
 
 
 def _check_trust(conn, report: VerifyReport, approvers: Any,  # noqa: ANN001 - a Connection
