@@ -76,8 +76,9 @@ def _public_hex(key: Ed25519PublicKey) -> str:
 
 
 def fingerprint(public_hex: str) -> str:
-    """The key's fingerprint as OpenSSH prints one: ``SHA256:`` and the unpadded base64
-    of the SHA-256 of the raw 32-byte public key."""
+    """The key's fingerprint in OpenSSH's form, ``SHA256:`` and unpadded base64, of the
+    SHA-256 of the raw 32-byte public key (OpenSSH hashes its own key encoding instead,
+    so the two differ for the same key)."""
     try:
         raw = bytes.fromhex(public_hex)
     except (TypeError, ValueError):
@@ -314,7 +315,10 @@ class Approvers:
         if not named:
             return (f"key {fp} belongs to {held[0].name!r} in {self.source}, "
                     f"not to {a.signer!r}")  # fmt: skip
-        day = date.fromisoformat(a.at[:10])
+        try:
+            day = date.fromisoformat(a.at[:10])
+        except ValueError:
+            return f"its date {a.at!r} is not a date"
         valid = [k for k in named if (k.valid_from is None or k.valid_from <= day)
                  and (k.valid_until is None or day <= k.valid_until)]  # fmt: skip
         if not valid:

@@ -151,3 +151,16 @@ def chain_head(archive: Archive) -> tuple[int, str]:
     """(seq, hash) of the archive's newest audit event (what a certificate prints)."""
     with archive.engine().connect() as conn:
         return seal.head(conn)
+
+
+def untrusted_signer(doc: dict[str, Any], approvers: Any) -> str:
+    """Why the signer of a signed checkpoint is not one the lab's approvers file trusts on
+    its date ("" when it is, or when the checkpoint is not signed)."""
+    if "signature" not in doc:
+        return ""
+    from storage.approval import Approval
+
+    signed = Approval(0, "", 0, "reviewed", str(doc.get("signer", "")),
+                      str(doc.get("public_key", "")), str(doc.get("at", "")))  # fmt: skip
+    why = approvers.judge(signed)
+    return f"the checkpoint is signed by {signed.signer}, not trusted: {why}" if why else ""

@@ -6,15 +6,20 @@ approver who signs.
 - writer (default ``calib_writer``): SELECT and INSERT on every table but
   ``audit_events``, the sequences behind the ids, and UPDATE of the one column
   the archive ever changes, ``superseded_by`` (calibrations, thermal models; a
-  trigger of migration 0009 lets it change only from empty to a later revision
-  of the same run), and of the derived tables ``unit_latest`` and
+  trigger ``supersede_forward`` lets it change only from empty to a later
+  revision of the same run), and of the derived tables ``unit_latest`` and
   ``unit_latest_values`` (storage.unit_latest: a unit's rows are upserted). Events
-  are appended only through ``calib_append_event`` (migration 0009), which
+  are appended only through ``calib_append_event`` (SECURITY DEFINER), which
   refuses an event that does not follow the chain's head or is not dated now.
   No DELETE, no other UPDATE, no DDL: the append-only rule is enforced by the
   server, not only by the code.
 - approver (default ``calib_approver``): SELECT on every table, and
   ``calib_append_event`` for approvals only (`calib approve`).
+
+The function and the trigger (`guard_statements`) are made here, with the roles they hold
+to, not by a migration: an archive without these roles is written by its owner,
+whom neither could hold (the owner can drop them), and the schema's revision
+stays as it was, so read-only copies made by earlier versions still open.
 
 Schema migrations run as the database owner (the role that created the
 tables), never as these roles. Grants on tables are per table, so run
@@ -37,13 +42,94 @@ from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.pgtools import libpq_dsn
 from storage.schema import Base, UnitLatest
-from storage.seal import record_event
+from storage.seal import _PG_CHAIN_LOCK, record_event
 
 READER = "calib_reader"
 WRITER = "calib_writer"
 APPROVER = "calib_approver"
 APPEND_EVENT = ("calib_append_event(timestamptz, text, text, text, integer, text, json, text, "
-                "text, text, integer)")  # migration 0009  # fmt: skip
+                "text, text, integer)")  # fmt: skip
+# The one way the writer and approver roles append an event: the link to the chain's head,
+# the date and (for a role that cannot add runs) the action are checked, under the lock
+# storage.seal.append_event takes.
+_APPEND_FUNCTION = """
+CREATE OR REPLACE FUNCTION calib_append_event(
+  p_at timestamptz, p_actor text, p_action text, p_run_id text, p_revision integer,
+  p_reason text, p_detail json, p_digest text, p_prev_hash text, p_hash text, p_seq integer
+) RETURNS integer LANGUAGE plpgsql SECURITY DEFINER SET search_path = public, pg_temp AS $$
+DECLARE
+  head_seq integer;
+  head_hash text;
+BEGIN
+  PERFORM pg_advisory_xact_lock(LOCK_KEY);
+  SELECT seq, hash INTO head_seq, head_hash FROM audit_events ORDER BY seq DESC LIMIT 1;
+  head_seq := coalesce(head_seq, 0);
+  head_hash := coalesce(head_hash, repeat('0', 64));
+  IF p_seq <> head_seq + 1 OR p_prev_hash <> head_hash THEN
+    RAISE EXCEPTION 'calib archive: event % (previous hash %) does not follow the chain '
+      'head, event % (hash %)', p_seq, left(p_prev_hash, 12), head_seq, left(head_hash, 12)
+      USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  IF p_at < now() - interval '5 minutes' OR p_at > clock_timestamp() + interval '5 minutes' THEN
+    RAISE EXCEPTION 'calib archive: event % is dated %, the server''s clock says %: '
+      'refused (an event is dated when it is written)', p_seq, p_at, clock_timestamp()
+      USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  IF p_action <> 'approved' AND NOT has_table_privilege(session_user, 'runs', 'INSERT') THEN
+    RAISE EXCEPTION 'calib archive: role % may append approvals only, not %', session_user, p_action
+      USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  INSERT INTO audit_events (seq, at, actor, action, run_id, revision, reason, detail, digest,
+                            prev_hash, hash)
+  VALUES (p_seq, p_at, p_actor, p_action, p_run_id, p_revision, p_reason, p_detail, p_digest,
+          p_prev_hash, p_hash);
+  RETURN p_seq;
+END $$
+"""
+# superseded_by: only from empty to a later revision of the same run (a later model of the
+# same unit); the tables' owner is not held (it could drop the trigger).
+_SUPERSEDE_FUNCTION = """
+CREATE OR REPLACE FUNCTION calib_supersede_forward() RETURNS trigger LANGUAGE plpgsql AS $$
+DECLARE
+  ok boolean;
+BEGIN
+  IF NEW.superseded_by IS NOT DISTINCT FROM OLD.superseded_by
+     OR pg_has_role(current_user, (SELECT relowner FROM pg_class WHERE oid = TG_RELID), 'USAGE')
+  THEN
+    RETURN NEW;  -- the table's owner (or a superuser) could drop the trigger anyway
+  END IF;
+  IF OLD.superseded_by IS NOT NULL OR NEW.superseded_by IS NULL THEN
+    RAISE EXCEPTION 'calib archive: % row % is superseded by % already: that never changes',
+      TG_TABLE_NAME, OLD.id, OLD.superseded_by USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  IF TG_TABLE_NAME = 'calibrations' THEN
+    SELECT EXISTS (SELECT 1 FROM calibrations c WHERE c.id = NEW.superseded_by
+                   AND c.run_id = OLD.run_id AND c.revision > OLD.revision) INTO ok;
+  ELSE
+    SELECT EXISTS (SELECT 1 FROM thermal_models m WHERE m.id = NEW.superseded_by
+                   AND m.device_id = OLD.device_id AND m.id > OLD.id) INTO ok;
+  END IF;
+  IF NOT ok THEN
+    RAISE EXCEPTION 'calib archive: % row % can be superseded only by a later revision of '
+      'its own (found %)', TG_TABLE_NAME, OLD.id, NEW.superseded_by
+      USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  RETURN NEW;
+END $$
+"""
+SUPERSEDING = ("calibrations", "thermal_models")
+
+
+def guard_statements() -> list[str]:
+    """The SQL of the function and trigger the writer and approver are held by (idempotent)."""
+    stmts = [_APPEND_FUNCTION.replace("LOCK_KEY", str(_PG_CHAIN_LOCK)).strip(),
+             f"REVOKE ALL ON FUNCTION {APPEND_EVENT} FROM PUBLIC",
+             _SUPERSEDE_FUNCTION.strip()]  # fmt: skip
+    for table in SUPERSEDING:
+        stmts += [f"DROP TRIGGER IF EXISTS supersede_forward ON {table}",
+                  f"CREATE TRIGGER supersede_forward BEFORE UPDATE OF superseded_by ON {table} "
+                  "FOR EACH ROW EXECUTE FUNCTION calib_supersede_forward()"]  # fmt: skip
+    return stmts
 
 
 def _updatable() -> list[tuple[str, str]]:
@@ -83,6 +169,7 @@ def role_statements(
     version = sql.Identifier("alembic_version")  # read by Archive.upgrade at every start
     append = sql.SQL(APPEND_EVENT)  # a constant, not a name from outside
     stmts = [
+        *(sql.SQL(g) for g in guard_statements()),
         sql.SQL("GRANT CONNECT ON DATABASE {} TO {}, {}, {}").format(db, r, w, a),
         sql.SQL("GRANT USAGE ON SCHEMA public TO {}, {}, {}").format(r, w, a),
         sql.SQL("REVOKE CREATE ON SCHEMA public FROM {}, {}, {}").format(r, w, a),
@@ -93,9 +180,9 @@ def role_statements(
         sql.SQL("REVOKE INSERT, UPDATE, DELETE, TRUNCATE ON {} FROM {}").format(version, w),
         sql.SQL("REVOKE UPDATE, DELETE, TRUNCATE ON {} FROM {}").format(data, w),
         sql.SQL("GRANT INSERT ON {} TO {}").format(data, w),
-        # events only through the function that checks their link and date (0009)
+        # events only through the function that checks their link and date (guard_statements)
         sql.SQL("REVOKE INSERT ON {} FROM {}").format(sql.Identifier("audit_events"), w),
-        sql.SQL("REVOKE EXECUTE ON FUNCTION {} FROM PUBLIC, {}").format(append, r),
+        sql.SQL("REVOKE EXECUTE ON FUNCTION {} FROM {}").format(append, r),
         sql.SQL("GRANT EXECUTE ON FUNCTION {} TO {}, {}").format(append, w, a),
         sql.SQL("GRANT USAGE, SELECT ON ALL SEQUENCES IN SCHEMA public TO {}").format(w),
         sql.SQL("ALTER DEFAULT PRIVILEGES IN SCHEMA public GRANT SELECT ON TABLES TO {}").format(r),

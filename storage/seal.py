@@ -484,7 +484,7 @@ def _pending(conn: Connection) -> dict[str, Any] | None:
     return PENDING_DETAIL.pop(conn.engine.url.render_as_string(hide_password=False), None)
 
 
-# PostgreSQL from migration 0009 on: the writer and approver roles append only through
+# PostgreSQL with roles (storage.roles.apply_roles): the writer and approver append only through
 # this function, which checks the link to the head and the date (docs/archive.md).
 _APPEND_EVENT = text(
     "SELECT calib_append_event(:at, :actor, :action, :run_id, :revision, :reason, "
@@ -496,7 +496,7 @@ _HAS_FUNCTION = text("SELECT to_regprocedure(:f) IS NOT NULL")
 
 
 def _has_append_function(conn: Connection) -> bool:
-    """Whether the schema has it (a migration before 0009 runs without it)."""
+    """Whether the database has it (made by storage.roles.apply_roles)."""
     return bool(conn.execute(_HAS_FUNCTION, {"f": _APPEND_FUNCTION}).scalar())
 
 

@@ -67,16 +67,29 @@ def check(archive: Archive) -> None:
     if known is None:
         _first_write(archive, root, here)
         return
-    if here is None or here["id"] != known.get("id"):
-        found = ("no file store of a calib archive" if here is None
-                 else f"the file store of another archive (id {here['id'][:8]})")  # fmt: skip
-        raise StoreMismatchError(
-            f"the archive {archive.display_url} keeps its files in {known.get('root')} "
-            f"(file store id {str(known.get('id'))[:8]}), but this command would write them "
-            f"into {root}, which holds {found}; set CALIB_FILESTORE={known.get('root')} "
-            "(or run the command there); nothing was written"
-        )
+    why = _mismatch(archive, root, known, here)
+    if why:
+        raise StoreMismatchError(f"{why}; nothing was written")
     _CHECKED.add((archive.url, str(archive.root)))
+
+
+def mismatch(archive: Archive) -> str:
+    """Why `archive.root` is not the file store the database records ("": it is, or none
+    is recorded)."""
+    known = recorded(archive)
+    root = Path(archive.root).resolve()
+    return "" if known is None else _mismatch(archive, root, known, _marker(root))
+
+
+def _mismatch(archive: Archive, root: Path, known: dict[str, Any],
+              here: dict[str, Any] | None) -> str:  # fmt: skip
+    if here is not None and here["id"] == known.get("id"):
+        return ""
+    found = ("no file store of a calib archive" if here is None
+             else f"the file store of another archive (id {here['id'][:8]})")  # fmt: skip
+    return (f"the archive {archive.display_url} keeps its files in {known.get('root')} "
+            f"(file store id {str(known.get('id'))[:8]}), not in {root}, which holds {found}; "
+            f"set CALIB_FILESTORE={known.get('root')} (or run the command there)")
 
 
 def _first_write(archive: Archive, root: Path, here: dict[str, Any] | None) -> None:

@@ -176,6 +176,7 @@ def verify(
         if seals:
             _check_seals(conn, root, report)
         _check_trust(conn, report, approvers, checkpoints)
+    _check_store(archive, report)
 
     objects: dict[tuple[str, str, int], list[str]] = defaultdict(list)
     for path, sha, size, run_id in raw_rows:
@@ -255,6 +256,18 @@ def _check_seals(conn, root: Path, report: VerifyReport) -> None:  # noqa: ANN00
     report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]
 
 
+def _check_store(archive: Archive, report: VerifyReport) -> None:
+    """A PostgreSQL archive's files looked for in a folder that is not its file store
+    (storage.store_identity): said once, before the files it then reports missing."""
+    from storage import store_identity
+
+    if archive.is_sqlite:
+        return
+    why = store_identity.mismatch(archive)
+    if why:
+        report.problems.append(Problem("missing", "", [], why))
+
+
 def _check_trust(conn, report: VerifyReport, approvers: Any,  # noqa: ANN001 - a Connection
                  checkpoints: list[tuple[str, dict[str, Any]]]) -> None:  # fmt: skip
     """Approvals against the lab's approvers file; the chain against each checkpoint."""
@@ -267,6 +280,8 @@ def _check_trust(conn, report: VerifyReport, approvers: Any,  # noqa: ANN001 - a
     for source, doc in checkpoints:
         report.checkpoints.append(source)
         findings += checkpoint.check(conn, doc, source)
+        if approvers is not None and (why := checkpoint.untrusted_signer(doc, approvers)):
+            report.problems.append(Problem("checkpoint", source, [], why))
     report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]
 
 

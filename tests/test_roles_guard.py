@@ -1,4 +1,4 @@
-"""PostgreSQL roles that cannot forge (storage.roles, migration 0009), on the real server.
+"""PostgreSQL roles that cannot forge (storage.roles: grants, guard function and trigger).
 
 Truth: PostgreSQL's own privilege checks and the guard function and trigger. Each
 refused statement must fail with SQLSTATE 42501 (insufficient_privilege), not with

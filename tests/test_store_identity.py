@@ -41,6 +41,10 @@ def test_the_first_write_records_the_store_and_others_are_refused(
     assert str(tmp_path / "home") in said and str(tmp_path / "elsewhere") in said, said
     assert "CALIB_FILESTORE" in said and "nothing was written" in said
     assert not (tmp_path / "elsewhere").exists()  # not even the folder
+    # verify from the wrong folder says why the files are missing, naming both folders
+    said = [p.detail for p in verify(elsewhere, orphans=False).problems if p.path == ""]
+    assert len(said) == 1 and str(tmp_path / "home") in said[0], said
+    assert str(tmp_path / "elsewhere") in said[0]
     second = archive_run(home, replace(run, settings={"outlier_sigma": 4.0}))
     assert second.status == "revised"
     for a in (home, elsewhere):

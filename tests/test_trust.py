@@ -190,6 +190,7 @@ def test_lab_toml_names_the_approvers_file(
 
 def _checkpoint(archive: Archive, tmp: Path, monkeypatch: pytest.MonkeyPatch,
                 key: Path | None = None) -> Path:  # fmt: skip
+    tmp.mkdir(exist_ok=True)
     path = tmp / "checkpoint.json"
     args = ["checkpoint", "-o", str(path)] + (["--key", str(key)] if key else [])
     res = cli(archive, *args, monkeypatch=monkeypatch)
@@ -212,6 +213,14 @@ def test_the_chain_extends_its_checkpoint(
     res = _verify_against(archive, cp, monkeypatch)
     assert res.exit_code == 0, res.output
     assert f"chain compared with the checkpoint {cp}" in res.stderr
+    res = cli(archive, "verify", "--no-orphans", "--checkpoint", str(cp), "--approvers",
+              str(keys["approvers"]), monkeypatch=monkeypatch)  # signed by a trusted key
+    assert res.exit_code == 0, res.output
+    forged = _checkpoint(archive, tmp_path / "f", monkeypatch, keys["forged"])
+    res = cli(archive, "verify", "--no-orphans", "--checkpoint", str(forged), "--approvers",
+              str(keys["approvers"]), monkeypatch=monkeypatch)
+    assert res.exit_code == 1
+    assert f"the checkpoint is signed by {JANE}, not trusted" in res.stdout
     res = cli(archive, "checkpoint", "-o", str(cp), monkeypatch=monkeypatch)
     assert res.exit_code == 2 and "never overwritten" in res.output
     doc["runs"] = 2  # the signed file altered
@@ -310,3 +319,29 @@ def test_checkpoint_files_are_checked(tmp_path: Path) -> None:
                     '"events": ["a"]}')  # fmt: skip
     with pytest.raises(ValueError, match="one hash prefix per event"):
         checkpoint.load(path)
+
+
+def test_the_certificate_marks_an_untrusted_approval_and_prints_the_chain_head(
+    archive: Archive, tmp_path: Path, keys: dict[str, Path]
+) -> None:
+    """The certificate's signatures: the forged approval is UNTRUSTED and does not approve;
+    the chain head at issue is printed; without a file it says approvals were not checked."""
+    from pipelines.reports.certificate import _signatures_section
+
+    ids = fill(archive, tmp_path)
+    approve(archive, ids[0], load_key(keys["forged"], PASS), signer=JANE)
+    trust = load_approvers(keys["approvers"])
+    with archive.engine().connect() as conn:
+        head = seal.head(conn)
+    summary = {"lab": None, "chain_head": head}
+    from storage.approval import approval_status
+
+    marked = approval_status(archive, ids[0], 2, trust)  # the current revision of ids[0]
+    pairs = dict(_signatures_section(summary, marked).pairs)
+    assert pairs["UNTRUSTED, claimed approved"].startswith(f"{JANE}, ")
+    assert "is not in the approvers file" in pairs["UNTRUSTED, claimed approved"]
+    assert pairs["Electronic approval"].startswith("NOT APPROVED")
+    assert pairs["Audit chain at issue"] == f"event {head[0]}, hash {head[1]}"
+    unchecked = dict(_signatures_section(summary, approval_status(archive, ids[0], 2)).pairs)
+    assert "Electronically approved" in unchecked and "Electronic approval" not in unchecked
+    assert "not checked" in unchecked["Approvers"]
