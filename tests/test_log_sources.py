@@ -77,7 +77,8 @@ def test_inspect_lists_the_ulog_sources_and_rates(tmp_path: Path, rec) -> None:
     ]  # fmt: skip
     assert doc["samples"] == N and doc["rate_hz"] == 100.0
     text = CliRunner().invoke(app, ["inspect", str(path)]).stdout
-    assert "sensor_combined" in text and "rate_hz 100.0" in text
+    assert "  sensor_combined: 100.0 Hz, 1000 samples, temperature not recorded" in text
+    assert "  sensor_accel[0] + sensor_gyro[0]: 1.0 Hz, 10 samples, temperature recorded" in text
 
 
 def test_dataflash_default_reads_the_fastest_imu(tmp_path: Path, rec) -> None:

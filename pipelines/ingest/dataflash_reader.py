@@ -22,6 +22,7 @@ from pipelines.ingest.log_samples import (
     LogSource,
     checked_recording,
     choose_source,
+    quiet,
     recorded_temperature,
     stamp_rate,
 )
@@ -47,7 +48,8 @@ def open_dataflash(path: Path):
             file=path,
         )
     try:
-        reader = DFReader_binary(str(path), zero_time_base=False)
+        with quiet():
+            reader = DFReader_binary(str(path), zero_time_base=False)
     except Exception as exc:  # pymavlink raises plain exceptions on damaged logs
         problem = f"damaged DataFlash log ({type(exc).__name__}: {exc})"
         raise IngestError(problem, file=path) from None
@@ -93,7 +95,8 @@ def imu_rows(reader, path: Path) -> dict[int, tuple[list[tuple], str]]:
     count = 0
     try:
         while True:
-            m = reader.recv_match(type=["IMU", "IMU2", "IMU3"])
+            with quiet():
+                m = reader.recv_match(type=["IMU", "IMU2", "IMU3"])
             if m is None:
                 break
             mtype = m.get_type()

@@ -18,6 +18,8 @@ refused with every source's rate listed.
 
 from __future__ import annotations
 
+import contextlib
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -182,3 +184,10 @@ def recorded_temperature(temp: np.ndarray | None) -> np.ndarray | None:
     if np.all(np.isnan(temp)) or not np.any(temp):
         return None
     return temp
+
+
+def quiet():
+    """A context in which a log library's prints ("Skipped 12 bad bytes", "File corruption
+    detected") do not reach stdout, which holds `calib process --json`'s document; what
+    they report is refused by the record checks with the file and byte offset."""
+    return contextlib.redirect_stdout(io.StringIO())

@@ -35,6 +35,7 @@ from pipelines.ingest.log_samples import (
     LogSource,
     checked_recording,
     choose_source,
+    quiet,
     recorded_temperature,
     stamp_rate,
 )
@@ -66,7 +67,8 @@ def load_ulog(path: Path):
             file=path,
         )
     try:
-        ulog = ULog(str(path), list(TOPICS))
+        with quiet():
+            ulog = ULog(str(path), list(TOPICS))
     except Exception as exc:  # pyulog raises plain exceptions on damaged logs
         raise IngestError(f"damaged ULog ({type(exc).__name__}: {exc})", file=path) from None
     check_records(path)
