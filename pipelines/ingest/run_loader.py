@@ -468,8 +468,10 @@ def _check_window_end(
     """Refuse a window that runs past the end of the data while the unit still turns
     there: the file was cut short mid-motion (a log that lost power), the turn would be
     silently incomplete. A window padded past the end of a file that ends at rest reads
-    as before."""
-    if seg.end_s is None or len(part) < 20:
+    as before, and so does a rate plateau (a table_rate reference): it turns on purpose,
+    its reference is the table's own rate, and a plateau cut short is a shorter record,
+    which the record-time condition judges."""
+    if seg.end_s is None or len(part) < 20 or "table_rate" in part.reference:
         return
     step = float(np.median(np.diff(part.t)))
     if seg.end_s <= whole.t[-1] + 1.5 * max(step, 0.0):
