@@ -9,9 +9,12 @@ from __future__ import annotations
 import os
 import tomllib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from calib_core.tolerances import ToleranceProfile
 from storage.naming import check_safe_name
+
+if TYPE_CHECKING:  # the science stack is loaded by load_profile, not by profile_dirs' readers
+    from calib_core.tolerances import ToleranceProfile
 
 SHIPPED = Path(__file__).resolve().parent / "profiles"
 
@@ -38,6 +41,8 @@ def load_profile(name: str) -> ToleranceProfile:
     ValueError naming the profile, the folders searched, and for a bad file the
     file and the field.
     """
+    from calib_core.tolerances import ToleranceProfile
+
     check_safe_name(name, "tolerance profile name")
     for folder in profile_dirs():
         path = folder / f"{name}.toml"

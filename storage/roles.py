@@ -42,7 +42,6 @@ from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.pgtools import libpq_dsn
 from storage.schema import Base, UnitLatest
-from storage.seal import _PG_CHAIN_LOCK, record_event
 
 READER = "calib_reader"
 WRITER = "calib_writer"
@@ -122,6 +121,10 @@ SUPERSEDING = ("calibrations", "thermal_models")
 
 def guard_statements() -> list[str]:
     """The SQL of the function and trigger the writer and approver are held by (idempotent)."""
+    # storage.seal loads the file store (pyarrow): imported here, so that reading the role
+    # names (storage.queries.readonly) stays light for the read-only commands.
+    from storage.seal import _PG_CHAIN_LOCK
+
     stmts = [_APPEND_FUNCTION.replace("LOCK_KEY", str(_PG_CHAIN_LOCK)).strip(),
              f"REVOKE ALL ON FUNCTION {APPEND_EVENT} FROM PUBLIC",
              _SUPERSEDE_FUNCTION.strip()]  # fmt: skip
@@ -231,6 +234,8 @@ def apply_roles(
             conn.execute(stmt)
         for stmt in role_statements(database, reader=reader, writer=writer, approver=approver):
             conn.execute(stmt)
+    from storage.seal import record_event
+
     passwords = [r for r, p in logins if p]
     record_event(archive, "roles", detail={"reader": reader, "writer": writer,
                                            "approver": approver,

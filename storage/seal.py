@@ -59,7 +59,6 @@ from sqlalchemy import (
 
 from storage import schema
 from storage.db import Archive
-from storage.rawstore import hash_and_size
 from storage.schema import AuditEvent, Seal, utcnow
 
 ACTOR_ENV = "CALIB_USER"
@@ -683,6 +682,10 @@ def digest_now(conn: Connection, cal_id: int, files: dict[str, str], sealed_form
 
 def rehash_files(root: Path, files: dict[str, str]) -> dict[str, str]:
     """The SHA-256 of each file (paths relative to `root`) now; "(missing)" if gone."""
+    # Imported here: the file store loads pyarrow, which the audit trail's readers
+    # (calib audit, approvals) never need.
+    from storage.rawstore import hash_and_size
+
     out = {}
     for rel in files:
         p = (root / rel).resolve()
