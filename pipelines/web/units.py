@@ -123,8 +123,7 @@ class Series:
             k = 1.96 if self.trend.dof <= 0 else float(_t95(self.trend.dof))
             fit = (grid, self.trend.value(grid) * scale, k * self.trend.std(grid) * scale)
             until = end
-        title = f"{self.name} of {serial}" + (f" ({self.pooled})" if self.trend else "")
-        return svg.trend_chart(points, title=title, unit=unit, fit=fit,
+        return svg.trend_chart(points, title=f"{self.name} of {serial}", unit=unit, fit=fit,
                                limits=(self.low * scale, self.high * scale), until=until)
 
 
