@@ -173,3 +173,17 @@ def test_certificate_shows_numbers_as_the_cli_does(archived) -> None:
     for p in queries.run_summary(arch, run_id)["calibration"]["parameters"]:
         s = shown(p["name"], p["value"], p["std"])
         assert f"<td>{p['name']}</td><td>{s.value}</td><td>{s.u}</td><td>{s.unit}</td>" in html
+
+
+def test_issue_can_wait_for_calib_report(tmp_path, monkeypatch) -> None:
+    """CALIB_ISSUE_CERTIFICATES=0: archived without a certificate; `calib report` issues it."""
+    monkeypatch.setenv("CALIB_ISSUE_CERTIFICATES", "0")
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    (source,) = discover_runs([SAMPLE])
+    run_id = process_run(source, arch)["run_id"]
+    assert issued(arch, run_id) is None and issues(arch, run_id) == []
+    result = CliRunner().invoke(app, ["report", run_id, "--archive", str(arch.root), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["certificate"] == f"{run_id}-1"
+    assert issued(arch, run_id).issue == 1 and verify(arch).ok
