@@ -526,12 +526,21 @@ def process_run(
     )
 
 
+ISSUE_ENV = "CALIB_ISSUE_CERTIFICATES"  # "0": no certificate at archive time
+
+
 def issue_certificate(archive: Archive, run_id: str) -> None:
     """Issue the archived revision's certificate (HTML and PDF, `pipelines.reports.issue`).
 
     The run stays archived if this fails (a missing font library, a full disk): the
-    failure is logged with how to issue it later (`calib report RUN`).
+    failure is logged with how to issue it later (`calib report RUN`). Environment
+    ``CALIB_ISSUE_CERTIFICATES=0`` leaves the issue to `calib report` (bulk loads, test
+    suites: typesetting costs seconds per run).
     """
+    import os
+
+    if os.environ.get(ISSUE_ENV, "1").strip() == "0":
+        return
     from pipelines.reports.issue import issue
 
     try:

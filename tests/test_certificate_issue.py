@@ -161,3 +161,29 @@ def test_the_issue_event_is_in_the_audit_trail(archived) -> None:
     result = CliRunner().invoke(app, ["audit", run_id, "--archive", str(arch.root), "--json"])
     assert result.exit_code == 0, result.output
     assert ISSUED in {e["action"] for e in json.loads(result.stdout)}
+
+
+def test_certificate_shows_numbers_as_the_cli_does(archived) -> None:
+    """The Results table: each parameter as `pipelines.reports.display.shown` gives it."""
+    from pipelines.reports.display import shown
+    from storage import queries
+
+    arch, run_id = archived
+    html = issued(arch, run_id).files["html"].read_text(encoding="utf-8")
+    for p in queries.run_summary(arch, run_id)["calibration"]["parameters"]:
+        s = shown(p["name"], p["value"], p["std"])
+        assert f"<td>{p['name']}</td><td>{s.value}</td><td>{s.u}</td><td>{s.unit}</td>" in html
+
+
+def test_issue_can_wait_for_calib_report(tmp_path, monkeypatch) -> None:
+    """CALIB_ISSUE_CERTIFICATES=0: archived without a certificate; `calib report` issues it."""
+    monkeypatch.setenv("CALIB_ISSUE_CERTIFICATES", "0")
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    (source,) = discover_runs([SAMPLE])
+    run_id = process_run(source, arch)["run_id"]
+    assert issued(arch, run_id) is None and issues(arch, run_id) == []
+    result = CliRunner().invoke(app, ["report", run_id, "--archive", str(arch.root), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["certificate"] == f"{run_id}-1"
+    assert issued(arch, run_id).issue == 1 and verify(arch).ok

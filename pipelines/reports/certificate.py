@@ -45,7 +45,13 @@ from calib_core.verification import (  # noqa: E402
     diagnose_residuals,
 )
 from pipelines.reports import iso17025, plots  # noqa: E402
-from pipelines.reports.display import display, tolerance  # noqa: E402
+from pipelines.reports.display import (  # noqa: E402
+    STANDARD_U,
+    STANDARD_U_MEANING,
+    display,
+    shown,
+    tolerance,
+)
 from pipelines.reports.protocol import (  # noqa: E402
     guard_band_of,
     render_protocol,
@@ -306,16 +312,15 @@ def _results_section(run: _Archived) -> Section:
     }
     res_rows = []
     for p in run.calrow["parameters"]:
-        value, unit = display(p["name"], p["value"])
-        std, _ = display(p["name"], p["std"])
+        s = shown(p["name"], p["value"], p["std"])  # u to two digits, the value to its place
         c = by_param.get(p["name"])
         tol = tolerance(p["name"], c)
         tol = "" if tol is None else f"{tol[0]}{tol[1]:.4g}"
         result = "" if c is None else ("pass" if c["passed"] else "FAIL")
-        res_rows.append([p["name"], f"{value:+.6g}", _fmt(std, 3), unit, tol, result])
+        res_rows.append([p["name"], s.value, s.u or "-", s.unit, tol, result])
     return Section(
-        "Results (standard uncertainty, k = 1)",
-        header=["parameter", "value", "std. unc.", "unit", "tolerance", "result"],
+        f"Results ({STANDARD_U_MEANING})",
+        header=["parameter", "value", STANDARD_U, "unit", "tolerance", "result"],
         rows=res_rows,
     )
 

@@ -16,6 +16,7 @@ from fastapi.responses import HTMLResponse
 from calib_core import drift, params
 from calib_core.thermal import ThermalModel
 from calib_core.tolerances import ToleranceProfile
+from pipelines.reports.display import shown
 from pipelines.tolerances import load_profile
 from pipelines.trends import TREND_MIN_RUNS, pooled_runs
 from pipelines.web import forms, svg
@@ -92,6 +93,7 @@ class Series:
                "last_std": None if last["std"] is None else last["std"] * scale,
                "slope_per_year": None, "slope_std_per_year": None, "leaves": None,
                "earliest": None, "out_now": None, "note": self.note, "pooled": self.pooled,
+               "shown": shown(self.name, last["value"], last["std"]),
                "spark": svg.sparkline([r["value"] for r in self.rows]),
                "band": _band_text(self.low * scale, self.high * scale)}  # fmt: skip
         if self.trend is not None:
@@ -123,8 +125,7 @@ class Series:
             k = 1.96 if self.trend.dof <= 0 else float(_t95(self.trend.dof))
             fit = (grid, self.trend.value(grid) * scale, k * self.trend.std(grid) * scale)
             until = end
-        title = f"{self.name} of {serial}" + (f" ({self.pooled})" if self.trend else "")
-        return svg.trend_chart(points, title=title, unit=unit, fit=fit,
+        return svg.trend_chart(points, title=f"{self.name} of {serial}", unit=unit, fit=fit,
                                limits=(self.low * scale, self.high * scale), until=until)
 
 
