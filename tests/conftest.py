@@ -31,6 +31,11 @@ import pytest
 
 os.environ.setdefault("DO_NOT_TRACK", "1")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+# Typesetting a certificate at archive time costs seconds per run (docs/reports.md); the
+# suite archives hundreds of runs. Tests that read issued certificates ask for them with
+# the `issuing_certificates` fixture.
+ISSUE_ENV = "CALIB_ISSUE_CERTIFICATES"
+os.environ.setdefault(ISSUE_ENV, "0")
 
 from calib_testing.pgserver import ServerUnavailableError, private_server  # noqa: E402
 from calib_testing.watchdog import clean_up_after  # noqa: E402
@@ -185,3 +190,18 @@ def serve_sample(tmp_path_factory: pytest.TempPathFactory):
     import serve_sample as sample
 
     return sample.build(tmp_path_factory.mktemp("serve"))
+
+
+@pytest.fixture(scope="module")
+def issuing_certificates() -> Iterator[None]:
+    """Certificates issued when runs are archived, for the module that asks (module scope,
+    so its archives built by module fixtures get them too)."""
+    before = os.environ.get(ISSUE_ENV)
+    os.environ[ISSUE_ENV] = "1"
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(ISSUE_ENV, None)
+        else:
+            os.environ[ISSUE_ENV] = before

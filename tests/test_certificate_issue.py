@@ -28,6 +28,7 @@ from storage.db import Archive, resolve_archive
 from storage.verify import verify
 
 SAMPLE = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"
+pytestmark = pytest.mark.usefixtures("issuing_certificates")
 
 
 class _Text(HTMLParser):
