@@ -36,9 +36,9 @@ from calib_core.uncertainty_sources import (
     EquipmentSpec,
     integral_inputs,
     rate_table_budgets,
+    reference_forces,
     static_accel_budgets,
     static_inputs,
-    static_reference,
     static_solve,
 )
 
@@ -62,7 +62,7 @@ def six_position_run(rng, spec, mc_draws=0):
     err = random_errors(rng)
     inputs = static_inputs(STATIC_LABELS, G, spec)
     actual = {q.name: _draw(q, rng) for q in inputs}
-    f_true = static_reference(STATIC_LABELS, actual)
+    f_true = reference_forces(STATIC_LABELS, actual)
     out = f_true @ (np.eye(3) + err.acc_M).T + err.acc_bias
     means, sem = _noisy(out, np.full_like(out, 2e-3), rng)
     b, mc = static_accel_budgets(STATIC_LABELS, means, sem, N_SAMPLES - 1, G, spec, mc_draws, rng)
@@ -88,14 +88,14 @@ def integral_run(rng, spec, mc_draws=0):
     err = random_errors(rng)
     inputs = static_inputs(STATIC_LABELS, G, spec) + integral_inputs(ROTATION_LABELS, spec)
     actual = {q.name: _draw(q, rng) for q in inputs}
-    f_true = static_reference(STATIC_LABELS, actual)
+    f_true = reference_forces(STATIC_LABELS, actual)
     acc = _noisy(f_true @ (np.eye(3) + err.acc_M).T + err.acc_bias, np.full((6, 3), 2e-3), rng)
     gyr = _noisy(f_true @ err.gsens.T + err.gyr_bias, np.full((6, 3), 0.02 * DEG), rng)
     nominal = np.diag([2 * np.pi * TURNS * 2] * 3)  # ccw - cw per axis
     true_angles = np.zeros((3, 3))
     for label in ROTATION_LABELS:
         j = "xyz".index(label[0])
-        up = static_reference([f"{label[0]}_up"], actual)[0]  # the vertical in the body frame
+        up = reference_forces([f"{label[0]}_up"], actual)[0]  # the vertical in the body frame
         axis = up / np.linalg.norm(up)
         true_angles[:, j] += (2 * np.pi * TURNS + actual[f"turn.{label}"]) * axis
     J = (np.eye(3) + err.gyr_M) @ true_angles
@@ -104,7 +104,7 @@ def integral_run(rng, spec, mc_draws=0):
     solve = static_solve(STATIC_LABELS, acc, gyr, G, (estimate, TURNS, ROTATION_LABELS))
     nominal_values = solve({})
     std_j = INTEGRAL_NOISE * np.sqrt(2.0) / nominal[0, 0]
-    acc_fit = solve_accel_linear(static_reference(STATIC_LABELS, {"gravity": G}), *acc)
+    acc_fit = solve_accel_linear(reference_forces(STATIC_LABELS, {"gravity": G}), *acc)
     type_a = {n: (u, N_SAMPLES - 1) for n, u in acc_fit.std.items()}
     type_a.update({n: (std_j, np.inf) for row in params.matrix_names("gyr") for n in row})
     b = budgets(solve, inputs, type_a, estimates={n: nominal_values[n] for n in type_a})

@@ -14,7 +14,7 @@ _API = {
     "calib_core.thermal": ["ThermalModel"],
     "calib_core.tolerances": ["ToleranceProfile"],
     "calib_core.procedures": ["PROCEDURES", "solve"],
-    "calib_core.checks": ["check_calibration", "verdict"],
+    "calib_core.checks": ["check_calibration", "overall_verdict", "verdict"],
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _API)
 __all__ += ["__version__"]

@@ -2,7 +2,7 @@
 
 The profile (`calib_core.tolerances.ToleranceProfile`) holds the limits in SI;
 here each parameter, each segment's residuals and the procedure's own checks
-become CheckResults, and `verdict` turns a list of them into "pass", "needs
+become CheckResults, and `overall_verdict` turns a list of them into "pass", "needs
 review" or "fail". `check_physical_bounds` refuses a result no sensor can have.
 """
 
@@ -92,7 +92,7 @@ def check_parameters(
         if budgets is not None:
             b = budgets.get(name)
             U = 0.0 if b is None else b.U
-            outcome = decision.verdict(p.value, U, lim.low, lim.high, profile.decision_rule)
+            outcome = decision.decide(p.value, U, lim.low, lim.high, profile.decision_rule)
             passed = outcome == decision.PASS
             w = profile.decision_rule.guard_band(U)
             detail += (f"; {outcome} (rule {profile.decision_rule.name}, "
@@ -144,7 +144,7 @@ def check_calibration(
     list of CheckResult: ``param:<name>`` (`check_parameters`) then
     ``residual:<segment>:<sensor>:<std|mean>`` (`check_residuals`), then the
     procedure's own (`solver_checks`, e.g. ``zero_shift:<position>:<axis>``, or
-    ``model:...`` for what the run could not determine). `verdict` turns them
+    ``model:...`` for what the run could not determine). `overall_verdict` turns them
     into "pass" / "needs review" / "fail". The archive's check step adds held-out
     verification points, repeatability and the unit's description to these.
     """
@@ -160,8 +160,8 @@ def solver_checks(cal: Calibration) -> list[CheckResult]:
     return [CheckResult(**c) for c in cal.info.get("solver_checks", [])]
 
 
-def verdict(checks: list[CheckResult]) -> str:
-    """The verdict of a list of checks.
+def overall_verdict(checks: list[CheckResult]) -> str:
+    """The run's verdict from its list of checks.
 
     Parameters
     ----------
@@ -184,6 +184,9 @@ def verdict(checks: list[CheckResult]) -> str:
            for c in failed):
         return NEEDS_REVIEW
     return FAIL
+
+
+verdict = overall_verdict  # deprecated alias (public API `calib_core.verdict`): use overall_verdict
 
 
 def _conditional_pass(c: CheckResult) -> bool:

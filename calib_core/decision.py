@@ -56,7 +56,7 @@ class DecisionRule:
                 f"<= {pfa:.2g} % (normal, k = {k:g}).")
 
 
-def verdict(value: float, U: float, lower: float, upper: float, rule: DecisionRule) -> str:
+def decide(value: float, U: float, lower: float, upper: float, rule: DecisionRule) -> str:
     """One of pass / conditional pass / conditional fail / fail.
 
     Parameters

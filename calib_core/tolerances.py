@@ -223,7 +223,7 @@ class ToleranceProfile:
         lim = self.limit_for(name)
         if lim is None:
             return None
-        return decision.verdict(value, U, lim.low, lim.high, self.decision_rule)
+        return decision.decide(value, U, lim.low, lim.high, self.decision_rule)
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> ToleranceProfile:

@@ -85,7 +85,7 @@ def _tilt_axes(label: str) -> str:
     return "".join(a for a in params.AXES if a != up)
 
 
-def static_reference(labels: Sequence[str], values: Mapping[str, float]) -> np.ndarray:
+def reference_forces(labels: Sequence[str], values: Mapping[str, float]) -> np.ndarray:
     """(K, 3) reference specific force of each position given gravity and the tilt angles."""
     g = values.get("gravity")
     return np.array([_tilt(label, values).apply(axis_vector(label, g)) for label in labels])
@@ -152,7 +152,7 @@ def static_solve(
     """
 
     def solve(values: Mapping[str, float]) -> dict[str, float]:
-        ref = static_reference(labels, {"gravity": gravity, **values})
+        ref = reference_forces(labels, {"gravity": gravity, **values})
         out = {**solve_accel_linear(ref, *acc).params, **solve_gyro_static(ref, *gyr).params}
         if integral is not None:
             m = integral_matrix(*integral, values) - np.eye(3)
@@ -178,9 +178,9 @@ def static_accel_budgets(
 
     def solve(values: Mapping[str, float]) -> dict[str, float]:
         vals = {"gravity": gravity, **values}
-        return solve_accel_linear(static_reference(labels, vals), means, sem).params
+        return solve_accel_linear(reference_forces(labels, vals), means, sem).params
 
-    fit = solve_accel_linear(static_reference(labels, {"gravity": gravity}), means, sem)
+    fit = solve_accel_linear(reference_forces(labels, {"gravity": gravity}), means, sem)
     type_a = {n: (s, dof) for n, s in fit.std.items()}
     inputs = static_inputs(labels, gravity, spec) if spec is not None else []
     units = {n: ("m/s^2" if ".bias." in n else "1") for n in type_a}

@@ -16,9 +16,10 @@ Three questions a lab asks before it accepts a solver's numbers (docs/methods.md
    is meaningless: the run-to-run scatter against the reported uncertainties
    (a chi-squared test, family-wise false-alarm rate `alpha`).
 
-The overall verdict is "pass", "fail" (a parameter, residual or verification
-check failed) or "needs review" (only repeatability failed: the unit is within
-tolerance but does not repeat, a person decides).
+The overall verdict (`calib_core.checks.overall_verdict`) is "pass", "fail" (a
+parameter, residual or verification check failed) or "needs review" (only
+repeatability failed: the unit is within tolerance but does not repeat, a person
+decides).
 """
 
 from __future__ import annotations
@@ -38,7 +39,6 @@ from calib_core.checks import (  # noqa: F401  (the verdict's names, re-exported
     PASS,
     REPEAT_PREFIX,
 )
-from calib_core.checks import verdict as overall_verdict  # noqa: F401
 from calib_core.distributions import chi2_ppf
 from calib_core.drift import shared_covariance
 from calib_core.recording import Recording
@@ -266,7 +266,7 @@ class ReferencePoint:
     gyr: np.ndarray | None
 
 
-def static_reference(label: str, gravity: float, acc: np.ndarray | None = None) -> ReferencePoint:
+def reference_point(label: str, gravity: float, acc: np.ndarray | None = None) -> ReferencePoint:
     """Reference of a static verification segment: specific force and zero rate.
 
     Parameters

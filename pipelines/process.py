@@ -19,7 +19,7 @@ import pyarrow as pa
 
 from calib_core import procedures, verification
 from calib_core.calibration import Calibration, CheckResult, Parameter, StepRecord
-from calib_core.checks import check_calibration
+from calib_core.checks import check_calibration, overall_verdict
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
@@ -237,7 +237,7 @@ def verify_run(
     factor = m.format.acc_reference_factor()  # acc_unit, or acc_scale_unit for counts
     given = {s.label: s.reference_acc for s in m.segments}
     refs = [
-        verification.static_reference(
+        verification.reference_point(
             label,
             cal.gravity,
             None if given.get(label) is None else np.asarray(given[label]) * factor,
@@ -338,7 +338,7 @@ def check_run(
     checks += more_checks
     checks.append(device_check(loaded.manifest, queries.earlier_descriptions(
         archive, loaded.manifest.unit.serial, run_id)))  # fmt: skip
-    verdict_ = verification.overall_verdict(checks)
+    verdict_ = overall_verdict(checks)
     step = StepRecord(
         "check",
         # The thresholds themselves, so every verdict can be re-read as judged.

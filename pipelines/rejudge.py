@@ -17,7 +17,7 @@ from typing import Any
 
 from calib_core import verification
 from calib_core.calibration import CheckResult, StepRecord
-from calib_core.checks import DEVICE_PREFIX, REPEAT_PREFIX
+from calib_core.checks import DEVICE_PREFIX, REPEAT_PREFIX, overall_verdict
 from calib_core.conditions import counts_against_verdict
 from calib_core.tolerances import ToleranceProfile
 from pipelines import shared_reference
@@ -129,7 +129,7 @@ def _judged_again(
     checks = with_repeatability(
         [CheckResult(**c) for c in record["checks"]], verification.repeatability(group, profile)
     )
-    verdict = verification.overall_verdict(checks)
+    verdict = overall_verdict(checks)
     stats = {**step["statistics"], "checks": len(checks),
              "failed": sum(counts_against_verdict(c) for c in checks),
              "verdict": verdict, "repeatability_group": ids}  # fmt: skip

@@ -77,6 +77,8 @@ def entry(package: str, name: str) -> list[str]:
         return [f"### `{package}.{name}`", "", "Keys: " + ", ".join(f"`{k}`" for k in obj), ""]
     kind = "class " if inspect.isclass(obj) else ""
     lines = [f"### {kind}`{package}.{name}{_signature(obj)}`", ""]
+    if getattr(obj, "__name__", name) != name:  # an old name kept importable
+        return lines + [f"Deprecated alias of `{package}.{obj.__name__}`.", ""]
     lines += [f"*Defined in `{obj.__module__}`.*", ""]
     lines += ["```text", inspect.getdoc(obj) or "(no docstring)", "```", ""]
     if inspect.isclass(obj) and (methods := _methods(obj)):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from calib_core.calibration import Calibration, CheckResult, SegmentResidual
-from calib_core.checks import check_parameters, check_residuals, verdict
+from calib_core.checks import check_parameters, check_residuals, overall_verdict
 from calib_core.procedures import solve
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.tolerances import ParameterLimit, ToleranceProfile, parse_unit
@@ -126,7 +126,7 @@ def test_check_parameters_bounds_inclusive_and_first_match(mpu):
     assert res["param:gyr.scale.y"].passed  # on the bound
     assert not res["param:gyr.noise.x"].passed
     assert res["param:gyr.noise.x"].limit == pytest.approx(0.05 * DEG)
-    assert verdict(list(res.values())) == "fail"
+    assert overall_verdict(list(res.values())) == "fail"
 
 
 def test_check_residuals_worst_axis(mpu):
@@ -147,8 +147,8 @@ def test_check_residuals_worst_axis(mpu):
 
 def test_verdict():
     ok = CheckResult("a", 1.0, 2.0, True)
-    assert verdict([ok, ok]) == "pass"
-    assert verdict([ok, CheckResult("b", 3.0, 2.0, False)]) == "fail"
+    assert overall_verdict([ok, ok]) == "pass"
+    assert overall_verdict([ok, CheckResult("b", 3.0, 2.0, False)]) == "fail"
 
 
 def test_simulated_mems_unit_passes_and_a_bad_one_fails(mpu):
@@ -162,7 +162,7 @@ def test_simulated_mems_unit_passes_and_a_bad_one_fails(mpu):
     checks = check_parameters(cal, mpu) + check_residuals(cal, mpu)
     # 39 parameters less acc.noise.* (no limit in the profile); 18 residuals, std and mean.
     assert len(checks) == 36 + 2 * 18
-    assert verdict(checks) == "pass", [c for c in checks if not c.passed]
+    assert overall_verdict(checks) == "pass", [c for c in checks if not c.passed]
     truth.gyr_M[1, 1] = 0.05  # gyro y scale 5 %: outside +-3 %
     run = six_position_integral_run(truth, rng)
     cal = solve("six_position_integral", run.segments, run.gravity, {})

@@ -18,10 +18,10 @@ from typer.testing import CliRunner
 
 from calib_core import conditions
 from calib_core.calibration import CheckResult
+from calib_core.checks import overall_verdict
 from calib_core.recording import Recording
 from calib_core.tolerances import ToleranceProfile
 from calib_core.units import DEG
-from calib_core.verification import overall_verdict
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run

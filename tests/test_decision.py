@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from calib_core.decision import COND_FAIL, COND_PASS, FAIL, PASS, DecisionRule, verdict
+from calib_core.decision import COND_FAIL, COND_PASS, FAIL, PASS, DecisionRule, decide
 
 UP = math.inf
 
@@ -25,31 +25,31 @@ def _before(x: float) -> float:
 )
 def test_guarded_acceptance_boundaries(rule, w):
     U, lo, hi = 0.25, -1.0, 1.0
-    assert verdict(hi - w, U, lo, hi, rule) == PASS
-    assert verdict(_after(hi - w), U, lo, hi, rule) == COND_PASS
-    assert verdict(hi, U, lo, hi, rule) == COND_PASS
-    assert verdict(_after(hi), U, lo, hi, rule) == COND_FAIL
-    assert verdict(hi + w, U, lo, hi, rule) == COND_FAIL
-    assert verdict(_after(hi + w), U, lo, hi, rule) == FAIL
+    assert decide(hi - w, U, lo, hi, rule) == PASS
+    assert decide(_after(hi - w), U, lo, hi, rule) == COND_PASS
+    assert decide(hi, U, lo, hi, rule) == COND_PASS
+    assert decide(_after(hi), U, lo, hi, rule) == COND_FAIL
+    assert decide(hi + w, U, lo, hi, rule) == COND_FAIL
+    assert decide(_after(hi + w), U, lo, hi, rule) == FAIL
     # the lower side mirrors it
-    assert verdict(lo + w, U, lo, hi, rule) == PASS
-    assert verdict(_before(lo + w), U, lo, hi, rule) == COND_PASS
-    assert verdict(_before(lo), U, lo, hi, rule) == COND_FAIL
-    assert verdict(_before(lo - w), U, lo, hi, rule) == FAIL
+    assert decide(lo + w, U, lo, hi, rule) == PASS
+    assert decide(_before(lo + w), U, lo, hi, rule) == COND_PASS
+    assert decide(_before(lo), U, lo, hi, rule) == COND_FAIL
+    assert decide(_before(lo - w), U, lo, hi, rule) == FAIL
 
 
 def test_simple_acceptance_is_binary():
     rule = DecisionRule("simple")
-    assert verdict(1.0, 0.5, -1.0, 1.0, rule) == PASS
-    assert verdict(_after(1.0), 0.5, -1.0, 1.0, rule) == FAIL
-    assert verdict(-1.0, 0.5, -1.0, 1.0, rule) == PASS
-    assert verdict(_before(-1.0), 0.5, -1.0, 1.0, rule) == FAIL
+    assert decide(1.0, 0.5, -1.0, 1.0, rule) == PASS
+    assert decide(_after(1.0), 0.5, -1.0, 1.0, rule) == FAIL
+    assert decide(-1.0, 0.5, -1.0, 1.0, rule) == PASS
+    assert decide(_before(-1.0), 0.5, -1.0, 1.0, rule) == FAIL
 
 
 def test_one_sided_limit():
     rule = DecisionRule("guard_band")
-    assert verdict(0.7, 0.25, -math.inf, 1.0, rule) == PASS
-    assert verdict(0.8, 0.25, -math.inf, 1.0, rule) == COND_PASS
+    assert decide(0.7, 0.25, -math.inf, 1.0, rule) == PASS
+    assert decide(0.8, 0.25, -math.inf, 1.0, rule) == COND_PASS
 
 
 def test_statements_name_rule_and_risk():
@@ -65,9 +65,9 @@ def test_bad_rule_and_inputs_refused():
     with pytest.raises(ValueError, match="r must be"):
         DecisionRule("guard_band_r", r=0.0)
     with pytest.raises(ValueError, match="expanded uncertainty"):
-        verdict(0.0, -1.0, -1.0, 1.0, DecisionRule())
+        decide(0.0, -1.0, -1.0, 1.0, DecisionRule())
     with pytest.raises(ValueError, match="lower limit"):
-        verdict(0.0, 0.1, 1.0, -1.0, DecisionRule())
+        decide(0.0, 0.1, 1.0, -1.0, DecisionRule())
 
 
 def _profile_doc(rule):

@@ -20,7 +20,7 @@ from datetime import datetime
 import numpy as np
 
 from calib_core.calibration import CheckResult
-from calib_core.checks import solver_checks, verdict
+from calib_core.checks import overall_verdict, solver_checks
 from calib_core.procedures import solve
 from calib_core.recording import Recording
 from calib_core.simulate import random_errors, six_position_integral_run
@@ -76,7 +76,7 @@ def test_few_poses_leave_too_few_degrees_of_freedom() -> None:
     dof = _checks(cal)["model:acc_dof"]
     assert dof.value == cal.info["static_intervals"] - 9 < 9 and not dof.passed
     passing = CheckResult("param:acc.bias.x", 0.0, 1.0, True)
-    assert verdict([passing, *solver_checks(cal)]) == "needs review"
+    assert overall_verdict([passing, *solver_checks(cal)]) == "needs review"
 
 
 def test_parameters_that_move_with_the_detector_are_named() -> None:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from calib_core.checks import FAIL, PASS, solver_checks, verdict
+from calib_core.checks import FAIL, PASS, overall_verdict, solver_checks
 from calib_core.preprocess.motion import MOTION_ALPHA, motion_check
 from calib_core.procedures import solve
 from calib_core.recording import Recording
@@ -85,7 +85,7 @@ def test_a_vehicle_moving_through_static_bias_fails_the_motion_check():
         cal = solve("static_bias", {"long_static": rec}, 9.81, {})
         check = next(c for c in cal.info["solver_checks"] if c["name"] == "motion:long_static")
         assert check["passed"] is (expected == PASS), check
-        assert verdict(solver_checks(cal)) == expected
+        assert overall_verdict(solver_checks(cal)) == expected
     cal = solve("static_bias", {"long_static": moving}, 9.81, {})
     check = next(c for c in cal.info["solver_checks"] if c["name"] == "motion:long_static")
     assert "the unit moved" in check["detail"] and check["value"] > 100 * check["limit"]

@@ -17,7 +17,7 @@ from calib_core.uncertainty import (
     coverage_factor,
     monte_carlo,
 )
-from calib_core.uncertainty_sources import EquipmentSpec, static_accel_budgets, static_reference
+from calib_core.uncertainty_sources import EquipmentSpec, reference_forces, static_accel_budgets
 
 
 def _linear(values):
@@ -111,7 +111,7 @@ def test_monte_carlo_matches_linear_budget():
 
 def test_gravity_sensitivity_through_the_static_solver():
     g, scale = 9.81, 0.01
-    f = static_reference(STATIC_LABELS, {"gravity": g})
+    f = reference_forces(STATIC_LABELS, {"gravity": g})
     means = f * (1 + scale) + 0.1
     sem = np.full((6, 3), 1e-3)
     b, _ = static_accel_budgets(STATIC_LABELS, means, sem, 19, g, EquipmentSpec())

@@ -14,7 +14,7 @@ import pytest
 
 from calib_core import procedures
 from calib_core.calibration import Calibration
-from calib_core.checks import check_parameters
+from calib_core.checks import check_parameters, overall_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.decision import COND_FAIL, COND_PASS, DecisionRule
 from calib_core.run_budget import run_budgets
@@ -23,7 +23,7 @@ from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import budgets as make_budgets
 from calib_core.uncertainty_sources import EquipmentSpec
 from calib_core.units import STANDARD_GRAVITY
-from calib_core.verification import FAIL, NEEDS_REVIEW, overall_verdict
+from calib_core.verification import FAIL, NEEDS_REVIEW
 from calib_testing.run_writers import write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run

@@ -11,7 +11,7 @@ import pytest
 
 from calib_core import procedures
 from calib_core.calibration import CheckResult
-from calib_core.checks import check_residuals
+from calib_core.checks import check_residuals, overall_verdict
 from calib_core.recording import Recording
 from calib_core.simulate import TrueErrors, axis_vector, random_errors, six_position_integral_run
 from calib_core.tolerances import (
@@ -27,9 +27,8 @@ from calib_core.verification import (
     RunValues,
     comparable_runs,
     diagnose_residuals,
-    overall_verdict,
+    reference_point,
     repeatability,
-    static_reference,
     verify_points,
 )
 from pipelines.tolerances import load_profile
@@ -129,7 +128,7 @@ def test_verification_point_with_002_g_error_fails(seed, profile):
     f_tilt = run.gravity * np.array([math.sin(a) * math.cos(0.4), math.sin(a) * math.sin(0.4),
                                      math.cos(a)])  # fmt: skip
     segments = {"tilt_35": _static_segment(truth, rng, f_tilt, "tilt_35")}
-    good = verify_points(cal, segments, [static_reference("tilt_35", run.gravity, f_tilt)], profile)
+    good = verify_points(cal, segments, [reference_point("tilt_35", run.gravity, f_tilt)], profile)
     assert [c.name for c in good] == ["verify:tilt_35:acc", "verify:tilt_35:gyr"]
     # clean: error ~ parameter uncertainty + noise / sqrt(n) ~ 1e-3 m/s^2, limit 0.098
     assert all(c.passed for c in good) and good[0].value < 0.01 * profile.verification_limits["acc"]
@@ -138,20 +137,20 @@ def test_verification_point_with_002_g_error_fails(seed, profile):
 
     # the reference is off by 0.02 g along y (a wrongly set tilt): the check must fail
     wrong = f_tilt + np.array([0.0, 0.02 * G, 0.0])
-    bad = verify_points(cal, segments, [static_reference("tilt_35", run.gravity, wrong)], profile)
+    bad = verify_points(cal, segments, [reference_point("tilt_35", run.gravity, wrong)], profile)
     assert not bad[0].passed and bad[1].passed
     assert bad[0].value == pytest.approx(0.02 * G, abs=0.01 * 0.02 * G + good[0].value)
     assert overall_verdict(bad) == FAIL
 
 
-def test_static_reference_from_label_and_errors():
-    ref = static_reference("z_dn_2", 9.8)
+def test_reference_point_from_label_and_errors():
+    ref = reference_point("z_dn_2", 9.8)
     np.testing.assert_array_equal(ref.acc, [0.0, 0.0, -9.8])
     np.testing.assert_array_equal(ref.gyr, [0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="tilt_1.*reference_acc"):
-        static_reference("tilt_1", 9.8)
+        reference_point("tilt_1", 9.8)
     with pytest.raises(ValueError, match="3 finite numbers"):
-        static_reference("tilt_1", 9.8, np.array([1.0, 2.0]))
+        reference_point("tilt_1", 9.8, np.array([1.0, 2.0]))
 
 
 def _run_values(truth: TrueErrors, rng: np.random.Generator, run_id: str) -> RunValues:

@@ -38,7 +38,7 @@ DEFAULT_G_LEVELS = tuple(float(n) for n in range(2, 21, 2))
 
 
 @dataclass(frozen=True)
-class RatePoint:
+class PlannedStep:
     """One planned step: the table rate that gives `n_g` times g along the radial axis.
 
     rate : rad/s, signed about up (anticlockwise seen from above > 0).
@@ -71,7 +71,7 @@ def plan_rates(
     latitude_deg: float = 0.0,
     sense: int = 1,
     max_rate: float | None = None,
-) -> list[RatePoint]:
+) -> list[PlannedStep]:
     """Table rates for the requested g levels.
 
     Parameters
@@ -85,7 +85,7 @@ def plan_rates(
 
     Returns
     -------
-    one RatePoint per level, in the order given.
+    one PlannedStep per level, in the order given.
     """
     if not (math.isfinite(radius) and radius > 0.0):
         raise ValueError(f"radius must be a positive number of metres, got {radius}")
@@ -103,7 +103,7 @@ def plan_rates(
                 f"{n_g:g} g at R = {radius:g} m needs {abs(w):.4g} rad/s "
                 f"({abs(w) * 30 / math.pi:.1f} rpm), above the table's {max_rate:.4g} rad/s"
             )
-        points.append(RatePoint(float(n_g), w, radius * w * (w + 2.0 * omega_v)))
+        points.append(PlannedStep(float(n_g), w, radius * w * (w + 2.0 * omega_v)))
     return points
 
 

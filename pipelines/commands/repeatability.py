@@ -26,7 +26,8 @@ def repeatability_command(
     as_json: JsonOpt = False,
 ) -> None:
     """Repeatability of SERIAL's latest runs: CV of scale factors, scatter of the rest."""
-    from calib_core.verification import RunValues, comparable_runs, overall_verdict, repeatability
+    from calib_core.checks import overall_verdict
+    from calib_core.verification import RunValues, comparable_runs, repeatability
     from pipelines.shared_reference import with_shared
     from pipelines.tolerances import load_profile
     from storage import queries

@@ -181,7 +181,7 @@ class AcquisitionSpec(_Section):
 MODEL_RESOLUTION_BITS: dict[str, int] = {"mpu-6000": 16}
 
 
-class EquipmentSpec(_Section):
+class EquipmentEntry(_Section):
     """One piece of lab equipment; its own calibration dates make lapses traceable."""
 
     kind: str  # one of EQUIPMENT_KINDS or another short word
@@ -299,7 +299,7 @@ class RunManifest(_Section):
     site: SiteSpec = Field(default_factory=SiteSpec)
     environment: EnvironmentSpec = Field(default_factory=EnvironmentSpec)
     acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)
-    equipment: list[EquipmentSpec] = Field(default_factory=list)
+    equipment: list[EquipmentEntry] = Field(default_factory=list)
     format: FormatSpec
     segments: list[SegmentSpec] = Field(default_factory=list)
 

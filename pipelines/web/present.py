@@ -120,7 +120,7 @@ def equipment_url(kind: str, serial: str) -> str:
 
 def check_result(check: Mapping[str, Any]) -> str:
     """The badge of one archived check (a dict with name, passed, detail): "pass", else
-    what its failure alone makes of the run's verdict (calib_core.checks.verdict):
+    what its failure alone makes of the run's verdict (calib_core.checks.overall_verdict):
     "needs review" for a repeatability, device or model check (``model:acc_dof``) or a
     parameter's conditional pass, "warning" or "not recorded" for a lab condition
     (calib_core.conditions), else "fail"."""
@@ -129,7 +129,7 @@ def check_result(check: Mapping[str, Any]) -> str:
         return state
     one = SimpleNamespace(name=check["name"], passed=check["passed"],
                           detail=check.get("detail") or "")  # fmt: skip
-    return checks.verdict([one])
+    return checks.overall_verdict([one])
 
 
 FILTERS = {"num": num, "when": when, "size": size, "as_json": as_json, "readable": readable,

@@ -72,7 +72,7 @@ def parameter_values(s: Session, cal_ids: list[int]) -> dict[int, dict[str, tupl
 # whole UTC days: `as_of`/`date_to` include the whole day, `date_from` starts at
 # its midnight.
 
-VERDICTS = ("pass", "fail", "needs review")  # calib_core.verification.overall_verdict
+VERDICTS = ("pass", "fail", "needs review")  # calib_core.checks.overall_verdict
 EQUIPMENT_SERIAL_LEN = 200
 
 
