@@ -223,8 +223,9 @@ def print_json(doc: Any) -> None:
 
 
 def is_id_column(name: str) -> bool:
-    """Columns of identifiers (run ids, serials): never wrapped or cut in a table."""
-    return name in ("run_id", "serial", "run") or name.endswith("_id")
+    """Columns of identifiers (run ids, serials, check names): never wrapped or cut in a
+    table."""
+    return name in ("run_id", "serial", "run", "check") or name.endswith("_id")
 
 
 def print_table(
@@ -255,13 +256,13 @@ def print_table(
         from rich.text import Text
 
         candidate.caption = Text(facts)
-    width = out.width
     if DISPLAY["wide"]:
-        out.width = max(width, need.maximum)  # Console.print(width=) only narrows
-    try:
+        # Console.print(width=) only narrows, and setting out.width would pin it for every
+        # later print: a console of the width the table needs, on the same stream.
+        wide = Console(file=out.file, soft_wrap=True, width=max(out.width, need.maximum))
+        wide.print(candidate)
+    else:
         out.print(candidate)
-    finally:
-        out.width = width
     if len(shown) < len(columns):
         hidden = ", ".join(c for c in columns if c not in shown)
         sys.stdout.flush()

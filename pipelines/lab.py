@@ -39,9 +39,9 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from pipelines.tolerances import profile_dirs
+from pipelines.tolerances import LAB_FILE_STEM, profile_dirs
 
-LAB_PROFILE = "lab.toml"
+LAB_PROFILE = f"{LAB_FILE_STEM}.toml"
 TABLES = {
     "laboratory": ({"name", "address"}, {"accreditation", "country"}),
     "customer": ({"name"}, {"contact"}),

@@ -17,6 +17,7 @@ if TYPE_CHECKING:  # the science stack is loaded by load_profile, not by profile
     from calib_core.tolerances import ToleranceProfile
 
 SHIPPED = Path(__file__).resolve().parent / "profiles"
+LAB_FILE_STEM = "lab"  # lab.toml beside the profiles is the lab profile (pipelines.lab)
 
 
 def profile_dirs() -> list[Path]:
@@ -44,6 +45,11 @@ def load_profile(name: str) -> ToleranceProfile:
     from calib_core.tolerances import ToleranceProfile
 
     check_safe_name(name, "tolerance profile name")
+    if name == LAB_FILE_STEM:
+        raise ValueError(
+            f"tolerance profile name {name!r} is reserved: {name}.toml in the profile folders "
+            "is the lab's own file (pipelines.lab); give the profile another name"
+        )
     for folder in profile_dirs():
         path = folder / f"{name}.toml"
         if path.is_file():

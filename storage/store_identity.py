@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 import uuid
 from pathlib import Path
 from typing import Any
@@ -113,14 +114,35 @@ def _first_write(archive: Archive, root: Path, here: dict[str, Any] | None) -> N
             "them; nothing was written"
         )
     if here is None:  # (else a marker of an earlier attempt whose event was not written)
-        here = {"id": uuid.uuid4().hex, "database": archive.display_url, "root": str(root)}
-        root.mkdir(parents=True, exist_ok=True)
-        with open(root / MARKER, "w", encoding="utf-8") as f:
-            f.write(json.dumps(here) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        here = _new_marker(archive, root)
     url = make_url(archive.url).render_as_string(hide_password=False)
     seal.PENDING_DETAIL[url] = {KEY: {"id": here["id"], "root": str(root)}}
+
+
+def _new_marker(archive: Archive, root: Path) -> dict[str, Any]:
+    """Write the folder's marker, or take the one a concurrent first write made: the file
+    is created exclusively, so two processes writing their first runs at once record one
+    id, not each its own."""
+    mine = {"id": uuid.uuid4().hex, "database": archive.display_url, "root": str(root)}
+    root.mkdir(parents=True, exist_ok=True)
+    try:
+        with open(root / MARKER, "x", encoding="utf-8") as f:
+            f.write(json.dumps(mine) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+    except FileExistsError:
+        theirs = None
+        for _ in range(100):  # the other writer may not have written its line yet
+            if (theirs := _marker(root)) is not None:
+                break
+            time.sleep(0.01)
+        if theirs is None:
+            raise StoreMismatchError(
+                f"{root / MARKER} exists but cannot be read as a file store marker; nothing "
+                "was written"
+            ) from None
+        return theirs
+    return mine
 
 
 def adopt(archive: Archive) -> None:

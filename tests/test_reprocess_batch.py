@@ -40,11 +40,11 @@ LOOSE = 1e3  # a limit no simulated value comes near
 
 
 def lab_profile(folder: Path, version: str, acc_bias: float = LOOSE, gyr_bias: float = LOOSE):
-    """Write ``lab.toml``: the shipped profile with bias limits acc_bias (m/s^2), gyr_bias
+    """Write ``labrule.toml``: the shipped profile with bias limits acc_bias (m/s^2), gyr_bias
     (deg/s), and the gyro noise limit lifted (the simulated noise is above the MPU-6000's)."""
     text = SHIPPED
     for old, new in (
-        ('name = "mpu6000"', 'name = "lab"'),
+        ('name = "mpu6000"', 'name = "labrule"'),
         ('version = "3"', f'version = "{version}"'),
         ('"gyr.noise.*"\nhigh = 0.05', '"gyr.noise.*"\nhigh = 1000'),
         ('"gyr.bias.*"\nbound = 20', f'"gyr.bias.*"\nbound = {gyr_bias!r}'),
@@ -54,7 +54,7 @@ def lab_profile(folder: Path, version: str, acc_bias: float = LOOSE, gyr_bias: f
         assert old in text, old  # the shipped profile changed: adapt this test
         text = text.replace(old, new)
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "lab.toml").write_text(text)
+    (folder / "labrule.toml").write_text(text)
 
 
 def archived_runs(tmp_path: Path, seeds: list[int]) -> tuple[str, list[dict]]:
@@ -64,7 +64,7 @@ def archived_runs(tmp_path: Path, seeds: list[int]) -> tuple[str, list[dict]]:
         rng = np.random.default_rng(seed)
         sim = six_position_integral_run(random_errors(rng), rng)
         m = six_position_manifest(f"LAB{seed}", started=f"2026-11-{seed:02d}T09:00:00+00:00")
-        m["run"]["tolerance_profile"] = "lab"
+        m["run"]["tolerance_profile"] = "labrule"
         write_csv_run(sim.segments, tmp_path / "day" / f"run{seed}", m)
     sources, failed = discover([str(tmp_path / "day")])
     assert not failed
@@ -124,7 +124,7 @@ def test_selection_reprocessed_twice_gives_revisions_then_duplicates(
         ({"since": "2026-11-03T00:00:00+00:00", "until": "2026-11-03"}, [once[1]["run_id"]]),
         ({"serial": "LAB4"}, [once[2]["run_id"]]),
         (
-            {"model": "MPU-6000", "profile": "lab"},
+            {"model": "MPU-6000", "profile": "labrule"},
             [first[0]["run_id"]] + [o["run_id"] for o in once],
         ),
         ({"model": "ADXL355"}, []),

@@ -53,13 +53,19 @@ def report(
         else:
             current = None if reissue else issued(arch, run_id)
             if current is None:
-                current = issue(arch, run_id, reason=reason or ("issued again" if reissue
-                                                                 else None))  # fmt: skip
-            files = {k: p for k, p in current.files.items() if pdf or k != "pdf"}
-            if output is not None:
-                output.mkdir(parents=True, exist_ok=True)
-                files = {k: Path(shutil.copy2(p, output / p.name)) for k, p in files.items()}
-            written = {"verdict": current.verdict, "certificate": current.number, **files}
+                try:
+                    current = issue(arch, run_id, reason=reason or ("issued again" if reissue
+                                                                     else None))  # fmt: skip
+                except OSError as exc:
+                    if output is None or reissue:
+                        raise
+                    written = _unissued_copy(arch, run_id, output, pdf, exc)
+            if current is not None:
+                files = {k: p for k, p in current.files.items() if pdf or k != "pdf"}
+                if output is not None:
+                    output.mkdir(parents=True, exist_ok=True)
+                    files = {k: Path(shutil.copy2(p, output / p.name)) for k, p in files.items()}
+                written = {"verdict": current.verdict, "certificate": current.number, **files}
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
     except OSError as exc:  # a read-only archive, a full disk
@@ -76,3 +82,14 @@ def report(
         err.print(f"certificate {number}")
     for kind, path in written.items():
         err.print(f"{kind}: {path}")
+
+
+def _unissued_copy(arch, run_id: str, output: Path, pdf: bool, why: OSError) -> dict:  # noqa: ANN001
+    """The reports rendered from the archive into `output` when the archive cannot take the
+    certificate's first issue (read-only, full): said as not issued, nothing archived."""
+    from pipelines.reports.certificate import report_run
+    from storage.write_failures import describe
+
+    err.print(f"not issued: {describe(why) or why}; a rendering from the archive, not an "
+              f"issued certificate, is written into {output}", markup=False)  # fmt: skip
+    return report_run(arch, run_id, output, pdf=pdf)

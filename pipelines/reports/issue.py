@@ -49,6 +49,13 @@ def _folder(summary: dict[str, Any]) -> str:
     return base if revision == 1 else f"{base}/revision-{revision}"
 
 
+def protocol_of(archive: Archive, summary: dict[str, Any]) -> Path | None:
+    """The test protocol archived with the run's current revision (written when the run was
+    archived, issued certificate or not), None if it is not there."""
+    path = archive.root / _folder(summary) / f"{summary['device']['serial']}_result.txt"
+    return path if path.is_file() else None
+
+
 def issues(archive: Archive, run_id: str) -> list[dict[str, Any]]:
     """The ``certificate issued`` events of a run (oldest first), from the audit chain."""
     from sqlalchemy import select
@@ -75,8 +82,7 @@ def issued(archive: Archive, run_id: str) -> Issue | None:
         return None
     detail = mine[-1]["detail"]
     files = {kind: archive.root / rel for kind, rel in detail["paths"].items()}
-    protocol = archive.root / _folder(summary) / f"{summary['device']['serial']}_result.txt"
-    if protocol.is_file():
+    if (protocol := protocol_of(archive, summary)) is not None:
         files[PROTOCOL] = protocol
     return Issue(run_id, revision, detail["issue"], detail["certificate"], files,
                  summary["calibration"]["verdict"])  # fmt: skip
@@ -126,8 +132,7 @@ def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
     seal.record_event(archive, ISSUED, run_id=run_id, revision=revision, reason=reason,
                       detail=detail)  # fmt: skip
     files = {k: archive.root / p for k, p in rel.items()}
-    protocol = archive.root / folder / f"{summary['device']['serial']}_result.txt"
-    if protocol.is_file():
+    if (protocol := protocol_of(archive, summary)) is not None:
         files[PROTOCOL] = protocol
     return Issue(run_id, revision, number, cert.identifier, files,
                  summary["calibration"]["verdict"])  # fmt: skip

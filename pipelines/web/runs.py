@@ -153,12 +153,14 @@ def raw_file(request: Request, run_id: str, name: str) -> FileResponse:
 
 def _issued(archive, run_id: str, kind: str) -> Path:  # noqa: ANN001 - Archive
     """The archived file `kind` ("protocol", "html", "pdf") of the run's issued certificate."""
-    from pipelines.reports.issue import issued
+    from pipelines.reports.issue import PROTOCOL, issued, protocol_of
 
     full = _run_id(run_id)
     forms.checked(queries.run_summary, archive, full)  # 404 for an unknown run
     current = issued(archive, full)
     path = None if current is None else current.files.get(kind)
+    if path is None and kind == PROTOCOL:  # archived with the run, issued or not
+        path = protocol_of(archive, queries.run_summary(archive, full))
     if path is None:
         raise HTTPException(404, f"run {full} has no issued certificate: `calib report {full}` "
                                  "issues it into the archive")  # fmt: skip
