@@ -16,12 +16,17 @@ Same numbers as the in-memory path to rounding (tests/test_streamed.py).
 
 from __future__ import annotations
 
+import os
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from typing import Protocol
 
 import numpy as np
 
 from calib_core.noise import AllanResult, allan_result, cluster_sizes
+
+
+PARALLEL_ROWS = 1 << 16  # a chunk this long is worth the threads
 
 
 class Moments:
@@ -58,10 +63,12 @@ class Moments:
             m2b = ((x - mb) ** 2).sum(axis=0)
         else:
             nb = keep.sum(axis=0)
+            y = np.where(keep, x, 0.0)
             with np.errstate(invalid="ignore", divide="ignore"):
-                mb = np.where(keep, x, 0.0).sum(axis=0) / nb
-            mb = np.where(nb > 0, mb, 0.0)
-            m2b = (np.where(keep, x - mb, 0.0) ** 2).sum(axis=0)
+                mb = np.where(nb > 0, y.sum(axis=0) / nb, 0.0)
+            y -= mb
+            y *= keep  # rejected samples: 0 about the mean as well
+            m2b = np.einsum("ij,ij->j", y, y)
         self._merge(nb, mb, m2b)
 
     def _merge(self, nb: np.ndarray, mb: np.ndarray, m2b: np.ndarray) -> None:
@@ -144,6 +151,7 @@ class SigmaClipFill:
         self.kept = Moments(channels)
         self.rejected = np.zeros(channels, dtype=np.int64)
         self._pending = np.empty((0, channels))
+        self._pending_keep = np.empty((0, channels), dtype=bool)
         self._start = 0  # global index of the first pending row
         self._prev: list[tuple[int, float] | None] = [None] * channels
 
@@ -152,40 +160,47 @@ class SigmaClipFill:
         x = np.asarray(x, dtype=float)
         keep = np.abs(x - self.mean) <= self.limit
         self.kept.push(x, keep)
-        self.rejected += (~keep).sum(axis=0)
-        buf = np.concatenate([self._pending, x]) if len(self._pending) else x
-        bkeep = np.abs(buf - self.mean) <= self.limit
-        has = bkeep.any(axis=0)
-        last = np.where(has, buf.shape[0] - 1 - np.argmax(bkeep[::-1], axis=0), -1)
-        ready = int(last.min()) + 1  # every channel has a kept sample at or after each row
-        return self._emit(buf, bkeep, ready)
+        self.rejected += x.shape[0] - keep.sum(axis=0)
+        if len(self._pending):
+            x = np.concatenate([self._pending, x])
+            keep = np.concatenate([self._pending_keep, keep])
+        ready = int(_last_true(keep).min()) + 1  # each channel kept at or after each row
+        return self._emit(x, keep, ready)
 
     def flush(self) -> np.ndarray:
         """The rows held back; trailing rejected samples take the last kept value."""
-        buf = self._pending
-        return self._emit(buf, np.abs(buf - self.mean) <= self.limit, buf.shape[0])
+        return self._emit(self._pending, self._pending_keep, self._pending.shape[0])
 
     def _emit(self, buf: np.ndarray, keep: np.ndarray, ready: int) -> np.ndarray:
-        out, k = buf[:ready].copy(), keep[:ready]
-        idx = np.arange(self._start, self._start + buf.shape[0])
-        for c in range(buf.shape[1]):
-            bad = ~k[:, c]
+        out, k = buf[:ready], keep[:ready]
+        last = _last_true(k)
+        filled = False
+        for c in np.flatnonzero(~k.all(axis=0)):
+            if not filled:
+                out, filled = out.copy(), True
+            idx = np.arange(self._start, self._start + buf.shape[0])
             good = np.flatnonzero(keep[:, c])  # kept samples to the right count too
             xp, fp = idx[good], buf[good, c]
             if self._prev[c] is not None:
                 xp = np.concatenate([[self._prev[c][0]], xp])
                 fp = np.concatenate([[self._prev[c][1]], fp])
-            if bad.any():
-                if xp.size == 0:
-                    raise ValueError(f"sigma clip: channel {c} has no kept sample")
-                out[bad, c] = np.interp(idx[:ready][bad], xp, fp)
-            kept_here = np.flatnonzero(k[:, c])
-            if kept_here.size:
-                j = int(kept_here[-1])
-                self._prev[c] = (int(idx[j]), float(buf[j, c]))
-        self._pending = buf[ready:].copy()
+            if xp.size == 0:
+                raise ValueError(f"sigma clip: channel {c} has no kept sample")
+            bad = ~k[:, c]
+            out[bad, c] = np.interp(idx[:ready][bad], xp, fp)
+        for c in np.flatnonzero(last >= 0):
+            self._prev[c] = (self._start + int(last[c]), float(buf[last[c], c]))
+        self._pending, self._pending_keep = buf[ready:].copy(), keep[ready:].copy()
         self._start += ready
         return out
+
+
+def _last_true(mask: np.ndarray) -> np.ndarray:
+    """(C,) index of the last True row of each column of `mask` (n, C), -1 where none."""
+    if mask.shape[0] == 0:
+        return np.full(mask.shape[1], -1)
+    last = mask.shape[0] - 1 - np.argmax(mask[::-1], axis=0)
+    return np.where(mask.any(axis=0), last, -1)
 
 
 class History(Protocol):
@@ -234,6 +249,8 @@ class StreamedAllan:
         lagged rows from `history`.
     history : `History` of every phase row, needed only when 2 m > memory_rows for
         some m; default `ListHistory` (in memory).
+    workers : threads sharing the cluster sizes of a large chunk (default: the cores, at
+        most 4); the sums do not depend on it.
     """
 
     def __init__(
@@ -246,6 +263,7 @@ class StreamedAllan:
         offset: np.ndarray | None = None,
         memory_rows: int = 1 << 20,
         history: History | None = None,
+        workers: int | None = None,
     ):
         if not rate_hz > 0:
             raise ValueError(f"streamed Allan deviation: rate_hz must be > 0, got {rate_hz}")
@@ -258,6 +276,7 @@ class StreamedAllan:
         self.sums = np.zeros((self.m.size, channels))
         self._tail = np.zeros((1, channels))  # theta_0 = 0
         self._j = 1  # phase rows seen (theta has N + 1)
+        self.workers = min(os.cpu_count() or 1, 4) if workers is None else workers
         if self.spills:
             self.history.append(self._tail)
 
@@ -277,21 +296,31 @@ class StreamedAllan:
             self.history.append(theta)
         window = np.concatenate([self._tail, theta])
         g0 = j0 - self._tail.shape[0]  # global index of window[0]
-        for k, m in enumerate(self.m):
-            lo = max(j0, 2 * m)
-            if lo >= j1:
-                continue
-            now = window[lo - g0 : j1 - g0]
-            if lo - 2 * m >= g0:
-                one = window[lo - m - g0 : j1 - m - g0]
-                two = window[lo - 2 * m - g0 : j1 - 2 * m - g0]
-            else:
-                one = self.history.read(lo - m, j1 - m)
-                two = self.history.read(lo - 2 * m, j1 - 2 * m)
-            d = now - 2.0 * one + two
-            self.sums[k] += np.einsum("ij,ij->j", d, d)
-        self._tail = window[-self.keep_rows :].copy()
+        todo = [(k, int(m)) for k, m in enumerate(self.m) if max(j0, 2 * m) < j1]
+        if self.workers > 1 and x.shape[0] >= PARALLEL_ROWS:
+            # NumPy releases the GIL on whole-array work: the cluster sizes share the cores.
+            with ThreadPoolExecutor(self.workers) as pool:
+                list(pool.map(lambda km: self._add(km[0], km[1], window, g0, j0, j1), todo))
+        else:
+            for k, m in todo:
+                self._add(k, m, window, g0, j0, j1)
+        self._tail = window[-self.keep_rows :]  # a view: the window lives until the next push
         self._j = j1
+
+    def _add(self, k: int, m: int, window: np.ndarray, g0: int, j0: int, j1: int) -> None:
+        """Add the squared second differences ending in rows j0..j1-1 for cluster size m."""
+        lo = max(j0, 2 * m)
+        now = window[lo - g0 : j1 - g0]
+        if lo - 2 * m >= g0:
+            one = window[lo - m - g0 : j1 - m - g0]
+            two = window[lo - 2 * m - g0 : j1 - 2 * m - g0]
+        else:
+            one = self.history.read(lo - m, j1 - m)
+            two = self.history.read(lo - 2 * m, j1 - 2 * m)
+        d = np.subtract(now, one)  # theta_{k+2m} - 2 theta_{k+m} + theta_k, in place
+        d -= one
+        d += two
+        self.sums[k] += np.einsum("ij,ij->j", d, d)
 
     def result(self) -> AllanResult:
         """The Allan deviation (K, C), once all N samples are in."""
