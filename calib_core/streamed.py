@@ -25,7 +25,6 @@ import numpy as np
 
 from calib_core.noise import AllanResult, allan_result, cluster_sizes
 
-
 PARALLEL_ROWS = 1 << 16  # a chunk this long is worth the threads
 
 
