@@ -72,7 +72,8 @@ def solve_static_bias_stream(
 
     Parameters
     ----------
-    chunks : called once per pass, a fresh iterator of (t, gyr, acc) chunks, in order.
+    chunks : called once per pass, a fresh iterator of (t, gyr, acc) chunks, in order (t
+        may be None when `first` is given: the second pass needs no time).
     label : the record's label (checks name it).
     first : the first pass's statistics if the caller has them (else one more pass).
     memory_rows, history : the Allan deviation's phase rows in memory and where the

@@ -204,7 +204,7 @@ def _chunk(table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path,
     values: dict[str, np.ndarray] = {}
     for role, name in layout.roles.items():
         col = table.column(name).combine_chunks()
-        v = _iso_seconds(col) if name == iso else np.array(_float_values(col))
+        v = _iso_seconds(col) if name == iso else _float_values(col)
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
             raise IngestError(
@@ -234,13 +234,24 @@ def _chunk(table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path,
 
 def _table(chunk: dict[str, np.ndarray], label: str, schema: pa.Schema) -> pa.Table:
     n = len(chunk["t"])
-    cols: dict[str, Any] = {"segment": pa.array([label]).take(np.zeros(n, dtype=np.int32))}
+    cols: dict[str, Any] = {"segment": _labels(label, n)}
     cols["t"] = chunk["t"]
     for i, a in enumerate(AXES):
         cols[f"acc_{a}"] = chunk["acc"][:, i]
         cols[f"gyr_{a}"] = chunk["gyr"][:, i]
     cols["temp"] = chunk["temp"]
     return pa.table(cols, schema=schema)
+
+
+def _labels(label: str, n: int) -> pa.Array:
+    """`label` n times as an Arrow string array, from one bytes repeat and its offsets."""
+    b = label.encode()
+    offsets = np.arange(n + 1, dtype=np.int64) * len(b)
+    kind = pa.string() if offsets[-1] <= np.iinfo(np.int32).max else pa.large_string()
+    if kind == pa.string():
+        offsets = offsets.astype(np.int32)
+    arr = pa.Array.from_buffers(kind, n, [None, pa.py_buffer(offsets), pa.py_buffer(b * n)])
+    return arr if kind == pa.string() else arr.cast(pa.string())
 
 
 class FileHistory:
@@ -267,12 +278,19 @@ class FileHistory:
 
 
 def samples_chunks(samples: Path, memory_limit: int) -> Iterator[tuple]:
-    """The streamed samples back from their Parquet as (t, gyr, acc) chunks."""
-    batch = max(memory_limit // (32 * ROW_BYTES), 1024)
-    cols = ["t", *(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]
-    for b in pq.ParquetFile(samples).iter_batches(batch_size=batch, columns=cols):
-        v = [_float_values(b.column(i)) for i in range(7)]
-        yield v[0], np.column_stack(v[1:4]), np.column_stack(v[4:7])
+    """The streamed samples back from their Parquet as (None, gyr, acc) chunks (the solve's
+    second pass needs no time)."""
+    cols = [*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]
+    for b in pq.ParquetFile(samples).iter_batches(batch_size=batch_rows(memory_limit),
+                                                  columns=cols):  # fmt: skip
+        v = [_float_values(b.column(i)) for i in range(6)]
+        yield None, np.column_stack(v[:3]), np.column_stack(v[3:])
+
+
+def batch_rows(memory_limit: int) -> int:
+    """Rows per batch of the second pass: the batch and its copies (clip, fill, phase,
+    second differences on each thread) several times over within a 16th of the limit."""
+    return max(memory_limit // (16 * 16 * 6 * 8), 1024)
 
 
 def solve_streamed(
@@ -293,7 +311,7 @@ def solve_streamed(
         cal = solve_static_bias_stream(
             lambda: samples_chunks(streamed.samples, memory_limit),
             label=label, first=streamed.first, gravity=gravity, history=history,
-            memory_rows=max(memory_limit // (16 * 6 * 8), 1024),
+            memory_rows=4 * batch_rows(memory_limit),
             **{k: v for k, v in settings.items() if v is not None},
         )  # fmt: skip
     finally:
