@@ -59,7 +59,8 @@ class Moments:
         if keep is None:
             nb = np.full(x.shape[1], x.shape[0], dtype=np.int64)
             mb = x.mean(axis=0)
-            m2b = ((x - mb) ** 2).sum(axis=0)
+            x -= mb  # x is this method's own shifted copy
+            m2b = np.einsum("ij,ij->j", x, x)
         else:
             nb = keep.sum(axis=0)
             y = np.where(keep, x, 0.0)

@@ -37,7 +37,11 @@ class FirstPass:
 
     def push(self, chunk: Chunk) -> None:
         t, gyr, acc = chunk
-        self.moments.push(np.hstack([gyr, acc]))
+        # [gyr | acc] without a copy when the reader made them views of one (n, 6) array
+        both = gyr.base if gyr.base is not None and gyr.base is acc.base else None
+        if both is None or both.shape != (gyr.shape[0], 6):
+            both = np.hstack([gyr, acc])
+        self.moments.push(both)
         self.step.push(t)
 
     @property

@@ -212,8 +212,11 @@ def _chunk(table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path,
                 field=layout.fields[name],
             )  # fmt: skip
         values[role] = v
-    acc = _to_si(np.column_stack([values[f"acc_{a}"] for a in AXES]), "acc", fmt)
-    gyr = _to_si(np.column_stack([values[f"gyr_{a}"] for a in AXES]), "gyr", fmt)
+    both = np.empty((n, 6))  # [gyr | acc]: the first pass takes it without a copy
+    for i, role in enumerate([*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]):
+        both[:, i] = values[role]
+    gyr = _to_si(both[:, :3], "gyr", fmt)
+    acc = _to_si(both[:, 3:], "acc", fmt)
     if "time" in values:
         t = values["time"]
         if fmt.time_unit == "samples":
