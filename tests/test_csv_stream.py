@@ -122,3 +122,25 @@ def test_streamed_record_memory_bounded_by_the_limit(big_csv, tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     grown = json.loads(out.stdout.strip().splitlines()[-1])["grown"]
     assert grown < LIMIT, grown / 2**20
+
+
+def test_progress_line_names_bytes_samples_rate_and_time_left(tmp_path, capsys):
+    path = tmp_path / "short.csv"
+    write_static_csv(path, 2000)
+    stream_csv(path, FMT, tmp_path / "s.parquet", memory_limit=1 << 20, progress=True)
+    err = capsys.readouterr().err
+    assert "reading short.csv" in err and "2,000 samples" in err
+    assert "MB/s" in err and "s left" in err
+
+
+def test_time_going_back_names_the_line(tmp_path):
+    from pipelines.ingest.errors import IngestError
+
+    path = tmp_path / "back.csv"
+    write_static_csv(path, 50_000)
+    lines = path.read_bytes().split(b"\n")
+    lines[40_001], lines[40_002] = lines[40_002], lines[40_001]  # data rows 40000, 40001
+    path.write_bytes(b"\n".join(lines))
+    with pytest.raises(IngestError, match="time must increase") as err:
+        stream_csv(path, FMT, tmp_path / "s.parquet", memory_limit=1 << 20, progress=False)
+    assert "line 40003" in str(err.value)
