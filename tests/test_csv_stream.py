@@ -144,3 +144,18 @@ def test_time_going_back_names_the_line(tmp_path):
     with pytest.raises(IngestError, match="time must increase") as err:
         stream_csv(path, FMT, tmp_path / "s.parquet", memory_limit=1 << 20, progress=False)
     assert "line 40003" in str(err.value)
+
+
+def test_blocks_pass_every_byte_once_and_cut_at_line_ends():
+    """Lines longer than a block, a last line without its newline: the blocks join to the
+    file, each ends at a line end, and the hash and the copy are of the whole file."""
+    import io
+
+    from pipelines.ingest.csv_stream import _blocks
+
+    data = b"".join(b"x" * (i % 300) + b"\n" for i in range(5000)) + b"no newline"
+    sha, copy = hashlib.sha256(), io.BytesIO()
+    blocks = [bytes(b) for b in _blocks(io.BytesIO(data), 100, copy, sha)]
+    assert b"".join(blocks) == data
+    assert all(b.endswith(b"\n") for b in blocks[:-1])
+    assert copy.getvalue() == data and sha.hexdigest() == hashlib.sha256(data).hexdigest()

@@ -101,25 +101,35 @@ class Progress:
         sys.stderr.flush()
 
 
-def _blocks(fh: BinaryIO, size: int, copy: BinaryIO | None, sha: Any) -> Iterator[bytes]:
-    """The file's bytes in blocks cut after a line end; every byte hashed and copied once."""
-    carry = b""
+def _blocks(fh: BinaryIO, size: int, copy: BinaryIO | None, sha: Any) -> Iterator[memoryview]:
+    """The file's bytes in blocks cut after a line end; every byte hashed and copied once.
+
+    Read into one reused buffer; each block is a view of it, valid until the next one
+    (the parser copies what it keeps); the unfinished last line moves to the front.
+    """
+    buf = bytearray(2 * size)
+    view, carry = memoryview(buf), 0
     while True:
-        data = fh.read(size)
-        if not data:
+        if len(buf) - carry < size:  # a line longer than a block: a larger buffer
+            grown = bytearray(len(buf) + size)
+            grown[:carry] = view[:carry]
+            buf, view = grown, memoryview(grown)
+        got = fh.readinto(view[carry : carry + size])
+        if not got:
             if carry:
-                yield carry
+                yield view[:carry]
             return
-        sha.update(data)
+        sha.update(view[carry : carry + got])
         if copy is not None:
-            copy.write(data)
-        data = carry + data
-        cut = data.rfind(b"\n") + 1
+            copy.write(view[carry : carry + got])
+        end = carry + got
+        cut = buf.rfind(b"\n", 0, end) + 1
         if cut == 0:
-            carry = data
+            carry = end
             continue
-        carry = data[cut:]
-        yield data[:cut]
+        yield view[:cut]
+        buf[: end - cut] = view[cut:end]
+        carry = end - cut
 
 
 def stream_csv(
@@ -179,12 +189,12 @@ def stream_csv(
         done = len(head)
         for text in _blocks(fh, block_bytes(memory_limit), copy, sha):
             done += len(text)
-            if not text.strip():
-                continue
             try:
                 table = pacsv.read_csv(pa.py_buffer(text), read, parse, convert)
             except pa.ArrowInvalid as exc:
                 raise IngestError(f"cannot parse the file: {exc}", file=path) from None
+            if table.num_rows == 0:  # blank lines only
+                continue
             chunk = _chunk(table, layout, fmt, iso, rows, path, last_t)
             last_t = float(chunk["t"][-1])
             writer.write_table(_table(chunk, label, schema))
@@ -284,8 +294,10 @@ def samples_chunks(samples: Path, memory_limit: int) -> Iterator[tuple]:
     """The streamed samples back from their Parquet as (None, gyr, acc) chunks (the solve's
     second pass needs no time)."""
     cols = [*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]
-    for b in pq.ParquetFile(samples).iter_batches(batch_size=batch_rows(memory_limit),
-                                                  columns=cols):  # fmt: skip
+    # pre_buffer off: with it, the batches' buffers of the whole file stay allocated
+    # until the iteration ends (memory growing with the record).
+    reader = pq.ParquetFile(samples, pre_buffer=False)
+    for b in reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols):
         v = [_float_values(b.column(i)) for i in range(6)]
         yield None, np.column_stack(v[:3]), np.column_stack(v[3:])
 
