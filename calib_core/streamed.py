@@ -310,16 +310,17 @@ class StreamedAllan:
     def _add(self, k: int, m: int, window: np.ndarray, g0: int, j0: int, j1: int) -> None:
         """Add the squared second differences ending in rows j0..j1-1 for cluster size m."""
         lo = max(j0, 2 * m)
-        now = window[lo - g0 : j1 - g0]
         if lo - 2 * m >= g0:
-            one = window[lo - m - g0 : j1 - m - g0]
-            two = window[lo - 2 * m - g0 : j1 - 2 * m - g0]
+            # First differences at lag m over the rows lo-m..j1, then their differences:
+            # two passes where theta_{k+2m} - 2 theta_{k+m} + theta_k takes three.
+            span = window[lo - 2 * m - g0 : j1 - g0]
+            e = np.subtract(span[m:], span[:-m])
+            d = np.subtract(e[m:], e[:-m], out=e[: e.shape[0] - m])
         else:
             one = self.history.read(lo - m, j1 - m)
-            two = self.history.read(lo - 2 * m, j1 - 2 * m)
-        d = np.subtract(now, one)  # theta_{k+2m} - 2 theta_{k+m} + theta_k, in place
-        d -= one
-        d += two
+            d = np.subtract(window[lo - g0 : j1 - g0], one)
+            d -= one
+            d += self.history.read(lo - 2 * m, j1 - 2 * m)
         self.sums[k] += np.einsum("ij,ij->j", d, d)
 
     def result(self) -> AllanResult:
