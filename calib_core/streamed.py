@@ -16,16 +16,13 @@ Same numbers as the in-memory path to rounding (tests/test_streamed.py).
 
 from __future__ import annotations
 
-import os
 from collections import Counter
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterable
 from typing import Protocol
 
 import numpy as np
 
 from calib_core.noise import AllanResult, allan_result, cluster_sizes
-
-PARALLEL_ROWS = 1 << 16  # a chunk this long is worth the threads
 
 
 class Moments:
@@ -249,8 +246,9 @@ class StreamedAllan:
         lagged rows from `history`.
     history : `History` of every phase row, needed only when 2 m > memory_rows for
         some m; default `ListHistory` (in memory).
-    workers : threads sharing the cluster sizes of a large chunk (default: the cores, at
-        most 4); the sums do not depend on it.
+    map_ : how the cluster sizes of a chunk are run: the builtin `map` (one after the
+        other) or a thread pool's `map` (NumPy releases the GIL on whole-array work, so
+        they share the cores); the sums do not depend on it.
     """
 
     def __init__(
@@ -263,7 +261,7 @@ class StreamedAllan:
         offset: np.ndarray | None = None,
         memory_rows: int = 1 << 20,
         history: History | None = None,
-        workers: int | None = None,
+        map_: Callable[[Callable, Iterable], Iterable] = map,
     ):
         if not rate_hz > 0:
             raise ValueError(f"streamed Allan deviation: rate_hz must be > 0, got {rate_hz}")
@@ -276,7 +274,7 @@ class StreamedAllan:
         self.sums = np.zeros((self.m.size, channels))
         self._tail = np.zeros((1, channels))  # theta_0 = 0
         self._j = 1  # phase rows seen (theta has N + 1)
-        self.workers = min(os.cpu_count() or 1, 4) if workers is None else workers
+        self.map = map_
         if self.spills:
             self.history.append(self._tail)
 
@@ -297,13 +295,8 @@ class StreamedAllan:
         window = np.concatenate([self._tail, theta])
         g0 = j0 - self._tail.shape[0]  # global index of window[0]
         todo = [(k, int(m)) for k, m in enumerate(self.m) if max(j0, 2 * m) < j1]
-        if self.workers > 1 and x.shape[0] >= PARALLEL_ROWS:
-            # NumPy releases the GIL on whole-array work: the cluster sizes share the cores.
-            with ThreadPoolExecutor(self.workers) as pool:
-                list(pool.map(lambda km: self._add(km[0], km[1], window, g0, j0, j1), todo))
-        else:
-            for k, m in todo:
-                self._add(k, m, window, g0, j0, j1)
+        for _ in self.map(lambda km: self._add(km[0], km[1], window, g0, j0, j1), todo):
+            pass
         self._tail = window[-self.keep_rows :]  # a view: the window lives until the next push
         self._j = j1
 

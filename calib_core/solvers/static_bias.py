@@ -78,9 +78,7 @@ def _up_vector(up_axis: str) -> np.ndarray:
     return e
 
 
-def _channel_stats(
-    x: np.ndarray, rate_hz: float, n_sigma: float, taus
-) -> tuple:
+def _kept_stats(x: np.ndarray, rate_hz: float, n_sigma: float, taus) -> tuple:
     """mean, std, outlier counts, Allan result of (N, 3) samples: the outlier rule's kept
     samples' mean and std, the Allan deviation of the record with its rejected samples
     interpolated over."""
@@ -89,6 +87,13 @@ def _channel_stats(
     mean = np.array([x[keep[:, c], c].mean() for c in range(3)])
     std = np.array([x[keep[:, c], c].std(ddof=1) for c in range(3)])
     return mean, std, counts, allan_deviation(_fill(x, keep), rate_hz, taus)
+
+
+def _channel_stats(x: np.ndarray, rate_hz: float, n_sigma: float, taus) -> tuple:
+    """mean, std, outlier counts, Allan result, noise parameters, u(mean), fit misfits and
+    warnings (None or text, per channel) of (N, 3) samples (`choose_noise_fit`)."""
+    mean, std, counts, allan = _kept_stats(x, rate_hz, n_sigma, taus)
+    return (mean, std, counts, allan, *_noise_stats(allan, std, x.shape[0], rate_hz))
 
 
 def _noise_stats(allan, std: np.ndarray, n: int, rate_hz: float) -> tuple:
@@ -178,7 +183,7 @@ def solve_static_bias(
     )
     rate_hz = rec.sample_rate
     stats = {
-        sensor: _channel_stats(np.asarray(x, dtype=float), rate_hz, n_sigma, taus)
+        sensor: _kept_stats(np.asarray(x, dtype=float), rate_hz, n_sigma, taus)
         for sensor, x in (("gyr", rec.gyr), ("acc", rec.acc))
     }
     return static_bias_calibration(

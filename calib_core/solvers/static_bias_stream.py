@@ -71,6 +71,7 @@ def solve_static_bias_stream(
     taus: str | np.ndarray = "octave",
     memory_rows: int = 1 << 20,
     history: History | None = None,
+    map_: Callable = map,
 ) -> Calibration:
     """`calib_core.solvers.static_bias.solve_static_bias` on a streamed record.
 
@@ -80,8 +81,8 @@ def solve_static_bias_stream(
         may be None when `first` is given: the second pass needs no time).
     label : the record's label (checks name it).
     first : the first pass's statistics if the caller has them (else one more pass).
-    memory_rows, history : the Allan deviation's phase rows in memory and where the
-        longer lags are read (`calib_core.streamed.StreamedAllan`).
+    memory_rows, history, map_ : the Allan deviation's phase rows in memory, where the
+        longer lags are read and how its cluster sizes run (`calib_core.streamed.StreamedAllan`).
     Other parameters as `solve_static_bias`.
 
     Returns
@@ -97,7 +98,8 @@ def solve_static_bias_stream(
     mean = first.moments.mean
     clip = SigmaClipFill(mean, first.moments.std(), n_sigma)
     allan = StreamedAllan(
-        rate_hz, n, 6, taus=taus, offset=mean, memory_rows=memory_rows, history=history
+        rate_hz, n, 6, taus=taus, offset=mean, memory_rows=memory_rows, history=history,
+        map_=map_,
     )
     for _, gyr, acc in chunks():
         allan.push(clip.push(np.hstack([gyr, acc])))

@@ -23,6 +23,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -322,14 +323,17 @@ def solve_streamed(
     Returns the Calibration, its checks saying what the streamed route did not compute.
     """
     history = FileHistory(streamed.samples.parent)
+    # The Allan deviation's cluster sizes share the cores (NumPy releases the GIL).
+    pool = ThreadPoolExecutor(min(os.cpu_count() or 1, 4))
     try:
         cal = solve_static_bias_stream(
             lambda: samples_chunks(streamed.samples, memory_limit),
             label=label, first=streamed.first, gravity=gravity, history=history,
-            memory_rows=4 * batch_rows(memory_limit),
+            memory_rows=4 * batch_rows(memory_limit), map_=pool.map,
             **{k: v for k, v in settings.items() if v is not None},
         )  # fmt: skip
     finally:
+        pool.shutdown()
         history.close()
     cal.info.setdefault("solver_checks", []).append(dict(NOT_STREAMED, name=f"motion:{label}"))
     return cal
