@@ -167,14 +167,33 @@ def allan_deviation(
     for k, mk in enumerate(m):
         d = theta[2 * mk :] - 2.0 * theta[mk:-mk] + theta[: -2 * mk]
         avar[k] = np.einsum("i...,i...->...", d, d) / (2.0 * (n + 1 - 2 * mk))
+    return allan_result(m, avar, n, rate_hz)
+
+
+def allan_result(m: np.ndarray, avar: np.ndarray, n_samples: int, rate_hz: float) -> AllanResult:
+    """The AllanResult of cluster sizes `m` and their sums of squared second differences.
+
+    Parameters
+    ----------
+    m : (K,) cluster sizes, samples.
+    avar : (K,) or (K, C) sum of (theta_{k+2m} - 2 theta_{k+m} + theta_k)^2 over k divided by
+        2 (N + 1 - 2m), theta in (unit) s (divided in place by tau^2 here).
+    n_samples : N.
+    rate_hz : sample rate, Hz.
+
+    Shared by `allan_deviation` and the streamed Allan deviation (`calib_core.streamed`),
+    so both give the same taus, intervals and degrees of freedom.
+    """
+    n = n_samples
     taus_s = m / rate_hz
-    avar /= (taus_s**2).reshape((-1,) + (1,) * (x.ndim - 1))
+    extra = (1,) * (avar.ndim - 1)
+    avar /= (taus_s**2).reshape((-1,) + extra)
     adev = np.sqrt(avar)
 
     edf = white_noise_edf(n, m)
     lo_q = chi2_ppf(0.5 + _ONE_SIGMA / 2.0, edf)
     hi_q = chi2_ppf(0.5 - _ONE_SIGMA / 2.0, edf)
-    shape = (-1,) + (1,) * (x.ndim - 1)
+    shape = (-1,) + extra
     ci_low = adev * np.sqrt(edf / lo_q).reshape(shape)
     ci_high = adev * np.sqrt(edf / hi_q).reshape(shape)
     return AllanResult(

@@ -411,27 +411,10 @@ def write_samples(
         if col in table.column_names:
             raise ValueError(f"samples table: column {col!r} is the partition key, remove it")
     path = samples_path(root, serial, date, run_id)
-    delta_cols = [
-        f.name for f in table.schema if pa.types.is_int64(f.type) or pa.types.is_timestamp(f.type)
-    ]
-    split_cols = [f.name for f in table.schema if pa.types.is_floating(f.type)]
-
     # Written in memory first: the bytes are hashed there, not read back from the file.
     sink = pa.BufferOutputStream()
     try:
-        pq.write_table(
-            table,
-            sink,
-            compression="zstd",
-            compression_level=ZSTD_LEVEL,
-            use_dictionary=[
-                c for c in table.column_names if c not in delta_cols and c not in split_cols
-            ],
-            column_encoding={
-                **dict.fromkeys(delta_cols, "DELTA_BINARY_PACKED"),
-                **dict.fromkeys(split_cols, "BYTE_STREAM_SPLIT"),
-            },
-        )
+        pq.write_table(table, sink, **samples_parquet_options(table.schema))
     except (pa.ArrowNotImplementedError, pa.ArrowInvalid):
         # An older pyarrow without that encoding: plain zstd is still correct.
         sink = pa.BufferOutputStream()
@@ -439,6 +422,24 @@ def write_samples(
     data = sink.getvalue()
     pending.write_bytes(path, data)
     return path, hashlib.sha256(data).hexdigest()
+
+
+def samples_parquet_options(schema: pa.Schema) -> dict:
+    """The Parquet writer options of archived samples (`write_samples`; a streamed record's
+    ``pq.ParquetWriter`` takes the same)."""
+    delta_cols = [
+        f.name for f in schema if pa.types.is_int64(f.type) or pa.types.is_timestamp(f.type)
+    ]
+    split_cols = [f.name for f in schema if pa.types.is_floating(f.type)]
+    return {
+        "compression": "zstd",
+        "compression_level": ZSTD_LEVEL,
+        "use_dictionary": [c for c in schema.names if c not in delta_cols and c not in split_cols],
+        "column_encoding": {
+            **dict.fromkeys(delta_cols, "DELTA_BINARY_PACKED"),
+            **dict.fromkeys(split_cols, "BYTE_STREAM_SPLIT"),
+        },
+    }
 
 
 def read_samples(root: Path, serial: str | None = None) -> pa.Table:

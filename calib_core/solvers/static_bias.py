@@ -78,26 +78,37 @@ def _up_vector(up_axis: str) -> np.ndarray:
     return e
 
 
-def _channel_stats(
-    x: np.ndarray, rate_hz: float, n_sigma: float, taus
-) -> tuple:
-    """mean, std, outlier counts, Allan result, noise parameters, u(mean), fit misfits and
-    warnings (None or text, per channel) of (N, 3) samples (`choose_noise_fit`)."""
+def _kept_stats(x: np.ndarray, rate_hz: float, n_sigma: float, taus) -> tuple:
+    """mean, std, outlier counts, Allan result of (N, 3) samples: the outlier rule's kept
+    samples' mean and std, the Allan deviation of the record with its rejected samples
+    interpolated over."""
     keep = sigma_clip(x, n_sigma)
     counts = (~keep).sum(axis=0)
     mean = np.array([x[keep[:, c], c].mean() for c in range(3)])
     std = np.array([x[keep[:, c], c].std(ddof=1) for c in range(3)])
-    allan = allan_deviation(_fill(x, keep), rate_hz, taus)
-    duration = x.shape[0] / rate_hz
+    return mean, std, counts, allan_deviation(_fill(x, keep), rate_hz, taus)
+
+
+def _channel_stats(x: np.ndarray, rate_hz: float, n_sigma: float, taus) -> tuple:
+    """mean, std, outlier counts, Allan result, noise parameters, u(mean), fit misfits and
+    warnings (None or text, per channel) of (N, 3) samples (`choose_noise_fit`)."""
+    mean, std, counts, allan = _kept_stats(x, rate_hz, n_sigma, taus)
+    return (mean, std, counts, allan, *_noise_stats(allan, std, x.shape[0], rate_hz))
+
+
+def _noise_stats(allan, std: np.ndarray, n: int, rate_hz: float) -> tuple:
+    """noise parameters, u(mean), fit misfits and warnings (None or text, per channel) of
+    one sensor's Allan result (`choose_noise_fit`)."""
+    duration = n / rate_hz
     chosen = [choose_noise_fit(allan.column(c)) for c in range(3)]
     noise = [c[0] for c in chosen]
     misfits = [c[1] for c in chosen]
     warnings = [c[2] for c in chosen]
-    sem_white = std / math.sqrt(x.shape[0])
+    sem_white = std / math.sqrt(n)
     u = np.array([float(p.adev_model(duration)) for p in noise])
     # A fit that found no noise at all (constant data) still has the white-noise floor.
     u = np.where(np.isfinite(u) & (u > 0), u, sem_white)
-    return mean, std, counts, allan, noise, u, misfits, warnings
+    return noise, u, misfits, warnings
 
 
 def _earth_rate(
@@ -170,16 +181,46 @@ def solve_static_bias(
     earth = _earth_rate(
         where, len(rec), n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis
     )
-
     rate_hz = rec.sample_rate
+    stats = {
+        sensor: _kept_stats(np.asarray(x, dtype=float), rate_hz, n_sigma, taus)
+        for sensor, x in (("gyr", rec.gyr), ("acc", rec.acc))
+    }
+    return static_bias_calibration(
+        stats, len(rec), rate_hz, rec.label or "record", earth, n_sigma=n_sigma,
+        latitude_deg=latitude_deg, heading_deg=heading_deg, up_axis=up_axis, gravity=gravity,
+    )  # fmt: skip
+
+
+def static_bias_calibration(
+    stats: dict[str, tuple],
+    n: int,
+    rate_hz: float,
+    label: str,
+    earth: np.ndarray,
+    *,
+    n_sigma: float,
+    latitude_deg: float | None,
+    heading_deg: float | None,
+    up_axis: str | None,
+    gravity: float,
+) -> Calibration:
+    """The static-bias Calibration from each sensor's statistics, however they were computed
+    (one array: `solve_static_bias`; a stream: `calib_core.solvers.static_bias_stream`).
+
+    stats : {"gyr": ..., "acc": ...}, each (mean (3,), std (3,) ddof 1, outlier counts (3,),
+        AllanResult (K, 3)) of the kept samples (the n-sigma rule).
+    n : samples; rate_hz : median sample rate, Hz; label : the record's label;
+    earth : Earth rate removed from the gyro means, rad/s (3,).
+    """
     cal = Calibration(procedure="static_bias", gravity=float(gravity))
-    duration = len(rec) / rate_hz  # samples x period (t[-1] - t[0] is one period short)
+    duration = n / rate_hz  # samples x period (t[-1] - t[0] is one period short)
     if duration < MIN_DURATION_S - 0.5 / rate_hz:  # half a sample of rounding slack
         cal.warnings.append(
             f"static record is {duration / 60:.1f} min long; the procedure asks for >= 60 min"
         )
     info: dict = {
-        "n_samples": len(rec),
+        "n_samples": n,
         "duration_s": duration,
         "sample_rate_hz": rate_hz,
         "n_sigma": n_sigma,
@@ -192,12 +233,10 @@ def solve_static_bias(
         "outliers": {},
     }
     checks: list[dict] = []
-    sensors = [("gyr", rec.gyr, earth)]
-    sensors.append(("acc", rec.acc, None if up_axis is None else gravity * _up_vector(up_axis)))
-    for sensor, x, reference in sensors:
-        mean, std, counts, allan, noise, u, misfits, warns = _channel_stats(
-            np.asarray(x, dtype=float), rate_hz, n_sigma, taus
-        )
+    references = {"gyr": earth, "acc": None if up_axis is None else gravity * _up_vector(up_axis)}
+    for sensor, reference in references.items():
+        mean, std, counts, allan = stats[sensor]
+        noise, u, misfits, warns = _noise_stats(allan, std, n, rate_hz)
         cal.warnings += [f"{sensor}.{a}: {w}" for a, w in zip(AXES, warns, strict=True) if w]
         worst = [m["misfit_max"] for m in misfits if m["misfit_max"] is not None]
         # A scalar: it goes into the solve step's record (statistics).
@@ -218,15 +257,15 @@ def solve_static_bias(
         ]
         checks += _undetermined_checks(sensor, terms)
         info["outliers"][sensor] = counts.tolist()
-        if counts.max() > 0.01 * len(rec):
+        if counts.max() > 0.01 * n:
             cal.warnings.append(
-                f"{sensor}: {counts.max()} samples ({100 * counts.max() / len(rec):.1f} %) outside "
+                f"{sensor}: {counts.max()} samples ({100 * counts.max() / n:.1f} %) outside "
                 f"{n_sigma} sigma in one channel; expected ~0.3 % for Gaussian noise"
             )
     cal.info.update(info)
     clipped = {f"{sensor}.{a}": int(n) for sensor, counts in info["outliers"].items()
                for a, n in zip(AXES, counts, strict=True)}  # fmt: skip
-    checks.append(replaced_check("static_bias", rec.label or "record", clipped, 6 * len(rec),
+    checks.append(replaced_check("static_bias", label, clipped, 6 * n,
                                  2.0 * float(norm_sf(n_sigma)), "left out"))  # fmt: skip
     cal.info.setdefault("replaced_samples", {})["static_bias"] = clipped
     cal.info.setdefault("solver_checks", []).extend(checks)

@@ -1,0 +1,119 @@
+"""The static-bias solve from a record streamed in chunks: `solve_static_bias`'s numbers
+without the whole record in memory.
+
+Two passes over the chunks: the first gives the count, mean and std of every channel
+(skipped when the caller computed them while reading the file) and the median time step;
+the second applies the n-sigma rule with those, keeps the kept samples' moments and
+streams the outlier-filled record into the Allan deviation (`calib_core.streamed`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.calibration import Calibration
+from calib_core.solvers.static_bias import _earth_rate, static_bias_calibration
+from calib_core.streamed import History, MedianStep, Moments, SigmaClipFill, StreamedAllan, columns
+from calib_core.units import STANDARD_GRAVITY
+
+# One chunk: t (n,) s, gyr (n, 3) rad/s, acc (n, 3) m/s^2.
+Chunk = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+@dataclass
+class FirstPass:
+    """What the first pass over a static record keeps: moments of [gyr | acc] and the
+    median time step (`MedianStep`)."""
+
+    moments: Moments
+    step: MedianStep
+
+    @classmethod
+    def empty(cls) -> FirstPass:
+        return cls(Moments(6), MedianStep())
+
+    def push(self, chunk: Chunk) -> None:
+        t, gyr, acc = chunk
+        # [gyr | acc] without a copy when the reader made them views of one (n, 6) array
+        both = gyr.base if gyr.base is not None and gyr.base is acc.base else None
+        if both is None or both.shape != (gyr.shape[0], 6):
+            both = np.hstack([gyr, acc])
+        self.moments.push(both)
+        self.step.push(t)
+
+    @property
+    def n(self) -> int:
+        return int(self.moments.n[0])
+
+
+def first_pass(chunks: Iterable[Chunk]) -> FirstPass:
+    """Moments and time steps of a stream of chunks."""
+    out = FirstPass.empty()
+    for chunk in chunks:
+        out.push(chunk)
+    return out
+
+
+def solve_static_bias_stream(
+    chunks: Callable[[], Iterator[Chunk]],
+    *,
+    label: str = "record",
+    first: FirstPass | None = None,
+    latitude_deg: float | None = None,
+    heading_deg: float | None = None,
+    remove_earth_rate: bool = False,
+    n_sigma: float = 3.0,
+    up_axis: str | None = None,
+    gravity: float = STANDARD_GRAVITY,
+    taus: str | np.ndarray = "octave",
+    memory_rows: int = 1 << 20,
+    history: History | None = None,
+    map_: Callable = map,
+) -> Calibration:
+    """`calib_core.solvers.static_bias.solve_static_bias` on a streamed record.
+
+    Parameters
+    ----------
+    chunks : called once per pass, a fresh iterator of (t, gyr, acc) chunks, in order (t
+        may be None when `first` is given: the second pass needs no time).
+    label : the record's label (checks name it).
+    first : the first pass's statistics if the caller has them (else one more pass).
+    memory_rows, history, map_ : the Allan deviation's phase rows in memory, where the
+        longer lags are read and how its cluster sizes run (`calib_core.streamed.StreamedAllan`).
+    Other parameters as `solve_static_bias`.
+
+    Returns
+    -------
+    The same Calibration as `solve_static_bias` on the whole record, to rounding.
+    """
+    first = first if first is not None else first_pass(chunks())
+    n = first.n
+    earth = _earth_rate(
+        label, n, n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis
+    )
+    rate_hz = 1.0 / first.step.median()
+    mean = first.moments.mean
+    clip = SigmaClipFill(mean, first.moments.std(), n_sigma)
+    allan = StreamedAllan(
+        rate_hz, n, 6, taus=taus, offset=mean, memory_rows=memory_rows, history=history,
+        map_=map_,
+    )
+    for _, gyr, acc in chunks():
+        allan.push(clip.push(np.hstack([gyr, acc])))
+    allan.push(clip.flush())
+    result = allan.result()
+    kept = clip.kept
+    std = kept.std(ddof=1)
+    stats = {
+        sensor: (kept.mean[cols], std[cols], clip.rejected[cols], columns(result, cols))
+        for sensor, cols in (("gyr", slice(0, 3)), ("acc", slice(3, 6)))
+    }
+    cal = static_bias_calibration(
+        stats, n, rate_hz, label, earth, n_sigma=n_sigma, latitude_deg=latitude_deg,
+        heading_deg=heading_deg, up_axis=up_axis, gravity=gravity,
+    )  # fmt: skip
+    cal.info["streamed"] = True
+    return cal

@@ -1,0 +1,339 @@
+"""A long static record from delimited text in bounded memory, and its static-bias solve.
+
+`stream_csv` reads the file once, block by block: each block's bytes are hashed and
+copied (the raw copy), its complete lines parsed by pyarrow into SI samples (the
+column plan and units of `csv_reader`), written as a row group of the samples'
+Parquet (`storage.rawstore.samples_parquet_options`) and added to the first-pass
+statistics (`calib_core.solvers.static_bias_stream.FirstPass`). `solve_streamed` then
+reads the Parquet back in batches for the static-bias solve's second pass; the Allan
+deviation's long lags come from a phase file (`FileHistory`). Memory stays bounded by
+`memory_limit` whatever the record's length; progress (bytes, samples, rate, time left)
+goes to stderr on long reads.
+
+What the streamed route does not compute is said in its checks: the motion check of
+static records (`calib_core.preprocess.motion`) needs the windows' trimmed variances
+against the quietest quarter, which this route does not keep (`NOT_STREAMED`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+
+from calib_core.calibration import Calibration
+from calib_core.solvers.static_bias_stream import FirstPass, solve_static_bias_stream
+from pipelines.ingest.csv_layout import AXES, header_units, layout_of
+from pipelines.ingest.csv_reader import (
+    PROGRESS_THRESHOLD_BYTES,
+    _celsius,
+    _float_values,
+    _iso_seconds,
+    _to_si,
+    seconds,
+)
+from pipelines.ingest.data_format import FormatSpec
+from pipelines.ingest.errors import IngestError
+from storage.rawstore import samples_parquet_options
+
+DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: the `memory_limit` setting's default
+ROW_BYTES = 8 * 8  # t, 6 channels, temp as float64
+NOT_STREAMED = {
+    "name": "motion:record",
+    "value": None,
+    "limit": None,
+    "passed": None,
+    "detail": "not done: the record was streamed (larger than the memory limit) and the "
+    "motion check of static records needs it in memory",
+}
+SAMPLE_COLUMNS = ("t", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z", "temp")
+
+
+def block_bytes(memory_limit: int) -> int:
+    """Text per parsed block: a 32nd of the limit (the block, its parse, its arrays and
+    the Parquet writer's buffers several times over), between 64 kB and 64 MB."""
+    return int(min(max(memory_limit // 32, 64 << 10), 64 << 20))
+
+
+@dataclass
+class Streamed:
+    """What one pass over a data file gave: its hash and size, the samples' Parquet,
+    the first-pass statistics."""
+
+    sha256: str
+    size: int
+    samples: Path
+    first: FirstPass
+    seconds: float
+
+
+class Progress:
+    """Bytes, samples, rate and time left on one stderr line, at most once a second."""
+
+    def __init__(self, name: str, size: int, show: bool):
+        self.name, self.size, self.show = name, size, show
+        self.started = self.last = time.monotonic()
+
+    def update(self, done: int, samples: int, final: bool = False) -> None:
+        now = time.monotonic()
+        if not self.show or (now - self.last < 1.0 and not final):
+            return
+        self.last = now
+        rate = done / max(now - self.started, 1e-9)
+        left = (self.size - done) / rate if rate > 0 else float("nan")
+        sys.stderr.write(
+            f"\rreading {self.name}: {done / 1e6:,.0f} / {self.size / 1e6:,.0f} MB, "
+            f"{samples:,} samples, {rate / 1e6:.0f} MB/s, {left:.0f} s left "
+            + ("\n" if final else "")
+        )
+        sys.stderr.flush()
+
+
+def _blocks(fh: BinaryIO, size: int, copy: BinaryIO | None, sha: Any) -> Iterator[memoryview]:
+    """The file's bytes in blocks cut after a line end; every byte hashed and copied once.
+
+    Read into one reused buffer; each block is a view of it, valid until the next one
+    (the parser copies what it keeps); the unfinished last line moves to the front.
+    """
+    buf = bytearray(2 * size)
+    view, carry = memoryview(buf), 0
+    while True:
+        if len(buf) - carry < size:  # a line longer than a block: a larger buffer
+            grown = bytearray(len(buf) + size)
+            grown[:carry] = view[:carry]
+            buf, view = grown, memoryview(grown)
+        got = fh.readinto(view[carry : carry + size])
+        if not got:
+            if carry:
+                yield view[:carry]
+            return
+        sha.update(view[carry : carry + got])
+        if copy is not None:
+            copy.write(view[carry : carry + got])
+        end = carry + got
+        cut = buf.rfind(b"\n", 0, end) + 1
+        if cut == 0:
+            carry = end
+            continue
+        yield view[:cut]
+        buf[: end - cut] = view[cut:end]
+        carry = end - cut
+
+
+def stream_csv(
+    path: Path,
+    fmt: FormatSpec,
+    samples: Path,
+    *,
+    copy_to: Path | None = None,
+    label: str = "record",
+    memory_limit: int = DEFAULT_MEMORY_LIMIT,
+    progress: bool | None = None,
+) -> Streamed:
+    """One pass over a delimited text file: hash, raw copy, samples' Parquet, statistics.
+
+    Parameters
+    ----------
+    path : the data file (delimited text with a time column or a sample rate; one record).
+    fmt : the manifest's format section (as `csv_reader.read_csv`).
+    samples : the Parquet file to write (columns segment, t, acc_*, gyr_*, temp; SI).
+    copy_to : where the raw bytes are copied (None: not copied).
+    label : the segment label of every row.
+    memory_limit : bytes; sets the block size.
+    progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
+
+    Raises
+    ------
+    IngestError naming the file and the line where time stops increasing or a value is
+    not a finite number.
+    """
+    started = time.perf_counter()
+    path = Path(path)
+    layout = layout_of(path, fmt, sections=False)
+    if layout.delimiter == "whitespace" or "section" in layout.roles:
+        raise IngestError("the streamed route reads delimited text of one record only", file=path)
+    fmt = header_units(layout, fmt)
+    iso = layout.roles.get("time") if fmt.time_unit == "iso" else None
+    columns = list(dict.fromkeys(layout.roles.values()))
+    types = {c: (pa.string() if c == iso else pa.float64()) for c in columns}
+    read = pacsv.ReadOptions(column_names=layout.names, encoding="utf8")
+    parse = pacsv.ParseOptions(delimiter=layout.delimiter)
+    convert = pacsv.ConvertOptions(
+        include_columns=columns, column_types=types, decimal_point=layout.decimal
+    )
+    size = path.stat().st_size
+    show = size > PROGRESS_THRESHOLD_BYTES if progress is None else progress
+    bar = Progress(path.name, size, show)
+    sha, first = hashlib.sha256(), FirstPass.empty()
+    rows, last_t, done = 0, None, 0
+    schema = pa.schema([("segment", pa.string())] + [(c, pa.float64()) for c in SAMPLE_COLUMNS])
+    with path.open("rb") as fh, pq.ParquetWriter(
+        samples, schema, **samples_parquet_options(schema)
+    ) as writer, (copy_to.open("wb") if copy_to is not None else nullcontext()) as copy:
+        head = b"".join(fh.readline() for _ in range(layout.data_start - 1))
+        sha.update(head)
+        if copy is not None:
+            copy.write(head)
+        done = len(head)
+        for text in _blocks(fh, block_bytes(memory_limit), copy, sha):
+            done += len(text)
+            try:
+                table = pacsv.read_csv(pa.py_buffer(text), read, parse, convert)
+            except pa.ArrowInvalid as exc:
+                raise IngestError(f"cannot parse the file: {exc}", file=path) from None
+            if table.num_rows == 0:  # blank lines only
+                continue
+            chunk = _chunk(table, layout, fmt, iso, rows, path, last_t)
+            last_t = float(chunk["t"][-1])
+            writer.write_table(_table(chunk, label, schema))
+            first.push((chunk["t"], chunk["gyr"], chunk["acc"]))
+            rows += len(chunk["t"])
+            bar.update(done, rows)
+    bar.update(done, rows, final=True)
+    if rows == 0:
+        raise IngestError("no data rows", file=path)
+    return Streamed(sha.hexdigest(), size, Path(samples), first, time.perf_counter() - started)
+
+
+def _chunk(table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path,
+           last_t: float | None) -> dict[str, np.ndarray]:  # fmt: skip
+    """One block's samples in SI: t (n,), acc and gyr (n, 3), temp (n,) (NaN if none)."""
+    n = table.num_rows
+    values: dict[str, np.ndarray] = {}
+    for role, name in layout.roles.items():
+        col = table.column(name).combine_chunks()
+        v = _iso_seconds(col) if name == iso else _float_values(col)
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            raise IngestError(
+                "expected a finite number", file=path, line=layout.line_of_row(rows + int(bad[0])),
+                field=layout.fields[name],
+            )  # fmt: skip
+        values[role] = v
+    both = np.empty((n, 6))  # [gyr | acc]: the first pass takes it without a copy
+    for i, role in enumerate([*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]):
+        both[:, i] = values[role]
+    gyr = _to_si(both[:, :3], "gyr", fmt)
+    acc = _to_si(both[:, 3:], "acc", fmt)
+    if "time" in values:
+        t = values["time"]
+        if fmt.time_unit == "samples":
+            t = t / fmt.sample_rate_hz
+        elif fmt.time_unit != "iso":
+            t = seconds(t, fmt.time_unit)
+    else:
+        t = (rows + np.arange(n)) / fmt.sample_rate_hz
+    steps = np.diff(t, prepend=-np.inf if last_t is None else last_t)
+    if (steps <= 0).any():
+        row = rows + int(np.flatnonzero(steps <= 0)[0])
+        field = layout.fields.get(layout.roles.get("time", ""), "time")
+        raise IngestError("time must increase", file=path, line=layout.line_of_row(row),
+                          field=field)  # fmt: skip
+    temp = _celsius(layout, values.get("temp"))
+    return {"t": t, "acc": acc, "gyr": gyr, "temp": np.full(n, np.nan) if temp is None else temp}
+
+
+def _table(chunk: dict[str, np.ndarray], label: str, schema: pa.Schema) -> pa.Table:
+    n = len(chunk["t"])
+    cols: dict[str, Any] = {"segment": _labels(label, n)}
+    cols["t"] = chunk["t"]
+    for i, a in enumerate(AXES):
+        cols[f"acc_{a}"] = chunk["acc"][:, i]
+        cols[f"gyr_{a}"] = chunk["gyr"][:, i]
+    cols["temp"] = chunk["temp"]
+    return pa.table(cols, schema=schema)
+
+
+def _labels(label: str, n: int) -> pa.Array:
+    """`label` n times as an Arrow string array, from one bytes repeat and its offsets."""
+    b = label.encode()
+    offsets = np.arange(n + 1, dtype=np.int64) * len(b)
+    kind = pa.string() if offsets[-1] <= np.iinfo(np.int32).max else pa.large_string()
+    if kind == pa.string():
+        offsets = offsets.astype(np.int32)
+    arr = pa.Array.from_buffers(kind, n, [None, pa.py_buffer(offsets), pa.py_buffer(b * n)])
+    return arr if kind == pa.string() else arr.cast(pa.string())
+
+
+class FileHistory:
+    """The Allan deviation's phase rows in a temporary file (`calib_core.streamed.History`):
+    the long lags are read back with `os.pread`, so they take no resident memory."""
+
+    def __init__(self, folder: Path | None = None):
+        fd, name = tempfile.mkstemp(prefix="allan-phase-", dir=folder)
+        self.fd, self.path, self.width = fd, Path(name), 0
+        os.unlink(name)  # gone with the descriptor, however the process ends
+
+    def append(self, rows: np.ndarray) -> None:
+        rows = np.ascontiguousarray(rows, dtype=np.float64)
+        self.width = rows.shape[1]
+        os.write(self.fd, rows.tobytes())
+
+    def read(self, start: int, stop: int) -> np.ndarray:
+        row = 8 * self.width
+        data = os.pread(self.fd, (stop - start) * row, start * row)
+        return np.frombuffer(data, dtype=np.float64).reshape(-1, self.width)
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+def samples_chunks(samples: Path, memory_limit: int) -> Iterator[tuple]:
+    """The streamed samples back from their Parquet as (None, gyr, acc) chunks (the solve's
+    second pass needs no time)."""
+    cols = [*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]
+    # pre_buffer off: with it, the batches' buffers of the whole file stay allocated
+    # until the iteration ends (memory growing with the record).
+    reader = pq.ParquetFile(samples, pre_buffer=False)
+    for b in reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols):
+        v = [_float_values(b.column(i)) for i in range(6)]
+        yield None, np.column_stack(v[:3]), np.column_stack(v[3:])
+
+
+def batch_rows(memory_limit: int) -> int:
+    """Rows per batch of the second pass: the batch and its copies (clip, fill, phase,
+    second differences on each thread) several times over within a 16th of the limit."""
+    return max(memory_limit // (16 * 16 * 6 * 8), 1024)
+
+
+def solve_streamed(
+    streamed: Streamed,
+    settings: dict[str, Any],
+    *,
+    label: str = "record",
+    gravity: float,
+    memory_limit: int = DEFAULT_MEMORY_LIMIT,
+) -> Calibration:
+    """The static-bias solve of a streamed record (second pass over its Parquet samples).
+
+    settings : the static-bias settings (up_axis, n_sigma, latitude_deg, ...).
+    Returns the Calibration, its checks saying what the streamed route did not compute.
+    """
+    history = FileHistory(streamed.samples.parent)
+    # The Allan deviation's cluster sizes share the cores (NumPy releases the GIL).
+    pool = ThreadPoolExecutor(min(os.cpu_count() or 1, 4))
+    try:
+        cal = solve_static_bias_stream(
+            lambda: samples_chunks(streamed.samples, memory_limit),
+            label=label, first=streamed.first, gravity=gravity, history=history,
+            memory_rows=4 * batch_rows(memory_limit), map_=pool.map,
+            **{k: v for k, v in settings.items() if v is not None},
+        )  # fmt: skip
+    finally:
+        pool.shutdown()
+        history.close()
+    cal.info.setdefault("solver_checks", []).append(dict(NOT_STREAMED, name=f"motion:{label}"))
+    return cal

@@ -1,0 +1,161 @@
+"""A static record larger than the memory limit, streamed from CSV (pipelines.ingest.csv_stream):
+the same parameters as the in-memory path, its bytes hashed and copied in the same pass,
+its samples in Parquet, the resident memory it adds bounded by the limit."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+import pytest
+
+from calib_core.solvers.static_bias import solve_static_bias
+from pipelines.ingest.csv_reader import read_csv
+from pipelines.ingest.csv_stream import solve_streamed, stream_csv
+from pipelines.ingest.data_format import FormatSpec
+
+RATE = 100.0
+LIMIT = 20 << 20  # bytes: the file is 2.5 times larger
+SETTINGS = {"up_axis": "+z", "n_sigma": 3.0}
+G = 9.80665
+
+
+def write_static_csv(path: Path, n: int, seed: int = 0) -> None:
+    """A still unit at RATE: white noise and a slow gyro random walk, accelerometer z up."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / RATE
+    gyr = rng.normal(0.0, 2e-3, (n, 3)) + [0.01, -0.02, 0.005]
+    gyr += np.cumsum(rng.normal(0.0, 2e-6, (n, 3)), axis=0)
+    acc = rng.normal(0.0, 0.02, (n, 3)) + [0.05, -0.03, G + 0.1]
+    gyr[5000:5003, 1] += 0.5  # a spike: the outlier rule's fill is exercised
+    cols = {"time": t, **{f"acc_{a}": acc[:, i] for i, a in enumerate("xyz")},
+            **{f"gyr_{a}": gyr[:, i] for i, a in enumerate("xyz")}}  # fmt: skip
+    pacsv.write_csv(pa.table(cols), path)
+
+
+@pytest.fixture(scope="module")
+def big_csv(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("long") / "static.csv"
+    write_static_csv(path, 400_000)
+    assert path.stat().st_size > 2 * LIMIT
+    return path
+
+
+FMT = FormatSpec(kind="csv", time_column="time", acc_columns=["acc_x", "acc_y", "acc_z"],
+                 gyr_columns=["gyr_x", "gyr_y", "gyr_z"])  # fmt: skip
+
+
+def test_streamed_record_same_parameters_as_in_memory(big_csv, tmp_path):
+    streamed = stream_csv(big_csv, FMT, tmp_path / "samples.parquet", copy_to=tmp_path / "raw",
+                          memory_limit=LIMIT, progress=False)  # fmt: skip
+    data = big_csv.read_bytes()
+    assert streamed.sha256 == hashlib.sha256(data).hexdigest()
+    assert (tmp_path / "raw").read_bytes() == data
+    rec = read_csv(big_csv, FMT, progress=False)
+    table = pq.read_table(streamed.samples)
+    assert table.num_rows == len(rec)
+    assert np.array_equal(table.column("t").to_numpy(), rec.t)
+    assert np.array_equal(table.column("gyr_y").to_numpy(), rec.gyr[:, 1])
+
+    got = solve_streamed(streamed, SETTINGS, gravity=G, memory_limit=LIMIT)
+    ref = solve_static_bias(rec, gravity=G, **SETTINGS)
+    assert set(got.parameters) == set(ref.parameters)
+    for name, p in ref.parameters.items():
+        q = got.parameters[name]
+        # Chunked sums differ from one pass by rounding (a few ulp, amplified by the
+        # second differences of the Allan deviation): far below any noise here.
+        assert math.isclose(q.value, p.value, rel_tol=1e-9), name
+        if p.std is not None:
+            assert math.isclose(q.std, p.std, rel_tol=1e-6), name
+    assert got.info["outliers"] == ref.info["outliers"]
+    assert got.info["outliers"]["gyr"][1] >= 3
+    motion = [c for c in got.info["solver_checks"] if c["name"].startswith("motion:")]
+    assert motion and motion[0]["passed"] is None and "not done" in motion[0]["detail"]
+
+
+def test_streamed_record_memory_bounded_by_the_limit(big_csv, tmp_path):
+    """In a fresh process, after a warm-up on the file's first quarter (which loads the
+    lazily imported modules, the parser's threads and the codecs: fixed costs), the peak
+    resident memory grows by less than the limit while the whole file, 2.5 times the
+    limit, is read, written and solved."""
+    script = textwrap.dedent(f"""
+        import json, sys
+        from pathlib import Path
+        from pipelines.ingest.csv_stream import solve_streamed, stream_csv
+        from pipelines.ingest.data_format import FormatSpec
+
+        def status(key):
+            for line in open("/proc/self/status"):
+                if line.startswith(key):
+                    return int(line.split()[1]) * 1024
+
+        def run(src, out):
+            s = stream_csv(src, fmt, out, memory_limit={LIMIT}, progress=False)
+            solve_streamed(s, {SETTINGS!r}, gravity={G}, memory_limit={LIMIT})
+
+        fmt = FormatSpec.model_validate_json({FMT.model_dump_json()!r})
+        src, out = Path(sys.argv[1]), Path(sys.argv[2])
+        with src.open("rb") as fh:
+            lines = fh.readlines()
+        part = out.with_name("quarter.csv")
+        part.write_bytes(b"".join(lines[: len(lines) // 4]))
+        del lines
+        run(part, out.with_name("quarter.parquet"))
+        base = status("VmRSS:")
+        open("/proc/self/clear_refs", "w").write("5")  # peak := current
+        run(src, out)
+        print(json.dumps({{"grown": status("VmHWM:") - base}}))
+    """)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    out = subprocess.run([sys.executable, "-c", script, str(big_csv), str(tmp_path / "s.pq")],
+                         capture_output=True, text=True, env=env)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    grown = json.loads(out.stdout.strip().splitlines()[-1])["grown"]
+    assert grown < LIMIT, grown / 2**20
+
+
+def test_progress_line_names_bytes_samples_rate_and_time_left(tmp_path, capsys):
+    path = tmp_path / "short.csv"
+    write_static_csv(path, 2000)
+    stream_csv(path, FMT, tmp_path / "s.parquet", memory_limit=1 << 20, progress=True)
+    err = capsys.readouterr().err
+    assert "reading short.csv" in err and "2,000 samples" in err
+    assert "MB/s" in err and "s left" in err
+
+
+def test_time_going_back_names_the_line(tmp_path):
+    from pipelines.ingest.errors import IngestError
+
+    path = tmp_path / "back.csv"
+    write_static_csv(path, 50_000)
+    lines = path.read_bytes().split(b"\n")
+    lines[40_001], lines[40_002] = lines[40_002], lines[40_001]  # data rows 40000, 40001
+    path.write_bytes(b"\n".join(lines))
+    with pytest.raises(IngestError, match="time must increase") as err:
+        stream_csv(path, FMT, tmp_path / "s.parquet", memory_limit=1 << 20, progress=False)
+    assert "line 40003" in str(err.value)
+
+
+def test_blocks_pass_every_byte_once_and_cut_at_line_ends():
+    """Lines longer than a block, a last line without its newline: the blocks join to the
+    file, each ends at a line end, and the hash and the copy are of the whole file."""
+    import io
+
+    from pipelines.ingest.csv_stream import _blocks
+
+    data = b"".join(b"x" * (i % 300) + b"\n" for i in range(5000)) + b"no newline"
+    sha, copy = hashlib.sha256(), io.BytesIO()
+    blocks = [bytes(b) for b in _blocks(io.BytesIO(data), 100, copy, sha)]
+    assert b"".join(blocks) == data
+    assert all(b.endswith(b"\n") for b in blocks[:-1])
+    assert copy.getvalue() == data and sha.hexdigest() == hashlib.sha256(data).hexdigest()

@@ -1,0 +1,135 @@
+"""Streamed statistics (calib_core.streamed) against one pass over the whole array and
+against allantools; the streamed static-bias solve against the in-memory one."""
+
+from __future__ import annotations
+
+import math
+
+import allantools
+import numpy as np
+import pytest
+
+from calib_core.noise import allan_deviation
+from calib_core.simulate.noise import NoiseSpec, simulate_static
+from calib_core.solvers.static_bias import _fill, sigma_clip, solve_static_bias
+from calib_core.solvers.static_bias_stream import solve_static_bias_stream
+from calib_core.streamed import MedianStep, Moments, SigmaClipFill, StreamedAllan
+
+RATE = 100.0
+# Different chunkings add the same numbers in a different order: a few ulp per sum,
+# amplified by the cancellation of the second differences (|theta| / |d| ~ sqrt(N / m)).
+REL = 1e-9
+
+
+def _record(n: int = 40_003, seed: int = 1) -> np.ndarray:
+    """White + random-walk noise on large offsets (an accelerometer's 9.8 m/s^2)."""
+    rng = np.random.default_rng(seed)
+    walk = np.cumsum(rng.normal(size=(n, 3)) * 1e-5, axis=0)
+    return rng.normal(size=(n, 3)) * 0.01 + walk + [9.8, 0.0, 0.1]
+
+
+def _chunks(x: np.ndarray, size: int):
+    return [x[i : i + size] for i in range(0, x.shape[0], size)]
+
+
+@pytest.mark.parametrize("size", [7, 1000, 30_000, 40_003])
+@pytest.mark.parametrize("memory_rows", [100, 1 << 20])
+def test_streamed_allan_equals_in_memory_and_allantools(size, memory_rows):
+    """Chunks smaller than the largest cluster (m = 2^14 here), and a phase memory
+    smaller than it (the longer lags then come from the history)."""
+    x = _record()
+    s = StreamedAllan(RATE, x.shape[0], 3, memory_rows=memory_rows)
+    for c in _chunks(x, size):
+        s.push(c)
+    got = s.result()
+    ref = allan_deviation(x, RATE)
+    assert np.array_equal(got.taus, ref.taus)
+    assert np.allclose(got.adev, ref.adev, rtol=REL, atol=0)
+    assert np.allclose(got.ci_high, ref.ci_high, rtol=REL, atol=0)
+    for c in range(3):
+        taus, adev, _, _ = allantools.oadev(x[:, c], rate=RATE, data_type="freq", taus="octave")
+        k = min(taus.size, got.taus.size)
+        assert np.allclose(taus[:k], got.taus[:k], rtol=1e-15)
+        assert np.max(np.abs(got.adev[:k, c] / adev[:k] - 1)) <= REL
+
+
+def test_streamed_allan_refuses_a_wrong_length():
+    s = StreamedAllan(RATE, 100, 1)
+    s.push(np.zeros((99, 1)))
+    with pytest.raises(ValueError, match="99 samples pushed, 100 announced"):
+        s.result()
+
+
+def test_moments_merge_equals_numpy():
+    x = _record(5001)
+    m = Moments(3)
+    for c in _chunks(x, 333):
+        m.push(c)
+    assert np.allclose(m.mean, x.mean(axis=0), rtol=1e-14, atol=0)
+    assert np.allclose(m.std(ddof=1), x.std(axis=0, ddof=1), rtol=1e-12, atol=0)
+    other = Moments(3)
+    other.push(x[:10])
+    other.merge(Moments(3))  # an empty stream changes nothing
+    assert np.allclose(other.mean, x[:10].mean(axis=0), rtol=1e-15)
+
+
+def test_sigma_clip_fill_in_chunks_equals_one_array():
+    """Rejected runs at the start, across chunk edges and at the end are filled exactly
+    as `_fill` does on the whole array."""
+    x = _record(20_000)
+    x[:3, 0] += 5.0
+    x[995:1010, 1] += 1.0  # across the edge of the first 1000-row chunk
+    x[-4:, 2] += 1.0
+    keep = sigma_clip(x)
+    first = Moments(3)
+    first.push(x)
+    clip = SigmaClipFill(first.mean, first.std(), 3.0)
+    out = np.concatenate([clip.push(c) for c in _chunks(x, 1000)] + [clip.flush()])
+    assert np.array_equal(out, _fill(x, keep))
+    assert np.array_equal(clip.rejected, (~keep).sum(axis=0))
+    kept_mean = [x[keep[:, c], c].mean() for c in range(3)]
+    assert np.allclose(clip.kept.mean, kept_mean, rtol=1e-14, atol=0)
+
+
+def test_median_step_equals_numpy():
+    t = np.round(np.cumsum(np.random.default_rng(3).uniform(0.009, 0.011, 10_001)), 3)
+    ms = MedianStep()
+    for c in _chunks(t, 77):
+        ms.push(c)
+    assert ms.median() == np.median(np.diff(t))
+    assert MedianStep(max_distinct=2) is not None
+    many = MedianStep(max_distinct=2)
+    with pytest.raises(ValueError, match="distinct time steps"):
+        many.push(np.array([0.0, 1.0, 3.0, 6.0]))
+
+
+def test_streamed_static_bias_same_parameters_as_in_memory():
+    """One record through both paths: every parameter, its uncertainty and the noise
+    terms the same to rounding (outliers included, so the clip and fill are exercised)."""
+    spec = NoiseSpec(arw=2e-3, bias_instability=2e-4, rrw=1e-4)
+    rec = simulate_static(600.0, RATE, gyro_bias=np.array([0.02, -0.01, 0.005]),
+                          gyro_noise=spec, rng=np.random.default_rng(5))  # fmt: skip
+    rec.gyr[1000:1003, 0] += 1.0
+    settings = {"up_axis": "+z", "n_sigma": 3.0}
+    ref = solve_static_bias(rec, **settings)
+
+    def chunks():
+        for i in range(0, len(rec), 4096):
+            yield rec.t[i : i + 4096], rec.gyr[i : i + 4096], rec.acc[i : i + 4096]
+
+    got = solve_static_bias_stream(chunks, label=rec.label or "record", memory_rows=5000,
+                                   **settings)  # fmt: skip
+    assert set(got.parameters) == set(ref.parameters)
+    for name, p in ref.parameters.items():
+        q = got.parameters[name]
+        assert math.isclose(q.value, p.value, rel_tol=REL, abs_tol=1e-15), name
+        assert math.isclose(q.std or 0.0, p.std or 0.0, rel_tol=1e-6, abs_tol=1e-15), name
+    for sensor in ("gyr", "acc"):
+        for a, b in zip(got.info["noise_parameters"][sensor],
+                        ref.info["noise_parameters"][sensor], strict=True):  # fmt: skip
+            for term in ("arw", "bias_instability", "rrw"):
+                assert (a[term] is None) == (b[term] is None)
+                if b[term] is not None:
+                    assert math.isclose(a[term], b[term], rel_tol=1e-6), (sensor, term)
+    assert got.info["outliers"] == ref.info["outliers"]
+    assert got.warnings == ref.warnings
