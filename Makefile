@@ -31,6 +31,7 @@ $(VENV)/.demo-installed: pyproject.toml
 	touch $@
 
 demo: $(VENV)/.demo-installed
+	@bash scripts/ensure_system_packages.sh --pdf
 	@echo "== 1/5 processing every run of data_samples/ into ./calib-archive (certificates issued) =="
 	$(BIN)/calib process data_samples --reports
 	@echo "== 2/5 fitting the thermal model of the campaign IMU-T-0007 =="
