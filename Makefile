@@ -62,6 +62,7 @@ LINTED = calib_core storage pipelines calib_testing tests benchmarks scripts
 
 test: venv system-packages
 	$(BIN)/ruff check $(LINTED)
+	$(BIN)/ruff format --check $(LINTED)
 	$(BIN)/python -m pytest -q
 
 # The tiers `make test-fast` leaves out (pyproject.toml; tests/conftest.py marks the tests
@@ -70,6 +71,7 @@ FAST = not slow and not postgres and not browser and not e2e
 
 test-fast: venv system-packages
 	$(BIN)/ruff check $(LINTED)
+	$(BIN)/ruff format --check $(LINTED)
 	$(BIN)/python -m pytest -q -m "$(FAST)"
 
 bench: venv

@@ -63,8 +63,15 @@ TEMPS = (20.0, 40.0)  # deg C: each parameter at two temperatures -> 50 rows per
 N_EQUIPMENT = 20
 CHUNK_RUNS = 5_000
 # Tables with rows per run, in the order their foreign keys need.
-RUN_TABLES = ("runs", "run_equipment", "raw_files", "calibrations", "processing_steps",
-              "parameters", "check_results")  # fmt: skip
+RUN_TABLES = (
+    "runs",
+    "run_equipment",
+    "raw_files",
+    "calibrations",
+    "processing_steps",
+    "parameters",
+    "check_results",
+)
 T0 = datetime(2020, 1, 1, tzinfo=UTC)
 SPAN_S = 6 * 365 * 86400
 SAMPLES = {"latest_valid": 300, "lineage": 300, "history": 200, "lapsed": 20, "units": 50}
@@ -450,12 +457,22 @@ def real_runs(n: int, work: Path) -> Iterator:
             body = f"# variant {i}\n".encode() + data
             path = folder / f.name
             path.write_bytes(body)
-            raw.append(RawFileIn(path, f.name, hashlib.sha256(body).hexdigest(), len(body),
-                                 f.format))  # fmt: skip
-        params_i = [replace(p, value=p.value * (1 + 1e-3 * rng.standard_normal()))
-                    for p in run.parameters]  # fmt: skip
-        yield replace(run, serial=f"MPU{i % 100:04d}", raw_files=raw, parameters=params_i,
-                      started_at=T0 + timedelta(hours=i)), protocol  # fmt: skip
+            raw.append(
+                RawFileIn(path, f.name, hashlib.sha256(body).hexdigest(), len(body), f.format)
+            )
+        params_i = [
+            replace(p, value=p.value * (1 + 1e-3 * rng.standard_normal())) for p in run.parameters
+        ]
+        yield (
+            replace(
+                run,
+                serial=f"MPU{i % 100:04d}",
+                raw_files=raw,
+                parameters=params_i,
+                started_at=T0 + timedelta(hours=i),
+            ),
+            protocol,
+        )
 
 
 def bench_verify(archive: Archive, n: int, work: Path) -> dict[str, float]:
@@ -475,8 +492,10 @@ def bench_verify(archive: Archive, n: int, work: Path) -> dict[str, float]:
         times[name] = min(times.get(name, np.inf), time.perf_counter() - t)
         assert report.ok and report.runs_checked == n, report.problems[:3]
     per_1k = {k: v * 1000 / n for k, v in times.items()}
-    log(f"  verify: {per_1k['full']:.2f} s per 1k runs with seals, "
-        f"{per_1k['files_only']:.2f} s files only ({report.bytes_checked / 1e6:.0f} MB read)")
+    log(
+        f"  verify: {per_1k['full']:.2f} s per 1k runs with seals, "
+        f"{per_1k['files_only']:.2f} s files only ({report.bytes_checked / 1e6:.0f} MB read)"
+    )
     return {
         "verify_s_per_1k_runs": round(per_1k["full"], 3),
         "verify_files_only_s_per_1k_runs": round(per_1k["files_only"], 3),
@@ -498,8 +517,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=100_000)
     ap.add_argument("--verify-runs", type=int, default=1000)
-    ap.add_argument("--backends", default="sqlite,postgresql",
-                    help="comma-separated, of sqlite, postgresql")  # fmt: skip
+    ap.add_argument(
+        "--backends", default="sqlite,postgresql", help="comma-separated, of sqlite, postgresql"
+    )
     args = ap.parse_args()
     backends = [b for b in args.backends.split(",") if b]
     if not backends or set(backends) - {"sqlite", "postgresql"}:
@@ -550,10 +570,20 @@ def main() -> None:
     }
     print(f"verify per 1k real-looking runs ({args.verify_runs} archived), target ratio <= 2:")
     for b, v in verify_results.items():
-        print(f"  {b:<12} {v['verify_s_per_1k_runs']:.2f} s with seals, "
-              f"{v['verify_files_only_s_per_1k_runs']:.2f} s files only, ratio {v['verify_ratio']}")
-    print(json.dumps({**summary, "runs": args.runs, "parameter_rows": n_params,
-                      "verify_runs": args.verify_runs}))  # fmt: skip
+        print(
+            f"  {b:<12} {v['verify_s_per_1k_runs']:.2f} s with seals, "
+            f"{v['verify_files_only_s_per_1k_runs']:.2f} s files only, ratio {v['verify_ratio']}"
+        )
+    print(
+        json.dumps(
+            {
+                **summary,
+                "runs": args.runs,
+                "parameter_rows": n_params,
+                "verify_runs": args.verify_runs,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

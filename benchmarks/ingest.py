@@ -122,10 +122,20 @@ def write_mcap(path: Path, data: dict) -> None:
     from test_ingest_mcap import IMU_MSGDEF
 
     dt = np.dtype(
-        [("encap", "u1", 4), ("sec", "<i4"), ("nanosec", "<u4"), ("len", "<u4"),
-         ("frame", "S4"), ("orientation", "<f8", 4), ("oc", "<f8", 9),
-         ("gyr", "<f8", 3), ("gc", "<f8", 9), ("acc", "<f8", 3), ("ac", "<f8", 9)]
-    )  # fmt: skip
+        [
+            ("encap", "u1", 4),
+            ("sec", "<i4"),
+            ("nanosec", "<u4"),
+            ("len", "<u4"),
+            ("frame", "S4"),
+            ("orientation", "<f8", 4),
+            ("oc", "<f8", 9),
+            ("gyr", "<f8", 3),
+            ("gc", "<f8", 9),
+            ("acc", "<f8", 3),
+            ("ac", "<f8", 9),
+        ]
+    )
     msgs = np.zeros(N, dt)
     msgs["encap"] = (0, 1, 0, 0)
     msgs["sec"], msgs["nanosec"] = np.divmod(data["stamps_ns"], 1_000_000_000)
@@ -378,7 +388,7 @@ def main() -> None:
         ),
         "mat_ratio_to_library": max(
             results[k]["ours_s"] / results[k]["library_s"] for k in ("mat5", "mat73")
-        ),  # fmt: skip
+        ),
         "mcap_msgs_per_s": N / mcap["ours_s"],
         "mcap_speedup_vs_mcap_ros2": mcap["library_s"] / mcap["ours_s"],
         "peak_mem_ratio": max(r["peak_mem_ratio"] for r in results.values()),

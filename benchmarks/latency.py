@@ -97,16 +97,28 @@ def _bare_seconds(folder: Path) -> float:
 def history_latency(calib: list[str], env: dict[str, str], tmp: Path) -> dict[str, float]:
     """`calib history` against the bare imports of a read-only command, in pairs."""
     archive = str(tmp / "history")
-    _timed([*calib, "process", str(SAMPLES["mpu6000"]), "--archive", archive, "--json",
-            "--no-progress"], env)  # fmt: skip
+    _timed(
+        [
+            *calib,
+            "process",
+            str(SAMPLES["mpu6000"]),
+            "--archive",
+            archive,
+            "--json",
+            "--no-progress",
+        ],
+        env,
+    )
     history, bare = [], []
     for _ in range(PAIRS):
         history.append(_timed([*calib, "history", "MPU0001", "--archive", archive], env)[0])
         bare.append(_timed([sys.executable, "-c", BARE_IMPORTS], env)[0])
     ratios = [h / b for h, b in zip(history, bare, strict=True)]
-    log(f"calib history: median {statistics.median(history):.3f} s of "
+    log(
+        f"calib history: median {statistics.median(history):.3f} s of "
         f"{[round(h, 3) for h in history]}; bare imports: median "
-        f"{statistics.median(bare):.3f} s of {[round(b, 3) for b in bare]}")  # fmt: skip
+        f"{statistics.median(bare):.3f} s of {[round(b, 3) for b in bare]}"
+    )
     return {
         "history_wall_s": round(statistics.median(history), 3),
         "bare_imports_wall_s": round(statistics.median(bare), 3),
@@ -137,23 +149,41 @@ def main() -> None:
             timed = []
             for i in range(REPEATS):
                 archive = str(Path(tmp) / f"{name}-{i}")
-                timed.append(_timed([*calib, "process", str(folder), "--archive", archive,
-                                     "--json", "--no-progress"], env))  # fmt: skip
+                timed.append(
+                    _timed(
+                        [
+                            *calib,
+                            "process",
+                            str(folder),
+                            "--archive",
+                            archive,
+                            "--json",
+                            "--no-progress",
+                        ],
+                        env,
+                    )
+                )
             bare = _bare_seconds(folder)
             wall = statistics.median(w for w, _ in timed)
             cpu = statistics.median(c for _, c in timed)
             figures[name] = {"wall_s": wall, "cpu_s": cpu, "bare_s": bare, "ratio": wall / bare}
-            log(f"{name}: calib process median {wall:.3f} s (CPU {cpu:.3f} s), "
-                f"bare read + solve {bare:.3f} s")  # fmt: skip
+            log(
+                f"{name}: calib process median {wall:.3f} s (CPU {cpu:.3f} s), "
+                f"bare read + solve {bare:.3f} s"
+            )
         history = history_latency(calib, env, Path(tmp))
     figures["load_average"] = {"start": load, "end": os.getloadavg()[0]}
     print(json.dumps(figures, indent=1))
-    print(json.dumps({
-        "one_run_wall_s": round(max(figures[n]["wall_s"] for n in SAMPLES), 3),
-        "help_wall_s": round(statistics.median(helps), 3),
-        "one_run_to_solve_ratio": round(max(figures[n]["ratio"] for n in SAMPLES), 2),
-        **history,
-    }))  # fmt: skip
+    print(
+        json.dumps(
+            {
+                "one_run_wall_s": round(max(figures[n]["wall_s"] for n in SAMPLES), 3),
+                "help_wall_s": round(statistics.median(helps), 3),
+                "one_run_to_solve_ratio": round(max(figures[n]["ratio"] for n in SAMPLES), 2),
+                **history,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -109,8 +109,12 @@ def run_child(code: str, args: list[str]) -> tuple[float, float, str]:
     """(wall s, peak RSS of the child and its descendants in bytes, stdout) of one child."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "DO_NOT_TRACK": "1"}
     started = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(code), *args], env=env,
-                            stdout=subprocess.PIPE, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-c", textwrap.dedent(code), *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     peak, ps = 0, psutil.Process(proc.pid)
     while proc.poll() is None:
         try:
@@ -165,8 +169,10 @@ def main() -> None:
             folder = work / name
             folder.mkdir()
             outs[name] = run_child(code, [str(src), str(folder), limit])
-            print(f"{name}: {outs[name][0]:.1f} s, peak {outs[name][1] / 2**30:.2f} GB",
-                  file=sys.stderr)  # fmt: skip
+            print(
+                f"{name}: {outs[name][0]:.1f} s, peak {outs[name][1] / 2**30:.2f} GB",
+                file=sys.stderr,
+            )
             if name == "floor":
                 shutil.rmtree(folder)
         t0 = time.perf_counter()
@@ -176,19 +182,27 @@ def main() -> None:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
     (floor_s, floor_rss, _), (proc_s, proc_rss, _) = outs["floor"], outs["process"]
-    print(json.dumps({
-        "size_gb": round(size / 1e9, 3),
-        "samples": samples,
-        "peak_rss_gb": round(proc_rss / 2**30, 3),
-        "floor_peak_rss_gb": round(floor_rss / 2**30, 3),
-        "process_mb_per_s": round(size / 1e6 / proc_s, 1),
-        "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
-        "process_to_floor_ratio": round(proc_s / floor_s, 3),
-        "allan_rel_err_vs_allantools": err,
-        "seconds": {"write": round(write_s, 1), "floor": round(floor_s, 1),
-                    "process": round(proc_s, 1), "allan_check": round(allan_s, 1)},
-        "memory_limit_gb": args.memory_limit_gb,
-    }))  # fmt: skip
+    print(
+        json.dumps(
+            {
+                "size_gb": round(size / 1e9, 3),
+                "samples": samples,
+                "peak_rss_gb": round(proc_rss / 2**30, 3),
+                "floor_peak_rss_gb": round(floor_rss / 2**30, 3),
+                "process_mb_per_s": round(size / 1e6 / proc_s, 1),
+                "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
+                "process_to_floor_ratio": round(proc_s / floor_s, 3),
+                "allan_rel_err_vs_allantools": err,
+                "seconds": {
+                    "write": round(write_s, 1),
+                    "floor": round(floor_s, 1),
+                    "process": round(proc_s, 1),
+                    "allan_check": round(allan_s, 1),
+                },
+                "memory_limit_gb": args.memory_limit_gb,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

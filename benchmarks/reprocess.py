@@ -110,8 +110,9 @@ def main() -> None:
         help="keep the simulated runs in DIR/day (written there if missing) for later "
         "measurements; default: a temporary folder",
     )
-    parser.add_argument("--backends", default=",".join(BACKENDS),
-                        help=f"comma-separated, of {', '.join(BACKENDS)}")  # fmt: skip
+    parser.add_argument(
+        "--backends", default=",".join(BACKENDS), help=f"comma-separated, of {', '.join(BACKENDS)}"
+    )
     args = parser.parse_args()
     backends = [b for b in args.backends.split(",") if b]
     if not backends or set(backends) - set(BACKENDS):
@@ -135,8 +136,9 @@ def runs_in(folder: Path, n: int, rate_hz: float) -> Path:
     (their rate is noted beside them: runs of another rate are refused)."""
     day, note = folder / "day", folder / "rate_hz.txt"
     if note.is_file() and float(note.read_text()) != rate_hz:
-        raise SystemExit(f"{folder}: its runs are at {note.read_text().strip()} Hz, "
-                         f"not {rate_hz:g}")  # fmt: skip
+        raise SystemExit(
+            f"{folder}: its runs are at {note.read_text().strip()} Hz, not {rate_hz:g}"
+        )
     have = sorted(day.glob("run*")) if day.is_dir() else []
     if len(have) >= n and note.is_file():
         batch.log(f"using {n} of the {len(have)} simulated {rate_hz:g} Hz runs in {day}")
@@ -183,8 +185,9 @@ def run_backends(
             client.api_version()
         set_profile_version(profiles, "warm-up")
         shutil.copytree(day / "run000", base / "warm" / "run000")
-        process_batch([str(base / "warm")], str(base / "warm-archive"), runner="process",
-                      workers=WORKERS)  # fmt: skip
+        process_batch(
+            [str(base / "warm")], str(base / "warm-archive"), runner="process", workers=WORKERS
+        )
         if "sqlite" in backends:
             require_space(base, size)
             seconds["sqlite"] = backend("sqlite", str(base / "sqlite"), day, profiles, "process", n)
@@ -196,8 +199,11 @@ def run_backends(
                 os.environ["CALIB_FILESTORE"] = str(base / "pg-files")
                 url = server.rsplit("/", 1)[0] + "/bench"
                 seconds["pg_dask"] = backend("pg_dask", url, day, profiles, "dask", n)
-    return {key: value for name, (process_s, reprocess_s) in seconds.items()
-            for key, value in figures(name, n, process_s, reprocess_s).items()}  # fmt: skip
+    return {
+        key: value
+        for name, (process_s, reprocess_s) in seconds.items()
+        for key, value in figures(name, n, process_s, reprocess_s).items()
+    }
 
 
 def figures(backend_: str, n: int, process_s: float, reprocess_s: float) -> dict[str, float]:

@@ -61,8 +61,19 @@ from archive import (  # noqa: E402 - the archive benchmark's generator and load
 
 from storage.db import Archive, default_archive_url  # noqa: E402
 
-PAGES = ("runs", "runs_filtered", "runs_deep", "run", "lineage", "unit", "fleet", "models",
-         "equipment", "equipment_item", "verify")  # fmt: skip
+PAGES = (
+    "runs",
+    "runs_filtered",
+    "runs_deep",
+    "run",
+    "lineage",
+    "unit",
+    "fleet",
+    "models",
+    "equipment",
+    "equipment_item",
+    "verify",
+)
 TARGET_MS = 200.0
 
 
@@ -74,8 +85,10 @@ def page_urls(synth: Synth, rng: np.random.Generator) -> dict[str, Callable[[], 
 
     def filtered() -> str:
         d = (T0 + timedelta(seconds=float(rng.uniform(0, SPAN_S - 40 * 86400)))).date()
-        return (f"/runs?model=MPU-6000&from={d}&to={d + timedelta(days=30)}&verdict=pass"
-                "&sort=serial&order=asc")  # fmt: skip
+        return (
+            f"/runs?model=MPU-6000&from={d}&to={d + timedelta(days=30)}&verdict=pass"
+            "&sort=serial&order=asc"
+        )
 
     def fleet() -> str:
         return f"/fleet?model=MPU-6000&parameter={NAMES[int(rng.integers(len(NAMES)))]}"
@@ -90,8 +103,9 @@ def page_urls(synth: Synth, rng: np.random.Generator) -> dict[str, Callable[[], 
         "fleet": fleet,
         "models": lambda: "/models",
         "equipment": lambda: "/equipment",
-        "equipment_item": lambda: (f"/equipment/item?kind=rate_table&serial=RT-"
-                                   f"{int(rng.integers(N_EQUIPMENT))}"),  # fmt: skip
+        "equipment_item": lambda: (
+            f"/equipment/item?kind=rate_table&serial=RT-{int(rng.integers(N_EQUIPMENT))}"
+        ),
         "verify": lambda: "/verify",
     }
 
@@ -116,11 +130,15 @@ def bench(archive: Archive, synth: Synth, requests: int) -> dict[str, dict[str, 
                 t, c = time.perf_counter(), time.process_time()
                 _get(client, u)
                 times[i], cpu[i] = time.perf_counter() - t, time.process_time() - c
-            out[page] = {"p50_ms": 1e3 * float(np.median(times)),
-                         "p95_ms": 1e3 * float(np.percentile(times, 95)),
-                         "cpu_p95_ms": 1e3 * float(np.percentile(cpu, 95))}  # fmt: skip
-            log(f"  {page}: p50 {out[page]['p50_ms']:.1f} ms, p95 {out[page]['p95_ms']:.1f} ms, "
-                f"CPU p95 {out[page]['cpu_p95_ms']:.1f} ms")
+            out[page] = {
+                "p50_ms": 1e3 * float(np.median(times)),
+                "p95_ms": 1e3 * float(np.percentile(times, 95)),
+                "cpu_p95_ms": 1e3 * float(np.percentile(cpu, 95)),
+            }
+            log(
+                f"  {page}: p50 {out[page]['p50_ms']:.1f} ms, p95 {out[page]['p95_ms']:.1f} ms, "
+                f"CPU p95 {out[page]['cpu_p95_ms']:.1f} ms"
+            )
     ro.dispose()
     return out
 
@@ -152,8 +170,9 @@ def postgresql_bench(synth: Synth, requests: int, work: Path) -> dict[str, dict[
     from calib_testing.pgserver import admin_execute, private_server
     from storage.roles import apply_roles
 
-    with private_server(shared_buffers="512MB", max_wal_size="4GB",
-                        synchronous_commit="off") as server:  # fmt: skip
+    with private_server(
+        shared_buffers="512MB", max_wal_size="4GB", synchronous_commit="off"
+    ) as server:
         admin_execute(server, 'CREATE DATABASE "bench"')
         pg = Archive(server.rsplit("/", 1)[0] + "/bench", work / "pg")
         pg.upgrade()
@@ -173,8 +192,11 @@ def main() -> None:
     ap.add_argument("--requests", type=int, default=40, help="timed requests per page")
     ap.add_argument("--backend", choices=("sqlite", "postgresql", "both"), default="both")
     ap.add_argument("--keep", type=Path, help="folder for the SQLite archive, kept and reused")
-    ap.add_argument("--postgresql-url", help="time this already loaded archive (with the "
-                    "roles granted) instead of loading a private server")  # fmt: skip
+    ap.add_argument(
+        "--postgresql-url",
+        help="time this already loaded archive (with the "
+        "roles granted) instead of loading a private server",
+    )
     args = ap.parse_args()
     log(f"{args.runs} runs, {max(1, args.runs // 10)} units; {args.requests} requests per page")
     work = Path(tempfile.mkdtemp(prefix="calib-serve-bench-"))
@@ -207,8 +229,11 @@ def main() -> None:
         }
         for b, res in results.items()
     }
-    print(json.dumps({**summary, "pages": list(PAGES), "runs": args.runs,
-                      "requests_per_page": args.requests}))  # fmt: skip
+    print(
+        json.dumps(
+            {**summary, "pages": list(PAGES), "runs": args.runs, "requests_per_page": args.requests}
+        )
+    )
 
 
 if __name__ == "__main__":

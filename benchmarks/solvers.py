@@ -308,8 +308,10 @@ def main() -> None:
     print(f"noise parameters, worst relative error of the chosen fit: {allan_err:.4f}")
     out = {"seconds": seconds, "crlb_efficiency_worst": eff, "allan_param_rel_err_max": allan_err}
     out.update(integral_spiky_to_clean())
-    print(f"integral method, spiky / clean RMS error: {out['integral_spiky_to_clean_gyr_m']:.3f} "
-          f"(gyr), {out['integral_spiky_to_clean_acc_m']:.3f} (acc)")  # fmt: skip
+    print(
+        f"integral method, spiky / clean RMS error: {out['integral_spiky_to_clean_gyr_m']:.3f} "
+        f"(gyr), {out['integral_spiky_to_clean_acc_m']:.3f} (acc)"
+    )
     print(json.dumps(out))
 
 

@@ -126,17 +126,23 @@ def rate_table_run(rng, spec, mc_draws=0):
     w_true[:, 2] = rates * (1 + eps)  # the table turns at (1 + eps) times its reported rate
     out = w_true @ (np.eye(3) + err.gyr_M).T + err.gyr_bias
     means, sem = _noisy(out, np.full_like(out, 0.02 * DEG), rng)
-    points = [RatePoint("z", float(r), m, s, N_SAMPLES)
-              for r, m, s in zip(rates, means, sem, strict=True)]
+    points = [
+        RatePoint("z", float(r), m, s, N_SAMPLES) for r, m, s in zip(rates, means, sem, strict=True)
+    ]
     b, mc = rate_table_budgets(points, N_SAMPLES - 1, spec, mc_draws, rng)
     truth = {f"gyr.bias.{a}": err.gyr_bias[i] for i, a in enumerate("xyz")}
-    truth.update({"gyr.scale.z": err.gyr_M[2, 2], "gyr.misalign.xz": err.gyr_M[0, 2],
-                  "gyr.misalign.yz": err.gyr_M[1, 2]})
+    truth.update(
+        {
+            "gyr.scale.z": err.gyr_M[2, 2],
+            "gyr.misalign.xz": err.gyr_M[0, 2],
+            "gyr.misalign.yz": err.gyr_M[1, 2],
+        }
+    )
     return truth, b, mc
 
 
 def family(name: str) -> str:
-    """"acc.scale.x" -> "acc.scale"."""
+    """ "acc.scale.x" -> "acc.scale"."""
     return name.rsplit(".", 1)[0]
 
 
@@ -152,8 +158,11 @@ def main() -> None:
     hits, total = defaultdict(int), defaultdict(int)
     mc_rel = []
     t0 = time.perf_counter()
-    procedures = {"six_position": six_position_run, "integral": integral_run,
-                  "rate_table": rate_table_run}
+    procedures = {
+        "six_position": six_position_run,
+        "integral": integral_run,
+        "rate_table": rate_table_run,
+    }
     for proc, make in procedures.items():
         for r in range(args.runs):
             draws = args.mc_draws if r < args.mc_runs else 0
@@ -168,14 +177,18 @@ def main() -> None:
     coverage = {f: hits[f] / total[f] for f in total}
     for f, c in sorted(coverage.items()):
         print(f"{f:28s} coverage {c:.4f} of {total[f]} intervals")
-    print(json.dumps({
-        "coverage_worst": round(min(coverage.values()), 4),
-        "coverage_best": round(max(coverage.values()), 4),
-        "mc_vs_linear_max_rel": round(max(mc_rel), 4),
-        "runs": len(procedures) * args.runs,
-        "coverage": {f: round(c, 4) for f, c in coverage.items()},
-        "seconds": round(time.perf_counter() - t0, 1),
-    }))
+    print(
+        json.dumps(
+            {
+                "coverage_worst": round(min(coverage.values()), 4),
+                "coverage_best": round(max(coverage.values()), 4),
+                "mc_vs_linear_max_rel": round(max(mc_rel), 4),
+                "runs": len(procedures) * args.runs,
+                "coverage": {f: round(c, 4) for f, c in coverage.items()},
+                "seconds": round(time.perf_counter() - t0, 1),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

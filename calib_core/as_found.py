@@ -102,6 +102,7 @@ def judge(
         b = budgets.get(name)
         U, k = (None, None) if b is None else (float(b.U), float(b.k))
         verdict = None if profile is None else profile.judge(name, p.value, U or 0.0)
-        out.append(AsFound(name, earlier.value(name), as_left.value(name), p.value, p.std, U, k,
-                           verdict))
+        out.append(
+            AsFound(name, earlier.value(name), as_left.value(name), p.value, p.std, U, k, verdict)
+        )
     return out

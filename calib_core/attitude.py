@@ -174,8 +174,10 @@ def attitude_problems(
             )
     uncovered = []
     for j, axis in enumerate("xyz"):
-        for sense, reached in (("+", (f[:, j] > 0.5 * gravity).any()),
-                               ("-", (f[:, j] < -0.5 * gravity).any())):  # fmt: skip
+        for sense, reached in (
+            ("+", (f[:, j] > 0.5 * gravity).any()),
+            ("-", (f[:, j] < -0.5 * gravity).any()),
+        ):
             if not reached:
                 uncovered.append(
                     f"no attitude has {sense}{axis} up (reading {sense}g); the {axis} axis is seen "

@@ -190,9 +190,7 @@ class Calibration:
         self.covariance = grown
         for i, name in enumerate(names):
             std = float(np.sqrt(cov[i, i]))
-            self.parameters[name] = Parameter(
-                name, float(values[name]), std, cov_index=start + i
-            )
+            self.parameters[name] = Parameter(name, float(values[name]), std, cov_index=start + i)
 
     def merged(self, other: Calibration) -> Calibration:
         """This calibration with `other`'s parameters, residuals and warnings added."""

@@ -95,9 +95,11 @@ def check_parameters(
             outcome = decision.decide(p.value, U, lim.low, lim.high, profile.decision_rule)
             passed = outcome == decision.PASS
             w = profile.decision_rule.guard_band(U)
-            detail += (f"; {outcome} (rule {profile.decision_rule.name}, "
-                       + ("no uncertainty budget" if b is None else
-                          f"U = {U:.3g} {unit} at k = {b.k:.3g}") + f", w = {w:.3g} {unit})")
+            detail += (
+                f"; {outcome} (rule {profile.decision_rule.name}, "
+                + ("no uncertainty budget" if b is None else f"U = {U:.3g} {unit} at k = {b.k:.3g}")
+                + f", w = {w:.3g} {unit})"
+            )
         out.append(CheckResult(f"param:{name}", p.value, lim.limit, passed, detail))
     return out
 
@@ -120,10 +122,12 @@ def check_residuals(cal: Calibration, profile: ToleranceProfile) -> list[CheckRe
             value = float(values[worst])
             out.append(
                 CheckResult.at_most(
-                    f"residual:{r.segment}:{r.sensor}:{stat}", value, limit,
+                    f"residual:{r.segment}:{r.sensor}:{stat}",
+                    value,
+                    limit,
                     f"worst axis {params.AXES[worst]}, {unit}, n={r.n}",
                 )
-            )  # fmt: skip
+            )
     return out
 
 
@@ -148,8 +152,9 @@ def check_calibration(
     into "pass" / "needs review" / "fail". The archive's check step adds held-out
     verification points, repeatability and the unit's description to these.
     """
-    return (check_parameters(cal, profile, budgets) + check_residuals(cal, profile)
-            + solver_checks(cal))
+    return (
+        check_parameters(cal, profile, budgets) + check_residuals(cal, profile) + solver_checks(cal)
+    )
 
 
 def solver_checks(cal: Calibration) -> list[CheckResult]:
@@ -180,8 +185,10 @@ def overall_verdict(checks: list[CheckResult]) -> str:
     failed = [c for c in checks if counts_against_verdict(c)]
     if not failed:
         return PASS
-    if all(c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX, MODEL_PREFIX)) or _conditional_pass(c)
-           for c in failed):
+    if all(
+        c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX, MODEL_PREFIX)) or _conditional_pass(c)
+        for c in failed
+    ):
         return NEEDS_REVIEW
     return FAIL
 

@@ -142,8 +142,9 @@ def judge(cond: Condition, value: float | None, note: str = "") -> CheckResult:
     if cond.severity == INFO:
         text = "information, not judged" + (f"; {note}" if note else "")
         if value is None:
-            return CheckResult(CONDITION_PREFIX + cond.key, None, None, False,
-                               f"{NOT_RECORDED}; {text}")  # fmt: skip
+            return CheckResult(
+                CONDITION_PREFIX + cond.key, None, None, False, f"{NOT_RECORDED}; {text}"
+            )
         return CheckResult(CONDITION_PREFIX + cond.key, float(value), None, True, text)
     if value is None:
         detail = f"{NOT_RECORDED}; required {cond.allowed()}" + (f"; {note}" if note else "")
@@ -154,7 +155,7 @@ def judge(cond: Condition, value: float | None, note: str = "") -> CheckResult:
 
 
 def status(check: Mapping[str, Any]) -> str:
-    """"pass", "fail", "warning", "info" or "not recorded" of an archived check dict (any
+    """ "pass", "fail", "warning", "info" or "not recorded" of an archived check dict (any
     check); "info" is a recorded condition that no rule judges."""
     name = str(check["name"])
     entry = DEFAULT_CONDITIONS.get(name.removeprefix(CONDITION_PREFIX))
@@ -176,7 +177,10 @@ def requirement(check: Mapping[str, Any]) -> str:
 def counts_against_verdict(check: Any) -> bool:
     """True for a failed check (a CheckResult or any object with its fields) that counts
     against the verdict: not a condition's warning, not "not recorded"."""
-    fields = {"name": check.name, "passed": check.passed,
-              "value": getattr(check, "value", None), "detail": getattr(check, "detail", "")}
+    fields = {
+        "name": check.name,
+        "passed": check.passed,
+        "value": getattr(check, "value", None),
+        "detail": getattr(check, "detail", ""),
+    }
     return not check.passed and status(fields) == "fail"
-

@@ -173,8 +173,12 @@ def check_conditions(
     conds = conditions(overrides)
     out = [judge(conds[k], recorded.get(k)) for k in RECORDED_KEYS]
     drift = recorded.get("temperature_drift_c_per_h")
-    out.append(judge(conds["temperature_drift_c_per_h"], *(
-        (abs(drift), "recorded") if drift is not None else temperature_drift(segments))))
+    out.append(
+        judge(
+            conds["temperature_drift_c_per_h"],
+            *((abs(drift), "recorded") if drift is not None else temperature_drift(segments)),
+        )
+    )
     out.append(_gravity_check(conds["gravity"], gravity, gravity_source))
     out += _acquisition_checks(segments, recorded, settings, conds)
     out += _temperature_checks(segments, conds)
@@ -186,11 +190,14 @@ def _gravity_check(cond: Condition, gravity: float, source: str | None) -> Check
     if source is not None:
         return CheckResult(CONDITION_PREFIX + cond.key, gravity, None, True, source)
     return CheckResult(
-        CONDITION_PREFIX + cond.key, gravity, None, False,
+        CONDITION_PREFIX + cond.key,
+        gravity,
+        None,
+        False,
         "standard value: the site's latitude and height are not known (give them in the "
         "manifest's [site] or the lab file); the MPU-6000 manual uses Helmert's formula "
         "with the height correction",
-    )  # fmt: skip
+    )
 
 
 def _acquisition_checks(
@@ -203,8 +210,10 @@ def _acquisition_checks(
     if not segments:
         return []
     rate = min((_rate_hz(r), label) for label, r in segments.items())
-    out = [judge(conds["sample_rate_hz"], rate[0], f"segment {rate[1]}"),
-           judge(conds["resolution_bits"], recorded.get("resolution_bits"))]  # fmt: skip
+    out = [
+        judge(conds["sample_rate_hz"], rate[0], f"segment {rate[1]}"),
+        judge(conds["resolution_bits"], recorded.get("resolution_bits")),
+    ]
     plateaus = {k: r for k, r in segments.items() if plateau_rate(r) is not None}
     attitudes = {k: r for k, r in segments.items() if k not in plateaus and not is_rotation(k)}
     settle = float(settings.get("settle_s", 20.0))
@@ -212,8 +221,9 @@ def _acquisition_checks(
     if plateaus:
         out.append(judge(conds["settle_rate_s"], settle, "the solver drops it from each plateau"))
         window = settings.get("record_s")
-        records += [(min(r.duration - settle, float(window or math.inf)), k)
-                    for k, r in plateaus.items()]  # fmt: skip
+        records += [
+            (min(r.duration - settle, float(window or math.inf)), k) for k, r in plateaus.items()
+        ]
         out += _table_checks(plateaus, settle, conds)
     if attitudes:
         out.append(judge(conds["settle_s"], recorded.get("settle_s")))
@@ -230,8 +240,9 @@ def _temperature_checks(
     """The chamber's temperature spread over the static records (its reference channel,
     else the sensor's own), and the sensor's spread over the whole run (information)."""
     statics = _statics(segments)
-    channel = next((c for c in CHAMBER_CHANNELS
-                    if any(c in r.reference for r in statics.values())), None)  # fmt: skip
+    channel = next(
+        (c for c in CHAMBER_CHANNELS if any(c in r.reference for r in statics.values())), None
+    )
     spread, note = temperature_spread(statics, channel)
     where = f"reference channel {channel}" if channel else "no chamber channel: the sensor's"
     out = [judge(conds["static_temperature_spread_c"], spread, f"{where}; {note}")]

@@ -48,12 +48,16 @@ class DecisionRule:
     def statement(self, k: float = 2.0) -> str:
         """The rule and its risk, for the protocol and the certificate."""
         if self.name == "simple":
-            return ("Decision rule: simple acceptance (ILAC-G8:2019 4.2.1, shared risk, w = 0); "
-                    "a value at a tolerance limit has up to 50 % probability of false accept.")
+            return (
+                "Decision rule: simple acceptance (ILAC-G8:2019 4.2.1, shared risk, w = 0); "
+                "a value at a tolerance limit has up to 50 % probability of false accept."
+            )
         pfa = 100.0 * norm_sf(self.factor * k)
-        return (f"Decision rule: guarded acceptance (ILAC-G8:2019 4.2.2), guard band w = "
-                f"{self.factor:g} U; probability of false accept at the acceptance limit "
-                f"<= {pfa:.2g} % (normal, k = {k:g}).")
+        return (
+            f"Decision rule: guarded acceptance (ILAC-G8:2019 4.2.2), guard band w = "
+            f"{self.factor:g} U; probability of false accept at the acceptance limit "
+            f"<= {pfa:.2g} % (normal, k = {k:g})."
+        )
 
 
 def decide(value: float, U: float, lower: float, upper: float, rule: DecisionRule) -> str:

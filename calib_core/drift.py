@@ -132,12 +132,17 @@ def shared_covariance(
             f"stds_a, stds_b and references must be 1-D of equal length, got {a.shape}, "
             f"{b.shape}, {len(references)}"
         )
-    if not (np.all(np.isfinite(a)) and np.all(a >= 0) and np.all(np.isfinite(b))
-            and np.all(b >= 0)):  # fmt: skip
+    if not (
+        np.all(np.isfinite(a)) and np.all(a >= 0) and np.all(np.isfinite(b)) and np.all(b >= 0)
+    ):
         raise ValueError("standard uncertainties must be finite and >= 0")
     ref = list(references)
-    same = np.array([[i == j or (ri is not None and ri == rj) for j, rj in enumerate(ref)]
-                     for i, ri in enumerate(ref)])  # fmt: skip
+    same = np.array(
+        [
+            [i == j or (ri is not None and ri == rj) for j, rj in enumerate(ref)]
+            for i, ri in enumerate(ref)
+        ]
+    )
     return np.diag(a**2) + np.outer(b, b) * same
 
 

@@ -65,8 +65,9 @@ def fleet_drift(slopes: Sequence[float], slope_vars: Sequence[float]) -> FleetDr
     q = float(np.sum(w * (b - mean_fixed) ** 2))
     tau2 = max(0.0, (q - (b.size - 1)) / (np.sum(w) - np.sum(w**2) / np.sum(w)))
     w_re = 1.0 / (v + tau2)
-    return FleetDrift(float(np.sum(w_re * b) / np.sum(w_re)), float(1.0 / np.sum(w_re)),
-                      tau2, int(b.size))  # fmt: skip
+    return FleetDrift(
+        float(np.sum(w_re * b) / np.sum(w_re)), float(1.0 / np.sum(w_re)), tau2, int(b.size)
+    )
 
 
 @dataclass(frozen=True)
@@ -94,9 +95,11 @@ class Prediction:
 
 
 def predict_line(
-    t_days: Sequence[float], values: Sequence[float], stds: Sequence[float],
+    t_days: Sequence[float],
+    values: Sequence[float],
+    stds: Sequence[float],
     fleet: FleetDrift | None,
-) -> Prediction:  # fmt: skip
+) -> Prediction:
     """The unit's line from its calibrations and its fleet's rates (module docstring).
 
     Raises ValueError when neither gives a rate (one calibration and no fleet) or a std
@@ -121,14 +124,18 @@ def predict_line(
         raise ValueError("no drift rate: one calibration date and no fleet of the model")
     C = np.linalg.inv(A)
     beta = C @ r
-    return Prediction(float(beta[0]), float(C[0, 0]), float(beta[1]), float(C[1, 1]),
-                      float(C[0, 1]), t_last)  # fmt: skip
+    return Prediction(
+        float(beta[0]), float(C[0, 0]), float(beta[1]), float(C[1, 1]), float(C[0, 1]), t_last
+    )
 
 
 def in_tolerance_probability(
-    line: Prediction, days: np.ndarray | float, low: float, high: float,
+    line: Prediction,
+    days: np.ndarray | float,
+    low: float,
+    high: float,
     walk_var_per_day: float = 0.0,
-) -> np.ndarray:  # fmt: skip
+) -> np.ndarray:
     """R(T): probability that the value is in [low, high] `days` after the last calibration."""
     t = np.asarray(days, dtype=float)
     mu = line.mean(t)
@@ -156,9 +163,14 @@ class Interval:
 
 
 def interval(
-    line: Prediction, low: float, high: float, reliability: float, *,
-    max_days: float = 1826.0, walk_var_per_day: float = 0.0,
-) -> Interval:  # fmt: skip
+    line: Prediction,
+    low: float,
+    high: float,
+    reliability: float,
+    *,
+    max_days: float = 1826.0,
+    walk_var_per_day: float = 0.0,
+) -> Interval:
     """The interval of one parameter (module docstring); a day grid, then bisection to
     0.01 day (R(T) falls monotonically once the predicted value heads out)."""
     if not 0.0 < reliability < 1.0:

@@ -194,8 +194,9 @@ def nav_noise(info: dict) -> NavNoise:
     NavNoise. Raises ValueError naming what is missing when `info` is not a static-bias
     run's (no Allan deviation, no noise parameters).
     """
-    missing = [k for k in ("allan", "noise_parameters", "n_samples", "sample_rate_hz")
-               if k not in info]  # fmt: skip
+    missing = [
+        k for k in ("allan", "noise_parameters", "n_samples", "sample_rate_hz") if k not in info
+    ]
     for sensor in ("acc", "gyr"):
         if sensor not in info.get("noise_parameters", {}) or sensor not in info.get("allan", {}):
             missing.append(f"noise_parameters.{sensor} / allan.{sensor}")
@@ -209,11 +210,20 @@ def nav_noise(info: dict) -> NavNoise:
     methods: dict[str, str] = {}
     for sensor in ("acc", "gyr"):
         docs = info["noise_parameters"][sensor]
-        fitted = [NoiseParameters(float(d["arw"]), float(d["bias_instability"]), float(d["rrw"]),
-                                  str(d["method"])) for d in docs]  # fmt: skip
+        fitted = [
+            NoiseParameters(
+                float(d["arw"]), float(d["bias_instability"]), float(d["rrw"]), str(d["method"])
+            )
+            for d in docs
+        ]
         methods |= {f"{sensor}.{a}": p.method for a, p in zip(AXES, fitted, strict=True)}
-        boot = bootstrap_terms(fitted, n, rate, float(info.get("n_sigma", 3.0)),
-                               np.asarray(info["allan"][sensor]["taus"], dtype=float))  # fmt: skip
+        boot = bootstrap_terms(
+            fitted,
+            n,
+            rate,
+            float(info.get("n_sigma", 3.0)),
+            np.asarray(info["allan"][sensor]["taus"], dtype=float),
+        )
         for term, attr in (("n", "arw"), ("k", "rrw")):
             bias, sd = boot[f"{term}_bias"], boot[f"{term}_sd"]
             terms[sensor, term] = NavTerm(

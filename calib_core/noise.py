@@ -65,9 +65,15 @@ class AllanResult:
                 raise IndexError(f"AllanResult has one channel, asked for column {i}")
             return self
         return AllanResult(
-            self.taus, self.adev[:, i], self.n_clusters, self.ci_low[:, i], self.ci_high[:, i],
-            self.edf, self.rate_hz, self.n_samples,
-        )  # fmt: skip
+            self.taus,
+            self.adev[:, i],
+            self.n_clusters,
+            self.ci_low[:, i],
+            self.ci_high[:, i],
+            self.edf,
+            self.rate_hz,
+            self.n_samples,
+        )
 
     def to_dict(self) -> dict[str, list]:
         """JSON-able lists (for Calibration.info and the archive)."""

@@ -93,9 +93,7 @@ def parse_error(text: str) -> ReferenceError:
         )
     quantity, raw = m[1], m[2]
     if quantity not in QUANTITIES:
-        raise ValueError(
-            f"--error: unknown quantity {quantity!r}; known: {', '.join(QUANTITIES)}"
-        )
+        raise ValueError(f"--error: unknown quantity {quantity!r}; known: {', '.join(QUANTITIES)}")
     try:
         value = float(raw)
     except ValueError:
@@ -126,17 +124,22 @@ def correct_segments(
     if error.quantity == "rate_error_ppm":
         hit = [k for k, r in segments.items() if "table_rate" in r.reference]
         out = {k: (_scaled_rate(r, factor) if k in hit else r) for k, r in segments.items()}
-        what = (f"reference table_rate x {factor:.12g} in {len(hit)} of {len(segments)} segments"
-                if hit else "no segment has a table_rate reference: the table's rate does not "
-                "enter this run's solve")  # fmt: skip
+        what = (
+            f"reference table_rate x {factor:.12g} in {len(hit)} of {len(segments)} segments"
+            if hit
+            else "no segment has a table_rate reference: the table's rate does not "
+            "enter this run's solve"
+        )
         return out, {"affected": bool(hit), "what": what, "factor": factor}
     if error.quantity == "clock_error_ppm":
         out = {k: replace(r, t=np.asarray(r.t, dtype=float) * factor) for k, r in segments.items()}
         what = f"time stamps x {factor:.12g} in all {len(segments)} segments"
         return out, {"affected": True, "what": what, "factor": factor}
     if error.quantity == "radius_error_mm":
-        what = ("the centrifuge procedure estimates the effective radius from its near-1 g "
-                "run; the arm's nominal radius enters no solve")  # fmt: skip
+        what = (
+            "the centrifuge procedure estimates the effective radius from its near-1 g "
+            "run; the arm's nominal radius enters no solve"
+        )
         return dict(segments), {"affected": False, "what": what, "factor": 1.0}
     raise ValueError(f"{error.quantity}: not implemented ({_NOT_YET.get(error.quantity, '')})")
 

@@ -59,8 +59,9 @@ def run_budgets(
         return budgets(_constant(estimates), [], type_a, units, estimates=estimates)
     solve, inputs, notes = _model(cal, segments, settings, spec)
     if solve is None:
-        return budgets(_constant(estimates), [], type_a, units, estimates=estimates,
-                       reason=notes[0])
+        return budgets(
+            _constant(estimates), [], type_a, units, estimates=estimates, reason=notes[0]
+        )
     return budgets(solve, inputs, type_a, units, estimates=estimates, notes=notes)
 
 
@@ -69,7 +70,9 @@ def _constant(estimates: Mapping[str, float]) -> Solve:
 
 
 def _model(
-    cal: Calibration, segments: Mapping[str, Recording], settings: Mapping[str, Any],
+    cal: Calibration,
+    segments: Mapping[str, Recording],
+    settings: Mapping[str, Any],
     spec: EquipmentSpec,
 ) -> Model:
     """The solve closure over the Type B inputs, the inputs and notes: the model of the
@@ -83,4 +86,3 @@ def _model(
 def budgets_doc(budgets_: Mapping[str, Budget]) -> dict[str, dict[str, Any]]:
     """name -> Budget.to_dict(), sorted by name (the archive's and the reports' form)."""
     return {n: budgets_[n].to_dict() for n in sorted(budgets_)}
-

@@ -330,6 +330,12 @@ class StreamedAllan:
 def columns(result: AllanResult, cols: slice) -> AllanResult:
     """The channels `cols` of a multi-channel result (e.g. the gyro's of a (K, 6) one)."""
     return AllanResult(
-        result.taus, result.adev[:, cols], result.n_clusters, result.ci_low[:, cols],
-        result.ci_high[:, cols], result.edf, result.rate_hz, result.n_samples,
-    )  # fmt: skip
+        result.taus,
+        result.adev[:, cols],
+        result.n_clusters,
+        result.ci_low[:, cols],
+        result.ci_high[:, cols],
+        result.edf,
+        result.rate_hz,
+        result.n_samples,
+    )

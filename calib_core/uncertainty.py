@@ -30,7 +30,9 @@ from calib_core.distributions import norm_ppf, t_ppf
 
 # Divisor from a stated half-width a (or expanded U at k for "normal") to a standard uncertainty.
 _DIVISORS = {
-    "rectangular": math.sqrt(3.0), "triangular": math.sqrt(6.0), "u-shaped": math.sqrt(2.0),
+    "rectangular": math.sqrt(3.0),
+    "triangular": math.sqrt(6.0),
+    "u-shaped": math.sqrt(2.0),
 }
 DISTRIBUTIONS = ("normal", *_DIVISORS)
 
@@ -82,9 +84,7 @@ class InputQuantity:
         return self.value + self.std * standard_draws(self.distribution, self.dof, rng, n)
 
 
-def standard_draws(
-    distribution: str, dof: float, rng: np.random.Generator, n: int
-) -> np.ndarray:
+def standard_draws(distribution: str, dof: float, rng: np.random.Generator, n: int) -> np.ndarray:
     """(n,) draws of a zero-mean input of unit standard uncertainty (JCGM 101 6.4).
 
     A normal input with finite degrees of freedom is a scaled Student t (JCGM 101 6.4.9: the
@@ -147,7 +147,7 @@ class Budget:
 
     @property
     def label(self) -> str:
-        """"Type A only (<why>)", e.g. "Type A only (equipment unknown)", or "Type A + Type B"."""
+        """ "Type A only (<why>)", e.g. "Type A only (equipment unknown)", or "Type A + Type B"."""
         if not self.type_a_only:
             return "Type A + Type B"
         return f"Type A only ({self.notes[0] if self.notes else EQUIPMENT_UNKNOWN})"
@@ -155,11 +155,18 @@ class Budget:
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly document of the budget."""
         return {
-            "parameter": self.parameter, "value": self.value, "unit": self.unit,
-            "rows": [r.to_dict() for r in self.rows], "uc": self.uc,
+            "parameter": self.parameter,
+            "value": self.value,
+            "unit": self.unit,
+            "rows": [r.to_dict() for r in self.rows],
+            "uc": self.uc,
             "nu_eff": None if math.isinf(self.nu_eff) else self.nu_eff,
-            "k": self.k, "U": self.U, "coverage": self.coverage,
-            "type_a_only": self.type_a_only, "label": self.label, "notes": list(self.notes),
+            "k": self.k,
+            "U": self.U,
+            "coverage": self.coverage,
+            "type_a_only": self.type_a_only,
+            "label": self.label,
+            "notes": list(self.notes),
             "k_method": self.k_method,
         }
 
@@ -171,13 +178,25 @@ class Budget:
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> Budget:
         """Read back `to_dict` (None degrees of freedom are infinite)."""
+
         def dof(v: Any) -> float:
             return math.inf if v is None else float(v)
 
         rows = tuple(Contribution(**{**r, "dof": dof(r["dof"])}) for r in doc["rows"])
-        return cls(doc["parameter"], doc["value"], doc["unit"], rows, doc["uc"],
-                   dof(doc["nu_eff"]), doc["k"], doc["U"], doc["coverage"],
-                   doc["type_a_only"], tuple(doc["notes"]), doc.get("k_method", K_STUDENT))
+        return cls(
+            doc["parameter"],
+            doc["value"],
+            doc["unit"],
+            rows,
+            doc["uc"],
+            dof(doc["nu_eff"]),
+            doc["k"],
+            doc["U"],
+            doc["coverage"],
+            doc["type_a_only"],
+            tuple(doc["notes"]),
+            doc.get("k_method", K_STUDENT),
+        )
 
 
 def coverage_factor(nu_eff: float, coverage: float = 0.95) -> float:
@@ -235,8 +254,13 @@ def _unit_draws(distribution: str, dof: float, index: int, draws: int) -> np.nda
 
 
 def combine(
-    parameter: str, value: float, rows: Sequence[Contribution], unit: str = "",
-    coverage: float = 0.95, type_a_only: bool = False, notes: Sequence[str] = (),
+    parameter: str,
+    value: float,
+    rows: Sequence[Contribution],
+    unit: str = "",
+    coverage: float = 0.95,
+    type_a_only: bool = False,
+    notes: Sequence[str] = (),
 ) -> Budget:
     """Combine uncorrelated budget rows into u_c, nu_eff, k and U.
 
@@ -251,8 +275,20 @@ def combine(
         k, method = propagated_coverage_factor(rows, coverage), K_PROPAGATED
     else:
         k, method = coverage_factor(nu, coverage), K_STUDENT
-    return Budget(parameter, value, unit, tuple(rows), uc, nu, k, k * uc, coverage,
-                  type_a_only, tuple(notes), method)
+    return Budget(
+        parameter,
+        value,
+        unit,
+        tuple(rows),
+        uc,
+        nu,
+        k,
+        k * uc,
+        coverage,
+        type_a_only,
+        tuple(notes),
+        method,
+    )
 
 
 def sensitivities(
@@ -276,9 +312,14 @@ def sensitivities(
 
 
 def budgets(
-    solve: Solve, inputs: Sequence[InputQuantity], type_a: Mapping[str, tuple[float, float]],
-    units: Mapping[str, str] | None = None, coverage: float = 0.95, *,
-    estimates: Mapping[str, float] | None = None, notes: Sequence[str] = (),
+    solve: Solve,
+    inputs: Sequence[InputQuantity],
+    type_a: Mapping[str, tuple[float, float]],
+    units: Mapping[str, str] | None = None,
+    coverage: float = 0.95,
+    *,
+    estimates: Mapping[str, float] | None = None,
+    notes: Sequence[str] = (),
     reason: str = EQUIPMENT_UNKNOWN,
 ) -> dict[str, Budget]:
     """Budget of every parameter of `type_a` (name -> (std, dof)).
@@ -293,21 +334,36 @@ def budgets(
     sens = sensitivities(solve, inputs) if inputs else {}
     out: dict[str, Budget] = {}
     for name, (std_a, dof_a) in type_a.items():
-        rows = [Contribution("fit (Type A)", "A", "normal", std_a, 1.0, std_a, dof_a,
-                             units.get(name, ""))]
+        rows = [
+            Contribution(
+                "fit (Type A)", "A", "normal", std_a, 1.0, std_a, dof_a, units.get(name, "")
+            )
+        ]
         for q in inputs:
             c = sens[q.name].get(name, 0.0)
-            rows.append(Contribution(q.name, "B", q.distribution, q.std, c, abs(c) * q.std,
-                                     q.dof, q.unit))
+            rows.append(
+                Contribution(q.name, "B", q.distribution, q.std, c, abs(c) * q.std, q.dof, q.unit)
+            )
         why = (*notes,) if inputs else (reason, *notes, "Type B sources not evaluated")
-        out[name] = combine(name, float(values[name]), rows, units.get(name, ""), coverage,
-                            type_a_only=not inputs, notes=why)
+        out[name] = combine(
+            name,
+            float(values[name]),
+            rows,
+            units.get(name, ""),
+            coverage,
+            type_a_only=not inputs,
+            notes=why,
+        )
     return out
 
 
 def monte_carlo(
-    solve: Solve, inputs: Sequence[InputQuantity], type_a: Mapping[str, tuple[float, float]],
-    n: int = 2000, rng: np.random.Generator | None = None, coverage: float = 0.95,
+    solve: Solve,
+    inputs: Sequence[InputQuantity],
+    type_a: Mapping[str, tuple[float, float]],
+    n: int = 2000,
+    rng: np.random.Generator | None = None,
+    coverage: float = 0.95,
 ) -> dict[str, tuple[float, float, float]]:
     """JCGM 101 check: name -> (mean, lower, upper) of the symmetric coverage interval.
 

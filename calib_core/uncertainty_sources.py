@@ -62,8 +62,11 @@ class EquipmentSpec:
 
     def missing(self, *names: str) -> tuple[str, ...]:
         """Notes for the named sources that are not evaluated (their equipment unknown)."""
-        return tuple(f"{n} not evaluated: equipment not named in the run"
-                     for n in names if getattr(self, n) is None)
+        return tuple(
+            f"{n} not evaluated: equipment not named in the run"
+            for n in names
+            if getattr(self, n) is None
+        )
 
 
 def static_inputs(
@@ -102,7 +105,6 @@ def _tilt(label: str, values: Mapping[str, float]) -> Rotation:
     return Rotation.from_rotvec(rotvec)
 
 
-
 def integral_inputs(rotations: Sequence[str], spec: EquipmentSpec) -> list[InputQuantity]:
     """The turn angle error of each rotation record (rectangular), when the spec knows it."""
     if spec.turn_angle is None:
@@ -135,8 +137,11 @@ def integral_matrix(
 
 
 def static_solve(
-    labels: Sequence[str], acc: tuple[np.ndarray, np.ndarray], gyr: tuple[np.ndarray, np.ndarray],
-    gravity: float, integral: tuple[np.ndarray, int, Sequence[str]] | None = None,
+    labels: Sequence[str],
+    acc: tuple[np.ndarray, np.ndarray],
+    gyr: tuple[np.ndarray, np.ndarray],
+    gravity: float,
+    integral: tuple[np.ndarray, int, Sequence[str]] | None = None,
 ) -> Callable[[Mapping[str, float]], dict[str, float]]:
     """The static fits (and the integral method) as a function of the Type B inputs.
 
@@ -156,16 +161,27 @@ def static_solve(
         out = {**solve_accel_linear(ref, *acc).params, **solve_gyro_static(ref, *gyr).params}
         if integral is not None:
             m = integral_matrix(*integral, values) - np.eye(3)
-            out.update({n: float(m[i, j]) for i, row in enumerate(params.matrix_names("gyr"))
-                        for j, n in enumerate(row)})
+            out.update(
+                {
+                    n: float(m[i, j])
+                    for i, row in enumerate(params.matrix_names("gyr"))
+                    for j, n in enumerate(row)
+                }
+            )
         return out
 
     return solve
 
 
 def static_accel_budgets(
-    labels: Sequence[str], means: np.ndarray, sem: np.ndarray, dof: float, gravity: float,
-    spec: EquipmentSpec | None, mc_draws: int = 0, rng: np.random.Generator | None = None,
+    labels: Sequence[str],
+    means: np.ndarray,
+    sem: np.ndarray,
+    dof: float,
+    gravity: float,
+    spec: EquipmentSpec | None,
+    mc_draws: int = 0,
+    rng: np.random.Generator | None = None,
 ) -> tuple[dict[str, Budget], dict[str, tuple[float, float, float]] | None]:
     """Budgets (and optionally the Monte Carlo intervals) of acc.bias/scale/misalign.
 
@@ -202,7 +218,10 @@ def rate_table_solve(points: Sequence[RatePoint]) -> Callable[[Mapping[str, floa
 
 
 def rate_table_budgets(
-    points: Sequence[RatePoint], dof: float, spec: EquipmentSpec | None, mc_draws: int = 0,
+    points: Sequence[RatePoint],
+    dof: float,
+    spec: EquipmentSpec | None,
+    mc_draws: int = 0,
     rng: np.random.Generator | None = None,
 ) -> tuple[dict[str, Budget], dict[str, tuple[float, float, float]] | None]:
     """Budgets of the rate-table gyro parameters with the table's relative rate error (Type B)."""
@@ -210,8 +229,11 @@ def rate_table_budgets(
     solve = rate_table_solve(points)
     cal = solve_rate_table(points)
     type_a = {n: (p.std, dof) for n, p in cal.parameters.items()}
-    inputs = [] if spec is None or spec.table_rate_rel is None else [
-        InputQuantity("table.rate_rel", 0.0, spec.table_rate_rel, unit="1")]
+    inputs = (
+        []
+        if spec is None or spec.table_rate_rel is None
+        else [InputQuantity("table.rate_rel", 0.0, spec.table_rate_rel, unit="1")]
+    )
     units = {n: ("rad/s" if ".bias." in n else "1") for n in type_a}
     out = budgets(solve, inputs, type_a, units)
     mc = monte_carlo(solve, inputs, type_a, mc_draws, rng) if mc_draws and inputs else None
@@ -222,19 +244,30 @@ Model = tuple["Callable[[Mapping[str, float]], dict] | None", list[InputQuantity
 
 
 def static_model(
-    cal: Calibration, segments: Mapping[str, Recording], settings: Mapping[str, Any],
+    cal: Calibration,
+    segments: Mapping[str, Recording],
+    settings: Mapping[str, Any],
     spec: EquipmentSpec,
 ) -> Model:
     """The six-position procedures' model: gravity and face angles through the static fits,
     turn angles through the integral; only for the least-squares linear accelerometer fit."""
-    default = (settings.get("accel_solver", "least_squares") == "least_squares"
-               and settings.get("accel_model", "linear") == "linear")  # fmt: skip
+    default = (
+        settings.get("accel_solver", "least_squares") == "least_squares"
+        and settings.get("accel_model", "linear") == "linear"
+    )
     if not default:
-        return None, [], ("Type B sources not modelled for accel_solver/accel_model "
-                          "other than least_squares/linear",)  # fmt: skip
+        return (
+            None,
+            [],
+            (
+                "Type B sources not modelled for accel_solver/accel_model "
+                "other than least_squares/linear",
+            ),
+        )
     labels = [label for label in STATIC_LABELS if label in segments]
-    stats = [(channel_stats(segments[label].acc), channel_stats(segments[label].gyr))
-             for label in labels]  # fmt: skip
+    stats = [
+        (channel_stats(segments[label].acc), channel_stats(segments[label].gyr)) for label in labels
+    ]
     acc_mean, acc_sem = (np.array([getattr(a, f) for a, _ in stats]) for f in ("mean", "sem"))
     gyr_mean, gyr_sem = (np.array([getattr(g, f) for _, g in stats]) for f in ("mean", "sem"))
     rotations = [label for label in ROTATION_LABELS if label in segments]
@@ -252,14 +285,16 @@ def static_model(
 
 
 def rate_table_model(
-    cal: Calibration, segments: Mapping[str, Recording], settings: Mapping[str, Any],
+    cal: Calibration,
+    segments: Mapping[str, Recording],
+    settings: Mapping[str, Any],
     spec: EquipmentSpec,
 ) -> Model:
     """The rate-table procedure's model: the table's relative rate error through its solver."""
-    kwargs = {k: float(settings[k]) for k in ("settle_s", "record_s")
-              if settings.get(k) is not None}  # fmt: skip
+    kwargs = {
+        k: float(settings[k]) for k in ("settle_s", "record_s") if settings.get(k) is not None
+    }
     if spec.table_rate_rel is None:
         return None, [], spec.missing("table_rate_rel")
     solve = rate_table_solve(rate_points(list(segments.values()), **kwargs))
     return solve, [InputQuantity("table.rate_rel", 0.0, spec.table_rate_rel, unit="1")], ()
-

@@ -133,7 +133,7 @@ def _ranked_statistics(cal: Calibration, profile: ToleranceProfile) -> list[Wors
                     float(values[i]),
                     limit,
                     float(values[i] / limit),
-                )  # fmt: skip
+                )
             )
     return sorted(out, key=lambda w: -w.ratio)
 
@@ -166,9 +166,14 @@ def _pattern_terms(cal: Calibration, sensor: str, limit: float) -> list[SuspectT
                 else:
                     name = f"acc.scale.{r}" if r == c else f"acc.misalign.{r}{c}"
                 out.append(
-                    SuspectTerm(name, float(odd[ri, ci] / g), params.unit_of(name),
-                                name in cal.parameters, "linear")
-                )  # fmt: skip
+                    SuspectTerm(
+                        name,
+                        float(odd[ri, ci] / g),
+                        params.unit_of(name),
+                        name in cal.parameters,
+                        "linear",
+                    )
+                )
             if abs(even[ri, ci]) > SUSPECT_FRACTION * limit:
                 name = f"acc.k2.{r}" if sensor == "acc" and r == c else f"{sensor}.{r} ~ f_{c}^2"
                 canonical = name.startswith("acc.k2.")
@@ -178,9 +183,10 @@ def _pattern_terms(cal: Calibration, sensor: str, limit: float) -> list[SuspectT
                     else f"({params.UNITS[sensor + '.bias']})/(m/s^2)^2"
                 )
                 out.append(
-                    SuspectTerm(name, float(even[ri, ci] / g**2), unit,
-                                name in cal.parameters, "quadratic")
-                )  # fmt: skip
+                    SuspectTerm(
+                        name, float(even[ri, ci] / g**2), unit, name in cal.parameters, "quadratic"
+                    )
+                )
     return sorted(out, key=lambda s: -abs(s.estimate))
 
 
@@ -247,7 +253,6 @@ def _advice(suspects: list[SuspectTerm], failed: list[WorstSegment]) -> list[str
     if not failed:
         advice.append("Residuals are within the limits at every segment.")
     return advice
-
 
 
 # --- 2. accuracy verification on held-out points ----------------------------------------
@@ -432,7 +437,7 @@ def repeatability(runs: list[RunValues], profile: ToleranceProfile) -> list[Chec
                 float(rules["cv_max"]),
                 bool(cv <= rules["cv_max"]),
                 f"rule cv: CV of K = 1 + scale over {len(runs)} runs ({ids})",
-            )  # fmt: skip
+            )
         )
     if scatter_names:
         dof = len(runs) - 1
@@ -450,6 +455,6 @@ def repeatability(runs: list[RunValues], profile: ToleranceProfile) -> list[Chec
                     f"rule scatter: run-to-run std {np.std(x, ddof=1):.3g} vs rms uncertainty "
                     f"{np.sqrt(np.mean(u**2)):.3g} {params.unit_of(n)}, chi2 with {dof} dof "
                     f"over {len(runs)} runs ({ids})",
-                )  # fmt: skip
+                )
             )
     return out

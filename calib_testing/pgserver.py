@@ -83,9 +83,17 @@ def private_server(**settings: str) -> Iterator[str]:
         )
 
     init = run(
-        str(bd / "initdb"), "-D", str(data), "-U", "postgres", "-A", "trust", "-E", "UTF8",
+        str(bd / "initdb"),
+        "-D",
+        str(data),
+        "-U",
+        "postgres",
+        "-A",
+        "trust",
+        "-E",
+        "UTF8",
         "--no-sync",
-    )  # fmt: skip
+    )
     if init.returncode:
         shutil.rmtree(base, ignore_errors=True)
         release(watchdog)
@@ -93,9 +101,18 @@ def private_server(**settings: str) -> Iterator[str]:
     opts = f"-p {port} -k {base} -c listen_addresses=127.0.0.1 -c fsync=off"
     opts += "".join(f" -c {k}={v}" for k, v in settings.items())
     start = run(
-        str(bd / "pg_ctl"), "-D", str(data), "-o", opts, "-l", str(base / "log"),
-        "-w", "-t", str(START_TIMEOUT_S), "start",
-    )  # fmt: skip
+        str(bd / "pg_ctl"),
+        "-D",
+        str(data),
+        "-o",
+        opts,
+        "-l",
+        str(base / "log"),
+        "-w",
+        "-t",
+        str(START_TIMEOUT_S),
+        "start",
+    )
     if start.returncode:
         log = (base / "log").read_text() if (base / "log").exists() else ""
         clean(base)

@@ -52,16 +52,24 @@ def as_found_step(
     profile : the run's tolerance profile (None: no verdicts).
     """
     started = time.perf_counter()
-    said = {"earlier_run_id": earlier["run_id"], "earlier_revision": earlier["revision"],
-            "earlier_started_at": earlier["started_at"].isoformat(),
-            "method": "earlier parameters applied to this run's samples, error model solved "
-                      f"again by procedure {cal.procedure}"}  # fmt: skip
+    said = {
+        "earlier_run_id": earlier["run_id"],
+        "earlier_revision": earlier["revision"],
+        "earlier_started_at": earlier["started_at"].isoformat(),
+        "method": "earlier parameters applied to this run's samples, error model solved "
+        f"again by procedure {cal.procedure}",
+    }
     try:
         before = Calibration.from_dict(earlier["document"])
         found = as_found.evaluate(before, fit, cal.procedure, cal.gravity, settings)
     except ValueError as exc:
         return StepRecord(STEP, settings=said, statistics={"refused": str(exc)})
     rows = as_found.judge(found, before, cal, budgets, profile)
-    return StepRecord(STEP, settings=said, statistics={
-        "parameters": [r.to_dict() for r in rows],
-        "seconds": round(time.perf_counter() - started, 4)})  # fmt: skip
+    return StepRecord(
+        STEP,
+        settings=said,
+        statistics={
+            "parameters": [r.to_dict() for r in rows],
+            "seconds": round(time.perf_counter() - started, 4),
+        },
+    )

@@ -159,10 +159,17 @@ def history(serial: str, archive: ArchiveOpt = None, as_json: JsonOpt = False) -
     if not rows:
         fail(f"no calibrations archived for serial {serial!r}")
     # The row's identity and verdict first: a narrow terminal leaves out the right end.
-    columns = ["run_id", "verdict", "started_at", "revision", "superseded", "procedure",
-               "software_version", "created_at"]  # fmt: skip
-    print_table(f"History of {serial}", columns,
-                [[cell(r[c]) for c in columns] for r in rows])  # fmt: skip
+    columns = [
+        "run_id",
+        "verdict",
+        "started_at",
+        "revision",
+        "superseded",
+        "procedure",
+        "software_version",
+        "created_at",
+    ]
+    print_table(f"History of {serial}", columns, [[cell(r[c]) for c in columns] for r in rows])
 
 
 @app.command()
@@ -235,16 +242,21 @@ def _print_run(summary: dict, root: Path) -> None:
 
     failed = [c for c in cal["checks"] if condition_status(c) == "fail"]
     if failed:
-        rows = [[c["name"], _num(c.get("value")), _num(c.get("limit")),
-                 cell(c.get("detail") or "")] for c in failed]  # fmt: skip
+        rows = [
+            [c["name"], _num(c.get("value")), _num(c.get("limit")), cell(c.get("detail") or "")]
+            for c in failed
+        ]
         print_table("Failed checks", ["check", "value", "limit", "detail"], rows)
     out.print(check_counts(cal["checks"]).sentence(), markup=False, highlight=False)
     noted = [c for c in cal["checks"] if condition_status(c) in (WARNING, NOT_RECORDED)]
     if noted:  # conditions that leave the verdict as it is
-        rows = [[c["name"], condition_status(c), _num(c.get("value")),
-                 cell(c.get("detail") or "")] for c in noted]  # fmt: skip
-        print_table("Conditions: warnings, not recorded", ["check", "status", "value", "detail"],
-                    rows)  # fmt: skip
+        rows = [
+            [c["name"], condition_status(c), _num(c.get("value")), cell(c.get("detail") or "")]
+            for c in noted
+        ]
+        print_table(
+            "Conditions: warnings, not recorded", ["check", "status", "value", "detail"], rows
+        )
     out.print(f"(every field: calib show {summary['run_id']} --json)", markup=False)
 
 
@@ -290,9 +302,18 @@ def export(
         fail("--format mat writes a binary file: give --output FILE.mat")
     arch, run_id = open_run(archive, run_id)
     try:
-        result = export_run(arch, run_id, fmt, revision=revision, thermal=thermal,
-                            instance=instance, accel_id=accel_id, gyro_id=gyro_id,
-                            rostopic=rostopic, update_rate_hz=update_rate)  # fmt: skip
+        result = export_run(
+            arch,
+            run_id,
+            fmt,
+            revision=revision,
+            thermal=thermal,
+            instance=instance,
+            accel_id=accel_id,
+            gyro_id=gyro_id,
+            rostopic=rostopic,
+            update_rate_hz=update_rate,
+        )
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
     for note in result.warnings:

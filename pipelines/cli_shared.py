@@ -274,8 +274,9 @@ def print_frame(df, title: str) -> None:
     value in every row (the serial and run of a run's parameters) are said once above it.
     The row's identity (serial, run id) and its verdict come first: a narrow terminal
     leaves out columns from the right."""
-    first = [c for c in df.columns if is_id_column(str(c))] + [c for c in df.columns
-                                                              if c == "verdict"]  # fmt: skip
+    first = [c for c in df.columns if is_id_column(str(c))] + [
+        c for c in df.columns if c == "verdict"
+    ]
     df = df[first + [c for c in df.columns if c not in first]]
     columns = [str(c) for c in df.columns]
     rows = [[_cell(v) for v in row] for row in df.itertuples(index=False)]

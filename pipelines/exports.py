@@ -147,8 +147,12 @@ def _comment(header: str) -> list[str]:
 
 def px4_params_text(rows: list[tuple[str, float | int, int]], *, header: str = "") -> str:
     """QGroundControl parameter file: tab-separated vehicle id, component id, name, value, type."""
-    lines = ["# Onboard parameters for Vehicle 1", *(_comment(header) or ["#"]), "#",
-             "# Vehicle-Id Component-Id Name Value Type"]  # fmt: skip
+    lines = [
+        "# Onboard parameters for Vehicle 1",
+        *(_comment(header) or ["#"]),
+        "#",
+        "# Vehicle-Id Component-Id Name Value Type",
+    ]
     for name, value, kind in rows:
         text = str(int(value)) if kind == MAV_PARAM_TYPE_INT32 else f"{value:.9g}"
         lines.append(f"1\t1\t{name}\t{text}\t{kind}")
@@ -196,7 +200,7 @@ def ardupilot_parameters(
             [
                 shift_polynomial(c, model.t_ref, ARDUPILOT_TREF)
                 for c in bias_polynomials(model, calibration, s, 3)
-            ]  # fmt: skip
+            ]
         )
         for s in ("acc", "gyr")
     }
@@ -386,8 +390,10 @@ def ardupilot_calibration_parameters(
     if imu not in ARDUPILOT_PREFIX:
         raise ValueError(f"ArduPilot IMU {imu}: expected 1, 2 or 3")
     acc_p, gyr_p = ARDUPILOT_PREFIX[imu]
-    names = {"acc": (f"{acc_p}OFFS" if imu > 1 else "INS_ACCOFFS"),
-             "gyr": (f"{gyr_p}OFFS" if imu > 1 else "INS_GYROFFS")}  # fmt: skip
+    names = {
+        "acc": (f"{acc_p}OFFS" if imu > 1 else "INS_ACCOFFS"),
+        "gyr": (f"{gyr_p}OFFS" if imu > 1 else "INS_GYROFFS"),
+    }
     t0 = cal_temp if model is None or cal_temp is not None else model.t_ref
     m = None if model is None else (model if cal_temp is None else model.anchored(cal, cal_temp))
     rows: list[tuple[str, float]] = []
@@ -442,8 +448,10 @@ def parameter_rows(
     rows = [(n, p.value, p.std, p.unit) for n, p in sorted(cal.parameters.items())]
     if model is None:
         return rows
-    rows += [(f"thermal:{k}", float(getattr(model, k)), None, "degC")
-             for k in ("t_ref", "t_min", "t_max")]  # fmt: skip
+    rows += [
+        (f"thermal:{k}", float(getattr(model, k)), None, "degC")
+        for k in ("t_ref", "t_min", "t_max")
+    ]
     for name, curve in sorted(model.curves.items()):
         unit = params.unit_of(name)
         for k, c in enumerate(curve.coef):
@@ -497,10 +505,13 @@ def mat_variables(
         coef = np.zeros((len(curves), max((model.curves[n].order for n in curves), default=0) + 1))
         for i, n in enumerate(curves):
             coef[i, : model.curves[n].order + 1] = model.curves[n].coef
-        out |= {"thermal_t_ref": float(model.t_ref), "thermal_t_min": float(model.t_min),
-                "thermal_t_max": float(model.t_max),
-                "thermal_names": np.array(curves, dtype=object).reshape(-1, 1),
-                "thermal_coef": coef}  # fmt: skip
+        out |= {
+            "thermal_t_ref": float(model.t_ref),
+            "thermal_t_min": float(model.t_min),
+            "thermal_t_max": float(model.t_max),
+            "thermal_names": np.array(curves, dtype=object).reshape(-1, 1),
+            "thermal_coef": coef,
+        }
     return out
 
 

@@ -85,26 +85,45 @@ def _moves(summary: dict[str, Any], after: dict[str, float]) -> list[dict[str, A
             continue
         in_U = (after[name] - float(p["value"])) / U[name]
         if abs(in_U) >= MOVED_MIN:
-            moved.append({"name": name, "before": float(p["value"]), "after": after[name],
-                          "U_before": U[name], "change_in_U": in_U})  # fmt: skip
+            moved.append(
+                {
+                    "name": name,
+                    "before": float(p["value"]),
+                    "after": after[name],
+                    "U_before": U[name],
+                    "change_in_U": in_U,
+                }
+            )
     return sorted(moved, key=lambda m: -abs(m["change_in_U"]))
 
 
 def correction_step(
-    equipment_serial: str, kind: str, error: ReferenceError, stats: dict[str, Any],
+    equipment_serial: str,
+    kind: str,
+    error: ReferenceError,
+    stats: dict[str, Any],
     impact: dict | None,
-) -> StepRecord:  # fmt: skip
+) -> StepRecord:
     """The step record of a corrected solve: the correction (settings) and what it did."""
     return StepRecord(
         "reference_correction",
-        settings={"equipment_serial": equipment_serial, "equipment_kind": kind,
-                  "quantity": error.quantity, "value": error.value, "unit": error.unit},
+        settings={
+            "equipment_serial": equipment_serial,
+            "equipment_kind": kind,
+            "quantity": error.quantity,
+            "value": error.value,
+            "unit": error.unit,
+        },
         statistics={**stats, **({"impact": impact} if impact is not None else {})},
-    )  # fmt: skip
+    )
 
 
-def _corrector(equipment_serial: str, kind: str, error: ReferenceError,  # noqa: ANN202
-               impact: dict | None = None):  # fmt: skip
+def _corrector(
+    equipment_serial: str,
+    kind: str,
+    error: ReferenceError,  # noqa: ANN202
+    impact: dict | None = None,
+):
     def correct(loaded):  # noqa: ANN001, ANN202 - a LoadedRun in, (LoadedRun, StepRecord) out
         segments, stats = correct_segments(loaded.segments, error)
         step = correction_step(equipment_serial, kind, error, stats, impact)
@@ -124,8 +143,9 @@ def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corre
     return _corrector(str(held["equipment_serial"]), str(held["equipment_kind"]), error)
 
 
-def resolve_run(archive: Archive, run_id: str, equipment_serial: str, kind: str,
-                error: ReferenceError) -> dict[str, Any]:  # fmt: skip
+def resolve_run(
+    archive: Archive, run_id: str, equipment_serial: str, kind: str, error: ReferenceError
+) -> dict[str, Any]:
     """Solve one archived run again with the corrected reference; nothing is written.
 
     Returns
@@ -148,8 +168,11 @@ def resolve_run(archive: Archive, run_id: str, equipment_serial: str, kind: str,
         judged = check_run(loaded, cal, archive, run_id, budgets)
     except ValueError as exc:  # the corrected run no longer solves: say so, per run
         return {**out, "error": str(exc)}
-    return {**out, "verdict_after": judged.verdict,
-            "values_after": {n: p.value for n, p in cal.parameters.items()}}  # fmt: skip
+    return {
+        **out,
+        "verdict_after": judged.verdict,
+        "values_after": {n: p.value for n, p in cal.parameters.items()},
+    }
 
 
 def customer_name() -> str | None:
@@ -189,13 +212,19 @@ def impact(
     for run in runs:
         summary = queries.run_summary(archive, run["run_id"])
         entry = {k: run[k] for k in ("run_id", "serial", "model", "procedure")}
-        entry |= {"started_at": run["started_at"].isoformat(), "revision_before": run["revision"],
-                  "verdict_before": run["verdict"], "customer": customer}  # fmt: skip
-        found = resolve_run(archive, run["run_id"], equipment_serial, run["equipment_kind"],
-                            error)  # fmt: skip
-        entry |= {"affected": found["affected"], "what": found["what"],
-                  "verdict_after": found.get("verdict_after", run["verdict"]),
-                  "moved": _moves(summary, found.get("values_after", {}))}  # fmt: skip
+        entry |= {
+            "started_at": run["started_at"].isoformat(),
+            "revision_before": run["revision"],
+            "verdict_before": run["verdict"],
+            "customer": customer,
+        }
+        found = resolve_run(archive, run["run_id"], equipment_serial, run["equipment_kind"], error)
+        entry |= {
+            "affected": found["affected"],
+            "what": found["what"],
+            "verdict_after": found.get("verdict_after", run["verdict"]),
+            "moved": _moves(summary, found.get("values_after", {})),
+        }
         if "error" in found:
             entry |= {"verdict_after": None, "error": found["error"]}
         if apply and found["affected"] and "error" not in found:
@@ -203,27 +232,39 @@ def impact(
         report.append(entry)
     return {
         "equipment_serial": equipment_serial,
-        "error": {"quantity": error.quantity, "value": error.value, "unit": error.unit,
-                  "kind": error.kind},
+        "error": {
+            "quantity": error.quantity,
+            "value": error.value,
+            "unit": error.unit,
+            "kind": error.kind,
+        },
         "period": {"from": str(since), "to": None if until is None else str(until)},
         "reason": reason,
         "applied": apply,
         "customer": customer,
         "runs": report,
-    }  # fmt: skip
+    }
 
 
-def _apply(archive: Archive, run: dict[str, Any], equipment_serial: str, error: ReferenceError,
-           reason: str, entry: dict[str, Any]) -> dict[str, Any]:  # fmt: skip
+def _apply(
+    archive: Archive,
+    run: dict[str, Any],
+    equipment_serial: str,
+    error: ReferenceError,
+    reason: str,
+    entry: dict[str, Any],
+) -> dict[str, Any]:
     """Archive the corrected solve as a new sealed revision; its status and revision."""
     from pipelines.reprocess import reprocess_run
 
     run_id = run["run_id"]
-    record = {k: entry[k] for k in ("verdict_before", "verdict_after", "revision_before",
-                                    "moved")}  # fmt: skip
-    outcome = reprocess_run(archive, run_id, reason=reason,
-                            correct=_corrector(equipment_serial, run["equipment_kind"], error,
-                                               record))  # fmt: skip
+    record = {k: entry[k] for k in ("verdict_before", "verdict_after", "revision_before", "moved")}
+    outcome = reprocess_run(
+        archive,
+        run_id,
+        reason=reason,
+        correct=_corrector(equipment_serial, run["equipment_kind"], error, record),
+    )
     got = {"status": outcome["status"]}
     if outcome["status"] == "failed":
         got["error"] = outcome["error"]
@@ -241,10 +282,22 @@ def csv_report(doc: dict[str, Any]) -> str:
     for r in doc["runs"]:
         largest = r["moved"][0]["change_in_U"] if r["moved"] else 0.0
         moved = "; ".join(f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"])
-        w.writerow((r["run_id"], r["serial"], r["model"], r["started_at"], r["procedure"],
-                    r["customer"] or "", r["affected"], r["verdict_before"],
-                    r["verdict_after"] or "", f"{largest:+.3f}", moved,
-                    r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}"))
+        w.writerow(
+            (
+                r["run_id"],
+                r["serial"],
+                r["model"],
+                r["started_at"],
+                r["procedure"],
+                r["customer"] or "",
+                r["affected"],
+                r["verdict_before"],
+                r["verdict_after"] or "",
+                f"{largest:+.3f}",
+                moved,
+                r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}",
+            )
+        )
     return buf.getvalue()
 
 
@@ -256,23 +309,54 @@ def html_report(doc: dict[str, Any]) -> str:
     def cell(v: Any) -> str:
         return f"<td>{escape('' if v is None else str(v))}</td>"
 
-    head = ("<tr>" + "".join(f"<th>{escape(c)}</th>" for c in
-            ("Run", "Unit", "Model", "Started", "Procedure", "Verdict before", "Verdict after",
-             "Moved (change / U before)", "Status")) + "</tr>")  # fmt: skip
+    head = (
+        "<tr>"
+        + "".join(
+            f"<th>{escape(c)}</th>"
+            for c in (
+                "Run",
+                "Unit",
+                "Model",
+                "Started",
+                "Procedure",
+                "Verdict before",
+                "Verdict after",
+                "Moved (change / U before)",
+                "Status",
+            )
+        )
+        + "</tr>"
+    )
     rows = []
     for r in doc["runs"]:
-        moved = "; ".join(f"{m['name']} {m['before']:.6g} -> {m['after']:.6g} "
-                          f"({m['change_in_U']:+.2f} U)" for m in r["moved"])  # fmt: skip
+        moved = "; ".join(
+            f"{m['name']} {m['before']:.6g} -> {m['after']:.6g} ({m['change_in_U']:+.2f} U)"
+            for m in r["moved"]
+        )
         status = r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}"
-        rows.append("<tr>" + "".join(cell(v) for v in (
-            r["run_id"], r["serial"], r["model"], r["started_at"], r["procedure"],
-            r["verdict_before"], r["verdict_after"],
-            moved or ("no parameter moved" if r["affected"] else f"not affected: {r['what']}"),
-            status)) + "</tr>")  # fmt: skip
+        rows.append(
+            "<tr>"
+            + "".join(
+                cell(v)
+                for v in (
+                    r["run_id"],
+                    r["serial"],
+                    r["model"],
+                    r["started_at"],
+                    r["procedure"],
+                    r["verdict_before"],
+                    r["verdict_after"],
+                    moved
+                    or ("no parameter moved" if r["affected"] else f"not affected: {r['what']}"),
+                    status,
+                )
+            )
+            + "</tr>"
+        )
     period = f"{doc['period']['from']} to {doc['period']['to'] or 'now'}"
     flipped = sum(r["verdict_before"] != r["verdict_after"] for r in doc["runs"])
     return (
-        "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">"
+        '<!DOCTYPE html>\n<html><head><meta charset="utf-8">'
         f"<title>Impact of {escape(doc['reason'])}</title>"
         "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
         "td,th{border:1px solid #999;padding:3px 6px;text-align:left}</style></head><body>"

@@ -61,8 +61,13 @@ def _sniff_kind(path: Path) -> str:
 
     with path.open("rb") as fh:
         head = fh.read(64)
-    for magic, kind in ((ULOG_MAGIC, "ulog"), (ROS1_MAGIC, "rosbag"), (SQLITE_MAGIC, "rosbag"),
-                        (MCAP_MAGIC, "mcap"), (DF_HEAD, "dataflash")):  # fmt: skip
+    for magic, kind in (
+        (ULOG_MAGIC, "ulog"),
+        (ROS1_MAGIC, "rosbag"),
+        (SQLITE_MAGIC, "rosbag"),
+        (MCAP_MAGIC, "mcap"),
+        (DF_HEAD, "dataflash"),
+    ):
         if head.startswith(magic):
             return kind
     if parse_file_name(path.name) is not None:
@@ -148,8 +153,7 @@ def _read_csv(path: Path, doc: dict[str, Any]) -> Recording:
         "metadata_lines": dialect.metadata,
     }
     doc["columns"] = [
-        f"{name} [{split_unit(name)[1]}]" if split_unit(name)[1] else name
-        for name in dialect.names
+        f"{name} [{split_unit(name)[1]}]" if split_unit(name)[1] else name for name in dialect.names
     ]
     layout = layout_of(path, fmt)
     doc["roles"] = layout.roles

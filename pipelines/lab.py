@@ -70,8 +70,10 @@ def load_lab_profile() -> tuple[dict[str, Any], Path] | None:
 def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
     unknown = sorted(set(doc) - {*TABLES, "equipment", "site"})
     if unknown:
-        raise ValueError(f"lab profile {path}: unknown table(s) {unknown}; "
-                         f"expected {sorted({*TABLES, 'equipment', 'site'})}")
+        raise ValueError(
+            f"lab profile {path}: unknown table(s) {unknown}; "
+            f"expected {sorted({*TABLES, 'equipment', 'site'})}"
+        )
     if "site" in doc:
         _check_site(doc["site"], path)
     for table, keys in TABLES.items():
@@ -79,8 +81,10 @@ def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
             _check_table(doc[table], keys, path, table)
     country = doc.get("laboratory", {}).get("country")
     if country is not None and not (len(country) == 2 and country.isascii() and country.isupper()):
-        raise ValueError(f"lab profile {path}: laboratory.country: expected an ISO 3166-1 "
-                         f"alpha-2 code such as 'DE', got {country!r}")
+        raise ValueError(
+            f"lab profile {path}: laboratory.country: expected an ISO 3166-1 "
+            f"alpha-2 code such as 'DE', got {country!r}"
+        )
     equipment = doc.get("equipment", [])
     if not isinstance(equipment, list):
         raise ValueError(f"lab profile {path}: equipment: expected an array of tables")
@@ -89,29 +93,36 @@ def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
     return doc
 
 
-def _check_table(
-    table: Any, keys: tuple[set[str], set[str]], path: Path, where: str
-) -> None:
+def _check_table(table: Any, keys: tuple[set[str], set[str]], path: Path, where: str) -> None:
     required, optional = keys
     if not isinstance(table, dict):
         raise ValueError(f"lab profile {path}: {where}: expected a table")
     missing, unknown = sorted(required - set(table)), sorted(set(table) - required - optional)
     if missing or unknown:
-        raise ValueError(f"lab profile {path}: {where}: missing {missing}, unknown {unknown}; "
-                         f"expected {sorted(required)} and optionally {sorted(optional)}")
+        raise ValueError(
+            f"lab profile {path}: {where}: missing {missing}, unknown {unknown}; "
+            f"expected {sorted(required)} and optionally {sorted(optional)}"
+        )
     for key, value in table.items():
-        if not isinstance(value, str) or not value.strip() or len(value) > 200 or any(
-            ord(ch) < 32 for ch in value
+        if (
+            not isinstance(value, str)
+            or not value.strip()
+            or len(value) > 200
+            or any(ord(ch) < 32 for ch in value)
         ):
-            raise ValueError(f"lab profile {path}: {where}.{key}: expected one line of text "
-                             f"(1..200 characters), got {value!r}")
+            raise ValueError(
+                f"lab profile {path}: {where}.{key}: expected one line of text "
+                f"(1..200 characters), got {value!r}"
+            )
 
 
 def _check_site(site: Any, path: Path) -> None:
     """``[site]``: latitude_deg (-90 .. 90) and height_m, numbers."""
     if not isinstance(site, dict) or set(site) != {"latitude_deg", "height_m"}:
-        raise ValueError(f"lab profile {path}: site: expected a table with latitude_deg and "
-                         f"height_m, got {site!r}")
+        raise ValueError(
+            f"lab profile {path}: site: expected a table with latitude_deg and "
+            f"height_m, got {site!r}"
+        )
     for key, value in site.items():
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ValueError(f"lab profile {path}: site.{key}: expected a number, got {value!r}")

@@ -36,12 +36,15 @@ def _rate(hz: float) -> str:
 
 
 def _term_lines(key: str, term: NavTerm) -> list[str]:
-    axes = ", ".join(f"{a} {_num(v)} +- {u:.2g}" for a, v, u in
-                     zip("xyz", term.values, term.stds, strict=True))  # fmt: skip
+    axes = ", ".join(
+        f"{a} {_num(v)} +- {u:.2g}" for a, v, u in zip("xyz", term.values, term.stds, strict=True)
+    )
     if term.value > 0:
-        first = (f"  {key} [{term.unit}] = {_num(term.value)} (axis {'xyz'[term.axis]}), "
-                 f"u = {term.std:.2g} ({100 * term.std / term.value:.2g} %), "
-                 f"estimator bias {term.biases[term.axis]:+.2g}")  # fmt: skip
+        first = (
+            f"  {key} [{term.unit}] = {_num(term.value)} (axis {'xyz'[term.axis]}), "
+            f"u = {term.std:.2g} ({100 * term.std / term.value:.2g} %), "
+            f"estimator bias {term.biases[term.axis]:+.2g}"
+        )
     else:
         first = f"  {key} [{term.unit}] = 0: no such term in the Allan deviation"
     return [first, f"    per axis: {axes}"]
@@ -118,8 +121,10 @@ def openvins_yaml(
     comments stand on their own lines (an inline comment after a value can break it).
     """
     _check(nav, update_rate_hz, rostopic)
-    lines = ["%YAML:1.0", *[f"# {ln}".rstrip() for ln in comment_lines(nav, update_rate_hz,
-                                                                      header)]]  # fmt: skip
+    lines = [
+        "%YAML:1.0",
+        *[f"# {ln}".rstrip() for ln in comment_lines(nav, update_rate_hz, header)],
+    ]
     lines += [
         "# IMU intrinsics: identity / zero. A static record does not measure scale,",
         "# misalignment or g-sensitivity; OpenVINS requires the five matrices: keep",
@@ -136,10 +141,15 @@ def openvins_yaml(
         "  time_offset: 0.0",
         f"  update_rate: {_rate(update_rate_hz)}",
         '  model: "kalibr"',
-        "  Tw:", *_IDENTITY,
-        "  R_IMUtoGYRO:", *_IDENTITY,
-        "  Ta:", *_IDENTITY,
-        "  R_IMUtoACC:", *_IDENTITY,
-        "  Tg:", *_ZERO,
-    ]  # fmt: skip
+        "  Tw:",
+        *_IDENTITY,
+        "  R_IMUtoGYRO:",
+        *_IDENTITY,
+        "  Ta:",
+        *_IDENTITY,
+        "  R_IMUtoACC:",
+        *_IDENTITY,
+        "  Tg:",
+        *_ZERO,
+    ]
     return "\n".join(lines) + "\n"

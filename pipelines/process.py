@@ -133,8 +133,13 @@ def run_outcome(
             for n, p in sorted(cal.parameters.items())
         },
         "checks": [
-            {"name": c.name, "value": c.value, "limit": c.limit, "passed": c.passed,
-             "status": condition_status(c.to_dict())}
+            {
+                "name": c.name,
+                "value": c.value,
+                "limit": c.limit,
+                "passed": c.passed,
+                "status": condition_status(c.to_dict()),
+            }
             for c in (checks or [])
         ],
         "protocol": protocol,
@@ -159,9 +164,7 @@ def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
 
 def solve_loaded(
     loaded: LoadedRun, procedure: str | None = None, settings: dict[str, Any] | None = None
-) -> tuple[
-    Calibration, list[StepRecord], dict[str, Any], dict[str, Budget], dict[str, Recording]
-]:
+) -> tuple[Calibration, list[StepRecord], dict[str, Any], dict[str, Budget], dict[str, Recording]]:
     """Preprocess and solve a loaded run; returns the calibration, step records, settings,
     the GUM budget of each parameter (step "uncertainty") and the preprocessed fit segments.
 
@@ -216,7 +219,11 @@ def calibrate(
 
 
 def verify_run(
-    loaded: LoadedRun, cal: Calibration, profile: ToleranceProfile, archive: Archive, run_id: str,
+    loaded: LoadedRun,
+    cal: Calibration,
+    profile: ToleranceProfile,
+    archive: Archive,
+    run_id: str,
     budgets: dict[str, Budget] | None = None,
 ) -> tuple[list[CheckResult], dict[str, Any]]:
     """Held-out verification points, repeatability against the archive, residual diagnosis.
@@ -284,8 +291,9 @@ def device_check(m: RunManifest, earlier: list[dict[str, Any]]) -> CheckResult:
         return CheckResult("device:description", None, None, True, detail)
     before = "; and as ".join(
         f"model {e['model']!r} by {e['manufacturer']!r} (run {e['run_id']}, started "
-        f"{e['started_at']:%Y-%m-%d})" for e in other
-    )  # fmt: skip
+        f"{e['started_at']:%Y-%m-%d})"
+        for e in other
+    )
     return CheckResult(
         "device:description",
         None,
@@ -324,7 +332,10 @@ class Judged:
 
 
 def check_run(
-    loaded: LoadedRun, cal: Calibration, archive: Archive, run_id: str,
+    loaded: LoadedRun,
+    cal: Calibration,
+    archive: Archive,
+    run_id: str,
     budgets: dict[str, Budget] | None = None,
 ) -> Judged:
     """Tolerances (judged by the profile's decision rule with each parameter's expanded
@@ -336,8 +347,12 @@ def check_run(
     checks += run_conditions(loaded, cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
     checks += more_checks
-    checks.append(device_check(loaded.manifest, queries.earlier_descriptions(
-        archive, loaded.manifest.unit.serial, run_id)))  # fmt: skip
+    checks.append(
+        device_check(
+            loaded.manifest,
+            queries.earlier_descriptions(archive, loaded.manifest.unit.serial, run_id),
+        )
+    )
     verdict_ = overall_verdict(checks)
     step = StepRecord(
         "check",
@@ -376,7 +391,10 @@ def _run_identity(m: RunManifest) -> dict[str, Any]:
 
 
 def protocol_of(
-    loaded: LoadedRun, cal: Calibration, judged: Judged, run_id: str,
+    loaded: LoadedRun,
+    cal: Calibration,
+    judged: Judged,
+    run_id: str,
     budgets: dict[str, Budget] | None = None,
 ) -> str:
     """The test protocol text (MPU-6000 layout) of the run, with the uncertainty budgets."""
@@ -482,15 +500,12 @@ def process_run(
         judged = check_run(loaded, cal, archive, run_id, budgets)
         earlier = earlier_calibration(archive, serial, loaded.manifest.run.started)
         if earlier is not None:  # the unit comes back: as found beside as left
-            solve_steps.append(as_found_step(earlier, cal, fit, settings, budgets,
-                                             judged.profile))  # fmt: skip
+            solve_steps.append(as_found_step(earlier, cal, fit, settings, budgets, judged.profile))
         protocol_name = f"{serial}_result.txt"
         result: ArchiveResult = archive_run(
             archive,
             run_record(loaded, cal, steps + solve_steps, settings, judged),
-            extra_files={
-                protocol_name: protocol_of(loaded, cal, judged, run_id, budgets).encode()
-            },
+            extra_files={protocol_name: protocol_of(loaded, cal, judged, run_id, budgets).encode()},
             pending=pending,
             reason=reason,  # into the audit trail's event of the revision
         )
@@ -547,8 +562,13 @@ def issue_certificate(archive: Archive, run_id: str) -> None:
         issue(archive, run_id)
     except Exception as exc:  # noqa: BLE001 - the archived run stands; said, not hidden
         problem = write_failures.describe(exc, archive.url) or f"{type(exc).__name__}: {exc}"
-        log.warning("run %s is archived but its certificate was not issued: %s; issue it "
-                    "with `calib report %s`", run_id, problem, run_id)  # fmt: skip
+        log.warning(
+            "run %s is archived but its certificate was not issued: %s; issue it "
+            "with `calib report %s`",
+            run_id,
+            problem,
+            run_id,
+        )
 
 
 def _failed(where: str, serial: str, exc: Exception, database_url: str) -> dict[str, Any]:

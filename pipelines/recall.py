@@ -20,13 +20,16 @@ DAYS_PER_MONTH = 365.25 / 12.0
 
 def _own_slope(rows: Any) -> tuple[float | None, float | None]:
     """(slope, variance) of one unit's trend (SI / day), or (None, None) below 3 points."""
-    stds = [None if s is None or (isinstance(s, float) and math.isnan(s)) else float(s)
-            for s in rows["std"]]  # fmt: skip
+    stds = [
+        None if s is None or (isinstance(s, float) and math.isnan(s)) else float(s)
+        for s in rows["std"]
+    ]
     days = [days_since_epoch(t) for t in rows["started_at"]]
     try:
         if all(s is not None and s > 0 for s in stds):  # stated uncertainties, not rescaled
-            tr = drift.fit_trend_shared(days, rows["value"].to_numpy(), stds,
-                                        [0.0] * len(stds), [None] * len(stds))  # fmt: skip
+            tr = drift.fit_trend_shared(
+                days, rows["value"].to_numpy(), stds, [0.0] * len(stds), [None] * len(stds)
+            )
         else:
             tr = drift.fit_trend(days, rows["value"].to_numpy(), stds)
     except ValueError:  # fewer than 3 calibrations or one date: no trend of its own
@@ -66,14 +69,24 @@ def model_intervals(
             except ValueError:
                 continue  # one date and no fleet: this parameter sets nothing
             iv = interval.interval(line, lim.low, lim.high, rel, max_days=max_days)
-            out[serial]["parameters"].append({"name": name, "days": iv.days, "capped": iv.capped,
-                                              "probability": iv.probability,
-                                              "rate_per_year": line.rate * 365.25})  # fmt: skip
+            out[serial]["parameters"].append(
+                {
+                    "name": name,
+                    "days": iv.days,
+                    "capped": iv.capped,
+                    "probability": iv.probability,
+                    "rate_per_year": line.rate * 365.25,
+                }
+            )
     for entry in out.values():
         if entry["parameters"]:
             worst = min(entry["parameters"], key=lambda p: p["days"])
-            entry |= {"days": worst["days"], "parameter": worst["name"],
-                      "capped": worst["capped"], "probability": worst["probability"]}  # fmt: skip
+            entry |= {
+                "days": worst["days"],
+                "parameter": worst["name"],
+                "capped": worst["capped"],
+                "probability": worst["probability"],
+            }
     return out
 
 
@@ -108,15 +121,19 @@ def recall_list(
         if name not in profiles:
             profiles[name] = load_profile(name)
         groups.setdefault((row.model, name), []).append(row.serial)
-        last[row.serial] = {"run_id": row.run_id, "started_at": row.started_at,
-                            "verdict": row.verdict, "model": row.model, "profile": name}
+        last[row.serial] = {
+            "run_id": row.run_id,
+            "started_at": row.started_at,
+            "verdict": row.verdict,
+            "model": row.model,
+            "profile": name,
+        }
     owner = customer_name()
     out = []
     for (model, pname), serials in groups.items():
         prof = profiles[pname]
         method = prof.recall["method"]
-        found = (model_intervals(archive, model, prof, serials) if method == "variables"
-                 else {})  # fmt: skip
+        found = model_intervals(archive, model, prof, serials) if method == "variables" else {}
         for unit in serials:
             out.append(_entry(unit, model, prof, found.get(unit, {}), last[unit], owner))
     if before is not None:
@@ -124,24 +141,37 @@ def recall_list(
     return sorted(out, key=lambda e: (e["due"], e["serial"]))
 
 
-def _entry(serial: str, model: str, prof: ToleranceProfile, entry: dict[str, Any],
-           last: dict[str, Any], owner: str | None) -> dict[str, Any]:  # fmt: skip
+def _entry(
+    serial: str,
+    model: str,
+    prof: ToleranceProfile,
+    entry: dict[str, Any],
+    last: dict[str, Any],
+    owner: str | None,
+) -> dict[str, Any]:
     """One unit's row: its interval (or the profile's fixed one, saying why) and due date."""
     days = entry.get("days")
     how = f"variables, R = {float(prof.recall['reliability']):g}" + (
-        f", capped at {prof.recall['max_months']:g} months" if entry.get("capped") else "")
+        f", capped at {prof.recall['max_months']:g} months" if entry.get("capped") else ""
+    )
     if days is None:  # fixed method, or no parameter with a limit and a drift
         days = float(prof.recall["fixed_months"]) * DAYS_PER_MONTH
         fallback = "" if prof.recall["method"] == "fixed" else " (no drift to judge by)"
         how = f"fixed {prof.recall['fixed_months']:g} months{fallback}"
     due = (last["started_at"] + timedelta(days=days)).date()
     return {
-        "serial": serial, "model": model, **last, "owner": owner,
-        "interval_days": round(days, 1), "interval_months": round(days / DAYS_PER_MONTH, 1),
-        "limiting_parameter": entry.get("parameter"), "capped": entry.get("capped"),
-        "reliability": float(prof.recall["reliability"]), "method": how,
+        "serial": serial,
+        "model": model,
+        **last,
+        "owner": owner,
+        "interval_days": round(days, 1),
+        "interval_months": round(days / DAYS_PER_MONTH, 1),
+        "limiting_parameter": entry.get("parameter"),
+        "capped": entry.get("capped"),
+        "reliability": float(prof.recall["reliability"]),
+        "method": how,
         "due": due.isoformat(),
-    }  # fmt: skip
+    }
 
 
 def unit_recall(archive: Archive, serial: str, run_id: str) -> dict[str, Any] | None:

@@ -130,15 +130,20 @@ def _judged_again(
         [CheckResult(**c) for c in record["checks"]], verification.repeatability(group, profile)
     )
     verdict = overall_verdict(checks)
-    stats = {**step["statistics"], "checks": len(checks),
-             "failed": sum(counts_against_verdict(c) for c in checks),
-             "verdict": verdict, "repeatability_group": ids}  # fmt: skip
+    stats = {
+        **step["statistics"],
+        "checks": len(checks),
+        "failed": sum(counts_against_verdict(c) for c in checks),
+        "verdict": verdict,
+        "repeatability_group": ids,
+    }
     reason = (
         f"repeatability judged again by run time after run {trigger} was archived: "
         f"group {', '.join(ids)}"
     )
     step_record = StepRecord(
-        "rejudge", settings={"reason": reason},
+        "rejudge",
+        settings={"reason": reason},
         statistics={"repeatability_group": ids, "verdict": verdict},
     )
     judged = Rejudgement(
@@ -168,9 +173,16 @@ def as_archived_now(archive: Archive, outcomes: list[dict[str, Any]]) -> list[di
     for o in outcomes:
         judged = now.get(o["run_id"]) if o["status"] == "ok" else None
         if judged is not None:
-            checks = [{"name": c["name"], "value": c["value"], "limit": c["limit"],
-                       "passed": c["passed"], "status": condition_status(c)}
-                      for c in judged["checks"]]  # fmt: skip
+            checks = [
+                {
+                    "name": c["name"],
+                    "value": c["value"],
+                    "limit": c["limit"],
+                    "passed": c["passed"],
+                    "status": condition_status(c),
+                }
+                for c in judged["checks"]
+            ]
             if (judged["verdict"], checks) != (o["verdict"], o["checks"]):
                 o = {**o, "verdict": judged["verdict"], "checks": checks}
         out.append(o)

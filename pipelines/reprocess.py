@@ -183,8 +183,9 @@ def reprocess_run_for_batch(
     try:
         return reprocess_run(archive, run_id, reason=reason, reraise=is_transient)
     except ReprocessError as exc:
-        return run_outcome(source=f"archive:{run_id}", serial="", status="failed",
-                           run_id=run_id, error=str(exc))  # fmt: skip
+        return run_outcome(
+            source=f"archive:{run_id}", serial="", status="failed", run_id=run_id, error=str(exc)
+        )
     except Exception as exc:  # only what is_transient let through
         archive.dispose()  # the retry connects afresh
         raise TransientError(f"{run_id}: {type(exc).__name__}: {exc}") from exc
@@ -227,12 +228,17 @@ def plan_reprocess(
         if done is None:
             todo.append(run["run_id"])
             continue
-        skipped.append(process.run_outcome(
-            source=f"archive:{run['run_id']}", serial=run["serial"], status="duplicate",
-            run_id=run["run_id"], verdict_=done["verdict"],
-            message=f"already processed by software {done['software_version']} with these settings "
-            f"(revision {done['revision']})",
-        ))  # fmt: skip
+        skipped.append(
+            process.run_outcome(
+                source=f"archive:{run['run_id']}",
+                serial=run["serial"],
+                status="duplicate",
+                run_id=run["run_id"],
+                verdict_=done["verdict"],
+                message=f"already processed by software {done['software_version']} with these "
+                f"settings (revision {done['revision']})",
+            )
+        )
     return todo, skipped
 
 
@@ -294,8 +300,9 @@ def summarize(outcomes: list[dict[str, Any]]) -> dict[str, Any]:
     {run_id, error}.
     """
     count = {s: sum(o["status"] == s for o in outcomes) for s in ("revised", "duplicate", "failed")}
-    failures = [{"run_id": o["run_id"], "error": o["error"]} for o in outcomes
-                if o["status"] == "failed"]  # fmt: skip
+    failures = [
+        {"run_id": o["run_id"], "error": o["error"]} for o in outcomes if o["status"] == "failed"
+    ]
     return {"runs": len(outcomes), **count, "failures": failures}
 
 

@@ -25,8 +25,15 @@ from storage.db import Archive
 
 FORMATS = ("json", "px4", "ardupilot", "csv", "mat", "kalibr", "openvins")
 NOISE_FORMATS = ("kalibr", "openvins")  # noise models: static-bias runs only
-SUFFIX = {"json": ".json", "px4": ".params", "ardupilot": ".param", "csv": ".csv", "mat": ".mat",
-          "kalibr": "_imu.yaml", "openvins": "_kalibr_imu_chain.yaml"}  # fmt: skip
+SUFFIX = {
+    "json": ".json",
+    "px4": ".params",
+    "ardupilot": ".param",
+    "csv": ".csv",
+    "mat": ".mat",
+    "kalibr": "_imu.yaml",
+    "openvins": "_kalibr_imu_chain.yaml",
+}
 MEDIA_TYPE = {
     "json": "application/json",
     "px4": "text/plain; charset=us-ascii",
@@ -147,9 +154,13 @@ def _encode(
     """The file's bytes and the warnings of one format."""
     if fmt == "px4":
         rows, notes = exports.px4_calibration_parameters(
-            cal, instance=0 if instance is None else instance, accel_id=accel_id,
-            gyro_id=gyro_id, model=model, cal_temp=cal_temp,
-        )  # fmt: skip
+            cal,
+            instance=0 if instance is None else instance,
+            accel_id=accel_id,
+            gyro_id=gyro_id,
+            model=model,
+            cal_temp=cal_temp,
+        )
         text = exports.px4_params_text(rows, header=_header(doc, model_id, notes))
         return text.encode("ascii", "backslashreplace"), notes
     if fmt == "ardupilot":

@@ -130,8 +130,9 @@ def is_transient(exc: BaseException) -> bool:
     from sqlalchemy.exc import DBAPIError
 
     for e in exception_chain(exc):
-        if isinstance(e, TransientError | ConnectionError | TimeoutError | BrokenProcessPool
-                      | StaleCheckError):  # fmt: skip
+        if isinstance(
+            e, TransientError | ConnectionError | TimeoutError | BrokenProcessPool | StaleCheckError
+        ):
             return True
         if isinstance(e, OSError) and e.errno in TRANSIENT_ERRNOS:
             return True
@@ -184,5 +185,10 @@ def call_with_retries(
 
 def gave_up(source: str, serial: str, exc: BaseException, run_id: str = "") -> dict[str, Any]:
     """The failed outcome of a run whose attempts (1 + RETRIES) all met transient errors."""
-    return run_outcome(source=source, serial=serial, status="failed", run_id=run_id,
-                       error=f"gave up after {RETRIES + 1} attempts: {exc}")  # fmt: skip
+    return run_outcome(
+        source=source,
+        serial=serial,
+        status="failed",
+        run_id=run_id,
+        error=f"gave up after {RETRIES + 1} attempts: {exc}",
+    )

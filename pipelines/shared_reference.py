@@ -17,20 +17,26 @@ from storage import queries
 from storage.db import Archive
 
 
-def reference_id(equipment: list[tuple[str, str]] | list[dict[str, Any]],
-                 site: dict[str, Any] | None) -> str:  # fmt: skip
+def reference_id(
+    equipment: list[tuple[str, str]] | list[dict[str, Any]], site: dict[str, Any] | None
+) -> str:
     """The identity of a run's reference: its equipment (kind:serial, sorted) and its site."""
-    pairs = sorted((e["kind"], e["serial"]) if isinstance(e, dict) else tuple(e)
-                   for e in equipment)  # fmt: skip
+    pairs = sorted((e["kind"], e["serial"]) if isinstance(e, dict) else tuple(e) for e in equipment)
     kit = "+".join(f"{k}:{s}" for k, s in pairs) or "no equipment"
     return f"{kit} @ {json.dumps(site or {}, sort_keys=True, default=str)}"
 
 
 def split_budget(budget: dict[str, Any]) -> tuple[float, float]:
     """(u_A, u_B) of a budget document: root sum of squares of its Type A / B rows."""
+
     def rss(kind: str) -> float:
-        return math.sqrt(sum(float(r["contribution"]) ** 2 for r in budget.get("rows", [])
-                             if r.get("kind") == kind))  # fmt: skip
+        return math.sqrt(
+            sum(
+                float(r["contribution"]) ** 2
+                for r in budget.get("rows", [])
+                if r.get("kind") == kind
+            )
+        )
 
     return rss("A"), rss("B")
 

@@ -76,11 +76,19 @@ def _launch(port: int | None, watch_fd: int) -> subprocess.Popen[Any]:
         **get_current_settings().to_environment_variables(exclude_unset=True),
     }
     uvicorn_args = [
-        "--app-dir", str(prefect.__module_path__.parent),
-        "--factory", "prefect.server.api.server:create_app",
-        "--host", "127.0.0.1", "--port", str(port),
-        "--log-level", "error", "--lifespan", "on",
-    ]  # fmt: skip
+        "--app-dir",
+        str(prefect.__module_path__.parent),
+        "--factory",
+        "prefect.server.api.server:create_app",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--log-level",
+        "error",
+        "--lifespan",
+        "on",
+    ]
     return subprocess.Popen(
         [sys.executable, "-m", __name__, str(watch_fd), "uvicorn", *uvicorn_args],
         env=env,

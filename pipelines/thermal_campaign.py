@@ -26,7 +26,6 @@ DEFAULT_FIT = {
 }
 
 
-
 def campaign_from_archive(
     archive: Archive, serial: str, run_ids: list[str] | None = None
 ) -> tuple[list[thermal.CampaignPoint], list[dict[str, Any]]]:
@@ -115,7 +114,7 @@ def thermal_fit(
                 "settings": step.settings,
                 "statistics": step.statistics,
                 "software_version": step.software_version,
-            },  # fmt: skip
+            },
         }
     )
     model_id = thermal_store.archive_thermal_model(

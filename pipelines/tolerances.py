@@ -60,4 +60,3 @@ def load_profile(name: str) -> ToleranceProfile:
                 raise ValueError(f"tolerance profile {path}: {exc}") from exc
     searched = ", ".join(str(d) for d in profile_dirs())
     raise ValueError(f"tolerance profile {name!r} not found (looked for {name}.toml in {searched})")
-

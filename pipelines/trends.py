@@ -67,14 +67,20 @@ def pooled_runs(temperatures: list[float | None], reference_c: float = 20.0) -> 
     conditions = sorted(groups, key=lambda k: rank((k, groups[k]))[1])
     note = ""
     if len(groups) > 1:
-        note = (f"the runs are at {len(groups)} conditions ({', '.join(conditions)}): "
-                f"a drift in time compares the {len(indices)} at {condition}; the others "
-                "differ by the temperature effect (thermal model), not by drift")  # fmt: skip
+        note = (
+            f"the runs are at {len(groups)} conditions ({', '.join(conditions)}): "
+            f"a drift in time compares the {len(indices)} at {condition}; the others "
+            "differ by the temperature effect (thermal model), not by drift"
+        )
         if len(indices) < TREND_MIN_RUNS:
-            note = (f"the runs are at {len(groups)} conditions ({', '.join(conditions)}), "
-                    f"at most {len(indices)} at one: compared by temperature (calib thermal "
-                    "show), not fitted as a drift in time")  # fmt: skip
+            note = (
+                f"the runs are at {len(groups)} conditions ({', '.join(conditions)}), "
+                f"at most {len(indices)} at one: compared by temperature (calib thermal "
+                "show), not fitted as a drift in time"
+            )
     return Pooled(indices, condition, conditions, note)
+
+
 def days_since_epoch(when: datetime | pd.Timestamp) -> float:
     """Time-zone-aware datetime -> days since 1970-01-01 UTC (the drift module's time axis)."""
     return (pd.Timestamp(when).to_pydatetime() - EPOCH).total_seconds() / 86400.0
@@ -111,8 +117,10 @@ def trend_report(
     if df.empty:
         raise LookupError(f"no archived values of {name} for serial {serial!r}")
     df = df.assign(day=[days_since_epoch(t) for t in df["started_at"]])
-    temps = [None if t is None or (isinstance(t, float) and math.isnan(t)) else float(t)
-             for t in df["temperature_c"]]  # fmt: skip
+    temps = [
+        None if t is None or (isinstance(t, float) and math.isnan(t)) else float(t)
+        for t in df["temperature_c"]
+    ]
     pooled = pooled_runs(temps)
     if len(pooled.indices) < TREND_MIN_RUNS and len(pooled.conditions) > 1:
         raise ValueError(f"{name} of {serial}: {pooled.note}")
@@ -194,8 +202,14 @@ def plot_trend(df: pd.DataFrame, trend: drift.Trend, forecast, summary: dict, pa
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     x = pd.to_datetime(df["started_at"], utc=True)
-    ax.errorbar(x, df["value"], yerr=df["std"].astype(float).fillna(0.0), fmt="o", ms=4,
-                label="calibrations")  # fmt: skip
+    ax.errorbar(
+        x,
+        df["value"],
+        yerr=df["std"].astype(float).fillna(0.0),
+        fmt="o",
+        ms=4,
+        label="calibrations",
+    )
     end = (
         trend.t_last + 365.0
         if forecast is None or forecast.crossing is None
@@ -225,8 +239,14 @@ def plot_fleet(df: pd.DataFrame, table: pd.DataFrame, model: str, name: str, pat
     fig, ax = plt.subplots(figsize=(8, 4.5))
     ax.plot(df["temperature_c"].astype(float), df["value"], ".", alpha=0.4, label="calibrations")
     ok = table["temperature"].notna()
-    ax.errorbar(table["temperature"][ok], table["mean"][ok], yerr=table["std"][ok].fillna(0.0),
-                fmt="s-", color="k", label="mean ± std per bin")  # fmt: skip
+    ax.errorbar(
+        table["temperature"][ok],
+        table["mean"][ok],
+        yerr=table["std"][ok].fillna(0.0),
+        fmt="s-",
+        color="k",
+        label="mean ± std per bin",
+    )
     ax.set_xlabel("temperature (deg C)")
     ax.set_ylabel(df["unit"].iloc[0])
     ax.set_title(f"{name} across {model} ({df['serial'].nunique()} units)")

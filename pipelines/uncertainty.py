@@ -41,11 +41,21 @@ SETTINGS = {
 }
 
 
-ANGLE_UNITS = {"deg": DEG, "°": DEG, "arcmin": DEG / 60.0, "arcsec": DEG / 3600.0,
-               "rad": 1.0, "mrad": 1e-3, "urad": 1e-6}
+ANGLE_UNITS = {
+    "deg": DEG,
+    "°": DEG,
+    "arcmin": DEG / 60.0,
+    "arcsec": DEG / 3600.0,
+    "rad": 1.0,
+    "mrad": 1e-3,
+    "urad": 1e-6,
+}
 # Which specification an equipment's accuracy class gives: (kind, what it states) -> field.
-ACCURACY_FIELDS = {("cube", "angle"): "cube_angle", ("rate_table", "relative"): "table_rate_rel",
-                   ("rate_table", "angle"): "turn_angle"}
+ACCURACY_FIELDS = {
+    ("cube", "angle"): "cube_angle",
+    ("rate_table", "relative"): "table_rate_rel",
+    ("rate_table", "angle"): "turn_angle",
+}
 _CLASS = re.compile(r"^\s*(?:\+-|±)?\s*([0-9.]+(?:[eE][-+]?[0-9]+)?)\s*(\S*)\s*$")
 
 
@@ -84,8 +94,13 @@ def equipment_spec_sources(
         turn_angle=default.turn_angle if kinds & {"cube", "rate_table"} else None,
     )
     sources = {"gravity_expanded": f"site.gravity_model {manifest.site.gravity_model!r}"}
-    sources.update({k: "default" for k in ("cube_angle", "table_rate_rel", "turn_angle")
-                    if getattr(spec, k) is not None})
+    sources.update(
+        {
+            k: "default"
+            for k in ("cube_angle", "table_rate_rel", "turn_angle")
+            if getattr(spec, k) is not None
+        }
+    )
     for e in manifest.equipment:
         stated = accuracy_of(e.accuracy_class)
         field_name = None if stated is None else ACCURACY_FIELDS.get((e.kind, stated[0]))
@@ -94,8 +109,10 @@ def equipment_spec_sources(
             sources[field_name] = f"accuracy_class {e.accuracy_class!r} of {e.kind} {e.serial}"
     given = settings_table(manifest.run.settings, "uncertainty", set(SETTINGS)) or {}
     for key, value in given.items():
-        if isinstance(value, bool) or not isinstance(value, int | float) or not (
-            value >= 0 and math.isfinite(value)
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not (value >= 0 and math.isfinite(value))
         ):
             raise ValueError(
                 f"run.settings.uncertainty.{key}: expected a number >= 0, got {value!r}"
@@ -107,7 +124,9 @@ def equipment_spec_sources(
 
 
 def uncertainty_step(
-    cal: Calibration, segments: Mapping[str, Recording], settings: Mapping[str, Any],
+    cal: Calibration,
+    segments: Mapping[str, Recording],
+    settings: Mapping[str, Any],
     manifest: RunManifest,
 ) -> tuple[dict[str, Budget], StepRecord]:
     """The budgets of the run and the step record that archives them with the specification."""
@@ -116,10 +135,14 @@ def uncertainty_step(
     result = run_budgets(cal, segments, settings, spec)
     step = StepRecord(
         "uncertainty",
-        settings={"equipment_spec": None if spec is None else asdict(spec),
-                  "equipment_spec_sources": sources,
-                  "equipment": sorted({e.kind for e in manifest.equipment})},
-        statistics={"budgets": budgets_doc(result),
-                    "seconds": round(time.perf_counter() - started, 4)},
+        settings={
+            "equipment_spec": None if spec is None else asdict(spec),
+            "equipment_spec_sources": sources,
+            "equipment": sorted({e.kind for e in manifest.equipment}),
+        },
+        statistics={
+            "budgets": budgets_doc(result),
+            "seconds": round(time.perf_counter() - started, 4),
+        },
     )
     return result, step

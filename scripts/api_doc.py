@@ -52,8 +52,10 @@ def _signature(obj: object) -> str:
     def default(d: object) -> object:  # a function's repr holds its address: its name only
         return _Text(d.__name__) if inspect.isfunction(d) else d
 
-    params = [p.replace(annotation=plain(p.annotation), default=default(p.default))
-              for p in sig.parameters.values()]  # fmt: skip
+    params = [
+        p.replace(annotation=plain(p.annotation), default=default(p.default))
+        for p in sig.parameters.values()
+    ]
     ret = inspect.Signature.empty if inspect.isclass(obj) else plain(sig.return_annotation)
     return str(sig.replace(parameters=params, return_annotation=ret))
 

@@ -90,11 +90,16 @@ def _manifest(serial: str, started: str, procedure: str, temperature_c: float) -
     return {
         **doc,
         "unit": {**CSV_MANIFEST["unit"], "serial": serial},
-        "run": {"started": started, "operator": "J. Doe", "procedure": procedure,
-                "tolerance_profile": "mpu6000", "settings": {"gyro_range_dps": 2000.0}},
+        "run": {
+            "started": started,
+            "operator": "J. Doe",
+            "procedure": procedure,
+            "tolerance_profile": "mpu6000",
+            "settings": {"gyro_range_dps": 2000.0},
+        },
         "site": {"gravity_model": "standard"},
         "environment": {**CSV_MANIFEST["environment"], "temperature_c": temperature_c},
-    }  # fmt: skip
+    }
 
 
 def write_thermal_campaign() -> None:
@@ -115,8 +120,14 @@ def write_history() -> None:
     rng = np.random.default_rng(20261123)
     base = dataclasses.replace(random_errors(rng), gyr_noise=np.full(3, 0.03 * DEG))
     drift = {"acc.bias.z": 2e-5}
-    entries = recalibration_history(base, rng, n_runs=len(HISTORY_DATES), interval_days=91.0,
-                                    jitter_days=0.0, drift_per_day=drift)  # fmt: skip
+    entries = recalibration_history(
+        base,
+        rng,
+        n_runs=len(HISTORY_DATES),
+        interval_days=91.0,
+        jitter_days=0.0,
+        drift_per_day=drift,
+    )
     for date, entry in zip(HISTORY_DATES, entries, strict=True):
         sim = six_position_integral_run(entry.errors, rng, **SMALL_RUN)
         statics = {label: sim.segments[label] for label in STATICS}
@@ -154,7 +165,7 @@ def main() -> None:
         "gyro x noise 0.06 deg/s exceeds the "
         "profile's 0.05 deg/s (fail). Its lab conditions (`[environment]`, `[acquisition]`) "
         "are plausible sample values, not measurements (so are the two below); the MPU-6000 "
-        "folder records none, so its certificate shows them \"not recorded\" and standard "
+        'folder records none, so its certificate shows them "not recorded" and standard '
         "gravity with a warning.\n"
         "- `thermal_IMU-T-0007/`: a thermal campaign, one unit at 0, 20, 40 and 60 deg C on four "
         "days (CSV + run.toml each, `environment.temperature_c`), biases quadratic and scales "

@@ -48,27 +48,50 @@ def pages(archive: Path) -> dict[str, str]:
 def calib(*args: str, env: dict[str, str]) -> None:
     print("calib", *args, file=sys.stderr, flush=True)
     code = "from pipelines.cli import app; app()"
-    subprocess.run([sys.executable, "-c", code, *args], env=env, check=True,
-                   stdout=subprocess.DEVNULL)  # fmt: skip
+    subprocess.run(
+        [sys.executable, "-c", code, *args], env=env, check=True, stdout=subprocess.DEVNULL
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "screenshots")
     out = parser.parse_args().out
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "DO_NOT_TRACK": "1",
-           "PREFECT_SERVER_ANALYTICS_ENABLED": "false", "CALIB_USER": "demo"}  # fmt: skip
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT),
+        "DO_NOT_TRACK": "1",
+        "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+        "CALIB_USER": "demo",
+    }
     from playwright.sync_api import sync_playwright
 
     with tempfile.TemporaryDirectory(prefix="calib-screens-") as tmp:
         archive = Path(tmp) / "calib-archive"
-        calib("process", str(ROOT / "data_samples"), "--archive", str(archive), "--no-progress",
-              env=env)  # fmt: skip
+        calib(
+            "process",
+            str(ROOT / "data_samples"),
+            "--archive",
+            str(archive),
+            "--no-progress",
+            env=env,
+        )
         calib("thermal", "fit", "IMU-T-0007", "--archive", str(archive), env=env)
         server = subprocess.Popen(
-            [sys.executable, "-c", "from pipelines.cli import app; app()", "serve", "--archive",
-             str(archive), "--port", str(PORT)], env=env, stderr=subprocess.PIPE, text=True,
-        )  # fmt: skip
+            [
+                sys.executable,
+                "-c",
+                "from pipelines.cli import app; app()",
+                "serve",
+                "--archive",
+                str(archive),
+                "--port",
+                str(PORT),
+            ],
+            env=env,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         try:
             line = server.stderr.readline()  # "serving ..." once it accepts connections
             if not line.startswith("serving"):

@@ -135,8 +135,16 @@ def message(
     run_id: str, revision: int, digest: str, meaning: str, signer: str, public: str
 ) -> bytes:
     """The bytes that are signed."""
-    return seal.canonical({"run_id": run_id, "revision": revision, "digest": digest,
-                           "meaning": meaning, "signer": signer, "public_key": public})  # fmt: skip
+    return seal.canonical(
+        {
+            "run_id": run_id,
+            "revision": revision,
+            "digest": digest,
+            "meaning": meaning,
+            "signer": signer,
+            "public_key": public,
+        }
+    )
 
 
 def approve(
@@ -167,10 +175,15 @@ def approve(
             )
         public = _public_hex(key.public_key())
         signature = key.sign(message(run_id, rev, digest, meaning, signer, public)).hex()
-        detail = {"meaning": meaning, "signer": signer, "public_key": public,
-                  "signature": signature}  # fmt: skip
-        return seal.append_event(conn, "approved", run_id=run_id, revision=rev, detail=detail,
-                                 digest=digest)  # fmt: skip
+        detail = {
+            "meaning": meaning,
+            "signer": signer,
+            "public_key": public,
+            "signature": signature,
+        }
+        return seal.append_event(
+            conn, "approved", run_id=run_id, revision=rev, detail=detail, digest=digest
+        )
 
 
 def _sealed_revision(
@@ -183,8 +196,11 @@ def _sealed_revision(
         .outerjoin(Seal, Seal.calibration_id == CalibrationRow.id)
         .where(Run.run_id == run_id)
     )
-    q = q.where(CalibrationRow.superseded_by.is_(None) if revision is None
-                else CalibrationRow.revision == revision)  # fmt: skip
+    q = q.where(
+        CalibrationRow.superseded_by.is_(None)
+        if revision is None
+        else CalibrationRow.revision == revision
+    )
     row = conn.execute(q).one_or_none()
     if row is None:
         which = "current revision" if revision is None else f"revision {revision}"
@@ -217,16 +233,28 @@ def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[sea
         where = f"{ev.run_id} revision {ev.revision}"
         error = _signature_error(ev)
         if error is not None:
-            found.append(seal.Finding("signature", "audit_events", [ev.run_id],
-                                      f"{where}: the signature of the approval {who} does not "
-                                      f"verify ({error}): the event was altered"))  # fmt: skip
+            found.append(
+                seal.Finding(
+                    "signature",
+                    "audit_events",
+                    [ev.run_id],
+                    f"{where}: the signature of the approval {who} does not "
+                    f"verify ({error}): the event was altered",
+                )
+            )
             continue
         now = digests_now.get((ev.run_id, ev.revision))
         if now != ev.digest:
-            found.append(seal.Finding("signature", "audit_events", [ev.run_id],
-                                      f"{where}: the approval {who} no longer holds: the record "
-                                      f"was signed with digest {ev.digest}, its rows now give "
-                                      f"{now or '(rows gone)'}"))  # fmt: skip
+            found.append(
+                seal.Finding(
+                    "signature",
+                    "audit_events",
+                    [ev.run_id],
+                    f"{where}: the approval {who} no longer holds: the record "
+                    f"was signed with digest {ev.digest}, its rows now give "
+                    f"{now or '(rows gone)'}",
+                )
+            )
     return found
 
 
@@ -246,10 +274,14 @@ def approval_status(
         files_now = seal.rehash_files(archive.root, sealed.get("files", {}))
         now = seal.digest_now(conn, cal_id, files_now, sealed.get("format"))
         events = conn.execute(
-            select(AuditEvent).where(AuditEvent.action == "approved",
-                                     AuditEvent.run_id == run_id, AuditEvent.revision == revision)
+            select(AuditEvent)
+            .where(
+                AuditEvent.action == "approved",
+                AuditEvent.run_id == run_id,
+                AuditEvent.revision == revision,
+            )
             .order_by(AuditEvent.seq)
-        ).all()  # fmt: skip
+        ).all()
     out = []
     for ev in events:
         a = _approval(ev) if approvers is None else approvers.mark(_approval(ev))
@@ -259,19 +291,25 @@ def approval_status(
 
 def _approval(ev: Any) -> Approval:
     d = ev.detail or {}
-    return Approval(ev.seq, ev.run_id, ev.revision, d.get("meaning", ""), d.get("signer", ""),
-                    d.get("public_key", ""), ev.at.isoformat())  # fmt: skip
+    return Approval(
+        ev.seq,
+        ev.run_id,
+        ev.revision,
+        d.get("meaning", ""),
+        d.get("signer", ""),
+        d.get("public_key", ""),
+        ev.at.isoformat(),
+    )
 
 
-def approvals(
-    archive: Archive, run_id: str, approvers: Approvers | None = None
-) -> list[Approval]:
+def approvals(archive: Archive, run_id: str, approvers: Approvers | None = None) -> list[Approval]:
     """The approvals of a run, oldest first (marked trusted or not with `approvers`)."""
     with archive.engine().connect() as conn:
         rows = conn.execute(
-            select(AuditEvent).where(AuditEvent.action == "approved", AuditEvent.run_id == run_id)
+            select(AuditEvent)
+            .where(AuditEvent.action == "approved", AuditEvent.run_id == run_id)
             .order_by(AuditEvent.seq)
-        ).all()  # fmt: skip
+        ).all()
     found = [_approval(ev) for ev in rows]
     return found if approvers is None else [approvers.mark(a) for a in found]
 
@@ -281,8 +319,10 @@ def approvals(
 APPROVERS_ENV = "CALIB_APPROVERS"
 ROLES = {"approver": MEANINGS, "reviewer": ("reviewed",)}  # role -> meanings it may sign
 _ENTRY_KEYS = {"name", "public_key", "valid_from", "valid_until", "role"}
-NOT_CHECKED = ("approvals were not checked against a list of trusted approvers (give one with "
-               "--approvers FILE, [trust] approvers in lab.toml or CALIB_APPROVERS)")  # fmt: skip
+NOT_CHECKED = (
+    "approvals were not checked against a list of trusted approvers (give one with "
+    "--approvers FILE, [trust] approvers in lab.toml or CALIB_APPROVERS)"
+)
 
 
 @dataclass(frozen=True)
@@ -313,20 +353,25 @@ class Approvers:
             return f"key {fp} is not in the approvers file {self.source}"
         named = [k for k in held if k.name == a.signer]
         if not named:
-            return (f"key {fp} belongs to {held[0].name!r} in {self.source}, "
-                    f"not to {a.signer!r}")  # fmt: skip
+            return f"key {fp} belongs to {held[0].name!r} in {self.source}, not to {a.signer!r}"
         try:
             day = date.fromisoformat(a.at[:10])
         except ValueError:
             return f"its date {a.at!r} is not a date"
-        valid = [k for k in named if (k.valid_from is None or k.valid_from <= day)
-                 and (k.valid_until is None or day <= k.valid_until)]  # fmt: skip
+        valid = [
+            k
+            for k in named
+            if (k.valid_from is None or k.valid_from <= day)
+            and (k.valid_until is None or day <= k.valid_until)
+        ]
         if not valid:
             spans = ", ".join(f"{k.valid_from or '...'} to {k.valid_until or '...'}" for k in named)
             return f"key {fp} of {a.signer} is valid {spans} in {self.source}, not on {day}"
         if not any(a.meaning in ROLES[k.role] for k in valid):
-            return (f"key {fp} of {a.signer} has role {valid[0].role} in {self.source}, "
-                    f"which may not sign {a.meaning!r}")  # fmt: skip
+            return (
+                f"key {fp} of {a.signer} has role {valid[0].role} in {self.source}, "
+                f"which may not sign {a.meaning!r}"
+            )
         return ""
 
     def mark(self, a: Approval) -> Approval:
@@ -344,11 +389,15 @@ def load_approvers(path: Path) -> Approvers:
         lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as exc:
         raise ValueError(f"approvers file {path}: cannot be read ({exc.strerror or exc})") from None
-    keys = [_trusted_key(line, path, n) for n, line in enumerate(lines, 1)
-            if line.strip() and not line.lstrip().startswith("#")]  # fmt: skip
+    keys = [
+        _trusted_key(line, path, n)
+        for n, line in enumerate(lines, 1)
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
     if not keys:
-        raise ValueError(f"approvers file {path}: no key in it (expected lines of calib keygen "
-                         ".pub files)")  # fmt: skip
+        raise ValueError(
+            f"approvers file {path}: no key in it (expected lines of calib keygen .pub files)"
+        )
     return Approvers(path, tuple(keys))
 
 
@@ -357,12 +406,16 @@ def _trusted_key(line: str, path: Path, n: int) -> TrustedKey:
     try:
         d = json.loads(line)
     except ValueError as exc:
-        raise ValueError(f"{where}: expected one JSON object (a calib keygen .pub line), "
-                         f"found {line[:60]!r} ({exc})") from None  # fmt: skip
+        raise ValueError(
+            f"{where}: expected one JSON object (a calib keygen .pub line), "
+            f"found {line[:60]!r} ({exc})"
+        ) from None
     if not isinstance(d, dict) or not {"name", "public_key"} <= set(d) or set(d) - _ENTRY_KEYS:
         shown = sorted(d) if isinstance(d, dict) else d
-        raise ValueError(f"{where}: expected the keys name and public_key, optionally "
-                         f"valid_from, valid_until and role; found {shown!r}")  # fmt: skip
+        raise ValueError(
+            f"{where}: expected the keys name and public_key, optionally "
+            f"valid_from, valid_until and role; found {shown!r}"
+        )
     public = d["public_key"]
     if not isinstance(public, str) or len(public) != 64 or not _is_hex(public):
         raise ValueError(f"{where}: public_key: expected 64 hex digits, found {public!r}")
@@ -374,8 +427,9 @@ def _trusted_key(line: str, path: Path, n: int) -> TrustedKey:
         raise ValueError(f"{where}: role: expected one of {sorted(ROLES)}, found {role!r}")
     days = {k: _day(d.get(k), where, k) for k in ("valid_from", "valid_until")}
     if days["valid_from"] and days["valid_until"] and days["valid_until"] < days["valid_from"]:
-        raise ValueError(f"{where}: valid_until {days['valid_until']} is before valid_from "
-                         f"{days['valid_from']}")  # fmt: skip
+        raise ValueError(
+            f"{where}: valid_until {days['valid_until']} is before valid_from {days['valid_from']}"
+        )
     return TrustedKey(d["name"], public.lower(), days["valid_from"], days["valid_until"], role)
 
 
@@ -402,15 +456,20 @@ def check_trust(conn: Connection, approvers: Approvers) -> list[seal.Finding]:
     """Every approval whose key the lab's approvers file does not hold for its date,
     naming the run, the claimed signer and the key's fingerprint."""
     found: list[seal.Finding] = []
-    for ev in conn.execute(select(AuditEvent).where(AuditEvent.action == "approved")
-                           .order_by(AuditEvent.seq)):  # fmt: skip
+    for ev in conn.execute(
+        select(AuditEvent).where(AuditEvent.action == "approved").order_by(AuditEvent.seq)
+    ):
         a = _approval(ev)
         why = approvers.judge(a)
         if why:
-            found.append(seal.Finding(
-                "untrusted", "audit_events", [a.run_id],
-                f"{a.run_id} revision {a.revision}: the approval ({a.meaning}) claimed by "
-                f"{a.signer} (event {a.seq}, key {fingerprint(a.public_key)}) is not trusted: "
-                f"{why}",
-            ))  # fmt: skip
+            found.append(
+                seal.Finding(
+                    "untrusted",
+                    "audit_events",
+                    [a.run_id],
+                    f"{a.run_id} revision {a.revision}: the approval ({a.meaning}) claimed by "
+                    f"{a.signer} (event {a.seq}, key {fingerprint(a.public_key)}) is not trusted: "
+                    f"{why}",
+                )
+            )
     return found

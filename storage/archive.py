@@ -233,13 +233,16 @@ def _validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
         for key in ("calibration_due", "calibrated_on"):
             _as_date(eq.get(key), f"equipment[{i}].{key}")
     _number(run.parameter_temperature_c, "parameter_temperature_c", optional=True)
-    for what, items, kind in (("parameters", run.parameters, Parameter),
-                              ("steps", run.steps, StepRecord),
-                              ("checks", run.checks, CheckResult)):  # fmt: skip
+    for what, items, kind in (
+        ("parameters", run.parameters, Parameter),
+        ("steps", run.steps, StepRecord),
+        ("checks", run.checks, CheckResult),
+    ):
         for i, item in enumerate(items):
             if not isinstance(item, kind):
-                raise TypeError(f"{what}[{i}]: expected a {kind.__name__}, "
-                                f"got {type(item).__name__}")  # fmt: skip
+                raise TypeError(
+                    f"{what}[{i}]: expected a {kind.__name__}, got {type(item).__name__}"
+                )
             if not isinstance(item.name, str) or not item.name:
                 raise ValueError(f"{what}[{i}].name: expected a non-empty string")
     for i, p in enumerate(run.parameters):
@@ -295,8 +298,9 @@ def _plan(session: Session, run: RunIn, raw_hash: str, settings_hash: str) -> _P
         )
     ).one_or_none()
     last = session.execute(
-        select(func.max(schema.CalibrationRow.revision))
-        .where(schema.CalibrationRow.run_id == row.id)
+        select(func.max(schema.CalibrationRow.revision)).where(
+            schema.CalibrationRow.run_id == row.id
+        )
     ).scalar_one()
     current = session.execute(
         select(schema.CalibrationRow.id).where(
@@ -381,9 +385,15 @@ def archive_run(
             written = _write_files(root, run, run_id, rdir, plan, extra_files, created, pending)
             try:
                 cal_id = _write_rows(
-                    engine, run, (raw_hash, run_id, settings_hash), root, rdir, plan, written,
+                    engine,
+                    run,
+                    (raw_hash, run_id, settings_hash),
+                    root,
+                    rdir,
+                    plan,
+                    written,
                     reason,
-                )  # fmt: skip
+                )
             except _PlanChangedError:
                 continue
             except IntegrityError as exc:
@@ -597,10 +607,14 @@ def rejudge_run(archive: Archive, judged: Rejudgement) -> ArchiveResult | None:
             unit_latest.refresh(s.connection(), run.device_id)
             seal.seal_calibration(s.connection(), cal.id, "revised", reason=judged.reason)
             result = ArchiveResult(
-                "revised", run.run_id, cal.revision, cal.id, archive.root / run.run_dir,
+                "revised",
+                run.run_id,
+                cal.revision,
+                cal.id,
+                archive.root / run.run_dir,
                 f"run {run.run_id} judged again: revision {cal.revision} supersedes "
                 f"revision {prev.revision} ({judged.reason})",
-            )  # fmt: skip
+            )
     except IntegrityError:  # a concurrent revision of the same run won
         return None
     return result
@@ -629,9 +643,10 @@ def _judged_again(
 ) -> schema.CalibrationRow:
     """The rows of the new revision: `prev`'s, with the checks and verdict of `judged`."""
     revision = 1 + s.scalar(
-        select(func.max(schema.CalibrationRow.revision))
-        .where(schema.CalibrationRow.run_id == prev.run_id)
-    )  # fmt: skip
+        select(func.max(schema.CalibrationRow.revision)).where(
+            schema.CalibrationRow.run_id == prev.run_id
+        )
+    )
     cal = schema.CalibrationRow(
         run_id=prev.run_id,
         revision=revision,
@@ -647,38 +662,70 @@ def _judged_again(
     s.add(cal)
     s.flush()
     prev.superseded_by = cal.id
-    steps = s.execute(
-        select(schema.ProcessingStep)
-        .where(schema.ProcessingStep.calibration_id == prev.id)
-        .order_by(schema.ProcessingStep.seq)
-    ).scalars().all()  # fmt: skip
+    steps = (
+        s.execute(
+            select(schema.ProcessingStep)
+            .where(schema.ProcessingStep.calibration_id == prev.id)
+            .order_by(schema.ProcessingStep.seq)
+        )
+        .scalars()
+        .all()
+    )
     rows = [
-        {"run_id": prev.run_id, "calibration_id": cal.id, "seq": i, "name": st.name,
-         "settings": st.settings,
-         "statistics": judged.check_statistics if st.name == "check" else st.statistics,
-         "software_version": st.software_version, "source_revision": st.source_revision}
+        {
+            "run_id": prev.run_id,
+            "calibration_id": cal.id,
+            "seq": i,
+            "name": st.name,
+            "settings": st.settings,
+            "statistics": judged.check_statistics if st.name == "check" else st.statistics,
+            "software_version": st.software_version,
+            "source_revision": st.source_revision,
+        }
         for i, st in enumerate(steps)
-    ]  # fmt: skip
-    rows.append({"run_id": prev.run_id, "calibration_id": cal.id, "seq": len(rows),
-                 "name": judged.step.name, "settings": judged.step.settings,
-                 "statistics": judged.step.statistics,
-                 "software_version": judged.step.software_version,
-                 "source_revision": prev.source_revision})  # fmt: skip
+    ]
+    rows.append(
+        {
+            "run_id": prev.run_id,
+            "calibration_id": cal.id,
+            "seq": len(rows),
+            "name": judged.step.name,
+            "settings": judged.step.settings,
+            "statistics": judged.step.statistics,
+            "software_version": judged.step.software_version,
+            "source_revision": prev.source_revision,
+        }
+    )
     _insert_many(s, schema.ProcessingStep, rows)
     params = s.execute(
-        select(schema.ParameterRow.name, schema.ParameterRow.value, schema.ParameterRow.std,
-               schema.ParameterRow.unit, schema.ParameterRow.temperature_c)
+        select(
+            schema.ParameterRow.name,
+            schema.ParameterRow.value,
+            schema.ParameterRow.std,
+            schema.ParameterRow.unit,
+            schema.ParameterRow.temperature_c,
+        )
         .where(schema.ParameterRow.calibration_id == prev.id)
         .order_by(schema.ParameterRow.id)
-    ).all()  # fmt: skip
-    _insert_many(s, schema.ParameterRow,
-                 [{"calibration_id": cal.id, **p._mapping} for p in params])  # fmt: skip
-    _insert_many(s, schema.CheckResultRow, [
-        {"calibration_id": cal.id, "name": c.name, "value": c.value, "limit": c.limit,
-         "passed": c.passed, "detail": c.detail, "profile_name": prev.profile_name,
-         "profile_version": prev.profile_version}
-        for c in judged.checks
-    ])  # fmt: skip
+    ).all()
+    _insert_many(s, schema.ParameterRow, [{"calibration_id": cal.id, **p._mapping} for p in params])
+    _insert_many(
+        s,
+        schema.CheckResultRow,
+        [
+            {
+                "calibration_id": cal.id,
+                "name": c.name,
+                "value": c.value,
+                "limit": c.limit,
+                "passed": c.passed,
+                "detail": c.detail,
+                "profile_name": prev.profile_name,
+                "profile_version": prev.profile_version,
+            }
+            for c in judged.checks
+        ],
+    )
     s.flush()
     return cal
 
@@ -711,17 +758,30 @@ def _insert_children(s: Session, run: RunIn, run_pk: int, cal_id: int) -> None:
     ]
     _insert_many(s, schema.ProcessingStep, steps)
     rows = [
-        {"calibration_id": cal_id, "name": p.name, "value": p.value, "std": p.std,
-         "unit": p.unit, "temperature_c": run.parameter_temperature_c}
+        {
+            "calibration_id": cal_id,
+            "name": p.name,
+            "value": p.value,
+            "std": p.std,
+            "unit": p.unit,
+            "temperature_c": run.parameter_temperature_c,
+        }
         for p in run.parameters
-    ]  # fmt: skip
+    ]
     _insert_many(s, schema.ParameterRow, rows)
     checks = [
-        {"calibration_id": cal_id, "name": c.name, "value": c.value, "limit": c.limit,
-         "passed": c.passed, "detail": c.detail, "profile_name": run.profile_name,
-         "profile_version": run.profile_version}
+        {
+            "calibration_id": cal_id,
+            "name": c.name,
+            "value": c.value,
+            "limit": c.limit,
+            "passed": c.passed,
+            "detail": c.detail,
+            "profile_name": run.profile_name,
+            "profile_version": run.profile_version,
+        }
         for c in run.checks
-    ]  # fmt: skip
+    ]
     _insert_many(s, schema.CheckResultRow, checks)
 
 
@@ -737,8 +797,10 @@ def _insert_run(
         # New runs of one unit are committed one at a time (SQLite writers queue at BEGIN
         # IMMEDIATE), so the description guard sees every earlier one. An advisory lock,
         # as the writer role may not lock rows (SELECT ... FOR UPDATE needs UPDATE).
-        s.execute(text("SELECT pg_advisory_xact_lock(:k, hashtext(:serial))"),
-                  {"k": PG_UNIT_LOCK, "serial": run.serial})  # fmt: skip
+        s.execute(
+            text("SELECT pg_advisory_xact_lock(:k, hashtext(:serial))"),
+            {"k": PG_UNIT_LOCK, "serial": run.serial},
+        )
     device = s.scalars(
         select(schema.Device).where(schema.Device.serial == run.serial)
     ).one_or_none()
@@ -809,11 +871,12 @@ def _guard_description(s: Session, run: RunIn, device_pk: int, run_id: str) -> N
         return
     other = s.execute(
         select(schema.Run.run_id, schema.Run.model, schema.Run.manufacturer)
-        .where(schema.Run.device_id == device_pk,
-               (schema.Run.model != run.device_model)
-               | (schema.Run.manufacturer != run.manufacturer))
+        .where(
+            schema.Run.device_id == device_pk,
+            (schema.Run.model != run.device_model) | (schema.Run.manufacturer != run.manufacturer),
+        )
         .limit(1)
-    ).first()  # fmt: skip
+    ).first()
     if other is not None:
         raise StaleCheckError(
             f"run {run_id} of {run.serial}: run {other.run_id}, archived while this run was "

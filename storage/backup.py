@@ -98,8 +98,11 @@ def backup(archive: Archive, dest: Path) -> dict[str, Any]:
         raise BackupError(f"archive {archive.display_url}: no schema, nothing to back up")
     if archive.is_sqlite:
         db_name = "database.sqlite"
-        src = (sqlite3.connect(read_only_sqlite_uri(sqlite_file(archive)), uri=True)
-               if archive.read_only else sqlite3.connect(str(sqlite_file(archive))))  # fmt: skip
+        src = (
+            sqlite3.connect(read_only_sqlite_uri(sqlite_file(archive)), uri=True)
+            if archive.read_only
+            else sqlite3.connect(str(sqlite_file(archive)))
+        )
         dst = sqlite3.connect(str(dest / db_name))
         try:
             with dst:
@@ -111,11 +114,17 @@ def backup(archive: Archive, dest: Path) -> dict[str, Any]:
         db_name = "database.pgdump"
         dsn, env = _pg_env(archive.url)
         _run_tool(
-            [str(pgtools.tool("pg_dump")), "--format=custom", "--no-owner", "--no-privileges",
-             f"--file={dest / db_name}", f"--dbname={dsn}"],
+            [
+                str(pgtools.tool("pg_dump")),
+                "--format=custom",
+                "--no-owner",
+                "--no-privileges",
+                f"--file={dest / db_name}",
+                f"--dbname={dsn}",
+            ],
             env,
             "pg_dump",
-        )  # fmt: skip
+        )
     db_sha, db_size = rawstore.hash_and_size(dest / db_name)
 
     files: dict[str, dict[str, Any]] = {}
@@ -254,11 +263,18 @@ def restore(src: Path, archive: Archive) -> dict[str, Any]:
     else:
         dsn, env = _pg_env(archive.url)
         _run_tool(
-            [str(pgtools.tool("pg_restore")), "--no-owner", "--no-privileges",
-             "--exit-on-error", "--single-transaction", f"--dbname={dsn}", str(db_file)],
+            [
+                str(pgtools.tool("pg_restore")),
+                "--no-owner",
+                "--no-privileges",
+                "--exit-on-error",
+                "--single-transaction",
+                f"--dbname={dsn}",
+                str(db_file),
+            ],
             env,
             "pg_restore",
-        )  # fmt: skip
+        )
     archive.upgrade()
     if not archive.is_sqlite:  # the restored files are the database's store now
         from storage.store_identity import adopt

@@ -42,10 +42,16 @@ def make(
         runs = conn.execute(select(func.count()).select_from(Run)).scalar_one()
         seals = conn.execute(select(func.count()).select_from(Seal)).scalar_one()
     doc: dict[str, Any] = {
-        "kind": KIND, "version": VERSION, "archive": archive.display_url, "seq": seq,
-        "hash": head, "at": utcnow().isoformat(), "runs": runs, "seals": seals,
+        "kind": KIND,
+        "version": VERSION,
+        "archive": archive.display_url,
+        "seq": seq,
+        "hash": head,
+        "at": utcnow().isoformat(),
+        "runs": runs,
+        "seals": seals,
         "events": [h[:PREFIX] for h in hashes],
-    }  # fmt: skip
+    }
     if key is not None:
         from storage.approval import _public_hex
 
@@ -77,17 +83,25 @@ def load(path: Path) -> dict[str, Any]:
     except ValueError as exc:
         raise ValueError(f"checkpoint {path}: not JSON ({exc})") from None
     if not isinstance(doc, dict) or doc.get("kind") != KIND:
-        raise ValueError(f"checkpoint {path}: expected a document of kind {KIND!r} "
-                         "(calib checkpoint -o FILE)")  # fmt: skip
+        raise ValueError(
+            f"checkpoint {path}: expected a document of kind {KIND!r} (calib checkpoint -o FILE)"
+        )
     if doc.get("version") != VERSION:
-        raise ValueError(f"checkpoint {path}: version {doc.get('version')!r}, this calib reads "
-                         f"version {VERSION}")  # fmt: skip
+        raise ValueError(
+            f"checkpoint {path}: version {doc.get('version')!r}, this calib reads version {VERSION}"
+        )
     events, seq, head = doc.get("events"), doc.get("seq"), doc.get("hash")
-    if (not isinstance(seq, int) or not isinstance(events, list) or len(events) != seq
-            or not isinstance(head, str)
-            or not all(isinstance(e, str) for e in events)):  # fmt: skip
-        raise ValueError(f"checkpoint {path}: expected seq (a count), hash and one hash prefix "
-                         "per event up to seq")  # fmt: skip
+    if (
+        not isinstance(seq, int)
+        or not isinstance(events, list)
+        or len(events) != seq
+        or not isinstance(head, str)
+        or not all(isinstance(e, str) for e in events)
+    ):
+        raise ValueError(
+            f"checkpoint {path}: expected seq (a count), hash and one hash prefix "
+            "per event up to seq"
+        )
     return doc
 
 
@@ -110,14 +124,21 @@ def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal.Findi
     when = f"the checkpoint {source} of {doc.get('at', '?')[:19]}"
     error = signature_error(doc)
     if error is not None:
-        found.append(seal.Finding("checkpoint", source, [],
-                                  f"the signature of {when} does not verify ({error}): the "
-                                  "file was altered; it is not compared"))  # fmt: skip
+        found.append(
+            seal.Finding(
+                "checkpoint",
+                source,
+                [],
+                f"the signature of {when} does not verify ({error}): the "
+                "file was altered; it is not compared",
+            )
+        )
         return found
     rows = conn.execution_options(yield_per=5000).execute(
         select(AuditEvent.seq, AuditEvent.hash, AuditEvent.action, AuditEvent.run_id)
-        .where(AuditEvent.seq <= doc["seq"]).order_by(AuditEvent.seq)
-    )  # fmt: skip
+        .where(AuditEvent.seq <= doc["seq"])
+        .order_by(AuditEvent.seq)
+    )
     expected, last = 1, 0
     for seq, hash_, action, run_id in rows:
         what = f"event {seq} ({action}{' of ' + run_id if run_id else ''})"
@@ -126,11 +147,15 @@ def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal.Findi
         kept = doc["events"][seq - 1]
         full = doc["hash"] if seq == doc["seq"] else None
         if hash_[:PREFIX] != kept or (full is not None and hash_ != full):
-            found.append(seal.Finding(
-                "checkpoint", "audit_events", [run_id] if run_id else [],
-                f"{what} differs from {when}: hash {hash_[:PREFIX]}... now, {kept}... then; "
-                "the chain was rewritten from this event on",
-            ))  # fmt: skip
+            found.append(
+                seal.Finding(
+                    "checkpoint",
+                    "audit_events",
+                    [run_id] if run_id else [],
+                    f"{what} differs from {when}: hash {hash_[:PREFIX]}... now, {kept}... then; "
+                    "the chain was rewritten from this event on",
+                )
+            )
             return found
         expected, last = seq + 1, seq
     if last < doc["seq"]:
@@ -140,11 +165,13 @@ def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal.Findi
 
 def _gone(when: str, first: int, last: int, doc: dict[str, Any]) -> seal.Finding:
     return seal.Finding(
-        "checkpoint", "audit_events", [],
+        "checkpoint",
+        "audit_events",
+        [],
         f"events {first}..{last} of {when} are gone (it held {doc['seq']} events, "
         f"{doc.get('runs', '?')} runs, {doc.get('seals', '?')} seals): a rollback or truncation "
         "of the chain",
-    )  # fmt: skip
+    )
 
 
 def chain_head(archive: Archive) -> tuple[int, str]:
@@ -160,7 +187,14 @@ def untrusted_signer(doc: dict[str, Any], approvers: Any) -> str:
         return ""
     from storage.approval import Approval
 
-    signed = Approval(0, "", 0, "reviewed", str(doc.get("signer", "")),
-                      str(doc.get("public_key", "")), str(doc.get("at", "")))  # fmt: skip
+    signed = Approval(
+        0,
+        "",
+        0,
+        "reviewed",
+        str(doc.get("signer", "")),
+        str(doc.get("public_key", "")),
+        str(doc.get("at", "")),
+    )
     why = approvers.judge(signed)
     return f"the checkpoint is signed by {signed.signer}, not trusted: {why}" if why else ""

@@ -503,8 +503,11 @@ def stale_temp_files(root: Path) -> list[Path]:
     for top in ("objects", "samples", "runs"):
         base = Path(root) / top
         if base.is_dir():
-            found += [p for p in sorted(base.rglob(f".*{TEMP_SUFFIX}"))
-                      if p.is_file() and _writer_gone(p, now)]  # fmt: skip
+            found += [
+                p
+                for p in sorted(base.rglob(f".*{TEMP_SUFFIX}"))
+                if p.is_file() and _writer_gone(p, now)
+            ]
     return found
 
 

@@ -46,8 +46,10 @@ from storage.schema import Base, UnitLatest
 READER = "calib_reader"
 WRITER = "calib_writer"
 APPROVER = "calib_approver"
-APPEND_EVENT = ("calib_append_event(timestamptz, text, text, text, integer, text, json, text, "
-                "text, text, integer)")  # fmt: skip
+APPEND_EVENT = (
+    "calib_append_event(timestamptz, text, text, text, integer, text, json, text, "
+    "text, text, integer)"
+)
 # The one way the writer and approver roles append an event: the link to the chain's head,
 # the date and (for a role that cannot add runs) the action are checked, under the lock
 # storage.seal.append_event takes.
@@ -125,13 +127,17 @@ def guard_statements() -> list[str]:
     # names (storage.queries.readonly) stays light for the read-only commands.
     from storage.seal import _PG_CHAIN_LOCK
 
-    stmts = [_APPEND_FUNCTION.replace("LOCK_KEY", str(_PG_CHAIN_LOCK)).strip(),
-             f"REVOKE ALL ON FUNCTION {APPEND_EVENT} FROM PUBLIC",
-             _SUPERSEDE_FUNCTION.strip()]  # fmt: skip
+    stmts = [
+        _APPEND_FUNCTION.replace("LOCK_KEY", str(_PG_CHAIN_LOCK)).strip(),
+        f"REVOKE ALL ON FUNCTION {APPEND_EVENT} FROM PUBLIC",
+        _SUPERSEDE_FUNCTION.strip(),
+    ]
     for table in SUPERSEDING:
-        stmts += [f"DROP TRIGGER IF EXISTS supersede_forward ON {table}",
-                  f"CREATE TRIGGER supersede_forward BEFORE UPDATE OF superseded_by ON {table} "
-                  "FOR EACH ROW EXECUTE FUNCTION calib_supersede_forward()"]  # fmt: skip
+        stmts += [
+            f"DROP TRIGGER IF EXISTS supersede_forward ON {table}",
+            f"CREATE TRIGGER supersede_forward BEFORE UPDATE OF superseded_by ON {table} "
+            "FOR EACH ROW EXECUTE FUNCTION calib_supersede_forward()",
+        ]
     return stmts
 
 
@@ -162,8 +168,12 @@ def role_statements(
     reader, writer, approver : role names (letters, digits, ``._-``).
     tables : the archive's data tables (default: those of storage.schema).
     """
-    for name, what in ((reader, "reader role"), (writer, "writer role"),
-                       (approver, "approver role"), (database, "database")):  # fmt: skip
+    for name, what in (
+        (reader, "reader role"),
+        (writer, "writer role"),
+        (approver, "approver role"),
+        (database, "database"),
+    ):
         check_safe_name(name, what)
     tables = tables or [t.name for t in Base.metadata.sorted_tables]
     r, w, db = sql.Identifier(reader), sql.Identifier(writer), sql.Identifier(database)
@@ -220,8 +230,11 @@ def apply_roles(
     url = make_url(archive.url)
     database = url.database or "postgres"
     with psycopg.connect(libpq_dsn(archive.url), autocommit=True) as conn, conn.transaction():
-        logins = ((reader, reader_password), (writer, writer_password),
-                  (approver, approver_password))  # fmt: skip
+        logins = (
+            (reader, reader_password),
+            (writer, writer_password),
+            (approver, approver_password),
+        )
         for role, password in logins:
             check_safe_name(role, "role")
             exists = conn.execute("SELECT 1 FROM pg_roles WHERE rolname = %s", (role,)).fetchone()
@@ -237,9 +250,16 @@ def apply_roles(
     from storage.seal import record_event
 
     passwords = [r for r, p in logins if p]
-    record_event(archive, "roles", detail={"reader": reader, "writer": writer,
-                                           "approver": approver,
-                                           "password_set": passwords})  # fmt: skip
+    record_event(
+        archive,
+        "roles",
+        detail={
+            "reader": reader,
+            "writer": writer,
+            "approver": approver,
+            "password_set": passwords,
+        },
+    )
 
 
 def role_sql(

@@ -190,9 +190,15 @@ class CalibrationRow(Base):
         UniqueConstraint("run_id", "settings_hash", "software_version"),
         CheckConstraint("revision >= 1", "revision"),
         # A run's current revision and its verdict from the index alone (migration 0005).
-        Index("ix_calibrations_current", "run_id", "verdict", "profile_name",
-              sqlite_where=text("superseded_by IS NULL"),
-              postgresql_where=text("superseded_by IS NULL"), postgresql_include=["id"]),
+        Index(
+            "ix_calibrations_current",
+            "run_id",
+            "verdict",
+            "profile_name",
+            sqlite_where=text("superseded_by IS NULL"),
+            postgresql_where=text("superseded_by IS NULL"),
+            postgresql_include=["id"],
+        ),
     )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)

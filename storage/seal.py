@@ -92,10 +92,13 @@ def actor() -> str:
 
 def check_reason(reason: str | None) -> None:
     """A reason is free text of at most MAX_REASON characters without NUL bytes (ValueError)."""
-    if reason is not None and (not isinstance(reason, str) or len(reason) > MAX_REASON
-                               or "\x00" in reason):  # fmt: skip
-        raise ValueError(f"reason: expected text of at most {MAX_REASON} characters without "
-                         f"NUL bytes, got {str(reason)[:40]!r}...")  # fmt: skip
+    if reason is not None and (
+        not isinstance(reason, str) or len(reason) > MAX_REASON or "\x00" in reason
+    ):
+        raise ValueError(
+            f"reason: expected text of at most {MAX_REASON} characters without "
+            f"NUL bytes, got {str(reason)[:40]!r}..."
+        )
 
 
 def canonical(value: Any) -> bytes:
@@ -105,9 +108,13 @@ def canonical(value: Any) -> bytes:
     check (a quarter of its time on a record) is off.
     """
     return json.dumps(
-        value, sort_keys=True, separators=(",", ":"), ensure_ascii=False, default=_iso,
+        value,
+        sort_keys=True,
+        separators=(",", ":"),
+        ensure_ascii=False,
+        default=_iso,
         check_circular=False,
-    ).encode()  # fmt: skip
+    ).encode()
 
 
 def _iso(value: Any) -> str:
@@ -125,8 +132,18 @@ def sha256_hex(data: bytes) -> str:
 _RUN = ("run_id", "started_at", "operator", "procedure", "site", "gravity", "environment",
         "manifest_text", "raw_hash", "tolerance_profile", "run_dir", "samples_path",
         "samples_sha256", "created_at")  # fmt: skip
-_CAL = ("revision", "settings_hash", "settings", "software_version", "source_revision",
-        "created_at", "document", "verdict", "profile_name", "profile_version")  # fmt: skip
+_CAL = (
+    "revision",
+    "settings_hash",
+    "settings",
+    "software_version",
+    "source_revision",
+    "created_at",
+    "document",
+    "verdict",
+    "profile_name",
+    "profile_version",
+)
 _DEVICE = ("serial", "model", "manufacturer", "specification")
 _DESCRIPTION = ("model", "manufacturer", "specification")  # of the unit, kept per run
 _RAW = ("name", "sha256", "size", "format", "stored_path")
@@ -244,7 +261,7 @@ def _head_query(form: int, per_run_description: bool) -> Select:
             *_cols(schema.CalibrationRow, _CAL, "c_", form),
             *_cols(schema.Device, _DEVICE, "d_"),
             *(_cols(schema.Run, _DESCRIPTION, "u_") if per_run_description else ()),
-        )  # fmt: skip
+        )
         .join(schema.Run, schema.Run.id == schema.CalibrationRow.run_id)
         .join(schema.Device, schema.Device.id == schema.Run.device_id)
         .where(schema.CalibrationRow.id.in_(_IDS))
@@ -286,7 +303,7 @@ _JSON_TABLES = tuple(
         ("processing_steps", schema.ProcessingStep, _STEP),
         ("parameters", schema.ParameterRow, _PARAM),
         ("check_results", schema.CheckResultRow, _CHECK),
-    )  # fmt: skip
+    )
     if _stored_names(model, names, 2)
 )
 
@@ -378,7 +395,7 @@ def _run_children_queries() -> tuple[Select, Select]:
             schema.Equipment.accuracy_class,
             schema.RunEquipment.calibration_due,
             schema.RunEquipment.calibrated_on,
-        )  # fmt: skip
+        )
         .join(schema.Equipment, schema.Equipment.id == schema.RunEquipment.equipment_id)
         .where(schema.RunEquipment.run_id.in_(_IDS))
         .order_by(schema.RunEquipment.run_id, schema.Equipment.kind, schema.Equipment.serial)
@@ -426,8 +443,18 @@ class Event:
         return sha256_hex(canonical({k: getattr(self, k) for k in _EVENT_FIELDS}))
 
 
-_EVENT_FIELDS = ("seq", "at", "actor", "action", "run_id", "revision", "reason", "detail",
-                 "digest", "prev_hash")  # fmt: skip
+_EVENT_FIELDS = (
+    "seq",
+    "at",
+    "actor",
+    "action",
+    "run_id",
+    "revision",
+    "reason",
+    "detail",
+    "digest",
+    "prev_hash",
+)
 # Built once (see `_IDS`).
 _HEAD = select(AuditEvent.seq, AuditEvent.hash).order_by(AuditEvent.seq.desc()).limit(1)
 _INSERT_EVENT = insert(AuditEvent)
@@ -464,8 +491,18 @@ def append_event(
     seq, prev = head(conn)
     if PENDING_DETAIL and (more := _pending(conn)):
         detail = {**(detail or {}), **more}
-    ev = Event(seq + 1, utcnow(), who or actor(), action, run_id, revision, reason,
-               detail or {}, digest, prev)  # fmt: skip
+    ev = Event(
+        seq + 1,
+        utcnow(),
+        who or actor(),
+        action,
+        run_id,
+        revision,
+        reason,
+        detail or {},
+        digest,
+        prev,
+    )
     row = {**{k: getattr(ev, k) for k in _EVENT_FIELDS}, "hash": ev.hash()}
     if pg and _has_append_function(conn):
         conn.execute(_APPEND_EVENT, {**row, "detail": json.dumps(row["detail"])})
@@ -489,8 +526,10 @@ _APPEND_EVENT = text(
     "SELECT calib_append_event(:at, :actor, :action, :run_id, :revision, :reason, "
     "CAST(:detail AS json), :digest, :prev_hash, :hash, :seq)"
 )
-_APPEND_FUNCTION = ("calib_append_event(timestamptz, text, text, text, integer, text, json, "
-                    "text, text, text, integer)")  # fmt: skip
+_APPEND_FUNCTION = (
+    "calib_append_event(timestamptz, text, text, text, integer, text, json, "
+    "text, text, text, integer)"
+)
 _HAS_FUNCTION = text("SELECT to_regprocedure(:f) IS NOT NULL")
 
 
@@ -518,9 +557,14 @@ def seal_calibration(
     record = records(conn, [cal_id], {cal_id: files or {}}, form=FORMAT)[cal_id]
     digest = _insert_seal(conn, cal_id, record)
     append_event(
-        conn, action, run_id=record["runs"]["run_id"],
-        revision=record["calibrations"]["revision"], reason=reason, digest=digest, who=who,
-    )  # fmt: skip
+        conn,
+        action,
+        run_id=record["runs"]["run_id"],
+        revision=record["calibrations"]["revision"],
+        reason=reason,
+        digest=digest,
+        who=who,
+    )
     return digest
 
 
@@ -529,8 +573,12 @@ def _insert_seal(conn: Connection, cal_id: int, record: dict[str, Any]) -> str:
     ``seals``; return its digest."""
     data = canonical(_without_texts(record))
     digest = sha256_hex(data)
-    row = {"calibration_id": cal_id, "digest": digest, "record": json.loads(data),
-           "created_at": utcnow()}  # fmt: skip
+    row = {
+        "calibration_id": cal_id,
+        "digest": digest,
+        "record": json.loads(data),
+        "created_at": utcnow(),
+    }
     if TEXTS in record:  # format 2 (a schema before 0008 has no such column: format 1 there)
         row["texts"] = record[TEXTS]
     conn.execute(_INSERT_SEAL, row)
@@ -549,17 +597,29 @@ def seal_unsealed(conn: Connection, who: str) -> int:
     per_run = "model" in {c["name"] for c in inspect(conn).get_columns("runs")}
     form = FORMAT if "texts" in {c["name"] for c in inspect(conn).get_columns("seals")} else 1
     sealed = select(Seal.calibration_id)
-    ids = conn.execute(
-        select(schema.CalibrationRow.id).where(schema.CalibrationRow.id.not_in(sealed)).order_by(schema.CalibrationRow.id)
-    ).scalars().all()  # fmt: skip
+    ids = (
+        conn.execute(
+            select(schema.CalibrationRow.id)
+            .where(schema.CalibrationRow.id.not_in(sealed))
+            .order_by(schema.CalibrationRow.id)
+        )
+        .scalars()
+        .all()
+    )
     for chunk in _chunks(list(ids)):
         recs = records(conn, chunk, per_run_description=per_run, form=form)
         for cal_id in chunk:
             rec = recs[cal_id]
             digest = _insert_seal(conn, cal_id, rec)
-            append_event(conn, "sealed", run_id=rec["runs"]["run_id"],
-                         revision=rec["calibrations"]["revision"], digest=digest, who=who,
-                         reason="sealed when the archive was upgraded")  # fmt: skip
+            append_event(
+                conn,
+                "sealed",
+                run_id=rec["runs"]["run_id"],
+                revision=rec["calibrations"]["revision"],
+                digest=digest,
+                who=who,
+                reason="sealed when the archive was upgraded",
+            )
     return len(ids)
 
 
@@ -599,10 +659,14 @@ def check(conn: Connection, root: Path) -> ChainCheck:
     for chunk in _chunks(list(seal_ids)):
         # The sealed record itself is read only where the rows no longer give its digest.
         seals = conn.execute(
-            select(Seal.id, Seal.calibration_id, Seal.digest, Seal.record["files"].label("files"),
-                   Seal.record["format"].label("format"))
-            .where(Seal.id.in_(chunk))
-        ).all()  # fmt: skip
+            select(
+                Seal.id,
+                Seal.calibration_id,
+                Seal.digest,
+                Seal.record["files"].label("files"),
+                Seal.record["format"].label("format"),
+            ).where(Seal.id.in_(chunk))
+        ).all()
         files = {s.calibration_id: rehash_files(root, s.files or {}) for s in seals}
         now = _records_as_sealed(conn, {s.calibration_id: s.format for s in seals}, files)
         for s in seals:
@@ -620,9 +684,14 @@ def check(conn: Connection, root: Path) -> ChainCheck:
                 sealed = {**sealed, TEXTS: texts}
             findings += _check_seal(s.digest, sealed, rec, sealing)
     for (run_id, rev), digest in sorted(sealing.items()):
-        findings.append(Finding("chain", "seals", [run_id],
-                                f"revision {rev} was sealed (digest {digest[:12]}...) but its seal "
-                                "row is gone"))  # fmt: skip
+        findings.append(
+            Finding(
+                "chain",
+                "seals",
+                [run_id],
+                f"revision {rev} was sealed (digest {digest[:12]}...) but its seal row is gone",
+            )
+        )
     unsealed = conn.execute(
         select(schema.Run.run_id, schema.CalibrationRow.revision)
         .join(schema.Run, schema.Run.id == schema.CalibrationRow.run_id)
@@ -646,16 +715,26 @@ def _check_issued(conn: Connection, root: Path) -> list[Finding]:
     out: list[Finding] = []
     rows = conn.execute(
         select(AuditEvent.run_id, AuditEvent.revision, AuditEvent.detail)
-        .where(AuditEvent.action == ISSUED).order_by(AuditEvent.seq)
-    ).all()  # fmt: skip
+        .where(AuditEvent.action == ISSUED)
+        .order_by(AuditEvent.seq)
+    ).all()
     for run_id, rev, detail in rows:
         files = (detail or {}).get("files") or {}
         for rel, now in rehash_files(root, files).items():
             if now != files[rel]:
-                what = ("is missing" if now == "(missing)" else
-                        f"changed: issued with SHA-256 {files[rel][:12]}..., now {now[:12]}...")
-                out.append(Finding("record", "certificates", [run_id or "?"],
-                                   f"{run_id} revision {rev}: issued file {rel} {what}"))
+                what = (
+                    "is missing"
+                    if now == "(missing)"
+                    else f"changed: issued with SHA-256 {files[rel][:12]}..., now {now[:12]}..."
+                )
+                out.append(
+                    Finding(
+                        "record",
+                        "certificates",
+                        [run_id or "?"],
+                        f"{run_id} revision {rev}: issued file {rel} {what}",
+                    )
+                )
     return out
 
 
@@ -706,9 +785,14 @@ def _check_chain(conn: Connection) -> tuple[list[Finding], dict[tuple[str, int],
         ev = Event(**{k: getattr(row, k) for k in _EVENT_FIELDS})
         where = f"event {ev.seq} ({ev.action}{' of ' + ev.run_id if ev.run_id else ''})"
         if ev.seq != prev_seq + 1:
-            findings.append(Finding("chain", "audit_events", [ev.run_id] if ev.run_id else [],
-                                    f"events {prev_seq + 1}..{ev.seq - 1} are missing before "
-                                    f"{where}"))  # fmt: skip
+            findings.append(
+                Finding(
+                    "chain",
+                    "audit_events",
+                    [ev.run_id] if ev.run_id else [],
+                    f"events {prev_seq + 1}..{ev.seq - 1} are missing before {where}",
+                )
+            )
         if ev.prev_hash != prev_hash:
             findings.append(
                 Finding(
@@ -720,9 +804,14 @@ def _check_chain(conn: Connection) -> tuple[list[Finding], dict[tuple[str, int],
                 )
             )
         if ev.hash() != row.hash:
-            findings.append(Finding("chain", "audit_events", [ev.run_id] if ev.run_id else [],
-                                    f"{where} was changed: its fields hash to {ev.hash()}, "
-                                    f"stored hash {row.hash}"))  # fmt: skip
+            findings.append(
+                Finding(
+                    "chain",
+                    "audit_events",
+                    [ev.run_id] if ev.run_id else [],
+                    f"{where} was changed: its fields hash to {ev.hash()}, stored hash {row.hash}",
+                )
+            )
         if ev.action in SEALING and ev.run_id and ev.digest:
             sealing[(ev.run_id, ev.revision)] = ev.digest
         prev_seq, prev_hash = ev.seq, row.hash
@@ -742,14 +831,27 @@ def _check_seal(
     out: list[Finding] = []
     chained = sealing.pop((run_id, rev), None)
     if digest_of(sealed) != digest or chained != digest:
-        out.append(Finding("chain", "seals", [run_id],
-                           f"the seal of {where} was changed: it no longer matches the digest "
-                           f"in the audit chain ({(chained or 'none')[:12]}...)"))  # fmt: skip
+        out.append(
+            Finding(
+                "chain",
+                "seals",
+                [run_id],
+                f"the seal of {where} was changed: it no longer matches the digest "
+                f"in the audit chain ({(chained or 'none')[:12]}...)",
+            )
+        )
     if record_format(sealed.get("format")) not in FORMATS:
-        return [*out, Finding("chain", "seals", [run_id],
-                              f"the seal of {where} is in record format {sealed.get('format')!r}, "
-                              f"which this version of calib (formats {FORMATS}) cannot read: "
-                              "verify with the version that wrote it")]  # fmt: skip
+        return [
+            *out,
+            Finding(
+                "chain",
+                "seals",
+                [run_id],
+                f"the seal of {where} is in record format {sealed.get('format')!r}, "
+                f"which this version of calib (formats {FORMATS}) cannot read: "
+                "verify with the version that wrote it",
+            ),
+        ]
     if now is None:
         return [
             *out,
@@ -763,8 +865,14 @@ def _check_seal(
     if digest_of(now) == digest:
         return out
     for keys, expected, found in _record_differences(sealed, now):
-        out.append(Finding("record", "/".join(keys), [run_id],
-                           f"{where}: sealed {_show(expected)}, found {_show(found)}"))  # fmt: skip
+        out.append(
+            Finding(
+                "record",
+                "/".join(keys),
+                [run_id],
+                f"{where}: sealed {_show(expected)}, found {_show(found)}",
+            )
+        )
     return out
 
 
@@ -784,8 +892,9 @@ def _without_texts(record: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in record.items() if k != TEXTS}
 
 
-def _into_json(keys: tuple[str, ...], expected: Any, found: Any, sealed_texts: Any,
-               now_texts: Any) -> list[tuple]:  # fmt: skip
+def _into_json(
+    keys: tuple[str, ...], expected: Any, found: Any, sealed_texts: Any, now_texts: Any
+) -> list[tuple]:
     """The differences inside a JSON column whose sealed and present texts hash to what
     the records hold; else (or for equal JSON in other text) the hashes themselves."""
     old, new = _text_at(sealed_texts, keys), _text_at(now_texts, keys)

@@ -40,10 +40,16 @@ class StoreMismatchError(ValueError):
 def recorded(archive: Archive) -> dict[str, Any] | None:
     """The file store recorded in the database ({"id", "root"}), or None."""
     with archive.engine().connect() as conn:
-        details = conn.execute(
-            select(AuditEvent.detail).where(AuditEvent.detail[KEY].is_not(None))
-            .order_by(AuditEvent.seq).limit(1)
-        ).scalars().all()  # fmt: skip
+        details = (
+            conn.execute(
+                select(AuditEvent.detail)
+                .where(AuditEvent.detail[KEY].is_not(None))
+                .order_by(AuditEvent.seq)
+                .limit(1)
+            )
+            .scalars()
+            .all()
+        )
     found = details[0].get(KEY) if details else None
     return found if isinstance(found, dict) else None
 
@@ -82,15 +88,21 @@ def mismatch(archive: Archive) -> str:
     return "" if known is None else _mismatch(archive, root, known, _marker(root))
 
 
-def _mismatch(archive: Archive, root: Path, known: dict[str, Any],
-              here: dict[str, Any] | None) -> str:  # fmt: skip
+def _mismatch(
+    archive: Archive, root: Path, known: dict[str, Any], here: dict[str, Any] | None
+) -> str:
     if here is not None and here["id"] == known.get("id"):
         return ""
-    found = ("no file store of a calib archive" if here is None
-             else f"the file store of another archive (id {here['id'][:8]})")  # fmt: skip
-    return (f"the archive {archive.display_url} keeps its files in {known.get('root')} "
-            f"(file store id {str(known.get('id'))[:8]}), not in {root}, which holds {found}; "
-            f"set CALIB_FILESTORE={known.get('root')} (or run the command there)")
+    found = (
+        "no file store of a calib archive"
+        if here is None
+        else f"the file store of another archive (id {here['id'][:8]})"
+    )
+    return (
+        f"the archive {archive.display_url} keeps its files in {known.get('root')} "
+        f"(file store id {str(known.get('id'))[:8]}), not in {root}, which holds {found}; "
+        f"set CALIB_FILESTORE={known.get('root')} (or run the command there)"
+    )
 
 
 def _first_write(archive: Archive, root: Path, here: dict[str, Any] | None) -> None:
@@ -153,6 +165,10 @@ def adopt(archive: Archive) -> None:
         return
     root = Path(archive.root).resolve()
     root.mkdir(parents=True, exist_ok=True)
-    doc = {"id": known["id"], "database": archive.display_url, "root": str(root),
-           "restored_from": known["root"]}  # fmt: skip
+    doc = {
+        "id": known["id"],
+        "database": archive.display_url,
+        "root": str(root),
+        "restored_from": known["root"],
+    }
     (root / MARKER).write_text(json.dumps(doc) + "\n", encoding="utf-8")

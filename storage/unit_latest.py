@@ -38,8 +38,7 @@ from storage.schema import CalibrationRow, Device, ParameterRow, Run, UnitLatest
 COLUMNS = (
     "device_id", "run_id", "calibration_id", "verdict", "profile_name", "valid_calibration_id",
 )  # fmt: skip
-VALUE_COLUMNS = ("model", "name", "serial", "device_id", "calibration_id", "value",
-                 "temperature_c")  # fmt: skip
+VALUE_COLUMNS = ("model", "name", "serial", "device_id", "calibration_id", "value", "temperature_c")
 VALUES_TABLE = UnitLatestValue.__tablename__
 REFERENCE_C = 20.0  # of temperature-dependent values, the one nearest this (deg C)
 _CHUNK = 10_000  # rows per INSERT of a rebuild
@@ -52,9 +51,14 @@ LIVE = (UnitLatest.device_id == UnitLatestValue.device_id) & (
 
 
 def _latest_run() -> ScalarSelect:
-    return (select(Run.id).where(Run.device_id == Device.id)
-            .order_by(*LATEST_RUN_FIRST).limit(1)
-            .correlate(Device).scalar_subquery())  # fmt: skip
+    return (
+        select(Run.id)
+        .where(Run.device_id == Device.id)
+        .order_by(*LATEST_RUN_FIRST)
+        .limit(1)
+        .correlate(Device)
+        .scalar_subquery()
+    )
 
 
 # One unit's queries take its id as the parameter ``device_id``; they are built once per
@@ -69,22 +73,37 @@ def _derived(one_unit: bool = False) -> Select:
     """The rows (COLUMNS) of every unit with a run (or of the unit ``device_id``), derived
     from runs and calibrations (a backward step on the runs index per pick)."""
     latest = _latest_run()
-    current = (select(CalibrationRow.id)
-               .where(CalibrationRow.run_id == latest, CURRENT)
-               .order_by(CalibrationRow.id.desc()).limit(1)
-               .correlate(Device).scalar_subquery())  # fmt: skip
+    current = (
+        select(CalibrationRow.id)
+        .where(CalibrationRow.run_id == latest, CURRENT)
+        .order_by(CalibrationRow.id.desc())
+        .limit(1)
+        .correlate(Device)
+        .scalar_subquery()
+    )
     valid = latest_valid_pick(Run.device_id == Device.id).correlate(Device).scalar_subquery()
-    picks = select(Device.id.label("device_id"), latest.label("run_id"),
-                   current.label("calibration_id"), valid.label("valid_calibration_id"))
+    picks = select(
+        Device.id.label("device_id"),
+        latest.label("run_id"),
+        current.label("calibration_id"),
+        valid.label("valid_calibration_id"),
+    )
     if one_unit:
         picks = picks.where(Device.id == _ONE_UNIT)
     picks = picks.subquery("picks")
-    return (select(picks.c.device_id, picks.c.run_id, picks.c.calibration_id,
-                   CalibrationRow.verdict, CalibrationRow.profile_name,
-                   picks.c.valid_calibration_id)
-            .select_from(picks)
-            .outerjoin(CalibrationRow, CalibrationRow.id == picks.c.calibration_id)
-            .where(picks.c.run_id.is_not(None)))  # fmt: skip
+    return (
+        select(
+            picks.c.device_id,
+            picks.c.run_id,
+            picks.c.calibration_id,
+            CalibrationRow.verdict,
+            CalibrationRow.profile_name,
+            picks.c.valid_calibration_id,
+        )
+        .select_from(picks)
+        .outerjoin(CalibrationRow, CalibrationRow.id == picks.c.calibration_id)
+        .where(picks.c.run_id.is_not(None))
+    )
 
 
 def refresh(conn: Connection, device_id: int) -> None:
@@ -133,8 +152,9 @@ def rebuild(conn: Connection) -> int:
     conn.execute(insert(UnitLatest).from_select(list(COLUMNS), _derived()))
     rows = iter(_derived_values(conn))
     while chunk := list(itertools.islice(rows, _CHUNK)):
-        conn.execute(insert(UnitLatestValue),
-                     [dict(zip(VALUE_COLUMNS, r, strict=True)) for r in chunk])  # fmt: skip
+        conn.execute(
+            insert(UnitLatestValue), [dict(zip(VALUE_COLUMNS, r, strict=True)) for r in chunk]
+        )
     return len(conn.execute(select(UnitLatest.device_id)).all())
 
 
@@ -170,11 +190,20 @@ def _derived_values(conn: Connection, device_id: int | None = None) -> list[tupl
 def _values_query(one_unit: bool) -> Select:
     """The parameter rows of each unit's latest valid calibration (`_derived_values`)."""
     picks = _derived(one_unit).subquery("derived")
-    return (select(Device.model, Device.serial, Device.id, picks.c.valid_calibration_id,
-                   ParameterRow.name, ParameterRow.value, ParameterRow.temperature_c)
-            .join(picks, picks.c.device_id == Device.id)
-            .join(ParameterRow, ParameterRow.calibration_id == picks.c.valid_calibration_id)
-            .order_by(Device.id, ParameterRow.id))  # fmt: skip
+    return (
+        select(
+            Device.model,
+            Device.serial,
+            Device.id,
+            picks.c.valid_calibration_id,
+            ParameterRow.name,
+            ParameterRow.value,
+            ParameterRow.temperature_c,
+        )
+        .join(picks, picks.c.device_id == Device.id)
+        .join(ParameterRow, ParameterRow.calibration_id == picks.c.valid_calibration_id)
+        .order_by(Device.id, ParameterRow.id)
+    )
 
 
 def differences(conn: Connection) -> list[dict[str, Any]]:
@@ -184,8 +213,10 @@ def differences(conn: Connection) -> list[dict[str, Any]]:
     None when there is no row), run_ids (the run ids, as the archive
     names runs, of the latest runs either side names).
     """
-    stored = {r[0]: tuple(r[1:]) for r in conn.execute(select(*(UnitLatest.__table__.c[c]
-                                                                 for c in COLUMNS)))}  # fmt: skip
+    stored = {
+        r[0]: tuple(r[1:])
+        for r in conn.execute(select(*(UnitLatest.__table__.c[c] for c in COLUMNS)))
+    }
     derived = {r[0]: tuple(r[1:]) for r in conn.execute(_derived())}
     bad = sorted(d for d in stored.keys() | derived.keys() if stored.get(d) != derived.get(d))
     if not bad:
@@ -196,12 +227,14 @@ def differences(conn: Connection) -> list[dict[str, Any]]:
     out = []
     for d in bad:
         s, e = stored.get(d), derived.get(d)
-        out.append({
-            "serial": serials.get(d, f"(device id {d}, not in devices)"),
-            "stored": None if s is None else dict(zip(COLUMNS[1:], s, strict=True)),
-            "derived": None if e is None else dict(zip(COLUMNS[1:], e, strict=True)),
-            "run_ids": sorted({names[v[0]] for v in (s, e) if v is not None and v[0] in names}),
-        })  # fmt: skip
+        out.append(
+            {
+                "serial": serials.get(d, f"(device id {d}, not in devices)"),
+                "stored": None if s is None else dict(zip(COLUMNS[1:], s, strict=True)),
+                "derived": None if e is None else dict(zip(COLUMNS[1:], e, strict=True)),
+                "run_ids": sorted({names[v[0]] for v in (s, e) if v is not None and v[0] in names}),
+            }
+        )
     return out
 
 
@@ -226,10 +259,12 @@ def value_differences(conn: Connection) -> list[dict[str, Any]]:
         names = list(group)
         first = names[0]
         s, e = stored.get(first), derived.get(first)
-        out.append({
-            "serial": (s or e)[1],
-            "names": [n for _, n in names],
-            "stored": None if s is None else dict(zip(shown, s, strict=True)),
-            "derived": None if e is None else dict(zip(shown, e, strict=True)),
-        })  # fmt: skip
+        out.append(
+            {
+                "serial": (s or e)[1],
+                "names": [n for _, n in names],
+                "stored": None if s is None else dict(zip(shown, s, strict=True)),
+                "derived": None if e is None else dict(zip(shown, e, strict=True)),
+            }
+        )
     return out

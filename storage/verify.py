@@ -34,8 +34,17 @@ from storage import rawstore, unit_latest
 from storage.db import Archive
 from storage.schema import CalibrationRow, ParameterRow, RawFileRow, Run
 
-ProblemKind = Literal["missing", "mismatch", "outside", "database", "record", "chain", "signature",
-                      "untrusted", "checkpoint"]
+ProblemKind = Literal[
+    "missing",
+    "mismatch",
+    "outside",
+    "database",
+    "record",
+    "chain",
+    "signature",
+    "untrusted",
+    "checkpoint",
+]
 
 
 @dataclass
@@ -225,26 +234,39 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
     for run_id, rev in conn.execute(bad_chain):
         report.problems.append(
             Problem(
-                "database", "", [run_id], f"revision {rev} is superseded by a revision that is "
-                "not a later revision of the same run"
+                "database",
+                "",
+                [run_id],
+                f"revision {rev} is superseded by a revision that is "
+                "not a later revision of the same run",
             )
-        )  # fmt: skip
+        )
 
 
 def _check_unit_latest(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
     """The derived tables of each unit's picks and values (storage.unit_latest) against
     their derivation."""
     for d in unit_latest.differences(conn):
-        report.problems.append(Problem(
-            "database", "", d["run_ids"], f"unit {d['serial']}: unit_latest holds {d['stored']}, "
-            f"its runs give {d['derived']} (storage.unit_latest.rebuild derives it again)",
-        ))  # fmt: skip
+        report.problems.append(
+            Problem(
+                "database",
+                "",
+                d["run_ids"],
+                f"unit {d['serial']}: unit_latest holds {d['stored']}, "
+                f"its runs give {d['derived']} (storage.unit_latest.rebuild derives it again)",
+            )
+        )
     for d in unit_latest.value_differences(conn):
-        report.problems.append(Problem(
-            "database", "", [], f"unit {d['serial']}: unit_latest_values of "
-            f"{', '.join(d['names'])} differ from its latest valid calibration's parameters "
-            f"({d['names'][0]}: {d['stored']} held, {d['derived']} derived)",
-        ))  # fmt: skip
+        report.problems.append(
+            Problem(
+                "database",
+                "",
+                [],
+                f"unit {d['serial']}: unit_latest_values of "
+                f"{', '.join(d['names'])} differ from its latest valid calibration's parameters "
+                f"({d['names'][0]}: {d['stored']} held, {d['derived']} derived)",
+            )
+        )
 
 
 def _check_seals(conn, root: Path, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
@@ -268,8 +290,12 @@ def _check_store(archive: Archive, report: VerifyReport) -> None:
         report.problems.append(Problem("missing", "", [], why))
 
 
-def _check_trust(conn, report: VerifyReport, approvers: Any,  # noqa: ANN001 - a Connection
-                 checkpoints: list[tuple[str, dict[str, Any]]]) -> None:  # fmt: skip
+def _check_trust(
+    conn,
+    report: VerifyReport,
+    approvers: Any,  # noqa: ANN001 - a Connection
+    checkpoints: list[tuple[str, dict[str, Any]]],
+) -> None:
     """Approvals against the lab's approvers file; the chain against each checkpoint."""
     from storage import approval, checkpoint
 
@@ -302,9 +328,13 @@ def _check_parameters(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a C
     ):
         if name in rows[cal_id]:
             report.problems.append(
-                Problem("record", f"parameters/{name}", [],
-                        f"{name}: more than one parameters row in calibration id {cal_id}")
-            )  # fmt: skip
+                Problem(
+                    "record",
+                    f"parameters/{name}",
+                    [],
+                    f"{name}: more than one parameters row in calibration id {cal_id}",
+                )
+            )
         rows[cal_id][name] = tuple(values)
     docs = conn.execution_options(yield_per=2000).execute(
         select(CalibrationRow.id, CalibrationRow.revision, CalibrationRow.document, Run.run_id)
@@ -321,10 +351,12 @@ def _check_parameters(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a C
         for name in sorted(stray):
             report.problems.append(
                 Problem(
-                    "record", f"parameters/{name}", [],
+                    "record",
+                    f"parameters/{name}",
+                    [],
                     f"{name}: row of calibration id {cal_id}, which does not exist",
                 )
-            )  # fmt: skip
+            )
 
 
 def _parameter_differences(

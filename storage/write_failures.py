@@ -24,8 +24,11 @@ READ_ONLY_ERRNOS = frozenset({errno.EROFS})
 DENIED_ERRNOS = frozenset({errno.EACCES, errno.EPERM})
 
 _DB_FULL = ("database or disk is full", "could not extend file", "no space left on device")
-_DB_READ_ONLY = ("attempt to write a readonly database", "read-only transaction",
-                 "readonly database")  # fmt: skip
+_DB_READ_ONLY = (
+    "attempt to write a readonly database",
+    "read-only transaction",
+    "readonly database",
+)
 _DB_CANNOT_OPEN = ("unable to open database file",)
 _DB_IO = ("disk i/o error",)
 
@@ -76,30 +79,42 @@ def describe(exc: BaseException, database_url: str | None = None) -> str | None:
         if isinstance(e, OSError) and e.errno is not None:
             where = e.filename or "the archive's file store"
             if e.errno in FULL_ERRNOS:
-                return (f"no space left on the file system holding {where}: free space there "
-                        f"(or move the archive to a larger disk); {AGAIN}")  # fmt: skip
+                return (
+                    f"no space left on the file system holding {where}: free space there "
+                    f"(or move the archive to a larger disk); {AGAIN}"
+                )
             if e.errno in READ_ONLY_ERRNOS:
-                return (f"{where} is on a read-only file system: writing needs a writable "
-                        f"archive (reading commands work as they are); {AGAIN}")  # fmt: skip
+                return (
+                    f"{where} is on a read-only file system: writing needs a writable "
+                    f"archive (reading commands work as they are); {AGAIN}"
+                )
             if e.errno in DENIED_ERRNOS:
                 return f"no permission to write {where}: check its owner and mode; {AGAIN}"
         text = str(e).lower()
-        db = (f"the database {database_location(database_url)}" if database_url
-              else "the archive's database")  # fmt: skip
+        db = (
+            f"the database {database_location(database_url)}"
+            if database_url
+            else "the archive's database"
+        )
         if any(s in text for s in _DB_FULL):
-            return (f"no space left for {db}: free space on its disk "
-                    f"(or move the archive); {AGAIN}")  # fmt: skip
+            return f"no space left for {db}: free space on its disk (or move the archive); {AGAIN}"
         if any(s in text for s in _DB_READ_ONLY):
-            return (f"{db} is read-only (a read-only mount or copy, or no write "
-                    f"permission on the file or its folder); {AGAIN}")  # fmt: skip
+            return (
+                f"{db} is read-only (a read-only mount or copy, or no write "
+                f"permission on the file or its folder); {AGAIN}"
+            )
         if any(s in text for s in _DB_IO):
-            return (f"{db} could not be written (SQLite: disk I/O error), "
-                    f"most often because its disk is full: check the free space there; "
-                    f"{AGAIN}")  # fmt: skip
+            return (
+                f"{db} could not be written (SQLite: disk I/O error), "
+                f"most often because its disk is full: check the free space there; "
+                f"{AGAIN}"
+            )
         if any(s in text for s in _DB_CANNOT_OPEN):
             folder = Path(database_location(database_url)).parent if database_url else "its folder"
-            return (f"cannot open {db}: check that {folder} exists and can be "
-                    f"read (and written, to archive); {AGAIN}")  # fmt: skip
+            return (
+                f"cannot open {db}: check that {folder} exists and can be "
+                f"read (and written, to archive); {AGAIN}"
+            )
     return None
 
 

@@ -71,11 +71,20 @@ def write_ulog(
     if topics in ("separate", "both"):
         k = slice(None, None, separate_every)
         for i, (name, v) in enumerate((("sensor_accel", rec.acc), ("sensor_gyro", rec.gyr))):
-            fields = ACCEL_FIELDS if name == "sensor_accel" else [
-                f for f in ACCEL_FIELDS if f[1] != "samples"
-            ]
-            values = {"timestamp": stamps[k], "timestamp_sample": stamps[k], "device_id": 1,
-                      "x": v[k, 0], "y": v[k, 1], "z": v[k, 2], "temperature": temp[k]}  # fmt: skip
+            fields = (
+                ACCEL_FIELDS
+                if name == "sensor_accel"
+                else [f for f in ACCEL_FIELDS if f[1] != "samples"]
+            )
+            values = {
+                "timestamp": stamps[k],
+                "timestamp_sample": stamps[k],
+                "device_id": 1,
+                "x": v[k, 0],
+                "y": v[k, 1],
+                "z": v[k, 2],
+                "temperature": temp[k],
+            }
             data.append(_ulog_topic(ULog, formats, name, fields, i, 0, values))
     if topics in ("combined", "both"):
         values = {"timestamp": stamps, "gyro_rad": rec.gyr, "accelerometer_m_s2": rec.acc}
@@ -100,8 +109,9 @@ def _df_struct(fmt: str) -> struct.Struct:
 
 def _df_fmt_record(type_id: int, name: str, fmt: str, columns: str) -> bytes:
     length = 3 + _df_struct(fmt).size
-    body = struct.pack("<BB4s16s64s", type_id, length, name.encode(), fmt.encode(),
-                       columns.encode())  # fmt: skip
+    body = struct.pack(
+        "<BB4s16s64s", type_id, length, name.encode(), fmt.encode(), columns.encode()
+    )
     return DF_HEAD + bytes([FMT_ID]) + body
 
 
@@ -125,7 +135,7 @@ def write_dataflash(
     every = every or (1,) * instances
     out = bytearray(_df_fmt_record(FMT_ID, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
     fmt, columns = IMU_OLD_FORMAT if old else IMU_FORMAT
-    names = ([f"IMU{k + 1}" if k else "IMU" for k in range(instances)] if old else ["IMU"])
+    names = [f"IMU{k + 1}" if k else "IMU" for k in range(instances)] if old else ["IMU"]
     for k, name in enumerate(names):
         out += _df_fmt_record(129 + k, name, fmt, columns)
     pack = _df_struct(fmt).pack
@@ -178,23 +188,34 @@ def _ros_messages(store, rec: Recording, stamps, table_rate: float | None, slow_
         yield "/imu/data", "sensor_msgs/msg/Imu", ns, imu
         if slow_every and i % slow_every == 0:
             a = rec.acc[i] + (1.0, 0.0, 0.0)
-            slow = Imu(header=header, orientation=imu.orientation, orientation_covariance=zeros,
-                       angular_velocity=imu.angular_velocity, angular_velocity_covariance=zeros,
-                       linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
-                       linear_acceleration_covariance=zeros)  # fmt: skip
+            slow = Imu(
+                header=header,
+                orientation=imu.orientation,
+                orientation_covariance=zeros,
+                angular_velocity=imu.angular_velocity,
+                angular_velocity_covariance=zeros,
+                linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
+                linear_acceleration_covariance=zeros,
+            )
             yield "/imu/slow", "sensor_msgs/msg/Imu", ns, slow
         if i % 10 == 0 and rec.temp is not None:
             msg = Temperature(header=header, temperature=float(rec.temp[i]), variance=0.0)
             yield "/imu/temperature", "sensor_msgs/msg/Temperature", ns, msg
         if table_rate is not None and i % 5 == 0:
             angle = table_rate * (ns - int(stamps[0])) / 1e9
-            msg = JointState(header=header, name=["table"], position=np.array([angle]),
-                             velocity=np.array([table_rate]), effort=np.array([0.0]))  # fmt: skip
+            msg = JointState(
+                header=header,
+                name=["table"],
+                position=np.array([angle]),
+                velocity=np.array([table_rate]),
+                effort=np.array([0.0]),
+            )
             yield "/table/joint_states", "sensor_msgs/msg/JointState", ns, msg
 
 
-def write_rosbag2(folder: Path, rec: Recording, *, table_rate: float | None = None,
-                  slow_every: int | None = None) -> Path:
+def write_rosbag2(
+    folder: Path, rec: Recording, *, table_rate: float | None = None, slow_every: int | None = None
+) -> Path:
     """One segment as a ROS 2 sqlite3 bag folder; returns its .db3 file."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
@@ -211,8 +232,9 @@ def write_rosbag2(folder: Path, rec: Recording, *, table_rate: float | None = No
     return db3
 
 
-def write_rosbag1(path: Path, rec: Recording, *, table_rate: float | None = None,
-                  slow_every: int | None = None) -> None:
+def write_rosbag1(
+    path: Path, rec: Recording, *, table_rate: float | None = None, slow_every: int | None = None
+) -> None:
     """One segment as a ROS 1 bag (message definitions of ROS 1 Noetic)."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore

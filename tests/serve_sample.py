@@ -47,9 +47,16 @@ class Sample:
     runs: dict[str, list[str]] = field(default_factory=dict)  # serial -> run ids, in time order
 
 
-def _manifest(serial: str, started: datetime, *, temp: float = 20.0, model: str = "MPU-6000",
-              manufacturer: str = "InvenSense", operator: str = "A. Tester",
-              equipment: list[dict] | None = None) -> dict:  # fmt: skip
+def _manifest(
+    serial: str,
+    started: datetime,
+    *,
+    temp: float = 20.0,
+    model: str = "MPU-6000",
+    manufacturer: str = "InvenSense",
+    operator: str = "A. Tester",
+    equipment: list[dict] | None = None,
+) -> dict:
     return {
         "schema_version": 1,
         "unit": {"serial": serial, "model": model, "manufacturer": manufacturer},
@@ -105,32 +112,53 @@ def build(root: Path) -> Sample:
     lab = root / "lab"
 
     base = quiet_truth(rng)
-    cube = {"kind": "cube", "model": "PC-100", "serial": "CUBE-D", "calibration_due": CUBE_DUE,
-            "calibrated_on": "2024-06-30"}  # fmt: skip
+    cube = {
+        "kind": "cube",
+        "model": "PC-100",
+        "serial": "CUBE-D",
+        "calibration_due": CUBE_DUE,
+        "calibrated_on": "2024-06-30",
+    }
     for k, day in enumerate(DRIFT_DAYS):
         truth = replace(base, acc_bias=base.acc_bias + np.array([DRIFT_PER_DAY * day, 0, 0]))
         started = DRIFT_START + timedelta(days=day)
         run = six_position_integral_run(truth, rng)
-        write_csv_run(run.segments, lab / f"drift{k}",
-                      _manifest(DRIFT_SERIAL, started, equipment=[cube]))  # fmt: skip
+        write_csv_run(
+            run.segments, lab / f"drift{k}", _manifest(DRIFT_SERIAL, started, equipment=[cube])
+        )
         sample.runs.setdefault(DRIFT_SERIAL, []).append(_process(lab / f"drift{k}", archive))
 
     thermal = random_thermal_truth(rng)
     start = datetime(2026, 3, 2, 8, 0, tzinfo=UTC)
     for i, point in enumerate(thermal_campaign(thermal, rng, THERMAL_TEMPS)):
         folder = lab / f"thermal{i}"
-        write_csv_run(point.run.segments, folder,
-                      _manifest(THERMAL_SERIAL, start + timedelta(days=i), temp=point.temperature))
+        write_csv_run(
+            point.run.segments,
+            folder,
+            _manifest(THERMAL_SERIAL, start + timedelta(days=i), temp=point.temperature),
+        )
         sample.runs.setdefault(THERMAL_SERIAL, []).append(_process(folder, archive))
     thermal_fit(archive, THERMAL_SERIAL)
 
-    evil = {"kind": "daq", "model": HOSTILE_MODEL, "serial": HOSTILE_EQUIPMENT,
-            "calibration_due": "2027-01-31"}  # fmt: skip
+    evil = {
+        "kind": "daq",
+        "model": HOSTILE_MODEL,
+        "serial": HOSTILE_EQUIPMENT,
+        "calibration_due": "2027-01-31",
+    }
     run = six_position_integral_run(quiet_truth(rng), rng)
-    write_csv_run(run.segments, lab / "evil",
-                  _manifest(EVIL_SERIAL, datetime(2026, 5, 5, 10, 0, tzinfo=UTC),
-                            model=HOSTILE_MODEL, manufacturer="<b>ACME</b>",
-                            operator=HOSTILE_OPERATOR, equipment=[evil]))  # fmt: skip
+    write_csv_run(
+        run.segments,
+        lab / "evil",
+        _manifest(
+            EVIL_SERIAL,
+            datetime(2026, 5, 5, 10, 0, tzinfo=UTC),
+            model=HOSTILE_MODEL,
+            manufacturer="<b>ACME</b>",
+            operator=HOSTILE_OPERATOR,
+            equipment=[evil],
+        ),
+    )
     sample.runs[EVIL_SERIAL] = [_process(lab / "evil", archive)]
     archive.dispose()
     return sample

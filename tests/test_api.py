@@ -34,8 +34,12 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch, capsys):
     out = capsys.readouterr().out
     # What the blocks say they do happened: the archive, the report, the files.
     assert "ok R" in out and "pass MPU0001_result.txt" in out
-    for written in ("my-archive/archive.sqlite", "reports/MPU0001_result.txt",
-                    "MPU0001.params", "MPU0001_calibrated.parquet"):  # fmt: skip
+    for written in (
+        "my-archive/archive.sqlite",
+        "reports/MPU0001_result.txt",
+        "MPU0001.params",
+        "MPU0001_calibrated.parquet",
+    ):
         assert (tmp_path / written).is_file(), written
     assert "CAL_ACC0_XOFF" in (tmp_path / "MPU0001.params").read_text()
 

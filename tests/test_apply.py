@@ -131,9 +131,19 @@ def test_apply_round_trip_at_an_untested_temperature(campaign, tmp_path):
     day = (START + timedelta(days=3)).date().isoformat()  # the 20 deg C run's day
     res = CliRunner().invoke(
         app,
-        ["apply", str(folder), str(out), "--serial", SERIAL, "--at", day,
-         "--archive", str(arch.root), "--json"],
-    )  # fmt: skip
+        [
+            "apply",
+            str(folder),
+            str(out),
+            "--serial",
+            SERIAL,
+            "--at",
+            day,
+            "--archive",
+            str(arch.root),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     facts = json.loads(res.stdout)
     assert facts["calibration_temperature_c"] == 20.0 and facts["thermal_model_id"] is not None
@@ -166,9 +176,17 @@ def test_apply_to_one_mpu6000_file_writes_csv(campaign, tmp_path):
     files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "mpu", SERIAL)
     out = tmp_path / "z_up.csv"
     res = CliRunner().invoke(
-        app, ["apply", str(files[0]), str(out), "--serial", SERIAL, "--archive",
-              str(campaign["archive"].root)],
-    )  # fmt: skip
+        app,
+        [
+            "apply",
+            str(files[0]),
+            str(out),
+            "--serial",
+            SERIAL,
+            "--archive",
+            str(campaign["archive"].root),
+        ],
+    )
     assert res.exit_code == 0, res.output
     df = pd.read_csv(out)
     assert list(df.columns) == [
@@ -197,8 +215,15 @@ def test_apply_prints_a_table_and_warns_of_another_serial(campaign, tmp_path):
     sim = six_position_integral_run(truth.errors_at(UNTESTED_C), rng, temp_c=UNTESTED_C)
     files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "mpu", "OTHER-7")
     out = tmp_path / "z_up.csv"
-    args = ["apply", str(files[0]), str(out), "--serial", SERIAL, "--archive",
-            str(campaign["archive"].root)]  # fmt: skip
+    args = [
+        "apply",
+        str(files[0]),
+        str(out),
+        "--serial",
+        SERIAL,
+        "--archive",
+        str(campaign["archive"].root),
+    ]
     res = CliRunner().invoke(app, args, env={"COLUMNS": "80"})
     assert res.exit_code == 0, res.output
     assert not res.stdout.lstrip().startswith("{")
@@ -217,14 +242,32 @@ def test_apply_prints_a_table_and_warns_of_another_serial(campaign, tmp_path):
 def test_apply_errors_are_clear(campaign, tmp_path):
     arch = campaign["archive"]
     res = CliRunner().invoke(
-        app, ["apply", str(tmp_path), str(tmp_path / "x.txt"), "--serial", SERIAL,
-              "--archive", str(arch.root)],
-    )  # fmt: skip
+        app,
+        [
+            "apply",
+            str(tmp_path),
+            str(tmp_path / "x.txt"),
+            "--serial",
+            SERIAL,
+            "--archive",
+            str(arch.root),
+        ],
+    )
     assert res.exit_code == 2 and "expected a .parquet, .pq or .csv" in res.output
     res = CliRunner().invoke(
-        app, ["apply", str(tmp_path), str(tmp_path / "x.csv"), "--serial", SERIAL, "--at",
-              "2020-01-01", "--archive", str(arch.root)],
-    )  # fmt: skip
+        app,
+        [
+            "apply",
+            str(tmp_path),
+            str(tmp_path / "x.csv"),
+            "--serial",
+            SERIAL,
+            "--at",
+            "2020-01-01",
+            "--archive",
+            str(arch.root),
+        ],
+    )
     assert res.exit_code == 2 and "no valid (passed, current) calibration" in res.output
 
 
@@ -260,23 +303,52 @@ def _minimal_run(tmp_path: Path, serial: str, k: int) -> RunIn:
     raw = tmp_path / f"{serial}_{k}.csv"
     raw.write_text(f"{serial} {k}\n")
     return RunIn(
-        serial=serial, device_model="M", manufacturer="x", specification=None,
-        started_at=START + timedelta(days=k), operator=None, procedure="six_position",
-        site={}, gravity=9.8, environment={"temperature_c": 10.0 * k}, equipment=[],
-        manifest_text=None, tolerance_profile=None,
-        raw_files=[RawFileIn(raw, raw.name, hashlib.sha256(raw.read_bytes()).hexdigest(),
-                             raw.stat().st_size, "csv")],
-        settings={}, software_version="t", source_revision=None, steps=[],
-        calibration={"parameters": {}}, parameters=[], checks=[], verdict="pass",
-        profile_name=None, profile_version=None,
-    )  # fmt: skip
+        serial=serial,
+        device_model="M",
+        manufacturer="x",
+        specification=None,
+        started_at=START + timedelta(days=k),
+        operator=None,
+        procedure="six_position",
+        site={},
+        gravity=9.8,
+        environment={"temperature_c": 10.0 * k},
+        equipment=[],
+        manifest_text=None,
+        tolerance_profile=None,
+        raw_files=[
+            RawFileIn(
+                raw,
+                raw.name,
+                hashlib.sha256(raw.read_bytes()).hexdigest(),
+                raw.stat().st_size,
+                "csv",
+            )
+        ],
+        settings={},
+        software_version="t",
+        source_revision=None,
+        steps=[],
+        calibration={"parameters": {}},
+        parameters=[],
+        checks=[],
+        verdict="pass",
+        profile_name=None,
+        profile_version=None,
+    )
 
 
 def test_thermal_models_are_stored_and_superseded(archive, tmp_path):
     ids = [archive_run(archive, _minimal_run(tmp_path, "S1", k)).calibration_id for k in range(3)]
     other = archive_run(archive, _minimal_run(tmp_path, "S2", 0)).calibration_id
-    doc = {"model": "polynomial", "schema_version": 1, "t_ref": 10.0, "t_min": 0.0, "t_max": 20.0,
-           "curves": {}}  # fmt: skip
+    doc = {
+        "model": "polynomial",
+        "schema_version": 1,
+        "t_ref": 10.0,
+        "t_min": 0.0,
+        "t_max": 20.0,
+        "curves": {},
+    }
     first = thermal_store.archive_thermal_model(archive, "S1", doc, ids)
     second = thermal_store.archive_thermal_model(archive, "S1", {**doc, "t_ref": 11.0}, ids[:2])
     latest = queries.latest_thermal_model(archive, "S1")

@@ -55,9 +55,13 @@ def test_approve_verify_tamper_verify_fails(
     assert "\tjane\tapproved\t" in lines[1] and "approved by Jane Approver" in lines[1]
 
     # One value of the approved record changed: the approval no longer holds.
-    _tamper(archive, "UPDATE check_results SET value = 0 WHERE calibration_id = "
-                     "(SELECT c.id FROM calibrations c JOIN runs r ON r.id = c.run_id "
-                     "WHERE r.run_id = :r)", r=ids[1])  # fmt: skip
+    _tamper(
+        archive,
+        "UPDATE check_results SET value = 0 WHERE calibration_id = "
+        "(SELECT c.id FROM calibrations c JOIN runs r ON r.id = c.run_id "
+        "WHERE r.run_id = :r)",
+        r=ids[1],
+    )
     found = _signature_problems(archive)
     assert len(found) == 1 and "approved by Jane Approver" in found[0], found
     assert "no longer holds" in found[0]
@@ -73,8 +77,11 @@ def test_a_forged_approval_does_not_verify(archive: Archive, tmp_path: Path, key
     approve(archive, ids[0], load_key(key, PASS), signer="Jane Approver", meaning="reviewed")
     assert verify(archive, orphans=False).ok
     # the signer's name changed in the stored event: the signature is over the old one
-    _tamper(archive, "UPDATE audit_events SET detail = :d WHERE action = 'approved'",
-            d=json.dumps({**_detail(archive), "signer": "Chief Metrologist"}))  # fmt: skip
+    _tamper(
+        archive,
+        "UPDATE audit_events SET detail = :d WHERE action = 'approved'",
+        d=json.dumps({**_detail(archive), "signer": "Chief Metrologist"}),
+    )
     found = _signature_problems(archive)
     assert len(found) == 1 and "does not verify" in found[0], found
 
@@ -109,8 +116,10 @@ def test_audit_lists_by_serial_and_since(
     events = json.loads(res.stdout)
     # serial 0012: its two runs archived, then the first one revised with the reason recorded
     assert [(e["action"], e["run_id"]) for e in events] == [
-        ("archived", ids[0]), ("archived", ids[1]), ("revised", ids[0])
-    ]  # fmt: skip
+        ("archived", ids[0]),
+        ("archived", ids[1]),
+        ("revised", ids[0]),
+    ]
     assert events[2]["reason"].startswith("processed again (no reason given): settings")
     res = cli(archive, "audit", "--since", "2999-01-01", "--json", monkeypatch=monkeypatch)
     assert json.loads(res.stdout) == []

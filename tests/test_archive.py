@@ -241,8 +241,14 @@ def test_new_settings_or_software_add_revisions_that_supersede(
     assert (r3.status, r3.revision) == ("revised", 3)
 
     # Only the per-calibration rows grew; nothing was deleted.
-    per_cal = {"calibrations": 1, "processing_steps": 2, "parameters": 4, "check_results": 1,
-               "seals": 1, "audit_events": 1}  # fmt: skip
+    per_cal = {
+        "calibrations": 1,
+        "processing_steps": 2,
+        "parameters": 4,
+        "check_results": 1,
+        "seals": 1,
+        "audit_events": 1,
+    }
     assert counts(archive) == {t: n + 2 * per_cal.get(t, 0) for t, n in rows1.items()}
     # Every revision's protocol kept, none overwritten.
     assert (r1.run_dir / PROTOCOL).read_bytes() == b"rev 1"

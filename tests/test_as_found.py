@@ -44,8 +44,7 @@ def _found_truth(old, new: TrueErrors) -> dict[str, float]:
     gyr_M = np.linalg.solve(Ag, np.eye(3) + new.gyr_M) - np.eye(3)
     gsens = np.linalg.solve(Ag, new.gsens - old.gsens() @ (np.eye(3) + acc_M))
     gyr_b = np.linalg.solve(Ag, new.gyr_bias - old.vector("gyr", "bias") - old.gsens() @ acc_b)
-    return TrueErrors(acc_b, acc_M, gyr_b, gyr_M, gsens, new.acc_noise,
-                      new.gyr_noise).parameters()  # fmt: skip
+    return TrueErrors(acc_b, acc_M, gyr_b, gyr_M, gsens, new.acc_noise, new.gyr_noise).parameters()
 
 
 @pytest.fixture(scope="module")

@@ -68,8 +68,12 @@ def segfaults_scipy(path: Path) -> bool:
 
 def calib_env(tag: str) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_API")}
-    env.update(PYTHONPATH=str(ROOT), CALIB_TEST_TAG=tag, DO_NOT_TRACK="1",
-               PREFECT_SERVER_ANALYTICS_ENABLED="false")  # fmt: skip
+    env.update(
+        PYTHONPATH=str(ROOT),
+        CALIB_TEST_TAG=tag,
+        DO_NOT_TRACK="1",
+        PREFECT_SERVER_ANALYTICS_ENABLED="false",
+    )
     env.pop("PREFECT_HOME", None)
     return env
 
@@ -95,10 +99,16 @@ def tagged_processes(tag: str) -> list[tuple[int, str]]:
 def forked_workers(tag: str) -> list[int]:
     """Worker processes: children of a forkserver (they share its command line)."""
     procs = dict(tagged_processes(tag))
-    ppid = {p: int(Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[1])
-            for p in procs if Path(f"/proc/{p}").exists()}  # fmt: skip
-    return [p for p, c in procs.items()
-            if "forkserver" in c and "forkserver" in procs.get(ppid.get(p, 0), "")]  # fmt: skip
+    ppid = {
+        p: int(Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        for p in procs
+        if Path(f"/proc/{p}").exists()
+    }
+    return [
+        p
+        for p, c in procs.items()
+        if "forkserver" in c and "forkserver" in procs.get(ppid.get(p, 0), "")
+    ]
 
 
 def wait_gone(tag: str, timeout_s: float) -> list[tuple[int, str]]:
@@ -116,9 +126,21 @@ def kill_tagged(tag: str) -> None:
 
 def batch_cmd(runs: Path, archive: Path, runner: str = "process") -> list[str]:
     """`calib process RUNS --json` into `archive` on two workers of `runner`, no progress bar."""
-    return [sys.executable, "-m", "pipelines.cli", "process", str(runs), "--json",
-            "--archive", str(archive), "--runner", runner, "--workers", "2",
-            "--no-progress"]  # fmt: skip
+    return [
+        sys.executable,
+        "-m",
+        "pipelines.cli",
+        "process",
+        str(runs),
+        "--json",
+        "--archive",
+        str(archive),
+        "--runner",
+        runner,
+        "--workers",
+        "2",
+        "--no-progress",
+    ]
 
 
 def long_runs(folder: Path, n: int, prefix: str, seed: int) -> Path:
@@ -131,8 +153,9 @@ def long_runs(folder: Path, n: int, prefix: str, seed: int) -> Path:
 def start_batch(runs: Path, archive: Path, stderr: int) -> tuple[subprocess.Popen, str]:
     """`batch_cmd` started with a fresh tag (to find its processes); stdout piped."""
     tag = uuid.uuid4().hex
-    proc = subprocess.Popen(batch_cmd(runs, archive), env=calib_env(tag),
-                            stdout=subprocess.PIPE, stderr=stderr)  # fmt: skip
+    proc = subprocess.Popen(
+        batch_cmd(runs, archive), env=calib_env(tag), stdout=subprocess.PIPE, stderr=stderr
+    )
     return proc, tag
 
 

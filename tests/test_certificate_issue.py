@@ -76,7 +76,9 @@ def test_certificate_is_issued_and_sealed_when_archived(archived) -> None:
     for rel, sha in event["detail"]["files"].items():
         assert hashlib.sha256((arch.root / rel).read_bytes()).hexdigest() == sha
     assert {arch.root / rel for rel in event["detail"]["files"]} == {
-        current.files["html"], current.files["pdf"]}  # fmt: skip
+        current.files["html"],
+        current.files["pdf"],
+    }
     assert verify(arch).ok
 
 
@@ -148,8 +150,11 @@ def test_web_pages_serve_the_archived_files(archived) -> None:
     current = issued(arch, run_id)
     ro = open_readonly(arch)
     client = TestClient(create_app(ro))
-    for url, kind in (("certificate.pdf", "pdf"), ("certificate.html", "html"),
-                      ("protocol.txt", "protocol")):  # fmt: skip
+    for url, kind in (
+        ("certificate.pdf", "pdf"),
+        ("certificate.html", "html"),
+        ("protocol.txt", "protocol"),
+    ):
         r = client.get(f"/runs/{run_id}/{url}")
         assert r.status_code == 200, r.text
         assert r.content == current.files[kind].read_bytes()

@@ -52,11 +52,20 @@ def _alive(pid: int) -> bool:
 def test_a_killed_run_leaves_no_server_and_no_folder(tmp_path: Path, how: signal.Signals) -> None:
     report = tmp_path / "report.json"
     run = subprocess.Popen(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-         f"{Path(__file__).name}::test_holds_the_server"],
-        cwd=Path(__file__).parent, env={**os.environ, HOLD_ENV: str(report)},
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            f"{Path(__file__).name}::test_holds_the_server",
+        ],
+        cwd=Path(__file__).parent,
+        env={**os.environ, HOLD_ENV: str(report)},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.monotonic() + WAIT_S
     while not report.exists():
         assert run.poll() is None, "the inner run ended before it held the server"

@@ -81,8 +81,13 @@ def test_shell_completion_of_commands(monkeypatch: pytest.MonkeyPatch) -> None:
     # The shell named on the command line, not the one that started the tests (Typer
     # otherwise asks shellingham, and a run started from `sh` gets "Shell sh not supported").
     monkeypatch.setenv("_TYPER_COMPLETE_TEST_DISABLE_SHELL_DETECTION", "1")
-    env = {**os.environ, "_CALIB_COMPLETE": "complete_bash", "COMP_WORDS": "calib query l",
-           "COMP_CWORD": "2", "PYTHONPATH": str(ROOT)}  # fmt: skip
+    env = {
+        **os.environ,
+        "_CALIB_COMPLETE": "complete_bash",
+        "COMP_WORDS": "calib query l",
+        "COMP_CWORD": "2",
+        "PYTHONPATH": str(ROOT),
+    }
     code = "from pipelines.cli import app; app(prog_name='calib')"
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert done.stdout.split() == ["latest", "lineage", "lapsed"], done.stderr
@@ -114,10 +119,24 @@ def test_a_prefect_batch_prints_no_logs_or_tracebacks(tmp_path: Path) -> None:
     env.update(PYTHONPATH=str(ROOT), DO_NOT_TRACK="1", PREFECT_SERVER_ANALYTICS_ENABLED="false")
     sample = ROOT / "data_samples" / "mpu6000_MPU0001"
     done = subprocess.run(
-        [sys.executable, "-m", "pipelines.cli", "process", str(sample), "--flow",
-         "--archive", str(tmp_path / "a"), "--no-progress", "--json"],
-        env=env, capture_output=True, text=True, timeout=600, cwd=tmp_path,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pipelines.cli",
+            "process",
+            str(sample),
+            "--flow",
+            "--archive",
+            str(tmp_path / "a"),
+            "--no-progress",
+            "--json",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
     assert done.returncode == 0, done.stderr
     assert done.stderr == "", done.stderr
 
@@ -137,6 +156,7 @@ def test_ctrl_c_after_a_finished_batch_ends_without_a_traceback() -> None:
     )
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
     env.update(PYTHONPATH=str(ROOT), DO_NOT_TRACK="1", PREFECT_SERVER_ANALYTICS_ENABLED="false")
-    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                          timeout=120)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
     assert done.returncode == 130 and done.stderr == "" and done.stdout == "", done.stderr

@@ -46,10 +46,14 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> dict:
     for console in (cli_shared.out, cli_shared.err):
         console.width = 80
     outputs = []
-    for group in (["mpu6000_MPU0001", "csv_IMU-2026-0042"], ["history_IMU-R-0003"],
-                  ["thermal_IMU-T-0007"]):  # fmt: skip
-        code, text = _invoke("process", *(str(SAMPLES / g) for g in group), "--archive", arch,
-                             "--no-progress")  # fmt: skip
+    for group in (
+        ["mpu6000_MPU0001", "csv_IMU-2026-0042"],
+        ["history_IMU-R-0003"],
+        ["thermal_IMU-T-0007"],
+    ):
+        code, text = _invoke(
+            "process", *(str(SAMPLES / g) for g in group), "--archive", arch, "--no-progress"
+        )
         assert code in (0, 1), text
         outputs.append(text)
     code, text = _invoke("thermal", "fit", "IMU-T-0007", "--archive", arch)
@@ -65,19 +69,25 @@ def _centrifuge_run(folder: Path) -> Path:
     from calib_core.simulate.centrifuge import CentrifugeSchedule, simulate_centrifuge
     from calib_testing.run_writers import write_centrifuge_run
 
-    truth = {"x": {"const": 0.2, "a_x": 1.5e-3}, "y": {"const": -0.25, "a_y": 1.2e-3},
-             "z": {"const": 0.3, "a_z": -1e-3}}  # fmt: skip
+    truth = {
+        "x": {"const": 0.2, "a_x": 1.5e-3},
+        "y": {"const": -0.25, "a_y": 1.2e-3},
+        "z": {"const": 0.3, "a_z": -1e-3},
+    }
     short = CentrifugeSchedule(
         sample_rate=50.0, zero_duration=4.0, one_g_duration=20.0, step_duration=4.0
     )
     sim = simulate_centrifuge(truth, rng=np.random.default_rng(3), schedule=short)
     manifest = {
         "unit": {"serial": "HG-7", "model": "MEMS-HG", "manufacturer": "ACME"},
-        "run": {"started": "2026-03-02T09:00:00", "operator": "lab",
-                "tolerance_profile": "mpu6000",
-                "settings": {"scale_1g": {a: truth[a][f"a_{a}"] for a in "xyz"}}},
+        "run": {
+            "started": "2026-03-02T09:00:00",
+            "operator": "lab",
+            "tolerance_profile": "mpu6000",
+            "settings": {"scale_1g": {a: truth[a][f"a_{a}"] for a in "xyz"}},
+        },
         "site": {"latitude_deg": 50.0},
-    }  # fmt: skip
+    }
     write_centrifuge_run(sim, folder, manifest)
     return folder
 
@@ -106,8 +116,14 @@ def _commands(demo: dict) -> list[list[str]]:
         ["inspect", str(SAMPLES / "csv_IMU-2026-0042")],
         ["procedures"],
         ["repeatability", "IMU-R-0003", *a],
-        ["apply", str(mpu / "MPU0001_x_up.txt"), str(tmp / "applied.csv"), "--serial",
-         "MPU0001", *a],  # fmt: skip
+        [
+            "apply",
+            str(mpu / "MPU0001_x_up.txt"),
+            str(tmp / "applied.csv"),
+            "--serial",
+            "MPU0001",
+            *a,
+        ],
         ["trend", "IMU-R-0003", "acc.bias.z", *a],
         ["fleet", "MPU-6000", "acc.bias.z", *a],
         ["query", "latest", "IMU-R-0003", *a],

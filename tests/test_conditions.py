@@ -47,8 +47,9 @@ def _plateau(label: str, rate_dps: float, std_dps: float, offset_dps: float = 0.
     noise = np.random.default_rng(1).standard_normal(len(rec))
     noise = (noise - noise.mean()) / noise.std(ddof=1)  # exactly std_dps over the plateau
     table = (rate_dps + offset_dps + std_dps * noise) * DEG
-    return Recording(t=rec.t, acc=rec.acc, gyr=rec.gyr, reference={"table_rate": table},
-                     label=label)  # fmt: skip
+    return Recording(
+        t=rec.t, acc=rec.acc, gyr=rec.gyr, reference={"table_rate": table}, label=label
+    )
 
 
 def _checks(segments, recorded=None, *, procedure="six_position", settings=None, source="site"):
@@ -56,10 +57,14 @@ def _checks(segments, recorded=None, *, procedure="six_position", settings=None,
     return {
         c.name.removeprefix(conditions.CONDITION_PREFIX): c
         for c in conditions.check_conditions(
-            segs, {**RECORDED_OK, **(recorded or {})}, procedure=procedure,
-            settings=settings or {}, gravity=9.81, gravity_source=source,
+            segs,
+            {**RECORDED_OK, **(recorded or {})},
+            procedure=procedure,
+            settings=settings or {},
+            gravity=9.81,
+            gravity_source=source,
         )
-    }  # fmt: skip
+    }
 
 
 def _status(check: CheckResult) -> str:
@@ -117,9 +122,11 @@ def test_static_temperature_spread():
 
     # the rule of the static-bias run: without a chamber channel, the sensor's temperature
     ok = _checks([_static("x_up", temp=ramp(0.2))], procedure="static_bias")[
-        "static_temperature_spread_c"]  # fmt: skip
-    bad = _checks([_static("x_up", temp=ramp(0.25)), _static("x_dn", temp=ramp(0.0))],
-                  procedure="static_bias")["static_temperature_spread_c"]  # fmt: skip
+        "static_temperature_spread_c"
+    ]
+    bad = _checks(
+        [_static("x_up", temp=ramp(0.25)), _static("x_dn", temp=ramp(0.0))], procedure="static_bias"
+    )["static_temperature_spread_c"]
     assert ok.passed and ok.value < 0.2
     assert _status(bad) == "fail" and 0.2 < bad.value <= 0.25
     none = _checks([_static("x_up")], procedure="static_bias")["static_temperature_spread_c"]
@@ -134,8 +141,14 @@ def test_static_bias_rule_judges_the_chamber_not_the_sensor():
         return lambda t: 25.0 + total * t / 20.0
 
     def with_chamber(rec: Recording, total: float) -> Recording:
-        return Recording(t=rec.t, acc=rec.acc, gyr=rec.gyr, temp=rec.temp, label=rec.label,
-                         reference={"chamber_temperature": ramp(total)(rec.t)})  # fmt: skip
+        return Recording(
+            t=rec.t,
+            acc=rec.acc,
+            gyr=rec.gyr,
+            temp=rec.temp,
+            label=rec.label,
+            reference={"chamber_temperature": ramp(total)(rec.t)},
+        )
 
     warming = _static("x_up", temp=ramp(1.0))  # the sensor warms by 1 deg C
     steady = _checks([with_chamber(warming, 0.1)], procedure="static_bias")
@@ -160,10 +173,12 @@ def test_table_rate_stability_and_deviation_per_plateau():
     checks = _checks(good, procedure="rate_table", settings=settings)
     assert checks["table_rate_stability_dps"].passed and checks["table_rate_deviation_dps"].passed
     assert checks["settle_rate_s"].passed and checks["record_s"].value == pytest.approx(10.0)
-    unstable = _checks([_plateau("z_+100", 100.0, 0.12)], procedure="rate_table",
-                       settings=settings)["table_rate_stability_dps"]  # fmt: skip
-    off = _checks([_plateau("z_+50", 50.0, 0.01, 0.55)], procedure="rate_table",
-                  settings=settings)["table_rate_deviation_dps"]  # fmt: skip
+    unstable = _checks(
+        [_plateau("z_+100", 100.0, 0.12)], procedure="rate_table", settings=settings
+    )["table_rate_stability_dps"]
+    off = _checks([_plateau("z_+50", 50.0, 0.01, 0.55)], procedure="rate_table", settings=settings)[
+        "table_rate_deviation_dps"
+    ]
     assert _status(unstable) == "fail" and "z_+100" in unstable.detail
     assert _status(off) == "fail" and off.value == pytest.approx(0.55, abs=1e-3)
     short_settle = _checks(good, procedure="rate_table", settings={"settle_s": 15.0})
@@ -172,8 +187,15 @@ def test_table_rate_stability_and_deviation_per_plateau():
 
 def test_not_recorded_is_no_pass_and_no_failure():
     checks = _checks([_static("x_up")], {k: None for k in RECORDED_OK}, source=None)
-    for key in ("ambient_temperature_c", "humidity_pct", "pressure_hpa", "warmup_min",
-                "settle_s", "resolution_bits", "temperature_drift_c_per_h"):  # fmt: skip
+    for key in (
+        "ambient_temperature_c",
+        "humidity_pct",
+        "pressure_hpa",
+        "warmup_min",
+        "settle_s",
+        "resolution_bits",
+        "temperature_drift_c_per_h",
+    ):
         assert not checks[key].passed and _status(checks[key]) == conditions.NOT_RECORDED
     assert _status(checks["gravity"]) == conditions.WARNING
     assert overall_verdict(list(checks.values())) == "pass"
@@ -182,13 +204,22 @@ def test_not_recorded_is_no_pass_and_no_failure():
 
 
 def test_profile_sets_the_limits_and_refuses_unknown_ones():
-    doc = {"name": "p", "version": "1", "device_model": "M",
-           "conditions": {"sample_rate_hz": {"low": 45.0}}}  # fmt: skip
+    doc = {
+        "name": "p",
+        "version": "1",
+        "device_model": "M",
+        "conditions": {"sample_rate_hz": {"low": 45.0}},
+    }
     profile = ToleranceProfile.from_dict(doc)
     check = conditions.check_conditions(
-        {"x_up": _static("x_up", 20.0, 50.0)}, RECORDED_OK, procedure="six_position",
-        settings={}, gravity=9.81, gravity_source="site", overrides=profile.conditions,
-    )  # fmt: skip
+        {"x_up": _static("x_up", 20.0, 50.0)},
+        RECORDED_OK,
+        procedure="six_position",
+        settings={},
+        gravity=9.81,
+        gravity_source="site",
+        overrides=profile.conditions,
+    )
     assert next(c for c in check if c.name.endswith("sample_rate_hz")).passed
     assert ToleranceProfile.from_dict(profile.to_dict()).conditions == profile.conditions
     with pytest.raises(ValueError, match="conditions.humidity: unknown condition"):
@@ -214,8 +245,16 @@ def test_demo_certificates_show_the_conditions(tmp_path):
         assert outcome["status"] == "ok", outcome["error"]
         status = {c["name"]: c["status"] for c in outcome["checks"]}
         texts[outcome["serial"]] = status
-        args = ["report", outcome["run_id"], "--archive", str(arch.root), "--output",
-                str(tmp_path / outcome["serial"]), "--json", "--no-pdf"]  # fmt: skip
+        args = [
+            "report",
+            outcome["run_id"],
+            "--archive",
+            str(arch.root),
+            "--output",
+            str(tmp_path / outcome["serial"]),
+            "--json",
+            "--no-pdf",
+        ]
         result = CliRunner().invoke(app, args)
         assert result.exit_code == 0, result.output
         html = next((tmp_path / outcome["serial"]).glob("*_certificate.html")).read_text()
@@ -230,5 +269,6 @@ def test_demo_certificates_show_the_conditions(tmp_path):
     mpu = texts["MPU0001"]  # MPU-6000 files without a manifest record no environment
     assert mpu["condition:ambient_temperature_c"] == conditions.NOT_RECORDED
     assert mpu["condition:gravity"] == conditions.WARNING
-    assert "ambient temperature" in texts["MPU0001 html"] and "not recorded" in texts[
-        "MPU0001 html"]  # fmt: skip
+    assert (
+        "ambient temperature" in texts["MPU0001 html"] and "not recorded" in texts["MPU0001 html"]
+    )

@@ -73,9 +73,14 @@ PAUSE_TIMEOUT_S = 60
 def child(archive: Archive, src: Path, first: int, count: int, pause: tuple | None = None):  # noqa: ANN201
     """The archiving child; `pause`: (stage, flag file) where it stops until killed."""
     code = CHILD.format(
-        tests=str(TESTS), url=archive.url, root=str(archive.root), src=str(src),
-        first=first, count=count, pause=pause,
-    )  # fmt: skip
+        tests=str(TESTS),
+        url=archive.url,
+        root=str(archive.root),
+        src=str(src),
+        first=first,
+        count=count,
+        pause=pause,
+    )
     return subprocess.Popen(
         [sys.executable, "-c", code],
         stdout=subprocess.PIPE,
@@ -117,8 +122,9 @@ def test_kill_between_file_writes_and_commit(archive: Archive, tmp_path: Path, s
         assert time.monotonic() < deadline, "the child never reached the pause point"
         time.sleep(0.05)
     # The files of the run are on disk now; at "commit" its rows are in an open transaction.
-    run_id = run_id_of(raw_hash_of([f.sha256 for f in make_run(tmp_path / "again", serial="U0",
-                                                                seed=0).raw_files]))  # fmt: skip
+    run_id = run_id_of(
+        raw_hash_of([f.sha256 for f in make_run(tmp_path / "again", serial="U0", seed=0).raw_files])
+    )
     assert list((archive.root / "runs").rglob(run_id))
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=30)

@@ -38,8 +38,11 @@ def write_static_csv(path: Path, n: int, seed: int = 0) -> None:
     gyr += np.cumsum(rng.normal(0.0, 2e-6, (n, 3)), axis=0)
     acc = rng.normal(0.0, 0.02, (n, 3)) + [0.05, -0.03, G + 0.1]
     gyr[5000:5003, 1] += 0.5  # a spike: the outlier rule's fill is exercised
-    cols = {"time": t, **{f"acc_{a}": acc[:, i] for i, a in enumerate("xyz")},
-            **{f"gyr_{a}": gyr[:, i] for i, a in enumerate("xyz")}}  # fmt: skip
+    cols = {
+        "time": t,
+        **{f"acc_{a}": acc[:, i] for i, a in enumerate("xyz")},
+        **{f"gyr_{a}": gyr[:, i] for i, a in enumerate("xyz")},
+    }
     pacsv.write_csv(pa.table(cols), path)
 
 
@@ -51,13 +54,23 @@ def big_csv(tmp_path_factory) -> Path:
     return path
 
 
-FMT = FormatSpec(kind="csv", time_column="time", acc_columns=["acc_x", "acc_y", "acc_z"],
-                 gyr_columns=["gyr_x", "gyr_y", "gyr_z"])  # fmt: skip
+FMT = FormatSpec(
+    kind="csv",
+    time_column="time",
+    acc_columns=["acc_x", "acc_y", "acc_z"],
+    gyr_columns=["gyr_x", "gyr_y", "gyr_z"],
+)
 
 
 def test_streamed_record_same_parameters_as_in_memory(big_csv, tmp_path):
-    streamed = stream_csv(big_csv, FMT, tmp_path / "samples.parquet", copy_to=tmp_path / "raw",
-                          memory_limit=LIMIT, progress=False)  # fmt: skip
+    streamed = stream_csv(
+        big_csv,
+        FMT,
+        tmp_path / "samples.parquet",
+        copy_to=tmp_path / "raw",
+        memory_limit=LIMIT,
+        progress=False,
+    )
     data = big_csv.read_bytes()
     assert streamed.sha256 == hashlib.sha256(data).hexdigest()
     assert (tmp_path / "raw").read_bytes() == data
@@ -117,8 +130,12 @@ def test_streamed_record_memory_bounded_by_the_limit(big_csv, tmp_path):
         print(json.dumps({{"grown": status("VmHWM:") - base}}))
     """)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    out = subprocess.run([sys.executable, "-c", script, str(big_csv), str(tmp_path / "s.pq")],
-                         capture_output=True, text=True, env=env)  # fmt: skip
+    out = subprocess.run(
+        [sys.executable, "-c", script, str(big_csv), str(tmp_path / "s.pq")],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     grown = json.loads(out.stdout.strip().splitlines()[-1])["grown"]
     assert grown < LIMIT, grown / 2**20

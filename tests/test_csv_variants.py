@@ -49,9 +49,19 @@ def fmt_number(x: float, decimal: str) -> str:
     return text.replace(".", ",") if decimal == "," else text
 
 
-def write_table(path: Path, header: list[str], rows: np.ndarray, *, sep: str = ",",
-                decimal: str = ".", metadata: list[str] = (), quote: bool = False,
-                newline: str = "\n", bom: bool = False, extra: list[str] | None = None) -> None:
+def write_table(
+    path: Path,
+    header: list[str],
+    rows: np.ndarray,
+    *,
+    sep: str = ",",
+    decimal: str = ".",
+    metadata: list[str] = (),
+    quote: bool = False,
+    newline: str = "\n",
+    bom: bool = False,
+    extra: list[str] | None = None,
+) -> None:
     """One delimited file: metadata lines, header, rows (extra: a leading text column)."""
     q = (lambda s: f'"{s}"') if quote else (lambda s: s)
     lines = list(metadata) + [sep.join(q(h) for h in header)]
@@ -86,8 +96,12 @@ def per_segment(**kw) -> Callable:
         header = kw.get("header", NAMES)
         scale = np.asarray(kw.get("scale", np.ones(8)))
         for label, rec in segments.items():
-            write_table(folder / f"{label}.csv", header, columns(rec) / scale,
-                        **{k: v for k, v in kw.items() if k not in ("header", "scale", "fmt")})
+            write_table(
+                folder / f"{label}.csv",
+                header,
+                columns(rec) / scale,
+                **{k: v for k, v in kw.items() if k not in ("header", "scale", "fmt")},
+            )
         fmt = {"kind": "csv", **kw.get("fmt", {})}
         segs = [{"label": label, "file": f"{label}.csv"} for label in segments]
         (folder / "run.toml").write_text(manifest(fmt, segs))
@@ -118,8 +132,16 @@ def sectioned(column: str, rename: dict[str, str] | None = None, **kw) -> Callab
 
 
 G, D = STANDARD_GRAVITY, DEG
-UNIT_HEADER = ["t [ms]", "acc_x [g]", "acc_y [g]", "acc_z [g]",
-               "gyro_x (deg/s)", "gyro_y (deg/s)", "gyro_z (deg/s)", "temperature [degC]"]
+UNIT_HEADER = [
+    "t [ms]",
+    "acc_x [g]",
+    "acc_y [g]",
+    "acc_z [g]",
+    "gyro_x (deg/s)",
+    "gyro_y (deg/s)",
+    "gyro_z (deg/s)",
+    "temperature [degC]",
+]
 VARIANTS: dict[str, Callable] = {
     "plain": per_segment(),
     "metadata_found": per_segment(metadata=METADATA),
@@ -201,8 +223,7 @@ def test_variant_processes_to_plain_parameters(tmp_path: Path, name: str, sim, p
 
 def test_dialect_reported(tmp_path: Path) -> None:
     path = tmp_path / "a.csv"
-    write_table(path, UNIT_HEADER, np.ones((3, 8)) + 0.5, sep=";", decimal=",",
-                metadata=METADATA)  # fmt: skip
+    write_table(path, UNIT_HEADER, np.ones((3, 8)) + 0.5, sep=";", decimal=",", metadata=METADATA)
     d = sniff(path, FormatSpec(kind="csv"))
     # Two metadata lines and a blank one: the header on line 4.
     assert (d.delimiter, d.decimal, d.header_line, d.data_start) == (";", ",", 4, 5)
@@ -215,8 +236,11 @@ def test_unmappable_header_lists_found_and_expected(tmp_path: Path, sim) -> None
     per_segment(header=["t", "foo", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z", "temp"])(
         folder, sim.segments
     )
-    with pytest.raises(IngestError, match=r"no acc_x column recognised.*found: t, foo, acc_y.*"
-                       r"expected one of acc_x") as err:  # fmt: skip
+    with pytest.raises(
+        IngestError,
+        match=r"no acc_x column recognised.*found: t, foo, acc_y.*"
+        r"expected one of acc_x",
+    ) as err:
         load_run(discover_runs([folder])[0])
     assert err.value.file.endswith("x_up.csv") and err.value.line == 1
 
@@ -225,11 +249,14 @@ def test_unmappable_header_lists_found_and_expected(tmp_path: Path, sim) -> None
     ("header", "message", "field"),
     [
         (["t", "acc_x [g]", "acc_y [mg]", "acc_z [g]"], "carry different units", "format.acc_unit"),
-        (["t", "acc_x [furlong]", "acc_y [furlong]", "acc_z [furlong]"], "not understood",
-         "format.acc_unit"),
+        (
+            ["t", "acc_x [furlong]", "acc_y [furlong]", "acc_z [furlong]"],
+            "not understood",
+            "format.acc_unit",
+        ),
         (["t [fortnight]", "acc_x", "acc_y", "acc_z"], "not understood", "format.time_unit"),
     ],
-)  # fmt: skip
+)
 def test_bad_header_units(tmp_path: Path, sim, header, message, field) -> None:
     folder = tmp_path / "run"
     folder.mkdir()

@@ -53,8 +53,13 @@ def _write(kind: str, folder: Path) -> Path:
     return folder / "a.mcap"
 
 
-READ = {"ulog": read_ulog, "dataflash": read_dataflash, "rosbag1": read_rosbag,
-        "rosbag2": read_rosbag, "mcap": read_mcap}  # fmt: skip
+READ = {
+    "ulog": read_ulog,
+    "dataflash": read_dataflash,
+    "rosbag1": read_rosbag,
+    "rosbag2": read_rosbag,
+    "mcap": read_mcap,
+}
 KINDS = list(READ)
 
 
@@ -114,8 +119,10 @@ def test_segment_window_past_the_data_is_refused(tmp_path: Path) -> None:
     gyr[200:, 2] += np.deg2rad(90.0)  # turning at 90 deg/s from 2 s to the cut at 4 s
     write_ulog(folder / "cut.ulg", Recording(t=rec.t, acc=rec.acc, gyr=gyr), topics="combined")
     t0 = 5.0  # log_writers.T0_US: the log's clock starts 5 s after boot
-    segments = [{"label": "x_up", "file": "cut.ulg", "start_s": t0, "end_s": t0 + 1.9},
-                {"label": "z_ccw", "file": "cut.ulg", "start_s": t0 + 1.5, "end_s": t0 + 6.0}]
+    segments = [
+        {"label": "x_up", "file": "cut.ulg", "start_s": t0, "end_s": t0 + 1.9},
+        {"label": "z_ccw", "file": "cut.ulg", "start_s": t0 + 1.5, "end_s": t0 + 6.0},
+    ]
     (folder / "run.toml").write_text(manifest("SIM-CUT", {"kind": "ulog"}, segments))
     refusal = r"segment 'z_ccw': the window \[6\.5, 11\.0\) s runs past the end .*still turns"
     with pytest.raises(IngestError, match=refusal) as err:
@@ -195,9 +202,11 @@ def test_value_no_imu_can_read_is_refused_naming_the_record(tmp_path: Path, kind
     gyr[123, 1] = 1e30
     damaged = Recording(t=rec.t, acc=rec.acc, gyr=gyr, temp=rec.temp)
     path = tmp_path / {"ulog": "a.ulg", "dataflash": "a.bin", "rosbag1": "a.bag"}[kind]
-    {"ulog": lambda: write_ulog(path, damaged, topics="both"),
-     "dataflash": lambda: write_dataflash(path, damaged),
-     "rosbag1": lambda: write_rosbag1(path, damaged)}[kind]()  # fmt: skip
+    {
+        "ulog": lambda: write_ulog(path, damaged, topics="both"),
+        "dataflash": lambda: write_dataflash(path, damaged),
+        "rosbag1": lambda: write_rosbag1(path, damaged),
+    }[kind]()
     with pytest.raises(IngestError, match=r"record 123: gyr .* beyond what any IMU") as err:
         READ[kind](path)
     assert err.value.file == str(path) and err.value.field.endswith(".gyr")

@@ -189,8 +189,9 @@ def test_dask_batch_in_any_order_gives_the_verdicts_of_time_order(
     store = tmp_path / "shared-store"
     monkeypatch.setenv("CALIB_FILESTORE", str(store))
     order = list(IN_TIME_ORDER)[::-1]
-    outcomes = process_batch(run_folders(order), postgres_url, runner="dask",
-                             scheduler=dask_cluster)  # fmt: skip
+    outcomes = process_batch(
+        run_folders(order), postgres_url, runner="dask", scheduler=dask_cluster
+    )
     assert [o["status"] for o in outcomes] == ["ok"] * 4, outcomes
     archive = Archive(postgres_url, store)
     try:

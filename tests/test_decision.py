@@ -71,8 +71,13 @@ def test_bad_rule_and_inputs_refused():
 
 
 def _profile_doc(rule):
-    return {"name": "t", "version": "1", "device_model": "X", "decision_rule": rule,
-            "limits": [{"pattern": "acc.scale.*", "bound": 1.0, "unit": "1"}]}
+    return {
+        "name": "t",
+        "version": "1",
+        "device_model": "X",
+        "decision_rule": rule,
+        "limits": [{"pattern": "acc.scale.*", "bound": 1.0, "unit": "1"}],
+    }
 
 
 def test_profile_names_its_rule_and_judges():

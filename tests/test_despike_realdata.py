@@ -159,8 +159,9 @@ def test_a_glitch_in_a_real_rotation_is_found_counted_and_sent_for_review():
 
     def run(gyr):
         segs = {**segments, label: Recording(rec.t, rec.acc, gyr, source=rec.source)}
-        return solve_step(segs, {"procedure": "six_position_integral", "gravity": GRAVITY,
-                                 **SETTINGS})  # fmt: skip
+        return solve_step(
+            segs, {"procedure": "six_position_integral", "gravity": GRAVITY, **SETTINGS}
+        )
 
     cal, record = run(glitch)
     replaced = record.statistics["replaced_samples"]["despike"][label]

@@ -27,7 +27,9 @@ def _comparable(outcomes: list[dict]) -> list[dict]:
 
 
 def test_in_process_and_flow_give_the_same_outcomes_and_archive(
-    prefect_harness, lab_day, tmp_path  # noqa: F811 - the fixture
+    prefect_harness,
+    lab_day,  # noqa: F811 - the fixture
+    tmp_path,
 ) -> None:
     sources, failed = discover([str(lab_day["day"])])
     direct = failed + process_in_process(sources, str(tmp_path / "a"))
@@ -53,9 +55,13 @@ def test_calib_process_of_one_run_never_imports_prefect(tmp_path: Path) -> None:
     )
     env_free = {"PREFECT_API_URL": "", "PREFECT_HOME": str(tmp_path / "prefect-home")}
     done = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
-        env={**__import__("os").environ, **env_free}, cwd=ROOT,
-    )  # fmt: skip
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**__import__("os").environ, **env_free},
+        cwd=ROOT,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     got = json.loads(done.stdout.strip().splitlines()[-1])
     assert got["code"] == 0 and got["doc"]["runs"][0]["status"] == "ok"
@@ -63,7 +69,9 @@ def test_calib_process_of_one_run_never_imports_prefect(tmp_path: Path) -> None:
 
 
 def test_flow_option_takes_the_prefect_flow(
-    prefect_harness, lab_day, tmp_path  # noqa: F811 - the fixture
+    prefect_harness,
+    lab_day,  # noqa: F811 - the fixture
+    tmp_path,
 ) -> None:
     # --flow: the batch runs as a Prefect flow, whose run the API then lists.
     from prefect import get_client

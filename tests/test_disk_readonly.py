@@ -113,8 +113,9 @@ def test_disk_full_while_writing_the_database(tmp_path: Path, leave_kb: int) -> 
         # No room for SQLite's shared-memory file: it says "disk I/O error" at the open;
         # no room for new pages: "database or disk is full" at the insert.
         db = f"{dbdisk}/archive.sqlite"  # the file itself, through the link
-        assert out["error"].startswith((f"no space left for the database {db}",
-                                        f"the database {db} could not be written")), out["error"]
+        assert out["error"].startswith(
+            (f"no space left for the database {db}", f"the database {db} could not be written")
+        ), out["error"]
         assert "disk is full" in out["error"] or "no space left" in out["error"]
         assert temp_files(root) == []
         archive.dispose()
@@ -127,8 +128,9 @@ def test_disk_full_while_writing_the_database(tmp_path: Path, leave_kb: int) -> 
 def calib(*args: str, **env_vars: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(ROOT), **env_vars}
     code = "import sys; from pipelines.cli import app; sys.argv[0] = 'calib'; app()"
-    return subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True,
-                          text=True, timeout=300)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-c", code, *args], env=env, capture_output=True, text=True, timeout=300
+    )
 
 
 @pytest.fixture(scope="module")
@@ -155,10 +157,14 @@ def test_read_only_archive(written_archive, tmp_path: Path, keep_log: bool) -> N
     with read_only_view(copy, tmp_path / "ro") as ro:
         before = sorted(p.relative_to(ro).as_posix() for p in ro.rglob("*"))
         a = ["--archive", str(ro)]
-        for args in (["history", serial, "--json"], ["show", run_id, "--json"],
-                     ["export", run_id], ["query", "lineage", run_id, "acc.bias.x"],
-                     ["verify"], ["report", run_id, "--output", str(tmp_path / "rep"),
-                                  "--no-pdf"]):  # fmt: skip
+        for args in (
+            ["history", serial, "--json"],
+            ["show", run_id, "--json"],
+            ["export", run_id],
+            ["query", "lineage", run_id, "acc.bias.x"],
+            ["verify"],
+            ["report", run_id, "--output", str(tmp_path / "rep"), "--no-pdf"],
+        ):
             done = calib(*args, *a)
             assert done.returncode == 0, (args, done.stderr[-2000:])
             assert "Traceback" not in done.stderr
@@ -178,8 +184,9 @@ def test_repair_orphans_removes_only_dead_writers_files(written_archive, tmp_pat
     src, _ = written_archive
     root = tmp_path / "archive"
     shutil.copytree(src, root)
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
-                          capture_output=True, text=True).stdout.strip()  # fmt: skip
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    ).stdout.strip()
     host = rawstore._WRITER.rsplit("-", 1)[0]
     stale = root / "objects" / f".incoming.{host}-{dead}.abcd1234.tmp"
     live = root / "objects" / f".incoming.{rawstore._WRITER}.efgh5678.tmp"

@@ -79,8 +79,9 @@ def test_show_latest_and_web_agree_on_every_number(archived) -> None:
             assert [s.value, s.u, s.unit] == cells[1:4], row
         assert f">{s.value}</a>" in page and f">{s.u}</td>" in page
     assert "deg/s" in latest and "rad/s" not in latest  # display units, not SI
-    doc = json.loads(_run("query", "latest", "MPU0001", "--archive", str(arch.root),
-                          "--format", "json"))  # fmt: skip
+    doc = json.loads(
+        _run("query", "latest", "MPU0001", "--archive", str(arch.root), "--format", "json")
+    )
     assert {r["unit"] for r in doc if r["name"].startswith("gyr.bias")} == {"rad/s"}
     # The checks are counted the same way in the terminal and on the page.
     sentence = check_counts(summary["calibration"]["checks"]).sentence()
@@ -108,8 +109,18 @@ def test_lineage_of_one_parameter_is_readable_at_80_columns(archived) -> None:
     assert "Uncertainty budget of gyr.scale.x" in text and "U (k=" in text
     for other in ("acc.bias.x", "gyr.scale.y", "flagged_indices", "{"):
         assert other not in text, other
-    full = json.loads(_run("query", "lineage", run_id, "gyr.scale.x", "--archive",
-                           str(arch.root), "--format", "json"))  # fmt: skip
+    full = json.loads(
+        _run(
+            "query",
+            "lineage",
+            run_id,
+            "gyr.scale.x",
+            "--archive",
+            str(arch.root),
+            "--format",
+            "json",
+        )
+    )
     budgets = next(s for s in full["steps"] if s["name"] == "uncertainty")["statistics"]
     assert "acc.bias.x" in budgets["budgets"]  # --format json: the full record
 
@@ -137,8 +148,14 @@ def test_read_only_commands_do_not_load_the_science_stack(archived, args) -> Non
         f"print([m for m in {heavy!r} if m in sys.modules])\n"
     )
     env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                          timeout=300, check=True)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+        check=True,
+    )
     assert done.stdout.strip().splitlines()[-1] == "[]", done.stdout + done.stderr
 
 

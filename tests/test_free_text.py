@@ -38,15 +38,27 @@ def manifest_with(old: str, new: str) -> str:
 @pytest.mark.parametrize(
     ("old", "new", "field", "problem"),
     [
-        ('operator = "J. Doe"', f'operator = "{"x" * 100_000}"', "run.operator",
-         f"text of 100000 characters; at most {TEXT_MAX_CHARS}"),
-        ('operator = "J. Doe"', 'operator = "J. Doe\\u0000"', "run.operator",
-         "control character '\\x00' (U+0000) at character 7"),
-        ('model = "MPU-6000"', 'model = "MPU\\n6000"', "unit.model",
-         "control character '\\n' (U+000A) at character 4; expected printable text on one"),
+        (
+            'operator = "J. Doe"',
+            f'operator = "{"x" * 100_000}"',
+            "run.operator",
+            f"text of 100000 characters; at most {TEXT_MAX_CHARS}",
+        ),
+        (
+            'operator = "J. Doe"',
+            'operator = "J. Doe\\u0000"',
+            "run.operator",
+            "control character '\\x00' (U+0000) at character 7",
+        ),
+        (
+            'model = "MPU-6000"',
+            'model = "MPU\\n6000"',
+            "unit.model",
+            "control character '\\n' (U+000A) at character 4; expected printable text on one",
+        ),
         ('operator = "J. Doe"', 'operator = "J. \\u001bDoe"', "run.operator", "U+001B"),
     ],
-)  # fmt: skip
+)
 def test_bad_text_names_the_field(old: str, new: str, field: str, problem: str) -> None:
     with pytest.raises(IngestError) as info:
         parse_manifest(manifest_with(old, new), "run.toml")
@@ -158,13 +170,25 @@ def test_a_run_of_the_unit_committing_meanwhile_is_waited_for(archive, tmp_path:
     engine = archive.engine().execution_options(sqlite_begin="IMMEDIATE")
     with engine.begin() as conn:
         if conn.dialect.name == "postgresql":
-            conn.execute(text("SELECT pg_advisory_xact_lock(:k, hashtext('0012'))"),
-                         {"k": PG_UNIT_LOCK})  # fmt: skip
+            conn.execute(
+                text("SELECT pg_advisory_xact_lock(:k, hashtext('0012'))"), {"k": PG_UNIT_LOCK}
+            )
         device = conn.execute(select(Device.id).where(Device.serial == "0012")).scalar_one()
-        conn.execute(insert(Run).values(
-            run_id="R0000000000ff", device_id=device, started_at=datetime(2024, 6, 1, tzinfo=UTC),
-            procedure="six_position", site={}, gravity=9.81, environment={}, raw_hash="f" * 64,
-            model="ICM-20602", manufacturer="TDK", run_dir="runs/x"))  # fmt: skip
+        conn.execute(
+            insert(Run).values(
+                run_id="R0000000000ff",
+                device_id=device,
+                started_at=datetime(2024, 6, 1, tzinfo=UTC),
+                procedure="six_position",
+                site={},
+                gravity=9.81,
+                environment={},
+                raw_hash="f" * 64,
+                model="ICM-20602",
+                manufacturer="TDK",
+                run_dir="runs/x",
+            )
+        )
         worker = threading.Thread(target=archive_later)
         worker.start()
         time.sleep(1.5)  # the worker checks its plan and reaches the unit's lock

@@ -118,8 +118,16 @@ def test_face_bias_spread_finds_a_non_linearity() -> None:
     checks = _checks(cal)
     assert not any(checks[name].passed for name in faces), checks
     text = render_protocol(
-        device_model="sim", serial="S1", started_at=datetime(2026, 1, 1), run_id="r",
-        procedure=cal.procedure, profile="p v1", gravity=cal.gravity, operator="o", parameters=[],
-        checks=[c.to_dict() for c in checks.values()], verdict="needs review",
-    )  # fmt: skip
+        device_model="sim",
+        serial="S1",
+        started_at=datetime(2026, 1, 1),
+        run_id="r",
+        procedure=cal.procedure,
+        profile="p v1",
+        gravity=cal.gravity,
+        operator="o",
+        parameters=[],
+        checks=[c.to_dict() for c in checks.values()],
+        verdict="needs review",
+    )
     assert "model:face_bias.x" in text

@@ -44,12 +44,19 @@ def _rate_table_segments(seed: int, read_fast_ppm: float) -> dict:
     (1 + read_fast_ppm) x the true rate."""
     M = np.zeros((3, 3))
     M[0, 0] = TRUE_SCALE
-    run = simulate_rate_table(GyroTruth(bias=np.array([1e-3, -2e-3, 5e-4]), M=M),
-                              rate_hz=100.0, settle_s=20.0, record_s=12.0,
-                              gyro_noise_density=1e-4, rng=np.random.default_rng(seed))  # fmt: skip
+    run = simulate_rate_table(
+        GyroTruth(bias=np.array([1e-3, -2e-3, 5e-4]), M=M),
+        rate_hz=100.0,
+        settle_s=20.0,
+        record_s=12.0,
+        gyro_noise_density=1e-4,
+        rng=np.random.default_rng(seed),
+    )
     factor = 1.0 + read_fast_ppm * 1e-6
-    return {r.label: replace(r, reference={"table_rate": r.reference["table_rate"] * factor})
-            for r in run.recordings}  # fmt: skip
+    return {
+        r.label: replace(r, reference={"table_rate": r.reference["table_rate"] * factor})
+        for r in run.recordings
+    }
 
 
 def _rate_manifest(serial: str, started: str, table: str) -> dict:
@@ -73,12 +80,18 @@ def lab(tmp_path_factory):
         ("C", "U-RT3", "2026-03-11T09:00:00+00:00", "RT-8"),
     ):
         folder = tmp / name
-        write_csv_run(_rate_table_segments(ord(name), RATE_PPM), folder,
-                      _rate_manifest(serial, started, table))  # fmt: skip
+        write_csv_run(
+            _rate_table_segments(ord(name), RATE_PPM),
+            folder,
+            _rate_manifest(serial, started, table),
+        )
         runs[name] = _archive(arch, folder)
     # The same plateaus with the true table rate: what a direct solve would have given.
-    write_csv_run(_rate_table_segments(ord("A"), 0.0), tmp / "A-true",
-                  _rate_manifest("U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"))  # fmt: skip
+    write_csv_run(
+        _rate_table_segments(ord("A"), 0.0),
+        tmp / "A-true",
+        _rate_manifest("U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"),
+    )
 
     rng = np.random.default_rng(4)
     truth = copy.deepcopy(random_errors(rng))
@@ -122,8 +135,9 @@ def test_rate_error_re_solve_matches_the_true_reference(lab):
     """The table read RATE_PPM fast: the corrected re-solve gives what the true reference
     gives, the scale factor moves by the error, and the verdict flips to fail."""
     arch, runs = lab["archive"], lab["runs"]
-    doc = impact(arch, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01",
-                 "2026-03-31")  # fmt: skip
+    doc = impact(
+        arch, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01", "2026-03-31"
+    )
     assert [r["run_id"] for r in doc["runs"]] == [runs["A"]]  # not B (before), not C (RT-8)
     (r,) = doc["runs"]
     direct = calibrate(read_run(lab["tmp"] / "A-true"))
@@ -169,11 +183,27 @@ def test_clock_error_re_solve_matches_the_true_time(lab):
 def test_apply_archives_verified_revisions_with_the_reason(lab):
     arch, runs = lab["archive"], lab["runs"]
     out = lab["tmp"] / "impact.csv"
-    res = CliRunner().invoke(app, ["impact", "RT-7", "--from", "2026-03-01", "--to",
-                                   "2026-03-31", "--error", f"rate_error_ppm={RATE_PPM}",
-                                   "--apply", "--json", "--csv", str(out),
-                                   "--html", str(lab["tmp"] / "impact.html"),
-                                   "--archive", str(arch.root)])  # fmt: skip
+    res = CliRunner().invoke(
+        app,
+        [
+            "impact",
+            "RT-7",
+            "--from",
+            "2026-03-01",
+            "--to",
+            "2026-03-31",
+            "--error",
+            f"rate_error_ppm={RATE_PPM}",
+            "--apply",
+            "--json",
+            "--csv",
+            str(out),
+            "--html",
+            str(lab["tmp"] / "impact.html"),
+            "--archive",
+            str(arch.root),
+        ],
+    )
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert [(r["run_id"], r["verdict_before"], r["verdict_after"]) for r in doc["runs"]] == [
@@ -206,8 +236,14 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
     assert reason in page and runs["A"] in page and "1 verdict(s) changed" in page
     assert "revisions archived" in page and "gyr.scale.x" in page
     # Applied again: the same correction is a duplicate, not a third revision.
-    again = impact(arch, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01",
-                   "2026-03-31", apply=True)  # fmt: skip
+    again = impact(
+        arch,
+        "RT-7",
+        parse_error(f"rate_error_ppm={RATE_PPM}"),
+        "2026-03-01",
+        "2026-03-31",
+        apply=True,
+    )
     assert again["runs"][0]["status"] == "duplicate"
 
 
@@ -219,8 +255,14 @@ def test_reprocessing_carries_the_correction(lab, monkeypatch):
 
     arch, run_a = lab["archive"], lab["runs"]["A"]
     if queries.run_summary(arch, run_a)["calibration"]["revision"] == 1:  # run alone
-        impact(arch, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01",
-               "2026-03-31", apply=True)  # fmt: skip
+        impact(
+            arch,
+            "RT-7",
+            parse_error(f"rate_error_ppm={RATE_PPM}"),
+            "2026-03-01",
+            "2026-03-31",
+            apply=True,
+        )
     corrected = _params(arch, run_a)["gyr.scale.x"]["value"]
     monkeypatch.setattr(process, "SOFTWARE_VERSION", "99.0-test")
     outcome = reprocess_run(arch, run_a, reason="software 99")
@@ -234,15 +276,47 @@ def test_reprocessing_carries_the_correction(lab, monkeypatch):
 def test_wrong_kind_and_empty_period_are_refused(lab):
     arch = lab["archive"]
     runner = CliRunner()
-    res = runner.invoke(app, ["impact", "RT-7", "--from", "2026-03-01", "--error",
-                              "clock_error_ppm=10", "--archive", str(arch.root)])  # fmt: skip
+    res = runner.invoke(
+        app,
+        [
+            "impact",
+            "RT-7",
+            "--from",
+            "2026-03-01",
+            "--error",
+            "clock_error_ppm=10",
+            "--archive",
+            str(arch.root),
+        ],
+    )
     assert res.exit_code != 0 and "clock_error_ppm is an error of a daq" in res.output
-    res = runner.invoke(app, ["impact", "RT-9", "--from", "2026-03-01", "--error",
-                              "rate_error_ppm=10", "--archive", str(arch.root)])  # fmt: skip
+    res = runner.invoke(
+        app,
+        [
+            "impact",
+            "RT-9",
+            "--from",
+            "2026-03-01",
+            "--error",
+            "rate_error_ppm=10",
+            "--archive",
+            str(arch.root),
+        ],
+    )
     assert res.exit_code != 0 and "no archived run used equipment 'RT-9'" in res.output
-    res = runner.invoke(app, ["impact", "RT-7", "--from", "2026-03-01", "--error",
-                              "face_angle_error_arcsec=20",
-                              "--archive", str(arch.root)])  # fmt: skip
+    res = runner.invoke(
+        app,
+        [
+            "impact",
+            "RT-7",
+            "--from",
+            "2026-03-01",
+            "--error",
+            "face_angle_error_arcsec=20",
+            "--archive",
+            str(arch.root),
+        ],
+    )
     assert res.exit_code != 0 and "not implemented" in res.output
 
 

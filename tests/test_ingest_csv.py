@@ -307,11 +307,19 @@ def test_window_without_samples(tmp_path: Path) -> None:
     [
         ["timestamp", "ax", "ay", "az", "gx", "gy", "gz", "temp"],
         ["Time", "ACC_X", "ACC_Y", "ACC_Z", "Gyro_X", "Gyro_Y", "Gyro_Z", "Temperature"],
-        ["t", "linear_acceleration.x", "linear_acceleration.y", "linear_acceleration.z",
-         "angular_velocity.x", "angular_velocity.y", "angular_velocity.z", "temp_c"],
+        [
+            "t",
+            "linear_acceleration.x",
+            "linear_acceleration.y",
+            "linear_acceleration.z",
+            "angular_velocity.x",
+            "angular_velocity.y",
+            "angular_velocity.z",
+            "temp_c",
+        ],
         ["time", "accel_x", "accel_y", "accel_z", "wx", "wy", "wz", "temp"],
     ],
-)  # fmt: skip
+)
 def test_common_column_names_are_recognised(tmp_path: Path, names: list[str]) -> None:
     order = [7, 3, 0, 5, 1, 6, 2, 4]  # shuffled: recognition must go by name, not position
     rng = np.random.default_rng(5)
@@ -347,12 +355,16 @@ def test_raw_counts_with_scale_and_offset(tmp_path: Path) -> None:
     scale_g, offset_g = [131.0, 131.5, 130.5], [-3.0, 5.0, 0.0]
     fmt = FMT.model_copy(
         update={
-            "acc_unit": "counts", "acc_scale": scale_a, "acc_offset": offset_a,
+            "acc_unit": "counts",
+            "acc_scale": scale_a,
+            "acc_offset": offset_a,
             "acc_scale_unit": "g",
-            "gyr_unit": "counts", "gyr_scale": scale_g, "gyr_offset": offset_g,
+            "gyr_unit": "counts",
+            "gyr_scale": scale_g,
+            "gyr_offset": offset_g,
             "gyr_scale_unit": "deg/s",
         }
-    )  # fmt: skip
+    )
     rec = read_csv(path, fmt)
     expected_acc = (raw[:, :3] - offset_a) / scale_a * STANDARD_GRAVITY
     expected_gyr = (raw[:, 3:] - offset_g) / scale_g * DEG
@@ -372,8 +384,13 @@ def test_raw_counts_with_scale_and_offset(tmp_path: Path) -> None:
     ],
 )
 def test_format_mistakes_are_refused(update: dict, problem: str) -> None:
-    fields = {"kind": "csv", "time_column": "t", "acc_columns": ["ax", "ay", "az"],
-              "gyr_columns": ["gx", "gy", "gz"], **update}  # fmt: skip
+    fields = {
+        "kind": "csv",
+        "time_column": "t",
+        "acc_columns": ["ax", "ay", "az"],
+        "gyr_columns": ["gx", "gy", "gz"],
+        **update,
+    }
     with pytest.raises(ValueError, match=problem):
         FormatSpec.model_validate(fields)
 

@@ -55,14 +55,24 @@ def valid_file(kind: str) -> bytes:
     """Bytes of one small valid file of `kind`, made once per session."""
     rng = np.random.default_rng(0)
     n = 60
-    data = {"t": 0.01 * np.arange(n), "acc": rng.normal(size=(n, 3)),
-            "gyr": rng.normal(size=(n, 3))}  # fmt: skip
+    data = {
+        "t": 0.01 * np.arange(n),
+        "acc": rng.normal(size=(n, 3)),
+        "gyr": rng.normal(size=(n, 3)),
+    }
     path = _WORKDIR / f"valid_{kind.replace('.', '')}.bin"
     if kind.startswith("mcap"):
         # Uncompressed chunks and, for "mcap_nocrc", no CRCs: mutations then reach the
         # record headers and the CDR payloads instead of stopping at the CRC check.
-        write_run(path, n=n, temperature=True, joint_state=True, chunk_size=4096,
-                  compression=CompressionType.NONE, enable_crcs=kind == "mcap")  # fmt: skip
+        write_run(
+            path,
+            n=n,
+            temperature=True,
+            joint_state=True,
+            chunk_size=4096,
+            compression=CompressionType.NONE,
+            enable_crcs=kind == "mcap",
+        )
     elif kind == "mat5":
         scipy.io.savemat(path, {"imu": data})
     else:
@@ -73,8 +83,9 @@ def valid_file(kind: str) -> bytes:
 
 def read(kind: str, path: Path) -> Recording:
     if kind.startswith("mcap"):
-        return read_mcap(path, temperature_topic="/imu/temperature",
-                         table_topic="/table/joint_states")  # fmt: skip
+        return read_mcap(
+            path, temperature_topic="/imu/temperature", table_topic="/table/joint_states"
+        )
     return read_mat(path, variables={"t": "imu.t", "acc": "imu.acc", "gyr": "imu.gyr"})
 
 
@@ -241,15 +252,39 @@ def test_refusal_texts_name_the_run_and_stay_short() -> None:
     assert word.problem.endswith("... (1000000 characters)") and len(word.problem) < 120
 
 
-RUN_BREAKERS = ["", ",", "nan", "1e400", "[", "]]]", "=", '"', "\x00", "9" * 300, "x" * 100_000,
-                "[" * 1000, "9" * 5000, "-", "\n"]  # fmt: skip
+RUN_BREAKERS = [
+    "",
+    ",",
+    "nan",
+    "1e400",
+    "[",
+    "]]]",
+    "=",
+    '"',
+    "\x00",
+    "9" * 300,
+    "x" * 100_000,
+    "[" * 1000,
+    "9" * 5000,
+    "-",
+    "\n",
+]
 
 
 @pytest.mark.slow
-@settings(max_examples=100, deadline=None, derandomize=True, database=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-@given(file=st.sampled_from(["run.toml", "imu.csv"]), edits=st.lists(
-    st.tuples(st.floats(0.0, 1.0), st.sampled_from(RUN_BREAKERS)), min_size=1, max_size=3))
+@settings(
+    max_examples=100,
+    deadline=None,
+    derandomize=True,
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+@given(
+    file=st.sampled_from(["run.toml", "imu.csv"]),
+    edits=st.lists(
+        st.tuples(st.floats(0.0, 1.0), st.sampled_from(RUN_BREAKERS)), min_size=1, max_size=3
+    ),
+)
 def test_fuzzed_runs_end_as_outcomes_naming_the_run(fuzz_archive, file, edits) -> None:
     """Whole runs with run.toml or the data file mutated (breakers, a 100k-character word,
     nesting 1000 deep, a 5000-digit integer): every run ends ok or refused; a refusal is

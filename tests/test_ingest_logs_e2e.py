@@ -48,8 +48,9 @@ def write_run(folder: Path, route: str, segments) -> None:
             entries.append({"label": label, "file": f"{label}.bag"})
         else:  # imu_tk: "t x y z" per line, one file per sensor
             for sensor, values in (("acc", rec.acc), ("gyr", rec.gyr)):
-                np.savetxt(folder / f"{label}_{sensor}.txt", np.column_stack([rec.t, values]),
-                           fmt="%.17g")  # fmt: skip
+                np.savetxt(
+                    folder / f"{label}_{sensor}.txt", np.column_stack([rec.t, values]), fmt="%.17g"
+                )
             entries.append(
                 {"label": label, "acc_file": f"{label}_acc.txt", "gyr_file": f"{label}_gyr.txt"}
             )
@@ -94,9 +95,12 @@ def test_calib_process_every_route(tmp_path: Path, sim) -> None:
     env = {**os.environ, "CALIB_ARCHIVE": str(tmp_path / "archive")}
     calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     proc = subprocess.run(
-        [calib, "process", str(day), "--json"], capture_output=True, text=True, env=env,
+        [calib, "process", str(day), "--json"],
+        capture_output=True,
+        text=True,
+        env=env,
         timeout=600,
-    )  # fmt: skip
+    )
     assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-3000:]
     runs = {r["serial"]: r for r in json.loads(proc.stdout)["runs"]}
     assert sorted(runs) == sorted(f"SIM-{r.upper()}" for r in ROUTES)
@@ -125,8 +129,9 @@ def test_calib_process_every_route(tmp_path: Path, sim) -> None:
 def test_damaged_log_names_the_file(tmp_path: Path, sim, route, damage, message) -> None:
     segments = {"x_up": sim.segments["x_up"]}
     write_run(tmp_path / "run", route, segments)
-    path = next(p for p in (tmp_path / "run").rglob("*") if p.suffix in (".ulg", ".bin", ".bag",
-                                                                         ".db3"))  # fmt: skip
+    path = next(
+        p for p in (tmp_path / "run").rglob("*") if p.suffix in (".ulg", ".bin", ".bag", ".db3")
+    )
     path.write_bytes(damage(path.read_bytes()))
     with pytest.raises(IngestError, match=message) as err:
         load_run(discover_runs([tmp_path / "run"])[0])

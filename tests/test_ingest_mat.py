@@ -95,8 +95,9 @@ def test_per_axis_vectors_as_list_or_string(tmp_path, version):
 def test_datenum_time(tmp_path, version):
     truth = simulated(n=400)
     datenum = truth["t"] / 86400.0 + 719529.0  # MATLAB days since year 0
-    path = save(tmp_path / "dn.mat", {"dn": datenum, "acc": truth["acc"], "gyr": truth["gyr"]},
-                version)  # fmt: skip
+    path = save(
+        tmp_path / "dn.mat", {"dn": datenum, "acc": truth["acc"], "gyr": truth["gyr"]}, version
+    )
     rec = read_mat(path, variables={"t": "dn", "acc": "acc", "gyr": "gyr"}, time_unit="datenum")
     # A datenum near 7.4e5 days has a float64 spacing of 2**-33 days = 10.06 us; writing it
     # rounded by half of that, so the absolute time is good to ~5 us.
@@ -133,13 +134,20 @@ def _raises(path: Path, match: str, **kwargs) -> IngestError:
 @pytest.mark.parametrize("version", VERSIONS)
 def test_missing_variable_lists_what_the_file_holds(tmp_path, version):
     truth = simulated(n=50)
-    path = save(tmp_path / "run.mat", {"imu": {"acc": truth["acc"]}, "gyro": truth["gyr"],
-                                      "t": truth["t"]}, version)  # fmt: skip
-    err = _raises(path, r"variable 'gyr' not found", variables={"t": "t", "acc": "imu.acc",
-                                                                  "gyr": "gyr"})  # fmt: skip
+    path = save(
+        tmp_path / "run.mat",
+        {"imu": {"acc": truth["acc"]}, "gyro": truth["gyr"], "t": truth["t"]},
+        version,
+    )
+    err = _raises(
+        path, r"variable 'gyr' not found", variables={"t": "t", "acc": "imu.acc", "gyr": "gyr"}
+    )
     assert "gyro" in str(err) and "imu" in str(err) and err.field == "gyr"
-    err = _raises(path, r"variable 'imu.gyr' not found \(no 'gyr' in imu\)",
-                  variables={"t": "t", "acc": "imu.acc", "gyr": "imu.gyr"})  # fmt: skip
+    err = _raises(
+        path,
+        r"variable 'imu.gyr' not found \(no 'gyr' in imu\)",
+        variables={"t": "t", "acc": "imu.acc", "gyr": "imu.gyr"},
+    )
     _raises(path, "is a struct", variables={"t": "t", "acc": "imu", "gyr": "gyro"})
 
 
@@ -184,8 +192,11 @@ def test_wrong_type_or_shape(tmp_path, version):
     truth["name"] = "unit 17"
     truth["acc4"] = np.zeros((40, 4))
     path = save(tmp_path / "run.mat", truth, version)
-    _raises(path, "expected (a numeric array|numbers)",
-            variables={"t": "t", "acc": "name", "gyr": "gyr"})  # fmt: skip
+    _raises(
+        path,
+        "expected (a numeric array|numbers)",
+        variables={"t": "t", "acc": "name", "gyr": "gyr"},
+    )
     variables = {"t": "t", "acc": "acc4", "gyr": "gyr"}
     _raises(path, r"expected \(N, 3\) or \(3, N\)", variables=variables)
 

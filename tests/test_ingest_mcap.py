@@ -32,11 +32,10 @@ _DEPS_HEADER = (
     SEP + "MSG: std_msgs/Header\n"
     "# Standard metadata for higher-level stamped data types.\n"
     "builtin_interfaces/Time stamp\n"
-    "string frame_id\n"
-    + SEP + "MSG: builtin_interfaces/Time\n"
+    "string frame_id\n" + SEP + "MSG: builtin_interfaces/Time\n"
     "int32 sec\n"
     "uint32 nanosec\n"
-)  # fmt: skip
+)
 IMU_MSGDEF = (
     "std_msgs/Header header\n"
     "geometry_msgs/Quaternion orientation\n"
@@ -46,11 +45,11 @@ IMU_MSGDEF = (
     "geometry_msgs/Vector3 linear_acceleration\n"
     "float64[9] linear_acceleration_covariance # Row major x, y z\n"
     + _DEPS_HEADER
-    + SEP + "MSG: geometry_msgs/Quaternion\n"
-    "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
-    + SEP + "MSG: geometry_msgs/Vector3\n"
+    + SEP
+    + "MSG: geometry_msgs/Quaternion\n"
+    "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n" + SEP + "MSG: geometry_msgs/Vector3\n"
     "float64 x\nfloat64 y\nfloat64 z\n"
-)  # fmt: skip
+)
 TEMPERATURE_MSGDEF = (
     "std_msgs/Header header\n"
     "float64 temperature # Measurement of the Temperature in Degrees Celsius.\n"
@@ -125,16 +124,22 @@ def write_run(
             if temperature and i % 10 == 5:  # 10 Hz, inside the IMU span
                 ts = int(stamps_ns[i]) + 3_000_000  # 3 ms off the IMU's stamps
                 deg = 20.0 + 0.5 * (ts - T0_NS) / 1e9  # a 0.5 K/s ramp
-                msg = {"header": {"stamp": _stamp(ts), "frame_id": ""},
-                       "temperature": deg, "variance": 0.0}  # fmt: skip
+                msg = {
+                    "header": {"stamp": _stamp(ts), "frame_id": ""},
+                    "temperature": deg,
+                    "variance": 0.0,
+                }
                 w.write_message("/imu/temperature", temp_schema, msg, log_time=int(log_ns[i]))
             if joint_state and i % 2 == 1:  # 50 Hz, stamps 1 ms off the IMU's
                 ts = int(stamps_ns[i]) + 1_000_000
                 angle = 1.5 * (ts - T0_NS) / 1e9  # 1.5 rad/s, reported wrapped to [0, 2 pi)
-                msg = {"header": {"stamp": _stamp(ts), "frame_id": ""},
-                       "name": ["table_inner", "table_outer"],
-                       "position": [0.1, float(np.mod(angle, 2 * np.pi))],
-                       "velocity": [0.0, 1.5], "effort": []}  # fmt: skip
+                msg = {
+                    "header": {"stamp": _stamp(ts), "frame_id": ""},
+                    "name": ["table_inner", "table_outer"],
+                    "position": [0.1, float(np.mod(angle, 2 * np.pi))],
+                    "velocity": [0.0, 1.5],
+                    "effort": [],
+                }
                 w.write_message("/table/joint_states", joint_schema, msg, log_time=int(log_ns[i]))
         w.finish()
     return truth
@@ -222,8 +227,9 @@ def test_vectorised_decoder_equals_mcap_ros2_on_every_field(tmp_path):
         schema = w.register_msgdef("sensor_msgs/msg/Imu", IMU_MSGDEF)
         for i in range(n):
             frame = "x" * int(rng.integers(0, 20))
-            msg = imu_message(T0_NS + i * 5_000_000, rng.normal(size=3), rng.normal(size=3),
-                              frame, extras[i])  # fmt: skip
+            msg = imu_message(
+                T0_NS + i * 5_000_000, rng.normal(size=3), rng.normal(size=3), frame, extras[i]
+            )
             w.write_message("/imu", schema, msg, log_time=T0_NS + i)
         w.finish()
     # A big-endian CDR message (encapsulation 00 00) too: the decoders must agree on it.
@@ -239,11 +245,16 @@ def test_vectorised_decoder_equals_mcap_ros2_on_every_field(tmp_path):
 
     factory = DecoderFactory()
     full = FixedLayout(
-        {"orientation": (0, 4), "orientation_covariance": (32, 9), "angular_velocity": (104, 3),
-         "angular_velocity_covariance": (128, 9), "linear_acceleration": (200, 3),
-         "linear_acceleration_covariance": (224, 9)},
+        {
+            "orientation": (0, 4),
+            "orientation_covariance": (32, 9),
+            "angular_velocity": (104, 3),
+            "angular_velocity_covariance": (128, 9),
+            "linear_acceleration": (200, 3),
+            "linear_acceleration_covariance": (224, 9),
+        },
         37 * 8,
-    )  # fmt: skip
+    )
     checked = 0
     for schema, channel, message in raw_messages(dst):
         ref = factory.decoder_for(channel.message_encoding, schema)(message.data)
@@ -257,8 +268,11 @@ def test_vectorised_decoder_equals_mcap_ros2_on_every_field(tmp_path):
         for key in ("angular_velocity", "linear_acceleration"):
             v = getattr(ref, key)
             assert list(ours[key][0]) == [v.x, v.y, v.z]
-        for key in ("orientation_covariance", "angular_velocity_covariance",
-                    "linear_acceleration_covariance"):  # fmt: skip
+        for key in (
+            "orientation_covariance",
+            "angular_velocity_covariance",
+            "linear_acceleration_covariance",
+        ):
             assert list(ours[key][0]) == list(getattr(ref, key))
         checked += 1
     assert checked == n + 1
@@ -314,8 +328,9 @@ def test_temperature_and_joint_state_merged_on_imu_time(tmp_path):
     # = 9 rad, one wrap), so the merged angle is the continuous 1.5 t.
     joint_first = truth["stamps_ns"][1] + 1_000_000
     inside = truth["stamps_ns"] >= joint_first
-    np.testing.assert_allclose(rec.reference["table_angle"][inside], 1.5 * t_rel[inside],
-                               rtol=0, atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(
+        rec.reference["table_angle"][inside], 1.5 * t_rel[inside], rtol=0, atol=1e-12
+    )
     np.testing.assert_array_equal(rec.reference["table_rate"], 1.5)
     # by index: joint 0 is fixed at 0.1 rad
     rec0 = read_mcap(path, table_topic="/table/joint_states", table_joint=0)
@@ -340,8 +355,9 @@ def test_json_table_channel(tmp_path):
     rec = read_mcap(dst, table_topic="/table/feedback", stamp="log")
     t_rel = (truth["log_ns"] - T0_NS) / 1e9
     inside = truth["log_ns"] <= table_ns[-1]
-    np.testing.assert_allclose(rec.reference["table_angle"][inside], 0.3 + 0.2 * t_rel[inside],
-                               rtol=0, atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(
+        rec.reference["table_angle"][inside], 0.3 + 0.2 * t_rel[inside], rtol=0, atol=1e-12
+    )
     np.testing.assert_array_equal(rec.reference["table_rate"], 0.2)
 
 

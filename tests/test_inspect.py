@@ -84,8 +84,10 @@ def test_text_output_has_no_python_reprs(tmp_path: Path) -> None:
 def test_csv_file_reports_dialect_and_units(tmp_path: Path) -> None:
     path = tmp_path / "imu.csv"
     rows = "\n".join(f"{i * 10};0,1;0,2;1,0;0,5;0,6;0,7;21,5" for i in range(50))
-    path.write_text("device: X\nt [ms];ax (g);ay (g);az (g);wx [deg/s];wy [deg/s];wz [deg/s];"
-                    "temp\n" + rows + "\n")  # fmt: skip
+    path.write_text(
+        "device: X\nt [ms];ax (g);ay (g);az (g);wx [deg/s];wy [deg/s];wz [deg/s];"
+        "temp\n" + rows + "\n"
+    )
     code, doc = inspect(path)
     assert code == 0, doc
     assert doc["variant"]["delimiter"] == ";" and doc["variant"]["decimal"] == ","

@@ -52,8 +52,7 @@ def test_in_tolerance_rate_at_the_interval_end_matches_the_target(reliability):
     their own interval (those the interval is not capped for or zero) is the target."""
     rng = np.random.default_rng(24)
     x0, rate, measured = _fleet(rng, 1000)
-    trends = [fit_trend_shared(CAL_DAYS, m, [U_MEAS] * 3, [0.0] * 3, [None] * 3)
-              for m in measured]  # fmt: skip
+    trends = [fit_trend_shared(CAL_DAYS, m, [U_MEAS] * 3, [0.0] * 3, [None] * 3) for m in measured]
     fleet = fleet_drift([t.slope for t in trends], [t.cov[1, 1] for t in trends])
     assert abs(fleet.mean - MEAN_RATE) <= 3 * math.sqrt(fleet.mean_var)
     hits = n = 0
@@ -74,8 +73,7 @@ def test_a_unit_without_history_takes_the_fleet():
     in-tolerance rate of such units is the target too."""
     rng = np.random.default_rng(5)
     _, _, measured = _fleet(rng, 400)
-    trends = [fit_trend_shared(CAL_DAYS, m, [U_MEAS] * 3, [0.0] * 3, [None] * 3)
-              for m in measured]  # fmt: skip
+    trends = [fit_trend_shared(CAL_DAYS, m, [U_MEAS] * 3, [0.0] * 3, [None] * 3) for m in measured]
     fleet = fleet_drift([t.slope for t in trends], [t.cov[1, 1] for t in trends])
     x0, rate, _ = _fleet(np.random.default_rng(6), 800)  # new units, calibrated once at day 0
     first = x0 + rng.normal(0.0, U_MEAS, x0.size)
@@ -106,15 +104,22 @@ def test_interval_edges():
 
 
 def test_recall_section_of_the_profile():
-    doc = {"name": "t", "version": "1", "device_model": "X", "limits": [],
-           "recall": {"method": "fixed", "fixed_months": 6}}  # fmt: skip
+    doc = {
+        "name": "t",
+        "version": "1",
+        "device_model": "X",
+        "limits": [],
+        "recall": {"method": "fixed", "fixed_months": 6},
+    }
     prof = ToleranceProfile.from_dict(doc)
     assert prof.recall["method"] == "fixed" and prof.recall["fixed_months"] == 6.0
     assert prof.recall["reliability"] == 0.95  # default
     assert ToleranceProfile.from_dict(prof.to_dict()).recall == prof.recall
-    for bad, message in (({"reliability": 1.2}, "between 0 and 1"),
-                         ({"method": "attributes"}, "expected one of"),
-                         ({"months": 3}, "unknown key")):  # fmt: skip
+    for bad, message in (
+        ({"reliability": 1.2}, "between 0 and 1"),
+        ({"method": "attributes"}, "expected one of"),
+        ({"months": 3}, "unknown key"),
+    ):
         with pytest.raises(ValueError, match=message):
             ToleranceProfile.from_dict({**doc, "recall": bad})
 
@@ -135,26 +140,42 @@ def fleet_archive(tmp_path_factory):
             raw = root / f"u{u}_{k}.csv"
             raw.write_text(f"{u} {k}\n")
             digest = hashlib.sha256(raw.read_bytes()).hexdigest()
-            archive_run(arch, RunIn(
-                serial=f"U{u:02d}", device_model="MPU-6000", manufacturer="sim",
-                specification=None, started_at=start + timedelta(days=float(day)),
-                operator="test", procedure="six_position_integral", site={}, gravity=9.80665,
-                environment={"temperature_c": 20.0}, equipment=[], manifest_text=None,
-                tolerance_profile="mpu6000",
-                raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
-                settings={}, software_version="test", source_revision=None, steps=[],
-                calibration={"parameters": {}},
-                parameters=[Parameter("gyr.scale.x", float(measured[u, k]), U_MEAS, "1")],
-                parameter_temperature_c=20.0,
-                checks=[], verdict="pass", profile_name="mpu6000", profile_version="3",
-            ))  # fmt: skip
+            archive_run(
+                arch,
+                RunIn(
+                    serial=f"U{u:02d}",
+                    device_model="MPU-6000",
+                    manufacturer="sim",
+                    specification=None,
+                    started_at=start + timedelta(days=float(day)),
+                    operator="test",
+                    procedure="six_position_integral",
+                    site={},
+                    gravity=9.80665,
+                    environment={"temperature_c": 20.0},
+                    equipment=[],
+                    manifest_text=None,
+                    tolerance_profile="mpu6000",
+                    raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
+                    settings={},
+                    software_version="test",
+                    source_revision=None,
+                    steps=[],
+                    calibration={"parameters": {}},
+                    parameters=[Parameter("gyr.scale.x", float(measured[u, k]), U_MEAS, "1")],
+                    parameter_temperature_c=20.0,
+                    checks=[],
+                    verdict="pass",
+                    profile_name="mpu6000",
+                    profile_version="3",
+                ),
+            )
     return arch, start, x0, rate
 
 
 def test_query_due_lists_the_units_with_their_intervals(fleet_archive):
     arch, start, x0, rate = fleet_archive
-    res = CliRunner().invoke(app, ["query", "due", "--archive", str(arch.root), "--format",
-                                   "json"])  # fmt: skip
+    res = CliRunner().invoke(app, ["query", "due", "--archive", str(arch.root), "--format", "json"])
     assert res.exit_code == 0, res.output
     rows = json.loads(res.stdout)
     assert len(rows) == 60 and [r["due"] for r in rows] == sorted(r["due"] for r in rows)
@@ -173,8 +194,9 @@ def test_query_due_lists_the_units_with_their_intervals(fleet_archive):
         hits += abs(x0[u] + rate[u] * (CAL_DAYS[-1] + days)) <= LIMIT
     assert n >= 40 and abs(hits / n - 0.95) <= _sampling_band(0.95, n), (hits / n, n)
     before = min(r["due"] for r in rows[5:])
-    res = CliRunner().invoke(app, ["query", "due", "--before", before, "--archive",
-                                   str(arch.root), "--format", "json"])  # fmt: skip
+    res = CliRunner().invoke(
+        app, ["query", "due", "--before", before, "--archive", str(arch.root), "--format", "json"]
+    )
     assert [r["serial"] for r in json.loads(res.stdout)] == [
         r["serial"] for r in rows if r["due"] <= before
     ]
@@ -190,11 +212,11 @@ def test_due_page_of_calib_serve(fleet_archive):
     with TestClient(create_app(queries.open_readonly(arch))) as client:
         page = client.get("/due")
         assert page.status_code == 200
-        assert page.text.count("<tr><td class=\"when\">") == 60
+        assert page.text.count('<tr><td class="when">') == 60
         assert "gyr.scale.x" in page.text and "variables, R = 0.95" in page.text
-        first = page.text.split("<td class=\"when\">")[1][:10]
+        first = page.text.split('<td class="when">')[1][:10]
         some = client.get(f"/due?before={first}")
-        assert some.status_code == 200 and 0 < some.text.count("<td class=\"when\">") < 60
+        assert some.status_code == 200 and 0 < some.text.count('<td class="when">') < 60
         bad = client.get("/due?before=next-week")
         assert bad.status_code == 400 and "expected a date YYYY-MM-DD" in bad.text
 

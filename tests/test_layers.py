@@ -68,8 +68,9 @@ def violations(module: str, source: str) -> list[str]:
             elif top in IO_STDLIB:
                 why = "calib_core imports an I/O module"
             elif top not in sys.stdlib_module_names and top not in SCIENCE_THIRD_PARTY | {
-                "calib_core", "__future__",
-            }:  # fmt: skip
+                "calib_core",
+                "__future__",
+            }:
                 why = "calib_core imports a library other than numpy and scipy"
         elif _within(module, "storage") and top == "pipelines":
             why = "storage imports pipelines"

@@ -59,8 +59,11 @@ def test_ulog_default_reads_sensor_combined_not_the_1hz_topics(tmp_path: Path, r
 def test_ulog_with_only_slow_topics_is_refused_listing_the_rates(tmp_path: Path, rec) -> None:
     path = tmp_path / "slow.ulg"
     write_ulog(path, rec, topics="separate", separate_every=100)
-    with pytest.raises(IngestError, match=r"sensor_accel\[0\] \+ sensor_gyro\[0\] is logged at "
-                                          r"1 Hz, below the 10 Hz"):  # fmt: skip
+    with pytest.raises(
+        IngestError,
+        match=r"sensor_accel\[0\] \+ sensor_gyro\[0\] is logged at "
+        r"1 Hz, below the 10 Hz",
+    ):
         read_ulog(path)
     assert len(read_ulog(path, min_rate_hz=0.5)) == 10  # when the lab says so
 
@@ -70,11 +73,19 @@ def test_inspect_lists_the_ulog_sources_and_rates(tmp_path: Path, rec) -> None:
     write_ulog(path, rec, topics="both", separate_every=100)
     doc = inspect(path)
     assert doc["sources"] == [
-        {"source": "sensor_accel[0] + sensor_gyro[0]", "rate_hz": 1.0, "samples": 10,
-         "temperature": "recorded"},
-        {"source": "sensor_combined", "rate_hz": 100.0, "samples": N,
-         "temperature": "not recorded"},
-    ]  # fmt: skip
+        {
+            "source": "sensor_accel[0] + sensor_gyro[0]",
+            "rate_hz": 1.0,
+            "samples": 10,
+            "temperature": "recorded",
+        },
+        {
+            "source": "sensor_combined",
+            "rate_hz": 100.0,
+            "samples": N,
+            "temperature": "not recorded",
+        },
+    ]
     assert doc["samples"] == N and doc["rate_hz"] == 100.0
     text = CliRunner().invoke(app, ["inspect", str(path)]).stdout
     assert "  sensor_combined: 100.0 Hz, 1000 samples, temperature not recorded" in text

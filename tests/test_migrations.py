@@ -105,9 +105,11 @@ def test_upgrade_at_head_is_read_without_alembic(empty_archive: Archive) -> None
     assert migration_head() == _head(empty_archive)
     empty_archive.upgrade()
     assert empty_archive._at_head()
-    previous = ScriptDirectory.from_config(empty_archive.alembic_config()).get_revision(
-        migration_head()
-    ).down_revision
+    previous = (
+        ScriptDirectory.from_config(empty_archive.alembic_config())
+        .get_revision(migration_head())
+        .down_revision
+    )
     empty_archive.migrate(previous, down=True)
     assert not empty_archive._at_head()
     empty_archive.upgrade()
@@ -117,9 +119,15 @@ def test_upgrade_at_head_is_read_without_alembic(empty_archive: Archive) -> None
 def test_0006_gives_each_run_its_device_description(archive: Archive, tmp_path: Path) -> None:
     """Runs archived before 0006 get their unit's description (two units, two descriptions),
     and every seal, made over the device row's description, still verifies."""
-    runs = [make_run(tmp_path / "a", serial="0012", seed=1),
-            replace(make_run(tmp_path / "b", serial="77", seed=2), device_model="ADXL355",
-                    manufacturer="Analog Devices", specification=None)]  # fmt: skip
+    runs = [
+        make_run(tmp_path / "a", serial="0012", seed=1),
+        replace(
+            make_run(tmp_path / "b", serial="77", seed=2),
+            device_model="ADXL355",
+            manufacturer="Analog Devices",
+            specification=None,
+        ),
+    ]
     for run in runs:
         archive_run(archive, run, {"protocol.txt": run.serial.encode()})
     archive.migrate("0005", down=True)
@@ -129,10 +137,13 @@ def test_0006_gives_each_run_its_device_description(archive: Archive, tmp_path: 
     with archive.engine().connect() as conn:
         rows = conn.execute(
             select(Device.serial, Run.model, Run.manufacturer, Run.specification)
-            .join(Device, Device.id == Run.device_id).order_by(Device.serial)
-        ).all()  # fmt: skip
-    assert [tuple(r) for r in rows] == [("0012", "MPU-6000", "InvenSense", "consumer grade"),
-                                        ("77", "ADXL355", "Analog Devices", None)]  # fmt: skip
+            .join(Device, Device.id == Run.device_id)
+            .order_by(Device.serial)
+        ).all()
+    assert [tuple(r) for r in rows] == [
+        ("0012", "MPU-6000", "InvenSense", "consumer grade"),
+        ("77", "ADXL355", "Analog Devices", None),
+    ]
     report = verify(archive, orphans=False)
     assert report.ok and report.seals_checked == 2, report.problems
 
@@ -177,13 +188,18 @@ def test_every_migration_is_self_contained() -> None:
     for path in sorted([folder / "ddl.py", *(folder / "versions").glob("*.py")]):
         for node in ast.walk(ast.parse(path.read_text("utf-8"))):
             names = (
-                [a.name for a in node.names] if isinstance(node, ast.Import)
-                else [node.module or ""] if isinstance(node, ast.ImportFrom) else []
-            )  # fmt: skip
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else []
+            )
             for name in names:
                 top = name.split(".")[0]
-                if name not in MIGRATION_IMPORTS and top not in MIGRATION_IMPORTS and (
-                    top not in sys.stdlib_module_names
+                if (
+                    name not in MIGRATION_IMPORTS
+                    and top not in MIGRATION_IMPORTS
+                    and (top not in sys.stdlib_module_names)
                 ):
                     bad.append(f"{path.name} line {node.lineno}: imports {name}")
     assert bad == [], "\n".join(bad)
@@ -198,9 +214,11 @@ def test_0004_and_0007_derive_seals_and_unit_picks_of_archived_runs(
     as today's code computes them."""
     from storage.schema import AuditEvent, Seal, UnitLatest
 
-    runs = [make_run(tmp_path / "a", serial="0012", seed=1),
-            make_run(tmp_path / "b", serial="0012", seed=2),
-            make_run(tmp_path / "c", serial="77", seed=3)]  # fmt: skip
+    runs = [
+        make_run(tmp_path / "a", serial="0012", seed=1),
+        make_run(tmp_path / "b", serial="0012", seed=2),
+        make_run(tmp_path / "c", serial="77", seed=3),
+    ]
     for run in runs:
         archive_run(archive, run, {"protocol.txt": run.serial.encode()})
     archive.migrate("0003", down=True)

@@ -77,9 +77,9 @@ def test_stage_2_alone_is_an_integral_run(tmp_path):
     outcome = _process(_folder(tmp_path, ROTATIONS), tmp_path)
     names = _within_4u(outcome, ("gyr.",))
     assert sorted(names) == sorted(
-        [f"gyr.scale.{a}" for a in "xyz"] + [f"gyr.misalign.{r}{c}" for r in "xyz"
-                                             for c in "xyz" if r != c]
-    )  # fmt: skip
+        [f"gyr.scale.{a}" for a in "xyz"]
+        + [f"gyr.misalign.{r}{c}" for r in "xyz" for c in "xyz" if r != c]
+    )
     loaded = load_run(discover_runs([_folder(tmp_path / "again", ROTATIONS)])[0])
     assert loaded.manifest.run.procedure == "integral"
 
@@ -89,8 +89,11 @@ def test_an_incomplete_stage_names_its_missing_files(tmp_path):
     with pytest.raises(IngestError, match=r"of stages 1 and 2; missing MPU0001_z_dn.txt"):
         load_run(discover_runs([folder])[0])
     only = _folder(tmp_path / "b", STATICS[1:])
-    with pytest.raises(IngestError, match=r"5 of the 6 .* stage 1 \(orientations\); missing "
-                                          r"MPU0001_x_up.txt$"):  # fmt: skip
+    with pytest.raises(
+        IngestError,
+        match=r"5 of the 6 .* stage 1 \(orientations\); missing "
+        r"MPU0001_x_up.txt$",
+    ):
         load_run(discover_runs([only])[0])
 
 
@@ -126,8 +129,17 @@ def test_manifest_latitude_means_helmert_unless_a_model_is_named():
 # --- the manual's names and signs in the protocol (item 4) ----------------------------------
 
 # The manual's parameters of one unit (docs/methods.md 1 sign convention), chosen distinct.
-MANUAL = {"Axx": 0.011, "Ayy": -0.021, "Azz": 0.015, "Axz": 0.004, "Axy": 0.003,
-          "Ayz": -0.002, "Ayx": 0.0012, "Azy": 0.005, "Azx": -0.006}  # fmt: skip
+MANUAL = {
+    "Axx": 0.011,
+    "Ayy": -0.021,
+    "Azz": 0.015,
+    "Axz": 0.004,
+    "Axy": 0.003,
+    "Ayz": -0.002,
+    "Ayx": 0.0012,
+    "Azy": 0.005,
+    "Azx": -0.006,
+}
 A0 = np.array([0.12, -0.21, 0.33])  # a0x, a0y, a0z, m/s^2
 
 
@@ -137,15 +149,20 @@ def _manual_means(g: float) -> dict[str, np.ndarray]:
 
     def output(f):
         ax, ay, az = f
-        return A0 + np.array([
-            (1 + m["Axx"]) * ax + m["Axz"] * ay - m["Axy"] * az,
-            -m["Ayz"] * ax + (1 + m["Ayy"]) * ay + m["Ayx"] * az,
-            m["Azy"] * ax - m["Azx"] * ay + (1 + m["Azz"]) * az,
-        ])  # fmt: skip
+        return A0 + np.array(
+            [
+                (1 + m["Axx"]) * ax + m["Axz"] * ay - m["Axy"] * az,
+                -m["Ayz"] * ax + (1 + m["Ayy"]) * ay + m["Ayx"] * az,
+                m["Azy"] * ax - m["Azx"] * ay + (1 + m["Azz"]) * az,
+            ]
+        )
 
     axes = {"x": 0, "y": 1, "z": 2}
-    return {f"{a}_{s}": output(np.eye(3)[axes[a]] * (g if s == "up" else -g))
-            for a in "xyz" for s in ("up", "dn")}  # fmt: skip
+    return {
+        f"{a}_{s}": output(np.eye(3)[axes[a]] * (g if s == "up" else -g))
+        for a in "xyz"
+        for s in ("up", "dn")
+    }
 
 
 def _protocol(cal: Calibration, names: str) -> str:
@@ -153,10 +170,19 @@ def _protocol(cal: Calibration, names: str) -> str:
 
     rows = [{"name": n, "value": p.value, "std": p.std} for n, p in sorted(cal.parameters.items())]
     return render_protocol(
-        device_model="MPU-6000", serial="S1", started_at=datetime(2026, 1, 1, tzinfo=UTC),
-        run_id="R1", procedure="six_position", profile="mpu6000 v3", gravity=9.81,
-        operator="lab", parameters=rows, checks=[], verdict="pass", names=names,
-    )  # fmt: skip
+        device_model="MPU-6000",
+        serial="S1",
+        started_at=datetime(2026, 1, 1, tzinfo=UTC),
+        run_id="R1",
+        procedure="six_position",
+        profile="mpu6000 v3",
+        gravity=9.81,
+        operator="lab",
+        parameters=rows,
+        checks=[],
+        verdict="pass",
+        names=names,
+    )
 
 
 def test_protocol_prints_the_manuals_names_and_signs():

@@ -70,10 +70,13 @@ def summary(fmt: str, keep: slice) -> Callable[[str], str]:
 
 def comma_decimals(sep: str) -> Callable[[str], str]:
     def edit(text: str) -> str:
-        return "\n".join(
-            sep.join(line.replace(".", ",").split()) if line[:1] != "_" else line
-            for line in text.splitlines()
-        ) + "\n"
+        return (
+            "\n".join(
+                sep.join(line.replace(".", ",").split()) if line[:1] != "_" else line
+                for line in text.splitlines()
+            )
+            + "\n"
+        )
 
     return edit
 

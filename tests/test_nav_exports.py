@@ -38,9 +38,14 @@ K_COVER = 3.0
 @pytest.fixture(scope="module")
 def static_run(tmp_path_factory):
     rng = np.random.default_rng(39)
-    rec = simulate_static(DURATION_S, RATE_HZ, gyro_bias=np.array([1e-3, -2e-3, 5e-4]),
-                          gyro_noise=NoiseSpec(GYR_N, 0.0, GYR_K),
-                          acc_noise=NoiseSpec(ACC_N, 0.0, ACC_K), rng=rng)  # fmt: skip
+    rec = simulate_static(
+        DURATION_S,
+        RATE_HZ,
+        gyro_bias=np.array([1e-3, -2e-3, 5e-4]),
+        gyro_noise=NoiseSpec(GYR_N, 0.0, GYR_K),
+        acc_noise=NoiseSpec(ACC_N, 0.0, ACC_K),
+        rng=rng,
+    )
     manifest = six_position_manifest("NAV-0001")
     manifest["run"] |= {"procedure": "static_bias", "settings": {"up_axis": "+z"}}
     folder = tmp_path_factory.mktemp("nav") / "run"
@@ -112,8 +117,9 @@ def test_noise_model_of_another_procedure_is_refused(tmp_path):
     archive.upgrade()
     (source,) = discover_runs([DATA_SAMPLES / "mpu6000_MPU0001"])
     outcome = process_run(source, archive)
-    res = CliRunner().invoke(app, ["export", outcome["run_id"], "--archive", str(archive.root),
-                                   "--format", "kalibr"])  # fmt: skip
+    res = CliRunner().invoke(
+        app, ["export", outcome["run_id"], "--archive", str(archive.root), "--format", "kalibr"]
+    )
     assert res.exit_code != 0
     assert "needs a static-bias (Allan) run" in res.output and "six_position_integral" in res.output
 
@@ -157,10 +163,14 @@ def test_docs_worked_example():
         return NavTerm(np.full(3, value), np.full(3, 0.01 * value), np.zeros(3), unit)
 
     nav = NavNoise(
-        term(vals["N_acc"], "m/s^2/sqrt(Hz)"), term(vals["K_acc"], "m/s^3/sqrt(Hz)"),
-        term(vals["N_gyr"], "rad/s/sqrt(Hz)"), term(vals["K_gyr"], "rad/s^2/sqrt(Hz)"),
-        sample_rate_hz=vals["f"], duration_s=3600.0, methods={},
-    )  # fmt: skip
+        term(vals["N_acc"], "m/s^2/sqrt(Hz)"),
+        term(vals["K_acc"], "m/s^3/sqrt(Hz)"),
+        term(vals["N_gyr"], "rad/s/sqrt(Hz)"),
+        term(vals["K_gyr"], "rad/s^2/sqrt(Hz)"),
+        sample_rate_hz=vals["f"],
+        duration_s=3600.0,
+        methods={},
+    )
     text = nav_exports.kalibr_yaml(nav, update_rate_hz=vals["f"])
     keys = [ln for ln in text.splitlines() if ln and not ln.startswith("#")]
     assert keys == [ln for ln in block.splitlines() if ln and not ln.startswith("#")]

@@ -25,8 +25,10 @@ from storage.queries import open_readonly
 
 SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"
 # What a person must never read: Python's None / nan, a repr, a JSON object.
-RAW = re.compile(r"\bNone\b|\bnan\b|\bNaN\b|\bNaT\b|PosixPath\(|Timestamp\(|datetime\.|"
-                 r"\{'|\{\"|\['|\bTrue\b|\bFalse\b")  # fmt: skip
+RAW = re.compile(
+    r"\bNone\b|\bnan\b|\bNaN\b|\bNaT\b|PosixPath\(|Timestamp\(|datetime\.|"
+    r"\{'|\{\"|\['|\bTrue\b|\bFalse\b"
+)
 MAX_PAGES = 250
 DOWNLOADS = (".pdf", ".html", ".txt", ".json", ".csv", ".mat", ".px4", ".ardupilot", ".xml")
 
@@ -44,7 +46,7 @@ def sample_archive(tmp_path_factory: pytest.TempPathFactory) -> Archive:
 
 
 def _raw(text: str) -> list[str]:
-    return sorted({text[max(0, m.start() - 40): m.end() + 40] for m in RAW.finditer(text)})
+    return sorted({text[max(0, m.start() - 40) : m.end() + 40] for m in RAW.finditer(text)})
 
 
 def _commands(arch: Archive) -> list[list[str]]:
@@ -53,14 +55,20 @@ def _commands(arch: Archive) -> list[list[str]]:
     assert len(runs) == 10, runs
     cmds = [["history", s, *a] for s in ("IMU-R-0003", "MPU0001", "IMU-T-0007")]
     cmds += [["show", r, *a] for r in runs]
-    cmds += [["query", "lineage", runs[0], "acc.bias.x", *a],
-             ["query", "latest", "MPU0001", *a], ["query", "units", *a],
-             ["query", "lapsed", "CUBE-7", *a],
-             ["query", "history", "IMU-R-0003", "acc.bias.z", *a],
-             ["query", "fleet", "MPU-6000", "acc.bias.z", *a],
-             ["fleet", "MPU-6000", "acc.bias.z", *a], ["trend", "IMU-R-0003", "acc.bias.z", *a],
-             ["repeatability", "IMU-R-0003", *a], ["thermal", "show", "IMU-T-0007", *a],
-             ["audit", *a], ["verify", *a]]  # fmt: skip
+    cmds += [
+        ["query", "lineage", runs[0], "acc.bias.x", *a],
+        ["query", "latest", "MPU0001", *a],
+        ["query", "units", *a],
+        ["query", "lapsed", "CUBE-7", *a],
+        ["query", "history", "IMU-R-0003", "acc.bias.z", *a],
+        ["query", "fleet", "MPU-6000", "acc.bias.z", *a],
+        ["fleet", "MPU-6000", "acc.bias.z", *a],
+        ["trend", "IMU-R-0003", "acc.bias.z", *a],
+        ["repeatability", "IMU-R-0003", *a],
+        ["thermal", "show", "IMU-T-0007", *a],
+        ["audit", *a],
+        ["verify", *a],
+    ]
     return cmds
 
 

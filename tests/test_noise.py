@@ -206,8 +206,9 @@ def _white_and_random_walk(seed: int) -> np.ndarray:
     """White noise and rate random walk, no flicker: 2e4 s at 10 Hz, (N, 3)."""
     rng = np.random.default_rng(seed)
     n = 200_000
-    return np.column_stack([white(n, 10.0, 1e-3, rng) + random_walk(n, 10.0, 1e-5, rng)
-                            for _ in range(3)])  # fmt: skip
+    return np.column_stack(
+        [white(n, 10.0, 1e-3, rng) + random_walk(n, 10.0, 1e-5, rng) for _ in range(3)]
+    )
 
 
 def test_a_term_the_fit_puts_at_zero_is_read_from_the_curve():

@@ -186,10 +186,14 @@ def _statics(seed: int) -> dict[str, Recording]:
     rng = np.random.default_rng(seed)
     n = 6000
     return {
-        label: Recording(np.arange(n) / 100.0, 0.02 * rng.standard_normal((n, 3)) + [0, 0, 9.81],
-                         0.001 * rng.standard_normal((n, 3)), source=f"{label}.csv")
+        label: Recording(
+            np.arange(n) / 100.0,
+            0.02 * rng.standard_normal((n, 3)) + [0, 0, 9.81],
+            0.001 * rng.standard_normal((n, 3)),
+            source=f"{label}.csv",
+        )
         for label in ("x_up", "x_dn")
-    }  # fmt: skip
+    }
 
 
 def test_outlier_step_counts_and_checks_what_it_altered():

@@ -21,12 +21,21 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_protocol_values_are_signed_and_uncertainties_are_not() -> None:
     text = render_protocol(
-        device_model="MPU-6000", serial="U1", started_at=datetime(2026, 1, 2, tzinfo=UTC),
-        run_id="R0", procedure="six_position", profile="p", gravity=9.80665, operator="me",
-        parameters=[{"name": "acc.scale.x", "value": -0.0225, "std": 1.9e-5},
-                    {"name": "acc.scale.y", "value": 0.0051, "std": 2.1e-5}],
-        checks=[], verdict="pass",
-    )  # fmt: skip
+        device_model="MPU-6000",
+        serial="U1",
+        started_at=datetime(2026, 1, 2, tzinfo=UTC),
+        run_id="R0",
+        procedure="six_position",
+        profile="p",
+        gravity=9.80665,
+        operator="me",
+        parameters=[
+            {"name": "acc.scale.x", "value": -0.0225, "std": 1.9e-5},
+            {"name": "acc.scale.y", "value": 0.0051, "std": 2.1e-5},
+        ],
+        checks=[],
+        verdict="pass",
+    )
     rows = {line.split()[0]: line.split() for line in text.splitlines() if "acc.scale" in line}
     assert rows["acc.scale.x"][1:3] == ["-0.022500", "0.000019"]
     assert rows["acc.scale.y"][1:3] == ["+0.005100", "0.000021"]
@@ -40,13 +49,17 @@ def test_every_written_file_has_one_mode(tmp_path: Path) -> None:
     archive = tmp_path / "archive"
     sample = ROOT / "data_samples" / "mpu6000_MPU0001"
     runner = CliRunner()
-    done = runner.invoke(app, ["process", str(sample), "--archive", str(archive), "--json",
-                               "--no-progress", "--reports"])  # fmt: skip
+    done = runner.invoke(
+        app,
+        ["process", str(sample), "--archive", str(archive), "--json", "--no-progress", "--reports"],
+    )
     assert done.exit_code == 0, done.output
     export = tmp_path / "unit.params"
     run_id = json.loads(done.stdout)["runs"][0]["run_id"]
-    done = runner.invoke(app, ["export", run_id, "--archive", str(archive), "--format", "px4",
-                               "--output", str(export)])  # fmt: skip
+    done = runner.invoke(
+        app,
+        ["export", run_id, "--archive", str(archive), "--format", "px4", "--output", str(export)],
+    )
     assert done.exit_code == 0, done.output
     files = [p for p in archive.rglob("*") if p.is_file() and not p.name.startswith("archive.")]
     files.append(export)

@@ -79,8 +79,11 @@ def test_defaults_and_tables_pass(name):
     assert proc.validate({**given, "outliers": {"n_sigma": 4.0}}) == proc.settings.defaults() | {
         k: v for k, v in given.items() if k in proc.settings
     }
-    with pytest.raises(SettingError, match=r"run.settings.outliers.sigmaa: unknown setting of "
-                                           r"\[run.settings.outliers\]; did you mean n_sigma\?"):
+    with pytest.raises(
+        SettingError,
+        match=r"run.settings.outliers.sigmaa: unknown setting of "
+        r"\[run.settings.outliers\]; did you mean n_sigma\?",
+    ):
         proc.validate({"outliers": {"sigmaa": 4.0}})
     with pytest.raises(SettingError, match="run.settings.lowpass: expected a table"):
         proc.validate({"lowpass": 5.0})
@@ -89,8 +92,10 @@ def test_defaults_and_tables_pass(name):
 def test_the_solver_refuses_a_misspelt_setting_instead_of_ignoring_it():
     rng = np.random.default_rng(3)
     run = six_position_integral_run(random_errors(rng), rng)
-    with pytest.raises(ValueError, match="accel_solvr: unknown setting of "
-                                         "six_position_integral; did you mean accel_solver"):
+    with pytest.raises(
+        ValueError,
+        match="accel_solvr: unknown setting of six_position_integral; did you mean accel_solver",
+    ):
         solve("six_position_integral", run.segments, run.gravity, {"accel_solvr": "kalman"})
 
 
@@ -107,8 +112,11 @@ def test_the_manifest_names_its_file_and_the_key():
         parse_manifest(_manifest_text("static_bias", {"up_axes": "-z"}), "lab/run.toml")
     assert str(err.value).startswith("lab/run.toml")
     assert "run.settings.up_axes" in str(err.value) and "did you mean up_axis?" in str(err.value)
-    with pytest.raises(IngestError, match=r"run.settings.n_sigma.*expected a positive number, "
-                                          r"got -3"):
+    with pytest.raises(
+        IngestError,
+        match=r"run.settings.n_sigma.*expected a positive number, "
+        r"got -3",
+    ):
         parse_manifest(_manifest_text("static_bias", {"n_sigma": -3}), "run.toml")
 
 
@@ -161,14 +169,24 @@ def test_the_tables_are_the_steps_own_keys():
     from calib_core.preprocess import chain
     from pipelines.uncertainty import SETTINGS as UNCERTAINTY_KEYS
 
-    own = {"sync": chain.SYNC_KEYS, "segmentation": chain.SEGMENTATION_KEYS,
-           "outliers": chain.OUTLIER_KEYS, "lowpass": chain.LOWPASS_KEYS,
-           "uncertainty": set(UNCERTAINTY_KEYS)}  # fmt: skip
+    own = {
+        "sync": chain.SYNC_KEYS,
+        "segmentation": chain.SEGMENTATION_KEYS,
+        "outliers": chain.OUTLIER_KEYS,
+        "lowpass": chain.LOWPASS_KEYS,
+        "uncertainty": set(UNCERTAINTY_KEYS),
+    }
     assert {name: set(t.items) for name, t in procedures.TABLES.items()} == own
     assert procedures.TABLES["outliers"].items["method"].default == chain.DEFAULT_OUTLIERS["method"]
-    with pytest.raises(SettingError, match=r"run.settings.outliers.n_sigma: expected a "
-                                           r"positive number, got -1"):
+    with pytest.raises(
+        SettingError,
+        match=r"run.settings.outliers.n_sigma: expected a "
+        r"positive number, got -1",
+    ):
         procedures.validate_settings("six_position", {"outliers": {"n_sigma": -1}})
-    with pytest.raises(SettingError, match=r"run.settings.lowpass.apply_to must be one of "
-                                           r"'static', 'all', got 'some'"):
+    with pytest.raises(
+        SettingError,
+        match=r"run.settings.lowpass.apply_to must be one of "
+        r"'static', 'all', got 'some'",
+    ):
         procedures.validate_settings("rate_table", {"lowpass": {"apply_to": "some"}})

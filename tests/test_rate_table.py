@@ -37,9 +37,15 @@ def _truth_vector(truth: GyroTruth) -> np.ndarray:
 
 def _run(seed: int, truth: GyroTruth = TRUTH, **kw):
     run = simulate_rate_table(
-        truth, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE, record_s=RECORD_S,
-        gyro_noise_density=DENSITY, table_stability=1e-4, rng=np.random.default_rng(seed), **kw,
-    )  # fmt: skip
+        truth,
+        rates=tuple(r * DEG for r in RATES_DEG),
+        rate_hz=RATE,
+        record_s=RECORD_S,
+        gyro_noise_density=DENSITY,
+        table_stability=1e-4,
+        rng=np.random.default_rng(seed),
+        **kw,
+    )
     return solve_rate_table(rate_points(run.recordings))
 
 
@@ -112,9 +118,13 @@ def test_nonlinearity_and_asymmetry():
     truth = replace(TRUTH, k3=np.array([k3, 0.0, 0.0]), asymmetry=np.array([0.0, a, 0.0]))
     density = 0.001 * DEG
     run = simulate_rate_table(
-        truth, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE, record_s=RECORD_S,
-        gyro_noise_density=density, rng=np.random.default_rng(42),
-    )  # fmt: skip
+        truth,
+        rates=tuple(r * DEG for r in RATES_DEG),
+        rate_hz=RATE,
+        record_s=RECORD_S,
+        gyro_noise_density=density,
+        rng=np.random.default_rng(42),
+    )
     cal = solve_rate_table(rate_points(run.recordings))
     w = np.array([r for r in RATES_DEG if r]) * DEG
     shift = k3 * np.sum(w**4) / np.sum(w**2)
@@ -137,9 +147,13 @@ def test_nonlinearity_and_asymmetry():
 
 def test_zero_rate_bias_consistency():
     run = simulate_rate_table(
-        TRUTH, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE, record_s=RECORD_S,
-        gyro_noise_density=DENSITY, rng=np.random.default_rng(3),
-    )  # fmt: skip
+        TRUTH,
+        rates=tuple(r * DEG for r in RATES_DEG),
+        rate_hz=RATE,
+        record_s=RECORD_S,
+        gyro_noise_density=DENSITY,
+        rng=np.random.default_rng(3),
+    )
     points = rate_points(run.recordings)
     clean = solve_rate_table(points)
     z = np.array(clean.info["zero_rate_bias"]["difference_sigma"])
@@ -159,14 +173,22 @@ def test_zero_rate_bias_consistency():
 
 def test_single_axis_gives_one_column():
     run = simulate_rate_table(
-        TRUTH, axes=("y",), rate_hz=RATE, record_s=RECORD_S, gyro_noise_density=DENSITY,
+        TRUTH,
+        axes=("y",),
+        rate_hz=RATE,
+        record_s=RECORD_S,
+        gyro_noise_density=DENSITY,
         rng=np.random.default_rng(8),
-    )  # fmt: skip
+    )
     cal = solve_rate_table(rate_points(run.recordings))
     assert set(cal.parameters) == {
-        "gyr.bias.x", "gyr.bias.y", "gyr.bias.z", "gyr.scale.y", "gyr.misalign.xy",
+        "gyr.bias.x",
+        "gyr.bias.y",
+        "gyr.bias.z",
+        "gyr.scale.y",
+        "gyr.misalign.xy",
         "gyr.misalign.zy",
-    }  # fmt: skip
+    }
     for name, true in [("gyr.scale.y", TRUTH.M[1, 1]), ("gyr.misalign.xy", TRUTH.M[0, 1])]:
         p = cal.parameters[name]
         assert abs(p.value - true) <= 4 * p.std
@@ -177,9 +199,13 @@ def test_rate_point_drops_settle():
     biases the reference rate low by ~ 100 deg/s * 0.5 s / 30 s, dropping 20 s of
     settle leaves exactly the plateau (no wobble, no feedback noise here)."""
     run = simulate_rate_table(
-        TRUTH, rates=(100 * DEG,), axes=("x",), rate_hz=RATE, gyro_noise_density=DENSITY,
+        TRUTH,
+        rates=(100 * DEG,),
+        axes=("x",),
+        rate_hz=RATE,
+        gyro_noise_density=DENSITY,
         rng=np.random.default_rng(1),
-    )  # fmt: skip
+    )
     rec = run.recordings[0]
     p = rate_point(rec)
     assert p.axis == "x" and p.n == int(RECORD_S * RATE)
@@ -220,9 +246,14 @@ def test_fixed_bias_reproduces_truth_within_its_reported_uncertainty():
     z = []
     for seed in range(300, 400):
         run = simulate_rate_table(
-            TRUTH, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE, record_s=RECORD_S,
-            gyro_noise_density=DENSITY, table_stability=1e-4, rng=np.random.default_rng(seed),
-        )  # fmt: skip
+            TRUTH,
+            rates=tuple(r * DEG for r in RATES_DEG),
+            rate_hz=RATE,
+            record_s=RECORD_S,
+            gyro_noise_density=DENSITY,
+            table_stability=1e-4,
+            rng=np.random.default_rng(seed),
+        )
         cal = solve_rate_table(rate_points(run.recordings), gyro_bias="static")
         est = np.array([cal.parameters[n].value for n in NAMES])
         u = np.array([cal.parameters[n].std for n in NAMES])
@@ -289,12 +320,18 @@ def test_fixed_bias_from_a_static_run_and_settings():
     w = np.array([50.0, 100.0]) * DEG
     expected = math.hypot(1e-4 / math.sqrt((w**2).sum()), w.sum() / (w**2).sum() * 2e-4)
     assert lone.parameters["gyr.scale.x"].std == pytest.approx(expected, rel=1e-9)
-    run = simulate_rate_table(TRUTH, rates=tuple(r * DEG for r in RATES_DEG), rate_hz=RATE,
-                              record_s=RECORD_S + 20, gyro_noise_density=DENSITY,
-                              rng=np.random.default_rng(7))  # fmt: skip
+    run = simulate_rate_table(
+        TRUTH,
+        rates=tuple(r * DEG for r in RATES_DEG),
+        rate_hz=RATE,
+        record_s=RECORD_S + 20,
+        gyro_noise_density=DENSITY,
+        rng=np.random.default_rng(7),
+    )
     segments = {r.label: r for r in run.recordings}
-    via = procedures.solve("rate_table", segments, 9.81, {"gyro_bias": "static",
-                           "static_bias_dps": [0.5, 0.0, 0.0]})  # fmt: skip
+    via = procedures.solve(
+        "rate_table", segments, 9.81, {"gyro_bias": "static", "static_bias_dps": [0.5, 0.0, 0.0]}
+    )
     assert via.parameters["gyr.bias.x"].value == pytest.approx(0.5 * DEG)
     with pytest.raises(ValueError, match="gyro_bias must be one of"):
         procedures.solve("rate_table", segments, 9.81, {"gyro_bias": "fixed"})

@@ -41,12 +41,22 @@ VARIABLES = {"t": "imu.t", "acc": "imu.acc", "gyr": "imu.gyr"}
 def valid(kind: str, folder: Path) -> bytes:
     rng = np.random.default_rng(0)
     n = 60
-    data = {"t": 0.01 * np.arange(n), "acc": rng.normal(size=(n, 3)),
-            "gyr": rng.normal(size=(n, 3))}  # fmt: skip
+    data = {
+        "t": 0.01 * np.arange(n),
+        "acc": rng.normal(size=(n, 3)),
+        "gyr": rng.normal(size=(n, 3)),
+    }
     path = folder / f"valid_{kind}.{'mcap' if kind == 'mcap' else 'mat'}"
     if kind == "mcap":
-        write_run(path, n=n, temperature=True, joint_state=True, chunk_size=2048,
-                  compression=CompressionType.ZSTD, enable_crcs=True)  # fmt: skip
+        write_run(
+            path,
+            n=n,
+            temperature=True,
+            joint_state=True,
+            chunk_size=2048,
+            compression=CompressionType.ZSTD,
+            enable_crcs=True,
+        )
     elif kind == "mat5":
         scipy.io.savemat(path, {"imu": data})
     else:
@@ -56,8 +66,9 @@ def valid(kind: str, folder: Path) -> bytes:
 
 def read(kind: str, path: Path):  # noqa: ANN201
     if kind == "mcap":
-        return read_mcap(path, temperature_topic="/imu/temperature",
-                         table_topic="/table/joint_states")  # fmt: skip
+        return read_mcap(
+            path, temperature_topic="/imu/temperature", table_topic="/table/joint_states"
+        )
     return read_mat(path, variables=VARIABLES)
 
 
@@ -95,8 +106,10 @@ def test_damaged_files_fail_their_run_not_the_process(kind: str, tmp_path: Path)
         if kind == "mcap":  # chunk CRCs: any sample that survives is an original sample
             np.testing.assert_array_equal(rec.acc, original.acc[: len(rec)])
         assert np.isfinite(rec.acc).all() and np.all(np.diff(rec.t) > 0), f"case {i}"
-    print(f"{kind}: {CASES} damaged files: {read_ok} read, {failed} IngestError "
-          f"({crashed} of them crashed the isolated reader), 0 process deaths")  # fmt: skip
+    print(
+        f"{kind}: {CASES} damaged files: {read_ok} read, {failed} IngestError "
+        f"({crashed} of them crashed the isolated reader), 0 process deaths"
+    )
     assert read_ok + failed == CASES
     if kind == "mat5":
         assert crashed > 0

@@ -59,8 +59,28 @@ _WORKDIR = Path(tempfile.mkdtemp(prefix="fuzz_readers_"))
 atexit.register(shutil.rmtree, _WORKDIR, ignore_errors=True)
 N = 40
 CSV_HEADER = "# meta\nt [s];ax [m/s^2];ay [m/s^2];az [m/s^2];gx;gy;gz;temp"
-BREAKERS = [b"", b",", b";", b"\t", b" ", b"nan", b"inf", b"-", b"e", b"\r", b"\n", b"_", b"x",
-            b"\x00", b"\xd0", b"\xe9", b"1e400", b"..", b"mean", b"std"]  # fmt: skip
+BREAKERS = [
+    b"",
+    b",",
+    b";",
+    b"\t",
+    b" ",
+    b"nan",
+    b"inf",
+    b"-",
+    b"e",
+    b"\r",
+    b"\n",
+    b"_",
+    b"x",
+    b"\x00",
+    b"\xd0",
+    b"\xe9",
+    b"1e400",
+    b"..",
+    b"mean",
+    b"std",
+]
 # Problems of a whole file (no one line or field to name).
 WHOLE_FILE = re.compile(
     r"truncated|empty|not an? |NUL byte|no data|damaged|neither UTF-8"
@@ -91,8 +111,7 @@ def valid_file(kind: str) -> Path:
     if kind == "csv":
         path = folder / "imu.csv"
         rows = np.column_stack([rec.t, rec.acc, rec.gyr, rec.temp])
-        np.savetxt(path, rows, delimiter=";", fmt="%.6f", comments="",
-                              header=CSV_HEADER)  # fmt: skip
+        np.savetxt(path, rows, delimiter=";", fmt="%.6f", comments="", header=CSV_HEADER)
         return path
     path = folder / {"ulog": "a.ulg", "dataflash": "a.bin", "rosbag1": "a.bag"}.get(kind, "b")
     if kind == "ulog":

@@ -70,8 +70,9 @@ def test_replaced_samples_are_archived_checked_and_shown(tmp_path):
         check = checks[f"model:replaced:despike:{label}"]
         assert not check["passed"] and check["value"] == sum(counts[label].values())
     assert cal["verdict"] in ("needs review", "fail")
-    shown = CliRunner().invoke(app, ["show", result["run_id"], "--archive", str(arch.root)],
-                               env={"COLUMNS": "200"})  # fmt: skip
+    shown = CliRunner().invoke(
+        app, ["show", result["run_id"], "--archive", str(arch.root)], env={"COLUMNS": "200"}
+    )
     assert shown.exit_code == 0, shown.output
     assert "model:replaced:despike:x_ccw" in shown.output
     assert "despike replaced" in shown.output

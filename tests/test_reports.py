@@ -188,13 +188,25 @@ def test_clean_run_passes_all_and_report_is_complete(arch, tmp_path):
     protocol = Path(written["protocol"]).read_text()
     assert "SIM-R-1" in protocol and "verify:tilt_30:acc" in protocol and "PASS" in protocol
     text = _check_html(Path(written["html"]))
-    for expected in ("SIM-R-1", "CUBE-1", "2026-11-15", "LAPSED", "Signatures", "Repeatability",
-                     "tilt_30", "Verdict: PASS", "Not judged"):  # fmt: skip
+    for expected in (
+        "SIM-R-1",
+        "CUBE-1",
+        "2026-11-15",
+        "LAPSED",
+        "Signatures",
+        "Repeatability",
+        "tilt_30",
+        "Verdict: PASS",
+        "Not judged",
+    ):
         assert expected in text, expected
     pages = tmp_path / "pages"
     pages.mkdir()
-    _check_pdf(Path(written["pdf"]), pages, ["SIM-R-1", "Results", "acc.bias.x", "Quality control",
-                                             "Accuracy verification", "PASS"])  # fmt: skip
+    _check_pdf(
+        Path(written["pdf"]),
+        pages,
+        ["SIM-R-1", "Results", "acc.bias.x", "Quality control", "Accuracy verification", "PASS"],
+    )
 
 
 @pytest.mark.slow
@@ -281,8 +293,11 @@ def test_calib_report_on_data_samples_csv_run(arch, tmp_path):
     _check_html(Path(written["html"]))
     pages = tmp_path / "pages"
     pages.mkdir()
-    _check_pdf(Path(written["pdf"]), pages, ["IMU-2026-0042", "CUBE-7", "2027-06-30",
-                                             "Equipment", "Environment", "Signatures"])  # fmt: skip
+    _check_pdf(
+        Path(written["pdf"]),
+        pages,
+        ["IMU-2026-0042", "CUBE-7", "2027-06-30", "Equipment", "Environment", "Signatures"],
+    )
     # without --output the files go into the run's archive folder
     result = CliRunner().invoke(app, ["report", outcome["run_id"], "--archive", str(arch.root)])
     assert result.exit_code == 0, result.output

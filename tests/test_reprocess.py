@@ -81,11 +81,13 @@ def test_reprocessing_leaves_the_raw_objects_as_they_were(tmp_path: Path, arch, 
     copied: its files' times are set)."""
     first = _archived(tmp_path / "run", arch, layout, 13)
     objects = sorted(p for p in (arch.root / "objects").rglob("*") if p.is_file())
-    before = {p: (p.stat().st_mtime_ns, p.stat().st_nlink, rawstore.hash_and_size(p)[0])
-              for p in objects}  # fmt: skip
+    before = {
+        p: (p.stat().st_mtime_ns, p.stat().st_nlink, rawstore.hash_and_size(p)[0]) for p in objects
+    }
     assert reprocess_run(arch, first["run_id"])["status"] == "duplicate"
-    after = {p: (p.stat().st_mtime_ns, p.stat().st_nlink, rawstore.hash_and_size(p)[0])
-             for p in objects}  # fmt: skip
+    after = {
+        p: (p.stat().st_mtime_ns, p.stat().st_nlink, rawstore.hash_and_size(p)[0]) for p in objects
+    }
     assert after == before and {n for _, n, _ in after.values()} == {1}
 
 
@@ -149,8 +151,7 @@ def test_cli_reprocess_json(tmp_path: Path, arch) -> None:
     assert result.exit_code == 0, result.output
     doc = json.loads(result.stdout)
     (outcome,) = doc["runs"]
-    assert doc["summary"] == {"runs": 1, "revised": 0, "duplicate": 1, "failed": 0,
-                              "failures": []}  # fmt: skip
+    assert doc["summary"] == {"runs": 1, "revised": 0, "duplicate": 1, "failed": 0, "failures": []}
     assert outcome["status"] == "duplicate" and outcome["parameters"] == first["parameters"]
     result = CliRunner().invoke(
         app, ["reprocess", "R000000000000", "--archive", str(arch.root), "--reason", "check"]

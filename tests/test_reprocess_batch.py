@@ -50,7 +50,7 @@ def lab_profile(folder: Path, version: str, acc_bias: float = LOOSE, gyr_bias: f
         ('"gyr.bias.*"\nbound = 20', f'"gyr.bias.*"\nbound = {gyr_bias!r}'),
         ("pattern wins\nbound = 0.8", f"pattern wins\nbound = {acc_bias!r}"),
         ('"acc.bias.*"\nbound = 0.5', f'"acc.bias.*"\nbound = {acc_bias!r}'),
-    ):  # fmt: skip
+    ):
         assert old in text, old  # the shipped profile changed: adapt this test
         text = text.replace(old, new)
     folder.mkdir(parents=True, exist_ok=True)
@@ -109,9 +109,15 @@ def test_selection_reprocessed_twice_gives_revisions_then_duplicates(
     assert counts == {first[0]["run_id"]: 1, **{o["run_id"]: 2 for o in once}}
     arch = resolve_archive(archive)
     with arch.engine().connect() as conn:
-        reasons = conn.execute(
-            select(schema.ProcessingStep.settings).where(schema.ProcessingStep.name == "reprocess")
-        ).scalars().all()  # fmt: skip
+        reasons = (
+            conn.execute(
+                select(schema.ProcessingStep.settings).where(
+                    schema.ProcessingStep.name == "reprocess"
+                )
+            )
+            .scalars()
+            .all()
+        )
     assert reasons == [{"reason": "solver upgrade"}] * 3
     assert [(e["action"], e["reason"]) for e in queries.audit_trail(arch)][-3:] == [
         ("revised", "solver upgrade")
@@ -209,15 +215,18 @@ def test_change_report_counts_changes_beyond_k_combined_uncertainties() -> None:
             "verdict": verdicts[1],
             "parameters": {"acc.bias.x": (1.0 + d, std), "gyr.scale.y": (d, None)},
         }
-        return {"run_id": run_id, "old": old, "new": new}  # fmt: skip
+        return {"run_id": run_id, "old": old, "new": new}
 
     report = change_report(
         [pair("A", 1.49), pair("B", -1.51, ("pass", "fail")), pair("C", 0.0, ("fail", "pass"))],
         k=3,
     )
     assert report["families"]["acc.bias"] == {
-        "runs": 3, "changed": 1, "unjudged": 0, "max_z": pytest.approx(1.51 / 0.5)
-    }  # fmt: skip
+        "runs": 3,
+        "changed": 1,
+        "unjudged": 0,
+        "max_z": pytest.approx(1.51 / 0.5),
+    }
     assert report["families"]["gyr.scale"]["unjudged"] == 2  # A and B differ, C does not
     assert report["flipped"] == {"pass->fail": ["B"], "fail->pass": ["C"]}
     with pytest.raises(ValueError, match="k: expected a finite number > 0"):
@@ -243,8 +252,12 @@ def test_kill_during_a_reprocess_batch_then_rerun_reprocesses_every_run_once(
         del os.environ["CALIB_PROFILES"]
     lab_profile(profiles, "2", acc_bias=0.4)
     calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
-    env = {**os.environ, "PREFECT_API_URL": PREFECT_API_URL.value(),
-           "CALIB_PROFILES": str(profiles), "PYTHONPATH": str(ROOT)}  # fmt: skip
+    env = {
+        **os.environ,
+        "PREFECT_API_URL": PREFECT_API_URL.value(),
+        "CALIB_PROFILES": str(profiles),
+        "PYTHONPATH": str(ROOT),
+    }
     cmd = [calib, "--verbose", "reprocess", "--all", "--reason", "profile v2"]
     cmd += ["--archive", archive]
     cmd += ["--flow", "--workers", "2", "--no-progress"]

@@ -53,8 +53,11 @@ def test_reader_reads_and_cannot_write(roles, tmp_path: Path) -> None:  # noqa: 
     reader.upgrade()  # what every CLI start does: a no-op at head, allowed for the reader
     assert queries.history(reader, "0012")["run_id"].tolist() == [res.run_id]
     assert queries.lineage(reader, res.run_id, "acc.bias.x")["run"]["operator"] == run.operator
-    _denied(reader, "INSERT INTO devices (serial, model, manufacturer, created_at) "
-                    "VALUES ('x', 'm', 'n', now())")  # fmt: skip
+    _denied(
+        reader,
+        "INSERT INTO devices (serial, model, manufacturer, created_at) "
+        "VALUES ('x', 'm', 'n', now())",
+    )
     _denied(reader, "UPDATE runs SET operator = 'mallory'")
     _denied(reader, "DELETE FROM parameters")
     _denied(reader, "UPDATE alembic_version SET version_num = '0001'")
@@ -97,10 +100,16 @@ def test_sealed_rows_and_the_audit_chain_are_guarded(roles, tmp_path: Path) -> N
     _denied(writer, "UPDATE audit_events SET actor = 'mallory'")
     _denied(writer, "DELETE FROM audit_events")
     _denied(writer, "TRUNCATE audit_events")
-    _denied(writer, "INSERT INTO parameters (calibration_id, name, value, std, unit) "
-                    "VALUES (1, 'gyr.bias.z', 1.0, 0.1, 'rad/s')")  # fmt: skip
-    _denied(writer, "INSERT INTO check_results (calibration_id, name, passed, detail) "
-                    "VALUES (1, 'forged', true, '')")  # fmt: skip
+    _denied(
+        writer,
+        "INSERT INTO parameters (calibration_id, name, value, std, unit) "
+        "VALUES (1, 'gyr.bias.z', 1.0, 0.1, 'rad/s')",
+    )
+    _denied(
+        writer,
+        "INSERT INTO check_results (calibration_id, name, passed, detail) "
+        "VALUES (1, 'forged', true, '')",
+    )
     _denied(
         writer,
         "INSERT INTO raw_files (run_id, name, sha256, size, format, stored_path) "

@@ -46,17 +46,21 @@ def _linked_insert(conn, action: str = "archived", **fields: object) -> str:  # 
     INSERT of it."""
     seq, prev = seal.head(conn)
     ev = seal.Event(seq + 1, seal.utcnow(), "mallory", action, None, None, None, {}, None, prev)
-    return (f"INSERT INTO audit_events (seq, at, actor, action, detail, prev_hash, hash) VALUES "
-            f"({ev.seq}, '{ev.at.isoformat()}', 'mallory', '{action}', '{{}}', '{prev}', "
-            f"'{ev.hash()}')")  # fmt: skip
+    return (
+        f"INSERT INTO audit_events (seq, at, actor, action, detail, prev_hash, hash) VALUES "
+        f"({ev.seq}, '{ev.at.isoformat()}', 'mallory', '{action}', '{{}}', '{prev}', "
+        f"'{ev.hash()}')"
+    )
 
 
 def _through_function(  # noqa: ANN001 - conn: a Connection
     conn, *, seq_off: int = 1, at: str = "now()", action: str = "archived", prev: str | None = None
 ) -> str:
     seq, head = seal.head(conn)
-    return (f"SELECT calib_append_event({at}, 'mallory', '{action}', NULL, NULL, NULL, "
-            f"'{{}}'::json, NULL, '{prev or head}', repeat('7', 64), {seq + seq_off})")
+    return (
+        f"SELECT calib_append_event({at}, 'mallory', '{action}', NULL, NULL, NULL, "
+        f"'{{}}'::json, NULL, '{prev or head}', repeat('7', 64), {seq + seq_off})"
+    )
 
 
 def test_the_writer_appends_only_through_the_archive(roles, tmp_path: Path) -> None:  # noqa: ANN001
@@ -78,8 +82,11 @@ def test_the_writer_appends_only_through_the_archive(roles, tmp_path: Path) -> N
     # which revision is current: never back, never to another run's revision
     _denied(writer, "UPDATE calibrations SET superseded_by = NULL WHERE superseded_by IS NOT NULL")
     newest = "(SELECT max(id) FROM calibrations)"  # a revision of the other run
-    _denied(writer, f"UPDATE calibrations SET superseded_by = {newest} "
-                    f"WHERE superseded_by IS NULL AND id < {newest}")  # fmt: skip
+    _denied(
+        writer,
+        f"UPDATE calibrations SET superseded_by = {newest} "
+        f"WHERE superseded_by IS NULL AND id < {newest}",
+    )
     _denied(writer, "DELETE FROM unit_latest_values")
     _denied(writer, "DELETE FROM unit_latest")
     _denied(writer, "DELETE FROM audit_events")
@@ -99,8 +106,11 @@ def test_the_approver_signs_and_does_nothing_else(roles, tmp_path: Path) -> None
         direct = _linked_insert(conn, action="approved")
     _denied(approver, other)  # only approvals
     _denied(approver, direct)
-    _denied(approver, "INSERT INTO devices (serial, model, manufacturer, created_at) "
-                      "VALUES ('x', 'm', 'n', now())")  # fmt: skip
+    _denied(
+        approver,
+        "INSERT INTO devices (serial, model, manufacturer, created_at) "
+        "VALUES ('x', 'm', 'n', now())",
+    )
     _denied(approver, "UPDATE runs SET operator = 'mallory'")
     _denied(approver, "UPDATE calibrations SET superseded_by = NULL")
     _denied(approver, "DELETE FROM parameters")

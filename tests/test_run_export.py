@@ -152,8 +152,10 @@ def test_firmware_formula_reproduces_the_calibration(sample, tmp_path, fmt):
     text = result.data.decode()
     for family in ("acc.misalign", "gyr.misalign", "gyr.scale", "gyr.gsens"):
         assert any(family in w for w in result.warnings)
-        assert f"# WARNING: not exported (no {'PX4' if fmt == 'px4' else 'ArduPilot'} " \
-               f"parameter): {family}" in text  # fmt: skip
+        assert (
+            f"# WARNING: not exported (no {'PX4' if fmt == 'px4' else 'ArduPilot'} "
+            f"parameter): {family}" in text
+        )
 
 
 COEF = {  # SI per deg C^k around T_ref = 25 (as tests/test_exports.py)
@@ -224,8 +226,9 @@ def test_thermal_terms_reproduce_calib_apply(cal_temp):
 
 def test_non_bias_thermal_curves_are_reported():
     model = _model()
-    model.curves["acc.scale.x"] = ParameterCurve("acc.scale.x", np.array([0.01, 1e-4]),
-                                                 np.eye(2) * 1e-12, 1.0, 8)  # fmt: skip
+    model.curves["acc.scale.x"] = ParameterCurve(
+        "acc.scale.x", np.array([0.01, 1e-4]), np.eye(2) * 1e-12, 1.0, 8
+    )
     for build in (exports.px4_calibration_parameters, exports.ardupilot_calibration_parameters):
         _, notes = build(_golden_cal(), model=model, cal_temp=20.0)
         assert any("thermal curves of acc.scale.x" in n for n in notes), notes
@@ -276,8 +279,19 @@ def test_cli_exports_with_the_thermal_model(serve_sample, tmp_path):
     run_id = serve_sample.runs[THERMAL_SERIAL][2]  # the 20 deg C point of the campaign
     temp = queries.run_summary(serve_sample.archive, run_id)["environment"]["temperature_c"]
     out = tmp_path / "th.params"
-    res = _invoke(run_id[:8], "--archive", root, "--format", "px4", "-o", str(out),
-                  "--accel-id", str(ACC_ID), "--gyro-id", str(GYRO_ID))  # fmt: skip
+    res = _invoke(
+        run_id[:8],
+        "--archive",
+        root,
+        "--format",
+        "px4",
+        "-o",
+        str(out),
+        "--accel-id",
+        str(ACC_ID),
+        "--gyro-id",
+        str(GYRO_ID),
+    )
     assert res.exit_code == 0, res.output
     assert "warning: not exported" in res.stderr and f"wrote {out}" in res.stderr
     p = exports.read_px4_params(out)
@@ -302,8 +316,9 @@ def test_cli_exports_with_the_thermal_model(serve_sample, tmp_path):
     assert m["calibration_temperature_c"][0, 0] == temp
 
     doc = json.loads(_invoke(run_id, "--archive", root).stdout)  # json: the archive document
-    assert doc == json.loads(json.dumps(queries.export_calibration(serve_sample.archive, run_id),
-                                        default=str))  # fmt: skip
+    assert doc == json.loads(
+        json.dumps(queries.export_calibration(serve_sample.archive, run_id), default=str)
+    )
 
 
 def _write(path: Path, text: str) -> Path:

@@ -76,25 +76,36 @@ def test_fresh_archive_is_sealed_and_chained(archive: Archive, tmp_path: Path) -
     [
         ("UPDATE parameters SET value = value * 1.5 WHERE id = 1", "/value", None),
         ("UPDATE check_results SET passed = NOT passed WHERE id = 1", "/passed", None),
-        ("UPDATE calibrations SET verdict = 'pass-forged' WHERE id = 1",
-         "calibrations/verdict", '"pass-forged"'),
+        (
+            "UPDATE calibrations SET verdict = 'pass-forged' WHERE id = 1",
+            "calibrations/verdict",
+            '"pass-forged"',
+        ),
         ("DELETE FROM parameters WHERE id = 2", "parameters/", "(absent)"),
         ("DELETE FROM check_results WHERE id = 1", "check_results/", "(absent)"),
         ("DELETE FROM processing_steps WHERE id = 1", "processing_steps/0:", "(absent)"),
         ("UPDATE runs SET operator = 'Mallory' WHERE id = 1", "runs/operator", '"Mallory"'),
-        ("UPDATE runs SET manifest_text = 'forged' WHERE id = 1", "runs/manifest_text",
-         '"forged"'),
-        ("UPDATE calibrations SET settings = '{\"outlier_sigma\": 99}' WHERE id = 1",
-         "calibrations/settings/outlier_sigma", "99"),
-        ("UPDATE processing_steps SET statistics = '{\"n\": -1}' WHERE id = 1",
-         "processing_steps/0:", "-1"),
+        ("UPDATE runs SET manifest_text = 'forged' WHERE id = 1", "runs/manifest_text", '"forged"'),
+        (
+            "UPDATE calibrations SET settings = '{\"outlier_sigma\": 99}' WHERE id = 1",
+            "calibrations/settings/outlier_sigma",
+            "99",
+        ),
+        (
+            "UPDATE processing_steps SET statistics = '{\"n\": -1}' WHERE id = 1",
+            "processing_steps/0:",
+            "-1",
+        ),
         ("UPDATE devices SET model = 'Other' WHERE id = 1", "devices/model", '"Other"'),
         ("UPDATE runs SET model = 'Other' WHERE id = 1", "runs/model", '"Other"'),
         ("UPDATE runs SET specification = NULL WHERE id = 1", "runs/specification", "null"),
-        ("UPDATE run_equipment SET calibration_due = '2099-01-01' WHERE id = 1",
-         "run_equipment/rate_table:RT-7/calibration_due", '"2099-01-01"'),
+        (
+            "UPDATE run_equipment SET calibration_due = '2099-01-01' WHERE id = 1",
+            "run_equipment/rate_table:RT-7/calibration_due",
+            '"2099-01-01"',
+        ),
     ],
-)  # fmt: skip
+)
 def test_each_changed_value_is_named(
     archive: Archive, tmp_path: Path, sql: str, path_part: str, found: str | None
 ) -> None:
@@ -115,8 +126,11 @@ def test_the_calibration_document_edited_is_named(archive: Archive, tmp_path: Pa
     with behind_the_archive(archive) as conn:
         cal = conn.execute(select(CalibrationRow.id, CalibrationRow.document).limit(1)).one()
         doc = {**cal.document, "procedure": "forged"}
-        conn.execute(CalibrationRow.__table__.update().where(CalibrationRow.id == cal.id)
-                     .values(document=doc))  # fmt: skip
+        conn.execute(
+            CalibrationRow.__table__.update()
+            .where(CalibrationRow.id == cal.id)
+            .values(document=doc)
+        )
     paths = [p.path for p in _problems(archive, "record")]
     assert paths == ["calibrations/document/procedure"]
 
@@ -132,8 +146,11 @@ def test_a_protocol_file_edited_is_named(archive: Archive, tmp_path: Path) -> No
 
 def test_a_forged_row_in_an_archived_calibration_is_found(archive: Archive, tmp_path: Path) -> None:
     fill(archive, tmp_path)
-    _tamper(archive, "INSERT INTO parameters (calibration_id, name, value, std, unit) "
-                     "VALUES (1, 'gyr.bias.z', 1.0, 0.1, 'rad/s')")  # fmt: skip
+    _tamper(
+        archive,
+        "INSERT INTO parameters (calibration_id, name, value, std, unit) "
+        "VALUES (1, 'gyr.bias.z', 1.0, 0.1, 'rad/s')",
+    )
     paths = [p.path for p in _problems(archive, "record")]
     assert "parameters/gyr.bias.z" in paths, paths
 
@@ -146,15 +163,19 @@ def test_a_deleted_run_breaks_the_chain(archive: Archive, tmp_path: Path) -> Non
         for sql in (
             "DELETE FROM seals WHERE calibration_id IN (SELECT id FROM calibrations "
             "WHERE run_id = (SELECT id FROM runs WHERE run_id = :r))",
-            *(f"DELETE FROM {t} WHERE calibration_id IN (SELECT id FROM calibrations WHERE "
-              "run_id = (SELECT id FROM runs WHERE run_id = :r))"
-              for t in ("parameters", "check_results", "processing_steps")),
+            *(
+                f"DELETE FROM {t} WHERE calibration_id IN (SELECT id FROM calibrations WHERE "
+                "run_id = (SELECT id FROM runs WHERE run_id = :r))"
+                for t in ("parameters", "check_results", "processing_steps")
+            ),
             "DELETE FROM calibrations WHERE run_id = (SELECT id FROM runs WHERE run_id = :r)",
-            *(f"DELETE FROM {t} WHERE run_id = (SELECT id FROM runs WHERE run_id = :r)"
-              for t in ("raw_files", "run_equipment")),
+            *(
+                f"DELETE FROM {t} WHERE run_id = (SELECT id FROM runs WHERE run_id = :r)"
+                for t in ("raw_files", "run_equipment")
+            ),
             "DELETE FROM runs WHERE run_id = :r",
             "DELETE FROM audit_events WHERE run_id = :r",
-        ):  # fmt: skip
+        ):
             conn.execute(text(sql), {"r": victim})
     chain = _problems(archive, "chain")
     assert any("events 2..2 are missing" in p.detail for p in chain), chain
@@ -175,8 +196,10 @@ def test_an_edited_event_or_reordered_events_break_the_chain(
 ) -> None:
     fill(archive, tmp_path)
     _tamper(archive, "UPDATE audit_events SET actor = 'someone else' WHERE seq = 2")
-    assert any("event 2 (archived" in p.detail and "was changed" in p.detail
-               for p in _problems(archive, "chain"))  # fmt: skip
+    assert any(
+        "event 2 (archived" in p.detail and "was changed" in p.detail
+        for p in _problems(archive, "chain")
+    )
     _tamper(archive, "UPDATE audit_events SET seq = seq + 10 WHERE seq = 3")
     _tamper(archive, "UPDATE audit_events SET seq = 3 WHERE seq = 4")
     _tamper(archive, "UPDATE audit_events SET seq = 4 WHERE seq = 13")
@@ -193,10 +216,14 @@ def test_a_seal_rewritten_to_match_the_tamper_is_found(archive: Archive, tmp_pat
 
     with behind_the_archive(archive) as conn:
         rec = records(conn, [1])[1]
-        rec["files"] = conn.execute(select(Seal.record).where(Seal.calibration_id == 1)
-                                    ).scalar_one()["files"]  # fmt: skip
-        conn.execute(Seal.__table__.update().where(Seal.calibration_id == 1)
-                     .values(record=json.loads(canonical(rec)), digest=digest_of(rec)))  # fmt: skip
+        rec["files"] = conn.execute(
+            select(Seal.record).where(Seal.calibration_id == 1)
+        ).scalar_one()["files"]
+        conn.execute(
+            Seal.__table__.update()
+            .where(Seal.calibration_id == 1)
+            .values(record=json.loads(canonical(rec)), digest=digest_of(rec))
+        )
     chain = _problems(archive, "chain")
     assert any("the seal of" in p.detail and "was changed" in p.detail for p in chain), chain
 
@@ -213,16 +240,20 @@ def test_migration_seals_an_existing_archive(archive: Archive, tmp_path: Path) -
         actors = set(conn.execute(select(AuditEvent.actor)).scalars())
     assert actors == {"migration 0004"}
     _tamper(archive, "UPDATE parameters SET std = 0.5 WHERE id = 3")
-    assert [p.path.rsplit("/", 1)[1] for p in _problems(archive, "record")
-            if "sealed" in p.detail] == ["std"]  # fmt: skip
+    assert [
+        p.path.rsplit("/", 1)[1] for p in _problems(archive, "record") if "sealed" in p.detail
+    ] == ["std"]
 
 
 def test_each_run_keeps_its_own_description_sealed(archive: Archive, tmp_path: Path) -> None:
     """A later run of serial 0012 that names another model keeps that model; so does the
     first; both descriptions are sealed and a change of either is named."""
     ids = fill(archive, tmp_path)
-    other = replace(make_run(tmp_path / "relabelled", serial="0012", seed=9),
-                    device_model="ICM-20602", manufacturer="TDK")  # fmt: skip
+    other = replace(
+        make_run(tmp_path / "relabelled", serial="0012", seed=9),
+        device_model="ICM-20602",
+        manufacturer="TDK",
+    )
     later = archive_run(archive, other, {"protocol.txt": b"run 9"}).run_id
     assert verify(archive, orphans=False).ok
     for run_id, model, maker in ((ids[0], "MPU-6000", "InvenSense"), (later, "ICM-20602", "TDK")):
@@ -255,8 +286,11 @@ def test_seals_of_format_1_still_verify_and_name_a_change(
     assert verify(archive, orphans=False).ok
     with behind_the_archive(archive) as conn:
         cal = conn.execute(select(CalibrationRow.id, CalibrationRow.document).limit(1)).one()
-        conn.execute(CalibrationRow.__table__.update().where(CalibrationRow.id == cal.id)
-                     .values(document={**cal.document, "procedure": "forged"}))  # fmt: skip
+        conn.execute(
+            CalibrationRow.__table__.update()
+            .where(CalibrationRow.id == cal.id)
+            .values(document={**cal.document, "procedure": "forged"})
+        )
     assert [p.path for p in _problems(archive)] == ["calibrations/document/procedure"]
 
 
@@ -266,10 +300,15 @@ def test_a_json_column_rewritten_as_equal_json_is_found(archive: Archive, tmp_pa
     fill(archive, tmp_path)
     assert set(_sealed_formats(archive)) == {2}
     with behind_the_archive(archive) as conn:
-        cast_ = "CAST(' ' || CAST(settings AS TEXT) AS JSON)" if conn.dialect.name == \
-            "postgresql" else "' ' || settings"  # fmt: skip
-        assert conn.execute(text(f"UPDATE calibrations SET settings = {cast_} WHERE id = 1")
-                            ).rowcount == 1  # fmt: skip
+        cast_ = (
+            "CAST(' ' || CAST(settings AS TEXT) AS JSON)"
+            if conn.dialect.name == "postgresql"
+            else "' ' || settings"
+        )
+        assert (
+            conn.execute(text(f"UPDATE calibrations SET settings = {cast_} WHERE id = 1")).rowcount
+            == 1
+        )
     found = _problems(archive)
     assert [p.path for p in found] == ["calibrations/settings"], found
     assert found[0].detail.count('"sha256:') == 2, found[0].detail

@@ -188,9 +188,14 @@ def test_recording_window_is_a_view_when_contiguous():
     rec = Recording(t, np.arange(3 * n, dtype=float).reshape(n, 3), np.ones((n, 3)), t + 20.0)
     part = rec.window(2.0, 3.0, label="x_up")
     assert part.label == "x_up" and np.array_equal(part.t, t[20:30])
-    assert all(np.shares_memory(a, b) for a, b in zip(
-        (part.t, part.acc, part.gyr, part.temp), (rec.t, rec.acc, rec.gyr, rec.temp), strict=True
-    ))  # fmt: skip
+    assert all(
+        np.shares_memory(a, b)
+        for a, b in zip(
+            (part.t, part.acc, part.gyr, part.temp),
+            (rec.t, rec.acc, rec.gyr, rec.temp),
+            strict=True,
+        )
+    )
     assert len(rec.window(50.0, 60.0)) == 0
     twice = Recording(np.concatenate([t[:50], t[:50]]), rec.acc, rec.gyr)  # a clock restart
     both = twice.window(2.0, 3.0)
@@ -208,9 +213,21 @@ def test_recording_window_by_bisection_picks_the_same_samples():
     assert rec.strictly_increasing()
     assert not Recording(t[::-1].copy(), rec.acc, rec.gyr).strictly_increasing()
     inf, nan = float("inf"), float("nan")
-    bounds = [(-inf, inf), (-inf, t[10]), (t[10], inf), (t[10], t[20]), (t[10] + 0.1, t[20] - 0.1),
-              (t[20], t[10]), (t[5], t[5]), (t[-1], inf), (t[-1] + 1, inf), (-inf, t[0]),
-              (-5.0, t[0] + 1e-9), (nan, t[20]), (t[10], nan)]  # fmt: skip
+    bounds = [
+        (-inf, inf),
+        (-inf, t[10]),
+        (t[10], inf),
+        (t[10], t[20]),
+        (t[10] + 0.1, t[20] - 0.1),
+        (t[20], t[10]),
+        (t[5], t[5]),
+        (t[-1], inf),
+        (t[-1] + 1, inf),
+        (-inf, t[0]),
+        (-5.0, t[0] + 1e-9),
+        (nan, t[20]),
+        (t[10], nan),
+    ]
     bounds += [tuple(sorted(rng.uniform(t[0] - 5, t[-1] + 5, 2))) for _ in range(200)]
     for start, end in bounds:
         fast, full = rec.window(start, end, increasing=True), rec.window(start, end)

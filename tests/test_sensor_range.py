@@ -64,8 +64,9 @@ def test_the_same_turn_slower_loads_and_solves(tmp_path: Path):
     (source,) = discover_runs([tmp_path])
     run = load_run(source)
     assert run.manifest.run.settings["gyro_range_dps"] == 250.0
-    cal = procedures.solve("six_position_integral", run.segments, run.manifest.gravity(),
-                           run.manifest.run.settings)  # fmt: skip
+    cal = procedures.solve(
+        "six_position_integral", run.segments, run.manifest.gravity(), run.manifest.run.settings
+    )
     p = cal.parameters["gyr.scale.x"]
     assert abs(p.value - TRUE_SCALE_X) < 5 * p.std
 

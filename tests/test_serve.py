@@ -108,8 +108,10 @@ def test_runs_list_filters_sort_and_pages(client, serve_sample):
     assert rows(get(client, "/runs?from=2025-01-01&to=2025-12-31"), "runs") == 3
     df = queries.units(serve_sample.archive, verdict="fail")
     assert rows(get(client, "/runs?verdict=fail"), "runs") == len(df) > 0
-    assert rows(get(client, "/runs?model=MPU-6000&procedure=six_position_integral"), "runs") \
-        == total - 1  # fmt: skip
+    assert (
+        rows(get(client, "/runs?model=MPU-6000&procedure=six_position_integral"), "runs")
+        == total - 1
+    )
     # Sorted by serial, ascending: the serials in the order the database sorts them.
     page = get(client, "/runs?sort=serial&order=asc&per_page=200")
     serials = [s for s in sorted(runs) for _ in runs[s]]
@@ -161,8 +163,14 @@ def test_hostile_serial_in_a_request_is_shown_as_text(client):
 
 def test_hostile_archived_strings_are_escaped_everywhere(client, serve_sample):
     (run_id,) = serve_sample.runs[EVIL_SERIAL]
-    urls = [f"/runs/{run_id}", "/runs", f"/units/{EVIL_SERIAL}", "/models", "/equipment",
-            f"/runs/{run_id}/lineage/acc.bias.x"]  # fmt: skip
+    urls = [
+        f"/runs/{run_id}",
+        "/runs",
+        f"/units/{EVIL_SERIAL}",
+        "/models",
+        "/equipment",
+        f"/runs/{run_id}/lineage/acc.bias.x",
+    ]
     urls.append("/fleet?" + httpx.QueryParams(model=HOSTILE_MODEL).__str__())
     urls.append("/equipment/item?" + str(httpx.QueryParams(kind="daq", serial=HOSTILE_EQUIPMENT)))
     for url in urls:
@@ -211,8 +219,12 @@ def test_run_page_marks_model_checks_for_review(client, serve_sample):
     assert model, "the pipeline archives its model checks with the run"
     for c in model:
         badge = "needs review" if not c["passed"] else "pass"
-        assert re.search(rf'{re.escape(c["name"])}</td>.*?<span class="badge '
-                         rf'{badge.replace(" ", "-")}">{badge}</span>', html, re.S), c["name"]
+        assert re.search(
+            rf'{re.escape(c["name"])}</td>.*?<span class="badge '
+            rf'{badge.replace(" ", "-")}">{badge}</span>',
+            html,
+            re.S,
+        ), c["name"]
 
 
 def test_lineage_page_traces_the_value_to_raw_bytes(client, serve_sample):
@@ -239,8 +251,9 @@ def test_downloads_are_the_archived_bytes_and_documents(client, serve_sample):
         assert hashlib.sha256(r.content).hexdigest() == f["sha256"]
     assert client.get(f"/runs/{run_id}/raw/..%2F..%2Farchive.sqlite").status_code == 404
     r = client.get(f"/runs/{run_id}/export.json")
-    assert json.loads(r.content) == json.loads(json.dumps(
-        queries.export_calibration(serve_sample.archive, run_id), default=str))  # fmt: skip
+    assert json.loads(r.content) == json.loads(
+        json.dumps(queries.export_calibration(serve_sample.archive, run_id), default=str)
+    )
     assert "attachment" in r.headers["content-disposition"]
     r = client.get(f"/runs/{run_id}/protocol.txt")
     assert r.status_code == 200 and DRIFT_SERIAL in r.text
@@ -391,8 +404,9 @@ def start_server(archive_root: Path) -> tuple[subprocess.Popen, str]:
     code = "from pipelines.cli import app; app()"
     proc = subprocess.Popen(
         [sys.executable, "-c", code, "serve", "--archive", str(archive_root), "--port", str(port)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
     base = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
@@ -441,14 +455,23 @@ def test_postgresql_is_browsed_as_the_read_only_role(postgres_url, tmp_path):
         assert conn.execute(text("SELECT current_user")).scalar_one() == READER
     assert_fleet_pages_agree(ro, "MPU-6000")  # PostgreSQL's LATERAL picks
     with TestClient(create_app(ro)) as c:
-        for url in ["/runs", f"/runs/{run_ids[0]}", f"/runs/{run_ids[0]}/lineage/acc.bias.x",
-                    "/units/MPU0001", "/fleet?model=MPU-6000", "/equipment", "/models",
-                    "/verify", *(f"/runs/{run_ids[0]}/export.{f}" for f in ("json", "px4", "mat"))
-                    ]:  # fmt: skip
+        for url in [
+            "/runs",
+            f"/runs/{run_ids[0]}",
+            f"/runs/{run_ids[0]}/lineage/acc.bias.x",
+            "/units/MPU0001",
+            "/fleet?model=MPU-6000",
+            "/equipment",
+            "/models",
+            "/verify",
+            *(f"/runs/{run_ids[0]}/export.{f}" for f in ("json", "px4", "mat")),
+        ]:
             assert c.get(url).status_code == 200, url
         assert rows(get(c, "/runs?serial=MPU0001"), "runs") == 1
-    with pytest.raises(Exception, match="read-only transaction|permission denied"), \
-            ro.engine().begin() as conn:  # fmt: skip
+    with (
+        pytest.raises(Exception, match="read-only transaction|permission denied"),
+        ro.engine().begin() as conn,
+    ):
         conn.execute(text("DELETE FROM check_results"))
     ro.dispose()
     as_writer = make_url(postgres_url).set(username=WRITER).render_as_string(hide_password=False)
@@ -467,8 +490,7 @@ def assert_fleet_pages_agree(archive, model: str) -> None:  # noqa: ANN001 - an 
     archived of equal starts) and storage.queries.fleet (values nearest 20 deg C)."""
     from calib_core import params
 
-    runs = queries.units(archive, model=model).sort_values(["started_at", "run_id"],
-                                                           kind="stable")  # fmt: skip
+    runs = queries.units(archive, model=model).sort_values(["started_at", "run_id"], kind="stable")
     latest = runs.groupby("serial").tail(1)
     fleet = queries.fleet_units(archive, model, failing_max=2)
     want = latest["verdict"].value_counts().to_dict()
@@ -484,10 +506,15 @@ def assert_fleet_pages_agree(archive, model: str) -> None:  # noqa: ANN001 - an 
         queries.fleet_lineage(archive, mine)
         theirs = queries.fleet(archive, model, name)
         dist = (theirs["temperature_c"].fillna(20.0) - 20.0).abs()
-        one = theirs.assign(d=dist).sort_values(["serial", "d", "temperature_c"]).groupby(
-            "serial").head(1)  # fmt: skip
+        one = (
+            theirs.assign(d=dist)
+            .sort_values(["serial", "d", "temperature_c"])
+            .groupby("serial")
+            .head(1)
+        )
         assert [(r["serial"], r["run_id"], r["value"]) for r in mine] == list(
-            zip(one["serial"], one["run_id"], one["value"], strict=True)), name  # fmt: skip
+            zip(one["serial"], one["run_id"], one["value"], strict=True)
+        ), name
 
 
 def test_browse_fleet_equals_the_archive_queries(serve_sample):

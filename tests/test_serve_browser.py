@@ -172,8 +172,9 @@ def test_hostile_strings_render_as_text(page, server, serve_sample, shots):
 
 
 def test_pages_work_without_javascript(browser, server, serve_sample, shots):
-    context = browser.new_context(java_script_enabled=False,
-                                  viewport={"width": 1280, "height": 900})  # fmt: skip
+    context = browser.new_context(
+        java_script_enabled=False, viewport={"width": 1280, "height": 900}
+    )
     pg = context.new_page()
     pg.goto(f"{server}/runs?per_page=10")
     pg.click("a[rel=next]")  # paging is plain links

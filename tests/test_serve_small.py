@@ -53,8 +53,10 @@ def test_serving_is_said_once_connections_are_accepted(archive) -> None:
     code = "from pipelines.cli import app; app()"
     proc = subprocess.Popen(
         [sys.executable, "-c", code, "serve", "--archive", str(archive.root), "--port", str(port)],
-        stderr=subprocess.PIPE, text=True, env=env,
-    )  # fmt: skip
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         line = proc.stderr.readline()  # blocks until the server says something
         assert line.startswith("serving "), line

@@ -24,8 +24,12 @@ BAND = 3.0 * math.sqrt(0.95 * 0.05 / SEEDS)
 
 def _draw(rng: np.random.Generator, tables: list[str]) -> np.ndarray:
     offset = {name: rng.normal(0.0, U_B) for name in sorted(set(tables))}
-    return (0.01 + SLOPE * T_DAYS + np.array([offset[n] for n in tables])
-            + rng.normal(0.0, U_A, T_DAYS.size))  # fmt: skip
+    return (
+        0.01
+        + SLOPE * T_DAYS
+        + np.array([offset[n] for n in tables])
+        + rng.normal(0.0, U_A, T_DAYS.size)
+    )
 
 
 def test_shared_reference_slope_intervals_cover_95_percent():
@@ -66,11 +70,21 @@ def test_shared_covariance_blocks():
 
 
 def _profile() -> ToleranceProfile:
-    return ToleranceProfile.from_dict({
-        "name": "t", "version": "1", "device_model": "test", "limits": [],
-        "repeatability": {"cv_max": 0.01, "alpha": 0.05, "min_runs": 3, "max_runs": 6,
-                          "temperature_tol_c": 2.0},
-    })  # fmt: skip
+    return ToleranceProfile.from_dict(
+        {
+            "name": "t",
+            "version": "1",
+            "device_model": "test",
+            "limits": [],
+            "repeatability": {
+                "cv_max": 0.01,
+                "alpha": 0.05,
+                "min_runs": 3,
+                "max_runs": 6,
+                "temperature_tol_c": 2.0,
+            },
+        }
+    )
 
 
 def test_repeatability_scatter_with_shared_references():
@@ -83,10 +97,13 @@ def test_repeatability_scatter_with_shared_references():
     n = 400
     for _ in range(n):
         y = _draw(rng, TABLES) - SLOPE * T_DAYS  # repeatable: no drift
-        shared = [RunValues(f"r{i}", 20.0, {"gyr.bias.x": (float(v), U_A)},
-                            {"gyr.bias.x": (TABLES[i], U_B)}) for i, v in enumerate(y)]  # fmt: skip
-        alone = [RunValues(f"r{i}", 20.0, {"gyr.bias.x": (float(v), U_A)})
-                 for i, v in enumerate(y)]  # fmt: skip
+        shared = [
+            RunValues(
+                f"r{i}", 20.0, {"gyr.bias.x": (float(v), U_A)}, {"gyr.bias.x": (TABLES[i], U_B)}
+            )
+            for i, v in enumerate(y)
+        ]
+        alone = [RunValues(f"r{i}", 20.0, {"gyr.bias.x": (float(v), U_A)}) for i, v in enumerate(y)]
         alarms_shared += not repeatability(shared, profile)[0].passed
         alarms_type_a += not repeatability(alone, profile)[0].passed
     # alpha = 0.05 over 400 repeatable units: 3 binomial std = 0.033
@@ -98,14 +115,40 @@ def test_repeatability_scatter_with_shared_references():
 
 
 def _budget(name: str, value: float) -> dict:
-    rows = [{"source": "noise", "kind": "A", "distribution": "normal", "std_input": U_A,
-             "sensitivity": 1.0, "contribution": U_A, "dof": 10.0, "unit": "rad/s"},
-            {"source": "table rate", "kind": "B", "distribution": "rectangular",
-             "std_input": U_B, "sensitivity": 1.0, "contribution": U_B, "dof": None,
-             "unit": "rad/s"}]  # fmt: skip
+    rows = [
+        {
+            "source": "noise",
+            "kind": "A",
+            "distribution": "normal",
+            "std_input": U_A,
+            "sensitivity": 1.0,
+            "contribution": U_A,
+            "dof": 10.0,
+            "unit": "rad/s",
+        },
+        {
+            "source": "table rate",
+            "kind": "B",
+            "distribution": "rectangular",
+            "std_input": U_B,
+            "sensitivity": 1.0,
+            "contribution": U_B,
+            "dof": None,
+            "unit": "rad/s",
+        },
+    ]
     uc = math.hypot(U_A, U_B)
-    return {"parameter": name, "value": value, "unit": "rad/s", "rows": rows, "uc": uc,
-            "nu_eff": None, "k": 2.0, "U": 2 * uc, "coverage": 0.95}  # fmt: skip
+    return {
+        "parameter": name,
+        "value": value,
+        "unit": "rad/s",
+        "rows": rows,
+        "uc": uc,
+        "nu_eff": None,
+        "k": 2.0,
+        "U": 2 * uc,
+        "coverage": 0.95,
+    }
 
 
 def _archive_runs(arch, root, y) -> None:
@@ -122,23 +165,47 @@ def _archive_runs(arch, root, y) -> None:
         raw.write_text(f"U-SH {k}\n")
         digest = hashlib.sha256(raw.read_bytes()).hexdigest()
         name = "gyr.bias.x"
-        archive_run(arch, RunIn(
-            serial="U-SH", device_model="SIM-IMU", manufacturer="sim", specification=None,
-            started_at=start + timedelta(days=float(day)), operator="test",
-            procedure="rate_table", site={}, gravity=9.80665,
-            environment={"temperature_c": 20.0},
-            equipment=[{"kind": "rate_table", "model": "T", "serial": table,
-                        "calibration_due": "2030-01-01"}],
-            manifest_text=None, tolerance_profile="mpu6000",
-            raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
-            settings={}, software_version="test", source_revision=None,
-            steps=[StepRecord("uncertainty", {},
-                              {"budgets": {name: _budget(name, float(value))}}, "test")],
-            calibration={"parameters": {}},
-            parameters=[Parameter(name, float(value), U_A, "rad/s")],
-            parameter_temperature_c=20.0,
-            checks=[], verdict="pass", profile_name="mpu6000", profile_version="3",
-        ))  # fmt: skip
+        archive_run(
+            arch,
+            RunIn(
+                serial="U-SH",
+                device_model="SIM-IMU",
+                manufacturer="sim",
+                specification=None,
+                started_at=start + timedelta(days=float(day)),
+                operator="test",
+                procedure="rate_table",
+                site={},
+                gravity=9.80665,
+                environment={"temperature_c": 20.0},
+                equipment=[
+                    {
+                        "kind": "rate_table",
+                        "model": "T",
+                        "serial": table,
+                        "calibration_due": "2030-01-01",
+                    }
+                ],
+                manifest_text=None,
+                tolerance_profile="mpu6000",
+                raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
+                settings={},
+                software_version="test",
+                source_revision=None,
+                steps=[
+                    StepRecord(
+                        "uncertainty", {}, {"budgets": {name: _budget(name, float(value))}}, "test"
+                    )
+                ],
+                calibration={"parameters": {}},
+                parameters=[Parameter(name, float(value), U_A, "rad/s")],
+                parameter_temperature_c=20.0,
+                checks=[],
+                verdict="pass",
+                profile_name="mpu6000",
+                profile_version="3",
+            ),
+        )
 
 
 @pytest.fixture(scope="module")

@@ -30,8 +30,13 @@ def test_make_demo_installs_only_what_it_runs_and_says_what_it_does(tmp_path: Pa
     make = shutil.which("make")
     if make is None:
         pytest.skip("make is not installed")
-    done = subprocess.run([make, "-n", "-B", "demo", f"VENV={tmp_path / 'venv'}"], cwd=ROOT,
-                          capture_output=True, text=True, check=True)  # fmt: skip
+    done = subprocess.run(
+        [make, "-n", "-B", "demo", f"VENV={tmp_path / 'venv'}"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     lines = done.stdout.splitlines()
     installs = [line for line in lines if "pip install" in line and "--upgrade pip" not in line]
     assert installs and all(line.rstrip().endswith("-e .") for line in installs), installs
@@ -129,13 +134,26 @@ def test_chart_labels_never_overprint() -> None:
 
     from pipelines.web import svg
 
-    points = [svg.TrendPoint(datetime(2026, m, 1, tzinfo=UTC), 0.01 * m, 0.001, f"p{m}", "#", False)
-              for m in (1, 4, 7, 10)]  # fmt: skip
-    chart = str(svg.trend_chart(points, title="acc.bias.x of A-LONG-SERIAL-NAME (4 of 4 runs, "
-                                "all at 20 deg C) " + "x" * 40, unit="m/s^2",
-                                limits=(0.049, 0.0505)))  # fmt: skip
-    ys = sorted(float(y) for y in re.findall(r'<text x="[^"]+" y="([^"]+)"[^>]*class="'
-                                               r'(?:title|tick limit-text)"', chart))  # fmt: skip
+    points = [
+        svg.TrendPoint(datetime(2026, m, 1, tzinfo=UTC), 0.01 * m, 0.001, f"p{m}", "#", False)
+        for m in (1, 4, 7, 10)
+    ]
+    chart = str(
+        svg.trend_chart(
+            points,
+            title="acc.bias.x of A-LONG-SERIAL-NAME (4 of 4 runs, all at 20 deg C) " + "x" * 40,
+            unit="m/s^2",
+            limits=(0.049, 0.0505),
+        )
+    )
+    ys = sorted(
+        float(y)
+        for y in re.findall(
+            r'<text x="[^"]+" y="([^"]+)"[^>]*class="'
+            r'(?:title|tick limit-text)"',
+            chart,
+        )
+    )
     assert len(ys) >= 3, chart
     assert all(b - a >= svg.LABEL_GAP for a, b in zip(ys, ys[1:], strict=False)), ys
     far = str(svg.trend_chart(points, title="t" * 120, unit="m/s^2", limits=(-50.0, 50.0)))

@@ -82,9 +82,12 @@ def test_noise_std_and_parameters_white():
     ratios = []
     for seed in range(20, 28):
         other = simulate_static(
-            HOUR, RATE, gyro_bias=TRUE_BIAS, gyro_noise=NoiseSpec(arw=arw),
+            HOUR,
+            RATE,
+            gyro_bias=TRUE_BIAS,
+            gyro_noise=NoiseSpec(arw=arw),
             rng=np.random.default_rng(seed),
-        )  # fmt: skip
+        )
         c = solve_static_bias(other)
         ratios += [c.parameters[f"gyr.bias.{a}"].std / (sigma / math.sqrt(n)) for a in "xyz"]
     assert 0.95 < np.mean(ratios) < 2.0, ratios
@@ -100,9 +103,14 @@ def test_earth_rate_removed_for_fog_grade(heading):
     arw = 0.001 * DEG / 60.0
     lat = 48.1
     rec = simulate_static(
-        HOUR, RATE, gyro_bias=np.array([1e-6, -2e-6, 3e-6]), gyro_noise=NoiseSpec(arw=arw),
-        latitude_deg=lat, heading_deg=heading, rng=np.random.default_rng(7),
-    )  # fmt: skip
+        HOUR,
+        RATE,
+        gyro_bias=np.array([1e-6, -2e-6, 3e-6]),
+        gyro_noise=NoiseSpec(arw=arw),
+        latitude_deg=lat,
+        heading_deg=heading,
+        rng=np.random.default_rng(7),
+    )
     truth = np.array([1e-6, -2e-6, 3e-6])
     cal = solve_static_bias(rec, latitude_deg=lat, heading_deg=heading, remove_earth_rate=True)
     u = np.array([cal.parameters[f"gyr.bias.{a}"].std for a in "xyz"])
@@ -129,10 +137,17 @@ def test_outliers_rejected_and_acc_bias_with_orientation():
     sigma = arw * math.sqrt(RATE)
     acc_bias = np.array([0.05, -0.03, 0.02])
     rec = simulate_static(
-        HOUR, RATE, gyro_bias=TRUE_BIAS, gyro_noise=NoiseSpec(arw=arw), acc_bias=acc_bias,
-        acc_noise=NoiseSpec(arw=1e-3), up_axis="-y", outliers=50, outlier_size=50 * sigma,
+        HOUR,
+        RATE,
+        gyro_bias=TRUE_BIAS,
+        gyro_noise=NoiseSpec(arw=arw),
+        acc_bias=acc_bias,
+        acc_noise=NoiseSpec(arw=1e-3),
+        up_axis="-y",
+        outliers=50,
+        outlier_size=50 * sigma,
         rng=np.random.default_rng(9),
-    )  # fmt: skip
+    )
     cal = solve_static_bias(rec, up_axis="-y")
     n = len(rec)
     # 50 spikes + the Gaussian tail beyond 3 sigma (0.27 % of n, binomial +- 4 std)

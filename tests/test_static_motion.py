@@ -31,8 +31,9 @@ ACC = NoiseSpec(arw=0.002)  # m/s^2/sqrt(Hz)
 
 def _still(seed: int, duration_s: float = 120.0) -> Recording:
     rng = np.random.default_rng(seed)
-    return simulate_static(duration_s, 100.0, gyro_bias=np.full(3, 0.01), gyro_noise=GYRO,
-                           acc_noise=ACC, rng=rng)  # fmt: skip
+    return simulate_static(
+        duration_s, 100.0, gyro_bias=np.full(3, 0.01), gyro_noise=GYRO, acc_noise=ACC, rng=rng
+    )
 
 
 def _vibrating(rec: Recording, seed: int, gyro_std: float = 0.052) -> Recording:
@@ -67,8 +68,11 @@ def test_low_passed_still_records_pass_and_a_low_passed_vehicle_fails():
     sos = signal.butter(4, 5.0, fs=100.0, output="sos")
 
     def low_passed(rec: Recording) -> Recording:
-        return dataclasses.replace(rec, gyr=signal.sosfiltfilt(sos, rec.gyr, axis=0),
-                                   acc=signal.sosfiltfilt(sos, rec.acc, axis=0))  # fmt: skip
+        return dataclasses.replace(
+            rec,
+            gyr=signal.sosfiltfilt(sos, rec.gyr, axis=0),
+            acc=signal.sosfiltfilt(sos, rec.acc, axis=0),
+        )
 
     for seed in range(10):
         assert motion_check("still", low_passed(_still(200 + seed)))["passed"]
@@ -108,8 +112,9 @@ def test_a_moving_face_of_a_six_position_run_fails_only_its_own_check():
     segments = dict(run.segments)
     segments["x_up"] = _vibrating(segments["x_up"], 9, gyro_std=0.02)
     cal = solve("six_position_integral", segments, run.gravity, {})
-    motion = {c["name"]: c["passed"] for c in cal.info["solver_checks"]
-              if c["name"].startswith("motion:")}  # fmt: skip
+    motion = {
+        c["name"]: c["passed"] for c in cal.info["solver_checks"] if c["name"].startswith("motion:")
+    }
     assert set(motion) == {f"motion:{a}_{s}" for a in "xyz" for s in ("up", "dn")}
     assert [name for name, ok in motion.items() if not ok] == ["motion:x_up"]
 

@@ -71,8 +71,9 @@ def test_a_folder_of_another_archive_is_not_taken_over(
     # An archive from before stores were recorded, named with a folder holding none of its
     # runs: refused too (the record is removed as by an older calib that never made one).
     with behind_the_archive(first) as conn:
-        conn.execute(text("UPDATE audit_events SET detail = '{}' "
-                          "WHERE detail ->> 'file_store' IS NOT NULL"))
+        conn.execute(
+            text("UPDATE audit_events SET detail = '{}' WHERE detail ->> 'file_store' IS NOT NULL")
+        )
     empty = tmp_path / "empty"
     empty.mkdir()
     other = Archive(postgres_url, empty)
@@ -93,13 +94,15 @@ def test_the_cli_names_both_folders(
     samples = Path(__file__).resolve().parent.parent / "data_samples"
     runner = CliRunner()
     monkeypatch.setenv("CALIB_FILESTORE", str(tmp_path / "home"))
-    res = runner.invoke(app, ["process", str(samples / "mpu6000_MPU0001"),
-                              "--archive", postgres_url])  # fmt: skip
+    res = runner.invoke(
+        app, ["process", str(samples / "mpu6000_MPU0001"), "--archive", postgres_url]
+    )
     assert res.exit_code == 0, res.output
     monkeypatch.delenv("CALIB_FILESTORE")
     monkeypatch.chdir(tmp_path)  # ./calib-archive of another folder
-    res = runner.invoke(app, ["process", str(samples / "csv_IMU-2026-0042"),
-                              "--archive", postgres_url])  # fmt: skip
+    res = runner.invoke(
+        app, ["process", str(samples / "csv_IMU-2026-0042"), "--archive", postgres_url]
+    )
     assert res.exit_code != 0
     said = " ".join(res.output.split())
     assert str(tmp_path / "home") in said and str(tmp_path / "calib-archive") in said, said

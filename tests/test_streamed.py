@@ -107,8 +107,13 @@ def test_streamed_static_bias_same_parameters_as_in_memory():
     """One record through both paths: every parameter, its uncertainty and the noise
     terms the same to rounding (outliers included, so the clip and fill are exercised)."""
     spec = NoiseSpec(arw=2e-3, bias_instability=2e-4, rrw=1e-4)
-    rec = simulate_static(600.0, RATE, gyro_bias=np.array([0.02, -0.01, 0.005]),
-                          gyro_noise=spec, rng=np.random.default_rng(5))  # fmt: skip
+    rec = simulate_static(
+        600.0,
+        RATE,
+        gyro_bias=np.array([0.02, -0.01, 0.005]),
+        gyro_noise=spec,
+        rng=np.random.default_rng(5),
+    )
     rec.gyr[1000:1003, 0] += 1.0
     settings = {"up_axis": "+z", "n_sigma": 3.0}
     ref = solve_static_bias(rec, **settings)
@@ -117,16 +122,18 @@ def test_streamed_static_bias_same_parameters_as_in_memory():
         for i in range(0, len(rec), 4096):
             yield rec.t[i : i + 4096], rec.gyr[i : i + 4096], rec.acc[i : i + 4096]
 
-    got = solve_static_bias_stream(chunks, label=rec.label or "record", memory_rows=5000,
-                                   **settings)  # fmt: skip
+    got = solve_static_bias_stream(
+        chunks, label=rec.label or "record", memory_rows=5000, **settings
+    )
     assert set(got.parameters) == set(ref.parameters)
     for name, p in ref.parameters.items():
         q = got.parameters[name]
         assert math.isclose(q.value, p.value, rel_tol=REL, abs_tol=1e-15), name
         assert math.isclose(q.std or 0.0, p.std or 0.0, rel_tol=1e-6, abs_tol=1e-15), name
     for sensor in ("gyr", "acc"):
-        for a, b in zip(got.info["noise_parameters"][sensor],
-                        ref.info["noise_parameters"][sensor], strict=True):  # fmt: skip
+        for a, b in zip(
+            got.info["noise_parameters"][sensor], ref.info["noise_parameters"][sensor], strict=True
+        ):
             for term in ("arw", "bias_instability", "rrw"):
                 assert (a[term] is None) == (b[term] is None)
                 if b[term] is not None:

@@ -186,8 +186,13 @@ def test_correct_matches_the_calibration_inverse_at_one_temperature(campaigns):
 
 def test_directions_from_the_run_sequence():
     assert directions_from_sequence([-10, 0, 20, 40, 20, 0]) == [
-        HEATING, HEATING, HEATING, HEATING, COOLING, COOLING,
-    ]  # fmt: skip
+        HEATING,
+        HEATING,
+        HEATING,
+        HEATING,
+        COOLING,
+        COOLING,
+    ]
     assert directions_from_sequence([60, 60.2, 40, 20]) == [COOLING] * 4
 
 

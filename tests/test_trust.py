@@ -60,8 +60,11 @@ def keys(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Path]:
     monkeypatch.delenv("CALIB_APPROVERS", raising=False)
     jane = _key(tmp_path / "jane", "jane.key", JANE)
     mallory = _key(tmp_path / "mallory", "forged.key", JANE)  # the same name, another key
-    return {"jane": jane, "forged": mallory,
-            "approvers": _approvers(tmp_path, jane.with_name("jane.key.pub"))}  # fmt: skip
+    return {
+        "jane": jane,
+        "forged": mallory,
+        "approvers": _approvers(tmp_path, jane.with_name("jane.key.pub")),
+    }
 
 
 def test_a_forged_approval_is_flagged_and_a_trusted_one_verifies(
@@ -81,8 +84,9 @@ def test_a_forged_approval_is_flagged_and_a_trusted_one_verifies(
     assert verify(archive, orphans=False).ok  # without the approvers file nothing tells
     res = cli(archive, "verify", "--no-orphans", monkeypatch=monkeypatch)
     assert res.exit_code == 0 and "not checked against a list of trusted approvers" in res.stderr
-    forged_fp = fingerprint(json.loads(keys["forged"].with_name("forged.key.pub").read_text())
-                            ["public_key"])  # fmt: skip
+    forged_fp = fingerprint(
+        json.loads(keys["forged"].with_name("forged.key.pub").read_text())["public_key"]
+    )
     res = cli(archive, "verify", "--no-orphans", "--approvers", approvers, monkeypatch=monkeypatch)
     assert res.exit_code == 1, res.output
     (line,) = [x for x in res.stdout.splitlines() if x.startswith("UNTRUSTED")]
@@ -109,22 +113,37 @@ def test_a_forged_event_with_writer_rights_is_flagged(
     inside the real key's validity: the key still is not the lab's."""
     ids = fill(archive, tmp_path)
     pub = keys["jane"].with_name("jane.key.pub")
-    trusted = load_approvers(_approvers(tmp_path, pub, valid_from="2020-01-01",
-                                        valid_until="2020-12-31"))  # fmt: skip
+    trusted = load_approvers(
+        _approvers(tmp_path, pub, valid_from="2020-01-01", valid_until="2020-12-31")
+    )
     forged = load_key(keys["forged"], PASS)
     public = forged.public_key().public_bytes_raw().hex()
     with behind_the_archive(archive) as conn:
         digest = conn.execute(
-            select(Seal.digest).join(CalibrationRow, CalibrationRow.id == Seal.calibration_id)
-            .join(Run, Run.id == CalibrationRow.run_id).where(Run.run_id == ids[2])
-        ).scalar_one()  # fmt: skip
+            select(Seal.digest)
+            .join(CalibrationRow, CalibrationRow.id == Seal.calibration_id)
+            .join(Run, Run.id == CalibrationRow.run_id)
+            .where(Run.run_id == ids[2])
+        ).scalar_one()
         sig = forged.sign(message(ids[2], 1, digest, "approved", JANE, public)).hex()
         seq, prev = seal.head(conn)
-        ev = seal.Event(seq + 1, datetime(2020, 6, 1, tzinfo=UTC), "jane", "approved", ids[2], 1,
-                        None, {"meaning": "approved", "signer": JANE, "public_key": public,
-                               "signature": sig}, digest, prev)  # fmt: skip
-        conn.execute(AuditEvent.__table__.insert().values(
-            **{k: getattr(ev, k) for k in seal._EVENT_FIELDS}, hash=ev.hash()))  # fmt: skip
+        ev = seal.Event(
+            seq + 1,
+            datetime(2020, 6, 1, tzinfo=UTC),
+            "jane",
+            "approved",
+            ids[2],
+            1,
+            None,
+            {"meaning": "approved", "signer": JANE, "public_key": public, "signature": sig},
+            digest,
+            prev,
+        )
+        conn.execute(
+            AuditEvent.__table__.insert().values(
+                **{k: getattr(ev, k) for k in seal._EVENT_FIELDS}, hash=ev.hash()
+            )
+        )
     assert verify(archive, orphans=False).ok  # linked and signed: the chain cannot tell
     report = verify(archive, orphans=False, approvers=trusted)
     (p,) = report.problems
@@ -157,12 +176,16 @@ def test_validity_dates_and_roles_of_the_approvers_file(
         ("not json", "line 2: expected one JSON object"),
         ('{"name": "A"}', "line 2: expected the keys name and public_key"),
         ('{"name": "A", "public_key": "zz"}', "line 2: public_key: expected 64 hex digits"),
-        ('{"name": "A", "public_key": "' + "ab" * 32 + '", "valid_from": "2024-13-01"}',
-         "line 2: valid_from: expected a date YYYY-MM-DD"),
-        ('{"name": "A", "public_key": "' + "ab" * 32 + '", "role": "boss"}',
-         "line 2: role: expected one of"),
+        (
+            '{"name": "A", "public_key": "' + "ab" * 32 + '", "valid_from": "2024-13-01"}',
+            "line 2: valid_from: expected a date YYYY-MM-DD",
+        ),
+        (
+            '{"name": "A", "public_key": "' + "ab" * 32 + '", "role": "boss"}',
+            "line 2: role: expected one of",
+        ),
     ],
-)  # fmt: skip
+)
 def test_a_bad_approvers_file_is_named_by_line(tmp_path: Path, line: str, expected: str) -> None:
     path = tmp_path / "approvers"
     path.write_text("# header\n" + line + "\n")
@@ -188,8 +211,9 @@ def test_lab_toml_names_the_approvers_file(
 # --- checkpoints -------------------------------------------------------------------
 
 
-def _checkpoint(archive: Archive, tmp: Path, monkeypatch: pytest.MonkeyPatch,
-                key: Path | None = None) -> Path:  # fmt: skip
+def _checkpoint(
+    archive: Archive, tmp: Path, monkeypatch: pytest.MonkeyPatch, key: Path | None = None
+) -> Path:
     tmp.mkdir(exist_ok=True)
     path = tmp / "checkpoint.json"
     args = ["checkpoint", "-o", str(path)] + (["--key", str(key)] if key else [])
@@ -213,12 +237,28 @@ def test_the_chain_extends_its_checkpoint(
     res = _verify_against(archive, cp, monkeypatch)
     assert res.exit_code == 0, res.output
     assert f"chain compared with the checkpoint {cp}" in res.stderr
-    res = cli(archive, "verify", "--no-orphans", "--checkpoint", str(cp), "--approvers",
-              str(keys["approvers"]), monkeypatch=monkeypatch)  # signed by a trusted key
+    res = cli(
+        archive,
+        "verify",
+        "--no-orphans",
+        "--checkpoint",
+        str(cp),
+        "--approvers",
+        str(keys["approvers"]),
+        monkeypatch=monkeypatch,
+    )  # signed by a trusted key
     assert res.exit_code == 0, res.output
     forged = _checkpoint(archive, tmp_path / "f", monkeypatch, keys["forged"])
-    res = cli(archive, "verify", "--no-orphans", "--checkpoint", str(forged), "--approvers",
-              str(keys["approvers"]), monkeypatch=monkeypatch)
+    res = cli(
+        archive,
+        "verify",
+        "--no-orphans",
+        "--checkpoint",
+        str(forged),
+        "--approvers",
+        str(keys["approvers"]),
+        monkeypatch=monkeypatch,
+    )
     assert res.exit_code == 1
     assert f"the checkpoint is signed by {JANE}, not trusted" in res.stdout
     res = cli(archive, "checkpoint", "-o", str(cp), monkeypatch=monkeypatch)
@@ -234,21 +274,30 @@ def _rewrite_value(archive: Archive, run_id: str) -> None:
     changed, the seal made again, every event from there on rehashed."""
     with behind_the_archive(archive) as conn:
         cal_id = conn.execute(
-            select(CalibrationRow.id).join(Run, Run.id == CalibrationRow.run_id)
+            select(CalibrationRow.id)
+            .join(Run, Run.id == CalibrationRow.run_id)
             .where(Run.run_id == run_id, CalibrationRow.superseded_by.is_(None))
-        ).scalar_one()  # fmt: skip
+        ).scalar_one()
         name, value = conn.execute(
             select(ParameterRow.name, ParameterRow.value)
-            .where(ParameterRow.calibration_id == cal_id).order_by(ParameterRow.name).limit(1)
-        ).one()  # fmt: skip
+            .where(ParameterRow.calibration_id == cal_id)
+            .order_by(ParameterRow.name)
+            .limit(1)
+        ).one()
         doc = conn.execute(
             select(CalibrationRow.document).where(CalibrationRow.id == cal_id)
         ).scalar_one()
         doc["parameters"][name]["value"] = value + 0.5
-        conn.execute(ParameterRow.__table__.update().where(ParameterRow.calibration_id == cal_id,
-                     ParameterRow.name == name).values(value=value + 0.5))  # fmt: skip
-        conn.execute(CalibrationRow.__table__.update().where(CalibrationRow.id == cal_id)
-                     .values(document=doc))  # fmt: skip
+        conn.execute(
+            ParameterRow.__table__.update()
+            .where(ParameterRow.calibration_id == cal_id, ParameterRow.name == name)
+            .values(value=value + 0.5)
+        )
+        conn.execute(
+            CalibrationRow.__table__.update()
+            .where(CalibrationRow.id == cal_id)
+            .values(document=doc)
+        )
         files = conn.execute(select(Seal.record).where(Seal.calibration_id == cal_id)).scalar_one()
         conn.execute(Seal.__table__.delete().where(Seal.calibration_id == cal_id))
         rec = seal.records(conn, [cal_id], {cal_id: files["files"]})[cal_id]
@@ -262,8 +311,11 @@ def _rewrite_value(archive: Archive, run_id: str) -> None:
                 ev = seal.Event(**{**ev.__dict__, "digest": digest})
             ev = seal.Event(**{**ev.__dict__, "prev_hash": prev})
             prev = ev.hash()
-            conn.execute(AuditEvent.__table__.insert().values(
-                **{k: getattr(ev, k) for k in seal._EVENT_FIELDS}, hash=prev))  # fmt: skip
+            conn.execute(
+                AuditEvent.__table__.insert().values(
+                    **{k: getattr(ev, k) for k in seal._EVENT_FIELDS}, hash=prev
+                )
+            )
         unit_latest.rebuild(conn)  # the derived copy of the value, as verify expects it
 
 
@@ -293,13 +345,19 @@ def test_a_rollback_is_caught_by_the_checkpoint(
         gone = f"calibration_id IN ({cal}) OR calibration_id = (SELECT max(id) FROM calibrations)"
         for t in ("seals", "parameters", "check_results", "processing_steps"):
             conn.execute(text(f"DELETE FROM {t} WHERE {gone}"), {"r": victim})
-        conn.execute(text("UPDATE calibrations SET superseded_by = NULL WHERE superseded_by = "
-                          "(SELECT max(id) FROM calibrations)"))  # fmt: skip
+        conn.execute(
+            text(
+                "UPDATE calibrations SET superseded_by = NULL WHERE superseded_by = "
+                "(SELECT max(id) FROM calibrations)"
+            )
+        )
         conn.execute(text("DELETE FROM calibrations WHERE id = (SELECT max(id) FROM calibrations)"))
         conn.execute(text(f"DELETE FROM calibrations WHERE id IN ({cal})"), {"r": victim})
         for t in ("raw_files", "run_equipment"):
-            conn.execute(text(f"DELETE FROM {t} WHERE run_id = (SELECT id FROM runs "
-                              "WHERE run_id = :r)"), {"r": victim})  # fmt: skip
+            conn.execute(
+                text(f"DELETE FROM {t} WHERE run_id = (SELECT id FROM runs WHERE run_id = :r)"),
+                {"r": victim},
+            )
         conn.execute(text("DELETE FROM runs WHERE run_id = :r"), {"r": victim})
         unit_latest.rebuild(conn)
     report = verify(archive, orphans=False)
@@ -315,8 +373,9 @@ def test_checkpoint_files_are_checked(tmp_path: Path) -> None:
     path.write_text('{"kind": "something else"}')
     with pytest.raises(ValueError, match="expected a document of kind 'calib-checkpoint'"):
         checkpoint.load(path)
-    path.write_text('{"kind": "calib-checkpoint", "version": 1, "seq": 2, "hash": "x", '
-                    '"events": ["a"]}')  # fmt: skip
+    path.write_text(
+        '{"kind": "calib-checkpoint", "version": 1, "seq": 2, "hash": "x", "events": ["a"]}'
+    )
     with pytest.raises(ValueError, match="one hash prefix per event"):
         checkpoint.load(path)
 

@@ -73,8 +73,11 @@ def test_normal_inputs_take_student_t():
 
 def test_dominant_rectangular_coverage_factor():
     # A lone rectangular input: the 95 % interval is +-0.95 a = +-1.645 u (GUM G.2.3 note).
-    b = budgets(lambda v: {"y": v["x1"]}, [InputQuantity("x1", 0.0, 1.0, "rectangular")],
-                {"y": (0.0, math.inf)})
+    b = budgets(
+        lambda v: {"y": v["x1"]},
+        [InputQuantity("x1", 0.0, 1.0, "rectangular")],
+        {"y": (0.0, math.inf)},
+    )
     assert b["y"].k == pytest.approx(0.95 * math.sqrt(3.0), rel=0.01)
     back = type(b["y"]).from_dict(b["y"].to_dict())
     assert back == b["y"]
@@ -101,8 +104,9 @@ def test_equipment_unknown_is_labelled_type_a_only():
 def test_monte_carlo_matches_linear_budget():
     n = 40_000
     b = budgets(_linear, INPUTS, {"y": (2.0, math.inf)})["y"]
-    mean, lo, hi = monte_carlo(_linear, INPUTS, {"y": (2.0, math.inf)}, n,
-                               np.random.default_rng(1))["y"]
+    mean, lo, hi = monte_carlo(
+        _linear, INPUTS, {"y": (2.0, math.inf)}, n, np.random.default_rng(1)
+    )["y"]
     # Sum of a uniform (u = 2) and normals: nearly normal; the 2.5 % quantile's sampling
     # error at n = 40000 is ~1 % of U, so 4 % is four of those standard errors.
     assert (hi - lo) / 2 == pytest.approx(b.U, rel=0.04)

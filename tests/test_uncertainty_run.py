@@ -43,8 +43,9 @@ def _coverage_runs(n_runs: int) -> tuple[int, int]:
     only gravity is a Type B source (the simulator has no fixture or turn-angle errors).
     """
     rng = np.random.default_rng(2021)
-    spec = EquipmentSpec(gravity_expanded=G_U, cube_angle=None, table_rate_rel=None,
-                         turn_angle=None)
+    spec = EquipmentSpec(
+        gravity_expanded=G_U, cube_angle=None, table_rate_rel=None, turn_angle=None
+    )
     hits = total = 0
     for _ in range(n_runs):
         truth = random_errors(rng)
@@ -89,8 +90,12 @@ def _judged(value: float, U: float, rule: DecisionRule):
     budgets = make_budgets(lambda v: {"acc.scale.x": value}, [], {"acc.scale.x": (U / 2, 1e9)})
     profile = ToleranceProfile("t", "1", "X", [], decision_rule=rule)
     profile.parameter_limits = ToleranceProfile.from_dict(
-        {"name": "t", "version": "1", "device_model": "X",
-         "limits": [{"pattern": "acc.scale.*", "bound": 0.01, "unit": "1"}]}
+        {
+            "name": "t",
+            "version": "1",
+            "device_model": "X",
+            "limits": [{"pattern": "acc.scale.*", "bound": 0.01, "unit": "1"}],
+        }
     ).parameter_limits
     (check,) = check_parameters(cal, profile, budgets)
     return check, budgets["acc.scale.x"].U
@@ -98,8 +103,12 @@ def _judged(value: float, U: float, rule: DecisionRule):
 
 @pytest.mark.parametrize(
     ("value", "verdict", "overall"),
-    [(0.0070, "pass", "pass"), (0.0095, COND_PASS, NEEDS_REVIEW), (0.0105, COND_FAIL, FAIL),
-     (0.0140, "fail", FAIL)],
+    [
+        (0.0070, "pass", "pass"),
+        (0.0095, COND_PASS, NEEDS_REVIEW),
+        (0.0105, COND_FAIL, FAIL),
+        (0.0140, "fail", FAIL),
+    ],
 )
 def test_guard_band_verdicts_in_the_run_checks(value, verdict, overall) -> None:
     # U = 1.96 u with u = 0.001: w = U ~ 0.00196; the limit is 0.01.
@@ -120,8 +129,9 @@ def _guarded_profile(folder: Path) -> Path:
     """The shipped mpu6000 profile with a guard band (w = U) and acc.scale.x within 0.011."""
     text = (SHIPPED / "mpu6000.toml").read_text()
     text = text.replace('name = "mpu6000"', 'name = "guarded"')
-    text = text.replace('decision_rule = { name = "simple" }',
-                        'decision_rule = { name = "guard_band" }')
+    text = text.replace(
+        'decision_rule = { name = "simple" }', 'decision_rule = { name = "guard_band" }'
+    )
     # these runs hold 5 s per attitude (the uncertainty they test is sized by it): the
     # procedure's record >= 10 s (calib_core.conditions) is relaxed to what they hold
     text = text.replace("sample_rate_hz = {", "record_s = { low = 4.9 }\nsample_rate_hz = {")
@@ -157,20 +167,29 @@ def _manifest(serial: str, equipment: bool, day: int = 20) -> dict:
     return {
         "schema_version": 1,
         "unit": {"serial": serial, "model": "MPU-6000", "manufacturer": "InvenSense"},
-        "run": {"started": f"2026-11-{day}T09:00:00+00:00", "operator": "test",
-                "procedure": "six_position_integral", "tolerance_profile": "guarded"},
+        "run": {
+            "started": f"2026-11-{day}T09:00:00+00:00",
+            "operator": "test",
+            "procedure": "six_position_integral",
+            "tolerance_profile": "guarded",
+        },
         "site": {"gravity_model": "standard"},  # U(g) = 0.03 m/s^2: acc.scale U ~ 3e-3
         "environment": {"temperature_c": 20.0},
         "format": {"acc_unit": "g"},
-        "equipment": [{"kind": "cube", "model": "PC-100", "serial": "CUBE-1",
-                       "calibration_due": "2027-11-15"}] if equipment else [],
+        "equipment": [
+            {"kind": "cube", "model": "PC-100", "serial": "CUBE-1", "calibration_due": "2027-11-15"}
+        ]
+        if equipment
+        else [],
     }
 
 
 # serial -> (equipment named, [(day, true acc.scale.x)]): U-BARE comes back a day later with
 # its scale factor drifted by -0.002 (as found / as left).
-RUNS = {"U-KNOWN": (True, [(20, ACC_SCALE_X)]),
-        "U-BARE": (False, [(19, ACC_SCALE_X), (20, ACC_SCALE_X - 0.002)])}
+RUNS = {
+    "U-KNOWN": (True, [(20, ACC_SCALE_X)]),
+    "U-BARE": (False, [(19, ACC_SCALE_X), (20, ACC_SCALE_X - 0.002)]),
+}
 
 
 @pytest.fixture(scope="module")
@@ -202,8 +221,13 @@ def archived(tmp_path_factory: pytest.TempPathFactory):
             pages = [p.extract_text() for p in pypdf.PdfReader(files["pdf"]).pages]
             pdf = "\n".join(pages)
             out[f"{serial}/pages"] = pages
-            out[serial] = (outcome, summary, files["html"].read_text(), pdf,
-                           files["protocol"].read_text())
+            out[serial] = (
+                outcome,
+                summary,
+                files["html"].read_text(),
+                pdf,
+                files["protocol"].read_text(),
+            )
     return out
 
 
@@ -223,14 +247,16 @@ def test_budget_archived_per_parameter(archived) -> None:
     # Gravity dominates: d scale / d g = -(1 + s) / g, u(g) = 0.03 / 2 -> u ~ 1.5e-3.
     top = max(scale["rows"], key=lambda r: r["contribution"])
     assert top["source"] == "gravity"
-    assert top["contribution"] == pytest.approx((1 + ACC_SCALE_X) * 0.015 / STANDARD_GRAVITY,
-                                                rel=0.01)
+    assert top["contribution"] == pytest.approx(
+        (1 + ACC_SCALE_X) * 0.015 / STANDARD_GRAVITY, rel=0.01
+    )
     assert scale["U"] == pytest.approx(scale["k"] * scale["uc"])
     step = next(s for s in summary["calibration"]["steps"] if s["name"] == "uncertainty")
     assert step["settings"]["equipment_spec"]["gravity_expanded"] == 0.03
     assert step["settings"]["equipment"] == ["cube"]
     assert _budgets(archived["U-BARE"][1])["acc.scale.x"]["label"] == (
-        "Type A only (equipment unknown)")
+        "Type A only (equipment unknown)"
+    )
 
 
 def test_guard_band_verdict_of_the_run(archived) -> None:
@@ -305,10 +331,20 @@ def test_equipment_accuracy_class_read_when_it_states_one() -> None:
     doc = {**_manifest("S", equipment=True), "format": {"kind": "csv"}}
     doc["equipment"] = [
         {**doc["equipment"][0], "accuracy_class": "0.01 deg"},
-        {"kind": "rate_table", "model": "T", "serial": "RT-1", "accuracy_class": "100 ppm",
-         "calibration_due": "2027-11-15"},
-        {"kind": "daq", "model": "D", "serial": "D-1", "accuracy_class": "1 ms timestamp",
-         "calibration_due": "2027-11-15"},
+        {
+            "kind": "rate_table",
+            "model": "T",
+            "serial": "RT-1",
+            "accuracy_class": "100 ppm",
+            "calibration_due": "2027-11-15",
+        },
+        {
+            "kind": "daq",
+            "model": "D",
+            "serial": "D-1",
+            "accuracy_class": "1 ms timestamp",
+            "calibration_due": "2027-11-15",
+        },
     ]
     spec, sources = equipment_spec_sources(RunManifest.model_validate(doc))
     assert spec.cube_angle == pytest.approx(np.radians(0.01))
@@ -364,8 +400,12 @@ def test_as_found_and_as_left_of_a_recalibrated_unit(archived, form) -> None:
 
     rows = {r["parameter"]: r for r in _as_found_step(summary)["statistics"]["parameters"]}
     scale = rows["acc.scale.x"]
-    for shown in (f"{scale['earlier']:+.6g}", f"{scale['as_left']:+.6g}",
-                  f"{scale['error']:+.3g}", f"{display('acc.scale.x', scale['U'])[0]:.2g}"):
+    for shown in (
+        f"{scale['earlier']:+.6g}",
+        f"{scale['as_left']:+.6g}",
+        f"{scale['error']:+.3g}",
+        f"{display('acc.scale.x', scale['U'])[0]:.2g}",
+    ):
         assert shown in text, shown
     assert "No earlier valid calibration" in archived["U-KNOWN"][2 if form == "html" else 3]
 
@@ -418,8 +458,11 @@ def test_lab_profile_checked_and_missing_items_said(archived, tmp_path, monkeypa
     monkeypatch.setenv("CALIB_PROFILES", str(tmp_path))
     assert load_lab_profile() is None
     (tmp_path / "lab.toml").write_text('[laboratory]\nname = "X"\nphone = "1"\n')
-    with pytest.raises(ValueError, match=r"lab.toml: laboratory: missing \['address'\], "
-                                         r"unknown \['phone'\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"lab.toml: laboratory: missing \['address'\], "
+        r"unknown \['phone'\]",
+    ):
         load_lab_profile()
     summary = {**archived["U-KNOWN"][1], "lab": None}
     pairs = dict(administrative_section(summary).pairs)
@@ -485,16 +528,27 @@ def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
 
     _, summary, *_ = archived["U-KNOWN"]
     monkeypatch.setenv("CALIB_PROFILES", str(archived["profiles"]))
-    args = ["report", summary["run_id"], "--archive", str(archived["archive"].root),
-            "--output", str(tmp_path), "--format", "dcc", "--json"]
+    args = [
+        "report",
+        summary["run_id"],
+        "--archive",
+        str(archived["archive"].root),
+        "--output",
+        str(tmp_path),
+        "--format",
+        "dcc",
+        "--json",
+    ]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     xml = Path(json.loads(result.stdout)["dcc"]).read_text(encoding="utf-8")
     _assert_dcc_matches_archive(xml, summary)
     root = _read_dcc(xml)
     assert root["@schemaVersion"].startswith("3.")
-    assert [k for k in root if not k.startswith("@")] == ["dcc:administrativeData",
-                                                         "dcc:measurementResults"]
+    assert [k for k in root if not k.startswith("@")] == [
+        "dcc:administrativeData",
+        "dcc:measurementResults",
+    ]
     admin = root["dcc:administrativeData"]
     number = f"{summary['run_id']}-{summary['calibration']['revision']}"
     assert admin["dcc:coreData"]["dcc:uniqueIdentifier"]["#text"] == number
@@ -503,8 +557,10 @@ def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
     assert ident["dcc:value"]["#text"] == "U-KNOWN"
     lab = admin["dcc:calibrationLaboratory"]["dcc:contact"]["dcc:name"]["dcc:content"]
     assert lab["#text"] == "IMU Lab GmbH"
-    said = [s["dcc:declaration"]["dcc:content"]["#text"]
-            for s in _as_list(admin["dcc:statements"]["dcc:statement"])]
+    said = [
+        s["dcc:declaration"]["dcc:content"]["#text"]
+        for s in _as_list(admin["dcc:statements"]["dcc:statement"])
+    ]
     assert any(s.startswith("Decision rule: guarded acceptance") for s in said)
     result = root["dcc:measurementResults"]["dcc:measurementResult"]
     condition = result["dcc:influenceConditions"]["dcc:influenceCondition"]
@@ -523,7 +579,7 @@ def _broken(xml: str, how: str) -> str:
     if how == "uncertainty":
         return re.sub(r"<si:uncertainty>[^<]*</si:uncertainty>\s*", "", xml, count=1)
     start = xml.rindex("<dcc:result ")
-    return xml[:start] + xml[xml.index("</dcc:result>", start) + len("</dcc:result>"):]
+    return xml[:start] + xml[xml.index("</dcc:result>", start) + len("</dcc:result>") :]
 
 
 @pytest.mark.parametrize("how", ["value", "uncertainty", "result"])

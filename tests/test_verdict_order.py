@@ -54,7 +54,8 @@ def judgements(archive: Archive) -> dict[str, dict[str, Any]]:
         # it passes alike when the unit's runs agree on its description.
         checks = [c for c in now[run_id]["checks"] if not c["name"].startswith("device:")]
         out[day[run_id]] = {
-            "verdict": now[run_id]["verdict"], "checks": checks,
+            "verdict": now[run_id]["verdict"],
+            "checks": checks,
             "group": [day[r] for r in group["repeatability_group"]],
         }
     return out
@@ -143,10 +144,15 @@ def test_a_judgement_made_on_an_older_state_is_not_written(tmp_path: Path) -> No
         nov, aug = cands  # newest first
         record = queries.judgement(archive, nov["calibration_id"])
         judged = Rejudgement(
-            run_id=nov["run_id"], calibration_id=nov["calibration_id"], earlier=[],
-            checks=[], check_statistics=record["check_step"]["statistics"], verdict="pass",
-            step=StepRecord("rejudge"), reason="test: judged without the August run",
-        )  # fmt: skip
+            run_id=nov["run_id"],
+            calibration_id=nov["calibration_id"],
+            earlier=[],
+            checks=[],
+            check_statistics=record["check_step"]["statistics"],
+            verdict="pass",
+            step=StepRecord("rejudge"),
+            reason="test: judged without the August run",
+        )
         assert rejudge_run(archive, judged) is None  # the August run is there now
         stale = replace(judged, earlier=[aug["run_id"]], calibration_id=-1)
         assert rejudge_run(archive, stale) is None  # no such revision

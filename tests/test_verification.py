@@ -125,8 +125,9 @@ def test_verification_point_with_002_g_error_fails(seed, profile):
     run = six_position_integral_run(truth, rng)
     cal = procedures.solve("six_position_integral", run.segments, run.gravity, {})
     a = math.radians(35.0)
-    f_tilt = run.gravity * np.array([math.sin(a) * math.cos(0.4), math.sin(a) * math.sin(0.4),
-                                     math.cos(a)])  # fmt: skip
+    f_tilt = run.gravity * np.array(
+        [math.sin(a) * math.cos(0.4), math.sin(a) * math.sin(0.4), math.cos(a)]
+    )
     segments = {"tilt_35": _static_segment(truth, rng, f_tilt, "tilt_35")}
     good = verify_points(cal, segments, [reference_point("tilt_35", run.gravity, f_tilt)], profile)
     assert [c.name for c in good] == ["verify:tilt_35:acc", "verify:tilt_35:gyr"]

@@ -30,8 +30,10 @@ def fill(archive: Archive, tmp: Path) -> list[str]:
     runs = [
         make_run(tmp / f"in{i}", serial=s, seed=i) for i, s in enumerate(["0012", "0012", "77"])
     ]
-    ids = [archive_run(archive, r, {"protocol.txt": f"run {i}".encode()}).run_id
-           for i, r in enumerate(runs)]  # fmt: skip
+    ids = [
+        archive_run(archive, r, {"protocol.txt": f"run {i}".encode()}).run_id
+        for i, r in enumerate(runs)
+    ]
     archive_run(archive, replace(runs[0], settings={"outlier_sigma": 4.0}), {"protocol.txt": b"r2"})
     return ids
 

@@ -167,9 +167,7 @@ def segment_recordings(
     )
 
 
-def array_labels(
-    name: str, rec: Recording, seg: Segmentation
-) -> list[tuple[Interval, str | None]]:
+def array_labels(name: str, rec: Recording, seg: Segmentation) -> list[tuple[Interval, str | None]]:
     """Labels of one sensor's session of a sensor array: ``<name>_static|_ccw|_cw``.
 
     The sense of a turn is that of its angle about the vertical, which the
@@ -275,9 +273,14 @@ def outliers_segments(
         cleaned[label], record = remove_outliers(rec, method=cfg["method"], **kwargs)
         st = record.statistics
         verb = "deleted" if record.settings["policy"] == "delete" else "interpolated"
-        st["check"] = replaced_check("outliers", label, st["n_flagged"],
-                                     st["n_samples"] * len(st["n_flagged"]),
-                                     st["p_false_alarm"], verb)  # fmt: skip
+        st["check"] = replaced_check(
+            "outliers",
+            label,
+            st["n_flagged"],
+            st["n_samples"] * len(st["n_flagged"]),
+            st["p_false_alarm"],
+            verb,
+        )
         per_segment[label] = st
     return cleaned, StepRecord("outliers", settings=cfg, statistics={"segments": per_segment})
 

@@ -95,8 +95,9 @@ def motion_statistics(rec: Recording) -> dict | None:
     for c in range(x.shape[1]):
         quiet = order[:n_quiet, c]
         # Degrees of freedom: correlated noise (a low-pass) holds fewer than samples - 1.
-        tau = np.median([integrated_autocorrelation_time(
-            x[k * width : (k + 1) * width, c]) for k in quiet])  # fmt: skip
+        tau = np.median(
+            [integrated_autocorrelation_time(x[k * width : (k + 1) * width, c]) for k in quiet]
+        )
         nu = max((width - 1) / max(float(tau), 1.0), 1.0)
         # The quietest quarter's mean variance is biased low: divide by the mean of the
         # lowest quarter of chi2(nu) / nu, taken as its quantile at QUIET_FRACTION / 2.
@@ -158,8 +159,13 @@ def motion_checks(segments: dict[str, Recording], static: list[str]) -> list[dic
 
 
 # Procedures whose segments other than turns are held still, and must have been.
-STATIC_PROCEDURES = ("six_position", "six_position_integral", "multi_position", "sensor_array",
-                     "static_bias")  # fmt: skip
+STATIC_PROCEDURES = (
+    "six_position",
+    "six_position_integral",
+    "multi_position",
+    "sensor_array",
+    "static_bias",
+)
 
 
 def static_motion_checks(procedure: str, segments: dict[str, Recording]) -> list[dict]:
@@ -170,7 +176,8 @@ def static_motion_checks(procedure: str, segments: dict[str, Recording]) -> list
     if procedure not in STATIC_PROCEDURES:
         return []
     static = [
-        label for label in segments
+        label
+        for label in segments
         if procedure == "static_bias" or not label.endswith(("_cw", "_ccw"))
-    ]  # fmt: skip
+    ]
     return motion_checks(segments, static)

@@ -37,11 +37,25 @@ from calib_core.procedures.tables import TABLES
 from calib_core.recording import Recording
 
 __all__ = [
-    "ALL", "BY_NAME", "COMMON_SETTINGS", "PROCEDURES", "TABLES", "Procedure", "Setting",
-    "SettingError", "Settings", "get", "solve", "solve_integral_procedure",
-    "solve_rate_table_procedure", "solve_six_position", "solve_six_position_integral",
-    "solve_static_bias_procedure", "solve_step", "validate_settings",
-]  # fmt: skip
+    "ALL",
+    "BY_NAME",
+    "COMMON_SETTINGS",
+    "PROCEDURES",
+    "TABLES",
+    "Procedure",
+    "Setting",
+    "SettingError",
+    "Settings",
+    "get",
+    "solve",
+    "solve_integral_procedure",
+    "solve_rate_table_procedure",
+    "solve_six_position",
+    "solve_six_position_integral",
+    "solve_static_bias_procedure",
+    "solve_step",
+    "validate_settings",
+]
 
 # The one list of procedures, in the order the documentation gives them.
 ALL: tuple[Procedure, ...] = (
@@ -141,8 +155,12 @@ def solve_step(
     record = StepRecord(
         name="solve",
         # The run's settings as given, the solver's defaults filled in.
-        settings={"procedure": procedure, "gravity": gravity, **proc_settings,
-                  **get(procedure).settings.merged(proc_settings)},  # fmt: skip
+        settings={
+            "procedure": procedure,
+            "gravity": gravity,
+            **proc_settings,
+            **get(procedure).settings.merged(proc_settings),
+        },
         statistics={
             **scalars,
             "seconds": round(time.perf_counter() - started, 4),

@@ -73,7 +73,7 @@ RATE_TABLE = Procedure(
     name="rate_table",
     summary="rate plateaus in both directions about each axis: gyro bias, scale factors, "
     "misalignment, nonlinearity and asymmetry",
-    segments="one segment per plateau labelled <axis>_<rate in deg/s> (\"z_+100\", \"z_0\"), "
+    segments='one segment per plateau labelled <axis>_<rate in deg/s> ("z_+100", "z_0"), '
     "with the table's feedback as reference channel table_rate (rad/s); [run.settings.sync] "
     "puts the feedback on the IMU clock",
     solver=solve_rate_table_procedure,

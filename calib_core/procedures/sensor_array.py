@@ -22,7 +22,7 @@ SENSOR_ARRAY = Procedure(
     summary="several IMUs on one cube: each sensor's accelerometer and gyro parameters from "
     "one static and a ccw and cw turn per sensor",
     segments="<sensor>_static, <sensor>_ccw, <sensor>_cw per sensor, listed by hand or cut by "
-    "[run.settings.segmentation] with labels = \"array\"",
+    '[run.settings.segmentation] with labels = "array"',
     solver=solve_sensor_array,
     settings=SETTINGS,
     conditions=ENVIRONMENT + ATTITUDES,

@@ -93,9 +93,12 @@ class Setting:
         kind = next((k for k in self.kinds if _is_kind(value, k)), None)
         refused = kind is None or (
             (kind in ("number", "integer") and not self._inside(float(value)))
-            or (kind == "list" and self.length is not None
-                and (len(value) != self.length or not all(_is_kind(v, "number") for v in value)))
-        )  # fmt: skip
+            or (
+                kind == "list"
+                and self.length is not None
+                and (len(value) != self.length or not all(_is_kind(v, "number") for v in value))
+            )
+        )
         if kind == "text" and self.choices and value not in self.choices:
             raise SettingError(self.name, f"must be {self.allowed()}, got {value!r}")
         if refused:
@@ -134,8 +137,9 @@ class Settings:
         for key, value in given.items():
             if key not in self.items:
                 hint = did_you_mean(key, list(self.items))
-                raise SettingError(f"{where}{key}",
-                                   f"unknown setting of [run.settings.{table}]{hint}")
+                raise SettingError(
+                    f"{where}{key}", f"unknown setting of [run.settings.{table}]{hint}"
+                )
             try:
                 self.items[key].check(value)
             except SettingError as exc:

@@ -87,6 +87,7 @@ STATICS_SETTINGS = Settings(ACCEL_SOLVER, ACCEL_MODEL)
 INTEGRAL_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS)
 INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS)
 
+
 def _require(segments: dict[str, Recording], labels: tuple[str, ...], procedure: str) -> None:
     missing = [label for label in labels if label not in segments]
     if missing:
@@ -222,9 +223,6 @@ def solve_six_position(
     return cal
 
 
-
-
-
 def solve_six_position_integral(
     segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
 ) -> Calibration:
@@ -293,7 +291,7 @@ SIX_POSITION = Procedure(
     summary="six statics: accelerometer bias, scale and misalignment (12), gyro bias and "
     "g-sensitivity (12), noise",
     segments="six statics x_up, x_dn, y_up, y_dn, z_up, z_dn (the named axis reads +g / -g), "
-    "listed by hand or cut by [run.settings.segmentation] (labels = \"faces\")",
+    'listed by hand or cut by [run.settings.segmentation] (labels = "faces")',
     solver=solve_six_position,
     settings=STATICS_SETTINGS,
     conditions=ENVIRONMENT + ATTITUDES,

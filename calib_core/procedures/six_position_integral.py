@@ -38,7 +38,7 @@ SIX_POSITION_INTEGRAL = Procedure(
     "parameters and gyro scale and misalignment by the integral method",
     segments="six statics x_up .. z_dn and the rotations x_ccw, x_cw, y_ccw, y_cw, z_ccw, z_cw "
     "(ccw = positive sense about the upward axis; the MPU-6000 folder's file names), listed "
-    "by hand or cut by [run.settings.segmentation] (labels = \"faces\")",
+    'by hand or cut by [run.settings.segmentation] (labels = "faces")',
     solver=solve_six_position_integral,
     settings=INTEGRAL_SETTINGS,
     conditions=ENVIRONMENT + ATTITUDES,

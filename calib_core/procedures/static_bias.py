@@ -58,13 +58,18 @@ STATIC_BIAS = Procedure(
     segments="one static segment (any label), >= 60 min at >= 100 Hz",
     solver=solve_static_bias_procedure,
     settings=SETTINGS,
-    conditions=ENVIRONMENT + ATTITUDES + (
+    conditions=ENVIRONMENT
+    + ATTITUDES
+    + (
         ConditionUse("static_record_min", "length of the static record", f"{METHODS} 2.5"),
-        ConditionUse("static_temperature_spread_c",
-                     "chamber (ambient) temperature over the record: reference channel "
-                     "chamber_temperature or ambient_temperature; without one, the sensor's "
-                     "own temperature", "rate-table procedure, 60-min static bias run"),
-    ),  # fmt: skip
+        ConditionUse(
+            "static_temperature_spread_c",
+            "chamber (ambient) temperature over the record: reference channel "
+            "chamber_temperature or ambient_temperature; without one, the sensor's "
+            "own temperature",
+            "rate-table procedure, 60-min static bias run",
+        ),
+    ),
     reference="docs/methods.md 2.5; IEEE Std 952 (Allan variance)",
     model_checks="record length (a warning under 60 min); outliers beyond n_sigma; Allan "
     "deviation fits (angle random walk, bias instability, rate random walk)",

@@ -441,8 +441,7 @@ def _fit_axis(
     tangential = _tangential_mounts(axis, mounts)
     nuisance = tuple(_nuisance_name(m) for m in tangential)
     X = np.column_stack(
-        [np.where(step_mounts == m, dphi[:, i], 0.0) for m in tangential]
-        + [term_values(f, terms)]
+        [np.where(step_mounts == m, dphi[:, i], 0.0) for m in tangential] + [term_values(f, terms)]
     )
     names = (*nuisance, *terms)
     y = E[:, i] - f[:, i]
@@ -461,9 +460,7 @@ def _fit_axis(
     return AxisModel(axis, red, nuisance, dropped, kappa)
 
 
-def _step_record(
-    settings: CentrifugeSettings, means: _Means, model: CentrifugeModel
-) -> StepRecord:
+def _step_record(settings: CentrifugeSettings, means: _Means, model: CentrifugeModel) -> StepRecord:
     """The solve's step record: its settings and the fit's statistics per axis."""
     return StepRecord(
         name="centrifuge",

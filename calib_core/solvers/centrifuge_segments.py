@@ -27,9 +27,7 @@ from calib_core.solvers.centrifuge_model import (
 
 # --- the generic procedure shape: labelled segments -> Calibration ---------------
 
-_LABEL = re.compile(
-    r"^([xyz])([pm])_(?:zero_(after_)?(\d+(?:\.\d+)?)|1g|step_(\d+(?:\.\d+)?)g)$"
-)
+_LABEL = re.compile(r"^([xyz])([pm])_(?:zero_(after_)?(\d+(?:\.\d+)?)|1g|step_(\d+(?:\.\d+)?)g)$")
 SETTINGS_KEYS = (
     "latitude_deg",
     "alpha",

@@ -69,8 +69,23 @@ EQUIPMENT_FREE_DEFAULTS: dict[str, Any] = {
 # Up to 256: a hand holds a pose with tremor of 10-15 times the noise std of the first
 # rest on a table (variance 100-200 times: a hand-held MPU-6050 session's rests appear
 # at k >= 100), and the Birge ratio, not the grid's end, must decide.
-THRESHOLD_SEARCH_K = (2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0, 96.0,
-                      128.0, 192.0, 256.0)  # fmt: skip
+THRESHOLD_SEARCH_K = (
+    2.0,
+    3.0,
+    4.0,
+    6.0,
+    8.0,
+    12.0,
+    16.0,
+    24.0,
+    32.0,
+    48.0,
+    64.0,
+    96.0,
+    128.0,
+    192.0,
+    256.0,
+)
 # Detector settings the refusal tries, as factors of the given ones, to name what works.
 RELAXED_FACTORS = (0.5, 0.25)
 # Fewer accelerometer degrees of freedom than this and the residual scale (Birge

@@ -195,8 +195,9 @@ def record_spikes(cal: Calibration, replaced: dict[str, dict]) -> None:
     }
     checks = cal.info.setdefault("solver_checks", [])
     for label, c in replaced.items():
-        checks.append(replaced_check("despike", label, c["replaced"], c["tested"],
-                                     SPIKE_FALSE_ALARM))  # fmt: skip
+        checks.append(
+            replaced_check("despike", label, c["replaced"], c["tested"], SPIKE_FALSE_ALARM)
+        )
 
 
 def _check_range(rec: Recording, label: str, gyro_range: float) -> None:

@@ -135,9 +135,7 @@ def _static_stats(records: list[ArrayRecords]) -> tuple[list[ChannelStats], list
     return acc, gyr
 
 
-def _fit_gyro_matrix(
-    cal: Calibration, theta: np.ndarray, D: np.ndarray, U: np.ndarray
-) -> float:
+def _fit_gyro_matrix(cal: Calibration, theta: np.ndarray, D: np.ndarray, U: np.ndarray) -> float:
     """Add gyr.scale/misalign from the turn differences, row by row; their condition number.
 
     theta : (S, 3) rotation vector of each sensor's turns, rad; D : (S, 3) ccw - cw

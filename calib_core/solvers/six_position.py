@@ -74,8 +74,17 @@ def accel_closed_form(means: dict[str, np.ndarray], gravity: float) -> dict[str,
     Azx = -(A3[z] - A4[z]) / g2
     # Three bias estimates per axis, one per pair of opposite positions, averaged.
     bias = ((A1 + A2) / 2.0 + (A3 + A4) / 2.0 + (A5 + A6) / 2.0) / 3.0
-    manual = {"Axx": Axx, "Ayy": Ayy, "Azz": Azz, "Axz": Axz, "Axy": Axy, "Ayz": Ayz,
-              "Ayx": Ayx, "Azy": Azy, "Azx": Azx}  # fmt: skip
+    manual = {
+        "Axx": Axx,
+        "Ayy": Ayy,
+        "Azz": Azz,
+        "Axz": Axz,
+        "Axy": Axy,
+        "Ayz": Ayz,
+        "Ayx": Ayx,
+        "Azy": Azy,
+        "Azx": Azx,
+    }
     out = {f"acc.bias.{a}": float(bias[i]) for i, a in enumerate(params.AXES)}
     for canonical, (name, sign) in params.MANUAL_NAMES.items():
         if name in manual:  # canonical = sign * manual (params.MANUAL_NAMES)

@@ -187,9 +187,17 @@ def solve_static_bias(
         for sensor, x in (("gyr", rec.gyr), ("acc", rec.acc))
     }
     return static_bias_calibration(
-        stats, len(rec), rate_hz, rec.label or "record", earth, n_sigma=n_sigma,
-        latitude_deg=latitude_deg, heading_deg=heading_deg, up_axis=up_axis, gravity=gravity,
-    )  # fmt: skip
+        stats,
+        len(rec),
+        rate_hz,
+        rec.label or "record",
+        earth,
+        n_sigma=n_sigma,
+        latitude_deg=latitude_deg,
+        heading_deg=heading_deg,
+        up_axis=up_axis,
+        gravity=gravity,
+    )
 
 
 def static_bias_calibration(
@@ -263,10 +271,16 @@ def static_bias_calibration(
                 f"{n_sigma} sigma in one channel; expected ~0.3 % for Gaussian noise"
             )
     cal.info.update(info)
-    clipped = {f"{sensor}.{a}": int(n) for sensor, counts in info["outliers"].items()
-               for a, n in zip(AXES, counts, strict=True)}  # fmt: skip
-    checks.append(replaced_check("static_bias", label, clipped, 6 * n,
-                                 2.0 * float(norm_sf(n_sigma)), "left out"))  # fmt: skip
+    clipped = {
+        f"{sensor}.{a}": int(n)
+        for sensor, counts in info["outliers"].items()
+        for a, n in zip(AXES, counts, strict=True)
+    }
+    checks.append(
+        replaced_check(
+            "static_bias", label, clipped, 6 * n, 2.0 * float(norm_sf(n_sigma)), "left out"
+        )
+    )
     cal.info.setdefault("replaced_samples", {})["static_bias"] = clipped
     cal.info.setdefault("solver_checks", []).extend(checks)
     return cal
@@ -279,9 +293,13 @@ def _undetermined_checks(sensor: str, terms: list[dict]) -> list[dict]:
     for a, t in zip(AXES, terms, strict=True):
         missing = [k for k in NOISE_TERMS if t[k] is None]
         if missing:
-            out.append({
-                "name": f"model:noise:{sensor}.{a}", "value": None, "limit": None,
-                "passed": False,
-                "detail": "; ".join(f"{k}: {t[f'{k}_method']}" for k in missing),
-            })  # fmt: skip
+            out.append(
+                {
+                    "name": f"model:noise:{sensor}.{a}",
+                    "value": None,
+                    "limit": None,
+                    "passed": False,
+                    "detail": "; ".join(f"{k}: {t[f'{k}_method']}" for k in missing),
+                }
+            )
     return out

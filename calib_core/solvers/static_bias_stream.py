@@ -91,14 +91,18 @@ def solve_static_bias_stream(
     """
     first = first if first is not None else first_pass(chunks())
     n = first.n
-    earth = _earth_rate(
-        label, n, n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis
-    )
+    earth = _earth_rate(label, n, n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis)
     rate_hz = 1.0 / first.step.median()
     mean = first.moments.mean
     clip = SigmaClipFill(mean, first.moments.std(), n_sigma)
     allan = StreamedAllan(
-        rate_hz, n, 6, taus=taus, offset=mean, memory_rows=memory_rows, history=history,
+        rate_hz,
+        n,
+        6,
+        taus=taus,
+        offset=mean,
+        memory_rows=memory_rows,
+        history=history,
         map_=map_,
     )
     for _, gyr, acc in chunks():
@@ -112,8 +116,16 @@ def solve_static_bias_stream(
         for sensor, cols in (("gyr", slice(0, 3)), ("acc", slice(3, 6)))
     }
     cal = static_bias_calibration(
-        stats, n, rate_hz, label, earth, n_sigma=n_sigma, latitude_deg=latitude_deg,
-        heading_deg=heading_deg, up_axis=up_axis, gravity=gravity,
-    )  # fmt: skip
+        stats,
+        n,
+        rate_hz,
+        label,
+        earth,
+        n_sigma=n_sigma,
+        latitude_deg=latitude_deg,
+        heading_deg=heading_deg,
+        up_axis=up_axis,
+        gravity=gravity,
+    )
     cal.info["streamed"] = True
     return cal

@@ -30,8 +30,11 @@ def verify(
     approvers: ApproversOpt = None,
     checkpoint: Annotated[
         list[Path] | None,
-        typer.Option("--checkpoint", help="A checkpoint written earlier (calib checkpoint): the "
-                     "audit chain must extend it exactly. Repeatable."),
+        typer.Option(
+            "--checkpoint",
+            help="A checkpoint written earlier (calib checkpoint): the "
+            "audit chain must extend it exactly. Repeatable.",
+        ),
     ] = None,
 ) -> None:
     """Re-hash every archived file, recompute every seal, the audit chain and the approval
@@ -54,8 +57,12 @@ def verify(
         for rel in removed:
             err.print(f"removed {rel} (left by a killed writer)")
         if removed:
-            record_event(arch, "repaired", reason="temporary files left by killed writers",
-                         detail={"removed": len(removed), "first": removed[:20]})  # fmt: skip
+            record_event(
+                arch,
+                "repaired",
+                reason="temporary files left by killed writers",
+                detail={"removed": len(removed), "first": removed[:20]},
+            )
     report = run_verify(arch, orphans=orphans, approvers=trust, checkpoints=heads)
     if as_json:
         sys.stdout.write(json.dumps(report.to_dict(), indent=2) + "\n")
@@ -72,10 +79,15 @@ def verify(
             f"{report.seals_checked} seals checked: "
             + ("OK" if report.ok else f"[red]{len(report.problems)} problem(s)[/red]")
         )
-        err.print(f"audit chain head: event {seq}, hash {head} (note it down, or keep a "
-                  "calib checkpoint out of the writers' reach)", soft_wrap=True)  # fmt: skip
-        err.print(f"approvals checked against {report.approvers}" if report.approvers
-                  else NOT_CHECKED, markup=False)  # fmt: skip
+        err.print(
+            f"audit chain head: event {seq}, hash {head} (note it down, or keep a "
+            "calib checkpoint out of the writers' reach)",
+            soft_wrap=True,
+        )
+        err.print(
+            f"approvals checked against {report.approvers}" if report.approvers else NOT_CHECKED,
+            markup=False,
+        )
         for source in report.checkpoints:
             err.print(f"chain compared with the checkpoint {source}", markup=False)
     raise typer.Exit(0 if report.ok else 1)
@@ -117,8 +129,11 @@ def restore(
         manifest = run_restore(src, target)
     except (BackupError, FileNotFoundError, ValueError) as exc:
         fail(str(exc))
-    record_event(target, "restored", detail={"files": len(manifest["files"]),
-                                             "schema": manifest["schema_revision"]})  # fmt: skip
+    record_event(
+        target,
+        "restored",
+        detail={"files": len(manifest["files"]), "schema": manifest["schema_revision"]},
+    )
     report = run_verify(target, orphans=False)
     err.print(
         f"restored {len(manifest['files'])} files and the {manifest['backend']} database "

@@ -14,9 +14,12 @@ from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, open_
 PASSPHRASE_ENV = "CALIB_KEY_PASSPHRASE"
 ApproversOpt = Annotated[
     Path | None,
-    typer.Option("--approvers", help="The lab's trusted approvers: a file of calib keygen .pub "
-                 "lines (default: env CALIB_APPROVERS, else [trust] approvers of lab.toml)."),
-]  # fmt: skip
+    typer.Option(
+        "--approvers",
+        help="The lab's trusted approvers: a file of calib keygen .pub "
+        "lines (default: env CALIB_APPROVERS, else [trust] approvers of lab.toml).",
+    ),
+]
 
 
 def load_trust(given: Path | None):  # noqa: ANN201 - Approvers | None
@@ -56,9 +59,15 @@ def audit(
     for ev in events:
         if ev["action"] == "approved":
             d = ev["detail"] or {}
-            a = Approval(ev["seq"], ev["run_id"], ev["revision"], d.get("meaning", ""),
-                         d.get("signer", ""), d.get("public_key", ""),
-                         ev["at"].isoformat())  # fmt: skip
+            a = Approval(
+                ev["seq"],
+                ev["run_id"],
+                ev["revision"],
+                d.get("meaning", ""),
+                d.get("signer", ""),
+                d.get("public_key", ""),
+                ev["at"].isoformat(),
+            )
             ev["approval"] = a if trust is None else trust.mark(a)
             ev["trusted"], ev["untrusted"] = ev["approval"].trusted, ev["approval"].untrusted
             approved += 1
@@ -69,11 +78,15 @@ def audit(
         what = ev["run_id"] + f" revision {ev['revision']}" if ev["run_id"] else ""
         detail = ev["detail"] or {}
         if ev["action"] == "approved":
-            what += f" {approval_line(ev['approval'])} " \
-                    f"(key {fingerprint(detail.get('public_key', ''))})"  # fmt: skip
+            what += (
+                f" {approval_line(ev['approval'])} "
+                f"(key {fingerprint(detail.get('public_key', ''))})"
+            )
         elif ev["action"] == "certificate issued":  # pipelines.reports.issue
-            what += f" certificate {detail.get('certificate')} (issue {detail.get('issue')}, " \
-                    f"{len(detail.get('files') or {})} files sealed)"  # fmt: skip
+            what += (
+                f" certificate {detail.get('certificate')} (issue {detail.get('issue')}, "
+                f"{len(detail.get('files') or {})} files sealed)"
+            )
         elif detail:  # nested values are named, not printed raw (--json has them)
             what += " " + ", ".join(
                 f"{k}={v}" if not isinstance(v, dict | list) else f"{k}: {len(v)} entries"
@@ -86,8 +99,9 @@ def audit(
         )
     err.print(f"{len(events)} event(s)")
     if approved:
-        err.print(f"approvals checked against {trust.source}" if trust else NOT_CHECKED,
-                  markup=False)
+        err.print(
+            f"approvals checked against {trust.source}" if trust else NOT_CHECKED, markup=False
+        )
 
 
 def _passphrase(confirm: bool) -> str:
@@ -141,8 +155,14 @@ def approve(
             name = json.loads(pub.read_text())["name"] if pub.is_file() else None
         if not name:
             fail(f"no --name given and no {key}.pub to take it from")
-        ev = sign(arch, full, load_key(key, _passphrase(confirm=False)), signer=name,
-                  meaning=meaning, revision=revision)  # fmt: skip
+        ev = sign(
+            arch,
+            full,
+            load_key(key, _passphrase(confirm=False)),
+            signer=name,
+            meaning=meaning,
+            revision=revision,
+        )
     except (ApprovalError, ValueError, KeyError) as exc:
         fail(str(exc))
     err.print(f"run {full} revision {ev.revision} {meaning} by {name} (audit event {ev.seq})")

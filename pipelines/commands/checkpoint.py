@@ -46,5 +46,7 @@ def checkpoint(
     except OSError as exc:
         fail(f"{output}: cannot be written ({exc.strerror or exc})")
     signed = f", signed by {signer}" if signer else ""
-    err.print(f"checkpoint of event {doc['seq']} (hash {doc['hash']}; {doc['runs']} runs, "
-              f"{doc['seals']} seals) written to {output}{signed}")  # fmt: skip
+    err.print(
+        f"checkpoint of event {doc['seq']} (hash {doc['hash']}; {doc['runs']} runs, "
+        f"{doc['seals']} seals) written to {output}{signed}"
+    )

@@ -74,13 +74,19 @@ def impact_command(
         print_json(doc)
         return
     rows = [
-        [r["run_id"], r["serial"], r["started_at"][:10], r["procedure"], r["verdict_before"],
-         r["verdict_after"] or "failed",
-         "; ".join(f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"][:3])
-         or ("-" if r["affected"] else "not affected"),
-         r.get("status", "dry run")]
+        [
+            r["run_id"],
+            r["serial"],
+            r["started_at"][:10],
+            r["procedure"],
+            r["verdict_before"],
+            r["verdict_after"] or "failed",
+            "; ".join(f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"][:3])
+            or ("-" if r["affected"] else "not affected"),
+            r.get("status", "dry run"),
+        ]
         for r in doc["runs"]
-    ]  # fmt: skip
+    ]
     print_table(
         f"Impact of {doc['reason']}",
         ["run_id", "serial", "started", "procedure", "before", "after", "moved", "status"],

@@ -45,8 +45,10 @@ def _print(doc: dict[str, Any], indent: str = "") -> None:
         elif key == "sources" and isinstance(value, list):  # a log's IMU sources, one a line
             _say(f"{indent}sources:")
             for src in value:
-                _say(f"{indent}  {src['source']}: {_text(src['rate_hz'])} Hz, "
-                     f"{src['samples']} samples, temperature {src['temperature']}")  # fmt: skip
+                _say(
+                    f"{indent}  {src['source']}: {_text(src['rate_hz'])} Hz, "
+                    f"{src['samples']} samples, temperature {src['temperature']}"
+                )
         elif key == "segments" and isinstance(value, dict):
             _say(f"{indent}segments:")
             for label, seg in value.items():

@@ -71,7 +71,7 @@ def repeatability_command(
                 "detail": c.detail,
             }
             for c in checks
-        ],  # fmt: skip
+        ],
     }
     if as_json:
         print_json(doc)
@@ -87,7 +87,8 @@ def repeatability_command(
         for c in checks:
             rule = c.detail.split(":", 1)[0].removeprefix("rule ")
             mark = "[green]pass[/]" if c.passed else "[red]FAIL[/]"
-            table.add_row(c.name.removeprefix("repeat:"), rule, f"{c.value:.4g}",
-                          f"{c.limit:.4g}", mark)  # fmt: skip
+            table.add_row(
+                c.name.removeprefix("repeat:"), rule, f"{c.value:.4g}", f"{c.limit:.4g}", mark
+            )
         out.print(table)
     raise typer.Exit(0 if not checks or all(c.passed for c in checks) else 1)

@@ -21,12 +21,19 @@ def report(
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the paths.")] = False,
     form: Annotated[
-        str, typer.Option("--format", help="certificate (protocol, HTML, PDF) or dcc "
-                                            "(Digital Calibration Certificate XML).")
+        str,
+        typer.Option(
+            "--format",
+            help="certificate (protocol, HTML, PDF) or dcc (Digital Calibration Certificate XML).",
+        ),
     ] = "certificate",
     reissue: Annotated[
-        bool, typer.Option("--reissue", help="Issue the certificate again from the archive "
-                                             "as it is now (a new, sealed document).")
+        bool,
+        typer.Option(
+            "--reissue",
+            help="Issue the certificate again from the archive "
+            "as it is now (a new, sealed document).",
+        ),
     ] = False,
     reason: Annotated[
         str | None, typer.Option("--reason", help="Why it is issued again (audit trail).")
@@ -54,8 +61,9 @@ def report(
             current = None if reissue else issued(arch, run_id)
             if current is None:
                 try:
-                    current = issue(arch, run_id, reason=reason or ("issued again" if reissue
-                                                                     else None))  # fmt: skip
+                    current = issue(
+                        arch, run_id, reason=reason or ("issued again" if reissue else None)
+                    )
                 except OSError as exc:
                     if output is None or reissue:
                         raise
@@ -74,8 +82,9 @@ def report(
         fail(f"{describe(exc) or exc}; the reports can go elsewhere with --output DIR")
     verdict = written.pop("verdict")
     if as_json:
-        print_json({"run_id": run_id, "verdict": verdict,
-                    **{k: str(v) for k, v in written.items()}})  # fmt: skip
+        print_json(
+            {"run_id": run_id, "verdict": verdict, **{k: str(v) for k, v in written.items()}}
+        )
         return
     number = written.pop("certificate", None)
     if number is not None:
@@ -90,6 +99,9 @@ def _unissued_copy(arch, run_id: str, output: Path, pdf: bool, why: OSError) -> 
     from pipelines.reports.certificate import report_run
     from storage.write_failures import describe
 
-    err.print(f"not issued: {describe(why) or why}; a rendering from the archive, not an "
-              f"issued certificate, is written into {output}", markup=False)  # fmt: skip
+    err.print(
+        f"not issued: {describe(why) or why}; a rendering from the archive, not an "
+        f"issued certificate, is written into {output}",
+        markup=False,
+    )
     return report_run(arch, run_id, output, pdf=pdf)

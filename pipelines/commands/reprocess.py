@@ -71,8 +71,14 @@ def reprocess_command(
     """
     from pipelines.reprocess import check_reason
 
-    selection = {"serial": serial, "model": model, "since": since, "until": until,
-                 "software_version": software_version, "profile": profile}  # fmt: skip
+    selection = {
+        "serial": serial,
+        "model": model,
+        "since": since,
+        "until": until,
+        "software_version": software_version,
+        "profile": profile,
+    }
     try:
         check_reason(reason)
         _check_choice(run_id, every, selection, keep)
@@ -194,8 +200,9 @@ def _print_changes(changes: dict[str, Any]) -> None:
     for col in ("family", "runs", "changed", "unjudged (no std)", "max |z|"):
         table.add_column(col)
     for name, row in changes["families"].items():
-        table.add_row(name, str(row["runs"]), str(row["changed"]), str(row["unjudged"]),
-                      f"{row['max_z']:.2f}")  # fmt: skip
+        table.add_row(
+            name, str(row["runs"]), str(row["changed"]), str(row["unjudged"]), f"{row['max_z']:.2f}"
+        )
     out.print(table)
     flips = ", ".join(f"{key}: {n}" for key, n in changes["verdicts"].items()) or "none"
     out.print(f"verdicts changed: {flips}")

@@ -21,13 +21,19 @@ def serve(
     ] = "calib_reader",
     users: Annotated[
         Path | None,
-        typer.Option("--users", help="Users and scrypt password hashes (calib serve-user): "
-                     "every page asks for a login. Needed on any address but loopback."),
+        typer.Option(
+            "--users",
+            help="Users and scrypt password hashes (calib serve-user): "
+            "every page asks for a login. Needed on any address but loopback.",
+        ),
     ] = None,
     proxy_user_header: Annotated[
         str | None,
-        typer.Option("--proxy-user-header", help="Behind a reverse proxy that logs users in "
-                     "and sets this header (docs/serve.md): requests without it are refused."),
+        typer.Option(
+            "--proxy-user-header",
+            help="Behind a reverse proxy that logs users in "
+            "and sets this header (docs/serve.md): requests without it are refused.",
+        ),
     ] = None,
 ) -> None:
     """Browse the archive in a web browser (read-only: runs, units, fleets, equipment)."""
@@ -39,9 +45,11 @@ def serve(
     from storage.queries import open_readonly
 
     if not is_loopback(host) and users is None and not proxy_user_header:
-        fail(f"--host {host} is reachable from other machines: a login is required; give "
-             "--users FILE (calib serve-user FILE NAME makes it) or --proxy-user-header NAME "
-             "behind a reverse proxy that logs users in (docs/serve.md)")
+        fail(
+            f"--host {host} is reachable from other machines: a login is required; give "
+            "--users FILE (calib serve-user FILE NAME makes it) or --proxy-user-header NAME "
+            "behind a reverse proxy that logs users in (docs/serve.md)"
+        )
     try:
         known = load_users(users) if users is not None else None
         ro = open_readonly(resolve_archive(archive), reader_role)
@@ -51,8 +59,7 @@ def serve(
     if known is not None or proxy_user_header:
         require_login(app, known, proxy_user_header)
     login = " with a login" if known is not None or proxy_user_header else ""
-    message = (f"serving {ro.display_url} read-only{login} on http://{host}:{port}/ "
-               "(Ctrl-C stops)")  # fmt: skip
+    message = f"serving {ro.display_url} read-only{login} on http://{host}:{port}/ (Ctrl-C stops)"
 
     class Announcing(uvicorn.Server):
         """Says "serving" once the socket accepts connections, not before."""

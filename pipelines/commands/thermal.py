@@ -119,8 +119,11 @@ def thermal_show(
 
     model = _run(queries.latest_thermal_model, open_archive(archive), serial, parse_when(at))
     if model is None:
-        fail(f"{serial} has no thermal model" + (f" as of {at}" if at else "")
-             + f": run `calib thermal fit {serial}` first")  # fmt: skip
+        fail(
+            f"{serial} has no thermal model"
+            + (f" as of {at}" if at else "")
+            + f": run `calib thermal fit {serial}` first"
+        )
     if as_json:
         print_json(model)
         return
@@ -129,7 +132,7 @@ def thermal_show(
         {
             "unit": serial,
             "model": f"{model['id']} ({model['model_name']} v{model['model_version']}, "
-                     f"software {doc.get('software_version', '-')})",
+            f"software {doc.get('software_version', '-')})",
             "created": model["created_at"],
             "range": f"{model['t_min']:g} .. {model['t_max']:g} deg C",
             "reference temperature": f"{model['t_ref']:g} deg C",
@@ -138,18 +141,31 @@ def thermal_show(
         },
         f"Thermal model of {serial}",
     )
-    print_table(f"Curves: value(T) = c0 + c1 (T - {model['t_ref']:g}) + ... (SI)",
-                ["parameter", "order", "coefficients c0, c1, ...", "residual sigma", "points",
-                 "hysteresis"],
-                [_curve_row(name, c) for name, c in sorted(doc["curves"].items())])  # fmt: skip
+    print_table(
+        f"Curves: value(T) = c0 + c1 (T - {model['t_ref']:g}) + ... (SI)",
+        [
+            "parameter",
+            "order",
+            "coefficients c0, c1, ...",
+            "residual sigma",
+            "points",
+            "hysteresis",
+        ],
+        [_curve_row(name, c) for name, c in sorted(doc["curves"].items())],
+    )
 
 
 def _curve_row(name: str, curve: dict[str, Any]) -> list[str]:
     coef = ", ".join(f"{c:.4g}" for c in curve["coef"])
     unit = curve.get("unit") or ""
-    return [name, str(len(curve["coef"]) - 1), f"{coef} ({unit})",
-            f"{curve.get('sigma', float('nan')):.3g}", str(curve.get("n_points", "-")),
-            _hyst(curve.get("hysteresis"))]  # fmt: skip
+    return [
+        name,
+        str(len(curve["coef"]) - 1),
+        f"{coef} ({unit})",
+        f"{curve.get('sigma', float('nan')):.3g}",
+        str(curve.get("n_points", "-")),
+        _hyst(curve.get("hysteresis")),
+    ]
 
 
 @thermal_app.command("export")
@@ -178,8 +194,14 @@ def thermal_export(
         )
         exports.write_json(output, doc)
     elif fmt == "px4":
-        rows = _run(exports.px4_parameters, model, cal, instance=max(instance, 0),
-                    accel_id=device_id, gyro_id=device_id)  # fmt: skip
+        rows = _run(
+            exports.px4_parameters,
+            model,
+            cal,
+            instance=max(instance, 0),
+            accel_id=device_id,
+            gyro_id=device_id,
+        )
         exports.write_px4_params(output, rows, header=header)
     elif fmt == "ardupilot":
         rows = _run(exports.ardupilot_parameters, model, cal, imu=instance if instance > 0 else 1)

@@ -219,8 +219,6 @@ def _recognise(
     return out
 
 
-
-
 def header_units(layout: CsvLayout, fmt: FormatSpec) -> FormatSpec:
     """`fmt` with the units the header names give (``acc_x [g]``), unless the manifest sets them.
 

@@ -180,9 +180,11 @@ def stream_csv(
     sha, first = hashlib.sha256(), FirstPass.empty()
     rows, last_t, done = 0, None, 0
     schema = pa.schema([("segment", pa.string())] + [(c, pa.float64()) for c in SAMPLE_COLUMNS])
-    with path.open("rb") as fh, pq.ParquetWriter(
-        samples, schema, **samples_parquet_options(schema)
-    ) as writer, (copy_to.open("wb") if copy_to is not None else nullcontext()) as copy:
+    with (
+        path.open("rb") as fh,
+        pq.ParquetWriter(samples, schema, **samples_parquet_options(schema)) as writer,
+        copy_to.open("wb") if copy_to is not None else nullcontext() as copy,
+    ):
         head = b"".join(fh.readline() for _ in range(layout.data_start - 1))
         sha.update(head)
         if copy is not None:
@@ -208,8 +210,9 @@ def stream_csv(
     return Streamed(sha.hexdigest(), size, Path(samples), first, time.perf_counter() - started)
 
 
-def _chunk(table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path,
-           last_t: float | None) -> dict[str, np.ndarray]:  # fmt: skip
+def _chunk(
+    table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path, last_t: float | None
+) -> dict[str, np.ndarray]:
     """One block's samples in SI: t (n,), acc and gyr (n, 3), temp (n,) (NaN if none)."""
     n = table.num_rows
     values: dict[str, np.ndarray] = {}
@@ -219,9 +222,11 @@ def _chunk(table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path,
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
             raise IngestError(
-                "expected a finite number", file=path, line=layout.line_of_row(rows + int(bad[0])),
+                "expected a finite number",
+                file=path,
+                line=layout.line_of_row(rows + int(bad[0])),
                 field=layout.fields[name],
-            )  # fmt: skip
+            )
         values[role] = v
     both = np.empty((n, 6))  # [gyr | acc]: the first pass takes it without a copy
     for i, role in enumerate([*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]):
@@ -240,8 +245,9 @@ def _chunk(table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path,
     if (steps <= 0).any():
         row = rows + int(np.flatnonzero(steps <= 0)[0])
         field = layout.fields.get(layout.roles.get("time", ""), "time")
-        raise IngestError("time must increase", file=path, line=layout.line_of_row(row),
-                          field=field)  # fmt: skip
+        raise IngestError(
+            "time must increase", file=path, line=layout.line_of_row(row), field=field
+        )
     temp = _celsius(layout, values.get("temp"))
     return {"t": t, "acc": acc, "gyr": gyr, "temp": np.full(n, np.nan) if temp is None else temp}
 
@@ -328,10 +334,14 @@ def solve_streamed(
     try:
         cal = solve_static_bias_stream(
             lambda: samples_chunks(streamed.samples, memory_limit),
-            label=label, first=streamed.first, gravity=gravity, history=history,
-            memory_rows=4 * batch_rows(memory_limit), map_=pool.map,
+            label=label,
+            first=streamed.first,
+            gravity=gravity,
+            history=history,
+            memory_rows=4 * batch_rows(memory_limit),
+            map_=pool.map,
             **{k: v for k, v in settings.items() if v is not None},
-        )  # fmt: skip
+        )
     finally:
         pool.shutdown()
         history.close()

@@ -70,15 +70,19 @@ def check_records(path: Path, lengths: dict[int, int]) -> None:
     while pos < size:
         length = lengths.get(data[pos + 2]) if pos + 3 <= size else None
         if data[pos : pos + 2] != DF_HEAD or length is None:
-            what = ("a record head a3 95 and a type with a FMT" if pos + 3 <= size
-                    else "a whole record")  # fmt: skip
+            what = (
+                "a record head a3 95 and a type with a FMT" if pos + 3 <= size else "a whole record"
+            )
             raise IngestError(
                 f"damaged DataFlash log: expected {what} at byte offset {pos}, found "
                 f"{data[pos : pos + 3].hex(' ')}"
-                + (" (the file ends there: the log was cut while written)"
-                   if pos + 3 > size else ""),
+                + (
+                    " (the file ends there: the log was cut while written)"
+                    if pos + 3 > size
+                    else ""
+                ),
                 file=path,
-            )  # fmt: skip
+            )
         if pos + length > size:
             raise IngestError(
                 f"truncated DataFlash log: the last record (byte offset {pos}, type "
@@ -163,12 +167,21 @@ def read_dataflash(
             file=path,
             field="format.instance" if instance else "IMU",
         )
-    chosen = choose_source(path, dataflash_sources(by_instance), instance,
-                           min_rate_hz=min_rate_hz, field="format.instance")  # fmt: skip
+    chosen = choose_source(
+        path,
+        dataflash_sources(by_instance),
+        instance,
+        min_rate_hz=min_rate_hz,
+        field="format.instance",
+    )
     rows, name = by_instance[int(chosen.key)]
     data = np.array(rows, dtype=float)
     what = chosen.name
     return checked_recording(
-        path, what, data[:, 0] * 1e-6, {"gyr": data[:, 1:4], "acc": data[:, 4:7]},
-        temp=recorded_temperature(data[:, 7]), temp_field="T",
-    )  # fmt: skip
+        path,
+        what,
+        data[:, 0] * 1e-6,
+        {"gyr": data[:, 1:4], "acc": data[:, 4:7]},
+        temp=recorded_temperature(data[:, 7]),
+        temp_field="T",
+    )

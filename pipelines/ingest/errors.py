@@ -88,9 +88,7 @@ def shortened(text: str) -> str:
     `TOKEN_LIMIT` characters without a space cut, their length said: a value from a
     damaged file is named, not printed in full."""
     text = _LONG_NUMBER.sub(_short_number, text)
-    return _LONG_TOKEN.sub(
-        lambda m: f"{m.group()[:60]}... ({len(m.group())} characters)", text
-    )
+    return _LONG_TOKEN.sub(lambda m: f"{m.group()[:60]}... ({len(m.group())} characters)", text)
 
 
 def _short_number(match: re.Match) -> str:

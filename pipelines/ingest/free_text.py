@@ -16,8 +16,11 @@ from pipelines.ingest.errors import IngestError
 # Limits of free text (characters), the same on every database back end (check_free_text).
 TEXT_MAX_CHARS = 200  # names, operator, labels, file names: one line (the archive's columns)
 # Fields whose archive column is shorter (list indices written as []).
-TEXT_MAX_BY_FIELD = {"run.procedure": 100, "equipment[].kind": 100,
-                     "equipment[].accuracy_class": 100}  # fmt: skip
+TEXT_MAX_BY_FIELD = {
+    "run.procedure": 100,
+    "equipment[].kind": 100,
+    "equipment[].accuracy_class": 100,
+}
 LONG_TEXT_MAX_CHARS = 4000  # descriptions, which may hold line breaks
 LONG_TEXT_FIELDS = frozenset({"unit.specification", "environment.vibration"})
 
@@ -51,8 +54,7 @@ def check_free_text(data: Any, source: str = "run.toml", field: str = "") -> Non
         if bad is not None:
             raise IngestError(
                 f"control character {data[bad]!r} (U+{ord(data[bad]):04X}) at character "
-                f"{bad + 1}; expected printable text"
-                + ("" if long else " on one line"),
+                f"{bad + 1}; expected printable text" + ("" if long else " on one line"),
                 file=source,
                 field=field,
             )

@@ -70,8 +70,10 @@ def checked_recording(
                 file=path,
                 field=f"{what}.{name}",
             )
-    for name, limit, unit, scale in (("acc", ACC_LIMIT, "m/s^2", 1.0),
-                                     ("gyr", GYR_LIMIT, "deg/s", 180.0 / np.pi)):  # fmt: skip
+    for name, limit, unit, scale in (
+        ("acc", ACC_LIMIT, "m/s^2", 1.0),
+        ("gyr", GYR_LIMIT, "deg/s", 180.0 / np.pi),
+    ):
         beyond = np.flatnonzero(np.abs(channels[name]).max(axis=1) > limit)
         if beyond.size:
             i = int(beyond[0])
@@ -125,8 +127,12 @@ class LogSource:
     def summary(self) -> dict:
         """For `calib inspect`: name, rate, samples, temperature."""
         rate = None if self.rate_hz is None else round(self.rate_hz, 3)
-        return {"source": self.name, "rate_hz": rate, "samples": self.samples,
-                "temperature": "recorded" if self.temperature else "not recorded"}  # fmt: skip
+        return {
+            "source": self.name,
+            "rate_hz": rate,
+            "samples": self.samples,
+            "temperature": "recorded" if self.temperature else "not recorded",
+        }
 
 
 def stamp_rate(t: np.ndarray) -> float | None:
@@ -160,8 +166,9 @@ def choose_source(
                 field=field,
             )
     elif not sources:
-        raise IngestError("no accelerometer and gyro samples (no IMU source)", file=path,
-                          field=field)  # fmt: skip
+        raise IngestError(
+            "no accelerometer and gyro samples (no IMU source)", file=path, field=field
+        )
     else:
         best = max(s.rate_hz or 0.0 for s in sources)
         chosen = next(s for s in sources if (s.rate_hz or 0.0) >= TIE * best)

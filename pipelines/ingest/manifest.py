@@ -387,8 +387,10 @@ def _deepest_line(text: str) -> int | None:
 
 def _longest_number(text: str) -> tuple[int, int | None]:
     """(digits, 1-based line) of the longest run of digits in `text`."""
-    runs = [(len(m.group()), text.count("\n", 0, m.start()) + 1)
-            for m in re.finditer(r"[\d_]{100,}", text)]  # fmt: skip
+    runs = [
+        (len(m.group()), text.count("\n", 0, m.start()) + 1)
+        for m in re.finditer(r"[\d_]{100,}", text)
+    ]
     return max(runs) if runs else (0, None)
 
 

@@ -316,9 +316,18 @@ def _read_h5_variable(name: str, f: Any, dotted: str, listing: Any) -> np.ndarra
     mclass = obj.attrs.get("MATLAB_class")
     mclass = mclass.decode() if isinstance(mclass, bytes) else mclass
     if mclass is not None and mclass not in (
-        "double", "single", "logical",
-        "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64",
-    ):  # fmt: skip
+        "double",
+        "single",
+        "logical",
+        "int8",
+        "uint8",
+        "int16",
+        "uint16",
+        "int32",
+        "uint32",
+        "int64",
+        "uint64",
+    ):
         raise IngestError(
             f"has MATLAB class {mclass!r}, expected a numeric array", file=name, field=dotted
         )

@@ -251,11 +251,13 @@ class _Reader:
                 f"(limit {_MAX_CHUNK}; damaged file?)",
                 file=self.name,
             )
-        data = decompress(self.name, pos, compression, body[start : start + records_len],
-                           uncompressed_size)  # fmt: skip
+        data = decompress(
+            self.name, pos, compression, body[start : start + records_len], uncompressed_size
+        )
         if crc and zlib.crc32(data) != crc:
-            raise IngestError(f"chunk at byte {pos} fails its CRC check (damaged file)",
-                              file=self.name)  # fmt: skip
+            raise IngestError(
+                f"chunk at byte {pos} fails its CRC check (damaged file)", file=self.name
+            )
         self._records(data, pos)
 
     def _summary_statistics(self, f: Any, size: int) -> None:
@@ -292,8 +294,9 @@ class _Reader:
         """Messages per channel from the summary: a check that no chunk went missing."""
         try:
             (size,) = struct.unpack_from("<I", body, 42)
-            entries = np.frombuffer(body, np.dtype([("id", "<u2"), ("n", "<u8")]),
-                                    count=size // 10, offset=46)  # fmt: skip
+            entries = np.frombuffer(
+                body, np.dtype([("id", "<u2"), ("n", "<u8")]), count=size // 10, offset=46
+            )
         except (struct.error, ValueError):
             raise IngestError(f"damaged statistics record at byte {pos}", file=self.name) from None
         self.counts = dict(zip(entries["id"].tolist(), entries["n"].tolist(), strict=True))

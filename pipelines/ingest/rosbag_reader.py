@@ -101,9 +101,10 @@ def _topic(reader, path: Path, msgtype: str, name: str | None, key: str, require
     topics = sorted({c.topic for c in conns})
     if name and conns and conns[0].msgtype != msgtype:
         raise IngestError(
-            f"topic {name} is {conns[0].msgtype}, expected {msgtype}", file=path,
+            f"topic {name} is {conns[0].msgtype}, expected {msgtype}",
+            file=path,
             field=f"format.{key}",
-        )  # fmt: skip
+        )
     if len(topics) == 1 or (not required and not topics and not name):
         return conns
     found = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
@@ -173,8 +174,9 @@ def read_rosbag(
     try:
         if imu_topic is None and len({c.topic for c in reader.connections if c.msgtype == IMU}) > 1:
             sources = bag_sources(reader, path)
-            imu_topic = str(choose_source(path, sources, min_rate_hz=min_rate_hz,
-                                          field="format.imu_topic").key)  # fmt: skip
+            imu_topic = str(
+                choose_source(path, sources, min_rate_hz=min_rate_hz, field="format.imu_topic").key
+            )
         conns = _topic(reader, path, IMU, imu_topic, "imu_topic", True)
         t_ns, rows = _messages(reader, deserialize, conns, path, stamp, _imu_values)
         values = np.array(rows, dtype=float).reshape(-1, 6)
@@ -196,8 +198,12 @@ def read_rosbag(
     rec = checked_recording(path, conns[0].topic, t, {"acc": acc, "gyr": gyr}, temp=temp)
     rate, topic = stamp_rate(rec.t), conns[0].topic
     if rate is None or rate < min_rate_hz:
-        choose_source(path, [LogSource(topic, topic, len(rec), rate, temp is not None)],
-                      min_rate_hz=min_rate_hz, field="format.imu_topic")  # fmt: skip
+        choose_source(
+            path,
+            [LogSource(topic, topic, len(rec), rate, temp is not None)],
+            min_rate_hz=min_rate_hz,
+            field="format.imu_topic",
+        )
     rec.reference.update(reference)
     return rec
 

@@ -47,6 +47,7 @@ from storage.rawstore import hash_and_size
 
 MANIFEST_NAME = "run.toml"
 
+
 @dataclass(frozen=True, order=True)
 class RunSource:
     """One run found on disk, not yet read.

@@ -119,8 +119,10 @@ def check_records(path: Path) -> None:
     if pos == size:
         return
     if pos > size:
-        problem = (f"the last record (byte offset {start}, {pos - start} bytes) runs past the "
-                   f"end of the file ({size} bytes)")  # fmt: skip
+        problem = (
+            f"the last record (byte offset {start}, {pos - start} bytes) runs past the "
+            f"end of the file ({size} bytes)"
+        )
     else:
         problem = f"{size - pos} byte(s) after the last record (byte offset {pos}), not a record"
     raise IngestError(f"truncated ULog: {problem}; the log was cut while written", file=path)
@@ -161,16 +163,20 @@ def ulog_sources(ulog, instances: list[int] | None = None) -> list[LogSource]:
     for i in pairs if instances is None else [i for i in instances if i in pairs]:
         accel, gyro = topics["sensor_accel", i], topics["sensor_gyro", i]
         rates = [stamp_rate(_stamps(d)) for d in (accel, gyro)]
-        out.append(LogSource(
-            f"sensor_accel[{i}] + sensor_gyro[{i}]", "sensor_accel",
-            min(len(_stamps(accel)), len(_stamps(gyro))),
-            None if None in rates else min(rates),  # type: ignore[type-var]
-            "temperature" in accel.data,
-        ))  # fmt: skip
+        out.append(
+            LogSource(
+                f"sensor_accel[{i}] + sensor_gyro[{i}]",
+                "sensor_accel",
+                min(len(_stamps(accel)), len(_stamps(gyro))),
+                None if None in rates else min(rates),  # type: ignore[type-var]
+                "temperature" in accel.data,
+            )
+        )
     if ("sensor_combined", 0) in topics:
         stamps = _stamps(topics["sensor_combined", 0])
-        out.append(LogSource("sensor_combined", "sensor_combined", len(stamps),
-                             stamp_rate(stamps), False))  # fmt: skip
+        out.append(
+            LogSource("sensor_combined", "sensor_combined", len(stamps), stamp_rate(stamps), False)
+        )
     return out
 
 

@@ -91,9 +91,15 @@ def _check_table(checks: list[dict[str, Any]], prefix: str, unit: tuple[str, flo
         label, sensor = c["name"].removeprefix(prefix).rsplit(":", 1)
         name, k = unit if sensor == "acc" else ("deg/s", 1.0 / DEG)
         rows.append(
-            [label, sensor, f"{c['value'] * k:.4g} {name}", f"{c['limit'] * k:.4g} {name}",
-             "pass" if c["passed"] else "FAIL", c.get("detail") or ""]
-        )  # fmt: skip
+            [
+                label,
+                sensor,
+                f"{c['value'] * k:.4g} {name}",
+                f"{c['limit'] * k:.4g} {name}",
+                "pass" if c["passed"] else "FAIL",
+                c.get("detail") or "",
+            ]
+        )
     return Section("", header=["point", "sensor", "error", "limit", "result", "detail"], rows=rows)
 
 
@@ -163,7 +169,10 @@ def sections(
         Section(
             "Recommendations",
             paragraphs=_recommendations(
-                calrow["verdict"], run.cal, diagnosis, summary["environment"] or {},
+                calrow["verdict"],
+                run.cal,
+                diagnosis,
+                summary["environment"] or {},
                 summary.get("recall"),
             ),
         ),
@@ -171,8 +180,14 @@ def sections(
     ]
     dev = summary["device"]
     title = f"Calibration certificate {dev['model']} {dev['serial']}"
-    return Certificate(title, calrow["verdict"], out, _figures(run), _protocol(run),
-                       iso17025.certificate_number(summary))
+    return Certificate(
+        title,
+        calrow["verdict"],
+        out,
+        _figures(run),
+        _protocol(run),
+        iso17025.certificate_number(summary),
+    )
 
 
 def _unit_section(run: _Archived) -> Section:
@@ -217,9 +232,15 @@ def _equipment_section(run: _Archived) -> Section:
         due = _date(e.get("calibration_due"))
         status = "-" if due is None else ("valid" if due >= run.started.date() else "LAPSED")
         eq_rows.append(
-            [e["kind"], e.get("model") or "-", e["serial"], e.get("accuracy_class") or "-",
-             "-" if due is None else due.isoformat(), status]
-        )  # fmt: skip
+            [
+                e["kind"],
+                e.get("model") or "-",
+                e["serial"],
+                e.get("accuracy_class") or "-",
+                "-" if due is None else due.isoformat(),
+                status,
+            ]
+        )
     return Section(
         "Equipment",
         header=["kind", "model", "serial", "accuracy class", "calibration due", "at run time"],
@@ -230,8 +251,13 @@ def _equipment_section(run: _Archived) -> Section:
 
 def _environment_section(run: _Archived) -> Section:
     env = run.summary["environment"] or {}
-    env_units = {"temperature_c": "deg C", "humidity_pct": "%", "pressure_hpa": "hPa",
-                 "warmup_min": "min", "vibration": ""}  # fmt: skip
+    env_units = {
+        "temperature_c": "deg C",
+        "humidity_pct": "%",
+        "pressure_hpa": "hPa",
+        "warmup_min": "min",
+        "vibration": "",
+    }
     return Section(
         "Environment",
         pairs=[
@@ -243,8 +269,13 @@ def _environment_section(run: _Archived) -> Section:
     )
 
 
-_RESULT_WORD = {"pass": "pass", "fail": "FAIL", conditions.WARNING: "WARNING",
-                conditions.NOT_RECORDED: "not recorded", conditions.INFO: "info"}  # fmt: skip
+_RESULT_WORD = {
+    "pass": "pass",
+    "fail": "FAIL",
+    conditions.WARNING: "WARNING",
+    conditions.NOT_RECORDED: "not recorded",
+    conditions.INFO: "info",
+}
 
 
 def _conditions_section(run: _Archived) -> Section:
@@ -254,21 +285,25 @@ def _conditions_section(run: _Archived) -> Section:
         key = c["name"].removeprefix(conditions.CONDITION_PREFIX)
         if key == c["name"]:
             continue
-        _, _, severity, text, unit = conditions.DEFAULT_CONDITIONS.get(
-            key, (0, 0, "", key, ""))  # fmt: skip
+        _, _, severity, text, unit = conditions.DEFAULT_CONDITIONS.get(key, (0, 0, "", key, ""))
         value = "" if c.get("value") is None else f"{c['value']:.6g} {unit}"
-        rows.append([text, value, _RESULT_WORD[conditions.status(c)], severity,
-                     conditions.requirement(c)])  # fmt: skip
+        rows.append(
+            [text, value, _RESULT_WORD[conditions.status(c)], severity, conditions.requirement(c)]
+        )
     if not rows:
-        return Section("Conditions", paragraphs=["Not checked for this run (archived before "
-                                                 "conditions were checked)."])  # fmt: skip
+        return Section(
+            "Conditions",
+            paragraphs=["Not checked for this run (archived before conditions were checked)."],
+        )
     return Section(
         "Conditions",
         header=["condition", "value", "result", "if not met", "requirement"],
         rows=rows,
-        paragraphs=["A warning or an unrecorded condition leaves the verdict as it is; a "
-                    "failed acquisition rule fails the run."],
-    )  # fmt: skip
+        paragraphs=[
+            "A warning or an unrecorded condition leaves the verdict as it is; a "
+            "failed acquisition rule fails the run."
+        ],
+    )
 
 
 def _segments(samples: pa.Table) -> tuple[np.ndarray, np.ndarray]:
@@ -285,9 +320,14 @@ def _procedure_section(run: _Archived) -> Section:
         ts = t[seg == label]
         rate = (len(ts) - 1) / (ts[-1] - ts[0]) if len(ts) > 1 and ts[-1] > ts[0] else float("nan")
         seg_rows.append(
-            [label, str(len(ts)), f"{ts[-1] - ts[0]:.1f}" if len(ts) else "-", f"{rate:.1f}",
-             "verification" if label in run.held_out else "fit"]
-        )  # fmt: skip
+            [
+                label,
+                str(len(ts)),
+                f"{ts[-1] - ts[0]:.1f}" if len(ts) else "-",
+                f"{rate:.1f}",
+                "verification" if label in run.held_out else "fit",
+            ]
+        )
     calrow, cal = run.calrow, run.cal
     settings = calrow["settings"] or {}
     return Section(
@@ -349,8 +389,18 @@ def _uncertainty_section(run: _Archived) -> Section:
         U, _ = display(name, b["U"])
         check = by_param.get(name)
         w = guard_band_of(check)
-        rows.append([name, f"{value:+.6g}", f"{U:.2g}", unit, f"{b['k']:.2f}",
-                     f"{b['coverage']:.0%}", verdict_of(check), w])
+        rows.append(
+            [
+                name,
+                f"{value:+.6g}",
+                f"{U:.2g}",
+                unit,
+                f"{b['k']:.2f}",
+                f"{b['coverage']:.0%}",
+                verdict_of(check),
+                w,
+            ]
+        )
     methods = sorted({b["k_method"] for b in budgets.values()})
     notes = sorted({n for b in budgets.values() for n in b["notes"]})
     return Section(
@@ -358,10 +408,13 @@ def _uncertainty_section(run: _Archived) -> Section:
         header=["parameter", "value", "U", "unit", "k", "coverage", "verdict", "guard band w"],
         rows=rows,
         paragraphs=[
-            "Expanded uncertainty U = k u_c (GUM, JCGM 100:2008), coverage probability about "
-            "95 %.",
-            "Budget: " + ("; ".join(sorted({b["label"] for b in budgets.values()}))
-                          or "not evaluated (archived before uncertainty budgets)") + ".",
+            "Expanded uncertainty U = k u_c (GUM, JCGM 100:2008), coverage probability about 95 %.",
+            "Budget: "
+            + (
+                "; ".join(sorted({b["label"] for b in budgets.values()}))
+                or "not evaluated (archived before uncertainty budgets)"
+            )
+            + ".",
             *(f"Coverage factor k: {m}." for m in methods),
             *(f"Note: {n}." for n in notes),
             _decision_rule(run),
@@ -375,21 +428,35 @@ def _budget_section(run: _Archived) -> Section:
         for r in sorted(b["rows"], key=lambda r: -r["contribution"])[:3]:
             if r["contribution"] <= 0:
                 continue
-            rows.append([name, r["source"], r["kind"], r["distribution"],
-                         f"{r['std_input']:.3g} {r['unit']}".strip(), f"{r['sensitivity']:.3g}",
-                         f"{r['contribution']:.3g} {params.unit_of(name)}",
-                         "inf" if r["dof"] is None else f"{r['dof']:.0f}"])
+            rows.append(
+                [
+                    name,
+                    r["source"],
+                    r["kind"],
+                    r["distribution"],
+                    f"{r['std_input']:.3g} {r['unit']}".strip(),
+                    f"{r['sensitivity']:.3g}",
+                    f"{r['contribution']:.3g} {params.unit_of(name)}",
+                    "inf" if r["dof"] is None else f"{r['dof']:.0f}",
+                ]
+            )
     return Section(
         "Uncertainty budget: dominant contributions (three largest per parameter, SI units)",
-        header=["parameter", "source", "type", "distribution", "u(x_i)", "c_i", "u_i(y)",
-                "dof"],
+        header=["parameter", "source", "type", "distribution", "u(x_i)", "c_i", "u_i(y)", "dof"],
         rows=rows,
     )
 
 
 AS_FOUND_TITLE = "As found / as left (ISO/IEC 17025:2017 7.8.4.2)"
-AS_FOUND_HEADER = ["parameter", "as found", "as left", "unit", "error as found", "U",
-                   "as-found verdict"]  # fmt: skip
+AS_FOUND_HEADER = [
+    "parameter",
+    "as found",
+    "as left",
+    "unit",
+    "error as found",
+    "U",
+    "as-found verdict",
+]
 
 
 def _as_found_section(run: _Archived) -> Section:
@@ -399,8 +466,12 @@ def _as_found_section(run: _Archived) -> Section:
         return _as_found_evaluated(step)
     earlier = run.summary.get("as_found")
     if not earlier:
-        return Section(AS_FOUND_TITLE, paragraphs=[
-            "No earlier valid calibration of this unit in the archive: no as-found values."])
+        return Section(
+            AS_FOUND_TITLE,
+            paragraphs=[
+                "No earlier valid calibration of this unit in the archive: no as-found values."
+            ],
+        )
     return _as_found_difference(run, earlier)
 
 
@@ -408,25 +479,44 @@ def _as_found_evaluated(step: dict[str, Any]) -> Section:
     """The archived step "as_found" (pipelines.as_found): the earlier calibration evaluated on
     this run's data."""
     said, stats = step["settings"], step.get("statistics", {})
-    earlier = (f"run {said['earlier_run_id']} of {said['earlier_started_at'][:10]}, revision "
-               f"{said['earlier_revision']}")
+    earlier = (
+        f"run {said['earlier_run_id']} of {said['earlier_started_at'][:10]}, revision "
+        f"{said['earlier_revision']}"
+    )
     if "refused" in stats:
-        return Section(AS_FOUND_TITLE, paragraphs=[
-            f"As found: the earlier calibration ({earlier}) could not be evaluated on this "
-            f"run's data: {stats['refused']}"])
+        return Section(
+            AS_FOUND_TITLE,
+            paragraphs=[
+                f"As found: the earlier calibration ({earlier}) could not be evaluated on this "
+                f"run's data: {stats['refused']}"
+            ],
+        )
     rows = []
     for r in stats["parameters"]:
         name, U = r["parameter"], r["U"]
-        rows.append([name, f"{display(name, r['earlier'])[0]:+.6g}",
-                     f"{display(name, r['as_left'])[0]:+.6g}", display(name, 0.0)[1],
-                     f"{display(name, r['error'])[0]:+.3g}",
-                     "-" if U is None else f"{display(name, U)[0]:.2g}", r["verdict"] or "-"])
-    return Section(AS_FOUND_TITLE, header=AS_FOUND_HEADER, rows=rows, paragraphs=[
-        f"As found: the unit with its earlier calibration ({earlier}). Its parameters were "
-        "applied to this run's raw samples and the error model solved again on the corrected "
-        f"samples ({said['method']}): the error as found, judged against the tolerance with "
-        "this run's U by the decision rule. As left: this calibration, to be loaded into the "
-        "unit."])
+        rows.append(
+            [
+                name,
+                f"{display(name, r['earlier'])[0]:+.6g}",
+                f"{display(name, r['as_left'])[0]:+.6g}",
+                display(name, 0.0)[1],
+                f"{display(name, r['error'])[0]:+.3g}",
+                "-" if U is None else f"{display(name, U)[0]:.2g}",
+                r["verdict"] or "-",
+            ]
+        )
+    return Section(
+        AS_FOUND_TITLE,
+        header=AS_FOUND_HEADER,
+        rows=rows,
+        paragraphs=[
+            f"As found: the unit with its earlier calibration ({earlier}). Its parameters were "
+            "applied to this run's raw samples and the error model solved again on the corrected "
+            f"samples ({said['method']}): the error as found, judged against the tolerance with "
+            "this run's U by the decision rule. As left: this calibration, to be loaded into the "
+            "unit."
+        ],
+    )
 
 
 def _as_found_difference(run: _Archived, earlier: dict[str, Any]) -> Section:
@@ -441,16 +531,29 @@ def _as_found_difference(run: _Archived, earlier: dict[str, Any]) -> Section:
         error = p["value"] - before[name]
         U = budgets.get(name, {}).get("U")
         found = None if run.profile is None else run.profile.judge(name, error, U or 0.0)
-        rows.append([name, f"{display(name, before[name])[0]:+.6g}",
-                     f"{display(name, p['value'])[0]:+.6g}", display(name, 0.0)[1],
-                     f"{display(name, error)[0]:+.3g}",
-                     "-" if U is None else f"{display(name, U)[0]:.2g}", found or "-"])
-    return Section(AS_FOUND_TITLE, header=AS_FOUND_HEADER, rows=rows, paragraphs=[
-        f"As found: the unit with its earlier calibration (run {earlier['run_id']} of "
-        f"{earlier['started_at']:%Y-%m-%d}, revision {earlier['revision']}). This run was "
-        "archived before as-found evaluation: the error as found is the first-order "
-        "difference as left - as found, judged against the tolerance with this run's U by the "
-        "decision rule. As left: this calibration, to be loaded into the unit."])
+        rows.append(
+            [
+                name,
+                f"{display(name, before[name])[0]:+.6g}",
+                f"{display(name, p['value'])[0]:+.6g}",
+                display(name, 0.0)[1],
+                f"{display(name, error)[0]:+.3g}",
+                "-" if U is None else f"{display(name, U)[0]:.2g}",
+                found or "-",
+            ]
+        )
+    return Section(
+        AS_FOUND_TITLE,
+        header=AS_FOUND_HEADER,
+        rows=rows,
+        paragraphs=[
+            f"As found: the unit with its earlier calibration (run {earlier['run_id']} of "
+            f"{earlier['started_at']:%Y-%m-%d}, revision {earlier['revision']}). This run was "
+            "archived before as-found evaluation: the error as found is the first-order "
+            "difference as left - as found, judged against the tolerance with this run's U by the "
+            "decision rule. As left: this calibration, to be loaded into the unit."
+        ],
+    )
 
 
 def _diagnosis(run: _Archived) -> ResidualDiagnosis | None:
@@ -471,9 +574,16 @@ def _residuals_section(run: _Archived, diagnosis: ResidualDiagnosis | None) -> S
             s <= limits.get(f"{r.sensor}_std", np.inf) for s in r.std
         )
         resid_rows.append(
-            [r.segment, r.sensor, " ".join(f"{m * k:+.3f}" for m in r.mean),
-             " ".join(f"{s * k:.3f}" for s in r.std), unit, str(r.n), "pass" if ok else "FAIL"]
-        )  # fmt: skip
+            [
+                r.segment,
+                r.sensor,
+                " ".join(f"{m * k:+.3f}" for m in r.mean),
+                " ".join(f"{s * k:.3f}" for s in r.std),
+                unit,
+                str(r.n),
+                "pass" if ok else "FAIL",
+            ]
+        )
     resid_text = []
     if limits:
         resid_text.append(
@@ -502,9 +612,14 @@ def _repeatability_section(run: _Archived) -> Section:
         if c["name"].startswith(REPEAT_PREFIX):
             rule = (c.get("detail") or "").split(":", 1)[0].removeprefix("rule ")
             rep_rows.append(
-                [c["name"].removeprefix(REPEAT_PREFIX), rule, f"{c['value']:.4g}",
-                 f"{c['limit']:.4g}", "pass" if c["passed"] else "FAIL"]
-            )  # fmt: skip
+                [
+                    c["name"].removeprefix(REPEAT_PREFIX),
+                    rule,
+                    f"{c['value']:.4g}",
+                    f"{c['limit']:.4g}",
+                    "pass" if c["passed"] else "FAIL",
+                ]
+            )
     group = run.check_stats.get("repeatability_group", [])
     rules = run.profile.repeatability if run.profile else {}
     rep_text = [
@@ -564,11 +679,16 @@ def _signatures_section(summary: dict[str, Any], approvals: list[tuple[Any, bool
         (
             f"UNTRUSTED, claimed {a.meaning}" if a.untrusted else f"Electronically {a.meaning}",
             f"{a.signer}, {a.at[:19].replace('T', ' ')} UTC (Ed25519 key {a.public_key[:16]}...)"
-            + (f": {a.untrusted}" if a.untrusted else "" if holds
-               else ": NO LONGER VALID, the record changed after signing"),
+            + (
+                f": {a.untrusted}"
+                if a.untrusted
+                else ""
+                if holds
+                else ": NO LONGER VALID, the record changed after signing"
+            ),
         )
         for a, holds in approvals
-    ]  # fmt: skip
+    ]
     if not any(holds and a.meaning == "approved" for a, holds in approvals):
         signed.append(("Electronic approval", "NOT APPROVED (no valid approval: calib approve)"))
     if approvals and all(a.trusted is None for a, _ in approvals):
@@ -629,7 +749,10 @@ def _protocol(run: _Archived) -> str:
 
 
 def _recommendations(
-    verdict: str, cal: Calibration, diagnosis: ResidualDiagnosis | None, env: dict[str, Any],
+    verdict: str,
+    cal: Calibration,
+    diagnosis: ResidualDiagnosis | None,
+    env: dict[str, Any],
     recall: dict[str, Any] | None = None,
 ) -> list[str]:
     out = []
@@ -666,14 +789,17 @@ def _interval(recall: dict[str, Any] | None) -> str:
         return f"{RECALIBRATION_MONTHS} months"
     why = recall["method"]
     if recall.get("limiting_parameter") and why.startswith("variables"):
-        why = (f"from this unit's and its model's measured drift, variables-data method "
-               f"(NCSL RP-1 / ILAC-G24): probability {recall['reliability']:.0%} of "
-               f"{recall['limiting_parameter']} being in tolerance at its end"
-               + (", capped" if recall.get("capped") else ""))  # fmt: skip
+        why = (
+            f"from this unit's and its model's measured drift, variables-data method "
+            f"(NCSL RP-1 / ILAC-G24): probability {recall['reliability']:.0%} of "
+            f"{recall['limiting_parameter']} being in tolerance at its end"
+            + (", capped" if recall.get("capped") else "")
+        )
     return f"{recall['interval_months']:g} months, by {recall['due']} ({why})"
 
 
 # --- HTML --------------------------------------------------------------------------------
+
 
 def write_reports(
     summary: dict[str, Any],
@@ -709,7 +835,11 @@ REPORT_FORMATS = ("certificate", "dcc")
 
 
 def report_run(
-    archive, run_id: str, folder: Path | None = None, *, pdf: bool = True,
+    archive,
+    run_id: str,
+    folder: Path | None = None,
+    *,
+    pdf: bool = True,
     form: str = "certificate",
 ) -> dict:
     """Write the reports of an archived run, from the archive alone (run summary + samples).
@@ -758,7 +888,8 @@ def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - 
     summary["lab"] = None if lab is None else lab[0]
     summary["recall"] = unit_recall(archive, summary["device"]["serial"], run_id)
     summary["as_found"] = queries.latest_calibration(
-        archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1))
+        archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1)
+    )
     summary["chain_head"] = chain_head(archive)
     return summary
 
@@ -769,12 +900,16 @@ def trusted_approvals(archive, summary: dict[str, Any]) -> list:  # noqa: ANN001
     from pipelines.trust import lab_approvers
     from storage.approval import approval_status
 
-    return approval_status(archive, summary["run_id"], summary["calibration"]["revision"],
-                           lab_approvers())  # fmt: skip
+    return approval_status(
+        archive, summary["run_id"], summary["calibration"]["revision"], lab_approvers()
+    )
 
 
 def certificate_of(
-    archive, run_id: str, *, issue: int = 1  # noqa: ANN001 - Archive
+    archive,
+    run_id: str,
+    *,
+    issue: int = 1,  # noqa: ANN001 - Archive
 ) -> tuple[dict[str, Any], Certificate]:
     """(summary, certificate) of an archived run, from the archive alone, as issue `issue`
     (`pipelines.reports.issue`: a re-issue is a new document with its own number)."""

@@ -57,8 +57,9 @@ def _text(parent: ET.Element, tag: str, text: str) -> ET.Element:
 
 def dcc_xml(summary: dict[str, Any]) -> bytes:
     """The DCC of the run as UTF-8 XML bytes."""
-    root = ET.Element(f"{{{DCC_NS}}}digitalCalibrationCertificate",
-                      {"schemaVersion": SCHEMA_VERSION})
+    root = ET.Element(
+        f"{{{DCC_NS}}}digitalCalibrationCertificate", {"schemaVersion": SCHEMA_VERSION}
+    )
     _administrative(_el(root, "dcc:administrativeData"), summary)
     _results(_el(root, "dcc:measurementResults"), summary)
     ET.indent(root)
@@ -114,8 +115,12 @@ def _statements(summary: dict[str, Any]) -> list[str]:
     check = next((s for s in summary["calibration"]["steps"] if s["name"] == "check"), {})
     rule = check.get("settings", {}).get("decision_rule", "Decision rule: not recorded")
     labels = sorted({b["label"] for b in _budgets(summary).values()}) or ["not evaluated"]
-    return [rule, iso17025.ONLY_ITEMS, "Uncertainty budget: " + "; ".join(labels),
-            f"Overall verdict: {summary['calibration']['verdict']}"]
+    return [
+        rule,
+        iso17025.ONLY_ITEMS,
+        "Uncertainty budget: " + "; ".join(labels),
+        f"Overall verdict: {summary['calibration']['verdict']}",
+    ]
 
 
 def _budgets(summary: dict[str, Any]) -> dict[str, dict[str, Any]]:

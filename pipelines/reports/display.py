@@ -122,8 +122,10 @@ class CheckCounts:
         text = f"{self.tolerance_failed} of {self.tolerance} tolerance checks failed"
         if self.conditions:
             plural = "" if self.warnings == 1 else "s"
-            text += (f"; {self.conditions} conditions: {self.conditions_failed} failed, "
-                     f"{self.warnings} warning{plural}, {self.not_recorded} not recorded")
+            text += (
+                f"; {self.conditions} conditions: {self.conditions_failed} failed, "
+                f"{self.warnings} warning{plural}, {self.not_recorded} not recorded"
+            )
         return text
 
 
@@ -134,6 +136,11 @@ def check_counts(checks: list[dict[str, Any]]) -> CheckCounts:
     states = [(str(c["name"]).startswith(CONDITION_PREFIX), status(c)) for c in checks]
     conditions = [s for is_condition, s in states if is_condition]
     tolerance = [s for is_condition, s in states if not is_condition]
-    return CheckCounts(len(tolerance), tolerance.count("fail"), len(conditions),
-                       conditions.count("fail"), conditions.count(WARNING),
-                       conditions.count(NOT_RECORDED))  # fmt: skip
+    return CheckCounts(
+        len(tolerance),
+        tolerance.count("fail"),
+        len(conditions),
+        conditions.count("fail"),
+        conditions.count(WARNING),
+        conditions.count(NOT_RECORDED),
+    )

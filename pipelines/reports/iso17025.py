@@ -53,15 +53,23 @@ def administrative_section(summary: dict[str, Any]) -> Section:
             ("Accreditation", lab.get("accreditation") or "-"),
             ("Customer", _text(customer, "name", "contact")),
             ("Place of calibration", "the laboratory's site (run manifest [site])"),
-            ("Item", f"{summary['device']['model']}, serial {summary['device']['serial']}, "
-                     f"made by {summary['device']['manufacturer']}"),
+            (
+                "Item",
+                f"{summary['device']['model']}, serial {summary['device']['serial']}, "
+                f"made by {summary['device']['manufacturer']}",
+            ),
             ("Date of receipt", "not recorded"),
             ("Date of calibration", f"{started:%Y-%m-%d}"),
             ("Date of issue", issue_date(summary).isoformat()),
-            ("Method", f"procedure {summary['procedure']} (docs/procedures.md), "
-                       f"software {summary['calibration']['software_version']}"),
-            ("Deviations from the method", ", ".join(f"{k}={v}" for k, v in settings.items())
-             or "none (default settings)"),
+            (
+                "Method",
+                f"procedure {summary['procedure']} (docs/procedures.md), "
+                f"software {summary['calibration']['software_version']}",
+            ),
+            (
+                "Deviations from the method",
+                ", ".join(f"{k}={v}" for k, v in settings.items()) or "none (default settings)",
+            ),
             ("Sampling", "not applicable (one item)"),
             ("External providers", "none: every result was measured by the laboratory"),
         ],
@@ -78,21 +86,26 @@ def traceability_section(summary: dict[str, Any]) -> Section:
         cert = certificates.get(e["serial"], {})
         due = e.get("calibration_due")
         due = None if due is None else date.fromisoformat(str(due))
-        rows.append([
-            e["kind"], e["serial"], cert.get("certificate") or NOT_RECORDED,
-            cert.get("issued_by") or "-", "-" if due is None else due.isoformat(),
-            "-" if due is None else ("valid" if due >= started.date() else "LAPSED"),
-        ])
+        rows.append(
+            [
+                e["kind"],
+                e["serial"],
+                cert.get("certificate") or NOT_RECORDED,
+                cert.get("issued_by") or "-",
+                "-" if due is None else due.isoformat(),
+                "-" if due is None else ("valid" if due >= started.date() else "LAPSED"),
+            ]
+        )
     return Section(
         "Metrological traceability (ISO/IEC 17025:2017 7.8.4.1 c)",
-        header=["kind", "serial", "calibration certificate", "issued by", "due",
-                "at calibration"],
+        header=["kind", "serial", "calibration certificate", "issued by", "due", "at calibration"],
         rows=rows,
         paragraphs=[
             "The results are traceable to the SI units through the reference equipment above, "
             "calibrated as its certificates state, and through local gravity (site model as "
-            "in the run section)." if rows else
-            "No reference equipment recorded: traceability rests on local gravity alone.",
+            "in the run section)."
+            if rows
+            else "No reference equipment recorded: traceability rests on local gravity alone.",
         ],
     )
 
@@ -100,5 +113,7 @@ def traceability_section(summary: dict[str, Any]) -> Section:
 def authorisation_pairs(summary: dict[str, Any]) -> list[tuple[str, str]]:
     """Who authorises the certificate (7.8.2.1 o) and the clear end of the certificate."""
     who = _lab(summary, "authorised_by")
-    return [("Authorised by", _text(who, "name", "function")),
-            ("Signature", "______________________   Date: __________")]
+    return [
+        ("Authorised by", _text(who, "name", "function")),
+        ("Signature", "______________________   Date: __________"),
+    ]

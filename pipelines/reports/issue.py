@@ -84,8 +84,14 @@ def issued(archive: Archive, run_id: str) -> Issue | None:
     files = {kind: archive.root / rel for kind, rel in detail["paths"].items()}
     if (protocol := protocol_of(archive, summary)) is not None:
         files[PROTOCOL] = protocol
-    return Issue(run_id, revision, detail["issue"], detail["certificate"], files,
-                 summary["calibration"]["verdict"])  # fmt: skip
+    return Issue(
+        run_id,
+        revision,
+        detail["issue"],
+        detail["certificate"],
+        files,
+        summary["calibration"]["verdict"],
+    )
 
 
 def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
@@ -113,14 +119,18 @@ def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
     summary, cert = certificate_of(archive, run_id, issue=number)
     data = {"pdf": pdf_bytes(cert), "html": render_html(cert).encode()}
     folder = _folder(summary)
-    rel = {k: f"{folder}/{name}" for k, name in
-           _names(summary["device"]["serial"], run_id, number).items()}  # fmt: skip
+    rel = {
+        k: f"{folder}/{name}"
+        for k, name in _names(summary["device"]["serial"], run_id, number).items()
+    }
     with rawstore.PendingFiles() as pending:
         for kind, path in rel.items():
             target = archive.root / path
             if target.exists():  # an archived file is never overwritten
-                raise FileExistsError(f"{target} exists already: the certificate of issue "
-                                      f"{number} was written but not recorded; move it away")
+                raise FileExistsError(
+                    f"{target} exists already: the certificate of issue "
+                    f"{number} was written but not recorded; move it away"
+                )
             pending.write_bytes(target, data[kind])
         pending.commit()
     detail = {
@@ -129,10 +139,12 @@ def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
         "paths": rel,
         "files": {rel[k]: hashlib.sha256(data[k]).hexdigest() for k in rel},
     }
-    seal.record_event(archive, ISSUED, run_id=run_id, revision=revision, reason=reason,
-                      detail=detail)  # fmt: skip
+    seal.record_event(
+        archive, ISSUED, run_id=run_id, revision=revision, reason=reason, detail=detail
+    )
     files = {k: archive.root / p for k, p in rel.items()}
     if (protocol := protocol_of(archive, summary)) is not None:
         files[PROTOCOL] = protocol
-    return Issue(run_id, revision, number, cert.identifier, files,
-                 summary["calibration"]["verdict"])  # fmt: skip
+    return Issue(
+        run_id, revision, number, cert.identifier, files, summary["calibration"]["verdict"]
+    )

@@ -91,17 +91,23 @@ def _budget(budget: dict[str, Any], param: str) -> list[str]:
     lines = [f"Uncertainty budget of {param} ({budget.get('label') or 'GUM'})"]
     for row in budget.get("rows") or []:
         u = shown(param, row.get("contribution"), None).value
-        lines.append(f"  {row.get('source')}: type {row.get('kind')}, "
-                     f"{row.get('distribution')}, contribution {u} "
-                     f"{shown(param, 0.0).unit}, dof {_text(row.get('dof'))}")  # fmt: skip
+        lines.append(
+            f"  {row.get('source')}: type {row.get('kind')}, "
+            f"{row.get('distribution')}, contribution {u} "
+            f"{shown(param, 0.0).unit}, dof {_text(row.get('dof'))}"
+        )
     s = shown(param, budget.get("value"), budget.get("uc"))
-    lines.append(f"  combined {STANDARD_U} = {s.u or '-'} {s.unit}, nu_eff "
-                 f"{_text(budget.get('nu_eff'))}, {budget.get('k_method') or ''}")  # fmt: skip
+    lines.append(
+        f"  combined {STANDARD_U} = {s.u or '-'} {s.unit}, nu_eff "
+        f"{_text(budget.get('nu_eff'))}, {budget.get('k_method') or ''}"
+    )
     k = budget.get("k")
     if k is not None:
         big = shown(param, budget.get("value"), budget.get("U"))
-        lines.append(f"  {expanded_u(k)} = {big.u or '-'} {big.unit} "
-                     f"(coverage {_text(budget.get('coverage'))})")  # fmt: skip
+        lines.append(
+            f"  {expanded_u(k)} = {big.u or '-'} {big.unit} "
+            f"(coverage {_text(budget.get('coverage'))})"
+        )
     lines += [f"  note: {n}" for n in budget.get("notes") or []]
     return lines
 
@@ -111,8 +117,11 @@ def lineage_lines(doc: dict[str, Any], param: str) -> list[str]:
     parts = param.split(".")
     channel = f"{parts[0]}.{parts[-1][0]}" if len(parts) >= 3 else param
     run, dev, cal = doc["run"], doc["device"], doc["calibration"]
-    current = "current" if cal.get("current") else (
-        f"superseded by revision {cal.get('superseded_by_revision')}")
+    current = (
+        "current"
+        if cal.get("current")
+        else (f"superseded by revision {cal.get('superseded_by_revision')}")
+    )
     lines = [
         f"{param} of run {run['run_id']} ({dev['serial']}, {dev['model']}), "
         f"revision {cal['revision']} ({current})",
@@ -121,8 +130,10 @@ def lineage_lines(doc: dict[str, Any], param: str) -> list[str]:
         s = shown(param, v["value"], v["std"])
         at = "" if v.get("temperature_c") is None else f" at {v['temperature_c']:g} deg C"
         lines.append(f"  value {s.value} {s.unit}, {STANDARD_U} {s.u or '-'}{at}")
-    lines.append(f"  verdict {cal['verdict']} (profile {cal['profile_name']} "
-                 f"v{cal['profile_version']}); software {cal['software_version']}")  # fmt: skip
+    lines.append(
+        f"  verdict {cal['verdict']} (profile {cal['profile_name']} "
+        f"v{cal['profile_version']}); software {cal['software_version']}"
+    )
     lines.append(f"Raw files ({len(doc['raw_files'])})")
     lines.append(f"    raw hash {run['raw_hash']}")
     for f in doc["raw_files"]:
@@ -144,8 +155,11 @@ def lineage_lines(doc: dict[str, Any], param: str) -> list[str]:
         lines += _budget(budget, param)
     if doc.get("equipment"):
         lines.append("Equipment")
-        lines += [f"  {e.get('kind')} {e.get('model')} {e.get('serial')}, due "
-                  f"{_text(e.get('calibration_due'))}" for e in doc["equipment"]]  # fmt: skip
+        lines += [
+            f"  {e.get('kind')} {e.get('model')} {e.get('serial')}, due "
+            f"{_text(e.get('calibration_due'))}"
+            for e in doc["equipment"]
+        ]
     return lines
 
 
@@ -154,6 +168,7 @@ def lineage_text(doc: dict[str, Any], param: str, width: int = 80) -> str:
     out = []
     for line in lineage_lines(doc, param):
         indent = " " * (len(line) - len(line.lstrip()) + 2)
-        out += textwrap.wrap(line, width, subsequent_indent=indent, break_on_hyphens=False,
-                             break_long_words=True) or [""]  # fmt: skip
+        out += textwrap.wrap(
+            line, width, subsequent_indent=indent, break_on_hyphens=False, break_long_words=True
+        ) or [""]
     return "\n".join(out) + "\n"

@@ -99,8 +99,15 @@ def norm_figure(
     starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
     for s in starts:
         ax.axvline(s, color="0.8", lw=0.5)
-        ax.text(s, 1.0, f" {labels[s]}", transform=ax.get_xaxis_transform(), fontsize=6,
-                rotation=90, va="top")  # fmt: skip
+        ax.text(
+            s,
+            1.0,
+            f" {labels[s]}",
+            transform=ax.get_xaxis_transform(),
+            fontsize=6,
+            rotation=90,
+            va="top",
+        )
     ax.set_xlabel("sample")
     ax.set_ylabel("|f| - g (mg)")
     ax.set_title(f"Specific-force norm minus local g = {g:.5f} m/s^2", fontsize=9)

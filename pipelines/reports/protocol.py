@@ -29,8 +29,13 @@ def _fmt(value: float | None, width: int = 12, signed: bool = True) -> str:
 
 
 # The result column of a condition line: the manual's + and -, or what else it is.
-RESULT_MARK = {"pass": "+", "fail": "-", conditions.WARNING: "warning",
-               conditions.NOT_RECORDED: "not recorded", conditions.INFO: "info"}  # fmt: skip
+RESULT_MARK = {
+    "pass": "+",
+    "fail": "-",
+    conditions.WARNING: "warning",
+    conditions.NOT_RECORDED: "not recorded",
+    conditions.INFO: "info",
+}
 
 
 def condition_lines(checks: Iterable[Mapping[str, Any]]) -> list[str]:
@@ -114,9 +119,7 @@ def render_protocol(
         lines.append(line)
     lines += uncertainty_lines(budgets or {}, by_param, decision_rule)
     lines += condition_lines(checks)
-    other = [
-        c for c in checks if not c["name"].startswith(("param:", conditions.CONDITION_PREFIX))
-    ]
+    other = [c for c in checks if not c["name"].startswith(("param:", conditions.CONDITION_PREFIX))]
     if other:
         lines += [_RULE, "Checks", f"{'Check':<44}{'Value':>13}{'Limit':>13}  Result"]
         for c in other:
@@ -155,28 +158,36 @@ def dominant_text(budget: Mapping[str, Any], n: int = 2) -> str:
     if uc2 == 0:
         return ""
     # Shares below 1 % say nothing on a certificate.
-    rows = sorted((r for r in budget["rows"] if r["contribution"] ** 2 >= 0.01 * uc2),
-                  key=lambda r: -r["contribution"])[:n]
+    rows = sorted(
+        (r for r in budget["rows"] if r["contribution"] ** 2 >= 0.01 * uc2),
+        key=lambda r: -r["contribution"],
+    )[:n]
     return ", ".join(f"{r['source']} {100 * r['contribution'] ** 2 / uc2:.0f} %" for r in rows)
 
 
 def uncertainty_lines(
-    budgets: Mapping[str, Mapping[str, Any]], by_param: Mapping[str, Mapping[str, Any]],
+    budgets: Mapping[str, Mapping[str, Any]],
+    by_param: Mapping[str, Mapping[str, Any]],
     decision_rule: str | None,
 ) -> list[str]:
     """The uncertainty table (value, U, k, coverage, verdict, dominant contributions)."""
     if not budgets:
         return []
-    lines = [_RULE, "Measurement uncertainty (GUM): expanded uncertainty U = k u_c",
-             f"{'Parameter':<18}{'Value':>13}{'U':>11}  {'Unit':<10}{'k':>5}{'p':>6}  "
-             f"{'Verdict':<17}Dominant contributions"]
+    lines = [
+        _RULE,
+        "Measurement uncertainty (GUM): expanded uncertainty U = k u_c",
+        f"{'Parameter':<18}{'Value':>13}{'U':>11}  {'Unit':<10}{'k':>5}{'p':>6}  "
+        f"{'Verdict':<17}Dominant contributions",
+    ]
     for name in sorted(budgets):
         b = budgets[name]
         value, unit = display(name, b["value"])
         U, _ = display(name, b["U"])
-        lines.append(f"{name:<18}{_fmt(value, 13)}{U:>11.3g}  {unit:<10}{b['k']:>5.2f}"
-                     f"{b['coverage']:>6.0%}  {verdict_of(by_param.get(name)):<17}"
-                     f"{dominant_text(b)}")
+        lines.append(
+            f"{name:<18}{_fmt(value, 13)}{U:>11.3g}  {unit:<10}{b['k']:>5.2f}"
+            f"{b['coverage']:>6.0%}  {verdict_of(by_param.get(name)):<17}"
+            f"{dominant_text(b)}"
+        )
     labels = sorted({b["label"] for b in budgets.values()})
     lines.append("Budget: " + "; ".join(labels))
     if decision_rule:

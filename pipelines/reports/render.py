@@ -117,8 +117,11 @@ def render_html(cert: Certificate, *, for_print: bool = False) -> str:
             parts += [f"<tr><th>{e(k)}</th><td>{e(v)}</td></tr>" for k, v in sec.pairs]
             parts.append("</table>")
         if sec.header:
-            parts.append("<table><thead><tr>" + "".join(f"<th>{e(h)}</th>" for h in sec.header)
-                         + "</tr></thead><tbody>")  # fmt: skip
+            parts.append(
+                "<table><thead><tr>"
+                + "".join(f"<th>{e(h)}</th>" for h in sec.header)
+                + "</tr></thead><tbody>"
+            )
             for row in sec.rows:
                 cells = "".join(
                     f'<td class="{e(c)}">{e(c)}</td>' if c == "FAIL" else f"<td>{e(c)}</td>"

@@ -70,8 +70,14 @@ def create_app(archive: Archive) -> FastAPI:
 
     @app.exception_handler(HTTPException)
     async def _http_error(request: Request, exc: HTTPException) -> HTMLResponse:
-        return render(request, "error.html", exc.status_code, title=f"Error {exc.status_code}",
-                      status=exc.status_code, message=clipped(str(exc.detail)))  # fmt: skip
+        return render(
+            request,
+            "error.html",
+            exc.status_code,
+            title=f"Error {exc.status_code}",
+            status=exc.status_code,
+            message=clipped(str(exc.detail)),
+        )
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(request: Request, exc: RequestValidationError) -> HTMLResponse:
@@ -79,14 +85,23 @@ def create_app(archive: Archive) -> FastAPI:
             f"{'.'.join(str(p) for p in e.get('loc', ())[1:]) or 'request'}: {e.get('msg')}"
             for e in exc.errors()
         ]
-        return render(request, "error.html", 400, title="Error 400", status=400,
-                      message=clipped("; ".join(msgs)))  # fmt: skip
+        return render(
+            request,
+            "error.html",
+            400,
+            title="Error 400",
+            status=400,
+            message=clipped("; ".join(msgs)),
+        )
 
     @app.middleware("http")
     async def _read_only(request: Request, call_next):  # noqa: ANN001, ANN202
         if request.method not in ("GET", "HEAD"):
-            return HTMLResponse("the archive browser is read-only", status_code=405,
-                                headers={"Allow": "GET, HEAD", **SECURITY_HEADERS})  # fmt: skip
+            return HTMLResponse(
+                "the archive browser is read-only",
+                status_code=405,
+                headers={"Allow": "GET, HEAD", **SECURITY_HEADERS},
+            )
         head = request.method == "HEAD"
         if head:  # answered as GET without the body (the routes are GET routes)
             request.scope["method"] = "GET"

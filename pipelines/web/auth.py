@@ -47,8 +47,13 @@ def check_password(stored: str, password: str) -> bool:
             return False
         want = base64.b64decode(key, validate=True)
         got = hashlib.scrypt(
-            password.encode(), salt=base64.b64decode(salt, validate=True), n=int(n), r=int(r),
-            p=int(p), maxmem=_MAXMEM, dklen=len(want),
+            password.encode(),
+            salt=base64.b64decode(salt, validate=True),
+            n=int(n),
+            r=int(r),
+            p=int(p),
+            maxmem=_MAXMEM,
+            dklen=len(want),
         )
     except (ValueError, binascii.Error):
         return False
@@ -69,8 +74,10 @@ def load_users(path: Path) -> dict[str, str]:
         name, sep, stored = line.strip().partition(":")
         parts = stored.split("$")
         if not sep or not name or len(parts) != 6 or parts[0] != "scrypt":
-            raise ValueError(f"users file {path}, line {n}: expected NAME:scrypt$N$R$P$SALT$KEY "
-                             f"(calib serve-user), found {line[:40]!r}")  # fmt: skip
+            raise ValueError(
+                f"users file {path}, line {n}: expected NAME:scrypt$N$R$P$SALT$KEY "
+                f"(calib serve-user), found {line[:40]!r}"
+            )
         if name in users:
             raise ValueError(f"users file {path}, line {n}: user {name!r} is listed twice")
         users[name] = stored
@@ -102,8 +109,9 @@ def is_loopback(host: str) -> bool:
         return False  # a name: it may resolve to anything
 
 
-def require_login(app: FastAPI, users: dict[str, str] | None = None,
-                  proxy_header: str | None = None) -> None:  # fmt: skip
+def require_login(
+    app: FastAPI, users: dict[str, str] | None = None, proxy_header: str | None = None
+) -> None:
     """Refuse every request without a valid login (401), by `users` (HTTP Basic) or the
     reverse proxy's `proxy_header` naming the user it authenticated."""
     good: set[tuple[str, bytes]] = set()  # (user, SHA-256 of the password) checked once
@@ -135,6 +143,11 @@ def require_login(app: FastAPI, users: dict[str, str] | None = None,
 
 
 def _refused() -> Response:
-    return HTMLResponse("a login is needed to browse this archive", status_code=401,
-                        headers={"WWW-Authenticate": f'Basic realm="{REALM}", charset="UTF-8"',
-                                 "Cache-Control": "no-store"})  # fmt: skip
+    return HTMLResponse(
+        "a login is needed to browse this archive",
+        status_code=401,
+        headers={
+            "WWW-Authenticate": f'Basic realm="{REALM}", charset="UTF-8"',
+            "Cache-Control": "no-store",
+        },
+    )

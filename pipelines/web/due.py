@@ -27,5 +27,11 @@ def due_page(request: Request) -> HTMLResponse:
     except ValueError:
         raise HTTPException(400, f"before: expected a date YYYY-MM-DD, got {text!r}") from None
     items = forms.checked(recall_list, request.app.state.archive, before)
-    return render(request, "due.html", title="Due for recalibration", items=items,
-                  before=text, today=date.today().isoformat())  # fmt: skip
+    return render(
+        request,
+        "due.html",
+        title="Due for recalibration",
+        items=items,
+        before=text,
+        today=date.today().isoformat(),
+    )

@@ -35,10 +35,20 @@ def equipment_item(request: Request) -> HTMLResponse:
     kind, serial = q.get("kind", ""), q.get("serial", "")
     item = forms.checked(queries.equipment_item, archive, kind, serial)
     lapsed, n_lapsed = queries.lapsed_page(archive, kind, serial, LAPSED_LIST_MAX)
-    return render(request, "equipment.html", title=f"Equipment {kind} {serial}", item=item,
-                  lapsed=lapsed, n_lapsed=n_lapsed,
-                  item_state=queries.due_state(max((p["calibration_due"] for p in item["periods"]
-                                              if p["calibration_due"]), default=None)))  # fmt: skip
+    return render(
+        request,
+        "equipment.html",
+        title=f"Equipment {kind} {serial}",
+        item=item,
+        lapsed=lapsed,
+        n_lapsed=n_lapsed,
+        item_state=queries.due_state(
+            max(
+                (p["calibration_due"] for p in item["periods"] if p["calibration_due"]),
+                default=None,
+            )
+        ),
+    )
 
 
 @router.get("/verify", response_class=HTMLResponse)
@@ -57,5 +67,6 @@ def verify_page(request: Request) -> HTMLResponse:
         t0 = time.perf_counter()
         report = verify(archive, orphans=True, approvers=forms.checked(lab_approvers))
         seconds = time.perf_counter() - t0
-    return render(request, "verify.html", title="Verify", facts=facts, report=report,
-                  seconds=seconds)  # fmt: skip
+    return render(
+        request, "verify.html", title="Verify", facts=facts, report=report, seconds=seconds
+    )

@@ -127,13 +127,20 @@ def check_result(check: Mapping[str, Any]) -> str:
     state = conditions.status(check)
     if state in (conditions.WARNING, conditions.NOT_RECORDED, conditions.INFO):
         return state
-    one = SimpleNamespace(name=check["name"], passed=check["passed"],
-                          detail=check.get("detail") or "")  # fmt: skip
+    one = SimpleNamespace(
+        name=check["name"], passed=check["passed"], detail=check.get("detail") or ""
+    )
     return checks.overall_verdict([one])
 
 
-FILTERS = {"num": num, "when": when, "size": size, "as_json": as_json, "readable": readable,
-           "check_result": check_result}  # fmt: skip
+FILTERS = {
+    "num": num,
+    "when": when,
+    "size": size,
+    "as_json": as_json,
+    "readable": readable,
+    "check_result": check_result,
+}
 GLOBALS = {
     "display": display,
     "url": url,

@@ -41,16 +41,33 @@ def runs_list(request: Request) -> HTMLResponse:
     per_page = int(forms.choice(q, "per_page", [str(n) for n in queries.PER_PAGE], "50"))
     page = forms.integer(q, "page", 1, 1, queries.MAX_PAGE)
     f = forms.checked(
-        queries.run_filter, serial=q.get("serial"), model=q.get("model"),
-        date_from=q.get("from"), date_to=q.get("to"), procedure=q.get("procedure"),
-        verdict=q.get("verdict"), env_temp_min=q.get("temp_min"), env_temp_max=q.get("temp_max"),
-    )  # fmt: skip
-    result = queries.runs_page(archive, f, sort=sort, descending=order == "desc", page=page,
-                              per_page=per_page)  # fmt: skip
+        queries.run_filter,
+        serial=q.get("serial"),
+        model=q.get("model"),
+        date_from=q.get("from"),
+        date_to=q.get("to"),
+        procedure=q.get("procedure"),
+        verdict=q.get("verdict"),
+        env_temp_min=q.get("temp_min"),
+        env_temp_max=q.get("temp_max"),
+    )
+    result = queries.runs_page(
+        archive, f, sort=sort, descending=order == "desc", page=page, per_page=per_page
+    )
     kept = {k: q[k] for k in FILTERS if q.get(k)}
-    return render(request, "runs.html", title="Runs", result=result, filters=kept, sort=sort,
-                  order=order, per_page=per_page, choices=_choices(request),
-                  verdicts=queries.VERDICTS, per_pages=queries.PER_PAGE)  # fmt: skip
+    return render(
+        request,
+        "runs.html",
+        title="Runs",
+        result=result,
+        filters=kept,
+        sort=sort,
+        order=order,
+        per_page=per_page,
+        choices=_choices(request),
+        verdicts=queries.VERDICTS,
+        per_pages=queries.PER_PAGE,
+    )
 
 
 def _choices(request: Request) -> dict[str, list[str]]:
@@ -88,8 +105,17 @@ def _parameter_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
         check = checks.get(p["name"]) or checks.get(f"param:{p['name']}")
         tol = tolerance(p["name"], check)
         limit = None if tol is None else f"{tol[0].replace('+-', '±')} {tol[1]:.3g}"
-        rows.append({**p, "display_value": value, "display_std": std, "display_unit": unit,
-                     "shown": text, "check": check, "display_limit": limit})  # fmt: skip
+        rows.append(
+            {
+                **p,
+                "display_value": value,
+                "display_std": std,
+                "display_unit": unit,
+                "shown": text,
+                "check": check,
+                "display_limit": limit,
+            }
+        )
     return rows
 
 
@@ -102,20 +128,31 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
     revs = queries.revisions(archive, run_id)
     day = summary["started_at"].astimezone(UTC).date()
     equipment = [
-        {**e, "valid_at_run": None if e["calibration_due"] is None else day <= e["calibration_due"],
-         "state_now": queries.due_state(e["calibration_due"])}
+        {
+            **e,
+            "valid_at_run": None if e["calibration_due"] is None else day <= e["calibration_due"],
+            "state_now": queries.due_state(e["calibration_due"]),
+        }
         for e in summary["equipment"]
-    ]  # fmt: skip
+    ]
     profile = _thresholds(summary)
     for c in summary["calibration"]["checks"]:  # pass, fail, warning or not recorded
         c["status"] = condition_status(c)
     residuals = summary["calibration"]["document"].get("residuals") or []
     limits = profile.residual_limits if profile else {}
     charts = [svg.residual_chart(residuals, s, *RESIDUAL_UNITS[s], limits) for s in ("acc", "gyr")]
-    return render(request, "run.html", title=f"Run {run_id}", s=summary, revisions=revs,
-                  equipment=equipment, parameters=_parameter_rows(summary),
-                  charts=[c for c in charts if c], profile=profile,
-                  counts=check_counts(summary["calibration"]["checks"]))  # fmt: skip
+    return render(
+        request,
+        "run.html",
+        title=f"Run {run_id}",
+        s=summary,
+        revisions=revs,
+        equipment=equipment,
+        parameters=_parameter_rows(summary),
+        charts=[c for c in charts if c],
+        profile=profile,
+        counts=check_counts(summary["calibration"]["checks"]),
+    )
 
 
 @router.get("/runs/{run_id}/lineage/{name}", response_class=HTMLResponse)
@@ -130,8 +167,14 @@ def lineage_page(request: Request, run_id: str, name: str) -> HTMLResponse:
         {**v, "display": display(name, v["value"]), "display_std": display(name, v["std"])[0]}
         for v in lin["parameter"]["values"]
     ]
-    return render(request, "lineage.html", title=f"Lineage of {name} in {run_id}", lin=lin,
-                  values=values, name=name)  # fmt: skip
+    return render(
+        request,
+        "lineage.html",
+        title=f"Lineage of {name} in {run_id}",
+        lin=lin,
+        values=values,
+        name=name,
+    )
 
 
 @router.get("/runs/{run_id}/raw/{name}")
@@ -147,8 +190,9 @@ def raw_file(request: Request, run_id: str, name: str) -> FileResponse:
     path = (root / entry["stored_path"]).resolve()
     if not path.is_relative_to(root) or not path.is_file():
         raise HTTPException(404, f"raw file {name!r} of run {run_id} is missing from the store")
-    return FileResponse(path, media_type="application/octet-stream",
-                        filename=Path(name).name or "raw.bin")  # fmt: skip
+    return FileResponse(
+        path, media_type="application/octet-stream", filename=Path(name).name or "raw.bin"
+    )
 
 
 def _issued(archive, run_id: str, kind: str) -> Path:  # noqa: ANN001 - Archive
@@ -162,13 +206,19 @@ def _issued(archive, run_id: str, kind: str) -> Path:  # noqa: ANN001 - Archive
     if path is None and kind == PROTOCOL:  # archived with the run, issued or not
         path = protocol_of(archive, queries.run_summary(archive, full))
     if path is None:
-        raise HTTPException(404, f"run {full} has no issued certificate: `calib report {full}` "
-                                 "issues it into the archive")  # fmt: skip
+        raise HTTPException(
+            404,
+            f"run {full} has no issued certificate: `calib report {full}` "
+            "issues it into the archive",
+        )
     root = archive.root.resolve()
     path = path.resolve()
     if not path.is_relative_to(root) or not path.is_file():
-        raise HTTPException(404, f"the issued {kind} of run {full} is missing from the archive "
-                                 "(`calib verify` reports it)")  # fmt: skip
+        raise HTTPException(
+            404,
+            f"the issued {kind} of run {full} is missing from the archive "
+            "(`calib verify` reports it)",
+        )
     return path
 
 
@@ -205,8 +255,9 @@ def export_json(request: Request, run_id: str) -> Response:
     """The canonical calibration JSON of the current (or a given) revision."""
     q = forms.params(request, ("revision",))
     revision = forms.integer(q, "revision", 0, 1, 1_000_000) or None
-    doc = forms.checked(queries.export_calibration, request.app.state.archive, _run_id(run_id),
-                        revision)  # fmt: skip
+    doc = forms.checked(
+        queries.export_calibration, request.app.state.archive, _run_id(run_id), revision
+    )
     text = json.dumps(doc, indent=2, default=str) + "\n"
     suffix = f"_rev{doc['revision']}"
     return _download(text.encode(), "application/json", f"{run_id}{suffix}.json")
@@ -222,12 +273,16 @@ def export_file(request: Request, run_id: str, fmt: str) -> Response:
         raise HTTPException(404, f"no export format {fmt!r}; formats: {', '.join(FORMATS)}")
     q = forms.params(request, ("revision",))
     revision = forms.integer(q, "revision", 0, 1, 1_000_000) or None
-    result = forms.checked(export_run, request.app.state.archive, _run_id(run_id), fmt,
-                           revision=revision)  # fmt: skip
+    result = forms.checked(
+        export_run, request.app.state.archive, _run_id(run_id), fmt, revision=revision
+    )
     return _download(result.data, result.media_type, result.filename)
 
 
 def _download(data: bytes, media_type: str, filename: str) -> Response:
     safe = "".join(c if c.isalnum() or c in "._-" else "_" for c in filename)
-    return Response(data, media_type=media_type,
-                    headers={"Content-Disposition": f'attachment; filename="{safe}"'})  # fmt: skip
+    return Response(
+        data,
+        media_type=media_type,
+        headers={"Content-Disposition": f'attachment; filename="{safe}"'},
+    )

@@ -39,8 +39,10 @@ def label(v: float) -> str:
 def tick_labels(ticks: Sequence[float]) -> list[str]:
     """Labels of the ticks with as many significant digits (4..12) as keep them distinct."""
     for digits in range(4, 13):
-        out = ["0" if t == 0 or abs(t) < 1e-12 * max(map(abs, ticks)) else f"{t:.{digits}g}"
-               for t in ticks]  # fmt: skip
+        out = [
+            "0" if t == 0 or abs(t) < 1e-12 * max(map(abs, ticks)) else f"{t:.{digits}g}"
+            for t in ticks
+        ]
         if len(set(out)) == len(out):
             return out
     return out
@@ -109,37 +111,48 @@ class Chart:
         for t, text in zip(y_ticks, tick_labels(y_ticks), strict=True):
             yy = _num(self.y(t))
             p.append(f'<line x1="{x0}" x2="{x1}" y1="{yy}" y2="{yy}" class="grid"/>')
-            p.append(f'<text x="{x0 - 4}" y="{yy}" class="tick" text-anchor="end" '
-                     f'dominant-baseline="middle">{escape(text)}</text>')  # fmt: skip
+            p.append(
+                f'<text x="{x0 - 4}" y="{yy}" class="tick" text-anchor="end" '
+                f'dominant-baseline="middle">{escape(text)}</text>'
+            )
         if x_ticks is None:
             ticks = nice_ticks(*self.x_range, n=6)
             x_ticks = list(zip(ticks, tick_labels(ticks), strict=True))
         for t, text in x_ticks:
             xx = _num(self.x(t))
             p.append(f'<line x1="{xx}" x2="{xx}" y1="{y0}" y2="{y0 + 4}" class="axis"/>')
-            p.append(f'<text x="{xx}" y="{y0 + 16}" class="tick" text-anchor="middle">'
-                     f"{escape(text)}</text>")  # fmt: skip
+            p.append(
+                f'<text x="{xx}" y="{y0 + 16}" class="tick" text-anchor="middle">'
+                f"{escape(text)}</text>"
+            )
         if self.title:
             p.append(f'<text x="{x0}" y="16" class="title">{escape(self.title)}</text>')
         if self.y_label:
-            p.append(f'<text x="14" y="{(y0 + y1) / 2:.0f}" class="tick" text-anchor="middle" '
-                     f'transform="rotate(-90 14 {(y0 + y1) / 2:.0f})">'
-                     f"{escape(self.y_label)}</text>")  # fmt: skip
+            p.append(
+                f'<text x="14" y="{(y0 + y1) / 2:.0f}" class="tick" text-anchor="middle" '
+                f'transform="rotate(-90 14 {(y0 + y1) / 2:.0f})">'
+                f"{escape(self.y_label)}</text>"
+            )
         if self.x_label:
-            p.append(f'<text x="{(x0 + x1) / 2:.0f}" y="{self.height - 4}" class="tick" '
-                     f'text-anchor="middle">{escape(self.x_label)}</text>')  # fmt: skip
+            p.append(
+                f'<text x="{(x0 + x1) / 2:.0f}" y="{self.height - 4}" class="tick" '
+                f'text-anchor="middle">{escape(self.x_label)}</text>'
+            )
 
     def hline(self, v: float, cls: str = "limit", text: str = "") -> None:
         if not (math.isfinite(v) and self.y_range[0] <= v <= self.y_range[1]):
             return
         top, right, bottom, left = self.margin
         yy = _num(self.y(v))
-        self.parts.append(f'<line x1="{left}" x2="{self.width - right}" y1="{yy}" y2="{yy}" '
-                          f'class="{cls}"/>')  # fmt: skip
+        self.parts.append(
+            f'<line x1="{left}" x2="{self.width - right}" y1="{yy}" y2="{yy}" class="{cls}"/>'
+        )
         if text:
             y_text = self._label_y(float(yy))
-            self.parts.append(f'<text x="{self.width - right - 2}" y="{y_text:.1f}" '
-                              f'class="tick {cls}-text" text-anchor="end">{escape(text)}</text>')
+            self.parts.append(
+                f'<text x="{self.width - right - 2}" y="{y_text:.1f}" '
+                f'class="tick {cls}-text" text-anchor="end">{escape(text)}</text>'
+            )
 
     def _label_y(self, y_line: float) -> float:
         """Where a line's label goes: just above the line, else just below it when that
@@ -153,30 +166,48 @@ class Chart:
         self._label_ys = [*used, y]
         return y
 
-    def polyline(self, xs: Sequence[float], ys: Sequence[float], cls: str,
-                 colour: str = "") -> None:  # fmt: skip
-        pts = " ".join(f"{self.x(a):.1f},{self.y(self.clip_y(b)):.1f}"
-                       for a, b in zip(xs, ys, strict=True) if math.isfinite(b))  # fmt: skip
+    def polyline(
+        self, xs: Sequence[float], ys: Sequence[float], cls: str, colour: str = ""
+    ) -> None:
+        pts = " ".join(
+            f"{self.x(a):.1f},{self.y(self.clip_y(b)):.1f}"
+            for a, b in zip(xs, ys, strict=True)
+            if math.isfinite(b)
+        )
         style = f' style="stroke:{colour}"' if colour else ""
         self.parts.append(f'<polyline points="{pts}" class="{cls}"{style}/>')
 
     def band(self, xs: Sequence[float], lo: Sequence[float], hi: Sequence[float]) -> None:
         up = [f"{self.x(a):.1f},{self.y(self.clip_y(b)):.1f}" for a, b in zip(xs, hi, strict=True)]
-        down = [f"{self.x(a):.1f},{self.y(self.clip_y(b)):.1f}"
-                for a, b in zip(reversed(xs), reversed(lo), strict=True)]  # fmt: skip
+        down = [
+            f"{self.x(a):.1f},{self.y(self.clip_y(b)):.1f}"
+            for a, b in zip(reversed(xs), reversed(lo), strict=True)
+        ]
         self.parts.append(f'<polygon points="{" ".join(up + down)}" class="band"/>')
 
-    def point(self, xv: float, yv: float, err: float | None, title: str, href: str | None,
-              cls: str = "pt", colour: str = "") -> None:  # fmt: skip
+    def point(
+        self,
+        xv: float,
+        yv: float,
+        err: float | None,
+        title: str,
+        href: str | None,
+        cls: str = "pt",
+        colour: str = "",
+    ) -> None:
         xx, yy = self.x(xv), self.y(self.clip_y(yv))
         style = f' style="fill:{colour};stroke:{colour}"' if colour else ""
         body = ""
         if err is not None and math.isfinite(err) and err > 0:
             y_lo, y_hi = self.y(self.clip_y(yv - err)), self.y(self.clip_y(yv + err))
-            body += (f'<line x1="{xx:.1f}" x2="{xx:.1f}" y1="{y_lo:.1f}" y2="{y_hi:.1f}" '
-                     f'class="err"{style}/>')  # fmt: skip
-        body += (f'<circle cx="{xx:.1f}" cy="{yy:.1f}" r="3.5" class="{cls}"{style}>'
-                 f"<title>{escape(title)}</title></circle>")  # fmt: skip
+            body += (
+                f'<line x1="{xx:.1f}" x2="{xx:.1f}" y1="{y_lo:.1f}" y2="{y_hi:.1f}" '
+                f'class="err"{style}/>'
+            )
+        body += (
+            f'<circle cx="{xx:.1f}" cy="{yy:.1f}" r="3.5" class="{cls}"{style}>'
+            f"<title>{escape(title)}</title></circle>"
+        )
         if href:
             body = f'<a href="{escape(href)}">{body}</a>'
         self.parts.append(body)
@@ -186,8 +217,10 @@ class Chart:
         x = self.margin[3]
         for cls, text in items:
             attr = f'style="fill:{cls}"' if cls.startswith("#") else f'class="{cls}"'
-            self.parts.append(f'<rect x="{x}" y="24" width="10" height="10" {attr}/>'
-                              f'<text x="{x + 14}" y="33" class="tick">{escape(text)}</text>')
+            self.parts.append(
+                f'<rect x="{x}" y="24" width="10" height="10" {attr}/>'
+                f'<text x="{x + 14}" y="33" class="tick">{escape(text)}</text>'
+            )
             x += int(6.2 * len(text)) + 30
 
     def svg(self, aria: str) -> Markup:
@@ -244,10 +277,12 @@ def trend_chart(
     far = [label(v) for v in limits if math.isfinite(v) and v not in shown]
     if far:  # a band far wider than the data would flatten it: say where it is instead
         # on its own line under the title (a long title reaches the right edge)
-        chart.parts.append(f'<text x="{chart.width - chart.margin[1]}" y="{16 + LABEL_GAP}" '
-                           'text-anchor="end" '
-                           f'class="tick limit-text">tolerance {escape(" / ".join(far))} '
-                           "outside the plotted range</text>")
+        chart.parts.append(
+            f'<text x="{chart.width - chart.margin[1]}" y="{16 + LABEL_GAP}" '
+            'text-anchor="end" '
+            f'class="tick limit-text">tolerance {escape(" / ".join(far))} '
+            "outside the plotted range</text>"
+        )
     if fit is not None:
         t, centre, half = fit
         chart.band(list(t), list(centre - half), list(centre + half))
@@ -270,14 +305,19 @@ def sparkline(values: Sequence[float], width: int = 120, height: int = 24) -> Ma
         return Markup("")
     lo, hi = _span(v, 0.1)
     step = (width - 4) / (len(v) - 1)
-    pts = " ".join(f"{2 + i * step:.1f},{height - 2 - (x - lo) / (hi - lo) * (height - 4):.1f}"
-                   for i, x in enumerate(v))  # fmt: skip
-    return Markup(f'<svg xmlns="http://www.w3.org/2000/svg" class="spark" width="{width}" '
-                  f'height="{height}" aria-hidden="true"><polyline points="{pts}"/></svg>')
+    pts = " ".join(
+        f"{2 + i * step:.1f},{height - 2 - (x - lo) / (hi - lo) * (height - 4):.1f}"
+        for i, x in enumerate(v)
+    )
+    return Markup(
+        f'<svg xmlns="http://www.w3.org/2000/svg" class="spark" width="{width}" '
+        f'height="{height}" aria-hidden="true"><polyline points="{pts}"/></svg>'
+    )
 
 
-def residual_chart(rows: Sequence[dict], sensor: str, unit: str, factor: float,
-                   limits: dict[str, float]) -> Markup:  # fmt: skip
+def residual_chart(
+    rows: Sequence[dict], sensor: str, unit: str, factor: float, limits: dict[str, float]
+) -> Markup:
     """Residual mean per segment and axis (dots, std as whiskers); mean limits dashed."""
     rows = [r for r in rows if r.get("sensor") == sensor]
     if not rows:
@@ -289,8 +329,13 @@ def residual_chart(rows: Sequence[dict], sensor: str, unit: str, factor: float,
     if lim is not None:
         vals += [lim * factor, -lim * factor]
     name = "Accelerometer" if sensor == "acc" else "Gyro"
-    chart = Chart((-0.5, len(rows) - 0.5), _span(vals), title=f"{name} residuals per segment",
-                  y_label=unit, margin=(28, 16, 56, 70))  # fmt: skip
+    chart = Chart(
+        (-0.5, len(rows) - 0.5),
+        _span(vals),
+        title=f"{name} residuals per segment",
+        y_label=unit,
+        margin=(28, 16, 56, 70),
+    )
     chart.axes([(i, str(r["segment"])) for i, r in enumerate(rows)])
     chart.hline(0.0, "zero")
     if lim is not None:
@@ -299,23 +344,40 @@ def residual_chart(rows: Sequence[dict], sensor: str, unit: str, factor: float,
     for i, r in enumerate(rows):
         for k, axis in enumerate("xyz"):
             m, s = r["mean"][k] * factor, r["std"][k] * factor
-            chart.point(i + (k - 1) * 0.22, m, s, f"{r['segment']} {axis}: {label(m)} ± "
-                        f"{label(s)} {unit}", None, "pt", COLOURS[k])  # fmt: skip
+            chart.point(
+                i + (k - 1) * 0.22,
+                m,
+                s,
+                f"{r['segment']} {axis}: {label(m)} ± {label(s)} {unit}",
+                None,
+                "pt",
+                COLOURS[k],
+            )
     chart.legend([(COLOURS[k], f"{a} mean (± std)") for k, a in enumerate("xyz")])
     return chart.svg(f"{name} residuals")
 
 
-def histogram(values: Sequence[float], *, title: str, unit: str,
-              limits: tuple[float, float] = (-math.inf, math.inf),
-              bins: int = 20) -> Markup:  # fmt: skip
+def histogram(
+    values: Sequence[float],
+    *,
+    title: str,
+    unit: str,
+    limits: tuple[float, float] = (-math.inf, math.inf),
+    bins: int = 20,
+) -> Markup:
     """Distribution of values (bars) with the tolerance band (dashed verticals)."""
     v = np.asarray([x for x in values if math.isfinite(x)], dtype=float)
     if v.size == 0:
         return Markup("")
     lo, hi = _span(list(v) + [x for x in limits if math.isfinite(x)], 0.02)
     counts, edges = np.histogram(v, bins=bins, range=(lo, hi))
-    chart = Chart((lo, hi), (0.0, max(1.0, float(counts.max()) * 1.1)), title=title,
-                  y_label="units", x_label=unit)  # fmt: skip
+    chart = Chart(
+        (lo, hi),
+        (0.0, max(1.0, float(counts.max()) * 1.1)),
+        title=title,
+        y_label="units",
+        x_label=unit,
+    )
     chart.axes()
     for c, a, b in zip(counts, edges[:-1], edges[1:], strict=True):
         if c:
@@ -329,27 +391,39 @@ def histogram(values: Sequence[float], *, title: str, unit: str,
     for lim in limits:
         if math.isfinite(lim) and lo <= lim <= hi:
             xx = _num(chart.x(lim))
-            chart.parts.append(f'<line x1="{xx}" x2="{xx}" y1="{top}" y2="{bottom}" '
-                               f'class="limit"/>')  # fmt: skip
+            chart.parts.append(
+                f'<line x1="{xx}" x2="{xx}" y1="{top}" y2="{bottom}" class="limit"/>'
+            )
     return chart.svg(title)
 
 
-def curve_chart(temps: np.ndarray, curves: dict[str, tuple[np.ndarray, np.ndarray]],
-                points: dict[str, list[tuple[float, float]]], *, title: str,
-                unit: str) -> Markup:  # fmt: skip
+def curve_chart(
+    temps: np.ndarray,
+    curves: dict[str, tuple[np.ndarray, np.ndarray]],
+    points: dict[str, list[tuple[float, float]]],
+    *,
+    title: str,
+    unit: str,
+) -> Markup:
     """Thermal curves (value against deg C, 2-std band) of a few parameters, with the
     campaign points they were fitted to."""
     ys = [y for c, s in curves.values() for y in (*(c - 2 * s), *(c + 2 * s))]
     ys += [y for pts in points.values() for _, y in pts]
-    chart = Chart(_span(list(temps), 0.02), _span(ys), title=title, y_label=unit,
-                  x_label="temperature (deg C)")  # fmt: skip
+    chart = Chart(
+        _span(list(temps), 0.02),
+        _span(ys),
+        title=title,
+        y_label=unit,
+        x_label="temperature (deg C)",
+    )
     chart.axes()
     for k, (name, (centre, std)) in enumerate(curves.items()):
         colour = COLOURS[k % len(COLOURS)]
         chart.band(list(temps), list(centre - 2 * std), list(centre + 2 * std))
         chart.polyline(list(temps), list(centre), "fit", colour)
         for t, y in points.get(name, []):
-            chart.point(t, y, None, f"{name} at {label(t)} deg C: {label(y)} {unit}", None,
-                        "pt", colour)  # fmt: skip
+            chart.point(
+                t, y, None, f"{name} at {label(t)} deg C: {label(y)} {unit}", None, "pt", colour
+            )
     chart.legend([(COLOURS[k % len(COLOURS)], n) for k, n in enumerate(curves)])
     return chart.svg(title)

@@ -29,8 +29,12 @@ router = APIRouter()
 REFERENCE_C = unit_latest.REFERENCE_C  # of temperature-dependent values, the trend's
 FORECAST_HORIZON_DAYS = 3650.0
 FLEET_LIST_MAX = 200
-FLEET_PARAMETERS = (params.ACC_LINEAR + params.GYR_LINEAR + params.GSENS
-                    + [f"{s}.noise.{a}" for s in ("acc", "gyr") for a in params.AXES])  # fmt: skip
+FLEET_PARAMETERS = (
+    params.ACC_LINEAR
+    + params.GYR_LINEAR
+    + params.GSENS
+    + [f"{s}.noise.{a}" for s in ("acc", "gyr") for a in params.AXES]
+)
 THERMAL_GROUPS = ("acc.bias", "gyr.bias", "acc.scale", "gyr.scale")
 
 
@@ -81,21 +85,31 @@ class Series:
             self.note = str(exc)
             return
         if math.isfinite(self.low) or math.isfinite(self.high):
-            self.forecast = drift.forecast_exit(self.trend, self.low, self.high,
-                                                horizon_days=FORECAST_HORIZON_DAYS)  # fmt: skip
+            self.forecast = drift.forecast_exit(
+                self.trend, self.low, self.high, horizon_days=FORECAST_HORIZON_DAYS
+            )
 
     def summary(self) -> dict[str, Any]:
         last = self.rows[-1]
         scale = display(self.name, 1.0)[0]
-        out = {"name": self.name, "n": len(self.rows), "last": last,
-               "unit": display(self.name, 0.0)[1],
-               "last_value": last["value"] * scale,
-               "last_std": None if last["std"] is None else last["std"] * scale,
-               "slope_per_year": None, "slope_std_per_year": None, "leaves": None,
-               "earliest": None, "out_now": None, "note": self.note, "pooled": self.pooled,
-               "shown": shown(self.name, last["value"], last["std"]),
-               "spark": svg.sparkline([r["value"] for r in self.rows]),
-               "band": _band_text(self.low * scale, self.high * scale)}  # fmt: skip
+        out = {
+            "name": self.name,
+            "n": len(self.rows),
+            "last": last,
+            "unit": display(self.name, 0.0)[1],
+            "last_value": last["value"] * scale,
+            "last_std": None if last["std"] is None else last["std"] * scale,
+            "slope_per_year": None,
+            "slope_std_per_year": None,
+            "leaves": None,
+            "earliest": None,
+            "out_now": None,
+            "note": self.note,
+            "pooled": self.pooled,
+            "shown": shown(self.name, last["value"], last["std"]),
+            "spark": svg.sparkline([r["value"] for r in self.rows]),
+            "band": _band_text(self.low * scale, self.high * scale),
+        }
         if self.trend is not None:
             out["slope_per_year"] = self.trend.slope * 365.25 * scale
             out["slope_std_per_year"] = self.trend.slope_std * 365.25 * scale
@@ -109,13 +123,17 @@ class Series:
         scale = display(self.name, 1.0)[0]
         unit = display(self.name, 0.0)[1]
         points = [
-            svg.TrendPoint(r["started_at"], r["value"] * scale,
-                           None if r["std"] is None else r["std"] * scale,
-                           f"{r['run_id']} {r['started_at']:%Y-%m-%d}: {r['value'] * scale:.6g} "
-                           f"{unit} ({r['verdict']})",
-                           lineage_url(r["run_id"], self.name), r["verdict"] != "pass")
+            svg.TrendPoint(
+                r["started_at"],
+                r["value"] * scale,
+                None if r["std"] is None else r["std"] * scale,
+                f"{r['run_id']} {r['started_at']:%Y-%m-%d}: {r['value'] * scale:.6g} "
+                f"{unit} ({r['verdict']})",
+                lineage_url(r["run_id"], self.name),
+                r["verdict"] != "pass",
+            )
             for r in self.rows
-        ]  # fmt: skip
+        ]
         fit, until = None, None
         if self.trend is not None:
             end = self.trend.t_last + 365.0
@@ -125,8 +143,14 @@ class Series:
             k = 1.96 if self.trend.dof <= 0 else float(_t95(self.trend.dof))
             fit = (grid, self.trend.value(grid) * scale, k * self.trend.std(grid) * scale)
             until = end
-        return svg.trend_chart(points, title=f"{self.name} of {serial}", unit=unit, fit=fit,
-                               limits=(self.low * scale, self.high * scale), until=until)
+        return svg.trend_chart(
+            points,
+            title=f"{self.name} of {serial}",
+            unit=unit,
+            fit=fit,
+            limits=(self.low * scale, self.high * scale),
+            until=until,
+        )
 
 
 def _band_text(low: float, high: float) -> str:
@@ -202,12 +226,20 @@ def unit_page(request: Request, serial: str) -> HTMLResponse:
         forms.checked(params.validate, chosen)
         forms.checked(_missing, chosen, serial)
     history = queries.history(archive, serial).to_dict("records")
-    return render(request, "unit.html", title=f"Unit {serial}", dev=dev, history=history,
-                  summaries=[s.summary() for s in series.values()], chosen=chosen,
-                  chart=series[chosen].chart(serial) if chosen else None,
-                  chosen_note=series[chosen].note if chosen else "",
-                  chosen_pooled=series[chosen].pooled if chosen else "",
-                  profile=profile, thermal=_thermal(archive, serial, series))  # fmt: skip
+    return render(
+        request,
+        "unit.html",
+        title=f"Unit {serial}",
+        dev=dev,
+        history=history,
+        summaries=[s.summary() for s in series.values()],
+        chosen=chosen,
+        chart=series[chosen].chart(serial) if chosen else None,
+        chosen_note=series[chosen].note if chosen else "",
+        chosen_pooled=series[chosen].pooled if chosen else "",
+        profile=profile,
+        thermal=_thermal(archive, serial, series),
+    )
 
 
 def _missing(name: str, serial: str) -> None:
@@ -229,12 +261,17 @@ def _thermal(archive, serial: str, series: dict[str, Series]) -> dict[str, Any] 
         scale, unit = display(names[0], 1.0)
         curves = {n: (model.value(n, temps) * scale, model.std(n, temps) * scale) for n in names}
         points = {
-            n: [(r["env_temperature_c"], r["value"] * scale) for r in series[n].rows
-                if r["env_temperature_c"] is not None]
-            for n in names if n in series
-        }  # fmt: skip
-        charts.append(svg.curve_chart(temps, curves, points, title=f"{family} against temperature",
-                                      unit=unit))  # fmt: skip
+            n: [
+                (r["env_temperature_c"], r["value"] * scale)
+                for r in series[n].rows
+                if r["env_temperature_c"] is not None
+            ]
+            for n in names
+            if n in series
+        }
+        charts.append(
+            svg.curve_chart(temps, curves, points, title=f"{family} against temperature", unit=unit)
+        )
     orders = {n: c.order for n, c in sorted(model.curves.items())}
     return {"row": row, "model": model, "charts": charts, "orders": orders}
 
@@ -243,8 +280,12 @@ def _thermal(archive, serial: str, series: dict[str, Series]) -> dict[str, Any] 
 def models_page(request: Request) -> HTMLResponse:
     """Device models in the archive, with their number of units."""
     forms.params(request, ())
-    return render(request, "models.html", title="Device models",
-                  models=queries.models(request.app.state.archive))  # fmt: skip
+    return render(
+        request,
+        "models.html",
+        title="Device models",
+        models=queries.models(request.app.state.archive),
+    )
 
 
 @router.get("/fleet", response_class=HTMLResponse)
@@ -269,19 +310,44 @@ def fleet_page(request: Request) -> HTMLResponse:
     one = queries.fleet_values(archive, model, name)
     outside = [r for r in one if not low <= r["value"] <= high]
     queries.fleet_lineage(archive, outside[:FLEET_LIST_MAX])
-    stats = drift.fleet_statistics([r["value"] * scale for r in one], [math.nan] * len(one),
-                                   [r["serial"] for r in one]) if one else []  # fmt: skip
-    chart = svg.histogram([r["value"] * scale for r in one], unit=unit,
-                          title=f"{name} over {len(one)} units of {model}",
-                          limits=(low * scale, high * scale))  # fmt: skip
-    latest = {v or "no calibration": n for v, n in sorted(fleet.latest.items(),
-                                                          key=lambda kv: -kv[1])}  # fmt: skip
-    return render(request, "fleet.html", title=f"Fleet of {model}", model=model, name=name,
-                  names=FLEET_PARAMETERS, units=fleet.units, latest=latest,
-                  failing=fleet.failing, n_failing=fleet.n_failing,
-                  outside=outside[:FLEET_LIST_MAX], n_outside=len(outside), scale=scale,
-                  unit=unit, stats=stats[0] if stats else None, chart=chart, profile=profile,
-                  low=low * scale, high=high * scale, n_values=len(one))  # fmt: skip
+    stats = (
+        drift.fleet_statistics(
+            [r["value"] * scale for r in one], [math.nan] * len(one), [r["serial"] for r in one]
+        )
+        if one
+        else []
+    )
+    chart = svg.histogram(
+        [r["value"] * scale for r in one],
+        unit=unit,
+        title=f"{name} over {len(one)} units of {model}",
+        limits=(low * scale, high * scale),
+    )
+    latest = {
+        v or "no calibration": n for v, n in sorted(fleet.latest.items(), key=lambda kv: -kv[1])
+    }
+    return render(
+        request,
+        "fleet.html",
+        title=f"Fleet of {model}",
+        model=model,
+        name=name,
+        names=FLEET_PARAMETERS,
+        units=fleet.units,
+        latest=latest,
+        failing=fleet.failing,
+        n_failing=fleet.n_failing,
+        outside=outside[:FLEET_LIST_MAX],
+        n_outside=len(outside),
+        scale=scale,
+        unit=unit,
+        stats=stats[0] if stats else None,
+        chart=chart,
+        profile=profile,
+        low=low * scale,
+        high=high * scale,
+        n_values=len(one),
+    )
 
 
 def _no_model(model: str) -> None:

@@ -57,13 +57,15 @@ def parameter_values(s: Session, cal_ids: list[int]) -> dict[int, dict[str, tupl
     values: dict[int, dict[str, tuple]] = {i: {} for i in cal_ids}
     for start in range(0, len(cal_ids), IN_CHUNK):
         for cal_id, name, value, std in s.execute(
-            select(ParameterRow.calibration_id, ParameterRow.name, ParameterRow.value,
-                   ParameterRow.std)
+            select(
+                ParameterRow.calibration_id, ParameterRow.name, ParameterRow.value, ParameterRow.std
+            )
             .where(ParameterRow.calibration_id.in_(cal_ids[start : start + IN_CHUNK]))
             .order_by(ParameterRow.id)
-        ):  # fmt: skip
+        ):
             values[cal_id][name] = (value, std)
     return values
+
 
 # --- traceability, equipment validity, units, fleet ----------------------------------
 #

@@ -12,8 +12,18 @@ from storage.queries._common import as_instant, check_serial
 from storage.queries.runs import full_run_id
 from storage.schema import AuditEvent, Device, Run
 
-AUDIT_COLUMNS = ["seq", "at", "actor", "action", "run_id", "revision", "reason", "detail",
-                 "digest", "hash"]  # fmt: skip
+AUDIT_COLUMNS = [
+    "seq",
+    "at",
+    "actor",
+    "action",
+    "run_id",
+    "revision",
+    "reason",
+    "detail",
+    "digest",
+    "hash",
+]
 
 
 def audit_trail(
@@ -44,8 +54,13 @@ def audit_trail(
 
 def _run_ids(archive: Archive, target: str) -> list[str]:
     with archive.engine().connect() as conn:
-        serial_runs = conn.execute(
-            select(Run.run_id).join(Device, Device.id == Run.device_id)
-            .where(Device.serial == check_serial(target))
-        ).scalars().all()  # fmt: skip
+        serial_runs = (
+            conn.execute(
+                select(Run.run_id)
+                .join(Device, Device.id == Run.device_id)
+                .where(Device.serial == check_serial(target))
+            )
+            .scalars()
+            .all()
+        )
     return list(serial_runs) or [full_run_id(archive, target)]

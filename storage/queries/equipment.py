@@ -60,8 +60,15 @@ def lapsed_runs(archive: Archive, equipment_serial: str, kind: str | None = None
     check_text(equipment_serial, "equipment serial", EQUIPMENT_SERIAL_LEN)
     day = _run_day(make_url(archive.url).get_backend_name())
     stmt = (
-        select(Equipment.kind, Equipment.serial, Run.run_id, Device.serial, Run.started_at,
-               Run.operator, RunEquipment.calibration_due)
+        select(
+            Equipment.kind,
+            Equipment.serial,
+            Run.run_id,
+            Device.serial,
+            Run.started_at,
+            Run.operator,
+            RunEquipment.calibration_due,
+        )
         .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
         .join(Run, Run.id == RunEquipment.run_id)
         .join(Device, Device.id == Run.device_id)
@@ -71,7 +78,7 @@ def lapsed_runs(archive: Archive, equipment_serial: str, kind: str | None = None
             day > RunEquipment.calibration_due,
         )
         .order_by(Run.started_at, Run.id)
-    )  # fmt: skip
+    )
     if kind is not None:
         stmt = stmt.where(Equipment.kind == check_text(kind, "equipment kind", 100))
     with archive.engine().connect() as conn:
@@ -90,15 +97,25 @@ def equipment_list(archive: Archive) -> list[dict[str, Any]]:
 
     Both per piece from ix_run_equipment_equipment_id_calibration_due alone (its last
     entry; its entries counted), not by grouping the run_equipment rows."""
-    due = (select(func.max(RunEquipment.calibration_due))
-           .where(RunEquipment.equipment_id == Equipment.id).scalar_subquery())  # fmt: skip
-    runs = (select(func.count()).select_from(RunEquipment)
-            .where(RunEquipment.equipment_id == Equipment.id).scalar_subquery())  # fmt: skip
-    stmt = (
-        select(Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class,
-               due.label("calibration_due"), runs.label("runs"))
-        .order_by(Equipment.kind, Equipment.serial)
-    )  # fmt: skip
+    due = (
+        select(func.max(RunEquipment.calibration_due))
+        .where(RunEquipment.equipment_id == Equipment.id)
+        .scalar_subquery()
+    )
+    runs = (
+        select(func.count())
+        .select_from(RunEquipment)
+        .where(RunEquipment.equipment_id == Equipment.id)
+        .scalar_subquery()
+    )
+    stmt = select(
+        Equipment.kind,
+        Equipment.serial,
+        Equipment.model,
+        Equipment.accuracy_class,
+        due.label("calibration_due"),
+        runs.label("runs"),
+    ).order_by(Equipment.kind, Equipment.serial)
     with archive.engine().connect() as conn:
         return [dict(r._mapping) for r in conn.execute(stmt).all()]
 
@@ -108,22 +125,26 @@ def equipment_item(archive: Archive, kind: str, serial: str) -> dict[str, Any]:
     calibration_due) pairs recorded with its runs, each with its run count and span."""
     check_text(kind, "equipment kind", 100)
     check_text(serial, "equipment serial")
-    head = select(Equipment.id, Equipment.kind, Equipment.serial, Equipment.model,
-                  Equipment.accuracy_class).where(Equipment.kind == kind,
-                                                  Equipment.serial == serial)  # fmt: skip
+    head = select(
+        Equipment.id, Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class
+    ).where(Equipment.kind == kind, Equipment.serial == serial)
     with archive.engine().connect() as conn:
         row = conn.execute(head).one_or_none()
         if row is None:
             raise LookupError(f"no equipment {kind} {serial!r} in the archive")
         periods = conn.execute(
-            select(RunEquipment.calibrated_on, RunEquipment.calibration_due,
-                   func.count().label("runs"), func.min(Run.started_at).label("first_run"),
-                   func.max(Run.started_at).label("last_run"))
+            select(
+                RunEquipment.calibrated_on,
+                RunEquipment.calibration_due,
+                func.count().label("runs"),
+                func.min(Run.started_at).label("first_run"),
+                func.max(Run.started_at).label("last_run"),
+            )
             .join(Run, Run.id == RunEquipment.run_id)
             .where(RunEquipment.equipment_id == row.id)
             .group_by(RunEquipment.calibrated_on, RunEquipment.calibration_due)
             .order_by(func.min(Run.started_at))
-        ).all()  # fmt: skip
+        ).all()
     item = dict(row._mapping)
     del item["id"]
     item["periods"] = [dict(p._mapping) for p in periods]
@@ -145,16 +166,29 @@ def lapsed_page(
         day = func.date(Run.started_at)  # SQLite keeps naive UTC text
     else:
         day = func.date(func.timezone("UTC", Run.started_at))
-    where = (Equipment.kind == kind, Equipment.serial == serial,
-             RunEquipment.calibration_due.is_not(None), day > RunEquipment.calibration_due)
-    stmt = (select(Run.run_id, Device.serial, Run.started_at, Run.operator,
-                   RunEquipment.calibration_due, func.count().over().label("total"))
-            .select_from(Equipment)
-            .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
-            .join(Run, Run.id == RunEquipment.run_id)
-            .join(Device, Device.id == Run.device_id)
-            .where(*where)
-            .order_by(Run.started_at, Run.id).limit(limit))  # fmt: skip
+    where = (
+        Equipment.kind == kind,
+        Equipment.serial == serial,
+        RunEquipment.calibration_due.is_not(None),
+        day > RunEquipment.calibration_due,
+    )
+    stmt = (
+        select(
+            Run.run_id,
+            Device.serial,
+            Run.started_at,
+            Run.operator,
+            RunEquipment.calibration_due,
+            func.count().over().label("total"),
+        )
+        .select_from(Equipment)
+        .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
+        .join(Run, Run.id == RunEquipment.run_id)
+        .join(Device, Device.id == Run.device_id)
+        .where(*where)
+        .order_by(Run.started_at, Run.id)
+        .limit(limit)
+    )
     with archive.engine().connect() as conn:  # counted in the same pass (before the LIMIT)
         rows = conn.execute(stmt).all()
     total = rows[0].total if rows else 0
@@ -170,7 +204,7 @@ def today_utc() -> date:
 
 
 def due_state(due: date | None, today: date | None = None) -> str:
-    """"lapsed", "due soon" (within 30 days), "valid" or "unknown" for a due date."""
+    """ "lapsed", "due soon" (within 30 days), "valid" or "unknown" for a due date."""
     if due is None:
         return "unknown"
     days = (due - (today or today_utc())).days

@@ -67,22 +67,32 @@ def _fleet_statements() -> tuple[Select, Select]:
     valid calibration, with the latest run's verdict and profile, are its row of
     unit_latest (storage.unit_latest, kept by the archive's writes): one key lookup per
     unit instead of a walk of its runs."""
-    units = (select().select_from(Device)
-             .join(UnitLatest, UnitLatest.device_id == Device.id)  # units with a run
-             .where(Device.model == bindparam("model")))  # fmt: skip
-    grouped = units.add_columns(UnitLatest.verdict, UnitLatest.profile_name,
-                                func.count()).group_by(UnitLatest.verdict,
-                                                       UnitLatest.profile_name)  # fmt: skip
+    units = (
+        select()
+        .select_from(Device)
+        .join(UnitLatest, UnitLatest.device_id == Device.id)  # units with a run
+        .where(Device.model == bindparam("model"))
+    )
+    grouped = units.add_columns(UnitLatest.verdict, UnitLatest.profile_name, func.count()).group_by(
+        UnitLatest.verdict, UnitLatest.profile_name
+    )
     other = aliased(Run)
-    runs = (select(func.count()).select_from(other).where(other.device_id == Device.id)
-            .correlate(Device).scalar_subquery())  # fmt: skip
+    runs = (
+        select(func.count())
+        .select_from(other)
+        .where(other.device_id == Device.id)
+        .correlate(Device)
+        .scalar_subquery()
+    )
     failing = (
-        units.add_columns(Device.serial, Run.run_id, Run.started_at, UnitLatest.verdict,
-                          runs.label("runs"))
+        units.add_columns(
+            Device.serial, Run.run_id, Run.started_at, UnitLatest.verdict, runs.label("runs")
+        )
         .join(Run, Run.id == UnitLatest.run_id)
         .where(or_(UnitLatest.verdict.is_(None), UnitLatest.verdict != PASS))
-        .order_by(Device.serial).limit(bindparam("n", type_=Integer))
-    )  # fmt: skip
+        .order_by(Device.serial)
+        .limit(bindparam("n", type_=Integer))
+    )
     return grouped, failing
 
 
@@ -104,10 +114,14 @@ def fleet_units(archive: Archive, model: str, failing_max: int = FAILING_MAX) ->
             latest[verdict] += n
             if profile:
                 profiles[profile] += n
-        rows = (conn.execute(failing, {"model": model, "n": failing_max}).all()
-                if latest.keys() - {PASS} else [])  # fmt: skip
-    return FleetUnits(sum(latest.values()), dict(latest), dict(profiles),
-                      [dict(r._mapping) for r in rows])
+        rows = (
+            conn.execute(failing, {"model": model, "n": failing_max}).all()
+            if latest.keys() - {PASS}
+            else []
+        )
+    return FleetUnits(
+        sum(latest.values()), dict(latest), dict(profiles), [dict(r._mapping) for r in rows]
+    )
 
 
 _FLEET_VALUES = (
@@ -133,16 +147,19 @@ def fleet_values(archive: Archive, model: str, name: str) -> list[dict[str, Any]
     check_parameter(name)
     with archive.engine().connect() as conn:  # fetched at once (per-row fetches cost more)
         rows = conn.execute(_FLEET_VALUES, {"model": model, "name": name}).all()
-    return [{"serial": s, "calibration_id": c, "value": v, "temperature_c": t}
-            for s, c, v, t in rows]  # fmt: skip
+    return [
+        {"serial": s, "calibration_id": c, "value": v, "temperature_c": t} for s, c, v, t in rows
+    ]
 
 
 def fleet_lineage(archive: Archive, rows: list[dict[str, Any]]) -> None:
     """Add run_id and started_at of its calibration to each of `rows` (fleet_values)."""
     ids = sorted({r["calibration_id"] for r in rows})
-    stmt = (select(CalibrationRow.id, Run.run_id, Run.started_at)
-            .join(Run, Run.id == CalibrationRow.run_id)
-            .where(CalibrationRow.id.in_(ids)))  # fmt: skip
+    stmt = (
+        select(CalibrationRow.id, Run.run_id, Run.started_at)
+        .join(Run, Run.id == CalibrationRow.run_id)
+        .where(CalibrationRow.id.in_(ids))
+    )
     with archive.engine().connect() as conn:
         runs = {cal: (run_id, t) for cal, run_id, t in conn.execute(stmt)} if ids else {}
     for r in rows:

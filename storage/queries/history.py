@@ -42,8 +42,16 @@ if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (slow to import)
 
 
-REVISION_COLUMNS = ["run_id", "started_at", "procedure", "revision", "verdict", "superseded",
-                    "software_version", "created_at"]  # fmt: skip
+REVISION_COLUMNS = [
+    "run_id",
+    "started_at",
+    "procedure",
+    "revision",
+    "verdict",
+    "superseded",
+    "software_version",
+    "created_at",
+]
 
 
 def history_rows(archive: Archive, serial: str) -> list[dict[str, Any]]:
@@ -65,8 +73,10 @@ def history_rows(archive: Archive, serial: str) -> list[dict[str, Any]]:
     )
     with Session(archive.engine()) as s:
         rows = s.execute(stmt).all()
-    return [{**dict(zip(REVISION_COLUMNS, r, strict=True)), "superseded": bool(r.superseded)}
-            for r in rows]  # fmt: skip
+    return [
+        {**dict(zip(REVISION_COLUMNS, r, strict=True)), "superseded": bool(r.superseded)}
+        for r in rows
+    ]
 
 
 def history(archive: Archive, serial: str) -> pd.DataFrame:
@@ -88,8 +98,16 @@ def history(archive: Archive, serial: str) -> pd.DataFrame:
     return df.astype({"superseded": bool})
 
 
-HISTORY_COLUMNS = ["run_id", "started_at", "revision", "verdict", "value", "std", "unit",
-                   "temperature_c"]  # fmt: skip
+HISTORY_COLUMNS = [
+    "run_id",
+    "started_at",
+    "revision",
+    "verdict",
+    "value",
+    "std",
+    "unit",
+    "temperature_c",
+]
 
 
 def _parameter_over_runs(name: str, include_superseded: bool):  # noqa: ANN202 - a select
@@ -307,12 +325,20 @@ def units(
     temp = Run.environment["temperature_c"].as_float()
     stmt = (
         select_run_calibrations(
-            Device.serial, Run.model, Run.manufacturer, Run.run_id, Run.started_at,
-            Run.procedure, Run.operator, CalibrationRow.revision, CalibrationRow.verdict, temp,
+            Device.serial,
+            Run.model,
+            Run.manufacturer,
+            Run.run_id,
+            Run.started_at,
+            Run.procedure,
+            Run.operator,
+            CalibrationRow.revision,
+            CalibrationRow.verdict,
+            temp,
         )
         .where(CURRENT)
         .order_by(Run.started_at, Run.id)
-    )  # fmt: skip
+    )
     stmt = where_model_and_start(stmt, model, t0, t1)
     if verdict is not None:
         stmt = stmt.where(CalibrationRow.verdict == check_verdict(verdict))

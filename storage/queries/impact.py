@@ -50,22 +50,43 @@ def equipment_runs(
     t0 = as_instant(since, "from", end_of_day=False)
     t1 = as_instant(until, "to", end_of_day=True)
     stmt = (
-        select(Run.run_id, Device.serial, Run.model, Run.procedure, Run.started_at,
-               Equipment.kind, Equipment.model, RunEquipment.calibration_due,
-               CalibrationRow.verdict, CalibrationRow.revision)
+        select(
+            Run.run_id,
+            Device.serial,
+            Run.model,
+            Run.procedure,
+            Run.started_at,
+            Equipment.kind,
+            Equipment.model,
+            RunEquipment.calibration_due,
+            CalibrationRow.verdict,
+            CalibrationRow.revision,
+        )
         .join(Device, Device.id == Run.device_id)
         .join(RunEquipment, RunEquipment.run_id == Run.id)
         .join(Equipment, Equipment.id == RunEquipment.equipment_id)
-        .join(CalibrationRow,
-              (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None))
+        .join(
+            CalibrationRow,
+            (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None),
+        )
         .where(Equipment.serial == equipment_serial)
         .order_by(Run.started_at, Run.run_id)
-    )  # fmt: skip
+    )
     if kind is not None:
         stmt = stmt.where(Equipment.kind == check_text(kind, "equipment kind", 100))
     stmt = where_model_and_start(stmt, None, t0, t1)
-    keys = ("run_id", "serial", "model", "procedure", "started_at", "equipment_kind",
-            "equipment_model", "calibration_due", "verdict", "revision")  # fmt: skip
+    keys = (
+        "run_id",
+        "serial",
+        "model",
+        "procedure",
+        "started_at",
+        "equipment_kind",
+        "equipment_model",
+        "calibration_due",
+        "verdict",
+        "revision",
+    )
     with archive.engine().connect() as conn:
         return [dict(zip(keys, row, strict=True)) for row in conn.execute(stmt).all()]
 
@@ -91,22 +112,29 @@ def run_references(archive: Archive, run_ids: list[str]) -> dict[str, dict[str, 
             chunk = ids[start : start + IN_CHUNK]
             for run_id, site, stats in conn.execute(
                 select(Run.run_id, Run.site, ProcessingStep.statistics)
-                .join(CalibrationRow,
-                      (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None))
-                .outerjoin(ProcessingStep,
-                           (ProcessingStep.calibration_id == CalibrationRow.id)
-                           & (ProcessingStep.name == "uncertainty"))
+                .join(
+                    CalibrationRow,
+                    (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None),
+                )
+                .outerjoin(
+                    ProcessingStep,
+                    (ProcessingStep.calibration_id == CalibrationRow.id)
+                    & (ProcessingStep.name == "uncertainty"),
+                )
                 .where(Run.run_id.in_(chunk))
-            ):  # fmt: skip
-                out[run_id] = {"equipment": [], "site": site,
-                               "budgets": (stats or {}).get("budgets", {})}  # fmt: skip
+            ):
+                out[run_id] = {
+                    "equipment": [],
+                    "site": site,
+                    "budgets": (stats or {}).get("budgets", {}),
+                }
             for run_id, kind, serial in conn.execute(
                 select(Run.run_id, Equipment.kind, Equipment.serial)
                 .join(RunEquipment, RunEquipment.run_id == Run.id)
                 .join(Equipment, Equipment.id == RunEquipment.equipment_id)
                 .where(Run.run_id.in_(chunk))
                 .order_by(Equipment.kind, Equipment.serial)
-            ):  # fmt: skip
+            ):
                 if run_id in out:
                     out[run_id]["equipment"].append((kind, serial))
     return out

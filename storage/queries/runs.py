@@ -60,9 +60,13 @@ def full_run_id(archive: Archive, given: str) -> str:
                 f"run id {given!r}: give at least {MIN_RUN_ID_PREFIX} characters of it"
             )
         # A bound LIKE pattern: the text is letters and digits only (checked above).
-        found = conn.execute(
-            select(Run.run_id).where(Run.run_id.like(text + "%")).order_by(Run.run_id).limit(6)
-        ).scalars().all()
+        found = (
+            conn.execute(
+                select(Run.run_id).where(Run.run_id.like(text + "%")).order_by(Run.run_id).limit(6)
+            )
+            .scalars()
+            .all()
+        )
     if not found:
         raise LookupError(f"no run {given!r} in the archive")
     if len(found) > 1:
@@ -92,8 +96,15 @@ def _calibration(s: Session, run_pk: int, revision: int | None) -> CalibrationRo
     return cal
 
 
-_PROVENANCE = ("settings_hash", "settings", "software_version", "source_revision", "verdict",
-               "profile_name", "profile_version")  # fmt: skip
+_PROVENANCE = (
+    "settings_hash",
+    "settings",
+    "software_version",
+    "source_revision",
+    "verdict",
+    "profile_name",
+    "profile_version",
+)
 
 
 def _provenance(cal: Any) -> dict[str, Any]:
@@ -280,24 +291,42 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
 
     Outer joins: the run may lack the revision, the revision the parameter.
     """
-    chosen = (
-        CURRENT
-        if current
-        else CalibrationRow.revision == bindparam("rev")
-    )
+    chosen = CURRENT if current else CalibrationRow.revision == bindparam("rev")
     return (
         select(
-            Run.id.label("run_pk"), Run.run_id, Run.started_at, Run.operator, Run.procedure,
-            Run.site, Run.gravity, Run.environment, Run.tolerance_profile, Run.raw_hash,
-            Run.run_dir, Run.samples_path, Run.samples_sha256, Run.manifest_text, Run.created_at,
-            Device.serial, Run.model, Run.manufacturer, Run.specification,
-            CalibrationRow.id.label("cal_id"), CalibrationRow.revision,
-            CalibrationRow.superseded_by, CalibrationRow.created_at.label("cal_created_at"),
-            CalibrationRow.settings_hash, CalibrationRow.settings,
-            CalibrationRow.software_version, CalibrationRow.source_revision,
-            CalibrationRow.verdict, CalibrationRow.profile_name, CalibrationRow.profile_version,
+            Run.id.label("run_pk"),
+            Run.run_id,
+            Run.started_at,
+            Run.operator,
+            Run.procedure,
+            Run.site,
+            Run.gravity,
+            Run.environment,
+            Run.tolerance_profile,
+            Run.raw_hash,
+            Run.run_dir,
+            Run.samples_path,
+            Run.samples_sha256,
+            Run.manifest_text,
+            Run.created_at,
+            Device.serial,
+            Run.model,
+            Run.manufacturer,
+            Run.specification,
+            CalibrationRow.id.label("cal_id"),
+            CalibrationRow.revision,
+            CalibrationRow.superseded_by,
+            CalibrationRow.created_at.label("cal_created_at"),
+            CalibrationRow.settings_hash,
+            CalibrationRow.settings,
+            CalibrationRow.software_version,
+            CalibrationRow.source_revision,
+            CalibrationRow.verdict,
+            CalibrationRow.profile_name,
+            CalibrationRow.profile_version,
             _NEWER.revision.label("superseding_revision"),
-            ParameterRow.id.label("param_id"), *PARAMETER_VALUE,
+            ParameterRow.id.label("param_id"),
+            *PARAMETER_VALUE,
         )
         .join(Device, Device.id == Run.device_id)
         .outerjoin(CalibrationRow, (CalibrationRow.run_id == Run.id) & chosen)
@@ -305,7 +334,7 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
         .outerjoin(ParameterRow, NAMED_PARAMETER)
         .where(Run.run_id == bindparam("run_id"))
         .order_by(ParameterRow.temperature_c)
-    )  # fmt: skip
+    )
 
 
 _LIN_HEAD = {True: _lineage_head(True), False: _lineage_head(False)}
@@ -356,8 +385,9 @@ def lineage(
     """
     check_safe_name(run_id, "run id")
     check_parameter(name)
-    if revision is not None and (isinstance(revision, bool) or not isinstance(revision, int)
-                                 or revision < 1):  # fmt: skip
+    if revision is not None and (
+        isinstance(revision, bool) or not isinstance(revision, int) or revision < 1
+    ):
         raise ValueError(f"revision: expected a whole number >= 1, got {revision!r}")
     with archive.engine().connect() as conn:
         found = conn.execute(
@@ -456,8 +486,11 @@ def device_description(archive: Archive, serial: str) -> dict[str, Any] | None:
         dev = s.scalars(select(Device).where(Device.serial == serial)).one_or_none()
         if dev is None:
             return None
-        return {"model": dev.model, "manufacturer": dev.manufacturer,
-                "specification": dev.specification}  # fmt: skip
+        return {
+            "model": dev.model,
+            "manufacturer": dev.manufacturer,
+            "specification": dev.specification,
+        }
 
 
 def earlier_descriptions(archive: Archive, serial: str, run_id: str) -> list[dict[str, Any]]:
@@ -551,11 +584,16 @@ def judgement(archive: Archive, calibration_id: int) -> dict[str, Any]:
     """
     with Session(archive.engine()) as s:
         checks = s.execute(
-            select(CheckResultRow.name, CheckResultRow.value, CheckResultRow.limit,
-                   CheckResultRow.passed, CheckResultRow.detail)
+            select(
+                CheckResultRow.name,
+                CheckResultRow.value,
+                CheckResultRow.limit,
+                CheckResultRow.passed,
+                CheckResultRow.detail,
+            )
             .where(CheckResultRow.calibration_id == calibration_id)
             .order_by(CheckResultRow.id)
-        ).all()  # fmt: skip
+        ).all()
         step = s.execute(
             select(ProcessingStep.settings, ProcessingStep.statistics).where(
                 ProcessingStep.calibration_id == calibration_id, ProcessingStep.name == "check"
@@ -578,18 +616,30 @@ def current_judgements(archive: Archive, run_ids: list[str]) -> dict[str, dict[s
     with Session(archive.engine()) as s:
         for start in range(0, len(run_ids), IN_CHUNK):
             rows = s.execute(
-                select(Run.run_id, CalibrationRow.verdict, CheckResultRow.name,
-                       CheckResultRow.value, CheckResultRow.limit, CheckResultRow.passed,
-                       CheckResultRow.detail)
+                select(
+                    Run.run_id,
+                    CalibrationRow.verdict,
+                    CheckResultRow.name,
+                    CheckResultRow.value,
+                    CheckResultRow.limit,
+                    CheckResultRow.passed,
+                    CheckResultRow.detail,
+                )
                 .join(CalibrationRow, CalibrationRow.run_id == Run.id)
                 .outerjoin(CheckResultRow, CheckResultRow.calibration_id == CalibrationRow.id)
-                .where(Run.run_id.in_(run_ids[start : start + IN_CHUNK]),
-                       CURRENT)
+                .where(Run.run_id.in_(run_ids[start : start + IN_CHUNK]), CURRENT)
                 .order_by(Run.run_id, CheckResultRow.id)
-            ).all()  # fmt: skip
+            ).all()
             for r in rows:
                 judged = out.setdefault(r.run_id, {"verdict": r.verdict, "checks": []})
                 if r.name is not None:
-                    judged["checks"].append({"name": r.name, "value": r.value, "limit": r.limit,
-                                             "passed": r.passed, "detail": r.detail})  # fmt: skip
+                    judged["checks"].append(
+                        {
+                            "name": r.name,
+                            "value": r.value,
+                            "limit": r.limit,
+                            "passed": r.passed,
+                            "detail": r.detail,
+                        }
+                    )
     return out

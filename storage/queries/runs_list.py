@@ -130,12 +130,11 @@ def _filtered(stmt, f: RunFilter):  # noqa: ANN001, ANN202 - a select in, a sele
 def _count_base(f: RunFilter):  # noqa: ANN202 - a select
     """COUNT of current revisions, joining runs and devices only when a filter needs them
     (the count dominates the page, and the joins dominate the count)."""
-    stmt = select(func.count()).select_from(CalibrationRow).where(
-        CURRENT
-    )
+    stmt = select(func.count()).select_from(CalibrationRow).where(CURRENT)
     device = f.serial is not None or f.model is not None
-    run = device or any(v is not None for v in (f.date_from, f.date_to, f.procedure,
-                                                f.env_temp_min, f.env_temp_max))  # fmt: skip
+    run = device or any(
+        v is not None for v in (f.date_from, f.date_to, f.procedure, f.env_temp_min, f.env_temp_max)
+    )
     if run:
         stmt = stmt.join(Run, Run.id == CalibrationRow.run_id)
     if device:
@@ -169,13 +168,20 @@ def runs_page(
         order.append(Run.started_at.desc())
     order.append(Run.id.desc() if descending else Run.id.asc())
     base = (
-        select(Run.run_id, Run.started_at, Device.serial, Device.model, Run.procedure,
-               Run.operator, Run.environment["temperature_c"].as_float().label("temperature_c"),
-               CalibrationRow.revision, CalibrationRow.verdict)
+        select(
+            Run.run_id,
+            Run.started_at,
+            Device.serial,
+            Device.model,
+            Run.procedure,
+            Run.operator,
+            Run.environment["temperature_c"].as_float().label("temperature_c"),
+            CalibrationRow.revision,
+            CalibrationRow.verdict,
+        )
         .join(Device, Device.id == Run.device_id)
-        .join(CalibrationRow, (CalibrationRow.run_id == Run.id)
-              & CURRENT)
-    )  # fmt: skip
+        .join(CalibrationRow, (CalibrationRow.run_id == Run.id) & CURRENT)
+    )
     stmt = _filtered(base, f)
     counted = _filtered(_count_base(f), f)
     with archive.engine().connect() as conn:
@@ -197,6 +203,8 @@ def choices(archive: Archive) -> dict[str, list[str]]:
 def facts(archive: Archive) -> dict[str, Any]:
     """The archive's size and schema: runs, units, schema_revision."""
     with archive.engine().connect() as conn:
-        out = {"runs": conn.execute(select(func.count()).select_from(Run)).scalar_one(),
-               "units": conn.execute(select(func.count()).select_from(Device)).scalar_one()}
+        out = {
+            "runs": conn.execute(select(func.count()).select_from(Run)).scalar_one(),
+            "units": conn.execute(select(func.count()).select_from(Device)).scalar_one(),
+        }
     return {**out, "schema_revision": archive.schema_revision()}

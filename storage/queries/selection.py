@@ -76,26 +76,40 @@ def select_runs(
         for start in range(0, len(ids), IN_CHUNK):
             rows = s.execute(
                 select(
-                    CalibrationRow.run_id, CalibrationRow.revision, CalibrationRow.settings_hash,
-                    CalibrationRow.settings, CalibrationRow.software_version,
-                    CalibrationRow.profile_name, CalibrationRow.verdict,
+                    CalibrationRow.run_id,
+                    CalibrationRow.revision,
+                    CalibrationRow.settings_hash,
+                    CalibrationRow.settings,
+                    CalibrationRow.software_version,
+                    CalibrationRow.profile_name,
+                    CalibrationRow.verdict,
                     CalibrationRow.superseded_by,
                 )
                 .where(CalibrationRow.run_id.in_(ids[start : start + IN_CHUNK]))
                 .order_by(CalibrationRow.run_id, CalibrationRow.revision)
-            ).all()  # fmt: skip
+            ).all()
             for c in rows:
-                cals[c.run_id].append({
-                    "revision": c.revision, "settings_hash": c.settings_hash,
-                    "settings": c.settings, "software_version": c.software_version,
-                    "profile_name": c.profile_name, "verdict": c.verdict,
-                    "current": c.superseded_by is None,
-                })  # fmt: skip
+                cals[c.run_id].append(
+                    {
+                        "revision": c.revision,
+                        "settings_hash": c.settings_hash,
+                        "settings": c.settings,
+                        "software_version": c.software_version,
+                        "profile_name": c.profile_name,
+                        "verdict": c.verdict,
+                        "current": c.superseded_by is None,
+                    }
+                )
     return [
-        {"run_id": r.run_id, "serial": r.serial, "procedure": r.procedure,
-         "started_at": r.started_at, "calibrations": cals[r.id]}
+        {
+            "run_id": r.run_id,
+            "serial": r.serial,
+            "procedure": r.procedure,
+            "started_at": r.started_at,
+            "calibrations": cals[r.id],
+        }
         for r in runs
-    ]  # fmt: skip
+    ]
 
 
 def revision_pairs(archive: Archive, run_ids: list[str]) -> list[dict[str, Any]]:
@@ -121,14 +135,22 @@ def revision_pairs(archive: Archive, run_ids: list[str]) -> list[dict[str, Any]]
                 .where(Run.run_id.in_(run_ids[start : start + IN_CHUNK]))
             )
             for row in s.execute(stmt).all():
-                found[row.run_id] = {"run_id": row.run_id, "serial": row.serial,
-                                     "new": row[2], "old": row[3]}  # fmt: skip
+                found[row.run_id] = {
+                    "run_id": row.run_id,
+                    "serial": row.serial,
+                    "new": row[2],
+                    "old": row[3],
+                }
         values = parameter_values(s, [c.id for p in found.values() for c in (p["new"], p["old"])])
         return [
-            {**found[r], "new": _revision(found[r]["new"], values),
-             "old": _revision(found[r]["old"], values)}
-            for r in run_ids if r in found
-        ]  # fmt: skip
+            {
+                **found[r],
+                "new": _revision(found[r]["new"], values),
+                "old": _revision(found[r]["old"], values),
+            }
+            for r in run_ids
+            if r in found
+        ]
 
 
 def _revision(cal: CalibrationRow, values: dict[int, dict]) -> dict[str, Any]:

@@ -82,8 +82,17 @@ def thermal_models(archive: Archive, serial: str) -> pd.DataFrame:
     """Every thermal model of a unit, oldest first (without the JSON document)."""
     import pandas as pd
 
-    cols = ["id", "created_at", "model_name", "model_version", "t_ref", "t_min", "t_max",
-            "calibration_ids", "superseded_by"]  # fmt: skip
+    cols = [
+        "id",
+        "created_at",
+        "model_name",
+        "model_version",
+        "t_ref",
+        "t_min",
+        "t_max",
+        "calibration_ids",
+        "superseded_by",
+    ]
     with Session(archive.engine()) as s:
         rows = s.execute(
             select(*(getattr(ThermalModelRow, c) for c in cols))

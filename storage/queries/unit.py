@@ -26,16 +26,22 @@ def revisions(archive: Archive, run_id: str) -> list[dict[str, Any]]:
     """
     check_safe_name(run_id, "run id")
     stmt = (
-        select(CalibrationRow.revision, CalibrationRow.created_at, CalibrationRow.verdict,
-               CalibrationRow.software_version, CalibrationRow.source_revision,
-               CalibrationRow.settings_hash, CalibrationRow.profile_name,
-               CalibrationRow.profile_version,
-               _NEWER.c.revision.label("superseded_by_revision"))
+        select(
+            CalibrationRow.revision,
+            CalibrationRow.created_at,
+            CalibrationRow.verdict,
+            CalibrationRow.software_version,
+            CalibrationRow.source_revision,
+            CalibrationRow.settings_hash,
+            CalibrationRow.profile_name,
+            CalibrationRow.profile_version,
+            _NEWER.c.revision.label("superseded_by_revision"),
+        )
         .join(Run, Run.id == CalibrationRow.run_id)
         .outerjoin(_NEWER, _NEWER.c.id == CalibrationRow.superseded_by)
         .where(Run.run_id == run_id)
         .order_by(CalibrationRow.revision)
-    )  # fmt: skip
+    )
     with archive.engine().connect() as conn:
         rows = conn.execute(stmt).all()
     if not rows:
@@ -46,8 +52,9 @@ def revisions(archive: Archive, run_id: str) -> list[dict[str, Any]]:
 def device(archive: Archive, serial: str) -> dict[str, Any]:
     """A unit's device row: serial, model, manufacturer, specification (LookupError if none)."""
     check_serial(serial)
-    stmt = select(Device.serial, Device.model, Device.manufacturer, Device.specification,
-                  Device.created_at).where(Device.serial == serial)  # fmt: skip
+    stmt = select(
+        Device.serial, Device.model, Device.manufacturer, Device.specification, Device.created_at
+    ).where(Device.serial == serial)
     with archive.engine().connect() as conn:
         row = conn.execute(stmt).one_or_none()
     if row is None:

@@ -165,14 +165,26 @@ _TABLES = {
                      "revision": _I, "reason": _S, "detail": _J, "digest": _S,
                      "prev_hash": _S, "hash": _S},
 }  # fmt: skip
-_t = {name: sa.table(name, *(sa.column(c, k()) for c, k in cols.items()))
-      for name, cols in _TABLES.items()}  # fmt: skip
+_t = {
+    name: sa.table(name, *(sa.column(c, k()) for c, k in cols.items()))
+    for name, cols in _TABLES.items()
+}
 # The sealed fields of each table (storage.seal's _RUN, _CAL ... of this revision).
 _RUN = ("run_id", "started_at", "operator", "procedure", "site", "gravity", "environment",
         "manifest_text", "raw_hash", "tolerance_profile", "run_dir", "samples_path",
         "samples_sha256", "created_at")  # fmt: skip
-_CAL = ("revision", "settings_hash", "settings", "software_version", "source_revision",
-        "created_at", "document", "verdict", "profile_name", "profile_version")  # fmt: skip
+_CAL = (
+    "revision",
+    "settings_hash",
+    "settings",
+    "software_version",
+    "source_revision",
+    "created_at",
+    "document",
+    "verdict",
+    "profile_name",
+    "profile_version",
+)
 _DEVICE = ("serial", "model", "manufacturer", "specification")
 _RAW = ("name", "sha256", "size", "format", "stored_path")
 _EQUIPMENT = ("kind", "serial", "model", "accuracy_class", "calibration_due", "calibrated_on")
@@ -183,8 +195,18 @@ _CHILDREN = (  # a revision's child tables: (table, sealed fields, order within 
     ("check_results", ("name", "value", "limit", "passed", "detail", "profile_name",
                        "profile_version"), "name"),
 )  # fmt: skip
-_EVENT = ("seq", "at", "actor", "action", "run_id", "revision", "reason", "detail", "digest",
-          "prev_hash")  # fmt: skip
+_EVENT = (
+    "seq",
+    "at",
+    "actor",
+    "action",
+    "run_id",
+    "revision",
+    "reason",
+    "detail",
+    "digest",
+    "prev_hash",
+)
 _GENESIS = "0" * 64
 _PG_CHAIN_LOCK = 0x63616C6963  # the chain's advisory lock (storage.seal)
 
@@ -195,8 +217,9 @@ def _canonical(value: Any) -> bytes:
             return v.isoformat()
         raise TypeError(f"{type(v).__name__} is not part of a record")
 
-    return json.dumps(value, sort_keys=True, separators=(",", ":"), ensure_ascii=False,
-                      default=iso).encode()  # fmt: skip
+    return json.dumps(
+        value, sort_keys=True, separators=(",", ":"), ensure_ascii=False, default=iso
+    ).encode()
 
 
 def _sha256(data: bytes) -> str:
@@ -218,13 +241,21 @@ def _labelled(rows: list[tuple[str, dict[str, Any]]]) -> dict[str, dict[str, Any
 def _record(conn: sa.Connection, cal_id: int) -> dict[str, Any]:
     """The format 1 record of one calibration revision (no files: none were recorded)."""
     c, r, d = _t["calibrations"], _t["runs"], _t["devices"]
-    head = conn.execute(
-        sa.select(r.c.id.label("run_pk"), *(r.c[n].label("r_" + n) for n in _RUN),
-                  *(c.c[n].label("c_" + n) for n in _CAL),
-                  *(d.c[n].label("d_" + n) for n in _DEVICE))
-        .join(r, r.c.id == c.c.run_id).join(d, d.c.id == r.c.device_id)
-        .where(c.c.id == cal_id)
-    ).mappings().one()  # fmt: skip
+    head = (
+        conn.execute(
+            sa.select(
+                r.c.id.label("run_pk"),
+                *(r.c[n].label("r_" + n) for n in _RUN),
+                *(c.c[n].label("c_" + n) for n in _CAL),
+                *(d.c[n].label("d_" + n) for n in _DEVICE),
+            )
+            .join(r, r.c.id == c.c.run_id)
+            .join(d, d.c.id == r.c.device_id)
+            .where(c.c.id == cal_id)
+        )
+        .mappings()
+        .one()
+    )
     run_pk = head["run_pk"]
     rec: dict[str, Any] = {
         "runs": {n: head["r_" + n] for n in _RUN},
@@ -234,28 +265,40 @@ def _record(conn: sa.Connection, cal_id: int) -> dict[str, Any]:
     }
     re_, eq = _t["run_equipment"], _t["equipment"]
     equipment = conn.execute(
-        sa.select(eq.c.kind, eq.c.serial, eq.c.model, eq.c.accuracy_class,
-                  re_.c.calibration_due, re_.c.calibrated_on)
-        .join(eq, eq.c.id == re_.c.equipment_id).where(re_.c.run_id == run_pk)
+        sa.select(
+            eq.c.kind,
+            eq.c.serial,
+            eq.c.model,
+            eq.c.accuracy_class,
+            re_.c.calibration_due,
+            re_.c.calibrated_on,
+        )
+        .join(eq, eq.c.id == re_.c.equipment_id)
+        .where(re_.c.run_id == run_pk)
         .order_by(eq.c.kind, eq.c.serial)
-    ).all()  # fmt: skip
+    ).all()
     rec["run_equipment"] = _labelled(
         [(f"{e.kind}:{e.serial}", dict(zip(_EQUIPMENT, e, strict=True))) for e in equipment]
     )
     raw = _t["raw_files"]
-    rows = conn.execute(sa.select(*(raw.c[n] for n in _RAW)).where(raw.c.run_id == run_pk)
-                        .order_by(raw.c.name)).all()  # fmt: skip
+    rows = conn.execute(
+        sa.select(*(raw.c[n] for n in _RAW)).where(raw.c.run_id == run_pk).order_by(raw.c.name)
+    ).all()
     rec["raw_files"] = _labelled([(m.name, dict(zip(_RAW, m, strict=True))) for m in rows])
     for table, names, order in _CHILDREN:
         t = _t[table]
-        rows = conn.execute(sa.select(*(t.c[n] for n in names))
-                            .where(t.c.calibration_id == cal_id)
-                            .order_by(t.c[order], t.c.id)).all()  # fmt: skip
+        rows = conn.execute(
+            sa.select(*(t.c[n] for n in names))
+            .where(t.c.calibration_id == cal_id)
+            .order_by(t.c[order], t.c.id)
+        ).all()
         children = [dict(zip(names, m, strict=True)) for m in rows]
-        rec[table] = _labelled([
-            (f"{row['seq']}:{row['name']}" if table == "processing_steps" else row["name"], row)
-            for row in children
-        ])  # fmt: skip
+        rec[table] = _labelled(
+            [
+                (f"{row['seq']}:{row['name']}" if table == "processing_steps" else row["name"], row)
+                for row in children
+            ]
+        )
     return rec
 
 
@@ -266,12 +309,21 @@ def _append_event(conn: sa.Connection, who: str, rec: dict[str, Any], digest: st
     a = _t["audit_events"]
     last = conn.execute(sa.select(a.c.seq, a.c.hash).order_by(a.c.seq.desc()).limit(1)).first()
     seq, prev = (0, _GENESIS) if last is None else (last.seq, last.hash)
-    event = {"seq": seq + 1, "at": datetime.now(UTC), "actor": who, "action": "sealed",
-             "run_id": rec["runs"]["run_id"], "revision": rec["calibrations"]["revision"],
-             "reason": "sealed when the archive was upgraded", "detail": {}, "digest": digest,
-             "prev_hash": prev}  # fmt: skip
-    conn.execute(sa.insert(a), {**event, "hash": _sha256(_canonical(
-        {k: event[k] for k in _EVENT}))})  # fmt: skip
+    event = {
+        "seq": seq + 1,
+        "at": datetime.now(UTC),
+        "actor": who,
+        "action": "sealed",
+        "run_id": rec["runs"]["run_id"],
+        "revision": rec["calibrations"]["revision"],
+        "reason": "sealed when the archive was upgraded",
+        "detail": {},
+        "digest": digest,
+        "prev_hash": prev,
+    }
+    conn.execute(
+        sa.insert(a), {**event, "hash": _sha256(_canonical({k: event[k] for k in _EVENT}))}
+    )
 
 
 def _seal_unsealed(conn: sa.Connection, who: str) -> int:
@@ -282,8 +334,14 @@ def _seal_unsealed(conn: sa.Connection, who: str) -> int:
         rec = _record(conn, cal_id)
         data = _canonical(rec)
         digest = _sha256(data)
-        conn.execute(sa.insert(_t["seals"]), {"calibration_id": cal_id, "digest": digest,
-                                              "record": json.loads(data),
-                                              "created_at": datetime.now(UTC)})  # fmt: skip
+        conn.execute(
+            sa.insert(_t["seals"]),
+            {
+                "calibration_id": cal_id,
+                "digest": digest,
+                "record": json.loads(data),
+                "created_at": datetime.now(UTC),
+            },
+        )
         _append_event(conn, who, rec, digest)
     return len(ids)

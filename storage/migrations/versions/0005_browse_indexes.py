@@ -23,13 +23,21 @@ CURRENT = sa.text("superseded_by IS NULL")
 
 
 def upgrade() -> None:
-    op.create_index("ix_calibrations_current", "calibrations",
-                    ["run_id", "verdict", "profile_name"], sqlite_where=CURRENT,
-                    postgresql_where=CURRENT, postgresql_include=["id"])  # fmt: skip
+    op.create_index(
+        "ix_calibrations_current",
+        "calibrations",
+        ["run_id", "verdict", "profile_name"],
+        sqlite_where=CURRENT,
+        postgresql_where=CURRENT,
+        postgresql_include=["id"],
+    )
     op.create_index("ix_runs_device_id_started_at_id", "runs", ["device_id", "started_at", "id"])
     op.drop_index("ix_runs_device_id_started_at", table_name="runs")
-    op.create_index("ix_run_equipment_equipment_id_calibration_due", "run_equipment",
-                    ["equipment_id", "calibration_due"])  # fmt: skip
+    op.create_index(
+        "ix_run_equipment_equipment_id_calibration_due",
+        "run_equipment",
+        ["equipment_id", "calibration_due"],
+    )
 
 
 def downgrade() -> None:

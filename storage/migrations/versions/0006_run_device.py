@@ -29,8 +29,10 @@ _COLUMNS = (
 
 def upgrade() -> None:
     for name, type_, nullable in _COLUMNS:
-        op.add_column("runs", sa.Column(name, type_, nullable=nullable,
-                                        server_default=None if nullable else ""))  # fmt: skip
+        op.add_column(
+            "runs",
+            sa.Column(name, type_, nullable=nullable, server_default=None if nullable else ""),
+        )
     op.execute(
         "UPDATE runs SET "
         + ", ".join(

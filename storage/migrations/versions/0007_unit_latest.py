@@ -74,8 +74,10 @@ _TABLES = {
     "unit_latest_values": {"model": _S, "name": _S, "serial": _S, "device_id": _I,
                            "calibration_id": _I, "value": _F, "temperature_c": _F},
 }  # fmt: skip
-_t = {name: sa.table(name, *(sa.column(c, k()) for c, k in cols.items()))
-      for name, cols in _TABLES.items()}  # fmt: skip
+_t = {
+    name: sa.table(name, *(sa.column(c, k()) for c, k in cols.items()))
+    for name, cols in _TABLES.items()
+}
 _PASS = "pass"
 _REFERENCE_C = 20.0  # of temperature-dependent values, the one nearest this (deg C)
 _CHUNK = 10_000  # rows per INSERT
@@ -85,22 +87,50 @@ def _derived() -> sa.Select:
     """Each unit's latest run (by start, then id), its current calibration, its latest
     valid (passing, current) calibration, and the latest's verdict and profile."""
     d, r, c = _t["devices"], _t["runs"], _t["calibrations"]
-    latest = (sa.select(r.c.id).where(r.c.device_id == d.c.id)
-              .order_by(r.c.started_at.desc(), r.c.id.desc()).limit(1)
-              .correlate(d).scalar_subquery())  # fmt: skip
-    current = (sa.select(c.c.id).where(c.c.run_id == latest, c.c.superseded_by.is_(None))
-               .order_by(c.c.id.desc()).limit(1).correlate(d).scalar_subquery())  # fmt: skip
-    valid = (sa.select(c.c.id).join(r, r.c.id == c.c.run_id)
-             .where(r.c.device_id == d.c.id, c.c.superseded_by.is_(None), c.c.verdict == _PASS)
-             .order_by(r.c.started_at.desc(), r.c.id.desc(), c.c.id.desc())
-             .limit(1).correlate(d).scalar_subquery())  # fmt: skip
-    picks = sa.select(d.c.id.label("device_id"), latest.label("run_id"),
-                      current.label("calibration_id"),
-                      valid.label("valid_calibration_id")).subquery("picks")  # fmt: skip
-    return (sa.select(picks.c.device_id, picks.c.run_id, picks.c.calibration_id, c.c.verdict,
-                      c.c.profile_name, picks.c.valid_calibration_id)
-            .select_from(picks).outerjoin(c, c.c.id == picks.c.calibration_id)
-            .where(picks.c.run_id.is_not(None)))  # fmt: skip
+    latest = (
+        sa.select(r.c.id)
+        .where(r.c.device_id == d.c.id)
+        .order_by(r.c.started_at.desc(), r.c.id.desc())
+        .limit(1)
+        .correlate(d)
+        .scalar_subquery()
+    )
+    current = (
+        sa.select(c.c.id)
+        .where(c.c.run_id == latest, c.c.superseded_by.is_(None))
+        .order_by(c.c.id.desc())
+        .limit(1)
+        .correlate(d)
+        .scalar_subquery()
+    )
+    valid = (
+        sa.select(c.c.id)
+        .join(r, r.c.id == c.c.run_id)
+        .where(r.c.device_id == d.c.id, c.c.superseded_by.is_(None), c.c.verdict == _PASS)
+        .order_by(r.c.started_at.desc(), r.c.id.desc(), c.c.id.desc())
+        .limit(1)
+        .correlate(d)
+        .scalar_subquery()
+    )
+    picks = sa.select(
+        d.c.id.label("device_id"),
+        latest.label("run_id"),
+        current.label("calibration_id"),
+        valid.label("valid_calibration_id"),
+    ).subquery("picks")
+    return (
+        sa.select(
+            picks.c.device_id,
+            picks.c.run_id,
+            picks.c.calibration_id,
+            c.c.verdict,
+            c.c.profile_name,
+            picks.c.valid_calibration_id,
+        )
+        .select_from(picks)
+        .outerjoin(c, c.c.id == picks.c.calibration_id)
+        .where(picks.c.run_id.is_not(None))
+    )
 
 
 def _nearest(rows: list[tuple[str, float, float | None]]) -> dict[str, tuple[float, Any]]:
@@ -122,18 +152,34 @@ def _rebuild(conn: sa.Connection) -> None:
     conn.execute(sa.insert(_t["unit_latest"]).from_select(columns, _derived()))
     picks = _derived().subquery("derived")
     found = conn.execute(
-        sa.select(d.c.model, d.c.serial, d.c.id, picks.c.valid_calibration_id, p.c.name,
-                  p.c.value, p.c.temperature_c)
+        sa.select(
+            d.c.model,
+            d.c.serial,
+            d.c.id,
+            picks.c.valid_calibration_id,
+            p.c.name,
+            p.c.value,
+            p.c.temperature_c,
+        )
         .join(picks, picks.c.device_id == d.c.id)
         .join(p, p.c.calibration_id == picks.c.valid_calibration_id)
         .order_by(d.c.id, p.c.id)
-    )  # fmt: skip
+    )
     out = []
     for dev, group in itertools.groupby(found, key=lambda r: r[2]):
         rows = list(group)
         model, serial, _, cal = rows[0][:4]
         for name, (value, t) in sorted(_nearest([(r[4], r[5], r[6]) for r in rows]).items()):
-            out.append({"model": model, "name": name, "serial": serial, "device_id": dev,
-                        "calibration_id": cal, "value": value, "temperature_c": t})
+            out.append(
+                {
+                    "model": model,
+                    "name": name,
+                    "serial": serial,
+                    "device_id": dev,
+                    "calibration_id": cal,
+                    "value": value,
+                    "temperature_c": t,
+                }
+            )
     for i in range(0, len(out), _CHUNK):
         conn.execute(sa.insert(_t["unit_latest_values"]), out[i : i + _CHUNK])
