@@ -74,13 +74,10 @@ class Trend:
         return np.sqrt(self.cov[0, 0] + 2.0 * dt * self.cov[0, 1] + dt**2 * self.cov[1, 1])
 
 
-def fit_trend(
-    t_days: Sequence[float], values: Sequence[float], stds: Sequence[float | None] | None = None
-) -> Trend:
-    """Weighted straight-line fit of values (SI) against time (days).
-
-    Raises ValueError with fewer than 3 points or fewer than 2 distinct times.
-    """
+def _trend_points(
+    t_days: Sequence[float], values: Sequence[float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(t, y) as float arrays; ValueError unless 1-D, equal length, >= 3 points on >= 2 dates."""
     t = np.asarray(t_days, dtype=float)
     y = np.asarray(values, dtype=float)
     if t.shape != y.shape or t.ndim != 1:
@@ -90,6 +87,17 @@ def fit_trend(
             f"a trend needs at least 3 calibrations on 2 or more dates, got {t.size} "
             f"on {np.unique(t).size} date(s)"
         )
+    return t, y
+
+
+def fit_trend(
+    t_days: Sequence[float], values: Sequence[float], stds: Sequence[float | None] | None = None
+) -> Trend:
+    """Weighted straight-line fit of values (SI) against time (days).
+
+    Raises ValueError with fewer than 3 points or fewer than 2 distinct times.
+    """
+    t, y = _trend_points(t_days, values)
     weighted = stds is not None and all(s is not None and s > 0 for s in stds)
     w = 1.0 / np.asarray(stds, dtype=float) if weighted else np.ones_like(y)
     t0 = float(np.average(t, weights=w**2))
@@ -162,15 +170,7 @@ def fit_trend_shared(
     their uncertainties say. Raises ValueError as `fit_trend`, and for a singular V
     (a run with neither Type A nor Type B uncertainty).
     """
-    t = np.asarray(t_days, dtype=float)
-    y = np.asarray(values, dtype=float)
-    if t.shape != y.shape or t.ndim != 1:
-        raise ValueError(f"t_days and values must be 1-D of equal length, got {t.shape}, {y.shape}")
-    if t.size < 3 or np.unique(t).size < 2:
-        raise ValueError(
-            f"a trend needs at least 3 calibrations on 2 or more dates, got {t.size} "
-            f"on {np.unique(t).size} date(s)"
-        )
+    t, y = _trend_points(t_days, values)
     V = shared_covariance(stds_a, stds_b, references)
     if np.any(np.diag(V) <= 0):
         raise ValueError("every point needs a Type A or Type B uncertainty > 0")
