@@ -28,7 +28,8 @@ from storage.db import Archive, resolve_archive
 from storage.verify import verify
 
 SAMPLE = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"
-pytestmark = pytest.mark.usefixtures("issuing_certificates")
+# Typesetting takes seconds per certificate: the slow tier.
+pytestmark = [pytest.mark.usefixtures("issuing_certificates"), pytest.mark.slow]
 
 
 class _Text(HTMLParser):

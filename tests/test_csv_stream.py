@@ -96,6 +96,7 @@ def test_streamed_record_same_parameters_as_in_memory(big_csv, tmp_path):
     assert motion and motion[0]["passed"] is None and "not done" in motion[0]["detail"]
 
 
+@pytest.mark.slow  # a fresh interpreter reads the whole file twice
 def test_streamed_record_memory_bounded_by_the_limit(big_csv, tmp_path):
     """In a fresh process, after a warm-up on the file's first quarter (which loads the
     lazily imported modules, the parser's threads and the codecs: fixed costs), the peak

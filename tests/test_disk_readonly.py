@@ -199,6 +199,7 @@ def test_repair_orphans_removes_only_dead_writers_files(written_archive, tmp_pat
     assert not stale.exists() and live.exists()
 
 
+@pytest.mark.e2e  # the commands in processes of their own
 @pytest.mark.parametrize("naming", ["CALIB_ARCHIVE", "--archive"])
 def test_writes_to_a_read_only_archive_say_why_either_way_it_is_named(
     written_archive, tmp_path: Path, naming: str

@@ -110,6 +110,7 @@ class _Page(HTMLParser):
             self.text.append(data)
 
 
+@pytest.mark.slow  # crawls every page of the sample archive
 def test_no_page_shows_raw_values(sample_archive: Archive) -> None:
     ro = open_readonly(sample_archive)
     found: dict[str, list[str]] = {}

@@ -47,6 +47,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.e2e  # a real server in a process of its own
 def test_serving_is_said_once_connections_are_accepted(archive) -> None:
     port = _free_port()
     env = {**os.environ, "PYTHONPATH": str(ROOT), "DO_NOT_TRACK": "1"}
