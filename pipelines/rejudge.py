@@ -22,7 +22,7 @@ from calib_core.conditions import counts_against_verdict
 from calib_core.tolerances import ToleranceProfile
 from pipelines import shared_reference
 from storage import queries
-from storage.archive import ArchiveError, Rejudgement, rejudge_run
+from storage.archive import REJUDGE_STEP, ArchiveError, Rejudgement, rejudge_run
 from storage.db import Archive
 
 # Judgements made again after a concurrent writer changed the unit's runs meanwhile;
@@ -141,8 +141,8 @@ def _judged_again(
         f"repeatability judged again by run time after run {trigger} was archived: "
         f"group {', '.join(ids)}"
     )
-    step_record = StepRecord(
-        "rejudge",
+    step_record = StepRecord(  # rejudge_run adds the runs judged against to its settings
+        REJUDGE_STEP,
         settings={"reason": reason},
         statistics={"repeatability_group": ids, "verdict": verdict},
     )

@@ -10,7 +10,8 @@ profile) and the software version:
 - known raw_hash, known settings + software -> nothing written          ("duplicate")
 - known raw_hash, new settings or software  -> revision n+1, supersedes n ("revised")
 - a run judged again against the unit's earlier runs (`rejudge_run`) -> revision n+1
-  with the same parameters, document and steps, its own checks and verdict ("revised")
+  with the same parameters, document and steps, its own checks and verdict ("revised");
+  its settings hash also covers the runs it was judged against (`JUDGED_AGAINST`)
 
 Order of writes: raw objects (content-addressed, harmless if orphaned), the
 samples Parquet file and the extra files (protocol...) into the run folder,
@@ -155,6 +156,12 @@ def run_id_of(raw_hash: str) -> str:
     return "R" + raw_hash[:12]
 
 
+# The setting of a `rejudge` step (sealed with the revision): run ids of the unit's runs
+# made before the run, most recent first, that the revision was judged against.
+JUDGED_AGAINST = "judged_against"
+REJUDGE_STEP = "rejudge"
+
+
 def settings_hash_of(run: RunIn) -> str:
     """SHA-256 of the canonical JSON of what decides the result besides the raw bytes."""
     return settings_hash(run.settings, run.procedure, run.profile_name, run.profile_version)
@@ -165,14 +172,22 @@ def settings_hash(
     procedure: str,
     profile_name: str | None,
     profile_version: str | None,
+    judged_against: list[str] | None = None,
 ) -> str:
-    """The settings hash of a calibration (`settings_hash_of`) from its parts."""
+    """The settings hash of a calibration (`settings_hash_of`) from its parts.
+
+    `judged_against` : for a revision judged again (`rejudge_run`), the run ids its
+    ``rejudge`` step records under `JUDGED_AGAINST`: the same settings judged against
+    other runs are another calibration. None (not part of the hash) for a processing.
+    """
     doc = {
         "settings": settings,
         "procedure": procedure,
         "profile_name": profile_name,
         "profile_version": profile_version,
     }
+    if judged_against is not None:
+        doc[JUDGED_AGAINST] = judged_against
     return hashlib.sha256(_canonical_json(doc, "settings").encode()).hexdigest()
 
 
@@ -584,9 +599,10 @@ class Rejudgement:
 def rejudge_run(archive: Archive, judged: Rejudgement) -> ArchiveResult | None:
     """A new revision of a run with the same parameters, document and steps, judged again.
 
-    Its settings are the revision's, its settings hash that of the revision judged again
-    combined with the new revision number (a revision's raw bytes, settings and software
-    are unique within a run; these are the same). Sealed as "revised" with the reason.
+    Its settings are the revision's; its ``rejudge`` step records the runs it was judged
+    against (`JUDGED_AGAINST`: ``judged.earlier``), and its settings hash covers them
+    besides the settings (`settings_hash`), so a reader recomputes it from the sealed
+    rows (`storage.verify`). Sealed as "revised" with the reason.
 
     Returns
     -------
@@ -603,7 +619,7 @@ def rejudge_run(archive: Archive, judged: Rejudgement) -> ArchiveResult | None:
                 return None
             if _earlier_runs(s, run) != judged.earlier:
                 return None
-            cal = _judged_again(s, prev, judged)
+            cal = _judged_again(s, prev, run.procedure, judged)
             unit_latest.refresh(s.connection(), run.device_id)
             seal.seal_calibration(s.connection(), cal.id, "revised", reason=judged.reason)
             result = ArchiveResult(
@@ -639,7 +655,7 @@ def _earlier_runs(s: Session, run: schema.Run) -> list[str]:
 
 
 def _judged_again(
-    s: Session, prev: schema.CalibrationRow, judged: Rejudgement
+    s: Session, prev: schema.CalibrationRow, procedure: str, judged: Rejudgement
 ) -> schema.CalibrationRow:
     """The rows of the new revision: `prev`'s, with the checks and verdict of `judged`."""
     revision = 1 + s.scalar(
@@ -650,7 +666,9 @@ def _judged_again(
     cal = schema.CalibrationRow(
         run_id=prev.run_id,
         revision=revision,
-        settings_hash=hashlib.sha256(f"{prev.settings_hash} {revision}".encode()).hexdigest(),
+        settings_hash=settings_hash(
+            prev.settings, procedure, prev.profile_name, prev.profile_version, judged.earlier
+        ),
         settings=prev.settings,
         software_version=prev.software_version,
         source_revision=prev.source_revision,
@@ -689,8 +707,8 @@ def _judged_again(
             "run_id": prev.run_id,
             "calibration_id": cal.id,
             "seq": len(rows),
-            "name": judged.step.name,
-            "settings": judged.step.settings,
+            "name": REJUDGE_STEP,
+            "settings": {**judged.step.settings, JUDGED_AGAINST: judged.earlier},
             "statistics": judged.step.statistics,
             "software_version": judged.step.software_version,
             "source_revision": prev.source_revision,

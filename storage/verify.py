@@ -11,7 +11,10 @@ run and latest valid calibration (storage.unit_latest) must equal its
 derivation from the runs. The ``parameters`` rows of every
 calibration must agree with the parameters of its stored document (both are
 written from the same objects): any difference, a missing or an extra row is a
-*record* problem naming run, revision, parameter, field and both values.
+*record* problem naming run, revision, parameter, field and both values. The
+settings hash of a revision judged again (storage.archive.rejudge_run) is
+recomputed from its settings and the runs its ``rejudge`` step says it was judged
+against.
 
 Files the database does not reference (an archive attempt killed between
 writing its files and committing its rows leaves those) are listed as
@@ -32,7 +35,7 @@ from sqlalchemy.orm import aliased
 
 from storage import rawstore, unit_latest
 from storage.db import Archive
-from storage.schema import CalibrationRow, ParameterRow, RawFileRow, Run
+from storage.schema import CalibrationRow, ParameterRow, ProcessingStep, RawFileRow, Run
 
 ProblemKind = Literal[
     "missing",
@@ -182,6 +185,7 @@ def verify(
         _check_database(conn, report)
         _check_unit_latest(conn, report)
         _check_parameters(conn, report)
+        _check_judged_again(conn, report)
         if seals:
             _check_seals(conn, root, report)
         _check_trust(conn, report, approvers, checkpoints)
@@ -241,6 +245,51 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
                 "not a later revision of the same run",
             )
         )
+
+
+def _check_judged_again(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
+    """The settings hash of each revision judged again, recomputed from its sealed rows.
+
+    A revision judged again before its ``rejudge`` step recorded the runs it was judged
+    against holds a hash no reader can recompute: it is left to its seal.
+    """
+    from storage.archive import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
+
+    rows = conn.execute(
+        select(
+            CalibrationRow.id,
+            Run.run_id,
+            Run.procedure,
+            CalibrationRow.revision,
+            CalibrationRow.settings_hash,
+            CalibrationRow.settings,
+            CalibrationRow.profile_name,
+            CalibrationRow.profile_version,
+            ProcessingStep.settings.label("step_settings"),
+        )
+        .join(Run, Run.id == CalibrationRow.run_id)
+        .join(ProcessingStep, ProcessingStep.calibration_id == CalibrationRow.id)
+        .where(ProcessingStep.name == REJUDGE_STEP)
+        .order_by(CalibrationRow.id, ProcessingStep.seq)
+    ).all()
+    last = {r.id: r for r in rows}  # a revision judged again twice: its last step counts
+    for r in last.values():
+        against = (r.step_settings or {}).get(JUDGED_AGAINST)
+        if against is None:
+            continue
+        expected = settings_hash(
+            r.settings, r.procedure, r.profile_name, r.profile_version, against
+        )
+        if expected != r.settings_hash:
+            report.problems.append(
+                Problem(
+                    "record",
+                    f"calibrations/{r.revision}/settings_hash",
+                    [r.run_id],
+                    f"revision {r.revision} judged again against {', '.join(against) or 'no run'}:"
+                    f" settings hash {expected} expected, {r.settings_hash} held",
+                )
+            )
 
 
 def _check_unit_latest(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
