@@ -35,17 +35,13 @@ from calib_core.condition_rules import (  # noqa: F401  (the catalogue's names, 
     requirement,
     status,
 )
+from calib_core.preprocess.motion import is_rotation
 from calib_core.recording import Recording
 from calib_core.units import DEG
 
 ZERO_RATE = 1e-6  # rad/s: a plateau below this is a 0-rate (static) point
 # Reference channels of the lab's own temperature (chamber or ambient), deg C.
 CHAMBER_CHANNELS = ("chamber_temperature", "ambient_temperature")
-
-
-def is_rotation(label: str) -> bool:
-    """A turn of the integral method (``x_ccw``, ``z_cw``): not an attitude."""
-    return label.endswith(("_cw", "_ccw"))
 
 
 def plateau_rate(rec: Recording) -> float | None:

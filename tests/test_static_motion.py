@@ -135,3 +135,32 @@ def test_real_xsens_session_still_start_passes_hand_held_poses_fail():
     assert motion_check("start", first)["passed"]
     poses = rec.select(np.arange(0, 10_000))  # the first 100 s: the rest, then poses
     assert not motion_check("poses", poses)["passed"]
+
+
+def test_each_procedure_declares_which_segments_are_held_still() -> None:
+    """The motion checks follow `Procedure.static_segments`; the motion module names no
+    procedure, and a procedure that moves on purpose gets no motion check."""
+    from calib_core import procedures
+    from calib_core.preprocess import motion
+    from calib_core.preprocess.motion import static_motion_checks
+
+    declared = {name: procedures.get(name).static_segments for name in procedures.PROCEDURES}
+    assert declared == {
+        "six_position": "all but turns",
+        "six_position_integral": "all but turns",
+        "multi_position": "all but turns",
+        "sensor_array": "all but turns",
+        "static_bias": "all",
+        "integral": "none",
+        "rate_table": "none",
+        "centrifuge": "none",
+        "equipment_free": "none",
+    }
+    source = Path(motion.__file__).read_text()
+    assert not [name for name in declared if f'"{name}"' in source]
+    segs = {"x_up": _still(3), "x_ccw": _still(4)}
+    assert [c["name"] for c in static_motion_checks("all but turns", segs)] == ["motion:x_up"]
+    assert len(static_motion_checks("all", segs)) == 2
+    assert static_motion_checks("none", segs) == []
+    with pytest.raises(ValueError, match="static_segments"):
+        static_motion_checks("some", segs)

@@ -158,26 +158,25 @@ def motion_checks(segments: dict[str, Recording], static: list[str]) -> list[dic
     return out
 
 
-# Procedures whose segments other than turns are held still, and must have been.
-STATIC_PROCEDURES = (
-    "six_position",
-    "six_position_integral",
-    "multi_position",
-    "sensor_array",
-    "static_bias",
-)
+def is_rotation(label: str) -> bool:
+    """A turn of the integral method (``x_ccw``, ``z_cw``): not an attitude."""
+    return label.endswith(("_cw", "_ccw"))
 
 
-def static_motion_checks(procedure: str, segments: dict[str, Recording]) -> list[dict]:
-    """``motion:<label>`` checks of a procedure's static positions: every segment of
-    static_bias, every segment but the turns (``_cw``/``_ccw``) of the others in
-    STATIC_PROCEDURES; none for procedures that move on purpose (equipment_free's session,
-    rate_table's plateaus, the centrifuge's runs, integral's turns)."""
-    if procedure not in STATIC_PROCEDURES:
+def static_motion_checks(static_segments: str, segments: dict[str, Recording]) -> list[dict]:
+    """``motion:<label>`` checks of a procedure's static segments.
+
+    Parameters
+    ----------
+    static_segments : the procedure's `Procedure.static_segments`: "all", "all but turns"
+        (labels ending ``_cw``/``_ccw`` left out) or "none" (it moves on purpose: no check).
+    segments : label -> Recording (SI units).
+    """
+    if static_segments == "none":
         return []
-    static = [
-        label
-        for label in segments
-        if procedure == "static_bias" or not label.endswith(("_cw", "_ccw"))
-    ]
+    if static_segments not in ("all", "all but turns"):
+        raise ValueError(
+            f"static_segments: expected 'all', 'all but turns' or 'none', got {static_segments!r}"
+        )
+    static = [label for label in segments if static_segments == "all" or not is_rotation(label)]
     return motion_checks(segments, static)

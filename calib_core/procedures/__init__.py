@@ -121,7 +121,9 @@ def solve(
     if not (9.7 < gravity < 9.9):
         raise ValueError(f"gravity must be the local value in m/s^2 (9.7..9.9), got {gravity!r}")
     cal = proc.solver(segments, gravity, settings)
-    cal.info.setdefault("solver_checks", []).extend(static_motion_checks(proc.name, segments))
+    cal.info.setdefault("solver_checks", []).extend(
+        static_motion_checks(proc.static_segments, segments)
+    )
     check_physical_bounds(cal, proc.bounds_hint)
     return cal
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 from calib_core.calibration import Calibration
 from calib_core.condition_rules import ConditionUse
@@ -29,6 +29,7 @@ Solver = Callable[[dict[str, Recording], float, dict[str, Any]], Calibration]
 # (cal, segments, settings, spec) -> (solve closure or None, Type B inputs, notes); see
 # calib_core.uncertainty_sources and calib_core.run_budget.
 UncertaintyModel = Callable[..., tuple[Any, list[Any], tuple[str, ...]]]
+StaticSegments = Literal["all", "all but turns", "none"]
 
 
 # Settings every procedure shares: the sensor's full scale, used by ingest's range check.
@@ -90,6 +91,9 @@ class Procedure:
     uncertainty : its Type B model (None: Type A only, said so in each budget).
     bounds_hint : what to check when a parameter is beyond physical bounds.
     model_checks : the checks its solver makes of its own model (documentation).
+    static_segments : which of its segments are held still and must have been (a
+        ``motion:<label>`` check each, `calib_core.preprocess.motion`): "all", "all but
+        turns" (labels ending ``_cw``/``_ccw``), or "none" (it moves on purpose).
     reference : the document the procedure follows.
     """
 
@@ -108,6 +112,7 @@ class Procedure:
         "the axis order of the columns"
     )
     model_checks: str = "residuals per segment against the profile's limits"
+    static_segments: StaticSegments = "none"
     missing_rule: Callable[[set[str], Mapping[str, Any]], list[str]] | None = field(
         default=None, repr=False
     )

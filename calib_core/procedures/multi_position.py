@@ -47,4 +47,5 @@ MULTI_POSITION = Procedure(
     ),
     model_checks="condition number and chi2 of the fit; parameters the attitudes cannot "
     "separate (not_separable); axes never seen in both senses; duplicate attitudes",
+    static_segments="all but turns",
 )

@@ -28,4 +28,5 @@ SENSOR_ARRAY = Procedure(
     conditions=ENVIRONMENT + ATTITUDES,
     reference="docs/methods.md 2.7",
     model_checks="whole turns per sensor (inferred or given); residuals per sensor",
+    static_segments="all but turns",
 )

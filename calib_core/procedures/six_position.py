@@ -301,4 +301,5 @@ SIX_POSITION = Procedure(
     uncertainty=static_model,
     model_checks="each face's bias from its up/down pair against the fit (face_bias); "
     "chi2 of the accelerometer and gyro fits; residuals per static",
+    static_segments="all but turns",
 )

@@ -49,4 +49,5 @@ SIX_POSITION_INTEGRAL = Procedure(
     model_checks="the six-position checks; per rotation: saturation at gyro_range_dps, whole "
     "turns (inferred or given), the static reading from the same orientation",
     missing_rule=missing_labels,
+    static_segments="all but turns",
 )

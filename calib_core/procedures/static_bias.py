@@ -73,4 +73,5 @@ STATIC_BIAS = Procedure(
     reference="docs/methods.md 2.5; IEEE Std 952 (Allan variance)",
     model_checks="record length (a warning under 60 min); outliers beyond n_sigma; Allan "
     "deviation fits (angle random walk, bias instability, rate random walk)",
+    static_segments="all",
 )

@@ -70,6 +70,14 @@ def settings_markdown(settings: Settings) -> list[str]:
     return lines
 
 
+# What `Procedure.static_segments` means, for the reader.
+STILL = {
+    "all": "every segment",
+    "all but turns": "every segment but the turns (`*_cw`, `*_ccw`)",
+    "none": "no segment (it moves on purpose)",
+}
+
+
 def procedure_markdown(proc: Procedure) -> str:
     """One procedure's section: what it needs, its settings table and its conditions."""
     from calib_core.condition_rules import conditions
@@ -89,6 +97,7 @@ def procedure_markdown(proc: Procedure) -> str:
         f"- Follows: {proc.reference}.",
         f"- Uncertainty model: {' '.join(budget.split())}",
         f"- Model checks: {proc.model_checks}.",
+        f"- Held still (a `motion:<label>` check each): {STILL[proc.static_segments]}.",
         f"- Beyond physical bounds: {proc.bounds_hint}.",
         "",
         *settings_markdown(proc.all_settings()),
