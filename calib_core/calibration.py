@@ -180,9 +180,19 @@ class Calibration:
         """Parameters of one least-squares fit with their (len(names), len(names)) covariance.
 
         Standard uncertainties are the square roots of the diagonal; the block is
-        appended to `covariance` (uncorrelated with earlier fits).
+        appended to `covariance` (uncorrelated with earlier fits). ValueError for a
+        variance that is negative or not finite, naming the parameter.
         """
         cov = np.asarray(cov, dtype=float)
+        var = np.diagonal(cov)
+        bad = ~(np.isfinite(var) & (var >= 0))
+        if bad.any():  # refused before the square root, which would make it NaN
+            i = int(np.argmax(bad))
+            raise ValueError(
+                f"{names[i]}: the fit gives it the variance {var[i]:.3g}, not a finite "
+                "number >= 0: its uncertainty is undefined (the inputs' uncertainties span "
+                "more than the fit resolves, or one is zero)"
+            )
         start = len(self.covariance)
         grown = np.zeros((start + len(names),) * 2)
         grown[:start, :start] = self.covariance

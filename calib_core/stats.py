@@ -136,6 +136,17 @@ def channel_stats(x: np.ndarray) -> ChannelStats:
     return ChannelStats(mean, std, std / np.sqrt(n_eff), n_eff, n)
 
 
+def no_scatter(stats: ChannelStats) -> np.ndarray:
+    """(3,) bool: channels whose samples scatter no more than the rounding of their mean.
+
+    The mean of n samples is summed pairwise, within about log2(n) units in the last place
+    of its value; a sample std within that says the samples are one repeated reading (a
+    stuck sensor, a repeated log line). Its sem would claim a precision no record holds.
+    """
+    rounding = np.log2(max(stats.n, 2)) * np.spacing(np.abs(stats.mean))
+    return ~(stats.std > rounding)
+
+
 def row_medians(a: np.ndarray) -> np.ndarray:
     """Median of each row of a 2-D array of finite values, (k, n) -> (k,); `a` is reordered.
 

@@ -239,6 +239,26 @@ def test_fuzzed_run_is_a_clean_refusal_naming_the_file(case, tmp_path, fuzz_arch
     assert len(error) < 600, error[:700]
 
 
+def test_segment_without_scatter_is_refused_before_any_uncertainty(tmp_path, fuzz_archive):
+    """The constant segment is refused by name before a standard uncertainty is taken:
+    no RuntimeWarning (a NaN from a square root or a division) on the way."""
+    import warnings
+
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+
+    folder = tmp_path / "run"
+    shutil.copytree(CSV_RUN, folder)
+    _constant_segment(folder)
+    (source,) = discover_runs([folder])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        outcome = process_run(source, fuzz_archive)
+    assert outcome["status"] == "failed"
+    assert outcome["error"].startswith(f"{folder}: segment x_up, accelerometer x: ")
+    assert "show no scatter" in outcome["error"], outcome["error"]
+
+
 def test_refusal_texts_name_the_run_and_stay_short() -> None:
     from pipelines.ingest.errors import naming_the_run
 

@@ -316,3 +316,25 @@ def test_archived_covariance_matches_the_reported_uncertainties():
     assert len(cov["names"]) == 18
     for k, name in enumerate(cov["names"]):
         assert math.sqrt(cov["matrix"][k][k]) == pytest.approx(cal.parameters[name].std, rel=1e-12)
+
+
+def test_a_mean_without_scatter_is_refused_before_its_uncertainty() -> None:
+    """One position's sem at the rounding of its mean (its samples one repeated reading)
+    leaves the weighted fit without defined variances: refused, naming the position,
+    before a square root makes a NaN; `Calibration.add_fit` refuses such a variance too."""
+    import warnings
+
+    from calib_core.calibration import Calibration
+
+    g = 9.80665
+    f_true = np.array([[g, 0, 0], [-g, 0, 0], [0, g, 0], [0, -g, 0], [0, 0, g], [0, 0, -g]])
+    means = f_true + 0.01
+    sem = np.full((6, 3), 3e-5)  # m/s^2
+    sem[0] = np.spacing(g)  # position 1: no scatter above rounding
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=r"no defined uncertainty.*position 1, axis x"):
+            solve_accel_linear(f_true, means, sem)
+        with pytest.raises(ValueError, match=r"acc\.bias\.y: the fit gives it the variance -1"):
+            cal = Calibration("six_position", g)
+            cal.add_fit(["acc.bias.x", "acc.bias.y"], {}, np.diag([1.0, -1.0]))

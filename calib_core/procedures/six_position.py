@@ -57,7 +57,7 @@ from calib_core.solvers.six_position import (
     axis_vector,
     face_bias_checks,
 )
-from calib_core.stats import ChannelStats, channel_stats, largest_std
+from calib_core.stats import ChannelStats, channel_stats, largest_std, no_scatter
 from calib_core.uncertainty_sources import static_model
 from calib_core.units import DEG
 
@@ -109,7 +109,23 @@ def _static_stats(
             gyr[label] = channel_stats(rec.gyr)
         except ValueError as exc:
             raise ValueError(f"segment {label} ({rec.source or 'no source'}): {exc}") from None
+        _scatters(label, acc[label], "accelerometer", "m/s^2")
+        _scatters(label, gyr[label], "gyro", "rad/s")
     return acc, gyr
+
+
+def _scatters(label: str, stats: ChannelStats, sensor: str, unit: str) -> None:
+    """ValueError when a channel's samples show no scatter (`no_scatter`): its mean would
+    weigh in the fits as exact, and its uncertainty would come out undefined."""
+    flat = no_scatter(stats)
+    if flat.any():
+        axis = int(np.argmax(flat))
+        raise ValueError(
+            f"segment {label}, {sensor} {'xyz'[axis]}: its {stats.n} samples show no scatter (std "
+            f"{stats.std[axis]:.3g} {unit} about the mean {stats.mean[axis]:.6g} {unit}): "
+            "one reading repeated (a stuck sensor or a repeated log line) gives no "
+            "uncertainty of its mean; record this position again"
+        )
 
 
 def _solve_statics(

@@ -102,10 +102,33 @@ def fit_affine(
         w = 1.0 / sem[:, i]
         # Whitened least squares via lstsq (QR/SVD), not the normal equations.
         x[i] = np.linalg.lstsq(design * w[:, None], means[:, i] * w, rcond=None)[0]
-        cov[i] = np.linalg.inv((design * (w * w)[:, None]).T @ design)
+        try:
+            cov[i] = np.linalg.inv((design * (w * w)[:, None]).T @ design)
+        except np.linalg.LinAlgError:  # singular in double precision: _check_variances says why
+            cov[i] = np.nan
+    _check_variances(cov, sem)
     residual = means - design @ x.T
     chi2 = ((residual / sem) ** 2).sum(axis=0)
     return x[:, 0], x[:, 1:], cov, condition, residual, chi2
+
+
+def _check_variances(cov: np.ndarray, sem: np.ndarray) -> None:
+    """ValueError unless every variance of the fit (`cov`, (3, 4, 4)) is finite and > 0.
+
+    Weights that span more than double precision resolves (a position mean whose sem is
+    rounding, its samples one repeated reading) leave the inverted normal matrix with
+    negative or undefined variances: the fit is refused before any uncertainty is taken.
+    """
+    var = np.diagonal(cov, axis1=1, axis2=2)
+    if np.all(np.isfinite(var) & (var > 0)):
+        return
+    k, axis = np.unravel_index(int(np.argmin(sem)), sem.shape)
+    raise ValueError(
+        "the weighted fit has no defined uncertainty: the standard uncertainties of the "
+        f"position means span {sem.min():.3g} .. {sem.max():.3g} (smallest: position {k + 1}, "
+        f"axis {'xyz'[axis]}); a position whose samples show no scatter (one reading "
+        "repeated) must be recorded again"
+    )
 
 
 def design_condition(f_true: np.ndarray) -> float:
