@@ -132,6 +132,22 @@ def test_model_change_for_a_serial_is_flagged(archive, tmp_path: Path) -> None:
     assert "MPU-6000' by 'InvenSense' (run" not in check["detail"]
 
 
+def test_each_other_description_names_its_latest_run_by_run_time(archive, tmp_path: Path) -> None:  # noqa: ANN001
+    """Runs archived in the reverse of their run time: each description the unit was
+    archived under is named with the latest run by run time that gave it, latest first."""
+    said = {2: "ICM-20602", 5: "ICM-20602", 8: "MPU-9250"}  # month of the run -> model
+    ids = {}
+    for month in sorted(said, reverse=True):
+        start = datetime(2024, month, 1, 8, 30, tzinfo=UTC)
+        run = make_run(tmp_path / str(month), serial="0077", seed=40 + month, started_at=start)
+        ids[month] = archive_run(archive, replace(run, device_model=said[month]), {}).run_id
+    found = queries.earlier_descriptions(archive, "0077", "R000000000000")  # a new run's
+    assert [(d["model"], d["run_id"]) for d in found] == [
+        ("MPU-9250", ids[8]),
+        ("ICM-20602", ids[5]),
+    ]
+
+
 def test_a_pass_made_stale_by_a_concurrent_run_is_refused(archive, tmp_path: Path) -> None:  # noqa: ANN001
     """Two runs of one unit checked at once, the other committed first with another model:
     the later one's passed device:description no longer holds, and it is not archived."""

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy import Row, bindparam, select
 from sqlalchemy.orm import Session, aliased
 
-from storage.current import CURRENT
+from storage.current import CURRENT, LATEST_RUN_FIRST
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.queries._common import (
@@ -502,8 +502,9 @@ def earlier_descriptions(archive: Archive, serial: str, run_id: str) -> list[dic
 
     Returns
     -------
-    One dict per distinct (model, manufacturer), for the latest archived run that
-    gave it, latest first: run_id, started_at, model, manufacturer, specification.
+    One dict per distinct (model, manufacturer), for the latest run by run time that
+    gave it (`storage.current.LATEST_RUN_FIRST`), whatever the order they were archived
+    in, latest first: run_id, started_at, model, manufacturer, specification.
     Empty for the serial's first run.
     """
     with archive.engine().connect() as conn:
@@ -512,7 +513,7 @@ def earlier_descriptions(archive: Archive, serial: str, run_id: str) -> list[dic
             select(Run.run_id, Run.started_at, Run.model, Run.manufacturer, Run.specification)
             .join(Device, Device.id == Run.device_id)
             .where(Device.serial == serial)
-            .order_by(Run.id.desc())
+            .order_by(*LATEST_RUN_FIRST)
         )
         if own is not None:
             stmt = stmt.where(Run.id < own)
