@@ -8,7 +8,6 @@ calibrated by `calib apply` and compared with the true specific force and rate.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import re
 from datetime import UTC, datetime, timedelta
@@ -26,12 +25,13 @@ from calib_core.simulate.thermal import random_thermal_truth, thermal_campaign
 from calib_core.solvers.six_position import axis_vector
 from calib_core.thermal import ThermalModel
 from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_testing.archives import parameter_run
 from calib_testing.run_writers import write_csv_run, write_mpu6000_run
 from pipelines import exports
 from pipelines.cli import app
 from storage import queries
 from storage import thermal as thermal_store
-from storage.archive import RawFileIn, RunIn, archive_run
+from storage.archive import RunIn, archive_run
 from storage.db import resolve_archive
 
 SERIAL = "TH-0042"
@@ -300,41 +300,19 @@ def test_thermal_export_command(campaign, tmp_path, fmt):
 
 
 def _minimal_run(tmp_path: Path, serial: str, k: int) -> RunIn:
-    raw = tmp_path / f"{serial}_{k}.csv"
-    raw.write_text(f"{serial} {k}\n")
-    return RunIn(
-        serial=serial,
+    return parameter_run(
+        tmp_path,
+        serial,
+        START + timedelta(days=k),
+        temperature_c=10.0 * k,
         device_model="M",
         manufacturer="x",
-        specification=None,
-        started_at=START + timedelta(days=k),
-        operator=None,
         procedure="six_position",
-        site={},
+        operator=None,
         gravity=9.8,
-        environment={"temperature_c": 10.0 * k},
-        equipment=[],
-        manifest_text=None,
-        tolerance_profile=None,
-        raw_files=[
-            RawFileIn(
-                raw,
-                raw.name,
-                hashlib.sha256(raw.read_bytes()).hexdigest(),
-                raw.stat().st_size,
-                "csv",
-            )
-        ],
-        settings={},
-        software_version="t",
-        source_revision=None,
-        steps=[],
-        calibration={"parameters": {}},
-        parameters=[],
-        checks=[],
-        verdict="pass",
         profile_name=None,
         profile_version=None,
+        software_version="t",
     )
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import math
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -17,8 +16,8 @@ from calib_core.calibration import Parameter
 from calib_core.drift import fit_trend, fleet_statistics, forecast_exit
 from calib_core.simulate.lab_run import random_errors
 from calib_core.simulate.thermal import recalibration_history
-from storage.archive import RawFileIn, RunIn, archive_run
-from storage.db import resolve_archive
+from calib_testing.archives import new_archive, parameter_run
+from storage.archive import RunIn, archive_run
 
 # --- numerics ---------------------------------------------------------------------------
 
@@ -102,37 +101,9 @@ FLEET_TEMPS = (0.0, 20.0, 40.0)
 ACC_BIAS_TC = 2e-3  # m/s^2 per deg C of acc.bias.x, all units
 
 
-def _run_in(serial: str, started: datetime, temp: float, values: dict, raw: Path) -> RunIn:
-    raw.write_text(f"{serial} {started.isoformat()} {temp}\n")
-    digest = hashlib.sha256(raw.read_bytes()).hexdigest()
+def _run_in(serial: str, started: datetime, temp: float, values: dict, folder: Path) -> RunIn:
     plist = [Parameter(n, v, s, params.unit_of(n)) for n, (v, s) in values.items()]
-    return RunIn(
-        serial=serial,
-        device_model="SIM-IMU",
-        manufacturer="sim",
-        specification=None,
-        started_at=started,
-        operator="test",
-        procedure="six_position_integral",
-        site={},
-        gravity=9.80665,
-        environment={"temperature_c": temp},
-        equipment=[],
-        manifest_text=None,
-        tolerance_profile="mpu6000",
-        raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
-        settings={},
-        software_version="test",
-        source_revision=None,
-        steps=[],
-        calibration={"parameters": {}},
-        parameters=plist,
-        checks=[],
-        verdict="pass",
-        profile_name="mpu6000",
-        profile_version="2",
-        parameter_temperature_c=temp,
-    )
+    return parameter_run(folder, serial, started, plist, temperature_c=temp, profile_version="2")
 
 
 @pytest.fixture(scope="module")
@@ -140,8 +111,7 @@ def fleet_archive(tmp_path_factory):
     """300 parameter-level simulated runs: U00 at 20 deg C with a drifting gyro scale,
     the others cycling through 0 / 20 / 40 deg C with a thermal acc bias."""
     root = tmp_path_factory.mktemp("fleet")
-    arch = resolve_archive(str(root / "archive"))
-    arch.upgrade()
+    arch = new_archive(root)
     rng = np.random.default_rng(11)
     truth = {}
     for u in range(N_UNITS):
@@ -159,7 +129,7 @@ def fleet_archive(tmp_path_factory):
                 "acc.bias.x": (acc_bias + rng.normal(0, 1.5e-4), 1.5e-4),
             }
             started = START + timedelta(days=h.day)
-            archive_run(arch, _run_in(serial, started, temp, values, root / f"{serial}_{k}.csv"))
+            archive_run(arch, _run_in(serial, started, temp, values, root))
             truth[(serial, k)] = (h.day, p)
     return arch, truth
 

@@ -5,7 +5,6 @@ error."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from datetime import UTC, datetime, timedelta
@@ -24,9 +23,9 @@ from calib_core.interval import (
     predict_line,
 )
 from calib_core.tolerances import ToleranceProfile
+from calib_testing.archives import new_archive, parameter_run
 from pipelines.cli import app
-from storage.archive import RawFileIn, RunIn, archive_run
-from storage.db import resolve_archive
+from storage.archive import archive_run
 
 LIMIT = 0.03  # gyr.scale.x of the mpu6000 profile
 MEAN_RATE, SPREAD_RATE = 2e-5, 1e-5  # per day: the fleet's drift rates
@@ -131,45 +130,15 @@ def test_recall_section_of_the_profile():
 def fleet_archive(tmp_path_factory):
     """60 MPU-6000 units, three calibrations a year apart, gyr.scale.x drifting."""
     root = tmp_path_factory.mktemp("recall")
-    arch = resolve_archive(str(root / "archive"))
-    arch.upgrade()
+    arch = new_archive(root)
     x0, rate, measured = _fleet(np.random.default_rng(8), 60)
     start = datetime(2024, 1, 8, 9, tzinfo=UTC)
     for u in range(60):
         for k, day in enumerate(CAL_DAYS):
-            raw = root / f"u{u}_{k}.csv"
-            raw.write_text(f"{u} {k}\n")
-            digest = hashlib.sha256(raw.read_bytes()).hexdigest()
-            archive_run(
-                arch,
-                RunIn(
-                    serial=f"U{u:02d}",
-                    device_model="MPU-6000",
-                    manufacturer="sim",
-                    specification=None,
-                    started_at=start + timedelta(days=float(day)),
-                    operator="test",
-                    procedure="six_position_integral",
-                    site={},
-                    gravity=9.80665,
-                    environment={"temperature_c": 20.0},
-                    equipment=[],
-                    manifest_text=None,
-                    tolerance_profile="mpu6000",
-                    raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
-                    settings={},
-                    software_version="test",
-                    source_revision=None,
-                    steps=[],
-                    calibration={"parameters": {}},
-                    parameters=[Parameter("gyr.scale.x", float(measured[u, k]), U_MEAS, "1")],
-                    parameter_temperature_c=20.0,
-                    checks=[],
-                    verdict="pass",
-                    profile_name="mpu6000",
-                    profile_version="3",
-                ),
-            )
+            scale = Parameter("gyr.scale.x", float(measured[u, k]), U_MEAS, "1")
+            started = start + timedelta(days=float(day))
+            run = parameter_run(root, f"U{u:02d}", started, [scale], device_model="MPU-6000")
+            archive_run(arch, run)
     return arch, start, x0, rate
 
 

@@ -153,68 +153,41 @@ def _budget(name: str, value: float) -> dict:
 
 def _archive_runs(arch, root, y) -> None:
     """Six runs of U-SH on table RT-A then RT-B, gyr.bias.x = y, each with a budget."""
-    import hashlib
     from datetime import UTC, datetime, timedelta
 
     from calib_core.calibration import Parameter, StepRecord
-    from storage.archive import RawFileIn, RunIn, archive_run
+    from calib_testing.archives import parameter_run
+    from storage.archive import archive_run
 
     start = datetime(2025, 1, 6, 9, tzinfo=UTC)
-    for k, (day, table, value) in enumerate(zip(T_DAYS, TABLES, y, strict=True)):
-        raw = root / f"run{k}.csv"
-        raw.write_text(f"U-SH {k}\n")
-        digest = hashlib.sha256(raw.read_bytes()).hexdigest()
-        name = "gyr.bias.x"
-        archive_run(
-            arch,
-            RunIn(
-                serial="U-SH",
-                device_model="SIM-IMU",
-                manufacturer="sim",
-                specification=None,
-                started_at=start + timedelta(days=float(day)),
-                operator="test",
-                procedure="rate_table",
-                site={},
-                gravity=9.80665,
-                environment={"temperature_c": 20.0},
-                equipment=[
-                    {
-                        "kind": "rate_table",
-                        "model": "T",
-                        "serial": table,
-                        "calibration_due": "2030-01-01",
-                    }
-                ],
-                manifest_text=None,
-                tolerance_profile="mpu6000",
-                raw_files=[RawFileIn(raw, raw.name, digest, raw.stat().st_size, "csv")],
-                settings={},
-                software_version="test",
-                source_revision=None,
-                steps=[
-                    StepRecord(
-                        "uncertainty", {}, {"budgets": {name: _budget(name, float(value))}}, "test"
-                    )
-                ],
-                calibration={"parameters": {}},
-                parameters=[Parameter(name, float(value), U_A, "rad/s")],
-                parameter_temperature_c=20.0,
-                checks=[],
-                verdict="pass",
-                profile_name="mpu6000",
-                profile_version="3",
-            ),
+    name = "gyr.bias.x"
+    for day, table, value in zip(T_DAYS, TABLES, y, strict=True):
+        budget = {"budgets": {name: _budget(name, float(value))}}
+        run = parameter_run(
+            root,
+            "U-SH",
+            start + timedelta(days=float(day)),
+            [Parameter(name, float(value), U_A, "rad/s")],
+            procedure="rate_table",
+            equipment=[
+                {
+                    "kind": "rate_table",
+                    "model": "T",
+                    "serial": table,
+                    "calibration_due": "2030-01-01",
+                }
+            ],
+            steps=[StepRecord("uncertainty", {}, budget, "test")],
         )
+        archive_run(arch, run)
 
 
 @pytest.fixture(scope="module")
 def shared_archive(tmp_path_factory):
-    from storage.db import resolve_archive
+    from calib_testing.archives import new_archive
 
     root = tmp_path_factory.mktemp("shared")
-    arch = resolve_archive(str(root / "archive"))
-    arch.upgrade()
+    arch = new_archive(root)
     y = _draw(np.random.default_rng(5), TABLES)
     _archive_runs(arch, root, y)
     return arch, y
