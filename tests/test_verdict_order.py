@@ -162,7 +162,7 @@ def test_a_judgement_made_on_an_older_state_is_not_written(tmp_path: Path) -> No
 
 
 def test_a_revision_judged_again_has_a_settings_hash_a_reader_recomputes(
-    tmp_path: Path,
+    archive: Archive,
 ) -> None:
     """The revision judged again keeps the settings of the one it supersedes; its settings
     hash covers them and the runs its sealed `rejudge` step was judged against, so verify
@@ -172,38 +172,34 @@ def test_a_revision_judged_again_has_a_settings_hash_a_reader_recomputes(
     from storage.archive import JUDGED_AGAINST, settings_hash
     from storage.schema import CalibrationRow, ProcessingStep, Run
 
-    archive = open_archive(tmp_path / "a")
-    try:
-        process_in_order(archive, ["2026-11-03", "2026-08-04"])  # Nov judged again once
-        cands = queries.repeatability_candidates(archive, SERIAL, "six_position")
-        nov, aug = (c["run_id"] for c in cands)  # newest first
-        with archive.engine().connect() as conn:
-            rows = conn.execute(
-                select(CalibrationRow.__table__, Run.procedure)
-                .join(Run, Run.id == CalibrationRow.run_id)
-                .where(Run.run_id == nov)
-                .order_by(CalibrationRow.revision)
-            ).all()
-            first, again = rows
-            step = conn.execute(
-                select(ProcessingStep.id, ProcessingStep.settings).where(
-                    ProcessingStep.calibration_id == again.id, ProcessingStep.name == "rejudge"
-                )
-            ).one()
-        assert step.settings[JUDGED_AGAINST] == [aug]
-        assert again.settings == first.settings
-        parts = (again.settings, again.procedure, again.profile_name, again.profile_version)
-        assert first.settings_hash == settings_hash(*parts)
-        assert again.settings_hash == settings_hash(*parts, [aug])
-        assert verify(archive, orphans=False).ok
-
-        with archive.engine().begin() as conn:  # as if judged against no run
-            conn.execute(
-                update(ProcessingStep)
-                .where(ProcessingStep.id == step.id)
-                .values(settings={**step.settings, JUDGED_AGAINST: []})
+    process_in_order(archive, ["2026-11-03", "2026-08-04"])  # Nov judged again once
+    cands = queries.repeatability_candidates(archive, SERIAL, "six_position")
+    nov, aug = (c["run_id"] for c in cands)  # newest first
+    with archive.engine().connect() as conn:
+        rows = conn.execute(
+            select(CalibrationRow.__table__, Run.procedure)
+            .join(Run, Run.id == CalibrationRow.run_id)
+            .where(Run.run_id == nov)
+            .order_by(CalibrationRow.revision)
+        ).all()
+        first, again = rows
+        step = conn.execute(
+            select(ProcessingStep.id, ProcessingStep.settings).where(
+                ProcessingStep.calibration_id == again.id, ProcessingStep.name == "rejudge"
             )
-        found = verify(archive, orphans=False, seals=False).problems
-        assert [(p.kind, p.path) for p in found] == [("record", "calibrations/2/settings_hash")]
-    finally:
-        archive.dispose()
+        ).one()
+    assert step.settings[JUDGED_AGAINST] == [aug]
+    assert again.settings == first.settings
+    parts = (again.settings, again.procedure, again.profile_name, again.profile_version)
+    assert first.settings_hash == settings_hash(*parts)
+    assert again.settings_hash == settings_hash(*parts, [aug])
+    assert verify(archive, orphans=False).ok
+
+    with archive.engine().begin() as conn:  # as if judged against no run
+        conn.execute(
+            update(ProcessingStep)
+            .where(ProcessingStep.id == step.id)
+            .values(settings={**step.settings, JUDGED_AGAINST: []})
+        )
+    found = verify(archive, orphans=False, seals=False).problems
+    assert [(p.kind, p.path) for p in found] == [("record", "calibrations/2/settings_hash")]
