@@ -113,6 +113,7 @@ def correction_step(
             "quantity": error.quantity,
             "value": error.value,
             "unit": error.unit,
+            **({"face": error.face, "about": error.about} if error.face else {}),
         },
         statistics={**stats, **({"impact": impact} if impact is not None else {})},
     )
@@ -139,7 +140,9 @@ def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corre
     held = settings.get("reference_correction")
     if not held:
         return None
-    error = ReferenceError(str(held["quantity"]), float(held["value"]))
+    error = ReferenceError(
+        str(held["quantity"]), float(held["value"]), held.get("face"), held.get("about")
+    )
     return _corrector(str(held["equipment_serial"]), str(held["equipment_kind"]), error)
 
 
@@ -237,6 +240,7 @@ def impact(
             "value": error.value,
             "unit": error.unit,
             "kind": error.kind,
+            **({"face": error.face, "about": error.about} if error.face else {}),
         },
         "period": {"from": str(since), "to": None if until is None else str(until)},
         "reason": reason,

@@ -31,8 +31,9 @@ def impact_command(
         str,
         typer.Option(
             "--error",
-            help="QUANTITY=VALUE: rate_error_ppm (rate table), clock_error_ppm (DAQ); "
-            "docs/impact.md lists the others.",
+            help="QUANTITY=VALUE: rate_error_ppm (rate table, centrifuge), clock_error_ppm "
+            "(DAQ), face_angle_error_arcsec[FACE,AXIS] (cube: face +x..-z tilted about "
+            "axis x/y/z, e.g. 'face_angle_error_arcsec[+x,y]=30'); docs/impact.md.",
         ),
     ],
     until: Annotated[
