@@ -209,6 +209,7 @@ def impact(
     revision of the new revision (or the error).
     """
     runs = select_runs(archive, equipment_serial, since, until, error)
+    period = {"period": {"from": str(since), "to": None if until is None else str(until)}}
     reason = reason_of(equipment_serial, error)
     customer = customer_name()
     report = []
@@ -231,7 +232,7 @@ def impact(
         if "error" in found:
             entry |= {"verdict_after": None, "error": found["error"]}
         if apply and found["affected"] and "error" not in found:
-            entry |= _apply(archive, run, equipment_serial, error, reason, entry)
+            entry |= _apply(archive, run, equipment_serial, error, reason, entry | period)
         report.append(entry)
     return {
         "equipment_serial": equipment_serial,
@@ -242,7 +243,7 @@ def impact(
             "kind": error.kind,
             **({"face": error.face, "about": error.about} if error.face else {}),
         },
-        "period": {"from": str(since), "to": None if until is None else str(until)},
+        **period,
         "reason": reason,
         "applied": apply,
         "customer": customer,
@@ -262,7 +263,8 @@ def _apply(
     from pipelines.reprocess import reprocess_run
 
     run_id = run["run_id"]
-    record = {k: entry[k] for k in ("verdict_before", "verdict_after", "revision_before", "moved")}
+    keys = ("verdict_before", "verdict_after", "revision_before", "moved", "period")
+    record = {k: entry[k] for k in keys}
     outcome = reprocess_run(
         archive,
         run_id,
@@ -305,9 +307,18 @@ def csv_report(doc: dict[str, Any]) -> str:
     return buf.getvalue()
 
 
-def html_report(doc: dict[str, Any]) -> str:
+# Typeset: A4 landscape (nine columns), page numbers in the footer, long words wrapped.
+PRINT_CSS = (
+    "@page{size:A4 landscape;margin:14mm 12mm 16mm;"
+    "@bottom-right{content:'page ' counter(page) ' of ' counter(pages);font-size:8pt}}"
+    "body{margin:0;font-size:9pt}table{width:100%}td{overflow-wrap:break-word}"
+    "td:nth-child(-n+7){white-space:nowrap}"
+)
+
+
+def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
     """The look-back as a self-contained HTML page for the nonconformity record (every
-    archived string escaped)."""
+    archived string escaped); `for_print`: with the page layout of `pdf_report`."""
     from html import escape
 
     def cell(v: Any) -> str:
@@ -363,7 +374,9 @@ def html_report(doc: dict[str, Any]) -> str:
         '<!DOCTYPE html>\n<html><head><meta charset="utf-8">'
         f"<title>Impact of {escape(doc['reason'])}</title>"
         "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
-        "td,th{border:1px solid #999;padding:3px 6px;text-align:left}</style></head><body>"
+        "td,th{border:1px solid #999;padding:3px 6px;text-align:left}"
+        + (PRINT_CSS if for_print else "")
+        + "</style></head><body>"
         f"<h1>Out-of-tolerance look-back</h1><p>{escape(doc['reason'])}; runs started "
         f"{escape(period)}; customer: {escape(doc['customer'] or 'not recorded')}; "
         f"{len(doc['runs'])} run(s), {flipped} verdict(s) changed; "
@@ -371,3 +384,45 @@ def html_report(doc: dict[str, Any]) -> str:
         + f" (ISO/IEC 17025 clause 7.10).</p><table>{head}{''.join(rows)}</table>"
         "</body></html>\n"
     )
+
+
+def pdf_report(doc: dict[str, Any]) -> bytes:
+    """The look-back typeset as PDF by WeasyPrint from its HTML page (`html_report`), as
+    certificates are (pipelines.reports.render.pdf_bytes)."""
+    import weasyprint
+
+    return weasyprint.HTML(string=html_report(doc, for_print=True)).write_pdf()
+
+
+def record_doc(record: dict[str, Any]) -> dict[str, Any]:
+    """An applied impact record (`storage.queries.impact.impact_records`) as the report
+    document `impact` returns, for `html_report`, `csv_report` and `pdf_report`."""
+    return {
+        "equipment_serial": record["equipment_serial"],
+        "error": {
+            k: record[k] for k in ("quantity", "value", "unit", "face", "about") if record.get(k)
+        },
+        "period": record["period"],
+        "reason": record["reason"],
+        "applied": True,
+        "customer": customer_name(),
+        "runs": [
+            {
+                "run_id": r["run_id"],
+                "serial": r["serial"],
+                "model": r["model"],
+                "started_at": r["started_at"].isoformat(),
+                "procedure": r["procedure"],
+                "customer": customer_name(),
+                "affected": True,
+                "what": r["what"],
+                "revision_before": r["revision_before"],
+                "revision_after": r["revision"],
+                "verdict_before": r["verdict_before"],
+                "verdict_after": r["verdict_after"],
+                "moved": r["moved"],
+                "status": f"revision {r['revision']}" + ("" if r["current"] else " (superseded)"),
+            }
+            for r in record["runs"]
+        ],
+    }

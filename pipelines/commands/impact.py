@@ -48,6 +48,10 @@ def impact_command(
     html_out: Annotated[
         Path | None, typer.Option("--html", help="Write the report as an HTML page.")
     ] = None,
+    pdf_out: Annotated[
+        Path | None,
+        typer.Option("--pdf", help="Write the report typeset as PDF (nonconformity record)."),
+    ] = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -71,6 +75,11 @@ def impact_command(
     if html_out is not None:
         html_out.write_text(html_report(doc), encoding="utf-8")
         err.print(f"wrote {html_out}", soft_wrap=True)
+    if pdf_out is not None:
+        from pipelines.impact import pdf_report
+
+        pdf_out.write_bytes(pdf_report(doc))
+        err.print(f"wrote {pdf_out}", soft_wrap=True)
     if as_json:
         print_json(doc)
         return
