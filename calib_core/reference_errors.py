@@ -21,8 +21,11 @@ does:
   force rotated by E about AXIS; corrected: the segment carries the true reference
   direction in its ``reference_up`` channel (`calib_core.solvers.six_position.
   reference_up`), which the static fits and the integral method's rotation axes read.
-- ``temperature_offset_c`` (thermal_chamber, degC): named, refused as not implemented
-  (why: `parse_error`'s message).
+- ``temperature_offset_c`` (thermal_chamber, degC): the chamber's reading was the true
+  temperature + E; corrected: its ``chamber_temperature`` reference channel minus E here,
+  and (pipelines.impact) the run's recorded temperature minus E, which moves the
+  lab-condition judgements that read it and the thermal models fitted over the runs. The
+  solve itself does not read the chamber's temperature.
 
 A rate-table rate error reaches only the solves that read the table's rate (procedure
 rate_table, the centrifuge's table rate); the integral method takes angles from turns and
@@ -47,13 +50,12 @@ QUANTITIES: dict[str, tuple[tuple[str, ...], str, bool]] = {
     "rate_error_ppm": (("rate_table", "centrifuge"), "ppm", True),
     "clock_error_ppm": (("daq",), "ppm", True),
     "radius_error_mm": (("centrifuge",), "mm", True),
-    "temperature_offset_c": (("thermal_chamber",), "degC", False),
+    "temperature_offset_c": (("thermal_chamber",), "degC", True),
     "face_angle_error_arcsec": (("cube",), "arcsec", True),
 }
-_NOT_YET = {
-    "temperature_offset_c": "a chamber's offset changes the temperatures of a thermal campaign; "
-    "refit it (calib thermal fit) with the corrected temperatures",
-}
+_NOT_YET: dict[str, str] = {}  # quantity -> why it is not implemented yet
+CHAMBER_CHANNEL = "chamber_temperature"  # the reference channel of the chamber's reading
+MAX_OFFSET_C = 50.0  # beyond it the "offset" is a different chamber, not an error
 # Position labels a face can carry (statics and rotations of the face procedures).
 LABELLED = frozenset(
     f"{a}_{s}" for a in ("x", "y", "z") for s in ("up", "dn", "ccw", "cw")
@@ -127,6 +129,8 @@ def parse_error(text: str) -> ReferenceError:
         )
     if unit == "ppm" and abs(value) > MAX_PPM:
         raise ValueError(f"--error: {quantity} = {value:g} ppm is beyond +-{MAX_PPM:g} ppm")
+    if unit == "degC" and abs(value) > MAX_OFFSET_C:
+        raise ValueError(f"--error: {quantity} = {value:g} degC is beyond +-{MAX_OFFSET_C:g}")
     if quantity == "face_angle_error_arcsec":
         return _face_error(value, where)
     if where is not None:
@@ -211,6 +215,8 @@ def correct_segments(
         return dict(segments), {"affected": False, "what": what, "factor": 1.0}
     if error.quantity == "face_angle_error_arcsec":
         return _tilted_face(segments, error)
+    if error.quantity == "temperature_offset_c":
+        return _chamber_offset(segments, error)
     raise ValueError(f"{error.quantity}: not implemented ({_NOT_YET.get(error.quantity, '')})")
 
 
@@ -242,6 +248,24 @@ def _tilted_face(
         else f"no segment rests on face {error.face} ({', '.join(labels)})"
     )
     return out, {"affected": bool(hit), "what": what, "factor": 1.0}
+
+
+def _chamber_offset(
+    segments: dict[str, Recording], error: ReferenceError
+) -> tuple[dict[str, Recording], dict[str, object]]:
+    """The chamber's temperature channel as it truly was (reading - E)."""
+    hit = [k for k, r in segments.items() if CHAMBER_CHANNEL in r.reference]
+    out = dict(segments)
+    for k in hit:
+        rec = segments[k]
+        shifted = np.asarray(rec.reference[CHAMBER_CHANNEL], dtype=float) - error.value
+        out[k] = replace(rec, reference={**rec.reference, CHAMBER_CHANNEL: shifted})
+    what = (
+        f"chamber temperature - {error.value:g} degC"
+        + (f"; reference channel {CHAMBER_CHANNEL} in {len(hit)} segments" if hit else "")
+    )
+    # The run's recorded temperature is corrected with the manifest (pipelines.impact).
+    return out, {"affected": True, "what": what, "factor": 1.0}
 
 
 def _scaled_rate(rec: Recording, factor: float) -> Recording:

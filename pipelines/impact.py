@@ -127,10 +127,40 @@ def _corrector(
 ):
     def correct(loaded):  # noqa: ANN001, ANN202 - a LoadedRun in, (LoadedRun, StepRecord) out
         segments, stats = correct_segments(loaded.segments, error)
+        loaded = replace(loaded, segments=segments)
+        if error.quantity == "temperature_offset_c":
+            loaded, stats = _corrected_temperature(loaded, error, stats)
         step = correction_step(equipment_serial, kind, error, stats, impact)
-        return replace(loaded, segments=segments), step
+        return loaded, step
 
     return correct
+
+
+def _corrected_temperature(loaded, error: ReferenceError, stats: dict[str, Any]):  # noqa: ANN001, ANN202
+    """The run's recorded temperature (environment.temperature_c, the chamber's reading)
+    as it truly was: reading - E. It is the temperature of the run's parameters in the
+    archive, the lab conditions' and a thermal campaign's (pipelines.thermal_campaign)."""
+    env = loaded.manifest.environment
+    t = env.temperature_c
+    if t is None:
+        if stats["what"].endswith("degC"):  # no chamber channel either
+            return loaded, {
+                **stats,
+                "affected": False,
+                "what": "the run recorded no chamber temperature (environment.temperature_c, "
+                "chamber_temperature channel)",
+            }
+        return loaded, stats
+    after = float(t) - error.value
+    manifest = loaded.manifest.model_copy(
+        update={"environment": env.model_copy(update={"temperature_c": after})}
+    )
+    stats = {
+        **stats,
+        "what": f"{stats['what']}; recorded temperature {t:g} -> {after:g} degC",
+        "temperature_c": {"before": float(t), "after": after},
+    }
+    return replace(loaded, manifest=manifest), stats
 
 
 def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corrector or None
@@ -164,6 +194,8 @@ def resolve_run(
         loaded = load_run(restore_run(archive, run_id, Path(tmp) / run_id, link=True))
     loaded, step = _corrector(equipment_serial, kind, error)(loaded)
     out: dict[str, Any] = {"affected": step.statistics["affected"], "what": step.statistics["what"]}
+    if "temperature_c" in step.statistics:
+        out["temperature_c"] = step.statistics["temperature_c"]
     if not out["affected"]:
         return out
     try:
@@ -229,12 +261,20 @@ def impact(
             "verdict_after": found.get("verdict_after", run["verdict"]),
             "moved": _moves(summary, found.get("values_after", {})),
         }
+        if "temperature_c" in found:
+            entry["temperature_c"] = found["temperature_c"]
         if "error" in found:
             entry |= {"verdict_after": None, "error": found["error"]}
         if apply and found["affected"] and "error" not in found:
             entry |= _apply(archive, run, equipment_serial, error, reason, entry | period)
         report.append(entry)
+    campaigns = (
+        campaign_effects(archive, report, error, apply=apply, reason=reason)
+        if error.quantity == "temperature_offset_c"
+        else []
+    )
     return {
+        "campaigns": campaigns,
         "equipment_serial": equipment_serial,
         "error": {
             "quantity": error.quantity,
@@ -264,7 +304,7 @@ def _apply(
 
     run_id = run["run_id"]
     keys = ("verdict_before", "verdict_after", "revision_before", "moved", "period")
-    record = {k: entry[k] for k in keys}
+    record = {k: entry[k] for k in (*keys, "temperature_c") if k in entry}
     outcome = reprocess_run(
         archive,
         run_id,
@@ -287,7 +327,9 @@ def csv_report(doc: dict[str, Any]) -> str:
     w.writerow(CSV_COLUMNS)
     for r in doc["runs"]:
         largest = r["moved"][0]["change_in_U"] if r["moved"] else 0.0
-        moved = "; ".join(f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"])
+        parts = [_temperature_text(r)]
+        parts += [f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"]]
+        moved = "; ".join(filter(None, parts))
         w.writerow(
             (
                 r["run_id"],
@@ -361,7 +403,7 @@ def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
                     r["procedure"],
                     r["verdict_before"],
                     r["verdict_after"],
-                    moved
+                    "; ".join(filter(None, (_temperature_text(r), moved)))
                     or ("no parameter moved" if r["affected"] else f"not affected: {r['what']}"),
                     status,
                 )
@@ -382,8 +424,45 @@ def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
         f"{len(doc['runs'])} run(s), {flipped} verdict(s) changed; "
         + ("revisions archived" if doc["applied"] else "dry run: nothing archived")
         + f" (ISO/IEC 17025 clause 7.10).</p><table>{head}{''.join(rows)}</table>"
-        "</body></html>\n"
+        + _campaigns_html(doc.get("campaigns", []))
+        + "</body></html>\n"
     )
+
+
+def _temperature_text(r: dict[str, Any]) -> str:
+    """A run's recorded temperature corrected (a chamber offset), in words; "" if none."""
+    t = r.get("temperature_c")
+    return f"temperature {t['before']:g} -> {t['after']:g} degC" if t else ""
+
+
+def _campaigns_html(campaigns: list[dict[str, Any]]) -> str:
+    """The thermal models fitted again with the corrected temperatures, as a table."""
+    from html import escape
+
+    if not campaigns:
+        return ""
+    rows = []
+    for c in campaigns:
+        b, a = c["range_before"], c["range_after"]
+        moved = "; ".join(
+            f"{m['name']} at {m['temperature_c']:g} degC {m['before']:.6g} -> {m['after']:.6g} "
+            f"({m['change_in_U']:+.2f} U)"
+            for m in c["moved"][:5]
+        )
+        model = f"{c['model_id']}" + (f" -> {c['model_id_after']}" if "model_id_after" in c else "")
+        cells = (
+            c["serial"],
+            model,
+            f"{b['t_min']:g} .. {b['t_max']:g} -> {a['t_min']:g} .. {a['t_max']:g} degC",
+            f"{len(c['corrected'])} of {len(c['runs'])}",
+            moved or "no prediction moved",
+        )
+        rows.append("<tr>" + "".join(f"<td>{escape(str(v))}</td>" for v in cells) + "</tr>")
+    head = "".join(
+        f"<th>{h}</th>"
+        for h in ("Unit", "Thermal model", "Range", "Runs corrected", "Largest changes (/ U after)")
+    )
+    return f"<h2>Thermal models fitted again</h2><table><tr>{head}</tr>{''.join(rows)}</table>"
 
 
 def pdf_report(doc: dict[str, Any]) -> bytes:
@@ -421,8 +500,99 @@ def record_doc(record: dict[str, Any]) -> dict[str, Any]:
                 "verdict_before": r["verdict_before"],
                 "verdict_after": r["verdict_after"],
                 "moved": r["moved"],
+                **({"temperature_c": r["temperature_c"]} if r.get("temperature_c") else {}),
                 "status": f"revision {r['revision']}" + ("" if r["current"] else " (superseded)"),
             }
             for r in record["runs"]
         ],
     }
+
+
+THERMAL_GRID = 21  # temperatures at which a refitted thermal model is compared
+
+
+def campaign_effects(
+    archive: Archive,
+    runs: list[dict[str, Any]],
+    error: ReferenceError,
+    *,
+    apply: bool,
+    reason: str,
+) -> list[dict[str, Any]]:
+    """The thermal models fitted over runs whose temperatures a chamber offset moved,
+    fitted again with the true temperatures (the archived model's own fit settings).
+
+    Per model: serial, model_id, runs (of its campaign), corrected (the runs this error
+    moved), range before and after (t_min, t_max, t_ref), and per parameter the largest
+    change of the value it predicts (compensates to) at a true temperature of the
+    refitted range, in units of its expanded uncertainty there (U = 2 x the refitted
+    curve's standard uncertainty), largest first. With `apply` the refitted model is
+    archived (it supersedes the unit's current one), its info holding the reason.
+    """
+    from calib_core import thermal
+    from pipelines.thermal_campaign import campaign_from_archive, fit_campaign_step, thermal_fit
+
+    corrected = {
+        r["run_id"]: r["temperature_c"]["after"]
+        for r in runs
+        if "temperature_c" in r and "error" not in r
+    }
+    out = []
+    for serial in dict.fromkeys(r["serial"] for r in runs):
+        held = queries.latest_thermal_model(archive, serial)
+        used = list((held or {}).get("document", {}).get("info", {}).get("runs", []))
+        hit = [run_id for run_id in used if run_id in corrected]
+        if not hit:
+            continue
+        before = thermal.ThermalModel.from_dict(held["document"])
+        fit_settings = before.info.get("step", {}).get("settings")
+        points, rows = campaign_from_archive(archive, serial, used)
+        if not apply:  # the archive still holds the readings: the true ones, here
+            points = [
+                replace(p, temperature=corrected.get(r["run_id"], p.temperature))
+                for p, r in zip(points, rows, strict=True)
+            ]
+        after, _ = fit_campaign_step(points, fit_settings)
+        entry = {
+            "serial": serial,
+            "model_id": held["id"],
+            "runs": used,
+            "corrected": hit,
+            "range_before": {k: getattr(before, k) for k in ("t_min", "t_max", "t_ref")},
+            "range_after": {k: getattr(after, k) for k in ("t_min", "t_max", "t_ref")},
+            "moved": _curve_moves(before, after),
+        }
+        if apply:
+            fitted = thermal_fit(archive, serial, used, fit_settings, reason=reason)
+            entry["model_id_after"] = fitted["model_id"]
+        out.append(entry)
+    return out
+
+
+def _curve_moves(before: Any, after: Any) -> list[dict[str, Any]]:
+    """Per parameter of both models: the largest |before(T) - after(T)| / U_after(T) over
+    the refitted range (T true temperatures), where it is and the values there."""
+    import numpy as np
+
+    grid = np.linspace(after.t_min, after.t_max, THERMAL_GRID)
+    moved = []
+    for name in sorted(set(before.curves) & set(after.curves)):
+        U = 2.0 * after.std(name, grid)
+        d = before.value(name, grid) - after.value(name, grid)
+        ok = U > 0
+        if not ok.any():
+            continue
+        ratio = np.where(ok, np.abs(d) / np.where(ok, U, 1.0), 0.0)
+        i = int(np.argmax(ratio))
+        was, now = float(before.value(name, grid[i])), float(after.value(name, grid[i]))
+        moved.append(
+            {
+                "name": name,
+                "temperature_c": float(grid[i]),
+                "before": was,
+                "after": now,
+                "U_after": float(U[i]),
+                "change_in_U": (now - was) / float(U[i]),
+            }
+        )
+    return sorted(moved, key=lambda m: -abs(m["change_in_U"]))

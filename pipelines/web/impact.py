@@ -36,6 +36,13 @@ def _moved(m: dict[str, Any]) -> str:
     return f"{m['name']} {m['before']:.6g} -> {m['after']:.6g} ({m['change_in_U']:+.2f} U)"
 
 
+def _texts(r: dict[str, Any]) -> list[str]:
+    """What moved in a run: its corrected temperature (a chamber offset), its parameters."""
+    t = r.get("temperature_c")
+    head = [f"temperature {t['before']:g} -> {t['after']:g} degC"] if t else []
+    return head + [_moved(m) for m in r["moved"]]
+
+
 @router.get("/impact", response_class=HTMLResponse)
 def impact_list(request: Request) -> HTMLResponse:
     """Every applied look-back, newest first, with how many verdicts it changed."""
@@ -55,7 +62,7 @@ def impact_list(request: Request) -> HTMLResponse:
 def impact_page(request: Request, key: str) -> HTMLResponse:
     """One look-back: the error, and per run the verdicts before and after and what moved."""
     rec = _record(request, key)
-    runs = [{**r, "moved_text": [_moved(m) for m in r["moved"]]} for r in rec["runs"]]
+    runs = [{**r, "moved_text": _texts(r)} for r in rec["runs"]]
     return render(
         request,
         "impact.html",

@@ -155,7 +155,8 @@ def impact_records(archive: Archive) -> list[dict[str, Any]]:
     and ``runs``: per revision its run_id, serial
     (the unit), model, procedure, started_at, revision_before, revision (the one written),
     current (whether it still is the run's current revision), verdict_before,
-    verdict_after, moved (name, before, after, U_before, change_in_U), what.
+    verdict_after, moved (name, before, after, U_before, change_in_U), temperature_c
+    (before, after: a chamber offset's correction, else None), what.
     """
     import hashlib
 
@@ -226,7 +227,30 @@ def impact_records(archive: Archive) -> list[dict[str, Any]]:
                 "verdict_before": impact.get("verdict_before"),
                 "verdict_after": impact.get("verdict_after"),
                 "moved": impact.get("moved", []),
+                "temperature_c": impact.get("temperature_c"),
                 "what": stats.get("what"),
             }
         )
     return sorted(records.values(), key=lambda r: r["applied_at"], reverse=True)
+
+
+def calibration_temperatures(archive: Archive, calibration_ids: list[int]) -> dict[int, float]:
+    """The temperature (degC) each calibration's parameters are archived at
+    (``parameters.temperature_c``: the run's recorded temperature, corrected in a revision
+    made for a chamber found offset); calibrations without one are left out."""
+    from storage.schema import ParameterRow
+
+    ids = list(dict.fromkeys(int(i) for i in calibration_ids))
+    out: dict[int, float] = {}
+    with archive.engine().connect() as conn:
+        for start in range(0, len(ids), IN_CHUNK):
+            chunk = ids[start : start + IN_CHUNK]
+            for cal_id, temp in conn.execute(
+                select(ParameterRow.calibration_id, ParameterRow.temperature_c)
+                .where(
+                    ParameterRow.calibration_id.in_(chunk), ParameterRow.temperature_c.is_not(None)
+                )
+                .distinct()
+            ):
+                out[int(cal_id)] = float(temp)
+    return out
