@@ -97,6 +97,26 @@ def _moves(summary: dict[str, Any], after: dict[str, float]) -> list[dict[str, A
     return sorted(moved, key=lambda m: -abs(m["change_in_U"]))
 
 
+def _check_changes(summary: dict[str, Any], after: dict[str, dict]) -> list[dict[str, Any]]:
+    """The checks whose outcome the correction changed (a lab condition judged at the true
+    temperature, a limit now exceeded), or that only one side has."""
+    before = {c["name"]: c for c in summary["calibration"]["checks"]}
+    out = []
+    for name in sorted(set(before) | set(after)):
+        b, a = before.get(name), after.get(name)
+        if b is not None and a is not None and bool(b["passed"]) == bool(a["passed"]):
+            continue
+        out.append(
+            {
+                "name": name,
+                "passed_before": None if b is None else bool(b["passed"]),
+                "passed_after": None if a is None else bool(a["passed"]),
+                "detail": (a or b)["detail"],
+            }
+        )
+    return out
+
+
 def correction_step(
     equipment_serial: str,
     kind: str,
@@ -207,6 +227,7 @@ def resolve_run(
         **out,
         "verdict_after": judged.verdict,
         "values_after": {n: p.value for n, p in cal.parameters.items()},
+        "checks_after": {c.name: c.to_dict() for c in judged.checks},
     }
 
 
@@ -237,8 +258,10 @@ def impact(
     JSON-ready dict: equipment_serial, error (quantity, value, unit, kind), period, reason,
     applied, customer, and ``runs``: per run its run_id, serial, model, started_at,
     procedure, revision_before, verdict_before, affected, what, verdict_after, moved
-    (name, before, after, U_before, change_in_U), and with `apply` the status and
-    revision of the new revision (or the error).
+    (name, before, after, U_before, change_in_U), checks_changed (the checks whose
+    outcome changed), temperature_c (before, after; a chamber offset), and with `apply`
+    the status and revision of the new revision (or the error); ``campaigns``: the
+    thermal models fitted again (`campaign_effects`; a chamber offset only).
     """
     runs = select_runs(archive, equipment_serial, since, until, error)
     period = {"period": {"from": str(since), "to": None if until is None else str(until)}}
@@ -263,6 +286,9 @@ def impact(
         }
         if "temperature_c" in found:
             entry["temperature_c"] = found["temperature_c"]
+        entry["checks_changed"] = (
+            _check_changes(summary, found["checks_after"]) if "checks_after" in found else []
+        )
         if "error" in found:
             entry |= {"verdict_after": None, "error": found["error"]}
         if apply and found["affected"] and "error" not in found:
@@ -303,7 +329,8 @@ def _apply(
     from pipelines.reprocess import reprocess_run
 
     run_id = run["run_id"]
-    keys = ("verdict_before", "verdict_after", "revision_before", "moved", "period")
+    keys = ("verdict_before", "verdict_after", "revision_before", "moved", "checks_changed")
+    keys += ("period",)
     record = {k: entry[k] for k in (*keys, "temperature_c") if k in entry}
     outcome = reprocess_run(
         archive,
@@ -327,7 +354,7 @@ def csv_report(doc: dict[str, Any]) -> str:
     w.writerow(CSV_COLUMNS)
     for r in doc["runs"]:
         largest = r["moved"][0]["change_in_U"] if r["moved"] else 0.0
-        parts = [_temperature_text(r)]
+        parts = [temperature_text(r), checks_text(r)]
         parts += [f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"]]
         moved = "; ".join(filter(None, parts))
         w.writerow(
@@ -403,7 +430,7 @@ def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
                     r["procedure"],
                     r["verdict_before"],
                     r["verdict_after"],
-                    "; ".join(filter(None, (_temperature_text(r), moved)))
+                    "; ".join(filter(None, (temperature_text(r), checks_text(r), moved)))
                     or ("no parameter moved" if r["affected"] else f"not affected: {r['what']}"),
                     status,
                 )
@@ -429,7 +456,19 @@ def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
     )
 
 
-def _temperature_text(r: dict[str, Any]) -> str:
+def checks_text(r: dict[str, Any]) -> str:
+    """The checks whose outcome changed, in words; "" if none."""
+
+    def word(passed: bool | None) -> str:
+        return "absent" if passed is None else ("pass" if passed else "not passed")
+
+    return "; ".join(
+        f"check {c['name']}: {word(c['passed_before'])} -> {word(c['passed_after'])}"
+        for c in r.get("checks_changed", [])
+    )
+
+
+def temperature_text(r: dict[str, Any]) -> str:
     """A run's recorded temperature corrected (a chamber offset), in words; "" if none."""
     t = r.get("temperature_c")
     return f"temperature {t['before']:g} -> {t['after']:g} degC" if t else ""
@@ -501,6 +540,7 @@ def record_doc(record: dict[str, Any]) -> dict[str, Any]:
                 "verdict_after": r["verdict_after"],
                 "moved": r["moved"],
                 **({"temperature_c": r["temperature_c"]} if r.get("temperature_c") else {}),
+                "checks_changed": r["checks_changed"],
                 "status": f"revision {r['revision']}" + ("" if r["current"] else " (superseded)"),
             }
             for r in record["runs"]

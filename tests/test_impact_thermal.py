@@ -26,7 +26,7 @@ from storage.db import resolve_archive
 from storage.verify import verify
 
 SERIAL = "TH-7"
-TEMP_OFFSET = 2.0  # the chamber read 2 degC high
+TEMP_OFFSET = 3.0  # the chamber read 3 degC high: 23 degC read at a true 20
 TRUE_TEMPS = (0.0, 20.0, 40.0, 60.0)
 START = datetime(2026, 5, 4, 8, 0, tzinfo=UTC)
 
@@ -87,6 +87,16 @@ def test_chamber_offset_moves_temperatures_and_the_thermal_model(chamber):
         assert r["affected"]
         assert r["temperature_c"] == {"before": temp + TEMP_OFFSET, "after": temp}
         assert not r["moved"]  # the solve does not read the chamber's temperature
+        # The lab condition read at the true temperature: 23 degC read was outside the
+        # profile's 18 .. 22, the true 20 is inside, as the run archived at 20 says.
+        true_checks = {
+            c["name"]: c["passed"]
+            for c in queries.run_summary(chamber["true_archive"], true_id)["calibration"]["checks"]
+        }
+        for c in r["checks_changed"]:
+            assert c["passed_after"] == true_checks[c["name"]], c
+        changed = [c["name"] for c in r["checks_changed"]]
+        assert changed == (["condition:ambient_temperature_c"] if temp == 20.0 else []), changed
         true = queries.run_summary(chamber["true_archive"], true_id)["calibration"]["verdict"]
         assert r["verdict_after"] == true, (r, true_verdicts)
     (c,) = doc["campaigns"]
@@ -130,7 +140,7 @@ def test_chamber_offset_reported_in_words(chamber, tmp_path):
     assert f"thermal model of {SERIAL} fitted again (4 of 4 runs corrected)" in flat
     assert f"{TRUE_TEMPS[0] + TEMP_OFFSET:g} .. {TRUE_TEMPS[-1] + TEMP_OFFSET:g} -> " in flat
     html = page.read_text()
-    assert "Thermal models fitted again" in html and "temperature 22 -&gt; 20 degC" in html
+    assert "Thermal models fitted again" in html and "temperature 23 -&gt; 20 degC" in html
 
 
 def test_chamber_offset_apply_revises_runs_and_refits(chamber):

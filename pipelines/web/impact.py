@@ -37,10 +37,11 @@ def _moved(m: dict[str, Any]) -> str:
 
 
 def _texts(r: dict[str, Any]) -> list[str]:
-    """What moved in a run: its corrected temperature (a chamber offset), its parameters."""
-    t = r.get("temperature_c")
-    head = [f"temperature {t['before']:g} -> {t['after']:g} degC"] if t else []
-    return head + [_moved(m) for m in r["moved"]]
+    """What moved in a run: its corrected temperature (a chamber offset), the checks whose
+    outcome changed, its parameters."""
+    from pipelines.impact import checks_text, temperature_text
+
+    return [t for t in (temperature_text(r), checks_text(r)) if t] + [_moved(m) for m in r["moved"]]
 
 
 @router.get("/impact", response_class=HTMLResponse)

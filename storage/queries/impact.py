@@ -156,7 +156,8 @@ def impact_records(archive: Archive) -> list[dict[str, Any]]:
     (the unit), model, procedure, started_at, revision_before, revision (the one written),
     current (whether it still is the run's current revision), verdict_before,
     verdict_after, moved (name, before, after, U_before, change_in_U), temperature_c
-    (before, after: a chamber offset's correction, else None), what.
+    (before, after: a chamber offset's correction, else None), checks_changed (name,
+    passed_before, passed_after, detail), what.
     """
     import hashlib
 
@@ -228,6 +229,7 @@ def impact_records(archive: Archive) -> list[dict[str, Any]]:
                 "verdict_after": impact.get("verdict_after"),
                 "moved": impact.get("moved", []),
                 "temperature_c": impact.get("temperature_c"),
+                "checks_changed": impact.get("checks_changed", []),
                 "what": stats.get("what"),
             }
         )
