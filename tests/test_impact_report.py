@@ -101,6 +101,28 @@ def test_the_archive_holds_the_applied_record(applied):
     assert applied["runs"]["C"] not in {r["run_id"] for r in rec["runs"]}  # RT-8
 
 
+def test_only_runs_in_the_period_and_on_that_equipment(applied):
+    """The period's ends are whole UTC days, both inclusive; another table's runs never."""
+    from pipelines.impact import select_runs
+
+    arch, runs = applied["archive"], applied["runs"]
+    error = parse_error("rate_error_ppm=1")
+    for since, until, want in (
+        ("2026-03-10", "2026-03-10", ["A"]),  # A started 09:00 that day
+        ("2026-03-11", "2026-03-20", ["E"]),  # C (2026-03-11) is on RT-8
+        ("2026-03-01", None, ["A", "E"]),
+        ("2026-03-21", None, []),
+    ):
+        if not want:
+            with pytest.raises(LookupError, match="no archived run used equipment 'RT-7'"):
+                select_runs(arch, "RT-7", since, until, error)
+            continue
+        got = [r["run_id"] for r in select_runs(arch, "RT-7", since, until, error)]
+        assert got == [runs[k] for k in want], (since, until)
+    got = [r["run_id"] for r in select_runs(arch, "RT-8", "2026-03-11", "2026-03-11", error)]
+    assert got == [runs["C"]]
+
+
 def test_impact_pages_in_calib_serve(applied):
     client, doc = applied["client"], applied["doc"]
     listing = client.get("/impact")
