@@ -22,9 +22,10 @@ from calib_core.reference_errors import parse_error
 from calib_testing.run_writers import write_csv_run
 from pipelines.cli import app
 from pipelines.impact import html_report, impact, pdf_report, record_doc
+from storage import queries
 from storage.db import resolve_archive
 from storage.queries import open_readonly
-from storage.queries.impact import impact_records
+from storage.queries.impact import calibration_temperatures, impact_records
 
 REASON = f"out-of-tolerance reference RT-7: rate_error_ppm={RATE_PPM:g}"
 
@@ -190,3 +191,20 @@ def test_calib_impact_writes_the_pdf(applied, tmp_path):
     joined = "".join("".join(_pdf_pages(pdf)).split())
     assert all(r["run_id"] in joined for r in applied["doc"]["runs"])
     assert "".join(REASON.split()) in joined
+
+
+def test_impact_records_on_each_back_end(archive, tmp_path):
+    """The record and the revision's temperature read back on SQLite and PostgreSQL."""
+    folder = tmp_path / "A"
+    write_csv_run(
+        _rate_table_segments(ord("A"), RATE_PPM),
+        folder,
+        _rate_manifest("U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"),
+    )
+    run_id = _archive(archive, folder)
+    impact(archive, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01", apply=True)
+    (rec,) = impact_records(archive)
+    assert rec["reason"] == REASON and rec["period"] == {"from": "2026-03-01", "to": None}
+    assert [(r["run_id"], r["revision"], r["current"]) for r in rec["runs"]] == [(run_id, 2, True)]
+    cal_id = queries.run_summary(archive, run_id)["calibration"]["calibration_id"]
+    assert calibration_temperatures(archive, [cal_id]) == {cal_id: 20.0}  # the manifest's
