@@ -567,10 +567,12 @@ def campaign_effects(
     change of the value it predicts (compensates to) at a true temperature of the
     refitted range, in units of its expanded uncertainty there (U = 2 x the refitted
     curve's standard uncertainty), largest first. With `apply` the refitted model is
-    archived (it supersedes the unit's current one), its info holding the reason.
+    archived (it supersedes the unit's current one), its info holding the reason, once
+    every corrected run of the campaign is revised (status "refitted", model_id_after;
+    "duplicate" when the current model was fitted again for this reason already).
     """
     from calib_core import thermal
-    from pipelines.thermal_campaign import campaign_from_archive, fit_campaign_step, thermal_fit
+    from pipelines.thermal_campaign import campaign_from_archive, fit_campaign_step
 
     corrected = {
         r["run_id"]: r["temperature_c"]["after"]
@@ -603,10 +605,32 @@ def campaign_effects(
             "moved": _curve_moves(before, after),
         }
         if apply:
-            fitted = thermal_fit(archive, serial, used, fit_settings, reason=reason)
-            entry["model_id_after"] = fitted["model_id"]
+            entry |= _refit(archive, serial, used, fit_settings, reason, runs, before)
         out.append(entry)
     return out
+
+
+def _refit(
+    archive: Archive,
+    serial: str,
+    used: list[str],
+    fit_settings: dict[str, Any] | None,
+    reason: str,
+    runs: list[dict[str, Any]],
+    before: Any,
+) -> dict[str, Any]:
+    """Archive the refitted model once every corrected run of its campaign holds its true
+    temperature; its status (and id) or why not."""
+    from pipelines.thermal_campaign import thermal_fit
+
+    status = {r["run_id"]: r.get("status") for r in runs}
+    pending = [i for i in used if i in status and status[i] not in ("revised", "duplicate")]
+    if pending:  # a fit over a mix of readings and true temperatures would be wrong
+        return {"status": "not refitted", "error": f"runs {pending} were not revised"}
+    if before.info.get("reason") == reason:
+        return {"status": "duplicate"}  # fitted again for this error already
+    fitted = thermal_fit(archive, serial, used, fit_settings, reason=reason)
+    return {"status": "refitted", "model_id_after": fitted["model_id"]}
 
 
 def _curve_moves(before: Any, after: Any) -> list[dict[str, Any]]:

@@ -170,4 +170,11 @@ def test_chamber_offset_apply_revises_runs_and_refits(chamber):
         np.testing.assert_allclose(
             after.value(name, grid), direct.value(name, grid), rtol=0, atol=1e-6 * U.min()
         )
+    assert c["status"] == "refitted"
     assert verify(arch).ok
+    # Applied again: revisions and model are duplicates, nothing new is archived.
+    again = impact(arch, "TC-5", parse_error(error), "2026-05-01", apply=True)
+    assert {r["status"] for r in again["runs"]} == {"duplicate"}
+    assert again["campaigns"][0]["status"] == "duplicate"
+    assert queries.latest_thermal_model(arch, SERIAL)["id"] == held["id"]
+    assert max(abs(m["change_in_U"]) for m in again["campaigns"][0]["moved"]) < 1e-6

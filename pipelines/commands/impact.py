@@ -122,7 +122,8 @@ def impact_command(
                 if largest
                 else ""
             )
-            + (f"; archived as model {c['model_id_after']}" if "model_id_after" in c else ""),
+            + (f"; archived as model {c['model_id_after']}" if "model_id_after" in c else "")
+            + (f"; {c['status']}: {c['error']}" if "error" in c else ""),
             markup=False,
         )
     for r in doc["runs"]:
