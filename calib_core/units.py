@@ -11,6 +11,7 @@ import numpy as np
 
 STANDARD_GRAVITY = 9.80665  # m/s^2, CGPM 1901
 DEG = math.pi / 180.0  # rad per degree
+ARCSEC = DEG / 3600.0  # rad per second of arc
 
 # Factor that turns a value in the named unit into SI.
 ACCELERATION_UNITS: dict[str, float] = {

@@ -97,6 +97,26 @@ def _moves(summary: dict[str, Any], after: dict[str, float]) -> list[dict[str, A
     return sorted(moved, key=lambda m: -abs(m["change_in_U"]))
 
 
+def _check_changes(summary: dict[str, Any], after: dict[str, dict]) -> list[dict[str, Any]]:
+    """The checks whose outcome the correction changed (a lab condition judged at the true
+    temperature, a limit now exceeded), or that only one side has."""
+    before = {c["name"]: c for c in summary["calibration"]["checks"]}
+    out = []
+    for name in sorted(set(before) | set(after)):
+        b, a = before.get(name), after.get(name)
+        if b is not None and a is not None and bool(b["passed"]) == bool(a["passed"]):
+            continue
+        out.append(
+            {
+                "name": name,
+                "passed_before": None if b is None else bool(b["passed"]),
+                "passed_after": None if a is None else bool(a["passed"]),
+                "detail": (a or b)["detail"],
+            }
+        )
+    return out
+
+
 def correction_step(
     equipment_serial: str,
     kind: str,
@@ -113,6 +133,7 @@ def correction_step(
             "quantity": error.quantity,
             "value": error.value,
             "unit": error.unit,
+            **({"face": error.face, "about": error.about} if error.face else {}),
         },
         statistics={**stats, **({"impact": impact} if impact is not None else {})},
     )
@@ -126,10 +147,40 @@ def _corrector(
 ):
     def correct(loaded):  # noqa: ANN001, ANN202 - a LoadedRun in, (LoadedRun, StepRecord) out
         segments, stats = correct_segments(loaded.segments, error)
+        loaded = replace(loaded, segments=segments)
+        if error.quantity == "temperature_offset_c":
+            loaded, stats = _corrected_temperature(loaded, error, stats)
         step = correction_step(equipment_serial, kind, error, stats, impact)
-        return replace(loaded, segments=segments), step
+        return loaded, step
 
     return correct
+
+
+def _corrected_temperature(loaded, error: ReferenceError, stats: dict[str, Any]):  # noqa: ANN001, ANN202
+    """The run's recorded temperature (environment.temperature_c, the chamber's reading)
+    as it truly was: reading - E. It is the temperature of the run's parameters in the
+    archive, the lab conditions' and a thermal campaign's (pipelines.thermal_campaign)."""
+    env = loaded.manifest.environment
+    t = env.temperature_c
+    if t is None:
+        if stats["what"].endswith("degC"):  # no chamber channel either
+            return loaded, {
+                **stats,
+                "affected": False,
+                "what": "the run recorded no chamber temperature (environment.temperature_c, "
+                "chamber_temperature channel)",
+            }
+        return loaded, stats
+    after = float(t) - error.value
+    manifest = loaded.manifest.model_copy(
+        update={"environment": env.model_copy(update={"temperature_c": after})}
+    )
+    stats = {
+        **stats,
+        "what": f"{stats['what']}; recorded temperature {t:g} -> {after:g} degC",
+        "temperature_c": {"before": float(t), "after": after},
+    }
+    return replace(loaded, manifest=manifest), stats
 
 
 def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corrector or None
@@ -139,7 +190,9 @@ def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corre
     held = settings.get("reference_correction")
     if not held:
         return None
-    error = ReferenceError(str(held["quantity"]), float(held["value"]))
+    error = ReferenceError(
+        str(held["quantity"]), float(held["value"]), held.get("face"), held.get("about")
+    )
     return _corrector(str(held["equipment_serial"]), str(held["equipment_kind"]), error)
 
 
@@ -161,6 +214,8 @@ def resolve_run(
         loaded = load_run(restore_run(archive, run_id, Path(tmp) / run_id, link=True))
     loaded, step = _corrector(equipment_serial, kind, error)(loaded)
     out: dict[str, Any] = {"affected": step.statistics["affected"], "what": step.statistics["what"]}
+    if "temperature_c" in step.statistics:
+        out["temperature_c"] = step.statistics["temperature_c"]
     if not out["affected"]:
         return out
     try:
@@ -172,6 +227,7 @@ def resolve_run(
         **out,
         "verdict_after": judged.verdict,
         "values_after": {n: p.value for n, p in cal.parameters.items()},
+        "checks_after": {c.name: c.to_dict() for c in judged.checks},
     }
 
 
@@ -202,10 +258,13 @@ def impact(
     JSON-ready dict: equipment_serial, error (quantity, value, unit, kind), period, reason,
     applied, customer, and ``runs``: per run its run_id, serial, model, started_at,
     procedure, revision_before, verdict_before, affected, what, verdict_after, moved
-    (name, before, after, U_before, change_in_U), and with `apply` the status and
-    revision of the new revision (or the error).
+    (name, before, after, U_before, change_in_U), checks_changed (the checks whose
+    outcome changed), temperature_c (before, after; a chamber offset), and with `apply`
+    the status and revision of the new revision (or the error); ``campaigns``: the
+    thermal models fitted again (`campaign_effects`; a chamber offset only).
     """
     runs = select_runs(archive, equipment_serial, since, until, error)
+    period = {"period": {"from": str(since), "to": None if until is None else str(until)}}
     reason = reason_of(equipment_serial, error)
     customer = customer_name()
     report = []
@@ -225,20 +284,32 @@ def impact(
             "verdict_after": found.get("verdict_after", run["verdict"]),
             "moved": _moves(summary, found.get("values_after", {})),
         }
+        if "temperature_c" in found:
+            entry["temperature_c"] = found["temperature_c"]
+        entry["checks_changed"] = (
+            _check_changes(summary, found["checks_after"]) if "checks_after" in found else []
+        )
         if "error" in found:
             entry |= {"verdict_after": None, "error": found["error"]}
         if apply and found["affected"] and "error" not in found:
-            entry |= _apply(archive, run, equipment_serial, error, reason, entry)
+            entry |= _apply(archive, run, equipment_serial, error, reason, entry | period)
         report.append(entry)
+    campaigns = (
+        campaign_effects(archive, report, error, apply=apply, reason=reason)
+        if error.quantity == "temperature_offset_c"
+        else []
+    )
     return {
+        "campaigns": campaigns,
         "equipment_serial": equipment_serial,
         "error": {
             "quantity": error.quantity,
             "value": error.value,
             "unit": error.unit,
             "kind": error.kind,
+            **({"face": error.face, "about": error.about} if error.face else {}),
         },
-        "period": {"from": str(since), "to": None if until is None else str(until)},
+        **period,
         "reason": reason,
         "applied": apply,
         "customer": customer,
@@ -258,7 +329,9 @@ def _apply(
     from pipelines.reprocess import reprocess_run
 
     run_id = run["run_id"]
-    record = {k: entry[k] for k in ("verdict_before", "verdict_after", "revision_before", "moved")}
+    keys = ("verdict_before", "verdict_after", "revision_before", "moved", "checks_changed")
+    keys += ("period",)
+    record = {k: entry[k] for k in (*keys, "temperature_c") if k in entry}
     outcome = reprocess_run(
         archive,
         run_id,
@@ -281,7 +354,9 @@ def csv_report(doc: dict[str, Any]) -> str:
     w.writerow(CSV_COLUMNS)
     for r in doc["runs"]:
         largest = r["moved"][0]["change_in_U"] if r["moved"] else 0.0
-        moved = "; ".join(f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"])
+        parts = [temperature_text(r), checks_text(r)]
+        parts += [f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"]]
+        moved = "; ".join(filter(None, parts))
         w.writerow(
             (
                 r["run_id"],
@@ -301,9 +376,18 @@ def csv_report(doc: dict[str, Any]) -> str:
     return buf.getvalue()
 
 
-def html_report(doc: dict[str, Any]) -> str:
+# Typeset: A4 landscape (nine columns), page numbers in the footer, long words wrapped.
+PRINT_CSS = (
+    "@page{size:A4 landscape;margin:14mm 12mm 16mm;"
+    "@bottom-right{content:'page ' counter(page) ' of ' counter(pages);font-size:8pt}}"
+    "body{margin:0;font-size:9pt}table{width:100%}td{overflow-wrap:break-word}"
+    "td:nth-child(-n+7){white-space:nowrap}"
+)
+
+
+def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
     """The look-back as a self-contained HTML page for the nonconformity record (every
-    archived string escaped)."""
+    archived string escaped); `for_print`: with the page layout of `pdf_report`."""
     from html import escape
 
     def cell(v: Any) -> str:
@@ -346,7 +430,7 @@ def html_report(doc: dict[str, Any]) -> str:
                     r["procedure"],
                     r["verdict_before"],
                     r["verdict_after"],
-                    moved
+                    "; ".join(filter(None, (temperature_text(r), checks_text(r), moved)))
                     or ("no parameter moved" if r["affected"] else f"not affected: {r['what']}"),
                     status,
                 )
@@ -359,11 +443,220 @@ def html_report(doc: dict[str, Any]) -> str:
         '<!DOCTYPE html>\n<html><head><meta charset="utf-8">'
         f"<title>Impact of {escape(doc['reason'])}</title>"
         "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
-        "td,th{border:1px solid #999;padding:3px 6px;text-align:left}</style></head><body>"
+        "td,th{border:1px solid #999;padding:3px 6px;text-align:left}"
+        + (PRINT_CSS if for_print else "")
+        + "</style></head><body>"
         f"<h1>Out-of-tolerance look-back</h1><p>{escape(doc['reason'])}; runs started "
         f"{escape(period)}; customer: {escape(doc['customer'] or 'not recorded')}; "
         f"{len(doc['runs'])} run(s), {flipped} verdict(s) changed; "
         + ("revisions archived" if doc["applied"] else "dry run: nothing archived")
         + f" (ISO/IEC 17025 clause 7.10).</p><table>{head}{''.join(rows)}</table>"
-        "</body></html>\n"
+        + _campaigns_html(doc.get("campaigns", []))
+        + "</body></html>\n"
     )
+
+
+def checks_text(r: dict[str, Any]) -> str:
+    """The checks whose outcome changed, in words; "" if none."""
+
+    def word(passed: bool | None) -> str:
+        return "absent" if passed is None else ("pass" if passed else "not passed")
+
+    return "; ".join(
+        f"check {c['name']}: {word(c['passed_before'])} -> {word(c['passed_after'])}"
+        for c in r.get("checks_changed", [])
+    )
+
+
+def temperature_text(r: dict[str, Any]) -> str:
+    """A run's recorded temperature corrected (a chamber offset), in words; "" if none."""
+    t = r.get("temperature_c")
+    return f"temperature {t['before']:g} -> {t['after']:g} degC" if t else ""
+
+
+def _campaigns_html(campaigns: list[dict[str, Any]]) -> str:
+    """The thermal models fitted again with the corrected temperatures, as a table."""
+    from html import escape
+
+    if not campaigns:
+        return ""
+    rows = []
+    for c in campaigns:
+        b, a = c["range_before"], c["range_after"]
+        moved = "; ".join(
+            f"{m['name']} at {m['temperature_c']:g} degC {m['before']:.6g} -> {m['after']:.6g} "
+            f"({m['change_in_U']:+.2f} U)"
+            for m in c["moved"][:5]
+        )
+        model = f"{c['model_id']}" + (f" -> {c['model_id_after']}" if "model_id_after" in c else "")
+        cells = (
+            c["serial"],
+            model,
+            f"{b['t_min']:g} .. {b['t_max']:g} -> {a['t_min']:g} .. {a['t_max']:g} degC",
+            f"{len(c['corrected'])} of {len(c['runs'])}",
+            moved or "no prediction moved",
+        )
+        rows.append("<tr>" + "".join(f"<td>{escape(str(v))}</td>" for v in cells) + "</tr>")
+    head = "".join(
+        f"<th>{h}</th>"
+        for h in ("Unit", "Thermal model", "Range", "Runs corrected", "Largest changes (/ U after)")
+    )
+    return f"<h2>Thermal models fitted again</h2><table><tr>{head}</tr>{''.join(rows)}</table>"
+
+
+def pdf_report(doc: dict[str, Any]) -> bytes:
+    """The look-back typeset as PDF by WeasyPrint from its HTML page (`html_report`), as
+    certificates are (pipelines.reports.render.pdf_bytes)."""
+    import weasyprint
+
+    return weasyprint.HTML(string=html_report(doc, for_print=True)).write_pdf()
+
+
+def record_doc(record: dict[str, Any]) -> dict[str, Any]:
+    """An applied impact record (`storage.queries.impact.impact_records`) as the report
+    document `impact` returns, for `html_report`, `csv_report` and `pdf_report`."""
+    return {
+        "equipment_serial": record["equipment_serial"],
+        "error": {
+            k: record[k] for k in ("quantity", "value", "unit", "face", "about") if record.get(k)
+        },
+        "period": record["period"],
+        "reason": record["reason"],
+        "applied": True,
+        "customer": customer_name(),
+        "runs": [
+            {
+                "run_id": r["run_id"],
+                "serial": r["serial"],
+                "model": r["model"],
+                "started_at": r["started_at"].isoformat(),
+                "procedure": r["procedure"],
+                "customer": customer_name(),
+                "affected": True,
+                "what": r["what"],
+                "revision_before": r["revision_before"],
+                "revision_after": r["revision"],
+                "verdict_before": r["verdict_before"],
+                "verdict_after": r["verdict_after"],
+                "moved": r["moved"],
+                **({"temperature_c": r["temperature_c"]} if r.get("temperature_c") else {}),
+                "checks_changed": r["checks_changed"],
+                "status": f"revision {r['revision']}" + ("" if r["current"] else " (superseded)"),
+            }
+            for r in record["runs"]
+        ],
+    }
+
+
+THERMAL_GRID = 21  # temperatures at which a refitted thermal model is compared
+
+
+def campaign_effects(
+    archive: Archive,
+    runs: list[dict[str, Any]],
+    error: ReferenceError,
+    *,
+    apply: bool,
+    reason: str,
+) -> list[dict[str, Any]]:
+    """The thermal models fitted over runs whose temperatures a chamber offset moved,
+    fitted again with the true temperatures (the archived model's own fit settings).
+
+    Per model: serial, model_id, runs (of its campaign), corrected (the runs this error
+    moved), range before and after (t_min, t_max, t_ref), and per parameter the largest
+    change of the value it predicts (compensates to) at a true temperature of the
+    refitted range, in units of its expanded uncertainty there (U = 2 x the refitted
+    curve's standard uncertainty), largest first. With `apply` the refitted model is
+    archived (it supersedes the unit's current one), its info holding the reason, once
+    every corrected run of the campaign is revised (status "refitted", model_id_after;
+    "duplicate" when the current model was fitted again for this reason already).
+    """
+    from calib_core import thermal
+    from pipelines.thermal_campaign import campaign_from_archive, fit_campaign_step
+
+    corrected = {
+        r["run_id"]: r["temperature_c"]["after"]
+        for r in runs
+        if "temperature_c" in r and "error" not in r
+    }
+    out = []
+    for serial in dict.fromkeys(r["serial"] for r in runs):
+        held = queries.latest_thermal_model(archive, serial)
+        used = list((held or {}).get("document", {}).get("info", {}).get("runs", []))
+        hit = [run_id for run_id in used if run_id in corrected]
+        if not hit:
+            continue
+        before = thermal.ThermalModel.from_dict(held["document"])
+        fit_settings = before.info.get("step", {}).get("settings")
+        points, rows = campaign_from_archive(archive, serial, used)
+        if not apply:  # the archive still holds the readings: the true ones, here
+            points = [
+                replace(p, temperature=corrected.get(r["run_id"], p.temperature))
+                for p, r in zip(points, rows, strict=True)
+            ]
+        after, _ = fit_campaign_step(points, fit_settings)
+        entry = {
+            "serial": serial,
+            "model_id": held["id"],
+            "runs": used,
+            "corrected": hit,
+            "range_before": {k: getattr(before, k) for k in ("t_min", "t_max", "t_ref")},
+            "range_after": {k: getattr(after, k) for k in ("t_min", "t_max", "t_ref")},
+            "moved": _curve_moves(before, after),
+        }
+        if apply:
+            entry |= _refit(archive, serial, used, fit_settings, reason, runs, before)
+        out.append(entry)
+    return out
+
+
+def _refit(
+    archive: Archive,
+    serial: str,
+    used: list[str],
+    fit_settings: dict[str, Any] | None,
+    reason: str,
+    runs: list[dict[str, Any]],
+    before: Any,
+) -> dict[str, Any]:
+    """Archive the refitted model once every corrected run of its campaign holds its true
+    temperature; its status (and id) or why not."""
+    from pipelines.thermal_campaign import thermal_fit
+
+    status = {r["run_id"]: r.get("status") for r in runs}
+    pending = [i for i in used if i in status and status[i] not in ("revised", "duplicate")]
+    if pending:  # a fit over a mix of readings and true temperatures would be wrong
+        return {"status": "not refitted", "error": f"runs {pending} were not revised"}
+    if before.info.get("reason") == reason:
+        return {"status": "duplicate"}  # fitted again for this error already
+    fitted = thermal_fit(archive, serial, used, fit_settings, reason=reason)
+    return {"status": "refitted", "model_id_after": fitted["model_id"]}
+
+
+def _curve_moves(before: Any, after: Any) -> list[dict[str, Any]]:
+    """Per parameter of both models: the largest |before(T) - after(T)| / U_after(T) over
+    the refitted range (T true temperatures), where it is and the values there."""
+    import numpy as np
+
+    grid = np.linspace(after.t_min, after.t_max, THERMAL_GRID)
+    moved = []
+    for name in sorted(set(before.curves) & set(after.curves)):
+        U = 2.0 * after.std(name, grid)
+        d = before.value(name, grid) - after.value(name, grid)
+        ok = U > 0
+        if not ok.any():
+            continue
+        ratio = np.where(ok, np.abs(d) / np.where(ok, U, 1.0), 0.0)
+        i = int(np.argmax(ratio))
+        was, now = float(before.value(name, grid[i])), float(after.value(name, grid[i]))
+        moved.append(
+            {
+                "name": name,
+                "temperature_c": float(grid[i]),
+                "before": was,
+                "after": now,
+                "U_after": float(U[i]),
+                "change_in_U": (now - was) / float(U[i]),
+            }
+        )
+    return sorted(moved, key=lambda m: -abs(m["change_in_U"]))

@@ -3,7 +3,8 @@ temperature points) fitted and archived as a thermal model.
 
 The numbers come from calib_core.thermal (the science of the same name), the rows
 from storage.queries. `fit_campaign_step` / `thermal_fit`: the runs of a serial
-(environment.temperature_c of each run's manifest), in the order they were run
+(environment.temperature_c of each run's manifest, or the temperature its current
+revision's parameters hold when a chamber offset was corrected), in the order they were run
 (which also tells heating from cooling). The Prefect flow `thermal_campaign` is in
 pipelines.flows.
 """
@@ -17,6 +18,7 @@ from calib_core.calibration import Calibration, StepRecord
 from storage import queries
 from storage import thermal as thermal_store
 from storage.db import Archive
+from storage.queries.impact import calibration_temperatures
 
 DEFAULT_FIT = {
     "max_order": thermal.DEFAULT_MAX_ORDER,
@@ -36,6 +38,15 @@ def campaign_from_archive(
     Raises ValueError when runs lack environment.temperature_c.
     """
     rows = queries.campaign_calibrations(archive, serial, run_ids)
+    # A revision corrected for a chamber found offset (`calib impact`) holds the true
+    # temperature of its parameters: it takes the place of the manifest's reading.
+    true_t = calibration_temperatures(archive, [r["calibration_id"] for r in rows])
+    rows = [
+        {**r, "temperature_c": true_t[r["calibration_id"]]}
+        if true_t.get(r["calibration_id"]) is not None
+        else r
+        for r in rows
+    ]
     without = [r["run_id"] for r in rows if r["temperature_c"] is None]
     if without and run_ids:
         raise ValueError(
@@ -97,8 +108,13 @@ def thermal_fit(
     serial: str,
     run_ids: list[str] | None = None,
     settings: dict[str, Any] | None = None,
+    *,
+    reason: str | None = None,
 ) -> dict[str, Any]:
     """Fit the campaign of `serial` found in the archive and archive the model.
+
+    `reason`: why it is fitted again (e.g. an out-of-tolerance chamber, `calib impact`),
+    kept in the model's info.
 
     Returns a JSON-able summary: model_id, serial, runs, t_ref, t_min, t_max,
     orders, hysteresis (per parameter where two directions were run), benefit.
@@ -109,6 +125,7 @@ def thermal_fit(
         {
             "serial": serial,
             "runs": [r["run_id"] for r in rows],
+            **({"reason": reason} if reason else {}),
             "step": {
                 "name": step.name,
                 "settings": step.settings,

@@ -123,9 +123,8 @@ def test_parse_error_refuses_what_it_cannot_do():
         ("rate_error=120", "unknown quantity 'rate_error'"),
         ("rate_error_ppm", "expected QUANTITY=VALUE"),
         ("rate_error_ppm=1e9", "beyond"),
-        ("temperature_offset_c=0.3", "temperature_offset_c (thermal_chamber) is not implemented"),
-        ("temperature_offset_c=0.3", "refit it"),
-        ("face_angle_error_arcsec=20", "not implemented"),
+        ("temperature_offset_c=80", "beyond"),
+        ("face_angle_error_arcsec=20", "needs the face and the axis"),
     ):
         with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
             parse_error(text)
@@ -312,12 +311,12 @@ def test_wrong_kind_and_empty_period_are_refused(lab):
             "--from",
             "2026-03-01",
             "--error",
-            "face_angle_error_arcsec=20",
+            "face_angle_error_arcsec[+x,y]=20",
             "--archive",
             str(arch.root),
         ],
     )
-    assert res.exit_code != 0 and "not implemented" in res.output
+    assert res.exit_code != 0 and "face_angle_error_arcsec is an error of a cube" in res.output
 
 
 def test_rate_error_leaves_runs_without_a_table_rate_alone():

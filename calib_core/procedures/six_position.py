@@ -52,10 +52,11 @@ from calib_core.solvers.multi_position import (
 )
 from calib_core.solvers.six_position import (
     STATIC_LABELS,
+    UP_CHANNEL,
     accel_closed_form,
     accel_closed_form_std,
-    axis_vector,
     face_bias_checks,
+    reference_up,
 )
 from calib_core.stats import ChannelStats, channel_stats, largest_std, no_scatter
 from calib_core.uncertainty_sources import static_model
@@ -133,7 +134,8 @@ def _solve_statics(
 ) -> tuple[Calibration, dict[str, ChannelStats]]:
     """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals."""
     acc, gyr = _static_stats(segments)
-    f_true = np.array([axis_vector(label, gravity) for label in STATIC_LABELS])  # (6, 3)
+    # (6, 3); a face found not square carries its true direction (reference_up).
+    f_true = np.array([reference_up(label, segments[label], gravity) for label in STATIC_LABELS])
 
     def stack(stats: dict[str, ChannelStats], field: str) -> np.ndarray:
         return np.array([getattr(stats[label], field) for label in STATIC_LABELS])
@@ -143,6 +145,12 @@ def _solve_statics(
         acc_fit = kalman_accel_linear(f_true, [segments[label].acc for label in STATIC_LABELS])
     else:
         acc_fit = solve_accel_linear(f_true, stack(acc, "mean"), stack(acc, "sem"))
+    tilted = [k for k in STATIC_LABELS if UP_CHANNEL in segments[k].reference]
+    if tilted and settings["accel_solver"] == "closed_form":
+        raise ValueError(
+            f"accel_solver closed_form assumes square cube faces; positions {', '.join(tilted)} "
+            "have a corrected reference direction: solve with least_squares or kalman"
+        )
     if settings["accel_solver"] == "closed_form":
         values = accel_closed_form({k: s.mean for k, s in acc.items()}, gravity)
         stds = accel_closed_form_std({k: s.sem for k, s in acc.items()}, gravity)
@@ -168,7 +176,7 @@ def _solve_statics(
     for label in STATIC_LABELS:
         rec = segments[label]
         # The true specific force is constant over a static: a (3,) model, not one per sample.
-        f = axis_vector(label, gravity)
+        f = reference_up(label, rec, gravity)
         cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
         cal.residuals.append(segment_residual(label, "gyr", rec.gyr, _gyr_static_model(cal, f)))
 
@@ -273,7 +281,7 @@ def solve_six_position_integral(
     # The accelerometer sees g along the rotation axis throughout a rotation.
     for label in rotations:
         rec = segments[label]
-        f = axis_vector(label, gravity)  # constant over the rotation: a (3,) model
+        f = reference_up(label, rec, gravity)  # constant over the rotation: a (3,) model
         cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
         cal.info["sample_counts"][label] = len(rec)
     return cal

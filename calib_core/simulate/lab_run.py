@@ -203,6 +203,7 @@ def six_position_integral_run(
     temp_c: float = 20.0,
     gyro_range_dps: float = 2000.0,
     cw_pause_s: float | None = None,
+    true_up: dict[str, np.ndarray] | None = None,
 ) -> SimulatedRun:
     """Simulate a six-position + integral-method lab run.
 
@@ -222,6 +223,9 @@ def six_position_integral_run(
     gyro_range_dps : gyro full scale, deg/s; the output saturates there.
     cw_pause_s : pause of the clockwise rotations if different from pause_s, s
         (unequal cw / ccw record durations, as happen in a lab).
+    true_up : label -> true up direction (3,) unit vector in the unit's frame, for the
+        positions on a cube face that is not square (the rotations turn about it too);
+        absent labels are square (the label's axis).
 
     Returns
     -------
@@ -241,7 +245,7 @@ def six_position_integral_run(
 
     def record(label: str, t: np.ndarray, w_true: np.ndarray) -> Recording:
         n = t.shape[0]
-        f_true = np.broadcast_to(axis_vector(label, gravity), (n, 3))
+        f_true = np.broadcast_to(up_of(label) * gravity, (n, 3))
         clean = np.hstack([truth.acc_measured(f_true), truth.gyr_measured(w_true, f_true)])
         data = clean + rng.standard_normal((n, 6)) * noise
         n_spikes = int(round(spike_fraction * n))
@@ -254,6 +258,9 @@ def six_position_integral_run(
         temp = temp_c + 0.01 * rng.standard_normal(n)
         return Recording(t, data[:, :3], gyr, temp, label=label, source=f"simulated {label}")
 
+    def up_of(label: str) -> np.ndarray:
+        return np.asarray((true_up or {}).get(label, axis_vector(label, 1.0)), dtype=float)
+
     segments: dict[str, Recording] = {}
     t_static = np.arange(int(round(static_s * rate_hz))) / rate_hz
     for label in STATIC_LABELS:
@@ -263,8 +270,8 @@ def six_position_integral_run(
         axis, sense = label.split("_")
         pause = pause_s if sense == "ccw" or cw_pause_s is None else cw_pause_s
         t, rate = rotation_profile(rate_hz, turns, peak, pause)
-        w_true = np.zeros((t.shape[0], 3))
-        w_true[:, params.AXIS_INDEX[axis]] = rate if sense == "ccw" else -rate
+        # ccw: positive rate about the upward axis, the face's true normal
+        w_true = np.outer(rate if sense == "ccw" else -rate, up_of(label))
         segments[label] = record(label, t, w_true)
 
     settings = {

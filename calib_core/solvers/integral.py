@@ -35,6 +35,7 @@ from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.preprocess.replaced import replaced_check
 from calib_core.recording import Recording
+from calib_core.solvers.six_position import UP_CHANNEL, reference_up
 from calib_core.stats import row_medians, trapezoid_weights
 from calib_core.units import DEG, STANDARD_GRAVITY
 
@@ -259,18 +260,23 @@ def solve_integral(
 
     cal = Calibration(procedure="integral", gravity=gravity)
     closure: dict[str, float] = {}
+    C, std = np.zeros((3, 3)), np.zeros((3, 3))
     for j, a in enumerate(params.AXES):
         denom = 2.0 * math.pi * n * len(J[a])  # 4 pi n with both senses
-        diff = _signed_sum(J[a])
         dT = _signed_sum(duration[a])
         sem = np.asarray(static_sems[f"{a}_up"], dtype=float)
-        std = np.sqrt(sum(var[a].values()) + (dT * sem) ** 2) / denom
-        column = diff / denom  # column A of I + M_g
-        for i in range(3):
-            name = params.matrix_names("gyr")[i][j]
-            cal.add(name, column[i] - (1.0 if i == j else 0.0), std[i])
+        std[:, j] = np.sqrt(sum(var[a].values()) + (dT * sem) ** 2) / denom
+        C[:, j] = _signed_sum(J[a]) / denom  # (I + M_g) times the rotation axis
         if len(J[a]) == 2:
             closure[a] = float((J[a]["ccw"][j] + J[a]["cw"][j]) / 2.0)
+    axes = _rotation_axes(rotations)
+    # Rotations about true axes U (a face not square): C = (I + M_g) U. U is within a
+    # small angle of I, so the columns' uncertainties carry over to first order.
+    I_M = C if axes is None else C @ np.linalg.inv(axes)
+    for j in range(3):
+        for i in range(3):
+            name = params.matrix_names("gyr")[i][j]
+            cal.add(name, I_M[i, j] - (1.0 if i == j else 0.0), std[i, j])
     single = [a for a in params.AXES if len(J[a]) == 1]
     if single:
         cal.warnings.append(
@@ -284,6 +290,18 @@ def solve_integral(
         f"{a}_{s}": duration[a][s] for a in params.AXES for s in ("ccw", "cw") if s in duration[a]
     }
     return cal
+
+
+def _rotation_axes(rotations: dict[str, Recording]) -> np.ndarray | None:
+    """(3, 3) true rotation axis per column (unit frame) when a rotation carries its
+    ``reference_up`` channel (the face it rests on is not square), else None."""
+    if not any(UP_CHANNEL in r.reference for r in rotations.values()):
+        return None
+    U = np.eye(3)
+    for j, a in enumerate(params.AXES):
+        recs = [rotations[k] for k in (f"{a}_ccw", f"{a}_cw") if k in rotations]
+        U[:, j] = reference_up(f"{a}_ccw", recs[0] if recs else None, 1.0)
+    return U
 
 
 def _signed_sum(per_sense: dict):

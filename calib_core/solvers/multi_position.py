@@ -40,6 +40,7 @@ from calib_core.solvers.accel_models import (
     position_arrays,
     solve_accel_multi,
 )
+from calib_core.solvers.six_position import reference_up
 from calib_core.stats import channel_stats, column_mean_std, largest_std
 from calib_core.units import DEG
 
@@ -277,7 +278,8 @@ def reference_force(
     (``pitch_deg``/``roll_deg`` for a pitch/roll table, ``azimuth_deg``/``pitch_deg``
     for an azimuth/pitch one); the mean of the segment's reference channels
     (``table_pitch``/``table_roll`` or ``table_azimuth``/``table_pitch``, rad); a
-    face label (``x_up`` .. ``z_dn``).
+    face label (``x_up`` .. ``z_dn``), rotated to the segment's ``reference_up`` channel
+    when it has one (a cube face found not square, `calib impact`).
     """
     axes = settings["table_axes"]
     if axes not in TABLE_AXES:
@@ -300,6 +302,8 @@ def reference_force(
         outer, inner = (float(np.mean(rec.reference[c])) for c in channels)
         return specific_force(table_attitude(outer, inner, axes, mount, convention), gravity)
     face = _face_vector(label, gravity)
+    if face is not None:  # a face found not square carries its true direction
+        face = reference_up(label, rec, gravity)
     if face is None:
         raise ValueError(
             f"segment {label!r} ({rec.source or 'no source'}): no table attitude; give "

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core import params
+from calib_core.recording import Recording
 
 # Static positions in the paper's order k = 1..6; "x_up": the x axis reads +g.
 STATIC_LABELS = ("x_up", "x_dn", "y_up", "y_dn", "z_up", "z_dn")
@@ -32,6 +33,34 @@ def axis_vector(label: str, gravity: float) -> np.ndarray:
     f = np.zeros(3)
     f[params.AXIS_INDEX[axis]] = -gravity if sense == "dn" else gravity
     return f
+
+
+# Reference channel (N, 3): the true up direction (unit vector, unit frame) of a position
+# whose face is not square, set by a reference correction (calib_core.reference_errors).
+UP_CHANNEL = "reference_up"
+
+
+def nominal_up(label: str) -> np.ndarray:
+    """Unit up direction (3,) of a face label ("x_dn" -> (0, 0, 0) with -1 at x).
+
+    Rotation labels ("x_ccw", "x_cw") have their axis up.
+    """
+    return axis_vector(label, 1.0)
+
+
+def reference_up(label: str, rec: Recording | None, gravity: float) -> np.ndarray:
+    """True specific force (3,) of a position, m/s^2: the segment's ``reference_up``
+    channel when it has one (a face found not square), else the face label's axis."""
+    if rec is None or UP_CHANNEL not in rec.reference:
+        return axis_vector(label, gravity)
+    up = np.mean(np.asarray(rec.reference[UP_CHANNEL], dtype=float), axis=0)
+    norm = float(np.linalg.norm(up))
+    if up.shape != (3,) or not norm > 0.5:
+        raise ValueError(
+            f"segment {label} ({rec.source or 'no source'}): reference channel {UP_CHANNEL} "
+            f"must hold unit vectors (N, 3), got mean {up}"
+        )
+    return up / norm * gravity
 
 
 def _check_means(means: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

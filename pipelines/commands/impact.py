@@ -31,8 +31,10 @@ def impact_command(
         str,
         typer.Option(
             "--error",
-            help="QUANTITY=VALUE: rate_error_ppm (rate table), clock_error_ppm (DAQ); "
-            "docs/impact.md lists the others.",
+            help="QUANTITY=VALUE: rate_error_ppm (rate table, centrifuge), clock_error_ppm "
+            "(DAQ), temperature_offset_c (thermal chamber), "
+            "face_angle_error_arcsec[FACE,AXIS] (cube: face +x..-z tilted about axis x/y/z, "
+            "e.g. 'face_angle_error_arcsec[+x,y]=30'); docs/impact.md.",
         ),
     ],
     until: Annotated[
@@ -46,6 +48,10 @@ def impact_command(
     ] = None,
     html_out: Annotated[
         Path | None, typer.Option("--html", help="Write the report as an HTML page.")
+    ] = None,
+    pdf_out: Annotated[
+        Path | None,
+        typer.Option("--pdf", help="Write the report typeset as PDF (nonconformity record)."),
     ] = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
@@ -70,6 +76,11 @@ def impact_command(
     if html_out is not None:
         html_out.write_text(html_report(doc), encoding="utf-8")
         err.print(f"wrote {html_out}", soft_wrap=True)
+    if pdf_out is not None:
+        from pipelines.impact import pdf_report
+
+        pdf_out.write_bytes(pdf_report(doc))
+        err.print(f"wrote {pdf_out}", soft_wrap=True)
     if as_json:
         print_json(doc)
         return
@@ -81,7 +92,11 @@ def impact_command(
             r["procedure"],
             r["verdict_before"],
             r["verdict_after"] or "failed",
-            "; ".join(f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"][:3])
+            "; ".join(
+                ([f"{r['temperature_c']['before']:g} -> {r['temperature_c']['after']:g} degC"]
+                 if r.get("temperature_c") else [])
+                + [f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"][:3]]
+            )  # fmt: skip
             or ("-" if r["affected"] else "not affected"),
             r.get("status", "dry run"),
         ]
@@ -94,6 +109,23 @@ def impact_command(
         facts=f"customer: {doc['customer'] or 'not recorded'}; "
         + ("revisions archived" if apply else "dry run: nothing archived (--apply archives)"),
     )
+    for c in doc["campaigns"]:
+        b, a = c["range_before"], c["range_after"]
+        largest = c["moved"][0] if c["moved"] else None
+        out.print(
+            f"thermal model of {c['serial']} fitted again ({len(c['corrected'])} of "
+            f"{len(c['runs'])} runs corrected): {b['t_min']:g} .. {b['t_max']:g} -> "
+            f"{a['t_min']:g} .. {a['t_max']:g} degC"
+            + (
+                f"; largest change {largest['name']} {largest['change_in_U']:+.2f} U at "
+                f"{largest['temperature_c']:g} degC"
+                if largest
+                else ""
+            )
+            + (f"; archived as model {c['model_id_after']}" if "model_id_after" in c else "")
+            + (f"; {c['status']}: {c['error']}" if "error" in c else ""),
+            markup=False,
+        )
     for r in doc["runs"]:
         if "error" in r:
             out.print(f"{r['run_id']}: {r['error']}", markup=False)

@@ -16,7 +16,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from starlette.exceptions import HTTPException
 
-from pipelines.web import due, equipment, runs, units
+from pipelines.web import due, equipment, impact, runs, units
 from pipelines.web.pages import SECURITY_HEADERS, render
 from storage.db import Archive
 
@@ -61,7 +61,7 @@ def create_app(archive: Archive) -> FastAPI:
         lifespan=_lifespan,
     )
     app.state.archive = archive
-    for module in (runs, units, equipment, due):
+    for module in (runs, units, equipment, due, impact):
         app.include_router(module.router)
 
     @app.get("/", include_in_schema=False)

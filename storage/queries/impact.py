@@ -138,3 +138,121 @@ def run_references(archive: Archive, run_ids: list[str]) -> dict[str, dict[str, 
                 if run_id in out:
                     out[run_id]["equipment"].append((kind, serial))
     return out
+
+
+def impact_records(archive: Archive) -> list[dict[str, Any]]:
+    """The applied out-of-tolerance look-backs (`calib impact --apply`), newest first.
+
+    An impact record is the set of revisions whose ``reference_correction`` step holds an
+    impact (the step's statistics) for the same reason "out-of-tolerance reference
+    SERIAL: QUANTITY=VALUE" (the reason of their ``reprocess`` step).
+
+    Returns
+    -------
+    list of dicts: key (12 hex digits of the reason's SHA-256, the record's address),
+    reason, equipment_serial, equipment_kind, quantity, value, unit, face, about,
+    applied_at (the first revision's time), period (from, to: as given to the look-back),
+    and ``runs``: per revision its run_id, serial
+    (the unit), model, procedure, started_at, revision_before, revision (the one written),
+    current (whether it still is the run's current revision), verdict_before,
+    verdict_after, moved (name, before, after, U_before, change_in_U), temperature_c
+    (before, after: a chamber offset's correction, else None), checks_changed (name,
+    passed_before, passed_after, detail), what.
+    """
+    import hashlib
+
+    from storage.schema import ProcessingStep
+
+    step = ProcessingStep.__table__.alias("correction")
+    why = ProcessingStep.__table__.alias("why")
+    stmt = (
+        select(
+            Run.run_id,
+            Device.serial,
+            Run.model,
+            Run.procedure,
+            Run.started_at,
+            CalibrationRow.revision,
+            CalibrationRow.created_at,
+            CalibrationRow.superseded_by,
+            step.c.settings,
+            step.c.statistics,
+            why.c.settings,
+        )
+        .join(Device, Device.id == Run.device_id)
+        .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+        .join(
+            step,
+            (step.c.calibration_id == CalibrationRow.id)
+            & (step.c.name == "reference_correction"),
+        )
+        .join(why, (why.c.calibration_id == CalibrationRow.id) & (why.c.name == "reprocess"))
+        .order_by(CalibrationRow.created_at, Run.started_at, Run.run_id)
+    )
+    records: dict[str, dict[str, Any]] = {}
+    with archive.engine().connect() as conn:
+        rows = conn.execute(stmt).all()
+    for run_id, serial, model, proc, started, rev, created, sup, corr, stats, reprocess in rows:
+        impact = (stats or {}).get("impact")
+        reason = (reprocess or {}).get("reason")
+        if not impact or not reason:  # a correction carried over by a later reprocessing
+            continue
+        key = hashlib.sha256(reason.encode("utf-8")).hexdigest()[:12]
+        rec = records.setdefault(
+            key,
+            {
+                "key": key,
+                "reason": reason,
+                "equipment_serial": corr.get("equipment_serial"),
+                "equipment_kind": corr.get("equipment_kind"),
+                "quantity": corr.get("quantity"),
+                "value": corr.get("value"),
+                "unit": corr.get("unit"),
+                "face": corr.get("face"),
+                "about": corr.get("about"),
+                "applied_at": created,
+                "period": impact.get("period") or {"from": "", "to": None},
+                "runs": [],
+            },
+        )
+        rec["runs"].append(
+            {
+                "run_id": run_id,
+                "serial": serial,
+                "model": model,
+                "procedure": proc,
+                "started_at": started,
+                "revision_before": impact.get("revision_before"),
+                "revision": rev,
+                "current": sup is None,
+                "verdict_before": impact.get("verdict_before"),
+                "verdict_after": impact.get("verdict_after"),
+                "moved": impact.get("moved", []),
+                "temperature_c": impact.get("temperature_c"),
+                "checks_changed": impact.get("checks_changed", []),
+                "what": stats.get("what"),
+            }
+        )
+    return sorted(records.values(), key=lambda r: r["applied_at"], reverse=True)
+
+
+def calibration_temperatures(archive: Archive, calibration_ids: list[int]) -> dict[int, float]:
+    """The temperature (degC) each calibration's parameters are archived at
+    (``parameters.temperature_c``: the run's recorded temperature, corrected in a revision
+    made for a chamber found offset); calibrations without one are left out."""
+    from storage.schema import ParameterRow
+
+    ids = list(dict.fromkeys(int(i) for i in calibration_ids))
+    out: dict[int, float] = {}
+    with archive.engine().connect() as conn:
+        for start in range(0, len(ids), IN_CHUNK):
+            chunk = ids[start : start + IN_CHUNK]
+            for cal_id, temp in conn.execute(
+                select(ParameterRow.calibration_id, ParameterRow.temperature_c)
+                .where(
+                    ParameterRow.calibration_id.in_(chunk), ParameterRow.temperature_c.is_not(None)
+                )
+                .distinct()
+            ):
+                out[int(cal_id)] = float(temp)
+    return out
