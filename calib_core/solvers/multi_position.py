@@ -33,6 +33,7 @@ from calib_core.attitude import (
     table_attitude,
 )
 from calib_core.calibration import Calibration, SegmentResidual
+from calib_core.preprocess.motion import is_rotation
 from calib_core.recording import Recording
 from calib_core.solvers.accel_models import (
     ACCEL_MODELS,
@@ -412,7 +413,7 @@ def solve_multi_position(
     `duplicate_attitudes` always; calib_core.attitude.attitude_problems).
     """
     s = multi_position_settings(settings)
-    labels = [lab for lab in segments if not lab.endswith(("_cw", "_ccw"))]
+    labels = [lab for lab in segments if not is_rotation(lab)]
     f_true = np.array([reference_force(lab, segments[lab], gravity, s) for lab in labels])
     if len(labels) < 4:
         raise ValueError(
