@@ -7,6 +7,7 @@ modules import these from here, never from `pipelines.cli`, so imports go one wa
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import signal
@@ -42,18 +43,62 @@ def _tidy_help(params: list[Any]) -> None:
             p.display_type_rich = lambda ctx: None  # the name says it; no <str> column
 
 
+def _plain_values(params: list[Any]) -> None:
+    """Text and flag values taken as given, without pydantic.
+
+    Typer (0.2x) converts every value through a pydantic TypeAdapter built on first use,
+    even the default None of an option not given, and importing pydantic for that is a
+    large part of a read-only command's start. A ``str`` or ``bool`` parameter without a
+    parser gets `_given` instead: a value that already has the type is returned as it is
+    (what the adapter returns too); any other value goes to typer's own conversion.
+    """
+    try:
+        given = _given()
+    except ImportError:  # a typer without pydantic conversion
+        return
+    for p in params:
+        described = getattr(p, "type_descriptor", None)
+        if (
+            described is not None
+            and getattr(p, "_runtime_param", False) is None
+            and described.annotation in (str, bool)
+            and described.parameter_info.parser is None
+            and described.file_annotation is None
+        ):
+            p._runtime_param = given(described.parameter_info, described.annotation)
+
+
+@functools.cache
+def _given() -> type:
+    """`_plain_values`' conversion: a typer RuntimeParam (made once)."""
+    from typer._coercion import RuntimeParam, build_runtime_param
+
+    class Given(RuntimeParam):
+        def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:  # noqa: ANN401
+            if isinstance(value, self.annotation):
+                return value
+            typers = build_runtime_param(param.type_descriptor)
+            return typers._coerce_value(value, param=param, ctx=ctx)
+
+    return Given
+
+
 class CalibGroup(typer.core.TyperGroup):
-    """Typer's group with `_tidy_help` applied to its own and its commands' parameters."""
+    """Typer's group with `_tidy_help` and `_plain_values` applied to its own and its
+    commands' parameters."""
 
     def get_params(self, ctx):  # noqa: ANN001, ANN201 - click's signature
         params = super().get_params(ctx)
         _tidy_help(params)
+        _plain_values(params)
         return params
 
     def get_command(self, ctx, cmd_name):  # noqa: ANN001, ANN201 - click's signature
         cmd = super().get_command(ctx, cmd_name)
         if cmd is not None:
-            _tidy_help(cmd.get_params(ctx))
+            params = cmd.get_params(ctx)
+            _tidy_help(params)
+            _plain_values(params)
         return cmd
 
 

@@ -30,7 +30,6 @@ from storage.queries._common import (
     select_run_calibrations,
     where_model_and_start,
 )
-from storage.queries.runs import _cal_dict
 from storage.schema import (
     CalibrationRow,
     Device,
@@ -203,6 +202,8 @@ def latest_calibration(
     )
     if as_of is not None:
         stmt = stmt.where(Run.started_at <= as_of)
+    from storage.queries.runs import _cal_dict  # here: `calib history` needs no run questions
+
     with Session(archive.engine()) as s:
         row = s.execute(stmt).one_or_none()
         if row is None:
