@@ -44,13 +44,14 @@ def _tidy_help(params: list[Any]) -> None:
 
 
 def _plain_values(params: list[Any]) -> None:
-    """Text and flag values taken as given, without pydantic.
+    """Values that already have their parameter's type taken as given, without pydantic.
 
     Typer (0.2x) converts every value through a pydantic TypeAdapter built on first use,
-    even the default None of an option not given, and importing pydantic for that is a
-    large part of a read-only command's start. A ``str`` or ``bool`` parameter without a
-    parser gets `_given` instead: a value that already has the type is returned as it is
-    (what the adapter returns too); any other value goes to typer's own conversion.
+    even the default of an option not given, and importing pydantic for that is a large
+    part of a read-only command's start. Each parameter without a parser gets `_given`
+    instead: a text, flag or choice value that already has the type is returned as it is
+    (what the adapter returns too); no value (None) stays None as before; any other value
+    goes to typer's own conversion, so pydantic loads only when a value needs it.
     """
     try:
         given = _given()
@@ -61,7 +62,6 @@ def _plain_values(params: list[Any]) -> None:
         if (
             described is not None
             and getattr(p, "_runtime_param", False) is None
-            and described.annotation in (str, bool)
             and described.parameter_info.parser is None
             and described.file_annotation is None
         ):
@@ -71,11 +71,15 @@ def _plain_values(params: list[Any]) -> None:
 @functools.cache
 def _given() -> type:
     """`_plain_values`' conversion: a typer RuntimeParam (made once)."""
+    from enum import Enum
+
     from typer._coercion import RuntimeParam, build_runtime_param
 
     class Given(RuntimeParam):
         def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:  # noqa: ANN401
-            if isinstance(value, self.annotation):
+            kind = self.annotation
+            plain = kind in (str, bool) or (isinstance(kind, type) and issubclass(kind, Enum))
+            if plain and isinstance(value, kind):
                 return value
             typers = build_runtime_param(param.type_descriptor)
             return typers._coerce_value(value, param=param, ctx=ctx)

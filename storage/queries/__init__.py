@@ -21,27 +21,13 @@ Every untrusted input (serial, run id, parameter name, date) is a bound paramete
 SQLAlchemy statement, never part of a SQL string (`_common`). The public functions are
 importable from here: ``from storage import queries; queries.history(...)``; each is
 imported with its module when first used (`calib history` loads neither the run
-questions nor the fleet's), except the `history` module's, imported with the package
-(its function `history` is the package's attribute, not the module of that name).
+questions nor the fleet's).
 """
 
+import sys
+import types
+
 from calib_core.lazy import lazy_exports
-from storage.queries.history import (  # noqa: F401 - see above
-    FLEET_COLUMNS,
-    HISTORY_COLUMNS,
-    LATEST_COLUMNS,
-    REVISION_COLUMNS,
-    UNIT_COLUMNS,
-    fleet,
-    fleet_history,
-    history,
-    history_rows,
-    latest_calibration,
-    latest_valid,
-    parameter_history,
-    serial_parameter_history,
-    units,
-)
 
 _API = {
     "storage.queries._common": [
@@ -74,18 +60,16 @@ _API = {
         "FLEET_COLUMNS",
         "HISTORY_COLUMNS",
         "LATEST_COLUMNS",
-        "REVISION_COLUMNS",
         "UNIT_COLUMNS",
         "fleet",
         "fleet_history",
-        "history",
-        "history_rows",
         "latest_calibration",
         "latest_valid",
         "parameter_history",
         "serial_parameter_history",
         "units",
     ],
+    "storage.queries.unit_history": ["REVISION_COLUMNS", "history", "history_rows"],
     "storage.queries.impact": ["equipment_runs", "run_references"],
     "storage.queries.readonly": ["open_readonly"],
     "storage.queries.runs": [
@@ -116,3 +100,16 @@ _API = {
     "storage.queries.unit": ["device", "revisions", "thermal_model", "unit_parameters"],
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _API)
+
+
+class _Questions(types.ModuleType):
+    """This package: a question keeps its name when a module of the same name is
+    imported (the import system names a submodule on its package: `history`)."""
+
+    def __setattr__(self, name: str, value: object) -> None:
+        if isinstance(value, types.ModuleType) and name in __all__:
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Questions
