@@ -137,8 +137,11 @@ def main() -> None:
     env, calib = _env(), _calib()
     compile_project()
     if "--history-only" in sys.argv[1:]:
+        load = os.getloadavg()[0]
         with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
-            print(json.dumps(history_latency(calib, env, Path(tmp))))
+            figures = history_latency(calib, env, Path(tmp))
+        log(f"load average (1 min): {load:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
+        print(json.dumps(figures))
         return
     load = os.getloadavg()[0]
     helps = [_timed([*calib, "--help"], env)[0] for _ in range(REPEATS)]

@@ -111,7 +111,55 @@ def sub_app(help: str) -> typer.Typer:  # noqa: A002 - typer's name
     return typer.Typer(cls=CalibGroup, no_args_is_help=True, help=help)
 
 
-app = typer.Typer(
+class CalibTyper(typer.Typer):
+    """Typer's app that builds only the command it runs.
+
+    Typer builds every command and group (their parameters, from the signatures) before
+    it parses a word; `calib history` needs one of them. When the first word after the
+    global flags names a command, only that command is built; `calib --version` builds
+    none. Everything else (no command, --help, a word that is no command, shell
+    completion) gets the whole app, so help, suggestions and completion see every command.
+    """
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:  # noqa: ANN401 - typer's
+        argv = kwargs.get("args", args[0] if args else None)
+        words = list(sys.argv[1:] if argv is None else argv)
+        keep = None if _completing() else _invoked(self, words)
+        if keep is None:
+            return super().__call__(*args, **kwargs)
+        every = self.registered_commands, self.registered_groups
+        self.registered_commands = [c for c in every[0] if _name(c) in keep]
+        self.registered_groups = [g for g in every[1] if _name(g) in keep]
+        try:
+            return super().__call__(*args, **kwargs)
+        finally:
+            self.registered_commands, self.registered_groups = every
+
+
+def _name(info: Any) -> str:  # noqa: ANN401 - a typer CommandInfo or TyperInfo
+    """A registered command's or group's name on the command line."""
+    return info.name or info.callback.__name__.replace("_", "-")
+
+
+def _completing() -> bool:
+    """Is the shell asking for completions (typer's ``_CALIB_COMPLETE``)?"""
+    return any(k.startswith("_") and k.endswith("_COMPLETE") for k in os.environ)
+
+
+def _invoked(app_: typer.Typer, words: list[str]) -> set[str] | None:
+    """The names to build for `words`: the command the first word after the global flags
+    names; none for ``--version`` alone; None (all) otherwise."""
+    first = next((i for i, w in enumerate(words) if not w.startswith("-")), len(words))
+    flags, rest = words[:first], words[first:]
+    if any(f in ("--help", "--install-completion", "--show-completion") for f in flags):
+        return None
+    if not rest:
+        return set() if "--version" in flags else None
+    names = {_name(i) for i in [*app_.registered_commands, *app_.registered_groups]}
+    return {rest[0]} if rest[0] in names else None
+
+
+app = CalibTyper(
     cls=CalibGroup, no_args_is_help=True, help="IMU calibration pipeline and archive."
 )
 
@@ -135,7 +183,7 @@ def group_commands() -> None:
     """
     where = {name: panel for panel, names in PANELS.items() for name in names}
     for info in [*app.registered_commands, *app.registered_groups]:
-        name = info.name or info.callback.__name__.replace("_", "-")
+        name = _name(info)
         if name not in where:
             raise LookupError(f"calib {name}: no help panel; add it to cli_shared.PANELS")
         info.rich_help_panel = where[name]

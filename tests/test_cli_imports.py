@@ -131,3 +131,24 @@ def test_values_still_converted_and_refused_by_typer(archived) -> None:
     ok = runner.invoke(app, ["query", "units", "--format", "json", "--archive", str(arch.root)])
     assert ok.exit_code == 0, ok.output
     assert json.loads(ok.output)[0]["serial"] == "MPU0001"
+
+
+def test_only_the_invoked_command_is_built(capsys: pytest.CaptureFixture[str]) -> None:
+    """The command the first word names is built alone; help, a misspelt command and no
+    command get the whole app (every command listed, suggestions)."""
+    from pipelines.cli_shared import _invoked
+
+    assert _invoked(app, ["--wide", "history", "MPU0001"]) == {"history"}
+    assert _invoked(app, ["query", "units"]) == {"query"}
+    assert _invoked(app, ["history", "--help"]) == {"history"}
+    assert _invoked(app, ["--version"]) == set()
+    for words in ([], ["--help"], ["--version", "--help"], ["histry"], ["--wide"]):
+        assert _invoked(app, words) is None, words
+    every = list(app.registered_commands), list(app.registered_groups)
+    with pytest.raises(SystemExit) as done:
+        app(["--version"])
+    assert done.value.code == 0 and capsys.readouterr().out.startswith("calib ")
+    assert (app.registered_commands, app.registered_groups) == every
+    with pytest.raises(SystemExit) as done:
+        app(["histry"])
+    assert done.value.code == 2 and "Did you mean 'history'" in capsys.readouterr().err
