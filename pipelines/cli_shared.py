@@ -65,7 +65,10 @@ def _plain_values(params: list[Any]) -> None:
             and described.parameter_info.parser is None
             and described.file_annotation is None
         ):
-            p._runtime_param = given(described.parameter_info, described.annotation)
+            try:
+                p._runtime_param = given(described.parameter_info, described.annotation)
+            except TypeError:  # another typer's RuntimeParam: its own conversion throughout
+                return
 
 
 @functools.cache
@@ -78,7 +81,10 @@ def _given() -> type:
     class Given(RuntimeParam):
         def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:  # noqa: ANN401
             kind = self.annotation
-            plain = kind in (str, bool) or (isinstance(kind, type) and issubclass(kind, Enum))
+            try:
+                plain = kind in (str, bool) or issubclass(kind, Enum)
+            except TypeError:  # not a class: list[...], a union
+                plain = False
             if plain and isinstance(value, kind):
                 return value
             typers = build_runtime_param(param.type_descriptor)
