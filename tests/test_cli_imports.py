@@ -152,3 +152,18 @@ def test_only_the_invoked_command_is_built(capsys: pytest.CaptureFixture[str]) -
     with pytest.raises(SystemExit) as done:
         app(["histry"])
     assert done.value.code == 2 and "Did you mean 'history'" in capsys.readouterr().err
+
+
+def test_read_only_sqlite_archive_opens_without_psycopg(archived) -> None:
+    """The read-only opener (`calib serve`'s start) takes the reader role's name from
+    storage.roles; on SQLite that loads no PostgreSQL driver."""
+    arch, _ = archived
+    code = (
+        "import sys\nfrom storage.db import resolve_archive\n"
+        "from storage.queries import open_readonly\n"
+        f"ro = open_readonly(resolve_archive({str(arch.root)!r}))\n"
+        "assert ro.read_only and ro.schema_revision()\n"
+        "assert 'psycopg' not in sys.modules, 'psycopg'\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=120)
