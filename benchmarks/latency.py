@@ -15,7 +15,7 @@ For the MPU-6000 and the CSV sample of data_samples/, in the same run:
   a history run (paired: both see the same load);
 - ``history_to_bare_ratio``: the median of the pairs' ratios (target <= 1.5).
 
-``--history-only`` measures the last three alone.
+``--history-only`` measures the last three alone, with the load average at its start and end.
 
 The command is started as the `calib` entry point of this interpreter's environment,
 after the project's packages are byte-compiled (`compile_project`) as an installation
