@@ -15,7 +15,7 @@ For the MPU-6000 and the CSV sample of data_samples/, in the same run:
   a history run (paired: both see the same load);
 - ``history_to_bare_ratio``: the median of the pairs' ratios (target <= 1.5).
 
-``--history-only`` measures the last three alone.
+``--history-only`` measures the last three alone, with the load average at its start and end.
 
 The command is started as the `calib` entry point of this interpreter's environment,
 after the project's packages are byte-compiled (`compile_project`) as an installation
@@ -137,8 +137,11 @@ def main() -> None:
     env, calib = _env(), _calib()
     compile_project()
     if "--history-only" in sys.argv[1:]:
+        load = os.getloadavg()[0]
         with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
-            print(json.dumps(history_latency(calib, env, Path(tmp))))
+            figures = history_latency(calib, env, Path(tmp))
+        log(f"load average (1 min): {load:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
+        print(json.dumps(figures))
         return
     load = os.getloadavg()[0]
     helps = [_timed([*calib, "--help"], env)[0] for _ in range(REPEATS)]

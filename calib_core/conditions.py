@@ -13,11 +13,10 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from calib_core import procedures
 from calib_core.calibration import CheckResult
 from calib_core.condition_rules import (  # noqa: F401  (the catalogue's names, re-exported)
     CONDITION_PREFIX,
@@ -38,6 +37,10 @@ from calib_core.condition_rules import (  # noqa: F401  (the catalogue's names, 
 from calib_core.preprocess.motion import is_rotation
 from calib_core.recording import Recording
 from calib_core.units import DEG
+
+if TYPE_CHECKING:  # the procedures (every solver, scipy) load where a run is judged: the
+    # readers of archived checks (`status`, `calib show`) need none of them
+    from calib_core import procedures
 
 ZERO_RATE = 1e-6  # rad/s: a plateau below this is a 0-rate (static) point
 # Reference channels of the lab's own temperature (chamber or ambient), deg C.
@@ -165,6 +168,8 @@ def check_conditions(
         the standard value for want of the site's (a warning).
     overrides : the profile's ``[conditions]`` limits.
     """
+    from calib_core import procedures
+
     proc = procedures.get(procedure) if isinstance(procedure, str) else procedure
     conds = conditions(overrides)
     out = [judge(conds[k], recorded.get(k)) for k in RECORDED_KEYS]

@@ -237,8 +237,8 @@ def _print_run(summary: dict, root: Path) -> None:
         s = shown(p["name"], p["value"], p["std"])
         rows.append([p["name"], s.value, s.u or "-", s.unit])
     print_table(f"Parameters ({STANDARD_U_MEANING})", ["name", "value", STANDARD_U, "unit"], rows)
-    from calib_core.conditions import NOT_RECORDED, WARNING
-    from calib_core.conditions import status as condition_status
+    from calib_core.condition_rules import NOT_RECORDED, WARNING
+    from calib_core.condition_rules import status as condition_status
 
     failed = [c for c in cal["checks"] if condition_status(c) == "fail"]
     if failed:

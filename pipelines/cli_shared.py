@@ -7,6 +7,7 @@ modules import these from here, never from `pipelines.cli`, so imports go one wa
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import signal
@@ -42,18 +43,72 @@ def _tidy_help(params: list[Any]) -> None:
             p.display_type_rich = lambda ctx: None  # the name says it; no <str> column
 
 
+def _plain_values(params: list[Any]) -> None:
+    """Values that already have their parameter's type taken as given, without pydantic.
+
+    Typer (0.2x) converts every value through a pydantic TypeAdapter built on first use,
+    even the default of an option not given, and importing pydantic for that is a large
+    part of a read-only command's start. Each parameter without a parser gets `_given`
+    instead: a text, flag or choice value that already has the type is returned as it is
+    (what the adapter returns too); no value (None) stays None as before; any other value
+    goes to typer's own conversion, so pydantic loads only when a value needs it.
+    """
+    try:
+        given = _given()
+    except ImportError:  # a typer without pydantic conversion
+        return
+    for p in params:
+        described = getattr(p, "type_descriptor", None)
+        if (
+            described is not None
+            and getattr(p, "_runtime_param", False) is None
+            and described.parameter_info.parser is None
+            and described.file_annotation is None
+        ):
+            try:
+                p._runtime_param = given(described.parameter_info, described.annotation)
+            except TypeError:  # another typer's RuntimeParam: its own conversion throughout
+                return
+
+
+@functools.cache
+def _given() -> type:
+    """`_plain_values`' conversion: a typer RuntimeParam (made once)."""
+    from enum import Enum
+
+    from typer._coercion import RuntimeParam, build_runtime_param
+
+    class Given(RuntimeParam):
+        def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:  # noqa: ANN401
+            kind = self.annotation
+            try:
+                plain = kind in (str, bool) or issubclass(kind, Enum)
+            except TypeError:  # not a class: list[...], a union
+                plain = False
+            if plain and isinstance(value, kind):
+                return value
+            typers = build_runtime_param(param.type_descriptor)
+            return typers._coerce_value(value, param=param, ctx=ctx)
+
+    return Given
+
+
 class CalibGroup(typer.core.TyperGroup):
-    """Typer's group with `_tidy_help` applied to its own and its commands' parameters."""
+    """Typer's group with `_tidy_help` and `_plain_values` applied to its own and its
+    commands' parameters."""
 
     def get_params(self, ctx):  # noqa: ANN001, ANN201 - click's signature
         params = super().get_params(ctx)
         _tidy_help(params)
+        _plain_values(params)
         return params
 
     def get_command(self, ctx, cmd_name):  # noqa: ANN001, ANN201 - click's signature
         cmd = super().get_command(ctx, cmd_name)
         if cmd is not None:
-            _tidy_help(cmd.get_params(ctx))
+            params = cmd.get_params(ctx)
+            _tidy_help(params)
+            _plain_values(params)
         return cmd
 
 
@@ -62,7 +117,55 @@ def sub_app(help: str) -> typer.Typer:  # noqa: A002 - typer's name
     return typer.Typer(cls=CalibGroup, no_args_is_help=True, help=help)
 
 
-app = typer.Typer(
+class CalibTyper(typer.Typer):
+    """Typer's app that builds only the command it runs.
+
+    Typer builds every command and group (their parameters, from the signatures) before
+    it parses a word; `calib history` needs one of them. When the first word after the
+    global flags names a command, only that command is built; `calib --version` builds
+    none. Everything else (no command, --help, a word that is no command, shell
+    completion) gets the whole app, so help, suggestions and completion see every command.
+    """
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:  # noqa: ANN401 - typer's
+        argv = kwargs.get("args", args[0] if args else None)
+        words = list(sys.argv[1:] if argv is None else argv)
+        keep = None if _completing() else _invoked(self, words)
+        if keep is None:
+            return super().__call__(*args, **kwargs)
+        every = self.registered_commands, self.registered_groups
+        self.registered_commands = [c for c in every[0] if _name(c) in keep]
+        self.registered_groups = [g for g in every[1] if _name(g) in keep]
+        try:
+            return super().__call__(*args, **kwargs)
+        finally:
+            self.registered_commands, self.registered_groups = every
+
+
+def _name(info: Any) -> str:  # noqa: ANN401 - a typer CommandInfo or TyperInfo
+    """A registered command's or group's name on the command line."""
+    return info.name or info.callback.__name__.replace("_", "-")
+
+
+def _completing() -> bool:
+    """Is the shell asking for completions (typer's ``_CALIB_COMPLETE``)?"""
+    return any(k.startswith("_") and k.endswith("_COMPLETE") for k in os.environ)
+
+
+def _invoked(app_: typer.Typer, words: list[str]) -> set[str] | None:
+    """The names to build for `words`: the command the first word after the global flags
+    names; none for ``--version`` alone; None (all) otherwise."""
+    first = next((i for i, w in enumerate(words) if not w.startswith("-")), len(words))
+    flags, rest = words[:first], words[first:]
+    if any(f in ("--help", "--install-completion", "--show-completion") for f in flags):
+        return None
+    if not rest:
+        return set() if "--version" in flags else None
+    names = {_name(i) for i in [*app_.registered_commands, *app_.registered_groups]}
+    return {rest[0]} if rest[0] in names else None
+
+
+app = CalibTyper(
     cls=CalibGroup, no_args_is_help=True, help="IMU calibration pipeline and archive."
 )
 
@@ -86,7 +189,7 @@ def group_commands() -> None:
     """
     where = {name: panel for panel, names in PANELS.items() for name in names}
     for info in [*app.registered_commands, *app.registered_groups]:
-        name = info.name or info.callback.__name__.replace("_", "-")
+        name = _name(info)
         if name not in where:
             raise LookupError(f"calib {name}: no help panel; add it to cli_shared.PANELS")
         info.rich_help_panel = where[name]

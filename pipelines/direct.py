@@ -13,7 +13,6 @@ of transient errors (`pipelines.run_task`).
 from __future__ import annotations
 
 import os
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -54,6 +53,8 @@ def prefect_api_configured() -> bool:
     """
     if os.environ.get("PREFECT_API_URL"):
         return True
+    import tomllib  # here: the CLI imports this module for its --help
+
     home = Path(os.environ.get("PREFECT_HOME", Path.home() / ".prefect")).expanduser()
     try:
         doc = tomllib.loads((home / "profiles.toml").read_text("utf-8"))

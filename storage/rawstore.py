@@ -33,12 +33,14 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-
-import pyarrow as pa
-import pyarrow.parquet as pq
+from typing import TYPE_CHECKING
 
 from storage.naming import check_safe_name
 from storage.write_failures import with_path
+
+if TYPE_CHECKING:  # pyarrow is imported where samples are written or read: hashing and
+    # copying files (the seal's check of `calib show`, verify) need none of it
+    import pyarrow as pa
 
 # Bytes per read or write call. Writing new files in calls of a few MiB was at times an
 # order of magnitude slower than in calls of 256 KiB, which were never slower than larger
@@ -51,7 +53,6 @@ STALE_TEMP_S = 24 * 3600.0
 _WRITER = f"{socket.gethostname().replace('.', '_')}-{os.getpid()}"
 ZSTD_LEVEL = -1  # of the samples Parquet files (write_samples)
 # Hive partition columns are read as strings: inferred types would turn serial "0012" into 12.
-SAMPLES_PARTITIONING = pa.schema([("serial", pa.string()), ("date", pa.string())])
 
 
 def object_path(root: Path, sha256: str) -> Path:
@@ -410,6 +411,9 @@ def write_samples(
     for col in ("serial", "date"):
         if col in table.column_names:
             raise ValueError(f"samples table: column {col!r} is the partition key, remove it")
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     path = samples_path(root, serial, date, run_id)
     # Written in memory first: the bytes are hashed there, not read back from the file.
     sink = pa.BufferOutputStream()
@@ -427,6 +431,8 @@ def write_samples(
 def samples_parquet_options(schema: pa.Schema) -> dict:
     """The Parquet writer options of archived samples (`write_samples`; a streamed record's
     ``pq.ParquetWriter`` takes the same)."""
+    import pyarrow as pa
+
     delta_cols = [
         f.name for f in schema if pa.types.is_int64(f.type) or pa.types.is_timestamp(f.type)
     ]
@@ -444,6 +450,8 @@ def samples_parquet_options(schema: pa.Schema) -> dict:
 
 def read_samples(root: Path, serial: str | None = None) -> pa.Table:
     """All archived samples (or one serial's), with string columns `serial` and `date`."""
+    import pyarrow as pa
+
     base = Path(root) / "samples"
     if serial is not None:
         check_safe_name(serial, "serial")
@@ -454,7 +462,9 @@ def read_samples(root: Path, serial: str | None = None) -> pa.Table:
     dataset = ds.dataset(
         base,
         format="parquet",
-        partitioning=ds.partitioning(SAMPLES_PARTITIONING, flavor="hive"),
+        partitioning=ds.partitioning(
+            pa.schema([("serial", pa.string()), ("date", pa.string())]), flavor="hive"
+        ),
         exclude_invalid_files=False,
         ignore_prefixes=[".", "_"],  # skip temporary files of writes in progress
     )

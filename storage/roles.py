@@ -33,8 +33,8 @@ by psycopg's `sql` module (DDL takes no bound parameters).
 
 from __future__ import annotations
 
-import psycopg
-from psycopg import sql
+from typing import TYPE_CHECKING
+
 from sqlalchemy.engine import make_url
 
 from storage import unit_latest
@@ -42,6 +42,10 @@ from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.pgtools import libpq_dsn
 from storage.schema import Base, UnitLatest
+
+if TYPE_CHECKING:
+    from psycopg import sql  # imported where statements are made: the read-only opener
+    # (storage.queries.readonly) takes READER from here, SQLite needs no psycopg
 
 READER = "calib_reader"
 WRITER = "calib_writer"
@@ -168,6 +172,8 @@ def role_statements(
     reader, writer, approver : role names (letters, digits, ``._-``).
     tables : the archive's data tables (default: those of storage.schema).
     """
+    from psycopg import sql
+
     for name, what in (
         (reader, "reader role"),
         (writer, "writer role"),
@@ -227,6 +233,9 @@ def apply_roles(
     """
     if archive.is_sqlite:
         raise ValueError("roles exist only on PostgreSQL; a SQLite archive is a file")
+    import psycopg
+    from psycopg import sql
+
     url = make_url(archive.url)
     database = url.database or "postgres"
     with psycopg.connect(libpq_dsn(archive.url), autocommit=True) as conn, conn.transaction():

@@ -19,146 +19,97 @@ Which calibration is current, valid or a unit's latest is one rule (storage.curr
 
 Every untrusted input (serial, run id, parameter name, date) is a bound parameter of a
 SQLAlchemy statement, never part of a SQL string (`_common`). The public functions are
-importable from here: ``from storage import queries; queries.history(...)``.
+importable from here: ``from storage import queries; queries.history(...)``; each is
+imported with its module when first used (`calib history` loads neither the run
+questions nor the fleet's).
 """
 
-from storage.queries._common import (
-    VERDICTS,
-    as_instant,
-    check_parameter,
-    check_serial,
-    check_text,
-    check_verdict,
-)
-from storage.queries.audit import AUDIT_COLUMNS, audit_trail
-from storage.queries.equipment import (
-    LAPSED_COLUMNS,
-    due_state,
-    equipment_item,
-    equipment_list,
-    lapsed_page,
-    lapsed_runs,
-    today_utc,
-)
-from storage.queries.fleets import (
-    FAILING_MAX,
-    FleetUnits,
-    fleet_lineage,
-    fleet_units,
-    fleet_values,
-    models,
-)
-from storage.queries.history import (
-    FLEET_COLUMNS,
-    HISTORY_COLUMNS,
-    LATEST_COLUMNS,
-    REVISION_COLUMNS,
-    UNIT_COLUMNS,
-    fleet,
-    fleet_history,
-    history,
-    history_rows,
-    latest_calibration,
-    latest_valid,
-    parameter_history,
-    serial_parameter_history,
-    units,
-)
-from storage.queries.impact import equipment_runs, run_references
-from storage.queries.readonly import open_readonly
-from storage.queries.runs import (
-    current_judgements,
-    device_description,
-    earlier_descriptions,
-    export_calibration,
-    full_run_id,
-    judgement,
-    lineage,
-    repeatability_candidates,
-    run_samples,
-    run_summary,
-)
-from storage.queries.runs_list import (
-    MAX_PAGE,
-    PER_PAGE,
-    SORTS,
-    RunFilter,
-    RunsPage,
-    choices,
-    facts,
-    run_filter,
-    runs_page,
-)
-from storage.queries.selection import SELECTION_KEYS, revision_pairs, select_runs
-from storage.queries.thermal import campaign_calibrations, latest_thermal_model, thermal_models
-from storage.queries.unit import device, revisions, thermal_model, unit_parameters
+import sys
+import types
 
-__all__ = [
-    "AUDIT_COLUMNS",
-    "audit_trail",
-    "device_description",
-    "earlier_descriptions",
-    "FLEET_COLUMNS",
-    "HISTORY_COLUMNS",
-    "LAPSED_COLUMNS",
-    "LATEST_COLUMNS",
-    "UNIT_COLUMNS",
-    "VERDICTS",
-    "as_instant",
-    "campaign_calibrations",
-    "check_parameter",
-    "current_judgements",
-    "check_serial",
-    "check_text",
-    "check_verdict",
-    "export_calibration",
-    "fleet",
-    "fleet_history",
-    "full_run_id",
-    "history",
-    "history_rows",
-    "REVISION_COLUMNS",
-    "judgement",
-    "lapsed_runs",
-    "latest_calibration",
-    "latest_thermal_model",
-    "latest_valid",
-    "lineage",
-    "parameter_history",
-    "repeatability_candidates",
-    "run_samples",
-    "run_summary",
-    "serial_parameter_history",
-    "thermal_models",
-    "units",
-    "SELECTION_KEYS",
-    "revision_pairs",
-    "select_runs",
-    "equipment_runs",
-    "run_references",
-    "due_state",
-    "equipment_item",
-    "equipment_list",
-    "lapsed_page",
-    "today_utc",
-    "FAILING_MAX",
-    "FleetUnits",
-    "fleet_lineage",
-    "fleet_units",
-    "fleet_values",
-    "models",
-    "open_readonly",
-    "MAX_PAGE",
-    "PER_PAGE",
-    "SORTS",
-    "RunFilter",
-    "RunsPage",
-    "choices",
-    "facts",
-    "run_filter",
-    "runs_page",
-    "device",
-    "revisions",
-    "thermal_model",
-    "unit_parameters",
-]
+from calib_core.lazy import lazy_exports
+
+_API = {
+    "storage.queries._common": [
+        "VERDICTS",
+        "as_instant",
+        "check_parameter",
+        "check_serial",
+        "check_text",
+        "check_verdict",
+    ],
+    "storage.queries.audit": ["AUDIT_COLUMNS", "audit_trail"],
+    "storage.queries.equipment": [
+        "LAPSED_COLUMNS",
+        "due_state",
+        "equipment_item",
+        "equipment_list",
+        "lapsed_page",
+        "lapsed_runs",
+        "today_utc",
+    ],
+    "storage.queries.fleets": [
+        "FAILING_MAX",
+        "FleetUnits",
+        "fleet_lineage",
+        "fleet_units",
+        "fleet_values",
+        "models",
+    ],
+    "storage.queries.history": [
+        "FLEET_COLUMNS",
+        "HISTORY_COLUMNS",
+        "LATEST_COLUMNS",
+        "UNIT_COLUMNS",
+        "fleet",
+        "fleet_history",
+        "latest_calibration",
+        "latest_valid",
+        "parameter_history",
+        "serial_parameter_history",
+        "units",
+    ],
+    "storage.queries.unit_history": ["REVISION_COLUMNS", "history", "history_rows"],
+    "storage.queries.impact": ["equipment_runs", "run_references"],
+    "storage.queries.readonly": ["open_readonly"],
+    "storage.queries.runs": [
+        "current_judgements",
+        "device_description",
+        "earlier_descriptions",
+        "export_calibration",
+        "full_run_id",
+        "judgement",
+        "lineage",
+        "repeatability_candidates",
+        "run_samples",
+        "run_summary",
+    ],
+    "storage.queries.runs_list": [
+        "MAX_PAGE",
+        "PER_PAGE",
+        "SORTS",
+        "RunFilter",
+        "RunsPage",
+        "choices",
+        "facts",
+        "run_filter",
+        "runs_page",
+    ],
+    "storage.queries.selection": ["SELECTION_KEYS", "revision_pairs", "select_runs"],
+    "storage.queries.thermal": ["campaign_calibrations", "latest_thermal_model", "thermal_models"],
+    "storage.queries.unit": ["device", "revisions", "thermal_model", "unit_parameters"],
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _API)
+
+
+class _Questions(types.ModuleType):
+    """This package: a question keeps its name when a module of the same name is
+    imported (the import system names a submodule on its package: `history`)."""
+
+    def __setattr__(self, name: str, value: object) -> None:
+        if isinstance(value, types.ModuleType) and name in __all__:
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Questions

@@ -1,5 +1,5 @@
-"""Queries of the archive about units over time: history, latest (valid) calibration,
-units, fleets and their history.
+"""Queries of the archive about units over time: latest (valid) calibration, units,
+fleets and their history (a unit's revisions: `storage.queries.unit_history`).
 
 "Current" and "valid" calibration, and which is a unit's latest: the one rule of
 storage.current (a current revision with verdict "pass"; of several such runs the one
@@ -30,7 +30,6 @@ from storage.queries._common import (
     select_run_calibrations,
     where_model_and_start,
 )
-from storage.queries.runs import _cal_dict
 from storage.schema import (
     CalibrationRow,
     Device,
@@ -40,62 +39,6 @@ from storage.schema import (
 
 if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (slow to import)
-
-
-REVISION_COLUMNS = [
-    "run_id",
-    "started_at",
-    "procedure",
-    "revision",
-    "verdict",
-    "superseded",
-    "software_version",
-    "created_at",
-]
-
-
-def history_rows(archive: Archive, serial: str) -> list[dict[str, Any]]:
-    """`history` as dicts (keys `REVISION_COLUMNS`), without pandas: what a table printed
-    at the terminal needs, so `calib history` starts without loading pandas."""
-    stmt = (
-        select_run_calibrations(
-            Run.run_id,
-            Run.started_at,
-            Run.procedure,
-            CalibrationRow.revision,
-            CalibrationRow.verdict,
-            CalibrationRow.superseded_by.is_not(None).label("superseded"),
-            CalibrationRow.software_version,
-            CalibrationRow.created_at,
-        )
-        .where(Device.serial == serial)
-        .order_by(Run.started_at, Run.id, CalibrationRow.revision)
-    )
-    with Session(archive.engine()) as s:
-        rows = s.execute(stmt).all()
-    return [
-        {**dict(zip(REVISION_COLUMNS, r, strict=True)), "superseded": bool(r.superseded)}
-        for r in rows
-    ]
-
-
-def history(archive: Archive, serial: str) -> pd.DataFrame:
-    """One row per calibration revision of a unit, oldest run first.
-
-    Parameters
-    ----------
-    archive : the archive.
-    serial : the unit.
-
-    Returns
-    -------
-    DataFrame with columns run_id, started_at, procedure, revision, verdict,
-    superseded, software_version, created_at.
-    """
-    import pandas as pd
-
-    df = pd.DataFrame(history_rows(archive, serial), columns=REVISION_COLUMNS)
-    return df.astype({"superseded": bool})
 
 
 HISTORY_COLUMNS = [
@@ -203,6 +146,8 @@ def latest_calibration(
     )
     if as_of is not None:
         stmt = stmt.where(Run.started_at <= as_of)
+    from storage.queries.runs import _cal_dict  # here: `calib history` needs no run questions
+
     with Session(archive.engine()) as s:
         row = s.execute(stmt).one_or_none()
         if row is None:

@@ -1,0 +1,169 @@
+"""Read-only commands load only what they use (the latency of `calib history`:
+benchmarks/latency.py).
+
+The MPU-6000 sample of data_samples/ is processed into a real SQLite archive; each
+command runs in a fresh interpreter, which then names the modules it loaded.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from pipelines.cli import app
+from pipelines.ingest import discover_runs
+from pipelines.process import process_run
+from storage.db import Archive, resolve_archive
+from storage.instants import UTCDateTime
+from storage.queries import unit_history
+from storage.schema import Base
+
+ROOT = Path(__file__).resolve().parent.parent
+SAMPLE = ROOT / "data_samples" / "mpu6000_MPU0001"
+SCIENCE = ("numpy", "scipy", "pandas", "pyarrow", "matplotlib", "prefect", "weasyprint")
+# What `calib history` also leaves alone on SQLite: the mapped tables (and the PostgreSQL
+# dialect their index options load), PostgreSQL's driver, typer's pydantic conversion.
+ARCHIVE_EXTRAS = ("storage.schema", "sqlalchemy.dialects.postgresql", "psycopg", "pydantic")
+
+
+@pytest.fixture(scope="module")
+def archived(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, str]:
+    arch = resolve_archive(str(tmp_path_factory.mktemp("imports") / "archive"))
+    arch.upgrade()
+    (source,) = discover_runs([SAMPLE])
+    outcome = process_run(source, arch)
+    assert outcome["status"] == "ok", outcome
+    return arch, outcome["run_id"]
+
+
+def _loaded(argv: list[str], watch: tuple[str, ...]) -> list[str]:
+    """The modules of `watch` a fresh interpreter has loaded after ``calib ARGV`` (which
+    must succeed)."""
+    code = (
+        "import json, sys\nfrom pipelines.cli import app\n"
+        f"try:\n    app({argv!r})\n"
+        "except SystemExit as e:\n    assert not e.code, e.code\n"
+        f"print(json.dumps([m for m in {watch!r} if m in sys.modules]))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_history_loads_neither_the_science_stack_nor_the_mapped_tables(archived) -> None:
+    arch, _ = archived
+    argv = ["history", "MPU0001", "--archive", str(arch.root)]
+    assert _loaded(argv, SCIENCE + ARCHIVE_EXTRAS) == []
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["--version"], ["--help"], ["audit", "MPU0001"], ["verify"], ["show", "RUN"]],
+    ids=["version", "help", "audit", "verify", "show"],
+)
+def test_read_only_commands_load_no_science_stack(archived, args) -> None:
+    """`calib show` converts values to display units with numpy (calib_core.units), so
+    numpy is its one; the others load none of it."""
+    arch, run_id = archived
+    argv = [run_id if a == "RUN" else a for a in args]
+    if not args[0].startswith("--"):
+        argv += ["--archive", str(arch.root)]
+    allowed = ("numpy",) if args[0] == "show" else ()
+    watch = tuple(m for m in SCIENCE if m not in allowed) + ("psycopg",)
+    assert _loaded(argv, watch) == []
+
+
+@pytest.mark.parametrize(
+    "args", [["query", "latest", "MPU0001"], ["query", "units"]], ids=["latest", "units"]
+)
+def test_queries_load_no_flow_plot_or_typesetting(archived, args) -> None:
+    """The questions answer in DataFrames (pandas): no Prefect, plotting or typesetter."""
+    arch, _ = archived
+    watch = ("matplotlib", "prefect", "weasyprint", "psycopg")
+    assert _loaded([*args, "--archive", str(arch.root)], watch) == []
+
+
+def test_trend_table_loads_no_plotting(serve_sample) -> None:
+    """A trend fits (numpy, scipy); its table without --plot draws nothing (matplotlib)."""
+    argv = ["trend", "DRIFT-01", "acc.bias.x", "--archive", str(serve_sample.archive.root)]
+    assert _loaded(argv, ("matplotlib", "prefect", "weasyprint", "psycopg")) == []
+
+
+def test_light_tables_name_the_schema_columns_and_types() -> None:
+    """unit_history reads storage.schema's tables by name: every column it names exists
+    there, and the instants are typed alike (UTC-aware)."""
+    light = (unit_history.DEVICES, unit_history.RUNS, unit_history.CALIBRATIONS)
+    for clause in light:
+        mapped = Base.metadata.tables[clause.name]
+        for col in clause.c:
+            assert col.name in mapped.c, f"{clause.name}.{col.name} is not in storage.schema"
+            instant = isinstance(mapped.c[col.name].type, UTCDateTime)
+            assert isinstance(col.type, UTCDateTime) == instant, f"{clause.name}.{col.name}"
+
+
+def test_a_question_keeps_its_name_beside_its_module() -> None:
+    """`queries.history` is the question after its namesake module is imported."""
+    code = (
+        "import storage.queries.history\nfrom storage import queries\n"
+        "assert callable(queries.history), queries.history\n"
+        "assert queries.history.__module__ == 'storage.queries.unit_history'\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=120)
+
+
+def test_values_still_converted_and_refused_by_typer(archived) -> None:
+    """Values without pydantic where they already have their type; the others (a choice,
+    a number) converted, and refused, by typer as before."""
+    arch, _ = archived
+    runner = CliRunner()
+    bad = runner.invoke(app, ["query", "units", "--format", "nope", "--archive", str(arch.root)])
+    assert bad.exit_code == 2 and "nope" in bad.output
+    ok = runner.invoke(app, ["query", "units", "--format", "json", "--archive", str(arch.root)])
+    assert ok.exit_code == 0, ok.output
+    assert json.loads(ok.output)[0]["serial"] == "MPU0001"
+
+
+def test_only_the_invoked_command_is_built(capsys: pytest.CaptureFixture[str]) -> None:
+    """The command the first word names is built alone; help, a misspelt command and no
+    command get the whole app (every command listed, suggestions)."""
+    from pipelines.cli_shared import _invoked
+
+    assert _invoked(app, ["--wide", "history", "MPU0001"]) == {"history"}
+    assert _invoked(app, ["query", "units"]) == {"query"}
+    assert _invoked(app, ["history", "--help"]) == {"history"}
+    assert _invoked(app, ["--version"]) == set()
+    for words in ([], ["--help"], ["--version", "--help"], ["histry"], ["--wide"]):
+        assert _invoked(app, words) is None, words
+    every = list(app.registered_commands), list(app.registered_groups)
+    with pytest.raises(SystemExit) as done:
+        app(["--version"])
+    assert done.value.code == 0 and capsys.readouterr().out.startswith("calib ")
+    assert (app.registered_commands, app.registered_groups) == every
+    with pytest.raises(SystemExit) as done:
+        app(["histry"])
+    assert done.value.code == 2 and "Did you mean 'history'" in capsys.readouterr().err
+
+
+def test_read_only_sqlite_archive_opens_without_psycopg(archived) -> None:
+    """The read-only opener (`calib serve`'s start) takes the reader role's name from
+    storage.roles; on SQLite that loads no PostgreSQL driver."""
+    arch, _ = archived
+    code = (
+        "import sys\nfrom storage.db import resolve_archive\n"
+        "from storage.queries import open_readonly\n"
+        f"ro = open_readonly(resolve_archive({str(arch.root)!r}))\n"
+        "assert ro.read_only and ro.schema_revision()\n"
+        "assert 'psycopg' not in sys.modules, 'psycopg'\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=120)
