@@ -29,7 +29,6 @@ transaction and its invariants, read best top to bottom in one place.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 from dataclasses import dataclass, field
 from datetime import UTC, date, datetime
@@ -47,6 +46,8 @@ from storage.current import CURRENT, LATEST_RUN_FIRST
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.schema import Base
+from storage.settings_hash import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
+from storage.settings_hash import canonical_json as _canonical_json
 
 Status = Literal["ok", "duplicate", "revised"]
 _MAX_ATTEMPTS = 3
@@ -156,46 +157,9 @@ def run_id_of(raw_hash: str) -> str:
     return "R" + raw_hash[:12]
 
 
-# The setting of a `rejudge` step (sealed with the revision): run ids of the unit's runs
-# made before the run, most recent first, that the revision was judged against.
-JUDGED_AGAINST = "judged_against"
-REJUDGE_STEP = "rejudge"
-
-
 def settings_hash_of(run: RunIn) -> str:
     """SHA-256 of the canonical JSON of what decides the result besides the raw bytes."""
     return settings_hash(run.settings, run.procedure, run.profile_name, run.profile_version)
-
-
-def settings_hash(
-    settings: dict[str, Any],
-    procedure: str,
-    profile_name: str | None,
-    profile_version: str | None,
-    judged_against: list[str] | None = None,
-) -> str:
-    """The settings hash of a calibration (`settings_hash_of`) from its parts.
-
-    `judged_against` : for a revision judged again (`rejudge_run`), the run ids its
-    ``rejudge`` step records under `JUDGED_AGAINST`: the same settings judged against
-    other runs are another calibration. None (not part of the hash) for a processing.
-    """
-    doc = {
-        "settings": settings,
-        "procedure": procedure,
-        "profile_name": profile_name,
-        "profile_version": profile_version,
-    }
-    if judged_against is not None:
-        doc[JUDGED_AGAINST] = judged_against
-    return hashlib.sha256(_canonical_json(doc, "settings").encode()).hexdigest()
-
-
-def _canonical_json(value: Any, where: str) -> str:
-    try:
-        return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: not storable as JSON ({exc})") from exc
 
 
 # --- validation (before anything touches the disk) ---------------------------

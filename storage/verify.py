@@ -253,7 +253,7 @@ def _check_judged_again(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a
     A revision judged again before its ``rejudge`` step recorded the runs it was judged
     against holds a hash no reader can recompute: it is left to its seal.
     """
-    from storage.archive import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
+    from storage.settings_hash import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
 
     rows = conn.execute(
         select(

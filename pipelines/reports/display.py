@@ -131,7 +131,7 @@ class CheckCounts:
 
 def check_counts(checks: list[dict[str, Any]]) -> CheckCounts:
     """Count archived check dicts (``name``, ``passed``, ``value``, ``detail``)."""
-    from calib_core.conditions import CONDITION_PREFIX, NOT_RECORDED, WARNING, status
+    from calib_core.condition_rules import CONDITION_PREFIX, NOT_RECORDED, WARNING, status
 
     states = [(str(c["name"]).startswith(CONDITION_PREFIX), status(c)) for c in checks]
     conditions = [s for is_condition, s in states if is_condition]
