@@ -99,6 +99,22 @@ def test_the_solver_refuses_a_misspelt_setting_instead_of_ignoring_it():
         solve("six_position_integral", run.segments, run.gravity, {"accel_solvr": "kalman"})
 
 
+def test_a_setting_of_another_procedure_names_whose_it_is():
+    """A static-bias key in a six-position run (or a run given the wrong procedure) is
+    refused, and the refusal says which procedure declares it."""
+    with pytest.raises(SettingError) as err:
+        procedures.validate_settings("six_position_integral", {"up_axis": "-z"})
+    assert str(err.value).startswith(
+        "run.settings.up_axis: unknown setting of six_position_integral; expected one of "
+    )
+    assert str(err.value).endswith("; up_axis is a setting of static_bias")
+    with pytest.raises(
+        SettingError,
+        match=r"turns is a setting of six_position_integral, integral and sensor_array$",
+    ):
+        solve("rate_table", {}, 9.81, {"turns": 2})
+
+
 def _manifest_text(procedure: str, settings: dict) -> str:
     doc = six_position_manifest("SET-1")
     doc["run"] = {**doc["run"], "procedure": procedure, "settings": settings}

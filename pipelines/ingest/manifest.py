@@ -399,11 +399,10 @@ def check_settings(manifest: RunManifest, source: str = "run.toml") -> None:
     tables (calib_core.procedures): an unknown key (with the closest valid one), a wrong type
     or a value out of bounds is an IngestError naming the file and the key. An unknown
     procedure is left to the solve, which names the known ones."""
-    proc = procedures.BY_NAME.get(manifest.run.procedure)
-    if proc is None:
+    if manifest.run.procedure not in procedures.BY_NAME:
         return
     try:
-        proc.validate(manifest.run.settings)
+        procedures.validate_settings(manifest.run.procedure, manifest.run.settings)
     except procedures.SettingError as exc:
         raise IngestError(exc.problem, file=source, field=f"run.settings.{exc.key}") from None
 
