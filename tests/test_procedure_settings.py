@@ -206,3 +206,26 @@ def test_the_tables_are_the_steps_own_keys():
         r"'static', 'all', got 'some'",
     ):
         procedures.validate_settings("rate_table", {"lowpass": {"apply_to": "some"}})
+
+
+def test_the_declared_defaults_are_the_solvers():
+    """Where a solver keeps its own defaults (called without the procedure object), they
+    are the declared ones: docs/procedures.md and `calib procedures` print what is used."""
+    import dataclasses
+    import inspect
+
+    from calib_core.solvers.centrifuge_model import CentrifugeSettings
+    from calib_core.solvers.equipment_free import EQUIPMENT_FREE_DEFAULTS
+    from calib_core.solvers.multi_position import MULTI_POSITION_DEFAULTS
+    from calib_core.solvers.rate_table import rate_point
+
+    assert BY_NAME["multi_position"].settings.defaults() == MULTI_POSITION_DEFAULTS
+    assert BY_NAME["equipment_free"].settings.defaults() == EQUIPMENT_FREE_DEFAULTS
+    fields = {f.name: f.default for f in dataclasses.fields(CentrifugeSettings)}
+    declared = BY_NAME["centrifuge"].settings.defaults()
+    shared = {k for k in declared if fields.get(k, dataclasses.MISSING) is not dataclasses.MISSING}
+    assert shared >= {"alpha", "t_test", "steer", "iterations", "zero_shift_limit"}
+    assert {k: declared[k] for k in shared} == {k: fields[k] for k in shared}
+    signature = inspect.signature(rate_point).parameters
+    for key in ("settle_s", "record_s"):
+        assert BY_NAME["rate_table"].settings.defaults()[key] == signature[key].default
