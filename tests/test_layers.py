@@ -212,3 +212,15 @@ def test_the_cycle_finder_finds_a_deferred_loop() -> None:
     assert import_cycles(graph) == [["pipelines.web.app", "pipelines.web.runs"]]
     graph["pipelines.web.runs"] = _import_edges(runs, "pipelines.web.runs", known, False)
     assert import_cycles(graph) == []
+
+
+def test_one_class_name_per_concept() -> None:
+    """No two production modules define a class of the same name: a name that means two
+    things (a manifest record and a Type B spec, a measured plateau and a planned step, a
+    segment's stretch of samples and a recalibration interval) is a reader's trap."""
+    where: dict[str, list[str]] = {}
+    for module, path in production_modules().items():
+        for node in ast.parse(path.read_text("utf-8")).body:
+            if isinstance(node, ast.ClassDef):
+                where.setdefault(node.name, []).append(module)
+    assert {name: mods for name, mods in where.items() if len(mods) > 1} == {}
