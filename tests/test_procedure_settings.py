@@ -136,6 +136,20 @@ def test_the_manifest_names_its_file_and_the_key():
         parse_manifest(_manifest_text("static_bias", {"n_sigma": -3}), "run.toml")
 
 
+def test_the_manifest_names_the_line_of_the_key():
+    for settings, key, line in (
+        ({"turns": 0}, "run.settings.turns", "turns = 0"),
+        ({"outliers": {"n_sigm": 4}}, "run.settings.outliers.n_sigm", "n_sigm = 4"),
+    ):
+        text = _manifest_text("six_position_integral", settings)
+        lines = text.splitlines()
+        with pytest.raises(IngestError) as err:
+            parse_manifest(text, "run.toml")
+        number = err.value.line
+        assert number is not None and lines[number - 1].strip() == line, (text, number)
+        assert str(err.value).startswith(f"run.toml line {number}: field '{key}': ")
+
+
 def test_process_refuses_the_run_cleanly(tmp_path: Path):
     rng = np.random.default_rng(4)
     sim = six_position_integral_run(random_errors(rng), rng)
