@@ -161,8 +161,9 @@ def check_conditions(
         ``resolution_bits`` and ``settle_s`` (before each attitude); None or absent: not
         recorded.
     procedure : the run's procedure (or its name): its ``conditions`` are the ones judged.
-    settings : the run's settings; a rate table's ``settle_s`` / ``record_s`` are the
-        plateau's settle and record times (the solver drops the settle).
+    settings : the run's settings (the procedure's defaults are filled in); a rate table's
+        ``settle_s`` / ``record_s`` are the plateau's settle and record times (the solver
+        drops the settle); a procedure without ``settle_s`` drops none.
     gravity : the gravity used, m/s^2.
     gravity_source : how it was obtained ("Helmert at 48.137 deg, 519 m"); None when it is
         the standard value for want of the site's (a warning).
@@ -181,7 +182,8 @@ def check_conditions(
         )
     )
     out.append(_gravity_check(conds["gravity"], gravity, gravity_source))
-    out += _acquisition_checks(segments, recorded, settings, conds)
+    # The procedure's settings as its solver uses them: a rate table's settle_s default.
+    out += _acquisition_checks(segments, recorded, proc.settings.merged(settings), conds)
     out += _temperature_checks(segments, conds)
     applies = {CONDITION_PREFIX + key for key in proc.condition_keys()}
     return [c for c in out if c.name in applies]
@@ -217,10 +219,13 @@ def _acquisition_checks(
     ]
     plateaus = {k: r for k, r in segments.items() if plateau_rate(r) is not None}
     attitudes = {k: r for k, r in segments.items() if k not in plateaus and not is_rotation(k)}
-    settle = float(settings.get("settle_s", 20.0))
+    # The settle its solver drops from each plateau; a procedure without one drops none.
+    given = settings.get("settle_s") if plateaus else None
+    settle = 0.0 if given is None else float(given)
     records = [(r.duration, k) for k, r in attitudes.items()]
-    if plateaus:
+    if given is not None:
         out.append(judge(conds["settle_rate_s"], settle, "the solver drops it from each plateau"))
+    if plateaus:
         window = settings.get("record_s")
         records += [
             (min(r.duration - settle, float(window or math.inf)), k) for k, r in plateaus.items()

@@ -144,7 +144,7 @@ def in_tolerance_probability(
 
 
 @dataclass(frozen=True)
-class Interval:
+class RecalibrationInterval:
     """The recalibration interval of one parameter.
 
     days : the largest T (days) with R(T) >= reliability, capped at max_days.
@@ -170,7 +170,7 @@ def interval(
     *,
     max_days: float = 1826.0,
     walk_var_per_day: float = 0.0,
-) -> Interval:
+) -> RecalibrationInterval:
     """The interval of one parameter (module docstring); a day grid, then bisection to
     0.01 day (R(T) falls monotonically once the predicted value heads out)."""
     if not 0.0 < reliability < 1.0:
@@ -187,12 +187,14 @@ def interval(
     ok = r(grid) >= reliability
     rate_std = math.sqrt(max(line.rate_var, 0.0))
     if ok.all():
-        return Interval(float(max_days), True, float(r(max_days)), rate, rate_std, reliability)
+        return RecalibrationInterval(
+            float(max_days), True, float(r(max_days)), rate, rate_std, reliability
+        )
     first_bad = int(np.argmin(ok))
     if first_bad == 0:
-        return Interval(0.0, False, float(r(0.0)), rate, rate_std, reliability)
+        return RecalibrationInterval(0.0, False, float(r(0.0)), rate, rate_std, reliability)
     lo, hi = grid[first_bad - 1], grid[first_bad]
     while hi - lo > 0.01:
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if r(mid) >= reliability else (lo, mid)
-    return Interval(float(lo), False, float(r(lo)), rate, rate_std, reliability)
+    return RecalibrationInterval(float(lo), False, float(r(lo)), rate, rate_std, reliability)

@@ -250,11 +250,11 @@ def static_model(
     spec: EquipmentSpec,
 ) -> Model:
     """The six-position procedures' model: gravity and face angles through the static fits,
-    turn angles through the integral; only for the least-squares linear accelerometer fit."""
-    default = (
-        settings.get("accel_solver", "least_squares") == "least_squares"
-        and settings.get("accel_model", "linear") == "linear"
-    )
+    turn angles through the integral; only for the least-squares linear accelerometer fit.
+
+    `settings` carry the procedure's defaults (calib_core.run_budget fills them in).
+    """
+    default = settings["accel_solver"] == "least_squares" and settings["accel_model"] == "linear"
     if not default:
         return (
             None,

@@ -127,12 +127,12 @@ def _noise_model(
 ) -> str:
     """The kalibr / openvins file of a static-bias run (pipelines.nav_exports)."""
     run = doc["run"]
-    if cal.procedure != "static_bias":
+    try:  # what the run's solver left in info decides, not the procedure's name
+        nav = nav_noise(cal.info)
+    except ValueError as exc:
         raise ValueError(
-            f"--format {fmt} needs a static-bias (Allan) run; run {run['run_id']} is a "
-            f"{cal.procedure!r} run"
-        )
-    nav = nav_noise(cal.info)
+            f"--format {fmt}: run {run['run_id']} is a {cal.procedure!r} run; {exc}"
+        ) from None
     rate = nav.sample_rate_hz if update_rate_hz is None else float(update_rate_hz)
     header = _header(doc, None, [f"run warning: {w}" for w in cal.warnings])
     header = header.replace("\nthermal model: none", "")  # a noise model has no thermal part

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
-from dataclasses import replace
+from dataclasses import asdict, replace
 from datetime import UTC, date, datetime, timedelta, timezone
 from pathlib import Path
 
@@ -339,6 +339,19 @@ def test_naive_datetime_is_refused(archive: Archive, tmp_path: Path) -> None:
     run = replace(make_run(tmp_path / "in"), started_at=datetime(2024, 5, 1, 8, 30))
     with pytest.raises(ValueError, match="started_at: expected a time-zone-aware"):
         archive_run(archive, run)
+
+
+def test_the_archive_boundary_takes_objects_not_dicts(archive: Archive, tmp_path: Path) -> None:
+    """Parameters, checks and steps cross into storage as calib_core objects: a dict (the
+    old untyped boundary) is refused by name before anything is written."""
+    run = make_run(tmp_path / "in")
+    kinds = {"parameters": "Parameter", "checks": "CheckResult", "steps": "StepRecord"}
+    for name, kind in kinds.items():
+        dicts = [asdict(item) for item in getattr(run, name)]
+        with pytest.raises(TypeError, match=rf"^{name}\[0\]: expected a {kind}, got dict$"):
+            archive_run(archive, replace(run, **{name: dicts}))
+    assert set(counts(archive).values()) == {0}
+    assert archive_run(archive, run).status == "ok"
 
 
 @pytest.mark.parametrize("workers", [2, 4])

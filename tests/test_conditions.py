@@ -185,6 +185,21 @@ def test_table_rate_stability_and_deviation_per_plateau():
     assert _status(short_settle["settle_rate_s"]) == "fail"
 
 
+def test_a_settle_is_judged_only_where_the_solver_drops_one():
+    """A rate table drops its settle_s (declared default 20 s) from each plateau: judged, and
+    the record is what follows it. A centrifuge's solver drops none: no settle rule, each
+    step's record is whole (30 s here, not 30 - 20)."""
+    plateaus = [_plateau("z_+100", 100.0, 0.01), _plateau("z_-100", -100.0, 0.01)]
+    table = _checks(plateaus, procedure="rate_table")
+    assert table["settle_rate_s"].value == 20.0 and table["settle_rate_s"].passed
+    assert table["record_s"].value == pytest.approx(10.0)
+    steps = [_plateau("xp_step_10g", 200.0, 0.01), _plateau("xp_step_20g", 280.0, 0.01)]
+    centrifuge = _checks(steps, procedure="centrifuge", settings={"latitude_deg": 50.0})
+    assert "settle_rate_s" not in centrifuge
+    assert centrifuge["record_s"].value == pytest.approx(30.0) and centrifuge["record_s"].passed
+    assert centrifuge["table_rate_stability_dps"].passed
+
+
 def test_not_recorded_is_no_pass_and_no_failure():
     checks = _checks([_static("x_up")], {k: None for k in RECORDED_OK}, source=None)
     for key in (

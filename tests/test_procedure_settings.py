@@ -99,6 +99,22 @@ def test_the_solver_refuses_a_misspelt_setting_instead_of_ignoring_it():
         solve("six_position_integral", run.segments, run.gravity, {"accel_solvr": "kalman"})
 
 
+def test_a_setting_of_another_procedure_names_whose_it_is():
+    """A static-bias key in a six-position run (or a run given the wrong procedure) is
+    refused, and the refusal says which procedure declares it."""
+    with pytest.raises(SettingError) as err:
+        procedures.validate_settings("six_position_integral", {"up_axis": "-z"})
+    assert str(err.value).startswith(
+        "run.settings.up_axis: unknown setting of six_position_integral; expected one of "
+    )
+    assert str(err.value).endswith("; up_axis is a setting of static_bias")
+    with pytest.raises(
+        SettingError,
+        match=r"turns is a setting of six_position_integral, integral and sensor_array$",
+    ):
+        solve("rate_table", {}, 9.81, {"turns": 2})
+
+
 def _manifest_text(procedure: str, settings: dict) -> str:
     doc = six_position_manifest("SET-1")
     doc["run"] = {**doc["run"], "procedure": procedure, "settings": settings}
@@ -118,6 +134,20 @@ def test_the_manifest_names_its_file_and_the_key():
         r"got -3",
     ):
         parse_manifest(_manifest_text("static_bias", {"n_sigma": -3}), "run.toml")
+
+
+def test_the_manifest_names_the_line_of_the_key():
+    for settings, key, line in (
+        ({"turns": 0}, "run.settings.turns", "turns = 0"),
+        ({"outliers": {"n_sigm": 4}}, "run.settings.outliers.n_sigm", "n_sigm = 4"),
+    ):
+        text = _manifest_text("six_position_integral", settings)
+        lines = text.splitlines()
+        with pytest.raises(IngestError) as err:
+            parse_manifest(text, "run.toml")
+        number = err.value.line
+        assert number is not None and lines[number - 1].strip() == line, (text, number)
+        assert str(err.value).startswith(f"run.toml line {number}: field '{key}': ")
 
 
 def test_process_refuses_the_run_cleanly(tmp_path: Path):
@@ -190,3 +220,26 @@ def test_the_tables_are_the_steps_own_keys():
         r"'static', 'all', got 'some'",
     ):
         procedures.validate_settings("rate_table", {"lowpass": {"apply_to": "some"}})
+
+
+def test_the_declared_defaults_are_the_solvers():
+    """Where a solver keeps its own defaults (called without the procedure object), they
+    are the declared ones: docs/procedures.md and `calib procedures` print what is used."""
+    import dataclasses
+    import inspect
+
+    from calib_core.solvers.centrifuge_model import CentrifugeSettings
+    from calib_core.solvers.equipment_free import EQUIPMENT_FREE_DEFAULTS
+    from calib_core.solvers.multi_position import MULTI_POSITION_DEFAULTS
+    from calib_core.solvers.rate_table import rate_point
+
+    assert BY_NAME["multi_position"].settings.defaults() == MULTI_POSITION_DEFAULTS
+    assert BY_NAME["equipment_free"].settings.defaults() == EQUIPMENT_FREE_DEFAULTS
+    fields = {f.name: f.default for f in dataclasses.fields(CentrifugeSettings)}
+    declared = BY_NAME["centrifuge"].settings.defaults()
+    shared = {k for k in declared if fields.get(k, dataclasses.MISSING) is not dataclasses.MISSING}
+    assert shared >= {"alpha", "t_test", "steer", "iterations", "zero_shift_limit"}
+    assert {k: declared[k] for k in shared} == {k: fields[k] for k in shared}
+    signature = inspect.signature(rate_point).parameters
+    for key in ("settle_s", "record_s"):
+        assert BY_NAME["rate_table"].settings.defaults()[key] == signature[key].default

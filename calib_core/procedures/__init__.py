@@ -88,9 +88,20 @@ def validate_settings(procedure: str, settings: Mapping[str, Any]) -> dict[str, 
 
     Returns the procedure's own settings with defaults filled in. Raises SettingError (a
     ValueError) naming the key: unknown (with the closest valid one), wrong type or out of
-    bounds (with the value and the allowed range).
+    bounds (with the value and the allowed range). An unknown key with no valid one close to
+    it that another procedure declares says whose it is (a run written for another
+    procedure, or the wrong procedure).
     """
-    return get(procedure).validate(settings)
+    proc = get(procedure)
+    try:
+        return proc.validate(settings)
+    except SettingError as exc:
+        owners = [p.name for p in ALL if p is not proc and exc.key in p.settings]
+        # Only where no valid key is close: a near one is the likelier meaning.
+        if "; expected one of " not in exc.problem or not owners:
+            raise
+        whose = ", ".join(owners[:-1]) + " and " * (len(owners) > 1) + owners[-1]
+        raise SettingError(exc.key, f"{exc.problem}; {exc.key} is a setting of {whose}") from None
 
 
 def solve(
@@ -117,7 +128,7 @@ def solve(
     m/s^2, missing segments, or a parameter beyond physical bounds (with what to check).
     """
     proc = get(procedure)
-    proc.validate(settings or {})
+    validate_settings(procedure, settings or {})
     if not (9.7 < gravity < 9.9):
         raise ValueError(f"gravity must be the local value in m/s^2 (9.7..9.9), got {gravity!r}")
     cal = proc.solver(segments, gravity, settings)

@@ -62,7 +62,7 @@ def solve_rate_table_procedure(
     cal = solve_rate_table(
         points,
         full_scale=None if full is None else float(full) * DEG,
-        gyro_bias=str(s.get("gyro_bias", "joint")),
+        gyro_bias=str(s["gyro_bias"]),
         static_bias=given,
     )
     cal.gravity = gravity

@@ -362,7 +362,7 @@ def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
     except RecursionError:
         raise _too_deep(text, source) from None
     check_segments(manifest, source)
-    check_settings(manifest, source)
+    check_settings(manifest, source, text)
     return manifest
 
 
@@ -394,18 +394,39 @@ def _longest_number(text: str) -> tuple[int, int | None]:
     return max(runs) if runs else (0, None)
 
 
-def check_settings(manifest: RunManifest, source: str = "run.toml") -> None:
+def check_settings(manifest: RunManifest, source: str = "run.toml", text: str = "") -> None:
     """The whole ``[run.settings]`` against the procedure's settings and the preprocessing
     tables (calib_core.procedures): an unknown key (with the closest valid one), a wrong type
-    or a value out of bounds is an IngestError naming the file and the key. An unknown
-    procedure is left to the solve, which names the known ones."""
-    proc = procedures.BY_NAME.get(manifest.run.procedure)
-    if proc is None:
+    or a value out of bounds is an IngestError naming the file, the key and, found in the
+    manifest's `text`, its line. An unknown procedure is left to the solve, which names the
+    known ones."""
+    if manifest.run.procedure not in procedures.BY_NAME:
         return
     try:
-        proc.validate(manifest.run.settings)
+        procedures.validate_settings(manifest.run.procedure, manifest.run.settings)
     except procedures.SettingError as exc:
-        raise IngestError(exc.problem, file=source, field=f"run.settings.{exc.key}") from None
+        raise IngestError(
+            exc.problem,
+            file=source,
+            line=_setting_line(text, exc.key),
+            field=f"run.settings.{exc.key}",
+        ) from None
+
+
+def _setting_line(text: str, key: str) -> int | None:
+    """1-based line of a ``[run.settings]`` key (dotted below it: "outliers.n_sigma") written
+    under its table's header; None for other spellings (inline tables, dotted keys)."""
+    *table, last = key.split(".")
+    header = ".".join(["run", "settings", *table])
+    assigns = re.compile(rf"""["']?{re.escape(last)}["']?\s*=""")
+    inside = False
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.split("#", 1)[0].strip()
+        if stripped.startswith("["):
+            inside = stripped.strip("[]").strip() == header
+        elif inside and assigns.match(stripped):
+            return number
+    return None
 
 
 def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:
