@@ -21,8 +21,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from calib_core.calibration import StepRecord
-from calib_core.reference_errors import ReferenceError, correct_segments
+from calib_core.reference_errors import ReferenceError
+from pipelines.lab import customer_name
+from pipelines.reference_correction import corrector
 from storage import queries
 from storage.db import Archive
 
@@ -117,85 +118,6 @@ def _check_changes(summary: dict[str, Any], after: dict[str, dict]) -> list[dict
     return out
 
 
-def correction_step(
-    equipment_serial: str,
-    kind: str,
-    error: ReferenceError,
-    stats: dict[str, Any],
-    impact: dict | None,
-) -> StepRecord:
-    """The step record of a corrected solve: the correction (settings) and what it did."""
-    return StepRecord(
-        "reference_correction",
-        settings={
-            "equipment_serial": equipment_serial,
-            "equipment_kind": kind,
-            "quantity": error.quantity,
-            "value": error.value,
-            "unit": error.unit,
-            **({"face": error.face, "about": error.about} if error.face else {}),
-        },
-        statistics={**stats, **({"impact": impact} if impact is not None else {})},
-    )
-
-
-def _corrector(
-    equipment_serial: str,
-    kind: str,
-    error: ReferenceError,  # noqa: ANN202
-    impact: dict | None = None,
-):
-    def correct(loaded):  # noqa: ANN001, ANN202 - a LoadedRun in, (LoadedRun, StepRecord) out
-        segments, stats = correct_segments(loaded.segments, error)
-        loaded = replace(loaded, segments=segments)
-        if error.quantity == "temperature_offset_c":
-            loaded, stats = _corrected_temperature(loaded, error, stats)
-        step = correction_step(equipment_serial, kind, error, stats, impact)
-        return loaded, step
-
-    return correct
-
-
-def _corrected_temperature(loaded, error: ReferenceError, stats: dict[str, Any]):  # noqa: ANN001, ANN202
-    """The run's recorded temperature (environment.temperature_c, the chamber's reading)
-    as it truly was: reading - E. It is the temperature of the run's parameters in the
-    archive, the lab conditions' and a thermal campaign's (pipelines.thermal_campaign)."""
-    env = loaded.manifest.environment
-    t = env.temperature_c
-    if t is None:
-        if stats["what"].endswith("degC"):  # no chamber channel either
-            return loaded, {
-                **stats,
-                "affected": False,
-                "what": "the run recorded no chamber temperature (environment.temperature_c, "
-                "chamber_temperature channel)",
-            }
-        return loaded, stats
-    after = float(t) - error.value
-    manifest = loaded.manifest.model_copy(
-        update={"environment": env.model_copy(update={"temperature_c": after})}
-    )
-    stats = {
-        **stats,
-        "what": f"{stats['what']}; recorded temperature {t:g} -> {after:g} degC",
-        "temperature_c": {"before": float(t), "after": after},
-    }
-    return replace(loaded, manifest=manifest), stats
-
-
-def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corrector or None
-    """The reference correction of the run's current revision, to apply again when the run
-    is reprocessed (new software must not drop it), or None when it has none."""
-    settings = queries.run_summary(archive, run_id)["calibration"].get("settings") or {}
-    held = settings.get("reference_correction")
-    if not held:
-        return None
-    error = ReferenceError(
-        str(held["quantity"]), float(held["value"]), held.get("face"), held.get("about")
-    )
-    return _corrector(str(held["equipment_serial"]), str(held["equipment_kind"]), error)
-
-
 def resolve_run(
     archive: Archive, run_id: str, equipment_serial: str, kind: str, error: ReferenceError
 ) -> dict[str, Any]:
@@ -212,7 +134,7 @@ def resolve_run(
 
     with tempfile.TemporaryDirectory(prefix=f"impact_{run_id}_") as tmp:
         loaded = load_run(restore_run(archive, run_id, Path(tmp) / run_id, link=True))
-    loaded, step = _corrector(equipment_serial, kind, error)(loaded)
+    loaded, step = corrector(equipment_serial, kind, error)(loaded)
     out: dict[str, Any] = {"affected": step.statistics["affected"], "what": step.statistics["what"]}
     if "temperature_c" in step.statistics:
         out["temperature_c"] = step.statistics["temperature_c"]
@@ -229,17 +151,6 @@ def resolve_run(
         "values_after": {n: p.value for n, p in cal.parameters.items()},
         "checks_after": {c.name: c.to_dict() for c in judged.checks},
     }
-
-
-def customer_name() -> str | None:
-    """The customer of the lab profile (pipelines.lab), the one place it is recorded."""
-    from pipelines.lab import load_lab_profile
-
-    try:
-        found = load_lab_profile()
-    except ValueError:
-        return None
-    return None if found is None else found[0].get("customer", {}).get("name")
 
 
 def impact(
@@ -336,7 +247,7 @@ def _apply(
         archive,
         run_id,
         reason=reason,
-        correct=_corrector(equipment_serial, run["equipment_kind"], error, record),
+        correct=corrector(equipment_serial, run["equipment_kind"], error, record),
     )
     got = {"status": outcome["status"]}
     if outcome["status"] == "failed":

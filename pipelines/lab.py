@@ -140,3 +140,13 @@ def lab_site() -> tuple[dict[str, float], Path] | None:
         return None
     doc, path = found
     return {k: float(doc["site"][k]) for k in ("latitude_deg", "height_m")}, path
+
+
+def customer_name() -> str | None:
+    """The customer of the lab profile, the one place it is recorded; None when the lab
+    file names none or cannot be read."""
+    try:
+        found = load_lab_profile()
+    except ValueError:
+        return None
+    return None if found is None else found[0].get("customer", {}).get("name")

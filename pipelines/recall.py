@@ -102,7 +102,7 @@ def recall_list(
 ) -> list[dict[str, Any]]:
     """Every unit with its last calibration, interval, due date; only those due on or before
     `before` when given (only `serial` when given), earliest due first."""
-    from pipelines.impact import customer_name
+    from pipelines.lab import customer_name
     from pipelines.tolerances import load_profile
 
     units = queries.units(archive)

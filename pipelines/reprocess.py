@@ -146,8 +146,8 @@ def reprocess_run(
     ------
     ReprocessError when the archive cannot give the run back (`restore_run`).
     """
-    from pipelines.impact import carried_correction
     from pipelines.process import process_run
+    from pipelines.reference_correction import carried_correction
 
     if correct is None:
         try:
