@@ -255,3 +255,28 @@ def test_audit_is_a_table_at_80_columns(archived, tmp_path, monkeypatch) -> None
     piped = _run("audit", "--archive", str(arch.root)).splitlines()
     events = [line.split("\t") for line in piped if "\t" in line]
     assert [e[3] for e in events if e[3] in ("archived", "approved")] == ["archived", "approved"]
+
+
+def test_a_table_too_wide_for_80_columns_folds_no_word(capsys, monkeypatch) -> None:
+    """`print_table` leaves out columns from the right until every word (a date) and every
+    no-wrap cell (an id, a verdict) fits whole, then fixes the widths: rich alone folded
+    the due date "2027-11-28" into "2027-11-2" and "8" here."""
+    from pipelines import cli_shared
+
+    monkeypatch.setattr(cli_shared.out, "width", WIDTH)
+    monkeypatch.setitem(cli_shared.DISPLAY, "wide", False)
+    columns = ["serial", "run_id", "verdict", "due", "started_at", "interval_months"]
+    rows = [
+        ["MPU0001", "Rcc38f1e80ffb", "pass", "2027-11-28", "2026-11-28 02:41:14 UTC", "12"],
+        ["IMU-R-0003", "Rb44a549cd3e8", "needs review", "2030-06-08", "2026-11-03 09:00 UTC", "43"],
+    ]
+    cli_shared.print_table("Units due", columns, rows)
+    done = capsys.readouterr()
+    lines = done.out.splitlines()
+    assert max(len(line) for line in lines) <= WIDTH
+    for row in rows:
+        line = next(line for line in lines if row[1] in line)
+        assert row[0] in line and row[2] in line and row[3] in line, line
+    for word in ("2026-11-28", "2026-11-03", "02:41:14"):
+        assert word in done.out, word
+    assert "interval_months" in done.err  # left out, and named

@@ -16,7 +16,7 @@ from fastapi.responses import HTMLResponse
 from calib_core import drift, params
 from calib_core.thermal import ThermalModel
 from calib_core.tolerances import ToleranceProfile
-from pipelines.reports.display import shown
+from pipelines.reports.display import limit_text, shown
 from pipelines.tolerances import load_profile
 from pipelines.trends import TREND_MIN_RUNS, pooled_runs
 from pipelines.web import forms, svg
@@ -127,8 +127,8 @@ class Series:
                 r["started_at"],
                 r["value"] * scale,
                 None if r["std"] is None else r["std"] * scale,
-                f"{r['run_id']} {r['started_at']:%Y-%m-%d}: {r['value'] * scale:.6g} "
-                f"{unit} ({r['verdict']})",
+                f"{r['run_id']} {r['started_at']:%Y-%m-%d}: "
+                f"{shown(self.name, r['value'], r['std']).value} {unit} ({r['verdict']})",
                 lineage_url(r["run_id"], self.name),
                 r["verdict"] != "pass",
             )
@@ -157,10 +157,12 @@ def _band_text(low: float, high: float) -> str:
     if not (math.isfinite(low) or math.isfinite(high)):
         return "-"
     if low == -high:
-        return f"± {high:.3g}"
+        return f"± {limit_text(high)}"
     if not math.isfinite(low):
-        return f"<= {high:.3g}"
-    return f">= {low:.3g}" if not math.isfinite(high) else f"{low:.3g} .. {high:.3g}"
+        return f"<= {limit_text(high)}"
+    if not math.isfinite(high):
+        return f">= {limit_text(low)}"
+    return f"{limit_text(low)} .. {limit_text(high)}"
 
 
 def _t95(dof: int) -> float:
