@@ -280,3 +280,28 @@ def test_a_table_too_wide_for_80_columns_folds_no_word(capsys, monkeypatch) -> N
     for word in ("2026-11-28", "2026-11-03", "02:41:14"):
         assert word in done.out, word
     assert "interval_months" in done.err  # left out, and named
+
+
+def test_fleet_commands_speak_the_display_unit(archived) -> None:
+    """`calib query fleet` (its table and its median line) and `calib fleet` give the
+    value in the unit `calib show` uses, not SI."""
+    from pipelines.reports.display import quantity
+
+    arch, run_id = archived
+    name = "gyr.bias.z"
+    p = next(
+        p
+        for p in queries.run_summary(arch, run_id)["calibration"]["parameters"]
+        if p["name"] == name
+    )
+    s = shown(name, p["value"], p["std"])
+    a = ["--archive", str(arch.root)]
+    table = _run("query", "fleet", "MPU-6000", name, *a)
+    row = next(line for line in table.splitlines() if run_id in line)
+    assert s.value in row and s.u in row, row
+    assert f"median {quantity(name, p['value'])}" in table and "deg/s" in table
+    bins = _run("fleet", "MPU-6000", name, *a)
+    assert quantity(name, p["value"]) in bins, bins
+    assert f"{name} across MPU-6000 (deg/s)" in bins
+    for text in (table, bins):
+        assert "rad/s" not in text and "nan" not in text, text

@@ -251,8 +251,21 @@ def trend(
     if as_json:
         print_json({"summary": rep["summary"], "rows": frame_records(rep["table"])})
         return
-    print_frame(rep["table"], f"{param} of {serial}")
-    print_facts(rep["summary"], f"Trend of {param}", paths=("plot",))
+    from pipelines.reports.display import STANDARD_U, quantity, shown
+
+    table = rep["table"].copy()  # SI: in the display unit, as `calib show` prints it
+    texts = [shown(param, v, u) for v, u in zip(table["value"], table["std"], strict=True)]
+    table["value"] = [t.value for t in texts]
+    table["std"] = [t.u or "-" for t in texts]
+    table["fitted"] = [quantity(param, v) for v in table["fitted"]]
+    table["unit"] = [t.unit for t in texts]
+    print_frame(table.rename(columns={"std": STANDARD_U}), f"{param} of {serial}")
+    summary = dict(rep["summary"])
+    summary["unit"] = shown(param, 0.0).unit
+    for key in ("slope_per_year", "slope_std_per_year"):
+        summary[key] = quantity(param, summary[key], 3)
+    summary["tolerance"] = " .. ".join(quantity(param, v, 4) for v in summary["tolerance"])
+    print_facts(summary, f"Trend of {param}", paths=("plot",))
 
 
 @app.command("fleet")
@@ -271,6 +284,11 @@ def fleet(
     if as_json:
         print_json(frame_records(table))
         return
-    print_frame(table, f"{param} across {model}")
+    from pipelines.reports.display import quantity, shown
+
+    table = table.copy()  # SI: in the display unit, as `calib show` prints it
+    for column in ("mean", "std", "median", "p05", "p95", "low", "high"):
+        table[column] = [quantity(param, v) for v in table[column]]
+    print_frame(table, f"{param} across {model} ({shown(param, 0.0).unit})")
     if plot is not None:
         err.print(f"plot: {plot}")
