@@ -305,3 +305,12 @@ def test_fleet_commands_speak_the_display_unit(archived) -> None:
     assert f"{name} across MPU-6000 (deg/s)" in bins
     for text in (table, bins):
         assert "rad/s" not in text and "nan" not in text, text
+
+
+def test_protocol_and_certificate_show_no_raw_values(reported) -> None:
+    """The archived documents a lab signs: no None, nan, Python repr or raw JSON."""
+    raw = re.compile(r"\bNone\b|\bnan\b|\bNaN\b|\{'|\{\"|\['|\bTrue\b|\bFalse\b")
+    html = re.sub(r"<style.*?</style>|<[^>]+>", " ", reported["certificate"], flags=re.S)
+    for where, text in (("protocol", reported["protocol"]), ("certificate", html)):
+        found = [text[max(0, m.start() - 40) : m.end() + 40] for m in raw.finditer(text)]
+        assert not found, (where, found)

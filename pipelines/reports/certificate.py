@@ -330,7 +330,7 @@ def _procedure_section(run: _Archived) -> Section:
                 label,
                 str(len(ts)),
                 f"{ts[-1] - ts[0]:.1f}" if len(ts) else "-",
-                f"{rate:.1f}",
+                f"{rate:.1f}" if np.isfinite(rate) else "-",
                 "verification" if label in run.held_out else "fit",
             ]
         )
