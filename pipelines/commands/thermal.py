@@ -281,8 +281,8 @@ def trend(
     print_frame(table.rename(columns={"std": STANDARD_U}), f"{param} of {serial}")
     summary = dict(rep["summary"])
     summary["unit"] = shown(param, 0.0).unit
-    for key in ("slope_per_year", "slope_std_per_year"):
-        summary[key] = quantity(param, summary[key], 3)
+    slope = shown(param, summary["slope_per_year"], summary["slope_std_per_year"])
+    summary["slope_per_year"], summary["slope_std_per_year"] = slope.value, slope.u or "-"
     summary["tolerance"] = " .. ".join(quantity(param, v, 4) for v in summary["tolerance"])
     print_facts(summary, f"Trend of {param}", paths=("plot",))
 
