@@ -314,3 +314,16 @@ def test_protocol_and_certificate_show_no_raw_values(reported) -> None:
     for where, text in (("protocol", reported["protocol"]), ("certificate", html)):
         found = [text[max(0, m.start() - 40) : m.end() + 40] for m in raw.finditer(text)]
         assert not found, (where, found)
+
+
+def test_an_uncertainty_alone_and_a_signed_value() -> None:
+    """A budget's contribution is written as every u (two significant digits, fixed point,
+    display unit); the protocol's values carry their sign."""
+    from pipelines.reports.display import uncertainty
+
+    assert uncertainty("gyr.bias.x", 0.000384 * DEG) == "0.00038"
+    assert uncertainty("gyr.scale.x", 2.87e-5) == "0.000029"  # not 2.9e-05
+    assert uncertainty("gyr.scale.x", None) == "-"
+    assert shown("acc.scale.x", 0.0051, 2.1e-5).signed == "+0.005100"
+    assert shown("acc.scale.x", -0.0225, 1.9e-5).signed == "-0.022500"
+    assert shown("acc.scale.x", None).signed == "-"

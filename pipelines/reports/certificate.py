@@ -57,6 +57,7 @@ from pipelines.reports.display import (  # noqa: E402
     quantity,
     shown,
     tolerance_text,
+    uncertainty,
 )
 from pipelines.reports.protocol import (  # noqa: E402
     guard_band_of,
@@ -447,7 +448,7 @@ def _budget_section(run: _Archived) -> Section:
                     r["distribution"],
                     f"{r['std_input']:.3g} {r['unit']}".strip(),
                     f"{r['sensitivity']:.3g}",
-                    f"{shown(name, r['contribution']).value} {shown(name, 0.0).unit}",
+                    f"{uncertainty(name, r['contribution'])} {shown(name, 0.0).unit}",
                     "inf" if r["dof"] is None else f"{r['dof']:.0f}",
                 ]
             )

@@ -113,6 +113,12 @@ def quantity(
     return f"{v:{'+' if signed else ''}.{digits}g}"
 
 
+def uncertainty(name: str, u: float | None) -> str:
+    """An uncertainty of `name` alone (SI in), as `shown` writes one: two significant
+    digits, fixed point, display unit; "-" without one."""
+    return shown(name, 0.0, u).u or "-"
+
+
 def limit_text(limit: float) -> str:
     """A tolerance limit (already in its display unit) to LIMIT_DIGITS significant digits."""
     return f"{limit:.{LIMIT_DIGITS}g}"
