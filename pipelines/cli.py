@@ -243,10 +243,11 @@ def _print_run(summary: dict, root: Path) -> None:
     failed = [c for c in cal["checks"] if condition_status(c) == "fail"]
     if failed:
         rows = [
-            [c["name"], _num(c.get("value")), _num(c.get("limit")), cell(c.get("detail") or "")]
+            [c["name"], _num(c.get("value")), _limit(c.get("limit")), cell(c.get("detail") or "")]
             for c in failed
         ]
-        print_table("Failed checks", ["check", "value", "limit", "detail"], rows)
+        # in SI, as the archived detail beside them states them (the web page's table too)
+        print_table("Failed checks", ["check", "value (SI)", "limit (SI)", "detail"], rows)
     out.print(check_counts(cal["checks"]).sentence(), markup=False, highlight=False)
     noted = [c for c in cal["checks"] if condition_status(c) in (WARNING, NOT_RECORDED)]
     if noted:  # conditions that leave the verdict as it is
@@ -261,7 +262,15 @@ def _print_run(summary: dict, root: Path) -> None:
 
 
 def _num(value: float | None) -> str:
-    return "" if value is None else f"{value:.4g}"
+    from pipelines.reports.display import number
+
+    return "" if value is None else number(value)
+
+
+def _limit(value: float | None) -> str:
+    from pipelines.reports.display import limit_text
+
+    return "" if value is None else limit_text(value)
 
 
 @app.command()

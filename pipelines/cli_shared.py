@@ -350,11 +350,14 @@ def print_table(
             candidate.add_column(name.replace("_", " "), no_wrap=whole, overflow="fold")
         for row in rows:
             candidate.add_row(*(row[columns.index(n)] for n in shown))
-        # minimum: every cell's longest word on one line; maximum: no cell wrapped
+        # minimum: every cell's longest word on one line, a no-wrap cell whole;
+        # maximum: no cell wrapped
         need = candidate.__rich_measure__(out, out.options.update_width(10_000))
-        if DISPLAY["wide"] or need.minimum <= out.width or len(shown) <= 2:
+        if DISPLAY["wide"] or _minimum_width(candidate) <= out.width or len(shown) <= 2:
             break
         shown.pop()
+    if not DISPLAY["wide"]:
+        _fit(candidate, out.width)
     if facts:
         from rich.text import Text
 
@@ -372,6 +375,40 @@ def print_table(
         err.print(f"(not shown at this width: {hidden}; calib --wide shows every column)")
 
 
+def _width_ranges(table: Table) -> list[tuple[int, int]]:
+    """(narrowest, widest) of each column with its padding: the narrowest folds no word
+    and wraps no no-wrap cell (an id, a verdict), which rich's own minimum leaves out."""
+    options = out.options.update_width(10_000)
+    ranges = []
+    for column in table.columns:
+        m = table._measure_column(out, options, column)
+        ranges.append((m.maximum if column.no_wrap else m.minimum, m.maximum))
+    return ranges
+
+
+def _minimum_width(table: Table) -> int:
+    """The narrowest `table` can be with no word folded and no no-wrap cell wrapped."""
+    return table._extra_width + sum(lo for lo, _ in _width_ranges(table))
+
+
+def _fit(table: Table, width: int) -> None:
+    """Fix the columns' widths so that `table` is `width` wide and no column is narrower
+    than its longest word: each starts at its narrowest and gets a share of the room left
+    by what it could use more. (Rich shrinks the widest columns first, below their
+    longest word: a date folded as "2027-11-2" / "8".)"""
+    ranges = _width_ranges(table)
+    room = width - table._extra_width - sum(lo for lo, _ in ranges)
+    spare = sum(hi - lo for lo, hi in ranges)
+    if room < 0 or spare <= room:
+        return  # too narrow for any fit (rich folds), or wide enough as it is
+    widths = [lo + (hi - lo) * room // spare for lo, hi in ranges]
+    for i in sorted(range(len(widths)), key=lambda i: widths[i] - ranges[i][1]):
+        if sum(widths) < width - table._extra_width and widths[i] < ranges[i][1]:
+            widths[i] += 1  # what the rounding left, to the columns furthest from their widest
+    for column, w in zip(table.columns, widths, strict=True):
+        column.width = max(1, w - table._get_padding_width(column._index))
+
+
 def print_frame(df, title: str) -> None:
     """A DataFrame as a table that fits the terminal (`print_table`); columns with one
     value in every row (the serial and run of a run's parameters) are said once above it.
@@ -386,7 +423,7 @@ def print_frame(df, title: str) -> None:
     same = [c for i, c in enumerate(columns) if len(rows) > 1 and len({r[i] for r in rows}) == 1]
     if len(columns) - len(same) < 2:
         same = []
-    facts = "; ".join(f"{c.replace('_', ' ')}: {rows[0][columns.index(c)]}" for c in same)
+    facts = "; ".join(f"{c.replace('_', ' ')}: {rows[0][columns.index(c)] or '-'}" for c in same)
     keep = [i for i, c in enumerate(columns) if c not in same]
     print_table(title, [columns[i] for i in keep], [[r[i] for i in keep] for r in rows], facts)
 

@@ -37,6 +37,7 @@ from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.thermal import ThermalModel, shift_polynomial
 from calib_core.units import STANDARD_GRAVITY
+from pipelines.reports.display import quantity, shown
 
 EXPORT_FORMAT = "imu-calib-export"
 EXPORT_VERSION = 1
@@ -273,10 +274,12 @@ def unrepresented(
     for name in sorted(set(cal.parameters) - mapped):
         families.setdefault(name.rsplit(".", 1)[0], []).append(name)
     for family, names in families.items():
-        values = ", ".join(f"{n.rsplit('.', 1)[1]} {cal.value(n):.6g}" for n in names)
+        # the values as people read them (pipelines.reports.display): a comment, no number
+        # a firmware loads
+        values = ", ".join(f"{n.rsplit('.', 1)[1]} {shown(n, cal.value(n)).value}" for n in names)
         why = "not a correction" if family.endswith(".noise") else f"no {firmware} parameter"
         notes.append(
-            f"not exported ({why}): {family} [{params.UNITS[family]}]: {values}"
+            f"not exported ({why}): {family} [{shown(names[0], 0.0).unit}]: {values}"
             + _left_over(family, max(abs(cal.value(n)) for n in names))
         )
     if model is not None:
@@ -295,7 +298,8 @@ def _left_over(family: str, largest: float) -> str:
     if kind in ("scale", "misalign"):  # dimensionless: a share of the input
         return f" (up to {100 * largest:.2g} % of the input left uncorrected)"
     if kind == "gsens":  # (rad/s)/(m/s^2): a rate error under 1 g
-        return f" (up to {largest * STANDARD_GRAVITY:.2g} rad/s left uncorrected at 1 g)"
+        rate = quantity("gyr.bias.x", largest * STANDARD_GRAVITY, 2)
+        return f" (up to {rate} {shown('gyr.bias.x', 0.0).unit} left uncorrected at 1 g)"
     return ""
 
 
@@ -305,7 +309,8 @@ def _scales(cal: Calibration, lo_hi: tuple[float, float], firmware: str) -> np.n
     for a, v in zip(params.AXES, k, strict=True):
         if not lo_hi[0] < v <= lo_hi[1]:
             raise ValueError(
-                f"acc.scale.{a} = {cal.value(f'acc.scale.{a}'):.6g} gives a {firmware} scale of "
+                f"acc.scale.{a} = {shown(f'acc.scale.{a}', cal.value(f'acc.scale.{a}')).value} "
+                f"gives a {firmware} scale of "
                 f"{v:.6g}, outside the firmware's range {lo_hi[0]:g} .. {lo_hi[1]:g}"
             )
     return k
@@ -404,8 +409,9 @@ def ardupilot_calibration_parameters(
             value = float(m.value(name, t0)) if curve else cal.value(name)
             if sensor == "acc" and abs(value) > ARDUPILOT_OFFSET_MAX:
                 raise ValueError(
-                    f"{name} = {value:.6g} m/s^2 at the calibration temperature: outside "
-                    f"ArduPilot's INS_ACCOFFS range +-{ARDUPILOT_OFFSET_MAX:g} m/s^2"
+                    f"{name} = {shown(name, value).value} m/s^2 at the calibration "
+                    "temperature: outside ArduPilot's INS_ACCOFFS range "
+                    f"+-{ARDUPILOT_OFFSET_MAX:g} m/s^2"
                 )
             rows.append((f"{names[sensor]}_{a.upper()}", value))
     scale = _scales(cal, ARDUPILOT_SCALE_RANGE, "ArduPilot")

@@ -66,7 +66,14 @@ def trend_inputs(
 ) -> tuple[list[float], list[float], list[str]] | None:
     """(u_A, u_B, reference ids) of a parameter's trend points, or None when a point has
     no budget of it (the trend then stays an independent fit). u_A is the point's std."""
-    found = queries.run_references(archive, run_ids)
+    return trend_inputs_of(queries.run_references(archive, run_ids), run_ids, name, stds)
+
+
+def trend_inputs_of(
+    found: dict[str, dict[str, Any]], run_ids: list[str], name: str, stds: list[float | None]
+) -> tuple[list[float], list[float], list[str]] | None:
+    """`trend_inputs` from `storage.queries.run_references` already read (a page that
+    fits every parameter of a unit reads them once)."""
     u_a, u_b, refs = [], [], []
     for run_id, std in zip(run_ids, stds, strict=True):
         ref = found.get(run_id)

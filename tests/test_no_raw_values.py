@@ -66,7 +66,15 @@ def _commands(arch: Archive) -> list[list[str]]:
         ["trend", "IMU-R-0003", "acc.bias.z", *a],
         ["repeatability", "IMU-R-0003", *a],
         ["thermal", "show", "IMU-T-0007", *a],
+        ["query", "lineage", runs[-1], "gyr.bias.z", *a],
+        ["query", "due", *a],
+        ["procedures"],
+        ["procedures", "six_position"],
+        # a dry look-back: the one run of the sample archive on DAQ-12 in that week
+        ["impact", "DAQ-12", "--from", "2026-11-01", "--to", "2026-11-07"]
+        + ["--error", "clock_error_ppm=50", *a],
         ["audit", *a],
+        ["audit", "--format", "table", *a],
         ["verify", *a],
     ]
     return cmds
@@ -115,7 +123,7 @@ def test_no_page_shows_raw_values(sample_archive: Archive) -> None:
     ro = open_readonly(sample_archive)
     found: dict[str, list[str]] = {}
     seen: set[str] = set()
-    todo = ["/runs", "/models", "/equipment", "/units/IMU-T-0007", "/units/IMU-R-0003"]
+    todo = ["/", "/runs", "/models", "/equipment", "/due", "/units/IMU-T-0007", "/units/IMU-R-0003"]
     with TestClient(create_app_for(ro)) as client:
         while todo and len(seen) < MAX_PAGES:
             url = todo.pop(0)

@@ -300,6 +300,20 @@ def test_export_downloads_are_the_calib_export_files(client, serve_sample, tmp_p
     assert client.get("/runs/Rnothere0000/export.csv").status_code == 404
 
 
+def test_unit_page_drift_is_rounded_as_calib_trend_rounds_it(client, serve_sample):
+    """The drift per year on the unit page and in `calib trend`: one rounding (the u to two
+    significant digits, the slope to its place) of the same fit."""
+    from pipelines.reports.display import shown
+    from pipelines.trends import trend_report
+
+    page = get(client, f"/units/{DRIFT_SERIAL}?parameter=acc.bias.x")
+    row = re.search(r"acc\.bias\.x 4 \S+ \S+ m/s\^2 (\S+) ± (\S+)", page.body)
+    summary = trend_report(serve_sample.archive, DRIFT_SERIAL, "acc.bias.x")["summary"]
+    s = shown("acc.bias.x", summary["slope_per_year"], summary["slope_std_per_year"])
+    assert row and (row[1], row[2]) == (s.value, s.u), (row and row.group(), s)
+    assert len(s.u.lstrip("0.")) == 2  # two significant digits
+
+
 def test_unit_page_trend_recovers_the_simulated_drift(client, serve_sample):
     page = get(client, f"/units/{DRIFT_SERIAL}?parameter=acc.bias.x")
     # Drift per year of acc.bias.x (m/s^2, its display unit) with its standard uncertainty.

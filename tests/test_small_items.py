@@ -158,3 +158,22 @@ def test_chart_labels_never_overprint() -> None:
     assert all(b - a >= svg.LABEL_GAP for a, b in zip(ys, ys[1:], strict=False)), ys
     far = str(svg.trend_chart(points, title="t" * 120, unit="m/s^2", limits=(-50.0, 50.0)))
     assert re.search(r'y="29\.0" text-anchor="end" class="tick limit-text"', far), far
+
+
+def test_thermal_show_speaks_the_display_unit(campaign) -> None:
+    """`calib thermal show`: each curve's coefficients in the unit `calib show` uses for
+    the parameter (deg/s for a gyro bias), SI in --json."""
+    from pipelines.reports.display import quantity
+
+    root = str(campaign.root)
+    code, text = _invoke("thermal", "show", "IMU-T-0007", "--archive", root)
+    if code == 2:  # none fitted yet in this module's campaign
+        assert _invoke("thermal", "fit", "IMU-T-0007", "--archive", root)[0] == 0
+        code, text = _invoke("thermal", "show", "IMU-T-0007", "--archive", root)
+    assert code == 0, text
+    code, raw = _invoke("thermal", "show", "IMU-T-0007", "--archive", root, "--json")
+    curve = json.loads(raw)["document"]["curves"]["gyr.bias.x"]
+    assert curve["unit"] == "rad/s"
+    flat = " ".join(text.split())
+    assert quantity("gyr.bias.x", curve["coef"][0], 4) in flat and "(deg/s)" in flat
+    assert "rad/s" not in text

@@ -4,12 +4,33 @@ from __future__ import annotations
 
 import os
 import sys
+from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_archive, open_run, print_json
+from pipelines.cli_shared import (
+    ArchiveOpt,
+    app,
+    cell,
+    err,
+    fail,
+    open_archive,
+    open_run,
+    out,
+    print_json,
+    print_table,
+)
+
+
+class AuditFormat(StrEnum):
+    """How `calib audit` prints the events."""
+
+    table = "table"
+    tsv = "tsv"
+    json = "json"
+
 
 PASSPHRASE_ENV = "CALIB_KEY_PASSPHRASE"
 ApproversOpt = Annotated[
@@ -42,12 +63,20 @@ def audit(
     ] = None,
     archive: ArchiveOpt = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the events as JSON.")] = False,
+    fmt: Annotated[
+        AuditFormat | None,
+        typer.Option(
+            "--format",
+            help="table (default on a terminal), tsv (default when piped: one event a "
+            "line, tab-separated) or json.",
+        ),
+    ] = None,
     approvers: ApproversOpt = None,
 ) -> None:
     """Show the audit trail: who changed what in the archive, when and why (oldest first)."""
-    from pipelines.trust import NOT_CHECKED, approval_line
+    from pipelines.trust import NOT_CHECKED
     from storage import queries
-    from storage.approval import Approval, fingerprint
+    from storage.approval import Approval
 
     trust = load_trust(approvers)
     arch = open_archive(archive)
@@ -71,37 +100,77 @@ def audit(
             ev["approval"] = a if trust is None else trust.mark(a)
             ev["trusted"], ev["untrusted"] = ev["approval"].trusted, ev["approval"].untrusted
             approved += 1
-    if as_json:
+    fmt = AuditFormat.json if as_json else fmt
+    if fmt is None:  # a person at a terminal reads a table; a pipe gets one event a line
+        fmt = AuditFormat.table if out.is_terminal else AuditFormat.tsv
+    if fmt is AuditFormat.json:
         print_json([{k: v for k, v in ev.items() if k != "approval"} for ev in events])
         return
-    for ev in events:
+    if fmt is AuditFormat.table:
+        _print_table(events)
+    for ev in events if fmt is AuditFormat.tsv else ():
         what = ev["run_id"] + f" revision {ev['revision']}" if ev["run_id"] else ""
-        detail = ev["detail"] or {}
-        if ev["action"] == "approved":
-            what += (
-                f" {approval_line(ev['approval'])} "
-                f"(key {fingerprint(detail.get('public_key', ''))})"
-            )
-        elif ev["action"] == "certificate issued":  # pipelines.reports.issue
-            what += (
-                f" certificate {detail.get('certificate')} (issue {detail.get('issue')}, "
-                f"{len(detail.get('files') or {})} files sealed)"
-            )
-        elif detail:  # nested values are named, not printed raw (--json has them)
-            what += " " + ", ".join(
-                f"{k}={v}" if not isinstance(v, dict | list) else f"{k}: {len(v)} entries"
-                for k, v in sorted(detail.items())
-            )
         why = f"  reason: {ev['reason']}" if ev["reason"] else ""
         sys.stdout.write(
             f"{ev['seq']}\t{ev['at'].isoformat(timespec='seconds')}\t{ev['actor']}\t"
-            f"{ev['action']}\t{what.strip()}{why}\n"
+            f"{ev['action']}\t{(what + ' ' + _what(ev)).strip()}{why}\n"
         )
     err.print(f"{len(events)} event(s)")
     if approved:
         err.print(
             f"approvals checked against {trust.source}" if trust else NOT_CHECKED, markup=False
         )
+
+
+def _what(ev: dict[str, Any], key: bool = True) -> str:
+    """What an event did, in words (nested values named, not printed raw: --json has them);
+    an approval's key fingerprint unless `key` is False."""
+    from pipelines.trust import approval_line
+
+    detail = ev["detail"] or {}
+    if ev["action"] == "approved":
+        return approval_line(ev["approval"]) + (f" (key {_key(ev)})" if key else "")
+    if ev["action"] == "certificate issued":  # pipelines.reports.issue
+        return (
+            f"certificate {detail.get('certificate')} (issue {detail.get('issue')}, "
+            f"{len(detail.get('files') or {})} files sealed)"
+        )
+    return ", ".join(
+        f"{k}={v}" if not isinstance(v, dict | list) else f"{k}: {len(v)} entries"
+        for k, v in sorted(detail.items())
+    )
+
+
+def _key(ev: dict[str, Any]) -> str:
+    """The fingerprint of an approval's key ("" for other events)."""
+    from storage.approval import fingerprint
+
+    if ev["action"] != "approved":
+        return ""
+    return fingerprint((ev["detail"] or {}).get("public_key", ""))
+
+
+def _print_table(events: list[dict[str, Any]]) -> None:
+    """The events at the terminal's width (`print_table`): the event's identity (seq, run)
+    and what happened first, then when; who, what and why fold. An approval's key
+    fingerprint (one 50-character word) is left to --format tsv / json. Values escaped."""
+    from datetime import UTC
+
+    rows = []
+    for ev in events:
+        what = [f"by {ev['actor']}"] + ([f"revision {ev['revision']}"] if ev["run_id"] else [])
+        what += [t for t in (_what(ev, key=False),) if t]
+        what += [f"reason: {ev['reason']}"] if ev["reason"] else []
+        rows.append(
+            [
+                cell(ev["seq"]),
+                cell(ev["run_id"] or "-"),
+                cell(ev["action"]),
+                cell(f"{ev['at'].astimezone(UTC):%Y-%m-%d %H:%M:%S}"),
+                cell("; ".join(what)),
+            ]
+        )
+    print_table("Audit trail (oldest first)", ["seq", "run_id", "event", "at (UTC)", "what"], rows)
 
 
 def _passphrase(confirm: bool) -> str:

@@ -45,6 +45,10 @@ def _default(value: Any) -> str:
         return "true" if value else "false"
     if isinstance(value, str):
         return f'`"{value}"`'
+    if isinstance(value, list | tuple):  # as a run.toml writes it, not Python's repr
+        import json
+
+        return f"`{json.dumps(list(value))}`"
     return f"`{value:g}`" if isinstance(value, float) else f"`{value}`"
 
 

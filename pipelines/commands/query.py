@@ -250,8 +250,13 @@ def fleet(
     df = _ask(queries.fleet, open_archive(archive), model, param, at)
     emit(df, fmt, f"{param} across {model}", param)
     if fmt is Format.table and not df.empty:
-        v = df["value"]
+        from pipelines.reports.display import quantity, shown
+
+        v = df["value"]  # SI: said in the display unit, as the table above
         err.print(
-            f"{len(df)} values of {df['serial'].nunique()} units: median {v.median():.6g}, "
-            f"5% {v.quantile(0.05):.6g}, 95% {v.quantile(0.95):.6g} [{df['unit'].iloc[0]}]"
+            f"{len(df)} values of {df['serial'].nunique()} units: median "
+            f"{quantity(param, v.median())}, 5% {quantity(param, v.quantile(0.05))}, 95% "
+            f"{quantity(param, v.quantile(0.95))} {shown(param, 0.0).unit}",
+            markup=False,
+            highlight=False,
         )

@@ -83,14 +83,17 @@ def thermal_fit(
         return
     import pandas as pd
 
-    rows = [
+    from pipelines.reports.display import quantity, shown
+
+    rows = [  # SI in the summary (--json), the display unit here, as `calib show` prints
         {
             "parameter": n,
             "order": summary["orders"][n],
-            "rms before": f"{b['rms_before']:.3g}",
-            "rms after": f"{b['rms_after']:.3g}",
-            "rms held out": "-" if b["rms_holdout"] is None else f"{b['rms_holdout']:.3g}",
-            "hysteresis": _hyst(summary["hysteresis"].get(n)),
+            "unit": shown(n, 0.0).unit,
+            "rms before": quantity(n, b["rms_before"], 3),
+            "rms after": quantity(n, b["rms_after"], 3),
+            "rms held out": quantity(n, b["rms_holdout"], 3),
+            "hysteresis": _hyst(n, summary["hysteresis"].get(n)),
         }
         for n, b in summary["benefit"].items()
     ]
@@ -101,10 +104,14 @@ def thermal_fit(
     )
 
 
-def _hyst(h: dict | None) -> str:
+def _hyst(name: str, h: dict | None) -> str:
+    """A curve's hysteresis (SI in) in `name`'s display unit, "-" without one."""
+    from pipelines.reports.display import U_DIGITS, quantity
+
     if h is None:
         return "-"
-    return f"{h['value']:.3g} ± {h['std']:.2g}" + (" DETECTED" if h["detected"] else "")
+    said = f"{quantity(name, h['value'], 3)} ± {quantity(name, h['std'], U_DIGITS)}"
+    return said + (" DETECTED" if h["detected"] else "")
 
 
 @thermal_app.command("show")
@@ -142,7 +149,8 @@ def thermal_show(
         f"Thermal model of {serial}",
     )
     print_table(
-        f"Curves: value(T) = c0 + c1 (T - {model['t_ref']:g}) + ... (SI)",
+        f"Curves: value(T) = c0 + c1 (T - {model['t_ref']:g}) + ..., c_k per deg C^k "
+        "(display units; --json: SI)",
         [
             "parameter",
             "order",
@@ -155,16 +163,27 @@ def thermal_show(
     )
 
 
+def _sigma(sigma: float | None) -> str:
+    """A curve's residual sigma as archived: of weighted fits a factor on the points'
+    uncertainties (calib_core.thermal.Curve), no unit to convert."""
+    import math
+
+    return "-" if sigma is None or not math.isfinite(sigma) else f"{sigma:.3g}"
+
+
 def _curve_row(name: str, curve: dict[str, Any]) -> list[str]:
-    coef = ", ".join(f"{c:.4g}" for c in curve["coef"])
-    unit = curve.get("unit") or ""
+    """One archived curve (SI) in `name`'s display unit (a linear scale: the coefficients
+    of every order scale alike)."""
+    from pipelines.reports.display import quantity, shown
+
+    coef = ", ".join(quantity(name, c, 4) for c in curve["coef"])
     return [
         name,
         str(len(curve["coef"]) - 1),
-        f"{coef} ({unit})",
-        f"{curve.get('sigma', float('nan')):.3g}",
+        f"{coef} ({shown(name, 0.0).unit})",
+        _sigma(curve.get("sigma")),
         str(curve.get("n_points", "-")),
-        _hyst(curve.get("hysteresis")),
+        _hyst(name, curve.get("hysteresis")),
     ]
 
 
@@ -251,8 +270,21 @@ def trend(
     if as_json:
         print_json({"summary": rep["summary"], "rows": frame_records(rep["table"])})
         return
-    print_frame(rep["table"], f"{param} of {serial}")
-    print_facts(rep["summary"], f"Trend of {param}", paths=("plot",))
+    from pipelines.reports.display import STANDARD_U, quantity, shown
+
+    table = rep["table"].copy()  # SI: in the display unit, as `calib show` prints it
+    texts = [shown(param, v, u) for v, u in zip(table["value"], table["std"], strict=True)]
+    table["value"] = [t.value for t in texts]
+    table["std"] = [t.u or "-" for t in texts]
+    table["fitted"] = [quantity(param, v) for v in table["fitted"]]
+    table["unit"] = [t.unit for t in texts]
+    print_frame(table.rename(columns={"std": STANDARD_U}), f"{param} of {serial}")
+    summary = dict(rep["summary"])
+    summary["unit"] = shown(param, 0.0).unit
+    slope = shown(param, summary["slope_per_year"], summary["slope_std_per_year"])
+    summary["slope_per_year"], summary["slope_std_per_year"] = slope.value, slope.u or "-"
+    summary["tolerance"] = " .. ".join(quantity(param, v, 4) for v in summary["tolerance"])
+    print_facts(summary, f"Trend of {param}", paths=("plot",))
 
 
 @app.command("fleet")
@@ -271,6 +303,11 @@ def fleet(
     if as_json:
         print_json(frame_records(table))
         return
-    print_frame(table, f"{param} across {model}")
+    from pipelines.reports.display import quantity, shown
+
+    table = table.copy()  # SI: in the display unit, as `calib show` prints it
+    for column in ("mean", "std", "median", "p05", "p95", "low", "high"):
+        table[column] = [quantity(param, v) for v in table[column]]
+    print_frame(table, f"{param} across {model} ({shown(param, 0.0).unit})")
     if plot is not None:
         err.print(f"plot: {plot}")

@@ -32,10 +32,9 @@ import numpy as np  # noqa: E402
 import pyarrow as pa  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from calib_core import conditions, params  # noqa: E402
+from calib_core import conditions  # noqa: E402
 from calib_core.calibration import Calibration  # noqa: E402
 from calib_core.tolerances import ToleranceProfile  # noqa: E402
-from calib_core.units import DEG, STANDARD_GRAVITY  # noqa: E402
 from calib_core.verification import (  # noqa: E402
     NEEDS_REVIEW,
     PASS,
@@ -46,11 +45,19 @@ from calib_core.verification import (  # noqa: E402
 )
 from pipelines.reports import iso17025, plots  # noqa: E402
 from pipelines.reports.display import (  # noqa: E402
+    ERROR_DIGITS,
+    RESIDUAL_UNITS,
     STANDARD_U,
     STANDARD_U_MEANING,
-    display,
+    U_DIGITS,
+    check_counts,
+    expanded_u,
+    limit_text,
+    number,
+    quantity,
     shown,
-    tolerance,
+    tolerance_text,
+    uncertainty,
 )
 from pipelines.reports.protocol import (  # noqa: E402
     guard_band_of,
@@ -59,7 +66,6 @@ from pipelines.reports.protocol import (  # noqa: E402
 )
 from pipelines.reports.render import Certificate, Section, render_html, render_pdf  # noqa: E402
 
-MG = 1e-3 * STANDARD_GRAVITY
 RECALIBRATION_MONTHS = 12  # default interval for a passed MEMS unit (lab practice)
 
 
@@ -83,19 +89,20 @@ def _date(value: Any) -> date | None:
     return date.fromisoformat(str(value))
 
 
-def _check_table(checks: list[dict[str, Any]], prefix: str, unit: tuple[str, float]) -> Section:
+def _check_table(checks: list[dict[str, Any]], prefix: str) -> Section:
+    """Verification errors per point and sensor in the residuals' display units."""
     rows = []
     for c in checks:
         if not c["name"].startswith(prefix):
             continue
         label, sensor = c["name"].removeprefix(prefix).rsplit(":", 1)
-        name, k = unit if sensor == "acc" else ("deg/s", 1.0 / DEG)
+        name, k = RESIDUAL_UNITS[sensor]
         rows.append(
             [
                 label,
                 sensor,
-                f"{c['value'] * k:.4g} {name}",
-                f"{c['limit'] * k:.4g} {name}",
+                f"{number(c['value'] * k)} {name}",
+                f"{limit_text(c['limit'] * k)} {name}",
                 "pass" if c["passed"] else "FAIL",
                 c.get("detail") or "",
             ]
@@ -286,7 +293,7 @@ def _conditions_section(run: _Archived) -> Section:
         if key == c["name"]:
             continue
         _, _, severity, text, unit = conditions.DEFAULT_CONDITIONS.get(key, (0, 0, "", key, ""))
-        value = "" if c.get("value") is None else f"{c['value']:.6g} {unit}"
+        value = "" if c.get("value") is None else f"{number(c['value'])} {unit}".strip()
         rows.append(
             [text, value, _RESULT_WORD[conditions.status(c)], severity, conditions.requirement(c)]
         )
@@ -324,7 +331,7 @@ def _procedure_section(run: _Archived) -> Section:
                 label,
                 str(len(ts)),
                 f"{ts[-1] - ts[0]:.1f}" if len(ts) else "-",
-                f"{rate:.1f}",
+                f"{rate:.1f}" if np.isfinite(rate) else "-",
                 "verification" if label in run.held_out else "fit",
             ]
         )
@@ -354,8 +361,7 @@ def _results_section(run: _Archived) -> Section:
     for p in run.calrow["parameters"]:
         s = shown(p["name"], p["value"], p["std"])  # u to two digits, the value to its place
         c = by_param.get(p["name"])
-        tol = tolerance(p["name"], c)
-        tol = "" if tol is None else f"{tol[0]}{tol[1]:.4g}"
+        tol = tolerance_text(p["name"], c)
         result = "" if c is None else ("pass" if c["passed"] else "FAIL")
         res_rows.append([p["name"], s.value, s.u or "-", s.unit, tol, result])
     return Section(
@@ -385,16 +391,15 @@ def _uncertainty_section(run: _Archived) -> Section:
     }
     rows = []
     for name, b in budgets.items():
-        value, unit = display(name, b["value"])
-        U, _ = display(name, b["U"])
+        s = shown(name, b["value"], b["U"])  # U to two digits, the value to its place
         check = by_param.get(name)
         w = guard_band_of(check)
         rows.append(
             [
                 name,
-                f"{value:+.6g}",
-                f"{U:.2g}",
-                unit,
+                s.signed,
+                s.u,
+                s.unit,
                 f"{b['k']:.2f}",
                 f"{b['coverage']:.0%}",
                 verdict_of(check),
@@ -405,7 +410,8 @@ def _uncertainty_section(run: _Archived) -> Section:
     notes = sorted({n for b in budgets.values() for n in b["notes"]})
     return Section(
         "Measurement uncertainty and statement of conformity",
-        header=["parameter", "value", "U", "unit", "k", "coverage", "verdict", "guard band w"],
+        header=["parameter", "value", _expanded_heading(budgets), "unit", "k", "coverage",
+                "verdict", "guard band w"],
         rows=rows,
         paragraphs=[
             "Expanded uncertainty U = k u_c (GUM, JCGM 100:2008), coverage probability about 95 %.",
@@ -422,6 +428,12 @@ def _uncertainty_section(run: _Archived) -> Section:
     )
 
 
+def _expanded_heading(budgets: dict[str, dict[str, Any]]) -> str:
+    """ "U (k=2)" when every budget has one coverage factor, else "U" (k per row)."""
+    ks = {round(b["k"], 2) for b in budgets.values()}
+    return expanded_u(ks.pop()) if len(ks) == 1 else "U"
+
+
 def _budget_section(run: _Archived) -> Section:
     rows = []
     for name, b in _budgets(run).items():
@@ -436,12 +448,13 @@ def _budget_section(run: _Archived) -> Section:
                     r["distribution"],
                     f"{r['std_input']:.3g} {r['unit']}".strip(),
                     f"{r['sensitivity']:.3g}",
-                    f"{r['contribution']:.3g} {params.unit_of(name)}",
+                    f"{uncertainty(name, r['contribution'])} {shown(name, 0.0).unit}",
                     "inf" if r["dof"] is None else f"{r['dof']:.0f}",
                 ]
             )
     return Section(
-        "Uncertainty budget: dominant contributions (three largest per parameter, SI units)",
+        "Uncertainty budget: dominant contributions (three largest per parameter; u(x_i) in "
+        "the input's unit, u_i(y) in the parameter's display unit)",
         header=["parameter", "source", "type", "distribution", "u(x_i)", "c_i", "u_i(y)", "dof"],
         rows=rows,
     )
@@ -475,6 +488,21 @@ def _as_found_section(run: _Archived) -> Section:
     return _as_found_difference(run, earlier)
 
 
+def _as_found_row(
+    name: str, found: float, left: float, error: float, U: float | None, verdict: str | None
+) -> list[str]:
+    """One as-found row (SI in, the display unit out)."""
+    return [
+        name,
+        quantity(name, found, signed=True),
+        quantity(name, left, signed=True),
+        shown(name, 0.0).unit,
+        quantity(name, error, ERROR_DIGITS, signed=True),
+        quantity(name, U, U_DIGITS),
+        verdict or "-",
+    ]
+
+
 def _as_found_evaluated(step: dict[str, Any]) -> Section:
     """The archived step "as_found" (pipelines.as_found): the earlier calibration evaluated on
     this run's data."""
@@ -491,20 +519,12 @@ def _as_found_evaluated(step: dict[str, Any]) -> Section:
                 f"run's data: {stats['refused']}"
             ],
         )
-    rows = []
-    for r in stats["parameters"]:
-        name, U = r["parameter"], r["U"]
-        rows.append(
-            [
-                name,
-                f"{display(name, r['earlier'])[0]:+.6g}",
-                f"{display(name, r['as_left'])[0]:+.6g}",
-                display(name, 0.0)[1],
-                f"{display(name, r['error'])[0]:+.3g}",
-                "-" if U is None else f"{display(name, U)[0]:.2g}",
-                r["verdict"] or "-",
-            ]
+    rows = [
+        _as_found_row(
+            r["parameter"], r["earlier"], r["as_left"], r["error"], r["U"], r["verdict"]
         )
+        for r in stats["parameters"]
+    ]
     return Section(
         AS_FOUND_TITLE,
         header=AS_FOUND_HEADER,
@@ -531,17 +551,7 @@ def _as_found_difference(run: _Archived, earlier: dict[str, Any]) -> Section:
         error = p["value"] - before[name]
         U = budgets.get(name, {}).get("U")
         found = None if run.profile is None else run.profile.judge(name, error, U or 0.0)
-        rows.append(
-            [
-                name,
-                f"{display(name, before[name])[0]:+.6g}",
-                f"{display(name, p['value'])[0]:+.6g}",
-                display(name, 0.0)[1],
-                f"{display(name, error)[0]:+.3g}",
-                "-" if U is None else f"{display(name, U)[0]:.2g}",
-                found or "-",
-            ]
-        )
+        rows.append(_as_found_row(name, before[name], p["value"], error, U, found))
     return Section(
         AS_FOUND_TITLE,
         header=AS_FOUND_HEADER,
@@ -569,7 +579,7 @@ def _residuals_section(run: _Archived, diagnosis: ResidualDiagnosis | None) -> S
     limits = run.profile.residual_limits if run.profile else {}
     resid_rows = []
     for r in run.cal.residuals:
-        unit, k = plots.RESIDUAL_UNITS[r.sensor]
+        unit, k = RESIDUAL_UNITS[r.sensor]
         ok = all(abs(m) <= limits.get(f"{r.sensor}_mean", np.inf) for m in r.mean) and all(
             s <= limits.get(f"{r.sensor}_std", np.inf) for s in r.std
         )
@@ -587,9 +597,14 @@ def _residuals_section(run: _Archived, diagnosis: ResidualDiagnosis | None) -> S
     resid_text = []
     if limits:
         resid_text.append(
-            f"Limits: mean {limits['acc_mean'] / MG:.3g} mg, std {limits['acc_std'] / MG:.3g} mg "
-            f"(accelerometer); mean {limits['gyr_mean'] / DEG:.3g} deg/s, std "
-            f"{limits['gyr_std'] / DEG:.3g} deg/s (gyro)."
+            "Limits: "
+            + "; ".join(
+                f"mean {limit_text(limits[f'{s}_mean'] * k)} {unit}, std "
+                f"{limit_text(limits[f'{s}_std'] * k)} {unit} ({what})"
+                for s, what in (("acc", "accelerometer"), ("gyr", "gyro"))
+                for unit, k in [RESIDUAL_UNITS[s]]
+            )
+            + "."
         )
     if diagnosis is not None:
         worst = "; ".join(
@@ -615,8 +630,8 @@ def _repeatability_section(run: _Archived) -> Section:
                 [
                     c["name"].removeprefix(REPEAT_PREFIX),
                     rule,
-                    f"{c['value']:.4g}",
-                    f"{c['limit']:.4g}",
+                    number(c["value"]),
+                    limit_text(c["limit"]),
                     "pass" if c["passed"] else "FAIL",
                 ]
             )
@@ -646,7 +661,7 @@ def _repeatability_section(run: _Archived) -> Section:
 
 
 def _verification_section(run: _Archived) -> Section:
-    ver = _check_table(run.checks, VERIFY_PREFIX, ("mg", 1.0 / MG))
+    ver = _check_table(run.checks, VERIFY_PREFIX)
     ver.title = "Accuracy verification (points not used in the fit)"
     if not ver.rows:
         ver.header = []
@@ -666,7 +681,7 @@ def _verdict_section(run: _Archived) -> Section:
             ("Overall result", calrow["verdict"].upper()),
             ("Judged by", f"profile {calrow['profile_name']} v{calrow['profile_version']}"),
             ("Decision rule", _decision_rule(run).removeprefix("Decision rule: ")),
-            ("Checks", f"{len(run.checks)} checked, {len(failed)} failed"),
+            ("Checks", check_counts(run.checks).sentence()),
             ("Failed", ", ".join(failed) or "none"),
             ("Warnings", ", ".join(by_status.get(conditions.WARNING, [])) or "none"),
             ("Not recorded", ", ".join(by_status.get(conditions.NOT_RECORDED, [])) or "none"),

@@ -34,6 +34,12 @@ LAB_UNITS: dict[str, tuple[str, float]] = {
 DISPLAY_UNITS: dict[str, tuple[str, float]] = {
     family: LAB_UNITS.get(family, (si, 1.0)) for family, si in UNITS.items()
 }
+# Residuals and verification errors of a sensor (measured - model): (unit, factor from SI).
+MG = 1e-3 * STANDARD_GRAVITY  # m/s^2 per mg
+RESIDUAL_UNITS: dict[str, tuple[str, float]] = {
+    "acc": ("mg", 1.0 / MG),
+    "gyr": ("deg/s", 1.0 / DEG),
+}
 
 
 def display(name: str, value: float | None) -> tuple[float | None, str]:
@@ -62,6 +68,9 @@ def tolerance(name: str, check: dict | None) -> tuple[str, float] | None:
 STANDARD_U = "u"  # the standard uncertainty (k = 1), as every table heads it
 STANDARD_U_MEANING = "u: standard uncertainty (k = 1)"
 U_DIGITS = 2  # significant digits of an uncertainty (GUM 7.2.6); the value to the same place
+VALUE_DIGITS = 6  # significant digits of a value without an uncertainty
+LIMIT_DIGITS = 4  # significant digits of a tolerance limit
+ERROR_DIGITS = 3  # significant digits of a difference judged against a tolerance (as found)
 
 
 def expanded_u(k: float) -> str:
@@ -76,6 +85,53 @@ class Shown:
     value: str
     u: str  # "" without an uncertainty
     unit: str
+
+    @property
+    def signed(self) -> str:
+        """The value with its sign, "+" too (the protocol's columns, as the MPU-6000
+        manual prints them); "-" without a value."""
+        return self.value if self.value.startswith(("-", "+")) else "+" + self.value
+
+
+def number(value: float | None) -> str:
+    """A quantity that is no parameter (a condition, a check statistic) to VALUE_DIGITS
+    significant digits; None and NaN as "-"."""
+    if value is None or not math.isfinite(value):
+        return "-"
+    return f"{value:.{VALUE_DIGITS}g}"
+
+
+def quantity(
+    name: str, value: float | None, digits: int = VALUE_DIGITS, signed: bool = False
+) -> str:
+    """`name`'s SI `value` in its display unit to `digits` significant digits, where no
+    uncertainty sets the place (as found, an error, an expanded U: `U_DIGITS`); "-"
+    without a value."""
+    v, _ = display(name, value)
+    if v is None or not math.isfinite(v):
+        return "-"
+    return f"{v:{'+' if signed else ''}.{digits}g}"
+
+
+def uncertainty(name: str, u: float | None) -> str:
+    """An uncertainty of `name` alone (SI in), as `shown` writes one: two significant
+    digits, fixed point, display unit; "-" without one."""
+    return shown(name, 0.0, u).u or "-"
+
+
+def limit_text(limit: float) -> str:
+    """A tolerance limit (already in its display unit) to LIMIT_DIGITS significant digits."""
+    return f"{limit:.{LIMIT_DIGITS}g}"
+
+
+def tolerance_text(name: str, check: dict | None, plus_minus: str = "+-") -> str:
+    """A parameter check's limit as people read it: "+- 0.05", "<= 0.02" (display unit);
+    "" without a limit. `plus_minus` is "±" where the medium has it (HTML)."""
+    tol = tolerance(name, check)
+    if tol is None:
+        return ""
+    relation = plus_minus if tol[0] == "+-" else tol[0]
+    return f"{relation} {limit_text(tol[1])}"
 
 
 def _decimals(u: float) -> int:
@@ -92,7 +148,7 @@ def shown(name: str, value: float | None, std: float | None = None) -> Shown:
     if v is None or not math.isfinite(v):
         return Shown("-", "", unit)
     if u is None or not math.isfinite(u) or u <= 0:
-        return Shown(f"{v:.6g}", "", unit)
+        return Shown(number(v), "", unit)
     places = _decimals(u)
     if places > 0:
         return Shown(f"{v:.{places}f}", f"{u:.{places}f}", unit)

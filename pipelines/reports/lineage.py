@@ -14,7 +14,7 @@ from __future__ import annotations
 import textwrap
 from typing import Any
 
-from pipelines.reports.display import STANDARD_U, expanded_u, shown
+from pipelines.reports.display import STANDARD_U, expanded_u, shown, uncertainty
 
 MAX_ITEMS = 8  # a list or table longer than this is summarised, not printed
 MAX_TEXT = 120  # characters of one scalar value before it is summarised
@@ -90,7 +90,7 @@ def _fields(step: dict[str, Any], param: str, channel: str) -> tuple[list[tuple[
 def _budget(budget: dict[str, Any], param: str) -> list[str]:
     lines = [f"Uncertainty budget of {param} ({budget.get('label') or 'GUM'})"]
     for row in budget.get("rows") or []:
-        u = shown(param, row.get("contribution"), None).value
+        u = uncertainty(param, row.get("contribution"))
         lines.append(
             f"  {row.get('source')}: type {row.get('kind')}, "
             f"{row.get('distribution')}, contribution {u} "

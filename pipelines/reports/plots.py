@@ -25,12 +25,10 @@ import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from calib_core.calibration import Calibration  # noqa: E402
-from calib_core.units import DEG, STANDARD_GRAVITY  # noqa: E402
+from calib_core.units import DEG  # noqa: E402
+from pipelines.reports.display import MG, RESIDUAL_UNITS  # noqa: E402
 
-MG = 1e-3 * STANDARD_GRAVITY  # m/s^2 per mg
 AXIS_COLOURS = ("tab:red", "tab:green", "tab:blue")
-# Sensor -> (display unit, factor from SI) for residual plots.
-RESIDUAL_UNITS = {"acc": ("mg", 1.0 / MG), "gyr": ("deg/s", 1.0 / DEG)}
 
 
 def residuals_figure(residuals: Sequence[Mapping[str, Any]], limits: Mapping[str, float]) -> Figure:

@@ -15,17 +15,18 @@ from typing import Any
 
 from calib_core import conditions
 from calib_core.params import manual_name
-from pipelines.reports.display import display, tolerance
+from pipelines.reports.display import (
+    STANDARD_U,
+    STANDARD_U_MEANING,
+    check_counts,
+    expanded_u,
+    limit_text,
+    number,
+    shown,
+    tolerance,
+)
 
 _RULE = "-" * 78
-
-
-def _fmt(value: float | None, width: int = 12, signed: bool = True) -> str:
-    """A value right-aligned in `width`, 6 decimals; with its sign when `signed` (a
-    parameter value), without for an uncertainty (never negative: no ``+``)."""
-    if value is None:
-        return f"{'':>{width}}"
-    return f"{value:>+{width}.6f}" if signed else f"{value:>{width}.6f}"
 
 
 # The result column of a condition line: the manual's + and -, or what else it is.
@@ -45,7 +46,7 @@ def condition_lines(checks: Iterable[Mapping[str, Any]]) -> list[str]:
         return []
     lines = [_RULE, "Conditions", f"{'Condition':<30}{'Value':>12}  {'Result':<13}Requirement"]
     for c in rows:
-        value = "" if c.get("value") is None else f"{c['value']:.6g}"
+        value = "" if c.get("value") is None else number(c["value"])
         mark = RESULT_MARK[conditions.status(c)]
         name = c["name"].removeprefix(conditions.CONDITION_PREFIX)
         lines.append(f"{name:<30}{value:>12}  {mark:<13}{conditions.requirement(c)}")
@@ -96,26 +97,26 @@ def render_protocol(
         f"Run         : {run_id}    Procedure: {procedure}",
         f"Profile     : {profile}    Gravity used: {gravity:.6f} m/s^2",
         "Convention  : f_meas = (I + M) f_true + b; misalign.rc = M[r, c]",
+        f"Values      : in display units; {STANDARD_U_MEANING}",
         _RULE,
-        f"{'Parameter':<18}{'Value':>13}{'Std. unc.':>13}  {'Unit':<10}{'Tolerance':>12}  Result"
+        f"{'Parameter':<18}{'Value':>13}{STANDARD_U:>13}  {'Unit':<10}{'Tolerance':>12}  Result"
         + (f"  {'Manual':<7}{'Value':>13}" if names == "manual" else ""),
     ]
     if names == "manual":
         lines.insert(-2, "Manual names: the MPU-6000 manual's (Axz = M[x,y], Axy = -M[x,z], ...)")
     for p in parameters:
-        value, unit = display(p["name"], p["value"])
-        std, _ = display(p["name"], p.get("std"))
+        s = shown(p["name"], p["value"], p.get("std"))  # u to two digits, the value to its place
         check = by_param.get(p["name"])
         tol = tolerance(p["name"], check)
         if tol is None:
             tol, mark = f"{'':>12}", " "
         else:
-            tol, mark = f"{tol[0]:>3}{tol[1]:>9.4g}", "+" if check["passed"] else "-"
-        u = _fmt(std, 13, signed=False)
-        line = f"{p['name']:<18}{_fmt(value, 13)}{u}  {unit:<10}{tol}  {mark}"
+            tol, mark = f"{tol[0]:>3}{limit_text(tol[1]):>9}", "+" if check["passed"] else "-"
+        line = f"{p['name']:<18}{s.signed:>13}{s.u:>13}  {s.unit:<10}{tol}  {mark}"
         if names == "manual":
-            manual, signed = manual_name(p["name"], value)
-            line += f"       {manual:<7}{_fmt(signed, 13)}" if manual else ""
+            manual, signed = manual_name(p["name"], p["value"])
+            in_sign = shown(p["name"], signed, p.get("std")).signed
+            line += f"       {manual:<7}{in_sign:>13}" if manual else ""
         lines.append(line)
     lines += uncertainty_lines(budgets or {}, by_param, decision_rule)
     lines += condition_lines(checks)
@@ -123,11 +124,12 @@ def render_protocol(
     if other:
         lines += [_RULE, "Checks", f"{'Check':<44}{'Value':>13}{'Limit':>13}  Result"]
         for c in other:
-            limit = "" if c.get("limit") is None else f"{c['limit']:.4g}"
-            value = "" if c.get("value") is None else f"{c['value']:.4g}"
+            limit = "" if c.get("limit") is None else limit_text(c["limit"])
+            value = "" if c.get("value") is None else number(c["value"])
             lines.append(f"{c['name']:<44}{value:>13}{limit:>13}  {'+' if c['passed'] else '-'}")
     lines += [
         _RULE,
+        f"Checks: {check_counts(checks).sentence()}",
         f"Overall result: {verdict.upper()}",
         "",
         "Customer representative: ______________________   Date: __________",
@@ -179,12 +181,14 @@ def uncertainty_lines(
         f"{'Parameter':<18}{'Value':>13}{'U':>11}  {'Unit':<10}{'k':>5}{'p':>6}  "
         f"{'Verdict':<17}Dominant contributions",
     ]
+    ks = {round(b["k"], 2) for b in budgets.values()}
+    if len(ks) == 1:  # one coverage factor: say it as every other table does
+        lines[-1] = lines[-1].replace(f"{'U':>11}", f"{expanded_u(ks.pop()):>11}", 1)
     for name in sorted(budgets):
         b = budgets[name]
-        value, unit = display(name, b["value"])
-        U, _ = display(name, b["U"])
+        s = shown(name, b["value"], b["U"])  # U to two digits, the value to its place
         lines.append(
-            f"{name:<18}{_fmt(value, 13)}{U:>11.3g}  {unit:<10}{b['k']:>5.2f}"
+            f"{name:<18}{s.signed:>13}{s.u:>11}  {s.unit:<10}{b['k']:>5.2f}"
             f"{b['coverage']:>6.0%}  {verdict_of(by_param.get(name)):<17}"
             f"{dominant_text(b)}"
         )

@@ -12,18 +12,15 @@ from urllib.parse import quote, urlencode
 
 from calib_core import checks, conditions
 from pipelines.reports.display import DISPLAY_UNITS
+from pipelines.reports.display import display as reports_display
 
 
 def display(name: str, value: float | None) -> tuple[float | None, str]:
-    """(value in the lab display unit, unit) of a canonical parameter value in SI.
-
-    Families without a display unit (e.g. centrifuge product terms) stay SI.
-    """
-    from calib_core import params
-
-    family = name.rsplit(".", 1)[0]
-    unit, factor = DISPLAY_UNITS.get(family, (params.UNITS.get(family, "SI"), 1.0))
-    return (None if value is None else value * factor), unit
+    """(value in the lab display unit, unit) of a canonical parameter value in SI
+    (`pipelines.reports.display.display`); a name of no known family stays as it is."""
+    if name.rsplit(".", 1)[0] not in DISPLAY_UNITS:
+        return value, "SI"
+    return reports_display(name, value)
 
 
 def num(value: Any, digits: int = 6) -> str:

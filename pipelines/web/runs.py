@@ -16,8 +16,7 @@ from starlette.exceptions import HTTPException
 from calib_core import params
 from calib_core.conditions import status as condition_status
 from calib_core.tolerances import ToleranceProfile
-from calib_core.units import DEG, STANDARD_GRAVITY
-from pipelines.reports.display import check_counts, shown, tolerance
+from pipelines.reports.display import RESIDUAL_UNITS, check_counts, shown, tolerance_text
 from pipelines.web import forms, svg
 from pipelines.web.pages import render
 from pipelines.web.present import display
@@ -28,7 +27,6 @@ router = APIRouter()
 
 FILTERS = ("serial", "model", "from", "to", "procedure", "verdict", "temp_min", "temp_max")
 LIST_PARAMS = (*FILTERS, "sort", "order", "page", "per_page")
-RESIDUAL_UNITS = {"acc": ("mg", 1.0 / (1e-3 * STANDARD_GRAVITY)), "gyr": ("deg/s", 1.0 / DEG)}
 
 
 @router.get("/runs", response_class=HTMLResponse)
@@ -103,8 +101,7 @@ def _parameter_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
         std, _ = display(p["name"], p["std"])
         text = shown(p["name"], p["value"], p["std"])
         check = checks.get(p["name"]) or checks.get(f"param:{p['name']}")
-        tol = tolerance(p["name"], check)
-        limit = None if tol is None else f"{tol[0].replace('+-', '±')} {tol[1]:.3g}"
+        limit = tolerance_text(p["name"], check, "±") or None
         rows.append(
             {
                 **p,

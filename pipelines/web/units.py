@@ -16,7 +16,8 @@ from fastapi.responses import HTMLResponse
 from calib_core import drift, params
 from calib_core.thermal import ThermalModel
 from calib_core.tolerances import ToleranceProfile
-from pipelines.reports.display import shown
+from pipelines import shared_reference
+from pipelines.reports.display import limit_text, shown
 from pipelines.tolerances import load_profile
 from pipelines.trends import TREND_MIN_RUNS, pooled_runs
 from pipelines.web import forms, svg
@@ -68,9 +69,12 @@ class Series:
 
     pooled: str = ""  # which runs the trend compares ("3 of 4 runs, at 20 deg C")
 
-    def fit(self) -> None:
+    def fit(self, references: dict[str, dict[str, Any]] | None = None) -> None:
         """Trend and tolerance forecast (calib_core.drift) of the runs at one condition
-        (`pipelines.trends.pooled_runs`: like with like); a note says why not when it can't."""
+        (`pipelines.trends.pooled_runs`: like with like); a note says why not when it can't.
+        With the runs' `references` (`storage.queries.run_references`), the fit
+        `calib trend` makes: runs on one reference share its Type B
+        (`pipelines.shared_reference`), else the independent fit."""
         like = pooled_runs([r.get("env_temperature_c") for r in self.rows], REFERENCE_C)
         rows = [self.rows[i] for i in like.indices]
         self.pooled = like.said(len(self.rows))
@@ -79,8 +83,16 @@ class Series:
             return
         t = [svg.days(r["started_at"]) for r in rows]
         stds = [r["std"] if r["std"] is not None and r["std"] > 0 else None for r in rows]
+        values = [r["value"] for r in rows]
+        shared = None
+        if references is not None:
+            ids = [r["run_id"] for r in rows]
+            shared = shared_reference.trend_inputs_of(references, ids, self.name, stds)
         try:
-            self.trend = drift.fit_trend(t, [r["value"] for r in rows], stds)
+            if shared is None:
+                self.trend = drift.fit_trend(t, values, stds)
+            else:
+                self.trend = drift.fit_trend_shared(np.asarray(t), np.asarray(values), *shared)
         except ValueError as exc:
             self.note = str(exc)
             return
@@ -113,6 +125,10 @@ class Series:
         if self.trend is not None:
             out["slope_per_year"] = self.trend.slope * 365.25 * scale
             out["slope_std_per_year"] = self.trend.slope_std * 365.25 * scale
+            # per year, rounded as every value with its u (the unit's own factor applies)
+            out["slope_shown"] = shown(
+                self.name, self.trend.slope * 365.25, self.trend.slope_std * 365.25
+            )
         if self.forecast is not None:
             out["leaves"] = _date(self.forecast.crossing)
             out["earliest"] = _date(self.forecast.earliest)
@@ -127,8 +143,8 @@ class Series:
                 r["started_at"],
                 r["value"] * scale,
                 None if r["std"] is None else r["std"] * scale,
-                f"{r['run_id']} {r['started_at']:%Y-%m-%d}: {r['value'] * scale:.6g} "
-                f"{unit} ({r['verdict']})",
+                f"{r['run_id']} {r['started_at']:%Y-%m-%d}: "
+                f"{shown(self.name, r['value'], r['std']).value} {unit} ({r['verdict']})",
                 lineage_url(r["run_id"], self.name),
                 r["verdict"] != "pass",
             )
@@ -157,10 +173,12 @@ def _band_text(low: float, high: float) -> str:
     if not (math.isfinite(low) or math.isfinite(high)):
         return "-"
     if low == -high:
-        return f"± {high:.3g}"
+        return f"± {limit_text(high)}"
     if not math.isfinite(low):
-        return f"<= {high:.3g}"
-    return f">= {low:.3g}" if not math.isfinite(high) else f"{low:.3g} .. {high:.3g}"
+        return f"<= {limit_text(high)}"
+    if not math.isfinite(high):
+        return f">= {limit_text(low)}"
+    return f"{limit_text(low)} .. {limit_text(high)}"
 
 
 def _t95(dof: int) -> float:
@@ -215,9 +233,11 @@ def unit_page(request: Request, serial: str) -> HTMLResponse:
     dev = forms.checked(queries.device, archive, serial)
     series = _series(queries.unit_parameters(archive, serial))
     profile = _unit_profile(series, serial, archive)
+    run_ids = list(dict.fromkeys(r["run_id"] for s in series.values() for r in s.rows))
+    references = queries.run_references(archive, run_ids)  # once for every parameter
     for s in series.values():
         s.low, s.high = _band(profile, s.name)
-        s.fit()
+        s.fit(references)
     chosen = q.get("parameter") or next(
         (n for n, s in series.items() if math.isfinite(s.high) or math.isfinite(s.low)),
         next(iter(series), None),
