@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import inspect
 import json
 import os
 import signal
@@ -127,6 +128,21 @@ class CalibTyper(typer.Typer):
     completion) gets the whole app, so help, suggestions and completion see every command.
     """
 
+    def command(self, *args: Any, **kwargs: Any) -> Callable[[Callable], Callable]:
+        """Typer's command, its one-line help in `calib --help` the docstring's first
+        paragraph joined into one line (typer keeps the docstring's line breaks there)."""
+        register = super().command(*args, **kwargs)
+        if kwargs.get("short_help") is not None:
+            return register
+
+        def wrap(func: Callable) -> Callable:
+            done = register(func)
+            first = (inspect.getdoc(func) or "").split("\n\n")[0]
+            self.registered_commands[-1].short_help = " ".join(first.split()) or None
+            return done
+
+        return wrap
+
     def __call__(self, *args: Any, **kwargs: Any) -> Any:  # noqa: ANN401 - typer's
         argv = kwargs.get("args", args[0] if args else None)
         words = list(sys.argv[1:] if argv is None else argv)
@@ -165,9 +181,7 @@ def _invoked(app_: typer.Typer, words: list[str]) -> set[str] | None:
     return {rest[0]} if rest[0] in names else None
 
 
-app = CalibTyper(
-    cls=CalibGroup, no_args_is_help=True, help="IMU calibration pipeline and archive."
-)
+app = CalibTyper(cls=CalibGroup, no_args_is_help=True, help="IMU calibration pipeline and archive.")
 
 # `calib --help` lists the commands under these headings, by task (`group_commands`).
 PANELS = {

@@ -160,3 +160,13 @@ def test_ctrl_c_after_a_finished_batch_ends_without_a_traceback() -> None:
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
     )
     assert done.returncode == 130 and done.stderr == "" and done.stdout == "", done.stderr
+
+
+def test_each_command_is_one_line_in_a_wide_listing() -> None:
+    """A command's short help is its docstring's first paragraph in one line: at 400
+    columns no command's description breaks mid-sentence onto a second line."""
+    done = RUNNER.invoke(app, ["--help"], env={"COLUMNS": "400", "NO_COLOR": "1"})
+    assert done.exit_code == 0, done.output
+    rows = [line for line in done.output.splitlines() if line.startswith("│ ")]
+    continued = [line.strip("│ ") for line in rows if line.startswith("│" + " " * 8)]
+    assert continued == [], continued
