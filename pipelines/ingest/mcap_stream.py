@@ -24,7 +24,9 @@ import hashlib
 import os
 import struct
 import time
+from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -53,40 +55,75 @@ from pipelines.ingest.time_order import check_time_increases
 from storage.rawstore import samples_parquet_options
 
 _SKIP_BLOCK = 1 << 20  # bytes read at a time when the reader skips records
+_QUEUED = 4  # blocks waiting to be hashed and copied
 
 
 class _Tee:
     """A file read forward once: every byte is hashed and copied the first time it is read.
 
-    The reader's forward skips (``seek(n, 1)``) read through, so skipped records are
-    hashed too; reads ahead of that point (the summary, read first through the footer)
+    The reader's forward skips of records (``seek(n, 1)``) read through, so skipped records
+    are hashed too; reads ahead of that point (the summary, read first through the footer)
     are not, their bytes are hashed when the pass reaches them. `drain` hashes the rest.
+
+    Hashing and copying run on one worker thread, in order, while the reader decodes
+    (both release the GIL on large buffers): small reads (record headers, unchunked
+    messages) are gathered into blocks of `_SKIP_BLOCK` first; at most `_QUEUED` blocks
+    wait (memory: a few chunks). `close` waits for them and raises what the worker raised.
     """
 
     def __init__(self, fh: BinaryIO, sha: Any, copy: BinaryIO | None):
         self.fh, self.sha, self.copy = fh, sha, copy
         self.at = 0  # the reader's position
-        self.hashed = 0  # bytes hashed and copied: [0, hashed)
+        self.hashed = 0  # bytes handed to the worker: [0, hashed)
+        self.small = bytearray()
+        self.pool = ThreadPoolExecutor(1)
+        self.queued: deque[Future] = deque()
 
     def read(self, n: int = -1) -> bytes:
         data = self.fh.read(n)
         start, self.at = self.at, self.at + len(data)
         if start <= self.hashed < self.at:
-            self._take(memoryview(data)[self.hashed - start :])
+            self._take(data if start == self.hashed else data[self.hashed - start :])
         return data
 
-    def _take(self, data: memoryview | bytes) -> None:
+    def _take(self, data: bytes) -> None:
+        self.hashed += len(data)
+        if len(data) < _SKIP_BLOCK // 16:
+            self.small += data
+            if len(self.small) < _SKIP_BLOCK:
+                return
+            data, self.small = self.small, bytearray()
+        elif self.small:
+            self._submit(self.small)
+            self.small = bytearray()
+        self._submit(data)
+
+    def _submit(self, data: bytes | bytearray) -> None:
+        while len(self.queued) >= _QUEUED:
+            self.queued.popleft().result()
+        self.queued.append(self.pool.submit(self._write, data))
+
+    def _write(self, data: bytes | bytearray) -> None:
         self.sha.update(data)
         if self.copy is not None:
             self.copy.write(data)
-        self.hashed += len(data)
+
+    def close(self) -> None:
+        """Hash and copy what is still queued (the worker's errors raised here)."""
+        try:
+            if self.small:
+                self._submit(self.small)
+                self.small = bytearray()
+            while self.queued:
+                self.queued.popleft().result()
+        finally:
+            self.pool.shutdown(cancel_futures=True)
 
     def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
-        target = {os.SEEK_SET: 0, os.SEEK_CUR: self.at}.get(whence)
-        if target is None or self.at != self.hashed or target + offset <= self.at:
-            self.at = self.fh.seek(offset, whence)
+        if whence != os.SEEK_CUR or offset <= 0 or self.at != self.hashed:
+            self.at = self.fh.seek(offset, whence)  # e.g. to the summary and back
             return self.at
-        left = target + offset - self.at
+        left = offset
         while left > 0:
             got = self.read(min(left, _SKIP_BLOCK))
             if not got:
@@ -180,7 +217,9 @@ class _Sink:
             offset=self.done - (self.last is not None),
         )
         n = len(stamp)
-        both = np.empty((n, 6))  # [gyr | acc]: the first pass takes views of one array
+        # [gyr | acc]: the first pass takes views of one array; column-major, so each
+        # channel is contiguous for the statistics and the Parquet columns
+        both = np.empty((n, 6), order="F")
         both[:, :3] = np.concatenate([p["gyr"] for p in parts])
         both[:, 3:] = np.concatenate([p["acc"] for p in parts])
         _check_finite(self.name, where, "linear_acceleration", both[:, 3:], self.done)
@@ -256,14 +295,17 @@ def stream_mcap(
             copy_to.open("wb") if copy_to is not None else nullcontext() as copy,
         ):
             tee = _Tee(fh, sha, copy)
-            rows = block_bytes(memory_limit) // ROW_BYTES
-            sink = _Sink(str(path), rows, writer, label, lambda n: bar.update(tee.hashed, n))
-            reader = _StreamReader(str(path), keys.get("imu_topic"), keys["stamp"], sink)
-            # a chunk, its decompressed records and their decoded arrays: a quarter of the limit
-            reader.max_chunk = memory_limit // 4
-            reader.read(tee, size)
-            sink.flush()
-            tee.drain()
+            try:
+                rows = block_bytes(memory_limit) // ROW_BYTES
+                sink = _Sink(str(path), rows, writer, label, lambda n: bar.update(tee.hashed, n))
+                reader = _StreamReader(str(path), keys.get("imu_topic"), keys["stamp"], sink)
+                # a chunk, its records and their decoded arrays: a quarter of the limit
+                reader.max_chunk = memory_limit // 4
+                reader.read(tee, size)
+                sink.flush()
+                tee.drain()
+            finally:
+                tee.close()
     except OSError as exc:
         raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
     bar.update(size, sink.done, final=True)
