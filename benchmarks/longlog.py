@@ -345,7 +345,7 @@ def write_mcap_record(path: Path, size_bytes: int, seed: int = 0) -> int:
 def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
     """The MCAP record's figures (and the Allan check on its samples when `allan`)."""
     work = Path(tempfile.mkdtemp(prefix="longlog-mcap-", dir=args.dir))
-    limit = str(int(args.memory_limit_gb * 2**30))
+    limit = str(int(args.memory_limit_gb * 1e9))
     out: dict = {}
     try:
         src = work / "static.mcap"

@@ -169,6 +169,6 @@ def test_topic_choice_as_in_memory(tmp_path):
 def test_temperature_topic_is_refused_with_the_reason(tmp_path):
     path = tmp_path / "run.mcap"
     write_run(path, n=100, temperature=True)
-    with pytest.raises(IngestError, match="streamed route reads the IMU topic only") as err:
+    with pytest.raises(IngestError, match="read in chunks gives its IMU topic only") as err:
         stream(path, tmp_path, temperature_topic="/imu/temperature")
     assert err.value.field == "format.temperature_topic" and str(path) in str(err.value)

@@ -277,9 +277,8 @@ def stream_mcap(
     for key in ("temperature_topic", "table_topic"):
         if keys.get(key) is not None:
             raise IngestError(
-                f"the streamed route reads the IMU topic only; {key} needs the whole IMU "
-                "time base to interpolate onto (read the record in memory: a larger "
-                "memory_limit)",
+                f"a record read in chunks gives its IMU topic only; {key} is interpolated "
+                "onto the whole IMU time base (raise the memory limit to read it into memory)",
                 file=path,
                 field=f"format.{key}",
             )
