@@ -172,3 +172,10 @@ def test_temperature_topic_is_refused_with_the_reason(tmp_path):
     with pytest.raises(IngestError, match="read in chunks gives its IMU topic only") as err:
         stream(path, tmp_path, temperature_topic="/imu/temperature")
     assert err.value.field == "format.temperature_topic" and str(path) in str(err.value)
+
+
+def test_chunk_larger_than_the_limit_allows_is_refused(big_mcap, tmp_path):
+    """The writer's 16 kB chunks against a 32 kB limit (a quarter for a chunk): refused
+    before decompressing, naming the chunk, rather than read past the limit."""
+    with pytest.raises(IngestError, match=r"chunk at byte \d+ holds \d+ bytes uncompressed"):
+        stream_mcap(big_mcap, fmt(), tmp_path / "s.parquet", memory_limit=32 << 10)

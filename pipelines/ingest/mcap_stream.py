@@ -159,7 +159,7 @@ class _StreamReader(_Reader):
         if size > self.max_chunk:
             raise IngestError(
                 f"chunk at byte {pos} holds {size} bytes uncompressed, more than the memory "
-                f"limit allows ({self.max_chunk}); raise memory_limit",
+                f"limit allows ({self.max_chunk}); raise the memory limit",
                 file=self.name,
             )
         super()._chunk(body, pos)
