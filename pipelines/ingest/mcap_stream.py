@@ -220,8 +220,8 @@ class _Sink:
         # [gyr | acc]: the first pass takes views of one array; column-major, so each
         # channel is contiguous for the statistics and the Parquet columns
         both = np.empty((n, 6), order="F")
-        both[:, :3] = np.concatenate([p["gyr"] for p in parts])
-        both[:, 3:] = np.concatenate([p["acc"] for p in parts])
+        np.concatenate([p["gyr"] for p in parts], out=both[:, :3])
+        np.concatenate([p["acc"] for p in parts], out=both[:, 3:])
         _check_finite(self.name, where, "linear_acceleration", both[:, 3:], self.done)
         _check_finite(self.name, where, "angular_velocity", both[:, :3], self.done)
         if self.t0 is None:
