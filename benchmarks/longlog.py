@@ -13,7 +13,7 @@ peak resident memory, threads and descendants included, sampled every 0.1 s):
 
 With `--formats csv,mcap` (the default) the same for a ROS 2 MCAP log of `--size-gb`
 (``sensor_msgs/msg/Imu`` at 1 kHz, CDR payloads serialised with numpy in batches, written
-by mcap's Writer in uncompressed 4 MiB chunks as ``ros2 bag record`` does by default):
+by mcap's Writer in uncompressed 4 MiB chunks):
 process is `pipelines.ingest.mcap_stream.stream_mcap` then `solve_streamed`; floor reads,
 hashes and copies the file, decodes its messages with the same vectorised CDR decoder and
 writes the Parquet, nothing else (no checks, no statistics).
