@@ -174,7 +174,11 @@ class _StreamReader(_Reader):
 
 class _Sink:
     """IMU messages in batches of `rows`: checked, in SI on the reader's time base, written
-    to the samples' Parquet and added to the first-pass statistics."""
+    to the samples' Parquet and added to the first-pass statistics.
+
+    A batch's Parquet row group is encoded and written on a worker thread (pyarrow
+    releases the GIL) while the next batch is decoded; one batch waits at most.
+    """
 
     def __init__(
         self,
@@ -193,6 +197,8 @@ class _Sink:
         self.t0: np.int64 | None = None  # first stamp, ns
         self.last: np.int64 | None = None
         self.first = FirstPass.empty()
+        self.pool = ThreadPoolExecutor(1)
+        self.writing: Future | None = None
 
     def push(self, ch: _Channel, part: dict[str, np.ndarray]) -> None:
         self.channel = ch
@@ -230,10 +236,24 @@ class _Sink:
         # The in-memory reader's time base: exact integer offsets, one rounding to s.
         t = (stamp - self.t0) / NS + self.t0 / NS
         chunk = {"t": t, "gyr": both[:, :3], "acc": both[:, 3:], "temp": np.full(n, np.nan)}
-        self.writer.write_table(_table(chunk, self.label, self.writer.schema))
+        table = _table(chunk, self.label, self.writer.schema)
+        self.wait()
+        self.writing = self.pool.submit(self.writer.write_table, table)
         self.first.push((t, chunk["gyr"], chunk["acc"]))
         self.done += n
         self.written(self.done)
+
+    def wait(self) -> None:
+        """Until the batch being written is (its errors raised here)."""
+        if self.writing is not None:
+            writing, self.writing = self.writing, None
+            writing.result()
+
+    def close(self) -> None:
+        try:
+            self.wait()
+        finally:
+            self.pool.shutdown(cancel_futures=True)
 
 
 def stream_mcap(
@@ -294,9 +314,9 @@ def stream_mcap(
             copy_to.open("wb") if copy_to is not None else nullcontext() as copy,
         ):
             tee = _Tee(fh, sha, copy)
+            rows = block_bytes(memory_limit) // ROW_BYTES
+            sink = _Sink(str(path), rows, writer, label, lambda n: bar.update(tee.hashed, n))
             try:
-                rows = block_bytes(memory_limit) // ROW_BYTES
-                sink = _Sink(str(path), rows, writer, label, lambda n: bar.update(tee.hashed, n))
                 reader = _StreamReader(str(path), keys.get("imu_topic"), keys["stamp"], sink)
                 # a chunk, its records and their decoded arrays: a quarter of the limit
                 reader.max_chunk = memory_limit // 4
@@ -304,6 +324,7 @@ def stream_mcap(
                 sink.flush()
                 tee.drain()
             finally:
+                sink.close()
                 tee.close()
     except OSError as exc:
         raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
