@@ -8,7 +8,12 @@ Files are written with mcap-ros2-support's Writer (`test_ingest_mcap.write_run`)
 from __future__ import annotations
 
 import hashlib
+import json
 import math
+import os
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -179,3 +184,52 @@ def test_chunk_larger_than_the_limit_allows_is_refused(big_mcap, tmp_path):
     before decompressing, naming the chunk, rather than read past the limit."""
     with pytest.raises(IngestError, match=r"chunk at byte \d+ holds \d+ bytes uncompressed"):
         stream_mcap(big_mcap, fmt(), tmp_path / "s.parquet", memory_limit=32 << 10)
+
+
+@pytest.mark.slow  # writes a 150 MB log, streams it in a fresh interpreter
+def test_streamed_mcap_memory_bounded_by_the_limit(tmp_path):
+    """In a fresh process, after a warm-up on a log a quarter as long (which loads the
+    lazily imported modules, the worker threads and the codecs: fixed costs), the peak
+    resident memory grows by less than the limit while the whole log, twelve times the
+    limit, is read, hashed, copied, written and solved (its samples alone, held in
+    memory, would be twice the limit)."""
+    limit = 12 << 20
+    n = 400_000  # 148 MB of log; its samples alone (t and six channels) take 22 MB
+    big, small = tmp_path / "big.mcap", tmp_path / "small.mcap"
+    write_run(big, n=n, acc=static_acc(n), compression=CompressionType.NONE)
+    write_run(small, n=n // 4, acc=static_acc(n // 4), compression=CompressionType.NONE)
+    assert big.stat().st_size > 10 * limit
+    script = textwrap.dedent(f"""
+        import json, sys
+        from pathlib import Path
+        from pipelines.ingest.csv_stream import solve_streamed
+        from pipelines.ingest.data_format import FormatSpec
+        from pipelines.ingest.mcap_stream import stream_mcap
+
+        def status(key):
+            for line in open("/proc/self/status"):
+                if line.startswith(key):
+                    return int(line.split()[1]) * 1024
+
+        def run(src, out):
+            s = stream_mcap(src, FormatSpec(kind="mcap"), out, copy_to=out.with_suffix(".raw"),
+                            memory_limit={limit}, progress=False)
+            solve_streamed(s, {SETTINGS!r}, gravity={G}, memory_limit={limit})
+
+        big, small, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
+        run(small, out.with_name("small.parquet"))
+        base = status("VmRSS:")
+        open("/proc/self/clear_refs", "w").write("5")  # peak := current
+        run(big, out)
+        print(json.dumps({{"grown": status("VmHWM:") - base}}))
+    """)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    out = subprocess.run(
+        [sys.executable, "-c", script, str(big), str(small), str(tmp_path / "s.parquet")],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    grown = json.loads(out.stdout.strip().splitlines()[-1])["grown"]
+    assert grown < limit, grown / 2**20
