@@ -4,9 +4,10 @@
 bytes passing through a tee that hashes and copies them (the raw copy) as they are read.
 Nothing is re-implemented: the record walk, chunk decompression, CRC and truncation
 checks, topic selection (`_Reader._role` / `_pick`), the vectorised CDR decoding of
-``sensor_msgs/msg/Imu`` (`pipelines.ingest.cdr`: numpy gathers over every message of a
-chunk at once, tens of times faster than mcap-ros2-support's one Python object per
-message) and the stamp choice (header stamp or log time) are the in-memory reader's.
+``sensor_msgs/msg/Imu`` (`pipelines.ingest.cdr`: its layout is fixed once the frame_id's
+length is known, so numpy gathers decode every message of a chunk at once, where
+mcap-ros2-support builds one Python object per message, minutes for an hour at 1 kHz)
+and the stamp choice (header stamp or log time) are the in-memory reader's.
 Only where a chunk's decoded IMU messages go differs: instead of the whole topic's
 arrays they are gathered into batches of a size set by `memory_limit`, checked (time
 increasing, finite values; messages numbered in the whole topic), converted to the
