@@ -11,16 +11,24 @@ peak resident memory, threads and descendants included, sampled every 0.1 s):
   with the same libraries (pyarrow's CSV parser, the archive's Parquet options), nothing
   else.
 
+With `--formats csv,mcap` (the default) the same for a ROS 2 MCAP log of `--size-gb`
+(``sensor_msgs/msg/Imu`` at 1 kHz, CDR payloads serialised with numpy in batches, written
+by mcap's Writer in uncompressed 4 MiB chunks):
+process is `pipelines.ingest.mcap_stream.stream_mcap` then `solve_streamed`; floor reads,
+hashes and copies the file, decodes its messages with the same vectorised CDR decoder and
+writes the Parquet, nothing else (no checks, no statistics).
+
 And the streamed Allan deviation of a 10-million-sample subset (gyro x of the record)
 against allantools' `oadev` (relative error, max over the octave taus both give).
 
-The last stdout line is a JSON object: size_gb, samples, peak_rss_gb (the process),
-floor_peak_rss_gb, process_mb_per_s, floor_mb_per_s, process_to_floor_ratio,
-allan_rel_err_vs_allantools, seconds of each part. Targets: size_gb >= 4,
+The last stdout line is a JSON object: per format (``"csv"``, ``"mcap"``) size_gb,
+samples, peak_rss_gb (the process), floor_peak_rss_gb, process_mb_per_s, floor_mb_per_s,
+process_to_floor_ratio and seconds of each part; the CSV figures also at the top level;
+allan_rel_err_vs_allantools. Targets (each format): size_gb >= 4,
 peak_rss_gb <= 1.5, process_to_floor_ratio <= 1.5, allan_rel_err_vs_allantools <= 1e-9.
 The files are deleted at the end (`--keep` keeps them).
 
-    .venv/bin/python benchmarks/longlog.py --size-gb 4 --dir /tmp
+    .venv/bin/python benchmarks/longlog.py --size-gb 4 --dir /tmp [--formats mcap]
 """
 
 from __future__ import annotations
@@ -147,14 +155,8 @@ def allan_error(parquet: Path, n: int) -> float:
     return float(np.max(np.abs(got.adev[:k, 0] / ref[:k] - 1.0)))
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size-gb", type=float, default=4.0)
-    ap.add_argument("--memory-limit-gb", type=float, default=1.0)
-    ap.add_argument("--dir", type=Path, default=Path(tempfile.gettempdir()))
-    ap.add_argument("--allan-samples", type=int, default=10_000_000)
-    ap.add_argument("--keep", action="store_true")
-    args = ap.parse_args()
+def csv_part(args: argparse.Namespace) -> dict:
+    """The CSV record's figures (and the Allan check on its samples)."""
     work = Path(tempfile.mkdtemp(prefix="longlog-", dir=args.dir))
     limit = str(int(args.memory_limit_gb * 2**30))
     try:
@@ -182,27 +184,255 @@ def main() -> None:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
     (floor_s, floor_rss, _), (proc_s, proc_rss, _) = outs["floor"], outs["process"]
-    print(
-        json.dumps(
-            {
-                "size_gb": round(size / 1e9, 3),
-                "samples": samples,
-                "peak_rss_gb": round(proc_rss / 2**30, 3),
-                "floor_peak_rss_gb": round(floor_rss / 2**30, 3),
-                "process_mb_per_s": round(size / 1e6 / proc_s, 1),
-                "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
-                "process_to_floor_ratio": round(proc_s / floor_s, 3),
-                "allan_rel_err_vs_allantools": err,
-                "seconds": {
-                    "write": round(write_s, 1),
-                    "floor": round(floor_s, 1),
-                    "process": round(proc_s, 1),
-                    "allan_check": round(allan_s, 1),
-                },
-                "memory_limit_gb": args.memory_limit_gb,
-            }
+    return {
+        "size_gb": round(size / 1e9, 3),
+        "samples": samples,
+        "peak_rss_gb": round(proc_rss / 2**30, 3),
+        "floor_peak_rss_gb": round(floor_rss / 2**30, 3),
+        "process_mb_per_s": round(size / 1e6 / proc_s, 1),
+        "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
+        "process_to_floor_ratio": round(proc_s / floor_s, 3),
+        "allan_rel_err_vs_allantools": err,
+        "seconds": {
+            "write": round(write_s, 1),
+            "floor": round(floor_s, 1),
+            "process": round(proc_s, 1),
+            "allan_check": round(allan_s, 1),
+        },
+        "memory_limit_gb": args.memory_limit_gb,
+    }
+
+
+# --- MCAP (ROS 2 sensor_msgs/msg/Imu) ------------------------------------------------
+
+MCAP_PROCESS = """
+import json, sys
+from pathlib import Path
+from pipelines.ingest.csv_stream import solve_streamed
+from pipelines.ingest.data_format import FormatSpec
+from pipelines.ingest.mcap_stream import stream_mcap
+src, work, limit = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
+s = stream_mcap(src, FormatSpec(kind="mcap"), work / "samples.parquet", copy_to=work / "raw",
+                memory_limit=limit)
+cal = solve_streamed(s, {"up_axis": "+z"}, gravity=9.80665, memory_limit=limit)
+print(json.dumps({"samples": s.first.n, "bias_x": cal.parameters["gyr.bias.x"].value}))
+"""
+
+# Reads, hashes and copies every byte, decodes every Imu message of every chunk with the
+# same vectorised decoder and writes the Parquet; no checks, no statistics, no solve.
+MCAP_FLOOR = """
+import hashlib, struct, sys
+from pathlib import Path
+import numpy as np, pyarrow as pa, pyarrow.parquet as pq
+from pipelines.ingest.cdr import IMU_LAYOUT, NS, decode_fixed_cdr, gather
+from pipelines.ingest.csv_stream import ROW_BYTES, block_bytes
+from pipelines.ingest.mcap_records import OP_CHUNK, OP_MESSAGE, decompress, record_starts
+from storage.rawstore import samples_parquet_options
+src, work, limit = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
+names = ["t", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z"]
+schema = pa.schema([(c, pa.float64()) for c in names])
+rows, parts, sha = block_bytes(limit) // ROW_BYTES, [], hashlib.sha256()
+
+def write(w):
+    t = np.concatenate([p["stamp"] for p in parts]) / NS
+    acc = np.concatenate([p["acc"] for p in parts])
+    gyr = np.concatenate([p["gyr"] for p in parts])
+    w.write_table(pa.table([t, *acc.T, *gyr.T], schema=schema))
+    parts.clear()
+
+with src.open("rb") as fh, (work / "raw").open("wb") as copy, pq.ParquetWriter(
+        work / "samples.parquet", schema, **samples_parquet_options(schema)) as w:
+    def take(n):
+        data = fh.read(n)
+        sha.update(data)
+        copy.write(data)
+        return data
+    take(8)
+    pending = 0
+    while True:
+        head = take(9)
+        if len(head) < 9:
+            break
+        body = take(struct.unpack_from("<Q", head, 1)[0])
+        if head[0] != OP_CHUNK:
+            continue
+        size = struct.unpack_from("<Q", body, 16)[0]
+        clen = struct.unpack_from("<I", body, 28)[0]
+        start = 40 + clen
+        data = decompress(str(src), 0, body[32:start - 8].decode(), body[start:], size)
+        arr = np.frombuffer(data, np.uint8)
+        starts = record_starts(data, arr)
+        msg = starts[arr[starts] == OP_MESSAGE]
+        length = gather(arr, msg + 1, "<u8").astype(np.int64)
+        parts.append(decode_fixed_cdr(arr, msg + 31, length - 22, IMU_LAYOUT))
+        pending += len(msg)
+        if pending >= rows:
+            write(w)
+            pending = 0
+    if parts:
+        write(w)
+print(sha.hexdigest())
+"""
+
+# sensor_msgs/msg/Imu as ``ros2 bag record`` stores its definition (with dependencies).
+_SEP = "=" * 80 + "\n"
+IMU_MSGDEF = (
+    "std_msgs/Header header\ngeometry_msgs/Quaternion orientation\n"
+    "float64[9] orientation_covariance\ngeometry_msgs/Vector3 angular_velocity\n"
+    "float64[9] angular_velocity_covariance\ngeometry_msgs/Vector3 linear_acceleration\n"
+    "float64[9] linear_acceleration_covariance\n"
+    f"{_SEP}MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+    f"{_SEP}MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
+    f"{_SEP}MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
+    f"{_SEP}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+)
+# One little-endian CDR Imu message with frame_id "imu_link": encapsulation, Header
+# (stamp, frame_id with its NUL, padding to 8), then 37 float64 (pipelines.ingest.cdr).
+IMU_CDR = np.dtype(
+    [
+        ("encapsulation", "u1", 4),
+        ("sec", "<i4"),
+        ("nanosec", "<u4"),
+        ("frame_len", "<u4"),
+        ("frame_id", "S9"),
+        ("pad", "u1", 3),
+        ("orientation", "<f8", 4),
+        ("orientation_cov", "<f8", 9),
+        ("gyr", "<f8", 3),
+        ("gyr_cov", "<f8", 9),
+        ("acc", "<f8", 3),
+        ("acc_cov", "<f8", 9),
+    ]
+)
+T0_NS = 1_767_225_600_000_000_000  # 2026-01-01 UTC, ns
+
+
+def write_mcap_record(path: Path, size_bytes: int, seed: int = 0) -> int:
+    """A still unit at 1 kHz as ROS 2 Imu messages until the file holds `size_bytes`;
+    returns the messages written. The payloads of a block are one numpy array (the
+    Python loop only hands each one's bytes to the Writer)."""
+    from mcap.writer import CompressionType, Writer
+
+    rng = np.random.default_rng(seed)
+    step = int(1e9 / RATE)
+    rows, walk = 0, np.zeros(3)
+    block = np.zeros(BLOCK_ROWS, IMU_CDR)
+    block["encapsulation"] = [0, 1, 0, 0]
+    block["frame_len"], block["frame_id"] = 9, b"imu_link"
+    block["orientation"][:, 3] = 1.0
+    size = IMU_CDR.itemsize
+    with path.open("wb") as fh:
+        w = Writer(fh, chunk_size=4 << 20, compression=CompressionType.NONE)
+        w.start(profile="ros2", library="benchmarks/longlog.py")
+        sid = w.register_schema("sensor_msgs/msg/Imu", "ros2msg", IMU_MSGDEF.encode())
+        cid = w.register_channel("/imu/data", "cdr", sid)
+        add = w.add_message
+        while fh.tell() < size_bytes:
+            ns = T0_NS + step * (rows + np.arange(BLOCK_ROWS, dtype=np.int64))
+            block["sec"], block["nanosec"] = ns // 1_000_000_000, ns % 1_000_000_000
+            steps = rng.normal(0.0, 1e-7, (BLOCK_ROWS, 3))
+            block["gyr"] = rng.normal(0.0, 1e-3, (BLOCK_ROWS, 3)) + walk + np.cumsum(steps, 0)
+            walk = walk + steps.sum(axis=0)
+            block["acc"] = rng.normal(0.0, 0.01, (BLOCK_ROWS, 3)) + [0.0, 0.0, 9.80665]
+            data = block.tobytes()
+            for i, t in enumerate((ns + 250_000).tolist()):  # logged 0.25 ms after the stamp
+                add(cid, t, data[i * size : (i + 1) * size], t, rows + i)
+            rows += BLOCK_ROWS
+        w.finish()
+    return rows
+
+
+def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
+    """The MCAP record's figures (and the Allan check on its samples when `allan`)."""
+    work = Path(tempfile.mkdtemp(prefix="longlog-mcap-", dir=args.dir))
+    limit = str(int(args.memory_limit_gb * 1e9))
+    out: dict = {}
+    try:
+        src = work / "static.mcap"
+        t0 = time.perf_counter()
+        samples = write_mcap_record(src, int(args.size_gb * 1e9))
+        write_s = time.perf_counter() - t0
+        size = src.stat().st_size
+        print(
+            f"mcap: wrote {size / 1e9:.2f} GB, {samples:,} messages in {write_s:.0f} s",
+            file=sys.stderr,
         )
-    )
+        runs = {}
+        for name, code in (("floor", MCAP_FLOOR), ("process", MCAP_PROCESS)):
+            folder = work / name
+            folder.mkdir()
+            runs[name] = run_child(code, [str(src), str(folder), limit])
+            print(
+                f"mcap {name}: {runs[name][0]:.1f} s, peak {runs[name][1] / 2**30:.2f} GB",
+                file=sys.stderr,
+            )
+            if name == "floor":
+                shutil.rmtree(folder)
+        got = json.loads(runs["process"][2].strip().splitlines()[-1])
+        if got["samples"] != samples:
+            raise SystemExit(f"mcap: {got['samples']} samples streamed, {samples} written")
+        if allan:
+            t0 = time.perf_counter()
+            out["allan_rel_err_vs_allantools"] = allan_error(
+                work / "process" / "samples.parquet", args.allan_samples
+            )
+            out["allan_check_s"] = round(time.perf_counter() - t0, 1)
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+    (floor_s, floor_rss, _), (proc_s, proc_rss, _) = runs["floor"], runs["process"]
+    return {
+        "size_gb": round(size / 1e9, 3),
+        "samples": samples,
+        "peak_rss_gb": round(proc_rss / 2**30, 3),
+        "floor_peak_rss_gb": round(floor_rss / 2**30, 3),
+        "process_mb_per_s": round(size / 1e6 / proc_s, 1),
+        "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
+        "process_to_floor_ratio": round(proc_s / floor_s, 3),
+        "seconds": {
+            "write": round(write_s, 1),
+            "floor": round(floor_s, 1),
+            "process": round(proc_s, 1),
+        },
+        **out,
+    }
+
+
+FIGURES = (
+    "size_gb",
+    "samples",
+    "peak_rss_gb",
+    "floor_peak_rss_gb",
+    "process_mb_per_s",
+    "floor_mb_per_s",
+    "process_to_floor_ratio",
+    "seconds",
+)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size-gb", type=float, default=4.0)
+    ap.add_argument("--memory-limit-gb", type=float, default=1.0)
+    ap.add_argument("--dir", type=Path, default=Path(tempfile.gettempdir()))
+    ap.add_argument("--allan-samples", type=int, default=10_000_000)
+    ap.add_argument("--formats", default="csv,mcap", help="comma-separated: csv, mcap")
+    ap.add_argument("--keep", action="store_true")
+    args = ap.parse_args()
+    formats = [f.strip() for f in args.formats.split(",") if f.strip()]
+    if not formats or set(formats) - {"csv", "mcap"}:
+        ap.error(f"--formats: csv and/or mcap, got {args.formats!r}")
+    result: dict = {}
+    if "csv" in formats:
+        result = csv_part(args)  # its keys at the top level too, as before
+        result["csv"] = {k: result[k] for k in FIGURES if k in result}
+    if "mcap" in formats:
+        result["mcap"] = mcap_part(args, allan="csv" not in formats)
+        if "csv" not in formats:
+            result["allan_rel_err_vs_allantools"] = result["mcap"].pop(
+                "allan_rel_err_vs_allantools"
+            )
+    print(json.dumps(result))
 
 
 if __name__ == "__main__":

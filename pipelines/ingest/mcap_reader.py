@@ -134,6 +134,25 @@ def read_mcap(
         that are not strictly increasing (with the message index).
     """
     name = os.fspath(path)
+    check_arguments(name, imu_topic, temperature_topic, table_topic, table_joint, stamp)
+    reader = _Reader(name, imu_topic, temperature_topic, table_topic, table_joint, stamp)
+    try:
+        with open(name, "rb") as f:
+            reader.read(f, os.fstat(f.fileno()).st_size)
+    except OSError as exc:
+        raise IngestError(f"cannot read file: {exc.strerror or exc}", file=name) from exc
+    return reader.recording()
+
+
+def check_arguments(
+    name: str,
+    imu_topic: str | None,
+    temperature_topic: str | None,
+    table_topic: str | None,
+    table_joint: str | int,
+    stamp: str,
+) -> None:
+    """IngestError for [format] keys of `read_mcap` that cannot be right (before any reading)."""
     if stamp not in ("header", "log"):
         raise IngestError(
             f"stamp must be 'header' or 'log', got {stamp!r}", file=name, field="format.stamp"
@@ -151,13 +170,6 @@ def read_mcap(
             file=name,
             field="format.table_joint",
         )
-    reader = _Reader(name, imu_topic, temperature_topic, table_topic, table_joint, stamp)
-    try:
-        with open(name, "rb") as f:
-            reader.read(f, os.fstat(f.fileno()).st_size)
-    except OSError as exc:
-        raise IngestError(f"cannot read file: {exc.strerror or exc}", file=name) from exc
-    return reader.recording()
 
 
 class _Reader:
@@ -643,8 +655,10 @@ def _concat(ch: _Channel, key: str) -> np.ndarray:
     return np.concatenate([p.pop(key) for p in ch.parts])
 
 
-def _check_finite(name: str, where: str, what: str, values: np.ndarray) -> None:
+def _check_finite(name: str, where: str, what: str, values: np.ndarray, offset: int = 0) -> None:
+    """IngestError at the first message with a non-finite value (`offset`: index of the
+    first row of `values` in the topic, when it is checked in chunks)."""
     bad = ~np.isfinite(values)
     if bad.any():
-        k = int(np.flatnonzero(bad.reshape(len(values), -1).any(axis=1))[0])
+        k = offset + int(np.flatnonzero(bad.reshape(len(values), -1).any(axis=1))[0])
         raise IngestError(f"{where}: non-finite {what} in message {k} (0-based)", file=name)

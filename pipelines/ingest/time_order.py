@@ -27,6 +27,7 @@ def check_time_increases(
     field: str | None = None,
     prefix: str = "",
     restarts: np.ndarray | None = None,
+    offset: int = 0,
 ) -> None:
     """Raise IngestError at the first sample whose time is not after the previous one.
 
@@ -43,6 +44,8 @@ def check_time_increases(
     restarts : (N,) bool, True where a new block of samples begins whose time starts
         afresh (a CSV section whose sample counter restarts): time is checked within
         each block, not across the boundary.
+    offset : the index of ``t[0]`` in the record, for a record checked in chunks (each
+        chunk with the previous one's last stamp in front: ``offset`` is then its index).
 
     Raises
     ------
@@ -59,10 +62,10 @@ def check_time_increases(
     i = int(bad[0]) + 1
     how = "duplicated" if t[i] == t[i - 1] else "going back"
     raise IngestError(
-        f"{prefix}time not strictly increasing at {sample} {i} (0-based; {how}: "
+        f"{prefix}time not strictly increasing at {sample} {offset + i} (0-based; {how}: "
         f"{_number(t[i - 1])} {unit} then {_number(t[i])} {unit}; time must increase)",
         file=file,
-        line=None if line_of is None else line_of(i),
+        line=None if line_of is None else line_of(offset + i),
         field=field,
     )
 
