@@ -206,3 +206,35 @@ def test_certificate_names_the_interval_and_its_method(fleet_archive):
         assert "probability 95% of gyr.scale.x being in tolerance at its end" in text
     assert unit_recall(arch, "U00", runs[0]) is None  # an earlier run: not judged by later data
     assert _interval(None) == "12 months"
+
+
+def test_a_thermal_campaign_is_not_read_as_drift(tmp_path):
+    """A unit calibrated at 0, 20, 40 and 60 deg C on four days differs by its temperature
+    effect (here 200 times the fleet's drift a day), not by drift: the fleet's rate and the
+    interval of a unit calibrated once stay what they are without that unit."""
+    from pipelines.recall import recall_list
+
+    arch = new_archive(tmp_path)
+    _, _, measured = _fleet(np.random.default_rng(3), 8)
+    start = datetime(2024, 1, 8, 9, tzinfo=UTC)
+
+    def add(serial: str, day: float, value: float, temperature_c: float) -> None:
+        scale = Parameter("gyr.scale.x", value, U_MEAS, "1")
+        run = parameter_run(
+            tmp_path, serial, start + timedelta(days=day), [scale],
+            temperature_c=temperature_c, device_model="MPU-6000",
+        )  # fmt: skip
+        archive_run(arch, run)
+
+    for u in range(8):
+        for k, day in enumerate(CAL_DAYS):
+            add(f"U{u}", float(day), float(measured[u, k]), 20.0)
+    add("NEW", 740.0, 0.005, 20.0)
+    alone = {r["serial"]: r for r in recall_list(arch)}["NEW"]
+    assert alone["method"].startswith("variables") and alone["interval_days"] > 0
+    for k, temp in enumerate([0.0, 20.0, 40.0, 60.0]):  # 2e-4 per deg C: 4e-3 a day
+        add("THERMAL", 700.0 + k, 0.005 + 2e-4 * (temp - 20.0), temp)
+    rows = {r["serial"]: r for r in recall_list(arch)}
+    assert rows["NEW"]["interval_days"] == alone["interval_days"], (rows["NEW"], alone)
+    # its own 20 deg C calibration and the fleet's rate: a unit calibrated once
+    assert rows["THERMAL"]["interval_days"] > 0.5 * alone["interval_days"], rows["THERMAL"]
