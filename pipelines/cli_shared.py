@@ -229,7 +229,11 @@ def is_id_column(name: str) -> bool:
 
 
 def print_table(
-    title: str, columns: list[str], rows: list[list[str]], facts: str | None = None
+    title: str,
+    columns: list[str],
+    rows: list[list[str]],
+    facts: str | None = None,
+    whole: tuple[str, ...] = (),
 ) -> None:
     """Print `rows` (strings, rich markup allowed) under `columns` to fit the terminal.
 
@@ -237,14 +241,16 @@ def print_table(
     cells wrap (long words fold) instead of being cut. When even so the table is wider
     than the terminal, columns are left out from the right and named on stderr, unless
     ``calib --wide``, which prints them all at the width they need. `facts` (text
-    common to every row) are printed above the table.
+    common to every row) are printed above the table; `whole` names more columns whose
+    values stay on one line (dates).
     """
     shown = list(columns)
     while True:
         candidate = Table(title=title)
         for name in shown:
-            whole = is_id_column(name) or name == "verdict"  # "needs review" on one line
-            candidate.add_column(name.replace("_", " "), no_wrap=whole, overflow="fold")
+            # "needs review" on one line
+            keep = is_id_column(name) or name == "verdict" or name in whole
+            candidate.add_column(name.replace("_", " "), no_wrap=keep, overflow="fold")
         for row in rows:
             candidate.add_row(*(row[columns.index(n)] for n in shown))
         # minimum: every cell's longest word on one line; maximum: no cell wrapped
