@@ -275,11 +275,11 @@ def print_table(
         err.print(f"(not shown at this width: {hidden}; calib --wide shows every column)")
 
 
-def print_frame(df, title: str) -> None:
+def print_frame(df, title: str, whole: tuple[str, ...] = ()) -> None:
     """A DataFrame as a table that fits the terminal (`print_table`); columns with one
     value in every row (the serial and run of a run's parameters) are said once above it.
     The row's identity (serial, run id) and its verdict come first: a narrow terminal
-    leaves out columns from the right."""
+    leaves out columns from the right; `whole` as in `print_table`."""
     first = [c for c in df.columns if is_id_column(str(c))] + [
         c for c in df.columns if c == "verdict"
     ]
@@ -291,7 +291,8 @@ def print_frame(df, title: str) -> None:
         same = []
     facts = "; ".join(f"{c.replace('_', ' ')}: {rows[0][columns.index(c)]}" for c in same)
     keep = [i for i, c in enumerate(columns) if c not in same]
-    print_table(title, [columns[i] for i in keep], [[r[i] for i in keep] for r in rows], facts)
+    shown = [columns[i] for i in keep]
+    print_table(title, shown, [[r[i] for i in keep] for r in rows], facts, whole)
 
 
 def cell(value: Any) -> str:

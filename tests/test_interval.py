@@ -171,6 +171,35 @@ def test_query_due_lists_the_units_with_their_intervals(fleet_archive):
     ]
 
 
+def test_query_due_table_at_80_columns(fleet_archive, monkeypatch):
+    """The recall at a glance on an 80-column terminal: unit, last calibration, its day,
+    the due date and the interval, dates whole; the rest named as left out."""
+    from pipelines import cli_shared
+
+    for console in (cli_shared.out, cli_shared.err):
+        monkeypatch.setattr(console, "width", 80)
+    monkeypatch.setitem(cli_shared.DISPLAY, "wide", False)
+    arch = fleet_archive[0]
+    res = CliRunner().invoke(app, ["query", "due", "--archive", str(arch.root)])
+    assert res.exit_code == 0, res.output
+    rows = json.loads(
+        CliRunner().invoke(app, ["query", "due", "--archive", str(arch.root), "--format", "json"])
+        .stdout
+    )
+    lines = res.stdout.splitlines()
+    # the table's lines (the facts under it are soft-wrapped text)
+    assert all(len(line) <= 80 for line in lines if line[:1] in "┏┃┡│└"), res.stdout
+    header = " ".join(line for line in lines if line.startswith("┃"))  # wrapped names
+    for name in ("run id", "due", "interval", "months"):
+        assert name in header, header
+    for r in rows:
+        row = next(line for line in lines if r["run_id"] in line)
+        assert r["serial"] in row and r["due"] in row, row
+    # one day for every unit here: said once under the table
+    assert f"calibrated: {rows[0]['started_at'][:10]}" in res.stdout, res.stdout
+    assert "owner: not recorded" in res.stdout
+
+
 def test_due_page_of_calib_serve(fleet_archive):
     from fastapi.testclient import TestClient
 
