@@ -357,3 +357,12 @@ def test_a_bad_period_is_refused_naming_the_option(lab):
         args = ["impact", "RT-7", *period, "--error", "rate_error_ppm=10", "--archive", root]
         res = CliRunner().invoke(app, args)
         assert res.exit_code != 0 and message in res.output, res.output
+
+
+def test_a_moved_value_is_given_with_its_si_unit():
+    from pipelines.impact import moved_text
+
+    bias = {"name": "acc.bias.z", "before": 0.01, "after": 0.011, "change_in_U": 0.5}
+    assert moved_text(bias) == "acc.bias.z 0.01 -> 0.011 m/s^2 (+0.50 U)"
+    scale = {"name": "gyr.scale.x", "before": 0.03, "after": 0.0301, "change_in_U": 2.0}
+    assert moved_text(scale) == "gyr.scale.x 0.03 -> 0.0301 (+2.00 U)"  # a ratio: no unit
