@@ -10,6 +10,7 @@ from datetime import date, timedelta
 from typing import Any
 
 from calib_core import drift, interval
+from calib_core.checks import FAIL
 from calib_core.tolerances import ALL_NAMES, ToleranceProfile
 from pipelines.trends import days_since_epoch, pooled_runs
 from storage import queries
@@ -165,7 +166,10 @@ def _entry(
     how = f"variables, R = {float(prof.recall['reliability']):g}" + (
         f", capped at {prof.recall['max_months']:g} months" if entry.get("capped") else ""
     )
-    if days is None:  # fixed method, or no parameter with a limit and a drift
+    if last["verdict"] == FAIL:  # not released: no interval runs from a failed calibration
+        days, entry = 0.0, {}
+        how = "due now: its last calibration failed"
+    elif days is None:  # fixed method, or no parameter with a limit and a drift
         days = float(prof.recall["fixed_months"]) * DAYS_PER_MONTH
         fallback = "" if prof.recall["method"] == "fixed" else " (no drift to judge by)"
         how = f"fixed {prof.recall['fixed_months']:g} months{fallback}"

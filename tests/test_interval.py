@@ -267,3 +267,22 @@ def test_a_thermal_campaign_is_not_read_as_drift(tmp_path):
     assert rows["NEW"]["interval_days"] == alone["interval_days"], (rows["NEW"], alone)
     # its own 20 deg C calibration and the fleet's rate: a unit calibrated once
     assert rows["THERMAL"]["interval_days"] > 0.5 * alone["interval_days"], rows["THERMAL"]
+
+
+def test_a_unit_whose_last_calibration_failed_is_due_now(tmp_path):
+    """A failed calibration releases nothing: no interval runs from it, whatever the
+    method (here the fixed fallback: one calibration, no fleet)."""
+    from pipelines.recall import recall_list
+
+    arch = new_archive(tmp_path)
+    started = datetime(2026, 3, 2, 9, tzinfo=UTC)
+    for serial, verdict in (("OK-1", "pass"), ("BAD-1", "fail")):
+        scale = Parameter("gyr.scale.x", 0.001, U_MEAS, "1")
+        run = parameter_run(
+            tmp_path, serial, started, [scale], device_model="MPU-6000", verdict=verdict
+        )
+        archive_run(arch, run)
+    rows = {r["serial"]: r for r in recall_list(arch)}
+    assert rows["BAD-1"]["interval_days"] == 0 and rows["BAD-1"]["due"] == "2026-03-02"
+    assert rows["BAD-1"]["method"] == "due now: its last calibration failed"
+    assert rows["OK-1"]["method"] == "fixed 12 months (no drift to judge by)"
