@@ -232,13 +232,12 @@ def resolve_run(
 
 
 def customer_name() -> str | None:
-    """The customer of the lab profile (pipelines.lab), the one place it is recorded."""
+    """The customer of the lab profile (pipelines.lab), the one place it is recorded;
+    None without a lab profile. A bad lab profile raises ValueError naming its file and
+    field (never read as "not recorded")."""
     from pipelines.lab import load_lab_profile
 
-    try:
-        found = load_lab_profile()
-    except ValueError:
-        return None
+    found = load_lab_profile()
     return None if found is None else found[0].get("customer", {}).get("name")
 
 

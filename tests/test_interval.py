@@ -286,3 +286,18 @@ def test_a_unit_whose_last_calibration_failed_is_due_now(tmp_path):
     assert rows["BAD-1"]["interval_days"] == 0 and rows["BAD-1"]["due"] == "2026-03-02"
     assert rows["BAD-1"]["method"] == "due now: its last calibration failed"
     assert rows["OK-1"]["method"] == "fixed 12 months (no drift to judge by)"
+
+
+def test_a_bad_lab_profile_is_refused_not_read_as_no_owner(tmp_path, monkeypatch):
+    from pipelines.recall import recall_list
+
+    arch = new_archive(tmp_path)
+    scale = Parameter("gyr.scale.x", 0.001, U_MEAS, "1")
+    run = parameter_run(tmp_path, "OK-1", datetime(2026, 3, 2, tzinfo=UTC), [scale])
+    archive_run(arch, run)
+    lab = tmp_path / "profiles"
+    lab.mkdir()
+    (lab / "lab.toml").write_text("[customer\nname = 'x'\n")
+    monkeypatch.setenv("CALIB_PROFILES", str(lab))
+    with pytest.raises(ValueError, match="lab profile .*lab.toml"):
+        recall_list(arch)
