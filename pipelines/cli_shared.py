@@ -346,7 +346,11 @@ def is_id_column(name: str) -> bool:
 
 
 def print_table(
-    title: str, columns: list[str], rows: list[list[str]], facts: str | None = None
+    title: str,
+    columns: list[str],
+    rows: list[list[str]],
+    facts: str | None = None,
+    whole: tuple[str, ...] = (),
 ) -> None:
     """Print `rows` (strings, rich markup allowed) under `columns` to fit the terminal.
 
@@ -354,14 +358,16 @@ def print_table(
     cells wrap (long words fold) instead of being cut. When even so the table is wider
     than the terminal, columns are left out from the right and named on stderr, unless
     ``calib --wide``, which prints them all at the width they need. `facts` (text
-    common to every row) are printed above the table.
+    common to every row) are printed above the table; `whole` names more columns whose
+    values stay on one line (dates).
     """
     shown = list(columns)
     while True:
         candidate = Table(title=title)
         for name in shown:
-            whole = is_id_column(name) or name == "verdict"  # "needs review" on one line
-            candidate.add_column(name.replace("_", " "), no_wrap=whole, overflow="fold")
+            # "needs review" on one line
+            keep = is_id_column(name) or name == "verdict" or name in whole
+            candidate.add_column(name.replace("_", " "), no_wrap=keep, overflow="fold")
         for row in rows:
             candidate.add_row(*(row[columns.index(n)] for n in shown))
         # minimum: every cell's longest word on one line, a no-wrap cell whole;
@@ -423,11 +429,11 @@ def _fit(table: Table, width: int) -> None:
         column.width = max(1, w - table._get_padding_width(column._index))
 
 
-def print_frame(df, title: str) -> None:
+def print_frame(df, title: str, whole: tuple[str, ...] = ()) -> None:
     """A DataFrame as a table that fits the terminal (`print_table`); columns with one
     value in every row (the serial and run of a run's parameters) are said once above it.
     The row's identity (serial, run id) and its verdict come first: a narrow terminal
-    leaves out columns from the right."""
+    leaves out columns from the right; `whole` as in `print_table`."""
     first = [c for c in df.columns if is_id_column(str(c))] + [
         c for c in df.columns if c == "verdict"
     ]
@@ -439,7 +445,8 @@ def print_frame(df, title: str) -> None:
         same = []
     facts = "; ".join(f"{c.replace('_', ' ')}: {rows[0][columns.index(c)] or '-'}" for c in same)
     keep = [i for i, c in enumerate(columns) if c not in same]
-    print_table(title, [columns[i] for i in keep], [[r[i] for i in keep] for r in rows], facts)
+    shown = [columns[i] for i in keep]
+    print_table(title, shown, [[r[i] for i in keep] for r in rows], facts, whole)
 
 
 def cell(value: Any) -> str:

@@ -324,10 +324,7 @@ def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
     )
     rows = []
     for r in doc["runs"]:
-        moved = "; ".join(
-            f"{m['name']} {m['before']:.6g} -> {m['after']:.6g} ({m['change_in_U']:+.2f} U)"
-            for m in r["moved"]
-        )
+        moved = "; ".join(moved_text(m) for m in r["moved"])
         status = r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}"
         rows.append(
             "<tr>"
@@ -367,6 +364,23 @@ def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
     )
 
 
+def moved_text(m: dict[str, Any]) -> str:
+    """One moved parameter in words: name, before -> after in SI with its unit, and the
+    change in units of the archived U."""
+    return (
+        f"{m['name']} {m['before']:.6g} -> {m['after']:.6g}{_si_unit(m['name'])} "
+        f"({m['change_in_U']:+.2f} U)"
+    )
+
+
+def _si_unit(name: str) -> str:
+    """' m/s^2' after a value of `name` (SI, as archived); '' for a ratio (scale, misalignment)."""
+    from calib_core.params import unit_of
+
+    unit = unit_of(name)
+    return "" if unit == "1" else f" {unit}"
+
+
 def checks_text(r: dict[str, Any]) -> str:
     """The checks whose outcome changed, in words; "" if none."""
 
@@ -395,8 +409,8 @@ def _campaigns_html(campaigns: list[dict[str, Any]]) -> str:
     for c in campaigns:
         b, a = c["range_before"], c["range_after"]
         moved = "; ".join(
-            f"{m['name']} at {m['temperature_c']:g} degC {m['before']:.6g} -> {m['after']:.6g} "
-            f"({m['change_in_U']:+.2f} U)"
+            f"{m['name']} at {m['temperature_c']:g} degC {m['before']:.6g} -> {m['after']:.6g}"
+            f"{_si_unit(m['name'])} ({m['change_in_U']:+.2f} U)"
             for m in c["moved"][:5]
         )
         model = f"{c['model_id']}" + (f" -> {c['model_id_after']}" if "model_id_after" in c else "")

@@ -143,10 +143,8 @@ def lab_site() -> tuple[dict[str, float], Path] | None:
 
 
 def customer_name() -> str | None:
-    """The customer of the lab profile, the one place it is recorded; None when the lab
-    file names none or cannot be read."""
-    try:
-        found = load_lab_profile()
-    except ValueError:
-        return None
+    """The customer of the lab profile, the one place it is recorded; None without a lab
+    profile. A bad lab profile raises ValueError naming its file and field (never read as
+    "not recorded")."""
+    found = load_lab_profile()
     return None if found is None else found[0].get("customer", {}).get("name")

@@ -10,12 +10,24 @@ from datetime import date, timedelta
 from typing import Any
 
 from calib_core import drift, interval
+from calib_core.checks import FAIL
 from calib_core.tolerances import ALL_NAMES, ToleranceProfile
-from pipelines.trends import days_since_epoch
+from pipelines.trends import days_since_epoch, pooled_runs
 from storage import queries
 from storage.db import Archive
 
 DAYS_PER_MONTH = 365.25 / 12.0
+
+
+def _one_condition(rows: Any) -> Any:
+    """A unit's calibrations at one lab temperature (`pipelines.trends.pooled_runs`): runs
+    of a thermal campaign differ by the temperature effect, which a line over the dates
+    would read as a drift of days, and so set an interval of days for the whole fleet."""
+    temps = [
+        None if t is None or (isinstance(t, float) and math.isnan(t)) else float(t)
+        for t in rows["temperature_c"]
+    ]
+    return rows.iloc[pooled_runs(temps).indices]
 
 
 def _own_slope(rows: Any) -> tuple[float | None, float | None]:
@@ -52,7 +64,7 @@ def model_intervals(
         hist = queries.fleet_history(archive, model, name)
         if hist.empty:
             continue
-        by_unit = {s: g for s, g in hist.groupby("serial")}
+        by_unit = {s: _one_condition(g) for s, g in hist.groupby("serial")}
         slopes = {s: _own_slope(g) for s, g in by_unit.items()}
         have = [(b, v) for b, v in slopes.values() if b is not None and v is not None]
         fleet = drift_of_fleet(have)
@@ -154,7 +166,10 @@ def _entry(
     how = f"variables, R = {float(prof.recall['reliability']):g}" + (
         f", capped at {prof.recall['max_months']:g} months" if entry.get("capped") else ""
     )
-    if days is None:  # fixed method, or no parameter with a limit and a drift
+    if last["verdict"] == FAIL:  # not released: no interval runs from a failed calibration
+        days, entry = 0.0, {}
+        how = "due now: its last calibration failed"
+    elif days is None:  # fixed method, or no parameter with a limit and a drift
         days = float(prof.recall["fixed_months"]) * DAYS_PER_MONTH
         fallback = "" if prof.recall["method"] == "fixed" else " (no drift to judge by)"
         how = f"fixed {prof.recall['fixed_months']:g} months{fallback}"
@@ -163,7 +178,7 @@ def _entry(
         "serial": serial,
         "model": model,
         **last,
-        "owner": owner,
+        "owner": owner or "not recorded",
         "interval_days": round(days, 1),
         "interval_months": round(days / DAYS_PER_MONTH, 1),
         "limiting_parameter": entry.get("parameter"),

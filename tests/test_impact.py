@@ -179,6 +179,25 @@ def test_clock_error_re_solve_matches_the_true_time(lab):
         assert not by_run[runs[key]]["moved"], by_run[runs[key]]["moved"]
 
 
+def test_the_text_report_at_80_columns_shows_verdicts_and_what_moved(lab, monkeypatch):
+    """What a look-back is read for (each run's verdict before and after, the parameters
+    that moved) stays in the table on an 80-column terminal; only extras are left out."""
+    from pipelines import cli_shared
+
+    for console in (cli_shared.out, cli_shared.err):
+        monkeypatch.setattr(console, "width", 80)
+    monkeypatch.setitem(cli_shared.DISPLAY, "wide", False)
+    arch, runs = lab["archive"], lab["runs"]
+    args = ["impact", "DAQ-3", "--from", "2026-03-01", "--error", f"clock_error_ppm={CLOCK_PPM}"]
+    res = CliRunner().invoke(app, [*args, "--archive", str(arch.root)])
+    assert res.exit_code == 0, res.output
+    hidden = res.output.split("not shown at this width: ")[-1] if "not shown" in res.output else ""
+    assert "moved" not in hidden and "after" not in hidden, res.output
+    assert all(len(line) <= 80 for line in res.stdout.splitlines()), res.stdout
+    row = next(line for line in res.stdout.splitlines() if runs["D"] in line)
+    assert " -> " in row and "gyr.scale." in row, res.stdout
+
+
 def test_apply_archives_verified_revisions_with_the_reason(lab):
     arch, runs = lab["archive"], lab["runs"]
     out = lab["tmp"] / "impact.csv"
@@ -327,3 +346,23 @@ def test_rate_error_leaves_runs_without_a_table_rate_alone():
     # The centrifuge estimates its effective radius: a nominal-radius error reaches no solve.
     same, stats = correct_segments(sim.segments, parse_error("radius_error_mm=0.5"))
     assert not stats["affected"] and "effective radius" in stats["what"]
+
+
+def test_a_bad_period_is_refused_naming_the_option(lab):
+    root = str(lab["archive"].root)
+    for period, message in (
+        (["--from", "2026-13-01"], "--from: expected a date YYYY-MM-DD"),
+        (["--from", "2026-06-01", "--to", "2026-03-01"], "--to 2026-03-01 is before --from"),
+    ):
+        args = ["impact", "RT-7", *period, "--error", "rate_error_ppm=10", "--archive", root]
+        res = CliRunner().invoke(app, args)
+        assert res.exit_code != 0 and message in res.output, res.output
+
+
+def test_a_moved_value_is_given_with_its_si_unit():
+    from pipelines.impact import moved_text
+
+    bias = {"name": "acc.bias.z", "before": 0.01, "after": 0.011, "change_in_U": 0.5}
+    assert moved_text(bias) == "acc.bias.z 0.01 -> 0.011 m/s^2 (+0.50 U)"
+    scale = {"name": "gyr.scale.x", "before": 0.03, "after": 0.0301, "change_in_U": 2.0}
+    assert moved_text(scale) == "gyr.scale.x 0.03 -> 0.0301 (+2.00 U)"  # a ratio: no unit

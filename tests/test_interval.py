@@ -171,6 +171,35 @@ def test_query_due_lists_the_units_with_their_intervals(fleet_archive):
     ]
 
 
+def test_query_due_table_at_80_columns(fleet_archive, monkeypatch):
+    """The recall at a glance on an 80-column terminal: unit, last calibration, its day,
+    the due date and the interval, dates whole; the rest named as left out."""
+    from pipelines import cli_shared
+
+    for console in (cli_shared.out, cli_shared.err):
+        monkeypatch.setattr(console, "width", 80)
+    monkeypatch.setitem(cli_shared.DISPLAY, "wide", False)
+    arch = fleet_archive[0]
+    res = CliRunner().invoke(app, ["query", "due", "--archive", str(arch.root)])
+    assert res.exit_code == 0, res.output
+    rows = json.loads(
+        CliRunner().invoke(app, ["query", "due", "--archive", str(arch.root), "--format", "json"])
+        .stdout
+    )
+    lines = res.stdout.splitlines()
+    # the table's lines (the facts under it are soft-wrapped text)
+    assert all(len(line) <= 80 for line in lines if line[:1] in "┏┃┡│└"), res.stdout
+    header = " ".join(line for line in lines if line.startswith("┃"))  # wrapped names
+    for name in ("run id", "due", "interval", "months"):
+        assert name in header, header
+    for r in rows:
+        row = next(line for line in lines if r["run_id"] in line)
+        assert r["serial"] in row and r["due"] in row, row
+    # one day for every unit here: said once under the table
+    assert f"calibrated: {rows[0]['started_at'][:10]}" in res.stdout, res.stdout
+    assert "owner: not recorded" in res.stdout
+
+
 def test_due_page_of_calib_serve(fleet_archive):
     from fastapi.testclient import TestClient
 
@@ -206,3 +235,69 @@ def test_certificate_names_the_interval_and_its_method(fleet_archive):
         assert "probability 95% of gyr.scale.x being in tolerance at its end" in text
     assert unit_recall(arch, "U00", runs[0]) is None  # an earlier run: not judged by later data
     assert _interval(None) == "12 months"
+
+
+def test_a_thermal_campaign_is_not_read_as_drift(tmp_path):
+    """A unit calibrated at 0, 20, 40 and 60 deg C on four days differs by its temperature
+    effect (here 200 times the fleet's drift a day), not by drift: the fleet's rate and the
+    interval of a unit calibrated once stay what they are without that unit."""
+    from pipelines.recall import recall_list
+
+    arch = new_archive(tmp_path)
+    _, _, measured = _fleet(np.random.default_rng(3), 8)
+    start = datetime(2024, 1, 8, 9, tzinfo=UTC)
+
+    def add(serial: str, day: float, value: float, temperature_c: float) -> None:
+        scale = Parameter("gyr.scale.x", value, U_MEAS, "1")
+        run = parameter_run(
+            tmp_path, serial, start + timedelta(days=day), [scale],
+            temperature_c=temperature_c, device_model="MPU-6000",
+        )  # fmt: skip
+        archive_run(arch, run)
+
+    for u in range(8):
+        for k, day in enumerate(CAL_DAYS):
+            add(f"U{u}", float(day), float(measured[u, k]), 20.0)
+    add("NEW", 740.0, 0.005, 20.0)
+    alone = {r["serial"]: r for r in recall_list(arch)}["NEW"]
+    assert alone["method"].startswith("variables") and alone["interval_days"] > 0
+    for k, temp in enumerate([0.0, 20.0, 40.0, 60.0]):  # 2e-4 per deg C: 4e-3 a day
+        add("THERMAL", 700.0 + k, 0.005 + 2e-4 * (temp - 20.0), temp)
+    rows = {r["serial"]: r for r in recall_list(arch)}
+    assert rows["NEW"]["interval_days"] == alone["interval_days"], (rows["NEW"], alone)
+    # its own 20 deg C calibration and the fleet's rate: a unit calibrated once
+    assert rows["THERMAL"]["interval_days"] > 0.5 * alone["interval_days"], rows["THERMAL"]
+
+
+def test_a_unit_whose_last_calibration_failed_is_due_now(tmp_path):
+    """A failed calibration releases nothing: no interval runs from it, whatever the
+    method (here the fixed fallback: one calibration, no fleet)."""
+    from pipelines.recall import recall_list
+
+    arch = new_archive(tmp_path)
+    started = datetime(2026, 3, 2, 9, tzinfo=UTC)
+    for serial, verdict in (("OK-1", "pass"), ("BAD-1", "fail")):
+        scale = Parameter("gyr.scale.x", 0.001, U_MEAS, "1")
+        run = parameter_run(
+            tmp_path, serial, started, [scale], device_model="MPU-6000", verdict=verdict
+        )
+        archive_run(arch, run)
+    rows = {r["serial"]: r for r in recall_list(arch)}
+    assert rows["BAD-1"]["interval_days"] == 0 and rows["BAD-1"]["due"] == "2026-03-02"
+    assert rows["BAD-1"]["method"] == "due now: its last calibration failed"
+    assert rows["OK-1"]["method"] == "fixed 12 months (no drift to judge by)"
+
+
+def test_a_bad_lab_profile_is_refused_not_read_as_no_owner(tmp_path, monkeypatch):
+    from pipelines.recall import recall_list
+
+    arch = new_archive(tmp_path)
+    scale = Parameter("gyr.scale.x", 0.001, U_MEAS, "1")
+    run = parameter_run(tmp_path, "OK-1", datetime(2026, 3, 2, tzinfo=UTC), [scale])
+    archive_run(arch, run)
+    lab = tmp_path / "profiles"
+    lab.mkdir()
+    (lab / "lab.toml").write_text("[customer\nname = 'x'\n")
+    monkeypatch.setenv("CALIB_PROFILES", str(lab))
+    with pytest.raises(ValueError, match="lab profile .*lab.toml"):
+        recall_list(arch)

@@ -60,11 +60,16 @@ def impact_command(
     again from their raw bytes with the reference corrected; verdicts before and after."""
     from calib_core.reference_errors import parse_error
     from pipelines.impact import csv_report, html_report, impact
+    from storage.queries import as_instant
 
     try:
         err_ = parse_error(error)
+        first = as_instant(since, "--from", end_of_day=False)
+        last = as_instant(until, "--to", end_of_day=True)
     except ValueError as exc:
         fail(str(exc))
+    if last is not None and last < first:
+        fail(f"--to {until} is before --from {since}: the period is empty")
     arch = open_archive(archive)
     try:
         doc = impact(arch, equipment_serial, err_, since, until, apply=apply)
@@ -84,30 +89,36 @@ def impact_command(
     if as_json:
         print_json(doc)
         return
+    # What the look-back is for first (the run, verdicts, what moved): a narrow terminal
+    # leaves out columns from the right (print_table).
     rows = [
         [
             r["run_id"],
             r["serial"],
             r["started_at"][:10],
-            r["procedure"],
-            r["verdict_before"],
-            r["verdict_after"] or "failed",
-            "; ".join(
+            f"{r['verdict_before']} -> {r['verdict_after'] or 'failed'}",
+            "\n".join(
                 ([f"{r['temperature_c']['before']:g} -> {r['temperature_c']['after']:g} degC"]
                  if r.get("temperature_c") else [])
                 + [f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"][:3]]
             )  # fmt: skip
             or ("-" if r["affected"] else "not affected"),
             r.get("status", "dry run"),
+            r["procedure"],
         ]
         for r in doc["runs"]
     ]
+    columns = ["run_id", "serial", "started", "before -> after", "moved", "status", "procedure"]
+    if not apply:  # every row a dry run: said once below the table
+        columns.remove("status")
+        rows = [r[:5] + r[6:] for r in rows]
     print_table(
         f"Impact of {doc['reason']}",
-        ["run_id", "serial", "started", "procedure", "before", "after", "moved", "status"],
+        columns,
         rows,
         facts=f"customer: {doc['customer'] or 'not recorded'}; "
         + ("revisions archived" if apply else "dry run: nothing archived (--apply archives)"),
+        whole=("started",),
     )
     for c in doc["campaigns"]:
         b, a = c["range_before"], c["range_after"]

@@ -9,12 +9,16 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, fail, open_archive
+from pipelines.cli_shared import ArchiveOpt, fail, open_archive, print_frame
 from pipelines.commands.query import Format, FormatOpt, emit, query_app
 
 DUE_COLUMNS = ["due", "serial", "model", "run_id", "started_at", "verdict", "interval_months",
                "interval_days",
                "limiting_parameter", "reliability", "method", "owner"]  # fmt: skip
+
+TABLE_COLUMNS = ["serial", "run_id", "calibrated", "due", "interval_months",
+                 "limiting_parameter", "method", "last_verdict", "interval_days", "model",
+                 "reliability", "owner"]  # fmt: skip
 
 
 @query_app.command("due")
@@ -39,4 +43,14 @@ def due(
     except (LookupError, ValueError) as exc:
         fail(str(exc))
     df = pd.DataFrame(rows, columns=DUE_COLUMNS) if rows else pd.DataFrame(columns=DUE_COLUMNS)
-    emit(df, fmt, "Units due" + ("" if before is None else f" by {before}"))
+    title = "Units due" + ("" if before is None else f" by {before}")
+    if fmt is Format.table and not df.empty:
+        # The recall first (unit, last calibration, due date, interval): a narrow terminal
+        # leaves out columns from the right; dates whole.
+        day = [t.date().isoformat() for t in df["started_at"]]
+        table = df.assign(calibrated=day, limiting_parameter=df["limiting_parameter"].fillna("-"))
+        table = table.rename(columns={"verdict": "last_verdict"})
+        table = table[TABLE_COLUMNS]
+        print_frame(table, title, whole=("due", "calibrated"))
+        return
+    emit(df, fmt, title)

@@ -31,17 +31,13 @@ def _record(request: Request, key: str) -> dict[str, Any]:
     raise HTTPException(404, f"no impact record {key!r} in this archive")
 
 
-def _moved(m: dict[str, Any]) -> str:
-    """One moved parameter in words: name, before -> after (change in units of U)."""
-    return f"{m['name']} {m['before']:.6g} -> {m['after']:.6g} ({m['change_in_U']:+.2f} U)"
-
-
 def _texts(r: dict[str, Any]) -> list[str]:
     """What moved in a run: its corrected temperature (a chamber offset), the checks whose
     outcome changed, its parameters."""
-    from pipelines.impact import checks_text, temperature_text
+    from pipelines.impact import checks_text, moved_text, temperature_text
 
-    return [t for t in (temperature_text(r), checks_text(r)) if t] + [_moved(m) for m in r["moved"]]
+    texts = [temperature_text(r), checks_text(r)]
+    return [t for t in texts if t] + [moved_text(m) for m in r["moved"]]
 
 
 @router.get("/impact", response_class=HTMLResponse)
