@@ -9,7 +9,8 @@ a running cumulative sum: each chunk's second differences need the cumulative su
 samples back, so the last rows of the phase are kept (up to `memory_rows`); lags past
 that are read from a `History` the caller supplies (a file in the pipelines, a list of
 arrays by default). `MedianStep`: the median sample period (`Recording.sample_rate`)
-from counts of the distinct time steps.
+from counts of the distinct time steps. `TemperatureTrend` and `RecordSummary`: what
+the lab conditions take of a record.
 
 Same numbers as the in-memory path to rounding (tests/test_streamed.py).
 """
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -339,3 +341,95 @@ def columns(result: AllanResult, cols: slice) -> AllanResult:
         result.rate_hz,
         result.n_samples,
     )
+
+
+class TemperatureTrend:
+    """The sensor temperature of a record pushed in chunks, as `calib_core.conditions`
+    judges it: the means of the pieces `np.array_split` cuts its finite values into
+    (`temperature_spread`'s 1-s means) and the slope of its straight-line fit against
+    time (`temperature_drift`'s, when every value is finite).
+
+    Parameters
+    ----------
+    n_finite : the record's count of finite temperatures (from the first pass).
+    block : samples per mean (the rounded sample rate, Hz, as `temperature_spread`).
+    """
+
+    def __init__(self, n_finite: int, block: int):
+        self.k = max(1, n_finite // max(1, block))
+        q, r = divmod(n_finite, self.k)
+        pieces = np.arange(self.k)
+        self.starts = pieces * q + np.minimum(pieces, r)  # array_split's piece starts
+        self.sizes = np.diff(np.append(self.starts, n_finite))
+        self.sums = np.zeros(self.k)
+        self.seen = 0
+        self.all_finite = True
+        self.fit = Moments(2)  # (t, temp): means and squared deviations
+        self.cross = 0.0  # co-moment of t and temp about their means
+        self.n_finite = n_finite
+
+    def push(self, t: np.ndarray, temp: np.ndarray) -> None:
+        """Add the next samples' times (s) and temperatures (deg C, NaN where none)."""
+        finite = np.isfinite(temp)
+        v = temp if finite.all() else temp[finite]
+        self.all_finite &= bool(v.size == temp.size)
+        if v.size == 0:
+            return
+        piece = np.searchsorted(self.starts, self.seen + np.arange(v.size), side="right") - 1
+        lo = int(piece[0])
+        self.sums[lo : int(piece[-1]) + 1] += np.bincount(piece - lo, weights=v)
+        self.seen += v.size
+        if self.all_finite:
+            self._push_fit(np.asarray(t, float), v)
+
+    def _push_fit(self, t: np.ndarray, v: np.ndarray) -> None:
+        """Chan et al.'s merge of the co-moment, beside the two channels' moments."""
+        n_a, mean_a = int(self.fit.n[0]), self.fit.mean
+        x = np.column_stack([t, v])
+        mean_b = x.mean(axis=0)
+        d = x - mean_b
+        cross_b = float(d[:, 0] @ d[:, 1])
+        if n_a:
+            delta = mean_b - mean_a
+            cross_b += float(delta[0] * delta[1]) * n_a * len(v) / (n_a + len(v))
+        self.cross += cross_b
+        self.fit.push(x)
+
+    def means(self) -> np.ndarray | None:
+        """The pieces' means (deg C); None when no temperature was finite."""
+        if self.n_finite == 0:
+            return None
+        if self.seen != self.n_finite:
+            raise ValueError(
+                f"temperature: {self.seen} finite values pushed, {self.n_finite} announced"
+            )
+        return self.sums / self.sizes
+
+    def slope(self) -> float | None:
+        """The straight-line fit's slope, deg C/s; None unless every value was finite."""
+        if not self.all_finite or self.fit.n[0] < 2 or self.fit.m2[0] == 0:
+            return None
+        return self.cross / float(self.fit.m2[0])
+
+
+@dataclass
+class RecordSummary:
+    """What the lab conditions (`calib_core.conditions`) take of one record that was
+    streamed in chunks, in place of its `Recording`: length, time span, the sensor
+    temperature's 1-s means and trend. No reference channels."""
+
+    label: str
+    n: int
+    t_first: float
+    t_last: float
+    temp_means: np.ndarray | None  # deg C, `TemperatureTrend.means`
+    temp_slope: float | None  # deg C/s, `TemperatureTrend.slope`
+    reference: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return self.n
+
+    @property
+    def duration(self) -> float:
+        """Time span covered, s."""
+        return self.t_last - self.t_first if self.n else 0.0

@@ -25,11 +25,15 @@ Chunk = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 @dataclass
 class FirstPass:
-    """What the first pass over a static record keeps: moments of [gyr | acc] and the
-    median time step (`MedianStep`)."""
+    """What the first pass over a static record keeps: moments of [gyr | acc], the
+    median time step (`MedianStep`), the first time (s) and the smallest and largest
+    value of each channel of [gyr | acc] (the range check)."""
 
     moments: Moments
     step: MedianStep
+    t_first: float | None = None
+    low: np.ndarray | None = None
+    high: np.ndarray | None = None
 
     @classmethod
     def empty(cls) -> FirstPass:
@@ -43,6 +47,19 @@ class FirstPass:
             both = np.hstack([gyr, acc])
         self.moments.push(both)
         self.step.push(t)
+        if both.shape[0] == 0:
+            return
+        low, high = both.min(axis=0), both.max(axis=0)
+        if self.low is None:
+            self.t_first, self.low, self.high = float(t[0]), low, high
+        else:
+            np.minimum(self.low, low, out=self.low)
+            np.maximum(self.high, high, out=self.high)
+
+    @property
+    def t_last(self) -> float | None:
+        """The last time pushed, s."""
+        return self.step.last
 
     @property
     def n(self) -> int:

@@ -22,7 +22,7 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -35,7 +35,9 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from calib_core.calibration import Calibration
+from calib_core.procedures.static_bias import solver_settings
 from calib_core.solvers.static_bias_stream import FirstPass, solve_static_bias_stream
+from calib_core.streamed import TemperatureTrend
 from pipelines.ingest.csv_layout import AXES, header_units, layout_of
 from pipelines.ingest.csv_reader import (
     PROGRESS_THRESHOLD_BYTES,
@@ -49,7 +51,7 @@ from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from storage.rawstore import samples_parquet_options
 
-DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: the `memory_limit` setting's default
+DEFAULT_MEMORY_LIMIT = 10**9  # bytes: the `memory_limit_mb` setting's default
 ROW_BYTES = 8 * 8  # t, 6 channels, temp as float64
 NOT_STREAMED = {
     "name": "motion:record",
@@ -78,6 +80,7 @@ class Streamed:
     samples: Path
     first: FirstPass
     seconds: float
+    temp_finite: int = 0  # samples with a finite temperature (0: no temperature)
 
 
 class Progress:
@@ -178,7 +181,7 @@ def stream_csv(
     show = size > PROGRESS_THRESHOLD_BYTES if progress is None else progress
     bar = Progress(path.name, size, show)
     sha, first = hashlib.sha256(), FirstPass.empty()
-    rows, last_t, done = 0, None, 0
+    rows, last_t, done, temp_finite = 0, None, 0, 0
     schema = pa.schema([("segment", pa.string())] + [(c, pa.float64()) for c in SAMPLE_COLUMNS])
     with (
         path.open("rb") as fh,
@@ -202,12 +205,15 @@ def stream_csv(
             last_t = float(chunk["t"][-1])
             writer.write_table(_table(chunk, label, schema))
             first.push((chunk["t"], chunk["gyr"], chunk["acc"]))
+            if "temp" in layout.roles:
+                temp_finite += int(np.isfinite(chunk["temp"]).sum())
             rows += len(chunk["t"])
             bar.update(done, rows)
     bar.update(done, rows, final=True)
     if rows == 0:
         raise IngestError("no data rows", file=path)
-    return Streamed(sha.hexdigest(), size, Path(samples), first, time.perf_counter() - started)
+    seconds_ = time.perf_counter() - started
+    return Streamed(sha.hexdigest(), size, Path(samples), first, seconds_, temp_finite)
 
 
 def _chunk(
@@ -297,16 +303,24 @@ class FileHistory:
         os.close(self.fd)
 
 
-def samples_chunks(samples: Path, memory_limit: int) -> Iterator[tuple]:
-    """The streamed samples back from their Parquet as (None, gyr, acc) chunks (the solve's
-    second pass needs no time)."""
+def samples_chunks(
+    samples: Path, memory_limit: int, trend: TemperatureTrend | None = None, time_: bool = False
+) -> Iterator[tuple]:
+    """The streamed samples back from their Parquet as (t, gyr, acc) chunks, t None unless
+    `time_` (the solve's second pass needs no time); with `trend`, each chunk's time and
+    temperature go to it."""
     cols = [*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]
+    if trend is not None or time_:
+        cols += ["t", "temp"]
     # pre_buffer off: with it, the batches' buffers of the whole file stay allocated
     # until the iteration ends (memory growing with the record).
     reader = pq.ParquetFile(samples, pre_buffer=False)
     for b in reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols):
         v = [_float_values(b.column(i)) for i in range(6)]
-        yield None, np.column_stack(v[:3]), np.column_stack(v[3:])
+        t = _float_values(b.column(6)) if len(cols) > 6 else None
+        if trend is not None:
+            trend.push(t, _float_values(b.column(7)))
+        yield t if time_ else None, np.column_stack(v[:3]), np.column_stack(v[3:])
 
 
 def batch_rows(memory_limit: int) -> int:
@@ -322,10 +336,16 @@ def solve_streamed(
     label: str = "record",
     gravity: float,
     memory_limit: int = DEFAULT_MEMORY_LIMIT,
+    trend: TemperatureTrend | None = None,
+    chunks: Callable[[], Iterator[tuple]] | None = None,
 ) -> Calibration:
     """The static-bias solve of a streamed record (second pass over its Parquet samples).
 
-    settings : the static-bias settings (up_axis, n_sigma, latitude_deg, ...).
+    settings : the static-bias settings (up_axis, n_sigma, latitude_deg, ...; the reading
+        settings such as memory_limit_mb are left out).
+    trend : fed with the samples' time and temperature on the way (the conditions').
+    chunks : other (t, gyr, acc) chunks to solve (a fresh iterator per call; two passes:
+        e.g. the samples corrected by an earlier calibration); None: the samples'.
     Returns the Calibration, its checks saying what the streamed route did not compute.
     """
     history = FileHistory(streamed.samples.parent)
@@ -333,14 +353,14 @@ def solve_streamed(
     pool = ThreadPoolExecutor(min(os.cpu_count() or 1, 4))
     try:
         cal = solve_static_bias_stream(
-            lambda: samples_chunks(streamed.samples, memory_limit),
+            chunks or (lambda: samples_chunks(streamed.samples, memory_limit, trend)),
             label=label,
-            first=streamed.first,
+            first=None if chunks is not None else streamed.first,
             gravity=gravity,
             history=history,
             memory_rows=4 * batch_rows(memory_limit),
             map_=pool.map,
-            **{k: v for k, v in settings.items() if v is not None},
+            **solver_settings(settings),
         )
     finally:
         pool.shutdown()

@@ -31,8 +31,11 @@ the line/message and field.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
+from calib_core.streamed import RecordSummary
 from pipelines.ingest.csv_stream import DEFAULT_MEMORY_LIMIT, Streamed, stream_csv
+from storage.rawstore import SamplesFile
 
 Streamer = Callable[..., Streamed]
 
@@ -41,4 +44,28 @@ STREAMERS: dict[str, Streamer] = {
     "csv": stream_csv,
 }
 
-__all__ = ["DEFAULT_MEMORY_LIMIT", "STREAMERS", "Streamed", "Streamer"]
+
+@dataclass
+class StreamedRecord:
+    """A run's one record as the streamed route keeps it (`LoadedRun.streamed`).
+
+    label : the segment's label.
+    result : what the streamer's pass gave (hash, size, samples' Parquet, statistics).
+    samples : the samples' Parquet as the archive takes it (path and SHA-256).
+    memory_limit : bytes, the run's limit.
+    summary : what the conditions take of the record; set by the solve's pass.
+    """
+
+    label: str
+    result: Streamed
+    samples: SamplesFile
+    memory_limit: int
+    summary: RecordSummary | None = None
+
+    @property
+    def n(self) -> int:
+        """Samples in the record."""
+        return self.result.first.n
+
+
+__all__ = ["DEFAULT_MEMORY_LIMIT", "STREAMERS", "StreamedRecord", "Streamed", "Streamer"]
