@@ -111,7 +111,7 @@ def solve_static_bias_stream(
     earth = _earth_rate(label, n, n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis)
     rate_hz = 1.0 / first.step.median()
     mean = first.moments.mean
-    clip = SigmaClipFill(mean, first.moments.std(), n_sigma)
+    clip = SigmaClipFill(mean, first.moments.std(), n_sigma, total=first.moments)
     allan = StreamedAllan(
         rate_hz,
         n,

@@ -17,10 +17,13 @@ against the quietest quarter, which this route does not keep (`NOT_STREAMED`).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import queue
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -315,12 +318,44 @@ def samples_chunks(
     # pre_buffer off: with it, the batches' buffers of the whole file stay allocated
     # until the iteration ends (memory growing with the record).
     reader = pq.ParquetFile(samples, pre_buffer=False)
-    for b in reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols):
+    batches = reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols)
+    for b in prefetched(batches):
         v = [_float_values(b.column(i)) for i in range(6)]
         t = _float_values(b.column(6)) if len(cols) > 6 else None
         if trend is not None:
             trend.push(t, _float_values(b.column(7)))
         yield t if time_ else None, np.column_stack(v[:3]), np.column_stack(v[3:])
+
+
+def prefetched(items: Iterator[Any], depth: int = 2) -> Iterator[Any]:
+    """`items`, the next `depth` produced by a thread while the caller works on one (the
+    Parquet decoder releases the GIL: decoding overlaps the solve's arithmetic)."""
+    done = object()
+    slots: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if stop.is_set():
+                    return
+                slots.put(item)
+            slots.put(done)
+        except BaseException as exc:  # noqa: BLE001 - raised again in the caller
+            slots.put(exc)
+
+    worker = threading.Thread(target=produce, name="calib-prefetch", daemon=True)
+    worker.start()
+    try:
+        while (item := slots.get()) is not done:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        while worker.is_alive():  # let a producer blocked on a full queue finish
+            with contextlib.suppress(queue.Empty):
+                slots.get(timeout=0.1)
 
 
 def batch_rows(memory_limit: int) -> int:
