@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import UTC
 from pathlib import Path
@@ -167,11 +168,13 @@ def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) 
     pending.adopt_raw(root, copy, result.sha256)
     raw.append(RawFile(plan.path, seg.file, result.sha256, result.size, m.format.kind))
     _check_range(result.first, samples, plan, gyro, acc)
-    sha, _ = rawstore.hash_and_size(samples)
-    record = StreamedRecord(
-        seg.label, result, rawstore.SamplesFile(samples, sha), plan.memory_limit
-    )
+    # Hashed while the solve reads the file (hashlib releases the GIL).
+    sha = _HASHER.submit(lambda: rawstore.hash_and_size(samples)[0])
+    record = StreamedRecord(seg.label, result, sha, plan.memory_limit)
     return LoadedRun(plan.folder, m, plan.text, {}, raw, set(), streamed=record)
+
+
+_HASHER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-samples-hash")
 
 
 def _check_range(first, samples: Path, plan: StreamPlan, gyro, acc) -> None:
@@ -260,7 +263,7 @@ def as_found_solver(
 
     def found(before: Calibration) -> Calibration:
         def chunks() -> Iterator[tuple]:
-            for t, gyr, acc in samples_chunks(rec.samples.path, rec.memory_limit, time_=True):
+            for t, gyr, acc in samples_chunks(rec.result.samples, rec.memory_limit, time_=True):
                 acc_c, gyr_c = before.correct(acc, gyr)
                 yield t, gyr_c, acc_c
 

@@ -26,7 +26,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,8 +89,8 @@ class Streamed:
 class Progress:
     """Bytes, samples, rate and time left on one stderr line, at most once a second."""
 
-    def __init__(self, name: str, size: int, show: bool):
-        self.name, self.size, self.show = name, size, show
+    def __init__(self, name: str, size: int, show: bool, verb: str = "reading"):
+        self.name, self.size, self.show, self.verb = name, size, show, verb
         self.started = self.last = time.monotonic()
 
     def update(self, done: int, samples: int, final: bool = False) -> None:
@@ -101,7 +101,7 @@ class Progress:
         rate = done / max(now - self.started, 1e-9)
         left = (self.size - done) / rate if rate > 0 else float("nan")
         sys.stderr.write(
-            f"\rreading {self.name}: {done / 1e6:,.0f} / {self.size / 1e6:,.0f} MB, "
+            f"\r{self.verb} {self.name}: {done / 1e6:,.0f} / {self.size / 1e6:,.0f} MB, "
             f"{samples:,} samples, {rate / 1e6:.0f} MB/s, {left:.0f} s left "
             + ("\n" if final else "")
         )
@@ -111,32 +111,53 @@ class Progress:
 def _blocks(fh: BinaryIO, size: int, copy: BinaryIO | None, sha: Any) -> Iterator[memoryview]:
     """The file's bytes in blocks cut after a line end; every byte hashed and copied once.
 
-    Read into one reused buffer; each block is a view of it, valid until the next one
-    (the parser copies what it keeps); the unfinished last line moves to the front.
+    Read into two buffers in turn: a thread hashes and copies one buffer's new bytes
+    while the caller parses the block before it is handed out (hashing overlaps
+    parsing); a buffer is read into again only once its bytes are hashed and copied.
+    Each block is a view, valid until the next one is asked for (the parser copies what
+    it keeps); the unfinished last line moves to the front of the other buffer. All is
+    hashed and copied when the iteration ends.
     """
-    buf = bytearray(2 * size)
-    view, carry = memoryview(buf), 0
-    while True:
-        if len(buf) - carry < size:  # a line longer than a block: a larger buffer
-            grown = bytearray(len(buf) + size)
-            grown[:carry] = view[:carry]
-            buf, view = grown, memoryview(grown)
-        got = fh.readinto(view[carry : carry + size])
-        if not got:
-            if carry:
-                yield view[:carry]
-            return
-        sha.update(view[carry : carry + got])
+    bufs = [bytearray(2 * size), bytearray(2 * size)]
+    jobs: list[Future | None] = [None, None]
+    io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-hash")
+
+    def consume(view: memoryview) -> None:
+        sha.update(view)
         if copy is not None:
-            copy.write(view[carry : carry + got])
-        end = carry + got
-        cut = buf.rfind(b"\n", 0, end) + 1
-        if cut == 0:
-            carry = end
-            continue
-        yield view[:cut]
-        buf[: end - cut] = view[cut:end]
-        carry = end - cut
+            copy.write(view)
+
+    cur, carry = 0, 0
+    prev = memoryview(bufs[0])[:0]
+    try:
+        while True:
+            if jobs[cur] is not None:
+                jobs[cur].result()  # its last bytes are hashed: it may be filled again
+            if len(bufs[cur]) - carry < size:  # a line longer than a block: grow
+                bufs[cur] = bytearray(carry + 2 * size)
+            view = memoryview(bufs[cur])
+            view[:carry] = prev[len(prev) - carry :] if carry else b""
+            got = fh.readinto(view[carry : carry + size])
+            if not got:
+                if carry:
+                    yield view[:carry]
+                return
+            jobs[cur] = io.submit(consume, view[carry : carry + got])
+            end = carry + got
+            cut = bufs[cur].rfind(b"\n", 0, end) + 1
+            prev, carry = view[:end], end - cut
+            if cut:
+                yield view[:cut]
+                cur = 1 - cur
+            # else: no line end yet; read on into the same buffer after the carry
+            else:
+                jobs[cur].result()
+                prev = memoryview(bytes(view[:end]))
+    finally:
+        io.shutdown(wait=True)
+        for job in jobs:
+            if job is not None:
+                job.result()  # raise a failed write (a full disk)
 
 
 def stream_csv(
@@ -358,6 +379,25 @@ def prefetched(items: Iterator[Any], depth: int = 2) -> Iterator[Any]:
                 slots.get(timeout=0.1)
 
 
+def _with_progress(
+    chunks: Callable[[], Iterator[tuple]], streamed: Streamed
+) -> Callable[[], Iterator[tuple]]:
+    """`chunks` with the progress of the solve's pass on stderr (as the read's): the data
+    file's bytes in proportion to the samples done."""
+
+    def run() -> Iterator[tuple]:
+        show = streamed.size > PROGRESS_THRESHOLD_BYTES
+        bar = Progress("the record", streamed.size, show, verb="solving")
+        n, done = max(streamed.first.n, 1), 0
+        for chunk in chunks():
+            yield chunk
+            done += len(chunk[1])
+            bar.update(streamed.size * done // n, done)
+        bar.update(streamed.size, done, final=True)
+
+    return run
+
+
 def batch_rows(memory_limit: int) -> int:
     """Rows per batch of the second pass: the batch and its copies (clip, fill, phase,
     second differences on each thread) several times over within a 16th of the limit."""
@@ -383,14 +423,19 @@ def solve_streamed(
         e.g. the samples corrected by an earlier calibration); None: the samples'.
     Returns the Calibration, its checks saying what the streamed route did not compute.
     """
+    own = chunks is None  # the samples themselves: the first pass's statistics hold
     history = FileHistory(streamed.samples.parent)
+    if chunks is None:
+        chunks = _with_progress(
+            lambda: samples_chunks(streamed.samples, memory_limit, trend), streamed
+        )
     # The Allan deviation's cluster sizes share the cores (NumPy releases the GIL).
     pool = ThreadPoolExecutor(min(os.cpu_count() or 1, 4))
     try:
         cal = solve_static_bias_stream(
-            chunks or (lambda: samples_chunks(streamed.samples, memory_limit, trend)),
+            chunks,
             label=label,
-            first=None if chunks is not None else streamed.first,
+            first=streamed.first if own else None,
             gravity=gravity,
             history=history,
             memory_rows=4 * batch_rows(memory_limit),

@@ -31,6 +31,7 @@ the line/message and field.
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 
 from calib_core.streamed import RecordSummary
@@ -51,16 +52,21 @@ class StreamedRecord:
 
     label : the segment's label.
     result : what the streamer's pass gave (hash, size, samples' Parquet, statistics).
-    samples : the samples' Parquet as the archive takes it (path and SHA-256).
+    samples_sha256 : the SHA-256 of the samples' Parquet, hashed in a thread meanwhile.
     memory_limit : bytes, the run's limit.
     summary : what the conditions take of the record; set by the solve's pass.
     """
 
     label: str
     result: Streamed
-    samples: SamplesFile
+    samples_sha256: Future[str]
     memory_limit: int
     summary: RecordSummary | None = None
+
+    @property
+    def samples(self) -> SamplesFile:
+        """The samples' Parquet as the archive takes it (path and SHA-256)."""
+        return SamplesFile(self.result.samples, self.samples_sha256.result())
 
     @property
     def n(self) -> int:
