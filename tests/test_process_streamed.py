@@ -228,3 +228,62 @@ def test_streamed_run_matches_the_in_memory_run(data, tmp_path):
     src = pacsv.read_csv(data)
     assert np.array_equal(table.column("t").to_numpy(), src.column("time").to_numpy())
     assert np.array_equal(table.column("temp").to_numpy(), src.column("temp").to_numpy())
+
+
+def small_run(tmp_path: Path, name: str, settings: dict, unit: dict | None = None) -> Path:
+    """A 1 MB-limit run of a 1.3 MB record (in-process: `process_run`)."""
+    rng = np.random.default_rng(4)
+    n = 12_000
+    t = np.arange(n) / RATE
+    cols = {"time": t}
+    for a in "xyz":
+        cols[f"acc_{a}"] = rng.normal(0.0, 0.02, n) + (G if a == "z" else 0.0)
+    for a in "xyz":
+        cols[f"gyr_{a}"] = rng.normal(0.0, 1e-3, n)
+    cols["gyr_y"][6000] = 40.0  # rad/s: beyond a 2000 deg/s gyro
+    cols["temp"] = np.full(n, 25.0)
+    folder = tmp_path / name
+    folder.mkdir()
+    pacsv.write_csv(pa.table(cols), folder / "imu.csv")
+    doc = manifest("2026-03-02T08:00:00+00:00", {"memory_limit_mb": 1, **settings})
+    doc["unit"].update(unit or {})
+    (folder / "run.toml").write_text(dumps_toml(doc), encoding="utf-8")
+    assert (folder / "imu.csv").stat().st_size > 10**6
+    return folder
+
+
+@pytest.mark.parametrize(
+    ("settings", "said"),
+    [
+        ({"lowpass": {"cutoff_hz": 10.0}}, "[run.settings.lowpass]"),
+        ({"memory_limit_mb": 0.5}, "expected a number >= 1"),
+    ],
+)
+def test_streamed_route_refuses_what_it_cannot_do_naming_the_setting(tmp_path, settings, said):
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+
+    folder = small_run(tmp_path, "run", settings)
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    out = process_run(discover_runs([folder])[0], arch)
+    assert out["status"] == "failed" and said in out["error"], out["error"]
+    assert "memory_limit_mb" in out["error"]
+    assert not any(p.is_file() for p in (arch.root / "objects").rglob("*"))
+
+
+def test_streamed_route_refuses_a_reading_at_the_sensor_range(tmp_path):
+    """The range check of the in-memory ingest, from the first pass's extremes: the same
+    message (file, time, axis), nothing archived or left behind."""
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+
+    folder = small_run(tmp_path, "run", {}, {"gyro_range_dps": 2000.0})
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    out = process_run(discover_runs([folder])[0], arch)
+    assert out["status"] == "failed", out
+    assert "gyro y reads" in out["error"] and "t = 60.000 s" in out["error"], out["error"]
+    # neither the raw copy nor the samples' Parquet (temporary files) left behind
+    assert not any(p.is_file() for p in (arch.root / "samples").rglob("*"))
+    assert not any(p.is_file() for p in (arch.root / "objects").rglob("*"))
