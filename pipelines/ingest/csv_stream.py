@@ -258,7 +258,9 @@ def _chunk(
                 field=layout.fields[name],
             )
         values[role] = v
-    both = np.empty((n, 6))  # [gyr | acc]: the first pass takes it without a copy
+    # [gyr | acc]: the first pass takes it without a copy; column by column in memory, so
+    # each column is filled, reduced and handed to Arrow without a strided copy.
+    both = np.empty((n, 6), order="F")
     for i, role in enumerate([*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]):
         both[:, i] = values[role]
     gyr = _to_si(both[:, :3], "gyr", fmt)
@@ -285,12 +287,19 @@ def _chunk(
 def _table(chunk: dict[str, np.ndarray], label: str, schema: pa.Schema) -> pa.Table:
     n = len(chunk["t"])
     cols: dict[str, Any] = {"segment": _labels(label, n)}
-    cols["t"] = chunk["t"]
+    cols["t"] = _column(chunk["t"])
     for i, a in enumerate(AXES):
-        cols[f"acc_{a}"] = chunk["acc"][:, i]
-        cols[f"gyr_{a}"] = chunk["gyr"][:, i]
-    cols["temp"] = chunk["temp"]
+        cols[f"acc_{a}"] = _column(chunk["acc"][:, i])
+        cols[f"gyr_{a}"] = _column(chunk["gyr"][:, i])
+    cols["temp"] = _column(chunk["temp"])
     return pa.table(cols, schema=schema)
+
+
+def _column(values: np.ndarray) -> pa.Array:
+    """A float64 column as an Arrow array over the same memory when it is contiguous
+    (NaN stays a value, as ``pa.array`` keeps it)."""
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    return pa.Array.from_buffers(pa.float64(), len(values), [None, pa.py_buffer(values)])
 
 
 def _labels(label: str, n: int) -> pa.Array:
