@@ -41,10 +41,7 @@ class FirstPass:
 
     def push(self, chunk: Chunk) -> None:
         t, gyr, acc = chunk
-        # [gyr | acc] without a copy when the reader made them views of one (n, 6) array
-        both = gyr.base if gyr.base is not None and gyr.base is acc.base else None
-        if both is None or both.shape != (gyr.shape[0], 6):
-            both = np.hstack([gyr, acc])
+        both = _joined(gyr, acc)
         self.moments.push(both)
         self.step.push(t)
         if both.shape[0] == 0:
@@ -64,6 +61,14 @@ class FirstPass:
     @property
     def n(self) -> int:
         return int(self.moments.n[0])
+
+
+def _joined(gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """[gyr | acc] (n, 6): without a copy when the reader made them views of one array."""
+    both = gyr.base if gyr.base is not None and gyr.base is acc.base else None
+    if both is None or both.shape != (gyr.shape[0], 6):
+        return np.hstack([gyr, acc])
+    return both
 
 
 def first_pass(chunks: Iterable[Chunk]) -> FirstPass:
@@ -123,7 +128,7 @@ def solve_static_bias_stream(
         map_=map_,
     )
     for _, gyr, acc in chunks():
-        allan.push(clip.push(np.hstack([gyr, acc])))
+        allan.push(clip.push(_joined(gyr, acc)))
     allan.push(clip.flush())
     result = allan.result()
     kept = clip.kept
