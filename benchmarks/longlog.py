@@ -4,9 +4,10 @@ Writes a static record of `--size-gb` of CSV (1 kHz, time in s, six channels in 
 7 decimals, as loggers print them) under `--dir`, then in child processes (each one's
 peak resident memory, threads and descendants included, sampled every 0.1 s):
 
-- process: `pipelines.ingest.csv_stream.stream_csv` (one pass: hash, raw copy, Parquet
-  samples, first-pass statistics) then `solve_streamed` (the static-bias solve, Allan
-  deviation and noise fits, from the Parquet), with the memory limit `--memory-limit-gb`;
+- process: `calib process --json` of a static_bias run of the record (its run.toml sets
+  ``memory_limit_mb`` from `--memory-limit-gb`) into a new archive: the streamed route
+  (`pipelines.process_streamed`: one pass that hashes, copies and parses the file into the
+  samples' Parquet, then the solve, conditions and archive from the Parquet);
 - floor: one pass that reads, hashes and copies the file and writes the samples' Parquet
   with the same libraries (pyarrow's CSV parser, the archive's Parquet options), nothing
   else.
@@ -54,17 +55,32 @@ ROOT = Path(__file__).resolve().parent.parent
 RATE = 1000.0
 BLOCK_ROWS = 1_000_000
 
-PROCESS = """
-import json, sys
-from pathlib import Path
-from pipelines.ingest.csv_stream import solve_streamed, stream_csv
-from pipelines.ingest.data_format import FormatSpec
-src, work, limit = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
-fmt = FormatSpec(kind="csv", time_column="time", acc_columns=["acc_x", "acc_y", "acc_z"],
-                 gyr_columns=["gyr_x", "gyr_y", "gyr_z"])
-s = stream_csv(src, fmt, work / "samples.parquet", copy_to=work / "raw", memory_limit=limit)
-cal = solve_streamed(s, {"up_axis": "+z"}, gravity=9.80665, memory_limit=limit)
-print(json.dumps({"samples": s.first.n, "bias_x": cal.parameters["gyr.bias.x"].value}))
+MANIFEST = """schema_version = 1
+
+[unit]
+serial = "LONG-0001"
+model = "LongLog"
+manufacturer = "Bench"
+
+[run]
+started = "2026-11-01T00:00:00+00:00"
+operator = "longlog.py"
+procedure = "static_bias"
+tolerance_profile = "mpu6000"
+
+[run.settings]
+up_axis = "+z"
+memory_limit_mb = {limit_mb}
+
+[format]
+kind = "csv"
+time_column = "time"
+acc_columns = ["acc_x", "acc_y", "acc_z"]
+gyr_columns = ["gyr_x", "gyr_y", "gyr_z"]
+
+[[segments]]
+label = "record"
+file = "{data}"
 """
 
 FLOOR = """
@@ -113,16 +129,11 @@ def write_record(path: Path, size_bytes: int, seed: int = 0) -> int:
     return rows
 
 
-def run_child(code: str, args: list[str]) -> tuple[float, float, str]:
+def run_child(argv: list[str], env: dict[str, str] | None = None) -> tuple[float, float, str]:
     """(wall s, peak RSS of the child and its descendants in bytes, stdout) of one child."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "DO_NOT_TRACK": "1"}
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "DO_NOT_TRACK": "1", **(env or {})}
     started = time.perf_counter()
-    proc = subprocess.Popen(
-        [sys.executable, "-c", textwrap.dedent(code), *args],
-        env=env,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, text=True)
     peak, ps = 0, psutil.Process(proc.pid)
     while proc.poll() is None:
         try:
@@ -133,8 +144,32 @@ def run_child(code: str, args: list[str]) -> tuple[float, float, str]:
         time.sleep(0.1)
     out = proc.stdout.read() if proc.stdout else ""
     if proc.returncode:
-        raise SystemExit(f"child failed ({proc.returncode}): {code[:60]}")
+        raise SystemExit(f"child failed ({proc.returncode}): {' '.join(argv)[:80]}\n{out}")
     return time.perf_counter() - started, float(peak), out
+
+
+def calib_process(src: Path, work: Path, limit_gb: float) -> tuple[float, float, str]:
+    """`calib process --json` of a static_bias run of the record `src` (moved into its run
+    folder) into a new archive under `work`, in a child process (`run_child`)."""
+    run = work / "run"
+    run.mkdir()
+    src.rename(run / src.name)
+    text = MANIFEST.format(limit_mb=round(limit_gb * 1000), data=src.name)
+    (run / "run.toml").write_text(text, encoding="utf-8")
+    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
+    env = {"CALIB_ARCHIVE": str(work / "archive"), "CALIB_ISSUE_CERTIFICATES": "0"}
+    try:
+        out = run_child([calib, "process", str(run), "--json"], env)
+    finally:
+        (run / src.name).rename(src)
+    (doc,) = json.loads(out[2])["runs"]
+    if doc["status"] != "ok":
+        raise SystemExit(f"calib process failed: {doc['error']}")
+    return out
+
+
+def report(name: str, out: tuple[float, float, str]) -> None:
+    print(f"{name}: {out[0]:.1f} s, peak {out[1] / 2**30:.2f} GB", file=sys.stderr)
 
 
 def allan_error(parquet: Path, n: int) -> float:
@@ -158,7 +193,7 @@ def allan_error(parquet: Path, n: int) -> float:
 def csv_part(args: argparse.Namespace) -> dict:
     """The CSV record's figures (and the Allan check on its samples)."""
     work = Path(tempfile.mkdtemp(prefix="longlog-", dir=args.dir))
-    limit = str(int(args.memory_limit_gb * 2**30))
+    limit = str(int(args.memory_limit_gb * 1e9))
     try:
         src = work / "static.csv"
         t0 = time.perf_counter()
@@ -167,18 +202,17 @@ def csv_part(args: argparse.Namespace) -> dict:
         size = src.stat().st_size
         print(f"wrote {size / 1e9:.2f} GB, {samples:,} samples in {write_s:.0f} s", file=sys.stderr)
         outs = {}
-        for name, code in (("floor", FLOOR), ("process", PROCESS)):
-            folder = work / name
-            folder.mkdir()
-            outs[name] = run_child(code, [str(src), str(folder), limit])
-            print(
-                f"{name}: {outs[name][0]:.1f} s, peak {outs[name][1] / 2**30:.2f} GB",
-                file=sys.stderr,
-            )
-            if name == "floor":
-                shutil.rmtree(folder)
+        folder = work / "floor"
+        folder.mkdir()
+        floor = [sys.executable, "-c", textwrap.dedent(FLOOR), str(src), str(folder), limit]
+        outs["floor"] = run_child(floor)
+        shutil.rmtree(folder)
+        report("floor", outs["floor"])
+        outs["process"] = calib_process(src, work, args.memory_limit_gb)
+        report("process", outs["process"])
         t0 = time.perf_counter()
-        err = allan_error(work / "process" / "samples.parquet", args.allan_samples)
+        (parquet,) = (work / "archive" / "samples").rglob("*.parquet")
+        err = allan_error(parquet, args.allan_samples)
         allan_s = time.perf_counter() - t0
     finally:
         if not args.keep:

@@ -36,6 +36,7 @@ from calib_core.condition_rules import (  # noqa: F401  (the catalogue's names, 
 )
 from calib_core.preprocess.motion import is_rotation
 from calib_core.recording import Recording
+from calib_core.streamed import RecordSummary
 from calib_core.units import DEG
 
 if TYPE_CHECKING:  # the procedures (every solver, scipy) load where a run is judged: the
@@ -61,6 +62,11 @@ def nominal_rate_dps(label: str) -> float | None:
 
 def _rate_hz(rec: Recording) -> float:
     return (len(rec) - 1) / rec.duration if len(rec) > 1 and rec.duration > 0 else 0.0
+
+
+def temperature_block(rec: Recording | RecordSummary) -> int:
+    """Samples per mean of `temperature_spread`: about one second's."""
+    return max(1, int(round(_rate_hz(rec))))
 
 
 def _statics(segments: Mapping[str, Recording]) -> dict[str, Recording]:
@@ -90,10 +96,14 @@ def temperature_spread(
     """
     means: list[tuple[float, str]] = []
     for label, rec in records.items():
+        if isinstance(rec, RecordSummary):  # streamed: its means kept while read
+            if channel is None and rec.temp_means is not None:
+                means += [(float(m), label) for m in rec.temp_means]
+            continue
         temp = _temperature(rec, channel)
         if temp is None or not np.isfinite(temp).any():
             continue
-        block = max(1, int(round(_rate_hz(rec))))
+        block = temperature_block(rec)
         temp = temp[np.isfinite(temp)]
         k = max(1, len(temp) // block)
         means += [(float(chunk.mean()), label) for chunk in np.array_split(temp, k)]
@@ -107,6 +117,10 @@ def temperature_drift(segments: Mapping[str, Recording]) -> tuple[float | None, 
     """Largest |slope| of the temperature over records of at least 10 min, deg C/h."""
     slopes = []
     for label, rec in segments.items():
+        if isinstance(rec, RecordSummary):  # streamed: its trend kept while read
+            if rec.temp_slope is not None and rec.duration >= 600.0:
+                slopes.append((abs(rec.temp_slope) * 3600.0, label))
+            continue
         if rec.temp is None or rec.duration < 600.0 or not np.isfinite(rec.temp).all():
             continue
         slope = np.polyfit(rec.t - rec.t[0], rec.temp, 1)[0] * 3600.0
@@ -156,7 +170,8 @@ def check_conditions(
 
     Parameters
     ----------
-    segments : the run's segments as acquired (before preprocessing), SI units.
+    segments : the run's segments as acquired (before preprocessing), SI units; a record
+        streamed in chunks as its `calib_core.streamed.RecordSummary`.
     recorded : what the lab recorded: the RECORDED_KEYS, ``temperature_drift_c_per_h``,
         ``resolution_bits`` and ``settle_s`` (before each attitude); None or absent: not
         recorded.

@@ -9,7 +9,8 @@ a running cumulative sum: each chunk's second differences need the cumulative su
 samples back, so the last rows of the phase are kept (up to `memory_rows`); lags past
 that are read from a `History` the caller supplies (a file in the pipelines, a list of
 arrays by default). `MedianStep`: the median sample period (`Recording.sample_rate`)
-from counts of the distinct time steps.
+from counts of the distinct time steps. `TemperatureTrend` and `RecordSummary`: what
+the lab conditions take of a record.
 
 Same numbers as the in-memory path to rounding (tests/test_streamed.py).
 """
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -142,10 +144,17 @@ class SigmaClipFill:
     feed `kept` (`Moments`); `rejected` counts the others per channel.
     """
 
-    def __init__(self, mean: np.ndarray, std: np.ndarray, n_sigma: float):
+    def __init__(
+        self, mean: np.ndarray, std: np.ndarray, n_sigma: float, total: Moments | None = None
+    ):
         self.mean, self.limit = np.asarray(mean, float), n_sigma * np.asarray(std, float)
         channels = self.mean.size
-        self.kept = Moments(channels)
+        # With the whole record's moments (`total`), the kept samples' are those less the
+        # rejected ones' (few): no pass over every sample for them.
+        self.total = total
+        self._kept = Moments(channels)
+        self._rej_sum = np.zeros(channels)  # of (x - mean) over the rejected samples
+        self._rej_sq = np.zeros(channels)  # of (x - mean)^2
         self.rejected = np.zeros(channels, dtype=np.int64)
         self._pending = np.empty((0, channels))
         self._pending_keep = np.empty((0, channels), dtype=bool)
@@ -155,14 +164,41 @@ class SigmaClipFill:
     def push(self, x: np.ndarray) -> np.ndarray:
         """Take the next rows (n, C); return the rows ready, rejected samples filled."""
         x = np.asarray(x, dtype=float)
-        keep = np.abs(x - self.mean) <= self.limit
-        self.kept.push(x, keep)
-        self.rejected += x.shape[0] - keep.sum(axis=0)
+        dev = np.subtract(x, self.mean)
+        keep = np.abs(dev, out=np.empty_like(dev)) <= self.limit
+        if self.total is None:
+            self._kept.push(x, keep)
+            self.rejected += x.shape[0] - keep.sum(axis=0)
+        else:
+            rows, cols = np.nonzero(~keep)
+            self.rejected += np.bincount(cols, minlength=x.shape[1])
+            out = dev[rows, cols]
+            self._rej_sum += np.bincount(cols, weights=out, minlength=x.shape[1])
+            self._rej_sq += np.bincount(cols, weights=out * out, minlength=x.shape[1])
         if len(self._pending):
             x = np.concatenate([self._pending, x])
             keep = np.concatenate([self._pending_keep, keep])
         ready = int(_last_true(keep).min()) + 1  # each channel kept at or after each row
         return self._emit(x, keep, ready)
+
+    @property
+    def kept(self) -> Moments:
+        """Moments of the kept samples of each channel."""
+        if self.total is None:
+            return self._kept
+        t = self.total
+        out = Moments(self.mean.size)
+        out.n = t.n - self.rejected
+        # About the record's mean: sum (x - mean) over all is 0, sum of squares its m2
+        # (plus n (mean_t - mean)^2, 0 when `mean` is the total's, as from a first pass).
+        shift = t.mean - self.mean
+        s1 = t.n * shift - self._rej_sum
+        s2 = t.m2 + t.n * shift**2 - self._rej_sq
+        mean_dev = s1 / np.maximum(out.n, 1)
+        out.shift = self.mean.copy()
+        out._mean = mean_dev
+        out.m2 = np.maximum(s2 - s1 * mean_dev, 0.0)
+        return out
 
     def flush(self) -> np.ndarray:
         """The rows held back; trailing rejected samples take the last kept value."""
@@ -172,24 +208,49 @@ class SigmaClipFill:
         out, k = buf[:ready], keep[:ready]
         last = _last_true(k)
         filled = False
-        for c in np.flatnonzero(~k.all(axis=0)):
+        cols, rows = np.nonzero(~k.T)  # channel by channel, rows ascending
+        ends = np.searchsorted(cols, np.arange(k.shape[1] + 1))
+        for c in np.flatnonzero(ends[1:] > ends[:-1]):
             if not filled:
                 out, filled = out.copy(), True
-            idx = np.arange(self._start, self._start + buf.shape[0])
-            good = np.flatnonzero(keep[:, c])  # kept samples to the right count too
-            xp, fp = idx[good], buf[good, c]
-            if self._prev[c] is not None:
-                xp = np.concatenate([[self._prev[c][0]], xp])
-                fp = np.concatenate([[self._prev[c][1]], fp])
-            if xp.size == 0:
-                raise ValueError(f"sigma clip: channel {c} has no kept sample")
-            bad = ~k[:, c]
-            out[bad, c] = np.interp(idx[:ready][bad], xp, fp)
+            bad = rows[ends[c] : ends[c + 1]]
+            xp, fp = self._neighbours(buf, keep, bad, c)
+            out[bad, c] = np.interp(self._start + bad, xp, fp)
         for c in np.flatnonzero(last >= 0):
             self._prev[c] = (self._start + int(last[c]), float(buf[last[c], c]))
         self._pending, self._pending_keep = buf[ready:].copy(), keep[ready:].copy()
         self._start += ready
         return out
+
+
+    def _neighbours(
+        self, buf: np.ndarray, keep: np.ndarray, bad: np.ndarray, c: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Global indices and values of the kept samples either side of each run of
+        rejected rows `bad` (ascending) of channel `c`: the only points `np.interp` of
+        all kept samples uses, so its values are the same."""
+        brk = np.flatnonzero(np.diff(bad) > 1)
+        left = np.concatenate([bad[:1], bad[brk + 1]]) - 1
+        right = np.concatenate([bad[brk], bad[-1:]]) + 1
+        after = np.flatnonzero(keep[right[-1] :, c])  # the last run's: beyond `ready`
+        if after.size:
+            right[-1] += after[0]
+        else:  # none (the record's end): np.interp keeps the last kept value
+            right = right[:-1]
+        xp = np.unique(np.concatenate([left[left >= 0], right]))
+        fp = buf[xp, c]
+        xp = xp + self._start
+        if left[0] < 0:
+            if self._prev[c] is None:
+                # leading rejected samples take the first kept value (np.interp's rule)
+                if xp.size == 0:
+                    raise ValueError(f"sigma clip: channel {c} has no kept sample")
+                return xp, fp
+            xp = np.concatenate([[self._prev[c][0]], xp])
+            fp = np.concatenate([[self._prev[c][1]], fp])
+        if xp.size == 0:
+            raise ValueError(f"sigma clip: channel {c} has no kept sample")
+        return xp, fp
 
 
 def _last_true(mask: np.ndarray) -> np.ndarray:
@@ -228,6 +289,9 @@ class ListHistory:
 
     def read(self, start: int, stop: int) -> np.ndarray:
         return self._rows[start:stop]
+
+
+BLOCK_ROWS = 8192  # rows of the Allan sums' blocks: two (rows, 6) temporaries in cache
 
 
 class StreamedAllan:
@@ -304,11 +368,20 @@ class StreamedAllan:
         """Add the squared second differences ending in rows j0..j1-1 for cluster size m."""
         lo = max(j0, 2 * m)
         if lo - 2 * m >= g0:
-            # First differences at lag m over the rows lo-m..j1, then their differences:
-            # two passes where theta_{k+2m} - 2 theta_{k+m} + theta_k takes three.
+            # (theta_{k+2m} - theta_{k+m}) - (theta_{k+m} - theta_k), in blocks whose
+            # temporaries stay in the processor's cache.
             span = window[lo - 2 * m - g0 : j1 - g0]
-            e = np.subtract(span[m:], span[:-m])
-            d = np.subtract(e[m:], e[:-m], out=e[: e.shape[0] - m])
+            n, total = j1 - lo, np.zeros(span.shape[1])
+            tmp = np.empty((2, min(n, BLOCK_ROWS), span.shape[1]))
+            for s in range(0, n, BLOCK_ROWS):
+                e = min(s + BLOCK_ROWS, n)
+                mid = span[s + m : e + m]
+                a = np.subtract(span[s + 2 * m : e + 2 * m], mid, out=tmp[0, : e - s])
+                b = np.subtract(mid, span[s:e], out=tmp[1, : e - s])
+                a -= b
+                total += np.einsum("ij,ij->j", a, a)
+            self.sums[k] += total
+            return
         else:
             one = self.history.read(lo - m, j1 - m)
             d = np.subtract(window[lo - g0 : j1 - g0], one)
@@ -339,3 +412,95 @@ def columns(result: AllanResult, cols: slice) -> AllanResult:
         result.rate_hz,
         result.n_samples,
     )
+
+
+class TemperatureTrend:
+    """The sensor temperature of a record pushed in chunks, as `calib_core.conditions`
+    judges it: the means of the pieces `np.array_split` cuts its finite values into
+    (`temperature_spread`'s 1-s means) and the slope of its straight-line fit against
+    time (`temperature_drift`'s, when every value is finite).
+
+    Parameters
+    ----------
+    n_finite : the record's count of finite temperatures (from the first pass).
+    block : samples per mean (the rounded sample rate, Hz, as `temperature_spread`).
+    """
+
+    def __init__(self, n_finite: int, block: int):
+        self.k = max(1, n_finite // max(1, block))
+        q, r = divmod(n_finite, self.k)
+        pieces = np.arange(self.k)
+        self.starts = pieces * q + np.minimum(pieces, r)  # array_split's piece starts
+        self.sizes = np.diff(np.append(self.starts, n_finite))
+        self.sums = np.zeros(self.k)
+        self.seen = 0
+        self.all_finite = True
+        self.fit = Moments(2)  # (t, temp): means and squared deviations
+        self.cross = 0.0  # co-moment of t and temp about their means
+        self.n_finite = n_finite
+
+    def push(self, t: np.ndarray, temp: np.ndarray) -> None:
+        """Add the next samples' times (s) and temperatures (deg C, NaN where none)."""
+        finite = np.isfinite(temp)
+        v = temp if finite.all() else temp[finite]
+        self.all_finite &= bool(v.size == temp.size)
+        if v.size == 0:
+            return
+        piece = np.searchsorted(self.starts, self.seen + np.arange(v.size), side="right") - 1
+        lo = int(piece[0])
+        self.sums[lo : int(piece[-1]) + 1] += np.bincount(piece - lo, weights=v)
+        self.seen += v.size
+        if self.all_finite:
+            self._push_fit(np.asarray(t, float), v)
+
+    def _push_fit(self, t: np.ndarray, v: np.ndarray) -> None:
+        """Chan et al.'s merge of the co-moment, beside the two channels' moments."""
+        n_a, mean_a = int(self.fit.n[0]), self.fit.mean
+        x = np.column_stack([t, v])
+        mean_b = x.mean(axis=0)
+        d = x - mean_b
+        cross_b = float(d[:, 0] @ d[:, 1])
+        if n_a:
+            delta = mean_b - mean_a
+            cross_b += float(delta[0] * delta[1]) * n_a * len(v) / (n_a + len(v))
+        self.cross += cross_b
+        self.fit.push(x)
+
+    def means(self) -> np.ndarray | None:
+        """The pieces' means (deg C); None when no temperature was finite."""
+        if self.n_finite == 0:
+            return None
+        if self.seen != self.n_finite:
+            raise ValueError(
+                f"temperature: {self.seen} finite values pushed, {self.n_finite} announced"
+            )
+        return self.sums / self.sizes
+
+    def slope(self) -> float | None:
+        """The straight-line fit's slope, deg C/s; None unless every value was finite."""
+        if not self.all_finite or self.fit.n[0] < 2 or self.fit.m2[0] == 0:
+            return None
+        return self.cross / float(self.fit.m2[0])
+
+
+@dataclass
+class RecordSummary:
+    """What the lab conditions (`calib_core.conditions`) take of one record that was
+    streamed in chunks, in place of its `Recording`: length, time span, the sensor
+    temperature's 1-s means and trend. No reference channels."""
+
+    label: str
+    n: int
+    t_first: float
+    t_last: float
+    temp_means: np.ndarray | None  # deg C, `TemperatureTrend.means`
+    temp_slope: float | None  # deg C/s, `TemperatureTrend.slope`
+    reference: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return self.n
+
+    @property
+    def duration(self) -> float:
+        """Time span covered, s."""
+        return self.t_last - self.t_first if self.n else 0.0

@@ -12,7 +12,7 @@ solve that cannot be made on the corrected data leaves the step with the reason
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -39,6 +39,7 @@ def as_found_step(
     settings: Mapping[str, Any],
     budgets: Mapping[str, Budget],
     profile: ToleranceProfile | None,
+    solve_found: Callable[[Calibration], Calibration] | None = None,
 ) -> StepRecord:
     """The step ``as_found`` of a run whose unit has the `earlier` calibration.
 
@@ -50,6 +51,8 @@ def as_found_step(
     settings : the run's settings, as solved.
     budgets : this run's GUM budgets (their U is the as-found error's, calib_core.as_found).
     profile : the run's tolerance profile (None: no verdicts).
+    solve_found : the earlier calibration -> the as-found solve, in place of
+        `as_found.evaluate` on `fit` (a record streamed in chunks, `fit` empty).
     """
     started = time.perf_counter()
     said = {
@@ -61,7 +64,10 @@ def as_found_step(
     }
     try:
         before = Calibration.from_dict(earlier["document"])
-        found = as_found.evaluate(before, fit, cal.procedure, cal.gravity, settings)
+        if solve_found is not None:
+            found = solve_found(before)
+        else:
+            found = as_found.evaluate(before, fit, cal.procedure, cal.gravity, settings)
     except ValueError as exc:
         return StepRecord(STEP, settings=said, statistics={"refused": str(exc)})
     rows = as_found.judge(found, before, cal, budgets, profile)

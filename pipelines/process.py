@@ -31,6 +31,13 @@ from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
+from pipelines.process_streamed import (
+    as_found_solver,
+    conditions_segments,
+    load_streamed,
+    solve_streamed_run,
+    stream_plan,
+)
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.rejudge import group_of, rejudge_from
 from pipelines.reports.protocol import render_protocol
@@ -150,14 +157,22 @@ def run_outcome(
 
 
 def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
-    """The step record of ingest: format settings, files, samples per segment, wall time."""
+    """The step record of ingest: format settings, files, samples per segment, wall time
+    (and, for a record streamed in chunks, its memory limit, bytes)."""
+    rec = loaded.streamed
+    samples = {k: len(r) for k, r in loaded.segments.items()}
+    more = {}
+    if rec is not None:
+        samples = {rec.label: rec.n}
+        more = {"streamed": {"memory_limit": rec.memory_limit, "bytes": rec.result.size}}
     return StepRecord(
         "ingest",
         settings={"format": loaded.manifest.format.model_dump(mode="json")},
         statistics={
             "files": len(loaded.raw_files),
-            "samples": {k: len(r) for k, r in loaded.segments.items()},
+            "samples": samples,
             "seconds": round(seconds, 4),
+            **more,
         },
     )
 
@@ -170,8 +185,11 @@ def solve_loaded(
 
     `procedure` and `settings` replace the manifest's procedure and update its
     settings (see `calibrate`). Verification segments stay out of the fit
-    (docs/reports.md); they are checked after.
+    (docs/reports.md); they are checked after. A record streamed in chunks is solved from
+    its samples' Parquet (`pipelines.process_streamed`; no fit segments in memory).
     """
+    if loaded.streamed is not None:
+        return solve_streamed_run(loaded, procedure, settings)
     m = loaded.manifest
     settings = {**m.run.settings, **(settings or {})}
     started = time.perf_counter()
@@ -311,7 +329,7 @@ def run_conditions(
     what the manifest records and the segments as acquired."""
     m = loaded.manifest
     return check_conditions(
-        loaded.segments,
+        conditions_segments(loaded),
         m.recorded_conditions(),
         procedure=m.run.procedure,
         settings=m.run.settings,
@@ -442,7 +460,9 @@ def run_record(
         verdict=judged.verdict,
         profile_name=judged.profile.name,
         profile_version=judged.profile.version,
-        samples=samples_table(loaded.segments),
+        samples=samples_table(loaded.segments)
+        if loaded.streamed is None
+        else loaded.streamed.samples,
         parameter_temperature_c=m.environment.temperature_c,
     )
 
@@ -485,12 +505,22 @@ def process_run(
     pending = rawstore.PendingFiles()
     try:
         started = time.perf_counter()
-        loaded = load_run(source, hash_file=partial(pending.stage_raw, archive.root))
+        # A static-bias record larger than its memory limit is streamed, not read.
+        plan = stream_plan(source)
+        if plan is None:
+            loaded = load_run(source, hash_file=partial(pending.stage_raw, archive.root))
+        else:
+            loaded = load_streamed(plan, archive.root, pending)
         serial = loaded.manifest.unit.serial
         steps = [ingest_step(loaded, time.perf_counter() - started)]
         if reason is not None:
             steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
         if correct is not None:
+            if loaded.streamed is not None:
+                raise ValueError(
+                    "a reference correction of a streamed record is not available: raise "
+                    "run.settings.memory_limit_mb to read it into memory"
+                )
             loaded, corrected = correct(loaded)
             steps.append(corrected)
         cal, solve_steps, settings, budgets, fit = solve_loaded(loaded)
@@ -500,7 +530,10 @@ def process_run(
         judged = check_run(loaded, cal, archive, run_id, budgets)
         earlier = earlier_calibration(archive, serial, loaded.manifest.run.started)
         if earlier is not None:  # the unit comes back: as found beside as left
-            solve_steps.append(as_found_step(earlier, cal, fit, settings, budgets, judged.profile))
+            found = None if loaded.streamed is None else as_found_solver(loaded, cal, settings)
+            solve_steps.append(
+                as_found_step(earlier, cal, fit, settings, budgets, judged.profile, found)
+            )
         protocol_name = f"{serial}_result.txt"
         result: ArchiveResult = archive_run(
             archive,

@@ -111,7 +111,7 @@ class RunIn:
     verdict: str  # "pass", "needs review" or "fail"
     profile_name: str | None
     profile_version: str | None
-    samples: pa.Table | None = None
+    samples: pa.Table | rawstore.SamplesFile | None = None  # a SamplesFile: written already
     # The temperature the parameters belong to (deg C; None: not recorded), kept on
     # every parameter row (the run's lab temperature).
     parameter_temperature_c: float | None = None
@@ -239,8 +239,10 @@ def _validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
         ("steps", [st.to_dict() for st in run.steps]),
     ]:
         _canonical_json(value, where)
-    if run.samples is not None and not isinstance(run.samples, pa.Table):
-        raise TypeError(f"samples: expected a pyarrow.Table, got {type(run.samples).__name__}")
+    if run.samples is not None and not isinstance(run.samples, pa.Table | rawstore.SamplesFile):
+        raise TypeError(
+            f"samples: expected a pyarrow.Table or a SamplesFile, got {type(run.samples).__name__}"
+        )
 
 
 # --- planning ----------------------------------------------------------------
@@ -454,7 +456,13 @@ def _write_files(
         day = run.started_at.astimezone(UTC)
         path = rawstore.samples_path(root, run.serial, day, run_id)
         _note_new(path, created)
-        path, sha = rawstore.write_samples(pending, root, run.serial, day, run_id, run.samples)
+        if isinstance(run.samples, rawstore.SamplesFile):  # a streamed record's, written
+            pending.adopt(run.samples.path, path)
+            sha = run.samples.sha256
+        else:
+            path, sha = rawstore.write_samples(
+                pending, root, run.serial, day, run_id, run.samples
+            )
         samples = (path.relative_to(root).as_posix(), sha)
     # Later revisions get their own folder: an archived file is never overwritten.
     target = rdir if plan.revision == 1 else rdir / f"revision-{plan.revision}"

@@ -222,6 +222,7 @@ class PendingFiles:
         self._pending: dict[Path, _Pending] = {}  # target -> its temporary file
         self._dirs: set[Path] = set()  # folders to fsync at the commit
         self._io: ThreadPoolExecutor | None = None
+        self._loose: set[Path] = set()  # `temp_file`s not yet queued
 
     def __enter__(self) -> PendingFiles:
         return self
@@ -315,6 +316,33 @@ class PendingFiles:
             self._queue(fd, tmp, target, keep_existing=True)
         return sha, n
 
+    def temp_file(self, folder: Path, name: str) -> Path:
+        """A new empty temporary file in `folder` for the caller to fill (a streamed
+        record's raw copy or samples, written before their target is known); deleted by
+        `close` unless queued by `adopt` or `adopt_raw`."""
+        fd, tmp = self._temp(Path(folder), name)
+        os.close(fd)
+        self._loose.add(tmp)
+        return tmp
+
+    def adopt(self, tmp: Path, target: Path) -> None:
+        """Queue a filled `temp_file` for `target` (same file system: renamed at `commit`)."""
+        self._loose.discard(tmp)
+        self._dirs |= _make_dirs(Path(target).parent)
+        self._queue(os.open(tmp, os.O_RDONLY), tmp, Path(target))
+
+    def adopt_raw(self, root: Path, tmp: Path, sha256: str) -> None:
+        """Queue a filled `temp_file` in ``objects/`` holding a raw file's bytes that hashed
+        to `sha256` for its content address (`stage_raw` for a copy made while streaming)."""
+        target = object_path(root, sha256)
+        if target.exists() or target in self:
+            self._loose.discard(tmp)
+            tmp.unlink(missing_ok=True)
+            return
+        self._loose.discard(tmp)
+        self._dirs |= _make_dirs(target.parent)
+        self._queue(os.open(tmp, os.O_RDONLY), tmp, target, keep_existing=True)
+
     def commit(self) -> None:
         """Make every queued file durable under its target name (see the class docstring).
 
@@ -342,6 +370,9 @@ class PendingFiles:
         for item in self._pending.values():
             _discard(item)
         self._pending.clear()
+        for tmp in self._loose:
+            tmp.unlink(missing_ok=True)
+        self._loose.clear()
         self._dirs.clear()
         if self._io is not None:
             self._io.shutdown(wait=True)
@@ -393,6 +424,16 @@ def samples_path(root: Path, serial: str, date: dt.date, run_id: str) -> Path:
     check_safe_name(serial, "serial")
     check_safe_name(run_id, "run id")
     return Path(root) / "samples" / f"serial={serial}" / f"date={_day(date)}" / f"{run_id}.parquet"
+
+
+@dataclass(frozen=True)
+class SamplesFile:
+    """A run's samples already written as Parquet (`samples_parquet_options`) in a
+    `PendingFiles.temp_file` under the samples folder: a record streamed in chunks,
+    archived by renaming rather than writing a table."""
+
+    path: Path
+    sha256: str
 
 
 def write_samples(

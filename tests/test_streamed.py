@@ -140,3 +140,29 @@ def test_streamed_static_bias_same_parameters_as_in_memory():
                     assert math.isclose(a[term], b[term], rel_tol=1e-6), (sensor, term)
     assert got.info["outliers"] == ref.info["outliers"]
     assert got.warnings == ref.warnings
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 64, 4096])
+def test_sigma_clip_fill_runs_across_chunks_and_the_record_ends(chunk):
+    """Rejected runs at the record's start and end, and across chunk boundaries: the same
+    filled samples as the in-memory rule (bit for bit: the same bracketing points), and
+    the kept moments from the whole record's less the rejected ones'."""
+    rng = np.random.default_rng(11)
+    x = rng.normal(0.0, 1.0, (3000, 3))
+    x[:3, 0] += 40.0  # leading run
+    x[-4:, 1] -= 40.0  # trailing run
+    x[60:75, 2] += 40.0  # a run across chunks of 7 and 64
+    total = Moments(3)
+    total.push(x)
+    keep = sigma_clip(x, 3.0)
+    for given in (None, total):
+        clip = SigmaClipFill(total.mean, total.std(), 3.0, total=given)
+        y = np.concatenate([*(clip.push(c) for c in _chunks(x, chunk)), clip.flush()])
+        assert np.array_equal(y, _fill(x, keep))
+        assert np.array_equal(clip.rejected, (~keep).sum(axis=0))
+        # sums of N values in another order: within N eps max|x| (Higham 4.2)
+        bound = x.shape[0] * np.finfo(float).eps * np.abs(x).max()
+        for c in range(3):
+            kept = x[keep[:, c], c]
+            assert abs(clip.kept.mean[c] - kept.mean()) <= bound
+            assert abs(clip.kept.std(ddof=1)[c] - kept.std(ddof=1)) <= bound

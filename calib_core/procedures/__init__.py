@@ -19,7 +19,7 @@ from typing import Any
 from calib_core.calibration import Calibration, StepRecord
 from calib_core.checks import check_physical_bounds
 from calib_core.preprocess.motion import static_motion_checks
-from calib_core.procedures.base import COMMON_SETTINGS, Procedure
+from calib_core.procedures.base import COMMON_SETTINGS, Procedure, Solver
 from calib_core.procedures.centrifuge import CENTRIFUGE
 from calib_core.procedures.equipment_free import EQUIPMENT_FREE
 from calib_core.procedures.integral import INTEGRAL, solve_integral_procedure
@@ -105,7 +105,11 @@ def validate_settings(procedure: str, settings: Mapping[str, Any]) -> dict[str, 
 
 
 def solve(
-    procedure: str, segments: dict[str, Recording], gravity: float, settings: dict[str, Any]
+    procedure: str,
+    segments: dict[str, Recording],
+    gravity: float,
+    settings: dict[str, Any],
+    solver: Solver | None = None,
 ) -> Calibration:
     """Run the named procedure on labelled segments.
 
@@ -116,6 +120,8 @@ def solve(
     gravity : local gravity, m/s^2.
     settings : the run's settings (``[run.settings]``), checked whole against the
         procedure's (docs/procedures.md).
+    solver : in place of the procedure's own, one that finds the same numbers from
+        elsewhere (a record streamed in chunks; `segments` then empty).
 
     Returns
     -------
@@ -131,7 +137,7 @@ def solve(
     validate_settings(procedure, settings or {})
     if not (9.7 < gravity < 9.9):
         raise ValueError(f"gravity must be the local value in m/s^2 (9.7..9.9), got {gravity!r}")
-    cal = proc.solver(segments, gravity, settings)
+    cal = (solver or proc.solver)(segments, gravity, settings)
     cal.info.setdefault("solver_checks", []).extend(
         static_motion_checks(proc.static_segments, segments)
     )
@@ -143,6 +149,7 @@ def solve_step(
     segments: dict[str, Recording],
     settings: dict[str, Any],
     held_out: frozenset[str] | set[str] = frozenset(),
+    solver: Solver | None = None,
 ) -> tuple[Calibration, StepRecord]:
     """The solve step of a run: the one StepRecord a solve leaves in the archive.
 
@@ -152,6 +159,7 @@ def solve_step(
     settings : {"procedure", "gravity" (m/s^2), ...} plus the run's settings (checked whole
         against the procedure's; its own keys are the solver's).
     held_out : labels of verification segments: kept out of the fit, checked after.
+    solver : as `solve`'s.
 
     Returns the Calibration and the StepRecord "solve" (settings used, wall time,
     sample counts, condition number, warnings, held-out labels).
@@ -163,7 +171,7 @@ def solve_step(
     proc_settings = {k: v for k, v in settings.items() if k not in ("procedure", "gravity")}
     fit = {k: v for k, v in segments.items() if k not in held_out}
     started = time.perf_counter()
-    cal = solve(procedure, fit, gravity, proc_settings)
+    cal = solve(procedure, fit, gravity, proc_settings, solver)
     scalars = {k: v for k, v in cal.info.items() if isinstance(v, int | float | str)}
     record = StepRecord(
         name="solve",

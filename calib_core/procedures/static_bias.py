@@ -14,6 +14,7 @@ from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, METHODS, Procedur
 from calib_core.recording import Recording
 from calib_core.solvers.static_bias import solve_static_bias
 
+MEMORY_LIMIT = "memory_limit_mb"  # MB (10^6 bytes)
 UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 SETTINGS = Settings(
     Setting("up_axis", "text", "", None,
@@ -29,7 +30,19 @@ SETTINGS = Settings(
     Setting("n_sigma", "number", "1", 3.0,
             "outlier rule: samples beyond n_sigma std are left out of mean and std", low=0.0,
             low_open=True),
+    Setting(MEMORY_LIMIT, "number", "MB", 1000.0,
+            "memory limit: a record whose files are larger is streamed in chunks (one pass "
+            "over the file, then one over its samples) instead of read into memory",
+            low=1.0),
 )  # fmt: skip
+# Settings that choose how the record is read, not what is solved.
+READING = (MEMORY_LIMIT,)
+
+
+def solver_settings(settings: dict[str, Any] | None) -> dict[str, Any]:
+    """The solver's keyword arguments: the merged settings given, without READING."""
+    s = SETTINGS.merged(settings)
+    return {k: v for k, v in s.items() if v is not None and k not in READING}
 
 
 def solve_static_bias_procedure(
@@ -43,11 +56,8 @@ def solve_static_bias_procedure(
         raise ValueError(
             f"static_bias: expected one static segment, got {len(segments)} ({', '.join(segments)})"
         )
-    s = SETTINGS.merged(settings)
     return solve_static_bias(
-        next(iter(segments.values())),
-        gravity=gravity,
-        **{k: v for k, v in s.items() if v is not None},
+        next(iter(segments.values())), gravity=gravity, **solver_settings(settings)
     )
 
 

@@ -25,11 +25,15 @@ Chunk = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 @dataclass
 class FirstPass:
-    """What the first pass over a static record keeps: moments of [gyr | acc] and the
-    median time step (`MedianStep`)."""
+    """What the first pass over a static record keeps: moments of [gyr | acc], the
+    median time step (`MedianStep`), the first time (s) and the smallest and largest
+    value of each channel of [gyr | acc] (the range check)."""
 
     moments: Moments
     step: MedianStep
+    t_first: float | None = None
+    low: np.ndarray | None = None
+    high: np.ndarray | None = None
 
     @classmethod
     def empty(cls) -> FirstPass:
@@ -37,16 +41,34 @@ class FirstPass:
 
     def push(self, chunk: Chunk) -> None:
         t, gyr, acc = chunk
-        # [gyr | acc] without a copy when the reader made them views of one (n, 6) array
-        both = gyr.base if gyr.base is not None and gyr.base is acc.base else None
-        if both is None or both.shape != (gyr.shape[0], 6):
-            both = np.hstack([gyr, acc])
+        both = _joined(gyr, acc)
         self.moments.push(both)
         self.step.push(t)
+        if both.shape[0] == 0:
+            return
+        low, high = both.min(axis=0), both.max(axis=0)
+        if self.low is None:
+            self.t_first, self.low, self.high = float(t[0]), low, high
+        else:
+            np.minimum(self.low, low, out=self.low)
+            np.maximum(self.high, high, out=self.high)
+
+    @property
+    def t_last(self) -> float | None:
+        """The last time pushed, s."""
+        return self.step.last
 
     @property
     def n(self) -> int:
         return int(self.moments.n[0])
+
+
+def _joined(gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """[gyr | acc] (n, 6): without a copy when the reader made them views of one array."""
+    both = gyr.base if gyr.base is not None and gyr.base is acc.base else None
+    if both is None or both.shape != (gyr.shape[0], 6):
+        return np.hstack([gyr, acc])
+    return both
 
 
 def first_pass(chunks: Iterable[Chunk]) -> FirstPass:
@@ -94,7 +116,7 @@ def solve_static_bias_stream(
     earth = _earth_rate(label, n, n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis)
     rate_hz = 1.0 / first.step.median()
     mean = first.moments.mean
-    clip = SigmaClipFill(mean, first.moments.std(), n_sigma)
+    clip = SigmaClipFill(mean, first.moments.std(), n_sigma, total=first.moments)
     allan = StreamedAllan(
         rate_hz,
         n,
@@ -106,7 +128,7 @@ def solve_static_bias_stream(
         map_=map_,
     )
     for _, gyr, acc in chunks():
-        allan.push(clip.push(np.hstack([gyr, acc])))
+        allan.push(clip.push(_joined(gyr, acc)))
     allan.push(clip.flush())
     result = allan.result()
     kept = clip.kept

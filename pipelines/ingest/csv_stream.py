@@ -17,13 +17,16 @@ against the quietest quarter, which this route does not keep (`NOT_STREAMED`).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import queue
 import sys
 import tempfile
+import threading
 import time
-from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +38,9 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from calib_core.calibration import Calibration
+from calib_core.procedures.static_bias import solver_settings
 from calib_core.solvers.static_bias_stream import FirstPass, solve_static_bias_stream
+from calib_core.streamed import TemperatureTrend
 from pipelines.ingest.csv_layout import AXES, header_units, layout_of
 from pipelines.ingest.csv_reader import (
     PROGRESS_THRESHOLD_BYTES,
@@ -49,7 +54,7 @@ from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from storage.rawstore import samples_parquet_options
 
-DEFAULT_MEMORY_LIMIT = 1 << 30  # bytes: the `memory_limit` setting's default
+DEFAULT_MEMORY_LIMIT = 10**9  # bytes: the `memory_limit_mb` setting's default
 ROW_BYTES = 8 * 8  # t, 6 channels, temp as float64
 NOT_STREAMED = {
     "name": "motion:record",
@@ -78,13 +83,14 @@ class Streamed:
     samples: Path
     first: FirstPass
     seconds: float
+    temp_finite: int = 0  # samples with a finite temperature (0: no temperature)
 
 
 class Progress:
     """Bytes, samples, rate and time left on one stderr line, at most once a second."""
 
-    def __init__(self, name: str, size: int, show: bool):
-        self.name, self.size, self.show = name, size, show
+    def __init__(self, name: str, size: int, show: bool, verb: str = "reading"):
+        self.name, self.size, self.show, self.verb = name, size, show, verb
         self.started = self.last = time.monotonic()
 
     def update(self, done: int, samples: int, final: bool = False) -> None:
@@ -95,7 +101,7 @@ class Progress:
         rate = done / max(now - self.started, 1e-9)
         left = (self.size - done) / rate if rate > 0 else float("nan")
         sys.stderr.write(
-            f"\rreading {self.name}: {done / 1e6:,.0f} / {self.size / 1e6:,.0f} MB, "
+            f"\r{self.verb} {self.name}: {done / 1e6:,.0f} / {self.size / 1e6:,.0f} MB, "
             f"{samples:,} samples, {rate / 1e6:.0f} MB/s, {left:.0f} s left "
             + ("\n" if final else "")
         )
@@ -105,32 +111,53 @@ class Progress:
 def _blocks(fh: BinaryIO, size: int, copy: BinaryIO | None, sha: Any) -> Iterator[memoryview]:
     """The file's bytes in blocks cut after a line end; every byte hashed and copied once.
 
-    Read into one reused buffer; each block is a view of it, valid until the next one
-    (the parser copies what it keeps); the unfinished last line moves to the front.
+    Read into two buffers in turn: a thread hashes and copies one buffer's new bytes
+    while the caller parses the block before it is handed out (hashing overlaps
+    parsing); a buffer is read into again only once its bytes are hashed and copied.
+    Each block is a view, valid until the next one is asked for (the parser copies what
+    it keeps); the unfinished last line moves to the front of the other buffer. All is
+    hashed and copied when the iteration ends.
     """
-    buf = bytearray(2 * size)
-    view, carry = memoryview(buf), 0
-    while True:
-        if len(buf) - carry < size:  # a line longer than a block: a larger buffer
-            grown = bytearray(len(buf) + size)
-            grown[:carry] = view[:carry]
-            buf, view = grown, memoryview(grown)
-        got = fh.readinto(view[carry : carry + size])
-        if not got:
-            if carry:
-                yield view[:carry]
-            return
-        sha.update(view[carry : carry + got])
+    bufs = [bytearray(2 * size), bytearray(2 * size)]
+    jobs: list[Future | None] = [None, None]
+    io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-hash")
+
+    def consume(view: memoryview) -> None:
+        sha.update(view)
         if copy is not None:
-            copy.write(view[carry : carry + got])
-        end = carry + got
-        cut = buf.rfind(b"\n", 0, end) + 1
-        if cut == 0:
-            carry = end
-            continue
-        yield view[:cut]
-        buf[: end - cut] = view[cut:end]
-        carry = end - cut
+            copy.write(view)
+
+    cur, carry = 0, 0
+    prev = memoryview(bufs[0])[:0]
+    try:
+        while True:
+            if jobs[cur] is not None:
+                jobs[cur].result()  # its last bytes are hashed: it may be filled again
+            if len(bufs[cur]) - carry < size:  # a line longer than a block: grow
+                bufs[cur] = bytearray(carry + 2 * size)
+            view = memoryview(bufs[cur])
+            view[:carry] = prev[len(prev) - carry :] if carry else b""
+            got = fh.readinto(view[carry : carry + size])
+            if not got:
+                if carry:
+                    yield view[:carry]
+                return
+            jobs[cur] = io.submit(consume, view[carry : carry + got])
+            end = carry + got
+            cut = bufs[cur].rfind(b"\n", 0, end) + 1
+            prev, carry = view[:end], end - cut
+            if cut:
+                yield view[:cut]
+                cur = 1 - cur
+            # else: no line end yet; read on into the same buffer after the carry
+            else:
+                jobs[cur].result()
+                prev = memoryview(bytes(view[:end]))
+    finally:
+        io.shutdown(wait=True)
+        for job in jobs:
+            if job is not None:
+                job.result()  # raise a failed write (a full disk)
 
 
 def stream_csv(
@@ -178,7 +205,7 @@ def stream_csv(
     show = size > PROGRESS_THRESHOLD_BYTES if progress is None else progress
     bar = Progress(path.name, size, show)
     sha, first = hashlib.sha256(), FirstPass.empty()
-    rows, last_t, done = 0, None, 0
+    rows, last_t, done, temp_finite = 0, None, 0, 0
     schema = pa.schema([("segment", pa.string())] + [(c, pa.float64()) for c in SAMPLE_COLUMNS])
     with (
         path.open("rb") as fh,
@@ -202,12 +229,15 @@ def stream_csv(
             last_t = float(chunk["t"][-1])
             writer.write_table(_table(chunk, label, schema))
             first.push((chunk["t"], chunk["gyr"], chunk["acc"]))
+            if "temp" in layout.roles:
+                temp_finite += int(np.isfinite(chunk["temp"]).sum())
             rows += len(chunk["t"])
             bar.update(done, rows)
     bar.update(done, rows, final=True)
     if rows == 0:
         raise IngestError("no data rows", file=path)
-    return Streamed(sha.hexdigest(), size, Path(samples), first, time.perf_counter() - started)
+    seconds_ = time.perf_counter() - started
+    return Streamed(sha.hexdigest(), size, Path(samples), first, seconds_, temp_finite)
 
 
 def _chunk(
@@ -228,7 +258,9 @@ def _chunk(
                 field=layout.fields[name],
             )
         values[role] = v
-    both = np.empty((n, 6))  # [gyr | acc]: the first pass takes it without a copy
+    # [gyr | acc]: the first pass takes it without a copy; column by column in memory, so
+    # each column is filled, reduced and handed to Arrow without a strided copy.
+    both = np.empty((n, 6), order="F")
     for i, role in enumerate([*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]):
         both[:, i] = values[role]
     gyr = _to_si(both[:, :3], "gyr", fmt)
@@ -255,12 +287,19 @@ def _chunk(
 def _table(chunk: dict[str, np.ndarray], label: str, schema: pa.Schema) -> pa.Table:
     n = len(chunk["t"])
     cols: dict[str, Any] = {"segment": _labels(label, n)}
-    cols["t"] = chunk["t"]
+    cols["t"] = _column(chunk["t"])
     for i, a in enumerate(AXES):
-        cols[f"acc_{a}"] = chunk["acc"][:, i]
-        cols[f"gyr_{a}"] = chunk["gyr"][:, i]
-    cols["temp"] = chunk["temp"]
+        cols[f"acc_{a}"] = _column(chunk["acc"][:, i])
+        cols[f"gyr_{a}"] = _column(chunk["gyr"][:, i])
+    cols["temp"] = _column(chunk["temp"])
     return pa.table(cols, schema=schema)
+
+
+def _column(values: np.ndarray) -> pa.Array:
+    """A float64 column as an Arrow array over the same memory when it is contiguous
+    (NaN stays a value, as ``pa.array`` keeps it)."""
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    return pa.Array.from_buffers(pa.float64(), len(values), [None, pa.py_buffer(values)])
 
 
 def _labels(label: str, n: int) -> pa.Array:
@@ -297,16 +336,77 @@ class FileHistory:
         os.close(self.fd)
 
 
-def samples_chunks(samples: Path, memory_limit: int) -> Iterator[tuple]:
-    """The streamed samples back from their Parquet as (None, gyr, acc) chunks (the solve's
-    second pass needs no time)."""
+def samples_chunks(
+    samples: Path, memory_limit: int, trend: TemperatureTrend | None = None, time_: bool = False
+) -> Iterator[tuple]:
+    """The streamed samples back from their Parquet as (t, gyr, acc) chunks, t None unless
+    `time_` (the solve's second pass needs no time); with `trend`, each chunk's time and
+    temperature go to it."""
     cols = [*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]
+    if trend is not None or time_:
+        cols += ["t", "temp"]
     # pre_buffer off: with it, the batches' buffers of the whole file stay allocated
     # until the iteration ends (memory growing with the record).
     reader = pq.ParquetFile(samples, pre_buffer=False)
-    for b in reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols):
-        v = [_float_values(b.column(i)) for i in range(6)]
-        yield None, np.column_stack(v[:3]), np.column_stack(v[3:])
+    batches = reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols)
+    for b in prefetched(batches):
+        both = np.empty((b.num_rows, 6))  # [gyr | acc]: the solve takes it without a copy
+        for i in range(6):
+            both[:, i] = _float_values(b.column(i))
+        t = _float_values(b.column(6)) if len(cols) > 6 else None
+        if trend is not None:
+            trend.push(t, _float_values(b.column(7)))
+        yield t if time_ else None, both[:, :3], both[:, 3:]
+
+
+def prefetched(items: Iterator[Any], depth: int = 2) -> Iterator[Any]:
+    """`items`, the next `depth` produced by a thread while the caller works on one (the
+    Parquet decoder releases the GIL: decoding overlaps the solve's arithmetic)."""
+    done = object()
+    slots: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if stop.is_set():
+                    return
+                slots.put(item)
+            slots.put(done)
+        except BaseException as exc:  # noqa: BLE001 - raised again in the caller
+            slots.put(exc)
+
+    worker = threading.Thread(target=produce, name="calib-prefetch", daemon=True)
+    worker.start()
+    try:
+        while (item := slots.get()) is not done:
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        while worker.is_alive():  # let a producer blocked on a full queue finish
+            with contextlib.suppress(queue.Empty):
+                slots.get(timeout=0.1)
+
+
+def _with_progress(
+    chunks: Callable[[], Iterator[tuple]], streamed: Streamed
+) -> Callable[[], Iterator[tuple]]:
+    """`chunks` with the progress of the solve's pass on stderr (as the read's): the data
+    file's bytes in proportion to the samples done."""
+
+    def run() -> Iterator[tuple]:
+        show = streamed.size > PROGRESS_THRESHOLD_BYTES
+        bar = Progress("the record", streamed.size, show, verb="solving")
+        n, done = max(streamed.first.n, 1), 0
+        for chunk in chunks():
+            yield chunk
+            done += len(chunk[1])
+            bar.update(streamed.size * done // n, done)
+        bar.update(streamed.size, done, final=True)
+
+    return run
 
 
 def batch_rows(memory_limit: int) -> int:
@@ -322,25 +422,36 @@ def solve_streamed(
     label: str = "record",
     gravity: float,
     memory_limit: int = DEFAULT_MEMORY_LIMIT,
+    trend: TemperatureTrend | None = None,
+    chunks: Callable[[], Iterator[tuple]] | None = None,
 ) -> Calibration:
     """The static-bias solve of a streamed record (second pass over its Parquet samples).
 
-    settings : the static-bias settings (up_axis, n_sigma, latitude_deg, ...).
+    settings : the static-bias settings (up_axis, n_sigma, latitude_deg, ...; the reading
+        settings such as memory_limit_mb are left out).
+    trend : fed with the samples' time and temperature on the way (the conditions').
+    chunks : other (t, gyr, acc) chunks to solve (a fresh iterator per call; two passes:
+        e.g. the samples corrected by an earlier calibration); None: the samples'.
     Returns the Calibration, its checks saying what the streamed route did not compute.
     """
+    own = chunks is None  # the samples themselves: the first pass's statistics hold
     history = FileHistory(streamed.samples.parent)
+    if chunks is None:
+        chunks = _with_progress(
+            lambda: samples_chunks(streamed.samples, memory_limit, trend), streamed
+        )
     # The Allan deviation's cluster sizes share the cores (NumPy releases the GIL).
     pool = ThreadPoolExecutor(min(os.cpu_count() or 1, 4))
     try:
         cal = solve_static_bias_stream(
-            lambda: samples_chunks(streamed.samples, memory_limit),
+            chunks,
             label=label,
-            first=streamed.first,
+            first=streamed.first if own else None,
             gravity=gravity,
             history=history,
             memory_rows=4 * batch_rows(memory_limit),
             map_=pool.map,
-            **{k: v for k, v in settings.items() if v is not None},
+            **solver_settings(settings),
         )
     finally:
         pool.shutdown()

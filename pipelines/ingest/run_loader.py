@@ -22,10 +22,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
 
-from calib_core.recording import Recording, first_range_hit
+from calib_core.recording import RangeHit, Recording, first_range_hit
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.ingest.csv_reader import read_csv_pair, read_csv_sections
 from pipelines.ingest.errors import IngestError
@@ -44,6 +45,9 @@ from pipelines.ingest.mpu6000 import (
 from pipelines.ingest.readers import imutk_format, reader_for
 from pipelines.lab import lab_site
 from storage.rawstore import hash_and_size
+
+if TYPE_CHECKING:
+    from pipelines.ingest.streaming import StreamedRecord
 
 MANIFEST_NAME = "run.toml"
 
@@ -101,6 +105,8 @@ class LoadedRun:
     segments : label -> Recording (SI units), in manifest order.
     raw_files : every input file with its hash, run.toml first.
     verification_labels : labels of segments kept out of the fit.
+    streamed : a record larger than the memory limit, streamed instead of read
+        (`pipelines.ingest.streaming.StreamedRecord`; `segments` is then empty).
     """
 
     folder: Path
@@ -109,6 +115,7 @@ class LoadedRun:
     segments: dict[str, Recording]
     raw_files: list[RawFile]
     verification_labels: set[str]
+    streamed: StreamedRecord | None = None
 
 
 # (sha256, size) of a raw file, e.g. `storage.rawstore.hash_and_size`.
@@ -333,7 +340,7 @@ def _load_described(
         names = seg.files
         for name in names:
             if name not in checked:
-                checked[name] = _data_file(folder, root, seg, i, name, source)
+                checked[name] = data_file(folder, root, seg, i, name, source)
         paths = [checked[name] for name in names]
         if kind == "mpu6000":
             parsed = parse_file_name(paths[0].name)
@@ -390,6 +397,15 @@ def _check_range(
     The resolved gyro range goes into the run's settings (the integral method's own
     check and the archived settings use it).
     """
+    gyro, acc = range_limits(manifest, source)
+    hit = first_range_hit(rec, gyro, acc)
+    if hit is not None:
+        refuse_range_hit(hit, manifest, seg, paths)
+
+
+def range_limits(manifest: RunManifest, source: str) -> tuple[float | None, float | None]:
+    """The gyro (rad/s) and accelerometer (m/s^2) full scales of the run's unit (None: not
+    known); the resolved gyro range goes into the run's settings (`_check_range`)."""
     settings = manifest.run.settings
     given = settings.get("gyro_range_dps")
     if given is not None and (
@@ -403,13 +419,16 @@ def _check_range(
     gyro_dps, acc_g = sensor_ranges(manifest.unit, settings)
     if gyro_dps is not None and given is None:
         settings["gyro_range_dps"] = gyro_dps
-    hit = first_range_hit(
-        rec,
+    return (
         None if gyro_dps is None else gyro_dps * DEG,
         None if acc_g is None else acc_g * STANDARD_GRAVITY,
     )
-    if hit is None:
-        return
+
+
+def refuse_range_hit(
+    hit: RangeHit, manifest: RunManifest, seg: SegmentSpec, paths: list[Path]
+) -> NoReturn:
+    """Raise the IngestError of a reading at the sensor's range: file, time, axis, what to do."""
     if hit.sensor == "gyr":
         what = f"gyro {hit.axis} reads {hit.value / DEG:.3f} deg/s"
         full = f"+-{hit.full_scale / DEG:g} deg/s"
@@ -427,7 +446,7 @@ def _check_range(
     )
 
 
-def _data_file(
+def data_file(
     folder: Path, root: Path, seg: SegmentSpec, index: int, name: str, source: str
 ) -> Path:
     """The path of one of a segment's files, which must exist inside the run folder."""

@@ -1,0 +1,292 @@
+"""A static-bias run whose recording is larger than its memory limit, processed in chunks.
+
+The data file is read once by its format's streamer (`pipelines.ingest.streaming`): its
+bytes hashed and copied into the archive's raw store, its samples written as the run's
+samples Parquet (under a temporary name beside their archived place), the first-pass
+statistics kept. The solve reads the Parquet back in batches (outlier rule, Allan
+deviation and noise fits; the temperature the conditions judge on the way); the
+as-found solve, when the unit comes back, reads it again through the earlier
+calibration. Everything else of `pipelines.process` takes the run as it takes one read
+into memory (`LoadedRun.streamed`); no step holds the whole record.
+
+What the route does not do is said in the run's checks (the motion check of the record,
+the preprocessing outlier step) or refused before reading (`stream_plan`): time windows,
+sections, separate acc/gyr files, reference channels, sync/segmentation/low-pass.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from datetime import UTC
+from pathlib import Path
+from typing import Any
+
+from calib_core import procedures
+from calib_core.calibration import Calibration, StepRecord
+from calib_core.checks import MODEL_PREFIX
+from calib_core.conditions import temperature_block
+from calib_core.preprocess.chain import DEFAULT_OUTLIERS, OUTLIER_KEYS, settings_table
+from calib_core.procedures.static_bias import MEMORY_LIMIT
+from calib_core.procedures.static_bias import SETTINGS as STATIC_SETTINGS
+from calib_core.recording import RANGE_MARGIN, Recording, first_range_hit
+from calib_core.streamed import RecordSummary, TemperatureTrend
+from calib_core.uncertainty import Budget
+from pipelines.ingest import RunSource
+from pipelines.ingest.csv_layout import layout_of
+from pipelines.ingest.csv_stream import samples_chunks, solve_streamed
+from pipelines.ingest.errors import IngestError
+from pipelines.ingest.manifest import RunManifest, SegmentSpec, check_segments, load_manifest
+from pipelines.ingest.run_loader import (
+    MANIFEST_NAME,
+    LoadedRun,
+    RawFile,
+    data_file,
+    range_limits,
+    refuse_range_hit,
+    with_lab_site,
+)
+from pipelines.ingest.streaming import STREAMERS, StreamedRecord
+from pipelines.uncertainty import uncertainty_step
+from storage import rawstore
+
+MB = 1_000_000  # bytes: the unit of memory_limit_mb
+PREPROCESSING = ("sync", "segmentation", "lowpass")  # tables the streamed route does not apply
+
+
+def memory_limit(settings: dict[str, Any]) -> int:
+    """The run's memory limit, bytes (``run.settings.memory_limit_mb``, checked)."""
+    setting = STATIC_SETTINGS.items[MEMORY_LIMIT]
+    value = settings.get(MEMORY_LIMIT, setting.default)
+    setting.check(value)
+    return int(value * MB)
+
+
+@dataclass(frozen=True)
+class StreamPlan:
+    """A run the streamed route takes: its validated manifest and its one data file."""
+
+    folder: Path
+    manifest: RunManifest
+    manifest_path: Path
+    text: str
+    segment: SegmentSpec
+    path: Path
+    memory_limit: int
+
+
+def stream_plan(source: RunSource) -> StreamPlan | None:
+    """The streamed route's plan of a run; None when the run is read into memory.
+
+    A static_bias run whose data file is larger than its memory limit is streamed; one
+    that the route cannot take (see the module docstring) is refused with the reason,
+    rather than read into memory past its limit.
+
+    Raises
+    ------
+    IngestError naming the manifest, the field and what to change.
+    """
+    if source.kind != "manifest":
+        return None
+    manifest_path = source.folder / MANIFEST_NAME
+    manifest = load_manifest(manifest_path)
+    if manifest.run.procedure != "static_bias" or len(manifest.segments) != 1:
+        return None
+    where = str(manifest_path)
+    seg = manifest.segments[0]
+    root = source.folder.resolve()
+    paths = [data_file(source.folder, root, seg, 0, name, where) for name in seg.files]
+    try:
+        limit = memory_limit(manifest.run.settings)
+    except ValueError as exc:
+        raise IngestError(str(exc), file=where, field=f"run.settings.{MEMORY_LIMIT}") from None
+    size = sum(p.stat().st_size for p in paths)
+    if size <= limit:
+        return None
+    refused = _not_streamed(manifest, seg, paths)
+    if refused is not None:
+        raise IngestError(
+            f"the recording ({size / MB:,.0f} MB) is larger than the memory limit "
+            f"({limit / MB:,.0f} MB) and is read in chunks, which does not take {refused}; "
+            f"raise {MEMORY_LIMIT} to read it into memory",
+            file=where,
+            field=f"run.settings.{MEMORY_LIMIT}",
+        )
+    check_segments(manifest, where)
+    manifest = with_lab_site(manifest, where)
+    text = manifest_path.read_text(encoding="utf-8")
+    return StreamPlan(source.folder, manifest, manifest_path, text, seg, paths[0], limit)
+
+
+def _not_streamed(manifest: RunManifest, seg: SegmentSpec, paths: list[Path]) -> str | None:
+    """What of the run the streamed route does not take, or None."""
+    kind = manifest.format.kind
+    if kind not in STREAMERS:
+        return f"format kind {kind!r} (streamed: {', '.join(sorted(STREAMERS))})"
+    if len(paths) != 1:
+        return "separate acc_file and gyr_file"
+    if seg.start_s is not None or seg.end_s is not None:
+        return "a segment's time window (start_s, end_s)"
+    if seg.section is not None or manifest.format.section_column is not None:
+        return "sections"
+    if seg.verification:
+        return "a verification segment"
+    given = [t for t in PREPROCESSING if manifest.run.settings.get(t) is not None]
+    if given:
+        return f"[run.settings.{given[0]}]"
+    if kind == "csv":
+        refs = [r for r in layout_of(paths[0], manifest.format, sections=False).roles if ":" in r]
+        if refs:
+            return f"reference channels ({', '.join(refs)})"
+    return None
+
+
+def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) -> LoadedRun:
+    """Hash and stage the manifest, stream the data file (hash, raw copy, samples' Parquet,
+    statistics) and check the sensor's range; the run as `load_run` gives it, its record
+    in `streamed`."""
+    m, seg = plan.manifest, plan.segment
+    where = str(plan.manifest_path)
+    staged = pending.stage_raw(root, plan.manifest_path)
+    raw = [RawFile(plan.manifest_path, MANIFEST_NAME, *staged, "manifest")]
+    gyro, acc = range_limits(m, where)
+    # Beside their archived place (a rename at the archive's commit); the run id is not
+    # known before the file is hashed, the folder is.
+    folder = rawstore.samples_path(root, m.unit.serial, m.run.started.astimezone(UTC), "x").parent
+    samples = pending.temp_file(folder, "samples")
+    copy = pending.temp_file(Path(root) / "objects", "incoming")
+    result = STREAMERS[m.format.kind](
+        plan.path,
+        m.format,
+        samples,
+        copy_to=copy,
+        label=seg.label,
+        memory_limit=plan.memory_limit,
+    )
+    pending.adopt_raw(root, copy, result.sha256)
+    raw.append(RawFile(plan.path, seg.file, result.sha256, result.size, m.format.kind))
+    _check_range(result.first, samples, plan, gyro, acc)
+    # Hashed while the solve reads the file (hashlib releases the GIL).
+    sha = _HASHER.submit(lambda: rawstore.hash_and_size(samples)[0])
+    record = StreamedRecord(seg.label, result, sha, plan.memory_limit)
+    return LoadedRun(plan.folder, m, plan.text, {}, raw, set(), streamed=record)
+
+
+_HASHER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-samples-hash")
+
+
+def _check_range(first, samples: Path, plan: StreamPlan, gyro, acc) -> None:
+    """`load_run`'s range check: the channels' extremes from the first pass; only when one
+    comes near the range are the samples read again for the first reading at it."""
+    near = False
+    for cols, full in ((slice(0, 3), gyro), (slice(3, 6), acc)):
+        if full is not None:
+            limit = full * (1.0 - RANGE_MARGIN)
+            near |= bool((first.low[cols] <= -limit).any() or (first.high[cols] >= limit).any())
+    if not near:
+        return
+    for t, g, a in samples_chunks(samples, plan.memory_limit, time_=True):
+        hit = first_range_hit(Recording(t=t, acc=a, gyr=g), gyro, acc)
+        if hit is not None:
+            refuse_range_hit(hit, plan.manifest, plan.segment, [plan.path])
+
+
+NOT_STREAMED_OUTLIERS = (
+    "not done: the record was streamed (larger than the memory limit); the iterative "
+    "outlier rule needs it in memory, the static-bias solve's own n-sigma rule applies"
+)
+
+
+def solve_streamed_run(
+    loaded: LoadedRun, procedure: str | None = None, settings: dict[str, Any] | None = None
+) -> tuple[Calibration, list[StepRecord], dict[str, Any], dict[str, Budget], dict]:
+    """`pipelines.process.solve_loaded` of a streamed run: the same five results, the fit
+    segments empty (nothing downstream reads them: `as_found_solver`)."""
+    m, rec = loaded.manifest, loaded.streamed
+    assert rec is not None
+    settings = {**m.run.settings, **(settings or {})}
+    procedure = procedure or m.run.procedure
+    if procedure != "static_bias":
+        raise ValueError(f"a streamed record is solved by static_bias only, not {procedure!r}")
+    cfg = {**DEFAULT_OUTLIERS, **(settings_table(settings, "outliers", OUTLIER_KEYS) or {})}
+    skipped = {"skipped": True}
+    checks = []
+    if cfg["method"] != "none":  # said in the step and the checks; the numbers stand
+        skipped["reason"] = NOT_STREAMED_OUTLIERS
+        name = f"{MODEL_PREFIX}replaced:outliers:{rec.label}"
+        checks.append({"name": name, "value": None, "limit": None, "passed": True,
+                       "detail": NOT_STREAMED_OUTLIERS})  # fmt: skip
+    steps = [StepRecord("outliers", settings=cfg, statistics=skipped)]
+    first = rec.result.first
+    span = RecordSummary(rec.label, first.n, first.t_first, first.t_last, None, None)
+    trend = TemperatureTrend(rec.result.temp_finite, temperature_block(span))
+
+    def solver(_segments: dict, gravity: float, given: dict[str, Any]) -> Calibration:
+        return solve_streamed(
+            rec.result,
+            given,
+            label=rec.label,
+            gravity=gravity,
+            memory_limit=rec.memory_limit,
+            trend=trend,
+        )
+
+    cal, record = procedures.solve_step(
+        {}, {**settings, "procedure": procedure, "gravity": m.gravity()}, solver=solver
+    )
+    record.statistics["segments"] = 1
+    cal.info["solver_checks"] = [not_done(c) for c in cal.info.get("solver_checks", [])] + checks
+    rec.summary = dataclasses.replace(span, temp_means=trend.means(), temp_slope=trend.slope())
+    budgets, budget_step = uncertainty_step(cal, {}, settings, m)
+    return cal, [*steps, record, budget_step], settings, budgets, {}
+
+
+def not_done(check: dict) -> dict:
+    """A check the route could not make (``passed`` None) as the archive keeps it: a
+    ``model:`` check that did not pass (verdict "needs review": a person looks)."""
+    if check["passed"] is not None:
+        return check
+    name = check["name"]
+    return {**check, "name": f"{MODEL_PREFIX}{name}", "passed": False,
+            "detail": f"{check['detail']}; review the record before use"}  # fmt: skip
+
+
+def as_found_solver(
+    loaded: LoadedRun, cal: Calibration, settings: dict[str, Any]
+) -> Callable[[Calibration], Calibration]:
+    """The as-found solve of a streamed run: its samples, read again in chunks, corrected
+    by the earlier calibration, solved by the run's procedure (`calib_core.as_found`)."""
+    rec = loaded.streamed
+    assert rec is not None
+
+    def found(before: Calibration) -> Calibration:
+        def chunks() -> Iterator[tuple]:
+            for t, gyr, acc in samples_chunks(rec.result.samples, rec.memory_limit, time_=True):
+                acc_c, gyr_c = before.correct(acc, gyr)
+                yield t, gyr_c, acc_c
+
+        def solver(_segments: dict, gravity: float, given: dict[str, Any]) -> Calibration:
+            return solve_streamed(
+                rec.result,
+                given,
+                label=rec.label,
+                gravity=gravity,
+                memory_limit=rec.memory_limit,
+                chunks=chunks,
+            )
+
+        return procedures.solve(cal.procedure, {}, cal.gravity, dict(settings), solver)
+
+    return found
+
+
+def conditions_segments(loaded: LoadedRun) -> dict[str, Any]:
+    """What the conditions take of the run's records: its summary for a streamed one."""
+    rec = loaded.streamed
+    if rec is None:
+        return loaded.segments
+    if rec.summary is None:
+        raise ValueError("streamed record: the conditions need the solve's pass first")
+    return {rec.label: rec.summary}
