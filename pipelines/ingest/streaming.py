@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 from calib_core.streamed import RecordSummary
 from pipelines.ingest.csv_stream import DEFAULT_MEMORY_LIMIT, Streamed, stream_csv
+from pipelines.ingest.mcap_stream import stream_mcap
 from storage.rawstore import SamplesFile
 
 Streamer = Callable[..., Streamed]
@@ -43,6 +44,7 @@ Streamer = Callable[..., Streamed]
 # The [format] section's kind -> its streamed reader.
 STREAMERS: dict[str, Streamer] = {
     "csv": stream_csv,
+    "mcap": stream_mcap,
 }
 
 
