@@ -167,3 +167,25 @@ def test_read_only_sqlite_archive_opens_without_psycopg(archived) -> None:
     )
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=120)
+
+
+def test_serve_start_loads_no_science_stack(archived) -> None:
+    """`calib serve`'s start (the application built on a read-only archive, its lifespan
+    run) loads none of the science stack; the unit and fleet pages load what they fit
+    with when first asked for."""
+    arch, _ = archived
+    code = (
+        "import json, sys\nfrom fastapi.testclient import TestClient\n"
+        "from pipelines.web.app import create_app\n"
+        "from storage.db import resolve_archive\nfrom storage.queries import open_readonly\n"
+        f"app = create_app(open_readonly(resolve_archive({str(arch.root)!r})))\n"
+        "with TestClient(app) as client:\n"
+        "    assert client.get('/runs').status_code == 200\n"
+        f"print(json.dumps([m for m in {SCIENCE!r} if m in sys.modules]))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == []
