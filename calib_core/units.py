@@ -6,8 +6,10 @@ Accelerations in m/s^2, angular rates in rad/s, time in s, temperature in deg C.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:  # numpy loaded by to_si alone: the display of a value needs none
+    import numpy as np
 
 STANDARD_GRAVITY = 9.80665  # m/s^2, CGPM 1901
 DEG = math.pi / 180.0  # rad per degree
@@ -70,4 +72,6 @@ def to_si(values: np.ndarray, unit: str, quantity: str) -> np.ndarray:
         "time": time_factor,
         "angle": angle_factor,
     }[quantity](unit)
+    import numpy as np
+
     return np.asarray(values, dtype=float) * factor

@@ -167,3 +167,29 @@ def test_read_only_sqlite_archive_opens_without_psycopg(archived) -> None:
     )
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=120)
+
+
+def test_serve_start_loads_no_science_stack(archived) -> None:
+    """`calib serve`'s start (the application built on a read-only archive, its lifespan
+    run, a page of runs) loads none of the science stack; the unit page loads what it
+    fits with when first asked for, and freezes it out of the garbage collector's sight."""
+    arch, _ = archived
+    code = (
+        "import gc, json, sys\nfrom fastapi.testclient import TestClient\n"
+        "from pipelines.web.app import create_app\n"
+        "from storage.db import resolve_archive\nfrom storage.queries import open_readonly\n"
+        f"app = create_app(open_readonly(resolve_archive({str(arch.root)!r})))\n"
+        "with TestClient(app) as client:\n"
+        "    assert client.get('/runs').status_code == 200\n"
+        f"    start = [m for m in {SCIENCE!r} if m in sys.modules]\n"
+        "    frozen = gc.get_freeze_count()\n"
+        "    assert frozen > 0 and client.get('/units/MPU0001').status_code == 200\n"
+        "    assert 'scipy' in sys.modules and gc.get_freeze_count() > frozen\n"
+        "print(json.dumps(start))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == []

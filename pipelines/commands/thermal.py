@@ -270,7 +270,7 @@ def trend(
     if as_json:
         print_json({"summary": rep["summary"], "rows": frame_records(rep["table"])})
         return
-    from pipelines.reports.display import STANDARD_U, quantity, shown
+    from pipelines.reports.display import STANDARD_U, quantity, shown, with_unit
 
     table = rep["table"].copy()  # SI: in the display unit, as `calib show` prints it
     texts = [shown(param, v, u) for v, u in zip(table["value"], table["std"], strict=True)]
@@ -280,10 +280,13 @@ def trend(
     table["unit"] = [t.unit for t in texts]
     print_frame(table.rename(columns={"std": STANDARD_U}), f"{param} of {serial}")
     summary = dict(rep["summary"])
-    summary["unit"] = shown(param, 0.0).unit
+    unit = summary["unit"] = shown(param, 0.0).unit
+    # every number with its display unit (a slope per year: the value's unit per year)
     slope = shown(param, summary["slope_per_year"], summary["slope_std_per_year"])
-    summary["slope_per_year"], summary["slope_std_per_year"] = slope.value, slope.u or "-"
-    summary["tolerance"] = " .. ".join(quantity(param, v, 4) for v in summary["tolerance"])
+    summary["slope_per_year"] = with_unit(slope.value, unit)
+    summary["slope_std_per_year"] = with_unit(slope.u or "-", unit)
+    limits = " .. ".join(quantity(param, v, 4) for v in summary["tolerance"])
+    summary["tolerance"] = with_unit(limits, unit)
     print_facts(summary, f"Trend of {param}", paths=("plot",))
 
 

@@ -810,7 +810,21 @@ def _interval(recall: dict[str, Any] | None) -> str:
             f"{recall['limiting_parameter']} being in tolerance at its end"
             + (", capped" if recall.get("capped") else "")
         )
-    return f"{recall['interval_months']:g} months, by {recall['due']} ({why})"
+    return f"{_duration(recall)}, by {recall['due']} ({why})"
+
+
+def _duration(recall: dict[str, Any]) -> str:
+    """An interval of pipelines.recall in words: months, or days under a month (a unit
+    that drifts fast: "9 days", never "0 months")."""
+    from pipelines.recall import DAYS_PER_MONTH
+
+    months, days = recall["interval_months"], recall["interval_days"]
+    if days >= round(DAYS_PER_MONTH, 1):  # as interval_days is rounded (0.1 day)
+        return f"{months:g} month" + ("" if months == 1 else "s")
+    if days >= 1:
+        n = round(days)
+        return f"{n} day" + ("" if n == 1 else "s")
+    return f"{days:g} days"  # under a day (0 when due now)
 
 
 # --- HTML --------------------------------------------------------------------------------

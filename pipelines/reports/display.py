@@ -119,6 +119,12 @@ def uncertainty(name: str, u: float | None) -> str:
     return shown(name, 0.0, u).u or "-"
 
 
+def with_unit(text: str, unit: str) -> str:
+    """A number's text followed by its display unit ("0.0040 deg/s"); a ratio's ("1")
+    and a missing value ("-") stand alone."""
+    return text if unit == "1" or text == "-" else f"{text} {unit}"
+
+
 def limit_text(limit: float) -> str:
     """A tolerance limit (already in its display unit) to LIMIT_DIGITS significant digits."""
     return f"{limit:.{LIMIT_DIGITS}g}"

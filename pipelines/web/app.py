@@ -8,7 +8,6 @@ opened read-only (storage.queries.open_readonly) and only GET (and HEAD) routes 
 from __future__ import annotations
 
 import contextlib
-import gc
 from collections.abc import AsyncIterator
 
 from fastapi import FastAPI, Request
@@ -17,24 +16,19 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from starlette.exceptions import HTTPException
 
 from pipelines.web import due, equipment, impact, runs, units
-from pipelines.web.pages import SECURITY_HEADERS, render
+from pipelines.web.pages import SECURITY_HEADERS, freeze_imports, render, unfreeze_imports
 from storage.db import Archive
 
 
 @contextlib.asynccontextmanager
 async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
-    """At start, move every object there is (the imported libraries': ~160k) out of the
-    garbage collector's sight (`gc.freeze`): none of them is ever garbage, and a full
-    collection scanning them every few fleet pages of a large archive cost more CPU than
-    the pages."""
-    import pandas  # noqa: F401 - imported by the unit page's history; frozen with the rest
-
-    gc.collect()
-    gc.freeze()
+    """At start, the imported libraries' objects out of the garbage collector's sight
+    (`pipelines.web.pages.freeze_imports`); the pages that import more freeze again."""
+    freeze_imports()
     try:
         yield
-    finally:  # at shutdown, back in sight (an app started again in one process, tests)
-        gc.unfreeze()
+    finally:
+        unfreeze_imports()
 
 
 MAX_ECHO = 80  # characters of one word of a request echoed into an error page

@@ -10,7 +10,6 @@ from types import SimpleNamespace
 from typing import Any
 from urllib.parse import quote, urlencode
 
-from calib_core import checks, conditions
 from pipelines.reports.display import DISPLAY_UNITS
 from pipelines.reports.display import display as reports_display
 
@@ -121,6 +120,9 @@ def check_result(check: Mapping[str, Any]) -> str:
     "needs review" for a repeatability, device or model check (``model:acc_dof``) or a
     parameter's conditional pass, "warning" or "not recorded" for a lab condition
     (calib_core.conditions), else "fail"."""
+    from calib_core import checks
+    from calib_core import condition_rules as conditions
+
     state = conditions.status(check)
     if state in (conditions.WARNING, conditions.NOT_RECORDED, conditions.INFO):
         return state

@@ -7,21 +7,22 @@ from __future__ import annotations
 import json
 from datetime import UTC
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse, HTMLResponse, Response
 from starlette.exceptions import HTTPException
 
 from calib_core import params
-from calib_core.conditions import status as condition_status
-from calib_core.tolerances import ToleranceProfile
 from pipelines.reports.display import RESIDUAL_UNITS, check_counts, shown, tolerance_text
 from pipelines.web import forms, svg
 from pipelines.web.pages import render
 from pipelines.web.present import display
 from storage import queries
 from storage.naming import check_safe_name
+
+if TYPE_CHECKING:  # its decision rules' statistics (scipy) imported by the run page
+    from calib_core.tolerances import ToleranceProfile
 
 router = APIRouter()
 
@@ -85,6 +86,8 @@ def _run_id(run_id: str) -> str:
 
 def _thresholds(summary: dict[str, Any]) -> ToleranceProfile | None:
     """The tolerance profile archived with the verdict (the check step's settings)."""
+    from calib_core.tolerances import ToleranceProfile
+
     step = next((s for s in summary["calibration"]["steps"] if s["name"] == "check"), {})
     doc = (step.get("settings") or {}).get("thresholds")
     try:
@@ -132,6 +135,8 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
         }
         for e in summary["equipment"]
     ]
+    from calib_core.condition_rules import status as condition_status
+
     profile = _thresholds(summary)
     for c in summary["calibration"]["checks"]:  # pass, fail, warning or not recorded
         c["status"] = condition_status(c)

@@ -12,9 +12,12 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
+from typing import TYPE_CHECKING
 
-import numpy as np
 from markupsafe import Markup, escape
+
+if TYPE_CHECKING:  # numpy imported by the charts that need it (not at the server's start)
+    import numpy as np
 
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 COLOURS = ("#c0392b", "#27ae60", "#2c6fbb", "#8e44ad", "#d68910", "#16a085")
@@ -234,6 +237,8 @@ class Chart:
 
 def date_ticks(lo: float, hi: float, n: int = 6) -> list[tuple[float, str]]:
     """Ticks on a day axis labelled YYYY-MM-DD (or YYYY-MM over long spans)."""
+    import numpy as np
+
     fmt = "%Y-%m" if hi - lo > 400 else "%Y-%m-%d"
     return [(t, (EPOCH + timedelta(days=t)).strftime(fmt)) for t in np.linspace(lo, hi, n)]
 
@@ -366,6 +371,8 @@ def histogram(
     bins: int = 20,
 ) -> Markup:
     """Distribution of values (bars) with the tolerance band (dashed verticals)."""
+    import numpy as np
+
     v = np.asarray([x for x in values if math.isfinite(x)], dtype=float)
     if v.size == 0:
         return Markup("")

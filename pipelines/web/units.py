@@ -7,27 +7,25 @@ import math
 from collections import Counter
 from dataclasses import dataclass
 from datetime import timedelta
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse
 
-from calib_core import drift, params
-from calib_core.thermal import ThermalModel
-from calib_core.tolerances import ToleranceProfile
-from pipelines import shared_reference
+from calib_core import params
 from pipelines.reports.display import limit_text, shown
 from pipelines.tolerances import load_profile
-from pipelines.trends import TREND_MIN_RUNS, pooled_runs
 from pipelines.web import forms, svg
 from pipelines.web.pages import render
 from pipelines.web.present import display, lineage_url
-from storage import queries, unit_latest
+from storage import queries
+
+if TYPE_CHECKING:  # the fits' science (numpy, scipy) is imported by the pages that fit
+    from calib_core import drift
+    from calib_core.tolerances import ToleranceProfile
 
 router = APIRouter()
 
-REFERENCE_C = unit_latest.REFERENCE_C  # of temperature-dependent values, the trend's
 FORECAST_HORIZON_DAYS = 3650.0
 FLEET_LIST_MAX = 200
 FLEET_PARAMETERS = (
@@ -75,6 +73,13 @@ class Series:
         With the runs' `references` (`storage.queries.run_references`), the fit
         `calib trend` makes: runs on one reference share its Type B
         (`pipelines.shared_reference`), else the independent fit."""
+        import numpy as np
+
+        from calib_core import drift
+        from pipelines import shared_reference
+        from pipelines.trends import TREND_MIN_RUNS, pooled_runs
+        from storage.unit_latest import REFERENCE_C
+
         like = pooled_runs([r.get("env_temperature_c") for r in self.rows], REFERENCE_C)
         rows = [self.rows[i] for i in like.indices]
         self.pooled = like.said(len(self.rows))
@@ -136,6 +141,8 @@ class Series:
         return out
 
     def chart(self, serial: str) -> Any:
+        import numpy as np
+
         scale = display(self.name, 1.0)[0]
         unit = display(self.name, 0.0)[1]
         points = [
@@ -192,7 +199,10 @@ def _date(day: float | None) -> str | None:
 
 
 def _series(rows: list[dict[str, Any]]) -> dict[str, Series]:
-    """Parameter -> Series, one value per run (nearest REFERENCE_C when temperature-dependent)."""
+    """Parameter -> Series, one value per run (nearest storage.unit_latest.REFERENCE_C
+    when temperature-dependent)."""
+    from storage.unit_latest import REFERENCE_C
+
     per: dict[tuple[str, str], dict[str, Any]] = {}
     for r in rows:
         key = (r["name"], r["run_id"])
@@ -212,6 +222,8 @@ def _series(rows: list[dict[str, Any]]) -> dict[str, Series]:
 def _unit_profile(series: dict[str, Series], serial: str, archive) -> ToleranceProfile | None:  # noqa: ANN001
     """The tolerance profile of the unit's latest calibration: its archived thresholds,
     else the named profile file."""
+    from calib_core.tolerances import ToleranceProfile
+
     latest = queries.latest_calibration(archive, serial)
     if latest is not None:
         step = next((s for s in latest["steps"] if s["name"] == "check"), {})
@@ -271,6 +283,10 @@ def _thermal(archive, serial: str, series: dict[str, Series]) -> dict[str, Any] 
     row = queries.thermal_model(archive, serial)
     if row is None:
         return None
+    import numpy as np
+
+    from calib_core.thermal import ThermalModel
+
     model = ThermalModel.from_dict(row["document"])
     temps = np.linspace(model.t_min, model.t_max, 60)
     charts = []
@@ -330,6 +346,8 @@ def fleet_page(request: Request) -> HTMLResponse:
     one = queries.fleet_values(archive, model, name)
     outside = [r for r in one if not low <= r["value"] <= high]
     queries.fleet_lineage(archive, outside[:FLEET_LIST_MAX])
+    from calib_core import drift
+
     stats = (
         drift.fleet_statistics(
             [r["value"] * scale for r in one], [math.nan] * len(one), [r["serial"] for r in one]
