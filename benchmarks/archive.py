@@ -309,6 +309,10 @@ def load_postgresql(archive: Archive, synth: Synth) -> None:
                 f"(SELECT coalesce(max(id), 1) FROM {table}))"
             )
         conn.commit()
+    # Statistics first: without them the planner joins the derivation's picks to the
+    # parameters by a nested loop over the whole table (minutes at 20k runs, not
+    # seconds). An archive grown by archive_run has them from autovacuum.
+    admin_execute(archive.url, "ANALYZE")
     _derive_unit_latest(archive)
     admin_execute(archive.url, "VACUUM ANALYZE")
 
