@@ -352,8 +352,13 @@ def _calibration_children(
 ) -> dict[int, dict[str, Any]]:
     out: dict[int, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     for table, names, stored, query in _calibration_children_queries(form):
+        # verify builds every row of the archive here: the row's dict made at once and
+        # only its JSON columns marked spares a function call per value
+        marked = [n for n in names if n in stored]
         for cal_pk, *values in conn.execute(query, {"ids": cal_pks}):
-            row = {n: _leaf(v, n in stored) for n, v in zip(names, values, strict=True)}
+            row = dict(zip(names, values, strict=True))
+            for n in marked:
+                row[n] = _leaf(row[n], True)
             label = f"{row['seq']}:{row['name']}" if table == "processing_steps" else row["name"]
             out[cal_pk][table].append((label, row))
     return {pk: {t: _labelled(out[pk][t]) for t, *_ in _CHILD_TABLES} for pk in cal_pks}

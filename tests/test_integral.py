@@ -210,3 +210,20 @@ def test_spikes_in_the_rotations_are_removed_before_integrating():
     dirty = solve_integral(rot, means, sems, 2000 * DEG, noise_std=stds)
     for name, p in clean.parameters.items():
         assert abs(dirty.parameters[name].value - p.value) < 0.3 * p.std, name
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 41, 42, 1000])
+def test_despike_window_ranks_are_scipy_filters_at_the_rows_read(n: int) -> None:
+    """The despiker takes its window filters at a few rows only (`_rank_at`): the same
+    element of the same window as scipy.ndimage's rank filter, records' ends included."""
+    from scipy.ndimage import rank_filter
+
+    from calib_core.solvers.integral import SPIKE_WINDOW_SIDE, _rank_at
+
+    rng = np.random.default_rng(n)
+    x = rng.standard_t(2, (n, 3))
+    side = SPIKE_WINDOW_SIDE + 1
+    rows = np.unique(np.r_[0, n - 1, rng.integers(0, n, 20)])
+    for rank in (0, side, 2 * side - 6, 2 * side):
+        full = rank_filter(x, rank=rank, size=(2 * side + 1, 1), mode="nearest")
+        np.testing.assert_array_equal(_rank_at(x, rows, rank, side), full[rows])

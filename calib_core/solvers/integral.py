@@ -29,7 +29,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import median_filter, rank_filter
 
 from calib_core import params
 from calib_core.calibration import Calibration
@@ -133,24 +132,33 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     # neighbours); a kink of the rate profile gives r at one sample only, a smooth rate ~0.
     r = np.zeros_like(gyr)
     r[1:-1] = gyr[1:-1] - 0.5 * (gyr[:-2] + gyr[2:])
-    w = SPIKE_WINDOW_SIDE
-    size = (2 * w + 3, 1)  # i - w - 1 .. i + w + 1
-    # The sample's own three r values are the largest of a spike's window: rank past them.
-    local = SPIKE_LOCAL_TO_SIGMA * rank_filter(
-        np.abs(r), rank=-(3 + SPIKE_LOCAL_RANK), size=size, mode="nearest"
-    )
-    scale = np.maximum(local, sigma)
-    # Jumps d_j = x_j+1 - x_j about the local slope (their median over the window); the
-    # sample's own two are d_i-1 and d_i, the largest of a spike's window.
-    d = np.diff(gyr, axis=0)
-    d -= median_filter(d, size=size, mode="nearest")
-    jumps = rank_filter(np.abs(d), rank=-(2 + SPIKE_JUMP_RANK), size=size, mode="nearest")
-    jumps = np.vstack([jumps, jumps[-1:]])  # one row per sample
-    jump_scale = np.maximum(SPIKE_JUMP_TO_SIGMA * jumps, sigma / math.sqrt(0.75))
+    # The window filters (scipy.ndimage's rank and median filters, mode "nearest") are
+    # taken only at the rows where they are read: every sample's cost them more than the
+    # rest of the solve. `_rank_at` picks the same element of the same window.
+    side = SPIKE_WINDOW_SIDE + 1  # i - w - 1 .. i + w + 1
     # Candidates (rare: the scale is never below the noise's, so white noise passes the
     # first test at most SPIKE_FALSE_ALARM of the time), then their neighbours' tests.
-    i, ch = np.nonzero((np.abs(r[1:-1]) > SPIKE_SIGMA * scale[1:-1]) & (sigma > 0))
-    i += 1
+    # The sample's own three r values are the largest of a spike's window: rank past them.
+    rows = 1 + np.flatnonzero((np.abs(r[1:-1]) > SPIKE_SIGMA * sigma).any(axis=1))
+    local = SPIKE_LOCAL_TO_SIGMA * _rank_at(np.abs(r), rows, 2 * side - 2 - SPIKE_LOCAL_RANK, side)
+    scale = np.zeros_like(gyr)
+    scale[rows] = np.maximum(local, sigma)
+    k, ch = np.nonzero((np.abs(r[rows]) > SPIKE_SIGMA * scale[rows]) & (sigma > 0))
+    i = rows[k]
+    # Jumps d_j = x_j+1 - x_j about the local slope (their median over the window); the
+    # sample's own two are d_i-1 and d_i, the largest of a spike's window. Row i of the
+    # jumps is d's row min(i, n - 2) (the last sample repeats the last jump's).
+    d = np.diff(gyr, axis=0)
+    last = len(d) - 1
+    at = np.minimum(i, last)
+    around = (at[:, None] + np.arange(-side, side + 1)).ravel()
+    need = np.unique(np.clip(np.concatenate([i - 1, around]), 0, last))
+    d_rel = np.zeros_like(d)
+    d_rel[need] = d[need] - _rank_at(d, need, side, side)
+    jumps = _rank_at(np.abs(d_rel), at, 2 * side - 1 - SPIKE_JUMP_RANK, side)
+    jumps = jumps[np.arange(i.size), ch]  # per candidate
+    jump_scale = np.maximum(SPIKE_JUMP_TO_SIGMA * jumps, sigma[ch] / math.sqrt(0.75))
+    d = d_rel
     # A lone spike h makes r_i+-1 = -h/2 exactly; what is left, r_i+-1 + r_i / 2, is the
     # noise (std sqrt(14) / 4 sigma = 0.76 std of r) on a smooth rate, and the motion's
     # own curvature when the turn shakes: held to 3 of the local stds.
@@ -163,7 +171,7 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
         # a sample) leaves the sample near one neighbour: motion, not a spike.
         & (np.abs(gyr[i + 1, ch] - gyr[i - 1, ch]) < np.abs(r[i, ch]))
         # Both jumps, onto the sample and off it, beyond the motion's own jumps around it.
-        & (np.minimum(np.abs(d[i - 1, ch]), np.abs(d[i, ch])) > SPIKE_SIGMA * jump_scale[i, ch])
+        & (np.minimum(np.abs(d[i - 1, ch]), np.abs(d[i, ch])) > SPIKE_SIGMA * jump_scale)
     )
     i, ch = i[shaped], ch[shaped]
     # A jerk of the fixture moves the other axes at the same sample beyond their noise
@@ -177,6 +185,25 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     cleaned = gyr.copy()
     cleaned[i, ch] = gyr[i, ch] - r[i, ch]  # the neighbours' mean
     return cleaned, np.bincount(ch, minlength=3)
+
+
+def _rank_at(x: np.ndarray, rows: np.ndarray, rank: int, side: int) -> np.ndarray:
+    """Per channel, the `rank`-th smallest (0-based) of x's rows ``row - side .. row +
+    side`` (clipped to the record: scipy.ndimage's mode "nearest") for each of `rows`:
+    what ``rank_filter(x, rank, size=(2 * side + 1, 1), mode="nearest")[rows]`` gives.
+
+    Parameters
+    ----------
+    x : (N, 3). rows : (k,) row indices. rank : 0 .. 2 * side. side : samples each side.
+
+    Returns
+    -------
+    (k, 3), in x's unit.
+    """
+    if rows.size == 0:
+        return np.zeros((0, x.shape[1]))
+    window = np.clip(rows[:, None] + np.arange(-side, side + 1), 0, len(x) - 1)
+    return np.partition(x[window], rank, axis=1)[:, rank]
 
 
 def _spike_counts(n_spikes: np.ndarray, n_samples: int) -> dict:

@@ -8,7 +8,7 @@ from typing import Any
 from sqlalchemy import select
 
 from storage.db import Archive
-from storage.queries._common import as_instant, check_serial
+from storage.queries._common import as_instant, check_serial, reading
 from storage.queries.runs import full_run_id
 from storage.schema import AuditEvent, Device, Run
 
@@ -48,12 +48,12 @@ def audit_trail(
         q = q.where(AuditEvent.at >= start)
     if target is not None:
         q = q.where(AuditEvent.run_id.in_(_run_ids(archive, target)))
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         return [dict(r._mapping) for r in conn.execute(q)]
 
 
 def _run_ids(archive: Archive, target: str) -> list[str]:
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         serial_runs = (
             conn.execute(
                 select(Run.run_id)

@@ -17,6 +17,7 @@ from storage.queries._common import (
     _frame,
     _run_day,
     check_text,
+    reading,
 )
 from storage.schema import (
     Device,
@@ -81,7 +82,7 @@ def lapsed_runs(archive: Archive, equipment_serial: str, kind: str | None = None
     )
     if kind is not None:
         stmt = stmt.where(Equipment.kind == check_text(kind, "equipment kind", 100))
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         rows = conn.execute(stmt).all()
     df = _frame(rows, LAPSED_COLUMNS[:-1])
     df["days_overdue"] = [
@@ -116,7 +117,7 @@ def equipment_list(archive: Archive) -> list[dict[str, Any]]:
         due.label("calibration_due"),
         runs.label("runs"),
     ).order_by(Equipment.kind, Equipment.serial)
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         return [dict(r._mapping) for r in conn.execute(stmt).all()]
 
 
@@ -128,7 +129,7 @@ def equipment_item(archive: Archive, kind: str, serial: str) -> dict[str, Any]:
     head = select(
         Equipment.id, Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class
     ).where(Equipment.kind == kind, Equipment.serial == serial)
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         row = conn.execute(head).one_or_none()
         if row is None:
             raise LookupError(f"no equipment {kind} {serial!r} in the archive")
@@ -189,7 +190,7 @@ def lapsed_page(
         .order_by(Run.started_at, Run.id)
         .limit(limit)
     )
-    with archive.engine().connect() as conn:  # counted in the same pass (before the LIMIT)
+    with reading(archive) as conn:  # counted in the same pass (before the LIMIT)
         rows = conn.execute(stmt).all()
     total = rows[0].total if rows else 0
     out = [dict(r._mapping) for r in rows]

@@ -17,7 +17,7 @@ from sqlalchemy.orm import aliased
 from storage import unit_latest
 from storage.current import PASS
 from storage.db import Archive
-from storage.queries._common import check_parameter, check_text
+from storage.queries._common import check_parameter, check_text, reading
 from storage.schema import CalibrationRow, Device, Run, UnitLatest, UnitLatestValue
 
 REFERENCE_C = unit_latest.REFERENCE_C  # of temperature-dependent values, the one nearest
@@ -30,7 +30,7 @@ def models(archive: Archive) -> list[dict[str, Any]]:
         .group_by(Device.model)
         .order_by(Device.model)
     )
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         return [dict(r._mapping) for r in conn.execute(stmt).all()]
 
 
@@ -109,7 +109,7 @@ def fleet_units(archive: Archive, model: str, failing_max: int = FAILING_MAX) ->
     grouped, failing = _fleet_statements()
     latest: Counter[str | None] = Counter()
     profiles: Counter[str] = Counter()
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         for verdict, profile, n in conn.execute(grouped, {"model": model}):
             latest[verdict] += n
             if profile:
@@ -145,7 +145,7 @@ def fleet_values(archive: Archive, model: str, name: str) -> list[dict[str, Any]
     """
     check_text(model, "model")
     check_parameter(name)
-    with archive.engine().connect() as conn:  # fetched at once (per-row fetches cost more)
+    with reading(archive) as conn:  # fetched at once (per-row fetches cost more)
         rows = conn.execute(_FLEET_VALUES, {"model": model, "name": name}).all()
     return [
         {"serial": s, "calibration_id": c, "value": v, "temperature_c": t} for s, c, v, t in rows
@@ -160,7 +160,7 @@ def fleet_lineage(archive: Archive, rows: list[dict[str, Any]]) -> None:
         .join(Run, Run.id == CalibrationRow.run_id)
         .where(CalibrationRow.id.in_(ids))
     )
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         runs = {cal: (run_id, t) for cal, run_id, t in conn.execute(stmt)} if ids else {}
     for r in rows:
         r["run_id"], r["started_at"] = runs[r["calibration_id"]]

@@ -27,6 +27,7 @@ from storage.queries._common import (
     check_serial,
     check_text,
     check_verdict,
+    reading,
     select_run_calibrations,
     where_model_and_start,
 )
@@ -95,7 +96,7 @@ def parameter_history(
 
     stmt = _parameter_over_runs(check_parameter(name), include_superseded)
     stmt = stmt.where(Device.serial == check_serial(serial))
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         rows = [r[1:] for r in conn.execute(stmt)]
     return pd.DataFrame(rows, columns=HISTORY_COLUMNS)
 
@@ -113,7 +114,7 @@ def fleet_history(archive: Archive, model: str, name: str) -> pd.DataFrame:
 
     stmt = _parameter_over_runs(check_parameter(name), include_superseded=False)
     stmt = stmt.where(Device.model == check_text(model, "model"))
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         return pd.DataFrame(conn.execute(stmt).all(), columns=["serial", *HISTORY_COLUMNS])
 
 
@@ -210,7 +211,7 @@ def latest_valid(
     """
     check_serial(serial)
     at = as_instant(as_of, "as_of", end_of_day=True) or _FOREVER
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         rows = conn.execute(_LATEST, {"serial": serial, "at": at}).all()
     return _frame([(serial, *r) for r in rows], LATEST_COLUMNS)
 
@@ -291,7 +292,7 @@ def units(
         stmt = stmt.where(temp >= lo)
     if hi is not None:
         stmt = stmt.where(temp <= hi)
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         return _frame(conn.execute(stmt).all(), UNIT_COLUMNS)
 
 
@@ -345,6 +346,6 @@ def fleet(
     check_text(model, "model")
     check_parameter(name)
     at = as_instant(as_of, "as_of", end_of_day=True) or _FOREVER
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         rows = conn.execute(_FLEET, {"model": model, "name": name, "at": at}).all()
     return _frame(rows, FLEET_COLUMNS)

@@ -22,6 +22,7 @@ from storage.queries._common import (
     check_parameter,
     check_text,
     parameter_values,
+    reading,
     select_run_calibrations,
 )
 from storage.schema import (
@@ -52,7 +53,7 @@ def full_run_id(archive: Archive, given: str) -> str:
     text = check_text(given, "run id", 100)
     if not re.fullmatch(r"[A-Za-z0-9]+", text):
         raise ValueError(f"run id {given!r}: letters and digits only")
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         if conn.execute(select(Run.id).where(Run.run_id == text)).first() is not None:
             return text
         if len(text) < MIN_RUN_ID_PREFIX:
@@ -389,7 +390,7 @@ def lineage(
         isinstance(revision, bool) or not isinstance(revision, int) or revision < 1
     ):
         raise ValueError(f"revision: expected a whole number >= 1, got {revision!r}")
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         found = conn.execute(
             _LIN_HEAD[revision is None], {"run_id": run_id, "rev": revision or 0, "name": name}
         ).all()
@@ -507,7 +508,7 @@ def earlier_descriptions(archive: Archive, serial: str, run_id: str) -> list[dic
     in, latest first: run_id, started_at, model, manufacturer, specification.
     Empty for the serial's first run.
     """
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         own = conn.execute(select(Run.id).where(Run.run_id == run_id)).scalar_one_or_none()
         stmt = (
             select(Run.run_id, Run.started_at, Run.model, Run.manufacturer, Run.specification)

@@ -16,7 +16,7 @@ from sqlalchemy import func, select
 
 from storage.current import CURRENT
 from storage.db import Archive
-from storage.queries._common import as_instant, check_serial, check_text, check_verdict
+from storage.queries._common import as_instant, check_serial, check_text, check_verdict, reading
 from storage.schema import CalibrationRow, Device, Run
 
 SORTS = {
@@ -184,7 +184,7 @@ def runs_page(
     )
     stmt = _filtered(base, f)
     counted = _filtered(_count_base(f), f)
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         total = conn.execute(counted).scalar_one()
         rows = conn.execute(
             stmt.order_by(*order).limit(per_page).offset((page - 1) * per_page)
@@ -194,7 +194,7 @@ def runs_page(
 
 def choices(archive: Archive) -> dict[str, list[str]]:
     """Values the runs filters offer: device models and procedures in the archive."""
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         models = conn.execute(select(Device.model).distinct().order_by(Device.model)).scalars()
         procs = conn.execute(select(Run.procedure).distinct().order_by(Run.procedure)).scalars()
         return {"models": list(models), "procedures": list(procs)}
@@ -202,7 +202,7 @@ def choices(archive: Archive) -> dict[str, list[str]]:
 
 def facts(archive: Archive) -> dict[str, Any]:
     """The archive's size and schema: runs, units, schema_revision."""
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         out = {
             "runs": conn.execute(select(func.count()).select_from(Run)).scalar_one(),
             "units": conn.execute(select(func.count()).select_from(Device)).scalar_one(),

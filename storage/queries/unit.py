@@ -12,7 +12,7 @@ from sqlalchemy import bindparam, select
 from storage.current import CURRENT
 from storage.db import Archive
 from storage.naming import check_safe_name
-from storage.queries._common import check_serial
+from storage.queries._common import check_serial, reading
 from storage.schema import CalibrationRow, Device, ParameterRow, Run, ThermalModelRow
 
 _NEWER = CalibrationRow.__table__.alias("newer")
@@ -42,7 +42,7 @@ def revisions(archive: Archive, run_id: str) -> list[dict[str, Any]]:
         .where(Run.run_id == run_id)
         .order_by(CalibrationRow.revision)
     )
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         rows = conn.execute(stmt).all()
     if not rows:
         raise LookupError(f"no run {run_id!r} in the archive")
@@ -55,7 +55,7 @@ def device(archive: Archive, serial: str) -> dict[str, Any]:
     stmt = select(
         Device.serial, Device.model, Device.manufacturer, Device.specification, Device.created_at
     ).where(Device.serial == serial)
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         row = conn.execute(stmt).one_or_none()
     if row is None:
         raise LookupError(f"no unit with serial {serial!r} in the archive")
@@ -86,7 +86,7 @@ def unit_parameters(archive: Archive, serial: str) -> list[dict[str, Any]]:
     One query for the unit's whole history.
     """
     check_serial(serial)
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         return [dict(r._mapping) for r in conn.execute(_UNIT_PARAMETERS, {"serial": serial})]
 
 
@@ -104,6 +104,6 @@ _THERMAL_MODEL = (
 def thermal_model(archive: Archive, serial: str) -> dict[str, Any] | None:
     """The current thermal model of a unit (id, created_at, t_ref, t_min, t_max, document)."""
     check_serial(serial)
-    with archive.engine().connect() as conn:
+    with reading(archive) as conn:
         row = conn.execute(_THERMAL_MODEL, {"serial": serial}).one_or_none()
     return None if row is None else dict(row._mapping)
