@@ -62,10 +62,14 @@ def window_statistics(x: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray
     """
     k = x.shape[0] // width
     w = np.ascontiguousarray(x[: k * width].reshape(k, width, -1).transpose(0, 2, 1))
-    dev = np.abs(w - np.median(w, axis=2, keepdims=True))
+    w -= np.median(w, axis=2, keepdims=True)  # (k, C, width) deviations from the median
     keep = width - max(1, int(math.ceil(SPIKE_TRIM * width)))
-    kept = np.argpartition(dev, keep - 1, axis=2)[..., :keep]
-    var = np.take_along_axis(w, kept, axis=2).var(axis=2, ddof=1)
+    far = np.take_along_axis(w, np.argpartition(np.abs(w), keep - 1, axis=2)[..., keep:], 2)
+    # The kept samples' sums: the window's less the few left out's (no copy of the kept);
+    # about the median, so the sums hardly cancel.
+    s1 = w.sum(axis=2) - far.sum(axis=2)
+    s2 = np.einsum("kcw,kcw->kc", w, w) - np.einsum("kcw,kcw->kc", far, far)
+    var = np.maximum(s2 - s1 * s1 / keep, 0.0) / (keep - 1)
     w -= w.mean(axis=2, keepdims=True)
     iat = centred_iats(w.reshape(-1, width)).reshape(var.shape)
     return var, iat

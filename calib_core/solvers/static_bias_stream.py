@@ -99,6 +99,7 @@ def solve_static_bias_stream(
     history: History | None = None,
     map_: Callable = map,
     motion_label: str | None = None,
+    submit: Callable | None = None,
 ) -> Calibration:
     """`calib_core.solvers.static_bias.solve_static_bias` on a streamed record.
 
@@ -134,12 +135,19 @@ def solve_static_bias_stream(
         map_=map_,
     )
     motion = StreamedMotion(n, rate_hz) if motion_label is not None else None
+    # A chunk's motion windows may be computed beside its Allan sums (`submit`: NumPy
+    # releases the GIL; neither writes the chunk), one chunk at a time, in order.
+    pending = None
     for t, gyr, acc in chunks():
         both = _joined(gyr, acc)
         if motion is not None:  # before the fill: the samples the in-memory check sees
-            motion.push(t, both)
+            if pending is not None:
+                pending.result()
+            pending = (submit or _Done)(motion.push, t, both)
         allan.push(clip.push(both))
     allan.push(clip.flush())
+    if pending is not None:
+        pending.result()
     result = allan.result()
     kept = clip.kept
     std = kept.std(ddof=1)
@@ -165,6 +173,16 @@ def solve_static_bias_stream(
         if check is not None:
             cal.info.setdefault("solver_checks", []).append(check)
     return cal
+
+
+class _Done:
+    """fn(*args) called now; result() its result (`submit` when none is given)."""
+
+    def __init__(self, fn: Callable, *args) -> None:
+        self.value = fn(*args)
+
+    def result(self):
+        return self.value
 
 
 def _steps(chunks: Callable[[], Iterator[Chunk]], cols: np.ndarray) -> np.ndarray:

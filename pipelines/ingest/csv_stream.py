@@ -432,6 +432,7 @@ def solve_streamed(
         )
     # The Allan deviation's cluster sizes share the cores (NumPy releases the GIL).
     pool = ThreadPoolExecutor(min(os.cpu_count() or 1, 4))
+    side = ThreadPoolExecutor(1, thread_name_prefix="calib-motion")  # its own: no nesting
     try:
         cal = solve_static_bias_stream(
             chunks,
@@ -442,9 +443,11 @@ def solve_streamed(
             memory_rows=4 * batch_rows(memory_limit),
             map_=pool.map,
             motion_label=label,
+            submit=side.submit,
             **solver_settings(settings),
         )
     finally:
         pool.shutdown()
+        side.shutdown()
         history.close()
     return cal
