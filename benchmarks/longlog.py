@@ -15,7 +15,8 @@ peak resident memory, threads and descendants included, sampled every 0.1 s):
 With `--formats csv,mcap` (the default) the same for a ROS 2 MCAP log of `--size-gb`
 (``sensor_msgs/msg/Imu`` at 1 kHz, CDR payloads serialised with numpy in batches, written
 by mcap's Writer in uncompressed 4 MiB chunks):
-process is `pipelines.ingest.mcap_stream.stream_mcap` then `solve_streamed`; floor reads,
+process is `calib process --json` of a run folder whose run.toml says ``[format] kind =
+"mcap"`` (the streamed route through `pipelines.ingest.mcap_stream`); floor reads,
 hashes and copies the file, decodes its messages with the same vectorised CDR decoder and
 writes the Parquet, nothing else (no checks, no statistics).
 
@@ -50,6 +51,7 @@ import psutil
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
 
 ROOT = Path(__file__).resolve().parent.parent
 RATE = 1000.0
@@ -72,15 +74,22 @@ tolerance_profile = "mpu6000"
 up_axis = "+z"
 memory_limit_mb = {limit_mb}
 
-[format]
+{format}
+[[segments]]
+label = "record"
+file = "{data}"
+"""
+
+CSV_FORMAT = """[format]
 kind = "csv"
 time_column = "time"
 acc_columns = ["acc_x", "acc_y", "acc_z"]
 gyr_columns = ["gyr_x", "gyr_y", "gyr_z"]
+"""
 
-[[segments]]
-label = "record"
-file = "{data}"
+MCAP_FORMAT = """[format]
+kind = "mcap"
+imu_topic = "/imu/data"
 """
 
 FLOOR = """
@@ -149,12 +158,14 @@ def run_child(argv: list[str], env: dict[str, str] | None = None) -> tuple[float
 
 
 def calib_process(src: Path, work: Path, limit_gb: float) -> tuple[float, float, str]:
-    """`calib process --json` of a static_bias run of the record `src` (moved into its run
-    folder) into a new archive under `work`, in a child process (`run_child`)."""
+    """`calib process --json` of a static_bias run of the record `src` (CSV, or MCAP by
+    its suffix; moved into its run folder) into a new archive under `work`, in a child
+    process (`run_child`)."""
     run = work / "run"
     run.mkdir()
     src.rename(run / src.name)
-    text = MANIFEST.format(limit_mb=round(limit_gb * 1000), data=src.name)
+    fmt = MCAP_FORMAT if src.suffix == ".mcap" else CSV_FORMAT
+    text = MANIFEST.format(limit_mb=round(limit_gb * 1000), data=src.name, format=fmt)
     (run / "run.toml").write_text(text, encoding="utf-8")
     calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {"CALIB_ARCHIVE": str(work / "archive"), "CALIB_ISSUE_CERTIFICATES": "0"}
@@ -176,7 +187,6 @@ def allan_error(parquet: Path, n: int) -> float:
     """Max relative difference of the streamed Allan deviation and allantools' oadev on
     the first `n` gyro-x samples (octave taus both give)."""
     import allantools
-    import pyarrow.parquet as pq
 
     from calib_core.streamed import StreamedAllan
 
@@ -238,19 +248,6 @@ def csv_part(args: argparse.Namespace) -> dict:
 
 
 # --- MCAP (ROS 2 sensor_msgs/msg/Imu) ------------------------------------------------
-
-MCAP_PROCESS = """
-import json, sys
-from pathlib import Path
-from pipelines.ingest.csv_stream import solve_streamed
-from pipelines.ingest.data_format import FormatSpec
-from pipelines.ingest.mcap_stream import stream_mcap
-src, work, limit = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
-s = stream_mcap(src, FormatSpec(kind="mcap"), work / "samples.parquet", copy_to=work / "raw",
-                memory_limit=limit)
-cal = solve_streamed(s, {"up_axis": "+z"}, gravity=9.80665, memory_limit=limit)
-print(json.dumps({"samples": s.first.n, "bias_x": cal.parameters["gyr.bias.x"].value}))
-"""
 
 # Reads, hashes and copies every byte, decodes every Imu message of every chunk with the
 # same vectorised decoder and writes the Parquet; no checks, no statistics, no solve.
@@ -392,24 +389,21 @@ def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
             file=sys.stderr,
         )
         runs = {}
-        for name, code in (("floor", MCAP_FLOOR), ("process", MCAP_PROCESS)):
-            folder = work / name
-            folder.mkdir()
-            runs[name] = run_child(code, [str(src), str(folder), limit])
-            print(
-                f"mcap {name}: {runs[name][0]:.1f} s, peak {runs[name][1] / 2**30:.2f} GB",
-                file=sys.stderr,
-            )
-            if name == "floor":
-                shutil.rmtree(folder)
-        got = json.loads(runs["process"][2].strip().splitlines()[-1])
-        if got["samples"] != samples:
-            raise SystemExit(f"mcap: {got['samples']} samples streamed, {samples} written")
+        folder = work / "floor"
+        folder.mkdir()
+        floor = [sys.executable, "-c", textwrap.dedent(MCAP_FLOOR), str(src), str(folder), limit]
+        runs["floor"] = run_child(floor)
+        shutil.rmtree(folder)
+        report("mcap floor", runs["floor"])
+        runs["process"] = calib_process(src, work, args.memory_limit_gb)
+        report("mcap process", runs["process"])
+        (parquet,) = (work / "archive" / "samples").rglob("*.parquet")
+        got = pq.ParquetFile(parquet).metadata.num_rows
+        if got != samples:
+            raise SystemExit(f"mcap: {got} samples archived, {samples} written")
         if allan:
             t0 = time.perf_counter()
-            out["allan_rel_err_vs_allantools"] = allan_error(
-                work / "process" / "samples.parquet", args.allan_samples
-            )
+            out["allan_rel_err_vs_allantools"] = allan_error(parquet, args.allan_samples)
             out["allan_check_s"] = round(time.perf_counter() - t0, 1)
     finally:
         if not args.keep:

@@ -36,27 +36,42 @@ def integrated_autocorrelation_time(x: np.ndarray, c: float = 5.0) -> float:
 
 def _centred_iat(d: np.ndarray, c: float = 5.0) -> float:
     """`integrated_autocorrelation_time` of a centred series d (1.0 below 8 samples)."""
-    n = d.shape[0]
-    if n < 8:
-        return 1.0
-    sum_sq = float(d @ d)
-    if sum_sq == 0.0:
-        return 1.0
+    return float(centred_iats(d[None, :], c)[0])
+
+
+def centred_iats(d: np.ndarray, c: float = 5.0) -> np.ndarray:
+    """`integrated_autocorrelation_time` of each row of d (k, N), each row centred on its
+    own mean (1.0 below 8 samples), vectorised over the rows.
+
+    Returns
+    -------
+    (k,) tau in samples, each >= 1.
+    """
+    k, n = d.shape
+    out = np.ones(k)
+    if n < 8 or k == 0:
+        return out
+    sum_sq = np.einsum("ij,ij->i", d, d)
     # rho_1 by one dot product: the white-noise test needs no more, and a white
     # series (the usual static record) is then done without any FFT.
-    rho_1 = float(d[:-1] @ d[1:]) / sum_sq
-    if abs(rho_1) < 3.0 / np.sqrt(n):
-        return 1.0
+    lag1 = np.einsum("ij,ij->i", d[:, :-1], d[:, 1:])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho_1 = lag1 / sum_sq
+    rows = np.nonzero((sum_sq != 0.0) & ~(np.abs(rho_1) < 3.0 / np.sqrt(n)))[0]
+    if rows.size == 0:
+        return out
     # All lags by FFT, zero-padded to >= 2N - 1 so it is not circular; a 5-smooth
     # length (scipy's next_fast_len) instead of the next power of two, one thread.
     size = sp_fft.next_fast_len(2 * n - 1, real=True)
-    spec = sp_fft.rfft(d, size, workers=1)
-    acf = sp_fft.irfft(spec.real**2 + spec.imag**2, size, workers=1)[:n] / sum_sq
-    taus = 1.0 + 2.0 * np.cumsum(acf[1:])
+    spec = sp_fft.rfft(d[rows], size, axis=1, workers=1)
+    acf = sp_fft.irfft(spec.real**2 + spec.imag**2, size, axis=1, workers=1)[:, :n]
+    acf /= sum_sq[rows, None]
+    taus = 1.0 + 2.0 * np.cumsum(acf[:, 1:], axis=1)
     lags = np.arange(1, n)
-    window = np.nonzero(lags >= c * taus)[0]
-    tau = taus[window[0]] if window.size else taus[-1]
-    return float(max(tau, 1.0))
+    window = lags >= c * taus
+    first = np.where(window.any(axis=1), np.argmax(window, axis=1), n - 2)
+    out[rows] = np.maximum(taus[np.arange(rows.size), first], 1.0)
+    return out
 
 
 def effective_sample_size(x: np.ndarray) -> np.ndarray:

@@ -292,6 +292,7 @@ class ListHistory:
 
 
 BLOCK_ROWS = 8192  # rows of the Allan sums' blocks: two (rows, 6) temporaries in cache
+_ONES = np.ones(BLOCK_ROWS)
 
 
 class StreamedAllan:
@@ -379,7 +380,8 @@ class StreamedAllan:
                 a = np.subtract(span[s + 2 * m : e + 2 * m], mid, out=tmp[0, : e - s])
                 b = np.subtract(mid, span[s:e], out=tmp[1, : e - s])
                 a -= b
-                total += np.einsum("ij,ij->j", a, a)
+                # column sums of squares as a product with ones (BLAS): faster than einsum
+                total += _ONES[: e - s] @ np.multiply(a, a, out=b)
             self.sums[k] += total
             return
         else:

@@ -9,8 +9,8 @@ as-found solve, when the unit comes back, reads it again through the earlier
 calibration. Everything else of `pipelines.process` takes the run as it takes one read
 into memory (`LoadedRun.streamed`); no step holds the whole record.
 
-What the route does not do is said in the run's checks (the motion check of the record,
-the preprocessing outlier step) or refused before reading (`stream_plan`): time windows,
+What the route does not do is said in the run's checks (the preprocessing outlier step)
+or refused before reading (`stream_plan`): time windows,
 sections, separate acc/gyr files, reference channels, sync/segmentation/low-pass.
 """
 

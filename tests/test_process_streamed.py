@@ -81,8 +81,12 @@ def manifest(started: str, settings: dict) -> dict:
 
 def write_run(folder: Path, data: Path, started: str, settings: dict) -> Path:
     folder.mkdir(parents=True)
-    shutil.copyfile(data, folder / "imu.csv")
-    (folder / "run.toml").write_text(dumps_toml(manifest(started, settings)), encoding="utf-8")
+    doc = manifest(started, settings)
+    if data.suffix == ".mcap":  # a ROS 2 log: the Imu topic, no temperature topic
+        doc["format"] = {"kind": "mcap", "imu_topic": "/imu/data"}
+        doc["segments"] = [{"label": "record", "file": "imu.mcap"}]
+    shutil.copyfile(data, folder / doc["segments"][0]["file"])
+    (folder / "run.toml").write_text(dumps_toml(doc), encoding="utf-8")
     return folder
 
 
@@ -133,10 +137,10 @@ def steps_of(archive: Path, run_id: str) -> dict[str, dict]:
 REL = 1e3 * N * np.finfo(float).eps
 
 
-def close(a: float | None, b: float | None, scale: float) -> bool:
+def close(a: float | None, b: float | None, scale: float, rel: float = REL) -> bool:
     if a is None or b is None:
         return a is b
-    return abs(a - b) <= REL * max(abs(b), scale)
+    return abs(a - b) <= rel * max(abs(b), scale)
 
 
 @pytest.fixture(scope="module")
@@ -147,12 +151,12 @@ def data(tmp_path_factory) -> Path:
     return path
 
 
-def write_profile(folder: Path) -> None:
-    """The MPU-6000 profile with a 20-min static record (the record here is 21.7 min), so
-    a run passes and is the later run's earlier calibration."""
+def write_profile(folder: Path, minutes: float = 20.0) -> None:
+    """The MPU-6000 profile with a static record of `minutes` (the CSV record here is 21.7
+    min), so a run passes and is the later run's earlier calibration."""
     shipped = Path(__file__).parents[1] / "pipelines" / "profiles" / "mpu6000.toml"
     text = shipped.read_text(encoding="utf-8").replace('name = "mpu6000"', 'name = "bench"')
-    text = text.replace("[conditions]", "[conditions]\nstatic_record_min = { low = 20.0 }")
+    text = text.replace("[conditions]", f"[conditions]\nstatic_record_min = {{ low = {minutes} }}")
     folder.mkdir()
     (folder / "bench.toml").write_text(text, encoding="utf-8")
 
@@ -181,20 +185,19 @@ def test_streamed_run_matches_the_in_memory_run(data, tmp_path):
         assert close(q["value"], p["value"], p["std"] or 0.0), (name, q, p)
         assert close(q["std"], p["std"], 0.0), (name, q, p)
 
-    # the same checks, but the motion check, which the streamed route says it did not
-    # make (a model check not passed: a person reviews the record)
+    # the same checks, the motion check of the record included (made from the stream's
+    # windows: tests/test_static_motion.py), the same verdict
     by_name = {c["name"]: c for c in mem["checks"]}
-    by_name["model:motion:record"] = by_name.pop("motion:record")
     assert {c["name"] for c in got["checks"]} == set(by_name)
-    assert mem["verdict"] == "pass" and got["verdict"] == "needs review"
+    assert "motion:record" in by_name
+    assert mem["verdict"] == "pass" and got["verdict"] == "pass"
     for c in got["checks"]:
         ref = by_name[c["name"]]
-        if c["name"] == "model:motion:record":
-            assert c["passed"] is False
-            continue
         assert c["passed"] == ref["passed"], c["name"]
         if isinstance(ref["value"], float):
             assert close(c["value"], ref["value"], 0.0), (c, ref)
+    motion = next(c for c in got["checks"] if c["name"] == "motion:record")
+    assert motion["passed"] and close(motion["limit"], by_name["motion:record"]["limit"], 0.0)
     drift = by_name["condition:temperature_drift_c_per_h"]["value"]
     assert drift == pytest.approx(0.3, abs=0.03)  # the written trend: judged on both routes
 
@@ -228,6 +231,73 @@ def test_streamed_run_matches_the_in_memory_run(data, tmp_path):
     src = pacsv.read_csv(data)
     assert np.array_equal(table.column("t").to_numpy(), src.column("time").to_numpy())
     assert np.array_equal(table.column("temp").to_numpy(), src.column("temp").to_numpy())
+
+
+MCAP_N = 24_000  # 4 min at RATE: 371-byte messages, the file 8 times a 1 MB limit
+MCAP_LIMIT_MB = 1
+
+
+@pytest.fixture(scope="module")
+def mcap_data(tmp_path_factory) -> Path:
+    """A still unit as ROS 2 sensor_msgs/msg/Imu messages written by mcap-ros2-support's
+    Writer (tests/test_ingest_mcap.py's message), a spike on one gyro axis."""
+    from mcap.writer import CompressionType
+    from mcap_ros2.writer import Writer as Ros2Writer
+    from test_ingest_mcap import IMU_MSGDEF, T0_NS, imu_message
+
+    rng = np.random.default_rng(5)
+    gyr = rng.normal(0.0, 5e-4, (MCAP_N, 3)) + [0.01, -0.02, 0.005]
+    gyr += np.cumsum(rng.normal(0.0, 2e-6, (MCAP_N, 3)), axis=0)
+    acc = rng.normal(0.0, 0.02, (MCAP_N, 3)) + [0.05, -0.03, G + 0.1]
+    gyr[5000:5002, 1] += 0.5
+    stamps = T0_NS + int(1e9 / RATE) * np.arange(MCAP_N, dtype=np.int64)
+    path = tmp_path_factory.mktemp("mcap") / "imu.mcap"
+    with path.open("wb") as fh:
+        w = Ros2Writer(fh, chunk_size=64 << 10, compression=CompressionType.NONE)
+        schema = w.register_msgdef("sensor_msgs/msg/Imu", IMU_MSGDEF)
+        for i in range(MCAP_N):
+            msg = imu_message(int(stamps[i]), acc[i], gyr[i])
+            w.write_message("/imu/data", schema, msg, log_time=int(stamps[i]) + 250_000)
+        w.finish()
+    assert path.stat().st_size > 4 * MCAP_LIMIT_MB * 10**6
+    return path
+
+
+def test_streamed_mcap_run_matches_the_in_memory_run(mcap_data, tmp_path):
+    """`calib process` of a ROS 2 Imu log larger than a 1 MB limit (`stream_mcap`) gives
+    the in-memory run's parameters and checks to the rounding of chunked sums (the bound
+    REL above, for this record's N), its motion check included; the archive verifies."""
+    write_profile(tmp_path / "profiles", minutes=3.0)
+    rel = 1e3 * MCAP_N * np.finfo(float).eps
+    runs = {}
+    for route, settings in (("memory", {}), ("streamed", {"memory_limit_mb": MCAP_LIMIT_MB})):
+        archive = tmp_path / f"archive-{route}"
+        folder = write_run(tmp_path / route, mcap_data, "2026-03-02T08:00:00+00:00", settings)
+        runs[route], _ = calib_process(folder, archive)
+        report = verify(resolve_archive(str(archive)))
+        assert report.ok and report.orphans == [], (report.problems, report.orphans)
+    mem, got = runs["memory"], runs["streamed"]
+    assert set(got["parameters"]) == set(mem["parameters"])
+    for name, p in mem["parameters"].items():
+        q = got["parameters"][name]
+        assert q["unit"] == p["unit"], name
+        assert close(q["value"], p["value"], p["std"] or 0.0, rel), (name, q, p)
+        assert close(q["std"], p["std"], 0.0, rel), (name, q, p)
+    by_name = {c["name"]: c for c in mem["checks"]}
+    assert {c["name"] for c in got["checks"]} == set(by_name)
+    assert "motion:record" in by_name and got["verdict"] == mem["verdict"]
+    for c in got["checks"]:
+        ref = by_name[c["name"]]
+        assert c["passed"] == ref["passed"], c["name"]
+        if isinstance(ref["value"], float):
+            assert close(c["value"], ref["value"], 0.0, rel), (c, ref)
+    ingest = steps_of(tmp_path / "archive-streamed", got["run_id"])["ingest"]
+    assert ingest["streamed"]["memory_limit"] == MCAP_LIMIT_MB * 10**6
+    assert ingest["streamed"]["bytes"] > 4 * ingest["streamed"]["memory_limit"]
+    assert ingest["samples"] == {"record": MCAP_N}
+    arch = resolve_archive(str(tmp_path / "archive-streamed"))
+    sha = hashlib.sha256(mcap_data.read_bytes()).hexdigest()
+    assert any(p.name == sha for p in (arch.root / "objects").rglob("*"))
 
 
 def small_run(tmp_path: Path, name: str, settings: dict, unit: dict | None = None) -> Path:

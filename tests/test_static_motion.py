@@ -164,3 +164,63 @@ def test_each_procedure_declares_which_segments_are_held_still() -> None:
     assert static_motion_checks("none", segs) == []
     with pytest.raises(ValueError, match="static_segments"):
         static_motion_checks("some", segs)
+
+
+def _streamed_statistics(rec: Recording, chunk: int) -> tuple[dict | None, list]:
+    """`motion_statistics` of `rec` pushed through `StreamedMotion` in chunks of `chunk`
+    rows (windows split across chunks), and the channels it read exactly in a last pass."""
+    from calib_core.preprocess.motion import StreamedMotion, streamed_smallest_steps
+
+    x = np.hstack([rec.gyr, rec.acc])
+    motion = StreamedMotion(len(rec), rec.sample_rate)
+    for i in range(0, len(rec), chunk):
+        motion.push(rec.t[i : i + chunk], x[i : i + chunk])
+    exact: list = []
+
+    def steps(cols: np.ndarray) -> np.ndarray:
+        exact.append(cols.tolist())
+        return streamed_smallest_steps(x[i : i + chunk, cols] for i in range(0, len(x), chunk))
+
+    return motion.result(steps), exact
+
+
+def _quantised(rec: Recording, step: float) -> Recording:
+    """The gyro rounded to `step` rad/s, its bias on the grid: the quiet windows mostly
+    constant, the rounding variance setting the reference."""
+    return dataclasses.replace(rec, gyr=np.round(rec.gyr / step) * step)
+
+
+@pytest.mark.parametrize(
+    ("kind", "make", "moves"),
+    [
+        ("still", lambda: _still(300), False),
+        ("burst", lambda: _vibrating(_still(301), 302), True),
+        ("quantised", lambda: _quantised(_still(303), 5e-3), False),
+        ("quantised burst", lambda: _quantised(_vibrating(_still(304), 305), 5e-3), True),
+    ],
+)
+def test_streamed_motion_check_is_the_in_memory_one(kind, make, moves):
+    """The check from a record pushed in chunks (what `calib process` does with a record
+    larger than its memory limit) is the in-memory one: the same windows (each one's rows
+    the same, a window split by a chunk's end carried over), the same function from the
+    windows' statistics to the check. Ratio and limit to a few ulps (the same arithmetic on
+    the same rows: only a reduction's vectorisation may round differently); the channel and
+    the window's time exactly. A quantised gyro (rounding variance above the noise's) takes
+    the exact pass for its smallest step; a float record does not."""
+    from calib_core.preprocess.motion import motion_statistics
+
+    rec = make()
+    ref = motion_statistics(rec)
+    got, exact = _streamed_statistics(rec, 7777)  # 100-sample windows: split by chunks
+    assert ref is not None and got is not None
+    assert got["ratio"] == pytest.approx(ref["ratio"], rel=1e-12, abs=0.0), (got, ref)
+    assert got["limit"] == pytest.approx(ref["limit"], rel=1e-12, abs=0.0), (got, ref)
+    assert (got["channel"], got["t_s"], got["window_s"]) == (
+        ref["channel"],
+        ref["t_s"],
+        ref["window_s"],
+    )
+    assert (got["ratio"] > got["limit"]) is moves, got
+    assert bool(exact) is kind.startswith("quantised"), exact
+    if exact:
+        assert set(exact[0]) <= {0, 1, 2}  # the gyro's channels only

@@ -22,12 +22,13 @@ holds), nu_ref those of the quiet reference.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
 from calib_core.distributions import chi2_ppf, f_ppf
 from calib_core.recording import Recording
-from calib_core.stats import integrated_autocorrelation_time
+from calib_core.stats import centred_iats
 
 CHECK_PREFIX = "motion:"
 MOTION_ALPHA = 1e-3  # probability that a still record fails, all windows and channels
@@ -45,26 +46,108 @@ MOTION_MIN_RATIO = 10.0
 SPIKE_TRIM = 0.02
 
 
-def _window_variances(x: np.ndarray, width: int) -> np.ndarray:
-    """(K, C) variance of each whole window of `width` rows about its own mean, its
-    SPIKE_TRIM farthest samples from the window's median left out: an isolated spike is
-    no motion (the quiet reference is trimmed alike, so the ratio stays ~1 when still)."""
+def motion_width(n: int, rate: float) -> int:
+    """Samples a window of a record of `n` samples at `rate` Hz: MOTION_WINDOW_S, shorter
+    in a short record (a face held 5 s still gets 16 windows)."""
+    return max(MIN_WINDOW_SAMPLES, min(int(round(MOTION_WINDOW_S * rate)), n // 16))
+
+
+def window_statistics(x: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each whole window of `width` rows of x (n, C): (K, C) variance about the window's
+    mean, its SPIKE_TRIM farthest samples from the window's median left out (an isolated
+    spike is no motion; the quiet reference is trimmed alike, so the ratio stays ~1 when
+    still), and (K, C) integrated autocorrelation time, samples.
+
+    Local to each window: a record pushed in chunks of whole windows gives the same rows.
+    """
     k = x.shape[0] // width
-    w = x[: k * width].reshape(k, width, -1)
-    dev = np.abs(w - np.median(w, axis=1, keepdims=True))
-    drop = max(1, int(math.ceil(SPIKE_TRIM * width)))
-    keep = np.argsort(dev, axis=1)[:, : width - drop, :]
-    return np.take_along_axis(w, keep, axis=1).var(axis=1, ddof=1)
+    w = np.ascontiguousarray(x[: k * width].reshape(k, width, -1).transpose(0, 2, 1))
+    w -= np.median(w, axis=2, keepdims=True)  # (k, C, width) deviations from the median
+    keep = width - max(1, int(math.ceil(SPIKE_TRIM * width)))
+    far = np.take_along_axis(w, np.argpartition(np.abs(w), keep - 1, axis=2)[..., keep:], 2)
+    # The kept samples' sums: the window's less the few left out's (no copy of the kept);
+    # about the median, so the sums hardly cancel.
+    s1 = w.sum(axis=2) - far.sum(axis=2)
+    s2 = np.einsum("kcw,kcw->kc", w, w) - np.einsum("kcw,kcw->kc", far, far)
+    var = np.maximum(s2 - s1 * s1 / keep, 0.0) / (keep - 1)
+    w -= w.mean(axis=2, keepdims=True)
+    iat = centred_iats(w.reshape(-1, width)).reshape(var.shape)
+    return var, iat
 
 
-def _quantisation_variance(x: np.ndarray) -> np.ndarray:
-    """(C,) variance of rounding to the channel's smallest step (Delta^2 / 12), 0 if none."""
-    out = np.zeros(x.shape[1])
+def smallest_steps(x: np.ndarray) -> np.ndarray:
+    """(C,) smallest difference between distinct values of each column of x, inf if none."""
+    out = np.full(x.shape[1], math.inf)
     for c in range(x.shape[1]):
-        steps = np.abs(np.diff(np.unique(x[:, c])))
+        steps = np.diff(np.unique(x[:, c]))
         if steps.size:
-            out[c] = steps.min() ** 2 / 12.0
+            out[c] = steps.min()
     return out
+
+
+def quantisation_variance(steps: np.ndarray) -> np.ndarray:
+    """(C,) variance of rounding to each channel's smallest step (Delta^2 / 12), 0 if none."""
+    steps = np.asarray(steps, dtype=float)
+    return np.where(np.isfinite(steps), steps**2 / 12.0, 0.0)
+
+
+def quiet_noise(var: np.ndarray, iat: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The noise variance of each channel from its quietest quarter of windows, and the
+    windows' degrees of freedom: ((C,) variance, (C,) nu), from `window_statistics`."""
+    windows = var.shape[0]
+    n_quiet = max(2, int(math.ceil(QUIET_FRACTION * windows)))
+    quiet = np.argsort(var, axis=0)[:n_quiet]
+    noise, nus = np.empty(var.shape[1]), np.empty(var.shape[1])
+    for c in range(var.shape[1]):
+        # Degrees of freedom: correlated noise (a low-pass) holds fewer than samples - 1.
+        tau = float(np.median(iat[quiet[:, c], c]))
+        nu = max((width - 1) / max(tau, 1.0), 1.0)
+        # The quietest quarter's mean variance is biased low: divide by the mean of the
+        # lowest quarter of chi2(nu) / nu, taken as its quantile at QUIET_FRACTION / 2.
+        low = chi2_ppf(QUIET_FRACTION / 2.0, nu) / nu
+        noise[c], nus[c] = float(var[quiet[:, c], c].mean()) / low, nu
+    return noise, nus
+
+
+def motion_from_windows(
+    var: np.ndarray,
+    iat: np.ndarray,
+    q_var: np.ndarray,
+    width: int,
+    rate: float,
+    starts: np.ndarray,
+) -> dict | None:
+    """`motion_statistics` from the windows' statistics (`window_statistics`), the
+    channels' quantisation variance (C,) and the windows' start times (K,), s from the
+    record's first sample."""
+    windows, channels = var.shape
+    if windows < MIN_WINDOWS:
+        return None
+    names = [f"{s}.{a}" for s in ("gyr", "acc") for a in "xyz"]
+    n_quiet = max(2, int(math.ceil(QUIET_FRACTION * windows)))
+    noise, nus = quiet_noise(var, iat, width)
+    limits = np.empty(channels)
+    ratios = np.empty((windows, channels))
+    for c in range(channels):
+        ref = max(noise[c], q_var[c])
+        if ref <= 0.0:
+            ratios[:, c] = 0.0  # a channel that does not vary cannot show motion
+            limits[c] = math.inf
+            continue
+        ratios[:, c] = var[:, c] / ref
+        alpha = MOTION_ALPHA / (windows * channels)
+        limits[c] = max(f_ppf(1.0 - alpha, nus[c], nus[c] * n_quiet), MOTION_MIN_RATIO)
+    if not np.isfinite(limits).any():
+        return None
+    excess = ratios / limits[None, :]
+    k, c = np.unravel_index(int(np.argmax(excess)), excess.shape)
+    return {
+        "ratio": float(ratios[k, c]),
+        "limit": float(limits[c]),
+        "channel": names[c],
+        "t_s": float(starts[k]),
+        "window_s": width / rate,
+    }
 
 
 def motion_statistics(rec: Recording) -> dict | None:
@@ -79,56 +162,113 @@ def motion_statistics(rec: Recording) -> dict | None:
     """
     n = len(rec)
     rate = rec.sample_rate if n > 1 else 0.0
-    # 1 s windows, shorter in a short record (a face held 5 s still gets 16 windows).
-    width = max(MIN_WINDOW_SAMPLES, min(int(round(MOTION_WINDOW_S * rate)), n // 16))
+    width = motion_width(n, rate)
     windows = n // width
     if windows < MIN_WINDOWS:
         return None
     x = np.hstack([np.asarray(rec.gyr, dtype=float), np.asarray(rec.acc, dtype=float)])
-    names = [f"{s}.{a}" for s in ("gyr", "acc") for a in "xyz"]
-    var = _window_variances(x, width)  # (K, 6)
-    n_quiet = max(2, int(math.ceil(QUIET_FRACTION * windows)))
-    order = np.argsort(var, axis=0)
-    limits = np.empty(x.shape[1])
-    ratios = np.empty((windows, x.shape[1]))
-    q_var = _quantisation_variance(x)
-    for c in range(x.shape[1]):
-        quiet = order[:n_quiet, c]
-        # Degrees of freedom: correlated noise (a low-pass) holds fewer than samples - 1.
-        tau = np.median(
-            [integrated_autocorrelation_time(x[k * width : (k + 1) * width, c]) for k in quiet]
+    var, iat = window_statistics(x, width)  # (K, 6) each
+    starts = rec.t[: windows * width : width] - rec.t[0]
+    q_var = quantisation_variance(smallest_steps(x))
+    return motion_from_windows(var, iat, q_var, width, rate, starts)
+
+
+class StreamedMotion:
+    """`motion_statistics` of a record pushed in chunks of [gyr | acc] rows (any sizes):
+    the windows' statistics as the record arrives (the rows of a window split by a chunk's
+    end carried to the next), (K, C) arrays of a few floats per second of record.
+
+    The quantisation variance needs the record's smallest step between distinct values,
+    which no chunk holds (neighbouring values may fall in different chunks). A sample of
+    each chunk's rows gives an upper bound on it (fewer values: steps no smaller); when the
+    bound's variance is within the quiet noise, the reference max(noise, Delta^2 / 12) is
+    the noise whatever the exact step, so the check is the in-memory one. Only a channel
+    where it is not asks for the exact steps (`result`'s `exact_steps`: a pass over the
+    record, `streamed_smallest_steps`).
+    """
+
+    SAMPLE_ROWS = 4096  # rows of each chunk whose steps bound the record's smallest step
+
+    def __init__(self, n: int, rate: float, channels: int = 6) -> None:
+        self.rate = rate
+        self.width = motion_width(n, rate)
+        self.windows = n // self.width
+        self._rest = np.empty((0, channels))
+        self._rest_t = np.empty(0)
+        self._t0: float | None = None
+        self._var: list[np.ndarray] = []
+        self._iat: list[np.ndarray] = []
+        self._starts: list[np.ndarray] = []
+        self._done = 0
+        self.steps_bound = np.full(channels, math.inf)
+
+    def push(self, t: np.ndarray, x: np.ndarray) -> None:
+        """Take the next rows: t (m,) s, x (m, C)."""
+        if x.shape[0] == 0 or self.windows < MIN_WINDOWS:
+            return
+        stride = max(1, x.shape[0] // self.SAMPLE_ROWS)
+        np.minimum(self.steps_bound, smallest_steps(x[::stride]), out=self.steps_bound)
+        if self._t0 is None:
+            self._t0 = float(t[0])
+        if self._done == self.windows:
+            return  # the rows after the last whole window: in no window
+        if self._rest.shape[0]:
+            x, t = np.concatenate([self._rest, x]), np.concatenate([self._rest_t, t])
+        k = min(x.shape[0] // self.width, self.windows - self._done)
+        if k:
+            var, iat = window_statistics(x[: k * self.width], self.width)
+            self._var.append(var)
+            self._iat.append(iat)
+            self._starts.append(t[: k * self.width : self.width] - self._t0)
+            self._done += k
+        rest = k * self.width if self._done < self.windows else x.shape[0]
+        self._rest, self._rest_t = x[rest:].copy(), t[rest:].copy()
+
+    def result(self, exact_steps: Callable[[np.ndarray], np.ndarray]) -> dict | None:
+        """`motion_statistics` of the record pushed. exact_steps(channels) -> the record's
+        smallest steps of those channels (an index array), called only when needed."""
+        if self.windows < MIN_WINDOWS:
+            return None
+        if self._done != self.windows:
+            raise ValueError(f"motion: {self._done} of {self.windows} windows pushed")
+        var, iat = np.concatenate(self._var), np.concatenate(self._iat)
+        q_var = quantisation_variance(self.steps_bound)
+        noise, _ = quiet_noise(var, iat, self.width)
+        need = np.nonzero(~(q_var <= noise))[0]
+        if need.size:
+            q_var[need] = quantisation_variance(exact_steps(need))
+        return motion_from_windows(
+            var, iat, q_var, self.width, self.rate, np.concatenate(self._starts)
         )
-        nu = max((width - 1) / max(float(tau), 1.0), 1.0)
-        # The quietest quarter's mean variance is biased low: divide by the mean of the
-        # lowest quarter of chi2(nu) / nu, taken as its quantile at QUIET_FRACTION / 2.
-        low = chi2_ppf(QUIET_FRACTION / 2.0, nu) / nu
-        ref = max(float(var[quiet, c].mean()) / low, q_var[c])
-        if ref <= 0.0:
-            ratios[:, c] = 0.0  # a channel that does not vary cannot show motion
-            limits[c] = math.inf
-            continue
-        ratios[:, c] = var[:, c] / ref
-        nu_ref = nu * n_quiet
-        limits[c] = max(
-            f_ppf(1.0 - MOTION_ALPHA / (windows * x.shape[1]), nu, nu_ref), MOTION_MIN_RATIO
-        )
-    if not np.isfinite(limits).any():
-        return None
-    excess = ratios / limits[None, :]
-    k, c = np.unravel_index(int(np.argmax(excess)), excess.shape)
-    return {
-        "ratio": float(ratios[k, c]),
-        "limit": float(limits[c]),
-        "channel": names[c],
-        "t_s": float(rec.t[k * width] - rec.t[0]),
-        "window_s": width / rate,
-    }
+
+
+def streamed_smallest_steps(columns: Iterable[np.ndarray]) -> np.ndarray:
+    """`smallest_steps` of a record's columns (m, C') given in chunks: the distinct values
+    seen so far merged with each chunk's (what a quantised channel has is a short grid)."""
+    seen: np.ndarray | None = None
+    for x in columns:
+        distinct = [np.unique(x[:, c]) for c in range(x.shape[1])]
+        if seen is not None:
+            distinct = [np.union1d(a, b) for a, b in zip(seen, distinct, strict=True)]
+        seen = distinct
+    if seen is None:
+        return np.empty(0)
+    out = np.full(len(seen), math.inf)
+    for c, values in enumerate(seen):
+        if values.size > 1:
+            out[c] = np.diff(values).min()
+    return out
 
 
 def motion_check(label: str, rec: Recording) -> dict | None:
     """The ``motion:<label>`` check of one static record (CheckResult fields), or None
     when the record is too short to judge (fewer than MIN_WINDOWS windows)."""
-    st = motion_statistics(rec)
+    return motion_check_of(label, motion_statistics(rec))
+
+
+def motion_check_of(label: str, st: dict | None) -> dict | None:
+    """The ``motion:<label>`` check (CheckResult fields) of `motion_statistics`' result,
+    None for None."""
     if st is None:
         return None
     passed = st["ratio"] <= st["limit"]

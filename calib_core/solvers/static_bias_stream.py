@@ -4,7 +4,10 @@ without the whole record in memory.
 Two passes over the chunks: the first gives the count, mean and std of every channel
 (skipped when the caller computed them while reading the file) and the median time step;
 the second applies the n-sigma rule with those, keeps the kept samples' moments and
-streams the outlier-filled record into the Allan deviation (`calib_core.streamed`).
+streams the outlier-filled record into the Allan deviation (`calib_core.streamed`);
+with a label, the same pass keeps the motion check's window statistics
+(`calib_core.preprocess.motion.StreamedMotion`, on the samples before the fill, as the
+in-memory check sees them).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.calibration import Calibration
+from calib_core.preprocess.motion import StreamedMotion, motion_check_of, streamed_smallest_steps
 from calib_core.solvers.static_bias import _earth_rate, static_bias_calibration
 from calib_core.streamed import History, MedianStep, Moments, SigmaClipFill, StreamedAllan, columns
 from calib_core.units import STANDARD_GRAVITY
@@ -94,13 +98,16 @@ def solve_static_bias_stream(
     memory_rows: int = 1 << 20,
     history: History | None = None,
     map_: Callable = map,
+    motion_label: str | None = None,
+    submit: Callable | None = None,
 ) -> Calibration:
     """`calib_core.solvers.static_bias.solve_static_bias` on a streamed record.
 
     Parameters
     ----------
     chunks : called once per pass, a fresh iterator of (t, gyr, acc) chunks, in order (t
-        may be None when `first` is given: the second pass needs no time).
+        may be None when `first` is given and `motion_label` is None: the second pass
+        needs no time).
     label : the record's label (checks name it).
     first : the first pass's statistics if the caller has them (else one more pass).
     memory_rows, history, map_ : the Allan deviation's phase rows in memory, where the
@@ -127,9 +134,20 @@ def solve_static_bias_stream(
         history=history,
         map_=map_,
     )
-    for _, gyr, acc in chunks():
-        allan.push(clip.push(_joined(gyr, acc)))
+    motion = StreamedMotion(n, rate_hz) if motion_label is not None else None
+    # A chunk's motion windows may be computed beside its Allan sums (`submit`: NumPy
+    # releases the GIL; neither writes the chunk), one chunk at a time, in order.
+    pending = None
+    for t, gyr, acc in chunks():
+        both = _joined(gyr, acc)
+        if motion is not None:  # before the fill: the samples the in-memory check sees
+            if pending is not None:
+                pending.result()
+            pending = (submit or _Done)(motion.push, t, both)
+        allan.push(clip.push(both))
     allan.push(clip.flush())
+    if pending is not None:
+        pending.result()
     result = allan.result()
     kept = clip.kept
     std = kept.std(ddof=1)
@@ -150,4 +168,23 @@ def solve_static_bias_stream(
         gravity=gravity,
     )
     cal.info["streamed"] = True
+    if motion is not None:
+        check = motion_check_of(motion_label, motion.result(lambda cols: _steps(chunks, cols)))
+        if check is not None:
+            cal.info.setdefault("solver_checks", []).append(check)
     return cal
+
+
+class _Done:
+    """fn(*args) called now; result() its result (`submit` when none is given)."""
+
+    def __init__(self, fn: Callable, *args) -> None:
+        self.value = fn(*args)
+
+    def result(self):
+        return self.value
+
+
+def _steps(chunks: Callable[[], Iterator[Chunk]], cols: np.ndarray) -> np.ndarray:
+    """The record's smallest steps of the channels `cols` of [gyr | acc] (one more pass)."""
+    return streamed_smallest_steps(_joined(g, a)[:, cols] for _, g, a in chunks())

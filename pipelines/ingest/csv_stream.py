@@ -9,10 +9,8 @@ reads the Parquet back in batches for the static-bias solve's second pass; the A
 deviation's long lags come from a phase file (`FileHistory`). Memory stays bounded by
 `memory_limit` whatever the record's length; progress (bytes, samples, rate, time left)
 goes to stderr on long reads.
-
-What the streamed route does not compute is said in its checks: the motion check of
-static records (`calib_core.preprocess.motion`) needs the windows' trimmed variances
-against the quietest quarter, which this route does not keep (`NOT_STREAMED`).
+The solve's pass also makes the record's motion check (`calib_core.preprocess.motion`'s
+`StreamedMotion`: the windows' statistics as the chunks pass).
 """
 
 from __future__ import annotations
@@ -56,14 +54,6 @@ from storage.rawstore import samples_parquet_options
 
 DEFAULT_MEMORY_LIMIT = 10**9  # bytes: the `memory_limit_mb` setting's default
 ROW_BYTES = 8 * 8  # t, 6 channels, temp as float64
-NOT_STREAMED = {
-    "name": "motion:record",
-    "value": None,
-    "limit": None,
-    "passed": None,
-    "detail": "not done: the record was streamed (larger than the memory limit) and the "
-    "motion check of static records needs it in memory",
-}
 SAMPLE_COLUMNS = ("t", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z", "temp")
 
 
@@ -431,17 +421,18 @@ def solve_streamed(
         settings such as memory_limit_mb are left out).
     trend : fed with the samples' time and temperature on the way (the conditions').
     chunks : other (t, gyr, acc) chunks to solve (a fresh iterator per call; two passes:
-        e.g. the samples corrected by an earlier calibration); None: the samples'.
-    Returns the Calibration, its checks saying what the streamed route did not compute.
+        e.g. the samples corrected by an earlier calibration; t in s); None: the samples'.
+    Returns the Calibration, the record's motion check among its checks.
     """
     own = chunks is None  # the samples themselves: the first pass's statistics hold
     history = FileHistory(streamed.samples.parent)
     if chunks is None:
         chunks = _with_progress(
-            lambda: samples_chunks(streamed.samples, memory_limit, trend), streamed
+            lambda: samples_chunks(streamed.samples, memory_limit, trend, time_=True), streamed
         )
     # The Allan deviation's cluster sizes share the cores (NumPy releases the GIL).
     pool = ThreadPoolExecutor(min(os.cpu_count() or 1, 4))
+    side = ThreadPoolExecutor(1, thread_name_prefix="calib-motion")  # its own: no nesting
     try:
         cal = solve_static_bias_stream(
             chunks,
@@ -451,10 +442,12 @@ def solve_streamed(
             history=history,
             memory_rows=4 * batch_rows(memory_limit),
             map_=pool.map,
+            motion_label=label,
+            submit=side.submit,
             **solver_settings(settings),
         )
     finally:
         pool.shutdown()
+        side.shutdown()
         history.close()
-    cal.info.setdefault("solver_checks", []).append(dict(NOT_STREAMED, name=f"motion:{label}"))
     return cal
