@@ -57,9 +57,7 @@ _NOT_YET: dict[str, str] = {}  # quantity -> why it is not implemented yet
 CHAMBER_CHANNEL = "chamber_temperature"  # the reference channel of the chamber's reading
 MAX_OFFSET_C = 50.0  # beyond it the "offset" is a different chamber, not an error
 # Position labels a face can carry (statics and rotations of the face procedures).
-LABELLED = frozenset(
-    f"{a}_{s}" for a in ("x", "y", "z") for s in ("up", "dn", "ccw", "cw")
-)
+LABELLED = frozenset(f"{a}_{s}" for a in ("x", "y", "z") for s in ("up", "dn", "ccw", "cw"))
 MAX_PPM = 1e5  # 10 %: beyond it the "error" is a different instrument, not a drift
 _TEXT = re.compile(r"^\s*([a-z_]+)\s*(?:\[([^\]]*)\])?\s*=\s*([-+0-9.eE]+)\s*$")
 FACES = ("+x", "-x", "+y", "-y", "+z", "-z")
@@ -260,9 +258,8 @@ def _chamber_offset(
         rec = segments[k]
         shifted = np.asarray(rec.reference[CHAMBER_CHANNEL], dtype=float) - error.value
         out[k] = replace(rec, reference={**rec.reference, CHAMBER_CHANNEL: shifted})
-    what = (
-        f"chamber temperature - {error.value:g} degC"
-        + (f"; reference channel {CHAMBER_CHANNEL} in {len(hit)} segments" if hit else "")
+    what = f"chamber temperature - {error.value:g} degC" + (
+        f"; reference channel {CHAMBER_CHANNEL} in {len(hit)} segments" if hit else ""
     )
     # The run's recorded temperature is corrected with the manifest (pipelines.impact).
     return out, {"affected": True, "what": what, "factor": 1.0}

@@ -222,7 +222,6 @@ class SigmaClipFill:
         self._start += ready
         return out
 
-
     def _neighbours(
         self, buf: np.ndarray, keep: np.ndarray, bad: np.ndarray, c: int
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -460,9 +460,7 @@ def _write_files(
             pending.adopt(run.samples.path, path)
             sha = run.samples.sha256
         else:
-            path, sha = rawstore.write_samples(
-                pending, root, run.serial, day, run_id, run.samples
-            )
+            path, sha = rawstore.write_samples(pending, root, run.serial, day, run_id, run.samples)
         samples = (path.relative_to(root).as_posix(), sha)
     # Later revisions get their own folder: an archived file is never overwritten.
     target = rdir if plan.revision == 1 else rdir / f"revision-{plan.revision}"

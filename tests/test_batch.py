@@ -183,14 +183,16 @@ def test_transient_failures_are_retried_and_a_permanent_one_isolated(
 
     calls: dict[str, int] = {}
     lock = threading.Lock()
-    real_load, real_archive = process_module.load_run, process_module.archive_run
+    # An attempt's first touch of its folder is the streamed route's plan (it reads the
+    # manifest to decide), so the share vanishes and comes back there.
+    real_plan, real_archive = process_module.stream_plan, process_module.archive_run
 
     def count(folder: Path) -> int:
         with lock:
             calls[folder.name] = calls.get(folder.name, 0) + 1
             return calls[folder.name]
 
-    def load_run(source, **kwargs):
+    def stream_plan(source):
         n = count(source.folder)
         if source.folder == vanishing:
             away = vanishing.with_name("away")
@@ -198,14 +200,14 @@ def test_transient_failures_are_retried_and_a_permanent_one_isolated(
                 vanishing.rename(away)
             elif away.exists():  # ...and is back for the retry
                 away.rename(vanishing)
-        return real_load(source, **kwargs)
+        return real_plan(source)
 
     def archive_run(archive, run, **kwargs):
         if run.serial == "BATCH13" or (run.serial == "BATCH11" and calls["run11"] == 1):
             raise locked
         return real_archive(archive, run, **kwargs)
 
-    monkeypatch.setattr(process_module, "load_run", load_run)
+    monkeypatch.setattr(process_module, "stream_plan", stream_plan)
     monkeypatch.setattr(process_module, "archive_run", archive_run)
     seen: list[tuple[int, int, str]] = []
     with report_progress(lambda done, total, o: seen.append((done, total, o["status"]))):

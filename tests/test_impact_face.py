@@ -70,9 +70,7 @@ def cube_lab(tmp_path_factory):
     arch.upgrade()
     rng = np.random.default_rng(11)
     truth = copy.deepcopy(random_errors(rng))
-    sim = six_position_integral_run(
-        truth, rng, static_s=STATIC_S, rate_hz=RATE_HZ, true_up=TRUE_UP
-    )
+    sim = six_position_integral_run(truth, rng, static_s=STATIC_S, rate_hz=RATE_HZ, true_up=TRUE_UP)
     manifest = _manifest("U-CUBE", "2026-04-02T09:00:00+00:00", "CB-1")
     write_csv_run(dict(sim.segments), tmp / "F", manifest)
     (source,) = discover_runs([tmp / "F"])

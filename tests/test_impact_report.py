@@ -135,7 +135,7 @@ def test_impact_pages_in_calib_serve(applied):
     table = page.text[page.text.index('id="impact-runs"') :]
     for r in doc["runs"]:
         row = table[table.index(r["run_id"]) :].split("</tr>")[0]
-        assert f'badge {r["verdict_before"]}' in row and f'badge {r["verdict_after"]}' in row
+        assert f"badge {r['verdict_before']}" in row and f"badge {r['verdict_after']}" in row
         for m in r["moved"]:
             assert f"{m['name']} {m['before']:.6g} -&gt; {m['after']:.6g}" in row
     assert "1 &rarr; 2" in table and "verdict(s) changed" in page.text

@@ -183,7 +183,8 @@ def test_query_due_table_at_80_columns(fleet_archive, monkeypatch):
     res = CliRunner().invoke(app, ["query", "due", "--archive", str(arch.root)])
     assert res.exit_code == 0, res.output
     rows = json.loads(
-        CliRunner().invoke(app, ["query", "due", "--archive", str(arch.root), "--format", "json"])
+        CliRunner()
+        .invoke(app, ["query", "due", "--archive", str(arch.root), "--format", "json"])
         .stdout
     )
     lines = res.stdout.splitlines()

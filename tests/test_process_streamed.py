@@ -117,9 +117,7 @@ def steps_of(archive: Path, run_id: str) -> dict[str, dict]:
     from sqlalchemy import select
 
     with arch.engine().connect() as conn:
-        run_pk = conn.execute(
-            select(schema.Run.id).where(schema.Run.run_id == run_id)
-        ).scalar_one()
+        run_pk = conn.execute(select(schema.Run.id).where(schema.Run.run_id == run_id)).scalar_one()
         rows = conn.execute(
             select(schema.ProcessingStep.name, schema.ProcessingStep.statistics).where(
                 schema.ProcessingStep.run_id == run_pk

@@ -98,8 +98,11 @@ def impact_command(
             r["started_at"][:10],
             f"{r['verdict_before']} -> {r['verdict_after'] or 'failed'}",
             "\n".join(
-                ([f"{r['temperature_c']['before']:g} -> {r['temperature_c']['after']:g} degC"]
-                 if r.get("temperature_c") else [])
+                (
+                    [f"{r['temperature_c']['before']:g} -> {r['temperature_c']['after']:g} degC"]
+                    if r.get("temperature_c")
+                    else []
+                )
                 + [f"{m['name']} {m['change_in_U']:+.2f} U" for m in r["moved"][:3]]
             )  # fmt: skip
             or ("-" if r["affected"] else "not affected"),

@@ -410,8 +410,16 @@ def _uncertainty_section(run: _Archived) -> Section:
     notes = sorted({n for b in budgets.values() for n in b["notes"]})
     return Section(
         "Measurement uncertainty and statement of conformity",
-        header=["parameter", "value", _expanded_heading(budgets), "unit", "k", "coverage",
-                "verdict", "guard band w"],
+        header=[
+            "parameter",
+            "value",
+            _expanded_heading(budgets),
+            "unit",
+            "k",
+            "coverage",
+            "verdict",
+            "guard band w",
+        ],
         rows=rows,
         paragraphs=[
             "Expanded uncertainty U = k u_c (GUM, JCGM 100:2008), coverage probability about 95 %.",
@@ -520,9 +528,7 @@ def _as_found_evaluated(step: dict[str, Any]) -> Section:
             ],
         )
     rows = [
-        _as_found_row(
-            r["parameter"], r["earlier"], r["as_left"], r["error"], r["U"], r["verdict"]
-        )
+        _as_found_row(r["parameter"], r["earlier"], r["as_left"], r["error"], r["U"], r["verdict"])
         for r in stats["parameters"]
     ]
     return Section(

@@ -183,8 +183,7 @@ def impact_records(archive: Archive) -> list[dict[str, Any]]:
         .join(CalibrationRow, CalibrationRow.run_id == Run.id)
         .join(
             step,
-            (step.c.calibration_id == CalibrationRow.id)
-            & (step.c.name == "reference_correction"),
+            (step.c.calibration_id == CalibrationRow.id) & (step.c.name == "reference_correction"),
         )
         .join(why, (why.c.calibration_id == CalibrationRow.id) & (why.c.name == "reprocess"))
         .order_by(CalibrationRow.created_at, Run.started_at, Run.run_id)
