@@ -11,15 +11,13 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-import shutil
-import subprocess
-from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
+from calib_testing.documents import html_words, pdf_pages
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
@@ -30,32 +28,6 @@ from storage.verify import verify
 SAMPLE = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"
 # Typesetting takes seconds per certificate: the slow tier.
 pytestmark = [pytest.mark.usefixtures("issuing_certificates"), pytest.mark.slow]
-
-
-class _Text(HTMLParser):
-    """The words a reader sees in an HTML document (not its style sheet or title)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.words: list[str] = []
-        self._hidden = 0
-
-    def handle_starttag(self, tag: str, attrs: list) -> None:
-        self._hidden += tag in ("style", "title")
-
-    def handle_endtag(self, tag: str) -> None:
-        self._hidden -= tag in ("style", "title")
-
-    def handle_data(self, data: str) -> None:
-        if not self._hidden:
-            self.words += data.split()
-
-
-def _pdf_pages(path: Path) -> list[str]:
-    pdftotext = shutil.which("pdftotext")
-    assert pdftotext, "pdftotext missing: scripts/ensure_system_packages.sh installs poppler-utils"
-    out = subprocess.run([pdftotext, str(path), "-"], capture_output=True, text=True, check=True)
-    return out.stdout.split("\f")[:-1]  # one form feed after every page
 
 
 @pytest.fixture(scope="module")
@@ -88,15 +60,14 @@ def test_every_word_of_the_html_certificate_is_in_the_pdf(archived) -> None:
     give the certificate number and "page x of y" on every page."""
     arch, run_id = archived
     current = issued(arch, run_id)
-    parser = _Text()
-    parser.feed(current.files["html"].read_text(encoding="utf-8"))
-    pages = _pdf_pages(current.files["pdf"])
+    words = html_words(current.files["html"].read_text(encoding="utf-8"))
+    pages = pdf_pages(current.files["pdf"])
     text = "\f".join(pages)
     found, joined = set(text.split()), "".join(text.split())
     # A word longer than its table cell (a SHA-256) is broken across lines: it is
     # then found with the line breaks taken out.
-    missing = sorted({w for w in parser.words if w not in found and w not in joined})
-    assert len(parser.words) > 500 and not missing, missing
+    missing = sorted({w for w in words if w not in found and w not in joined})
+    assert len(words) > 500 and not missing, missing
     assert len(pages) >= 3
     for n, page in enumerate(pages, start=1):
         assert f"page {n} of {len(pages)}" in page
@@ -120,7 +91,7 @@ def test_calib_report_hands_out_the_archived_files_and_reissues(archived, tmp_pa
     second = json.loads(result.stdout)
     assert second["certificate"] == f"{run_id}-1-2"
     assert Path(second["pdf"]) != first.files["pdf"]
-    assert f"Certificate {run_id}-1-2" in "".join(_pdf_pages(Path(second["pdf"])))
+    assert f"Certificate {run_id}-1-2" in "".join(pdf_pages(Path(second["pdf"])))
     assert {k: p.read_bytes() for k, p in first.files.items()} == before  # earlier issue kept
     events = issues(arch, run_id)
     assert [e["detail"]["issue"] for e in events] == [1, 2]

@@ -8,10 +8,6 @@ from __future__ import annotations
 import csv
 import io
 import re
-import shutil
-import subprocess
-from html.parser import HTMLParser
-from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
@@ -19,6 +15,7 @@ from test_impact import RATE_PPM, _archive, _rate_manifest, _rate_table_segments
 from typer.testing import CliRunner
 
 from calib_core.reference_errors import parse_error
+from calib_testing.documents import html_words, pdf_pages
 from calib_testing.run_writers import write_csv_run
 from pipelines.cli import app
 from pipelines.impact import html_report, impact, pdf_report, record_doc
@@ -28,32 +25,6 @@ from storage.queries import open_readonly
 from storage.queries.impact import calibration_temperatures, impact_records
 
 REASON = f"out-of-tolerance reference RT-7: rate_error_ppm={RATE_PPM:g}"
-
-
-class _Text(HTMLParser):
-    """The words a reader sees in an HTML document (not its style sheet or title)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.words: list[str] = []
-        self._hidden = 0
-
-    def handle_starttag(self, tag: str, attrs: list) -> None:
-        self._hidden += tag in ("style", "title")
-
-    def handle_endtag(self, tag: str) -> None:
-        self._hidden -= tag in ("style", "title")
-
-    def handle_data(self, data: str) -> None:
-        if not self._hidden:
-            self.words += data.split()
-
-
-def _pdf_pages(path: Path) -> list[str]:
-    pdftotext = shutil.which("pdftotext")
-    assert pdftotext, "pdftotext missing: scripts/ensure_system_packages.sh installs poppler-utils"
-    out = subprocess.run([pdftotext, str(path), "-"], capture_output=True, text=True, check=True)
-    return out.stdout.split("\f")[:-1]  # one form feed after every page
 
 
 @pytest.fixture(scope="module")
@@ -158,21 +129,20 @@ def test_every_word_of_the_html_report_is_in_the_pdf(applied, tmp_path):
     """The applied record's report typeset, not cut; "page x of y" on every page."""
     (rec,) = impact_records(applied["archive"])
     doc = record_doc(rec)
-    parser = _Text()
-    parser.feed(html_report(doc))
+    words = html_words(html_report(doc))
     pdf = tmp_path / "record.pdf"
     pdf.write_bytes(pdf_report(doc))
-    pages = _pdf_pages(pdf)
+    pages = pdf_pages(pdf)
     text = "\f".join(pages)
     found, joined = set(text.split()), "".join(text.split())
     # A word longer than its table cell (a run id) is broken across lines: it is then
     # found with the line breaks taken out.
-    missing = sorted({w for w in parser.words if w not in found and w not in joined})
+    missing = sorted({w for w in words if w not in found and w not in joined})
     assert not missing, missing
     # the report is the whole record: every run and every moved parameter is in it
-    assert {r["run_id"] for r in rec["runs"]} <= set(parser.words)
+    assert {r["run_id"] for r in rec["runs"]} <= set(words)
     moved = {m["name"] for r in rec["runs"] for m in r["moved"]}
-    assert "gyr.scale.x" in moved and moved <= set(parser.words)
+    assert "gyr.scale.x" in moved and moved <= set(words)
     for n, page in enumerate(pages, start=1):
         assert f"page {n} of {len(pages)}" in page
 
@@ -188,7 +158,7 @@ def test_calib_impact_writes_the_pdf(applied, tmp_path):
          "--archive", str(applied["archive"].root)],
     )  # fmt: skip
     assert res.exit_code == 0, res.output
-    joined = "".join("".join(_pdf_pages(pdf)).split())
+    joined = "".join("".join(pdf_pages(pdf)).split())
     assert all(r["run_id"] in joined for r in applied["doc"]["runs"])
     assert "".join(REASON.split()) in joined
 
