@@ -227,15 +227,9 @@ def csv_part(args: argparse.Namespace) -> dict:
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
-    (floor_s, floor_rss, _), (proc_s, proc_rss, _) = outs["floor"], outs["process"]
+    (floor_s, _, _), (proc_s, _, _) = outs["floor"], outs["process"]
     return {
-        "size_gb": round(size / 1e9, 3),
-        "samples": samples,
-        "peak_rss_gb": round(proc_rss / 2**30, 3),
-        "floor_peak_rss_gb": round(floor_rss / 2**30, 3),
-        "process_mb_per_s": round(size / 1e6 / proc_s, 1),
-        "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
-        "process_to_floor_ratio": round(proc_s / floor_s, 3),
+        **pass_figures(size, samples, outs),
         "allan_rel_err_vs_allantools": err,
         "seconds": {
             "write": round(write_s, 1),
@@ -244,6 +238,21 @@ def csv_part(args: argparse.Namespace) -> dict:
             "allan_check": round(allan_s, 1),
         },
         "memory_limit_gb": args.memory_limit_gb,
+    }
+
+
+def pass_figures(size: int, samples: int, runs: dict) -> dict:
+    """The figures of one format's floor and process passes: `runs` maps "floor" and
+    "process" to (seconds, peak resident bytes, output) of the child."""
+    (floor_s, floor_rss, _), (proc_s, proc_rss, _) = runs["floor"], runs["process"]
+    return {
+        "size_gb": round(size / 1e9, 3),
+        "samples": samples,
+        "peak_rss_gb": round(proc_rss / 2**30, 3),
+        "floor_peak_rss_gb": round(floor_rss / 2**30, 3),
+        "process_mb_per_s": round(size / 1e6 / proc_s, 1),
+        "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
+        "process_to_floor_ratio": round(proc_s / floor_s, 3),
     }
 
 
@@ -408,15 +417,9 @@ def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
-    (floor_s, floor_rss, _), (proc_s, proc_rss, _) = runs["floor"], runs["process"]
+    (floor_s, _, _), (proc_s, _, _) = runs["floor"], runs["process"]
     return {
-        "size_gb": round(size / 1e9, 3),
-        "samples": samples,
-        "peak_rss_gb": round(proc_rss / 2**30, 3),
-        "floor_peak_rss_gb": round(floor_rss / 2**30, 3),
-        "process_mb_per_s": round(size / 1e6 / proc_s, 1),
-        "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
-        "process_to_floor_ratio": round(proc_s / floor_s, 3),
+        **pass_figures(size, samples, runs),
         "seconds": {
             "write": round(write_s, 1),
             "floor": round(floor_s, 1),
