@@ -224,3 +224,122 @@ def test_streamed_motion_check_is_the_in_memory_one(kind, make, moves):
     assert bool(exact) is kind.startswith("quantised"), exact
     if exact:
         assert set(exact[0]) <= {0, 1, 2}  # the gyro's channels only
+
+
+def _arbitrary_chunks(rec: Recording, seed: int, first: int) -> list[tuple]:
+    """`rec` as (t, gyr, acc) chunks of random sizes (1 to 3000 rows) after a first of
+    `first` rows: windows split anywhere, chunks shorter than a window among them."""
+    rng = np.random.default_rng(seed)
+    cuts = [0, first]
+    while cuts[-1] < len(rec):
+        cuts.append(min(cuts[-1] + int(rng.integers(1, 3001)), len(rec)))
+    return [(rec.t[a:b], rec.gyr[a:b], rec.acc[a:b]) for a, b in zip(cuts, cuts[1:], strict=False)]
+
+
+def _first_pass(chunks: list[tuple]):
+    from calib_core.solvers.static_bias_stream import FirstPass
+
+    first = FirstPass.empty()
+    for chunk in chunks:
+        first.push(chunk)
+    first.close()
+    return first
+
+
+def _same_statistics(got: dict | None, ref: dict | None) -> None:
+    """The test above's comparison: ratio and limit to a few ulps, the rest exactly."""
+    assert ref is not None and got is not None
+    assert got["ratio"] == pytest.approx(ref["ratio"], rel=1e-12, abs=0.0), (got, ref)
+    assert got["limit"] == pytest.approx(ref["limit"], rel=1e-12, abs=0.0), (got, ref)
+    assert (got["channel"], got["t_s"], got["window_s"]) == (
+        ref["channel"],
+        ref["t_s"],
+        ref["window_s"],
+    )
+
+
+@pytest.mark.parametrize(
+    ("make", "moves", "seed"),
+    [
+        (lambda: _still(310), False, 1),
+        (lambda: _vibrating(_still(311), 312), True, 2),
+        (lambda: _quantised(_vibrating(_still(313), 314), 5e-3), True, 3),
+    ],
+)
+def test_first_pass_motion_is_the_in_memory_one(make, moves, seed):
+    """The motion windows computed while the record is read (`FirstPass`, on its worker
+    thread, at the width of the first chunk's rate) are the in-memory check's, whatever
+    the chunks' sizes; the solve then takes them and its pass computes no window (its
+    chunks carry no time, which a window needs)."""
+    from calib_core.preprocess.motion import motion_statistics, streamed_smallest_steps
+    from calib_core.solvers.static_bias_stream import solve_static_bias_stream
+
+    rec = make()
+    chunks = _arbitrary_chunks(rec, seed, first=700)
+    first = _first_pass(chunks)
+    rate = 1.0 / first.step.median()
+    motion = first.settled_motion(len(rec), rate)
+    assert motion is not None  # the first pass's windows are the record's
+    x = np.hstack([rec.gyr, rec.acc])
+    got = motion.result(lambda cols: streamed_smallest_steps([x[:, cols]]))
+    ref = motion_statistics(rec)
+    _same_statistics(got, ref)
+    assert (got["ratio"] > got["limit"]) is moves, got
+
+    def timeless():
+        for _, gyr, acc in chunks:
+            yield None, gyr, acc
+
+    cal = solve_static_bias_stream(timeless, first=first, up_axis="+z", motion_label="still")
+    (check,) = [c for c in cal.info["solver_checks"] if c["name"] == "motion:still"]
+    assert check["value"] == pytest.approx(ref["ratio"], rel=1e-12, abs=0.0)
+    assert check["passed"] is not moves
+
+
+def _moving(seed: int, duration_s: float = 120.0) -> Recording:
+    return _vibrating(_still(seed, duration_s), seed + 1)
+
+
+def _first_chunk_at(rec: Recording, rows: int, factor: float) -> Recording:
+    """`rec` whose first `rows` samples come `factor` times as often (the record's median
+    step unchanged: most steps are the others)."""
+    step = float(np.median(np.diff(rec.t)))
+    steps = np.full(len(rec) - 1, step)
+    steps[: rows - 1] = step / factor
+    return dataclasses.replace(rec, t=rec.t[0] + np.concatenate([[0.0], np.cumsum(steps)]))
+
+
+@pytest.mark.parametrize(
+    ("case", "make"),
+    [
+        ("first chunk at twice the rate", lambda: _first_chunk_at(_moving(320), 900, 2.0)),
+        ("first chunk at 0.7 x the rate", lambda: _first_chunk_at(_moving(322), 900, 0.7)),
+        ("short record: shorter windows", lambda: _moving(324, duration_s=12.0)),
+    ],
+)
+def test_first_pass_motion_falls_back_to_the_solve_pass(case, make):
+    """When the first chunk's rate does not give the record's window (its rate is not the
+    record's median rate, or the record is too short for MOTION_WINDOW_S windows), the
+    first pass's windows are not used: the solve's pass computes them again, and the check
+    is still the in-memory one (a record that moves fails it)."""
+    from calib_core.preprocess.motion import motion_statistics, motion_width
+    from calib_core.solvers.static_bias_stream import solve_static_bias_stream
+
+    rec = make()
+    chunks = _arbitrary_chunks(rec, 4, first=900)
+    first = _first_pass(chunks)
+    rate = 1.0 / first.step.median()
+    assert first.motion is not None  # windows computed, at a width not the record's
+    assert first.motion.width != motion_width(len(rec), rate), case
+    assert first.settled_motion(len(rec), rate) is None
+    ref = motion_statistics(rec)
+    assert ref is not None and ref["ratio"] > ref["limit"]  # it moves
+    cal = solve_static_bias_stream(
+        lambda: iter(chunks), first=first, up_axis="+z", motion_label="still"
+    )
+    (check,) = [c for c in cal.info["solver_checks"] if c["name"] == "motion:still"]
+    assert check == motion_check("still", rec) | {
+        "value": pytest.approx(ref["ratio"], rel=1e-12, abs=0.0),
+        "limit": pytest.approx(ref["limit"], rel=1e-12, abs=0.0),
+    }
+    assert check["passed"] is False

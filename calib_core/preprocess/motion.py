@@ -46,10 +46,12 @@ MOTION_MIN_RATIO = 10.0
 SPIKE_TRIM = 0.02
 
 
-def motion_width(n: int, rate: float) -> int:
+def motion_width(n: int | None, rate: float) -> int:
     """Samples a window of a record of `n` samples at `rate` Hz: MOTION_WINDOW_S, shorter
-    in a short record (a face held 5 s still gets 16 windows)."""
-    return max(MIN_WINDOW_SAMPLES, min(int(round(MOTION_WINDOW_S * rate)), n // 16))
+    in a short record (a face held 5 s still gets 16 windows); n None: a record long
+    enough for MOTION_WINDOW_S (its length not known yet)."""
+    width = int(round(MOTION_WINDOW_S * rate))
+    return max(MIN_WINDOW_SAMPLES, width if n is None else min(width, n // 16))
 
 
 def window_statistics(x: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -178,6 +180,14 @@ class StreamedMotion:
     the windows' statistics as the record arrives (the rows of a window split by a chunk's
     end carried to the next), (K, C) arrays of a few floats per second of record.
 
+    Parameters
+    ----------
+    n : the record's samples; None while they are not known (a record's first pass): the
+        window is then a long record's (`motion_width`), every whole window pushed is kept,
+        and `settle` says at the end whether they are the record's windows.
+    rate : the record's median sample rate, Hz (provisional when n is None).
+    channels : columns of the rows pushed.
+
     The quantisation variance needs the record's smallest step between distinct values,
     which no chunk holds (neighbouring values may fall in different chunks). A sample of
     each chunk's rows gives an upper bound on it (fewer values: steps no smaller); when the
@@ -189,10 +199,11 @@ class StreamedMotion:
 
     SAMPLE_ROWS = 4096  # rows of each chunk whose steps bound the record's smallest step
 
-    def __init__(self, n: int, rate: float, channels: int = 6) -> None:
+    def __init__(self, n: int | None, rate: float, channels: int = 6) -> None:
         self.rate = rate
         self.width = motion_width(n, rate)
-        self.windows = n // self.width
+        self.windows = None if n is None else n // self.width
+        self.rows = 0  # rows pushed
         self._rest = np.empty((0, channels))
         self._rest_t = np.empty(0)
         self._t0: float | None = None
@@ -204,7 +215,8 @@ class StreamedMotion:
 
     def push(self, t: np.ndarray, x: np.ndarray) -> None:
         """Take the next rows: t (m,) s, x (m, C)."""
-        if x.shape[0] == 0 or self.windows < MIN_WINDOWS:
+        self.rows += x.shape[0]
+        if x.shape[0] == 0 or (self.windows is not None and self.windows < MIN_WINDOWS):
             return
         stride = max(1, x.shape[0] // self.SAMPLE_ROWS)
         np.minimum(self.steps_bound, smallest_steps(x[::stride]), out=self.steps_bound)
@@ -214,19 +226,35 @@ class StreamedMotion:
             return  # the rows after the last whole window: in no window
         if self._rest.shape[0]:
             x, t = np.concatenate([self._rest, x]), np.concatenate([self._rest_t, t])
-        k = min(x.shape[0] // self.width, self.windows - self._done)
+        k = x.shape[0] // self.width
+        if self.windows is not None:
+            k = min(k, self.windows - self._done)
         if k:
             var, iat = window_statistics(x[: k * self.width], self.width)
             self._var.append(var)
             self._iat.append(iat)
             self._starts.append(t[: k * self.width : self.width] - self._t0)
             self._done += k
-        rest = k * self.width if self._done < self.windows else x.shape[0]
+        rest = k * self.width if self._done != self.windows else x.shape[0]
         self._rest, self._rest_t = x[rest:].copy(), t[rest:].copy()
+
+    def settle(self, n: int, rate: float) -> bool:
+        """Whether the windows pushed are those of ``StreamedMotion(n, rate)`` given the
+        same rows: the record's `n` samples all pushed and its window (`motion_width` at
+        its median rate, Hz) the one used. If so, the record's n and rate are taken (the
+        windows after MIN_WINDOWS are judged by `result` as for a sized one); if not (a
+        short record, a first chunk whose steps were not the record's), the windows must
+        be computed again at the right width."""
+        if self.rows != n or motion_width(n, rate) != self.width:
+            return False
+        self.rate, self.windows = rate, n // self.width
+        return True
 
     def result(self, exact_steps: Callable[[np.ndarray], np.ndarray]) -> dict | None:
         """`motion_statistics` of the record pushed. exact_steps(channels) -> the record's
         smallest steps of those channels (an index array), called only when needed."""
+        if self.windows is None:
+            raise ValueError("motion: the record's length is not known (settle first)")
         if self.windows < MIN_WINDOWS:
             return None
         if self._done != self.windows:

@@ -4,16 +4,23 @@ without the whole record in memory.
 Two passes over the chunks: the first gives the count, mean and std of every channel
 (skipped when the caller computed them while reading the file) and the median time step;
 the second applies the n-sigma rule with those, keeps the kept samples' moments and
-streams the outlier-filled record into the Allan deviation (`calib_core.streamed`);
-with a label, the same pass keeps the motion check's window statistics
+streams the outlier-filled record into the Allan deviation (`calib_core.streamed`).
+With a label the solve also makes the motion check
 (`calib_core.preprocess.motion.StreamedMotion`, on the samples before the fill, as the
-in-memory check sees them).
+in-memory check sees them). A caller's first pass (`FirstPass.empty()`, pushed while the
+file is read) computes its windows' statistics on a worker thread, at the window width
+of the first chunk's time steps; when that is the record's width (`StreamedMotion.settle`),
+the second pass has no motion work. Otherwise (a short record, a first chunk whose rate is
+not the record's) the second pass computes the windows as before.
 """
 
 from __future__ import annotations
 
+import math
+import threading
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from concurrent.futures import Future
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -30,18 +37,29 @@ Chunk = tuple[np.ndarray, np.ndarray, np.ndarray]
 @dataclass
 class FirstPass:
     """What the first pass over a static record keeps: moments of [gyr | acc], the
-    median time step (`MedianStep`), the first time (s) and the smallest and largest
-    value of each channel of [gyr | acc] (the range check)."""
+    median time step (`MedianStep`), the first time (s), the smallest and largest
+    value of each channel of [gyr | acc] (the range check) and the motion check's windows.
+
+    The motion windows (`motion`: a `StreamedMotion` whose record length is not known
+    yet) are computed on a thread of their own, one chunk at a time (the next push waits
+    for the previous chunk's): NumPy releases the GIL, so the reading goes on meanwhile.
+    Their width is a long record's at the first chunk's median rate; `settled_motion`
+    says at the end whether it is the record's. `motion` None: not computed (`watch_motion`
+    false, or the first chunk could not set a width: the solve's pass computes them).
+    """
 
     moments: Moments
     step: MedianStep
     t_first: float | None = None
     low: np.ndarray | None = None
     high: np.ndarray | None = None
+    motion: StreamedMotion | None = None
+    watch_motion: bool = True
+    _pending: Future | None = field(default=None, repr=False)
 
     @classmethod
-    def empty(cls) -> FirstPass:
-        return cls(Moments(6), MedianStep())
+    def empty(cls, watch_motion: bool = True) -> FirstPass:
+        return cls(Moments(6), MedianStep(), watch_motion=watch_motion)
 
     def push(self, chunk: Chunk) -> None:
         t, gyr, acc = chunk
@@ -53,9 +71,28 @@ class FirstPass:
         low, high = both.min(axis=0), both.max(axis=0)
         if self.low is None:
             self.t_first, self.low, self.high = float(t[0]), low, high
+            self.motion = _provisional_motion(t) if self.watch_motion else None
         else:
             np.minimum(self.low, low, out=self.low)
             np.maximum(self.high, high, out=self.high)
+        if self.motion is not None:
+            self.close()  # one chunk pending at a time: bounded memory
+            self._pending = _on_thread(self.motion.push, t, both)
+
+    def close(self) -> None:
+        """Wait for the last chunk's motion windows (a failure in them is raised here).
+        Readers call it when the record ends; the solve calls it anyway."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
+    def settled_motion(self, n: int, rate: float) -> StreamedMotion | None:
+        """The motion windows of this pass if they are those of the record of `n` samples
+        at median `rate` Hz (`StreamedMotion.settle`), else None (compute them again)."""
+        self.close()
+        if self.motion is None or not self.motion.settle(n, rate):
+            return None
+        return self.motion
 
     @property
     def t_last(self) -> float | None:
@@ -67,6 +104,34 @@ class FirstPass:
         return int(self.moments.n[0])
 
 
+def _provisional_motion(t: np.ndarray) -> StreamedMotion | None:
+    """Motion windows at a long record's width for the median rate of the first chunk's
+    times t (s); None when they cannot be set from it: fewer than two times, or a window
+    longer than the chunk (its rows carried over would grow past a chunk: a small memory
+    limit, or a first chunk whose steps are far shorter than the record's)."""
+    if t.shape[0] < 2:
+        return None
+    step = float(np.median(np.diff(t)))
+    if not (math.isfinite(step) and step > 0.0):
+        return None
+    motion = StreamedMotion(None, 1.0 / step)
+    return motion if motion.width <= t.shape[0] else None
+
+
+def _on_thread(fn: Callable, *args) -> Future:
+    """fn(*args) on a new thread; the Future of its result (or its exception)."""
+    done: Future = Future()
+
+    def run() -> None:
+        try:
+            done.set_result(fn(*args))
+        except BaseException as exc:  # noqa: BLE001 - raised by the caller's result()
+            done.set_exception(exc)
+
+    threading.Thread(target=run, name="calib-motion", daemon=True).start()
+    return done
+
+
 def _joined(gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
     """[gyr | acc] (n, 6): without a copy when the reader made them views of one array."""
     both = gyr.base if gyr.base is not None and gyr.base is acc.base else None
@@ -76,8 +141,9 @@ def _joined(gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
 
 
 def first_pass(chunks: Iterable[Chunk]) -> FirstPass:
-    """Moments and time steps of a stream of chunks."""
-    out = FirstPass.empty()
+    """Moments and time steps of a stream of chunks (no motion windows: the solve's
+    second pass computes them, on the chunks it is given)."""
+    out = FirstPass.empty(watch_motion=False)
     for chunk in chunks:
         out.push(chunk)
     return out
@@ -109,9 +175,15 @@ def solve_static_bias_stream(
         may be None when `first` is given and `motion_label` is None: the second pass
         needs no time).
     label : the record's label (checks name it).
-    first : the first pass's statistics if the caller has them (else one more pass).
+    first : the first pass's statistics of these chunks if the caller has them (else one
+        more pass); its motion windows are used when they are the record's
+        (`FirstPass.settled_motion`), else the second pass computes them.
     memory_rows, history, map_ : the Allan deviation's phase rows in memory, where the
         longer lags are read and how its cluster sizes run (`calib_core.streamed.StreamedAllan`).
+    motion_label : with a label, the record's motion check (``motion:<label>``) among the
+        Calibration's ``solver_checks``; None: no motion check.
+    submit : submit(fn, *args) -> a Future: where this pass computes a chunk's motion
+        windows (None: in line), when the first pass's are not the record's.
     Other parameters as `solve_static_bias`.
 
     Returns
@@ -134,13 +206,17 @@ def solve_static_bias_stream(
         history=history,
         map_=map_,
     )
-    motion = StreamedMotion(n, rate_hz) if motion_label is not None else None
+    motion, again = None, False
+    if motion_label is not None:
+        motion = first.settled_motion(n, rate_hz)
+        again = motion is None  # not the first pass's: this pass computes the windows
+        motion = StreamedMotion(n, rate_hz) if again else motion
     # A chunk's motion windows may be computed beside its Allan sums (`submit`: NumPy
     # releases the GIL; neither writes the chunk), one chunk at a time, in order.
     pending = None
     for t, gyr, acc in chunks():
         both = _joined(gyr, acc)
-        if motion is not None:  # before the fill: the samples the in-memory check sees
+        if again:  # before the fill: the samples the in-memory check sees
             if pending is not None:
                 pending.result()
             pending = (submit or _Done)(motion.push, t, both)

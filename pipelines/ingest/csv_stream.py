@@ -9,8 +9,10 @@ reads the Parquet back in batches for the static-bias solve's second pass; the A
 deviation's long lags come from a phase file (`FileHistory`). Memory stays bounded by
 `memory_limit` whatever the record's length; progress (bytes, samples, rate, time left)
 goes to stderr on long reads.
-The solve's pass also makes the record's motion check (`calib_core.preprocess.motion`'s
-`StreamedMotion`: the windows' statistics as the chunks pass).
+The record's motion check (`calib_core.preprocess.motion`'s `StreamedMotion`: the
+windows' statistics as the chunks pass) is computed by the first pass, on a worker thread
+beside the reading; the solve's pass computes it only when the first chunk's rate did not
+give the record's window width (`FirstPass.settled_motion`).
 """
 
 from __future__ import annotations
@@ -223,6 +225,7 @@ def stream_csv(
                 temp_finite += int(np.isfinite(chunk["temp"]).sum())
             rows += len(chunk["t"])
             bar.update(done, rows)
+        first.close()  # the last chunk's motion windows (computed beside the reading)
     bar.update(done, rows, final=True)
     if rows == 0:
         raise IngestError("no data rows", file=path)

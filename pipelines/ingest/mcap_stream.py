@@ -323,6 +323,7 @@ def stream_mcap(
                 reader.max_chunk = memory_limit // 4
                 reader.read(tee, size)
                 sink.flush()
+                sink.first.close()  # the last batch's motion windows (beside the reading)
                 tee.drain()
             finally:
                 sink.close()
