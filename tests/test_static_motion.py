@@ -227,12 +227,13 @@ def test_streamed_motion_check_is_the_in_memory_one(kind, make, moves):
 
 
 def _arbitrary_chunks(rec: Recording, seed: int, first: int) -> list[tuple]:
-    """`rec` as (t, gyr, acc) chunks of random sizes (1 to 3000 rows) after a first of
-    `first` rows: windows split anywhere, chunks shorter than a window among them."""
+    """`rec` as (t, gyr, acc) chunks of random sizes after a first of `first` rows: half
+    of them 1 to 150 rows (most shorter than a window), half up to 3000 rows."""
     rng = np.random.default_rng(seed)
     cuts = [0, first]
     while cuts[-1] < len(rec):
-        cuts.append(min(cuts[-1] + int(rng.integers(1, 3001)), len(rec)))
+        size = int(rng.integers(1, 150 if rng.random() < 0.5 else 3001))
+        cuts.append(min(cuts[-1] + size, len(rec)))
     return [(rec.t[a:b], rec.gyr[a:b], rec.acc[a:b]) for a, b in zip(cuts, cuts[1:], strict=False)]
 
 

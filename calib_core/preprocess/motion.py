@@ -198,6 +198,7 @@ class StreamedMotion:
     """
 
     SAMPLE_ROWS = 4096  # rows of each chunk whose steps bound the record's smallest step
+    WINDOW_ROWS = 1 << 16  # rows of whole windows whose statistics are taken at once
 
     def __init__(self, n: int | None, rate: float, channels: int = 6) -> None:
         self.rate = rate
@@ -222,19 +223,31 @@ class StreamedMotion:
         np.minimum(self.steps_bound, smallest_steps(x[::stride]), out=self.steps_bound)
         if self._t0 is None:
             self._t0 = float(t[0])
-        if self._done == self.windows:
-            return  # the rows after the last whole window: in no window
-        if self._rest.shape[0]:
-            x, t = np.concatenate([self._rest, x]), np.concatenate([self._rest_t, t])
+        if self._rest.shape[0]:  # first the window split by the previous chunk's end
+            need = self.width - self._rest.shape[0]
+            head_t = np.concatenate([self._rest_t, t[:need]])
+            head_x = np.concatenate([self._rest, x[:need]])
+            t, x = t[need:], x[need:]
+            self._whole_windows(head_t, head_x)
+            if x.shape[0] == 0:
+                return
+        self._whole_windows(t, x)
+
+    def _whole_windows(self, t: np.ndarray, x: np.ndarray) -> None:
+        """The statistics of the whole windows at the front of rows t (m,), x (m, C)
+        (WINDOW_ROWS at a time: bounded temporaries), the rows after them kept for the
+        next push (none after the record's last window)."""
         k = x.shape[0] // self.width
         if self.windows is not None:
             k = min(k, self.windows - self._done)
-        if k:
-            var, iat = window_statistics(x[: k * self.width], self.width)
+        step = max(1, self.WINDOW_ROWS // self.width)
+        for a in range(0, k, step):
+            rows = slice(a * self.width, min(a + step, k) * self.width)
+            var, iat = window_statistics(x[rows], self.width)
             self._var.append(var)
             self._iat.append(iat)
-            self._starts.append(t[: k * self.width : self.width] - self._t0)
-            self._done += k
+            self._starts.append(t[rows][:: self.width] - self._t0)
+        self._done += k
         rest = k * self.width if self._done != self.windows else x.shape[0]
         self._rest, self._rest_t = x[rest:].copy(), t[rest:].copy()
 
