@@ -63,8 +63,9 @@ def window_statistics(x: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray
     Local to each window: a record pushed in chunks of whole windows gives the same rows.
     """
     k = x.shape[0] // width
-    w = np.ascontiguousarray(x[: k * width].reshape(k, width, -1).transpose(0, 2, 1))
-    w -= np.median(w, axis=2, keepdims=True)  # (k, C, width) deviations from the median
+    # (k, C, width): one copy whatever x's memory order (only x's row axis is split)
+    w = np.ascontiguousarray(x[: k * width].T.reshape(x.shape[1], k, width).transpose(1, 0, 2))
+    w -= _last_axis_median(w)  # deviations from the median
     keep = width - max(1, int(math.ceil(SPIKE_TRIM * width)))
     far = np.take_along_axis(w, np.argpartition(np.abs(w), keep - 1, axis=2)[..., keep:], 2)
     # The kept samples' sums: the window's less the few left out's (no copy of the kept);
@@ -75,6 +76,19 @@ def window_statistics(x: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray
     w -= w.mean(axis=2, keepdims=True)
     iat = centred_iats(w.reshape(-1, width)).reshape(var.shape)
     return var, iat
+
+
+def _last_axis_median(w: np.ndarray) -> np.ndarray:
+    """``np.median(w, axis=-1, keepdims=True)`` of finite w, the same numbers from one
+    selection (np.median selects three order statistics: its NaN test's too)."""
+    n = w.shape[-1]
+    half = n // 2
+    part = np.partition(w, half, axis=-1)
+    upper = part[..., half : half + 1]
+    if n % 2:
+        return upper
+    # the largest of the lower half: the other middle value; halved as np.mean does
+    return (part[..., :half].max(axis=-1, keepdims=True) + upper) / 2.0
 
 
 def smallest_steps(x: np.ndarray) -> np.ndarray:
