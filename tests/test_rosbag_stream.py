@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -142,6 +143,26 @@ def test_compressed_chunks_and_several_imu_topics_named(tmp_path, compression):
         assert np.array_equal(table.column("t").to_numpy(), rec.t)
         assert np.array_equal(table.column("acc_x").to_numpy(), rec.acc[:, 0])
         assert streamed.sha256 == hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_record_headers_in_rosbag_cpp_order(tmp_path):
+    """`rosbag record` (C++) writes a message record's header fields sorted by name (conn,
+    op, time; rosbags writes op first): the same sizes, so the bag is rewritten in place,
+    and read as the in-memory reader reads it."""
+    path = write_bag(tmp_path / "py.bag", static_record(4000))
+    op = b"\x04\x00\x00\x00op=\x02"
+    conn = rb"(\x09\x00\x00\x00conn=.{4})"
+    data, count = re.subn(
+        re.escape(op) + conn, lambda m: m.group(1) + op, path.read_bytes(), flags=re.S
+    )
+    assert count == 4000
+    cpp = tmp_path / "cpp.bag"
+    cpp.write_bytes(data)
+    streamed = stream(cpp, tmp_path)
+    rec = read_rosbag(cpp)
+    table = pq.read_table(streamed.samples)
+    assert np.array_equal(table.column("t").to_numpy(), rec.t)
+    assert np.array_equal(table.column("gyr_y").to_numpy(), rec.gyr[:, 1])
 
 
 def same_error(path: Path, tmp_path: Path, **keys) -> str:
@@ -302,9 +323,9 @@ def test_streamed_bag_run_matches_the_in_memory_run(tmp_path):
 
 
 def test_bad_bags_fail_by_name_and_the_batch_goes_on(bag, tmp_path):
-    """One `calib process` over three runs streamed at a 5 MB limit: a truncated bag and
-    a bag without an Imu topic fail with an error naming their file; the good run is
-    processed."""
+    """One `calib process` over four runs streamed: a truncated bag, a bag without the
+    named Imu topic and a ROS 2 .db3 fail with an error naming their file; the good run
+    is processed."""
     root = tmp_path / "runs"
     settings = {"memory_limit_mb": LIMIT_MB}
     good = write_run(root / "a_good", bag, settings)
@@ -318,6 +339,9 @@ def test_bad_bags_fail_by_name_and_the_batch_goes_on(bag, tmp_path):
         manifest_path.read_text(encoding="utf-8").replace(TOPIC, "/imu/missing"),
         encoding="utf-8",
     )
+    db3 = write_rosbag2(tmp_path / "ros2", static_record(6000))
+    write_run(root / "d_ros2", db3, {"memory_limit_mb": 1})
+    assert db3.stat().st_size > 10**6
     write_profile(tmp_path / "profiles", minutes=10.0)
     env = {
         **os.environ,
@@ -336,6 +360,7 @@ def test_bad_bags_fail_by_name_and_the_batch_goes_on(bag, tmp_path):
     for name, file, said in (
         ("b_cut", "cut.bag", "truncated"),
         ("c_notopic", "imu.bag", "'/imu/missing'"),
+        ("d_ros2", db3.name, "ROS 2 .db3 bag is read into memory only"),
     ):
         run = runs[name]
         assert run["status"] == "failed", run
