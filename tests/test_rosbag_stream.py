@@ -239,6 +239,17 @@ def test_truncated_unindexed_or_damaged_bag_names_the_file(bag, tmp_path):
     with pytest.raises(IngestError, match="not indexed") as err:
         stream(bad, tmp_path)
     assert str(bad) in str(err.value)
+    # The first chunk's data length damaged: refused before reading 4 GB into memory.
+    raw = bytearray(data)
+    at = raw.index(b"compression=none")
+    at += len(b"compression=none") + 4 + len(b"size=") + 4  # after size, the data length
+    assert raw[at - 9 : at - 4] == b"size="
+    raw[at : at + 4] = (0xFFFFFFF0).to_bytes(4, "little")
+    bad = tmp_path / "length.bag"
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(IngestError, match="declares 4294967280 bytes") as err:
+        stream(bad, tmp_path)
+    assert str(bad) in str(err.value)
     # A byte of a message's header changed inside a chunk: the index disagrees.
     raw = bytearray(data)
     at = raw.index(b"time=", 10_000) + len(b"time=")

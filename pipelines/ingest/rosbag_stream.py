@@ -34,6 +34,7 @@ database is not read front to back) and bags that are not indexed.
 from __future__ import annotations
 
 import hashlib
+import io
 import time
 from contextlib import nullcontext
 from pathlib import Path
@@ -97,17 +98,32 @@ class _Bag:
 
     def _record(self) -> tuple[Any, int]:
         """The header fields and data length of the record at the current position."""
+        from rosbags.rosbag1.reader import read_uint32
+
+        return self._header(), read_uint32(self.f)
+
+    def _header(self) -> Any:
+        """rosbags' parse of the record header here, its length checked before it is read."""
         from rosbags.rosbag1.reader import Header, read_uint32
 
-        return Header.read(self.f), read_uint32(self.f)
+        length = read_uint32(self.f)
+        return Header.read(io.BytesIO(length.to_bytes(4, "little") + self._bytes(length)))
 
     def _bytes(self, n: int) -> bytes:
+        """The next `n` bytes; a length beyond what the limit allows is a damaged field (or
+        a record too large for the limit), refused before it is read."""
         from rosbags.rosbag1.reader import read_bytes
 
+        if n > self.max_chunk:
+            raise IngestError(
+                f"a record near byte {self.f.at} declares {n} bytes, more than the memory "
+                f"limit allows ({self.max_chunk}): a damaged bag, or raise the memory limit",
+                file=self.path,
+            )
         return read_bytes(self.f, n)
 
-    def header(self, size: int) -> tuple[int, int]:
-        """The bag header: where the index starts and how many chunks it lists."""
+    def header(self, size: int) -> tuple[int, int, int]:
+        """The bag header: where the index starts, how many connections and chunks it lists."""
         if self.f.read(len(ROS1_MAGIC)) != ROS1_MAGIC:
             raise IngestError("not a ROS 1 bag: expected '#ROSBAG V2.0'", file=self.path)
         fields, length = self._record()
@@ -137,12 +153,12 @@ class _Bag:
             MessageDefinition,
             MessageDefinitionFormat,
         )
-        from rosbags.rosbag1.reader import Header, normalize
+        from rosbags.rosbag1.reader import normalize
         from rosbags.typesys.msg import normalize_msgtype
 
         for _ in range(conn_count):
             # its data is a second header, its length the data's length
-            fields, f = Header.read(self.f), Header.read(self.f)
+            fields, f = self._header(), self._header()
             if fields.get_uint8("op") != OP_CONNECTION:
                 raise IngestError("damaged index: expected a connection record", file=self.path)
             conn, topic = fields.get_uint32("conn"), normalize(fields.get_string("topic"))
