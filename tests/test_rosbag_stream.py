@@ -200,10 +200,14 @@ def test_topic_choice_and_rate_as_in_memory(tmp_path):
     # /imu/slow at 33 Hz, below a 50 Hz minimum: refused with its rate
     message = same_error(path, tmp_path, imu_topic="/imu/slow", min_rate_hz=50.0)
     assert "33.33 Hz, below the 50 Hz" in message
-    with pytest.raises(IngestError, match="name one as imu_topic") as err:
-        stream(path, tmp_path)  # in memory: the fastest; streamed: refused, with counts
-    assert "/imu/slow (100 messages)" in str(err.value) and str(path) in str(err.value)
-    assert err.value.field == "format.imu_topic"
+    # none named: the fastest (rates from the index's log times), or every rate listed
+    # when even the fastest is too slow
+    streamed = stream(path, tmp_path)
+    rec = read_rosbag(path)
+    assert np.array_equal(pq.read_table(streamed.samples).column("acc_x").to_numpy(), rec.acc[:, 0])
+    assert streamed.first.n == 300
+    message = same_error(path, tmp_path, min_rate_hz=200.0)
+    assert "/imu/data 100 Hz (300 samples); /imu/slow 33.33 Hz (100 samples)" in message
 
 
 def test_what_the_route_does_not_take_is_refused_with_the_reason(tmp_path):

@@ -22,13 +22,14 @@ copy) as they are read:
    groups of the samples' Parquet and pushed to the first-pass statistics.
 
 The topic choice, the stamp (``header`` or ``log``), the rate check and their refusals
-are the in-memory reader's (`rosbag_reader._topic`, `log_samples.choose_source`, with
-the exact median step of `FirstPass`). What the route does not take is refused with the
+are the in-memory reader's (`rosbag_reader._topic`, `log_samples.choose_source`; rates
+from exact median steps: of several Imu topics and none named, the fastest by its log
+times, read from the index records after each chunk in a first, seeking pass over them;
+the chosen topic's from `FirstPass`). What the route does not take is refused with the
 reason: a bag with a temperature or table topic (interpolated onto the whole IMU time
-base in memory), several Imu topics and none named (the choice by rate needs every
-stamp of each), an Imu definition other than sensor_msgs/Imu's, messages whose log times
-go back across chunks (the in-memory reader sorts them), ROS 2 .db3 bags (an SQLite
-database is not read front to back) and bags that are not indexed.
+base in memory), an Imu definition other than sensor_msgs/Imu's, log times that go back
+across chunks (the in-memory reader sorts them), ROS 2 .db3 bags (an SQLite database is
+not read front to back) and bags that are not indexed.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from calib_core.streamed import MedianStep
 from pipelines.ingest.cdr import IMU_LAYOUT, NS, BadMessageError, gather
 from pipelines.ingest.csv_reader import PROGRESS_THRESHOLD_BYTES
 from pipelines.ingest.csv_stream import (
@@ -86,6 +88,7 @@ class _Bag:
         self.max_chunk = max_chunk  # bytes: a larger decompressed chunk is refused
         self.connections: list[Any] = []  # rosbags Connection, from the index
         self.expected: dict[int, int] = {}  # messages per connection, from the index
+        self.chunk_infos: list[tuple[int, int]] = []  # (byte, connections) of each chunk
         self.imu: dict[int, Any] = {}  # the IMU topic's connections by id
         self.deserialize: Any = None
         self.channel: _Channel | None = None
@@ -96,31 +99,36 @@ class _Bag:
 
     # --- records -----------------------------------------------------------------
 
-    def _record(self) -> tuple[Any, int]:
-        """The header fields and data length of the record at the current position."""
+    def _record(self, f: Any = None) -> tuple[Any, int]:
+        """The header fields and data length of the record at the position of `f` (default:
+        the pass's tee)."""
         from rosbags.rosbag1.reader import read_uint32
 
-        return self._header(), read_uint32(self.f)
+        f = self.f if f is None else f
+        return self._header(f), read_uint32(f)
 
-    def _header(self) -> Any:
+    def _header(self, f: Any = None) -> Any:
         """rosbags' parse of the record header here, its length checked before it is read."""
         from rosbags.rosbag1.reader import Header, read_uint32
 
-        length = read_uint32(self.f)
-        return Header.read(io.BytesIO(length.to_bytes(4, "little") + self._bytes(length)))
+        f = self.f if f is None else f
+        length = read_uint32(f)
+        return Header.read(io.BytesIO(length.to_bytes(4, "little") + self._bytes(length, f)))
 
-    def _bytes(self, n: int) -> bytes:
+    def _bytes(self, n: int, f: Any = None) -> bytes:
         """The next `n` bytes; a length beyond what the limit allows is a damaged field (or
         a record too large for the limit), refused before it is read."""
         from rosbags.rosbag1.reader import read_bytes
 
+        f = self.f if f is None else f
         if n > self.max_chunk:
+            at = f.at if isinstance(f, _Tee) else f.tell()
             raise IngestError(
-                f"a record near byte {self.f.at} declares {n} bytes, more than the memory "
+                f"a record near byte {at} declares {n} bytes, more than the memory "
                 f"limit allows ({self.max_chunk}): a damaged bag, or raise the memory limit",
                 file=self.path,
             )
-        return read_bytes(self.f, n)
+        return read_bytes(f, n)
 
     def header(self, size: int) -> tuple[int, int, int]:
         """The bag header: where the index starts, how many connections and chunks it lists."""
@@ -184,23 +192,56 @@ class _Bag:
             counts = np.frombuffer(self._bytes(length), "<u4").reshape(-1, 2)
             for conn, count in counts.tolist():
                 self.expected[conn] = self.expected.get(conn, 0) + count
+            self.chunk_infos.append((fields.get_uint64("chunk_pos"), len(counts)))
 
-    def choose(self, imu_topic: str | None, temperature_topic: str | None) -> None:
-        """The IMU topic's connections, as the in-memory reader chooses them."""
+    def sources(self) -> list[LogSource]:
+        """`rosbag_reader.bag_sources` without rosbags' whole index: one source per Imu
+        topic, its rate from the median step of its log times, read from the index records
+        after each chunk (a separate handle; the chunks' data is skipped, not read). Log
+        times are sorted within a chunk; across chunks they are taken in file order (the
+        chosen topic's going back is refused by the pass)."""
+        topics = sorted({c.topic for c in self.connections if c.msgtype == IMU})
+        of = {c.id: c.topic for c in self.connections if c.topic in topics}
+        steps = {topic: MedianStep() for topic in topics}
+        counts = dict.fromkeys(topics, 0)
+        has_temp = any(c.msgtype == TEMPERATURE for c in self.connections)
+        with self.path.open("rb") as fh:
+            for pos, n in self.chunk_infos:
+                fh.seek(pos)
+                fields, length = self._record(fh)
+                if fields.get_uint8("op") != OP_CHUNK:
+                    raise IngestError(f"damaged index: no chunk at byte {pos}", file=self.path)
+                fh.seek(length, 1)
+                times: dict[str, list[np.ndarray]] = {topic: [] for topic in topics}
+                for _ in range(n):
+                    fields, length = self._record(fh)
+                    conn = fields.get_uint32("conn")
+                    if fields.get_uint8("op") != OP_IDXDATA or conn not in of:
+                        fh.seek(length, 1)
+                        continue
+                    entry = np.frombuffer(self._bytes(length, fh), INDEX_ENTRY)
+                    times[of[conn]].append(entry["sec"].astype(np.int64) * NS + entry["nsec"])
+                for topic, parts in times.items():
+                    if parts:  # in log-time order, as rosbags merges a topic's connections
+                        ns = np.sort(np.concatenate(parts), kind="stable")
+                        steps[topic].push(ns / NS)
+                        counts[topic] += len(ns)
+        return [
+            LogSource(t, t, counts[t], _rate(steps[t]) if counts[t] > 1 else None, has_temp)
+            for t in topics
+        ]
+
+    def choose(
+        self, imu_topic: str | None, temperature_topic: str | None, min_rate_hz: float
+    ) -> None:
+        """The IMU topic's connections, as the in-memory reader chooses them (of several
+        Imu topics and none named, the fastest: `sources`, `log_samples.choose_source`)."""
         bag = SimpleNamespace(connections=self.connections)
-        imus = sorted({c.topic for c in self.connections if c.msgtype == IMU})
-        if imu_topic is None and len(imus) > 1:
-            counts = ", ".join(
-                f"{t} ({sum(self.expected.get(c.id, 0) for c in self.connections if c.topic == t)}"
-                " messages)"
-                for t in imus
+        if imu_topic is None and len({c.topic for c in self.connections if c.msgtype == IMU}) > 1:
+            chosen = choose_source(
+                self.path, self.sources(), min_rate_hz=min_rate_hz, field="format.imu_topic"
             )
-            raise IngestError(
-                f"several {IMU} topics ({counts}); a record read in chunks is not chosen by "
-                "rate (that needs every stamp of each): name one as imu_topic",
-                file=self.path,
-                field="format.imu_topic",
-            )
+            imu_topic = str(chosen.key)
         conns = _topic(bag, self.path, IMU, imu_topic, "imu_topic", True)
         temps = _topic(bag, self.path, TEMPERATURE, temperature_topic, "temperature_topic", False)
         if temps:
@@ -535,7 +576,11 @@ def _walk(
         tee.seek(index_pos)
         bag.index(conn_count, chunk_count)
         tee.seek(start)
-        bag.choose(keys.get("imu_topic"), keys.get("temperature_topic"))
+        bag.choose(
+            keys.get("imu_topic"),
+            keys.get("temperature_topic"),
+            keys.get("min_rate_hz", MIN_RATE_HZ),
+        )
         bag.chunks(index_pos)
     except ReaderError as exc:
         raise IngestError(
@@ -551,8 +596,7 @@ def _check_rate(path: Path, bag: _Bag, sink: _Sink, min_rate_hz: float) -> None:
     topic = bag.channel.topic if bag.channel else "?"
     if sink.done == 0:
         raise IngestError(f"{topic}: no samples", file=path, field=topic)
-    step = sink.first.step.median() if sink.done > 1 else 0.0
-    rate = float(1.0 / step) if step > 0 else None
+    rate = _rate(sink.first.step) if sink.done > 1 else None
     if rate is None or rate < min_rate_hz:
         choose_source(
             path,
@@ -560,3 +604,9 @@ def _check_rate(path: Path, bag: _Bag, sink: _Sink, min_rate_hz: float) -> None:
             min_rate_hz=min_rate_hz,
             field="format.imu_topic",
         )
+
+
+def _rate(step: MedianStep) -> float | None:
+    """Samples per second from the exact median step (`log_samples.stamp_rate`'s rule)."""
+    median = step.median()
+    return float(1.0 / median) if median > 0 else None
