@@ -1,8 +1,9 @@
-"""Normal, Student t, chi-square and F distribution functions for tests and intervals.
+"""Normal, Student t, chi-square, F and binomial distribution functions for tests and
+intervals.
 
-The same functions `scipy.stats` evaluates (its ``norm``, ``t``, ``chi2`` and ``f``
-call these `scipy.special` routines), without importing `scipy.stats`: that import
-alone takes about a second, more than reading and solving a whole run, and `calib
+The same functions `scipy.stats` evaluates (its ``norm``, ``t``, ``chi2``, ``f`` and
+``binom`` call these `scipy.special` routines), without importing `scipy.stats`: that
+import alone takes about a second, more than reading and solving a whole run, and `calib
 process` of one run at the lab table must answer in about a second.
 
 Every function takes scalars or arrays (broadcast as NumPy does) and returns a
@@ -70,6 +71,23 @@ def f_sf(x, dfn, dfd):
 def f_ppf(q, dfn, dfd):
     """The x with P(F <= x) = q, Fisher's F with (dfn, dfd) degrees of freedom."""
     return _out(special.fdtri(dfn, dfd, q))
+
+
+def binom_isf(q: float, n: int, p: float) -> int:
+    """The smallest count k with P(X > k) <= q, X ~ Binomial(n, p) (`scipy.stats.binom.isf`).
+
+    From the continuous inverse of the CDF (`scipy.special.bdtrik`), then the exact CDF
+    (`bdtr`) on the integers either side of it.
+    """
+    if n <= 0 or p <= 0.0:
+        return 0
+    target = 1.0 - q
+    k = int(min(max(np.ceil(special.bdtrik(target, n, p)), 0), n))
+    while k > 0 and special.bdtr(k - 1, n, p) >= target:
+        k -= 1
+    while k < n and special.bdtr(k, n, p) < target:
+        k += 1
+    return k
 
 
 def _out(value):

@@ -157,29 +157,42 @@ class SigmaClipFill:
         self._rej_sq = np.zeros(channels)  # of (x - mean)^2
         self.rejected = np.zeros(channels, dtype=np.int64)
         self._pending = np.empty((0, channels))
-        self._pending_keep = np.empty((0, channels), dtype=bool)
+        self._pending_bad: list[np.ndarray] = [np.empty(0, np.int64)] * channels
         self._start = 0  # global index of the first pending row
         self._prev: list[tuple[int, float] | None] = [None] * channels
 
     def push(self, x: np.ndarray) -> np.ndarray:
         """Take the next rows (n, C); return the rows ready, rejected samples filled."""
         x = np.asarray(x, dtype=float)
-        dev = np.subtract(x, self.mean)
-        keep = np.abs(dev, out=np.empty_like(dev)) <= self.limit
-        if self.total is None:
-            self._kept.push(x, keep)
-            self.rejected += x.shape[0] - keep.sum(axis=0)
-        else:
-            rows, cols = np.nonzero(~keep)
-            self.rejected += np.bincount(cols, minlength=x.shape[1])
-            out = dev[rows, cols]
-            self._rej_sum += np.bincount(cols, weights=out, minlength=x.shape[1])
-            self._rej_sq += np.bincount(cols, weights=out * out, minlength=x.shape[1])
+        bad = self._rejected(x)
         if len(self._pending):
+            held = self._pending.shape[0]
             x = np.concatenate([self._pending, x])
-            keep = np.concatenate([self._pending_keep, keep])
-        ready = int(_last_true(keep).min()) + 1  # each channel kept at or after each row
-        return self._emit(x, keep, ready)
+            pairs = zip(self._pending_bad, bad, strict=True)
+            bad = [np.concatenate([p, b + held]) for p, b in pairs]
+        # each channel has a kept sample at or after every row before `ready`
+        ready = min(_last_kept(b, x.shape[0]) for b in bad) + 1
+        return self._emit(x, bad, ready)
+
+    def _rejected(self, x: np.ndarray) -> list[np.ndarray]:
+        """Row indices (ascending) of each channel's rejected samples of the new rows `x`;
+        their count and sums (or the kept samples' moments) taken."""
+        bad = []
+        for c in range(x.shape[1]):
+            dev = np.subtract(x[:, c], self.mean[c])
+            bad.append(np.flatnonzero(~(np.abs(dev) <= self.limit[c])))  # NaN: rejected
+            if self.total is not None:
+                out = dev[bad[-1]]
+                self._rej_sum[c] += out.sum()
+                self._rej_sq[c] += out @ out
+        counts = np.array([b.size for b in bad])
+        if self.total is None:
+            keep = np.ones(x.shape, dtype=bool)
+            for c, b in enumerate(bad):
+                keep[b, c] = False
+            self._kept.push(x, keep)
+        self.rejected += counts
+        return bad
 
     @property
     def kept(self) -> Moments:
@@ -202,40 +215,41 @@ class SigmaClipFill:
 
     def flush(self) -> np.ndarray:
         """The rows held back; trailing rejected samples take the last kept value."""
-        return self._emit(self._pending, self._pending_keep, self._pending.shape[0])
+        return self._emit(self._pending, self._pending_bad, self._pending.shape[0])
 
-    def _emit(self, buf: np.ndarray, keep: np.ndarray, ready: int) -> np.ndarray:
-        out, k = buf[:ready], keep[:ready]
-        last = _last_true(k)
+    def _emit(self, buf: np.ndarray, bad: list[np.ndarray], ready: int) -> np.ndarray:
+        out = buf[:ready]
         filled = False
-        cols, rows = np.nonzero(~k.T)  # channel by channel, rows ascending
-        ends = np.searchsorted(cols, np.arange(k.shape[1] + 1))
-        for c in np.flatnonzero(ends[1:] > ends[:-1]):
-            if not filled:
-                out, filled = out.copy(), True
-            bad = rows[ends[c] : ends[c + 1]]
-            xp, fp = self._neighbours(buf, keep, bad, c)
-            out[bad, c] = np.interp(self._start + bad, xp, fp)
-        for c in np.flatnonzero(last >= 0):
-            self._prev[c] = (self._start + int(last[c]), float(buf[last[c], c]))
-        self._pending, self._pending_keep = buf[ready:].copy(), keep[ready:].copy()
+        for c, rows in enumerate(bad):
+            now = rows[: np.searchsorted(rows, ready)]
+            if now.size:
+                if not filled:
+                    out, filled = out.copy(order="K"), True
+                xp, fp = self._neighbours(buf, rows, now, c)
+                out[now, c] = np.interp(self._start + now, xp, fp)
+            last = _last_kept(now, ready)
+            if last >= 0:
+                self._prev[c] = (self._start + last, float(buf[last, c]))
+        self._pending = buf[ready:].copy()
+        self._pending_bad = [rows[np.searchsorted(rows, ready) :] - ready for rows in bad]
         self._start += ready
         return out
 
     def _neighbours(
-        self, buf: np.ndarray, keep: np.ndarray, bad: np.ndarray, c: int
+        self, buf: np.ndarray, rows: np.ndarray, now: np.ndarray, c: int
     ) -> tuple[np.ndarray, np.ndarray]:
         """Global indices and values of the kept samples either side of each run of
-        rejected rows `bad` (ascending) of channel `c`: the only points `np.interp` of
-        all kept samples uses, so its values are the same."""
-        brk = np.flatnonzero(np.diff(bad) > 1)
-        left = np.concatenate([bad[:1], bad[brk + 1]]) - 1
-        right = np.concatenate([bad[brk], bad[-1:]]) + 1
-        after = np.flatnonzero(keep[right[-1] :, c])  # the last run's: beyond `ready`
-        if after.size:
-            right[-1] += after[0]
-        else:  # none (the record's end): np.interp keeps the last kept value
-            right = right[:-1]
+        rejected rows `now` (ascending, the first of channel c's rejected `rows`) : the
+        only points `np.interp` of all kept samples uses, so its values are the same."""
+        brk = np.flatnonzero(np.diff(now) > 1)
+        left = np.concatenate([now[:1], now[brk + 1]]) - 1
+        right = np.concatenate([now[brk], now[-1:]]) + 1
+        # the last run may go on past `ready`: its end is where the rejected rows stop
+        run = rows[now.size :]
+        gaps = np.flatnonzero(run - np.arange(right[-1], right[-1] + run.size) != 0)
+        right[-1] += gaps[0] if gaps.size else run.size
+        if right[-1] >= buf.shape[0]:  # none (the record's end): np.interp keeps the last
+            right = right[:-1]  # kept value
         xp = np.unique(np.concatenate([left[left >= 0], right]))
         fp = buf[xp, c]
         xp = xp + self._start
@@ -252,22 +266,27 @@ class SigmaClipFill:
         return xp, fp
 
 
-def _last_true(mask: np.ndarray) -> np.ndarray:
-    """(C,) index of the last True row of each column of `mask` (n, C), -1 where none."""
-    if mask.shape[0] == 0:
-        return np.full(mask.shape[1], -1)
-    last = mask.shape[0] - 1 - np.argmax(mask[::-1], axis=0)
-    return np.where(mask.any(axis=0), last, -1)
+def _last_kept(rejected: np.ndarray, n: int) -> int:
+    """The last row of 0..n-1 not in `rejected` (ascending row indices), -1 if none."""
+    k = rejected.size
+    if k == 0 or rejected[-1] != n - 1:
+        return n - 1
+    # the trailing run of rejected rows n - r .. n - 1: where the indices stop being
+    # consecutive from the end
+    tail = rejected - np.arange(n - k, n)
+    stop = np.flatnonzero(tail != 0)
+    return int(rejected[stop[-1] + 1]) - 1 if stop.size else n - k - 1
 
 
 class History(Protocol):
     """Where `StreamedAllan` keeps the phase rows it needs beyond its memory."""
 
     def append(self, rows: np.ndarray) -> None:
-        """Add rows at the end."""
+        """Add rows at the end: (C, n), channel by channel."""
 
     def read(self, start: int, stop: int) -> np.ndarray:
-        """Rows start..stop-1 (global row indices, 0 = the phase's first value)."""
+        """Rows start..stop-1 (global row indices, 0 = the phase's first value):
+        (C, stop - start)."""
 
 
 class ListHistory:
@@ -278,20 +297,16 @@ class ListHistory:
         self._n = 0
 
     def append(self, rows: np.ndarray) -> None:
-        if self._n + rows.shape[0] > self._rows.shape[0]:  # grow by doubling
-            grown = np.empty((2 * (self._n + rows.shape[0]), rows.shape[1]))
+        if self._n + rows.shape[1] > self._rows.shape[1]:  # grow by doubling
+            grown = np.empty((rows.shape[0], 2 * (self._n + rows.shape[1])))
             if self._n:
-                grown[: self._n] = self._rows[: self._n]
+                grown[:, : self._n] = self._rows[:, : self._n]
             self._rows = grown
-        self._rows[self._n : self._n + rows.shape[0]] = rows
-        self._n += rows.shape[0]
+        self._rows[:, self._n : self._n + rows.shape[1]] = rows
+        self._n += rows.shape[1]
 
     def read(self, start: int, stop: int) -> np.ndarray:
-        return self._rows[start:stop]
-
-
-BLOCK_ROWS = 8192  # rows of the Allan sums' blocks: two (rows, 6) temporaries in cache
-_ONES = np.ones(BLOCK_ROWS)
+        return self._rows[:, start:stop]
 
 
 class StreamedAllan:
@@ -310,9 +325,13 @@ class StreamedAllan:
         lagged rows from `history`.
     history : `History` of every phase row, needed only when 2 m > memory_rows for
         some m; default `ListHistory` (in memory).
-    map_ : how the cluster sizes of a chunk are run: the builtin `map` (one after the
-        other) or a thread pool's `map` (NumPy releases the GIL on whole-array work, so
-        they share the cores); the sums do not depend on it.
+    map_ : how the channels of a chunk are run: the builtin `map` (one after the other)
+        or a thread pool's `map` (NumPy releases the GIL on whole-array work, so they
+        share the cores); the sums do not depend on it.
+
+    The phase is kept channel by channel (each channel's rows contiguous); the squared
+    second differences are summed by the compiled loops of
+    `calib_core.second_differences`.
     """
 
     def __init__(
@@ -336,59 +355,89 @@ class StreamedAllan:
         self.history = history if history is not None or not self.spills else ListHistory()
         self.offset = None if offset is None else np.asarray(offset, float)
         self.sums = np.zeros((self.m.size, channels))
-        self._tail = np.zeros((1, channels))  # theta_0 = 0
+        # The phase's last keep_rows rows and the newest chunk's: column i is phase row
+        # self._g0 + i; theta_0 = 0.
+        self._buf = np.zeros((channels, self.keep_rows + 1))
+        self._fill, self._g0 = 1, 0
         self._j = 1  # phase rows seen (theta has N + 1)
         self.map = map_
         if self.spills:
-            self.history.append(self._tail)
+            self.history.append(self._buf[:, :1])
 
     def push(self, x: np.ndarray) -> None:
         """Add the next samples (n, C), unit of the rate."""
         x = np.asarray(x, dtype=float)
-        if x.shape[0] == 0:
+        n = x.shape[0]
+        if n == 0:
             return
         if not np.isfinite(x).all():
             raise ValueError("streamed Allan deviation: samples contain NaN or infinite values")
         if self.offset is None:
             self.offset = x.mean(axis=0)
-        theta = np.cumsum(x - self.offset, axis=0)
-        theta += self._tail[-1]
-        j0, j1 = self._j, self._j + x.shape[0]
+        self._room(n)
+        theta = self._buf[:, self._fill : self._fill + n]
+        for c in range(x.shape[1]):
+            np.cumsum(np.subtract(x[:, c], self.offset[c], out=theta[c]), out=theta[c])
+        theta += self._buf[:, self._fill - 1 : self._fill]
         if self.spills:
             self.history.append(theta)
-        window = np.concatenate([self._tail, theta])
-        g0 = j0 - self._tail.shape[0]  # global index of window[0]
-        todo = [(k, int(m)) for k, m in enumerate(self.m) if max(j0, 2 * m) < j1]
-        for _ in self.map(lambda km: self._add(km[0], km[1], window, g0, j0, j1), todo):
+        self._fill += n
+        j0, j1 = self._j, self._j + n
+        lagged = self._lagged(j0, j1)
+        for _ in self.map(lambda c: self._channel(c, j0, j1, lagged), range(x.shape[1])):
             pass
-        self._tail = window[-self.keep_rows :]  # a view: the window lives until the next push
         self._j = j1
 
-    def _add(self, k: int, m: int, window: np.ndarray, g0: int, j0: int, j1: int) -> None:
-        """Add the squared second differences ending in rows j0..j1-1 for cluster size m."""
-        lo = max(j0, 2 * m)
-        if lo - 2 * m >= g0:
-            # (theta_{k+2m} - theta_{k+m}) - (theta_{k+m} - theta_k), in blocks whose
-            # temporaries stay in the processor's cache.
-            span = window[lo - 2 * m - g0 : j1 - g0]
-            n, total = j1 - lo, np.zeros(span.shape[1])
-            tmp = np.empty((2, min(n, BLOCK_ROWS), span.shape[1]))
-            for s in range(0, n, BLOCK_ROWS):
-                e = min(s + BLOCK_ROWS, n)
-                mid = span[s + m : e + m]
-                a = np.subtract(span[s + 2 * m : e + 2 * m], mid, out=tmp[0, : e - s])
-                b = np.subtract(mid, span[s:e], out=tmp[1, : e - s])
-                a -= b
-                # column sums of squares as a product with ones (BLAS): faster than einsum
-                total += _ONES[: e - s] @ np.multiply(a, a, out=b)
-            self.sums[k] += total
+    def _room(self, n: int) -> None:
+        """Make room for n more rows, keeping the last keep_rows."""
+        if self._fill + n <= self._buf.shape[1]:
             return
+        keep = min(self.keep_rows, self._fill)
+        # Room for keep_rows more rows beyond the kept ones: each row is moved about once.
+        size = 2 * self.keep_rows + n
+        if size > self._buf.shape[1] or self._buf.shape[1] > 2 * size:
+            grown = np.empty((self._buf.shape[0], size))
+            grown[:, :keep] = self._buf[:, self._fill - keep : self._fill]
+            self._buf = grown
         else:
-            one = self.history.read(lo - m, j1 - m)
-            d = np.subtract(window[lo - g0 : j1 - g0], one)
-            d -= one
-            d += self.history.read(lo - 2 * m, j1 - 2 * m)
-        self.sums[k] += np.einsum("ij,ij->j", d, d)
+            self._buf[:, :keep] = self._buf[:, self._fill - keep : self._fill].copy()
+        self._g0 += self._fill - keep
+        self._fill = keep
+
+    def _lagged(self, j0: int, j1: int) -> dict[int, tuple[int, np.ndarray]]:
+        """The history rows the cluster sizes beyond memory need for rows j0..j1-1: for each
+        lag b (m and 2 m of each such m), (first row, (C, rows)) of rows max(j0, b) - b
+        .. j1 - b - 1, read once for the two cluster sizes that use a lag."""
+        out: dict[int, tuple[int, np.ndarray]] = {}
+        for m in self.m[2 * self.m > self.keep_rows]:
+            if max(j0, 2 * m) >= j1:
+                continue
+            for b in (int(m), int(2 * m)):
+                if b not in out:
+                    lo = max(j0, b) - b
+                    out[b] = (lo, self.history.read(lo, j1 - b))
+        return out
+
+    def _channel(self, c: int, j0: int, j1: int, lagged: dict) -> None:
+        """Add channel c's squared second differences ending in rows j0..j1-1, every m."""
+        from calib_core.second_differences import runs_sum, span_sums  # Numba: when used
+
+        col, g0 = self._buf[c], self._g0
+        near = 2 * self.m <= self.keep_rows  # theta_{lo-2m} .. theta_{j1-1} are in memory
+        lo = np.maximum(j0, 2 * self.m)
+        sums = np.zeros(self.m.size)  # the near sizes first (m ascending)
+        first = lo[near] - 2 * self.m[near] - g0
+        span_sums(col[: j1 - g0], self.m[near], first, sums[: first.size])
+        for k in np.flatnonzero(~near & (lo < j1)).tolist():
+            m, start = int(self.m[k]), int(lo[k])
+            (a, mid), (b, old) = lagged[m], lagged[2 * m]
+            n = j1 - start
+            sums[k] = runs_sum(
+                col[start - g0 : j1 - g0],
+                mid[c, start - m - a : start - m - a + n],
+                old[c, start - 2 * m - b : start - 2 * m - b + n],
+            )
+        self.sums[:, c] += sums
 
     def result(self) -> AllanResult:
         """The Allan deviation (K, C), once all N samples are in."""

@@ -59,3 +59,22 @@ def test_max_normal_moments_match_adaptive_quadrature(k):
     m1, var = max_normal_moments(k)
     # quad run to 1e-13; the 4801-point grid agrees to 1e-12 (see stats.py).
     assert m1 == pytest.approx(q1, abs=1e-12) and var == pytest.approx(q2 - q1 * q1, abs=1e-12)
+
+
+def test_binomial_quantile_same_as_scipy_stats():
+    """`binom_isf` against `scipy.stats.binom.isf` over counts up to a day of six channels
+    at 1 kHz and false-alarm rates from 1e-9 to 1 (the replaced-samples check's)."""
+    rng = np.random.default_rng(0)
+    cases = [
+        (1e-3, n, p) for n in (1, 10, 1000, 10**6, 5 * 10**8) for p in (1e-9, 2.7e-3, 0.5, 1.0)
+    ]
+    draws = zip(
+        10 ** rng.uniform(-6, -0.5, 200),
+        10 ** rng.uniform(0, 8, 200),
+        10 ** rng.uniform(-8, 0, 200),
+        strict=True,
+    )
+    cases += [(q, int(n), p) for q, n, p in draws]
+    for q, n, p in cases:
+        assert d.binom_isf(q, n, p) == int(stats.binom.isf(q, n, p)), (q, n, p)
+    assert d.binom_isf(1e-3, 0, 0.1) == 0 and d.binom_isf(1e-3, 10, 0.0) == 0

@@ -1,8 +1,8 @@
 """The layer contract of docs/architecture.md, checked on every production module.
 
 - calib_core (the science) imports only the standard library's non-I/O modules,
-  numpy, scipy and itself: no storage, pipelines, database, workflow, file-format or
-  file-system module;
+  numpy, scipy, numba (the compiled loops of calib_core.second_differences) and itself:
+  no storage, pipelines, database, workflow, file-format or file-system module;
 - storage (the archive) imports no pipelines;
 - pipelines.commands never imports pipelines.cli (cli -> commands, one way);
 - no production module imports calib_core.simulate or the support package
@@ -17,7 +17,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("calib_core", "storage", "pipelines")
-SCIENCE_THIRD_PARTY = {"numpy", "scipy"}
+SCIENCE_THIRD_PARTY = {"numpy", "scipy", "numba"}
 # Standard-library modules that touch files, processes, the network or a database.
 IO_STDLIB = {
     "os", "io", "pathlib", "shutil", "glob", "tempfile", "subprocess", "socket", "sqlite3",
@@ -71,7 +71,7 @@ def violations(module: str, source: str) -> list[str]:
                 "calib_core",
                 "__future__",
             }:
-                why = "calib_core imports a library other than numpy and scipy"
+                why = "calib_core imports a library other than numpy, scipy and numba"
         elif _within(module, "storage") and top == "pipelines":
             why = "storage imports pipelines"
         elif _within(module, "pipelines.commands") and _within(name, "pipelines.cli"):

@@ -166,3 +166,23 @@ def test_sigma_clip_fill_runs_across_chunks_and_the_record_ends(chunk):
             kept = x[keep[:, c], c]
             assert abs(clip.kept.mean[c] - kept.mean()) <= bound
             assert abs(clip.kept.std(ddof=1)[c] - kept.std(ddof=1)) <= bound
+
+
+def test_second_difference_sums_equal_numpy():
+    """The compiled sums against NumPy's, for cluster sizes below, at and above a block,
+    from several first terms (an empty range adds nothing)."""
+    from calib_core.second_differences import BLOCK, runs_sum, span_sums
+
+    theta = np.cumsum(_record(3 * BLOCK + 17)[:, 0] - 9.8)
+    m = np.array([1, 3, BLOCK // 2, BLOCK, BLOCK + 5])
+    first = np.array([0, 11, 5, BLOCK, theta.size])
+    got = np.zeros(m.size)
+    span_sums(theta, m, first, got)
+    for i in range(m.size):
+        k = np.arange(first[i], theta.size - 2 * m[i])
+        d = (theta[k + 2 * m[i]] - theta[k + m[i]]) - (theta[k + m[i]] - theta[k])
+        # N terms summed in another order: within N eps of the sum (Higham 4.2)
+        assert abs(got[i] - d @ d) <= max(k.size, 1) * np.finfo(float).eps * (d @ d)
+    a, b, c = theta[10:], theta[5:-5], theta[:-10]
+    d = (a - b) - (b - c)
+    assert math.isclose(runs_sum(a, b, c), d @ d, rel_tol=a.size * np.finfo(float).eps)

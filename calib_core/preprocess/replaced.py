@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from scipy import stats
+from calib_core.distributions import binom_isf
 
 # Significance of "more than false alarms explain": one run in a thousand of clean data
 # is sent for review by chance.
@@ -37,7 +37,7 @@ def explained_count(n_tests: int, p_false_alarm: float, alpha: float = REPLACED_
     """
     if n_tests <= 0 or p_false_alarm <= 0.0:
         return 0
-    return int(stats.binom.isf(alpha, int(n_tests), min(float(p_false_alarm), 1.0)))
+    return binom_isf(alpha, int(n_tests), min(float(p_false_alarm), 1.0))
 
 
 def replaced_check(

@@ -209,28 +209,57 @@ def stream_csv(
         if copy is not None:
             copy.write(head)
         done = len(head)
-        for text in _blocks(fh, block_bytes(memory_limit), copy, sha):
-            done += len(text)
-            try:
-                table = pacsv.read_csv(pa.py_buffer(text), read, parse, convert)
-            except pa.ArrowInvalid as exc:
-                raise IngestError(f"cannot parse the file: {exc}", file=path) from None
-            if table.num_rows == 0:  # blank lines only
-                continue
-            chunk = _chunk(table, layout, fmt, iso, rows, path, last_t)
-            last_t = float(chunk["t"][-1])
-            writer.write_table(_table(chunk, label, schema))
-            first.push((chunk["t"], chunk["gyr"], chunk["acc"]))
-            if "temp" in layout.roles:
-                temp_finite += int(np.isfinite(chunk["temp"]).sum())
-            rows += len(chunk["t"])
-            bar.update(done, rows)
-        first.close()  # the last chunk's motion windows (computed beside the reading)
+        # Each block's Parquet is written on a thread while the next block is parsed.
+        parquet = _Background("calib-parquet")
+        try:
+            for text in _blocks(fh, block_bytes(memory_limit), copy, sha):
+                done += len(text)
+                try:
+                    table = pacsv.read_csv(pa.py_buffer(text), read, parse, convert)
+                except pa.ArrowInvalid as exc:
+                    raise IngestError(f"cannot parse the file: {exc}", file=path) from None
+                if table.num_rows == 0:  # blank lines only
+                    continue
+                chunk = _chunk(table, layout, fmt, iso, rows, path, last_t)
+                last_t = float(chunk["t"][-1])
+                parquet.run(writer.write_table, _table(chunk, label, schema))
+                first.push((chunk["t"], chunk["gyr"], chunk["acc"]))
+                if "temp" in layout.roles:
+                    temp_finite += int(np.isfinite(chunk["temp"]).sum())
+                rows += len(chunk["t"])
+                bar.update(done, rows)
+            first.close()  # the last chunk's motion windows (computed beside the reading)
+        finally:
+            parquet.close()
     bar.update(done, rows, final=True)
     if rows == 0:
         raise IngestError("no data rows", file=path)
     seconds_ = time.perf_counter() - started
     return Streamed(sha.hexdigest(), size, Path(samples), first, seconds_, temp_finite)
+
+
+class _Background:
+    """One call at a time on a worker thread: `run` waits for the previous call (raising
+    its error) before it starts the next; `close` waits for the last."""
+
+    def __init__(self, name: str):
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix=name)
+        self.running: Future | None = None
+
+    def run(self, fn: Callable, *args: Any) -> None:
+        self.wait()
+        self.running = self.pool.submit(fn, *args)
+
+    def wait(self) -> None:
+        if self.running is not None:
+            running, self.running = self.running, None
+            running.result()
+
+    def close(self) -> None:
+        try:
+            self.wait()
+        finally:
+            self.pool.shutdown(cancel_futures=True)
 
 
 def _chunk(
@@ -307,26 +336,35 @@ def _labels(label: str, n: int) -> pa.Array:
 
 
 class FileHistory:
-    """The Allan deviation's phase rows in a temporary file (`calib_core.streamed.History`):
-    the long lags are read back with `os.pread`, so they take no resident memory."""
+    """The Allan deviation's phase rows in temporary files, one per channel
+    (`calib_core.streamed.History`): the long lags are read back with `os.pread`, so
+    they take no resident memory."""
 
     def __init__(self, folder: Path | None = None):
-        fd, name = tempfile.mkstemp(prefix="allan-phase-", dir=folder)
-        self.fd, self.path, self.width = fd, Path(name), 0
-        os.unlink(name)  # gone with the descriptor, however the process ends
+        self.folder, self.fds, self.rows = folder, [], 0
 
     def append(self, rows: np.ndarray) -> None:
-        rows = np.ascontiguousarray(rows, dtype=np.float64)
-        self.width = rows.shape[1]
-        os.write(self.fd, rows.tobytes())
+        """Add (C, n) phase rows at the end."""
+        while len(self.fds) < rows.shape[0]:
+            fd, name = tempfile.mkstemp(prefix="allan-phase-", dir=self.folder)
+            os.unlink(name)  # gone with the descriptor, however the process ends
+            self.fds.append(fd)
+        for fd, col in zip(self.fds, rows, strict=True):
+            os.pwrite(fd, np.ascontiguousarray(col, dtype=np.float64), 8 * self.rows)
+        self.rows += rows.shape[1]
 
     def read(self, start: int, stop: int) -> np.ndarray:
-        row = 8 * self.width
-        data = os.pread(self.fd, (stop - start) * row, start * row)
-        return np.frombuffer(data, dtype=np.float64).reshape(-1, self.width)
+        """Rows start..stop-1, (C, stop - start)."""
+        out = np.empty((len(self.fds), stop - start))
+        for fd, col in zip(self.fds, out, strict=True):
+            if os.preadv(fd, [col], 8 * start) != col.nbytes:
+                raise OSError("Allan phase file: short read")
+        return out
 
     def close(self) -> None:
-        os.close(self.fd)
+        for fd in self.fds:
+            os.close(fd)
+        self.fds = []
 
 
 def samples_chunks(
@@ -342,14 +380,22 @@ def samples_chunks(
     # until the iteration ends (memory growing with the record).
     reader = pq.ParquetFile(samples, pre_buffer=False)
     batches = reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols)
-    for b in prefetched(batches):
-        both = np.empty((b.num_rows, 6))  # [gyr | acc]: the solve takes it without a copy
-        for i in range(6):
-            both[:, i] = _float_values(b.column(i))
-        t = _float_values(b.column(6)) if len(cols) > 6 else None
+    # decoded and laid out by the prefetching thread, beside the solve's arithmetic
+    for t, both in prefetched(_arrays(b, len(cols) > 6) for b in batches):
         if trend is not None:
-            trend.push(t, _float_values(b.column(7)))
-        yield t if time_ else None, both[:, :3], both[:, 3:]
+            trend.push(t[0], t[1])
+        yield t[0] if time_ else None, both[:, :3], both[:, 3:]
+
+
+def _arrays(batch: pa.RecordBatch, timed: bool) -> tuple[tuple, np.ndarray]:
+    """A batch of the samples as ((t, temp) or (None, None), [gyr | acc] (n, 6)), the six
+    channels column by column in memory (the solve works channel by channel)."""
+    both = np.empty((batch.num_rows, 6), order="F")
+    for i in range(6):
+        both[:, i] = _float_values(batch.column(i))
+    if not timed:
+        return (None, None), both
+    return (_float_values(batch.column(6)), _float_values(batch.column(7))), both
 
 
 def prefetched(items: Iterator[Any], depth: int = 2) -> Iterator[Any]:
@@ -408,6 +454,12 @@ def batch_rows(memory_limit: int) -> int:
     return max(memory_limit // (16 * 16 * 6 * 8), 1024)
 
 
+def phase_rows(memory_limit: int) -> int:
+    """Rows of the Allan deviation's phase kept in memory: its buffer (twice the rows, six
+    channels of float64) within an eighth of the limit; longer lags read the phase file."""
+    return max(memory_limit // (16 * 6 * 8), 1024)
+
+
 def solve_streamed(
     streamed: Streamed,
     settings: dict[str, Any],
@@ -443,7 +495,7 @@ def solve_streamed(
             first=streamed.first if own else None,
             gravity=gravity,
             history=history,
-            memory_rows=4 * batch_rows(memory_limit),
+            memory_rows=phase_rows(memory_limit),
             map_=pool.map,
             motion_label=label,
             submit=side.submit,

@@ -58,6 +58,33 @@ def checked_recording(
     """
     if len(t) == 0:
         raise IngestError(f"{what}: no samples", file=path, field=what)
+    check_samples(path, what, t, channels, temp=temp, temp_field=temp_field)
+    return Recording(t=t, acc=channels["acc"], gyr=channels["gyr"], temp=temp, source=str(path))
+
+
+def check_samples(
+    path: Path,
+    what: str,
+    t: np.ndarray,
+    channels: dict[str, np.ndarray],
+    *,
+    temp: np.ndarray | None = None,
+    temp_field: str = "temperature",
+    offset: int = 0,
+    last: float | None = None,
+) -> None:
+    """`checked_recording`'s checks of samples, which may be one chunk of a record.
+
+    Parameters
+    ----------
+    path, what, t, channels, temp, temp_field : as `checked_recording`.
+    offset : the record index of ``t[0]`` (a chunk read after `offset` records).
+    last : the previous chunk's last time, s (time must increase across chunks).
+
+    Raises
+    ------
+    IngestError as `checked_recording`, records numbered in the whole record.
+    """
     arrays = {"time": t[:, None], **channels}
     if temp is not None:
         arrays[temp_field] = temp[:, None]
@@ -66,7 +93,7 @@ def checked_recording(
         if bad.size:
             i = int(bad[0])
             raise IngestError(
-                f"{what} record {i}: expected finite numbers, got {values[i].tolist()}",
+                f"{what} record {offset + i}: expected finite numbers, got {values[i].tolist()}",
                 file=path,
                 field=f"{what}.{name}",
             )
@@ -77,15 +104,23 @@ def checked_recording(
         beyond = np.flatnonzero(np.abs(channels[name]).max(axis=1) > limit)
         if beyond.size:
             i = int(beyond[0])
+            shown = np.round(channels[name][i] * scale, 6).tolist()
             raise IngestError(
-                f"{what} record {i}: {name} {np.round(channels[name][i] * scale, 6).tolist()} "
+                f"{what} record {offset + i}: {name} {shown} "
                 f"{unit}, beyond what any IMU measures ({limit * scale:g} {unit}): a damaged "
                 "value",
                 file=path,
                 field=f"{what}.{name}",
             )
-    check_time_increases(t, file=path, sample="record", field=f"{what}.time", prefix=f"{what}: ")
-    return Recording(t=t, acc=channels["acc"], gyr=channels["gyr"], temp=temp, source=str(path))
+    ahead = t if last is None else np.concatenate([[last], t])
+    check_time_increases(
+        ahead,
+        file=path,
+        sample="record",
+        field=f"{what}.time",
+        prefix=f"{what}: ",
+        offset=offset - (last is not None),
+    )
 
 
 # Beyond the range of any IMU (shock accelerometers reach 2000 g, gyros 20000 deg/s): a

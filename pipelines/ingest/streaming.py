@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from calib_core.streamed import RecordSummary
 from pipelines.ingest.csv_stream import DEFAULT_MEMORY_LIMIT, Streamed, stream_csv
 from pipelines.ingest.mcap_stream import stream_mcap
+from pipelines.ingest.rosbag_stream import stream_rosbag
 from storage.rawstore import SamplesFile
 
 Streamer = Callable[..., Streamed]
@@ -45,6 +46,7 @@ Streamer = Callable[..., Streamed]
 STREAMERS: dict[str, Streamer] = {
     "csv": stream_csv,
     "mcap": stream_mcap,
+    "rosbag": stream_rosbag,  # ROS 1 bags; a ROS 2 .db3 is refused with the reason
 }
 
 
