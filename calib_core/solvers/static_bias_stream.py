@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,7 +54,7 @@ class FirstPass:
     high: np.ndarray | None = None
     motion: StreamedMotion | None = None
     watch_motion: bool = True
-    _pending: Future | None = field(default=None, repr=False)
+    _pending: _OnThread | None = field(default=None, repr=False)
 
     @classmethod
     def empty(cls, watch_motion: bool = True) -> FirstPass:
@@ -77,7 +76,7 @@ class FirstPass:
             np.maximum(self.high, high, out=self.high)
         if self.motion is not None:
             self.close()  # one chunk pending at a time: bounded memory
-            self._pending = _on_thread(self.motion.push, t, both)
+            self._pending = _OnThread(self.motion.push, t, both)
 
     def close(self) -> None:
         """Wait for the last chunk's motion windows (a failure in them is raised here).
@@ -118,18 +117,26 @@ def _provisional_motion(t: np.ndarray) -> StreamedMotion | None:
     return motion if motion.width <= t.shape[0] else None
 
 
-def _on_thread(fn: Callable, *args) -> Future:
-    """fn(*args) on a new thread; the Future of its result (or its exception)."""
-    done: Future = Future()
+class _OnThread:
+    """fn(*args) on a thread of its own; `result` waits for it and raises its error."""
 
-    def run() -> None:
+    def __init__(self, fn: Callable, *args) -> None:
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(
+            target=self._run, args=(fn, args), name="calib-motion", daemon=True
+        )
+        self.thread.start()
+
+    def _run(self, fn: Callable, args: tuple) -> None:
         try:
-            done.set_result(fn(*args))
-        except BaseException as exc:  # noqa: BLE001 - raised by the caller's result()
-            done.set_exception(exc)
+            fn(*args)
+        except BaseException as exc:  # noqa: BLE001 - raised by result() in the caller
+            self.error = exc
 
-    threading.Thread(target=run, name="calib-motion", daemon=True).start()
-    return done
+    def result(self) -> None:
+        self.thread.join()
+        if self.error is not None:
+            raise self.error
 
 
 def _joined(gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
