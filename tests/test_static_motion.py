@@ -355,3 +355,22 @@ def test_window_medians_are_numpys(width):
     w = np.random.default_rng(width).normal(size=(9, 6, width))
     for x in (w, np.round(w * 2.0) / 2.0):
         assert np.array_equal(_last_axis_median(x), np.median(x, axis=2, keepdims=True))
+
+
+def test_solve_without_a_first_pass_judges_the_chunks_it_is_given():
+    """The as-found solve passes no first pass (its chunks are the samples corrected by an
+    earlier calibration): its own first pass keeps no motion windows, and its second
+    pass's check is the in-memory one of the chunks given, not of the raw samples."""
+    from calib_core.solvers.static_bias_stream import first_pass, solve_static_bias_stream
+
+    raw = _moving(330)
+    mix = np.array([[1.0, 0.4, 0.1], [0.3, 1.0, 0.2], [0.2, 0.1, 1.0]])  # misalignment
+    fixed = dataclasses.replace(raw, gyr=(raw.gyr - 0.01) @ mix.T, acc=raw.acc @ mix.T)
+    chunks = _arbitrary_chunks(fixed, 5, first=900)
+    assert first_pass(chunks).motion is None
+    cal = solve_static_bias_stream(lambda: iter(chunks), up_axis="+z", motion_label="still")
+    (check,) = [c for c in cal.info["solver_checks"] if c["name"] == "motion:still"]
+    ref, other = motion_check("still", fixed), motion_check("still", raw)
+    assert check["value"] == pytest.approx(ref["value"], rel=1e-12, abs=0.0)
+    assert check["value"] != pytest.approx(other["value"], rel=1e-6)
+    assert check["passed"] is False
