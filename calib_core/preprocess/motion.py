@@ -268,10 +268,9 @@ class StreamedMotion:
     def settle(self, n: int, rate: float) -> bool:
         """Whether the windows pushed are those of ``StreamedMotion(n, rate)`` given the
         same rows: the record's `n` samples all pushed and its window (`motion_width` at
-        its median rate, Hz) the one used. If so, the record's n and rate are taken (the
-        windows after MIN_WINDOWS are judged by `result` as for a sized one); if not (a
-        short record, a first chunk whose steps were not the record's), the windows must
-        be computed again at the right width."""
+        its median rate, Hz) the one used. If so, the record's n and rate are taken for
+        `result`; if not (a short record, a first chunk whose steps were not the
+        record's), the windows must be computed again at the record's width."""
         if self.rows != n or motion_width(n, rate) != self.width:
             return False
         self.rate, self.windows = rate, n // self.width
