@@ -86,6 +86,13 @@ class Moments:
             self.shift = other.shift.copy()
         self._merge(other.n, other.mean - self.shift, other.m2)
 
+    def columns(self, cols: slice) -> Moments:
+        """The moments of the channels `cols` (a copy)."""
+        out = Moments(0)
+        out.n, out._mean, out.m2 = self.n[cols].copy(), self._mean[cols].copy(), self.m2[cols]
+        out.shift = None if self.shift is None else self.shift[cols].copy()
+        return out
+
     def std(self, ddof: int = 0) -> np.ndarray:
         """Standard deviation per channel (ddof as NumPy's)."""
         return np.sqrt(self.m2 / (self.n - ddof))
@@ -448,20 +455,6 @@ class StreamedAllan:
             )
         denom = (2.0 * (n + 1 - 2 * self.m))[:, None] * self.rate_hz**2
         return allan_result(self.m, self.sums / denom, n, self.rate_hz)
-
-
-def columns(result: AllanResult, cols: slice) -> AllanResult:
-    """The channels `cols` of a multi-channel result (e.g. the gyro's of a (K, 6) one)."""
-    return AllanResult(
-        result.taus,
-        result.adev[:, cols],
-        result.n_clusters,
-        result.ci_low[:, cols],
-        result.ci_high[:, cols],
-        result.edf,
-        result.rate_hz,
-        result.n_samples,
-    )
 
 
 class TemperatureTrend:

@@ -17,6 +17,7 @@ not the record's) the second pass computes the windows as before.
 from __future__ import annotations
 
 import math
+import queue
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -26,7 +27,7 @@ import numpy as np
 from calib_core.calibration import Calibration
 from calib_core.preprocess.motion import StreamedMotion, motion_check_of, streamed_smallest_steps
 from calib_core.solvers.static_bias import _earth_rate, static_bias_calibration
-from calib_core.streamed import History, MedianStep, Moments, SigmaClipFill, StreamedAllan, columns
+from calib_core.streamed import History, MedianStep, Moments, SigmaClipFill, StreamedAllan
 from calib_core.units import STANDARD_GRAVITY
 
 # One chunk: t (n,) s, gyr (n, 3) rad/s, acc (n, 3) m/s^2.
@@ -169,8 +170,8 @@ def solve_static_bias_stream(
     gravity: float = STANDARD_GRAVITY,
     taus: str | np.ndarray = "octave",
     memory_rows: int = 1 << 20,
-    history: History | None = None,
-    map_: Callable = map,
+    new_history: Callable[[], History] | None = None,
+    parallel: bool = False,
     motion_label: str | None = None,
     submit: Callable | None = None,
 ) -> Calibration:
@@ -185,8 +186,12 @@ def solve_static_bias_stream(
     first : the first pass's statistics of these chunks if the caller has them (else one
         more pass); its motion windows are used when they are the record's
         (`FirstPass.settled_motion`), else the second pass computes them.
-    memory_rows, history, map_ : the Allan deviation's phase rows in memory, where the
-        longer lags are read and how its cluster sizes run (`calib_core.streamed.StreamedAllan`).
+    memory_rows, new_history : the Allan deviation's phase rows in memory and a new
+        `History` for the longer lags of each sensor's channels
+        (`calib_core.streamed.StreamedAllan`; None: in memory).
+    parallel : the two sensors' channels each on a thread of its own (side by side: NumPy
+        and the compiled sums release the GIL), else one after the other; the numbers do
+        not depend on it.
     motion_label : with a label, the record's motion check (``motion:<label>``) among the
         Calibration's ``solver_checks``; None: no motion check.
     submit : submit(fn, *args) -> a Future: where this pass computes a chunk's motion
@@ -201,18 +206,25 @@ def solve_static_bias_stream(
     n = first.n
     earth = _earth_rate(label, n, n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis)
     rate_hz = 1.0 / first.step.median()
-    mean = first.moments.mean
-    clip = SigmaClipFill(mean, first.moments.std(), n_sigma, total=first.moments)
-    allan = StreamedAllan(
-        rate_hz,
-        n,
-        6,
-        taus=taus,
-        offset=mean,
-        memory_rows=memory_rows,
-        history=history,
-        map_=map_,
-    )
+    # The gyro's and the accelerometer's channels go through the n-sigma rule and the
+    # Allan sums as two groups; neither group's numbers depend on the other's.
+    groups = [
+        _Group(
+            cols,
+            first.moments.columns(cols),
+            n_sigma,
+            StreamedAllan(
+                rate_hz,
+                n,
+                3,
+                taus=taus,
+                offset=first.moments.mean[cols],
+                memory_rows=memory_rows,
+                history=new_history() if new_history is not None else None,
+            ),
+        )
+        for cols in SENSORS.values()
+    ]
     motion, again = None, False
     if motion_label is not None:
         motion = first.settled_motion(n, rate_hz)
@@ -221,23 +233,24 @@ def solve_static_bias_stream(
     # A chunk's motion windows may be computed beside its Allan sums (`submit`: NumPy
     # releases the GIL; neither writes the chunk), one chunk at a time, in order.
     pending = None
-    for t, gyr, acc in chunks():
-        both = _joined(gyr, acc)
-        if again:  # before the fill: the samples the in-memory check sees
-            if pending is not None:
-                pending.result()
-            pending = (submit or _Done)(motion.push, t, both)
-        allan.push(clip.push(both))
-    allan.push(clip.flush())
+    workers = [_GroupThread(g) if parallel else g for g in groups]
+    try:
+        for t, gyr, acc in chunks():
+            both = _joined(gyr, acc)
+            if again:  # before the fill: the samples the in-memory check sees
+                if pending is not None:
+                    pending.result()
+                pending = (submit or _Done)(motion.push, t, both)
+            for w in workers:
+                w.push(both)
+        for w in workers:
+            w.flush()
+    finally:
+        for w in workers:
+            w.close()
     if pending is not None:
         pending.result()
-    result = allan.result()
-    kept = clip.kept
-    std = kept.std(ddof=1)
-    stats = {
-        sensor: (kept.mean[cols], std[cols], clip.rejected[cols], columns(result, cols))
-        for sensor, cols in (("gyr", slice(0, 3)), ("acc", slice(3, 6)))
-    }
+    stats = {sensor: g.statistics() for sensor, g in zip(SENSORS, groups, strict=True)}
     cal = static_bias_calibration(
         stats,
         n,
@@ -256,6 +269,69 @@ def solve_static_bias_stream(
         if check is not None:
             cal.info.setdefault("solver_checks", []).append(check)
     return cal
+
+
+SENSORS = {"gyr": slice(0, 3), "acc": slice(3, 6)}  # columns of [gyr | acc]
+
+
+class _Group:
+    """One sensor's channels through the n-sigma rule and the Allan sums."""
+
+    def __init__(self, cols: slice, total: Moments, n_sigma: float, allan: StreamedAllan):
+        self.cols, self.allan = cols, allan
+        self.clip = SigmaClipFill(total.mean, total.std(), n_sigma, total=total)
+
+    def push(self, both: np.ndarray) -> None:
+        self.allan.push(self.clip.push(both[:, self.cols]))
+
+    def flush(self) -> None:
+        self.allan.push(self.clip.flush())
+
+    def close(self) -> None:
+        """Nothing to wait for (the pushes ran in line)."""
+
+    def statistics(self) -> tuple:
+        """(kept mean, kept std (ddof 1), rejected count, AllanResult) of the channels."""
+        kept = self.clip.kept
+        return kept.mean, kept.std(ddof=1), self.clip.rejected, self.allan.result()
+
+
+class _GroupThread:
+    """A group's pushes on a thread of its own, in order, with at most two chunks waiting;
+    an error is raised to the caller at its next push or at `flush`."""
+
+    def __init__(self, group: _Group) -> None:
+        self.group, self.error = group, None
+        self.queue: queue.Queue = queue.Queue(maxsize=2)
+        self.thread = threading.Thread(target=self._run, name="calib-solve", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while (job := self.queue.get()) is not None:
+            if self.error is None:  # after an error, the queue is only drained
+                try:
+                    job()
+                except BaseException as exc:  # noqa: BLE001 - raised in the caller
+                    self.error = exc
+
+    def _raise(self) -> None:
+        if self.error is not None:
+            raise self.error
+
+    def push(self, both: np.ndarray) -> None:
+        self._raise()
+        self.queue.put(lambda: self.group.push(both))
+
+    def flush(self) -> None:
+        self.queue.put(self.group.flush)
+        self.close()
+        self._raise()
+
+    def close(self) -> None:
+        """Until the thread has done every push given (idempotent)."""
+        if self.thread.is_alive():
+            self.queue.put(None)
+            self.thread.join()
 
 
 class _Done:

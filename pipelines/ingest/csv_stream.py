@@ -455,7 +455,7 @@ def batch_rows(memory_limit: int) -> int:
 
 
 def phase_rows(memory_limit: int) -> int:
-    """Rows of the Allan deviation's phase kept in memory: its buffer (twice the rows, six
+    """Rows of the Allan deviation's phase kept in memory: its buffers (twice the rows, six
     channels of float64) within an eighth of the limit; longer lags read the phase file."""
     return max(memory_limit // (16 * 6 * 8), 1024)
 
@@ -480,13 +480,16 @@ def solve_streamed(
     Returns the Calibration, the record's motion check among its checks.
     """
     own = chunks is None  # the samples themselves: the first pass's statistics hold
-    history = FileHistory(streamed.samples.parent)
+    histories: list[FileHistory] = []
+
+    def new_history() -> FileHistory:
+        histories.append(FileHistory(streamed.samples.parent))
+        return histories[-1]
+
     if chunks is None:
         chunks = _with_progress(
             lambda: samples_chunks(streamed.samples, memory_limit, trend, time_=True), streamed
         )
-    # The Allan deviation's cluster sizes share the cores (NumPy releases the GIL).
-    pool = ThreadPoolExecutor(min(os.cpu_count() or 1, 4))
     side = ThreadPoolExecutor(1, thread_name_prefix="calib-motion")  # its own: no nesting
     try:
         cal = solve_static_bias_stream(
@@ -494,15 +497,15 @@ def solve_streamed(
             label=label,
             first=streamed.first if own else None,
             gravity=gravity,
-            history=history,
+            new_history=new_history,
             memory_rows=phase_rows(memory_limit),
-            map_=pool.map,
+            parallel=(os.cpu_count() or 1) > 1,  # the gyro's and the accelerometer's
             motion_label=label,
             submit=side.submit,
             **solver_settings(settings),
         )
     finally:
-        pool.shutdown()
         side.shutdown()
-        history.close()
+        for history in histories:
+            history.close()
     return cal
