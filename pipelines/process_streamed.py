@@ -30,7 +30,6 @@ from calib_core.checks import MODEL_PREFIX
 from calib_core.conditions import temperature_block
 from calib_core.preprocess.chain import DEFAULT_OUTLIERS, OUTLIER_KEYS, settings_table
 from calib_core.procedures.static_bias import MEMORY_LIMIT
-from calib_core.procedures.static_bias import SETTINGS as STATIC_SETTINGS
 from calib_core.recording import RANGE_MARGIN, Recording, first_range_hit
 from calib_core.streamed import RecordSummary, TemperatureTrend
 from calib_core.uncertainty import Budget
@@ -56,9 +55,9 @@ MB = 1_000_000  # bytes: the unit of memory_limit_mb
 PREPROCESSING = ("sync", "segmentation", "lowpass")  # tables the streamed route does not apply
 
 
-def memory_limit(settings: dict[str, Any]) -> int:
+def memory_limit(procedure: procedures.Procedure, settings: dict[str, Any]) -> int:
     """The run's memory limit, bytes (``run.settings.memory_limit_mb``, checked)."""
-    setting = STATIC_SETTINGS.items[MEMORY_LIMIT]
+    setting = procedure.settings.items[MEMORY_LIMIT]
     value = settings.get(MEMORY_LIMIT, setting.default)
     setting.check(value)
     return int(value * MB)
@@ -80,7 +79,8 @@ class StreamPlan:
 def stream_plan(source: RunSource) -> StreamPlan | None:
     """The streamed route's plan of a run; None when the run is read into memory.
 
-    A static_bias run whose data file is larger than its memory limit is streamed; one
+    A run of a procedure that streams (`Procedure.stream_solver`: static_bias) whose data
+    file is larger than its memory limit is streamed; one
     that the route cannot take (see the module docstring) is refused with the reason,
     rather than read into memory past its limit.
 
@@ -92,14 +92,15 @@ def stream_plan(source: RunSource) -> StreamPlan | None:
         return None
     manifest_path = source.folder / MANIFEST_NAME
     manifest = load_manifest(manifest_path)
-    if manifest.run.procedure != "static_bias" or len(manifest.segments) != 1:
+    procedure = procedures.get(manifest.run.procedure)
+    if procedure.stream_solver is None or len(manifest.segments) != 1:
         return None
     where = str(manifest_path)
     seg = manifest.segments[0]
     root = source.folder.resolve()
     paths = [data_file(source.folder, root, seg, 0, name, where) for name in seg.files]
     try:
-        limit = memory_limit(manifest.run.settings)
+        limit = memory_limit(procedure, manifest.run.settings)
     except ValueError as exc:
         raise IngestError(str(exc), file=where, field=f"run.settings.{MEMORY_LIMIT}") from None
     size = sum(p.stat().st_size for p in paths)
@@ -208,8 +209,10 @@ def solve_streamed_run(
     assert rec is not None
     settings = {**m.run.settings, **(settings or {})}
     procedure = procedure or m.run.procedure
-    if procedure != "static_bias":
-        raise ValueError(f"a streamed record is solved by static_bias only, not {procedure!r}")
+    if procedures.get(procedure).stream_solver is None:
+        raise ValueError(
+            f"a streamed record is solved by a procedure that streams, not {procedure!r}"
+        )
     cfg = {**DEFAULT_OUTLIERS, **(settings_table(settings, "outliers", OUTLIER_KEYS) or {})}
     skipped = {"skipped": True}
     checks = []
@@ -231,6 +234,7 @@ def solve_streamed_run(
             gravity=gravity,
             memory_limit=rec.memory_limit,
             trend=trend,
+            procedure=procedure,
         )
 
     cal, record = procedures.solve_step(
@@ -275,6 +279,7 @@ def as_found_solver(
                 gravity=gravity,
                 memory_limit=rec.memory_limit,
                 chunks=chunks,
+                procedure=cal.procedure,
             )
 
         return procedures.solve(cal.procedure, {}, cal.gravity, dict(settings), solver)

@@ -95,6 +95,10 @@ class Procedure:
         ``motion:<label>`` check each, `calib_core.preprocess.motion`): "all", "all but
         turns" (labels ending ``_cw``/``_ccw``), or "none" (it moves on purpose).
     reference : the document the procedure follows.
+    stream_solver : the solve of its one record streamed in chunks, for a record larger
+        than the run's memory limit: (chunks, settings, **streaming) -> Calibration, as
+        `calib_core.procedures.static_bias.solve_static_bias_streamed`; None: its records
+        are read into memory.
     """
 
     name: str
@@ -116,6 +120,7 @@ class Procedure:
     missing_rule: Callable[[set[str], Mapping[str, Any]], list[str]] | None = field(
         default=None, repr=False
     )
+    stream_solver: Callable[..., Calibration] | None = field(default=None, repr=False)
 
     def all_settings(self) -> Settings:
         """Its own settings and the shared ones it does not redefine."""

@@ -13,6 +13,7 @@ from calib_core.condition_rules import ConditionUse
 from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, METHODS, Procedure, Setting, Settings
 from calib_core.recording import Recording
 from calib_core.solvers.static_bias import solve_static_bias
+from calib_core.solvers.static_bias_stream import solve_static_bias_stream
 
 MEMORY_LIMIT = "memory_limit_mb"  # MB (10^6 bytes)
 UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
@@ -61,6 +62,17 @@ def solve_static_bias_procedure(
     )
 
 
+def solve_static_bias_streamed(chunks, settings: dict[str, Any] | None, **streaming) -> Calibration:
+    """The solve of one static record streamed in chunks (longer than memory).
+
+    chunks : called once per pass, a fresh iterator of (t, gyr, acc) chunks.
+    settings : `STATIC_BIAS.settings` (the reading ones, such as memory_limit_mb, left out).
+    streaming : label, first, gravity and how the pass runs (history, threads, motion),
+        as `calib_core.solvers.static_bias_stream.solve_static_bias_stream` takes them.
+    """
+    return solve_static_bias_stream(chunks, **streaming, **solver_settings(settings))
+
+
 STATIC_BIAS = Procedure(
     name="static_bias",
     summary="one long static record: gyro bias and noise (Allan deviation), accelerometer "
@@ -84,4 +96,5 @@ STATIC_BIAS = Procedure(
     model_checks="record length (a warning under 60 min); outliers beyond n_sigma; Allan "
     "deviation fits (angle random walk, bias instability, rate random walk)",
     static_segments="all",
+    stream_solver=solve_static_bias_streamed,
 )

@@ -103,6 +103,12 @@ def procedure_markdown(proc: Procedure) -> str:
         f"- Model checks: {proc.model_checks}.",
         f"- Held still (a `motion:<label>` check each): {STILL[proc.static_segments]}.",
         f"- Beyond physical bounds: {proc.bounds_hint}.",
+        "- A record larger than the memory limit: "
+        + (
+            "streamed in chunks (`memory_limit_mb`)."
+            if proc.stream_solver is not None
+            else "read into memory (the procedure needs it whole)."
+        ),
         "",
         *settings_markdown(proc.all_settings()),
     ]

@@ -37,9 +37,9 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from calib_core import procedures
 from calib_core.calibration import Calibration
-from calib_core.procedures.static_bias import solver_settings
-from calib_core.solvers.static_bias_stream import FirstPass, solve_static_bias_stream
+from calib_core.solvers.static_bias_stream import FirstPass
 from calib_core.streamed import TemperatureTrend
 from pipelines.ingest.csv_layout import AXES, header_units, layout_of
 from pipelines.ingest.csv_reader import (
@@ -469,11 +469,14 @@ def solve_streamed(
     memory_limit: int = DEFAULT_MEMORY_LIMIT,
     trend: TemperatureTrend | None = None,
     chunks: Callable[[], Iterator[tuple]] | None = None,
+    procedure: str = "static_bias",
 ) -> Calibration:
-    """The static-bias solve of a streamed record (second pass over its Parquet samples).
+    """The solve of a streamed record (second pass over its Parquet samples) by its
+    procedure's `stream_solver`.
 
-    settings : the static-bias settings (up_axis, n_sigma, latitude_deg, ...; the reading
-        settings such as memory_limit_mb are left out).
+    settings : the run's settings (the procedure leaves out its reading settings such as
+        memory_limit_mb).
+    procedure : the run's procedure (one that streams: `Procedure.stream_solver`).
     trend : fed with the samples' time and temperature on the way (the conditions').
     chunks : other (t, gyr, acc) chunks to solve (a fresh iterator per call; two passes:
         e.g. the samples corrected by an earlier calibration; t in s); None: the samples'.
@@ -492,8 +495,9 @@ def solve_streamed(
         )
     side = ThreadPoolExecutor(1, thread_name_prefix="calib-motion")  # its own: no nesting
     try:
-        cal = solve_static_bias_stream(
+        cal = procedures.get(procedure).stream_solver(
             chunks,
+            settings,
             label=label,
             first=streamed.first if own else None,
             gravity=gravity,
@@ -502,7 +506,6 @@ def solve_streamed(
             parallel=(os.cpu_count() or 1) > 1,  # the gyro's and the accelerometer's
             motion_label=label,
             submit=side.submit,
-            **solver_settings(settings),
         )
     finally:
         side.shutdown()
