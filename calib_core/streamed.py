@@ -18,7 +18,6 @@ Same numbers as the in-memory path to rounding (tests/test_streamed.py).
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -332,9 +331,6 @@ class StreamedAllan:
         lagged rows from `history`.
     history : `History` of every phase row, needed only when 2 m > memory_rows for
         some m; default `ListHistory` (in memory).
-    map_ : how the channels of a chunk are run: the builtin `map` (one after the other)
-        or a thread pool's `map` (NumPy releases the GIL on whole-array work, so they
-        share the cores); the sums do not depend on it.
 
     The phase is kept channel by channel (each channel's rows contiguous); the squared
     second differences are summed by the compiled loops of
@@ -351,7 +347,6 @@ class StreamedAllan:
         offset: np.ndarray | None = None,
         memory_rows: int = 1 << 20,
         history: History | None = None,
-        map_: Callable[[Callable, Iterable], Iterable] = map,
     ):
         if not rate_hz > 0:
             raise ValueError(f"streamed Allan deviation: rate_hz must be > 0, got {rate_hz}")
@@ -367,7 +362,6 @@ class StreamedAllan:
         self._buf = np.zeros((channels, self.keep_rows + 1))
         self._fill, self._g0 = 1, 0
         self._j = 1  # phase rows seen (theta has N + 1)
-        self.map = map_
         if self.spills:
             self.history.append(self._buf[:, :1])
 
@@ -391,8 +385,8 @@ class StreamedAllan:
         self._fill += n
         j0, j1 = self._j, self._j + n
         lagged = self._lagged(j0, j1)
-        for _ in self.map(lambda c: self._channel(c, j0, j1, lagged), range(x.shape[1])):
-            pass
+        for c in range(x.shape[1]):
+            self._channel(c, j0, j1, lagged)
         self._j = j1
 
     def _room(self, n: int) -> None:
