@@ -66,13 +66,19 @@ def _select(a: np.ndarray, n: int, k: int) -> float:
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _bracket(k: int, n: int, s: int) -> tuple[int, int]:
-    """Ranks in a sample of s of n values that bracket the n values' k-th smallest:
-    its expected rank +-3 standard deviations (and 2), within the sample."""
+def _bracket(sample: np.ndarray, s: int, k: int, n: int) -> tuple[float, float]:
+    """Two values of sample[:s] (s of n values, reordered) that bracket the n values'
+    k-th smallest: the sample's order statistics at k's expected rank +-3 standard
+    deviations (and 2); beyond the sample's ends, -inf or inf (all values that side)."""
     p = (k + 0.5) / n
     r = p * s
     margin = 3.0 * np.sqrt(s * p * (1.0 - p)) + 2.0
-    return max(0, int(r - margin)), min(s - 1, int(r + margin) + 1)
+    rl, rh = int(r - margin), int(r + margin) + 1
+    high, top = np.inf, s
+    if rh < s - 1:
+        high, top = _select(sample, s, rh), rh  # sample[:rh] <= high
+    low = _select(sample, top, rl) if rl > 0 else -np.inf
+    return low, high
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -90,11 +96,9 @@ def _median(col: np.ndarray, g: np.ndarray, buf: np.ndarray) -> float:
     s = (n + STEP - 1) // STEP
     m, j = 0, -1
     if s >= 16:
-        rl, rh = _bracket(k, n, s)
         for i in range(s):
             buf[i] = col[i * STEP]
-        high = _select(buf, s, rh)
-        low = _select(buf, rh, rl) if rl < rh else high  # buf[:rh] <= high
+        low, high = _bracket(buf, s, k, n)
         below = 0
         for i in range(n):
             x = col[i]
@@ -162,11 +166,9 @@ def _window(
     s = (n + STEP - 1) // STEP
     low, high = -1.0, np.inf  # no sample: all gathered
     if s >= 16:
-        rl, rh = _bracket(k, n, s)
         for i in range(s):
             buf[i] = abs(col[i * STEP] - med)
-        high = _select(buf, s, rh)
-        low = _select(buf, rh, rl) if rl < rh else high
+        low, high = _bracket(buf, s, k, n)
     total, sq, lag, s1, s2, below = _moments(col, med, low)
     m = 0
     for i in range(n):
