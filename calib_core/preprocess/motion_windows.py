@@ -3,18 +3,24 @@
 Each window of each channel needs its median, the variance of its samples less the
 few farthest from that median, and its lag-1 autocorrelation (the white-noise test of
 `calib_core.stats.centred_iats`). In NumPy that is a partition for the median, an
-argpartition of the deviations for the trim, gathers and several passes over a copy of
-the windows: some 25 ns a sample, a fifth of a long record's first pass. Here one
-compiled loop per window does it from a few kilobytes of scratch that stay in cache:
-a quickselect for the median (the same order statistics as ``np.median``), a small
-min-heap of the largest deviations for the trim's threshold, and one pass each for the
-kept samples' sums and for the centred lag-1 sums. No library offers a trimmed variance
-by windows, so it is written here, compiled by Numba (`cache=True`: once per
-installation); the rare windows whose lag-1 test fails get their autocorrelation time
-from `centred_iats`'s FFT in NumPy (the caller's part).
+argpartition of the distances for the trim, gathers and several passes over a copy of
+the windows, the bulk of the motion check's cost in a long record's first pass. Here one
+compiled loop per window does it from a few kilobytes of scratch that stay in cache. A
+selection (the median; the trim's threshold, the keep-th smallest distance from it)
+samples every STEP-th value to bracket the order statistic it wants, gathers the values
+within the bracket in one branch-free pass, and quickselects among those few (a noisy
+window's comparisons are coin flips: the partitions are branch-free too); when the
+bracket misses (a sample far in its tail, a pattern of period STEP) it selects among
+all. The order statistics are exact: the median is ``np.median``'s. No library offers a
+trimmed variance by windows, so it is written here, compiled by Numba (`cache=True`:
+once per installation); the rare windows whose lag-1 test fails get their
+autocorrelation time from `centred_iats`'s FFT in NumPy (the caller's part).
 
-Summation is sequential within a window (at most `width` terms); its rounding error is
-within (width - 1) eps of the sum of the terms' magnitudes.
+Summation: the sums over a window (about its median) are vectorised (the order of the
+additions is the processor's vector width's), the kept sums' last few terms added in
+time order; each within (width - 1) eps of the sum of its terms' magnitudes. The lag-1
+test takes the centred sums from those about the median (it decides only which windows
+get the FFT, within rounding of NumPy's at its limit).
 """
 
 from __future__ import annotations
