@@ -54,8 +54,8 @@ def _below_first(a: np.ndarray, lo: int, hi: int, pivot: float, ties: bool) -> i
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _select(a: np.ndarray, n: int, k: int) -> float:
-    """The k-th smallest (0-based) of a[:n] of finite values, a reordered in place
-    (quickselect, median-of-three pivot, the pivot's ties split off as a block)."""
+    """The k-th smallest (0-based) of a[:n] of finite values, a reordered in place so
+    that a[:k] <= a[k] (quickselect, median-of-three pivot)."""
     lo, hi = 0, n  # k's value is among a[lo:hi]
     while hi - lo > 1:
         x, y, z = a[lo], a[(lo + hi) >> 1], a[hi - 1]
@@ -63,11 +63,13 @@ def _select(a: np.ndarray, n: int, k: int) -> float:
         below = _below_first(a, lo, hi, pivot, False)
         if k < below:
             hi = below
-            continue
-        upto = _below_first(a, below, hi, pivot, True)  # a[below:upto] == pivot
-        if k < upto:
-            return pivot
-        lo = upto
+        elif below > lo:
+            lo = below
+        else:  # the pivot is the least: its ties split off (a run of equal values ends)
+            upto = _below_first(a, lo, hi, pivot, True)  # a[lo:upto] == pivot
+            if k < upto:
+                return pivot
+            lo = upto
     return a[k]
 
 
