@@ -6,6 +6,7 @@ the same definition: median, variance of the samples less the SPIKE_TRIM farthes
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -147,3 +148,23 @@ def test_a_non_finite_window_is_nan_and_the_others_unchanged():
         mask[1, 4] = False
         np.testing.assert_array_equal(v[mask], v0[mask])
         np.testing.assert_array_equal(t[mask], t0[mask])
+
+
+FERRARIS = (
+    Path(__file__).resolve().parents[2]
+    / "shared"
+    / "realdata"
+    / "imucal_ferraris"
+    / "example_ferraris_session.csv"
+)
+
+
+@pytest.mark.parametrize("width", [16, 101])
+def test_kernel_is_the_definition_on_a_real_quantised_record(width):
+    """imucal's Ferraris session (a real unit's counts, hand-turned and still): ties at
+    the threshold in most windows."""
+    if not FERRARIS.exists():
+        pytest.skip(f"imucal Ferraris session not found at {FERRARIS} (shared/realdata missing)")
+    x = np.loadtxt(FERRARIS, delimiter=",", skiprows=1)[:, 1:]
+    check(x, width)
+    assert _split_ties(x, width) > 0
