@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from calib_core.distributions import chi2_ppf, f_ppf
+from calib_core.preprocess.motion_windows import trimmed_windows
 from calib_core.recording import Recording
 from calib_core.stats import centred_iats
 
@@ -60,21 +61,31 @@ def window_statistics(x: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray
     spike is no motion; the quiet reference is trimmed alike, so the ratio stays ~1 when
     still), and (K, C) integrated autocorrelation time, samples.
 
+    The median is ``np.median``'s. Samples tied at the trim's threshold (quantised data:
+    +d and -d from the median) are left out latest first: of the samples whose distance
+    from the median equals the threshold, the earliest are kept, as many as the window
+    keeps. A window holding a non-finite value: variance and time NaN.
+
     Local to each window: a record pushed in chunks of whole windows gives the same rows.
+    Compiled per window (`motion_windows`); only the windows whose lag-1 autocorrelation
+    is not white noise's get their time from `centred_iats`'s FFT.
     """
     k = x.shape[0] // width
-    # (k, C, width): one copy whatever x's memory order (only x's row axis is split)
-    w = np.ascontiguousarray(x[: k * width].T.reshape(x.shape[1], k, width).transpose(1, 0, 2))
-    w -= _last_axis_median(w)  # deviations from the median
-    keep = width - max(1, int(math.ceil(SPIKE_TRIM * width)))
-    far = np.take_along_axis(w, np.argpartition(np.abs(w), keep - 1, axis=2)[..., keep:], 2)
-    # The kept samples' sums: the window's less the few left out's (no copy of the kept);
-    # about the median, so the sums hardly cancel.
-    s1 = w.sum(axis=2) - far.sum(axis=2)
-    s2 = np.einsum("kcw,kcw->kc", w, w) - np.einsum("kcw,kcw->kc", far, far)
-    var = np.maximum(s2 - s1 * s1 / keep, 0.0) / (keep - 1)
-    w -= w.mean(axis=2, keepdims=True)
-    iat = centred_iats(w.reshape(-1, width)).reshape(var.shape)
+    channels = x.shape[1]
+    trim = max(1, int(math.ceil(SPIKE_TRIM * width)))
+    med, var = np.empty((k, channels)), np.empty((k, channels))
+    white = np.empty((k, channels), dtype=bool)
+    rows = np.ascontiguousarray(x[: k * width], dtype=float)
+    # centred_iats' white-noise test: |rho_1| < 3 / sqrt(N)
+    trimmed_windows(rows, width, trim, 3.0 / math.sqrt(width), med, var, white)
+    iat = np.ones((k, channels))
+    if width >= 8:
+        win, ch = np.nonzero(~white)
+        if win.size:
+            # (m, width) deviations from the median, centred on their mean
+            d = rows.reshape(k, width, channels)[win, :, ch] - med[win, ch, None]
+            d -= d.mean(axis=1, keepdims=True)
+            iat[win, ch] = centred_iats(d)
     return var, iat
 
 
