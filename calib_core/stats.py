@@ -39,6 +39,12 @@ def _centred_iat(d: np.ndarray, c: float = 5.0) -> float:
     return float(centred_iats(d[None, :], c)[0])
 
 
+def white_rho1_limit(n: int) -> float:
+    """|rho_1| below this is white noise's for n samples (3 standard errors, 3 / sqrt(n)):
+    the series' time is then 1 sample without an FFT."""
+    return float(3.0 / np.sqrt(n))
+
+
 def centred_iats(d: np.ndarray, c: float = 5.0) -> np.ndarray:
     """`integrated_autocorrelation_time` of each row of d (k, N), each row centred on its
     own mean (1.0 below 8 samples), vectorised over the rows.
@@ -57,7 +63,7 @@ def centred_iats(d: np.ndarray, c: float = 5.0) -> np.ndarray:
     lag1 = np.einsum("ij,ij->i", d[:, :-1], d[:, 1:])
     with np.errstate(divide="ignore", invalid="ignore"):
         rho_1 = lag1 / sum_sq
-    rows = np.nonzero((sum_sq != 0.0) & ~(np.abs(rho_1) < 3.0 / np.sqrt(n)))[0]
+    rows = np.nonzero((sum_sq != 0.0) & ~(np.abs(rho_1) < white_rho1_limit(n)))[0]
     if rows.size == 0:
         return out
     # All lags by FFT, zero-padded to >= 2N - 1 so it is not circular; a 5-smooth

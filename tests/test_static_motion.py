@@ -346,17 +346,6 @@ def test_first_pass_motion_falls_back_to_the_solve_pass(case, make):
     assert check["passed"] is False
 
 
-@pytest.mark.parametrize("width", [16, 17, 100, 1001])
-def test_window_medians_are_numpys(width):
-    """The windows' medians from one selection are NumPy's median, bit for bit (odd and
-    even widths; a quantised record's ties), so the windows' statistics are unchanged."""
-    from calib_core.preprocess.motion import _last_axis_median
-
-    w = np.random.default_rng(width).normal(size=(9, 6, width))
-    for x in (w, np.round(w * 2.0) / 2.0):
-        assert np.array_equal(_last_axis_median(x), np.median(x, axis=2, keepdims=True))
-
-
 def test_solve_without_a_first_pass_judges_the_chunks_it_is_given():
     """The as-found solve passes no first pass (its chunks are the samples corrected by an
     earlier calibration): its own first pass keeps no motion windows, and its second

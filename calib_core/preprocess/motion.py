@@ -29,7 +29,7 @@ import numpy as np
 from calib_core.distributions import chi2_ppf, f_ppf
 from calib_core.preprocess.motion_windows import trimmed_windows
 from calib_core.recording import Recording
-from calib_core.stats import centred_iats
+from calib_core.stats import centred_iats, white_rho1_limit
 
 CHECK_PREFIX = "motion:"
 MOTION_ALPHA = 1e-3  # probability that a still record fails, all windows and channels
@@ -76,8 +76,7 @@ def window_statistics(x: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray
     med, var = np.empty((k, channels)), np.empty((k, channels))
     white = np.empty((k, channels), dtype=bool)
     rows = np.ascontiguousarray(x[: k * width], dtype=float)
-    # centred_iats' white-noise test: |rho_1| < 3 / sqrt(N)
-    trimmed_windows(rows, width, trim, 3.0 / math.sqrt(width), med, var, white)
+    trimmed_windows(rows, width, trim, white_rho1_limit(width), med, var, white)
     iat = np.ones((k, channels))
     if width >= 8:
         win, ch = np.nonzero(~white)
@@ -87,19 +86,6 @@ def window_statistics(x: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray
             d -= d.mean(axis=1, keepdims=True)
             iat[win, ch] = centred_iats(d)
     return var, iat
-
-
-def _last_axis_median(w: np.ndarray) -> np.ndarray:
-    """``np.median(w, axis=-1, keepdims=True)`` of finite w, the same numbers from one
-    selection (np.median selects three order statistics: its NaN test's too)."""
-    n = w.shape[-1]
-    half = n // 2
-    part = np.partition(w, half, axis=-1)
-    upper = part[..., half : half + 1]
-    if n % 2:
-        return upper
-    # the largest of the lower half: the other middle value; halved as np.mean does
-    return (part[..., :half].max(axis=-1, keepdims=True) + upper) / 2.0
 
 
 def smallest_steps(x: np.ndarray) -> np.ndarray:
