@@ -145,8 +145,12 @@ def write_record(path: Path, size_bytes: int, seed: int = 0) -> int:
 
 
 def run_child(argv: list[str], env: dict[str, str] | None = None) -> tuple[float, float, str]:
-    """(wall s, peak RSS of the child and its descendants in bytes, stdout) of one child."""
+    """(wall s, peak RSS of the child and its descendants in bytes, stdout) of one child.
+
+    The file system's dirty pages are written out first (`os.sync`), so no child pays for
+    the write-back of the one before it (the floor writes GBs it never flushes)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "DO_NOT_TRACK": "1", **(env or {})}
+    os.sync()
     started = time.perf_counter()
     proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, text=True)
     peak, ps = 0, psutil.Process(proc.pid)

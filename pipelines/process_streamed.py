@@ -158,6 +158,7 @@ def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) 
     folder = rawstore.samples_path(root, m.unit.serial, m.run.started.astimezone(UTC), "x").parent
     samples = pending.temp_file(folder, "samples")
     copy = pending.temp_file(Path(root) / "objects", "incoming")
+    _HASHER.submit(_load_compiled)  # beside the pass: the solve's compiled loops, from their cache
     result = STREAMERS[m.format.kind](
         plan.path,
         m.format,
@@ -176,6 +177,17 @@ def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) 
 
 
 _HASHER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-samples-hash")
+
+
+def _load_compiled() -> None:
+    """Load the Allan deviation's compiled loops (Numba's cache; compiled the first time)
+    by one call on a few samples: the solve then starts at once."""
+    import numpy as np
+
+    from calib_core.streamed import StreamedAllan
+
+    warm = StreamedAllan(1.0, 5, 1)
+    warm.push(np.zeros((5, 1)))
 
 
 def _check_range(first, samples: Path, plan: StreamPlan, gyro, acc) -> None:

@@ -27,7 +27,6 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from calib_core.distributions import chi2_ppf, f_ppf
-from calib_core.preprocess.motion_windows import trimmed_windows
 from calib_core.recording import Recording
 from calib_core.stats import centred_iats, white_rho1_limit
 
@@ -70,6 +69,8 @@ def window_statistics(x: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray
     Compiled per window (`motion_windows`); only the windows whose lag-1 autocorrelation
     is not white noise's get their time from `centred_iats`'s FFT.
     """
+    from calib_core.preprocess.motion_windows import trimmed_windows  # Numba: when used
+
     k = x.shape[0] // width
     channels = x.shape[1]
     trim = max(1, int(math.ceil(SPIKE_TRIM * width)))
