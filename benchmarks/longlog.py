@@ -20,9 +20,10 @@ process is `calib process --json` of a run folder whose run.toml says ``[format]
 hashes and copies the file, decodes its messages with the same vectorised CDR decoder and
 writes the Parquet, nothing else (no checks, no statistics).
 
-Before the runs, the Allan deviation's compiled loops (`calib_core.second_differences`,
-Numba) are compiled into their cache, as the first use after installing does once; the
-runs load them from it (the seconds it took are printed).
+Before the runs, the compiled loops (the Allan sums of `calib_core.second_differences`,
+the motion windows of `calib_core.preprocess.motion_windows`; Numba) are compiled into
+their cache, as the first use after installing does once; the runs load them from it
+(the seconds it took are printed).
 
 And the streamed Allan deviation of a 10-million-sample subset (gyro x of the record)
 against allantools' `oadev` (relative error, max over the octave taus both give).
@@ -57,6 +58,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from calib_core.preprocess.motion import window_statistics
 from calib_core.streamed import StreamedAllan
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -465,6 +467,7 @@ def main() -> None:
     warm = StreamedAllan(RATE, 5, 1)  # compiles the loops into their cache (once)
     warm.push(np.zeros((5, 1)))
     warm.result()
+    window_statistics(np.random.default_rng(0).normal(size=(64, 6)), 16)
     print(f"compiled loops ready in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     result: dict = {}
     if "csv" in formats:
