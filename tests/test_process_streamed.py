@@ -141,6 +141,37 @@ def close(a: float | None, b: float | None, scale: float, rel: float = REL) -> b
     return abs(a - b) <= rel * max(abs(b), scale)
 
 
+def assert_streamed_as_in_memory(
+    tmp_path: Path, runs: dict, rel: float, limit_mb: float, n: int, data: Path
+) -> None:
+    """The streamed run (``runs["streamed"]``, archived under tmp_path/archive-streamed)
+    against the in-memory one (``runs["memory"]``): every parameter and check value within
+    `rel`, the same checks and verdict, the streamed ingest step's figures, the raw file
+    `data` archived byte for byte."""
+    mem, got = runs["memory"], runs["streamed"]
+    assert set(got["parameters"]) == set(mem["parameters"])
+    for name, p in mem["parameters"].items():
+        q = got["parameters"][name]
+        assert q["unit"] == p["unit"], name
+        assert close(q["value"], p["value"], p["std"] or 0.0, rel), (name, q, p)
+        assert close(q["std"], p["std"], 0.0, rel), (name, q, p)
+    by_name = {c["name"]: c for c in mem["checks"]}
+    assert {c["name"] for c in got["checks"]} == set(by_name)
+    assert "motion:record" in by_name and got["verdict"] == mem["verdict"]
+    for c in got["checks"]:
+        ref = by_name[c["name"]]
+        assert c["passed"] == ref["passed"], c["name"]
+        if isinstance(ref["value"], float):
+            assert close(c["value"], ref["value"], 0.0, rel), (c, ref)
+    ingest = steps_of(tmp_path / "archive-streamed", got["run_id"])["ingest"]
+    assert ingest["streamed"]["memory_limit"] == limit_mb * 10**6
+    assert ingest["streamed"]["bytes"] > 4 * ingest["streamed"]["memory_limit"]
+    assert ingest["samples"] == {"record": n}
+    arch = resolve_archive(str(tmp_path / "archive-streamed"))
+    sha = hashlib.sha256(data.read_bytes()).hexdigest()
+    assert any(p.name == sha for p in (arch.root / "objects").rglob("*"))
+
+
 @pytest.fixture(scope="module")
 def data(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("long") / "imu.csv"
@@ -274,28 +305,7 @@ def test_streamed_mcap_run_matches_the_in_memory_run(mcap_data, tmp_path):
         runs[route], _ = calib_process(folder, archive)
         report = verify(resolve_archive(str(archive)))
         assert report.ok and report.orphans == [], (report.problems, report.orphans)
-    mem, got = runs["memory"], runs["streamed"]
-    assert set(got["parameters"]) == set(mem["parameters"])
-    for name, p in mem["parameters"].items():
-        q = got["parameters"][name]
-        assert q["unit"] == p["unit"], name
-        assert close(q["value"], p["value"], p["std"] or 0.0, rel), (name, q, p)
-        assert close(q["std"], p["std"], 0.0, rel), (name, q, p)
-    by_name = {c["name"]: c for c in mem["checks"]}
-    assert {c["name"] for c in got["checks"]} == set(by_name)
-    assert "motion:record" in by_name and got["verdict"] == mem["verdict"]
-    for c in got["checks"]:
-        ref = by_name[c["name"]]
-        assert c["passed"] == ref["passed"], c["name"]
-        if isinstance(ref["value"], float):
-            assert close(c["value"], ref["value"], 0.0, rel), (c, ref)
-    ingest = steps_of(tmp_path / "archive-streamed", got["run_id"])["ingest"]
-    assert ingest["streamed"]["memory_limit"] == MCAP_LIMIT_MB * 10**6
-    assert ingest["streamed"]["bytes"] > 4 * ingest["streamed"]["memory_limit"]
-    assert ingest["samples"] == {"record": MCAP_N}
-    arch = resolve_archive(str(tmp_path / "archive-streamed"))
-    sha = hashlib.sha256(mcap_data.read_bytes()).hexdigest()
-    assert any(p.name == sha for p in (arch.root / "objects").rglob("*"))
+    assert_streamed_as_in_memory(tmp_path, runs, rel, MCAP_LIMIT_MB, MCAP_N, mcap_data)
 
 
 def small_run(tmp_path: Path, name: str, settings: dict, unit: dict | None = None) -> Path:

@@ -24,10 +24,9 @@ import pytest
 from log_writers import T0_NS, _ros_messages, write_rosbag2
 from test_process_streamed import (
     RATE,
+    assert_streamed_as_in_memory,
     calib_process,
-    close,
     manifest,
-    steps_of,
     write_profile,
 )
 
@@ -313,28 +312,7 @@ def test_streamed_bag_run_matches_the_in_memory_run(tmp_path):
         runs[route], _ = calib_process(write_run(tmp_path / route, path, settings), archive)
         report = verify(resolve_archive(str(archive)))
         assert report.ok and report.orphans == [], (report.problems, report.orphans)
-    mem, got = runs["memory"], runs["streamed"]
-    assert set(got["parameters"]) == set(mem["parameters"])
-    for name, p in mem["parameters"].items():
-        q = got["parameters"][name]
-        assert q["unit"] == p["unit"], name
-        assert close(q["value"], p["value"], p["std"] or 0.0, rel), (name, q, p)
-        assert close(q["std"], p["std"], 0.0, rel), (name, q, p)
-    by_name = {c["name"]: c for c in mem["checks"]}
-    assert {c["name"] for c in got["checks"]} == set(by_name)
-    assert "motion:record" in by_name and got["verdict"] == mem["verdict"]
-    for c in got["checks"]:
-        ref = by_name[c["name"]]
-        assert c["passed"] == ref["passed"], c["name"]
-        if isinstance(ref["value"], float):
-            assert close(c["value"], ref["value"], 0.0, rel), (c, ref)
-    ingest = steps_of(tmp_path / "archive-streamed", got["run_id"])["ingest"]
-    assert ingest["streamed"]["memory_limit"] == LIMIT_MB * 10**6
-    assert ingest["streamed"]["bytes"] > 4 * ingest["streamed"]["memory_limit"]
-    assert ingest["samples"] == {"record": PROCESS_N}
-    arch = resolve_archive(str(tmp_path / "archive-streamed"))
-    sha = hashlib.sha256(path.read_bytes()).hexdigest()
-    assert any(p.name == sha for p in (arch.root / "objects").rglob("*"))
+    assert_streamed_as_in_memory(tmp_path, runs, rel, LIMIT_MB, PROCESS_N, path)
 
 
 def test_bad_bags_fail_by_name_and_the_batch_goes_on(bag, tmp_path):
