@@ -1,4 +1,5 @@
-"""Sums of squared second differences of a phase, the Allan variance's inner loop, compiled.
+"""The phase of a rate record and the sums of squared second differences of it, the Allan
+variance's inner loops, compiled.
 
 The overlapping Allan variance at cluster size m sums, over every k,
 ``((theta[k+2m] - theta[k+m]) - (theta[k+m] - theta[k]))**2``: N terms per cluster size,
@@ -44,12 +45,34 @@ def runs_sum(new: np.ndarray, mid: np.ndarray, old: np.ndarray) -> float:
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def span_sums(span: np.ndarray, m: np.ndarray, first: np.ndarray, out: np.ndarray) -> None:
     """Add to out[i] the sum over k >= first[i] of the squared second difference at
-    cluster size m[i] of the phase run `span` (theta_0 .. theta_{n-1} of it), for every
-    k + 2 m[i] < n."""
+    cluster size m[i] (ascending) of the phase run `span` (theta_0 .. theta_{n-1} of it),
+    for every k + 2 m[i] < n.
+
+    Block by block of the newest point j = k + 2 m, every cluster size in turn: the run
+    at j - 2 m of one size is the run at j - m of the next, read once from memory for
+    both (the sizes' lagged runs are beyond the processor's cache).
+    """
     n = span.size
+    start = n
     for i in range(m.size):
-        lag = m[i]
-        k0 = first[i]
-        k1 = n - 2 * lag
-        if k1 > k0:
-            out[i] += runs_sum(span[k0 + 2 * lag : n], span[k0 + lag : k1 + lag], span[k0:k1])
+        start = min(start, first[i] + 2 * m[i])
+    for s in range(start, n, BLOCK):
+        e = min(s + BLOCK, n)
+        for i in range(m.size):
+            lag = m[i]
+            j0 = max(s, first[i] + 2 * lag)
+            if e > j0:
+                out[i] += _block_sum(
+                    span[j0:e], span[j0 - lag : e - lag], span[j0 - 2 * lag : e - 2 * lag]
+                )
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def phase(x: np.ndarray, offset: float, start: float, out: np.ndarray) -> None:
+    """out[i] = start + the sum over j <= i of (x[j] - offset): the phase of the rate
+    samples x (n,) continued from `start`, in one pass (NumPy's subtract and cumsum take
+    two, the cumsum unvectorised)."""
+    acc = start
+    for i in range(x.size):
+        acc += x[i] - offset
+        out[i] = acc

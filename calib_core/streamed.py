@@ -375,11 +375,12 @@ class StreamedAllan:
             raise ValueError("streamed Allan deviation: samples contain NaN or infinite values")
         if self.offset is None:
             self.offset = x.mean(axis=0)
+        from calib_core.second_differences import phase  # Numba: when used
+
         self._room(n)
         theta = self._buf[:, self._fill : self._fill + n]
         for c in range(x.shape[1]):
-            np.cumsum(np.subtract(x[:, c], self.offset[c], out=theta[c]), out=theta[c])
-        theta += self._buf[:, self._fill - 1 : self._fill]
+            phase(x[:, c], float(self.offset[c]), float(self._buf[c, self._fill - 1]), theta[c])
         if self.spills:
             self.history.append(theta)
         self._fill += n
