@@ -186,3 +186,15 @@ def test_second_difference_sums_equal_numpy():
     a, b, c = theta[10:], theta[5:-5], theta[:-10]
     d = (a - b) - (b - c)
     assert math.isclose(runs_sum(a, b, c), d @ d, rel_tol=a.size * np.finfo(float).eps)
+
+
+def test_phase_equals_numpy_cumsum():
+    """The compiled phase against NumPy's cumulative sum, continued from a start value:
+    the same sequential sum (an offset subtracted first), so within N eps of max |phase|."""
+    from calib_core.second_differences import phase
+
+    x = _record(5000)[:, 0]
+    out = np.empty_like(x)
+    phase(x, 9.8, 1.5, out)
+    ref = 1.5 + np.cumsum(x - 9.8)
+    assert np.max(np.abs(out - ref)) <= x.size * np.finfo(float).eps * np.abs(ref).max()
