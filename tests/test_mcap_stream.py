@@ -8,12 +8,7 @@ Files are written with mcap-ros2-support's Writer (`test_ingest_mcap.write_run`)
 from __future__ import annotations
 
 import hashlib
-import json
 import math
-import os
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +18,7 @@ from mcap.writer import CompressionType
 from test_ingest_mcap import T0_NS, rewrite, write_run
 
 from calib_core.solvers.static_bias import solve_static_bias
+from calib_testing.streaming import streamed_memory_growth
 from pipelines.ingest.csv_stream import solve_streamed
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
@@ -199,37 +195,13 @@ def test_streamed_mcap_memory_bounded_by_the_limit(tmp_path):
     write_run(big, n=n, acc=static_acc(n), compression=CompressionType.NONE)
     write_run(small, n=n // 4, acc=static_acc(n // 4), compression=CompressionType.NONE)
     assert big.stat().st_size > 10 * limit
-    script = textwrap.dedent(f"""
-        import json, sys
-        from pathlib import Path
-        from pipelines.ingest.csv_stream import solve_streamed
-        from pipelines.ingest.data_format import FormatSpec
-        from pipelines.ingest.mcap_stream import stream_mcap
-
-        def status(key):
-            for line in open("/proc/self/status"):
-                if line.startswith(key):
-                    return int(line.split()[1]) * 1024
-
-        def run(src, out):
-            s = stream_mcap(src, FormatSpec(kind="mcap"), out, copy_to=out.with_suffix(".raw"),
-                            memory_limit={limit}, progress=False)
-            solve_streamed(s, {SETTINGS!r}, gravity={G}, memory_limit={limit})
-
-        big, small, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
-        run(small, out.with_name("small.parquet"))
-        base = status("VmRSS:")
-        open("/proc/self/clear_refs", "w").write("5")  # peak := current
-        run(big, out)
-        print(json.dumps({{"grown": status("VmHWM:") - base}}))
-    """)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    out = subprocess.run(
-        [sys.executable, "-c", script, str(big), str(small), str(tmp_path / "s.parquet")],
-        capture_output=True,
-        text=True,
-        env=env,
+    grown = streamed_memory_growth(
+        "pipelines.ingest.mcap_stream:stream_mcap",
+        "mcap",
+        big,
+        small,
+        tmp_path / "s.parquet",
+        limit,
+        SETTINGS,
     )
-    assert out.returncode == 0, out.stderr[-2000:]
-    grown = json.loads(out.stdout.strip().splitlines()[-1])["grown"]
     assert grown < limit, grown / 2**20

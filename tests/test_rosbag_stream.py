@@ -15,7 +15,6 @@ import re
 import shutil
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +31,7 @@ from test_process_streamed import (
 
 from calib_core.recording import Recording
 from calib_testing.run_writers import dumps_toml
+from calib_testing.streaming import streamed_memory_growth
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.rosbag_reader import read_rosbag
@@ -375,38 +375,13 @@ def test_streamed_bag_memory_bounded_by_the_limit(tmp_path):
     write_bag(small, static_record(n // 4))
     assert big.stat().st_size > 10 * limit
     settings = {"up_axis": "+z", "n_sigma": 3.0}
-    script = textwrap.dedent(f"""
-        import json, sys
-        from pathlib import Path
-        from pipelines.ingest.csv_stream import solve_streamed
-        from pipelines.ingest.data_format import FormatSpec
-        from pipelines.ingest.rosbag_stream import stream_rosbag
-
-        def status(key):
-            for line in open("/proc/self/status"):
-                if line.startswith(key):
-                    return int(line.split()[1]) * 1024
-
-        def run(src, out):
-            s = stream_rosbag(src, FormatSpec(kind="rosbag"), out,
-                              copy_to=out.with_suffix(".raw"), memory_limit={limit},
-                              progress=False)
-            solve_streamed(s, {settings!r}, gravity={G}, memory_limit={limit})
-
-        big, small, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
-        run(small, out.with_name("small.parquet"))
-        base = status("VmRSS:")
-        open("/proc/self/clear_refs", "w").write("5")  # peak := current
-        run(big, out)
-        print(json.dumps({{"grown": status("VmHWM:") - base}}))
-    """)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    out = subprocess.run(
-        [sys.executable, "-c", script, str(big), str(small), str(tmp_path / "s.parquet")],
-        capture_output=True,
-        text=True,
-        env=env,
+    grown = streamed_memory_growth(
+        "pipelines.ingest.rosbag_stream:stream_rosbag",
+        "rosbag",
+        big,
+        small,
+        tmp_path / "s.parquet",
+        limit,
+        settings,
     )
-    assert out.returncode == 0, out.stderr[-2000:]
-    grown = json.loads(out.stdout.strip().splitlines()[-1])["grown"]
     assert grown < limit, grown / 2**20

@@ -1,0 +1,67 @@
+"""How much resident memory a streamed read and solve adds, measured in a fresh process.
+
+The memory tests of the streamed readers (MCAP, ROS 1 bag) run the same measurement:
+after a warm-up on a smaller file of the same kind (the lazily imported modules, worker
+threads and codecs: fixed costs), the growth of the peak resident set while the big file
+is read, hashed, copied, written and solved.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+GRAVITY = 9.80665  # m/s^2
+
+
+def streamed_memory_growth(
+    streamer: str, kind: str, big: Path, small: Path, out: Path, limit: int, settings: dict
+) -> int:
+    """Bytes the peak resident set grows by while `big` is streamed and solved.
+
+    streamer : ``module:function`` of the streamed reader (`pipelines.ingest.streaming`).
+    kind : the [format] kind given to it.
+    small : a file of the same kind read first (the warm-up).
+    out : the samples' Parquet to write (the warm-up's beside it).
+    limit : the memory limit, bytes.
+    settings : the static-bias settings of the solve.
+    """
+    module, function = streamer.split(":")
+    script = textwrap.dedent(f"""
+        import json, sys
+        from pathlib import Path
+        from pipelines.ingest.csv_stream import solve_streamed
+        from pipelines.ingest.data_format import FormatSpec
+        from {module} import {function} as stream
+
+        def status(key):
+            for line in open("/proc/self/status"):
+                if line.startswith(key):
+                    return int(line.split()[1]) * 1024
+
+        def run(src, out):
+            s = stream(src, FormatSpec(kind={kind!r}), out, copy_to=out.with_suffix(".raw"),
+                       memory_limit={limit}, progress=False)
+            solve_streamed(s, {settings!r}, gravity={GRAVITY}, memory_limit={limit})
+
+        big, small, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
+        run(small, out.with_name("small.parquet"))
+        base = status("VmRSS:")
+        open("/proc/self/clear_refs", "w").write("5")  # peak := current
+        run(big, out)
+        print(json.dumps({{"grown": status("VmHWM:") - base}}))
+    """)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(big), str(small), str(out)],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    if done.returncode != 0:
+        raise RuntimeError(done.stderr[-2000:])
+    return int(json.loads(done.stdout.strip().splitlines()[-1])["grown"])
