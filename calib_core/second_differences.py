@@ -43,20 +43,21 @@ def runs_sum(new: np.ndarray, mid: np.ndarray, old: np.ndarray) -> float:
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def span_sums(span: np.ndarray, m: np.ndarray, first: np.ndarray, out: np.ndarray) -> None:
+def span_sums(
+    span: np.ndarray, m: np.ndarray, first: np.ndarray, out: np.ndarray, origin: int
+) -> None:
     """Add to out[i] the sum over k >= first[i] of the squared second difference at
     cluster size m[i] (ascending) of the phase run `span` (theta_0 .. theta_{n-1} of it),
     for every k + 2 m[i] < n.
 
     Block by block of the newest point j = k + 2 m, every cluster size in turn: the run
     at j - 2 m of one size is the run at j - m of the next, read once from memory for
-    both (the sizes' lagged runs are beyond the processor's cache).
+    both (the sizes' lagged runs are beyond the processor's cache). The blocks start at
+    row `origin` (<= every first[i] + 2 m[i]), so each size's sum is the same whichever
+    other sizes are summed in the same call.
     """
     n = span.size
-    start = n
-    for i in range(m.size):
-        start = min(start, first[i] + 2 * m[i])
-    for s in range(start, n, BLOCK):
+    for s in range(origin, n, BLOCK):
         e = min(s + BLOCK, n)
         for i in range(m.size):
             lag = m[i]

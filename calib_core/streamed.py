@@ -18,6 +18,7 @@ Same numbers as the in-memory path to rounding (tests/test_streamed.py).
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -183,12 +184,13 @@ class SigmaClipFill:
     def _rejected(self, x: np.ndarray) -> list[np.ndarray]:
         """Row indices (ascending) of each channel's rejected samples of the new rows `x`;
         their count and sums (or the kept samples' moments) taken."""
+        from calib_core.sigma_rule import outside  # Numba: when used
+
         bad = []
         for c in range(x.shape[1]):
-            dev = np.subtract(x[:, c], self.mean[c])
-            bad.append(np.flatnonzero(~(np.abs(dev) <= self.limit[c])))  # NaN: rejected
+            bad.append(outside(x[:, c], float(self.mean[c]), float(self.limit[c])))
             if self.total is not None:
-                out = dev[bad[-1]]
+                out = x[bad[-1], c] - self.mean[c]
                 self._rej_sum[c] += out.sum()
                 self._rej_sq[c] += out @ out
         counts = np.array([b.size for b in bad])
@@ -328,9 +330,16 @@ class StreamedAllan:
         depend on it; the record's mean keeps the sum small, as in memory). None: the
         first chunk's mean.
     memory_rows : phase rows kept in memory; cluster sizes with 2 m beyond it read their
-        lagged rows from `history`.
+        lagged rows from `history`. At least N + 1: the whole phase, in one buffer of
+        N + 1 rows (no history, no rows moved).
     history : `History` of every phase row, needed only when 2 m > memory_rows for
         some m; default `ListHistory` (in memory).
+    helper : submit(fn, *args) -> a Future (an executor's): where half of the cluster
+        sizes held in memory are summed, beside the calling thread (the compiled sums
+        release the GIL); None: all in the calling thread. The numbers do not depend on it.
+    workspace : float64 array of at least C (N + 1) values holding the whole phase when it
+        fits (`memory_rows` >= N + 1), in place of a new buffer: the caller passes the
+        same one to the channels it solves in turn, whose pages are then touched once.
 
     The phase is kept channel by channel (each channel's rows contiguous); the squared
     second differences are summed by the compiled loops of
@@ -347,6 +356,8 @@ class StreamedAllan:
         offset: np.ndarray | None = None,
         memory_rows: int = 1 << 20,
         history: History | None = None,
+        helper: Callable | None = None,
+        workspace: np.ndarray | None = None,
     ):
         if not rate_hz > 0:
             raise ValueError(f"streamed Allan deviation: rate_hz must be > 0, got {rate_hz}")
@@ -356,10 +367,11 @@ class StreamedAllan:
         self.spills = bool((2 * self.m > self.keep_rows).any())
         self.history = history if history is not None or not self.spills else ListHistory()
         self.offset = None if offset is None else np.asarray(offset, float)
+        self.helper, self.workspace = helper, workspace
         self.sums = np.zeros((self.m.size, channels))
         # The phase's last keep_rows rows and the newest chunk's: column i is phase row
-        # self._g0 + i; theta_0 = 0.
-        self._buf = np.zeros((channels, self.keep_rows + 1))
+        # self._g0 + i; theta_0 = 0 (allocated at the first push, `_room`).
+        self._buf: np.ndarray | None = np.zeros((channels, 1))
         self._fill, self._g0 = 1, 0
         self._j = 1  # phase rows seen (theta has N + 1)
         if self.spills:
@@ -377,6 +389,8 @@ class StreamedAllan:
             self.offset = x.mean(axis=0)
         from calib_core.second_differences import phase  # Numba: when used
 
+        if self._buf is None:
+            raise ValueError("streamed Allan deviation: samples pushed after release()")
         self._room(n)
         theta = self._buf[:, self._fill : self._fill + n]
         for c in range(x.shape[1]):
@@ -390,21 +404,36 @@ class StreamedAllan:
             self._channel(c, j0, j1, lagged)
         self._j = j1
 
+    def release(self) -> None:
+        """Let the phase rows go once every sample is in (the sums are all `result`
+        needs); a later push raises."""
+        self._buf = None
+
     def _room(self, n: int) -> None:
         """Make room for n more rows, keeping the last keep_rows."""
         if self._fill + n <= self._buf.shape[1]:
             return
         keep = min(self.keep_rows, self._fill)
-        # Room for keep_rows more rows beyond the kept ones: each row is moved about once.
-        size = 2 * self.keep_rows + n
+        # Room for keep_rows more rows beyond the kept ones: each row is moved about once;
+        # never more than the rows still to come (the whole phase: one buffer).
+        rest = self.n_samples + 1 - (self._g0 + self._fill - keep)
+        size = max(min(2 * self.keep_rows + n, rest), keep + n)
         if size > self._buf.shape[1] or self._buf.shape[1] > 2 * size:
-            grown = np.empty((self._buf.shape[0], size))
+            grown = self._new_buffer(size, whole=size >= rest)
             grown[:, :keep] = self._buf[:, self._fill - keep : self._fill]
             self._buf = grown
         else:
             self._buf[:, :keep] = self._buf[:, self._fill - keep : self._fill].copy()
         self._g0 += self._fill - keep
         self._fill = keep
+
+    def _new_buffer(self, size: int, whole: bool) -> np.ndarray:
+        """A (C, size) buffer: of the workspace when it holds every row to come (`whole`:
+        never moved again) and the workspace is large enough, else a new one."""
+        channels, ws = self._buf.shape[0], self.workspace
+        if whole and ws is not None and ws.size >= channels * size:
+            return ws[: channels * size].reshape(channels, size)
+        return np.empty((channels, size))
 
     def _lagged(self, j0: int, j1: int) -> dict[int, tuple[int, np.ndarray]]:
         """The history rows the cluster sizes beyond memory need for rows j0..j1-1: for each
@@ -428,8 +457,19 @@ class StreamedAllan:
         near = 2 * self.m <= self.keep_rows  # theta_{lo-2m} .. theta_{j1-1} are in memory
         lo = np.maximum(j0, 2 * self.m)
         sums = np.zeros(self.m.size)  # the near sizes first (m ascending)
-        first = lo[near] - 2 * self.m[near] - g0
-        span_sums(col[: j1 - g0], self.m[near], first, sums[: first.size])
+        first, m_near = lo[near] - 2 * self.m[near], self.m[near]
+        first -= g0
+        span = col[: j1 - g0]
+        # the larger sizes (their lagged rows from memory, the slower) beside
+        half = _halves(m_near) if self.helper is not None else first.size
+        beside = None
+        if half < first.size:
+            beside = self.helper(
+                span_sums, span, m_near[half:], first[half:], sums[half : first.size], j0 - g0
+            )
+        span_sums(span, m_near[:half], first[:half], sums[:half], j0 - g0)
+        if beside is not None:
+            beside.result()
         for k in np.flatnonzero(~near & (lo < j1)).tolist():
             m, start = int(self.m[k]), int(lo[k])
             (a, mid), (b, old) = lagged[m], lagged[2 * m]
@@ -443,13 +483,36 @@ class StreamedAllan:
 
     def result(self) -> AllanResult:
         """The Allan deviation (K, C), once all N samples are in."""
-        n = self._j - 1
-        if n != self.n_samples:
+        return joined_allan([self])
+
+
+def _halves(m: np.ndarray) -> int:
+    """Where to cut the cluster sizes m (ascending) into two parts of about equal work: a
+    size of a block or more reads its lagged runs from memory rather than the cache, about
+    three times the time of a smaller one."""
+    from calib_core.second_differences import BLOCK
+
+    work = np.where(m >= BLOCK, 3, 1).cumsum()
+    return int(np.searchsorted(work, work[-1] / 2)) if m.size > 1 else m.size
+
+
+def joined_allan(parts: list[StreamedAllan]) -> AllanResult:
+    """The Allan deviation (K, sum of C) of the channels of several `StreamedAllan` of one
+    record (the same rate, length and cluster sizes), side by side in their order, once
+    all N samples are in each."""
+    one = parts[0]
+    for part in parts:
+        n = part._j - 1
+        if n != part.n_samples:
             raise ValueError(
-                f"streamed Allan deviation: {n} samples pushed, {self.n_samples} announced"
+                f"streamed Allan deviation: {n} samples pushed, {part.n_samples} announced"
             )
-        denom = (2.0 * (n + 1 - 2 * self.m))[:, None] * self.rate_hz**2
-        return allan_result(self.m, self.sums / denom, n, self.rate_hz)
+        if (part.n_samples, part.rate_hz) != (one.n_samples, one.rate_hz):
+            raise ValueError("streamed Allan deviation: the parts are of different records")
+    n, rate = one.n_samples, one.rate_hz
+    denom = (2.0 * (n + 1 - 2 * one.m))[:, None] * rate**2
+    sums = np.hstack([part.sums for part in parts])
+    return allan_result(one.m, sums / denom, n, rate)
 
 
 class TemperatureTrend:

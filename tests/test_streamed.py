@@ -4,6 +4,7 @@ against allantools; the streamed static-bias solve against the in-memory one."""
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import allantools
 import numpy as np
@@ -13,7 +14,7 @@ from calib_core.noise import allan_deviation
 from calib_core.simulate.noise import NoiseSpec, simulate_static
 from calib_core.solvers.static_bias import _fill, sigma_clip, solve_static_bias
 from calib_core.solvers.static_bias_stream import solve_static_bias_stream
-from calib_core.streamed import MedianStep, Moments, SigmaClipFill, StreamedAllan
+from calib_core.streamed import MedianStep, Moments, SigmaClipFill, StreamedAllan, joined_allan
 
 RATE = 100.0
 # Different chunkings add the same numbers in a different order: a few ulp per sum,
@@ -33,10 +34,11 @@ def _chunks(x: np.ndarray, size: int):
 
 
 @pytest.mark.parametrize("size", [7, 1000, 30_000, 40_003])
-@pytest.mark.parametrize("memory_rows", [100, 1 << 20])
+@pytest.mark.parametrize("memory_rows", [100, 1 << 20, 40_004])
 def test_streamed_allan_equals_in_memory_and_allantools(size, memory_rows):
-    """Chunks smaller than the largest cluster (m = 2^14 here), and a phase memory
-    smaller than it (the longer lags then come from the history)."""
+    """Chunks smaller than the largest cluster (m = 2^14 here), a phase memory smaller
+    than it (the longer lags then come from the history), and one that holds the whole
+    phase (N + 1 rows: one buffer)."""
     x = _record()
     s = StreamedAllan(RATE, x.shape[0], 3, memory_rows=memory_rows)
     for c in _chunks(x, size):
@@ -51,6 +53,55 @@ def test_streamed_allan_equals_in_memory_and_allantools(size, memory_rows):
         k = min(taus.size, got.taus.size)
         assert np.allclose(taus[:k], got.taus[:k], rtol=1e-15)
         assert np.max(np.abs(got.adev[:k, c] / adev[:k] - 1)) <= REL
+
+
+def test_streamed_allan_by_channel_with_helper_and_workspace_same_sums():
+    """Each channel alone, half its sums on a helper thread, its whole phase in a shared
+    workspace: the same sums, bit for bit, as the three channels in one StreamedAllan
+    (each size's sum is added in the same order whichever thread sums it); the
+    workspace is used and let go after each channel."""
+    x = _record()
+    n = x.shape[0]
+    offset = x.mean(axis=0)
+    together = StreamedAllan(RATE, n, 3, memory_rows=n + 1, offset=offset)
+    for chunk in _chunks(x, 1000):
+        together.push(chunk)
+    space = np.full(n + 1, np.nan)
+    parts = []
+    with ThreadPoolExecutor(1) as pool:
+        for c in range(3):
+            s = StreamedAllan(
+                RATE,
+                n,
+                1,
+                offset=offset[c : c + 1],
+                memory_rows=n + 1,
+                helper=pool.submit,
+                workspace=space,
+            )
+            for chunk in _chunks(x[:, c : c + 1], 1000):
+                s.push(chunk)
+            assert np.shares_memory(s._buf, space)
+            assert np.array_equal(s.sums[:, 0], together.sums[:, c]), c
+            s.release()
+            parts.append(s)
+    got, ref = joined_allan(parts), together.result()
+    assert np.array_equal(got.adev, ref.adev) and np.array_equal(got.ci_low, ref.ci_low)
+    with pytest.raises(ValueError, match="after release"):
+        parts[0].push(x[:1, :1])
+
+
+def test_sigma_rule_scan_equals_numpy():
+    from calib_core.sigma_rule import outside
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(2.0, 1.0, 10_000)
+    x[[5, 77, 9000]] = [np.nan, np.inf, -np.inf]
+    x[100] = 2.0 + 3.0  # at the limit: kept (|x - mean| <= limit)
+    want = np.flatnonzero(~(np.abs(x - 2.0) <= 3.0))
+    assert np.array_equal(outside(x, 2.0, 3.0), want)
+    assert 100 not in want and {5, 77, 9000} <= set(want.tolist())
+    assert outside(x[:0], 2.0, 3.0).size == 0
 
 
 def test_streamed_allan_refuses_a_wrong_length():
@@ -103,9 +154,12 @@ def test_median_step_equals_numpy():
         many.push(np.array([0.0, 1.0, 3.0, 6.0]))
 
 
-def test_streamed_static_bias_same_parameters_as_in_memory():
+@pytest.mark.parametrize("by_channel, memory_rows", [(False, 5000), (True, 5000), (True, 60_001)])
+def test_streamed_static_bias_same_parameters_as_in_memory(by_channel, memory_rows):
     """One record through both paths: every parameter, its uncertainty and the noise
-    terms the same to rounding (outliers included, so the clip and fill are exercised)."""
+    terms the same to rounding (outliers included, so the clip and fill are exercised);
+    streamed in one pass, or channel by channel with the longer lags from the history or
+    the whole phase in a workspace, half the sums on a helper thread."""
     spec = NoiseSpec(arw=2e-3, bias_instability=2e-4, rrw=1e-4)
     rec = simulate_static(
         600.0,
@@ -122,9 +176,22 @@ def test_streamed_static_bias_same_parameters_as_in_memory():
         for i in range(0, len(rec), 4096):
             yield rec.t[i : i + 4096], rec.gyr[i : i + 4096], rec.acc[i : i + 4096]
 
-    got = solve_static_bias_stream(
-        chunks, label=rec.label or "record", memory_rows=5000, **settings
-    )
+    both = np.hstack([rec.gyr, rec.acc])
+
+    def channel(c):
+        return (both[i : i + 4096, c : c + 1] for i in range(0, len(rec), 4096))
+
+    with ThreadPoolExecutor(1) as pool:
+        got = solve_static_bias_stream(
+            chunks,
+            label=rec.label or "record",
+            memory_rows=memory_rows,
+            channel_chunks=channel if by_channel else None,
+            workspace=np.empty(len(rec) + 1) if memory_rows > len(rec) else None,
+            parallel=by_channel,
+            submit=pool.submit,
+            **settings,
+        )
     assert set(got.parameters) == set(ref.parameters)
     for name, p in ref.parameters.items():
         q = got.parameters[name]
@@ -177,7 +244,7 @@ def test_second_difference_sums_equal_numpy():
     m = np.array([1, 3, BLOCK // 2, BLOCK, BLOCK + 5])
     first = np.array([0, 11, 5, BLOCK, theta.size])
     got = np.zeros(m.size)
-    span_sums(theta, m, first, got)
+    span_sums(theta, m, first, got, 0)
     for i in range(m.size):
         k = np.arange(first[i], theta.size - 2 * m[i])
         d = (theta[k + 2 * m[i]] - theta[k + m[i]]) - (theta[k + m[i]] - theta[k])

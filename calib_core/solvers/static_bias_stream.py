@@ -27,7 +27,14 @@ import numpy as np
 from calib_core.calibration import Calibration
 from calib_core.preprocess.motion import StreamedMotion, motion_check_of, streamed_smallest_steps
 from calib_core.solvers.static_bias import _earth_rate, static_bias_calibration
-from calib_core.streamed import History, MedianStep, Moments, SigmaClipFill, StreamedAllan
+from calib_core.streamed import (
+    History,
+    MedianStep,
+    Moments,
+    SigmaClipFill,
+    StreamedAllan,
+    joined_allan,
+)
 from calib_core.units import STANDARD_GRAVITY
 
 # One chunk: t (n,) s, gyr (n, 3) rad/s, acc (n, 3) m/s^2.
@@ -174,6 +181,8 @@ def solve_static_bias_stream(
     parallel: bool = False,
     motion_label: str | None = None,
     submit: Callable | None = None,
+    channel_chunks: Callable[[int], Iterator[np.ndarray]] | None = None,
+    workspace: np.ndarray | None = None,
 ) -> Calibration:
     """`calib_core.solvers.static_bias.solve_static_bias` on a streamed record.
 
@@ -186,16 +195,25 @@ def solve_static_bias_stream(
     first : the first pass's statistics of these chunks if the caller has them (else one
         more pass); its motion windows are used when they are the record's
         (`FirstPass.settled_motion`), else the second pass computes them.
-    memory_rows, new_history : the Allan deviation's phase rows in memory and a new
-        `History` for the longer lags of each sensor's channels
-        (`calib_core.streamed.StreamedAllan`; None: in memory).
+    memory_rows, new_history : the phase rows in memory of each Allan deviation (of a
+        sensor's channels, or of one channel with `channel_chunks`) and a new `History`
+        for its longer lags (`calib_core.streamed.StreamedAllan`; None: in memory).
     parallel : the two sensors' channels each on a thread of its own (side by side: NumPy
-        and the compiled sums release the GIL), else one after the other; the numbers do
-        not depend on it.
+        and the compiled sums release the GIL), else one after the other; with
+        `channel_chunks`, half of each channel's Allan sums submitted to `submit`. The
+        numbers do not depend on it.
     motion_label : with a label, the record's motion check (``motion:<label>``) among the
         Calibration's ``solver_checks``; None: no motion check.
     submit : submit(fn, *args) -> a Future: where this pass computes a chunk's motion
-        windows (None: in line), when the first pass's are not the record's.
+        windows (None: in line), when the first pass's are not the record's (and, with
+        `channel_chunks` and `parallel`, half of the Allan sums).
+    channel_chunks : channel_chunks(c) a fresh iterator over channel c of [gyr | acc] alone,
+        (n, 1) chunks in order: the channels are then solved one after the other, each
+        in a pass of its own (a column store reads one column for it; each channel's
+        phase gets the whole `memory_rows`). None: one pass over `chunks` for all.
+    workspace : with `channel_chunks`, float64 values (at least N + 1) that hold each
+        channel's whole phase in turn when `memory_rows` >= N + 1 (see
+        `calib_core.streamed.StreamedAllan`); None: new buffers.
     Other parameters as `solve_static_bias`.
 
     Returns
@@ -206,51 +224,36 @@ def solve_static_bias_stream(
     n = first.n
     earth = _earth_rate(label, n, n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis)
     rate_hz = 1.0 / first.step.median()
-    # The gyro's and the accelerometer's channels go through the n-sigma rule and the
-    # Allan sums as two groups; neither group's numbers depend on the other's.
-    groups = [
-        _Group(
-            cols,
-            first.moments.columns(cols),
-            n_sigma,
-            StreamedAllan(
-                rate_hz,
-                n,
-                3,
-                taus=taus,
-                offset=first.moments.mean[cols],
-                memory_rows=memory_rows,
-                history=new_history() if new_history is not None else None,
-            ),
+
+    def group(
+        cols: slice, helper: Callable | None = None, space: np.ndarray | None = None
+    ) -> _Group:
+        """The n-sigma rule and the Allan sums of the channels `cols` of [gyr | acc]."""
+        allan = StreamedAllan(
+            rate_hz,
+            n,
+            cols.stop - cols.start,
+            taus=taus,
+            offset=first.moments.mean[cols],
+            memory_rows=memory_rows,
+            history=new_history() if new_history is not None else None,
+            helper=helper,
+            workspace=space,
         )
-        for cols in SENSORS.values()
-    ]
+        return _Group(first.moments.columns(cols), n_sigma, allan)
+
     motion, again = None, False
     if motion_label is not None:
         motion = first.settled_motion(n, rate_hz)
-        again = motion is None  # not the first pass's: this pass computes the windows
+        again = motion is None  # not the first pass's: a pass computes the windows
         motion = StreamedMotion(n, rate_hz) if again else motion
-    # A chunk's motion windows may be computed beside its Allan sums (`submit`: NumPy
-    # releases the GIL; neither writes the chunk), one chunk at a time, in order.
-    pending = None
-    workers = [_GroupThread(g) if parallel else g for g in groups]
-    try:
-        for t, gyr, acc in chunks():
-            both = _joined(gyr, acc)
-            if again:  # before the fill: the samples the in-memory check sees
-                if pending is not None:
-                    pending.result()
-                pending = (submit or _Done)(motion.push, t, both)
-            for w in workers:
-                w.push(both)
-        for w in workers:
-            w.flush()
-    finally:
-        for w in workers:
-            w.close()
-    if pending is not None:
-        pending.result()
-    stats = {sensor: g.statistics() for sensor, g in zip(SENSORS, groups, strict=True)}
+    if channel_chunks is None:
+        stats = _one_pass(chunks, group, parallel, motion if again else None, submit)
+    else:
+        if again:
+            _motion_pass(chunks, motion, submit)
+        helper = submit if parallel else None
+        stats = _channel_passes(channel_chunks, group, helper, workspace)
     cal = static_bias_calibration(
         stats,
         n,
@@ -274,26 +277,105 @@ def solve_static_bias_stream(
 SENSORS = {"gyr": slice(0, 3), "acc": slice(3, 6)}  # columns of [gyr | acc]
 
 
-class _Group:
-    """One sensor's channels through the n-sigma rule and the Allan sums."""
+def _one_pass(
+    chunks: Callable[[], Iterator[Chunk]],
+    group: Callable[[slice], _Group],
+    parallel: bool,
+    motion: StreamedMotion | None,
+    submit: Callable | None,
+) -> dict[str, tuple]:
+    """Each sensor's statistics (`_statistics`) from one pass over `chunks`, the gyro's and
+    the accelerometer's channels as two groups (neither's numbers depend on the other's),
+    with the motion windows when `motion` is given."""
+    groups = [group(cols) for cols in SENSORS.values()]
+    # A chunk's motion windows may be computed beside its Allan sums (`submit`: NumPy
+    # releases the GIL; neither writes the chunk), one chunk at a time, in order.
+    pending = None
+    workers = [_GroupThread(g) if parallel else g for g in groups]
+    try:
+        for t, gyr, acc in chunks():
+            both = _joined(gyr, acc)
+            if motion is not None:  # before the fill: the samples the in-memory check sees
+                if pending is not None:
+                    pending.result()
+                pending = (submit or _Done)(motion.push, t, both)
+            for cols, w in zip(SENSORS.values(), workers, strict=True):
+                w.push(both[:, cols])
+        for w in workers:
+            w.flush()
+    finally:
+        for w in workers:
+            w.close()
+    if pending is not None:
+        pending.result()
+    return {sensor: _statistics([g]) for sensor, g in zip(SENSORS, groups, strict=True)}
 
-    def __init__(self, cols: slice, total: Moments, n_sigma: float, allan: StreamedAllan):
-        self.cols, self.allan = cols, allan
+
+def _motion_pass(
+    chunks: Callable[[], Iterator[Chunk]], motion: StreamedMotion, submit: Callable | None
+) -> None:
+    """The record's motion windows from a pass of their own (the samples before the fill)."""
+    pending = None
+    for t, gyr, acc in chunks():
+        if pending is not None:
+            pending.result()
+        pending = (submit or _Done)(motion.push, t, _joined(gyr, acc))
+    if pending is not None:
+        pending.result()
+
+
+def _channel_passes(
+    channel_chunks: Callable[[int], Iterator[np.ndarray]],
+    group: Callable[..., _Group],
+    helper: Callable | None,
+    workspace: np.ndarray | None,
+) -> dict[str, tuple]:
+    """Each sensor's statistics from a pass per channel, one channel after the other
+    (half of each one's Allan sums submitted to `helper`, when given; their phases in
+    `workspace` in turn)."""
+    stats = {}
+    for sensor, cols in SENSORS.items():
+        done = []
+        for c in range(cols.start, cols.stop):
+            g = group(slice(c, c + 1), helper, workspace)
+            for x in channel_chunks(c):
+                g.push(x)
+            g.flush()
+            done.append(g)
+        stats[sensor] = _statistics(done)
+    return stats
+
+
+class _Group:
+    """Channels through the n-sigma rule and the Allan sums, chunk by chunk."""
+
+    def __init__(self, total: Moments, n_sigma: float, allan: StreamedAllan):
+        self.allan = allan
         self.clip = SigmaClipFill(total.mean, total.std(), n_sigma, total=total)
 
-    def push(self, both: np.ndarray) -> None:
-        self.allan.push(self.clip.push(both[:, self.cols]))
+    def push(self, x: np.ndarray) -> None:
+        """The channels' next samples (n, C)."""
+        self.allan.push(self.clip.push(x))
 
     def flush(self) -> None:
+        """The last samples (held back by the fill); the phase's memory let go."""
         self.allan.push(self.clip.flush())
+        self.allan.release()
 
     def close(self) -> None:
         """Nothing to wait for (the pushes ran in line)."""
 
-    def statistics(self) -> tuple:
-        """(kept mean, kept std (ddof 1), rejected count, AllanResult) of the channels."""
-        kept = self.clip.kept
-        return kept.mean, kept.std(ddof=1), self.clip.rejected, self.allan.result()
+
+def _statistics(groups: list[_Group]) -> tuple:
+    """(kept mean, kept std (ddof 1), rejected count, AllanResult) of the channels of
+    `groups`, side by side in their order."""
+    kept = [g.clip.kept for g in groups]
+    return (
+        np.concatenate([k.mean for k in kept]),
+        np.concatenate([k.std(ddof=1) for k in kept]),
+        np.concatenate([g.clip.rejected for g in groups]),
+        joined_allan([g.allan for g in groups]),
+    )
 
 
 class _GroupThread:

@@ -18,7 +18,9 @@ give the record's window width (`FirstPass.settled_motion`).
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import hashlib
+import mmap
 import os
 import queue
 import sys
@@ -57,6 +59,7 @@ from storage.rawstore import samples_parquet_options
 DEFAULT_MEMORY_LIMIT = 10**9  # bytes: the `memory_limit_mb` setting's default
 ROW_BYTES = 8 * 8  # t, 6 channels, temp as float64
 SAMPLE_COLUMNS = ("t", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z", "temp")
+CHANNELS = (*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES))  # [gyr | acc]
 
 
 def block_bytes(memory_limit: int) -> int:
@@ -367,35 +370,26 @@ class FileHistory:
         self.fds = []
 
 
-def samples_chunks(
-    samples: Path, memory_limit: int, trend: TemperatureTrend | None = None, time_: bool = False
-) -> Iterator[tuple]:
+def samples_chunks(samples: Path, memory_limit: int, time_: bool = False) -> Iterator[tuple]:
     """The streamed samples back from their Parquet as (t, gyr, acc) chunks, t None unless
-    `time_` (the solve's second pass needs no time); with `trend`, each chunk's time and
-    temperature go to it."""
-    cols = [*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]
-    if trend is not None or time_:
-        cols += ["t", "temp"]
+    `time_`."""
+    cols = [*CHANNELS, "t"] if time_ else list(CHANNELS)
     # pre_buffer off: with it, the batches' buffers of the whole file stay allocated
     # until the iteration ends (memory growing with the record).
     reader = pq.ParquetFile(samples, pre_buffer=False)
     batches = reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols)
     # decoded and laid out by the prefetching thread, beside the solve's arithmetic
-    for t, both in prefetched(_arrays(b, len(cols) > 6) for b in batches):
-        if trend is not None:
-            trend.push(t[0], t[1])
-        yield t[0] if time_ else None, both[:, :3], both[:, 3:]
+    for t, both in prefetched(_arrays(b, time_) for b in batches):
+        yield t, both[:, :3], both[:, 3:]
 
 
-def _arrays(batch: pa.RecordBatch, timed: bool) -> tuple[tuple, np.ndarray]:
-    """A batch of the samples as ((t, temp) or (None, None), [gyr | acc] (n, 6)), the six
-    channels column by column in memory (the solve works channel by channel)."""
+def _arrays(batch: pa.RecordBatch, timed: bool) -> tuple[np.ndarray | None, np.ndarray]:
+    """A batch of the samples as (t or None, [gyr | acc] (n, 6)), the six channels
+    column by column in memory (the solve works channel by channel)."""
     both = np.empty((batch.num_rows, 6), order="F")
     for i in range(6):
         both[:, i] = _float_values(batch.column(i))
-    if not timed:
-        return (None, None), both
-    return (_float_values(batch.column(6)), _float_values(batch.column(7))), both
+    return (_float_values(batch.column(6)) if timed else None), both
 
 
 def prefetched(items: Iterator[Any], depth: int = 2) -> Iterator[Any]:
@@ -429,23 +423,67 @@ def prefetched(items: Iterator[Any], depth: int = 2) -> Iterator[Any]:
                 slots.get(timeout=0.1)
 
 
-def _with_progress(
-    chunks: Callable[[], Iterator[tuple]], streamed: Streamed
-) -> Callable[[], Iterator[tuple]]:
-    """`chunks` with the progress of the solve's pass on stderr (as the read's): the data
-    file's bytes in proportion to the samples done."""
+class ChannelFeed:
+    """The streamed samples' channels of [gyr | acc] back from their Parquet one after the
+    other, each column read and decoded alone, by one prefetching thread that runs ahead
+    across the channels (the next channel's first batches are decoded while the solve
+    finishes one); with `trend`, the time and temperature go to it with the first channel.
 
-    def run() -> Iterator[tuple]:
+    `channel(c)` gives channel c's (n, 1) chunks; the channels are taken in order, each
+    to its end. `close` stops the thread (a solve that failed part way).
+    """
+
+    def __init__(self, samples: Path, memory_limit: int, trend: TemperatureTrend | None = None):
+        # a batch of one channel: as many bytes as one of six
+        self.rows = len(CHANNELS) * batch_rows(memory_limit)
+        self.samples, self.trend = samples, trend
+        self.items = prefetched(self._batches())
+        self.next = 0
+
+    def _batches(self) -> Iterator[tuple[int, pa.RecordBatch | None]]:
+        for c, name in enumerate(CHANNELS):
+            timed = self.trend is not None and c == 0
+            cols = [name, "t", "temp"] if timed else [name]
+            reader = pq.ParquetFile(self.samples, pre_buffer=False)  # see samples_chunks
+            for batch in reader.iter_batches(batch_size=self.rows, columns=cols):
+                if timed:
+                    self.trend.push(_float_values(batch.column(1)), _float_values(batch.column(2)))
+                yield c, batch
+            yield c, None  # the channel's end
+
+    def channel(self, c: int) -> Iterator[np.ndarray]:
+        if c != self.next:
+            raise ValueError(f"channel feed: channel {c} asked for, {self.next} is next")
+        self.next += 1
+        for k, batch in self.items:
+            if batch is None:
+                return
+            assert k == c
+            yield _float_values(batch.column(0)).reshape(-1, 1)
+
+    def close(self) -> None:
+        self.items.close()
+
+
+class _SolveProgress:
+    """The progress of the solve's passes on stderr (as the read's): the data file's
+    bytes in proportion to the samples done of `passes` passes over the record."""
+
+    def __init__(self, streamed: Streamed, passes: int):
         show = streamed.size > PROGRESS_THRESHOLD_BYTES
-        bar = Progress("the record", streamed.size, show, verb="solving")
-        n, done = max(streamed.first.n, 1), 0
-        for chunk in chunks():
-            yield chunk
-            done += len(chunk[1])
-            bar.update(streamed.size * done // n, done)
-        bar.update(streamed.size, done, final=True)
+        self.bar = Progress("the record", streamed.size, show, verb="solving")
+        self.size, self.passes = streamed.size, passes
+        self.total, self.done = max(streamed.first.n, 1) * passes, 0
 
-    return run
+    def counted(self, chunks: Iterator[np.ndarray]) -> Iterator[np.ndarray]:
+        """`chunks` ((n, ...) arrays), counted as they are taken."""
+        for chunk in chunks:
+            yield chunk
+            self.done += len(chunk)
+            self.bar.update(self.size * self.done // self.total, self.done // self.passes)
+
+    def end(self) -> None:
+        self.bar.update(self.size, self.done // self.passes, final=True)
 
 
 def batch_rows(memory_limit: int) -> int:
@@ -454,10 +492,47 @@ def batch_rows(memory_limit: int) -> int:
     return max(memory_limit // (16 * 16 * 6 * 8), 1024)
 
 
-def phase_rows(memory_limit: int) -> int:
-    """Rows of the Allan deviation's phase kept in memory: its buffers (twice the rows, six
-    channels of float64) within an eighth of the limit; longer lags read the phase file."""
+def grouped_phase_rows(memory_limit: int) -> int:
+    """Rows of the Allan phase kept in memory when the six channels go through one pass
+    (three to a `StreamedAllan`): their buffers (twice the rows, six channels of float64)
+    within an eighth of the limit; longer lags read the phase file."""
     return max(memory_limit // (16 * 6 * 8), 1024)
+
+
+def phase_rows(memory_limit: int, n: int) -> int:
+    """Rows of one channel's Allan phase kept in memory (`StreamedAllan`'s memory_rows)
+    when the channels are solved one after the other: the whole phase (n + 1 rows) when
+    it takes at most half the limit, else a third of that (its buffer holds twice the
+    rows kept and a batch); longer lags then read the phase file."""
+    rows = memory_limit // (2 * 8)
+    return n + 1 if n + 1 <= rows else max(rows // 3, 1024)
+
+
+def phase_workspace(memory_limit: int, n: int) -> np.ndarray | None:
+    """Room for one channel's whole Allan phase (n + 1 float64 values) when `phase_rows`
+    holds it, else None. A large one is an anonymous mapping of its own: NumPy asks the
+    kernel for transparent huge pages for large arrays, and when the page cache fills the
+    memory (it does while a long record is read) each such fault stalls in compaction
+    (about 1 s for 450 MB here, against 0.2 s in small pages). A small one comes from the
+    C heap, which may hold memory the read freed."""
+    if phase_rows(memory_limit, n) < n + 1:
+        return None
+    if (n + 1) * 8 < MAPPED_BYTES:
+        return np.empty(n + 1)
+    return np.frombuffer(mmap.mmap(-1, (n + 1) * 8), dtype=np.float64)
+
+
+MAPPED_BYTES = 32 << 20  # glibc's malloc maps blocks this large itself
+
+
+def give_back_freed_memory() -> None:
+    """Return the C heap's free pages to the system (glibc's ``malloc_trim``): buffers a
+    pass freed stay resident otherwise, under whatever the next pass maps (the Allan
+    phase's workspace is a mapping of its own) in the process's peak. Nothing where the
+    C library has no ``malloc_trim``."""
+    trim = getattr(ctypes.CDLL(None), "malloc_trim", None)
+    if trim is not None:
+        trim(0)
 
 
 def solve_streamed(
@@ -484,16 +559,25 @@ def solve_streamed(
     """
     own = chunks is None  # the samples themselves: the first pass's statistics hold
     histories: list[FileHistory] = []
+    give_back_freed_memory()  # the read's buffers, before the phase takes its memory
 
     def new_history() -> FileHistory:
         histories.append(FileHistory(streamed.samples.parent))
         return histories[-1]
 
+    progress = _SolveProgress(streamed, len(CHANNELS)) if own else None
+    feed = by_channel = None
+    if progress is not None:  # one column at a time
+        needs_trend = trend is not None and trend.n_finite > 0
+        feed = ChannelFeed(streamed.samples, memory_limit, trend if needs_trend else None)
+
+        def by_channel(c: int) -> Iterator[np.ndarray]:
+            return progress.counted(feed.channel(c))
+
     if chunks is None:
-        chunks = _with_progress(
-            lambda: samples_chunks(streamed.samples, memory_limit, trend, time_=True), streamed
-        )
-    side = ThreadPoolExecutor(1, thread_name_prefix="calib-motion")  # its own: no nesting
+        chunks = lambda: samples_chunks(streamed.samples, memory_limit, time_=True)  # noqa: E731
+    # motion windows, and half of the Allan sums: a thread of its own (no nesting)
+    side = ThreadPoolExecutor(1, thread_name_prefix="calib-solve-side")
     try:
         cal = procedures.get(procedure).stream_solver(
             chunks,
@@ -502,13 +586,22 @@ def solve_streamed(
             first=streamed.first if own else None,
             gravity=gravity,
             new_history=new_history,
-            memory_rows=phase_rows(memory_limit),
-            parallel=(os.cpu_count() or 1) > 1,  # the gyro's and the accelerometer's
+            memory_rows=phase_rows(memory_limit, streamed.first.n)
+            if own
+            else grouped_phase_rows(memory_limit),
+            parallel=(os.cpu_count() or 1) > 1,
             motion_label=label,
             submit=side.submit,
+            channel_chunks=by_channel,
+            workspace=phase_workspace(memory_limit, streamed.first.n) if own else None,
         )
     finally:
+        if feed is not None:
+            feed.close()
         side.shutdown()
         for history in histories:
             history.close()
+        give_back_freed_memory()  # the solve's, before the archive's work
+    if progress is not None:
+        progress.end()
     return cal
