@@ -515,6 +515,15 @@ def joined_allan(parts: list[StreamedAllan]) -> AllanResult:
     return allan_result(one.m, sums / denom, n, rate)
 
 
+def load_compiled() -> None:
+    """Load the compiled loops of the streamed statistics (Numba's cache; compiled the
+    first time after installing) by one call each on a few samples, so that a solve
+    starts at once."""
+    clip = SigmaClipFill(np.zeros(1), np.ones(1), 3.0)
+    warm = StreamedAllan(1.0, 5, 1)
+    warm.push(clip.push(np.zeros((5, 1))))
+
+
 class TemperatureTrend:
     """The sensor temperature of a record pushed in chunks, as `calib_core.conditions`
     judges it: the means of the pieces `np.array_split` cuts its finite values into

@@ -31,7 +31,7 @@ from calib_core.conditions import temperature_block
 from calib_core.preprocess.chain import DEFAULT_OUTLIERS, OUTLIER_KEYS, settings_table
 from calib_core.procedures.static_bias import MEMORY_LIMIT
 from calib_core.recording import RANGE_MARGIN, Recording, first_range_hit
-from calib_core.streamed import RecordSummary, TemperatureTrend
+from calib_core.streamed import RecordSummary, TemperatureTrend, load_compiled
 from calib_core.uncertainty import Budget
 from pipelines.ingest import RunSource
 from pipelines.ingest.csv_layout import layout_of
@@ -158,7 +158,7 @@ def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) 
     folder = rawstore.samples_path(root, m.unit.serial, m.run.started.astimezone(UTC), "x").parent
     samples = pending.temp_file(folder, "samples")
     copy = pending.temp_file(Path(root) / "objects", "incoming")
-    _HASHER.submit(_load_compiled)  # beside the pass: the solve's compiled loops, from their cache
+    _HASHER.submit(load_compiled)  # beside the pass: the solve's compiled loops, from their cache
     result = STREAMERS[m.format.kind](
         plan.path,
         m.format,
@@ -177,17 +177,6 @@ def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) 
 
 
 _HASHER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-samples-hash")
-
-
-def _load_compiled() -> None:
-    """Load the Allan deviation's compiled loops (Numba's cache; compiled the first time)
-    by one call on a few samples: the solve then starts at once."""
-    import numpy as np
-
-    from calib_core.streamed import StreamedAllan
-
-    warm = StreamedAllan(1.0, 5, 1)
-    warm.push(np.zeros((5, 1)))
 
 
 def _check_range(first, samples: Path, plan: StreamPlan, gyro, acc) -> None:
