@@ -3,7 +3,7 @@
 The data file is read once by its format's streamer (`pipelines.ingest.streaming`): its
 bytes hashed and copied into the archive's raw store, its samples written as the run's
 samples Parquet (under a temporary name beside their archived place), the first-pass
-statistics kept. The solve reads the Parquet back in batches (outlier rule, Allan
+statistics kept. The solve reads the Parquet back, a channel at a time (outlier rule, Allan
 deviation and noise fits; the temperature the conditions judge on the way); the
 as-found solve, when the unit comes back, reads it again through the earlier
 calibration. Everything else of `pipelines.process` takes the run as it takes one read

@@ -5,10 +5,11 @@ copied (the raw copy), its complete lines parsed by pyarrow into SI samples (the
 column plan and units of `csv_reader`), written as a row group of the samples'
 Parquet (`storage.rawstore.samples_parquet_options`) and added to the first-pass
 statistics (`calib_core.solvers.static_bias_stream.FirstPass`). `solve_streamed` then
-reads the Parquet back in batches for the static-bias solve's second pass; the Allan
-deviation's long lags come from a phase file (`FileHistory`). Memory stays bounded by
-`memory_limit` whatever the record's length; progress (bytes, samples, rate, time left)
-goes to stderr on long reads.
+reads the Parquet back for the static-bias solve's second pass, one channel (column)
+after the other (`ChannelFeed`): a channel's whole Allan phase in memory when half the
+limit holds it (`phase_rows`, `phase_workspace`), else its last rows, the long lags from
+a phase file (`FileHistory`). Memory stays bounded by `memory_limit` whatever the
+record's length; progress (bytes, samples, rate, time left) goes to stderr on long reads.
 The record's motion check (`calib_core.preprocess.motion`'s `StreamedMotion`: the
 windows' statistics as the chunks pass) is computed by the first pass, on a worker thread
 beside the reading; the solve's pass computes it only when the first chunk's rate did not
