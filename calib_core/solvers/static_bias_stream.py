@@ -4,7 +4,9 @@ without the whole record in memory.
 Two passes over the chunks: the first gives the count, mean and std of every channel
 (skipped when the caller computed them while reading the file) and the median time step;
 the second applies the n-sigma rule with those, keeps the kept samples' moments and
-streams the outlier-filled record into the Allan deviation (`calib_core.streamed`).
+streams the outlier-filled record into the Allan deviation (`calib_core.streamed`): all
+channels in one pass over the chunks, or, from a store that reads one channel alone
+(`channel_chunks`), a pass per channel, each with the whole phase memory to itself.
 With a label the solve also makes the motion check
 (`calib_core.preprocess.motion.StreamedMotion`, on the samples before the fill, as the
 in-memory check sees them). A caller's first pass (`FirstPass.empty()`, pushed while the
