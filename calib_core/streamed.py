@@ -368,6 +368,7 @@ class StreamedAllan:
         self.history = history if history is not None or not self.spills else ListHistory()
         self.offset = None if offset is None else np.asarray(offset, float)
         self.helper, self.workspace = helper, workspace
+        self._beside: tuple | None = None  # the helper's sums in progress (`_settle`)
         self.sums = np.zeros((self.m.size, channels))
         # The phase's last keep_rows rows and the newest chunk's: column i is phase row
         # self._g0 + i; theta_0 = 0 (allocated at the first push, `_room`).
@@ -407,12 +408,22 @@ class StreamedAllan:
     def release(self) -> None:
         """Let the phase rows go once every sample is in (the sums are all `result`
         needs); a later push raises."""
+        self._settle()
         self._buf = None
+
+    def _settle(self) -> None:
+        """Wait for the helper's sums of the last chunk and add them (its error raised)."""
+        if self._beside is not None:
+            job, c, rows, part = self._beside
+            self._beside = None
+            job.result()
+            self.sums[rows, c] += part
 
     def _room(self, n: int) -> None:
         """Make room for n more rows, keeping the last keep_rows."""
         if self._fill + n <= self._buf.shape[1]:
             return
+        self._settle()  # the helper reads the rows about to move
         keep = min(self.keep_rows, self._fill)
         # Room for keep_rows more rows beyond the kept ones: each row is moved about once;
         # never more than the rows still to come (the whole phase: one buffer).
@@ -460,16 +471,15 @@ class StreamedAllan:
         first, m_near = lo[near] - 2 * self.m[near], self.m[near]
         first -= g0
         span = col[: j1 - g0]
-        # the larger sizes (their lagged rows from memory, the slower) beside
+        # the larger sizes (their lagged rows from memory, the slower) beside, added when
+        # done (`_settle`): meanwhile this thread goes on to the next chunk's phase
         half = _halves(m_near) if self.helper is not None else first.size
-        beside = None
         if half < first.size:
-            beside = self.helper(
-                span_sums, span, m_near[half:], first[half:], sums[half : first.size], j0 - g0
-            )
+            self._settle()  # one chunk's at a time: each size's sums added in order
+            part = np.zeros(first.size - half)
+            job = self.helper(span_sums, span, m_near[half:], first[half:], part, j0 - g0)
+            self._beside = (job, c, slice(half, first.size), part)
         span_sums(span, m_near[:half], first[:half], sums[:half], j0 - g0)
-        if beside is not None:
-            beside.result()
         for k in np.flatnonzero(~near & (lo < j1)).tolist():
             m, start = int(self.m[k]), int(lo[k])
             (a, mid), (b, old) = lagged[m], lagged[2 * m]
@@ -502,6 +512,7 @@ def joined_allan(parts: list[StreamedAllan]) -> AllanResult:
     all N samples are in each."""
     one = parts[0]
     for part in parts:
+        part._settle()
         n = part._j - 1
         if n != part.n_samples:
             raise ValueError(

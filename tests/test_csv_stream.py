@@ -22,7 +22,7 @@ import pytest
 from calib_core.preprocess.motion import motion_check
 from calib_core.solvers.static_bias import solve_static_bias
 from pipelines.ingest.csv_reader import read_csv
-from pipelines.ingest.csv_stream import solve_streamed, stream_csv
+from pipelines.ingest.csv_stream import phase_rows, solve_streamed, stream_csv
 from pipelines.ingest.data_format import FormatSpec
 
 RATE = 100.0
@@ -63,7 +63,11 @@ FMT = FormatSpec(
 )
 
 
-def test_streamed_record_same_parameters_as_in_memory(big_csv, tmp_path):
+@pytest.mark.parametrize("solve_limit", [LIMIT, 2 << 20])
+def test_streamed_record_same_parameters_as_in_memory(big_csv, tmp_path, solve_limit):
+    """The solve with each channel's whole Allan phase in memory (the limit's half holds
+    it), and with a limit whose half does not (its last rows, the long lags from phase
+    files)."""
     streamed = stream_csv(
         big_csv,
         FMT,
@@ -81,7 +85,9 @@ def test_streamed_record_same_parameters_as_in_memory(big_csv, tmp_path):
     assert np.array_equal(table.column("t").to_numpy(), rec.t)
     assert np.array_equal(table.column("gyr_y").to_numpy(), rec.gyr[:, 1])
 
-    got = solve_streamed(streamed, SETTINGS, gravity=G, memory_limit=LIMIT)
+    whole = phase_rows(solve_limit, len(rec)) > len(rec)
+    assert whole is (solve_limit == LIMIT)
+    got = solve_streamed(streamed, SETTINGS, gravity=G, memory_limit=solve_limit)
     ref = solve_static_bias(rec, gravity=G, **SETTINGS)
     assert set(got.parameters) == set(ref.parameters)
     for name, p in ref.parameters.items():
