@@ -271,10 +271,18 @@ def _chunk(
 ) -> dict[str, np.ndarray]:
     """One block's samples in SI: t (n,), acc and gyr (n, 3), temp (n,) (NaN if none)."""
     n = table.num_rows
+    # [gyr | acc]: the first pass takes it without a copy; column by column in memory, so
+    # each column is filled, reduced and handed to Arrow without a strided copy. The
+    # parser's chunks are copied straight into it (one copy, no combined Arrow column).
+    both = np.empty((n, 6), order="F")
     values: dict[str, np.ndarray] = {}
     for role, name in layout.roles.items():
-        col = table.column(name).combine_chunks()
-        v = _iso_seconds(col) if name == iso else _float_values(col)
+        col = table.column(name)
+        if name == iso:
+            v = _iso_seconds(col.combine_chunks())
+        else:
+            v = both[:, CHANNELS.index(role)] if role in CHANNELS else np.empty(n)
+            _copy_values(col, v)
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
             raise IngestError(
@@ -284,11 +292,6 @@ def _chunk(
                 field=layout.fields[name],
             )
         values[role] = v
-    # [gyr | acc]: the first pass takes it without a copy; column by column in memory, so
-    # each column is filled, reduced and handed to Arrow without a strided copy.
-    both = np.empty((n, 6), order="F")
-    for i, role in enumerate([*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES)]):
-        both[:, i] = values[role]
     gyr = _to_si(both[:, :3], "gyr", fmt)
     acc = _to_si(both[:, 3:], "acc", fmt)
     if "time" in values:
@@ -308,6 +311,14 @@ def _chunk(
         )
     temp = _celsius(layout, values.get("temp"))
     return {"t": t, "acc": acc, "gyr": gyr, "temp": np.full(n, np.nan) if temp is None else temp}
+
+
+def _copy_values(column: pa.ChunkedArray, out: np.ndarray) -> None:
+    """A float64 column's values into out (n,), chunk by chunk (nulls as NaN)."""
+    start = 0
+    for chunk in column.chunks:
+        out[start : start + len(chunk)] = _float_values(chunk)
+        start += len(chunk)
 
 
 def _table(chunk: dict[str, np.ndarray], label: str, schema: pa.Schema) -> pa.Table:
@@ -459,7 +470,8 @@ class ChannelFeed:
         for k, batch in self.items:
             if batch is None:
                 return
-            assert k == c
+            if k != c:  # cannot happen: the channels end in order
+                raise RuntimeError(f"channel feed: a batch of channel {k} in channel {c}'s")
             yield _float_values(batch.column(0)).reshape(-1, 1)
 
     def close(self) -> None:
