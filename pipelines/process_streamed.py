@@ -167,6 +167,7 @@ def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) 
         label=seg.label,
         memory_limit=plan.memory_limit,
     )
+    result.first.close()  # its last chunk's statistics are in (every streamer's)
     pending.adopt_raw(root, copy, result.sha256)
     raw.append(RawFile(plan.path, seg.file, result.sha256, result.size, m.format.kind))
     _check_range(result.first, samples, plan, gyro, acc)

@@ -50,8 +50,10 @@ class FirstPass:
     value of each channel of [gyr | acc] (the range check) and the motion check's windows.
 
     The motion windows (`motion`: a `StreamedMotion` whose record length is not known
-    yet) are computed on a thread of their own, one chunk at a time (the next push waits
-    for the previous chunk's): NumPy releases the GIL, so the reading goes on meanwhile.
+    yet) and, after the first chunk, the moments, steps and extremes are computed on a
+    thread of their own, one chunk at a time (the next push waits for the previous
+    chunk's; `close`, `n` and `t_last` for the last): NumPy releases the GIL, so the
+    reading goes on meanwhile.
     Their width is a long record's at the first chunk's median rate; `settled_motion`
     says at the end whether it is the record's. `motion` None: not computed (`watch_motion`
     false, or the first chunk could not set a width: the solve's pass computes them).
@@ -73,20 +75,34 @@ class FirstPass:
     def push(self, chunk: Chunk) -> None:
         t, gyr, acc = chunk
         both = _joined(gyr, acc)
-        self.moments.push(both)
-        self.step.push(t)
         if both.shape[0] == 0:
             return
+        self.close()  # one chunk pending at a time: bounded memory
+        if self.low is None:  # the first chunk, in line: it sets the windows' width
+            self.t_first = float(t[0])
+            self._take(t, both)
+            self.motion = _provisional_motion(t) if self.watch_motion else None
+            if self.motion is not None:
+                self._pending = _OnThread(self.motion.push, t, both)
+        elif self.motion is not None:  # beside the reading of the next chunk
+            self._pending = _OnThread(self._take_and_watch, t, both)
+        else:
+            self._take(t, both)
+
+    def _take(self, t: np.ndarray, both: np.ndarray) -> None:
+        """Moments, time steps and extremes of a chunk."""
+        self.moments.push(both)
+        self.step.push(t)
         low, high = both.min(axis=0), both.max(axis=0)
         if self.low is None:
-            self.t_first, self.low, self.high = float(t[0]), low, high
-            self.motion = _provisional_motion(t) if self.watch_motion else None
+            self.low, self.high = low, high
         else:
             np.minimum(self.low, low, out=self.low)
             np.maximum(self.high, high, out=self.high)
-        if self.motion is not None:
-            self.close()  # one chunk pending at a time: bounded memory
-            self._pending = _OnThread(self.motion.push, t, both)
+
+    def _take_and_watch(self, t: np.ndarray, both: np.ndarray) -> None:
+        self._take(t, both)
+        self.motion.push(t, both)
 
     def close(self) -> None:
         """Wait for the last chunk's motion windows (a failure in them is raised here).
@@ -106,10 +122,12 @@ class FirstPass:
     @property
     def t_last(self) -> float | None:
         """The last time pushed, s."""
+        self.close()
         return self.step.last
 
     @property
     def n(self) -> int:
+        self.close()
         return int(self.moments.n[0])
 
 

@@ -550,6 +550,7 @@ def stream_rosbag(
             try:
                 bag = _walk(path, tee, keys, sink, memory_limit, size)
                 sink.flush()
+                sink.first.close()  # the last batch's statistics (beside the reading)
                 tee.drain()
             finally:
                 sink.close()
