@@ -1,6 +1,6 @@
 """How much resident memory a streamed read and solve adds, measured in a fresh process.
 
-The memory tests of the streamed readers (MCAP, ROS 1 bag) run the same measurement:
+The memory tests of the streamed readers (CSV, MCAP, ROS 1 bag) run the same measurement:
 after a warm-up on a smaller file of the same kind (the lazily imported modules, worker
 threads and codecs: fixed costs), the growth of the peak resident set while the big file
 is read, hashed, copied, written and solved.
@@ -24,13 +24,18 @@ def streamed_memory_growth(
     """Bytes the peak resident set grows by while `big` is streamed and solved.
 
     streamer : ``module:function`` of the streamed reader (`pipelines.ingest.streaming`).
-    kind : the [format] kind given to it.
+    kind : the [format] section given to it: a kind (``"mcap"``), or a `FormatSpec`'s
+        JSON (columns and units of a CSV file).
     small : a file of the same kind read first (the warm-up).
     out : the samples' Parquet to write (the warm-up's beside it).
     limit : the memory limit, bytes.
     settings : the static-bias settings of the solve.
     """
     module, function = streamer.split(":")
+    if kind.startswith("{"):
+        fmt = f"FormatSpec.model_validate_json({kind!r})"
+    else:
+        fmt = f"FormatSpec(kind={kind!r})"
     script = textwrap.dedent(f"""
         import json, sys
         from pathlib import Path
@@ -44,10 +49,11 @@ def streamed_memory_growth(
                     return int(line.split()[1]) * 1024
 
         def run(src, out):
-            s = stream(src, FormatSpec(kind={kind!r}), out, copy_to=out.with_suffix(".raw"),
+            s = stream(src, fmt, out, copy_to=out.with_suffix(".raw"),
                        memory_limit={limit}, progress=False)
             solve_streamed(s, {settings!r}, gravity={GRAVITY}, memory_limit={limit})
 
+        fmt = {fmt}
         big, small, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
         run(small, out.with_name("small.parquet"))
         base = status("VmRSS:")

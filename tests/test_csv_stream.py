@@ -5,12 +5,7 @@ its samples in Parquet, the resident memory it adds bounded by the limit."""
 from __future__ import annotations
 
 import hashlib
-import json
 import math
-import os
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +16,7 @@ import pytest
 
 from calib_core.preprocess.motion import motion_check
 from calib_core.solvers.static_bias import solve_static_bias
+from calib_testing.streaming import streamed_memory_growth
 from pipelines.ingest.csv_reader import read_csv
 from pipelines.ingest.csv_stream import phase_rows, solve_streamed, stream_csv
 from pipelines.ingest.data_format import FormatSpec
@@ -113,44 +109,20 @@ def test_streamed_record_memory_bounded_by_the_limit(big_csv, tmp_path):
     """In a fresh process, after a warm-up on the file's first quarter (which loads the
     lazily imported modules, the parser's threads and the codecs: fixed costs), the peak
     resident memory grows by less than the limit while the whole file, 2.5 times the
-    limit, is read, written and solved."""
-    script = textwrap.dedent(f"""
-        import json, sys
-        from pathlib import Path
-        from pipelines.ingest.csv_stream import solve_streamed, stream_csv
-        from pipelines.ingest.data_format import FormatSpec
-
-        def status(key):
-            for line in open("/proc/self/status"):
-                if line.startswith(key):
-                    return int(line.split()[1]) * 1024
-
-        def run(src, out):
-            s = stream_csv(src, fmt, out, memory_limit={LIMIT}, progress=False)
-            solve_streamed(s, {SETTINGS!r}, gravity={G}, memory_limit={LIMIT})
-
-        fmt = FormatSpec.model_validate_json({FMT.model_dump_json()!r})
-        src, out = Path(sys.argv[1]), Path(sys.argv[2])
-        with src.open("rb") as fh:
-            lines = fh.readlines()
-        part = out.with_name("quarter.csv")
-        part.write_bytes(b"".join(lines[: len(lines) // 4]))
-        del lines
-        run(part, out.with_name("quarter.parquet"))
-        base = status("VmRSS:")
-        open("/proc/self/clear_refs", "w").write("5")  # peak := current
-        run(src, out)
-        print(json.dumps({{"grown": status("VmHWM:") - base}}))
-    """)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    out = subprocess.run(
-        [sys.executable, "-c", script, str(big_csv), str(tmp_path / "s.pq")],
-        capture_output=True,
-        text=True,
-        env=env,
+    limit, is read, hashed, copied, written and solved."""
+    lines = big_csv.read_bytes().splitlines(keepends=True)
+    quarter = tmp_path / "quarter.csv"
+    quarter.write_bytes(b"".join(lines[: len(lines) // 4]))
+    del lines
+    grown = streamed_memory_growth(
+        "pipelines.ingest.csv_stream:stream_csv",
+        FMT.model_dump_json(),
+        big_csv,
+        quarter,
+        tmp_path / "s.parquet",
+        LIMIT,
+        SETTINGS,
     )
-    assert out.returncode == 0, out.stderr[-2000:]
-    grown = json.loads(out.stdout.strip().splitlines()[-1])["grown"]
     assert grown < LIMIT, grown / 2**20
 
 
