@@ -498,8 +498,9 @@ class StreamedAllan:
 
 def _halves(m: np.ndarray) -> int:
     """Where to cut the cluster sizes m (ascending) into two parts of about equal work: a
-    size of a block or more reads its lagged runs from memory rather than the cache, about
-    three times the time of a smaller one."""
+    size of a block or more reads its lagged runs from memory rather than the cache, and
+    takes about three times as long (2.6 measured: 57 M samples, 12 sizes below a block
+    0.13 s a channel, 13 above 0.38 s)."""
     from calib_core.second_differences import BLOCK
 
     work = np.where(m >= BLOCK, 3, 1).cumsum()
