@@ -190,7 +190,7 @@ def _check_range(first, samples: Path, plan: StreamPlan, gyro, acc) -> None:
             near |= bool((first.low[cols] <= -limit).any() or (first.high[cols] >= limit).any())
     if not near:
         return
-    for t, g, a in samples_chunks(samples, plan.memory_limit, time_=True):
+    for t, g, a in samples_chunks(samples, plan.memory_limit):
         hit = first_range_hit(Recording(t=t, acc=a, gyr=g), gyro, acc)
         if hit is not None:
             refuse_range_hit(hit, plan.manifest, plan.segment, [plan.path])
@@ -269,7 +269,7 @@ def as_found_solver(
 
     def found(before: Calibration) -> Calibration:
         def chunks() -> Iterator[tuple]:
-            for t, gyr, acc in samples_chunks(rec.result.samples, rec.memory_limit, time_=True):
+            for t, gyr, acc in samples_chunks(rec.result.samples, rec.memory_limit):
                 acc_c, gyr_c = before.correct(acc, gyr)
                 yield t, gyr_c, acc_c
 

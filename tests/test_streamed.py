@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from calib_core.noise import allan_deviation
+from calib_core.preprocess.motion import motion_check
 from calib_core.simulate.noise import NoiseSpec, simulate_static
 from calib_core.solvers.static_bias import _fill, sigma_clip, solve_static_bias
 from calib_core.solvers.static_bias_stream import solve_static_bias_stream
@@ -190,6 +191,7 @@ def test_streamed_static_bias_same_parameters_as_in_memory(by_channel, memory_ro
             workspace=np.empty(len(rec) + 1) if memory_rows > len(rec) else None,
             parallel=by_channel,
             submit=pool.submit,
+            motion_label="record",
             **settings,
         )
     assert set(got.parameters) == set(ref.parameters)
@@ -207,6 +209,12 @@ def test_streamed_static_bias_same_parameters_as_in_memory(by_channel, memory_ro
                     assert math.isclose(a[term], b[term], rel_tol=1e-6), (sensor, term)
     assert got.info["outliers"] == ref.info["outliers"]
     assert got.warnings == ref.warnings
+    # no first pass given: the solve computes the motion windows, in its one pass or in a
+    # pass of their own before the channels'; the verdict and figures of the in-memory check
+    (motion,) = [c for c in got.info["solver_checks"] if c["name"] == "motion:record"]
+    want = motion_check("record", rec)
+    assert motion["passed"] is want["passed"] and motion["detail"] == want["detail"]
+    assert math.isclose(motion["value"], want["value"], rel_tol=1e-12)
 
 
 @pytest.mark.parametrize("chunk", [1, 7, 64, 4096])

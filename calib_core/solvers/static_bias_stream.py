@@ -41,6 +41,7 @@ from calib_core.units import STANDARD_GRAVITY
 
 # One chunk: t (n,) s, gyr (n, 3) rad/s, acc (n, 3) m/s^2.
 Chunk = tuple[np.ndarray, np.ndarray, np.ndarray]
+SENSORS = {"gyr": slice(0, 3), "acc": slice(3, 6)}  # columns of [gyr | acc]
 
 
 @dataclass
@@ -270,8 +271,8 @@ def solve_static_bias_stream(
     if channel_chunks is None:
         stats = _one_pass(chunks, group, parallel, motion if again else None, submit)
     else:
-        if again:
-            _motion_pass(chunks, motion, submit)
+        if again:  # the windows from a pass of their own
+            _one_pass(chunks, group, parallel, motion, submit, sensors={})
         helper = submit if parallel else None
         stats = _channel_passes(channel_chunks, group, helper, workspace)
     cal = static_bias_calibration(
@@ -294,20 +295,18 @@ def solve_static_bias_stream(
     return cal
 
 
-SENSORS = {"gyr": slice(0, 3), "acc": slice(3, 6)}  # columns of [gyr | acc]
-
-
 def _one_pass(
     chunks: Callable[[], Iterator[Chunk]],
     group: Callable[[slice], _Group],
     parallel: bool,
     motion: StreamedMotion | None,
     submit: Callable | None,
+    sensors: dict[str, slice] = SENSORS,
 ) -> dict[str, tuple]:
-    """Each sensor's statistics (`_statistics`) from one pass over `chunks`, the gyro's and
-    the accelerometer's channels as two groups (neither's numbers depend on the other's),
-    with the motion windows when `motion` is given."""
-    groups = [group(cols) for cols in SENSORS.values()]
+    """The statistics (`_statistics`) of each of `sensors` from one pass over `chunks`, a
+    sensor's channels as a group (neither's numbers depend on the other's), with the
+    motion windows when `motion` is given (`sensors` empty: the windows alone)."""
+    groups = [group(cols) for cols in sensors.values()]
     # A chunk's motion windows may be computed beside its Allan sums (`submit`: NumPy
     # releases the GIL; neither writes the chunk), one chunk at a time, in order.
     pending = None
@@ -319,7 +318,7 @@ def _one_pass(
                 if pending is not None:
                     pending.result()
                 pending = (submit or _Done)(motion.push, t, both)
-            for cols, w in zip(SENSORS.values(), workers, strict=True):
+            for cols, w in zip(sensors.values(), workers, strict=True):
                 w.push(both[:, cols])
         for w in workers:
             w.flush()
@@ -328,20 +327,7 @@ def _one_pass(
             w.close()
     if pending is not None:
         pending.result()
-    return {sensor: _statistics([g]) for sensor, g in zip(SENSORS, groups, strict=True)}
-
-
-def _motion_pass(
-    chunks: Callable[[], Iterator[Chunk]], motion: StreamedMotion, submit: Callable | None
-) -> None:
-    """The record's motion windows from a pass of their own (the samples before the fill)."""
-    pending = None
-    for t, gyr, acc in chunks():
-        if pending is not None:
-            pending.result()
-        pending = (submit or _Done)(motion.push, t, _joined(gyr, acc))
-    if pending is not None:
-        pending.result()
+    return {sensor: _statistics([g]) for sensor, g in zip(sensors, groups, strict=True)}
 
 
 def _channel_passes(

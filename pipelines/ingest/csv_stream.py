@@ -382,26 +382,24 @@ class FileHistory:
         self.fds = []
 
 
-def samples_chunks(samples: Path, memory_limit: int, time_: bool = False) -> Iterator[tuple]:
-    """The streamed samples back from their Parquet as (t, gyr, acc) chunks, t None unless
-    `time_`."""
-    cols = [*CHANNELS, "t"] if time_ else list(CHANNELS)
+def samples_chunks(samples: Path, memory_limit: int) -> Iterator[tuple]:
+    """The streamed samples back from their Parquet as (t, gyr, acc) chunks."""
     # pre_buffer off: with it, the batches' buffers of the whole file stay allocated
     # until the iteration ends (memory growing with the record).
     reader = pq.ParquetFile(samples, pre_buffer=False)
-    batches = reader.iter_batches(batch_size=batch_rows(memory_limit), columns=cols)
+    batches = reader.iter_batches(batch_size=batch_rows(memory_limit), columns=[*CHANNELS, "t"])
     # decoded and laid out by the prefetching thread, beside the solve's arithmetic
-    for t, both in prefetched(_arrays(b, time_) for b in batches):
+    for t, both in prefetched(_arrays(b) for b in batches):
         yield t, both[:, :3], both[:, 3:]
 
 
-def _arrays(batch: pa.RecordBatch, timed: bool) -> tuple[np.ndarray | None, np.ndarray]:
-    """A batch of the samples as (t or None, [gyr | acc] (n, 6)), the six channels
-    column by column in memory (the solve works channel by channel)."""
+def _arrays(batch: pa.RecordBatch) -> tuple[np.ndarray, np.ndarray]:
+    """A batch of the samples as (t, [gyr | acc] (n, 6)), the six channels column by
+    column in memory (the solve works channel by channel)."""
     both = np.empty((batch.num_rows, 6), order="F")
     for i in range(6):
         both[:, i] = _float_values(batch.column(i))
-    return (_float_values(batch.column(6)) if timed else None), both
+    return _float_values(batch.column(6)), both
 
 
 def prefetched(items: Iterator[Any], depth: int = 2) -> Iterator[Any]:
@@ -588,7 +586,7 @@ def solve_streamed(
             return progress.counted(feed.channel(c))
 
     if chunks is None:
-        chunks = lambda: samples_chunks(streamed.samples, memory_limit, time_=True)  # noqa: E731
+        chunks = lambda: samples_chunks(streamed.samples, memory_limit)  # noqa: E731
     # motion windows, and half of the Allan sums: a thread of its own (no nesting)
     side = ThreadPoolExecutor(1, thread_name_prefix="calib-solve-side")
     try:
