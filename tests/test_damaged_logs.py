@@ -120,7 +120,7 @@ def test_segment_window_past_the_data_is_refused(tmp_path: Path) -> None:
     write_ulog(folder / "cut.ulg", Recording(t=rec.t, acc=rec.acc, gyr=gyr), topics="combined")
     t0 = 5.0  # log_writers.T0_US: the log's clock starts 5 s after boot
     segments = [
-        {"label": "x_up", "file": "cut.ulg", "start_s": t0, "end_s": t0 + 1.9},
+        {"label": "x_up", "file": "cut.ulg", "start_s": t0, "end_s": t0 + 1.5},
         {"label": "z_ccw", "file": "cut.ulg", "start_s": t0 + 1.5, "end_s": t0 + 6.0},
     ]
     (folder / "run.toml").write_text(manifest("SIM-CUT", {"kind": "ulog"}, segments))
