@@ -21,6 +21,9 @@ class Recording:
         ``"table_angle"`` (N,) rad, ``"table_rate"`` (N,) rad/s.
     label : segment label (``"x_up"``, ``"z_ccw"``, ...) or None.
     source : where the samples came from (file name, line range), for messages.
+    findings : what its reader found about the record without refusing it (a log cut
+        while written, read to its last whole record), each as CheckResult fields
+        (``name`` "record:...", value, limit, passed, detail): a run's checks name them.
     """
 
     t: np.ndarray
@@ -30,6 +33,7 @@ class Recording:
     reference: dict[str, np.ndarray] = field(default_factory=dict)
     label: str | None = None
     source: str | None = None
+    findings: tuple[dict, ...] = ()
 
     def __post_init__(self) -> None:
         where = f" ({self.source})" if self.source else ""

@@ -369,6 +369,7 @@ def check_run(
     checks += run_conditions(loaded, cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
     checks += more_checks
+    checks += [CheckResult(**f) for f in loaded.findings]  # the readers' (record:cut:...)
     checks.append(
         device_check(
             loaded.manifest,

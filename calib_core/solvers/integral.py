@@ -281,10 +281,10 @@ def solve_integral(
     that reached the gyro range, a turn count that is not a whole number.
     """
     _check_inputs(rotations, static_means, gyro_range, turns, directions)
+    at_rest = check_turns_at_rest(rotations, static_means)
     replaced: dict[str, dict] = {}
     J, var, duration = _integrals(rotations, static_means, noise_std, replaced)
     n = _turn_count(J, turns)
-    at_rest = check_turns_at_rest(rotations, static_means)
     check_closure(J, var, duration, static_sems)
 
     cal = Calibration(procedure="integral", gravity=gravity)
@@ -504,7 +504,9 @@ def _turn_count(J: dict[str, dict[str, np.ndarray]], turns: int | None) -> int:
     rounded = {a: round(v) for a, v in n_est.items()}
     bad = {a: v for a, v in n_est.items() if rounded[a] < 1 or abs(v - rounded[a]) > TURN_TOLERANCE}
     if bad:
-        detail = ", ".join(f"{a}: {v:.2f}" for a, v in bad.items())
+        detail = ", ".join(
+            f"{a} ({'/'.join(f'{a}_{k}' for k in J[a])}): {v:.2f}" for a, v in bad.items()
+        )
         raise ValueError(
             f"integral method: the rotations are not whole turns ({detail} turns); "
             "give the number of turns in the settings or repeat the rotations"

@@ -38,6 +38,7 @@ def checked_recording(
     *,
     temp: np.ndarray | None = None,
     temp_field: str = "temperature",
+    findings: tuple[dict, ...] = (),
 ) -> Recording:
     """A Recording of `what` (``"sensor_combined"``, ``"IMU[0]"``, ``"/imu"``) after the checks.
 
@@ -49,6 +50,7 @@ def checked_recording(
     channels : {"acc": (N, 3) m/s^2, "gyr": (N, 3) rad/s} with the field names
         to report as keys ``"acc:<field>"`` optional (see `fields`).
     temp : (N,) deg C or None.
+    findings : the reader's findings about the file (`cut_tail`).
 
     Raises
     ------
@@ -59,7 +61,31 @@ def checked_recording(
     if len(t) == 0:
         raise IngestError(f"{what}: no samples", file=path, field=what)
     check_samples(path, what, t, channels, temp=temp, temp_field=temp_field)
-    return Recording(t=t, acc=channels["acc"], gyr=channels["gyr"], temp=temp, source=str(path))
+    return Recording(
+        t=t,
+        acc=channels["acc"],
+        gyr=channels["gyr"],
+        temp=temp,
+        source=str(path),
+        findings=findings,
+    )
+
+
+def cut_tail(path: Path, kind: str, offset: int, dropped: int, size: int) -> dict:
+    """The ``record:cut:<file>`` finding of a log read to its last whole record (CheckResult
+    fields): `dropped` bytes from byte `offset` of a file of `size` bytes, the start of a
+    record the file cuts short (a logger that lost power while writing)."""
+    return {
+        "name": f"record:cut:{path.name}",
+        "value": float(dropped),
+        "limit": 0.0,
+        "passed": False,
+        "detail": (
+            f"{path}: {kind} cut while written: the last {dropped} byte(s) (from byte offset "
+            f"{offset} of {size}, a record the file cuts short) were dropped; read to its "
+            "last whole record"
+        ),
+    }
 
 
 def check_samples(

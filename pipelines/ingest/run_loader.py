@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
@@ -106,6 +106,8 @@ class LoadedRun:
     segments : label -> Recording (SI units), in manifest order.
     raw_files : every input file with its hash, run.toml first.
     verification_labels : labels of segments kept out of the fit.
+    findings : what the readers found about the files without refusing them (a log read
+        to its last whole record), as CheckResult fields; the run's checks name them.
     streamed : a record larger than the memory limit, streamed instead of read
         (`pipelines.ingest.streaming.StreamedRecord`; `segments` is then empty).
     """
@@ -117,6 +119,7 @@ class LoadedRun:
     raw_files: list[RawFile]
     verification_labels: set[str]
     streamed: StreamedRecord | None = None
+    findings: list[dict] = field(default_factory=list)
 
 
 # (sha256, size) of a raw file, e.g. `storage.rawstore.hash_and_size`.
@@ -334,6 +337,7 @@ def _load_described(
         )
 
     out: dict[str, Recording] = {}
+    findings: list[dict] = []
     hashed: set[str] = set()
     increasing: dict[int, bool] = {}  # id of a whole-file recording -> its t strictly increases
     checked: dict[str, Path] = {}  # file name -> its path, checked once (segments share files)
@@ -372,6 +376,7 @@ def _load_described(
             whole_file = recordings[key]
             for part in whole_file.values() if isinstance(whole_file, dict) else [whole_file]:
                 check_readings(part, " + ".join(str(p) for p in paths))
+                findings.extend(part.findings)
             for name, path in zip(names, paths, strict=True):
                 if name not in hashed:
                     hashed.add(name)
@@ -390,6 +395,7 @@ def _load_described(
         segments=out,
         raw_files=raw_files,
         verification_labels={s.label for s in segments if s.verification},
+        findings=findings,
     )
 
 
