@@ -43,6 +43,7 @@ from pipelines.process_streamed import (
 )
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.rejudge import group_of, rejudge_from
+from pipelines.reports.display import record_notes
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
 from pipelines.uncertainty import uncertainty_step
@@ -457,6 +458,7 @@ def protocol_of(
         budgets={n: b.to_dict() for n, b in (budgets or {}).items()},
         decision_rule=judged.profile.decision_rule.statement(),
         names=judged.profile.protocol_names,
+        notes=record_notes([c.to_dict() for c in judged.checks], cal.warnings),
     )
 
 

@@ -55,7 +55,9 @@ from pipelines.reports.display import (  # noqa: E402
     limit_text,
     number,
     quantity,
+    record_notes,
     shown,
+    solve_warnings,
     tolerance_text,
     uncertainty,
 )
@@ -691,8 +693,14 @@ def _verdict_section(run: _Archived) -> Section:
             ("Failed", ", ".join(failed) or "none"),
             ("Warnings", ", ".join(by_status.get(conditions.WARNING, [])) or "none"),
             ("Not recorded", ", ".join(by_status.get(conditions.NOT_RECORDED, [])) or "none"),
+            *(_notes(run) or [("The record", "no findings, no sample replaced")]),
         ],
     )
+
+
+def _notes(run: _Archived) -> list[tuple[str, str]]:
+    """The findings about the record, the samples replaced and the solve's warnings."""
+    return record_notes(run.checks, solve_warnings(run.summary["calibration"]["steps"]))
 
 
 def _signatures_section(summary: dict[str, Any], approvals: list[tuple[Any, bool]]) -> Section:
@@ -766,6 +774,7 @@ def _protocol(run: _Archived) -> str:
         budgets=_budgets(run),
         decision_rule=_decision_rule(run),
         names=run.profile.protocol_names if run.profile else "canonical",
+        notes=_notes(run),
     )
 
 
@@ -784,8 +793,11 @@ def _recommendations(
         )
     elif verdict == NEEDS_REVIEW:
         out.append(
-            "The calibration is within tolerance but does not repeat against earlier runs: "
-            "a quality engineer decides; repeat the calibration under controlled conditions."
+            "The unit's parameters are within tolerance, but the record has findings (see "
+            "the verdict: a log cut while written, samples replaced beyond false alarms, a "
+            "threshold raised) or the result does not repeat against earlier runs or was not "
+            "determined by the run: a quality engineer decides; repeat the calibration under "
+            "controlled conditions if in doubt."
         )
     else:
         out.append("Do not release the unit with this calibration; act on the failed checks.")
