@@ -319,9 +319,9 @@ def _check_unit_latest(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a 
 
 
 def _check_seals(conn, root: Path, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
-    from storage import approval, seal
+    from storage import approval, seal_check
 
-    found = seal.check(conn, root)
+    found = seal_check.check(conn, root)
     report.chain_head, report.seals_checked = found.head, found.seals_checked
     findings = found.findings + approval.check(conn, found.digests_now)
     report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]

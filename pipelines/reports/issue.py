@@ -4,7 +4,7 @@ A certificate is *issued* when its run is archived (`pipelines.process`): its HT
 the PDF typeset from that HTML go into the revision's folder beside the protocol, and
 an audit event ``certificate issued`` records the SHA-256 of each file, the issue
 number and the certificate number, so `calib verify` sees a file changed or removed
-behind the archive's back (`storage.seal.check`). The web pages and `calib report`
+behind the archive's back (`storage.seal_check.check`). The web pages and `calib report`
 hand out these files; they never render a certificate of their own. A re-issue (after
 an approval, a new lab profile) is a new document: the next issue number, its own
 certificate number ("<run>-<revision>-<issue>") and files, and an event of its own;
