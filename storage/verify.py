@@ -12,7 +12,7 @@ derivation from the runs. The ``parameters`` rows of every
 calibration must agree with the parameters of its stored document (both are
 written from the same objects): any difference, a missing or an extra row is a
 *record* problem naming run, revision, parameter, field and both values. The
-settings hash of a revision judged again (storage.archive.rejudge_run) is
+settings hash of a revision judged again (storage.rejudgement.rejudge_run) is
 recomputed from its settings and the runs its ``rejudge`` step says it was judged
 against.
 
