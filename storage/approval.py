@@ -38,6 +38,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 from sqlalchemy import Connection, select
 
 from storage import seal, seal_check, seal_record
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.schema import AuditEvent, CalibrationRow, Run, Seal
 
@@ -196,11 +197,7 @@ def _sealed_revision(
         .outerjoin(Seal, Seal.calibration_id == CalibrationRow.id)
         .where(Run.run_id == run_id)
     )
-    q = q.where(
-        CalibrationRow.superseded_by.is_(None)
-        if revision is None
-        else CalibrationRow.revision == revision
-    )
+    q = q.where(CURRENT if revision is None else CalibrationRow.revision == revision)
     row = conn.execute(q).one_or_none()
     if row is None:
         which = "current revision" if revision is None else f"revision {revision}"

@@ -40,6 +40,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from storage import rawstore, schema, seal, store_identity, unit_latest
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.revision_rows import check_rows, insert_many, step_row
 from storage.run_input import (
@@ -125,9 +126,7 @@ def _plan(session: Session, run: RunIn, raw_hash: str, settings_hash: str) -> _P
         )
     ).scalar_one()
     current = session.execute(
-        select(schema.CalibrationRow.id).where(
-            schema.CalibrationRow.run_id == row.id, schema.CalibrationRow.superseded_by.is_(None)
-        )
+        select(schema.CalibrationRow.id).where(schema.CalibrationRow.run_id == row.id, CURRENT)
     ).scalar_one_or_none()
     return _Plan(
         run_pk=row.id,

@@ -14,7 +14,7 @@ from sqlalchemy.orm import Session
 from calib_core.calibration import CheckResult, StepRecord
 from storage import schema, seal, unit_latest
 from storage.archive import ArchiveResult
-from storage.current import CURRENT, LATEST_RUN_FIRST
+from storage.current import CURRENT, LATEST_RUN_FIRST, is_current
 from storage.db import Archive
 from storage.revision_rows import check_rows, insert_many, step_row
 from storage.settings_hash import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
@@ -64,7 +64,7 @@ def rejudge_run(archive: Archive, judged: Rejudgement) -> ArchiveResult | None:
         with Session(engine) as s, s.begin():
             prev = s.get(schema.CalibrationRow, judged.calibration_id)
             run = s.get(schema.Run, prev.run_id) if prev is not None else None
-            if run is None or run.run_id != judged.run_id or prev.superseded_by is not None:
+            if run is None or run.run_id != judged.run_id or not is_current(prev.superseded_by):
                 return None
             if _earlier_runs(s, run) != judged.earlier:
                 return None

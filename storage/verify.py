@@ -34,6 +34,7 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.orm import aliased
 
 from storage import rawstore, unit_latest
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.schema import CalibrationRow, ParameterRow, ProcessingStep, RawFileRow, Run
 
@@ -214,7 +215,7 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
         .select_from(Run)
         .outerjoin(
             CalibrationRow,
-            (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None),
+            (CalibrationRow.run_id == Run.id) & CURRENT,
         )
         .group_by(Run.run_id)
     )

@@ -21,8 +21,9 @@ from calib_testing.documents import html_words, pdf_pages
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.reports.issue import ISSUED, issued, issues
+from pipelines.reports.issue import ISSUED, issued
 from storage.db import Archive, resolve_archive
+from storage.queries import certificate_issues as issues
 from storage.verify import verify
 
 SAMPLE = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"
