@@ -16,7 +16,7 @@ from storage import schema, seal, unit_latest
 from storage.archive import ArchiveResult
 from storage.current import CURRENT, LATEST_RUN_FIRST, is_current
 from storage.db import Archive
-from storage.revision_rows import check_rows, insert_many, step_row
+from storage.revision_rows import add_revision, check_rows, insert_many, step_row
 from storage.settings_hash import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
 
 
@@ -112,7 +112,9 @@ def _judged_again(
             schema.CalibrationRow.run_id == prev.run_id
         )
     )
-    cal = schema.CalibrationRow(
+    cal = add_revision(
+        s,
+        prev,
         run_id=prev.run_id,
         revision=revision,
         settings_hash=settings_hash(
@@ -126,9 +128,6 @@ def _judged_again(
         profile_name=prev.profile_name,
         profile_version=prev.profile_version,
     )
-    s.add(cal)
-    s.flush()
-    prev.superseded_by = cal.id
     steps = (
         s.execute(
             select(schema.ProcessingStep)
