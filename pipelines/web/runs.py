@@ -224,32 +224,29 @@ def _issued(archive, run_id: str, kind: str) -> Path:  # noqa: ANN001 - Archive
     return path
 
 
-def _archived_file(path: Path, media_type: str) -> FileResponse:
+def _archived_file(request: Request, run_id: str, kind: str, media_type: str) -> FileResponse:
+    """The run's issued file `kind` ("protocol", "html", "pdf"), as archived."""
+    forms.params(request, ())
+    path = _issued(request.app.state.archive, run_id, kind)
     return FileResponse(path, media_type=media_type, filename=path.name)
 
 
 @router.get("/runs/{run_id}/protocol.txt")
 def protocol(request: Request, run_id: str) -> Response:
     """The test protocol (MPU-6000 layout) archived with the run."""
-    forms.params(request, ())
-    path = _issued(request.app.state.archive, run_id, "protocol")
-    return _archived_file(path, "text/plain; charset=utf-8")
+    return _archived_file(request, run_id, "protocol", "text/plain; charset=utf-8")
 
 
 @router.get("/runs/{run_id}/certificate.html")
 def certificate_html(request: Request, run_id: str) -> Response:
     """The issued HTML certificate (a download: it embeds its plots as PNG)."""
-    forms.params(request, ())
-    path = _issued(request.app.state.archive, run_id, "html")
-    return _archived_file(path, "text/html; charset=utf-8")
+    return _archived_file(request, run_id, "html", "text/html; charset=utf-8")
 
 
 @router.get("/runs/{run_id}/certificate.pdf")
 def certificate_pdf(request: Request, run_id: str) -> Response:
     """The issued PDF certificate, as archived (never rendered by the server)."""
-    forms.params(request, ())
-    path = _issued(request.app.state.archive, run_id, "pdf")
-    return _archived_file(path, "application/pdf")
+    return _archived_file(request, run_id, "pdf", "application/pdf")
 
 
 @router.get("/runs/{run_id}/export.json")
