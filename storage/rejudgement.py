@@ -103,6 +103,17 @@ def _earlier_runs(s: Session, run: schema.Run) -> list[str]:
     )
 
 
+# What a revision judged again keeps of the one it supersedes.
+_KEPT = (
+    "settings",
+    "software_version",
+    "source_revision",
+    "document",
+    "profile_name",
+    "profile_version",
+)
+
+
 def _judged_again(
     s: Session, prev: schema.CalibrationRow, procedure: str, judged: Rejudgement
 ) -> schema.CalibrationRow:
@@ -120,13 +131,8 @@ def _judged_again(
         settings_hash=settings_hash(
             prev.settings, procedure, prev.profile_name, prev.profile_version, judged.earlier
         ),
-        settings=prev.settings,
-        software_version=prev.software_version,
-        source_revision=prev.source_revision,
-        document=prev.document,
         verdict=judged.verdict,
-        profile_name=prev.profile_name,
-        profile_version=prev.profile_version,
+        **{c: getattr(prev, c) for c in _KEPT},
     )
     steps = (
         s.execute(

@@ -66,11 +66,22 @@ def _rate_manifest(serial: str, started: str, table: str) -> dict:
     return m
 
 
-def archive_rate_table_runs(arch, tmp, specs) -> dict[str, str]:
-    """Archive a rate-table run per (name, serial, start, table) of `specs`, its table
-    reading RATE_PPM fast, from the folder ``tmp / name``; name -> run id."""
+# The rate-table runs of the tests: name -> (serial, start, the table's serial). RT-7 is
+# found RATE_PPM fast for March 2026.
+RATE_TABLE_RUNS = {
+    "A": ("U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"),
+    "B": ("U-RT2", "2026-01-10T09:00:00+00:00", "RT-7"),
+    "C": ("U-RT3", "2026-03-11T09:00:00+00:00", "RT-8"),
+    "E": ("U-RT5", "2026-03-20T09:00:00+00:00", "RT-7"),
+}
+
+
+def archive_rate_table_runs(arch, tmp, names: str) -> dict[str, str]:
+    """Archive the RATE_TABLE_RUNS of `names`, their table reading RATE_PPM fast, each from
+    the folder ``tmp / name``; name -> run id."""
     runs = {}
-    for name, serial, started, table in specs:
+    for name in names:
+        serial, started, table = RATE_TABLE_RUNS[name]
         folder = tmp / name
         write_csv_run(
             _rate_table_segments(ord(name), RATE_PPM),
@@ -81,6 +92,12 @@ def archive_rate_table_runs(arch, tmp, specs) -> dict[str, str]:
     return runs
 
 
+def apply_rate_error(arch) -> dict:
+    """`impact` applied: RT-7 read RATE_PPM fast in March 2026."""
+    error = parse_error(f"rate_error_ppm={RATE_PPM}")
+    return impact(arch, "RT-7", error, "2026-03-01", "2026-03-31", apply=True)
+
+
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
     """RT-A (table RT-7, in the period), RT-B (RT-7, before it), RT-C (table RT-8), and an
@@ -88,15 +105,7 @@ def lab(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("impact")
     arch = resolve_archive(str(tmp / "archive"))
     arch.upgrade()
-    runs = archive_rate_table_runs(
-        arch,
-        tmp,
-        [
-            ("A", "U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"),
-            ("B", "U-RT2", "2026-01-10T09:00:00+00:00", "RT-7"),
-            ("C", "U-RT3", "2026-03-11T09:00:00+00:00", "RT-8"),
-        ],
-    )
+    runs = archive_rate_table_runs(arch, tmp, "ABC")
     # The same plateaus with the true table rate: what a direct solve would have given.
     write_csv_run(
         _rate_table_segments(ord("A"), 0.0),
@@ -265,14 +274,7 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
     assert reason in page and runs["A"] in page and "1 verdict(s) changed" in page
     assert "revisions archived" in page and "gyr.scale.x" in page
     # Applied again: the same correction is a duplicate, not a third revision.
-    again = impact(
-        arch,
-        "RT-7",
-        parse_error(f"rate_error_ppm={RATE_PPM}"),
-        "2026-03-01",
-        "2026-03-31",
-        apply=True,
-    )
+    again = apply_rate_error(arch)
     assert again["runs"][0]["status"] == "duplicate"
 
 
@@ -284,14 +286,7 @@ def test_reprocessing_carries_the_correction(lab, monkeypatch):
 
     arch, run_a = lab["archive"], lab["runs"]["A"]
     if queries.run_summary(arch, run_a)["calibration"]["revision"] == 1:  # run alone
-        impact(
-            arch,
-            "RT-7",
-            parse_error(f"rate_error_ppm={RATE_PPM}"),
-            "2026-03-01",
-            "2026-03-31",
-            apply=True,
-        )
+        apply_rate_error(arch)
     corrected = _params(arch, run_a)["gyr.scale.x"]["value"]
     monkeypatch.setattr(process, "SOFTWARE_VERSION", "99.0-test")
     outcome = reprocess_run(arch, run_a, reason="software 99")

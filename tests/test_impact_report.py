@@ -11,7 +11,7 @@ import re
 
 import pytest
 from fastapi.testclient import TestClient
-from test_impact import RATE_PPM, archive_rate_table_runs
+from test_impact import RATE_PPM, apply_rate_error, archive_rate_table_runs
 from typer.testing import CliRunner
 
 from calib_core.reference_errors import parse_error
@@ -32,19 +32,8 @@ def applied(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("impact_report")
     arch = resolve_archive(str(tmp / "archive"))
     arch.upgrade()
-    runs = archive_rate_table_runs(
-        arch,
-        tmp,
-        [
-            ("A", "U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"),
-            ("E", "U-RT5", "2026-03-20T09:00:00+00:00", "RT-7"),
-            ("C", "U-RT3", "2026-03-11T09:00:00+00:00", "RT-8"),
-        ],
-    )
-    doc = impact(
-        arch, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01", "2026-03-31",
-        apply=True,
-    )  # fmt: skip
+    runs = archive_rate_table_runs(arch, tmp, "AEC")
+    doc = apply_rate_error(arch)
     assert [r["status"] for r in doc["runs"]] == ["revised", "revised"]
     ro = open_readonly(arch)
     from pipelines.web.app import create_app
@@ -160,9 +149,7 @@ def test_calib_impact_writes_the_pdf(applied, tmp_path):
 
 def test_impact_records_on_each_back_end(archive, tmp_path):
     """The record and the revision's temperature read back on SQLite and PostgreSQL."""
-    run_id = archive_rate_table_runs(
-        archive, tmp_path, [("A", "U-RT1", "2026-03-10T09:00:00+00:00", "RT-7")]
-    )["A"]
+    run_id = archive_rate_table_runs(archive, tmp_path, "A")["A"]
     impact(archive, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01", apply=True)
     (rec,) = impact_records(archive)
     assert rec["reason"] == REASON and rec["period"] == {"from": "2026-03-01", "to": None}
