@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from calib_testing.cli_imports import modules_loaded
 from pipelines.cli import app
 from storage.instants import UTCDateTime
 from storage.queries import unit_history
@@ -28,27 +29,10 @@ SCIENCE = ("numpy", "scipy", "pandas", "pyarrow", "matplotlib", "prefect", "weas
 ARCHIVE_EXTRAS = ("storage.schema", "sqlalchemy.dialects.postgresql", "psycopg", "pydantic")
 
 
-def _loaded(argv: list[str], watch: tuple[str, ...]) -> list[str]:
-    """The modules of `watch` a fresh interpreter has loaded after ``calib ARGV`` (which
-    must succeed)."""
-    code = (
-        "import json, sys\nfrom pipelines.cli import app\n"
-        f"try:\n    app({argv!r})\n"
-        "except SystemExit as e:\n    assert not e.code, e.code\n"
-        f"print(json.dumps([m for m in {watch!r} if m in sys.modules]))\n"
-    )
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
-    done = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
-    )
-    assert done.returncode == 0, done.stdout + done.stderr
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
 def test_history_loads_neither_the_science_stack_nor_the_mapped_tables(archived_sample) -> None:
     arch, _ = archived_sample
     argv = ["history", "MPU0001", "--archive", str(arch.root)]
-    assert _loaded(argv, SCIENCE + ARCHIVE_EXTRAS) == []
+    assert modules_loaded(argv, SCIENCE + ARCHIVE_EXTRAS) == []
 
 
 @pytest.mark.parametrize(
@@ -65,7 +49,7 @@ def test_read_only_commands_load_no_science_stack(archived_sample, args) -> None
         argv += ["--archive", str(arch.root)]
     allowed = ("numpy",) if args[0] == "show" else ()
     watch = tuple(m for m in SCIENCE if m not in allowed) + ("psycopg",)
-    assert _loaded(argv, watch) == []
+    assert modules_loaded(argv, watch) == []
 
 
 @pytest.mark.parametrize(
@@ -75,13 +59,13 @@ def test_queries_load_no_flow_plot_or_typesetting(archived_sample, args) -> None
     """The questions answer in DataFrames (pandas): no Prefect, plotting or typesetter."""
     arch, _ = archived_sample
     watch = ("matplotlib", "prefect", "weasyprint", "psycopg")
-    assert _loaded([*args, "--archive", str(arch.root)], watch) == []
+    assert modules_loaded([*args, "--archive", str(arch.root)], watch) == []
 
 
 def test_trend_table_loads_no_plotting(serve_sample) -> None:
     """A trend fits (numpy, scipy); its table without --plot draws nothing (matplotlib)."""
     argv = ["trend", "DRIFT-01", "acc.bias.x", "--archive", str(serve_sample.archive.root)]
-    assert _loaded(argv, ("matplotlib", "prefect", "weasyprint", "psycopg")) == []
+    assert modules_loaded(argv, ("matplotlib", "prefect", "weasyprint", "psycopg")) == []
 
 
 def test_light_tables_name_the_schema_columns_and_types() -> None:

@@ -10,10 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -21,6 +18,7 @@ from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from calib_core.units import DEG
+from calib_testing.cli_imports import modules_loaded
 from pipelines.cli import app
 from pipelines.reports.display import check_counts, expanded_u, shown
 from storage import queries
@@ -128,22 +126,7 @@ def test_read_only_commands_do_not_load_the_science_stack(archived_sample, args)
     arch, _ = archived_sample
     heavy = ("pandas", "pyarrow", "numpy", "scipy", "matplotlib", "prefect", "weasyprint")
     argv = args + (["--archive", str(arch.root)] if args[0] != "--version" else [])
-    code = (
-        "import sys\nfrom pipelines.cli import app\n"
-        f"try:\n    app({argv!r})\n"
-        "except SystemExit as e:\n    assert not e.code, e.code\n"
-        f"print([m for m in {heavy!r} if m in sys.modules])\n"
-    )
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
-    done = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-        check=True,
-    )
-    assert done.stdout.strip().splitlines()[-1] == "[]", done.stdout + done.stderr
+    assert modules_loaded(argv, heavy) == []
 
 
 def test_query_units_at_80_columns_keeps_identity_and_verdict(archived_sample) -> None:
