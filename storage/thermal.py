@@ -16,7 +16,7 @@ from sqlalchemy.orm import Session
 
 from storage import seal
 from storage.db import Archive
-from storage.queries.thermal import _device_id
+from storage.queries.thermal import thermal_device_id
 from storage.schema import CalibrationRow, Run, ThermalModelRow
 
 
@@ -44,7 +44,7 @@ def archive_thermal_model(
         raise ValueError("a thermal model must name the calibrations it was fitted from")
     # SQLite: the write lock at BEGIN (the audit chain is read and appended to).
     with Session(archive.engine().execution_options(sqlite_begin="IMMEDIATE")) as s, s.begin():
-        device_id = _device_id(s, serial)
+        device_id = thermal_device_id(s, serial)
         known = set(
             s.execute(
                 select(CalibrationRow.id)

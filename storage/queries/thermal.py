@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (slow to import)
 
 
-def _device_id(s: Session, serial: str) -> int:
+def thermal_device_id(s: Session, serial: str) -> int:
     dev = s.execute(select(Device.id).where(Device.serial == serial)).scalar_one_or_none()
     if dev is None:
         raise LookupError(f"no device with serial {serial!r} in the archive")
@@ -115,7 +115,7 @@ def campaign_calibrations(
     Raises LookupError for an unknown serial or run id of another unit.
     """
     with Session(archive.engine()) as s:
-        _device_id(s, serial)
+        thermal_device_id(s, serial)
         stmt = (
             select_run_calibrations(
                 CalibrationRow.id,
