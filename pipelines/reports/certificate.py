@@ -46,6 +46,7 @@ from calib_core.verification import (  # noqa: E402
 from pipelines.reports import iso17025, plots  # noqa: E402
 from pipelines.reports.display import (  # noqa: E402
     ERROR_DIGITS,
+    NO_STANDARD_U,
     RESIDUAL_UNITS,
     STANDARD_U,
     STANDARD_U_MEANING,
@@ -363,7 +364,7 @@ def _results_section(run: _Archived) -> Section:
         c = by_param.get(p["name"])
         tol = tolerance_text(p["name"], c)
         result = "" if c is None else ("pass" if c["passed"] else "FAIL")
-        res_rows.append([p["name"], s.value, s.u or "-", s.unit, tol, result])
+        res_rows.append([p["name"], s.value, s.u or NO_STANDARD_U, s.unit, tol, result])
     return Section(
         f"Results ({STANDARD_U_MEANING})",
         header=["parameter", "value", STANDARD_U, "unit", "tolerance", "result"],
