@@ -53,7 +53,6 @@ def dcc_schema_errors(xml: bytes) -> list[str]:
     D-SI and XML Signature imports local, no network), one message each; [] when valid.
 
     xmlschema, not lxml: libxml2 leaves an IDREF that names no ID unreported."""
-    import xmlschema
 
     return [str(e.reason) for e in _dcc_schema(str(DCC_SCHEMA)).iter_errors(xml.decode("utf-8"))]
 
