@@ -21,6 +21,9 @@ class Recording:
         ``"table_angle"`` (N,) rad, ``"table_rate"`` (N,) rad/s.
     label : segment label (``"x_up"``, ``"z_ccw"``, ...) or None.
     source : where the samples came from (file name, line range), for messages.
+    devices : the firmware's ids of the sensors that made the samples, when the log records
+        them: ``accel`` / ``gyro`` (a PX4 ULog's device_id), ``imu`` (an ArduPilot DataFlash
+        log's 0-based IMU instance); what an autopilot file must name to take effect.
     """
 
     t: np.ndarray
@@ -30,6 +33,7 @@ class Recording:
     reference: dict[str, np.ndarray] = field(default_factory=dict)
     label: str | None = None
     source: str | None = None
+    devices: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         where = f" ({self.source})" if self.source else ""

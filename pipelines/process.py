@@ -159,10 +159,14 @@ def run_outcome(
 
 def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
     """The step record of ingest: format settings, files, samples per segment, wall time
-    (and, for a record streamed in chunks, its memory limit, bytes)."""
+    (and, for a record streamed in chunks, its memory limit, bytes; the sensors' firmware ids
+    per segment when the log records them, ``devices``)."""
     rec = loaded.streamed
     samples = {k: len(r) for k, r in loaded.segments.items()}
-    more = {}
+    more: dict[str, Any] = {}
+    devices = {k: r.devices for k, r in loaded.segments.items() if r.devices}
+    if devices:  # the sensors' firmware ids (pipelines.autopilot reads them for exports)
+        more["devices"] = devices
     if rec is not None:
         samples = {rec.label: rec.n}
         more = {"streamed": {"memory_limit": rec.memory_limit, "bytes": rec.result.size}}

@@ -54,12 +54,17 @@ def _ulog_topic(ulog_cls, formats, name: str, fields, msg_id: int, multi_id: int
 
 
 def write_ulog(
-    path: Path, rec: Recording, *, topics: str = "separate", separate_every: int = 1
+    path: Path,
+    rec: Recording,
+    *,
+    topics: str = "separate",
+    separate_every: int = 1,
+    device_ids: tuple[int, int] = (1, 1),
 ) -> None:
     """One segment as a ULog: ``separate`` (sensor_accel + sensor_gyro, with temperature),
     ``combined`` (sensor_combined) or ``both``. `separate_every` > 1 logs sensor_accel /
     sensor_gyro with every so many samples only (PX4 logs them at 1 Hz beside a fast
-    sensor_combined)."""
+    sensor_combined). `device_ids`: the (accel, gyro) ``device_id`` fields."""
     from pyulog import ULog
 
     ulog = ULog(None)
@@ -79,7 +84,7 @@ def write_ulog(
             values = {
                 "timestamp": stamps[k],
                 "timestamp_sample": stamps[k],
-                "device_id": 1,
+                "device_id": device_ids[i],
                 "x": v[k, 0],
                 "y": v[k, 1],
                 "z": v[k, 2],

@@ -38,6 +38,7 @@ def checked_recording(
     *,
     temp: np.ndarray | None = None,
     temp_field: str = "temperature",
+    devices: dict[str, int] | None = None,
 ) -> Recording:
     """A Recording of `what` (``"sensor_combined"``, ``"IMU[0]"``, ``"/imu"``) after the checks.
 
@@ -49,6 +50,7 @@ def checked_recording(
     channels : {"acc": (N, 3) m/s^2, "gyr": (N, 3) rad/s} with the field names
         to report as keys ``"acc:<field>"`` optional (see `fields`).
     temp : (N,) deg C or None.
+    devices : the sensors' firmware ids the log records (`Recording.devices`).
 
     Raises
     ------
@@ -59,7 +61,14 @@ def checked_recording(
     if len(t) == 0:
         raise IngestError(f"{what}: no samples", file=path, field=what)
     check_samples(path, what, t, channels, temp=temp, temp_field=temp_field)
-    return Recording(t=t, acc=channels["acc"], gyr=channels["gyr"], temp=temp, source=str(path))
+    return Recording(
+        t=t,
+        acc=channels["acc"],
+        gyr=channels["gyr"],
+        temp=temp,
+        source=str(path),
+        devices=devices or {},
+    )
 
 
 def check_samples(

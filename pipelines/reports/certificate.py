@@ -42,6 +42,7 @@ from calib_core.verification import (
 from pipelines.reports import figures, iso17025
 from pipelines.reports.display import (
     ERROR_DIGITS,
+    NO_STANDARD_U,
     RESIDUAL_UNITS,
     STANDARD_U,
     STANDARD_U_MEANING,
@@ -360,7 +361,7 @@ def _results_section(run: _Archived) -> Section:
         c = by_param.get(p["name"])
         tol = tolerance_text(p["name"], c)
         result = "" if c is None else ("pass" if c["passed"] else "FAIL")
-        res_rows.append([p["name"], s.value, s.u or "-", s.unit, tol, result])
+        res_rows.append([p["name"], s.value, s.u or NO_STANDARD_U, s.unit, tol, result])
     return Section(
         f"Results ({STANDARD_U_MEANING})",
         header=["parameter", "value", STANDARD_U, "unit", "tolerance", "result"],
