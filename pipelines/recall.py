@@ -72,7 +72,8 @@ def model_intervals(
             rows = by_unit.get(serial)
             if rows is None:
                 continue
-            stds = [float(x) for x in rows["std"]]
+            # a parameter archived without an uncertainty (a noise std) reads as None
+            stds = [math.nan if x is None else float(x) for x in rows["std"]]
             if not all(x > 0 for x in stds):  # no stated uncertainty: no prediction
                 continue
             days = [days_since_epoch(t) for t in rows["started_at"]]
@@ -186,6 +187,8 @@ def _entry(
         "reliability": float(prof.recall["reliability"]),
         "method": how,
         "due": due.isoformat(),
+        # each limited parameter's drift line, per year (SI): navigation's drift source
+        "drift_rates": {p["name"]: p["rate_per_year"] for p in entry.get("parameters", [])},
     }
 
 

@@ -170,3 +170,42 @@ def to_png_base64(fig: Figure, dpi: int = 110) -> str:
     fig.savefig(buf, format="png", dpi=dpi)
     plt.close(fig)
     return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+NAV_PANELS = (
+    (("heading_deg", "roll_deg", "pitch_deg"), "attitude error (deg)"),
+    (("horizontal_velocity_mps", "vertical_velocity_mps"), "velocity error (m/s)"),
+    (("horizontal_position_m", "vertical_position_m"), "position error (m)"),
+)
+
+
+def navigation_figure(result: Mapping[str, Any]) -> Figure:
+    """Attitude, velocity and position error against time: 1 sigma solid, 95 % dashed; the
+    outage start and the position limit marked.
+
+    Parameters
+    ----------
+    result : `pipelines.navigation.navfit`'s document (deg, m/s, m, s).
+    """
+    series = result["series"]
+    t = np.asarray(series["t_s"])
+    fig, axes = plt.subplots(1, 3, figsize=(10.0, 3.2))
+    for ax, (keys, label) in zip(axes, NAV_PANELS, strict=True):
+        for i, key in enumerate(keys):
+            colour = AXIS_COLOURS[i]
+            name = key.rsplit("_", 1)[0].replace("_", " ")
+            ax.plot(t, series[key]["sigma"], "-", color=colour, lw=1, label=f"{name} 1 sigma")
+            ax.plot(t, series[key]["p95"], "--", color=colour, lw=0.8, label=f"{name} 95 %")
+        start = result["profile"].get("outage_start_s")
+        if result["profile"]["aiding"] != "none" and start is not None:
+            ax.axvline(start, color="grey", lw=0.6, ls=":")
+        if label.startswith("position"):
+            ax.axhline(result["position_limit_m"], color="black", lw=0.6, ls="-.")
+        ax.set_xlabel("time (s)", fontsize=7)
+        ax.set_ylabel(label, fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.legend(fontsize=5)
+        ax.grid(True, lw=0.3)
+    fig.suptitle(f"{result['serial']} on {result['profile']['name']}", fontsize=9)
+    fig.tight_layout()
+    return fig
