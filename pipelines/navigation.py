@@ -35,17 +35,17 @@ TRAJECTORY_COLUMNS = ("t_s", "north_m", "east_m", "down_m", "roll_deg", "pitch_d
 THERMAL_POINTS = 11  # temperatures sampled across the profile's range
 
 
-class _Section(BaseModel):
+class _NavSection(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
-class _Initial(_Section):
+class _Initial(_NavSection):
     attitude_deg: list[float] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3)
     velocity_mps: list[float] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3)
     position_m: list[float] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3)
 
 
-class _Aiding(_Section):
+class _Aiding(_NavSection):
     kind: Literal["none", "position", "velocity", "position+velocity"] = "none"
     interval_s: float = Field(1.0, gt=0)
     position_std_m: float = Field(2.0, gt=0)
@@ -54,21 +54,21 @@ class _Aiding(_Section):
     height_std_m: float | None = Field(None, gt=0)
 
 
-class _Segment(_Section):
+class _Segment(_NavSection):
     duration_s: float = Field(gt=0)
     forward_accel_mps2: float = 0.0
     yaw_rate_dps: float = 0.0
     climb_accel_mps2: float = 0.0
 
 
-class _Trajectory(_Section):
+class _Trajectory(_NavSection):
     heading_deg: float = 0.0
     tilt_with_acceleration: bool = False
     segments: list[_Segment] = []
     file: str | None = None
 
 
-class _Profile(_Section):
+class _Profile(_NavSection):
     name: str
     description: str = ""
     duration_s: float = Field(gt=0)
@@ -209,10 +209,11 @@ def read_trajectory(path: Path) -> Trajectory:
 
 
 def thermal_residuals(model_doc: dict[str, Any], profile: MissionProfile) -> tuple[dict, list]:
-    """Each compensated parameter's residual std over the profile's temperatures: the
-    largest, across THERMAL_POINTS temperatures, of the curve's own uncertainty combined with
-    the scatter of its points about it (`ParameterCurve.sigma`). Temperatures beyond the
-    model's range are noted: the curve is clipped there and the residual is not known."""
+    """Each compensated parameter's residual after compensation: the standard uncertainty of
+    its fitted curve (`ParameterCurve.std`), the largest across THERMAL_POINTS temperatures
+    of the profile's range. The scatter of one run about the curve is the run's own u (a
+    source of its own), not counted again. Temperatures beyond the model's range are noted:
+    the curve is clipped there and the residual beyond is not known."""
     from calib_core.thermal import ThermalModel
 
     tm = ThermalModel.from_dict(model_doc)
@@ -224,11 +225,7 @@ def thermal_residuals(model_doc: dict[str, Any], profile: MissionProfile) -> tup
             f"deg C exceed the thermal model's {tm.t_min:g}..{tm.t_max:g} deg C: the residual "
             "beyond its range is not known and not included"
         )
-    out = {}
-    for name, curve in tm.curves.items():
-        std = float(np.max(np.hypot(tm.std(name, temps), curve.sigma)))
-        out[name] = std
-    return out, notes
+    return {name: float(np.max(tm.std(name, temps))) for name in tm.curves}, notes
 
 
 def drift_at_interval(recall: dict[str, Any] | None) -> tuple[dict[str, float], list[str]]:
