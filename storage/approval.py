@@ -72,7 +72,7 @@ class Approval:
         return None if self.untrusted is None else not self.untrusted
 
 
-def _public_hex(key: Ed25519PublicKey) -> str:
+def public_key_hex(key: Ed25519PublicKey) -> str:
     return key.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw).hex()
 
 
@@ -109,7 +109,7 @@ def generate_key(path: Path, name: str, passphrase: str) -> str:
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "wb") as f:
         f.write(pem)
-    public = _public_hex(key.public_key())
+    public = public_key_hex(key.public_key())
     pub_path.write_text(json.dumps({"name": name, "public_key": public}) + "\n")
     return public
 
@@ -174,7 +174,7 @@ def approve(
                 f"run {run_id} revision {rev}: its rows no longer match its seal; "
                 "run `calib verify` to see what changed; not signed"
             )
-        public = _public_hex(key.public_key())
+        public = public_key_hex(key.public_key())
         signature = key.sign(message(run_id, rev, digest, meaning, signer, public)).hex()
         detail = {
             "meaning": meaning,

@@ -53,11 +53,11 @@ def make(
         "events": [h[:PREFIX] for h in hashes],
     }
     if key is not None:
-        from storage.approval import _public_hex
+        from storage.approval import public_key_hex
 
         if not signer:
             raise ValueError("a signed checkpoint needs the signer's name")
-        doc["signer"], doc["public_key"] = signer, _public_hex(key.public_key())
+        doc["signer"], doc["public_key"] = signer, public_key_hex(key.public_key())
         doc["signature"] = key.sign(_message(doc)).hex()
     return doc
 

@@ -1,4 +1,4 @@
-"""The certificate issued at archive time: HTML and the PDF typeset from it (WeasyPrint),
+"""The certificate issued at archive time: HTML and the PDF typeset from it (Typst),
 written into the run's folder and sealed by an audit event; `calib report`, the web pages
 and `calib verify` work on those archived files.
 

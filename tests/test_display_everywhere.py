@@ -124,7 +124,7 @@ def test_read_only_commands_do_not_load_the_science_stack(archived_sample, args)
     """A fresh interpreter: after the command, neither pandas, pyarrow, numpy, scipy,
     matplotlib, Prefect nor WeasyPrint was imported."""
     arch, _ = archived_sample
-    heavy = ("pandas", "pyarrow", "numpy", "scipy", "matplotlib", "prefect", "weasyprint")
+    heavy = ("pandas", "pyarrow", "numpy", "scipy", "matplotlib", "prefect", "weasyprint", "typst")
     argv = args + (["--archive", str(arch.root)] if args[0] != "--version" else [])
     assert modules_loaded(argv, heavy) == []
 

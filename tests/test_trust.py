@@ -32,6 +32,7 @@ from storage.approval import (
     load_key,
     message,
 )
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.schema import AuditEvent, CalibrationRow, ParameterRow, Run, Seal
 from storage.verify import verify
@@ -276,7 +277,7 @@ def _rewrite_value(archive: Archive, run_id: str) -> None:
         cal_id = conn.execute(
             select(CalibrationRow.id)
             .join(Run, Run.id == CalibrationRow.run_id)
-            .where(Run.run_id == run_id, CalibrationRow.superseded_by.is_(None))
+            .where(Run.run_id == run_id, CURRENT)
         ).scalar_one()
         name, value = conn.execute(
             select(ParameterRow.name, ParameterRow.value)
