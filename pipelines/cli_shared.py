@@ -188,7 +188,7 @@ PANELS = {
     "Process": ("process", "reprocess", "centrifuge", "apply", "thermal", "impact"),
     "Inspect": ("inspect", "show", "history", "repeatability", "procedures"),
     "Query": ("query", "trend", "fleet"),
-    "Report": ("report", "verify-certificate", "serve", "serve-user"),
+    "Report": ("report", "verify-certificate", "navfit", "serve", "serve-user"),
     "Export": ("export",),
     "Admin": ("verify", "checkpoint", "audit", "approve", "keygen", "backup", "restore"),
 }

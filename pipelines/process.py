@@ -23,6 +23,7 @@ from calib_core.checks import check_calibration, overall_verdict
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
+from calib_core.procedures.rate_table import plateau_window
 from calib_core.recording import Recording
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
@@ -44,8 +45,9 @@ from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
 from pipelines.uncertainty import uncertainty_step
 from storage import queries, rawstore, write_failures
-from storage.archive import ArchiveResult, RawFileIn, RunIn, archive_run, raw_hash_of, run_id_of
+from storage.archive import ArchiveResult, archive_run
 from storage.db import Archive
+from storage.run_input import RawFileIn, RunIn, raw_hash_of, run_id_of
 
 log = logging.getLogger("calib.process")
 
@@ -265,8 +267,11 @@ def verify_run(
     m = loaded.manifest
     factor = m.format.acc_reference_factor()  # acc_unit, or acc_scale_unit for counts
     given = {s.label: s.reference_acc for s in m.segments}
+    window = plateau_window(m.run.settings)
     refs = [
-        verification.reference_point(
+        verification.rate_reference(loaded.segments[label], **window)
+        if "table_rate" in loaded.segments[label].reference
+        else verification.reference_point(
             label,
             cal.gravity,
             None if given.get(label) is None else np.asarray(given[label]) * factor,
@@ -369,6 +374,7 @@ def check_run(
     checks += run_conditions(loaded, cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
     checks += more_checks
+    checks += [CheckResult(**f) for f in loaded.findings]  # the readers' (record:cut:...)
     checks.append(
         device_check(
             loaded.manifest,

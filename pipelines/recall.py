@@ -192,6 +192,8 @@ def _entry(
         "reliability": float(prof.recall["reliability"]),
         "method": how,
         "due": due.isoformat(),
+        # each limited parameter's drift line, per year (SI): navigation's drift source
+        "drift_rates": {p["name"]: p["rate_per_year"] for p in entry.get("parameters", [])},
     }
 
 
