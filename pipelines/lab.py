@@ -33,6 +33,10 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     [trust]                                   # the approvers the lab trusts (pipelines.trust)
     approvers = "approvers"                   # a file of calib keygen .pub lines, beside lab.toml
 
+    [signing]                                 # signed DCC / PDF (pipelines.reports.signing)
+    certificate = "lab-cert.pem"              # the lab's X.509 certificate, beside lab.toml
+    key = "lab-key.pem"                       # its private key: read to sign, never archived
+
 Every key is checked; a certificate made without the file says so where the items belong.
 """
 
@@ -50,6 +54,7 @@ TABLES = {
     "customer": ({"name"}, {"contact", "address"}),
     "authorised_by": ({"name"}, {"function"}),
     "trust": ({"approvers"}, set()),
+    "signing": ({"certificate", "key"}, set()),
 }
 EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by", "kind", "model"})
 
