@@ -232,8 +232,8 @@ def error_model(
             sensor, family = name.split(".")[:2]
             if family in FAMILIES:
                 keep[name] = float(u) if u is not None else None
-            elif family == "noise" and (noise or {}).get(sensor):
-                continue  # a sample std: the Allan terms of `noise` model it
+            elif family == "noise":
+                continue  # a sample std, not a density: the Allan terms (or their note)
             else:
                 notes.append(f"{what}{name}: not an error of the navigation model, left out")
         return keep

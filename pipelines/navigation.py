@@ -347,6 +347,7 @@ def navfit(
             "description": profile.description,
             "duration_s": profile.duration,
             "aiding": a.kind,
+            # fixes end (None: fixes all along); 0 without aiding
             "outage_start_s": a.until if a.kind != "none" else 0.0,
             "height_aiding": a.height_std is not None,
             "temperature_c": list(profile.temperature_range),
