@@ -238,6 +238,26 @@ JsonOpt = Annotated[
 RevisionOpt = Annotated[
     int | None, typer.Option("--revision", help="Calibration revision (default: the current one).")
 ]
+# The autopilot files' options (pipelines.autopilot): `calib export` and `calib thermal export`.
+DeviceIdOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--device-id",
+        help="PX4 device id of the sensor (its CAL_ACC0_ID / CAL_GYRO0_ID); default: the ids "
+        "the run's ULog recorded, else refused.",
+    ),
+]
+RotationOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--rotation",
+        help="The firmware's rotation of the calibrated axes, by its own name (PX4 "
+        "SENS_BOARD_ROT / ArduPilot AHRS_ORIENTATION enumeration, e.g. YAW_90); default NONE.",
+    ),
+]
+VehicleIdOpt = Annotated[
+    int, typer.Option("--vehicle-id", help="PX4 file: the vehicle's MAVLink system id.")
+]
 
 
 @app.callback()

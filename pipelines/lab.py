@@ -13,6 +13,7 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     [customer]
     name = "Example Drones AG"
     contact = "qa@example.com"
+    address = "Hangar 3, 12345 Somewhere"     # the DCC's customer location (DCC 3.3.0 needs it)
 
     [authorised_by]
     name = "Dr. A. Metrologist"
@@ -22,6 +23,8 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     serial = "CUBE-7"
     certificate = "DAkkS 4711-2026"
     issued_by = "PTB"
+    kind = "cube"                             # optional: the DCC lists the lab's references
+    model = "Precision cube PC-100"           # when a run's manifest records no equipment
 
     [site]                                    # local gravity by Helmert (the MPU-6000 manual)
     latitude_deg = 48.137                     # for runs whose manifest gives no site
@@ -44,11 +47,11 @@ from pipelines.tolerances import LAB_FILE_STEM, profile_dirs
 LAB_PROFILE = f"{LAB_FILE_STEM}.toml"
 TABLES = {
     "laboratory": ({"name", "address"}, {"accreditation", "country"}),
-    "customer": ({"name"}, {"contact"}),
+    "customer": ({"name"}, {"contact", "address"}),
     "authorised_by": ({"name"}, {"function"}),
     "trust": ({"approvers"}, set()),
 }
-EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by"})
+EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by", "kind", "model"})
 
 
 def load_lab_profile() -> tuple[dict[str, Any], Path] | None:

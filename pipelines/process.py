@@ -23,6 +23,7 @@ from calib_core.checks import check_calibration, overall_verdict
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
+from calib_core.procedures.rate_table import plateau_window
 from calib_core.recording import Recording
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
@@ -44,8 +45,9 @@ from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
 from pipelines.uncertainty import uncertainty_step
 from storage import queries, rawstore, write_failures
-from storage.archive import ArchiveResult, RawFileIn, RunIn, archive_run, raw_hash_of, run_id_of
+from storage.archive import ArchiveResult, archive_run
 from storage.db import Archive
+from storage.run_input import RawFileIn, RunIn, raw_hash_of, run_id_of
 
 log = logging.getLogger("calib.process")
 
@@ -158,10 +160,14 @@ def run_outcome(
 
 def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
     """The step record of ingest: format settings, files, samples per segment, wall time
-    (and, for a record streamed in chunks, its memory limit, bytes)."""
+    (and, for a record streamed in chunks, its memory limit, bytes; the sensors' firmware ids
+    per segment when the log records them, ``devices``)."""
     rec = loaded.streamed
     samples = {k: len(r) for k, r in loaded.segments.items()}
-    more = {}
+    more: dict[str, Any] = {}
+    devices = {k: r.devices for k, r in loaded.segments.items() if r.devices}
+    if devices:  # the sensors' firmware ids (pipelines.autopilot reads them for exports)
+        more["devices"] = devices
     if rec is not None:
         samples = {rec.label: rec.n}
         more = {"streamed": {"memory_limit": rec.memory_limit, "bytes": rec.result.size}}
@@ -261,8 +267,11 @@ def verify_run(
     m = loaded.manifest
     factor = m.format.acc_reference_factor()  # acc_unit, or acc_scale_unit for counts
     given = {s.label: s.reference_acc for s in m.segments}
+    window = plateau_window(m.run.settings)
     refs = [
-        verification.reference_point(
+        verification.rate_reference(loaded.segments[label], **window)
+        if "table_rate" in loaded.segments[label].reference
+        else verification.reference_point(
             label,
             cal.gravity,
             None if given.get(label) is None else np.asarray(given[label]) * factor,
@@ -365,6 +374,7 @@ def check_run(
     checks += run_conditions(loaded, cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
     checks += more_checks
+    checks += [CheckResult(**f) for f in loaded.findings]  # the readers' (record:cut:...)
     checks.append(
         device_check(
             loaded.manifest,

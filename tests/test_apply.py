@@ -31,8 +31,9 @@ from pipelines import exports
 from pipelines.cli import app
 from storage import queries
 from storage import thermal as thermal_store
-from storage.archive import RunIn, archive_run
+from storage.archive import archive_run
 from storage.db import resolve_archive
+from storage.run_input import RunIn
 
 SERIAL = "TH-0042"
 TEMPS = (-10.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0)

@@ -1,4 +1,4 @@
-"""The certificate issued at archive time: HTML and the PDF typeset from it (WeasyPrint),
+"""The certificate issued at archive time: HTML and the PDF typeset from it (Typst),
 written into the run's folder and sealed by an audit event; `calib report`, the web pages
 and `calib verify` work on those archived files.
 
@@ -21,8 +21,9 @@ from calib_testing.documents import html_words, pdf_pages
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.reports.issue import ISSUED, issued, issues
+from pipelines.reports.issue import ISSUED, issued
 from storage.db import Archive, resolve_archive
+from storage.queries import certificate_issues as issues
 from storage.verify import verify
 
 SAMPLE = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"

@@ -26,7 +26,7 @@ from storage.schema import Base
 
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLE = ROOT / "data_samples" / "mpu6000_MPU0001"
-SCIENCE = ("numpy", "scipy", "pandas", "pyarrow", "matplotlib", "prefect", "weasyprint")
+SCIENCE = ("numpy", "scipy", "pandas", "pyarrow", "matplotlib", "prefect", "weasyprint", "typst")
 # What `calib history` also leaves alone on SQLite: the mapped tables (and the PostgreSQL
 # dialect their index options load), PostgreSQL's driver, typer's pydantic conversion.
 ARCHIVE_EXTRAS = ("storage.schema", "sqlalchemy.dialects.postgresql", "psycopg", "pydantic")

@@ -140,7 +140,7 @@ def test_read_only_commands_do_not_load_the_science_stack(archived, args) -> Non
     """A fresh interpreter: after the command, neither pandas, pyarrow, numpy, scipy,
     matplotlib, Prefect nor WeasyPrint was imported."""
     arch, _ = archived
-    heavy = ("pandas", "pyarrow", "numpy", "scipy", "matplotlib", "prefect", "weasyprint")
+    heavy = ("pandas", "pyarrow", "numpy", "scipy", "matplotlib", "prefect", "weasyprint", "typst")
     argv = args + (["--archive", str(arch.root)] if args[0] != "--version" else [])
     code = (
         "import sys\nfrom pipelines.cli import app\n"

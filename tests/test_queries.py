@@ -30,8 +30,9 @@ from typer.testing import CliRunner
 
 from pipelines.cli import app
 from storage import queries
-from storage.archive import RunIn, archive_run
+from storage.archive import archive_run
 from storage.db import Archive
+from storage.run_input import RunIn
 
 RT7 = {
     "kind": "rate_table",

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import json
+import tomllib
 from datetime import date, timedelta
 from pathlib import Path
 
@@ -151,6 +152,7 @@ address = "Musterstrasse 1, 80331 Muenchen, Germany"
 [customer]
 name = "Example Drones AG"
 contact = "qa@example.com"
+address = "Hangar 3, 12345 Somewhere"
 
 [authorised_by]
 name = "Dr. A. Metrologist"
@@ -520,10 +522,11 @@ def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
 
     Read with dccXMLJSONConv (PTB); pydcc, the reader the issue names, does not import here
     (its oscrypto 1.3.0 cannot parse OpenSSL 3.0.19's version string; docs/reports.md).
-    No package on PyPI ships the DCC XSD and tests have no network: not schema-validated.
+    Valid against PTB's DCC 3.3.0 schema (vendored in tests/schemas).
     """
     from typer.testing import CliRunner
 
+    from calib_testing.documents import dcc_schema_errors
     from pipelines.cli import app
 
     _, summary, *_ = archived["U-KNOWN"]
@@ -542,9 +545,10 @@ def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     xml = Path(json.loads(result.stdout)["dcc"]).read_text(encoding="utf-8")
+    assert dcc_schema_errors(xml.encode()) == []
     _assert_dcc_matches_archive(xml, summary)
     root = _read_dcc(xml)
-    assert root["@schemaVersion"].startswith("3.")
+    assert root["@schemaVersion"] == "3.3.0"
     assert [k for k in root if not k.startswith("@")] == [
         "dcc:administrativeData",
         "dcc:measurementResults",
@@ -588,7 +592,7 @@ def test_dcc_round_trip_fails_on_a_broken_dcc(archived, how) -> None:
     from pipelines.reports.dcc import dcc_xml
 
     _, summary, *_ = archived["U-KNOWN"]
-    xml = dcc_xml(summary).decode("utf-8")
+    xml = dcc_xml({**summary, "lab": tomllib.loads(LAB_TOML)}).decode("utf-8")
     _assert_dcc_matches_archive(xml, summary)
     broken = _broken(xml, how)
     assert broken != xml

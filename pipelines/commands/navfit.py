@@ -5,9 +5,11 @@ docs/navigation.md).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 
 from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_run, print_facts, print_json
@@ -63,8 +65,6 @@ def navfit(
 def _write_plot(result: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    from pipelines.reports.plots import navigation_figure
-
     fig = navigation_figure(result)
     try:
         fig.savefig(path)
@@ -98,3 +98,47 @@ def _facts(result: dict[str, Any]) -> dict[str, Any]:
     )
     facts["notes"] = result["notes"]
     return facts
+
+
+NAV_PANELS = (
+    (("heading_deg", "roll_deg", "pitch_deg"), "attitude error (deg)"),
+    (("horizontal_velocity_mps", "vertical_velocity_mps"), "velocity error (m/s)"),
+    (("horizontal_position_m", "vertical_position_m"), "position error (m)"),
+)
+
+
+def navigation_figure(result: Mapping[str, Any]) -> Any:  # noqa: ANN401 - a Figure
+    """Attitude, velocity and position error against time: 1 sigma solid, 95 % dashed; the
+    outage start and the position limit marked.
+
+    Parameters
+    ----------
+    result : `pipelines.navigation.navfit`'s document (deg, m/s, m, s).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only, no display
+    import matplotlib.pyplot as plt
+
+    series = result["series"]
+    t = np.asarray(series["t_s"])
+    fig, axes = plt.subplots(1, 3, figsize=(10.0, 3.2))
+    for ax, (keys, label) in zip(axes, NAV_PANELS, strict=True):
+        for i, key in enumerate(keys):
+            colour = ("tab:red", "tab:green", "tab:blue")[i]
+            name = key.rsplit("_", 1)[0].replace("_", " ")
+            ax.plot(t, series[key]["sigma"], "-", color=colour, lw=1, label=f"{name} 1 sigma")
+            ax.plot(t, series[key]["p95"], "--", color=colour, lw=0.8, label=f"{name} 95 %")
+        start = result["profile"].get("outage_start_s")
+        if result["profile"]["aiding"] != "none" and start is not None:
+            ax.axvline(start, color="grey", lw=0.6, ls=":")
+        if label.startswith("position"):
+            ax.axhline(result["position_limit_m"], color="black", lw=0.6, ls="-.")
+        ax.set_xlabel("time (s)", fontsize=7)
+        ax.set_ylabel(label, fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.legend(fontsize=5)
+        ax.grid(True, lw=0.3)
+    fig.suptitle(f"{result['serial']} on {result['profile']['name']}", fontsize=9)
+    fig.tight_layout()
+    return fig

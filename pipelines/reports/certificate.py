@@ -25,17 +25,13 @@ from datetime import date, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import numpy as np
+import pyarrow as pa
 
-matplotlib.use("Agg")
-import numpy as np  # noqa: E402
-import pyarrow as pa  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from calib_core import conditions  # noqa: E402
-from calib_core.calibration import Calibration  # noqa: E402
-from calib_core.tolerances import ToleranceProfile  # noqa: E402
-from calib_core.verification import (  # noqa: E402
+from calib_core import conditions
+from calib_core.calibration import Calibration
+from calib_core.tolerances import ToleranceProfile
+from calib_core.verification import (
     NEEDS_REVIEW,
     PASS,
     REPEAT_PREFIX,
@@ -43,9 +39,10 @@ from calib_core.verification import (  # noqa: E402
     ResidualDiagnosis,
     diagnose_residuals,
 )
-from pipelines.reports import iso17025, plots  # noqa: E402
-from pipelines.reports.display import (  # noqa: E402
+from pipelines.reports import figures, iso17025
+from pipelines.reports.display import (
     ERROR_DIGITS,
+    NO_STANDARD_U,
     RESIDUAL_UNITS,
     STANDARD_U,
     STANDARD_U_MEANING,
@@ -59,12 +56,13 @@ from pipelines.reports.display import (  # noqa: E402
     tolerance_text,
     uncertainty,
 )
-from pipelines.reports.protocol import (  # noqa: E402
+from pipelines.reports.protocol import (
     guard_band_of,
     render_protocol,
     verdict_of,
 )
-from pipelines.reports.render import Certificate, Section, render_html, render_pdf  # noqa: E402
+from pipelines.reports.render import Certificate, Section, render_html
+from pipelines.reports.typeset import render_pdf
 
 RECALIBRATION_MONTHS = 12  # default interval for a passed MEMS unit (lab practice)
 
@@ -363,7 +361,7 @@ def _results_section(run: _Archived) -> Section:
         c = by_param.get(p["name"])
         tol = tolerance_text(p["name"], c)
         result = "" if c is None else ("pass" if c["passed"] else "FAIL")
-        res_rows.append([p["name"], s.value, s.u or "-", s.unit, tol, result])
+        res_rows.append([p["name"], s.value, s.u or NO_STANDARD_U, s.unit, tol, result])
     return Section(
         f"Results ({STANDARD_U_MEANING})",
         header=["parameter", "value", STANDARD_U, "unit", "tolerance", "result"],
@@ -729,24 +727,23 @@ def _signatures_section(summary: dict[str, Any], approvals: list[tuple[Any, bool
     )
 
 
-def _figures(run: _Archived) -> dict[str, Figure]:
+def _figures(run: _Archived) -> dict[str, str]:
+    """The certificate's charts (pipelines.reports.figures), name -> SVG."""
     cal, samples = run.cal, run.samples
-    figures: dict[str, Figure] = {}
+    out: dict[str, str] = {}
     if cal.residuals:
         limits = run.profile.residual_limits if run.profile else {}
-        figures["Residuals per segment"] = plots.residuals_figure(
-            [r.__dict__ for r in cal.residuals], limits
-        )
+        out |= figures.residual_figures([r.__dict__ for r in cal.residuals], limits)
     if samples.num_rows:
         seg, _ = _segments(samples)
         acc = np.column_stack([samples.column(f"acc_{a}").to_numpy() for a in "xyz"])
         gyr = np.column_stack([samples.column(f"gyr_{a}").to_numpy() for a in "xyz"])
-        figures["Raw vs calibrated specific-force norm"] = plots.norm_figure(seg, acc, cal, gyr)
+        out["Raw vs calibrated specific-force norm"] = figures.norm_figure(seg, acc, cal, gyr)
     if cal.info.get("allan"):
-        figures["Allan deviation"] = plots.allan_figure(cal.info["allan"])
+        out |= figures.allan_figures(cal.info["allan"])
     if cal.info.get("thermal"):
-        figures["Thermal curves"] = plots.thermal_figure(cal.info["thermal"])
-    return figures
+        out |= figures.thermal_figures(cal.info["thermal"])
+    return out
 
 
 def _protocol(run: _Archived) -> str:
@@ -911,8 +908,9 @@ def report_run(
 
 def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - Archive
     """`storage.queries.run_summary` of the run with what the certificate adds: the lab
-    profile (``lab``), the unit's recalibration interval (``recall``), its calibration
-    before this run (``as_found``) and the audit chain's head at issue (``chain_head``)."""
+    profile (``lab``), the unit's recalibration interval (``recall``, for a passed run),
+    its calibration before this run (``as_found``) and the audit chain's head at issue
+    (``chain_head``)."""
     from pipelines.lab import load_lab_profile
     from pipelines.recall import unit_recall
     from storage import queries
@@ -921,7 +919,11 @@ def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - 
     summary = queries.run_summary(archive, run_id)
     lab = load_lab_profile()
     summary["lab"] = None if lab is None else lab[0]
-    summary["recall"] = unit_recall(archive, summary["device"]["serial"], run_id)
+    # the interval is stated for a released unit only (`_recommendations`)
+    released = summary["calibration"]["verdict"] == PASS
+    summary["recall"] = (
+        unit_recall(archive, summary["device"]["serial"], run_id) if released else None
+    )
     summary["as_found"] = queries.latest_calibration(
         archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1)
     )

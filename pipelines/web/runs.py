@@ -268,15 +268,23 @@ def export_json(request: Request, run_id: str) -> Response:
 @router.get("/runs/{run_id}/export.{fmt}")
 def export_file(request: Request, run_id: str, fmt: str) -> Response:
     """The calibration as a PX4 or ArduPilot parameter file, CSV or MATLAB file (docs/exports.md),
-    with the unit's current thermal model; what the format cannot carry is listed in the file."""
+    with the unit's current thermal model; what the format cannot carry is listed in the file.
+    PX4: ``?device_id=`` names the sensor when the run's log did not (else 400 naming it)."""
     from pipelines.run_export import FORMATS, export_run
 
     if fmt not in FORMATS:
         raise HTTPException(404, f"no export format {fmt!r}; formats: {', '.join(FORMATS)}")
-    q = forms.params(request, ("revision",))
+    q = forms.params(request, ("revision", "device_id"))
     revision = forms.integer(q, "revision", 0, 1, 1_000_000) or None
+    device = forms.integer(q, "device_id", 0, 1, 2**32 - 1) or None  # PX4: else the log's ids
     result = forms.checked(
-        export_run, request.app.state.archive, _run_id(run_id), fmt, revision=revision
+        export_run,
+        request.app.state.archive,
+        _run_id(run_id),
+        fmt,
+        revision=revision,
+        accel_id=device,
+        gyro_id=device,
     )
     return _download(result.data, result.media_type, result.filename)
 

@@ -11,6 +11,7 @@ from typing import Any
 
 from sqlalchemy import select
 
+from storage.current import CURRENT, is_current
 from storage.db import Archive
 from storage.queries._common import (
     EQUIPMENT_SERIAL_LEN,
@@ -67,7 +68,7 @@ def equipment_runs(
         .join(Equipment, Equipment.id == RunEquipment.equipment_id)
         .join(
             CalibrationRow,
-            (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None),
+            (CalibrationRow.run_id == Run.id) & CURRENT,
         )
         .where(Equipment.serial == equipment_serial)
         .order_by(Run.started_at, Run.run_id)
@@ -114,7 +115,7 @@ def run_references(archive: Archive, run_ids: list[str]) -> dict[str, dict[str, 
                 select(Run.run_id, Run.site, ProcessingStep.statistics)
                 .join(
                     CalibrationRow,
-                    (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None),
+                    (CalibrationRow.run_id == Run.id) & CURRENT,
                 )
                 .outerjoin(
                     ProcessingStep,
@@ -223,7 +224,7 @@ def impact_records(archive: Archive) -> list[dict[str, Any]]:
                 "started_at": started,
                 "revision_before": impact.get("revision_before"),
                 "revision": rev,
-                "current": sup is None,
+                "current": is_current(sup),
                 "verdict_before": impact.get("verdict_before"),
                 "verdict_after": impact.get("verdict_after"),
                 "moved": impact.get("moved", []),

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy import Row, bindparam, select
 from sqlalchemy.orm import Session, aliased
 
-from storage.current import CURRENT, LATEST_RUN_FIRST
+from storage.current import CURRENT, LATEST_RUN_FIRST, is_current
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.queries._common import (
@@ -266,7 +266,7 @@ def export_calibration(
             "raw_hash": run.raw_hash,
         },
         "revision": cal.revision,
-        "superseded": cal.superseded_by is not None,
+        "superseded": not is_current(cal.superseded_by),
         "software_version": cal.software_version,
         "source_revision": cal.source_revision,
         "settings_hash": cal.settings_hash,
@@ -439,7 +439,7 @@ def lineage(
         "calibration": {
             "calibration_id": head.cal_id,
             "revision": head.revision,
-            "current": head.superseded_by is None,
+            "current": is_current(head.superseded_by),
             "superseded_by_revision": head.superseding_revision,
             "created_at": head.cal_created_at,
             **_provenance(head),
