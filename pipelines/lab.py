@@ -33,6 +33,9 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     [trust]                                   # the approvers the lab trusts (pipelines.trust)
     approvers = "approvers"                   # a file of calib keygen .pub lines, beside lab.toml
 
+    [navigation]                              # the certificate's "Navigation performance"
+    profiles = ["land-vehicle-outage-60s"]    # mission profiles by name (docs/navigation.md)
+
 Every key is checked; a certificate made without the file says so where the items belong.
 """
 
@@ -71,14 +74,16 @@ def load_lab_profile() -> tuple[dict[str, Any], Path] | None:
 
 
 def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
-    unknown = sorted(set(doc) - {*TABLES, "equipment", "site"})
+    known = {*TABLES, "equipment", "site", "navigation"}
+    unknown = sorted(set(doc) - known)
     if unknown:
         raise ValueError(
-            f"lab profile {path}: unknown table(s) {unknown}; "
-            f"expected {sorted({*TABLES, 'equipment', 'site'})}"
+            f"lab profile {path}: unknown table(s) {unknown}; expected {sorted(known)}"
         )
     if "site" in doc:
         _check_site(doc["site"], path)
+    if "navigation" in doc:
+        _check_navigation(doc["navigation"], path)
     for table, keys in TABLES.items():
         if table in doc:
             _check_table(doc[table], keys, path, table)
@@ -117,6 +122,31 @@ def _check_table(table: Any, keys: tuple[set[str], set[str]], path: Path, where:
                 f"lab profile {path}: {where}.{key}: expected one line of text "
                 f"(1..200 characters), got {value!r}"
             )
+
+
+def _check_navigation(table: Any, path: Path) -> None:
+    """``[navigation]``: profiles, a list of mission-profile names that exist."""
+    from pipelines.navigation import profile_names
+
+    names = profile_names()
+    profiles = table.get("profiles") if isinstance(table, dict) else None
+    if set(table) != {"profiles"} or not isinstance(profiles, list) or not profiles:
+        raise ValueError(
+            f"lab profile {path}: navigation: expected a table with profiles = [names], "
+            f"got {table!r}"
+        )
+    for i, name in enumerate(profiles):
+        if name not in names:
+            raise ValueError(
+                f"lab profile {path}: navigation.profiles[{i}]: no mission profile {name!r}; "
+                f"expected one of {', '.join(names)}"
+            )
+
+
+def lab_navigation_profiles() -> list[str]:
+    """The mission profiles the lab's certificates show (``[navigation] profiles``)."""
+    found = load_lab_profile()
+    return [] if found is None else list(found[0].get("navigation", {}).get("profiles", []))
 
 
 def _check_site(site: Any, path: Path) -> None:

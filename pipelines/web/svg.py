@@ -449,7 +449,7 @@ def error_chart(
     """Navigation errors against time: each output's 1 sigma (solid) and 95 % (dashed)
     line, the start of the outage (vertical) and a limit (dashed, red)."""
     ys = [y for s, p in series.values() for y in (*s, *p)] + ([limit] if limit else [])
-    chart = Chart(_span(list(t), 0.02), _span([0.0, *ys]), title=title, y_label=unit,
+    chart = Chart(span(list(t), 0.02), span([0.0, *ys]), title=title, y_label=unit,
                   x_label="time (s)")  # fmt: skip
     chart.axes()
     if outage is not None:
