@@ -125,10 +125,10 @@ def _check_table(table: Any, keys: tuple[set[str], set[str]], path: Path, where:
 
 
 def _check_navigation(table: Any, path: Path) -> None:
-    """``[navigation]``: profiles, a list of mission-profile names that exist."""
-    from pipelines.navigation import profile_names
+    """``[navigation]``: profiles, a list of mission-profile names (that each exists is
+    checked where they are read: `pipelines.reports.navigation`)."""
+    from storage.naming import check_safe_name
 
-    names = profile_names()
     profiles = table.get("profiles") if isinstance(table, dict) else None
     if set(table) != {"profiles"} or not isinstance(profiles, list) or not profiles:
         raise ValueError(
@@ -136,17 +136,19 @@ def _check_navigation(table: Any, path: Path) -> None:
             f"got {table!r}"
         )
     for i, name in enumerate(profiles):
-        if name not in names:
-            raise ValueError(
-                f"lab profile {path}: navigation.profiles[{i}]: no mission profile {name!r}; "
-                f"expected one of {', '.join(names)}"
-            )
+        try:
+            check_safe_name(name, "mission profile name")
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"lab profile {path}: navigation.profiles[{i}]: {exc}") from None
 
 
-def lab_navigation_profiles() -> list[str]:
-    """The mission profiles the lab's certificates show (``[navigation] profiles``)."""
+def lab_navigation_profiles() -> tuple[list[str], Path | None]:
+    """The mission profiles the lab's certificates show (``[navigation] profiles``) and the
+    lab profile's file."""
     found = load_lab_profile()
-    return [] if found is None else list(found[0].get("navigation", {}).get("profiles", []))
+    if found is None:
+        return [], None
+    return list(found[0].get("navigation", {}).get("profiles", [])), found[1]
 
 
 def _check_site(site: Any, path: Path) -> None:

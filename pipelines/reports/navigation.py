@@ -24,8 +24,16 @@ def navigation_data(archive, run_id: str) -> list[dict[str, Any]]:  # noqa: ANN0
     from pipelines import navigation
     from pipelines.lab import lab_navigation_profiles
 
+    names, path = lab_navigation_profiles()
+    known = navigation.profile_names()
+    for i, name in enumerate(names):
+        if name not in known:
+            raise ValueError(
+                f"lab profile {path}: navigation.profiles[{i}]: no mission profile {name!r}; "
+                f"expected one of {', '.join(known)}"
+            )
     out = []
-    for name in lab_navigation_profiles():
+    for name in names:
         try:
             out.append(navigation.navfit(archive, run_id, navigation.load_profile(name)))
         except (LookupError, ValueError) as exc:
