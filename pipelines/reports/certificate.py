@@ -56,6 +56,7 @@ from pipelines.reports.display import (
     tolerance_text,
     uncertainty,
 )
+from pipelines.reports.navigation import navigation_data, navigation_sections
 from pipelines.reports.protocol import (
     guard_band_of,
     render_protocol,
@@ -171,6 +172,7 @@ def sections(
         _repeatability_section(run),
         _verification_section(run),
         _verdict_section(run),
+        *navigation_sections(summary.get("navigation")),
         Section(
             "Recommendations",
             paragraphs=_recommendations(
@@ -928,6 +930,7 @@ def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - 
         archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1)
     )
     summary["chain_head"] = chain_head(archive)
+    summary["navigation"] = navigation_data(archive, run_id)  # lab.toml [navigation]
     return summary
 
 
