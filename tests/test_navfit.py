@@ -196,8 +196,8 @@ profiles = [{names}]
 
 def test_certificate_section_when_the_lab_names_profiles(static_run, tmp_path, monkeypatch):
     from calib_testing.documents import html_words, pdf_pages
-    from pipelines.reports.certificate import certificate_of
     from pipelines.reports.render import render_html
+    from pipelines.reports.run_reports import certificate_of
     from pipelines.reports.typeset import render_pdf
 
     archive, run_id = static_run
