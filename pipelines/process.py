@@ -23,8 +23,10 @@ from calib_core.checks import check_calibration, overall_verdict
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
+from calib_core.preprocess.motion import static_labels
 from calib_core.procedures.rate_table import plateau_window
 from calib_core.recording import Recording
+from calib_core.stillness import StatedLimits, stillness_problems
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
 from pipelines import shared_reference
@@ -42,6 +44,7 @@ from pipelines.process_streamed import (
 )
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.rejudge import group_of, rejudge_from
+from pipelines.reports.display import record_notes
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
 from pipelines.uncertainty import uncertainty_step
@@ -349,6 +352,28 @@ def run_conditions(
     )
 
 
+def still_checks(loaded: LoadedRun, gravity: float, profile: ToleranceProfile) -> list[CheckResult]:
+    """The static segments of the run's procedure judged still by absolute criteria
+    (`calib_core.stillness`): a fit segment that is not is refused (ValueError naming its
+    file, the segment and what was measured); a held-out one gives the finding
+    ``record:still:<label>`` (the fit can do without it)."""
+    proc = procedures.BY_NAME.get(loaded.manifest.run.procedure)
+    if proc is None:
+        return []
+    stated = StatedLimits.of(profile)
+    out = []
+    for label in static_labels(proc.static_segments, loaded.segments):
+        rec = loaded.segments[label]
+        problems = stillness_problems(rec, gravity, stated)
+        if not problems:
+            continue
+        what = f"static segment '{label}' ({rec.source}) moved: {'; '.join(problems)}"
+        if label not in loaded.verification_labels:
+            raise ValueError(f"{what}; repeat it with the unit at rest")
+        out.append(CheckResult(f"record:still:{label}", None, None, False, what))
+    return out
+
+
 @dataclass
 class Judged:
     """What the check stage found: checks, verdict, the profile and its step record."""
@@ -376,6 +401,7 @@ def check_run(
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
     checks += more_checks
     checks += [CheckResult(**f) for f in loaded.findings]  # the readers' (record:cut:...)
+    checks += still_checks(loaded, cal.gravity, profile)
     checks.append(
         device_check(
             loaded.manifest,
@@ -438,6 +464,7 @@ def protocol_of(
         budgets={n: b.to_dict() for n, b in (budgets or {}).items()},
         decision_rule=judged.profile.decision_rule.statement(),
         names=judged.profile.protocol_names,
+        notes=record_notes([c.to_dict() for c in judged.checks], cal.warnings),
     )
 
 

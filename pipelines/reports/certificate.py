@@ -52,7 +52,9 @@ from pipelines.reports.display import (
     limit_text,
     number,
     quantity,
+    record_notes,
     shown,
+    solve_warnings,
     tolerance_text,
     uncertainty,
 )
@@ -690,8 +692,14 @@ def _verdict_section(run: _Archived) -> Section:
             ("Failed", ", ".join(failed) or "none"),
             ("Warnings", ", ".join(by_status.get(conditions.WARNING, [])) or "none"),
             ("Not recorded", ", ".join(by_status.get(conditions.NOT_RECORDED, [])) or "none"),
+            *(_notes(run) or [("The record", "no findings, no sample replaced")]),
         ],
     )
+
+
+def _notes(run: _Archived) -> list[tuple[str, str]]:
+    """The findings about the record, the samples replaced and the solve's warnings."""
+    return record_notes(run.checks, solve_warnings(run.summary["calibration"]["steps"]))
 
 
 def _figures(run: _Archived) -> dict[str, str]:
@@ -730,4 +738,5 @@ def _protocol(run: _Archived) -> str:
         budgets=_budgets(run),
         decision_rule=_decision_rule(run),
         names=run.profile.protocol_names if run.profile else "canonical",
+        notes=_notes(run),
     )
