@@ -8,7 +8,9 @@ kept neighbours exactly as `calib_core.solvers.static_bias` does on one array.
 a running cumulative sum: each chunk's second differences need the cumulative sum 2 m
 samples back, so the last rows of the phase are kept (up to `memory_rows`); lags past
 that are read from a `History` the caller supplies (a file in the pipelines, a list of
-arrays by default). `MedianStep`: the median sample period (`Recording.sample_rate`)
+arrays by default). `Execution`: what a caller gives the streamed computations to run on
+(a helper beside the calling thread, phase memory, a history, a workspace); the numbers
+never depend on it. `MedianStep`: the median sample period (`Recording.sample_rate`)
 from counts of the distinct time steps. `TemperatureTrend` and `RecordSummary`: what
 the lab conditions take of a record.
 
@@ -20,7 +22,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -317,6 +319,51 @@ class ListHistory:
         return self._rows[:, start:stop]
 
 
+class Pending(Protocol):
+    """A call in progress (a `concurrent.futures.Future`): `result` waits for it and
+    raises its error."""
+
+    def result(self) -> Any: ...
+
+
+class Done:
+    """fn(*args) called now; `result` its value (a `Pending` without a helper)."""
+
+    def __init__(self, fn: Callable, *args: Any) -> None:
+        self.value = fn(*args)
+
+    def result(self) -> Any:
+        return self.value
+
+
+@dataclass(frozen=True)
+class Execution:
+    """What the streamed computations run on, given by their caller (the pipelines make
+    it; the science starts no thread and opens no file). The numbers never depend on it.
+
+    submit : submit(fn, *args) -> a `Pending` (an executor's ``submit``): a helper of at
+        least two workers beside the calling thread, where work that releases the GIL
+        (NumPy, the compiled sums) runs meanwhile; None: everything in line.
+    memory_rows : phase rows each Allan deviation keeps in memory; the longer lags are read
+        from `new_history()`.
+    new_history : a new `History` for them (a file in the pipelines); None: in memory.
+    workspace : float64 values holding a channel's whole phase when `memory_rows` holds
+        it (see `StreamedAllan`); None: new buffers.
+    """
+
+    submit: Callable[..., Pending] | None = None
+    memory_rows: int = 1 << 20
+    new_history: Callable[[], History] | None = None
+    workspace: np.ndarray | None = None
+
+    def run(self, fn: Callable, *args: Any) -> Pending:
+        """fn(*args) on the helper, or now without one."""
+        return self.submit(fn, *args) if self.submit is not None else Done(fn, *args)
+
+
+IN_LINE = Execution()
+
+
 class StreamedAllan:
     """Overlapping Allan deviation of a record pushed in chunks (`allan_deviation`'s numbers).
 
@@ -329,17 +376,13 @@ class StreamedAllan:
     offset : (C,) subtracted before the cumulative sum (the Allan variance does not
         depend on it; the record's mean keeps the sum small, as in memory). None: the
         first chunk's mean.
-    memory_rows : phase rows kept in memory; cluster sizes with 2 m beyond it read their
-        lagged rows from `history`. At least N + 1: the whole phase, in one buffer of
-        N + 1 rows (no history, no rows moved).
-    history : `History` of every phase row, needed only when 2 m > memory_rows for
-        some m; default `ListHistory` (in memory).
-    helper : submit(fn, *args) -> a Future (an executor's): where half of the cluster
-        sizes held in memory are summed, beside the calling thread (the compiled sums
-        release the GIL); None: all in the calling thread. The numbers do not depend on it.
-    workspace : float64 array of at least C (N + 1) values holding the whole phase when it
-        fits (`memory_rows` >= N + 1), in place of a new buffer: the caller passes the
-        same one to the channels it solves in turn, whose pages are then touched once.
+    execution : its ``memory_rows`` phase rows are kept in memory; cluster sizes with 2 m
+        beyond them read their lagged rows from a history (``new_history()``, or in
+        memory), every phase row kept there. At least N + 1: the whole phase, in one
+        buffer (no history, no rows moved), of the ``workspace`` when it holds C (N + 1)
+        values (a caller passes the same one to the channels it solves in turn, whose
+        pages are then touched once). With ``submit``, half of the cluster sizes held in
+        memory are summed on the helper (the compiled sums release the GIL).
 
     The phase is kept channel by channel (each channel's rows contiguous); the squared
     second differences are summed by the compiled loops of
@@ -354,20 +397,20 @@ class StreamedAllan:
         *,
         taus: str | np.ndarray = "octave",
         offset: np.ndarray | None = None,
-        memory_rows: int = 1 << 20,
-        history: History | None = None,
-        helper: Callable | None = None,
-        workspace: np.ndarray | None = None,
+        execution: Execution = IN_LINE,
     ):
         if not rate_hz > 0:
             raise ValueError(f"streamed Allan deviation: rate_hz must be > 0, got {rate_hz}")
         self.rate_hz, self.n_samples = float(rate_hz), int(n_samples)
         self.m = cluster_sizes(n_samples, rate_hz, taus)
-        self.keep_rows = int(min(2 * self.m.max(), max(memory_rows, 1)))
+        self.keep_rows = int(min(2 * self.m.max(), max(execution.memory_rows, 1)))
         self.spills = bool((2 * self.m > self.keep_rows).any())
-        self.history = history if history is not None or not self.spills else ListHistory()
+        self.history: History | None = None
+        if self.spills:
+            new = execution.new_history
+            self.history = new() if new is not None else ListHistory()
         self.offset = None if offset is None else np.asarray(offset, float)
-        self.helper, self.workspace = helper, workspace
+        self.helper, self.workspace = execution.submit, execution.workspace
         self._beside: tuple | None = None  # the helper's sums in progress (`_settle`)
         self.sums = np.zeros((self.m.size, channels))
         # The phase's last keep_rows rows and the newest chunk's: column i is phase row

@@ -11,8 +11,11 @@ from rich.markup import escape
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    DeviceIdOpt,
     JsonOpt,
     RevisionOpt,
+    RotationOpt,
+    VehicleIdOpt,
     app,
     cell,
     err,
@@ -308,8 +311,15 @@ def export(
     instance: Annotated[
         int | None, typer.Option(help="PX4 sensor instance (0) / ArduPilot IMU number (1).")
     ] = None,
-    accel_id: Annotated[int, typer.Option(help="PX4 accelerometer device id.")] = 0,
-    gyro_id: Annotated[int, typer.Option(help="PX4 gyro device id.")] = 0,
+    device_id: DeviceIdOpt = None,
+    accel_id: Annotated[
+        int | None, typer.Option(help="PX4 accelerometer device id (else --device-id).")
+    ] = None,
+    gyro_id: Annotated[
+        int | None, typer.Option(help="PX4 gyro device id (else --device-id).")
+    ] = None,
+    rotation: RotationOpt = None,
+    vehicle_id: VehicleIdOpt = 1,
     rostopic: Annotated[str, typer.Option(help="kalibr / openvins: the IMU topic.")] = "/imu0",
     update_rate: Annotated[
         float | None, typer.Option(help="kalibr / openvins: update_rate, Hz (default: the run's).")
@@ -332,10 +342,12 @@ def export(
             revision=revision,
             thermal=thermal,
             instance=instance,
-            accel_id=accel_id,
-            gyro_id=gyro_id,
+            accel_id=device_id if accel_id is None else accel_id,
+            gyro_id=device_id if gyro_id is None else gyro_id,
             rostopic=rostopic,
             update_rate_hz=update_rate,
+            rotation=rotation,
+            vehicle_id=vehicle_id,
         )
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))

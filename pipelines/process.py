@@ -34,6 +34,7 @@ from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
+from pipelines.issuing import issue_certificate
 from pipelines.process_streamed import (
     as_found_solver,
     conditions_segments,
@@ -48,8 +49,9 @@ from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
 from pipelines.uncertainty import uncertainty_step
 from storage import queries, rawstore, write_failures
-from storage.archive import ArchiveResult, RawFileIn, RunIn, archive_run, raw_hash_of, run_id_of
+from storage.archive import ArchiveResult, archive_run
 from storage.db import Archive
+from storage.run_input import RawFileIn, RunIn, raw_hash_of, run_id_of
 
 log = logging.getLogger("calib.process")
 
@@ -162,10 +164,14 @@ def run_outcome(
 
 def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
     """The step record of ingest: format settings, files, samples per segment, wall time
-    (and, for a record streamed in chunks, its memory limit, bytes)."""
+    (and, for a record streamed in chunks, its memory limit, bytes; the sensors' firmware ids
+    per segment when the log records them, ``devices``)."""
     rec = loaded.streamed
     samples = {k: len(r) for k, r in loaded.segments.items()}
-    more = {}
+    more: dict[str, Any] = {}
+    devices = {k: r.devices for k, r in loaded.segments.items() if r.devices}
+    if devices:  # the sensors' firmware ids (pipelines.autopilot reads them for exports)
+        more["devices"] = devices
     if rec is not None:
         samples = {rec.label: rec.n}
         more = {"streamed": {"memory_limit": rec.memory_limit, "bytes": rec.result.size}}
@@ -604,36 +610,6 @@ def process_run(
         verdict_=verdict_,
         message=message,
     )
-
-
-ISSUE_ENV = "CALIB_ISSUE_CERTIFICATES"  # "0": no certificate at archive time
-
-
-def issue_certificate(archive: Archive, run_id: str) -> None:
-    """Issue the archived revision's certificate (HTML and PDF, `pipelines.reports.issue`).
-
-    The run stays archived if this fails (a missing font library, a full disk): the
-    failure is logged with how to issue it later (`calib report RUN`). Environment
-    ``CALIB_ISSUE_CERTIFICATES=0`` leaves the issue to `calib report` (bulk loads, test
-    suites: typesetting costs seconds per run).
-    """
-    import os
-
-    if os.environ.get(ISSUE_ENV, "1").strip() == "0":
-        return
-    from pipelines.reports.issue import issue
-
-    try:
-        issue(archive, run_id)
-    except Exception as exc:  # noqa: BLE001 - the archived run stands; said, not hidden
-        problem = write_failures.describe(exc, archive.url) or f"{type(exc).__name__}: {exc}"
-        log.warning(
-            "run %s is archived but its certificate was not issued: %s; issue it "
-            "with `calib report %s`",
-            run_id,
-            problem,
-            run_id,
-        )
 
 
 def _failed(where: str, serial: str, exc: Exception, database_url: str) -> dict[str, Any]:

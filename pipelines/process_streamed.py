@@ -35,7 +35,6 @@ from calib_core.streamed import RecordSummary, TemperatureTrend, load_compiled
 from calib_core.uncertainty import Budget
 from pipelines.ingest import RunSource
 from pipelines.ingest.csv_layout import layout_of
-from pipelines.ingest.csv_stream import samples_chunks, solve_streamed
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import RunManifest, SegmentSpec, check_segments, load_manifest
 from pipelines.ingest.run_loader import (
@@ -48,6 +47,7 @@ from pipelines.ingest.run_loader import (
     with_lab_site,
 )
 from pipelines.ingest.streaming import STREAMERS, StreamedRecord
+from pipelines.streamed_solve import samples_chunks, solve_streamed
 from pipelines.uncertainty import uncertainty_step
 from storage import rawstore
 

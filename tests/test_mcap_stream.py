@@ -19,11 +19,11 @@ from test_ingest_mcap import T0_NS, rewrite, write_run
 
 from calib_core.solvers.static_bias import solve_static_bias
 from calib_testing.streaming import streamed_memory_growth
-from pipelines.ingest.csv_stream import solve_streamed
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.mcap_reader import read_mcap
 from pipelines.ingest.mcap_stream import stream_mcap
+from pipelines.streamed_solve import solve_streamed
 
 LIMIT = 1 << 20  # bytes: 1024 messages a batch; the files are several times larger
 N = 20_000

@@ -89,7 +89,7 @@ def _kept_stats(x: np.ndarray, rate_hz: float, n_sigma: float, taus) -> tuple:
     return mean, std, counts, allan_deviation(_fill(x, keep), rate_hz, taus)
 
 
-def _channel_stats(x: np.ndarray, rate_hz: float, n_sigma: float, taus) -> tuple:
+def sensor_statistics(x: np.ndarray, rate_hz: float, n_sigma: float, taus) -> tuple:
     """mean, std, outlier counts, Allan result, noise parameters, u(mean), fit misfits and
     warnings (None or text, per channel) of (N, 3) samples (`choose_noise_fit`)."""
     mean, std, counts, allan = _kept_stats(x, rate_hz, n_sigma, taus)
@@ -111,7 +111,7 @@ def _noise_stats(allan, std: np.ndarray, n: int, rate_hz: float) -> tuple:
     return noise, u, misfits, warnings
 
 
-def _earth_rate(
+def earth_rate_removed(
     where: str,
     n: int,
     n_sigma: float,
@@ -178,7 +178,7 @@ def solve_static_bias(
     the Earth rate removed.
     """
     where = rec.source or rec.label or "recording"
-    earth = _earth_rate(
+    earth = earth_rate_removed(
         where, len(rec), n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis
     )
     rate_hz = rec.sample_rate

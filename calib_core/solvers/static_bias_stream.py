@@ -10,17 +10,16 @@ channels in one pass over the chunks, or, from a store that reads one channel al
 With a label the solve also makes the motion check
 (`calib_core.preprocess.motion.StreamedMotion`, on the samples before the fill, as the
 in-memory check sees them). A caller's first pass (`FirstPass.empty()`, pushed while the
-file is read) computes its windows' statistics on a worker thread, at the window width
-of the first chunk's time steps; when that is the record's width (`StreamedMotion.settle`),
-the second pass has no motion work. Otherwise (a short record, a first chunk whose rate is
-not the record's) the second pass computes the windows as before.
+file is read) computes its windows' statistics on the caller's helper (`Execution`), at
+the window width of the first chunk's time steps; when that is the record's width
+(`StreamedMotion.settle`), the second pass has no motion work. Otherwise (a short record,
+a first chunk whose rate is not the record's) the second pass computes the windows.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-import queue
-import threading
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
@@ -28,11 +27,13 @@ import numpy as np
 
 from calib_core.calibration import Calibration
 from calib_core.preprocess.motion import StreamedMotion, motion_check_of, streamed_smallest_steps
-from calib_core.solvers.static_bias import _earth_rate, static_bias_calibration
+from calib_core.solvers.static_bias import earth_rate_removed, static_bias_calibration
 from calib_core.streamed import (
-    History,
+    IN_LINE,
+    Execution,
     MedianStep,
     Moments,
+    Pending,
     SigmaClipFill,
     StreamedAllan,
     joined_allan,
@@ -51,10 +52,10 @@ class FirstPass:
     value of each channel of [gyr | acc] (the range check) and the motion check's windows.
 
     The motion windows (`motion`: a `StreamedMotion` whose record length is not known
-    yet) and, after the first chunk, the moments, steps and extremes are computed on a
-    thread of their own, one chunk at a time (the next push waits for the previous
-    chunk's; `close`, `n` and `t_last` for the last): NumPy releases the GIL, so the
-    reading goes on meanwhile.
+    yet) and, after the first chunk, the moments, steps and extremes are computed on the
+    `execution`'s helper (in line without one), one chunk at a time (the next push waits
+    for the previous chunk's; `close`, `n` and `t_last` for the last): NumPy releases the
+    GIL, so the reading goes on meanwhile.
     Their width is a long record's at the first chunk's median rate; `settled_motion`
     says at the end whether it is the record's. `motion` None: not computed (`watch_motion`
     false, or the first chunk could not set a width: the solve's pass computes them).
@@ -67,11 +68,12 @@ class FirstPass:
     high: np.ndarray | None = None
     motion: StreamedMotion | None = None
     watch_motion: bool = True
-    _pending: _OnThread | None = field(default=None, repr=False)
+    execution: Execution = field(default=IN_LINE, repr=False)
+    pending: Pending | None = field(default=None, repr=False)
 
     @classmethod
-    def empty(cls, watch_motion: bool = True) -> FirstPass:
-        return cls(Moments(6), MedianStep(), watch_motion=watch_motion)
+    def empty(cls, watch_motion: bool = True, execution: Execution = IN_LINE) -> FirstPass:
+        return cls(Moments(6), MedianStep(), watch_motion=watch_motion, execution=execution)
 
     def push(self, chunk: Chunk) -> None:
         t, gyr, acc = chunk
@@ -84,9 +86,9 @@ class FirstPass:
             self._take(t, both)
             self.motion = _provisional_motion(t) if self.watch_motion else None
             if self.motion is not None:
-                self._pending = _OnThread(self.motion.push, t, both)
+                self.pending = self.execution.run(self.motion.push, t, both)
         elif self.motion is not None:  # beside the reading of the next chunk
-            self._pending = _OnThread(self._take_and_watch, t, both)
+            self.pending = self.execution.run(self._take_and_watch, t, both)
         else:
             self._take(t, both)
 
@@ -108,7 +110,7 @@ class FirstPass:
     def close(self) -> None:
         """Wait for the last chunk's motion windows (a failure in them is raised here).
         Readers call it when the record ends; the solve calls it anyway."""
-        pending, self._pending = self._pending, None
+        pending, self.pending = self.pending, None
         if pending is not None:
             pending.result()
 
@@ -146,28 +148,6 @@ def _provisional_motion(t: np.ndarray) -> StreamedMotion | None:
     return motion if motion.width <= t.shape[0] else None
 
 
-class _OnThread:
-    """fn(*args) on a thread of its own; `result` waits for it and raises its error."""
-
-    def __init__(self, fn: Callable, *args) -> None:
-        self.error: BaseException | None = None
-        self.thread = threading.Thread(
-            target=self._run, args=(fn, args), name="calib-motion", daemon=True
-        )
-        self.thread.start()
-
-    def _run(self, fn: Callable, args: tuple) -> None:
-        try:
-            fn(*args)
-        except BaseException as exc:  # noqa: BLE001 - raised by result() in the caller
-            self.error = exc
-
-    def result(self) -> None:
-        self.thread.join()
-        if self.error is not None:
-            raise self.error
-
-
 def _joined(gyr: np.ndarray, acc: np.ndarray) -> np.ndarray:
     """[gyr | acc] (n, 6): without a copy when the reader made them views of one array."""
     both = gyr.base if gyr.base is not None and gyr.base is acc.base else None
@@ -197,13 +177,9 @@ def solve_static_bias_stream(
     up_axis: str | None = None,
     gravity: float = STANDARD_GRAVITY,
     taus: str | np.ndarray = "octave",
-    memory_rows: int = 1 << 20,
-    new_history: Callable[[], History] | None = None,
-    parallel: bool = False,
     motion_label: str | None = None,
-    submit: Callable | None = None,
     channel_chunks: Callable[[int], Iterator[np.ndarray]] | None = None,
-    workspace: np.ndarray | None = None,
+    execution: Execution = IN_LINE,
 ) -> Calibration:
     """`calib_core.solvers.static_bias.solve_static_bias` on a streamed record.
 
@@ -216,25 +192,18 @@ def solve_static_bias_stream(
     first : the first pass's statistics of these chunks if the caller has them (else one
         more pass); its motion windows are used when they are the record's
         (`FirstPass.settled_motion`), else the second pass computes them.
-    memory_rows, new_history : the phase rows in memory of each Allan deviation (of a
-        sensor's channels, or of one channel with `channel_chunks`) and a new `History`
-        for its longer lags (`calib_core.streamed.StreamedAllan`; None: in memory).
-    parallel : the two sensors' channels each on a thread of its own (side by side: NumPy
-        and the compiled sums release the GIL), else one after the other; with
-        `channel_chunks`, half of each channel's Allan sums submitted to `submit`. The
-        numbers do not depend on it.
     motion_label : with a label, the record's motion check (``motion:<label>``) among the
         Calibration's ``solver_checks``; None: no motion check.
-    submit : submit(fn, *args) -> a Future: where this pass computes a chunk's motion
-        windows (None: in line), when the first pass's are not the record's (and, with
-        `channel_chunks` and `parallel`, half of the Allan sums).
     channel_chunks : channel_chunks(c) a fresh iterator over channel c of [gyr | acc] alone,
         (n, 1) chunks in order: the channels are then solved one after the other, each
         in a pass of its own (a column store reads one column for it; each channel's
         phase gets the whole `memory_rows`). None: one pass over `chunks` for all.
-    workspace : with `channel_chunks`, float64 values (at least N + 1) that hold each
-        channel's whole phase in turn when `memory_rows` >= N + 1 (see
-        `calib_core.streamed.StreamedAllan`); None: new buffers.
+    execution : what the solve runs on (`calib_core.streamed.Execution`): each Allan
+        deviation's phase memory and history (of a sensor's channels, or of one channel
+        with `channel_chunks`, whose phases take the workspace in turn); with a helper,
+        one sensor's channels and a chunk's motion windows are computed on it beside the
+        other's (one pass), or half of each channel's Allan sums (`channel_chunks`). The
+        numbers do not depend on it.
     Other parameters as `solve_static_bias`.
 
     Returns
@@ -243,24 +212,15 @@ def solve_static_bias_stream(
     """
     first = first if first is not None else first_pass(chunks())
     n = first.n
-    earth = _earth_rate(label, n, n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis)
+    earth = earth_rate_removed(
+        label, n, n_sigma, remove_earth_rate, latitude_deg, heading_deg, up_axis
+    )
     rate_hz = 1.0 / first.step.median()
 
-    def group(
-        cols: slice, helper: Callable | None = None, space: np.ndarray | None = None
-    ) -> _Group:
+    def group(cols: slice, on: Execution) -> _Group:
         """The n-sigma rule and the Allan sums of the channels `cols` of [gyr | acc]."""
-        allan = StreamedAllan(
-            rate_hz,
-            n,
-            cols.stop - cols.start,
-            taus=taus,
-            offset=first.moments.mean[cols],
-            memory_rows=memory_rows,
-            history=new_history() if new_history is not None else None,
-            helper=helper,
-            workspace=space,
-        )
+        channels, offset = cols.stop - cols.start, first.moments.mean[cols]
+        allan = StreamedAllan(rate_hz, n, channels, taus=taus, offset=offset, execution=on)
         return _Group(first.moments.columns(cols), n_sigma, allan)
 
     motion, again = None, False
@@ -269,12 +229,11 @@ def solve_static_bias_stream(
         again = motion is None  # not the first pass's: a pass computes the windows
         motion = StreamedMotion(n, rate_hz) if again else motion
     if channel_chunks is None:
-        stats = _one_pass(chunks, group, parallel, motion if again else None, submit)
+        stats = _one_pass(chunks, group, execution, motion if again else None)
     else:
         if again:  # the windows from a pass of their own
-            _one_pass(chunks, group, parallel, motion, submit, sensors={})
-        helper = submit if parallel else None
-        stats = _channel_passes(channel_chunks, group, helper, workspace)
+            _one_pass(chunks, group, execution, motion, sensors={})
+        stats = _channel_passes(channel_chunks, group, execution)
     cal = static_bias_calibration(
         stats,
         n,
@@ -297,34 +256,35 @@ def solve_static_bias_stream(
 
 def _one_pass(
     chunks: Callable[[], Iterator[Chunk]],
-    group: Callable[[slice], _Group],
-    parallel: bool,
+    group: Callable[[slice, Execution], _Group],
+    execution: Execution,
     motion: StreamedMotion | None,
-    submit: Callable | None,
     sensors: dict[str, slice] = SENSORS,
 ) -> dict[str, tuple]:
     """The statistics (`_statistics`) of each of `sensors` from one pass over `chunks`, a
     sensor's channels as a group (neither's numbers depend on the other's), with the
-    motion windows when `motion` is given (`sensors` empty: the windows alone)."""
-    groups = [group(cols) for cols in sensors.values()]
-    # A chunk's motion windows may be computed beside its Allan sums (`submit`: NumPy
-    # releases the GIL; neither writes the chunk), one chunk at a time, in order.
+    motion windows when `motion` is given (`sensors` empty: the windows alone).
+
+    With a helper, a chunk's motion windows and the first sensor's group run on it
+    beside the other sensor's (NumPy and the compiled sums release the GIL; none writes
+    the chunk), one chunk at a time, in order."""
+    own = dataclasses.replace(execution, submit=None, workspace=None)
+    groups = [group(cols, own) for cols in sensors.values()]
     pending = None
-    workers = [_GroupThread(g) if parallel else g for g in groups]
-    try:
-        for t, gyr, acc in chunks():
-            both = _joined(gyr, acc)
-            if motion is not None:  # before the fill: the samples the in-memory check sees
-                if pending is not None:
-                    pending.result()
-                pending = (submit or _Done)(motion.push, t, both)
-            for cols, w in zip(sensors.values(), workers, strict=True):
-                w.push(both[:, cols])
-        for w in workers:
-            w.flush()
-    finally:
-        for w in workers:
-            w.close()
+    for t, gyr, acc in chunks():
+        both = _joined(gyr, acc)
+        if motion is not None:  # before the fill: the samples the in-memory check sees
+            if pending is not None:
+                pending.result()
+            pending = execution.run(motion.push, t, both)
+        parts = [(g, both[:, cols]) for g, cols in zip(groups, sensors.values(), strict=True)]
+        beside = [execution.run(g.push, x) for g, x in parts[:1]]
+        for g, x in parts[1:]:
+            g.push(x)
+        for job in beside:
+            job.result()
+    for g in groups:
+        g.flush()
     if pending is not None:
         pending.result()
     return {sensor: _statistics([g]) for sensor, g in zip(sensors, groups, strict=True)}
@@ -332,18 +292,17 @@ def _one_pass(
 
 def _channel_passes(
     channel_chunks: Callable[[int], Iterator[np.ndarray]],
-    group: Callable[..., _Group],
-    helper: Callable | None,
-    workspace: np.ndarray | None,
+    group: Callable[[slice, Execution], _Group],
+    execution: Execution,
 ) -> dict[str, tuple]:
     """Each sensor's statistics from a pass per channel, one channel after the other
-    (half of each one's Allan sums submitted to `helper`, when given; their phases in
-    `workspace` in turn)."""
+    (half of each one's Allan sums on the execution's helper, when it has one; their
+    phases in its workspace in turn)."""
     stats = {}
     for sensor, cols in SENSORS.items():
         done = []
         for c in range(cols.start, cols.stop):
-            g = group(slice(c, c + 1), helper, workspace)
+            g = group(slice(c, c + 1), execution)
             for x in channel_chunks(c):
                 g.push(x)
             g.flush()
@@ -368,9 +327,6 @@ class _Group:
         self.allan.push(self.clip.flush())
         self.allan.release()
 
-    def close(self) -> None:
-        """Nothing to wait for (the pushes ran in line)."""
-
 
 def _statistics(groups: list[_Group]) -> tuple:
     """(kept mean, kept std (ddof 1), rejected count, AllanResult) of the channels of
@@ -382,54 +338,6 @@ def _statistics(groups: list[_Group]) -> tuple:
         np.concatenate([g.clip.rejected for g in groups]),
         joined_allan([g.allan for g in groups]),
     )
-
-
-class _GroupThread:
-    """A group's pushes on a thread of its own, in order, with at most two chunks waiting;
-    an error is raised to the caller at its next push or at `flush`."""
-
-    def __init__(self, group: _Group) -> None:
-        self.group, self.error = group, None
-        self.queue: queue.Queue = queue.Queue(maxsize=2)
-        self.thread = threading.Thread(target=self._run, name="calib-solve", daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while (job := self.queue.get()) is not None:
-            if self.error is None:  # after an error, the queue is only drained
-                try:
-                    job()
-                except BaseException as exc:  # noqa: BLE001 - raised in the caller
-                    self.error = exc
-
-    def _raise(self) -> None:
-        if self.error is not None:
-            raise self.error
-
-    def push(self, both: np.ndarray) -> None:
-        self._raise()
-        self.queue.put(lambda: self.group.push(both))
-
-    def flush(self) -> None:
-        self.queue.put(self.group.flush)
-        self.close()
-        self._raise()
-
-    def close(self) -> None:
-        """Until the thread has done every push given (idempotent)."""
-        if self.thread.is_alive():
-            self.queue.put(None)
-            self.thread.join()
-
-
-class _Done:
-    """fn(*args) called now; result() its result (`submit` when none is given)."""
-
-    def __init__(self, fn: Callable, *args) -> None:
-        self.value = fn(*args)
-
-    def result(self):
-        return self.value
 
 
 def _steps(chunks: Callable[[], Iterator[Chunk]], cols: np.ndarray) -> np.ndarray:

@@ -178,5 +178,6 @@ def read_dataflash(
         {"gyr": data[:, 1:4], "acc": data[:, 4:7]},
         temp=recorded_temperature(data[:, 7]),
         temp_field="T",
+        devices={"imu": int(chosen.key)},
         findings=findings,
     )

@@ -38,6 +38,7 @@ def checked_recording(
     *,
     temp: np.ndarray | None = None,
     temp_field: str = "temperature",
+    devices: dict[str, int] | None = None,
     findings: tuple[dict, ...] = (),
 ) -> Recording:
     """A Recording of `what` (``"sensor_combined"``, ``"IMU[0]"``, ``"/imu"``) after the checks.
@@ -50,6 +51,7 @@ def checked_recording(
     channels : {"acc": (N, 3) m/s^2, "gyr": (N, 3) rad/s} with the field names
         to report as keys ``"acc:<field>"`` optional (see `fields`).
     temp : (N,) deg C or None.
+    devices : the sensors' firmware ids the log records (`Recording.devices`).
     findings : the reader's findings about the file (`cut_tail`).
 
     Raises
@@ -67,6 +69,7 @@ def checked_recording(
         gyr=channels["gyr"],
         temp=temp,
         source=str(path),
+        devices=devices or {},
         findings=findings,
     )
 

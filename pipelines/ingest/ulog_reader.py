@@ -248,7 +248,15 @@ def _separate(ulog, path: Path, instance: int) -> Recording:
         temp = None if temp is None else temp[keep]
         gyr = _onto(t, t_gyr, gyr, path, "sensor_gyro")
     what = f"sensor_accel[{instance}]"
-    return checked_recording(path, what, t, {"acc": acc, "gyr": gyr}, temp=temp)
+    devices = {k: i for k, i in (("accel", _device_id(accel)), ("gyro", _device_id(gyro))) if i}
+    return checked_recording(path, what, t, {"acc": acc, "gyr": gyr}, temp=temp, devices=devices)
+
+
+def _device_id(data) -> int | None:  # noqa: ANN001 - a pyulog data set
+    """The topic's ``device_id`` (the id PX4's CAL_* / TC_* parameters must name), None when
+    the topic has none, it is 0 or it changes within the log (two sensors, no one id)."""
+    ids = np.unique(np.asarray(data.data.get("device_id", ()), dtype=np.int64))
+    return int(ids[0]) if len(ids) == 1 and ids[0] != 0 else None
 
 
 def _combined(ulog, path: Path, instance: int) -> Recording:

@@ -67,6 +67,8 @@ def tolerance(name: str, check: dict | None) -> tuple[str, float] | None:
 
 STANDARD_U = "u"  # the standard uncertainty (k = 1), as every table heads it
 STANDARD_U_MEANING = "u: standard uncertainty (k = 1)"
+# a value archived without a standard uncertainty (a noise term: the value is itself a spread)
+NO_STANDARD_U = "not evaluated"
 U_DIGITS = 2  # significant digits of an uncertainty (GUM 7.2.6); the value to the same place
 VALUE_DIGITS = 6  # significant digits of a value without an uncertainty
 LIMIT_DIGITS = 4  # significant digits of a tolerance limit
