@@ -42,7 +42,7 @@ from sqlalchemy.orm import Session
 from storage import rawstore, schema, seal, store_identity, unit_latest
 from storage.current import CURRENT
 from storage.db import Archive
-from storage.revision_rows import check_rows, insert_many, step_row
+from storage.revision_rows import add_revision, check_rows, insert_many, step_row
 from storage.run_input import (
     RunIn,
     as_date,
@@ -351,7 +351,12 @@ def _write_rows(
         if run_pk is None:
             rel_dir = rdir.relative_to(root).as_posix()
             run_pk = _insert_run(s, run, raw_hash, run_id, rel_dir, written.samples)
-        cal = schema.CalibrationRow(
+        previous = None
+        if plan.previous_id is not None:
+            previous = s.get(schema.CalibrationRow, plan.previous_id)
+        cal = add_revision(
+            s,
+            previous,
             run_id=run_pk,
             revision=plan.revision,
             settings_hash=settings_hash,
@@ -363,10 +368,6 @@ def _write_rows(
             profile_name=run.profile_name,
             profile_version=run.profile_version,
         )
-        s.add(cal)
-        s.flush()
-        if plan.previous_id is not None:
-            s.get(schema.CalibrationRow, plan.previous_id).superseded_by = cal.id
         _insert_children(s, run, run_pk, cal.id)
         s.flush()
         device_id = s.scalar(select(schema.Run.device_id).where(schema.Run.id == run_pk))

@@ -16,7 +16,7 @@ from storage import schema, seal, unit_latest
 from storage.archive import ArchiveResult
 from storage.current import CURRENT, LATEST_RUN_FIRST, is_current
 from storage.db import Archive
-from storage.revision_rows import check_rows, insert_many, step_row
+from storage.revision_rows import add_revision, check_rows, insert_many, step_row
 from storage.settings_hash import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
 
 
@@ -103,6 +103,17 @@ def _earlier_runs(s: Session, run: schema.Run) -> list[str]:
     )
 
 
+# What a revision judged again keeps of the one it supersedes.
+_KEPT = (
+    "settings",
+    "software_version",
+    "source_revision",
+    "document",
+    "profile_name",
+    "profile_version",
+)
+
+
 def _judged_again(
     s: Session, prev: schema.CalibrationRow, procedure: str, judged: Rejudgement
 ) -> schema.CalibrationRow:
@@ -112,23 +123,17 @@ def _judged_again(
             schema.CalibrationRow.run_id == prev.run_id
         )
     )
-    cal = schema.CalibrationRow(
+    cal = add_revision(
+        s,
+        prev,
         run_id=prev.run_id,
         revision=revision,
         settings_hash=settings_hash(
             prev.settings, procedure, prev.profile_name, prev.profile_version, judged.earlier
         ),
-        settings=prev.settings,
-        software_version=prev.software_version,
-        source_revision=prev.source_revision,
-        document=prev.document,
         verdict=judged.verdict,
-        profile_name=prev.profile_name,
-        profile_version=prev.profile_version,
+        **{c: getattr(prev, c) for c in _KEPT},
     )
-    s.add(cal)
-    s.flush()
-    prev.superseded_by = cal.id
     steps = (
         s.execute(
             select(schema.ProcessingStep)

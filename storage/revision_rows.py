@@ -1,5 +1,6 @@
-"""The child rows of a calibration revision (processing steps, checks), inserted by one
-executemany (storage.archive and storage.rejudgement write them).
+"""A new calibration revision's row (superseding the current one) and its child rows
+(processing steps, checks), inserted by one executemany (storage.archive and
+storage.rejudgement write them).
 """
 
 from __future__ import annotations
@@ -11,7 +12,18 @@ from sqlalchemy import insert
 from sqlalchemy.orm import Session
 
 from calib_core.calibration import CheckResult, StepRecord
-from storage.schema import Base
+from storage.schema import Base, CalibrationRow
+
+
+def add_revision(s: Session, previous: CalibrationRow | None, **columns: Any) -> CalibrationRow:
+    """Add the calibration revision of `columns`; `previous`, the run's current one until
+    now (None for a new run), is superseded by it."""
+    cal = CalibrationRow(**columns)
+    s.add(cal)
+    s.flush()
+    if previous is not None:
+        previous.superseded_by = cal.id
+    return cal
 
 
 def step_row(

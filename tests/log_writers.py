@@ -218,6 +218,17 @@ def _ros_messages(store, rec: Recording, stamps, table_rate: float | None, slow_
             yield "/table/joint_states", "sensor_msgs/msg/JointState", ns, msg
 
 
+def _write_ros(writer, store, serialize, rec: Recording, table_rate, slow_every) -> None:  # noqa: ANN001
+    """`rec`'s messages into an open rosbags `writer`, serialised by `serialize`
+    (the typestore's CDR for ROS 2, ROS 1 for ROS 1)."""
+    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
+    conns = {}
+    for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate, slow_every):
+        if topic not in conns:
+            conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+        writer.write(conns[topic], ns, serialize(msg, msgtype))
+
+
 def write_rosbag2(
     folder: Path, rec: Recording, *, table_rate: float | None = None, slow_every: int | None = None
 ) -> Path:
@@ -226,13 +237,8 @@ def write_rosbag2(
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_HUMBLE)
-    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
-    conns = {}
     with Writer(folder, version=9, storage_plugin=StoragePlugin.SQLITE3) as writer:
-        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate, slow_every):
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-            writer.write(conns[topic], ns, store.serialize_cdr(msg, msgtype))
+        _write_ros(writer, store, store.serialize_cdr, rec, table_rate, slow_every)
     (db3,) = folder.glob("*.db3")
     return db3
 
@@ -245,13 +251,8 @@ def write_rosbag1(
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC)
-    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
-    conns = {}
     with Writer(path) as writer:
-        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate, slow_every):
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-            writer.write(conns[topic], ns, store.serialize_ros1(msg, msgtype))
+        _write_ros(writer, store, store.serialize_ros1, rec, table_rate, slow_every)
 
 
 # --- MCAP (mcap-ros2-support's writer) ------------------------------------------------

@@ -171,23 +171,25 @@ def test_apply_round_trip_at_an_untested_temperature(campaign, tmp_path):
     assert np.all(rms(raw_acc) > 1.5 * truth.acc_noise), rms(raw_acc) / truth.acc_noise
 
 
+def _apply_args(source, out, campaign) -> list[str]:
+    """`calib apply` of `source` into `out` with SERIAL's calibrations of the campaign."""
+    return [
+        "apply",
+        str(source),
+        str(out),
+        "--serial",
+        SERIAL,
+        "--archive",
+        str(campaign["archive"].root),
+    ]
+
+
 def test_apply_to_one_mpu6000_file_writes_csv(campaign, tmp_path):
     truth, rng = campaign["truth"], campaign["rng"]
     sim = six_position_integral_run(truth.errors_at(UNTESTED_C), rng, temp_c=UNTESTED_C)
     files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "mpu", SERIAL)
     out = tmp_path / "z_up.csv"
-    res = CliRunner().invoke(
-        app,
-        [
-            "apply",
-            str(files[0]),
-            str(out),
-            "--serial",
-            SERIAL,
-            "--archive",
-            str(campaign["archive"].root),
-        ],
-    )
+    res = CliRunner().invoke(app, _apply_args(files[0], out, campaign))
     assert res.exit_code == 0, res.output
     df = pd.read_csv(out)
     assert list(df.columns) == [
@@ -216,15 +218,7 @@ def test_apply_prints_a_table_and_warns_of_another_serial(campaign, tmp_path):
     sim = six_position_integral_run(truth.errors_at(UNTESTED_C), rng, temp_c=UNTESTED_C)
     files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "mpu", "OTHER-7")
     out = tmp_path / "z_up.csv"
-    args = [
-        "apply",
-        str(files[0]),
-        str(out),
-        "--serial",
-        SERIAL,
-        "--archive",
-        str(campaign["archive"].root),
-    ]
+    args = _apply_args(files[0], out, campaign)
     res = CliRunner().invoke(app, args, env={"COLUMNS": "80"})
     assert res.exit_code == 0, res.output
     assert not res.stdout.lstrip().startswith("{")
@@ -235,7 +229,7 @@ def test_apply_prints_a_table_and_warns_of_another_serial(campaign, tmp_path):
     facts = json.loads(res.stdout)
     assert facts["data_serial"] == "OTHER-7" and len(facts["warnings"]) == 1
     files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "own", SERIAL)
-    res = CliRunner().invoke(app, [*args[:1], str(files[0]), *args[2:], "--json"])
+    res = CliRunner().invoke(app, [*_apply_args(files[0], out, campaign), "--json"])
     assert res.exit_code == 0 and "warning" not in res.stderr
     assert json.loads(res.stdout)["warnings"] == []
 

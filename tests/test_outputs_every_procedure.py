@@ -165,8 +165,8 @@ def test_every_run_has_its_certificate_issued(archived):
 
 
 def test_every_dcc_is_valid_against_dcc_3_3_0(archived, monkeypatch):
-    from pipelines.reports.certificate import archived_summary
     from pipelines.reports.dcc import dcc_xml
+    from pipelines.reports.run_reports import archived_summary
 
     archive, runs, profiles = archived
     monkeypatch.setenv("CALIB_PROFILES", str(profiles))
@@ -177,8 +177,8 @@ def test_every_dcc_is_valid_against_dcc_3_3_0(archived, monkeypatch):
 
 def test_the_schema_check_can_fail(archived, monkeypatch):
     """The validation the tests rely on catches each of the three faults of DCCs before 3.3.0."""
-    from pipelines.reports.certificate import archived_summary
     from pipelines.reports.dcc import dcc_xml
+    from pipelines.reports.run_reports import archived_summary
 
     archive, runs, profiles = archived
     monkeypatch.setenv("CALIB_PROFILES", str(profiles))
@@ -198,8 +198,8 @@ def test_the_schema_check_can_fail(archived, monkeypatch):
 
 
 def test_a_dcc_without_what_the_schema_needs_is_refused(archived, monkeypatch, tmp_path):
-    from pipelines.reports.certificate import archived_summary
     from pipelines.reports.dcc import DccRefusedError, dcc_xml
+    from pipelines.reports.run_reports import archived_summary
 
     archive, runs, _ = archived
     (tmp_path / "lab.toml").write_text('[customer]\nname = "X"\n')

@@ -25,10 +25,10 @@ from calib_core.uncertainty import budgets as make_budgets
 from calib_core.uncertainty_sources import EquipmentSpec
 from calib_core.units import STANDARD_GRAVITY
 from calib_core.verification import FAIL, NEEDS_REVIEW
-from calib_testing.run_writers import write_csv_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.reports.certificate import report_run
+from pipelines.reports.run_reports import report_run
 from pipelines.tolerances import SHIPPED
 from storage import queries
 from storage.db import resolve_archive
@@ -166,24 +166,11 @@ issued_by = "PTB"
 
 
 def _manifest(serial: str, equipment: bool, day: int = 20) -> dict:
-    return {
-        "schema_version": 1,
-        "unit": {"serial": serial, "model": "MPU-6000", "manufacturer": "InvenSense"},
-        "run": {
-            "started": f"2026-11-{day}T09:00:00+00:00",
-            "operator": "test",
-            "procedure": "six_position_integral",
-            "tolerance_profile": "guarded",
-        },
-        "site": {"gravity_model": "standard"},  # U(g) = 0.03 m/s^2: acc.scale U ~ 3e-3
-        "environment": {"temperature_c": 20.0},
-        "format": {"acc_unit": "g"},
-        "equipment": [
-            {"kind": "cube", "model": "PC-100", "serial": "CUBE-1", "calibration_due": "2027-11-15"}
-        ]
-        if equipment
-        else [],
-    }
+    m = six_position_manifest(serial, started=f"2026-11-{day}T09:00:00+00:00")
+    # standard gravity (U(g) = 0.03 m/s^2): acc.scale U ~ 3e-3
+    m["run"]["tolerance_profile"] = "guarded"
+    cube = {"kind": "cube", "model": "PC-100", "serial": "CUBE-1", "calibration_due": "2027-11-15"}
+    return m | {"format": {"acc_unit": "g"}, "equipment": [cube] if equipment else []}
 
 
 # serial -> (equipment named, [(day, true acc.scale.x)]): U-BARE comes back a day later with

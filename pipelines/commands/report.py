@@ -69,7 +69,7 @@ def report(
         if form == "pdf":
             written = _pdf(arch, run_id, output, sign, issue, issued)
         elif form != "certificate":
-            from pipelines.reports.certificate import report_run
+            from pipelines.reports.run_reports import report_run
 
             written = report_run(arch, run_id, output, pdf=pdf, form=form)
             if sign:
@@ -170,7 +170,7 @@ def verify_certificate(
 def _unissued_copy(arch, run_id: str, output: Path, pdf: bool, why: OSError) -> dict:  # noqa: ANN001
     """The reports rendered from the archive into `output` when the archive cannot take the
     certificate's first issue (read-only, full): said as not issued, nothing archived."""
-    from pipelines.reports.certificate import report_run
+    from pipelines.reports.run_reports import report_run
     from storage.write_failures import describe
 
     err.print(

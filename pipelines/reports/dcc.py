@@ -1,7 +1,7 @@
 """The Digital Calibration Certificate (PTB DCC, schema 3.x structure) of one archived run.
 
 `dcc_xml(summary)` builds the document from the same archive summary the certificate reads
-(`pipelines.reports.certificate.report_run` adds the lab profile): ``administrativeData``
+(`pipelines.reports.run_reports.report_run` adds the lab profile): ``administrativeData``
 (dccSoftware, coreData with the certificate number and performance dates, the item with its
 manufacturer, model and serial, calibrationLaboratory, respPersons, customer, statements: the
 decision rule, the results-relate-only statement and the uncertainty label) and

@@ -14,7 +14,14 @@ from fastapi.responses import FileResponse, HTMLResponse, Response
 from starlette.exceptions import HTTPException
 
 from calib_core import params
-from pipelines.reports.display import RESIDUAL_UNITS, check_counts, shown, tolerance_text
+from pipelines.reports.display import (
+    RESIDUAL_UNITS,
+    check_counts,
+    record_notes,
+    shown,
+    solve_warnings,
+    tolerance_text,
+)
 from pipelines.web import forms, svg
 from pipelines.web.pages import render
 from pipelines.web.present import display
@@ -154,6 +161,9 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
         charts=[c for c in charts if c],
         profile=profile,
         counts=check_counts(summary["calibration"]["checks"]),
+        notes=record_notes(
+            summary["calibration"]["checks"], solve_warnings(summary["calibration"]["steps"])
+        ),
     )
 
 
@@ -224,32 +234,29 @@ def _issued(archive, run_id: str, kind: str) -> Path:  # noqa: ANN001 - Archive
     return path
 
 
-def _archived_file(path: Path, media_type: str) -> FileResponse:
+def _archived_file(request: Request, run_id: str, kind: str, media_type: str) -> FileResponse:
+    """The run's issued file `kind` ("protocol", "html", "pdf"), as archived."""
+    forms.params(request, ())
+    path = _issued(request.app.state.archive, run_id, kind)
     return FileResponse(path, media_type=media_type, filename=path.name)
 
 
 @router.get("/runs/{run_id}/protocol.txt")
 def protocol(request: Request, run_id: str) -> Response:
     """The test protocol (MPU-6000 layout) archived with the run."""
-    forms.params(request, ())
-    path = _issued(request.app.state.archive, run_id, "protocol")
-    return _archived_file(path, "text/plain; charset=utf-8")
+    return _archived_file(request, run_id, "protocol", "text/plain; charset=utf-8")
 
 
 @router.get("/runs/{run_id}/certificate.html")
 def certificate_html(request: Request, run_id: str) -> Response:
     """The issued HTML certificate (a download: it embeds its plots as PNG)."""
-    forms.params(request, ())
-    path = _issued(request.app.state.archive, run_id, "html")
-    return _archived_file(path, "text/html; charset=utf-8")
+    return _archived_file(request, run_id, "html", "text/html; charset=utf-8")
 
 
 @router.get("/runs/{run_id}/certificate.pdf")
 def certificate_pdf(request: Request, run_id: str) -> Response:
     """The issued PDF certificate, as archived (never rendered by the server)."""
-    forms.params(request, ())
-    path = _issued(request.app.state.archive, run_id, "pdf")
-    return _archived_file(path, "application/pdf")
+    return _archived_file(request, run_id, "pdf", "application/pdf")
 
 
 @router.get("/runs/{run_id}/export.json")

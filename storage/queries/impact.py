@@ -22,6 +22,9 @@ from storage.queries._common import (
 )
 from storage.schema import CalibrationRow, Device, Equipment, Run, RunEquipment
 
+# A run, its unit's serial and the run's own model, procedure and start.
+_RUN_OF_UNIT = (Run.run_id, Device.serial, Run.model, Run.procedure, Run.started_at)
+
 
 def equipment_runs(
     archive: Archive,
@@ -52,11 +55,7 @@ def equipment_runs(
     t1 = as_instant(until, "to", end_of_day=True)
     stmt = (
         select(
-            Run.run_id,
-            Device.serial,
-            Run.model,
-            Run.procedure,
-            Run.started_at,
+            *_RUN_OF_UNIT,
             Equipment.kind,
             Equipment.model,
             RunEquipment.calibration_due,
@@ -66,10 +65,7 @@ def equipment_runs(
         .join(Device, Device.id == Run.device_id)
         .join(RunEquipment, RunEquipment.run_id == Run.id)
         .join(Equipment, Equipment.id == RunEquipment.equipment_id)
-        .join(
-            CalibrationRow,
-            (CalibrationRow.run_id == Run.id) & CURRENT,
-        )
+        .join(CalibrationRow, (CalibrationRow.run_id == Run.id) & CURRENT)
         .where(Equipment.serial == equipment_serial)
         .order_by(Run.started_at, Run.run_id)
     )
@@ -168,11 +164,7 @@ def impact_records(archive: Archive) -> list[dict[str, Any]]:
     why = ProcessingStep.__table__.alias("why")
     stmt = (
         select(
-            Run.run_id,
-            Device.serial,
-            Run.model,
-            Run.procedure,
-            Run.started_at,
+            *_RUN_OF_UNIT,
             CalibrationRow.revision,
             CalibrationRow.created_at,
             CalibrationRow.superseded_by,
