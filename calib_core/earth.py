@@ -93,3 +93,15 @@ def earth_rate_local(latitude_deg: float) -> np.ndarray:
     """Earth rotation in the local North-East-Down frame, rad/s, shape (3,)."""
     phi = math.radians(latitude_deg)
     return np.array([EARTH_RATE * math.cos(phi), 0.0, -EARTH_RATE * math.sin(phi)])
+
+
+def radii_of_curvature(latitude_rad: float) -> tuple[float, float]:
+    """WGS84 meridian and transverse radii of curvature R_N, R_E, m (Groves eqs. 2.105-2.106).
+
+    Parameters
+    ----------
+    latitude_rad : geodetic latitude, rad.
+    """
+    s2 = math.sin(latitude_rad) ** 2
+    den = 1.0 - _WGS84_E2 * s2
+    return _WGS84_A * (1.0 - _WGS84_E2) / den**1.5, _WGS84_A / math.sqrt(den)

@@ -59,6 +59,7 @@ from pipelines.ingest.run_loader import (
     LoadedRun,
     RawFile,
     check_window_end,
+    check_window_inside,
     data_file,
     empty_window,
     range_limits,
@@ -201,9 +202,10 @@ _HASHER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-samples-ha
 
 
 def _check_window(result, samples: Path, plan: StreamPlan) -> None:
-    """`load_run`'s checks of a segment's time window: samples in it, and not running
-    past the end of the data while the unit still turns there."""
+    """`load_run`'s checks of a segment's time window: mostly inside the data, samples in
+    it, and not running past the end of the data while the unit still turns there."""
     where, (t0, t1), n = str(plan.manifest_path), result.span, result.first.n
+    check_window_inside(plan.segment, 0, where, t0, t1)
     if n == 0:
         raise empty_window(plan.segment, 0, where, t0, t1)
     if n < 20:

@@ -118,7 +118,15 @@ def test_rotation_reaching_the_range_is_rejected_by_name():
     means, sems, stds = gyro_statics(run)
     with pytest.raises(ValueError, match=r"rotation x_ccw: gyro rate reached 250\.0 deg/s"):
         solve_integral(rotations(run), means, sems, 250 * DEG, noise_std=stds)
-    # The same run is fine for a sensor with a larger range.
+    # Told a larger range, the clipped turns still do not close (0.56 deg short in common,
+    # 29 standard uncertainties); a sensor that did not clip is fine.
+    with pytest.raises(ValueError, match=r"rotations x_ccw and x_cw: their angles differ"):
+        solve_integral(rotations(run), means, sems, 500 * DEG, noise_std=stds)
+    rng = np.random.default_rng(4)
+    run = six_position_integral_run(
+        random_errors(rng), rng, rotation_rate_dps=300.0, gyro_range_dps=500.0
+    )
+    means, sems, stds = gyro_statics(run)
     solve_integral(rotations(run), means, sems, 500 * DEG, noise_std=stds)
 
 
@@ -135,11 +143,20 @@ def test_partial_turn_cannot_be_inferred():
     truth = random_errors(rng)
     run = six_position_integral_run(truth, rng)
     rots = rotations(run)
-    # Keep only the first half of every record: about half a turn each way.
+    # Keep only the first half of every record: about half a turn each way, cut mid-turn.
     half = {k: r.select(np.arange(len(r)) < len(r) // 2) for k, r in rots.items()}
     means, sems, stds = gyro_statics(run)
-    with pytest.raises(ValueError, match="not whole turns"):
+    with pytest.raises(ValueError, match=r"rotation x_ccw .* ends turning: 87\.5 deg/s"):
         solve_integral(half, means, sems, RANGE, noise_std=stds)
+    # Half a turn that ends at rest (its second half at rest again): not whole turns.
+    still = {
+        k: dataclasses.replace(
+            r, gyr=np.where(np.arange(len(r))[:, None] < len(r) // 2, r.gyr, r.gyr[:20].mean(0))
+        )
+        for k, r in rots.items()
+    }
+    with pytest.raises(ValueError, match="not whole turns"):
+        solve_integral(still, means, sems, RANGE, noise_std=stds)
 
 
 def test_missing_segments_are_named():

@@ -455,13 +455,20 @@ def test_default_settings_and_a_time_window_give_the_same_run_at_any_memory_limi
     same_values(steps["streamed"], steps["memory"], 1e-12, "steps")
 
 
-def test_a_window_past_the_data_or_without_samples_is_refused_on_both_routes(data, tmp_path):
-    """A window without samples: the in-memory reader's refusal on the streamed route too
-    (the same message, the data's span named)."""
+@pytest.mark.parametrize(
+    ("window", "said"),
+    [
+        ({"start_s": 5000.0, "end_s": 6000.0}, "lies 4699.01 s outside the record and 0 s"),
+        ({"start_s": 5000.0}, "holds no samples"),
+    ],
+)
+def test_a_window_outside_the_data_or_without_samples_is_refused_on_both_routes(
+    data, tmp_path, window, said
+):
+    """A window mostly outside the data, or without samples: the in-memory reader's
+    refusal on the streamed route too (the same message, the data's span named)."""
     for route, settings in (("memory", {}), ("streamed", {"memory_limit_mb": LIMIT_MB})):
-        folder = write_run(
-            tmp_path / route, data, "2026-03-02T08:00:00+00:00", settings, {"start_s": 5000.0}
-        )
+        folder = write_run(tmp_path / route, data, "2026-03-02T08:00:00+00:00", settings, window)
         from pipelines.ingest import discover_runs
         from pipelines.process import process_run
 
@@ -469,9 +476,7 @@ def test_a_window_past_the_data_or_without_samples_is_refused_on_both_routes(dat
         arch.upgrade()
         out = process_run(discover_runs([folder])[0], arch)
         assert out["status"] == "failed", out
-        assert (
-            "holds no samples" in out["error"] and "imu.csv spans 1 .. 1300.99 s" in out["error"]
-        ), out
+        assert said in out["error"] and "imu.csv spans 1 .. 1300.99 s" in out["error"], out
 
 
 def test_streamed_route_refuses_a_reading_at_the_sensor_range(tmp_path):

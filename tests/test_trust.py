@@ -22,7 +22,7 @@ from test_seal import behind_the_archive
 from test_verify_backup import cli, fill
 
 from pipelines.trust import approval_line
-from storage import checkpoint, seal, unit_latest
+from storage import checkpoint, seal, seal_record, unit_latest
 from storage.approval import (
     approvals,
     approve,
@@ -32,6 +32,7 @@ from storage.approval import (
     load_key,
     message,
 )
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.schema import AuditEvent, CalibrationRow, ParameterRow, Run, Seal
 from storage.verify import verify
@@ -141,7 +142,7 @@ def test_a_forged_event_with_writer_rights_is_flagged(
         )
         conn.execute(
             AuditEvent.__table__.insert().values(
-                **{k: getattr(ev, k) for k in seal._EVENT_FIELDS}, hash=ev.hash()
+                **{k: getattr(ev, k) for k in seal.EVENT_FIELDS}, hash=ev.hash()
             )
         )
     assert verify(archive, orphans=False).ok  # linked and signed: the chain cannot tell
@@ -276,7 +277,7 @@ def _rewrite_value(archive: Archive, run_id: str) -> None:
         cal_id = conn.execute(
             select(CalibrationRow.id)
             .join(Run, Run.id == CalibrationRow.run_id)
-            .where(Run.run_id == run_id, CalibrationRow.superseded_by.is_(None))
+            .where(Run.run_id == run_id, CURRENT)
         ).scalar_one()
         name, value = conn.execute(
             select(ParameterRow.name, ParameterRow.value)
@@ -300,20 +301,20 @@ def _rewrite_value(archive: Archive, run_id: str) -> None:
         )
         files = conn.execute(select(Seal.record).where(Seal.calibration_id == cal_id)).scalar_one()
         conn.execute(Seal.__table__.delete().where(Seal.calibration_id == cal_id))
-        rec = seal.records(conn, [cal_id], {cal_id: files["files"]})[cal_id]
-        digest = seal._insert_seal(conn, cal_id, rec)
+        rec = seal_record.records(conn, [cal_id], {cal_id: files["files"]})[cal_id]
+        digest = seal.insert_seal(conn, cal_id, rec)
         rows = conn.execute(select(AuditEvent).order_by(AuditEvent.seq)).all()
         conn.execute(AuditEvent.__table__.delete())
         prev = seal.GENESIS
         for row in rows:
-            ev = seal.Event(**{k: getattr(row, k) for k in seal._EVENT_FIELDS})
+            ev = seal.Event(**{k: getattr(row, k) for k in seal.EVENT_FIELDS})
             if ev.run_id == run_id and ev.digest is not None and ev.action in seal.SEALING:
                 ev = seal.Event(**{**ev.__dict__, "digest": digest})
             ev = seal.Event(**{**ev.__dict__, "prev_hash": prev})
             prev = ev.hash()
             conn.execute(
                 AuditEvent.__table__.insert().values(
-                    **{k: getattr(ev, k) for k in seal._EVENT_FIELDS}, hash=prev
+                    **{k: getattr(ev, k) for k in seal.EVENT_FIELDS}, hash=prev
                 )
             )
         unit_latest.rebuild(conn)  # the derived copy of the value, as verify expects it
@@ -385,7 +386,7 @@ def test_the_certificate_marks_an_untrusted_approval_and_prints_the_chain_head(
 ) -> None:
     """The certificate's signatures: the forged approval is UNTRUSTED and does not approve;
     the chain head at issue is printed; without a file it says approvals were not checked."""
-    from pipelines.reports.certificate import _signatures_section
+    from pipelines.reports.signatures import signatures_section
 
     ids = fill(archive, tmp_path)
     approve(archive, ids[0], load_key(keys["forged"], PASS), signer=JANE)
@@ -396,11 +397,11 @@ def test_the_certificate_marks_an_untrusted_approval_and_prints_the_chain_head(
     from storage.approval import approval_status
 
     marked = approval_status(archive, ids[0], 2, trust)  # the current revision of ids[0]
-    pairs = dict(_signatures_section(summary, marked).pairs)
+    pairs = dict(signatures_section(summary, marked).pairs)
     assert pairs["UNTRUSTED, claimed approved"].startswith(f"{JANE}, ")
     assert "is not in the approvers file" in pairs["UNTRUSTED, claimed approved"]
     assert pairs["Electronic approval"].startswith("NOT APPROVED")
     assert pairs["Audit chain at issue"] == f"event {head[0]}, hash {head[1]}"
-    unchecked = dict(_signatures_section(summary, approval_status(archive, ids[0], 2)).pairs)
+    unchecked = dict(signatures_section(summary, approval_status(archive, ids[0], 2)).pairs)
     assert "Electronically approved" in unchecked and "Electronic approval" not in unchecked
     assert "not checked" in unchecked["Approvers"]

@@ -42,6 +42,7 @@ import struct
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -56,6 +57,7 @@ from pipelines.ingest.cdr import (
     gather,
 )
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.log_samples import cut_tail
 from pipelines.ingest.mcap_records import (
     MESSAGE_FIXED,
     OP_CHANNEL,
@@ -191,6 +193,7 @@ class McapReader:
         self.schemas: dict[int, tuple[str, str, bytes]] = {}
         self.counts: dict[int, int] | None = None  # messages per channel, from Statistics
         self.channels: dict[int, McapChannel] = {}
+        self.findings: tuple[dict, ...] = ()  # `cut_tail` of a file cut while written
 
     # --- file structure ----------------------------------------------------------
 
@@ -204,19 +207,20 @@ class McapReader:
         while True:
             head = f.read(RECORD_HEADER)
             if len(head) < RECORD_HEADER:
-                raise IngestError(
-                    f"file ends at byte {pos + len(head)} without a Footer record "
-                    "(truncated: recording interrupted or copy incomplete?)",
-                    file=self.name,
-                )
+                self._cut(pos, size)  # a log cut while written: no footer, no summary
+                break
             opcode = head[0]
             (length,) = U64.unpack_from(head, 1)
             if length > size - pos - RECORD_HEADER:
-                raise IngestError(
-                    f"record at byte {pos} (opcode 0x{opcode:02x}) claims {length} bytes but "
-                    f"only {size - pos - RECORD_HEADER} remain (truncated or damaged file)",
-                    file=self.name,
-                )
+                if not (0x01 <= opcode <= 0x0F and length <= _MAX_CHUNK):
+                    raise IngestError(
+                        f"damaged MCAP file: record at byte {pos} (opcode 0x{opcode:02x}) "
+                        f"claims {length} bytes, only {size - pos - RECORD_HEADER} remain, "
+                        "and is no record a writer makes",
+                        file=self.name,
+                    )
+                self._cut(pos, size)  # its last record cut short
+                break
             if opcode == OP_MESSAGE:
                 pending += head
                 pending += f.read(length)
@@ -245,6 +249,12 @@ class McapReader:
             pos += RECORD_HEADER + length
         if pending:
             self._records(bytes(pending), pos)
+
+    def _cut(self, pos: int, size: int) -> None:
+        """A file that ends without its Footer: read to its last whole record (at byte
+        `pos`), the `cut_tail` finding noted (chunks carry their own CRC: damage inside
+        is refused where it is read)."""
+        self.findings = (cut_tail(Path(self.name), "MCAP file", pos, size - pos, size),)
 
     def _chunk(self, body: bytes, pos: int) -> None:
         try:
@@ -588,7 +598,15 @@ class McapReader:
                     # Unwrap a table that reports 0..2 pi (an accumulating angle is unchanged).
                     values = np.unwrap(values)
                 reference[f"table_{key}"] = self._onto(ch, ref_ns, values, t0, rel, key)
-        return Recording(t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=self.name)
+        return Recording(
+            t=t,
+            acc=acc,
+            gyr=gyr,
+            temp=temp,
+            reference=reference,
+            source=self.name,
+            findings=self.findings,
+        )
 
     def _pick(self, role: str) -> McapChannel | None:
         topic = self.topics[role]

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
@@ -30,6 +30,7 @@ from calib_core.recording import RangeHit, Recording, first_range_hit
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.ingest.csv_reader import read_csv_pair, read_csv_sections
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.log_samples import check_readings
 from pipelines.ingest.manifest import (
     RunManifest,
     SegmentSpec,
@@ -105,6 +106,8 @@ class LoadedRun:
     segments : label -> Recording (SI units), in manifest order.
     raw_files : every input file with its hash, run.toml first.
     verification_labels : labels of segments kept out of the fit.
+    findings : what the readers found about the files without refusing them (a log read
+        to its last whole record), as CheckResult fields; the run's checks name them.
     streamed : a record larger than the memory limit, streamed instead of read
         (`pipelines.ingest.streaming.StreamedRecord`; `segments` is then empty).
     """
@@ -116,6 +119,7 @@ class LoadedRun:
     raw_files: list[RawFile]
     verification_labels: set[str]
     streamed: StreamedRecord | None = None
+    findings: list[dict] = field(default_factory=list)
 
 
 # (sha256, size) of a raw file, e.g. `storage.rawstore.hash_and_size`.
@@ -310,7 +314,7 @@ def _load_described(
 ) -> LoadedRun:
     """Read the segments a manifest describes (real or synthesised)."""
     source = str(manifest_path or folder)
-    check_segments(manifest, source)
+    check_segments(manifest, source, text or "")
     manifest = with_lab_site(manifest, source)
     if manifest.format.kind == "imutk":
         manifest = manifest.model_copy(update={"format": imutk_format(manifest.format)})
@@ -333,6 +337,7 @@ def _load_described(
         )
 
     out: dict[str, Recording] = {}
+    findings: list[dict] = []
     hashed: set[str] = set()
     increasing: dict[int, bool] = {}  # id of a whole-file recording -> its t strictly increases
     checked: dict[str, Path] = {}  # file name -> its path, checked once (segments share files)
@@ -368,6 +373,10 @@ def _load_described(
                 if exc.file is None:  # a reader's complaint about the manifest's format section
                     raise IngestError(exc.problem, file=source, field=exc.field) from None
                 raise
+            whole_file = recordings[key]
+            for part in whole_file.values() if isinstance(whole_file, dict) else [whole_file]:
+                check_readings(part, " + ".join(str(p) for p in paths))
+                findings.extend(part.findings)
             for name, path in zip(names, paths, strict=True):
                 if name not in hashed:
                     hashed.add(name)
@@ -386,6 +395,7 @@ def _load_described(
         segments=out,
         raw_files=raw_files,
         verification_labels={s.label for s in segments if s.verification},
+        findings=findings,
     )
 
 
@@ -526,6 +536,30 @@ def empty_window(seg: SegmentSpec, index: int, source: str, t0: float, t1: float
     )
 
 
+def check_window_inside(
+    seg: SegmentSpec, index: int, source: str, first: float, last: float
+) -> None:
+    """Refuse a window that lies more outside the record (times first .. last s) than
+    inside it (a start 1e9 s before the file's first sample, a wrong time base): the
+    manifest contradicts the file. A window padded a little past either end of the record
+    reads as the record's part; a record of one time is not judged."""
+    if not last > first:
+        return
+    start = first if seg.start_s is None else seg.start_s
+    end = last if seg.end_s is None else seg.end_s
+    outside = max(0.0, first - start) + max(0.0, end - last)
+    inside = min(end, last) - max(start, first)
+    if outside > max(inside, 0.0):
+        raise IngestError(
+            f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s lies "
+            f"{outside:.6g} s outside the record and {max(inside, 0.0):.6g} s inside it "
+            f"({' + '.join(seg.files)} spans {first:.6g} .. {last:.6g} s); expected a "
+            "window inside the record (the file's own time axis, s)",
+            file=source,
+            field=f"segments[{index}]",
+        )
+
+
 def _cut(
     whole: Recording, seg: SegmentSpec, index: int, source: str, increasing: bool = False
 ) -> Recording:
@@ -535,6 +569,8 @@ def _cut(
         return whole.with_label(seg.label)
     start = -float("inf") if seg.start_s is None else seg.start_s
     end = float("inf") if seg.end_s is None else seg.end_s
+    if len(whole):
+        check_window_inside(seg, index, source, float(whole.t[0]), float(whole.t[-1]))
     part = whole.window(start, end, label=seg.label, increasing=increasing)
     if len(part) == 0:
         raise empty_window(seg, index, source, whole.t[0], whole.t[-1])

@@ -1,19 +1,16 @@
-"""The certificate's layout: its sections and figures rendered as HTML and as PDF.
+"""What a certificate shows (`Certificate`, its `Section`s and figures) and its HTML.
 
 What a certificate says is gathered from the archive in pipelines.reports.certificate;
-this module only lays it out. The HTML is one self-contained file (inline CSS, plots
-as base64 PNG); the PDF is that same HTML typeset by WeasyPrint (Pango fonts, tables
-that wrap, a page header and footer with the certificate number and "page x of y"),
-so the two never differ in what they say and neither a browser nor LaTeX is needed.
+this module holds it and writes it as one self-contained HTML file (inline CSS, plots
+as SVG images). pipelines.reports.typeset sets the same object as PDF pages, so the two
+never differ in what they say.
 """
 
 from __future__ import annotations
 
+import base64
 import html
 from dataclasses import dataclass, field
-from functools import cached_property
-from pathlib import Path
-from typing import Any
 
 
 @dataclass
@@ -34,16 +31,17 @@ class Certificate:
     title: str
     verdict: str
     sections: list[Section]
-    figures: dict[str, Any]  # name -> matplotlib Figure
+    figures: dict[str, str]  # name -> SVG chart (pipelines.reports.figures)
     protocol: str
     identifier: str = ""  # the certificate number, on every page (ISO/IEC 17025 7.8.2.1 d)
 
-    @cached_property
+    @property
     def images(self) -> dict[str, str]:
-        """Each figure as base64 PNG, drawn once (the figures are closed after it)."""
-        from pipelines.reports import plots
-
-        return {name: plots.to_png_base64(fig) for name, fig in self.figures.items()}
+        """Each figure as a data: URI (base64 SVG), for the HTML's images."""
+        return {
+            name: "data:image/svg+xml;base64," + base64.b64encode(chart.encode()).decode("ascii")
+            for name, chart in self.figures.items()
+        }
 
     @property
     def end(self) -> str:
@@ -64,43 +62,11 @@ th { background: #eee; } td.FAIL { color: #b00; font-weight: bold; }
 img { max-width: 100%; }
 """
 
-# Print only (WeasyPrint): A4 pages, header and footer with the certificate number and
-# "page x of y" on every page (ISO/IEC 17025 7.8.2.1 d), tables within the margins.
-_PRINT_CSS = """
-@page {
-  size: A4; margin: 18mm 14mm 18mm 14mm; font-family: "DejaVu Sans", sans-serif;
-  @top-left { content: %(title)s; font-size: 8pt; color: #444; }
-  @top-right { content: %(number)s; font-size: 8pt; color: #444; }
-  @bottom-left { content: %(number)s; font-size: 8pt; color: #444; }
-  @bottom-right { content: "page " counter(page) " of " counter(pages); font-size: 8pt;
-                  color: #444; }
-}
-body { margin: 0; font-size: 9pt; }
-table { width: 100%%; table-layout: auto; }
-td, th { font-size: 8pt; }
-thead { display: table-header-group; }
-tr, figure { break-inside: avoid; }
-h2 { break-after: avoid; }
-figure { margin: 0.5em 0; } img { width: 100%%; }
-"""
 
-
-def _css_string(text: str) -> str:
-    """`text` as a CSS string literal (for the page header's `content`)."""
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", " ") + '"'
-
-
-def render_html(cert: Certificate, *, for_print: bool = False) -> str:
-    """The certificate as one self-contained HTML document (plots embedded as base64 PNG).
-
-    `for_print` adds the page layout the PDF is typeset with (`render_pdf`); what the
-    document says is the same.
-    """
+def render_html(cert: Certificate) -> str:
+    """The certificate as one self-contained HTML document (plots embedded as SVG images)."""
     e = html.escape
     css = _CSS
-    if for_print:
-        number = f"Certificate {cert.identifier}" if cert.identifier else cert.title
-        css += _PRINT_CSS % {"title": _css_string(cert.title), "number": _css_string(number)}
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
@@ -134,22 +100,7 @@ def render_html(cert: Certificate, *, for_print: bool = False) -> str:
         parts.append("<h2>Plots</h2>")
     for name, data in cert.images.items():
         parts.append(
-            f'<figure><img alt="{e(name)}" src="data:image/png;base64,{data}">'
-            f"<figcaption>{e(name)}</figcaption></figure>"
+            f'<figure><img alt="{e(name)}" src="{data}"><figcaption>{e(name)}</figcaption></figure>'
         )
     parts.append(f"<p><strong>{e(cert.end)}</strong></p></body></html>")
     return "\n".join(parts) + "\n"
-
-
-def pdf_bytes(cert: Certificate) -> bytes:
-    """The certificate typeset as PDF by WeasyPrint from its HTML (`render_html`)."""
-    import weasyprint
-
-    return weasyprint.HTML(string=render_html(cert, for_print=True)).write_pdf()
-
-
-def render_pdf(cert: Certificate, path: Path) -> Path:
-    """Write the certificate as PDF (`pdf_bytes`) to `path`; return it."""
-    path = Path(path)
-    path.write_bytes(pdf_bytes(cert))
-    return path

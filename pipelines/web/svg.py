@@ -62,7 +62,8 @@ def nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
     return [first + i * step for i in range(int((hi - first) / step + 1e-9) + 1)]
 
 
-def _span(values: Sequence[float], pad: float = 0.06) -> tuple[float, float]:
+def span(values: Sequence[float], pad: float = 0.06) -> tuple[float, float]:
+    """(low, high) of the finite values, widened by `pad` of their range each side."""
     v = [x for x in values if x is not None and math.isfinite(x)]
     if not v:
         return 0.0, 1.0
@@ -269,15 +270,15 @@ def trend_chart(
     x_lo = min(xs)
     if x_hi - x_lo < 30.0:  # one date: a month either side, not a fraction of 50 years
         x_lo, x_hi = x_lo - 30.0, x_hi + 30.0
-    x_range = _span([x_lo, x_hi], 0.04)
+    x_range = span([x_lo, x_hi], 0.04)
     ys = [p.value for p in points] + [p.value + (p.std or 0) for p in points]
     ys += [p.value - (p.std or 0) for p in points]
     if fit is not None:
         ys += list(fit[1] - fit[2]) + list(fit[1] + fit[2])
-    data_lo, data_hi = _span(ys, 0.0)
+    data_lo, data_hi = span(ys, 0.0)
     reach = 4.0 * max(data_hi - data_lo, abs(data_hi) * 1e-9, 1e-300)
     shown = [v for v in limits if math.isfinite(v) and data_lo - reach <= v <= data_hi + reach]
-    chart = Chart(x_range, _span(ys + shown), title=title, y_label=unit)
+    chart = Chart(x_range, span(ys + shown), title=title, y_label=unit)
     chart.axes(date_ticks(*x_range))
     far = [label(v) for v in limits if math.isfinite(v) and v not in shown]
     if far:  # a band far wider than the data would flatten it: say where it is instead
@@ -308,7 +309,7 @@ def sparkline(values: Sequence[float], width: int = 120, height: int = 24) -> Ma
     v = [x for x in values if x is not None and math.isfinite(x)]
     if len(v) < 2:
         return Markup("")
-    lo, hi = _span(v, 0.1)
+    lo, hi = span(v, 0.1)
     step = (width - 4) / (len(v) - 1)
     pts = " ".join(
         f"{2 + i * step:.1f},{height - 2 - (x - lo) / (hi - lo) * (height - 4):.1f}"
@@ -336,10 +337,10 @@ def residual_chart(
     name = "Accelerometer" if sensor == "acc" else "Gyro"
     chart = Chart(
         (-0.5, len(rows) - 0.5),
-        _span(vals),
+        span(vals),
         title=f"{name} residuals per segment",
         y_label=unit,
-        margin=(28, 16, 56, 70),
+        margin=(40, 16, 44, 70),
     )
     chart.axes([(i, str(r["segment"])) for i, r in enumerate(rows)])
     chart.hline(0.0, "zero")
@@ -376,7 +377,7 @@ def histogram(
     v = np.asarray([x for x in values if math.isfinite(x)], dtype=float)
     if v.size == 0:
         return Markup("")
-    lo, hi = _span(list(v) + [x for x in limits if math.isfinite(x)], 0.02)
+    lo, hi = span(list(v) + [x for x in limits if math.isfinite(x)], 0.02)
     counts, edges = np.histogram(v, bins=bins, range=(lo, hi))
     chart = Chart(
         (lo, hi),
@@ -417,8 +418,8 @@ def curve_chart(
     ys = [y for c, s in curves.values() for y in (*(c - 2 * s), *(c + 2 * s))]
     ys += [y for pts in points.values() for _, y in pts]
     chart = Chart(
-        _span(list(temps), 0.02),
-        _span(ys),
+        span(list(temps), 0.02),
+        span(ys),
         title=title,
         y_label=unit,
         x_label="temperature (deg C)",
@@ -433,4 +434,35 @@ def curve_chart(
                 t, y, None, f"{name} at {label(t)} deg C: {label(y)} {unit}", None, "pt", colour
             )
     chart.legend([(COLOURS[k % len(COLOURS)], n) for k, n in enumerate(curves)])
+    return chart.svg(title)
+
+
+def error_chart(
+    t: Sequence[float],
+    series: dict[str, tuple[Sequence[float], Sequence[float]]],
+    *,
+    title: str,
+    unit: str,
+    outage: float | None = None,
+    limit: float | None = None,
+) -> Markup:
+    """Navigation errors against time: each output's 1 sigma (solid) and 95 % (dashed)
+    line, the start of the outage (vertical) and a limit (dashed, red)."""
+    ys = [y for s, p in series.values() for y in (*s, *p)] + ([limit] if limit else [])
+    chart = Chart(span(list(t), 0.02), span([0.0, *ys]), title=title, y_label=unit,
+                  x_label="time (s)")  # fmt: skip
+    chart.axes()
+    if outage is not None:
+        xx = _num(chart.x(outage))
+        top, _, bottom, _ = chart.margin
+        chart.parts.append(
+            f'<line x1="{xx}" x2="{xx}" y1="{top}" y2="{chart.height - bottom}" class="zero"/>'
+        )
+    if limit is not None:
+        chart.hline(limit, "limit", f"limit {label(limit)} {unit}")
+    for k, (sigma, p95) in enumerate(series.values()):
+        colour = COLOURS[k % len(COLOURS)]
+        chart.polyline(list(t), list(sigma), "fit", colour)
+        chart.polyline(list(t), list(p95), "fit p95", colour)
+    chart.legend([(COLOURS[k % len(COLOURS)], n) for k, n in enumerate(series)])
     return chart.svg(title)
