@@ -345,6 +345,14 @@ def stream_mcap(
                 # a chunk, its records and their decoded arrays: a quarter of the limit
                 reader.max_chunk = memory_limit // 4
                 reader.read(tee, size)
+                if reader.findings:  # a cut log: the streamed route carries no findings
+                    reader._pick("imu")  # no IMU before the cut: the reader's own error
+                    raise IngestError(
+                        f"{reader.findings[0]['detail']}; a record streamed in chunks is "
+                        "not read cut (raise the memory limit to read it into memory, with "
+                        "the finding)",
+                        file=path,
+                    )
                 sink.flush()
                 sink.first.close()  # the last batch's motion windows (beside the reading)
                 tee.drain()
