@@ -30,14 +30,15 @@ deviation peaks at the flicker floor 0.6643 B at the flicker's minimum tau_min (
 (`StateLayout`): the 9 navigation errors, one state per parameter with a constant error
 (its u, thermal residual and drift share it), the Markov and random-walk states.
 
-Propagation (Groves 2013, sec. 3.2.2 and 3.2.3): Phi_k = expm(F_k dt) with F at the step's
-midpoint (`expm_batch`), Q_k = (Phi Q_c Phi^T + Q_c) dt / 2. Fixes while aided update
-every state with the Kalman gain of the total covariance (an optimal filter over the whole model: a best case;
-a filter with fewer states does worse). With the gains so fixed the errors are linear in
-the sources, so each source is propagated alone with the same Phi and gains (constants as
-the state's sensitivity to their values, every other source as its own covariance,
-P_j+ = (I - K H) P_j (I - K H)^T, the fixes' own noise K R K^T a source of its own) and
-the shares of each output's variance add up to the total exactly.
+Propagation (Groves 2013, sec. 3.2.2 and 3.2.3): Phi_k = expm(F_k dt) with F at the
+step's midpoint (`expm_batch`), Q_k = (Phi Q_c Phi^T + Q_c) dt / 2. Fixes while aided
+update every state with the Kalman gain of the total covariance (an optimal filter over
+the whole model: a best case; a filter with fewer states does worse). With the gains so
+fixed the errors are linear in the sources, so each source is propagated alone with the
+same Phi and gains (constants as the state's sensitivity to their values, every other
+source as its own covariance, P_j+ = (I - K H) P_j (I - K H)^T, the fixes' own noise
+K R K^T a source of its own) and the shares of each output's variance add up to the total
+exactly.
 """
 
 from __future__ import annotations
