@@ -370,7 +370,7 @@ def navfit(
         "notes": list(meta["notes"]),
     }
     tilt = math.degrees(float(np.max(prop.sigma()[:, :2])))
-    if tilt > LINEAR_TILT_DEG:
+    if round(tilt, 6) > LINEAR_TILT_DEG:  # a profile's initial 1 deg is within
         out["notes"].append(
             f"the tilt error reaches {tilt:.2g} deg (1 sigma): beyond {LINEAR_TILT_DEG:g} deg "
             "the linear error model leaves out second-order terms (g phi^2 / 2 in the vertical "
