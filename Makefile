@@ -38,7 +38,8 @@ demo: $(VENV)/.demo-installed
 	$(BIN)/calib thermal fit IMU-T-0007
 	mkdir -p $(DEMO_OUT)
 	@echo "== 3/5 exporting it for PX4 and ArduPilot into $(DEMO_OUT)/ =="
-	$(BIN)/calib thermal export IMU-T-0007 $(DEMO_OUT)/IMU-T-0007_px4.params --format px4
+	@echo "   (PX4 needs the sensor's device id: the CSV samples record none, 1310988 stands for the vehicle's CAL_ACC0_ID)"
+	$(BIN)/calib thermal export IMU-T-0007 $(DEMO_OUT)/IMU-T-0007_px4.params --format px4 --device-id 1310988
 	$(BIN)/calib thermal export IMU-T-0007 $(DEMO_OUT)/IMU-T-0007_ardupilot.parm --format ardupilot
 	@echo "== 4/5 the trend of IMU-R-0003's acc.bias.z (plot into $(DEMO_OUT)/) =="
 	$(BIN)/calib trend IMU-R-0003 acc.bias.z --plot $(DEMO_OUT)/IMU-R-0003_acc.bias.z_trend.png

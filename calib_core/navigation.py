@@ -18,23 +18,27 @@ the position error (T&W eq. 12.31). d_omega and d_f are the sensor errors in the
 
     d_omega = b_g + dM_g omega_ib^b + dG f^b + n_g,    d_f = b_a + dM_a f^b + n_a
 
-Error sources (`ErrorSource`), each a group of states added to the navigation state:
-each calibrated parameter's standard uncertainty u (= U / k) as a random constant (the
+Error sources (`ErrorSource`): each calibrated parameter's standard uncertainty u
+(= U / k) as a random constant (the
 family's covariance block when known), the thermal model's residual over the profile's
 temperatures and the drift expected at the end of the recalibration interval as random
 constants; angle / velocity random walk (ARW, VRW) as white noise of PSD N^2; rate random
 walk K as a random walk of PSD K^2; bias instability B as a first-order Gauss-Markov
 process of steady-state std 1.0744 B and correlation time tau_min / 1.89, whose Allan
 deviation peaks at the flicker floor 0.6643 B at the flicker's minimum tau_min (IEEE Std
-952-1997 Annex C; the Gauss-Markov peak 0.6183 sigma at 1.89 tau_c).
+952-1997 Annex C; the Gauss-Markov peak 0.6183 sigma at 1.89 tau_c). The state
+(`StateLayout`): the 9 navigation errors, one state per parameter with a constant error
+(its u, thermal residual and drift share it), the Markov and random-walk states.
 
-Propagation (Groves 2013, sec. 3.2.2 and 3.2.3): Phi_k = expm(F_k dt) with F at the step's
-midpoint, Q_k = (Phi Q_c Phi^T + Q_c) dt / 2. Fixes while aided update every state with the
-Kalman gain of the total covariance (an optimal filter over the whole model: a best case;
-a filter with fewer states does worse). With the gains so fixed the errors are linear in
-the sources, so each source is propagated alone (its own covariance, the same Phi and gains,
-P_j+ = (I - K H) P_j (I - K H)^T, and the fixes' own noise K R K^T as a source) and the
-shares of each output's variance add up to the total exactly.
+Propagation (Groves 2013, sec. 3.2.2 and 3.2.3): Phi_k = expm(F_k dt) with F at the
+step's midpoint (`expm_batch`), Q_k = (Phi Q_c Phi^T + Q_c) dt / 2. Fixes while aided
+update every state with the Kalman gain of the total covariance (an optimal filter over
+the whole model: a best case; a filter with fewer states does worse). With the gains so
+fixed the errors are linear in the sources, so each source is propagated alone with the
+same Phi and gains (constants as the state's sensitivity to their values, every other
+source as its own covariance, P_j+ = (I - K H) P_j (I - K H)^T, the fixes' own noise
+K R K^T a source of its own) and the shares of each output's variance add up to the total
+exactly.
 """
 
 from __future__ import annotations
@@ -44,7 +48,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import expm
 
 from calib_core.earth import EARTH_RATE, gravity_wgs84, radii_of_curvature
 from calib_core.mission import MissionProfile
@@ -82,6 +85,8 @@ class ErrorSource:
     kind : "constant", "white", "random_walk", "markov" or "initial".
     inputs : per state, (output axis 0..2, "1" | "w" | "f", input axis 0..2): the state
         multiplies 1, omega_ib^b[input] or f^b[input] in the sensor's output axis.
+    names : a constant's parameter names, one per state: constants of one parameter (its
+        calibration's u, thermal residual, drift) share that parameter's state.
     cov0 : (n, n) initial covariance of the states (constants, Markov steady state);
         for "initial" the (9, 9) of the navigation errors.
     psd : (n,) white-noise PSD driving each state (random walk K^2, Markov 2 sigma^2 / tau)
@@ -96,10 +101,12 @@ class ErrorSource:
     cov0: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     psd: np.ndarray = field(default_factory=lambda: np.zeros(0))
     tau: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    names: tuple[str, ...] = ()
 
     @property
     def n_states(self) -> int:
-        return 0 if self.kind in ("white", "initial") else len(self.inputs)
+        """States of its own (Markov, random walk); constants use their parameters' states."""
+        return len(self.inputs) if self.kind in ("markov", "random_walk") else 0
 
 
 @dataclass(frozen=True)
@@ -153,6 +160,7 @@ def _constants(
                 cov,
                 np.zeros(n),
                 np.full(n, np.inf),
+                tuple(names),
             )
         )
     return out
@@ -228,8 +236,8 @@ def error_model(
             sensor, family = name.split(".")[:2]
             if family in FAMILIES:
                 keep[name] = float(u) if u is not None else None
-            elif family == "noise" and (noise or {}).get(sensor):
-                continue  # a sample std: the Allan terms of `noise` model it
+            elif family == "noise":
+                continue  # a sample std, not a density: the Allan terms (or their note)
             else:
                 notes.append(f"{what}{name}: not an error of the navigation model, left out")
         return keep
@@ -244,19 +252,51 @@ def error_model(
 
 @dataclass(frozen=True)
 class StateLayout:
-    """Where each stateful source's states sit in the full state vector."""
+    """The full state: navigation errors (9), one state per parameter with a constant
+    error, then the Markov and random-walk sources' own states.
+
+    Attributes
+    ----------
+    sources : every source, the profile's "initial errors" and "fix noise" last.
+    params : the parameters' names, states NAV .. NAV + len(params).
+    offsets : per source, the first of its own states (Markov, random walk), else -1.
+    n : the state's size.
+    """
 
     sources: tuple[ErrorSource, ...]
+    params: tuple[str, ...]
     offsets: tuple[int, ...]
     n: int
 
+    def columns(self, j: int) -> list[int]:
+        """The states source j starts in (its initial covariance's rows)."""
+        s = self.sources[j]
+        if s.kind == "initial":
+            return list(range(NAV))
+        if s.kind == "constant":
+            return [NAV + self.params.index(n) for n in s.names]
+        return list(range(self.offsets[j], self.offsets[j] + s.n_states))
 
-def _layout(sources: Sequence[ErrorSource]) -> StateLayout:
-    offsets, n = [], NAV
+    def is_constant(self, j: int) -> bool:
+        """Constants and initial errors: propagated as sensitivities, no process noise."""
+        return self.sources[j].kind in ("constant", "initial") and self.sources[j].name != FIX
+
+
+FIX = "fix noise"
+
+
+def state_layout(profile: MissionProfile, model: ErrorModel) -> StateLayout:
+    """The model's sources with the profile's initial errors and the fixes' noise, and
+    where each sits in the state vector."""
+    init = ErrorSource("initial errors", "nav", "initial", cov0=np.diag(profile.initial_std**2))
+    fix = ErrorSource(FIX, "nav", "initial", cov0=np.zeros((NAV, NAV)))
+    sources = (*model.sources, init, fix)
+    params = tuple(sorted({n for s in sources if s.kind == "constant" for n in s.names}))
+    offsets, n = [], NAV + len(params)
     for s in sources:
-        offsets.append(n)
+        offsets.append(n if s.n_states else -1)
         n += s.n_states
-    return StateLayout(tuple(sources), tuple(offsets), n)
+    return StateLayout(sources, params, tuple(offsets), n)
 
 
 def _earth(profile: MissionProfile) -> tuple[float, float, np.ndarray]:
@@ -289,22 +329,22 @@ def _dynamics(
     F[:, 3:6, 3:6] = -skew(2 * w_ie + w_en)
     F[:, 3:6, 6:9] = np.diag([-g / R, -g / R, 2 * g / R])
     F[:, 6:9, 3:6] = np.eye(3)
+    blocks = [(NAV + i, *parameter_input(name)) for i, name in enumerate(layout.params)]
     for s, off in zip(layout.sources, layout.offsets, strict=True):
-        if s.n_states == 0:
-            continue
-        B = np.zeros((T, 3, s.n_states))
-        for j, (out, kind, inp) in enumerate(s.inputs):
-            B[:, out, j] = 1.0 if kind == "1" else (w_b if kind == "w" else f_b)[:, inp]
-        rows = slice(0, 3) if s.sensor == "gyr" else slice(3, 6)
-        sign = -1.0 if s.sensor == "gyr" else 1.0
-        F[:, rows, off : off + s.n_states] = sign * C @ B
+        blocks += [(off + j, s.sensor, inp) for j, inp in enumerate(s.inputs) if s.n_states]
         if s.kind == "markov":
             F[:, off : off + s.n_states, off : off + s.n_states] = -np.diag(1.0 / s.tau)
+    for col, sensor, (out, kind, inp) in blocks:
+        b = np.ones(T) if kind == "1" else (w_b if kind == "w" else f_b)[:, inp]
+        if sensor == "gyr":  # psi' = ... - C_b^n d_omega
+            F[:, 0:3, col] = -C[:, :, out] * b[:, None]
+        else:  # dv' = ... + C_b^n d_f
+            F[:, 3:6, col] = C[:, :, out] * b[:, None]
     return {"F": F, "C": C}
 
 
 def _noise_density(s: ErrorSource, off: int, n: int, C: np.ndarray) -> np.ndarray:
-    """Continuous-time Q_c (T, n, n) of one source."""
+    """Continuous-time Q_c (T, n, n) of one source (zero for constants)."""
     Q = np.zeros((C.shape[0], n, n))
     if s.kind == "white":
         rows = slice(0, 3) if s.sensor == "gyr" else slice(3, 6)
@@ -356,22 +396,12 @@ class Propagation:
         return np.sqrt(np.maximum(np.diagonal(self.total(), axis1=-2, axis2=-1), 0.0))
 
 
-def initial_covariances(
-    profile: MissionProfile, model: ErrorModel
-) -> tuple[list[ErrorSource], StateLayout, np.ndarray]:
-    """The sources with the profile's "initial errors" and "fix noise", their layout in the
-    state vector and each one's initial covariance (S, n, n)."""
-    init = ErrorSource("initial errors", "nav", "initial", cov0=np.diag(profile.initial_std**2))
-    fix = ErrorSource("fix noise", "nav", "initial", cov0=np.zeros((NAV, NAV)))
-    sources = [*model.sources, init, fix]
-    layout = _layout(sources)
-    P = np.zeros((len(sources), layout.n, layout.n))
-    for j, (s, off) in enumerate(zip(sources, layout.offsets, strict=True)):
-        if s.kind == "initial":
-            P[j, :NAV, :NAV] = s.cov0
-        elif s.n_states:
-            P[j, off : off + s.n_states, off : off + s.n_states] = s.cov0
-    return sources, layout, P
+def initial_covariance(layout: StateLayout, j: int) -> np.ndarray:
+    """(n, n) initial covariance of source j alone."""
+    P = np.zeros((layout.n, layout.n))
+    cols = layout.columns(j)
+    P[np.ix_(cols, cols)] = layout.sources[j].cov0
+    return P
 
 
 def fix_steps(profile: MissionProfile) -> dict[int, tuple[list[int], np.ndarray]]:
@@ -389,19 +419,100 @@ def fix_steps(profile: MissionProfile) -> dict[int, tuple[list[int], np.ndarray]
 
 
 def linear_model(
-    profile: MissionProfile, model: ErrorModel, times: np.ndarray
+    profile: MissionProfile, layout: StateLayout, times: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The continuous-time error model at `times` (s): F (T, n, n) and each source's noise
-    density Q_c (S, T, n, n) (what the covariance and the Monte Carlo check share)."""
-    sources, layout, _ = initial_covariances(profile, model)
+    """The continuous-time error model at `times` (s): F (T, n, n) and the noise density
+    Q_c (S', T, n, n) of each source that is not a constant (`StateLayout.is_constant`), in
+    their order (what the covariance and the Monte Carlo check share)."""
     dyn = _dynamics(profile, layout, np.asarray(times, dtype=float))
     Qc = np.stack(
         [
             _noise_density(s, off, layout.n, dyn["C"])
-            for s, off in zip(sources, layout.offsets, strict=True)
+            for j, (s, off) in enumerate(zip(layout.sources, layout.offsets, strict=True))
+            if not layout.is_constant(j)
         ]
     )
     return dyn["F"], Qc
+
+
+def transition(F: np.ndarray, dt: float) -> np.ndarray:
+    """Phi = expm(F dt) of each (T, n, n) F, computed once per distinct F (a profile's
+    straight stretches and rests repeat a few F step after step)."""
+    first: dict[bytes, int] = {}
+    which = np.array([first.setdefault(f.tobytes(), len(first)) for f in F])
+    unique = np.array([F[i] for i in np.unique(which, return_index=True)[1]])
+    return expm_batch(unique * dt)[which]
+
+
+TAYLOR_ORDER = 12
+
+
+def expm_batch(A: np.ndarray) -> np.ndarray:
+    """expm of each (T, n, n) matrix: scaling and squaring of the Taylor series (Moler & Van
+    Loan 2003, method 3): A / 2^s with a 1-norm <= 1/2, the series to TAYLOR_ORDER (its
+    truncation below 0.5^13 / 13! = 2e-14 of the norm), squared s times. One numpy
+    product per term for the whole batch."""
+    norm = np.abs(A).sum(axis=-2).max() if A.size else 0.0
+    s = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
+    A = A / 2.0**s
+    eye = np.eye(A.shape[-1])
+    E = eye + A / TAYLOR_ORDER
+    for k in range(TAYLOR_ORDER - 1, 0, -1):  # Horner: I + A/1 (I + A/2 (I + ...))
+        E = eye + (A @ E) / k
+    for _ in range(s):
+        E = E @ E
+    return E
+
+
+class _Budget:
+    """The error state's covariance kept by source: constants (and initial errors) as
+    sensitivities X (n, m) of the state to their m values of covariance C (the error is
+    X c), each other source as its own covariance P_j. Both move linearly, so the total,
+    X C X^T + sum P_j, and each source's part are exact."""
+
+    def __init__(self, layout: StateLayout) -> None:
+        self.layout = layout
+        const = [j for j in range(len(layout.sources)) if layout.is_constant(j)]
+        self.noisy = [j for j in range(len(layout.sources)) if not layout.is_constant(j)]
+        cols = [layout.columns(j) for j in const]
+        sizes = [len(c) for c in cols]
+        self.X = np.eye(layout.n)[:, [c for cs in cols for c in cs]]
+        self.C = np.zeros((sum(sizes), sum(sizes)))
+        self.parts = []  # (source index, slice of X's columns)
+        at = 0
+        for j, m in zip(const, sizes, strict=True):
+            self.C[at : at + m, at : at + m] = layout.sources[j].cov0
+            self.parts.append((j, slice(at, at + m)))
+            at += m
+        self.P = np.stack([initial_covariance(layout, j) for j in self.noisy])
+
+    def step(self, Phi: np.ndarray, Qd: np.ndarray) -> None:
+        self.X = Phi @ self.X
+        self.P = Phi @ self.P @ Phi.T + Qd
+
+    def total(self) -> np.ndarray:
+        return self.X @ self.C @ self.X.T + self.P.sum(axis=0)
+
+    def update(self, idx: list[int], var: np.ndarray) -> np.ndarray:
+        """A fix of the states `idx` with noise variances `var`: the Kalman gain (n, m)."""
+        n = self.layout.n
+        H, Rm = np.eye(n)[idx], np.diag(var)
+        Pt = self.total()
+        K = np.linalg.solve(H @ Pt @ H.T + Rm, H @ Pt).T
+        A = np.eye(n) - K @ H
+        self.X = A @ self.X
+        self.P = A @ self.P @ A.T
+        self.P[self.noisy.index(len(self.layout.sources) - 1)] += K @ Rm @ K.T
+        return K
+
+    def outputs(self, M: np.ndarray) -> np.ndarray:
+        """(S, 9, 9) each source's covariance of the outputs M x, in the sources' order."""
+        out = np.zeros((len(self.layout.sources), M.shape[0], M.shape[0]))
+        for j, cols in self.parts:
+            Y = M @ self.X[:, cols]
+            out[j] = Y @ self.C[cols, cols] @ Y.T
+        out[self.noisy] = M @ self.P @ M.T
+        return out
 
 
 def propagate(profile: MissionProfile, model: ErrorModel, *, records: int = 600) -> Propagation:
@@ -417,7 +528,8 @@ def propagate(profile: MissionProfile, model: ErrorModel, *, records: int = 600)
     -------
     Propagation.
     """
-    sources, layout, P = initial_covariances(profile, model)
+    layout = state_layout(profile, model)
+    budget = _Budget(layout)
     dt = profile.step
     n_steps = int(round(profile.duration / dt))
     fixes = fix_steps(profile)
@@ -425,36 +537,23 @@ def propagate(profile: MissionProfile, model: ErrorModel, *, records: int = 600)
     stride = max(1, n_steps // records)
     keep = set(range(0, n_steps, stride))
     t_out, cov_out, gains = [], [], {}
-    chunk = 400
+    chunk = 100
     for k0 in range(0, n_steps, chunk):
         k1 = min(n_steps, k0 + chunk)
-        F, Qc = linear_model(profile, model, (np.arange(k0, k1) + 0.5) * dt)
-        Phi = expm(F * dt)
+        F, Qc = linear_model(profile, layout, (np.arange(k0, k1) + 0.5) * dt)
+        Phi = transition(F, dt)
         for i, k in enumerate(range(k0, k1)):
             if k in keep:
-                t_out.append(k * dt), cov_out.append(M @ P @ M.T)
-            Ph = Phi[i]
-            Qi = Qc[:, i]
-            P = Ph @ P @ Ph.T + 0.5 * dt * (Ph @ Qi @ Ph.T + Qi)
+                t_out.append(k * dt), cov_out.append(budget.outputs(M))
+            Ph, Qi = Phi[i], Qc[:, i]
+            budget.step(Ph, 0.5 * dt * (Ph @ Qi @ Ph.T + Qi))
             if k + 1 in fixes:
-                idx, var = fixes[k + 1]
-                H, Rm = np.eye(layout.n)[idx], np.diag(var)
-                Pt = P.sum(axis=0)
-                K = np.linalg.solve(H @ Pt @ H.T + Rm, H @ Pt).T
-                A = np.eye(layout.n) - K @ H
-                P = A @ P @ A.T
-                P[-1] += K @ Rm @ K.T
-                gains[k + 1] = K
-    t_out.append(n_steps * dt), cov_out.append(M @ P @ M.T)
+                gains[k + 1] = budget.update(*fixes[k + 1])
+    t_out.append(n_steps * dt), cov_out.append(budget.outputs(M))
     cov = np.stack(cov_out, axis=1)
     cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
     return Propagation(
-        np.asarray(t_out),
-        tuple(s.name for s in sources),
-        cov,
-        gains,
-        dt,
-        layout.n,
+        np.asarray(t_out), tuple(s.name for s in layout.sources), cov, gains, dt, layout.n
     )
 
 

@@ -21,7 +21,7 @@ _API = {
     "pipelines.process": ["calibrate", "process_run"],
     "pipelines.tolerances": ["load_profile"],
     "pipelines.apply": ["apply_calibration"],
-    "pipelines.reports.certificate": ["report_run"],
+    "pipelines.reports.run_reports": ["report_run"],
     "pipelines.run_export": ["export_run"],
 }
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _API)

@@ -215,7 +215,14 @@ def _print_approvals(arch, summary: dict) -> None:  # noqa: ANN001 - an Archive
 def _print_run(summary: dict, root: Path) -> None:
     """`calib show` for people: the unit, the run, its verdict, the parameters in display
     units with their standard uncertainty, and the checks that failed."""
-    from pipelines.reports.display import STANDARD_U, STANDARD_U_MEANING, check_counts, shown
+    from pipelines.reports.display import (
+        STANDARD_U,
+        STANDARD_U_MEANING,
+        check_counts,
+        record_notes,
+        shown,
+        solve_warnings,
+    )
 
     cal = summary["calibration"]
     unit = summary["device"]
@@ -252,6 +259,13 @@ def _print_run(summary: dict, root: Path) -> None:
         # in SI, as the archived detail beside them states them (the web page's table too)
         print_table("Failed checks", ["check", "value (SI)", "limit (SI)", "detail"], rows)
     out.print(check_counts(cal["checks"]).sentence(), markup=False, highlight=False)
+    notes = record_notes(cal["checks"], solve_warnings(cal["steps"]))
+    if notes:  # findings about the record, samples replaced: beside the verdict, always
+        print_table(
+            "The record: findings, samples replaced, solver warnings",
+            ["finding", "detail"],
+            [[name, cell(text)] for name, text in notes],
+        )
     noted = [c for c in cal["checks"] if condition_status(c) in (WARNING, NOT_RECORDED)]
     if noted:  # conditions that leave the verdict as it is
         rows = [

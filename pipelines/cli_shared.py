@@ -188,7 +188,7 @@ PANELS = {
     "Process": ("process", "reprocess", "centrifuge", "apply", "thermal", "impact"),
     "Inspect": ("inspect", "show", "history", "repeatability", "procedures"),
     "Query": ("query", "trend", "fleet"),
-    "Report": ("report", "navfit", "serve", "serve-user"),
+    "Report": ("report", "verify-certificate", "navfit", "serve", "serve-user"),
     "Export": ("export",),
     "Admin": ("verify", "checkpoint", "audit", "approve", "keygen", "backup", "restore"),
 }
@@ -346,7 +346,10 @@ def open_run(archive_arg: str | None, run_id: str):  # noqa: ANN201 - (Archive, 
 
 
 def fail(message: str) -> None:
-    err.print(f"[red]error:[/red] {message}")
+    """Print the error and exit 2; the message is text (a "[customer]" in it stays)."""
+    from rich.markup import escape
+
+    err.print(f"[red]error:[/red] {escape(message)}")
     raise typer.Exit(2)
 
 

@@ -70,20 +70,23 @@ def process_in_process(
     archive: str | None,
     on_progress: ProgressCallback | None = None,
 ) -> list[dict[str, Any]]:
-    """Process `sources` one after the other in this process; outcomes in their order.
+    """Process `sources` one after the other in this process; outcomes in their order
+    (each run's certificate issued beside the next run, all of them by the return).
 
     A transient failure (a locked database, a vanished share) is retried as the batch flow
     retries it (RETRIES more attempts after RETRY_DELAYS_S); then the run is reported failed.
     """
+    from pipelines.issuing import issuing_beside
     from storage.db import resolve_archive
 
     arch = resolve_archive(archive)
     arch.upgrade()
     outcomes: list[dict[str, Any]] = []
-    for source in sources:
-        outcomes.append(_with_retries(source, arch.url, str(arch.root)))
-        if on_progress is not None:
-            on_progress(len(outcomes), len(sources), outcomes[-1])
+    with issuing_beside():  # each certificate beside the next run
+        for source in sources:
+            outcomes.append(_with_retries(source, arch.url, str(arch.root)))
+            if on_progress is not None:
+                on_progress(len(outcomes), len(sources), outcomes[-1])
     return outcomes
 
 

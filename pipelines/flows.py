@@ -30,6 +30,7 @@ from prefect.futures import as_completed
 
 from pipelines.direct import discover
 from pipelines.ingest import RunSource
+from pipelines.issuing import issuing_beside
 from pipelines.rejudge import as_archived_now
 from pipelines.run_task import (
     RETRIES,
@@ -265,6 +266,7 @@ def process_batch(
             stack.enter_context(_work_in_processes(runner, workers))
         arch = resolve_archive(archive)
         arch.upgrade()  # once, before any worker archives
+        stack.enter_context(issuing_beside())  # left after the task runner: waits for both
         task_runner = stack.enter_context(_task_runner(runner, workers, scheduler))
         parameters = [
             {"source": s, "archive_url": arch.url, "archive_root": str(arch.root)} for s in sources
@@ -414,6 +416,7 @@ def reprocess_batch(
     with contextlib.ExitStack() as stack:
         if todo:
             stack.enter_context(_work_in_processes(runner, workers))
+        stack.enter_context(issuing_beside())
         task_runner = stack.enter_context(_task_runner(runner, workers, scheduler))
         parameters = [
             {"run_id": r, "archive_url": arch.url, "archive_root": str(arch.root), "reason": reason}

@@ -33,6 +33,13 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     [trust]                                   # the approvers the lab trusts (pipelines.trust)
     approvers = "approvers"                   # a file of calib keygen .pub lines, beside lab.toml
 
+    [signing]                                 # signed DCC / PDF (pipelines.reports.signing)
+    certificate = "lab-cert.pem"              # the lab's X.509 certificate, beside lab.toml
+    key = "lab-key.pem"                       # its private key: read to sign, never archived
+
+    [navigation]                              # the certificate's "Navigation performance"
+    profiles = ["land-vehicle-outage-60s"]    # mission profiles by name (docs/navigation.md)
+
 Every key is checked; a certificate made without the file says so where the items belong.
 """
 
@@ -50,6 +57,7 @@ TABLES = {
     "customer": ({"name"}, {"contact", "address"}),
     "authorised_by": ({"name"}, {"function"}),
     "trust": ({"approvers"}, set()),
+    "signing": ({"certificate", "key"}, set()),
 }
 EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by", "kind", "model"})
 
@@ -71,14 +79,16 @@ def load_lab_profile() -> tuple[dict[str, Any], Path] | None:
 
 
 def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
-    unknown = sorted(set(doc) - {*TABLES, "equipment", "site"})
+    known = {*TABLES, "equipment", "site", "navigation"}
+    unknown = sorted(set(doc) - known)
     if unknown:
         raise ValueError(
-            f"lab profile {path}: unknown table(s) {unknown}; "
-            f"expected {sorted({*TABLES, 'equipment', 'site'})}"
+            f"lab profile {path}: unknown table(s) {unknown}; expected {sorted(known)}"
         )
     if "site" in doc:
         _check_site(doc["site"], path)
+    if "navigation" in doc:
+        _check_navigation(doc["navigation"], path)
     for table, keys in TABLES.items():
         if table in doc:
             _check_table(doc[table], keys, path, table)
@@ -117,6 +127,33 @@ def _check_table(table: Any, keys: tuple[set[str], set[str]], path: Path, where:
                 f"lab profile {path}: {where}.{key}: expected one line of text "
                 f"(1..200 characters), got {value!r}"
             )
+
+
+def _check_navigation(table: Any, path: Path) -> None:
+    """``[navigation]``: profiles, a list of mission-profile names (that each exists is
+    checked where they are read: `pipelines.reports.navigation`)."""
+    from storage.naming import check_safe_name
+
+    profiles = table.get("profiles") if isinstance(table, dict) else None
+    if set(table) != {"profiles"} or not isinstance(profiles, list) or not profiles:
+        raise ValueError(
+            f"lab profile {path}: navigation: expected a table with profiles = [names], "
+            f"got {table!r}"
+        )
+    for i, name in enumerate(profiles):
+        try:
+            check_safe_name(name, "mission profile name")
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"lab profile {path}: navigation.profiles[{i}]: {exc}") from None
+
+
+def lab_navigation_profiles() -> tuple[list[str], Path | None]:
+    """The mission profiles the lab's certificates show (``[navigation] profiles``) and the
+    lab profile's file."""
+    found = load_lab_profile()
+    if found is None:
+        return [], None
+    return list(found[0].get("navigation", {}).get("profiles", [])), found[1]
 
 
 def _check_site(site: Any, path: Path) -> None:

@@ -23,8 +23,10 @@ from calib_core.checks import check_calibration, overall_verdict
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
+from calib_core.preprocess.motion import static_labels
 from calib_core.procedures.rate_table import plateau_window
 from calib_core.recording import Recording
+from calib_core.stillness import StatedLimits, stillness_problems
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
 from pipelines import shared_reference
@@ -32,6 +34,7 @@ from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
+from pipelines.issuing import issue_certificate
 from pipelines.process_streamed import (
     as_found_solver,
     conditions_segments,
@@ -41,6 +44,7 @@ from pipelines.process_streamed import (
 )
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.rejudge import group_of, rejudge_from
+from pipelines.reports.display import record_notes
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
 from pipelines.uncertainty import uncertainty_step
@@ -348,6 +352,28 @@ def run_conditions(
     )
 
 
+def still_checks(loaded: LoadedRun, gravity: float, profile: ToleranceProfile) -> list[CheckResult]:
+    """The static segments of the run's procedure judged still by absolute criteria
+    (`calib_core.stillness`): a fit segment that is not is refused (ValueError naming its
+    file, the segment and what was measured); a held-out one gives the finding
+    ``record:still:<label>`` (the fit can do without it)."""
+    proc = procedures.BY_NAME.get(loaded.manifest.run.procedure)
+    if proc is None:
+        return []
+    stated = StatedLimits.of(profile)
+    out = []
+    for label in static_labels(proc.static_segments, loaded.segments):
+        rec = loaded.segments[label]
+        problems = stillness_problems(rec, gravity, stated)
+        if not problems:
+            continue
+        what = f"static segment '{label}' ({rec.source}) moved: {'; '.join(problems)}"
+        if label not in loaded.verification_labels:
+            raise ValueError(f"{what}; repeat it with the unit at rest")
+        out.append(CheckResult(f"record:still:{label}", None, None, False, what))
+    return out
+
+
 @dataclass
 class Judged:
     """What the check stage found: checks, verdict, the profile and its step record."""
@@ -375,6 +401,7 @@ def check_run(
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
     checks += more_checks
     checks += [CheckResult(**f) for f in loaded.findings]  # the readers' (record:cut:...)
+    checks += still_checks(loaded, cal.gravity, profile)
     checks.append(
         device_check(
             loaded.manifest,
@@ -437,6 +464,7 @@ def protocol_of(
         budgets={n: b.to_dict() for n, b in (budgets or {}).items()},
         decision_rule=judged.profile.decision_rule.statement(),
         names=judged.profile.protocol_names,
+        notes=record_notes([c.to_dict() for c in judged.checks], cal.warnings),
     )
 
 
@@ -515,8 +543,9 @@ def process_run(
     pending = rawstore.PendingFiles()
     try:
         started = time.perf_counter()
-        # A static-bias record larger than its memory limit is streamed, not read.
-        plan = stream_plan(source)
+        # A static-bias record larger than its memory limit is streamed, not read (unless
+        # its settings or a reference correction need it in memory).
+        plan = stream_plan(source) if correct is None else None
         if plan is None:
             loaded = load_run(source, hash_file=partial(pending.stage_raw, archive.root))
         else:
@@ -526,11 +555,6 @@ def process_run(
         if reason is not None:
             steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
         if correct is not None:
-            if loaded.streamed is not None:
-                raise ValueError(
-                    "a reference correction of a streamed record is not available: raise "
-                    "run.settings.memory_limit_mb to read it into memory"
-                )
             loaded, corrected = correct(loaded)
             steps.append(corrected)
         cal, solve_steps, settings, budgets, fit = solve_loaded(loaded)
@@ -582,36 +606,6 @@ def process_run(
         verdict_=verdict_,
         message=message,
     )
-
-
-ISSUE_ENV = "CALIB_ISSUE_CERTIFICATES"  # "0": no certificate at archive time
-
-
-def issue_certificate(archive: Archive, run_id: str) -> None:
-    """Issue the archived revision's certificate (HTML and PDF, `pipelines.reports.issue`).
-
-    The run stays archived if this fails (a missing font library, a full disk): the
-    failure is logged with how to issue it later (`calib report RUN`). Environment
-    ``CALIB_ISSUE_CERTIFICATES=0`` leaves the issue to `calib report` (bulk loads, test
-    suites: typesetting costs seconds per run).
-    """
-    import os
-
-    if os.environ.get(ISSUE_ENV, "1").strip() == "0":
-        return
-    from pipelines.reports.issue import issue
-
-    try:
-        issue(archive, run_id)
-    except Exception as exc:  # noqa: BLE001 - the archived run stands; said, not hidden
-        problem = write_failures.describe(exc, archive.url) or f"{type(exc).__name__}: {exc}"
-        log.warning(
-            "run %s is archived but its certificate was not issued: %s; issue it "
-            "with `calib report %s`",
-            run_id,
-            problem,
-            run_id,
-        )
 
 
 def _failed(where: str, serial: str, exc: Exception, database_url: str) -> dict[str, Any]:

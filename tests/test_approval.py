@@ -133,7 +133,7 @@ def test_the_certificate_shows_the_approval(tmp_path: Path, key: Path) -> None:
     NOT APPROVED, then who approved it and when, then that the approval no longer holds."""
     from pipelines.ingest import discover_runs
     from pipelines.process import process_run
-    from pipelines.reports.certificate import report_run
+    from pipelines.reports.run_reports import report_run
     from storage.db import resolve_archive
 
     arch = resolve_archive(str(tmp_path / "archive"))

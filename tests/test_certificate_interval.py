@@ -1,4 +1,4 @@
-"""The certificate's recommended recalibration interval (pipelines.reports.certificate)
+"""The certificate's recommended recalibration interval (pipelines.reports.recommendations)
 in words a reader takes in: months, or days when under a month (a unit that drifts fast),
 never "0 months". The recall rows are made by pipelines.recall's own row maker."""
 
@@ -9,7 +9,7 @@ from datetime import UTC, datetime
 import pytest
 
 from pipelines.recall import DAYS_PER_MONTH, _entry
-from pipelines.reports.certificate import _interval
+from pipelines.reports.recommendations import interval_text
 from pipelines.tolerances import load_profile
 
 LAST = {"verdict": "pass", "started_at": datetime(2026, 11, 2, 9, tzinfo=UTC), "run_id": "R1"}
@@ -32,10 +32,10 @@ def _recall(days: float) -> dict:
     ],
 )
 def test_a_short_interval_is_given_in_days(days: float, words: str) -> None:
-    text = _interval(_recall(days))
+    text = interval_text(_recall(days))
     assert text.startswith(words + " ("), text
     assert "0 months" not in text and "probability 95% of gyr.bias.x" in text
 
 
 def test_the_default_interval_stays_in_months() -> None:
-    assert _interval(None) == "12 months"
+    assert interval_text(None) == "12 months"

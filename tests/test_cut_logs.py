@@ -118,3 +118,37 @@ def test_cut_rotation_logs_are_refused_or_near_the_intact_run(tmp_path: Path, ro
     assert refused + read == CUTS * len(ROTATION_LABELS)
     if route == "mcap":  # no footer: every cut copy read is named
         assert findings == read
+
+
+VEHICLE_LOG = Path(__file__).parent / "realdata" / "pymavlink_test_log" / "test.BIN"
+
+
+def test_a_moving_vehicles_log_is_no_static_bias_run(tmp_path: Path) -> None:
+    """ArduPilot's published 64 KiB test log (pymavlink tests/test.BIN: a vehicle moving,
+    cut while written) given as a static-bias run: read to its last whole record (24 bytes
+    dropped, named), then refused because the record moved (gyro x scatters 3.2 deg/s,
+    robust std: 64 x the mpu6000 profile's stated noise 0.05 deg/s), naming the file, the
+    segment and what was measured. The relative motion check cannot see it: 45 samples
+    over 0.97 s, too short for its windows, and all of them move."""
+    from pipelines.process import process_run
+    from storage.db import resolve_archive
+
+    folder = tmp_path / "vehicle"
+    folder.mkdir()
+    shutil.copyfile(VEHICLE_LOG, folder / "test.BIN")
+    text = manifest("APM-TEST", {"kind": "dataflash"}, [{"label": "rest", "file": "test.BIN"}])
+    (folder / "run.toml").write_text(text.replace("six_position_integral", "static_bias"))
+    loaded = load_run(discover_runs([folder])[0])
+    (finding,) = loaded.findings
+    assert finding["name"] == "record:cut:test.BIN" and finding["value"] == 24.0
+    assert "from byte offset 65512 of 65536" in finding["detail"]
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    try:
+        result = process_run(discover_runs([folder])[0], arch)
+    finally:
+        arch.dispose()
+    assert result["status"] == "failed", result
+    error = result["error"]
+    assert "static segment 'rest'" in error and str(folder / "test.BIN") in error, error
+    assert "moved" in error and "x its stated noise" in error, error

@@ -17,8 +17,8 @@ from calib_testing.run_writers import write_centrifuge_run
 from pipelines.cli import app
 from pipelines.ingest import RunSource
 from pipelines.process import process_run
-from pipelines.reports.certificate import write_reports
 from pipelines.reports.display import DISPLAY_UNITS, display
+from pipelines.reports.run_reports import write_reports
 from storage import queries
 from storage.db import Archive, resolve_archive
 

@@ -222,20 +222,20 @@ def test_due_page_of_calib_serve(fleet_archive):
 
 def test_certificate_names_the_interval_and_its_method(fleet_archive):
     from pipelines.recall import unit_recall
-    from pipelines.reports.certificate import _interval
+    from pipelines.reports.recommendations import interval_text
     from storage import queries
 
     arch = fleet_archive[0]
     runs = queries.history(arch, "U00")["run_id"].tolist()
     found = unit_recall(arch, "U00", runs[-1])
     assert found is not None and found["serial"] == "U00"
-    text = _interval(found)
+    text = interval_text(found)
     assert text.startswith(f"{found['interval_months']:g} months, by {found['due']}")
     if not found["capped"]:
         assert "variables-data method (NCSL RP-1 / ILAC-G24)" in text
         assert "probability 95% of gyr.scale.x being in tolerance at its end" in text
     assert unit_recall(arch, "U00", runs[0]) is None  # an earlier run: not judged by later data
-    assert _interval(None) == "12 months"
+    assert interval_text(None) == "12 months"
 
 
 def test_a_thermal_campaign_is_not_read_as_drift(tmp_path):

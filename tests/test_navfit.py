@@ -164,3 +164,60 @@ def test_thermal_residual_over_the_profile(tmp_path):
     hot.write_text(text.replace("temperature_c = [0.0, 40.0]", "temperature_c = [20.0, 70.0]"))
     res, notes = navigation.thermal_residuals(tm.to_dict(), navigation.load_profile(str(hot)))
     assert notes and "-10..50 deg C" in notes[0]
+
+
+def test_the_sample_static_bias_run(tmp_path):
+    """The acceptance command on data_samples/static_bias_IMU-N-0011: the figures and the
+    dominant source printed as JSON."""
+    from serve_sample import DATA_SAMPLES
+
+    archive = resolve_archive(str(tmp_path / "archive"))
+    archive.upgrade()
+    (source,) = discover_runs([DATA_SAMPLES / "static_bias_IMU-N-0011"])
+    outcome = process_run(source, archive)
+    assert outcome["status"] == "ok", outcome["error"]
+    res = _navfit(archive, outcome["run_id"], "--profile", "land-vehicle-outage-60s", "--json")
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    h = doc["end"]["horizontal_position_m"]
+    assert h["sigma"] > 0 and h["p95"] > h["sigma"]
+    assert doc["dominant"]["horizontal_position_m"] in doc["error_sources"]
+
+
+LAB = """
+[laboratory]
+name = "Nav Lab"
+address = "Somewhere 1"
+
+[navigation]
+profiles = [{names}]
+"""
+
+
+def test_certificate_section_when_the_lab_names_profiles(static_run, tmp_path, monkeypatch):
+    from calib_testing.documents import html_words, pdf_pages
+    from pipelines.reports.render import render_html
+    from pipelines.reports.run_reports import certificate_of
+    from pipelines.reports.typeset import render_pdf
+
+    archive, run_id = static_run
+    profiles = tmp_path / "profiles"
+    profiles.mkdir()
+    monkeypatch.setenv("CALIB_PROFILES", str(profiles))
+    _, cert = certificate_of(archive, run_id)  # no lab.toml: no section
+    assert not [s for s in cert.sections if s.title.startswith("Navigation performance")]
+    (profiles / "lab.toml").write_text(LAB.format(names='"land-vehicle-outage-60s"'))
+    summary, cert = certificate_of(archive, run_id)
+    (section,) = [s for s in cert.sections if s.title.startswith("Navigation performance")]
+    assert section.title == "Navigation performance: land-vehicle-outage-60s"
+    (data,) = summary["navigation"]
+    heading = next(r for r in section.rows if r[0] == "heading")
+    assert heading[1] == f"{data['end']['heading_deg']['sigma']:.3g}"
+    assert data["dominant"]["heading_deg"] in heading[4]
+    words = " ".join(html_words(render_html(cert)))
+    assert "Navigation performance: land-vehicle-outage-60s" in words
+    pdf = render_pdf(cert, tmp_path / "cert.pdf")
+    assert any("Navigation performance" in page for page in pdf_pages(pdf))
+    (profiles / "lab.toml").write_text(LAB.format(names='"boat"'))
+    with pytest.raises(ValueError, match=r"navigation.profiles\[0\]: no mission profile 'boat'"):
+        certificate_of(archive, run_id)

@@ -386,7 +386,7 @@ def test_the_certificate_marks_an_untrusted_approval_and_prints_the_chain_head(
 ) -> None:
     """The certificate's signatures: the forged approval is UNTRUSTED and does not approve;
     the chain head at issue is printed; without a file it says approvals were not checked."""
-    from pipelines.reports.certificate import _signatures_section
+    from pipelines.reports.signatures import signatures_section
 
     ids = fill(archive, tmp_path)
     approve(archive, ids[0], load_key(keys["forged"], PASS), signer=JANE)
@@ -397,11 +397,11 @@ def test_the_certificate_marks_an_untrusted_approval_and_prints_the_chain_head(
     from storage.approval import approval_status
 
     marked = approval_status(archive, ids[0], 2, trust)  # the current revision of ids[0]
-    pairs = dict(_signatures_section(summary, marked).pairs)
+    pairs = dict(signatures_section(summary, marked).pairs)
     assert pairs["UNTRUSTED, claimed approved"].startswith(f"{JANE}, ")
     assert "is not in the approvers file" in pairs["UNTRUSTED, claimed approved"]
     assert pairs["Electronic approval"].startswith("NOT APPROVED")
     assert pairs["Audit chain at issue"] == f"event {head[0]}, hash {head[1]}"
-    unchecked = dict(_signatures_section(summary, approval_status(archive, ids[0], 2)).pairs)
+    unchecked = dict(signatures_section(summary, approval_status(archive, ids[0], 2)).pairs)
     assert "Electronically approved" in unchecked and "Electronic approval" not in unchecked
     assert "not checked" in unchecked["Approvers"]

@@ -28,7 +28,7 @@ from calib_core.verification import FAIL, NEEDS_REVIEW
 from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.reports.certificate import report_run
+from pipelines.reports.run_reports import report_run
 from pipelines.tolerances import SHIPPED
 from storage import queries
 from storage.db import resolve_archive

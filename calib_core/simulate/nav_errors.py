@@ -21,9 +21,10 @@ from calib_core.navigation import (
     ErrorModel,
     Propagation,
     fix_steps,
-    initial_covariances,
+    initial_covariance,
     linear_model,
     output_matrix,
+    state_layout,
 )
 
 
@@ -56,9 +57,10 @@ def monte_carlo(
     -------
     (runs, 9) roll, pitch, heading (rad), velocity N E D (m/s), position N E D (m) errors.
     """
-    _, layout, P0 = initial_covariances(profile, model)
+    layout = state_layout(profile, model)
     n = layout.n
-    x = rng.standard_normal((runs, n)) @ _root(P0.sum(axis=0)).T
+    P0 = sum(initial_covariance(layout, j) for j in range(len(layout.sources)))
+    x = rng.standard_normal((runs, n)) @ _root(P0).T
     dt = profile.step
     h = dt / substeps
     n_steps = int(round(profile.duration / dt))
@@ -66,7 +68,7 @@ def monte_carlo(
     for k0 in range(0, n_steps, 200):
         k1 = min(n_steps, k0 + 200)
         times = (np.arange(k0 * substeps, k1 * substeps) + 0.5) * h
-        F, Qc = linear_model(profile, model, times)
+        F, Qc = linear_model(profile, layout, times)
         # one product per substep, [x, z] [[I + A^T], [W^T]], in einsum's own loop: small
         # products through a threaded BLAS cost more in thread hand-offs than in arithmetic
         step = np.concatenate(

@@ -166,10 +166,11 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     shaped = (
         (np.abs(r[i - 1, ch] + 0.5 * r[i, ch]) < near)
         & (np.abs(r[i + 1, ch] + 0.5 * r[i, ch]) < near)
-        # The neighbours agree with each other: the sample stands out from each by at
+        # The neighbours agree with each other about the local slope (a turn's ramp
+        # moves them apart by twice a step's slope): the sample stands out from each by at
         # least half its height. A step of the rate (a turn starting or stopping within
         # a sample) leaves the sample near one neighbour: motion, not a spike.
-        & (np.abs(gyr[i + 1, ch] - gyr[i - 1, ch]) < np.abs(r[i, ch]))
+        & (np.abs(d[i - 1, ch] + d[i, ch]) < np.abs(r[i, ch]))
         # Both jumps, onto the sample and off it, beyond the motion's own jumps around it.
         & (np.minimum(np.abs(d[i - 1, ch]), np.abs(d[i, ch])) > SPIKE_SIGMA * jump_scale)
     )
@@ -177,6 +178,10 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     # A jerk of the fixture moves the other axes at the same sample beyond their noise
     # without a spike's shape; an electrical glitch is spike-shaped wherever it shows.
     moving = np.abs(r[i]) > SPIKE_NEIGHBOUR_SIGMA * scale[i]
+    # ... unless that axis has a spike of its own next to the sample (a glitch on another
+    # channel one sample away: its neighbour's r is -1/2 of it, the larger of the two).
+    beside = np.maximum(np.abs(r[np.maximum(i - 1, 0)]), np.abs(r[np.minimum(i + 1, len(r) - 1)]))
+    moving &= ~(beside > 1.5 * np.abs(r[i]))
     moving[np.arange(i.size), ch] = False
     for j in range(i.size):  # candidates are rare: spike-shaped others do not count
         moving[j, ch[(i == i[j])]] = False

@@ -220,7 +220,8 @@ def thermal_export(
     elif fmt in ("px4", "ardupilot"):
         steps = queries.run_summary(arch, facts["run_id"])["calibration"]["steps"]
         target = (instance, device_id, rotation, vehicle_id)
-        text = _run(_firmware_file, fmt, model, cal, steps, target, (serial, header))
+        said = (serial, facts["run_id"], header)
+        text = _run(_firmware_file, fmt, model, cal, steps, target, said)
         output.write_text(text, encoding="ascii")
     else:
         fail(f"unknown export format {fmt!r}; expected json, px4 or ardupilot")
@@ -233,20 +234,24 @@ def _firmware_file(
     cal: Any,  # noqa: ANN401 - calib_core.calibration.Calibration
     steps: list[dict[str, Any]],
     target: tuple[int, int | None, str | None, int],
-    said: tuple[str, str],
+    said: tuple[str, str, str],
 ) -> str:
     """The PX4 / ArduPilot thermal file's text: device ids from the log or the option (else
     refused), rotated into the firmware's axes, with the header of what to set.
 
     `target`: (instance, device id, rotation, vehicle id) as given; `said`: (serial, the
-    line naming the calibration and thermal model)."""
+    calibration's run, the line naming the calibration and thermal model)."""
     from pipelines import autopilot, exports
 
     instance, device_id, rotation, vehicle_id = target
     rot = autopilot.rotation(rotation, fmt)
     recorded = autopilot.recorded_devices(steps)
-    run = said[1].split(" calibration ")[1].split(" ")[0]
-    common = {"unit": said[0], "run": run, "model_range": (model.t_min, model.t_max), "rot": rot}
+    common = {
+        "unit": said[0],
+        "run": said[1],
+        "model_range": (model.t_min, model.t_max),
+        "rot": rot,
+    }
     if fmt == "px4":
         acc_id, gyr_id, source = autopilot.px4_device_ids(recorded, device_id, device_id)
         i = max(instance, 0)
@@ -257,12 +262,12 @@ def _firmware_file(
             f"sets TC_A{i}_* / TC_G{i}_* of the sensors with device ids {acc_id} "
             f"(accelerometer) and {gyr_id} (gyro), {source}; TC_A_ENABLE = TC_G_ENABLE = 1"
         ]
-        head = [said[1], *autopilot.header_lines("px4", settings=settings, **common)]
+        head = [said[2], *autopilot.header_lines("px4", settings=settings, **common)]
         return exports.px4_params_text(rows, header="\n".join(head), vehicle_id=vehicle_id)
     imu = instance if instance > 0 else recorded.get("imu", 0) + 1
     rows = exports.ardupilot_parameters(model, cal, imu=imu, rot=rot)
     settings = [f"sets INS_TCAL{imu}_* (IMU {imu}, the log's instance {imu - 1}); ENABLE = 1"]
-    head = [said[1], *autopilot.header_lines("ardupilot", settings=settings, **common)]
+    head = [said[2], *autopilot.header_lines("ardupilot", settings=settings, **common)]
     return exports.ardupilot_params_text(rows, header="\n".join(head))
 
 

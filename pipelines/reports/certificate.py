@@ -9,20 +9,22 @@ the raw-vs-calibrated plot.
 Both outputs print the same sections (`sections`): unit, run, equipment,
 environment, conditions (one verdict line per lab condition), procedure,
 results with uncertainties, residual table and diagnosis, repeatability,
-verification, verdict, recommendations and a signature block, one function
-per section; pipelines.reports.render lays them out as HTML and PDF.
+verification, verdict, recommendations (pipelines.reports.recommendations) and
+a signature block (pipelines.reports.signatures), one function per section;
+pipelines.reports.render holds them and writes the HTML, pipelines.reports.typeset
+sets the PDF. pipelines.reports.run_reports reads an archived run's summary and
+writes the files.
 
-Why one module of ~720 lines: the sections are written in the certificate's own
-print order and share one view of the archived run (`_Archived`) and its number
-formatting; split across files, a reviewer checking an item of ISO/IEC 17025 7.8
-against the printed page would have to jump between them.
+The sections that read the archived run are here in the certificate's own print
+order and share one view of it (`_Archived`) and its number formatting, so that a
+reviewer checking an item of ISO/IEC 17025 7.8 against the printed page finds it
+in one place.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import date, datetime, timedelta
-from pathlib import Path
+from datetime import date, datetime
 from typing import Any
 
 import numpy as np
@@ -32,8 +34,6 @@ from calib_core import conditions
 from calib_core.calibration import Calibration
 from calib_core.tolerances import ToleranceProfile
 from calib_core.verification import (
-    NEEDS_REVIEW,
-    PASS,
     REPEAT_PREFIX,
     VERIFY_PREFIX,
     ResidualDiagnosis,
@@ -52,19 +52,21 @@ from pipelines.reports.display import (
     limit_text,
     number,
     quantity,
+    record_notes,
     shown,
+    solve_warnings,
     tolerance_text,
     uncertainty,
 )
+from pipelines.reports.navigation import navigation_sections
 from pipelines.reports.protocol import (
     guard_band_of,
     render_protocol,
     verdict_of,
 )
-from pipelines.reports.render import Certificate, Section, render_html
-from pipelines.reports.typeset import render_pdf
-
-RECALIBRATION_MONTHS = 12  # default interval for a passed MEMS unit (lab practice)
+from pipelines.reports.recommendations import recommendations
+from pipelines.reports.render import Certificate, Section
+from pipelines.reports.signatures import signatures_section
 
 
 def _step(summary: dict[str, Any], name: str) -> dict[str, Any]:
@@ -171,9 +173,10 @@ def sections(
         _repeatability_section(run),
         _verification_section(run),
         _verdict_section(run),
+        *navigation_sections(summary.get("navigation")),
         Section(
             "Recommendations",
-            paragraphs=_recommendations(
+            paragraphs=recommendations(
                 calrow["verdict"],
                 run.cal,
                 diagnosis,
@@ -181,7 +184,7 @@ def sections(
                 summary.get("recall"),
             ),
         ),
-        _signatures_section(summary, approvals or []),
+        signatures_section(summary, approvals or []),
     ]
     dev = summary["device"]
     title = f"Calibration certificate {dev['model']} {dev['serial']}"
@@ -689,42 +692,14 @@ def _verdict_section(run: _Archived) -> Section:
             ("Failed", ", ".join(failed) or "none"),
             ("Warnings", ", ".join(by_status.get(conditions.WARNING, [])) or "none"),
             ("Not recorded", ", ".join(by_status.get(conditions.NOT_RECORDED, [])) or "none"),
+            *(_notes(run) or [("The record", "no findings, no sample replaced")]),
         ],
     )
 
 
-def _signatures_section(summary: dict[str, Any], approvals: list[tuple[Any, bool]]) -> Section:
-    signed = [
-        (
-            f"UNTRUSTED, claimed {a.meaning}" if a.untrusted else f"Electronically {a.meaning}",
-            f"{a.signer}, {a.at[:19].replace('T', ' ')} UTC (Ed25519 key {a.public_key[:16]}...)"
-            + (
-                f": {a.untrusted}"
-                if a.untrusted
-                else ""
-                if holds
-                else ": NO LONGER VALID, the record changed after signing"
-            ),
-        )
-        for a, holds in approvals
-    ]
-    if not any(holds and a.meaning == "approved" for a, holds in approvals):
-        signed.append(("Electronic approval", "NOT APPROVED (no valid approval: calib approve)"))
-    if approvals and all(a.trusted is None for a, _ in approvals):
-        signed.append(("Approvers", "keys not checked against the lab's list of trusted approvers"))
-    if "chain_head" in summary:  # the archive's audit chain when the certificate was issued
-        seq, head = summary["chain_head"]
-        signed.append(("Audit chain at issue", f"event {seq}, hash {head}"))
-    return Section(
-        "Signatures",
-        pairs=[
-            *iso17025.authorisation_pairs(summary),
-            *signed,
-            ("Customer representative", "______________________   Date: __________"),
-            ("Quality control", "______________________   Date: __________"),
-            ("Production", "______________________   Date: __________"),
-        ],
-    )
+def _notes(run: _Archived) -> list[tuple[str, str]]:
+    """The findings about the record, the samples replaced and the solve's warnings."""
+    return record_notes(run.checks, solve_warnings(run.summary["calibration"]["steps"]))
 
 
 def _figures(run: _Archived) -> dict[str, str]:
@@ -763,196 +738,5 @@ def _protocol(run: _Archived) -> str:
         budgets=_budgets(run),
         decision_rule=_decision_rule(run),
         names=run.profile.protocol_names if run.profile else "canonical",
+        notes=_notes(run),
     )
-
-
-def _recommendations(
-    verdict: str,
-    cal: Calibration,
-    diagnosis: ResidualDiagnosis | None,
-    env: dict[str, Any],
-    recall: dict[str, Any] | None = None,
-) -> list[str]:
-    out = []
-    if verdict == PASS:
-        out.append(
-            f"Release the unit with this calibration; recalibrate within {_interval(recall)}, "
-            "or earlier after a shock, a repair or a drift seen in use."
-        )
-    elif verdict == NEEDS_REVIEW:
-        out.append(
-            "The calibration is within tolerance but does not repeat against earlier runs: "
-            "a quality engineer decides; repeat the calibration under controlled conditions."
-        )
-    else:
-        out.append("Do not release the unit with this calibration; act on the failed checks.")
-    if diagnosis is not None and not diagnosis.passed:
-        out += diagnosis.advice
-    if cal.info.get("thermal"):
-        out.append("Apply the archived temperature compensation model in use.")
-    else:
-        temp = env.get("temperature_c")
-        at = f" at {temp} deg C" if temp is not None else ""
-        out.append(
-            f"Calibrated{at} only: for use over a wide temperature range run a thermal "
-            "campaign (e.g. -10, 0, 20, 40, 60 deg C) and apply temperature compensation."
-        )
-    return out
-
-
-def _interval(recall: dict[str, Any] | None) -> str:
-    """The recalibration interval in words: the unit's own (pipelines.recall, docs/interval.md)
-    with its method, or the default months."""
-    if recall is None:
-        return f"{RECALIBRATION_MONTHS} months"
-    why = recall["method"]
-    if recall.get("limiting_parameter") and why.startswith("variables"):
-        why = (
-            f"from this unit's and its model's measured drift, variables-data method "
-            f"(NCSL RP-1 / ILAC-G24): probability {recall['reliability']:.0%} of "
-            f"{recall['limiting_parameter']} being in tolerance at its end"
-            + (", capped" if recall.get("capped") else "")
-        )
-    return f"{_duration(recall)}, by {recall['due']} ({why})"
-
-
-def _duration(recall: dict[str, Any]) -> str:
-    """An interval of pipelines.recall in words: months, or days under a month (a unit
-    that drifts fast: "9 days", never "0 months")."""
-    from pipelines.recall import DAYS_PER_MONTH
-
-    months, days = recall["interval_months"], recall["interval_days"]
-    if days >= round(DAYS_PER_MONTH, 1):  # as interval_days is rounded (0.1 day)
-        return f"{months:g} month" + ("" if months == 1 else "s")
-    if days >= 1:
-        n = round(days)
-        return f"{n} day" + ("" if n == 1 else "s")
-    return f"{days:g} days"  # under a day (0 when due now)
-
-
-# --- HTML --------------------------------------------------------------------------------
-
-
-def write_reports(
-    summary: dict[str, Any],
-    samples: pa.Table,
-    folder: Path,
-    *,
-    pdf: bool = True,
-    approvals: list[tuple[Any, bool]] | None = None,
-) -> dict[str, Path]:
-    """Write `<serial>_result.txt`, `<serial>_<run>_certificate.html` (and `.pdf`) into `folder`.
-
-    `approvals`: as for `sections`.
-
-    Returns
-    -------
-    {"protocol": path, "html": path, "pdf": path (when written)}.
-    """
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    cert = sections(summary, samples, approvals)
-    serial, run_id = summary["device"]["serial"], summary["run_id"]
-    out = {"protocol": folder / f"{serial}_result.txt"}
-    out["protocol"].write_text(cert.protocol, encoding="utf-8")
-    stem = f"{serial}_{run_id}_certificate"
-    if pdf:
-        out["pdf"] = render_pdf(cert, folder / f"{stem}.pdf")
-    out["html"] = folder / f"{stem}.html"
-    out["html"].write_text(render_html(cert), encoding="utf-8")
-    return out
-
-
-REPORT_FORMATS = ("certificate", "dcc")
-
-
-def report_run(
-    archive,
-    run_id: str,
-    folder: Path | None = None,
-    *,
-    pdf: bool = True,
-    form: str = "certificate",
-) -> dict:
-    """Write the reports of an archived run, from the archive alone (run summary + samples).
-
-    Parameters
-    ----------
-    archive : storage.db.Archive
-    run_id : the archived run.
-    folder : where to write; default the run's folder in the archive.
-    pdf : also render the PDF certificate (the slowest part).
-    form : "certificate" (protocol, HTML and PDF) or "dcc" (the Digital Calibration
-        Certificate XML, `pipelines.reports.dcc`).
-
-    Returns
-    -------
-    dict: ``verdict`` and the written paths ``protocol`` (``<serial>_result.txt``),
-    ``html`` and (with `pdf`) ``pdf``; or ``dcc``.
-    """
-    if form not in REPORT_FORMATS:
-        raise ValueError(f"report format {form!r}: expected one of {list(REPORT_FORMATS)}")
-    summary = archived_summary(archive, run_id)
-    folder = folder if folder is not None else archive.root / summary["run_dir"]
-    if form == "dcc":
-        from pipelines.reports.dcc import write_dcc
-
-        return {"verdict": summary["calibration"]["verdict"], "dcc": write_dcc(summary, folder)}
-    from storage import queries
-
-    samples = queries.run_samples(archive, run_id)
-    approvals = trusted_approvals(archive, summary)
-    written = write_reports(summary, samples, folder, pdf=pdf, approvals=approvals)
-    return {"verdict": summary["calibration"]["verdict"], **written}
-
-
-def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - Archive
-    """`storage.queries.run_summary` of the run with what the certificate adds: the lab
-    profile (``lab``), the unit's recalibration interval (``recall``, for a passed run),
-    its calibration before this run (``as_found``) and the audit chain's head at issue
-    (``chain_head``)."""
-    from pipelines.lab import load_lab_profile
-    from pipelines.recall import unit_recall
-    from storage import queries
-    from storage.checkpoint import chain_head
-
-    summary = queries.run_summary(archive, run_id)
-    lab = load_lab_profile()
-    summary["lab"] = None if lab is None else lab[0]
-    # the interval is stated for a released unit only (`_recommendations`)
-    released = summary["calibration"]["verdict"] == PASS
-    summary["recall"] = (
-        unit_recall(archive, summary["device"]["serial"], run_id) if released else None
-    )
-    summary["as_found"] = queries.latest_calibration(
-        archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1)
-    )
-    summary["chain_head"] = chain_head(archive)
-    return summary
-
-
-def trusted_approvals(archive, summary: dict[str, Any]) -> list:  # noqa: ANN001 - Archive
-    """The approvals of the summary's revision, each judged against the lab's approvers file
-    (pipelines.trust; none given: marked as not checked against one)."""
-    from pipelines.trust import lab_approvers
-    from storage.approval import approval_status
-
-    return approval_status(
-        archive, summary["run_id"], summary["calibration"]["revision"], lab_approvers()
-    )
-
-
-def certificate_of(
-    archive,
-    run_id: str,
-    *,
-    issue: int = 1,  # noqa: ANN001 - Archive
-) -> tuple[dict[str, Any], Certificate]:
-    """(summary, certificate) of an archived run, from the archive alone, as issue `issue`
-    (`pipelines.reports.issue`: a re-issue is a new document with its own number)."""
-    from storage import queries
-
-    summary = archived_summary(archive, run_id)
-    summary["issue"] = issue
-    samples = queries.run_samples(archive, run_id)
-    return summary, sections(summary, samples, trusted_approvals(archive, summary))

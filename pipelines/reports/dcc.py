@@ -1,7 +1,7 @@
 """The Digital Calibration Certificate (PTB DCC, schema 3.x structure) of one archived run.
 
 `dcc_xml(summary)` builds the document from the same archive summary the certificate reads
-(`pipelines.reports.certificate.report_run` adds the lab profile): ``administrativeData``
+(`pipelines.reports.run_reports.report_run` adds the lab profile): ``administrativeData``
 (dccSoftware, coreData with the certificate number and performance dates, the item with its
 manufacturer, model and serial, calibrationLaboratory, respPersons, customer, statements: the
 decision rule, the results-relate-only statement and the uncertainty label) and
@@ -91,13 +91,13 @@ def _administrative(admin: ET.Element, summary: dict[str, Any]) -> None:
     _el(core, "dcc:beginPerformanceDate", day)
     _el(core, "dcc:endPerformanceDate", day)
     _el(core, "dcc:performanceLocation", "laboratory")
-    _item(_el(admin, "dcc:items"), summary["device"])
+    _item(_el(admin, "dcc:items", id="items"), summary["device"])
     _contact(_el(_el(admin, "dcc:calibrationLaboratory"), "dcc:contact"), laboratory, "address")
     person = _el(_el(admin, "dcc:respPersons"), "dcc:respPerson")
     who = lab.get("authorised_by", {})
     _text(_el(person, "dcc:person"), "dcc:name", who.get("name", iso17025.NOT_RECORDED))
     _el(person, "dcc:role", who.get("function", "authorised by"))
-    _contact(_el(admin, "dcc:customer"), _customer(lab), "address")
+    _contact(_el(admin, "dcc:customer", id="customer"), _customer(lab), "address")
     statements = _el(admin, "dcc:statements")
     for said in _statements(summary):
         _text(_el(statements, "dcc:statement"), "dcc:declaration", said)
@@ -191,7 +191,7 @@ def _equipment(summary: dict[str, Any]) -> list[tuple[dict[str, Any], str]]:
 def _parameters(results: ET.Element, summary: dict[str, Any], used: str) -> None:
     budgets = _budgets(summary)
     for p in summary["calibration"]["parameters"]:
-        res = _el(results, "dcc:result", refId=used)
+        res = _el(results, "dcc:result", id=f"result-{p['name']}", refId=used)
         _text(res, "dcc:name", p["name"])
         quantity = _el(_el(res, "dcc:data"), "dcc:quantity")
         _text(quantity, "dcc:name", p["name"])

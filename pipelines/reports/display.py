@@ -208,3 +208,30 @@ def check_counts(checks: list[dict[str, Any]]) -> CheckCounts:
         conditions.count(WARNING),
         conditions.count(NOT_RECORDED),
     )
+
+
+def record_notes(
+    checks: list[dict[str, Any]], warnings: list[str] | tuple[str, ...] = ()
+) -> list[tuple[str, str]]:
+    """What every view shows beside the verdict about the record rather than the unit, as
+    (name, text): each ``record:`` finding (a log read to its last whole record, a turn
+    not quite at rest, a threshold raised, a held-out static record that moved), each
+    ``model:replaced:`` count of samples a step altered (passed ones too: the count is
+    shown whatever it is), then the solve's `warnings` ("solve warning")."""
+    from calib_core.checks import RECORD_PREFIX
+    from calib_core.preprocess.replaced import CHECK_PREFIX as REPLACED_PREFIX
+
+    notes = [
+        (str(c["name"]), str(c.get("detail") or ""))
+        for c in checks
+        if str(c["name"]).startswith((RECORD_PREFIX, REPLACED_PREFIX))
+    ]
+    return notes + [("solve warning", str(w)) for w in warnings]
+
+
+def solve_warnings(steps: list[dict[str, Any]]) -> list[str]:
+    """The warnings an archived run's solve step holds (its steps as `run_summary` gives)."""
+    for step in steps:
+        if step.get("name") == "solve":
+            return [str(w) for w in (step.get("statistics") or {}).get("warnings", [])]
+    return []

@@ -93,8 +93,8 @@ def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
     -------
     Issue, with the paths of the files written.
     """
-    from pipelines.reports.certificate import certificate_of
     from pipelines.reports.render import render_html
+    from pipelines.reports.run_reports import certificate_of
     from pipelines.reports.typeset import pdf_bytes
 
     seal.check_reason(reason)

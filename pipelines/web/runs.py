@@ -14,7 +14,14 @@ from fastapi.responses import FileResponse, HTMLResponse, Response
 from starlette.exceptions import HTTPException
 
 from calib_core import params
-from pipelines.reports.display import RESIDUAL_UNITS, check_counts, shown, tolerance_text
+from pipelines.reports.display import (
+    RESIDUAL_UNITS,
+    check_counts,
+    record_notes,
+    shown,
+    solve_warnings,
+    tolerance_text,
+)
 from pipelines.web import forms, svg
 from pipelines.web.pages import render
 from pipelines.web.present import display
@@ -154,6 +161,9 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
         charts=[c for c in charts if c],
         profile=profile,
         counts=check_counts(summary["calibration"]["checks"]),
+        notes=record_notes(
+            summary["calibration"]["checks"], solve_warnings(summary["calibration"]["steps"])
+        ),
     )
 
 
