@@ -30,7 +30,7 @@ storage.rejudgement, the revision's child rows in storage.revision_rows.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from datetime import UTC
 from pathlib import Path
 from typing import Literal
@@ -514,14 +514,7 @@ def _equipment_id(s: Session, eq: EquipmentIn) -> int:
     ).one_or_none()
     if found is not None:
         return found
-    row = schema.Equipment(
-        kind=eq.kind,
-        serial=eq.serial,
-        model=eq.model,
-        accuracy_class=eq.accuracy_class,
-        calibration_due=eq.calibration_due,
-        calibrated_on=eq.calibrated_on,
-    )
+    row = schema.Equipment(**asdict(eq))  # its fields are the table's columns
     s.add(row)
     s.flush()
     return row.id
