@@ -14,8 +14,8 @@ from pipelines.direct import process_in_process
 from pipelines.ingest import discover_runs
 from pipelines.issuing import issue_certificate, issuing_beside
 from pipelines.reports.issue import issued
-from storage import queries
 from storage.db import resolve_archive
+from storage.queries import certificate_issues as issues
 from storage.verify import verify
 
 SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"
@@ -31,7 +31,7 @@ def test_a_batch_returns_with_every_certificate_issued(tmp_path) -> None:
     for o in outcomes:
         current = issued(arch, o["run_id"])
         assert current is not None and current.files["pdf"].read_bytes().startswith(b"%PDF-")
-        assert len(queries.certificate_issues(arch, o["run_id"])) == 1
+        assert len(issues(arch, o["run_id"])) == 1
     assert verify(arch).ok
 
 
