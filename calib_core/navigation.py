@@ -18,23 +18,27 @@ the position error (T&W eq. 12.31). d_omega and d_f are the sensor errors in the
 
     d_omega = b_g + dM_g omega_ib^b + dG f^b + n_g,    d_f = b_a + dM_a f^b + n_a
 
-Error sources (`ErrorSource`), each a group of states added to the navigation state:
-each calibrated parameter's standard uncertainty u (= U / k) as a random constant (the
+Error sources (`ErrorSource`): each calibrated parameter's standard uncertainty u
+(= U / k) as a random constant (the
 family's covariance block when known), the thermal model's residual over the profile's
 temperatures and the drift expected at the end of the recalibration interval as random
 constants; angle / velocity random walk (ARW, VRW) as white noise of PSD N^2; rate random
 walk K as a random walk of PSD K^2; bias instability B as a first-order Gauss-Markov
 process of steady-state std 1.0744 B and correlation time tau_min / 1.89, whose Allan
 deviation peaks at the flicker floor 0.6643 B at the flicker's minimum tau_min (IEEE Std
-952-1997 Annex C; the Gauss-Markov peak 0.6183 sigma at 1.89 tau_c).
+952-1997 Annex C; the Gauss-Markov peak 0.6183 sigma at 1.89 tau_c). The state
+(`StateLayout`): the 9 navigation errors, one state per parameter with a constant error
+(its u, thermal residual and drift share it), the Markov and random-walk states.
 
-Propagation (Groves 2013, sec. 3.2.2 and 3.2.3): Phi_k = expm(F_k dt) with F at the step's
-midpoint, Q_k = (Phi Q_c Phi^T + Q_c) dt / 2. Fixes while aided update every state with the
-Kalman gain of the total covariance (an optimal filter over the whole model: a best case;
-a filter with fewer states does worse). With the gains so fixed the errors are linear in
-the sources, so each source is propagated alone (its own covariance, the same Phi and gains,
-P_j+ = (I - K H) P_j (I - K H)^T, and the fixes' own noise K R K^T as a source) and the
-shares of each output's variance add up to the total exactly.
+Propagation (Groves 2013, sec. 3.2.2 and 3.2.3): Phi_k = expm(F_k dt) with F at the
+step's midpoint (`expm_batch`), Q_k = (Phi Q_c Phi^T + Q_c) dt / 2. Fixes while aided
+update every state with the Kalman gain of the total covariance (an optimal filter over
+the whole model: a best case; a filter with fewer states does worse). With the gains so
+fixed the errors are linear in the sources, so each source is propagated alone with the
+same Phi and gains (constants as the state's sensitivity to their values, every other
+source as its own covariance, P_j+ = (I - K H) P_j (I - K H)^T, the fixes' own noise
+K R K^T a source of its own) and the shares of each output's variance add up to the total
+exactly.
 """
 
 from __future__ import annotations

@@ -1,20 +1,23 @@
-"""Statistics of a record that arrives in chunks: nothing holds the whole record.
+"""Statistics of a record that arrives in chunks: nothing holds the whole record; a
+record in memory is the one-chunk case (one implementation of each statistic).
 
 `Moments`: count, mean and variance per channel (Welford / Chan et al. merge of chunk
 moments). `SigmaClipFill`: the static-bias outlier rule (n-sigma about the record's mean
-and std) applied chunk by chunk, rejected samples filled by linear interpolation of their
-kept neighbours exactly as `calib_core.solvers.static_bias` does on one array.
-`StreamedAllan`: the overlapping Allan deviation (`calib_core.noise.allan_deviation`) from
-a running cumulative sum: each chunk's second differences need the cumulative sum 2 m
-samples back, so the last rows of the phase are kept (up to `memory_rows`); lags past
-that are read from a `History` the caller supplies (a file in the pipelines, a list of
-arrays by default). `Execution`: what a caller gives the streamed computations to run on
-(a helper beside the calling thread, phase memory, a history, a workspace); the numbers
-never depend on it. `MedianStep`: the median sample period (`Recording.sample_rate`)
-from counts of the distinct time steps. `TemperatureTrend` and `RecordSummary`: what
-the lab conditions take of a record.
+and std, one pass) applied chunk by chunk, rejected samples filled by linear
+interpolation (in sample index) of their kept neighbours, as `np.interp` of all kept
+samples would. `StreamedAllan`: the overlapping Allan deviation from a running
+cumulative sum (`allan_deviation`, of a record in memory, is its one-chunk case): each
+chunk's second differences need the cumulative sum 2 m samples back, so the last rows
+of the phase are kept (up to `memory_rows`); lags past that are read from a `History`
+the caller supplies (a file in the pipelines, a list of arrays by default).
+`Execution`: what a caller gives the streamed computations to run on (a helper beside
+the calling thread, phase memory, a history, a workspace); the numbers never depend on
+it. `MedianStep`: the median sample period (`Recording.sample_rate`) from counts of the
+distinct time steps. `TemperatureTrend` and `RecordSummary`: what the lab conditions
+take of a record.
 
-Same numbers as the in-memory path to rounding (tests/test_streamed.py).
+The chunking changes the numbers by rounding only (tests/test_streamed.py; allantools
+is the Allan deviation's oracle).
 """
 
 from __future__ import annotations
@@ -141,7 +144,7 @@ class MedianStep:
 
 
 class SigmaClipFill:
-    """The n-sigma rule of `calib_core.solvers.static_bias.sigma_clip` and its fill, in chunks.
+    """The static-bias solve's n-sigma rule (one pass) and its fill, in chunks.
 
     Parameters
     ----------
@@ -365,7 +368,7 @@ IN_LINE = Execution()
 
 
 class StreamedAllan:
-    """Overlapping Allan deviation of a record pushed in chunks (`allan_deviation`'s numbers).
+    """Overlapping Allan deviation of a record pushed in chunks.
 
     Parameters
     ----------
@@ -400,7 +403,7 @@ class StreamedAllan:
         execution: Execution = IN_LINE,
     ):
         if not rate_hz > 0:
-            raise ValueError(f"streamed Allan deviation: rate_hz must be > 0, got {rate_hz}")
+            raise ValueError(f"Allan deviation: rate_hz must be > 0, got {rate_hz}")
         self.rate_hz, self.n_samples = float(rate_hz), int(n_samples)
         self.m = cluster_sizes(n_samples, rate_hz, taus)
         self.keep_rows = int(min(2 * self.m.max(), max(execution.memory_rows, 1)))
@@ -428,13 +431,13 @@ class StreamedAllan:
         if n == 0:
             return
         if not np.isfinite(x).all():
-            raise ValueError("streamed Allan deviation: samples contain NaN or infinite values")
+            raise ValueError("Allan deviation: the samples contain NaN or infinite values")
         if self.offset is None:
             self.offset = x.mean(axis=0)
         from calib_core.second_differences import phase  # Numba: when used
 
         if self._buf is None:
-            raise ValueError("streamed Allan deviation: samples pushed after release()")
+            raise ValueError("Allan deviation: samples pushed after release()")
         self._room(n)
         theta = self._buf[:, self._fill : self._fill + n]
         for c in range(x.shape[1]):
@@ -550,24 +553,51 @@ def _halves(m: np.ndarray) -> int:
     return int(np.searchsorted(work, work[-1] / 2)) if m.size > 1 else m.size
 
 
-def joined_allan(parts: list[StreamedAllan]) -> AllanResult:
+def joined_allan(parts: list[StreamedAllan], one_channel: bool = False) -> AllanResult:
     """The Allan deviation (K, sum of C) of the channels of several `StreamedAllan` of one
     record (the same rate, length and cluster sizes), side by side in their order, once
-    all N samples are in each."""
+    all N samples are in each; (K,) with `one_channel` (a record of one channel)."""
     one = parts[0]
     for part in parts:
         part._settle()
         n = part._j - 1
         if n != part.n_samples:
-            raise ValueError(
-                f"streamed Allan deviation: {n} samples pushed, {part.n_samples} announced"
-            )
+            raise ValueError(f"Allan deviation: {n} samples pushed, {part.n_samples} announced")
         if (part.n_samples, part.rate_hz) != (one.n_samples, one.rate_hz):
-            raise ValueError("streamed Allan deviation: the parts are of different records")
+            raise ValueError("Allan deviation: the parts are of different records")
     n, rate = one.n_samples, one.rate_hz
     denom = (2.0 * (n + 1 - 2 * one.m))[:, None] * rate**2
-    sums = np.hstack([part.sums for part in parts])
-    return allan_result(one.m, sums / denom, n, rate)
+    avar = np.hstack([part.sums for part in parts]) / denom
+    return allan_result(one.m, avar[:, 0] if one_channel else avar, n, rate)
+
+
+def allan_deviation(
+    x: np.ndarray, rate_hz: float, taus: str | np.ndarray = "octave"
+) -> AllanResult:
+    """Overlapping Allan deviation of a rate signal in memory: `StreamedAllan`'s of one
+    chunk, its whole phase in one buffer.
+
+    Parameters
+    ----------
+    x : (N,) or (N, C) samples of a rate (rad/s, m/s^2, ...).
+    rate_hz : sample rate, Hz.
+    taus : "octave", "log" or an array of cluster times in s (see
+        `calib_core.noise.cluster_sizes`).
+
+    Returns
+    -------
+    AllanResult with adev of shape (K,) or (K, C) in the unit of `x`.
+    """
+    x = np.asarray(x, dtype=float)
+    if x.ndim not in (1, 2):
+        raise ValueError(f"allan_deviation: x must be (N,) or (N, C), got shape {x.shape}")
+    cols = x.reshape(x.shape[0], -1)
+    n = cols.shape[0]
+    allan = StreamedAllan(
+        rate_hz, n, cols.shape[1], taus=taus, execution=Execution(memory_rows=n + 1)
+    )
+    allan.push(cols)
+    return joined_allan([allan], one_channel=x.ndim == 1)
 
 
 def load_compiled() -> None:

@@ -246,7 +246,8 @@ def header_lines(
     return [
         f"unit {unit}, run {run}; {span}",
         f"axes: calibrated axes rotated by {rot.name} (number {rot.number} of "
-        f"{PARAMETER[firmware]}'s enumeration) into the firmware's",
+        f"{PARAMETER[firmware]}'s enumeration) into the firmware's"
+        + ("" if rot.number == 0 else "; WARNING lines give values in the calibrated axes"),
         *settings,
         f"load with {loader}; then REBOOT the vehicle: the firmware reads these at start-up",
     ]

@@ -543,8 +543,9 @@ def process_run(
     pending = rawstore.PendingFiles()
     try:
         started = time.perf_counter()
-        # A static-bias record larger than its memory limit is streamed, not read.
-        plan = stream_plan(source)
+        # A static-bias record larger than its memory limit is streamed, not read (unless
+        # its settings or a reference correction need it in memory).
+        plan = stream_plan(source) if correct is None else None
         if plan is None:
             loaded = load_run(source, hash_file=partial(pending.stage_raw, archive.root))
         else:
@@ -554,11 +555,6 @@ def process_run(
         if reason is not None:
             steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
         if correct is not None:
-            if loaded.streamed is not None:
-                raise ValueError(
-                    "a reference correction of a streamed record is not available: raise "
-                    "run.settings.memory_limit_mb to read it into memory"
-                )
             loaded, corrected = correct(loaded)
             steps.append(corrected)
         cal, solve_steps, settings, budgets, fit = solve_loaded(loaded)

@@ -190,7 +190,7 @@ def test_the_schema_check_can_fail(archived, monkeypatch):
         + "<dcc:measuringEquipments/>"
         + (xml.split("</dcc:measuringEquipments>")[1])
     )
-    start = xml.index("<dcc:customer>")
+    start = xml.index("<dcc:customer")
     loc = xml.index("<dcc:location>", start)
     nowhere = xml[:loc] + xml[xml.index("</dcc:location>", loc) + len("</dcc:location>") :]
     for broken in (dangling, empty, nowhere):

@@ -4,7 +4,7 @@
 copied (the raw copy), its complete lines parsed by pyarrow into SI samples (the
 column plan and units of `csv_reader`), written as a row group of the samples'
 Parquet (`storage.rawstore.samples_parquet_options`) and added to the first-pass
-statistics (`calib_core.solvers.static_bias_stream.FirstPass`; the record's motion
+statistics (`calib_core.solvers.static_bias.FirstPass`; the record's motion
 windows among them, on a worker thread beside the reading).
 `pipelines.streamed_solve` solves it from the Parquet. Memory stays bounded by
 `memory_limit` whatever the record's length; progress (bytes, samples, rate, time left)
@@ -28,7 +28,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from calib_core.solvers.static_bias_stream import FirstPass
+from calib_core.solvers.static_bias import FirstPass
 from calib_core.streamed import Execution
 from pipelines.ingest.csv_layout import AXES, header_units, layout_of
 from pipelines.ingest.csv_reader import (
@@ -66,6 +66,7 @@ class Streamed:
     first: FirstPass
     seconds: float
     temp_finite: int = 0  # samples with a finite temperature (0: no temperature)
+    span: tuple[float, float] | None = None  # the data's first and last time, s (all rows)
 
 
 class Progress:
@@ -151,6 +152,7 @@ def stream_csv(
     label: str = "record",
     memory_limit: int = DEFAULT_MEMORY_LIMIT,
     progress: bool | None = None,
+    window: tuple[float, float] | None = None,
 ) -> Streamed:
     """One pass over a delimited text file: hash, raw copy, samples' Parquet, statistics.
 
@@ -162,6 +164,8 @@ def stream_csv(
     copy_to : where the raw bytes are copied (None: not copied).
     label : the segment label of every row.
     memory_limit : bytes; sets the block size.
+    window : (start, end) s: the samples with start <= t < end only (`windowed`) go to
+        the Parquet and the statistics; None: all.
     progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
 
     Raises
@@ -187,7 +191,7 @@ def stream_csv(
     show = size > PROGRESS_THRESHOLD_BYTES if progress is None else progress
     bar = Progress(path.name, size, show)
     sha = hashlib.sha256()
-    rows, last_t, done, temp_finite = 0, None, 0, 0
+    rows, t0, last_t, done, temp_finite = 0, 0.0, None, 0, 0
     schema = pa.schema([("segment", pa.string())] + [(c, pa.float64()) for c in SAMPLE_COLUMNS])
     with (
         path.open("rb") as fh,
@@ -213,13 +217,17 @@ def stream_csv(
                 if table.num_rows == 0:  # blank lines only
                     continue
                 chunk = _chunk(table, layout, fmt, iso, rows, path, last_t)
+                t0 = float(chunk["t"][0]) if last_t is None else t0
                 last_t = float(chunk["t"][-1])
+                rows += len(chunk["t"])
+                bar.update(done, rows)
+                chunk = windowed(chunk, window)
+                if len(chunk["t"]) == 0:
+                    continue
                 parquet.run(writer.write_table, parquet_table(chunk, label, schema))
                 first.push((chunk["t"], chunk["gyr"], chunk["acc"]))
                 if "temp" in layout.roles:
                     temp_finite += int(np.isfinite(chunk["temp"]).sum())
-                rows += len(chunk["t"])
-                bar.update(done, rows)
             first.close()  # the last chunk's motion windows (computed beside the reading)
         finally:
             parquet.close()
@@ -227,7 +235,19 @@ def stream_csv(
     if rows == 0:
         raise IngestError("no data rows", file=path)
     seconds_ = time.perf_counter() - started
-    return Streamed(sha.hexdigest(), size, Path(samples), first, seconds_, temp_finite)
+    span = (t0, last_t)
+    return Streamed(sha.hexdigest(), size, Path(samples), first, seconds_, temp_finite, span)
+
+
+def windowed(
+    chunk: dict[str, np.ndarray], window: tuple[float, float] | None
+) -> dict[str, np.ndarray]:
+    """The rows of a chunk (increasing t, s) with start <= t < end (`Recording.window`'s
+    rule), as views; all of them when `window` is None."""
+    if window is None:
+        return chunk
+    lo, hi = np.searchsorted(chunk["t"], window, side="left")
+    return chunk if (lo, hi) == (0, len(chunk["t"])) else {k: v[lo:hi] for k, v in chunk.items()}
 
 
 class _Background:

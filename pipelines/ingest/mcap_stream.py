@@ -36,8 +36,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from calib_core.solvers.static_bias_stream import FirstPass
-from calib_core.streamed import Execution
+from calib_core.solvers.static_bias import FirstPass
+from calib_core.streamed import Execution, MedianStep
 from pipelines.ingest.cdr import NS
 from pipelines.ingest.csv_reader import PROGRESS_THRESHOLD_BYTES
 from pipelines.ingest.csv_stream import (
@@ -48,6 +48,7 @@ from pipelines.ingest.csv_stream import (
     Streamed,
     block_bytes,
     parquet_table,
+    windowed,
 )
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
@@ -190,8 +191,12 @@ class SampleSink:
         writer: pq.ParquetWriter,
         label: str,
         written: Callable[[int], None],
+        window: tuple[float, float] | None = None,
     ):
         self.name, self.rows, self.writer, self.label = name, rows, writer, label
+        self.window = window  # (start, end) s: the rows written (`csv_stream.windowed`)
+        # the whole topic's median step (its rate check) when a window keeps part of it
+        self.steps = MedianStep() if window is not None else None
         self.written = written  # called with the messages written so far (progress)
         self.channel: McapChannel | None = None  # the streamed Imu channel
         self.parts: list[dict[str, np.ndarray]] = []
@@ -239,12 +244,24 @@ class SampleSink:
         # The in-memory reader's time base: exact integer offsets, one rounding to s.
         t = (stamp - self.t0) / NS + self.t0 / NS
         chunk = {"t": t, "gyr": both[:, :3], "acc": both[:, 3:], "temp": np.full(n, np.nan)}
+        self.done += n
+        self.written(self.done)
+        if self.steps is not None:
+            self.steps.push(t)
+        chunk = windowed(chunk, self.window)
+        if len(chunk["t"]) == 0:
+            return
         table = parquet_table(chunk, self.label, self.writer.schema)
         self.wait()
         self.writing = self.pool.submit(self.writer.write_table, table)
-        self.first.push((t, chunk["gyr"], chunk["acc"]))
-        self.done += n
-        self.written(self.done)
+        self.first.push((chunk["t"], chunk["gyr"], chunk["acc"]))
+
+    @property
+    def span(self) -> tuple[float, float] | None:
+        """The topic's first and last time, s (None: no message)."""
+        if self.t0 is None or self.last is None:
+            return None
+        return self.t0 / NS, (self.last - self.t0) / NS + self.t0 / NS
 
     def wait(self) -> None:
         """Until the batch being written is (its errors raised here)."""
@@ -268,6 +285,7 @@ def stream_mcap(
     label: str = "record",
     memory_limit: int = DEFAULT_MEMORY_LIMIT,
     progress: bool | None = None,
+    window: tuple[float, float] | None = None,
 ) -> Streamed:
     """One pass over a ROS 2 MCAP log: hash, raw copy, samples' Parquet, statistics.
 
@@ -281,6 +299,8 @@ def stream_mcap(
     copy_to : where the raw bytes are copied (None: not copied).
     label : the segment label of every row.
     memory_limit : bytes; sets the rows per batch and the largest chunk accepted.
+    window : (start, end) s: the samples with start <= t < end only go to the Parquet and
+        the statistics (`csv_stream.windowed`); None: all.
     progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
 
     Returns
@@ -318,7 +338,8 @@ def stream_mcap(
         ):
             tee = HashingTee(fh, sha, copy)
             rows = block_bytes(memory_limit) // ROW_BYTES
-            sink = SampleSink(str(path), rows, writer, label, lambda n: bar.update(tee.hashed, n))
+            shown = lambda n: bar.update(tee.hashed, n)  # noqa: E731
+            sink = SampleSink(str(path), rows, writer, label, shown, window)
             try:
                 reader = _StreamReader(str(path), keys.get("imu_topic"), keys["stamp"], sink)
                 # a chunk, its records and their decoded arrays: a quarter of the limit
@@ -342,4 +363,5 @@ def stream_mcap(
         raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
     bar.update(size, sink.done, final=True)
     reader._pick("imu")  # absent, ambiguous, empty or short of the statistics' count
-    return Streamed(sha.hexdigest(), size, Path(samples), sink.first, time.perf_counter() - started)
+    seconds = time.perf_counter() - started
+    return Streamed(sha.hexdigest(), size, Path(samples), sink.first, seconds, span=sink.span)

@@ -485,6 +485,7 @@ def stream_rosbag(
     label: str = "record",
     memory_limit: int = DEFAULT_MEMORY_LIMIT,
     progress: bool | None = None,
+    window: tuple[float, float] | None = None,
 ) -> Streamed:
     """One pass over a ROS 1 bag: hash, raw copy, samples' Parquet, statistics.
 
@@ -499,6 +500,8 @@ def stream_rosbag(
     copy_to : where the raw bytes are copied (None: not copied).
     label : the segment label of every row.
     memory_limit : bytes; sets the rows per batch and the largest chunk accepted.
+    window : (start, end) s: the samples with start <= t < end only go to the Parquet and
+        the statistics (`csv_stream.windowed`); None: all.
     progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
 
     Returns
@@ -548,7 +551,8 @@ def stream_rosbag(
         ):
             tee = HashingTee(fh, sha, copy)
             rows = block_bytes(memory_limit) // ROW_BYTES
-            sink = SampleSink(str(path), rows, writer, label, lambda n: bar.update(tee.hashed, n))
+            shown = lambda n: bar.update(tee.hashed, n)  # noqa: E731
+            sink = SampleSink(str(path), rows, writer, label, shown, window)
             try:
                 bag = _walk(path, tee, keys, sink, memory_limit, size)
                 sink.flush()
@@ -561,7 +565,8 @@ def stream_rosbag(
         raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
     bar.update(size, sink.done, final=True)
     _check_rate(path, bag, sink, keys.get("min_rate_hz", MIN_RATE_HZ))
-    return Streamed(sha.hexdigest(), size, Path(samples), sink.first, time.perf_counter() - started)
+    seconds = time.perf_counter() - started
+    return Streamed(sha.hexdigest(), size, Path(samples), sink.first, seconds, span=sink.span)
 
 
 def _walk(
@@ -604,7 +609,7 @@ def _check_rate(path: Path, bag: _Bag, sink: SampleSink, min_rate_hz: float) -> 
     topic = bag.channel.topic if bag.channel else "?"
     if sink.done == 0:
         raise IngestError(f"{topic}: no samples", file=path, field=topic)
-    rate = _rate(sink.first.step) if sink.done > 1 else None
+    rate = _rate(sink.steps or sink.first.step) if sink.done > 1 else None
     if rate is None or rate < min_rate_hz:
         choose_source(
             path,

@@ -492,40 +492,59 @@ def _section(
 STILL_TURNING = 5.0 * DEG  # rad/s: a gyro this far from its reading at the segment's start
 
 
-def _check_window_end(
-    whole: Recording, part: Recording, seg: SegmentSpec, index: int, source: str
+def check_window_end(
+    seg: SegmentSpec,
+    index: int,
+    source: str,
+    data_end: float,
+    step: float,
+    ends: Callable[[], tuple[np.ndarray, np.ndarray]],
 ) -> None:
     """Refuse a window that runs past the end of the data while the unit still turns
     there: the file was cut short mid-motion (a log that lost power), the turn would be
     silently incomplete. A window padded past the end of a file that ends at rest reads
-    as before, and so does a rate plateau (a table_rate reference): it turns on purpose,
-    its reference is the table's own rate, and a plateau cut short is a shorter record,
-    which the record-time condition judges."""
-    if seg.end_s is None or len(part) < 20 or "table_rate" in part.reference:
+    as before. (Not called for a rate plateau, a table_rate reference: it turns on
+    purpose, its reference is the table's own rate, and a plateau cut short is a shorter
+    record, which the record-time condition judges; nor for fewer than 20 samples.)
+
+    data_end : the data's last time, s; step : the window's median time step, s;
+    ends : the gyro's first and last ten rows of the window, (10, 3) rad/s each (read only
+    when the window runs past the data's end).
+    """
+    if seg.end_s is None or seg.end_s <= data_end + 1.5 * max(step, 0.0):
         return
-    step = float(np.median(np.diff(part.t)))
-    if seg.end_s <= whole.t[-1] + 1.5 * max(step, 0.0):
-        return
-    at_start = np.median(part.gyr[:10], axis=0)
-    at_end = np.median(part.gyr[-10:], axis=0)
-    if np.linalg.norm(at_end - at_start) > STILL_TURNING:
+    head, tail = ends()
+    moved = float(np.linalg.norm(np.median(tail, axis=0) - np.median(head, axis=0)))
+    if moved > STILL_TURNING:
         raise IngestError(
             f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s runs past the "
-            f"end of the data ({' + '.join(seg.files)} ends at {whole.t[-1]:.6g} s) while the "
-            f"unit still turns there (gyro {np.linalg.norm(at_end - at_start) / DEG:.1f} deg/s "
+            f"end of the data ({' + '.join(seg.files)} ends at {data_end:.6g} s) while the "
+            f"unit still turns there (gyro {moved / DEG:.1f} deg/s "
             "from its reading at the segment's start): the file was cut short",
             file=source,
             field=f"segments[{index}]",
         )
 
 
-def _check_window_inside(whole: Recording, seg: SegmentSpec, index: int, source: str) -> None:
-    """Refuse a window that lies more outside the record than inside it (a start 1e9 s
-    before the file's first sample, a wrong time base): the manifest contradicts the file.
-    A window padded a little past either end of the record reads as the record's part."""
-    if len(whole) < 2:
+def empty_window(seg: SegmentSpec, index: int, source: str, t0: float, t1: float) -> IngestError:
+    """The error of a segment whose window holds no samples of data spanning t0 .. t1 s."""
+    return IngestError(
+        f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s holds no samples; "
+        f"{' + '.join(seg.files)} spans {t0:.6g} .. {t1:.6g} s",
+        file=source,
+        field=f"segments[{index}]",
+    )
+
+
+def check_window_inside(
+    seg: SegmentSpec, index: int, source: str, first: float, last: float
+) -> None:
+    """Refuse a window that lies more outside the record (times first .. last s) than
+    inside it (a start 1e9 s before the file's first sample, a wrong time base): the
+    manifest contradicts the file. A window padded a little past either end of the record
+    reads as the record's part; a record of one time is not judged."""
+    if not last > first:
         return
-    first, last = float(whole.t[0]), float(whole.t[-1])
     start = first if seg.start_s is None else seg.start_s
     end = last if seg.end_s is None else seg.end_s
     outside = max(0.0, first - start) + max(0.0, end - last)
@@ -550,15 +569,14 @@ def _cut(
         return whole.with_label(seg.label)
     start = -float("inf") if seg.start_s is None else seg.start_s
     end = float("inf") if seg.end_s is None else seg.end_s
-    _check_window_inside(whole, seg, index, source)
+    if len(whole):
+        check_window_inside(seg, index, source, float(whole.t[0]), float(whole.t[-1]))
     part = whole.window(start, end, label=seg.label, increasing=increasing)
     if len(part) == 0:
-        raise IngestError(
-            f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s holds no samples; "
-            f"{' + '.join(seg.files)} spans {whole.t[0]:.6g} .. {whole.t[-1]:.6g} s",
-            file=source,
-            field=f"segments[{index}]",
-        )
-    _check_window_end(whole, part, seg, index, source)
+        raise empty_window(seg, index, source, whole.t[0], whole.t[-1])
+    if len(part) >= 20 and "table_rate" not in part.reference:
+        step = float(np.median(np.diff(part.t)))
+        ends = lambda: (part.gyr[:10], part.gyr[-10:])  # noqa: E731
+        check_window_end(seg, index, source, whole.t[-1], step, ends)
     where = f"{whole.source} t in [{seg.start_s}, {seg.end_s}) s"
     return dataclasses.replace(part, label=seg.label, source=where)

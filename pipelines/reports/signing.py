@@ -126,6 +126,8 @@ def _verify_dcc(data: bytes, cert_pem: bytes) -> Verdict:
     refs = _references(root)
     config = XAdESSignatureConfiguration(expect_references=len(refs) + 2)
     signer = _subject(cert_pem)
+    if root.find("{http://www.w3.org/2000/09/xmldsig#}Signature") is None:
+        return Verdict(False, "dcc", signer, "no signature in the document (ds:Signature)")
     try:
         XAdESVerifier().verify(data, x509_cert=cert_pem.decode(), expect_config=config)
     except InvalidDigest as exc:  # "Digest mismatch for reference N (URI)"
