@@ -356,9 +356,11 @@ def still_checks(loaded: LoadedRun, gravity: float, profile: ToleranceProfile) -
     """The static segments of the run's procedure judged still by absolute criteria
     (`calib_core.stillness`): a fit segment that is not is refused (ValueError naming its
     file, the segment and what was measured); a held-out one gives the finding
-    ``record:still:<label>`` (the fit can do without it)."""
+    ``record:still:<label>`` (the fit can do without it). A run segmented automatically
+    (``run.settings.segmentation``) declares continuous recordings, not static segments:
+    its statics are those the segmentation found at rest by its own detector."""
     proc = procedures.BY_NAME.get(loaded.manifest.run.procedure)
-    if proc is None:
+    if proc is None or "segmentation" in loaded.manifest.run.settings:
         return []
     stated = StatedLimits.of(profile)
     out = []
