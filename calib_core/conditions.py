@@ -152,6 +152,44 @@ def _table_checks(
     return out
 
 
+# The table's position feedback channels (rad): a one-axis table's angle, a two-axis
+# table's pitch / roll (or azimuth / pitch).
+POSITION_CHANNELS = ("table_angle", "table_pitch", "table_roll", "table_azimuth")
+ARCSEC = DEG / 3600.0  # rad
+
+
+def table_position_deviation(segments: Mapping[str, Recording]) -> tuple[float | None, str]:
+    """Largest span (max - min) of the 1-s means of a position feedback channel over a
+    held segment (settle and record), arcsec; None when no held segment has one.
+
+    The rate-table procedure limits the table position deviation during settling and the
+    static run to 5 arcsec; the commanded position is not recorded, so the deviation is
+    taken as the span of the held position (docs/methods.md 3.10). 1-s means keep the
+    encoder's noise from counting as a deviation.
+    """
+    worst: tuple[float, str, str] | None = None
+    streamed = []
+    for label, rec in _statics(segments).items():
+        if isinstance(rec, RecordSummary):  # streamed: its feedback is not kept
+            streamed.append(label)
+            continue
+        for channel in POSITION_CHANNELS:
+            angle = rec.reference.get(channel)
+            angle = None if angle is None else np.asarray(angle, dtype=float)
+            if angle is None or not np.isfinite(angle).any():
+                continue
+            angle = angle[np.isfinite(angle)]
+            k = max(1, len(angle) // temperature_block(rec))
+            means = [float(chunk.mean()) for chunk in np.array_split(angle, k)]
+            span = (max(means) - min(means)) / ARCSEC
+            if worst is None or span > worst[0]:
+                worst = (span, label, channel)
+    if worst is None:
+        note = f"; records streamed: {', '.join(streamed)}" if streamed else ""
+        return None, f"no table position feedback ({', '.join(POSITION_CHANNELS)}){note}"
+    return worst[0], f"span of the 1-s means of {worst[2]}, worst segment {worst[1]}"
+
+
 # Conditions the lab states (manifest [environment] / [acquisition], the model's data sheet).
 RECORDED_KEYS = ("ambient_temperature_c", "humidity_pct", "pressure_hpa", "warmup_min")
 
@@ -200,6 +238,7 @@ def check_conditions(
     # The procedure's settings as its solver uses them: a rate table's settle_s default.
     out += _acquisition_checks(segments, recorded, proc.settings.merged(settings), conds)
     out += _temperature_checks(segments, conds)
+    out.append(judge(conds["table_position_arcsec"], *table_position_deviation(segments)))
     applies = {CONDITION_PREFIX + key for key in proc.condition_keys()}
     return [c for c in out if c.name in applies]
 

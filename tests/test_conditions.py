@@ -287,3 +287,51 @@ def test_demo_certificates_show_the_conditions(tmp_path):
     assert (
         "ambient temperature" in texts["MPU0001 html"] and "not recorded" in texts["MPU0001 html"]
     )
+
+
+def _held(label: str, minutes: float, drift_arcsec: float, channel: str = "table_angle"):
+    """A static record on the table at 100 Hz whose position feedback drifts linearly by
+    `drift_arcsec` over the record, with 1 arcsec of encoder noise per sample."""
+    rec = _static(label, 60.0 * minutes, 100.0)
+    noise = np.random.default_rng(7).standard_normal(len(rec))
+    angle = (0.5 + drift_arcsec * rec.t / rec.t[-1] + noise) * conditions.ARCSEC
+    return Recording(t=rec.t, acc=rec.acc, gyr=rec.gyr, reference={channel: angle}, label=label)
+
+
+def test_table_position_within_5_arcsec_during_the_static_run():
+    """The rate-table procedure: table position deviation <= 5 arcsec during settling and
+    the 60-min static run, from the table's feedback. 10 arcsec of drift fails, 3 passes;
+    no feedback channel is "not recorded"; a two-axis table's pitch is read as well."""
+    drifting = _checks([_held("z_up", 60.0, 10.0)], procedure="static_bias")
+    bad = drifting["table_position_arcsec"]
+    assert _status(bad) == "fail" and 9.0 < bad.value < 11.0 and bad.limit == 5.0
+    assert "table_angle" in bad.detail and overall_verdict([bad]) == "fail"
+    steady = _checks([_held("z_up", 60.0, 3.0)], procedure="static_bias")
+    good = steady["table_position_arcsec"]
+    assert _status(good) == "pass" and 2.0 < good.value < 4.0
+    bare = _checks([_static("z_up", 600.0)], procedure="static_bias")["table_position_arcsec"]
+    assert _status(bare) == conditions.NOT_RECORDED and "table_angle" in bare.detail
+    pitch = _checks([_held("p1", 1.0, 10.0, "table_pitch")], procedure="multi_position")
+    assert _status(pitch["table_position_arcsec"]) == "fail"
+    # a rate-table run: its zero-rate plateau is held, the moving ones are not judged
+    zero = _held("z_0", 1.0, 10.0)
+    zero.reference["table_rate"] = np.zeros(len(zero))
+    moving = _plateau("z_+50", 50.0, 0.01)
+    moving.reference["table_angle"] = 50.0 * DEG * moving.t
+    checks = _checks([zero, moving], procedure="rate_table", settings={"settle_s": 20.0})
+    assert _status(checks["table_position_arcsec"]) == "fail"
+    assert "z_0" in checks["table_position_arcsec"].detail
+    zero.reference["table_angle"] = np.zeros(len(zero))
+    checks = _checks([zero, moving], procedure="rate_table", settings={"settle_s": 20.0})
+    assert _status(checks["table_position_arcsec"]) == "pass"
+    # procedures off the table do not judge it
+    assert "table_position_arcsec" not in _checks([_held("x_up", 1.0, 10.0)])
+
+
+def test_the_static_bias_record_is_at_least_60_minutes():
+    """docs/methods.md 2.5: >= 60 min; 59 min fails, 60 passes."""
+    short = _checks([_static("z_up", 59.0 * 60.0)], procedure="static_bias")
+    assert _status(short["static_record_min"]) == "fail"
+    assert short["static_record_min"].value == pytest.approx(59.0)
+    full = _checks([_static("z_up", 60.0 * 60.0)], procedure="static_bias")
+    assert _status(full["static_record_min"]) == "pass"

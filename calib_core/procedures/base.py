@@ -63,6 +63,12 @@ ATTITUDES = (
                  f"{METHODS} 3.4"),
     ConditionUse("record_s", "record time of the shortest static attitude", f"{METHODS} 2.4"),
 )  # fmt: skip
+# The rate-table procedure: table position within 5 arcsec while held (settling and the
+# 60-min static run), from the table's position feedback.
+TABLE_POSITION = ConditionUse(
+    "table_position_arcsec", "table position from its feedback channel (table_angle, "
+    "table_pitch, table_roll): span of the 1-s means over the worst held segment",
+    "rate-table procedure, settling and 60-min static run")  # fmt: skip
 RATE_PLATEAUS = (
     ConditionUse("settle_rate_s", "settle time of each rate plateau (settings.settle_s, "
                  "dropped by the solver)", f"{METHODS} 2.4"),
