@@ -83,6 +83,9 @@ DEFAULT_CONDITIONS: dict[str, tuple[float, float, str, str, str]] = {
         -_INF, 0.1, FAILURE, "table rate stability (feedback std, worst plateau)", "deg/s"),
     "table_rate_deviation_dps": (
         -_INF, 0.5, FAILURE, "table rate deviation from nominal (worst plateau)", "deg/s"),
+    "zero_position_min": (
+        3.0, _INF, WARNING, "centrifuge zero output per table position (shortest)", "min"),
+    "g_step_min": (5.0, _INF, WARNING, "centrifuge g step record (shortest)", "min"),
     "table_position_arcsec": (
         -_INF, 5.0, FAILURE, "table position deviation while held (feedback, worst segment)",
         "arcsec"),
