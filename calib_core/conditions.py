@@ -192,6 +192,13 @@ def table_position_deviation(segments: Mapping[str, Recording]) -> tuple[float |
 
 # Conditions the lab states (manifest [environment] / [acquisition], the model's data sheet).
 RECORDED_KEYS = ("ambient_temperature_c", "humidity_pct", "pressure_hpa", "warmup_min")
+# The equipment pre-check of the rate-table procedure (the lab's equipment records).
+PRECHECK_KEYS = (
+    "table_angle_accuracy_arcsec",
+    "table_axis_perpendicularity_arcsec",
+    "power_stability_pct",
+    "imu_table_parallelism_arcsec",
+)
 
 
 def check_conditions(
@@ -210,7 +217,8 @@ def check_conditions(
     ----------
     segments : the run's segments as acquired (before preprocessing), SI units; a record
         streamed in chunks as its `calib_core.streamed.RecordSummary`.
-    recorded : what the lab recorded: the RECORDED_KEYS, ``temperature_drift_c_per_h``,
+    recorded : what the lab recorded: the RECORDED_KEYS, the PRECHECK_KEYS,
+        ``temperature_drift_c_per_h``,
         ``resolution_bits`` and ``settle_s`` (before each attitude); None or absent: not
         recorded.
     procedure : the run's procedure (or its name): its ``conditions`` are the ones judged.
@@ -226,7 +234,7 @@ def check_conditions(
 
     proc = procedures.get(procedure) if isinstance(procedure, str) else procedure
     conds = conditions(overrides)
-    out = [judge(conds[k], recorded.get(k)) for k in RECORDED_KEYS]
+    out = [judge(conds[k], recorded.get(k)) for k in RECORDED_KEYS + PRECHECK_KEYS]
     drift = recorded.get("temperature_drift_c_per_h")
     out.append(
         judge(

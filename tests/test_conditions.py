@@ -335,3 +335,55 @@ def test_the_static_bias_record_is_at_least_60_minutes():
     assert short["static_record_min"].value == pytest.approx(59.0)
     full = _checks([_static("z_up", 60.0 * 60.0)], procedure="static_bias")
     assert _status(full["static_record_min"]) == "pass"
+
+
+def test_equipment_precheck_from_the_lab_file(tmp_path, monkeypatch):
+    """The rate-table procedure's equipment pre-check (table angle accuracy, axis
+    perpendicularity, power stability, IMU-to-table parallelism) from the lab file's
+    equipment records: judged against the equipment's own limit (a profile's wins), "not
+    recorded" where the lab gives none; a malformed record is refused by field."""
+    from pipelines.lab import lab_precheck
+
+    monkeypatch.setenv("CALIB_PROFILES", str(tmp_path))
+    assert lab_precheck() == ({}, {})  # no lab file: nothing recorded
+    (tmp_path / "lab.toml").write_text(
+        '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n'
+        "[equipment.precheck]\n"
+        "table_angle_accuracy_arcsec = { value = 1.5, limit = 3.0 }\n"
+        "table_axis_perpendicularity_arcsec = { value = 6.0, limit = 5.0 }\n"
+        "power_stability_pct = { value = 0.2 }\n"
+    )
+    values, limits = lab_precheck()
+    assert values == {
+        "table_angle_accuracy_arcsec": 1.5,
+        "table_axis_perpendicularity_arcsec": 6.0,
+        "power_stability_pct": 0.2,
+    }
+
+    def judged(overrides):
+        checks = conditions.check_conditions(
+            {"z_up": _static("z_up", 60.0)},
+            {**RECORDED_OK, **values},
+            procedure="static_bias",
+            settings={},
+            gravity=9.81,
+            gravity_source="site",
+            overrides=overrides,
+        )
+        return {c.name.removeprefix(conditions.CONDITION_PREFIX): _status(c) for c in checks}
+
+    status = judged(limits)
+    assert status["table_angle_accuracy_arcsec"] == "pass"
+    assert status["table_axis_perpendicularity_arcsec"] == "fail"
+    assert status["power_stability_pct"] == "pass"  # no limit given: recorded
+    assert status["imu_table_parallelism_arcsec"] == conditions.NOT_RECORDED
+    assert judged({**limits, "power_stability_pct": {"high": 0.1}})["power_stability_pct"] == (
+        "fail"
+    )
+    assert "table_angle_accuracy_arcsec" not in _checks([_static("x_up")])  # off the table
+    (tmp_path / "lab.toml").write_text(
+        '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n'
+        '[equipment.precheck]\ntable_angle_accuracy_arcsec = { value = "1" }\n'
+    )
+    with pytest.raises(ValueError, match=r"equipment\[0\]\.precheck\.table_angle_accuracy_arcsec"):
+        lab_precheck()

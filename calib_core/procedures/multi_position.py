@@ -10,6 +10,7 @@ from calib_core.attitude import ATTITUDE_CONVENTIONS, TABLE_AXES
 from calib_core.procedures.base import (
     ATTITUDES,
     ENVIRONMENT,
+    EQUIPMENT_PRECHECK,
     TABLE_POSITION,
     Procedure,
     Setting,
@@ -45,7 +46,7 @@ MULTI_POSITION = Procedure(
     "(*_cw, *_ccw) are ignored",
     solver=solve_multi_position,
     settings=SETTINGS,
-    conditions=ENVIRONMENT + ATTITUDES + (TABLE_POSITION,),
+    conditions=ENVIRONMENT + ATTITUDES + (TABLE_POSITION, *EQUIPMENT_PRECHECK),
     reference="docs/methods.md 2.2",
     bounds_hint=(
         "check the table's attitude convention (settings.attitude_convention: 'project' "

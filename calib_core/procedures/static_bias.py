@@ -13,6 +13,7 @@ from calib_core.condition_rules import ConditionUse
 from calib_core.procedures.base import (
     ATTITUDES,
     ENVIRONMENT,
+    EQUIPMENT_PRECHECK,
     METHODS,
     TABLE_POSITION,
     Procedure,
@@ -91,6 +92,7 @@ STATIC_BIAS = Procedure(
     + ATTITUDES
     + (
         TABLE_POSITION,
+        *EQUIPMENT_PRECHECK,
         ConditionUse("static_record_min", "length of the static record", f"{METHODS} 2.5"),
         ConditionUse(
             "static_temperature_spread_c",
