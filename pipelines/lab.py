@@ -127,18 +127,25 @@ def _check_precheck(table: Any, path: Path, where: str) -> dict[str, dict[str, f
     numbers in the key's unit; the limit is the equipment's own (its data sheet or class)."""
     from calib_core.conditions import PRECHECK_KEYS
 
-    if not isinstance(table, dict):
-        raise ValueError(f"lab profile {path}: {where}.precheck: expected a table")
+    unknown = sorted(set(table) - set(PRECHECK_KEYS)) if isinstance(table, dict) else None
+    if unknown is None or unknown:
+        raise ValueError(
+            f"lab profile {path}: {where}.precheck: expected a table of {list(PRECHECK_KEYS)}"
+            + (f", got unknown {unknown}" if unknown else "")
+        )
     for key, entry in table.items():
         at = f"lab profile {path}: {where}.precheck.{key}"
-        if key not in PRECHECK_KEYS:
-            raise ValueError(f"{at}: unknown; expected one of {list(PRECHECK_KEYS)}")
-        if not isinstance(entry, dict) or set(entry) - {"value", "limit"} or "value" not in entry:
+        fields = set(entry) if isinstance(entry, dict) else set()
+        if "value" not in fields or fields - {"value", "limit"}:
             raise ValueError(f"{at}: expected {{ value = <number>, limit = <number> }}")
-        for side, number in entry.items():
-            if isinstance(number, bool) or not isinstance(number, int | float) or number < 0:
-                raise ValueError(f"{at}.{side}: expected a number >= 0, got {number!r}")
+        bad = [(k, v) for k, v in entry.items() if isinstance(v, bool) or not _non_negative(v)]
+        if bad:
+            raise ValueError(f"{at}.{bad[0][0]}: expected a number >= 0, got {bad[0][1]!r}")
     return table
+
+
+def _non_negative(value: Any) -> bool:
+    return isinstance(value, int | float) and value >= 0
 
 
 def lab_precheck() -> tuple[dict[str, float], dict[str, dict[str, float]]]:

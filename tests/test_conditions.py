@@ -387,3 +387,9 @@ def test_equipment_precheck_from_the_lab_file(tmp_path, monkeypatch):
     )
     with pytest.raises(ValueError, match=r"equipment\[0\]\.precheck\.table_angle_accuracy_arcsec"):
         lab_precheck()
+    (tmp_path / "lab.toml").write_text(
+        '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n'
+        "[equipment.precheck]\ntable_flatness = { value = 1 }\n"
+    )
+    with pytest.raises(ValueError, match=r"precheck: expected a table of .* unknown \['table_fl"):
+        lab_precheck()
