@@ -35,6 +35,7 @@ from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
 from pipelines.issuing import issue_certificate
+from pipelines.lab import lab_precheck
 from pipelines.process_streamed import (
     as_found_solver,
     conditions_segments,
@@ -339,16 +340,18 @@ def run_conditions(
     loaded: LoadedRun, cal: Calibration, profile: ToleranceProfile
 ) -> list[CheckResult]:
     """The lab conditions and acquisition rules of the run (calib_core.conditions), from
-    what the manifest records and the segments as acquired."""
+    what the manifest records, the lab's equipment pre-check (lab.toml) and the segments
+    as acquired."""
     m = loaded.manifest
+    precheck, equipment_limits = lab_precheck()  # a profile's own limit wins
     return check_conditions(
         conditions_segments(loaded),
-        m.recorded_conditions(),
+        {**m.recorded_conditions(), **precheck},
         procedure=m.run.procedure,
         settings=m.run.settings,
         gravity=cal.gravity,
         gravity_source=m.site.source(),
-        overrides=profile.conditions,
+        overrides={**equipment_limits, **profile.conditions},
     )
 
 
