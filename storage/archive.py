@@ -30,10 +30,10 @@ storage.rejudgement, the revision's child rows in storage.revision_rows.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from datetime import UTC
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 from sqlalchemy import Engine, func, select, text
 from sqlalchemy.exc import IntegrityError
@@ -44,8 +44,8 @@ from storage.current import CURRENT
 from storage.db import Archive
 from storage.revision_rows import add_revision, check_rows, insert_many, step_row
 from storage.run_input import (
+    EquipmentIn,
     RunIn,
-    as_date,
     calibration_document,
     raw_hash_of,
     run_id_of,
@@ -456,13 +456,13 @@ def _insert_run(
     )
     s.add(row)
     s.flush()
-    for i, eq in enumerate(run.equipment):
+    for eq in run.equipment:
         s.add(
             schema.RunEquipment(
                 run_id=row.id,
                 equipment_id=_equipment_id(s, eq),
-                calibration_due=as_date(eq.get("calibration_due"), f"equipment[{i}]"),
-                calibrated_on=as_date(eq.get("calibrated_on"), f"equipment[{i}]"),
+                calibration_due=eq.calibration_due,
+                calibrated_on=eq.calibrated_on,
             )
         )
     insert_many(
@@ -506,22 +506,15 @@ def _guard_description(s: Session, run: RunIn, device_pk: int, run_id: str) -> N
         )
 
 
-def _equipment_id(s: Session, eq: dict[str, Any]) -> int:
+def _equipment_id(s: Session, eq: EquipmentIn) -> int:
     found = s.scalars(
         select(schema.Equipment.id).where(
-            schema.Equipment.kind == eq["kind"], schema.Equipment.serial == eq["serial"]
+            schema.Equipment.kind == eq.kind, schema.Equipment.serial == eq.serial
         )
     ).one_or_none()
     if found is not None:
         return found
-    row = schema.Equipment(
-        kind=eq["kind"],
-        serial=eq["serial"],
-        model=eq.get("model"),
-        accuracy_class=eq.get("accuracy_class"),
-        calibration_due=as_date(eq.get("calibration_due"), "equipment.calibration_due"),
-        calibrated_on=as_date(eq.get("calibrated_on"), "equipment.calibrated_on"),
-    )
+    row = schema.Equipment(**asdict(eq))  # its fields are the table's columns
     s.add(row)
     s.flush()
     return row.id

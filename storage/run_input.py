@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import date, datetime
 from pathlib import Path
@@ -31,6 +32,40 @@ class RawFileIn:
     format: str  # "mpu6000-txt", "csv", "mat", "mcap", "manifest"...
 
 
+@dataclass(frozen=True)
+class EquipmentIn:
+    """A piece of reference equipment a run used (the manifest's ``[[equipment]]`` entry):
+    kind and serial identify it; its dates are those recorded with the run."""
+
+    kind: str  # "rate_table", "cube", "daq"...
+    serial: str
+    model: str | None = None
+    accuracy_class: str | None = None
+    calibration_due: date | None = None
+    calibrated_on: date | None = None
+
+    @classmethod
+    def of(cls, entry: EquipmentIn | Mapping[str, Any], where: str) -> EquipmentIn:
+        """`entry` (an EquipmentIn, or a mapping with these keys; dates as dates or ISO
+        text) typed; ValueError naming `where` and the field for a missing kind or serial
+        or a malformed date."""
+        if isinstance(entry, cls):
+            return entry
+        if not isinstance(entry, Mapping):
+            raise TypeError(f"{where}: expected a table of equipment fields, got {entry!r}")
+        for key in ("kind", "serial"):
+            if not isinstance(entry.get(key), str) or not entry.get(key):
+                raise ValueError(f"{where}.{key}: expected a non-empty string")
+        return cls(
+            entry["kind"],
+            entry["serial"],
+            entry.get("model"),
+            entry.get("accuracy_class"),
+            as_date(entry.get("calibration_due"), f"{where}.calibration_due"),
+            as_date(entry.get("calibrated_on"), f"{where}.calibrated_on"),
+        )
+
+
 @dataclass
 class RunIn:
     """Everything the archive keeps about one processed run (SI units): plain data, and the
@@ -47,7 +82,8 @@ class RunIn:
     site: dict[str, Any]
     gravity: float  # m/s^2 used by the solver
     environment: dict[str, Any]
-    equipment: list[dict[str, Any]]  # kind, serial, model, accuracy_class, calibration_due...
+    # EquipmentIn, or mappings of its fields (typed when the RunIn is made)
+    equipment: list[EquipmentIn]
     manifest_text: str | None
     tolerance_profile: str | None
     raw_files: list[RawFileIn]
@@ -65,6 +101,11 @@ class RunIn:
     # The temperature the parameters belong to (deg C; None: not recorded), kept on
     # every parameter row (the run's lab temperature).
     parameter_temperature_c: float | None = None
+
+    def __post_init__(self) -> None:
+        self.equipment = [
+            EquipmentIn.of(e, f"equipment[{i}]") for i, e in enumerate(self.equipment)
+        ]
 
 
 def calibration_document(run: RunIn) -> dict[str, Any]:
@@ -141,12 +182,8 @@ def validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
         if not isinstance(getattr(run, key), str) or not getattr(run, key):
             raise ValueError(f"{key}: expected a non-empty string, got {getattr(run, key)!r}")
     _number(run.gravity, "gravity", optional=False)
-    for i, eq in enumerate(run.equipment):
-        for key in ("kind", "serial"):
-            if not isinstance(eq.get(key), str) or not eq.get(key):
-                raise ValueError(f"equipment[{i}].{key}: expected a non-empty string")
-        for key in ("calibration_due", "calibrated_on"):
-            as_date(eq.get(key), f"equipment[{i}].{key}")
+    for i, eq in enumerate(run.equipment):  # typed when the RunIn was made, unless set since
+        EquipmentIn.of(eq, f"equipment[{i}]")
     _number(run.parameter_temperature_c, "parameter_temperature_c", optional=True)
     for what, items, kind in (
         ("parameters", run.parameters, Parameter),

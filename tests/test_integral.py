@@ -120,7 +120,10 @@ def test_rotation_reaching_the_range_is_rejected_by_name():
         solve_integral(rotations(run), means, sems, 250 * DEG, noise_std=stds)
     # Told a larger range, the clipped turns still do not close (0.56 deg short in common,
     # 29 standard uncertainties); a sensor that did not clip is fine.
-    with pytest.raises(ValueError, match=r"rotations x_ccw and x_cw: their angles differ"):
+    with pytest.raises(
+        ValueError,
+        match=r"rotations x_ccw and x_cw \(simulated x_ccw, simulated x_cw\): their angles differ",
+    ):
         solve_integral(rotations(run), means, sems, 500 * DEG, noise_std=stds)
     rng = np.random.default_rng(4)
     run = six_position_integral_run(

@@ -290,7 +290,7 @@ def solve_integral(
     replaced: dict[str, dict] = {}
     J, var, duration = _integrals(rotations, static_means, noise_std, replaced)
     n = _turn_count(J, turns)
-    check_closure(J, var, duration, static_sems)
+    check_closure(J, var, duration, static_sems, rotations)
 
     cal = Calibration(procedure="integral", gravity=gravity)
     closure: dict[str, float] = {}
@@ -395,6 +395,7 @@ def check_closure(
     var: dict[str, dict[str, np.ndarray]],
     duration: dict[str, dict[str, float]],
     static_sems: dict[str, np.ndarray],
+    rotations: dict[str, Recording],
 ) -> None:
     """Refuse an axis whose ccw and cw turns' angles differ from the commanded whole turns by
     more than CLOSURE_SIGMA standard uncertainties of their mean (ValueError naming the
@@ -407,8 +408,9 @@ def check_closure(
         span = duration[a]["ccw"] + duration[a]["cw"]
         std = math.sqrt(float(var[a]["ccw"][j] + var[a]["cw"][j]) + (span * sem) ** 2) / 2.0
         if abs(closure) > CLOSURE_SIGMA * std:
+            files = ", ".join(str(rotations[f"{a}_{k}"].source) for k in ("ccw", "cw"))
             raise ValueError(
-                f"rotations {a}_ccw and {a}_cw: their angles differ from whole turns by "
+                f"rotations {a}_ccw and {a}_cw ({files}): their angles differ from whole turns by "
                 f"{math.degrees(closure):+.4g} deg in common ({abs(closure) / std:.1f} of its "
                 f"standard uncertainty {math.degrees(std):.3g} deg; at most "
                 f"{CLOSURE_SIGMA:g}): a turn is incomplete (a record cut short) or the fixture "

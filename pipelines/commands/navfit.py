@@ -9,7 +9,6 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 
 from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_run, print_facts, print_json
@@ -116,6 +115,7 @@ def navigation_figure(result: Mapping[str, Any]) -> Any:  # noqa: ANN401 - a Fig
     result : `pipelines.navigation.navfit`'s document (deg, m/s, m, s).
     """
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")  # files only, no display
     import matplotlib.pyplot as plt
