@@ -32,7 +32,6 @@ import dataclasses
 import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -146,14 +145,41 @@ def earth_rate_removed(
     return earth
 
 
-def solve_static_bias(rec: Recording, **settings: Any) -> Calibration:
-    """Gyro bias and noise (and accelerometer bias if the orientation is known) of one
-    static Recording in memory, ideally >= 60 min (a warning is added if shorter): the
-    chunked solve (`solve_static_bias_stream`) of one chunk, its first pass from the whole
-    arrays (the median rate as `Recording.sample_rate`).
+def solve_static_bias(
+    rec: Recording,
+    *,
+    latitude_deg: float | None = None,
+    heading_deg: float | None = None,
+    remove_earth_rate: bool = False,
+    n_sigma: float = 3.0,
+    up_axis: str | None = None,
+    gravity: float = STANDARD_GRAVITY,
+    taus: str | np.ndarray = "octave",
+) -> Calibration:
+    """Gyro bias and noise (and accelerometer bias if the orientation is known).
 
-    settings : latitude_deg, heading_deg, remove_earth_rate, n_sigma, up_axis, gravity,
-        taus, as `solve_static_bias_stream` takes them.
+    Parameters
+    ----------
+    rec : one static Recording, ideally >= 60 min (a warning is added if shorter).
+    latitude_deg, heading_deg : site latitude and fixture heading (module docstring
+        frame), degrees; needed when `remove_earth_rate`.
+    remove_earth_rate : subtract the Earth-rate projection from the gyro means
+        (FOG/RLG-grade units); only for the level z-up fixture.
+    n_sigma : outlier rule; rejected samples are left out of mean and std and
+        interpolated over for the Allan deviation.
+    up_axis : body axis pointing up ("+z", "-x", ...); if given, acc.bias.* is the
+        mean minus gravity along that axis.
+    gravity : local gravity, m/s^2.
+    taus : cluster times of the Allan deviation ("octave", "log" or seconds).
+
+    Returns
+    -------
+    Calibration "static_bias" with gyr.bias.* and gyr.noise.* (std of one sample,
+    rad/s), acc.noise.* (m/s^2), acc.bias.* when `up_axis` is given. Bias
+    uncertainties follow BIAS_UNCERTAINTY_RULE (white-noise std/sqrt(n) would be
+    far too small under bias instability and random walk). `info` holds the Allan
+    deviations (lists), the noise parameters of every channel, outlier counts and
+    the Earth rate removed.
     """
     t = np.asarray(rec.t, dtype=float)
     both = np.hstack([np.asarray(rec.gyr, dtype=float), np.asarray(rec.acc, dtype=float)])
@@ -162,8 +188,14 @@ def solve_static_bias(rec: Recording, **settings: Any) -> Calibration:
         lambda: iter([chunk]),
         label=rec.label or "record",
         first=FirstPass.of(t, both),
+        latitude_deg=latitude_deg,
+        heading_deg=heading_deg,
+        remove_earth_rate=remove_earth_rate,
+        n_sigma=n_sigma,
+        up_axis=up_axis,
+        gravity=gravity,
+        taus=taus,
         execution=_whole(both),
-        **settings,
     )
 
 
@@ -432,8 +464,7 @@ def solve_static_bias_stream(
     channel_chunks: Callable[[int], Iterator[np.ndarray]] | None = None,
     execution: Execution = IN_LINE,
 ) -> Calibration:
-    """Gyro bias and noise (and accelerometer bias if the orientation is known) of one
-    static record arriving in chunks.
+    """`calib_core.solvers.static_bias.solve_static_bias` on a streamed record.
 
     Parameters
     ----------
@@ -456,25 +487,11 @@ def solve_static_bias_stream(
         one sensor's channels and a chunk's motion windows are computed on it beside the
         other's (one pass), or half of each channel's Allan sums (`channel_chunks`). The
         numbers do not depend on it.
-    latitude_deg, heading_deg : site latitude and fixture heading (module docstring
-        frame), degrees; needed when `remove_earth_rate`.
-    remove_earth_rate : subtract the Earth-rate projection from the gyro means
-        (FOG/RLG-grade units); only for the level z-up fixture.
-    n_sigma : outlier rule; rejected samples are left out of mean and std and
-        interpolated over for the Allan deviation.
-    up_axis : body axis pointing up ("+z", "-x", ...); if given, acc.bias.* is the
-        mean minus gravity along that axis.
-    gravity : local gravity, m/s^2.
-    taus : cluster times of the Allan deviation ("octave", "log" or seconds).
+    Other parameters as `solve_static_bias`.
 
     Returns
     -------
-    Calibration "static_bias" with gyr.bias.* and gyr.noise.* (std of one sample,
-    rad/s), acc.noise.* (m/s^2), acc.bias.* when `up_axis` is given. Bias
-    uncertainties follow BIAS_UNCERTAINTY_RULE (white-noise std/sqrt(n) would be
-    far too small under bias instability and random walk). `info` holds the Allan
-    deviations (lists), the noise parameters of every channel, outlier counts and
-    the Earth rate removed. However the record is chunked, the same to rounding.
+    The same Calibration as `solve_static_bias` on the whole record, to rounding.
     """
     first = first if first is not None else first_pass(chunks())
     n = first.n
