@@ -252,24 +252,25 @@ def _equipment_section(run: _Archived) -> Section:
     )
 
 
+# The manifest's [environment] keys (pipelines.ingest.manifest.EnvironmentSpec) as printed.
+ENVIRONMENT = {
+    "temperature_c": ("Temperature", "deg C"),
+    "temperature_drift_c_per_h": ("Temperature drift", "deg C/h"),
+    "humidity_pct": ("Humidity", "%"),
+    "pressure_hpa": ("Pressure", "hPa"),
+    "warmup_min": ("Warm-up", "min"),
+    "vibration": ("Vibration", "m/s^2 rms"),  # a level, or words (printed as they are)
+}
+
+
 def _environment_section(run: _Archived) -> Section:
     env = run.summary["environment"] or {}
-    env_units = {
-        "temperature_c": "deg C",
-        "humidity_pct": "%",
-        "pressure_hpa": "hPa",
-        "warmup_min": "min",
-        "vibration": "",
-    }
-    return Section(
-        "Environment",
-        pairs=[
-            (k.split("_")[0].capitalize(), f"{v} {env_units.get(k, '')}".strip())
-            for k, v in env.items()
-            if v is not None
-        ]
-        or [("-", "not recorded")],
-    )
+    pairs = []
+    for k, v in env.items():
+        if v is not None:
+            label, unit = ENVIRONMENT.get(k, (k, ""))
+            pairs.append((label, f"{v} {unit}".strip() if not isinstance(v, str) else v))
+    return Section("Environment", pairs=pairs or [("-", "not recorded")])
 
 
 _RESULT_WORD = {
