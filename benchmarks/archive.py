@@ -462,7 +462,7 @@ def real_runs(n: int, work: Path) -> Iterator:
     """`n` variants of the template: other raw bytes (one line), serial, time, values."""
     from dataclasses import replace
 
-    from storage.archive import RawFileIn
+    from storage.run_input import RawFileIn
 
     run, protocol = template_run(work)
     rng = np.random.default_rng(SEED + 2)

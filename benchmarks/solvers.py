@@ -20,11 +20,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from calib_core.noise import FLICKER_FACTOR, allan_deviation, choose_noise_fit  # noqa: E402
+from calib_core.noise import FLICKER_FACTOR, choose_noise_fit  # noqa: E402
 from calib_core.simulate.noise import NoiseSpec, simulate_static  # noqa: E402
 from calib_core.simulate.rate_table import GyroTruth, simulate_rate_table  # noqa: E402
 from calib_core.solvers.rate_table import rate_points, solve_rate_table  # noqa: E402
 from calib_core.solvers.static_bias import solve_static_bias  # noqa: E402
+from calib_core.streamed import allan_deviation  # noqa: E402
 from calib_core.units import DEG, STANDARD_GRAVITY  # noqa: E402
 
 RATE_HZ = 1000.0

@@ -23,6 +23,10 @@ DEVICE_PREFIX = "device:"  # the unit's description against the archive's (pipel
 # What the run could not determine or where its model misfits (the solvers' info
 # "solver_checks"): the numbers may be right, a person must look before signing.
 MODEL_PREFIX = "model:"
+# Findings about the record, not the unit (a log read to its last whole record, a turn
+# that does not end quite at rest, a static record that moved, a detector's threshold
+# raised): the run needs review with the finding named, never "fail" for it.
+RECORD_PREFIX = "record:"
 
 # Physical bounds of the dimensionless linear terms: no working sensor is 50 % off in
 # scale or 30 deg misaligned. Beyond them the data were read wrongly (an attitude sign
@@ -175,18 +179,20 @@ def overall_verdict(checks: list[CheckResult]) -> str:
     Returns
     -------
     "pass" if every check passed; "needs review" when only repeatability
-    (``repeat:``), device (``device:``) or model (``model:``) checks failed: the
-    numbers are within tolerance but do not repeat, belong to another unit, or
-    were not determined by the run; or parameters inside their tolerance but within the
-    guard band of a limit (ILAC-G8 conditional pass); else "fail". A lab condition that
-    is only a warning or was not recorded (calib_core.conditions) leaves the verdict as
-    it is.
+    (``repeat:``), device (``device:``), model (``model:``) or record (``record:``)
+    checks failed: the numbers are within tolerance but do not repeat, belong to another
+    unit, were not determined by the run, or come from a record with a finding (the unit's
+    verdict is its parameters', the record's findings are named for a person to look); or
+    parameters inside their tolerance but within the guard band of a limit (ILAC-G8
+    conditional pass); else "fail". A lab condition that is only a warning or was not
+    recorded (calib_core.conditions) leaves the verdict as it is.
     """
     failed = [c for c in checks if counts_against_verdict(c)]
     if not failed:
         return PASS
     if all(
-        c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX, MODEL_PREFIX)) or _conditional_pass(c)
+        c.name.startswith((REPEAT_PREFIX, DEVICE_PREFIX, MODEL_PREFIX, RECORD_PREFIX))
+        or _conditional_pass(c)
         for c in failed
     ):
         return NEEDS_REVIEW

@@ -45,14 +45,13 @@ def gravity_helmert(latitude_deg: float, height_m: float = 0.0) -> float:
 def gravity_wgs84(latitude_deg: float, height_m: float = 0.0) -> float:
     """WGS84 normal gravity (Somigliana) with the second-order height correction.
 
-    Returns m/s^2.
+    latitude_deg, height_m : floats or arrays of one shape. Returns m/s^2, of their shape.
     """
-    s2 = math.sin(math.radians(latitude_deg)) ** 2
-    gamma = _WGS84_GAMMA_E * (1.0 + _WGS84_K * s2) / math.sqrt(1.0 - _WGS84_E2 * s2)
+    s2 = np.sin(np.radians(latitude_deg)) ** 2
+    gamma = _WGS84_GAMMA_E * (1.0 + _WGS84_K * s2) / np.sqrt(1.0 - _WGS84_E2 * s2)
     a, f, m = _WGS84_A, _WGS84_F, _WGS84_M
-    return gamma * (
-        1.0 - 2.0 / a * (1.0 + f + m - 2.0 * f * s2) * height_m + 3.0 / a**2 * height_m**2
-    )
+    g = gamma * (1.0 - 2.0 / a * (1.0 + f + m - 2.0 * f * s2) * height_m + 3.0 / a**2 * height_m**2)
+    return float(g) if np.ndim(g) == 0 else g
 
 
 def local_gravity(
@@ -93,3 +92,16 @@ def earth_rate_local(latitude_deg: float) -> np.ndarray:
     """Earth rotation in the local North-East-Down frame, rad/s, shape (3,)."""
     phi = math.radians(latitude_deg)
     return np.array([EARTH_RATE * math.cos(phi), 0.0, -EARTH_RATE * math.sin(phi)])
+
+
+def radii_of_curvature(latitude_rad: float) -> tuple[float, float]:
+    """WGS84 meridian and transverse radii of curvature R_N, R_E, m (Groves eqs. 2.105-2.106).
+
+    Parameters
+    ----------
+    latitude_rad : geodetic latitude, rad (a float or an array).
+    """
+    s2 = np.sin(latitude_rad) ** 2
+    den = 1.0 - _WGS84_E2 * s2
+    rn, re = _WGS84_A * (1.0 - _WGS84_E2) / den**1.5, _WGS84_A / np.sqrt(den)
+    return (float(rn), float(re)) if np.ndim(rn) == 0 else (rn, re)

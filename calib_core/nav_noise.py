@@ -96,13 +96,13 @@ def bootstrap_terms(
     -------
     {"n_bias", "n_sd", "k_bias", "k_sd"}: (channels,) arrays in the terms' units.
     """
-    from calib_core.solvers.static_bias import _channel_stats
+    from calib_core.solvers.static_bias import sensor_statistics
 
     rng = np.random.default_rng(seed)
     fitted = np.empty((records, len(terms), 2))
     for r in range(records):
         x = noise_records(terms, n, rate_hz, rng)
-        got = _channel_stats(x, rate_hz, n_sigma, np.asarray(taus, dtype=float))[4]
+        got = sensor_statistics(x, rate_hz, n_sigma, np.asarray(taus, dtype=float))[4]
         fitted[r] = [(q.arw, q.rrw) for q in got]
     truth = np.array([(p.arw, p.rrw) for p in terms])
     bias = fitted.mean(axis=0) - truth

@@ -138,44 +138,6 @@ def white_noise_edf(n_samples: int, m: np.ndarray) -> np.ndarray:
     return np.maximum(edf, 1.0)
 
 
-def allan_deviation(
-    x: np.ndarray, rate_hz: float, taus: str | np.ndarray = "octave"
-) -> AllanResult:
-    """Overlapping Allan deviation of a rate signal.
-
-    Parameters
-    ----------
-    x : (N,) or (N, C) samples of a rate (rad/s, m/s^2, ...).
-    rate_hz : sample rate, Hz.
-    taus : "octave", "log" or an array of cluster times in s (see `cluster_sizes`).
-
-    Returns
-    -------
-    AllanResult with adev of shape (K,) or (K, C) in the unit of `x`.
-    """
-    x = np.asarray(x, dtype=float)
-    if x.ndim not in (1, 2):
-        raise ValueError(f"allan_deviation: x must be (N,) or (N, C), got shape {x.shape}")
-    if not np.isfinite(x).all():
-        raise ValueError("allan_deviation: x contains NaN or infinite values")
-    if not rate_hz > 0:
-        raise ValueError(f"allan_deviation: rate_hz must be > 0, got {rate_hz}")
-    n = x.shape[0]
-    m = cluster_sizes(n, rate_hz, taus)
-    # The mean does not change the Allan variance; removing it keeps the
-    # cumulative sum small, so the second differences lose no precision.
-    xc = x - x.mean(axis=0)
-    theta = np.zeros((n + 1,) + x.shape[1:])
-    np.cumsum(xc, axis=0, out=theta[1:])
-    theta /= rate_hz
-
-    avar = np.empty((m.size,) + x.shape[1:])
-    for k, mk in enumerate(m):
-        d = theta[2 * mk :] - 2.0 * theta[mk:-mk] + theta[: -2 * mk]
-        avar[k] = np.einsum("i...,i...->...", d, d) / (2.0 * (n + 1 - 2 * mk))
-    return allan_result(m, avar, n, rate_hz)
-
-
 def allan_result(m: np.ndarray, avar: np.ndarray, n_samples: int, rate_hz: float) -> AllanResult:
     """The AllanResult of cluster sizes `m` and their sums of squared second differences.
 
@@ -187,8 +149,8 @@ def allan_result(m: np.ndarray, avar: np.ndarray, n_samples: int, rate_hz: float
     n_samples : N.
     rate_hz : sample rate, Hz.
 
-    Shared by `allan_deviation` and the streamed Allan deviation (`calib_core.streamed`),
-    so both give the same taus, intervals and degrees of freedom.
+    The end of `calib_core.streamed.StreamedAllan` (`allan_deviation` is its one-chunk
+    case).
     """
     n = n_samples
     taus_s = m / rate_hz

@@ -21,6 +21,12 @@ class Recording:
         ``"table_angle"`` (N,) rad, ``"table_rate"`` (N,) rad/s.
     label : segment label (``"x_up"``, ``"z_ccw"``, ...) or None.
     source : where the samples came from (file name, line range), for messages.
+    devices : the firmware's ids of the sensors that made the samples, when the log records
+        them: ``accel`` / ``gyro`` (a PX4 ULog's device_id), ``imu`` (an ArduPilot DataFlash
+        log's 0-based IMU instance); what an autopilot file must name to take effect.
+    findings : what its reader found about the record without refusing it (a log cut
+        while written, read to its last whole record), each as CheckResult fields
+        (``name`` "record:...", value, limit, passed, detail): a run's checks name them.
     """
 
     t: np.ndarray
@@ -30,6 +36,8 @@ class Recording:
     reference: dict[str, np.ndarray] = field(default_factory=dict)
     label: str | None = None
     source: str | None = None
+    devices: dict[str, int] = field(default_factory=dict)
+    findings: tuple[dict, ...] = ()
 
     def __post_init__(self) -> None:
         where = f" ({self.source})" if self.source else ""

@@ -1,18 +1,23 @@
-"""Statistics of a record that arrives in chunks: nothing holds the whole record.
+"""Statistics of a record that arrives in chunks: nothing holds the whole record; a
+record in memory is the one-chunk case (one implementation of each statistic).
 
 `Moments`: count, mean and variance per channel (Welford / Chan et al. merge of chunk
 moments). `SigmaClipFill`: the static-bias outlier rule (n-sigma about the record's mean
-and std) applied chunk by chunk, rejected samples filled by linear interpolation of their
-kept neighbours exactly as `calib_core.solvers.static_bias` does on one array.
-`StreamedAllan`: the overlapping Allan deviation (`calib_core.noise.allan_deviation`) from
-a running cumulative sum: each chunk's second differences need the cumulative sum 2 m
-samples back, so the last rows of the phase are kept (up to `memory_rows`); lags past
-that are read from a `History` the caller supplies (a file in the pipelines, a list of
-arrays by default). `MedianStep`: the median sample period (`Recording.sample_rate`)
-from counts of the distinct time steps. `TemperatureTrend` and `RecordSummary`: what
-the lab conditions take of a record.
+and std, one pass) applied chunk by chunk, rejected samples filled by linear
+interpolation (in sample index) of their kept neighbours, as `np.interp` of all kept
+samples would. `StreamedAllan`: the overlapping Allan deviation from a running
+cumulative sum (`allan_deviation`, of a record in memory, is its one-chunk case): each
+chunk's second differences need the cumulative sum 2 m samples back, so the last rows
+of the phase are kept (up to `memory_rows`); lags past that are read from a `History`
+the caller supplies (a file in the pipelines, a list of arrays by default).
+`Execution`: what a caller gives the streamed computations to run on (a helper beside
+the calling thread, phase memory, a history, a workspace); the numbers never depend on
+it. `MedianStep`: the median sample period (`Recording.sample_rate`) from counts of the
+distinct time steps. `TemperatureTrend` and `RecordSummary`: what the lab conditions
+take of a record.
 
-Same numbers as the in-memory path to rounding (tests/test_streamed.py).
+The chunking changes the numbers by rounding only (tests/test_streamed.py; allantools
+is the Allan deviation's oracle).
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -139,7 +144,7 @@ class MedianStep:
 
 
 class SigmaClipFill:
-    """The n-sigma rule of `calib_core.solvers.static_bias.sigma_clip` and its fill, in chunks.
+    """The static-bias solve's n-sigma rule (one pass) and its fill, in chunks.
 
     Parameters
     ----------
@@ -317,8 +322,53 @@ class ListHistory:
         return self._rows[:, start:stop]
 
 
+class Pending(Protocol):
+    """A call in progress (a `concurrent.futures.Future`): `result` waits for it and
+    raises its error."""
+
+    def result(self) -> Any: ...
+
+
+class Done:
+    """fn(*args) called now; `result` its value (a `Pending` without a helper)."""
+
+    def __init__(self, fn: Callable, *args: Any) -> None:
+        self.value = fn(*args)
+
+    def result(self) -> Any:
+        return self.value
+
+
+@dataclass(frozen=True)
+class Execution:
+    """What the streamed computations run on, given by their caller (the pipelines make
+    it; the science starts no thread and opens no file). The numbers never depend on it.
+
+    submit : submit(fn, *args) -> a `Pending` (an executor's ``submit``): a helper of at
+        least two workers beside the calling thread, where work that releases the GIL
+        (NumPy, the compiled sums) runs meanwhile; None: everything in line.
+    memory_rows : phase rows each Allan deviation keeps in memory; the longer lags are read
+        from `new_history()`.
+    new_history : a new `History` for them (a file in the pipelines); None: in memory.
+    workspace : float64 values holding a channel's whole phase when `memory_rows` holds
+        it (see `StreamedAllan`); None: new buffers.
+    """
+
+    submit: Callable[..., Pending] | None = None
+    memory_rows: int = 1 << 20
+    new_history: Callable[[], History] | None = None
+    workspace: np.ndarray | None = None
+
+    def run(self, fn: Callable, *args: Any) -> Pending:
+        """fn(*args) on the helper, or now without one."""
+        return self.submit(fn, *args) if self.submit is not None else Done(fn, *args)
+
+
+IN_LINE = Execution()
+
+
 class StreamedAllan:
-    """Overlapping Allan deviation of a record pushed in chunks (`allan_deviation`'s numbers).
+    """Overlapping Allan deviation of a record pushed in chunks.
 
     Parameters
     ----------
@@ -329,17 +379,13 @@ class StreamedAllan:
     offset : (C,) subtracted before the cumulative sum (the Allan variance does not
         depend on it; the record's mean keeps the sum small, as in memory). None: the
         first chunk's mean.
-    memory_rows : phase rows kept in memory; cluster sizes with 2 m beyond it read their
-        lagged rows from `history`. At least N + 1: the whole phase, in one buffer of
-        N + 1 rows (no history, no rows moved).
-    history : `History` of every phase row, needed only when 2 m > memory_rows for
-        some m; default `ListHistory` (in memory).
-    helper : submit(fn, *args) -> a Future (an executor's): where half of the cluster
-        sizes held in memory are summed, beside the calling thread (the compiled sums
-        release the GIL); None: all in the calling thread. The numbers do not depend on it.
-    workspace : float64 array of at least C (N + 1) values holding the whole phase when it
-        fits (`memory_rows` >= N + 1), in place of a new buffer: the caller passes the
-        same one to the channels it solves in turn, whose pages are then touched once.
+    execution : its ``memory_rows`` phase rows are kept in memory; cluster sizes with 2 m
+        beyond them read their lagged rows from a history (``new_history()``, or in
+        memory), every phase row kept there. At least N + 1: the whole phase, in one
+        buffer (no history, no rows moved), of the ``workspace`` when it holds C (N + 1)
+        values (a caller passes the same one to the channels it solves in turn, whose
+        pages are then touched once). With ``submit``, half of the cluster sizes held in
+        memory are summed on the helper (the compiled sums release the GIL).
 
     The phase is kept channel by channel (each channel's rows contiguous); the squared
     second differences are summed by the compiled loops of
@@ -354,20 +400,20 @@ class StreamedAllan:
         *,
         taus: str | np.ndarray = "octave",
         offset: np.ndarray | None = None,
-        memory_rows: int = 1 << 20,
-        history: History | None = None,
-        helper: Callable | None = None,
-        workspace: np.ndarray | None = None,
+        execution: Execution = IN_LINE,
     ):
         if not rate_hz > 0:
-            raise ValueError(f"streamed Allan deviation: rate_hz must be > 0, got {rate_hz}")
+            raise ValueError(f"Allan deviation: rate_hz must be > 0, got {rate_hz}")
         self.rate_hz, self.n_samples = float(rate_hz), int(n_samples)
         self.m = cluster_sizes(n_samples, rate_hz, taus)
-        self.keep_rows = int(min(2 * self.m.max(), max(memory_rows, 1)))
+        self.keep_rows = int(min(2 * self.m.max(), max(execution.memory_rows, 1)))
         self.spills = bool((2 * self.m > self.keep_rows).any())
-        self.history = history if history is not None or not self.spills else ListHistory()
+        self.history: History | None = None
+        if self.spills:
+            new = execution.new_history
+            self.history = new() if new is not None else ListHistory()
         self.offset = None if offset is None else np.asarray(offset, float)
-        self.helper, self.workspace = helper, workspace
+        self.helper, self.workspace = execution.submit, execution.workspace
         self._beside: tuple | None = None  # the helper's sums in progress (`_settle`)
         self.sums = np.zeros((self.m.size, channels))
         # The phase's last keep_rows rows and the newest chunk's: column i is phase row
@@ -385,13 +431,13 @@ class StreamedAllan:
         if n == 0:
             return
         if not np.isfinite(x).all():
-            raise ValueError("streamed Allan deviation: samples contain NaN or infinite values")
+            raise ValueError("Allan deviation: the samples contain NaN or infinite values")
         if self.offset is None:
             self.offset = x.mean(axis=0)
         from calib_core.second_differences import phase  # Numba: when used
 
         if self._buf is None:
-            raise ValueError("streamed Allan deviation: samples pushed after release()")
+            raise ValueError("Allan deviation: samples pushed after release()")
         self._room(n)
         theta = self._buf[:, self._fill : self._fill + n]
         for c in range(x.shape[1]):
@@ -507,24 +553,51 @@ def _halves(m: np.ndarray) -> int:
     return int(np.searchsorted(work, work[-1] / 2)) if m.size > 1 else m.size
 
 
-def joined_allan(parts: list[StreamedAllan]) -> AllanResult:
+def joined_allan(parts: list[StreamedAllan], one_channel: bool = False) -> AllanResult:
     """The Allan deviation (K, sum of C) of the channels of several `StreamedAllan` of one
     record (the same rate, length and cluster sizes), side by side in their order, once
-    all N samples are in each."""
+    all N samples are in each; (K,) with `one_channel` (a record of one channel)."""
     one = parts[0]
     for part in parts:
         part._settle()
         n = part._j - 1
         if n != part.n_samples:
-            raise ValueError(
-                f"streamed Allan deviation: {n} samples pushed, {part.n_samples} announced"
-            )
+            raise ValueError(f"Allan deviation: {n} samples pushed, {part.n_samples} announced")
         if (part.n_samples, part.rate_hz) != (one.n_samples, one.rate_hz):
-            raise ValueError("streamed Allan deviation: the parts are of different records")
+            raise ValueError("Allan deviation: the parts are of different records")
     n, rate = one.n_samples, one.rate_hz
     denom = (2.0 * (n + 1 - 2 * one.m))[:, None] * rate**2
-    sums = np.hstack([part.sums for part in parts])
-    return allan_result(one.m, sums / denom, n, rate)
+    avar = np.hstack([part.sums for part in parts]) / denom
+    return allan_result(one.m, avar[:, 0] if one_channel else avar, n, rate)
+
+
+def allan_deviation(
+    x: np.ndarray, rate_hz: float, taus: str | np.ndarray = "octave"
+) -> AllanResult:
+    """Overlapping Allan deviation of a rate signal in memory: `StreamedAllan`'s of one
+    chunk, its whole phase in one buffer.
+
+    Parameters
+    ----------
+    x : (N,) or (N, C) samples of a rate (rad/s, m/s^2, ...).
+    rate_hz : sample rate, Hz.
+    taus : "octave", "log" or an array of cluster times in s (see
+        `calib_core.noise.cluster_sizes`).
+
+    Returns
+    -------
+    AllanResult with adev of shape (K,) or (K, C) in the unit of `x`.
+    """
+    x = np.asarray(x, dtype=float)
+    if x.ndim not in (1, 2):
+        raise ValueError(f"allan_deviation: x must be (N,) or (N, C), got shape {x.shape}")
+    cols = x.reshape(x.shape[0], -1)
+    n = cols.shape[0]
+    allan = StreamedAllan(
+        rate_hz, n, cols.shape[1], taus=taus, execution=Execution(memory_rows=n + 1)
+    )
+    allan.push(cols)
+    return joined_allan([allan], one_channel=x.ndim == 1)
 
 
 def load_compiled() -> None:

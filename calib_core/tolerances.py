@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import fnmatch
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -400,19 +401,26 @@ def _decision_rule(raw: Any) -> DecisionRule:
         raise ValueError(f"tolerance profile field 'decision_rule': {exc}") from exc
 
 
+def _entries(raw: Any, field_name: str, known: Iterable[str]) -> Iterator[tuple[str, Any, str]]:
+    """(key, value, "field.key") of the table `raw`, refusing a non-table or a key not in
+    `known` (ValueError naming the field and key)."""
+    if not isinstance(raw, dict):
+        raise ValueError(f"tolerance profile field {field_name!r}: expected a table")
+    for key, value in raw.items():
+        where = f"{field_name}.{key}"
+        if key not in known:
+            raise ValueError(f"{where}: unknown key; expected one of {list(known)}")
+        yield key, value, where
+
+
 def _positive_limits(raw: Any, field_name: str, keys: tuple[str, ...]) -> dict[str, float]:
     """A table of positive limits as ``{value, unit}`` entries, keyed "acc..." / "gyr...", SI out.
 
     Used for ``[residual_limits]`` (acc_std, gyr_mean, ...) and ``[verification_limits]``
     (acc, gyr); the key's sensor prefix decides the unit's dimension.
     """
-    if not isinstance(raw, dict):
-        raise ValueError(f"tolerance profile field {field_name!r}: expected a table")
     out: dict[str, float] = {}
-    for key, entry in raw.items():
-        where = f"{field_name}.{key}"
-        if key not in keys:
-            raise ValueError(f"{where}: unknown key; expected one of {list(keys)}")
+    for key, entry, where in _entries(raw, field_name, keys):
         value, factor = _value_in_si(entry, where, _RESIDUAL_DIMENSION[key.split("_")[0]])
         if value <= 0:
             raise ValueError(f"{where}.value: expected a positive number, got {value}")
@@ -422,13 +430,8 @@ def _positive_limits(raw: Any, field_name: str, keys: tuple[str, ...]) -> dict[s
 
 def _repeatability(raw: Any) -> dict[str, float | int]:
     """``[repeatability]``: plain numbers (cv_max and alpha as fractions, counts, deg C)."""
-    if not isinstance(raw, dict):
-        raise ValueError("tolerance profile field 'repeatability': expected a table")
     out: dict[str, float | int] = {}
-    for key, value in raw.items():
-        where = f"repeatability.{key}"
-        if key not in DEFAULT_REPEATABILITY:
-            raise ValueError(f"{where}: unknown key; expected one of {list(DEFAULT_REPEATABILITY)}")
+    for key, value, where in _entries(raw, "repeatability", DEFAULT_REPEATABILITY):
         number = _number(raw, key, "repeatability")
         if key in ("min_runs", "max_runs") and (number != int(number) or number < 2):
             raise ValueError(f"{where}: expected a whole number >= 2, got {value!r}")
@@ -445,13 +448,8 @@ def _repeatability(raw: Any) -> dict[str, float | int]:
 
 def _recall(raw: Any) -> dict[str, str | float]:
     """``[recall]``: method name, reliability (a fraction), months (> 0)."""
-    if not isinstance(raw, dict):
-        raise ValueError("tolerance profile field 'recall': expected a table")
     out: dict[str, str | float] = {}
-    for key, value in raw.items():
-        where = f"recall.{key}"
-        if key not in DEFAULT_RECALL:
-            raise ValueError(f"{where}: unknown key; expected one of {list(DEFAULT_RECALL)}")
+    for key, value, where in _entries(raw, "recall", DEFAULT_RECALL):
         if key == "method":
             if value not in RECALL_METHODS:
                 raise ValueError(f"{where}: expected one of {list(RECALL_METHODS)}, got {value!r}")

@@ -42,6 +42,7 @@ from calib_core.checks import (  # noqa: F401  (the verdict's names, re-exported
 from calib_core.distributions import chi2_ppf
 from calib_core.drift import shared_covariance
 from calib_core.recording import Recording
+from calib_core.solvers.rate_table import rate_point
 from calib_core.tolerances import ToleranceProfile
 
 VERIFY_PREFIX = "verify:"
@@ -263,12 +264,16 @@ class ReferencePoint:
     """The truth at a verification segment.
 
     acc : (3,) true specific force, m/s^2, or None (not verified).
-    gyr : (3,) true angular rate, rad/s, or None (zero at a static position).
+    gyr : (3,) true angular rate, rad/s, or None (zero at a static position; the table's
+        commanded rate on its axis at a rate plateau).
+    window : (start, end) time window of the segment compared, s; None: the whole segment
+        (a rate plateau is compared over its record window, after the table settled).
     """
 
     label: str
     acc: np.ndarray | None
     gyr: np.ndarray | None
+    window: tuple[float, float] | None = None
 
 
 def reference_point(label: str, gravity: float, acc: np.ndarray | None = None) -> ReferencePoint:
@@ -300,6 +305,21 @@ def reference_point(label: str, gravity: float, acc: np.ndarray | None = None) -
     return ReferencePoint(label, acc, np.zeros(3))
 
 
+def rate_reference(
+    rec: Recording, *, settle_s: float = 20.0, record_s: float | None = None
+) -> ReferencePoint:
+    """Reference of a held-out rate plateau: the table's rate (its feedback's mean over the
+    record window after `settle_s`, s) about the plateau's axis, no accelerometer reference
+    (the table's tilt is not stated). `rec` has ``reference["table_rate"]`` (rad/s) and a
+    label "<axis>_<rate>" (`calib_core.solvers.rate_table.rate_point`)."""
+    point = rate_point(rec, settle_s=settle_s, record_s=record_s)
+    gyr = np.zeros(3)
+    gyr[params.AXIS_INDEX[point.axis]] = point.table_rate
+    start = float(rec.t[0]) + settle_s
+    end = np.inf if record_s is None else start + record_s
+    return ReferencePoint(str(rec.label), None, gyr, (start, float(end)))
+
+
 def verify_points(
     cal: Calibration,
     segments: dict[str, Recording],
@@ -310,7 +330,7 @@ def verify_points(
 
     The error is the Euclidean norm of (mean compensated output - reference)
     over the segment as recorded (no outlier removal: the whole chain is
-    verified).
+    verified), or over the reference's window (a rate plateau after its settle).
 
     Returns
     -------
@@ -320,6 +340,8 @@ def verify_points(
     out = []
     for ref in references:
         rec = segments[ref.label]
+        if ref.window is not None:
+            rec = rec.window(*ref.window)
         acc, gyr = cal.correct(rec.acc, rec.gyr)
         for sensor, data, truth in (("acc", acc, ref.acc), ("gyr", gyr, ref.gyr)):
             if truth is None:

@@ -2,7 +2,7 @@
 
 A test of the archive's read side (trends, intervals, shared references, thermal models)
 needs runs with chosen parameters, dates and temperatures, not their processing:
-`parameter_run` builds the `storage.archive.RunIn` of such a run (one small raw file whose
+`parameter_run` builds the `storage.run_input.RunIn` of such a run (one small raw file whose
 text is unique to the run, no samples, no checks), `new_archive` an empty archive with the
 current schema.
 """
@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from calib_core.calibration import Parameter, StepRecord
-from storage.archive import RawFileIn, RunIn
 from storage.db import Archive, resolve_archive
+from storage.run_input import RawFileIn, RunIn
 
 
 def new_archive(root: Path) -> Archive:
@@ -54,7 +54,7 @@ def parameter_run(
     temperature_c : the lab temperature (deg C) of its environment and of its
         parameters; None: not recorded.
     profile_name : the tolerance profile it was judged by (also its ``tolerance_profile``).
-    Others : as `storage.archive.RunIn`'s fields of the same name.
+    Others : as `storage.run_input.RunIn`'s fields of the same name.
     """
     raw = folder / f"{serial}_{started_at:%Y%m%dT%H%M%S}.csv"
     raw.write_text(f"{serial} {started_at.isoformat()} {temperature_c}\n")

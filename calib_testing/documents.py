@@ -1,8 +1,10 @@
-"""Reading back what a reader of a typeset document sees: the words of an HTML page and the
-text of each PDF page (poppler's pdftotext), for the tests that compare the two."""
+"""Reading back what a reader of a document sees: the words of an HTML page and the text of
+each PDF page (poppler's pdftotext), for the tests that compare the two; a DCC's errors against
+PTB's schema."""
 
 from __future__ import annotations
 
+import functools
 import shutil
 import subprocess
 from html.parser import HTMLParser
@@ -41,3 +43,22 @@ def pdf_pages(path: Path) -> list[str]:
     assert pdftotext, "pdftotext missing: scripts/ensure_system_packages.sh installs poppler-utils"
     out = subprocess.run([pdftotext, str(path), "-"], capture_output=True, text=True, check=True)
     return out.stdout.split("\f")[:-1]
+
+
+DCC_SCHEMA = Path(__file__).resolve().parent.parent / "tests" / "schemas" / "dcc-3.3.0" / "dcc.xsd"
+
+
+def dcc_schema_errors(xml: bytes) -> list[str]:
+    """The errors of a DCC against PTB's DCC 3.3.0 schema (vendored under tests/schemas, its
+    D-SI and XML Signature imports local, no network), one message each; [] when valid.
+
+    xmlschema, not lxml: libxml2 leaves an IDREF that names no ID unreported."""
+
+    return [str(e.reason) for e in _dcc_schema(str(DCC_SCHEMA)).iter_errors(xml.decode("utf-8"))]
+
+
+@functools.cache
+def _dcc_schema(path: str):  # noqa: ANN202 - xmlschema.XMLSchema
+    import xmlschema
+
+    return xmlschema.XMLSchema(path, allow="local")

@@ -39,7 +39,7 @@ def streamed_memory_growth(
     script = textwrap.dedent(f"""
         import json, sys
         from pathlib import Path
-        from pipelines.ingest.csv_stream import solve_streamed
+        from pipelines.streamed_solve import solve_streamed
         from pipelines.ingest.data_format import FormatSpec
         from {module} import {function} as stream
 

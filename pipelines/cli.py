@@ -11,8 +11,11 @@ from rich.markup import escape
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    DeviceIdOpt,
     JsonOpt,
     RevisionOpt,
+    RotationOpt,
+    VehicleIdOpt,
     app,
     cell,
     err,
@@ -212,7 +215,14 @@ def _print_approvals(arch, summary: dict) -> None:  # noqa: ANN001 - an Archive
 def _print_run(summary: dict, root: Path) -> None:
     """`calib show` for people: the unit, the run, its verdict, the parameters in display
     units with their standard uncertainty, and the checks that failed."""
-    from pipelines.reports.display import STANDARD_U, STANDARD_U_MEANING, check_counts, shown
+    from pipelines.reports.display import (
+        STANDARD_U,
+        STANDARD_U_MEANING,
+        check_counts,
+        record_notes,
+        shown,
+        solve_warnings,
+    )
 
     cal = summary["calibration"]
     unit = summary["device"]
@@ -249,6 +259,13 @@ def _print_run(summary: dict, root: Path) -> None:
         # in SI, as the archived detail beside them states them (the web page's table too)
         print_table("Failed checks", ["check", "value (SI)", "limit (SI)", "detail"], rows)
     out.print(check_counts(cal["checks"]).sentence(), markup=False, highlight=False)
+    notes = record_notes(cal["checks"], solve_warnings(cal["steps"]))
+    if notes:  # findings about the record, samples replaced: beside the verdict, always
+        print_table(
+            "The record: findings, samples replaced, solver warnings",
+            ["finding", "detail"],
+            [[name, cell(text)] for name, text in notes],
+        )
     noted = [c for c in cal["checks"] if condition_status(c) in (WARNING, NOT_RECORDED)]
     if noted:  # conditions that leave the verdict as it is
         rows = [
@@ -294,8 +311,15 @@ def export(
     instance: Annotated[
         int | None, typer.Option(help="PX4 sensor instance (0) / ArduPilot IMU number (1).")
     ] = None,
-    accel_id: Annotated[int, typer.Option(help="PX4 accelerometer device id.")] = 0,
-    gyro_id: Annotated[int, typer.Option(help="PX4 gyro device id.")] = 0,
+    device_id: DeviceIdOpt = None,
+    accel_id: Annotated[
+        int | None, typer.Option(help="PX4 accelerometer device id (else --device-id).")
+    ] = None,
+    gyro_id: Annotated[
+        int | None, typer.Option(help="PX4 gyro device id (else --device-id).")
+    ] = None,
+    rotation: RotationOpt = None,
+    vehicle_id: VehicleIdOpt = 1,
     rostopic: Annotated[str, typer.Option(help="kalibr / openvins: the IMU topic.")] = "/imu0",
     update_rate: Annotated[
         float | None, typer.Option(help="kalibr / openvins: update_rate, Hz (default: the run's).")
@@ -318,10 +342,12 @@ def export(
             revision=revision,
             thermal=thermal,
             instance=instance,
-            accel_id=accel_id,
-            gyro_id=gyro_id,
+            accel_id=device_id if accel_id is None else accel_id,
+            gyro_id=device_id if gyro_id is None else gyro_id,
             rostopic=rostopic,
             update_rate_hz=update_rate,
+            rotation=rotation,
+            vehicle_id=vehicle_id,
         )
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))

@@ -202,7 +202,7 @@ PANELS = {
     "Process": ("process", "reprocess", "centrifuge", "apply", "thermal", "impact"),
     "Inspect": ("inspect", "show", "history", "repeatability", "procedures"),
     "Query": ("query", "due", "trend", "fleet"),
-    "Report": ("report", "serve", "serve-user"),
+    "Report": ("report", "verify-certificate", "navfit", "serve", "serve-user"),
     "Export": ("export",),
     "Admin": ("verify", "checkpoint", "audit", "approve", "keygen", "backup", "restore"),
 }
@@ -251,6 +251,26 @@ JsonOpt = Annotated[
 ]
 RevisionOpt = Annotated[
     int | None, typer.Option("--revision", help="Calibration revision (default: the current one).")
+]
+# The autopilot files' options (pipelines.autopilot): `calib export` and `calib thermal export`.
+DeviceIdOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--device-id",
+        help="PX4 device id of the sensor (its CAL_ACC0_ID / CAL_GYRO0_ID); default: the ids "
+        "the run's ULog recorded, else refused.",
+    ),
+]
+RotationOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--rotation",
+        help="The firmware's rotation of the calibrated axes, by its own name (PX4 "
+        "SENS_BOARD_ROT / ArduPilot AHRS_ORIENTATION enumeration, e.g. YAW_90); default NONE.",
+    ),
+]
+VehicleIdOpt = Annotated[
+    int, typer.Option("--vehicle-id", help="PX4 file: the vehicle's MAVLink system id.")
 ]
 
 
@@ -340,7 +360,10 @@ def open_run(archive_arg: str | None, run_id: str):  # noqa: ANN201 - (Archive, 
 
 
 def fail(message: str) -> None:
-    err.print(f"[red]error:[/red] {message}")
+    """Print the error and exit 2; the message is text (a "[customer]" in it stays)."""
+    from rich.markup import escape
+
+    err.print(f"[red]error:[/red] {escape(message)}")
     raise typer.Exit(2)
 
 

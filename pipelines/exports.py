@@ -37,6 +37,7 @@ from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.thermal import ThermalModel, shift_polynomial
 from calib_core.units import STANDARD_GRAVITY
+from pipelines.autopilot import Rotation, rotated_scales
 from pipelines.reports.display import quantity, shown
 
 EXPORT_FORMAT = "imu-calib-export"
@@ -106,6 +107,7 @@ def px4_parameters(
     accel_id: int = 0,
     gyro_id: int = 0,
     legacy_scale: bool = False,
+    rot: Rotation | None = None,
 ) -> list[tuple[str, float | int, int]]:
     """PX4 TC_A<i>_* and TC_G<i>_* parameters: (name, value, MAV_PARAM_TYPE).
 
@@ -113,32 +115,45 @@ def px4_parameters(
     x/y/z, m/s^2 / deg C^k and rad/s / deg C^k; TREF = model.t_ref, TMIN/TMAX = the
     fitted range. `accel_id` / `gyro_id` are the firmware's device ids (TC_*_ID).
     `legacy_scale` adds TC_A<i>_SCL_<axis> = 1 / (1 + scale at TREF) for firmware
-    that still multiplies (raw - offset) by SCL (PX4 before v1.11).
+    that still multiplies (raw - offset) by SCL (PX4 before v1.11). `rot`: the firmware's
+    rotation of the calibrated axes (`pipelines.autopilot`); the curves are written rotated.
     """
     rows: list[tuple[str, float | int, int]] = []
     for sensor, dev_id in (("acc", accel_id), ("gyr", gyro_id)):
         p = f"TC_{_PX4_SENSOR[sensor]}"
         rows.append((f"{p}_ENABLE", 1, MAV_PARAM_TYPE_INT32))
         rows.append((f"{p}{instance}_ID", int(dev_id), MAV_PARAM_TYPE_INT32))
-        poly = bias_polynomials(model, calibration, sensor, PX4_ORDER)
+        poly = _turned(rot, bias_polynomials(model, calibration, sensor, PX4_ORDER))
         for k in range(PX4_ORDER, -1, -1):
             for axis in range(3):
                 rows.append(
                     (f"{p}{instance}_X{k}_{axis}", float(poly[axis, k]), MAV_PARAM_TYPE_REAL32)
                 )
         if legacy_scale and sensor == "acc":
-            for axis, a in enumerate(params.AXES):
-                name = f"acc.scale.{a}"
-                s = (
-                    float(model.value(name, model.t_ref))
-                    if name in model.curves
-                    else (calibration.value(name) if calibration is not None else 0.0)
+            scl = [
+                1.0
+                / (
+                    1.0
+                    + (
+                        float(model.value(f"acc.scale.{a}", model.t_ref))
+                        if f"acc.scale.{a}" in model.curves
+                        else (calibration.value(f"acc.scale.{a}") if calibration else 0.0)
+                    )
                 )
-                rows.append((f"{p}{instance}_SCL_{axis}", 1.0 / (1.0 + s), MAV_PARAM_TYPE_REAL32))
+                for a in params.AXES
+            ]
+            scl = scl if rot is None else rotated_scales(rot, np.array(scl), "PX4")
+            for axis in range(3):
+                rows.append((f"{p}{instance}_SCL_{axis}", float(scl[axis]), MAV_PARAM_TYPE_REAL32))
         rows.append((f"{p}{instance}_TREF", float(model.t_ref), MAV_PARAM_TYPE_REAL32))
         rows.append((f"{p}{instance}_TMIN", float(model.t_min), MAV_PARAM_TYPE_REAL32))
         rows.append((f"{p}{instance}_TMAX", float(model.t_max), MAV_PARAM_TYPE_REAL32))
     return rows
+
+
+def _turned(rot: Rotation | None, vectors: np.ndarray) -> np.ndarray:
+    """(3,) or (3, k) per-axis values in the firmware's axes (`rot` None: as calibrated)."""
+    return vectors if rot is None else rot.matrix @ vectors
 
 
 def _comment(header: str) -> list[str]:
@@ -146,25 +161,31 @@ def _comment(header: str) -> list[str]:
     return [f"# {line}".rstrip() for line in header.splitlines()]
 
 
-def px4_params_text(rows: list[tuple[str, float | int, int]], *, header: str = "") -> str:
-    """QGroundControl parameter file: tab-separated vehicle id, component id, name, value, type."""
+def px4_params_text(
+    rows: list[tuple[str, float | int, int]], *, header: str = "", vehicle_id: int = 1
+) -> str:
+    """QGroundControl parameter file: tab-separated vehicle id, component id, name, value, type.
+
+    QGroundControl loads a file only onto the vehicle (MAV_SYS_ID) its rows name."""
+    if not 1 <= vehicle_id <= 255:
+        raise ValueError(f"--vehicle-id {vehicle_id}: expected a MAVLink system id 1 .. 255")
     lines = [
-        "# Onboard parameters for Vehicle 1",
+        f"# Onboard parameters for Vehicle {vehicle_id}",
         *(_comment(header) or ["#"]),
         "#",
         "# Vehicle-Id Component-Id Name Value Type",
     ]
     for name, value, kind in rows:
         text = str(int(value)) if kind == MAV_PARAM_TYPE_INT32 else f"{value:.9g}"
-        lines.append(f"1\t1\t{name}\t{text}\t{kind}")
+        lines.append(f"{vehicle_id}\t1\t{name}\t{text}\t{kind}")
     return "\n".join(lines) + "\n"
 
 
 def write_px4_params(
-    path: Path, rows: list[tuple[str, float | int, int]], *, header: str = ""
+    path: Path, rows: list[tuple[str, float | int, int]], *, header: str = "", vehicle_id: int = 1
 ) -> Path:
     """`px4_params_text` written to `path` (ASCII)."""
-    return _write_ascii(path, px4_params_text(rows, header=header))
+    return _write_ascii(path, px4_params_text(rows, header=header, vehicle_id=vehicle_id))
 
 
 def read_px4_params(path: Path) -> dict[str, float]:
@@ -182,7 +203,11 @@ def read_px4_params(path: Path) -> dict[str, float]:
 
 
 def ardupilot_parameters(
-    model: ThermalModel, calibration: Calibration | None = None, *, imu: int = 1
+    model: ThermalModel,
+    calibration: Calibration | None = None,
+    *,
+    imu: int = 1,
+    rot: Rotation | None = None,
 ) -> list[tuple[str, float]]:
     """ArduPilot INS_TCAL<imu>_* parameters: (name, value).
 
@@ -190,6 +215,7 @@ def ardupilot_parameters(
     the bias curve re-expanded in (T - 35 deg C), m/s^2 and rad/s per deg C^k.
     The constant term has no parameter: ArduPilot takes offsets from its own
     accelerometer / gyro calibration at INS_ACC<n>_CALTEMP / INS_GYR<n>_CALTEMP.
+    `rot`: the firmware's rotation of the calibrated axes; the curves are written rotated.
     """
     rows: list[tuple[str, float]] = [
         (f"INS_TCAL{imu}_ENABLE", 1),
@@ -197,11 +223,14 @@ def ardupilot_parameters(
         (f"INS_TCAL{imu}_TMAX", float(model.t_max)),
     ]
     polys = {
-        s: np.array(
-            [
-                shift_polynomial(c, model.t_ref, ARDUPILOT_TREF)
-                for c in bias_polynomials(model, calibration, s, 3)
-            ]
+        s: _turned(
+            rot,
+            np.array(
+                [
+                    shift_polynomial(c, model.t_ref, ARDUPILOT_TREF)
+                    for c in bias_polynomials(model, calibration, s, 3)
+                ]
+            ),
         )
         for s in ("acc", "gyr")
     }
@@ -303,8 +332,11 @@ def _left_over(family: str, largest: float) -> str:
     return ""
 
 
-def _scales(cal: Calibration, lo_hi: tuple[float, float], firmware: str) -> np.ndarray:
-    """(3,) accelerometer scales 1 / (1 + s): (raw - offset) * scale undoes raw = (1 + s) f."""
+def _scales(
+    cal: Calibration, lo_hi: tuple[float, float], firmware: str, rot: Rotation | None = None
+) -> np.ndarray:
+    """(3,) accelerometer scales 1 / (1 + s): (raw - offset) * scale undoes raw = (1 + s) f;
+    in the firmware's axes when `rot` is given."""
     k = 1.0 / (1.0 + cal.vector("acc", "scale"))
     for a, v in zip(params.AXES, k, strict=True):
         if not lo_hi[0] < v <= lo_hi[1]:
@@ -313,7 +345,7 @@ def _scales(cal: Calibration, lo_hi: tuple[float, float], firmware: str) -> np.n
                 f"gives a {firmware} scale of "
                 f"{v:.6g}, outside the firmware's range {lo_hi[0]:g} .. {lo_hi[1]:g}"
             )
-    return k
+    return k if rot is None else rotated_scales(rot, k, firmware)
 
 
 def px4_calibration_parameters(
@@ -324,6 +356,7 @@ def px4_calibration_parameters(
     gyro_id: int = 0,
     model: ThermalModel | None = None,
     cal_temp: float | None = None,
+    rot: Rotation | None = None,
 ) -> tuple[list[tuple[str, float | int, int]], list[str]]:
     """PX4 CAL_ACC<i>_* / CAL_GYRO<i>_* (+ TC_* with a thermal model): (rows, notes).
 
@@ -336,14 +369,17 @@ def px4_calibration_parameters(
     (the bias would be removed twice). Without a model TC_A_ENABLE and
     TC_G_ENABLE are 0: the offsets are the whole bias at the run's temperature,
     and thermal offsets the vehicle already has would remove it twice. `notes`
-    lists what PX4 cannot carry (misalignment, gyro scale, g-sensitivity, ...),
-    device ids left at 0 and the thermal compensation switched off.
+    lists what PX4 cannot carry (misalignment, gyro scale, g-sensitivity, ...) and the
+    thermal compensation switched off. `rot`: the firmware's rotation of the calibrated axes
+    (`pipelines.autopilot`): offsets, scales and curves are written in the rotated axes.
     """
     rows: list[tuple[str, float | int, int]] = []
     notes = []
     if model is not None:
         m = model if cal_temp is None else model.anchored(cal, cal_temp)
-        rows += px4_parameters(m, cal, instance=instance, accel_id=accel_id, gyro_id=gyro_id)
+        rows += px4_parameters(
+            m, cal, instance=instance, accel_id=accel_id, gyro_id=gyro_id, rot=rot
+        )
     else:
         rows += [("TC_A_ENABLE", 0, MAV_PARAM_TYPE_INT32), ("TC_G_ENABLE", 0, MAV_PARAM_TYPE_INT32)]
         notes.append(
@@ -352,21 +388,17 @@ def px4_calibration_parameters(
         )
     mapped = {params.bias(s, a) for s in ("acc", "gyr") for a in params.AXES}
     mapped |= {f"acc.scale.{a}" for a in params.AXES}
-    scale = _scales(cal, PX4_SCALE_RANGE, "PX4")
+    scale = _scales(cal, PX4_SCALE_RANGE, "PX4", rot)
     for sensor, tag, dev in (("acc", "ACC", accel_id), ("gyr", "GYRO", gyro_id)):
         p = f"CAL_{tag}{instance}"
         rows.append((f"{p}_ID", int(dev), MAV_PARAM_TYPE_INT32))
+        # with a model the bias is in TC_*: 0 here, else it would be removed twice
+        offsets = np.zeros(3) if model is not None else _turned(rot, cal.vector(sensor, "bias"))
         for i, a in enumerate(params.AXES):
-            offset = 0.0 if model is not None else cal.value(params.bias(sensor, a))
-            rows.append((f"{p}_{a.upper()}OFF", offset, MAV_PARAM_TYPE_REAL32))
+            rows.append((f"{p}_{a.upper()}OFF", float(offsets[i]), MAV_PARAM_TYPE_REAL32))
             if sensor == "acc":
                 rows.append((f"{p}_{a.upper()}SCALE", float(scale[i]), MAV_PARAM_TYPE_REAL32))
     notes = unrepresented(cal, mapped, model, "PX4") + notes
-    if 0 in (accel_id, gyro_id):
-        notes.append(
-            "device id 0: PX4 applies CAL_ACC/CAL_GYRO (and TC_*) only to the sensor whose "
-            "device id matches; give the ids (calib export --accel-id/--gyro-id)"
-        )
     if model is not None and cal_temp is None:
         notes.append("calibration temperature unknown: thermal offsets from the model's curves")
     return rows, notes
@@ -378,6 +410,7 @@ def ardupilot_calibration_parameters(
     imu: int = 1,
     model: ThermalModel | None = None,
     cal_temp: float | None = None,
+    rot: Rotation | None = None,
 ) -> tuple[list[tuple[str, float]], list[str]]:
     """ArduPilot INS_ACCOFFS / INS_ACCSCAL / INS_GYROFFS of IMU `imu` (+ INS_TCAL): (rows, notes).
 
@@ -390,7 +423,8 @@ def ardupilot_calibration_parameters(
     model's curves) and INS_TCAL<imu>_* from `ardupilot_parameters`; without a
     model CALTEMP = `cal_temp` when known (as ArduPilot's own accelerometer
     calibration stores it), so a vehicle's own INS_TCAL stays consistent. IMUs 2
-    and 3 use INS_ACC2OFFS, INS_GYR2OFFS, ...
+    and 3 use INS_ACC2OFFS, INS_GYR2OFFS, ... `rot`: the firmware's rotation of the
+    calibrated axes (`pipelines.autopilot`): offsets, scales and curves written rotated.
     """
     if imu not in ARDUPILOT_PREFIX:
         raise ValueError(f"ArduPilot IMU {imu}: expected 1, 2 or 3")
@@ -403,6 +437,7 @@ def ardupilot_calibration_parameters(
     m = None if model is None else (model if cal_temp is None else model.anchored(cal, cal_temp))
     rows: list[tuple[str, float]] = []
     for sensor in ("acc", "gyr"):
+        at_t0 = []
         for a in params.AXES:
             name = params.bias(sensor, a)
             curve = m is not None and name in m.curves
@@ -413,14 +448,16 @@ def ardupilot_calibration_parameters(
                     "temperature: outside ArduPilot's INS_ACCOFFS range "
                     f"+-{ARDUPILOT_OFFSET_MAX:g} m/s^2"
                 )
-            rows.append((f"{names[sensor]}_{a.upper()}", value))
-    scale = _scales(cal, ARDUPILOT_SCALE_RANGE, "ArduPilot")
+            at_t0.append(value)
+        turned = _turned(rot, np.array(at_t0))
+        rows += [(f"{names[sensor]}_{a.upper()}", float(turned[i])) for i, a in enumerate("xyz")]
+    scale = _scales(cal, ARDUPILOT_SCALE_RANGE, "ArduPilot", rot)
     scal = f"{acc_p}SCAL" if imu > 1 else "INS_ACCSCAL"
     rows += [(f"{scal}_{a.upper()}", float(k)) for a, k in zip(params.AXES, scale, strict=True)]
     if t0 is not None:  # as ArduPilot's own calibration stores it with the offsets
         rows += [(f"INS_ACC{imu}_CALTEMP", float(t0)), (f"INS_GYR{imu}_CALTEMP", float(t0))]
     if model is not None:
-        rows += ardupilot_parameters(model, cal, imu=imu)
+        rows += ardupilot_parameters(model, cal, imu=imu, rot=rot)
     mapped = {params.bias(s, a) for s in ("acc", "gyr") for a in params.AXES}
     mapped |= {f"acc.scale.{a}" for a in params.AXES}
     notes = unrepresented(cal, mapped, model, "ArduPilot")

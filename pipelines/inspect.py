@@ -125,11 +125,11 @@ def log_sources(path: Path, kind: str) -> list:
     if kind == "ulog":
         from pipelines.ingest.ulog_reader import load_ulog, ulog_sources
 
-        return ulog_sources(load_ulog(path))
+        return ulog_sources(load_ulog(path)[0])
     if kind == "dataflash":
         from pipelines.ingest.dataflash_reader import dataflash_sources, imu_rows, open_dataflash
 
-        return dataflash_sources(imu_rows(open_dataflash(path), path))
+        return dataflash_sources(imu_rows(open_dataflash(path)[0], path))
     from pipelines.ingest.rosbag_reader import bag_sources, open_bag
 
     reader, _ = open_bag(path)

@@ -13,6 +13,7 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     [customer]
     name = "Example Drones AG"
     contact = "qa@example.com"
+    address = "Hangar 3, 12345 Somewhere"     # the DCC's customer location (DCC 3.3.0 needs it)
 
     [authorised_by]
     name = "Dr. A. Metrologist"
@@ -22,6 +23,8 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     serial = "CUBE-7"
     certificate = "DAkkS 4711-2026"
     issued_by = "PTB"
+    kind = "cube"                             # optional: the DCC lists the lab's references
+    model = "Precision cube PC-100"           # when a run's manifest records no equipment
 
     [site]                                    # local gravity by Helmert (the MPU-6000 manual)
     latitude_deg = 48.137                     # for runs whose manifest gives no site
@@ -29,6 +32,13 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
 
     [trust]                                   # the approvers the lab trusts (pipelines.trust)
     approvers = "approvers"                   # a file of calib keygen .pub lines, beside lab.toml
+
+    [signing]                                 # signed DCC / PDF (pipelines.reports.signing)
+    certificate = "lab-cert.pem"              # the lab's X.509 certificate, beside lab.toml
+    key = "lab-key.pem"                       # its private key: read to sign, never archived
+
+    [navigation]                              # the certificate's "Navigation performance"
+    profiles = ["land-vehicle-outage-60s"]    # mission profiles by name (docs/navigation.md)
 
 Every key is checked; a certificate made without the file says so where the items belong.
 """
@@ -44,11 +54,12 @@ from pipelines.tolerances import LAB_FILE_STEM, profile_dirs
 LAB_PROFILE = f"{LAB_FILE_STEM}.toml"
 TABLES = {
     "laboratory": ({"name", "address"}, {"accreditation", "country"}),
-    "customer": ({"name"}, {"contact"}),
+    "customer": ({"name"}, {"contact", "address"}),
     "authorised_by": ({"name"}, {"function"}),
     "trust": ({"approvers"}, set()),
+    "signing": ({"certificate", "key"}, set()),
 }
-EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by"})
+EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by", "kind", "model"})
 
 
 def load_lab_profile() -> tuple[dict[str, Any], Path] | None:
@@ -68,14 +79,16 @@ def load_lab_profile() -> tuple[dict[str, Any], Path] | None:
 
 
 def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
-    unknown = sorted(set(doc) - {*TABLES, "equipment", "site"})
+    known = {*TABLES, "equipment", "site", "navigation"}
+    unknown = sorted(set(doc) - known)
     if unknown:
         raise ValueError(
-            f"lab profile {path}: unknown table(s) {unknown}; "
-            f"expected {sorted({*TABLES, 'equipment', 'site'})}"
+            f"lab profile {path}: unknown table(s) {unknown}; expected {sorted(known)}"
         )
     if "site" in doc:
         _check_site(doc["site"], path)
+    if "navigation" in doc:
+        _check_navigation(doc["navigation"], path)
     for table, keys in TABLES.items():
         if table in doc:
             _check_table(doc[table], keys, path, table)
@@ -114,6 +127,33 @@ def _check_table(table: Any, keys: tuple[set[str], set[str]], path: Path, where:
                 f"lab profile {path}: {where}.{key}: expected one line of text "
                 f"(1..200 characters), got {value!r}"
             )
+
+
+def _check_navigation(table: Any, path: Path) -> None:
+    """``[navigation]``: profiles, a list of mission-profile names (that each exists is
+    checked where they are read: `pipelines.reports.navigation`)."""
+    from storage.naming import check_safe_name
+
+    profiles = table.get("profiles") if isinstance(table, dict) else None
+    if set(table) != {"profiles"} or not isinstance(profiles, list) or not profiles:
+        raise ValueError(
+            f"lab profile {path}: navigation: expected a table with profiles = [names], "
+            f"got {table!r}"
+        )
+    for i, name in enumerate(profiles):
+        try:
+            check_safe_name(name, "mission profile name")
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"lab profile {path}: navigation.profiles[{i}]: {exc}") from None
+
+
+def lab_navigation_profiles() -> tuple[list[str], Path | None]:
+    """The mission profiles the lab's certificates show (``[navigation] profiles``) and the
+    lab profile's file."""
+    found = load_lab_profile()
+    if found is None:
+        return [], None
+    return list(found[0].get("navigation", {}).get("profiles", [])), found[1]
 
 
 def _check_site(site: Any, path: Path) -> None:

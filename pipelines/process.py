@@ -23,7 +23,10 @@ from calib_core.checks import check_calibration, overall_verdict
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
+from calib_core.preprocess.motion import static_labels
+from calib_core.procedures.rate_table import plateau_window
 from calib_core.recording import Recording
+from calib_core.stillness import StatedLimits, stillness_problems
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
 from pipelines import shared_reference
@@ -41,12 +44,14 @@ from pipelines.process_streamed import (
 )
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.rejudge import group_of, rejudge_from
+from pipelines.reports.display import record_notes
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
 from pipelines.uncertainty import uncertainty_step
 from storage import queries, rawstore, write_failures
-from storage.archive import ArchiveResult, RawFileIn, RunIn, archive_run, raw_hash_of, run_id_of
+from storage.archive import ArchiveResult, archive_run
 from storage.db import Archive
+from storage.run_input import RawFileIn, RunIn, raw_hash_of, run_id_of
 
 log = logging.getLogger("calib.process")
 
@@ -159,10 +164,14 @@ def run_outcome(
 
 def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
     """The step record of ingest: format settings, files, samples per segment, wall time
-    (and, for a record streamed in chunks, its memory limit, bytes)."""
+    (and, for a record streamed in chunks, its memory limit, bytes; the sensors' firmware ids
+    per segment when the log records them, ``devices``)."""
     rec = loaded.streamed
     samples = {k: len(r) for k, r in loaded.segments.items()}
-    more = {}
+    more: dict[str, Any] = {}
+    devices = {k: r.devices for k, r in loaded.segments.items() if r.devices}
+    if devices:  # the sensors' firmware ids (pipelines.autopilot reads them for exports)
+        more["devices"] = devices
     if rec is not None:
         samples = {rec.label: rec.n}
         more = {"streamed": {"memory_limit": rec.memory_limit, "bytes": rec.result.size}}
@@ -262,8 +271,11 @@ def verify_run(
     m = loaded.manifest
     factor = m.format.acc_reference_factor()  # acc_unit, or acc_scale_unit for counts
     given = {s.label: s.reference_acc for s in m.segments}
+    window = plateau_window(m.run.settings)
     refs = [
-        verification.reference_point(
+        verification.rate_reference(loaded.segments[label], **window)
+        if "table_rate" in loaded.segments[label].reference
+        else verification.reference_point(
             label,
             cal.gravity,
             None if given.get(label) is None else np.asarray(given[label]) * factor,
@@ -340,6 +352,28 @@ def run_conditions(
     )
 
 
+def still_checks(loaded: LoadedRun, gravity: float, profile: ToleranceProfile) -> list[CheckResult]:
+    """The static segments of the run's procedure judged still by absolute criteria
+    (`calib_core.stillness`): a fit segment that is not is refused (ValueError naming its
+    file, the segment and what was measured); a held-out one gives the finding
+    ``record:still:<label>`` (the fit can do without it)."""
+    proc = procedures.BY_NAME.get(loaded.manifest.run.procedure)
+    if proc is None:
+        return []
+    stated = StatedLimits.of(profile)
+    out = []
+    for label in static_labels(proc.static_segments, loaded.segments):
+        rec = loaded.segments[label]
+        problems = stillness_problems(rec, gravity, stated)
+        if not problems:
+            continue
+        what = f"static segment '{label}' ({rec.source}) moved: {'; '.join(problems)}"
+        if label not in loaded.verification_labels:
+            raise ValueError(f"{what}; repeat it with the unit at rest")
+        out.append(CheckResult(f"record:still:{label}", None, None, False, what))
+    return out
+
+
 @dataclass
 class Judged:
     """What the check stage found: checks, verdict, the profile and its step record."""
@@ -366,6 +400,8 @@ def check_run(
     checks += run_conditions(loaded, cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
     checks += more_checks
+    checks += [CheckResult(**f) for f in loaded.findings]  # the readers' (record:cut:...)
+    checks += still_checks(loaded, cal.gravity, profile)
     checks.append(
         device_check(
             loaded.manifest,
@@ -428,6 +464,7 @@ def protocol_of(
         budgets={n: b.to_dict() for n, b in (budgets or {}).items()},
         decision_rule=judged.profile.decision_rule.statement(),
         names=judged.profile.protocol_names,
+        notes=record_notes([c.to_dict() for c in judged.checks], cal.warnings),
     )
 
 
@@ -506,8 +543,9 @@ def process_run(
     pending = rawstore.PendingFiles()
     try:
         started = time.perf_counter()
-        # A static-bias record larger than its memory limit is streamed, not read.
-        plan = stream_plan(source)
+        # A static-bias record larger than its memory limit is streamed, not read (unless
+        # its settings or a reference correction need it in memory).
+        plan = stream_plan(source) if correct is None else None
         if plan is None:
             loaded = load_run(source, hash_file=partial(pending.stage_raw, archive.root))
         else:
@@ -517,11 +555,6 @@ def process_run(
         if reason is not None:
             steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
         if correct is not None:
-            if loaded.streamed is not None:
-                raise ValueError(
-                    "a reference correction of a streamed record is not available: raise "
-                    "run.settings.memory_limit_mb to read it into memory"
-                )
             loaded, corrected = correct(loaded)
             steps.append(corrected)
         cal, solve_steps, settings, budgets, fit = solve_loaded(loaded)

@@ -9,14 +9,20 @@ as-found solve, when the unit comes back, reads it again through the earlier
 calibration. Everything else of `pipelines.process` takes the run as it takes one read
 into memory (`LoadedRun.streamed`); no step holds the whole record.
 
-What the route does not do is said in the run's checks (the preprocessing outlier step)
-or refused before reading (`stream_plan`): time windows,
-sections, separate acc/gyr files, reference channels, sync/segmentation/low-pass.
+A record's results and the settings it may use do not depend on its size: the segment's
+time window is applied as the file is read, the preprocessing chain (`preprocess`) runs
+on the record as in memory (its outlier step leaves a segment that is not a static
+position as it is, here as there). A run whose settings need the whole record in memory
+(sections, separate acc/gyr files, reference channels, a verification segment,
+sync/segmentation/low-pass, the outlier step of a static position, a reference
+correction) is read into memory whatever its size (`stream_plan`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -24,30 +30,44 @@ from datetime import UTC
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
 from calib_core import procedures
 from calib_core.calibration import Calibration, StepRecord
 from calib_core.checks import MODEL_PREFIX
 from calib_core.conditions import temperature_block
-from calib_core.preprocess.chain import DEFAULT_OUTLIERS, OUTLIER_KEYS, settings_table
+from calib_core.preprocess.chain import (
+    DEFAULT_OUTLIERS,
+    OUTLIER_KEYS,
+    is_static,
+    preprocess,
+    replaced_checks,
+    settings_table,
+)
 from calib_core.procedures.static_bias import MEMORY_LIMIT
 from calib_core.recording import RANGE_MARGIN, Recording, first_range_hit
 from calib_core.streamed import RecordSummary, TemperatureTrend, load_compiled
 from calib_core.uncertainty import Budget
 from pipelines.ingest import RunSource
 from pipelines.ingest.csv_layout import layout_of
-from pipelines.ingest.csv_stream import samples_chunks, solve_streamed
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import RunManifest, SegmentSpec, check_segments, load_manifest
 from pipelines.ingest.run_loader import (
     MANIFEST_NAME,
     LoadedRun,
     RawFile,
+    check_window_end,
+    check_window_inside,
     data_file,
+    empty_window,
     range_limits,
     refuse_range_hit,
     with_lab_site,
 )
 from pipelines.ingest.streaming import STREAMERS, StreamedRecord
+from pipelines.streamed_solve import samples_chunks, solve_streamed
 from pipelines.uncertainty import uncertainty_step
 from storage import rawstore
 
@@ -80,13 +100,15 @@ def stream_plan(source: RunSource) -> StreamPlan | None:
     """The streamed route's plan of a run; None when the run is read into memory.
 
     A run of a procedure that streams (`Procedure.stream_solver`: static_bias) whose data
-    file is larger than its memory limit is streamed; one
-    that the route cannot take (see the module docstring) is refused with the reason,
-    rather than read into memory past its limit.
+    file is larger than its memory limit is streamed, unless its settings need the whole
+    record (`in_memory_only`; `pipelines.process` reads a run whose reference is corrected
+    into memory too): it is then read into memory, so that the same settings give the
+    same results.
 
     Raises
     ------
-    IngestError naming the manifest, the field and what to change.
+    IngestError naming the manifest and the field of a memory limit that is not a number
+    >= 1.
     """
     if source.kind != "manifest":
         return None
@@ -104,32 +126,24 @@ def stream_plan(source: RunSource) -> StreamPlan | None:
     except ValueError as exc:
         raise IngestError(str(exc), file=where, field=f"run.settings.{MEMORY_LIMIT}") from None
     size = sum(p.stat().st_size for p in paths)
-    if size <= limit:
+    if size <= limit or in_memory_only(manifest, seg, paths) is not None:
         return None
-    refused = _not_streamed(manifest, seg, paths)
-    if refused is not None:
-        raise IngestError(
-            f"the recording ({size / MB:,.0f} MB) is larger than the memory limit "
-            f"({limit / MB:,.0f} MB) and is read in chunks, which does not take {refused}; "
-            f"raise {MEMORY_LIMIT} to read it into memory",
-            file=where,
-            field=f"run.settings.{MEMORY_LIMIT}",
-        )
     check_segments(manifest, where)
     manifest = with_lab_site(manifest, where)
     text = manifest_path.read_text(encoding="utf-8")
     return StreamPlan(source.folder, manifest, manifest_path, text, seg, paths[0], limit)
 
 
-def _not_streamed(manifest: RunManifest, seg: SegmentSpec, paths: list[Path]) -> str | None:
-    """What of the run the streamed route does not take, or None."""
+def in_memory_only(manifest: RunManifest, seg: SegmentSpec, paths: list[Path]) -> str | None:
+    """What of the run needs its whole record in memory, or None (it may be streamed)."""
     kind = manifest.format.kind
     if kind not in STREAMERS:
         return f"format kind {kind!r} (streamed: {', '.join(sorted(STREAMERS))})"
     if len(paths) != 1:
         return "separate acc_file and gyr_file"
-    if seg.start_s is not None or seg.end_s is not None:
-        return "a segment's time window (start_s, end_s)"
+    outliers = settings_table(manifest.run.settings, "outliers", OUTLIER_KEYS) or {}
+    if is_static(seg.label) and {**DEFAULT_OUTLIERS, **outliers}["method"] != "none":
+        return "the iterative outlier step of a static position"
     if seg.section is not None or manifest.format.section_column is not None:
         return "sections"
     if seg.verification:
@@ -159,6 +173,10 @@ def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) 
     samples = pending.temp_file(folder, "samples")
     copy = pending.temp_file(Path(root) / "objects", "incoming")
     _HASHER.submit(load_compiled)  # beside the pass: the solve's compiled loops, from their cache
+    window = None
+    if seg.start_s is not None or seg.end_s is not None:
+        start, end = seg.start_s, seg.end_s
+        window = (-math.inf if start is None else start, math.inf if end is None else end)
     result = STREAMERS[m.format.kind](
         plan.path,
         m.format,
@@ -166,10 +184,13 @@ def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) 
         copy_to=copy,
         label=seg.label,
         memory_limit=plan.memory_limit,
+        window=window,
     )
     result.first.close()  # its last chunk's statistics are in (every streamer's)
     pending.adopt_raw(root, copy, result.sha256)
     raw.append(RawFile(plan.path, seg.file, result.sha256, result.size, m.format.kind))
+    if window is not None:
+        _check_window(result, samples, plan)
     _check_range(result.first, samples, plan, gyro, acc)
     # Hashed while the solve reads the file (hashlib releases the GIL).
     sha = _HASHER.submit(lambda: rawstore.hash_and_size(samples)[0])
@@ -178,6 +199,30 @@ def load_streamed(plan: StreamPlan, root: Path, pending: rawstore.PendingFiles) 
 
 
 _HASHER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-samples-hash")
+
+
+def _check_window(result, samples: Path, plan: StreamPlan) -> None:
+    """`load_run`'s checks of a segment's time window: mostly inside the data, samples in
+    it, and not running past the end of the data while the unit still turns there."""
+    where, (t0, t1), n = str(plan.manifest_path), result.span, result.first.n
+    check_window_inside(plan.segment, 0, where, t0, t1)
+    if n == 0:
+        raise empty_window(plan.segment, 0, where, t0, t1)
+    if n < 20:
+        return
+
+    def ends() -> tuple[np.ndarray, np.ndarray]:
+        parquet = pq.ParquetFile(samples)
+        cols = [f"gyr_{a}" for a in "xyz"]
+        head = parquet.read_row_group(0, columns=cols)
+        tail = parquet.read_row_group(parquet.num_row_groups - 1, columns=cols)
+        if tail.num_rows < 10:  # the last row group short: the one before it too
+            before = parquet.read_row_group(parquet.num_row_groups - 2, columns=cols)
+            tail = pa.concat_tables([before, tail])
+        rows = lambda table: np.column_stack([c.to_numpy() for c in table.columns])  # noqa: E731
+        return rows(head)[:10], rows(tail)[-10:]
+
+    check_window_end(plan.segment, 0, where, t1, result.first.step.median(), ends)
 
 
 def _check_range(first, samples: Path, plan: StreamPlan, gyro, acc) -> None:
@@ -196,12 +241,6 @@ def _check_range(first, samples: Path, plan: StreamPlan, gyro, acc) -> None:
             refuse_range_hit(hit, plan.manifest, plan.segment, [plan.path])
 
 
-NOT_STREAMED_OUTLIERS = (
-    "not done: the record was streamed (larger than the memory limit); the iterative "
-    "outlier rule needs it in memory, the static-bias solve's own n-sigma rule applies"
-)
-
-
 def solve_streamed_run(
     loaded: LoadedRun, procedure: str | None = None, settings: dict[str, Any] | None = None
 ) -> tuple[Calibration, list[StepRecord], dict[str, Any], dict[str, Budget], dict]:
@@ -215,17 +254,14 @@ def solve_streamed_run(
         raise ValueError(
             f"a streamed record is solved by a procedure that streams, not {procedure!r}"
         )
-    cfg = {**DEFAULT_OUTLIERS, **(settings_table(settings, "outliers", OUTLIER_KEYS) or {})}
-    skipped = {"skipped": True}
-    checks = []
-    if cfg["method"] != "none":  # said in the step and the checks; the numbers stand
-        skipped["reason"] = NOT_STREAMED_OUTLIERS
-        name = f"{MODEL_PREFIX}replaced:outliers:{rec.label}"
-        checks.append({"name": name, "value": None, "limit": None, "passed": True,
-                       "detail": NOT_STREAMED_OUTLIERS})  # fmt: skip
-    steps = [StepRecord("outliers", settings=cfg, statistics=skipped)]
     first = rec.result.first
     span = RecordSummary(rec.label, first.n, first.t_first, first.t_last, None, None)
+    # The chain as in memory: the route is chosen so that none of its steps needs the
+    # samples (`in_memory_only`); the record stands in for them.
+    started = time.perf_counter()
+    _, steps = preprocess({rec.label: span}, settings, gravity=m.gravity())
+    steps[-1].statistics["preprocess_seconds"] = round(time.perf_counter() - started, 4)
+    checks = replaced_checks(steps)
     trend = TemperatureTrend(rec.result.temp_finite, temperature_block(span))
 
     def solver(_segments: dict, gravity: float, given: dict[str, Any]) -> Calibration:

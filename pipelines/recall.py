@@ -30,12 +30,18 @@ def _one_condition(rows: Any) -> Any:
     return rows.iloc[pooled_runs(temps).indices]
 
 
-def _own_slope(rows: Any) -> tuple[float | None, float | None]:
-    """(slope, variance) of one unit's trend (SI / day), or (None, None) below 3 points."""
-    stds = [
+def _stds(rows: Any) -> list[float | None]:
+    """The standard uncertainties of a parameter's rows, None where none is stated (the
+    noise terms of a static-bias run carry none)."""
+    return [
         None if s is None or (isinstance(s, float) and math.isnan(s)) else float(s)
         for s in rows["std"]
     ]
+
+
+def _own_slope(rows: Any) -> tuple[float | None, float | None]:
+    """(slope, variance) of one unit's trend (SI / day), or (None, None) below 3 points."""
+    stds = _stds(rows)
     days = [days_since_epoch(t) for t in rows["started_at"]]
     try:
         if all(s is not None and s > 0 for s in stds):  # stated uncertainties, not rescaled
@@ -72,9 +78,9 @@ def model_intervals(
             rows = by_unit.get(serial)
             if rows is None:
                 continue
-            stds = [float(x) for x in rows["std"]]
-            if not all(x > 0 for x in stds):  # no stated uncertainty: no prediction
-                continue
+            stds = _stds(rows)
+            if not all(x is not None and x > 0 for x in stds):  # no stated uncertainty:
+                continue  # no prediction (a noise term has none: its value is a spread)
             days = [days_since_epoch(t) for t in rows["started_at"]]
             try:
                 line = interval.predict_line(days, rows["value"].to_numpy(), stds, fleet)
@@ -186,6 +192,8 @@ def _entry(
         "reliability": float(prof.recall["reliability"]),
         "method": how,
         "due": due.isoformat(),
+        # each limited parameter's drift line, per year (SI): navigation's drift source
+        "drift_rates": {p["name"]: p["rate_per_year"] for p in entry.get("parameters", [])},
     }
 
 

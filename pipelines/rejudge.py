@@ -22,8 +22,10 @@ from calib_core.conditions import counts_against_verdict
 from calib_core.tolerances import ToleranceProfile
 from pipelines import shared_reference
 from storage import queries
-from storage.archive import REJUDGE_STEP, ArchiveError, Rejudgement, rejudge_run
+from storage.archive import ArchiveError
 from storage.db import Archive
+from storage.rejudgement import Rejudgement, rejudge_run
+from storage.settings_hash import REJUDGE_STEP
 
 # Judgements made again after a concurrent writer changed the unit's runs meanwhile;
 # each attempt sees at least one more committed change, and a unit has few runs in flight.

@@ -262,7 +262,7 @@ def _profile_versions():  # noqa: ANN202 - a cached lookup
 
 def _done_by(run: dict[str, Any], software: str, version_of) -> dict[str, Any] | None:  # noqa: ANN001
     """The calibration of `run` that reprocessing it now would duplicate, or None."""
-    from storage.archive import settings_hash
+    from storage.settings_hash import settings_hash
 
     for cal in run["calibrations"]:
         if cal["software_version"] != software:

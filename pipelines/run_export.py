@@ -19,7 +19,7 @@ from typing import Any
 from calib_core.calibration import Calibration
 from calib_core.nav_noise import nav_noise
 from calib_core.thermal import ThermalModel
-from pipelines import exports, nav_exports
+from pipelines import autopilot, exports, nav_exports
 from storage import queries
 from storage.db import Archive
 
@@ -68,10 +68,12 @@ def export_run(
     revision: int | None = None,
     thermal: bool = True,
     instance: int | None = None,
-    accel_id: int = 0,
-    gyro_id: int = 0,
+    accel_id: int | None = None,
+    gyro_id: int | None = None,
     rostopic: str = nav_exports.DEFAULT_ROSTOPIC,
     update_rate_hz: float | None = None,
+    rotation: str | None = None,
+    vehicle_id: int = 1,
 ) -> Export:
     """Export the calibration of run `run_id` (current revision unless `revision`).
 
@@ -82,8 +84,13 @@ def export_run(
     fmt : one of FORMATS.
     revision : calibration revision, None for the current one.
     thermal : add the unit's current thermal model (px4, ardupilot, csv, mat).
-    instance : PX4 sensor instance (default 0) / ArduPilot IMU number (default 1).
-    accel_id, gyro_id : PX4 device ids (CAL_ACC<i>_ID, CAL_GYRO<i>_ID, TC_*_ID).
+    instance : PX4 sensor instance (default 0) / ArduPilot IMU number (default: the
+        DataFlash log's IMU instance + 1, else 1).
+    accel_id, gyro_id : PX4 device ids (CAL_ACC<i>_ID, CAL_GYRO<i>_ID, TC_*_ID); None: the
+        ids the run's ULog recorded, else the export is refused (`pipelines.autopilot`).
+    rotation : the firmware's rotation of the calibrated axes (PX4 SENS_BOARD_ROT /
+        ArduPilot AHRS_ORIENTATION names), None for none.
+    vehicle_id : the PX4 file's vehicle (MAVLink system) id.
     rostopic : the IMU topic written into kalibr / openvins files.
     update_rate_hz : kalibr / openvins update_rate, Hz (None: the run's sample rate).
 
@@ -105,19 +112,48 @@ def export_run(
         text = _noise_model(fmt, cal, doc, rostopic, update_rate_hz)
         return Export(text.encode("ascii", "backslashreplace"), name, MEDIA_TYPE[fmt])
     model, model_id = _thermal(archive, doc["unit"]["serial"]) if thermal else (None, None)
-    env = queries.run_summary(archive, run_id)["environment"] or {}
-    cal_temp = env.get("temperature_c")
+    summary = queries.run_summary(archive, run_id)
+    cal_temp = (summary["environment"] or {}).get("temperature_c")
     cal_temp = None if cal_temp is None else float(cal_temp)
-    data, notes = _encode(fmt, cal, model, cal_temp, doc, model_id, instance, accel_id, gyro_id)
+    if fmt not in autopilot.FIRMWARES:
+        data, notes = _encode(fmt, cal, model, cal_temp, doc, model_id)
+        return Export(data, name, MEDIA_TYPE[fmt], notes)
+    target = _Target(
+        autopilot.rotation(rotation, fmt),
+        autopilot.recorded_devices(summary["calibration"]["steps"]),
+        instance,
+        accel_id,
+        gyro_id,
+        vehicle_id,
+    )
+    data, notes = _firmware(fmt, cal, model, cal_temp, doc, model_id, target)
     return Export(data, name, MEDIA_TYPE[fmt], notes)
 
 
-def _header(doc: dict[str, Any], model_id: int | None, notes: list[str]) -> str:
+@dataclass(frozen=True)
+class _Target:
+    """Where an autopilot file goes: the mounting, the ids the log recorded and the options."""
+
+    rot: autopilot.Rotation
+    recorded: dict[str, int]
+    instance: int | None
+    accel_id: int | None
+    gyro_id: int | None
+    vehicle_id: int
+
+
+def _header(
+    doc: dict[str, Any],
+    model_id: int | None,
+    notes: list[str],
+    more: tuple[str, ...] | list[str] = (),
+) -> str:
     unit = doc["unit"]
     lines = [
         f"imu-calib export of {unit['serial']} ({unit['model']}), run {doc['run']['run_id']} "
         f"revision {doc['revision']}, verdict {doc['verdict']}, software {doc['software_version']}",
         "thermal model: " + ("none" if model_id is None else f"id {model_id}"),
+        *more,
     ]
     return "\n".join(lines + [f"WARNING: {n}" for n in notes])
 
@@ -140,6 +176,59 @@ def _noise_model(
     return write(nav, update_rate_hz=rate, rostopic=rostopic, header=header)
 
 
+def _firmware(
+    fmt: str,
+    cal: Calibration,
+    model: ThermalModel | None,
+    cal_temp: float | None,
+    doc: dict[str, Any],
+    model_id: int | None,
+    target: _Target,
+) -> tuple[bytes, list[str]]:
+    """The PX4 or ArduPilot file's bytes and its warnings."""
+    rng = None if model is None else (model.t_min, model.t_max)
+    common = {"unit": doc["unit"]["serial"], "run": doc["run"]["run_id"], "model_range": rng}
+    if fmt == "px4":
+        acc_id, gyr_id, said = autopilot.px4_device_ids(
+            target.recorded, target.accel_id, target.gyro_id
+        )
+        instance = 0 if target.instance is None else target.instance
+        rows, notes = exports.px4_calibration_parameters(
+            cal,
+            instance=instance,
+            accel_id=acc_id,
+            gyro_id=gyr_id,
+            model=model,
+            cal_temp=cal_temp,
+            rot=target.rot,
+        )
+        settings = [
+            f"sets CAL_ACC{instance}_* / CAL_GYRO{instance}_*"
+            + (f" and TC_A{instance}_* / TC_G{instance}_*" if model is not None else "")
+            + f" of the sensors with device ids {acc_id} (accelerometer) and {gyr_id} (gyro), "
+            f"{said}; the vehicle's SENS_BOARD_ROT stays as it is"
+        ]
+        head = autopilot.header_lines("px4", rot=target.rot, settings=settings, **common)
+        text = exports.px4_params_text(
+            rows, header=_header(doc, model_id, notes, head), vehicle_id=target.vehicle_id
+        )
+        return text.encode("ascii", "backslashreplace"), notes
+    imu = target.instance
+    if imu is None:
+        imu = target.recorded["imu"] + 1 if "imu" in target.recorded else 1
+    rows, notes = exports.ardupilot_calibration_parameters(
+        cal, imu=imu, model=model, cal_temp=cal_temp, rot=target.rot
+    )
+    settings = [
+        f"sets IMU {imu} (the log's instance {imu - 1}): its offsets and scales"
+        + (f", INS_TCAL{imu}_*" if model is not None else "")
+        + "; the vehicle's AHRS_ORIENTATION stays as it is"
+    ]
+    head = autopilot.header_lines("ardupilot", rot=target.rot, settings=settings, **common)
+    text = exports.ardupilot_params_text(rows, header=_header(doc, model_id, notes, head))
+    return text.encode("ascii", "backslashreplace"), notes
+
+
 def _encode(
     fmt: str,
     cal: Calibration,
@@ -147,28 +236,8 @@ def _encode(
     cal_temp: float | None,
     doc: dict[str, Any],
     model_id: int | None,
-    instance: int | None,
-    accel_id: int,
-    gyro_id: int,
 ) -> tuple[bytes, list[str]]:
-    """The file's bytes and the warnings of one format."""
-    if fmt == "px4":
-        rows, notes = exports.px4_calibration_parameters(
-            cal,
-            instance=0 if instance is None else instance,
-            accel_id=accel_id,
-            gyro_id=gyro_id,
-            model=model,
-            cal_temp=cal_temp,
-        )
-        text = exports.px4_params_text(rows, header=_header(doc, model_id, notes))
-        return text.encode("ascii", "backslashreplace"), notes
-    if fmt == "ardupilot":
-        rows, notes = exports.ardupilot_calibration_parameters(
-            cal, imu=1 if instance is None else instance, model=model, cal_temp=cal_temp
-        )
-        text = exports.ardupilot_params_text(rows, header=_header(doc, model_id, notes))
-        return text.encode("ascii", "backslashreplace"), notes
+    """The file's bytes and the warnings of the csv and mat formats."""
     if fmt == "csv":
         return exports.csv_text(exports.parameter_rows(cal, model)).encode(), []
     meta = {

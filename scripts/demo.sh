@@ -17,7 +17,9 @@ step 1/5 "processing every run of data_samples/ into ./calib-archive (certificat
 step 2/5 "fitting the thermal model of the campaign IMU-T-0007" "$BIN/calib" thermal fit IMU-T-0007
 mkdir -p "$DEMO_OUT"
 export_both() {
-    "$BIN/calib" thermal export IMU-T-0007 "$DEMO_OUT/IMU-T-0007_px4.params" --format px4
+    echo "   (PX4 needs the sensor's device id: the CSV samples record none, 1310988 stands for the vehicle's CAL_ACC0_ID)"
+    "$BIN/calib" thermal export IMU-T-0007 "$DEMO_OUT/IMU-T-0007_px4.params" --format px4 \
+        --device-id 1310988
     "$BIN/calib" thermal export IMU-T-0007 "$DEMO_OUT/IMU-T-0007_ardupilot.parm" --format ardupilot
 }
 step 3/5 "exporting it for PX4 and ArduPilot into $DEMO_OUT/" export_both

@@ -19,6 +19,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from calib_core.simulate import random_errors, six_position_integral_run  # noqa: E402
+from calib_core.simulate.noise import NoiseSpec, simulate_static  # noqa: E402
 from calib_core.simulate.thermal import (  # noqa: E402
     random_thermal_truth,
     recalibration_history,
@@ -81,6 +82,12 @@ SMALL_RUN = {"rate_hz": 50.0, "static_s": 10.5}
 THERMAL_SERIAL, THERMAL_TEMPS_C = "IMU-T-0007", (0.0, 20.0, 40.0, 60.0)
 HISTORY_SERIAL = "IMU-R-0003"
 HISTORY_DATES = ("2026-02-03", "2026-05-05", "2026-08-04", "2026-11-03")
+NOISE_SERIAL = "IMU-N-0011"
+# A static record of 10 min at 50 Hz (about 2.4 MB): the procedure asks for >= 60 min, which
+# the sample fails on purpose (a few MB in the repository). Densities of an MPU-6000's data
+# sheet: gyro 0.005 deg/s/sqrt(Hz), accelerometer 400 ug/sqrt(Hz); random walks a tenth.
+NOISE_RUN = {"duration_s": 600.0, "rate_hz": 50.0}
+GYRO_DENSITY, ACC_DENSITY = 0.005 * DEG, 400e-6 * 9.80665
 STATICS = ("x_up", "x_dn", "y_up", "y_dn", "z_up", "z_dn")
 
 
@@ -135,6 +142,32 @@ def write_history() -> None:
         write_csv_run(statics, ROOT / "history_IMU-R-0003" / date, manifest, truth=sim.truth_dict())
 
 
+def write_noise_run() -> None:
+    """A static-bias (noise) run: biases, noise and the Kalibr / OpenVINS noise models
+    (`calib export RUN --format kalibr|openvins`)."""
+    rng = np.random.default_rng(20261124)
+    rec = simulate_static(
+        NOISE_RUN["duration_s"],
+        NOISE_RUN["rate_hz"],
+        gyro_bias=np.array([1e-3, -2e-3, 5e-4]),
+        gyro_noise=NoiseSpec(GYRO_DENSITY, 0.0, GYRO_DENSITY / 10.0),
+        acc_bias=np.array([0.02, -0.01, 0.03]),
+        acc_noise=NoiseSpec(ACC_DENSITY, 0.0, ACC_DENSITY / 10.0),
+        rng=rng,
+    )
+    manifest = _manifest(NOISE_SERIAL, "2026-11-24T09:00:00+01:00", "static_bias", 20.4)
+    manifest["run"]["settings"] = {"up_axis": "+z"}
+    truth = {
+        "gyr.bias": [1e-3, -2e-3, 5e-4],
+        "acc.bias": [0.02, -0.01, 0.03],
+        "gyroscope_noise_density": GYRO_DENSITY,
+        "gyroscope_random_walk": GYRO_DENSITY / 10.0,
+        "accelerometer_noise_density": ACC_DENSITY,
+        "accelerometer_random_walk": ACC_DENSITY / 10.0,
+    }
+    write_csv_run({"static": rec}, ROOT / f"static_bias_{NOISE_SERIAL}", manifest, truth=truth)
+
+
 def main() -> None:
     if ROOT.exists():
         shutil.rmtree(ROOT)
@@ -155,6 +188,7 @@ def main() -> None:
     write_csv_run(sim.segments, ROOT / "csv_IMU-2026-0042", CSV_MANIFEST, truth=sim.truth_dict())
     write_thermal_campaign()
     write_history()
+    write_noise_run()
     (ROOT / "README.md").write_text(
         "# data_samples\n\nSimulated lab runs with known truth, made by "
         "`scripts/make_data_samples.py` (calib_core.simulate); `make demo` processes them.\n\n"
@@ -172,7 +206,12 @@ def main() -> None:
         "linear in temperature: `calib thermal fit IMU-T-0007`.\n"
         "- `history_IMU-R-0003/`: one unit re-calibrated quarterly in 2026 (six statics; the "
         "dates are the manifests' `run.started`), its z accelerometer bias drifting by "
-        "2e-5 m/s^2 a day: `calib trend`, `calib repeatability`.\n\n"
+        "2e-5 m/s^2 a day: `calib trend`, `calib repeatability`.\n"
+        f"- `static_bias_{NOISE_SERIAL}/`: a static-bias (noise) run, 10 min at 50 Hz on a "
+        "level fixture (z up), white noise and random walk of known densities (truth in "
+        "`truth.json`, SI units): biases and noise on its certificate, and the noise models "
+        "for Kalibr and OpenVINS (`calib export RUN --format kalibr`). The procedure asks for "
+        ">= 60 min of record: its certificate fails that condition, as a 10 min sample must.\n\n"
         "All of them are simulated (no real sensor recorded them); the real recordings the "
         "tests read are in `tests/realdata/`.\n",
         encoding="utf-8",

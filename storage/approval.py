@@ -37,7 +37,8 @@ from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 from sqlalchemy import Connection, select
 
-from storage import seal
+from storage import seal, seal_check, seal_record
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.schema import AuditEvent, CalibrationRow, Run, Seal
 
@@ -71,7 +72,7 @@ class Approval:
         return None if self.untrusted is None else not self.untrusted
 
 
-def _public_hex(key: Ed25519PublicKey) -> str:
+def public_key_hex(key: Ed25519PublicKey) -> str:
     return key.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw).hex()
 
 
@@ -108,7 +109,7 @@ def generate_key(path: Path, name: str, passphrase: str) -> str:
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "wb") as f:
         f.write(pem)
-    public = _public_hex(key.public_key())
+    public = public_key_hex(key.public_key())
     pub_path.write_text(json.dumps({"name": name, "public_key": public}) + "\n")
     return public
 
@@ -135,7 +136,7 @@ def message(
     run_id: str, revision: int, digest: str, meaning: str, signer: str, public: str
 ) -> bytes:
     """The bytes that are signed."""
-    return seal.canonical(
+    return seal_record.canonical(
         {
             "run_id": run_id,
             "revision": revision,
@@ -167,13 +168,13 @@ def approve(
     engine = archive.engine().execution_options(sqlite_begin="IMMEDIATE")
     with engine.begin() as conn:
         cal_id, rev, digest, sealed = _sealed_revision(conn, run_id, revision)
-        files_now = seal.rehash_files(archive.root, sealed.get("files", {}))
-        if seal.digest_now(conn, cal_id, files_now, sealed.get("format")) != digest:
+        files_now = seal_check.rehash_files(archive.root, sealed.get("files", {}))
+        if seal_check.digest_now(conn, cal_id, files_now, sealed.get("format")) != digest:
             raise ApprovalError(
                 f"run {run_id} revision {rev}: its rows no longer match its seal; "
                 "run `calib verify` to see what changed; not signed"
             )
-        public = _public_hex(key.public_key())
+        public = public_key_hex(key.public_key())
         signature = key.sign(message(run_id, rev, digest, meaning, signer, public)).hex()
         detail = {
             "meaning": meaning,
@@ -196,11 +197,7 @@ def _sealed_revision(
         .outerjoin(Seal, Seal.calibration_id == CalibrationRow.id)
         .where(Run.run_id == run_id)
     )
-    q = q.where(
-        CalibrationRow.superseded_by.is_(None)
-        if revision is None
-        else CalibrationRow.revision == revision
-    )
+    q = q.where(CURRENT if revision is None else CalibrationRow.revision == revision)
     row = conn.execute(q).one_or_none()
     if row is None:
         which = "current revision" if revision is None else f"revision {revision}"
@@ -224,9 +221,9 @@ def _signature_error(ev: Any) -> str | None:
     return None
 
 
-def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[seal.Finding]:
+def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[seal_check.Finding]:
     """Every approval's signature, and whether the record it signed is unchanged."""
-    found: list[seal.Finding] = []
+    found: list[seal_check.Finding] = []
     for ev in conn.execute(select(AuditEvent).where(AuditEvent.action == "approved")):
         d = ev.detail or {}
         who = f"{d.get('meaning', '?')} by {d.get('signer', '?')} (event {ev.seq})"
@@ -234,7 +231,7 @@ def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[sea
         error = _signature_error(ev)
         if error is not None:
             found.append(
-                seal.Finding(
+                seal_check.Finding(
                     "signature",
                     "audit_events",
                     [ev.run_id],
@@ -246,7 +243,7 @@ def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[sea
         now = digests_now.get((ev.run_id, ev.revision))
         if now != ev.digest:
             found.append(
-                seal.Finding(
+                seal_check.Finding(
                     "signature",
                     "audit_events",
                     [ev.run_id],
@@ -271,8 +268,8 @@ def approval_status(
             cal_id, _, _, sealed = _sealed_revision(conn, run_id, revision)
         except ApprovalError:
             return []
-        files_now = seal.rehash_files(archive.root, sealed.get("files", {}))
-        now = seal.digest_now(conn, cal_id, files_now, sealed.get("format"))
+        files_now = seal_check.rehash_files(archive.root, sealed.get("files", {}))
+        now = seal_check.digest_now(conn, cal_id, files_now, sealed.get("format"))
         events = conn.execute(
             select(AuditEvent)
             .where(
@@ -452,10 +449,10 @@ def _day(value: Any, where: str, key: str) -> date | None:
         raise ValueError(f"{where}: {key}: expected a date YYYY-MM-DD, found {value!r}") from None
 
 
-def check_trust(conn: Connection, approvers: Approvers) -> list[seal.Finding]:
+def check_trust(conn: Connection, approvers: Approvers) -> list[seal_check.Finding]:
     """Every approval whose key the lab's approvers file does not hold for its date,
     naming the run, the claimed signer and the key's fingerprint."""
-    found: list[seal.Finding] = []
+    found: list[seal_check.Finding] = []
     for ev in conn.execute(
         select(AuditEvent).where(AuditEvent.action == "approved").order_by(AuditEvent.seq)
     ):
@@ -463,7 +460,7 @@ def check_trust(conn: Connection, approvers: Approvers) -> list[seal.Finding]:
         why = approvers.judge(a)
         if why:
             found.append(
-                seal.Finding(
+                seal_check.Finding(
                     "untrusted",
                     "audit_events",
                     [a.run_id],

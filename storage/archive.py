@@ -21,33 +21,37 @@ attempt created in the run folder are removed again. Concurrent archiving of
 the same run is resolved by the database's unique constraints: the loser gets
 an IntegrityError, looks again and reports "duplicate".
 
-Why one module of ~870 lines: the write path (validation of the input, the plan, the
-files, the rows, the retry when a concurrent writer wins) is the story of one
-transaction and its invariants, read best top to bottom in one place.
+The write path (the plan, the files, the rows, the retry when a concurrent writer wins)
+is the story of one transaction and its invariants, read top to bottom here; what the
+run is and its validation are in storage.run_input, a run judged again in
+storage.rejudgement, the revision's child rows in storage.revision_rows.
 """
 
 from __future__ import annotations
 
 import hashlib
-import math
-from dataclasses import dataclass, field
-from datetime import UTC, date, datetime
+from dataclasses import asdict, dataclass, field
+from datetime import UTC
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
-import pyarrow as pa
-from sqlalchemy import Engine, func, insert, select, text
+from sqlalchemy import Engine, func, select, text
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from calib_core.calibration import CheckResult, Parameter, StepRecord
 from storage import rawstore, schema, seal, store_identity, unit_latest
-from storage.current import CURRENT, LATEST_RUN_FIRST
+from storage.current import CURRENT
 from storage.db import Archive
-from storage.naming import check_safe_name
-from storage.schema import Base
-from storage.settings_hash import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
-from storage.settings_hash import canonical_json as _canonical_json
+from storage.revision_rows import add_revision, check_rows, insert_many, step_row
+from storage.run_input import (
+    EquipmentIn,
+    RunIn,
+    calibration_document,
+    raw_hash_of,
+    run_id_of,
+    settings_hash_of,
+    validate,
+)
 
 Status = Literal["ok", "duplicate", "revised"]
 _MAX_ATTEMPTS = 3
@@ -71,53 +75,6 @@ PG_UNIT_LOCK = 0x756E6974  # "unit"
 
 
 @dataclass
-class RawFileIn:
-    """A raw input file as read by the ingest step."""
-
-    path: Path  # where the bytes are now
-    name: str  # original file name, kept in the archive
-    sha256: str  # of the bytes, 64 lowercase hex digits
-    size: int  # bytes
-    format: str  # "mpu6000-txt", "csv", "mat", "mcap", "manifest"...
-
-
-@dataclass
-class RunIn:
-    """Everything the archive keeps about one processed run (SI units): plain data, and the
-    parameters, checks and steps as calib_core objects, from which the archive writes its
-    rows and the sealed calibration document."""
-
-    serial: str
-    device_model: str
-    manufacturer: str
-    specification: str | None
-    started_at: datetime  # time zone aware
-    operator: str | None
-    procedure: str
-    site: dict[str, Any]
-    gravity: float  # m/s^2 used by the solver
-    environment: dict[str, Any]
-    equipment: list[dict[str, Any]]  # kind, serial, model, accuracy_class, calibration_due...
-    manifest_text: str | None
-    tolerance_profile: str | None
-    raw_files: list[RawFileIn]
-    settings: dict[str, Any]
-    software_version: str
-    source_revision: str | None
-    steps: list[StepRecord]  # in order; the rows of processing_steps
-    calibration: dict[str, Any]  # Calibration.to_dict(); its "parameters" come from `parameters`
-    parameters: list[Parameter]  # the parameters rows and the document's, in this order
-    checks: list[CheckResult]  # the check_results rows
-    verdict: str  # "pass", "needs review" or "fail"
-    profile_name: str | None
-    profile_version: str | None
-    samples: pa.Table | rawstore.SamplesFile | None = None  # a SamplesFile: written already
-    # The temperature the parameters belong to (deg C; None: not recorded), kept on
-    # every parameter row (the run's lab temperature).
-    parameter_temperature_c: float | None = None
-
-
-@dataclass
 class ArchiveResult:
     """What `archive_run` did. `files` maps each extra file name to where it was written."""
 
@@ -131,121 +88,6 @@ class ArchiveResult:
 
 
 # --- parameters: one form for rows and document -------------------------------
-
-
-def calibration_document(run: RunIn) -> dict[str, Any]:
-    """The stored calibration document: ``run.calibration`` with its parameters from
-    ``run.parameters``.
-
-    The archive writes both the ``parameters`` rows and the parameters of the stored
-    calibration document from the same `Parameter` objects, so the two cannot disagree
-    when written (`storage.verify` reports any later disagreement).
-    """
-    return {**run.calibration, "parameters": {p.name: p.to_dict() for p in run.parameters}}
-
-
-# --- identities -------------------------------------------------------------
-
-
-def raw_hash_of(sha256s: list[str]) -> str:
-    """SHA-256 over the sorted file hashes, one per line: order of listing does not matter."""
-    return hashlib.sha256("\n".join(sorted(sha256s)).encode()).hexdigest()
-
-
-def run_id_of(raw_hash: str) -> str:
-    """The run id derived from a raw hash ("R" + 12 hex digits = 48 bits)."""
-    return "R" + raw_hash[:12]
-
-
-def settings_hash_of(run: RunIn) -> str:
-    """SHA-256 of the canonical JSON of what decides the result besides the raw bytes."""
-    return settings_hash(run.settings, run.procedure, run.profile_name, run.profile_version)
-
-
-# --- validation (before anything touches the disk) ---------------------------
-
-
-def _as_date(value: Any, where: str) -> date | None:
-    if value is None or (isinstance(value, date) and not isinstance(value, datetime)):
-        return value
-    if isinstance(value, datetime):
-        return value.date()
-    if isinstance(value, str):
-        try:
-            return date.fromisoformat(value)
-        except ValueError:
-            pass
-    raise ValueError(f"{where}: expected a date (YYYY-MM-DD), got {value!r}")
-
-
-def _number(value: Any, where: str, *, optional: bool) -> float | None:
-    if value is None and optional:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError(f"{where}: expected a finite number, got {value!r}")
-    return float(value)
-
-
-def _validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
-    check_safe_name(run.serial, "serial")
-    for name in extra_files:
-        check_safe_name(name, "extra file name")
-    if not isinstance(run.started_at, datetime) or run.started_at.utcoffset() is None:
-        raise ValueError(f"started_at: expected a time-zone-aware datetime, got {run.started_at!r}")
-    if not run.raw_files:
-        raise ValueError(f"run of {run.serial}: no raw files")
-    names = [f.name for f in run.raw_files]
-    if len(set(names)) != len(names):
-        raise ValueError(f"raw_files: file names repeat: {sorted(names)}")
-    for f in run.raw_files:
-        rawstore.object_path(Path("."), f.sha256)  # raises on a malformed hash
-        if not isinstance(f.size, int) or f.size < 0:
-            raise ValueError(f"raw file {f.name}: size {f.size!r} is not a byte count")
-    for key in ("device_model", "manufacturer", "procedure", "software_version", "verdict"):
-        if not isinstance(getattr(run, key), str) or not getattr(run, key):
-            raise ValueError(f"{key}: expected a non-empty string, got {getattr(run, key)!r}")
-    _number(run.gravity, "gravity", optional=False)
-    for i, eq in enumerate(run.equipment):
-        for key in ("kind", "serial"):
-            if not isinstance(eq.get(key), str) or not eq.get(key):
-                raise ValueError(f"equipment[{i}].{key}: expected a non-empty string")
-        for key in ("calibration_due", "calibrated_on"):
-            _as_date(eq.get(key), f"equipment[{i}].{key}")
-    _number(run.parameter_temperature_c, "parameter_temperature_c", optional=True)
-    for what, items, kind in (
-        ("parameters", run.parameters, Parameter),
-        ("steps", run.steps, StepRecord),
-        ("checks", run.checks, CheckResult),
-    ):
-        for i, item in enumerate(items):
-            if not isinstance(item, kind):
-                raise TypeError(
-                    f"{what}[{i}]: expected a {kind.__name__}, got {type(item).__name__}"
-                )
-            if not isinstance(item.name, str) or not item.name:
-                raise ValueError(f"{what}[{i}].name: expected a non-empty string")
-    for i, p in enumerate(run.parameters):
-        _number(p.value, f"parameters[{i}] ({p.name}).value", optional=False)
-        _number(p.std, f"parameters[{i}] ({p.name}).std", optional=True)
-    for i, c in enumerate(run.checks):
-        _number(c.value, f"checks[{i}] ({c.name}).value", optional=True)
-        _number(c.limit, f"checks[{i}] ({c.name}).limit", optional=True)
-        if not isinstance(c.passed, bool):
-            raise ValueError(f"checks[{i}].passed: expected true or false, got {c.passed!r}")
-    for where, value in [
-        ("site", run.site),
-        ("environment", run.environment),
-        ("calibration", run.calibration),
-        ("steps", [st.to_dict() for st in run.steps]),
-    ]:
-        _canonical_json(value, where)
-    if run.samples is not None and not isinstance(run.samples, pa.Table | rawstore.SamplesFile):
-        raise TypeError(
-            f"samples: expected a pyarrow.Table or a SamplesFile, got {type(run.samples).__name__}"
-        )
-
-
-# --- planning ----------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -284,9 +126,7 @@ def _plan(session: Session, run: RunIn, raw_hash: str, settings_hash: str) -> _P
         )
     ).scalar_one()
     current = session.execute(
-        select(schema.CalibrationRow.id).where(
-            schema.CalibrationRow.run_id == row.id, schema.CalibrationRow.superseded_by.is_(None)
-        )
+        select(schema.CalibrationRow.id).where(schema.CalibrationRow.run_id == row.id, CURRENT)
     ).scalar_one_or_none()
     return _Plan(
         run_pk=row.id,
@@ -336,7 +176,7 @@ def archive_run(
     when the transaction fails (nothing of the run is then in the database).
     """
     extra_files = dict(extra_files or {})
-    _validate(run, extra_files)
+    validate(run, extra_files)
     seal.check_reason(reason)
     raw_hash = raw_hash_of([f.sha256 for f in run.raw_files])
     run_id = run_id_of(raw_hash)
@@ -511,7 +351,12 @@ def _write_rows(
         if run_pk is None:
             rel_dir = rdir.relative_to(root).as_posix()
             run_pk = _insert_run(s, run, raw_hash, run_id, rel_dir, written.samples)
-        cal = schema.CalibrationRow(
+        previous = None
+        if plan.previous_id is not None:
+            previous = s.get(schema.CalibrationRow, plan.previous_id)
+        cal = add_revision(
+            s,
+            previous,
             run_id=run_pk,
             revision=plan.revision,
             settings_hash=settings_hash,
@@ -523,10 +368,6 @@ def _write_rows(
             profile_name=run.profile_name,
             profile_version=run.profile_version,
         )
-        s.add(cal)
-        s.flush()
-        if plan.previous_id is not None:
-            s.get(schema.CalibrationRow, plan.previous_id).superseded_by = cal.id
         _insert_children(s, run, run_pk, cal.id)
         s.flush()
         device_id = s.scalar(select(schema.Run.device_id).where(schema.Run.id == run_pk))
@@ -539,183 +380,6 @@ def _write_rows(
 
 
 # --- judged again ----------------------------------------------------------------
-
-
-@dataclass
-class Rejudgement:
-    """A run's current revision judged again against the unit's earlier runs.
-
-    run_id : the run.
-    calibration_id : the revision judged again; it must still be the current one.
-    earlier : run ids of the unit's runs (same procedure) made before it, most recent first,
-        as the new checks saw them; they must still be the archive's.
-    checks : every check of the new revision.
-    check_statistics : the statistics of its ``check`` step.
-    verdict : the new verdict.
-    step : the step record of the judgement, appended to the revision's steps.
-    reason : why, into the audit trail.
-    """
-
-    run_id: str
-    calibration_id: int
-    earlier: list[str]
-    checks: list[CheckResult]
-    check_statistics: dict[str, Any]
-    verdict: str
-    step: StepRecord
-    reason: str
-
-
-def rejudge_run(archive: Archive, judged: Rejudgement) -> ArchiveResult | None:
-    """A new revision of a run with the same parameters, document and steps, judged again.
-
-    Its settings are the revision's; its ``rejudge`` step records the runs it was judged
-    against (`JUDGED_AGAINST`: ``judged.earlier``), and its settings hash covers them
-    besides the settings (`settings_hash`), so a reader recomputes it from the sealed
-    rows (`storage.verify`). Sealed as "revised" with the reason.
-
-    Returns
-    -------
-    ArchiveResult ("revised"); None when the archive changed since the checks were made
-    (another revision of the run, another earlier run): judge again.
-    """
-    seal.check_reason(judged.reason)
-    engine = archive.engine().execution_options(sqlite_begin="IMMEDIATE")
-    try:
-        with Session(engine) as s, s.begin():
-            prev = s.get(schema.CalibrationRow, judged.calibration_id)
-            run = s.get(schema.Run, prev.run_id) if prev is not None else None
-            if run is None or run.run_id != judged.run_id or prev.superseded_by is not None:
-                return None
-            if _earlier_runs(s, run) != judged.earlier:
-                return None
-            cal = _judged_again(s, prev, run.procedure, judged)
-            unit_latest.refresh(s.connection(), run.device_id)
-            seal.seal_calibration(s.connection(), cal.id, "revised", reason=judged.reason)
-            result = ArchiveResult(
-                "revised",
-                run.run_id,
-                cal.revision,
-                cal.id,
-                archive.root / run.run_dir,
-                f"run {run.run_id} judged again: revision {cal.revision} supersedes "
-                f"revision {prev.revision} ({judged.reason})",
-            )
-    except IntegrityError:  # a concurrent revision of the same run won
-        return None
-    return result
-
-
-def _earlier_runs(s: Session, run: schema.Run) -> list[str]:
-    """Run ids of the unit's runs by the same procedure made before `run`, with a current
-    revision, most recent first (`storage.queries.repeatability_candidates`' order)."""
-    return list(
-        s.scalars(
-            select(schema.Run.run_id)
-            .join(schema.CalibrationRow, schema.CalibrationRow.run_id == schema.Run.id)
-            .where(
-                schema.Run.device_id == run.device_id,
-                schema.Run.procedure == run.procedure,
-                schema.Run.started_at < run.started_at,
-                CURRENT,
-            )
-            .order_by(*LATEST_RUN_FIRST)
-        )
-    )
-
-
-def _judged_again(
-    s: Session, prev: schema.CalibrationRow, procedure: str, judged: Rejudgement
-) -> schema.CalibrationRow:
-    """The rows of the new revision: `prev`'s, with the checks and verdict of `judged`."""
-    revision = 1 + s.scalar(
-        select(func.max(schema.CalibrationRow.revision)).where(
-            schema.CalibrationRow.run_id == prev.run_id
-        )
-    )
-    cal = schema.CalibrationRow(
-        run_id=prev.run_id,
-        revision=revision,
-        settings_hash=settings_hash(
-            prev.settings, procedure, prev.profile_name, prev.profile_version, judged.earlier
-        ),
-        settings=prev.settings,
-        software_version=prev.software_version,
-        source_revision=prev.source_revision,
-        document=prev.document,
-        verdict=judged.verdict,
-        profile_name=prev.profile_name,
-        profile_version=prev.profile_version,
-    )
-    s.add(cal)
-    s.flush()
-    prev.superseded_by = cal.id
-    steps = (
-        s.execute(
-            select(schema.ProcessingStep)
-            .where(schema.ProcessingStep.calibration_id == prev.id)
-            .order_by(schema.ProcessingStep.seq)
-        )
-        .scalars()
-        .all()
-    )
-    rows = [
-        {
-            "run_id": prev.run_id,
-            "calibration_id": cal.id,
-            "seq": i,
-            "name": st.name,
-            "settings": st.settings,
-            "statistics": judged.check_statistics if st.name == "check" else st.statistics,
-            "software_version": st.software_version,
-            "source_revision": st.source_revision,
-        }
-        for i, st in enumerate(steps)
-    ]
-    rows.append(
-        {
-            "run_id": prev.run_id,
-            "calibration_id": cal.id,
-            "seq": len(rows),
-            "name": REJUDGE_STEP,
-            "settings": {**judged.step.settings, JUDGED_AGAINST: judged.earlier},
-            "statistics": judged.step.statistics,
-            "software_version": judged.step.software_version,
-            "source_revision": prev.source_revision,
-        }
-    )
-    _insert_many(s, schema.ProcessingStep, rows)
-    params = s.execute(
-        select(
-            schema.ParameterRow.name,
-            schema.ParameterRow.value,
-            schema.ParameterRow.std,
-            schema.ParameterRow.unit,
-            schema.ParameterRow.temperature_c,
-        )
-        .where(schema.ParameterRow.calibration_id == prev.id)
-        .order_by(schema.ParameterRow.id)
-    ).all()
-    _insert_many(s, schema.ParameterRow, [{"calibration_id": cal.id, **p._mapping} for p in params])
-    _insert_many(
-        s,
-        schema.CheckResultRow,
-        [
-            {
-                "calibration_id": cal.id,
-                "name": c.name,
-                "value": c.value,
-                "limit": c.limit,
-                "passed": c.passed,
-                "detail": c.detail,
-                "profile_name": prev.profile_name,
-                "profile_version": prev.profile_version,
-            }
-            for c in judged.checks
-        ],
-    )
-    s.flush()
-    return cal
 
 
 def _revision_reason(s: Session, previous_id: int, settings_hash: str, software: str) -> str:
@@ -731,46 +395,14 @@ def _revision_reason(s: Session, previous_id: int, settings_hash: str, software:
 
 def _insert_children(s: Session, run: RunIn, run_pk: int, cal_id: int) -> None:
     """The step, parameter and check rows of a new calibration revision."""
-    steps = [
-        {
-            "run_id": run_pk,
-            "calibration_id": cal_id,
-            "seq": i,
-            "name": st.name,
-            "settings": st.settings,
-            "statistics": st.statistics,
-            "software_version": st.software_version,
-            "source_revision": run.source_revision,
-        }
-        for i, st in enumerate(run.steps)
-    ]
-    _insert_many(s, schema.ProcessingStep, steps)
+    steps = [step_row(run_pk, cal_id, i, st, run.source_revision) for i, st in enumerate(run.steps)]
+    insert_many(s, schema.ProcessingStep, steps)
     rows = [
-        {
-            "calibration_id": cal_id,
-            "name": p.name,
-            "value": p.value,
-            "std": p.std,
-            "unit": p.unit,
-            "temperature_c": run.parameter_temperature_c,
-        }
-        for p in run.parameters
+        {"calibration_id": cal_id, **p.to_row(run.parameter_temperature_c)} for p in run.parameters
     ]
-    _insert_many(s, schema.ParameterRow, rows)
-    checks = [
-        {
-            "calibration_id": cal_id,
-            "name": c.name,
-            "value": c.value,
-            "limit": c.limit,
-            "passed": c.passed,
-            "detail": c.detail,
-            "profile_name": run.profile_name,
-            "profile_version": run.profile_version,
-        }
-        for c in run.checks
-    ]
-    _insert_many(s, schema.CheckResultRow, checks)
+    insert_many(s, schema.ParameterRow, rows)
+    checks = check_rows(cal_id, run.checks, run.profile_name, run.profile_version)
+    insert_many(s, schema.CheckResultRow, checks)
 
 
 def _insert_run(
@@ -824,16 +456,16 @@ def _insert_run(
     )
     s.add(row)
     s.flush()
-    for i, eq in enumerate(run.equipment):
+    for eq in run.equipment:
         s.add(
             schema.RunEquipment(
                 run_id=row.id,
                 equipment_id=_equipment_id(s, eq),
-                calibration_due=_as_date(eq.get("calibration_due"), f"equipment[{i}]"),
-                calibrated_on=_as_date(eq.get("calibrated_on"), f"equipment[{i}]"),
+                calibration_due=eq.calibration_due,
+                calibrated_on=eq.calibrated_on,
             )
         )
-    _insert_many(
+    insert_many(
         s,
         schema.RawFileRow,
         [
@@ -874,33 +506,15 @@ def _guard_description(s: Session, run: RunIn, device_pk: int, run_id: str) -> N
         )
 
 
-def _insert_many(s: Session, model: type[Base], rows: list[dict[str, Any]]) -> None:
-    """INSERT the rows in one executemany, on the session's connection (Core).
-
-    The tens of step, parameter and check rows of a run need no ORM objects,
-    whose bookkeeping cost more than the SQL; the ORM's bulk insert of the same
-    rows, the same statement and defaults, still cost more than Core.
-    """
-    if rows:  # an empty parameter list would insert one row of defaults
-        s.connection().execute(insert(model.__table__), rows)
-
-
-def _equipment_id(s: Session, eq: dict[str, Any]) -> int:
+def _equipment_id(s: Session, eq: EquipmentIn) -> int:
     found = s.scalars(
         select(schema.Equipment.id).where(
-            schema.Equipment.kind == eq["kind"], schema.Equipment.serial == eq["serial"]
+            schema.Equipment.kind == eq.kind, schema.Equipment.serial == eq.serial
         )
     ).one_or_none()
     if found is not None:
         return found
-    row = schema.Equipment(
-        kind=eq["kind"],
-        serial=eq["serial"],
-        model=eq.get("model"),
-        accuracy_class=eq.get("accuracy_class"),
-        calibration_due=_as_date(eq.get("calibration_due"), "equipment.calibration_due"),
-        calibrated_on=_as_date(eq.get("calibrated_on"), "equipment.calibrated_on"),
-    )
+    row = schema.Equipment(**asdict(eq))  # its fields are the table's columns
     s.add(row)
     s.flush()
     return row.id

@@ -22,7 +22,7 @@ from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 from sqlalchemy import Connection, func, select
 
-from storage import seal
+from storage import seal, seal_check, seal_record
 from storage.db import Archive
 from storage.schema import AuditEvent, Run, Seal, utcnow
 
@@ -53,17 +53,17 @@ def make(
         "events": [h[:PREFIX] for h in hashes],
     }
     if key is not None:
-        from storage.approval import _public_hex
+        from storage.approval import public_key_hex
 
         if not signer:
             raise ValueError("a signed checkpoint needs the signer's name")
-        doc["signer"], doc["public_key"] = signer, _public_hex(key.public_key())
+        doc["signer"], doc["public_key"] = signer, public_key_hex(key.public_key())
         doc["signature"] = key.sign(_message(doc)).hex()
     return doc
 
 
 def _message(doc: dict[str, Any]) -> bytes:
-    return seal.canonical({k: v for k, v in doc.items() if k != "signature"})
+    return seal_record.canonical({k: v for k, v in doc.items() if k != "signature"})
 
 
 def write(doc: dict[str, Any], path: Path) -> None:
@@ -117,15 +117,15 @@ def signature_error(doc: dict[str, Any]) -> str | None:
     return None
 
 
-def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal.Finding]:
+def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal_check.Finding]:
     """Whether the chain now extends the checkpoint `doc` (read from `source`) exactly;
     a finding naming the first event that differs, or the events gone, if not."""
-    found: list[seal.Finding] = []
+    found: list[seal_check.Finding] = []
     when = f"the checkpoint {source} of {doc.get('at', '?')[:19]}"
     error = signature_error(doc)
     if error is not None:
         found.append(
-            seal.Finding(
+            seal_check.Finding(
                 "checkpoint",
                 source,
                 [],
@@ -148,7 +148,7 @@ def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal.Findi
         full = doc["hash"] if seq == doc["seq"] else None
         if hash_[:PREFIX] != kept or (full is not None and hash_ != full):
             found.append(
-                seal.Finding(
+                seal_check.Finding(
                     "checkpoint",
                     "audit_events",
                     [run_id] if run_id else [],
@@ -163,8 +163,8 @@ def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal.Findi
     return found
 
 
-def _gone(when: str, first: int, last: int, doc: dict[str, Any]) -> seal.Finding:
-    return seal.Finding(
+def _gone(when: str, first: int, last: int, doc: dict[str, Any]) -> seal_check.Finding:
+    return seal_check.Finding(
         "checkpoint",
         "audit_events",
         [],

@@ -11,34 +11,88 @@ Supersession is taken as it is now, also for an `as_of` question (the archive an
 "which run started before D holds the calibration we trust today"). The questions of
 storage.queries (the CLI, the web pages) and the derived tables (storage.unit_latest,
 which the fleet page reads and verify checks) build their picks from these, so they
-cannot disagree.
+cannot disagree. The rule is written once, as `current` (a SQL condition on any form of
+the calibrations table: mapped, aliased, light) and `is_current` (on a row read); the
+mapped forms below are built from them on first use, so a reader of light table
+clauses (storage.queries.unit_history) uses the rule without the mapped tables.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from functools import cache
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import ColumnElement, Select, select
 
-from storage.schema import CalibrationRow, Run
+if TYPE_CHECKING:
+    from sqlalchemy.sql.elements import UnaryExpression
 
 PASS = "pass"
 
-CURRENT: ColumnElement[bool] = CalibrationRow.superseded_by.is_(None)
-VALID: ColumnElement[bool] = CURRENT & (CalibrationRow.verdict == PASS)
-# Latest first: runs (index ix_runs_device_id_started_at_id walked backwards), then
-# of a run's current revisions the later one.
-LATEST_RUN_FIRST = (Run.started_at.desc(), Run.id.desc())
-LATEST_FIRST = (*LATEST_RUN_FIRST, CalibrationRow.id.desc())
+
+def current(calibrations: Any) -> ColumnElement[bool]:
+    """The current revisions of a calibrations table (its mapped class, an alias or a
+    light `table` clause with the column ``superseded_by``)."""
+    return _columns(calibrations).superseded_by.is_(None)
+
+
+def superseded(calibrations: Any) -> ColumnElement[bool]:
+    """The revisions a later one supersedes: not `current`."""
+    return _columns(calibrations).superseded_by.is_not(None)
+
+
+def is_current(superseded_by: int | None) -> bool:
+    """The rule on a revision read: its ``superseded_by`` value."""
+    return superseded_by is None
+
+
+def _columns(calibrations: Any) -> Any:
+    """A table clause's columns (``.c``); a mapped class or ORM alias is its own."""
+    return getattr(calibrations, "c", calibrations)
+
+
+if TYPE_CHECKING:  # built on first use by `__getattr__`
+    CURRENT: ColumnElement[bool]
+    VALID: ColumnElement[bool]
+    LATEST_RUN_FIRST: tuple[UnaryExpression, UnaryExpression]
+    LATEST_FIRST: tuple[UnaryExpression, UnaryExpression, UnaryExpression]
+
+
+@cache
+def _mapped() -> dict[str, Any]:
+    """The rule on the mapped tables (storage.schema)."""
+    from storage.schema import CalibrationRow, Run
+
+    current_ = current(CalibrationRow)
+    # Latest first: runs (index ix_runs_device_id_started_at_id walked backwards), then
+    # of a run's current revisions the later one.
+    latest_run_first = (Run.started_at.desc(), Run.id.desc())
+    return {
+        "CURRENT": current_,
+        "VALID": current_ & (CalibrationRow.verdict == PASS),
+        "LATEST_RUN_FIRST": latest_run_first,
+        "LATEST_FIRST": (*latest_run_first, CalibrationRow.id.desc()),
+    }
+
+
+def __getattr__(name: str) -> Any:
+    if name not in ("CURRENT", "VALID", "LATEST_RUN_FIRST", "LATEST_FIRST"):
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    built = _mapped()
+    globals().update(built)
+    return built[name]
 
 
 def latest_valid_pick(*where: Any) -> Select:
     """``SELECT calibrations.id``: the latest valid calibration among runs meeting `where`
     (conditions on Run, e.g. its unit and a start bound); make it a scalar subquery."""
+    from storage.schema import CalibrationRow, Run
+
+    rule = _mapped()
     return (
         select(CalibrationRow.id)
         .join(Run, Run.id == CalibrationRow.run_id)
-        .where(VALID, *where)
-        .order_by(*LATEST_FIRST)
+        .where(rule["VALID"], *where)
+        .order_by(*rule["LATEST_FIRST"])
         .limit(1)
     )

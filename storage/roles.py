@@ -129,10 +129,10 @@ def guard_statements() -> list[str]:
     """The SQL of the function and trigger the writer and approver are held by (idempotent)."""
     # storage.seal loads the file store (pyarrow): imported here, so that reading the role
     # names (storage.queries.readonly) stays light for the read-only commands.
-    from storage.seal import _PG_CHAIN_LOCK
+    from storage.seal import PG_CHAIN_LOCK
 
     stmts = [
-        _APPEND_FUNCTION.replace("LOCK_KEY", str(_PG_CHAIN_LOCK)).strip(),
+        _APPEND_FUNCTION.replace("LOCK_KEY", str(PG_CHAIN_LOCK)).strip(),
         f"REVOKE ALL ON FUNCTION {APPEND_EVENT} FROM PUBLIC",
         _SUPERSEDE_FUNCTION.strip(),
     ]

@@ -15,8 +15,9 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from storage import seal
+from storage.current import current
 from storage.db import Archive
-from storage.queries.thermal import _device_id
+from storage.queries.thermal import device_pk
 from storage.schema import CalibrationRow, Run, ThermalModelRow
 
 
@@ -44,7 +45,7 @@ def archive_thermal_model(
         raise ValueError("a thermal model must name the calibrations it was fitted from")
     # SQLite: the write lock at BEGIN (the audit chain is read and appended to).
     with Session(archive.engine().execution_options(sqlite_begin="IMMEDIATE")) as s, s.begin():
-        device_id = _device_id(s, serial)
+        device_id = device_pk(s, serial)
         known = set(
             s.execute(
                 select(CalibrationRow.id)
@@ -70,7 +71,7 @@ def archive_thermal_model(
         for old in s.execute(
             select(ThermalModelRow).where(
                 ThermalModelRow.device_id == device_id,
-                ThermalModelRow.superseded_by.is_(None),
+                current(ThermalModelRow),
                 ThermalModelRow.id != row.id,
             )
         ).scalars():

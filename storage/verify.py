@@ -12,7 +12,7 @@ derivation from the runs. The ``parameters`` rows of every
 calibration must agree with the parameters of its stored document (both are
 written from the same objects): any difference, a missing or an extra row is a
 *record* problem naming run, revision, parameter, field and both values. The
-settings hash of a revision judged again (storage.archive.rejudge_run) is
+settings hash of a revision judged again (storage.rejudgement.rejudge_run) is
 recomputed from its settings and the runs its ``rejudge`` step says it was judged
 against.
 
@@ -34,6 +34,7 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.orm import aliased
 
 from storage import rawstore, unit_latest
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.schema import CalibrationRow, ParameterRow, ProcessingStep, RawFileRow, Run
 
@@ -214,7 +215,7 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
         .select_from(Run)
         .outerjoin(
             CalibrationRow,
-            (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None),
+            (CalibrationRow.run_id == Run.id) & CURRENT,
         )
         .group_by(Run.run_id)
     )
@@ -319,9 +320,9 @@ def _check_unit_latest(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a 
 
 
 def _check_seals(conn, root: Path, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
-    from storage import approval, seal
+    from storage import approval, seal_check
 
-    found = seal.check(conn, root)
+    found = seal_check.check(conn, root)
     report.chain_head, report.seals_checked = found.head, found.seals_checked
     findings = found.findings + approval.check(conn, found.digests_now)
     report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]

@@ -193,6 +193,23 @@ def serve_sample(tmp_path_factory: pytest.TempPathFactory):
 
 
 @pytest.fixture(scope="module")
+def archived_sample(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, str]:
+    """The MPU-6000 sample run (data_samples/mpu6000_MPU0001) processed into an archive of
+    the module's own: (archive, run id)."""
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+    from storage.db import resolve_archive
+
+    arch = resolve_archive(str(tmp_path_factory.mktemp("sample") / "archive"))
+    arch.upgrade()
+    sample = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"
+    (source,) = discover_runs([sample])
+    outcome = process_run(source, arch)
+    assert outcome["status"] == "ok", outcome
+    return arch, outcome["run_id"]
+
+
+@pytest.fixture(scope="module")
 def issuing_certificates() -> Iterator[None]:
     """Certificates issued when runs are archived, for the module that asks (module scope,
     so its archives built by module fixtures get them too)."""

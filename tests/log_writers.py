@@ -54,12 +54,17 @@ def _ulog_topic(ulog_cls, formats, name: str, fields, msg_id: int, multi_id: int
 
 
 def write_ulog(
-    path: Path, rec: Recording, *, topics: str = "separate", separate_every: int = 1
+    path: Path,
+    rec: Recording,
+    *,
+    topics: str = "separate",
+    separate_every: int = 1,
+    device_ids: tuple[int, int] = (1, 1),
 ) -> None:
     """One segment as a ULog: ``separate`` (sensor_accel + sensor_gyro, with temperature),
     ``combined`` (sensor_combined) or ``both``. `separate_every` > 1 logs sensor_accel /
     sensor_gyro with every so many samples only (PX4 logs them at 1 Hz beside a fast
-    sensor_combined)."""
+    sensor_combined). `device_ids`: the (accel, gyro) ``device_id`` fields."""
     from pyulog import ULog
 
     ulog = ULog(None)
@@ -79,7 +84,7 @@ def write_ulog(
             values = {
                 "timestamp": stamps[k],
                 "timestamp_sample": stamps[k],
-                "device_id": 1,
+                "device_id": device_ids[i],
                 "x": v[k, 0],
                 "y": v[k, 1],
                 "z": v[k, 2],
@@ -213,6 +218,17 @@ def _ros_messages(store, rec: Recording, stamps, table_rate: float | None, slow_
             yield "/table/joint_states", "sensor_msgs/msg/JointState", ns, msg
 
 
+def _write_ros(writer, store, serialize, rec: Recording, table_rate, slow_every) -> None:  # noqa: ANN001
+    """`rec`'s messages into an open rosbags `writer`, serialised by `serialize`
+    (the typestore's CDR for ROS 2, ROS 1 for ROS 1)."""
+    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
+    conns = {}
+    for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate, slow_every):
+        if topic not in conns:
+            conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+        writer.write(conns[topic], ns, serialize(msg, msgtype))
+
+
 def write_rosbag2(
     folder: Path, rec: Recording, *, table_rate: float | None = None, slow_every: int | None = None
 ) -> Path:
@@ -221,13 +237,8 @@ def write_rosbag2(
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_HUMBLE)
-    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
-    conns = {}
     with Writer(folder, version=9, storage_plugin=StoragePlugin.SQLITE3) as writer:
-        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate, slow_every):
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-            writer.write(conns[topic], ns, store.serialize_cdr(msg, msgtype))
+        _write_ros(writer, store, store.serialize_cdr, rec, table_rate, slow_every)
     (db3,) = folder.glob("*.db3")
     return db3
 
@@ -240,10 +251,25 @@ def write_rosbag1(
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC)
-    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
-    conns = {}
     with Writer(path) as writer:
-        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate, slow_every):
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-            writer.write(conns[topic], ns, store.serialize_ros1(msg, msgtype))
+        _write_ros(writer, store, store.serialize_ros1, rec, table_rate, slow_every)
+
+
+# --- MCAP (mcap-ros2-support's writer) ------------------------------------------------
+
+
+def write_mcap(path: Path, rec: Recording, *, chunk_size: int = 4096) -> None:
+    """One segment as a ROS 2 MCAP log (sensor_msgs/msg/Imu on /imu/data, header stamps on
+    T0_NS), written by mcap-ros2-support in zstd chunks of about `chunk_size` bytes."""
+    from mcap.writer import CompressionType
+    from mcap_ros2.writer import Writer as Ros2Writer
+    from test_ingest_mcap import IMU_MSGDEF, imu_message
+
+    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
+    with path.open("wb") as f:
+        w = Ros2Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        schema = w.register_msgdef("sensor_msgs/msg/Imu", IMU_MSGDEF)
+        for i in range(len(rec)):
+            msg = imu_message(int(stamps[i]), rec.acc[i], rec.gyr[i])
+            w.write_message("/imu/data", schema, msg, log_time=int(stamps[i]))
+        w.finish()

@@ -31,8 +31,9 @@ from pipelines import exports
 from pipelines.cli import app
 from storage import queries
 from storage import thermal as thermal_store
-from storage.archive import RunIn, archive_run
+from storage.archive import archive_run
 from storage.db import resolve_archive
+from storage.run_input import RunIn
 
 SERIAL = "TH-0042"
 TEMPS = (-10.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0)
@@ -170,23 +171,25 @@ def test_apply_round_trip_at_an_untested_temperature(campaign, tmp_path):
     assert np.all(rms(raw_acc) > 1.5 * truth.acc_noise), rms(raw_acc) / truth.acc_noise
 
 
+def _apply_args(source, out, campaign) -> list[str]:
+    """`calib apply` of `source` into `out` with SERIAL's calibrations of the campaign."""
+    return [
+        "apply",
+        str(source),
+        str(out),
+        "--serial",
+        SERIAL,
+        "--archive",
+        str(campaign["archive"].root),
+    ]
+
+
 def test_apply_to_one_mpu6000_file_writes_csv(campaign, tmp_path):
     truth, rng = campaign["truth"], campaign["rng"]
     sim = six_position_integral_run(truth.errors_at(UNTESTED_C), rng, temp_c=UNTESTED_C)
     files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "mpu", SERIAL)
     out = tmp_path / "z_up.csv"
-    res = CliRunner().invoke(
-        app,
-        [
-            "apply",
-            str(files[0]),
-            str(out),
-            "--serial",
-            SERIAL,
-            "--archive",
-            str(campaign["archive"].root),
-        ],
-    )
+    res = CliRunner().invoke(app, _apply_args(files[0], out, campaign))
     assert res.exit_code == 0, res.output
     df = pd.read_csv(out)
     assert list(df.columns) == [
@@ -215,15 +218,7 @@ def test_apply_prints_a_table_and_warns_of_another_serial(campaign, tmp_path):
     sim = six_position_integral_run(truth.errors_at(UNTESTED_C), rng, temp_c=UNTESTED_C)
     files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "mpu", "OTHER-7")
     out = tmp_path / "z_up.csv"
-    args = [
-        "apply",
-        str(files[0]),
-        str(out),
-        "--serial",
-        SERIAL,
-        "--archive",
-        str(campaign["archive"].root),
-    ]
+    args = _apply_args(files[0], out, campaign)
     res = CliRunner().invoke(app, args, env={"COLUMNS": "80"})
     assert res.exit_code == 0, res.output
     assert not res.stdout.lstrip().startswith("{")
@@ -234,7 +229,7 @@ def test_apply_prints_a_table_and_warns_of_another_serial(campaign, tmp_path):
     facts = json.loads(res.stdout)
     assert facts["data_serial"] == "OTHER-7" and len(facts["warnings"]) == 1
     files = write_mpu6000_run({"z_up": sim.segments["z_up"]}, tmp_path / "own", SERIAL)
-    res = CliRunner().invoke(app, [*args[:1], str(files[0]), *args[2:], "--json"])
+    res = CliRunner().invoke(app, [*_apply_args(files[0], out, campaign), "--json"])
     assert res.exit_code == 0 and "warning" not in res.stderr
     assert json.loads(res.stdout)["warnings"] == []
 
@@ -275,8 +270,10 @@ def test_apply_errors_are_clear(campaign, tmp_path):
 def test_thermal_export_command(campaign, tmp_path, fmt):
     arch = campaign["archive"]
     out = tmp_path / f"export.{fmt}"
+    ids = ["--device-id", "1310988"] if fmt == "px4" else []  # its CSV runs record none
     res = CliRunner().invoke(
-        app, ["thermal", "export", SERIAL, str(out), "--format", fmt, "--archive", str(arch.root)]
+        app,
+        ["thermal", "export", SERIAL, str(out), "--format", fmt, "--archive", str(arch.root), *ids],
     )
     assert res.exit_code == 0, res.output
     model = ThermalModel.from_dict(queries.latest_thermal_model(arch, SERIAL)["document"])

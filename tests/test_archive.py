@@ -21,15 +21,9 @@ from sqlalchemy import func, select
 
 from calib_core.calibration import Calibration, CheckResult, Parameter, StepRecord
 from storage import queries, rawstore
-from storage.archive import (
-    ArchiveError,
-    RawFileIn,
-    RunIn,
-    archive_run,
-    raw_hash_of,
-    run_id_of,
-)
+from storage.archive import ArchiveError, archive_run
 from storage.db import Archive, default_archive_url, resolve_archive
+from storage.run_input import RawFileIn, RunIn, raw_hash_of, run_id_of
 from storage.schema import TABLES, Base
 from storage.verify import verify
 

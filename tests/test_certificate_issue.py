@@ -21,8 +21,9 @@ from calib_testing.documents import html_words, pdf_pages
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.reports.issue import ISSUED, issued, issues
-from storage.db import Archive, resolve_archive
+from pipelines.reports.issue import ISSUED, issued
+from storage.db import resolve_archive
+from storage.queries import certificate_issues as issues
 from storage.verify import verify
 
 SAMPLE = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"
@@ -30,18 +31,8 @@ SAMPLE = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0
 pytestmark = [pytest.mark.usefixtures("issuing_certificates"), pytest.mark.slow]
 
 
-@pytest.fixture(scope="module")
-def archived(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, str]:
-    arch = resolve_archive(str(tmp_path_factory.mktemp("issue") / "archive"))
-    arch.upgrade()
-    (source,) = discover_runs([SAMPLE])
-    outcome = process_run(source, arch)
-    assert outcome["status"] == "ok", outcome
-    return arch, outcome["run_id"]
-
-
-def test_certificate_is_issued_and_sealed_when_archived(archived) -> None:
-    arch, run_id = archived
+def test_certificate_is_issued_and_sealed_when_archived(archived_sample) -> None:
+    arch, run_id = archived_sample
     current = issued(arch, run_id)
     assert current is not None and current.issue == 1 and current.number == f"{run_id}-1"
     assert set(current.files) == {"protocol", "html", "pdf"}
@@ -55,10 +46,10 @@ def test_certificate_is_issued_and_sealed_when_archived(archived) -> None:
     assert verify(arch).ok
 
 
-def test_every_word_of_the_html_certificate_is_in_the_pdf(archived) -> None:
+def test_every_word_of_the_html_certificate_is_in_the_pdf(archived_sample) -> None:
     """Typeset, not cut: each word of the HTML is in the PDF's text, the header and footer
     give the certificate number and "page x of y" on every page."""
-    arch, run_id = archived
+    arch, run_id = archived_sample
     current = issued(arch, run_id)
     words = html_words(current.files["html"].read_text(encoding="utf-8"))
     pages = pdf_pages(current.files["pdf"])
@@ -74,8 +65,8 @@ def test_every_word_of_the_html_certificate_is_in_the_pdf(archived) -> None:
         assert page.count(f"Certificate {current.number}") >= 2  # header and footer
 
 
-def test_calib_report_hands_out_the_archived_files_and_reissues(archived, tmp_path) -> None:
-    arch, run_id = archived
+def test_calib_report_hands_out_the_archived_files_and_reissues(archived_sample, tmp_path) -> None:
+    arch, run_id = archived_sample
     first = issued(arch, run_id)
     before = {k: p.read_bytes() for k, p in first.files.items()}
     args = ["report", run_id, "--archive", str(arch.root), "--json"]
@@ -114,11 +105,11 @@ def test_verify_reports_a_changed_issued_certificate(tmp_path) -> None:
     assert "is missing" in " ".join(p.detail for p in verify(arch).problems)
 
 
-def test_web_pages_serve_the_archived_files(archived) -> None:
+def test_web_pages_serve_the_archived_files(archived_sample) -> None:
     from pipelines.web.app import create_app
     from storage.queries import open_readonly
 
-    arch, run_id = archived
+    arch, run_id = archived_sample
     current = issued(arch, run_id)
     ro = open_readonly(arch)
     client = TestClient(create_app(ro))
@@ -134,19 +125,19 @@ def test_web_pages_serve_the_archived_files(archived) -> None:
     ro.dispose()
 
 
-def test_the_issue_event_is_in_the_audit_trail(archived) -> None:
-    arch, run_id = archived
+def test_the_issue_event_is_in_the_audit_trail(archived_sample) -> None:
+    arch, run_id = archived_sample
     result = CliRunner().invoke(app, ["audit", run_id, "--archive", str(arch.root), "--json"])
     assert result.exit_code == 0, result.output
     assert ISSUED in {e["action"] for e in json.loads(result.stdout)}
 
 
-def test_certificate_shows_numbers_as_the_cli_does(archived) -> None:
+def test_certificate_shows_numbers_as_the_cli_does(archived_sample) -> None:
     """The Results table: each parameter as `pipelines.reports.display.shown` gives it."""
     from pipelines.reports.display import shown
     from storage import queries
 
-    arch, run_id = archived
+    arch, run_id = archived_sample
     html = issued(arch, run_id).files["html"].read_text(encoding="utf-8")
     for p in queries.run_summary(arch, run_id)["calibration"]["parameters"]:
         s = shown(p["name"], p["value"], p["std"])

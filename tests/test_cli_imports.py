@@ -16,53 +16,23 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from calib_testing.cli_imports import modules_loaded
 from pipelines.cli import app
-from pipelines.ingest import discover_runs
-from pipelines.process import process_run
-from storage.db import Archive, resolve_archive
 from storage.instants import UTCDateTime
 from storage.queries import unit_history
 from storage.schema import Base
 
 ROOT = Path(__file__).resolve().parent.parent
-SAMPLE = ROOT / "data_samples" / "mpu6000_MPU0001"
 SCIENCE = ("numpy", "scipy", "pandas", "pyarrow", "matplotlib", "prefect", "weasyprint", "typst")
 # What `calib history` also leaves alone on SQLite: the mapped tables (and the PostgreSQL
 # dialect their index options load), PostgreSQL's driver, typer's pydantic conversion.
 ARCHIVE_EXTRAS = ("storage.schema", "sqlalchemy.dialects.postgresql", "psycopg", "pydantic")
 
 
-@pytest.fixture(scope="module")
-def archived(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, str]:
-    arch = resolve_archive(str(tmp_path_factory.mktemp("imports") / "archive"))
-    arch.upgrade()
-    (source,) = discover_runs([SAMPLE])
-    outcome = process_run(source, arch)
-    assert outcome["status"] == "ok", outcome
-    return arch, outcome["run_id"]
-
-
-def _loaded(argv: list[str], watch: tuple[str, ...]) -> list[str]:
-    """The modules of `watch` a fresh interpreter has loaded after ``calib ARGV`` (which
-    must succeed)."""
-    code = (
-        "import json, sys\nfrom pipelines.cli import app\n"
-        f"try:\n    app({argv!r})\n"
-        "except SystemExit as e:\n    assert not e.code, e.code\n"
-        f"print(json.dumps([m for m in {watch!r} if m in sys.modules]))\n"
-    )
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
-    done = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
-    )
-    assert done.returncode == 0, done.stdout + done.stderr
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-def test_history_loads_neither_the_science_stack_nor_the_mapped_tables(archived) -> None:
-    arch, _ = archived
+def test_history_loads_neither_the_science_stack_nor_the_mapped_tables(archived_sample) -> None:
+    arch, _ = archived_sample
     argv = ["history", "MPU0001", "--archive", str(arch.root)]
-    assert _loaded(argv, SCIENCE + ARCHIVE_EXTRAS) == []
+    assert modules_loaded(argv, SCIENCE + ARCHIVE_EXTRAS) == []
 
 
 @pytest.mark.parametrize(
@@ -70,32 +40,32 @@ def test_history_loads_neither_the_science_stack_nor_the_mapped_tables(archived)
     [["--version"], ["--help"], ["audit", "MPU0001"], ["verify"], ["show", "RUN"]],
     ids=["version", "help", "audit", "verify", "show"],
 )
-def test_read_only_commands_load_no_science_stack(archived, args) -> None:
+def test_read_only_commands_load_no_science_stack(archived_sample, args) -> None:
     """`calib show` converts values to display units with numpy (calib_core.units), so
     numpy is its one; the others load none of it."""
-    arch, run_id = archived
+    arch, run_id = archived_sample
     argv = [run_id if a == "RUN" else a for a in args]
     if not args[0].startswith("--"):
         argv += ["--archive", str(arch.root)]
     allowed = ("numpy",) if args[0] == "show" else ()
     watch = tuple(m for m in SCIENCE if m not in allowed) + ("psycopg",)
-    assert _loaded(argv, watch) == []
+    assert modules_loaded(argv, watch) == []
 
 
 @pytest.mark.parametrize(
     "args", [["query", "latest", "MPU0001"], ["query", "units"]], ids=["latest", "units"]
 )
-def test_queries_load_no_flow_plot_or_typesetting(archived, args) -> None:
+def test_queries_load_no_flow_plot_or_typesetting(archived_sample, args) -> None:
     """The questions answer in DataFrames (pandas): no Prefect, plotting or typesetter."""
-    arch, _ = archived
+    arch, _ = archived_sample
     watch = ("matplotlib", "prefect", "weasyprint", "psycopg")
-    assert _loaded([*args, "--archive", str(arch.root)], watch) == []
+    assert modules_loaded([*args, "--archive", str(arch.root)], watch) == []
 
 
 def test_trend_table_loads_no_plotting(serve_sample) -> None:
     """A trend fits (numpy, scipy); its table without --plot draws nothing (matplotlib)."""
     argv = ["trend", "DRIFT-01", "acc.bias.x", "--archive", str(serve_sample.archive.root)]
-    assert _loaded(argv, ("matplotlib", "prefect", "weasyprint", "psycopg")) == []
+    assert modules_loaded(argv, ("matplotlib", "prefect", "weasyprint", "psycopg")) == []
 
 
 def test_light_tables_name_the_schema_columns_and_types() -> None:
@@ -121,10 +91,10 @@ def test_a_question_keeps_its_name_beside_its_module() -> None:
     subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=120)
 
 
-def test_values_still_converted_and_refused_by_typer(archived) -> None:
+def test_values_still_converted_and_refused_by_typer(archived_sample) -> None:
     """Values without pydantic where they already have their type; the others (a choice,
     a number) converted, and refused, by typer as before."""
-    arch, _ = archived
+    arch, _ = archived_sample
     runner = CliRunner()
     bad = runner.invoke(app, ["query", "units", "--format", "nope", "--archive", str(arch.root)])
     assert bad.exit_code == 2 and "nope" in bad.output
@@ -154,10 +124,10 @@ def test_only_the_invoked_command_is_built(capsys: pytest.CaptureFixture[str]) -
     assert done.value.code == 2 and "Did you mean 'history'" in capsys.readouterr().err
 
 
-def test_read_only_sqlite_archive_opens_without_psycopg(archived) -> None:
+def test_read_only_sqlite_archive_opens_without_psycopg(archived_sample) -> None:
     """The read-only opener (`calib serve`'s start) takes the reader role's name from
     storage.roles; on SQLite that loads no PostgreSQL driver."""
-    arch, _ = archived
+    arch, _ = archived_sample
     code = (
         "import sys\nfrom storage.db import resolve_archive\n"
         "from storage.queries import open_readonly\n"
@@ -169,11 +139,11 @@ def test_read_only_sqlite_archive_opens_without_psycopg(archived) -> None:
     subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=120)
 
 
-def test_serve_start_loads_no_science_stack(archived) -> None:
+def test_serve_start_loads_no_science_stack(archived_sample) -> None:
     """`calib serve`'s start (the application built on a read-only archive, its lifespan
     run, a page of runs) loads none of the science stack; the unit page loads what it
     fits with when first asked for, and freezes it out of the garbage collector's sight."""
-    arch, _ = archived
+    arch, _ = archived_sample
     code = (
         "import gc, json, sys\nfrom fastapi.testclient import TestClient\n"
         "from pipelines.web.app import create_app\n"

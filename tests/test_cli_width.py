@@ -62,7 +62,35 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> dict:
     done = CliRunner().invoke(app, ["query", "units", "--archive", arch, "--format", "json"])
     ids = {r["run_id"] for r in json.loads(done.stdout)}
     centrifuge = _centrifuge_run(tmp / "centrifuge")
+    _unsigned_document(tmp)
     return {"tmp": tmp, "archive": arch, "ids": ids, "outputs": outputs, "centrifuge": centrifuge}
+
+
+def _unsigned_document(tmp: Path) -> None:
+    """An XML document without a signature and a self-signed certificate, for
+    `calib verify-certificate` (which says NOT VALID and exits 1)."""
+    import datetime
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "width test")])
+    now = datetime.datetime.now(datetime.UTC)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(name)
+        .issuer_name(name)
+        .public_key(key.public_key())
+        .serial_number(1)
+        .not_valid_before(now)
+        .not_valid_after(now + datetime.timedelta(days=1))
+        .sign(key, hashes.SHA256())
+    )
+    (tmp / "lab-cert.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    (tmp / "unsigned.xml").write_text("<dcc/>\n")
 
 
 def _centrifuge_run(folder: Path) -> Path:
@@ -109,7 +137,17 @@ def _commands(demo: dict) -> list[list[str]]:
         ["history", "IMU-R-0003", *a],
         ["show", run, *a],
         ["show", run[:6], *a],
-        ["export", run, *a, "--format", "px4", "--output", str(tmp / "unit.params")],
+        [
+            "export",
+            run,
+            *a,
+            "--format",
+            "px4",
+            "--device-id",
+            "1310988",
+            "-o",
+            str(tmp / "u.params"),
+        ],
         ["export", run, *a, "--format", "csv"],
         ["report", run, *a, "--no-pdf"],
         ["reprocess", run, "--reason", "width test", *a],
@@ -128,13 +166,24 @@ def _commands(demo: dict) -> list[list[str]]:
         ["fleet", "MPU-6000", "acc.bias.z", *a],
         ["query", "latest", "IMU-R-0003", *a],
         ["query", "lineage", run, "acc.bias.x", *a],
+        ["navfit", run, "--profile", "static-alignment", *a],
         ["query", "lapsed", "CUBE-7", *a],
         ["impact", "DAQ-12", "--from", "2026-01-01", "--error", "clock_error_ppm=500", *a],
         ["query", "units", *a],
         ["query", "due", "--before", "2030-01-01", *a],
         ["query", "history", "IMU-R-0003", "acc.bias.z", *a],
         ["query", "fleet", "MPU-6000", "acc.bias.z", *a],
-        ["thermal", "export", "IMU-T-0007", str(tmp / "thermal.params"), "--format", "px4", *a],
+        [
+            "thermal",
+            "export",
+            "IMU-T-0007",
+            str(tmp / "t.params"),
+            "--format",
+            "px4",
+            "--device-id",
+            "7",
+            *a,
+        ],
         ["thermal", "show", "IMU-T-0007", *a],
         ["centrifuge", "solve", str(demo["centrifuge"])],
         ["centrifuge", "plan", "--radius", "0.5"],
@@ -142,6 +191,12 @@ def _commands(demo: dict) -> list[list[str]]:
         ["approve", run, "--key", str(tmp / "me.key"), *a],
         ["audit", *a],
         ["verify", *a],
+        [
+            "verify-certificate",
+            str(tmp / "unsigned.xml"),
+            "--certificate",
+            str(tmp / "lab-cert.pem"),
+        ],
         ["checkpoint", "-o", str(tmp / "checkpoint.json"), *a],
         ["serve-user", str(tmp / "users"), "tester"],
         ["backup", str(tmp / "backup"), *a],

@@ -28,8 +28,9 @@ import pytest
 from sqlalchemy import func, select
 from test_archive import make_run
 
-from storage.archive import archive_run, raw_hash_of, run_id_of
+from storage.archive import archive_run
 from storage.db import Archive
+from storage.run_input import raw_hash_of, run_id_of
 from storage.schema import Base
 from storage.verify import verify
 

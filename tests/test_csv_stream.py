@@ -18,8 +18,9 @@ from calib_core.preprocess.motion import motion_check
 from calib_core.solvers.static_bias import solve_static_bias
 from calib_testing.streaming import streamed_memory_growth
 from pipelines.ingest.csv_reader import read_csv
-from pipelines.ingest.csv_stream import phase_rows, solve_streamed, stream_csv
+from pipelines.ingest.csv_stream import stream_csv
 from pipelines.ingest.data_format import FormatSpec
+from pipelines.streamed_solve import phase_rows, solve_streamed
 
 RATE = 100.0
 LIMIT = 20 << 20  # bytes: the file is 2.5 times larger

@@ -72,6 +72,9 @@ def _damaged(data: bytes, damage: str, rng: np.random.Generator) -> bytes:
     return data[:stop] + data[start:stop] + data[stop:]
 
 
+CUT_READ = ("ulog", "dataflash", "mcap")  # read to their last whole record when cut
+
+
 @pytest.mark.parametrize("damage", ["truncated", "duplicated chunk"])
 @pytest.mark.parametrize("kind", KINDS)
 def test_damaged_copies_are_refused_or_an_intact_prefix(tmp_path: Path, kind, damage) -> None:
@@ -81,29 +84,58 @@ def test_damaged_copies_are_refused_or_an_intact_prefix(tmp_path: Path, kind, da
     rng = np.random.default_rng(list(KINDS).index(kind) * 2 + (damage == "truncated"))
     refused = 0
     for _ in range(COPIES):
-        intact_path.write_bytes(_damaged(data, damage, rng))
+        damaged = _damaged(data, damage, rng)
+        intact_path.write_bytes(damaged)
         try:
             got = READ[kind](intact_path)
         except IngestError as exc:
             assert exc.file == str(intact_path), str(exc)
             refused += 1
             continue
-        # Read: only a log cut at a record boundary, holding the intact file's first samples,
-        # or a chunk of no IMU sample (a bag's index, a ULog's info records) read twice.
+        # Read: a log cut while written, read to its last whole record (the intact file's
+        # first samples, the bytes dropped named), or a chunk of no IMU sample (a bag's
+        # index, a ULog's info records) read twice.
         k = len(got)
         assert 0 < k <= len(intact) and (damage == "truncated" or k == len(intact)), (kind, k)
         np.testing.assert_array_equal(got.t, intact.t[:k])
         np.testing.assert_array_equal(got.acc, intact.acc[:k])
         np.testing.assert_array_equal(got.gyr, intact.gyr[:k])
-    assert refused >= COPIES // 2, f"{kind} {damage}: only {refused} of {COPIES} refused"
+        if damage == "truncated" and kind in CUT_READ:
+            (finding,) = got.findings
+            dropped = int(finding["value"])
+            assert finding["name"] == f"record:cut:{intact_path.name}" and not finding["passed"]
+            assert str(intact_path) in finding["detail"]
+            assert (
+                f"from byte offset {len(damaged) - dropped} of {len(damaged)}"
+                in (finding["detail"])
+            )
+    if damage == "duplicated chunk" or kind not in CUT_READ:
+        assert refused >= COPIES // 2, f"{kind} {damage}: only {refused} of {COPIES} refused"
 
 
 @pytest.mark.parametrize("kind", ["ulog", "dataflash"])
-def test_cut_last_record_names_the_byte_offset(tmp_path: Path, kind) -> None:
+def test_cut_last_record_is_dropped_and_named(tmp_path: Path, kind) -> None:
+    """A last record cut 5 bytes short (a logger that lost power) is dropped, the log read
+    to its last whole record with a finding naming the file and the bytes dropped; the
+    same bytes missing inside the log (a record's end gone) stay a refusal naming the
+    byte offset."""
     path = _write(kind, tmp_path)
-    path.write_bytes(path.read_bytes()[:-5])
-    with pytest.raises(IngestError, match=r"truncated .*byte offset \d+.*runs past the end"):
+    whole = READ[kind](path)
+    data = path.read_bytes()
+    path.write_bytes(data[:-5])
+    got = READ[kind](path)
+    k = len(got)  # the last record may be of another topic than the IMU source read
+    assert len(whole) - 2 <= k <= len(whole)
+    np.testing.assert_array_equal(got.gyr, whole.gyr[:k])
+    (finding,) = got.findings
+    assert finding["name"] == f"record:cut:{path.name}" and str(path) in finding["detail"]
+    record = int(finding["value"])
+    assert f"from byte offset {len(data) - 5 - record} of {len(data) - 5}" in finding["detail"]
+    middle = len(data) // 2
+    path.write_bytes(data[:middle] + data[middle + 5 :])
+    with pytest.raises(IngestError, match=r"byte offset \d+") as err:
         READ[kind](path)
+    assert err.value.file == str(path)
 
 
 def test_segment_window_past_the_data_is_refused(tmp_path: Path) -> None:
@@ -120,7 +152,7 @@ def test_segment_window_past_the_data_is_refused(tmp_path: Path) -> None:
     write_ulog(folder / "cut.ulg", Recording(t=rec.t, acc=rec.acc, gyr=gyr), topics="combined")
     t0 = 5.0  # log_writers.T0_US: the log's clock starts 5 s after boot
     segments = [
-        {"label": "x_up", "file": "cut.ulg", "start_s": t0, "end_s": t0 + 1.9},
+        {"label": "x_up", "file": "cut.ulg", "start_s": t0, "end_s": t0 + 1.5},
         {"label": "z_ccw", "file": "cut.ulg", "start_s": t0 + 1.5, "end_s": t0 + 6.0},
     ]
     (folder / "run.toml").write_text(manifest("SIM-CUT", {"kind": "ulog"}, segments))
@@ -128,10 +160,10 @@ def test_segment_window_past_the_data_is_refused(tmp_path: Path) -> None:
     with pytest.raises(IngestError, match=refusal) as err:
         load_run(discover_runs([folder])[0])
     assert err.value.field == "segments[1]" and "cut.ulg ends at 8.99 s" in str(err.value)
-    segments[1] = {"label": "x_dn", "file": "cut.ulg", "start_s": t0, "end_s": t0 + 6.0}
+    segments[1] = {"label": "x_dn", "file": "cut.ulg", "start_s": t0 + 1.5, "end_s": t0 + 6.0}
     write_ulog(folder / "cut.ulg", rec, topics="combined")  # at rest at its end
     (folder / "run.toml").write_text(manifest("SIM-CUT", {"kind": "ulog"}, segments))
-    assert len(load_run(discover_runs([folder])[0]).segments["x_dn"]) == N
+    assert len(load_run(discover_runs([folder])[0]).segments["x_dn"]) == N - 150
 
 
 # --- Whole runs: no damaged copy archived `ok` with a wrong parameter ----------------------

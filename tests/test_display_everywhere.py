@@ -10,10 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -21,15 +18,12 @@ from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from calib_core.units import DEG
+from calib_testing.cli_imports import modules_loaded
 from pipelines.cli import app
-from pipelines.ingest import discover_runs
-from pipelines.process import process_run
 from pipelines.reports.display import check_counts, expanded_u, shown
 from storage import queries
-from storage.db import Archive, resolve_archive
 
 ROOT = Path(__file__).resolve().parent.parent
-SAMPLE = ROOT / "data_samples" / "mpu6000_MPU0001"
 WIDTH = 80
 
 
@@ -37,16 +31,6 @@ def _run(*args: str) -> str:
     result = CliRunner().invoke(app, list(args), env={"COLUMNS": str(WIDTH)}, terminal_width=WIDTH)
     assert result.exit_code == 0, result.output
     return result.output
-
-
-@pytest.fixture(scope="module")
-def archived(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, str]:
-    arch = resolve_archive(str(tmp_path_factory.mktemp("display") / "archive"))
-    arch.upgrade()
-    (source,) = discover_runs([SAMPLE])
-    outcome = process_run(source, arch)
-    assert outcome["status"] == "ok", outcome
-    return arch, outcome["run_id"]
 
 
 def test_shown_rounds_the_value_to_its_uncertainty() -> None:
@@ -59,13 +43,13 @@ def test_shown_rounds_the_value_to_its_uncertainty() -> None:
     assert expanded_u(2.0) == "U (k=2)" and expanded_u(1.9623) == "U (k=1.96)"
 
 
-def test_show_latest_and_web_agree_on_every_number(archived) -> None:
+def test_show_latest_and_web_agree_on_every_number(archived_sample) -> None:
     """`calib show`, `calib query latest` and the run page print each parameter in the
     same display unit with the same digits; JSON stays SI."""
     from pipelines.web.app import create_app
     from storage.queries import open_readonly
 
-    arch, run_id = archived
+    arch, run_id = archived_sample
     summary = queries.run_summary(arch, run_id)
     show = _run("show", run_id, "--archive", str(arch.root))
     latest = _run("query", "latest", "MPU0001", "--archive", str(arch.root))
@@ -90,15 +74,15 @@ def test_show_latest_and_web_agree_on_every_number(archived) -> None:
     assert "tolerance checks failed" in sentence
 
 
-def test_markup_in_values_is_shown_as_written(archived) -> None:
+def test_markup_in_values_is_shown_as_written(archived_sample) -> None:
     """A hint naming the manifest's "[site]" table keeps its brackets (rich markup)."""
-    arch, run_id = archived
+    arch, run_id = archived_sample
     show = _run("show", run_id, "--archive", str(arch.root))
     assert "[site]" in show
 
 
-def test_lineage_of_one_parameter_is_readable_at_80_columns(archived) -> None:
-    arch, run_id = archived
+def test_lineage_of_one_parameter_is_readable_at_80_columns(archived_sample) -> None:
+    arch, run_id = archived_sample
     text = _run("query", "lineage", run_id, "gyr.scale.x", "--archive", str(arch.root))
     lines = text.splitlines()
     assert max(len(line) for line in lines) <= WIDTH
@@ -126,8 +110,8 @@ def test_lineage_of_one_parameter_is_readable_at_80_columns(archived) -> None:
     assert "acc.bias.x" in budgets["budgets"]  # --format json: the full record
 
 
-def test_history_at_80_columns_keeps_identity_and_verdict(archived) -> None:
-    arch, run_id = archived
+def test_history_at_80_columns_keeps_identity_and_verdict(archived_sample) -> None:
+    arch, run_id = archived_sample
     text = _run("history", "MPU0001", "--archive", str(arch.root))
     row = next(line for line in text.splitlines() if run_id in line)
     assert "pass" in row
@@ -136,32 +120,17 @@ def test_history_at_80_columns_keeps_identity_and_verdict(archived) -> None:
 
 
 @pytest.mark.parametrize("args", [["history", "MPU0001"], ["audit", "MPU0001"], ["--version"]])
-def test_read_only_commands_do_not_load_the_science_stack(archived, args) -> None:
+def test_read_only_commands_do_not_load_the_science_stack(archived_sample, args) -> None:
     """A fresh interpreter: after the command, neither pandas, pyarrow, numpy, scipy,
     matplotlib, Prefect nor WeasyPrint was imported."""
-    arch, _ = archived
+    arch, _ = archived_sample
     heavy = ("pandas", "pyarrow", "numpy", "scipy", "matplotlib", "prefect", "weasyprint", "typst")
     argv = args + (["--archive", str(arch.root)] if args[0] != "--version" else [])
-    code = (
-        "import sys\nfrom pipelines.cli import app\n"
-        f"try:\n    app({argv!r})\n"
-        "except SystemExit as e:\n    assert not e.code, e.code\n"
-        f"print([m for m in {heavy!r} if m in sys.modules])\n"
-    )
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
-    done = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-        check=True,
-    )
-    assert done.stdout.strip().splitlines()[-1] == "[]", done.stdout + done.stderr
+    assert modules_loaded(argv, heavy) == []
 
 
-def test_query_units_at_80_columns_keeps_identity_and_verdict(archived) -> None:
-    arch, run_id = archived
+def test_query_units_at_80_columns_keeps_identity_and_verdict(archived_sample) -> None:
+    arch, run_id = archived_sample
     text = _run("query", "units", "--archive", str(arch.root))
     header = next(line for line in text.splitlines() if "serial" in line)
     assert header.index("serial") < header.index("run id") < header.index("verdict")
@@ -170,13 +139,13 @@ def test_query_units_at_80_columns_keeps_identity_and_verdict(archived) -> None:
 
 
 @pytest.fixture(scope="module")
-def reported(archived, tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+def reported(archived_sample, tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     """`calib show`, the protocol, the HTML certificate (`calib report`) and the web run
     page of the sample run, as text."""
     from pipelines.web.app import create_app
     from storage.queries import open_readonly
 
-    arch, run_id = archived
+    arch, run_id = archived_sample
     out = tmp_path_factory.mktemp("reported")
     _run("report", run_id, "--archive", str(arch.root), "--output", str(out), "--no-pdf")
     ro = open_readonly(arch)
@@ -190,12 +159,12 @@ def reported(archived, tmp_path_factory: pytest.TempPathFactory) -> dict[str, st
     }
 
 
-def test_checks_are_counted_alike_everywhere(archived, reported) -> None:
+def test_checks_are_counted_alike_everywhere(archived_sample, reported) -> None:
     """One count of the run's checks, the lab conditions apart, in the terminal, the
     protocol, the certificate and on the web page; it adds up to the archived checks."""
     from calib_core.conditions import CONDITION_PREFIX, status
 
-    arch, run_id = archived
+    arch, run_id = archived_sample
     checks = queries.run_summary(arch, run_id)["calibration"]["checks"]
     counts = check_counts(checks)
     conditions = [c for c in checks if c["name"].startswith(CONDITION_PREFIX)]
@@ -213,11 +182,11 @@ def test_checks_are_counted_alike_everywhere(archived, reported) -> None:
         assert said == {sentence.split(";")[0]}, (where, said)
 
 
-def test_protocol_and_certificate_show_numbers_as_the_cli_does(archived, reported) -> None:
+def test_protocol_and_certificate_show_numbers_as_the_cli_does(archived_sample, reported) -> None:
     """Each parameter's line of the protocol and its row of the certificate give the
     value (signed in the protocol, the MPU-6000 manual's layout), the standard
     uncertainty and the unit as `calib show` does; the columns are headed "u"."""
-    arch, run_id = archived
+    arch, run_id = archived_sample
     protocol = reported["protocol"].splitlines()
     html = reported["certificate"]
     for p in queries.run_summary(arch, run_id)["calibration"]["parameters"]:
@@ -231,13 +200,13 @@ def test_protocol_and_certificate_show_numbers_as_the_cli_does(archived, reporte
     assert "Std. unc." not in reported["protocol"] and "rad/s" not in reported["protocol"]
 
 
-def test_audit_is_a_table_at_80_columns(archived, tmp_path, monkeypatch) -> None:
+def test_audit_is_a_table_at_80_columns(archived_sample, tmp_path, monkeypatch) -> None:
     """`calib audit` on a terminal: a table whose rows start with the event's identity and
     what happened, at most 80 columns, markup in values shown as written; piped (as here
     by default), one event a line, tab-separated, for scripts."""
     from storage.approval import generate_key
 
-    arch, run_id = archived
+    arch, run_id = archived_sample
     key = tmp_path / "jane.key"
     generate_key(key, "[b]Jane[/b] Approver", "a passphrase for the audit table")
     monkeypatch.setenv("CALIB_KEY_PASSPHRASE", "a passphrase for the audit table")
@@ -282,12 +251,12 @@ def test_a_table_too_wide_for_80_columns_folds_no_word(capsys, monkeypatch) -> N
     assert "interval_months" in done.err  # left out, and named
 
 
-def test_fleet_commands_speak_the_display_unit(archived) -> None:
+def test_fleet_commands_speak_the_display_unit(archived_sample) -> None:
     """`calib query fleet` (its table and its median line) and `calib fleet` give the
     value in the unit `calib show` uses, not SI."""
     from pipelines.reports.display import quantity
 
-    arch, run_id = archived
+    arch, run_id = archived_sample
     name = "gyr.bias.z"
     p = next(
         p

@@ -17,7 +17,8 @@ from calib_core.drift import fit_trend, fleet_statistics, forecast_exit
 from calib_core.simulate.lab_run import random_errors
 from calib_core.simulate.thermal import recalibration_history
 from calib_testing.archives import new_archive, parameter_run
-from storage.archive import RunIn, archive_run
+from storage.archive import archive_run
+from storage.run_input import RunIn
 
 # --- numerics ---------------------------------------------------------------------------
 

@@ -66,19 +66,22 @@ def _rate_manifest(serial: str, started: str, table: str) -> dict:
     return m
 
 
-@pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    """RT-A (table RT-7, in the period), RT-B (RT-7, before it), RT-C (table RT-8), and an
-    integral run I-D on DAQ-3 whose time stamps ran CLOCK_PPM fast."""
-    tmp = tmp_path_factory.mktemp("impact")
-    arch = resolve_archive(str(tmp / "archive"))
-    arch.upgrade()
+# The rate-table runs of the tests: name -> (serial, start, the table's serial). RT-7 is
+# found RATE_PPM fast for March 2026.
+RATE_TABLE_RUNS = {
+    "A": ("U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"),
+    "B": ("U-RT2", "2026-01-10T09:00:00+00:00", "RT-7"),
+    "C": ("U-RT3", "2026-03-11T09:00:00+00:00", "RT-8"),
+    "E": ("U-RT5", "2026-03-20T09:00:00+00:00", "RT-7"),
+}
+
+
+def archive_rate_table_runs(arch, tmp, names: str) -> dict[str, str]:
+    """Archive the RATE_TABLE_RUNS of `names`, their table reading RATE_PPM fast, each from
+    the folder ``tmp / name``; name -> run id."""
     runs = {}
-    for name, serial, started, table in (
-        ("A", "U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"),
-        ("B", "U-RT2", "2026-01-10T09:00:00+00:00", "RT-7"),
-        ("C", "U-RT3", "2026-03-11T09:00:00+00:00", "RT-8"),
-    ):
+    for name in names:
+        serial, started, table = RATE_TABLE_RUNS[name]
         folder = tmp / name
         write_csv_run(
             _rate_table_segments(ord(name), RATE_PPM),
@@ -86,6 +89,23 @@ def lab(tmp_path_factory):
             _rate_manifest(serial, started, table),
         )
         runs[name] = _archive(arch, folder)
+    return runs
+
+
+def apply_rate_error(arch) -> dict:
+    """`impact` applied: RT-7 read RATE_PPM fast in March 2026."""
+    error = parse_error(f"rate_error_ppm={RATE_PPM}")
+    return impact(arch, "RT-7", error, "2026-03-01", "2026-03-31", apply=True)
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    """RT-A (table RT-7, in the period), RT-B (RT-7, before it), RT-C (table RT-8), and an
+    integral run I-D on DAQ-3 whose time stamps ran CLOCK_PPM fast."""
+    tmp = tmp_path_factory.mktemp("impact")
+    arch = resolve_archive(str(tmp / "archive"))
+    arch.upgrade()
+    runs = archive_rate_table_runs(arch, tmp, "ABC")
     # The same plateaus with the true table rate: what a direct solve would have given.
     write_csv_run(
         _rate_table_segments(ord("A"), 0.0),
@@ -254,14 +274,7 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
     assert reason in page and runs["A"] in page and "1 verdict(s) changed" in page
     assert "revisions archived" in page and "gyr.scale.x" in page
     # Applied again: the same correction is a duplicate, not a third revision.
-    again = impact(
-        arch,
-        "RT-7",
-        parse_error(f"rate_error_ppm={RATE_PPM}"),
-        "2026-03-01",
-        "2026-03-31",
-        apply=True,
-    )
+    again = apply_rate_error(arch)
     assert again["runs"][0]["status"] == "duplicate"
 
 
@@ -273,14 +286,7 @@ def test_reprocessing_carries_the_correction(lab, monkeypatch):
 
     arch, run_a = lab["archive"], lab["runs"]["A"]
     if queries.run_summary(arch, run_a)["calibration"]["revision"] == 1:  # run alone
-        impact(
-            arch,
-            "RT-7",
-            parse_error(f"rate_error_ppm={RATE_PPM}"),
-            "2026-03-01",
-            "2026-03-31",
-            apply=True,
-        )
+        apply_rate_error(arch)
     corrected = _params(arch, run_a)["gyr.scale.x"]["value"]
     monkeypatch.setattr(process, "SOFTWARE_VERSION", "99.0-test")
     outcome = reprocess_run(arch, run_a, reason="software 99")
@@ -291,51 +297,22 @@ def test_reprocessing_carries_the_correction(lab, monkeypatch):
     assert verify(arch).ok
 
 
-def test_wrong_kind_and_empty_period_are_refused(lab):
-    arch = lab["archive"]
-    runner = CliRunner()
-    res = runner.invoke(
-        app,
-        [
-            "impact",
+@pytest.mark.parametrize(
+    ("equipment", "error", "message"),
+    [
+        ("RT-7", "clock_error_ppm=10", "clock_error_ppm is an error of a daq"),
+        ("RT-9", "rate_error_ppm=10", "no archived run used equipment 'RT-9'"),
+        (
             "RT-7",
-            "--from",
-            "2026-03-01",
-            "--error",
-            "clock_error_ppm=10",
-            "--archive",
-            str(arch.root),
-        ],
-    )
-    assert res.exit_code != 0 and "clock_error_ppm is an error of a daq" in res.output
-    res = runner.invoke(
-        app,
-        [
-            "impact",
-            "RT-9",
-            "--from",
-            "2026-03-01",
-            "--error",
-            "rate_error_ppm=10",
-            "--archive",
-            str(arch.root),
-        ],
-    )
-    assert res.exit_code != 0 and "no archived run used equipment 'RT-9'" in res.output
-    res = runner.invoke(
-        app,
-        [
-            "impact",
-            "RT-7",
-            "--from",
-            "2026-03-01",
-            "--error",
             "face_angle_error_arcsec[+x,y]=20",
-            "--archive",
-            str(arch.root),
-        ],
-    )
-    assert res.exit_code != 0 and "face_angle_error_arcsec is an error of a cube" in res.output
+            "face_angle_error_arcsec is an error of a cube",
+        ),
+    ],
+)
+def test_wrong_kind_and_empty_period_are_refused(lab, equipment, error, message):
+    args = ["impact", equipment, "--from", "2026-03-01", "--error", error]
+    res = CliRunner().invoke(app, [*args, "--archive", str(lab["archive"].root)])
+    assert res.exit_code != 0 and message in res.output
 
 
 def test_rate_error_leaves_runs_without_a_table_rate_alone():

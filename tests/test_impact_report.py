@@ -11,12 +11,11 @@ import re
 
 import pytest
 from fastapi.testclient import TestClient
-from test_impact import RATE_PPM, _archive, _rate_manifest, _rate_table_segments
+from test_impact import RATE_PPM, apply_rate_error, archive_rate_table_runs
 from typer.testing import CliRunner
 
 from calib_core.reference_errors import parse_error
 from calib_testing.documents import html_words, pdf_pages
-from calib_testing.run_writers import write_csv_run
 from pipelines.cli import app
 from pipelines.impact import html_report, impact, pdf_report, record_doc
 from storage import queries
@@ -33,23 +32,8 @@ def applied(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("impact_report")
     arch = resolve_archive(str(tmp / "archive"))
     arch.upgrade()
-    runs = {}
-    for name, serial, started, table in (
-        ("A", "U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"),
-        ("E", "U-RT5", "2026-03-20T09:00:00+00:00", "RT-7"),
-        ("C", "U-RT3", "2026-03-11T09:00:00+00:00", "RT-8"),
-    ):
-        folder = tmp / name
-        write_csv_run(
-            _rate_table_segments(ord(name), RATE_PPM),
-            folder,
-            _rate_manifest(serial, started, table),
-        )
-        runs[name] = _archive(arch, folder)
-    doc = impact(
-        arch, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01", "2026-03-31",
-        apply=True,
-    )  # fmt: skip
+    runs = archive_rate_table_runs(arch, tmp, "AEC")
+    doc = apply_rate_error(arch)
     assert [r["status"] for r in doc["runs"]] == ["revised", "revised"]
     ro = open_readonly(arch)
     from pipelines.web.app import create_app
@@ -165,13 +149,7 @@ def test_calib_impact_writes_the_pdf(applied, tmp_path):
 
 def test_impact_records_on_each_back_end(archive, tmp_path):
     """The record and the revision's temperature read back on SQLite and PostgreSQL."""
-    folder = tmp_path / "A"
-    write_csv_run(
-        _rate_table_segments(ord("A"), RATE_PPM),
-        folder,
-        _rate_manifest("U-RT1", "2026-03-10T09:00:00+00:00", "RT-7"),
-    )
-    run_id = _archive(archive, folder)
+    run_id = archive_rate_table_runs(archive, tmp_path, "A")["A"]
     impact(archive, "RT-7", parse_error(f"rate_error_ppm={RATE_PPM}"), "2026-03-01", apply=True)
     (rec,) = impact_records(archive)
     assert rec["reason"] == REASON and rec["period"] == {"from": "2026-03-01", "to": None}

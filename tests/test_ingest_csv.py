@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import re
 from datetime import UTC, date, datetime
 from pathlib import Path
 
@@ -288,14 +289,21 @@ def test_wrong_unit_in_manifest(tmp_path: Path) -> None:
 
 
 def test_window_without_samples(tmp_path: Path) -> None:
+    """A window beside the record, or one starting 1e9 s before it, is refused before any
+    solve, naming the segment and where the record lies."""
     write_csv_run(make_segments(np.random.default_rng(4), ["x_up"]), tmp_path, manifest_dict())
     toml = tmp_path / "run.toml"
     toml.write_text(
         toml.read_text().replace("end_s = ", "end_s = 1000").replace("start_s = ", "start_s = 999")
     )
     with pytest.raises(
-        IngestError, match=r"field 'segments\[0\]': segment 'x_up': the window .* no samples"
+        IngestError,
+        match=r"field 'segments\[0\]': segment 'x_up': the window .* 0 s inside it .*spans",
     ):
+        load_run(discover_runs([tmp_path])[0])
+    write_csv_run(make_segments(np.random.default_rng(4), ["x_up"]), tmp_path, manifest_dict())
+    toml.write_text(re.sub(r"start_s = .*", "start_s = -1e9", toml.read_text()))
+    with pytest.raises(IngestError, match=r"lies 1e\+09 s outside the record"):
         load_run(discover_runs([tmp_path])[0])
 
 

@@ -50,9 +50,9 @@ _WORKDIR = Path(tempfile.mkdtemp(prefix="fuzz_ingest_"))
 atexit.register(shutil.rmtree, _WORKDIR, ignore_errors=True)
 
 
-@functools.cache
-def valid_file(kind: str) -> bytes:
-    """Bytes of one small valid file of `kind`, made once per session."""
+def write_valid(path: Path, kind: str, **mcap) -> Path:
+    """One small valid file of `kind` at `path`: "mcap..." (written with `mcap`, the MCAP
+    writer's options), "mat5" (MAT v5) or else MAT v7.3; returns `path`."""
     rng = np.random.default_rng(0)
     n = 60
     data = {
@@ -60,25 +60,25 @@ def valid_file(kind: str) -> bytes:
         "acc": rng.normal(size=(n, 3)),
         "gyr": rng.normal(size=(n, 3)),
     }
-    path = _WORKDIR / f"valid_{kind.replace('.', '')}.bin"
     if kind.startswith("mcap"):
-        # Uncompressed chunks and, for "mcap_nocrc", no CRCs: mutations then reach the
-        # record headers and the CDR payloads instead of stopping at the CRC check.
-        write_run(
-            path,
-            n=n,
-            temperature=True,
-            joint_state=True,
-            chunk_size=4096,
-            compression=CompressionType.NONE,
-            enable_crcs=kind == "mcap",
-        )
+        write_run(path, n=n, temperature=True, joint_state=True, **mcap)
     elif kind == "mat5":
         scipy.io.savemat(path, {"imu": data})
     else:
-        path = path.with_suffix(".mat")
         hdf5storage.savemat(str(path), {"imu": data}, format="7.3")
-    return path.read_bytes()
+    return path
+
+
+@functools.cache
+def valid_file(kind: str) -> bytes:
+    """Bytes of one small valid file of `kind`, made once per session."""
+    path = _WORKDIR / f"valid_{kind.replace('.', '')}.bin"
+    if not kind.startswith("mcap") and kind != "mat5":
+        path = path.with_suffix(".mat")
+    # Uncompressed chunks and, for "mcap_nocrc", no CRCs: mutations then reach the
+    # record headers and the CDR payloads instead of stopping at the CRC check.
+    mcap = {"chunk_size": 4096, "compression": CompressionType.NONE, "enable_crcs": kind == "mcap"}
+    return write_valid(path, kind, **mcap).read_bytes()
 
 
 def read(kind: str, path: Path) -> Recording:

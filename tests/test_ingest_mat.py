@@ -237,3 +237,26 @@ def test_plain_hdf5_without_matlab_attributes_is_not_transposed(tmp_path):
             f[key] = truth[key]
     rec = read_mat(path, variables={"t": "t", "acc": "acc", "gyr": "gyr"})
     np.testing.assert_array_equal(rec.acc, truth["acc"])
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_a_value_no_imu_reads_is_refused_at_read(tmp_path, version):
+    """A finite but impossible reading (1e30 m/s^2, a damaged value) is refused when the run
+    is read, naming the file and the sample, before any preprocessing or solve."""
+    from test_ingest_formats_e2e import manifest
+
+    from pipelines.ingest import discover_runs, load_run
+
+    n = 200
+    rng = np.random.default_rng(7)
+    acc = rng.normal(0, 0.01, (n, 3)) + (0, 0, 9.81)
+    acc[57, 1] = 1e30
+    folder = tmp_path / "run"
+    folder.mkdir()
+    data = {"t": np.arange(n) / 100.0, "acc": acc, "gyr": rng.normal(0, 0.01, (n, 3))}
+    path = save(folder / "a.mat", data, version)
+    fmt = {"kind": "mat", "variables": {"t": "t", "acc": "acc", "gyr": "gyr"}}
+    (folder / "run.toml").write_text(manifest("SIM-MAT", fmt, [{"label": "z_up", "file": "a.mat"}]))
+    with pytest.raises(IngestError, match=r"sample 57 .*beyond what any IMU") as err:
+        load_run(discover_runs([folder])[0])
+    assert err.value.file == str(path)

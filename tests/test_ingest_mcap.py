@@ -423,13 +423,26 @@ def test_undecodable_schema_names_topic_schema_and_encoding(tmp_path):
 
 
 def test_truncated_file(tmp_path):
+    """A file cut before any IMU message, or in its closing magic, is refused; one cut in
+    its data (a recorder that lost power) is read to its last whole record: the intact
+    file's first samples, with the finding naming the file and the bytes dropped."""
     path = tmp_path / "run.mcap"
-    write_run(path, n=200)
+    truth = write_run(path, n=200)
     data = path.read_bytes()
-    for cut in (4, 9, 40, len(data) // 3, len(data) // 2, len(data) - 3):
+    for cut in (4, 9, 40, len(data) - 3):
         bad = tmp_path / f"cut{cut}.mcap"
         bad.write_bytes(data[:cut])
-        _raises(bad, "truncated|magic|damaged|ends")
+        _raises(bad, "truncated|magic|damaged|ends|no IMU|no messages|topic")
+    for cut in (len(data) // 3, len(data) // 2):
+        bad = tmp_path / f"cut{cut}.mcap"
+        bad.write_bytes(data[:cut])
+        rec = read_mcap(bad)
+        k = len(rec)
+        assert 0 < k < 200
+        np.testing.assert_array_equal(rec.gyr, truth["gyr"][:k])
+        (finding,) = rec.findings
+        assert finding["name"] == f"record:cut:{bad.name}" and str(bad) in finding["detail"]
+        assert f"of {cut}, a record the file cuts short" in finding["detail"]
 
 
 def test_wrong_magic(tmp_path):

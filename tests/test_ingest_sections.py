@@ -32,6 +32,9 @@ SECTIONS = {
 FORMAT = {
     "kind": "csv", "time_column": "samples", "time_unit": "samples", "sample_rate_hz": RATE_HZ,
     "acc_columns": ["acc_x", "acc_y", "acc_z"], "gyr_columns": ["gyr_x", "gyr_y", "gyr_z"],
+    # Raw gyro counts, about 16.4 per deg/s (imucal's reference K_g): read as rad/s they
+    # would be beyond what any IMU measures, which every reader refuses.
+    "gyr_unit": "counts", "gyr_scale": [16.4, 16.4, 16.4], "gyr_scale_unit": "deg/s",
 }  # fmt: skip
 
 

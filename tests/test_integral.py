@@ -118,7 +118,18 @@ def test_rotation_reaching_the_range_is_rejected_by_name():
     means, sems, stds = gyro_statics(run)
     with pytest.raises(ValueError, match=r"rotation x_ccw: gyro rate reached 250\.0 deg/s"):
         solve_integral(rotations(run), means, sems, 250 * DEG, noise_std=stds)
-    # The same run is fine for a sensor with a larger range.
+    # Told a larger range, the clipped turns still do not close (0.56 deg short in common,
+    # 29 standard uncertainties); a sensor that did not clip is fine.
+    with pytest.raises(
+        ValueError,
+        match=r"rotations x_ccw and x_cw \(simulated x_ccw, simulated x_cw\): their angles differ",
+    ):
+        solve_integral(rotations(run), means, sems, 500 * DEG, noise_std=stds)
+    rng = np.random.default_rng(4)
+    run = six_position_integral_run(
+        random_errors(rng), rng, rotation_rate_dps=300.0, gyro_range_dps=500.0
+    )
+    means, sems, stds = gyro_statics(run)
     solve_integral(rotations(run), means, sems, 500 * DEG, noise_std=stds)
 
 
@@ -135,11 +146,20 @@ def test_partial_turn_cannot_be_inferred():
     truth = random_errors(rng)
     run = six_position_integral_run(truth, rng)
     rots = rotations(run)
-    # Keep only the first half of every record: about half a turn each way.
+    # Keep only the first half of every record: about half a turn each way, cut mid-turn.
     half = {k: r.select(np.arange(len(r)) < len(r) // 2) for k, r in rots.items()}
     means, sems, stds = gyro_statics(run)
-    with pytest.raises(ValueError, match="not whole turns"):
+    with pytest.raises(ValueError, match=r"rotation x_ccw .* ends turning: 87\.5 deg/s"):
         solve_integral(half, means, sems, RANGE, noise_std=stds)
+    # Half a turn that ends at rest (its second half at rest again): not whole turns.
+    still = {
+        k: dataclasses.replace(
+            r, gyr=np.where(np.arange(len(r))[:, None] < len(r) // 2, r.gyr, r.gyr[:20].mean(0))
+        )
+        for k, r in rots.items()
+    }
+    with pytest.raises(ValueError, match="not whole turns"):
+        solve_integral(still, means, sems, RANGE, noise_std=stds)
 
 
 def test_missing_segments_are_named():
@@ -227,3 +247,46 @@ def test_despike_window_ranks_are_scipy_filters_at_the_rows_read(n: int) -> None
     for rank in (0, side, 2 * side - 6, 2 * side):
         full = rank_filter(x, rank=rank, size=(2 * side + 1, 1), mode="nearest")
         np.testing.assert_array_equal(_rank_at(x, rows, rank, side), full[rows])
+
+
+@pytest.mark.slow
+def test_spikes_inside_turns_cost_no_accuracy():
+    """The MPU-6000 case (mpu6000 profile's unit: gyro noise 0.04 deg/s), 0.5 % of every
+    record spiked by 30 noise stds on a random channel, paired with the same run clean
+    (same noise: the difference is the spikes'): over 40 seeds every parameter's RMS error
+    within 1.2x of the clean run's. Paired, the ratio moves only by the spikes a cluster
+    hides: measured worst 1.014 (gyr.gsens.xx); with the despiker before it judged a
+    spike's neighbours about the local slope (spikes on a turn's ramp were left) 1.196
+    (gyr.scale.x)."""
+    from calib_core.preprocess.chain import preprocess
+    from calib_core.procedures import solve
+
+    errors = {"clean": [], "spiky": []}
+    names: list[str] = []
+    for seed in range(40):
+        rng = np.random.default_rng(4600 + seed)
+        truth = random_errors(rng)
+        truth.gyr_noise[:] = np.radians(0.04)
+        run = six_position_integral_run(truth, rng)
+        spiky = {}
+        for label, rec in run.segments.items():
+            n = int(round(0.005 * len(rec)))
+            rows = rng.choice(np.arange(2, len(rec) - 2), n, replace=False)
+            cols = rng.integers(0, 3, n)
+            gyr, acc = rec.gyr.copy(), rec.acc.copy()
+            on_gyr = rng.random(n) < 0.5
+            signs = rng.choice([-1.0, 1.0], n)
+            gyr[rows[on_gyr], cols[on_gyr]] += signs[on_gyr] * 30 * truth.gyr_noise[cols[on_gyr]]
+            acc[rows[~on_gyr], cols[~on_gyr]] += (
+                signs[~on_gyr] * 30 * truth.acc_noise[cols[~on_gyr]]
+            )
+            spiky[label] = dataclasses.replace(rec, gyr=gyr, acc=acc)
+        true = run.truth_dict()["parameters"]
+        for key, segments in (("clean", run.segments), ("spiky", spiky)):
+            cleaned, _ = preprocess(segments, {}, gravity=run.gravity)
+            cal = solve("six_position_integral", cleaned, run.gravity, {})
+            names = [n for n in cal.parameters if n in true and ".noise." not in n]
+            errors[key].append([cal.parameters[n].value - true[n] for n in names])
+    rms = {k: np.sqrt(np.mean(np.square(v), axis=0)) for k, v in errors.items()}
+    ratio = dict(zip(names, rms["spiky"] / rms["clean"], strict=True))
+    assert max(ratio.values()) <= 1.2, sorted(ratio.items(), key=lambda kv: -kv[1])[:5]

@@ -13,8 +13,9 @@ import pytest
 from pipelines.direct import process_in_process
 from pipelines.ingest import discover_runs
 from pipelines.issuing import issue_certificate, issuing_beside
-from pipelines.reports.issue import issued, issues
+from pipelines.reports.issue import issued
 from storage.db import resolve_archive
+from storage.queries import certificate_issues as issues
 from storage.verify import verify
 
 SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"

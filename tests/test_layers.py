@@ -2,7 +2,9 @@
 
 - calib_core (the science) imports only the standard library's non-I/O modules,
   numpy, scipy, numba (the compiled loops of calib_core.second_differences) and itself:
-  no storage, pipelines, database, workflow, file-format or file-system module;
+  no storage, pipelines, database, workflow, file-format or file-system module, and none
+  that decides how to run (threads, executors, memory maps, the C library): the
+  pipelines pass that in (`calib_core.streamed.Execution`);
 - storage (the archive) imports no pipelines;
 - pipelines.commands never imports pipelines.cli (cli -> commands, one way);
 - no production module imports calib_core.simulate or the support package
@@ -24,6 +26,9 @@ IO_STDLIB = {
     "pickle", "shelve", "dbm", "urllib", "http", "ftplib", "smtplib", "mmap", "fileinput",
     "multiprocessing", "concurrent", "asyncio", "logging", "zipfile", "tarfile", "csv",
 }  # fmt: skip
+# How to run: the caller's choice (calib_core.streamed.Execution), never the science's.
+EXECUTION = {"threading", "queue", "concurrent", "mmap", "ctypes", "_thread"}
+MAX_PRIVATE_IMPORTS = 8  # private names (`_x`) imported across production modules
 
 
 def imported_modules(source: str, module: str) -> list[tuple[int, str]]:
@@ -65,6 +70,8 @@ def violations(module: str, source: str) -> list[str]:
         elif _within(module, "calib_core"):
             if top in ("storage", "pipelines"):
                 why = "calib_core imports a higher layer"
+            elif top in EXECUTION:
+                why = "calib_core imports an execution module (threads, memory maps)"
             elif top in IO_STDLIB:
                 why = "calib_core imports an I/O module"
             elif top not in sys.stdlib_module_names and top not in SCIENCE_THIRD_PARTY | {
@@ -104,6 +111,11 @@ def test_the_checker_reports_each_kind_of_forbidden_import() -> None:
     cases = {
         ("calib_core.noise", "import sqlalchemy"): "library other than numpy",
         ("calib_core.noise", "from pathlib import Path"): "I/O module",
+        ("calib_core.streamed", "import threading"): "execution module",
+        ("calib_core.streamed", "from concurrent.futures import Future"): "execution module",
+        ("calib_core.solvers.static_bias", "import queue"): "execution module",
+        ("calib_core.streamed", "import mmap"): "execution module",
+        ("calib_core.streamed", "import ctypes"): "execution module",
         ("calib_core.noise", "from storage import queries"): "higher layer",
         ("calib_core.solvers.integral", "from ..simulate import noise"): "simulator",
         ("storage.archive", "from pipelines.process import run_outcome"): "storage imports",
@@ -229,3 +241,32 @@ def test_one_class_name_per_concept() -> None:
             if isinstance(node, ast.ClassDef):
                 where.setdefault(node.name, []).append(module)
     assert {name: mods for name, mods in where.items() if len(mods) > 1} == {}
+
+
+def private_imports(module: str, source: str, modules: set[str] = frozenset()) -> list[str]:
+    """The private names (`_x`, not dunders) `module` imports from another production
+    module, as ``module: from <module> import <name>`` (a package's private module, one of
+    `modules`, is not a name: it is imported whole)."""
+    found = []
+    for _, name in imported_modules(source, module):
+        base, _, last = name.rpartition(".")
+        private = last.startswith("_") and not last.startswith("__")
+        if base.split(".")[0] in PACKAGES and private and name not in modules:
+            found.append(f"{module}: from {base} import {last}")
+    return found
+
+
+def test_few_private_names_cross_a_module_boundary() -> None:
+    """A name a module keeps private is not another's to import: at most
+    MAX_PRIVATE_IMPORTS such imports in all production code (a public name or one module)."""
+    assert private_imports("pipelines.x", "from pipelines.ingest.csv_reader import _a, b") == [
+        "pipelines.x: from pipelines.ingest.csv_reader import _a"
+    ]
+    assert private_imports("pipelines.x", "from numpy import _x\nfrom .y import __all__") == []
+    mods = production_modules()
+    found = [
+        hit
+        for mod, path in mods.items()
+        for hit in private_imports(mod, path.read_text(), set(mods))
+    ]
+    assert len(found) <= MAX_PRIVATE_IMPORTS, "\n".join(found)

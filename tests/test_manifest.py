@@ -188,3 +188,30 @@ def test_toml_writer_round_trip() -> None:
     back = tomllib.loads(dumps_toml(doc))
     doc["equipment"][0].pop("skipped")  # TOML has no null: None values are left out
     assert back == doc
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "field"),
+    [
+        ("gyro_range_dps = 250", "gyro_range_dps = 1e400", "run.settings.gyro_range_dps"),
+        ("end_s = 60.0", "end_s = nan", "segments[1].end_s"),
+        ("humidity_pct = 48", "humidity_pct = -inf", "environment.humidity_pct"),
+    ],
+)
+def test_a_number_no_field_holds_is_refused_naming_line_and_key(tmp_path, old, new, field):
+    """1e400 reads as infinity: refused before any solve, naming run.toml, line and key."""
+    text = EXAMPLE.replace(old, new)
+    err = error_of(tmp_path, text)
+    line = text.splitlines().index(new) + 1
+    assert (err.field, err.line) == (field, line), str(err)
+    assert "not a finite number" in str(err) and str(tmp_path / "run.toml") in str(err)
+
+
+def test_overlapping_windows_of_one_file_are_refused(tmp_path):
+    """x_dn starting inside x_up's window (end_s 30 -> 250): one sample in two segments."""
+    text = EXAMPLE.replace("end_s = 30.0", "end_s = 250.0")
+    err = error_of(tmp_path, text)
+    assert err.field == "segments[1]" and "overlaps segment 'x_up'" in str(err)
+    assert err.line == text.splitlines().index("start_s = 30.0") + 1
+    # Adjacent windows ([0, 30) and [30, 60)) and other files do not overlap.
+    load_manifest(write(tmp_path, EXAMPLE))

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 from calib_core.nav_noise import NavNoise, NavTerm, bootstrap_terms, noise_records
 from calib_core.noise import NoiseParameters, cluster_sizes
 from calib_core.simulate.noise import NoiseSpec, simulate_static
-from calib_core.solvers.static_bias import _channel_stats
+from calib_core.solvers.static_bias import sensor_statistics
 from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines import nav_exports
 from pipelines.cli import app
@@ -134,7 +134,7 @@ def test_bootstrap_uncertainty_covers_the_truth():
     for _ in range(8):
         x = noise_records([truth] * 3, n, RATE_HZ, rng)
         taus = np.asarray(cluster_sizes(n, RATE_HZ), dtype=float) / RATE_HZ
-        fitted = _channel_stats(x, RATE_HZ, 3.0, taus)[4]
+        fitted = sensor_statistics(x, RATE_HZ, 3.0, taus)[4]
         boot = bootstrap_terms(fitted, n, RATE_HZ, 3.0, taus)
         for got, value, bias, sd in (
             ([p.arw for p in fitted], ACC_N, boot["n_bias"], boot["n_sd"]),

@@ -14,7 +14,6 @@ from calib_core.noise import (
     MISFIT_LIMIT,
     NOISE_TERMS,
     NOT_DETERMINED,
-    allan_deviation,
     archived_terms,
     arw_to_deg_per_sqrt_h,
     choose_noise_fit,
@@ -26,6 +25,7 @@ from calib_core.noise import (
 from calib_core.recording import Recording
 from calib_core.simulate.noise import NoiseSpec, random_walk, white
 from calib_core.solvers.static_bias import solve_static_bias
+from calib_core.streamed import allan_deviation
 
 
 @pytest.mark.parametrize("taus", ["octave", "log", "array"])

@@ -58,7 +58,8 @@ def test_every_written_file_has_one_mode(tmp_path: Path) -> None:
     run_id = json.loads(done.stdout)["runs"][0]["run_id"]
     done = runner.invoke(
         app,
-        ["export", run_id, "--archive", str(archive), "--format", "px4", "--output", str(export)],
+        ["export", run_id, "--archive", str(archive), "--format", "px4", "--device-id", "1"]
+        + ["--output", str(export)],
     )
     assert done.exit_code == 0, done.output
     files = [p for p in archive.rglob("*") if p.is_file() and not p.name.startswith("archive.")]

@@ -56,9 +56,7 @@ def manifest(started: str, settings: dict) -> dict:
             "operator": "T. Est",
             "procedure": "static_bias",
             "tolerance_profile": "bench",
-            # The in-memory preprocessing's iterative outlier rule is not streamed: off
-            # here, so both routes solve the same samples.
-            "settings": {"up_axis": "+z", "outliers": {"method": "none"}, **settings},
+            "settings": {"up_axis": "+z", **settings},  # the default steps, none off
         },
         "site": {"latitude_deg": 48.137, "height_m": 519.0, "gravity_model": "helmert"},
         "environment": {
@@ -79,9 +77,13 @@ def manifest(started: str, settings: dict) -> dict:
     }
 
 
-def write_run(folder: Path, data: Path, started: str, settings: dict) -> Path:
+def write_run(
+    folder: Path, data: Path, started: str, settings: dict, window: dict | None = None
+) -> Path:
+    """A run of `data` (a copy) in `folder`; `window`: the segment's start_s / end_s."""
     folder.mkdir(parents=True)
     doc = manifest(started, settings)
+    doc["segments"][0].update(window or {})
     if data.suffix == ".mcap":  # a ROS 2 log: the Imu topic, no temperature topic
         doc["format"] = {"kind": "mcap", "imu_topic": "/imu/data"}
         doc["segments"] = [{"label": "record", "file": "imu.mcap"}]
@@ -330,24 +332,151 @@ def small_run(tmp_path: Path, name: str, settings: dict, unit: dict | None = Non
     return folder
 
 
-@pytest.mark.parametrize(
-    ("settings", "said"),
-    [
-        ({"lowpass": {"cutoff_hz": 10.0}}, "[run.settings.lowpass]"),
-        ({"memory_limit_mb": 0.5}, "expected a number >= 1"),
-    ],
-)
-def test_streamed_route_refuses_what_it_cannot_do_naming_the_setting(tmp_path, settings, said):
+def test_a_memory_limit_that_is_not_a_number_of_mb_is_refused_naming_the_setting(tmp_path):
     from pipelines.ingest import discover_runs
     from pipelines.process import process_run
 
-    folder = small_run(tmp_path, "run", settings)
+    folder = small_run(tmp_path, "run", {"memory_limit_mb": 0.5})
     arch = resolve_archive(str(tmp_path / "archive"))
     arch.upgrade()
     out = process_run(discover_runs([folder])[0], arch)
-    assert out["status"] == "failed" and said in out["error"], out["error"]
+    assert out["status"] == "failed" and "expected a number >= 1" in out["error"], out
     assert "memory_limit_mb" in out["error"]
     assert not any(p.is_file() for p in (arch.root / "objects").rglob("*"))
+
+
+def test_a_step_that_needs_the_whole_record_reads_it_into_memory_whatever_its_size(
+    tmp_path, monkeypatch
+):
+    """A low-pass filter (forward and backward over the whole record) is not refused above
+    the memory limit: the record is read into memory, so the run is the one without a
+    limit (the same checks and their values, bit for bit)."""
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+
+    write_profile(tmp_path / "profiles", minutes=1.0)
+    monkeypatch.setenv("CALIB_PROFILES", str(tmp_path / "profiles"))
+    outs = {}
+    for name, limit in (("limited", 1), ("free", 1000)):
+        folder = small_run(
+            tmp_path, name, {"lowpass": {"cutoff_hz": 10.0}, "memory_limit_mb": limit}
+        )
+        arch = resolve_archive(str(tmp_path / f"archive-{name}"))
+        arch.upgrade()
+        outs[name] = process_run(discover_runs([folder])[0], arch)
+        assert outs[name]["status"] == "ok", outs[name]["error"]
+        steps = steps_of(tmp_path / f"archive-{name}", outs[name]["run_id"])
+        assert "lowpass" in steps and "streamed" not in steps["ingest"], steps["ingest"]
+    assert outs["limited"]["checks"] == outs["free"]["checks"]
+    assert outs["limited"]["verdict"] == outs["free"]["verdict"]
+
+
+# Timings: the only figures of a step that may differ between two runs of one record.
+TIMINGS = {"seconds", "preprocess_seconds"}
+
+
+def all_steps(archive: Path, run_id: str) -> list[tuple[str, dict, dict]]:
+    """(name, settings, statistics without timings) of a run's steps, in their order:
+    the settings without memory_limit_mb (the one setting two routes' runs differ by),
+    the ingest step without its figures of the streamed route (memory limit, bytes), the
+    run's own id as "<this run>"."""
+    from sqlalchemy import select
+
+    arch = resolve_archive(str(archive))
+    with arch.engine().connect() as conn:
+        run_pk = conn.execute(select(schema.Run.id).where(schema.Run.run_id == run_id)).scalar_one()
+        step = schema.ProcessingStep
+        rows = conn.execute(
+            select(step.name, step.settings, step.statistics)
+            .where(step.run_id == run_pk)
+            .order_by(step.id)
+        ).all()
+    out = []
+    for name, settings, stats in rows:
+        settings = {k: v for k, v in (settings or {}).items() if k != "memory_limit_mb"}
+        stats = {k: v for k, v in (stats or {}).items() if k not in TIMINGS}
+        if name == "ingest":
+            stats.pop("streamed", None)
+        # the run's own id (its manifest's hash: the memory limit in it) named as such
+        stats = json.loads(json.dumps(stats).replace(run_id, "<this run>"))
+        out.append((name, settings, stats))
+    return out
+
+
+def same_values(a, b, rel: float, where: str) -> None:
+    """a and b equal, their floats to `rel` relative, walking dicts and lists."""
+    if isinstance(b, dict):
+        assert isinstance(a, dict) and set(a) == set(b), (where, a, b)
+        for k in b:
+            same_values(a[k], b[k], rel, f"{where}.{k}")
+    elif isinstance(b, list | tuple):
+        assert type(a) is type(b) and len(a) == len(b), (where, a, b)
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            same_values(x, y, rel, f"{where}[{i}]")
+    elif isinstance(b, float) and isinstance(a, float):
+        assert abs(a - b) <= rel * abs(b) or a == b, (where, a, b)
+    else:
+        assert a == b, (where, a, b)
+
+
+def test_default_settings_and_a_time_window_give_the_same_run_at_any_memory_limit(data, tmp_path):
+    """The static-bias samples (spikes, a warming sensor) with a segment time window and
+    default settings, no step turned off, at the default memory limit (read into memory)
+    and at one that forces chunks: nothing refused, the same parameters, checks and
+    steps. One science on both routes (the in-memory solve is the chunked one of one
+    chunk), so the values differ only by the order of chunked sums: 1e-12 relative."""
+    write_profile(tmp_path / "profiles", minutes=15.0)
+    window = {"start_s": 101.0, "end_s": 1201.0}  # 110000 of the N samples
+    runs = {}
+    for route, settings in (("memory", {}), ("streamed", {"memory_limit_mb": LIMIT_MB})):
+        folder = write_run(tmp_path / route, data, "2026-03-02T08:00:00+00:00", settings, window)
+        runs[route], _ = calib_process(folder, tmp_path / f"archive-{route}")
+    mem, got = runs["memory"], runs["streamed"]
+    ingest = steps_of(tmp_path / "archive-streamed", got["run_id"])["ingest"]
+    assert ingest["streamed"]["memory_limit"] == LIMIT_MB * 10**6  # chunks, the other not
+    assert "streamed" not in steps_of(tmp_path / "archive-memory", mem["run_id"])["ingest"]
+    assert ingest["samples"] == {"record": 110_000}
+    same_values(got["parameters"], mem["parameters"], 1e-12, "parameters")
+    assert {c["name"] for c in mem["checks"]} >= {
+        "motion:record",
+        "condition:temperature_drift_c_per_h",
+    }
+    same_values(
+        sorted(got["checks"], key=lambda c: c["name"]),
+        sorted(mem["checks"], key=lambda c: c["name"]),
+        1e-12,
+        "checks",
+    )
+    assert got["verdict"] == mem["verdict"] == "pass"
+    steps = {
+        route: all_steps(tmp_path / f"archive-{route}", runs[route]["run_id"]) for route in runs
+    }
+    assert [s[0] for s in steps["memory"]] == [s[0] for s in steps["streamed"]]
+    same_values(steps["streamed"], steps["memory"], 1e-12, "steps")
+
+
+@pytest.mark.parametrize(
+    ("window", "said"),
+    [
+        ({"start_s": 5000.0, "end_s": 6000.0}, "lies 4699.01 s outside the record and 0 s"),
+        ({"start_s": 5000.0}, "holds no samples"),
+    ],
+)
+def test_a_window_outside_the_data_or_without_samples_is_refused_on_both_routes(
+    data, tmp_path, window, said
+):
+    """A window mostly outside the data, or without samples: the in-memory reader's
+    refusal on the streamed route too (the same message, the data's span named)."""
+    for route, settings in (("memory", {}), ("streamed", {"memory_limit_mb": LIMIT_MB})):
+        folder = write_run(tmp_path / route, data, "2026-03-02T08:00:00+00:00", settings, window)
+        from pipelines.ingest import discover_runs
+        from pipelines.process import process_run
+
+        arch = resolve_archive(str(tmp_path / f"archive-{route}"))
+        arch.upgrade()
+        out = process_run(discover_runs([folder])[0], arch)
+        assert out["status"] == "failed", out
+        assert said in out["error"] and "imu.csv spans 1 .. 1300.99 s" in out["error"], out
 
 
 def test_streamed_route_refuses_a_reading_at_the_sensor_range(tmp_path):

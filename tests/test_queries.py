@@ -30,8 +30,9 @@ from typer.testing import CliRunner
 
 from pipelines.cli import app
 from storage import queries
-from storage.archive import RunIn, archive_run
+from storage.archive import archive_run
 from storage.db import Archive
+from storage.run_input import RunIn
 
 RT7 = {
     "kind": "rate_table",
@@ -57,54 +58,17 @@ class Scenario:
 
 def build(archive: Archive, tmp: Path) -> Scenario:
     t = lambda *a: datetime(*a, tzinfo=UTC)  # noqa: E731
+    # name: serial, k, start, equipment, environment, other fields
+    table = {
+        "r1": ("A1", 1, t(2024, 1, 10, 8, 30), RT7, {"temperature_c": 20.0}, {}),
+        "r2": ("A1", 2, t(2024, 3, 5, 9, 0), RT7, {"temperature_c": 25.0}, {"verdict": "fail"}),
+        "r3": ("A1", 3, t(2024, 7, 2, 10, 0), RT7, {"temperature_c": 30.0}, {}),
+        "r4": ("B2", 4, t(2024, 6, 30, 23, 59), RT7, {"temperature_c": 22.0}, {}),
+        "r5": ("C3", 5, t(2024, 2, 1, 12, 0), RT9, {}, {"device_model": "ADXL355"}),
+    }
     runs = {
-        "r1": _run(
-            tmp,
-            "r1",
-            "A1",
-            1,
-            t(2024, 1, 10, 8, 30),
-            equipment=[RT7],
-            environment={"temperature_c": 20.0},
-        ),
-        "r2": _run(
-            tmp,
-            "r2",
-            "A1",
-            2,
-            t(2024, 3, 5, 9, 0),
-            equipment=[RT7],
-            verdict="fail",
-            environment={"temperature_c": 25.0},
-        ),
-        "r3": _run(
-            tmp,
-            "r3",
-            "A1",
-            3,
-            t(2024, 7, 2, 10, 0),
-            equipment=[RT7],
-            environment={"temperature_c": 30.0},
-        ),
-        "r4": _run(
-            tmp,
-            "r4",
-            "B2",
-            4,
-            t(2024, 6, 30, 23, 59),
-            equipment=[RT7],
-            environment={"temperature_c": 22.0},
-        ),
-        "r5": _run(
-            tmp,
-            "r5",
-            "C3",
-            5,
-            t(2024, 2, 1, 12, 0),
-            equipment=[RT9],
-            device_model="ADXL355",
-            environment={},
-        ),
+        name: _run(tmp, name, serial, k, start, equipment=[eq], environment=env, **other)
+        for name, (serial, k, start, eq, env, other) in table.items()
     }
     ids = {k: archive_run(archive, r).run_id for k, r in runs.items()}
     r3 = runs["r3"]

@@ -35,17 +35,19 @@ def _truth_vector(truth: GyroTruth) -> np.ndarray:
     return np.concatenate([truth.bias, M[0], M[1], M[2]])
 
 
+def _simulate(seed: int, truth: GyroTruth = TRUTH, **kw):
+    """The procedure's rate points (RATES_DEG, RECORD_S at RATE, DENSITY), `kw` overriding."""
+    given = {
+        "rates": tuple(r * DEG for r in RATES_DEG),
+        "rate_hz": RATE,
+        "record_s": RECORD_S,
+        "gyro_noise_density": DENSITY,
+    }
+    return simulate_rate_table(truth, rng=np.random.default_rng(seed), **(given | kw))
+
+
 def _run(seed: int, truth: GyroTruth = TRUTH, **kw):
-    run = simulate_rate_table(
-        truth,
-        rates=tuple(r * DEG for r in RATES_DEG),
-        rate_hz=RATE,
-        record_s=RECORD_S,
-        gyro_noise_density=DENSITY,
-        table_stability=1e-4,
-        rng=np.random.default_rng(seed),
-        **kw,
-    )
+    run = _simulate(seed, truth, table_stability=1e-4, **kw)
     return solve_rate_table(rate_points(run.recordings))
 
 
@@ -117,14 +119,7 @@ def test_nonlinearity_and_asymmetry():
     a = 800e-6
     truth = replace(TRUTH, k3=np.array([k3, 0.0, 0.0]), asymmetry=np.array([0.0, a, 0.0]))
     density = 0.001 * DEG
-    run = simulate_rate_table(
-        truth,
-        rates=tuple(r * DEG for r in RATES_DEG),
-        rate_hz=RATE,
-        record_s=RECORD_S,
-        gyro_noise_density=density,
-        rng=np.random.default_rng(42),
-    )
+    run = _simulate(42, truth, gyro_noise_density=density)
     cal = solve_rate_table(rate_points(run.recordings))
     w = np.array([r for r in RATES_DEG if r]) * DEG
     shift = k3 * np.sum(w**4) / np.sum(w**2)
@@ -146,14 +141,7 @@ def test_nonlinearity_and_asymmetry():
 
 
 def test_zero_rate_bias_consistency():
-    run = simulate_rate_table(
-        TRUTH,
-        rates=tuple(r * DEG for r in RATES_DEG),
-        rate_hz=RATE,
-        record_s=RECORD_S,
-        gyro_noise_density=DENSITY,
-        rng=np.random.default_rng(3),
-    )
+    run = _simulate(3)
     points = rate_points(run.recordings)
     clean = solve_rate_table(points)
     z = np.array(clean.info["zero_rate_bias"]["difference_sigma"])
@@ -245,15 +233,7 @@ def test_fixed_bias_reproduces_truth_within_its_reported_uncertainty():
     1/sqrt(2400) ~ 2 %, so 0.85 .. 1.15 is a > 5 sigma band; |mean| < 4/sqrt(1200)."""
     z = []
     for seed in range(300, 400):
-        run = simulate_rate_table(
-            TRUTH,
-            rates=tuple(r * DEG for r in RATES_DEG),
-            rate_hz=RATE,
-            record_s=RECORD_S,
-            gyro_noise_density=DENSITY,
-            table_stability=1e-4,
-            rng=np.random.default_rng(seed),
-        )
+        run = _simulate(seed, table_stability=1e-4)
         cal = solve_rate_table(rate_points(run.recordings), gyro_bias="static")
         est = np.array([cal.parameters[n].value for n in NAMES])
         u = np.array([cal.parameters[n].std for n in NAMES])
@@ -320,14 +300,7 @@ def test_fixed_bias_from_a_static_run_and_settings():
     w = np.array([50.0, 100.0]) * DEG
     expected = math.hypot(1e-4 / math.sqrt((w**2).sum()), w.sum() / (w**2).sum() * 2e-4)
     assert lone.parameters["gyr.scale.x"].std == pytest.approx(expected, rel=1e-9)
-    run = simulate_rate_table(
-        TRUTH,
-        rates=tuple(r * DEG for r in RATES_DEG),
-        rate_hz=RATE,
-        record_s=RECORD_S + 20,
-        gyro_noise_density=DENSITY,
-        rng=np.random.default_rng(7),
-    )
+    run = _simulate(7, record_s=RECORD_S + 20)
     segments = {r.label: r for r in run.recordings}
     via = procedures.solve(
         "rate_table", segments, 9.81, {"gyro_bias": "static", "static_bias_dps": [0.5, 0.0, 0.0]}
@@ -338,3 +311,57 @@ def test_fixed_bias_from_a_static_run_and_settings():
     moving = {k: r for k, r in segments.items() if not k.endswith(("_+0", "_0"))}
     with pytest.raises(ValueError, match="needs the static run"):
         procedures.solve("rate_table", moving, 9.81, {"gyro_bias": "static"})
+
+
+HELD_OUT = ("x_+50", "y_-50", "z_+50")
+
+
+def _held_out_run(tmp_path, name: str, off: float):
+    """Seed 000's rate-table run (the mpu6000 profile's unit) as a CSV run folder with one
+    plateau per axis held out; `off`: relative error put on the held-out plateaus' gyro
+    output (a unit that does not follow its fitted model there)."""
+    from calib_testing.run_writers import six_position_manifest, write_csv_run
+
+    run = simulate_rate_table(
+        TRUTH, rate_hz=RATE, settle_s=20.0, record_s=RECORD_S, gyro_noise_density=DENSITY,
+        rng=np.random.default_rng(0),
+    )  # fmt: skip
+    segments = {}
+    for rec in run.recordings:
+        if rec.label in HELD_OUT:
+            rec = replace(rec, gyr=rec.gyr * (1.0 + off))
+        segments[rec.label] = rec
+    m = six_position_manifest(f"SIM-RT-{name}")
+    m["run"] |= {"procedure": "rate_table", "settings": {"settle_s": 20.0}}
+    m["segments"] = [{"label": label, "verification": True} for label in HELD_OUT]
+    return write_csv_run(segments, tmp_path / name, m).parent
+
+
+def test_held_out_rate_points_are_judged_against_the_table_rate(tmp_path):
+    """A held-out 50 deg/s plateau is compared with the table's rate (was: with 0 deg/s, a
+    "49.57 deg/s error"): the right compensation passes, well inside the profile's 0.5
+    deg/s (the mean of 1000 samples of 0.1 deg/s noise: ~0.003 deg/s, plus the fit's own
+    uncertainty at 50 deg/s; measured 0.004-0.009 deg/s); a unit 2 % off its model at
+    those points (1 deg/s at 50 deg/s, twice the limit) fails each of them."""
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+    from storage.db import resolve_archive
+
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    errors = {}
+    try:
+        for name, off in (("right", 0.0), ("off", 0.02)):
+            folder = _held_out_run(tmp_path, name, off)
+            result = process_run(discover_runs([folder])[0], arch)
+            assert result["status"] == "ok", result["error"]
+            checks = {c["name"]: c for c in result["checks"]}
+            errors[name] = {label: checks[f"verify:{label}:gyr"] for label in HELD_OUT}
+            assert not any(f"verify:{label}:acc" in checks for label in HELD_OUT)
+    finally:
+        arch.dispose()
+    limit = 0.5 * DEG
+    for label in HELD_OUT:
+        right, off = errors["right"][label], errors["off"][label]
+        assert right["passed"] and right["value"] < 0.05 * limit, (label, right)
+        assert not off["passed"] and off["value"] > 1.8 * limit, (label, off)

@@ -18,11 +18,10 @@ import functools
 import shutil
 from pathlib import Path
 
-import hdf5storage
 import numpy as np
 import pytest
-import scipy.io
 from mcap.writer import CompressionType
+from test_ingest_fuzz import write_valid
 from test_ingest_mcap import write_run
 
 from pipelines.ingest import discover_runs, load_run
@@ -39,29 +38,9 @@ VARIABLES = {"t": "imu.t", "acc": "imu.acc", "gyr": "imu.gyr"}
 
 @functools.cache
 def valid(kind: str, folder: Path) -> bytes:
-    rng = np.random.default_rng(0)
-    n = 60
-    data = {
-        "t": 0.01 * np.arange(n),
-        "acc": rng.normal(size=(n, 3)),
-        "gyr": rng.normal(size=(n, 3)),
-    }
     path = folder / f"valid_{kind}.{'mcap' if kind == 'mcap' else 'mat'}"
-    if kind == "mcap":
-        write_run(
-            path,
-            n=n,
-            temperature=True,
-            joint_state=True,
-            chunk_size=2048,
-            compression=CompressionType.ZSTD,
-            enable_crcs=True,
-        )
-    elif kind == "mat5":
-        scipy.io.savemat(path, {"imu": data})
-    else:
-        hdf5storage.savemat(str(path), {"imu": data}, format="7.3")
-    return path.read_bytes()
+    mcap = {"chunk_size": 2048, "compression": CompressionType.ZSTD, "enable_crcs": True}
+    return write_valid(path, kind, **mcap).read_bytes()
 
 
 def read(kind: str, path: Path):  # noqa: ANN201

@@ -26,7 +26,7 @@ from typer.testing import CliRunner
 from calib_core.recording import Recording
 from calib_core.simulate import TrueErrors, six_position_integral_run
 from calib_core.units import STANDARD_GRAVITY
-from calib_testing.run_writers import write_csv_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
 from pipelines.ingest.errors import IngestError
@@ -40,22 +40,12 @@ TILT = math.radians(30.0)
 
 
 def _manifest(serial: str, day: int, settings: dict | None = None, segments=None) -> dict:
-    return {
-        "schema_version": 1,
-        "unit": {"serial": serial, "model": "MPU-6000", "manufacturer": "InvenSense"},
-        "run": {
-            "started": f"2026-11-{day:02d}T09:00:00+00:00",
-            "operator": "test",
-            "procedure": "six_position_integral",
-            "tolerance_profile": "mpu6000",
-            "settings": settings or {},
-        },
-        "site": {"gravity_model": "standard"},
-        "environment": {"temperature_c": 20.0},
+    m = six_position_manifest(serial, started=f"2026-11-{day:02d}T09:00:00+00:00")
+    m["run"]["settings"] = settings or {}
+    cube = {"kind": "cube", "model": "PC-100", "serial": "CUBE-1", "calibration_due": "2026-11-15"}
+    return m | {
         "format": {"acc_unit": "g"},  # reference_acc is then in g too
-        "equipment": [
-            {"kind": "cube", "model": "PC-100", "serial": "CUBE-1", "calibration_due": "2026-11-15"}
-        ],
+        "equipment": [cube],
         "segments": segments or [],
     }
 
@@ -144,7 +134,9 @@ def _check_html(path: Path) -> str:
 
 
 def _check_pdf(path: Path, tmp: Path, expected: list[str]) -> list[Path]:
-    """Render every page to PNG: none blank; the text holds every expected string."""
+    """Render every page to PNG (into the new folder `tmp`): none blank; the text holds
+    every expected string."""
+    tmp.mkdir()
     pdftoppm = shutil.which("pdftoppm")
     assert pdftoppm, "pdftoppm missing: `make test` installs it (scripts/ensure_system_packages.sh)"
     subprocess.run([pdftoppm, "-r", "40", "-png", str(path), str(tmp / "page")], check=True)
@@ -200,11 +192,9 @@ def test_clean_run_passes_all_and_report_is_complete(arch, tmp_path):
         "Not judged",
     ):
         assert expected in text, expected
-    pages = tmp_path / "pages"
-    pages.mkdir()
     _check_pdf(
         Path(written["pdf"]),
-        pages,
+        tmp_path / "pages",
         ["SIM-R-1", "Results", "acc.bias.x", "Quality control", "Accuracy verification", "PASS"],
     )
 
@@ -291,11 +281,9 @@ def test_calib_report_on_data_samples_csv_run(arch, tmp_path):
     written = _report(arch, outcome["run_id"], tmp_path / "out")
     assert set(written) >= {"protocol", "html", "pdf"}
     _check_html(Path(written["html"]))
-    pages = tmp_path / "pages"
-    pages.mkdir()
     _check_pdf(
         Path(written["pdf"]),
-        pages,
+        tmp_path / "pages",
         ["IMU-2026-0042", "CUBE-7", "2027-06-30", "Equipment", "Environment", "Signatures"],
     )
     # without --output the files go into the run's archive folder

@@ -298,7 +298,10 @@ def test_cli_exports_with_the_thermal_model(serve_sample, tmp_path):
     assert p["TC_A_ENABLE"] == 1 and p["TC_A0_ID"] == ACC_ID and p["CAL_GYRO0_ID"] == GYRO_ID
     assert p["CAL_ACC0_XOFF"] == 0.0  # the bias is in TC_A0_X0..X3
     res = _invoke(run_id, "--archive", root, "--format", "px4", "--no-thermal")
+    assert res.exit_code == 2 and "give --device-id" in " ".join(res.stderr.split())
+    res = _invoke(run_id, "--archive", root, "--format", "px4", "--no-thermal", "--device-id", "9")
     assert res.exit_code == 0 and "TC_A0_X0_0" not in res.stdout
+    assert "TC_A_ENABLE\t0" in res.stdout and "CAL_ACC0_ID\t9" in res.stdout
 
     res = _invoke(run_id, "--archive", root, "--format", "ardupilot", "--instance", "2")
     q = exports.read_ardupilot_params(_write(tmp_path / "ap.param", res.stdout))

@@ -212,7 +212,7 @@ def test_a_seal_rewritten_to_match_the_tamper_is_found(archive: Archive, tmp_pat
     fill(archive, tmp_path)
     with behind_the_archive(archive) as conn:
         conn.execute(text("UPDATE runs SET operator = 'Mallory' WHERE id = 1"))
-    from storage.seal import canonical, digest_of, records
+    from storage.seal_record import canonical, digest_of, records
 
     with behind_the_archive(archive) as conn:
         rec = records(conn, [1])[1]

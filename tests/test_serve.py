@@ -276,13 +276,17 @@ def test_export_downloads_are_the_calib_export_files(client, serve_sample, tmp_p
 
     run_id = serve_sample.runs[THERMAL_SERIAL][2]  # a unit with a thermal model
     links = get(client, f"/runs/{run_id}").links
+    # its CSV runs record no PX4 device id: refused naming it, given it is the CLI's file
+    r = client.get(f"/runs/{run_id}/export.px4")
+    assert r.status_code == 400 and "--device-id" in r.text
     for fmt in ("px4", "ardupilot", "csv", "mat"):
         url = f"/runs/{run_id}/export.{fmt}"
         assert url in links
-        r = client.get(url)
+        r = client.get(url + ("?device_id=1310988" if fmt == "px4" else ""))
         assert r.status_code == 200, (url, r.text[-300:])
         assert "attachment" in r.headers["content-disposition"]
-        want = export_run(serve_sample.archive, run_id, fmt)
+        ids = {"accel_id": 1310988, "gyro_id": 1310988} if fmt == "px4" else {}
+        want = export_run(serve_sample.archive, run_id, fmt, **ids)
         assert want.filename in r.headers["content-disposition"]
         if fmt != "mat":  # text: the same bytes as `calib export`
             assert r.content == want.data
@@ -293,7 +297,7 @@ def test_export_downloads_are_the_calib_export_files(client, serve_sample, tmp_p
         assert got.keys() == ref.keys()
         np.testing.assert_array_equal(got["thermal_coef"], ref["thermal_coef"])
         np.testing.assert_array_equal(got["parameter_values"], ref["parameter_values"])
-    assert b"TC_A0_X0_0" in client.get(f"/runs/{run_id}/export.px4").content
+    assert b"TC_A0_X0_0" in client.get(f"/runs/{run_id}/export.px4?device_id=7").content
     assert client.get(f"/runs/{run_id}/export.xls").status_code == 404
     assert client.get(f"/runs/{run_id}/export.px4?revision=7").status_code == 404
     assert client.get(f"/runs/{run_id}/export.px4?instance=1").status_code == 400

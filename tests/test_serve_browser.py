@@ -186,3 +186,22 @@ def test_pages_work_without_javascript(browser, server, serve_sample, shots):
     assert pg.locator("#parameters tr").count() > 1
     shots(pg, "13-run-no-javascript")
     context.close()
+
+
+def test_navigation_pages(page, server, serve_sample, shots):
+    run_id = serve_sample.runs[DRIFT_SERIAL][-1]
+    page.goto(f"{server}/runs/{run_id}")
+    page.click("#navigation-link")
+    assert page.url.endswith(f"/runs/{run_id}/navigation")
+    page.select_option("select[name=profile]", "multicopter-flight")
+    page.click("#show-profile")  # a plain GET form
+    assert "profile=multicopter-flight" in page.url
+    assert page.locator("svg.chart").count() == 3
+    assert page.locator("#figures tr").count() == 1 + 7
+    shots(page, "14-run-navigation")
+    page.goto(f"{server}/fleet?model=MPU-6000")
+    page.click("#navigation-link")
+    assert "/fleet/navigation?model=MPU-6000" in page.url
+    df = queries.units(serve_sample.archive, model="MPU-6000", verdict="pass")
+    assert page.locator("#fleet-navigation tr").count() == 1 + df["serial"].nunique()
+    shots(page, "15-fleet-navigation")

@@ -212,14 +212,7 @@ def test_streamed_motion_check_is_the_in_memory_one(kind, make, moves):
     rec = make()
     ref = motion_statistics(rec)
     got, exact = _streamed_statistics(rec, 7777)  # 100-sample windows: split by chunks
-    assert ref is not None and got is not None
-    assert got["ratio"] == pytest.approx(ref["ratio"], rel=1e-12, abs=0.0), (got, ref)
-    assert got["limit"] == pytest.approx(ref["limit"], rel=1e-12, abs=0.0), (got, ref)
-    assert (got["channel"], got["t_s"], got["window_s"]) == (
-        ref["channel"],
-        ref["t_s"],
-        ref["window_s"],
-    )
+    _same_statistics(got, ref)
     assert (got["ratio"] > got["limit"]) is moves, got
     assert bool(exact) is kind.startswith("quantised"), exact
     if exact:
@@ -238,7 +231,7 @@ def _arbitrary_chunks(rec: Recording, seed: int, first: int) -> list[tuple]:
 
 
 def _first_pass(chunks: list[tuple]):
-    from calib_core.solvers.static_bias_stream import FirstPass
+    from calib_core.solvers.static_bias import FirstPass
 
     first = FirstPass.empty()
     for chunk in chunks:
@@ -273,7 +266,7 @@ def test_first_pass_motion_is_the_in_memory_one(make, moves, seed):
     the chunks' sizes; the solve then takes them and its pass computes no window (its
     chunks carry no time, which a window needs)."""
     from calib_core.preprocess.motion import motion_statistics, streamed_smallest_steps
-    from calib_core.solvers.static_bias_stream import solve_static_bias_stream
+    from calib_core.solvers.static_bias import solve_static_bias_stream
 
     rec = make()
     chunks = _arbitrary_chunks(rec, seed, first=700)
@@ -324,7 +317,7 @@ def test_first_pass_motion_falls_back_to_the_solve_pass(case, make):
     first pass's windows are not used: the solve's pass computes them again, and the check
     is still the in-memory one (a record that moves fails it)."""
     from calib_core.preprocess.motion import motion_statistics, motion_width
-    from calib_core.solvers.static_bias_stream import solve_static_bias_stream
+    from calib_core.solvers.static_bias import solve_static_bias_stream
 
     rec = make()
     chunks = _arbitrary_chunks(rec, 4, first=900)
@@ -350,7 +343,7 @@ def test_solve_without_a_first_pass_judges_the_chunks_it_is_given():
     """The as-found solve passes no first pass (its chunks are the samples corrected by an
     earlier calibration): its own first pass keeps no motion windows, and its second
     pass's check is the in-memory one of the chunks given, not of the raw samples."""
-    from calib_core.solvers.static_bias_stream import first_pass, solve_static_bias_stream
+    from calib_core.solvers.static_bias import first_pass, solve_static_bias_stream
 
     raw = _moving(330)
     mix = np.array([[1.0, 0.4, 0.1], [0.3, 1.0, 0.2], [0.2, 0.1, 1.0]])  # misalignment

@@ -10,12 +10,18 @@ import allantools
 import numpy as np
 import pytest
 
-from calib_core.noise import allan_deviation
 from calib_core.preprocess.motion import motion_check
 from calib_core.simulate.noise import NoiseSpec, simulate_static
-from calib_core.solvers.static_bias import _fill, sigma_clip, solve_static_bias
-from calib_core.solvers.static_bias_stream import solve_static_bias_stream
-from calib_core.streamed import MedianStep, Moments, SigmaClipFill, StreamedAllan, joined_allan
+from calib_core.solvers.static_bias import solve_static_bias, solve_static_bias_stream
+from calib_core.streamed import (
+    Execution,
+    MedianStep,
+    Moments,
+    SigmaClipFill,
+    StreamedAllan,
+    allan_deviation,
+    joined_allan,
+)
 
 RATE = 100.0
 # Different chunkings add the same numbers in a different order: a few ulp per sum,
@@ -30,6 +36,25 @@ def _record(n: int = 40_003, seed: int = 1) -> np.ndarray:
     return rng.normal(size=(n, 3)) * 0.01 + walk + [9.8, 0.0, 0.1]
 
 
+def sigma_clip(x: np.ndarray, n_sigma: float = 3.0) -> np.ndarray:
+    """The oracle of the n-sigma rule: its keep-mask of (N, C) samples on the whole array
+    (one pass, NumPy's mean and std)."""
+    mean, std = x.mean(axis=0), x.std(axis=0)
+    return np.abs(x - mean) <= n_sigma * std
+
+
+def _fill(x: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The oracle of its fill: rejected samples by linear interpolation (in sample index)
+    of their kept neighbours, channel by channel (`np.interp`: the edge values beyond)."""
+    out = x.copy()
+    idx = np.arange(x.shape[0])
+    for c in range(x.shape[1]):
+        bad = ~keep[:, c]
+        if bad.any():
+            out[bad, c] = np.interp(idx[bad], idx[~bad], x[~bad, c])
+    return out
+
+
 def _chunks(x: np.ndarray, size: int):
     return [x[i : i + size] for i in range(0, x.shape[0], size)]
 
@@ -41,7 +66,7 @@ def test_streamed_allan_equals_in_memory_and_allantools(size, memory_rows):
     than it (the longer lags then come from the history), and one that holds the whole
     phase (N + 1 rows: one buffer)."""
     x = _record()
-    s = StreamedAllan(RATE, x.shape[0], 3, memory_rows=memory_rows)
+    s = StreamedAllan(RATE, x.shape[0], 3, execution=Execution(memory_rows=memory_rows))
     for c in _chunks(x, size):
         s.push(c)
     got = s.result()
@@ -64,22 +89,15 @@ def test_streamed_allan_by_channel_with_helper_and_workspace_same_sums():
     x = _record()
     n = x.shape[0]
     offset = x.mean(axis=0)
-    together = StreamedAllan(RATE, n, 3, memory_rows=n + 1, offset=offset)
+    together = StreamedAllan(RATE, n, 3, offset=offset, execution=Execution(memory_rows=n + 1))
     for chunk in _chunks(x, 1000):
         together.push(chunk)
     space = np.full(n + 1, np.nan)
     parts = []
     with ThreadPoolExecutor(1) as pool:
+        on = Execution(submit=pool.submit, memory_rows=n + 1, workspace=space)
         for c in range(3):
-            s = StreamedAllan(
-                RATE,
-                n,
-                1,
-                offset=offset[c : c + 1],
-                memory_rows=n + 1,
-                helper=pool.submit,
-                workspace=space,
-            )
+            s = StreamedAllan(RATE, n, 1, offset=offset[c : c + 1], execution=on)
             for chunk in _chunks(x[:, c : c + 1], 1000):
                 s.push(chunk)
             assert np.shares_memory(s._buf, space)
@@ -182,16 +200,18 @@ def test_streamed_static_bias_same_parameters_as_in_memory(by_channel, memory_ro
     def channel(c):
         return (both[i : i + 4096, c : c + 1] for i in range(0, len(rec), 4096))
 
-    with ThreadPoolExecutor(1) as pool:
+    with ThreadPoolExecutor(2) as pool:
+        execution = Execution(
+            submit=pool.submit,
+            memory_rows=memory_rows,
+            workspace=np.empty(len(rec) + 1) if memory_rows > len(rec) else None,
+        )
         got = solve_static_bias_stream(
             chunks,
             label=rec.label or "record",
-            memory_rows=memory_rows,
             channel_chunks=channel if by_channel else None,
-            workspace=np.empty(len(rec) + 1) if memory_rows > len(rec) else None,
-            parallel=by_channel,
-            submit=pool.submit,
             motion_label="record",
+            execution=execution,
             **settings,
         )
     assert set(got.parameters) == set(ref.parameters)

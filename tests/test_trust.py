@@ -22,7 +22,7 @@ from test_seal import behind_the_archive
 from test_verify_backup import cli, fill
 
 from pipelines.trust import approval_line
-from storage import checkpoint, seal, unit_latest
+from storage import checkpoint, seal, seal_record, unit_latest
 from storage.approval import (
     approvals,
     approve,
@@ -32,6 +32,7 @@ from storage.approval import (
     load_key,
     message,
 )
+from storage.current import CURRENT
 from storage.db import Archive
 from storage.schema import AuditEvent, CalibrationRow, ParameterRow, Run, Seal
 from storage.verify import verify
@@ -141,7 +142,7 @@ def test_a_forged_event_with_writer_rights_is_flagged(
         )
         conn.execute(
             AuditEvent.__table__.insert().values(
-                **{k: getattr(ev, k) for k in seal._EVENT_FIELDS}, hash=ev.hash()
+                **{k: getattr(ev, k) for k in seal.EVENT_FIELDS}, hash=ev.hash()
             )
         )
     assert verify(archive, orphans=False).ok  # linked and signed: the chain cannot tell
@@ -276,7 +277,7 @@ def _rewrite_value(archive: Archive, run_id: str) -> None:
         cal_id = conn.execute(
             select(CalibrationRow.id)
             .join(Run, Run.id == CalibrationRow.run_id)
-            .where(Run.run_id == run_id, CalibrationRow.superseded_by.is_(None))
+            .where(Run.run_id == run_id, CURRENT)
         ).scalar_one()
         name, value = conn.execute(
             select(ParameterRow.name, ParameterRow.value)
@@ -300,20 +301,20 @@ def _rewrite_value(archive: Archive, run_id: str) -> None:
         )
         files = conn.execute(select(Seal.record).where(Seal.calibration_id == cal_id)).scalar_one()
         conn.execute(Seal.__table__.delete().where(Seal.calibration_id == cal_id))
-        rec = seal.records(conn, [cal_id], {cal_id: files["files"]})[cal_id]
-        digest = seal._insert_seal(conn, cal_id, rec)
+        rec = seal_record.records(conn, [cal_id], {cal_id: files["files"]})[cal_id]
+        digest = seal.insert_seal(conn, cal_id, rec)
         rows = conn.execute(select(AuditEvent).order_by(AuditEvent.seq)).all()
         conn.execute(AuditEvent.__table__.delete())
         prev = seal.GENESIS
         for row in rows:
-            ev = seal.Event(**{k: getattr(row, k) for k in seal._EVENT_FIELDS})
+            ev = seal.Event(**{k: getattr(row, k) for k in seal.EVENT_FIELDS})
             if ev.run_id == run_id and ev.digest is not None and ev.action in seal.SEALING:
                 ev = seal.Event(**{**ev.__dict__, "digest": digest})
             ev = seal.Event(**{**ev.__dict__, "prev_hash": prev})
             prev = ev.hash()
             conn.execute(
                 AuditEvent.__table__.insert().values(
-                    **{k: getattr(ev, k) for k in seal._EVENT_FIELDS}, hash=prev
+                    **{k: getattr(ev, k) for k in seal.EVENT_FIELDS}, hash=prev
                 )
             )
         unit_latest.rebuild(conn)  # the derived copy of the value, as verify expects it

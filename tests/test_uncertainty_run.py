@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import json
+import tomllib
 from datetime import date, timedelta
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from calib_core.uncertainty import budgets as make_budgets
 from calib_core.uncertainty_sources import EquipmentSpec
 from calib_core.units import STANDARD_GRAVITY
 from calib_core.verification import FAIL, NEEDS_REVIEW
-from calib_testing.run_writers import write_csv_run
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
 from pipelines.reports.run_reports import report_run
@@ -151,6 +152,7 @@ address = "Musterstrasse 1, 80331 Muenchen, Germany"
 [customer]
 name = "Example Drones AG"
 contact = "qa@example.com"
+address = "Hangar 3, 12345 Somewhere"
 
 [authorised_by]
 name = "Dr. A. Metrologist"
@@ -164,24 +166,11 @@ issued_by = "PTB"
 
 
 def _manifest(serial: str, equipment: bool, day: int = 20) -> dict:
-    return {
-        "schema_version": 1,
-        "unit": {"serial": serial, "model": "MPU-6000", "manufacturer": "InvenSense"},
-        "run": {
-            "started": f"2026-11-{day}T09:00:00+00:00",
-            "operator": "test",
-            "procedure": "six_position_integral",
-            "tolerance_profile": "guarded",
-        },
-        "site": {"gravity_model": "standard"},  # U(g) = 0.03 m/s^2: acc.scale U ~ 3e-3
-        "environment": {"temperature_c": 20.0},
-        "format": {"acc_unit": "g"},
-        "equipment": [
-            {"kind": "cube", "model": "PC-100", "serial": "CUBE-1", "calibration_due": "2027-11-15"}
-        ]
-        if equipment
-        else [],
-    }
+    m = six_position_manifest(serial, started=f"2026-11-{day}T09:00:00+00:00")
+    # standard gravity (U(g) = 0.03 m/s^2): acc.scale U ~ 3e-3
+    m["run"]["tolerance_profile"] = "guarded"
+    cube = {"kind": "cube", "model": "PC-100", "serial": "CUBE-1", "calibration_due": "2027-11-15"}
+    return m | {"format": {"acc_unit": "g"}, "equipment": [cube] if equipment else []}
 
 
 # serial -> (equipment named, [(day, true acc.scale.x)]): U-BARE comes back a day later with
@@ -520,10 +509,11 @@ def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
 
     Read with dccXMLJSONConv (PTB); pydcc, the reader the issue names, does not import here
     (its oscrypto 1.3.0 cannot parse OpenSSL 3.0.19's version string; docs/reports.md).
-    No package on PyPI ships the DCC XSD and tests have no network: not schema-validated.
+    Valid against PTB's DCC 3.3.0 schema (vendored in tests/schemas).
     """
     from typer.testing import CliRunner
 
+    from calib_testing.documents import dcc_schema_errors
     from pipelines.cli import app
 
     _, summary, *_ = archived["U-KNOWN"]
@@ -542,9 +532,10 @@ def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     xml = Path(json.loads(result.stdout)["dcc"]).read_text(encoding="utf-8")
+    assert dcc_schema_errors(xml.encode()) == []
     _assert_dcc_matches_archive(xml, summary)
     root = _read_dcc(xml)
-    assert root["@schemaVersion"].startswith("3.")
+    assert root["@schemaVersion"] == "3.3.0"
     assert [k for k in root if not k.startswith("@")] == [
         "dcc:administrativeData",
         "dcc:measurementResults",
@@ -588,7 +579,7 @@ def test_dcc_round_trip_fails_on_a_broken_dcc(archived, how) -> None:
     from pipelines.reports.dcc import dcc_xml
 
     _, summary, *_ = archived["U-KNOWN"]
-    xml = dcc_xml(summary).decode("utf-8")
+    xml = dcc_xml({**summary, "lab": tomllib.loads(LAB_TOML)}).decode("utf-8")
     _assert_dcc_matches_archive(xml, summary)
     broken = _broken(xml, how)
     assert broken != xml

@@ -134,7 +134,7 @@ def test_a_judgement_made_on_an_older_state_is_not_written(tmp_path: Path) -> No
     """`rejudge_run` writes only while the revision is current and the unit's earlier runs
     are those the judgement saw; else nothing is written and the caller judges again."""
     from calib_core.calibration import StepRecord
-    from storage.archive import Rejudgement, rejudge_run
+    from storage.rejudgement import Rejudgement, rejudge_run
 
     archive = open_archive(tmp_path / "a")
     try:
@@ -169,8 +169,8 @@ def test_a_revision_judged_again_has_a_settings_hash_a_reader_recomputes(
     recomputes it and a changed list of runs shows."""
     from sqlalchemy import select, update
 
-    from storage.archive import JUDGED_AGAINST, settings_hash
     from storage.schema import CalibrationRow, ProcessingStep, Run
+    from storage.settings_hash import JUDGED_AGAINST, settings_hash
 
     process_in_order(archive, ["2026-11-03", "2026-08-04"])  # Nov judged again once
     cands = queries.repeatability_candidates(archive, SERIAL, "six_position")

@@ -364,11 +364,16 @@ def static_motion_checks(static_segments: str, segments: dict[str, Recording]) -
         (labels ending ``_cw``/``_ccw`` left out) or "none" (it moves on purpose: no check).
     segments : label -> Recording (SI units).
     """
+    return motion_checks(segments, static_labels(static_segments, segments))
+
+
+def static_labels(static_segments: str, labels) -> list[str]:
+    """The labels among `labels` a procedure holds still, by its
+    `Procedure.static_segments`: "all", "all but turns" or "none"."""
     if static_segments == "none":
         return []
     if static_segments not in ("all", "all but turns"):
         raise ValueError(
             f"static_segments: expected 'all', 'all but turns' or 'none', got {static_segments!r}"
         )
-    static = [label for label in segments if static_segments == "all" or not is_rotation(label)]
-    return motion_checks(segments, static)
+    return [label for label in labels if static_segments == "all" or not is_rotation(label)]

@@ -43,6 +43,13 @@ SETTINGS = Settings(
 )  # fmt: skip
 
 
+def plateau_window(settings: dict[str, Any] | None) -> dict[str, float]:
+    """``settle_s`` and ``record_s`` (s) of each plateau's record window from the run's
+    settings (defaults filled in): the fit's and the held-out points' one window."""
+    s = SETTINGS.merged(settings)
+    return {k: float(s[k]) for k in ("settle_s", "record_s") if s.get(k) is not None}
+
+
 def solve_rate_table_procedure(
     segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
 ) -> Calibration:
@@ -52,8 +59,7 @@ def solve_rate_table_procedure(
     settings : `RATE_TABLE.settings`.
     """
     s = SETTINGS.merged(settings)
-    kwargs = {k: float(s[k]) for k in ("settle_s", "record_s") if s.get(k) is not None}
-    points = rate_points(list(segments.values()), **kwargs)
+    points = rate_points(list(segments.values()), **plateau_window(settings))
     full = s.get("full_scale_dps")
     given = None
     if s.get("static_bias_dps") is not None:

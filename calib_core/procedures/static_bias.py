@@ -12,8 +12,7 @@ from calib_core.calibration import Calibration
 from calib_core.condition_rules import ConditionUse
 from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, METHODS, Procedure, Setting, Settings
 from calib_core.recording import Recording
-from calib_core.solvers.static_bias import solve_static_bias
-from calib_core.solvers.static_bias_stream import solve_static_bias_stream
+from calib_core.solvers.static_bias import solve_static_bias, solve_static_bias_stream
 
 MEMORY_LIMIT = "memory_limit_mb"  # MB (10^6 bytes)
 UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
@@ -68,7 +67,7 @@ def solve_static_bias_streamed(chunks, settings: dict[str, Any] | None, **stream
     chunks : called once per pass, a fresh iterator of (t, gyr, acc) chunks.
     settings : `STATIC_BIAS.settings` (the reading ones, such as memory_limit_mb, left out).
     streaming : label, first, gravity and how the pass runs (history, threads, motion),
-        as `calib_core.solvers.static_bias_stream.solve_static_bias_stream` takes them.
+        as `calib_core.solvers.static_bias.solve_static_bias_stream` takes them.
     """
     return solve_static_bias_stream(chunks, **streaming, **solver_settings(settings))
 

@@ -432,13 +432,25 @@ def calibrate_equipment_free(
         }
     )
     cal.info["static_threshold_k"] = statics.k
+    raised = []
     if statics.k != s["k"]:
         cal.warnings.append(
             f"equipment_free: k = {s['k']:g} found too few rests; the threshold search "
             f"took k = {statics.k:g} ({len(statics.intervals)} rests)"
         )
+        # A finding about the record: its rests are less still than the setting expects.
+        raised.append(
+            {
+                "name": "record:threshold:static_k",
+                "value": float(statics.k),
+                "limit": float(s["k"]),
+                "passed": False,
+                "detail": f"{cal.warnings[-1]}: the rests were found with a relaxed threshold",
+            }
+        )
     cal.info.setdefault("solver_checks", []).extend(
         [
+            *raised,
             _dof_check(info_a["acc_dof"]),
             _detector_check(detector_shifts(rec, s, statics, theta_a, cov_a, gravity)),
         ]

@@ -166,10 +166,11 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     shaped = (
         (np.abs(r[i - 1, ch] + 0.5 * r[i, ch]) < near)
         & (np.abs(r[i + 1, ch] + 0.5 * r[i, ch]) < near)
-        # The neighbours agree with each other: the sample stands out from each by at
+        # The neighbours agree with each other about the local slope (a turn's ramp
+        # moves them apart by twice a step's slope): the sample stands out from each by at
         # least half its height. A step of the rate (a turn starting or stopping within
         # a sample) leaves the sample near one neighbour: motion, not a spike.
-        & (np.abs(gyr[i + 1, ch] - gyr[i - 1, ch]) < np.abs(r[i, ch]))
+        & (np.abs(d[i - 1, ch] + d[i, ch]) < np.abs(r[i, ch]))
         # Both jumps, onto the sample and off it, beyond the motion's own jumps around it.
         & (np.minimum(np.abs(d[i - 1, ch]), np.abs(d[i, ch])) > SPIKE_SIGMA * jump_scale)
     )
@@ -177,6 +178,10 @@ def despike(gyr: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     # A jerk of the fixture moves the other axes at the same sample beyond their noise
     # without a spike's shape; an electrical glitch is spike-shaped wherever it shows.
     moving = np.abs(r[i]) > SPIKE_NEIGHBOUR_SIGMA * scale[i]
+    # ... unless that axis has a spike of its own next to the sample (a glitch on another
+    # channel one sample away: its neighbour's r is -1/2 of it, the larger of the two).
+    beside = np.maximum(np.abs(r[np.maximum(i - 1, 0)]), np.abs(r[np.minimum(i + 1, len(r) - 1)]))
+    moving &= ~(beside > 1.5 * np.abs(r[i]))
     moving[np.arange(i.size), ch] = False
     for j in range(i.size):  # candidates are rare: spike-shaped others do not count
         moving[j, ch[(i == i[j])]] = False
@@ -281,9 +286,11 @@ def solve_integral(
     that reached the gyro range, a turn count that is not a whole number.
     """
     _check_inputs(rotations, static_means, gyro_range, turns, directions)
+    at_rest = check_turns_at_rest(rotations, static_means)
     replaced: dict[str, dict] = {}
     J, var, duration = _integrals(rotations, static_means, noise_std, replaced)
     n = _turn_count(J, turns)
+    check_closure(J, var, duration, static_sems, rotations)
 
     cal = Calibration(procedure="integral", gravity=gravity)
     closure: dict[str, float] = {}
@@ -311,12 +318,104 @@ def solve_integral(
             "gyro bias is removed by the static mean alone (no ccw/cw cancellation)"
         )
     cal.info["turns"] = n
+    cal.info.setdefault("solver_checks", []).extend(at_rest)
     record_spikes(cal, replaced)
     cal.info["integral_closure_rad"] = closure
     cal.info["rotation_durations_s"] = {
         f"{a}_{s}": duration[a][s] for a in params.AXES for s in ("ccw", "cw") if s in duration[a]
     }
     return cal
+
+
+# A turn begins and ends at rest: the mean rate over its first and last REST_S (at least
+# REST_SAMPLES samples) may differ from the static reading of its orientation by REST_FRACTION
+# of the turn's peak rate plus REST_SIGMA standard errors of that mean. Beyond it the turn is
+# a finding (a record cut a little early: imucal's annotated x_cw ends at 11 % of its peak);
+# beyond MOVING_FRACTION of the peak it was cut mid-turn (a log cut at 1.5 rad/s was archived
+# 3134 standard uncertainties off) and is refused.
+REST_S = 0.1
+REST_SAMPLES = 5
+REST_FRACTION = 0.05
+REST_SIGMA = 6.0
+MOVING_FRACTION = 0.25
+# The angles of a ccw and a cw turn about one axis agree within CLOSURE_SIGMA standard
+# uncertainties of their mean (the common part, which the scale's difference cancels): a
+# turn cut a little short of its end (at rest, or in its last slow degrees) shifts the
+# scale by as many of its own standard uncertainties as the closure (same variance), so a
+# closure within 6 keeps the scale within 6 of the whole turns'.
+CLOSURE_SIGMA = 6.0
+
+
+def check_turns_at_rest(
+    rotations: dict[str, Recording], static_means: dict[str, np.ndarray]
+) -> list[dict]:
+    """The ``record:rest:<label>`` finding of each rotation that does not quite begin or end
+    at rest (CheckResult fields); ValueError naming the segment, its file and the rate
+    measured for one cut mid-turn."""
+    findings = []
+    for label, rec in rotations.items():
+        S = np.asarray(static_means[f"{label[0]}_up"], dtype=float)
+        peak = float(np.linalg.norm(rec.gyr - S, axis=1).max())
+        step = float(np.median(np.diff(rec.t))) if len(rec) > 1 else 0.0
+        m = max(REST_SAMPLES, int(round(REST_S / step)) if step > 0 else REST_SAMPLES)
+        m = min(m, max(len(rec) // 4, 1))
+        sigma = float(np.linalg.norm(noise_from_differences(rec.gyr)))
+        limit = REST_FRACTION * peak + REST_SIGMA * sigma / math.sqrt(m)
+        worst = max(
+            (float(np.linalg.norm(part.mean(axis=0) - S)), where)
+            for where, part in (("begins", rec.gyr[:m]), ("ends", rec.gyr[-m:]))
+        )
+        if worst[0] <= limit:
+            continue
+        what = (
+            f"rotation {label} ({rec.source or 'recording'}) {worst[1]} turning: "
+            f"{worst[0] / DEG:.3g} deg/s from its rest reading over its "
+            f"{'first' if worst[1] == 'begins' else 'last'} {m} samples (peak "
+            f"{peak / DEG:.3g} deg/s; at rest: at most {limit / DEG:.3g} deg/s)"
+        )
+        if worst[0] > MOVING_FRACTION * peak + REST_SIGMA * sigma / math.sqrt(m):
+            raise ValueError(
+                f"{what}: a turn must begin and end at rest; the record was cut mid-turn, "
+                "repeat or re-cut the rotation"
+            )
+        findings.append(
+            {
+                "name": f"record:rest:{label}",
+                "value": worst[0],
+                "limit": limit,
+                "passed": False,
+                "detail": f"{what}: part of the turn may be outside the record",
+            }
+        )
+    return findings
+
+
+def check_closure(
+    J: dict[str, dict[str, np.ndarray]],
+    var: dict[str, dict[str, np.ndarray]],
+    duration: dict[str, dict[str, float]],
+    static_sems: dict[str, np.ndarray],
+    rotations: dict[str, Recording],
+) -> None:
+    """Refuse an axis whose ccw and cw turns' angles differ from the commanded whole turns by
+    more than CLOSURE_SIGMA standard uncertainties of their mean (ValueError naming the
+    axis, the mismatch and its uncertainty)."""
+    for j, a in enumerate(params.AXES):
+        if len(J[a]) != 2:
+            continue
+        closure = float(J[a]["ccw"][j] + J[a]["cw"][j]) / 2.0
+        sem = float(np.asarray(static_sems[f"{a}_up"], dtype=float)[j])
+        span = duration[a]["ccw"] + duration[a]["cw"]
+        std = math.sqrt(float(var[a]["ccw"][j] + var[a]["cw"][j]) + (span * sem) ** 2) / 2.0
+        if abs(closure) > CLOSURE_SIGMA * std:
+            files = ", ".join(str(rotations[f"{a}_{k}"].source) for k in ("ccw", "cw"))
+            raise ValueError(
+                f"rotations {a}_ccw and {a}_cw ({files}): their angles differ from whole turns by "
+                f"{math.degrees(closure):+.4g} deg in common ({abs(closure) / std:.1f} of its "
+                f"standard uncertainty {math.degrees(std):.3g} deg; at most "
+                f"{CLOSURE_SIGMA:g}): a turn is incomplete (a record cut short) or the fixture "
+                "did not come back to its start; repeat the rotations"
+            )
 
 
 def _rotation_axes(rotations: dict[str, Recording]) -> np.ndarray | None:
@@ -412,7 +511,9 @@ def _turn_count(J: dict[str, dict[str, np.ndarray]], turns: int | None) -> int:
     rounded = {a: round(v) for a, v in n_est.items()}
     bad = {a: v for a, v in n_est.items() if rounded[a] < 1 or abs(v - rounded[a]) > TURN_TOLERANCE}
     if bad:
-        detail = ", ".join(f"{a}: {v:.2f}" for a, v in bad.items())
+        detail = ", ".join(
+            f"{a} ({'/'.join(f'{a}_{k}' for k in J[a])}): {v:.2f}" for a, v in bad.items()
+        )
         raise ValueError(
             f"integral method: the rotations are not whole turns ({detail} turns); "
             "give the number of turns in the settings or repeat the rotations"

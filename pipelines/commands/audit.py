@@ -173,7 +173,7 @@ def _print_table(events: list[dict[str, Any]]) -> None:
     print_table("Audit trail (oldest first)", ["seq", "run_id", "event", "at (UTC)", "what"], rows)
 
 
-def _passphrase(confirm: bool) -> str:
+def read_passphrase(confirm: bool) -> str:
     given = os.environ.get(PASSPHRASE_ENV)
     if given:
         return given
@@ -190,7 +190,7 @@ def keygen(
     from storage.approval import generate_key
 
     try:
-        public = generate_key(key, name, _passphrase(confirm=True))
+        public = generate_key(key, name, read_passphrase(confirm=True))
     except (ValueError, FileExistsError) as exc:
         fail(str(exc))
     err.print(f"key of {name} written to {key} (public key {public} in {key}.pub)")
@@ -227,7 +227,7 @@ def approve(
         ev = sign(
             arch,
             full,
-            load_key(key, _passphrase(confirm=False)),
+            load_key(key, read_passphrase(confirm=False)),
             signer=name,
             meaning=meaning,
             revision=revision,

@@ -23,7 +23,7 @@ def checkpoint(
     against it with `calib verify --checkpoint FILE`."""
     import json
 
-    from pipelines.commands.audit import _passphrase
+    from pipelines.commands.audit import read_passphrase
     from storage import checkpoint as checkpoints
     from storage.approval import ApprovalError, load_key
 
@@ -35,7 +35,7 @@ def checkpoint(
         pub = key.with_name(key.name + ".pub")
         try:
             signer = json.loads(pub.read_text())["name"]
-            signing = load_key(key, _passphrase(confirm=False))
+            signing = load_key(key, read_passphrase(confirm=False))
         except (OSError, ValueError, KeyError) as exc:
             fail(f"{pub}: cannot read the signer's name ({exc})")
         except ApprovalError as exc:

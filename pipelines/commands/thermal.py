@@ -16,7 +16,10 @@ import typer
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    DeviceIdOpt,
     JsonOpt,
+    RotationOpt,
+    VehicleIdOpt,
     app,
     err,
     fail,
@@ -197,7 +200,9 @@ def thermal_export(
     fmt: Annotated[str, typer.Option("--format", help="json, px4 or ardupilot")] = "json",
     at: Annotated[str | None, typer.Option("--at", help="Calibration valid at this date.")] = None,
     instance: Annotated[int, typer.Option(help="PX4 sensor instance / ArduPilot IMU number.")] = -1,
-    device_id: Annotated[int, typer.Option(help="PX4 TC_*_ID (the firmware's device id).")] = 0,
+    device_id: DeviceIdOpt = None,
+    rotation: RotationOpt = None,
+    vehicle_id: VehicleIdOpt = 1,
     archive: ArchiveOpt = None,
 ) -> None:
     """Write SERIAL's calibration and thermal model for firmware (docs/exports.md)."""
@@ -215,22 +220,58 @@ def thermal_export(
             model, queries.export_calibration(arch, facts["run_id"]), {"serial": serial}
         )
         exports.write_json(output, doc)
-    elif fmt == "px4":
-        rows = _run(
-            exports.px4_parameters,
-            model,
-            cal,
-            instance=max(instance, 0),
-            accel_id=device_id,
-            gyro_id=device_id,
-        )
-        exports.write_px4_params(output, rows, header=header)
-    elif fmt == "ardupilot":
-        rows = _run(exports.ardupilot_parameters, model, cal, imu=instance if instance > 0 else 1)
-        exports.write_ardupilot_params(output, rows, header=header)
+    elif fmt in ("px4", "ardupilot"):
+        steps = queries.run_summary(arch, facts["run_id"])["calibration"]["steps"]
+        target = (instance, device_id, rotation, vehicle_id)
+        said = (serial, facts["run_id"], header)
+        text = _run(_firmware_file, fmt, model, cal, steps, target, said)
+        output.write_text(text, encoding="ascii")
     else:
         fail(f"unknown export format {fmt!r}; expected json, px4 or ardupilot")
     err.print(f"wrote {output}")
+
+
+def _firmware_file(
+    fmt: str,
+    model: Any,  # noqa: ANN401 - calib_core.thermal.ThermalModel
+    cal: Any,  # noqa: ANN401 - calib_core.calibration.Calibration
+    steps: list[dict[str, Any]],
+    target: tuple[int, int | None, str | None, int],
+    said: tuple[str, str, str],
+) -> str:
+    """The PX4 / ArduPilot thermal file's text: device ids from the log or the option (else
+    refused), rotated into the firmware's axes, with the header of what to set.
+
+    `target`: (instance, device id, rotation, vehicle id) as given; `said`: (serial, the
+    calibration's run, the line naming the calibration and thermal model)."""
+    from pipelines import autopilot, exports
+
+    instance, device_id, rotation, vehicle_id = target
+    rot = autopilot.rotation(rotation, fmt)
+    recorded = autopilot.recorded_devices(steps)
+    common = {
+        "unit": said[0],
+        "run": said[1],
+        "model_range": (model.t_min, model.t_max),
+        "rot": rot,
+    }
+    if fmt == "px4":
+        acc_id, gyr_id, source = autopilot.px4_device_ids(recorded, device_id, device_id)
+        i = max(instance, 0)
+        rows = exports.px4_parameters(
+            model, cal, instance=i, accel_id=acc_id, gyro_id=gyr_id, rot=rot
+        )
+        settings = [
+            f"sets TC_A{i}_* / TC_G{i}_* of the sensors with device ids {acc_id} "
+            f"(accelerometer) and {gyr_id} (gyro), {source}; TC_A_ENABLE = TC_G_ENABLE = 1"
+        ]
+        head = [said[2], *autopilot.header_lines("px4", settings=settings, **common)]
+        return exports.px4_params_text(rows, header="\n".join(head), vehicle_id=vehicle_id)
+    imu = instance if instance > 0 else recorded.get("imu", 0) + 1
+    rows = exports.ardupilot_parameters(model, cal, imu=imu, rot=rot)
+    settings = [f"sets INS_TCAL{imu}_* (IMU {imu}, the log's instance {imu - 1}); ENABLE = 1"]
+    head = [said[2], *autopilot.header_lines("ardupilot", settings=settings, **common)]
+    return exports.ardupilot_params_text(rows, header="\n".join(head))
 
 
 @app.command("apply")

@@ -133,15 +133,15 @@ def _read(
     data = _read_columns(layout, fmt, progress)
     codes = data.pop("section", None)
     t = _time(layout, fmt, data.pop("time", None), len(data["acc"]), codes)
-    acc = _to_si(data.pop("acc"), "acc", fmt)
-    gyr = _to_si(data.pop("gyr"), "gyr", fmt)
-    temp = _celsius(layout, data.pop("temp", None))
+    acc = sensor_si(data.pop("acc"), "acc", fmt)
+    gyr = sensor_si(data.pop("gyr"), "gyr", fmt)
+    temp = temperature_celsius(layout, data.pop("temp", None))
     reference = {role[4:]: v for role, v in data.items() if role.startswith("ref:")}
     rec = Recording(t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=str(path))
     return rec, codes, layout
 
 
-def _celsius(layout: CsvLayout, temp: np.ndarray | None) -> np.ndarray | None:
+def temperature_celsius(layout: CsvLayout, temp: np.ndarray | None) -> np.ndarray | None:
     """Temperature in deg C from the header's unit (degC, K or degF; none: degC)."""
     if temp is None:
         return None
@@ -195,8 +195,8 @@ def read_csv_pair(
             line=gyr_layout.line_of_row(i),
         )
     del t_gyr
-    acc = _to_si(acc_data.pop("acc"), "acc", fmt)
-    gyr = _to_si(gyr_data.pop("gyr"), "gyr", fmt)
+    acc = sensor_si(acc_data.pop("acc"), "acc", fmt)
+    gyr = sensor_si(gyr_data.pop("gyr"), "gyr", fmt)
     temp = acc_data.pop("temp", None)
     reference = {role[4:]: v for role, v in acc_data.items() if role.startswith("ref:")}
     return Recording(
@@ -315,11 +315,11 @@ def _batches(
             for batch in table.to_batches():
                 yield (
                     {
-                        c: _iso_seconds(batch.column(c))
+                        c: iso_seconds(batch.column(c))
                         if c == iso_column
                         else _codes(layout, batch.column(c))
                         if c == section
-                        else _float_values(batch.column(c))
+                        else float_values(batch.column(c))
                         for c in columns
                     },
                     consumed,
@@ -363,7 +363,7 @@ def _slices(path: Path, data_start: int) -> Iterator[tuple[pa.Buffer, int]]:
         start = end
 
 
-def _float_values(column: pa.Array) -> np.ndarray:
+def float_values(column: pa.Array) -> np.ndarray:
     """A float64 Arrow column as NumPy, nulls (empty cells, "nan") as NaN.
 
     Without a null, a view of its buffer: pyarrow's ``to_numpy`` imports pandas
@@ -386,7 +386,7 @@ def _codes(layout: CsvLayout, text: pa.Array | np.ndarray) -> np.ndarray:
     return codes[inverse].astype(float)
 
 
-def _iso_seconds(text: pa.Array | np.ndarray) -> np.ndarray:
+def iso_seconds(text: pa.Array | np.ndarray) -> np.ndarray:
     """ISO-8601 text as Unix seconds; a time without a UTC offset is taken as UTC.
 
     Each value may carry its own offset (``Z``, ``+02:00``) or none. Text that
@@ -428,7 +428,7 @@ def _pandas_batches(
             with reader:
                 for frame in reader:
                     batch = {
-                        c: _iso_seconds(frame[c].to_numpy())
+                        c: iso_seconds(frame[c].to_numpy())
                         if c == iso_column
                         else _codes(layout, frame[c].to_numpy())
                         if c == section
@@ -512,7 +512,7 @@ def _time(
     return t
 
 
-def _to_si(values: np.ndarray, sensor: str, fmt: FormatSpec) -> np.ndarray:
+def sensor_si(values: np.ndarray, sensor: str, fmt: FormatSpec) -> np.ndarray:
     """Convert an (N, 3) triad to SI in place and return it.
 
     Raw counts: value = (raw - offset) / scale * factor(scale_unit), per axis.

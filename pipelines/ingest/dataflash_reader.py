@@ -22,6 +22,7 @@ from pipelines.ingest.log_samples import (
     LogSource,
     checked_recording,
     choose_source,
+    cut_tail,
     quiet,
     recorded_temperature,
     stamp_rate,
@@ -53,44 +54,37 @@ def open_dataflash(path: Path):
     except Exception as exc:  # pymavlink raises plain exceptions on damaged logs
         problem = f"damaged DataFlash log ({type(exc).__name__}: {exc})"
         raise IngestError(problem, file=path) from None
-    check_records(path, {t: f.len for t, f in reader.formats.items()})
-    return reader
+    findings = check_records(path, {t: f.len for t, f in reader.formats.items()})
+    return reader, findings
 
 
-def check_records(path: Path, lengths: dict[int, int]) -> None:
-    """Refuse a log whose records do not follow each other to the end of the file.
+def check_records(path: Path, lengths: dict[int, int]) -> tuple[dict, ...]:
+    """Refuse a log whose records do not follow each other; find a cut last record.
 
     Every record is the head a3 95, a type byte and the body its FMT gives; pymavlink
-    skips bytes it cannot parse and stops at a record the file cuts short, both
-    silently. `lengths` : record type -> record length in bytes (head included).
+    skips bytes it cannot parse (refused here, naming the byte offset) and stops at a
+    record the file cuts short (a logger that lost power): the log is read to its last
+    whole record, with the `cut_tail` finding returned. `lengths` : record type -> record
+    length in bytes (head included).
     """
     with path.open("rb") as fh:
         data = fh.read()
     size, pos = len(data), 0
     while pos < size:
-        length = lengths.get(data[pos + 2]) if pos + 3 <= size else None
-        if data[pos : pos + 2] != DF_HEAD or length is None:
-            what = (
-                "a record head a3 95 and a type with a FMT" if pos + 3 <= size else "a whole record"
-            )
+        head = data[pos : pos + 3]
+        length = lengths.get(head[2]) if len(head) == 3 else None
+        if len(head) < 3 and head == DF_HEAD[: len(head)]:  # a record head cut short
+            return (cut_tail(path, "DataFlash log", pos, size - pos, size),)
+        if head[:2] != DF_HEAD or length is None:
             raise IngestError(
-                f"damaged DataFlash log: expected {what} at byte offset {pos}, found "
-                f"{data[pos : pos + 3].hex(' ')}"
-                + (
-                    " (the file ends there: the log was cut while written)"
-                    if pos + 3 > size
-                    else ""
-                ),
+                "damaged DataFlash log: expected a record head a3 95 and a type with a FMT "
+                f"at byte offset {pos}, found {head.hex(' ')}",
                 file=path,
             )
-        if pos + length > size:
-            raise IngestError(
-                f"truncated DataFlash log: the last record (byte offset {pos}, type "
-                f"{data[pos + 2]}, {length} bytes) runs past the end of the file ({size} "
-                "bytes); the log was cut while written",
-                file=path,
-            )
+        if pos + length > size:  # the last record cut short
+            return (cut_tail(path, "DataFlash log", pos, size - pos, size),)
         pos += length
+    return ()
 
 
 def imu_rows(reader, path: Path) -> dict[int, tuple[list[tuple], str]]:
@@ -157,7 +151,7 @@ def read_dataflash(
     a non-finite value, time not increasing.
     """
     path = Path(path)
-    reader = open_dataflash(path)
+    reader, findings = open_dataflash(path)
     by_instance = imu_rows(reader, path)
     if instance is not None and instance not in by_instance:
         raise IngestError(
@@ -184,4 +178,6 @@ def read_dataflash(
         {"gyr": data[:, 1:4], "acc": data[:, 4:7]},
         temp=recorded_temperature(data[:, 7]),
         temp_field="T",
+        devices={"imu": int(chosen.key)},
+        findings=findings,
     )

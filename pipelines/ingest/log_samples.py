@@ -38,6 +38,8 @@ def checked_recording(
     *,
     temp: np.ndarray | None = None,
     temp_field: str = "temperature",
+    devices: dict[str, int] | None = None,
+    findings: tuple[dict, ...] = (),
 ) -> Recording:
     """A Recording of `what` (``"sensor_combined"``, ``"IMU[0]"``, ``"/imu"``) after the checks.
 
@@ -49,6 +51,8 @@ def checked_recording(
     channels : {"acc": (N, 3) m/s^2, "gyr": (N, 3) rad/s} with the field names
         to report as keys ``"acc:<field>"`` optional (see `fields`).
     temp : (N,) deg C or None.
+    devices : the sensors' firmware ids the log records (`Recording.devices`).
+    findings : the reader's findings about the file (`cut_tail`).
 
     Raises
     ------
@@ -59,7 +63,32 @@ def checked_recording(
     if len(t) == 0:
         raise IngestError(f"{what}: no samples", file=path, field=what)
     check_samples(path, what, t, channels, temp=temp, temp_field=temp_field)
-    return Recording(t=t, acc=channels["acc"], gyr=channels["gyr"], temp=temp, source=str(path))
+    return Recording(
+        t=t,
+        acc=channels["acc"],
+        gyr=channels["gyr"],
+        temp=temp,
+        source=str(path),
+        devices=devices or {},
+        findings=findings,
+    )
+
+
+def cut_tail(path: Path, kind: str, offset: int, dropped: int, size: int) -> dict:
+    """The ``record:cut:<file>`` finding of a log read to its last whole record (CheckResult
+    fields): `dropped` bytes from byte `offset` of a file of `size` bytes, the start of a
+    record the file cuts short (a logger that lost power while writing)."""
+    return {
+        "name": f"record:cut:{path.name}",
+        "value": float(dropped),
+        "limit": 0.0,
+        "passed": False,
+        "detail": (
+            f"{path}: {kind} cut while written: the last {dropped} byte(s) (from byte offset "
+            f"{offset} of {size}, a record the file cuts short) were dropped; read to its "
+            "last whole record"
+        ),
+    }
 
 
 def check_samples(
@@ -97,21 +126,10 @@ def check_samples(
                 file=path,
                 field=f"{what}.{name}",
             )
-    for name, limit, unit, scale in (
-        ("acc", ACC_LIMIT, "m/s^2", 1.0),
-        ("gyr", GYR_LIMIT, "deg/s", 180.0 / np.pi),
-    ):
-        beyond = np.flatnonzero(np.abs(channels[name]).max(axis=1) > limit)
-        if beyond.size:
-            i = int(beyond[0])
-            shown = np.round(channels[name][i] * scale, 6).tolist()
-            raise IngestError(
-                f"{what} record {offset + i}: {name} {shown} "
-                f"{unit}, beyond what any IMU measures ({limit * scale:g} {unit}): a damaged "
-                "value",
-                file=path,
-                field=f"{what}.{name}",
-            )
+    found = impossible_reading(channels)
+    if found is not None:
+        name, i, text = found
+        raise IngestError(f"{what} record {offset + i}: {text}", file=path, field=f"{what}.{name}")
     ahead = t if last is None else np.concatenate([[last], t])
     check_time_increases(
         ahead,
@@ -121,6 +139,52 @@ def check_samples(
         prefix=f"{what}: ",
         offset=offset - (last is not None),
     )
+
+
+def impossible_reading(channels: dict[str, np.ndarray]) -> tuple[str, int, str] | None:
+    """(channel, 0-based sample, description) of the first acc or gyr reading beyond what
+    any IMU measures (`ACC_LIMIT`, `GYR_LIMIT`), or None."""
+    for name, limit, unit, scale in (
+        ("acc", ACC_LIMIT, "m/s^2", 1.0),
+        ("gyr", GYR_LIMIT, "deg/s", 180.0 / np.pi),
+    ):
+        data = channels[name]
+        if len(data) == 0 or (-limit <= data.min() and data.max() <= limit):
+            continue
+        i = int(np.flatnonzero(np.abs(data).max(axis=1) > limit)[0])
+        shown = np.round(data[i] * scale, 6).tolist()
+        text = (
+            f"{name} {shown} {unit}, beyond what any IMU measures "
+            f"({limit * scale:g} {unit}): a damaged value"
+        )
+        return name, i, text
+    return None
+
+
+def check_readings(rec: Recording, path: str) -> None:
+    """Every reader's samples before any use: a non-finite value or a reading no IMU makes
+    is refused naming the file (`path`), the channel and the 0-based sample index."""
+    arrays = {"time": rec.t[:, None], "acc": rec.acc, "gyr": rec.gyr}
+    if rec.temp is not None:
+        arrays["temp"] = rec.temp[:, None]
+    for name, values in arrays.items():
+        if np.isfinite(values.sum()):  # one reduction; NaN or inf anywhere makes it non-finite
+            continue
+        bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+        if bad.size:
+            i = int(bad[0])
+            raise IngestError(
+                f"sample {i} (0-based, t = {rec.t[i]!r}): {name} {values[i].tolist()}; "
+                "expected finite numbers",
+                file=path,
+                field=name,
+            )
+    found = impossible_reading({"acc": rec.acc, "gyr": rec.gyr})
+    if found is not None:
+        name, i, text = found
+        raise IngestError(
+            f"sample {i} (0-based, t = {rec.t[i]:.6g} s): {text}", file=path, field=name
+        )
 
 
 # Beyond the range of any IMU (shock accelerometers reach 2000 g, gyros 20000 deg/s): a

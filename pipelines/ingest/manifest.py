@@ -354,6 +354,7 @@ def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
             file=source,
             line=line,
         ) from None
+    check_finite_numbers(data, source, text)
     try:
         check_free_text(data, source)
         manifest = RunManifest.model_validate(data)
@@ -361,9 +362,61 @@ def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
         raise _as_ingest_error(exc, source) from None
     except RecursionError:
         raise _too_deep(text, source) from None
-    check_segments(manifest, source)
+    check_segments(manifest, source, text)
     check_settings(manifest, source, text)
     return manifest
+
+
+def check_finite_numbers(data: Any, source: str, text: str, path: tuple = ()) -> None:
+    """Refuse a number no field can hold: ``1e400`` (read as infinity), ``inf``, ``nan``.
+
+    Raises IngestError naming `source`, the line of the key in `text` and its dotted path
+    (no manifest field takes a non-finite number; caught here, before any solve, not as
+    "not storable as JSON" after it)."""
+    if isinstance(data, dict):
+        for key, value in data.items():
+            check_finite_numbers(value, source, text, (*path, key))
+    elif isinstance(data, list):
+        for i, value in enumerate(data):
+            check_finite_numbers(value, source, text, (*path, i))
+    elif isinstance(data, float) and not math.isfinite(data):
+        raise IngestError(
+            f"{data} is not a finite number (a value beyond 1.8e308 reads as infinity); "
+            "expected a finite number",
+            file=source,
+            line=key_line(text, path),
+            field=_field_path(path),
+        )
+
+
+def key_line(text: str, path: tuple) -> int | None:
+    """1-based line of the key at dotted `path` (``("segments", 2, "end_s")``) in manifest
+    `text`: the key assigned under its table's header (``[a.b]``, the n-th ``[[a]]``),
+    or a dotted key under a shorter header; None when it is spelt otherwise (inline
+    tables)."""
+    keys = [p for p in path if not isinstance(p, int)]
+    counts: dict[str, int] = {}
+    header: tuple = ()
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.split("#", 1)[0].strip()
+        if stripped.startswith("[["):
+            name = stripped.strip("[]").strip()
+            counts[name] = counts.get(name, -1) + 1
+            header = (*name.split("."), counts[name])
+            continue
+        if stripped.startswith("["):
+            header = tuple(stripped.strip("[]").strip().split("."))
+            continue
+        key = stripped.split("=", 1)[0].strip().strip("\"'")
+        if "=" not in stripped or not key:
+            continue
+        full = (*header, *key.replace('"', "").split("."))
+        named = [p for p in full if not isinstance(p, int)]
+        if named == keys and [p for p in full if isinstance(p, int)] == [
+            p for p in path if isinstance(p, int)
+        ]:
+            return number
+    return None
 
 
 def _too_deep(text: str, source: str) -> IngestError:
@@ -429,13 +482,14 @@ def _setting_line(text: str, key: str) -> int | None:
     return None
 
 
-def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:
+def check_segments(manifest: RunManifest, source: str = "run.toml", text: str = "") -> None:
     """Cross-checks of the segment list that need the whole manifest.
 
-    Raises IngestError naming the segment field: a missing list (only
-    MPU-6000 folders may leave it out: their file names say it), repeated
-    labels, and, for the six-position procedures, labels that are not theirs
-    (typos) unless the segment is a verification segment.
+    Raises IngestError naming the segment field (and, found in the manifest's `text`, its
+    line): a missing list (only MPU-6000 folders may leave it out: their file names say
+    it), repeated labels, two segments whose windows of one file (and section) overlap
+    (one sample would count twice), and, for the six-position procedures, labels that
+    are not theirs (typos) unless the segment is a verification segment.
     """
     segments = manifest.segments
     if not segments and manifest.format.kind != "mpu6000":
@@ -454,6 +508,7 @@ def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:
                 field=f"segments[{i}].label",
             )
         seen[seg.label] = i
+    check_overlaps(segments, source, text)
     procedure = manifest.run.procedure
     proc = procedures.BY_NAME.get(procedure)
     # The procedure's own labels (none: any label); with [run.settings.segmentation] the
@@ -470,6 +525,29 @@ def check_segments(manifest: RunManifest, source: str = "run.toml") -> None:
                     file=source,
                     field=f"segments[{i}].label",
                 )
+
+
+def check_overlaps(segments: list[SegmentSpec], source: str, text: str = "") -> None:
+    """Refuse two segments whose time windows of the same file (and section) overlap."""
+    windows: dict[tuple, list[tuple[float, float, int]]] = {}
+    for i, seg in enumerate(segments):
+        start = -math.inf if seg.start_s is None else seg.start_s
+        end = math.inf if seg.end_s is None else seg.end_s
+        for j_start, j_end, j in windows.setdefault((seg.files, seg.section), []):
+            if max(start, j_start) < min(end, j_end):
+                other = segments[j]
+                raise IngestError(
+                    f"segment {seg.label!r} (t in [{seg.start_s}, {seg.end_s}) s) overlaps "
+                    f"segment {other.label!r} (t in [{other.start_s}, {other.end_s}) s) of "
+                    f"the same file {' + '.join(seg.files)!r}: a sample belongs to one "
+                    "segment; expected windows that do not overlap",
+                    file=source,
+                    line=key_line(
+                        text, ("segments", i, "start_s" if seg.start_s is not None else "label")
+                    ),
+                    field=f"segments[{i}]",
+                )
+        windows[(seg.files, seg.section)].append((start, end, i))
 
 
 def load_manifest(path: Path) -> RunManifest:

@@ -27,7 +27,7 @@ fields ``angle`` (rad) and ``rate`` (rad/s), stamped by its optional field
 Outside a reference channel's time span the interpolation holds its first /
 last value.
 
-The module is ~650 lines because one class, `_Reader`, holds the chunk-by-chunk
+The module is ~650 lines because one class, `McapReader`, holds the chunk-by-chunk
 state (channels, pending records, statistics) that its methods share; record-level
 helpers are in pipelines.ingest.mcap_records, the CDR decoder in pipelines.ingest.cdr.
 """
@@ -42,6 +42,7 @@ import struct
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -56,6 +57,7 @@ from pipelines.ingest.cdr import (
     gather,
 )
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.log_samples import cut_tail
 from pipelines.ingest.mcap_records import (
     MESSAGE_FIXED,
     OP_CHANNEL,
@@ -82,7 +84,7 @@ _MAX_CHUNK = 1 << 30  # writers use ~1-10 MiB chunks; more is a damaged length f
 
 
 @dataclass
-class _Channel:
+class McapChannel:
     id: int
     topic: str
     message_encoding: str
@@ -135,7 +137,7 @@ def read_mcap(
     """
     name = os.fspath(path)
     check_arguments(name, imu_topic, temperature_topic, table_topic, table_joint, stamp)
-    reader = _Reader(name, imu_topic, temperature_topic, table_topic, table_joint, stamp)
+    reader = McapReader(name, imu_topic, temperature_topic, table_topic, table_joint, stamp)
     try:
         with open(name, "rb") as f:
             reader.read(f, os.fstat(f.fileno()).st_size)
@@ -172,7 +174,7 @@ def check_arguments(
         )
 
 
-class _Reader:
+class McapReader:
     """One pass over an MCAP file, decoding the chosen channels chunk by chunk."""
 
     def __init__(
@@ -190,7 +192,8 @@ class _Reader:
         self.stamp = stamp
         self.schemas: dict[int, tuple[str, str, bytes]] = {}
         self.counts: dict[int, int] | None = None  # messages per channel, from Statistics
-        self.channels: dict[int, _Channel] = {}
+        self.channels: dict[int, McapChannel] = {}
+        self.findings: tuple[dict, ...] = ()  # `cut_tail` of a file cut while written
 
     # --- file structure ----------------------------------------------------------
 
@@ -204,19 +207,20 @@ class _Reader:
         while True:
             head = f.read(RECORD_HEADER)
             if len(head) < RECORD_HEADER:
-                raise IngestError(
-                    f"file ends at byte {pos + len(head)} without a Footer record "
-                    "(truncated: recording interrupted or copy incomplete?)",
-                    file=self.name,
-                )
+                self._cut(pos, size)  # a log cut while written: no footer, no summary
+                break
             opcode = head[0]
             (length,) = U64.unpack_from(head, 1)
             if length > size - pos - RECORD_HEADER:
-                raise IngestError(
-                    f"record at byte {pos} (opcode 0x{opcode:02x}) claims {length} bytes but "
-                    f"only {size - pos - RECORD_HEADER} remain (truncated or damaged file)",
-                    file=self.name,
-                )
+                if not (0x01 <= opcode <= 0x0F and length <= _MAX_CHUNK):
+                    raise IngestError(
+                        f"damaged MCAP file: record at byte {pos} (opcode 0x{opcode:02x}) "
+                        f"claims {length} bytes, only {size - pos - RECORD_HEADER} remain, "
+                        "and is no record a writer makes",
+                        file=self.name,
+                    )
+                self._cut(pos, size)  # its last record cut short
+                break
             if opcode == OP_MESSAGE:
                 pending += head
                 pending += f.read(length)
@@ -245,6 +249,12 @@ class _Reader:
             pos += RECORD_HEADER + length
         if pending:
             self._records(bytes(pending), pos)
+
+    def _cut(self, pos: int, size: int) -> None:
+        """A file that ends without its Footer: read to its last whole record (at byte
+        `pos`), the `cut_tail` finding noted (chunks carry their own CRC: damage inside
+        is refused where it is read)."""
+        self.findings = (cut_tail(Path(self.name), "MCAP file", pos, size - pos, size),)
 
     def _chunk(self, body: bytes, pos: int) -> None:
         try:
@@ -327,7 +337,7 @@ class _Reader:
             raise IngestError(f"damaged {kind} record near byte {pos}", file=self.name) from None
         if cid in self.channels:
             return
-        channel = _Channel(cid, topic, encoding, sid)
+        channel = McapChannel(cid, topic, encoding, sid)
         if sid:
             if sid not in self.schemas:
                 raise IngestError(
@@ -338,7 +348,7 @@ class _Reader:
         channel.role = self._role(channel)
         self.channels[cid] = channel
 
-    def _role(self, ch: _Channel) -> str | None:
+    def _role(self, ch: McapChannel) -> str | None:
         for role, topic in self.topics.items():
             if topic == ch.topic:
                 return role
@@ -384,7 +394,7 @@ class _Reader:
             part = self._decode(channel, buf, arr, payload, plen, log_ns)
             self._keep(channel, part, pos)
 
-    def _keep(self, ch: _Channel, part: dict[str, np.ndarray], pos: int) -> None:
+    def _keep(self, ch: McapChannel, part: dict[str, np.ndarray], pos: int) -> None:
         """Append one chunk's decoded messages to the channel's arrays."""
         n = len(part["stamp"])
         total = None if self.counts is None else self.counts.get(ch.id)
@@ -412,7 +422,7 @@ class _Reader:
 
     def _decode(
         self,
-        ch: _Channel,
+        ch: McapChannel,
         buf: bytes,
         arr: np.ndarray,
         start: np.ndarray,
@@ -443,7 +453,7 @@ class _Reader:
             part["stamp"] = log_ns
         return part
 
-    def _require(self, ch: _Channel, schema: str) -> None:
+    def _require(self, ch: McapChannel, schema: str) -> None:
         if ch.schema_name != schema or ch.message_encoding != "cdr":
             raise IngestError(
                 f"cannot decode topic {ch.topic!r}: schema {ch.schema_name or '(none)'!r} with "
@@ -453,7 +463,7 @@ class _Reader:
             )
 
     def _decode_joint_state(
-        self, ch: _Channel, buf: bytes, start: np.ndarray, length: np.ndarray
+        self, ch: McapChannel, buf: bytes, start: np.ndarray, length: np.ndarray
     ) -> dict[str, np.ndarray]:
         """JointState is variable-length and low-rate: mcap-ros2-support decodes it."""
         if ch.decoder is None:
@@ -517,7 +527,7 @@ class _Reader:
         return out
 
     def _decode_json(
-        self, ch: _Channel, buf: bytes, start: np.ndarray, length: np.ndarray
+        self, ch: McapChannel, buf: bytes, start: np.ndarray, length: np.ndarray
     ) -> dict[str, np.ndarray]:
         out: dict[str, list[float]] = {"stamp": [], "angle": [], "rate": []}
         for k, (s, n) in enumerate(zip(start.tolist(), length.tolist(), strict=True)):
@@ -553,9 +563,9 @@ class _Reader:
             stamp_ns, file=self.name, sample="message", unit="ns", prefix=f"{where}: "
         )
         acc = _concat(imu, "acc")
-        _check_finite(self.name, where, "linear_acceleration", acc)
+        check_finite(self.name, where, "linear_acceleration", acc)
         gyr = _concat(imu, "gyr")
-        _check_finite(self.name, where, "angular_velocity", gyr)
+        check_finite(self.name, where, "angular_velocity", gyr)
         imu.parts.clear()
         t0 = stamp_ns[0]
         stamp_ns -= t0  # exact integer offsets (in place), then one rounding to seconds
@@ -588,9 +598,17 @@ class _Reader:
                     # Unwrap a table that reports 0..2 pi (an accumulating angle is unchanged).
                     values = np.unwrap(values)
                 reference[f"table_{key}"] = self._onto(ch, ref_ns, values, t0, rel, key)
-        return Recording(t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=self.name)
+        return Recording(
+            t=t,
+            acc=acc,
+            gyr=gyr,
+            temp=temp,
+            reference=reference,
+            source=self.name,
+            findings=self.findings,
+        )
 
-    def _pick(self, role: str) -> _Channel | None:
+    def _pick(self, role: str) -> McapChannel | None:
         topic = self.topics[role]
         chosen = [c for c in self.channels.values() if c.role == role]
         present = ", ".join(
@@ -632,7 +650,7 @@ class _Reader:
 
     def _onto(
         self,
-        ch: _Channel,
+        ch: McapChannel,
         ref_ns: np.ndarray,
         values: np.ndarray,
         t0: np.int64,
@@ -644,18 +662,18 @@ class _Reader:
         check_time_increases(
             ref_ns, file=self.name, sample="message", unit="ns", prefix=f"{where}: "
         )
-        _check_finite(self.name, where, what, values)
+        check_finite(self.name, where, what, values)
         return np.interp(rel, (ref_ns - t0) / NS, values)
 
 
-def _concat(ch: _Channel, key: str) -> np.ndarray:
+def _concat(ch: McapChannel, key: str) -> np.ndarray:
     """One field of all decoded parts, concatenated (the parts keep the others)."""
     if len(ch.parts) == 1:  # full-size arrays, or a single chunk: no copy
         return ch.parts[0].pop(key)[: ch.count]
     return np.concatenate([p.pop(key) for p in ch.parts])
 
 
-def _check_finite(name: str, where: str, what: str, values: np.ndarray, offset: int = 0) -> None:
+def check_finite(name: str, where: str, what: str, values: np.ndarray, offset: int = 0) -> None:
     """IngestError at the first message with a non-finite value (`offset`: index of the
     first row of `values` in the topic, when it is checked in chunks)."""
     bad = ~np.isfinite(values)

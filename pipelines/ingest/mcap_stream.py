@@ -3,7 +3,7 @@
 `stream_mcap` is `pipelines.ingest.mcap_reader`'s reader run over the file once, its
 bytes passing through a tee that hashes and copies them (the raw copy) as they are read.
 Nothing is re-implemented: the record walk, chunk decompression, CRC and truncation
-checks, topic selection (`_Reader._role` / `_pick`), the vectorised CDR decoding of
+checks, topic selection (`McapReader._role` / `_pick`), the vectorised CDR decoding of
 ``sensor_msgs/msg/Imu`` (`pipelines.ingest.cdr`: its layout is fixed once the frame_id's
 length is known, so numpy gathers decode every message of a chunk at once, where
 mcap-ros2-support builds one Python object per message, minutes for an hour at 1 kHz)
@@ -14,7 +14,7 @@ increasing, finite values; messages numbered in the whole topic), converted to t
 in-memory reader's time base (Unix s from exact integer offsets to the first stamp),
 written as a row group of the samples' Parquet and added to the first-pass statistics.
 
-The result is `csv_stream.Streamed`, so `csv_stream.solve_streamed` solves it unchanged.
+The result is `csv_stream.Streamed`, so `streamed_solve.solve_streamed` solves it unchanged.
 Only the IMU topic is streamed: temperature and rate-table topics are interpolated onto
 the whole IMU time base by the in-memory reader, and are refused here with the reason.
 """
@@ -36,7 +36,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from calib_core.solvers.static_bias_stream import FirstPass
+from calib_core.solvers.static_bias import FirstPass
+from calib_core.streamed import Execution, MedianStep
 from pipelines.ingest.cdr import NS
 from pipelines.ingest.csv_reader import PROGRESS_THRESHOLD_BYTES
 from pipelines.ingest.csv_stream import (
@@ -45,21 +46,22 @@ from pipelines.ingest.csv_stream import (
     SAMPLE_COLUMNS,
     Progress,
     Streamed,
-    _table,
     block_bytes,
+    parquet_table,
+    windowed,
 )
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.mcap_reader import _Channel, _check_finite, _Reader, check_arguments
-from pipelines.ingest.readers import MCAP_KEYS, _extra_keys
+from pipelines.ingest.mcap_reader import McapChannel, McapReader, check_arguments, check_finite
+from pipelines.ingest.readers import MCAP_KEYS, extra_keys
 from pipelines.ingest.time_order import check_time_increases
 from storage.rawstore import samples_parquet_options
 
-_SKIP_BLOCK = 1 << 20  # bytes read at a time when the reader skips records
+SKIP_BLOCK = 1 << 20  # bytes read at a time when the reader skips records
 _QUEUED = 4  # blocks waiting to be hashed and copied
 
 
-class _Tee:
+class HashingTee:
     """A file read forward once: every byte is hashed and copied the first time it is read.
 
     The reader's forward skips of records (``seek(n, 1)``) read through, so skipped records
@@ -68,7 +70,7 @@ class _Tee:
 
     Hashing and copying run on one worker thread, in order, while the reader decodes
     (both release the GIL on large buffers): small reads (record headers, unchunked
-    messages) are gathered into blocks of `_SKIP_BLOCK` first; at most `_QUEUED` blocks
+    messages) are gathered into blocks of `SKIP_BLOCK` first; at most `_QUEUED` blocks
     wait (memory: a few chunks). `close` waits for them and raises what the worker raised.
     """
 
@@ -89,9 +91,9 @@ class _Tee:
 
     def _take(self, data: bytes) -> None:
         self.hashed += len(data)
-        if len(data) < _SKIP_BLOCK // 16:
+        if len(data) < SKIP_BLOCK // 16:
             self.small += data
-            if len(self.small) < _SKIP_BLOCK:
+            if len(self.small) < SKIP_BLOCK:
                 return
             data, self.small = self.small, bytearray()
         elif self.small:
@@ -126,7 +128,7 @@ class _Tee:
             return self.at
         left = offset
         while left > 0:
-            got = self.read(min(left, _SKIP_BLOCK))
+            got = self.read(min(left, SKIP_BLOCK))
             if not got:
                 break
             left -= len(got)
@@ -135,14 +137,15 @@ class _Tee:
     def drain(self) -> None:
         """Hash and copy what the reader did not read (the bytes after the closing magic)."""
         self.at = self.fh.seek(self.hashed)
-        while self.read(_SKIP_BLOCK):
+        while self.read(SKIP_BLOCK):
             pass
 
 
-class _StreamReader(_Reader):
-    """`_Reader` whose IMU messages go to `_Sink` batch by batch instead of the topic's arrays."""
+class _StreamReader(McapReader):
+    """`McapReader` whose IMU messages go to `SampleSink` batch by batch, not to the
+    topic's arrays."""
 
-    def __init__(self, name: str, imu_topic: str | None, stamp: str, sink: _Sink):
+    def __init__(self, name: str, imu_topic: str | None, stamp: str, sink: SampleSink):
         super().__init__(name, imu_topic, None, None, 0, stamp)
         self.sink = sink
         self.max_chunk = 0  # bytes: a decompressed chunk larger than this is refused
@@ -165,7 +168,7 @@ class _StreamReader(_Reader):
             )
         super()._chunk(body, pos)
 
-    def _keep(self, ch: _Channel, part: dict[str, np.ndarray], pos: int) -> None:
+    def _keep(self, ch: McapChannel, part: dict[str, np.ndarray], pos: int) -> None:
         # The first Imu channel defined is the one `_pick` returns; any other is counted
         # only (`_pick` refuses an ambiguous choice, `_definition` as soon as it is seen).
         if ch is next(c for c in self.channels.values() if c.role == "imu"):
@@ -173,7 +176,7 @@ class _StreamReader(_Reader):
         ch.count += len(part["stamp"])
 
 
-class _Sink:
+class SampleSink:
     """IMU messages in batches of `rows`: checked, in SI on the reader's time base, written
     to the samples' Parquet and added to the first-pass statistics.
 
@@ -188,20 +191,24 @@ class _Sink:
         writer: pq.ParquetWriter,
         label: str,
         written: Callable[[int], None],
+        window: tuple[float, float] | None = None,
     ):
         self.name, self.rows, self.writer, self.label = name, rows, writer, label
+        self.window = window  # (start, end) s: the rows written (`csv_stream.windowed`)
+        # the whole topic's median step (its rate check) when a window keeps part of it
+        self.steps = MedianStep() if window is not None else None
         self.written = written  # called with the messages written so far (progress)
-        self.channel: _Channel | None = None  # the streamed Imu channel
+        self.channel: McapChannel | None = None  # the streamed Imu channel
         self.parts: list[dict[str, np.ndarray]] = []
         self.pending = 0
         self.done = 0  # messages written
         self.t0: np.int64 | None = None  # first stamp, ns
         self.last: np.int64 | None = None
-        self.first = FirstPass.empty()
-        self.pool = ThreadPoolExecutor(1)
+        self.pool = ThreadPoolExecutor(2)  # the Parquet writes; the first pass's work
+        self.first = FirstPass.empty(execution=Execution(submit=self.pool.submit))
         self.writing: Future | None = None
 
-    def push(self, ch: _Channel, part: dict[str, np.ndarray]) -> None:
+    def push(self, ch: McapChannel, part: dict[str, np.ndarray]) -> None:
         self.channel = ch
         self.parts.append(part)
         self.pending += len(part["stamp"])
@@ -229,20 +236,32 @@ class _Sink:
         both = np.empty((n, 6), order="F")
         np.concatenate([p["gyr"] for p in parts], out=both[:, :3])
         np.concatenate([p["acc"] for p in parts], out=both[:, 3:])
-        _check_finite(self.name, where, "linear_acceleration", both[:, 3:], self.done)
-        _check_finite(self.name, where, "angular_velocity", both[:, :3], self.done)
+        check_finite(self.name, where, "linear_acceleration", both[:, 3:], self.done)
+        check_finite(self.name, where, "angular_velocity", both[:, :3], self.done)
         if self.t0 is None:
             self.t0 = stamp[0]
         self.last = stamp[-1]
         # The in-memory reader's time base: exact integer offsets, one rounding to s.
         t = (stamp - self.t0) / NS + self.t0 / NS
         chunk = {"t": t, "gyr": both[:, :3], "acc": both[:, 3:], "temp": np.full(n, np.nan)}
-        table = _table(chunk, self.label, self.writer.schema)
-        self.wait()
-        self.writing = self.pool.submit(self.writer.write_table, table)
-        self.first.push((t, chunk["gyr"], chunk["acc"]))
         self.done += n
         self.written(self.done)
+        if self.steps is not None:
+            self.steps.push(t)
+        chunk = windowed(chunk, self.window)
+        if len(chunk["t"]) == 0:
+            return
+        table = parquet_table(chunk, self.label, self.writer.schema)
+        self.wait()
+        self.writing = self.pool.submit(self.writer.write_table, table)
+        self.first.push((chunk["t"], chunk["gyr"], chunk["acc"]))
+
+    @property
+    def span(self) -> tuple[float, float] | None:
+        """The topic's first and last time, s (None: no message)."""
+        if self.t0 is None or self.last is None:
+            return None
+        return self.t0 / NS, (self.last - self.t0) / NS + self.t0 / NS
 
     def wait(self) -> None:
         """Until the batch being written is (its errors raised here)."""
@@ -266,6 +285,7 @@ def stream_mcap(
     label: str = "record",
     memory_limit: int = DEFAULT_MEMORY_LIMIT,
     progress: bool | None = None,
+    window: tuple[float, float] | None = None,
 ) -> Streamed:
     """One pass over a ROS 2 MCAP log: hash, raw copy, samples' Parquet, statistics.
 
@@ -279,6 +299,8 @@ def stream_mcap(
     copy_to : where the raw bytes are copied (None: not copied).
     label : the segment label of every row.
     memory_limit : bytes; sets the rows per batch and the largest chunk accepted.
+    window : (start, end) s: the samples with start <= t < end only go to the Parquet and
+        the statistics (`csv_stream.windowed`); None: all.
     progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
 
     Returns
@@ -293,7 +315,7 @@ def stream_mcap(
     """
     started = time.perf_counter()
     path = Path(path)
-    keys = {"table_joint": 0, "stamp": "header", **_extra_keys(fmt, "mcap", MCAP_KEYS)}
+    keys = {"table_joint": 0, "stamp": "header", **extra_keys(fmt, "mcap", MCAP_KEYS)}
     check_arguments(str(path), **{k: keys.get(k) for k in MCAP_KEYS})
     for key in ("temperature_topic", "table_topic"):
         if keys.get(key) is not None:
@@ -310,18 +332,27 @@ def stream_mcap(
     schema = pa.schema([("segment", pa.string())] + [(c, pa.float64()) for c in SAMPLE_COLUMNS])
     try:
         with (
-            path.open("rb", buffering=_SKIP_BLOCK) as fh,
+            path.open("rb", buffering=SKIP_BLOCK) as fh,
             pq.ParquetWriter(samples, schema, **samples_parquet_options(schema)) as writer,
             copy_to.open("wb") if copy_to is not None else nullcontext() as copy,
         ):
-            tee = _Tee(fh, sha, copy)
+            tee = HashingTee(fh, sha, copy)
             rows = block_bytes(memory_limit) // ROW_BYTES
-            sink = _Sink(str(path), rows, writer, label, lambda n: bar.update(tee.hashed, n))
+            shown = lambda n: bar.update(tee.hashed, n)  # noqa: E731
+            sink = SampleSink(str(path), rows, writer, label, shown, window)
             try:
                 reader = _StreamReader(str(path), keys.get("imu_topic"), keys["stamp"], sink)
                 # a chunk, its records and their decoded arrays: a quarter of the limit
                 reader.max_chunk = memory_limit // 4
                 reader.read(tee, size)
+                if reader.findings:  # a cut log: the streamed route carries no findings
+                    reader._pick("imu")  # no IMU before the cut: the reader's own error
+                    raise IngestError(
+                        f"{reader.findings[0]['detail']}; a record streamed in chunks is "
+                        "not read cut (raise the memory limit to read it into memory, with "
+                        "the finding)",
+                        file=path,
+                    )
                 sink.flush()
                 sink.first.close()  # the last batch's motion windows (beside the reading)
                 tee.drain()
@@ -332,4 +363,5 @@ def stream_mcap(
         raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
     bar.update(size, sink.done, final=True)
     reader._pick("imu")  # absent, ambiguous, empty or short of the statistics' count
-    return Streamed(sha.hexdigest(), size, Path(samples), sink.first, time.perf_counter() - started)
+    seconds = time.perf_counter() - started
+    return Streamed(sha.hexdigest(), size, Path(samples), sink.first, seconds, span=sink.span)

@@ -61,10 +61,10 @@ def _read_mcap(path: Path, fmt: FormatSpec) -> Recording:
     """
     from pipelines.ingest.mcap_reader import read_mcap
 
-    return read_mcap(path, **_extra_keys(fmt, "mcap", MCAP_KEYS))
+    return read_mcap(path, **extra_keys(fmt, "mcap", MCAP_KEYS))
 
 
-def _extra_keys(fmt: FormatSpec, kind: str, keys: tuple[str, ...]) -> dict:
+def extra_keys(fmt: FormatSpec, kind: str, keys: tuple[str, ...]) -> dict:
     """The reader's own keys of [format]; IngestError for any other key."""
     extra = dict(fmt.model_extra or {})
     unknown = sorted(set(extra) - set(keys))
@@ -82,7 +82,7 @@ def _read_ulog(path: Path, fmt: FormatSpec) -> Recording:
     SI)."""
     from pipelines.ingest.ulog_reader import read_ulog
 
-    return read_ulog(path, **_extra_keys(fmt, "ulog", ("source", "instance", "min_rate_hz")))
+    return read_ulog(path, **extra_keys(fmt, "ulog", ("source", "instance", "min_rate_hz")))
 
 
 def _read_dataflash(path: Path, fmt: FormatSpec) -> Recording:
@@ -90,14 +90,14 @@ def _read_dataflash(path: Path, fmt: FormatSpec) -> Recording:
     SI)."""
     from pipelines.ingest.dataflash_reader import read_dataflash
 
-    return read_dataflash(path, **_extra_keys(fmt, "dataflash", ("instance", "min_rate_hz")))
+    return read_dataflash(path, **extra_keys(fmt, "dataflash", ("instance", "min_rate_hz")))
 
 
 def _read_rosbag(path: Path, fmt: FormatSpec) -> Recording:
     """Adapter of [format] topics to read_rosbag (ROS 1 .bag or ROS 2 .db3, by content)."""
     from pipelines.ingest.rosbag_reader import KEYS, read_rosbag
 
-    return read_rosbag(path, **_extra_keys(fmt, "rosbag", KEYS))
+    return read_rosbag(path, **extra_keys(fmt, "rosbag", KEYS))
 
 
 register_reader("csv", read_csv)

@@ -75,7 +75,7 @@ def open_bag(path: Path):
             reader.open()
             store = get_typestore(Stores.EMPTY)
             for conn in reader.connections:
-                store.register(_ros1_types(conn))
+                store.register(ros1_types(conn))
             return reader, lambda raw, msgtype: store.deserialize_ros1(raw, msgtype)
         from rosbags.rosbag2 import Reader
 
@@ -89,13 +89,13 @@ def open_bag(path: Path):
         raise IngestError(f"damaged {kind} ({type(exc).__name__}: {exc})", file=path) from None
 
 
-def _ros1_types(conn) -> dict:
+def ros1_types(conn) -> dict:
     from rosbags.typesys import get_types_from_msg
 
     return get_types_from_msg(conn.msgdef.data, conn.msgtype)
 
 
-def _topic(reader, path: Path, msgtype: str, name: str | None, key: str, required: bool):
+def topic_connections(reader, path: Path, msgtype: str, name: str | None, key: str, required: bool):
     """The connections of topic `name`, or of the one topic of `msgtype`."""
     conns = [c for c in reader.connections if (c.topic == name if name else c.msgtype == msgtype)]
     topics = sorted({c.topic for c in conns})
@@ -177,21 +177,23 @@ def read_rosbag(
             imu_topic = str(
                 choose_source(path, sources, min_rate_hz=min_rate_hz, field="format.imu_topic").key
             )
-        conns = _topic(reader, path, IMU, imu_topic, "imu_topic", True)
-        t_ns, rows = _messages(reader, deserialize, conns, path, stamp, _imu_values)
+        conns = topic_connections(reader, path, IMU, imu_topic, "imu_topic", True)
+        t_ns, rows = _messages(reader, deserialize, conns, path, stamp, imu_values)
         values = np.array(rows, dtype=float).reshape(-1, 6)
         acc, gyr = values[:, :3].copy(), values[:, 3:].copy()
         t0 = int(t_ns[0]) if len(t_ns) else 0
         t = t0 / NS + (t_ns - t0) / NS
         temp = None
-        tconns = _topic(reader, path, TEMPERATURE, temperature_topic, "temperature_topic", False)
+        tconns = topic_connections(
+            reader, path, TEMPERATURE, temperature_topic, "temperature_topic", False
+        )
         if tconns:
             ts, temps = _messages(reader, deserialize, tconns, path, stamp, _temperature)
             if len(ts):
                 temp = np.interp(t_ns - t0, ts - t0, np.array(temps, dtype=float))
         reference = {}
         if table_topic:
-            jconns = _topic(reader, path, JOINT_STATE, table_topic, "table_topic", True)
+            jconns = topic_connections(reader, path, JOINT_STATE, table_topic, "table_topic", True)
             reference = _table(reader, deserialize, jconns, path, stamp, table_joint, t_ns)
     finally:
         reader.close()
@@ -228,7 +230,7 @@ def bag_sources(reader, path: Path) -> list[LogSource]:
     return out
 
 
-def _imu_values(m) -> tuple[float, ...]:
+def imu_values(m) -> tuple[float, ...]:
     a, w = m.linear_acceleration, m.angular_velocity
     return (a.x, a.y, a.z, w.x, w.y, w.z)
 

@@ -3,7 +3,7 @@
 rosbags' ROS 1 reader, which `pipelines.ingest.rosbag_reader` uses, reads the index of
 every message when it opens a bag (a Python tuple per message: about 170 bytes each,
 15 GB for a day at 1 kHz), so `stream_rosbag` walks the bag itself, once, front to back,
-its bytes passing through `mcap_stream._Tee`, which hashes and copies them (the raw
+its bytes passing through `mcap_stream.HashingTee`, which hashes and copies them (the raw
 copy) as they are read:
 
 1. the bag header, then the index at its end (the connections and one record per
@@ -18,11 +18,11 @@ copy) as they are read:
    reader does: they must agree;
 4. the messages go, in log-time order (the in-memory reader's), through the in-memory
    reader's checks (`log_samples.check_samples`, records numbered in the whole topic)
-   into `mcap_stream._Sink`: batches of a size set by the memory limit, written as row
+   into `mcap_stream.SampleSink`: batches of a size set by the memory limit, written as row
    groups of the samples' Parquet and pushed to the first-pass statistics.
 
 The topic choice, the stamp (``header`` or ``log``), the rate check and their refusals
-are the in-memory reader's (`rosbag_reader._topic`, `log_samples.choose_source`; rates
+are the in-memory reader's (`rosbag_reader.topic_connections`, `log_samples.choose_source`; rates
 from exact median steps: of several Imu topics and none named, the fastest by its log
 times, read from the index records after each chunk in a first, seeking pass over them;
 the chosen topic's from `FirstPass`). What the route does not take is refused with the
@@ -60,18 +60,18 @@ from pipelines.ingest.csv_stream import (
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.log_samples import MIN_RATE_HZ, LogSource, check_samples, choose_source
-from pipelines.ingest.mcap_reader import _Channel
-from pipelines.ingest.mcap_stream import _SKIP_BLOCK, _Sink, _Tee
-from pipelines.ingest.readers import _extra_keys
+from pipelines.ingest.mcap_reader import McapChannel
+from pipelines.ingest.mcap_stream import SKIP_BLOCK, HashingTee, SampleSink
+from pipelines.ingest.readers import extra_keys
 from pipelines.ingest.rosbag_reader import (
     IMU,
     KEYS,
     ROS1_MAGIC,
     TEMPERATURE,
-    _imu_values,
-    _ros1_types,
-    _topic,
     bag_kind,
+    imu_values,
+    ros1_types,
+    topic_connections,
 )
 from storage.rawstore import samples_parquet_options
 
@@ -81,9 +81,9 @@ INDEX_ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])  # 
 
 class _Bag:
     """One pass over a ROS 1 bag: its index first, then its chunks; the IMU messages of
-    each chunk decoded and handed to `_Sink`."""
+    each chunk decoded and handed to `SampleSink`."""
 
-    def __init__(self, path: Path, f: _Tee, stamp: str, sink: _Sink, max_chunk: int):
+    def __init__(self, path: Path, f: HashingTee, stamp: str, sink: SampleSink, max_chunk: int):
         self.path, self.f, self.stamp, self.sink = path, f, stamp, sink
         self.max_chunk = max_chunk  # bytes: a larger decompressed chunk is refused
         self.connections: list[Any] = []  # rosbags Connection, from the index
@@ -91,7 +91,7 @@ class _Bag:
         self.chunk_infos: list[tuple[int, int]] = []  # (byte, connections) of each chunk
         self.imu: dict[int, Any] = {}  # the IMU topic's connections by id
         self.deserialize: Any = None
-        self.channel: _Channel | None = None
+        self.channel: McapChannel | None = None
         self.last_log: int | None = None  # ns, the previous chunk's last IMU log time
         self.last_t: float | None = None  # s, the previous message's time
         self.t0: int | None = None  # ns, the first stamp (the time base)
@@ -122,7 +122,7 @@ class _Bag:
 
         f = self.f if f is None else f
         if n > self.max_chunk:
-            at = f.at if isinstance(f, _Tee) else f.tell()
+            at = f.at if isinstance(f, HashingTee) else f.tell()
             raise IngestError(
                 f"a record near byte {at} declares {n} bytes, more than the memory "
                 f"limit allows ({self.max_chunk}): a damaged bag, or raise the memory limit",
@@ -242,8 +242,10 @@ class _Bag:
                 self.path, self.sources(), min_rate_hz=min_rate_hz, field="format.imu_topic"
             )
             imu_topic = str(chosen.key)
-        conns = _topic(bag, self.path, IMU, imu_topic, "imu_topic", True)
-        temps = _topic(bag, self.path, TEMPERATURE, temperature_topic, "temperature_topic", False)
+        conns = topic_connections(bag, self.path, IMU, imu_topic, "imu_topic", True)
+        temps = topic_connections(
+            bag, self.path, TEMPERATURE, temperature_topic, "temperature_topic", False
+        )
         if temps:
             raise IngestError(
                 f"the bag's temperature topic {temps[0].topic} is interpolated onto the whole "
@@ -266,10 +268,10 @@ class _Bag:
                     file=self.path,
                     field=c.topic,
                 )
-            own.register(_ros1_types(c))
+            own.register(ros1_types(c))
         self.imu = {c.id: c for c in conns}
         self.deserialize = own.deserialize_ros1
-        self.channel = _Channel(conns[0].id, conns[0].topic, "ros1", 0)
+        self.channel = McapChannel(conns[0].id, conns[0].topic, "ros1", 0)
 
     # --- the pass ----------------------------------------------------------------
 
@@ -443,7 +445,7 @@ class _Bag:
             raise BadMessageError(0, f"{type(exc).__name__}: {exc}") from None
         stamp = msg.header.stamp.sec * NS + msg.header.stamp.nanosec
         ours = np.concatenate([part["acc"][0], part["gyr"][0]])
-        same = np.array_equal(np.array(_imu_values(msg), float), ours, equal_nan=True)
+        same = np.array_equal(np.array(imu_values(msg), float), ours, equal_nan=True)
         if not same or (self.stamp == "header" and stamp != part["stamp"][0]):
             raise BadMessageError(0, "its fields differ from rosbags' decoding of it")
         return part
@@ -483,6 +485,7 @@ def stream_rosbag(
     label: str = "record",
     memory_limit: int = DEFAULT_MEMORY_LIMIT,
     progress: bool | None = None,
+    window: tuple[float, float] | None = None,
 ) -> Streamed:
     """One pass over a ROS 1 bag: hash, raw copy, samples' Parquet, statistics.
 
@@ -497,6 +500,8 @@ def stream_rosbag(
     copy_to : where the raw bytes are copied (None: not copied).
     label : the segment label of every row.
     memory_limit : bytes; sets the rows per batch and the largest chunk accepted.
+    window : (start, end) s: the samples with start <= t < end only go to the Parquet and
+        the statistics (`csv_stream.windowed`); None: all.
     progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
 
     Returns
@@ -512,7 +517,7 @@ def stream_rosbag(
     """
     started = time.perf_counter()
     path = Path(path)
-    keys = {"stamp": "header", **_extra_keys(fmt, "rosbag", KEYS)}
+    keys = {"stamp": "header", **extra_keys(fmt, "rosbag", KEYS)}
     if keys["stamp"] not in ("header", "log"):
         raise IngestError(
             f"stamp must be 'header' or 'log', got {keys['stamp']!r}", field="format.stamp"
@@ -540,13 +545,14 @@ def stream_rosbag(
     schema = pa.schema([("segment", pa.string())] + [(c, pa.float64()) for c in SAMPLE_COLUMNS])
     try:
         with (
-            path.open("rb", buffering=_SKIP_BLOCK) as fh,
+            path.open("rb", buffering=SKIP_BLOCK) as fh,
             pq.ParquetWriter(samples, schema, **samples_parquet_options(schema)) as writer,
             copy_to.open("wb") if copy_to is not None else nullcontext() as copy,
         ):
-            tee = _Tee(fh, sha, copy)
+            tee = HashingTee(fh, sha, copy)
             rows = block_bytes(memory_limit) // ROW_BYTES
-            sink = _Sink(str(path), rows, writer, label, lambda n: bar.update(tee.hashed, n))
+            shown = lambda n: bar.update(tee.hashed, n)  # noqa: E731
+            sink = SampleSink(str(path), rows, writer, label, shown, window)
             try:
                 bag = _walk(path, tee, keys, sink, memory_limit, size)
                 sink.flush()
@@ -559,11 +565,17 @@ def stream_rosbag(
         raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
     bar.update(size, sink.done, final=True)
     _check_rate(path, bag, sink, keys.get("min_rate_hz", MIN_RATE_HZ))
-    return Streamed(sha.hexdigest(), size, Path(samples), sink.first, time.perf_counter() - started)
+    seconds = time.perf_counter() - started
+    return Streamed(sha.hexdigest(), size, Path(samples), sink.first, seconds, span=sink.span)
 
 
 def _walk(
-    path: Path, tee: _Tee, keys: dict[str, Any], sink: _Sink, memory_limit: int, size: int
+    path: Path,
+    tee: HashingTee,
+    keys: dict[str, Any],
+    sink: SampleSink,
+    memory_limit: int,
+    size: int,
 ) -> _Bag:
     """The bag's header, index and chunks, read through `tee`; rosbags' errors on a
     truncated or damaged record named with the byte where the record starts."""
@@ -591,13 +603,13 @@ def _walk(
     return bag
 
 
-def _check_rate(path: Path, bag: _Bag, sink: _Sink, min_rate_hz: float) -> None:
+def _check_rate(path: Path, bag: _Bag, sink: SampleSink, min_rate_hz: float) -> None:
     """No samples, or a rate below `min_rate_hz`: the in-memory reader's refusals, with the
     rate from the exact median step of the first pass (`log_samples.stamp_rate`'s)."""
     topic = bag.channel.topic if bag.channel else "?"
     if sink.done == 0:
         raise IngestError(f"{topic}: no samples", file=path, field=topic)
-    rate = _rate(sink.first.step) if sink.done > 1 else None
+    rate = _rate(sink.steps or sink.first.step) if sink.done > 1 else None
     if rate is None or rate < min_rate_hz:
         choose_source(
             path,

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
@@ -30,6 +30,7 @@ from calib_core.recording import RangeHit, Recording, first_range_hit
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.ingest.csv_reader import read_csv_pair, read_csv_sections
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.log_samples import check_readings
 from pipelines.ingest.manifest import (
     RunManifest,
     SegmentSpec,
@@ -105,6 +106,8 @@ class LoadedRun:
     segments : label -> Recording (SI units), in manifest order.
     raw_files : every input file with its hash, run.toml first.
     verification_labels : labels of segments kept out of the fit.
+    findings : what the readers found about the files without refusing them (a log read
+        to its last whole record), as CheckResult fields; the run's checks name them.
     streamed : a record larger than the memory limit, streamed instead of read
         (`pipelines.ingest.streaming.StreamedRecord`; `segments` is then empty).
     """
@@ -116,6 +119,7 @@ class LoadedRun:
     raw_files: list[RawFile]
     verification_labels: set[str]
     streamed: StreamedRecord | None = None
+    findings: list[dict] = field(default_factory=list)
 
 
 # (sha256, size) of a raw file, e.g. `storage.rawstore.hash_and_size`.
@@ -310,7 +314,7 @@ def _load_described(
 ) -> LoadedRun:
     """Read the segments a manifest describes (real or synthesised)."""
     source = str(manifest_path or folder)
-    check_segments(manifest, source)
+    check_segments(manifest, source, text or "")
     manifest = with_lab_site(manifest, source)
     if manifest.format.kind == "imutk":
         manifest = manifest.model_copy(update={"format": imutk_format(manifest.format)})
@@ -333,6 +337,7 @@ def _load_described(
         )
 
     out: dict[str, Recording] = {}
+    findings: list[dict] = []
     hashed: set[str] = set()
     increasing: dict[int, bool] = {}  # id of a whole-file recording -> its t strictly increases
     checked: dict[str, Path] = {}  # file name -> its path, checked once (segments share files)
@@ -368,6 +373,10 @@ def _load_described(
                 if exc.file is None:  # a reader's complaint about the manifest's format section
                     raise IngestError(exc.problem, file=source, field=exc.field) from None
                 raise
+            whole_file = recordings[key]
+            for part in whole_file.values() if isinstance(whole_file, dict) else [whole_file]:
+                check_readings(part, " + ".join(str(p) for p in paths))
+                findings.extend(part.findings)
             for name, path in zip(names, paths, strict=True):
                 if name not in hashed:
                     hashed.add(name)
@@ -386,6 +395,7 @@ def _load_described(
         segments=out,
         raw_files=raw_files,
         verification_labels={s.label for s in segments if s.verification},
+        findings=findings,
     )
 
 
@@ -482,28 +492,69 @@ def _section(
 STILL_TURNING = 5.0 * DEG  # rad/s: a gyro this far from its reading at the segment's start
 
 
-def _check_window_end(
-    whole: Recording, part: Recording, seg: SegmentSpec, index: int, source: str
+def check_window_end(
+    seg: SegmentSpec,
+    index: int,
+    source: str,
+    data_end: float,
+    step: float,
+    ends: Callable[[], tuple[np.ndarray, np.ndarray]],
 ) -> None:
     """Refuse a window that runs past the end of the data while the unit still turns
     there: the file was cut short mid-motion (a log that lost power), the turn would be
     silently incomplete. A window padded past the end of a file that ends at rest reads
-    as before, and so does a rate plateau (a table_rate reference): it turns on purpose,
-    its reference is the table's own rate, and a plateau cut short is a shorter record,
-    which the record-time condition judges."""
-    if seg.end_s is None or len(part) < 20 or "table_rate" in part.reference:
+    as before. (Not called for a rate plateau, a table_rate reference: it turns on
+    purpose, its reference is the table's own rate, and a plateau cut short is a shorter
+    record, which the record-time condition judges; nor for fewer than 20 samples.)
+
+    data_end : the data's last time, s; step : the window's median time step, s;
+    ends : the gyro's first and last ten rows of the window, (10, 3) rad/s each (read only
+    when the window runs past the data's end).
+    """
+    if seg.end_s is None or seg.end_s <= data_end + 1.5 * max(step, 0.0):
         return
-    step = float(np.median(np.diff(part.t)))
-    if seg.end_s <= whole.t[-1] + 1.5 * max(step, 0.0):
-        return
-    at_start = np.median(part.gyr[:10], axis=0)
-    at_end = np.median(part.gyr[-10:], axis=0)
-    if np.linalg.norm(at_end - at_start) > STILL_TURNING:
+    head, tail = ends()
+    moved = float(np.linalg.norm(np.median(tail, axis=0) - np.median(head, axis=0)))
+    if moved > STILL_TURNING:
         raise IngestError(
             f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s runs past the "
-            f"end of the data ({' + '.join(seg.files)} ends at {whole.t[-1]:.6g} s) while the "
-            f"unit still turns there (gyro {np.linalg.norm(at_end - at_start) / DEG:.1f} deg/s "
+            f"end of the data ({' + '.join(seg.files)} ends at {data_end:.6g} s) while the "
+            f"unit still turns there (gyro {moved / DEG:.1f} deg/s "
             "from its reading at the segment's start): the file was cut short",
+            file=source,
+            field=f"segments[{index}]",
+        )
+
+
+def empty_window(seg: SegmentSpec, index: int, source: str, t0: float, t1: float) -> IngestError:
+    """The error of a segment whose window holds no samples of data spanning t0 .. t1 s."""
+    return IngestError(
+        f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s holds no samples; "
+        f"{' + '.join(seg.files)} spans {t0:.6g} .. {t1:.6g} s",
+        file=source,
+        field=f"segments[{index}]",
+    )
+
+
+def check_window_inside(
+    seg: SegmentSpec, index: int, source: str, first: float, last: float
+) -> None:
+    """Refuse a window that lies more outside the record (times first .. last s) than
+    inside it (a start 1e9 s before the file's first sample, a wrong time base): the
+    manifest contradicts the file. A window padded a little past either end of the record
+    reads as the record's part; a record of one time is not judged."""
+    if not last > first:
+        return
+    start = first if seg.start_s is None else seg.start_s
+    end = last if seg.end_s is None else seg.end_s
+    outside = max(0.0, first - start) + max(0.0, end - last)
+    inside = min(end, last) - max(start, first)
+    if outside > max(inside, 0.0):
+        raise IngestError(
+            f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s lies "
+            f"{outside:.6g} s outside the record and {max(inside, 0.0):.6g} s inside it "
+            f"({' + '.join(seg.files)} spans {first:.6g} .. {last:.6g} s); expected a "
+            "window inside the record (the file's own time axis, s)",
             file=source,
             field=f"segments[{index}]",
         )
@@ -518,14 +569,14 @@ def _cut(
         return whole.with_label(seg.label)
     start = -float("inf") if seg.start_s is None else seg.start_s
     end = float("inf") if seg.end_s is None else seg.end_s
+    if len(whole):
+        check_window_inside(seg, index, source, float(whole.t[0]), float(whole.t[-1]))
     part = whole.window(start, end, label=seg.label, increasing=increasing)
     if len(part) == 0:
-        raise IngestError(
-            f"segment '{seg.label}': the window [{seg.start_s}, {seg.end_s}) s holds no samples; "
-            f"{' + '.join(seg.files)} spans {whole.t[0]:.6g} .. {whole.t[-1]:.6g} s",
-            file=source,
-            field=f"segments[{index}]",
-        )
-    _check_window_end(whole, part, seg, index, source)
+        raise empty_window(seg, index, source, whole.t[0], whole.t[-1])
+    if len(part) >= 20 and "table_rate" not in part.reference:
+        step = float(np.median(np.diff(part.t)))
+        ends = lambda: (part.gyr[:10], part.gyr[-10:])  # noqa: E731
+        check_window_end(seg, index, source, whole.t[-1], step, ends)
     where = f"{whole.source} t in [{seg.start_s}, {seg.end_s}) s"
     return dataclasses.replace(part, label=seg.label, source=where)

@@ -20,7 +20,7 @@ and returns a `Streamed` (`pipelines.ingest.csv_stream.Streamed`):
   columns ``segment`` (string, ``label`` on every row), ``t`` (s), ``acc_x..acc_z``
   (m/s^2), ``gyr_x..gyr_z`` (rad/s), ``temp`` (deg C, NaN where none), all float64 in SI,
   time strictly increasing);
-- ``first`` : `calib_core.solvers.static_bias_stream.FirstPass` pushed with every chunk
+- ``first`` : `calib_core.solvers.static_bias.FirstPass` pushed with every chunk
   in order, ``first.push((t, gyr, acc))``;
 - ``seconds`` : wall time of the pass, s.
 

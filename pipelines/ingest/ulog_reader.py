@@ -23,6 +23,7 @@ below ``min_rate_hz`` is refused with every source's rate
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 from pathlib import Path
 
@@ -35,6 +36,7 @@ from pipelines.ingest.log_samples import (
     LogSource,
     checked_recording,
     choose_source,
+    cut_tail,
     quiet,
     recorded_temperature,
     stamp_rate,
@@ -52,7 +54,9 @@ TOPICS = ("sensor_combined", "sensor_accel", "sensor_gyro")
 
 
 def load_ulog(path: Path):
-    """The pyulog.ULog of the IMU topics; IngestError naming the file if it is not a ULog."""
+    """(the pyulog.ULog of the IMU topics, the findings about the file: `cut_tail` of a log
+    read to its last whole record); IngestError naming the file if it is not a ULog or is
+    damaged inside."""
     from pyulog import ULog
 
     path = Path(path)
@@ -71,24 +75,25 @@ def load_ulog(path: Path):
             ulog = ULog(str(path), list(TOPICS))
     except Exception as exc:  # pyulog raises plain exceptions on damaged logs
         raise IngestError(f"damaged ULog ({type(exc).__name__}: {exc})", file=path) from None
-    check_records(path)
+    findings = check_records(path)
     if ulog.file_corruption:
         raise IngestError(
             "damaged ULog: records pyulog cannot parse (skipped bytes or an unknown message "
             "type); ULog carries no checksum, so no sample of it can be trusted",
             file=path,
         )
-    return ulog
+    return ulog, findings
 
 
-def check_records(path: Path) -> None:
-    """Refuse a ULog whose records do not follow each other to the end of the file.
+def check_records(path: Path) -> tuple[dict, ...]:
+    """Refuse a ULog whose records do not follow each other; find a cut last record.
 
     A ULog is a 16-byte header, then records of (uint16 size, uint8 type, size bytes);
-    pyulog stops silently at a record the file cuts short, skips a record of a type it
-    does not know (a damaged size or type byte then hides the samples it spans) and
-    starts a topic afresh when its subscription comes twice (a chunk written twice). Each
-    of these is refused, naming the byte offset.
+    pyulog skips a record of a type it does not know (a damaged size or type byte then
+    hides the samples it spans) and starts a topic afresh when its subscription comes
+    twice (a chunk written twice): each is refused, naming the byte offset. A last record
+    the file cuts short (a logger that lost power) is dropped, as pyulog does: the log is
+    read to its last whole record, with the `cut_tail` finding returned.
     """
     with path.open("rb") as fh:
         data = fh.read()
@@ -117,15 +122,9 @@ def check_records(path: Path) -> None:
                 )
             subscribed[msg_id] = start
     if pos == size:
-        return
-    if pos > size:
-        problem = (
-            f"the last record (byte offset {start}, {pos - start} bytes) runs past the "
-            f"end of the file ({size} bytes)"
-        )
-    else:
-        problem = f"{size - pos} byte(s) after the last record (byte offset {pos}), not a record"
-    raise IngestError(f"truncated ULog: {problem}; the log was cut while written", file=path)
+        return ()
+    cut = start if pos > size else pos  # a record's body, or its 3-byte head, cut short
+    return (cut_tail(path, "ULog", cut, size - cut, size),)
 
 
 def _topic(ulog, path: Path, name: str, instance: int):
@@ -216,7 +215,7 @@ def read_ulog(
             f"unknown source {source!r}; expected one of {', '.join(SOURCES)}",
             field="format.source",
         )
-    ulog = load_ulog(path)
+    ulog, findings = load_ulog(path)
     sources = ulog_sources(ulog, [instance])
     if source != "auto" and source not in {s.key for s in sources}:
         # the missing topic, named as the log has it
@@ -226,8 +225,10 @@ def read_ulog(
         path, sources, None if source == "auto" else source, min_rate_hz=min_rate_hz
     )
     if chosen.key == "sensor_accel":
-        return _separate(ulog, path, instance)
-    return _combined(ulog, path, instance)
+        rec = _separate(ulog, path, instance)
+    else:
+        rec = _combined(ulog, path, instance)
+    return dataclasses.replace(rec, findings=findings)
 
 
 def _separate(ulog, path: Path, instance: int) -> Recording:
@@ -247,7 +248,15 @@ def _separate(ulog, path: Path, instance: int) -> Recording:
         temp = None if temp is None else temp[keep]
         gyr = _onto(t, t_gyr, gyr, path, "sensor_gyro")
     what = f"sensor_accel[{instance}]"
-    return checked_recording(path, what, t, {"acc": acc, "gyr": gyr}, temp=temp)
+    devices = {k: i for k, i in (("accel", _device_id(accel)), ("gyro", _device_id(gyro))) if i}
+    return checked_recording(path, what, t, {"acc": acc, "gyr": gyr}, temp=temp, devices=devices)
+
+
+def _device_id(data) -> int | None:  # noqa: ANN001 - a pyulog data set
+    """The topic's ``device_id`` (the id PX4's CAL_* / TC_* parameters must name), None when
+    the topic has none, it is 0 or it changes within the log (two sensors, no one id)."""
+    ids = np.unique(np.asarray(data.data.get("device_id", ()), dtype=np.int64))
+    return int(ids[0]) if len(ids) == 1 and ids[0] != 0 else None
 
 
 def _combined(ulog, path: Path, instance: int) -> Recording:

@@ -42,6 +42,7 @@ from calib_core.verification import (
 from pipelines.reports import figures, iso17025
 from pipelines.reports.display import (
     ERROR_DIGITS,
+    NO_STANDARD_U,
     RESIDUAL_UNITS,
     STANDARD_U,
     STANDARD_U_MEANING,
@@ -51,10 +52,13 @@ from pipelines.reports.display import (
     limit_text,
     number,
     quantity,
+    record_notes,
     shown,
+    solve_warnings,
     tolerance_text,
     uncertainty,
 )
+from pipelines.reports.navigation import navigation_sections
 from pipelines.reports.protocol import (
     guard_band_of,
     render_protocol,
@@ -169,6 +173,7 @@ def sections(
         _repeatability_section(run),
         _verification_section(run),
         _verdict_section(run),
+        *navigation_sections(summary.get("navigation")),
         Section(
             "Recommendations",
             paragraphs=recommendations(
@@ -372,7 +377,7 @@ def _results_section(run: _Archived) -> Section:
         c = by_param.get(p["name"])
         tol = tolerance_text(p["name"], c)
         result = "" if c is None else ("pass" if c["passed"] else "FAIL")
-        res_rows.append([p["name"], s.value, s.u or "-", s.unit, tol, result])
+        res_rows.append([p["name"], s.value, s.u or NO_STANDARD_U, s.unit, tol, result])
     return Section(
         f"Results ({STANDARD_U_MEANING})",
         header=["parameter", "value", STANDARD_U, "unit", "tolerance", "result"],
@@ -700,8 +705,14 @@ def _verdict_section(run: _Archived) -> Section:
             ("Failed", ", ".join(failed) or "none"),
             ("Warnings", ", ".join(by_status.get(conditions.WARNING, [])) or "none"),
             ("Not recorded", ", ".join(by_status.get(conditions.NOT_RECORDED, [])) or "none"),
+            *(_notes(run) or [("The record", "no findings, no sample replaced")]),
         ],
     )
+
+
+def _notes(run: _Archived) -> list[tuple[str, str]]:
+    """The findings about the record, the samples replaced and the solve's warnings."""
+    return record_notes(run.checks, solve_warnings(run.summary["calibration"]["steps"]))
 
 
 def _figures(run: _Archived) -> dict[str, str]:
@@ -740,4 +751,5 @@ def _protocol(run: _Archived) -> str:
         budgets=_budgets(run),
         decision_rule=_decision_rule(run),
         names=run.profile.protocol_names if run.profile else "canonical",
+        notes=_notes(run),
     )

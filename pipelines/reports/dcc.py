@@ -9,8 +9,13 @@ decision rule, the results-relate-only statement and the uncertainty label) and
 parameter as a D-SI ``si:real`` with value, unit and ``si:expandedUnc`` U, k and coverage
 probability). Values are SI as archived.
 
-The official XSD is not shipped with this package; the document follows its element order
-(DCC 3.2) so that a lab with the XSD can validate it.
+The document is valid against PTB's DCC 3.3.0 schema (the tests validate every DCC they make
+against the schema set vendored in tests/schemas). What the schema requires and the archive
+cannot know comes from the lab profile or the document is refused naming the field
+(`DccRefusedError`): the customer's location (``[customer] address`` of lab.toml) and, for a
+run whose manifest lists no equipment, the lab's reference equipment (``[[equipment]]`` of
+lab.toml). Each result refers (``refId``) to the method and equipment (``id``) it was
+measured with.
 """
 
 from __future__ import annotations
@@ -24,8 +29,9 @@ from pipelines.reports import iso17025
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
-SCHEMA_VERSION = "3.2.1"
+SCHEMA_VERSION = "3.3.0"
 LANG = "en"
+METHOD_ID = "method"  # the id of the used method, which each result refers to
 # D-SI unit of each SI unit string of calib_core.params.UNITS.
 D_SI = {
     "m/s^2": r"\metre\second\tothe{-2}",
@@ -38,6 +44,10 @@ D_SI = {
 
 ET.register_namespace("dcc", DCC_NS)
 ET.register_namespace("si", SI_NS)
+
+
+class DccRefusedError(ValueError):
+    """A DCC that would lack an element the schema requires; the message names the field."""
 
 
 def _el(parent: ET.Element, tag: str, text: str | None = None, **attrib: str) -> ET.Element:
@@ -81,14 +91,13 @@ def _administrative(admin: ET.Element, summary: dict[str, Any]) -> None:
     _el(core, "dcc:beginPerformanceDate", day)
     _el(core, "dcc:endPerformanceDate", day)
     _el(core, "dcc:performanceLocation", "laboratory")
-    _item(_el(admin, "dcc:items"), summary["device"])
-    _contact(_el(admin, "dcc:calibrationLaboratory"), laboratory, "address")
+    _item(_el(admin, "dcc:items", id="items"), summary["device"])
+    _contact(_el(_el(admin, "dcc:calibrationLaboratory"), "dcc:contact"), laboratory, "address")
     person = _el(_el(admin, "dcc:respPersons"), "dcc:respPerson")
     who = lab.get("authorised_by", {})
     _text(_el(person, "dcc:person"), "dcc:name", who.get("name", iso17025.NOT_RECORDED))
     _el(person, "dcc:role", who.get("function", "authorised by"))
-    customer = _el(admin, "dcc:customer")
-    _text(customer, "dcc:name", lab.get("customer", {}).get("name", iso17025.NOT_RECORDED))
+    _contact(_el(admin, "dcc:customer", id="customer"), _customer(lab), "address")
     statements = _el(admin, "dcc:statements")
     for said in _statements(summary):
         _text(_el(statements, "dcc:statement"), "dcc:declaration", said)
@@ -105,8 +114,20 @@ def _item(items: ET.Element, device: dict[str, Any]) -> None:
     _text(ident, "dcc:name", "Serial number")
 
 
-def _contact(parent: ET.Element, entry: dict[str, str], where: str) -> None:
-    contact = _el(parent, "dcc:contact")
+def _customer(lab: dict[str, Any]) -> dict[str, str]:
+    """The customer of the lab profile with its location, which DCC 3.3.0 requires."""
+    customer = lab.get("customer", {})
+    if not customer.get("address"):
+        raise DccRefusedError(
+            'DCC 3.3.0 requires the customer\'s location: add address = "..." to [customer] '
+            "of the lab profile lab.toml"
+            + ("" if lab else " (no lab.toml found in the profile folders, CALIB_PROFILES)")
+        )
+    return customer
+
+
+def _contact(contact: ET.Element, entry: dict[str, str], where: str) -> None:
+    """The name and location of a DCC contact (the laboratory's, the customer)."""
     _text(contact, "dcc:name", entry.get("name", iso17025.NOT_RECORDED))
     _text(_el(contact, "dcc:location"), "dcc:further", entry.get(where, iso17025.NOT_RECORDED))
 
@@ -131,12 +152,14 @@ def _budgets(summary: dict[str, Any]) -> dict[str, dict[str, Any]]:
 def _results(results_root: ET.Element, summary: dict[str, Any]) -> None:
     result = _el(results_root, "dcc:measurementResult")
     _text(result, "dcc:name", "IMU error model parameters")
-    method = _el(_el(result, "dcc:usedMethods"), "dcc:usedMethod")
+    method = _el(_el(result, "dcc:usedMethods"), "dcc:usedMethod", id=METHOD_ID)
     _text(method, "dcc:name", f"procedure {summary['procedure']}")
     equipment = _el(result, "dcc:measuringEquipments")
-    for e in summary["equipment"]:
-        eq = _el(equipment, "dcc:measuringEquipment")
-        _text(eq, "dcc:name", f"{e['kind']} {e.get('model') or ''}".strip())
+    ids = [METHOD_ID]
+    for i, (e, said) in enumerate(_equipment(summary), start=1):
+        ids.append(f"equipment-{i}")
+        eq = _el(equipment, "dcc:measuringEquipment", id=ids[-1])
+        _text(eq, "dcc:name", f"{e.get('kind', '')} {e.get('model') or ''}".strip() + said)
         ident = _el(_el(eq, "dcc:identifications"), "dcc:identification")
         _el(ident, "dcc:issuer", "manufacturer")
         _el(ident, "dcc:value", e["serial"])
@@ -147,13 +170,28 @@ def _results(results_root: ET.Element, summary: dict[str, Any]) -> None:
         _text(cond, "dcc:name", "Ambient temperature")
         quantity = _el(_el(cond, "dcc:data"), "dcc:quantity")
         _real(quantity, float(temperature) + 273.15, r"\kelvin")
-    _parameters(_el(result, "dcc:results"), summary)
+    _parameters(_el(result, "dcc:results"), summary, " ".join(ids))
 
 
-def _parameters(results: ET.Element, summary: dict[str, Any]) -> None:
+def _equipment(summary: dict[str, Any]) -> list[tuple[dict[str, Any], str]]:
+    """(equipment, what the name adds) of the run, else the lab profile's references: the
+    schema requires at least one measuring equipment."""
+    if summary["equipment"]:
+        return [(e, "") for e in summary["equipment"]]
+    listed = (summary.get("lab") or {}).get("equipment", [])
+    if not listed:
+        raise DccRefusedError(
+            "DCC 3.3.0 requires at least one measuring equipment: the run's manifest lists "
+            "none ([[equipment]] of run.toml) and the lab profile lab.toml has no [[equipment]]"
+        )
+    said = " (the lab's reference from lab.toml: the run's manifest lists no equipment)"
+    return [({"kind": e.get("kind", "reference"), **e}, said) for e in listed]
+
+
+def _parameters(results: ET.Element, summary: dict[str, Any], used: str) -> None:
     budgets = _budgets(summary)
     for p in summary["calibration"]["parameters"]:
-        res = _el(results, "dcc:result", refId=p["name"].replace(".", "_"))
+        res = _el(results, "dcc:result", id=f"result-{p['name']}", refId=used)
         _text(res, "dcc:name", p["name"])
         quantity = _el(_el(res, "dcc:data"), "dcc:quantity")
         _text(quantity, "dcc:name", p["name"])

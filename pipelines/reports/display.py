@@ -67,6 +67,8 @@ def tolerance(name: str, check: dict | None) -> tuple[str, float] | None:
 
 STANDARD_U = "u"  # the standard uncertainty (k = 1), as every table heads it
 STANDARD_U_MEANING = "u: standard uncertainty (k = 1)"
+# a value archived without a standard uncertainty (a noise term: the value is itself a spread)
+NO_STANDARD_U = "not evaluated"
 U_DIGITS = 2  # significant digits of an uncertainty (GUM 7.2.6); the value to the same place
 VALUE_DIGITS = 6  # significant digits of a value without an uncertainty
 LIMIT_DIGITS = 4  # significant digits of a tolerance limit
@@ -206,3 +208,30 @@ def check_counts(checks: list[dict[str, Any]]) -> CheckCounts:
         conditions.count(WARNING),
         conditions.count(NOT_RECORDED),
     )
+
+
+def record_notes(
+    checks: list[dict[str, Any]], warnings: list[str] | tuple[str, ...] = ()
+) -> list[tuple[str, str]]:
+    """What every view shows beside the verdict about the record rather than the unit, as
+    (name, text): each ``record:`` finding (a log read to its last whole record, a turn
+    not quite at rest, a threshold raised, a held-out static record that moved), each
+    ``model:replaced:`` count of samples a step altered (passed ones too: the count is
+    shown whatever it is), then the solve's `warnings` ("solve warning")."""
+    from calib_core.checks import RECORD_PREFIX
+    from calib_core.preprocess.replaced import CHECK_PREFIX as REPLACED_PREFIX
+
+    notes = [
+        (str(c["name"]), str(c.get("detail") or ""))
+        for c in checks
+        if str(c["name"]).startswith((RECORD_PREFIX, REPLACED_PREFIX))
+    ]
+    return notes + [("solve warning", str(w)) for w in warnings]
+
+
+def solve_warnings(steps: list[dict[str, Any]]) -> list[str]:
+    """The warnings an archived run's solve step holds (its steps as `run_summary` gives)."""
+    for step in steps:
+        if step.get("name") == "solve":
+            return [str(w) for w in (step.get("statistics") or {}).get("warnings", [])]
+    return []

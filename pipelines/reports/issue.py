@@ -4,7 +4,7 @@ A certificate is *issued* when its run is archived (`pipelines.process`): its HT
 the PDF typeset from that HTML go into the revision's folder beside the protocol, and
 an audit event ``certificate issued`` records the SHA-256 of each file, the issue
 number and the certificate number, so `calib verify` sees a file changed or removed
-behind the archive's back (`storage.seal.check`). The web pages and `calib report`
+behind the archive's back (`storage.seal_check.check`). The web pages and `calib report`
 hand out these files; they never render a certificate of their own. A re-issue (after
 an approval, a new lab profile) is a new document: the next issue number, its own
 certificate number ("<run>-<revision>-<issue>") and files, and an event of its own;
@@ -56,28 +56,13 @@ def protocol_of(archive: Archive, summary: dict[str, Any]) -> Path | None:
     return path if path.is_file() else None
 
 
-def issues(archive: Archive, run_id: str) -> list[dict[str, Any]]:
-    """The ``certificate issued`` events of a run (oldest first), from the audit chain."""
-    from sqlalchemy import select
-
-    from storage.schema import AuditEvent
-
-    q = (
-        select(AuditEvent.revision, AuditEvent.detail, AuditEvent.at)
-        .where(AuditEvent.run_id == run_id, AuditEvent.action == ISSUED)
-        .order_by(AuditEvent.seq)
-    )
-    with archive.engine().connect() as conn:
-        return [dict(r._mapping) for r in conn.execute(q)]
-
-
 def issued(archive: Archive, run_id: str) -> Issue | None:
     """The latest issued certificate of the run's current revision, None if none was issued."""
     from storage import queries
 
     summary = queries.run_summary(archive, run_id)
     revision = summary["calibration"]["revision"]
-    mine = [e for e in issues(archive, run_id) if e["revision"] == revision]
+    mine = [e for e in queries.certificate_issues(archive, run_id) if e["revision"] == revision]
     if not mine:
         return None
     detail = mine[-1]["detail"]
@@ -116,7 +101,8 @@ def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
     from storage import queries
 
     revision = queries.run_summary(archive, run_id)["calibration"]["revision"]
-    number = 1 + sum(e["revision"] == revision for e in issues(archive, run_id))
+    issues = queries.certificate_issues(archive, run_id)
+    number = 1 + sum(e["revision"] == revision for e in issues)
     summary, cert = certificate_of(archive, run_id, issue=number)
     data = {"pdf": pdf_bytes(cert), "html": render_html(cert).encode()}
     folder = _folder(summary)

@@ -69,6 +69,7 @@ def render_protocol(
     budgets: Mapping[str, Mapping[str, Any]] | None = None,
     decision_rule: str | None = None,
     names: str = "canonical",
+    notes: Iterable[tuple[str, str]] = (),
 ) -> str:
     """Render the protocol text.
 
@@ -82,6 +83,9 @@ def render_protocol(
     names : "canonical", or "manual": each line also gives the MPU-6000 manual's name
         and the value in the manual's sign (calib_core.params.MANUAL_NAMES), so a lab
         compares line by line with its old protocols.
+    notes : (name, text) of the findings about the record, the counts of samples
+        replaced and the solve's warnings (`pipelines.reports.display.record_notes`),
+        listed beside the verdict.
     """
     checks = list(checks)
     by_param = {
@@ -127,6 +131,10 @@ def render_protocol(
             limit = "" if c.get("limit") is None else limit_text(c["limit"])
             value = "" if c.get("value") is None else number(c["value"])
             lines.append(f"{c['name']:<44}{value:>13}{limit:>13}  {'+' if c['passed'] else '-'}")
+    notes = list(notes)
+    if notes:
+        lines += [_RULE, "The record: findings, samples replaced, solver warnings"]
+        lines += [f"{name}: {text}" for name, text in notes]
     lines += [
         _RULE,
         f"Checks: {check_counts(checks).sentence()}",

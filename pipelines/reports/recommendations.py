@@ -31,8 +31,11 @@ def recommendations(
         )
     elif verdict == NEEDS_REVIEW:
         out.append(
-            "The calibration is within tolerance but does not repeat against earlier runs: "
-            "a quality engineer decides; repeat the calibration under controlled conditions."
+            "The unit's parameters are within tolerance, but the record has findings (see "
+            "the verdict: a log cut while written, samples replaced beyond false alarms, a "
+            "threshold raised) or the result does not repeat against earlier runs or was not "
+            "determined by the run: a quality engineer decides; repeat the calibration under "
+            "controlled conditions if in doubt."
         )
     else:
         out.append("Do not release the unit with this calibration; act on the failed checks.")

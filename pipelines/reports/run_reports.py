@@ -15,6 +15,7 @@ import pyarrow as pa
 
 from calib_core.verification import PASS
 from pipelines.reports.certificate import sections
+from pipelines.reports.navigation import navigation_data
 from pipelines.reports.render import Certificate, render_html
 from pipelines.reports.typeset import render_pdf
 
@@ -115,6 +116,7 @@ def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - 
         archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1)
     )
     summary["chain_head"] = chain_head(archive)
+    summary["navigation"] = navigation_data(archive, run_id)  # lab.toml [navigation]
     return summary
 
 

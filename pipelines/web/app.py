@@ -15,7 +15,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from starlette.exceptions import HTTPException
 
-from pipelines.web import due, equipment, impact, runs, units
+from pipelines.web import due, equipment, impact, navigation, runs, units
 from pipelines.web.pages import SECURITY_HEADERS, freeze_imports, render, unfreeze_imports
 from storage.db import Archive
 
@@ -55,7 +55,7 @@ def create_app(archive: Archive) -> FastAPI:
         lifespan=_lifespan,
     )
     app.state.archive = archive
-    for module in (runs, units, equipment, due, impact):
+    for module in (runs, units, equipment, due, impact, navigation):
         app.include_router(module.router)
 
     @app.get("/", include_in_schema=False)

@@ -14,7 +14,14 @@ from fastapi.responses import FileResponse, HTMLResponse, Response
 from starlette.exceptions import HTTPException
 
 from calib_core import params
-from pipelines.reports.display import RESIDUAL_UNITS, check_counts, shown, tolerance_text
+from pipelines.reports.display import (
+    RESIDUAL_UNITS,
+    check_counts,
+    record_notes,
+    shown,
+    solve_warnings,
+    tolerance_text,
+)
 from pipelines.web import forms, svg
 from pipelines.web.pages import render
 from pipelines.web.present import display
@@ -154,6 +161,9 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
         charts=[c for c in charts if c],
         profile=profile,
         counts=check_counts(summary["calibration"]["checks"]),
+        notes=record_notes(
+            summary["calibration"]["checks"], solve_warnings(summary["calibration"]["steps"])
+        ),
     )
 
 
@@ -224,32 +234,29 @@ def _issued(archive, run_id: str, kind: str) -> Path:  # noqa: ANN001 - Archive
     return path
 
 
-def _archived_file(path: Path, media_type: str) -> FileResponse:
+def _archived_file(request: Request, run_id: str, kind: str, media_type: str) -> FileResponse:
+    """The run's issued file `kind` ("protocol", "html", "pdf"), as archived."""
+    forms.params(request, ())
+    path = _issued(request.app.state.archive, run_id, kind)
     return FileResponse(path, media_type=media_type, filename=path.name)
 
 
 @router.get("/runs/{run_id}/protocol.txt")
 def protocol(request: Request, run_id: str) -> Response:
     """The test protocol (MPU-6000 layout) archived with the run."""
-    forms.params(request, ())
-    path = _issued(request.app.state.archive, run_id, "protocol")
-    return _archived_file(path, "text/plain; charset=utf-8")
+    return _archived_file(request, run_id, "protocol", "text/plain; charset=utf-8")
 
 
 @router.get("/runs/{run_id}/certificate.html")
 def certificate_html(request: Request, run_id: str) -> Response:
     """The issued HTML certificate (a download: it embeds its plots as PNG)."""
-    forms.params(request, ())
-    path = _issued(request.app.state.archive, run_id, "html")
-    return _archived_file(path, "text/html; charset=utf-8")
+    return _archived_file(request, run_id, "html", "text/html; charset=utf-8")
 
 
 @router.get("/runs/{run_id}/certificate.pdf")
 def certificate_pdf(request: Request, run_id: str) -> Response:
     """The issued PDF certificate, as archived (never rendered by the server)."""
-    forms.params(request, ())
-    path = _issued(request.app.state.archive, run_id, "pdf")
-    return _archived_file(path, "application/pdf")
+    return _archived_file(request, run_id, "pdf", "application/pdf")
 
 
 @router.get("/runs/{run_id}/export.json")
@@ -268,15 +275,23 @@ def export_json(request: Request, run_id: str) -> Response:
 @router.get("/runs/{run_id}/export.{fmt}")
 def export_file(request: Request, run_id: str, fmt: str) -> Response:
     """The calibration as a PX4 or ArduPilot parameter file, CSV or MATLAB file (docs/exports.md),
-    with the unit's current thermal model; what the format cannot carry is listed in the file."""
+    with the unit's current thermal model; what the format cannot carry is listed in the file.
+    PX4: ``?device_id=`` names the sensor when the run's log did not (else 400 naming it)."""
     from pipelines.run_export import FORMATS, export_run
 
     if fmt not in FORMATS:
         raise HTTPException(404, f"no export format {fmt!r}; formats: {', '.join(FORMATS)}")
-    q = forms.params(request, ("revision",))
+    q = forms.params(request, ("revision", "device_id"))
     revision = forms.integer(q, "revision", 0, 1, 1_000_000) or None
+    device = forms.integer(q, "device_id", 0, 1, 2**32 - 1) or None  # PX4: else the log's ids
     result = forms.checked(
-        export_run, request.app.state.archive, _run_id(run_id), fmt, revision=revision
+        export_run,
+        request.app.state.archive,
+        _run_id(run_id),
+        fmt,
+        revision=revision,
+        accel_id=device,
+        gyro_id=device,
     )
     return _download(result.data, result.media_type, result.filename)
 

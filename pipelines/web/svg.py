@@ -435,3 +435,34 @@ def curve_chart(
             )
     chart.legend([(COLOURS[k % len(COLOURS)], n) for k, n in enumerate(curves)])
     return chart.svg(title)
+
+
+def error_chart(
+    t: Sequence[float],
+    series: dict[str, tuple[Sequence[float], Sequence[float]]],
+    *,
+    title: str,
+    unit: str,
+    outage: float | None = None,
+    limit: float | None = None,
+) -> Markup:
+    """Navigation errors against time: each output's 1 sigma (solid) and 95 % (dashed)
+    line, the start of the outage (vertical) and a limit (dashed, red)."""
+    ys = [y for s, p in series.values() for y in (*s, *p)] + ([limit] if limit else [])
+    chart = Chart(span(list(t), 0.02), span([0.0, *ys]), title=title, y_label=unit,
+                  x_label="time (s)")  # fmt: skip
+    chart.axes()
+    if outage is not None:
+        xx = _num(chart.x(outage))
+        top, _, bottom, _ = chart.margin
+        chart.parts.append(
+            f'<line x1="{xx}" x2="{xx}" y1="{top}" y2="{chart.height - bottom}" class="zero"/>'
+        )
+    if limit is not None:
+        chart.hline(limit, "limit", f"limit {label(limit)} {unit}")
+    for k, (sigma, p95) in enumerate(series.values()):
+        colour = COLOURS[k % len(COLOURS)]
+        chart.polyline(list(t), list(sigma), "fit", colour)
+        chart.polyline(list(t), list(p95), "fit p95", colour)
+    chart.legend([(COLOURS[k % len(COLOURS)], n) for k, n in enumerate(series)])
+    return chart.svg(title)

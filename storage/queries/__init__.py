@@ -38,7 +38,7 @@ _API = {
         "check_text",
         "check_verdict",
     ],
-    "storage.queries.audit": ["AUDIT_COLUMNS", "audit_trail"],
+    "storage.queries.audit": ["AUDIT_COLUMNS", "audit_trail", "certificate_issues"],
     "storage.queries.equipment": [
         "LAPSED_COLUMNS",
         "due_state",

@@ -51,7 +51,7 @@ def reading(archive: Archive) -> Connection:
 
 def select_run_calibrations(*columns: Any) -> Select:
     """``select(*columns)`` over the runs joined to their unit (Device) and to every
-    calibration revision of theirs (filter ``superseded_by`` for the current ones)."""
+    calibration revision of theirs (`storage.current.CURRENT` picks the current ones)."""
     return (
         select(*columns)
         .select_from(Run)

@@ -11,19 +11,10 @@ from storage.db import Archive
 from storage.queries._common import as_instant, check_serial, reading
 from storage.queries.runs import full_run_id
 from storage.schema import AuditEvent, Device, Run
+from storage.seal import EVENT_FIELDS, ISSUED
 
-AUDIT_COLUMNS = [
-    "seq",
-    "at",
-    "actor",
-    "action",
-    "run_id",
-    "revision",
-    "reason",
-    "detail",
-    "digest",
-    "hash",
-]
+# An event's fields as hashed, but the previous hash, and its own hash.
+AUDIT_COLUMNS = [*(f for f in EVENT_FIELDS if f != "prev_hash"), "hash"]
 
 
 def audit_trail(
@@ -48,6 +39,17 @@ def audit_trail(
         q = q.where(AuditEvent.at >= start)
     if target is not None:
         q = q.where(AuditEvent.run_id.in_(_run_ids(archive, target)))
+    with reading(archive) as conn:
+        return [dict(r._mapping) for r in conn.execute(q)]
+
+
+def certificate_issues(archive: Archive, run_id: str) -> list[dict[str, Any]]:
+    """The ``certificate issued`` events of a run (revision, detail, at), oldest first."""
+    q = (
+        select(AuditEvent.revision, AuditEvent.detail, AuditEvent.at)
+        .where(AuditEvent.run_id == run_id, AuditEvent.action == ISSUED)
+        .order_by(AuditEvent.seq)
+    )
     with reading(archive) as conn:
         return [dict(r._mapping) for r in conn.execute(q)]
 

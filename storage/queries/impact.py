@@ -11,6 +11,7 @@ from typing import Any
 
 from sqlalchemy import select
 
+from storage.current import CURRENT, is_current
 from storage.db import Archive
 from storage.queries._common import (
     EQUIPMENT_SERIAL_LEN,
@@ -20,6 +21,9 @@ from storage.queries._common import (
     where_model_and_start,
 )
 from storage.schema import CalibrationRow, Device, Equipment, Run, RunEquipment
+
+# A run, its unit's serial and the run's own model, procedure and start.
+_RUN_OF_UNIT = (Run.run_id, Device.serial, Run.model, Run.procedure, Run.started_at)
 
 
 def equipment_runs(
@@ -51,11 +55,7 @@ def equipment_runs(
     t1 = as_instant(until, "to", end_of_day=True)
     stmt = (
         select(
-            Run.run_id,
-            Device.serial,
-            Run.model,
-            Run.procedure,
-            Run.started_at,
+            *_RUN_OF_UNIT,
             Equipment.kind,
             Equipment.model,
             RunEquipment.calibration_due,
@@ -65,10 +65,7 @@ def equipment_runs(
         .join(Device, Device.id == Run.device_id)
         .join(RunEquipment, RunEquipment.run_id == Run.id)
         .join(Equipment, Equipment.id == RunEquipment.equipment_id)
-        .join(
-            CalibrationRow,
-            (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None),
-        )
+        .join(CalibrationRow, (CalibrationRow.run_id == Run.id) & CURRENT)
         .where(Equipment.serial == equipment_serial)
         .order_by(Run.started_at, Run.run_id)
     )
@@ -114,7 +111,7 @@ def run_references(archive: Archive, run_ids: list[str]) -> dict[str, dict[str, 
                 select(Run.run_id, Run.site, ProcessingStep.statistics)
                 .join(
                     CalibrationRow,
-                    (CalibrationRow.run_id == Run.id) & CalibrationRow.superseded_by.is_(None),
+                    (CalibrationRow.run_id == Run.id) & CURRENT,
                 )
                 .outerjoin(
                     ProcessingStep,
@@ -167,11 +164,7 @@ def impact_records(archive: Archive) -> list[dict[str, Any]]:
     why = ProcessingStep.__table__.alias("why")
     stmt = (
         select(
-            Run.run_id,
-            Device.serial,
-            Run.model,
-            Run.procedure,
-            Run.started_at,
+            *_RUN_OF_UNIT,
             CalibrationRow.revision,
             CalibrationRow.created_at,
             CalibrationRow.superseded_by,
@@ -223,7 +216,7 @@ def impact_records(archive: Archive) -> list[dict[str, Any]]:
                 "started_at": started,
                 "revision_before": impact.get("revision_before"),
                 "revision": rev,
-                "current": sup is None,
+                "current": is_current(sup),
                 "verdict_before": impact.get("verdict_before"),
                 "verdict_after": impact.get("verdict_after"),
                 "moved": impact.get("moved", []),

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy import Row, bindparam, select
 from sqlalchemy.orm import Session, aliased
 
-from storage.current import CURRENT, LATEST_RUN_FIRST
+from storage.current import CURRENT, LATEST_RUN_FIRST, is_current
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.queries._common import (
@@ -114,6 +114,28 @@ def _provenance(cal: Any) -> dict[str, Any]:
     return {k: getattr(cal, k) for k in _PROVENANCE}
 
 
+# A revision's checks in the order written, its steps in order (calibration id ``cal``).
+CHECK_COLUMNS = (
+    CheckResultRow.name,
+    CheckResultRow.value,
+    CheckResultRow.limit,
+    CheckResultRow.passed,
+    CheckResultRow.detail,
+)
+_CHECKS_OF = (
+    select(*CHECK_COLUMNS)
+    .where(CheckResultRow.calibration_id == bindparam("cal"))
+    .order_by(CheckResultRow.id)
+)
+_STEPS_OF = (
+    select(ProcessingStep.seq, ProcessingStep.name, ProcessingStep.settings,
+           ProcessingStep.statistics, ProcessingStep.software_version,
+           ProcessingStep.source_revision)
+    .where(ProcessingStep.calibration_id == bindparam("cal"))
+    .order_by(ProcessingStep.seq)
+)  # fmt: skip
+
+
 def _cal_dict(s: Session, cal: CalibrationRow) -> dict[str, Any]:
     params = s.execute(
         select(
@@ -123,29 +145,8 @@ def _cal_dict(s: Session, cal: CalibrationRow) -> dict[str, Any]:
         .where(ParameterRow.calibration_id == cal.id)
         .order_by(ParameterRow.name, ParameterRow.temperature_c)
     ).all()
-    checks = s.execute(
-        select(
-            CheckResultRow.name,
-            CheckResultRow.value,
-            CheckResultRow.limit,
-            CheckResultRow.passed,
-            CheckResultRow.detail,
-        )
-        .where(CheckResultRow.calibration_id == cal.id)
-        .order_by(CheckResultRow.id)
-    ).all()
-    steps = s.execute(
-        select(
-            ProcessingStep.seq,
-            ProcessingStep.name,
-            ProcessingStep.settings,
-            ProcessingStep.statistics,
-            ProcessingStep.software_version,
-            ProcessingStep.source_revision,
-        )
-        .where(ProcessingStep.calibration_id == cal.id)
-        .order_by(ProcessingStep.seq)
-    ).all()
+    checks = s.execute(_CHECKS_OF, {"cal": cal.id}).all()
+    steps = s.execute(_STEPS_OF, {"cal": cal.id}).all()
     return {
         "calibration_id": cal.id,
         "revision": cal.revision,
@@ -266,7 +267,7 @@ def export_calibration(
             "raw_hash": run.raw_hash,
         },
         "revision": cal.revision,
-        "superseded": cal.superseded_by is not None,
+        "superseded": not is_current(cal.superseded_by),
         "software_version": cal.software_version,
         "source_revision": cal.source_revision,
         "settings_hash": cal.settings_hash,
@@ -339,13 +340,6 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
 
 
 _LIN_HEAD = {True: _lineage_head(True), False: _lineage_head(False)}
-_LIN_STEPS = (
-    select(ProcessingStep.seq, ProcessingStep.name, ProcessingStep.settings,
-           ProcessingStep.statistics, ProcessingStep.software_version,
-           ProcessingStep.source_revision)
-    .where(ProcessingStep.calibration_id == bindparam("cal"))
-    .order_by(ProcessingStep.seq)
-)  # fmt: skip
 _LIN_EQUIPMENT = (
     select(Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class,
            RunEquipment.calibrated_on, RunEquipment.calibration_due)
@@ -403,7 +397,7 @@ def lineage(
         if head.param_id is None:
             raise LookupError(f"run {run_id} revision {head.revision} has no parameter {name!r}")
         raw = conn.execute(_RAW_FILES, {"run": head.run_pk}).all()
-        steps = conn.execute(_LIN_STEPS, {"cal": head.cal_id}).all()
+        steps = conn.execute(_STEPS_OF, {"cal": head.cal_id}).all()
         equipment = conn.execute(_LIN_EQUIPMENT, {"run": head.run_pk}).all()
     started = head.started_at
     return {
@@ -439,7 +433,7 @@ def lineage(
         "calibration": {
             "calibration_id": head.cal_id,
             "revision": head.revision,
-            "current": head.superseded_by is None,
+            "current": is_current(head.superseded_by),
             "superseded_by_revision": head.superseding_revision,
             "created_at": head.cal_created_at,
             **_provenance(head),
@@ -586,17 +580,7 @@ def judgement(archive: Archive, calibration_id: int) -> dict[str, Any]:
     ``check_step`` (settings, statistics; None for a revision without that step).
     """
     with Session(archive.engine()) as s:
-        checks = s.execute(
-            select(
-                CheckResultRow.name,
-                CheckResultRow.value,
-                CheckResultRow.limit,
-                CheckResultRow.passed,
-                CheckResultRow.detail,
-            )
-            .where(CheckResultRow.calibration_id == calibration_id)
-            .order_by(CheckResultRow.id)
-        ).all()
+        checks = s.execute(_CHECKS_OF, {"cal": calibration_id}).all()
         step = s.execute(
             select(ProcessingStep.settings, ProcessingStep.statistics).where(
                 ProcessingStep.calibration_id == calibration_id, ProcessingStep.name == "check"
@@ -622,11 +606,7 @@ def current_judgements(archive: Archive, run_ids: list[str]) -> dict[str, dict[s
                 select(
                     Run.run_id,
                     CalibrationRow.verdict,
-                    CheckResultRow.name,
-                    CheckResultRow.value,
-                    CheckResultRow.limit,
-                    CheckResultRow.passed,
-                    CheckResultRow.detail,
+                    *CHECK_COLUMNS,
                 )
                 .join(CalibrationRow, CalibrationRow.run_id == Run.id)
                 .outerjoin(CheckResultRow, CheckResultRow.calibration_id == CalibrationRow.id)

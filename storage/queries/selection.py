@@ -10,6 +10,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session, aliased
 
+from storage.current import current, is_current
 from storage.db import Archive
 from storage.queries._common import (
     IN_CHUNK,
@@ -53,22 +54,20 @@ def select_runs(
     """
     t0 = as_instant(since, "since", end_of_day=False)
     t1 = as_instant(until, "until", end_of_day=True)
-    current = aliased(CalibrationRow)
+    cal = aliased(CalibrationRow)
     stmt = (
         select(Run.id, Run.run_id, Device.serial, Run.procedure, Run.started_at)
         .join(Device, Device.id == Run.device_id)
-        .join(current, (current.run_id == Run.id) & current.superseded_by.is_(None))
+        .join(cal, (cal.run_id == Run.id) & current(cal))
         .order_by(Run.started_at, Run.run_id)
     )
     if serial is not None:
         stmt = stmt.where(Device.serial == check_serial(serial))
     stmt = where_model_and_start(stmt, model, t0, t1)
     if software_version is not None:
-        stmt = stmt.where(
-            current.software_version == check_text(software_version, "software version")
-        )
+        stmt = stmt.where(cal.software_version == check_text(software_version, "software version"))
     if profile is not None:
-        stmt = stmt.where(current.profile_name == check_text(profile, "profile"))
+        stmt = stmt.where(cal.profile_name == check_text(profile, "profile"))
     with Session(archive.engine()) as s:
         runs = s.execute(stmt).all()
         cals: dict[int, list[dict[str, Any]]] = {r.id: [] for r in runs}
@@ -97,7 +96,7 @@ def select_runs(
                         "software_version": c.software_version,
                         "profile_name": c.profile_name,
                         "verdict": c.verdict,
-                        "current": c.superseded_by is None,
+                        "current": is_current(c.superseded_by),
                     }
                 )
     return [
@@ -130,7 +129,7 @@ def revision_pairs(archive: Archive, run_ids: list[str]) -> list[dict[str, Any]]
             stmt = (
                 select(Run.run_id, Device.serial, new, old)
                 .join(Device, Device.id == Run.device_id)
-                .join(new, (new.run_id == Run.id) & new.superseded_by.is_(None))
+                .join(new, (new.run_id == Run.id) & current(new))
                 .join(old, old.superseded_by == new.id)
                 .where(Run.run_id.in_(run_ids[start : start + IN_CHUNK]))
             )

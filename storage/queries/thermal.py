@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from storage.current import CURRENT
+from storage.current import CURRENT, superseded
 from storage.db import Archive
 from storage.queries._common import select_run_calibrations
 from storage.schema import (
@@ -27,7 +27,8 @@ if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (slow to import)
 
 
-def _device_id(s: Session, serial: str) -> int:
+def device_pk(s: Session, serial: str) -> int:
+    """The id of the unit `serial`'s device row (LookupError if none)."""
     dev = s.execute(select(Device.id).where(Device.serial == serial)).scalar_one_or_none()
     if dev is None:
         raise LookupError(f"no device with serial {serial!r} in the archive")
@@ -76,7 +77,7 @@ def latest_thermal_model(
             select(ThermalModelRow)
             .join(Device, Device.id == ThermalModelRow.device_id)
             .where(Device.serial == serial)
-            .order_by(ThermalModelRow.superseded_by.is_not(None), ThermalModelRow.id.desc())
+            .order_by(superseded(ThermalModelRow), ThermalModelRow.id.desc())
         )
         if as_of is not None:
             stmt = stmt.where(ThermalModelRow.created_at <= as_of)
@@ -126,7 +127,7 @@ def campaign_calibrations(
     Raises LookupError for an unknown serial or run id of another unit.
     """
     with Session(archive.engine()) as s:
-        _device_id(s, serial)
+        device_pk(s, serial)
         stmt = (
             select_run_calibrations(
                 CalibrationRow.id,

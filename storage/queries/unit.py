@@ -9,7 +9,7 @@ from typing import Any
 
 from sqlalchemy import bindparam, select
 
-from storage.current import CURRENT
+from storage.current import CURRENT, current
 from storage.db import Archive
 from storage.naming import check_safe_name
 from storage.queries._common import check_serial, reading
@@ -95,7 +95,7 @@ _THERMAL_MODEL = (
            ThermalModelRow.t_min, ThermalModelRow.t_max, ThermalModelRow.document,
            ThermalModelRow.calibration_ids)
     .join(Device, Device.id == ThermalModelRow.device_id)
-    .where(Device.serial == bindparam("serial"), ThermalModelRow.superseded_by.is_(None))
+    .where(Device.serial == bindparam("serial"), current(ThermalModelRow))
     .order_by(ThermalModelRow.id.desc())
     .limit(1)
 )  # fmt: skip

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import column, select, table
 
+from storage.current import superseded
 from storage.db import Archive
 from storage.instants import UTCDateTime
 
@@ -60,7 +61,7 @@ def history_rows(archive: Archive, serial: str) -> list[dict[str, Any]]:
             run.procedure,
             cal.revision,
             cal.verdict,
-            cal.superseded_by.is_not(None).label("superseded"),
+            superseded(CALIBRATIONS).label("superseded"),
             cal.software_version,
             cal.created_at,
         )

@@ -1,0 +1,112 @@
+"""Is a static record still? Absolute criteria from physics and the unit's stated limits.
+
+`calib_core.preprocess.motion` compares a record's windows with its own quietest ones,
+which says nothing when the whole record moves (a vehicle's log given as a static-bias
+run: its quietest quarter moves too) or is too short for windows. Here a static record is
+judged against what a still unit can read at all:
+
+- gyro: the magnitude of its median rate at most Earth's rate plus the stated bias range
+  (the profile's ``gyr.bias.*`` bound on each axis);
+- accelerometer: the magnitude of its median specific force within the stated bias and
+  scale ranges (``acc.bias.*``, ``acc.scale.*``) of local gravity;
+- scatter: each channel's robust standard deviation (median absolute deviation, so an
+  isolated spike is none) at most STILL_SCATTER times its stated noise (``*.noise.*``
+  high limit).
+
+A criterion whose limit the profile does not state is not judged.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.earth import EARTH_RATE
+from calib_core.params import AXES
+from calib_core.preprocess.motion import MOTION_MIN_RATIO
+from calib_core.recording import Recording
+from calib_core.tolerances import ToleranceProfile
+from calib_core.units import DEG
+
+# A still unit's scatter within its stated noise; "far above" as the motion check's ratio
+# of variances (MOTION_MIN_RATIO, 3.2 x the std): a unit out of its noise tolerance by less
+# still reads as still (its noise parameter judges it), a moving one scatters 10-100x more.
+STILL_SCATTER = math.sqrt(MOTION_MIN_RATIO)
+MAD_TO_STD = 1.4826  # std of normal noise over its median absolute deviation
+
+
+@dataclass(frozen=True)
+class StatedLimits:
+    """Per-axis (3,) limits a profile states, SI; None where it states none."""
+
+    gyr_bias: np.ndarray | None
+    acc_bias: np.ndarray | None
+    acc_scale: np.ndarray | None
+    gyr_noise: np.ndarray | None
+    acc_noise: np.ndarray | None
+
+    @classmethod
+    def of(cls, profile: ToleranceProfile) -> StatedLimits:
+        def bound(family: str, upper_only: bool = False) -> np.ndarray | None:
+            out = []
+            for a in AXES:
+                lim = profile.limit_for(f"{family}.{a}")
+                if lim is None:
+                    return None
+                b = lim.high if upper_only else max(abs(lim.low), abs(lim.high))
+                if not math.isfinite(b):
+                    return None
+                out.append(b)
+            return np.array(out)
+
+        return cls(
+            bound("gyr.bias"),
+            bound("acc.bias"),
+            bound("acc.scale"),
+            bound("gyr.noise", upper_only=True),
+            bound("acc.noise", upper_only=True),
+        )
+
+
+def stillness_problems(rec: Recording, gravity: float, stated: StatedLimits) -> list[str]:
+    """What in static record `rec` no still unit within its stated limits reads (empty:
+    still). `gravity` : local gravity, m/s^2."""
+    problems = []
+    if len(rec) < 2:
+        return problems
+    median = {"gyr": np.median(rec.gyr, axis=0), "acc": np.median(rec.acc, axis=0)}
+    if stated.gyr_bias is not None:
+        rate = float(np.linalg.norm(median["gyr"]))
+        limit = EARTH_RATE + float(np.linalg.norm(stated.gyr_bias))
+        if rate > limit:
+            problems.append(
+                f"gyro reads {rate / DEG:.4g} deg/s (median magnitude); a still unit at most "
+                f"{limit / DEG:.4g} deg/s (Earth's rate plus the stated bias range)"
+            )
+    if stated.acc_bias is not None and stated.acc_scale is not None:
+        force = float(np.linalg.norm(median["acc"]))
+        allowed = float(np.linalg.norm(stated.acc_bias)) + float(stated.acc_scale.max()) * gravity
+        if abs(force - gravity) > allowed:
+            problems.append(
+                f"accelerometer reads {force:.5g} m/s^2 (median magnitude); a still unit "
+                f"{gravity:.5g} +- {allowed:.3g} m/s^2 (local gravity, the stated bias and "
+                "scale ranges)"
+            )
+    for sensor, noise, unit, scale in (
+        ("gyr", stated.gyr_noise, "deg/s", DEG),
+        ("acc", stated.acc_noise, "m/s^2", 1.0),
+    ):
+        if noise is None:
+            continue
+        data = getattr(rec, sensor)
+        scatter = MAD_TO_STD * np.median(np.abs(data - median[sensor]), axis=0)
+        worst = int(np.argmax(scatter / noise))
+        if scatter[worst] > STILL_SCATTER * noise[worst]:
+            problems.append(
+                f"{sensor} {AXES[worst]} scatters {scatter[worst] / scale:.3g} {unit} (robust "
+                f"std), {scatter[worst] / noise[worst]:.3g} x its stated noise "
+                f"{noise[worst] / scale:.3g} {unit} (still: at most {STILL_SCATTER:.3g} x)"
+            )
+    return problems

@@ -1,0 +1,221 @@
+"""What the archive keeps of one processed run (`RunIn`, its `RawFileIn` files), the
+identities derived from it (raw hash, run id, settings hash) and its validation before
+anything touches the disk (storage.archive writes it).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import date, datetime
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+
+from calib_core.calibration import CheckResult, Parameter, StepRecord
+from storage import rawstore
+from storage.naming import check_safe_name
+from storage.settings_hash import canonical_json, settings_hash
+
+
+@dataclass
+class RawFileIn:
+    """A raw input file as read by the ingest step."""
+
+    path: Path  # where the bytes are now
+    name: str  # original file name, kept in the archive
+    sha256: str  # of the bytes, 64 lowercase hex digits
+    size: int  # bytes
+    format: str  # "mpu6000-txt", "csv", "mat", "mcap", "manifest"...
+
+
+@dataclass(frozen=True)
+class EquipmentIn:
+    """A piece of reference equipment a run used (the manifest's ``[[equipment]]`` entry):
+    kind and serial identify it; its dates are those recorded with the run."""
+
+    kind: str  # "rate_table", "cube", "daq"...
+    serial: str
+    model: str | None = None
+    accuracy_class: str | None = None
+    calibration_due: date | None = None
+    calibrated_on: date | None = None
+
+    @classmethod
+    def of(cls, entry: EquipmentIn | Mapping[str, Any], where: str) -> EquipmentIn:
+        """`entry` (an EquipmentIn, or a mapping with these keys; dates as dates or ISO
+        text) typed; ValueError naming `where` and the field for a missing kind or serial
+        or a malformed date."""
+        if isinstance(entry, cls):
+            return entry
+        if not isinstance(entry, Mapping):
+            raise TypeError(f"{where}: expected a table of equipment fields, got {entry!r}")
+        for key in ("kind", "serial"):
+            if not isinstance(entry.get(key), str) or not entry.get(key):
+                raise ValueError(f"{where}.{key}: expected a non-empty string")
+        return cls(
+            entry["kind"],
+            entry["serial"],
+            entry.get("model"),
+            entry.get("accuracy_class"),
+            as_date(entry.get("calibration_due"), f"{where}.calibration_due"),
+            as_date(entry.get("calibrated_on"), f"{where}.calibrated_on"),
+        )
+
+
+@dataclass
+class RunIn:
+    """Everything the archive keeps about one processed run (SI units): plain data, and the
+    parameters, checks and steps as calib_core objects, from which the archive writes its
+    rows and the sealed calibration document."""
+
+    serial: str
+    device_model: str
+    manufacturer: str
+    specification: str | None
+    started_at: datetime  # time zone aware
+    operator: str | None
+    procedure: str
+    site: dict[str, Any]
+    gravity: float  # m/s^2 used by the solver
+    environment: dict[str, Any]
+    # EquipmentIn, or mappings of its fields (typed when the RunIn is made)
+    equipment: list[EquipmentIn]
+    manifest_text: str | None
+    tolerance_profile: str | None
+    raw_files: list[RawFileIn]
+    settings: dict[str, Any]
+    software_version: str
+    source_revision: str | None
+    steps: list[StepRecord]  # in order; the rows of processing_steps
+    calibration: dict[str, Any]  # Calibration.to_dict(); its "parameters" come from `parameters`
+    parameters: list[Parameter]  # the parameters rows and the document's, in this order
+    checks: list[CheckResult]  # the check_results rows
+    verdict: str  # "pass", "needs review" or "fail"
+    profile_name: str | None
+    profile_version: str | None
+    samples: pa.Table | rawstore.SamplesFile | None = None  # a SamplesFile: written already
+    # The temperature the parameters belong to (deg C; None: not recorded), kept on
+    # every parameter row (the run's lab temperature).
+    parameter_temperature_c: float | None = None
+
+    def __post_init__(self) -> None:
+        self.equipment = [
+            EquipmentIn.of(e, f"equipment[{i}]") for i, e in enumerate(self.equipment)
+        ]
+
+
+def calibration_document(run: RunIn) -> dict[str, Any]:
+    """The stored calibration document: ``run.calibration`` with its parameters from
+    ``run.parameters``.
+
+    The archive writes both the ``parameters`` rows and the parameters of the stored
+    calibration document from the same `Parameter` objects, so the two cannot disagree
+    when written (`storage.verify` reports any later disagreement).
+    """
+    return {**run.calibration, "parameters": {p.name: p.to_dict() for p in run.parameters}}
+
+
+# --- identities -------------------------------------------------------------
+
+
+def raw_hash_of(sha256s: list[str]) -> str:
+    """SHA-256 over the sorted file hashes, one per line: order of listing does not matter."""
+    return hashlib.sha256("\n".join(sorted(sha256s)).encode()).hexdigest()
+
+
+def run_id_of(raw_hash: str) -> str:
+    """The run id derived from a raw hash ("R" + 12 hex digits = 48 bits)."""
+    return "R" + raw_hash[:12]
+
+
+def settings_hash_of(run: RunIn) -> str:
+    """SHA-256 of the canonical JSON of what decides the result besides the raw bytes."""
+    return settings_hash(run.settings, run.procedure, run.profile_name, run.profile_version)
+
+
+# --- validation (before anything touches the disk) ---------------------------
+
+
+def as_date(value: Any, where: str) -> date | None:
+    """`value` (a date, datetime or ISO text, or None) as a date; ValueError naming `where`."""
+    if value is None or (isinstance(value, date) and not isinstance(value, datetime)):
+        return value
+    if isinstance(value, datetime):
+        return value.date()
+    if isinstance(value, str):
+        try:
+            return date.fromisoformat(value)
+        except ValueError:
+            pass
+    raise ValueError(f"{where}: expected a date (YYYY-MM-DD), got {value!r}")
+
+
+def _number(value: Any, where: str, *, optional: bool) -> float | None:
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{where}: expected a finite number, got {value!r}")
+    return float(value)
+
+
+def validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
+    """Refuse (ValueError, TypeError naming the field) a run the archive cannot keep."""
+    check_safe_name(run.serial, "serial")
+    for name in extra_files:
+        check_safe_name(name, "extra file name")
+    if not isinstance(run.started_at, datetime) or run.started_at.utcoffset() is None:
+        raise ValueError(f"started_at: expected a time-zone-aware datetime, got {run.started_at!r}")
+    if not run.raw_files:
+        raise ValueError(f"run of {run.serial}: no raw files")
+    names = [f.name for f in run.raw_files]
+    if len(set(names)) != len(names):
+        raise ValueError(f"raw_files: file names repeat: {sorted(names)}")
+    for f in run.raw_files:
+        rawstore.object_path(Path("."), f.sha256)  # raises on a malformed hash
+        if not isinstance(f.size, int) or f.size < 0:
+            raise ValueError(f"raw file {f.name}: size {f.size!r} is not a byte count")
+    for key in ("device_model", "manufacturer", "procedure", "software_version", "verdict"):
+        if not isinstance(getattr(run, key), str) or not getattr(run, key):
+            raise ValueError(f"{key}: expected a non-empty string, got {getattr(run, key)!r}")
+    _number(run.gravity, "gravity", optional=False)
+    for i, eq in enumerate(run.equipment):  # typed when the RunIn was made, unless set since
+        EquipmentIn.of(eq, f"equipment[{i}]")
+    _number(run.parameter_temperature_c, "parameter_temperature_c", optional=True)
+    for what, items, kind in (
+        ("parameters", run.parameters, Parameter),
+        ("steps", run.steps, StepRecord),
+        ("checks", run.checks, CheckResult),
+    ):
+        for i, item in enumerate(items):
+            if not isinstance(item, kind):
+                raise TypeError(
+                    f"{what}[{i}]: expected a {kind.__name__}, got {type(item).__name__}"
+                )
+            if not isinstance(item.name, str) or not item.name:
+                raise ValueError(f"{what}[{i}].name: expected a non-empty string")
+    for i, p in enumerate(run.parameters):
+        _number(p.value, f"parameters[{i}] ({p.name}).value", optional=False)
+        _number(p.std, f"parameters[{i}] ({p.name}).std", optional=True)
+    for i, c in enumerate(run.checks):
+        _number(c.value, f"checks[{i}] ({c.name}).value", optional=True)
+        _number(c.limit, f"checks[{i}] ({c.name}).limit", optional=True)
+        if not isinstance(c.passed, bool):
+            raise ValueError(f"checks[{i}].passed: expected true or false, got {c.passed!r}")
+    for where, value in [
+        ("site", run.site),
+        ("environment", run.environment),
+        ("calibration", run.calibration),
+        ("steps", [st.to_dict() for st in run.steps]),
+    ]:
+        canonical_json(value, where)
+    if run.samples is not None and not isinstance(run.samples, pa.Table | rawstore.SamplesFile):
+        raise TypeError(
+            f"samples: expected a pyarrow.Table or a SamplesFile, got {type(run.samples).__name__}"
+        )
+
+
+# --- planning ----------------------------------------------------------------
