@@ -10,7 +10,16 @@ from typing import Any
 
 from calib_core.calibration import Calibration
 from calib_core.condition_rules import ConditionUse
-from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, METHODS, Procedure, Setting, Settings
+from calib_core.procedures.base import (
+    ATTITUDES,
+    ENVIRONMENT,
+    EQUIPMENT_PRECHECK,
+    METHODS,
+    TABLE_POSITION,
+    Procedure,
+    Setting,
+    Settings,
+)
 from calib_core.recording import Recording
 from calib_core.solvers.static_bias import solve_static_bias, solve_static_bias_stream
 
@@ -82,6 +91,8 @@ STATIC_BIAS = Procedure(
     conditions=ENVIRONMENT
     + ATTITUDES
     + (
+        TABLE_POSITION,
+        *EQUIPMENT_PRECHECK,
         ConditionUse("static_record_min", "length of the static record", f"{METHODS} 2.5"),
         ConditionUse(
             "static_temperature_spread_c",
