@@ -26,7 +26,7 @@ from calib_core.preprocess.chain import preprocess, replaced_checks
 from calib_core.preprocess.motion import static_labels
 from calib_core.procedures.rate_table import plateau_window
 from calib_core.recording import Recording
-from calib_core.stillness import StatedLimits, stillness_problems
+from calib_core.stillness import StatedLimits, measured_noise, stillness_problems
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
 from pipelines import shared_reference
@@ -366,10 +366,12 @@ def still_checks(loaded: LoadedRun, gravity: float, profile: ToleranceProfile) -
     if proc is None or "segmentation" in loaded.manifest.run.settings:
         return []
     stated = StatedLimits.of(profile)
+    labels = static_labels(proc.static_segments, loaded.segments)
+    measured = measured_noise([loaded.segments[label] for label in labels])
     out = []
-    for label in static_labels(proc.static_segments, loaded.segments):
+    for label in labels:
         rec = loaded.segments[label]
-        problems = stillness_problems(rec, gravity, stated)
+        problems = stillness_problems(rec, gravity, stated, measured)
         if not problems:
             continue
         what = f"static segment '{label}' ({rec.source}) moved: {'; '.join(problems)}"
