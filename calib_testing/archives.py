@@ -4,7 +4,7 @@ A test of the archive's read side (trends, intervals, shared references, thermal
 needs runs with chosen parameters, dates and temperatures, not their processing:
 `parameter_run` builds the `storage.run_input.RunIn` of such a run (one small raw file whose
 text is unique to the run, no samples, no checks), `new_archive` an empty archive with the
-current schema.
+current schema. `processed_run` archives one run folder through the real pipeline.
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from calib_core.calibration import Parameter, StepRecord
+from pipelines.ingest import discover_runs
+from pipelines.process import process_run
 from storage.db import Archive, resolve_archive
 from storage.run_input import RawFileIn, RunIn
 
@@ -25,6 +27,14 @@ def new_archive(root: Path) -> Archive:
     archive = resolve_archive(str(root / "archive"))
     archive.upgrade()
     return archive
+
+
+def processed_run(folder: Path, archive: Archive) -> str:
+    """The run id of the one run in `folder`, processed into `archive` (it must succeed)."""
+    (source,) = discover_runs([folder])
+    outcome = process_run(source, archive)
+    assert outcome["status"] == "ok", outcome["error"]
+    return outcome["run_id"]
 
 
 def parameter_run(

@@ -196,17 +196,11 @@ def serve_sample(tmp_path_factory: pytest.TempPathFactory):
 def archived_sample(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, str]:
     """The MPU-6000 sample run (data_samples/mpu6000_MPU0001) processed into an archive of
     the module's own: (archive, run id)."""
-    from pipelines.ingest import discover_runs
-    from pipelines.process import process_run
-    from storage.db import resolve_archive
+    from calib_testing.archives import new_archive, processed_run
 
-    arch = resolve_archive(str(tmp_path_factory.mktemp("sample") / "archive"))
-    arch.upgrade()
+    arch = new_archive(tmp_path_factory.mktemp("sample"))
     sample = Path(__file__).resolve().parent.parent / "data_samples" / "mpu6000_MPU0001"
-    (source,) = discover_runs([sample])
-    outcome = process_run(source, arch)
-    assert outcome["status"] == "ok", outcome
-    return arch, outcome["run_id"]
+    return arch, processed_run(sample, arch)
 
 
 @pytest.fixture(scope="module")

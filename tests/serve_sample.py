@@ -21,6 +21,7 @@ import numpy as np
 from calib_core.simulate import TrueErrors, random_errors, six_position_integral_run
 from calib_core.simulate.thermal import random_thermal_truth, thermal_campaign
 from calib_core.units import DEG
+from calib_testing.archives import processed_run
 from calib_testing.run_writers import write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
@@ -87,13 +88,6 @@ def quiet_truth(rng: np.random.Generator) -> TrueErrors:
     return truth
 
 
-def _process(folder: Path, archive: Archive) -> str:
-    (source,) = discover_runs([folder])
-    outcome = process_run(source, archive)
-    assert outcome["status"] == "ok", outcome["error"]
-    return outcome["run_id"]
-
-
 def build(root: Path) -> Sample:
     """Write the lab files under root/lab and archive them into root/archive (SQLite)."""
     from pipelines.thermal_campaign import thermal_fit
@@ -126,7 +120,7 @@ def build(root: Path) -> Sample:
         write_csv_run(
             run.segments, lab / f"drift{k}", _manifest(DRIFT_SERIAL, started, equipment=[cube])
         )
-        sample.runs.setdefault(DRIFT_SERIAL, []).append(_process(lab / f"drift{k}", archive))
+        sample.runs.setdefault(DRIFT_SERIAL, []).append(processed_run(lab / f"drift{k}", archive))
 
     thermal = random_thermal_truth(rng)
     start = datetime(2026, 3, 2, 8, 0, tzinfo=UTC)
@@ -137,7 +131,7 @@ def build(root: Path) -> Sample:
             folder,
             _manifest(THERMAL_SERIAL, start + timedelta(days=i), temp=point.temperature),
         )
-        sample.runs.setdefault(THERMAL_SERIAL, []).append(_process(folder, archive))
+        sample.runs.setdefault(THERMAL_SERIAL, []).append(processed_run(folder, archive))
     thermal_fit(archive, THERMAL_SERIAL)
 
     evil = {
@@ -159,6 +153,6 @@ def build(root: Path) -> Sample:
             equipment=[evil],
         ),
     )
-    sample.runs[EVIL_SERIAL] = [_process(lab / "evil", archive)]
+    sample.runs[EVIL_SERIAL] = [processed_run(lab / "evil", archive)]
     archive.dispose()
     return sample

@@ -17,6 +17,7 @@ from calib_core.nav_noise import NavNoise, NavTerm, bootstrap_terms, noise_recor
 from calib_core.noise import NoiseParameters, cluster_sizes
 from calib_core.simulate.noise import NoiseSpec, simulate_static
 from calib_core.solvers.static_bias import sensor_statistics
+from calib_testing.archives import new_archive, processed_run
 from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines import nav_exports
 from pipelines.cli import app
@@ -50,12 +51,8 @@ def static_run(tmp_path_factory):
     manifest["run"] |= {"procedure": "static_bias", "settings": {"up_axis": "+z"}}
     folder = tmp_path_factory.mktemp("nav") / "run"
     write_csv_run({"static": rec}, folder, manifest)
-    archive = resolve_archive(str(folder.parent / "archive"))
-    archive.upgrade()
-    (source,) = discover_runs([folder])
-    outcome = process_run(source, archive)
-    assert outcome["status"] == "ok", outcome["error"]
-    return archive, outcome["run_id"]
+    archive = new_archive(folder.parent)
+    return archive, processed_run(folder, archive)
 
 
 def _export(archive, run_id: str, *args: str) -> str:

@@ -13,12 +13,10 @@ from typer.testing import CliRunner
 
 from calib_core.navigation import Z95
 from calib_core.simulate.noise import NoiseSpec, simulate_static
+from calib_testing.archives import new_archive, processed_run
 from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines import navigation
 from pipelines.cli import app
-from pipelines.ingest import discover_runs
-from pipelines.process import process_run
-from storage.db import resolve_archive
 
 GYR_N, GYR_B, GYR_K = 2.0e-4, 2.0e-5, 2.0e-6  # rad/s/sqrt(Hz), rad/s, rad/s^2/sqrt(Hz)
 ACC_N, ACC_B, ACC_K = 2.0e-3, 1.0e-4, 3.0e-5  # m/s^2/sqrt(Hz), m/s^2, m/s^3/sqrt(Hz)
@@ -38,12 +36,8 @@ def static_run(tmp_path_factory):
     manifest["run"] |= {"procedure": "static_bias", "settings": {"up_axis": "+z"}}
     folder = tmp_path_factory.mktemp("navfit") / "run"
     write_csv_run({"static": rec}, folder, manifest)
-    archive = resolve_archive(str(folder.parent / "archive"))
-    archive.upgrade()
-    (source,) = discover_runs([folder])
-    outcome = process_run(source, archive)
-    assert outcome["status"] == "ok", outcome["error"]
-    return archive, outcome["run_id"]
+    archive = new_archive(folder.parent)
+    return archive, processed_run(folder, archive)
 
 
 def _navfit(archive, *args: str):
@@ -171,12 +165,9 @@ def test_the_sample_static_bias_run(tmp_path):
     dominant source printed as JSON."""
     from serve_sample import DATA_SAMPLES
 
-    archive = resolve_archive(str(tmp_path / "archive"))
-    archive.upgrade()
-    (source,) = discover_runs([DATA_SAMPLES / "static_bias_IMU-N-0011"])
-    outcome = process_run(source, archive)
-    assert outcome["status"] == "ok", outcome["error"]
-    res = _navfit(archive, outcome["run_id"], "--profile", "land-vehicle-outage-60s", "--json")
+    archive = new_archive(tmp_path)
+    run_id = processed_run(DATA_SAMPLES / "static_bias_IMU-N-0011", archive)
+    res = _navfit(archive, run_id, "--profile", "land-vehicle-outage-60s", "--json")
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     h = doc["end"]["horizontal_position_m"]

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from scipy.io import loadmat
-from serve_sample import DATA_SAMPLES, THERMAL_SERIAL
+from serve_sample import THERMAL_SERIAL
 from typer.testing import CliRunner
 
 from calib_core import params
@@ -26,11 +26,8 @@ from calib_core.calibration import Calibration
 from calib_core.thermal import ParameterCurve, ThermalModel
 from pipelines import exports
 from pipelines.cli import app
-from pipelines.ingest import discover_runs
-from pipelines.process import process_run
 from pipelines.run_export import export_run
 from storage import queries
-from storage.db import resolve_archive
 
 GOLDEN = Path(__file__).parent / "golden"
 ACC_ID, GYRO_ID = 1310988, 2359308
@@ -97,17 +94,6 @@ def test_scale_outside_the_firmware_range_is_refused():
 # --- round trip: the firmware's formula on real samples ---------------------
 
 
-@pytest.fixture(scope="module")
-def sample(tmp_path_factory):
-    """data_samples' MPU-6000 run archived by the real pipeline into a real SQLite file."""
-    archive = resolve_archive(str(tmp_path_factory.mktemp("export") / "archive"))
-    archive.upgrade()
-    (source,) = discover_runs([DATA_SAMPLES / "mpu6000_MPU0001"])
-    outcome = process_run(source, archive)
-    assert outcome["status"] == "ok", outcome["error"]
-    return archive, outcome["run_id"]
-
-
 def _mapped_only(cal: Calibration) -> Calibration:
     """The calibration reduced to what both firmwares carry: biases and accelerometer scales."""
     keep = [params.bias(s, a) for s in ("acc", "gyr") for a in params.AXES]
@@ -124,8 +110,8 @@ def _raw(archive, run_id) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.mark.parametrize("fmt", ["px4", "ardupilot"])
-def test_firmware_formula_reproduces_the_calibration(sample, tmp_path, fmt):
-    archive, run_id = sample
+def test_firmware_formula_reproduces_the_calibration(archived_sample, tmp_path, fmt):
+    archive, run_id = archived_sample
     result = export_run(archive, run_id, fmt, accel_id=ACC_ID, gyro_id=GYRO_ID)
     path = tmp_path / f"out.{fmt}"
     path.write_bytes(result.data)
@@ -237,8 +223,8 @@ def test_non_bias_thermal_curves_are_reported():
 # --- csv and mat --------------------------------------------------------------
 
 
-def test_csv_and_mat_carry_every_parameter(sample, tmp_path):
-    archive, run_id = sample
+def test_csv_and_mat_carry_every_parameter(archived_sample, tmp_path):
+    archive, run_id = archived_sample
     doc = queries.export_calibration(archive, run_id)
     cal = Calibration.from_dict(doc["calibration"])
     df = pd.read_csv(io.BytesIO(export_run(archive, run_id, "csv").data))
@@ -329,8 +315,8 @@ def _write(path: Path, text: str) -> Path:
     return path
 
 
-def test_cli_refuses_unknown_formats_and_mat_to_a_terminal(sample):
-    archive, run_id = sample
+def test_cli_refuses_unknown_formats_and_mat_to_a_terminal(archived_sample):
+    archive, run_id = archived_sample
     res = _invoke(run_id, "--archive", str(archive.root), "--format", "px5")
     assert res.exit_code == 2 and "json, px4, ardupilot, csv, mat" in " ".join(res.stderr.split())
     res = _invoke(run_id, "--archive", str(archive.root), "--format", "mat")

@@ -21,11 +21,9 @@ from cryptography.hazmat.primitives.asymmetric import ec, rsa
 from cryptography.x509.oid import NameOID
 from typer.testing import CliRunner
 
+from calib_testing.archives import new_archive, processed_run
 from calib_testing.documents import dcc_schema_errors
 from pipelines.cli import app
-from pipelines.ingest import discover_runs
-from pipelines.process import process_run
-from storage.db import resolve_archive
 
 DATA_SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"
 LAB_TOML = """
@@ -115,12 +113,9 @@ def lab(tmp_path_factory, issuing_certificates):
         root / "other", "other", other, _certificate("Someone", other, ca.subject, ca_key, ca=False)
     )
     (profiles / "lab.toml").write_text(LAB_TOML)
-    archive = resolve_archive(str(root / "archive"))
-    archive.upgrade()
-    (source,) = discover_runs([DATA_SAMPLES / "mpu6000_MPU0001"])
-    outcome = process_run(source, archive)
-    assert outcome["status"] == "ok", outcome["error"]
-    return archive, outcome["run_id"], profiles, root / "other"
+    archive = new_archive(root)
+    run_id = processed_run(DATA_SAMPLES / "mpu6000_MPU0001", archive)
+    return archive, run_id, profiles, root / "other"
 
 
 def _calib(*args: str):
