@@ -27,6 +27,7 @@ from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.simulate.thermal import random_thermal_truth, thermal_campaign
 from calib_core.thermal import ParameterCurve, ThermalModel
 from calib_core.units import DEG
+from calib_testing.golden import firmware_calibration
 from calib_testing.run_writers import dumps_toml, six_position_manifest
 from pipelines import autopilot, exports
 from pipelines.cli import app
@@ -115,16 +116,6 @@ def test_rotations_are_the_firmwares():
         autopilot.rotation("ROLL_90_PITCH_68_YAW_293", "ardupilot")
 
 
-def _cal() -> Calibration:
-    cal = Calibration("six_position_integral", 9.80665)
-    for a, b, s in zip("xyz", (0.125, -0.25, 0.5), (0.01, -0.02, 0.004), strict=True):
-        cal.add(f"acc.bias.{a}", b, 1e-4)
-        cal.add(f"acc.scale.{a}", s, 1e-5)
-    for a, b in zip("xyz", (0.0125, -0.003, 0.02), strict=True):
-        cal.add(f"gyr.bias.{a}", b, 1e-5)
-    return cal
-
-
 def _unit_output(cal: Calibration, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
     """(f, w, raw acc, raw gyr): true inputs and the unit's output in its calibrated axes."""
     f, w = rng.normal(0, 9.8, (50, 3)), rng.normal(0, 1.0, (50, 3))
@@ -134,7 +125,7 @@ def _unit_output(cal: Calibration, rng: np.random.Generator) -> tuple[np.ndarray
 
 @pytest.mark.parametrize("name", RIGHT_ANGLED)
 def test_offsets_and_scales_rotated_as_the_firmware_applies_them(tmp_path, name):
-    cal, rng = _cal(), np.random.default_rng(5)
+    cal, rng = firmware_calibration(), np.random.default_rng(5)
     f, w, acc, gyr = _unit_output(cal, rng)
     px4 = autopilot.rotation(name, "px4")
     rows, _ = exports.px4_calibration_parameters(cal, accel_id=ACC_ID, gyro_id=GYRO_ID, rot=px4)
@@ -171,7 +162,7 @@ def test_offsets_and_scales_rotated_as_the_firmware_applies_them(tmp_path, name)
 def test_a_rotation_between_axes_is_refused_where_scales_are_written():
     with pytest.raises(ValueError, match=r"--rotation YAW_45: not a multiple of 90 deg"):
         exports.px4_calibration_parameters(
-            _cal(), accel_id=1, gyro_id=1, rot=autopilot.rotation("YAW_45", "px4")
+            firmware_calibration(), accel_id=1, gyro_id=1, rot=autopilot.rotation("YAW_45", "px4")
         )
 
 
@@ -201,7 +192,7 @@ def _gyro_bias(model: ThermalModel, cal: Calibration, axis: str, T: np.ndarray) 
 def test_thermal_curves_rotated_as_the_firmware_applies_them(name):
     """TC_* by PX4's calc_thermal_offsets_3D and INS_TCAL by ArduPilot's correct_sensor remove
     the rotated bias curve from the rotated output (any rotation: no scales here)."""
-    model, cal = _model(), _cal()
+    model, cal = _model(), firmware_calibration()
     bias = np.stack([_gyro_bias(model, cal, a, TEMPS) for a in "xyz"], 1)
     w = np.random.default_rng(9).normal(0, 1.0, (len(TEMPS), 3))
     rows = exports.px4_parameters(

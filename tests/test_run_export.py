@@ -24,6 +24,7 @@ from typer.testing import CliRunner
 from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.thermal import ParameterCurve, ThermalModel
+from calib_testing.golden import golden_calibration
 from pipelines import exports
 from pipelines.cli import app
 from pipelines.run_export import export_run
@@ -34,27 +35,13 @@ ACC_ID, GYRO_ID = 1310988, 2359308
 REL = 1e-7  # 10x the 9-digit rounding (see the module docstring)
 
 
-def _golden_cal() -> Calibration:
-    """The calibration of the golden files (their comment headers say the same)."""
-    cal = Calibration("six_position_integral", 9.80665)
-    for a, b, s in zip("xyz", (0.125, -0.25, 0.5), (0.01, -0.02, 0.004), strict=True):
-        cal.add(f"acc.bias.{a}", b, 1e-4)
-        cal.add(f"acc.scale.{a}", s, 1e-5)
-    for a, b in zip("xyz", (0.0125, -0.003, 0.02), strict=True):
-        cal.add(f"gyr.bias.{a}", b, 1e-5)
-    cal.add("acc.misalign.xy", 0.002, 1e-5)  # neither firmware has a place for these three
-    cal.add("gyr.scale.x", 0.005, 1e-5)
-    cal.add("gyr.noise.x", 1e-4)
-    return cal
-
-
 def _param_lines(text: str) -> list[str]:
     return [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
 
 
 def test_px4_golden_file():
     rows, notes = exports.px4_calibration_parameters(
-        _golden_cal(), accel_id=ACC_ID, gyro_id=GYRO_ID
+        golden_calibration(), accel_id=ACC_ID, gyro_id=GYRO_ID
     )
     text = exports.px4_params_text(rows, header="\n".join(notes))
     golden = (GOLDEN / "px4_calibration.params").read_text()
@@ -70,22 +57,22 @@ def test_px4_golden_file():
 
 
 def test_ardupilot_golden_file():
-    rows, notes = exports.ardupilot_calibration_parameters(_golden_cal())
+    rows, notes = exports.ardupilot_calibration_parameters(golden_calibration())
     text = exports.ardupilot_params_text(rows, header="\n".join(notes))
     golden = (GOLDEN / "ardupilot_calibration.param").read_text()
     assert sorted(_param_lines(text)) == sorted(_param_lines(golden))
     assert "acc.misalign [1]: xy 0.002" in text and "no ArduPilot parameter" in text
     assert "INS_ACC1_CALTEMP / INS_GYR1_CALTEMP not written" in notes[-1]
-    at = dict(exports.ardupilot_calibration_parameters(_golden_cal(), cal_temp=21.5)[0])
+    at = dict(exports.ardupilot_calibration_parameters(golden_calibration(), cal_temp=21.5)[0])
     assert at["INS_ACC1_CALTEMP"] == at["INS_GYR1_CALTEMP"] == 21.5  # as ArduPilot's accel cal
-    second = dict(exports.ardupilot_calibration_parameters(_golden_cal(), imu=2)[0])
+    second = dict(exports.ardupilot_calibration_parameters(golden_calibration(), imu=2)[0])
     assert {"INS_ACC2OFFS_X", "INS_GYR2OFFS_Z", "INS_ACC2SCAL_Y"} <= set(second)
     with pytest.raises(ValueError, match="IMU 4"):
-        exports.ardupilot_calibration_parameters(_golden_cal(), imu=4)
+        exports.ardupilot_calibration_parameters(golden_calibration(), imu=4)
 
 
 def test_scale_outside_the_firmware_range_is_refused():
-    cal = _golden_cal()
+    cal = golden_calibration()
     cal.add("acc.scale.y", -0.3)  # ArduPilot scale 1/0.7 = 1.43 > 1.2
     with pytest.raises(ValueError, match=r"acc\.scale\.y .*ArduPilot.*0\.8 \.\. 1\.2"):
         exports.ardupilot_calibration_parameters(cal)
@@ -163,7 +150,7 @@ def _model() -> ThermalModel:
 @pytest.mark.parametrize("cal_temp", [21.5, None])
 def test_thermal_terms_reproduce_calib_apply(cal_temp):
     """PX4 TC_* + CAL_* and ArduPilot INS_TCAL + INS_*OFFS reproduce ThermalModel.correct."""
-    cal, model = _mapped_only(_golden_cal()), _model()
+    cal, model = _mapped_only(golden_calibration()), _model()
     rng = np.random.default_rng(7)
     acc = rng.normal(0, 9.8, (len(TEMPS), 3))
     gyr = rng.normal(0, 1.0, (len(TEMPS), 3))
@@ -216,7 +203,7 @@ def test_non_bias_thermal_curves_are_reported():
         "acc.scale.x", np.array([0.01, 1e-4]), np.eye(2) * 1e-12, 1.0, 8
     )
     for build in (exports.px4_calibration_parameters, exports.ardupilot_calibration_parameters):
-        _, notes = build(_golden_cal(), model=model, cal_temp=20.0)
+        _, notes = build(golden_calibration(), model=model, cal_temp=20.0)
         assert any("thermal curves of acc.scale.x" in n for n in notes), notes
 
 
