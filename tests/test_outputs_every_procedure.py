@@ -21,6 +21,7 @@ from calib_core.simulate.rate_table import GyroTruth, simulate_rate_table
 from calib_core.solvers.sensor_array import cube_mounts
 from calib_core.units import DEG
 from calib_testing.documents import dcc_schema_errors, html_words, pdf_pages
+from calib_testing.lab_profile import CUBE, LABORATORY, lab_toml
 from calib_testing.run_writers import (
     six_position_manifest,
     write_centrifuge_run,
@@ -33,22 +34,10 @@ from storage.db import resolve_archive
 pytestmark = pytest.mark.slow  # eleven sample runs and six simulated, certificates typeset
 
 DATA_SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"
-LAB_TOML = """
-[laboratory]
-name = "IMU Lab GmbH"
-address = "Musterstrasse 1, 80331 Muenchen, Germany"
-country = "DE"
-
-[customer]
-name = "Example Drones AG"
-address = "Hangar 3, 12345 Somewhere"
-
-[[equipment]]
-serial = "CUBE-7"
-certificate = "DAkkS 4711-2026"
-kind = "cube"
-model = "Precision cube PC-100"
-"""
+LAB_TOML = lab_toml(
+    laboratory=LABORATORY | {"country": "DE"},
+    equipment=[CUBE | {"model": "Precision cube PC-100"}],
+)
 
 
 def _lab_run(folder: Path, serial: str, procedure: str, settings: dict, segments: dict) -> Path:

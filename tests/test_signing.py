@@ -23,27 +23,11 @@ from typer.testing import CliRunner
 
 from calib_testing.archives import new_archive, processed_run
 from calib_testing.documents import dcc_schema_errors
+from calib_testing.lab_profile import CUBE, lab_toml
 from pipelines.cli import app
 
 DATA_SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"
-LAB_TOML = """
-[laboratory]
-name = "IMU Lab GmbH"
-address = "Musterstrasse 1, 80331 Muenchen, Germany"
-
-[customer]
-name = "Example Drones AG"
-address = "Hangar 3, 12345 Somewhere"
-
-[[equipment]]
-serial = "CUBE-7"
-certificate = "DAkkS 4711-2026"
-kind = "cube"
-
-[signing]
-certificate = "lab-cert.pem"
-key = "lab-key.pem"
-"""
+LAB_TOML = lab_toml(equipment=[CUBE], signing={"certificate": "lab-cert.pem", "key": "lab-key.pem"})
 
 
 def _name(cn: str) -> x509.Name:
@@ -247,7 +231,7 @@ def test_the_private_key_never_enters_the_archive(lab, tmp_path, monkeypatch):
 
 def test_signing_without_the_lab_files_is_refused_naming_them(lab, tmp_path, monkeypatch):
     archive, run_id, profiles, _ = lab
-    (tmp_path / "lab.toml").write_text(LAB_TOML.split("[signing]")[0])
+    (tmp_path / "lab.toml").write_text(lab_toml(equipment=[CUBE]))
     monkeypatch.setenv("CALIB_PROFILES", str(tmp_path))
     res = _calib(
         "report", run_id, "--archive", archive.root, "--format", "dcc", "--sign", "-o", tmp_path

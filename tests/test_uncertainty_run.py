@@ -25,6 +25,7 @@ from calib_core.uncertainty import budgets as make_budgets
 from calib_core.uncertainty_sources import EquipmentSpec
 from calib_core.units import STANDARD_GRAVITY
 from calib_core.verification import FAIL, NEEDS_REVIEW
+from calib_testing.lab_profile import CUSTOMER, lab_toml
 from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
@@ -144,25 +145,11 @@ def _guarded_profile(folder: Path) -> Path:
     return folder
 
 
-LAB_TOML = """
-[laboratory]
-name = "IMU Lab GmbH"
-address = "Musterstrasse 1, 80331 Muenchen, Germany"
-
-[customer]
-name = "Example Drones AG"
-contact = "qa@example.com"
-address = "Hangar 3, 12345 Somewhere"
-
-[authorised_by]
-name = "Dr. A. Metrologist"
-function = "Head of calibration"
-
-[[equipment]]
-serial = "CUBE-1"
-certificate = "DAkkS 4711-2026"
-issued_by = "PTB"
-"""
+LAB_TOML = lab_toml(
+    customer=CUSTOMER | {"contact": "qa@example.com"},
+    authorised_by={"name": "Dr. A. Metrologist", "function": "Head of calibration"},
+    equipment=[{"serial": "CUBE-1", "certificate": "DAkkS 4711-2026", "issued_by": "PTB"}],
+)
 
 
 def _manifest(serial: str, equipment: bool, day: int = 20) -> dict:
