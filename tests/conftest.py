@@ -204,6 +204,20 @@ def archived_sample(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, 
 
 
 @pytest.fixture(scope="module")
+def client(serve_sample):
+    """A web client of `calib serve` on the sample archive (read-only), for the module."""
+    from fastapi.testclient import TestClient
+
+    from pipelines.web.app import create_app
+    from storage import queries
+
+    ro = queries.open_readonly(serve_sample.archive)
+    with TestClient(create_app(ro)) as c:
+        yield c
+    ro.dispose()
+
+
+@pytest.fixture(scope="module")
 def issuing_certificates() -> Iterator[None]:
     """Certificates issued when runs are archived, for the module that asks (module scope,
     so its archives built by module fixtures get them too)."""

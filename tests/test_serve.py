@@ -75,14 +75,6 @@ class Page(HTMLParser):
         return " ".join(" ".join(self.text).split())
 
 
-@pytest.fixture(scope="module")
-def client(serve_sample):
-    ro = queries.open_readonly(serve_sample.archive)
-    with TestClient(create_app(ro)) as c:
-        yield c
-    ro.dispose()
-
-
 def get(client: TestClient, url: str, status: int = 200) -> Page:
     r = client.get(url)
     assert r.status_code == status, (url, r.status_code, r.text[-500:])

@@ -5,20 +5,10 @@ over a mission profile and a model's units compared, on the sample archive
 from __future__ import annotations
 
 import pytest
-from fastapi.testclient import TestClient
 from serve_sample import DRIFT_SERIAL, THERMAL_SERIAL
 from test_serve import get, rows
 
-from pipelines.web.app import create_app
 from storage import queries
-
-
-@pytest.fixture(scope="module")
-def client(serve_sample):
-    ro = queries.open_readonly(serve_sample.archive)
-    with TestClient(create_app(ro)) as c:
-        yield c
-    ro.dispose()
 
 
 def test_run_page_links_to_its_navigation_performance(client, serve_sample):
