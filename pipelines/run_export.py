@@ -114,9 +114,9 @@ def export_run(
     model, model_id = _thermal(archive, doc["unit"]["serial"]) if thermal else (None, None)
     summary = queries.run_summary(archive, run_id)
     cal_temp = (summary["environment"] or {}).get("temperature_c")
-    cal_temp = None if cal_temp is None else float(cal_temp)
+    src = _Source(doc, cal, model, model_id, None if cal_temp is None else float(cal_temp))
     if fmt not in autopilot.FIRMWARES:
-        data, notes = _encode(fmt, cal, model, cal_temp, doc, model_id)
+        data, notes = _encode(fmt, src)
         return Export(data, name, MEDIA_TYPE[fmt], notes)
     target = _Target(
         autopilot.rotation(rotation, fmt),
@@ -126,8 +126,20 @@ def export_run(
         gyro_id,
         vehicle_id,
     )
-    data, notes = _firmware(fmt, cal, model, cal_temp, doc, model_id, target)
+    data, notes = _firmware(fmt, src, target)
     return Export(data, name, MEDIA_TYPE[fmt], notes)
+
+
+@dataclass(frozen=True)
+class _Source:
+    """What a parameter file is written from: the export document, its calibration, the
+    unit's thermal model (and its id) and the run's temperature (deg C)."""
+
+    doc: dict[str, Any]
+    cal: Calibration
+    model: ThermalModel | None
+    model_id: int | None
+    cal_temp: float | None
 
 
 @dataclass(frozen=True)
@@ -176,16 +188,9 @@ def _noise_model(
     return write(nav, update_rate_hz=rate, rostopic=rostopic, header=header)
 
 
-def _firmware(
-    fmt: str,
-    cal: Calibration,
-    model: ThermalModel | None,
-    cal_temp: float | None,
-    doc: dict[str, Any],
-    model_id: int | None,
-    target: _Target,
-) -> tuple[bytes, list[str]]:
+def _firmware(fmt: str, src: _Source, target: _Target) -> tuple[bytes, list[str]]:
     """The PX4 or ArduPilot file's bytes and its warnings."""
+    doc, cal, model, cal_temp, model_id = src.doc, src.cal, src.model, src.cal_temp, src.model_id
     rng = None if model is None else (model.t_min, model.t_max)
     common = {"unit": doc["unit"]["serial"], "run": doc["run"]["run_id"], "model_range": rng}
     if fmt == "px4":
@@ -229,15 +234,9 @@ def _firmware(
     return text.encode("ascii", "backslashreplace"), notes
 
 
-def _encode(
-    fmt: str,
-    cal: Calibration,
-    model: ThermalModel | None,
-    cal_temp: float | None,
-    doc: dict[str, Any],
-    model_id: int | None,
-) -> tuple[bytes, list[str]]:
+def _encode(fmt: str, src: _Source) -> tuple[bytes, list[str]]:
     """The file's bytes and the warnings of the csv and mat formats."""
+    doc, cal, model, cal_temp, model_id = src.doc, src.cal, src.model, src.cal_temp, src.model_id
     if fmt == "csv":
         return exports.csv_text(exports.parameter_rows(cal, model)).encode(), []
     meta = {
