@@ -16,7 +16,7 @@ import pytest
 
 from calib_core.preprocess.motion import motion_check
 from calib_core.solvers.static_bias import solve_static_bias
-from calib_testing.streaming import streamed_memory_growth
+from calib_testing.streaming import assert_same_solve, streamed_memory_growth
 from pipelines.ingest.csv_reader import read_csv
 from pipelines.ingest.csv_stream import stream_csv
 from pipelines.ingest.data_format import FormatSpec
@@ -86,15 +86,7 @@ def test_streamed_record_same_parameters_as_in_memory(big_csv, tmp_path, solve_l
     assert whole is (solve_limit == LIMIT)
     got = solve_streamed(streamed, SETTINGS, gravity=G, memory_limit=solve_limit)
     ref = solve_static_bias(rec, gravity=G, **SETTINGS)
-    assert set(got.parameters) == set(ref.parameters)
-    for name, p in ref.parameters.items():
-        q = got.parameters[name]
-        # Chunked sums differ from one pass by rounding (a few ulp, amplified by the
-        # second differences of the Allan deviation): far below any noise here.
-        assert math.isclose(q.value, p.value, rel_tol=1e-9), name
-        if p.std is not None:
-            assert math.isclose(q.std, p.std, rel_tol=1e-6), name
-    assert got.info["outliers"] == ref.info["outliers"]
+    assert_same_solve(got, ref)
     assert got.info["outliers"]["gyr"][1] >= 3
     # the motion check made on the stream is the in-memory one (the 3-sample spike is
     # more than a window's trim leaves out: it fails on both routes)

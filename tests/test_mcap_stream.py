@@ -8,7 +8,6 @@ Files are written with mcap-ros2-support's Writer (`test_ingest_mcap.write_run`)
 from __future__ import annotations
 
 import hashlib
-import math
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,7 @@ from mcap.writer import CompressionType
 from test_ingest_mcap import T0_NS, rewrite, write_run
 
 from calib_core.solvers.static_bias import solve_static_bias
-from calib_testing.streaming import streamed_memory_growth
+from calib_testing.streaming import assert_same_solve, streamed_memory_growth
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.mcap_reader import read_mcap
@@ -89,15 +88,7 @@ def test_streamed_mcap_same_samples_and_parameters_as_in_memory(big_mcap, tmp_pa
 
     got = solve_streamed(streamed, SETTINGS, gravity=G, memory_limit=LIMIT)
     ref = solve_static_bias(rec, gravity=G, **SETTINGS)
-    assert set(got.parameters) == set(ref.parameters)
-    for name, p in ref.parameters.items():
-        q = got.parameters[name]
-        # Chunked sums differ from one pass by rounding (a few ulp, amplified by the Allan
-        # deviation's second differences): far below any noise here.
-        assert math.isclose(q.value, p.value, rel_tol=1e-9), name
-        if p.std is not None:
-            assert math.isclose(q.std, p.std, rel_tol=1e-6), name
-    assert got.info["outliers"] == ref.info["outliers"]
+    assert_same_solve(got, ref)
     assert got.info["outliers"]["acc"][0] >= 3
 
 
