@@ -83,6 +83,23 @@ DEFAULT_CONDITIONS: dict[str, tuple[float, float, str, str, str]] = {
         -_INF, 0.1, FAILURE, "table rate stability (feedback std, worst plateau)", "deg/s"),
     "table_rate_deviation_dps": (
         -_INF, 0.5, FAILURE, "table rate deviation from nominal (worst plateau)", "deg/s"),
+    "zero_position_min": (
+        3.0, _INF, WARNING, "centrifuge zero output per table position (shortest)", "min"),
+    "g_step_min": (5.0, _INF, WARNING, "centrifuge g step record (shortest)", "min"),
+    # The rate-table procedure's equipment pre-check: the limit is the equipment record's
+    # (lab.toml) unless the profile sets one; unbounded, it is to be recorded.
+    "table_angle_accuracy_arcsec": (
+        -_INF, _INF, FAILURE, "rate table angle accuracy (equipment pre-check)", "arcsec"),
+    "table_axis_perpendicularity_arcsec": (
+        -_INF, _INF, FAILURE, "rate table axis perpendicularity (equipment pre-check)",
+        "arcsec"),
+    "power_stability_pct": (
+        -_INF, _INF, FAILURE, "power supply stability (equipment pre-check)", "%"),
+    "imu_table_parallelism_arcsec": (
+        -_INF, _INF, FAILURE, "IMU-to-table axis parallelism (equipment pre-check)", "arcsec"),
+    "table_position_arcsec": (
+        -_INF, 5.0, FAILURE, "table position deviation while held (feedback, worst segment)",
+        "arcsec"),
 }  # fmt: skip
 
 

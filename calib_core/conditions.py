@@ -152,8 +152,53 @@ def _table_checks(
     return out
 
 
+# The table's position feedback channels (rad): a one-axis table's angle, a two-axis
+# table's pitch / roll (or azimuth / pitch).
+POSITION_CHANNELS = ("table_angle", "table_pitch", "table_roll", "table_azimuth")
+ARCSEC = DEG / 3600.0  # rad
+
+
+def table_position_deviation(segments: Mapping[str, Recording]) -> tuple[float | None, str]:
+    """Largest span (max - min) of the 1-s means of a position feedback channel over a
+    held segment (settle and record), arcsec; None when no held segment has one.
+
+    The rate-table procedure limits the table position deviation during settling and the
+    static run to 5 arcsec; the commanded position is not recorded, so the deviation is
+    taken as the span of the held position (docs/methods.md 3.10). 1-s means keep the
+    encoder's noise from counting as a deviation.
+    """
+    worst: tuple[float, str, str] | None = None
+    streamed = []
+    for label, rec in _statics(segments).items():
+        if isinstance(rec, RecordSummary):  # streamed: its feedback is not kept
+            streamed.append(label)
+            continue
+        for channel in POSITION_CHANNELS:
+            angle = rec.reference.get(channel)
+            angle = None if angle is None else np.asarray(angle, dtype=float)
+            if angle is None or not np.isfinite(angle).any():
+                continue
+            angle = angle[np.isfinite(angle)]
+            k = max(1, len(angle) // temperature_block(rec))
+            means = [float(chunk.mean()) for chunk in np.array_split(angle, k)]
+            span = (max(means) - min(means)) / ARCSEC
+            if worst is None or span > worst[0]:
+                worst = (span, label, channel)
+    if worst is None:
+        note = f"; records streamed: {', '.join(streamed)}" if streamed else ""
+        return None, f"no table position feedback ({', '.join(POSITION_CHANNELS)}){note}"
+    return worst[0], f"span of the 1-s means of {worst[2]}, worst segment {worst[1]}"
+
+
 # Conditions the lab states (manifest [environment] / [acquisition], the model's data sheet).
 RECORDED_KEYS = ("ambient_temperature_c", "humidity_pct", "pressure_hpa", "warmup_min")
+# The equipment pre-check of the rate-table procedure (the lab's equipment records).
+PRECHECK_KEYS = (
+    "table_angle_accuracy_arcsec",
+    "table_axis_perpendicularity_arcsec",
+    "power_stability_pct",
+    "imu_table_parallelism_arcsec",
+)
 
 
 def check_conditions(
@@ -172,7 +217,8 @@ def check_conditions(
     ----------
     segments : the run's segments as acquired (before preprocessing), SI units; a record
         streamed in chunks as its `calib_core.streamed.RecordSummary`.
-    recorded : what the lab recorded: the RECORDED_KEYS, ``temperature_drift_c_per_h``,
+    recorded : what the lab recorded: the RECORDED_KEYS, the PRECHECK_KEYS,
+        ``temperature_drift_c_per_h``,
         ``resolution_bits`` and ``settle_s`` (before each attitude); None or absent: not
         recorded.
     procedure : the run's procedure (or its name): its ``conditions`` are the ones judged.
@@ -188,7 +234,7 @@ def check_conditions(
 
     proc = procedures.get(procedure) if isinstance(procedure, str) else procedure
     conds = conditions(overrides)
-    out = [judge(conds[k], recorded.get(k)) for k in RECORDED_KEYS]
+    out = [judge(conds[k], recorded.get(k)) for k in RECORDED_KEYS + PRECHECK_KEYS]
     drift = recorded.get("temperature_drift_c_per_h")
     out.append(
         judge(
@@ -200,7 +246,10 @@ def check_conditions(
     # The procedure's settings as its solver uses them: a rate table's settle_s default.
     out += _acquisition_checks(segments, recorded, proc.settings.merged(settings), conds)
     out += _temperature_checks(segments, conds)
+    out.append(judge(conds["table_position_arcsec"], *table_position_deviation(segments)))
     applies = {CONDITION_PREFIX + key for key in proc.condition_keys()}
+    if CONDITION_PREFIX + "zero_position_min" in applies:
+        out += _centrifuge_checks(segments, conds)
     return [c for c in out if c.name in applies]
 
 
@@ -252,6 +301,25 @@ def _acquisition_checks(
         out.append(judge(conds["record_s"], min(records)[0], f"segment {min(records)[1]}"))
     longest = max(r.duration for r in segments.values()) / 60.0
     out.append(judge(conds["static_record_min"], longest))
+    return out
+
+
+def _centrifuge_checks(
+    segments: Mapping[str, Recording], conds: dict[str, Condition]
+) -> list[CheckResult]:
+    """The centrifuge paper's durations: each zero position 3 min, each g step 5 min
+    (docs/methods.md 2.8); the shortest of each kind is judged."""
+    from calib_core.solvers.centrifuge_segments import step_label, steps_from_segments
+
+    try:
+        steps = steps_from_segments(segments)
+    except ValueError as exc:  # the solve names the label; no duration to judge
+        return [judge(conds[k], None, str(exc)) for k in ("zero_position_min", "g_step_min")]
+    out = []
+    for key, kinds in (("zero_position_min", ("zero", "zero_after")), ("g_step_min", ("step",))):
+        found = [(s.recording.duration / 60.0, step_label(s)) for s in steps if s.kind in kinds]
+        worst = min(found) if found else (None, "none in the run")
+        out.append(judge(conds[key], worst[0], f"segment {worst[1]}" if found else worst[1]))
     return out
 
 

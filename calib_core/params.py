@@ -91,16 +91,21 @@ GYR_LINEAR = [bias("gyr", a) for a in AXES] + [n for row in matrix_names("gyr") 
 GSENS = [n for row in gsens_names() for n in row]
 
 
-# --- the MPU-6000 manual's names and signs (docs/methods.md 1 and 5) ---------------------------
+# --- the MPU-6000 manual's names and signs (docs/methods.md 1 and 4.3) -------------------------
 # The manual writes the misalignments as small angles with signs,
 #     Ax = (1+Axx) ax + Axz ay - Axy az + a0x
 #     Ay = -Ayz ax + (1+Ayy) ay + Ayx az + a0y
 #     Az =  Azy ax - Azx ay + (1+Azz) az + a0z
 # and the gyro the same way with G (the integral method's Gxz = M[x, y], Gxy = -M[x, z],
-# ...); its protocol prints the gyro noise as Gstdx. Only names the manual defines are
-# mapped (no g-sensitivity, gyro bias or accelerometer noise). canonical = sign * manual.
+# ...). Its published protocol prints all 39 parameters of the program, the gyro block
+# first: scales, misalignments, biases Gox..Goz, g-sensitivities Gaxx..Gazz (G[i, j] =
+# (W_i(j up) - W_i(j down)) / 2g, the canonical sign), noise Gstdx..Gstdz; then the
+# accelerometer's scales, misalignments, biases Aox..Aoz (a0x of the equations) and noise
+# Astdx..Astdz. The order is the paper's tolerance list (docs/methods.md 4.3).
+# canonical = sign * manual.
 
-# Canonical row/column of the misalignment -> (manual suffix, sign): M[x, y] = +Axz, ...
+# Canonical row/column of the misalignment -> (manual suffix, sign), in the closed form's
+# order Axz, Axy, Ayz, Ayx, Azy, Azx: M[x, y] = +Axz, M[x, z] = -Axy, ...
 _MISALIGN = {
     "xy": ("xz", +1.0), "xz": ("xy", -1.0),
     "yx": ("yz", -1.0), "yz": ("yx", +1.0),
@@ -110,18 +115,32 @@ _MISALIGN = {
 
 def _table() -> dict[str, tuple[str, float]]:
     out: dict[str, tuple[str, float]] = {}
-    for sensor, letter in (("acc", "A"), ("gyr", "G")):
-        for a in "xyz":
+    for sensor, letter in (("gyr", "G"), ("acc", "A")):
+        for a in AXES:
             out[f"{sensor}.scale.{a}"] = (f"{letter}{a}{a}", 1.0)
         for rc, (suffix, sign) in _MISALIGN.items():
             out[f"{sensor}.misalign.{rc}"] = (f"{letter}{suffix}", sign)
-    for a in "xyz":
-        out[f"acc.bias.{a}"] = (f"a0{a}", 1.0)
-        out[f"gyr.noise.{a}"] = (f"Gstd{a}", 1.0)
+        for a in AXES:
+            out[f"{sensor}.bias.{a}"] = (f"{letter}o{a}", 1.0)
+        if sensor == "gyr":
+            for r in AXES:
+                for c in AXES:
+                    out[f"gyr.gsens.{r}{c}"] = (f"Ga{r}{c}", 1.0)
+        for a in AXES:
+            out[f"{sensor}.noise.{a}"] = (f"{letter}std{a}", 1.0)
     return out
 
 
+# The 39 names in the order of the published protocol (dicts keep their order).
 MANUAL_NAMES: dict[str, tuple[str, float]] = _table()
+
+
+def manual_order(name: str) -> int:
+    """Position of a canonical parameter in the manual's protocol (unnamed ones after)."""
+    return _ORDER.get(name, len(_ORDER))
+
+
+_ORDER = {name: i for i, name in enumerate(MANUAL_NAMES)}
 
 
 def manual_name(name: str, value: float | None) -> tuple[str, float | None]:

@@ -11,9 +11,14 @@ judged against what a still unit can read at all:
   scale ranges (``acc.bias.*``, ``acc.scale.*``) of local gravity;
 - scatter: each channel's robust standard deviation (median absolute deviation, so an
   isolated spike is none) at most STILL_SCATTER times its stated noise (``*.noise.*``
-  high limit).
+  high limit); where the profile states none, at most STILL_SCATTER times the noise
+  measured on the run's quietest static segment (`measured_noise`: the same unit, filter
+  and rate in every position, so one moving segment stands out).
 
-A criterion whose limit the profile does not state is not judged.
+A criterion whose limit the profile does not state, and a scatter that nothing measured
+bounds (a run of one static segment), is not judged: a record's own successive
+differences do not bound it, a still unit read through a low-pass filter scatters 2-6
+times its sample-to-sample noise, as much as a moving vehicle does.
 """
 
 from __future__ import annotations
@@ -70,10 +75,38 @@ class StatedLimits:
         )
 
 
-def stillness_problems(rec: Recording, gravity: float, stated: StatedLimits) -> list[str]:
+def robust_scatter(data: np.ndarray) -> np.ndarray:
+    """(3,) robust standard deviation of each column of `data` (N, 3): 1.4826 x the median
+    absolute deviation, so an isolated spike is none."""
+    return MAD_TO_STD * np.median(np.abs(data - np.median(data, axis=0)), axis=0)
+
+
+def measured_noise(records: list[Recording]) -> dict[str, np.ndarray | None]:
+    """{"gyr", "acc"}: (3,) the run's quietest static segment's robust scatter per axis, SI,
+    from `records` (a run's static segments); None with fewer than two segments (a
+    segment is no reference for itself) or where the quietest one reads no scatter (a
+    quantised still channel: nothing to scale)."""
+    usable = [r for r in records if len(r) >= 2]
+    out: dict[str, np.ndarray | None] = {"gyr": None, "acc": None}
+    if len(usable) < 2:
+        return out
+    for sensor in out:
+        quietest = np.min([robust_scatter(getattr(r, sensor)) for r in usable], axis=0)
+        out[sensor] = quietest if np.all(quietest > 0) else None
+    return out
+
+
+def stillness_problems(
+    rec: Recording,
+    gravity: float,
+    stated: StatedLimits,
+    measured: dict[str, np.ndarray | None] | None = None,
+) -> list[str]:
     """What in static record `rec` no still unit within its stated limits reads (empty:
-    still). `gravity` : local gravity, m/s^2."""
+    still). `gravity` : local gravity, m/s^2. `measured` : `measured_noise` of the run's
+    static segments, the scatter's bound where `stated` gives no noise."""
     problems = []
+    measured = measured or {}
     if len(rec) < 2:
         return problems
     median = {"gyr": np.median(rec.gyr, axis=0), "acc": np.median(rec.acc, axis=0)}
@@ -98,15 +131,17 @@ def stillness_problems(rec: Recording, gravity: float, stated: StatedLimits) -> 
         ("gyr", stated.gyr_noise, "deg/s", DEG),
         ("acc", stated.acc_noise, "m/s^2", 1.0),
     ):
+        whose = "its stated noise"
+        if noise is None:
+            noise, whose = measured.get(sensor), "the noise of the run's quietest static segment"
         if noise is None:
             continue
-        data = getattr(rec, sensor)
-        scatter = MAD_TO_STD * np.median(np.abs(data - median[sensor]), axis=0)
+        scatter = robust_scatter(getattr(rec, sensor))
         worst = int(np.argmax(scatter / noise))
         if scatter[worst] > STILL_SCATTER * noise[worst]:
             problems.append(
                 f"{sensor} {AXES[worst]} scatters {scatter[worst] / scale:.3g} {unit} (robust "
-                f"std), {scatter[worst] / noise[worst]:.3g} x its stated noise "
+                f"std), {scatter[worst] / noise[worst]:.3g} x {whose} "
                 f"{noise[worst] / scale:.3g} {unit} (still: at most {STILL_SCATTER:.3g} x)"
             )
     return problems

@@ -51,6 +51,18 @@ def samples_summary(rec: Recording) -> dict[str, Any]:
     return out
 
 
+def orientation_display(rec: Recording) -> list[str]:
+    """What the MPU-6000 program shows after each orientation (docs/methods.md 5): one
+    line ``Ax : mean=... std=...`` per channel, accelerometer in m/s^2 (4 decimals),
+    gyro in deg/s (3 decimals) as its files write them; std with ddof 1."""
+    rows = [(f"A{a}", rec.acc[:, i], 4) for i, a in enumerate("xyz")]
+    rows += [(f"G{a}", np.degrees(rec.gyr[:, i]), 3) for i, a in enumerate("xyz")]
+    return [
+        f"{name} : mean={x.mean():.{d}f} std={x.std(ddof=1 if len(x) > 1 else 0):.{d}f}"
+        for name, x, d in rows
+    ]
+
+
 def _sniff_kind(path: Path) -> str:
     """The reader a file's content calls for (MPU-6000 by its name)."""
     from pipelines.ingest.dataflash_reader import DF_HEAD
@@ -100,6 +112,7 @@ def _read(path: Path, kind: str, doc: dict[str, Any]) -> Recording:
         units = ("ms", "m/s^2", "m/s^2", "m/s^2", "deg/s", "deg/s", "deg/s", "degC")
         doc["columns"] = [f"{c} [{u}]" for c, u in zip(COLUMN_NAMES, units, strict=True)]
         doc["segment"] = rec.label
+        doc["display"] = orientation_display(rec)
         return rec
     if kind == "csv":
         return _read_csv(path, doc)

@@ -26,6 +26,13 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     kind = "cube"                             # optional: the DCC lists the lab's references
     model = "Precision cube PC-100"           # when a run's manifest records no equipment
 
+    [[equipment]]                             # the rate table, with its pre-check before runs
+    serial = "RT-2"
+    certificate = "DAkkS 4712-2026"
+    [equipment.precheck]                      # measured value and the equipment's limit
+    table_angle_accuracy_arcsec = { value = 1.5, limit = 3.0 }
+    table_axis_perpendicularity_arcsec = { value = 2.0, limit = 5.0 }
+
     [site]                                    # local gravity by Helmert (the MPU-6000 manual)
     latitude_deg = 48.137                     # for runs whose manifest gives no site
     height_m = 519.0
@@ -101,9 +108,60 @@ def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
     equipment = doc.get("equipment", [])
     if not isinstance(equipment, list):
         raise ValueError(f"lab profile {path}: equipment: expected an array of tables")
+    seen: set[str] = set()
     for i, entry in enumerate(equipment):
-        _check_table(entry, EQUIPMENT_KEYS, path, f"equipment[{i}]")
+        where = f"equipment[{i}]"
+        if isinstance(entry, dict) and "precheck" in entry:
+            entry = {k: v for k, v in entry.items() if k != "precheck"}
+            found = _check_precheck(doc["equipment"][i]["precheck"], path, where)
+            twice = sorted(seen & set(found))
+            if twice:
+                raise ValueError(f"lab profile {path}: {where}.precheck: {twice} given twice")
+            seen |= set(found)
+        _check_table(entry, EQUIPMENT_KEYS, path, where)
     return doc
+
+
+def _check_precheck(table: Any, path: Path, where: str) -> dict[str, dict[str, float]]:
+    """``[equipment.precheck]``: key (calib_core.conditions.PRECHECK_KEYS) -> {value, limit},
+    numbers in the key's unit; the limit is the equipment's own (its data sheet or class)."""
+    from calib_core.conditions import PRECHECK_KEYS
+
+    unknown = sorted(set(table) - set(PRECHECK_KEYS)) if isinstance(table, dict) else None
+    if unknown is None or unknown:
+        raise ValueError(
+            f"lab profile {path}: {where}.precheck: expected a table of {list(PRECHECK_KEYS)}"
+            + (f", got unknown {unknown}" if unknown else "")
+        )
+    for key, entry in table.items():
+        at = f"lab profile {path}: {where}.precheck.{key}"
+        fields = set(entry) if isinstance(entry, dict) else set()
+        if "value" not in fields or fields - {"value", "limit"}:
+            raise ValueError(f"{at}: expected {{ value = <number>, limit = <number> }}")
+        bad = [(k, v) for k, v in entry.items() if isinstance(v, bool) or not _non_negative(v)]
+        if bad:
+            raise ValueError(f"{at}.{bad[0][0]}: expected a number >= 0, got {bad[0][1]!r}")
+    return table
+
+
+def _non_negative(value: Any) -> bool:
+    return isinstance(value, int | float) and value >= 0
+
+
+def lab_precheck() -> tuple[dict[str, float], dict[str, dict[str, float]]]:
+    """The equipment pre-check of the lab profile's ``[equipment.precheck]`` tables:
+    (key -> value measured, key -> {"high": the equipment's limit}), as
+    `calib_core.conditions.check_conditions` takes `recorded` and `overrides`; empty
+    without a lab file or pre-check (each condition is then "not recorded")."""
+    found = load_lab_profile()
+    values: dict[str, float] = {}
+    limits: dict[str, dict[str, float]] = {}
+    for entry in [] if found is None else found[0].get("equipment", []):
+        for key, item in entry.get("precheck", {}).items():
+            values[key] = float(item["value"])
+            if "limit" in item:
+                limits[key] = {"high": float(item["limit"])}
+    return values, limits
 
 
 def _check_table(table: Any, keys: tuple[set[str], set[str]], path: Path, where: str) -> None:

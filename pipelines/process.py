@@ -26,7 +26,7 @@ from calib_core.preprocess.chain import preprocess, replaced_checks
 from calib_core.preprocess.motion import static_labels
 from calib_core.procedures.rate_table import plateau_window
 from calib_core.recording import Recording
-from calib_core.stillness import StatedLimits, stillness_problems
+from calib_core.stillness import StatedLimits, measured_noise, stillness_problems
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
 from pipelines import shared_reference
@@ -35,6 +35,7 @@ from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
 from pipelines.issuing import issue_certificate
+from pipelines.lab import lab_precheck
 from pipelines.process_streamed import (
     as_found_solver,
     conditions_segments,
@@ -339,16 +340,18 @@ def run_conditions(
     loaded: LoadedRun, cal: Calibration, profile: ToleranceProfile
 ) -> list[CheckResult]:
     """The lab conditions and acquisition rules of the run (calib_core.conditions), from
-    what the manifest records and the segments as acquired."""
+    what the manifest records, the lab's equipment pre-check (lab.toml) and the segments
+    as acquired."""
     m = loaded.manifest
+    precheck, equipment_limits = lab_precheck()  # a profile's own limit wins
     return check_conditions(
         conditions_segments(loaded),
-        m.recorded_conditions(),
+        {**m.recorded_conditions(), **precheck},
         procedure=m.run.procedure,
         settings=m.run.settings,
         gravity=cal.gravity,
         gravity_source=m.site.source(),
-        overrides=profile.conditions,
+        overrides={**equipment_limits, **profile.conditions},
     )
 
 
@@ -356,15 +359,19 @@ def still_checks(loaded: LoadedRun, gravity: float, profile: ToleranceProfile) -
     """The static segments of the run's procedure judged still by absolute criteria
     (`calib_core.stillness`): a fit segment that is not is refused (ValueError naming its
     file, the segment and what was measured); a held-out one gives the finding
-    ``record:still:<label>`` (the fit can do without it)."""
+    ``record:still:<label>`` (the fit can do without it). A run segmented automatically
+    (``run.settings.segmentation``) declares continuous recordings, not static segments:
+    its statics are those the segmentation found at rest by its own detector."""
     proc = procedures.BY_NAME.get(loaded.manifest.run.procedure)
-    if proc is None:
+    if proc is None or "segmentation" in loaded.manifest.run.settings:
         return []
     stated = StatedLimits.of(profile)
+    labels = static_labels(proc.static_segments, loaded.segments)
+    measured = measured_noise([loaded.segments[label] for label in labels])
     out = []
-    for label in static_labels(proc.static_segments, loaded.segments):
+    for label in labels:
         rec = loaded.segments[label]
-        problems = stillness_problems(rec, gravity, stated)
+        problems = stillness_problems(rec, gravity, stated, measured)
         if not problems:
             continue
         what = f"static segment '{label}' ({rec.source}) moved: {'; '.join(problems)}"

@@ -244,14 +244,22 @@ def write_rosbag2(
 
 
 def write_rosbag1(
-    path: Path, rec: Recording, *, table_rate: float | None = None, slow_every: int | None = None
+    path: Path,
+    rec: Recording,
+    *,
+    table_rate: float | None = None,
+    slow_every: int | None = None,
+    chunk_bytes: int | None = None,
 ) -> None:
-    """One segment as a ROS 1 bag (message definitions of ROS 1 Noetic)."""
+    """One segment as a ROS 1 bag (message definitions of ROS 1 Noetic); `chunk_bytes`:
+    rosbags' chunk threshold (default 1 MiB; ``rosbag record``'s is 768 KiB)."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC)
     with Writer(path) as writer:
+        if chunk_bytes is not None:
+            writer.chunk_threshold = chunk_bytes
         _write_ros(writer, store, store.serialize_ros1, rec, table_rate, slow_every)
 
 

@@ -287,3 +287,109 @@ def test_demo_certificates_show_the_conditions(tmp_path):
     assert (
         "ambient temperature" in texts["MPU0001 html"] and "not recorded" in texts["MPU0001 html"]
     )
+
+
+def _held(label: str, minutes: float, drift_arcsec: float, channel: str = "table_angle"):
+    """A static record on the table at 100 Hz whose position feedback drifts linearly by
+    `drift_arcsec` over the record, with 1 arcsec of encoder noise per sample."""
+    rec = _static(label, 60.0 * minutes, 100.0)
+    noise = np.random.default_rng(7).standard_normal(len(rec))
+    angle = (0.5 + drift_arcsec * rec.t / rec.t[-1] + noise) * conditions.ARCSEC
+    return Recording(t=rec.t, acc=rec.acc, gyr=rec.gyr, reference={channel: angle}, label=label)
+
+
+def test_table_position_within_5_arcsec_during_the_static_run():
+    """The rate-table procedure: table position deviation <= 5 arcsec during settling and
+    the 60-min static run, from the table's feedback. 10 arcsec of drift fails, 3 passes;
+    no feedback channel is "not recorded"; a two-axis table's pitch is read as well."""
+    drifting = _checks([_held("z_up", 60.0, 10.0)], procedure="static_bias")
+    bad = drifting["table_position_arcsec"]
+    assert _status(bad) == "fail" and 9.0 < bad.value < 11.0 and bad.limit == 5.0
+    assert "table_angle" in bad.detail and overall_verdict([bad]) == "fail"
+    steady = _checks([_held("z_up", 60.0, 3.0)], procedure="static_bias")
+    good = steady["table_position_arcsec"]
+    assert _status(good) == "pass" and 2.0 < good.value < 4.0
+    bare = _checks([_static("z_up", 600.0)], procedure="static_bias")["table_position_arcsec"]
+    assert _status(bare) == conditions.NOT_RECORDED and "table_angle" in bare.detail
+    pitch = _checks([_held("p1", 1.0, 10.0, "table_pitch")], procedure="multi_position")
+    assert _status(pitch["table_position_arcsec"]) == "fail"
+    # a rate-table run: its zero-rate plateau is held, the moving ones are not judged
+    zero = _held("z_0", 1.0, 10.0)
+    zero.reference["table_rate"] = np.zeros(len(zero))
+    moving = _plateau("z_+50", 50.0, 0.01)
+    moving.reference["table_angle"] = 50.0 * DEG * moving.t
+    checks = _checks([zero, moving], procedure="rate_table", settings={"settle_s": 20.0})
+    assert _status(checks["table_position_arcsec"]) == "fail"
+    assert "z_0" in checks["table_position_arcsec"].detail
+    zero.reference["table_angle"] = np.zeros(len(zero))
+    checks = _checks([zero, moving], procedure="rate_table", settings={"settle_s": 20.0})
+    assert _status(checks["table_position_arcsec"]) == "pass"
+    # procedures off the table do not judge it
+    assert "table_position_arcsec" not in _checks([_held("x_up", 1.0, 10.0)])
+
+
+def test_the_static_bias_record_is_at_least_60_minutes():
+    """docs/methods.md 2.5: >= 60 min; 59 min fails, 60 passes."""
+    short = _checks([_static("z_up", 59.0 * 60.0)], procedure="static_bias")
+    assert _status(short["static_record_min"]) == "fail"
+    assert short["static_record_min"].value == pytest.approx(59.0)
+    full = _checks([_static("z_up", 60.0 * 60.0)], procedure="static_bias")
+    assert _status(full["static_record_min"]) == "pass"
+
+
+def test_equipment_precheck_from_the_lab_file(tmp_path, monkeypatch):
+    """The rate-table procedure's equipment pre-check (table angle accuracy, axis
+    perpendicularity, power stability, IMU-to-table parallelism) from the lab file's
+    equipment records: judged against the equipment's own limit (a profile's wins), "not
+    recorded" where the lab gives none; a malformed record is refused by field."""
+    from pipelines.lab import lab_precheck
+
+    monkeypatch.setenv("CALIB_PROFILES", str(tmp_path))
+    assert lab_precheck() == ({}, {})  # no lab file: nothing recorded
+    (tmp_path / "lab.toml").write_text(
+        '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n'
+        "[equipment.precheck]\n"
+        "table_angle_accuracy_arcsec = { value = 1.5, limit = 3.0 }\n"
+        "table_axis_perpendicularity_arcsec = { value = 6.0, limit = 5.0 }\n"
+        "power_stability_pct = { value = 0.2 }\n"
+    )
+    values, limits = lab_precheck()
+    assert values == {
+        "table_angle_accuracy_arcsec": 1.5,
+        "table_axis_perpendicularity_arcsec": 6.0,
+        "power_stability_pct": 0.2,
+    }
+
+    def judged(overrides):
+        checks = conditions.check_conditions(
+            {"z_up": _static("z_up", 60.0)},
+            {**RECORDED_OK, **values},
+            procedure="static_bias",
+            settings={},
+            gravity=9.81,
+            gravity_source="site",
+            overrides=overrides,
+        )
+        return {c.name.removeprefix(conditions.CONDITION_PREFIX): _status(c) for c in checks}
+
+    status = judged(limits)
+    assert status["table_angle_accuracy_arcsec"] == "pass"
+    assert status["table_axis_perpendicularity_arcsec"] == "fail"
+    assert status["power_stability_pct"] == "pass"  # no limit given: recorded
+    assert status["imu_table_parallelism_arcsec"] == conditions.NOT_RECORDED
+    assert judged({**limits, "power_stability_pct": {"high": 0.1}})["power_stability_pct"] == (
+        "fail"
+    )
+    assert "table_angle_accuracy_arcsec" not in _checks([_static("x_up")])  # off the table
+    (tmp_path / "lab.toml").write_text(
+        '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n'
+        '[equipment.precheck]\ntable_angle_accuracy_arcsec = { value = "1" }\n'
+    )
+    with pytest.raises(ValueError, match=r"equipment\[0\]\.precheck\.table_angle_accuracy_arcsec"):
+        lab_precheck()
+    (tmp_path / "lab.toml").write_text(
+        '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n'
+        "[equipment.precheck]\ntable_flatness = { value = 1 }\n"
+    )
+    with pytest.raises(ValueError, match=r"precheck: expected a table of .* unknown \['table_fl"):
+        lab_precheck()

@@ -149,6 +149,23 @@ def test_time_going_back_names_the_line(tmp_path):
     assert "line 40003" in str(err.value)
 
 
+def test_value_no_imu_can_read_names_the_line(tmp_path):
+    """A finite gyro reading of 1e30 rad/s is a damaged value, refused as in memory
+    (run_loader: check_readings), naming the file and the line."""
+    from pipelines.ingest.errors import IngestError
+
+    path = tmp_path / "huge.csv"
+    write_static_csv(path, 50_000)
+    lines = path.read_bytes().split(b"\n")
+    cells = lines[40_001].split(b",")  # data row 40000
+    cells[5] = b"1e30"  # gyr_y
+    lines[40_001] = b",".join(cells)
+    path.write_bytes(b"\n".join(lines))
+    with pytest.raises(IngestError, match="gyr .* beyond what any IMU") as err:
+        stream_csv(path, FMT, tmp_path / "s.parquet", memory_limit=1 << 20, progress=False)
+    assert "line 40002" in str(err.value) and str(path) in str(err.value)
+
+
 def test_blocks_pass_every_byte_once_and_cut_at_line_ends():
     """Lines longer than a block, a last line without its newline: the blocks join to the
     file, each ends at a line end, and the hash and the copy are of the whole file."""

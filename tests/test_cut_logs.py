@@ -2,13 +2,15 @@
 
 A six-position + integral run written one log per segment by each ecosystem's own library
 (tests/log_writers.py: pyulog, ArduPilot's record layout with pymavlink's types,
-mcap-ros2-support). Each rotation file is cut at 20 of its record boundaries (a logger
-that lost power between two records) and the run is read and solved again: every cut
-copy must be refused (a turn cut mid-way does not end at rest; a turn cut in its last
-slow degrees does not close on whole turns) or give every parameter within 10 standard
-uncertainties of the intact run's (noise terms left out: a shorter record moves them
-within their own, wider, uncertainty). Without the guards a ULog rotation cut at 1.5 rad/s
-was solved with its gyro scale 3134 standard uncertainties off.
+mcap-ros2-support, rosbags' ROS 1 writer with 16 KiB chunks: a ROS 1 bag's whole record
+is a chunk, and rosbag record's 768 KiB would hold a whole turn). Each rotation file is
+cut at 20 of its record boundaries (a logger that lost power between two records) and the
+run is read and solved again: every cut copy must be refused (a turn cut mid-way does not
+end at rest; a turn cut in its last slow degrees does not close on whole turns) or give
+every parameter within 10 standard uncertainties of the intact run's (noise terms left
+out: a shorter record moves them within their own, wider, uncertainty). Without the
+guards a ULog rotation cut at 1.5 rad/s was solved with its gyro scale 3134 standard
+uncertainties off.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from log_writers import write_dataflash, write_mcap, write_ulog
+from log_writers import write_dataflash, write_mcap, write_rosbag1, write_ulog
 from test_ingest_formats_e2e import manifest
 
 from calib_core.simulate import random_errors, six_position_integral_run
@@ -29,7 +31,9 @@ from pipelines.process import calibrate
 
 CUTS = 20  # record-boundary cuts per rotation file
 FAR = 10.0  # standard uncertainties of the intact run's parameter
-SUFFIX = {"ulog": "ulg", "dataflash": "bin", "mcap": "mcap"}
+SUFFIX = {"ulog": "ulg", "dataflash": "bin", "mcap": "mcap", "rosbag1": "bag"}
+KIND = {"rosbag1": "rosbag"}  # the manifest's format.kind, where not the route's name
+ROS1_CHUNK = 16 << 10  # bytes
 
 
 def _write_run(folder: Path, route: str, segments) -> None:
@@ -41,10 +45,14 @@ def _write_run(folder: Path, route: str, segments) -> None:
             write_ulog(path, rec, topics="combined")
         elif route == "dataflash":
             write_dataflash(path, rec)
+        elif route == "rosbag1":
+            write_rosbag1(path, rec, chunk_bytes=ROS1_CHUNK)
         else:
             write_mcap(path, rec)
         entries.append({"label": label, "file": path.name})
-    (folder / "run.toml").write_text(manifest(f"SIM-CUT-{route}", {"kind": route}, entries))
+    (folder / "run.toml").write_text(
+        manifest(f"SIM-CUT-{route}", {"kind": KIND.get(route, route)}, entries)
+    )
 
 
 def record_ends(route: str, data: bytes) -> list[int]:
@@ -65,6 +73,14 @@ def record_ends(route: str, data: bytes) -> list[int]:
                 lengths[data[pos + 3]] = data[pos + 4]
             pos += lengths[kind]
             ends.append(pos)
+    elif route == "rosbag1":
+        (padding,) = struct.unpack_from("<I", data, 13 + 4 + struct.unpack_from("<I", data, 13)[0])
+        pos = 13 + 4 + struct.unpack_from("<I", data, 13)[0] + 4 + padding  # after the bag header
+        while pos < len(data):
+            (header,) = struct.unpack_from("<I", data, pos)
+            (size,) = struct.unpack_from("<I", data, pos + 4 + header)
+            pos += 8 + header + size
+            ends.append(pos)
     else:
         pos = 8
         while pos + 9 <= len(data) and data[pos] != 0x02:  # up to the footer
@@ -80,7 +96,7 @@ def _solve(folder: Path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("route", ["ulog", "dataflash", "mcap"])
+@pytest.mark.parametrize("route", ["ulog", "dataflash", "mcap", "rosbag1"])
 def test_cut_rotation_logs_are_refused_or_near_the_intact_run(tmp_path: Path, route) -> None:
     rng = np.random.default_rng(4646)
     sim = six_position_integral_run(random_errors(rng), rng, static_s=10.0)
@@ -116,7 +132,7 @@ def test_cut_rotation_logs_are_refused_or_near_the_intact_run(tmp_path: Path, ro
     )
     assert wrong == [], wrong
     assert refused + read == CUTS * len(ROTATION_LABELS)
-    if route == "mcap":  # no footer: every cut copy read is named
+    if route in ("mcap", "rosbag1"):  # no footer / no index: every cut copy read is named
         assert findings == read
 
 

@@ -72,7 +72,7 @@ def _damaged(data: bytes, damage: str, rng: np.random.Generator) -> bytes:
     return data[:stop] + data[start:stop] + data[stop:]
 
 
-CUT_READ = ("ulog", "dataflash", "mcap")  # read to their last whole record when cut
+CUT_READ = ("ulog", "dataflash", "mcap", "rosbag1")  # read to their last whole record when cut
 
 
 @pytest.mark.parametrize("damage", ["truncated", "duplicated chunk"])
@@ -113,7 +113,7 @@ def test_damaged_copies_are_refused_or_an_intact_prefix(tmp_path: Path, kind, da
         assert refused >= COPIES // 2, f"{kind} {damage}: only {refused} of {COPIES} refused"
 
 
-@pytest.mark.parametrize("kind", ["ulog", "dataflash"])
+@pytest.mark.parametrize("kind", ["ulog", "dataflash", "rosbag1"])
 def test_cut_last_record_is_dropped_and_named(tmp_path: Path, kind) -> None:
     """A last record cut 5 bytes short (a logger that lost power) is dropped, the log read
     to its last whole record with a finding naming the file and the bytes dropped; the

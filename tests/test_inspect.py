@@ -35,6 +35,16 @@ def test_mpu6000_file_against_the_data(tmp_path: Path) -> None:
     assert doc["temperature_c"] == [data[:, 7].min(), data[:, 7].max()]
     assert "columns time_ms ax ay az gx gy gz temp" in doc["variant"]
     assert not (tmp_path / "archive").exists()  # nothing archived
+    # the program's display after the orientation, from the file's own columns and units
+    for line, name, col, digits in zip(
+        doc["display"],
+        ("Ax", "Ay", "Az", "Gx", "Gy", "Gz"),
+        range(1, 7),
+        (4, 4, 4, 3, 3, 3),
+        strict=True,
+    ):
+        x = data[:, col]
+        assert line == f"{name} : mean={x.mean():.{digits}f} std={x.std(ddof=1):.{digits}f}"
 
 
 def test_run_folder_lists_segments_and_what_is_missing(tmp_path: Path) -> None:

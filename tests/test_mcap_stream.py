@@ -165,6 +165,19 @@ def test_time_going_back_and_non_finite_numbered_in_the_whole_topic(tmp_path):
     assert "in message 4321 " in same_error(path, tmp_path)
 
 
+def test_value_no_imu_can_read_is_refused_naming_the_message(tmp_path):
+    """A finite reading beyond any IMU's range (a damaged value: 1e30 m/s^2) is refused as
+    the in-memory route refuses it (run_loader: check_readings), numbered in the whole topic
+    across batches."""
+    n = 5000
+    acc = np.random.default_rng(0).normal(size=(n, 3))
+    acc[4321, 1] = 1e30
+    path = tmp_path / "huge.mcap"
+    write_run(path, n=n, acc=acc)
+    with pytest.raises(IngestError, match=r"message 4321 \(0-based\): acc .* beyond what any IMU"):
+        stream(path, tmp_path)
+
+
 def test_topic_choice_as_in_memory(tmp_path):
     path = tmp_path / "two.mcap"
     write_run(path, n=30, imu_topics=("/imu_a", "/imu_b"))

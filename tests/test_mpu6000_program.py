@@ -16,13 +16,14 @@ import pytest
 
 from calib_core import conditions
 from calib_core.calibration import Calibration
-from calib_core.earth import gravity_helmert
+from calib_core.earth import gravity_helmert, gravity_wgs84
 from calib_core.params import MANUAL_NAMES
 from calib_core.solvers.six_position import accel_closed_form
 from calib_core.tolerances import ToleranceProfile
 from calib_core.units import DEG, STANDARD_GRAVITY
 from pipelines.ingest import IngestError, discover_runs, load_run
 from pipelines.process import process_run
+from pipelines.reports.display import shown
 from pipelines.reports.protocol import render_protocol
 from storage.db import resolve_archive
 
@@ -105,7 +106,9 @@ def test_helmert_gravity_from_the_lab_file(tmp_path, monkeypatch):
     monkeypatch.setenv("CALIB_PROFILES", str(profiles))
     outcome = _process(_folder(tmp_path, STATICS), tmp_path)
     g = gravity_helmert(55.75, 150.0)
-    assert g == pytest.approx(gravity_helmert(55.75, 0.0) - 3.086e-6 * 150.0, abs=1e-12)
+    # the formula worked by hand (cos 111.5 deg = -0.366501), and WGS84 within 1e-4 m/s^2
+    assert g == pytest.approx(9.815183, abs=1e-6)
+    assert abs(g - gravity_wgs84(55.75, 150.0)) < 1e-4
     check = {c["name"]: c for c in outcome["checks"]}["condition:gravity"]
     assert check["value"] == pytest.approx(g, abs=1e-12) and check["status"] == "pass"
     # the archived run says where the site came from
@@ -195,7 +198,7 @@ def test_protocol_prints_the_manuals_names_and_signs():
     for name, value in canonical.items():
         cal.add(name, value, 1e-6)
     cal.add("gyr.noise.x", 0.02089 * DEG, 1e-4 * DEG)
-    cal.add("gyr.gsens.xy", 0.001, 1e-5)  # the manual does not name it
+    cal.add("gyr.gsens.xy", 0.0512 * DEG / STANDARD_GRAVITY, 1e-5)  # Gaxy, (deg/s)/g
     text = _protocol(cal, "manual")
     found = {}
     for line in text.splitlines():
@@ -208,15 +211,89 @@ def test_protocol_prints_the_manuals_names_and_signs():
     assert found["Axy"][0] == "acc.misalign.xz" and canonical["acc.misalign.xz"] < 0 < MANUAL["Axy"]
     assert found["Ayz"][0] == "acc.misalign.yx" and found["Azx"][0] == "acc.misalign.zy"
     assert found["Gstdx"] == ("gyr.noise.x", pytest.approx(0.02089, abs=1e-6))
-    gsens = next(line for line in text.splitlines() if line.startswith("gyr.gsens.xy"))
-    assert not re.search(r"\s[AG][a-z]{2}\s", gsens)  # no manual name invented
+    assert found["Gaxy"] == ("gyr.gsens.xy", pytest.approx(0.0512))
     # canonical protocol: no manual column; the rest of each line unchanged
     plain = _protocol(cal, "canonical")
     assert "Manual" not in plain and " Axz " not in plain
     for line in plain.splitlines():
         if line.startswith("acc.misalign.xy"):
             assert next(x for x in text.splitlines() if x.startswith(line.rstrip()))
-    assert len(MANUAL_NAMES) == 2 * 9 + 3 + 3  # scales and misalignments, a0*, Gstd*
+    assert [m for m, _ in MANUAL_NAMES.values()] == PUBLISHED
+
+
+# The 39 lines of the manual's published protocol, gyro block first, in the order of its
+# tolerance list (docs/methods.md 4.3): written out here, not derived from the code.
+PUBLISHED = [
+    "Gxx",
+    "Gyy",
+    "Gzz",
+    "Gxz",
+    "Gxy",
+    "Gyz",
+    "Gyx",
+    "Gzy",
+    "Gzx",
+    "Gox",
+    "Goy",
+    "Goz",
+    "Gaxx",
+    "Gaxy",
+    "Gaxz",
+    "Gayx",
+    "Gayy",
+    "Gayz",
+    "Gazx",
+    "Gazy",
+    "Gazz",
+    "Gstdx",
+    "Gstdy",
+    "Gstdz",
+    "Axx",
+    "Ayy",
+    "Azz",
+    "Axz",
+    "Axy",
+    "Ayz",
+    "Ayx",
+    "Azy",
+    "Azx",
+    "Aox",
+    "Aoy",
+    "Aoz",
+    "Astdx",
+    "Astdy",
+    "Astdz",
+]
+
+
+def test_the_programs_unit_prints_the_39_lines_of_the_published_protocol(tmp_path):
+    """The program's own unit (raw files as the program writes them) through `calib
+    process` with the shipped mpu6000 profile: its protocol prints the 39 names of the
+    published protocol in their order, gyro block first, each value in the manual's sign
+    within 4 u of the unit's truth, and `+` on every line that has a tolerance."""
+    outcome = _process(_folder(tmp_path, STATICS + ROTATIONS), tmp_path)
+    text = outcome["protocol"]
+    text = Path(text).read_text(encoding="utf-8") if Path(text).is_file() else text
+    rows = []
+    lines = text.splitlines()
+    table = lines[lines.index(next(x for x in lines if x.startswith("Parameter "))) + 1 :]
+    for line in table[: table.index("-" * 78)]:
+        words = line.split()
+        if re.match(r"[a-z]+\.[a-z]+\.[a-z]+$", line[:18].strip()) and len(words) > 4:
+            mark = words[-3] if words[-3] in ("+", "-") else ""
+            rows.append((words[0], mark, words[-2], words[-1]))
+    assert [r[2] for r in rows] == PUBLISHED, text
+    for canonical, mark, manual, value in rows:
+        sign = -1.0 if manual in ("Axy", "Ayz", "Azx", "Gxy", "Gyz", "Gzx") else 1.0
+        p = outcome["parameters"][canonical]
+        shown_value = shown(canonical, sign * p["value"], p["std"])
+        assert value == shown_value.signed, (manual, value)
+        if ".noise." not in canonical:
+            assert abs(p["value"] - TRUTH[canonical]) <= 4 * p["std"], (canonical, p)
+        if canonical.startswith("acc.noise"):
+            assert mark == "", manual  # the paper gives the accelerometer noise no tolerance
+        else:
+            assert mark == "+", manual
 
 
 def test_protocol_names_setting_of_the_profile():

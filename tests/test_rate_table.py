@@ -365,3 +365,36 @@ def test_held_out_rate_points_are_judged_against_the_table_rate(tmp_path):
         right, off = errors["right"][label], errors["off"][label]
         assert right["passed"] and right["value"] < 0.05 * limit, (label, right)
         assert not off["passed"] and off["value"] > 1.8 * limit, (label, off)
+
+
+def test_a_rate_table_run_judges_the_labs_equipment_precheck(tmp_path, monkeypatch):
+    """`calib process` of a rate-table run takes the equipment pre-check from the lab
+    file's equipment record: the table's axis perpendicularity measured 6 arcsec against
+    its 5 arcsec limit fails the run's condition (and the verdict); the angle accuracy
+    within its limit passes; the parallelism, not in the record, is "not recorded"."""
+    from calib_core import conditions
+    from pipelines.ingest import discover_runs
+    from pipelines.process import process_run
+    from storage.db import resolve_archive
+
+    lab = tmp_path / "lab"
+    lab.mkdir()
+    (lab / "lab.toml").write_text(
+        '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n[equipment.precheck]\n'
+        "table_angle_accuracy_arcsec = { value = 1.5, limit = 3.0 }\n"
+        "table_axis_perpendicularity_arcsec = { value = 6.0, limit = 5.0 }\n"
+    )
+    monkeypatch.setenv("CALIB_PROFILES", str(lab))
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    try:
+        result = process_run(discover_runs([_held_out_run(tmp_path, "lab", 0.0)])[0], arch)
+    finally:
+        arch.dispose()
+    assert result["status"] == "ok", result["error"]
+    checks = {c["name"].removeprefix("condition:"): c for c in result["checks"]}
+    assert checks["table_angle_accuracy_arcsec"]["status"] == "pass"
+    bad = checks["table_axis_perpendicularity_arcsec"]
+    assert bad["status"] == "fail" and bad["value"] == 6.0 and bad["limit"] == 5.0
+    assert checks["imu_table_parallelism_arcsec"]["status"] == conditions.NOT_RECORDED
+    assert result["verdict"] == "fail"

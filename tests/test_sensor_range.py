@@ -36,14 +36,14 @@ def clipped_run(rate_dps: float = 300.0, range_dps: float = 250.0):
     )
 
 
-def test_clipped_turn_would_give_a_wrong_scale():
+def test_clipped_turn_solved_as_unclipped_is_refused_by_the_closure_guard():
     # Why the refusal matters: solved as if the range were 2000 deg/s (the old default)
-    # the clipped turns lose angle, and the scale comes out wrong by far more than its
-    # uncertainty (the integral's noise: a few 1e-5).
+    # the clipped turns lose angle (the scale would come out wrong by far more than its
+    # uncertainty); the rotations' closure on whole turns catches it without the range:
+    # the lost angle is ~24 standard uncertainties of the closure, against a limit of 6.
     run = clipped_run()
-    cal = procedures.solve("six_position_integral", run.segments, run.gravity, {})
-    p = cal.parameters["gyr.scale.x"]
-    assert abs(p.value - TRUE_SCALE_X) > 100 * p.std
+    with pytest.raises(ValueError, match=r"differ from whole turns by .* a turn is incomplete"):
+        procedures.solve("six_position_integral", run.segments, run.gravity, {})
 
 
 def test_mpu6000_folder_refuses_the_clipped_turn_naming_file_time_axis(tmp_path: Path):

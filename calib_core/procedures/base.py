@@ -63,6 +63,23 @@ ATTITUDES = (
                  f"{METHODS} 3.4"),
     ConditionUse("record_s", "record time of the shortest static attitude", f"{METHODS} 2.4"),
 )  # fmt: skip
+# The rate-table procedure: table position within 5 arcsec while held (settling and the
+# 60-min static run), from the table's position feedback.
+TABLE_POSITION = ConditionUse(
+    "table_position_arcsec", "table position from its feedback channel (table_angle, "
+    "table_pitch, table_roll): span of the 1-s means over the worst held segment",
+    "rate-table procedure, settling and 60-min static run")  # fmt: skip
+# The rate-table procedure's equipment pre-check, from the lab's equipment records.
+EQUIPMENT_PRECHECK = tuple(
+    ConditionUse(key, what + ", from the lab's equipment record (lab.toml)",
+                 "rate-table procedure, equipment pre-check")
+    for key, what in (
+        ("table_angle_accuracy_arcsec", "table angle accuracy"),
+        ("table_axis_perpendicularity_arcsec", "table axis perpendicularity"),
+        ("power_stability_pct", "power supply stability"),
+        ("imu_table_parallelism_arcsec", "IMU-to-table axis parallelism"),
+    )
+)  # fmt: skip
 RATE_PLATEAUS = (
     ConditionUse("settle_rate_s", "settle time of each rate plateau (settings.settle_s, "
                  "dropped by the solver)", f"{METHODS} 2.4"),

@@ -6,6 +6,7 @@ The solver is calib_core.solvers.centrifuge_segments. Settings: `CENTRIFUGE.sett
 
 from __future__ import annotations
 
+from calib_core.condition_rules import ConditionUse
 from calib_core.procedures.base import ENVIRONMENT, RATE_PLATEAUS, Procedure, Setting, Settings
 from calib_core.significance import STEERING, T_TESTS
 from calib_core.solvers.centrifuge_model import DEFAULT_ZERO_SHIFT_LIMIT
@@ -43,7 +44,20 @@ CENTRIFUGE = Procedure(
     solver=solve_centrifuge_segments,
     settings=SETTINGS,
     # Its solver drops no settle from a step: no settle rule; each step's record is whole.
-    conditions=ENVIRONMENT + tuple(c for c in RATE_PLATEAUS if c.key != "settle_rate_s"),
+    conditions=ENVIRONMENT
+    + tuple(c for c in RATE_PLATEAUS if c.key != "settle_rate_s")
+    + (
+        ConditionUse(
+            "zero_position_min",
+            "length of the shortest zero-output record (before or after the run)",
+            "centrifuge paper (docs/methods.md 2.8)",
+        ),
+        ConditionUse(
+            "g_step_min",
+            "length of the shortest high-g step record",
+            "centrifuge paper (docs/methods.md 2.8)",
+        ),
+    ),  # fmt: skip
     reference="docs/centrifuge.md",
     model_checks="t / F tests of each term; zero shift before / after each run; radius "
     "consistency across positions",

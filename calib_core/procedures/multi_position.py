@@ -7,7 +7,15 @@ The solver is calib_core.solvers.multi_position. Settings: `MULTI_POSITION.setti
 from __future__ import annotations
 
 from calib_core.attitude import ATTITUDE_CONVENTIONS, TABLE_AXES
-from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Setting, Settings
+from calib_core.procedures.base import (
+    ATTITUDES,
+    ENVIRONMENT,
+    EQUIPMENT_PRECHECK,
+    TABLE_POSITION,
+    Procedure,
+    Setting,
+    Settings,
+)
 from calib_core.solvers.accel_models import ACCEL_MODELS
 from calib_core.solvers.multi_position import solve_multi_position
 
@@ -38,7 +46,7 @@ MULTI_POSITION = Procedure(
     "(*_cw, *_ccw) are ignored",
     solver=solve_multi_position,
     settings=SETTINGS,
-    conditions=ENVIRONMENT + ATTITUDES,
+    conditions=ENVIRONMENT + ATTITUDES + (TABLE_POSITION, *EQUIPMENT_PRECHECK),
     reference="docs/methods.md 2.2",
     bounds_hint=(
         "check the table's attitude convention (settings.attitude_convention: 'project' "

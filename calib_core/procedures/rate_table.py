@@ -14,7 +14,9 @@ from calib_core.calibration import Calibration
 from calib_core.procedures.base import (
     ATTITUDES,
     ENVIRONMENT,
+    EQUIPMENT_PRECHECK,
     RATE_PLATEAUS,
+    TABLE_POSITION,
     Procedure,
     Setting,
     Settings,
@@ -84,7 +86,7 @@ RATE_TABLE = Procedure(
     "puts the feedback on the IMU clock",
     solver=solve_rate_table_procedure,
     settings=SETTINGS,
-    conditions=ENVIRONMENT + ATTITUDES[:1] + RATE_PLATEAUS,
+    conditions=ENVIRONMENT + ATTITUDES[:1] + RATE_PLATEAUS + (TABLE_POSITION, *EQUIPMENT_PRECHECK),
     reference="docs/methods.md 2.4; IEEE Std 952 / 1431",
     uncertainty=rate_table_model,
     model_checks="chi2 of the rate fit; 0-rate points against the fitted bias; nonlinearity "

@@ -10,7 +10,16 @@ from typing import Any
 
 from calib_core.calibration import Calibration
 from calib_core.condition_rules import ConditionUse
-from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, METHODS, Procedure, Setting, Settings
+from calib_core.procedures.base import (
+    ATTITUDES,
+    ENVIRONMENT,
+    EQUIPMENT_PRECHECK,
+    METHODS,
+    TABLE_POSITION,
+    Procedure,
+    Setting,
+    Settings,
+)
 from calib_core.recording import Recording
 from calib_core.solvers.static_bias import solve_static_bias, solve_static_bias_stream
 
@@ -32,7 +41,8 @@ SETTINGS = Settings(
             low_open=True),
     Setting(MEMORY_LIMIT, "number", "MB", 1000.0,
             "memory limit: a record whose files are larger is streamed in chunks (one pass "
-            "over the file, then one over its samples) instead of read into memory",
+            "over the file, then one over its samples) instead of read into memory, unless "
+            "its settings need the whole record; the results are the same either way",
             low=1.0),
 )  # fmt: skip
 # Settings that choose how the record is read, not what is solved.
@@ -82,6 +92,8 @@ STATIC_BIAS = Procedure(
     conditions=ENVIRONMENT
     + ATTITUDES
     + (
+        TABLE_POSITION,
+        *EQUIPMENT_PRECHECK,
         ConditionUse("static_record_min", "length of the static record", f"{METHODS} 2.5"),
         ConditionUse(
             "static_temperature_spread_c",

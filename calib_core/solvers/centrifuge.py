@@ -6,7 +6,8 @@ and once away from it (``-``). Per mounting position:
 
 1. zero output: static records at table positions 0/90/180/270 deg, averaged,
    so a tilt of the table axis (which puts g*tilt on the horizontal axes with
-   the table angle's phase) cancels;
+   the table angle's phase) cancels; with the same records after the run, the
+   zero before and the zero after averaged (`zero_mean`), as the paper does;
 2. a run near 1 g: the radial output change gives the effective radius
 
        E_rot - E_static = R * w0 * (w0 + 2 * Omega_V)
@@ -96,7 +97,8 @@ from calib_core.units import STANDARD_GRAVITY
 
 @dataclass(frozen=True)
 class _Means:
-    zero: dict[str, tuple[np.ndarray, np.ndarray]]
+    zero: dict[str, tuple[np.ndarray, np.ndarray]]  # used: before and after averaged
+    zero_before: dict[str, tuple[np.ndarray, np.ndarray]]
     zero_after: dict[str, tuple[np.ndarray, np.ndarray]]
     one_g: dict[str, RevolutionMean]
     steps: list[tuple[str, float, RevolutionMean]]  # (mount, nominal g, mean)
@@ -106,7 +108,7 @@ def _collect(steps: Sequence[CentrifugeStep]) -> _Means:
     by_mount: dict[str, list[CentrifugeStep]] = {m: [] for m in MOUNTS}
     for s in steps:
         by_mount[s.mount].append(s)
-    zero, zero_after, one_g, highs = {}, {}, {}, []
+    zero, zero_before, zero_after, one_g, highs = {}, {}, {}, {}, []
     for mount, recs in by_mount.items():
         if not recs:
             continue
@@ -114,10 +116,11 @@ def _collect(steps: Sequence[CentrifugeStep]) -> _Means:
         ones = [r for r in recs if r.kind == "1g"]
         if len(ones) != 1:
             raise ValueError(f"mount {mount}: expected one near-1 g run, got {len(ones)}")
-        zero[mount] = zero_output(zeros)
+        zero[mount] = zero_before[mount] = zero_output(zeros)
         afters = [r for r in recs if r.kind == "zero_after"]
-        if afters:
+        if afters:  # the paper averages the zero output before and after the run
             zero_after[mount] = zero_output(afters)
+            zero[mount] = zero_mean(zero_before[mount], zero_after[mount])
         one_g[mount] = whole_revolution_mean(ones[0].recording)
         highs += [
             (mount, r.nominal_g, whole_revolution_mean(r.recording))
@@ -126,7 +129,16 @@ def _collect(steps: Sequence[CentrifugeStep]) -> _Means:
         ]
     if not highs:
         raise ValueError("centrifuge run has no high-g steps")
-    return _Means(zero, zero_after, one_g, highs)
+    return _Means(zero, zero_before, zero_after, one_g, highs)
+
+
+def zero_mean(
+    before: tuple[np.ndarray, np.ndarray], after: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The zero output of a mounting position as the paper takes it: the four-position zero
+    before and after the run averaged; (mean (3,), standard error (3,)), m/s^2."""
+    (b, ub), (a, ua) = before, after
+    return (b + a) / 2.0, np.hypot(ub, ua) / 2.0
 
 
 def _geometry(
@@ -410,7 +422,7 @@ def solve_centrifuge(
         gravity=settings.gravity,
         omega_v=omega_v,
         zero_shift={
-            m: zero_shift(m, means.zero[m], after, settings.zero_shift_limit)
+            m: zero_shift(m, means.zero_before[m], after, settings.zero_shift_limit)
             for m, after in means.zero_after.items()
         },
     )

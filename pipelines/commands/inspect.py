@@ -49,6 +49,10 @@ def _print(doc: dict[str, Any], indent: str = "") -> None:
                     f"{indent}  {src['source']}: {_text(src['rate_hz'])} Hz, "
                     f"{src['samples']} samples, temperature {src['temperature']}"
                 )
+        elif key == "display":  # the MPU-6000 program's lines after each orientation
+            _say(f"{indent}display:")
+            for line in value:
+                _say(f"{indent}  {line}")
         elif key == "segments" and isinstance(value, dict):
             _say(f"{indent}segments:")
             for label, seg in value.items():

@@ -41,6 +41,7 @@ from pipelines.ingest.csv_reader import (
 )
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.log_samples import impossible_reading
 from storage.rawstore import samples_parquet_options
 
 DEFAULT_MEMORY_LIMIT = 10**9  # bytes: the `memory_limit_mb` setting's default
@@ -302,6 +303,10 @@ def _chunk(
         values[role] = v
     gyr = sensor_si(both[:, :3], "gyr", fmt)
     acc = sensor_si(both[:, 3:], "acc", fmt)
+    found = impossible_reading({"acc": acc, "gyr": gyr})
+    if found is not None:  # the in-memory route's check (run_loader: check_readings)
+        name, i, text = found
+        raise IngestError(text, file=path, line=layout.line_of_row(rows + i), field=name)
     if "time" in values:
         t = values["time"]
         if fmt.time_unit == "samples":

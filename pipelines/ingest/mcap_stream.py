@@ -52,6 +52,7 @@ from pipelines.ingest.csv_stream import (
 )
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.log_samples import impossible_reading
 from pipelines.ingest.mcap_reader import McapChannel, McapReader, check_arguments, check_finite
 from pipelines.ingest.readers import MCAP_KEYS, extra_keys
 from pipelines.ingest.time_order import check_time_increases
@@ -238,6 +239,10 @@ class SampleSink:
         np.concatenate([p["acc"] for p in parts], out=both[:, 3:])
         check_finite(self.name, where, "linear_acceleration", both[:, 3:], self.done)
         check_finite(self.name, where, "angular_velocity", both[:, :3], self.done)
+        found = impossible_reading({"acc": both[:, 3:], "gyr": both[:, :3]})
+        if found is not None:  # the in-memory route's check (run_loader: check_readings)
+            name, i, text = found
+            raise IngestError(f"{where}: message {self.done + i} (0-based): {text}", file=self.name)
         if self.t0 is None:
             self.t0 = stamp[0]
         self.last = stamp[-1]

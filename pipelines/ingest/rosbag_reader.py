@@ -16,6 +16,8 @@ onto the IMU time, holding their first / last value outside their span. Time:
 receive time), Unix seconds. A bag with several Imu topics and no ``imu_topic``
 is read from the one logged at the highest rate; an IMU topic below
 ``min_rate_hz`` is refused with every Imu topic's rate (pipelines.ingest.log_samples).
+A ROS 1 bag cut while written (no index) is read to its last whole chunk with the
+``record:cut:<file>`` finding (`pipelines.ingest.rosbag_cut`).
 """
 
 from __future__ import annotations
@@ -71,7 +73,9 @@ def open_bag(path: Path):
         if kind == "rosbag1":
             from rosbags.rosbag1 import Reader
 
-            reader = Reader(path)
+            from pipelines.ingest.rosbag_cut import CutBagReader, is_cut
+
+            reader = (CutBagReader if is_cut(path) else Reader)(path)
             reader.open()
             store = get_typestore(Stores.EMPTY)
             for conn in reader.connections:
@@ -197,7 +201,10 @@ def read_rosbag(
             reference = _table(reader, deserialize, jconns, path, stamp, table_joint, t_ns)
     finally:
         reader.close()
-    rec = checked_recording(path, conns[0].topic, t, {"acc": acc, "gyr": gyr}, temp=temp)
+    findings = getattr(reader, "findings", ())  # a cut ROS 1 bag's (rosbag_cut)
+    rec = checked_recording(
+        path, conns[0].topic, t, {"acc": acc, "gyr": gyr}, temp=temp, findings=findings
+    )
     rate, topic = stamp_rate(rec.t), conns[0].topic
     if rate is None or rate < min_rate_hz:
         choose_source(

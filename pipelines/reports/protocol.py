@@ -14,7 +14,7 @@ from datetime import datetime
 from typing import Any
 
 from calib_core import conditions
-from calib_core.params import manual_name
+from calib_core.params import manual_name, manual_order
 from pipelines.reports.display import (
     STANDARD_U,
     STANDARD_U_MEANING,
@@ -81,7 +81,8 @@ def render_protocol(
     budgets : name -> `calib_core.uncertainty.Budget.to_dict()` (SI): the uncertainty table.
     decision_rule : the statement of the decision rule and its risk.
     names : "canonical", or "manual": each line also gives the MPU-6000 manual's name
-        and the value in the manual's sign (calib_core.params.MANUAL_NAMES), so a lab
+        and the value in the manual's sign (calib_core.params.MANUAL_NAMES), the lines in
+        the order of the manual's published protocol (gyro block first), so a lab
         compares line by line with its old protocols.
     notes : (name, text) of the findings about the record, the counts of samples
         replaced and the solve's warnings (`pipelines.reports.display.record_notes`),
@@ -108,6 +109,8 @@ def render_protocol(
     ]
     if names == "manual":
         lines.insert(-2, "Manual names: the MPU-6000 manual's (Axz = M[x,y], Axy = -M[x,z], ...)")
+    if names == "manual":
+        parameters = sorted(parameters, key=lambda p: manual_order(p["name"]))
     for p in parameters:
         s = shown(p["name"], p["value"], p.get("std"))  # u to two digits, the value to its place
         check = by_param.get(p["name"])
