@@ -3,8 +3,8 @@
 The memory tests of the streamed readers (CSV, MCAP, ROS 1 bag) run the same measurement:
 after a warm-up on a smaller file of the same kind (the lazily imported modules, worker
 threads and codecs: fixed costs), the growth of the peak resident set while the big file
-is read, hashed, copied, written and solved. `assert_same_solve` is their comparison of the
-streamed solve with the in-memory one.
+is read, hashed, copied, written and solved. `assert_same_samples` and `assert_same_solve`
+are their comparisons of the streamed route with the in-memory one.
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ import sys
 import textwrap
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 GRAVITY = 9.80665  # m/s^2
 
@@ -74,6 +76,16 @@ def streamed_memory_growth(
     if done.returncode != 0:
         raise RuntimeError(done.stderr[-2000:])
     return int(json.loads(done.stdout.strip().splitlines()[-1])["grown"])
+
+
+def assert_same_samples(table: Any, rec: Any) -> None:
+    """The streamed samples' Parquet `table` (pyarrow) holds the in-memory `Recording` `rec`
+    bit for bit: the same time base and values, no temperature on either."""
+    assert np.array_equal(table.column("t").to_numpy(), rec.t)
+    for i, a in enumerate("xyz"):
+        assert np.array_equal(table.column(f"acc_{a}").to_numpy(), rec.acc[:, i])
+        assert np.array_equal(table.column(f"gyr_{a}").to_numpy(), rec.gyr[:, i])
+    assert np.isnan(table.column("temp").to_numpy()).all() and rec.temp is None
 
 
 def assert_same_solve(got: Any, ref: Any) -> None:

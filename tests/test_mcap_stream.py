@@ -17,7 +17,7 @@ from mcap.writer import CompressionType
 from test_ingest_mcap import T0_NS, rewrite, write_run
 
 from calib_core.solvers.static_bias import solve_static_bias
-from calib_testing.streaming import assert_same_solve, streamed_memory_growth
+from calib_testing.streaming import assert_same_samples, assert_same_solve, streamed_memory_growth
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.mcap_reader import read_mcap
@@ -71,11 +71,7 @@ def test_streamed_mcap_same_samples_and_parameters_as_in_memory(big_mcap, tmp_pa
     assert table.num_rows == len(rec) == N
     assert pq.ParquetFile(streamed.samples).metadata.num_row_groups > 4  # written in batches
     # Bit for bit: the same decoder and the same time base (Unix s from integer offsets).
-    assert np.array_equal(table.column("t").to_numpy(), rec.t)
-    for i, a in enumerate("xyz"):
-        assert np.array_equal(table.column(f"acc_{a}").to_numpy(), rec.acc[:, i])
-        assert np.array_equal(table.column(f"gyr_{a}").to_numpy(), rec.gyr[:, i])
-    assert np.isnan(table.column("temp").to_numpy()).all() and rec.temp is None
+    assert_same_samples(table, rec)
     assert set(table.column("segment").to_pylist()) == {"record"}
     assert streamed.first.n == N
     assert streamed.first.step.median() == np.median(np.diff(rec.t))

@@ -31,7 +31,7 @@ from test_process_streamed import (
 
 from calib_core.recording import Recording
 from calib_testing.run_writers import dumps_toml
-from calib_testing.streaming import streamed_memory_growth
+from calib_testing.streaming import assert_same_samples, streamed_memory_growth
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.rosbag_reader import read_rosbag
@@ -122,11 +122,7 @@ def test_same_samples_as_in_memory_hashed_and_copied(bag, tmp_path, stamp):
     assert table.num_rows == len(rec) == streamed.first.n
     assert pq.ParquetFile(streamed.samples).metadata.num_row_groups > 4  # written in batches
     # Bit for bit: the same values and the same time base (Unix s from integer offsets).
-    assert np.array_equal(table.column("t").to_numpy(), rec.t)
-    for i, a in enumerate("xyz"):
-        assert np.array_equal(table.column(f"acc_{a}").to_numpy(), rec.acc[:, i])
-        assert np.array_equal(table.column(f"gyr_{a}").to_numpy(), rec.gyr[:, i])
-    assert np.isnan(table.column("temp").to_numpy()).all() and rec.temp is None
+    assert_same_samples(table, rec)
     assert streamed.first.step.median() == np.median(np.diff(rec.t))
 
 
