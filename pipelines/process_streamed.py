@@ -264,6 +264,24 @@ def solve_streamed_run(
     checks = replaced_checks(steps)
     trend = TemperatureTrend(rec.result.temp_finite, temperature_block(span))
 
+    cal, record = procedures.solve_step(
+        {},
+        {**settings, "procedure": procedure, "gravity": m.gravity()},
+        solver=record_solver(rec, procedure, trend=trend),
+    )
+    record.statistics["segments"] = 1
+    cal.info["solver_checks"] = [not_done(c) for c in cal.info.get("solver_checks", [])] + checks
+    rec.summary = dataclasses.replace(span, temp_means=trend.means(), temp_slope=trend.slope())
+    budgets, budget_step = uncertainty_step(cal, {}, settings, m)
+    return cal, [*steps, record, budget_step], settings, budgets, {}
+
+
+def record_solver(
+    rec: StreamedRecord, procedure: str, **options: Any
+) -> Callable[[dict, float, dict[str, Any]], Calibration]:
+    """The `procedures.solve_step` solver of a streamed record: `solve_streamed` of its
+    samples by `procedure` (`options`: its ``trend`` or ``chunks``)."""
+
     def solver(_segments: dict, gravity: float, given: dict[str, Any]) -> Calibration:
         return solve_streamed(
             rec.result,
@@ -271,18 +289,11 @@ def solve_streamed_run(
             label=rec.label,
             gravity=gravity,
             memory_limit=rec.memory_limit,
-            trend=trend,
             procedure=procedure,
+            **options,
         )
 
-    cal, record = procedures.solve_step(
-        {}, {**settings, "procedure": procedure, "gravity": m.gravity()}, solver=solver
-    )
-    record.statistics["segments"] = 1
-    cal.info["solver_checks"] = [not_done(c) for c in cal.info.get("solver_checks", [])] + checks
-    rec.summary = dataclasses.replace(span, temp_means=trend.means(), temp_slope=trend.slope())
-    budgets, budget_step = uncertainty_step(cal, {}, settings, m)
-    return cal, [*steps, record, budget_step], settings, budgets, {}
+    return solver
 
 
 def not_done(check: dict) -> dict:
@@ -309,17 +320,7 @@ def as_found_solver(
                 acc_c, gyr_c = before.correct(acc, gyr)
                 yield t, gyr_c, acc_c
 
-        def solver(_segments: dict, gravity: float, given: dict[str, Any]) -> Calibration:
-            return solve_streamed(
-                rec.result,
-                given,
-                label=rec.label,
-                gravity=gravity,
-                memory_limit=rec.memory_limit,
-                chunks=chunks,
-                procedure=cal.procedure,
-            )
-
+        solver = record_solver(rec, cal.procedure, chunks=chunks)
         return procedures.solve(cal.procedure, {}, cal.gravity, dict(settings), solver)
 
     return found
