@@ -94,18 +94,24 @@ class CutBagReader(Reader):
         self.chunks, self.chunk_infos = {}, []
         while self.bio.tell() < end:
             pos = self.bio.tell()
-            header = Header.read(self.bio)
-            length = struct.unpack("<I", self.bio.read(4))[0]
-            following = self.bio.tell() + length
-            if header.get_uint8("op") == OP_CONNECTION:
+            try:
+                header = Header.read(self.bio)
+                length = struct.unpack("<I", self.bio.read(4))[0]
+                following = self.bio.tell() + length
+                op = header.get_uint8("op")
                 self.bio.seek(pos)
-                conn = self.read_connection()
-                connections.setdefault(conn.id, conn)
-            elif header.get_uint8("op") == OP_CHUNK:
-                self.bio.seek(pos)
-                chunk = self.read_chunk()
-                self.chunks[pos] = chunk
-                self._chunk_records(pos, chunk, connections, indexes)
+                if op == OP_CONNECTION:
+                    conn = self.read_connection()
+                    connections.setdefault(conn.id, conn)
+                elif op == OP_CHUNK:
+                    self.chunks[pos] = self.read_chunk()
+            except (ReaderError, struct.error) as exc:
+                raise IngestError(
+                    f"damaged ROS 1 bag: the record at byte offset {pos} does not parse ({exc})",
+                    file=self.path,
+                ) from None
+            if op == OP_CHUNK:
+                self._chunk_records(pos, self.chunks[pos], connections, indexes)
             self.bio.seek(following)  # index data, chunk info: rebuilt from the chunks
         self.indexes = {c: sorted(indexes[c]) for c in connections}
         self.connections = [
