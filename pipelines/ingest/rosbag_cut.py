@@ -3,13 +3,14 @@
 A bag's index (its connections and chunk list) is written after its last chunk, when the
 recording ends cleanly; a recorder that lost power leaves the bag header pointing past
 the end of the file (``index_pos`` beyond it, or 0: never written), an index with fewer
-records than the header lists, or a last record cut short. `whole_records` walks the top-level records by their lengths to the first one the
-file cuts short; `CutBagReader` is rosbags' reader with its index rebuilt from the whole
-chunks' own records (connection and message records, as ``rosbag reindex`` does), so the
-messages of every whole chunk are read as from an intact bag and the bytes from the cut
-record on are dropped with the ``record:cut:<file>`` finding (`log_samples.cut_tail`).
-A whole chunk that does not decompress or whose records do not follow each other is
-damage inside the bag, refused naming its byte offset.
+records than the header lists, or a last record cut short. `whole_records` walks the top-
+level records by their lengths to the first one the file cuts short; `CutBagReader` is
+rosbags' reader with its index rebuilt from the whole chunks' own records (connection and
+message records, as ``rosbag reindex`` does), so the messages of every whole chunk are
+read as from an intact bag and the bytes from the cut record on are dropped with the
+``record:cut:<file>`` finding (`log_samples.cut_tail`). A whole chunk that does not
+decompress or whose records do not follow each other is damage inside the bag, refused
+naming its byte offset.
 """
 
 from __future__ import annotations
