@@ -3,7 +3,19 @@
 For the MPU-6000 and the CSV sample of data_samples/, in the same run:
 
 - ``one_run_wall_s``: wall time of ``calib process RUN --json`` in a fresh process
-  (a new archive each time), the slower of the two samples, median of `REPEATS`;
+  (a new archive each time, its certificate issued), the slower of the two samples,
+  median of `REPEATS`;
+- ``certificate_wall_ratio``: that run's wall time over the same run's with
+  ``CALIB_ISSUE_CERTIFICATES=0`` (run right after it: each pair sees the same load),
+  median of the pairs' ratios, the larger of the two samples (target <= 1.5);
+- ``mpu6000_to_bare_science_ratio``: the MPU-6000 run (certificate included) over a
+  bare ``python -c "import numpy, scipy.linalg, pandas, sqlalchemy"`` run right after it,
+  median of the pairs' ratios (target <= 3);
+- ``certificate_cpu_s``: CPU seconds (every thread) of one certificate of the CSV sample
+  in a process that has issued one already: HTML and PDF issued into the archive
+  (`pipelines.reports.issue.issue`, a re-issue) and the DCC XML built, median of
+  `REPEATS` (target <= 0.3); ``certificate_first_cpu_s``: the first one, imports
+  included;
 - ``help_wall_s``: wall time of ``calib --help`` in a fresh process, median;
 - ``one_run_to_solve_ratio``: a run's wall time over the in-process time of its bare
   read + preprocess + solve (`load_run` + `solve_loaded`, imports warm), the larger
@@ -15,7 +27,8 @@ For the MPU-6000 and the CSV sample of data_samples/, in the same run:
   a history run (paired: both see the same load);
 - ``history_to_bare_ratio``: the median of the pairs' ratios (target <= 1.5).
 
-``--history-only`` measures the last three alone, with the load average at its start and end.
+``--history-only`` measures the last three alone, ``--certificate-only`` the certificate's
+CPU alone, each with the load average at its start and end.
 
 The command is started as the `calib` entry point of this interpreter's environment,
 after the project's packages are byte-compiled (`compile_project`) as an installation
@@ -49,6 +62,7 @@ SAMPLES = {
 REPEATS = 5
 PAIRS = 9
 BARE_IMPORTS = "import sqlalchemy.orm, typer, rich"
+SCIENCE_IMPORTS = "import numpy, scipy.linalg, pandas, sqlalchemy"
 
 
 def log(msg: str) -> None:
@@ -94,6 +108,49 @@ def _bare_seconds(folder: Path) -> float:
     return statistics.median(times[1:])
 
 
+# A lab profile with what the DCC requires (the laboratory's and the customer's location).
+LAB_TOML = """
+[laboratory]
+name = "Benchmark Lab"
+address = "1 Bench Street, 10115 Berlin, Germany"
+country = "DE"
+
+[customer]
+name = "Benchmark Customer"
+address = "2 Bench Street, 10115 Berlin, Germany"
+"""
+
+
+def certificate_cpu(folder: Path, tmp: Path) -> dict[str, float]:
+    """CPU seconds (all threads) of issuing one certificate (HTML + PDF) and its DCC,
+    in this process: the first (imports included), then the median of `REPEATS` more.
+    A lab profile (`LAB_TOML`) is put first on the profile path: the DCC needs one."""
+    os.environ["CALIB_ISSUE_CERTIFICATES"] = "0"
+    (tmp / "profiles").mkdir()
+    (tmp / "profiles" / "lab.toml").write_text(LAB_TOML)
+    os.environ["CALIB_PROFILES"] = str(tmp / "profiles")
+    from pipelines.direct import process_in_process
+    from pipelines.ingest import discover_runs
+    from pipelines.reports.dcc import dcc_xml
+    from pipelines.reports.issue import issue
+    from pipelines.reports.run_reports import archived_summary
+    from storage.db import resolve_archive
+
+    (outcome,) = process_in_process(discover_runs([folder]), str(tmp / "certificate"))
+    arch = resolve_archive(str(tmp / "certificate"))
+    times = []
+    for i in range(REPEATS + 1):
+        started = time.process_time()
+        issue(arch, outcome["run_id"], reason=None if i == 0 else f"benchmark {i}")
+        dcc_xml(archived_summary(arch, outcome["run_id"]))
+        times.append(time.process_time() - started)
+    log(f"certificate CPU: first {times[0]:.3f} s, then {[round(t, 3) for t in times[1:]]}")
+    return {
+        "certificate_cpu_s": round(statistics.median(times[1:]), 3),
+        "certificate_first_cpu_s": round(times[0], 3),
+    }
+
+
 def history_latency(calib: list[str], env: dict[str, str], tmp: Path) -> dict[str, float]:
     """`calib history` against the bare imports of a read-only command, in pairs."""
     archive = str(tmp / "history")
@@ -136,6 +193,13 @@ def _env() -> dict[str, str]:
 def main() -> None:
     env, calib = _env(), _calib()
     compile_project()
+    if "--certificate-only" in sys.argv[1:]:
+        load = os.getloadavg()[0]
+        with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
+            figures = certificate_cpu(SAMPLES["csv"], Path(tmp))
+        log(f"load average (1 min): {load:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
+        print(json.dumps(figures))
+        return
     if "--history-only" in sys.argv[1:]:
         load = os.getloadavg()[0]
         with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
@@ -147,40 +211,54 @@ def main() -> None:
     helps = [_timed([*calib, "--help"], env)[0] for _ in range(REPEATS)]
     log(f"calib --help: median {statistics.median(helps):.3f} s of {helps}")
     figures: dict[str, dict[str, float]] = {}
+    bare_env = {**env, "CALIB_ISSUE_CERTIFICATES": "0"}
     with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
         for name, folder in SAMPLES.items():
-            timed = []
+            timed, bare_runs, science = [], [], []
             for i in range(REPEATS):
-                archive = str(Path(tmp) / f"{name}-{i}")
-                timed.append(
-                    _timed(
-                        [
-                            *calib,
-                            "process",
-                            str(folder),
-                            "--archive",
-                            archive,
-                            "--json",
-                            "--no-progress",
-                        ],
-                        env,
-                    )
-                )
+                args = [*calib, "process", str(folder), "--json", "--no-progress", "--archive"]
+                timed.append(_timed([*args, str(Path(tmp) / f"{name}-{i}")], env))
+                bare_runs.append(_timed([*args, str(Path(tmp) / f"{name}-bare-{i}")], bare_env))
+                science.append(_timed([sys.executable, "-c", SCIENCE_IMPORTS], env)[0])
             bare = _bare_seconds(folder)
             wall = statistics.median(w for w, _ in timed)
             cpu = statistics.median(c for _, c in timed)
-            figures[name] = {"wall_s": wall, "cpu_s": cpu, "bare_s": bare, "ratio": wall / bare}
+            figures[name] = {
+                "wall_s": wall,
+                "cpu_s": cpu,
+                "without_certificate_wall_s": statistics.median(w for w, _ in bare_runs),
+                "without_certificate_cpu_s": statistics.median(c for _, c in bare_runs),
+                "certificate_ratio": statistics.median(
+                    w / b for (w, _), (b, _) in zip(timed, bare_runs, strict=True)
+                ),
+                "science_imports_wall_s": statistics.median(science),
+                "to_science_imports_ratio": statistics.median(
+                    w / b for (w, _), b in zip(timed, science, strict=True)
+                ),
+                "bare_s": bare,
+                "ratio": wall / bare,
+            }
             log(
-                f"{name}: calib process median {wall:.3f} s (CPU {cpu:.3f} s), "
-                f"bare read + solve {bare:.3f} s"
+                f"{name}: calib process median {wall:.3f} s (CPU {cpu:.3f} s), without the "
+                f"certificate {figures[name]['without_certificate_wall_s']:.3f} s (CPU "
+                f"{figures[name]['without_certificate_cpu_s']:.3f} s), bare read + solve "
+                f"{bare:.3f} s, science imports {figures[name]['science_imports_wall_s']:.3f} s"
             )
         history = history_latency(calib, env, Path(tmp))
+        certificate = certificate_cpu(SAMPLES["csv"], Path(tmp))
     figures["load_average"] = {"start": load, "end": os.getloadavg()[0]}
     print(json.dumps(figures, indent=1))
     print(
         json.dumps(
             {
                 "one_run_wall_s": round(max(figures[n]["wall_s"] for n in SAMPLES), 3),
+                "certificate_wall_ratio": round(
+                    max(figures[n]["certificate_ratio"] for n in SAMPLES), 2
+                ),
+                "mpu6000_to_bare_science_ratio": round(
+                    figures["mpu6000"]["to_science_imports_ratio"], 2
+                ),
+                **certificate,
                 "help_wall_s": round(statistics.median(helps), 3),
                 "one_run_to_solve_ratio": round(max(figures[n]["ratio"] for n in SAMPLES), 2),
                 **history,

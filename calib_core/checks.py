@@ -13,20 +13,18 @@ from collections.abc import Mapping
 
 from calib_core import decision, params
 from calib_core.calibration import Calibration, CheckResult
+from calib_core.check_names import (  # noqa: F401 - the names checks are judged by
+    DEVICE_PREFIX,
+    FAIL,
+    MODEL_PREFIX,
+    NEEDS_REVIEW,
+    PASS,
+    RECORD_PREFIX,
+    REPEAT_PREFIX,
+)
 from calib_core.condition_rules import counts_against_verdict
 from calib_core.tolerances import ParameterLimit, ToleranceProfile, family
 from calib_core.uncertainty import Budget
-
-PASS, FAIL, NEEDS_REVIEW = "pass", "fail", "needs review"
-REPEAT_PREFIX = "repeat:"
-DEVICE_PREFIX = "device:"  # the unit's description against the archive's (pipelines.process)
-# What the run could not determine or where its model misfits (the solvers' info
-# "solver_checks"): the numbers may be right, a person must look before signing.
-MODEL_PREFIX = "model:"
-# Findings about the record, not the unit (a log read to its last whole record, a turn
-# that does not end quite at rest, a static record that moved, a detector's threshold
-# raised): the run needs review with the finding named, never "fail" for it.
-RECORD_PREFIX = "record:"
 
 # Physical bounds of the dimensionless linear terms: no working sensor is 50 % off in
 # scale or 30 deg misaligned. Beyond them the data were read wrongly (an attitude sign

@@ -115,7 +115,7 @@ class CalibGroup(typer.core.TyperGroup):
 
 def sub_app(help: str) -> typer.Typer:  # noqa: A002 - typer's name
     """A group of subcommands (`calib query ...`) with the same help conventions."""
-    return typer.Typer(cls=CalibGroup, no_args_is_help=True, help=help)
+    return CalibTyper(cls=CalibGroup, no_args_is_help=True, help=help)
 
 
 class CalibTyper(typer.Typer):
@@ -129,16 +129,19 @@ class CalibTyper(typer.Typer):
     """
 
     def command(self, *args: Any, **kwargs: Any) -> Callable[[Callable], Callable]:
-        """Typer's command, its one-line help in `calib --help` the docstring's first
-        paragraph joined into one line (typer keeps the docstring's line breaks there)."""
+        """Typer's command, its help the docstring with each paragraph's lines joined (typer
+        keeps the source's line breaks, which a terminal then folds mid-sentence), and its
+        one-line help in `calib --help` the first paragraph."""
         register = super().command(*args, **kwargs)
-        if kwargs.get("short_help") is not None:
-            return register
 
         def wrap(func: Callable) -> Callable:
             done = register(func)
-            first = (inspect.getdoc(func) or "").split("\n\n")[0]
-            self.registered_commands[-1].short_help = " ".join(first.split()) or None
+            info = self.registered_commands[-1]
+            paragraphs = reflowed(inspect.getdoc(func) or "")
+            if kwargs.get("help") is None:
+                info.help = "\n\n".join(paragraphs) or None
+            if kwargs.get("short_help") is None:
+                info.short_help = paragraphs[0] if paragraphs else None
             return done
 
         return wrap
@@ -156,6 +159,17 @@ class CalibTyper(typer.Typer):
             return super().__call__(*args, **kwargs)
         finally:
             self.registered_commands, self.registered_groups = every
+
+
+def reflowed(text: str) -> list[str]:
+    """The paragraphs of a docstring, each one line; a paragraph of list items ("- ...")
+    or indented lines keeps its line breaks."""
+    out = []
+    for para in text.strip().split("\n\n"):
+        lines = para.splitlines()
+        listed = any(line.startswith(("- ", "* ", " ")) for line in lines)
+        out.append(para if listed else " ".join(line.strip() for line in lines))
+    return [p for p in out if p.strip()]
 
 
 def _name(info: Any) -> str:  # noqa: ANN401 - a typer CommandInfo or TyperInfo
@@ -187,7 +201,7 @@ app = CalibTyper(cls=CalibGroup, no_args_is_help=True, help="IMU calibration pip
 PANELS = {
     "Process": ("process", "reprocess", "centrifuge", "apply", "thermal", "impact"),
     "Inspect": ("inspect", "show", "history", "repeatability", "procedures"),
-    "Query": ("query", "trend", "fleet"),
+    "Query": ("query", "due", "trend", "fleet"),
     "Report": ("report", "verify-certificate", "navfit", "serve", "serve-user"),
     "Export": ("export",),
     "Admin": ("verify", "checkpoint", "audit", "approve", "keygen", "backup", "restore"),

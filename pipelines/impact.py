@@ -431,7 +431,7 @@ def _campaigns_html(campaigns: list[dict[str, Any]]) -> str:
 
 def pdf_report(doc: dict[str, Any]) -> bytes:
     """The look-back typeset as PDF by WeasyPrint from its HTML page (`html_report`), as
-    certificates are (pipelines.reports.render.pdf_bytes)."""
+    certificates were before they were set by Typst (pipelines.reports.typeset)."""
     import weasyprint
 
     return weasyprint.HTML(string=html_report(doc, for_print=True)).write_pdf()

@@ -4,25 +4,10 @@
 # pdftoppm, with which the report tests render PDF pages to PNG, and Debian's
 # chromium, which the `calib serve` browser tests drive through Playwright
 # (Playwright's own browser download is not used). And Pango, with which WeasyPrint
-# typesets the PDF certificate (pipelines/reports/render.py).
-# With --pdf (make demo): only Pango and the DejaVu fonts the certificate is set in.
+# typesets the impact look-back's PDF (pipelines/impact.py; the certificate needs no
+# system library: Typst).
 set -euo pipefail
 PDF_PACKAGES="libpango-1.0-0 libpangoft2-1.0-0 fonts-dejavu-core"
-if [ "${1:-}" = "--pdf" ]; then
-    if ldconfig -p | grep -q 'libpangoft2-1.0.so.0' && fc-list 2>/dev/null | grep -qi dejavu; then
-        exit 0
-    fi
-    if [ "$(id -u)" != 0 ]; then
-        echo "Pango or the DejaVu fonts are missing; install them (apt-get install $PDF_PACKAGES) or run as root" >&2
-        exit 1
-    fi
-    echo "installing Pango and the DejaVu fonts from Debian's packages (the PDF certificate)..." >&2
-    export DEBIAN_FRONTEND=noninteractive
-    apt-get update -q >/dev/null
-    # shellcheck disable=SC2086
-    apt-get install -y -q --no-install-recommends $PDF_PACKAGES >/dev/null
-    exit 0
-fi
 if { ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || command -v initdb >/dev/null 2>&1; } \
     && command -v pdftoppm >/dev/null 2>&1 && [ -x /usr/bin/chromium ] \
     && ldconfig -p | grep -q 'libpangoft2-1.0.so.0' && fc-list 2>/dev/null | grep -qi dejavu; then

@@ -171,6 +171,7 @@ def _commands(demo: dict) -> list[list[str]]:
         ["impact", "DAQ-12", "--from", "2026-01-01", "--error", "clock_error_ppm=500", *a],
         ["query", "units", *a],
         ["query", "due", "--before", "2030-01-01", *a],
+        ["due", *a],
         ["query", "history", "IMU-R-0003", "acc.bias.z", *a],
         ["query", "fleet", "MPU-6000", "acc.bias.z", *a],
         [

@@ -1,5 +1,7 @@
 """`make demo` (what it installs, that it says what it does and ends without an ignored
-error), `calib thermal show` on a fitted campaign, the README's reprocess example; trends
+error), one environment for every make target, `calib thermal show` on a fitted campaign
+(by run id), `calib due`, command help folded by sentence, the certificate's units and
+deviations, the README's reprocess example; trends
 that compare like with like (a thermal campaign is not a drift) and chart labels that
 never overprint."""
 
@@ -26,28 +28,51 @@ ROOT = Path(__file__).resolve().parent.parent
 CAMPAIGN = ROOT / "data_samples" / "thermal_IMU-T-0007"
 
 
-def test_make_demo_installs_only_what_it_runs_and_says_what_it_does(tmp_path: Path) -> None:
+def _make_n(target: str, venv: Path) -> list[str]:
+    """The commands `make -n TARGET` would run with the environment `venv`."""
     make = shutil.which("make")
     if make is None:
         pytest.skip("make is not installed")
     done = subprocess.run(
-        [make, "-n", "-B", "demo", f"VENV={tmp_path / 'venv'}"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        check=True,
+        [make, "-n", target, f"VENV={venv}"], cwd=ROOT, capture_output=True, text=True, check=True
     )
-    lines = done.stdout.splitlines()
-    installs = [line for line in lines if "pip install" in line and "--upgrade pip" not in line]
-    assert installs and all(line.rstrip().endswith("-e .") for line in installs), installs
-    what = [line.split("pip install", 1)[1] for line in installs]
-    assert not any("test" in w or "dask" in w for w in what), what
-    steps = [line for line in lines if line.startswith('echo "== ')]
-    assert len(steps) >= 5, steps
+    return done.stdout.splitlines()
+
+
+def _installs(lines: list[str]) -> list[str]:
+    """What each `pip install` of the commands installs (the -e argument)."""
+    return [
+        line.split("pip install -q -e ", 1)[1].split()[0]
+        for line in lines
+        if "pip install -q -e " in line
+    ]
+
+
+def test_make_demo_installs_only_what_it_runs_and_says_what_it_does(tmp_path: Path) -> None:
+    assert _installs(_make_n("demo", tmp_path / "venv")) == ['"."']
+    script = ROOT.joinpath("scripts", "demo.sh").read_text()
+    steps = re.findall(r"^step (\d)/5 ", script, re.M)
+    assert steps == ["1", "2", "3", "4", "5"], steps
+    assert "took $(( SECONDS - started )) s" in script  # and how long it took
+    # A failing step is said, not ignored ("Error 1 (ignored)"), nor fatal where expected.
     recipe = ROOT.joinpath("Makefile").read_text().split("\ndemo:", 1)[1].split("\n\n", 1)[0]
-    # A leading "-" makes make print "Error 1 (ignored)"; a failing step is said instead.
     assert not re.search(r"^\t-", recipe, re.M), recipe
-    assert "calib repeatability IMU-R-0003 ||" in recipe
+    assert '"$BIN/calib" repeatability IMU-R-0003 \\\n        || echo' in script
+
+
+def test_every_make_target_shares_one_environment(tmp_path: Path) -> None:
+    """The extras each target needs are installed once and recorded: after `make demo`,
+    `make test-fast` installs only the test extras; after those, `make demo` nothing."""
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    (venv / "bin" / "python").touch()
+    assert _installs(_make_n("test-fast", venv)) == ['".[test,dask]"']
+    (venv / ".installed-base").touch()  # as `make demo` leaves it
+    assert _installs(_make_n("demo", venv)) == []
+    assert _installs(_make_n("test-fast", venv)) == ['".[test,dask]"']
+    (venv / ".installed-test-dask").touch()  # as `make test-fast` leaves it
+    for target in ("demo", "test-fast", "test", "bench"):
+        assert _installs(_make_n(target, venv)) == [], target
 
 
 @pytest.fixture(scope="module")
@@ -57,6 +82,12 @@ def campaign(tmp_path_factory: pytest.TempPathFactory):
     for source in discover_runs([CAMPAIGN]):
         assert process_run(source, arch)["status"] == "ok"
     return arch
+
+
+def _campaign_runs(arch) -> list[str]:
+    from storage.queries.unit_history import history_rows
+
+    return [r["run_id"] for r in history_rows(arch, "IMU-T-0007")]
 
 
 def _invoke(*args: str) -> tuple[int, str]:
@@ -75,6 +106,8 @@ def test_thermal_show(campaign) -> None:
     assert code == 0, text
     assert "0 .. 60 deg C" in text and "acc.bias.x" in text and "gyr.scale.z" in text
     assert "None" not in text and "nan" not in text
+    shown = set(re.findall(r"R[0-9a-f]{12}", text))  # the runs fitted, by run id
+    assert shown == set(_campaign_runs(campaign)) and len(shown) == 4, text
     code, text = _invoke("thermal", "show", "IMU-T-0007", "--archive", root, "--json")
     doc = json.loads(text)
     assert (doc["t_min"], doc["t_max"]) == (0.0, 60.0)
@@ -177,3 +210,47 @@ def test_thermal_show_speaks_the_display_unit(campaign) -> None:
     flat = " ".join(text.split())
     assert quantity("gyr.bias.x", curve["coef"][0], 4) in flat and "(deg/s)" in flat
     assert "rad/s" not in text
+
+
+# --- small things a new user met ---------------------------------------------------------
+
+
+def test_calib_due_is_a_command_and_query_lists_it(campaign) -> None:
+    code, text = _invoke("due", "--archive", str(campaign.root))
+    assert code == 0 and "Units due" in text and "IMU-T-0007" in text, text
+    code, text = _invoke("query", "--help")
+    assert code == 0 and re.search(r"^\W*due\b", text, re.M), text
+
+
+def test_command_help_is_folded_by_sentence_not_by_source_line() -> None:
+    """The docstring's paragraphs reach the terminal as paragraphs: the terminal folds
+    them, not the source's line breaks (which left half-empty lines at 80 columns)."""
+    assert cli_shared.reflowed("One two\nthree.\n\nFour\nfive.\n\n- a\n- b") == [
+        "One two three.",
+        "Four five.",
+        "- a\n- b",
+    ]
+    code, text = _invoke("report", "--help")
+    assert code == 0
+    assert "(`calib verify` rehashes them)" in " ".join(text.split())
+    lines = [line.strip(" │") for line in text.splitlines()]
+    body = lines[lines.index(next(x for x in lines if x.startswith("The files are"))) :][:5]
+    assert all(len(x) > 60 for x in body[:3]), body  # full lines, not one word each
+
+
+def test_certificate_units_and_deviations(tmp_path) -> None:
+    """The environment's temperature drift with its unit; a setting at the method's own
+    value is no deviation from it, a changed one is."""
+    from pipelines.reports.iso17025 import deviations
+    from pipelines.reports.run_reports import certificate_of
+
+    arch = resolve_archive(str(tmp_path / "archive"))
+    arch.upgrade()
+    (source,) = discover_runs([ROOT / "data_samples" / "csv_IMU-2026-0042"])
+    run_id = process_run(source, arch)["run_id"]
+    _, cert = certificate_of(arch, run_id)
+    pairs = {k: v for s in cert.sections for k, v in s.pairs}
+    assert pairs["Temperature drift"] == "0.2 deg C/h" and pairs["Temperature"] == "20.4 deg C"
+    assert pairs["Deviations from the method"] == "none"  # gyro_range_dps=2000.0, the default
+    assert deviations("six_position_integral", {"gyro_range_dps": 500.0}) == "gyro_range_dps=500.0"
+    assert deviations("six_position_integral", {"gyro_range_dps": 2000.0}) == "none"

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+from calib_core.check_names import REPLACED_PREFIX
 from calib_core.distributions import binom_isf
 
 # Significance of "more than false alarms explain": one run in a thousand of clean data
 # is sent for review by chance.
 REPLACED_ALPHA = 1e-3
-CHECK_PREFIX = "model:replaced:"
+CHECK_PREFIX = REPLACED_PREFIX
 
 
 def explained_count(n_tests: int, p_false_alarm: float, alpha: float = REPLACED_ALPHA) -> int:

@@ -41,7 +41,8 @@ SETTINGS = Settings(
             low_open=True),
     Setting(MEMORY_LIMIT, "number", "MB", 1000.0,
             "memory limit: a record whose files are larger is streamed in chunks (one pass "
-            "over the file, then one over its samples) instead of read into memory",
+            "over the file, then one over its samples) instead of read into memory, unless "
+            "its settings need the whole record; the results are the same either way",
             low=1.0),
 )  # fmt: skip
 # Settings that choose how the record is read, not what is solved.

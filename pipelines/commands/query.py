@@ -32,7 +32,9 @@ from pipelines.cli_shared import (
 if TYPE_CHECKING:  # pandas loads in the commands that use it, not for `calib --help`
     import pandas as pd
 
-query_app = sub_app("Ask the archive: latest, lineage, lapsed, units, history, fleet.")
+query_app = sub_app(
+    "Ask the archive: latest, lineage, lapsed, units, history, fleet, due (also `calib due`)."
+)
 app.add_typer(query_app, name="query")
 
 

@@ -1,5 +1,6 @@
-"""`calib query due --before DATE`, the CLI: units to recall, each with its recalibration
-interval from its own and its fleet's drift (pipelines/recall.py, docs/interval.md).
+"""`calib due --before DATE` (also `calib query due`), the CLI: units to recall, each with
+its recalibration interval from its own and its fleet's drift (pipelines/recall.py,
+docs/interval.md).
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, fail, open_archive, print_frame
+from pipelines.cli_shared import ArchiveOpt, app, fail, open_archive, print_frame
 from pipelines.commands.query import Format, FormatOpt, emit, query_app
 
 DUE_COLUMNS = ["due", "serial", "model", "run_id", "started_at", "verdict", "interval_months",
@@ -21,6 +22,7 @@ TABLE_COLUMNS = ["serial", "run_id", "calibrated", "due", "interval_months",
                  "reliability", "owner"]  # fmt: skip
 
 
+@app.command("due")
 @query_app.command("due")
 def due(
     before: Annotated[

@@ -146,7 +146,10 @@ def thermal_show(
             "created": model["created_at"],
             "range": f"{model['t_min']:g} .. {model['t_max']:g} deg C",
             "reference temperature": f"{model['t_ref']:g} deg C",
-            "calibrations": ", ".join(map(str, model["calibration_ids"])),
+            "fitted to the runs": ", ".join(
+                r["run_id"] + ("" if r["revision"] == 1 else f" (revision {r['revision']})")
+                for r in model["runs"]
+            ),
             "superseded by": model["superseded_by"] or "not superseded",
         },
         f"Thermal model of {serial}",

@@ -257,24 +257,25 @@ def _equipment_section(run: _Archived) -> Section:
     )
 
 
+# The manifest's [environment] keys (pipelines.ingest.manifest.EnvironmentSpec) as printed.
+ENVIRONMENT = {
+    "temperature_c": ("Temperature", "deg C"),
+    "temperature_drift_c_per_h": ("Temperature drift", "deg C/h"),
+    "humidity_pct": ("Humidity", "%"),
+    "pressure_hpa": ("Pressure", "hPa"),
+    "warmup_min": ("Warm-up", "min"),
+    "vibration": ("Vibration", "m/s^2 rms"),  # a level, or words (printed as they are)
+}
+
+
 def _environment_section(run: _Archived) -> Section:
     env = run.summary["environment"] or {}
-    env_units = {
-        "temperature_c": "deg C",
-        "humidity_pct": "%",
-        "pressure_hpa": "hPa",
-        "warmup_min": "min",
-        "vibration": "",
-    }
-    return Section(
-        "Environment",
-        pairs=[
-            (k.split("_")[0].capitalize(), f"{v} {env_units.get(k, '')}".strip())
-            for k, v in env.items()
-            if v is not None
-        ]
-        or [("-", "not recorded")],
-    )
+    pairs = []
+    for k, v in env.items():
+        if v is not None:
+            label, unit = ENVIRONMENT.get(k, (k, ""))
+            pairs.append((label, f"{v} {unit}".strip() if not isinstance(v, str) else v))
+    return Section("Environment", pairs=pairs or [("-", "not recorded")])
 
 
 _RESULT_WORD = {
@@ -318,7 +319,19 @@ def _segments(samples: pa.Table) -> tuple[np.ndarray, np.ndarray]:
     """(segment label per sample, t per sample) of the archived samples."""
     if not samples.num_rows:
         return np.array([]), np.array([])
-    return np.asarray(samples.column("segment").to_pylist()), samples.column("t").to_numpy()
+    return np.asarray(samples.column("segment").to_pylist()), _numbers(samples, "t")
+
+
+def _numbers(samples: pa.Table, name: str) -> np.ndarray:
+    """A float column of the samples as an array, read from its Arrow buffers: pyarrow's
+    `to_numpy` loads pandas (about a second of CPU that nothing else of a run needs)."""
+    parts = [
+        np.frombuffer(c.buffers()[1], np.float64, len(c), c.offset * 8)
+        if c.type == pa.float64() and not c.null_count
+        else np.array(c.to_pylist(), dtype=float)  # nulls become nan
+        for c in samples.column(name).chunks
+    ]
+    return np.concatenate(parts) if parts else np.empty(0)
 
 
 def _procedure_section(run: _Archived) -> Section:
@@ -711,8 +724,8 @@ def _figures(run: _Archived) -> dict[str, str]:
         out |= figures.residual_figures([r.__dict__ for r in cal.residuals], limits)
     if samples.num_rows:
         seg, _ = _segments(samples)
-        acc = np.column_stack([samples.column(f"acc_{a}").to_numpy() for a in "xyz"])
-        gyr = np.column_stack([samples.column(f"gyr_{a}").to_numpy() for a in "xyz"])
+        acc = np.column_stack([_numbers(samples, f"acc_{a}") for a in "xyz"])
+        gyr = np.column_stack([_numbers(samples, f"gyr_{a}") for a in "xyz"])
         out["Raw vs calibrated specific-force norm"] = figures.norm_figure(seg, acc, cal, gyr)
     if cal.info.get("allan"):
         out |= figures.allan_figures(cal.info["allan"])

@@ -218,8 +218,7 @@ def record_notes(
     not quite at rest, a threshold raised, a held-out static record that moved), each
     ``model:replaced:`` count of samples a step altered (passed ones too: the count is
     shown whatever it is), then the solve's `warnings` ("solve warning")."""
-    from calib_core.checks import RECORD_PREFIX
-    from calib_core.preprocess.replaced import CHECK_PREFIX as REPLACED_PREFIX
+    from calib_core.check_names import RECORD_PREFIX, REPLACED_PREFIX
 
     notes = [
         (str(c["name"]), str(c.get("detail") or ""))

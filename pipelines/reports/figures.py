@@ -104,7 +104,7 @@ def norm_figure(segments: Sequence[str], acc: np.ndarray, cal: Calibration, gyr:
         x_label="sample",
         margin=(40, 16, 40, 70),
     )
-    chart.axes()
+    chart.axes([(t, f"{t:.0f}") for t in svg.nice_ticks(*chart.x_range, n=6)])  # sample numbers
     labels = np.asarray(segments)
     top, bottom = chart.margin[0], chart.height - chart.margin[2]
     for s in np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]]) if len(labels) else []:

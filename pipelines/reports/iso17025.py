@@ -40,6 +40,25 @@ def issue_date(summary: dict[str, Any]) -> date:
     return summary.get("issued") or datetime.now(UTC).date()
 
 
+def deviations(procedure: str, settings: dict[str, Any]) -> str:
+    """The settings that depart from the method as documented (docs/procedures.md): those
+    given with another value than the procedure's default, and any it does not declare.
+    A setting at its default, or one that says what the method otherwise infers (a full
+    scale, a count: declared without a default), is the method as written."""
+    from calib_core import procedures
+
+    try:
+        declared = {s.name: s for s in procedures.get(procedure).settings}
+    except ValueError:  # a procedure this software no longer has: every setting said
+        declared = {}
+    departed = [
+        f"{k}={v}"
+        for k, v in settings.items()
+        if k not in declared or declared[k].default not in (None, v)
+    ]
+    return ", ".join(departed) or "none"
+
+
 def administrative_section(summary: dict[str, Any]) -> Section:
     """Laboratory, customer, certificate number, dates, method, place (7.8.2.1 b-k, n, p)."""
     lab, customer = _lab(summary, "laboratory"), _lab(summary, "customer")
@@ -66,10 +85,7 @@ def administrative_section(summary: dict[str, Any]) -> Section:
                 f"procedure {summary['procedure']} (docs/procedures.md), "
                 f"software {summary['calibration']['software_version']}",
             ),
-            (
-                "Deviations from the method",
-                ", ".join(f"{k}={v}" for k, v in settings.items()) or "none (default settings)",
-            ),
+            ("Deviations from the method", deviations(summary["procedure"], settings)),
             ("Sampling", "not applicable (one item)"),
             ("External providers", "none: every result was measured by the laboratory"),
         ],

@@ -99,7 +99,6 @@ def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - 
     its calibration before this run (``as_found``) and the audit chain's head at issue
     (``chain_head``)."""
     from pipelines.lab import load_lab_profile
-    from pipelines.recall import unit_recall
     from storage import queries
     from storage.checkpoint import chain_head
 
@@ -108,9 +107,11 @@ def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - 
     summary["lab"] = None if lab is None else lab[0]
     # the interval is stated for a released unit only (`_recommendations`)
     released = summary["calibration"]["verdict"] == PASS
-    summary["recall"] = (
-        unit_recall(archive, summary["device"]["serial"], run_id) if released else None
-    )
+    summary["recall"] = None
+    if released:
+        from pipelines.recall import unit_recall  # pandas and the fleet's trends: only then
+
+        summary["recall"] = unit_recall(archive, summary["device"]["serial"], run_id)
     summary["as_found"] = queries.latest_calibration(
         archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1)
     )

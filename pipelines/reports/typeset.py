@@ -24,11 +24,14 @@ TEMPLATE = Path(__file__).with_name("certificate.typ")
 
 @cache
 def _fonts() -> Any:  # noqa: ANN401 - typst.Fonts
-    """The DejaVu fonts matplotlib ships, loaded once per process (system fonts ignored)."""
-    import matplotlib
+    """The DejaVu fonts matplotlib ships, loaded once per process (system fonts ignored);
+    found without importing matplotlib (that alone costs more than a certificate)."""
+    import importlib.util
+
     import typst
 
-    folder = Path(matplotlib.get_data_path()) / "fonts" / "ttf"
+    (package,) = importlib.util.find_spec("matplotlib").submodule_search_locations
+    folder = Path(package) / "mpl-data" / "fonts" / "ttf"
     return typst.Fonts(
         include_system_fonts=False, include_embedded_fonts=False, font_paths=[str(folder)]
     )

@@ -9,7 +9,6 @@ from typing import Any
 from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse
 
-from pipelines import navigation
 from pipelines.web import forms, svg
 from pipelines.web.pages import render
 from storage import queries
@@ -28,6 +27,8 @@ CHARTS = (
 def _profile(q: dict[str, str]) -> Any:
     """The chosen profile by name (never a path: names only, from the lab's and the
     shipped folders), 400 for another."""
+    from pipelines import navigation  # numpy and the science: loaded when a page asks
+
     name = forms.choice(q, "profile", navigation.profile_names(), DEFAULT_PROFILE)
     return forms.checked(navigation.load_profile, name)
 
@@ -39,6 +40,8 @@ def _label(key: str) -> str:
 @router.get("/runs/{run_id}/navigation", response_class=HTMLResponse)
 def run_navigation(request: Request, run_id: str) -> HTMLResponse:
     """One run's calibration over a mission profile."""
+    from pipelines import navigation  # numpy and the science: loaded when a page asks
+
     archive = request.app.state.archive
     q = forms.params(request, ("profile",))
     full = forms.checked(queries.full_run_id, archive, run_id)
@@ -80,6 +83,8 @@ def run_navigation(request: Request, run_id: str) -> HTMLResponse:
 @router.get("/fleet/navigation", response_class=HTMLResponse)
 def fleet_navigation(request: Request) -> HTMLResponse:
     """A device model's units on one profile: each unit's latest valid calibration."""
+    from pipelines import navigation  # numpy and the science: loaded when a page asks
+
     archive = request.app.state.archive
     q = forms.params(request, ("model", "profile"))
     model = q.get("model", "")

@@ -471,7 +471,8 @@ def run_samples(archive: Archive, run_id: str) -> pa.Table:
         raise LookupError(f"run {run_id!r}: samples file {path} is missing")
     import pyarrow.parquet as pq
 
-    return pq.read_table(path)
+    with pq.ParquetFile(path) as samples:  # not read_table: its dataset layer loads pandas
+        return samples.read()
 
 
 def device_description(archive: Archive, serial: str) -> dict[str, Any] | None:

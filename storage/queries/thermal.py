@@ -35,7 +35,16 @@ def device_pk(s: Session, serial: str) -> int:
     return dev
 
 
-def _model_dict(row: ThermalModelRow, serial: str) -> dict[str, Any]:
+def _model_dict(row: ThermalModelRow, serial: str, s: Session) -> dict[str, Any]:
+    ids = list(row.calibration_ids)
+    fitted = {
+        cal_id: {"run_id": run_id, "revision": revision}
+        for cal_id, run_id, revision in s.execute(
+            select(CalibrationRow.id, Run.run_id, CalibrationRow.revision)
+            .join(Run, Run.id == CalibrationRow.run_id)
+            .where(CalibrationRow.id.in_(ids))
+        )
+    }
     return {
         "id": row.id,
         "serial": serial,
@@ -45,7 +54,9 @@ def _model_dict(row: ThermalModelRow, serial: str) -> dict[str, Any]:
         "t_ref": row.t_ref,
         "t_min": row.t_min,
         "t_max": row.t_max,
-        "calibration_ids": list(row.calibration_ids),
+        "calibration_ids": ids,
+        # the runs (and revisions) of those calibrations, in their order
+        "runs": [fitted[i] for i in ids if i in fitted],
         "superseded_by": row.superseded_by,
         "document": row.document,
     }
@@ -76,7 +87,7 @@ def latest_thermal_model(
         # Newest not superseded by a model that already existed at as_of.
         ids_then = {r.id for r in rows}
         current = [r for r in rows if r.superseded_by is None or r.superseded_by not in ids_then]
-        return _model_dict(max(current, key=lambda r: r.id), serial)
+        return _model_dict(max(current, key=lambda r: r.id), serial, s)
 
 
 def thermal_models(archive: Archive, serial: str) -> pd.DataFrame:
