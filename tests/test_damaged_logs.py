@@ -242,3 +242,32 @@ def test_value_no_imu_can_read_is_refused_naming_the_record(tmp_path: Path, kind
     with pytest.raises(IngestError, match=r"record 123: gyr .* beyond what any IMU") as err:
         READ[kind](path)
     assert err.value.file == str(path) and err.value.field.endswith(".gyr")
+
+
+def test_cut_ros1_bag_read_to_its_last_whole_chunk_damage_inside_refused(tmp_path: Path) -> None:
+    """A ROS 1 bag cut while written (no index; rosbag record's chunks, here 4 KiB) is read
+    to its last whole chunk, the same samples as the intact bag's first, with the finding
+    naming the bytes dropped; a message record inside the first whole chunk with a damaged
+    header (a field length of 1 MiB) is refused naming the chunk's byte offset."""
+    path = tmp_path / "cut.bag"
+    write_rosbag1(path, _rec(), chunk_bytes=4096)
+    whole = read_rosbag(path)
+    data = path.read_bytes()
+    cut = data[: len(data) * 2 // 3]
+    path.write_bytes(cut)
+    got = read_rosbag(path)
+    k = len(got)
+    assert 0 < k < len(whole)
+    np.testing.assert_array_equal(got.gyr, whole.gyr[:k])
+    (finding,) = got.findings
+    dropped = int(finding["value"])
+    assert finding["name"] == "record:cut:cut.bag" and 0 < dropped < 4096 + 200
+    assert f"from byte offset {len(cut) - dropped} of {len(cut)}" in finding["detail"]
+    chunk = cut.index(b"compression=none", 4096 + 13)  # the first chunk's header
+    op = cut.index(b"op=\x02", chunk)  # its first message record's op field
+    damaged = bytearray(cut)
+    damaged[op - 4 : op] = (1 << 20).to_bytes(4, "little")  # the field's length
+    path.write_bytes(bytes(damaged))
+    with pytest.raises(IngestError, match=r"the records of the chunk at byte offset \d+") as err:
+        read_rosbag(path)
+    assert err.value.file == str(path)

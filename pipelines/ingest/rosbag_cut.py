@@ -2,14 +2,15 @@
 
 A bag's index (its connections and chunk list) is written after its last chunk, when the
 recording ends cleanly; a recorder that lost power leaves the bag header pointing past
-the end of the file (``index_pos`` beyond it, or 0: never written) and a last record cut
-short. `whole_records` walks the top-level records by their lengths to the first one the
-file cuts short; `CutBagReader` is rosbags' reader with its index rebuilt from the whole
-chunks' own records (connection and message records, as ``rosbag reindex`` does), so the
-messages of every whole chunk are read as from an intact bag and the bytes from the cut
-record on are dropped with the ``record:cut:<file>`` finding (`log_samples.cut_tail`).
-A whole chunk that does not decompress or whose records do not follow each other is
-damage inside the bag, refused naming its byte offset.
+the end of the file (``index_pos`` beyond it, or 0: never written), an index with fewer
+records than the header lists, or a last record cut short. `whole_records` walks the top-
+level records by their lengths to the first one the file cuts short; `CutBagReader` is
+rosbags' reader with its index rebuilt from the whole chunks' own records (connection and
+message records, as ``rosbag reindex`` does), so the messages of every whole chunk are
+read as from an intact bag and the bytes from the cut record on are dropped with the
+``record:cut:<file>`` finding (`log_samples.cut_tail`). A whole chunk that does not
+decompress or whose records do not follow each other is damage inside the bag, refused
+naming its byte offset.
 """
 
 from __future__ import annotations
@@ -35,36 +36,38 @@ OP_MSGDATA, OP_CHUNK, OP_CONNECTION = 2, 5, 7
 MAGIC_SIZE = 13  # b"#ROSBAG V2.0\n"
 
 
-def whole_records(path: Path) -> tuple[int, int, int]:
-    """(index_pos, end, size): the bag header's ``index_pos``, the byte where the first
-    top-level record the file cuts short starts (`size` when none is) and the file's size.
-    Only the records' length fields are read."""
+def whole_records(path: Path) -> tuple[int, int, bool]:
+    """(end, size, indexed): the byte where the first top-level record the file cuts short
+    starts (`size` when none is), the file's size, and whether the bag holds its whole
+    index (``index_pos`` inside the file, followed by as many whole records as the bag
+    header's ``conn_count`` + ``chunk_count``). Only the records' length fields are read."""
     size = os.path.getsize(path)
     with Path(path).open("rb") as fh:
         fh.seek(MAGIC_SIZE)
         header = Header.read(fh)
         index_pos = header.get_uint64("index_pos")
+        listed = header.get_uint32("conn_count") + header.get_uint32("chunk_count")
         pos = fh.tell()
         (padding,) = struct.unpack("<I", fh.read(4))
         pos += 4 + padding
+        in_index = 0  # whole records from index_pos on
         while pos < size:
             fh.seek(pos)
             head = fh.read(4)
             if len(head) < 4 or pos + 8 + (hlen := struct.unpack("<I", head)[0]) > size:
-                return index_pos, pos, size
+                break
             fh.seek(hlen, os.SEEK_CUR)
             (dlen,) = struct.unpack("<I", fh.read(4))
             if pos + 8 + hlen + dlen > size:
-                return index_pos, pos, size
+                break
+            in_index += 0 < index_pos <= pos
             pos += 8 + hlen + dlen
-    return index_pos, size, size
+    return pos, size, pos == size and 0 < index_pos < size and in_index >= listed
 
 
 def is_cut(path: Path) -> bool:
-    """Whether the bag lacks its index: ``index_pos`` 0 or not inside the file, or a last
-    record the file cuts short."""
-    index_pos, end, size = whole_records(path)
-    return index_pos == 0 or index_pos >= size or end < size
+    """Whether the bag lacks its whole index (`whole_records`): cut while written."""
+    return not whole_records(path)[2]
 
 
 class CutBagReader(Reader):
@@ -74,7 +77,7 @@ class CutBagReader(Reader):
     findings: tuple[dict, ...] = ()
 
     def open(self) -> None:
-        _, end, size = whole_records(self.path)
+        end, size, _ = whole_records(self.path)
         # no index is a bag cut while written, even at a record boundary (0 bytes dropped)
         self.findings = (cut_tail(self.path, "ROS 1 bag", end, size - end, size),)
         self.bio = self.path.open("rb")
@@ -94,18 +97,24 @@ class CutBagReader(Reader):
         self.chunks, self.chunk_infos = {}, []
         while self.bio.tell() < end:
             pos = self.bio.tell()
-            header = Header.read(self.bio)
-            length = struct.unpack("<I", self.bio.read(4))[0]
-            following = self.bio.tell() + length
-            if header.get_uint8("op") == OP_CONNECTION:
+            try:
+                header = Header.read(self.bio)
+                length = struct.unpack("<I", self.bio.read(4))[0]
+                following = self.bio.tell() + length
+                op = header.get_uint8("op")
                 self.bio.seek(pos)
-                conn = self.read_connection()
-                connections.setdefault(conn.id, conn)
-            elif header.get_uint8("op") == OP_CHUNK:
-                self.bio.seek(pos)
-                chunk = self.read_chunk()
-                self.chunks[pos] = chunk
-                self._chunk_records(pos, chunk, connections, indexes)
+                if op == OP_CONNECTION:
+                    conn = self.read_connection()
+                    connections.setdefault(conn.id, conn)
+                elif op == OP_CHUNK:
+                    self.chunks[pos] = self.read_chunk()
+            except (ReaderError, struct.error) as exc:
+                raise IngestError(
+                    f"damaged ROS 1 bag: the record at byte offset {pos} does not parse ({exc})",
+                    file=self.path,
+                ) from None
+            if op == OP_CHUNK:
+                self._chunk_records(pos, self.chunks[pos], connections, indexes)
             self.bio.seek(following)  # index data, chunk info: rebuilt from the chunks
         self.indexes = {c: sorted(indexes[c]) for c in connections}
         self.connections = [
