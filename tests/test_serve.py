@@ -296,6 +296,23 @@ def test_export_downloads_are_the_calib_export_files(client, serve_sample, tmp_p
     assert client.get("/runs/Rnothere0000/export.csv").status_code == 404
 
 
+def test_run_page_asks_for_the_px4_device_id_its_log_does_not_record(client, serve_sample):
+    """The run page's PX4 form (a plain GET form, no script) sends the device id the
+    download needs when the run's log records none; the file then names it."""
+    run_id = serve_sample.runs[THERMAL_SERIAL][2]
+    html = client.get(f"/runs/{run_id}").text
+    form = re.search(
+        r'<form[^>]*id="px4-export"[^>]*action="([^"]+)"[^>]*>(.*?)</form>', html, re.S
+    )
+    assert form is not None and form.group(1) == f"/runs/{run_id}/export.px4"
+    assert re.search(r'<input name="device_id"[^>]*required', form.group(2))
+    r = client.get(form.group(1), params={"device_id": "1310988"})
+    assert r.status_code == 200
+    # QGroundControl's lines: vehicle, component, name, value, type
+    ids = re.findall(r"^\S+\s+\S+\s+TC_[AG]0_ID\s+(\d+)", r.text, re.M)
+    assert ids == ["1310988", "1310988"], r.text[:800]
+
+
 def test_unit_page_drift_is_rounded_as_calib_trend_rounds_it(client, serve_sample):
     """The drift per year on the unit page and in `calib trend`: one rounding (the u to two
     significant digits, the slope to its place) of the same fit."""
