@@ -5,10 +5,10 @@ which says nothing when the whole record moves (a vehicle's log given as a stati
 run: its quietest quarter moves too) or is too short for windows. Here a static record is
 judged against what a still unit can read at all:
 
-- gyro: the magnitude of its median rate at most Earth's rate plus the stated bias range
-  (the profile's ``gyr.bias.*`` bound on each axis);
-- accelerometer: the magnitude of its median specific force within the stated bias and
-  scale ranges (``acc.bias.*``, ``acc.scale.*``) of local gravity;
+- gyro: the magnitude of its median rate at most Earth's rate plus OUT_OF_TOLERANCE times
+  the stated bias range (the profile's ``gyr.bias.*`` bound on each axis);
+- accelerometer: the magnitude of its median specific force within OUT_OF_TOLERANCE times
+  the stated bias and scale ranges (``acc.bias.*``, ``acc.scale.*``) of local gravity;
 - scatter: each channel's robust standard deviation (median absolute deviation, so an
   isolated spike is none) at most STILL_SCATTER times its stated noise (``*.noise.*``
   high limit); where the profile states none, at most STILL_SCATTER times the noise
@@ -40,6 +40,11 @@ from calib_core.units import DEG
 # still reads as still (its noise parameter judges it), a moving one scatters 10-100x more.
 STILL_SCATTER = math.sqrt(MOTION_MIN_RATIO)
 MAD_TO_STD = 1.4826  # std of normal noise over its median absolute deviation
+# The stated ranges are the tolerance's: a still unit that is out of its tolerance reads
+# beyond them, and must fail that tolerance (the unit's verdict), not be refused as moving
+# (a finding about the record). Only a reading this many times beyond the tolerance is
+# taken for motion (or a unit far beyond any use: refused either way, with the figures).
+OUT_OF_TOLERANCE = 10.0
 
 
 @dataclass(frozen=True)
@@ -112,20 +117,22 @@ def stillness_problems(
     median = {"gyr": np.median(rec.gyr, axis=0), "acc": np.median(rec.acc, axis=0)}
     if stated.gyr_bias is not None:
         rate = float(np.linalg.norm(median["gyr"]))
-        limit = EARTH_RATE + float(np.linalg.norm(stated.gyr_bias))
+        limit = EARTH_RATE + OUT_OF_TOLERANCE * float(np.linalg.norm(stated.gyr_bias))
         if rate > limit:
             problems.append(
                 f"gyro reads {rate / DEG:.4g} deg/s (median magnitude); a still unit at most "
-                f"{limit / DEG:.4g} deg/s (Earth's rate plus the stated bias range)"
+                f"{limit / DEG:.4g} deg/s (Earth's rate plus {OUT_OF_TOLERANCE:g} times the "
+                "stated bias range)"
             )
     if stated.acc_bias is not None and stated.acc_scale is not None:
         force = float(np.linalg.norm(median["acc"]))
-        allowed = float(np.linalg.norm(stated.acc_bias)) + float(stated.acc_scale.max()) * gravity
+        bias = float(np.linalg.norm(stated.acc_bias))
+        allowed = OUT_OF_TOLERANCE * (bias + float(stated.acc_scale.max()) * gravity)
         if abs(force - gravity) > allowed:
             problems.append(
                 f"accelerometer reads {force:.5g} m/s^2 (median magnitude); a still unit "
-                f"{gravity:.5g} +- {allowed:.3g} m/s^2 (local gravity, the stated bias and "
-                "scale ranges)"
+                f"{gravity:.5g} +- {allowed:.3g} m/s^2 (local gravity, {OUT_OF_TOLERANCE:g} "
+                "times the stated bias and scale ranges)"
             )
     for sensor, noise, unit, scale in (
         ("gyr", stated.gyr_noise, "deg/s", DEG),

@@ -65,3 +65,24 @@ def test_a_quantised_still_channel_bounds_nothing() -> None:
     flat = Recording(t=statics[0].t, acc=statics[0].acc, gyr=np.zeros_like(statics[0].gyr))
     measured = measured_noise([flat, *statics[1:]])
     assert measured["gyr"] is None and measured["acc"] is not None
+
+
+def test_a_unit_out_of_its_bias_tolerance_is_not_taken_for_motion() -> None:
+    """The stated ranges are the tolerance's: a still unit whose gyro bias is three times its
+    tolerance must fail that tolerance, not be refused as moving; a steady turn of 20 times
+    the tolerance (a unit on a rotating table) is refused."""
+    from calib_core.earth import EARTH_RATE
+    from calib_core.stillness import OUT_OF_TOLERANCE
+    from calib_core.units import DEG
+
+    rec = _statics(5)["z_up"]
+    bias_limit = np.full(3, 0.5 * DEG)  # rad/s per axis
+    stated = StatedLimits(bias_limit, None, None, None, None)
+    limit = EARTH_RATE + OUT_OF_TOLERANCE * np.linalg.norm(bias_limit)
+    offset = np.array([3 * 0.5 * DEG, 0.0, 0.0])  # 3 x the tolerance on x
+    out = Recording(t=rec.t, acc=rec.acc, gyr=rec.gyr - np.median(rec.gyr, axis=0) + offset)
+    assert np.linalg.norm(np.median(out.gyr, axis=0)) < limit
+    assert stillness_problems(out, G, stated) == []
+    turning = Recording(t=rec.t, acc=rec.acc, gyr=out.gyr + np.array([0.0, 0.0, 20 * 0.5 * DEG]))
+    (problem,) = stillness_problems(turning, G, stated)
+    assert problem.startswith("gyro reads") and "10 times the stated bias range" in problem
