@@ -259,12 +259,7 @@ UNIT_COLUMNS = [
 ]
 
 
-def units(archive: Archive, **filters: Any) -> pd.DataFrame:
-    """`unit_rows` (the same filters) as a DataFrame with UNIT_COLUMNS, by start time."""
-    return _frame(unit_rows(archive, **filters), UNIT_COLUMNS)
-
-
-def unit_rows(
+def units(
     archive: Archive,
     *,
     model: str | None = None,
@@ -273,7 +268,7 @@ def unit_rows(
     verdict: str | None = None,
     env_temp_min: float | None = None,
     env_temp_max: float | None = None,
-) -> list[tuple]:
+) -> pd.DataFrame:
     """Calibrated units: one row per run (its current revision) matching every filter.
 
     Each row's model and manufacturer are the run's own (what its manifest said);
@@ -292,7 +287,33 @@ def unit_rows(
 
     Returns
     -------
-    Tuples of the UNIT_COLUMNS, by start time (no pandas: `units` makes the frame).
+    DataFrame with UNIT_COLUMNS, by start time (`unit_rows`: the tuples, no pandas).
+    """
+    filters = {"model": model, "date_from": date_from, "date_to": date_to, "verdict": verdict}
+    temps = {"env_temp_min": env_temp_min, "env_temp_max": env_temp_max}
+    return _frame(unit_rows(archive, **filters, **temps), UNIT_COLUMNS)
+
+
+def unit_rows(
+    archive: Archive,
+    *,
+    model: str | None = None,
+    date_from: date | datetime | str | None = None,
+    date_to: date | datetime | str | None = None,
+    verdict: str | None = None,
+    env_temp_min: float | None = None,
+    env_temp_max: float | None = None,
+) -> list[tuple]:
+    """The rows of `units` (the same filters and order) as tuples of UNIT_COLUMNS, without
+    pandas (pipelines.recall).
+
+    Parameters
+    ----------
+    archive, model, date_from, date_to, verdict, env_temp_min, env_temp_max : as `units`.
+
+    Returns
+    -------
+    list of tuples of the UNIT_COLUMNS, by start time.
     """
     t0 = as_instant(date_from, "date_from", end_of_day=False)
     t1 = as_instant(date_to, "date_to", end_of_day=True)
