@@ -254,6 +254,8 @@ def static_model(
 
     `settings` carry the procedure's defaults (calib_core.run_budget fills them in).
     """
+    if settings.get("gyro_from_earth_rate"):
+        return None, [], ("Type B sources not modelled for gyro_from_earth_rate",)
     default = settings["accel_solver"] == "least_squares" and settings["accel_model"] == "linear"
     if not default:
         return (

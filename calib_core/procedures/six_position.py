@@ -30,6 +30,10 @@ accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
     rate-table model of docs/methods.md 1: bias and scale per axis, no cross-coupling).
 rotation_directions : "both" (default; ccw and cw about each axis) or "any"
     (one rotation per axis suffices, Ferraris et al.; e.g. imucal sessions).
+gyro_from_earth_rate, latitude_deg, heading_deg : six_position only; the gyro's bias,
+    scale and misalignment from the statics with Earth rate as the input (the
+    north-seeker note's FOG case, calib_core.solvers.earth_rate_faces) in place of its
+    bias and g-sensitivity.
 Each as a typed `Setting` below (docs/procedures.md).
 """
 
@@ -42,7 +46,9 @@ import numpy as np
 from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Setting, Settings
+from calib_core.procedures.static_bias import HEADING_DEG, LATITUDE_DEG
 from calib_core.recording import Recording
+from calib_core.solvers.earth_rate_faces import faces_earth_rate, solve_gyro_earth_rate
 from calib_core.solvers.integral import ROTATION_LABELS, rotation_static_means, solve_integral
 from calib_core.solvers.kalman import kalman_accel_linear
 from calib_core.solvers.multi_position import (
@@ -83,8 +89,14 @@ ROTATION_DIRECTIONS = Setting(
     "rotation_directions", "text", "", "both",
     "rotations per axis: ccw and cw (both), or one suffices (any; Ferraris et al.)",
     choices=("both", "any"))  # fmt: skip
+GYRO_FROM_EARTH_RATE = Setting(
+    "gyro_from_earth_rate", "bool", "", False,
+    "gyro bias, scale and misalignment from the statics with Earth rate as the input (FOG/RLG "
+    "grade; needs latitude_deg and heading_deg; replaces the gyro g-sensitivity fit)")  # fmt: skip
 # The settings the statics' solver reads (`_solve_statics`), with the integral method's.
-STATICS_SETTINGS = Settings(ACCEL_SOLVER, ACCEL_MODEL)
+STATICS_SETTINGS = Settings(
+    ACCEL_SOLVER, ACCEL_MODEL, GYRO_FROM_EARTH_RATE, LATITUDE_DEG, HEADING_DEG
+)
 INTEGRAL_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS)
 INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS)
 
@@ -164,7 +176,18 @@ def _solve_statics(
     else:
         for name in params.ACC_LINEAR if linear else values:
             cal.add(name, values[name], stds[name])
-    gyr_fit = solve_gyro_static(f_true, stack(gyr, "mean"), stack(gyr, "sem"))
+    # The gyro's static input: Earth rate (FOG case) or none (g-sensitivity fit).
+    w_true = np.zeros((len(STATIC_LABELS), 3))
+    if settings.get("gyro_from_earth_rate"):
+        w_true = _earth_rate_input(segments, settings)
+        gyr_fit, observable = solve_gyro_earth_rate(w_true, stack(gyr, "mean"), stack(gyr, "sem"))
+        cal.info.setdefault("solver_checks", []).append(observable)
+        cal.info["gyro_input"] = "earth_rate"
+        cal.info["gyro_earth_rate"] = {
+            k: w.tolist() for k, w in zip(STATIC_LABELS, w_true, strict=True)
+        }
+    else:
+        gyr_fit = solve_gyro_static(f_true, stack(gyr, "mean"), stack(gyr, "sem"))
     cal.add_fit(gyr_fit.names, gyr_fit.params, gyr_fit.cov)
 
     # Noise: the paper's figure, the largest per-position std of each channel.
@@ -173,12 +196,13 @@ def _solve_statics(
         for i, a in enumerate(params.AXES):
             cal.add(f"{sensor}.noise.{a}", value[i], u[i])
 
-    for label in STATIC_LABELS:
+    for k, label in enumerate(STATIC_LABELS):
         rec = segments[label]
         # The true specific force is constant over a static: a (3,) model, not one per sample.
         f = reference_up(label, rec, gravity)
         cal.residuals.append(segment_residual(label, "acc", rec.acc, _acc_model(cal, f)))
-        cal.residuals.append(segment_residual(label, "gyr", rec.gyr, _gyr_static_model(cal, f)))
+        gyr_model = _gyr_static_model(cal, f, w_true[k])
+        cal.residuals.append(segment_residual(label, "gyr", rec.gyr, gyr_model))
 
     face_bias = face_bias_checks(
         {k: s.mean for k, s in acc.items()}, {k: s.sem for k, s in acc.items()}
@@ -226,8 +250,25 @@ def _acc_model(cal: Calibration, f_true: np.ndarray) -> np.ndarray:
     return f_true @ (np.eye(3) + cal.matrix("acc")).T + cal.vector("acc", "bias")
 
 
-def _gyr_static_model(cal: Calibration, f_true: np.ndarray) -> np.ndarray:
-    return f_true @ cal.gsens().T + cal.vector("gyr", "bias")
+def _gyr_static_model(cal: Calibration, f_true: np.ndarray, w_true: np.ndarray) -> np.ndarray:
+    return (
+        w_true @ (np.eye(3) + cal.matrix("gyr")).T
+        + f_true @ cal.gsens().T
+        + cal.vector("gyr", "bias")
+    )
+
+
+def _earth_rate_input(segments: dict[str, Recording], settings: dict[str, Any]) -> np.ndarray:
+    """(6, 3) Earth rate of the statics in their body frames, rad/s (faces_earth_rate);
+    ValueError for a face with a corrected up direction, whose heading axis is not known."""
+    tilted = [k for k in STATIC_LABELS if UP_CHANNEL in segments[k].reference]
+    if tilted:
+        raise ValueError(
+            f"gyro_from_earth_rate assumes square faces on a level fixture; positions "
+            f"{', '.join(tilted)} have a corrected up direction, so their Earth-rate input is "
+            "not known: solve without gyro_from_earth_rate"
+        )
+    return faces_earth_rate(settings["latitude_deg"], settings["heading_deg"])
 
 
 def solve_six_position(
@@ -313,7 +354,8 @@ def solve_integral_procedure(
 SIX_POSITION = Procedure(
     name="six_position",
     summary="six statics: accelerometer bias, scale and misalignment (12), gyro bias and "
-    "g-sensitivity (12), noise",
+    "g-sensitivity (12), or with gyro_from_earth_rate gyro bias, scale and misalignment "
+    "(12) with Earth rate as the input, noise",
     segments="six statics x_up, x_dn, y_up, y_dn, z_up, z_dn (the named axis reads +g / -g), "
     'listed by hand or cut by [run.settings.segmentation] (labels = "faces")',
     solver=solve_six_position,
@@ -324,6 +366,8 @@ SIX_POSITION = Procedure(
     required=STATIC_LABELS,
     uncertainty=static_model,
     model_checks="each face's bias from its up/down pair against the fit (face_bias); "
-    "chi2 of the accelerometer and gyro fits; residuals per static",
+    "chi2 of the accelerometer and gyro fits; residuals per static; with "
+    "gyro_from_earth_rate, whether the noise lets the Earth rate be seen "
+    "(earth_rate_observable)",
     static_segments="all but turns",
 )

@@ -25,15 +25,20 @@ from calib_core.solvers.static_bias import solve_static_bias, solve_static_bias_
 
 MEMORY_LIMIT = "memory_limit_mb"  # MB (10^6 bytes)
 UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
+# Where the Earth rate points in the fixture's frame: here and in six_position's
+# gyro_from_earth_rate (calib_core.solvers.earth_rate_faces).
+LATITUDE_DEG = Setting(
+    "latitude_deg", "number", "deg", None, "site latitude (the Earth rate's projection)",
+    low=-90.0, high=90.0)  # fmt: skip
+HEADING_DEG = Setting(
+    "heading_deg", "number", "deg", None,
+    "fixture heading from north (the Earth rate's projection)", low=-360.0, high=360.0)  # fmt: skip
 SETTINGS = Settings(
     Setting("up_axis", "text", "", None,
             "body axis pointing up; given, acc.bias.* is the mean minus gravity along it",
             choices=UP_AXES),
-    Setting("latitude_deg", "number", "deg", None,
-            "site latitude (the Earth rate's projection)", low=-90.0, high=90.0),
-    Setting("heading_deg", "number", "deg", None,
-            "fixture heading from north (the Earth rate's projection)", low=-360.0,
-            high=360.0),
+    LATITUDE_DEG,
+    HEADING_DEG,
     Setting("remove_earth_rate", "bool", "", False,
             "subtract the Earth rate from the gyro means (FOG/RLG grade; level z-up fixture)"),
     Setting("n_sigma", "number", "1", 3.0,

@@ -22,6 +22,7 @@ import numpy as np
 
 from calib_core import params
 from calib_core.recording import Recording
+from calib_core.solvers.earth_rate_faces import face_earth_rate
 from calib_core.solvers.integral import ROTATION_LABELS
 from calib_core.solvers.six_position import STATIC_LABELS, axis_vector
 from calib_core.units import DEG, STANDARD_GRAVITY
@@ -38,6 +39,19 @@ _GRADES: dict[str, dict[str, tuple[float, float]]] = {
         "gsens": (0.01 * DEG / STANDARD_GRAVITY, 0.1 * DEG / STANDARD_GRAVITY),
         "acc_noise": (0.008, 0.012),  # m/s^2 per sample
         "gyr_noise": (0.04 * DEG, 0.06 * DEG),  # rad/s per sample
+    },
+    # A navigation-grade FOG with a MEMS-class accelerometer: angle random walk
+    # 0.001..0.002 deg/sqrt(h), per-sample std at 100 Hz = ARW * sqrt(100 Hz).
+    "fog": {
+        "acc_bias": (0.005, 0.03),
+        "acc_scale": (1e-4, 1e-3),
+        "acc_misalign": (1e-4, 1e-3),
+        "gyr_bias": (0.01 * DEG / 3600.0, 1.0 * DEG / 3600.0),
+        "gyr_scale": (1e-4, 1e-3),
+        "gyr_misalign": (1e-4, 1e-3),
+        "gsens": (0.0, 0.0),
+        "acc_noise": (0.001, 0.002),
+        "gyr_noise": (0.001 * DEG / 60.0 * 10.0, 0.002 * DEG / 60.0 * 10.0),
     },
 }
 
@@ -98,7 +112,8 @@ def random_errors(rng: np.random.Generator, grade: str = "mems") -> TrueErrors:
     Parameters
     ----------
     rng : random generator.
-    grade : sensor grade; "mems" (consumer MEMS like the MPU-6000).
+    grade : sensor grade; "mems" (consumer MEMS like the MPU-6000) or "fog" (a
+        navigation-grade fibre-optic gyro that sees the Earth rate; no g-sensitivity).
     """
     try:
         ranges = _GRADES[grade]
@@ -204,6 +219,7 @@ def six_position_integral_run(
     gyro_range_dps: float = 2000.0,
     cw_pause_s: float | None = None,
     true_up: dict[str, np.ndarray] | None = None,
+    earth_rate_at: tuple[float, float] | None = None,
 ) -> SimulatedRun:
     """Simulate a six-position + integral-method lab run.
 
@@ -226,6 +242,9 @@ def six_position_integral_run(
     true_up : label -> true up direction (3,) unit vector in the unit's frame, for the
         positions on a cube face that is not square (the rotations turn about it too);
         absent labels are square (the label's axis).
+    earth_rate_at : (latitude_deg, heading_deg) of a level fixture: the statics then see
+        the Earth rate in each position's frame (calib_core.solvers.earth_rate_faces);
+        absent, they see none. The rotations never include it.
 
     Returns
     -------
@@ -264,7 +283,8 @@ def six_position_integral_run(
     segments: dict[str, Recording] = {}
     t_static = np.arange(int(round(static_s * rate_hz))) / rate_hz
     for label in STATIC_LABELS:
-        segments[label] = record(label, t_static, np.zeros((t_static.shape[0], 3)))
+        w = np.zeros(3) if earth_rate_at is None else face_earth_rate(label, *earth_rate_at)
+        segments[label] = record(label, t_static, np.broadcast_to(w, (t_static.shape[0], 3)))
     peak = rotation_rate_dps * DEG
     for label in ROTATION_LABELS:
         axis, sense = label.split("_")
@@ -287,5 +307,6 @@ def six_position_integral_run(
         "spikes": spikes,
         "temp_c": temp_c,
         "gyro_range_dps": gyro_range_dps,
+        "earth_rate_at": earth_rate_at,
     }
     return SimulatedRun(segments, truth, gravity, settings)

@@ -156,7 +156,7 @@ def _linear_fit(
     sensor: str, f_true: np.ndarray, means: np.ndarray, sem: np.ndarray, identity: bool
 ) -> LinearFit:
     b, A, cov, condition, residual, chi2 = fit_affine(f_true, means, sem)
-    return _named_fit(sensor, b, A, cov, condition, residual, chi2, identity)
+    return named_fit(sensor, b, A, cov, condition, residual, chi2, identity)
 
 
 def linear_fit_from(
@@ -177,10 +177,10 @@ def linear_fit_from(
     residual = means - design @ x.T
     chi2 = ((residual / sem) ** 2).sum(axis=0)
     condition = design_condition(f_true)
-    return _named_fit(sensor, x[:, 0], x[:, 1:], cov, condition, residual, chi2, identity)
+    return named_fit(sensor, x[:, 0], x[:, 1:], cov, condition, residual, chi2, identity)
 
 
-def _named_fit(
+def named_fit(
     sensor: str,
     b: np.ndarray,
     A: np.ndarray,
@@ -191,7 +191,7 @@ def _named_fit(
     identity: bool,
 ) -> LinearFit:
     """Canonical names, values, stds and the (12, 12) block covariance of an affine fit."""
-    row_names = params.matrix_names("acc") if sensor == "acc" else params.gsens_names()
+    row_names = params.matrix_names(sensor) if identity else params.gsens_names()
     M = A - np.eye(3) if identity else A
     names: list[str] = []
     values: dict[str, float] = {}
