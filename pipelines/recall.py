@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from sqlalchemy import Row
 
 DAYS_PER_MONTH = 365.25 / 12.0
-_Unit = namedtuple("_Unit", queries.UNIT_COLUMNS)  # a row of queries.unit_rows
+_Unit = namedtuple("_Unit", queries.UNIT_COLUMNS)  # a row of queries.units(frame=False)
 
 
 def _one_condition(rows: list[Row]) -> list[Row]:
@@ -135,7 +135,7 @@ def recall_list(
     from pipelines.lab import customer_name
     from pipelines.tolerances import load_profile
 
-    runs = sorted(queries.unit_rows(archive), key=lambda r: (r[4], r[3]))  # start, run id
+    runs = sorted(queries.units(archive, frame=False), key=lambda r: (r[4], r[3]))  # start, run id
     last_of = {r[0]: i for i, r in enumerate(runs)}
     units = [_Unit(*r) for i, r in enumerate(runs) if last_of[r[0]] == i]
     profiles: dict[str, ToleranceProfile] = {}

@@ -69,7 +69,6 @@ _API = {
         "latest_valid",
         "parameter_history",
         "serial_parameter_history",
-        "unit_rows",
         "units",
     ],
     "storage.queries.unit_history": ["REVISION_COLUMNS", "history", "history_rows"],

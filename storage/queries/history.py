@@ -268,7 +268,8 @@ def units(
     verdict: str | None = None,
     env_temp_min: float | None = None,
     env_temp_max: float | None = None,
-) -> pd.DataFrame:
+    frame: bool = True,
+) -> pd.DataFrame | list[tuple]:
     """Calibrated units: one row per run (its current revision) matching every filter.
 
     Each row's model and manufacturer are the run's own (what its manifest said);
@@ -284,36 +285,11 @@ def units(
     verdict : "pass" or "fail" of the current revision.
     env_temp_min, env_temp_max : lab temperature of the run's environment, deg C,
         inclusive; runs without a recorded temperature are left out when either is given.
+    frame : False for the rows as tuples (no pandas: pipelines.recall).
 
     Returns
     -------
-    DataFrame with UNIT_COLUMNS, by start time (`unit_rows`: the tuples, no pandas).
-    """
-    filters = {"model": model, "date_from": date_from, "date_to": date_to, "verdict": verdict}
-    temps = {"env_temp_min": env_temp_min, "env_temp_max": env_temp_max}
-    return _frame(unit_rows(archive, **filters, **temps), UNIT_COLUMNS)
-
-
-def unit_rows(
-    archive: Archive,
-    *,
-    model: str | None = None,
-    date_from: date | datetime | str | None = None,
-    date_to: date | datetime | str | None = None,
-    verdict: str | None = None,
-    env_temp_min: float | None = None,
-    env_temp_max: float | None = None,
-) -> list[tuple]:
-    """The rows of `units` (the same filters and order) as tuples of UNIT_COLUMNS, without
-    pandas (pipelines.recall).
-
-    Parameters
-    ----------
-    archive, model, date_from, date_to, verdict, env_temp_min, env_temp_max : as `units`.
-
-    Returns
-    -------
-    list of tuples of the UNIT_COLUMNS, by start time.
+    DataFrame with UNIT_COLUMNS (tuples of them when not `frame`), by start time.
     """
     t0 = as_instant(date_from, "date_from", end_of_day=False)
     t1 = as_instant(date_to, "date_to", end_of_day=True)
@@ -348,7 +324,8 @@ def unit_rows(
     if hi is not None:
         stmt = stmt.where(temp <= hi)
     with reading(archive) as conn:
-        return [tuple(r) for r in conn.execute(stmt).all()]
+        rows = [tuple(r) for r in conn.execute(stmt).all()]
+    return _frame(rows, UNIT_COLUMNS) if frame else rows
 
 
 # Per unit of the model, its latest valid calibration picked by a correlated subquery
