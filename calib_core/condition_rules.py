@@ -35,6 +35,9 @@ from calib_core.calibration import CheckResult
 
 CONDITION_PREFIX = "condition:"
 NOT_RECORDED = "not recorded"
+# A check the run alone cannot judge (the unit's description needs the archive's earlier
+# runs): listed, so every view of a run counts the same checks, never counted as a failure.
+NOT_JUDGED = "not judged"
 WARNING, FAILURE, INFO = "warning", "failure", "info"
 
 
@@ -172,9 +175,12 @@ def judge(cond: Condition, value: float | None, note: str = "") -> CheckResult:
 
 
 def status(check: Mapping[str, Any]) -> str:
-    """ "pass", "fail", "warning", "info" or "not recorded" of an archived check dict (any
-    check); "info" is a recorded condition that no rule judges."""
+    """ "pass", "fail", "warning", "info", "not recorded" or "not judged" of a check dict
+    (any check); "info" is a recorded condition that no rule judges, "not judged" a check
+    that needs what the run was judged without (`pipelines.judge` with no archive)."""
     name = str(check["name"])
+    if not check["passed"] and str(check.get("detail", "")).startswith(f"{NOT_JUDGED}:"):
+        return NOT_JUDGED
     entry = DEFAULT_CONDITIONS.get(name.removeprefix(CONDITION_PREFIX))
     info = name.startswith(CONDITION_PREFIX) and entry is not None and entry[2] == INFO
     if check["passed"]:

@@ -18,7 +18,7 @@ os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "180")
 _API = {
     "pipelines.ingest.run_loader": ["read_run", "discover_runs", "load_run"],
     "pipelines.ingest.errors": ["IngestError"],
-    "pipelines.process": ["calibrate", "process_run"],
+    "pipelines.process": ["calibrate", "judge", "process_run"],
     "pipelines.tolerances": ["load_profile"],
     "pipelines.apply": ["apply_calibration"],
     "pipelines.reports.run_reports": ["report_run"],

@@ -20,6 +20,7 @@ import pyarrow as pa
 from calib_core import procedures, verification
 from calib_core.calibration import Calibration, CheckResult, Parameter, StepRecord
 from calib_core.checks import check_calibration, overall_verdict
+from calib_core.condition_rules import NOT_JUDGED
 from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
@@ -247,11 +248,38 @@ def calibrate(
     return solve_loaded(run, procedure, settings)[0]
 
 
+def judge(
+    run: LoadedRun,
+    cal: Calibration,
+    archive: Archive | None = None,
+    budgets: dict[str, Budget] | None = None,
+) -> list[CheckResult]:
+    """Every check of a run calibrated with `calibrate`: the set the archive's views of
+    the run (`calib show`, the report, the web) count once `process_run` archives it.
+
+    Parameters
+    ----------
+    run : the run in memory (`pipelines.read_run`).
+    cal : its calibration (`calibrate`).
+    archive : the archive whose earlier runs of the serial the repeatability and
+        ``device:description`` checks are judged against; None: no repeatability, and
+        ``device:description`` is listed as "not judged: needs the archive" (status
+        "not judged", never counted against the verdict).
+    budgets : name -> GUM budget; None judges each parameter with U = 0 and says so.
+
+    Returns
+    -------
+    CheckResult list: `calib_core.check_calibration`'s, then the lab conditions,
+    verification points, repeatability, the record's findings and ``device:description``.
+    """
+    return check_run(run, cal, archive, "", budgets).checks
+
+
 def verify_run(
     loaded: LoadedRun,
     cal: Calibration,
     profile: ToleranceProfile,
-    archive: Archive,
+    archive: Archive | None,
     run_id: str,
     budgets: dict[str, Budget] | None = None,
 ) -> tuple[list[CheckResult], dict[str, Any]]:
@@ -289,8 +317,12 @@ def verify_run(
         m.environment.temperature_c,
         {n: (p.value, p.std) for n, p in cal.parameters.items()},
     )
-    earlier = queries.repeatability_candidates(
-        archive, m.unit.serial, m.run.procedure, before=m.run.started, exclude_run_id=run_id
+    earlier = (
+        []  # no archive: no earlier runs to repeat (`judge`)
+        if archive is None
+        else queries.repeatability_candidates(
+            archive, m.unit.serial, m.run.procedure, before=m.run.started, exclude_run_id=run_id
+        )
     )
     mine = None
     if budgets:
@@ -307,15 +339,19 @@ def verify_run(
     }
 
 
-def device_check(m: RunManifest, earlier: list[dict[str, Any]]) -> CheckResult:
+def device_check(m: RunManifest, earlier: list[dict[str, Any]] | None) -> CheckResult:
     """``device:description``: the unit's model and manufacturer against the serial's
-    earlier runs (`storage.queries.earlier_descriptions`).
+    earlier runs (`storage.queries.earlier_descriptions`); None when judged without an
+    archive: "not judged: needs the archive" (never counted against the verdict).
 
     A serial archived before under another model or manufacturer is a relabelled
     or swapped unit, or a typo: the check fails (verdict "needs review") and names
     each other description with the latest run that gave it. Every run keeps its
     own description in the archive.
     """
+    if earlier is None:
+        detail = f"{NOT_JUDGED}: needs the archive (the serial's earlier runs)"
+        return CheckResult("device:description", None, None, False, detail)
     said = (m.unit.model, m.unit.manufacturer)
     other = [e for e in earlier if (e["model"], e["manufacturer"]) != said]
     if not other:
@@ -394,7 +430,7 @@ class Judged:
 def check_run(
     loaded: LoadedRun,
     cal: Calibration,
-    archive: Archive,
+    archive: Archive | None,
     run_id: str,
     budgets: dict[str, Budget] | None = None,
 ) -> Judged:
@@ -409,12 +445,9 @@ def check_run(
     checks += more_checks
     checks += [CheckResult(**f) for f in loaded.findings]  # the readers' (record:cut:...)
     checks += still_checks(loaded, cal.gravity, profile)
-    checks.append(
-        device_check(
-            loaded.manifest,
-            queries.earlier_descriptions(archive, loaded.manifest.unit.serial, run_id),
-        )
-    )
+    serial = loaded.manifest.unit.serial
+    earlier = None if archive is None else queries.earlier_descriptions(archive, serial, run_id)
+    checks.append(device_check(loaded.manifest, earlier))
     verdict_ = overall_verdict(checks)
     step = StepRecord(
         "check",

@@ -6,8 +6,11 @@ model's fleet (calib_core.interval; method and reliability target in the toleran
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from datetime import date, timedelta
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from calib_core import drift, interval
 from calib_core.checks import FAIL
@@ -16,40 +19,47 @@ from pipelines.trends import days_since_epoch, pooled_runs
 from storage import queries
 from storage.db import Archive
 
+if TYPE_CHECKING:
+    from sqlalchemy import Row
+
 DAYS_PER_MONTH = 365.25 / 12.0
+_Unit = namedtuple("_Unit", queries.UNIT_COLUMNS)  # a row of queries.units(frame=False)
 
 
-def _one_condition(rows: Any) -> Any:
+def _one_condition(rows: list[Row]) -> list[Row]:
     """A unit's calibrations at one lab temperature (`pipelines.trends.pooled_runs`): runs
     of a thermal campaign differ by the temperature effect, which a line over the dates
     would read as a drift of days, and so set an interval of days for the whole fleet."""
-    temps = [
-        None if t is None or (isinstance(t, float) and math.isnan(t)) else float(t)
-        for t in rows["temperature_c"]
-    ]
-    return rows.iloc[pooled_runs(temps).indices]
+    temps = [_stated(r.temperature_c) for r in rows]
+    return [rows[i] for i in pooled_runs(temps).indices]
 
 
-def _stds(rows: Any) -> list[float | None]:
+def _stated(x: float | None) -> float | None:
+    """A value as a float, None where none is stated (NULL or NaN)."""
+    return None if x is None or (isinstance(x, float) and math.isnan(x)) else float(x)
+
+
+def _stds(rows: list[Row]) -> list[float | None]:
     """The standard uncertainties of a parameter's rows, None where none is stated (the
     noise terms of a static-bias run carry none)."""
-    return [
-        None if s is None or (isinstance(s, float) and math.isnan(s)) else float(s)
-        for s in rows["std"]
-    ]
+    return [_stated(r.std) for r in rows]
 
 
-def _own_slope(rows: Any) -> tuple[float | None, float | None]:
+def _days_values(rows: list[Row]) -> tuple[list[float], np.ndarray]:
+    """The rows' dates (days since the epoch) and values (SI)."""
+    values = np.array([np.nan if r.value is None else r.value for r in rows], dtype=float)
+    return [days_since_epoch(r.started_at) for r in rows], values
+
+
+def _own_slope(rows: list[Row]) -> tuple[float | None, float | None]:
     """(slope, variance) of one unit's trend (SI / day), or (None, None) below 3 points."""
     stds = _stds(rows)
-    days = [days_since_epoch(t) for t in rows["started_at"]]
+    days, values = _days_values(rows)
     try:
         if all(s is not None and s > 0 for s in stds):  # stated uncertainties, not rescaled
-            tr = drift.fit_trend_shared(
-                days, rows["value"].to_numpy(), stds, [0.0] * len(stds), [None] * len(stds)
-            )
+            tr = drift.fit_trend_shared(days, values, stds, [0.0] * len(stds), [None] * len(stds))
         else:
-            tr = drift.fit_trend(days, rows["value"].to_numpy(), stds)
+            tr = drift.fit_trend(days, values, stds)
     except ValueError:  # fewer than 3 calibrations or one date: no trend of its own
         return None, None
     return tr.slope, float(tr.cov[1, 1]) if tr.cov[1, 1] > 0 else None
@@ -59,18 +69,20 @@ def model_intervals(
     archive: Archive, model: str, profile: ToleranceProfile, serials: list[str]
 ) -> dict[str, dict[str, Any]]:
     """{serial: {"days", "parameter", "capped", "probability", "parameters"}} for the units of
-    one model judged by one profile ("variables" method), from every parameter with a limit."""
+    one model judged by one profile ("variables" method), from every parameter with a limit
+    (their histories asked of the archive in one question)."""
     rel = float(profile.recall["reliability"])
     max_days = float(profile.recall["max_months"]) * DAYS_PER_MONTH
     out: dict[str, dict[str, Any]] = {s: {"parameters": []} for s in serials}
-    for name in ALL_NAMES:
-        lim = profile.limit_for(name)
-        if lim is None:
+    limits = {n: lim for n in ALL_NAMES if (lim := profile.limit_for(n)) is not None}
+    history: dict[str, dict[str, list[Row]]] = {}
+    for row in queries.fleet_histories(archive, model, list(limits)):
+        history.setdefault(row.name, {}).setdefault(row.serial, []).append(row)
+    for name, lim in limits.items():
+        units = history.get(name)
+        if not units:
             continue
-        hist = queries.fleet_history(archive, model, name)
-        if hist.empty:
-            continue
-        by_unit = {s: _one_condition(g) for s, g in hist.groupby("serial")}
+        by_unit = {s: _one_condition(units[s]) for s in sorted(units)}
         slopes = {s: _own_slope(g) for s, g in by_unit.items()}
         have = [(b, v) for b, v in slopes.values() if b is not None and v is not None]
         fleet = drift_of_fleet(have)
@@ -81,9 +93,9 @@ def model_intervals(
             stds = _stds(rows)
             if not all(x is not None and x > 0 for x in stds):  # no stated uncertainty:
                 continue  # no prediction (a noise term has none: its value is a spread)
-            days = [days_since_epoch(t) for t in rows["started_at"]]
+            days, values = _days_values(rows)
             try:
-                line = interval.predict_line(days, rows["value"].to_numpy(), stds, fleet)
+                line = interval.predict_line(days, values, stds, fleet)
             except ValueError:
                 continue  # one date and no fleet: this parameter sets nothing
             iv = interval.interval(line, lim.low, lim.high, rel, max_days=max_days)
@@ -123,16 +135,13 @@ def recall_list(
     from pipelines.lab import customer_name
     from pipelines.tolerances import load_profile
 
-    units = queries.units(archive)
-    if units.empty:
-        return []
-    units = units.sort_values(["started_at", "run_id"]).drop_duplicates("serial", keep="last")
-    if serial is not None:
-        units = units[units["model"].isin(units.loc[units["serial"] == serial, "model"])]
+    runs = sorted(queries.units(archive, frame=False), key=lambda r: (r[4], r[3]))  # start, run id
+    last_of = {r[0]: i for i, r in enumerate(runs)}
+    units = [_Unit(*r) for i, r in enumerate(runs) if last_of[r[0]] == i]
     profiles: dict[str, ToleranceProfile] = {}
     groups: dict[tuple[str, str], list[str]] = {}
     last: dict[str, dict[str, Any]] = {}
-    for row in units.itertuples(index=False):  # each unit's latest run
+    for row in units:  # each unit's latest run
         if serial is not None and row.serial != serial:
             continue
         name = queries.run_summary(archive, row.run_id)["tolerance_profile"]

@@ -9,15 +9,17 @@ import math
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from calib_core import drift, params
 from pipelines import shared_reference
 from storage import queries
 from storage.db import Archive
+
+if TYPE_CHECKING:
+    import pandas as pd  # imported where a table is made: a recall needs none
 
 EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 CONDITION_BIN_C = 5.0  # runs whose lab temperatures differ by less are one condition
@@ -83,10 +85,16 @@ def pooled_runs(temperatures: list[float | None], reference_c: float = 20.0) -> 
 
 def days_since_epoch(when: datetime | pd.Timestamp) -> float:
     """Time-zone-aware datetime -> days since 1970-01-01 UTC (the drift module's time axis)."""
-    return (pd.Timestamp(when).to_pydatetime() - EPOCH).total_seconds() / 86400.0
+    if type(when) is not datetime:  # a pandas Timestamp (or what one is made of)
+        import pandas as pd
+
+        when = pd.Timestamp(when).to_pydatetime()
+    return (when - EPOCH).total_seconds() / 86400.0
 
 
 def date_of_days(days: float) -> str:
+    import pandas as pd
+
     return (pd.Timestamp(EPOCH) + pd.Timedelta(days=days)).date().isoformat()
 
 
@@ -183,6 +191,8 @@ def fleet_report(
         raise LookupError(f"no archived values of {name} for device model {model!r}")
     temps = df["temperature_c"].astype(float).to_numpy()
     bins = drift.fleet_statistics(df["value"].to_numpy(), temps, df["serial"].tolist(), bin_c=bin_c)
+    import pandas as pd
+
     table = pd.DataFrame([b.__dict__ for b in bins])
     if plot is not None:
         plot_fleet(df, table, model, name, Path(plot))
@@ -199,6 +209,8 @@ def _pyplot():
 
 
 def plot_trend(df: pd.DataFrame, trend: drift.Trend, forecast, summary: dict, path: Path) -> Path:
+    import pandas as pd
+
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     x = pd.to_datetime(df["started_at"], utc=True)

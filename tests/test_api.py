@@ -117,3 +117,34 @@ def test_read_run_names_the_path_without_a_single_run(tmp_path):
     with pytest.raises(pipelines.IngestError, match="of serial NOPE here, found 0"):
         pipelines.read_run(folder, serial="NOPE")
     assert pipelines.read_run(folder, serial="MPU0001").manifest.unit.serial == "MPU0001"
+
+
+def test_judge_lists_the_checks_every_view_of_the_run_counts(tmp_path, monkeypatch):
+    """`pipelines.judge` of a calibrated run gives the names the archive keeps for it once
+    processed (what `calib show`, the report and the web count); without an archive the
+    unit's description is listed as not judged, never counted against the verdict."""
+    import calib_core
+    import pipelines
+    import storage
+    from calib_core.conditions import counts_against_verdict, status
+    from storage import queries
+
+    monkeypatch.setenv("CALIB_ISSUE_CERTIFICATES", "0")
+    folder = ROOT / "data_samples" / "mpu6000_MPU0001"
+    run = pipelines.read_run(folder)
+    cal = pipelines.calibrate(run)
+    alone = pipelines.judge(run, cal)
+    archive = storage.open_archive(tmp_path / "archive")
+    before = pipelines.judge(run, cal, archive)
+    (source,) = pipelines.discover_runs([folder])
+    outcome = pipelines.process_run(source, archive)
+    kept = queries.run_summary(archive, outcome["run_id"])["calibration"]["checks"]
+    names = sorted(c["name"] for c in kept)
+    assert sorted(c.name for c in alone) == names == sorted(c.name for c in before)
+    assert len(names) > len(calib_core.check_calibration(cal, pipelines.load_profile("mpu6000")))
+    device = {c.name: c for c in alone}["device:description"]
+    assert status(device.to_dict()) == "not judged" and "needs the archive" in device.detail
+    assert not counts_against_verdict(device)
+    judged = {c.name: c for c in before}["device:description"]
+    assert judged.passed and judged.detail == {c["name"]: c for c in kept}[judged.name]["detail"]
+    assert calib_core.overall_verdict(alone) == calib_core.overall_verdict(before)

@@ -27,8 +27,8 @@ from sqlalchemy.exc import OperationalError
 import pipelines.process as process_module
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_testing.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
-from pipelines.flows import RETRIES, is_transient, process_batch, report_progress
 from pipelines.ingest import IngestError
+from pipelines.run_task import RETRIES, is_transient
 from pipelines.runners import check_runner, make_task_runner
 from storage import schema
 from storage.db import resolve_archive
@@ -172,6 +172,8 @@ def test_transient_failures_are_retried_and_a_permanent_one_isolated(
     """Four runs: a locked database once, a share that vanishes once, a locked database
     every time, a missing segment file. The first two are archived on their retry; the
     third fails after all attempts; the fourth is tried once; nothing stops the batch."""
+    from pipelines.flows import process_batch, report_progress  # Prefect: when run
+
     day = tmp_path / "day"
     locked_once, vanishing, locked_always = write_runs(day, [11, 12, 13])
     rng = np.random.default_rng(14)

@@ -22,7 +22,6 @@ from sqlalchemy import func, select
 
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_testing.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
-from pipelines.flows import process_batch
 from storage import schema
 from storage.db import Archive
 
@@ -125,6 +124,8 @@ def test_batch_on_a_dask_cluster_into_postgresql(
 ) -> None:
     from distributed import Client
 
+    from pipelines.flows import process_batch  # Prefect: imported when run, not when collected
+
     day = tmp_path / "day"
     truths = {}
     for seed in (31, 32, 33, 34):
@@ -185,6 +186,8 @@ def test_dask_batch_in_any_order_gives_the_verdicts_of_time_order(
     judged against the runs made before it, as in-process in time order
     (tests/test_verdict_order.py)."""
     from test_verdict_order import IN_TIME_ORDER, check_time_order, judgements, run_folders
+
+    from pipelines.flows import process_batch  # Prefect: imported when run, not when collected
 
     store = tmp_path / "shared-store"
     monkeypatch.setenv("CALIB_FILESTORE", str(store))

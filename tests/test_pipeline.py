@@ -16,7 +16,6 @@ from sqlalchemy import func, select
 
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_testing.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
-from pipelines.flows import process_batch
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
 from storage import schema
@@ -68,6 +67,8 @@ def _row_counts(arch) -> dict[str, int]:
 
 
 def test_batch_archives_good_runs_and_reports_the_bad_one(prefect_harness, lab_day, tmp_path):
+    from pipelines.flows import process_batch  # Prefect: imported when run, not when collected
+
     archive_dir = tmp_path / "archive"
     outcomes = process_batch([str(lab_day["day"])], str(archive_dir))
     by_serial = {o["serial"] or Path(o["source"]).name: o for o in outcomes}

@@ -27,7 +27,6 @@ from calib_core.simulate import random_errors, six_position_integral_run
 from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.changes import change_report, family
 from pipelines.direct import discover, process_in_process
-from pipelines.flows import reprocess_batch
 from pipelines.provenance import SOFTWARE_VERSION
 from pipelines.reprocess import changed_pairs, plan_reprocess, reprocess_in_process
 from storage import queries, schema
@@ -93,6 +92,8 @@ def test_selection_reprocessed_twice_gives_revisions_then_duplicates(
     """New software: the selected runs (started since the 2nd) get revision 2 with the
     reason, the run before the date is left alone; the same flow again reprocesses nothing
     (every run a duplicate). Same raw bytes and solver: the change report finds no change."""
+    from pipelines.flows import reprocess_batch  # Prefect: imported when run, not when collected
+
     monkeypatch.setenv("CALIB_PROFILES", str(tmp_path / "profiles"))
     lab_profile(tmp_path / "profiles", "1")
     archive, first = archived_runs(tmp_path, [1, 2, 3, 4])
@@ -165,6 +166,8 @@ def test_profile_change_flips_the_expected_verdicts_and_the_report_counts_them(
     pass->fail exactly when its gyro bias is over the new limit and its accelerometer bias
     was within the old one, fail->pass the other way round (simple acceptance: a value is
     judged against the limit itself, so the split is known from the archived values)."""
+    from pipelines.flows import reprocess_batch  # Prefect: imported when run, not when collected
+
     profiles = tmp_path / "profiles"
     monkeypatch.setenv("CALIB_PROFILES", str(profiles))
     lab_profile(profiles, "1")

@@ -58,10 +58,12 @@ _API = {
     ],
     "storage.queries.history": [
         "FLEET_COLUMNS",
+        "FLEET_HISTORY_COLUMNS",
         "HISTORY_COLUMNS",
         "LATEST_COLUMNS",
         "UNIT_COLUMNS",
         "fleet",
+        "fleet_histories",
         "fleet_history",
         "latest_calibration",
         "latest_valid",

@@ -40,6 +40,7 @@ from storage.schema import (
 
 if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (slow to import)
+    from sqlalchemy import Row
 
 
 HISTORY_COLUMNS = [
@@ -54,11 +55,15 @@ HISTORY_COLUMNS = [
 ]
 
 
-def _parameter_over_runs(name: str, include_superseded: bool):  # noqa: ANN202 - a select
-    """Rows of parameter `name` over runs (device serial first), oldest run first;
-    the callers add which devices."""
+def _parameter_over_runs(  # noqa: ANN202 - a select
+    name: str | list[str], include_superseded: bool, *lead: Any
+):
+    """Rows of parameter `name` (or of each of several names) over runs (`lead` columns,
+    then device serial first), oldest run first; the callers add which devices."""
+    one = isinstance(name, str)
     stmt = (
         select_run_calibrations(
+            *lead,
             Device.serial,
             Run.run_id,
             Run.started_at,
@@ -67,9 +72,11 @@ def _parameter_over_runs(name: str, include_superseded: bool):  # noqa: ANN202 -
             *PARAMETER_VALUE,
         )
         .join(ParameterRow, ParameterRow.calibration_id == CalibrationRow.id)
-        .where(ParameterRow.name == name)
+        .where(ParameterRow.name == name if one else ParameterRow.name.in_(name))
         .order_by(Run.started_at, Run.id, CalibrationRow.revision, ParameterRow.temperature_c)
     )
+    if not one:  # rows of one run, revision and temperature: by name
+        stmt = stmt.order_by(ParameterRow.name)
     if not include_superseded:
         stmt = stmt.where(CURRENT)
     return stmt
@@ -116,6 +123,28 @@ def fleet_history(archive: Archive, model: str, name: str) -> pd.DataFrame:
     stmt = stmt.where(Device.model == check_text(model, "model"))
     with reading(archive) as conn:
         return pd.DataFrame(conn.execute(stmt).all(), columns=["serial", *HISTORY_COLUMNS])
+
+
+FLEET_HISTORY_COLUMNS = ["name", "serial", *HISTORY_COLUMNS]
+
+
+def fleet_histories(archive: Archive, model: str, names: list[str]) -> list[Row]:
+    """Several parameters over every unit of a device model (current revisions) in one
+    question, without pandas (a unit's recalibration interval: pipelines.recall).
+
+    Returns
+    -------
+    Rows with the attributes of FLEET_HISTORY_COLUMNS (name, serial, then those of
+    `fleet_history`), oldest run first; one parameter's rows in the order of
+    `fleet_history` of that parameter.
+    """
+    if not names:
+        return []
+    wanted = sorted({check_parameter(n) for n in names})
+    stmt = _parameter_over_runs(wanted, False, ParameterRow.name.label("name"))
+    stmt = stmt.where(Device.model == check_text(model, "model"))
+    with reading(archive) as conn:
+        return list(conn.execute(stmt).all())
 
 
 def latest_calibration(
@@ -239,7 +268,8 @@ def units(
     verdict: str | None = None,
     env_temp_min: float | None = None,
     env_temp_max: float | None = None,
-) -> pd.DataFrame:
+    frame: bool = True,
+) -> pd.DataFrame | list[tuple]:
     """Calibrated units: one row per run (its current revision) matching every filter.
 
     Each row's model and manufacturer are the run's own (what its manifest said);
@@ -255,10 +285,11 @@ def units(
     verdict : "pass" or "fail" of the current revision.
     env_temp_min, env_temp_max : lab temperature of the run's environment, deg C,
         inclusive; runs without a recorded temperature are left out when either is given.
+    frame : False for the rows as tuples (no pandas: pipelines.recall).
 
     Returns
     -------
-    DataFrame with UNIT_COLUMNS, by start time.
+    DataFrame with UNIT_COLUMNS (tuples of them when not `frame`), by start time.
     """
     t0 = as_instant(date_from, "date_from", end_of_day=False)
     t1 = as_instant(date_to, "date_to", end_of_day=True)
@@ -293,7 +324,8 @@ def units(
     if hi is not None:
         stmt = stmt.where(temp <= hi)
     with reading(archive) as conn:
-        return _frame(conn.execute(stmt).all(), UNIT_COLUMNS)
+        rows = [tuple(r) for r in conn.execute(stmt).all()]
+    return _frame(rows, UNIT_COLUMNS) if frame else rows
 
 
 # Per unit of the model, its latest valid calibration picked by a correlated subquery
