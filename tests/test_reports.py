@@ -7,9 +7,11 @@ rendered to PNG with poppler's pdftoppm (installed by scripts/ensure_system_pack
 
 from __future__ import annotations
 
+import base64
 import copy
 import json
 import math
+import re
 import shutil
 import subprocess
 from html.parser import HTMLParser
@@ -129,7 +131,14 @@ def _check_html(path: Path) -> str:
     parser.feed(doc)
     parser.close()
     assert parser.errors == [] and parser.stack == []
-    assert parser.urls and all(u.startswith("data:image/png;base64,") for u in parser.urls)
+    # the figures are SVG charts embedded as data URLs, each a whole SVG document that
+    # loads nothing from outside (no reference but to its own fragments)
+    svg = "data:image/svg+xml;base64,"
+    assert parser.urls and all(u.startswith(svg) for u in parser.urls), parser.urls
+    for url in parser.urls:
+        chart = base64.b64decode(url[len(svg) :]).decode("utf-8")
+        assert chart.startswith("<svg") and chart.rstrip().endswith("</svg>")
+        assert not re.search(r"""(?:href|src)\s*=\s*["'](?!#)""", chart), chart[:300]
     return " ".join(parser.text)
 
 
