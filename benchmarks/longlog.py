@@ -16,7 +16,7 @@ With `--formats csv,mcap` (the default) the same for a ROS 2 MCAP log of `--size
 (``sensor_msgs/msg/Imu`` at 1 kHz, CDR payloads serialised with numpy in batches, written
 by mcap's Writer in uncompressed 4 MiB chunks):
 process is `calib process --json` of a run folder whose run.toml says ``[format] kind =
-"mcap"`` (the streamed route through `pipelines.ingest.mcap_stream`); floor reads,
+"mcap"`` (the streamed route through `pipelines.ingest.mcap_reader.stream_mcap`); floor reads,
 hashes and copies the file, decodes its messages with the same vectorised CDR decoder and
 writes the Parquet, nothing else (no checks, no statistics).
 
@@ -105,7 +105,8 @@ FLOOR = """
 import hashlib, sys
 from pathlib import Path
 import pyarrow as pa, pyarrow.csv as pacsv, pyarrow.parquet as pq
-from pipelines.ingest.csv_stream import block_bytes, _blocks
+from pipelines.ingest.csv_reader import blocks
+from pipelines.ingest.streamed_pass import block_bytes
 from storage.rawstore import samples_parquet_options
 src, work, limit = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
 convert = pacsv.ConvertOptions(column_types={c: pa.float64() for c in
@@ -117,7 +118,7 @@ sha = hashlib.sha256()
 with src.open("rb") as fh, (work / "raw").open("wb") as copy, pq.ParquetWriter(
         work / "samples.parquet", schema, **samples_parquet_options(schema)) as w:
     sha.update(fh.readline())
-    for text in _blocks(fh, block_bytes(limit), copy, sha):
+    for text in blocks(fh, block_bytes(limit), copy, sha):
         w.write_table(pacsv.read_csv(pa.py_buffer(text), read, convert_options=convert))
 print(sha.hexdigest())
 """
@@ -145,6 +146,15 @@ def write_record(path: Path, size_bytes: int, seed: int = 0) -> int:
             fh.write(buf.getvalue().to_pybytes())
             rows += BLOCK_ROWS
     return rows
+
+
+def count_rows(path: Path) -> int:
+    """The data rows of a record `write_record` wrote (its lines but the header)."""
+    lines = 0
+    with path.open("rb") as fh:
+        while block := fh.read(64 << 20):
+            lines += block.count(b"\n")
+    return lines - 1
 
 
 def run_child(argv: list[str], env: dict[str, str] | None = None) -> tuple[float, float, str]:
@@ -218,7 +228,11 @@ def csv_part(args: argparse.Namespace) -> dict:
     try:
         src = work / "static.csv"
         t0 = time.perf_counter()
-        samples = write_record(src, int(args.size_gb * 1e9))
+        if args.record is not None:  # a record written before: linked, not written again
+            os.link(args.record, src)
+            samples = count_rows(src)
+        else:
+            samples = write_record(src, int(args.size_gb * 1e9))
         write_s = time.perf_counter() - t0
         size = src.stat().st_size
         print(f"wrote {size / 1e9:.2f} GB, {samples:,} samples in {write_s:.0f} s", file=sys.stderr)
@@ -276,7 +290,7 @@ import hashlib, struct, sys
 from pathlib import Path
 import numpy as np, pyarrow as pa, pyarrow.parquet as pq
 from pipelines.ingest.cdr import IMU_LAYOUT, NS, decode_fixed_cdr, gather
-from pipelines.ingest.csv_stream import ROW_BYTES, block_bytes
+from pipelines.ingest.streamed_pass import ROW_BYTES, block_bytes
 from pipelines.ingest.mcap_records import OP_CHUNK, OP_MESSAGE, decompress, record_starts
 from storage.rawstore import samples_parquet_options
 src, work, limit = Path(sys.argv[1]), Path(sys.argv[2]), int(sys.argv[3])
@@ -460,6 +474,9 @@ def main() -> None:
     ap.add_argument("--allan-samples", type=int, default=10_000_000)
     ap.add_argument("--formats", default="csv,mcap", help="comma-separated: csv, mcap")
     ap.add_argument("--keep", action="store_true")
+    ap.add_argument(
+        "--record", type=Path, help="CSV only: a record written by an earlier run, not rewritten"
+    )
     args = ap.parse_args()
     formats = [f.strip() for f in args.formats.split(",") if f.strip()]
     if not formats or set(formats) - {"csv", "mcap"}:

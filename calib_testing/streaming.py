@@ -78,6 +78,24 @@ def streamed_memory_growth(
     return int(json.loads(done.stdout.strip().splitlines()[-1])["grown"])
 
 
+def same_error(read: Any, stream: Any, path: Path, tmp_path: Path, **keys: Any) -> str:
+    """The streamed route's error (``stream(path, tmp_path, **keys)``) is the in-memory
+    reader's (``read(path, **keys)``), word for word, naming the file; its text."""
+    from pipelines.ingest.errors import IngestError
+
+    errors = []
+    for call in (lambda: read(path, **keys), lambda: stream(path, tmp_path, **keys)):
+        try:
+            call()
+        except IngestError as exc:
+            errors.append(str(exc))
+        else:
+            raise AssertionError(f"{path} was not refused")
+    assert errors[1] == errors[0]
+    assert str(path) in errors[1]
+    return errors[1]
+
+
 def assert_same_samples(table: Any, rec: Any) -> None:
     """The streamed samples' Parquet `table` (pyarrow) holds the in-memory `Recording` `rec`
     bit for bit: the same time base and values, no temperature on either."""

@@ -32,8 +32,10 @@ import pyarrow.parquet as pq
 from calib_core import procedures
 from calib_core.calibration import Calibration
 from calib_core.streamed import Execution, TemperatureTrend
-from pipelines.ingest.csv_reader import PROGRESS_THRESHOLD_BYTES, float_values
-from pipelines.ingest.csv_stream import CHANNELS, DEFAULT_MEMORY_LIMIT, Progress, Streamed
+from pipelines.ingest.csv_layout import CHANNELS
+from pipelines.ingest.csv_reader import float_values
+from pipelines.ingest.data_format import PROGRESS_THRESHOLD_BYTES
+from pipelines.ingest.streamed_pass import DEFAULT_MEMORY_LIMIT, Progress, Streamed
 
 
 class FileHistory:

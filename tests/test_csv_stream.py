@@ -1,6 +1,7 @@
-"""A static record larger than the memory limit, streamed from CSV (pipelines.ingest.csv_stream):
-the same parameters as the in-memory path, its bytes hashed and copied in the same pass,
-its samples in Parquet, the resident memory it adds bounded by the limit."""
+"""A static record larger than the memory limit, streamed from CSV
+(pipelines.ingest.csv_reader.stream_csv): the same parameters as the in-memory path, its
+bytes hashed and copied in the same pass, its samples in Parquet, the resident memory it
+adds bounded by the limit."""
 
 from __future__ import annotations
 
@@ -17,8 +18,7 @@ import pytest
 from calib_core.preprocess.motion import motion_check
 from calib_core.solvers.static_bias import solve_static_bias
 from calib_testing.streaming import assert_same_solve, streamed_memory_growth
-from pipelines.ingest.csv_reader import read_csv
-from pipelines.ingest.csv_stream import stream_csv
+from pipelines.ingest.csv_reader import read_csv, stream_csv
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.streamed_solve import phase_rows, solve_streamed
 
@@ -108,7 +108,7 @@ def test_streamed_record_memory_bounded_by_the_limit(big_csv, tmp_path):
     quarter.write_bytes(b"".join(lines[: len(lines) // 4]))
     del lines
     grown = streamed_memory_growth(
-        "pipelines.ingest.csv_stream:stream_csv",
+        "pipelines.ingest.csv_reader:stream_csv",
         FMT.model_dump_json(),
         big_csv,
         quarter,
@@ -163,11 +163,11 @@ def test_blocks_pass_every_byte_once_and_cut_at_line_ends():
     file, each ends at a line end, and the hash and the copy are of the whole file."""
     import io
 
-    from pipelines.ingest.csv_stream import _blocks
+    from pipelines.ingest.csv_reader import blocks
 
     data = b"".join(b"x" * (i % 300) + b"\n" for i in range(5000)) + b"no newline"
     sha, copy = hashlib.sha256(), io.BytesIO()
-    blocks = [bytes(b) for b in _blocks(io.BytesIO(data), 100, copy, sha)]
+    blocks = [bytes(b) for b in blocks(io.BytesIO(data), 100, copy, sha)]
     assert b"".join(blocks) == data
     assert all(b.endswith(b"\n") for b in blocks[:-1])
     assert copy.getvalue() == data and sha.hexdigest() == hashlib.sha256(data).hexdigest()

@@ -1,5 +1,5 @@
 """A ROS 2 IMU record larger than the memory limit, streamed from MCAP
-(pipelines.ingest.mcap_stream): the in-memory reader's samples and time base, the same
+(pipelines.ingest.mcap_reader.stream_mcap): the in-memory reader's samples and time base, the same
 static-bias parameters, its bytes hashed and copied in the same pass, and the in-memory
 reader's errors (same text, messages numbered in the whole topic).
 
@@ -18,10 +18,10 @@ from test_ingest_mcap import T0_NS, rewrite, write_run
 
 from calib_core.solvers.static_bias import solve_static_bias
 from calib_testing.streaming import assert_same_samples, assert_same_solve, streamed_memory_growth
+from calib_testing.streaming import same_error as streamed_same_error
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.mcap_reader import read_mcap
-from pipelines.ingest.mcap_stream import stream_mcap
+from pipelines.ingest.mcap_reader import read_mcap, stream_mcap
 from pipelines.streamed_solve import solve_streamed
 
 LIMIT = 1 << 20  # bytes: 1024 messages a batch; the files are several times larger
@@ -105,13 +105,7 @@ def test_log_time_and_unchunked_file_as_in_memory(tmp_path, chunking):
 
 def same_error(path: Path, tmp_path: Path, **keys) -> str:
     """The streamed route's error is the in-memory reader's, word for word."""
-    with pytest.raises(IngestError) as ref:
-        read_mcap(path, **keys)
-    with pytest.raises(IngestError) as got:
-        stream(path, tmp_path, **keys)
-    assert str(got.value) == str(ref.value)
-    assert str(path) in str(got.value)
-    return str(got.value)
+    return streamed_same_error(read_mcap, stream, path, tmp_path, **keys)
 
 
 def test_truncated_file_names_the_file(big_mcap, tmp_path):
@@ -204,7 +198,7 @@ def test_streamed_mcap_memory_bounded_by_the_limit(tmp_path):
     write_run(small, n=n // 4, acc=static_acc(n // 4), compression=CompressionType.NONE)
     assert big.stat().st_size > 10 * limit
     grown = streamed_memory_growth(
-        "pipelines.ingest.mcap_stream:stream_mcap",
+        "pipelines.ingest.mcap_reader:stream_mcap",
         "mcap",
         big,
         small,

@@ -32,6 +32,7 @@ from test_process_streamed import (
 from calib_core.recording import Recording
 from calib_testing.run_writers import dumps_toml
 from calib_testing.streaming import assert_same_samples, streamed_memory_growth
+from calib_testing.streaming import same_error as streamed_same_error
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.rosbag_reader import read_rosbag
@@ -162,12 +163,7 @@ def test_record_headers_in_rosbag_cpp_order(tmp_path):
 
 def same_error(path: Path, tmp_path: Path, **keys) -> str:
     """The streamed route's error is the in-memory reader's, word for word."""
-    with pytest.raises(IngestError) as ref:
-        read_rosbag(path, **keys)
-    with pytest.raises(IngestError) as got:
-        stream(path, tmp_path, **keys)
-    assert str(got.value) == str(ref.value)
-    return str(got.value)
+    return streamed_same_error(read_rosbag, stream, path, tmp_path, **keys)
 
 
 def test_time_going_back_and_damaged_values_numbered_in_the_whole_topic(tmp_path):
@@ -220,6 +216,15 @@ def test_what_the_route_does_not_take_is_refused_with_the_reason(tmp_path):
         stream(write_bag(tmp_path / "c.bag", static_record(5000)), tmp_path, limit=1 << 20)
 
 
+def refused(bad: Path, raw: bytearray, match: str) -> IngestError:
+    """The streamed route's refusal of the bag `raw` written to `bad`, naming the file."""
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(IngestError, match=match) as err:
+        stream(bad, bad.parent)
+    assert str(bad) in str(err.value)
+    return err.value
+
+
 def test_truncated_unindexed_or_damaged_bag_names_the_file(bag, tmp_path):
     data = bag.read_bytes()
     for cut in (10, 2000, len(data) // 2, len(data) - 3):
@@ -233,31 +238,19 @@ def test_truncated_unindexed_or_damaged_bag_names_the_file(bag, tmp_path):
     raw = bytearray(data)
     at = raw.index(b"index_pos=") + len(b"index_pos=")
     raw[at : at + 8] = bytes(8)
-    bad = tmp_path / "active.bag"
-    bad.write_bytes(bytes(raw))
-    with pytest.raises(IngestError, match="not indexed") as err:
-        stream(bad, tmp_path)
-    assert str(bad) in str(err.value)
+    refused(tmp_path / "active.bag", raw, "not indexed")
     # The first chunk's data length damaged: refused before reading 4 GB into memory.
     raw = bytearray(data)
     at = raw.index(b"compression=none")
     at += len(b"compression=none") + 4 + len(b"size=") + 4  # after size, the data length
     assert raw[at - 9 : at - 4] == b"size="
     raw[at : at + 4] = (0xFFFFFFF0).to_bytes(4, "little")
-    bad = tmp_path / "length.bag"
-    bad.write_bytes(bytes(raw))
-    with pytest.raises(IngestError, match="declares 4294967280 bytes") as err:
-        stream(bad, tmp_path)
-    assert str(bad) in str(err.value)
+    refused(tmp_path / "length.bag", raw, "declares 4294967280 bytes")
     # A byte of a message's header changed inside a chunk: the index disagrees.
     raw = bytearray(data)
     at = raw.index(b"time=", 10_000) + len(b"time=")
     raw[at] ^= 0xFF
-    bad = tmp_path / "flipped.bag"
-    bad.write_bytes(bytes(raw))
-    with pytest.raises(IngestError, match="does not match the index") as err:
-        stream(bad, tmp_path)
-    assert str(bad) in str(err.value) and err.value.field == TOPIC
+    assert refused(tmp_path / "flipped.bag", raw, "does not match the index").field == TOPIC
 
 
 def test_no_imu_topic_is_the_in_memory_error(tmp_path):

@@ -18,6 +18,7 @@ from pipelines.ingest.data_format import Column, FormatSpec
 from pipelines.ingest.errors import IngestError
 
 AXES = "xyz"
+CHANNELS = (*(f"gyr_{a}" for a in AXES), *(f"acc_{a}" for a in AXES))  # [gyr | acc]
 # Recognised column names (case-insensitive) when the manifest names no columns.
 # "{a}" is the axis letter. A name matching two roles, or a role matched by two
 # columns, is an error that lists the candidates.

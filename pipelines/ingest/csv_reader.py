@@ -18,6 +18,11 @@ slice, whatever the size of the file (a multi-hour 1 kHz log). Files above
 holds a problem is the file read again as text, in chunks, to name the first
 bad line and column.
 
+`stream_csv` is the same reader on the streamed route (a static record larger than the
+run's memory limit): the file's blocks, hashed and copied as they are read, parsed with
+the same options, converted and checked block by block, go to the samples' Parquet
+(`pipelines.ingest.streamed_pass`) instead of the arrays.
+
 The column plan of a file (which column is which role, header units) is
 pipelines.ingest.csv_layout; naming the first bad line, pipelines.ingest.csv_diagnosis.
 """
@@ -27,8 +32,10 @@ from __future__ import annotations
 import dataclasses
 import mmap
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 import pyarrow as pa
@@ -38,12 +45,15 @@ from calib_core.recording import Recording
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
 from pipelines.ingest.csv_diagnosis import PANDAS_CHUNK_ROWS, diagnose
 from pipelines.ingest.csv_dialect import split_unit
-from pipelines.ingest.csv_layout import AXES, CsvLayout, header_units, layout_of
-from pipelines.ingest.data_format import COUNTS, FormatSpec
+from pipelines.ingest.csv_layout import AXES, CHANNELS, CsvLayout, header_units, layout_of
+from pipelines.ingest.data_format import COUNTS, PROGRESS_THRESHOLD_BYTES, FormatSpec
 from pipelines.ingest.errors import IngestError
+from pipelines.ingest.log_samples import impossible_reading
 from pipelines.ingest.time_order import check_time_increases
 
-PROGRESS_THRESHOLD_BYTES = 64 * 2**20  # above: a progress bar on stderr
+if TYPE_CHECKING:
+    from pipelines.ingest.streamed_pass import Streamed
+
 # Text per parsed slice: large enough that pyarrow's threads share the parse, small enough
 # that a slice and its parse buffers stay well below the decoded arrays (peak 1.7x the
 # arrays on an 800k-row file, tests/test_large_csv.py).
@@ -296,19 +306,11 @@ def _batches(
     if layout.delimiter == "whitespace":
         yield from _pandas_batches(layout, columns, iso_column)
         return
-    types = {c: pa.float64() for c in columns}
     section = layout.roles.get("section")
-    for text_column in (iso_column, section):
-        if text_column is not None:
-            types[text_column] = pa.string()
-    read = pacsv.ReadOptions(column_names=layout.names, encoding="utf8")
-    parse = pacsv.ParseOptions(delimiter=layout.delimiter)
-    convert = pacsv.ConvertOptions(
-        include_columns=columns, column_types=types, decimal_point=layout.decimal
-    )
+    options = arrow_options(layout, columns, (iso_column, section))
     try:
         for text, consumed in _slices(layout.path, layout.data_start):
-            table = pacsv.read_csv(pa.BufferReader(text), read, parse, convert)
+            table = pacsv.read_csv(pa.BufferReader(text), *options)
             # Record batch by record batch: each column is then one Arrow array, viewed
             # without a copy (a whole-table column would be concatenated first). Nulls
             # (empty cells, "nan") become NaN here and are reported by the caller.
@@ -329,6 +331,21 @@ def _batches(
         # Text in a numeric column, a row with too many fields, ...: find it.
         diagnose(layout, columns, iso_column, 0)
         raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
+
+
+def arrow_options(
+    layout: CsvLayout, columns: list[str], text: tuple[str | None, ...] = ()
+) -> tuple[pacsv.ReadOptions, pacsv.ParseOptions, pacsv.ConvertOptions]:
+    """pyarrow's options that parse the data lines of `layout` (no header): `columns` only,
+    as float64, the `text` columns (ISO time, section) as strings."""
+    types = {c: (pa.string() if c in text else pa.float64()) for c in columns}
+    return (
+        pacsv.ReadOptions(column_names=layout.names, encoding="utf8"),
+        pacsv.ParseOptions(delimiter=layout.delimiter),
+        pacsv.ConvertOptions(
+            include_columns=columns, column_types=types, decimal_point=layout.decimal
+        ),
+    )
 
 
 def _slices(path: Path, data_start: int) -> Iterator[tuple[pa.Buffer, int]]:
@@ -461,6 +478,199 @@ def _progress(path: Path, size: int, show: bool) -> Iterator[Callable[[int], Non
         task = bar.add_task(f"reading {path.name}", total=size)
         yield lambda done: bar.update(task, completed=min(done, size))
         bar.update(task, completed=size)
+
+
+# --- the streamed route ----------------------------------------------------------------
+
+
+def blocks(fh: BinaryIO, size: int, copy: BinaryIO | None, sha: Any) -> Iterator[memoryview]:
+    """The file's bytes in blocks cut after a line end; every byte hashed and copied once.
+
+    Read into two buffers in turn: a thread hashes and copies one buffer's new bytes
+    while the caller parses the block before it is handed out (hashing overlaps
+    parsing); a buffer is read into again only once its bytes are hashed and copied.
+    Each block is a view, valid until the next one is asked for (the parser copies what
+    it keeps); the unfinished last line moves to the front of the other buffer. All is
+    hashed and copied when the iteration ends.
+    """
+    bufs = [bytearray(2 * size), bytearray(2 * size)]
+    jobs: list[Future | None] = [None, None]
+    io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="calib-hash")
+
+    def consume(view: memoryview) -> None:
+        sha.update(view)
+        if copy is not None:
+            copy.write(view)
+
+    cur, carry = 0, 0
+    prev = memoryview(bufs[0])[:0]
+    try:
+        while True:
+            if jobs[cur] is not None:
+                jobs[cur].result()  # its last bytes are hashed: it may be filled again
+            if len(bufs[cur]) - carry < size:  # a line longer than a block: grow
+                bufs[cur] = bytearray(carry + 2 * size)
+            view = memoryview(bufs[cur])
+            view[:carry] = prev[len(prev) - carry :] if carry else b""
+            got = fh.readinto(view[carry : carry + size])
+            if not got:
+                if carry:
+                    yield view[:carry]
+                return
+            jobs[cur] = io.submit(consume, view[carry : carry + got])
+            end = carry + got
+            cut = bufs[cur].rfind(b"\n", 0, end) + 1
+            prev, carry = view[:end], end - cut
+            if cut:
+                yield view[:cut]
+                cur = 1 - cur
+            # else: no line end yet; read on into the same buffer after the carry
+            else:
+                jobs[cur].result()
+                prev = memoryview(bytes(view[:end]))
+    finally:
+        io.shutdown(wait=True)
+        for job in jobs:
+            if job is not None:
+                job.result()  # raise a failed write (a full disk)
+
+
+def stream_csv(
+    path: Path,
+    fmt: FormatSpec,
+    samples: Path,
+    *,
+    copy_to: Path | None = None,
+    label: str = "record",
+    memory_limit: int | None = None,
+    progress: bool | None = None,
+    window: tuple[float, float] | None = None,
+) -> Streamed:
+    """The streamed route: one pass over a delimited text file, hashed and copied (the raw
+    copy) block by block, each block's samples (this reader's column plan, units and
+    checks) to the samples' Parquet and the first-pass statistics (`streamed_pass`).
+
+    Parameters
+    ----------
+    path : the data file (delimited text with a time column or a sample rate; one record).
+    fmt : the manifest's format section (as `read_csv`).
+    samples : the Parquet file to write (columns segment, t, acc_*, gyr_*, temp; SI).
+    copy_to : where the raw bytes are copied (None: not copied).
+    label : the segment label of every row.
+    memory_limit : bytes (None: the default); sets the block size (`block_bytes`).
+    window : (start, end) s: the samples with start <= t < end only
+        (`streamed_pass.windowed`) go to the Parquet and the statistics; None: all.
+    progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
+
+    Raises
+    ------
+    IngestError naming the file and the line where time stops increasing or a value is
+    not a finite number.
+    """
+    from pipelines.ingest.streamed_pass import DEFAULT_MEMORY_LIMIT, block_bytes, streamed_pass
+
+    limit = DEFAULT_MEMORY_LIMIT if memory_limit is None else memory_limit
+    path = Path(path)
+    layout = layout_of(path, fmt, sections=False)
+    if layout.delimiter == "whitespace" or "section" in layout.roles:
+        raise IngestError("the streamed route reads delimited text of one record only", file=path)
+    fmt = header_units(layout, fmt)
+    iso = layout.roles.get("time") if fmt.time_unit == "iso" else None
+    columns = list(dict.fromkeys(layout.roles.values()))
+    options = arrow_options(layout, columns, (iso,))
+    last_t = None
+    opened = streamed_pass(
+        path,
+        samples,
+        copy_to=copy_to,
+        label=label,
+        memory_limit=limit,
+        progress=progress,
+        window=window,
+    )
+    with opened as run:
+        fh, sink = run.fh, run.sink
+        head = b"".join(fh.readline() for _ in range(layout.data_start - 1))
+        run.sha.update(head)
+        if run.copy is not None:
+            run.copy.write(head)
+        done = len(head)
+        for text in blocks(fh, block_bytes(limit), run.copy, run.sha):
+            done += len(text)
+            try:
+                table = pacsv.read_csv(pa.py_buffer(text), *options)
+            except pa.ArrowInvalid as exc:
+                diagnose(layout, columns, iso, sink.done)  # the line and field, as in memory
+                raise IngestError(f"cannot parse the file: {exc}", file=path) from None
+            if table.num_rows == 0:  # blank lines only
+                continue
+            chunk = csv_chunk(table, layout, fmt, iso, sink.done, path, last_t)
+            last_t = float(chunk["t"][-1])
+            sink.write(chunk)
+            run.bar.update(done, sink.done)
+        sink.finish()  # the last chunk's motion windows (computed beside the reading)
+    if sink.done == 0:
+        raise IngestError("no data rows", file=path)
+    return run.result()
+
+
+def csv_chunk(
+    table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path, last_t: float | None
+) -> dict[str, np.ndarray]:
+    """One block's samples in SI: t (n,), acc and gyr (n, 3), temp (n,) (NaN if none)."""
+    n = table.num_rows
+    # [gyr | acc]: the first pass takes it without a copy; column by column in memory, so
+    # each column is filled, reduced and handed to Arrow without a strided copy. The
+    # parser's chunks are copied straight into it (one copy, no combined Arrow column).
+    both = np.empty((n, 6), order="F")
+    values: dict[str, np.ndarray] = {}
+    for role, name in layout.roles.items():
+        col = table.column(name)
+        if name == iso:
+            v = iso_seconds(col.combine_chunks())
+        else:
+            v = both[:, CHANNELS.index(role)] if role in CHANNELS else np.empty(n)
+            _copy_values(col, v)
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            raise IngestError(
+                "expected a finite number",
+                file=path,
+                line=layout.line_of_row(rows + int(bad[0])),
+                field=layout.fields[name],
+            )
+        values[role] = v
+    gyr = sensor_si(both[:, :3], "gyr", fmt)
+    acc = sensor_si(both[:, 3:], "acc", fmt)
+    found = impossible_reading({"acc": acc, "gyr": gyr})
+    if found is not None:  # the in-memory route's check (run_loader: check_readings)
+        name, i, text = found
+        raise IngestError(text, file=path, line=layout.line_of_row(rows + i), field=name)
+    if "time" in values:
+        t = values["time"]
+        if fmt.time_unit == "samples":
+            t = t / fmt.sample_rate_hz
+        elif fmt.time_unit != "iso":
+            t = seconds(t, fmt.time_unit)
+    else:
+        t = (rows + np.arange(n)) / fmt.sample_rate_hz
+    steps = np.diff(t, prepend=-np.inf if last_t is None else last_t)
+    if (steps <= 0).any():
+        row = rows + int(np.flatnonzero(steps <= 0)[0])
+        field = layout.fields.get(layout.roles.get("time", ""), "time")
+        raise IngestError(
+            "time must increase", file=path, line=layout.line_of_row(row), field=field
+        )
+    temp = temperature_celsius(layout, values.get("temp"))
+    return {"t": t, "acc": acc, "gyr": gyr, "temp": np.full(n, np.nan) if temp is None else temp}
+
+
+def _copy_values(column: pa.ChunkedArray, out: np.ndarray) -> None:
+    """A float64 column's values into out (n,), chunk by chunk (nulls as NaN)."""
+    start = 0
+    for chunk in column.chunks:
+        out[start : start + len(chunk)] = float_values(chunk)
+        start += len(chunk)
 
 
 # --- conversion to SI ----------------------------------------------------------------

@@ -20,6 +20,7 @@ from pydantic import (
 )
 
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
+from pipelines.ingest.errors import IngestError
 
 # Formats a reader exists for; readers register in pipelines.ingest.readers.
 # Extend this tuple when adding a format.
@@ -27,6 +28,7 @@ FORMAT_KINDS = ("csv", "mpu6000", "mat", "mcap", "ulog", "dataflash", "rosbag", 
 DELIMITERS = {",": ",", ";": ";", "\t": "\t", "tab": "\t", "whitespace": "whitespace"}
 
 Column = str | int  # a column name, or a 0-based index when the file has no header
+PROGRESS_THRESHOLD_BYTES = 64 * 2**20  # a data file above: its reading shows progress on stderr
 COUNTS = "counts"  # acc_unit / gyr_unit of raw sensor counts, with *_scale and *_offset
 
 
@@ -176,3 +178,16 @@ class FormatSpec(BaseModel):
         if self.temp_column is not None:
             cols.append(self.temp_column)
         return cols + list(self.reference_columns.values())
+
+
+def extra_keys(fmt: FormatSpec, kind: str, keys: tuple[str, ...]) -> dict:
+    """The reader's own keys of [format]; IngestError for any other key."""
+    extra = dict(fmt.model_extra or {})
+    unknown = sorted(set(extra) - set(keys))
+    if unknown:
+        raise IngestError(
+            f"unknown key {unknown[0]!r} for format kind '{kind}'; expected: "
+            + (", ".join(keys) or "none"),
+            field=f"format.{unknown[0]}",
+        )
+    return extra

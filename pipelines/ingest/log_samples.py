@@ -141,6 +141,15 @@ def check_samples(
     )
 
 
+def check_finite(name: str, where: str, what: str, values: np.ndarray, offset: int = 0) -> None:
+    """IngestError at the first message with a non-finite value (`offset`: index of the
+    first row of `values` in the topic, when it is checked in chunks)."""
+    bad = ~np.isfinite(values)
+    if bad.any():
+        k = offset + int(np.flatnonzero(bad.reshape(len(values), -1).any(axis=1))[0])
+        raise IngestError(f"{where}: non-finite {what} in message {k} (0-based)", file=name)
+
+
 def impossible_reading(channels: dict[str, np.ndarray]) -> tuple[str, int, str] | None:
     """(channel, 0-based sample, description) of the first acc or gyr reading beyond what
     any IMU measures (`ACC_LIMIT`, `GYR_LIMIT`), or None."""

@@ -43,7 +43,7 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -56,8 +56,9 @@ from pipelines.ingest.cdr import (
     decode_fixed_cdr,
     gather,
 )
+from pipelines.ingest.data_format import extra_keys
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.log_samples import cut_tail
+from pipelines.ingest.log_samples import check_finite, cut_tail
 from pipelines.ingest.mcap_records import (
     MESSAGE_FIXED,
     OP_CHANNEL,
@@ -74,10 +75,15 @@ from pipelines.ingest.mcap_records import (
 )
 from pipelines.ingest.time_order import check_time_increases
 
+if TYPE_CHECKING:
+    from pipelines.ingest.data_format import FormatSpec
+    from pipelines.ingest.streamed_pass import SampleSink, Streamed
+
 MAGIC = b"\x89MCAP0\r\n"
 IMU_SCHEMA = "sensor_msgs/msg/Imu"
 TEMPERATURE_SCHEMA = "sensor_msgs/msg/Temperature"
 JOINT_STATE_SCHEMA = "sensor_msgs/msg/JointState"
+KEYS = ("imu_topic", "temperature_topic", "table_topic", "table_joint", "stamp")  # [format]
 
 _PENDING_FLUSH = 1 << 20  # bytes of unchunked message records decoded together
 _MAX_CHUNK = 1 << 30  # writers use ~1-10 MiB chunks; more is a damaged length field
@@ -136,7 +142,6 @@ def read_mcap(
         that are not strictly increasing (with the message index).
     """
     name = os.fspath(path)
-    check_arguments(name, imu_topic, temperature_topic, table_topic, table_joint, stamp)
     reader = McapReader(name, imu_topic, temperature_topic, table_topic, table_joint, stamp)
     try:
         with open(name, "rb") as f:
@@ -146,36 +151,14 @@ def read_mcap(
     return reader.recording()
 
 
-def check_arguments(
-    name: str,
-    imu_topic: str | None,
-    temperature_topic: str | None,
-    table_topic: str | None,
-    table_joint: str | int,
-    stamp: str,
-) -> None:
-    """IngestError for [format] keys of `read_mcap` that cannot be right (before any reading)."""
-    if stamp not in ("header", "log"):
-        raise IngestError(
-            f"stamp must be 'header' or 'log', got {stamp!r}", file=name, field="format.stamp"
-        )
-    requested = [t for t in (imu_topic, temperature_topic, table_topic) if t is not None]
-    if len(set(requested)) != len(requested):
-        raise IngestError(
-            f"the same topic is named for two roles: imu={imu_topic!r}, "
-            f"temperature={temperature_topic!r}, table={table_topic!r}",
-            file=name,
-        )
-    if isinstance(table_joint, bool) or not isinstance(table_joint, (str, int)):
-        raise IngestError(
-            f"table_joint must be a joint name or index, got {table_joint!r}",
-            file=name,
-            field="format.table_joint",
-        )
-
-
 class McapReader:
-    """One pass over an MCAP file, decoding the chosen channels chunk by chunk."""
+    """One pass over an MCAP file, decoding the chosen channels chunk by chunk.
+
+    Each chunk's decoded messages of a channel are kept (`keep`): joined into the topic's
+    arrays for `recording`, or, given a `sink` (the streamed route), the IMU topic's
+    pushed to it as they come (a decompressed chunk above `max_chunk` bytes refused).
+    The [format] keys that cannot be right are refused before any reading.
+    """
 
     def __init__(
         self,
@@ -185,11 +168,31 @@ class McapReader:
         table_topic: str | None,
         table_joint: str | int,
         stamp: str,
+        sink: SampleSink | None = None,
+        max_chunk: int = _MAX_CHUNK,
     ) -> None:
+        if stamp not in ("header", "log"):
+            raise IngestError(
+                f"stamp must be 'header' or 'log', got {stamp!r}", file=name, field="format.stamp"
+            )
+        requested = [t for t in (imu_topic, temperature_topic, table_topic) if t is not None]
+        if len(set(requested)) != len(requested):
+            raise IngestError(
+                f"the same topic is named for two roles: imu={imu_topic!r}, "
+                f"temperature={temperature_topic!r}, table={table_topic!r}",
+                file=name,
+            )
+        if isinstance(table_joint, bool) or not isinstance(table_joint, (str, int)):
+            raise IngestError(
+                f"table_joint must be a joint name or index, got {table_joint!r}",
+                file=name,
+                field="format.table_joint",
+            )
         self.name = name
         self.table_joint = table_joint
         self.topics = {"imu": imu_topic, "temp": temperature_topic, "table": table_topic}
         self.stamp = stamp
+        self.sink, self.max_chunk = sink, max_chunk
         self.schemas: dict[int, tuple[str, str, bytes]] = {}
         self.counts: dict[int, int] | None = None  # messages per channel, from Statistics
         self.channels: dict[int, McapChannel] = {}
@@ -257,6 +260,14 @@ class McapReader:
         self.findings = (cut_tail(Path(self.name), "MCAP file", pos, size - pos, size),)
 
     def _chunk(self, body: bytes, pos: int) -> None:
+        if self.sink is not None:
+            (size,) = struct.unpack_from("<Q", body, 16) if len(body) >= 24 else (0,)
+            if size > self.max_chunk:
+                raise IngestError(
+                    f"chunk at byte {pos} holds {size} bytes uncompressed, more than the "
+                    f"memory limit allows ({self.max_chunk}); raise the memory limit",
+                    file=self.name,
+                )
         try:
             uncompressed_size, crc = struct.unpack_from("<QI", body, 16)
             (comp_len,) = struct.unpack_from("<I", body, 28)
@@ -347,6 +358,8 @@ class McapReader:
             channel.schema_name, channel.schema_encoding, channel.schema_data = self.schemas[sid]
         channel.role = self._role(channel)
         self.channels[cid] = channel
+        if self.sink is not None and sum(c.role == "imu" for c in self.channels.values()) > 1:
+            self.pick("imu")  # several Imu topics and none named: refused as soon as seen
 
     def _role(self, ch: McapChannel) -> str | None:
         for role, topic in self.topics.items():
@@ -395,8 +408,16 @@ class McapReader:
             self._keep(channel, part, pos)
 
     def _keep(self, ch: McapChannel, part: dict[str, np.ndarray], pos: int) -> None:
-        """Append one chunk's decoded messages to the channel's arrays."""
+        """Append one chunk's decoded messages to the channel's arrays, or push the IMU
+        topic's to the sink (the first Imu channel defined: `pick`'s; any other is only
+        counted, an ambiguous choice being refused as soon as it is seen)."""
         n = len(part["stamp"])
+        if self.sink is not None:
+            if ch is next(c for c in self.channels.values() if c.role == "imu"):
+                self.sink.topic = ch.topic
+                self.sink.push(part)
+            ch.count += n
+            return
         total = None if self.counts is None else self.counts.get(ch.id)
         if total is not None and not ch.parts and ch.count == 0:
             try:  # np.empty only reserves: a damaged count fails here or at the count check
@@ -554,7 +575,7 @@ class McapReader:
     # --- assembling the Recording ------------------------------------------------
 
     def recording(self) -> Recording:
-        imu = self._pick("imu")
+        imu = self.pick("imu")
         assert imu is not None  # _pick raises for a missing IMU
         where = f"topic {imu.topic!r}"
         # One field at a time, dropping its parts: peak memory stays near the final arrays.
@@ -574,13 +595,13 @@ class McapReader:
         t = rel + t0 / NS
 
         temp = None
-        ch = self._pick("temp")
+        ch = self.pick("temp")
         if ch is not None:
             values = _concat(ch, "temp")  # count 1: (n,)
             temp = self._onto(ch, _concat(ch, "stamp"), values, t0, rel, "temperature")
 
         reference: dict[str, np.ndarray] = {}
-        ch = self._pick("table")
+        ch = self.pick("table")
         if ch is not None:
             ref_ns = _concat(ch, "stamp")
             columns = {"angle": _concat(ch, "angle"), "rate": _concat(ch, "rate")}
@@ -608,7 +629,7 @@ class McapReader:
             findings=self.findings,
         )
 
-    def _pick(self, role: str) -> McapChannel | None:
+    def pick(self, role: str) -> McapChannel | None:
         topic = self.topics[role]
         chosen = [c for c in self.channels.values() if c.role == role]
         present = ", ".join(
@@ -673,10 +694,89 @@ def _concat(ch: McapChannel, key: str) -> np.ndarray:
     return np.concatenate([p.pop(key) for p in ch.parts])
 
 
-def check_finite(name: str, where: str, what: str, values: np.ndarray, offset: int = 0) -> None:
-    """IngestError at the first message with a non-finite value (`offset`: index of the
-    first row of `values` in the topic, when it is checked in chunks)."""
-    bad = ~np.isfinite(values)
-    if bad.any():
-        k = offset + int(np.flatnonzero(bad.reshape(len(values), -1).any(axis=1))[0])
-        raise IngestError(f"{where}: non-finite {what} in message {k} (0-based)", file=name)
+def stream_mcap(
+    path: Path,
+    fmt: FormatSpec,
+    samples: Path,
+    *,
+    copy_to: Path | None = None,
+    label: str = "record",
+    memory_limit: int | None = None,
+    progress: bool | None = None,
+    window: tuple[float, float] | None = None,
+) -> Streamed:
+    """One pass of `McapReader` over a ROS 2 MCAP log, its IMU topic's messages to the
+    samples' Parquet and the first-pass statistics (`streamed_pass`), the file's bytes
+    hashed and copied as they are read.
+
+    Parameters
+    ----------
+    path : the .mcap file (chunked or not; none, zstd or lz4 compression).
+    fmt : the manifest's format section (kind mcap: ``imu_topic``, ``stamp`` as
+        `read_mcap`; ``temperature_topic`` / ``table_topic``, interpolated onto the whole
+        IMU time base, are refused with the reason).
+    samples : the Parquet file to write (t in Unix s, the in-memory time base; temp NaN).
+    copy_to : where the raw bytes are copied (None: not copied).
+    label : the segment label of every row.
+    memory_limit : bytes (None: the default); sets the rows per batch and the largest
+        chunk accepted (a quarter of it).
+    window : (start, end) s: the samples with start <= t < end only go to the Parquet and
+        the statistics; None: all.
+    progress : a progress line on stderr; None: for large files.
+
+    Raises
+    ------
+    IngestError as `read_mcap`; a log cut while written (read in memory with its finding).
+    """
+    from pipelines.ingest.streamed_pass import (
+        DEFAULT_MEMORY_LIMIT,
+        SKIP_BLOCK,
+        HashingTee,
+        streamed_pass,
+    )
+
+    limit = DEFAULT_MEMORY_LIMIT if memory_limit is None else memory_limit
+    keys = {"table_joint": 0, "stamp": "header", **extra_keys(fmt, "mcap", KEYS)}
+    topics = {k: keys.get(k) for k in ("imu_topic", "temperature_topic", "table_topic")}
+    name = str(path)
+    McapReader(name, **topics, table_joint=keys["table_joint"], stamp=keys["stamp"])
+    for key in ("temperature_topic", "table_topic"):
+        if keys.get(key) is not None:
+            raise IngestError(
+                f"a record read in chunks gives its IMU topic only; {key} is interpolated "
+                "onto the whole IMU time base (raise the memory limit to read it into memory)",
+                file=path,
+                field=f"format.{key}",
+            )
+    opened = streamed_pass(
+        path,
+        samples,
+        copy_to=copy_to,
+        label=label,
+        memory_limit=limit,
+        progress=progress,
+        window=window,
+        buffering=SKIP_BLOCK,
+    )
+    with opened as run:
+        tee = HashingTee(run.fh, run.sha, run.copy)
+        run.sink.written = lambda n: run.bar.update(tee.hashed, n)
+        try:
+            reader = McapReader(
+                name, topics["imu_topic"], None, None, 0, keys["stamp"], run.sink, limit // 4
+            )
+            reader.read(tee, run.size)
+            if reader.findings:  # a cut log: the streamed route carries no findings
+                reader.pick("imu")  # no IMU before the cut: the reader's own error
+                raise IngestError(
+                    f"{reader.findings[0]['detail']}; a record streamed in chunks is "
+                    "not read cut (raise the memory limit to read it into memory, with "
+                    "the finding)",
+                    file=path,
+                )
+            run.sink.finish()
+            tee.drain()
+        finally:
+            tee.close()
+    reader.pick("imu")  # absent, ambiguous, empty or short of the statistics' count
+    return run.result()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from calib_core.recording import Recording
 from pipelines.ingest.csv_reader import read_csv
-from pipelines.ingest.data_format import FormatSpec
+from pipelines.ingest.data_format import FormatSpec, extra_keys
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.mpu6000 import read_mpu6000_file
 
@@ -49,9 +49,6 @@ def _read_mat(path: Path, fmt: FormatSpec) -> Recording:
     )
 
 
-MCAP_KEYS = ("imu_topic", "temperature_topic", "table_topic", "table_joint", "stamp")
-
-
 def _read_mcap(path: Path, fmt: FormatSpec) -> Recording:
     """Adapter from the manifest's [format] (``imu_topic``, ``stamp``, ...) to read_mcap.
 
@@ -59,22 +56,9 @@ def _read_mcap(path: Path, fmt: FormatSpec) -> Recording:
     of [format] do not apply; every key is optional (one Imu topic is found
     by its schema).
     """
-    from pipelines.ingest.mcap_reader import read_mcap
+    from pipelines.ingest.mcap_reader import KEYS, read_mcap
 
-    return read_mcap(path, **extra_keys(fmt, "mcap", MCAP_KEYS))
-
-
-def extra_keys(fmt: FormatSpec, kind: str, keys: tuple[str, ...]) -> dict:
-    """The reader's own keys of [format]; IngestError for any other key."""
-    extra = dict(fmt.model_extra or {})
-    unknown = sorted(set(extra) - set(keys))
-    if unknown:
-        raise IngestError(
-            f"unknown key {unknown[0]!r} for format kind '{kind}'; expected: "
-            + (", ".join(keys) or "none"),
-            field=f"format.{unknown[0]}",
-        )
-    return extra
+    return read_mcap(path, **extra_keys(fmt, "mcap", KEYS))
 
 
 def _read_ulog(path: Path, fmt: FormatSpec) -> Recording:

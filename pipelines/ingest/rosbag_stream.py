@@ -1,9 +1,9 @@
-"""A long ROS 1 IMU record from a bag in bounded memory (the streamed route of `csv_stream`).
+"""A long ROS 1 IMU record from a bag in bounded memory (the streamed route, `streamed_pass`).
 
 rosbags' ROS 1 reader, which `pipelines.ingest.rosbag_reader` uses, reads the index of
 every message when it opens a bag (a Python tuple per message: about 170 bytes each,
 15 GB for a day at 1 kHz), so `stream_rosbag` walks the bag itself, once, front to back,
-its bytes passing through `mcap_stream.HashingTee`, which hashes and copies them (the raw
+its bytes passing through `streamed_pass.HashingTee`, which hashes and copies them (the raw
 copy) as they are read:
 
 1. the bag header, then the index at its end (the connections and one record per
@@ -18,7 +18,7 @@ copy) as they are read:
    reader does: they must agree;
 4. the messages go, in log-time order (the in-memory reader's), through the in-memory
    reader's checks (`log_samples.check_samples`, records numbered in the whole topic)
-   into `mcap_stream.SampleSink`: batches of a size set by the memory limit, written as row
+   into `streamed_pass.SampleSink`: batches of a size set by the memory limit, written as row
    groups of the samples' Parquet and pushed to the first-pass statistics.
 
 The topic choice, the stamp (``header`` or ``log``), the rate check and their refusals
@@ -34,35 +34,18 @@ not read front to back) and bags that are not indexed.
 
 from __future__ import annotations
 
-import hashlib
 import io
-import time
-from contextlib import nullcontext
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from calib_core.streamed import MedianStep
 from pipelines.ingest.cdr import IMU_LAYOUT, NS, BadMessageError, gather
-from pipelines.ingest.csv_reader import PROGRESS_THRESHOLD_BYTES
-from pipelines.ingest.csv_stream import (
-    DEFAULT_MEMORY_LIMIT,
-    ROW_BYTES,
-    SAMPLE_COLUMNS,
-    Progress,
-    Streamed,
-    block_bytes,
-)
-from pipelines.ingest.data_format import FormatSpec
+from pipelines.ingest.data_format import FormatSpec, extra_keys
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.log_samples import MIN_RATE_HZ, LogSource, check_samples, choose_source
-from pipelines.ingest.mcap_reader import McapChannel
-from pipelines.ingest.mcap_stream import SKIP_BLOCK, HashingTee, SampleSink
-from pipelines.ingest.readers import extra_keys
 from pipelines.ingest.rosbag_reader import (
     IMU,
     KEYS,
@@ -73,7 +56,14 @@ from pipelines.ingest.rosbag_reader import (
     ros1_types,
     topic_connections,
 )
-from storage.rawstore import samples_parquet_options
+from pipelines.ingest.streamed_pass import (
+    DEFAULT_MEMORY_LIMIT,
+    SKIP_BLOCK,
+    HashingTee,
+    SampleSink,
+    Streamed,
+    streamed_pass,
+)
 
 OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
 INDEX_ENTRY = np.dtype([("sec", "<u4"), ("nsec", "<u4"), ("offset", "<u4")])  # IDXDATA's
@@ -91,7 +81,7 @@ class _Bag:
         self.chunk_infos: list[tuple[int, int]] = []  # (byte, connections) of each chunk
         self.imu: dict[int, Any] = {}  # the IMU topic's connections by id
         self.deserialize: Any = None
-        self.channel: McapChannel | None = None
+        self.topic: str | None = None  # the IMU topic
         self.last_log: int | None = None  # ns, the previous chunk's last IMU log time
         self.last_t: float | None = None  # s, the previous message's time
         self.t0: int | None = None  # ns, the first stamp (the time base)
@@ -271,7 +261,7 @@ class _Bag:
             own.register(ros1_types(c))
         self.imu = {c.id: c for c in conns}
         self.deserialize = own.deserialize_ros1
-        self.channel = McapChannel(conns[0].id, conns[0].topic, "ros1", 0)
+        self.topic = self.sink.topic = conns[0].topic
 
     # --- the pass ----------------------------------------------------------------
 
@@ -343,7 +333,7 @@ class _Bag:
         log = index["sec"].astype(np.int64) * NS + index["nsec"]
         order = np.argsort(log, kind="stable")  # the in-memory reader's merge by log time
         index, conn, log = index[order], conn[order], log[order]
-        topic = self.channel.topic
+        topic = self.topic
         if self.last_log is not None and log[0] < self.last_log:
             raise IngestError(
                 f"{topic}: the log time of the chunk at byte {pos} goes back before the "
@@ -375,7 +365,7 @@ class _Bag:
         )
         self.last_t = float(t[-1])
         self.read += len(t)
-        self.sink.push(self.channel, part)
+        self.sink.push(part)
 
     def _messages(
         self, buf: bytes, index: np.ndarray, conn: np.ndarray
@@ -454,7 +444,7 @@ class _Bag:
         """The IMU messages read against the index's count (a damaged bag differs)."""
         want = sum(self.expected.get(c, 0) for c in self.imu)
         if self.read != want:
-            topic = self.channel.topic if self.channel else "?"
+            topic = self.topic or "?"
             raise IngestError(
                 f"{topic}: {self.read} messages read but the bag's index counts {want} "
                 "(damaged bag?)",
@@ -501,12 +491,12 @@ def stream_rosbag(
     label : the segment label of every row.
     memory_limit : bytes; sets the rows per batch and the largest chunk accepted.
     window : (start, end) s: the samples with start <= t < end only go to the Parquet and
-        the statistics (`csv_stream.windowed`); None: all.
+        the statistics (`streamed_pass.windowed`); None: all.
     progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
 
     Returns
     -------
-    Streamed, as `csv_stream.stream_csv`.
+    Streamed (`streamed_pass`).
 
     Raises
     ------
@@ -515,7 +505,6 @@ def stream_rosbag(
     below ``min_rate_hz``; a message that does not decode, a non-finite or impossible
     value, a stamp not after the previous one (records numbered in the whole topic).
     """
-    started = time.perf_counter()
     path = Path(path)
     keys = {"stamp": "header", **extra_keys(fmt, "rosbag", KEYS)}
     if keys["stamp"] not in ("header", "log"):
@@ -537,39 +526,30 @@ def stream_rosbag(
             file=path,
             field="format.kind",
         )
-    size = path.stat().st_size
-    bar = Progress(
-        path.name, size, size > PROGRESS_THRESHOLD_BYTES if progress is None else progress
+    opened = streamed_pass(
+        path,
+        samples,
+        copy_to=copy_to,
+        label=label,
+        memory_limit=memory_limit,
+        progress=progress,
+        window=window,
+        buffering=SKIP_BLOCK,
     )
-    sha = hashlib.sha256()
-    schema = pa.schema([("segment", pa.string())] + [(c, pa.float64()) for c in SAMPLE_COLUMNS])
-    try:
-        with (
-            path.open("rb", buffering=SKIP_BLOCK) as fh,
-            pq.ParquetWriter(samples, schema, **samples_parquet_options(schema)) as writer,
-            copy_to.open("wb") if copy_to is not None else nullcontext() as copy,
-        ):
-            tee = HashingTee(fh, sha, copy)
-            rows = block_bytes(memory_limit) // ROW_BYTES
-            shown = lambda n: bar.update(tee.hashed, n)  # noqa: E731
-            sink = SampleSink(str(path), rows, writer, label, shown, window)
-            try:
-                bag = _walk(path, tee, keys, sink, memory_limit, size)
-                sink.flush()
-                sink.first.close()  # the last batch's statistics (beside the reading)
-                tee.drain()
-            finally:
-                sink.close()
-                tee.close()
-    except OSError as exc:
-        raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
-    bar.update(size, sink.done, final=True)
-    _check_rate(path, bag, sink, keys.get("min_rate_hz", MIN_RATE_HZ))
-    seconds = time.perf_counter() - started
-    return Streamed(sha.hexdigest(), size, Path(samples), sink.first, seconds, span=sink.span)
+    with opened as run:
+        tee = HashingTee(run.fh, run.sha, run.copy)
+        run.sink.written = lambda n: run.bar.update(tee.hashed, n)
+        try:
+            bag = walk(path, tee, keys, run.sink, memory_limit, run.size)
+            run.sink.finish()
+            tee.drain()
+        finally:
+            tee.close()
+    check_rate(path, bag, run.sink, keys.get("min_rate_hz", MIN_RATE_HZ))
+    return run.result()
 
 
-def _walk(
+def walk(
     path: Path,
     tee: HashingTee,
     keys: dict[str, Any],
@@ -603,10 +583,10 @@ def _walk(
     return bag
 
 
-def _check_rate(path: Path, bag: _Bag, sink: SampleSink, min_rate_hz: float) -> None:
+def check_rate(path: Path, bag: _Bag, sink: SampleSink, min_rate_hz: float) -> None:
     """No samples, or a rate below `min_rate_hz`: the in-memory reader's refusals, with the
     rate from the exact median step of the first pass (`log_samples.stamp_rate`'s)."""
-    topic = bag.channel.topic if bag.channel else "?"
+    topic = bag.topic or "?"
     if sink.done == 0:
         raise IngestError(f"{topic}: no samples", file=path, field=topic)
     rate = _rate(sink.steps or sink.first.step) if sink.done > 1 else None

@@ -6,13 +6,14 @@ and keeps the first-pass statistics of a static record. `calib process` takes th
 route for a static-bias run whose recording is larger than the run's memory limit
 (`STREAMERS[kind]` with the [format] section's kind).
 
-Every streamer has the signature of `pipelines.ingest.csv_stream.stream_csv`::
+Every streamer has the signature of `pipelines.ingest.csv_reader.stream_csv` and runs its
+format's reader through `pipelines.ingest.streamed_pass`::
 
     stream(path: Path, fmt: FormatSpec, samples: Path, *, copy_to: Path | None = None,
            label: str = "record", memory_limit: int = DEFAULT_MEMORY_LIMIT,
            progress: bool | None = None) -> Streamed
 
-and returns a `Streamed` (`pipelines.ingest.csv_stream.Streamed`):
+and returns a `Streamed` (`pipelines.ingest.streamed_pass.Streamed`):
 
 - ``sha256`` : hex SHA-256 of the file's bytes, all of them, as read;
 - ``size`` : the file's size, bytes;
@@ -35,9 +36,10 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 
 from calib_core.streamed import RecordSummary
-from pipelines.ingest.csv_stream import DEFAULT_MEMORY_LIMIT, Streamed, stream_csv
-from pipelines.ingest.mcap_stream import stream_mcap
+from pipelines.ingest.csv_reader import stream_csv
+from pipelines.ingest.mcap_reader import stream_mcap
 from pipelines.ingest.rosbag_stream import stream_rosbag
+from pipelines.ingest.streamed_pass import DEFAULT_MEMORY_LIMIT, Streamed
 from storage.rawstore import SamplesFile
 
 Streamer = Callable[..., Streamed]
