@@ -229,27 +229,20 @@ def _env() -> dict[str, str]:
 def main() -> None:
     env, calib = _env(), _calib()
     compile_project()
-    if "--certificate-only" in sys.argv[1:]:
-        load = os.getloadavg()[0]
-        with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
-            figures = certificate_cpu(SAMPLES["csv"], Path(tmp))
-        log(f"load average (1 min): {load:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
-        print(json.dumps(figures))
-        return
-    if "--flow-only" in sys.argv[1:]:
-        load = os.getloadavg()[0]
-        with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
-            figures = flow_overhead(calib, env, Path(tmp))
-        log(f"load average (1 min): {load:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
-        print(json.dumps(figures))
-        return
-    if "--history-only" in sys.argv[1:]:
-        load = os.getloadavg()[0]
-        with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
-            figures = history_latency(calib, env, Path(tmp))
-        log(f"load average (1 min): {load:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
-        print(json.dumps(figures))
-        return
+    alone = {
+        "--certificate-only": lambda tmp: certificate_cpu(SAMPLES["csv"], tmp),
+        "--flow-only": lambda tmp: flow_overhead(calib, env, tmp),
+        "--history-only": lambda tmp: history_latency(calib, env, tmp),
+    }
+    for option, measure in alone.items():
+        if option in sys.argv[1:]:
+            load = os.getloadavg()[0]
+            with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
+                figures = measure(Path(tmp))
+            end = os.getloadavg()[0]
+            log(f"load average (1 min): {load:.2f} at the start, {end:.2f} at the end")
+            print(json.dumps(figures))
+            return
     load = os.getloadavg()[0]
     helps = [_timed([*calib, "--help"], env)[0] for _ in range(REPEATS)]
     log(f"calib --help: median {statistics.median(helps):.3f} s of {helps}")
