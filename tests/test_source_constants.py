@@ -169,3 +169,33 @@ def test_critical_values_against_the_printed_tables():
     assert t_ppf(0.975, 60) == pytest.approx(2.000, abs=6e-4)
     assert round(f_ppf(0.95, 10, 40), 2) == 2.08 and round(f_ppf(0.95, 5, 60), 2) == 2.37
     assert 1.993 < f_ppf(0.95, 10, 49) < 2.077 and 2.368 < f_ppf(0.95, 5, 54) < 2.449
+
+
+def test_the_exact_critical_values_are_the_printed_table_interpolated():
+    """docs/methods.md 2.8: the pipeline's F(10, 49) and F(5, 54) are the printed rows
+    40 and 60 interpolated linearly in 1 / df2 (the rule printed with such tables), to the
+    table's third decimal; the paper's 2.08 / 2.37 are the rows themselves, and neither a
+    two-sided reading (the 0.975 points) nor another degrees-of-freedom count gives both."""
+    rows = {10: (2.077, 1.993), 5: (2.449, 2.368)}  # F(k, 40), F(k, 60), printed
+
+    def interpolated(k, df2):
+        at40, at60 = rows[k]
+        w = (1 / 40 - 1 / df2) / (1 / 40 - 1 / 60)
+        return at40 + w * (at60 - at40)
+
+    assert interpolated(10, 49) == pytest.approx(2.0307, abs=1e-4)  # worked by hand
+    assert interpolated(5, 54) == pytest.approx(2.3860, abs=1e-4)
+    # the pipeline's exact values against the interpolated table (0.0015: the rows'
+    # rounding, 5e-4, plus the interpolation's curvature error)
+    assert f_ppf(0.95, 10, 49) == pytest.approx(interpolated(10, 49), abs=1.5e-3)
+    assert f_ppf(0.95, 5, 54) == pytest.approx(interpolated(5, 54), abs=1.5e-3)
+    # the paper's values are the rows, not the interpolation (0.05 and 0.016 away)
+    assert (round(rows[10][0], 2), round(rows[5][1], 2)) == (2.08, 2.37)
+    assert abs(interpolated(10, 49) - 2.08) > 0.04 and abs(interpolated(5, 54) - 2.37) > 0.01
+    # not a two-sided reading: the 0.975 points are far off
+    assert f_ppf(0.975, 10, 49) > 2.3 and f_ppf(0.975, 5, 54) > 2.8
+    # 2.08 needs df2 = 39 or 40 with k = 10, 2.37 df2 = 58 .. 61 with k = 5: with n = 60 no
+    # one count (n - 1, n - k, n - k - 1, ...) gives both; the table's rows 40 and 60 do
+    df2 = range(20, 130)
+    assert [d for d in df2 if round(f_ppf(0.95, 10, d), 2) == 2.08] == [39, 40]
+    assert [d for d in df2 if round(f_ppf(0.95, 5, d), 2) == 2.37] == [58, 59, 60, 61]
