@@ -17,7 +17,7 @@ import pytest
 
 from calib_core import conditions
 from calib_core.distributions import f_ppf, t_ppf
-from calib_core.earth import FREE_AIR_GRADIENT, gravity_helmert, gravity_wgs84
+from calib_core.earth import EARTH_RATE, FREE_AIR_GRADIENT, gravity_helmert, gravity_wgs84
 from calib_core.preprocess.chain import DEFAULT_OUTLIERS
 from calib_core.preprocess.outliers import hampel_mask, sigma_mask
 from calib_core.solvers import static_bias
@@ -26,6 +26,7 @@ from calib_core.tolerances import (
     DEFAULT_RESIDUAL_LIMITS,
     DEFAULT_VERIFICATION_LIMITS,
 )
+from calib_core.units import STANDARD_GRAVITY
 from pipelines.tolerances import load_profile
 
 G0 = 9.80665  # m/s^2, standard gravity (CGPM 1901), written out
@@ -151,6 +152,16 @@ def test_wgs84_normal_gravity_at_the_equator_and_the_pole():
     """NIMA TR8350.2 (3rd ed.), Table 3.4: gamma_e = 9.7803253359, gamma_p = 9.8321849378."""
     assert gravity_wgs84(0.0) == pytest.approx(9.7803253359, abs=1e-10)
     assert gravity_wgs84(90.0) == pytest.approx(9.8321849378, abs=1e-9)
+
+
+def test_earth_rate_and_standard_gravity():
+    """Earth rate (the north-seeker note's input, the centrifuge's Omega_V): IERS
+    Conventions (2010) Table 1.1, 7.292115e-5 rad/s, and by a second route one turn per
+    sidereal day of 86164.0905 s (within the 1e-7 the nominal value is rounded to).
+    Standard gravity 9.80665 m/s^2 (3rd CGPM, 1901)."""
+    assert EARTH_RATE == 7.292115e-5
+    assert pytest.approx(2.0 * math.pi / 86164.0905, rel=2e-7) == EARTH_RATE
+    assert STANDARD_GRAVITY == G0
 
 
 # --- the centrifuge paper's critical values --------------------------------------------------
