@@ -158,6 +158,16 @@ def test_whole_revolution_average_removes_tilt():
     assert mean.revolutions >= 1
 
 
+def _unstable_run(seed: int):
+    """A simulated run of TRUTH with a step-to-step scale instability of 2e-4."""
+    return simulate_centrifuge(
+        TRUTH,
+        rng=np.random.default_rng(seed),
+        phi_h=PHI,
+        noise=CentrifugeNoise(scale_instability=2e-4),
+    )
+
+
 @pytest.mark.slow
 def test_reduction_keeps_exactly_the_true_terms_in_9_of_10_seeds():
     """The centrifuge acceptance, with the per-step scale instability (2e-4) the
@@ -172,12 +182,7 @@ def test_reduction_keeps_exactly_the_true_terms_in_9_of_10_seeds():
     """
     exact, kappas, z_phi, z_radius = 0, [], [], []
     for seed in range(10):
-        run = simulate_centrifuge(
-            TRUTH,
-            rng=np.random.default_rng(seed),
-            phi_h=PHI,
-            noise=CentrifugeNoise(scale_instability=2e-4),
-        )
+        run = _unstable_run(seed)
         model, _ = solve_centrifuge(
             run.steps, CentrifugeSettings(50.0, alpha=0.001, scale_1g=SCALE)
         )
@@ -231,12 +236,7 @@ def test_the_papers_two_phase_reduction_is_the_default_and_keeps_the_t_rules_ter
     seeds, both sides, when the default was chosen); here two seeds, each both ways."""
     assert CentrifugeSettings(50.0).steer == "F-then-t"
     for seed in range(2):
-        run = simulate_centrifuge(
-            TRUTH,
-            rng=np.random.default_rng(seed),
-            phi_h=PHI,
-            noise=CentrifugeNoise(scale_instability=2e-4),
-        )
+        run = _unstable_run(seed)
         paper, _ = solve_centrifuge(
             run.steps, CentrifugeSettings(50.0, scale_1g=SCALE, t_test=t_test)
         )
