@@ -13,6 +13,13 @@ direction; the bound of a function the data do determine is still c^T I^+ c). Ev
 parameter the data depend on enters theta, reported or not (a nuisance the estimator
 must find too widens the bound of the others, as it should).
 
+A nuisance the design leaves unknown at every sample (the rate profile of a turn by hand or
+by a table whose rate is not recorded: only its total angle is known) is given per segment
+as its direction d_t (C,) at each sample t (zero where it is known). Its amplitudes a_t are
+free but for their sum (the turn angle), so the information of theta is that left in the
+whitened Jacobian once the span of {e_t d_t} less its uniform combination is projected out:
+I = J^T J - J^T P_all J + J^T P_sum J.
+
 The Jacobian is taken by central differences of the noise-free model: exact for the
 models linear in their parameters (the static and integral models), second-order
 accurate otherwise.
@@ -36,9 +43,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# The noise-free model: theta (name -> value, SI) -> the clean channels of every
-# segment, each (N, C), with the noise std of each channel (C,), same unit.
-Model = Callable[[Mapping[str, float]], Sequence[tuple[np.ndarray, np.ndarray]]]
+# The noise-free model: theta (name -> value, SI) -> per segment the clean channels (N, C),
+# the noise std of each channel (C,), same unit, and the direction (N, C) of a nuisance
+# unknown at each sample but for its sum, or None.
+Segment = tuple[np.ndarray, np.ndarray, np.ndarray | None]
+Model = Callable[[Mapping[str, float]], Sequence[Segment]]
 
 
 def fisher_information(
@@ -48,7 +57,8 @@ def fisher_information(
 
     Parameters
     ----------
-    model : theta -> [(clean (N, C), sigma (C,)), ...] per segment, noise-free.
+    model : theta -> [(clean (N, C), sigma (C,), nuisance (N, C) or None), ...] per
+        segment, noise-free.
     theta : the true parameter values, name -> SI value.
     steps : name -> finite-difference step (SI); small against the value's range,
         large against rounding (1e-6 relative to the data's scale is typical).
@@ -59,21 +69,34 @@ def fisher_information(
     info : (P, P) Fisher information, in the parameters' SI units^-2.
     """
     names = list(theta)
-    columns = []
-    weights: list[np.ndarray] | None = None
+    base = model(theta)
+    cols = [[] for _ in base]  # per segment: whitened Jacobian column per parameter
     for name in names:
         h = float(steps[name])
         up = model({**theta, name: theta[name] + h})
         dn = model({**theta, name: theta[name] - h})
-        if weights is None:
-            weights = [np.broadcast_to(1.0 / np.asarray(s, float), c.shape) for c, s in up]
-        columns.append(
-            np.concatenate(
-                [((u - d) / (2.0 * h) * w).ravel() for (u, _), (d, _), w in zip(up, dn, weights)]
-            )
-        )
-    jac = np.stack(columns, axis=1)  # (samples x channels, P), whitened
-    return names, jac.T @ jac
+        for k, ((u, s, _), (d, _, _)) in enumerate(zip(up, dn, strict=True)):
+            cols[k].append((u - d) / (2.0 * h) / np.asarray(s, float))
+    info = np.zeros((len(names), len(names)))
+    for (_, s, nuisance), seg_cols in zip(base, cols, strict=True):
+        jac = np.stack(seg_cols, axis=-1)  # (N, C, P)
+        flat = jac.reshape(-1, len(names))
+        info += flat.T @ flat
+        if nuisance is not None:
+            info -= _nuisance_information(jac, np.asarray(nuisance, float) / np.asarray(s, float))
+    return names, info
+
+
+def _nuisance_information(jac: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """J^T (P_all - P_sum) J of one segment: the information an unknown per-sample amplitude
+    along `direction` (N, C, whitened) takes away, its sum being known."""
+    norm2 = np.einsum("nc,nc->n", direction, direction)
+    moving = norm2 > 0
+    if not moving.any():
+        return np.zeros((jac.shape[2], jac.shape[2]))
+    proj = np.einsum("nc,ncp->np", direction[moving], jac[moving]) / np.sqrt(norm2[moving])[:, None]
+    total = proj.sum(axis=0) / math.sqrt(int(moving.sum()))  # the uniform combination
+    return proj.T @ proj - np.outer(total, total)
 
 
 def crlb_variances(info: np.ndarray, *, rcond: float = 1e-10) -> np.ndarray:

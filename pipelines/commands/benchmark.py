@@ -2,7 +2,7 @@
 software, its per-procedure figures printed and its report written (docs/validation.md).
 
 `benchmark_command` does the work; `calib validate` (the cross-check of archived runs by
-independent implementations, issue 52 item 1) calls it for `--benchmark`.
+independent implementations) calls it for `--benchmark`.
 """
 
 from __future__ import annotations

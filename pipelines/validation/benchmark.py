@@ -72,9 +72,7 @@ def run_case(case: Mapping[str, Any], replicates: int) -> dict[str, Any]:
     names, info = crlb.fisher_information(design.model, design.theta, design.steps)
     bound = dict(zip(names, crlb.crlb_variances(info), strict=True))
     truth = {**design.theta, **design.noise}
-    runs = [
-        _replicate(design, case["procedure"], int(case["seed"]), i) for i in range(replicates)
-    ]
+    runs = [_replicate(design, case["procedure"], int(case["seed"]), i) for i in range(replicates)]
     scored = [n for n in runs[0] if n in truth] if runs else []
     scores = []
     for name in scored:

@@ -22,13 +22,15 @@ from typing import Any
 import numpy as np
 
 from calib_core import params
+from calib_core.crlb import Segment
 from calib_core.recording import Recording
 from calib_core.simulate import random_errors, six_position_integral_run
 from calib_core.simulate.attitudes import multi_position_run, scheme_angles
-from calib_core.simulate.lab_run import TrueErrors
+from calib_core.simulate.lab_run import TrueErrors, rotation_profile
 from calib_core.simulate.noise import NoiseSpec, simulate_static
 from calib_core.simulate.rate_table import GyroTruth, simulate_rate_table
 from calib_core.simulate.thermal import set_parameters
+from calib_core.solvers.six_position import axis_vector
 from calib_core.units import DEG, STANDARD_GRAVITY
 
 Segments = dict[str, Recording]
@@ -50,7 +52,7 @@ class Design:
 
     theta: dict[str, float]
     draw: Callable[[Mapping[str, float], np.random.Generator], Segments]
-    model: Callable[[Mapping[str, float]], list[tuple[np.ndarray, np.ndarray]]]
+    model: Callable[[Mapping[str, float]], list[Segment]]
     settings: dict[str, Any]
     gravity: float
     steps: dict[str, float]
@@ -66,8 +68,35 @@ def _location(truth: TrueErrors) -> dict[str, float]:
     return {n: v for n, v in truth.parameters().items() if ".noise." not in n}
 
 
-def _clean(segments: Segments, sigma: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    return [(np.hstack([r.acc, r.gyr]), sigma) for r in segments.values()]
+def _clean(segments: Segments, sigma: np.ndarray) -> list[Segment]:
+    return [(np.hstack([r.acc, r.gyr]), sigma, None) for r in segments.values()]
+
+
+def _turn_profiles(segments: Segments, truth: TrueErrors, opts: Mapping[str, Any]) -> list[Segment]:
+    """The clean segments, each turn with its rate profile as nuisance: the gyro's response
+    (I + M_g) up to a rate about the turning axis at each moving sample, the profile
+    unknown to the procedure but for its total angle (whole turns). A turn's accelerometer
+    channels carry no information in the procedures' model (the specific force of a turning
+    unit off the axis is unknown: lever arm), so they are left out of the bound."""
+    rate_hz = float(opts.get("rate_hz", 50.0))
+    _, rate = rotation_profile(
+        rate_hz,
+        int(opts.get("turns", 1)),
+        float(opts.get("rotation_rate_dps", 90.0)) * DEG,
+        float(opts.get("pause_s", 2.0)),
+    )
+    sigma = np.concatenate([truth.acc_noise, truth.gyr_noise])
+    turning = np.concatenate([np.full(3, np.inf), truth.gyr_noise])
+    out: list[Segment] = []
+    for label, rec in segments.items():
+        nuisance, noise = None, sigma
+        if not label.endswith(("_up", "_dn")):
+            noise = turning
+            response = (np.eye(3) + truth.gyr_M) @ axis_vector(label, 1.0)
+            nuisance = np.zeros((rec.t.size, 6))
+            nuisance[rate[: rec.t.size] > 0, 3:] = response
+        out.append((np.hstack([rec.acc, rec.gyr]), noise, nuisance))
+    return out
 
 
 def _pick(segments: Segments, which: str) -> Segments:
@@ -95,7 +124,6 @@ def lab_run_design(case: Mapping[str, Any]) -> Design:
     truth = _truth(case["truth"])
     opts = dict(case.get("simulation", {}))
     which = case.get("segments", "all")
-    sigma = np.concatenate([truth.acc_noise, truth.gyr_noise])
     quiet = replace(truth, acc_noise=np.zeros(3), gyr_noise=np.zeros(3))
     clean_opts = {**opts, "spike_fraction": 0.0}
 
@@ -103,10 +131,10 @@ def lab_run_design(case: Mapping[str, Any]) -> Design:
         sim = six_position_integral_run(set_parameters(truth, theta), rng, **opts)
         return _pick(sim.segments, which)
 
-    def model(theta: Mapping[str, float]) -> list[tuple[np.ndarray, np.ndarray]]:
+    def model(theta: Mapping[str, float]) -> list[Segment]:
         rng = np.random.default_rng(0)
         sim = six_position_integral_run(set_parameters(quiet, theta), rng, **clean_opts)
-        return _clean(_pick(sim.segments, which), sigma)
+        return _turn_profiles(_pick(sim.segments, which), truth, opts)
 
     settings = dict(case.get("settings", {}))
     return Design(_location(truth), draw, model, settings, STANDARD_GRAVITY, {}, _noise(truth))
@@ -125,7 +153,7 @@ def multi_position_design(case: Mapping[str, Any]) -> Design:
     def draw(theta: Mapping[str, float], rng: np.random.Generator) -> Segments:
         return multi_position_run(set_parameters(truth, theta), angles, rng, **opts).segments
 
-    def model(theta: Mapping[str, float]) -> list[tuple[np.ndarray, np.ndarray]]:
+    def model(theta: Mapping[str, float]) -> list[Segment]:
         rng = np.random.default_rng(0)
         sim = multi_position_run(set_parameters(quiet, theta), angles, rng, **opts)
         return _clean(sim.segments, sigma)
@@ -161,11 +189,11 @@ def rate_table_design(case: Mapping[str, Any]) -> Design:
         )
         return {r.label: r for r in run.recordings}
 
-    def model(th: Mapping[str, float]) -> list[tuple[np.ndarray, np.ndarray]]:
+    def model(th: Mapping[str, float]) -> list[Segment]:
         run = simulate_rate_table(
             _gyro_truth(th), rates=rates, rng=np.random.default_rng(0), **opts
         )
-        return [(r.gyr[r.t - r.t[0] >= settle], sigma) for r in run.recordings]
+        return [(r.gyr[r.t - r.t[0] >= settle], sigma, None) for r in run.recordings]
 
     settings = {"settle_s": settle, **case.get("settings", {})}
     return Design(theta, draw, model, settings, STANDARD_GRAVITY, {})
@@ -194,11 +222,11 @@ def static_bias_design(case: Mapping[str, Any]) -> Design:
         )
         return {"static": rec}
 
-    def model(th: Mapping[str, float]) -> list[tuple[np.ndarray, np.ndarray]]:
+    def model(th: Mapping[str, float]) -> list[Segment]:
         rec = simulate_static(
             gyro_bias=bias(th), gyro_noise=NoiseSpec(), rng=np.random.default_rng(0), **opts
         )
-        return [(rec.gyr, sigma)]
+        return [(rec.gyr, sigma, None)]
 
     noise = {f"gyr.noise.{a}": float(sigma[0]) for a in params.AXES}
     noise |= {f"acc.noise.{a}": acc_arw * math.sqrt(float(opts["rate_hz"])) for a in params.AXES}

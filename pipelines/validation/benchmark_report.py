@@ -38,8 +38,14 @@ def _summary(doc: Mapping[str, Any]) -> Section:
     low, high = t["coverage_95"]
     return Section(
         "Summary per procedure",
-        header=["procedure", "efficiency (median)", "efficiency (lowest)", "coverage 95 %",
-                "replicates", "meets targets"],  # fmt: skip
+        header=[
+            "procedure",
+            "efficiency (median)",
+            "efficiency (lowest)",
+            "coverage 95 %",
+            "replicates",
+            "meets targets",
+        ],  # fmt: skip
         rows=rows,
         paragraphs=[
             f"Targets: efficiency against the Cramer-Rao bound >= {t['efficiency_vs_crlb_min']}"
@@ -78,8 +84,17 @@ def _case(case: Mapping[str, Any]) -> Section:
         )
     return Section(
         f"Case {case['id']} ({case['procedure']})",
-        header=["parameter", "RMS error", "mean error", "bias z", "std", "CRLB std",
-                "efficiency", "coverage", "u / std"],  # fmt: skip
+        header=[
+            "parameter",
+            "RMS error",
+            "mean error",
+            "bias z",
+            "std",
+            "CRLB std",
+            "efficiency",
+            "coverage",
+            "u / std",
+        ],  # fmt: skip
         rows=rows,
         paragraphs=paragraphs,
     )
