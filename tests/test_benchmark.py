@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from calib_core import crlb
 from calib_testing.documents import html_words, pdf_pages
 from pipelines.cli import app
 from pipelines.validation import benchmark
+from pipelines.validation.benchmark_sessions import run_sessions
 
 SIGMA = 0.3
 
@@ -117,6 +119,7 @@ def test_reduced_benchmark_prints_each_procedure(reduced):
     cases = benchmark.load_set()["cases"]
     assert set(doc["procedures"]) == {c["procedure"] for c in cases if c["reduced_replicates"]}
     assert doc["set"]["version"] == benchmark.load_set()["version"] and doc["reduced"] is True
+    assert [s["status"] for s in doc["sessions"]] == ["not run"]  # no --realdata given
     for proc, s in doc["procedures"].items():
         assert 0.0 <= s["coverage_95"] <= 1.0, proc
         assert s["replicates"] == 30 and s["meets_targets"] is False  # 30 < 200 replicates
@@ -139,3 +142,23 @@ def test_reduced_benchmark_report_is_readable(reduced):
             assert case["id"] in source
     eff = full["procedures"]["six_position"]["efficiency_vs_crlb"]
     assert f"{eff:.3g}" in text
+
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+
+
+def test_public_session_against_its_datasheet(tmp_path):
+    """imu_tk's Xsens session, processed as a lab run (ingest, preprocessing, equipment-free
+    solve) against the datasheet: every bias and scale within the datasheet's own stability
+    figures; a data folder without the files says which and where."""
+    set_doc = benchmark.load_set()
+    missing = run_sessions(set_doc, tmp_path)
+    assert [s["status"] for s in missing] == ["not found"]
+    assert str(tmp_path / "imutk_xsens") in missing[0]["reason"]
+    assert "xsens_acc.mat" in missing[0]["reason"]
+    if not (REALDATA / "imutk_xsens").is_dir():
+        pytest.skip(f"real data not found at {REALDATA} (the shared realdata folder is absent)")
+    (xsens,) = run_sessions(set_doc, REALDATA)
+    assert xsens["status"] == "compared"
+    assert {r["parameter"] for r in xsens["parameters"]} == set(set_doc["sessions"][0]["reference"])
+    assert all(r["within_tolerance"] for r in xsens["parameters"]), xsens["parameters"]

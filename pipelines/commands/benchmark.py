@@ -16,17 +16,23 @@ from pipelines.cli_shared import app, fail, out, print_json, print_table
 
 
 def benchmark_command(
-    json_out: bool, out_dir: Path | None, reduced: bool, workers: int, set_file: Path | None
+    json_out: bool,
+    out_dir: Path | None,
+    reduced: bool,
+    workers: int,
+    set_file: Path | None,
+    realdata: Path | None,
 ) -> None:
     """Run the benchmark set, print per procedure efficiency_vs_crlb and coverage_95 (JSON
-    with `json_out`), write the report (HTML, PDF, JSON) into `out_dir` when given."""
+    with `json_out`), write the report (HTML, PDF, JSON) into `out_dir` when given; the
+    public sessions from `realdata` when given."""
     from pipelines.validation import benchmark, benchmark_report
 
     try:
         set_doc = benchmark.load_set(set_file) if set_file else benchmark.load_set()
     except ValueError as exc:
         fail(str(exc))
-    doc = benchmark.run_benchmark(set_doc, reduced=reduced, workers=workers)
+    doc = benchmark.run_benchmark(set_doc, reduced=reduced, workers=workers, realdata=realdata)
     written = benchmark_report.write_report(doc, out_dir) if out_dir else {}
     if json_out:
         summary = {k: v for k, v in doc.items() if k != "cases"}
@@ -50,6 +56,12 @@ def _print(doc: dict[str, Any]) -> None:
     ]
     title = f"{doc['set']['name']} {doc['set']['version']} ({doc['seconds']} s)"
     print_table(rows, title)
+    for s in doc["sessions"]:
+        if s["status"] != "compared":
+            out.print(f"session {s['id']}: {s['status']} ({s['reason']})")
+            continue
+        within = sum(r["within_tolerance"] for r in s["parameters"])
+        out.print(f"session {s['id']}: {within} of {len(s['parameters'])} within the reference")
 
 
 @app.command()
@@ -73,10 +85,17 @@ def validate(
         Path | None,
         typer.Option("--set", help="A benchmark set file in place of the installed one."),
     ] = None,
+    realdata: Annotated[
+        Path | None,
+        typer.Option(
+            "--realdata",
+            help="Folder of the public recordings (imutk_xsens/, ...): their sessions are run.",
+        ),
+    ] = None,
 ) -> None:
     """Score the installed software on the ground-truth benchmark (--benchmark): error
     against the simulated truth, efficiency against the Cramer-Rao bound and coverage of the
     stated U at 95 % per procedure; the validation report a lab files (--out)."""
     if not benchmark:
         fail("give --benchmark (the benchmark of the installed software)")
-    benchmark_command(json_out, out_dir, reduced, workers, set_file)
+    benchmark_command(json_out, out_dir, reduced, workers, set_file, realdata)

@@ -101,6 +101,7 @@ def run_benchmark(
     reduced: bool = False,
     workers: int = 1,
     progress: Callable[[str], None] | None = None,
+    realdata: Path | None = None,
 ) -> dict[str, Any]:
     """Run every simulated case of the set; the benchmark's document.
 
@@ -111,7 +112,11 @@ def run_benchmark(
         its `replicates`: the quick set of the tests.
     workers : processes the cases are spread over (1: this process).
     progress : called with a line per finished case.
+    realdata : the folder of the public recordings (`sessions` of the set); None: the
+        sessions are listed as not run.
     """
+    from pipelines.validation.benchmark_sessions import run_sessions
+
     start = time.perf_counter()
     jobs = []
     for case in set_doc["cases"]:
@@ -133,6 +138,7 @@ def run_benchmark(
         "targets": set_doc["targets"],
         "cases": cases,
         "procedures": by_procedure(cases, set_doc["targets"]),
+        "sessions": run_sessions(set_doc, realdata),
         "peers": peers_note(),
         "seconds": round(time.perf_counter() - start, 2),
     }

@@ -100,6 +100,38 @@ def _case(case: Mapping[str, Any]) -> Section:
     )
 
 
+def _session(s: Mapping[str, Any]) -> Section:
+    title = f"Public session {s['id']} ({s['procedure']})"
+    if s["status"] != "compared":
+        return Section(title, paragraphs=[f"{s['status']}: {s['reason']}.", s["source"]])
+    rows = [
+        [
+            r["parameter"],
+            _fmt(r["ours"], 4),
+            _fmt(r["reference"], 4),
+            _fmt(r["difference"], 3),
+            _fmt(r["U"], 3),
+            _fmt(r["tolerance"], 3),
+            "yes" if r["within_tolerance"] else "no",
+        ]
+        for r in s["parameters"]
+    ]
+    return Section(
+        title,
+        header=[
+            "parameter",
+            "ours",
+            "reference",
+            "difference",
+            "U (ours)",
+            "tolerance",
+            "within",
+        ],  # fmt: skip
+        rows=rows,
+        paragraphs=[s["source"]],
+    )
+
+
 def report(doc: Mapping[str, Any]) -> Certificate:
     """The benchmark's document as the report's sections."""
     sw = doc["software"]
@@ -124,7 +156,8 @@ def report(doc: Mapping[str, Any]) -> Certificate:
         ],
     )
     peers = Section("Comparison with peer implementations", paragraphs=[doc["peers"]])
-    sections = [about, _summary(doc), peers, *(_case(c) for c in doc["cases"])]
+    sessions = [_session(s) for s in doc["sessions"]]
+    sections = [about, _summary(doc), *sessions, peers, *(_case(c) for c in doc["cases"])]
     verdict = "pass" if all(s["meets_targets"] for s in doc["procedures"].values()) else "fail"
     title = "Method validation: ground-truth benchmark"
     ident = f"benchmark {doc['set']['version']} / imu-calib {sw['version']}"
