@@ -12,7 +12,7 @@ from typing import Annotated, Any
 
 import typer
 
-from pipelines.cli_shared import app, fail, out, print_json, print_table
+from pipelines.cli_shared import JsonOpt, app, fail, out, print_json, print_table
 
 
 def benchmark_command(
@@ -64,34 +64,23 @@ def _print(doc: dict[str, Any]) -> None:
         out.print(f"session {s['id']}: {within} of {len(s['parameters'])} within the reference")
 
 
+def _folder(flag: str, help: str) -> Any:  # noqa: A002, ANN401 - typer's name, an Annotated
+    return Annotated[Path | None, typer.Option(flag, help=help)]
+
+
 @app.command()
 def validate(
     benchmark: Annotated[
-        bool,
-        typer.Option("--benchmark", help="Score the installed software on the benchmark set."),
+        bool, typer.Option("--benchmark", help="Score the installed software on the benchmark set.")
     ] = False,
-    json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
-    out_dir: Annotated[
-        Path | None,
-        typer.Option("--out", help="Folder the validation report (HTML, PDF, JSON) goes to."),
-    ] = None,
+    json_out: JsonOpt = False,
+    out_dir: _folder("--out", "Folder the validation report (HTML, PDF, JSON) goes to.") = None,
     reduced: Annotated[
-        bool, typer.Option("--reduced", help="The reduced set (few replicates): a quick check.")
+        bool, typer.Option("--reduced", help="The reduced set: a quick check.")
     ] = False,
-    workers: Annotated[
-        int, typer.Option("--workers", min=1, help="Processes the cases are spread over.")
-    ] = 1,
-    set_file: Annotated[
-        Path | None,
-        typer.Option("--set", help="A benchmark set file in place of the installed one."),
-    ] = None,
-    realdata: Annotated[
-        Path | None,
-        typer.Option(
-            "--realdata",
-            help="Folder of the public recordings (imutk_xsens/, ...): their sessions are run.",
-        ),
-    ] = None,
+    workers: Annotated[int, typer.Option("--workers", min=1, help="Processes for the cases.")] = 1,
+    set_file: _folder("--set", "A benchmark set file in place of the installed one.") = None,
+    realdata: _folder("--realdata", "Folder of the public recordings (imutk_xsens/, ...).") = None,
 ) -> None:
     """Score the installed software on the ground-truth benchmark (--benchmark): error
     against the simulated truth, efficiency against the Cramer-Rao bound and coverage of the
