@@ -576,7 +576,7 @@ class McapReader:
 
     def recording(self) -> Recording:
         imu = self.pick("imu")
-        assert imu is not None  # _pick raises for a missing IMU
+        assert imu is not None  # pick raises for a missing IMU
         where = f"topic {imu.topic!r}"
         # One field at a time, dropping its parts: peak memory stays near the final arrays.
         stamp_ns = _concat(imu, "stamp")
