@@ -728,12 +728,7 @@ def stream_mcap(
     ------
     IngestError as `read_mcap`; a log cut while written (read in memory with its finding).
     """
-    from pipelines.ingest.streamed_pass import (
-        DEFAULT_MEMORY_LIMIT,
-        SKIP_BLOCK,
-        HashingTee,
-        streamed_pass,
-    )
+    from pipelines.ingest.streamed_pass import DEFAULT_MEMORY_LIMIT, streamed_pass
 
     limit = DEFAULT_MEMORY_LIMIT if memory_limit is None else memory_limit
     keys = {"table_joint": 0, "stamp": "header", **extra_keys(fmt, "mcap", KEYS)}
@@ -756,27 +751,22 @@ def stream_mcap(
         memory_limit=limit,
         progress=progress,
         window=window,
-        buffering=SKIP_BLOCK,
+        tee=True,
     )
     with opened as run:
-        tee = HashingTee(run.fh, run.sha, run.copy)
-        run.sink.written = lambda n: run.bar.update(tee.hashed, n)
-        try:
-            reader = McapReader(
-                name, topics["imu_topic"], None, None, 0, keys["stamp"], run.sink, limit // 4
+        reader = McapReader(
+            name, topics["imu_topic"], None, None, 0, keys["stamp"], run.sink, limit // 4
+        )
+        reader.read(run.tee, run.size)
+        if reader.findings:  # a cut log: the streamed route carries no findings
+            reader.pick("imu")  # no IMU before the cut: the reader's own error
+            raise IngestError(
+                f"{reader.findings[0]['detail']}; a record streamed in chunks is "
+                "not read cut (raise the memory limit to read it into memory, with "
+                "the finding)",
+                file=path,
             )
-            reader.read(tee, run.size)
-            if reader.findings:  # a cut log: the streamed route carries no findings
-                reader.pick("imu")  # no IMU before the cut: the reader's own error
-                raise IngestError(
-                    f"{reader.findings[0]['detail']}; a record streamed in chunks is "
-                    "not read cut (raise the memory limit to read it into memory, with "
-                    "the finding)",
-                    file=path,
-                )
-            run.sink.finish()
-            tee.drain()
-        finally:
-            tee.close()
+        run.sink.finish()
+        run.tee.drain()
     reader.pick("imu")  # absent, ambiguous, empty or short of the statistics' count
     return run.result()

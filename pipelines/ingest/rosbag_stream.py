@@ -58,7 +58,6 @@ from pipelines.ingest.rosbag_reader import (
 )
 from pipelines.ingest.streamed_pass import (
     DEFAULT_MEMORY_LIMIT,
-    SKIP_BLOCK,
     HashingTee,
     SampleSink,
     Streamed,
@@ -534,17 +533,12 @@ def stream_rosbag(
         memory_limit=memory_limit,
         progress=progress,
         window=window,
-        buffering=SKIP_BLOCK,
+        tee=True,
     )
     with opened as run:
-        tee = HashingTee(run.fh, run.sha, run.copy)
-        run.sink.written = lambda n: run.bar.update(tee.hashed, n)
-        try:
-            bag = walk(path, tee, keys, run.sink, memory_limit, run.size)
-            run.sink.finish()
-            tee.drain()
-        finally:
-            tee.close()
+        bag = walk(path, run.tee, keys, run.sink, memory_limit, run.size)
+        run.sink.finish()
+        run.tee.drain()
     check_rate(path, bag, run.sink, keys.get("min_rate_hz", MIN_RATE_HZ))
     return run.result()
 

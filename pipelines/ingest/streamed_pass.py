@@ -341,6 +341,7 @@ class StreamedPass:
     bar: Progress
     samples: Path
     started: float
+    tee: HashingTee | None = None  # the file read through it (hashed and copied)
 
     def result(self) -> Streamed:
         """What the pass gave, once the sink is finished."""
@@ -362,11 +363,13 @@ def streamed_pass(
     memory_limit: int,
     progress: bool | None,
     window: tuple[float, float] | None,
-    buffering: int = -1,
+    tee: bool = False,
 ) -> Iterator[StreamedPass]:
     """Open the data file, the samples' Parquet writer, the raw copy and the sink.
 
-    The sink gathers `block_bytes(memory_limit) // ROW_BYTES` messages a batch. An
+    The sink gathers `block_bytes(memory_limit) // ROW_BYTES` messages a batch. With
+    `tee`, the file is read through a `HashingTee` (`SKIP_BLOCK` buffering), the progress
+    line following its bytes; it is closed (all hashed and copied) before the sink. An
     OSError reading the file becomes the IngestError naming it.
     """
     started = time.perf_counter()
@@ -376,7 +379,7 @@ def streamed_pass(
     bar = Progress(path.name, size, show)
     try:
         with ExitStack() as stack:
-            fh = stack.enter_context(path.open("rb", buffering=buffering))
+            fh = stack.enter_context(path.open("rb", buffering=SKIP_BLOCK if tee else -1))
             writer = stack.enter_context(
                 pq.ParquetWriter(samples, SCHEMA, **samples_parquet_options(SCHEMA))
             )
@@ -384,8 +387,12 @@ def streamed_pass(
             rows = block_bytes(memory_limit) // ROW_BYTES
             sink = SampleSink(str(path), writer, label, rows, window)
             stack.callback(sink.close)
-            yield StreamedPass(
-                path, size, fh, hashlib.sha256(), copy, sink, bar, Path(samples), started
-            )
+            sha = hashlib.sha256()
+            run = StreamedPass(path, size, fh, sha, copy, sink, bar, Path(samples), started)
+            if tee:
+                run.tee = HashingTee(fh, sha, copy)
+                stack.callback(run.tee.close)
+                sink.written = lambda n: bar.update(run.tee.hashed, n)
+            yield run
     except OSError as exc:
         raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
