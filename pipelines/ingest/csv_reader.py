@@ -35,7 +35,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO, Unpack
 
 import numpy as np
 import pyarrow as pa
@@ -52,7 +52,7 @@ from pipelines.ingest.log_samples import impossible_reading
 from pipelines.ingest.time_order import check_time_increases
 
 if TYPE_CHECKING:
-    from pipelines.ingest.streamed_pass import Streamed
+    from pipelines.ingest.streamed_pass import Streamed, StreamOptions
 
 # Text per parsed slice: large enough that pyarrow's threads share the parse, small enough
 # that a slice and its parse buffers stay well below the decoded arrays (peak 1.7x the
@@ -539,12 +539,7 @@ def stream_csv(
     path: Path,
     fmt: FormatSpec,
     samples: Path,
-    *,
-    copy_to: Path | None = None,
-    label: str = "record",
-    memory_limit: int | None = None,
-    progress: bool | None = None,
-    window: tuple[float, float] | None = None,
+    **options: Unpack[StreamOptions],
 ) -> Streamed:
     """The streamed route: one pass over a delimited text file, hashed and copied (the raw
     copy) block by block, each block's samples (this reader's column plan, units and
@@ -555,21 +550,16 @@ def stream_csv(
     path : the data file (delimited text with a time column or a sample rate; one record).
     fmt : the manifest's format section (as `read_csv`).
     samples : the Parquet file to write (columns segment, t, acc_*, gyr_*, temp; SI).
-    copy_to : where the raw bytes are copied (None: not copied).
-    label : the segment label of every row.
-    memory_limit : bytes (None: the default); sets the block size (`block_bytes`).
-    window : (start, end) s: the samples with start <= t < end only
-        (`streamed_pass.windowed`) go to the Parquet and the statistics; None: all.
-    progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
+    options : `streamed_pass.StreamOptions` (raw copy, label, memory limit: the block
+        size, progress, time window).
 
     Raises
     ------
     IngestError naming the file and the line where time stops increasing or a value is
     not a finite number.
     """
-    from pipelines.ingest.streamed_pass import DEFAULT_MEMORY_LIMIT, block_bytes, streamed_pass
+    from pipelines.ingest.streamed_pass import block_bytes, streamed_pass
 
-    limit = DEFAULT_MEMORY_LIMIT if memory_limit is None else memory_limit
     path = Path(path)
     layout = layout_of(path, fmt, sections=False)
     if layout.delimiter == "whitespace" or "section" in layout.roles:
@@ -577,28 +567,19 @@ def stream_csv(
     fmt = header_units(layout, fmt)
     iso = layout.roles.get("time") if fmt.time_unit == "iso" else None
     columns = list(dict.fromkeys(layout.roles.values()))
-    options = arrow_options(layout, columns, (iso,))
+    parsing = arrow_options(layout, columns, (iso,))
     last_t = None
-    opened = streamed_pass(
-        path,
-        samples,
-        copy_to=copy_to,
-        label=label,
-        memory_limit=limit,
-        progress=progress,
-        window=window,
-    )
-    with opened as run:
+    with streamed_pass(path, samples, **options) as run:
         fh, sink = run.fh, run.sink
         head = b"".join(fh.readline() for _ in range(layout.data_start - 1))
         run.sha.update(head)
         if run.copy is not None:
             run.copy.write(head)
         done = len(head)
-        for text in blocks(fh, block_bytes(limit), run.copy, run.sha):
+        for text in blocks(fh, block_bytes(run.memory_limit), run.copy, run.sha):
             done += len(text)
             try:
-                table = pacsv.read_csv(pa.py_buffer(text), *options)
+                table = pacsv.read_csv(pa.py_buffer(text), *parsing)
             except pa.ArrowInvalid as exc:
                 diagnose(layout, columns, iso, sink.done)  # the line and field, as in memory
                 raise IngestError(f"cannot parse the file: {exc}", file=path) from None

@@ -43,7 +43,7 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, Unpack
 
 import numpy as np
 
@@ -77,7 +77,7 @@ from pipelines.ingest.time_order import check_time_increases
 
 if TYPE_CHECKING:
     from pipelines.ingest.data_format import FormatSpec
-    from pipelines.ingest.streamed_pass import SampleSink, Streamed
+    from pipelines.ingest.streamed_pass import SampleSink, Streamed, StreamOptions
 
 MAGIC = b"\x89MCAP0\r\n"
 IMU_SCHEMA = "sensor_msgs/msg/Imu"
@@ -698,12 +698,7 @@ def stream_mcap(
     path: Path,
     fmt: FormatSpec,
     samples: Path,
-    *,
-    copy_to: Path | None = None,
-    label: str = "record",
-    memory_limit: int | None = None,
-    progress: bool | None = None,
-    window: tuple[float, float] | None = None,
+    **options: Unpack[StreamOptions],
 ) -> Streamed:
     """One pass of `McapReader` over a ROS 2 MCAP log, its IMU topic's messages to the
     samples' Parquet and the first-pass statistics (`streamed_pass`), the file's bytes
@@ -716,21 +711,15 @@ def stream_mcap(
         `read_mcap`; ``temperature_topic`` / ``table_topic``, interpolated onto the whole
         IMU time base, are refused with the reason).
     samples : the Parquet file to write (t in Unix s, the in-memory time base; temp NaN).
-    copy_to : where the raw bytes are copied (None: not copied).
-    label : the segment label of every row.
-    memory_limit : bytes (None: the default); sets the rows per batch and the largest
-        chunk accepted (a quarter of it).
-    window : (start, end) s: the samples with start <= t < end only go to the Parquet and
-        the statistics; None: all.
-    progress : a progress line on stderr; None: for large files.
+    options : `streamed_pass.StreamOptions` (raw copy, label, memory limit: the rows per
+        batch and the largest chunk accepted, a quarter of it; progress, time window).
 
     Raises
     ------
     IngestError as `read_mcap`; a log cut while written (read in memory with its finding).
     """
-    from pipelines.ingest.streamed_pass import DEFAULT_MEMORY_LIMIT, streamed_pass
+    from pipelines.ingest.streamed_pass import streamed_pass
 
-    limit = DEFAULT_MEMORY_LIMIT if memory_limit is None else memory_limit
     keys = {"table_joint": 0, "stamp": "header", **extra_keys(fmt, "mcap", KEYS)}
     topics = {k: keys.get(k) for k in ("imu_topic", "temperature_topic", "table_topic")}
     name = str(path)
@@ -743,19 +732,9 @@ def stream_mcap(
                 file=path,
                 field=f"format.{key}",
             )
-    opened = streamed_pass(
-        path,
-        samples,
-        copy_to=copy_to,
-        label=label,
-        memory_limit=limit,
-        progress=progress,
-        window=window,
-        tee=True,
-    )
-    with opened as run:
+    with streamed_pass(path, samples, tee=True, **options) as run:
         reader = McapReader(
-            name, topics["imu_topic"], None, None, 0, keys["stamp"], run.sink, limit // 4
+            name, topics["imu_topic"], None, None, 0, keys["stamp"], run.sink, run.memory_limit // 4
         )
         reader.read(run.tee, run.size)
         if reader.findings:  # a cut log: the streamed route carries no findings

@@ -37,7 +37,7 @@ from __future__ import annotations
 import io
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -57,10 +57,10 @@ from pipelines.ingest.rosbag_reader import (
     topic_connections,
 )
 from pipelines.ingest.streamed_pass import (
-    DEFAULT_MEMORY_LIMIT,
     HashingTee,
     SampleSink,
     Streamed,
+    StreamOptions,
     streamed_pass,
 )
 
@@ -469,12 +469,7 @@ def stream_rosbag(
     path: Path,
     fmt: FormatSpec,
     samples: Path,
-    *,
-    copy_to: Path | None = None,
-    label: str = "record",
-    memory_limit: int = DEFAULT_MEMORY_LIMIT,
-    progress: bool | None = None,
-    window: tuple[float, float] | None = None,
+    **options: Unpack[StreamOptions],
 ) -> Streamed:
     """One pass over a ROS 1 bag: hash, raw copy, samples' Parquet, statistics.
 
@@ -486,12 +481,8 @@ def stream_rosbag(
         is refused).
     samples : the Parquet file to write (columns segment, t, acc_*, gyr_*, temp; SI;
         t in Unix s; temp NaN).
-    copy_to : where the raw bytes are copied (None: not copied).
-    label : the segment label of every row.
-    memory_limit : bytes; sets the rows per batch and the largest chunk accepted.
-    window : (start, end) s: the samples with start <= t < end only go to the Parquet and
-        the statistics (`streamed_pass.windowed`); None: all.
-    progress : a progress line on stderr; None: for files above PROGRESS_THRESHOLD_BYTES.
+    options : `streamed_pass.StreamOptions` (raw copy, label, memory limit: the rows per
+        batch and the largest chunk accepted, a quarter of it; progress, time window).
 
     Returns
     -------
@@ -525,18 +516,8 @@ def stream_rosbag(
             file=path,
             field="format.kind",
         )
-    opened = streamed_pass(
-        path,
-        samples,
-        copy_to=copy_to,
-        label=label,
-        memory_limit=memory_limit,
-        progress=progress,
-        window=window,
-        tee=True,
-    )
-    with opened as run:
-        bag = walk(path, run.tee, keys, run.sink, memory_limit, run.size)
+    with streamed_pass(path, samples, tee=True, **options) as run:
+        bag = walk(path, run.tee, keys, run.sink, run.memory_limit, run.size)
         run.sink.finish()
         run.tee.drain()
     check_rate(path, bag, run.sink, keys.get("min_rate_hz", MIN_RATE_HZ))

@@ -26,7 +26,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TypedDict
 
 import numpy as np
 import pyarrow as pa
@@ -328,6 +328,26 @@ class SampleSink:
             self.helper.shutdown(cancel_futures=True)
 
 
+class StreamOptions(TypedDict, total=False):
+    """The options of every format's streamed reader (`streaming.STREAMERS`).
+
+    copy_to : where the raw bytes are copied (None, the default: not copied).
+    label : the segment label of every row (default ``"record"``).
+    memory_limit : bytes (default `DEFAULT_MEMORY_LIMIT`): the block, batch and largest
+        chunk a pass holds.
+    progress : a progress line on stderr; None (default): for files above
+        `PROGRESS_THRESHOLD_BYTES`.
+    window : (start, end) s: the samples with start <= t < end only (`windowed`) go to the
+        Parquet and the statistics; None (default): all.
+    """
+
+    copy_to: Path | None
+    label: str
+    memory_limit: int
+    progress: bool | None
+    window: tuple[float, float] | None
+
+
 @dataclass
 class StreamedPass:
     """An open pass: the data file `fh`, its hash `sha` and raw copy `copy`, the `sink`."""
@@ -341,6 +361,7 @@ class StreamedPass:
     bar: Progress
     samples: Path
     started: float
+    memory_limit: int
     tee: HashingTee | None = None  # the file read through it (hashed and copied)
 
     def result(self) -> Streamed:
@@ -358,11 +379,11 @@ def streamed_pass(
     path: Path,
     samples: Path,
     *,
-    copy_to: Path | None,
-    label: str,
-    memory_limit: int,
-    progress: bool | None,
-    window: tuple[float, float] | None,
+    copy_to: Path | None = None,
+    label: str = "record",
+    memory_limit: int = DEFAULT_MEMORY_LIMIT,
+    progress: bool | None = None,
+    window: tuple[float, float] | None = None,
     tee: bool = False,
 ) -> Iterator[StreamedPass]:
     """Open the data file, the samples' Parquet writer, the raw copy and the sink.
@@ -388,7 +409,9 @@ def streamed_pass(
             sink = SampleSink(str(path), writer, label, rows, window)
             stack.callback(sink.close)
             sha = hashlib.sha256()
-            run = StreamedPass(path, size, fh, sha, copy, sink, bar, Path(samples), started)
+            run = StreamedPass(
+                path, size, fh, sha, copy, sink, bar, Path(samples), started, memory_limit
+            )
             if tee:
                 run.tee = HashingTee(fh, sha, copy)
                 stack.callback(run.tee.close)

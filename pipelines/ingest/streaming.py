@@ -9,9 +9,11 @@ route for a static-bias run whose recording is larger than the run's memory limi
 Every streamer has the signature of `pipelines.ingest.csv_reader.stream_csv` and runs its
 format's reader through `pipelines.ingest.streamed_pass`::
 
-    stream(path: Path, fmt: FormatSpec, samples: Path, *, copy_to: Path | None = None,
-           label: str = "record", memory_limit: int = DEFAULT_MEMORY_LIMIT,
-           progress: bool | None = None) -> Streamed
+    stream(path: Path, fmt: FormatSpec, samples: Path,
+           **options: Unpack[StreamOptions]) -> Streamed
+
+(`pipelines.ingest.streamed_pass.StreamOptions`: copy_to, label, memory_limit, progress,
+window)
 
 and returns a `Streamed` (`pipelines.ingest.streamed_pass.Streamed`):
 
