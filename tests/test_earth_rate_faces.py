@@ -10,8 +10,7 @@ import pytest
 from scipy.stats import chi2, norm
 
 from calib_core.earth import earth_rate_local
-from calib_core.procedures import solve
-from calib_core.procedures.settings import SettingError
+from calib_core.procedures import SettingError, solve
 from calib_core.procedures.six_position import solve_six_position
 from calib_core.simulate import STATIC_LABELS, random_errors
 from calib_core.simulate.lab_run import six_position_integral_run

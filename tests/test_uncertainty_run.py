@@ -287,10 +287,15 @@ def test_equipment_spec_from_the_manifest() -> None:
     spec = equipment_spec(RunManifest.model_validate(doc))
     assert spec.cube_angle == pytest.approx(np.radians(0.01)) and spec.table_rate_rel == 5e-5
     doc["run"]["settings"] = {"uncertainty": {"cube_angle": 0.01}}
-    with pytest.raises(ValueError, match="run.settings.uncertainty: unknown setting.*cube_angle"):
+    with pytest.raises(
+        ValueError,
+        match="run.settings.uncertainty.cube_angle: unknown setting.*did you mean cube_angle_deg",
+    ):
         equipment_spec(RunManifest.model_validate(doc))
     doc["run"]["settings"] = {"uncertainty": {"cube_angle_deg": -1}}
-    with pytest.raises(ValueError, match="cube_angle_deg: expected a number >= 0, got -1"):
+    with pytest.raises(
+        ValueError, match="uncertainty.cube_angle_deg: expected a non-negative number, got -1"
+    ):
         equipment_spec(RunManifest.model_validate(doc))
     doc = {**_manifest("S", equipment=False), "format": {"kind": "csv"}}
     assert equipment_spec(RunManifest.model_validate(doc)) is None

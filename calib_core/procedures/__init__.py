@@ -26,7 +26,6 @@ from calib_core.procedures.integral import INTEGRAL, solve_integral_procedure
 from calib_core.procedures.multi_position import MULTI_POSITION
 from calib_core.procedures.rate_table import RATE_TABLE, solve_rate_table_procedure
 from calib_core.procedures.sensor_array import SENSOR_ARRAY
-from calib_core.procedures.settings import Setting, SettingError, Settings
 from calib_core.procedures.six_position import SIX_POSITION, solve_six_position
 from calib_core.procedures.six_position_integral import (
     SIX_POSITION_INTEGRAL,
@@ -35,6 +34,7 @@ from calib_core.procedures.six_position_integral import (
 from calib_core.procedures.static_bias import STATIC_BIAS, solve_static_bias_procedure
 from calib_core.procedures.tables import TABLES
 from calib_core.recording import Recording
+from calib_core.settings import Setting, SettingError, Settings
 
 __all__ = [
     "ALL",

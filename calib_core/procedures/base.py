@@ -21,9 +21,9 @@ from typing import Any, Literal
 
 from calib_core.calibration import Calibration
 from calib_core.condition_rules import ConditionUse
-from calib_core.procedures.settings import Setting, SettingError, Settings, did_you_mean
 from calib_core.procedures.tables import TABLES
 from calib_core.recording import Recording
+from calib_core.settings import Setting, SettingError, Settings, did_you_mean
 
 Solver = Callable[[dict[str, Recording], float, dict[str, Any]], Calibration]
 # (cal, segments, settings, spec) -> (solve closure or None, Type B inputs, notes); see

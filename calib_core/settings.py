@@ -105,7 +105,7 @@ class Setting:
             raise SettingError(self.name, f"expected {self.allowed()}, got {value!r}")
 
     def _inside(self, x: float) -> bool:
-        if math.isnan(x):
+        if not math.isfinite(x):
             return False
         if self.low is not None and (x < self.low or (self.low_open and x == self.low)):
             return False
