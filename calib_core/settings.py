@@ -1,16 +1,25 @@
 """Typed settings: `Setting` (name, kind, unit, default, bounds or choices, meaning), a
-`Settings` declaration and the `SettingError` that names the refused key."""
+`Settings` declaration, the typed values it parses a table into (`Settings.parse`: a frozen
+dataclass, one attribute per setting) and the `SettingError` that names the refused key.
+
+The one way settings are declared and checked: a procedure's, the preprocessing tables', a
+tolerance profile's sections."""
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import difflib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-# The value kinds a setting may take, as TOML writes them.
+# What a solver's door takes: its procedure's typed values, or a mapping `Settings.parse` reads.
+SettingsIn = Any
+# The value kinds a setting may take, as TOML writes them, and their Python types.
 KINDS = ("number", "integer", "bool", "text", "table", "list")
+TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": dict, "list": list}
 
 
 class SettingError(ValueError):
@@ -56,6 +65,14 @@ class Setting:
     low_open: bool = False
     choices: tuple[str, ...] = ()
     length: int | None = None
+
+    def annotation(self) -> Any:
+        """The Python type of its values (``float | None``, ``str | dict``)."""
+        kinds = [TYPES[k] for k in self.kinds] + [type(None)] * (self.default is None)
+        out = kinds[0]
+        for t in kinds[1:]:
+            out = out | t
+        return out
 
     @property
     def kinds(self) -> tuple[str, ...]:
@@ -113,10 +130,20 @@ class Setting:
 
 
 class Settings:
-    """A procedure's settings: the typed declaration its runs are validated against."""
+    """A table's settings: the typed declaration its values are validated against.
 
-    def __init__(self, *settings: Setting) -> None:
+    `type` is the frozen dataclass `parse` returns (named `name`), one attribute per
+    setting, typed by its kind (None where its default is None).
+    """
+
+    def __init__(self, *settings: Setting, name: str = "Values") -> None:
         self.items: dict[str, Setting] = {s.name: s for s in settings}
+        self.type = dataclasses.make_dataclass(
+            name,
+            [(s.name, s.annotation(), dataclasses.field(default=None)) for s in settings],
+            frozen=True,
+            namespace={"as_dict": dataclasses.asdict},
+        )
 
     def __iter__(self):
         return iter(self.items.values())
@@ -144,6 +171,13 @@ class Settings:
                 self.items[key].check(value)
             except SettingError as exc:
                 raise SettingError(f"{where}{key}", exc.problem) from None
+
+    def parse(self, given: Mapping[str, Any] | None | Any) -> Any:
+        """The typed values (`type`) of `given`: values already typed pass as they are; a
+        mapping is checked key by key (`merged`), defaults filled in, other keys left out."""
+        if isinstance(given, self.type):
+            return given
+        return self.type(**copy.deepcopy(self.merged(given)))
 
     def merged(self, given: Mapping[str, Any] | None) -> dict[str, Any]:
         """The declared settings with defaults filled in, each checked; other keys left out."""

@@ -48,8 +48,14 @@ from calib_core.calibration import Calibration
 from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Setting, Settings
 from calib_core.procedures.static_bias import HEADING_DEG, LATITUDE_DEG
 from calib_core.recording import Recording
+from calib_core.settings import SettingsIn
 from calib_core.solvers.earth_rate_faces import faces_earth_rate, solve_gyro_earth_rate
-from calib_core.solvers.integral import ROTATION_LABELS, rotation_static_means, solve_integral
+from calib_core.solvers.integral import (
+    ROTATION_LABELS,
+    TURNS,
+    rotation_static_means,
+    solve_integral,
+)
 from calib_core.solvers.kalman import kalman_accel_linear
 from calib_core.solvers.multi_position import (
     segment_residual,
@@ -82,9 +88,6 @@ GYRO_RANGE_DPS = Setting(
     "gyro_range_dps", "number", "deg/s", 2000.0,
     "gyro full scale: the integral method's saturation check; readings at it are refused",
     low=0.0, low_open=True)  # fmt: skip
-TURNS = Setting(
-    "turns", "integer", "1", None,
-    "whole turns of each rotation (absent: inferred from the data)", low=1)  # fmt: skip
 ROTATION_DIRECTIONS = Setting(
     "rotation_directions", "text", "", "both",
     "rotations per axis: ccw and cw (both), or one suffices (any; Ferraris et al.)",
@@ -95,10 +98,14 @@ GYRO_FROM_EARTH_RATE = Setting(
     "grade; needs latitude_deg and heading_deg; replaces the gyro g-sensitivity fit)")  # fmt: skip
 # The settings the statics' solver reads (`_solve_statics`), with the integral method's.
 STATICS_SETTINGS = Settings(
-    ACCEL_SOLVER, ACCEL_MODEL, GYRO_FROM_EARTH_RATE, LATITUDE_DEG, HEADING_DEG
-)
-INTEGRAL_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS)
-INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS)
+    ACCEL_SOLVER, ACCEL_MODEL, GYRO_FROM_EARTH_RATE, LATITUDE_DEG, HEADING_DEG,
+    name="SixPositionSettings",
+)  # fmt: skip
+INTEGRAL_SETTINGS = Settings(
+    TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS,
+    name="SixPositionIntegralSettings",
+)  # fmt: skip
+INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, name="IntegralSettings")
 
 
 def _require(segments: dict[str, Recording], labels: tuple[str, ...], procedure: str) -> None:
@@ -142,9 +149,11 @@ def _scatters(label: str, stats: ChannelStats, sensor: str, unit: str) -> None:
 
 
 def _solve_statics(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any], procedure: str
+    segments: dict[str, Recording], gravity: float, settings: Any, procedure: str
 ) -> tuple[Calibration, dict[str, ChannelStats]]:
-    """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals."""
+    """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals.
+
+    settings : the statics' typed settings (`STATICS_SETTINGS.parse`)."""
     acc, gyr = _static_stats(segments)
     # (6, 3); a face found not square carries its true direction (reference_up).
     f_true = np.array([reference_up(label, segments[label], gravity) for label in STATIC_LABELS])
@@ -153,24 +162,24 @@ def _solve_statics(
         return np.array([getattr(stats[label], field) for label in STATIC_LABELS])
 
     cal = Calibration(procedure=procedure, gravity=gravity)
-    if settings["accel_solver"] == "kalman":
+    if settings.accel_solver == "kalman":
         acc_fit = kalman_accel_linear(f_true, [segments[label].acc for label in STATIC_LABELS])
     else:
         acc_fit = solve_accel_linear(f_true, stack(acc, "mean"), stack(acc, "sem"))
     tilted = [k for k in STATIC_LABELS if UP_CHANNEL in segments[k].reference]
-    if tilted and settings["accel_solver"] == "closed_form":
+    if tilted and settings.accel_solver == "closed_form":
         raise ValueError(
             f"accel_solver closed_form assumes square cube faces; positions {', '.join(tilted)} "
             "have a corrected reference direction: solve with least_squares or kalman"
         )
-    if settings["accel_solver"] == "closed_form":
+    if settings.accel_solver == "closed_form":
         values = accel_closed_form({k: s.mean for k, s in acc.items()}, gravity)
         stds = accel_closed_form_std({k: s.sem for k, s in acc.items()}, gravity)
     else:
         values, stds = acc_fit.params, acc_fit.std
-    if settings["accel_model"] == "per_axis":
+    if settings.accel_model == "per_axis":
         values, stds = _per_axis_fit(f_true, stack(acc, "mean"), stack(acc, "sem"))
-    linear = settings["accel_model"] == "linear"
+    linear = settings.accel_model == "linear"
     if values is acc_fit.params:  # the least-squares fit: keep its covariance
         cal.add_fit(acc_fit.names, acc_fit.params, acc_fit.cov)
     else:
@@ -178,7 +187,7 @@ def _solve_statics(
             cal.add(name, values[name], stds[name])
     # The gyro's static input: Earth rate (FOG case) or none (g-sensitivity fit).
     w_true = np.zeros((len(STATIC_LABELS), 3))
-    if settings.get("gyro_from_earth_rate"):
+    if settings.gyro_from_earth_rate:
         w_true = _earth_rate_input(segments, settings)
         gyr_fit, observable = solve_gyro_earth_rate(w_true, stack(gyr, "mean"), stack(gyr, "sem"))
         cal.info.setdefault("solver_checks", []).append(observable)
@@ -209,7 +218,7 @@ def _solve_statics(
     )
     cal.info.setdefault("solver_checks", []).extend(face_bias)
     cal.info["condition_number"] = acc_fit.condition_number
-    cal.info["accel_solver"] = settings["accel_solver"]
+    cal.info["accel_solver"] = settings.accel_solver
     cal.info["acc_fit_chi2"] = [float(v) for v in acc_fit.chi2]
     cal.info["gyr_fit_chi2"] = [float(v) for v in gyr_fit.chi2]
     cal.info["fit_dof_per_axis"] = len(STATIC_LABELS) - 4
@@ -258,7 +267,7 @@ def _gyr_static_model(cal: Calibration, f_true: np.ndarray, w_true: np.ndarray) 
     )
 
 
-def _earth_rate_input(segments: dict[str, Recording], settings: dict[str, Any]) -> np.ndarray:
+def _earth_rate_input(segments: dict[str, Recording], settings: Any) -> np.ndarray:
     """(6, 3) Earth rate of the statics in their body frames, rad/s (faces_earth_rate);
     ValueError for a face with a corrected up direction, whose heading axis is not known."""
     tilted = [k for k in STATIC_LABELS if UP_CHANNEL in segments[k].reference]
@@ -268,11 +277,11 @@ def _earth_rate_input(segments: dict[str, Recording], settings: dict[str, Any]) 
             f"{', '.join(tilted)} have a corrected up direction, so their Earth-rate input is "
             "not known: solve without gyro_from_earth_rate"
         )
-    return faces_earth_rate(settings["latitude_deg"], settings["heading_deg"])
+    return faces_earth_rate(settings.latitude_deg, settings.heading_deg)
 
 
 def solve_six_position(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Six static positions: accelerometer 12, gyro bias and g-sensitivity, noise.
 
@@ -280,16 +289,16 @@ def solve_six_position(
     ----------
     segments : label -> Recording; needs x_up, x_dn, y_up, y_dn, z_up, z_dn.
     gravity : local gravity, m/s^2.
-    settings : see the module docstring.
+    settings : typed `STATICS_SETTINGS` (a mapping is parsed); see the module docstring.
     """
-    merged = STATICS_SETTINGS.merged(settings)
+    s = STATICS_SETTINGS.parse(settings)
     _require(segments, STATIC_LABELS, "six_position")
-    cal, _ = _solve_statics(segments, gravity, merged, "six_position")
+    cal, _ = _solve_statics(segments, gravity, s, "six_position")
     return cal
 
 
 def solve_six_position_integral(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Six static positions plus the integral method for gyro scale and misalignment.
 
@@ -298,23 +307,24 @@ def solve_six_position_integral(
     segments : label -> Recording; the six statics and x_ccw, x_cw, y_ccw,
         y_cw, z_ccw, z_cw.
     gravity : local gravity, m/s^2.
-    settings : see the module docstring.
+    settings : typed `INTEGRAL_SETTINGS` (a mapping is parsed); see the module docstring.
     """
-    merged = INTEGRAL_SETTINGS.merged(settings)
-    both = merged["rotation_directions"] == "both"
+    s = INTEGRAL_SETTINGS.parse(settings)
+    both = s.rotation_directions == "both"
     _require(segments, STATIC_LABELS + (ROTATION_LABELS if both else ()), "six_position_integral")
-    cal, gyr = _solve_statics(segments, gravity, merged, "six_position_integral")
+    statics = STATICS_SETTINGS.parse({"accel_solver": s.accel_solver, "accel_model": s.accel_model})
+    cal, gyr = _solve_statics(segments, gravity, statics, "six_position_integral")
     rotations = {label: segments[label] for label in ROTATION_LABELS if label in segments}
     integral = solve_integral(
         rotations,
         {label: s.mean for label, s in gyr.items()},
         {label: s.sem for label, s in gyr.items()},
-        merged["gyro_range_dps"] * DEG,
-        merged["turns"],
+        s.gyro_range_dps * DEG,
+        s.turns,
         # The static record of the same orientation gives the noise the integral collects.
         noise_std={label: s.std for label, s in gyr.items()},
         gravity=gravity,
-        directions=merged["rotation_directions"],
+        directions=s.rotation_directions,
     )
     cal = cal.merged(integral)
     # merged() takes the integral's info on top; keep this procedure's name.
@@ -329,7 +339,7 @@ def solve_six_position_integral(
 
 
 def solve_integral_procedure(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Stage 2 of the MPU-6000 program alone: the six rotations, no orientations.
 
@@ -337,15 +347,13 @@ def solve_integral_procedure(
     from its own ccw and cw rotations (`rotation_static_means`); no biases, g-sensitivity,
     accelerometer or noise (those are stage 1, procedure six_position).
 
-    settings : turns, gyro_range_dps (see the module docstring).
+    settings : typed `INTEGRAL_ONLY_SETTINGS`: turns, gyro_range_dps (a mapping is parsed).
     """
-    merged = INTEGRAL_ONLY_SETTINGS.merged(settings)
+    s = INTEGRAL_ONLY_SETTINGS.parse(settings)
     _require(segments, ROTATION_LABELS, "integral")
     rotations = {label: segments[label] for label in ROTATION_LABELS}
     means, sems = rotation_static_means(rotations)
-    cal = solve_integral(
-        rotations, means, sems, merged["gyro_range_dps"] * DEG, merged["turns"], gravity=gravity
-    )
+    cal = solve_integral(rotations, means, sems, s.gyro_range_dps * DEG, s.turns, gravity=gravity)
     cal.info["static_reading_from"] = "rotations (stage 2 alone)"
     cal.info["sample_counts"] = {label: len(rec) for label, rec in rotations.items()}
     return cal

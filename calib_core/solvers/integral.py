@@ -34,12 +34,18 @@ from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.preprocess.replaced import replaced_check
 from calib_core.recording import Recording
+from calib_core.settings import Setting
 from calib_core.solvers.six_position import UP_CHANNEL, reference_up
 from calib_core.stats import row_medians, trapezoid_weights
 from calib_core.units import DEG, STANDARD_GRAVITY
 
 # Rotation records: n whole turns about the axis, axis up; ccw = positive rate.
 ROTATION_LABELS = ("x_ccw", "x_cw", "y_ccw", "y_cw", "z_ccw", "z_cw")
+# The setting of the procedures that integrate turns (six_position_integral, integral,
+# sensor_array).
+TURNS = Setting(
+    "turns", "integer", "1", None,
+    "whole turns of each rotation (absent: inferred from the data)", low=1)  # fmt: skip
 
 # A rate within this fraction of full scale counts as saturated (sensors clip at
 # 32767/32768 of the range, files round to the last digit).
