@@ -359,7 +359,7 @@ def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
         check_free_text(data, source)
         manifest = RunManifest.model_validate(data)
     except ValidationError as exc:
-        raise _as_ingest_error(exc, source) from None
+        raise _as_ingest_error(exc, source, text) from None
     except RecursionError:
         raise _too_deep(text, source) from None
     check_segments(manifest, source, text)
@@ -575,14 +575,16 @@ def _field_path(loc: tuple[Any, ...]) -> str:
     return out
 
 
-def _as_ingest_error(exc: ValidationError, source: str) -> IngestError:
-    """One IngestError for all problems pydantic found, the first one as `field`."""
+def _as_ingest_error(exc: ValidationError, source: str, text: str = "") -> IngestError:
+    """One IngestError for all problems pydantic found, the first one as `field` with its
+    line in the manifest's `text` (as a refused ``[run.settings]`` key is named)."""
     errors = exc.errors(include_url=False)
     # A misspelt key shows up as an unknown field plus a missing one: report
     # the unknown one first, with the missing name as the likely intent.
     missing = {(tuple(e["loc"][:-1]), e["loc"][-1]) for e in errors if e["type"] == "missing"}
     errors.sort(key=lambda e: e["type"] != "extra_forbidden")
     problems: list[tuple[str, str]] = []
+    line = key_line(text, tuple(errors[0]["loc"])) if errors else None
     for err in errors:
         # Model-level validators report at the section; keep their text as is.
         field = _field_path(err["loc"]) or "(top level)"
@@ -602,4 +604,4 @@ def _as_ingest_error(exc: ValidationError, source: str) -> IngestError:
         problems.append((field, msg))
     field, first = problems[0]
     more = "".join(f"; field '{f}': {m}" for f, m in problems[1:])
-    return IngestError(first + more, file=source, field=field)
+    return IngestError(first + more, file=source, line=line, field=field)
