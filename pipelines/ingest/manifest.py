@@ -461,25 +461,10 @@ def check_settings(manifest: RunManifest, source: str = "run.toml", text: str = 
         raise IngestError(
             exc.problem,
             file=source,
-            line=_setting_line(text, exc.key),
+            line=key_line(text, ("run", "settings", *exc.key.split("."))),
             field=f"run.settings.{exc.key}",
         ) from None
 
-
-def _setting_line(text: str, key: str) -> int | None:
-    """1-based line of a ``[run.settings]`` key (dotted below it: "outliers.n_sigma") written
-    under its table's header; None for other spellings (inline tables, dotted keys)."""
-    *table, last = key.split(".")
-    header = ".".join(["run", "settings", *table])
-    assigns = re.compile(rf"""["']?{re.escape(last)}["']?\s*=""")
-    inside = False
-    for number, line in enumerate(text.splitlines(), start=1):
-        stripped = line.split("#", 1)[0].strip()
-        if stripped.startswith("["):
-            inside = stripped.strip("[]").strip() == header
-        elif inside and assigns.match(stripped):
-            return number
-    return None
 
 
 def check_segments(manifest: RunManifest, source: str = "run.toml", text: str = "") -> None:
