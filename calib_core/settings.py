@@ -23,13 +23,16 @@ TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": di
 
 
 class SettingError(ValueError):
-    """A ``[run.settings]`` key refused: ``key`` is its dotted name under run.settings."""
+    """A key refused: ``key`` is its dotted name under `root` (``run.settings`` of a
+    manifest; "" for a tolerance profile's top level)."""
 
-    def __init__(self, key: str, problem: str) -> None:
+    def __init__(self, key: str, problem: str, root: str = "run.settings") -> None:
         self.key = key
         self.problem = problem
+        self.root = root
         # "run.settings.k: expected a positive number, got -1"; "run.settings.x must be ..."
-        super().__init__(f"run.settings.{key}{'' if problem.startswith('must') else ':'} {problem}")
+        where = f"{root}.{key}" if root else key
+        super().__init__(f"{where}{'' if problem.startswith('must') else ':'} {problem}")
 
 
 def _is_kind(value: Any, kind: str) -> bool:
@@ -50,7 +53,8 @@ class Setting:
     unit : the value's unit as the manifest writes it ("s", "deg/s", "deg", "1", "").
     default : the value when absent; None: absent means "not given" (inferred or unused).
     meaning : one line for the documentation.
-    low, high : inclusive bounds of a number (None: unbounded); low_open excludes `low`.
+    low, high : inclusive bounds of a number (None: unbounded); low_open excludes `low`,
+        high_open `high`.
     choices : the allowed texts of a "text" setting.
     length : the number of items of a "list" setting.
     """
@@ -63,6 +67,7 @@ class Setting:
     low: float | None = None
     high: float | None = None
     low_open: bool = False
+    high_open: bool = False
     choices: tuple[str, ...] = ()
     length: int | None = None
 
@@ -96,7 +101,8 @@ class Setting:
         noun = "a number" if kind == "number" else "a whole number"
         lo, hi = self.low is not None, self.high is not None
         if lo and hi:
-            return f"{noun} in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}]"
+            left, right = "([["[not self.low_open], ")]"[not self.high_open]
+            return f"{noun} in {left}{self.low:g}, {self.high:g}{right}"
         if lo and self.low == 0.0:
             return noun.replace("a ", "a positive " if self.low_open else "a non-negative ")
         if lo:
@@ -126,7 +132,7 @@ class Setting:
             return False
         if self.low is not None and (x < self.low or (self.low_open and x == self.low)):
             return False
-        return self.high is None or x <= self.high
+        return self.high is None or x < self.high or (x == self.high and not self.high_open)
 
 
 class Settings:
@@ -155,22 +161,22 @@ class Settings:
         """name -> default of every setting."""
         return {s.name: s.default for s in self}
 
-    def validate(self, given: Mapping[str, Any], table: str) -> None:
+    def validate(self, given: Mapping[str, Any], table: str, root: str = "run.settings") -> None:
         """Check a whole table: unknown keys (with the closest valid one), types, bounds.
 
-        `table` is its name under run.settings ("outliers") or "" for run.settings itself.
+        `table` is its name under `root` ("outliers" under run.settings; "recall" of a
+        tolerance profile, root ""), or "" for `root` itself.
         """
         where = f"{table}." if table else ""
+        header = ".".join(p for p in (root, table) if p)
         for key, value in given.items():
             if key not in self.items:
                 hint = did_you_mean(key, list(self.items))
-                raise SettingError(
-                    f"{where}{key}", f"unknown setting of [run.settings.{table}]{hint}"
-                )
+                raise SettingError(f"{where}{key}", f"unknown setting of [{header}]{hint}", root)
             try:
                 self.items[key].check(value)
             except SettingError as exc:
-                raise SettingError(f"{where}{key}", exc.problem) from None
+                raise SettingError(f"{where}{key}", exc.problem, root) from None
 
     def parse(self, given: Mapping[str, Any] | None | Any) -> Any:
         """The typed values (`type`) of `given`: values already typed pass as they are; a

@@ -466,7 +466,6 @@ def check_settings(manifest: RunManifest, source: str = "run.toml", text: str = 
         ) from None
 
 
-
 def check_segments(manifest: RunManifest, source: str = "run.toml", text: str = "") -> None:
     """Cross-checks of the segment list that need the whole manifest.
 
