@@ -18,6 +18,7 @@ from calib_core.settings import Setting, Settings, SettingsIn
 from calib_core.significance import STEERING, T_TESTS
 from calib_core.solvers.centrifuge import solve_centrifuge
 from calib_core.solvers.centrifuge_model import (
+    DEFAULT_STEER,
     DEFAULT_ZERO_SHIFT_LIMIT,
     CentrifugeModel,
     CentrifugeSettings,
@@ -38,9 +39,9 @@ SETTINGS = Settings(
     Setting("alpha", "number", "1", 0.05, "significance level of the t and F tests",
             low=0.0, high=1.0, low_open=True),
     Setting("t_test", "text", "", "two-sided", "t test of each term", choices=T_TESTS),
-    Setting("steer", "text", "", "t",
-            "what ends the stepwise reduction: every kept term passes its t test, or the F "
-            "test", choices=STEERING),
+    Setting("steer", "text", "", DEFAULT_STEER,
+            "how the stepwise reduction decides: the model F test then the t tests (the "
+            "paper's), the t tests alone, or the largest model F", choices=STEERING),
     Setting("scale_1g", "table", "1", {},
             "per table axis x, y, z the 1 g scale error K - 1 of a static calibration"),
     Setting("common_radius", "bool", "", True, "one effective radius for all positions"),
