@@ -66,6 +66,11 @@ DEFAULT_VERIFICATION_LIMITS: dict[str, float] = {
     "gyr": 0.5 * units.DEG,
 }
 _FRACTION = {"low": 0.0, "high": 1.0, "low_open": True, "high_open": True}
+_POSITIVE = {"low": 0.0, "low_open": True}
+# ``[recall]``: how the recalibration interval is set (calib_core.interval, docs/interval.md);
+# ``[protocol]``: the names the test protocol prints.
+RECALL_METHODS = ("variables", "fixed")
+PROTOCOL_NAMES = ("canonical", "manual")
 # docs/methods.md 3.7, repeatability: three complete runs, CV <= 1 %.
 REPEATABILITY = Settings(
     Setting("cv_max", "number", "1", 0.01, "largest coefficient of variation", **_FRACTION),
@@ -76,24 +81,19 @@ REPEATABILITY = Settings(
     Setting("temperature_tol_c", "number", "degC", 2.0, "runs within this of each other count "
             "as the same conditions (the lab's 20 +- 2 deg C)", low=0.0),
 )  # fmt: skip
-DEFAULT_REPEATABILITY: dict[str, float | int] = REPEATABILITY.defaults()
-# ``[recall]``: how the recalibration interval is set (calib_core.interval, docs/interval.md).
-RECALL_METHODS = ("variables", "fixed")
 RECALL = Settings(
     Setting("method", "text", "", "variables", "from the unit's and its fleet's drift "
             "(variables) or fixed_months (fixed)", choices=RECALL_METHODS),
     Setting("reliability", "number", "1", 0.95, "in-tolerance probability at the interval's "
             "end", **_FRACTION),
-    Setting("max_months", "number", "month", 60.0, "longest interval", low=0.0, low_open=True),
-    Setting("fixed_months", "number", "month", 12.0, "the fixed interval", low=0.0,
-            low_open=True),
+    Setting("max_months", "number", "month", 60.0, "longest interval", **_POSITIVE),
+    Setting("fixed_months", "number", "month", 12.0, "the fixed interval", **_POSITIVE),
 )  # fmt: skip
+PROTOCOL = Settings(Setting(
+    "names", "text", "", "canonical", "the protocol also prints the MPU-6000 manual's names "
+    "and signs (manual)", choices=PROTOCOL_NAMES))  # fmt: skip
+DEFAULT_REPEATABILITY: dict[str, float | int] = REPEATABILITY.defaults()
 DEFAULT_RECALL: dict[str, str | float] = RECALL.defaults()
-PROTOCOL_NAMES = ("canonical", "manual")
-PROTOCOL = Settings(
-    Setting("names", "text", "", "canonical", "the protocol also prints the MPU-6000 manual's "
-            "names and signs (manual)", choices=PROTOCOL_NAMES),
-)  # fmt: skip
 
 
 def _strip_parens(text: str) -> str:
