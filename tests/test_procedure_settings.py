@@ -7,6 +7,7 @@ allowed; the same through the solver, the manifest (naming its file) and `calib 
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -239,3 +240,31 @@ def test_the_declared_defaults_are_the_solvers():
     signature = inspect.signature(rate_point).parameters
     for key in ("settle_s", "record_s"):
         assert BY_NAME["rate_table"].settings.defaults()[key] == signature[key].default
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_solvers_take_their_typed_settings(name):
+    """`solve` checks the run's settings once and hands the procedure's solver its typed
+    values (defaults filled, the shared tables left out); a solver called directly parses
+    a mapping at its door, refusing a bad value by the same rule."""
+    from calib_core.calibration import Calibration
+
+    proc = BY_NAME[name]
+    own = next(s for s in proc.settings if s.default is not None)
+    given = {own.name: own.default, "outliers": {"n_sigma": 4.0}}
+    seen = []
+
+    def spy(segments, gravity, settings):
+        seen.append(settings)
+        return Calibration(procedure=name, gravity=gravity)
+
+    solve(name, {}, 9.81, given, solver=spy)
+    (typed,) = seen
+    assert type(typed) is proc.settings.type and proc.settings.parse(typed) is typed
+    assert typed.as_dict() == proc.settings.defaults()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        setattr(typed, own.name, own.default)
+    _, (key, value), _ = CASES[name]
+    if key in proc.settings:  # not a shared setting: the solver's own door refuses it
+        with pytest.raises(SettingError, match=rf"run\.settings\.{key}: expected"):
+            proc.solver({}, 9.81, {key: value})

@@ -70,13 +70,12 @@ def solve_static_bias_procedure(
     settings : typed `SETTINGS` (see calib_core.solvers.static_bias.solve_static_bias); a
         mapping is parsed.
     """
+    kwargs = solver_settings(settings)
     if len(segments) != 1:
         raise ValueError(
             f"static_bias: expected one static segment, got {len(segments)} ({', '.join(segments)})"
         )
-    return solve_static_bias(
-        next(iter(segments.values())), gravity=gravity, **solver_settings(settings)
-    )
+    return solve_static_bias(next(iter(segments.values())), gravity=gravity, **kwargs)
 
 
 def solve_static_bias_streamed(chunks, settings: SettingsIn, **streaming) -> Calibration:
