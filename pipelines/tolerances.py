@@ -58,7 +58,8 @@ def load_profile(name: str) -> ToleranceProfile:
             try:
                 return ToleranceProfile.from_dict(tomllib.loads(text))
             except (tomllib.TOMLDecodeError, ValueError, KeyError, TypeError) as exc:
-                raise ValueError(f"tolerance profile {path}{line_of(text, exc)}: {exc}") from exc
+                where = f"{path}{line_of(text, str(exc))}"
+                raise ValueError(f"tolerance profile {where}: {exc}") from exc
     searched = ", ".join(str(d) for d in profile_dirs())
     raise ValueError(f"tolerance profile {name!r} not found (looked for {name}.toml in {searched})")
 
@@ -67,11 +68,12 @@ def load_profile(name: str) -> ToleranceProfile:
 _FIELD = re.compile(r"^(?:tolerance profile field ')?([A-Za-z_]\w*(?:\[\d+\]|\.[A-Za-z_]\w*)*)")
 
 
-def line_of(text: str, exc: Exception) -> str:
-    """ " line N" of the field `exc` names in the profile's `text`, or "" when not found."""
+def line_of(text: str, problem: str) -> str:
+    """The " line N" of the field a `problem` starts with ("limits[3].unit: ...") in the
+    TOML `text` of a profile (tolerance or lab), or "" when not found."""
     from pipelines.ingest.manifest import key_line  # the manifest's rule (pydantic: on error)
 
-    m = _FIELD.match(str(exc))
+    m = _FIELD.match(problem)
     if m is None:
         return ""
     path = tuple(int(p) if p.isdigit() else p for p in re.split(r"[.\[\]]+", m[1]) if p)

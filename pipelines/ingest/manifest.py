@@ -391,21 +391,22 @@ def check_finite_numbers(data: Any, source: str, text: str, path: tuple = ()) ->
 
 def key_line(text: str, path: tuple) -> int | None:
     """1-based line of the key at dotted `path` (``("segments", 2, "end_s")``) in manifest
-    `text`: the key assigned under its table's header (``[a.b]``, the n-th ``[[a]]``),
-    or a dotted key under a shorter header; None when it is spelt otherwise (inline
-    tables)."""
+    `text`: the key assigned under its table's header (``[a.b]``, the n-th ``[[a]]``, a
+    ``[a.b]`` of the latest ``[[a]]``), or a dotted key under a shorter header; None when
+    it is spelt otherwise (inline tables)."""
     keys = [p for p in path if not isinstance(p, int)]
     counts: dict[str, int] = {}
     header: tuple = ()
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.split("#", 1)[0].strip()
-        if stripped.startswith("[["):
-            name = stripped.strip("[]").strip()
-            counts[name] = counts.get(name, -1) + 1
-            header = (*name.split("."), counts[name])
-            continue
         if stripped.startswith("["):
-            header = tuple(stripped.strip("[]").strip().split("."))
+            names = stripped.strip("[]").strip().split(".")
+            if stripped.startswith("[["):
+                counts[".".join(names)] = counts.get(".".join(names), -1) + 1
+            header = ()
+            for i in range(len(names)):  # each array of tables at its latest entry
+                at = counts.get(".".join(names[: i + 1]))
+                header += (names[i],) if at is None else (names[i], at)
             continue
         key = stripped.split("=", 1)[0].strip().strip("\"'")
         if "=" not in stripped or not key:
