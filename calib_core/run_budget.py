@@ -80,8 +80,8 @@ def _model(
     proc = procedures.BY_NAME.get(cal.procedure)
     if proc is None or proc.uncertainty is None:
         return None, [], (f"Type B sources of procedure {cal.procedure!r} not modelled",)
-    # The model reads the procedure's settings as solved: its declared defaults filled in.
-    return proc.uncertainty(cal, segments, {**settings, **proc.settings.merged(settings)}, spec)
+    # The model reads the procedure's settings as solved: typed, its defaults filled in.
+    return proc.uncertainty(cal, segments, proc.settings.parse(settings), spec)
 
 
 def budgets_doc(budgets_: Mapping[str, Budget]) -> dict[str, dict[str, Any]]:

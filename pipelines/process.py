@@ -25,8 +25,8 @@ from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
 from calib_core.preprocess.motion import static_labels
-from calib_core.procedures.rate_table import plateau_window
 from calib_core.recording import Recording
+from calib_core.solvers.rate_table import plateau_window
 from calib_core.stillness import StatedLimits, measured_noise, stillness_problems
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget

@@ -16,41 +16,12 @@ from calib_core.procedures.base import (
     RATE_PLATEAUS,
     TABLE_POSITION,
     Procedure,
-    Setting,
-    Settings,
 )
 from calib_core.recording import Recording
 from calib_core.settings import SettingsIn
-from calib_core.solvers.rate_table import rate_points, solve_rate_table
+from calib_core.solvers.rate_table import SETTINGS, plateau_window, rate_points, solve_rate_table
 from calib_core.uncertainty_sources import rate_table_model
 from calib_core.units import DEG
-
-SETTINGS = Settings(
-    Setting("settle_s", "number", "s", 20.0,
-            "settle time dropped from the start of each plateau", low=0.0),
-    Setting("record_s", "number", "s", None,
-            "record window after the settle (absent: to the plateau's end)", low=0.0,
-            low_open=True),
-    Setting("full_scale_dps", "number", "deg/s", None,
-            "input full scale for the nonlinearity (absent: the largest rate)", low=0.0,
-            low_open=True),
-    Setting("gyro_bias", "text", "", "joint",
-            "gyro bias fitted with the scale factors (joint) or fixed from the static run "
-            "(static: the 0-rate points, or static_bias_dps)", choices=("joint", "static")),
-    Setting("static_bias_dps", "list", "deg/s", None,
-            "[x, y, z] bias of a separate static-bias run (gyro_bias = \"static\")", length=3),
-    Setting("static_bias_std_dps", "list", "deg/s", None,
-            "[x, y, z] standard uncertainty of static_bias_dps (absent: 0)", length=3),
-    name="RateTableSettings",
-)  # fmt: skip
-
-
-def plateau_window(settings: SettingsIn) -> dict[str, float]:
-    """``settle_s`` and ``record_s`` (s) of each plateau's record window from the run's
-    settings (typed or a mapping; defaults filled in): the fit's and the held-out points'
-    one window."""
-    s = SETTINGS.parse(settings)
-    return {k: float(v) for k in ("settle_s", "record_s") if (v := getattr(s, k)) is not None}
 
 
 def solve_rate_table_procedure(
