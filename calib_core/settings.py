@@ -40,7 +40,7 @@ def _is_kind(value: Any, kind: str) -> bool:
         return isinstance(value, int | float) and not isinstance(value, bool)
     if kind == "integer":
         return isinstance(value, int) and not isinstance(value, bool)
-    return isinstance(value, {"bool": bool, "text": str, "table": dict, "list": list}[kind])
+    return isinstance(value, TYPES[kind])
 
 
 @dataclass(frozen=True)
@@ -101,7 +101,7 @@ class Setting:
         noun = "a number" if kind == "number" else "a whole number"
         lo, hi = self.low is not None, self.high is not None
         if lo and hi:
-            left, right = "([["[not self.low_open], ")]"[not self.high_open]
+            left, right = "(["[not self.low_open], ")]"[not self.high_open]
             return f"{noun} in {left}{self.low:g}, {self.high:g}{right}"
         if lo and self.low == 0.0:
             return noun.replace("a ", "a positive " if self.low_open else "a non-negative ")
