@@ -19,22 +19,8 @@ six_position_integral
     The statics plus n-turn ccw/cw rotations about each axis (x_ccw, x_cw, ...):
     adds gyro scale and misalignment by the integral method (MPU-6000 paper).
 
-Settings
---------
-turns : int or None (infer from the data), integral method only.
-gyro_range_dps : gyro full scale, deg/s (default 2000).
-accel_solver : "least_squares" (default), "closed_form" (docs/methods.md 2.1) or
-    "kalman" (sequential filter over every sample, calib_core.solvers.kalman;
-    agrees with least squares within its uncertainty).
-accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
-    rate-table model of docs/methods.md 1: bias and scale per axis, no cross-coupling).
-rotation_directions : "both" (default; ccw and cw about each axis) or "any"
-    (one rotation per axis suffices, Ferraris et al.; e.g. imucal sessions).
-gyro_from_earth_rate, latitude_deg, heading_deg : six_position only; the gyro's bias,
-    scale and misalignment from the statics with Earth rate as the input (the
-    north-seeker note's FOG case, calib_core.solvers.earth_rate_faces) in place of its
-    bias and g-sensitivity.
-Each as a typed `Setting` below (docs/procedures.md).
+Settings: the typed `Setting`s below (docs/procedures.md); each solver takes its
+procedure's parsed values (`Settings.parse`).
 """
 
 from __future__ import annotations
@@ -289,7 +275,7 @@ def solve_six_position(
     ----------
     segments : label -> Recording; needs x_up, x_dn, y_up, y_dn, z_up, z_dn.
     gravity : local gravity, m/s^2.
-    settings : typed `STATICS_SETTINGS` (a mapping is parsed); see the module docstring.
+    settings : typed `STATICS_SETTINGS` (a mapping is parsed; docs/procedures.md).
     """
     s = STATICS_SETTINGS.parse(settings)
     _require(segments, STATIC_LABELS, "six_position")
@@ -307,7 +293,7 @@ def solve_six_position_integral(
     segments : label -> Recording; the six statics and x_ccw, x_cw, y_ccw,
         y_cw, z_ccw, z_cw.
     gravity : local gravity, m/s^2.
-    settings : typed `INTEGRAL_SETTINGS` (a mapping is parsed); see the module docstring.
+    settings : typed `INTEGRAL_SETTINGS` (a mapping is parsed; docs/procedures.md).
     """
     s = INTEGRAL_SETTINGS.parse(settings)
     both = s.rotation_directions == "both"
