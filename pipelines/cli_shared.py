@@ -200,7 +200,7 @@ app = CalibTyper(cls=CalibGroup, no_args_is_help=True, help="IMU calibration pip
 # `calib --help` lists the commands under these headings, by task (`group_commands`).
 PANELS = {
     "Process": ("process", "reprocess", "centrifuge", "apply", "thermal", "impact"),
-    "Inspect": ("inspect", "show", "history", "repeatability", "procedures"),
+    "Inspect": ("inspect", "show", "history", "repeatability", "procedures", "validate"),
     "Query": ("query", "due", "trend", "fleet"),
     "Report": ("report", "verify-certificate", "navfit", "serve", "serve-user"),
     "Export": ("export",),

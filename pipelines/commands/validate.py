@@ -1,0 +1,88 @@
+"""`calib validate RUN_ID... [--with imucal,allantools]`, the CLI: an archived run solved
+again by independent public implementations (pipelines/validation, docs/validation.md).
+
+`--benchmark` is the ground-truth benchmark's entry (docs/validation.md); it takes no run id.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import typer
+
+from pipelines.cli_shared import ArchiveOpt, app, fail, open_archive, print_json, print_table
+
+
+@app.command()
+def validate(
+    run_ids: Annotated[
+        list[str] | None, typer.Argument(help="Run ids (or unique prefixes).", show_default=False)
+    ] = None,
+    peers: Annotated[
+        str,
+        typer.Option(
+            "--with",
+            help="Comma-separated peers to compare with: imucal, allantools "
+            "(pip install 'imu-calib\\[validate]'). Default: every peer.",
+        ),
+    ] = "",
+    benchmark: Annotated[
+        bool,
+        typer.Option("--benchmark", help="Score the installed software on the benchmark set."),
+    ] = False,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
+    archive: ArchiveOpt = None,
+) -> None:
+    """Solve archived runs again with independent implementations: per parameter ours,
+    theirs, the difference, the combined standard uncertainty and E_n (k = 2); each
+    comparison archived as a sealed validation record of the run."""
+    from pipelines.validation import compare
+
+    if benchmark:
+        if run_ids:
+            fail("--benchmark takes no run id: it scores the software on its own set")
+        fail("--benchmark: the benchmark set is not part of this build")
+    if not run_ids:
+        fail("give at least one run id (or --benchmark)")
+    try:
+        chosen = compare.peer_names(peers)
+    except ValueError as exc:
+        fail(str(exc))
+    arch = open_archive(archive)
+    results = []
+    for run_id in run_ids:
+        try:
+            results.append(compare.validate_run(arch, run_id, chosen))
+        except (LookupError, ValueError) as exc:
+            fail(str(exc))
+    if json_out:
+        print_json(results if len(results) > 1 else results[0])
+        return
+    for doc in results:
+        _print(doc)
+
+
+def _print(doc: dict[str, Any]) -> None:
+    """One run's comparisons: a table per peer that treated it, its reason otherwise."""
+    from pipelines.cli_shared import out
+
+    for peer in doc["peers"]:
+        title = f"{doc['run_id']} against {peer['peer']} {peer.get('version') or ''}".strip()
+        if peer["status"] != "compared":
+            out.print(f"{title}: {peer['status']} ({peer['reason']})")
+            continue
+        rows = [
+            {
+                "parameter": r["parameter"],
+                "ours": r["ours"],
+                "theirs": r["theirs"],
+                "difference": r["difference"],
+                "u_c": r["u_combined"],
+                "E_n": r["e_n"],
+                "unit": r["unit"],
+            }
+            for r in peer["parameters"]
+        ]
+        print_table(rows, title)
+        for note in peer.get("notes", []):
+            out.print(f"  note: {note}")
