@@ -71,18 +71,19 @@ def _print(doc: dict[str, Any]) -> None:
         if peer["status"] != "compared":
             out.print(f"{title}: {peer['status']} ({peer['reason']})")
             continue
+        columns = ["parameter", "ours", "theirs", "difference", "u_c", "E_n", "unit"]
         rows = [
-            {
-                "parameter": r["parameter"],
-                "ours": r["ours"],
-                "theirs": r["theirs"],
-                "difference": r["difference"],
-                "u_c": r["u_combined"],
-                "E_n": r["e_n"],
-                "unit": r["unit"],
-            }
+            [
+                r["parameter"],
+                f"{r['ours']:.6g}",
+                f"{r['theirs']:.6g}",
+                f"{r['difference']:.3g}",
+                f"{r['u_combined']:.3g}",
+                "-" if r["e_n"] is None else f"{r['e_n']:.2f}",
+                r["unit"],
+            ]
             for r in peer["parameters"]
         ]
-        print_table(rows, title)
+        print_table(title, columns, rows)
         for note in peer.get("notes", []):
             out.print(f"  note: {note}")
