@@ -257,4 +257,3 @@ def solve_accel_multi(
         warnings,
         scale,
     )
-

@@ -149,7 +149,9 @@ def _allantools(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, 
         rel = float(np.max(np.abs(adev_theirs / adev_ours - 1.0)))
         notes.append(
             f"{sensor} Allan deviation at {len(taus)} cluster times: largest relative "
-            f"difference {rel:.2e}, {worst:.3g} of our 68 % half-interval"
+            f"difference {rel:.2e}, {worst:.3g} of our 68 % half-interval; allantools "
+            f"reads the raw samples, ours those after the n-sigma clip "
+            f"({sum(info.get('outliers', {}).get(sensor, []))} replaced)"
         )
         m = np.rint(taus * rate_hz)
         for i, a in enumerate("xyz"):
