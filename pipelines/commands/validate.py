@@ -52,7 +52,7 @@ def validate(
     results = []
     for run_id in run_ids:
         try:
-            results.append(compare.validate_run(arch, run_id, chosen))
+            results.append(compare.validate_and_archive(arch, run_id, chosen))
         except (LookupError, ValueError) as exc:
             fail(str(exc))
     if json_out:
@@ -66,6 +66,9 @@ def _print(doc: dict[str, Any]) -> None:
     """One run's comparisons: a table per peer that treated it, its reason otherwise."""
     from pipelines.cli_shared import out
 
+    out.print(
+        f"{doc['run_id']} revision {doc['revision']}: validation record {doc['validation_id']}"
+    )
     for peer in doc["peers"]:
         title = f"{doc['run_id']} against {peer['peer']} {peer.get('version') or ''}".strip()
         if peer["status"] != "compared":
