@@ -195,7 +195,7 @@ def show(run_id: str, archive: ArchiveOpt = None, as_json: JsonOpt = False) -> N
 
 def _print_validations(summary: dict) -> None:
     """The revision's validation records (`calib validate`), one line per peer."""
-    from pipelines.validation.compare import peer_line
+    from pipelines.reports.validation import peer_line
 
     for v in summary["validations"]:
         out.print(

@@ -107,3 +107,23 @@ def test_an_unknown_peer_is_refused(runs):
     res = _calib(archive, "validate", ids["mpu6000_MPU0001"], "--with", "imu_tk")
     assert res.exit_code == 2
     assert "unknown peer 'imu_tk'" in res.output
+
+
+def test_imucal_on_its_own_example_session(tmp_path):
+    """imucal's example Ferraris session (real, hand-placed faces) through the pipeline
+    (tests/realdata/imucal_ferraris.toml): every parameter imucal estimates within E_n <= 1,
+    the accelerometer biases by the uncertainty the face misfit gives them."""
+    pytest.importorskip("imucal")
+    data = ROOT.parent / "shared" / "realdata" / "imucal_ferraris"
+    if not data.is_dir():
+        pytest.skip(f"imucal Ferraris session not found at {data} (shared/realdata missing)")
+    folder = tmp_path / "run"
+    folder.mkdir()
+    shutil.copy(data / "example_ferraris_session.csv", folder)
+    shutil.copy(ROOT / "tests" / "realdata" / "imucal_ferraris.toml", folder / "run.toml")
+    archive = new_archive(tmp_path)
+    res = _calib(archive, "validate", processed_run(folder, archive), "--with", "imucal", "--json")
+    assert res.exit_code == 0, res.output
+    rows = json.loads(res.output)["peers"][0]["parameters"]
+    assert len(rows) == 33
+    assert max(r["e_n"] for r in rows) <= 1.0, [(r["parameter"], r["e_n"]) for r in rows]

@@ -49,12 +49,21 @@ def validate(
     except ValueError as exc:
         fail(str(exc))
     arch = open_archive(archive)
+    if arch.read_only:
+        fail(f"{arch.root}: the archive is read-only; a validation is kept as a record in it")
     results = []
     for run_id in run_ids:
         try:
             results.append(compare.validate_and_archive(arch, run_id, chosen))
         except (LookupError, ValueError) as exc:
             fail(str(exc))
+        except Exception as exc:  # a read-only archive, a full disk: said, not a traceback
+            from storage.write_failures import describe
+
+            message = describe(exc, arch.url)
+            if message is None:
+                raise
+            fail(f"{run_id}: the validation record cannot be kept: {message}")
     if json_out:
         print_json(results if len(results) > 1 else results[0])
         return

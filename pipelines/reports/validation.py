@@ -1,5 +1,6 @@
-"""Method validation, the certificate's section: the revision's latest validation record
-(`calib validate`, docs/validation.md), per peer its parameters with E_n."""
+"""Method validation, the report: the certificate's section of the revision's latest validation
+record (`calib validate`, docs/validation.md), per peer its parameters with E_n; a peer's
+outcome in one line (`peer_line`: `calib show`, the web run page, the certificate)."""
 
 from __future__ import annotations
 
@@ -12,8 +13,6 @@ HEADER = ["peer", "parameter", "ours", "theirs", "difference", "u_c", "E_n", "un
 
 def validation_sections(records: list[dict[str, Any]] | None) -> list[Section]:
     """One "Method validation" section for the latest record; none without a record."""
-    from pipelines.validation.compare import peer_line
-
     if not records:
         return []
     v = records[-1]
@@ -43,3 +42,19 @@ def validation_sections(records: list[dict[str, Any]] | None) -> list[Section]:
             "Method validation", header=HEADER if rows else [], rows=rows, paragraphs=paragraphs
         )
     ]
+
+
+def peer_line(peer: dict[str, Any]) -> str:
+    """One peer's outcome in words: how many parameters, the largest E_n and those above 1,
+    or why it did not compare (`calib show`, the web run page, the certificate)."""
+    who = f"{peer['peer']} {peer.get('version') or ''}".strip()
+    if peer["status"] != "compared":
+        return f"{who}: {peer['status']} ({peer['reason']})"
+    rows = peer["parameters"]
+    scored = [r for r in rows if r["e_n"] is not None]
+    over = [r["parameter"] for r in scored if r["e_n"] > 1.0]
+    worst = max((r["e_n"] for r in scored), default=None)
+    text = f"{who}: {len(rows)} parameters compared"
+    if worst is not None:
+        text += f", largest E_n {worst:.2f}"
+    return text + (f"; E_n > 1: {', '.join(over)}" if over else "; every E_n <= 1")

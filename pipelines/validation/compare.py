@@ -95,22 +95,6 @@ def validate_run(archive: Archive, run_id: str, peers: tuple[str, ...]) -> dict[
     }
 
 
-def peer_line(peer: dict[str, Any]) -> str:
-    """One peer's outcome in words: how many parameters, the largest E_n and those above 1,
-    or why it did not compare (`calib show`, the web run page, the certificate)."""
-    who = f"{peer['peer']} {peer.get('version') or ''}".strip()
-    if peer["status"] != "compared":
-        return f"{who}: {peer['status']} ({peer['reason']})"
-    rows = peer["parameters"]
-    scored = [r for r in rows if r["e_n"] is not None]
-    over = [r["parameter"] for r in scored if r["e_n"] > 1.0]
-    worst = max((r["e_n"] for r in scored), default=None)
-    text = f"{who}: {len(rows)} parameters compared"
-    if worst is not None:
-        text += f", largest E_n {worst:.2f}"
-    return text + (f"; E_n > 1: {', '.join(over)}" if over else "; every E_n <= 1")
-
-
 def validate_and_archive(archive: Archive, run_id: str, peers: tuple[str, ...]) -> dict[str, Any]:
     """`validate_run`, kept as a sealed validation record of the run (storage.validation);
     the document with its record's ``validation_id``."""

@@ -171,7 +171,7 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
 def validation_tables(summary: dict[str, Any]) -> list[dict[str, Any]]:
     """The revision's validation records as the run page shows them: per peer its line
     (pipelines.validation.compare.peer_line) and its rows, numbers as text."""
-    from pipelines.validation.compare import peer_line
+    from pipelines.reports.validation import peer_line
 
     def num(v: float | None, fmt: str) -> str:
         return "-" if v is None else format(v, fmt)
