@@ -79,6 +79,29 @@ def test_allantools_on_the_static_bias_sample(runs):
         assert r["e_n"] <= 1.0, r
 
 
+def test_the_web_page_and_the_certificate_show_the_record(runs, six_position):
+    from fastapi.testclient import TestClient
+
+    from calib_testing.documents import html_words, pdf_pages
+    from pipelines.web.app import create_app
+    from storage.queries.readonly import open_readonly
+
+    archive, ids = runs
+    run_id = ids["mpu6000_MPU0001"]
+    ro = open_readonly(archive)
+    with TestClient(create_app(ro)) as c:
+        page = c.get(f"/runs/{run_id}")
+    ro.dispose()
+    assert page.status_code == 200
+    assert f"Validation record {six_position['validation_id']}" in page.text
+    assert "acc.bias.x" in page.text.split("Method validation", 1)[1]
+    res = _calib(archive, "report", run_id, "--reissue", "--reason", "validated", "--json")
+    assert res.exit_code == 0, res.output
+    paths = json.loads(res.output)
+    assert "Method validation" in " ".join(html_words(Path(paths["html"]).read_text("utf-8")))
+    assert any("Method validation" in page for page in pdf_pages(Path(paths["pdf"])))
+
+
 def test_the_record_is_kept_shown_and_sealed(runs, six_position):
     archive, ids = runs
     run_id = ids["mpu6000_MPU0001"]
