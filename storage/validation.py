@@ -88,16 +88,9 @@ def archive_validation(
         return rec.id
 
 
+# Every column of a record with its run id and revision.
 _RECORDS = (
-    select(
-        ValidationRow.id,
-        ValidationRow.created_at,
-        ValidationRow.software_version,
-        ValidationRow.document,
-        ValidationRow.digest,
-        CalibrationRow.revision,
-        Run.run_id,
-    )
+    select(*ValidationRow.__table__.columns, CalibrationRow.revision, Run.run_id)
     .join(CalibrationRow, CalibrationRow.id == ValidationRow.calibration_id)
     .join(Run, Run.id == CalibrationRow.run_id)
 )

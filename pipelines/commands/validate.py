@@ -74,6 +74,7 @@ def validate(
 def _print(doc: dict[str, Any]) -> None:
     """One run's comparisons: a table per peer that treated it, its reason otherwise."""
     from pipelines.cli_shared import out
+    from pipelines.reports.validation import COLUMNS, row_texts
 
     out.print(
         f"{doc['run_id']} revision {doc['revision']}: validation record {doc['validation_id']}"
@@ -81,21 +82,9 @@ def _print(doc: dict[str, Any]) -> None:
     for peer in doc["peers"]:
         title = f"{doc['run_id']} against {peer['peer']} {peer.get('version') or ''}".strip()
         if peer["status"] != "compared":
-            out.print(f"{title}: {peer['status']} ({peer['reason']})")
+            out.print(f"{title}: {peer['status']} ({peer['reason']})", markup=False)
             continue
-        columns = ["parameter", "ours", "theirs", "difference", "u_c", "E_n", "unit"]
-        rows = [
-            [
-                r["parameter"],
-                f"{r['ours']:.6g}",
-                f"{r['theirs']:.6g}",
-                f"{r['difference']:.3g}",
-                f"{r['u_combined']:.3g}",
-                "-" if r["e_n"] is None else f"{r['e_n']:.2f}",
-                r["unit"],
-            ]
-            for r in peer["parameters"]
-        ]
-        print_table(title, columns, rows)
+        rows = [row_texts(r) for r in peer["parameters"]]
+        print_table(title, COLUMNS, rows)
         for note in peer.get("notes", []):
-            out.print(f"  note: {note}")
+            out.print(f"  note: {note}", markup=False)

@@ -8,7 +8,22 @@ from typing import Any
 
 from pipelines.reports.render import Section
 
-HEADER = ["peer", "parameter", "ours", "theirs", "difference", "u_c", "E_n", "unit"]
+COLUMNS = ["parameter", "ours", "theirs", "difference", "u_c", "E_n", "unit"]
+HEADER = ["peer", *COLUMNS]
+
+
+def row_texts(r: dict[str, Any]) -> list[str]:
+    """One compared parameter as text, in `COLUMNS` order (the CLI, the web page, the
+    certificate)."""
+    return [
+        r["parameter"],
+        f"{r['ours']:.6g}",
+        f"{r['theirs']:.6g}",
+        f"{r['difference']:.3g}",
+        f"{r['u_combined']:.3g}",
+        "-" if r["e_n"] is None else f"{r['e_n']:.2f}",
+        r["unit"],
+    ]
 
 
 def validation_sections(records: list[dict[str, Any]] | None) -> list[Section]:
@@ -16,20 +31,7 @@ def validation_sections(records: list[dict[str, Any]] | None) -> list[Section]:
     if not records:
         return []
     v = records[-1]
-    rows = [
-        [
-            p["peer"],
-            r["parameter"],
-            f"{r['ours']:.6g}",
-            f"{r['theirs']:.6g}",
-            f"{r['difference']:.3g}",
-            f"{r['u_combined']:.3g}",
-            "-" if r["e_n"] is None else f"{r['e_n']:.2f}",
-            r["unit"],
-        ]
-        for p in v["document"]["peers"]
-        for r in p["parameters"]
-    ]
+    rows = [[p["peer"], *row_texts(r)] for p in v["document"]["peers"] for r in p["parameters"]]
     paragraphs = [
         f"Validation record {v['id']} of {v['created_at']:%Y-%m-%d} (software "
         f"{v['software_version']}): this revision's parameters against independent public "

@@ -171,10 +171,7 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
 def validation_tables(summary: dict[str, Any]) -> list[dict[str, Any]]:
     """The revision's validation records as the run page shows them: per peer its line
     (pipelines.validation.compare.peer_line) and its rows, numbers as text."""
-    from pipelines.reports.validation import peer_line
-
-    def num(v: float | None, fmt: str) -> str:
-        return "-" if v is None else format(v, fmt)
+    from pipelines.reports.validation import peer_line, row_texts
 
     return [
         {
@@ -183,18 +180,7 @@ def validation_tables(summary: dict[str, Any]) -> list[dict[str, Any]]:
             "peers": [
                 {
                     "line": peer_line(p),
-                    "rows": [
-                        [
-                            r["parameter"],
-                            num(r["ours"], ".6g"),
-                            num(r["theirs"], ".6g"),
-                            num(r["difference"], ".3g"),
-                            num(r["u_combined"], ".3g"),
-                            num(r["e_n"], ".2f"),
-                            r["unit"],
-                        ]
-                        for r in p["parameters"]
-                    ],
+                    "rows": [row_texts(r) for r in p["parameters"]],
                     "notes": p.get("notes", []),
                 }
                 for p in v["document"]["peers"]
