@@ -18,8 +18,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from calib_core.procedures import solve
+from calib_core.run_budget import run_budgets
 from calib_core.simulate.lab_run import random_errors, six_position_integral_run
 from calib_core.solvers.six_position import STATIC_LABELS, axis_vector
 from calib_core.stats import MISFIT_ALPHA
@@ -52,6 +54,14 @@ def test_annotated_session_biases_agree_with_imucal_within_their_uncertainty():
         assert own == pytest.approx(theirs[i], rel=1e-9)
         p = cal.parameters[f"acc.bias.{a}"]
         assert abs(p.value - theirs[i]) <= K * p.std, (a, p.value, theirs[i], p.std)
+    # The uncertainty comes from the 2 residual degrees of freedom of each axis's fit: its
+    # budget's coverage factor is Student's at 2 (GUM G.3), not that of the samples.
+    budgets = run_budgets(cal, segments, SETTINGS, None)
+    for a in "xyz":
+        b = budgets[f"acc.bias.{a}"]
+        assert b.nu_eff == pytest.approx(2.0)
+        assert b.k == pytest.approx(stats.t.ppf(0.975, 2), rel=1e-3)
+    assert budgets["gyr.scale.x"].nu_eff > 100  # the turns' terms keep the samples' dof
     # The face-bias check (the same chi2, 2 dof, p 0.001) says so on every axis.
     failed = {c["name"] for c in cal.info["solver_checks"] if not c["passed"]}
     assert {f"model:face_bias.{a}" for a in "xyz"} <= failed
@@ -92,7 +102,5 @@ def test_square_faces_keep_their_noise_only_uncertainty():
     """Exact faces: the scaling starts only where the noise-only model is rejected at
     MISFIT_ALPHA; over 3 x RUNS axes that happens at most as often as false alarms
     explain (binomial upper bound, p 0.001)."""
-    from scipy import stats
-
     scaled = sum(_biases(seed, 0.0)[1] for seed in range(RUNS))
     assert scaled <= stats.binom.isf(1e-3, RUNS, 3 * MISFIT_ALPHA), scaled
