@@ -200,9 +200,9 @@ app = CalibTyper(cls=CalibGroup, no_args_is_help=True, help="IMU calibration pip
 # `calib --help` lists the commands under these headings, by task (`group_commands`).
 PANELS = {
     "Process": ("process", "reprocess", "centrifuge", "apply", "thermal", "impact"),
-    "Inspect": ("inspect", "show", "history", "repeatability", "procedures", "validate"),
+    "Inspect": ("inspect", "show", "history", "repeatability", "procedures"),
     "Query": ("query", "due", "trend", "fleet"),
-    "Report": ("report", "verify-certificate", "navfit", "serve", "serve-user"),
+    "Report": ("report", "verify-certificate", "navfit", "serve", "serve-user", "validate"),
     "Export": ("export",),
     "Admin": ("verify", "checkpoint", "audit", "approve", "keygen", "backup", "restore"),
 }
