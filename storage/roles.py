@@ -52,15 +52,20 @@ WRITER = "calib_writer"
 APPROVER = "calib_approver"
 APPEND_EVENT = (
     "calib_append_event(timestamptz, text, text, text, integer, text, json, text, "
-    "text, text, integer)"
+    "text, text, integer, text)"
 )
+# The function before events recorded their writer (migration 0009): dropped, so that no
+# role keeps a way to append an event without it.
+_OLD_APPEND_EVENT = APPEND_EVENT.replace(", text)", ")")
 # The one way the writer and approver roles append an event: the link to the chain's head,
-# the date and (for a role that cannot add runs) the action are checked, under the lock
-# storage.seal.append_event takes.
+# the date, (for a role that cannot add runs) the action, and the revision an archiving or
+# approving event names are checked, under the lock storage.seal.append_event takes; its
+# writer (p_db_user) is checked by the trigger of migration 0009.
 _APPEND_FUNCTION = """
 CREATE OR REPLACE FUNCTION calib_append_event(
   p_at timestamptz, p_actor text, p_action text, p_run_id text, p_revision integer,
-  p_reason text, p_detail json, p_digest text, p_prev_hash text, p_hash text, p_seq integer
+  p_reason text, p_detail json, p_digest text, p_prev_hash text, p_hash text, p_seq integer,
+  p_db_user text
 ) RETURNS integer LANGUAGE plpgsql SECURITY DEFINER SET search_path = public, pg_temp AS $$
 DECLARE
   head_seq integer;
@@ -84,10 +89,32 @@ BEGIN
     RAISE EXCEPTION 'calib archive: role % may append approvals only, not %', session_user, p_action
       USING ERRCODE = 'insufficient_privilege';
   END IF;
+  IF p_action IN ('archived', 'revised', 'sealed') AND NOT EXISTS (
+       SELECT 1 FROM calibrations c JOIN runs r ON r.id = c.run_id
+       JOIN seals s ON s.calibration_id = c.id
+       WHERE r.run_id = p_run_id AND c.revision = p_revision AND s.digest = p_digest) THEN
+    RAISE EXCEPTION 'calib archive: event % (%) names run % revision % sealed with digest %, '
+      'which the archive does not hold', p_seq, p_action, coalesce(p_run_id, '(none)'),
+      coalesce(p_revision::text, '(none)'), coalesce(left(p_digest, 12), '(none)')
+      USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  IF p_action IN ('archived', 'revised', 'sealed') AND EXISTS (
+       SELECT 1 FROM audit_events WHERE action IN ('archived', 'revised', 'sealed')
+       AND run_id = p_run_id AND revision = p_revision) THEN
+    RAISE EXCEPTION 'calib archive: run % revision % has its sealing event already',
+      p_run_id, p_revision USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  IF p_action = 'approved' AND NOT EXISTS (
+       SELECT 1 FROM calibrations c JOIN runs r ON r.id = c.run_id
+       WHERE r.run_id = p_run_id AND c.revision = p_revision) THEN
+    RAISE EXCEPTION 'calib archive: approval of run % revision %, which the archive does not '
+      'hold', coalesce(p_run_id, '(none)'), coalesce(p_revision::text, '(none)')
+      USING ERRCODE = 'insufficient_privilege';
+  END IF;
   INSERT INTO audit_events (seq, at, actor, action, run_id, revision, reason, detail, digest,
-                            prev_hash, hash)
+                            prev_hash, hash, db_user)
   VALUES (p_seq, p_at, p_actor, p_action, p_run_id, p_revision, p_reason, p_detail, p_digest,
-          p_prev_hash, p_hash);
+          p_prev_hash, p_hash, p_db_user);
   RETURN p_seq;
 END $$
 """
@@ -132,6 +159,7 @@ def guard_statements() -> list[str]:
     from storage.seal import PG_CHAIN_LOCK
 
     stmts = [
+        f"DROP FUNCTION IF EXISTS {_OLD_APPEND_EVENT}",
         _APPEND_FUNCTION.replace("LOCK_KEY", str(PG_CHAIN_LOCK)).strip(),
         f"REVOKE ALL ON FUNCTION {APPEND_EVENT} FROM PUBLIC",
         _SUPERSEDE_FUNCTION.strip(),

@@ -29,6 +29,7 @@ from sqlalchemy import Connection, insert, inspect, select, text
 
 from storage import schema
 from storage.db import Archive
+from storage.roles import APPEND_EVENT
 from storage.schema import AuditEvent, Seal, utcnow
 from storage.seal_record import (
     FORMAT,
@@ -52,17 +53,28 @@ PG_CHAIN_LOCK = 0x63616C6963  # "calic"
 MAX_REASON = 2000  # characters of a reason
 
 
+def os_user() -> str:
+    """The OS user this process runs as."""
+    try:
+        return getpass.getuser()
+    except (KeyError, OSError):  # no passwd entry (a container), no LOGNAME
+        return f"uid {os.getuid()}"
+
+
 def actor() -> str:
     """Who is writing: env ``CALIB_USER`` (the configured identity), else the OS user."""
-    name = os.environ.get(ACTOR_ENV, "").strip()
-    if not name:
-        try:
-            name = getpass.getuser()
-        except (KeyError, OSError):  # no passwd entry (a container), no LOGNAME
-            name = f"uid {os.getuid()}"
+    name = os.environ.get(ACTOR_ENV, "").strip() or os_user()
     if len(name) > 200 or any(ord(c) < 32 for c in name):
         raise ValueError(f"{ACTOR_ENV}: at most 200 characters and no control characters")
     return name
+
+
+def db_user(conn: Connection) -> str:
+    """Who writes as the database knows it: PostgreSQL's ``session_user`` (the role that
+    logged in), the OS user on SQLite (a file has no users of its own)."""
+    if conn.dialect.name == "postgresql":
+        return str(conn.execute(_SESSION_USER).scalar())
+    return os_user()[:200]
 
 
 def check_reason(reason: str | None) -> None:
@@ -78,7 +90,8 @@ def check_reason(reason: str | None) -> None:
 
 @dataclass(frozen=True)
 class Event:
-    """One audit event as it is hashed (``hash`` excluded)."""
+    """One audit event as it is hashed (``hash`` excluded). ``db_user`` (`db_user`) is
+    hashed when there is one: events written before migration 0009 have none."""
 
     seq: int
     at: datetime
@@ -90,9 +103,13 @@ class Event:
     detail: dict[str, Any]
     digest: str | None
     prev_hash: str
+    db_user: str | None = None
 
     def hash(self) -> str:
-        return sha256_hex(canonical({k: getattr(self, k) for k in EVENT_FIELDS}))
+        fields = {k: getattr(self, k) for k in EVENT_FIELDS}
+        if fields["db_user"] is None:
+            del fields["db_user"]
+        return sha256_hex(canonical(fields))
 
 
 EVENT_FIELDS = (
@@ -106,7 +123,9 @@ EVENT_FIELDS = (
     "detail",
     "digest",
     "prev_hash",
+    "db_user",
 )
+_SESSION_USER = text("SELECT session_user")
 # Built once (as the record queries of storage.seal_record).
 _HEAD = select(AuditEvent.seq, AuditEvent.hash).order_by(AuditEvent.seq.desc()).limit(1)
 _INSERT_EVENT = insert(AuditEvent)
@@ -154,6 +173,7 @@ def append_event(
         detail or {},
         digest,
         prev,
+        db_user(conn),
     )
     row = {**{k: getattr(ev, k) for k in EVENT_FIELDS}, "hash": ev.hash()}
     if pg and _has_append_function(conn):
@@ -176,18 +196,14 @@ def _pending(conn: Connection) -> dict[str, Any] | None:
 # this function, which checks the link to the head and the date (docs/archive.md).
 _APPEND_EVENT = text(
     "SELECT calib_append_event(:at, :actor, :action, :run_id, :revision, :reason, "
-    "CAST(:detail AS json), :digest, :prev_hash, :hash, :seq)"
-)
-_APPEND_FUNCTION = (
-    "calib_append_event(timestamptz, text, text, text, integer, text, json, "
-    "text, text, text, integer)"
+    "CAST(:detail AS json), :digest, :prev_hash, :hash, :seq, :db_user)"
 )
 _HAS_FUNCTION = text("SELECT to_regprocedure(:f) IS NOT NULL")
 
 
 def _has_append_function(conn: Connection) -> bool:
     """Whether the database has it (made by storage.roles.apply_roles)."""
-    return bool(conn.execute(_HAS_FUNCTION, {"f": _APPEND_FUNCTION}).scalar())
+    return bool(conn.execute(_HAS_FUNCTION, {"f": APPEND_EVENT}).scalar())
 
 
 def record_event(archive: Archive, action: str, **fields: Any) -> Event:
