@@ -44,6 +44,7 @@ from storage.pgtools import libpq_dsn
 from storage.schema import Base, UnitLatest
 
 if TYPE_CHECKING:
+    import psycopg
     from psycopg import sql  # imported where statements are made: the read-only opener
     # (storage.queries.readonly) takes READER from here, SQLite needs no psycopg
 
@@ -254,36 +255,35 @@ def apply_roles(
     writer_password: str | None = None,
     approver_password: str | None = None,
 ) -> None:
-    """Create the three login roles if missing and grant their privileges (idempotent).
+    """Make the guard function and trigger and grant the three roles their privileges,
+    creating a role that is missing where the connecting role may (idempotent).
 
-    Run as the database owner or a superuser, after `archive.upgrade()`.
-    Passwords, when given, are set (also on existing roles).
+    Run as the database owner after `archive.upgrade()`, again after every upgrade. The
+    roles are made once by the database administrator (docs/postgresql.md: a superuser
+    creates them, the owner need not be allowed to); then the owner changes a role only
+    where it is not as it must be (a login, no superuser, database or role creation, no
+    row-level security bypass) and sets a password only when one is given.
+
+    Raises
+    ------
+    PermissionError : a role is missing, or is not as it must be, or a password is given,
+        and the connecting role may not create or change roles: the message names the
+        role and what the administrator runs.
     """
     if archive.is_sqlite:
         raise ValueError("roles exist only on PostgreSQL; a SQLite archive is a file")
     import psycopg
-    from psycopg import sql
 
     url = make_url(archive.url)
     database = url.database or "postgres"
+    logins = ((reader, reader_password), (writer, writer_password), (approver, approver_password))
     with psycopg.connect(libpq_dsn(archive.url), autocommit=True) as conn, conn.transaction():
-        logins = (
-            (reader, reader_password),
-            (writer, writer_password),
-            (approver, approver_password),
-        )
         for role, password in logins:
             check_safe_name(role, "role")
-            exists = conn.execute("SELECT 1 FROM pg_roles WHERE rolname = %s", (role,)).fetchone()
-            verb = "ALTER" if exists else "CREATE"
-            stmt = sql.SQL(verb + " ROLE {} LOGIN NOSUPERUSER NOCREATEDB NOCREATEROLE").format(
-                sql.Identifier(role)
-            )
-            if password is not None:
-                stmt += sql.SQL(" PASSWORD {}").format(sql.Literal(password))
-            conn.execute(stmt)
+            _login_role(conn, role, password)
         for stmt in role_statements(database, reader=reader, writer=writer, approver=approver):
             conn.execute(stmt)
+        _functions_to_the_owner(conn)
     from storage.seal import record_event
 
     passwords = [r for r, p in logins if p]
@@ -297,6 +297,70 @@ def apply_roles(
             "password_set": passwords,
         },
     )
+
+
+def _functions_to_the_owner(conn: psycopg.Connection) -> None:
+    """The guard functions belong to the tables' owner, also when a superuser made them, so
+    that the owner can run `apply_roles` again (replacing a function takes its owner)."""
+    from psycopg import sql
+
+    owner = conn.execute(
+        "SELECT tableowner FROM pg_tables WHERE schemaname = 'public' AND tablename = 'runs'"
+    ).fetchone()
+    if owner is None:
+        return
+    for function in (APPEND_EVENT, "calib_supersede_forward()"):
+        conn.execute(
+            sql.SQL("ALTER FUNCTION " + function + " OWNER TO {}").format(sql.Identifier(owner[0]))
+        )
+
+
+# What a role the archive's roles hold to must not be (pg_roles columns).
+_POWERS = {
+    "rolsuper": "SUPERUSER",
+    "rolcreatedb": "CREATEDB",
+    "rolcreaterole": "CREATEROLE",
+    "rolbypassrls": "BYPASSRLS",
+}
+
+
+def _login_role(conn: psycopg.Connection, role: str, password: str | None) -> None:
+    """Make `role` a login role without powers, changing only what differs; set `password`
+    when given. PermissionError naming the administrator's statement when refused."""
+    import psycopg
+    from psycopg import sql
+
+    cols = ", ".join(_POWERS)
+    row = conn.execute(
+        f"SELECT rolcanlogin, {cols} FROM pg_roles WHERE rolname = %s", (role,)
+    ).fetchone()
+    name = sql.Identifier(role)
+    if row is None:
+        stmt = sql.SQL("CREATE ROLE {} LOGIN").format(name)
+        doing = f"create role {role}"
+    else:
+        changes = ([] if row[0] else ["LOGIN"]) + [
+            "NO" + power for power, held in zip(_POWERS.values(), row[1:], strict=True) if held
+        ]
+        stmt = sql.SQL("ALTER ROLE {} " + " ".join(changes)).format(name) if changes else None
+        doing = f"change role {role} ({' '.join(changes)})"
+    if password is not None:
+        if stmt is None:
+            stmt = sql.SQL("ALTER ROLE {}").format(name)
+            doing = f"set the password of role {role}"
+        stmt += sql.SQL(" PASSWORD {}").format(sql.Literal(password))
+    if stmt is None:
+        return
+    try:
+        with conn.transaction():  # a savepoint: the refusal is reported, not the abort
+            conn.execute(stmt)
+    except psycopg.errors.InsufficientPrivilege:
+        user = conn.execute("SELECT session_user").fetchone()[0]
+        shown = stmt.as_string(conn).split(" PASSWORD ")[0]
+        raise PermissionError(
+            f"role {user} may not {doing}: the database administrator (a superuser) runs "
+            f"`{shown}` once (docs/postgresql.md, step 3), then apply_roles again"
+        ) from None
 
 
 def role_sql(

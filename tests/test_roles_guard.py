@@ -109,7 +109,7 @@ def test_the_writer_appends_only_through_the_archive(roles, tmp_path: Path) -> N
 
 
 def test_events_name_their_writer_and_an_existing_revision(roles, tmp_path: Path) -> None:  # noqa: ANN001
-    """The forgery of issue 51: a linked `archived` event for a run that does not exist, under
+    """A linked `archived` event for a run that does not exist, under
     a made-up actor; and events claiming another writer, or a second sealing event."""
     owner, r = roles
     writer = r[WRITER]

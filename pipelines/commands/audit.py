@@ -110,6 +110,7 @@ def audit(
         _print_table(events)
     for ev in events if fmt is AuditFormat.tsv else ():
         what = ev["run_id"] + f" revision {ev['revision']}" if ev["run_id"] else ""
+        what += f" (written as {ev['db_user']})" if ev.get("db_user") else ""
         why = f"  reason: {ev['reason']}" if ev["reason"] else ""
         sys.stdout.write(
             f"{ev['seq']}\t{ev['at'].isoformat(timespec='seconds')}\t{ev['actor']}\t"
@@ -141,6 +142,13 @@ def _what(ev: dict[str, Any], key: bool = True) -> str:
     )
 
 
+def _who(ev: dict[str, Any]) -> str:
+    """The claimed actor, and the database user (PostgreSQL) or OS user (SQLite) that wrote
+    the event where it was recorded (migration 0009) and differs."""
+    user = ev.get("db_user")
+    return ev["actor"] + (f" (written as {user})" if user and user != ev["actor"] else "")
+
+
 def _key(ev: dict[str, Any]) -> str:
     """The fingerprint of an approval's key ("" for other events)."""
     from storage.approval import fingerprint
@@ -158,7 +166,7 @@ def _print_table(events: list[dict[str, Any]]) -> None:
 
     rows = []
     for ev in events:
-        what = [f"by {ev['actor']}"] + ([f"revision {ev['revision']}"] if ev["run_id"] else [])
+        what = [f"by {_who(ev)}"] + ([f"revision {ev['revision']}"] if ev["run_id"] else [])
         what += [t for t in (_what(ev, key=False),) if t]
         what += [f"reason: {ev['reason']}"] if ev["reason"] else []
         rows.append(
