@@ -41,8 +41,8 @@ def test_each_event_records_its_database_writer(archive: Archive, tmp_path: Path
 def test_a_linked_event_for_a_run_that_does_not_exist_is_reported(
     archive: Archive, tmp_path: Path
 ) -> None:
-    """The forgery of a linked event for a missing run, by the database's owner (the writer role's call is refused by
-    calib_append_event: tests/test_roles_guard.py)."""
+    """Linked events for a missing run or revision, by the database's owner (the writer
+    role's calls are refused by calib_append_event: tests/test_roles_guard.py)."""
     res = archive_run(archive, make_run(tmp_path / "in"))
     with archive.engine().begin() as conn:
         digest = conn.execute(text("SELECT digest FROM seals")).scalar()
