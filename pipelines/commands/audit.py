@@ -217,14 +217,20 @@ def approve(
     revision: Annotated[
         int | None, typer.Option("--revision", help="Revision to sign (default: current).")
     ] = None,
+    approvers: ApproversOpt = None,
     archive: ArchiveOpt = None,
 ) -> None:
-    """Sign the seal of a run's calibration with your key; `calib verify` checks it."""
+    """Sign the seal of a run's calibration with your key; `calib verify` checks it. A key
+    the lab's approvers file (when one is configured) does not hold is refused."""
     import json
+
+    from sqlalchemy.exc import SQLAlchemyError
 
     from storage.approval import ApprovalError, load_key
     from storage.approval import approve as sign
+    from storage.write_failures import describe
 
+    trust = load_trust(approvers)
     arch, full = open_run(archive, run_id)
     try:
         if name is None:
@@ -239,7 +245,10 @@ def approve(
             signer=name,
             meaning=meaning,
             revision=revision,
+            approvers=trust,
         )
     except (ApprovalError, ValueError, KeyError) as exc:
         fail(str(exc))
+    except (OSError, SQLAlchemyError) as exc:  # the write failed: nothing was signed
+        fail(f"run {full}: not signed: {describe(exc, arch.url) or exc}")
     err.print(f"run {full} revision {ev.revision} {meaning} by {name} (audit event {ev.seq})")
