@@ -159,6 +159,7 @@ def reprocess_run(
         source = restore_run(archive, run_id, folder, link=keep is None)
         outcome = process_run(source, archive, reraise=reraise, reason=reason, correct=correct)
     outcome["source"] = f"archive:{run_id}"
+    outcome["run_id"] = outcome["run_id"] or run_id  # a failed write names its run too
     if outcome["status"] == "ok":  # the run was archived before: "ok" is a new revision
         outcome["status"] = "revised"
     return outcome

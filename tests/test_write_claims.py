@@ -104,6 +104,22 @@ def test_approve_refuses_a_key_outside_the_approvers_file_and_a_failed_write(
     assert res.exit_code == 0, res.output
 
 
+def test_reprocess_on_a_read_only_archive_names_the_run_not_written(
+    rate_runs, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from pipelines import process
+
+    arch, runs = rate_runs
+    monkeypatch.setattr(process, "SOFTWARE_VERSION", "99.0-claims")  # a revision is due
+    args = ["reprocess", runs["C"], "--reason", "new solver", "--json"]
+    res = _cli([*args, "--archive", _read_only_sqlite(arch)], arch.root, monkeypatch)
+    assert res.exit_code == 1, res.output
+    assert f"not written: {runs['C']}" in res.output
+    doc = json.loads(res.stdout)
+    assert doc["summary"]["failed"] == 1 and doc["changes"]["runs"] == 0
+    assert _revisions(arch, runs["C"]) == 1
+
+
 def test_the_change_report_of_a_reprocessing_lists_only_what_it_revised(rate_runs) -> None:
     """After `impact --apply` revised run A, a reprocessing that revises nothing reports no
     change (before: A's impact revision was listed as the reprocessing's)."""
