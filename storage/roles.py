@@ -51,13 +51,6 @@ if TYPE_CHECKING:
 READER = "calib_reader"
 WRITER = "calib_writer"
 APPROVER = "calib_approver"
-APPEND_EVENT = (
-    "calib_append_event(timestamptz, text, text, text, integer, text, json, text, "
-    "text, text, integer, text)"
-)
-# The function before events recorded their writer (migration 0009): dropped, so that no
-# role keeps a way to append an event without it.
-_OLD_APPEND_EVENT = APPEND_EVENT.replace(", text)", ")")
 # The one way the writer and approver roles append an event: the link to the chain's head,
 # the date, (for a role that cannot add runs) the action, and the revision an archiving or
 # approving event names are checked, under the lock storage.seal.append_event takes; its
@@ -157,10 +150,14 @@ def guard_statements() -> list[str]:
     """The SQL of the function and trigger the writer and approver are held by (idempotent)."""
     # storage.seal loads the file store (pyarrow): imported here, so that reading the role
     # names (storage.queries.readonly) stays light for the read-only commands.
-    from storage.seal import PG_CHAIN_LOCK
+    from storage.seal import APPEND_EVENT, PG_CHAIN_LOCK
+
+    # The function before events recorded their writer (migration 0009): dropped, so that
+    # no role keeps a way to append an event without it.
+    old_append_event = APPEND_EVENT.replace(", text)", ")")
 
     stmts = [
-        f"DROP FUNCTION IF EXISTS {_OLD_APPEND_EVENT}",
+        f"DROP FUNCTION IF EXISTS {old_append_event}",
         _APPEND_FUNCTION.replace("LOCK_KEY", str(PG_CHAIN_LOCK)).strip(),
         f"REVOKE ALL ON FUNCTION {APPEND_EVENT} FROM PUBLIC",
         _SUPERSEDE_FUNCTION.strip(),
@@ -215,6 +212,8 @@ def role_statements(
     a = sql.Identifier(approver)
     data = sql.SQL(", ").join(sql.Identifier(t) for t in tables)
     version = sql.Identifier("alembic_version")  # read by Archive.upgrade at every start
+    from storage.seal import APPEND_EVENT
+
     append = sql.SQL(APPEND_EVENT)  # a constant, not a name from outside
     stmts = [
         *(sql.SQL(g) for g in guard_statements()),
@@ -303,6 +302,8 @@ def _functions_to_the_owner(conn: psycopg.Connection) -> None:
     """The guard functions belong to the tables' owner, also when a superuser made them, so
     that the owner can run `apply_roles` again (replacing a function takes its owner)."""
     from psycopg import sql
+
+    from storage.seal import APPEND_EVENT
 
     owner = conn.execute(
         "SELECT tableowner FROM pg_tables WHERE schemaname = 'public' AND tablename = 'runs'"

@@ -29,7 +29,6 @@ from sqlalchemy import Connection, insert, inspect, select, text
 
 from storage import schema
 from storage.db import Archive
-from storage.roles import APPEND_EVENT
 from storage.schema import AuditEvent, Seal, utcnow
 from storage.seal_record import (
     FORMAT,
@@ -194,6 +193,11 @@ def _pending(conn: Connection) -> dict[str, Any] | None:
 
 # PostgreSQL with roles (storage.roles.apply_roles): the writer and approver append only through
 # this function, which checks the link to the head and the date (docs/archive.md).
+# The function's signature (storage.roles makes it; its grants name it).
+APPEND_EVENT = (
+    "calib_append_event(timestamptz, text, text, text, integer, text, json, text, "
+    "text, text, integer, text)"
+)
 _APPEND_EVENT = text(
     "SELECT calib_append_event(:at, :actor, :action, :run_id, :revision, :reason, "
     "CAST(:detail AS json), :digest, :prev_hash, :hash, :seq, :db_user)"

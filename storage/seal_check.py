@@ -14,7 +14,7 @@ from sqlalchemy import Connection, select, text
 
 from storage import schema
 from storage.schema import AuditEvent, Seal
-from storage.seal import EVENT_FIELDS, GENESIS, ISSUED, SEALING, Event, head
+from storage.seal import APPEND_EVENT, EVENT_FIELDS, GENESIS, ISSUED, SEALING, Event, head
 from storage.seal_record import (
     FORMAT,
     FORMATS,
@@ -409,8 +409,6 @@ def _check_writers(conn: Connection, events: list[Event]) -> list[Finding]:
     users = {ev.db_user for ev in events if ev.db_user}
     if conn.dialect.name != "postgresql" or not users:
         return []
-    from storage.roles import APPEND_EVENT
-
     rights = {
         name: (adds_runs, appends)
         for name, adds_runs, appends in conn.execute(
