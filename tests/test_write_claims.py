@@ -130,3 +130,26 @@ def test_the_change_report_of_a_reprocessing_lists_only_what_it_revised(rate_run
     outcomes = reprocess_in_process(arch, todo, skipped, "nothing new")
     assert {o["status"] for o in outcomes} == {"duplicate"}, outcomes
     assert changed_pairs(arch, outcomes, "nothing new") == []
+
+
+def test_a_checkpoint_that_cannot_be_written_leaves_no_file(
+    rate_runs, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A full file system (a small tmpfs, filled; mounting needs root, else skipped): exit 2
+    naming the file, and no empty checkpoint left to be taken for one."""
+    from test_disk_readonly import fill, tmpfs
+
+    arch, _ = rate_runs
+    with tmpfs(tmp_path / "full", 64) as disk:
+        fill(disk, 0)
+        out = disk / "head.json"
+        res = _cli(
+            ["checkpoint", "-o", str(out), "--archive", str(arch.root)], arch.root, monkeypatch
+        )
+        assert res.exit_code == 2 and f"{out}: cannot be written" in res.output, res.output
+        assert not out.exists()
+        (disk / "filler").unlink()
+        res = _cli(
+            ["checkpoint", "-o", str(out), "--archive", str(arch.root)], arch.root, monkeypatch
+        )
+        assert res.exit_code == 0 and out.is_file(), res.output
