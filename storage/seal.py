@@ -70,10 +70,24 @@ def actor() -> str:
 
 def db_user(conn: Connection) -> str:
     """Who writes as the database knows it: PostgreSQL's ``session_user`` (the role that
-    logged in), the OS user on SQLite (a file has no users of its own)."""
-    if conn.dialect.name == "postgresql":
-        return str(conn.execute(_SESSION_USER).scalar())
-    return os_user()[:200]
+    logged in; asked once per connection), on SQLite (a file has no users of its own) the
+    OS account of the process's user id, not the environment's LOGNAME or USER."""
+    if conn.dialect.name != "postgresql":
+        return process_user()[:200]
+    info = conn.connection.info  # the driver connection's: its session user never changes
+    if SESSION_USER_KEY not in info:
+        info[SESSION_USER_KEY] = str(conn.execute(_SESSION_USER).scalar())
+    return info[SESSION_USER_KEY]
+
+
+def process_user() -> str:
+    """The account name of this process's effective user id ("uid N" without one)."""
+    try:
+        import pwd
+
+        return pwd.getpwuid(os.geteuid()).pw_name
+    except (ImportError, AttributeError, KeyError):  # Windows (no pwd, no geteuid), no passwd entry
+        return os_user()
 
 
 def check_reason(reason: str | None) -> None:
@@ -125,6 +139,7 @@ EVENT_FIELDS = (
     "db_user",
 )
 _SESSION_USER = text("SELECT session_user")
+SESSION_USER_KEY = "calib_session_user"
 # Built once (as the record queries of storage.seal_record).
 _HEAD = select(AuditEvent.seq, AuditEvent.hash).order_by(AuditEvent.seq.desc()).limit(1)
 _INSERT_EVENT = insert(AuditEvent)

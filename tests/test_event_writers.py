@@ -31,7 +31,7 @@ def test_each_event_records_its_database_writer(archive: Archive, tmp_path: Path
         expected = (
             conn.execute(text("SELECT session_user")).scalar()
             if archive.url.startswith("postgresql")
-            else seal.os_user()
+            else seal.process_user()
         )
     assert [r.db_user for r in rows] == [expected]
     assert rows[0].actor == seal.actor()  # the claimed actor, beside it
