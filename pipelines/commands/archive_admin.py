@@ -15,6 +15,9 @@ from pipelines.commands.audit import ApproversOpt, load_trust
 
 @app.command()
 def verify(
+    run_ids: Annotated[
+        list[str] | None, typer.Argument(help="With --recompute: the runs to solve again.")
+    ] = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
     orphans: Annotated[
@@ -36,10 +39,42 @@ def verify(
             "audit chain must extend it exactly. Repeatable.",
         ),
     ] = None,
+    recompute: Annotated[
+        bool,
+        typer.Option(
+            "--recompute",
+            help="Instead: solve every revision of RUN_ID... (--sample N, --all) again from "
+            "its raw bytes and compare it with its sealed rows.",
+        ),
+    ] = False,
+    sample: Annotated[
+        int | None, typer.Option("--sample", help="With --recompute: N runs drawn at random.")
+    ] = None,
+    every: Annotated[bool, typer.Option("--all", help="With --recompute: every run.")] = False,
+    runner: Annotated[str, typer.Option(help="local (threads), process or dask.")] = "local",
+    workers: Annotated[int | None, typer.Option(help="Runs in parallel (default: cores).")] = None,
+    scheduler: Annotated[str | None, typer.Option(help="Dask scheduler, tcp://host:8786.")] = None,
+    progress: Annotated[
+        bool | None, typer.Option("--progress/--no-progress", help="Progress bar on stderr.")
+    ] = None,
+    flow: Annotated[
+        bool, typer.Option("--flow", help="A Prefect flow even for a few runs.")
+    ] = False,
 ) -> None:
-    """Re-hash every archived file, recompute every seal, the audit chain and the approval
-    signatures; exit 1 on any missing or changed file or value, on an approval made with a
-    key the approvers file does not hold, or on a chain that does not extend a checkpoint."""
+    """Re-hash every archived file, recompute every seal, settings hash, the audit chain and
+    the approval signatures; exit 1 on any missing or changed file or value, on an approval
+    made with a key the approvers file does not hold, or on a chain that does not extend a
+    checkpoint. With --recompute: solve archived revisions again from their raw bytes (with
+    their recorded settings, reference corrections and judged-against runs) and exit 1 when
+    one made by this software version differs from its sealed rows, naming run, revision and
+    the first field."""
+    from pipelines.commands import recompute as recomputing
+
+    recomputing.check_selection(run_ids or [], sample, every, recompute)
+    if recompute:
+        batch = {"runner": runner, "workers": workers, "scheduler": scheduler, "flow": flow}
+        show = err.is_terminal if progress is None else progress
+        recomputing.recompute(archive, run_ids or [], sample, batch, show, as_json)
     from pipelines.trust import NOT_CHECKED
     from storage import checkpoint as checkpoints
     from storage.rawstore import remove_stale_temp_files
