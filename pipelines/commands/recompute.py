@@ -4,6 +4,7 @@ pipelines.flows.recompute_batch). `calib verify` takes the options (archive_admi
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import typer
@@ -77,8 +78,8 @@ def recompute(
     if as_json:
         print_json({"runs": outcomes, "summary": summary})
     else:
-        for line in problem_lines(outcomes):
-            out.print(line, markup=False, soft_wrap=True)
+        for line in problem_lines(outcomes):  # tab-separated, as verify's problems
+            sys.stdout.write(line + "\n")
         _print_changed(outcomes)
         r, v = summary["runs"], summary["revisions"]
         err.print(
