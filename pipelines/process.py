@@ -451,7 +451,10 @@ def check_run(
     uncertainty from `budgets`) and residual limits of the run's profile, verification,
     repeatability."""
     started = time.perf_counter()
-    profile = load_profile(loaded.manifest.run.tolerance_profile)
+    if as_judged is not None and as_judged.profile is not None:
+        profile = as_judged.profile
+    else:
+        profile = load_profile(loaded.manifest.run.tolerance_profile)
     checks = check_calibration(cal, profile, budgets)
     checks += run_conditions(loaded, cal, profile)
     more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets, as_judged)
@@ -568,11 +571,15 @@ class AsJudged:
     group : run ids of the repeatability group its ``check`` step records.
     as_found : (run id, revision) of the earlier calibration its ``as_found`` step used;
         None: the revision has no such step.
+    profile : the tolerance profile as its ``check`` step archived it (thresholds), not as
+        the profile file says now; None: the file's (a revision judged before thresholds
+        were archived).
     """
 
     before_calibration: int
     group: tuple[str, ...]
     as_found: tuple[str, int] | None
+    profile: ToleranceProfile | None = None
 
 
 @dataclass

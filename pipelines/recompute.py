@@ -9,9 +9,10 @@ Here each revision of a run is solved again by the path `calib process` takes
 
 - its reason (step ``reprocess``) and its reference correction (settings
   ``reference_correction``, with the look-back record its step carries);
-- the runs it was judged against (`pipelines.process.AsJudged`): the repeatability group
-  its ``check`` step holds, with their values as of the revision; the earlier calibration
-  of its ``as_found`` step; for a revision judged again, its last ``rejudge`` step's runs.
+- what it was judged against (`pipelines.process.AsJudged`): the tolerance profile's
+  thresholds its ``check`` step holds (not the profile file of now), the repeatability
+  group that step holds, with their values as of the revision; the earlier calibration of
+  its ``as_found`` step; for a revision judged again, its last ``rejudge`` step's runs.
 
 The result is compared with the revision's rows (which `calib verify` compares with the
 seal) value for value: parameters, checks, steps, the calibration row with its document,
@@ -173,13 +174,16 @@ def _recompute_revision(archive: Archive, source: Any, rec: dict[str, Any]) -> d
 
 def as_judged(rec: dict[str, Any], steps: list[dict[str, Any]]) -> Any:
     """What the revision records it was judged against (`pipelines.process.AsJudged`)."""
+    from calib_core.tolerances import ToleranceProfile
     from pipelines.process import AsJudged
 
-    check = next((s for s in steps if s["name"] == "check"), None)
-    group = ((check or {}).get("statistics") or {}).get("repeatability_group") or []
+    check = next((s for s in steps if s["name"] == "check"), None) or {}
+    group = (check.get("statistics") or {}).get("repeatability_group") or []
+    thresholds = (check.get("settings") or {}).get("thresholds")
+    profile = None if thresholds is None else ToleranceProfile.from_dict(thresholds)
     found = next((s["settings"] for s in steps if s["name"] == "as_found"), None)
     earlier = None if found is None else (found["earlier_run_id"], found["earlier_revision"])
-    return AsJudged(rec["cal_id"], tuple(group), earlier)
+    return AsJudged(rec["cal_id"], tuple(group), earlier, profile)
 
 
 def expected_record(
