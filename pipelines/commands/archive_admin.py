@@ -62,12 +62,14 @@ def verify(
     ] = False,
 ) -> None:
     """Re-hash every archived file, recompute every seal, settings hash, the audit chain and
-    the approval signatures; exit 1 on any missing or changed file or value, on an approval
-    made with a key the approvers file does not hold, or on a chain that does not extend a
-    checkpoint. With --recompute: solve archived revisions again from their raw bytes (with
-    their recorded settings, reference corrections and judged-against runs) and exit 1 when
-    one made by this software version differs from its sealed rows, naming run, revision and
-    the first field."""
+    the approval signatures; with --recompute, solve archived revisions again instead.
+
+    Exit 1 on any missing or changed file or value, on an approval made with a key the
+    approvers file does not hold, or on a chain that does not extend a checkpoint. With
+    --recompute: every revision of RUN_ID... (--sample N, --all) solved again from its raw
+    bytes with its recorded settings, reference correction and judged-against runs; exit 1
+    when one made by this software version differs from its sealed rows (run, revision and
+    the first differing field are named) or cannot be solved again."""
     from pipelines.commands import recompute as recomputing
 
     recomputing.check_selection(run_ids or [], sample, every, recompute)
