@@ -42,8 +42,9 @@ from calib_core.distributions import f_ppf, f_sf, t_ppf, t_sf
 
 CONST = "const"
 T_TESTS = ("two-sided", "one-sided")
-# How the stepwise reduction decides: by the weakest term's t test, or by the model F.
-STEERING = ("t", "F")
+# How the stepwise reduction decides: by the weakest term's t test, by the model F, or
+# the centrifuge paper's two phases (the model F test first, then the t tests).
+STEERING = ("t", "F", "F-then-t")
 # Columns are scaled to unit norm before the decomposition; a design whose
 # scaled condition number exceeds this cannot give trustworthy t values.
 MAX_CONDITION = 1e10
@@ -355,7 +356,12 @@ def stepwise_reduce(
     F grows from 139.34 to 286.95). Dropping a term raises F when roughly
     t^2 < (dof + k) / (k - 1) for a strong model (k regressors), so the F
     steering can remove terms the t test keeps; their t and p stay in `steps`.
-    At least one column always stays.
+    ``steer="F-then-t"`` is the centrifuge paper's two phases (docs/methods.md
+    2.8): in a round where the model fails its F test (F <= F_crit) the weakest
+    term goes whatever its t; where it passes, the t rule above decides. The
+    final model therefore passes its F test unless no candidate is left. The
+    path is the t rule's; it is longer only where a model failing its F test
+    has no term below t_crit. At least one column always stays.
 
     Parameters
     ----------
@@ -363,7 +369,7 @@ def stepwise_reduce(
     alpha : significance level of the coefficient t tests and the F test.
     keep : terms never removed (default the constant). Names absent from the
         model raise, except ``"const"`` when the model has no constant.
-    steer : "t" (default) or "F", as above.
+    steer : "t" (default), "F" or "F-then-t", as above.
 
     Returns
     -------
@@ -391,14 +397,12 @@ def stepwise_reduce(
             break
         weakest = min(candidates, key=lambda j: abs(fit.t[j]))
         reduced_cols = cols[:weakest] + cols[weakest + 1 :]
-        if steer == "t":
-            if abs(fit.t[weakest]) >= fit.t_crit:
-                break
-            reduced = refit(reduced_cols)
-        else:
-            reduced = refit(reduced_cols)
-            if not (reduced.F > fit.F and reduced.model_significant):
-                break
+        by_t = steer == "t" or (steer == "F-then-t" and fit.model_significant)
+        if by_t and abs(fit.t[weakest]) >= fit.t_crit:
+            break
+        reduced = refit(reduced_cols)
+        if steer == "F" and not (reduced.F > fit.F and reduced.model_significant):
+            break
         steps.append(
             RemovalStep(fit.names[weakest], float(fit.t[weakest]), float(fit.p[weakest]), fit)
         )

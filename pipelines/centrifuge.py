@@ -127,7 +127,7 @@ def process_centrifuge(
     repeat : a second run of the same unit on the same fixture (validation).
     report_path : where to write the report (default ``<folder>/centrifuge_report.txt``).
     alpha, t_test, steer : significance level, t test sides and reduction
-        steering, overriding the manifest's (defaults 0.05, two-sided, t).
+        steering, overriding the manifest's (defaults 0.05, two-sided, F-then-t).
     """
     folder = Path(folder)
     loaded, steps = load_centrifuge_run(folder)

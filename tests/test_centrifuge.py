@@ -158,6 +158,16 @@ def test_whole_revolution_average_removes_tilt():
     assert mean.revolutions >= 1
 
 
+def _unstable_run(seed: int):
+    """A simulated run of TRUTH with a step-to-step scale instability of 2e-4."""
+    return simulate_centrifuge(
+        TRUTH,
+        rng=np.random.default_rng(seed),
+        phi_h=PHI,
+        noise=CentrifugeNoise(scale_instability=2e-4),
+    )
+
+
 @pytest.mark.slow
 def test_reduction_keeps_exactly_the_true_terms_in_9_of_10_seeds():
     """The centrifuge acceptance, with the per-step scale instability (2e-4) the
@@ -172,12 +182,7 @@ def test_reduction_keeps_exactly_the_true_terms_in_9_of_10_seeds():
     """
     exact, kappas, z_phi, z_radius = 0, [], [], []
     for seed in range(10):
-        run = simulate_centrifuge(
-            TRUTH,
-            rng=np.random.default_rng(seed),
-            phi_h=PHI,
-            noise=CentrifugeNoise(scale_instability=2e-4),
-        )
+        run = _unstable_run(seed)
         model, _ = solve_centrifuge(
             run.steps, CentrifugeSettings(50.0, alpha=0.001, scale_1g=SCALE)
         )
@@ -221,6 +226,28 @@ def test_compensation_on_repeat_run(seed):
         assert v.rms_reduction >= 0.65, (axis, v)
         assert v.max_after <= v.max_before
         assert abs(v.rms_after - offset_change[i]) < 0.03, (axis, v, offset_change[i])
+
+
+@pytest.mark.parametrize("t_test", ["two-sided", "one-sided"])
+def test_the_papers_two_phase_reduction_is_the_default_and_keeps_the_t_rules_terms(t_test):
+    """Default steer "F-then-t" (docs/centrifuge.md): on simulated runs every axis's model
+    passes its F test at every round (F in the hundreds), so the paper's first phase
+    removes nothing and the terms are those of the t rule (identical in 100 of 100
+    seeds, both sides, when the default was chosen); here two seeds, each both ways."""
+    assert CentrifugeSettings(50.0).steer == "F-then-t"
+    for seed in range(2):
+        run = _unstable_run(seed)
+        paper, _ = solve_centrifuge(
+            run.steps, CentrifugeSettings(50.0, scale_1g=SCALE, t_test=t_test)
+        )
+        by_t, _ = solve_centrifuge(
+            run.steps, CentrifugeSettings(50.0, scale_1g=SCALE, t_test=t_test, steer="t")
+        )
+        for axis in "xyz":
+            assert paper.axes[axis].terms == by_t.axes[axis].terms, (seed, axis)
+            steps = paper.axes[axis].reduction.steps
+            assert all(s.fit.model_significant for s in steps), (seed, axis)
+            assert paper.axes[axis].fit.model_significant
 
 
 def test_compensate_inverts_the_model():

@@ -277,3 +277,62 @@ def test_f_steering_ends_at_the_largest_model_f_along_the_path():
     assert {"const", "x0", "x1", "x2"} <= set(by_f.kept)
     with pytest.raises(ValueError, match="steer must be one of"):
         stepwise_reduce(X, y, names, steer="R2")
+
+
+def _lone_term(t_value: float, n: int = 60):
+    """y = 1 + b x0 + e, e orthogonal to the design, b set so that x0's t is `t_value`."""
+    rng = np.random.default_rng(5)
+    X = np.column_stack([np.ones(n), rng.normal(size=n)])
+    e = rng.normal(size=n)
+    e -= X @ np.linalg.lstsq(X, e, rcond=None)[0]
+    names = ["const", "x0"]
+    b = np.array([1.0, 0.0])
+    b[1] = t_value * fit_ols(X, X @ b + e, names).std[1]
+    return X, X @ b + e, names
+
+
+def test_f_then_t_removes_a_term_whose_model_fails_the_f_test():
+    """The paper's first phase: while F <= F_crit the weakest term goes whatever its t.
+
+    One regressor, dof 58: F = t^2 and F_crit(1, 58) = 4.007 = t(0.975; 58)^2. A
+    one-sided t of 1.85 passes t(0.95; 58) = 1.672 but F = 3.42 fails: the t rule
+    keeps x0 in a model that fails its F test, "F-then-t" removes it. At t = 2.1
+    (F = 4.41) both keep it; two-sided they agree (t_crit^2 = F_crit).
+    """
+    X, y, names = _lone_term(1.85)
+    by_t = stepwise_reduce(X, y, names, t_test="one-sided", steer="t")
+    paper = stepwise_reduce(X, y, names, t_test="one-sided", steer="F-then-t")
+    assert pytest.approx(1.85**2, rel=1e-9) == by_t.final.F
+    assert by_t.final.F_crit == pytest.approx(stats.f.ppf(0.95, 1, 58), rel=1e-12)
+    assert by_t.final.F_crit == pytest.approx(stats.t.ppf(0.975, 58) ** 2, rel=1e-9)
+    assert by_t.kept == ("const", "x0") and not by_t.final.model_significant
+    assert paper.kept == ("const",) and paper.removed == ("x0",)
+    assert paper.steps[0].t == pytest.approx(1.85, rel=1e-9)
+    X, y, names = _lone_term(2.1)
+    for steer in ("t", "F-then-t"):
+        assert stepwise_reduce(X, y, names, t_test="one-sided", steer=steer).kept == tuple(names)
+    X, y, names = _lone_term(1.85)
+    assert stepwise_reduce(X, y, names, steer="F-then-t").kept == ("const",)
+    assert stepwise_reduce(X, y, names, steer="t").kept == ("const",)
+
+
+@pytest.mark.parametrize("t_test", ["two-sided", "one-sided"])
+def test_f_then_t_follows_the_t_path_and_ends_in_a_model_that_passes_f(t_test):
+    """Both rules remove the weakest |t| each round, so the t rule's removals are the
+    first removals of "F-then-t"; a removal beyond them happens only where the model
+    failed its F test, and the final model passes it (or has no candidate left).
+    Null and weak-term data, n = 60, 10 candidates (the paper's shape)."""
+    longer = 0
+    for seed in range(40):
+        beta = np.r_[1.0, 0.3 if seed % 2 else 0.0, np.zeros(9)]
+        X, y, names = _data(100 + seed, beta=beta, sigma=1.0)
+        by_t = stepwise_reduce(X, y, names, t_test=t_test, steer="t")
+        paper = stepwise_reduce(X, y, names, t_test=t_test, steer="F-then-t")
+        assert paper.removed[: len(by_t.removed)] == by_t.removed, seed
+        for step in paper.steps[len(by_t.removed) :]:
+            assert not step.fit.model_significant, seed
+        assert paper.final.model_significant or paper.kept == ("const",), seed
+        longer += len(paper.removed) > len(by_t.removed)
+    # two-sided a model whose terms all pass t(0.975) passed F here in every case;
+    # one-sided (t_crit^2 = 2.8 < F_crit(1, dof) = 4.0) some lone terms fail F
+    assert (longer == 0) if t_test == "two-sided" else (longer > 0)

@@ -17,7 +17,7 @@ import pytest
 
 from calib_core import conditions
 from calib_core.distributions import f_ppf, t_ppf
-from calib_core.earth import FREE_AIR_GRADIENT, gravity_helmert, gravity_wgs84
+from calib_core.earth import EARTH_RATE, FREE_AIR_GRADIENT, gravity_helmert, gravity_wgs84
 from calib_core.preprocess.chain import DEFAULT_OUTLIERS
 from calib_core.preprocess.outliers import hampel_mask, sigma_mask
 from calib_core.solvers import static_bias
@@ -26,6 +26,7 @@ from calib_core.tolerances import (
     DEFAULT_RESIDUAL_LIMITS,
     DEFAULT_VERIFICATION_LIMITS,
 )
+from calib_core.units import STANDARD_GRAVITY
 from pipelines.tolerances import load_profile
 
 G0 = 9.80665  # m/s^2, standard gravity (CGPM 1901), written out
@@ -153,6 +154,16 @@ def test_wgs84_normal_gravity_at_the_equator_and_the_pole():
     assert gravity_wgs84(90.0) == pytest.approx(9.8321849378, abs=1e-9)
 
 
+def test_earth_rate_and_standard_gravity():
+    """Earth rate (the north-seeker note's input, the centrifuge's Omega_V): IERS
+    Conventions (2010) Table 1.1, 7.292115e-5 rad/s, and by a second route one turn per
+    sidereal day of 86164.0905 s (within the 1e-7 the nominal value is rounded to).
+    Standard gravity 9.80665 m/s^2 (3rd CGPM, 1901)."""
+    assert EARTH_RATE == 7.292115e-5
+    assert pytest.approx(2.0 * math.pi / 86164.0905, rel=2e-7) == EARTH_RATE
+    assert STANDARD_GRAVITY == G0
+
+
 # --- the centrifuge paper's critical values --------------------------------------------------
 
 
@@ -169,3 +180,33 @@ def test_critical_values_against_the_printed_tables():
     assert t_ppf(0.975, 60) == pytest.approx(2.000, abs=6e-4)
     assert round(f_ppf(0.95, 10, 40), 2) == 2.08 and round(f_ppf(0.95, 5, 60), 2) == 2.37
     assert 1.993 < f_ppf(0.95, 10, 49) < 2.077 and 2.368 < f_ppf(0.95, 5, 54) < 2.449
+
+
+def test_the_exact_critical_values_are_the_printed_table_interpolated():
+    """docs/methods.md 2.8: the pipeline's F(10, 49) and F(5, 54) are the printed rows
+    40 and 60 interpolated linearly in 1 / df2 (the rule printed with such tables), to the
+    table's third decimal; the paper's 2.08 / 2.37 are the rows themselves, and neither a
+    two-sided reading (the 0.975 points) nor another degrees-of-freedom count gives both."""
+    rows = {10: (2.077, 1.993), 5: (2.449, 2.368)}  # F(k, 40), F(k, 60), printed
+
+    def interpolated(k, df2):
+        at40, at60 = rows[k]
+        w = (1 / 40 - 1 / df2) / (1 / 40 - 1 / 60)
+        return at40 + w * (at60 - at40)
+
+    assert interpolated(10, 49) == pytest.approx(2.0307, abs=1e-4)  # worked by hand
+    assert interpolated(5, 54) == pytest.approx(2.3860, abs=1e-4)
+    # the pipeline's exact values against the interpolated table (0.0015: the rows'
+    # rounding, 5e-4, plus the interpolation's curvature error)
+    assert f_ppf(0.95, 10, 49) == pytest.approx(interpolated(10, 49), abs=1.5e-3)
+    assert f_ppf(0.95, 5, 54) == pytest.approx(interpolated(5, 54), abs=1.5e-3)
+    # the paper's values are the rows, not the interpolation (0.05 and 0.016 away)
+    assert (round(rows[10][0], 2), round(rows[5][1], 2)) == (2.08, 2.37)
+    assert abs(interpolated(10, 49) - 2.08) > 0.04 and abs(interpolated(5, 54) - 2.37) > 0.01
+    # not a two-sided reading: the 0.975 points are far off
+    assert f_ppf(0.975, 10, 49) > 2.3 and f_ppf(0.975, 5, 54) > 2.8
+    # 2.08 needs df2 = 39 or 40 with k = 10, 2.37 df2 = 58 .. 61 with k = 5: with n = 60 no
+    # one count (n - 1, n - k, n - k - 1, ...) gives both; the table's rows 40 and 60 do
+    df2 = range(20, 130)
+    assert [d for d in df2 if round(f_ppf(0.95, 10, d), 2) == 2.08] == [39, 40]
+    assert [d for d in df2 if round(f_ppf(0.95, 5, d), 2) == 2.37] == [58, 59, 60, 61]

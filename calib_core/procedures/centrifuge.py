@@ -9,7 +9,7 @@ from __future__ import annotations
 from calib_core.condition_rules import ConditionUse
 from calib_core.procedures.base import ENVIRONMENT, RATE_PLATEAUS, Procedure, Setting, Settings
 from calib_core.significance import STEERING, T_TESTS
-from calib_core.solvers.centrifuge_model import DEFAULT_ZERO_SHIFT_LIMIT
+from calib_core.solvers.centrifuge_model import DEFAULT_STEER, DEFAULT_ZERO_SHIFT_LIMIT
 from calib_core.solvers.centrifuge_segments import solve_centrifuge_segments
 
 SETTINGS = Settings(
@@ -19,9 +19,9 @@ SETTINGS = Settings(
     Setting("alpha", "number", "1", 0.05, "significance level of the t and F tests",
             low=0.0, high=1.0, low_open=True),
     Setting("t_test", "text", "", "two-sided", "t test of each term", choices=T_TESTS),
-    Setting("steer", "text", "", "t",
-            "what ends the stepwise reduction: every kept term passes its t test, or the F "
-            "test", choices=STEERING),
+    Setting("steer", "text", "", DEFAULT_STEER,
+            "how the stepwise reduction decides: the model F test then the t tests (the "
+            "paper's), the t tests alone, or the largest model F", choices=STEERING),
     Setting("scale_1g", "table", "1", {},
             "per table axis x, y, z the 1 g scale error K - 1 of a static calibration"),
     Setting("common_radius", "bool", "", True, "one effective radius for all positions"),

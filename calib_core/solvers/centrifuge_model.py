@@ -40,6 +40,9 @@ STEP_KINDS = ("zero", "zero_after", "1g", "step")
 # docs/methods.md 3.6: accelerometer residual std <= 0.002 g. A zero that moved by more
 # than the model may leave unexplained is a run to repeat.
 DEFAULT_ZERO_SHIFT_LIMIT = 0.002 * STANDARD_GRAVITY
+# The paper's reduction: the model F test, then the t tests (docs/methods.md 2.8); on
+# simulated runs it keeps the same terms as steering by t alone (docs/centrifuge.md).
+DEFAULT_STEER = "F-then-t"
 
 _TERM = re.compile(r"^a_([xyz])(?:\^([23]))?(?:\*a_([xyz]))?$")
 
@@ -150,8 +153,10 @@ class CentrifugeSettings:
     alpha : significance level of the t and F tests.
     t_test : "two-sided" (default) or "one-sided" (the paper's: 1.676 at its
         49 degrees of freedom instead of 2.010).
-    steer : what ends the stepwise reduction: "t" (default; every kept term
-        passes its t test) or "F" (remove while the model F grows and passes;
+    steer : how the stepwise reduction decides: "F-then-t" (default, the
+        paper's: the weakest term goes while the model fails its F test, then
+        while its t test fails), "t" (every kept term passes its t test) or "F"
+        (remove while the model F grows and passes;
         `calib_core.significance.stepwise_reduce`).
     scale_1g : per axis, the 1 g scale error K - 1 from a static calibration
         (the centrifuge cannot separate it from the radius); absent = 0.
@@ -172,7 +177,7 @@ class CentrifugeSettings:
     gravity: float = STANDARD_GRAVITY
     alpha: float = 0.05
     t_test: str = "two-sided"
-    steer: str = "t"
+    steer: str = DEFAULT_STEER
     scale_1g: Mapping[str, float] = field(default_factory=dict)
     common_radius: bool = True
     iterations: int = 4

@@ -16,6 +16,7 @@ from calib_core.params import AXES
 from calib_core.recording import Recording
 from calib_core.solvers.centrifuge import solve_centrifuge
 from calib_core.solvers.centrifuge_model import (
+    DEFAULT_STEER,
     DEFAULT_ZERO_SHIFT_LIMIT,
     CentrifugeModel,
     CentrifugeSettings,
@@ -103,7 +104,7 @@ def settings_from_dict(settings: Mapping[str, object], gravity: float) -> Centri
             gravity=gravity,
             alpha=float(s.get("alpha", 0.05)),
             t_test=str(s.get("t_test", "two-sided")),
-            steer=str(s.get("steer", "t")),
+            steer=str(s.get("steer", DEFAULT_STEER)),
             scale_1g={a: float(v) for a, v in scale.items()},
             common_radius=bool(s.get("common_radius", True)),
             iterations=int(s.get("iterations", 4)),

@@ -62,7 +62,10 @@ def solve(
     ] = None,
     steer: Annotated[
         str | None,
-        typer.Option(help="What ends the reduction: t (t tests) or F (model F) (default: t)."),
+        typer.Option(
+            help="How the reduction decides: F-then-t (the paper's: model F test, then t tests), "
+            "t (t tests) or F (largest model F) (default: manifest, F-then-t)."
+        ),
     ] = None,
     as_json: JsonOpt = False,
 ) -> None:
