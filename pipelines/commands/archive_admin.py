@@ -9,8 +9,15 @@ from typing import Annotated
 
 import typer
 
+from pipelines import cli_shared as batch  # its batch options (RunnerOpt...)
 from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, err, fail, open_archive
 from pipelines.commands.audit import ApproversOpt, load_trust
+
+RECOMPUTE_HELP = (
+    "Instead: solve every revision of RUN_ID... (--sample N, --all) again from its raw bytes "
+    "and compare it with its sealed rows."
+)
+SAMPLE_HELP = "With --recompute: N runs drawn at random."
 
 
 @app.command()
@@ -39,27 +46,14 @@ def verify(
             "audit chain must extend it exactly. Repeatable.",
         ),
     ] = None,
-    recompute: Annotated[
-        bool,
-        typer.Option(
-            "--recompute",
-            help="Instead: solve every revision of RUN_ID... (--sample N, --all) again from "
-            "its raw bytes and compare it with its sealed rows.",
-        ),
-    ] = False,
-    sample: Annotated[
-        int | None, typer.Option("--sample", help="With --recompute: N runs drawn at random.")
-    ] = None,
+    recompute: Annotated[bool, typer.Option("--recompute", help=RECOMPUTE_HELP)] = False,
+    sample: Annotated[int | None, typer.Option("--sample", help=SAMPLE_HELP)] = None,
     every: Annotated[bool, typer.Option("--all", help="With --recompute: every run.")] = False,
-    runner: Annotated[str, typer.Option(help="local (threads), process or dask.")] = "local",
-    workers: Annotated[int | None, typer.Option(help="Runs in parallel (default: cores).")] = None,
-    scheduler: Annotated[str | None, typer.Option(help="Dask scheduler, tcp://host:8786.")] = None,
-    progress: Annotated[
-        bool | None, typer.Option("--progress/--no-progress", help="Progress bar on stderr.")
-    ] = None,
-    flow: Annotated[
-        bool, typer.Option("--flow", help="A Prefect flow even for a few runs.")
-    ] = False,
+    runner: batch.RunnerOpt = "local",
+    workers: batch.WorkersOpt = None,
+    scheduler: batch.SchedulerOpt = None,
+    progress: batch.ProgressOpt = None,
+    flow: Annotated[bool, typer.Option("--flow", help="A Prefect flow for any number.")] = False,
 ) -> None:
     """Re-hash every archived file, recompute every seal, settings hash, the audit chain and
     the approval signatures; with --recompute, solve archived revisions again instead.
@@ -74,9 +68,9 @@ def verify(
 
     recomputing.check_selection(run_ids or [], sample, every, recompute)
     if recompute:
-        batch = {"runner": runner, "workers": workers, "scheduler": scheduler, "flow": flow}
+        how = {"runner": runner, "workers": workers, "scheduler": scheduler, "flow": flow}
         show = err.is_terminal if progress is None else progress
-        recomputing.recompute(archive, run_ids or [], sample, batch, show, as_json)
+        recomputing.recompute(archive, run_ids or [], sample, how, show, as_json)
     from pipelines.trust import NOT_CHECKED
     from storage import checkpoint as checkpoints
     from storage.rawstore import remove_stale_temp_files
