@@ -433,15 +433,7 @@ def reprocess_batch(
     return outcomes
 
 
-@task(
-    name="recompute-run",
-    task_run_name="recompute {run_id}",
-    retries=RETRIES,
-    retry_delay_seconds=RETRY_DELAYS_S,
-    retry_condition_fn=_retry_transient,
-    cache_policy=NO_CACHE,  # a recomputation must run: its point is to solve again
-    persist_result=False,
-)
+@_batch_task("recompute-run", "recompute {run_id}")
 def recompute_run_task(run_id: str, archive_url: str, archive_root: str) -> dict[str, Any]:
     """Every revision of one archived run solved again and compared (`pipelines.recompute`;
     in a worker process with the process runner, as `process_run_task`)."""
@@ -475,10 +467,7 @@ def recompute_batch(
     check_runner(runner, workers, scheduler)
     arch = resolve_archive(archive)
     get_run_logger().info("%d run(s) to recompute; runner %s", len(run_ids), runner)
-    with contextlib.ExitStack() as stack:
-        if run_ids:
-            stack.enter_context(_work_in_processes(runner, workers))
-        task_runner = stack.enter_context(_task_runner(runner, workers, scheduler))
+    with _batch_runner(runner, workers, scheduler, has_runs=bool(run_ids)) as task_runner:
         parameters = [
             {"run_id": r, "archive_url": arch.url, "archive_root": str(arch.root)} for r in run_ids
         ]

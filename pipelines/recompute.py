@@ -169,6 +169,9 @@ def _recompute_revision(archive: Archive, source: Any, rec: dict[str, Any]) -> d
         entry["changes"] = _change_report(rec, derived)
     elif found:
         entry["status"] = "differs"
+        # The same version string from other sources (a development tree): say so, as a
+        # code change explains a difference that tampering would otherwise have to.
+        entry["source_revisions"] = [cal["source_revision"], derived.run.source_revision]
     return entry
 
 
@@ -390,10 +393,12 @@ def problem_lines(outcomes: list[dict[str, Any]]) -> list[str]:
                 lines.append(f"FAILED\t{o['run_id']}\t{r['revision']}\t{r['error']}")
             elif r["status"] == "differs":
                 d = r["first_difference"]
+                made, now = r["source_revisions"]
+                source = "" if made == now else f", source {made}, solved by source {now}"
                 lines.append(
                     f"DIFFERS\t{o['run_id']}\t{r['revision']}\t{d['path']}: archived "
                     f"{d['archived']}, recomputed {d['recomputed']} ({r['differences']} "
-                    f"field(s) differ; made by this software {r['software_version']})"
+                    f"field(s) differ; made by this software {r['software_version']}{source})"
                 )
     return lines
 

@@ -19,7 +19,6 @@ from pipelines.cli_shared import (
     print_json,
     progress_bar,
 )
-from pipelines.direct import IN_PROCESS_MAX_RUNS
 
 
 def check_selection(run_ids: list[str], sample: int | None, every: bool, recompute: bool) -> None:
@@ -49,7 +48,7 @@ def recompute(
 
     `batch`: runner, workers, scheduler and flow (a Prefect flow even for a few runs).
     """
-    from pipelines.direct import prefect_api_configured
+    from pipelines.direct import in_process
     from pipelines.recompute import plan_recompute, problem_lines, recompute_in_process, summarize
     from pipelines.runners import check_runner
 
@@ -59,8 +58,7 @@ def recompute(
         chosen = plan_recompute(arch, run_ids or None, sample)
     except (ValueError, LookupError) as exc:
         fail(str(exc))
-    small = not batch["flow"] and batch["runner"] == "local" and len(chosen) <= IN_PROCESS_MAX_RUNS
-    if small and not prefect_api_configured():
+    if in_process(len(chosen), batch["runner"], batch["flow"]):
         with progress_bar(show) as draw:
             outcomes = recompute_in_process(arch, chosen, draw)
     else:
