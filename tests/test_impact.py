@@ -272,7 +272,7 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
     assert "gyr.scale.x" in rows[0]["moved"]
     page = (lab["tmp"] / "impact.html").read_text()
     assert reason in page and runs["A"] in page and "1 verdict(s) changed" in page
-    assert "revisions archived" in page and "gyr.scale.x" in page
+    assert "1 revision(s) archived" in page and "gyr.scale.x" in page
     # Applied again: the same correction is a duplicate, not a third revision.
     again = apply_rate_error(arch)
     assert again["runs"][0]["status"] == "duplicate"

@@ -91,8 +91,11 @@ def reprocess_command(
     else:
         show = err.is_terminal if progress is None else progress
         outcomes = _batch(archive, selection, reason, runner, workers, scheduler, flow, show)
-    _report(archive, outcomes, k, as_json)
-    raise typer.Exit(1 if any(o["status"] == "failed" for o in outcomes) else 0)
+    _report(archive, outcomes, k, as_json, reason)
+    failed = [o["run_id"] or o["source"] for o in outcomes if o["status"] == "failed"]
+    if failed:  # never a success it did not have: each run not written, named
+        err.print(f"not written: {', '.join(failed)}", markup=False, soft_wrap=True)
+    raise typer.Exit(1 if failed else 0)
 
 
 def _check_choice(
@@ -165,14 +168,16 @@ def _batch(
         )
 
 
-def _report(archive: str | None, outcomes: list[dict], k: float, as_json: bool) -> None:
+def _report(
+    archive: str | None, outcomes: list[dict], k: float, as_json: bool, reason: str
+) -> None:
     """Outcomes, summary and change report: one JSON document, or tables."""
     from pipelines.changes import change_report
     from pipelines.reprocess import changed_pairs, summarize
 
     summary = summarize(outcomes)
     try:
-        changes = change_report(changed_pairs(open_archive(archive), outcomes), k)
+        changes = change_report(changed_pairs(open_archive(archive), outcomes, reason), k)
     except ValueError as exc:
         fail(str(exc))
     if as_json:

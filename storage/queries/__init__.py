@@ -98,7 +98,12 @@ _API = {
         "run_filter",
         "runs_page",
     ],
-    "storage.queries.selection": ["SELECTION_KEYS", "revision_pairs", "select_runs"],
+    "storage.queries.selection": [
+        "SELECTION_KEYS",
+        "revised_for",
+        "revision_pairs",
+        "select_runs",
+    ],
     "storage.queries.thermal": ["campaign_calibrations", "latest_thermal_model", "thermal_models"],
     "storage.queries.unit": ["device", "revisions", "thermal_model", "unit_parameters"],
 }
