@@ -12,6 +12,10 @@ from rich.table import Table
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    ProgressOpt,
+    RunnerOpt,
+    SchedulerOpt,
+    WorkersOpt,
     app,
     err,
     fail,
@@ -45,15 +49,13 @@ def reprocess_command(
         str | None, Opt(help="Runs whose current calibration this tolerance profile judged.")
     ] = None,
     archive: ArchiveOpt = None,
-    runner: Annotated[str, Opt(help="local (threads), process or dask.")] = "local",
-    workers: Annotated[int | None, Opt(help="Runs in parallel (default: the cores).")] = None,
-    scheduler: Annotated[str | None, Opt(help="Dask scheduler, tcp://host:8786.")] = None,
+    runner: RunnerOpt = "local",
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
     k: Annotated[
         float, Opt("--k", help="Changed: |new-old| > k x combined standard uncertainty.")
     ] = 3.0,
-    progress: Annotated[
-        bool | None, Opt("--progress/--no-progress", help="Progress bar on stderr.")
-    ] = None,
+    progress: ProgressOpt = None,
     flow: Annotated[
         bool, Opt("--flow", help=f"A Prefect flow even for {IN_PROCESS_MAX_RUNS} runs or fewer.")
     ] = False,

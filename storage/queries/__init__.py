@@ -75,6 +75,7 @@ _API = {
     "storage.queries.impact": ["equipment_runs", "run_references"],
     "storage.queries.readonly": ["open_readonly"],
     "storage.queries.runs": [
+        "calibration_revision",
         "current_judgements",
         "device_description",
         "earlier_descriptions",
