@@ -30,6 +30,13 @@ For the MPU-6000 and the CSV sample of data_samples/, in the same run:
 ``--history-only`` measures the last three alone, ``--certificate-only`` the certificate's
 CPU alone, each with the load average at its start and end.
 
+``--flow-only``: what a small batch would cost as the Prefect flow (`--flow`, the local
+runner, one worker) instead of in this process (`pipelines.direct`), `calib process` of
+each sample without its certificate, in pairs (`FLOW_PAIRS`, the order alternating):
+``flow_overhead_wall_s`` / ``flow_overhead_cpu_s``, the median of the pairs' differences
+(the larger sample), and ``flow_to_direct_ratio``, the median of their wall ratios (the
+smaller sample).
+
 The command is started as the `calib` entry point of this interpreter's environment,
 after the project's packages are byte-compiled (`compile_project`) as an installation
 leaves them: with ``PYTHONDONTWRITEBYTECODE`` set and no ``__pycache__`` (an editable
@@ -61,6 +68,7 @@ SAMPLES = {
 }
 REPEATS = 5
 PAIRS = 9
+FLOW_PAIRS = 3
 BARE_IMPORTS = "import sqlalchemy.orm, typer, rich"
 SCIENCE_IMPORTS = "import numpy, scipy.linalg, pandas, sqlalchemy"
 
@@ -183,6 +191,34 @@ def history_latency(calib: list[str], env: dict[str, str], tmp: Path) -> dict[st
     }
 
 
+def flow_overhead(calib: list[str], env: dict[str, str], tmp: Path) -> dict[str, float]:
+    """A small batch through the Prefect flow against the same batch in process (`--flow-only`)."""
+    env = {**env, "CALIB_ISSUE_CERTIFICATES": "0"}
+    walls, cpus, ratios = [], [], []
+    for name, folder in SAMPLES.items():
+        pairs = []
+        for i in range(FLOW_PAIRS):
+            args = [*calib, "process", str(folder), "--json", "--no-progress", "--archive"]
+            direct = [*args, str(tmp / f"{name}-direct-{i}")]
+            flow = [*args, str(tmp / f"{name}-flow-{i}"), "--flow", "--workers", "1"]
+            if i % 2:
+                f, d = _timed(flow, env), _timed(direct, env)
+            else:
+                d, f = _timed(direct, env), _timed(flow, env)
+            pairs.append((d, f))
+            log(
+                f"{name}: in process {d[0]:.2f} s CPU {d[1]:.2f}, flow {f[0]:.2f} s, CPU {f[1]:.2f}"
+            )
+        walls.append(statistics.median(f[0] - d[0] for d, f in pairs))
+        cpus.append(statistics.median(f[1] - d[1] for d, f in pairs))
+        ratios.append(statistics.median(f[0] / d[0] for d, f in pairs))
+    return {
+        "flow_overhead_wall_s": round(max(walls), 3),
+        "flow_overhead_cpu_s": round(max(cpus), 3),
+        "flow_to_direct_ratio": round(min(ratios), 2),
+    }
+
+
 def _env() -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
     env.update(DO_NOT_TRACK="1", PREFECT_SERVER_ANALYTICS_ENABLED="false")
@@ -193,20 +229,20 @@ def _env() -> dict[str, str]:
 def main() -> None:
     env, calib = _env(), _calib()
     compile_project()
-    if "--certificate-only" in sys.argv[1:]:
-        load = os.getloadavg()[0]
-        with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
-            figures = certificate_cpu(SAMPLES["csv"], Path(tmp))
-        log(f"load average (1 min): {load:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
-        print(json.dumps(figures))
-        return
-    if "--history-only" in sys.argv[1:]:
-        load = os.getloadavg()[0]
-        with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
-            figures = history_latency(calib, env, Path(tmp))
-        log(f"load average (1 min): {load:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
-        print(json.dumps(figures))
-        return
+    alone = {
+        "--certificate-only": lambda tmp: certificate_cpu(SAMPLES["csv"], tmp),
+        "--flow-only": lambda tmp: flow_overhead(calib, env, tmp),
+        "--history-only": lambda tmp: history_latency(calib, env, tmp),
+    }
+    for option, measure in alone.items():
+        if option in sys.argv[1:]:
+            load = os.getloadavg()[0]
+            with tempfile.TemporaryDirectory(prefix="calib-latency-") as tmp:
+                figures = measure(Path(tmp))
+            end = os.getloadavg()[0]
+            log(f"load average (1 min): {load:.2f} at the start, {end:.2f} at the end")
+            print(json.dumps(figures))
+            return
     load = os.getloadavg()[0]
     helps = [_timed([*calib, "--help"], env)[0] for _ in range(REPEATS)]
     log(f"calib --help: median {statistics.median(helps):.3f} s of {helps}")

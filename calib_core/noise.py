@@ -243,6 +243,58 @@ def _model_fit(result: AllanResult) -> np.ndarray:
     return coef  # a = N^2, b = (0.664 B)^2, c = K^2 (the third column carries the 1/3)
 
 
+def _terms_fit(result: AllanResult, keep: tuple[bool, bool, bool]) -> tuple[np.ndarray, np.ndarray]:
+    """`_model_fit` on the kept terms: (coefficients (3,), their standard errors (3,)).
+
+    The standard errors are those of the weighted least squares at the fitted model (each
+    Allan variance's relative standard deviation sqrt(2 / edf)); the overlap of the clusters
+    correlates neighbouring taus, so they are a lower limit.
+    """
+    from scipy import optimize
+
+    taus, avar = result.taus, result.adev**2
+    A = np.column_stack([1.0 / taus, np.ones_like(taus), taus / 3.0])[:, list(keep)]
+    scale = np.where(avar > 0, avar, avar[avar > 0].min())
+    coef = np.zeros(A.shape[1])
+    for _ in range(3):
+        w = np.sqrt(result.edf / 2.0) / scale
+        coef, _ = optimize.nnls(A * w[:, None], avar * w)
+        scale = np.maximum(A @ coef, 1e-12 * avar.max())
+    aw = A * (np.sqrt(result.edf / 2.0) / scale)[:, None]
+    se = np.sqrt(np.diag(np.linalg.pinv(aw.T @ aw)))
+    full, full_se = np.zeros(3), np.full(3, np.inf)
+    full[list(np.flatnonzero(keep))], full_se[list(np.flatnonzero(keep))] = coef, se
+    return full, full_se
+
+
+MEAN_TERM_Z = 3.0  # a flicker or random-walk term enters u(mean) when this many SE above 0
+
+
+def mean_uncertainty(result: AllanResult, duration_s: float) -> float:
+    """Standard uncertainty of the mean of a record of `duration_s` (s) of one channel:
+    the Allan deviation at tau = duration_s of the noise model with only the terms the
+    curve supports.
+
+    The three-term fit's flicker and random-walk terms are never negative, so on white
+    noise they come out positive about half the time, and their extrapolation to the whole
+    record (c tau / 3 grows with tau) can multiply u by several times. A term is kept when
+    it is MEAN_TERM_Z of its standard errors above zero (those errors are a lower limit:
+    neighbouring taus are correlated, hence 3 and not 2), the white term always; the kept
+    terms are fitted again without the others. Exact for white noise (std / sqrt(n)) and
+    for a random walk the curve shows.
+    """
+    if result.adev.ndim != 1 or not np.any(result.adev > 0):
+        return 0.0
+    keep = [True, True, True]
+    coef, se = _terms_fit(result, tuple(keep))
+    for i in (1, 2):
+        keep[i] = bool(coef[i] > MEAN_TERM_Z * se[i])
+    if not all(keep):
+        coef, _ = _terms_fit(result, tuple(keep))
+    a, b, c = coef
+    return float(math.sqrt(a / duration_s + b + c * duration_s / 3.0))
+
+
 def noise_parameters(
     result: AllanResult, *, method: str = "model", slope_tol: float = 0.1
 ) -> NoiseParameters:

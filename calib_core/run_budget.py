@@ -19,6 +19,7 @@ report one).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -27,7 +28,7 @@ from calib_core import procedures
 from calib_core.calibration import Calibration
 from calib_core.recording import Recording
 from calib_core.uncertainty import Budget, Solve, budgets
-from calib_core.uncertainty_sources import EquipmentSpec, Model
+from calib_core.uncertainty_sources import EquipmentSpec
 
 
 def type_a_dof(cal: Calibration) -> float:
@@ -55,33 +56,26 @@ def run_budgets(
     type_a = {n: (p.std, dof) for n, p in cal.parameters.items() if p.std is not None}
     units = {n: p.unit for n, p in cal.parameters.items()}
     estimates = {n: p.value for n, p in cal.parameters.items()}
+    # Type A only (the values as they are, no Type B input), with the reason if one is given.
+    type_a_only = functools.partial(
+        budgets, _constant(estimates), [], type_a, units, estimates=estimates
+    )
     if spec is None:
-        return budgets(_constant(estimates), [], type_a, units, estimates=estimates)
-    solve, inputs, notes = _model(cal, segments, settings, spec)
+        return type_a_only()
+    proc = procedures.BY_NAME.get(cal.procedure)
+    if proc is None or proc.uncertainty is None:
+        reason = f"Type B sources of procedure {cal.procedure!r} not modelled"
+        return type_a_only(reason=reason)
+    # The model reads the procedure's settings as solved: its declared defaults filled in.
+    merged = {**settings, **proc.settings.merged(settings)}
+    solve, inputs, notes = proc.uncertainty(cal, segments, merged, spec)
     if solve is None:
-        return budgets(
-            _constant(estimates), [], type_a, units, estimates=estimates, reason=notes[0]
-        )
+        return type_a_only(reason=notes[0])
     return budgets(solve, inputs, type_a, units, estimates=estimates, notes=notes)
 
 
 def _constant(estimates: Mapping[str, float]) -> Solve:
     return lambda values: dict(estimates)
-
-
-def _model(
-    cal: Calibration,
-    segments: Mapping[str, Recording],
-    settings: Mapping[str, Any],
-    spec: EquipmentSpec,
-) -> Model:
-    """The solve closure over the Type B inputs, the inputs and notes: the model of the
-    procedure object that solved `cal` (`Procedure.uncertainty`)."""
-    proc = procedures.BY_NAME.get(cal.procedure)
-    if proc is None or proc.uncertainty is None:
-        return None, [], (f"Type B sources of procedure {cal.procedure!r} not modelled",)
-    # The model reads the procedure's settings as solved: its declared defaults filled in.
-    return proc.uncertainty(cal, segments, {**settings, **proc.settings.merged(settings)}, spec)
 
 
 def budgets_doc(budgets_: Mapping[str, Budget]) -> dict[str, dict[str, Any]]:

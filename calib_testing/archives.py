@@ -4,7 +4,8 @@ A test of the archive's read side (trends, intervals, shared references, thermal
 needs runs with chosen parameters, dates and temperatures, not their processing:
 `parameter_run` builds the `storage.run_input.RunIn` of such a run (one small raw file whose
 text is unique to the run, no samples, no checks), `new_archive` an empty archive with the
-current schema. `processed_run` archives one run folder through the real pipeline.
+current schema. `processed_run` archives one run folder through the real pipeline,
+`static_bias_archive` one static record.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from calib_core.calibration import Parameter, StepRecord
+from calib_core.recording import Recording
+from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
 from storage.db import Archive, resolve_archive
@@ -29,12 +32,27 @@ def new_archive(root: Path) -> Archive:
     return archive
 
 
-def processed_run(folder: Path, archive: Archive) -> str:
-    """The run id of the one run in `folder`, processed into `archive` (it must succeed)."""
+def processed_outcome(folder: Path, archive: Archive) -> dict[str, Any]:
+    """The outcome of the one run in `folder`, processed into `archive` (it must succeed)."""
     (source,) = discover_runs([folder])
     outcome = process_run(source, archive)
     assert outcome["status"] == "ok", outcome["error"]
-    return outcome["run_id"]
+    return outcome
+
+
+def processed_run(folder: Path, archive: Archive) -> str:
+    """The run id of the one run in `folder`, processed into `archive` (it must succeed)."""
+    return processed_outcome(folder, archive)["run_id"]
+
+
+def static_bias_archive(root: Path, rec: Recording, serial: str) -> tuple[Archive, str]:
+    """A new archive under `root` holding `rec` processed as a static-bias run of `serial`
+    (z up), written as a CSV run folder and archived by the real pipeline; its run id."""
+    manifest = six_position_manifest(serial)
+    manifest["run"] |= {"procedure": "static_bias", "settings": {"up_axis": "+z"}}
+    write_csv_run({"static": rec}, root / "run", manifest)
+    archive = new_archive(root)
+    return archive, processed_run(root / "run", archive)
 
 
 def parameter_run(

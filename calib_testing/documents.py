@@ -1,14 +1,19 @@
 """Reading back what a reader of a document sees: the words of an HTML page and the text of
 each PDF page (poppler's pdftotext), for the tests that compare the two; a DCC's errors against
-PTB's schema."""
+PTB's schema; the protocol of a run given by its parameters alone."""
 
 from __future__ import annotations
 
 import functools
 import shutil
 import subprocess
+from collections.abc import Mapping, Sequence
+from datetime import UTC, datetime
 from html.parser import HTMLParser
 from pathlib import Path
+from typing import Any
+
+from pipelines.reports.protocol import render_protocol
 
 
 class _Words(HTMLParser):
@@ -62,3 +67,22 @@ def _dcc_schema(path: str):  # noqa: ANN202 - xmlschema.XMLSchema
     import xmlschema
 
     return xmlschema.XMLSchema(path, allow="local")
+
+
+def parameter_protocol(parameters: Sequence[Mapping[str, Any]], names: str = "canonical") -> str:
+    """The protocol text of an MPU-6000 six-position run holding `parameters` (dicts with
+    name, value, std; SI) and nothing else: no checks, verdict pass."""
+    return render_protocol(
+        device_model="MPU-6000",
+        serial="S1",
+        started_at=datetime(2026, 1, 1, tzinfo=UTC),
+        run_id="R1",
+        procedure="six_position",
+        profile="mpu6000 v3",
+        gravity=9.80665,
+        operator="lab",
+        parameters=parameters,
+        checks=[],
+        verdict="pass",
+        names=names,
+    )

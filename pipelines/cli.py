@@ -79,7 +79,7 @@ def process(
     ] = False,
 ) -> None:
     """Ingest, solve, check and archive every run under PATHS (a Prefect flow for batches)."""
-    from pipelines.direct import discover, prefect_api_configured, process_in_process
+    from pipelines.direct import discover, in_process, process_in_process
     from pipelines.runners import check_runner
 
     try:
@@ -89,8 +89,7 @@ def process(
     show = err.is_terminal if progress is None else progress
     names = [str(p) for p in paths]
     sources, failed = discover(names)
-    direct = not flow and runner == "local" and len(sources) <= IN_PROCESS_MAX_RUNS
-    if direct and not prefect_api_configured():
+    if in_process(len(sources), runner, flow):
         with progress_bar(show) as draw:
             outcomes = failed + process_in_process(sources, archive, draw)
     else:

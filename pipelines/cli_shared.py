@@ -202,7 +202,7 @@ PANELS = {
     "Process": ("process", "reprocess", "centrifuge", "apply", "thermal", "impact"),
     "Inspect": ("inspect", "show", "history", "repeatability", "procedures"),
     "Query": ("query", "due", "trend", "fleet"),
-    "Report": ("report", "verify-certificate", "navfit", "serve", "serve-user"),
+    "Report": ("report", "verify-certificate", "navfit", "serve", "serve-user", "validate"),
     "Export": ("export",),
     "Admin": ("verify", "checkpoint", "audit", "approve", "keygen", "backup", "restore"),
 }

@@ -1,13 +1,13 @@
 """Small batches processed in this process, without Prefect: one run answered without
-starting a Prefect server (figures: benchmarks/README.md, "Latency").
+starting a Prefect server (docs/architecture.md, "Batches"; figures: benchmarks/README.md,
+"latency.py").
 
 Prefect orchestrates batches (`pipelines.flows.process_batch`); for one run or a handful
 at the lab table, starting Prefect's temporary API server costs far more than the runs
-themselves (seconds of CPU, more of wall time on a busy machine). `calib process`
-therefore runs a batch here when it is small, the runner is ``local``, no Prefect API is
-configured and ``--flow`` is not given. The outcomes and the archive are the same either
-way: the same discovery (`discover`), the same `process_run` per run with the same retries
-of transient errors (`pipelines.run_task`).
+themselves (about 14 s of CPU against 3 s a run). A batch runs here when `in_process` says
+so. The outcomes and the archive are the same either way: the same discovery
+(`discover`), the same `process_run` per run with the same retries of transient errors
+(`pipelines.run_task`).
 """
 
 from __future__ import annotations
@@ -63,6 +63,14 @@ def prefect_api_configured() -> bool:
     active = os.environ.get("PREFECT_PROFILE") or doc.get("active", "ephemeral")
     profile = (doc.get("profiles") or {}).get(active) or {}
     return bool(profile.get("PREFECT_API_URL"))
+
+
+def in_process(runs: int, runner: str, flow: bool) -> bool:
+    """Whether a batch of `runs` runs runs in this process rather than as the Prefect flow:
+    at most IN_PROCESS_MAX_RUNS, the ``local`` runner, ``--flow`` not given (`flow` False)
+    and no Prefect API configured (a lab with a Prefect server sees every batch there)."""
+    small = not flow and runner == "local" and runs <= IN_PROCESS_MAX_RUNS
+    return small and not prefect_api_configured()
 
 
 def process_in_process(

@@ -198,17 +198,23 @@ def _retry_transient(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's
     return False
 
 
-@task(
-    name="process-run",
-    task_run_name="process {source.name}",
-    retries=RETRIES,
-    retry_delay_seconds=RETRY_DELAYS_S,
-    retry_condition_fn=_retry_transient,
-    # No Prefect caching or result persistence: the archive already makes a run idempotent
-    # (by content hash), and hashing inputs and task source for a cache key costs every run.
-    cache_policy=NO_CACHE,
-    persist_result=False,
-)
+def _batch_task(name: str, run_name: str) -> Callable[[Callable[..., Any]], Any]:
+    """Prefect's task decorator for one run of a batch: what `is_transient` accepts is
+    retried (RETRIES more attempts after RETRY_DELAYS_S); nothing cached or persisted: the
+    archive already makes a run idempotent (by content hash), and hashing inputs and task
+    source for a cache key would cost every run."""
+    return task(
+        name=name,
+        task_run_name=run_name,
+        retries=RETRIES,
+        retry_delay_seconds=RETRY_DELAYS_S,
+        retry_condition_fn=_retry_transient,
+        cache_policy=NO_CACHE,
+        persist_result=False,
+    )
+
+
+@_batch_task("process-run", "process {source.name}")
 def process_run_task(source: RunSource, archive_url: str, archive_root: str) -> dict[str, Any]:
     """One run through `process_run`; what `is_transient` accepts is retried.
 
@@ -261,13 +267,9 @@ def process_batch(
         runner,
         f" at {scheduler}" if scheduler else "",
     )
-    with contextlib.ExitStack() as stack:
-        if sources:  # worker processes first: they start while the archive gets ready
-            stack.enter_context(_work_in_processes(runner, workers))
+    with _batch_runner(runner, workers, scheduler, has_runs=bool(sources)) as task_runner:
         arch = resolve_archive(archive)
         arch.upgrade()  # once, before any worker archives
-        stack.enter_context(issuing_beside())  # left after the task runner: waits for both
-        task_runner = stack.enter_context(_task_runner(runner, workers, scheduler))
         parameters = [
             {"source": s, "archive_url": arch.url, "archive_root": str(arch.root)} for s in sources
         ]
@@ -284,10 +286,19 @@ def process_batch(
 
 
 @contextlib.contextmanager
-def _task_runner(runner: str, workers: int | None, scheduler: str | None) -> Iterator[Any]:
-    """The batch's started task runner; on leaving, it waits for its tasks first."""
-    with _api_for_workers(runner), make_task_runner(runner, workers, scheduler) as task_runner:
-        yield task_runner
+def _batch_runner(
+    runner: str, workers: int | None, scheduler: str | None, *, has_runs: bool
+) -> Iterator[Any]:
+    """The batch's started task runner, with the process runner's worker processes (started
+    first, so that they start while the flow gets ready; only for a batch that `has_runs`)
+    and the certificates issued beside the runs (`pipelines.issuing`). On leaving, it waits
+    for the tasks, then for the certificates."""
+    with contextlib.ExitStack() as stack:
+        if has_runs:
+            stack.enter_context(_work_in_processes(runner, workers))
+        stack.enter_context(issuing_beside())
+        stack.enter_context(_api_for_workers(runner))
+        yield stack.enter_context(make_task_runner(runner, workers, scheduler))
 
 
 def _run_tasks(
@@ -351,15 +362,7 @@ def _summary_artifact(outcomes: list[dict[str, Any]]) -> None:
     )
 
 
-@task(
-    name="reprocess-run",
-    task_run_name="reprocess {run_id}",
-    retries=RETRIES,
-    retry_delay_seconds=RETRY_DELAYS_S,
-    retry_condition_fn=_retry_transient,
-    cache_policy=NO_CACHE,  # the archive's duplicate rule makes a run idempotent
-    persist_result=False,
-)
+@_batch_task("reprocess-run", "reprocess {run_id}")
 def reprocess_run_task(
     run_id: str, archive_url: str, archive_root: str, reason: str
 ) -> dict[str, Any]:
@@ -413,11 +416,7 @@ def reprocess_batch(
     for n, outcome in enumerate(skipped, 1):
         if callback is not None:
             callback(n, len(skipped) + len(todo), outcome)
-    with contextlib.ExitStack() as stack:
-        if todo:
-            stack.enter_context(_work_in_processes(runner, workers))
-        stack.enter_context(issuing_beside())
-        task_runner = stack.enter_context(_task_runner(runner, workers, scheduler))
+    with _batch_runner(runner, workers, scheduler, has_runs=bool(todo)) as task_runner:
         parameters = [
             {"run_id": r, "archive_url": arch.url, "archive_root": str(arch.root), "reason": reason}
             for r in todo

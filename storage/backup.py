@@ -62,19 +62,30 @@ def _is_temp(p: Path) -> bool:
     return p.name.startswith(".") and p.name.endswith(".tmp")
 
 
-def _pg_env(url: str) -> tuple[str, dict[str, str]]:
-    """libpq connection string without the password, and an environment carrying it."""
+def _pg_tool(tool: str, url: str, *args: str) -> None:
+    """PostgreSQL's client `tool` on the database at `url` (no owner, no privileges) with
+    `args`; the password goes in the environment, never on the command line."""
     u = make_url(url)
     env = dict(os.environ)
     if u.password:
         env["PGPASSWORD"] = str(u.password)
-    return pgtools.libpq_dsn(u.set(password=None).render_as_string(hide_password=False)), env
-
-
-def _run_tool(args: list[str], env: dict[str, str], what: str) -> None:
-    done = subprocess.run(args, capture_output=True, text=True, env=env, timeout=PG_TIMEOUT_S)
+    dsn = pgtools.libpq_dsn(u.set(password=None).render_as_string(hide_password=False))
+    command = [str(pgtools.tool(tool)), "--no-owner", "--no-privileges", f"--dbname={dsn}", *args]
+    done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=PG_TIMEOUT_S)
     if done.returncode:
-        raise BackupError(f"{what} failed (exit {done.returncode}): {done.stderr.strip()}")
+        raise BackupError(f"{tool} failed (exit {done.returncode}): {done.stderr.strip()}")
+
+
+def _sqlite_copy(src: sqlite3.Connection, target: Path) -> None:
+    """The database of `src` copied into the file `target` in one step (a read snapshot of the
+    whole database: SQLite's online backup); both connections closed."""
+    dst = sqlite3.connect(str(target))
+    try:
+        with dst:
+            src.backup(dst)
+    finally:
+        dst.close()
+        src.close()
 
 
 def backup(archive: Archive, dest: Path) -> dict[str, Any]:
@@ -103,28 +114,10 @@ def backup(archive: Archive, dest: Path) -> dict[str, Any]:
             if archive.read_only
             else sqlite3.connect(str(sqlite_file(archive)))
         )
-        dst = sqlite3.connect(str(dest / db_name))
-        try:
-            with dst:
-                src.backup(dst)  # one step: a read snapshot of the whole database
-        finally:
-            dst.close()
-            src.close()
+        _sqlite_copy(src, dest / db_name)
     else:
         db_name = "database.pgdump"
-        dsn, env = _pg_env(archive.url)
-        _run_tool(
-            [
-                str(pgtools.tool("pg_dump")),
-                "--format=custom",
-                "--no-owner",
-                "--no-privileges",
-                f"--file={dest / db_name}",
-                f"--dbname={dsn}",
-            ],
-            env,
-            "pg_dump",
-        )
+        _pg_tool("pg_dump", archive.url, "--format=custom", f"--file={dest / db_name}")
     db_sha, db_size = rawstore.hash_and_size(dest / db_name)
 
     files: dict[str, dict[str, Any]] = {}
@@ -253,28 +246,9 @@ def restore(src: Path, archive: Archive) -> dict[str, Any]:
     if backend == "sqlite":
         target = sqlite_file(archive)
         target.parent.mkdir(parents=True, exist_ok=True)
-        s, d = sqlite3.connect(str(db_file)), sqlite3.connect(str(target))
-        try:
-            with d:
-                s.backup(d)
-        finally:
-            d.close()
-            s.close()
+        _sqlite_copy(sqlite3.connect(str(db_file)), target)
     else:
-        dsn, env = _pg_env(archive.url)
-        _run_tool(
-            [
-                str(pgtools.tool("pg_restore")),
-                "--no-owner",
-                "--no-privileges",
-                "--exit-on-error",
-                "--single-transaction",
-                f"--dbname={dsn}",
-                str(db_file),
-            ],
-            env,
-            "pg_restore",
-        )
+        _pg_tool("pg_restore", archive.url, "--exit-on-error", "--single-transaction", str(db_file))
     archive.upgrade()
     if not archive.is_sqlite:  # the restored files are the database's store now
         from storage.store_identity import adopt

@@ -13,7 +13,6 @@ with imucal's published calibration (reference/example_cal.json). A glitch no ha
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -24,29 +23,18 @@ from calib_core.procedures import solve, solve_step
 from calib_core.recording import Recording
 from calib_core.solvers import integral
 from calib_core.units import DEG
+from calib_testing.ferraris import DATA, example_segments, example_session, section_label
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "imucal_ferraris"
 GRAVITY = 9.81  # imucal's expected gravity
 SETTINGS = {"rotation_directions": "any", "turns": 1}
-FACES = {"x_p": "x_up", "x_a": "x_dn", "y_p": "y_up", "y_a": "y_dn", "z_p": "z_up", "z_a": "z_dn"}
 # The annotated session is in raw counts: the nominal sensitivities of a +-2000 deg/s,
 # +-16 g MPU-6050 (16.4 counts per deg/s, 2048 per g) bring it near SI. Scale factors
 # relative to imucal's and misalignments do not depend on them.
 GYRO_COUNTS_PER_DPS = 16.4
 ACC_COUNTS_PER_MS2 = 2048 / 9.80665
 ANNOTATED_RATE_HZ = 204.8  # imucal tests/test_calibration_calculation.py
-EXAMPLE_RATE_HZ = 102.4  # imucal examples/basic_ferraris.py
 SCALE_LIMIT = 1e-4  # 0.01 %
 MISALIGN_LIMIT = 6e-5
-
-
-def _label(name: str, part: Recording) -> str:
-    """Our label of an imucal section: the face, or the turn with its sense from the data."""
-    if name in FACES:
-        return FACES[name]
-    axis = name.split("_")[0]
-    angle = np.trapezoid(part.gyr[:, params.AXIS_INDEX[axis]], part.t)
-    return f"{axis}_{'ccw' if angle > 0 else 'cw'}"
 
 
 def _annotated() -> dict[str, Recording]:
@@ -59,26 +47,13 @@ def _annotated() -> dict[str, Recording]:
             part[["gyr_x", "gyr_y", "gyr_z"]].to_numpy() / GYRO_COUNTS_PER_DPS * DEG,
             source=f"annotated_session.csv part {name}",
         )
-        label = _label(str(name), rec)
+        label = section_label(str(name), rec)
         segments[label] = rec.with_label(label)
     return segments
 
 
 def _example() -> dict[str, Recording]:
-    df = pd.read_csv(DATA / "example_ferraris_session.csv")
-    sections = json.loads((DATA / "example_ferraris_session_list.json").read_text())
-    rec = Recording(
-        df["n_samples"].to_numpy() / EXAMPLE_RATE_HZ,
-        df[["acc_x", "acc_y", "acc_z"]].to_numpy(),
-        df[["gyr_x", "gyr_y", "gyr_z"]].to_numpy() * DEG,
-        source="example_ferraris_session.csv",
-    )
-    segments = {}
-    for name, span in sections.items():
-        part = rec.select(np.arange(span["start"], span["end"]))
-        label = _label(name, part)
-        segments[label] = part.with_label(label)
-    return segments
+    return example_segments(*example_session())
 
 
 @pytest.fixture(scope="module", params=["annotated", "example"])

@@ -7,9 +7,6 @@ x down, ...) and one hand-made 360 deg turn about each axis (x_rot, y_rot, z_rot
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -18,14 +15,12 @@ from scipy import stats
 from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.procedures import solve
-from calib_core.recording import Recording
 from calib_core.solvers.equipment_free import transport_residual_rms
 from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_testing.ferraris import DATA, EXAMPLE_RATE_HZ, example_segments, example_session
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "imucal_ferraris"
-RATE_HZ = 102.4
+RATE_HZ = EXAMPLE_RATE_HZ
 GRAVITY = 9.81  # imucal's expected gravity; both methods use the same value
-FACES = {"x_p": "x_up", "x_a": "x_dn", "y_p": "y_up", "y_a": "y_dn", "z_p": "z_up", "z_a": "z_dn"}
 # The session has rests only near the six faces: tune the detector to hand-held rests
 # (short windows, short settle) and start at the first rest, as the method requires.
 EF_SETTINGS = {"init_static_s": 5.0, "window_s": 0.5, "settle_s": 0.3, "min_keep_s": 0.5}
@@ -35,24 +30,8 @@ EF_SETTINGS = {"init_static_s": 5.0, "window_s": 0.5, "settle_s": 0.3, "min_keep
 def session():
     if not DATA.is_dir():
         pytest.skip(f"imucal Ferraris session not found at {DATA} (shared/realdata missing)")
-    df = pd.read_csv(DATA / "example_ferraris_session.csv")
-    sections = json.loads((DATA / "example_ferraris_session_list.json").read_text())
-    rec = Recording(
-        df["n_samples"].to_numpy() / RATE_HZ,
-        df[["acc_x", "acc_y", "acc_z"]].to_numpy(),
-        df[["gyr_x", "gyr_y", "gyr_z"]].to_numpy() * DEG,
-        source=str(DATA / "example_ferraris_session.csv"),
-    )
-    segments: dict[str, Recording] = {}
-    for name, span in sections.items():
-        part = rec.select(np.arange(span["start"], span["end"]))
-        if name in FACES:
-            label = FACES[name]
-        else:  # "x_rot": a turn about x; its sense from the integrated rate
-            axis = name.split("_")[0]
-            angle = np.trapezoid(part.gyr[:, params.AXIS_INDEX[axis]], part.t)
-            label = f"{axis}_{'ccw' if angle > 0 else 'cw'}"
-        segments[label] = part.with_label(label)
+    rec, sections = example_session()
+    segments = example_segments(rec, sections)
     first_rest = sections["x_p"]["start"]
     return rec, segments, rec.select(np.arange(first_rest, len(rec)))
 

@@ -29,6 +29,8 @@ from storage.db import resolve_archive
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 MANIFESTS = Path(__file__).resolve().parent / "realdata"
+# The Xsens session's manifest is the benchmark set's (`calib validate --benchmark`).
+SESSIONS = Path(__file__).resolve().parents[1] / "pipelines" / "validation" / "sessions"
 FERRARIS = REALDATA / "imucal_ferraris"
 XSENS = REALDATA / "imutk_xsens"
 FERRARIS_RATE_HZ = 102.4
@@ -53,7 +55,8 @@ def _run_folder(tmp_path: Path, data: Path, files: list[str], manifest: str) -> 
     folder.mkdir()
     for name in files:
         shutil.copyfile(data / name, folder / name)
-    shutil.copyfile(MANIFESTS / manifest, folder / "run.toml")
+    where = SESSIONS if (SESSIONS / manifest).is_file() else MANIFESTS
+    shutil.copyfile(where / manifest, folder / "run.toml")
     return folder
 
 

@@ -21,10 +21,10 @@ from calib_core.params import MANUAL_NAMES
 from calib_core.solvers.six_position import accel_closed_form
 from calib_core.tolerances import ToleranceProfile
 from calib_core.units import DEG, STANDARD_GRAVITY
+from calib_testing.documents import parameter_protocol
 from pipelines.ingest import IngestError, discover_runs, load_run
 from pipelines.process import process_run
 from pipelines.reports.display import shown
-from pipelines.reports.protocol import render_protocol
 from storage.db import resolve_archive
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data_samples" / "mpu6000_MPU0001"
@@ -169,23 +169,8 @@ def _manual_means(g: float) -> dict[str, np.ndarray]:
 
 
 def _protocol(cal: Calibration, names: str) -> str:
-    from datetime import UTC, datetime
-
     rows = [{"name": n, "value": p.value, "std": p.std} for n, p in sorted(cal.parameters.items())]
-    return render_protocol(
-        device_model="MPU-6000",
-        serial="S1",
-        started_at=datetime(2026, 1, 1, tzinfo=UTC),
-        run_id="R1",
-        procedure="six_position",
-        profile="mpu6000 v3",
-        gravity=9.81,
-        operator="lab",
-        parameters=rows,
-        checks=[],
-        verdict="pass",
-        names=names,
-    )
+    return parameter_protocol(rows, names)
 
 
 def test_protocol_prints_the_manuals_names_and_signs():

@@ -17,8 +17,7 @@ from calib_core.nav_noise import NavNoise, NavTerm, bootstrap_terms, noise_recor
 from calib_core.noise import NoiseParameters, cluster_sizes
 from calib_core.simulate.noise import NoiseSpec, simulate_static
 from calib_core.solvers.static_bias import sensor_statistics
-from calib_testing.archives import new_archive, processed_run
-from calib_testing.run_writers import six_position_manifest, write_csv_run
+from calib_testing.archives import static_bias_archive
 from pipelines import nav_exports
 from pipelines.cli import app
 from pipelines.ingest import discover_runs
@@ -47,12 +46,7 @@ def static_run(tmp_path_factory):
         acc_noise=NoiseSpec(ACC_N, 0.0, ACC_K),
         rng=rng,
     )
-    manifest = six_position_manifest("NAV-0001")
-    manifest["run"] |= {"procedure": "static_bias", "settings": {"up_axis": "+z"}}
-    folder = tmp_path_factory.mktemp("nav") / "run"
-    write_csv_run({"static": rec}, folder, manifest)
-    archive = new_archive(folder.parent)
-    return archive, processed_run(folder, archive)
+    return static_bias_archive(tmp_path_factory.mktemp("nav"), rec, "NAV-0001")
 
 
 def _export(archive, run_id: str, *args: str) -> str:

@@ -13,8 +13,7 @@ from typer.testing import CliRunner
 
 from calib_core.navigation import Z95
 from calib_core.simulate.noise import NoiseSpec, simulate_static
-from calib_testing.archives import new_archive, processed_run
-from calib_testing.run_writers import six_position_manifest, write_csv_run
+from calib_testing.archives import new_archive, processed_run, static_bias_archive
 from pipelines import navigation
 from pipelines.cli import app
 
@@ -32,12 +31,7 @@ def static_run(tmp_path_factory):
         acc_noise=NoiseSpec(ACC_N, ACC_B, ACC_K),
         rng=np.random.default_rng(50),
     )
-    manifest = six_position_manifest("NAV-0050")
-    manifest["run"] |= {"procedure": "static_bias", "settings": {"up_axis": "+z"}}
-    folder = tmp_path_factory.mktemp("navfit") / "run"
-    write_csv_run({"static": rec}, folder, manifest)
-    archive = new_archive(folder.parent)
-    return archive, processed_run(folder, archive)
+    return static_bias_archive(tmp_path_factory.mktemp("navfit"), rec, "NAV-0050")
 
 
 def _navfit(archive, *args: str):

@@ -6,35 +6,24 @@ from __future__ import annotations
 import json
 import os
 import stat
-from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
+from calib_testing.documents import parameter_protocol
 from pipelines.cli import app
-from pipelines.reports.protocol import render_protocol
 from storage.rawstore import FILE_MODE
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_protocol_values_are_signed_and_uncertainties_are_not() -> None:
-    text = render_protocol(
-        device_model="MPU-6000",
-        serial="U1",
-        started_at=datetime(2026, 1, 2, tzinfo=UTC),
-        run_id="R0",
-        procedure="six_position",
-        profile="p",
-        gravity=9.80665,
-        operator="me",
-        parameters=[
+    text = parameter_protocol(
+        [
             {"name": "acc.scale.x", "value": -0.0225, "std": 1.9e-5},
             {"name": "acc.scale.y", "value": 0.0051, "std": 2.1e-5},
-        ],
-        checks=[],
-        verdict="pass",
+        ]
     )
     rows = {line.split()[0]: line.split() for line in text.splitlines() if "acc.scale" in line}
     assert rows["acc.scale.x"][1:3] == ["-0.022500", "0.000019"]

@@ -26,14 +26,13 @@ from typer.testing import CliRunner
 from calib_core.recording import Recording
 from calib_core.simulate import TrueErrors, six_position_integral_run
 from calib_core.units import STANDARD_GRAVITY
+from calib_testing.archives import new_archive, processed_outcome
 from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.cli import app
-from pipelines.ingest import discover_runs
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.manifest import parse_manifest
-from pipelines.process import process_run
 from storage import queries, schema
-from storage.db import Archive, resolve_archive
+from storage.db import Archive
 
 DATA_SAMPLES = Path(__file__).resolve().parent.parent / "data_samples"
 TILT = math.radians(30.0)
@@ -76,16 +75,7 @@ def _write_run(folder: Path, truth: TrueErrors, rng, manifest: dict, tilt_error_
 
 @pytest.fixture
 def arch(tmp_path: Path) -> Archive:
-    a = resolve_archive(str(tmp_path / "archive"))
-    a.upgrade()
-    return a
-
-
-def _process(folder: Path, arch: Archive) -> dict:
-    (source,) = discover_runs([folder])
-    outcome = process_run(source, arch)
-    assert outcome["status"] == "ok", outcome["error"]
-    return outcome
+    return new_archive(tmp_path)
 
 
 def _report(arch: Archive, run_id: str, out: Path, *, pdf: bool = True) -> dict:
@@ -168,7 +158,7 @@ def _check_pdf(path: Path, tmp: Path, expected: list[str]) -> list[Path]:
 def test_clean_run_passes_all_and_report_is_complete(arch, tmp_path):
     rng = np.random.default_rng(21)
     folder = _write_run(tmp_path / "clean", quiet_truth(rng), rng, _manifest("SIM-R-1", 20))
-    outcome = _process(folder, arch)
+    outcome = processed_outcome(folder, arch)
     assert outcome["verdict"] == "pass", [c for c in outcome["checks"] if not c["passed"]]
     names = {c["name"] for c in outcome["checks"]}
     assert {"verify:tilt_30:acc", "verify:tilt_30:gyr"} <= names
@@ -215,7 +205,7 @@ def test_missing_cross_coupling_fails_and_report_names_it(arch, tmp_path):
     truth = quiet_truth(rng)
     truth.acc_M[2, 0] = -0.012  # true x leaks into measured z
     manifest = _manifest("SIM-R-2", 20, settings={"accel_model": "per_axis"})
-    outcome = _process(_write_run(tmp_path / "reduced", truth, rng, manifest), arch)
+    outcome = processed_outcome(_write_run(tmp_path / "reduced", truth, rng, manifest), arch)
     assert outcome["verdict"] == "fail"
     failed = {c["name"] for c in outcome["checks"] if not c["passed"]}
     assert {"residual:x_up:acc:mean", "residual:x_dn:acc:mean"} <= failed
@@ -234,7 +224,7 @@ def test_verification_point_with_002_g_error_fails(arch, tmp_path):
     rng = np.random.default_rng(23)
     manifest = _manifest("SIM-R-3", 20)
     folder = _write_run(tmp_path / "v", quiet_truth(rng), rng, manifest, tilt_error_g=0.02)
-    outcome = _process(folder, arch)
+    outcome = processed_outcome(folder, arch)
     assert outcome["verdict"] == "fail"
     by_name = {c["name"]: c for c in outcome["checks"]}
     acc = by_name["verify:tilt_30:acc"]
@@ -254,7 +244,7 @@ def test_three_runs_with_2_percent_scale_change_fail_repeatability(arch, tmp_pat
     outcomes = []
     for day, t in ((10, truth), (11, changed), (12, truth)):
         folder = _write_run(tmp_path / f"r{day}", t, rng, _manifest("SIM-R-4", day))
-        outcomes.append(_process(folder, arch))
+        outcomes.append(processed_outcome(folder, arch))
     assert [o["verdict"] for o in outcomes[:2]] == ["pass", "pass"]  # fewer than 3 runs
     third = outcomes[2]
     failed = [c["name"] for c in third["checks"] if c["status"] == "fail"]
@@ -289,7 +279,7 @@ def test_three_runs_with_2_percent_scale_change_fail_repeatability(arch, tmp_pat
 @pytest.mark.slow
 def test_calib_report_on_data_samples_csv_run(arch, tmp_path):
     """`calib report` on the CSV sample run; its PDF pages rendered in the test's folder."""
-    outcome = _process(DATA_SAMPLES / "csv_IMU-2026-0042", arch)
+    outcome = processed_outcome(DATA_SAMPLES / "csv_IMU-2026-0042", arch)
     written = _report(arch, outcome["run_id"], tmp_path / "out")
     assert set(written) >= {"protocol", "html", "pdf"}
     _check_html(Path(written["html"]))

@@ -74,11 +74,14 @@ def test_noise_std_and_parameters_white():
         assert cal.value(f"gyr.noise.{a}") == pytest.approx(
             0.98664 * sigma, rel=4 / math.sqrt(2 * n)
         )
-        # white noise: u(bias) is the classical sem plus whatever flicker / random walk
-        # the fit cannot exclude from one record's noisy long-tau points (the model is
-        # extrapolated to tau = T), so it never drops below the white part (a ~ N^2)
+        # white noise: u(bias) is the classical sem (the white term, a ~ N^2, known to
+        # well under 1 % from the short taus; the clip shrinks it by 1.3 %)
         assert cal.parameters[f"gyr.bias.{a}"].std > 0.95 * sigma / math.sqrt(n)
-    # over seeds the spurious long-tau part must keep u within the acceptance factor 2
+    # Over seeds: a flicker or random-walk term the curve does not support (fitted from the
+    # noisy long-tau points, then extrapolated to tau = T) stays out of u, which then is
+    # the white sem (median within 5 %); a spurious term kept at 3 of its standard errors
+    # is rare (at most 2 of the 24). Before the terms were tested, u averaged 1.5 to 1.8
+    # times the sem on white noise (the benchmark's static_bias case: coverage 0.975).
     ratios = []
     for seed in range(20, 28):
         other = simulate_static(
@@ -90,7 +93,8 @@ def test_noise_std_and_parameters_white():
         )
         c = solve_static_bias(other)
         ratios += [c.parameters[f"gyr.bias.{a}"].std / (sigma / math.sqrt(n)) for a in "xyz"]
-    assert 0.95 < np.mean(ratios) < 2.0, ratios
+    assert 0.95 < np.median(ratios) < 1.05, ratios
+    assert sum(r > 1.3 for r in ratios) <= 2, ratios
     arw_fit = [p["arw"] for p in cal.info["noise_parameters"]["gyr"]]
     np.testing.assert_allclose(arw_fit, arw, rtol=0.02)  # edf at tau = 1 sample ~ 1e5
     assert not cal.warnings

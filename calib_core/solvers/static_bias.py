@@ -38,7 +38,7 @@ import numpy as np
 from calib_core.calibration import Calibration
 from calib_core.distributions import norm_sf
 from calib_core.earth import EARTH_RATE
-from calib_core.noise import NOISE_TERMS, archived_terms, choose_noise_fit
+from calib_core.noise import NOISE_TERMS, archived_terms, choose_noise_fit, mean_uncertainty
 from calib_core.params import AXES
 from calib_core.preprocess.motion import StreamedMotion, motion_check_of, streamed_smallest_steps
 from calib_core.preprocess.replaced import replaced_check
@@ -57,9 +57,10 @@ from calib_core.units import STANDARD_GRAVITY
 
 MIN_DURATION_S = 3600.0  # docs/methods.md 2.5: >= 60 min static
 BIAS_UNCERTAINTY_RULE = (
-    "u(bias) = Allan deviation of the fitted noise model N^2/tau + (0.664 B)^2 + K^2 tau/3 "
-    "at tau = record length: exact for white noise (= std/sqrt(n)) and for rate random "
-    "walk (std of the record mean about the starting bias)"
+    "u(bias) = Allan deviation of the noise model N^2/tau + (0.664 B)^2 + K^2 tau/3 at "
+    "tau = record length, B and K kept where the curve supports them (3 standard errors "
+    "above 0): exact for white noise (= std/sqrt(n)) and for rate random walk (std of the "
+    "record mean about the starting bias)"
 )
 
 
@@ -109,7 +110,7 @@ def _noise_stats(allan, std: np.ndarray, n: int, rate_hz: float) -> tuple:
     misfits = [c[1] for c in chosen]
     warnings = [c[2] for c in chosen]
     sem_white = std / math.sqrt(n)
-    u = np.array([float(p.adev_model(duration)) for p in noise])
+    u = np.array([mean_uncertainty(allan.column(c), duration) for c in range(3)])
     # A fit that found no noise at all (constant data) still has the white-noise floor.
     u = np.where(np.isfinite(u) & (u > 0), u, sem_white)
     return noise, u, misfits, warnings

@@ -8,7 +8,7 @@ from __future__ import annotations
 from datetime import UTC, date, datetime
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import func, select
+from sqlalchemy import Select, func, select
 from sqlalchemy.engine import make_url
 
 from storage.db import Archive
@@ -58,30 +58,8 @@ def lapsed_runs(archive: Archive, equipment_serial: str, kind: str | None = None
     -------
     DataFrame with LAPSED_COLUMNS, oldest run first; days_overdue >= 1.
     """
-    check_text(equipment_serial, "equipment serial", EQUIPMENT_SERIAL_LEN)
-    day = _run_day(make_url(archive.url).get_backend_name())
-    stmt = (
-        select(
-            Equipment.kind,
-            Equipment.serial,
-            Run.run_id,
-            Device.serial,
-            Run.started_at,
-            Run.operator,
-            RunEquipment.calibration_due,
-        )
-        .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
-        .join(Run, Run.id == RunEquipment.run_id)
-        .join(Device, Device.id == Run.device_id)
-        .where(
-            Equipment.serial == equipment_serial,
-            RunEquipment.calibration_due.is_not(None),
-            day > RunEquipment.calibration_due,
-        )
-        .order_by(Run.started_at, Run.id)
-    )
-    if kind is not None:
-        stmt = stmt.where(Equipment.kind == check_text(kind, "equipment kind", 100))
+    columns = (Equipment.kind, Equipment.serial, *_LAPSED_RUN)
+    stmt = _lapsed(archive, equipment_serial, kind, *columns)
     with reading(archive) as conn:
         rows = conn.execute(stmt).all()
     df = _frame(rows, LAPSED_COLUMNS[:-1])
@@ -90,6 +68,46 @@ def lapsed_runs(archive: Archive, equipment_serial: str, kind: str | None = None
         for t, due in zip(df["started_at"], df["calibration_due"], strict=True)
     ]
     return df.astype({"days_overdue": "int64"})
+
+
+# What a lapsed run is shown with: the run, its unit, start, operator and the due date.
+_LAPSED_RUN = (
+    Run.run_id,
+    Device.serial,
+    Run.started_at,
+    Run.operator,
+    RunEquipment.calibration_due,
+)
+
+
+def _lapsed(archive: Archive, equipment_serial: str, kind: str | None, *columns: Any) -> Select:
+    """SELECT `columns` of the runs made on the equipment while its calibration had lapsed
+    (the run's UTC start day after the due date recorded with that run), oldest first."""
+    day = _run_day(make_url(archive.url).get_backend_name())
+    due = RunEquipment.calibration_due
+    return (
+        runs_with_equipment(equipment_serial, kind, *columns)
+        .where(due.is_not(None), day > due)
+        .order_by(Run.started_at, Run.id)
+    )
+
+
+def runs_with_equipment(equipment_serial: str, kind: str | None, *columns: Any) -> Select:
+    """SELECT `columns` of every run whose equipment snapshot (`run_equipment`) names
+    `equipment_serial` (of `kind`; None: any kind), from Run, Device (the unit),
+    RunEquipment and Equipment joined. Raises ValueError naming a malformed serial or kind."""
+    check_text(equipment_serial, "equipment serial", EQUIPMENT_SERIAL_LEN)
+    stmt = (
+        select(*columns)
+        .select_from(Run)
+        .join(Device, Device.id == Run.device_id)
+        .join(RunEquipment, RunEquipment.run_id == Run.id)
+        .join(Equipment, Equipment.id == RunEquipment.equipment_id)
+        .where(Equipment.serial == equipment_serial)
+    )
+    if kind is not None:
+        stmt = stmt.where(Equipment.kind == check_text(kind, "equipment kind", 100))
+    return stmt
 
 
 def equipment_list(archive: Archive) -> list[dict[str, Any]]:
@@ -162,34 +180,8 @@ def lapsed_page(
     Dicts: run_id, serial, started_at, operator, calibration_due, days_overdue.
     """
     check_text(kind, "equipment kind", 100)
-    check_text(serial, "equipment serial")
-    if archive.is_sqlite:
-        day = func.date(Run.started_at)  # SQLite keeps naive UTC text
-    else:
-        day = func.date(func.timezone("UTC", Run.started_at))
-    where = (
-        Equipment.kind == kind,
-        Equipment.serial == serial,
-        RunEquipment.calibration_due.is_not(None),
-        day > RunEquipment.calibration_due,
-    )
-    stmt = (
-        select(
-            Run.run_id,
-            Device.serial,
-            Run.started_at,
-            Run.operator,
-            RunEquipment.calibration_due,
-            func.count().over().label("total"),
-        )
-        .select_from(Equipment)
-        .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
-        .join(Run, Run.id == RunEquipment.run_id)
-        .join(Device, Device.id == Run.device_id)
-        .where(*where)
-        .order_by(Run.started_at, Run.id)
-        .limit(limit)
-    )
+    total = func.count().over().label("total")
+    stmt = _lapsed(archive, serial, kind, *_LAPSED_RUN, total).limit(limit)
     with reading(archive) as conn:  # counted in the same pass (before the LIMIT)
         rows = conn.execute(stmt).all()
     total = rows[0].total if rows else 0

@@ -14,12 +14,11 @@ from sqlalchemy import select
 from storage.current import CURRENT, is_current
 from storage.db import Archive
 from storage.queries._common import (
-    EQUIPMENT_SERIAL_LEN,
     IN_CHUNK,
     as_instant,
-    check_text,
     where_model_and_start,
 )
+from storage.queries.equipment import runs_with_equipment
 from storage.schema import CalibrationRow, Device, Equipment, Run, RunEquipment
 
 # A run, its unit's serial and the run's own model, procedure and start.
@@ -50,27 +49,14 @@ def equipment_runs(
 
     Raises ValueError naming the filter for a malformed value, before any SQL runs.
     """
-    check_text(equipment_serial, "equipment serial", EQUIPMENT_SERIAL_LEN)
+    equipment = (Equipment.kind, Equipment.model, RunEquipment.calibration_due)
+    current = (CalibrationRow.verdict, CalibrationRow.revision)
+    stmt = runs_with_equipment(equipment_serial, kind, *_RUN_OF_UNIT, *equipment, *current)
     t0 = as_instant(since, "from", end_of_day=False)
     t1 = as_instant(until, "to", end_of_day=True)
-    stmt = (
-        select(
-            *_RUN_OF_UNIT,
-            Equipment.kind,
-            Equipment.model,
-            RunEquipment.calibration_due,
-            CalibrationRow.verdict,
-            CalibrationRow.revision,
-        )
-        .join(Device, Device.id == Run.device_id)
-        .join(RunEquipment, RunEquipment.run_id == Run.id)
-        .join(Equipment, Equipment.id == RunEquipment.equipment_id)
-        .join(CalibrationRow, (CalibrationRow.run_id == Run.id) & CURRENT)
-        .where(Equipment.serial == equipment_serial)
-        .order_by(Run.started_at, Run.run_id)
+    stmt = stmt.join(CalibrationRow, (CalibrationRow.run_id == Run.id) & CURRENT).order_by(
+        Run.started_at, Run.run_id
     )
-    if kind is not None:
-        stmt = stmt.where(Equipment.kind == check_text(kind, "equipment kind", 100))
     stmt = where_model_and_start(stmt, None, t0, t1)
     keys = (
         "run_id",

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from storage.current import CURRENT, superseded
+from storage.current import CURRENT, is_current, superseded
 from storage.db import Archive
 from storage.queries._common import select_run_calibrations
 from storage.schema import (
@@ -85,8 +85,8 @@ def latest_thermal_model(
         if not rows:
             return None
         # Newest not superseded by a model that already existed at as_of.
-        ids_then = {r.id for r in rows}
-        current = [r for r in rows if r.superseded_by is None or r.superseded_by not in ids_then]
+        then = {r.id for r in rows}
+        current = [r for r in rows if is_current(r.superseded_by) or r.superseded_by not in then]
         return _model_dict(max(current, key=lambda r: r.id), serial, s)
 
 

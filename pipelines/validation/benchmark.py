@@ -1,0 +1,195 @@
+"""Ground-truth benchmark, the pipeline glue: the versioned set (benchmark_set.json) run on
+the installed software and scored (`calib validate --benchmark`, docs/validation.md).
+
+Each simulated case is solved as a lab runs it: the preprocessing chain, the procedure's
+solve and its budget (no equipment stated: Type A, k from its degrees of freedom). Its
+replicates share truth and design and differ in noise only, drawn from the case's seed and
+the replicate's index, so a result does not depend on the order, the worker or the machine.
+The Cramer-Rao bound of each case is computed once from its noise-free model
+(`calib_core.crlb`). The result is one JSON-able document (`run_benchmark`); the report
+(HTML and PDF) is written from it by `pipelines.validation.benchmark_report`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Mapping
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calib_core import crlb, procedures
+from calib_core.preprocess.chain import preprocess
+from calib_core.run_budget import run_budgets
+from pipelines.provenance import SOFTWARE_VERSION, source_revision
+
+SET_FILE = Path(__file__).with_name("benchmark_set.json")
+
+
+def load_set(path: Path = SET_FILE) -> dict[str, Any]:
+    """The benchmark set's definition (JSON), checked for what the runner reads.
+
+    Raises ValueError naming the file and the field that is missing or wrong.
+    """
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read the benchmark set: {exc}") from None
+    for key in ("name", "version", "cases", "targets"):
+        if key not in doc:
+            raise ValueError(f"{path}: the benchmark set has no {key!r}")
+    for i, case in enumerate(doc["cases"]):
+        for key in ("id", "procedure", "simulator", "truth", "replicates", "seed"):
+            if key not in case:
+                raise ValueError(f"{path}: cases[{i}] ({case.get('id', '?')}) has no {key!r}")
+        procedures.get(case["procedure"])  # ValueError naming the known ones
+    return doc
+
+
+def _replicate(design: Any, procedure: str, seed: int, index: int) -> dict[str, tuple]:
+    """One replicate solved as the pipeline solves a run: name -> (estimate, u, U)."""
+    rng = np.random.default_rng([seed, index])
+    segments = design.draw(design.theta, rng)
+    segments, _ = preprocess(segments, design.settings, design.gravity)
+    cal = procedures.solve(procedure, segments, design.gravity, dict(design.settings))
+    budgets = run_budgets(cal, segments, design.settings, None)
+    return {n: (p.value, p.std, budgets[n].U) for n, p in cal.parameters.items() if n in budgets}
+
+
+def run_case(case: Mapping[str, Any], replicates: int) -> dict[str, Any]:
+    """Score one simulated case over `replicates` replicates.
+
+    Returns the case's document: id, procedure, replicates, the CRLB's parameters, per
+    parameter scores (`calib_core.crlb.ParameterScore`), the summary and the seconds taken.
+    """
+    from pipelines.validation.benchmark_cases import design as make_design
+
+    start = time.perf_counter()
+    design = make_design(case)
+    names, info = crlb.fisher_information(design.model, design.theta, design.steps)
+    bound = dict(zip(names, crlb.crlb_variances(info), strict=True))
+    truth = {**design.theta, **design.noise}
+    runs = [_replicate(design, case["procedure"], int(case["seed"]), i) for i in range(replicates)]
+    scored = [n for n in runs[0] if n in truth] if runs else []
+    scores = []
+    for name in scored:
+        est, u, big_u = (np.array([r[name][k] for r in runs], float) for k in range(3))
+        scores.append(crlb.score_parameter(name, est, truth[name], u, big_u, bound.get(name)))
+    unscored = sorted(set(runs[0]) - set(scored)) if runs else []
+    return {
+        "id": case["id"],
+        "procedure": case["procedure"],
+        "simulator": case["simulator"],
+        "replicates": replicates,
+        "summary": crlb.summarise(scores),
+        "parameters": [s.to_dict() for s in scores],
+        "not_scored": unscored,
+        "seconds": round(time.perf_counter() - start, 2),
+    }
+
+
+def _run_one(args: tuple[dict[str, Any], int]) -> dict[str, Any]:
+    return run_case(*args)
+
+
+def run_benchmark(
+    set_doc: Mapping[str, Any],
+    *,
+    reduced: bool = False,
+    workers: int = 1,
+    progress: Callable[[str], None] | None = None,
+    realdata: Path | None = None,
+) -> dict[str, Any]:
+    """Run every simulated case of the set; the benchmark's document.
+
+    Parameters
+    ----------
+    set_doc : the set (`load_set`).
+    reduced : each case's `reduced_replicates` (a case with 0 is left out) in place of
+        its `replicates`: the quick set of the tests.
+    workers : processes the cases are spread over (1: this process).
+    progress : called with a line per finished case.
+    realdata : the folder of the public recordings (`sessions` of the set); None: the
+        sessions are listed as not run.
+    """
+    from pipelines.validation.benchmark_sessions import run_sessions
+
+    start = time.perf_counter()
+    jobs = []
+    for case in set_doc["cases"]:
+        n = int(case.get("reduced_replicates", 0) if reduced else case["replicates"])
+        if n > 0:
+            jobs.append((dict(case), n))
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            cases = list(pool.map(_run_one, jobs))
+    else:
+        cases = [_run_one(job) for job in jobs]
+    for c in cases:
+        if progress:
+            progress(f"{c['id']}: {c['replicates']} replicates, {c['seconds']} s")
+    return {
+        "set": {"name": set_doc["name"], "version": set_doc["version"]},
+        "software": {"version": SOFTWARE_VERSION, "revision": source_revision()},
+        "reduced": reduced,
+        "targets": set_doc["targets"],
+        "cases": cases,
+        "procedures": by_procedure(cases, set_doc["targets"]),
+        "sessions": run_sessions(set_doc, realdata),
+        "peers": peers_note(),
+        "seconds": round(time.perf_counter() - start, 2),
+    }
+
+
+def peers_note() -> str:
+    """What the benchmark says of the peer implementations (imucal, allantools): their
+    comparisons are made on archived runs by `calib validate RUN --with ...`."""
+    import importlib.util
+
+    if importlib.util.find_spec("pipelines.validation.compare") is None:
+        return (
+            "Not compared: the peer adapters (pipelines.validation.compare) are not part of"
+            " this build, so no E_n against imucal or allantools is stated here."
+        )
+    return (
+        "E_n against imucal and allantools is computed per archived run by"
+        " `calib validate RUN --with imucal,allantools` (docs/validation.md, peers); the"
+        " simulated cases of this set are not re-solved by the peers."
+    )
+
+
+def by_procedure(
+    cases: list[Mapping[str, Any]], targets: Mapping[str, Any]
+) -> dict[str, dict[str, Any]]:
+    """Per procedure: the median efficiency and the pooled coverage over its cases'
+    parameters, the replicates behind them and whether they meet the set's targets (the
+    `--json` summary)."""
+    out: dict[str, dict[str, Any]] = {}
+    for proc in dict.fromkeys(c["procedure"] for c in cases):
+        params = [p for c in cases if c["procedure"] == proc for p in c["parameters"]]
+        effs = [p["efficiency"] for p in params if p["efficiency"] is not None]
+        out[proc] = {
+            "efficiency_vs_crlb": float(np.median(effs)) if effs else None,
+            "efficiency_min": min(effs) if effs else None,
+            "coverage_95": float(np.mean([p["coverage"] for p in params])) if params else None,
+            "replicates": min(c["replicates"] for c in cases if c["procedure"] == proc),
+            "cases": [c["id"] for c in cases if c["procedure"] == proc],
+        }
+        out[proc]["meets_targets"] = meets(out[proc], targets)
+    return out
+
+
+def meets(summary: Mapping[str, Any], targets: Mapping[str, Any]) -> bool:
+    """Whether a procedure's figures meet the set's targets (efficiency, coverage band,
+    replicates)."""
+    eff, cov = summary["efficiency_vs_crlb"], summary["coverage_95"]
+    low, high = targets["coverage_95"]
+    return (
+        (eff is None or eff >= targets["efficiency_vs_crlb_min"])
+        and cov is not None
+        and low <= cov <= high
+        and summary["replicates"] >= targets["replicates_min"]
+    )
