@@ -276,8 +276,6 @@ def approval_status(
             cal_id, _, _, sealed = _sealed_revision(conn, run_id, revision)
         except ApprovalError:
             return []
-        files_now = seal_check.rehash_files(archive.root, sealed.get("files", {}))
-        now = seal_check.digest_now(conn, cal_id, files_now, sealed.get("format"))
         events = conn.execute(
             select(AuditEvent)
             .where(
@@ -287,6 +285,10 @@ def approval_status(
             )
             .order_by(AuditEvent.seq)
         ).all()
+        if not events:  # nothing to judge: the files are not read again
+            return []
+        files_now = seal_check.rehash_files(archive.root, sealed.get("files", {}))
+        now = seal_check.digest_now(conn, cal_id, files_now, sealed.get("format"))
     out = []
     for ev in events:
         a = _approval(ev) if approvers is None else approvers.mark(_approval(ev))

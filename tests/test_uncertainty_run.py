@@ -10,7 +10,6 @@ from datetime import date, timedelta
 from pathlib import Path
 
 import numpy as np
-import pypdf
 import pytest
 
 from calib_core import procedures
@@ -194,6 +193,8 @@ def archived(tmp_path_factory: pytest.TempPathFactory):
                     out["earlier"]["run_id"] = outcome["run_id"]
             summary = queries.run_summary(arch, outcome["run_id"])
             files = report_run(arch, outcome["run_id"], tmp / f"{serial}-reports")
+            import pypdf  # loaded by the test that reads the PDF, not at collection
+
             pages = [p.extract_text() for p in pypdf.PdfReader(files["pdf"]).pages]
             pdf = "\n".join(pages)
             out[f"{serial}/pages"] = pages
