@@ -49,7 +49,13 @@ from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Settin
 from calib_core.procedures.static_bias import HEADING_DEG, LATITUDE_DEG
 from calib_core.recording import Recording
 from calib_core.solvers.earth_rate_faces import faces_earth_rate, solve_gyro_earth_rate
-from calib_core.solvers.integral import ROTATION_LABELS, rotation_static_means, solve_integral
+from calib_core.solvers.integral import (
+    ROTATION_LABELS,
+    pooled_static_gyro,
+    rotation_static_means,
+    solve_integral,
+    turn_rests,
+)
 from calib_core.solvers.kalman import kalman_accel_linear
 from calib_core.solvers.multi_position import (
     segment_residual,
@@ -64,6 +70,7 @@ from calib_core.solvers.six_position import (
     face_bias_checks,
     reference_up,
 )
+from calib_core.solvers.turn_motion import TURN_ESTIMATORS
 from calib_core.stats import ChannelStats, channel_stats, largest_std, no_scatter
 from calib_core.uncertainty_sources import static_model
 from calib_core.units import DEG
@@ -89,6 +96,12 @@ ROTATION_DIRECTIONS = Setting(
     "rotation_directions", "text", "", "both",
     "rotations per axis: ccw and cw (both), or one suffices (any; Ferraris et al.)",
     choices=("both", "any"))  # fmt: skip
+TURN_ESTIMATOR = Setting(
+    "turn_estimator", "text", "", "regression",
+    "integral method: each turn's motion window, misalignments by regression on the on-axis "
+    "rate, the rests as static data (regression); or every rate integrated over the whole "
+    "record, the paper's literal reading (whole_record; docs/methods.md 2.6)",
+    choices=TURN_ESTIMATORS)  # fmt: skip
 GYRO_FROM_EARTH_RATE = Setting(
     "gyro_from_earth_rate", "bool", "", False,
     "gyro bias, scale and misalignment from the statics with Earth rate as the input (FOG/RLG "
@@ -97,8 +110,10 @@ GYRO_FROM_EARTH_RATE = Setting(
 STATICS_SETTINGS = Settings(
     ACCEL_SOLVER, ACCEL_MODEL, GYRO_FROM_EARTH_RATE, LATITUDE_DEG, HEADING_DEG
 )
-INTEGRAL_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS)
-INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS)
+INTEGRAL_SETTINGS = Settings(
+    TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS, TURN_ESTIMATOR
+)
+INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, TURN_ESTIMATOR)
 
 
 def _require(segments: dict[str, Recording], labels: tuple[str, ...], procedure: str) -> None:
@@ -143,9 +158,15 @@ def _scatters(label: str, stats: ChannelStats, sensor: str, unit: str) -> None:
 
 def _solve_statics(
     segments: dict[str, Recording], gravity: float, settings: dict[str, Any], procedure: str
-) -> tuple[Calibration, dict[str, ChannelStats]]:
-    """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals."""
+) -> tuple[Calibration, dict[str, ChannelStats], dict[str, ChannelStats]]:
+    """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals.
+
+    Returns the calibration, the faces' gyro statistics and those the gyro fit used: the
+    faces' pooled with the turns' rests under turn_estimator "regression"."""
     acc, gyr = _static_stats(segments)
+    gyr_fit_stats = gyr
+    if settings.get("turn_estimator") == "regression":
+        gyr_fit_stats = pooled_static_gyro(segments, gyr)
     # (6, 3); a face found not square carries its true direction (reference_up).
     f_true = np.array([reference_up(label, segments[label], gravity) for label in STATIC_LABELS])
 
@@ -187,7 +208,8 @@ def _solve_statics(
             k: w.tolist() for k, w in zip(STATIC_LABELS, w_true, strict=True)
         }
     else:
-        gyr_fit = solve_gyro_static(f_true, stack(gyr, "mean"), stack(gyr, "sem"))
+        fit_mean, fit_sem = stack(gyr_fit_stats, "mean"), stack(gyr_fit_stats, "sem")
+        gyr_fit = solve_gyro_static(f_true, fit_mean, fit_sem)
     cal.add_fit(gyr_fit.names, gyr_fit.params, gyr_fit.cov)
 
     # Noise: the paper's figure, the largest per-position std of each channel.
@@ -217,7 +239,9 @@ def _solve_statics(
     cal.info["effective_sample_counts_min"] = {
         label: float(min(acc[label].n_eff.min(), gyr[label].n_eff.min())) for label in STATIC_LABELS
     }
-    return cal, gyr
+    if gyr_fit_stats is not gyr:  # the faces' samples and the turns' rests
+        cal.info["gyro_static_samples"] = {k: s.n for k, s in gyr_fit_stats.items()}
+    return cal, gyr, gyr_fit_stats
 
 
 def _per_axis_fit(
@@ -284,7 +308,7 @@ def solve_six_position(
     """
     merged = STATICS_SETTINGS.merged(settings)
     _require(segments, STATIC_LABELS, "six_position")
-    cal, _ = _solve_statics(segments, gravity, merged, "six_position")
+    cal, _, _ = _solve_statics(segments, gravity, merged, "six_position")
     return cal
 
 
@@ -303,18 +327,19 @@ def solve_six_position_integral(
     merged = INTEGRAL_SETTINGS.merged(settings)
     both = merged["rotation_directions"] == "both"
     _require(segments, STATIC_LABELS + (ROTATION_LABELS if both else ()), "six_position_integral")
-    cal, gyr = _solve_statics(segments, gravity, merged, "six_position_integral")
+    cal, gyr, gyr_fit = _solve_statics(segments, gravity, merged, "six_position_integral")
     rotations = {label: segments[label] for label in ROTATION_LABELS if label in segments}
     integral = solve_integral(
         rotations,
-        {label: s.mean for label, s in gyr.items()},
-        {label: s.sem for label, s in gyr.items()},
+        {label: s.mean for label, s in gyr_fit.items()},
+        {label: s.sem for label, s in gyr_fit.items()},
         merged["gyro_range_dps"] * DEG,
         merged["turns"],
         # The static record of the same orientation gives the noise the integral collects.
         noise_std={label: s.std for label, s in gyr.items()},
         gravity=gravity,
         directions=merged["rotation_directions"],
+        estimator=merged["turn_estimator"],
     )
     cal = cal.merged(integral)
     # merged() takes the integral's info on top; keep this procedure's name.
@@ -343,8 +368,20 @@ def solve_integral_procedure(
     _require(segments, ROTATION_LABELS, "integral")
     rotations = {label: segments[label] for label in ROTATION_LABELS}
     means, sems = rotation_static_means(rotations)
+    estimator = merged["turn_estimator"]
+    if estimator == "regression":  # the rests' mean, where the turns have rests
+        for label, rests in turn_rests(rotations, means).items():
+            if sum(len(r) for r in rests) >= 2:
+                stats = channel_stats(np.concatenate(rests))
+                means[label], sems[label] = stats.mean, stats.sem
     cal = solve_integral(
-        rotations, means, sems, merged["gyro_range_dps"] * DEG, merged["turns"], gravity=gravity
+        rotations,
+        means,
+        sems,
+        merged["gyro_range_dps"] * DEG,
+        merged["turns"],
+        gravity=gravity,
+        estimator=estimator,
     )
     cal.info["static_reading_from"] = "rotations (stage 2 alone)"
     cal.info["sample_counts"] = {label: len(rec) for label, rec in rotations.items()}
