@@ -70,7 +70,7 @@ from calib_core.solvers.six_position import (
     face_bias_checks,
     reference_up,
 )
-from calib_core.solvers.turn_motion import TURN_ESTIMATORS
+from calib_core.solvers.turn_motion import TURN_ESTIMATORS, pooled_stats
 from calib_core.stats import ChannelStats, channel_stats, largest_std, no_scatter
 from calib_core.uncertainty_sources import static_model
 from calib_core.units import DEG
@@ -369,10 +369,11 @@ def solve_integral_procedure(
     rotations = {label: segments[label] for label in ROTATION_LABELS}
     means, sems = rotation_static_means(rotations)
     estimator = merged["turn_estimator"]
-    if estimator == "regression":  # the rests' mean, where the turns have rests
+    if estimator == "regression":  # the turns' static data, where each channel has some
         for label, rests in turn_rests(rotations, means).items():
-            if sum(len(r) for r in rests) >= 2:
-                stats = channel_stats(np.concatenate(rests))
+            counts = np.sum(~np.isnan(np.concatenate(rests)), axis=0)
+            if counts.min() >= 2:
+                stats = pooled_stats(rests)
                 means[label], sems[label] = stats.mean, stats.sem
     cal = solve_integral(
         rotations,

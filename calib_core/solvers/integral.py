@@ -40,7 +40,6 @@ from calib_core.solvers.turn_motion import (
     cross_axis_ratios,
     face_rest_stats,
     motion_window,
-    rest_samples,
 )
 from calib_core.stats import ChannelStats, row_medians, trapezoid_weights
 from calib_core.units import DEG, STANDARD_GRAVITY
@@ -522,18 +521,32 @@ def turn_rests(
     static_means: dict[str, np.ndarray],
     noise_std: dict[str, np.ndarray] | None = None,
 ) -> dict[str, list[np.ndarray]]:
-    """The rests of each turn (its samples outside the motion window, despiked), per
-    orientation label "A_up": static data of that orientation. A turn or face with a
-    corrected up direction (``reference_up``) is left out: its rests may not share the
-    face's orientation."""
+    """Static data of each orientation "A_up" from the turns about A (despiked), (N, 3)
+    arrays with NaN where a channel has none: the on-axis channel's rests (the samples
+    outside the motion window); with both senses turned, each cross-axis channel where the
+    regression holds (`turn_motion.cross_axis_ratios`) over the whole records less its
+    proportion of the turn, w_c - r_cA (w_A - S_A), which is S_c plus noise at every
+    sample. A turn or face with a corrected up direction (``reference_up``) is left out:
+    its orientation may not be the face's."""
     rests: dict[str, list[np.ndarray]] = {}
-    for label, rec in rotations.items():
-        up = f"{label[0]}_up"
-        if UP_CHANNEL in rec.reference or up not in static_means:
+    for a in params.AXES:
+        up, j = f"{a}_up", params.AXIS_INDEX[a]
+        labels = [f"{a}_{k}" for k in ("ccw", "cw") if f"{a}_{k}" in rotations]
+        if up not in static_means or any(UP_CHANNEL in rotations[k].reference for k in labels):
             continue
         noise = None if noise_std is None else noise_std[up]
-        gyr, _, span, _ = clean_turn(rec, static_means[up], params.AXIS_INDEX[label[0]], noise)
-        rests.setdefault(up, []).append(rest_samples(gyr, span))
+        cleaned = [clean_turn(rotations[k], static_means[up], j, noise) for k in labels]
+        holds, ratio = np.zeros(3, dtype=bool), np.zeros(3)
+        if len(cleaned) == 2:
+            sigma = np.max([c[1] for c in cleaned], axis=0)
+            ratio, _, holds = cross_axis_ratios([c[0] for c in cleaned], j, sigma)
+        holds[j] = False
+        for gyr, _, span, _ in cleaned:
+            part = np.full(gyr.shape, np.nan)
+            part[: span.start, j], part[span.stop :, j] = gyr[: span.start, j], gyr[span.stop :, j]
+            moving = gyr[:, j] - static_means[up][j]
+            part[:, holds] = gyr[:, holds] - np.outer(moving, ratio[holds])
+            rests.setdefault(up, []).append(part)
     return rests
 
 

@@ -116,35 +116,39 @@ def _at_rest(part: np.ndarray, rest_std: float) -> bool:
     return abs(part.mean()) <= REST_TEST_SIGMA * rest_std / math.sqrt(len(part))
 
 
-def rest_samples(gyr: np.ndarray, window: slice) -> np.ndarray:
-    """The rotation record's samples outside its turn's window (N_rest, 3)."""
-    return np.concatenate([gyr[: window.start], gyr[window.stop :]])
-
-
 def face_rest_stats(
     faces: Mapping[str, Recording],
     rests: Mapping[str, list[np.ndarray]],
 ) -> dict[str, ChannelStats]:
-    """Gyro statistics per static orientation: its face's samples with the rests of the
-    turns made in that orientation (label "A_up" for the turns about A).
+    """Gyro statistics per static orientation: its face's samples with the static data
+    the turns made in that orientation give (label "A_up" for the turns about A).
 
     Parameters
     ----------
     faces : label -> the static face's Recording.
-    rests : label -> the (N_k, 3) rest samples of the turns in that orientation (a face
-        whose turns left none, or whose true up direction was corrected, is absent).
+    rests : label -> (N_k, 3) static samples from the turns in that orientation, NaN
+        where a channel has none (`integral.turn_rests`; an orientation without is absent).
 
     Returns
     -------
-    label -> ChannelStats of the samples pooled (channel_stats: its n_eff counts the
-    autocorrelation).
+    label -> ChannelStats of the samples pooled per channel (channel_stats: its n_eff
+    counts the autocorrelation; n is the fewest samples of a channel).
     """
     out = {}
     for label, rec in faces.items():
         extra = [r for r in rests.get(label, []) if len(r)]
-        gyr = np.concatenate([rec.gyr, *extra]) if extra else rec.gyr
-        out[label] = channel_stats(gyr)
+        out[label] = pooled_stats([rec.gyr, *extra]) if extra else channel_stats(rec.gyr)
     return out
+
+
+def pooled_stats(parts: list[np.ndarray]) -> ChannelStats:
+    """`channel_stats` of (N_k, 3) arrays joined, per channel over its samples that are
+    not NaN (n: the fewest of a channel). ValueError when a channel has fewer than 2."""
+    pooled = np.concatenate(parts)
+    cols = [channel_stats(c[~np.isnan(c)][:, None]) for c in pooled.T]
+    fields = [np.concatenate([getattr(c, f) for c in cols]) for f in ("mean", "std", "sem")]
+    n_eff = np.concatenate([c.n_eff for c in cols])
+    return ChannelStats(*fields, n_eff, min(c.n for c in cols))
 
 
 def cross_axis_ratios(
