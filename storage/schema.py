@@ -266,6 +266,21 @@ class ThermalModelRow(Base):
     superseded_by: Mapped[int | None] = mapped_column(ForeignKey("thermal_models.id"))
 
 
+class ValidationRow(Base):
+    """A run's calibration revision compared with independent implementations
+    (`calib validate`, storage.validation): the comparison document as printed, sealed
+    by the digest its "validated" audit event carries. Never updated or deleted."""
+
+    __tablename__ = "validations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    calibration_id: Mapped[int] = mapped_column(ForeignKey("calibrations.id"), index=True)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    software_version: Mapped[str] = mapped_column(String(100))
+    document: Mapped[dict[str, Any]]  # pipelines.validation.compare.validate_run
+    digest: Mapped[str] = mapped_column(String(SHA256_LEN))
+
+
 class Seal(Base):
     """The sealed record of one calibration revision (storage.seal).
 

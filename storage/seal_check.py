@@ -12,7 +12,7 @@ from typing import Any
 
 from sqlalchemy import Connection, select
 
-from storage import schema
+from storage import schema, validation
 from storage.schema import AuditEvent, Seal
 from storage.seal import EVENT_FIELDS, GENESIS, ISSUED, SEALING, Event, head
 from storage.seal_record import (
@@ -105,6 +105,10 @@ def check(conn: Connection, root: Path) -> ChainCheck:
             )
         )
     findings += _check_issued(conn, root)
+    findings += [
+        Finding("record", "validations", [run_id], detail)
+        for run_id, detail in validation.check_records(conn)
+    ]
     return ChainCheck(findings, head(conn), len(seal_ids), digests_now)
 
 

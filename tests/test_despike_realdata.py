@@ -37,7 +37,7 @@ SCALE_LIMIT = 1e-4  # 0.01 %
 MISALIGN_LIMIT = 6e-5
 
 
-def _annotated() -> dict[str, Recording]:
+def annotated_session() -> dict[str, Recording]:
     df = pd.read_csv(DATA / "annotated_session.csv")
     segments = {}
     for name, part in df.groupby("part", sort=False):
@@ -60,7 +60,7 @@ def _example() -> dict[str, Recording]:
 def session(request) -> dict[str, Recording]:
     if not DATA.is_dir():
         pytest.skip(f"imucal Ferraris session not found at {DATA} (shared/realdata missing)")
-    return _annotated() if request.param == "annotated" else _example()
+    return annotated_session() if request.param == "annotated" else _example()
 
 
 def _gyro_matrix(cal) -> np.ndarray:
@@ -104,7 +104,7 @@ def test_annotated_session_agrees_with_imucals_calibration():
     if not DATA.is_dir():
         pytest.skip(f"imucal Ferraris session not found at {DATA} (shared/realdata missing)")
     literal = {**SETTINGS, "turn_estimator": "whole_record"}
-    cal = solve("six_position_integral", _annotated(), GRAVITY, literal)
+    cal = solve("six_position_integral", annotated_session(), GRAVITY, literal)
     ref = json.loads((DATA / "reference" / "example_cal.json").read_text())
     g_ref = -np.asarray(ref["K_g"]) @ np.asarray(ref["R_g"]) / GYRO_COUNTS_PER_DPS
     g = _gyro_matrix(cal)
@@ -146,7 +146,7 @@ def test_a_glitch_in_a_real_rotation_is_found_counted_and_sent_for_review():
     sum |r| dt / (2 pi) in scale, r the sample's own distance from that mean."""
     if not DATA.is_dir():
         pytest.skip(f"imucal Ferraris session not found at {DATA} (shared/realdata missing)")
-    segments = _annotated()
+    segments = annotated_session()
     label = next(k for k in segments if k.startswith("x_c"))
     rec = segments[label]
     at = np.array([len(rec) // 2, 3 * len(rec) // 5])

@@ -42,7 +42,7 @@ from calib_core.solvers.accel_models import (
     solve_accel_multi,
 )
 from calib_core.solvers.six_position import reference_up
-from calib_core.stats import channel_stats, column_mean_std, largest_std
+from calib_core.stats import channel_stats, column_mean_std, largest_std, misfit_scale
 from calib_core.units import DEG
 
 
@@ -111,6 +111,7 @@ def fit_affine(
     _check_variances(cov, sem)
     residual = means - design @ x.T
     chi2 = ((residual / sem) ** 2).sum(axis=0)
+    cov *= (misfit_scale(chi2, np.full(3, k - 4)) ** 2)[:, None, None]
     return x[:, 0], x[:, 1:], cov, condition, residual, chi2
 
 

@@ -36,6 +36,7 @@ from storage.schema import (
     Run,
     RunEquipment,
 )
+from storage.validation import validations
 
 if TYPE_CHECKING:  # pyarrow (with numpy) is loaded by run_samples only: read-only commands
     import pyarrow as pa  # that never read samples start without it
@@ -190,8 +191,9 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
     Returns
     -------
     dict with the run's fields, ``device``, ``equipment`` (with the due dates
-    valid at run time), ``raw_files``, ``revisions`` (count) and
-    ``calibration`` (current revision: parameters, checks, steps, document).
+    valid at run time), ``raw_files``, ``revisions`` (count),
+    ``calibration`` (current revision: parameters, checks, steps, document) and
+    ``validations`` (the current revision's validation records, storage.validation).
     Raises LookupError if there is no such run.
     """
     with Session(archive.engine()) as s:
@@ -214,6 +216,7 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
             select(CalibrationRow.revision).where(CalibrationRow.run_id == run.id)
         ).all()
         cal = _cal_dict(s, _calibration(s, run.id, None))
+    checked = validations(archive, run.run_id, cal["revision"])
     return {
         "run_id": run.run_id,
         "started_at": run.started_at,
@@ -233,6 +236,7 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
         "raw_files": [_dict(r) for r in raw],
         "revisions": len(revisions),
         "calibration": cal,
+        "validations": checked,
     }
 
 
