@@ -30,6 +30,8 @@ accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
     rate-table model of docs/methods.md 1: bias and scale per axis, no cross-coupling).
 rotation_directions : "both" (default; ccw and cw about each axis) or "any"
     (one rotation per axis suffices, Ferraris et al.; e.g. imucal sessions).
+turn_estimator : "regression" (default) or "whole_record" (the paper's literal reading),
+    integral method only (docs/methods.md 2.6).
 gyro_from_earth_rate, latitude_deg, heading_deg : six_position only; the gyro's bias,
     scale and misalignment from the statics with Earth rate as the input (the
     north-seeker note's FOG case, calib_core.solvers.earth_rate_faces) in place of its

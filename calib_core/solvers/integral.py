@@ -19,6 +19,12 @@ Gxy is -M[x, z], Gyz is -M[y, x], Gyx is M[y, z], Gzy is M[z, x], Gzx is
 -M[z, y]). Because the static reading is subtracted per record, cw and ccw
 records of different lengths do not bias the result.
 
+That is the literal reading (``estimator="whole_record"``). The default
+(``"regression"``, `turn_motion`) integrates each record over its turn's motion window
+only and reads each cross-axis entry as its least-squares proportion to the on-axis rate
+times the on-axis entry: the same column (I + M) e_A, at the Cramer-Rao bound on a rigid
+turn (docs/methods.md 2.6).
+
 Uncertainty: white noise of std sigma_c gives the integral a std sigma_c ||w||
 (w: trapezoid weights); the subtracted static mean enters as (T+ - T-) times
 its standard error. Both are propagated.
