@@ -11,8 +11,10 @@ The efficient estimator (setting ``turn_estimator = "regression"``) uses both: t
 angle integrated over the turn's motion window (plus margins) only, so the rests' noise
 does not enter it; each cross-axis integral read as r_cA times the on-axis one, r_cA
 the least-squares slope of the cross-axis on the on-axis rate over both records of the
-axis; and the rests' samples added to the static reading of their orientation. The
-literal reading (``"whole_record"``) integrates every channel over the whole record.
+axis (where it holds and is the more precise); and the turns' static data (the rests, and
+each cross-axis channel less its proportion of the turn) added to the static reading of
+their orientation. The literal reading (``"whole_record"``) integrates every channel over
+the whole record.
 """
 
 from __future__ import annotations
