@@ -279,3 +279,22 @@ def misfit_scale(chi2: np.ndarray, dof: np.ndarray) -> np.ndarray:
         if d > 0 and c > float(chi2_ppf(1.0 - MISFIT_ALPHA, d)):
             out[i] = float(np.sqrt(c / d))
     return out
+
+
+def misfit_warnings(what: str, chi2: np.ndarray, dof: np.ndarray) -> list[str]:
+    """The warning a fit's record carries when `misfit_scale` widened its uncertainties.
+
+    what : the fit, for the reader ("the gyro fit", "the 'linear' model").
+    chi2, dof : (3,) as for `misfit_scale`. Returns [] when no axis was scaled.
+    """
+    scale = misfit_scale(chi2, dof)
+    if not np.any(scale > 1.0):
+        return []
+    axes = ", ".join(f"{a} x{v:.3g}" for a, v in zip("xyz", scale, strict=True) if v > 1)
+    return [
+        f"the position means scatter about {what} beyond their noise (chi2 "
+        f"{', '.join(f'{c:.4g}' for c in chi2)} for {', '.join(str(int(d)) for d in dof)} "
+        f"degrees of freedom, p < {MISFIT_ALPHA:g}): a face, attitude or input not as "
+        f"assumed; the standard uncertainties of those axes are scaled by sqrt(chi2 / dof) "
+        f"({axes})"
+    ]

@@ -196,6 +196,7 @@ def _solve_statics(
     linear = settings["accel_model"] == "linear"
     if values is acc_fit.params:  # the least-squares fit: keep its covariance
         cal.add_fit(acc_fit.names, acc_fit.params, acc_fit.cov)
+        cal.warnings += acc_fit.warnings
     else:
         for name in params.ACC_LINEAR if linear else values:
             cal.add(name, values[name], stds[name])
@@ -213,6 +214,7 @@ def _solve_statics(
         fit_mean, fit_sem = stack(gyr_fit_stats, "mean"), stack(gyr_fit_stats, "sem")
         gyr_fit = solve_gyro_static(f_true, fit_mean, fit_sem)
     cal.add_fit(gyr_fit.names, gyr_fit.params, gyr_fit.cov)
+    cal.warnings += gyr_fit.warnings
 
     # Noise: the paper's figure, the largest per-position std of each channel.
     for sensor, stats in (("acc", acc), ("gyr", gyr)):

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib_core import params
-from calib_core.stats import MISFIT_ALPHA, misfit_scale
+from calib_core.stats import misfit_scale, misfit_warnings
 
 
 def position_arrays(
@@ -221,14 +221,7 @@ def solve_accel_multi(
         for name in names[at : at + n]:
             std[name] *= float(scale[i])
         at += n
-    if np.any(scale > 1.0):
-        axes = ", ".join(f"{a} x{v:.3g}" for a, v in zip(params.AXES, scale, strict=True) if v > 1)
-        warnings.append(
-            f"the position means scatter about the {model!r} model beyond their noise (chi2 "
-            f"{', '.join(f'{c:.4g}' for c in chi2)} for {', '.join(str(d) for d in dof)} degrees "
-            f"of freedom, p < {MISFIT_ALPHA:g}): a face or attitude not as assumed; the "
-            f"standard uncertainties of those axes are scaled by sqrt(chi2 / dof) ({axes})"
-        )
+    warnings += misfit_warnings(f"the {model!r} model", chi2, dof)
     if not_separable:
         warnings.append(
             f"the {k} positions cannot separate {', '.join(not_separable)} from the other "

@@ -42,7 +42,13 @@ from calib_core.solvers.accel_models import (
     solve_accel_multi,
 )
 from calib_core.solvers.six_position import reference_up
-from calib_core.stats import channel_stats, column_mean_std, largest_std, misfit_scale
+from calib_core.stats import (
+    channel_stats,
+    column_mean_std,
+    largest_std,
+    misfit_scale,
+    misfit_warnings,
+)
 from calib_core.units import DEG
 
 
@@ -70,6 +76,13 @@ class LinearFit:
     condition_number: float
     residual_means: np.ndarray
     chi2: np.ndarray
+
+    @property
+    def warnings(self) -> list[str]:
+        """Said when the residuals rejected the noise-only model (`misfit_scale`)."""
+        dof = np.full(3, self.residual_means.shape[0] - 4)
+        sensor = "gyro" if self.names[0].startswith("gyr") else "accelerometer"
+        return misfit_warnings(f"the {sensor} fit", self.chi2, dof)
 
 
 def fit_affine(
@@ -358,6 +371,7 @@ def gyro_bias_and_gsens(
         )
         return
     cal.add_fit(fit.names, fit.params, fit.cov)
+    cal.warnings += fit.warnings
     cal.info["gyr_fit_chi2"] = [float(v) for v in fit.chi2]
 
 
