@@ -27,7 +27,7 @@ import numpy as np
 from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.recording import Recording
-from calib_core.solvers.integral import ROTATION_LABELS
+from calib_core.solvers.integral import ROTATION_LABELS, pooled_static_gyro
 from calib_core.solvers.multi_position import solve_accel_linear, solve_gyro_static
 from calib_core.solvers.rate_table import RatePoint, plateau_window, rate_points, solve_rate_table
 from calib_core.solvers.six_position import STATIC_LABELS, axis_vector
@@ -271,8 +271,12 @@ def static_model(
         (channel_stats(segments[label].acc), channel_stats(segments[label].gyr)) for label in labels
     ]
     acc_mean, acc_sem = (np.array([getattr(a, f) for a, _ in stats]) for f in ("mean", "sem"))
-    gyr_mean, gyr_sem = (np.array([getattr(g, f) for _, g in stats]) for f in ("mean", "sem"))
     rotations = [label for label in ROTATION_LABELS if label in segments]
+    gyr_stats = [g for _, g in stats]
+    if rotations and settings.get("turn_estimator") == "regression":  # as the solve pooled them
+        pooled = pooled_static_gyro(dict(segments), dict(zip(labels, gyr_stats, strict=True)))
+        gyr_stats = [pooled[label] for label in labels]
+    gyr_mean, gyr_sem = (np.array([getattr(g, f) for g in gyr_stats]) for f in ("mean", "sem"))
     turns = cal.info.get("turns")
     integral = None
     if rotations and turns is not None:

@@ -39,8 +39,10 @@ from calib_core.solvers.earth_rate_faces import faces_earth_rate, solve_gyro_ear
 from calib_core.solvers.integral import (
     ROTATION_LABELS,
     TURNS,
+    pooled_static_gyro,
     rotation_static_means,
     solve_integral,
+    turn_rests,
 )
 from calib_core.solvers.kalman import kalman_accel_linear
 from calib_core.solvers.multi_position import (
@@ -56,6 +58,7 @@ from calib_core.solvers.six_position import (
     face_bias_checks,
     reference_up,
 )
+from calib_core.solvers.turn_motion import TURN_ESTIMATORS, pooled_stats
 from calib_core.stats import ChannelStats, channel_stats, largest_std, no_scatter
 from calib_core.uncertainty_sources import static_model
 from calib_core.units import DEG
@@ -78,6 +81,12 @@ ROTATION_DIRECTIONS = Setting(
     "rotation_directions", "text", "", "both",
     "rotations per axis: ccw and cw (both), or one suffices (any; Ferraris et al.)",
     choices=("both", "any"))  # fmt: skip
+TURN_ESTIMATOR = Setting(
+    "turn_estimator", "text", "", "regression",
+    "integral method: each turn's motion window, misalignments by regression on the on-axis "
+    "rate, the rests as static data (regression); or every rate integrated over the whole "
+    "record, the paper's literal reading (whole_record; docs/methods.md 2.6)",
+    choices=TURN_ESTIMATORS)  # fmt: skip
 GYRO_FROM_EARTH_RATE = Setting(
     "gyro_from_earth_rate", "bool", "", False,
     "gyro bias, scale and misalignment from the statics with Earth rate as the input (FOG/RLG "
@@ -88,10 +97,10 @@ STATICS_SETTINGS = Settings(
     name="SixPositionSettings",
 )  # fmt: skip
 INTEGRAL_SETTINGS = Settings(
-    TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS,
+    TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS, TURN_ESTIMATOR,
     name="SixPositionIntegralSettings",
 )  # fmt: skip
-INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, name="IntegralSettings")
+INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, TURN_ESTIMATOR, name="IntegralSettings")
 
 
 def _require(segments: dict[str, Recording], labels: tuple[str, ...], procedure: str) -> None:
@@ -135,12 +144,21 @@ def _scatters(label: str, stats: ChannelStats, sensor: str, unit: str) -> None:
 
 
 def _solve_statics(
-    segments: dict[str, Recording], gravity: float, settings: Any, procedure: str
-) -> tuple[Calibration, dict[str, ChannelStats]]:
+    segments: dict[str, Recording],
+    gravity: float,
+    settings: Any,
+    procedure: str,
+    turn_estimator: str = "whole_record",
+) -> tuple[Calibration, dict[str, ChannelStats], dict[str, ChannelStats]]:
     """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals.
 
-    settings : the statics' typed settings (`STATICS_SETTINGS.parse`)."""
+    settings : the statics' typed settings (`STATICS_SETTINGS.parse`).
+    Returns the calibration, the faces' gyro statistics and those the gyro fit used: the
+    faces' pooled with the turns' rests under turn_estimator "regression"."""
     acc, gyr = _static_stats(segments)
+    gyr_fit_stats = gyr
+    if turn_estimator == "regression":
+        gyr_fit_stats = pooled_static_gyro(segments, gyr)
     # (6, 3); a face found not square carries its true direction (reference_up).
     f_true = np.array([reference_up(label, segments[label], gravity) for label in STATIC_LABELS])
 
@@ -183,7 +201,8 @@ def _solve_statics(
             k: w.tolist() for k, w in zip(STATIC_LABELS, w_true, strict=True)
         }
     else:
-        gyr_fit = solve_gyro_static(f_true, stack(gyr, "mean"), stack(gyr, "sem"))
+        fit_mean, fit_sem = stack(gyr_fit_stats, "mean"), stack(gyr_fit_stats, "sem")
+        gyr_fit = solve_gyro_static(f_true, fit_mean, fit_sem)
     cal.add_fit(gyr_fit.names, gyr_fit.params, gyr_fit.cov)
     cal.warnings += gyr_fit.warnings
 
@@ -214,7 +233,9 @@ def _solve_statics(
     cal.info["effective_sample_counts_min"] = {
         label: float(min(acc[label].n_eff.min(), gyr[label].n_eff.min())) for label in STATIC_LABELS
     }
-    return cal, gyr
+    if gyr_fit_stats is not gyr:  # the faces' samples and the turns' rests
+        cal.info["gyro_static_samples"] = {k: s.n for k, s in gyr_fit_stats.items()}
+    return cal, gyr, gyr_fit_stats
 
 
 def _per_axis_fit(
@@ -281,7 +302,7 @@ def solve_six_position(
     """
     s = STATICS_SETTINGS.parse(settings)
     _require(segments, STATIC_LABELS, "six_position")
-    cal, _ = _solve_statics(segments, gravity, s, "six_position")
+    cal, _, _ = _solve_statics(segments, gravity, s, "six_position")
     return cal
 
 
@@ -301,18 +322,21 @@ def solve_six_position_integral(
     both = s.rotation_directions == "both"
     _require(segments, STATIC_LABELS + (ROTATION_LABELS if both else ()), "six_position_integral")
     statics = STATICS_SETTINGS.parse({"accel_solver": s.accel_solver, "accel_model": s.accel_model})
-    cal, gyr = _solve_statics(segments, gravity, statics, "six_position_integral")
+    cal, gyr, gyr_fit = _solve_statics(
+        segments, gravity, statics, "six_position_integral", s.turn_estimator
+    )
     rotations = {label: segments[label] for label in ROTATION_LABELS if label in segments}
     integral = solve_integral(
         rotations,
-        {label: s.mean for label, s in gyr.items()},
-        {label: s.sem for label, s in gyr.items()},
+        {label: st.mean for label, st in gyr_fit.items()},
+        {label: st.sem for label, st in gyr_fit.items()},
         s.gyro_range_dps * DEG,
         s.turns,
         # The static record of the same orientation gives the noise the integral collects.
-        noise_std={label: s.std for label, s in gyr.items()},
+        noise_std={label: st.std for label, st in gyr.items()},
         gravity=gravity,
         directions=s.rotation_directions,
+        estimator=s.turn_estimator,
     )
     cal = cal.merged(integral)
     # merged() takes the integral's info on top; keep this procedure's name.
@@ -341,7 +365,22 @@ def solve_integral_procedure(
     _require(segments, ROTATION_LABELS, "integral")
     rotations = {label: segments[label] for label in ROTATION_LABELS}
     means, sems = rotation_static_means(rotations)
-    cal = solve_integral(rotations, means, sems, s.gyro_range_dps * DEG, s.turns, gravity=gravity)
+    estimator = s.turn_estimator
+    if estimator == "regression":  # the turns' static data, where each channel has some
+        for label, rests in turn_rests(rotations, means).items():
+            counts = np.sum(~np.isnan(np.concatenate(rests)), axis=0)
+            if counts.min() >= 2:
+                stats = pooled_stats(rests)
+                means[label], sems[label] = stats.mean, stats.sem
+    cal = solve_integral(
+        rotations,
+        means,
+        sems,
+        s.gyro_range_dps * DEG,
+        s.turns,
+        gravity=gravity,
+        estimator=estimator,
+    )
     cal.info["static_reading_from"] = "rotations (stage 2 alone)"
     cal.info["sample_counts"] = {label: len(rec) for label, rec in rotations.items()}
     return cal

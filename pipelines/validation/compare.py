@@ -110,21 +110,23 @@ def validate_and_archive(archive: Archive, run_id: str, peers: tuple[str, ...]) 
 def _imucal(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, list[str]]:
     """imucal against our archived parameters: every parameter both estimate."""
     from calib_core import params
-    from pipelines.validation.peers import imucal_parameters
+    from pipelines.validation.peers import imucal_parameters, imucal_turn_uncertainty
 
     m = loaded.manifest
     turns = int(m.run.settings.get("turns", 1))
     turntable = any(e["kind"] == "rate_table" for e in summary["equipment"])
     theirs = imucal_parameters(loaded.segments, m.gravity(), turns, turntable)
+    u_theirs = imucal_turn_uncertainty(loaded.segments, m.gravity(), turns)
     rows = [
-        comparison_row(name, p.value, p.std, theirs[name], None, params.unit_of(name))
+        comparison_row(name, p.value, p.std, theirs[name], u_theirs.get(name), params.unit_of(name))
         for name, p in ours.parameters.items()
         if name in theirs
     ]
     notes = [
         f"imucal {'TurntableCalibration' if turntable else 'FerrarisCalibration'} on the raw "
         f"samples, gravity {m.gravity():.6g} m/s^2, {turns} turn(s) per axis; imucal states no "
-        "uncertainty: E_n takes ours alone (k = 2)",
+        "uncertainty: E_n takes ours alone (k = 2), but for the gyro scale and misalignment, "
+        "whose Type A of imucal's method (whole records, one sense) our solver states",
         "imucal's accelerometer bias is each channel's own face pair (Ferraris eq. 20); ours "
         "averages the three pairs (docs/validation.md)",
     ]

@@ -125,6 +125,30 @@ def imucal_parameters(
     return out
 
 
+def imucal_turn_uncertainty(
+    segments: dict[str, Recording], gravity: float, turns: int
+) -> dict[str, float]:
+    """Standard uncertainties of imucal's gyro scale and misalignment: imucal states none,
+    and its estimate is the paper's literal one (each channel integrated over the whole
+    record of the turns in one sense, `_turns`), whose Type A our solver states for the
+    same samples (six_position_integral, turn_estimator "whole_record", one sense). Left
+    out, E_n would take ours alone, and the more precise ours the more imucal's own noise
+    would read as disagreement.
+
+    Returns
+    -------
+    canonical name -> standard uncertainty (gyr.scale.*, gyr.misalign.*).
+    """
+    from calib_core.procedures import solve
+
+    sense, _ = _turns(segments)
+    used = {k: v for k, v in segments.items() if k in STATICS or k.endswith(f"_{sense}")}
+    settings = {"turn_estimator": "whole_record", "rotation_directions": "any", "turns": turns}
+    cal = solve("six_position_integral", used, gravity, settings)
+    names = [n for row in params.matrix_names("gyr") for n in row]
+    return {n: cal.parameters[n].std for n in names}
+
+
 def allantools_curves(rate: np.ndarray, rate_hz: float, taus: np.ndarray) -> np.ndarray:
     """allantools' overlapping Allan deviation of each channel of `rate` (N, C) at `taus`.
 
