@@ -273,7 +273,7 @@ def static_model(
     acc_mean, acc_sem = (np.array([getattr(a, f) for a, _ in stats]) for f in ("mean", "sem"))
     rotations = [label for label in ROTATION_LABELS if label in segments]
     gyr_stats = [g for _, g in stats]
-    if rotations and settings.get("turn_estimator") == "regression":  # as the solve pooled them
+    if rotations and getattr(settings, "turn_estimator", None) == "regression":  # as solved
         pooled = pooled_static_gyro(dict(segments), dict(zip(labels, gyr_stats, strict=True)))
         gyr_stats = [pooled[label] for label in labels]
     gyr_mean, gyr_sem = (np.array([getattr(g, f) for g in gyr_stats]) for f in ("mean", "sem"))
