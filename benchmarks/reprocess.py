@@ -1,4 +1,5 @@
-"""Reprocessing benchmark: a whole archive re-solved as new revisions, SQLite and PostgreSQL + Dask.
+"""Reprocessing benchmark: a whole archive re-solved as new revisions, and recomputed
+(`calib verify --recompute --all`), SQLite and PostgreSQL + Dask.
 
 Writes `--runs` simulated six-position + integral runs (calib_core.simulate at
 `--rate-hz`, CSV layout; benchmarks/batch.py's generator), then on each back end:
@@ -7,9 +8,12 @@ Writes `--runs` simulated six-position + integral runs (calib_core.simulate at
    (SQLite: the process runner, 2 workers, as `calib process --runner process`;
    PostgreSQL: a temporary local Dask cluster of 2 single-threaded workers, as
    `calib process --runner dask`, with a private PostgreSQL server);
-2. change the tolerance profile the runs name (its version, in a CALIB_PROFILES
+2. recompute them (`calib verify --recompute --all`: the `recompute_batch` flow on the
+   same runner): every revision solved again from its raw bytes and compared with its
+   rows; every run must come out "identical";
+3. change the tolerance profile the runs name (its version, in a CALIB_PROFILES
    folder, as a lab changes a profile), so every run's settings hash changes;
-3. reprocess the whole archive with the `reprocess_batch` flow on the same runner
+4. reprocess the whole archive with the `reprocess_batch` flow on the same runner
    (`calib reprocess --all`): each run restored from its archived raw bytes,
    re-solved, archived as revision 2. Every outcome must be "revised".
 
@@ -18,11 +22,14 @@ start included); Prefect's temporary API server is started and warmed before, an
 one-run batch warms the forkserver, so neither pass pays a one-off start the other
 does not. Figures: runs/min of the reprocessing on each back end, and
 reprocess_to_process_ratio = reprocessing time / fresh processing time on SQLite
-(the same runs, runner and workers), with the PostgreSQL + Dask ratio beside it.
+(the same runs, runner and workers), with the PostgreSQL + Dask ratio beside it;
+recompute_to_process = recomputation time / fresh processing time (SQLite; the
+PostgreSQL + Dask one beside it), the recomputation's seconds beside the processing's.
 
 Progress goes to stderr; the last stdout line is one JSON object:
 reprocess_runs_per_min_sqlite, reprocess_runs_per_min_pg_dask,
 reprocess_to_process_ratio (the issue's keys), reprocess_to_process_ratio_pg_dask,
+recompute_to_process, recompute_to_process_pg_dask, process_s_*, recompute_s_*,
 runs, rate_hz.
 
 Run: ``.venv/bin/python benchmarks/reprocess.py [--runs N] [--rate-hz F] [--runs-dir DIR]
@@ -72,7 +79,8 @@ def timed(label: str, call, n: int, expected: str) -> float:  # noqa: ANN001 - a
     started = time.perf_counter()
     outcomes = call()
     seconds = time.perf_counter() - started
-    bad = [o for o in outcomes if o["status"] != expected]
+    bad = [{k: o[k] for k in ("run_id", "status", "error")} | {"revisions": o.get("revisions")}
+           for o in outcomes if o["status"] != expected]  # fmt: skip
     if len(outcomes) != n or bad:
         raise SystemExit(f"{label}: {len(outcomes)} outcomes, {len(bad)} not {expected}: {bad[:1]}")
     batch.log(f"  {label}: {seconds:.1f} s, {60 * n / seconds:.1f} runs/min")
@@ -80,8 +88,11 @@ def timed(label: str, call, n: int, expected: str) -> float:  # noqa: ANN001 - a
 
 
 def backend(name: str, archive: str, day: Path, profiles: Path, runner: str, n: int):
-    """Fresh processing, then a profile change and the reprocessing; their seconds."""
-    from pipelines.flows import process_batch, reprocess_batch
+    """Fresh processing, its recomputation, then a profile change and the reprocessing;
+    their seconds."""
+    from pipelines.flows import process_batch, recompute_batch, reprocess_batch
+    from pipelines.recompute import plan_recompute
+    from storage.db import resolve_archive
 
     set_profile_version(profiles, f"bench-{name}-1")
     process_s = timed(
@@ -90,6 +101,13 @@ def backend(name: str, archive: str, day: Path, profiles: Path, runner: str, n: 
         n,
         "ok",
     )
+    run_ids = plan_recompute(resolve_archive(archive))  # `calib verify --recompute --all`
+    recompute_s = timed(
+        f"{name} recompute",
+        lambda: recompute_batch(run_ids, archive, runner=runner, workers=WORKERS),
+        n,
+        "identical",
+    )
     set_profile_version(profiles, f"bench-{name}-2")
     reprocess_s = timed(
         f"{name} reprocess",
@@ -97,7 +115,7 @@ def backend(name: str, archive: str, day: Path, profiles: Path, runner: str, n: 
         n,
         "revised",
     )
-    return process_s, reprocess_s
+    return process_s, reprocess_s, recompute_s
 
 
 def main() -> None:
@@ -178,7 +196,7 @@ def run_backends(
     from calib_testing.pgserver import admin_execute, private_server
     from pipelines.flows import local_batch_settings, process_batch
 
-    seconds: dict[str, tuple[float, float]] = {}
+    seconds: dict[str, tuple[float, float, float]] = {}
     with local_batch_settings():
         with get_client(sync_client=True) as client:
             client.api_healthcheck()
@@ -201,18 +219,23 @@ def run_backends(
                 seconds["pg_dask"] = backend("pg_dask", url, day, profiles, "dask", n)
     return {
         key: value
-        for name, (process_s, reprocess_s) in seconds.items()
-        for key, value in figures(name, n, process_s, reprocess_s).items()
+        for name, times in seconds.items()
+        for key, value in figures(name, n, *times).items()
     }
 
 
-def figures(backend_: str, n: int, process_s: float, reprocess_s: float) -> dict[str, float]:
-    """The figures of one back end (the issue names SQLite's ratio without a suffix)."""
-    ratio_key = "reprocess_to_process_ratio" + ("" if backend_ == "sqlite" else f"_{backend_}")
+def figures(
+    backend_: str, n: int, process_s: float, reprocess_s: float, recompute_s: float
+) -> dict[str, float]:
+    """The figures of one back end (the issues name SQLite's ratios without a suffix)."""
+    suffix = "" if backend_ == "sqlite" else f"_{backend_}"
     return {
         f"reprocess_runs_per_min_{backend_}": round(60 * n / reprocess_s, 2),
-        ratio_key: round(reprocess_s / process_s, 3),
+        f"reprocess_to_process_ratio{suffix}": round(reprocess_s / process_s, 3),
         f"process_runs_per_min_{backend_}": round(60 * n / process_s, 2),
+        f"process_s_{backend_}": round(process_s, 2),
+        f"recompute_s_{backend_}": round(recompute_s, 2),
+        f"recompute_to_process{suffix}": round(recompute_s / process_s, 3),
     }
 
 

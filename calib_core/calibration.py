@@ -97,6 +97,11 @@ class SegmentResidual:
         return _fields_dict(self)
 
 
+# Statistics of a step that are wall times of this execution (s), not results of the
+# run's bytes and settings: a run solved again differs only there (pipelines.recompute).
+WALL_TIMES = frozenset({"seconds", "preprocess_seconds"})
+
+
 @dataclass(frozen=True)
 class StepRecord:
     """What one pipeline step did: archived so every number can be traced."""

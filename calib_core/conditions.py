@@ -244,7 +244,7 @@ def check_conditions(
     )
     out.append(_gravity_check(conds["gravity"], gravity, gravity_source))
     # The procedure's settings as its solver uses them: a rate table's settle_s default.
-    out += _acquisition_checks(segments, recorded, proc.settings.merged(settings), conds)
+    out += _acquisition_checks(segments, recorded, proc.settings.parse(settings), conds)
     out += _temperature_checks(segments, conds)
     out.append(judge(conds["table_position_arcsec"], *table_position_deviation(segments)))
     applies = {CONDITION_PREFIX + key for key in proc.condition_keys()}
@@ -270,10 +270,11 @@ def _gravity_check(cond: Condition, gravity: float, source: str | None) -> Check
 def _acquisition_checks(
     segments: Mapping[str, Recording],
     recorded: Mapping[str, float | None],
-    settings: Mapping[str, Any],
+    settings: Any,
     conds: dict[str, Condition],
 ) -> list[CheckResult]:
-    """Sampling, resolution, settle and record times, static record length, table rate."""
+    """Sampling, resolution, settle and record times, static record length, table rate
+    (`settings`: the procedure's typed settings; settle_s and record_s where it has them)."""
     if not segments:
         return []
     rate = min((_rate_hz(r), label) for label, r in segments.items())
@@ -284,13 +285,13 @@ def _acquisition_checks(
     plateaus = {k: r for k, r in segments.items() if plateau_rate(r) is not None}
     attitudes = {k: r for k, r in segments.items() if k not in plateaus and not is_rotation(k)}
     # The settle its solver drops from each plateau; a procedure without one drops none.
-    given = settings.get("settle_s") if plateaus else None
+    given = getattr(settings, "settle_s", None) if plateaus else None
     settle = 0.0 if given is None else float(given)
     records = [(r.duration, k) for k, r in attitudes.items()]
     if given is not None:
         out.append(judge(conds["settle_rate_s"], settle, "the solver drops it from each plateau"))
     if plateaus:
-        window = settings.get("record_s")
+        window = getattr(settings, "record_s", None)
         records += [
             (min(r.duration - settle, float(window or math.inf)), k) for k, r in plateaus.items()
         ]

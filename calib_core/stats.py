@@ -13,7 +13,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import fft as sp_fft
 
-from calib_core.distributions import norm_cdf, norm_pdf
+from calib_core.distributions import chi2_ppf, norm_cdf, norm_pdf
 
 
 def integrated_autocorrelation_time(x: np.ndarray, c: float = 5.0) -> float:
@@ -249,3 +249,52 @@ def largest_std(stds: np.ndarray, n_eff: np.ndarray) -> tuple[np.ndarray, np.nda
     u_one = value / np.sqrt(2.0 * np.maximum(n_eff[idx, cols] - 1.0, 1.0))
     e_k, v_k = max_normal_moments(k)
     return value, u_one * np.sqrt(v_k + e_k * e_k)
+
+
+# A fit's residuals reject the noise-only model when chi2 exceeds its 1 - MISFIT_ALPHA quantile.
+MISFIT_ALPHA = 0.001
+
+
+def misfit_scale(chi2: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """The factor on each axis's standard uncertainties (GUM Type A of a least-squares fit:
+    the covariance scaled by the residual variance).
+
+    The weights are the position means' own noise, so chi2 / dof is 1 for a model that
+    holds. Where chi2 exceeds its 1 - `MISFIT_ALPHA` quantile (the noise-only model
+    rejected: faces not opposite, attitudes not as assumed), the means scatter by more
+    than their noise and the parameters carry that scatter: the factor is
+    sqrt(chi2 / dof). Otherwise 1, so a model that holds keeps its noise-only
+    uncertainty (and its coverage). Axes without degrees of freedom: 1.
+
+    Parameters
+    ----------
+    chi2, dof : (3,) weighted residual sum of squares and its degrees of freedom per axis.
+
+    Returns
+    -------
+    (3,) factors >= 1.
+    """
+    out = np.ones(len(chi2))
+    for i, (c, d) in enumerate(zip(chi2, dof, strict=True)):
+        if d > 0 and c > float(chi2_ppf(1.0 - MISFIT_ALPHA, d)):
+            out[i] = float(np.sqrt(c / d))
+    return out
+
+
+def misfit_warnings(what: str, chi2: np.ndarray, dof: np.ndarray) -> list[str]:
+    """The warning a fit's record carries when `misfit_scale` widened its uncertainties.
+
+    what : the fit, for the reader ("the gyro fit", "the 'linear' model").
+    chi2, dof : (3,) as for `misfit_scale`. Returns [] when no axis was scaled.
+    """
+    scale = misfit_scale(chi2, dof)
+    if not np.any(scale > 1.0):
+        return []
+    axes = ", ".join(f"{a} x{v:.3g}" for a, v in zip("xyz", scale, strict=True) if v > 1)
+    return [
+        f"the position means scatter about {what} beyond their noise (chi2 "
+        f"{', '.join(f'{c:.4g}' for c in chi2)} for {', '.join(str(int(d)) for d in dof)} "
+        f"degrees of freedom, p < {MISFIT_ALPHA:g}): a face, attitude or input not as "
+        f"assumed; the standard uncertainties of those axes are scaled by sqrt(chi2 / dof) "
+        f"({axes})"
+    ]

@@ -21,6 +21,7 @@ from typing import Any
 from calib_core import decision, params, units
 from calib_core.condition_rules import parse_conditions
 from calib_core.decision import DecisionRule
+from calib_core.settings import Setting, Settings
 
 # Every canonical name a limit pattern may match.
 ALL_NAMES: list[str] = (
@@ -64,27 +65,35 @@ DEFAULT_VERIFICATION_LIMITS: dict[str, float] = {
     "acc": 0.01 * units.STANDARD_GRAVITY,
     "gyr": 0.5 * units.DEG,
 }
-# docs/methods.md 3.7, repeatability: three complete runs, CV <= 1 %. `alpha` is the
-# family-wise false-alarm rate of the scatter-vs-uncertainty rule for the
-# parameters where a CV is meaningless; `temperature_tol_c` decides which runs
-# count as "the same conditions" (the lab's 20 +- 2 deg C); `max_runs` caps a group.
-DEFAULT_REPEATABILITY: dict[str, float | int] = {
-    "cv_max": 0.01,
-    "alpha": 0.01,
-    "min_runs": 3,
-    "max_runs": 5,
-    "temperature_tol_c": 2.0,
-}
-# ``[recall]``: how the recalibration interval is set (calib_core.interval, docs/interval.md):
-# "variables" (from the unit's and its fleet's drift, the in-tolerance probability at the
-# interval's end = reliability, at most max_months) or "fixed" (fixed_months).
+_FRACTION = {"low": 0.0, "high": 1.0, "low_open": True, "high_open": True}
+_POSITIVE = {"low": 0.0, "low_open": True}
+# ``[recall]``: how the recalibration interval is set (calib_core.interval, docs/interval.md);
+# ``[protocol]``: the names the test protocol prints.
 RECALL_METHODS = ("variables", "fixed")
-DEFAULT_RECALL: dict[str, str | float] = {
-    "method": "variables",
-    "reliability": 0.95,
-    "max_months": 60.0,
-    "fixed_months": 12.0,
-}
+PROTOCOL_NAMES = ("canonical", "manual")
+# docs/methods.md 3.7, repeatability: three complete runs, CV <= 1 %.
+REPEATABILITY = Settings(
+    Setting("cv_max", "number", "1", 0.01, "largest coefficient of variation", **_FRACTION),
+    Setting("alpha", "number", "1", 0.01, "family-wise false-alarm rate of the "
+            "scatter-vs-uncertainty rule, where a CV is meaningless", **_FRACTION),
+    Setting("min_runs", "integer", "1", 3, "fewest complete runs of a group", low=2),
+    Setting("max_runs", "integer", "1", 5, "most runs of a group (the latest)", low=2),
+    Setting("temperature_tol_c", "number", "degC", 2.0, "runs within this of each other count "
+            "as the same conditions (the lab's 20 +- 2 deg C)", low=0.0),
+)  # fmt: skip
+RECALL = Settings(
+    Setting("method", "text", "", "variables", "from the unit's and its fleet's drift "
+            "(variables) or fixed_months (fixed)", choices=RECALL_METHODS),
+    Setting("reliability", "number", "1", 0.95, "in-tolerance probability at the interval's "
+            "end", **_FRACTION),
+    Setting("max_months", "number", "month", 60.0, "longest interval", **_POSITIVE),
+    Setting("fixed_months", "number", "month", 12.0, "the fixed interval", **_POSITIVE),
+)  # fmt: skip
+PROTOCOL = Settings(Setting(
+    "names", "text", "", "canonical", "the protocol also prints the MPU-6000 manual's names "
+    "and signs (manual)", choices=PROTOCOL_NAMES))  # fmt: skip
+DEFAULT_REPEATABILITY: dict[str, float | int] = REPEATABILITY.defaults()
+DEFAULT_RECALL: dict[str, str | float] = RECALL.defaults()
 
 
 def _strip_parens(text: str) -> str:
@@ -326,8 +335,13 @@ class ToleranceProfile:
             repeatability=_repeatability(doc.get("repeatability", {})),
             decision_rule=_decision_rule(doc.get("decision_rule", {})),
             conditions=parse_conditions(doc.get("conditions", {})),
-            protocol_names=_protocol_names(doc.get("protocol", {})),
-            recall=_recall(doc.get("recall", {})),
+            protocol_names=_section(doc.get("protocol", {}), "protocol", PROTOCOL).get(
+                "names", "canonical"
+            ),
+            recall={
+                k: v if k == "method" else float(v)
+                for k, v in _section(doc.get("recall", {}), "recall", RECALL).items()
+            },
             **header,
         )
 
@@ -368,21 +382,6 @@ class ToleranceProfile:
         if self.recall != DEFAULT_RECALL:
             doc["recall"] = dict(self.recall)
         return doc
-
-
-PROTOCOL_NAMES = ("canonical", "manual")
-
-
-def _protocol_names(raw: Any) -> str:
-    """``[protocol] names = "canonical" | "manual"`` of a profile."""
-    if not isinstance(raw, dict) or set(raw) - {"names"}:
-        raise ValueError(
-            f"tolerance profile field 'protocol': expected a table with 'names', got {raw!r}"
-        )
-    names = raw.get("names", "canonical")
-    if names not in PROTOCOL_NAMES:
-        raise ValueError(f"protocol.names: expected one of {list(PROTOCOL_NAMES)}, got {names!r}")
-    return names
 
 
 def _decision_rule(raw: Any) -> DecisionRule:
@@ -428,40 +427,22 @@ def _positive_limits(raw: Any, field_name: str, keys: tuple[str, ...]) -> dict[s
     return out
 
 
+def _section(raw: Any, name: str, table: Settings) -> dict[str, Any]:
+    """A profile's table `name` as given, checked against its declaration (SettingError
+    naming ``name.key``)."""
+    if not isinstance(raw, dict):
+        raise ValueError(f"tolerance profile field {name!r}: expected a table, got {raw!r}")
+    table.validate(raw, name, root="")
+    return dict(raw)
+
+
 def _repeatability(raw: Any) -> dict[str, float | int]:
-    """``[repeatability]``: plain numbers (cv_max and alpha as fractions, counts, deg C)."""
-    out: dict[str, float | int] = {}
-    for key, value, where in _entries(raw, "repeatability", DEFAULT_REPEATABILITY):
-        number = _number(raw, key, "repeatability")
-        if key in ("min_runs", "max_runs") and (number != int(number) or number < 2):
-            raise ValueError(f"{where}: expected a whole number >= 2, got {value!r}")
-        if key in ("cv_max", "alpha") and not 0 < number < 1:
-            raise ValueError(f"{where}: expected a fraction between 0 and 1, got {value!r}")
-        if key == "temperature_tol_c" and number < 0:
-            raise ValueError(f"{where}: expected a number >= 0 (deg C), got {value!r}")
-        out[key] = int(number) if key in ("min_runs", "max_runs") else number
+    """``[repeatability]`` (`REPEATABILITY`), max_runs not below min_runs."""
+    out = _section(raw, "repeatability", REPEATABILITY)
     merged = {**DEFAULT_REPEATABILITY, **out}
     if merged["max_runs"] < merged["min_runs"]:
         raise ValueError("repeatability.max_runs: must not be below min_runs")
-    return out
-
-
-def _recall(raw: Any) -> dict[str, str | float]:
-    """``[recall]``: method name, reliability (a fraction), months (> 0)."""
-    out: dict[str, str | float] = {}
-    for key, value, where in _entries(raw, "recall", DEFAULT_RECALL):
-        if key == "method":
-            if value not in RECALL_METHODS:
-                raise ValueError(f"{where}: expected one of {list(RECALL_METHODS)}, got {value!r}")
-            out[key] = value
-            continue
-        number = _number(raw, key, "recall")
-        if key == "reliability" and not 0 < number < 1:
-            raise ValueError(f"{where}: expected a fraction between 0 and 1, got {value!r}")
-        if key != "reliability" and not number > 0:
-            raise ValueError(f"{where}: expected a number of months > 0, got {value!r}")
-        out[key] = float(number)
-    return out
+    return {k: v if k in ("min_runs", "max_runs") else float(v) for k, v in out.items()}
 
 
 def _number(entry: dict[str, Any], key: str, where: str) -> float:

@@ -27,9 +27,9 @@ import numpy as np
 from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.recording import Recording
-from calib_core.solvers.integral import ROTATION_LABELS
+from calib_core.solvers.integral import ROTATION_LABELS, pooled_static_gyro
 from calib_core.solvers.multi_position import solve_accel_linear, solve_gyro_static
-from calib_core.solvers.rate_table import RatePoint, rate_points, solve_rate_table
+from calib_core.solvers.rate_table import RatePoint, plateau_window, rate_points, solve_rate_table
 from calib_core.solvers.six_position import STATIC_LABELS, axis_vector
 from calib_core.stats import channel_stats
 from calib_core.uncertainty import Budget, InputQuantity, budgets, monte_carlo
@@ -246,17 +246,17 @@ Model = tuple["Callable[[Mapping[str, float]], dict] | None", list[InputQuantity
 def static_model(
     cal: Calibration,
     segments: Mapping[str, Recording],
-    settings: Mapping[str, Any],
+    settings: Any,
     spec: EquipmentSpec,
 ) -> Model:
     """The six-position procedures' model: gravity and face angles through the static fits,
     turn angles through the integral; only for the least-squares linear accelerometer fit.
 
-    `settings` carry the procedure's defaults (calib_core.run_budget fills them in).
+    `settings` : the procedure's typed settings as solved (calib_core.run_budget).
     """
-    if settings.get("gyro_from_earth_rate"):
+    if getattr(settings, "gyro_from_earth_rate", False):  # six_position's only
         return None, [], ("Type B sources not modelled for gyro_from_earth_rate",)
-    default = settings["accel_solver"] == "least_squares" and settings["accel_model"] == "linear"
+    default = settings.accel_solver == "least_squares" and settings.accel_model == "linear"
     if not default:
         return (
             None,
@@ -271,8 +271,12 @@ def static_model(
         (channel_stats(segments[label].acc), channel_stats(segments[label].gyr)) for label in labels
     ]
     acc_mean, acc_sem = (np.array([getattr(a, f) for a, _ in stats]) for f in ("mean", "sem"))
-    gyr_mean, gyr_sem = (np.array([getattr(g, f) for _, g in stats]) for f in ("mean", "sem"))
     rotations = [label for label in ROTATION_LABELS if label in segments]
+    gyr_stats = [g for _, g in stats]
+    if rotations and getattr(settings, "turn_estimator", None) == "regression":  # as solved
+        pooled = pooled_static_gyro(dict(segments), dict(zip(labels, gyr_stats, strict=True)))
+        gyr_stats = [pooled[label] for label in labels]
+    gyr_mean, gyr_sem = (np.array([getattr(g, f) for g in gyr_stats]) for f in ("mean", "sem"))
     turns = cal.info.get("turns")
     integral = None
     if rotations and turns is not None:
@@ -289,14 +293,14 @@ def static_model(
 def rate_table_model(
     cal: Calibration,
     segments: Mapping[str, Recording],
-    settings: Mapping[str, Any],
+    settings: Any,
     spec: EquipmentSpec,
 ) -> Model:
-    """The rate-table procedure's model: the table's relative rate error through its solver."""
-    kwargs = {
-        k: float(settings[k]) for k in ("settle_s", "record_s") if settings.get(k) is not None
-    }
+    """The rate-table procedure's model: the table's relative rate error through its solver.
+
+    `settings` : its typed settings (the solve's plateau window).
+    """
     if spec.table_rate_rel is None:
         return None, [], spec.missing("table_rate_rel")
-    solve = rate_table_solve(rate_points(list(segments.values()), **kwargs))
+    solve = rate_table_solve(rate_points(list(segments.values()), **plateau_window(settings)))
     return solve, [InputQuantity("table.rate_rel", 0.0, spec.table_rate_rel, unit="1")], ()

@@ -189,6 +189,23 @@ def show(run_id: str, archive: ArchiveOpt = None, as_json: JsonOpt = False) -> N
         return
     _print_run(summary, arch.root)
     _print_approvals(arch, summary)
+    _print_validations(summary)
+
+
+def _print_validations(summary: dict) -> None:
+    """The revision's validation records (`calib validate`), one line per peer."""
+    from pipelines.reports.validation import peer_line
+
+    for v in summary["validations"]:
+        out.print(
+            f"validation record {v['id']} ({v['created_at']:%Y-%m-%d %H:%M} UTC):", markup=False
+        )
+        for peer in v["document"]["peers"]:
+            out.print(f"  {peer_line(peer)}", markup=False)
+    if not summary["validations"]:
+        out.print(
+            "not validated against independent implementations (calib validate)", markup=False
+        )
 
 
 def _print_approvals(arch, summary: dict) -> None:  # noqa: ANN001 - an Archive

@@ -246,6 +246,17 @@ ArchiveOpt = Annotated[
         help="Archive directory or SQLAlchemy URL (default ./calib-archive).",
     ),
 ]
+# The batch options of the commands that solve archived runs again (reprocess, verify).
+RunnerOpt = Annotated[str, typer.Option("--runner", help="local (threads), process or dask.")]
+WorkersOpt = Annotated[
+    int | None, typer.Option("--workers", help="Runs in parallel (default: the cores).")
+]
+SchedulerOpt = Annotated[
+    str | None, typer.Option("--scheduler", help="Dask scheduler, tcp://host:8786.")
+]
+ProgressOpt = Annotated[
+    bool | None, typer.Option("--progress/--no-progress", help="Progress bar on stderr.")
+]
 JsonOpt = Annotated[
     bool, typer.Option("--json", help="Print the JSON document (for scripts) instead of text.")
 ]

@@ -49,6 +49,7 @@ __all__ = [
     "TransientError",
     "is_transient",
     "process_batch",
+    "recompute_batch",
     "report_progress",
     "reprocess_batch",
 ]
@@ -430,6 +431,52 @@ def reprocess_batch(
         )
     _summary_artifact(outcomes)
     return outcomes
+
+
+@_batch_task("recompute-run", "recompute {run_id}")
+def recompute_run_task(run_id: str, archive_url: str, archive_root: str) -> dict[str, Any]:
+    """Every revision of one archived run solved again and compared (`pipelines.recompute`;
+    in a worker process with the process runner, as `process_run_task`)."""
+    from pipelines.recompute import recompute_run_for_batch
+
+    return _in_worker(recompute_run_for_batch, run_id, archive_url, archive_root)
+
+
+@flow(name="recompute-batch", log_prints=True)
+def recompute_batch(
+    run_ids: list[str],
+    archive: str | None = None,
+    runner: str = "local",
+    workers: int | None = None,
+    scheduler: str | None = None,
+) -> list[dict[str, Any]]:
+    """Solve every revision of `run_ids` again from its raw bytes and compare it with its
+    sealed rows (`calib verify --recompute`); nothing is written to the archive.
+
+    Parameters
+    ----------
+    run_ids : full run ids (`pipelines.recompute.plan_recompute`).
+    archive, runner, workers, scheduler : as `process_batch`.
+
+    Returns
+    -------
+    One outcome per run, in the order of `run_ids` (`pipelines.recompute.recompute_run`).
+    """
+    from pipelines.recompute import failed_outcome
+
+    check_runner(runner, workers, scheduler)
+    arch = resolve_archive(archive)
+    get_run_logger().info("%d run(s) to recompute; runner %s", len(run_ids), runner)
+    with _batch_runner(runner, workers, scheduler, has_runs=bool(run_ids)) as task_runner:
+        parameters = [
+            {"run_id": r, "archive_url": arch.url, "archive_root": str(arch.root)} for r in run_ids
+        ]
+        return _run_tasks(
+            task_runner,
+            recompute_run_task,
+            parameters,
+            lambda i, exc: failed_outcome(run_ids[i], exc),
+        )
 
 
 @flow(name="thermal_campaign")

@@ -21,11 +21,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from sqlalchemy.exc import SQLAlchemyError
+
 from calib_core.reference_errors import ReferenceError
 from pipelines.lab import customer_name
 from pipelines.reference_correction import corrector
 from storage import queries
 from storage.db import Archive
+from storage.write_failures import describe
 
 MOVED_MIN = 0.1  # |change| / U below which a parameter is not listed as moved
 CSV_COLUMNS = ("run_id", "serial", "model", "started_at", "procedure", "customer",
@@ -225,7 +228,35 @@ def impact(
         "applied": apply,
         "customer": customer,
         "runs": report,
+        "not_written": not_written(report, campaigns) if apply else [],
     }
+
+
+def not_written(runs: list[dict[str, Any]], campaigns: list[dict[str, Any]]) -> list[str]:
+    """The runs an applied look-back affects but did not archive a revision of (the write
+    failed, or the corrected run no longer solves), then the serials whose thermal model
+    was not fitted again ("thermal model of SERIAL")."""
+    missed = [
+        r["run_id"]
+        for r in runs
+        if r["affected"] and r.get("status") not in ("revised", "duplicate")
+    ]
+    return missed + [
+        f"thermal model of {c['serial']}"
+        for c in campaigns
+        if c.get("status") not in ("refitted", "duplicate")
+    ]
+
+
+def applied_words(doc: dict[str, Any]) -> str:
+    """What an impact wrote, in words: the revisions archived and those not written."""
+    if not doc["applied"]:
+        return "dry run: nothing archived"
+    done = sum(r.get("status") == "revised" for r in doc["runs"])
+    missed = doc.get("not_written") or []
+    return f"{done} revision(s) archived" + (
+        f"; NOT written: {', '.join(missed)}" if missed else ""
+    )
 
 
 def _apply(
@@ -357,7 +388,7 @@ def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
         f"<h1>Out-of-tolerance look-back</h1><p>{escape(doc['reason'])}; runs started "
         f"{escape(period)}; customer: {escape(doc['customer'] or 'not recorded')}; "
         f"{len(doc['runs'])} run(s), {flipped} verdict(s) changed; "
-        + ("revisions archived" if doc["applied"] else "dry run: nothing archived")
+        + escape(applied_words(doc))
         + f" (ISO/IEC 17025 clause 7.10).</p><table>{head}{''.join(rows)}</table>"
         + _campaigns_html(doc.get("campaigns", []))
         + "</body></html>\n"
@@ -554,7 +585,10 @@ def _refit(
         return {"status": "not refitted", "error": f"runs {pending} were not revised"}
     if before.info.get("reason") == reason:
         return {"status": "duplicate"}  # fitted again for this error already
-    fitted = thermal_fit(archive, serial, used, fit_settings, reason=reason)
+    try:
+        fitted = thermal_fit(archive, serial, used, fit_settings, reason=reason)
+    except (OSError, SQLAlchemyError) as exc:  # the write failed: said, never a success
+        return {"status": "failed", "error": describe(exc, archive.url) or str(exc)}
     return {"status": "refitted", "model_id_after": fitted["model_id"]}
 
 

@@ -56,7 +56,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from pipelines.tolerances import LAB_FILE_STEM, profile_dirs
+from pipelines.tolerances import LAB_FILE_STEM, line_of, profile_dirs
 
 LAB_PROFILE = f"{LAB_FILE_STEM}.toml"
 TABLES = {
@@ -72,16 +72,19 @@ EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by", "kind", "model"})
 def load_lab_profile() -> tuple[dict[str, Any], Path] | None:
     """The lab profile and its file, or None when no folder holds one.
 
-    Raises ValueError naming the file and the field of a bad entry.
+    Raises ValueError naming the file, the line of the key and the field of a bad entry.
     """
     for folder in profile_dirs():
         path = folder / LAB_PROFILE
         if path.is_file():
+            text = path.read_text(encoding="utf-8")
             try:
-                doc = tomllib.loads(path.read_text(encoding="utf-8"))
+                return _checked(tomllib.loads(text), path), path
             except tomllib.TOMLDecodeError as exc:
                 raise ValueError(f"lab profile {path}: {exc}") from exc
-            return _checked(doc, path), path
+            except ValueError as exc:  # "lab profile <path>: <field>: <problem>"
+                problem = str(exc).removeprefix(f"lab profile {path}: ")
+                raise ValueError(f"lab profile {path}{line_of(text, problem)}: {problem}") from None
     return None
 
 

@@ -25,8 +25,8 @@ from calib_core.conditions import check_conditions, counts_against_verdict
 from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
 from calib_core.preprocess.motion import static_labels
-from calib_core.procedures.rate_table import plateau_window
 from calib_core.recording import Recording
+from calib_core.solvers.rate_table import plateau_window
 from calib_core.stillness import StatedLimits, measured_noise, stillness_problems
 from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
@@ -282,12 +282,14 @@ def verify_run(
     archive: Archive | None,
     run_id: str,
     budgets: dict[str, Budget] | None = None,
+    as_judged: AsJudged | None = None,
 ) -> tuple[list[CheckResult], dict[str, Any]]:
     """Held-out verification points, repeatability against the archive, residual diagnosis.
 
     Repeatability is judged against the current calibrations of the unit's runs by
     the same procedure made before this one (by run time) under the same conditions
-    (`comparable_runs`), never against later runs. When an earlier run is archived
+    (`comparable_runs`), never against later runs (with `as_judged`: the group an
+    archived revision records, their values as of it). When an earlier run is archived
     after later ones, `pipelines.rejudge` judges those again (new revisions);
     `calib repeatability SERIAL` judges a whole group on demand. With `budgets`, runs
     on the same reference share their Type B in the scatter rule (pipelines.shared_reference).
@@ -317,11 +319,19 @@ def verify_run(
         m.environment.temperature_c,
         {n: (p.value, p.std) for n, p in cal.parameters.items()},
     )
+    as_then = {} if as_judged is None else {
+        "only": as_judged.group, "before_calibration": as_judged.before_calibration
+    }  # fmt: skip
     earlier = (
         []  # no archive: no earlier runs to repeat (`judge`)
         if archive is None
         else queries.repeatability_candidates(
-            archive, m.unit.serial, m.run.procedure, before=m.run.started, exclude_run_id=run_id
+            archive,
+            m.unit.serial,
+            m.run.procedure,
+            before=m.run.started,
+            exclude_run_id=run_id,
+            **as_then,
         )
     )
     mine = None
@@ -339,6 +349,9 @@ def verify_run(
     }
 
 
+SAME_DESCRIPTION = "no other description of this serial archived"
+
+
 def device_check(m: RunManifest, earlier: list[dict[str, Any]] | None) -> CheckResult:
     """``device:description``: the unit's model and manufacturer against the serial's
     earlier runs (`storage.queries.earlier_descriptions`); None when judged without an
@@ -354,9 +367,8 @@ def device_check(m: RunManifest, earlier: list[dict[str, Any]] | None) -> CheckR
         return CheckResult("device:description", None, None, False, detail)
     said = (m.unit.model, m.unit.manufacturer)
     other = [e for e in earlier if (e["model"], e["manufacturer"]) != said]
-    if not other:
-        detail = "as archived before" if earlier else "first run of this serial"
-        return CheckResult("device:description", None, None, True, detail)
+    if not other:  # one wording whatever was archived first: the same in any batch order
+        return CheckResult("device:description", None, None, True, SAME_DESCRIPTION)
     before = "; and as ".join(
         f"model {e['model']!r} by {e['manufacturer']!r} (run {e['run_id']}, started "
         f"{e['started_at']:%Y-%m-%d})"
@@ -433,15 +445,19 @@ def check_run(
     archive: Archive | None,
     run_id: str,
     budgets: dict[str, Budget] | None = None,
+    as_judged: AsJudged | None = None,
 ) -> Judged:
     """Tolerances (judged by the profile's decision rule with each parameter's expanded
     uncertainty from `budgets`) and residual limits of the run's profile, verification,
     repeatability."""
     started = time.perf_counter()
-    profile = load_profile(loaded.manifest.run.tolerance_profile)
+    if as_judged is not None and as_judged.profile is not None:
+        profile = as_judged.profile
+    else:
+        profile = load_profile(loaded.manifest.run.tolerance_profile)
     checks = check_calibration(cal, profile, budgets)
     checks += run_conditions(loaded, cal, profile)
-    more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets)
+    more_checks, judged = verify_run(loaded, cal, profile, archive, run_id, budgets, as_judged)
     checks += more_checks
     checks += [CheckResult(**f) for f in loaded.findings]  # the readers' (record:cut:...)
     checks += still_checks(loaded, cal.gravity, profile)
@@ -545,6 +561,102 @@ def run_record(
     )
 
 
+@dataclass(frozen=True)
+class AsJudged:
+    """The archive as an archived revision saw it when it was judged (`pipelines.recompute`
+    solves and judges the revision again against it, not against the archive of now).
+
+    before_calibration : calibration id of the revision: each run of its group counts with
+        the values of the revision that was its latest before this one.
+    group : run ids of the repeatability group its ``check`` step records.
+    as_found : (run id, revision) of the earlier calibration its ``as_found`` step used;
+        None: the revision has no such step.
+    profile : the tolerance profile as its ``check`` step archived it (thresholds), not as
+        the profile file says now; None: the file's (a revision judged before thresholds
+        were archived).
+    """
+
+    before_calibration: int
+    group: tuple[str, ...]
+    as_found: tuple[str, int] | None
+    profile: ToleranceProfile | None = None
+
+
+@dataclass
+class Derived:
+    """A run processed up to everything the archive keeps of it (`derive_run`)."""
+
+    run: RunIn
+    extra_files: dict[str, bytes]
+    protocol_name: str
+    cal: Calibration
+    judged: Judged
+
+
+def load_source(
+    source: RunSource,
+    archive: Archive,
+    pending: rawstore.PendingFiles,
+    *,
+    reason: str | None = None,
+    correct: Callable[[LoadedRun], tuple[LoadedRun, StepRecord]] | None = None,
+) -> tuple[LoadedRun, list[StepRecord]]:
+    """The run loaded (its raw files staged towards the store in `pending`), its reference
+    corrected by `correct`, and its first steps (reprocess, ingest, reference_correction)."""
+    started = time.perf_counter()
+    # A static-bias record larger than its memory limit is streamed, not read (unless
+    # its settings or a reference correction need it in memory).
+    plan = stream_plan(source) if correct is None else None
+    if plan is None:
+        loaded = load_run(source, hash_file=partial(pending.stage_raw, archive.root))
+    else:
+        loaded = load_streamed(plan, archive.root, pending)
+    steps = [ingest_step(loaded, time.perf_counter() - started)]
+    if reason is not None:
+        steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
+    if correct is not None:
+        loaded, corrected = correct(loaded)
+        steps.append(corrected)
+    return loaded, steps
+
+
+def derive_run(
+    loaded: LoadedRun,
+    steps: list[StepRecord],
+    archive: Archive,
+    as_judged: AsJudged | None = None,
+) -> Derived:
+    """Solve and judge a loaded run (`load_source`): the record `archive_run` archives and
+    its protocol. `as_judged`: judged against the archive as an archived revision saw it
+    (`pipelines.recompute`); None: as the archive is now (`process_run`)."""
+    serial = loaded.manifest.unit.serial
+    cal, solve_steps, settings, budgets, fit = solve_loaded(loaded)
+    corrected = next((s for s in steps if s.name == "reference_correction"), None)
+    if corrected is not None:
+        settings = {**settings, "reference_correction": corrected.settings}
+    run_id = run_id_of(raw_hash_of([f.sha256 for f in loaded.raw_files]))
+    judged = check_run(loaded, cal, archive, run_id, budgets, as_judged)
+    if as_judged is None:
+        earlier = earlier_calibration(archive, serial, loaded.manifest.run.started)
+    elif as_judged.as_found is None:
+        earlier = None
+    else:
+        earlier = queries.calibration_revision(archive, *as_judged.as_found)
+    if earlier is not None:  # the unit comes back: as found beside as left
+        found = None if loaded.streamed is None else as_found_solver(loaded, cal, settings)
+        solve_steps.append(
+            as_found_step(earlier, cal, fit, settings, budgets, judged.profile, found)
+        )
+    protocol_name = f"{serial}_result.txt"
+    return Derived(
+        run_record(loaded, cal, steps + solve_steps, settings, judged),
+        {protocol_name: protocol_of(loaded, cal, judged, run_id, budgets).encode()},
+        protocol_name,
+        cal,
+        judged,
+    )
+
+
 def process_run(
     source: RunSource,
     archive: Archive,
@@ -582,41 +694,18 @@ def process_run(
     # once. Whatever is not archived (a failed run, a duplicate) is deleted on close.
     pending = rawstore.PendingFiles()
     try:
-        started = time.perf_counter()
-        # A static-bias record larger than its memory limit is streamed, not read (unless
-        # its settings or a reference correction need it in memory).
-        plan = stream_plan(source) if correct is None else None
-        if plan is None:
-            loaded = load_run(source, hash_file=partial(pending.stage_raw, archive.root))
-        else:
-            loaded = load_streamed(plan, archive.root, pending)
+        loaded, steps = load_source(source, archive, pending, reason=reason, correct=correct)
         serial = loaded.manifest.unit.serial
-        steps = [ingest_step(loaded, time.perf_counter() - started)]
-        if reason is not None:
-            steps.insert(0, StepRecord("reprocess", settings={"reason": reason}))
-        if correct is not None:
-            loaded, corrected = correct(loaded)
-            steps.append(corrected)
-        cal, solve_steps, settings, budgets, fit = solve_loaded(loaded)
-        if correct is not None:
-            settings = {**settings, "reference_correction": corrected.settings}
-        run_id = run_id_of(raw_hash_of([f.sha256 for f in loaded.raw_files]))
-        judged = check_run(loaded, cal, archive, run_id, budgets)
-        earlier = earlier_calibration(archive, serial, loaded.manifest.run.started)
-        if earlier is not None:  # the unit comes back: as found beside as left
-            found = None if loaded.streamed is None else as_found_solver(loaded, cal, settings)
-            solve_steps.append(
-                as_found_step(earlier, cal, fit, settings, budgets, judged.profile, found)
-            )
-        protocol_name = f"{serial}_result.txt"
+        derived = derive_run(loaded, steps, archive)
+        cal, protocol_name = derived.cal, derived.protocol_name
         result: ArchiveResult = archive_run(
             archive,
-            run_record(loaded, cal, steps + solve_steps, settings, judged),
-            extra_files={protocol_name: protocol_of(loaded, cal, judged, run_id, budgets).encode()},
+            derived.run,
+            extra_files=derived.extra_files,
             pending=pending,
             reason=reason,  # into the audit trail's event of the revision
         )
-        checks, verdict_, message = judged.checks, judged.verdict, result.message
+        checks, verdict_, message = derived.judged.checks, derived.judged.verdict, result.message
         # The unit's later runs, and this one, judged again by run time where an earlier
         # run came later (also for a duplicate: processing a run again completes that).
         again = rejudge_from(archive, serial, loaded.manifest.run.procedure, result.run_id)

@@ -40,7 +40,7 @@ from calib_core.checks import MODEL_PREFIX
 from calib_core.conditions import temperature_block
 from calib_core.preprocess.chain import (
     DEFAULT_OUTLIERS,
-    OUTLIER_KEYS,
+    OUTLIERS,
     is_static,
     preprocess,
     replaced_checks,
@@ -141,7 +141,7 @@ def in_memory_only(manifest: RunManifest, seg: SegmentSpec, paths: list[Path]) -
         return f"format kind {kind!r} (streamed: {', '.join(sorted(STREAMERS))})"
     if len(paths) != 1:
         return "separate acc_file and gyr_file"
-    outliers = settings_table(manifest.run.settings, "outliers", OUTLIER_KEYS) or {}
+    outliers = settings_table(manifest.run.settings, "outliers", OUTLIERS) or {}
     if is_static(seg.label) and {**DEFAULT_OUTLIERS, **outliers}["method"] != "none":
         return "the iterative outlier step of a static position"
     if seg.section is not None or manifest.format.section_column is not None:

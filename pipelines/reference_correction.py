@@ -88,11 +88,16 @@ def _corrected_temperature(loaded, error: ReferenceError, stats: dict[str, Any])
 def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corrector or None
     """The reference correction of the run's current revision, to apply again when the run
     is reprocessed (new software must not drop it), or None when it has none."""
-    settings = queries.run_summary(archive, run_id)["calibration"].get("settings") or {}
-    held = settings.get("reference_correction")
+    return correction_of(queries.run_summary(archive, run_id)["calibration"].get("settings"))
+
+
+def correction_of(settings: dict[str, Any] | None, impact: dict | None = None):  # noqa: ANN201
+    """The corrector of a revision's settings (their ``reference_correction``), None when
+    they hold none; `impact`: the look-back record its step carries (`corrector`)."""
+    held = (settings or {}).get("reference_correction")
     if not held:
         return None
     error = ReferenceError(
         str(held["quantity"]), float(held["value"]), held.get("face"), held.get("about")
     )
-    return corrector(str(held["equipment_serial"]), str(held["equipment_kind"]), error)
+    return corrector(str(held["equipment_serial"]), str(held["equipment_kind"]), error, impact)

@@ -159,6 +159,7 @@ def reprocess_run(
         source = restore_run(archive, run_id, folder, link=keep is None)
         outcome = process_run(source, archive, reraise=reraise, reason=reason, correct=correct)
     outcome["source"] = f"archive:{run_id}"
+    outcome["run_id"] = outcome["run_id"] or run_id  # a failed write names its run too
     if outcome["status"] == "ok":  # the run was archived before: "ok" is a new revision
         outcome["status"] = "revised"
     return outcome
@@ -337,16 +338,23 @@ def reprocess_in_process(
     return outcomes
 
 
-def changed_pairs(archive: Archive, outcomes: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The revision pairs (`storage.queries.revision_pairs`) of a reprocessing's runs whose
-    current revision this software made: revised now, or by an earlier, interrupted pass
-    of the same reprocessing (skipped now as duplicates)."""
+def changed_pairs(
+    archive: Archive, outcomes: list[dict[str, Any]], reason: str | None = None
+) -> list[dict[str, Any]]:
+    """The revision pairs (`storage.queries.revision_pairs`) of the runs a reprocessing
+    revised: now, or (with its `reason`) by an earlier, interrupted pass of the same
+    reprocessing, whose revision with that reason is current (skipped now as duplicates).
+    A duplicate whose current revision another write made (another reason, `calib impact
+    --apply`) is not in it: this reprocessing changed nothing there."""
     from pipelines import process
     from storage import queries
 
-    run_ids = [o["run_id"] for o in outcomes if o["status"] in ("revised", "duplicate")]
+    revised = [o["run_id"] for o in outcomes if o["status"] == "revised"]
+    again = [o["run_id"] for o in outcomes if o["status"] == "duplicate"]
+    earlier = queries.revised_for(archive, again, reason) if reason and again else set()
     return [
         p
-        for p in queries.revision_pairs(archive, run_ids)
+        for p in queries.revision_pairs(archive, revised + again)
         if p["new"]["software_version"] == process.SOFTWARE_VERSION
+        and (p["run_id"] in revised or (p["run_id"], p["new"]["revision"]) in earlier)
     ]

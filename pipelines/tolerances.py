@@ -7,6 +7,7 @@ variable; those take precedence over the shipped ones.
 from __future__ import annotations
 
 import os
+import re
 import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -40,7 +41,7 @@ def load_profile(name: str) -> ToleranceProfile:
     Raises
     ------
     ValueError naming the profile, the folders searched, and for a bad file the
-    file and the field.
+    file, the line of the key (as a manifest's errors do) and the field.
     """
     from calib_core.tolerances import ToleranceProfile
 
@@ -53,10 +54,30 @@ def load_profile(name: str) -> ToleranceProfile:
     for folder in profile_dirs():
         path = folder / f"{name}.toml"
         if path.is_file():
+            text = path.read_text(encoding="utf-8")
             try:
-                doc = tomllib.loads(path.read_text(encoding="utf-8"))
-                return ToleranceProfile.from_dict(doc)
+                return ToleranceProfile.from_dict(tomllib.loads(text))
             except (tomllib.TOMLDecodeError, ValueError, KeyError, TypeError) as exc:
-                raise ValueError(f"tolerance profile {path}: {exc}") from exc
+                where = f"{path}{line_of(text, str(exc))}"
+                raise ValueError(f"tolerance profile {where}: {exc}") from exc
     searched = ", ".join(str(d) for d in profile_dirs())
     raise ValueError(f"tolerance profile {name!r} not found (looked for {name}.toml in {searched})")
+
+
+# The dotted field a profile error starts with: "limits[3].unit: ...", "recall.method must".
+_FIELD = re.compile(r"^(?:tolerance profile field ')?([A-Za-z_]\w*(?:\[\d+\]|\.[A-Za-z_]\w*)*)")
+
+
+def line_of(text: str, problem: str) -> str:
+    """The " line N" of the field a `problem` starts with ("limits[3].unit: ...") in the
+    TOML `text` of a profile (tolerance or lab), or "" when not found."""
+    from pipelines.ingest.manifest import key_line  # the manifest's rule (pydantic: on error)
+
+    m = _FIELD.match(problem)
+    if m is None:
+        return ""
+    path = tuple(int(p) if p.isdigit() else p for p in re.split(r"[.\[\]]+", m[1]) if p)
+    # A key inside an inline table ("gyr_std = { value, unit }"): the line of the table.
+    lines = (key_line(text, path[:n]) for n in range(len(path), 0, -1))
+    line = next((n for n in lines if n is not None), None)
+    return "" if line is None else f" line {line}"

@@ -12,7 +12,6 @@ budgets labelled Type A only (equipment unknown).
 
 from __future__ import annotations
 
-import math
 import re
 import time
 from collections.abc import Mapping
@@ -21,6 +20,7 @@ from typing import Any
 
 from calib_core.calibration import Calibration, StepRecord
 from calib_core.preprocess.chain import settings_table
+from calib_core.procedures.tables import UNCERTAINTY
 from calib_core.recording import Recording
 from calib_core.run_budget import budgets_doc, run_budgets
 from calib_core.uncertainty import Budget
@@ -107,16 +107,8 @@ def equipment_spec_sources(
         if field_name is not None:
             spec = replace(spec, **{field_name: stated[1]})
             sources[field_name] = f"accuracy_class {e.accuracy_class!r} of {e.kind} {e.serial}"
-    given = settings_table(manifest.run.settings, "uncertainty", set(SETTINGS)) or {}
+    given = settings_table(manifest.run.settings, "uncertainty", UNCERTAINTY) or {}
     for key, value in given.items():
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, int | float)
-            or not (value >= 0 and math.isfinite(value))
-        ):
-            raise ValueError(
-                f"run.settings.uncertainty.{key}: expected a number >= 0, got {value!r}"
-            )
         field_name, factor = SETTINGS[key]
         spec = replace(spec, **{field_name: float(value) * factor})
         sources[field_name] = f"run.settings.uncertainty.{key}"

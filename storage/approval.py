@@ -156,15 +156,23 @@ def approve(
     signer: str,
     meaning: Meaning = "approved",
     revision: int | None = None,
+    approvers: Approvers | None = None,
 ) -> seal.Event:
     """Sign the seal of `run_id`'s current (or given) revision and chain the approval event.
 
     Refused (ApprovalError) when the run or revision is unknown, has no seal, or its
-    rows no longer match the seal: a changed record is never signed.
+    rows no longer match the seal: a changed record is never signed; and, with the lab's
+    `approvers`, when the file does not hold the key for this signer, today and meaning
+    (the message names the file).
     """
     if meaning not in MEANINGS:
         raise ValueError(f"meaning: expected one of {MEANINGS}, got {meaning!r}")
     _check_name(signer)
+    if approvers is not None:
+        today = seal.utcnow().date().isoformat()
+        mine = Approval(0, run_id, 0, meaning, signer, public_key_hex(key.public_key()), today)
+        if why := approvers.judge(mine):
+            raise ApprovalError(f"{signer} may not sign ({meaning}): {why}; not signed")
     engine = archive.engine().execution_options(sqlite_begin="IMMEDIATE")
     with engine.begin() as conn:
         cal_id, rev, digest, sealed = _sealed_revision(conn, run_id, revision)
@@ -268,8 +276,6 @@ def approval_status(
             cal_id, _, _, sealed = _sealed_revision(conn, run_id, revision)
         except ApprovalError:
             return []
-        files_now = seal_check.rehash_files(archive.root, sealed.get("files", {}))
-        now = seal_check.digest_now(conn, cal_id, files_now, sealed.get("format"))
         events = conn.execute(
             select(AuditEvent)
             .where(
@@ -279,6 +285,10 @@ def approval_status(
             )
             .order_by(AuditEvent.seq)
         ).all()
+        if not events:  # nothing to judge: the files are not read again
+            return []
+        files_now = seal_check.rehash_files(archive.root, sealed.get("files", {}))
+        now = seal_check.digest_now(conn, cal_id, files_now, sealed.get("format"))
     out = []
     for ev in events:
         a = _approval(ev) if approvers is None else approvers.mark(_approval(ev))

@@ -69,8 +69,14 @@ def _message(doc: dict[str, Any]) -> bytes:
 def write(doc: dict[str, Any], path: Path) -> None:
     """Write `doc` to a new file `path` (never overwritten: a checkpoint is kept as made)."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(json.dumps(doc, indent=1) + "\n")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(json.dumps(doc, indent=1) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError:  # a full disk: no partial checkpoint stays to be taken for one
+        Path(path).unlink(missing_ok=True)
+        raise
 
 
 def load(path: Path) -> dict[str, Any]:

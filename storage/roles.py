@@ -44,23 +44,22 @@ from storage.pgtools import libpq_dsn
 from storage.schema import Base, UnitLatest
 
 if TYPE_CHECKING:
+    import psycopg
     from psycopg import sql  # imported where statements are made: the read-only opener
     # (storage.queries.readonly) takes READER from here, SQLite needs no psycopg
 
 READER = "calib_reader"
 WRITER = "calib_writer"
 APPROVER = "calib_approver"
-APPEND_EVENT = (
-    "calib_append_event(timestamptz, text, text, text, integer, text, json, text, "
-    "text, text, integer)"
-)
 # The one way the writer and approver roles append an event: the link to the chain's head,
-# the date and (for a role that cannot add runs) the action are checked, under the lock
-# storage.seal.append_event takes.
+# the date, (for a role that cannot add runs) the action, and the revision an archiving or
+# approving event names are checked, under the lock storage.seal.append_event takes; its
+# writer (p_db_user) is checked by the trigger of migration 0009.
 _APPEND_FUNCTION = """
 CREATE OR REPLACE FUNCTION calib_append_event(
   p_at timestamptz, p_actor text, p_action text, p_run_id text, p_revision integer,
-  p_reason text, p_detail json, p_digest text, p_prev_hash text, p_hash text, p_seq integer
+  p_reason text, p_detail json, p_digest text, p_prev_hash text, p_hash text, p_seq integer,
+  p_db_user text
 ) RETURNS integer LANGUAGE plpgsql SECURITY DEFINER SET search_path = public, pg_temp AS $$
 DECLARE
   head_seq integer;
@@ -84,10 +83,32 @@ BEGIN
     RAISE EXCEPTION 'calib archive: role % may append approvals only, not %', session_user, p_action
       USING ERRCODE = 'insufficient_privilege';
   END IF;
+  IF p_action IN ('archived', 'revised', 'sealed') AND NOT EXISTS (
+       SELECT 1 FROM calibrations c JOIN runs r ON r.id = c.run_id
+       JOIN seals s ON s.calibration_id = c.id
+       WHERE r.run_id = p_run_id AND c.revision = p_revision AND s.digest = p_digest) THEN
+    RAISE EXCEPTION 'calib archive: event % (%) names run % revision % sealed with digest %, '
+      'which the archive does not hold', p_seq, p_action, coalesce(p_run_id, '(none)'),
+      coalesce(p_revision::text, '(none)'), coalesce(left(p_digest, 12), '(none)')
+      USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  IF p_action IN ('archived', 'revised', 'sealed') AND EXISTS (
+       SELECT 1 FROM audit_events WHERE action IN ('archived', 'revised', 'sealed')
+       AND run_id = p_run_id AND revision = p_revision) THEN
+    RAISE EXCEPTION 'calib archive: run % revision % has its sealing event already',
+      p_run_id, p_revision USING ERRCODE = 'insufficient_privilege';
+  END IF;
+  IF p_action = 'approved' AND NOT EXISTS (
+       SELECT 1 FROM calibrations c JOIN runs r ON r.id = c.run_id
+       WHERE r.run_id = p_run_id AND c.revision = p_revision) THEN
+    RAISE EXCEPTION 'calib archive: approval of run % revision %, which the archive does not '
+      'hold', coalesce(p_run_id, '(none)'), coalesce(p_revision::text, '(none)')
+      USING ERRCODE = 'insufficient_privilege';
+  END IF;
   INSERT INTO audit_events (seq, at, actor, action, run_id, revision, reason, detail, digest,
-                            prev_hash, hash)
+                            prev_hash, hash, db_user)
   VALUES (p_seq, p_at, p_actor, p_action, p_run_id, p_revision, p_reason, p_detail, p_digest,
-          p_prev_hash, p_hash);
+          p_prev_hash, p_hash, p_db_user);
   RETURN p_seq;
 END $$
 """
@@ -129,9 +150,14 @@ def guard_statements() -> list[str]:
     """The SQL of the function and trigger the writer and approver are held by (idempotent)."""
     # storage.seal loads the file store (pyarrow): imported here, so that reading the role
     # names (storage.queries.readonly) stays light for the read-only commands.
-    from storage.seal import PG_CHAIN_LOCK
+    from storage.seal import APPEND_EVENT, PG_CHAIN_LOCK
+
+    # The function before events recorded their writer (migration 0009): dropped, so that
+    # no role keeps a way to append an event without it.
+    old_append_event = APPEND_EVENT.replace(", text)", ")")
 
     stmts = [
+        f"DROP FUNCTION IF EXISTS {old_append_event}",
         _APPEND_FUNCTION.replace("LOCK_KEY", str(PG_CHAIN_LOCK)).strip(),
         f"REVOKE ALL ON FUNCTION {APPEND_EVENT} FROM PUBLIC",
         _SUPERSEDE_FUNCTION.strip(),
@@ -186,6 +212,8 @@ def role_statements(
     a = sql.Identifier(approver)
     data = sql.SQL(", ").join(sql.Identifier(t) for t in tables)
     version = sql.Identifier("alembic_version")  # read by Archive.upgrade at every start
+    from storage.seal import APPEND_EVENT
+
     append = sql.SQL(APPEND_EVENT)  # a constant, not a name from outside
     stmts = [
         *(sql.SQL(g) for g in guard_statements()),
@@ -226,36 +254,35 @@ def apply_roles(
     writer_password: str | None = None,
     approver_password: str | None = None,
 ) -> None:
-    """Create the three login roles if missing and grant their privileges (idempotent).
+    """Make the guard function and trigger and grant the three roles their privileges,
+    creating a role that is missing where the connecting role may (idempotent).
 
-    Run as the database owner or a superuser, after `archive.upgrade()`.
-    Passwords, when given, are set (also on existing roles).
+    Run as the database owner after `archive.upgrade()`, again after every upgrade. The
+    roles are made once by the database administrator (docs/postgresql.md: a superuser
+    creates them, the owner need not be allowed to); then the owner changes a role only
+    where it is not as it must be (a login, no superuser, database or role creation, no
+    row-level security bypass) and sets a password only when one is given.
+
+    Raises
+    ------
+    PermissionError : a role is missing, or is not as it must be, or a password is given,
+        and the connecting role may not create or change roles: the message names the
+        role and what the administrator runs.
     """
     if archive.is_sqlite:
         raise ValueError("roles exist only on PostgreSQL; a SQLite archive is a file")
     import psycopg
-    from psycopg import sql
 
     url = make_url(archive.url)
     database = url.database or "postgres"
+    logins = ((reader, reader_password), (writer, writer_password), (approver, approver_password))
     with psycopg.connect(libpq_dsn(archive.url), autocommit=True) as conn, conn.transaction():
-        logins = (
-            (reader, reader_password),
-            (writer, writer_password),
-            (approver, approver_password),
-        )
         for role, password in logins:
             check_safe_name(role, "role")
-            exists = conn.execute("SELECT 1 FROM pg_roles WHERE rolname = %s", (role,)).fetchone()
-            verb = "ALTER" if exists else "CREATE"
-            stmt = sql.SQL(verb + " ROLE {} LOGIN NOSUPERUSER NOCREATEDB NOCREATEROLE").format(
-                sql.Identifier(role)
-            )
-            if password is not None:
-                stmt += sql.SQL(" PASSWORD {}").format(sql.Literal(password))
-            conn.execute(stmt)
+            _login_role(conn, role, password)
         for stmt in role_statements(database, reader=reader, writer=writer, approver=approver):
             conn.execute(stmt)
+        _functions_to_the_owner(conn)
     from storage.seal import record_event
 
     passwords = [r for r, p in logins if p]
@@ -269,6 +296,72 @@ def apply_roles(
             "password_set": passwords,
         },
     )
+
+
+def _functions_to_the_owner(conn: psycopg.Connection) -> None:
+    """The guard functions belong to the tables' owner, also when a superuser made them, so
+    that the owner can run `apply_roles` again (replacing a function takes its owner)."""
+    from psycopg import sql
+
+    from storage.seal import APPEND_EVENT
+
+    owner = conn.execute(
+        "SELECT tableowner FROM pg_tables WHERE schemaname = 'public' AND tablename = 'runs'"
+    ).fetchone()
+    if owner is None:
+        return
+    for function in (APPEND_EVENT, "calib_supersede_forward()"):
+        conn.execute(
+            sql.SQL("ALTER FUNCTION " + function + " OWNER TO {}").format(sql.Identifier(owner[0]))
+        )
+
+
+# What a role the archive's roles hold to must not be (pg_roles columns).
+_POWERS = {
+    "rolsuper": "SUPERUSER",
+    "rolcreatedb": "CREATEDB",
+    "rolcreaterole": "CREATEROLE",
+    "rolbypassrls": "BYPASSRLS",
+}
+
+
+def _login_role(conn: psycopg.Connection, role: str, password: str | None) -> None:
+    """Make `role` a login role without powers, changing only what differs; set `password`
+    when given. PermissionError naming the administrator's statement when refused."""
+    import psycopg
+    from psycopg import sql
+
+    cols = ", ".join(_POWERS)
+    row = conn.execute(
+        f"SELECT rolcanlogin, {cols} FROM pg_roles WHERE rolname = %s", (role,)
+    ).fetchone()
+    name = sql.Identifier(role)
+    if row is None:
+        stmt = sql.SQL("CREATE ROLE {} LOGIN").format(name)
+        doing = f"create role {role}"
+    else:
+        changes = ([] if row[0] else ["LOGIN"]) + [
+            "NO" + power for power, held in zip(_POWERS.values(), row[1:], strict=True) if held
+        ]
+        stmt = sql.SQL("ALTER ROLE {} " + " ".join(changes)).format(name) if changes else None
+        doing = f"change role {role} ({' '.join(changes)})"
+    if password is not None:
+        if stmt is None:
+            stmt = sql.SQL("ALTER ROLE {}").format(name)
+            doing = f"set the password of role {role}"
+        stmt += sql.SQL(" PASSWORD {}").format(sql.Literal(password))
+    if stmt is None:
+        return
+    try:
+        with conn.transaction():  # a savepoint: the refusal is reported, not the abort
+            conn.execute(stmt)
+    except psycopg.errors.InsufficientPrivilege:
+        user = conn.execute("SELECT session_user").fetchone()[0]
+        shown = stmt.as_string(conn).split(" PASSWORD ")[0]
+        raise PermissionError(
+            f"role {user} may not {doing}: the database administrator (a superuser) runs "
+            f"`{shown}` once (docs/postgresql.md, step 3), then apply_roles again"
+        ) from None
 
 
 def role_sql(

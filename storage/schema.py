@@ -266,6 +266,21 @@ class ThermalModelRow(Base):
     superseded_by: Mapped[int | None] = mapped_column(ForeignKey("thermal_models.id"))
 
 
+class ValidationRow(Base):
+    """A run's calibration revision compared with independent implementations
+    (`calib validate`, storage.validation): the comparison document as printed, sealed
+    by the digest its "validated" audit event carries. Never updated or deleted."""
+
+    __tablename__ = "validations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    calibration_id: Mapped[int] = mapped_column(ForeignKey("calibrations.id"), index=True)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    software_version: Mapped[str] = mapped_column(String(100))
+    document: Mapped[dict[str, Any]]  # pipelines.validation.compare.validate_run
+    digest: Mapped[str] = mapped_column(String(SHA256_LEN))
+
+
 class Seal(Base):
     """The sealed record of one calibration revision (storage.seal).
 
@@ -291,7 +306,9 @@ class AuditEvent(Base):
     """One event of the append-only audit chain (storage.seal): who, when, what, why.
 
     ``hash`` is the SHA-256 over the other fields, ``prev_hash`` that of the event
-    ``seq - 1`` (zeros for the first), so the events form one chain.
+    ``seq - 1`` (zeros for the first), so the events form one chain. ``actor`` is who
+    the writer says it is; ``db_user`` (migration 0009) who wrote it as the database
+    knows it: PostgreSQL's ``session_user``, the OS user on SQLite (NULL before 0009).
     """
 
     __tablename__ = "audit_events"
@@ -307,6 +324,7 @@ class AuditEvent(Base):
     digest: Mapped[str | None] = mapped_column(String(SHA256_LEN))
     prev_hash: Mapped[str] = mapped_column(String(SHA256_LEN), unique=True)
     hash: Mapped[str] = mapped_column(String(SHA256_LEN), unique=True)
+    db_user: Mapped[str | None] = mapped_column(String(200), nullable=True)
 
 
 class UnitLatest(Base):

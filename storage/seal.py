@@ -52,17 +52,42 @@ PG_CHAIN_LOCK = 0x63616C6963  # "calic"
 MAX_REASON = 2000  # characters of a reason
 
 
+def os_user() -> str:
+    """The OS user this process runs as."""
+    try:
+        return getpass.getuser()
+    except (KeyError, OSError):  # no passwd entry (a container), no LOGNAME
+        return f"uid {os.getuid()}"
+
+
 def actor() -> str:
     """Who is writing: env ``CALIB_USER`` (the configured identity), else the OS user."""
-    name = os.environ.get(ACTOR_ENV, "").strip()
-    if not name:
-        try:
-            name = getpass.getuser()
-        except (KeyError, OSError):  # no passwd entry (a container), no LOGNAME
-            name = f"uid {os.getuid()}"
+    name = os.environ.get(ACTOR_ENV, "").strip() or os_user()
     if len(name) > 200 or any(ord(c) < 32 for c in name):
         raise ValueError(f"{ACTOR_ENV}: at most 200 characters and no control characters")
     return name
+
+
+def db_user(conn: Connection) -> str:
+    """Who writes as the database knows it: PostgreSQL's ``session_user`` (the role that
+    logged in; asked once per connection), on SQLite (a file has no users of its own) the
+    OS account of the process's user id, not the environment's LOGNAME or USER."""
+    if conn.dialect.name != "postgresql":
+        return process_user()[:200]
+    info = conn.connection.info  # the driver connection's: its session user never changes
+    if SESSION_USER_KEY not in info:
+        info[SESSION_USER_KEY] = str(conn.execute(_SESSION_USER).scalar())
+    return info[SESSION_USER_KEY]
+
+
+def process_user() -> str:
+    """The account name of this process's effective user id ("uid N" without one)."""
+    try:
+        import pwd
+
+        return pwd.getpwuid(os.geteuid()).pw_name
+    except (ImportError, AttributeError, KeyError):  # Windows (no pwd, no geteuid), no passwd entry
+        return os_user()
 
 
 def check_reason(reason: str | None) -> None:
@@ -78,7 +103,8 @@ def check_reason(reason: str | None) -> None:
 
 @dataclass(frozen=True)
 class Event:
-    """One audit event as it is hashed (``hash`` excluded)."""
+    """One audit event as it is hashed (``hash`` excluded). ``db_user`` (`db_user`) is
+    hashed when there is one: events written before migration 0009 have none."""
 
     seq: int
     at: datetime
@@ -90,9 +116,13 @@ class Event:
     detail: dict[str, Any]
     digest: str | None
     prev_hash: str
+    db_user: str | None = None
 
     def hash(self) -> str:
-        return sha256_hex(canonical({k: getattr(self, k) for k in EVENT_FIELDS}))
+        fields = {k: getattr(self, k) for k in EVENT_FIELDS}
+        if fields["db_user"] is None:
+            del fields["db_user"]
+        return sha256_hex(canonical(fields))
 
 
 EVENT_FIELDS = (
@@ -106,7 +136,10 @@ EVENT_FIELDS = (
     "detail",
     "digest",
     "prev_hash",
+    "db_user",
 )
+_SESSION_USER = text("SELECT session_user")
+SESSION_USER_KEY = "calib_session_user"
 # Built once (as the record queries of storage.seal_record).
 _HEAD = select(AuditEvent.seq, AuditEvent.hash).order_by(AuditEvent.seq.desc()).limit(1)
 _INSERT_EVENT = insert(AuditEvent)
@@ -154,6 +187,7 @@ def append_event(
         detail or {},
         digest,
         prev,
+        db_user(conn),
     )
     row = {**{k: getattr(ev, k) for k in EVENT_FIELDS}, "hash": ev.hash()}
     if pg and _has_append_function(conn):
@@ -174,20 +208,21 @@ def _pending(conn: Connection) -> dict[str, Any] | None:
 
 # PostgreSQL with roles (storage.roles.apply_roles): the writer and approver append only through
 # this function, which checks the link to the head and the date (docs/archive.md).
+# The function's signature (storage.roles makes it; its grants name it).
+APPEND_EVENT = (
+    "calib_append_event(timestamptz, text, text, text, integer, text, json, text, "
+    "text, text, integer, text)"
+)
 _APPEND_EVENT = text(
     "SELECT calib_append_event(:at, :actor, :action, :run_id, :revision, :reason, "
-    "CAST(:detail AS json), :digest, :prev_hash, :hash, :seq)"
-)
-_APPEND_FUNCTION = (
-    "calib_append_event(timestamptz, text, text, text, integer, text, json, "
-    "text, text, text, integer)"
+    "CAST(:detail AS json), :digest, :prev_hash, :hash, :seq, :db_user)"
 )
 _HAS_FUNCTION = text("SELECT to_regprocedure(:f) IS NOT NULL")
 
 
 def _has_append_function(conn: Connection) -> bool:
     """Whether the database has it (made by storage.roles.apply_roles)."""
-    return bool(conn.execute(_HAS_FUNCTION, {"f": _APPEND_FUNCTION}).scalar())
+    return bool(conn.execute(_HAS_FUNCTION, {"f": APPEND_EVENT}).scalar())
 
 
 def record_event(archive: Archive, action: str, **fields: Any) -> Event:

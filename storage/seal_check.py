@@ -10,11 +10,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Connection, select
+from sqlalchemy import Connection, select, text
 
-from storage import schema
+from storage import schema, validation
 from storage.schema import AuditEvent, Seal
-from storage.seal import EVENT_FIELDS, GENESIS, ISSUED, SEALING, Event, head
+from storage.seal import APPEND_EVENT, EVENT_FIELDS, GENESIS, ISSUED, SEALING, Event, head
 from storage.seal_record import (
     FORMAT,
     FORMATS,
@@ -105,6 +105,10 @@ def check(conn: Connection, root: Path) -> ChainCheck:
             )
         )
     findings += _check_issued(conn, root)
+    findings += [
+        Finding("record", "validations", [run_id], detail)
+        for run_id, detail in validation.check_records(conn)
+    ]
     return ChainCheck(findings, head(conn), len(seal_ids), digests_now)
 
 
@@ -172,9 +176,11 @@ def rehash_files(root: Path, files: dict[str, str]) -> dict[str, str]:
 
 
 def _check_chain(conn: Connection) -> tuple[list[Finding], dict[tuple[str, int], str]]:
-    """The chain's links; also (run_id, revision) -> digest of every sealing event."""
+    """The chain's links, and that its events match the rows (`_check_event_rows`); also
+    (run_id, revision) -> digest of every sealing event."""
     findings: list[Finding] = []
     sealing: dict[tuple[str, int], str] = {}
+    named: list[Event] = []  # the events naming a run
     prev_seq, prev_hash = 0, GENESIS
     rows = conn.execution_options(yield_per=5000).execute(
         select(AuditEvent).order_by(AuditEvent.seq)
@@ -211,9 +217,67 @@ def _check_chain(conn: Connection) -> tuple[list[Finding], dict[tuple[str, int],
                 )
             )
         if ev.action in SEALING and ev.run_id and ev.digest:
-            sealing[(ev.run_id, ev.revision)] = ev.digest
+            if (ev.run_id, ev.revision) in sealing:
+                findings.append(
+                    Finding(
+                        "chain",
+                        "audit_events",
+                        [ev.run_id],
+                        f"{where} seals revision {ev.revision} a second time",
+                    )
+                )
+            sealing.setdefault((ev.run_id, ev.revision), ev.digest)
+        elif ev.action in SEALING:
+            findings.append(
+                Finding(
+                    "chain",
+                    "audit_events",
+                    [ev.run_id] if ev.run_id else [],
+                    f"{where} lacks its run, revision or digest: a sealing event names all three",
+                )
+            )
+        if ev.run_id is not None or ev.action in NAMES_REVISION:
+            named.append(ev)
         prev_seq, prev_hash = ev.seq, row.hash
+    findings += _check_event_rows(conn, named)
     return findings, sealing
+
+
+# Actions whose event names one revision of one run.
+NAMES_REVISION = (*SEALING, "approved", ISSUED)
+
+
+def _check_event_rows(conn: Connection, events: list[Event]) -> list[Finding]:
+    """Every event naming a run names one the archive holds, and (for an action of one
+    revision) a revision of it that the archive holds."""
+    runs = set(conn.execute(select(schema.Run.run_id)).scalars())
+    revisions = {
+        (run_id, rev)
+        for run_id, rev in conn.execute(
+            select(schema.Run.run_id, schema.CalibrationRow.revision).join(
+                schema.Run, schema.Run.id == schema.CalibrationRow.run_id
+            )
+        )
+    }
+    out = _check_writers(conn, events)
+    for ev in events:
+        where = f"event {ev.seq} ({ev.action} by {ev.actor})"
+        if ev.run_id is None:
+            if ev.action in SEALING:
+                continue  # reported by _check_chain
+            what = "no run"
+        elif ev.run_id not in runs:
+            what = f"run {ev.run_id}, which the archive does not hold"
+        elif ev.action in NAMES_REVISION and (ev.run_id, ev.revision) not in revisions:
+            what = f"revision {ev.revision} of run {ev.run_id}, which the archive does not hold"
+        else:
+            continue
+        out.append(
+            Finding(
+                "chain", "audit_events", [ev.run_id] if ev.run_id else [], f"{where} names {what}"
+            )
+        )
+    return out
 
 
 def _check_seal(
@@ -330,3 +394,51 @@ def _show(value: Any) -> str:
         return "(absent)"
     text_ = canonical(value).decode()
     return text_ if len(text_) <= 120 else text_[:117] + "..."
+
+
+# PostgreSQL: each role that wrote an event, whether it may add runs and append events now.
+_ROLE_RIGHTS = text(
+    "SELECT r.rolname, has_table_privilege(r.oid, 'runs', 'INSERT'), "
+    "has_table_privilege(r.oid, 'audit_events', 'INSERT') OR coalesce("
+    "has_function_privilege(r.oid, to_regprocedure(:f), 'EXECUTE'), false) "
+    "FROM pg_roles r WHERE r.rolname = ANY(:names)"
+)
+
+
+def _check_writers(conn: Connection, events: list[Event]) -> list[Finding]:
+    """PostgreSQL: the writer recorded with each event (its session user, migration 0009)
+    may hold the event's role: a sealing event's may add runs (the writer role or the
+    owner), an approval's may append events (the approver, writer or owner role). Events
+    without a recorded writer (before 0009) and SQLite's OS users are not judged here."""
+    users = {ev.db_user for ev in events if ev.db_user}
+    if conn.dialect.name != "postgresql" or not users:
+        return []
+    rights = {
+        name: (adds_runs, appends)
+        for name, adds_runs, appends in conn.execute(
+            _ROLE_RIGHTS, {"f": APPEND_EVENT, "names": sorted(users)}
+        )
+    }
+    out = []
+    for ev in events:
+        if not ev.db_user or ev.action not in (*SEALING, "approved"):
+            continue
+        adds_runs, appends = rights.get(ev.db_user, (None, None))
+        may = adds_runs if ev.action in SEALING else appends
+        if may:
+            continue
+        why = (
+            "no longer exists: its right to write cannot be confirmed"
+            if may is None
+            else ("may not add runs" if ev.action in SEALING else "may not append events")
+        )
+        out.append(
+            Finding(
+                "chain",
+                "audit_events",
+                [ev.run_id] if ev.run_id else [],
+                f"event {ev.seq} ({ev.action} of {ev.run_id}, actor {ev.actor}) was written "
+                f"by database role {ev.db_user}, which {why}",
+            )
+        )
+    return out

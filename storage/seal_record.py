@@ -256,7 +256,7 @@ def _own_description(m: Any, per_run: bool) -> dict[str, Any]:
     return {n: m["u_" + n] for n in _DESCRIPTION if m["u_" + n] != m["d_" + n]}
 
 
-def _labelled(rows: list[tuple[str, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
+def labelled(rows: list[tuple[str, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
     """Rows keyed by label; a repeated label gets ``#2``, ``#3``... in row order."""
     out: dict[str, dict[str, Any]] = {}
     for label, row in rows:
@@ -278,7 +278,7 @@ def _run_children(conn: Connection, run_pks: list[int]) -> dict[int, dict[str, A
     for m in conn.execute(raw_query, {"ids": run_pks}).mappings():
         raw_rows[m["run_id"]].append((m["name"], {n: m[n] for n in _RAW}))
     return {
-        pk: {"run_equipment": _labelled(eq_rows[pk]), "raw_files": _labelled(raw_rows[pk])}
+        pk: {"run_equipment": labelled(eq_rows[pk]), "raw_files": labelled(raw_rows[pk])}
         for pk in run_pks
     }
 
@@ -297,7 +297,7 @@ def _calibration_children(
                 row[n] = _leaf(row[n], True)
             label = f"{row['seq']}:{row['name']}" if table == "processing_steps" else row["name"]
             out[cal_pk][table].append((label, row))
-    return {pk: {t: _labelled(out[pk][t]) for t, *_ in _CHILD_TABLES} for pk in cal_pks}
+    return {pk: {t: labelled(out[pk][t]) for t, *_ in _CHILD_TABLES} for pk in cal_pks}
 
 
 # A revision's child tables: (record key, model, sealed columns, order within a revision).

@@ -12,9 +12,10 @@ derivation from the runs. The ``parameters`` rows of every
 calibration must agree with the parameters of its stored document (both are
 written from the same objects): any difference, a missing or an extra row is a
 *record* problem naming run, revision, parameter, field and both values. The
-settings hash of a revision judged again (storage.rejudgement.rejudge_run) is
-recomputed from its settings and the runs its ``rejudge`` step says it was judged
-against.
+settings hash of every revision is recomputed from its settings, procedure and profile
+(storage.settings_hash), and for a revision judged again (storage.rejudgement.rejudge_run)
+the runs its ``rejudge`` step says it was judged against. Whether a revision's numbers
+are what its raw bytes give is `calib verify --recompute`'s question (pipelines.recompute).
 
 Files the database does not reference (an archive attempt killed between
 writing its files and committing its rows leaves those) are listed as
@@ -186,7 +187,7 @@ def verify(
         _check_database(conn, report)
         _check_unit_latest(conn, report)
         _check_parameters(conn, report)
-        _check_judged_again(conn, report)
+        _check_settings_hashes(conn, report)
         if seals:
             _check_seals(conn, root, report)
         _check_trust(conn, report, approvers, checkpoints)
@@ -248,15 +249,24 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
         )
 
 
-def _check_judged_again(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
-    """The settings hash of each revision judged again, recomputed from its sealed rows.
+def _check_settings_hashes(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection
+    """The settings hash of every revision, recomputed from its sealed rows: its settings,
+    procedure and profile, and for a revision judged again the runs its last ``rejudge``
+    step says it was judged against.
 
-    A revision judged again before its ``rejudge`` step recorded the runs it was judged
-    against holds a hash no reader can recompute: it is left to its seal.
+    A revision judged again before its ``rejudge`` step recorded those runs holds a hash no
+    reader can recompute: it is left to its seal.
     """
     from storage.settings_hash import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
 
-    rows = conn.execute(
+    against: dict[int, list[str] | None] = {}  # a revision judged again twice: its last step
+    for cal_id, step_settings in conn.execute(
+        select(ProcessingStep.calibration_id, ProcessingStep.settings)
+        .where(ProcessingStep.name == REJUDGE_STEP)
+        .order_by(ProcessingStep.calibration_id, ProcessingStep.seq)
+    ):
+        against[cal_id] = (step_settings or {}).get(JUDGED_AGAINST)
+    rows = conn.execution_options(yield_per=2000).execute(
         select(
             CalibrationRow.id,
             Run.run_id,
@@ -266,31 +276,34 @@ def _check_judged_again(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a
             CalibrationRow.settings,
             CalibrationRow.profile_name,
             CalibrationRow.profile_version,
-            ProcessingStep.settings.label("step_settings"),
         )
         .join(Run, Run.id == CalibrationRow.run_id)
-        .join(ProcessingStep, ProcessingStep.calibration_id == CalibrationRow.id)
-        .where(ProcessingStep.name == REJUDGE_STEP)
-        .order_by(CalibrationRow.id, ProcessingStep.seq)
-    ).all()
-    last = {r.id: r for r in rows}  # a revision judged again twice: its last step counts
-    for r in last.values():
-        against = (r.step_settings or {}).get(JUDGED_AGAINST)
-        if against is None:
+        .order_by(CalibrationRow.id)
+    )
+    for r in rows:
+        judged = r.id in against
+        if judged and against[r.id] is None:
             continue
         expected = settings_hash(
-            r.settings, r.procedure, r.profile_name, r.profile_version, against
+            r.settings, r.procedure, r.profile_name, r.profile_version, against.get(r.id)
         )
-        if expected != r.settings_hash:
-            report.problems.append(
-                Problem(
-                    "record",
-                    f"calibrations/{r.revision}/settings_hash",
-                    [r.run_id],
-                    f"revision {r.revision} judged again against {', '.join(against) or 'no run'}:"
-                    f" settings hash {expected} expected, {r.settings_hash} held",
-                )
+        if expected == r.settings_hash:
+            continue
+        how = (
+            f"judged again against {', '.join(against[r.id]) or 'no run'}"
+            if judged
+            else f"settings, procedure {r.procedure} and profile {r.profile_name} "
+            f"v{r.profile_version}"
+        )
+        report.problems.append(
+            Problem(
+                "record",
+                f"calibrations/{r.revision}/settings_hash",
+                [r.run_id],
+                f"revision {r.revision} ({how}): settings hash {expected} expected, "
+                f"{r.settings_hash} held",
             )
+        )
 
 
 def _check_unit_latest(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Connection

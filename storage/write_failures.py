@@ -31,6 +31,7 @@ _DB_READ_ONLY = (
 )
 _DB_CANNOT_OPEN = ("unable to open database file",)
 _DB_IO = ("disk i/o error",)
+_PG_DENIED = "42501"  # PostgreSQL's insufficient_privilege: a role that may not write
 
 AGAIN = "nothing was written; run the same command again once that is done"
 
@@ -96,6 +97,12 @@ def describe(exc: BaseException, database_url: str | None = None) -> str | None:
             if database_url
             else "the archive's database"
         )
+        if getattr(e, "sqlstate", None) == _PG_DENIED:
+            first = str(e).splitlines()[0] if str(e) else "permission denied"
+            return (
+                f"{db} refused the write ({first}): connect as a role that may write "
+                f"(the writer role or the owner); {AGAIN}"
+            )
         if any(s in text for s in _DB_FULL):
             return f"no space left for {db}: free space on its disk (or move the archive); {AGAIN}"
         if any(s in text for s in _DB_READ_ONLY):

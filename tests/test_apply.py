@@ -84,6 +84,20 @@ def test_flow_processed_and_fitted_the_campaign(campaign):
     assert row["id"] == fit["model_id"] and len(row["calibration_ids"]) == len(TEMPS)
 
 
+def test_thermal_fit_on_a_read_only_archive_says_nothing_was_written(campaign, monkeypatch):
+    """The SQLite file opened read-only (a URI SQLite enforces, also for root)."""
+    from sqlalchemy.engine import make_url
+
+    arch = campaign["archive"]
+    before = len(queries.thermal_models(arch, SERIAL))
+    monkeypatch.setenv("CALIB_FILESTORE", str(arch.root))
+    read_only = f"sqlite:///file:{make_url(arch.url).database}?mode=ro&uri=true"
+    res = CliRunner().invoke(app, ["thermal", "fit", SERIAL, "--archive", read_only])
+    assert res.exit_code == 2, res.output
+    assert f"thermal model of {SERIAL} not written" in res.output and "read-only" in res.output
+    assert len(queries.thermal_models(arch, SERIAL)) == before
+
+
 def test_thermal_fit_command_refits_and_supersedes(campaign):
     arch = campaign["archive"]
     before = queries.latest_thermal_model(arch, SERIAL)["id"]

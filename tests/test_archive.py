@@ -152,6 +152,7 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
         "audit_events": 1,  # "archived"
         "unit_latest": 1,  # the unit's latest run and valid calibration (derived)
         "unit_latest_values": 4,  # that calibration's parameters, one per name (derived)
+        "validations": 0,  # none until `calib validate`
     }
     s = queries.run_summary(archive, res.run_id)
     assert s["raw_hash"] == raw_hash

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import re
 import textwrap
 import tomllib
 
@@ -100,6 +101,35 @@ def bad(doc_change, index=None):
 def test_profile_errors_name_the_field(doc, message):
     with pytest.raises(ValueError, match=message):
         ToleranceProfile.from_dict(doc)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "line_starts", "message"),
+    [
+        ('pattern = "gyr.bias.*"', 'pattern = "gyr.bais.*"', "pattern", r"limits\[2\]\.pattern: "),
+        ('unit = "deg/s" }', 'unit = "m/s^2" }', "gyr_std", r"residual_limits\.gyr_std\.unit: "),
+        ("[protocol]", "[recall]\nmethod = 'weekly'\n[protocol]", "method", r"recall\.method must"),
+    ],
+)
+def test_profile_file_errors_name_file_line_and_field(
+    tmp_path, monkeypatch, old, new, line_starts, message
+):
+    """As a manifest's: the file, the line that writes the key (of its inline table), the
+    dotted field."""
+    from pipelines.tolerances import SHIPPED, load_profile
+
+    text = (SHIPPED / "mpu6000.toml").read_text(encoding="utf-8")
+    assert old in text
+    text = text.replace(old, new, 1)
+    (tmp_path / "bad.toml").write_text(text, encoding="utf-8")
+    monkeypatch.setenv("CALIB_PROFILES", str(tmp_path))
+    with pytest.raises(ValueError) as err:
+        load_profile("bad")
+    where = str(err.value).split(": ", 1)[0]
+    assert where.startswith(f"tolerance profile {tmp_path / 'bad.toml'} line ")
+    line = int(where.rsplit(" ", 1)[1])
+    assert text.splitlines()[line - 1].startswith(line_starts)
+    assert re.search(message, str(err.value))
 
 
 def cal_with(**values) -> Calibration:

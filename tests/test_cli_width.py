@@ -167,6 +167,7 @@ def _commands(demo: dict) -> list[list[str]]:
         ["query", "latest", "IMU-R-0003", *a],
         ["query", "lineage", run, "acc.bias.x", *a],
         ["navfit", run, "--profile", "static-alignment", *a],
+        ["validate", run, "--with", "allantools", *a],
         ["query", "lapsed", "CUBE-7", *a],
         ["impact", "DAQ-12", "--from", "2026-01-01", "--error", "clock_error_ppm=500", *a],
         ["query", "units", *a],

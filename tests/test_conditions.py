@@ -385,7 +385,11 @@ def test_equipment_precheck_from_the_lab_file(tmp_path, monkeypatch):
         '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n'
         '[equipment.precheck]\ntable_angle_accuracy_arcsec = { value = "1" }\n'
     )
-    with pytest.raises(ValueError, match=r"equipment\[0\]\.precheck\.table_angle_accuracy_arcsec"):
+    # as a manifest's and a tolerance profile's errors: file, the line of the key, the field
+    with pytest.raises(
+        ValueError,
+        match=r"lab.toml line 5: equipment\[0\]\.precheck\.table_angle_accuracy_arcsec\.value: ",
+    ):
         lab_precheck()
     (tmp_path / "lab.toml").write_text(
         '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n'

@@ -203,3 +203,14 @@ def test_dask_batch_in_any_order_gives_the_verdicts_of_time_order(
         archive.dispose()
     check_time_order(seen, "dask, reversed")
     assert [o["verdict"] for o in outcomes] == [IN_TIME_ORDER[d] for d in order]
+
+    # Every revision (the runs judged again by run time included) solved again on the
+    # cluster from its raw bytes, against what it was judged against: identical.
+    from pipelines.flows import recompute_batch
+
+    run_ids = [o["run_id"] for o in outcomes]
+    again = recompute_batch(run_ids, postgres_url, runner="dask", scheduler=dask_cluster)
+    assert [o["run_id"] for o in again] == run_ids
+    revisions = [r for o in again for r in o["revisions"]]
+    assert len(revisions) > len(run_ids)  # judged again: more revisions than runs
+    assert all(r["status"] == "identical" for r in revisions), again

@@ -221,7 +221,10 @@ def test_writes_to_a_read_only_archive_say_why_either_way_it_is_named(
         done = calib("approve", run_id, "--key", str(tmp_path / "k.key"), *a, **env)
         said = " ".join(done.stderr.split())
         assert done.returncode != 0 and "Traceback" not in done.stderr, done.stderr[-3000:]
-        assert f"error: the database {ro}/archive.sqlite is read-only" in said, said
+        assert (
+            f"error: run {run_id}: not signed: the database {ro}/archive.sqlite is read-only"
+            in (said)
+        ), said
         assert "the database the archive" not in said
         done = calib("process", str(SAMPLES / "csv_IMU-2026-0042"), *a, **env)
         assert "Traceback" not in done.stderr

@@ -10,8 +10,7 @@ import pytest
 from scipy.stats import chi2, norm
 
 from calib_core.earth import earth_rate_local
-from calib_core.procedures import solve
-from calib_core.procedures.settings import SettingError
+from calib_core.procedures import SettingError, solve
 from calib_core.procedures.six_position import solve_six_position
 from calib_core.simulate import STATIC_LABELS, random_errors
 from calib_core.simulate.lab_run import six_position_integral_run
@@ -99,8 +98,15 @@ def test_fog_recovers_bias_scale_and_misalignment_at_two_headings_90_deg_apart()
         assert float(m @ m) > chi2.isf(1e-6, 9)
         assert cal.parameters["gyr.bias.x"].std < 0.01 * math.pi / 180 / 3600  # < 0.01 deg/h
         assert not any(n.startswith("gyr.gsens") for n in cal.parameters)
+    # Solved as if at 30 deg, the six means do not fit the model: the residuals reject it
+    # (chi2 far above its 0.999 quantile), the uncertainties carry the misfit
+    # (calib_core.stats.misfit_scale) and the record says so: the wrong heading cannot
+    # pass for a precise result.
     wrong = _solve(segments, gravity, 30.0)
-    assert max(abs(v) for v in _z(wrong, truth).values()) > 10 * K
+    widened = min(wrong.parameters[n].std / cal.parameters[n].std for n in GYRO)
+    assert widened > 10 * K, widened
+    assert any("gyro fit beyond their noise" in w for w in wrong.warnings), wrong.warnings
+    assert not any("gyro fit" in w for w in cal.warnings), cal.warnings
 
 
 def test_mems_gyro_is_refused_the_earth_rate_unobservable():

@@ -19,7 +19,7 @@ from pipelines.ingest import discover_runs
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import TEXT_MAX_CHARS
 from pipelines.ingest.manifest import parse_manifest
-from pipelines.process import process_run
+from pipelines.process import SAME_DESCRIPTION, process_run
 from pipelines.run_task import is_transient
 from storage import queries
 from storage.archive import PG_UNIT_LOCK, StaleCheckError, archive_run
@@ -104,7 +104,7 @@ def test_model_change_for_a_serial_is_flagged(archive, tmp_path: Path) -> None:
     assert out["status"] == "ok"
     first_id = out["run_id"]
     check = archived_check(archive, first_id)
-    assert check["passed"] and check["detail"] == "first run of this serial"
+    assert check["passed"] and check["detail"] == SAME_DESCRIPTION
 
     folder = copy_run(tmp_path, "swapped", 'model = "MPU-6000"', 'model = "ICM-20602"', "\n")
     (second,) = discover_runs([folder])
@@ -152,7 +152,7 @@ def test_a_pass_made_stale_by_a_concurrent_run_is_refused(archive, tmp_path: Pat
     """Two runs of one unit checked at once, the other committed first with another model:
     the later one's passed device:description no longer holds, and it is not archived."""
     archive_run(archive, make_run(tmp_path / "a", serial="0012", seed=1), {})
-    passed = CheckResult("device:description", None, None, True, "as archived before")
+    passed = CheckResult("device:description", None, None, True, SAME_DESCRIPTION)
     later = make_run(tmp_path / "b", serial="0012", seed=2)
     later = replace(later, device_model="ICM-20602", checks=[*later.checks, passed])
     with pytest.raises(StaleCheckError) as info:
@@ -172,7 +172,7 @@ def test_a_run_of_the_unit_committing_meanwhile_is_waited_for(archive, tmp_path:
     SQLite: the write lock) and commits a run under another model: a run whose check
     passed before that waits for it, then is refused rather than archived unflagged."""
     archive_run(archive, make_run(tmp_path / "a", serial="0012", seed=1), {})
-    passed = CheckResult("device:description", None, None, True, "as archived before")
+    passed = CheckResult("device:description", None, None, True, SAME_DESCRIPTION)
     later = make_run(tmp_path / "b", serial="0012", seed=2)
     later = replace(later, checks=[*later.checks, passed])
     outcome: list[BaseException | str] = []

@@ -272,7 +272,7 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
     assert "gyr.scale.x" in rows[0]["moved"]
     page = (lab["tmp"] / "impact.html").read_text()
     assert reason in page and runs["A"] in page and "1 verdict(s) changed" in page
-    assert "revisions archived" in page and "gyr.scale.x" in page
+    assert "1 revision(s) archived" in page and "gyr.scale.x" in page
     # Applied again: the same correction is a duplicate, not a third revision.
     again = apply_rate_error(arch)
     assert again["runs"][0]["status"] == "duplicate"
@@ -295,6 +295,26 @@ def test_reprocessing_carries_the_correction(lab, monkeypatch):
     assert cal["settings"]["reference_correction"]["quantity"] == "rate_error_ppm"
     assert _params(arch, run_a)["gyr.scale.x"]["value"] == pytest.approx(corrected, rel=1e-12)
     assert verify(arch).ok
+    # Each revision solved again from the raw bytes with what it records (reason,
+    # correction and its look-back record): the one by this "software" to the bit, those
+    # by the other version differing in that version alone ("changed", as reprocess says).
+    from pipelines.recompute import recompute_run
+
+    newest = cal["revision"]
+    for now, mine in (("99.0-test", {newest}), ("installed", None)):
+        if mine is None:
+            monkeypatch.undo()
+            mine = set(range(1, newest))
+        found = recompute_run(arch, run_a)
+        for r in found["revisions"]:
+            if r["revision"] in mine:
+                assert r["status"] == "identical", (now, r)
+                continue
+            assert (r["status"], r["differences"]) == ("changed", 1), (now, r)
+            assert r["first_difference"]["path"] == "calibrations/software_version"
+            assert r["changes"]["runs"] == 1 and not r["changes"]["verdicts"]
+            assert all(f["changed"] == 0 for f in r["changes"]["families"].values())
+        assert found["status"] == "changed"
 
 
 @pytest.mark.parametrize(

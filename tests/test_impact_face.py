@@ -112,13 +112,13 @@ def test_face_positions_and_unlabelled_runs():
 
 def test_multi_position_reads_the_true_face_direction():
     """multi_position's face-labelled positions take the corrected direction too."""
-    from calib_core.solvers.multi_position import multi_position_settings, reference_force
+    from calib_core.solvers.multi_position import SETTINGS, reference_force
 
     rng = np.random.default_rng(2)
     sim = six_position_integral_run(random_errors(rng), rng, static_s=2.0)
     error = parse_error(f"face_angle_error_arcsec[-x,y]={E_ARCSEC}")
     out, _ = correct_segments(sim.segments, error)
-    s = multi_position_settings({})
+    s = SETTINGS.parse({})
     got = reference_force("x_up", out["x_up"], G, s)
     assert got == pytest.approx(G * TRUE_UP["x_up"], abs=1e-12)
     assert reference_force("y_up", out["y_up"], G, s) == pytest.approx([0.0, G, 0.0], abs=0)

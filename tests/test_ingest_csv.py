@@ -282,9 +282,11 @@ def test_wrong_unit_in_manifest(tmp_path: Path) -> None:
     (tmp_path / "run.toml").write_text(per_file_manifest({"x_up": "x.csv"}, acc_unit="furlong/s^2"))
     with pytest.raises(IngestError) as err:
         load_run(discover_runs([tmp_path])[0])
+    lines = (tmp_path / "run.toml").read_text().splitlines()
+    line = next(i for i, text in enumerate(lines, 1) if text.startswith("acc_unit"))
     assert str(err.value).startswith(
-        f"{tmp_path / 'run.toml'}: field 'format.acc_unit': unknown acceleration unit "
-        "'furlong/s^2'; expected one of: g, m/s"
+        f"{tmp_path / 'run.toml'} line {line}: field 'format.acc_unit': unknown acceleration "
+        "unit 'furlong/s^2'; expected one of: g, m/s"
     )
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import hdf5storage
 import numpy as np
 import pytest
 from mcap_ros2.writer import Writer as Ros2Writer
@@ -51,6 +50,8 @@ def manifest(serial: str, fmt: dict, segments: list[dict] | dict[str, str]) -> s
 def write_mat_run(folder: Path, segments) -> None:
     """One v7.3 file per segment: a struct `imu` with t (s), acc (g), gyr (deg/s), temp."""
     folder.mkdir(parents=True)
+    import hdf5storage  # h5py and HDF5 loaded by the tests that write one, not at collection
+
     files = {}
     for label, rec in segments.items():
         imu = {"t": rec.t, "acc": rec.acc / 9.80665, "gyr": np.degrees(rec.gyr), "temp": rec.temp}

@@ -115,9 +115,9 @@ def test_recall_section_of_the_profile():
     assert prof.recall["reliability"] == 0.95  # default
     assert ToleranceProfile.from_dict(prof.to_dict()).recall == prof.recall
     for bad, message in (
-        ({"reliability": 1.2}, "between 0 and 1"),
-        ({"method": "attributes"}, "expected one of"),
-        ({"months": 3}, "unknown key"),
+        ({"reliability": 1.2}, r"recall.reliability: expected a number in \(0, 1\), got 1.2"),
+        ({"method": "attributes"}, "recall.method must be one of 'variables', 'fixed'"),
+        ({"months": 3}, r"recall.months: unknown setting of \[recall\]"),
     ):
         with pytest.raises(ValueError, match=message):
             ToleranceProfile.from_dict({**doc, "recall": bad})

@@ -150,7 +150,13 @@ def test_mistakes_name_their_field(
     assert old in EXAMPLE
     err = error_of(tmp_path, EXAMPLE.replace(old, new, 1))
     assert err.field == field and err.file == str(tmp_path / "run.toml")
-    assert str(err).startswith(f"{tmp_path / 'run.toml'}: field '{field}': ")
+    text = EXAMPLE.replace(old, new, 1)
+    # The line is the one that writes the key (as for a [run.settings] key); none when the
+    # key is missing or the problem is a whole section's.
+    where = "" if err.line is None else f" line {err.line}"
+    assert str(err).startswith(f"{tmp_path / 'run.toml'}{where}: field '{field}': ")
+    if err.line is not None:
+        assert text.splitlines()[err.line - 1].strip().startswith(field.rsplit(".", 1)[-1])
     assert expected in str(err)
 
 

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from calib_core.preprocess.motion import SPIKE_TRIM, window_statistics
-from calib_core.preprocess.motion_windows import STEP, trimmed_windows
 from calib_core.stats import centred_iats
 
 EPS = np.finfo(float).eps
@@ -53,6 +52,9 @@ def check(x: np.ndarray, width: int) -> None:
     white = np.empty((k, channels), dtype=bool)
     trim = max(1, int(math.ceil(SPIKE_TRIM * width)))
     limit = 3.0 / math.sqrt(width)  # centred_iats' white-noise test
+    # imported here: the kernel's module loads Numba (the tier collects without it)
+    from calib_core.preprocess.motion_windows import trimmed_windows
+
     trimmed_windows(np.ascontiguousarray(x), width, trim, limit, got_med, got_var, white)
     np.testing.assert_array_equal(got_med, med)  # np.median's, bit for bit
     assert np.all(np.abs(got_var - var) <= bound), np.max(np.abs(got_var - var) / bound)
@@ -129,6 +131,8 @@ def test_a_constant_window_and_a_spike():
 def test_a_window_whose_sample_misses_the_bracket():
     """Every STEP-th value far from the rest: the sampled bracket misses the median and
     the threshold, and the whole window is selected instead."""
+    from calib_core.preprocess.motion_windows import STEP
+
     rng = np.random.default_rng(5)
     x = rng.normal(0.0, 1.0, (2000, 2))
     x[::STEP, 0] += 100.0

@@ -286,7 +286,9 @@ def test_protocol_names_setting_of_the_profile():
     assert ToleranceProfile.from_dict(doc).protocol_names == "canonical"
     manual = ToleranceProfile.from_dict({**doc, "protocol": {"names": "manual"}})
     assert ToleranceProfile.from_dict(manual.to_dict()).protocol_names == "manual"
-    with pytest.raises(ValueError, match=r"protocol.names: expected one of"):
+    with pytest.raises(
+        ValueError, match=r"protocol.names must be one of 'canonical', 'manual', got 'russian'"
+    ):
         ToleranceProfile.from_dict({**doc, "protocol": {"names": "russian"}})
     assert math.isfinite(STANDARD_GRAVITY)
 

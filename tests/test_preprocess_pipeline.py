@@ -117,7 +117,9 @@ def test_preprocess_settings_are_checked_and_recorded():
     run = six_position_integral_run(
         random_errors(np.random.default_rng(0)), np.random.default_rng(1)
     )
-    with pytest.raises(ValueError, match=r"run\.settings\.outliers: unknown setting\(s\) sigma"):
+    with pytest.raises(
+        ValueError, match=r"run\.settings\.outliers\.sigma: unknown setting.*did you mean n_sigma"
+    ):
         preprocess(run.segments, {"outliers": {"sigma": 3}})
     with pytest.raises(ValueError, match=r"run\.settings\.lowpass\.apply_to"):
         preprocess(run.segments, {"lowpass": {"cutoff_hz": 5.0, "apply_to": "some"}})

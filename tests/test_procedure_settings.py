@@ -7,6 +7,7 @@ allowed; the same through the solver, the manifest (naming its file) and `calib 
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -76,7 +77,9 @@ def test_out_of_bounds_is_refused_naming_key_value_and_range(name):
 def test_defaults_and_tables_pass(name):
     proc = BY_NAME[name]
     given = {s.name: s.default for s in proc.all_settings() if s.default is not None}
-    assert proc.validate({**given, "outliers": {"n_sigma": 4.0}}) == proc.settings.defaults() | {
+    typed = proc.validate({**given, "outliers": {"n_sigma": 4.0}})
+    assert isinstance(typed, proc.settings.type)  # what its solver takes
+    assert typed.as_dict() == proc.settings.defaults() | {
         k: v for k, v in given.items() if k in proc.settings
     }
     with pytest.raises(
@@ -199,15 +202,9 @@ def test_the_tables_are_the_steps_own_keys():
     from calib_core.preprocess import chain
     from pipelines.uncertainty import SETTINGS as UNCERTAINTY_KEYS
 
-    own = {
-        "sync": chain.SYNC_KEYS,
-        "segmentation": chain.SEGMENTATION_KEYS,
-        "outliers": chain.OUTLIER_KEYS,
-        "lowpass": chain.LOWPASS_KEYS,
-        "uncertainty": set(UNCERTAINTY_KEYS),
-    }
-    assert {name: set(t.items) for name, t in procedures.TABLES.items()} == own
-    assert procedures.TABLES["outliers"].items["method"].default == chain.DEFAULT_OUTLIERS["method"]
+    # The preprocessing tables are the chain's own declarations; the budget reads every key.
+    assert {k: procedures.TABLES[k] for k in chain.PREPROCESSING} == chain.PREPROCESSING
+    assert set(procedures.TABLES["uncertainty"].items) == set(UNCERTAINTY_KEYS)
     with pytest.raises(
         SettingError,
         match=r"run.settings.outliers.n_sigma: expected a "
@@ -228,13 +225,13 @@ def test_the_declared_defaults_are_the_solvers():
     import dataclasses
     import inspect
 
+    from calib_core.solvers import equipment_free, multi_position
     from calib_core.solvers.centrifuge_model import CentrifugeSettings
-    from calib_core.solvers.equipment_free import EQUIPMENT_FREE_DEFAULTS
-    from calib_core.solvers.multi_position import MULTI_POSITION_DEFAULTS
     from calib_core.solvers.rate_table import rate_point
 
-    assert BY_NAME["multi_position"].settings.defaults() == MULTI_POSITION_DEFAULTS
-    assert BY_NAME["equipment_free"].settings.defaults() == EQUIPMENT_FREE_DEFAULTS
+    # multi_position and equipment_free: the solver's declaration is the procedure's.
+    assert BY_NAME["multi_position"].settings is multi_position.SETTINGS
+    assert BY_NAME["equipment_free"].settings is equipment_free.SETTINGS
     fields = {f.name: f.default for f in dataclasses.fields(CentrifugeSettings)}
     declared = BY_NAME["centrifuge"].settings.defaults()
     shared = {k for k in declared if fields.get(k, dataclasses.MISSING) is not dataclasses.MISSING}
@@ -243,3 +240,31 @@ def test_the_declared_defaults_are_the_solvers():
     signature = inspect.signature(rate_point).parameters
     for key in ("settle_s", "record_s"):
         assert BY_NAME["rate_table"].settings.defaults()[key] == signature[key].default
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_solvers_take_their_typed_settings(name):
+    """`solve` checks the run's settings once and hands the procedure's solver its typed
+    values (defaults filled, the shared tables left out); a solver called directly parses
+    a mapping at its door, refusing a bad value by the same rule."""
+    from calib_core.calibration import Calibration
+
+    proc = BY_NAME[name]
+    own = next(s for s in proc.settings if s.default is not None)
+    given = {own.name: own.default, "outliers": {"n_sigma": 4.0}}
+    seen = []
+
+    def spy(segments, gravity, settings):
+        seen.append(settings)
+        return Calibration(procedure=name, gravity=gravity)
+
+    solve(name, {}, 9.81, given, solver=spy)
+    (typed,) = seen
+    assert type(typed) is proc.settings.type and proc.settings.parse(typed) is typed
+    assert typed.as_dict() == proc.settings.defaults()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        setattr(typed, own.name, own.default)
+    _, (key, value), _ = CASES[name]
+    if key in proc.settings:  # not a shared setting: the solver's own door refuses it
+        with pytest.raises(SettingError, match=rf"run\.settings\.{key}: expected"):
+            proc.solver({}, 9.81, {key: value})

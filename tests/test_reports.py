@@ -17,9 +17,7 @@ import subprocess
 from html.parser import HTMLParser
 from pathlib import Path
 
-import matplotlib.image as mpimg
 import numpy as np
-import pypdf
 import pytest
 from serve_sample import quiet_truth
 from sqlalchemy import select
@@ -135,6 +133,9 @@ def _check_html(path: Path) -> str:
 def _check_pdf(path: Path, tmp: Path, expected: list[str]) -> list[Path]:
     """Render every page to PNG (into the new folder `tmp`): none blank; the text holds
     every expected string."""
+    import matplotlib.image as mpimg  # loaded by the tests that read pages, not at collection
+    import pypdf
+
     tmp.mkdir()
     pdftoppm = shutil.which("pdftoppm")
     assert pdftoppm, "pdftoppm missing: `make test` installs it (scripts/ensure_system_packages.sh)"
@@ -212,6 +213,8 @@ def test_missing_cross_coupling_fails_and_report_names_it(arch, tmp_path):
     text = _check_html(Path(written["html"]))
     # the reduced model has no misalignment parameters: the name comes from the diagnosis
     assert "acc.misalign.zx" in text and "cross-coupling" in text
+    import pypdf
+
     assert "acc.misalign.zx" in "\n".join(
         p.extract_text() for p in pypdf.PdfReader(written["pdf"]).pages
     )

@@ -59,7 +59,22 @@ def _through_function(  # noqa: ANN001 - conn: a Connection
     seq, head = seal.head(conn)
     return (
         f"SELECT calib_append_event({at}, 'mallory', '{action}', NULL, NULL, NULL, "
-        f"'{{}}'::json, NULL, '{prev or head}', repeat('7', 64), {seq + seq_off})"
+        f"'{{}}'::json, NULL, '{prev or head}', repeat('7', 64), {seq + seq_off}, session_user)"
+    )
+
+
+def _linked_call(conn, db_user: str, action: str, run_id: str, revision: int, digest: str) -> str:  # noqa: ANN001
+    """A call of the function with an event linked to the head and hashed as calib hashes it,
+    under a made-up actor, claiming `db_user` as its writer."""
+    seq, prev = seal.head(conn)
+    ev = seal.Event(
+        seq + 1, seal.utcnow(), "Ghost Writer", action, run_id, revision, None, {}, digest, prev,
+        db_user,
+    )  # fmt: skip
+    return (
+        f"SELECT calib_append_event('{ev.at.isoformat()}', 'Ghost Writer', '{action}', "
+        f"'{run_id}', {revision}, NULL, '{{}}'::json, '{digest}', '{prev}', '{ev.hash()}', "
+        f"{ev.seq}, '{db_user}')"
     )
 
 
@@ -90,6 +105,32 @@ def test_the_writer_appends_only_through_the_archive(roles, tmp_path: Path) -> N
     _denied(writer, "DELETE FROM unit_latest_values")
     _denied(writer, "DELETE FROM unit_latest")
     _denied(writer, "DELETE FROM audit_events")
+    assert verify(owner, orphans=False).ok
+
+
+def test_events_name_their_writer_and_an_existing_revision(roles, tmp_path: Path) -> None:  # noqa: ANN001
+    """A linked `archived` event for a run that does not exist, under
+    a made-up actor; and events claiming another writer, or a second sealing event."""
+    owner, r = roles
+    writer = r[WRITER]
+    res = archive_run(writer, make_run(tmp_path / "in"))
+    with owner.engine().connect() as conn:
+        digest = conn.execute(text("SELECT digest FROM seals")).scalar()
+        writers = (
+            conn.execute(
+                text("SELECT DISTINCT db_user FROM audit_events WHERE action = 'archived'")
+            )
+            .scalars()
+            .all()
+        )
+        ghost_run = _linked_call(conn, WRITER, "archived", "Rnothere", 1, digest)
+        ghost_rev = _linked_call(conn, WRITER, "revised", res.run_id, 2, digest)
+        again = _linked_call(conn, WRITER, "archived", res.run_id, 1, digest)
+        as_owner = _linked_call(conn, "postgres", "approved", res.run_id, 1, digest)
+        no_run_approval = _linked_call(conn, WRITER, "approved", "Rnothere", 1, digest)
+    assert writers == [WRITER]  # the session user, recorded beside the claimed actor
+    for forged in (ghost_run, ghost_rev, again, as_owner, no_run_approval):
+        _denied(writer, forged)
     assert verify(owner, orphans=False).ok
 
 

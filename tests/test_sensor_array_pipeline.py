@@ -92,5 +92,7 @@ def test_unknown_labelling_is_refused_naming_the_setting():
 
     rng = np.random.default_rng(1)
     sessions = array_session(random_errors(rng), {"s5": np.eye(3)}, rng, static_s=12.0)
-    with pytest.raises(ValueError, match=r"segmentation.labels: 'cube'; expected one of \['faces'"):
+    with pytest.raises(
+        ValueError, match=r"segmentation.labels must be one of 'faces', 'array', got 'cube'"
+    ):
         preprocess(sessions, {"segmentation": {"labels": "cube"}}, gravity=G)

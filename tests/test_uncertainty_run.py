@@ -10,7 +10,6 @@ from datetime import date, timedelta
 from pathlib import Path
 
 import numpy as np
-import pypdf
 import pytest
 
 from calib_core import procedures
@@ -194,6 +193,8 @@ def archived(tmp_path_factory: pytest.TempPathFactory):
                     out["earlier"]["run_id"] = outcome["run_id"]
             summary = queries.run_summary(arch, outcome["run_id"])
             files = report_run(arch, outcome["run_id"], tmp / f"{serial}-reports")
+            import pypdf  # loaded by the test that reads the PDF, not at collection
+
             pages = [p.extract_text() for p in pypdf.PdfReader(files["pdf"]).pages]
             pdf = "\n".join(pages)
             out[f"{serial}/pages"] = pages
@@ -287,10 +288,15 @@ def test_equipment_spec_from_the_manifest() -> None:
     spec = equipment_spec(RunManifest.model_validate(doc))
     assert spec.cube_angle == pytest.approx(np.radians(0.01)) and spec.table_rate_rel == 5e-5
     doc["run"]["settings"] = {"uncertainty": {"cube_angle": 0.01}}
-    with pytest.raises(ValueError, match="run.settings.uncertainty: unknown setting.*cube_angle"):
+    with pytest.raises(
+        ValueError,
+        match="run.settings.uncertainty.cube_angle: unknown setting.*did you mean cube_angle_deg",
+    ):
         equipment_spec(RunManifest.model_validate(doc))
     doc["run"]["settings"] = {"uncertainty": {"cube_angle_deg": -1}}
-    with pytest.raises(ValueError, match="cube_angle_deg: expected a number >= 0, got -1"):
+    with pytest.raises(
+        ValueError, match="uncertainty.cube_angle_deg: expected a non-negative number, got -1"
+    ):
         equipment_spec(RunManifest.model_validate(doc))
     doc = {**_manifest("S", equipment=False), "format": {"kind": "csv"}}
     assert equipment_spec(RunManifest.model_validate(doc)) is None

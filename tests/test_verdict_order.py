@@ -50,8 +50,7 @@ def judgements(archive: Archive) -> dict[str, dict[str, Any]]:
     for run_id in current["run_id"]:
         steps = queries.run_summary(archive, run_id)["calibration"]["steps"]
         group = next(s for s in steps if s["name"] == "check")["statistics"]
-        # The device check's wording ("first run of this serial") follows the archive;
-        # it passes alike when the unit's runs agree on its description.
+        # The device check passes alike when the unit's runs agree on its description.
         checks = [c for c in now[run_id]["checks"] if not c["name"].startswith("device:")]
         out[day[run_id]] = {
             "verdict": now[run_id]["verdict"],

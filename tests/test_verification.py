@@ -226,7 +226,11 @@ def test_profile_verification_and_repeatability_fields(profile):
         ToleranceProfile.from_dict(
             {**base, "verification_limits": {"acc": {"value": 1, "unit": "deg/s"}}}
         )
-    with pytest.raises(ValueError, match=r"repeatability\.cv_max.*fraction"):
+    with pytest.raises(
+        ValueError, match=r"repeatability\.cv_max: expected a number in \(0, 1\), got 5"
+    ):
         ToleranceProfile.from_dict({**base, "repeatability": {"cv_max": 5}})
-    with pytest.raises(ValueError, match=r"repeatability\.bogus: unknown key"):
+    with pytest.raises(
+        ValueError, match=r"repeatability\.bogus: unknown setting of \[repeatability\]"
+    ):
         ToleranceProfile.from_dict({**base, "repeatability": {"bogus": 1}})

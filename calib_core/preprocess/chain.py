@@ -14,38 +14,79 @@ import numpy as np
 
 from calib_core.calibration import StepRecord
 from calib_core.preprocess.filters import lowpass
-from calib_core.preprocess.outliers import remove_outliers
+from calib_core.preprocess.outliers import METHODS, POLICIES, remove_outliers
 from calib_core.preprocess.replaced import replaced_check
-from calib_core.preprocess.segments import Interval, Segmentation, StaticDetector, segment
+from calib_core.preprocess.segments import (
+    POSITION_SETTLE_S,
+    Interval,
+    Segmentation,
+    StaticDetector,
+    segment,
+)
 from calib_core.preprocess.sync import synchronise
 from calib_core.recording import Recording
+from calib_core.settings import Setting, SettingError, Settings
 
-DEFAULT_OUTLIERS = {"method": "sigma", "n_sigma": 3.0, "policy": "interpolate"}
-# Keys each [run.settings.<step>] table may hold (docs/manifest.md, "Preprocessing settings").
-OUTLIER_KEYS = {"method", "n_sigma", "alpha", "window", "policy", "channels"}
-LOWPASS_KEYS = {"cutoff_hz", "bandwidth_hz", "fraction", "order", "apply_to"}
-SEGMENTATION_KEYS = {
-    "window_s",
-    "init_static_s",
-    "k",
-    "min_duration_s",
-    "settle_s",
-    "min_keep_s",
-    "settle_fraction",
-    "min_angle_deg",
-    "labels",
-}
 # How segmentation names what it finds: by face and axis, or by sensor and phase.
 SEGMENT_LABELLING = ("faces", "array")
-SYNC_KEYS = {
-    "signal",
-    "signal_kind",
-    "imu_axis",
-    "max_offset_s",
-    "max_drift_ppm",
-    "window_s",
-    "max_gap_s",
-}
+_POS = {"low": 0.0, "low_open": True}  # a positive number
+_NONNEG = {"low": 0.0}
+
+SYNC = Settings(
+    Setting("signal", "text", "", "table_rate", "reference channel of the table's feedback"),
+    Setting("signal_kind", "text", "", "rate", "the channel holds a rate (rad/s) or an angle "
+            "(rad; differentiated)", choices=("rate", "angle")),
+    Setting("imu_axis", "integer", "1", None, "gyro axis along the table axis (0, 1, 2; "
+            "absent: the one with the largest variance)", low=0, high=2),
+    Setting("max_offset_s", "number", "s", 1.0, "largest clock offset searched", **_POS),
+    Setting("max_drift_ppm", "number", "ppm", 200.0, "largest clock drift expected", **_NONNEG),
+    Setting("window_s", "number", "s", 30.0, "windows whose local offsets are fitted", **_POS),
+    Setting("max_gap_s", "number", "s", None, "a larger spacing in a log is a gap (absent: 5 "
+            "sample intervals)", **_POS),
+)  # fmt: skip
+SEGMENTATION = Settings(
+    Setting("window_s", "number", "s", 1.0, "static detector's variance window", **_POS),
+    Setting("init_static_s", "number", "s", 10.0, "initial rest the threshold is scaled from",
+            **_POS),
+    Setting("k", "number", "1", 6.0, "static threshold as a multiple of the initial rest's "
+            "variance", **_POS),
+    Setting("min_duration_s", "number", "s", 2.0, "shortest rest kept", **_POS),
+    Setting("settle_s", "number", "s", POSITION_SETTLE_S, "time dropped at the start of each "
+            "rest", **_NONNEG),
+    Setting("min_keep_s", "number", "s", 10.0, "shortest part of a rest kept after the settle",
+            **_NONNEG),
+    Setting("settle_fraction", "number", "1", 0.25, "share of a short rest (under settle_s + "
+            "min_keep_s) dropped at each end", low=0.0, high=0.5),
+    Setting("min_angle_deg", "number", "deg", 270.0, "smallest turn taken as a rotation", **_POS),
+    Setting("labels", "text", "", "faces", "statics by face and axis (x_up, x_ccw) or by sensor "
+            "(<sensor>_static, _ccw, _cw)", choices=SEGMENT_LABELLING),
+)  # fmt: skip
+OUTLIERS = Settings(
+    Setting("method", "text", "", "sigma", "detector (none: the step is skipped)",
+            choices=(*METHODS, "none")),
+    Setting("n_sigma", "number", "1", 3.0, "threshold in standard deviations", **_POS),
+    Setting("alpha", "number", "1", 0.05, "significance level (grubbs)", low=0.0, high=1.0,
+            low_open=True),
+    Setting("window", "integer", "1", None, "samples of the moving window (hampel)", low=1),
+    Setting("policy", "text", "", "interpolate", "what happens to a flagged sample",
+            choices=POLICIES),
+    Setting("channels", "list", "", ["acc", "gyr"], "channels cleaned: acc, gyr"),
+)  # fmt: skip
+LOWPASS = Settings(
+    Setting("cutoff_hz", "number", "Hz", None, "cutoff (or bandwidth_hz with fraction)", **_POS),
+    Setting("bandwidth_hz", "number", "Hz", None, "the IMU's bandwidth", **_POS),
+    Setting("fraction", "number", "1", 0.25, "cutoff as a share of the bandwidth (the filter "
+            "keeps it within 1/5 .. 1/3)", low=0.0, high=1.0, low_open=True),
+    Setting("order", "integer", "1", 4, "Butterworth order", low=1),
+    Setting("apply_to", "text", "", "static", "the static segments or all",
+            choices=("static", "all")),
+)  # fmt: skip
+# The preprocessing tables of ``[run.settings]`` (docs/manifest.md, "Preprocessing settings").
+PREPROCESSING = {
+    "sync": SYNC, "segmentation": SEGMENTATION, "outliers": OUTLIERS, "lowpass": LOWPASS
+}  # fmt: skip
+# The outlier step runs unless turned off (method "none"): these of its settings apply.
+DEFAULT_OUTLIERS = {k: OUTLIERS.items[k].default for k in ("method", "n_sigma", "policy")}
 
 
 def is_static(label: str) -> bool:
@@ -53,19 +94,15 @@ def is_static(label: str) -> bool:
     return label.endswith(("_up", "_dn", "_static"))
 
 
-def settings_table(settings: dict[str, Any], name: str, allowed: set[str]) -> dict[str, Any] | None:
-    """The ``[run.settings.<name>]`` table, checked against its known keys; None if absent."""
+def settings_table(settings: dict[str, Any], name: str, table: Settings) -> dict[str, Any] | None:
+    """The ``[run.settings.<name>]`` table as given, checked against its declaration
+    (`Settings.validate`: SettingError naming the key); None if absent."""
     given = settings.get(name)
     if given is None:
         return None
     if not isinstance(given, dict):
-        raise ValueError(f"run.settings.{name}: expected a table of settings, got {given!r}")
-    unknown = sorted(set(given) - allowed)
-    if unknown:
-        raise ValueError(
-            f"run.settings.{name}: unknown setting(s) {', '.join(unknown)}; "
-            f"expected some of: {', '.join(sorted(allowed))}"
-        )
+        raise SettingError(name, f"expected a table of settings, got {given!r}")
+    table.validate(given, name)
     return dict(given)
 
 
@@ -115,12 +152,7 @@ def segment_recordings(
     listed as unused in the step record.
     """
     cfg = dict(cfg)
-    labelling = cfg.pop("labels", "faces")
-    if labelling not in SEGMENT_LABELLING:
-        raise ValueError(
-            f"run.settings.segmentation.labels: {labelling!r}; expected one of "
-            f"{list(SEGMENT_LABELLING)}"
-        )
+    labelling = cfg.pop("labels", "faces")  # checked with the table (SEGMENTATION)
     rotations = {"min_angle_deg": cfg.pop("min_angle_deg")} if "min_angle_deg" in cfg else {}
     detector = StaticDetector(**cfg)
     candidates: dict[str, list[tuple[Recording, dict[str, Any]]]] = {}
@@ -194,11 +226,7 @@ def lowpass_segments(
     count (calib_core.stats), not from N.
     """
     kwargs = dict(cfg)
-    apply_to = kwargs.pop("apply_to", "static")
-    if apply_to not in ("static", "all"):
-        raise ValueError(
-            f"run.settings.lowpass.apply_to: expected 'static' or 'all', got {apply_to!r}"
-        )
+    apply_to = kwargs.pop("apply_to", "static")  # checked with the table (LOWPASS)
     out: dict[str, Recording] = {}
     per_segment: dict[str, Any] = {}
     used: dict[str, Any] = {}
@@ -230,11 +258,11 @@ def preprocess(
     what was found, removed or changed).
     """
     steps: list[StepRecord] = []
-    sync_cfg = settings_table(settings, "sync", SYNC_KEYS)
+    sync_cfg = settings_table(settings, "sync", SYNC)
     if sync_cfg is not None:
         segments, record = sync_segments(segments, sync_cfg)
         steps.append(record)
-    seg_cfg = settings_table(settings, "segmentation", SEGMENTATION_KEYS)
+    seg_cfg = settings_table(settings, "segmentation", SEGMENTATION)
     if seg_cfg is not None:
         if gravity is None:
             raise ValueError(
@@ -243,11 +271,11 @@ def preprocess(
         segments, record = segment_recordings(segments, seg_cfg, gravity)
         steps.append(record)
 
-    cfg = {**DEFAULT_OUTLIERS, **(settings_table(settings, "outliers", OUTLIER_KEYS) or {})}
+    cfg = {**DEFAULT_OUTLIERS, **(settings_table(settings, "outliers", OUTLIERS) or {})}
     segments, record = outliers_segments(segments, cfg)
     steps.append(record)
 
-    lp_cfg = settings_table(settings, "lowpass", LOWPASS_KEYS)
+    lp_cfg = settings_table(settings, "lowpass", LOWPASS)
     if lp_cfg is not None:
         segments, record = lowpass_segments(segments, lp_cfg)
         steps.append(record)

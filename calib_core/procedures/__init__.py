@@ -26,7 +26,6 @@ from calib_core.procedures.integral import INTEGRAL, solve_integral_procedure
 from calib_core.procedures.multi_position import MULTI_POSITION
 from calib_core.procedures.rate_table import RATE_TABLE, solve_rate_table_procedure
 from calib_core.procedures.sensor_array import SENSOR_ARRAY
-from calib_core.procedures.settings import Setting, SettingError, Settings
 from calib_core.procedures.six_position import SIX_POSITION, solve_six_position
 from calib_core.procedures.six_position_integral import (
     SIX_POSITION_INTEGRAL,
@@ -35,6 +34,7 @@ from calib_core.procedures.six_position_integral import (
 from calib_core.procedures.static_bias import STATIC_BIAS, solve_static_bias_procedure
 from calib_core.procedures.tables import TABLES
 from calib_core.recording import Recording
+from calib_core.settings import Setting, SettingError, Settings
 
 __all__ = [
     "ALL",
@@ -70,7 +70,7 @@ ALL: tuple[Procedure, ...] = (
     CENTRIFUGE,
 )
 BY_NAME: dict[str, Procedure] = {p.name: p for p in ALL}
-PROCEDURES: dict[str, Callable[[dict[str, Recording], float, dict[str, Any]], Calibration]] = {
+PROCEDURES: dict[str, Callable[[dict[str, Recording], float, Any], Calibration]] = {
     p.name: p.solver for p in ALL
 }
 
@@ -83,14 +83,14 @@ def get(name: str) -> Procedure:
         raise ValueError(f"unknown procedure {name!r}; expected one of {sorted(BY_NAME)}") from None
 
 
-def validate_settings(procedure: str, settings: Mapping[str, Any]) -> dict[str, Any]:
+def validate_settings(procedure: str, settings: Mapping[str, Any]) -> Any:
     """The whole ``[run.settings]`` of a run of `procedure`, checked (`Procedure.validate`).
 
-    Returns the procedure's own settings with defaults filled in. Raises SettingError (a
-    ValueError) naming the key: unknown (with the closest valid one), wrong type or out of
-    bounds (with the value and the allowed range). An unknown key with no valid one close to
-    it that another procedure declares says whose it is (a run written for another
-    procedure, or the wrong procedure).
+    Returns the procedure's own settings typed, defaults filled in (`Settings.parse`).
+    Raises SettingError (a ValueError) naming the key: unknown (with the closest valid
+    one), wrong type or out of bounds (with the value and the allowed range). An unknown
+    key with no valid one close to it that another procedure declares says whose it is (a
+    run written for another procedure, or the wrong procedure).
     """
     proc = get(procedure)
     try:
@@ -121,7 +121,8 @@ def solve(
     settings : the run's settings (``[run.settings]``), checked whole against the
         procedure's (docs/procedures.md).
     solver : in place of the procedure's own, one that finds the same numbers from
-        elsewhere (a record streamed in chunks; `segments` then empty).
+        elsewhere (a record streamed in chunks; `segments` then empty). Either takes the
+        procedure's typed settings (`Procedure.settings.parse`).
 
     Returns
     -------
@@ -134,10 +135,10 @@ def solve(
     m/s^2, missing segments, or a parameter beyond physical bounds (with what to check).
     """
     proc = get(procedure)
-    validate_settings(procedure, settings or {})
+    typed = validate_settings(procedure, settings or {})
     if not (9.7 < gravity < 9.9):
         raise ValueError(f"gravity must be the local value in m/s^2 (9.7..9.9), got {gravity!r}")
-    cal = (solver or proc.solver)(segments, gravity, settings)
+    cal = (solver or proc.solver)(segments, gravity, typed)
     cal.info.setdefault("solver_checks", []).extend(
         static_motion_checks(proc.static_segments, segments)
     )
@@ -180,7 +181,7 @@ def solve_step(
             "procedure": procedure,
             "gravity": gravity,
             **proc_settings,
-            **get(procedure).settings.merged(proc_settings),
+            **get(procedure).settings.parse(proc_settings).as_dict(),
         },
         statistics={
             **scalars,

@@ -21,11 +21,12 @@ from typing import Any, Literal
 
 from calib_core.calibration import Calibration
 from calib_core.condition_rules import ConditionUse
-from calib_core.procedures.settings import Setting, SettingError, Settings, did_you_mean
 from calib_core.procedures.tables import TABLES
 from calib_core.recording import Recording
+from calib_core.settings import Setting, SettingError, Settings, did_you_mean
 
-Solver = Callable[[dict[str, Recording], float, dict[str, Any]], Calibration]
+# (segments, gravity, the procedure's typed settings: `Procedure.settings.parse`) -> Calibration
+Solver = Callable[[dict[str, Recording], float, Any], Calibration]
 # (cal, segments, settings, spec) -> (solve closure or None, Type B inputs, notes); see
 # calib_core.uncertainty_sources and calib_core.run_budget.
 UncertaintyModel = Callable[..., tuple[Any, list[Any], tuple[str, ...]]]
@@ -103,7 +104,7 @@ class Procedure:
         ``[run.settings.segmentation]`` is cut and labelled automatically instead.
     required : labels it needs (missing ones are named before the solve).
     settings : its typed settings.
-    solver : labelled segments, gravity (m/s^2), settings -> Calibration.
+    solver : labelled segments, gravity (m/s^2), its typed settings -> Calibration.
     conditions : the lab conditions that apply, each with the quantity it judges and source.
     uncertainty : its Type B model (None: Type A only, said so in each budget).
     bounds_hint : what to check when a parameter is beyond physical bounds.
@@ -153,8 +154,9 @@ class Procedure:
             return self.missing_rule(labels, settings)
         return [label for label in self.required if label not in labels]
 
-    def validate(self, settings: Mapping[str, Any]) -> dict[str, Any]:
-        """Check a whole ``[run.settings]`` table; returns its own settings, defaults filled.
+    def validate(self, settings: Mapping[str, Any]) -> Any:
+        """Check a whole ``[run.settings]`` table; returns its own settings typed
+        (`Settings.parse`: defaults filled in), as its solver takes them.
 
         Raises SettingError for an unknown key (naming the closest valid one), a wrong type
         or a value out of bounds (naming key, value and allowed range), in a table too.
@@ -171,4 +173,4 @@ class Procedure:
             else:
                 hint = did_you_mean(key, known)
                 raise SettingError(key, f"unknown setting of {self.name}{hint}")
-        return self.settings.merged(settings)
+        return self.settings.parse(settings)

@@ -7,32 +7,8 @@ The solver is calib_core.solvers.centrifuge_segments. Settings: `CENTRIFUGE.sett
 from __future__ import annotations
 
 from calib_core.condition_rules import ConditionUse
-from calib_core.procedures.base import ENVIRONMENT, RATE_PLATEAUS, Procedure, Setting, Settings
-from calib_core.significance import STEERING, T_TESTS
-from calib_core.solvers.centrifuge_model import DEFAULT_STEER, DEFAULT_ZERO_SHIFT_LIMIT
-from calib_core.solvers.centrifuge_segments import solve_centrifuge_segments
-
-SETTINGS = Settings(
-    Setting("latitude_deg", "number", "deg", None,
-            "site latitude (Earth rate); required, the pipeline takes [site] latitude_deg",
-            low=-90.0, high=90.0),
-    Setting("alpha", "number", "1", 0.05, "significance level of the t and F tests",
-            low=0.0, high=1.0, low_open=True),
-    Setting("t_test", "text", "", "two-sided", "t test of each term", choices=T_TESTS),
-    Setting("steer", "text", "", DEFAULT_STEER,
-            "how the stepwise reduction decides: the model F test then the t tests (the "
-            "paper's), the t tests alone, or the largest model F", choices=STEERING),
-    Setting("scale_1g", "table", "1", {},
-            "per table axis x, y, z the 1 g scale error K - 1 of a static calibration"),
-    Setting("common_radius", "bool", "", True, "one effective radius for all positions"),
-    Setting("iterations", "integer", "1", 4, "radius / phi_h / model passes", low=1),
-    Setting("scale_instability", ("number", "table"), "1", None,
-            "relative scale instability from step to step, one value or per axis (absent: "
-            "estimated)", low=0.0),
-    Setting("zero_shift_limit", "number", "m/s^2", DEFAULT_ZERO_SHIFT_LIMIT,
-            "allowed change of a position's zero output before / after its run", low=0.0,
-            low_open=True),
-)  # fmt: skip
+from calib_core.procedures.base import ENVIRONMENT, RATE_PLATEAUS, Procedure
+from calib_core.solvers.centrifuge_segments import SETTINGS, solve_centrifuge_segments
 
 CENTRIFUGE = Procedure(
     name="centrifuge",

@@ -7,27 +7,8 @@ The solver is calib_core.solvers.equipment_free. Settings: `EQUIPMENT_FREE.setti
 
 from __future__ import annotations
 
-from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Setting, Settings
-from calib_core.solvers.equipment_free import solve_equipment_free
-
-SETTINGS = Settings(
-    Setting("window_s", "number", "s", 1.0, "static detector's variance window", low=0.0,
-            low_open=True),
-    Setting("init_static_s", "number", "s", 10.0,
-            "initial rest the threshold is scaled from", low=0.0, low_open=True),
-    Setting("k", "number", "1", 6.0,
-            "static threshold as a multiple of the initial rest's variance", low=0.0,
-            low_open=True),
-    Setting("min_duration_s", "number", "s", 1.0, "shortest rest kept", low=0.0,
-            low_open=True),
-    Setting("settle_s", "number", "s", 0.5, "time dropped at each end of a rest", low=0.0),
-    Setting("min_keep_s", "number", "s", 0.5, "shortest part of a rest left after the settle",
-            low=0.0),
-    Setting("min_intervals", "integer", "1", 9,
-            "fewest rests for the fit (fewer: the threshold is searched)", low=1),
-    Setting("segment", "text", "", None,
-            "the segment that holds the session (absent: the run's only segment)"),
-)  # fmt: skip
+from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure
+from calib_core.solvers.equipment_free import SETTINGS, solve_equipment_free
 
 EQUIPMENT_FREE = Procedure(
     name="equipment_free",

@@ -6,36 +6,14 @@ The solver is calib_core.solvers.multi_position. Settings: `MULTI_POSITION.setti
 
 from __future__ import annotations
 
-from calib_core.attitude import ATTITUDE_CONVENTIONS, TABLE_AXES
 from calib_core.procedures.base import (
     ATTITUDES,
     ENVIRONMENT,
     EQUIPMENT_PRECHECK,
     TABLE_POSITION,
     Procedure,
-    Setting,
-    Settings,
 )
-from calib_core.solvers.accel_models import ACCEL_MODELS
-from calib_core.solvers.multi_position import solve_multi_position
-
-SETTINGS = Settings(
-    Setting("model", "text", "", "full",
-            "accelerometer model: full (12), reduced (bias and scale per axis), quadratic, "
-            "nonlinear", choices=ACCEL_MODELS),
-    Setting("table_axes", "text", "", "pitch_roll",
-            "the table's two axes the attitudes are given in", choices=TABLE_AXES),
-    Setting("attitude_convention", "text", "", "project",
-            "sign of the table's pitch: project a_x = -g sin(pitch), rate_table_procedure "
-            "a_x = +g sin(pitch)", choices=ATTITUDE_CONVENTIONS),
-    Setting("attitudes", "table", "deg", {},
-            "per label the table angles {pitch_deg, roll_deg} (or azimuth_deg, pitch_deg); "
-            "absent: reference channels or a face label"),
-    Setting("mount", "list", "1", None,
-            "3x3 body-to-table rotation (rows of numbers; absent: identity)"),
-    Setting("gyro_gsens", "bool", "", True,
-            "fit gyro bias and g-sensitivity from the same statics"),
-)  # fmt: skip
+from calib_core.solvers.multi_position import SETTINGS, solve_multi_position
 
 MULTI_POSITION = Procedure(
     name="multi_position",

@@ -6,8 +6,6 @@ Settings: `RATE_TABLE.settings` (docs/procedures.md).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from calib_core.calibration import Calibration
@@ -18,59 +16,33 @@ from calib_core.procedures.base import (
     RATE_PLATEAUS,
     TABLE_POSITION,
     Procedure,
-    Setting,
-    Settings,
 )
 from calib_core.recording import Recording
-from calib_core.solvers.rate_table import rate_points, solve_rate_table
+from calib_core.settings import SettingsIn
+from calib_core.solvers.rate_table import SETTINGS, plateau_window, rate_points, solve_rate_table
 from calib_core.uncertainty_sources import rate_table_model
 from calib_core.units import DEG
 
-SETTINGS = Settings(
-    Setting("settle_s", "number", "s", 20.0,
-            "settle time dropped from the start of each plateau", low=0.0),
-    Setting("record_s", "number", "s", None,
-            "record window after the settle (absent: to the plateau's end)", low=0.0,
-            low_open=True),
-    Setting("full_scale_dps", "number", "deg/s", None,
-            "input full scale for the nonlinearity (absent: the largest rate)", low=0.0,
-            low_open=True),
-    Setting("gyro_bias", "text", "", "joint",
-            "gyro bias fitted with the scale factors (joint) or fixed from the static run "
-            "(static: the 0-rate points, or static_bias_dps)", choices=("joint", "static")),
-    Setting("static_bias_dps", "list", "deg/s", None,
-            "[x, y, z] bias of a separate static-bias run (gyro_bias = \"static\")", length=3),
-    Setting("static_bias_std_dps", "list", "deg/s", None,
-            "[x, y, z] standard uncertainty of static_bias_dps (absent: 0)", length=3),
-)  # fmt: skip
-
-
-def plateau_window(settings: dict[str, Any] | None) -> dict[str, float]:
-    """``settle_s`` and ``record_s`` (s) of each plateau's record window from the run's
-    settings (defaults filled in): the fit's and the held-out points' one window."""
-    s = SETTINGS.merged(settings)
-    return {k: float(s[k]) for k in ("settle_s", "record_s") if s.get(k) is not None}
-
 
 def solve_rate_table_procedure(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Rate-table gyro calibration: one segment per rate plateau, labelled "<axis>_<rate>"
     (e.g. "z_+100") with the table feedback in reference["table_rate"] (rad/s).
 
-    settings : `RATE_TABLE.settings`.
+    settings : typed `SETTINGS` (a mapping is parsed).
     """
-    s = SETTINGS.merged(settings)
-    points = rate_points(list(segments.values()), **plateau_window(settings))
-    full = s.get("full_scale_dps")
+    s = SETTINGS.parse(settings)
+    points = rate_points(list(segments.values()), **plateau_window(s))
+    full = s.full_scale_dps
     given = None
-    if s.get("static_bias_dps") is not None:
-        std = s.get("static_bias_std_dps") or [0.0, 0.0, 0.0]
-        given = (np.asarray(s["static_bias_dps"], float) * DEG, np.asarray(std, float) * DEG)
+    if s.static_bias_dps is not None:
+        std = s.static_bias_std_dps or [0.0, 0.0, 0.0]
+        given = (np.asarray(s.static_bias_dps, float) * DEG, np.asarray(std, float) * DEG)
     cal = solve_rate_table(
         points,
         full_scale=None if full is None else float(full) * DEG,
-        gyro_bias=str(s["gyro_bias"]),
+        gyro_bias=s.gyro_bias,
         static_bias=given,
     )
     cal.gravity = gravity

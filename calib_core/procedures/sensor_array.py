@@ -6,16 +6,8 @@ The solver is calib_core.solvers.sensor_array. Settings: `SENSOR_ARRAY.settings`
 
 from __future__ import annotations
 
-from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Setting, Settings
-from calib_core.procedures.six_position import TURNS
-from calib_core.solvers.sensor_array import solve_sensor_array
-
-SETTINGS = Settings(
-    Setting("mounts", ("text", "table"), "1", "cube6",
-            "\"cube6\" (the patent's six-IMU cube) or {sensor = 3x3 cube-to-sensor rotation}",
-            choices=("cube6",)),
-    TURNS,
-)  # fmt: skip
+from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure
+from calib_core.solvers.sensor_array import SETTINGS, solve_sensor_array
 
 SENSOR_ARRAY = Procedure(
     name="sensor_array",

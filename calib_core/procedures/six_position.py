@@ -19,22 +19,8 @@ six_position_integral
     The statics plus n-turn ccw/cw rotations about each axis (x_ccw, x_cw, ...):
     adds gyro scale and misalignment by the integral method (MPU-6000 paper).
 
-Settings
---------
-turns : int or None (infer from the data), integral method only.
-gyro_range_dps : gyro full scale, deg/s (default 2000).
-accel_solver : "least_squares" (default), "closed_form" (docs/methods.md 2.1) or
-    "kalman" (sequential filter over every sample, calib_core.solvers.kalman;
-    agrees with least squares within its uncertainty).
-accel_model : "linear" (default, 12 parameters) or "per_axis" (the reduced
-    rate-table model of docs/methods.md 1: bias and scale per axis, no cross-coupling).
-rotation_directions : "both" (default; ccw and cw about each axis) or "any"
-    (one rotation per axis suffices, Ferraris et al.; e.g. imucal sessions).
-gyro_from_earth_rate, latitude_deg, heading_deg : six_position only; the gyro's bias,
-    scale and misalignment from the statics with Earth rate as the input (the
-    north-seeker note's FOG case, calib_core.solvers.earth_rate_faces) in place of its
-    bias and g-sensitivity.
-Each as a typed `Setting` below (docs/procedures.md).
+Settings: the typed `Setting`s below (docs/procedures.md); each solver takes its
+procedure's parsed values (`Settings.parse`).
 """
 
 from __future__ import annotations
@@ -48,8 +34,16 @@ from calib_core.calibration import Calibration
 from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure, Setting, Settings
 from calib_core.procedures.static_bias import HEADING_DEG, LATITUDE_DEG
 from calib_core.recording import Recording
+from calib_core.settings import SettingsIn
 from calib_core.solvers.earth_rate_faces import faces_earth_rate, solve_gyro_earth_rate
-from calib_core.solvers.integral import ROTATION_LABELS, rotation_static_means, solve_integral
+from calib_core.solvers.integral import (
+    ROTATION_LABELS,
+    TURNS,
+    pooled_static_gyro,
+    rotation_static_means,
+    solve_integral,
+    turn_rests,
+)
 from calib_core.solvers.kalman import kalman_accel_linear
 from calib_core.solvers.multi_position import (
     segment_residual,
@@ -64,6 +58,7 @@ from calib_core.solvers.six_position import (
     face_bias_checks,
     reference_up,
 )
+from calib_core.solvers.turn_motion import TURN_ESTIMATORS, pooled_stats
 from calib_core.stats import ChannelStats, channel_stats, largest_std, no_scatter
 from calib_core.uncertainty_sources import static_model
 from calib_core.units import DEG
@@ -82,23 +77,30 @@ GYRO_RANGE_DPS = Setting(
     "gyro_range_dps", "number", "deg/s", 2000.0,
     "gyro full scale: the integral method's saturation check; readings at it are refused",
     low=0.0, low_open=True)  # fmt: skip
-TURNS = Setting(
-    "turns", "integer", "1", None,
-    "whole turns of each rotation (absent: inferred from the data)", low=1)  # fmt: skip
 ROTATION_DIRECTIONS = Setting(
     "rotation_directions", "text", "", "both",
     "rotations per axis: ccw and cw (both), or one suffices (any; Ferraris et al.)",
     choices=("both", "any"))  # fmt: skip
+TURN_ESTIMATOR = Setting(
+    "turn_estimator", "text", "", "regression",
+    "integral method: each turn's motion window, misalignments by regression on the on-axis "
+    "rate, the rests as static data (regression); or every rate integrated over the whole "
+    "record, the paper's literal reading (whole_record; docs/methods.md 2.6)",
+    choices=TURN_ESTIMATORS)  # fmt: skip
 GYRO_FROM_EARTH_RATE = Setting(
     "gyro_from_earth_rate", "bool", "", False,
     "gyro bias, scale and misalignment from the statics with Earth rate as the input (FOG/RLG "
     "grade; needs latitude_deg and heading_deg; replaces the gyro g-sensitivity fit)")  # fmt: skip
 # The settings the statics' solver reads (`_solve_statics`), with the integral method's.
 STATICS_SETTINGS = Settings(
-    ACCEL_SOLVER, ACCEL_MODEL, GYRO_FROM_EARTH_RATE, LATITUDE_DEG, HEADING_DEG
-)
-INTEGRAL_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS)
-INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS)
+    ACCEL_SOLVER, ACCEL_MODEL, GYRO_FROM_EARTH_RATE, LATITUDE_DEG, HEADING_DEG,
+    name="SixPositionSettings",
+)  # fmt: skip
+INTEGRAL_SETTINGS = Settings(
+    TURNS, GYRO_RANGE_DPS, ACCEL_SOLVER, ACCEL_MODEL, ROTATION_DIRECTIONS, TURN_ESTIMATOR,
+    name="SixPositionIntegralSettings",
+)  # fmt: skip
+INTEGRAL_ONLY_SETTINGS = Settings(TURNS, GYRO_RANGE_DPS, TURN_ESTIMATOR, name="IntegralSettings")
 
 
 def _require(segments: dict[str, Recording], labels: tuple[str, ...], procedure: str) -> None:
@@ -142,10 +144,21 @@ def _scatters(label: str, stats: ChannelStats, sensor: str, unit: str) -> None:
 
 
 def _solve_statics(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any], procedure: str
-) -> tuple[Calibration, dict[str, ChannelStats]]:
-    """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals."""
+    segments: dict[str, Recording],
+    gravity: float,
+    settings: Any,
+    procedure: str,
+    turn_estimator: str = "whole_record",
+) -> tuple[Calibration, dict[str, ChannelStats], dict[str, ChannelStats]]:
+    """Accelerometer 12, gyro bias + g-sensitivity 12, noise, static residuals.
+
+    settings : the statics' typed settings (`STATICS_SETTINGS.parse`).
+    Returns the calibration, the faces' gyro statistics and those the gyro fit used: the
+    faces' pooled with the turns' rests under turn_estimator "regression"."""
     acc, gyr = _static_stats(segments)
+    gyr_fit_stats = gyr
+    if turn_estimator == "regression":
+        gyr_fit_stats = pooled_static_gyro(segments, gyr)
     # (6, 3); a face found not square carries its true direction (reference_up).
     f_true = np.array([reference_up(label, segments[label], gravity) for label in STATIC_LABELS])
 
@@ -153,32 +166,33 @@ def _solve_statics(
         return np.array([getattr(stats[label], field) for label in STATIC_LABELS])
 
     cal = Calibration(procedure=procedure, gravity=gravity)
-    if settings["accel_solver"] == "kalman":
+    if settings.accel_solver == "kalman":
         acc_fit = kalman_accel_linear(f_true, [segments[label].acc for label in STATIC_LABELS])
     else:
         acc_fit = solve_accel_linear(f_true, stack(acc, "mean"), stack(acc, "sem"))
     tilted = [k for k in STATIC_LABELS if UP_CHANNEL in segments[k].reference]
-    if tilted and settings["accel_solver"] == "closed_form":
+    if tilted and settings.accel_solver == "closed_form":
         raise ValueError(
             f"accel_solver closed_form assumes square cube faces; positions {', '.join(tilted)} "
             "have a corrected reference direction: solve with least_squares or kalman"
         )
-    if settings["accel_solver"] == "closed_form":
+    if settings.accel_solver == "closed_form":
         values = accel_closed_form({k: s.mean for k, s in acc.items()}, gravity)
         stds = accel_closed_form_std({k: s.sem for k, s in acc.items()}, gravity)
     else:
         values, stds = acc_fit.params, acc_fit.std
-    if settings["accel_model"] == "per_axis":
+    if settings.accel_model == "per_axis":
         values, stds = _per_axis_fit(f_true, stack(acc, "mean"), stack(acc, "sem"))
-    linear = settings["accel_model"] == "linear"
+    linear = settings.accel_model == "linear"
     if values is acc_fit.params:  # the least-squares fit: keep its covariance
         cal.add_fit(acc_fit.names, acc_fit.params, acc_fit.cov)
+        cal.warnings += acc_fit.warnings
     else:
         for name in params.ACC_LINEAR if linear else values:
             cal.add(name, values[name], stds[name])
     # The gyro's static input: Earth rate (FOG case) or none (g-sensitivity fit).
     w_true = np.zeros((len(STATIC_LABELS), 3))
-    if settings.get("gyro_from_earth_rate"):
+    if settings.gyro_from_earth_rate:
         w_true = _earth_rate_input(segments, settings)
         gyr_fit, observable = solve_gyro_earth_rate(w_true, stack(gyr, "mean"), stack(gyr, "sem"))
         cal.info.setdefault("solver_checks", []).append(observable)
@@ -187,8 +201,10 @@ def _solve_statics(
             k: w.tolist() for k, w in zip(STATIC_LABELS, w_true, strict=True)
         }
     else:
-        gyr_fit = solve_gyro_static(f_true, stack(gyr, "mean"), stack(gyr, "sem"))
+        fit_mean, fit_sem = stack(gyr_fit_stats, "mean"), stack(gyr_fit_stats, "sem")
+        gyr_fit = solve_gyro_static(f_true, fit_mean, fit_sem)
     cal.add_fit(gyr_fit.names, gyr_fit.params, gyr_fit.cov)
+    cal.warnings += gyr_fit.warnings
 
     # Noise: the paper's figure, the largest per-position std of each channel.
     for sensor, stats in (("acc", acc), ("gyr", gyr)):
@@ -209,7 +225,7 @@ def _solve_statics(
     )
     cal.info.setdefault("solver_checks", []).extend(face_bias)
     cal.info["condition_number"] = acc_fit.condition_number
-    cal.info["accel_solver"] = settings["accel_solver"]
+    cal.info["accel_solver"] = settings.accel_solver
     cal.info["acc_fit_chi2"] = [float(v) for v in acc_fit.chi2]
     cal.info["gyr_fit_chi2"] = [float(v) for v in gyr_fit.chi2]
     cal.info["fit_dof_per_axis"] = len(STATIC_LABELS) - 4
@@ -217,7 +233,9 @@ def _solve_statics(
     cal.info["effective_sample_counts_min"] = {
         label: float(min(acc[label].n_eff.min(), gyr[label].n_eff.min())) for label in STATIC_LABELS
     }
-    return cal, gyr
+    if gyr_fit_stats is not gyr:  # the faces' samples and the turns' rests
+        cal.info["gyro_static_samples"] = {k: s.n for k, s in gyr_fit_stats.items()}
+    return cal, gyr, gyr_fit_stats
 
 
 def _per_axis_fit(
@@ -258,7 +276,7 @@ def _gyr_static_model(cal: Calibration, f_true: np.ndarray, w_true: np.ndarray) 
     )
 
 
-def _earth_rate_input(segments: dict[str, Recording], settings: dict[str, Any]) -> np.ndarray:
+def _earth_rate_input(segments: dict[str, Recording], settings: Any) -> np.ndarray:
     """(6, 3) Earth rate of the statics in their body frames, rad/s (faces_earth_rate);
     ValueError for a face with a corrected up direction, whose heading axis is not known."""
     tilted = [k for k in STATIC_LABELS if UP_CHANNEL in segments[k].reference]
@@ -268,11 +286,11 @@ def _earth_rate_input(segments: dict[str, Recording], settings: dict[str, Any]) 
             f"{', '.join(tilted)} have a corrected up direction, so their Earth-rate input is "
             "not known: solve without gyro_from_earth_rate"
         )
-    return faces_earth_rate(settings["latitude_deg"], settings["heading_deg"])
+    return faces_earth_rate(settings.latitude_deg, settings.heading_deg)
 
 
 def solve_six_position(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Six static positions: accelerometer 12, gyro bias and g-sensitivity, noise.
 
@@ -280,16 +298,16 @@ def solve_six_position(
     ----------
     segments : label -> Recording; needs x_up, x_dn, y_up, y_dn, z_up, z_dn.
     gravity : local gravity, m/s^2.
-    settings : see the module docstring.
+    settings : typed `STATICS_SETTINGS` (a mapping is parsed; docs/procedures.md).
     """
-    merged = STATICS_SETTINGS.merged(settings)
+    s = STATICS_SETTINGS.parse(settings)
     _require(segments, STATIC_LABELS, "six_position")
-    cal, _ = _solve_statics(segments, gravity, merged, "six_position")
+    cal, _, _ = _solve_statics(segments, gravity, s, "six_position")
     return cal
 
 
 def solve_six_position_integral(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Six static positions plus the integral method for gyro scale and misalignment.
 
@@ -298,23 +316,27 @@ def solve_six_position_integral(
     segments : label -> Recording; the six statics and x_ccw, x_cw, y_ccw,
         y_cw, z_ccw, z_cw.
     gravity : local gravity, m/s^2.
-    settings : see the module docstring.
+    settings : typed `INTEGRAL_SETTINGS` (a mapping is parsed; docs/procedures.md).
     """
-    merged = INTEGRAL_SETTINGS.merged(settings)
-    both = merged["rotation_directions"] == "both"
+    s = INTEGRAL_SETTINGS.parse(settings)
+    both = s.rotation_directions == "both"
     _require(segments, STATIC_LABELS + (ROTATION_LABELS if both else ()), "six_position_integral")
-    cal, gyr = _solve_statics(segments, gravity, merged, "six_position_integral")
+    statics = STATICS_SETTINGS.parse({"accel_solver": s.accel_solver, "accel_model": s.accel_model})
+    cal, gyr, gyr_fit = _solve_statics(
+        segments, gravity, statics, "six_position_integral", s.turn_estimator
+    )
     rotations = {label: segments[label] for label in ROTATION_LABELS if label in segments}
     integral = solve_integral(
         rotations,
-        {label: s.mean for label, s in gyr.items()},
-        {label: s.sem for label, s in gyr.items()},
-        merged["gyro_range_dps"] * DEG,
-        merged["turns"],
+        {label: st.mean for label, st in gyr_fit.items()},
+        {label: st.sem for label, st in gyr_fit.items()},
+        s.gyro_range_dps * DEG,
+        s.turns,
         # The static record of the same orientation gives the noise the integral collects.
-        noise_std={label: s.std for label, s in gyr.items()},
+        noise_std={label: st.std for label, st in gyr.items()},
         gravity=gravity,
-        directions=merged["rotation_directions"],
+        directions=s.rotation_directions,
+        estimator=s.turn_estimator,
     )
     cal = cal.merged(integral)
     # merged() takes the integral's info on top; keep this procedure's name.
@@ -329,7 +351,7 @@ def solve_six_position_integral(
 
 
 def solve_integral_procedure(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Stage 2 of the MPU-6000 program alone: the six rotations, no orientations.
 
@@ -337,14 +359,27 @@ def solve_integral_procedure(
     from its own ccw and cw rotations (`rotation_static_means`); no biases, g-sensitivity,
     accelerometer or noise (those are stage 1, procedure six_position).
 
-    settings : turns, gyro_range_dps (see the module docstring).
+    settings : typed `INTEGRAL_ONLY_SETTINGS`: turns, gyro_range_dps (a mapping is parsed).
     """
-    merged = INTEGRAL_ONLY_SETTINGS.merged(settings)
+    s = INTEGRAL_ONLY_SETTINGS.parse(settings)
     _require(segments, ROTATION_LABELS, "integral")
     rotations = {label: segments[label] for label in ROTATION_LABELS}
     means, sems = rotation_static_means(rotations)
+    estimator = s.turn_estimator
+    if estimator == "regression":  # the turns' static data, where each channel has some
+        for label, rests in turn_rests(rotations, means).items():
+            counts = np.sum(~np.isnan(np.concatenate(rests)), axis=0)
+            if counts.min() >= 2:
+                stats = pooled_stats(rests)
+                means[label], sems[label] = stats.mean, stats.sem
     cal = solve_integral(
-        rotations, means, sems, merged["gyro_range_dps"] * DEG, merged["turns"], gravity=gravity
+        rotations,
+        means,
+        sems,
+        s.gyro_range_dps * DEG,
+        s.turns,
+        gravity=gravity,
+        estimator=estimator,
     )
     cal.info["static_reading_from"] = "rotations (stage 2 alone)"
     cal.info["sample_counts"] = {label: len(rec) for label, rec in rotations.items()}

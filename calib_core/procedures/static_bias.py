@@ -21,6 +21,7 @@ from calib_core.procedures.base import (
     Settings,
 )
 from calib_core.recording import Recording
+from calib_core.settings import SettingsIn
 from calib_core.solvers.static_bias import solve_static_bias, solve_static_bias_stream
 
 MEMORY_LIMIT = "memory_limit_mb"  # MB (10^6 bytes)
@@ -49,34 +50,35 @@ SETTINGS = Settings(
             "over the file, then one over its samples) instead of read into memory, unless "
             "its settings need the whole record; the results are the same either way",
             low=1.0),
+    name="StaticBiasSettings",
 )  # fmt: skip
 # Settings that choose how the record is read, not what is solved.
 READING = (MEMORY_LIMIT,)
 
 
-def solver_settings(settings: dict[str, Any] | None) -> dict[str, Any]:
-    """The solver's keyword arguments: the merged settings given, without READING."""
-    s = SETTINGS.merged(settings)
+def solver_settings(settings: SettingsIn) -> dict[str, Any]:
+    """The solver's keyword arguments: the typed settings given, without READING."""
+    s = SETTINGS.parse(settings).as_dict()
     return {k: v for k, v in s.items() if v is not None and k not in READING}
 
 
 def solve_static_bias_procedure(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Static bias and noise of one long static segment (any label).
 
-    settings : `STATIC_BIAS.settings` (see calib_core.solvers.static_bias.solve_static_bias).
+    settings : typed `SETTINGS` (see calib_core.solvers.static_bias.solve_static_bias); a
+        mapping is parsed.
     """
+    kwargs = solver_settings(settings)
     if len(segments) != 1:
         raise ValueError(
             f"static_bias: expected one static segment, got {len(segments)} ({', '.join(segments)})"
         )
-    return solve_static_bias(
-        next(iter(segments.values())), gravity=gravity, **solver_settings(settings)
-    )
+    return solve_static_bias(next(iter(segments.values())), gravity=gravity, **kwargs)
 
 
-def solve_static_bias_streamed(chunks, settings: dict[str, Any] | None, **streaming) -> Calibration:
+def solve_static_bias_streamed(chunks, settings: SettingsIn, **streaming) -> Calibration:
     """The solve of one static record streamed in chunks (longer than memory).
 
     chunks : called once per pass, a fresh iterator of (t, gyr, acc) chunks.

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib_core import params
+from calib_core.stats import misfit_scale, misfit_warnings
 
 
 def position_arrays(
@@ -106,7 +107,9 @@ class MultiPositionFit:
     residual_means : (K, 3) mean - model at each position.
     chi2 : (3,) weighted residual sum of squares per axis; dof : (3,) its degrees of freedom.
     not_separable : names the positions cannot separate from other terms (fixed at 0).
-    warnings : human-readable warnings (not separable, ill-conditioned).
+    warnings : human-readable warnings (not separable, ill-conditioned, misfit).
+    misfit_scale : (3,) factor on each axis's standard uncertainties: 1, or sqrt(chi2 / dof)
+        where the residuals reject the noise-only model (`MISFIT_ALPHA`).
     """
 
     model: str
@@ -120,6 +123,7 @@ class MultiPositionFit:
     dof: np.ndarray
     not_separable: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    misfit_scale: np.ndarray = field(default_factory=lambda: np.ones(3))
 
 
 def _separable_columns(
@@ -209,6 +213,15 @@ def solve_accel_multi(
         at += n
     condition = max(conditions)
     warnings: list[str] = []
+    scale = misfit_scale(chi2, dof)
+    at = 0
+    for i, block in enumerate(blocks):
+        n = block.shape[0]
+        full_cov[at : at + n, at : at + n] *= scale[i] ** 2
+        for name in names[at : at + n]:
+            std[name] *= float(scale[i])
+        at += n
+    warnings += misfit_warnings(f"the {model!r} model", chi2, dof)
     if not_separable:
         warnings.append(
             f"the {k} positions cannot separate {', '.join(not_separable)} from the other "
@@ -224,5 +237,16 @@ def solve_accel_multi(
     if np.any(dof < 0):
         raise ValueError(f"{k} positions are fewer than the unknowns of the {model!r} model")
     return MultiPositionFit(
-        model, values, std, names, full_cov, condition, residual, chi2, dof, not_separable, warnings
+        model,
+        values,
+        std,
+        names,
+        full_cov,
+        condition,
+        residual,
+        chi2,
+        dof,
+        not_separable,
+        warnings,
+        scale,
     )

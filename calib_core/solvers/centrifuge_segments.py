@@ -14,6 +14,8 @@ from collections.abc import Mapping
 from calib_core.calibration import Calibration, CheckResult, SegmentResidual
 from calib_core.params import AXES
 from calib_core.recording import Recording
+from calib_core.settings import Setting, Settings, SettingsIn
+from calib_core.significance import STEERING, T_TESTS
 from calib_core.solvers.centrifuge import solve_centrifuge
 from calib_core.solvers.centrifuge_model import (
     DEFAULT_STEER,
@@ -29,17 +31,29 @@ from calib_core.solvers.centrifuge_model import (
 # --- the generic procedure shape: labelled segments -> Calibration ---------------
 
 _LABEL = re.compile(r"^([xyz])([pm])_(?:zero_(after_)?(\d+(?:\.\d+)?)|1g|step_(\d+(?:\.\d+)?)g)$")
-SETTINGS_KEYS = (
-    "latitude_deg",
-    "alpha",
-    "t_test",
-    "steer",
-    "scale_1g",
-    "common_radius",
-    "iterations",
-    "scale_instability",
-    "zero_shift_limit",
-)
+# The procedure's settings (docs/procedures.md); its solver takes them typed.
+SETTINGS = Settings(
+    Setting("latitude_deg", "number", "deg", None,
+            "site latitude (Earth rate); required, the pipeline takes [site] latitude_deg",
+            low=-90.0, high=90.0),
+    Setting("alpha", "number", "1", 0.05, "significance level of the t and F tests",
+            low=0.0, high=1.0, low_open=True),
+    Setting("t_test", "text", "", "two-sided", "t test of each term", choices=T_TESTS),
+    Setting("steer", "text", "", DEFAULT_STEER,
+            "how the stepwise reduction decides: the model F test then the t tests (the "
+            "paper's), the t tests alone, or the largest model F", choices=STEERING),
+    Setting("scale_1g", "table", "1", {},
+            "per table axis x, y, z the 1 g scale error K - 1 of a static calibration"),
+    Setting("common_radius", "bool", "", True, "one effective radius for all positions"),
+    Setting("iterations", "integer", "1", 4, "radius / phi_h / model passes", low=1),
+    Setting("scale_instability", ("number", "table"), "1", None,
+            "relative scale instability from step to step, one value or per axis (absent: "
+            "estimated)", low=0.0),
+    Setting("zero_shift_limit", "number", "m/s^2", DEFAULT_ZERO_SHIFT_LIMIT,
+            "allowed change of a position's zero output before / after its run", low=0.0,
+            low_open=True),
+    name="CentrifugeProcedureSettings",
+)  # fmt: skip
 
 
 def step_label(step: CentrifugeStep) -> str:
@@ -81,42 +95,41 @@ def steps_from_segments(segments: Mapping[str, Recording]) -> list[CentrifugeSte
     return steps
 
 
-def settings_from_dict(settings: Mapping[str, object], gravity: float) -> CentrifugeSettings:
-    """CentrifugeSettings from a manifest's procedure settings (keys `SETTINGS_KEYS`).
+def settings_from_dict(settings: SettingsIn, gravity: float) -> CentrifugeSettings:
+    """CentrifugeSettings from the procedure's typed settings (a mapping is parsed:
+    `SETTINGS`, other keys such as the preprocessing tables left out).
 
     ``latitude_deg`` is required; ``scale_1g`` is a table axis -> K - 1;
     ``scale_instability`` a number, a table axis -> number, or absent (estimate).
-    Other keys (e.g. preprocessing settings of the same run) are ignored.
     """
-    s = {k: settings[k] for k in SETTINGS_KEYS if settings.get(k) is not None}
-    if "latitude_deg" not in s:
+    s = SETTINGS.parse(settings)
+    if s.latitude_deg is None:
         raise ValueError(
             "centrifuge: settings.latitude_deg is required (site latitude, deg: Earth rate)"
         )
-    scale = s.get("scale_1g", {})
-    if not isinstance(scale, Mapping) or set(scale) - set(AXES):
+    if set(s.scale_1g) - set(AXES):
         raise ValueError(
-            f"centrifuge: settings.scale_1g must map axes x, y, z to K - 1, got {scale!r}"
+            f"centrifuge: settings.scale_1g must map axes x, y, z to K - 1, got {s.scale_1g!r}"
         )
     try:
         return CentrifugeSettings(
-            latitude_deg=float(s["latitude_deg"]),
+            latitude_deg=float(s.latitude_deg),
             gravity=gravity,
-            alpha=float(s.get("alpha", 0.05)),
-            t_test=str(s.get("t_test", "two-sided")),
-            steer=str(s.get("steer", DEFAULT_STEER)),
-            scale_1g={a: float(v) for a, v in scale.items()},
-            common_radius=bool(s.get("common_radius", True)),
-            iterations=int(s.get("iterations", 4)),
-            scale_instability=s.get("scale_instability"),
-            zero_shift_limit=float(s.get("zero_shift_limit", DEFAULT_ZERO_SHIFT_LIMIT)),
+            alpha=float(s.alpha),
+            t_test=s.t_test,
+            steer=s.steer,
+            scale_1g={a: float(v) for a, v in s.scale_1g.items()},
+            common_radius=s.common_radius,
+            iterations=s.iterations,
+            scale_instability=s.scale_instability,
+            zero_shift_limit=float(s.zero_shift_limit),
         )
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"centrifuge: bad settings {s}: {exc}") from None
+        raise ValueError(f"centrifuge: bad settings {s.as_dict()}: {exc}") from None
 
 
 def solve_centrifuge_segments(
-    segments: dict[str, Recording], gravity: float, settings: dict | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """The centrifuge as a procedure: labelled segments -> Calibration.
 
@@ -133,7 +146,7 @@ def solve_centrifuge_segments(
     step after compensation, and in `info` the geometry and per axis F,
     F_crit, R^2, t values, removal sequence and the terms not identifiable.
     """
-    cs = settings_from_dict(settings or {}, gravity)
+    cs = settings_from_dict(settings, gravity)
     model, record = solve_centrifuge(steps_from_segments(segments), cs)
     cal = Calibration(procedure="centrifuge", gravity=gravity)
     for name, est in model.parameters().items():

@@ -29,7 +29,7 @@ does not change u).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -39,6 +39,7 @@ from calib_core.attitude import integrate_rotations
 from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.preprocess.segments import Interval, StaticDetector, detect_static
 from calib_core.recording import Recording
+from calib_core.settings import Setting, Settings, SettingsIn
 from calib_core.solvers.multi_position import segment_residual
 from calib_core.stats import channel_stats
 
@@ -51,16 +52,26 @@ HUBER_SCALE = 3.0  # whitened residuals beyond 3 sigma are down-weighted
 # 1e4 and more; 30 spread poses give ~10.
 ACC_CONDITION_LIMIT = 1e3
 
-EQUIPMENT_FREE_DEFAULTS: dict[str, Any] = {
-    "window_s": 1.0,
-    "init_static_s": 10.0,
-    "k": 6.0,
-    "min_duration_s": 1.0,
-    "settle_s": 0.5,
-    "min_keep_s": 0.5,
-    "min_intervals": 9,
-    "segment": None,
-}
+# The procedure's settings (docs/procedures.md); its solver takes them typed.
+SETTINGS = Settings(
+    Setting("window_s", "number", "s", 1.0, "static detector's variance window", low=0.0,
+            low_open=True),
+    Setting("init_static_s", "number", "s", 10.0,
+            "initial rest the threshold is scaled from", low=0.0, low_open=True),
+    Setting("k", "number", "1", 6.0,
+            "static threshold as a multiple of the initial rest's variance", low=0.0,
+            low_open=True),
+    Setting("min_duration_s", "number", "s", 1.0, "shortest rest kept", low=0.0,
+            low_open=True),
+    Setting("settle_s", "number", "s", 0.5, "time dropped at each end of a rest", low=0.0),
+    Setting("min_keep_s", "number", "s", 0.5, "shortest part of a rest left after the settle",
+            low=0.0),
+    Setting("min_intervals", "integer", "1", 9,
+            "fewest rests for the fit (fewer: the threshold is searched)", low=1),
+    Setting("segment", "text", "", None,
+            "the segment that holds the session (absent: the run's only segment)"),
+    name="EquipmentFreeSettings",
+)  # fmt: skip
 
 
 # imu_tk (Tedaldi et al.) searches the static threshold over multiples of the
@@ -112,15 +123,15 @@ class StaticSet:
     k: float
 
 
-def statics_at(rec: Recording, settings: dict[str, Any], k: float) -> StaticSet:
+def statics_at(rec: Recording, settings: Any, k: float) -> StaticSet:
     """Static intervals found with threshold factor `k` (detect_static) and their means."""
     detector = StaticDetector(
-        window_s=settings["window_s"],
-        init_static_s=settings["init_static_s"],
+        window_s=settings.window_s,
+        init_static_s=settings.init_static_s,
         k=k,
-        min_duration_s=settings["min_duration_s"],
-        settle_s=settings["settle_s"],
-        min_keep_s=settings["min_keep_s"],
+        min_duration_s=settings.min_duration_s,
+        settle_s=settings.settle_s,
+        min_keep_s=settings.min_keep_s,
     )
     intervals = detect_static(rec, detector)
     stats = [channel_stats(rec.acc[iv.slice]) for iv in intervals]
@@ -133,19 +144,19 @@ def statics_at(rec: Recording, settings: dict[str, Any], k: float) -> StaticSet:
     )
 
 
-def find_statics(rec: Recording, settings: dict[str, Any], gravity: float) -> StaticSet:
-    """The static intervals at settings["k"], or from the threshold search if too few.
+def find_statics(rec: Recording, settings: Any, gravity: float) -> StaticSet:
+    """The static intervals at settings.k, or from the threshold search if too few.
 
     The search tries every factor of THRESHOLD_SEARCH_K and keeps, among those
     finding >= min_intervals rests, the one whose norm-condition fit has the
     smallest Birge ratio (imu_tk's criterion). Raises ValueError naming the
     counts found when no factor finds enough.
     """
-    need = settings["min_intervals"]
-    found = statics_at(rec, settings, settings["k"])
+    need = settings.min_intervals
+    found = statics_at(rec, settings, settings.k)
     if len(found.intervals) >= need:
         return found
-    tried = {k: statics_at(rec, settings, k) for k in THRESHOLD_SEARCH_K if k != settings["k"]}
+    tried = {k: statics_at(rec, settings, k) for k in THRESHOLD_SEARCH_K if k != settings.k}
     usable = [st for st in tried.values() if len(st.intervals) >= need]
     if not usable:
         counts = ", ".join(f"k={k:g}: {len(st.intervals)}" for k, st in tried.items())
@@ -157,33 +168,34 @@ def find_statics(rec: Recording, settings: dict[str, Any], gravity: float) -> St
     return min(usable, key=lambda st: solve_accel_norm(st, gravity)[2]["acc_birge_ratio"])
 
 
-def _advice(rec: Recording, settings: dict[str, Any], tried: list[StaticSet]) -> str:
+def _advice(rec: Recording, settings: Any, tried: list[StaticSet]) -> str:
     """What would give enough rests: a shorter min_duration_s or window_s that does (tried
     on the threshold grid), else how many more still orientations the session needs."""
-    need = settings["min_intervals"]
+    need = settings.min_intervals
     best: tuple[int, str, float, float] | None = None  # (rests, key, value, k)
     for key in ("min_duration_s", "window_s"):
         for factor in RELAXED_FACTORS:
-            relaxed = {**settings, key: settings[key] * factor}
+            relaxed = replace(settings, **{key: getattr(settings, key) * factor})
             for k in THRESHOLD_SEARCH_K:
                 try:
                     n = len(statics_at(rec, relaxed, k).intervals)
                 except ValueError:
                     break  # the relaxed windows do not fit the record
                 if n >= need and (best is None or n > best[0]):
-                    best = (n, key, relaxed[key], k)
+                    best = (n, key, getattr(relaxed, key), k)
     if best is not None:
         n, key, value, k = best
+        given = getattr(settings, key)
         return (
-            f"settings.{key} = {value:g} (instead of {settings[key]:g}) finds {n} rests at "
+            f"settings.{key} = {value:g} (instead of {given:g}) finds {n} rests at "
             f"k = {k:g}: the rests are shorter than the detector asks"
         )
     most = max(len(st.intervals) for st in tried)
     return (
         f"no threshold up to k = {THRESHOLD_SEARCH_K[-1]:g} nor a shorter min_duration_s or "
         f"window_s finds more than {most}: hold the IMU still in at least {need - most} more "
-        f"orientations, each for >= {settings['min_duration_s']:g} s plus the settle time "
-        f"({settings['settle_s']:g} s)"
+        f"orientations, each for >= {settings.min_duration_s:g} s plus the settle time "
+        f"({settings.settle_s:g} s)"
     )
 
 
@@ -343,22 +355,8 @@ def solve_gyro_rotations(
     return res.x, cov, info
 
 
-def equipment_free_settings(settings: dict[str, Any] | None) -> dict[str, Any]:
-    """Settings with defaults filled in; other keys (preprocessing) are ignored."""
-    given = dict(settings or {})
-    s = {
-        **EQUIPMENT_FREE_DEFAULTS,
-        **{k: v for k, v in given.items() if k in EQUIPMENT_FREE_DEFAULTS},
-    }
-    for key in ("window_s", "init_static_s", "k", "min_duration_s"):
-        v = s[key]
-        if isinstance(v, bool) or not isinstance(v, int | float) or v <= 0:
-            raise ValueError(f"settings.{key}: expected a positive number, got {v!r}")
-    return s
-
-
 def calibrate_equipment_free(
-    rec: Recording, gravity: float, settings: dict[str, Any] | None = None
+    rec: Recording, gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Equipment-free calibration of one hand-held multi-pose recording.
 
@@ -377,7 +375,7 @@ def calibrate_equipment_free(
     gyr.scale.*, gyr.misalign.*; residuals per static interval; info with the
     fit statistics, the number of intervals and the frame convention.
     """
-    s = equipment_free_settings(settings)
+    s = SETTINGS.parse(settings)
     statics = find_statics(rec, s, gravity)
     theta_a, cov_a, info_a = solve_accel_norm(statics, gravity)
     a, b = acc_matrix(theta_a)
@@ -433,9 +431,9 @@ def calibrate_equipment_free(
     )
     cal.info["static_threshold_k"] = statics.k
     raised = []
-    if statics.k != s["k"]:
+    if statics.k != s.k:
         cal.warnings.append(
-            f"equipment_free: k = {s['k']:g} found too few rests; the threshold search "
+            f"equipment_free: k = {s.k:g} found too few rests; the threshold search "
             f"took k = {statics.k:g} ({len(statics.intervals)} rests)"
         )
         # A finding about the record: its rests are less still than the setting expects.
@@ -443,7 +441,7 @@ def calibrate_equipment_free(
             {
                 "name": "record:threshold:static_k",
                 "value": float(statics.k),
-                "limit": float(s["k"]),
+                "limit": float(s.k),
                 "passed": False,
                 "detail": f"{cal.warnings[-1]}: the rests were found with a relaxed threshold",
             }
@@ -465,7 +463,7 @@ def calibrate_equipment_free(
 
 def detector_shifts(
     rec: Recording,
-    settings: dict[str, Any],
+    settings: Any,
     statics: StaticSet,
     theta: np.ndarray,
     cov: np.ndarray,
@@ -484,7 +482,7 @@ def detector_shifts(
     shifts: dict[str, float] = {}
     for k in grid[max(i - 1, 0) : i] + grid[i + 1 : i + 2]:
         other = statics_at(rec, settings, k)
-        if len(other.intervals) < settings["min_intervals"]:
+        if len(other.intervals) < settings.min_intervals:
             continue
         theta_k, cov_k, _ = solve_accel_norm(other, gravity)
         both = (std > 0) & (np.diag(cov_k) > 0)  # misalignments may be fixed in one fit
@@ -527,11 +525,11 @@ def _detector_check(shifts: dict[str, float]) -> dict[str, Any]:
 
 
 def solve_equipment_free(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
-    """Procedure entry: the one segment of the run (or settings["segment"]) is the session."""
-    s = equipment_free_settings(settings)
-    label = s["segment"]
+    """Procedure entry: the one segment of the run (or settings.segment) is the session."""
+    s = SETTINGS.parse(settings)
+    label = s.segment
     if label is None:
         if len(segments) != 1:
             raise ValueError(
@@ -548,9 +546,7 @@ def solve_equipment_free(
     return cal
 
 
-def transport_residual_rms(
-    rec: Recording, cal: Calibration, settings: dict[str, Any] | None = None
-) -> float:
+def transport_residual_rms(rec: Recording, cal: Calibration, settings: SettingsIn = None) -> float:
     """How well a calibration's gyro carries gravity between the rests of a session, rad.
 
     Any calibration (e.g. a six-position + integral one) can be judged on a
@@ -558,7 +554,7 @@ def transport_residual_rms(
     each rest, its gyro bias and matrix the rotations between them. Returns the
     rms miss |u_k+1 - R_k^T u_k| per degree of freedom (2 per motion).
     """
-    s = equipment_free_settings(settings)
+    s = SETTINGS.parse(settings)
     statics = find_statics(rec, s, cal.gravity)
     f_cal, _ = cal.correct(statics.acc_mean, np.zeros_like(statics.acc_mean))
     up = f_cal / np.linalg.norm(f_cal, axis=1, keepdims=True)

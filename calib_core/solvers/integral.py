@@ -19,6 +19,12 @@ Gxy is -M[x, z], Gyz is -M[y, x], Gyx is M[y, z], Gzy is M[z, x], Gzx is
 -M[z, y]). Because the static reading is subtracted per record, cw and ccw
 records of different lengths do not bias the result.
 
+That is the literal reading (``estimator="whole_record"``). The default
+(``"regression"``, `turn_motion`) integrates each record over its turn's motion window
+only and reads each cross-axis entry as its least-squares proportion to the on-axis rate
+times the on-axis entry: the same column (I + M) e_A, at the Cramer-Rao bound on a rigid
+turn (docs/methods.md 2.6).
+
 Uncertainty: white noise of std sigma_c gives the integral a std sigma_c ||w||
 (w: trapezoid weights); the subtracted static mean enters as (T+ - T-) times
 its standard error. Both are propagated.
@@ -34,12 +40,24 @@ from calib_core import params
 from calib_core.calibration import Calibration
 from calib_core.preprocess.replaced import replaced_check
 from calib_core.recording import Recording
+from calib_core.settings import Setting
 from calib_core.solvers.six_position import UP_CHANNEL, reference_up
-from calib_core.stats import row_medians, trapezoid_weights
+from calib_core.solvers.turn_motion import (
+    TURN_ESTIMATORS,
+    cross_axis_ratios,
+    face_rest_stats,
+    motion_window,
+)
+from calib_core.stats import ChannelStats, row_medians, trapezoid_weights
 from calib_core.units import DEG, STANDARD_GRAVITY
 
 # Rotation records: n whole turns about the axis, axis up; ccw = positive rate.
 ROTATION_LABELS = ("x_ccw", "x_cw", "y_ccw", "y_cw", "z_ccw", "z_cw")
+# The setting of the procedures that integrate turns (six_position_integral, integral,
+# sensor_array).
+TURNS = Setting(
+    "turns", "integer", "1", None,
+    "whole turns of each rotation (absent: inferred from the data)", low=1)  # fmt: skip
 
 # A rate within this fraction of full scale counts as saturated (sensors clip at
 # 32767/32768 of the range, files round to the last digit).
@@ -253,6 +271,7 @@ def solve_integral(
     noise_std: dict[str, np.ndarray] | None = None,
     gravity: float = STANDARD_GRAVITY,
     directions: str = "both",
+    estimator: str = "regression",
 ) -> Calibration:
     """Gyro scale errors and misalignments by the integral method.
 
@@ -273,6 +292,10 @@ def solve_integral(
         one rotation suffices (Ferraris et al. 1995, e.g. imucal sessions); a
         lone rotation gives the column J / (+-2 pi n), its bias removed by the
         static mean alone instead of cancelling in the ccw - cw difference.
+    estimator : "regression" (default): each turn integrated over its motion window,
+        each cross-axis integral as its least-squares proportion to the on-axis rate
+        times the on-axis integral (`turn_motion`); "whole_record": the paper's literal
+        reading, every channel integrated over the whole record.
 
     Returns
     -------
@@ -285,12 +308,13 @@ def solve_integral(
     ValueError naming the segment: a missing rotation or static mean, a rotation
     that reached the gyro range, a turn count that is not a whole number.
     """
-    _check_inputs(rotations, static_means, gyro_range, turns, directions)
+    _check_inputs(rotations, static_means, gyro_range, turns, directions, estimator)
     at_rest = check_turns_at_rest(rotations, static_means)
     replaced: dict[str, dict] = {}
-    J, var, duration = _integrals(rotations, static_means, noise_std, replaced)
+    J, var, duration, cleaned = _integrals(rotations, static_means, noise_std, replaced, estimator)
     n = _turn_count(J, turns)
     check_closure(J, var, duration, static_sems, rotations)
+    used: dict[str, str] = {}
 
     cal = Calibration(procedure="integral", gravity=gravity)
     closure: dict[str, float] = {}
@@ -301,6 +325,8 @@ def solve_integral(
         sem = np.asarray(static_sems[f"{a}_up"], dtype=float)
         std[:, j] = np.sqrt(sum(var[a].values()) + (dT * sem) ** 2) / denom
         C[:, j] = _signed_sum(J[a]) / denom  # (I + M_g) times the rotation axis
+        if estimator == "regression":
+            C[:, j], std[:, j] = _regression_column(a, C[:, j], std[:, j], cleaned[a], used)
         if len(J[a]) == 2:
             closure[a] = float((J[a]["ccw"][j] + J[a]["cw"][j]) / 2.0)
     axes = _rotation_axes(rotations)
@@ -319,6 +345,9 @@ def solve_integral(
         )
     cal.info["turns"] = n
     cal.info.setdefault("solver_checks", []).extend(at_rest)
+    cal.info["turn_estimator"] = estimator
+    if estimator == "regression":
+        cal.info["misalignment_by"] = used
     record_spikes(cal, replaced)
     cal.info["integral_closure_rad"] = closure
     cal.info["rotation_durations_s"] = {
@@ -441,8 +470,13 @@ def _check_inputs(
     gyro_range: float,
     turns: int | None,
     directions: str,
+    estimator: str,
 ) -> None:
     """Refuse missing segments, a bad turn count and rotations that reached the range."""
+    if estimator not in TURN_ESTIMATORS:
+        raise ValueError(
+            f"integral method: turn_estimator must be one of {TURN_ESTIMATORS}, got {estimator!r}"
+        )
     if directions not in ("both", "any"):
         raise ValueError(f"integral method: directions must be 'both' or 'any', got {directions!r}")
     if directions == "both":
@@ -465,35 +499,150 @@ def _check_inputs(
         _check_range(rec, label, gyro_range)
 
 
+def clean_turn(
+    rec: Recording,
+    rest: np.ndarray,
+    axis: int,
+    noise_std: np.ndarray | None = None,
+    estimator: str = "regression",
+) -> tuple[np.ndarray, np.ndarray, slice, np.ndarray]:
+    """One rotation record made ready to integrate: despiked (`despike`), its noise std,
+    the span integrated (the whole record, or with `estimator` "regression" the turn's
+    motion window, `turn_motion.motion_window`) and the spikes replaced per channel.
+
+    Parameters
+    ----------
+    rec : the rotation. rest : (3,) static reading of its orientation, rad/s.
+    axis : its rotation axis's channel. noise_std : (3,) per-sample noise std from the
+        static record of the orientation, rad/s; None: from the record's second
+        differences (`noise_from_differences`).
+    """
+    robust = noise_from_differences(rec.gyr)
+    sigma = robust if noise_std is None else np.asarray(noise_std, dtype=float)
+    gyr, n_spikes = despike(rec.gyr, robust)
+    span = slice(0, len(rec))
+    if estimator == "regression":
+        # The record's own noise finds the turn; the static's tells its ends at rest.
+        rest_std = None if noise_std is None else float(sigma[axis])
+        span = motion_window(gyr, rec.t, axis, np.asarray(rest), float(robust[axis]), rest_std)
+    return gyr, sigma, span, n_spikes
+
+
+def turn_rests(
+    rotations: dict[str, Recording],
+    static_means: dict[str, np.ndarray],
+    noise_std: dict[str, np.ndarray] | None = None,
+) -> dict[str, list[np.ndarray]]:
+    """Static data of each orientation "A_up" from the turns about A (despiked), (N, 3)
+    arrays with NaN where a channel has none: the on-axis channel's rests (the samples
+    outside the motion window); with both senses turned, each cross-axis channel where the
+    regression holds (`turn_motion.cross_axis_ratios`) over the whole records less its
+    proportion of the turn, w_c - r_cA (w_A - S_A), which is S_c plus noise at every
+    sample. A turn or face with a corrected up direction (``reference_up``) is left out:
+    its orientation may not be the face's."""
+    rests: dict[str, list[np.ndarray]] = {}
+    for a in params.AXES:
+        up, j = f"{a}_up", params.AXIS_INDEX[a]
+        labels = [f"{a}_{k}" for k in ("ccw", "cw") if f"{a}_{k}" in rotations]
+        if up not in static_means or any(UP_CHANNEL in rotations[k].reference for k in labels):
+            continue
+        noise = None if noise_std is None else noise_std[up]
+        cleaned = [clean_turn(rotations[k], static_means[up], j, noise) for k in labels]
+        holds, ratio = np.zeros(3, dtype=bool), np.zeros(3)
+        if len(cleaned) == 2:
+            sigma = np.max([c[1] for c in cleaned], axis=0)
+            ratio, _, holds = cross_axis_ratios([c[0] for c in cleaned], j, sigma)
+        holds[j] = False
+        for gyr, _, span, _ in cleaned:
+            part = np.full(gyr.shape, np.nan)
+            part[: span.start, j], part[span.stop :, j] = gyr[: span.start, j], gyr[span.stop :, j]
+            moving = gyr[:, j] - static_means[up][j]
+            part[:, holds] = gyr[:, holds] - np.outer(moving, ratio[holds])
+            rests.setdefault(up, []).append(part)
+    return rests
+
+
+def pooled_static_gyro(
+    segments: dict[str, Recording], faces: dict[str, ChannelStats]
+) -> dict[str, ChannelStats]:
+    """Gyro statistics of each face pooled with the rests of the turns made in its
+    orientation (`turn_rests`, `turn_motion.face_rest_stats`): the static data of the
+    gyro's bias and g-sensitivity fit with turn_estimator "regression".
+
+    Parameters
+    ----------
+    segments : the run's segments (the faces, and the rotations present).
+    faces : label -> ChannelStats of each face's gyro alone.
+    """
+    rotations = {k: segments[k] for k in ROTATION_LABELS if k in segments}
+    tilted = {k for k in faces if UP_CHANNEL in segments[k].reference}
+    means = {k: s.mean for k, s in faces.items() if k not in tilted}
+    rests = turn_rests(rotations, means, {k: s.std for k, s in faces.items()})
+    return face_rest_stats({k: segments[k] for k in faces}, rests)
+
+
 def _integrals(
     rotations: dict[str, Recording],
     static_means: dict[str, np.ndarray],
     noise_std: dict[str, np.ndarray] | None,
     replaced: dict[str, dict],
-) -> tuple[dict, dict, dict]:
+    estimator: str = "whole_record",
+) -> tuple[dict, dict, dict, dict]:
     """Per axis and sense: the bias-removed integral J (3,) rad, its variance (3,) rad^2,
-    and the rotation's duration, s (each a dict axis -> sense -> value). The despiker's
-    counts go into `replaced` (label -> `_spike_counts`)."""
+    the integrated span, s, and (despiked gyro (N, 3), noise std (3,)) of the record
+    (each a dict axis -> sense -> value). The span is the whole record, or with
+    `estimator` "regression" the turn's motion window (`turn_motion.motion_window`). The
+    despiker's counts go into `replaced` (label -> `_spike_counts`)."""
     J: dict[str, dict[str, np.ndarray]] = {}
     var: dict[str, dict[str, np.ndarray]] = {}
     duration: dict[str, dict[str, float]] = {}
-    for a in params.AXES:
+    cleaned: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+    for j, a in enumerate(params.AXES):
         S = np.asarray(static_means[f"{a}_up"], dtype=float)
-        J[a], var[a], duration[a] = {}, {}, {}
+        J[a], var[a], duration[a], cleaned[a] = {}, {}, {}, {}
         for sense in ("ccw", "cw"):
             if f"{a}_{sense}" not in rotations:
                 continue
             rec = rotations[f"{a}_{sense}"]
-            w = trapezoid_weights(rec.t)
-            T = float(rec.t[-1] - rec.t[0])
-            robust = noise_from_differences(rec.gyr)
-            sigma = robust if noise_std is None else np.asarray(noise_std[f"{a}_up"], dtype=float)
-            gyr, n_spikes = despike(rec.gyr, robust)
+            noise = None if noise_std is None else noise_std[f"{a}_up"]
+            gyr, sigma, span, n_spikes = clean_turn(rec, S, j, noise, estimator)
             replaced[f"{a}_{sense}"] = _spike_counts(n_spikes, len(rec))
-            J[a][sense] = w @ gyr - S * T
+            t = rec.t[span]
+            w = trapezoid_weights(t)
+            T = float(t[-1] - t[0])
+            J[a][sense] = w @ gyr[span] - S * T
             var[a][sense] = sigma**2 * float(w @ w)
             duration[a][sense] = T
-    return J, var, duration
+            cleaned[a][sense] = (gyr, sigma)
+    return J, var, duration, cleaned
+
+
+def _regression_column(
+    axis: str,
+    column: np.ndarray,
+    std: np.ndarray,
+    records: dict[str, tuple[np.ndarray, np.ndarray]],
+    used: dict[str, str],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Column A of I + M with its cross-axis entries as r_cA times the on-axis entry
+    (`turn_motion.cross_axis_ratios`) and their standard uncertainties, where the
+    regression holds and is the more precise; elsewhere (a wobbling turn, a rate profile
+    that favours the integral) the integrals' entry stays. `used` gets
+    "gyr.misalign.<c><A>" -> "regression" or "integral" per cross-axis entry."""
+    j = params.AXIS_INDEX[axis]
+    sigma = np.max([s for _, s in records.values()], axis=0)
+    ratio, ratio_std, holds = cross_axis_ratios([g for g, _ in records.values()], j, sigma)
+    on = column[j]
+    reg_std = np.hypot(ratio_std * on, ratio * std[j])
+    holds &= reg_std < std
+    holds[j] = True
+    out = np.where(holds, ratio * on, column)
+    out_std = np.where(holds, reg_std, std)
+    out_std[j] = std[j]
+    for c, a in enumerate(params.AXES):
+        if c != j:
+            used[f"gyr.misalign.{a}{axis}"] = "regression" if holds[c] else "integral"
+    return out, out_std
 
 
 def _turn_count(J: dict[str, dict[str, np.ndarray]], turns: int | None) -> int:

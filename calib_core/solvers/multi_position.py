@@ -35,6 +35,7 @@ from calib_core.attitude import (
 from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.preprocess.motion import is_rotation
 from calib_core.recording import Recording
+from calib_core.settings import Setting, Settings, SettingsIn
 from calib_core.solvers.accel_models import (
     ACCEL_MODELS,
     accel_output,
@@ -42,7 +43,13 @@ from calib_core.solvers.accel_models import (
     solve_accel_multi,
 )
 from calib_core.solvers.six_position import reference_up
-from calib_core.stats import channel_stats, column_mean_std, largest_std
+from calib_core.stats import (
+    channel_stats,
+    column_mean_std,
+    largest_std,
+    misfit_scale,
+    misfit_warnings,
+)
 from calib_core.units import DEG
 
 
@@ -70,6 +77,13 @@ class LinearFit:
     condition_number: float
     residual_means: np.ndarray
     chi2: np.ndarray
+
+    @property
+    def warnings(self) -> list[str]:
+        """Said when the residuals rejected the noise-only model (`misfit_scale`)."""
+        dof = np.full(3, self.residual_means.shape[0] - 4)
+        sensor = "gyro" if self.names[0].startswith("gyr") else "accelerometer"
+        return misfit_warnings(f"the {sensor} fit", self.chi2, dof)
 
 
 def fit_affine(
@@ -111,6 +125,7 @@ def fit_affine(
     _check_variances(cov, sem)
     residual = means - design @ x.T
     chi2 = ((residual / sem) ** 2).sum(axis=0)
+    cov *= (misfit_scale(chi2, np.full(3, k - 4)) ** 2)[:, None, None]
     return x[:, 0], x[:, 1:], cov, condition, residual, chi2
 
 
@@ -251,14 +266,25 @@ def solve_gyro_static(f_true: np.ndarray, means: np.ndarray, sem: np.ndarray) ->
 
 # --- the procedure ----------------------------------------------------------------
 
-MULTI_POSITION_DEFAULTS: dict[str, Any] = {
-    "model": "full",
-    "table_axes": "pitch_roll",
-    "attitude_convention": "project",
-    "attitudes": {},
-    "mount": None,
-    "gyro_gsens": True,
-}
+# The procedure's settings (docs/procedures.md); its solver takes them typed.
+SETTINGS = Settings(
+    Setting("model", "text", "", "full",
+            "accelerometer model: full (12), reduced (bias and scale per axis), quadratic, "
+            "nonlinear", choices=ACCEL_MODELS),
+    Setting("table_axes", "text", "", "pitch_roll",
+            "the table's two axes the attitudes are given in", choices=TABLE_AXES),
+    Setting("attitude_convention", "text", "", "project",
+            "sign of the table's pitch: project a_x = -g sin(pitch), rate_table_procedure "
+            "a_x = +g sin(pitch)", choices=ATTITUDE_CONVENTIONS),
+    Setting("attitudes", "table", "deg", {},
+            "per label the table angles {pitch_deg, roll_deg} (or azimuth_deg, pitch_deg); "
+            "absent: reference channels or a face label"),
+    Setting("mount", "list", "1", None,
+            "3x3 body-to-table rotation (rows of numbers; absent: identity)"),
+    Setting("gyro_gsens", "bool", "", True,
+            "fit gyro bias and g-sensitivity from the same statics"),
+    name="MultiPositionSettings",
+)  # fmt: skip
 
 
 def _face_vector(label: str, gravity: float) -> np.ndarray | None:
@@ -270,25 +296,23 @@ def _face_vector(label: str, gravity: float) -> np.ndarray | None:
     return f
 
 
-def reference_force(
-    label: str, rec: Recording, gravity: float, settings: dict[str, Any]
-) -> np.ndarray:
+def reference_force(label: str, rec: Recording, gravity: float, settings: Any) -> np.ndarray:
     """Reference specific force (3,) of one static segment, m/s^2.
 
-    In order of precedence: the table angles given in ``settings["attitudes"][label]``
+    settings : the typed `SETTINGS` (`SETTINGS.parse`).
+
+    In order of precedence: the table angles given in ``settings.attitudes[label]``
     (``pitch_deg``/``roll_deg`` for a pitch/roll table, ``azimuth_deg``/``pitch_deg``
     for an azimuth/pitch one); the mean of the segment's reference channels
     (``table_pitch``/``table_roll`` or ``table_azimuth``/``table_pitch``, rad); a
     face label (``x_up`` .. ``z_dn``), rotated to the segment's ``reference_up`` channel
     when it has one (a cube face found not square, `calib impact`).
     """
-    axes = settings["table_axes"]
-    if axes not in TABLE_AXES:
-        raise ValueError(f"settings.table_axes: {axes!r}; expected one of {list(TABLE_AXES)}")
+    axes = settings.table_axes
     keys = ("pitch", "roll") if axes == "pitch_roll" else ("azimuth", "pitch")
-    mount = settings.get("mount")
-    convention = settings.get("attitude_convention", "project")
-    given = settings["attitudes"].get(label)
+    mount = mount_of(settings)
+    convention = settings.attitude_convention
+    given = settings.attitudes.get(label)
     if given is not None:
         try:
             outer, inner = (float(given[f"{k}_deg"]) * DEG for k in keys)
@@ -357,36 +381,21 @@ def gyro_bias_and_gsens(
         )
         return
     cal.add_fit(fit.names, fit.params, fit.cov)
+    cal.warnings += fit.warnings
     cal.info["gyr_fit_chi2"] = [float(v) for v in fit.chi2]
 
 
-def multi_position_settings(settings: dict[str, Any] | None) -> dict[str, Any]:
-    """Settings of `solve_multi_position` with defaults filled in, validated."""
-    given = dict(settings or {})
-    merged = {
-        **MULTI_POSITION_DEFAULTS,
-        **{k: v for k, v in given.items() if k in MULTI_POSITION_DEFAULTS},
-    }
-    if merged["model"] not in ACCEL_MODELS:
-        raise ValueError(
-            f"settings.model: {merged['model']!r}; expected one of {list(ACCEL_MODELS)}"
-        )
-    if merged["attitude_convention"] not in ATTITUDE_CONVENTIONS:
-        raise ValueError(
-            f"settings.attitude_convention: {merged['attitude_convention']!r}; expected one of "
-            f"{list(ATTITUDE_CONVENTIONS)}"
-        )
-    if not isinstance(merged["attitudes"], dict):
-        raise ValueError("settings.attitudes: expected a table {label = {pitch_deg, roll_deg}}")
-    if merged["mount"] is not None:
-        m = np.asarray(merged["mount"], dtype=float)
+def mount_of(settings: Any) -> Any:
+    """The typed settings' ``mount`` checked: a 3x3 rotation matrix (rows) or None."""
+    if settings.mount is not None:
+        m = np.asarray(settings.mount, dtype=float)
         if m.shape != (3, 3) or not np.allclose(m @ m.T, np.eye(3), atol=1e-6):
             raise ValueError("settings.mount: expected a 3x3 rotation matrix (rows of numbers)")
-    return merged
+    return settings.mount
 
 
 def solve_multi_position(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Multi-position static calibration from table attitudes (docs/methods.md 2.2).
 
@@ -396,7 +405,8 @@ def solve_multi_position(
         model's unknowns per axis at least). Rotation segments (``*_cw``,
         ``*_ccw``) are ignored.
     gravity : local gravity, m/s^2.
-    settings : model ("full", "reduced", "quadratic", "nonlinear"), table_axes
+    settings : typed `SETTINGS` (a mapping is parsed): model ("full", "reduced",
+        "quadratic", "nonlinear"), table_axes
         ("pitch_roll" or "azimuth_pitch"), attitudes ({label: {pitch_deg,
         roll_deg}}), attitude_convention ("project": a_x = -g sin(pitch), or
         "rate_table_procedure": a_x = +g sin(pitch)), mount (3x3 body-to-table
@@ -412,7 +422,7 @@ def solve_multi_position(
     warnings, with the duplicate attitudes when there are any (info
     `duplicate_attitudes` always; calib_core.attitude.attitude_problems).
     """
-    s = multi_position_settings(settings)
+    s = SETTINGS.parse(settings)
     labels = [lab for lab in segments if not is_rotation(lab)]
     f_true = np.array([reference_force(lab, segments[lab], gravity, s) for lab in labels])
     if len(labels) < 4:
@@ -428,11 +438,11 @@ def solve_multi_position(
         except ValueError as exc:
             raise ValueError(f"segment {lab} ({rec.source or 'no source'}): {exc}") from None
     fit = solve_accel_multi(
-        f_true, np.array([a.mean for a in acc]), np.array([a.sem for a in acc]), s["model"]
+        f_true, np.array([a.mean for a in acc]), np.array([a.sem for a in acc]), s.model
     )
     cal = Calibration(procedure="multi_position", gravity=gravity)
     cal.add_fit(fit.names, fit.params, fit.cov)
-    if s["gyro_gsens"]:
+    if s.gyro_gsens:
         gyro_bias_and_gsens(
             cal, f_true, np.array([g.mean for g in gyr]), np.array([g.sem for g in gyr])
         )
@@ -445,7 +455,7 @@ def solve_multi_position(
         # The model is one constant (3,) per position; broadcasting does the rest.
         acc_model = accel_output(fit.params, f[None, :])[0]
         cal.residuals.append(segment_residual(lab, "acc", rec.acc, acc_model))
-        if s["gyro_gsens"]:
+        if s.gyro_gsens:
             w_model = cal.gsens() @ f + cal.vector("gyr", "bias")
             cal.residuals.append(segment_residual(lab, "gyr", rec.gyr, w_model))
     cal.warnings += fit.warnings

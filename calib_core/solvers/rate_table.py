@@ -30,7 +30,37 @@ from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.distributions import chi2_sf
 from calib_core.params import AXES
 from calib_core.recording import Recording
+from calib_core.settings import Setting, Settings, SettingsIn
 from calib_core.units import DEG, STANDARD_GRAVITY
+
+# The procedure's settings (docs/procedures.md); its solver takes them typed.
+SETTINGS = Settings(
+    Setting("settle_s", "number", "s", 20.0,
+            "settle time dropped from the start of each plateau", low=0.0),
+    Setting("record_s", "number", "s", None,
+            "record window after the settle (absent: to the plateau's end)", low=0.0,
+            low_open=True),
+    Setting("full_scale_dps", "number", "deg/s", None,
+            "input full scale for the nonlinearity (absent: the largest rate)", low=0.0,
+            low_open=True),
+    Setting("gyro_bias", "text", "", "joint",
+            "gyro bias fitted with the scale factors (joint) or fixed from the static run "
+            "(static: the 0-rate points, or static_bias_dps)", choices=("joint", "static")),
+    Setting("static_bias_dps", "list", "deg/s", None,
+            "[x, y, z] bias of a separate static-bias run (gyro_bias = \"static\")", length=3),
+    Setting("static_bias_std_dps", "list", "deg/s", None,
+            "[x, y, z] standard uncertainty of static_bias_dps (absent: 0)", length=3),
+    name="RateTableSettings",
+)  # fmt: skip
+
+
+def plateau_window(settings: SettingsIn) -> dict[str, float]:
+    """``settle_s`` and ``record_s`` (s) of each plateau's record window from the run's
+    settings (typed or a mapping; defaults filled in): the fit's and the held-out points'
+    one window."""
+    s = SETTINGS.parse(settings)
+    return {k: float(v) for k in ("settle_s", "record_s") if (v := getattr(s, k)) is not None}
+
 
 ZERO_RATE = 1e-6  # rad/s (0.2 deg/h): points below this count as 0-rate points
 

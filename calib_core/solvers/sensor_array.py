@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -35,12 +34,23 @@ from calib_core import params
 from calib_core.attitude import rot_x, rot_y
 from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.recording import Recording
+from calib_core.settings import Setting, Settings, SettingsIn
 from calib_core.solvers.accel_models import solve_accel_multi
-from calib_core.solvers.integral import noise_from_differences
+from calib_core.solvers.integral import TURNS, noise_from_differences
 from calib_core.solvers.multi_position import gyro_bias_and_gsens, segment_residual
 from calib_core.stats import ChannelStats, channel_stats, trapezoid_weights
 
 PHASES = ("static", "ccw", "cw")
+
+
+# The procedure's settings (docs/procedures.md); its solver takes them typed.
+SETTINGS = Settings(
+    Setting("mounts", ("text", "table"), "1", "cube6",
+            "\"cube6\" (the patent's six-IMU cube) or {sensor = 3x3 cube-to-sensor rotation}",
+            choices=("cube6",)),
+    TURNS,
+    name="SensorArraySettings",
+)  # fmt: skip
 
 
 def cube_mounts() -> dict[str, np.ndarray]:
@@ -215,24 +225,20 @@ def array_records(
 
 
 def solve_sensor_array(
-    segments: dict[str, Recording], gravity: float, settings: dict[str, Any] | None = None
+    segments: dict[str, Recording], gravity: float, settings: SettingsIn = None
 ) -> Calibration:
     """Procedure entry.
 
-    settings : mounts ({sensor: 3x3 cube-to-sensor rotation} or "cube6" for the
-        patent's six-IMU cube, the default), turns (int or None).
+    settings : typed `SETTINGS` (a mapping is parsed): mounts ({sensor: 3x3
+        cube-to-sensor rotation} or "cube6" for the patent's six-IMU cube, the default),
+        turns (int or None).
     Segments are labelled "<sensor>_static", "<sensor>_ccw", "<sensor>_cw".
     """
-    s = dict(settings or {})
-    mounts = s.get("mounts", "cube6")
-    if mounts == "cube6":
-        mounts = cube_mounts()
-    if not isinstance(mounts, dict) or not mounts:
+    s = SETTINGS.parse(settings)
+    mounts = cube_mounts() if s.mounts == "cube6" else s.mounts
+    if not mounts:
         raise ValueError('settings.mounts: expected "cube6" or {sensor = 3x3 rotation matrix}')
-    turns = s.get("turns")
-    if turns is not None and (isinstance(turns, bool) or not isinstance(turns, int) or turns < 1):
-        raise ValueError(f"settings.turns: expected a positive whole number or none, got {turns!r}")
-    return solve_array(array_records(segments, mounts), gravity, turns)
+    return solve_array(array_records(segments, mounts), gravity, s.turns)
 
 
 def _turn_differences(records: list, gyr: list, turns: int | None) -> tuple:

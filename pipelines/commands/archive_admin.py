@@ -9,12 +9,22 @@ from typing import Annotated
 
 import typer
 
+from pipelines import cli_shared as batch  # its batch options (RunnerOpt...)
 from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, err, fail, open_archive
 from pipelines.commands.audit import ApproversOpt, load_trust
+
+RECOMPUTE_HELP = (
+    "Instead: solve every revision of RUN_ID... (--sample N, --all) again from its raw bytes "
+    "and compare it with its sealed rows."
+)
+SAMPLE_HELP = "With --recompute: N runs drawn at random."
 
 
 @app.command()
 def verify(
+    run_ids: Annotated[
+        list[str] | None, typer.Argument(help="With --recompute: the runs to solve again.")
+    ] = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
     orphans: Annotated[
@@ -36,10 +46,31 @@ def verify(
             "audit chain must extend it exactly. Repeatable.",
         ),
     ] = None,
+    recompute: Annotated[bool, typer.Option("--recompute", help=RECOMPUTE_HELP)] = False,
+    sample: Annotated[int | None, typer.Option("--sample", help=SAMPLE_HELP)] = None,
+    every: Annotated[bool, typer.Option("--all", help="With --recompute: every run.")] = False,
+    runner: batch.RunnerOpt = "local",
+    workers: batch.WorkersOpt = None,
+    scheduler: batch.SchedulerOpt = None,
+    progress: batch.ProgressOpt = None,
+    flow: Annotated[bool, typer.Option("--flow", help="A Prefect flow for any number.")] = False,
 ) -> None:
-    """Re-hash every archived file, recompute every seal, the audit chain and the approval
-    signatures; exit 1 on any missing or changed file or value, on an approval made with a
-    key the approvers file does not hold, or on a chain that does not extend a checkpoint."""
+    """Re-hash every archived file, recompute every seal, settings hash, the audit chain and
+    the approval signatures; with --recompute, solve archived revisions again instead.
+
+    Exit 1 on any missing or changed file or value, on an approval made with a key the
+    approvers file does not hold, or on a chain that does not extend a checkpoint. With
+    --recompute: every revision of RUN_ID... (--sample N, --all) solved again from its raw
+    bytes with its recorded settings, reference correction and judged-against runs; exit 1
+    when one made by this software version differs from its sealed rows (run, revision and
+    the first differing field are named) or cannot be solved again."""
+    from pipelines.commands import recompute as recomputing
+
+    recomputing.check_selection(run_ids or [], sample, every, recompute)
+    if recompute:
+        how = {"runner": runner, "workers": workers, "scheduler": scheduler, "flow": flow}
+        show = err.is_terminal if progress is None else progress
+        recomputing.recompute(archive, run_ids or [], sample, how, show, as_json)
     from pipelines.trust import NOT_CHECKED
     from storage import checkpoint as checkpoints
     from storage.rawstore import remove_stale_temp_files

@@ -110,6 +110,7 @@ def audit(
         _print_table(events)
     for ev in events if fmt is AuditFormat.tsv else ():
         what = ev["run_id"] + f" revision {ev['revision']}" if ev["run_id"] else ""
+        what += f" (written as {ev['db_user']})" if ev.get("db_user") else ""
         why = f"  reason: {ev['reason']}" if ev["reason"] else ""
         sys.stdout.write(
             f"{ev['seq']}\t{ev['at'].isoformat(timespec='seconds')}\t{ev['actor']}\t"
@@ -141,6 +142,13 @@ def _what(ev: dict[str, Any], key: bool = True) -> str:
     )
 
 
+def _who(ev: dict[str, Any]) -> str:
+    """The claimed actor, and the database user (PostgreSQL) or OS user (SQLite) that wrote
+    the event where it was recorded (migration 0009) and differs."""
+    user = ev.get("db_user")
+    return ev["actor"] + (f" (written as {user})" if user and user != ev["actor"] else "")
+
+
 def _key(ev: dict[str, Any]) -> str:
     """The fingerprint of an approval's key ("" for other events)."""
     from storage.approval import fingerprint
@@ -158,7 +166,7 @@ def _print_table(events: list[dict[str, Any]]) -> None:
 
     rows = []
     for ev in events:
-        what = [f"by {ev['actor']}"] + ([f"revision {ev['revision']}"] if ev["run_id"] else [])
+        what = [f"by {_who(ev)}"] + ([f"revision {ev['revision']}"] if ev["run_id"] else [])
         what += [t for t in (_what(ev, key=False),) if t]
         what += [f"reason: {ev['reason']}"] if ev["reason"] else []
         rows.append(
@@ -209,14 +217,20 @@ def approve(
     revision: Annotated[
         int | None, typer.Option("--revision", help="Revision to sign (default: current).")
     ] = None,
+    approvers: ApproversOpt = None,
     archive: ArchiveOpt = None,
 ) -> None:
-    """Sign the seal of a run's calibration with your key; `calib verify` checks it."""
+    """Sign the seal of a run's calibration with your key; `calib verify` checks it. A key
+    the lab's approvers file (when one is configured) does not hold is refused."""
     import json
+
+    from sqlalchemy.exc import SQLAlchemyError
 
     from storage.approval import ApprovalError, load_key
     from storage.approval import approve as sign
+    from storage.write_failures import describe
 
+    trust = load_trust(approvers)
     arch, full = open_run(archive, run_id)
     try:
         if name is None:
@@ -231,7 +245,10 @@ def approve(
             signer=name,
             meaning=meaning,
             revision=revision,
+            approvers=trust,
         )
     except (ApprovalError, ValueError, KeyError) as exc:
         fail(str(exc))
+    except (OSError, SQLAlchemyError) as exc:  # the write failed: nothing was signed
+        fail(f"run {full}: not signed: {describe(exc, arch.url) or exc}")
     err.print(f"run {full} revision {ev.revision} {meaning} by {name} (audit event {ev.seq})")

@@ -1,18 +1,16 @@
 """`calib validate --benchmark`, the CLI: the ground-truth benchmark run on the installed
 software, its per-procedure figures printed and its report written (docs/validation.md).
 
-`benchmark_command` does the work; `calib validate` (the cross-check of archived runs by
-independent implementations) calls it for `--benchmark`.
+`benchmark_command` does the work; `calib validate` (pipelines/commands/validate.py, the
+cross-check of archived runs by independent implementations) calls it for `--benchmark`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
-import typer
-
-from pipelines.cli_shared import JsonOpt, app, fail, out, print_json, print_table
+from pipelines.cli_shared import fail, out, print_json, print_table
 
 
 def benchmark_command(
@@ -62,29 +60,3 @@ def _print(doc: dict[str, Any]) -> None:
             continue
         within = sum(r["within_tolerance"] for r in s["parameters"])
         out.print(f"session {s['id']}: {within} of {len(s['parameters'])} within the reference")
-
-
-def _folder(flag: str, help: str) -> Any:  # noqa: A002, ANN401 - typer's name, an Annotated
-    return Annotated[Path | None, typer.Option(flag, help=help)]
-
-
-@app.command()
-def validate(
-    benchmark: Annotated[
-        bool, typer.Option("--benchmark", help="Score the installed software on the benchmark set.")
-    ] = False,
-    json_out: JsonOpt = False,
-    out_dir: _folder("--out", "Folder the validation report (HTML, PDF, JSON) goes to.") = None,
-    reduced: Annotated[
-        bool, typer.Option("--reduced", help="The reduced set: a quick check.")
-    ] = False,
-    workers: Annotated[int, typer.Option("--workers", min=1, help="Processes for the cases.")] = 1,
-    set_file: _folder("--set", "A benchmark set file in place of the installed one.") = None,
-    realdata: _folder("--realdata", "Folder of the public recordings (imutk_xsens/, ...).") = None,
-) -> None:
-    """Score the installed software on the ground-truth benchmark (--benchmark): error
-    against the simulated truth, efficiency against the Cramer-Rao bound and coverage of the
-    stated U at 95 % per procedure; the validation report a lab files (--out)."""
-    if not benchmark:
-        fail("give --benchmark (the benchmark of the installed software)")
-    benchmark_command(json_out, out_dir, reduced, workers, set_file, realdata)

@@ -59,7 +59,7 @@ def impact_command(
     """Out-of-tolerance look-back: the runs made on EQUIPMENT_SERIAL in the period, solved
     again from their raw bytes with the reference corrected; verdicts before and after."""
     from calib_core.reference_errors import parse_error
-    from pipelines.impact import csv_report, html_report, impact
+    from pipelines.impact import applied_words, csv_report, html_report, impact
     from storage.queries import as_instant
 
     try:
@@ -88,6 +88,7 @@ def impact_command(
         err.print(f"wrote {pdf_out}", soft_wrap=True)
     if as_json:
         print_json(doc)
+        _exit_if_not_written(doc)
         return
     # What the look-back is for first (the run, verdicts, what moved): a narrow terminal
     # leaves out columns from the right (print_table).
@@ -120,7 +121,7 @@ def impact_command(
         columns,
         rows,
         facts=f"customer: {doc['customer'] or 'not recorded'}; "
-        + ("revisions archived" if apply else "dry run: nothing archived (--apply archives)"),
+        + (applied_words(doc) if apply else "dry run: nothing archived (--apply archives)"),
         whole=("started",),
     )
     for c in doc["campaigns"]:
@@ -143,3 +144,17 @@ def impact_command(
     for r in doc["runs"]:
         if "error" in r:
             out.print(f"{r['run_id']}: {r['error']}", markup=False)
+    _exit_if_not_written(doc)
+
+
+def _exit_if_not_written(doc: dict) -> None:
+    """Exit 1 naming what an applied look-back did not write (a write that failed, a run
+    that no longer solves): it never reports success it did not have."""
+    if doc["not_written"]:
+        err.print(
+            f"not written: {', '.join(doc['not_written'])} (see each run's error above); "
+            "run the same command again once the cause is fixed",
+            markup=False,
+            soft_wrap=True,
+        )
+        raise typer.Exit(1)

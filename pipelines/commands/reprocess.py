@@ -12,6 +12,10 @@ from rich.table import Table
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    ProgressOpt,
+    RunnerOpt,
+    SchedulerOpt,
+    WorkersOpt,
     app,
     err,
     fail,
@@ -45,15 +49,13 @@ def reprocess_command(
         str | None, Opt(help="Runs whose current calibration this tolerance profile judged.")
     ] = None,
     archive: ArchiveOpt = None,
-    runner: Annotated[str, Opt(help="local (threads), process or dask.")] = "local",
-    workers: Annotated[int | None, Opt(help="Runs in parallel (default: the cores).")] = None,
-    scheduler: Annotated[str | None, Opt(help="Dask scheduler, tcp://host:8786.")] = None,
+    runner: RunnerOpt = "local",
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
     k: Annotated[
         float, Opt("--k", help="Changed: |new-old| > k x combined standard uncertainty.")
     ] = 3.0,
-    progress: Annotated[
-        bool | None, Opt("--progress/--no-progress", help="Progress bar on stderr.")
-    ] = None,
+    progress: ProgressOpt = None,
     flow: Annotated[
         bool, Opt("--flow", help=f"A Prefect flow even for {IN_PROCESS_MAX_RUNS} runs or fewer.")
     ] = False,
@@ -89,8 +91,11 @@ def reprocess_command(
     else:
         show = err.is_terminal if progress is None else progress
         outcomes = _batch(archive, selection, reason, runner, workers, scheduler, flow, show)
-    _report(archive, outcomes, k, as_json)
-    raise typer.Exit(1 if any(o["status"] == "failed" for o in outcomes) else 0)
+    _report(archive, outcomes, k, as_json, reason)
+    failed = [o["run_id"] or o["source"] for o in outcomes if o["status"] == "failed"]
+    if failed:  # never a success it did not have: each run not written, named
+        err.print(f"not written: {', '.join(failed)}", markup=False, soft_wrap=True)
+    raise typer.Exit(1 if failed else 0)
 
 
 def _check_choice(
@@ -163,14 +168,16 @@ def _batch(
         )
 
 
-def _report(archive: str | None, outcomes: list[dict], k: float, as_json: bool) -> None:
+def _report(
+    archive: str | None, outcomes: list[dict], k: float, as_json: bool, reason: str
+) -> None:
     """Outcomes, summary and change report: one JSON document, or tables."""
     from pipelines.changes import change_report
     from pipelines.reprocess import changed_pairs, summarize
 
     summary = summarize(outcomes)
     try:
-        changes = change_report(changed_pairs(open_archive(archive), outcomes), k)
+        changes = change_report(changed_pairs(open_archive(archive), outcomes, reason), k)
     except ValueError as exc:
         fail(str(exc))
     if as_json:

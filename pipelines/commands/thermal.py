@@ -76,11 +76,19 @@ def thermal_fit(
     as_json: JsonOpt = False,
 ) -> None:
     """Fit and archive the thermal model of SERIAL from its runs at several temperatures."""
+    from sqlalchemy.exc import SQLAlchemyError
+
     from pipelines.thermal_campaign import thermal_fit as fit
 
     run_ids = [r for item in runs or [] for r in item.split(",") if r]
     settings = {"max_order": max_order, "alpha": alpha, "t_ref": t_ref}
-    summary = _run(fit, open_archive(archive), serial, run_ids or None, settings)
+    arch = open_archive(archive)
+    try:
+        summary = _run(fit, arch, serial, run_ids or None, settings)
+    except SQLAlchemyError as exc:  # the write failed: no model was archived
+        from storage.write_failures import describe
+
+        fail(f"thermal model of {serial} not written: {describe(exc, arch.url) or exc}")
     if as_json:
         print_json(summary)
         return

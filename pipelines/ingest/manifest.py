@@ -359,7 +359,7 @@ def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
         check_free_text(data, source)
         manifest = RunManifest.model_validate(data)
     except ValidationError as exc:
-        raise _as_ingest_error(exc, source) from None
+        raise _as_ingest_error(exc, source, text) from None
     except RecursionError:
         raise _too_deep(text, source) from None
     check_segments(manifest, source, text)
@@ -391,21 +391,22 @@ def check_finite_numbers(data: Any, source: str, text: str, path: tuple = ()) ->
 
 def key_line(text: str, path: tuple) -> int | None:
     """1-based line of the key at dotted `path` (``("segments", 2, "end_s")``) in manifest
-    `text`: the key assigned under its table's header (``[a.b]``, the n-th ``[[a]]``),
-    or a dotted key under a shorter header; None when it is spelt otherwise (inline
-    tables)."""
+    `text`: the key assigned under its table's header (``[a.b]``, the n-th ``[[a]]``, a
+    ``[a.b]`` of the latest ``[[a]]``), or a dotted key under a shorter header; None when
+    it is spelt otherwise (inline tables)."""
     keys = [p for p in path if not isinstance(p, int)]
     counts: dict[str, int] = {}
     header: tuple = ()
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.split("#", 1)[0].strip()
-        if stripped.startswith("[["):
-            name = stripped.strip("[]").strip()
-            counts[name] = counts.get(name, -1) + 1
-            header = (*name.split("."), counts[name])
-            continue
         if stripped.startswith("["):
-            header = tuple(stripped.strip("[]").strip().split("."))
+            names = stripped.strip("[]").strip().split(".")
+            if stripped.startswith("[["):
+                counts[".".join(names)] = counts.get(".".join(names), -1) + 1
+            header = ()
+            for i in range(len(names)):  # each array of tables at its latest entry
+                at = counts.get(".".join(names[: i + 1]))
+                header += (names[i],) if at is None else (names[i], at)
             continue
         key = stripped.split("=", 1)[0].strip().strip("\"'")
         if "=" not in stripped or not key:
@@ -461,25 +462,9 @@ def check_settings(manifest: RunManifest, source: str = "run.toml", text: str = 
         raise IngestError(
             exc.problem,
             file=source,
-            line=_setting_line(text, exc.key),
+            line=key_line(text, ("run", "settings", *exc.key.split("."))),
             field=f"run.settings.{exc.key}",
         ) from None
-
-
-def _setting_line(text: str, key: str) -> int | None:
-    """1-based line of a ``[run.settings]`` key (dotted below it: "outliers.n_sigma") written
-    under its table's header; None for other spellings (inline tables, dotted keys)."""
-    *table, last = key.split(".")
-    header = ".".join(["run", "settings", *table])
-    assigns = re.compile(rf"""["']?{re.escape(last)}["']?\s*=""")
-    inside = False
-    for number, line in enumerate(text.splitlines(), start=1):
-        stripped = line.split("#", 1)[0].strip()
-        if stripped.startswith("["):
-            inside = stripped.strip("[]").strip() == header
-        elif inside and assigns.match(stripped):
-            return number
-    return None
 
 
 def check_segments(manifest: RunManifest, source: str = "run.toml", text: str = "") -> None:
@@ -575,14 +560,16 @@ def _field_path(loc: tuple[Any, ...]) -> str:
     return out
 
 
-def _as_ingest_error(exc: ValidationError, source: str) -> IngestError:
-    """One IngestError for all problems pydantic found, the first one as `field`."""
+def _as_ingest_error(exc: ValidationError, source: str, text: str = "") -> IngestError:
+    """One IngestError for all problems pydantic found, the first one as `field` with its
+    line in the manifest's `text` (as a refused ``[run.settings]`` key is named)."""
     errors = exc.errors(include_url=False)
     # A misspelt key shows up as an unknown field plus a missing one: report
     # the unknown one first, with the missing name as the likely intent.
     missing = {(tuple(e["loc"][:-1]), e["loc"][-1]) for e in errors if e["type"] == "missing"}
     errors.sort(key=lambda e: e["type"] != "extra_forbidden")
     problems: list[tuple[str, str]] = []
+    line = key_line(text, tuple(errors[0]["loc"])) if errors else None
     for err in errors:
         # Model-level validators report at the section; keep their text as is.
         field = _field_path(err["loc"]) or "(top level)"
@@ -602,4 +589,4 @@ def _as_ingest_error(exc: ValidationError, source: str) -> IngestError:
         problems.append((field, msg))
     field, first = problems[0]
     more = "".join(f"; field '{f}': {m}" for f, m in problems[1:])
-    return IngestError(first + more, file=source, field=field)
+    return IngestError(first + more, file=source, line=line, field=field)

@@ -67,6 +67,7 @@ from pipelines.reports.protocol import (
 from pipelines.reports.recommendations import recommendations
 from pipelines.reports.render import Certificate, Section
 from pipelines.reports.signatures import signatures_section
+from pipelines.reports.validation import validation_sections
 
 
 def _step(summary: dict[str, Any], name: str) -> dict[str, Any]:
@@ -174,6 +175,7 @@ def sections(
         _verification_section(run),
         _verdict_section(run),
         *navigation_sections(summary.get("navigation")),
+        *validation_sections(summary.get("validations")),
         Section(
             "Recommendations",
             paragraphs=recommendations(

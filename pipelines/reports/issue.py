@@ -94,16 +94,18 @@ def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
     Issue, with the paths of the files written.
     """
     from pipelines.reports.render import render_html
-    from pipelines.reports.run_reports import certificate_of
+    from pipelines.reports.run_reports import archived_summary, certificate_for
     from pipelines.reports.typeset import pdf_bytes
 
     seal.check_reason(reason)
     from storage import queries
 
-    revision = queries.run_summary(archive, run_id)["calibration"]["revision"]
+    summary = archived_summary(archive, run_id)
+    revision = summary["calibration"]["revision"]
     issues = queries.certificate_issues(archive, run_id)
     number = 1 + sum(e["revision"] == revision for e in issues)
-    summary, cert = certificate_of(archive, run_id, issue=number)
+    summary["issue"] = number
+    cert = certificate_for(archive, summary)
     data = {"pdf": pdf_bytes(cert), "html": render_html(cert).encode()}
     folder = _folder(summary)
     rel = {

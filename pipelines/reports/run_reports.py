@@ -139,9 +139,15 @@ def certificate_of(
 ) -> tuple[dict[str, Any], Certificate]:
     """(summary, certificate) of an archived run, from the archive alone, as issue `issue`
     (`pipelines.reports.issue`: a re-issue is a new document with its own number)."""
-    from storage import queries
-
     summary = archived_summary(archive, run_id)
     summary["issue"] = issue
-    samples = queries.run_samples(archive, run_id)
-    return summary, sections(summary, samples, trusted_approvals(archive, summary))
+    return summary, certificate_for(archive, summary)
+
+
+def certificate_for(archive, summary: dict[str, Any]) -> Certificate:  # noqa: ANN001 - Archive
+    """The certificate of an `archived_summary` (its ``issue`` set), its samples and
+    approvals read from the archive."""
+    from storage import queries
+
+    samples = queries.run_samples(archive, summary["run_id"])
+    return sections(summary, samples, trusted_approvals(archive, summary))

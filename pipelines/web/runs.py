@@ -164,7 +164,30 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
         notes=record_notes(
             summary["calibration"]["checks"], solve_warnings(summary["calibration"]["steps"])
         ),
+        validations=validation_tables(summary),
     )
+
+
+def validation_tables(summary: dict[str, Any]) -> list[dict[str, Any]]:
+    """The revision's validation records as the run page shows them: per peer its line
+    (pipelines.validation.compare.peer_line) and its rows, numbers as text."""
+    from pipelines.reports.validation import peer_line, row_texts
+
+    return [
+        {
+            "id": v["id"],
+            "created_at": v["created_at"],
+            "peers": [
+                {
+                    "line": peer_line(p),
+                    "rows": [row_texts(r) for r in p["parameters"]],
+                    "notes": p.get("notes", []),
+                }
+                for p in v["document"]["peers"]
+            ],
+        }
+        for v in summary["validations"]
+    ]
 
 
 @router.get("/runs/{run_id}/lineage/{name}", response_class=HTMLResponse)

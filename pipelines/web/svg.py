@@ -173,13 +173,25 @@ class Chart:
     def polyline(
         self, xs: Sequence[float], ys: Sequence[float], cls: str, colour: str = ""
     ) -> None:
-        pts = " ".join(
-            f"{self.x(a):.1f},{self.y(self.clip_y(b)):.1f}"
-            for a, b in zip(xs, ys, strict=True)
-            if math.isfinite(b)
-        )
+        pts = " ".join(self._points(xs, ys))
         style = f' style="stroke:{colour}"' if colour else ""
         self.parts.append(f'<polyline points="{pts}" class="{cls}"{style}/>')
+
+    def _points(self, xs: Sequence[float], ys: Sequence[float]) -> list[str]:
+        """The "x,y" pixels (1 decimal) of each point with a finite y (clipped to the
+        y range): `x`, `clip_y` and `y` over whole arrays, the same arithmetic."""
+        import numpy as np  # the chart modules' pages load it anyway; `calib serve` starts without
+
+        if len(xs) != len(ys):
+            raise ValueError(f"{len(xs)} x values against {len(ys)} y values")
+        a, b = np.asarray(xs, dtype=float), np.asarray(ys, dtype=float)
+        keep = np.isfinite(b)
+        a, b = a[keep], np.minimum(np.maximum(b[keep], self.y_range[0]), self.y_range[1])
+        (x_lo, x_hi), (y_lo, y_hi) = self.x_range, self.y_range
+        top, right, bottom, left = self.margin
+        px = left + (a - x_lo) / (x_hi - x_lo) * (self.width - left - right)
+        py = self.height - bottom - (b - y_lo) / (y_hi - y_lo) * (self.height - top - bottom)
+        return [f"{u:.1f},{v:.1f}" for u, v in zip(px.tolist(), py.tolist(), strict=True)]
 
     def band(self, xs: Sequence[float], lo: Sequence[float], hi: Sequence[float]) -> None:
         up = [f"{self.x(a):.1f},{self.y(self.clip_y(b)):.1f}" for a, b in zip(xs, hi, strict=True)]

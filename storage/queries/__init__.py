@@ -75,6 +75,7 @@ _API = {
     "storage.queries.impact": ["equipment_runs", "run_references"],
     "storage.queries.readonly": ["open_readonly"],
     "storage.queries.runs": [
+        "calibration_revision",
         "current_judgements",
         "device_description",
         "earlier_descriptions",
@@ -97,7 +98,12 @@ _API = {
         "run_filter",
         "runs_page",
     ],
-    "storage.queries.selection": ["SELECTION_KEYS", "revision_pairs", "select_runs"],
+    "storage.queries.selection": [
+        "SELECTION_KEYS",
+        "revised_for",
+        "revision_pairs",
+        "select_runs",
+    ],
     "storage.queries.thermal": ["campaign_calibrations", "latest_thermal_model", "thermal_models"],
     "storage.queries.unit": ["device", "revisions", "thermal_model", "unit_parameters"],
 }

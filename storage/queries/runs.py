@@ -5,10 +5,11 @@ the runs a new one is compared with for repeatability and how a revision was jud
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from datetime import UTC, date, datetime
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import Row, bindparam, select
+from sqlalchemy import Row, bindparam, func, select
 from sqlalchemy.orm import Session, aliased
 
 from storage.current import CURRENT, LATEST_RUN_FIRST, is_current
@@ -36,6 +37,7 @@ from storage.schema import (
     Run,
     RunEquipment,
 )
+from storage.validation import validations
 
 if TYPE_CHECKING:  # pyarrow (with numpy) is loaded by run_samples only: read-only commands
     import pyarrow as pa  # that never read samples start without it
@@ -190,8 +192,9 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
     Returns
     -------
     dict with the run's fields, ``device``, ``equipment`` (with the due dates
-    valid at run time), ``raw_files``, ``revisions`` (count) and
-    ``calibration`` (current revision: parameters, checks, steps, document).
+    valid at run time), ``raw_files``, ``revisions`` (count),
+    ``calibration`` (current revision: parameters, checks, steps, document) and
+    ``validations`` (the current revision's validation records, storage.validation).
     Raises LookupError if there is no such run.
     """
     with Session(archive.engine()) as s:
@@ -214,6 +217,7 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
             select(CalibrationRow.revision).where(CalibrationRow.run_id == run.id)
         ).all()
         cal = _cal_dict(s, _calibration(s, run.id, None))
+    checked = validations(archive, run.run_id, cal["revision"])
     return {
         "run_id": run.run_id,
         "started_at": run.started_at,
@@ -233,6 +237,7 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
         "raw_files": [_dict(r) for r in raw],
         "revisions": len(revisions),
         "calibration": cal,
+        "validations": checked,
     }
 
 
@@ -526,6 +531,8 @@ def repeatability_candidates(
     *,
     before: datetime | None = None,
     exclude_run_id: str | None = None,
+    only: Sequence[str] | None = None,
+    before_calibration: int | None = None,
 ) -> list[dict[str, Any]]:
     """Current calibrations of one unit by one procedure, most recent run first.
 
@@ -534,6 +541,9 @@ def repeatability_candidates(
     before : only runs started before this instant (the runs a run started then is
         judged against); None for all.
     exclude_run_id : a run left out.
+    only : only these run ids (the group an archived revision records).
+    before_calibration : a calibration id: each run's latest revision written before it
+        (the archive as that revision saw it) instead of its current one.
 
     Returns
     -------
@@ -544,13 +554,11 @@ def repeatability_candidates(
         select_run_calibrations(
             Run.run_id, Run.started_at, Run.environment, CalibrationRow.id, CalibrationRow.verdict
         )
-        .where(
-            Device.serial == serial,
-            Run.procedure == procedure,
-            CURRENT,
-        )
+        .where(Device.serial == serial, Run.procedure == procedure, _then(before_calibration))
         .order_by(Run.started_at.desc(), Run.id.desc())
     )
+    if only is not None:
+        stmt = stmt.where(Run.run_id.in_(list(only)))
     if before is not None:
         stmt = stmt.where(Run.started_at < before)
     if exclude_run_id is not None:
@@ -569,6 +577,35 @@ def repeatability_candidates(
         }
         for row in rows
     ]
+
+
+def calibration_revision(archive: Archive, run_id: str, revision: int) -> dict[str, Any] | None:
+    """One revision of a run, in the form of `storage.queries.latest_calibration` (run_id,
+    started_at, serial and the calibration fields); None when there is no such revision."""
+    with Session(archive.engine()) as s:
+        row = s.execute(
+            select(Run.run_id, Run.started_at, Device.serial, CalibrationRow)
+            .join(Device, Device.id == Run.device_id)
+            .join(CalibrationRow, CalibrationRow.run_id == Run.id)
+            .where(Run.run_id == run_id, CalibrationRow.revision == revision)
+        ).one_or_none()
+        if row is None:
+            return None
+        head = {"run_id": row.run_id, "started_at": row.started_at, "serial": row.serial}
+        return {**head, **_cal_dict(s, row.CalibrationRow)}
+
+
+def _then(before_calibration: int | None) -> Any:
+    """Each run's current revision, or its latest written before `before_calibration`."""
+    if before_calibration is None:
+        return CURRENT
+    older = aliased(CalibrationRow)
+    latest = (
+        select(func.max(older.id))
+        .where(older.run_id == Run.id, older.id < before_calibration)
+        .scalar_subquery()
+    )
+    return CalibrationRow.id == latest
 
 
 def judgement(archive: Archive, calibration_id: int) -> dict[str, Any]:

@@ -20,7 +20,7 @@ from storage.queries._common import (
     parameter_values,
     where_model_and_start,
 )
-from storage.schema import CalibrationRow, Device, Run
+from storage.schema import AuditEvent, CalibrationRow, Device, Run
 
 SELECTION_KEYS = ("serial", "model", "since", "until", "software_version", "profile")
 
@@ -150,6 +150,23 @@ def revision_pairs(archive: Archive, run_ids: list[str]) -> list[dict[str, Any]]
             for r in run_ids
             if r in found
         ]
+
+
+def revised_for(archive: Archive, run_ids: list[str], reason: str) -> set[tuple[str, int]]:
+    """(run id, revision) of the revisions of `run_ids` archived with `reason` (their
+    ``revised`` event's): what an earlier pass of the same reprocessing revised."""
+    found: set[tuple[str, int]] = set()
+    with archive.engine().connect() as conn:
+        for start in range(0, len(run_ids), IN_CHUNK):
+            rows = conn.execute(
+                select(AuditEvent.run_id, AuditEvent.revision).where(
+                    AuditEvent.action == "revised",
+                    AuditEvent.reason == reason,
+                    AuditEvent.run_id.in_(run_ids[start : start + IN_CHUNK]),
+                )
+            )
+            found |= {(run_id, rev) for run_id, rev in rows}
+    return found
 
 
 def _revision(cal: CalibrationRow, values: dict[int, dict]) -> dict[str, Any]:

@@ -1,26 +1,38 @@
 """Typed settings: `Setting` (name, kind, unit, default, bounds or choices, meaning), a
-`Settings` declaration and the `SettingError` that names the refused key."""
+`Settings` declaration, the typed values it parses a table into (`Settings.parse`: a frozen
+dataclass, one attribute per setting) and the `SettingError` that names the refused key.
+
+The one way settings are declared and checked: a procedure's, the preprocessing tables', a
+tolerance profile's sections."""
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import difflib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-# The value kinds a setting may take, as TOML writes them.
+# What a solver's door takes: its procedure's typed values, or a mapping `Settings.parse` reads.
+SettingsIn = Any
+# The value kinds a setting may take, as TOML writes them, and their Python types.
 KINDS = ("number", "integer", "bool", "text", "table", "list")
+TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": dict, "list": list}
 
 
 class SettingError(ValueError):
-    """A ``[run.settings]`` key refused: ``key`` is its dotted name under run.settings."""
+    """A key refused: ``key`` is its dotted name under `root` (``run.settings`` of a
+    manifest; "" for a tolerance profile's top level)."""
 
-    def __init__(self, key: str, problem: str) -> None:
+    def __init__(self, key: str, problem: str, root: str = "run.settings") -> None:
         self.key = key
         self.problem = problem
+        self.root = root
         # "run.settings.k: expected a positive number, got -1"; "run.settings.x must be ..."
-        super().__init__(f"run.settings.{key}{'' if problem.startswith('must') else ':'} {problem}")
+        where = f"{root}.{key}" if root else key
+        super().__init__(f"{where}{'' if problem.startswith('must') else ':'} {problem}")
 
 
 def _is_kind(value: Any, kind: str) -> bool:
@@ -28,7 +40,7 @@ def _is_kind(value: Any, kind: str) -> bool:
         return isinstance(value, int | float) and not isinstance(value, bool)
     if kind == "integer":
         return isinstance(value, int) and not isinstance(value, bool)
-    return isinstance(value, {"bool": bool, "text": str, "table": dict, "list": list}[kind])
+    return isinstance(value, TYPES[kind])
 
 
 @dataclass(frozen=True)
@@ -41,7 +53,8 @@ class Setting:
     unit : the value's unit as the manifest writes it ("s", "deg/s", "deg", "1", "").
     default : the value when absent; None: absent means "not given" (inferred or unused).
     meaning : one line for the documentation.
-    low, high : inclusive bounds of a number (None: unbounded); low_open excludes `low`.
+    low, high : inclusive bounds of a number (None: unbounded); low_open excludes `low`,
+        high_open `high`.
     choices : the allowed texts of a "text" setting.
     length : the number of items of a "list" setting.
     """
@@ -54,8 +67,17 @@ class Setting:
     low: float | None = None
     high: float | None = None
     low_open: bool = False
+    high_open: bool = False
     choices: tuple[str, ...] = ()
     length: int | None = None
+
+    def annotation(self) -> Any:
+        """The Python type of its values (``float | None``, ``str | dict``)."""
+        kinds = [TYPES[k] for k in self.kinds] + [type(None)] * (self.default is None)
+        out = kinds[0]
+        for t in kinds[1:]:
+            out = out | t
+        return out
 
     @property
     def kinds(self) -> tuple[str, ...]:
@@ -79,7 +101,8 @@ class Setting:
         noun = "a number" if kind == "number" else "a whole number"
         lo, hi = self.low is not None, self.high is not None
         if lo and hi:
-            return f"{noun} in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}]"
+            left, right = "(["[not self.low_open], ")]"[not self.high_open]
+            return f"{noun} in {left}{self.low:g}, {self.high:g}{right}"
         if lo and self.low == 0.0:
             return noun.replace("a ", "a positive " if self.low_open else "a non-negative ")
         if lo:
@@ -105,18 +128,28 @@ class Setting:
             raise SettingError(self.name, f"expected {self.allowed()}, got {value!r}")
 
     def _inside(self, x: float) -> bool:
-        if math.isnan(x):
+        if not math.isfinite(x):
             return False
         if self.low is not None and (x < self.low or (self.low_open and x == self.low)):
             return False
-        return self.high is None or x <= self.high
+        return self.high is None or x < self.high or (x == self.high and not self.high_open)
 
 
 class Settings:
-    """A procedure's settings: the typed declaration its runs are validated against."""
+    """A table's settings: the typed declaration its values are validated against.
 
-    def __init__(self, *settings: Setting) -> None:
+    `type` is the frozen dataclass `parse` returns (named `name`), one attribute per
+    setting, typed by its kind (None where its default is None).
+    """
+
+    def __init__(self, *settings: Setting, name: str = "Values") -> None:
         self.items: dict[str, Setting] = {s.name: s for s in settings}
+        self.type = dataclasses.make_dataclass(
+            name,
+            [(s.name, s.annotation(), dataclasses.field(default=None)) for s in settings],
+            frozen=True,
+            namespace={"as_dict": dataclasses.asdict},
+        )
 
     def __iter__(self):
         return iter(self.items.values())
@@ -128,22 +161,29 @@ class Settings:
         """name -> default of every setting."""
         return {s.name: s.default for s in self}
 
-    def validate(self, given: Mapping[str, Any], table: str) -> None:
+    def validate(self, given: Mapping[str, Any], table: str, root: str = "run.settings") -> None:
         """Check a whole table: unknown keys (with the closest valid one), types, bounds.
 
-        `table` is its name under run.settings ("outliers") or "" for run.settings itself.
+        `table` is its name under `root` ("outliers" under run.settings; "recall" of a
+        tolerance profile, root ""), or "" for `root` itself.
         """
         where = f"{table}." if table else ""
+        header = ".".join(p for p in (root, table) if p)
         for key, value in given.items():
             if key not in self.items:
                 hint = did_you_mean(key, list(self.items))
-                raise SettingError(
-                    f"{where}{key}", f"unknown setting of [run.settings.{table}]{hint}"
-                )
+                raise SettingError(f"{where}{key}", f"unknown setting of [{header}]{hint}", root)
             try:
                 self.items[key].check(value)
             except SettingError as exc:
-                raise SettingError(f"{where}{key}", exc.problem) from None
+                raise SettingError(f"{where}{key}", exc.problem, root) from None
+
+    def parse(self, given: Mapping[str, Any] | None | Any) -> Any:
+        """The typed values (`type`) of `given`: values already typed pass as they are; a
+        mapping is checked key by key (`merged`), defaults filled in, other keys left out."""
+        if isinstance(given, self.type):
+            return given
+        return self.type(**copy.deepcopy(self.merged(given)))
 
     def merged(self, given: Mapping[str, Any] | None) -> dict[str, Any]:
         """The declared settings with defaults filled in, each checked; other keys left out."""
