@@ -10,8 +10,8 @@ chunk goes to a `SampleSink`, which writes it as a row group of the samples' Par
 goes to stderr on long reads.
 
 Each kind of background work has a worker of its own: the Parquet writes one, the first
-pass's another. One pool shared by both left each worker's allocator arena holding both
-kinds of buffers (a 12 MiB-limit bag's pass grew by 10.5-13 MiB instead of 6-8.6).
+pass's another. With one pool shared by both, a 12 MiB-limit bag's pass grew by 10.5-13
+MiB instead of 6-8.6 (most likely each worker's allocator arena held both kinds of buffers).
 """
 
 from __future__ import annotations
