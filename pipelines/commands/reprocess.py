@@ -140,7 +140,7 @@ def _batch(
     show: bool,
 ) -> list[dict]:
     """The selection in this process when it is small (as `calib process`), else the flow."""
-    from pipelines.direct import prefect_api_configured
+    from pipelines.direct import in_process
     from pipelines.reprocess import plan_reprocess, reprocess_in_process
     from pipelines.runners import check_runner
 
@@ -151,8 +151,7 @@ def _batch(
         todo, skipped = plan_reprocess(arch, selection)
     except ValueError as exc:
         fail(str(exc))
-    small = not flow and runner == "local" and len(todo) <= IN_PROCESS_MAX_RUNS
-    if small and not prefect_api_configured():
+    if in_process(len(todo), runner, flow):
         with progress_bar(show) as draw:
             return reprocess_in_process(arch, todo, skipped, reason, draw)
     from pipelines.flows import reprocess_batch
