@@ -8,9 +8,8 @@
 - storage (the archive) imports no pipelines;
 - pipelines.commands never imports pipelines.cli (cli -> commands, one way);
 - no production module imports calib_core.simulate or the support package
-  calib_testing (tests, benchmarks, scripts and the sample-data generator may), but for
-  the ground-truth benchmark's cases (`SIMULATOR_USERS`: scoring the software against
-  simulated truth is the simulator's purpose).
+  calib_testing (tests, benchmarks, scripts and the sample-data generator may; the
+  ground-truth benchmark's simulated cases are in calib_testing.benchmark_cases).
 """
 
 from __future__ import annotations
@@ -30,11 +29,7 @@ IO_STDLIB = {
 }  # fmt: skip
 # How to run: the caller's choice (calib_core.streamed.Execution), never the science's.
 EXECUTION = {"threading", "queue", "concurrent", "mmap", "ctypes", "_thread"}
-MAX_PRIVATE_IMPORTS = 8
-# The production modules that run the simulator: `calib validate --benchmark`'s cases.
-SIMULATOR_USERS = {
-    "pipelines.validation.benchmark_cases"
-}  # private names (`_x`) imported across production modules
+MAX_PRIVATE_IMPORTS = 8  # private names (`_x`) imported across production modules
 
 
 def imported_modules(source: str, module: str) -> list[tuple[int, str]]:
@@ -71,7 +66,7 @@ def violations(module: str, source: str) -> list[str]:
         if top == "calib_testing":
             why = "production code imports the test support package calib_testing"
         elif _within(name, "calib_core.simulate"):
-            if not _within(module, "calib_core.simulate") and module not in SIMULATOR_USERS:
+            if not _within(module, "calib_core.simulate"):
                 why = "production code imports the simulator"
         elif _within(module, "calib_core"):
             if top in ("storage", "pipelines"):
@@ -138,9 +133,9 @@ def test_the_checker_reports_each_kind_of_forbidden_import() -> None:
     assert violations("calib_core.noise", "import numpy as np\nfrom scipy import signal") == []
     assert violations("calib_core.simulate.table", "from calib_core.simulate import noise") == []
     assert violations("pipelines.process", "from storage import rawstore\nimport pyarrow") == []
-    bench = "pipelines.validation.benchmark_cases"
-    assert violations(bench, "from calib_core.simulate import random_errors") == []
+    # the ground-truth benchmark's product side neither: its cases come from calib_testing
     assert violations("pipelines.validation.benchmark", "import calib_core.simulate") != []
+    assert violations("pipelines.validation.benchmark", "from calib_testing import x") != []
 
 
 def _import_edges(

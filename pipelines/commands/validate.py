@@ -1,12 +1,12 @@
 """`calib validate RUN_ID... [--with imucal,allantools]`, the CLI: an archived run solved
 again by independent public implementations (pipelines/validation, docs/validation.md).
 
-`--benchmark` is the ground-truth benchmark's entry (docs/validation.md); it takes no run id.
+The ground-truth benchmark runs from a checkout (benchmarks/validation_set.py): its
+simulated cases need the simulator, which the product does not import.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -22,10 +22,6 @@ from pipelines.cli_shared import (
 )
 
 
-def _folder(flag: str, help: str) -> Any:  # noqa: A002, ANN401 - typer's name, an Annotated
-    return Annotated[Path | None, typer.Option(flag, help=help)]
-
-
 @app.command()
 def validate(
     run_ids: Annotated[
@@ -39,40 +35,18 @@ def validate(
             "(pip install 'imu-calib\\[validate]'). Default: every peer.",
         ),
     ] = "",
-    benchmark: Annotated[
-        bool,
-        typer.Option("--benchmark", help="Score the installed software on the benchmark set."),
-    ] = False,
     json_out: JsonOpt = False,
-    out_dir: _folder("--out", "--benchmark: folder the report (HTML, PDF, JSON) goes to.") = None,
-    reduced: Annotated[
-        bool, typer.Option("--reduced", help="--benchmark: the reduced set, a quick check.")
-    ] = False,
-    workers: Annotated[
-        int, typer.Option("--workers", min=1, help="--benchmark: processes for the cases.")
-    ] = 1,
-    set_file: _folder("--set", "--benchmark: a set file in place of the installed one.") = None,
-    realdata: _folder("--realdata", "--benchmark: folder of the public recordings.") = None,
     archive: ArchiveOpt = None,
 ) -> None:
     """Archived runs solved again by independent implementations (E_n per parameter, kept
-    sealed); --benchmark: the software scored on the ground-truth benchmark.
+    sealed).
 
     Per parameter ours, theirs, the difference, the combined standard uncertainty and E_n
-    (k = 2); each comparison archived as a sealed validation record of the run. With
-    --benchmark: error against the simulated truth, efficiency against the Cramer-Rao bound,
-    coverage of U at 95 % per procedure; the report a lab files with --out."""
+    (k = 2); each comparison archived as a sealed validation record of the run."""
     from pipelines.validation import compare
 
-    if benchmark:
-        if run_ids:
-            fail("--benchmark takes no run id: it scores the software on its own set")
-        from pipelines.commands.benchmark import benchmark_command
-
-        benchmark_command(json_out, out_dir, reduced, workers, set_file, realdata)
-        return
     if not run_ids:
-        fail("give at least one run id (or --benchmark)")
+        fail("give at least one run id")
     try:
         chosen = compare.peer_names(peers)
     except ValueError as exc:

@@ -1,5 +1,5 @@
 """Ground-truth benchmark, the pipeline glue: the versioned set (benchmark_set.json) run on
-the installed software and scored (`calib validate --benchmark`, docs/validation.md).
+the installed software and scored (benchmarks/validation_set.py, docs/validation.md).
 
 Each simulated case is solved as a lab runs it: the preprocessing chain, the procedure's
 solve and its budget (no equipment stated: Type A, k from its degrees of freedom). Its
@@ -59,14 +59,16 @@ def _replicate(design: Any, procedure: str, seed: int, index: int) -> dict[str, 
     return {n: (p.value, p.std, budgets[n].U) for n, p in cal.parameters.items() if n in budgets}
 
 
-def run_case(case: Mapping[str, Any], replicates: int) -> dict[str, Any]:
-    """Score one simulated case over `replicates` replicates.
+# A case of the set -> its design with known truth (calib_testing.benchmark_cases.design).
+DesignOf = Callable[[Mapping[str, Any]], Any]
+
+
+def run_case(case: Mapping[str, Any], replicates: int, make_design: DesignOf) -> dict[str, Any]:
+    """Score one simulated case over `replicates` replicates of `make_design(case)`.
 
     Returns the case's document: id, procedure, replicates, the CRLB's parameters, per
     parameter scores (`calib_core.crlb.ParameterScore`), the summary and the seconds taken.
     """
-    from pipelines.validation.benchmark_cases import design as make_design
-
     start = time.perf_counter()
     design = make_design(case)
     names, info = crlb.fisher_information(design.model, design.theta, design.steps)
@@ -91,12 +93,13 @@ def run_case(case: Mapping[str, Any], replicates: int) -> dict[str, Any]:
     }
 
 
-def _run_one(args: tuple[dict[str, Any], int]) -> dict[str, Any]:
+def _run_one(args: tuple[dict[str, Any], int, DesignOf]) -> dict[str, Any]:
     return run_case(*args)
 
 
 def run_benchmark(
     set_doc: Mapping[str, Any],
+    make_design: DesignOf,
     *,
     reduced: bool = False,
     workers: int = 1,
@@ -108,6 +111,9 @@ def run_benchmark(
     Parameters
     ----------
     set_doc : the set (`load_set`).
+    make_design : a case -> its design with known truth, noisy draws and noise-free model
+        (calib_testing.benchmark_cases.design; a module-level function, so that worker
+        processes receive it).
     reduced : each case's `reduced_replicates` (a case with 0 is left out) in place of
         its `replicates`: the quick set of the tests.
     workers : processes the cases are spread over (1: this process).
@@ -122,7 +128,7 @@ def run_benchmark(
     for case in set_doc["cases"]:
         n = int(case.get("reduced_replicates", 0) if reduced else case["replicates"])
         if n > 0:
-            jobs.append((dict(case), n))
+            jobs.append((dict(case), n, make_design))
     if workers > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             cases = list(pool.map(_run_one, jobs))

@@ -1,8 +1,9 @@
 """Ground-truth benchmark, the simulated cases: a case of the set (benchmark_set.json) as a
 design with known truth, its noisy replicates and its noise-free model.
 
-The one production module that runs the simulator (`calib_core.simulate`): the benchmark
-scores the installed software against simulated truth, which is the simulator's purpose.
+Support code, never installed: the simulator (`calib_core.simulate`) is test and benchmark
+equipment, not part of the product. The product's scoring (`pipelines.validation.benchmark`)
+takes `design` as an argument; benchmarks/validation_set.py and the tests pass it.
 
 A `Design` holds the truth (theta: every parameter the data depend on, canonical names,
 SI), how to draw one replicate (segments as the procedure takes them, noisy, with spikes
