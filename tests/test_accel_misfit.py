@@ -104,3 +104,22 @@ def test_square_faces_keep_their_noise_only_uncertainty():
     explain (binomial upper bound, p 0.001)."""
     scaled = sum(_biases(seed, 0.0)[1] for seed in range(RUNS))
     assert scaled <= stats.binom.isf(1e-3, RUNS, 3 * MISFIT_ALPHA), scaled
+
+
+def test_the_warning_says_scaled_only_where_the_covariance_was_scaled():
+    """Six faces whose means scatter 1,000 sems about the model: the least-squares fit
+    scales its covariance and warns; the same estimates given from elsewhere (a Kalman
+    filter's, `linear_fit_from`) keep their own covariance and say nothing of scaling."""
+    from calib_core.solvers.multi_position import linear_fit_from, solve_accel_linear
+
+    g = STANDARD_GRAVITY
+    f_true = np.array([axis_vector(label, g) for label in STATIC_LABELS])
+    sem = np.full((6, 3), 1e-4)
+    means = f_true + np.random.default_rng(5).normal(0.0, 0.1, (6, 3))  # 1000 sems
+    fit = solve_accel_linear(f_true, means, sem)
+    assert fit.misfit_scaled and len(fit.warnings) == 1, fit.warnings
+    assert "scaled by sqrt(chi2 / dof)" in fit.warnings[0]
+    x = np.hstack([np.zeros((3, 1)), np.eye(3)])
+    cov = np.tile(np.eye(4) * 1e-8, (3, 1, 1))
+    other = linear_fit_from("acc", f_true, means, sem, x, cov, identity=True)
+    assert min(other.chi2) > 1e4 and other.warnings == []

@@ -104,7 +104,7 @@ def solve_gyro_earth_rate(
     hides the Earth rate.
     """
     b, A, cov, condition, residual, chi2 = fit_affine(w_body, means, sem)
-    fit = named_fit("gyr", b, A, cov, condition, residual, chi2, identity=True)
+    fit = named_fit("gyr", b, A, cov, condition, residual, chi2, identity=True, misfit_scaled=True)
     u_matrix = max(u for name, u in fit.std.items() if ".bias." not in name)
     ratio = float(np.max(sem)) / EARTH_RATE
     observed = ratio <= OBSERVABLE_LIMIT

@@ -68,6 +68,9 @@ class LinearFit:
         the six-position set).
     residual_means : (K, 3) measured mean - model at each position.
     chi2 : (3,) weighted residual sum of squares per axis (K - 4 degrees of freedom).
+    misfit_scaled : whether cov carries `misfit_scale` (a `fit_affine` fit), so that a
+        rejected noise-only model is said in `warnings`; False for estimates found
+        another way (`linear_fit_from`), whose covariance is their own.
     """
 
     params: dict[str, float]
@@ -77,10 +80,13 @@ class LinearFit:
     condition_number: float
     residual_means: np.ndarray
     chi2: np.ndarray
+    misfit_scaled: bool = False
 
     @property
     def warnings(self) -> list[str]:
         """Said when the residuals rejected the noise-only model (`misfit_scale`)."""
+        if not self.misfit_scaled:
+            return []
         dof = np.full(3, self.residual_means.shape[0] - 4)
         sensor = "gyro" if self.names[0].startswith("gyr") else "accelerometer"
         return misfit_warnings(f"the {sensor} fit", self.chi2, dof)
@@ -171,7 +177,7 @@ def _linear_fit(
     sensor: str, f_true: np.ndarray, means: np.ndarray, sem: np.ndarray, identity: bool
 ) -> LinearFit:
     b, A, cov, condition, residual, chi2 = fit_affine(f_true, means, sem)
-    return named_fit(sensor, b, A, cov, condition, residual, chi2, identity)
+    return named_fit(sensor, b, A, cov, condition, residual, chi2, identity, misfit_scaled=True)
 
 
 def linear_fit_from(
@@ -204,8 +210,10 @@ def named_fit(
     residual: np.ndarray,
     chi2: np.ndarray,
     identity: bool,
+    misfit_scaled: bool = False,
 ) -> LinearFit:
-    """Canonical names, values, stds and the (12, 12) block covariance of an affine fit."""
+    """Canonical names, values, stds and the (12, 12) block covariance of an affine fit
+    (`misfit_scaled`: cov carries `misfit_scale`, see `LinearFit`)."""
     row_names = params.matrix_names(sensor) if identity else params.gsens_names()
     M = A - np.eye(3) if identity else A
     names: list[str] = []
@@ -219,7 +227,7 @@ def named_fit(
             values[name] = float(b[i] if j == 0 else M[i, j - 1])
             std[name] = float(np.sqrt(cov[i, j, j]))
         full_cov[4 * i : 4 * i + 4, 4 * i : 4 * i + 4] = cov[i]
-    return LinearFit(values, names, full_cov, std, condition, residual, chi2)
+    return LinearFit(values, names, full_cov, std, condition, residual, chi2, misfit_scaled)
 
 
 def solve_accel_linear(f_true: np.ndarray, means: np.ndarray, sem: np.ndarray) -> LinearFit:
