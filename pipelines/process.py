@@ -53,7 +53,15 @@ from pipelines.uncertainty import uncertainty_step
 from storage import queries, rawstore, write_failures
 from storage.archive import ArchiveResult, archive_run
 from storage.db import Archive
-from storage.run_input import RawFileIn, RunIn, raw_hash_of, run_id_of
+from storage.run_input import (
+    Environment,
+    EquipmentIn,
+    RawFileIn,
+    RunIn,
+    Site,
+    raw_hash_of,
+    run_id_of,
+)
 
 log = logging.getLogger("calib.process")
 
@@ -537,10 +545,10 @@ def run_record(
         **_run_identity(m),
         manufacturer=m.unit.manufacturer,
         specification=m.unit.specification,
-        site=m.site.model_dump(mode="json"),
+        site=Site(**m.site.model_dump()),
         gravity=cal.gravity,
-        environment=m.environment.model_dump(mode="json"),
-        equipment=[e.model_dump(mode="json") for e in m.equipment],
+        environment=Environment(**m.environment.model_dump()),
+        equipment=[EquipmentIn(**e.model_dump()) for e in m.equipment],
         manifest_text=loaded.manifest_text,
         tolerance_profile=judged.profile.name,
         raw_files=[RawFileIn(f.path, f.name, f.sha256, f.size, f.format) for f in loaded.raw_files],

@@ -16,6 +16,7 @@ from typing import Any
 import pyarrow as pa
 
 from calib_core.calibration import CheckResult, Parameter, StepRecord
+from calib_core.settings import Setting, Settings
 from storage import rawstore
 from storage.naming import check_safe_name
 from storage.settings_hash import canonical_json, settings_hash
@@ -66,6 +67,40 @@ class EquipmentIn:
         )
 
 
+# A run's site and lab conditions as the manifest states them ([site], [environment]), SI
+# units but for the lab's customary degC, %, hPa and minutes, named in each key.
+GRAVITY_MODELS = ("standard", "helmert", "wgs84", "measured")
+SITE = Settings(
+    Setting("latitude_deg", "number", "deg", None, "geodetic latitude", low=-90.0, high=90.0),
+    Setting("height_m", "number", "m", 0.0, "height above the ellipsoid"),
+    Setting("gravity_model", "text", "", None, "how local gravity is obtained (None: helmert "
+            "with a latitude, else standard)", choices=GRAVITY_MODELS),
+    Setting("gravity", "number", "m/s^2", None, "measured local gravity"),
+    Setting("from_file", "text", "", None, "the lab file latitude and height came from"),
+    name="Site",
+)  # fmt: skip
+ENVIRONMENT = Settings(
+    Setting("temperature_c", "number", "degC", None, "lab temperature"),
+    Setting("temperature_drift_c_per_h", "number", "degC/h", None, "ambient drift in the run"),
+    Setting("humidity_pct", "number", "%", None, "relative humidity", low=0.0, high=100.0),
+    Setting("pressure_hpa", "number", "hPa", None, "air pressure", low=0.0, low_open=True),
+    Setting("vibration", ("number", "text"), "m/s^2", None, "a level (rms) or a description"),
+    Setting("warmup_min", "number", "min", None, "the unit's warm-up before the run", low=0.0),
+    name="Environment",
+)  # fmt: skip
+Site = SITE.type
+Environment = ENVIRONMENT.type
+
+
+def typed(table: Settings, given: Any, root: str) -> Any:
+    """`given` (typed values of `table`, or a mapping of them) typed; SettingError naming
+    ``root.key`` for an unknown key or a refused value."""
+    if isinstance(given, table.type):
+        return given
+    table.validate(given, "", root)
+    return table.parse(given)
+
+
 @dataclass
 class RunIn:
     """Everything the archive keeps about one processed run (SI units): plain data, and the
@@ -79,10 +114,10 @@ class RunIn:
     started_at: datetime  # time zone aware
     operator: str | None
     procedure: str
-    site: dict[str, Any]
+    # Site, Environment, EquipmentIn: or mappings of their fields, typed when the RunIn is made
+    site: Site
     gravity: float  # m/s^2 used by the solver
-    environment: dict[str, Any]
-    # EquipmentIn, or mappings of its fields (typed when the RunIn is made)
+    environment: Environment
     equipment: list[EquipmentIn]
     manifest_text: str | None
     tolerance_profile: str | None
@@ -103,9 +138,26 @@ class RunIn:
     parameter_temperature_c: float | None = None
 
     def __post_init__(self) -> None:
+        self.site = typed(SITE, self.site, "site")
+        self.environment = typed(ENVIRONMENT, self.environment, "environment")
         self.equipment = [
             EquipmentIn.of(e, f"equipment[{i}]") for i, e in enumerate(self.equipment)
         ]
+
+
+def run_row(run: RunIn) -> dict[str, Any]:
+    """The values of the run's ``runs`` row that come from the run alone (the archive adds
+    identities and paths)."""
+    return {
+        "started_at": run.started_at,
+        "operator": run.operator,
+        "procedure": run.procedure,
+        "site": run.site.as_dict(),
+        "gravity": run.gravity,
+        "environment": run.environment.as_dict(),
+        "manifest_text": run.manifest_text,
+        "tolerance_profile": run.tolerance_profile,
+    }
 
 
 def calibration_document(run: RunIn) -> dict[str, Any]:
@@ -206,8 +258,6 @@ def validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
         if not isinstance(c.passed, bool):
             raise ValueError(f"checks[{i}].passed: expected true or false, got {c.passed!r}")
     for where, value in [
-        ("site", run.site),
-        ("environment", run.environment),
         ("calibration", run.calibration),
         ("steps", [st.to_dict() for st in run.steps]),
     ]:

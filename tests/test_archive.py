@@ -163,7 +163,8 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
         "manufacturer": "InvenSense",
         "specification": "consumer grade",
     }
-    assert (s["site"], s["environment"], s["gravity"]) == (run.site, run.environment, run.gravity)
+    assert (s["site"], s["environment"]) == (run.site.as_dict(), run.environment.as_dict())
+    assert s["gravity"] == run.gravity
     assert s["equipment"] == [
         {
             "kind": "rate_table",
