@@ -11,6 +11,7 @@ import copy
 import dataclasses
 import difflib
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -24,7 +25,8 @@ TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": di
 
 class SettingError(ValueError):
     """A key refused: ``key`` is its dotted name under `root` (``run.settings`` of a
-    manifest; "" for a tolerance profile's top level)."""
+    manifest; "" for a tolerance profile's top level), ``limits[2].unit`` for an entry of
+    an array of tables."""
 
     def __init__(self, key: str, problem: str, root: str = "run.settings") -> None:
         self.key = key
@@ -142,8 +144,9 @@ class Settings:
     setting, typed by its kind (None where its default is None).
     """
 
-    def __init__(self, *settings: Setting, name: str = "Values") -> None:
+    def __init__(self, *settings: Setting, name: str = "Values", noun: str = "setting") -> None:
         self.items: dict[str, Setting] = {s.name: s for s in settings}
+        self.noun = noun  # what its keys are called in a refusal ("field", "condition")
         self.type = dataclasses.make_dataclass(
             name,
             [(s.name, s.annotation(), dataclasses.field(default=None)) for s in settings],
@@ -169,10 +172,11 @@ class Settings:
         """
         where = f"{table}." if table else ""
         header = ".".join(p for p in (root, table) if p)
+        of = f" of [{header}]" if header else ""
         for key, value in given.items():
             if key not in self.items:
                 hint = did_you_mean(key, list(self.items))
-                raise SettingError(f"{where}{key}", f"unknown setting of [{header}]{hint}", root)
+                raise SettingError(f"{where}{key}", f"unknown {self.noun}{of}{hint}", root)
             try:
                 self.items[key].check(value)
             except SettingError as exc:
@@ -200,3 +204,39 @@ def did_you_mean(key: str, known: list[str]) -> str:
     if near:
         return f"; did you mean {near[0]}?"
     return f"; expected one of {', '.join(sorted(known))}"
+
+
+def key_path(dotted: str) -> tuple[str | int, ...]:
+    """``"limits[3].unit"`` -> ``("limits", 3, "unit")``."""
+    return tuple(int(p) if p.isdigit() else p for p in re.split(r"[.\[\]]+", dotted) if p)
+
+
+def key_line(text: str, path: tuple) -> int | None:
+    """1-based line of the key at dotted `path` (``("segments", 2, "end_s")``) in the TOML
+    `text` of a manifest or profile: the key assigned under its table's header (``[a.b]``,
+    the n-th ``[[a]]``, a ``[a.b]`` of the latest ``[[a]]``), or a dotted key under a
+    shorter header; None when it is spelt otherwise (inline tables)."""
+    keys = [p for p in path if not isinstance(p, int)]
+    counts: dict[str, int] = {}
+    header: tuple = ()
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.split("#", 1)[0].strip()
+        if stripped.startswith("["):
+            names = stripped.strip("[]").strip().split(".")
+            if stripped.startswith("[["):
+                counts[".".join(names)] = counts.get(".".join(names), -1) + 1
+            header = ()
+            for i in range(len(names)):  # each array of tables at its latest entry
+                at = counts.get(".".join(names[: i + 1]))
+                header += (names[i],) if at is None else (names[i], at)
+            continue
+        key = stripped.split("=", 1)[0].strip().strip("\"'")
+        if "=" not in stripped or not key:
+            continue
+        full = (*header, *key.replace('"', "").split("."))
+        named = [p for p in full if not isinstance(p, int)]
+        if named == keys and [p for p in full if isinstance(p, int)] == [
+            p for p in path if isinstance(p, int)
+        ]:
+            return number
+    return None

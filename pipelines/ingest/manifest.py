@@ -38,6 +38,7 @@ from pydantic import (
 
 from calib_core import procedures
 from calib_core.earth import local_gravity
+from calib_core.settings import key_line
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import check_free_text
@@ -387,37 +388,6 @@ def check_finite_numbers(data: Any, source: str, text: str, path: tuple = ()) ->
             line=key_line(text, path),
             field=_field_path(path),
         )
-
-
-def key_line(text: str, path: tuple) -> int | None:
-    """1-based line of the key at dotted `path` (``("segments", 2, "end_s")``) in manifest
-    `text`: the key assigned under its table's header (``[a.b]``, the n-th ``[[a]]``, a
-    ``[a.b]`` of the latest ``[[a]]``), or a dotted key under a shorter header; None when
-    it is spelt otherwise (inline tables)."""
-    keys = [p for p in path if not isinstance(p, int)]
-    counts: dict[str, int] = {}
-    header: tuple = ()
-    for number, line in enumerate(text.splitlines(), start=1):
-        stripped = line.split("#", 1)[0].strip()
-        if stripped.startswith("["):
-            names = stripped.strip("[]").strip().split(".")
-            if stripped.startswith("[["):
-                counts[".".join(names)] = counts.get(".".join(names), -1) + 1
-            header = ()
-            for i in range(len(names)):  # each array of tables at its latest entry
-                at = counts.get(".".join(names[: i + 1]))
-                header += (names[i],) if at is None else (names[i], at)
-            continue
-        key = stripped.split("=", 1)[0].strip().strip("\"'")
-        if "=" not in stripped or not key:
-            continue
-        full = (*header, *key.replace('"', "").split("."))
-        named = [p for p in full if not isinstance(p, int)]
-        if named == keys and [p for p in full if isinstance(p, int)] == [
-            p for p in path if isinstance(p, int)
-        ]:
-            return number
-    return None
 
 
 def _too_deep(text: str, source: str) -> IngestError:
