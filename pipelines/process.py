@@ -54,7 +54,6 @@ from storage import queries, rawstore, write_failures
 from storage.archive import ArchiveResult, archive_run
 from storage.db import Archive
 from storage.run_input import (
-    Environment,
     EquipmentIn,
     RawFileIn,
     RunIn,
@@ -547,7 +546,7 @@ def run_record(
         specification=m.unit.specification,
         site=Site(**m.site.model_dump()),
         gravity=cal.gravity,
-        environment=Environment(**m.environment.model_dump()),
+        environment=m.environment,
         equipment=[EquipmentIn(**e.model_dump()) for e in m.equipment],
         manifest_text=loaded.manifest_text,
         tolerance_profile=judged.profile.name,

@@ -16,7 +16,7 @@ from typing import Any
 import pyarrow as pa
 
 from calib_core.calibration import CheckResult, Parameter, StepRecord
-from calib_core.settings import Setting, Settings
+from calib_core.settings import Setting, SettingError, Settings
 from storage import rawstore
 from storage.naming import check_safe_name
 from storage.settings_hash import canonical_json, settings_hash
@@ -93,12 +93,18 @@ Environment = ENVIRONMENT.type
 
 
 def typed(table: Settings, given: Any, root: str) -> Any:
-    """`given` (typed values of `table`, or a mapping of them) typed; SettingError naming
-    ``root.key`` for an unknown key or a refused value."""
+    """`given` (typed values of `table`, or a mapping of them) typed, whole numbers of a
+    "number" setting as floats (as stored); SettingError naming ``root.key`` for a value
+    that is not a table, an unknown key or a refused value."""
     if isinstance(given, table.type):
         return given
+    if not isinstance(given, Mapping):
+        raise SettingError("", f"expected a table, got {given!r}", root)
     table.validate(given, "", root)
-    return table.parse(given)
+    number = {s.name for s in table if "number" in s.kinds}
+    return table.parse(
+        {k: float(v) if k in number and type(v) is int else v for k, v in given.items()}
+    )
 
 
 @dataclass

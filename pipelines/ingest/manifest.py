@@ -38,11 +38,12 @@ from pydantic import (
 
 from calib_core import procedures
 from calib_core.earth import local_gravity
-from calib_core.settings import key_line
+from calib_core.settings import SettingError, key_line, key_path
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import check_free_text
 from storage.naming import check_safe_name
+from storage.run_input import ENVIRONMENT, Environment, typed
 
 SCHEMA_VERSION = 1
 
@@ -157,17 +158,6 @@ class SiteSpec(_Section):
         if self.gravity is not None and not 9.7 < self.gravity < 9.9:
             raise ValueError(f"gravity must be in m/s^2 (9.7 .. 9.9), got {self.gravity}")
         return self
-
-
-class EnvironmentSpec(_Section):
-    """Lab conditions during the run; every field optional."""
-
-    temperature_c: float | None = None
-    temperature_drift_c_per_h: float | None = None  # ambient drift during the run
-    humidity_pct: float | None = Field(default=None, ge=0.0, le=100.0)
-    pressure_hpa: float | None = Field(default=None, gt=0.0)
-    vibration: float | str | None = None  # a level (m/s^2 rms) or a description
-    warmup_min: float | None = Field(default=None, ge=0.0)
 
 
 class AcquisitionSpec(_Section):
@@ -298,11 +288,16 @@ class RunManifest(_Section):
     unit: UnitSpec
     run: RunSpec
     site: SiteSpec = Field(default_factory=SiteSpec)
-    environment: EnvironmentSpec = Field(default_factory=EnvironmentSpec)
+    environment: Environment = Field(default_factory=Environment)  # ENVIRONMENT
     acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)
     equipment: list[EquipmentEntry] = Field(default_factory=list)
     format: FormatSpec
     segments: list[SegmentSpec] = Field(default_factory=list)
+
+    @field_validator("environment", mode="before")
+    @classmethod
+    def _environment(cls, value: Any) -> Environment:
+        return typed(ENVIRONMENT, value, "environment")  # as the archive keeps it
 
     def gravity(self) -> float:
         """Local gravity for this site by the manifest's model, m/s^2."""
@@ -534,6 +529,10 @@ def _as_ingest_error(exc: ValidationError, source: str, text: str = "") -> Inges
     """One IngestError for all problems pydantic found, the first one as `field` with its
     line in the manifest's `text` (as a refused ``[run.settings]`` key is named)."""
     errors = exc.errors(include_url=False)
+    for err in errors:  # a section typed by its declaration: the key it names
+        refused = (err.get("ctx") or {}).get("error")
+        if isinstance(refused, SettingError):
+            err["loc"], err["msg"] = (*err["loc"], *key_path(refused.key)), refused.problem
     # A misspelt key shows up as an unknown field plus a missing one: report
     # the unknown one first, with the missing name as the likely intent.
     missing = {(tuple(e["loc"][:-1]), e["loc"][-1]) for e in errors if e["type"] == "missing"}
