@@ -141,15 +141,18 @@ class Settings:
     """A table's settings: the typed declaration its values are validated against.
 
     `type` is the frozen dataclass `parse` returns (named `name`), one attribute per
-    setting, typed by its kind (None where its default is None).
+    setting, typed by its kind (None where its default is None), defaulting to its default.
     """
 
-    def __init__(self, *settings: Setting, name: str = "Values", noun: str = "setting") -> None:
+    def __init__(
+        self, *settings: Setting, name: str = "Values", noun: str = "setting", base: type = object
+    ) -> None:
         self.items: dict[str, Setting] = {s.name: s for s in settings}
         self.noun = noun  # what its keys are called in a refusal ("field", "condition")
-        self.type = dataclasses.make_dataclass(
+        self.type = dataclasses.make_dataclass(  # `base`: the values' methods
             name,
-            [(s.name, s.annotation(), dataclasses.field(default=None)) for s in settings],
+            [(s.name, s.annotation(), _default(s.default)) for s in settings],
+            bases=(base,),
             frozen=True,
             namespace={"as_dict": dataclasses.asdict},
         )
@@ -197,6 +200,10 @@ class Settings:
                 self.items[key].check(value)
                 out[key] = value
         return out
+
+
+def _default(value: Any) -> Any:
+    return dataclasses.field(default_factory=lambda: copy.deepcopy(value))
 
 
 def did_you_mean(key: str, known: list[str]) -> str:

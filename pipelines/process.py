@@ -57,7 +57,6 @@ from storage.run_input import (
     EquipmentIn,
     RawFileIn,
     RunIn,
-    Site,
     raw_hash_of,
     run_id_of,
 )
@@ -344,7 +343,7 @@ def verify_run(
     mine = None
     if budgets:
         rid = shared_reference.reference_id(
-            [e.model_dump(mode="json") for e in m.equipment], m.site.model_dump(mode="json")
+            [e.model_dump(mode="json") for e in m.equipment], m.site.as_dict()
         )
         mine = {n: (rid, shared_reference.split_budget(b.to_dict())[1]) for n, b in budgets.items()}
     group = group_of(current, earlier, profile, archive if budgets else None, mine)
@@ -544,7 +543,7 @@ def run_record(
         **_run_identity(m),
         manufacturer=m.unit.manufacturer,
         specification=m.unit.specification,
-        site=Site(**m.site.model_dump()),
+        site=m.site,
         gravity=cal.gravity,
         environment=m.environment,
         equipment=[EquipmentIn(**e.model_dump()) for e in m.equipment],

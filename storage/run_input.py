@@ -70,14 +70,56 @@ class EquipmentIn:
 # A run's site and lab conditions as the manifest states them ([site], [environment]), SI
 # units but for the lab's customary degC, %, hPa and minutes, named in each key.
 GRAVITY_MODELS = ("standard", "helmert", "wgs84", "measured")
+
+
+class SiteRules:
+    """What a `Site` says beyond its values: the gravity model in use and its source."""
+
+    latitude_deg: float | None
+    height_m: float
+    gravity_model: str | None
+    gravity: float | None
+    from_file: str | None
+
+    @property
+    def model(self) -> str:
+        """The gravity model in use: as given, else helmert with a latitude, else standard."""
+        if self.gravity_model is not None:
+            return self.gravity_model
+        return "helmert" if self.latitude_deg is not None else "standard"
+
+    def source(self) -> str | None:
+        """How local gravity is obtained, for the run's checks; None for the standard value."""
+        if self.model == "standard":
+            return None
+        if self.model == "measured":
+            return f"measured {self.gravity} m/s^2"
+        where = f" (lab file {self.from_file})" if self.from_file else ""
+        return f"{self.model} at latitude {self.latitude_deg} deg, height {self.height_m} m{where}"
+
+    def check(self) -> None:
+        """SettingError naming the key a gravity model needs, or a gravity not in m/s^2."""
+        if self.gravity_model in ("helmert", "wgs84") and self.latitude_deg is None:
+            raise SettingError("latitude_deg", f"gravity_model {self.gravity_model!r} needs "
+                               "latitude_deg", "site")  # fmt: skip
+        if self.gravity_model == "measured" and self.gravity is None:
+            raise SettingError("gravity", "gravity_model 'measured' needs gravity (m/s^2)", "site")
+        if self.gravity is not None and not 9.7 < self.gravity < 9.9:
+            problem = f"gravity must be in m/s^2 (9.7 .. 9.9), got {self.gravity}"
+            raise SettingError("gravity", problem, "site")
+
+
 SITE = Settings(
     Setting("latitude_deg", "number", "deg", None, "geodetic latitude", low=-90.0, high=90.0),
     Setting("height_m", "number", "m", 0.0, "height above the ellipsoid"),
-    Setting("gravity_model", "text", "", None, "how local gravity is obtained (None: helmert "
-            "with a latitude, else standard)", choices=GRAVITY_MODELS),
+    # None: Helmert's formula with the height correction when latitude_deg is known (the
+    # MPU-6000 manual's choice), else the standard value, which the run's checks warn about.
+    Setting("gravity_model", "text", "", None, "how local gravity is obtained",
+            choices=GRAVITY_MODELS),
     Setting("gravity", "number", "m/s^2", None, "measured local gravity"),
     Setting("from_file", "text", "", None, "the lab file latitude and height came from"),
     name="Site",
+    base=SiteRules,
 )  # fmt: skip
 ENVIRONMENT = Settings(
     Setting("temperature_c", "number", "degC", None, "lab temperature"),

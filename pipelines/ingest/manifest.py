@@ -43,7 +43,7 @@ from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import check_free_text
 from storage.naming import check_safe_name
-from storage.run_input import ENVIRONMENT, Environment, typed
+from storage.run_input import ENVIRONMENT, SITE, Environment, Site, typed
 
 SCHEMA_VERSION = 1
 
@@ -121,43 +121,7 @@ class RunSpec(_Section):
         return check_safe_name(value, "tolerance profile name")  # names a profile file
 
 
-class SiteSpec(_Section):
-    """Where: enough to compute local gravity by the chosen model."""
-
-    latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0)
-    height_m: float = 0.0
-    # None: Helmert's formula with the height correction when latitude_deg is known (the
-    # MPU-6000 manual's choice), else the standard value, which the run's checks warn about.
-    gravity_model: Literal["standard", "helmert", "wgs84", "measured"] | None = None
-    gravity: float | None = Field(default=None, description="measured gravity, m/s^2")
-    # Where latitude and height came from when the lab profile (pipelines.lab) gave them.
-    from_file: str | None = None
-
-    @property
-    def model(self) -> str:
-        """The gravity model in use: as given, else helmert with a latitude, else standard."""
-        if self.gravity_model is not None:
-            return self.gravity_model
-        return "helmert" if self.latitude_deg is not None else "standard"
-
-    def source(self) -> str | None:
-        """How local gravity is obtained, for the run's checks; None for the standard value."""
-        if self.model == "standard":
-            return None
-        if self.model == "measured":
-            return f"measured {self.gravity} m/s^2"
-        where = f" (lab file {self.from_file})" if self.from_file else ""
-        return f"{self.model} at latitude {self.latitude_deg} deg, height {self.height_m} m{where}"
-
-    @model_validator(mode="after")
-    def _complete(self) -> SiteSpec:
-        if self.gravity_model in ("helmert", "wgs84") and self.latitude_deg is None:
-            raise ValueError(f"gravity_model '{self.gravity_model}' needs latitude_deg")
-        if self.gravity_model == "measured" and self.gravity is None:
-            raise ValueError("gravity_model 'measured' needs gravity (m/s^2)")
-        if self.gravity is not None and not 9.7 < self.gravity < 9.9:
-            raise ValueError(f"gravity must be in m/s^2 (9.7 .. 9.9), got {self.gravity}")
-        return self
+SiteSpec = Site  # [site]: storage.run_input.SITE
 
 
 class AcquisitionSpec(_Section):
@@ -287,7 +251,7 @@ class RunManifest(_Section):
     schema_version: Literal[1]
     unit: UnitSpec
     run: RunSpec
-    site: SiteSpec = Field(default_factory=SiteSpec)
+    site: Site = Field(default_factory=Site)  # SITE
     environment: Environment = Field(default_factory=Environment)  # ENVIRONMENT
     acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)
     equipment: list[EquipmentEntry] = Field(default_factory=list)
@@ -298,6 +262,13 @@ class RunManifest(_Section):
     @classmethod
     def _environment(cls, value: Any) -> Environment:
         return typed(ENVIRONMENT, value, "environment")  # as the archive keeps it
+
+    @field_validator("site", mode="before")
+    @classmethod
+    def _site(cls, value: Any) -> Site:
+        site = typed(SITE, value, "site")
+        site.check()
+        return site
 
     def gravity(self) -> float:
         """Local gravity for this site by the manifest's model, m/s^2."""
