@@ -14,13 +14,15 @@ import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
+from datetime import date, datetime
 from typing import Any
 
 # What a solver's door takes: its procedure's typed values, or a mapping `Settings.parse` reads.
 SettingsIn = Any
 # The value kinds a setting may take, as TOML writes them, and their Python types.
-KINDS = ("number", "integer", "bool", "text", "table", "list")
-TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": dict, "list": list}
+KINDS = ("number", "integer", "bool", "text", "table", "list", "date")
+TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": dict, "list": list,
+         "date": date}  # fmt: skip
 
 
 class SettingError(ValueError):
@@ -42,6 +44,8 @@ def _is_kind(value: Any, kind: str) -> bool:
         return isinstance(value, int | float) and not isinstance(value, bool)
     if kind == "integer":
         return isinstance(value, int) and not isinstance(value, bool)
+    if kind == "date":  # a calendar day, not a date and time
+        return isinstance(value, date) and not isinstance(value, datetime)
     return isinstance(value, TYPES[kind])
 
 
@@ -50,7 +54,7 @@ class Setting:
     """One setting of a procedure.
 
     name : the key in ``[run.settings]``.
-    kind : "number", "integer", "bool", "text", "table" or "list"; a tuple for a setting
+    kind : "number", "integer", "bool", "text", "table", "list" or "date"; a tuple for a setting
         that takes one of several kinds (e.g. "text" or "table").
     unit : the value's unit as the manifest writes it ("s", "deg/s", "deg", "1", "").
     default : the value when absent; None: absent means "not given" (inferred or unused).
@@ -96,7 +100,8 @@ class Setting:
             elif kind == "list" and self.length is not None:
                 parts.append(f"a list of {self.length} numbers")
             else:
-                parts.append({"bool": "true or false", "table": "a table"}.get(kind, kind))
+                words = {"bool": "true or false", "table": "a table", "date": "a date (YYYY-MM-DD)"}
+                parts.append(words.get(kind, kind))
         return " or ".join(parts)
 
     def _number(self, kind: str) -> str:

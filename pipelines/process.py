@@ -53,13 +53,7 @@ from pipelines.uncertainty import uncertainty_step
 from storage import queries, rawstore, write_failures
 from storage.archive import ArchiveResult, archive_run
 from storage.db import Archive
-from storage.run_input import (
-    EquipmentIn,
-    RawFileIn,
-    RunIn,
-    raw_hash_of,
-    run_id_of,
-)
+from storage.run_input import RawFileIn, RunIn, raw_hash_of, run_id_of
 
 log = logging.getLogger("calib.process")
 
@@ -342,9 +336,7 @@ def verify_run(
     )
     mine = None
     if budgets:
-        rid = shared_reference.reference_id(
-            [e.model_dump(mode="json") for e in m.equipment], m.site.as_dict()
-        )
+        rid = shared_reference.reference_id([e.as_dict() for e in m.equipment], m.site.as_dict())
         mine = {n: (rid, shared_reference.split_budget(b.to_dict())[1]) for n, b in budgets.items()}
     group = group_of(current, earlier, profile, archive if budgets else None, mine)
     checks += verification.repeatability(group, profile)
@@ -546,7 +538,7 @@ def run_record(
         site=m.site,
         gravity=cal.gravity,
         environment=m.environment,
-        equipment=[EquipmentIn(**e.model_dump()) for e in m.equipment],
+        equipment=m.equipment,
         manifest_text=loaded.manifest_text,
         tolerance_profile=judged.profile.name,
         raw_files=[RawFileIn(f.path, f.name, f.sha256, f.size, f.format) for f in loaded.raw_files],

@@ -33,38 +33,39 @@ class RawFileIn:
     format: str  # "mpu6000-txt", "csv", "mat", "mcap", "manifest"...
 
 
-@dataclass(frozen=True)
-class EquipmentIn:
-    """A piece of reference equipment a run used (the manifest's ``[[equipment]]`` entry):
-    kind and serial identify it; its dates are those recorded with the run."""
+# A piece of reference equipment a run used (the manifest's [[equipment]] entry): kind and
+# serial identify it; its dates are those recorded with the run.
+EQUIPMENT = Settings(
+    Setting("kind", "text", "", None, "rate_table, cube, daq... (required)"),
+    Setting("serial", "text", "", None, "its serial number (required)"),
+    Setting("model", "text", "", None, "its model"),
+    Setting("accuracy_class", "text", "", None, "its accuracy class, e.g. '0.01%'"),
+    Setting("calibration_due", "date", "", None, "when its own calibration is due"),
+    Setting("calibrated_on", "date", "", None, "when it was last calibrated"),
+    name="EquipmentIn",
+    noun="field",
+)
+EquipmentIn = EQUIPMENT.type
 
-    kind: str  # "rate_table", "cube", "daq"...
-    serial: str
-    model: str | None = None
-    accuracy_class: str | None = None
-    calibration_due: date | None = None
-    calibrated_on: date | None = None
 
-    @classmethod
-    def of(cls, entry: EquipmentIn | Mapping[str, Any], where: str) -> EquipmentIn:
-        """`entry` (an EquipmentIn, or a mapping with these keys; dates as dates or ISO
-        text) typed; ValueError naming `where` and the field for a missing kind or serial
-        or a malformed date."""
-        if isinstance(entry, cls):
-            return entry
-        if not isinstance(entry, Mapping):
-            raise TypeError(f"{where}: expected a table of equipment fields, got {entry!r}")
-        for key in ("kind", "serial"):
-            if not isinstance(entry.get(key), str) or not entry.get(key):
-                raise ValueError(f"{where}.{key}: expected a non-empty string")
-        return cls(
-            entry["kind"],
-            entry["serial"],
-            entry.get("model"),
-            entry.get("accuracy_class"),
-            as_date(entry.get("calibration_due"), f"{where}.calibration_due"),
-            as_date(entry.get("calibrated_on"), f"{where}.calibrated_on"),
-        )
+def equipment_in(entry: Any, where: str, required: tuple[str, ...] = ()) -> EquipmentIn:
+    """`entry` (an EquipmentIn, or a mapping of its keys; dates as dates or ISO text) typed;
+    SettingError naming `where` and the key for a refused value or a missing kind, serial
+    or other `required` key."""
+    if isinstance(entry, Mapping):
+        entry = {k: _iso_date(v) if k.startswith("calibra") else v for k, v in entry.items()}
+    eq = typed(EQUIPMENT, entry, where)
+    for key in ("kind", "serial", *required):
+        if not getattr(eq, key):
+            raise SettingError(key, "required field is missing", where)
+    return eq
+
+
+def _iso_date(value: Any) -> Any:
+    try:
+        return date.fromisoformat(value) if isinstance(value, str) else value
+    except ValueError:
+        return value  # refused by name as not a date
 
 
 # A run's site and lab conditions as the manifest states them ([site], [environment]), SI
@@ -188,9 +189,7 @@ class RunIn:
     def __post_init__(self) -> None:
         self.site = typed(SITE, self.site, "site")
         self.environment = typed(ENVIRONMENT, self.environment, "environment")
-        self.equipment = [
-            EquipmentIn.of(e, f"equipment[{i}]") for i, e in enumerate(self.equipment)
-        ]
+        self.equipment = [equipment_in(e, f"equipment[{i}]") for i, e in enumerate(self.equipment)]
 
 
 def run_row(run: RunIn) -> dict[str, Any]:
@@ -240,20 +239,6 @@ def settings_hash_of(run: RunIn) -> str:
 # --- validation (before anything touches the disk) ---------------------------
 
 
-def as_date(value: Any, where: str) -> date | None:
-    """`value` (a date, datetime or ISO text, or None) as a date; ValueError naming `where`."""
-    if value is None or (isinstance(value, date) and not isinstance(value, datetime)):
-        return value
-    if isinstance(value, datetime):
-        return value.date()
-    if isinstance(value, str):
-        try:
-            return date.fromisoformat(value)
-        except ValueError:
-            pass
-    raise ValueError(f"{where}: expected a date (YYYY-MM-DD), got {value!r}")
-
-
 def _number(value: Any, where: str, *, optional: bool) -> float | None:
     if value is None and optional:
         return None
@@ -282,8 +267,6 @@ def validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
         if not isinstance(getattr(run, key), str) or not getattr(run, key):
             raise ValueError(f"{key}: expected a non-empty string, got {getattr(run, key)!r}")
     _number(run.gravity, "gravity", optional=False)
-    for i, eq in enumerate(run.equipment):  # typed when the RunIn was made, unless set since
-        EquipmentIn.of(eq, f"equipment[{i}]")
     _number(run.parameter_temperature_c, "parameter_temperature_c", optional=True)
     for what, items, kind in (
         ("parameters", run.parameters, Parameter),

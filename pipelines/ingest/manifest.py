@@ -23,7 +23,7 @@ import math
 import re
 import sys
 import tomllib
-from datetime import UTC, date, datetime
+from datetime import UTC, datetime
 from pathlib import Path, PurePosixPath
 from typing import Any, Literal
 
@@ -43,7 +43,15 @@ from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import check_free_text
 from storage.naming import check_safe_name
-from storage.run_input import ENVIRONMENT, SITE, Environment, Site, typed
+from storage.run_input import (
+    ENVIRONMENT,
+    SITE,
+    Environment,
+    EquipmentIn,
+    Site,
+    equipment_in,
+    typed,
+)
 
 SCHEMA_VERSION = 1
 
@@ -134,24 +142,6 @@ class AcquisitionSpec(_Section):
 # Converter resolution of sensor models (bits), by lower-case model name: the MPU-6000's
 # accelerometer and gyro converters are 16 bit (InvenSense data sheet).
 MODEL_RESOLUTION_BITS: dict[str, int] = {"mpu-6000": 16}
-
-
-class EquipmentEntry(_Section):
-    """One piece of lab equipment; its own calibration dates make lapses traceable."""
-
-    kind: str  # one of EQUIPMENT_KINDS or another short word
-    model: str
-    serial: str
-    accuracy_class: str | None = None
-    calibration_due: date
-    calibrated_on: date | None = None
-
-    @field_validator("calibration_due", "calibrated_on", mode="before")
-    @classmethod
-    def _date_only(cls, value: Any) -> Any:
-        if isinstance(value, datetime):
-            raise ValueError(f"expected a date (YYYY-MM-DD), got a date and time {value}")
-        return value
 
 
 class SegmentSpec(_Section):
@@ -254,7 +244,7 @@ class RunManifest(_Section):
     site: Site = Field(default_factory=Site)  # SITE
     environment: Environment = Field(default_factory=Environment)  # ENVIRONMENT
     acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)
-    equipment: list[EquipmentEntry] = Field(default_factory=list)
+    equipment: list[EquipmentIn] = Field(default_factory=list)  # EQUIPMENT
     format: FormatSpec
     segments: list[SegmentSpec] = Field(default_factory=list)
 
@@ -262,6 +252,15 @@ class RunManifest(_Section):
     @classmethod
     def _environment(cls, value: Any) -> Environment:
         return typed(ENVIRONMENT, value, "environment")  # as the archive keeps it
+
+    @field_validator("equipment", mode="before")
+    @classmethod
+    def _equipment(cls, value: Any) -> list[EquipmentIn]:
+        if not isinstance(value, list):
+            raise ValueError(f"expected an array of tables [[equipment]], got {value!r}")
+        # The lab's own equipment record: model and calibration due date too.
+        required = ("model", "calibration_due")
+        return [equipment_in(e, f"equipment[{i}]", required) for i, e in enumerate(value)]
 
     @field_validator("site", mode="before")
     @classmethod
@@ -503,7 +502,8 @@ def _as_ingest_error(exc: ValidationError, source: str, text: str = "") -> Inges
     for err in errors:  # a section typed by its declaration: the key it names
         refused = (err.get("ctx") or {}).get("error")
         if isinstance(refused, SettingError):
-            err["loc"], err["msg"] = (*err["loc"], *key_path(refused.key)), refused.problem
+            err["loc"] = (*key_path(refused.root), *key_path(refused.key))
+            err["msg"] = refused.problem
     # A misspelt key shows up as an unknown field plus a missing one: report
     # the unknown one first, with the missing name as the likely intent.
     missing = {(tuple(e["loc"][:-1]), e["loc"][-1]) for e in errors if e["type"] == "missing"}
