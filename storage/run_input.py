@@ -54,11 +54,7 @@ def equipment_in(entry: Any, where: str, required: tuple[str, ...] = ()) -> Equi
     or other `required` key."""
     if isinstance(entry, Mapping):
         entry = {k: _iso_date(v) if k.startswith("calibra") else v for k, v in entry.items()}
-    eq = typed(EQUIPMENT, entry, where)
-    for key in ("kind", "serial", *required):
-        if not getattr(eq, key):
-            raise SettingError(key, "required field is missing", where)
-    return eq
+    return typed(EQUIPMENT, entry, where, ("kind", "serial", *required))
 
 
 def _iso_date(value: Any) -> Any:
@@ -135,19 +131,25 @@ Site = SITE.type
 Environment = ENVIRONMENT.type
 
 
-def typed(table: Settings, given: Any, root: str) -> Any:
-    """`given` (typed values of `table`, or a mapping of them) typed, whole numbers of a
-    "number" setting as floats (as stored); SettingError naming ``root.key`` for a value
-    that is not a table, an unknown key or a refused value."""
+def typed(table: Settings, given: Any, root: str, required: tuple[str, ...] = ()) -> Any:
+    """`given` (typed values of `table`, or a mapping of them) typed as the archive keeps
+    them: texts stripped of surrounding blanks, whole numbers of a "number" setting as
+    floats; SettingError naming ``root.key`` for a value that is not a table, an unknown
+    key, a refused value or a `required` key missing or empty."""
     if isinstance(given, table.type):
         return given
     if not isinstance(given, Mapping):
-        raise SettingError("", f"expected a table, got {given!r}", root)
-    table.validate(given, "", root)
+        raise SettingError(root, f"expected a table, got {given!r}", "")
     number = {s.name for s in table if "number" in s.kinds}
-    return table.parse(
-        {k: float(v) if k in number and type(v) is int else v for k, v in given.items()}
-    )
+    given = {
+        k: v.strip() if isinstance(v, str) else float(v) if k in number and type(v) is int else v
+        for k, v in given.items()
+    }
+    table.validate(given, "", root)
+    for key in required:
+        if given.get(key) in (None, ""):
+            raise SettingError(key, "required field is missing", root)
+    return table.parse(given)
 
 
 @dataclass

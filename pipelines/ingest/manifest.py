@@ -6,9 +6,13 @@ calibration dates, the procedure and its settings, the tolerance profile, the
 layout of the data files and which file or time window holds which segment.
 docs/manifest.md describes every field with an example.
 
-Every section is a pydantic model that forbids unknown keys, so a typo in a
-field name is an error rather than a silently ignored value. The one exception
-is ``[format]``: readers of other formats (MAT, MCAP) keep their own keys there
+Every section forbids unknown keys, so a typo in a field name is an error rather
+than a silently ignored value. ``[unit]``, ``[acquisition]``, ``[site]``,
+``[environment]`` and ``[[equipment]]`` are declared as settings (calib_core.settings;
+the last three in storage.run_input, as the archive keeps them); ``[run]``,
+``[[segments]]``, ``[format]`` and the whole are still pydantic models, whose errors
+name the key a section's SettingError names. ``[format]`` is the one section with
+other keys: readers of other formats (MAT, MCAP) keep their own keys there
 (``variables``, ``topics``, ...) and read them from ``FormatSpec.model_extra``.
 
 Times: ``run.started`` may be a TOML datetime or an ISO-8601 string. A value
@@ -38,7 +42,7 @@ from pydantic import (
 
 from calib_core import procedures
 from calib_core.earth import local_gravity
-from calib_core.settings import SettingError, key_line, key_path
+from calib_core.settings import Setting, SettingError, Settings, key_line, key_path
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import check_free_text
@@ -69,22 +73,18 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
 
 
-class UnitSpec(_Section):
-    """The unit under test."""
-
-    serial: str
-    model: str
-    manufacturer: str
-    specification: str | None = None  # free text: ranges, grade, data sheet reference
+UNIT = Settings(
+    Setting("serial", "text", "", None, "the unit's serial (a folder name in the archive)"),
+    Setting("model", "text", "", None, "its model"),
+    Setting("manufacturer", "text", "", None, "its manufacturer"),
+    Setting("specification", "text", "", None, "free text: ranges, grade, data sheet"),
     # The sensor's full scale as set for this run; None: the model's (MODEL_RANGES), if known.
-    gyro_range_dps: float | None = Field(default=None, gt=0)
-    acc_range_g: float | None = Field(default=None, gt=0)
-
-    @field_validator("serial")
-    @classmethod
-    def _safe_serial(cls, value: str) -> str:
-        # The serial becomes a folder name in the archive: no path tricks.
-        return check_safe_name(value, "serial")
+    Setting("gyro_range_dps", "number", "deg/s", None, "gyro full scale", low=0, low_open=True),
+    Setting("acc_range_g", "number", "g", None, "accelerometer full scale", low=0, low_open=True),
+    name="UnitSpec",
+    noun="field",
+)
+UnitSpec = UNIT.type  # the unit under test
 
 
 # Full scale (gyro deg/s, accelerometer g) of sensor models as their calibration program
@@ -132,11 +132,14 @@ class RunSpec(_Section):
 SiteSpec = Site  # [site]: storage.run_input.SITE
 
 
-class AcquisitionSpec(_Section):
-    """How the data were taken, where the files do not say it; every field optional."""
-
-    settle_s: float | None = Field(default=None, ge=0.0)  # wait before recording each attitude
-    resolution_bits: int | None = Field(default=None, gt=0)  # of the sensor's converter
+# How the data were taken, where the files do not say it; every field optional.
+ACQUISITION = Settings(
+    Setting("settle_s", "number", "s", None, "wait before recording each attitude", low=0.0),
+    Setting("resolution_bits", "integer", "bit", None, "of the sensor's converter", low=1),
+    name="AcquisitionSpec",
+    noun="field",
+)
+AcquisitionSpec = ACQUISITION.type
 
 
 # Converter resolution of sensor models (bits), by lower-case model name: the MPU-6000's
@@ -243,7 +246,7 @@ class RunManifest(_Section):
     run: RunSpec
     site: Site = Field(default_factory=Site)  # SITE
     environment: Environment = Field(default_factory=Environment)  # ENVIRONMENT
-    acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)
+    acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)  # ACQUISITION
     equipment: list[EquipmentIn] = Field(default_factory=list)  # EQUIPMENT
     format: FormatSpec
     segments: list[SegmentSpec] = Field(default_factory=list)
@@ -252,6 +255,21 @@ class RunManifest(_Section):
     @classmethod
     def _environment(cls, value: Any) -> Environment:
         return typed(ENVIRONMENT, value, "environment")  # as the archive keeps it
+
+    @field_validator("unit", mode="before")
+    @classmethod
+    def _unit(cls, value: Any) -> UnitSpec:
+        unit = typed(UNIT, value, "unit", ("serial", "model", "manufacturer"))
+        try:  # the serial becomes a folder name in the archive: no path tricks
+            check_safe_name(unit.serial, "serial")
+        except ValueError as exc:
+            raise SettingError("serial", str(exc), "unit") from None
+        return unit
+
+    @field_validator("acquisition", mode="before")
+    @classmethod
+    def _acquisition(cls, value: Any) -> AcquisitionSpec:
+        return typed(ACQUISITION, value, "acquisition")
 
     @field_validator("equipment", mode="before")
     @classmethod
