@@ -63,6 +63,9 @@ from calib_core.preprocess.motion import window_statistics
 from calib_core.streamed import StreamedAllan, load_compiled
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from calib_testing.ros_messages import IMU_MSGDEF, imu_cdr  # noqa: E402
+
 RATE = 1000.0
 BLOCK_ROWS = 1_000_000
 
@@ -339,36 +342,7 @@ with src.open("rb") as fh, (work / "raw").open("wb") as copy, pq.ParquetWriter(
 print(sha.hexdigest())
 """
 
-# sensor_msgs/msg/Imu as ``ros2 bag record`` stores its definition (with dependencies).
-_SEP = "=" * 80 + "\n"
-IMU_MSGDEF = (
-    "std_msgs/Header header\ngeometry_msgs/Quaternion orientation\n"
-    "float64[9] orientation_covariance\ngeometry_msgs/Vector3 angular_velocity\n"
-    "float64[9] angular_velocity_covariance\ngeometry_msgs/Vector3 linear_acceleration\n"
-    "float64[9] linear_acceleration_covariance\n"
-    f"{_SEP}MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
-    f"{_SEP}MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
-    f"{_SEP}MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
-    f"{_SEP}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
-)
-# One little-endian CDR Imu message with frame_id "imu_link": encapsulation, Header
-# (stamp, frame_id with its NUL, padding to 8), then 37 float64 (pipelines.ingest.cdr).
-IMU_CDR = np.dtype(
-    [
-        ("encapsulation", "u1", 4),
-        ("sec", "<i4"),
-        ("nanosec", "<u4"),
-        ("frame_len", "<u4"),
-        ("frame_id", "S9"),
-        ("pad", "u1", 3),
-        ("orientation", "<f8", 4),
-        ("orientation_cov", "<f8", 9),
-        ("gyr", "<f8", 3),
-        ("gyr_cov", "<f8", 9),
-        ("acc", "<f8", 3),
-        ("acc_cov", "<f8", 9),
-    ]
-)
+IMU_CDR = imu_cdr(b"imu_link")
 T0_NS = 1_767_225_600_000_000_000  # 2026-01-01 UTC, ns
 
 

@@ -32,24 +32,11 @@ from pathlib import Path
 import numpy as np
 from longlog import MANIFEST, RATE, T0_NS, run_child
 
+from calib_testing.ros_messages import imu_ros1
+
 BLOCK_ROWS = 250_000  # messages serialised at a time
 
-# One ROS 1 Imu message with frame_id "imu_link" (ROS 1 serialisation: packed, no padding).
-IMU_ROS1 = np.dtype(
-    [
-        ("seq", "<u4"),
-        ("sec", "<u4"),
-        ("nsec", "<u4"),
-        ("frame_len", "<u4"),
-        ("frame_id", "S8"),
-        ("orientation", "<f8", 4),
-        ("orientation_cov", "<f8", 9),
-        ("gyr", "<f8", 3),
-        ("gyr_cov", "<f8", 9),
-        ("acc", "<f8", 3),
-        ("acc_cov", "<f8", 9),
-    ]
-)
+IMU_ROS1 = imu_ros1(b"imu_link")
 BAG_FORMAT = """[format]
 kind = "rosbag"
 imu_topic = "/imu/data"
