@@ -227,7 +227,6 @@ def allan_error(parquet: Path, n: int) -> float:
 def csv_part(args: argparse.Namespace) -> dict:
     """The CSV record's figures (and the Allan check on its samples)."""
     work = Path(tempfile.mkdtemp(prefix="longlog-", dir=args.dir))
-    limit = str(int(args.memory_limit_gb * 1e9))
     try:
         src = work / "static.csv"
         t0 = time.perf_counter()
@@ -239,39 +238,41 @@ def csv_part(args: argparse.Namespace) -> dict:
         write_s = time.perf_counter() - t0
         size = src.stat().st_size
         print(f"wrote {size / 1e9:.2f} GB, {samples:,} samples in {write_s:.0f} s", file=sys.stderr)
-        outs = {}
-        folder = work / "floor"
-        folder.mkdir()
-        floor = [sys.executable, "-c", textwrap.dedent(FLOOR), str(src), str(folder), limit]
-        outs["floor"] = run_child(floor)
-        shutil.rmtree(folder)
-        report("floor", outs["floor"])
-        outs["process"] = calib_process(src, work, args.memory_limit_gb)
-        report("process", outs["process"])
+        figures = pass_figures(size, samples, write_s, passes("", FLOOR, src, work, args))
         t0 = time.perf_counter()
         (parquet,) = (work / "archive" / "samples").rglob("*.parquet")
         err = allan_error(parquet, args.allan_samples)
-        allan_s = time.perf_counter() - t0
+        figures["seconds"]["allan_check"] = round(time.perf_counter() - t0, 1)
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
-    (floor_s, _, _), (proc_s, _, _) = outs["floor"], outs["process"]
     return {
-        **pass_figures(size, samples, outs),
+        **figures,
         "allan_rel_err_vs_allantools": err,
-        "seconds": {
-            "write": round(write_s, 1),
-            "floor": round(floor_s, 1),
-            "process": round(proc_s, 1),
-            "allan_check": round(allan_s, 1),
-        },
         "memory_limit_gb": args.memory_limit_gb,
     }
 
 
-def pass_figures(size: int, samples: int, runs: dict) -> dict:
-    """The figures of one format's floor and process passes: `runs` maps "floor" and
-    "process" to (seconds, peak resident bytes, output) of the child."""
+def passes(name: str, floor: str, src: Path, work: Path, args: argparse.Namespace) -> dict:
+    """The floor pass (the script `floor` in a child) and `calib process` of `src`, each
+    reported: "floor" and "process" -> (seconds, peak resident bytes, output) of the child."""
+    folder = work / "floor"
+    folder.mkdir()
+    limit = str(int(args.memory_limit_gb * 1e9))
+    runs = {
+        "floor": run_child(
+            [sys.executable, "-c", textwrap.dedent(floor), str(src), str(folder), limit]
+        )
+    }
+    shutil.rmtree(folder)
+    report(f"{name}floor", runs["floor"])
+    runs["process"] = calib_process(src, work, args.memory_limit_gb)
+    report(f"{name}process", runs["process"])
+    return runs
+
+
+def pass_figures(size: int, samples: int, write_s: float, runs: dict) -> dict:
+    """The figures of one format's floor and process passes (`runs`, from `passes`)."""
     (floor_s, floor_rss, _), (proc_s, proc_rss, _) = runs["floor"], runs["process"]
     return {
         "size_gb": round(size / 1e9, 3),
@@ -281,6 +282,11 @@ def pass_figures(size: int, samples: int, runs: dict) -> dict:
         "process_mb_per_s": round(size / 1e6 / proc_s, 1),
         "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
         "process_to_floor_ratio": round(proc_s / floor_s, 3),
+        "seconds": {
+            "write": round(write_s, 1),
+            "floor": round(floor_s, 1),
+            "process": round(proc_s, 1),
+        },
     }
 
 
@@ -384,7 +390,6 @@ def write_mcap_record(path: Path, size_bytes: int, seed: int = 0) -> int:
 def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
     """The MCAP record's figures (and the Allan check on its samples when `allan`)."""
     work = Path(tempfile.mkdtemp(prefix="longlog-mcap-", dir=args.dir))
-    limit = str(int(args.memory_limit_gb * 1e9))
     out: dict = {}
     try:
         src = work / "static.mcap"
@@ -396,15 +401,7 @@ def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
             f"mcap: wrote {size / 1e9:.2f} GB, {samples:,} messages in {write_s:.0f} s",
             file=sys.stderr,
         )
-        runs = {}
-        folder = work / "floor"
-        folder.mkdir()
-        floor = [sys.executable, "-c", textwrap.dedent(MCAP_FLOOR), str(src), str(folder), limit]
-        runs["floor"] = run_child(floor)
-        shutil.rmtree(folder)
-        report("mcap floor", runs["floor"])
-        runs["process"] = calib_process(src, work, args.memory_limit_gb)
-        report("mcap process", runs["process"])
+        runs = passes("mcap ", MCAP_FLOOR, src, work, args)
         (parquet,) = (work / "archive" / "samples").rglob("*.parquet")
         got = pq.ParquetFile(parquet).metadata.num_rows
         if got != samples:
@@ -416,16 +413,7 @@ def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
-    (floor_s, _, _), (proc_s, _, _) = runs["floor"], runs["process"]
-    return {
-        **pass_figures(size, samples, runs),
-        "seconds": {
-            "write": round(write_s, 1),
-            "floor": round(floor_s, 1),
-            "process": round(proc_s, 1),
-        },
-        **out,
-    }
+    return {**pass_figures(size, samples, write_s, runs), **out}
 
 
 FIGURES = (
