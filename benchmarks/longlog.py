@@ -64,6 +64,7 @@ from calib_core.streamed import StreamedAllan, load_compiled
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+from calib_testing.calib_command import CALIB  # noqa: E402
 from calib_testing.ros_messages import IMU_MSGDEF, imu_cdr  # noqa: E402
 
 RATE = 1000.0
@@ -193,10 +194,9 @@ def calib_process(src: Path, work: Path, limit_gb: float) -> tuple[float, float,
     fmt = MCAP_FORMAT if src.suffix == ".mcap" else CSV_FORMAT
     text = MANIFEST.format(limit_mb=round(limit_gb * 1000), data=src.name, format=fmt)
     (run / "run.toml").write_text(text, encoding="utf-8")
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {"CALIB_ARCHIVE": str(work / "archive"), "CALIB_ISSUE_CERTIFICATES": "0"}
     try:
-        out = run_child([calib, "process", str(run), "--json"], env)
+        out = run_child([CALIB, "process", str(run), "--json"], env)
     finally:
         (run / src.name).rename(src)
     (doc,) = json.loads(out[2])["runs"]

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from longlog import MANIFEST, RATE, T0_NS, run_child
 
+from calib_testing.calib_command import CALIB
 from calib_testing.ros_messages import imu_ros1
 
 BLOCK_ROWS = 250_000  # messages serialised at a time
@@ -81,10 +82,9 @@ def process(src: Path, work: Path, limit_mb: float) -> tuple[float, float, dict]
     src.rename(run / src.name)
     text = MANIFEST.format(limit_mb=round(limit_mb), data=src.name, format=BAG_FORMAT)
     (run / "run.toml").write_text(text, encoding="utf-8")
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {"CALIB_ARCHIVE": str(work / "archive"), "CALIB_ISSUE_CERTIFICATES": "0"}
     try:
-        seconds, peak, out = run_child([calib, "process", str(run), "--json"], env)
+        seconds, peak, out = run_child([CALIB, "process", str(run), "--json"], env)
     finally:
         (run / src.name).rename(src)
         shutil.rmtree(run)
