@@ -6,10 +6,6 @@ Accelerations in m/s^2, angular rates in rad/s, time in s, temperature in deg C.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:  # numpy loaded by to_si alone: the display of a value needs none
-    import numpy as np
 
 STANDARD_GRAVITY = 9.80665  # m/s^2, CGPM 1901
 DEG = math.pi / 180.0  # rad per degree
@@ -59,19 +55,3 @@ def time_factor(unit: str) -> float:
 def angle_factor(unit: str) -> float:
     """Factor converting an angle in `unit` to rad."""
     return _factor(ANGLE_UNITS, unit, "angle")
-
-
-def to_si(values: np.ndarray, unit: str, quantity: str) -> np.ndarray:
-    """Convert `values` from `unit` to SI.
-
-    quantity : "acceleration", "angular_rate", "time" or "angle".
-    """
-    factor = {
-        "acceleration": acceleration_factor,
-        "angular_rate": angular_rate_factor,
-        "time": time_factor,
-        "angle": angle_factor,
-    }[quantity](unit)
-    import numpy as np
-
-    return np.asarray(values, dtype=float) * factor
