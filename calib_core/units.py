@@ -26,7 +26,15 @@ ANGULAR_RATE_UNITS: dict[str, float] = {
     "rpm": 2.0 * math.pi / 60.0,
 }
 TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-ANGLE_UNITS: dict[str, float] = {"rad": 1.0, "deg": DEG}
+ANGLE_UNITS: dict[str, float] = {
+    "deg": DEG,
+    "°": DEG,
+    "arcmin": DEG / 60.0,
+    "arcsec": ARCSEC,
+    "rad": 1.0,
+    "mrad": 1e-3,
+    "urad": 1e-6,
+}
 
 
 def _factor(table: dict[str, float], unit: str, quantity: str) -> float:
@@ -50,8 +58,3 @@ def angular_rate_factor(unit: str) -> float:
 def time_factor(unit: str) -> float:
     """Factor converting a time in `unit` to s."""
     return _factor(TIME_UNITS, unit, "time")
-
-
-def angle_factor(unit: str) -> float:
-    """Factor converting an angle in `unit` to rad."""
-    return _factor(ANGLE_UNITS, unit, "angle")
