@@ -155,11 +155,6 @@ def _euler_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return rounded(rz @ ry @ rx)
 
 
-def rotated_vector(rot: Rotation, vector: np.ndarray) -> np.ndarray:
-    """(3,) or (3, k) vectors in the calibrated axes -> the firmware's axes."""
-    return rot.matrix @ np.asarray(vector, dtype=float)
-
-
 def rotated_scales(rot: Rotation, scales: np.ndarray, firmware: str) -> np.ndarray:
     """(3,) per-axis scales in the firmware's axes: axis i takes the scale of the calibrated
     axis that turns into it. Raises ValueError for a rotation that mixes axes."""
