@@ -217,6 +217,7 @@ class ParameterLimit:
         return self.high if math.isfinite(self.high) else self.low
 
 
+# The top-level fields of a profile document.
 @dataclass
 class ToleranceProfile:
     """Tolerances of one device type, SI units.
