@@ -101,15 +101,13 @@ PROFILE = Settings(
     Setting("version", ("text", "number"), "", None, "its version, archived with each verdict"),
     Setting("device_model", "text", "", None, "the device type it is written for"),
     Setting("limits", "list", "", None, "[[limits]]: pattern, unit, bound or low / high"),
-    Setting("residual_limits", "table", "", None, "{ value, unit } per RESIDUAL_KEYS"),
-    Setting("verification_limits", "table", "", None, "{ value, unit } per VERIFICATION_KEYS"),
-    Setting("repeatability", "table", "", None, "REPEATABILITY"),
-    Setting("decision_rule", "table", "", None, "DECISION"),
-    Setting("conditions", "table", "", None, "{ low, high } per condition"),
-    Setting("protocol", "table", "", None, "PROTOCOL"),
-    Setting("recall", "table", "", None, "RECALL"),
+    *(Setting(k, "table", "", None, f"the table {meaning}") for k, meaning in {
+        "residual_limits": "of RESIDUAL_KEYS", "verification_limits": "of VERIFICATION_KEYS",
+        "repeatability": "REPEATABILITY", "decision_rule": "DECISION",
+        "conditions": "{ low, high } of each condition", "protocol": "PROTOCOL",
+        "recall": "RECALL"}.items()),
     noun="field",
-)
+)  # fmt: skip
 REQUIRED = ("name", "version", "device_model")
 LIMIT = Settings(
     Setting("pattern", "text", "", None, "glob on canonical names, e.g. 'gyr.scale.*'"),

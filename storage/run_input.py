@@ -36,15 +36,14 @@ class RawFileIn:
 # A piece of reference equipment a run used (the manifest's [[equipment]] entry): kind and
 # serial identify it; its dates are those recorded with the run.
 EQUIPMENT = Settings(
-    Setting("kind", "text", "", None, "rate_table, cube, daq... (required)"),
-    Setting("serial", "text", "", None, "its serial number (required)"),
-    Setting("model", "text", "", None, "its model"),
-    Setting("accuracy_class", "text", "", None, "its accuracy class, e.g. '0.01%'"),
+    *(Setting(key, "text", "", None, meaning) for key, meaning in {
+        "kind": "rate_table, cube, daq... (required)", "serial": "its serial (required)",
+        "model": "its model", "accuracy_class": "its accuracy class, e.g. '0.01%'"}.items()),
     Setting("calibration_due", "date", "", None, "when its own calibration is due"),
     Setting("calibrated_on", "date", "", None, "when it was last calibrated"),
     name="EquipmentIn",
     noun="field",
-)
+)  # fmt: skip
 EquipmentIn = EQUIPMENT.type
 
 
