@@ -20,9 +20,9 @@ from typing import Any
 # What a solver's door takes: its procedure's typed values, or a mapping `Settings.parse` reads.
 SettingsIn = Any
 # The value kinds a setting may take, as TOML writes them, and their Python types.
-KINDS = ("number", "integer", "bool", "text", "table", "list", "date")
+KINDS = ("number", "integer", "bool", "text", "table", "list", "date", "datetime")
 TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": dict, "list": list,
-         "date": date}  # fmt: skip
+         "date": date, "datetime": datetime}  # fmt: skip
 
 
 class SettingError(ValueError):
@@ -54,7 +54,8 @@ class Setting:
     """One setting of a procedure.
 
     name : the key in ``[run.settings]``.
-    kind : "number", "integer", "bool", "text", "table", "list" or "date"; a tuple for a setting
+    kind : "number", "integer", "bool", "text", "table", "list", "date" or "datetime"; a
+        tuple for a setting
         that takes one of several kinds (e.g. "text" or "table").
     unit : the value's unit as the manifest writes it ("s", "deg/s", "deg", "1", "").
     default : the value when absent; None: absent means "not given" (inferred or unused).
@@ -100,7 +101,8 @@ class Setting:
             elif kind == "list" and self.length is not None:
                 parts.append(f"a list of {self.length} numbers")
             else:
-                words = {"bool": "true or false", "table": "a table", "date": "a date (YYYY-MM-DD)"}
+                words = {"bool": "true or false", "table": "a table", "date": "a date (YYYY-MM-DD)",
+                         "datetime": "a date and time (ISO 8601)"}  # fmt: skip
                 parts.append(words.get(kind, kind))
         return " or ".join(parts)
 

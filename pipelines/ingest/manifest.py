@@ -22,6 +22,8 @@ is always stored converted to UTC.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import difflib
 import math
 import re
@@ -107,26 +109,32 @@ def sensor_ranges(unit: UnitSpec, settings: dict[str, Any]) -> tuple[float | Non
     return (None if gyro is None else float(gyro)), acc
 
 
-class RunSpec(_Section):
-    """When, who, which procedure and tolerance profile."""
+RUN = Settings(
+    Setting("started", "datetime", "", None, "when the run started (no offset: UTC)"),
+    Setting("operator", "text", "", None, "who ran it"),
+    Setting("procedure", "text", "", None, "calib_core.procedures' name"),
+    Setting("tolerance_profile", "text", "", None, "the profile's file name"),
+    Setting("settings", "table", "", {}, "the procedure's: turns, gyro_range_dps, solver..."),
+    name="RunSpec",
+    noun="field",
+)
+RunSpec = RUN.type  # when, who, which procedure and tolerance profile
 
-    started: datetime
-    operator: str
-    procedure: str
-    tolerance_profile: str
-    settings: dict[str, Any] = Field(default_factory=dict)  # turns, gyro_range_dps, solver...
 
-    @field_validator("started")
-    @classmethod
-    def _utc(cls, value: datetime) -> datetime:
-        if value.tzinfo is None:  # documented choice: a naive time is UTC
-            return value.replace(tzinfo=UTC)
-        return value.astimezone(UTC)
-
-    @field_validator("tolerance_profile")
-    @classmethod
-    def _safe_profile(cls, value: str) -> str:
-        return check_safe_name(value, "tolerance profile name")  # names a profile file
+def run_spec(value: Any) -> RunSpec:
+    """``[run]`` typed: ``started`` (a TOML datetime or ISO-8601 text) in UTC, the
+    tolerance profile a safe file name; SettingError naming the key."""
+    if isinstance(value, dict) and isinstance(value.get("started"), str):
+        with contextlib.suppress(ValueError):  # else refused by name
+            value = {**value, "started": datetime.fromisoformat(value["started"].strip())}
+    run = typed(RUN, value, "run", ("started", "operator", "procedure", "tolerance_profile"))
+    try:
+        check_safe_name(run.tolerance_profile, "tolerance profile name")  # names a file
+    except ValueError as exc:
+        raise SettingError("tolerance_profile", str(exc), "run") from None
+    started = run.started  # documented choice: a naive time is UTC
+    utc = started.replace(tzinfo=UTC) if started.tzinfo is None else started.astimezone(UTC)
+    return dataclasses.replace(run, started=utc)
 
 
 SiteSpec = Site  # [site]: storage.run_input.SITE
@@ -255,6 +263,11 @@ class RunManifest(_Section):
     @classmethod
     def _environment(cls, value: Any) -> Environment:
         return typed(ENVIRONMENT, value, "environment")  # as the archive keeps it
+
+    @field_validator("run", mode="before")
+    @classmethod
+    def _run(cls, value: Any) -> RunSpec:
+        return run_spec(value)
 
     @field_validator("unit", mode="before")
     @classmethod
