@@ -39,7 +39,6 @@ from pydantic import (
     Field,
     ValidationError,
     field_validator,
-    model_validator,
 )
 
 from calib_core import procedures
@@ -155,7 +154,7 @@ AcquisitionSpec = ACQUISITION.type
 MODEL_RESOLUTION_BITS: dict[str, int] = {"mpu-6000": 16}
 
 
-class SegmentSpec(_Section):
+class SegmentRules:
     """Which file (and optionally which time window of it, s) holds one segment.
 
     The window is ``start_s <= t < end_s`` on the file's own time axis after
@@ -171,58 +170,51 @@ class SegmentSpec(_Section):
     are read with the same ``[format]`` columns (kind ``csv`` only).
     """
 
-    label: str
-    file: str | None = None
-    acc_file: str | None = None
-    gyr_file: str | None = None
-    start_s: float | None = None
-    end_s: float | None = None
-    section: str | None = None  # the value of [format] section_column for this segment's rows
-    verification: bool = False
-    reference_acc: list[float] | None = None
-
-    @field_validator("reference_acc")
-    @classmethod
-    def _three_finite(cls, value: list[float] | None) -> list[float] | None:
-        if value is not None and (len(value) != 3 or not all(math.isfinite(v) for v in value)):
-            raise ValueError(f"expected 3 finite numbers (x, y, z), got {value}")
-        return value
-
-    @field_validator("label")
-    @classmethod
-    def _label(cls, value: str) -> str:
-        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}", value):
-            raise ValueError(
-                f"invalid segment label {value!r}: expected letters, digits, '_', '.', '+', '-'"
-            )
-        return value
-
-    @field_validator("file", "acc_file", "gyr_file")
-    @classmethod
-    def _inside_run_folder(cls, value: str | None) -> str | None:
-        return None if value is None else check_relative_name(value)
-
-    @model_validator(mode="after")
-    def _one_source(self) -> SegmentSpec:
-        split = (self.acc_file is not None, self.gyr_file is not None)
-        if self.file is None and split != (True, True):
-            raise ValueError(
-                "a segment needs 'file', or both 'acc_file' and 'gyr_file' (separate sensor files)"
-            )
-        if self.file is not None and any(split):
-            raise ValueError("give either 'file' or 'acc_file' + 'gyr_file', not both")
-        return self
-
     @property
     def files(self) -> tuple[str, ...]:
         """The data files of this segment: (file,) or (acc_file, gyr_file)."""
         return (self.file,) if self.file is not None else (self.acc_file, self.gyr_file)
 
-    @model_validator(mode="after")
-    def _window(self) -> SegmentSpec:
+    def check(self, where: str) -> None:
+        """SettingError naming ``where.key`` (``segments[2].file``): a label or file name
+        that may not be one, no data file or two kinds, an empty time window."""
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}", self.label):
+            raise SettingError("label", f"invalid segment label {self.label!r}: expected "
+                               "letters, digits, '_', '.', '+', '-'", where)  # fmt: skip
+        for key in ("file", "acc_file", "gyr_file"):
+            try:
+                if getattr(self, key) is not None:
+                    check_relative_name(getattr(self, key))
+            except ValueError as exc:
+                raise SettingError(key, str(exc), where) from None
+        split = (self.acc_file is not None, self.gyr_file is not None)
+        if self.file is None and split != (True, True):
+            problem = (
+                "a segment needs 'file', or both 'acc_file' and 'gyr_file' (separate sensor files)"
+            )
+            raise SettingError(where, problem, "")
+        if self.file is not None and any(split):
+            raise SettingError(where, "give either 'file' or 'acc_file' + 'gyr_file', not both", "")
         if self.start_s is not None and self.end_s is not None and not self.end_s > self.start_s:
-            raise ValueError(f"end_s ({self.end_s}) must be greater than start_s ({self.start_s})")
-        return self
+            problem = f"end_s ({self.end_s}) must be greater than start_s ({self.start_s})"
+            raise SettingError(where, problem, "")
+
+
+SEGMENT = Settings(
+    Setting("label", "text", "", None, "the segment's label (required)"),
+    *(Setting(k, "text", "", None, meaning) for k, meaning in {
+        "file": "the data file", "acc_file": "the accelerometer's file (with gyr_file)",
+        "gyr_file": "the gyro's file (with acc_file)"}.items()),
+    Setting("start_s", "number", "s", None, "window start (None: the file's)"),
+    Setting("end_s", "number", "s", None, "window end, exclusive (None: the file's)"),
+    Setting("section", "text", "", None, "the value of [format] section_column for its rows"),
+    Setting("verification", "bool", "", False, "kept out of the fit, used to verify it"),
+    Setting("reference_acc", "list", "", None, "true specific force (x, y, z)", length=3),
+    name="SegmentSpec",
+    noun="field",
+    base=SegmentRules,
+)  # fmt: skip
+SegmentSpec = SEGMENT.type
 
 
 def check_relative_name(value: str) -> str:
@@ -263,6 +255,17 @@ class RunManifest(_Section):
     @classmethod
     def _environment(cls, value: Any) -> Environment:
         return typed(ENVIRONMENT, value, "environment")  # as the archive keeps it
+
+    @field_validator("segments", mode="before")
+    @classmethod
+    def _segments(cls, value: Any) -> list[SegmentSpec]:
+        if not isinstance(value, list):
+            raise ValueError(f"expected an array of tables [[segments]], got {value!r}")
+        out = []
+        for i, entry in enumerate(value):
+            out.append(typed(SEGMENT, entry, f"segments[{i}]", ("label",)))
+            out[-1].check(f"segments[{i}]")
+        return out
 
     @field_validator("run", mode="before")
     @classmethod
