@@ -20,7 +20,6 @@ from typing import Any
 # What a solver's door takes: its procedure's typed values, or a mapping `Settings.parse` reads.
 SettingsIn = Any
 # The value kinds a setting may take, as TOML writes them, and their Python types.
-KINDS = ("number", "integer", "bool", "text", "table", "list", "date", "datetime")
 TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": dict, "list": list,
          "date": date, "datetime": datetime}  # fmt: skip
 

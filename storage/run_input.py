@@ -5,6 +5,7 @@ anything touches the disk (storage.archive writes it).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 from collections.abc import Mapping
@@ -57,10 +58,9 @@ def equipment_in(entry: Any, where: str, required: tuple[str, ...] = ()) -> Equi
 
 
 def _iso_date(value: Any) -> Any:
-    try:
-        return date.fromisoformat(value) if isinstance(value, str) else value
-    except ValueError:
-        return value  # refused by name as not a date
+    with contextlib.suppress(ValueError, TypeError):  # else refused by name as not a date
+        return date.fromisoformat(value)
+    return value
 
 
 # A run's site and lab conditions as the manifest states them ([site], [environment]), SI
@@ -70,12 +70,6 @@ GRAVITY_MODELS = ("standard", "helmert", "wgs84", "measured")
 
 class SiteRules:
     """What a `Site` says beyond its values: the gravity model in use and its source."""
-
-    latitude_deg: float | None
-    height_m: float
-    gravity_model: str | None
-    gravity: float | None
-    from_file: str | None
 
     @property
     def model(self) -> str:

@@ -67,12 +67,6 @@ STATIC_LABELS = ("x_up", "x_dn", "y_up", "y_dn", "z_up", "z_dn")
 ROTATION_LABELS = ("x_ccw", "x_cw", "y_ccw", "y_cw", "z_ccw", "z_cw")
 SIX_POSITION_LABELS = STATIC_LABELS + ROTATION_LABELS
 
-EQUIPMENT_KINDS = ("rate_table", "centrifuge", "thermal_chamber", "daq", "cube")
-
-
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
-
 
 UNIT = Settings(
     Setting("serial", "text", "", None, "the unit's serial (a folder name in the archive)"),
@@ -238,8 +232,10 @@ def check_relative_name(value: str) -> str:
     return value
 
 
-class RunManifest(_Section):
+class RunManifest(BaseModel):
     """A whole ``run.toml``. See docs/manifest.md."""
+
+    model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
 
     schema_version: Literal[1]
     unit: UnitSpec
