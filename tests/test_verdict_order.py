@@ -48,10 +48,9 @@ def judgements(archive: Archive) -> dict[str, dict[str, Any]]:
     now = queries.current_judgements(archive, list(current["run_id"]))
     out = {}
     for run_id in current["run_id"]:
-        steps = queries.run_summary(archive, run_id)["calibration"]["steps"]
-        group = next(s for s in steps if s["name"] == "check")["statistics"]
+        group = queries.run_summary(archive, run_id).calibration.step_statistics("check")
         # The device check passes alike when the unit's runs agree on its description.
-        checks = [c for c in now[run_id]["checks"] if not c["name"].startswith("device:")]
+        checks = [c for c in now[run_id]["checks"] if not c.name.startswith("device:")]
         out[day[run_id]] = {
             "verdict": now[run_id]["verdict"],
             "checks": checks,

@@ -50,12 +50,10 @@ def test_verify_reports_changed_and_missing_files(
     report = verify(archive)
     assert report.ok and report.orphans == []
     # 3 runs x 3 raw objects + 3 samples files, every byte read once.
-    raw = [f for i in ids for f in queries.run_summary(archive, i)["raw_files"]]
-    samples = [archive.root / queries.run_summary(archive, i)["samples_path"] for i in ids]
+    raw = [f for i in ids for f in queries.run_summary(archive, i).raw_files]
+    samples = [archive.root / queries.run_summary(archive, i).samples_path for i in ids]
     assert report.files_checked == len(raw) + len(samples) == 12
-    assert report.bytes_checked == sum(f["size"] for f in raw) + sum(
-        p.stat().st_size for p in samples
-    )
+    assert report.bytes_checked == sum(f.size for f in raw) + sum(p.stat().st_size for p in samples)
     res = cli(archive, "verify", monkeypatch=monkeypatch)
     assert res.exit_code == 0, res.output
 

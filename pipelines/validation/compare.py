@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from storage.db import Archive
+from storage.queries.records import RunSummary
 
 PEERS = ("imucal", "allantools")
 K_EXPANDED = 2.0  # E_n is taken with expanded uncertainties U = k u_c, k = 2 (metrology.md)
@@ -90,7 +91,7 @@ def validate_run(archive: Archive, run_id: str, peers: tuple[str, ...]) -> dict[
     return {
         "run_id": full,
         "revision": exported["revision"],
-        "procedure": summary["procedure"],
+        "procedure": summary.procedure,
         "peers": out,
     }
 
@@ -107,14 +108,14 @@ def validate_and_archive(archive: Archive, run_id: str, peers: tuple[str, ...]) 
     return doc
 
 
-def _imucal(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, list[str]]:
+def _imucal(ours: Any, loaded: Any, summary: RunSummary) -> tuple[list, list[str]]:
     """imucal against our archived parameters: every parameter both estimate."""
     from calib_core import params
     from pipelines.validation.peers import imucal_parameters, imucal_turn_uncertainty
 
     m = loaded.manifest
     turns = int(m.run.settings.get("turns", 1))
-    turntable = any(e["kind"] == "rate_table" for e in summary["equipment"])
+    turntable = any(e.kind == "rate_table" for e in summary.equipment)
     theirs = imucal_parameters(loaded.segments, m.gravity(), turns, turntable)
     u_theirs = imucal_turn_uncertainty(loaded.segments, m.gravity(), turns)
     rows = [
@@ -131,11 +132,11 @@ def _imucal(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, list
         "averages the three pairs (docs/validation.md)",
     ]
     if not rows:
-        raise ValueError(f"run {summary['run_id']}: no parameter both estimate")
+        raise ValueError(f"run {summary.run_id}: no parameter both estimate")
     return rows, notes
 
 
-def _allantools(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, list[str]]:
+def _allantools(ours: Any, loaded: Any, summary: RunSummary) -> tuple[list, list[str]]:
     """allantools' Allan deviation against ours, and the noise terms read from each."""
     from calib_core.nav_noise import nav_noise
     from calib_core.noise import AllanResult, noise_parameters, white_noise_edf
@@ -144,7 +145,7 @@ def _allantools(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, 
     info = ours.info
     if "allan" not in info or "noise_parameters" not in info:
         raise PeerCannotTreatError(
-            f"procedure {summary['procedure']} keeps no Allan deviation (a static-bias run does)"
+            f"procedure {summary.procedure} keeps no Allan deviation (a static-bias run does)"
         )
     if loaded.streamed is not None or len(loaded.segments) != 1:
         raise PeerCannotTreatError("allantools is compared on one static record held in memory")

@@ -176,7 +176,7 @@ def latest_calibration(
     )
     if as_of is not None:
         stmt = stmt.where(Run.started_at <= as_of)
-    from storage.queries.runs import _cal_dict  # here: `calib history` needs no run questions
+    from storage.queries.runs import revision_record  # here: `calib history` needs no run questions
 
     with Session(archive.engine()) as s:
         row = s.execute(stmt).one_or_none()
@@ -186,7 +186,7 @@ def latest_calibration(
             "run_id": row.run_id,
             "started_at": row.started_at,
             "serial": serial,
-            **_cal_dict(s, row.CalibrationRow),
+            **revision_record(s, row.CalibrationRow).to_dict(),
         }
 
 

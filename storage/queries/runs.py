@@ -26,6 +26,15 @@ from storage.queries._common import (
     reading,
     select_run_calibrations,
 )
+from storage.queries.records import (
+    EquipmentUse,
+    ParameterValue,
+    RawFile,
+    Revision,
+    RunSummary,
+    Step,
+    Unit,
+)
 from storage.schema import (
     CalibrationRow,
     CheckResultRow,
@@ -138,38 +147,26 @@ _STEPS_OF = (
 )  # fmt: skip
 
 
-def _cal_dict(s: Session, cal: CalibrationRow) -> dict[str, Any]:
+def revision_record(s: Session, cal: CalibrationRow) -> Revision:
+    """The revision `cal` with its parameters, checks and steps."""
+    from calib_core.calibration import CheckResult  # numpy: not for `calib audit`
+
     params = s.execute(
-        select(
-            ParameterRow.name,
-            *PARAMETER_VALUE,
-        )
+        select(ParameterRow.name, *PARAMETER_VALUE)
         .where(ParameterRow.calibration_id == cal.id)
         .order_by(ParameterRow.name, ParameterRow.temperature_c)
     ).all()
-    checks = s.execute(_CHECKS_OF, {"cal": cal.id}).all()
-    steps = s.execute(_STEPS_OF, {"cal": cal.id}).all()
-    return {
-        "calibration_id": cal.id,
-        "revision": cal.revision,
-        "created_at": cal.created_at,
+    return Revision(
+        calibration_id=cal.id,
+        revision=cal.revision,
+        created_at=cal.created_at,
         **_provenance(cal),
-        "superseded_by": cal.superseded_by,
-        "parameters": [_dict(p) for p in params],
-        "checks": [_dict(c) for c in checks],
-        "steps": [_dict(s) for s in steps],
-        "document": cal.document,
-    }
-
-
-def _device_dict(run: Run, dev: Device) -> dict[str, Any]:
-    """The unit as the run describes it (its own model, manufacturer, specification)."""
-    return {
-        "serial": dev.serial,
-        "model": run.model,
-        "manufacturer": run.manufacturer,
-        "specification": run.specification,
-    }
+        superseded_by=cal.superseded_by,
+        parameters=[ParameterValue(*p) for p in params],
+        checks=[CheckResult(*c) for c in s.execute(_CHECKS_OF, {"cal": cal.id})],
+        steps=[Step(*row) for row in s.execute(_STEPS_OF, {"cal": cal.id})],
+        document=cal.document,
+    )
 
 
 # A run's raw files (bound parameter "run": the run's primary key), by name.
@@ -179,9 +176,16 @@ _RAW_FILES = (
     .where(RawFileRow.run_id == bindparam("run"))
     .order_by(RawFileRow.name)
 )  # fmt: skip
+_EQUIPMENT_USED = (
+    select(Equipment.kind, Equipment.model, Equipment.serial, Equipment.accuracy_class,
+           RunEquipment.calibration_due, RunEquipment.calibrated_on)
+    .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
+    .where(RunEquipment.run_id == bindparam("run"))
+    .order_by(Equipment.kind, Equipment.serial)
+)  # fmt: skip
 
 
-def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
+def run_summary(archive: Archive, run_id: str) -> RunSummary:
     """Everything about one run and its current calibration revision.
 
     Parameters
@@ -191,8 +195,8 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
 
     Returns
     -------
-    dict with the run's fields, ``device``, ``equipment`` (with the due dates
-    valid at run time), ``raw_files``, ``revisions`` (count),
+    RunSummary (storage.queries.records): the run's fields, ``device``, ``equipment``
+    (with the due dates valid at run time), ``raw_files``, ``revisions`` (count),
     ``calibration`` (current revision: parameters, checks, steps, document) and
     ``validations`` (the current revision's validation records, storage.validation).
     Raises LookupError if there is no such run.
@@ -200,45 +204,30 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
     with Session(archive.engine()) as s:
         run, dev = _run_row(s, run_id)
         raw = s.execute(_RAW_FILES, {"run": run.id}).all()
-        equipment = s.execute(
-            select(
-                Equipment.kind,
-                Equipment.model,
-                Equipment.serial,
-                Equipment.accuracy_class,
-                RunEquipment.calibration_due,
-                RunEquipment.calibrated_on,
-            )
-            .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
-            .where(RunEquipment.run_id == run.id)
-            .order_by(Equipment.kind, Equipment.serial)
-        ).all()
-        revisions = s.execute(
-            select(CalibrationRow.revision).where(CalibrationRow.run_id == run.id)
-        ).all()
-        cal = _cal_dict(s, _calibration(s, run.id, None))
-    checked = validations(archive, run.run_id, cal["revision"])
-    return {
-        "run_id": run.run_id,
-        "started_at": run.started_at,
-        "operator": run.operator,
-        "procedure": run.procedure,
-        "site": run.site,
-        "gravity": run.gravity,
-        "environment": run.environment,
-        "tolerance_profile": run.tolerance_profile,
-        "raw_hash": run.raw_hash,
-        "run_dir": run.run_dir,
-        "samples_path": run.samples_path,
-        "manifest_text": run.manifest_text,
-        "created_at": run.created_at,
-        "device": _device_dict(run, dev),
-        "equipment": [_dict(e) for e in equipment],
-        "raw_files": [_dict(r) for r in raw],
-        "revisions": len(revisions),
-        "calibration": cal,
-        "validations": checked,
-    }
+        equipment = s.execute(_EQUIPMENT_USED, {"run": run.id}).all()
+        revisions = s.scalar(select(func.count()).where(CalibrationRow.run_id == run.id))
+        cal = revision_record(s, _calibration(s, run.id, None))
+    return RunSummary(
+        run_id=run.run_id,
+        started_at=run.started_at,
+        operator=run.operator,
+        procedure=run.procedure,
+        site=run.site,
+        gravity=run.gravity,
+        environment=run.environment,
+        tolerance_profile=run.tolerance_profile,
+        raw_hash=run.raw_hash,
+        run_dir=run.run_dir,
+        samples_path=run.samples_path,
+        manifest_text=run.manifest_text,
+        created_at=run.created_at,
+        device=Unit(dev.serial, run.model, run.manufacturer, run.specification),
+        equipment=[EquipmentUse(*e) for e in equipment],
+        raw_files=[RawFile(*r) for r in raw],
+        revisions=revisions,
+        calibration=cal,
+        validations=validations(archive, run.run_id, cal.revision),
+    )
 
 
 def export_calibration(
@@ -592,7 +581,7 @@ def calibration_revision(archive: Archive, run_id: str, revision: int) -> dict[s
         if row is None:
             return None
         head = {"run_id": row.run_id, "started_at": row.started_at, "serial": row.serial}
-        return {**head, **_cal_dict(s, row.CalibrationRow)}
+        return {**head, **revision_record(s, row.CalibrationRow).to_dict()}
 
 
 def _then(before_calibration: int | None) -> Any:
@@ -613,9 +602,11 @@ def judgement(archive: Archive, calibration_id: int) -> dict[str, Any]:
 
     Returns
     -------
-    dict: ``checks`` (name, value, limit, passed, detail, in the order written) and
-    ``check_step`` (settings, statistics; None for a revision without that step).
+    dict: ``checks`` (CheckResult, in the order written) and ``check_step`` (settings,
+    statistics; None for a revision without that step).
     """
+    from calib_core.calibration import CheckResult
+
     with Session(archive.engine()) as s:
         checks = s.execute(_CHECKS_OF, {"cal": calibration_id}).all()
         step = s.execute(
@@ -624,7 +615,7 @@ def judgement(archive: Archive, calibration_id: int) -> dict[str, Any]:
             )
         ).first()
     return {
-        "checks": [_dict(c) for c in checks],
+        "checks": [CheckResult(*c) for c in checks],
         "check_step": None if step is None else _dict(step),
     }
 
@@ -634,8 +625,10 @@ def current_judgements(archive: Archive, run_ids: list[str]) -> dict[str, dict[s
 
     Returns
     -------
-    run id -> {"verdict": str, "checks": [{name, value, limit, passed, detail}, ...]}.
+    run id -> {"verdict": str, "checks": [CheckResult, ...]}.
     """
+    from calib_core.calibration import CheckResult
+
     out: dict[str, dict[str, Any]] = {}
     with Session(archive.engine()) as s:
         for start in range(0, len(run_ids), IN_CHUNK):
@@ -654,12 +647,6 @@ def current_judgements(archive: Archive, run_ids: list[str]) -> dict[str, dict[s
                 judged = out.setdefault(r.run_id, {"verdict": r.verdict, "checks": []})
                 if r.name is not None:
                     judged["checks"].append(
-                        {
-                            "name": r.name,
-                            "value": r.value,
-                            "limit": r.limit,
-                            "passed": r.passed,
-                            "detail": r.detail,
-                        }
+                        CheckResult(r.name, r.value, r.limit, r.passed, r.detail)
                     )
     return out

@@ -1,0 +1,157 @@
+"""The typed records the run questions answer with (`runs.run_summary`): frozen
+dataclasses whose fields are the archive's columns, read by attribute; `to_dict` gives
+the JSON form (`calib show --json`), the fields in declaration order."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from datetime import date, datetime
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # numpy: not for `calib verify`, which reads validation records
+    from calib_core.calibration import CheckResult
+
+
+class Record:
+    """A record's JSON form: its fields (nested records too) as a dict, in order."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)  # type: ignore[call-overload]  # subclasses are dataclasses
+
+
+@dataclass(frozen=True)
+class Unit(Record):
+    """The unit as its run describes it (the run's own model, manufacturer, specification)."""
+
+    serial: str
+    model: str
+    manufacturer: str
+    specification: str | None
+
+
+@dataclass(frozen=True)
+class EquipmentUse(Record):
+    """A piece of equipment a run used, with its calibration dates as they were at the run."""
+
+    kind: str
+    model: str | None
+    serial: str
+    accuracy_class: str | None
+    calibration_due: date | None  # its last valid UTC day
+    calibrated_on: date | None
+
+
+@dataclass(frozen=True)
+class RawFile(Record):
+    """One raw file of a run as archived (`stored_path` relative to the archive root)."""
+
+    name: str
+    sha256: str
+    size: int
+    format: str
+    stored_path: str
+
+
+@dataclass(frozen=True)
+class ParameterValue(Record):
+    """One archived parameter value (SI; one per temperature when temperature-dependent)."""
+
+    name: str
+    value: float
+    std: float | None
+    unit: str
+    temperature_c: float | None
+
+
+@dataclass(frozen=True)
+class Step(Record):
+    """One processing step of a revision, in order (`seq`)."""
+
+    seq: int
+    name: str
+    settings: dict[str, Any]
+    statistics: dict[str, Any]
+    software_version: str
+    source_revision: str | None
+
+
+@dataclass(frozen=True)
+class Revision(Record):
+    """A calibration revision with its parameters, checks (in the order written), steps
+    and calibration document (`Calibration.to_dict`)."""
+
+    calibration_id: int
+    revision: int
+    created_at: datetime
+    settings_hash: str
+    settings: dict[str, Any] | None
+    software_version: str
+    source_revision: str | None
+    verdict: str
+    profile_name: str
+    profile_version: str
+    superseded_by: int | None  # the calibration id of the revision that replaced it
+    parameters: list[ParameterValue]
+    checks: list[CheckResult]
+    steps: list[Step]
+    document: dict[str, Any]
+
+    def step(self, name: str) -> Step | None:
+        """The step `name` (None when the revision has none: archived before it existed)."""
+        return next((s for s in self.steps if s.name == name), None)
+
+    def step_settings(self, name: str) -> dict[str, Any]:
+        """The settings of step `name` ({} without the step)."""
+        step = self.step(name)
+        return step.settings if step else {}
+
+    def step_statistics(self, name: str) -> dict[str, Any]:
+        """The statistics of step `name` ({} without the step)."""
+        step = self.step(name)
+        return step.statistics if step else {}
+
+    def budgets(self) -> dict[str, dict[str, Any]]:
+        """The GUM budgets by parameter (step "uncertainty"; {} for revisions before it)."""
+        return self.step_statistics("uncertainty").get("budgets", {})
+
+
+@dataclass(frozen=True)
+class Validation(Record):
+    """A validation record of a revision (`calib validate`, storage.validation)."""
+
+    id: int
+    created_at: datetime
+    software_version: str
+    revision: int
+    digest: str
+    document: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class RunSummary(Record):
+    """Everything about one run and its current calibration revision."""
+
+    run_id: str
+    started_at: datetime
+    operator: str | None
+    procedure: str
+    site: dict[str, Any] | None
+    gravity: float  # m/s^2
+    environment: dict[str, Any] | None
+    tolerance_profile: str | None
+    raw_hash: str
+    run_dir: str
+    samples_path: str | None
+    manifest_text: str | None
+    created_at: datetime
+    device: Unit
+    equipment: list[EquipmentUse]
+    raw_files: list[RawFile]
+    revisions: int  # how many the run has
+    calibration: Revision  # the current one
+    validations: list[Validation]  # of the current revision
+
+    @property
+    def temperature_c(self) -> float | None:
+        """The run's recorded ambient temperature (deg C), None if not recorded."""
+        return (self.environment or {}).get("temperature_c")
