@@ -9,7 +9,7 @@ is printed as "not recorded", never left out.
 
 from __future__ import annotations
 
-from datetime import UTC, date, datetime
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from pipelines.reports.render import Section
@@ -35,11 +35,6 @@ def _lab(lab: dict[str, Any] | None, table: str) -> dict[str, str]:
 def _text(entry: dict[str, str], *keys: str) -> str:
     said = [entry[k] for k in keys if entry.get(k)]
     return ", ".join(said) if said else NOT_RECORDED
-
-
-def issue_date() -> date:
-    """The date of issue: today (UTC)."""
-    return datetime.now(UTC).date()
 
 
 def deviations(procedure: str, settings: dict[str, Any]) -> str:
@@ -80,7 +75,7 @@ def administrative_section(archived: ArchivedRun) -> Section:
             ),
             ("Date of receipt", "not recorded"),
             ("Date of calibration", f"{run.started_at:%Y-%m-%d}"),
-            ("Date of issue", issue_date().isoformat()),
+            ("Date of issue", datetime.now(UTC).date().isoformat()),
             (
                 "Method",
                 f"procedure {run.procedure} (docs/procedures.md), "

@@ -1,6 +1,6 @@
-"""The typed records the run questions answer with (`runs.run_summary`): frozen
-dataclasses whose fields are the archive's columns, read by attribute; `to_dict` gives
-the JSON form (`calib show --json`), the fields in declaration order."""
+"""The typed records of a run's summary (`runs.run_summary`): frozen dataclasses whose
+fields are the archive's columns, read by attribute; `to_dict` is their JSON form
+(`calib show --json`), fields in declaration order. Checks are calib_core's CheckResult."""
 
 from __future__ import annotations
 
@@ -13,9 +13,8 @@ if TYPE_CHECKING:  # numpy: not for `calib verify`, which reads validation recor
 
 
 class Record:
-    """A record's JSON form: its fields (nested records too) as a dict, in order."""
-
     def to_dict(self) -> dict[str, Any]:
+        """The fields (nested records too) as a dict, in order."""
         return asdict(self)  # type: ignore[call-overload]  # subclasses are dataclasses
 
 
@@ -31,30 +30,30 @@ class Unit(Record):
 
 @dataclass(frozen=True)
 class EquipmentUse(Record):
-    """A piece of equipment a run used, with its calibration dates as they were at the run."""
+    """Equipment a run used, its calibration dates as they were at the run (due: last day)."""
 
     kind: str
     model: str | None
     serial: str
     accuracy_class: str | None
-    calibration_due: date | None  # its last valid UTC day
+    calibration_due: date | None
     calibrated_on: date | None
 
 
 @dataclass(frozen=True)
 class RawFile(Record):
-    """One raw file of a run as archived (`stored_path` relative to the archive root)."""
+    """A raw file of a run (`stored_path` relative to the archive root)."""
 
     name: str
     sha256: str
-    size: int
+    size: int  # bytes
     format: str
     stored_path: str
 
 
 @dataclass(frozen=True)
 class ParameterValue(Record):
-    """One archived parameter value (SI; one per temperature when temperature-dependent)."""
+    """An archived parameter value (SI; one per temperature when temperature-dependent)."""
 
     name: str
     value: float
@@ -65,7 +64,7 @@ class ParameterValue(Record):
 
 @dataclass(frozen=True)
 class Step(Record):
-    """One processing step of a revision, in order (`seq`)."""
+    """A processing step of a revision, in order (`seq`)."""
 
     seq: int
     name: str
@@ -77,8 +76,8 @@ class Step(Record):
 
 @dataclass(frozen=True)
 class Revision(Record):
-    """A calibration revision with its parameters, checks (in the order written), steps
-    and calibration document (`Calibration.to_dict`)."""
+    """A calibration revision: what made and judged it, its parameters, checks (in the
+    order written), steps and calibration document (`Calibration.to_dict`)."""
 
     calibration_id: int
     revision: int
@@ -90,25 +89,23 @@ class Revision(Record):
     verdict: str
     profile_name: str
     profile_version: str
-    superseded_by: int | None  # the calibration id of the revision that replaced it
+    superseded_by: int | None  # calibration id of the revision that replaced it
     parameters: list[ParameterValue]
     checks: list[CheckResult]
     steps: list[Step]
     document: dict[str, Any]
 
     def step(self, name: str) -> Step | None:
-        """The step `name` (None when the revision has none: archived before it existed)."""
+        """The step `name`; None when the revision has none (archived before it existed)."""
         return next((s for s in self.steps if s.name == name), None)
 
     def step_settings(self, name: str) -> dict[str, Any]:
-        """The settings of step `name` ({} without the step)."""
-        step = self.step(name)
-        return step.settings if step else {}
+        """The settings of step `name` ({} without it)."""
+        return step.settings if (step := self.step(name)) else {}
 
     def step_statistics(self, name: str) -> dict[str, Any]:
-        """The statistics of step `name` ({} without the step)."""
-        step = self.step(name)
-        return step.statistics if step else {}
+        """The statistics of step `name` ({} without it)."""
+        return step.statistics if (step := self.step(name)) else {}
 
     def budgets(self) -> dict[str, dict[str, Any]]:
         """The GUM budgets by parameter (step "uncertainty"; {} for revisions before it)."""
@@ -153,5 +150,5 @@ class RunSummary(Record):
 
     @property
     def temperature_c(self) -> float | None:
-        """The run's recorded ambient temperature (deg C), None if not recorded."""
+        """The run's recorded lab temperature (deg C), None if not recorded."""
         return (self.environment or {}).get("temperature_c")

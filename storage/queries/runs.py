@@ -185,6 +185,12 @@ _EQUIPMENT_USED = (
 )  # fmt: skip
 
 
+# The columns of a run that its summary gives as they are (RunSummary's first fields).
+_RUN_COLUMNS = ("run_id", "started_at", "operator", "procedure", "site", "gravity",
+                "environment", "tolerance_profile", "raw_hash", "run_dir", "samples_path",
+                "manifest_text", "created_at")  # fmt: skip
+
+
 def run_summary(archive: Archive, run_id: str) -> RunSummary:
     """Everything about one run and its current calibration revision.
 
@@ -208,19 +214,7 @@ def run_summary(archive: Archive, run_id: str) -> RunSummary:
         revisions = s.scalar(select(func.count()).where(CalibrationRow.run_id == run.id))
         cal = revision_record(s, _calibration(s, run.id, None))
     return RunSummary(
-        run_id=run.run_id,
-        started_at=run.started_at,
-        operator=run.operator,
-        procedure=run.procedure,
-        site=run.site,
-        gravity=run.gravity,
-        environment=run.environment,
-        tolerance_profile=run.tolerance_profile,
-        raw_hash=run.raw_hash,
-        run_dir=run.run_dir,
-        samples_path=run.samples_path,
-        manifest_text=run.manifest_text,
-        created_at=run.created_at,
+        **{k: getattr(run, k) for k in _RUN_COLUMNS},
         device=Unit(dev.serial, run.model, run.manufacturer, run.specification),
         equipment=[EquipmentUse(*e) for e in equipment],
         raw_files=[RawFile(*r) for r in raw],
@@ -334,13 +328,8 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
 
 
 _LIN_HEAD = {True: _lineage_head(True), False: _lineage_head(False)}
-_LIN_EQUIPMENT = (
-    select(Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class,
-           RunEquipment.calibrated_on, RunEquipment.calibration_due)
-    .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
-    .where(RunEquipment.run_id == bindparam("run"))
-    .order_by(Equipment.kind, Equipment.serial)
-)  # fmt: skip
+# A lineage's equipment fields, in its order.
+_LIN_EQUIPMENT = ("kind", "serial", "model", "accuracy_class", "calibrated_on", "calibration_due")
 
 
 def lineage(
@@ -392,7 +381,7 @@ def lineage(
             raise LookupError(f"run {run_id} revision {head.revision} has no parameter {name!r}")
         raw = conn.execute(_RAW_FILES, {"run": head.run_pk}).all()
         steps = conn.execute(_STEPS_OF, {"cal": head.cal_id}).all()
-        equipment = conn.execute(_LIN_EQUIPMENT, {"run": head.run_pk}).all()
+        equipment = conn.execute(_EQUIPMENT_USED, {"run": head.run_pk}).all()
     started = head.started_at
     return {
         "parameter": {
@@ -434,7 +423,10 @@ def lineage(
         },
         "raw_files": [_dict(r) for r in raw],
         "steps": [_dict(s) for s in steps],
-        "equipment": [{**_dict(e), **_validity(started, e.calibration_due)} for e in equipment],
+        "equipment": [
+            {**{k: getattr(e, k) for k in _LIN_EQUIPMENT}, **_validity(started, e.calibration_due)}
+            for e in equipment
+        ],
     }
 
 
