@@ -100,7 +100,7 @@ def test_in_process_any_order_gives_the_verdicts_of_time_order(tmp_path: Path) -
             archive.dispose()
     assert seen["reversed"] == seen["time"] and seen["shuffled"] == seen["time"]
     # the drifting bias is what does not repeat
-    failed = {c["name"] for c in seen["time"]["2026-11-03"]["checks"] if not c["passed"]}
+    failed = {c.name for c in seen["time"]["2026-11-03"]["checks"] if not c.passed}
     assert {n for n in failed if n.startswith("repeat:")} == {"repeat:acc.bias.z"}
 
 

@@ -58,7 +58,7 @@ def test_verify_reports_changed_and_missing_files(
     assert res.exit_code == 0, res.output
 
     # Tamper with one raw object (one byte flipped) and remove one samples file.
-    victim = archive.root / raw[4]["stored_path"]
+    victim = archive.root / raw[4].stored_path
     data = bytearray(victim.read_bytes())
     data[10] ^= 0x01
     victim.write_bytes(bytes(data))
@@ -67,9 +67,9 @@ def test_verify_reports_changed_and_missing_files(
     assert not report.ok
     by_kind = {p.kind: p for p in report.problems}
     assert set(by_kind) == {"mismatch", "missing"}
-    assert by_kind["mismatch"].path == raw[4]["stored_path"]
+    assert by_kind["mismatch"].path == raw[4].stored_path
     assert by_kind["mismatch"].runs == [ids[1]]
-    assert raw[4]["sha256"] in by_kind["mismatch"].detail
+    assert raw[4].sha256 in by_kind["mismatch"].detail
     assert by_kind["missing"].path == samples[2].relative_to(archive.root).as_posix()
     assert by_kind["missing"].runs == [ids[2]]
 
