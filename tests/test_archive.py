@@ -399,11 +399,11 @@ def test_latest_valid_calibration_as_of_a_date(archive: Archive, tmp_path: Path)
     )
 
     assert queries.latest_calibration(archive, "0012", t0 - timedelta(seconds=1)) is None
-    assert queries.latest_calibration(archive, "0012", t0)["run_id"] == jan.run_id
-    assert queries.latest_calibration(archive, "0012", t0 + timedelta(40))["run_id"] == feb.run_id
+    assert queries.latest_calibration(archive, "0012", t0).run_id == jan.run_id
+    assert queries.latest_calibration(archive, "0012", t0 + timedelta(40)).run_id == feb.run_id
     latest = queries.latest_calibration(archive, "0012")  # the failed March run does not count
-    assert latest["run_id"] == feb.run_id and latest["verdict"] == "pass"
-    assert len(latest["parameters"]) == 4
+    assert latest.run_id == feb.run_id and latest.verdict == "pass"
+    assert len(latest.parameters) == 4
     assert queries.latest_calibration(archive, "no-such-unit") is None
     with pytest.raises(ValueError, match="as_of"):
         queries.latest_calibration(archive, "0012", datetime(2024, 1, 1))

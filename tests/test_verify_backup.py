@@ -78,7 +78,7 @@ def test_verify_reports_changed_and_missing_files(
     doc = json.loads(res.stdout)
     assert doc["ok"] is False and len(doc["problems"]) == 2
     res = cli(archive, "verify", monkeypatch=monkeypatch)
-    assert res.exit_code == 1 and "MISMATCH" in res.stdout and raw[4]["stored_path"] in res.stdout
+    assert res.exit_code == 1 and "MISMATCH" in res.stdout and raw[4].stored_path in res.stdout
 
 
 def test_verify_finds_broken_database_invariants(archive: Archive, tmp_path: Path) -> None:

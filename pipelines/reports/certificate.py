@@ -72,7 +72,7 @@ from pipelines.reports.validation import validation_sections
 if TYPE_CHECKING:
     from calib_core.calibration import CheckResult
     from pipelines.reports.run_reports import ArchivedRun
-    from storage.queries.records import Revision, RunSummary
+    from storage.queries.records import DatedRevision, Revision, RunSummary
 
 
 def _fmt(value: float | None, digits: int = 5) -> str:
@@ -551,9 +551,9 @@ def _as_found_evaluated(said: dict[str, Any], stats: dict[str, Any]) -> Section:
     )
 
 
-def _as_found_difference(run: _Archived, earlier: dict[str, Any]) -> Section:
+def _as_found_difference(run: _Archived, earlier: DatedRevision) -> Section:
     """As found for runs archived before the step "as_found": as left - as found."""
-    before = {p["name"]: p["value"] for p in earlier["parameters"]}
+    before = {p.name: p.value for p in earlier.parameters}
     budgets = run.calrow.budgets()
     rows = []
     for p in run.calrow.parameters:
@@ -569,8 +569,8 @@ def _as_found_difference(run: _Archived, earlier: dict[str, Any]) -> Section:
         header=AS_FOUND_HEADER,
         rows=rows,
         paragraphs=[
-            f"As found: the unit with its earlier calibration (run {earlier['run_id']} of "
-            f"{earlier['started_at']:%Y-%m-%d}, revision {earlier['revision']}). This run was "
+            f"As found: the unit with its earlier calibration (run {earlier.run_id} of "
+            f"{earlier.started_at:%Y-%m-%d}, revision {earlier.revision}). This run was "
             "archived before as-found evaluation: the error as found is the first-order "
             "difference as left - as found, judged against the tolerance with this run's U by the "
             "decision rule. As left: this calibration, to be loaded into the unit."

@@ -19,7 +19,7 @@ from pipelines.reports.certificate import sections
 from pipelines.reports.navigation import navigation_data
 from pipelines.reports.render import Certificate, render_html
 from pipelines.reports.typeset import render_pdf
-from storage.queries.records import RunSummary
+from storage.queries.records import DatedRevision, RunSummary
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,7 @@ class ArchivedRun:
     run: RunSummary  # storage.queries.run_summary
     lab: dict[str, Any] | None = None  # the lab profile (pipelines.lab), None without one
     recall: dict[str, Any] | None = None  # the unit's interval (pipelines.recall), passed runs
-    as_found: dict[str, Any] | None = None  # its latest valid calibration before this run
+    as_found: DatedRevision | None = None  # its latest valid calibration before this run
     chain_head: tuple[int, str] | None = None  # (seq, hash) of the audit chain at issue
     navigation: list[dict[str, Any]] = field(default_factory=list)  # lab.toml [navigation]
     issue: int = 1  # the issue number (pipelines.reports.issue)

@@ -225,14 +225,11 @@ def _unit_profile(series: dict[str, Series], serial: str, archive) -> ToleranceP
     from calib_core.tolerances import ToleranceProfile
 
     latest = queries.latest_calibration(archive, serial)
-    if latest is not None:
-        step = next((s for s in latest["steps"] if s["name"] == "check"), {})
-        doc = (step.get("settings") or {}).get("thresholds")
-        if doc:
-            try:
-                return ToleranceProfile.from_dict(doc)
-            except (ValueError, KeyError, TypeError):
-                pass
+    if latest is not None and (doc := latest.step_settings("check").get("thresholds")):
+        try:
+            return ToleranceProfile.from_dict(doc)
+        except (ValueError, KeyError, TypeError):
+            pass
     names = [r["profile_name"] for s in series.values() for r in s.rows[-1:]]
     return _profile(names[-1] if names else None)
 

@@ -113,6 +113,15 @@ class Revision(Record):
 
 
 @dataclass(frozen=True)
+class DatedRevision(Revision):
+    """A revision with its run and unit (`latest_calibration`, `calibration_revision`)."""
+
+    run_id: str
+    started_at: datetime
+    serial: str
+
+
+@dataclass(frozen=True)
 class Validation(Record):
     """A validation record of a revision (`calib validate`, storage.validation)."""
 

@@ -27,6 +27,7 @@ from storage.queries._common import (
     select_run_calibrations,
 )
 from storage.queries.records import (
+    DatedRevision,
     EquipmentUse,
     ParameterValue,
     RawFile,
@@ -147,8 +148,9 @@ _STEPS_OF = (
 )  # fmt: skip
 
 
-def revision_record(s: Session, cal: CalibrationRow) -> Revision:
-    """The revision `cal` with its parameters, checks and steps."""
+def revision_record(s: Session, cal: CalibrationRow, **run: Any) -> Revision:
+    """The revision `cal` with its parameters, checks and steps; given its `run` (run_id,
+    started_at, serial), a DatedRevision."""
     from calib_core.calibration import CheckResult  # numpy: not for `calib audit`
 
     params = s.execute(
@@ -156,7 +158,8 @@ def revision_record(s: Session, cal: CalibrationRow) -> Revision:
         .where(ParameterRow.calibration_id == cal.id)
         .order_by(ParameterRow.name, ParameterRow.temperature_c)
     ).all()
-    return Revision(
+    return (DatedRevision if run else Revision)(
+        **run,
         calibration_id=cal.id,
         revision=cal.revision,
         created_at=cal.created_at,
@@ -527,9 +530,8 @@ def repeatability_candidates(
     ]
 
 
-def calibration_revision(archive: Archive, run_id: str, revision: int) -> dict[str, Any] | None:
-    """One revision of a run, in the form of `storage.queries.latest_calibration` (run_id,
-    started_at, serial and the calibration fields); None when there is no such revision."""
+def calibration_revision(archive: Archive, run_id: str, revision: int) -> DatedRevision | None:
+    """One revision of a run with its run and unit; None when there is no such revision."""
     with Session(archive.engine()) as s:
         row = s.execute(
             select(Run.run_id, Run.started_at, Device.serial, CalibrationRow)
@@ -540,7 +542,7 @@ def calibration_revision(archive: Archive, run_id: str, revision: int) -> dict[s
         if row is None:
             return None
         head = {"run_id": row.run_id, "started_at": row.started_at, "serial": row.serial}
-        return {**head, **revision_record(s, row.CalibrationRow).to_dict()}
+        return revision_record(s, row.CalibrationRow, **head)
 
 
 def _then(before_calibration: int | None) -> Any:
