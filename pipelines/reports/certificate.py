@@ -59,11 +59,7 @@ from pipelines.reports.display import (
     uncertainty,
 )
 from pipelines.reports.navigation import navigation_sections
-from pipelines.reports.protocol import (
-    guard_band_of,
-    render_protocol,
-    verdict_of,
-)
+from pipelines.reports.protocol import guard_band_of, param_checks, render_protocol, verdict_of
 from pipelines.reports.recommendations import recommendations
 from pipelines.reports.render import Certificate, Section
 from pipelines.reports.signatures import signatures_section
@@ -364,13 +360,8 @@ def _procedure_section(run: _Archived) -> Section:
     )
 
 
-def _by_param(run: _Archived) -> dict[str, CheckResult]:
-    """The parameter checks by parameter name."""
-    return {c.name.removeprefix("param:"): c for c in run.checks if c.name.startswith("param:")}
-
-
 def _results_section(run: _Archived) -> Section:
-    by_param = _by_param(run)
+    by_param = param_checks(run.checks)
     res_rows = []
     for p in run.calrow.parameters:
         s = shown(p.name, p.value, p.std)  # u to two digits, the value to its place
@@ -395,7 +386,7 @@ def _decision_rule(run: _Archived) -> str:
 
 def _uncertainty_section(run: _Archived) -> Section:
     budgets = run.calrow.budgets()
-    by_param = _by_param(run)
+    by_param = param_checks(run.checks)
     rows = []
     for name, b in budgets.items():
         s = shown(name, b["value"], b["U"])  # U to two digits, the value to its place

@@ -93,7 +93,7 @@ def render_protocol(
         listed beside the verdict.
     """
     checks = list(checks)
-    by_param = {c.name.removeprefix("param:"): c for c in checks if c.name.startswith("param:")}
+    by_param = param_checks(checks)
     lines = [
         "IMU CALIBRATION TEST PROTOCOL",
         _RULE,
@@ -151,6 +151,11 @@ def render_protocol(
         "",
     ]
     return "\n".join(lines)
+
+
+def param_checks(checks: Iterable[CheckResult]) -> dict[str, CheckResult]:
+    """The parameter checks (``param:<name>``) by parameter name."""
+    return {c.name.removeprefix("param:"): c for c in checks if c.name.startswith("param:")}
 
 
 def verdict_of(check: CheckResult | None) -> str:

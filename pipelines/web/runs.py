@@ -92,7 +92,7 @@ def _run_id(run_id: str) -> str:
     return forms.checked(check_safe_name, run_id, "run id")
 
 
-def _thresholds(cal: Revision) -> ToleranceProfile | None:
+def archived_thresholds(cal: Revision) -> ToleranceProfile | None:
     """The tolerance profile archived with the verdict (the check step's settings)."""
     from calib_core.tolerances import ToleranceProfile
 
@@ -140,7 +140,7 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
     ]
     from calib_core.condition_rules import status as condition_status
 
-    profile = _thresholds(cal)
+    profile = archived_thresholds(cal)
     residuals = cal.document.get("residuals") or []
     limits = profile.residual_limits if profile else {}
     charts = [svg.residual_chart(residuals, s, *RESIDUAL_UNITS[s], limits) for s in ("acc", "gyr")]

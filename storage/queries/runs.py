@@ -109,15 +109,8 @@ def _calibration(s: Session, run_pk: int, revision: int | None) -> CalibrationRo
     return cal
 
 
-_PROVENANCE = (
-    "settings_hash",
-    "settings",
-    "software_version",
-    "source_revision",
-    "verdict",
-    "profile_name",
-    "profile_version",
-)
+_PROVENANCE = ("settings_hash", "settings", "software_version", "source_revision", "verdict",
+               "profile_name", "profile_version")  # fmt: skip
 
 
 def _provenance(cal: Any) -> dict[str, Any]:
@@ -127,13 +120,8 @@ def _provenance(cal: Any) -> dict[str, Any]:
 
 
 # A revision's checks in the order written, its steps in order (calibration id ``cal``).
-CHECK_COLUMNS = (
-    CheckResultRow.name,
-    CheckResultRow.value,
-    CheckResultRow.limit,
-    CheckResultRow.passed,
-    CheckResultRow.detail,
-)
+CHECK_COLUMNS = (CheckResultRow.name, CheckResultRow.value, CheckResultRow.limit,
+                 CheckResultRow.passed, CheckResultRow.detail)  # fmt: skip
 _CHECKS_OF = (
     select(*CHECK_COLUMNS)
     .where(CheckResultRow.calibration_id == bindparam("cal"))
@@ -594,11 +582,7 @@ def current_judgements(archive: Archive, run_ids: list[str]) -> dict[str, dict[s
     with Session(archive.engine()) as s:
         for start in range(0, len(run_ids), IN_CHUNK):
             rows = s.execute(
-                select(
-                    Run.run_id,
-                    CalibrationRow.verdict,
-                    *CHECK_COLUMNS,
-                )
+                select(Run.run_id, CalibrationRow.verdict, *CHECK_COLUMNS)
                 .join(CalibrationRow, CalibrationRow.run_id == Run.id)
                 .outerjoin(CheckResultRow, CheckResultRow.calibration_id == CalibrationRow.id)
                 .where(Run.run_id.in_(run_ids[start : start + IN_CHUNK]), CURRENT)
