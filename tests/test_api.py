@@ -146,5 +146,5 @@ def test_judge_lists_the_checks_every_view_of_the_run_counts(tmp_path, monkeypat
     assert status(device) == "not judged" and "needs the archive" in device.detail
     assert not counts_against_verdict(device)
     judged = {c.name: c for c in before}["device:description"]
-    assert judged.passed and judged.detail == {c["name"]: c for c in kept}[judged.name]["detail"]
+    assert judged.passed and judged.detail == {c.name: c for c in kept}[judged.name].detail
     assert calib_core.overall_verdict(alone) == calib_core.overall_verdict(before)
