@@ -1,5 +1,6 @@
-"""Questions asked of the archive, answered as dicts and pandas DataFrames; one module
-per kind of question:
+"""Questions asked of the archive, answered as typed records (`records`: a run's summary
+and a revision, frozen dataclasses), dicts and pandas DataFrames; one module per kind of
+question:
 
 - `runs`: one run's summary, export, the lineage of a value, samples, repeatability group,
   how a revision was judged;
