@@ -41,7 +41,7 @@ class EquipmentUse(Record):
 
 
 @dataclass(frozen=True)
-class RawFile(Record):
+class ArchivedFile(Record):
     """A raw file of a run (`stored_path` relative to the archive root)."""
 
     name: str
@@ -152,7 +152,7 @@ class RunSummary(Record):
     created_at: datetime
     device: Unit
     equipment: list[EquipmentUse]
-    raw_files: list[RawFile]
+    raw_files: list[ArchivedFile]
     revisions: int  # how many the run has
     calibration: Revision  # the current one
     validations: list[Validation]  # of the current revision

@@ -27,10 +27,10 @@ from storage.queries._common import (
     select_run_calibrations,
 )
 from storage.queries.records import (
+    ArchivedFile,
     DatedRevision,
     EquipmentUse,
     ParameterValue,
-    RawFile,
     Revision,
     RunSummary,
     Step,
@@ -208,7 +208,7 @@ def run_summary(archive: Archive, run_id: str) -> RunSummary:
         **{k: getattr(run, k) for k in _RUN_COLUMNS},
         device=Unit(dev.serial, run.model, run.manufacturer, run.specification),
         equipment=[EquipmentUse(*e) for e in equipment],
-        raw_files=[RawFile(*r) for r in raw],
+        raw_files=[ArchivedFile(*r) for r in raw],
         revisions=revisions,
         calibration=cal,
         validations=validations(archive, run.run_id, cal.revision),
