@@ -3,7 +3,8 @@ design with known truth, its noisy replicates and its noise-free model.
 
 Support code, never installed: the simulator (`calib_core.simulate`) is test and benchmark
 equipment, not part of the product. The product's scoring (`pipelines.validation.benchmark`)
-takes `design` as an argument; benchmarks/validation_set.py and the tests pass it.
+takes `design` as an argument, found at run time by `calib validate --benchmark` through the
+entry point group imu_calib.benchmark_cases (pyproject.toml) or `--cases`.
 
 A `Design` holds the truth (theta: every parameter the data depend on, canonical names,
 SI), how to draw one replicate (segments as the procedure takes them, noisy, with spikes

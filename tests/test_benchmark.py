@@ -1,11 +1,12 @@
 """The ground-truth benchmark: the Cramer-Rao bound of a design, the scores against it, and
-benchmarks/validation_set.py on the reduced set (its JSON, its report read back as HTML words
-and PDF text)."""
+`calib validate --benchmark` on the reduced set (its JSON, its report read back as HTML words
+and PDF text); the cases' provider found at run time, or the command saying what to do."""
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,8 +15,9 @@ import numpy as np
 import pytest
 
 from calib_core import crlb
+from calib_testing import benchmark_cases
 from calib_testing.documents import html_words, pdf_pages
-from pipelines.validation import benchmark
+from pipelines.validation import benchmark, cases
 from pipelines.validation.benchmark_sessions import run_sessions
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -105,19 +107,32 @@ def test_a_bad_set_names_file_and_field(tmp_path):
         benchmark.load_set(path)
 
 
+PROVIDER = "calib_testing.benchmark_cases"
+
+
+def _calib(args: list[str], pythonpath: Path, cwd: Path) -> subprocess.CompletedProcess:
+    """The CLI in its own process, with `pythonpath` first on the path."""
+    env = {**os.environ, "PYTHONPATH": str(pythonpath), "COLUMNS": "200"}
+    cmd = [sys.executable, "-m", "pipelines.cli", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env, cwd=cwd)
+
+
 @pytest.fixture(scope="module")
 def reduced(tmp_path_factory):
-    """benchmarks/validation_set.py, the benchmark's entry, on the reduced set."""
+    """`calib validate --benchmark --reduced --json`, from the checkout, on the reduced set.
+    The provider is named (--cases): the installed metadata's entry point is that of the
+    last editable install, which need not be this tree's."""
     out = tmp_path_factory.mktemp("benchmark")
-    script = ROOT / "benchmarks" / "validation_set.py"
-    args = [sys.executable, str(script), "--reduced", "--workers", "1", "--out", str(out)]
-    res = subprocess.run(args, capture_output=True, text=True, timeout=900, check=False)
+    args = ["validate", "--benchmark", "--reduced", "--json", "--out", str(out)]
+    res = _calib([*args, "--cases", PROVIDER], ROOT, ROOT)
     assert res.returncode == 0, res.stderr
-    return json.loads(res.stdout.strip().splitlines()[-1]), out
+    return json.loads(res.stdout), out
 
 
 def test_reduced_benchmark_prints_each_procedure(reduced):
-    doc, _ = reduced
+    doc, out = reduced
+    assert doc["report"] == {k: str(out / f"benchmark.{k}") for k in ("json", "html", "pdf")}
+    assert doc["cases_provider"] == f"--cases = {PROVIDER}:design"
     cases = benchmark.load_set()["cases"]
     assert set(doc["procedures"]) == {c["procedure"] for c in cases if c["reduced_replicates"]}
     assert doc["set"]["version"] == benchmark.load_set()["version"] and doc["reduced"] is True
@@ -144,6 +159,37 @@ def test_reduced_benchmark_report_is_readable(reduced):
             assert case["id"] in source
     eff = full["procedures"]["six_position"]["efficiency_vs_crlb"]
     assert f"{eff:.3g}" in text
+
+
+def test_without_a_provider_the_command_says_what_to_do(tmp_path):
+    """Outside a checkout (the product's packages alone on the path, as a wheel installs
+    them) the cases cannot be found: exit 2 and where to run it; a --cases module that does
+    not exist is named."""
+    product = tmp_path / "site"
+    product.mkdir()
+    for pkg in ("calib_core", "storage", "pipelines"):
+        (product / pkg).symlink_to(ROOT / pkg)
+    res = _calib(["validate", "--benchmark", "--json", "--out", str(tmp_path)], product, tmp_path)
+    assert res.returncode == 2, res.stdout + res.stderr
+    message = " ".join(res.stderr.split())
+    assert "PYTHONPATH=. calib validate --benchmark" in message, message
+    assert "imu_calib.benchmark_cases" in message and res.stdout == ""
+    assert not (tmp_path / "benchmark.json").exists()
+    bad = _calib(["validate", "--benchmark", "--cases", "no_such_cases"], product, tmp_path)
+    assert bad.returncode == 2 and "no_such_cases:design cannot be loaded" in bad.stderr
+
+
+def test_the_entry_point_group_finds_a_declared_provider(tmp_path, monkeypatch):
+    """A distribution declaring the group (its metadata on the path, read by
+    importlib.metadata as for any installed package) is the provider without --cases."""
+    dist = tmp_path / "bench_cases-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: bench-cases\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text(f"[{cases.GROUP}]\ncheckout = {PROVIDER}:design\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    name, provider = cases.find_provider(None)
+    assert name == f"checkout = {PROVIDER}:design"
+    assert provider is benchmark_cases.design
 
 
 REALDATA = ROOT.parent / "shared" / "realdata"

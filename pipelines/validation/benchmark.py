@@ -1,5 +1,5 @@
 """Ground-truth benchmark, the pipeline glue: the versioned set (benchmark_set.json) run on
-the installed software and scored (benchmarks/validation_set.py, docs/validation.md).
+the installed software and scored (`calib validate --benchmark`, docs/validation.md).
 
 Each simulated case is solved as a lab runs it: the preprocessing chain, the procedure's
 solve and its budget (no equipment stated: Type A, k from its degrees of freedom). Its
@@ -148,6 +148,43 @@ def run_benchmark(
         "peers": peers_note(),
         "seconds": round(time.perf_counter() - start, 2),
     }
+
+
+def run_and_report(
+    cases: str | None,
+    *,
+    set_file: Path | None = None,
+    reduced: bool = False,
+    workers: int = 1,
+    out: Path | None = None,
+    realdata: Path | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """`calib validate --benchmark`: the set run with the cases' provider, the report written.
+
+    Parameters
+    ----------
+    cases : `--cases` MODULE[:NAME], or None for the entry point group's provider
+        (`pipelines.validation.cases`).
+    set_file : a set in place of the versioned one (`SET_FILE`).
+    out : folder of the report (benchmark.json, .html, .pdf); None: not written.
+    Others as `run_benchmark`.
+
+    Returns the benchmark's document without its cases' tables, with `cases_provider` and
+    `report` (kind -> path written). Raises `cases.NoProviderError` or ValueError (a bad set).
+    """
+    from pipelines.validation import cases as providers
+    from pipelines.validation.benchmark_report import write_report
+
+    provider_name, make_design = providers.find_provider(cases)
+    set_doc = load_set(set_file) if set_file else load_set()
+    doc = run_benchmark(
+        set_doc, make_design, reduced=reduced, workers=workers, progress=progress, realdata=realdata
+    )
+    written = write_report(doc, out) if out else {}
+    summary = {k: v for k, v in doc.items() if k != "cases"}
+    paths = {k: str(v) for k, v in written.items()}
+    return {**summary, "cases_provider": provider_name, "report": paths}
 
 
 def peers_note() -> str:
