@@ -66,13 +66,18 @@ DesignOf = Callable[[Mapping[str, Any]], Any]
 def run_case(case: Mapping[str, Any], replicates: int, make_design: DesignOf) -> dict[str, Any]:
     """Score one simulated case over `replicates` replicates of `make_design(case)`.
 
-    Returns the case's document: id, procedure, replicates, the CRLB's parameters, per
-    parameter scores (`calib_core.crlb.ParameterScore`), the summary and the seconds taken.
+    Returns the case's document: id, procedure, the condition it stresses (None: the
+    procedure's model holds), replicates, per parameter scores
+    (`calib_core.crlb.ParameterScore`; no efficiency where the bound is not derived or the
+    case is a condition's), the summary and the seconds taken.
     """
     start = time.perf_counter()
     design = make_design(case)
-    names, info = crlb.fisher_information(design.model, design.theta, design.steps)
-    bound = dict(zip(names, crlb.crlb_variances(info), strict=True))
+    bound: dict[str, float] = {}
+    if design.condition is None:  # a case beyond the model is judged by coverage alone
+        model_theta = design.theta if design.bounded is None else design.bounded
+        names, info = crlb.fisher_information(design.model, model_theta, design.steps)
+        bound = dict(zip(names, crlb.crlb_variances(info), strict=True))
     truth = {**design.theta, **design.noise}
     runs = [_replicate(design, case["procedure"], int(case["seed"]), i) for i in range(replicates)]
     scored = [n for n in runs[0] if n in truth] if runs else []
@@ -85,6 +90,7 @@ def run_case(case: Mapping[str, Any], replicates: int, make_design: DesignOf) ->
         "id": case["id"],
         "procedure": case["procedure"],
         "simulator": case["simulator"],
+        "condition": design.condition,
         "replicates": replicates,
         "summary": crlb.summarise(scores),
         "parameters": [s.to_dict() for s in scores],
@@ -144,6 +150,7 @@ def run_benchmark(
         "targets": set_doc["targets"],
         "cases": cases,
         "procedures": by_procedure(cases, set_doc["targets"]),
+        "conditions": conditions(cases),
         "sessions": run_sessions(set_doc, realdata),
         "peers": peers_note(),
         "seconds": round(time.perf_counter() - start, 2),
@@ -209,8 +216,10 @@ def by_procedure(
 ) -> dict[str, dict[str, Any]]:
     """Per procedure: the median efficiency and the pooled coverage over its cases'
     parameters, the replicates behind them and whether they meet the set's targets (the
-    `--json` summary)."""
+    `--json` summary). The cases of a condition (a drifting truth) are left out: they
+    are shown by `conditions`."""
     out: dict[str, dict[str, Any]] = {}
+    cases = [c for c in cases if c.get("condition") is None]  # conditions: their own table
     for proc in dict.fromkeys(c["procedure"] for c in cases):
         params = [p for c in cases if c["procedure"] == proc for p in c["parameters"]]
         effs = [p["efficiency"] for p in params if p["efficiency"] is not None]
@@ -222,6 +231,28 @@ def by_procedure(
             "cases": [c["id"] for c in cases if c["procedure"] == proc],
         }
         out[proc]["meets_targets"] = meets(out[proc], targets)
+    return out
+
+
+def conditions(cases: list[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The cases that stress a condition beyond the procedure's model: per case its
+    pooled coverage, the lowest parameter's and the stated u over the observed scatter."""
+    out = []
+    for c in cases:
+        if c.get("condition") is None:
+            continue
+        low = min(c["parameters"], key=lambda p: p["coverage"])
+        out.append(
+            {
+                "id": c["id"],
+                "procedure": c["procedure"],
+                "condition": c["condition"],
+                "coverage_95": c["summary"]["coverage_95"],
+                "coverage_min": low["coverage"],
+                "coverage_min_parameter": low["name"],
+                "replicates": c["replicates"],
+            }
+        )
     return out
 
 
