@@ -58,6 +58,7 @@ class Design:
     bounded : the model's parameters and their true values where they are not theta: the
         design's nuisances added (a pose's unknown attitude), or the parameters the bound
         is derived for alone; None: theta.
+    linear : the model is linear in `bounded` (one-sided differences suffice).
     condition : what the case stresses beyond the procedure's model (a drift of the truth
         within the run), or None; such a case is judged by its coverage, not its efficiency.
     """
@@ -70,6 +71,7 @@ class Design:
     steps: dict[str, float]
     noise: dict[str, float] = field(default_factory=dict)
     bounded: dict[str, float] | None = None
+    linear: bool = True
     condition: str | None = None
 
 
@@ -244,6 +246,10 @@ def static_bias_design(case: Mapping[str, Any]) -> Design:
 
     noise = {f"gyr.noise.{a}": float(sigma[0]) for a in params.AXES}
     noise |= {f"acc.noise.{a}": acc_arw * math.sqrt(float(opts["rate_hz"])) for a in params.AXES}
+    # the continuous-time terms the peers' rows name: white noise only, no random walk
+    for sensor, density in (("gyr", arw), ("acc", acc_arw)):
+        noise |= {f"{sensor}.noise_density.{a}": density for a in params.AXES}
+        noise |= {f"{sensor}.random_walk.{a}": 0.0 for a in params.AXES}
     settings = dict(case.get("settings", {}))
     return Design(theta, draw, model, settings, STANDARD_GRAVITY, {}, noise)
 
@@ -306,7 +312,8 @@ def handheld_design(case: Mapping[str, Any]) -> Design:
             out.append((mean, truth.acc_noise / math.sqrt(seconds * rate_hz), None))
         return out
 
-    return Design(location, draw, model, settings, run.gravity, {}, _noise(truth), bounded=bounded)
+    noise = _noise(truth)
+    return Design(location, draw, model, settings, run.gravity, {}, noise, bounded, linear=False)
 
 
 def sensor_array_design(case: Mapping[str, Any]) -> Design:

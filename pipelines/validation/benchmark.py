@@ -25,6 +25,7 @@ from calib_core import crlb, procedures
 from calib_core.preprocess.chain import preprocess
 from calib_core.run_budget import run_budgets
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
+from pipelines.validation.benchmark_peers import PeerTally
 
 SET_FILE = Path(__file__).with_name("benchmark_set.json")
 
@@ -49,13 +50,18 @@ def load_set(path: Path = SET_FILE) -> dict[str, Any]:
     return doc
 
 
-def _replicate(design: Any, procedure: str, seed: int, index: int) -> dict[str, tuple]:
-    """One replicate solved as the pipeline solves a run: name -> (estimate, u, U)."""
+def _replicate(
+    design: Any, procedure: str, seed: int, index: int, tally: PeerTally | None = None
+) -> dict[str, tuple]:
+    """One replicate solved as the pipeline solves a run: name -> (estimate, u, U); the
+    peers of `tally` given its raw segments and our solution."""
     rng = np.random.default_rng([seed, index])
-    segments = design.draw(design.theta, rng)
-    segments, _ = preprocess(segments, design.settings, design.gravity)
+    raw = design.draw(design.theta, rng)
+    segments, _ = preprocess(raw, design.settings, design.gravity)
     cal = procedures.solve(procedure, segments, design.gravity, dict(design.settings))
     budgets = run_budgets(cal, segments, design.settings, None)
+    if tally is not None:
+        tally.add(raw, cal)
     return {n: (p.value, p.std, budgets[n].U) for n, p in cal.parameters.items() if n in budgets}
 
 
@@ -63,8 +69,11 @@ def _replicate(design: Any, procedure: str, seed: int, index: int) -> dict[str, 
 DesignOf = Callable[[Mapping[str, Any]], Any]
 
 
-def run_case(case: Mapping[str, Any], replicates: int, make_design: DesignOf) -> dict[str, Any]:
-    """Score one simulated case over `replicates` replicates of `make_design(case)`.
+def run_case(
+    case: Mapping[str, Any], replicates: int, make_design: DesignOf, peer_replicates: int = 0
+) -> dict[str, Any]:
+    """Score one simulated case over `replicates` replicates of `make_design(case)`; the
+    installed peers on the first `peer_replicates` of them (`benchmark_peers`).
 
     Returns the case's document: id, procedure, the condition it stresses (None: the
     procedure's model holds), replicates, per parameter scores
@@ -76,10 +85,17 @@ def run_case(case: Mapping[str, Any], replicates: int, make_design: DesignOf) ->
     bound: dict[str, float] = {}
     if design.condition is None:  # a case beyond the model is judged by coverage alone
         model_theta = design.theta if design.bounded is None else design.bounded
-        names, info = crlb.fisher_information(design.model, model_theta, design.steps)
+        names, info = crlb.fisher_information(
+            design.model, model_theta, design.steps, linear=design.linear
+        )
         bound = dict(zip(names, crlb.crlb_variances(info), strict=True))
     truth = {**design.theta, **design.noise}
-    runs = [_replicate(design, case["procedure"], int(case["seed"]), i) for i in range(replicates)]
+    tally = PeerTally(case["procedure"], design.gravity, design.settings, truth)
+    n_peer = min(peer_replicates, replicates) if design.condition is None else 0
+    runs = [
+        _replicate(design, case["procedure"], int(case["seed"]), i, tally if i < n_peer else None)
+        for i in range(replicates)
+    ]
     scored = [n for n in runs[0] if n in truth] if runs else []
     scores = []
     for name in scored:
@@ -95,11 +111,12 @@ def run_case(case: Mapping[str, Any], replicates: int, make_design: DesignOf) ->
         "summary": crlb.summarise(scores),
         "parameters": [s.to_dict() for s in scores],
         "not_scored": unscored,
+        "peers": tally.result() if n_peer else [],
         "seconds": round(time.perf_counter() - start, 2),
     }
 
 
-def _run_one(args: tuple[dict[str, Any], int, DesignOf]) -> dict[str, Any]:
+def _run_one(args: tuple[dict[str, Any], int, DesignOf, int]) -> dict[str, Any]:
     return run_case(*args)
 
 
@@ -133,8 +150,9 @@ def run_benchmark(
     jobs = []
     for case in set_doc["cases"]:
         n = int(case.get("reduced_replicates", 0) if reduced else case["replicates"])
+        n_peer = int(set_doc.get("peer_replicates", {}).get("reduced" if reduced else "full", 0))
         if n > 0:
-            jobs.append((dict(case), n, make_design))
+            jobs.append((dict(case), n, make_design, n_peer))
     if workers > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             cases = list(pool.map(_run_one, jobs))
@@ -152,7 +170,7 @@ def run_benchmark(
         "procedures": by_procedure(cases, set_doc["targets"]),
         "conditions": conditions(cases),
         "sessions": run_sessions(set_doc, realdata),
-        "peers": peers_note(),
+        "peers": by_peer(cases),
         "seconds": round(time.perf_counter() - start, 2),
     }
 
@@ -194,21 +212,38 @@ def run_and_report(
     return {**summary, "cases_provider": provider_name, "report": paths}
 
 
-def peers_note() -> str:
-    """What the benchmark says of the peer implementations (imucal, allantools): their
-    comparisons are made on archived runs by `calib validate RUN --with ...`."""
-    import importlib.util
-
-    if importlib.util.find_spec("pipelines.validation.compare") is None:
-        return (
-            "Not compared: the peer adapters (pipelines.validation.compare) are not part of"
-            " this build, so no E_n against imucal or allantools is stated here."
-        )
-    return (
-        "E_n against imucal and allantools is computed per archived run by"
-        " `calib validate RUN --with imucal,allantools` (docs/validation.md, peers); the"
-        " simulated cases of this set are not re-solved by the peers."
-    )
+def by_peer(cases: list[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per procedure and installed peer (`benchmark_peers`): whether it treats the procedure
+    (or why not), the replicates compared, the fraction of its parameters' E_n <= 1, the
+    largest E_n and which parameter, and on how many parameters with a known truth our
+    RMS error is the smaller. Cases of a condition are not given to the peers."""
+    out: dict[str, dict[str, Any]] = {}
+    for c in cases:
+        for p in c.get("peers", []):
+            key = f"{c['procedure']} / {p['peer']}"
+            row = out.setdefault(
+                key,
+                {"procedure": c["procedure"], "peer": p["peer"], "version": p["version"],
+                 "status": p["status"], "reason": p["reason"], "cases": [], "replicates": 0,
+                 "parameters": 0, "e_n_within_1": None, "e_n_max": None,
+                 "e_n_max_parameter": None, "ours_closer": 0, "with_truth": 0},
+            )  # fmt: skip
+            if p["status"] != "compared":
+                continue
+            row |= {"status": "compared", "reason": None}
+            row["cases"].append(c["id"])
+            row["replicates"] += p["replicates"]
+            params = p["parameters"]
+            within = [q["e_n_within_1"] for q in params if q["e_n_within_1"] is not None]
+            done = row["parameters"] * (row["e_n_within_1"] or 0.0)
+            row["parameters"] += len(params)
+            row["e_n_within_1"] = (done + sum(within)) / row["parameters"] if params else None
+            if p.get("e_n_max") is not None and p["e_n_max"] > (row["e_n_max"] or -1.0):
+                row["e_n_max"], row["e_n_max_parameter"] = p["e_n_max"], p["e_n_max_parameter"]
+            known = [q for q in params if q["rms_error_theirs"] is not None]
+            row["with_truth"] += len(known)
+            row["ours_closer"] += sum(q["rms_error_ours"] < q["rms_error_theirs"] for q in known)
+    return out
 
 
 def by_procedure(
