@@ -76,7 +76,7 @@ def _case(case: Mapping[str, Any]) -> Section:
         f"{case['replicates']} replicates, {case['seconds']} s. Median efficiency"
         f" {_fmt(s['efficiency_vs_crlb'])}, lowest {_fmt(s['efficiency_min'])}"
         f" ({s['efficiency_min_parameter'] or '-'}); coverage {_fmt(s['coverage_95'])}"
-        f" (parameters from {_fmt(s['coverage_min'])} to {_fmt(s['coverage_max'])})."
+        f" (parameters from {_fmt(s['coverage_min'])} to {_fmt(s['coverage_max'])}).",
     ]
     unbounded = [
         p["name"] for p in case["parameters"] if p["crlb_std"] is None and ".noise" not in p["name"]
@@ -220,14 +220,14 @@ def report(doc: Mapping[str, Any]) -> Certificate:
             ("run time", f"{doc['seconds']} s"),
         ],
         paragraphs=[
-            "Each case simulates runs of one procedure with known truth (white noise, spikes"
-            " or a drift of the biases where the case says) and solves them as the pipeline"
-            " does (preprocessing chain, solve, Type A budget: no reference equipment is"
-            " simulated). Errors are estimate - truth, SI units. Efficiency = Cramer-Rao variance / observed variance"
-            " of the estimates over the replicates; coverage = fraction of replicates with"
-            " |error| <= U (k from the degrees of freedom, about 95 %); u / std = mean stated"
-            " standard uncertainty over the observed scatter; bias z = mean error over its"
-            " standard error. Method: docs/validation.md."
+            "Each case simulates runs of one procedure with known truth (white noise, spikes or a "
+            "drift of the biases where the case says) and solves them as the pipeline does "
+            "(preprocessing chain, solve, Type A budget: no reference equipment is simulated). "
+            "Errors are estimate - truth, SI units. Efficiency = Cramer-Rao variance / observed "
+            "variance of the estimates over the replicates; coverage = fraction of replicates with "
+            "|error| <= U (k from the degrees of freedom, about 95 %); u / std = mean stated "
+            "standard uncertainty over the observed scatter; bias z = mean error over its standard "
+            "error. Method: docs/validation.md."
         ],
     )
     sessions = [_session(s) for s in doc["sessions"]]
