@@ -120,7 +120,7 @@ def _session(s: Mapping[str, Any]) -> Section:
             _fmt(r["reference"], 4),
             _fmt(r["difference"], 3),
             _fmt(r["U"], 3),
-            _fmt(r["tolerance"], 3),
+            _fmt(r["tolerance"], 3) if r["tolerance"] is not None else f"E_n {_fmt(r['e_n'], 2)}",
             "yes" if r["within_tolerance"] else "no",
         ]
         for r in s["parameters"]
@@ -133,7 +133,7 @@ def _session(s: Mapping[str, Any]) -> Section:
             "reference",
             "difference",
             "U (ours)",
-            "tolerance",
+            "tolerance or E_n",
             "within",
         ],  # fmt: skip
         rows=rows,
