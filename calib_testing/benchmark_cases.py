@@ -49,7 +49,8 @@ class Design:
 
     theta : name -> true value (SI), every parameter the data depend on.
     draw : (theta, rng) -> the noisy segments of one replicate.
-    model : theta -> [(clean (N, C), noise std (C,)), ...] (`calib_core.crlb.Model`).
+    model : theta -> [(clean (N, C), noise std (C,)), ...] (`calib_core.crlb.Model`); None
+        where the bound is not derived (the case's docstring says why).
     settings : the run's settings the procedure is solved with.
     gravity : local gravity of the simulation, m/s^2.
     steps : name -> finite-difference step of the Jacobian (SI).
@@ -65,7 +66,7 @@ class Design:
 
     theta: dict[str, float]
     draw: Callable[[Mapping[str, float], np.random.Generator], Segments]
-    model: Callable[[Mapping[str, float]], list[Segment]]
+    model: Callable[[Mapping[str, float]], list[Segment]] | None
     settings: dict[str, Any]
     gravity: float
     steps: dict[str, float]
@@ -351,6 +352,42 @@ def sensor_array_design(case: Mapping[str, Any]) -> Design:
     return Design(_location(truth), draw, model, settings, STANDARD_GRAVITY, {}, _noise(truth))
 
 
+def centrifuge_design(case: Mapping[str, Any]) -> Design:
+    """A centrifuge run (`simulate_centrifuge`): zero records, the near-1 g run and the
+    high-g steps at every mounting position; the truth is the case's error model (per axis
+    {term: coefficient}, by canonical name), white noise only.
+
+    No Cramer-Rao bound is derived: the procedure chooses each axis's terms per run by t
+    tests (a different estimator where a term is dropped), and the geometry (radius per
+    position, horizontal misalignment, table tilt) enters nonlinearly with the table's
+    start angles drawn per run; the case is scored by error and coverage only.
+    """
+    from calib_core.simulate.centrifuge import (
+        CentrifugeNoise,
+        CentrifugeSchedule,
+        simulate_centrifuge,
+    )
+    from calib_core.solvers.centrifuge_model import canonical_name
+    from calib_core.solvers.centrifuge_segments import step_label
+
+    model = {a: dict(terms) for a, terms in case["truth"]["model"].items()}
+    names = {canonical_name(a, t): (a, t) for a, terms in model.items() for t in terms}
+    opts = dict(case.get("simulation", {}))
+    schedule = CentrifugeSchedule(**opts.pop("schedule", {}))
+    noise = CentrifugeNoise(**opts.pop("noise", {}))
+
+    def draw(theta: Mapping[str, float], rng: np.random.Generator) -> Segments:
+        true = {a: dict(terms) for a, terms in model.items()}
+        for name, (a, t) in names.items():
+            true[a][t] = theta[name]
+        run = simulate_centrifuge(true, rng=rng, schedule=schedule, noise=noise, **opts)
+        return {step_label(s): s.recording for s in run.steps}
+
+    theta = {name: float(model[a][t]) for name, (a, t) in names.items()}
+    settings = dict(case.get("settings", {}))
+    return Design(theta, draw, None, settings, STANDARD_GRAVITY, {})
+
+
 def drifting(design: Design, drift: Mapping[str, float]) -> Design:
     """The design with biases that drift linearly through the run (a warm-up): each named
     parameter (canonical name, SI) changes by the given amount from the first sample of
@@ -387,6 +424,7 @@ SIMULATORS: dict[str, Callable[[Mapping[str, Any]], Design]] = {
     "static": static_bias_design,
     "handheld": handheld_design,
     "array": sensor_array_design,
+    "centrifuge": centrifuge_design,
 }
 
 

@@ -83,7 +83,9 @@ def run_case(
     start = time.perf_counter()
     design = make_design(case)
     bound: dict[str, float] = {}
-    if design.condition is None:  # a case beyond the model is judged by coverage alone
+    # a case beyond the model is judged by coverage alone; a design without a model has
+    # no bound derived
+    if design.condition is None and design.model is not None:
         model_theta = design.theta if design.bounded is None else design.bounded
         names, info = crlb.fisher_information(
             design.model, model_theta, design.steps, linear=design.linear
@@ -96,12 +98,14 @@ def run_case(
         _replicate(design, case["procedure"], int(case["seed"]), i, tally if i < n_peer else None)
         for i in range(replicates)
     ]
-    scored = [n for n in runs[0] if n in truth] if runs else []
+    # a term a procedure keeps in some replicates only (chosen by a test) is not scored
+    kept = set.intersection(*(set(r) for r in runs)) if runs else set()
+    scored = [n for n in runs[0] if n in truth and n in kept] if runs else []
     scores = []
     for name in scored:
         est, u, big_u = (np.array([r[name][k] for r in runs], float) for k in range(3))
         scores.append(crlb.score_parameter(name, est, truth[name], u, big_u, bound.get(name)))
-    unscored = sorted(set(runs[0]) - set(scored)) if runs else []
+    unscored = sorted(set().union(*runs) - set(scored)) if runs else []
     return {
         "id": case["id"],
         "procedure": case["procedure"],
