@@ -165,6 +165,15 @@ def _print_benchmark(doc: dict[str, Any]) -> None:
     title = f"{doc['set']['name']} {doc['set']['version']} ({doc['seconds']} s)"
     header = ["procedure", "efficiency_vs_crlb", "coverage_95", "replicates", "meets targets"]
     print_table(title, header, rows)
+    for c in doc["conditions"]:
+        out.print(f"condition {c['id']}: coverage_95 {fmt(c['coverage_95'])}", markup=False)
+    for key, p in doc["peers"].items():
+        if p["status"] == "compared":
+            out.print(
+                f"{key}: E_n <= 1 for {fmt(p['e_n_within_1'])}, largest {fmt(p['e_n_max'])}"
+                f" ({p['e_n_max_parameter']}), {p['replicates']} replicates",
+                markup=False,
+            )
     for s in doc["sessions"]:
         if s["status"] != "compared":
             out.print(f"session {s['id']}: {s['status']} ({s['reason']})", markup=False)
