@@ -79,7 +79,8 @@ def process_in_process(
     on_progress: ProgressCallback | None = None,
 ) -> list[dict[str, Any]]:
     """Process `sources` one after the other in this process; outcomes in their order
-    (each run's certificate issued beside the next run, all of them by the return).
+    (each run's certificate issued beside the next run, all of them by the return; one
+    not issued is said in its run's message).
 
     A transient failure (a locked database, a vanished share) is retried as the batch flow
     retries it (RETRIES more attempts after RETRY_DELAYS_S); then the run is reported failed.
@@ -90,12 +91,12 @@ def process_in_process(
     arch = resolve_archive(archive)
     arch.upgrade()
     outcomes: list[dict[str, Any]] = []
-    with issuing_beside():  # each certificate beside the next run
+    with issuing_beside() as certificates:  # each certificate beside the next run
         for source in sources:
             outcomes.append(_with_retries(source, arch.url, str(arch.root)))
             if on_progress is not None:
                 on_progress(len(outcomes), len(sources), outcomes[-1])
-    return outcomes
+    return certificates.reported(outcomes)
 
 
 def _with_retries(source: RunSource, url: str, root: str) -> dict[str, Any]:

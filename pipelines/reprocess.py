@@ -319,6 +319,7 @@ def reprocess_in_process(
     `todo` and `skipped` are what `plan_reprocess` gave; the outcomes come in the
     order of `reprocess_batch`'s (skipped first), with the same retries.
     """
+    from pipelines.issuing import issuing_beside
     from pipelines.run_task import call_with_retries, gave_up
 
     outcomes = list(skipped)
@@ -326,16 +327,19 @@ def reprocess_in_process(
     for n, outcome in enumerate(skipped, 1):
         if on_progress is not None:
             on_progress(n, total, outcome)
-    for run_id in todo:
-        outcomes.append(
-            call_with_retries(
-                lambda r=run_id: reprocess_run_for_batch(r, archive.url, str(archive.root), reason),
-                lambda exc, r=run_id: gave_up(f"archive:{r}", "", exc, r),
+    with issuing_beside() as certificates:  # each certificate beside the next run
+        for run_id in todo:
+            outcomes.append(
+                call_with_retries(
+                    lambda r=run_id: reprocess_run_for_batch(
+                        r, archive.url, str(archive.root), reason
+                    ),
+                    lambda exc, r=run_id: gave_up(f"archive:{r}", "", exc, r),
+                )
             )
-        )
-        if on_progress is not None:
-            on_progress(len(outcomes), total, outcomes[-1])
-    return outcomes
+            if on_progress is not None:
+                on_progress(len(outcomes), total, outcomes[-1])
+    return certificates.reported(outcomes)
 
 
 def changed_pairs(
