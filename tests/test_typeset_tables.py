@@ -74,7 +74,7 @@ def _typst_widths(texts: list[str], bold: bool) -> list[float]:
         "<w>",
         field="value",
         one=True,
-        font_paths=typeset._fonts(),
+        font_paths=typeset.fonts(),
         ignore_system_fonts=True,
         sys_inputs={
             "size": str(typeset.TABLE_TEXT_PT),
@@ -147,7 +147,7 @@ def test_rows_held_to_one_line_set_the_page_as_typst_alone_would(tmp_path) -> No
         return typst.compile(
             typeset.TEMPLATE.read_bytes(),
             root=str(typeset.TEMPLATE.parent),
-            font_paths=typeset._fonts(),
+            font_paths=typeset.fonts(),
             ignore_system_fonts=True,
             sys_inputs={"doc": json.dumps(document)},
         )

@@ -64,7 +64,7 @@ class Metrics:
             "<metrics>",
             field="value",
             one=True,
-            font_paths=_fonts(),
+            font_paths=fonts(),
             ignore_system_fonts=True,
             sys_inputs={"size": str(TABLE_TEXT_PT), "chars": json.dumps([_REFERENCE, *new])},
         )
@@ -85,7 +85,7 @@ _metrics = Metrics()
 
 
 @cache
-def _fonts() -> Any:  # noqa: ANN401 - typst.Fonts
+def fonts() -> Any:  # noqa: ANN401 - typst.Fonts
     """The DejaVu fonts matplotlib ships, loaded once per process (system fonts ignored);
     found without importing matplotlib (that alone costs more than a certificate)."""
     import importlib.util
@@ -174,7 +174,7 @@ def pdf_bytes(cert: Certificate) -> bytes:
     pdf, warnings = typst.compile_with_warnings(
         TEMPLATE.read_bytes(),
         root=str(TEMPLATE.parent),
-        font_paths=_fonts(),
+        font_paths=fonts(),
         ignore_system_fonts=True,
         sys_inputs={"doc": json.dumps(document(cert), ensure_ascii=False)},
     )
