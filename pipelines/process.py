@@ -35,7 +35,7 @@ from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
-from pipelines.issuing import issue_certificate
+from pipelines.issuing import issue_certificate, with_note
 from pipelines.lab import lab_precheck
 from pipelines.process_streamed import (
     as_found_solver,
@@ -719,8 +719,8 @@ def process_run(
         return _failed(where, serial, exc, archive.url)
     finally:
         pending.close()
-    if result.status != "duplicate":
-        issue_certificate(archive, result.run_id)
+    if result.status != "duplicate" and (why := issue_certificate(archive, result.run_id)):
+        message = with_note(message, result.run_id, why)
     protocol_path = result.files.get(protocol_name)
     return run_outcome(
         source=where,
