@@ -44,6 +44,7 @@ from storage.verify import verify
 G = 9.80665
 LIMIT = 5 << 20  # bytes: a quarter holds rosbags' 1 MiB chunks
 TOPIC = "/imu/data"
+IMU = "sensor_msgs/msg/Imu"
 
 
 def static_record(n: int, seed: int = 5, temp: bool = False) -> Recording:
@@ -158,6 +159,41 @@ def test_read_as_rosbags_own_reader_decodes_it(tmp_path):
     ts = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in temps])
     want = np.interp(ns - ns[0], ts - ns[0], [m.temperature for m in temps])
     assert len(temps) > 10 and np.array_equal(rec.temp, want)
+
+
+def test_an_imu_of_another_definition_decoded_message_by_message(tmp_path):
+    """A bag whose Imu definition is not sensor_msgs/Imu's (here: no orientation, the
+    acceleration first; another md5) is decoded by rosbags with the bag's own definition,
+    in memory and streamed alike: the values written, not the fixed layout's offsets."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.EMPTY)
+    for text, name in (
+        ("uint32 seq\ntime stamp\nstring frame_id\n", "std_msgs/msg/Header"),
+        ("float64 x\nfloat64 y\nfloat64 z\n", "geometry_msgs/msg/Vector3"),
+        (
+            "std_msgs/Header header\ngeometry_msgs/Vector3 linear_acceleration\n"
+            "geometry_msgs/Vector3 angular_velocity\n",
+            IMU,
+        ),
+    ):
+        store.register(get_types_from_msg(text, name))
+    rec = static_record(3000)
+    types = store.types
+    path = tmp_path / "own.bag"
+    with Writer(path) as writer:
+        conn = writer.add_connection(TOPIC, IMU, typestore=store)
+        for i in range(len(rec)):
+            ns = T0_NS + i * 10_000_000
+            stamp = types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
+            a, w = (types["geometry_msgs/msg/Vector3"](*v) for v in (rec.acc[i], rec.gyr[i]))
+            msg = types[IMU](types["std_msgs/msg/Header"](i, stamp, "imu"), a, w)
+            writer.write(conn, ns, store.serialize_ros1(msg, IMU))
+    got = read_rosbag(path)
+    assert np.array_equal(got.acc, rec.acc) and np.array_equal(got.gyr, rec.gyr)
+    table = pq.read_table(stream(path, tmp_path).samples)
+    assert_same_samples(table, got)
 
 
 @pytest.mark.parametrize("compression", ["lz4", "bz2"])
