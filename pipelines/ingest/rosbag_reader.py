@@ -245,20 +245,27 @@ def read_db3(
     try:
         chosen = chosen_topics(reader.connections, path, keys, lambda: db3_sources(reader, path))
         for role, conns in chosen.items():
-            logs, msgs = [], []
-            try:
+            logs: list[int] = []
+
+            def decoded(conns: list = conns, logs: list[int] = logs):
+                # one message at a time: 10^5 decoded messages held would slow the read
                 for conn, log_ns, raw in reader.messages(connections=conns):
-                    msgs.append(store.deserialize_cdr(raw, conn.msgtype))
+                    msg = store.deserialize_cdr(raw, conn.msgtype)
                     logs.append(log_ns)
+                    yield msg
+
+            try:
+                part = message_part(path, role, decoded(), joint)
+            except IngestError:
+                raise
             except Exception as exc:  # a truncated record or a message that does not decode
                 raise IngestError(
-                    f"{conns[0].topic} message {len(msgs)}: cannot decode "
+                    f"{conns[0].topic} message {len(logs)}: cannot decode "
                     f"({type(exc).__name__}: {exc})",
                     file=path,
                     field=conns[0].topic,
                 ) from None
-            if msgs:
-                part = message_part(path, role, msgs, joint)
+            if logs:
                 part["log"] = np.array(logs, dtype=np.int64)
                 parts[role].append({**part, "stamp": part["log"]} if stamp == "log" else part)
     finally:
