@@ -8,17 +8,14 @@ rosbags' own reader holds a Python tuple per message of the bag's index (170 byt
 1. the bag header, the index at its end (connections, one record per chunk), then the
    chunks in file order. A bag cut while written (no whole index: `whole_records`) may
    be read to its last whole chunk, its index rebuilt from the whole chunks' own records
-   (as ``rosbag reindex`` does), the bytes dropped named by the ``record:cut:<file>``
-   finding; a whole chunk that does not decompress or parse is refused naming its byte.
+   (as ``rosbag reindex`` does), with the ``record:cut:<file>`` finding.
 2. each chunk is decompressed (none, bz2, lz4) and held until its index records (which
-   follow it) give each message's offset and log time; each message's record header is
-   checked against them (op, connection, time); a chunk's messages of a role are taken in
-   log-time order, then by offset (rosbags' order).
+   follow it) give each message's offset and log time, checked against the message's
+   record header; a role's messages in log-time order, then by offset (rosbags' order).
 3. ``sensor_msgs/Imu`` has a fixed layout once the header's ``frame_id`` length is known
    (`cdr.IMU_LAYOUT`, the same offsets in ROS 1's packed serialisation): a chunk's IMU
-   messages are decoded at once by numpy gathers, its first one again by rosbags with the
-   bag's definition (they must agree). An Imu of another definition, and the low-rate
-   temperature and table topics, are decoded message by message (`message_part`).
+   messages are decoded at once by numpy gathers, its first one again by rosbags (they
+   must agree). Other definitions and topics are decoded one by one (`message_part`).
 """
 
 from __future__ import annotations

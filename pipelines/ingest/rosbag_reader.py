@@ -5,16 +5,12 @@ A ROS 1 bag (``#ROSBAG V2.0``) is walked front to back by `pipelines.ingest.ros1
 ROS 2 storage file (an SQLite database; the .db3 of a bag folder, its metadata.yaml not
 needed) is read by rosbags with its typestore for ROS 2 Humble, into memory only.
 
-Topics, as for MCAP (docs/manifest.md): ``imu_topic`` (default: the one
-``sensor_msgs/msg/Imu`` topic; of several, the one logged at the highest rate),
-``temperature_topic`` (sensor_msgs/msg/Temperature, default: the one such topic if any),
-``table_topic`` (sensor_msgs/msg/JointState: position -> reference ``table_angle`` rad,
-unwrapped; velocity -> ``table_rate`` rad/s; joint ``table_joint``, name or index).
-Low-rate channels are interpolated onto the IMU time, holding their first / last value
-outside their span. Time: ``stamp = "header"`` (default) or ``"log"`` (the bag's receive
-time), Unix seconds; messages in log-time order. An IMU topic below ``min_rate_hz`` is
-refused with every Imu topic's rate (pipelines.ingest.log_samples). A ROS 1 bag cut while
-written (no index) is read into memory to its last whole chunk with its finding.
+Topics (docs/manifest.md): ``imu_topic`` (default: the one Imu topic, the fastest of
+several; below ``min_rate_hz`` refused with every rate), ``temperature_topic``,
+``table_topic`` / ``table_joint`` (JointState position -> ``table_angle`` rad, unwrapped;
+velocity -> ``table_rate`` rad/s), interpolated onto the IMU time; ``stamp`` ``"header"``
+or ``"log"``; Unix s, in log-time order. A ROS 1 bag cut while written is read into
+memory to its last whole chunk, with its finding.
 
 Streamed, a ROS 1 bag's IMU chunks go through the in-memory reader's checks
 (`log_samples.check_samples`, records numbered in the whole topic) to
