@@ -336,9 +336,7 @@ def verify_run(
     )
     mine = None
     if budgets:
-        rid = shared_reference.reference_id(
-            [e.model_dump(mode="json") for e in m.equipment], m.site.model_dump(mode="json")
-        )
+        rid = shared_reference.reference_id([e.as_dict() for e in m.equipment], m.site.as_dict())
         mine = {n: (rid, shared_reference.split_budget(b.to_dict())[1]) for n, b in budgets.items()}
     group = group_of(current, earlier, profile, archive if budgets else None, mine)
     checks += verification.repeatability(group, profile)
@@ -537,10 +535,10 @@ def run_record(
         **_run_identity(m),
         manufacturer=m.unit.manufacturer,
         specification=m.unit.specification,
-        site=m.site.model_dump(mode="json"),
+        site=m.site,
         gravity=cal.gravity,
-        environment=m.environment.model_dump(mode="json"),
-        equipment=[e.model_dump(mode="json") for e in m.equipment],
+        environment=m.environment,
+        equipment=m.equipment,
         manifest_text=loaded.manifest_text,
         tolerance_profile=judged.profile.name,
         raw_files=[RawFileIn(f.path, f.name, f.sha256, f.size, f.format) for f in loaded.raw_files],
