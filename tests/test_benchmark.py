@@ -116,6 +116,7 @@ def reduced(tmp_path_factory):
     return json.loads(res.stdout.strip().splitlines()[-1]), out
 
 
+@pytest.mark.slow  # 30 simulated replicates of every procedure; fast: test_procedures, one each
 def test_reduced_benchmark_prints_each_procedure(reduced):
     doc, _ = reduced
     cases = benchmark.load_set()["cases"]
@@ -132,6 +133,7 @@ def test_reduced_benchmark_prints_each_procedure(reduced):
         assert doc["procedures"][proc]["efficiency_vs_crlb"] > 0.55, (proc, doc["procedures"])
 
 
+@pytest.mark.slow  # the reduced benchmark's report (the fixture above)
 def test_reduced_benchmark_report_is_readable(reduced):
     doc, out = reduced
     full = json.loads((out / "benchmark.json").read_text())
