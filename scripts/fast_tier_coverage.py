@@ -42,7 +42,18 @@ def main(extra: list[str]) -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "tier.json"
-        args = [sys.executable, "-m", "pytest", "-q", "-m", fast_marker(), "-n", "2"]
+        args = [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-m",
+            fast_marker(),
+            "-n",
+            "2",
+            "--dist",
+            "loadscope",
+        ]
         args += ["-p", "calib_testing.tier_coverage", "--tier-coverage", str(out), *extra]
         ran = subprocess.run(args, cwd=ROOT, check=False)
         solved: dict[str, set[str]] = {}
