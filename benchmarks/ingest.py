@@ -119,27 +119,14 @@ def write_mcap(path: Path, data: dict) -> None:
     encapsulation 00 01 00 00, stamp, frame_id "imu\\0", then 37 doubles aligned to 8.
     """
     from mcap.writer import Writer
-    from test_ingest_mcap import IMU_MSGDEF
 
-    dt = np.dtype(
-        [
-            ("encap", "u1", 4),
-            ("sec", "<i4"),
-            ("nanosec", "<u4"),
-            ("len", "<u4"),
-            ("frame", "S4"),
-            ("orientation", "<f8", 4),
-            ("oc", "<f8", 9),
-            ("gyr", "<f8", 3),
-            ("gc", "<f8", 9),
-            ("acc", "<f8", 3),
-            ("ac", "<f8", 9),
-        ]
-    )
+    from calib_testing.ros_messages import IMU_MSGDEF, imu_cdr
+
+    dt = imu_cdr(b"imu")
     msgs = np.zeros(N, dt)
-    msgs["encap"] = (0, 1, 0, 0)
+    msgs["encapsulation"] = (0, 1, 0, 0)
     msgs["sec"], msgs["nanosec"] = np.divmod(data["stamps_ns"], 1_000_000_000)
-    msgs["len"], msgs["frame"] = 4, b"imu"
+    msgs["frame_len"], msgs["frame_id"] = 4, b"imu"
     msgs["orientation"][:, 3] = 1.0
     msgs["gyr"], msgs["acc"] = data["gyr"], data["acc"]
     raw = msgs.tobytes()

@@ -63,6 +63,10 @@ from calib_core.preprocess.motion import window_statistics
 from calib_core.streamed import StreamedAllan, load_compiled
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from calib_testing.calib_command import CALIB  # noqa: E402
+from calib_testing.ros_messages import IMU_MSGDEF, imu_cdr  # noqa: E402
+
 RATE = 1000.0
 BLOCK_ROWS = 1_000_000
 
@@ -190,10 +194,9 @@ def calib_process(src: Path, work: Path, limit_gb: float) -> tuple[float, float,
     fmt = MCAP_FORMAT if src.suffix == ".mcap" else CSV_FORMAT
     text = MANIFEST.format(limit_mb=round(limit_gb * 1000), data=src.name, format=fmt)
     (run / "run.toml").write_text(text, encoding="utf-8")
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {"CALIB_ARCHIVE": str(work / "archive"), "CALIB_ISSUE_CERTIFICATES": "0"}
     try:
-        out = run_child([calib, "process", str(run), "--json"], env)
+        out = run_child([CALIB, "process", str(run), "--json"], env)
     finally:
         (run / src.name).rename(src)
     (doc,) = json.loads(out[2])["runs"]
@@ -224,7 +227,6 @@ def allan_error(parquet: Path, n: int) -> float:
 def csv_part(args: argparse.Namespace) -> dict:
     """The CSV record's figures (and the Allan check on its samples)."""
     work = Path(tempfile.mkdtemp(prefix="longlog-", dir=args.dir))
-    limit = str(int(args.memory_limit_gb * 1e9))
     try:
         src = work / "static.csv"
         t0 = time.perf_counter()
@@ -236,39 +238,41 @@ def csv_part(args: argparse.Namespace) -> dict:
         write_s = time.perf_counter() - t0
         size = src.stat().st_size
         print(f"wrote {size / 1e9:.2f} GB, {samples:,} samples in {write_s:.0f} s", file=sys.stderr)
-        outs = {}
-        folder = work / "floor"
-        folder.mkdir()
-        floor = [sys.executable, "-c", textwrap.dedent(FLOOR), str(src), str(folder), limit]
-        outs["floor"] = run_child(floor)
-        shutil.rmtree(folder)
-        report("floor", outs["floor"])
-        outs["process"] = calib_process(src, work, args.memory_limit_gb)
-        report("process", outs["process"])
+        figures = pass_figures(size, samples, write_s, passes("", FLOOR, src, work, args))
         t0 = time.perf_counter()
         (parquet,) = (work / "archive" / "samples").rglob("*.parquet")
         err = allan_error(parquet, args.allan_samples)
-        allan_s = time.perf_counter() - t0
+        figures["seconds"]["allan_check"] = round(time.perf_counter() - t0, 1)
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
-    (floor_s, _, _), (proc_s, _, _) = outs["floor"], outs["process"]
     return {
-        **pass_figures(size, samples, outs),
+        **figures,
         "allan_rel_err_vs_allantools": err,
-        "seconds": {
-            "write": round(write_s, 1),
-            "floor": round(floor_s, 1),
-            "process": round(proc_s, 1),
-            "allan_check": round(allan_s, 1),
-        },
         "memory_limit_gb": args.memory_limit_gb,
     }
 
 
-def pass_figures(size: int, samples: int, runs: dict) -> dict:
-    """The figures of one format's floor and process passes: `runs` maps "floor" and
-    "process" to (seconds, peak resident bytes, output) of the child."""
+def passes(name: str, floor: str, src: Path, work: Path, args: argparse.Namespace) -> dict:
+    """The floor pass (the script `floor` in a child) and `calib process` of `src`, each
+    reported: "floor" and "process" -> (seconds, peak resident bytes, output) of the child."""
+    folder = work / "floor"
+    folder.mkdir()
+    limit = str(int(args.memory_limit_gb * 1e9))
+    runs = {
+        "floor": run_child(
+            [sys.executable, "-c", textwrap.dedent(floor), str(src), str(folder), limit]
+        )
+    }
+    shutil.rmtree(folder)
+    report(f"{name}floor", runs["floor"])
+    runs["process"] = calib_process(src, work, args.memory_limit_gb)
+    report(f"{name}process", runs["process"])
+    return runs
+
+
+def pass_figures(size: int, samples: int, write_s: float, runs: dict) -> dict:
+    """The figures of one format's floor and process passes (`runs`, from `passes`)."""
     (floor_s, floor_rss, _), (proc_s, proc_rss, _) = runs["floor"], runs["process"]
     return {
         "size_gb": round(size / 1e9, 3),
@@ -278,6 +282,11 @@ def pass_figures(size: int, samples: int, runs: dict) -> dict:
         "process_mb_per_s": round(size / 1e6 / proc_s, 1),
         "floor_mb_per_s": round(size / 1e6 / floor_s, 1),
         "process_to_floor_ratio": round(proc_s / floor_s, 3),
+        "seconds": {
+            "write": round(write_s, 1),
+            "floor": round(floor_s, 1),
+            "process": round(proc_s, 1),
+        },
     }
 
 
@@ -339,36 +348,7 @@ with src.open("rb") as fh, (work / "raw").open("wb") as copy, pq.ParquetWriter(
 print(sha.hexdigest())
 """
 
-# sensor_msgs/msg/Imu as ``ros2 bag record`` stores its definition (with dependencies).
-_SEP = "=" * 80 + "\n"
-IMU_MSGDEF = (
-    "std_msgs/Header header\ngeometry_msgs/Quaternion orientation\n"
-    "float64[9] orientation_covariance\ngeometry_msgs/Vector3 angular_velocity\n"
-    "float64[9] angular_velocity_covariance\ngeometry_msgs/Vector3 linear_acceleration\n"
-    "float64[9] linear_acceleration_covariance\n"
-    f"{_SEP}MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
-    f"{_SEP}MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
-    f"{_SEP}MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
-    f"{_SEP}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
-)
-# One little-endian CDR Imu message with frame_id "imu_link": encapsulation, Header
-# (stamp, frame_id with its NUL, padding to 8), then 37 float64 (pipelines.ingest.cdr).
-IMU_CDR = np.dtype(
-    [
-        ("encapsulation", "u1", 4),
-        ("sec", "<i4"),
-        ("nanosec", "<u4"),
-        ("frame_len", "<u4"),
-        ("frame_id", "S9"),
-        ("pad", "u1", 3),
-        ("orientation", "<f8", 4),
-        ("orientation_cov", "<f8", 9),
-        ("gyr", "<f8", 3),
-        ("gyr_cov", "<f8", 9),
-        ("acc", "<f8", 3),
-        ("acc_cov", "<f8", 9),
-    ]
-)
+IMU_CDR = imu_cdr(b"imu_link")
 T0_NS = 1_767_225_600_000_000_000  # 2026-01-01 UTC, ns
 
 
@@ -410,7 +390,6 @@ def write_mcap_record(path: Path, size_bytes: int, seed: int = 0) -> int:
 def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
     """The MCAP record's figures (and the Allan check on its samples when `allan`)."""
     work = Path(tempfile.mkdtemp(prefix="longlog-mcap-", dir=args.dir))
-    limit = str(int(args.memory_limit_gb * 1e9))
     out: dict = {}
     try:
         src = work / "static.mcap"
@@ -422,15 +401,7 @@ def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
             f"mcap: wrote {size / 1e9:.2f} GB, {samples:,} messages in {write_s:.0f} s",
             file=sys.stderr,
         )
-        runs = {}
-        folder = work / "floor"
-        folder.mkdir()
-        floor = [sys.executable, "-c", textwrap.dedent(MCAP_FLOOR), str(src), str(folder), limit]
-        runs["floor"] = run_child(floor)
-        shutil.rmtree(folder)
-        report("mcap floor", runs["floor"])
-        runs["process"] = calib_process(src, work, args.memory_limit_gb)
-        report("mcap process", runs["process"])
+        runs = passes("mcap ", MCAP_FLOOR, src, work, args)
         (parquet,) = (work / "archive" / "samples").rglob("*.parquet")
         got = pq.ParquetFile(parquet).metadata.num_rows
         if got != samples:
@@ -442,16 +413,7 @@ def mcap_part(args: argparse.Namespace, allan: bool) -> dict:
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
-    (floor_s, _, _), (proc_s, _, _) = runs["floor"], runs["process"]
-    return {
-        **pass_figures(size, samples, runs),
-        "seconds": {
-            "write": round(write_s, 1),
-            "floor": round(floor_s, 1),
-            "process": round(proc_s, 1),
-        },
-        **out,
-    }
+    return {**pass_figures(size, samples, write_s, runs), **out}
 
 
 FIGURES = (

@@ -32,24 +32,12 @@ from pathlib import Path
 import numpy as np
 from longlog import MANIFEST, RATE, T0_NS, run_child
 
+from calib_testing.calib_command import CALIB
+from calib_testing.ros_messages import imu_ros1
+
 BLOCK_ROWS = 250_000  # messages serialised at a time
 
-# One ROS 1 Imu message with frame_id "imu_link" (ROS 1 serialisation: packed, no padding).
-IMU_ROS1 = np.dtype(
-    [
-        ("seq", "<u4"),
-        ("sec", "<u4"),
-        ("nsec", "<u4"),
-        ("frame_len", "<u4"),
-        ("frame_id", "S8"),
-        ("orientation", "<f8", 4),
-        ("orientation_cov", "<f8", 9),
-        ("gyr", "<f8", 3),
-        ("gyr_cov", "<f8", 9),
-        ("acc", "<f8", 3),
-        ("acc_cov", "<f8", 9),
-    ]
-)
+IMU_ROS1 = imu_ros1(b"imu_link")
 BAG_FORMAT = """[format]
 kind = "rosbag"
 imu_topic = "/imu/data"
@@ -94,10 +82,9 @@ def process(src: Path, work: Path, limit_mb: float) -> tuple[float, float, dict]
     src.rename(run / src.name)
     text = MANIFEST.format(limit_mb=round(limit_mb), data=src.name, format=BAG_FORMAT)
     (run / "run.toml").write_text(text, encoding="utf-8")
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {"CALIB_ARCHIVE": str(work / "archive"), "CALIB_ISSUE_CERTIFICATES": "0"}
     try:
-        seconds, peak, out = run_child([calib, "process", str(run), "--json"], env)
+        seconds, peak, out = run_child([CALIB, "process", str(run), "--json"], env)
     finally:
         (run / src.name).rename(src)
         shutil.rmtree(run)

@@ -37,7 +37,7 @@ from calib_core.condition_rules import (  # noqa: F401  (the catalogue's names, 
 from calib_core.preprocess.motion import is_rotation
 from calib_core.recording import Recording
 from calib_core.streamed import RecordSummary
-from calib_core.units import DEG
+from calib_core.units import ARCSEC, DEG
 
 if TYPE_CHECKING:  # the procedures (every solver, scipy) load where a run is judged: the
     # readers of archived checks (`status`, `calib show`) need none of them
@@ -155,7 +155,6 @@ def _table_checks(
 # The table's position feedback channels (rad): a one-axis table's angle, a two-axis
 # table's pitch / roll (or azimuth / pitch).
 POSITION_CHANNELS = ("table_angle", "table_pitch", "table_roll", "table_azimuth")
-ARCSEC = DEG / 3600.0  # rad
 
 
 def table_position_deviation(segments: Mapping[str, Recording]) -> tuple[float | None, str]:

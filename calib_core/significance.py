@@ -97,11 +97,6 @@ class OlsFit:
         return float(np.sqrt(self.Q / self.dof))
 
     @property
-    def significant(self) -> np.ndarray:
-        """(p,) bool, |t| > t_crit."""
-        return np.abs(self.t) > self.t_crit
-
-    @property
     def model_significant(self) -> bool:
         """Whether the model as a whole passes the F test."""
         return bool(self.F_crit < self.F)
@@ -114,10 +109,6 @@ class OlsFit:
             return self.names.index(name)
         except ValueError:
             raise KeyError(f"term {name!r} is not in the model {list(self.names)}") from None
-
-    def predict(self, X: np.ndarray) -> np.ndarray:
-        """X (m, p) in the same column order -> (m,) fitted values."""
-        return np.asarray(X, dtype=float) @ self.coef
 
     def table(self) -> list[dict[str, float | str]]:
         """One row per term: name, coef, std, t, p."""

@@ -180,6 +180,11 @@ class ParameterLimit:
         return self.high if math.isfinite(self.high) else self.low
 
 
+# The top-level fields of a profile document.
+_PROFILE_FIELDS = "name version device_model limits residual_limits verification_limits "
+_PROFILE_FIELDS += "repeatability decision_rule conditions protocol recall"
+
+
 @dataclass
 class ToleranceProfile:
     """Tolerances of one device type, SI units.
@@ -295,19 +300,7 @@ class ToleranceProfile:
         """
         if not isinstance(doc, dict):
             raise ValueError(f"tolerance profile: expected a table, got {type(doc).__name__}")
-        known = {
-            "name",
-            "version",
-            "device_model",
-            "limits",
-            "residual_limits",
-            "verification_limits",
-            "repeatability",
-            "decision_rule",
-            "conditions",
-            "protocol",
-            "recall",
-        }
+        known = set(_PROFILE_FIELDS.split())
         unknown = sorted(set(doc) - known)
         if unknown:
             raise ValueError(

@@ -170,11 +170,6 @@ class Budget:
             "k_method": self.k_method,
         }
 
-    def dominant(self, n: int = 3) -> list[Contribution]:
-        """The `n` largest non-zero contributions, largest first."""
-        rows = sorted((r for r in self.rows if r.contribution > 0), key=lambda r: -r.contribution)
-        return rows[:n]
-
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> Budget:
         """Read back `to_dict` (None degrees of freedom are infinite)."""

@@ -33,11 +33,10 @@ from calib_core.solvers.rate_table import RatePoint, plateau_window, rate_points
 from calib_core.solvers.six_position import STATIC_LABELS, axis_vector
 from calib_core.stats import channel_stats
 from calib_core.uncertainty import Budget, InputQuantity, budgets, monte_carlo
+from calib_core.units import DEG
 
 if TYPE_CHECKING:
     from scipy.spatial.transform import Rotation
-
-DEG = math.pi / 180.0
 
 
 @dataclass(frozen=True)

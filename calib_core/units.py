@@ -6,10 +6,6 @@ Accelerations in m/s^2, angular rates in rad/s, time in s, temperature in deg C.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:  # numpy loaded by to_si alone: the display of a value needs none
-    import numpy as np
 
 STANDARD_GRAVITY = 9.80665  # m/s^2, CGPM 1901
 DEG = math.pi / 180.0  # rad per degree
@@ -30,7 +26,15 @@ ANGULAR_RATE_UNITS: dict[str, float] = {
     "rpm": 2.0 * math.pi / 60.0,
 }
 TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-ANGLE_UNITS: dict[str, float] = {"rad": 1.0, "deg": DEG}
+ANGLE_UNITS: dict[str, float] = {
+    "deg": DEG,
+    "°": DEG,
+    "arcmin": DEG / 60.0,
+    "arcsec": ARCSEC,
+    "rad": 1.0,
+    "mrad": 1e-3,
+    "urad": 1e-6,
+}
 
 
 def _factor(table: dict[str, float], unit: str, quantity: str) -> float:
@@ -54,24 +58,3 @@ def angular_rate_factor(unit: str) -> float:
 def time_factor(unit: str) -> float:
     """Factor converting a time in `unit` to s."""
     return _factor(TIME_UNITS, unit, "time")
-
-
-def angle_factor(unit: str) -> float:
-    """Factor converting an angle in `unit` to rad."""
-    return _factor(ANGLE_UNITS, unit, "angle")
-
-
-def to_si(values: np.ndarray, unit: str, quantity: str) -> np.ndarray:
-    """Convert `values` from `unit` to SI.
-
-    quantity : "acceleration", "angular_rate", "time" or "angle".
-    """
-    factor = {
-        "acceleration": acceleration_factor,
-        "angular_rate": angular_rate_factor,
-        "time": time_factor,
-        "angle": angle_factor,
-    }[quantity](unit)
-    import numpy as np
-
-    return np.asarray(values, dtype=float) * factor

@@ -7,6 +7,7 @@ it (tests/test_layers.py).
 
 - archives: small archives of runs given at the parameter level (read-side tests);
 - pgserver: a private, throw-away PostgreSQL server (fsync off) for tests and benchmarks;
+- ros_messages: ROS message definitions and packed Imu layouts (MCAP / bag writers);
 - run_writers: writers of run folders in the layouts ingest reads (data_samples/, tests);
 - watchdog: stops a run's servers and removes its folders when the run ends, however.
 """

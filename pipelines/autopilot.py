@@ -70,11 +70,12 @@ _SHARED = [
     ("ROLL_90_PITCH_180_YAW_90", (90, 180, 90)),
     ("ROLL_90_YAW_270", (90, 0, 270)),
 ]
-# 38 (ROLL_90_PITCH_68_YAW_293) is left out: ArduPilot applies a matrix of its own for it.
+# 38 (ROLL_90_PITCH_68_YAW_293) is left out: ArduPilot applies a matrix of its own for it;
+# 39 and 40 are shared again, the numbers from 41 on are each firmware's own.
+_SHARED_LATER = [("PITCH_315", 39, (0, 315, 0)), ("ROLL_90_PITCH_315", 40, (90, 315, 0))]
 _LATER = {
     "px4": [
-        ("PITCH_315", 39, (0, 315, 0)),
-        ("ROLL_90_PITCH_315", 40, (90, 315, 0)),
+        *_SHARED_LATER,
         ("ROLL_270_YAW_180", 41, (270, 0, 180)),
         ("ROLL_270_YAW_270", 42, (270, 0, 270)),
         ("PITCH_90_YAW_180", 43, (0, 90, 180)),
@@ -84,8 +85,7 @@ _LATER = {
         ("ROLL_270_YAW_315", 47, (270, 0, 315)),
     ],
     "ardupilot": [
-        ("PITCH_315", 39, (0, 315, 0)),
-        ("ROLL_90_PITCH_315", 40, (90, 315, 0)),
+        *_SHARED_LATER,
         ("PITCH_7", 41, (0, 7, 0)),
         ("ROLL_45", 42, (45, 0, 0)),
         ("ROLL_315", 43, (315, 0, 0)),
@@ -153,11 +153,6 @@ def _euler_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
     rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
     return rounded(rz @ ry @ rx)
-
-
-def rotated_vector(rot: Rotation, vector: np.ndarray) -> np.ndarray:
-    """(3,) or (3, k) vectors in the calibrated axes -> the firmware's axes."""
-    return rot.matrix @ np.asarray(vector, dtype=float)
 
 
 def rotated_scales(rot: Rotation, scales: np.ndarray, firmware: str) -> np.ndarray:

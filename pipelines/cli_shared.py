@@ -260,6 +260,11 @@ ProgressOpt = Annotated[
 JsonOpt = Annotated[
     bool, typer.Option("--json", help="Print the JSON document (for scripts) instead of text.")
 ]
+# What was current at a time: the queries and exports that choose a calibration or model.
+AtOpt = Annotated[
+    str | None,
+    typer.Option("--at", help="As of this date (the whole UTC day) or ISO date-time with zone."),
+]
 RevisionOpt = Annotated[
     int | None, typer.Option("--revision", help="Calibration revision (default: the current one).")
 ]

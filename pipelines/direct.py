@@ -85,23 +85,15 @@ def process_in_process(
     retries it (RETRIES more attempts after RETRY_DELAYS_S); then the run is reported failed.
     """
     from pipelines.issuing import issuing_beside
+    from pipelines.run_task import gave_up, process_run_for_batch, run_in_process
     from storage.db import resolve_archive
 
     arch = resolve_archive(archive)
     arch.upgrade()
-    outcomes: list[dict[str, Any]] = []
     with issuing_beside():  # each certificate beside the next run
-        for source in sources:
-            outcomes.append(_with_retries(source, arch.url, str(arch.root)))
-            if on_progress is not None:
-                on_progress(len(outcomes), len(sources), outcomes[-1])
-    return outcomes
-
-
-def _with_retries(source: RunSource, url: str, root: str) -> dict[str, Any]:
-    from pipelines.run_task import call_with_retries, gave_up, process_run_for_batch
-
-    return call_with_retries(
-        lambda: process_run_for_batch(source, url, root),
-        lambda exc: gave_up(str(source.folder), source.serial or "", exc),
-    )
+        return run_in_process(
+            sources,
+            lambda source: process_run_for_batch(source, arch.url, str(arch.root)),
+            lambda source, exc: gave_up(str(source.folder), source.serial or "", exc),
+            on_progress,
+        )

@@ -130,19 +130,14 @@ def px4_parameters(
                     (f"{p}{instance}_X{k}_{axis}", float(poly[axis, k]), MAV_PARAM_TYPE_REAL32)
                 )
         if legacy_scale and sensor == "acc":
-            scl = [
-                1.0
-                / (
-                    1.0
-                    + (
-                        float(model.value(f"acc.scale.{a}", model.t_ref))
-                        if f"acc.scale.{a}" in model.curves
-                        else (calibration.value(f"acc.scale.{a}") if calibration else 0.0)
-                    )
-                )
-                for a in params.AXES
+            scale = [
+                float(model.value(n, model.t_ref))
+                if n in model.curves
+                else (calibration.value(n) if calibration else 0.0)
+                for n in (f"acc.scale.{a}" for a in params.AXES)
             ]
-            scl = scl if rot is None else rotated_scales(rot, np.array(scl), "PX4")
+            scl = 1.0 / (1.0 + np.array(scale))
+            scl = scl if rot is None else rotated_scales(rot, scl, "PX4")
             for axis in range(3):
                 rows.append((f"{p}{instance}_SCL_{axis}", float(scl[axis]), MAV_PARAM_TYPE_REAL32))
         rows.append((f"{p}{instance}_TREF", float(model.t_ref), MAV_PARAM_TYPE_REAL32))

@@ -407,16 +407,11 @@ def recompute_in_process(
     archive: Archive, run_ids: list[str], on_progress: Any = None
 ) -> list[dict[str, Any]]:
     """A small recomputation without Prefect (as `pipelines.direct` for `calib process`)."""
-    from pipelines.run_task import call_with_retries
+    from pipelines.run_task import run_in_process
 
-    outcomes: list[dict[str, Any]] = []
-    for run_id in run_ids:
-        outcomes.append(
-            call_with_retries(
-                lambda r=run_id: recompute_run_for_batch(r, archive.url, str(archive.root)),
-                lambda exc, r=run_id: failed_outcome(r, exc),
-            )
-        )
-        if on_progress is not None:
-            on_progress(len(outcomes), len(run_ids), outcomes[-1])
-    return outcomes
+    return run_in_process(
+        run_ids,
+        lambda r: recompute_run_for_batch(r, archive.url, str(archive.root)),
+        failed_outcome,
+        on_progress,
+    )

@@ -319,23 +319,15 @@ def reprocess_in_process(
     `todo` and `skipped` are what `plan_reprocess` gave; the outcomes come in the
     order of `reprocess_batch`'s (skipped first), with the same retries.
     """
-    from pipelines.run_task import call_with_retries, gave_up
+    from pipelines.run_task import gave_up, run_in_process
 
-    outcomes = list(skipped)
-    total = len(skipped) + len(todo)
-    for n, outcome in enumerate(skipped, 1):
-        if on_progress is not None:
-            on_progress(n, total, outcome)
-    for run_id in todo:
-        outcomes.append(
-            call_with_retries(
-                lambda r=run_id: reprocess_run_for_batch(r, archive.url, str(archive.root), reason),
-                lambda exc, r=run_id: gave_up(f"archive:{r}", "", exc, r),
-            )
-        )
-        if on_progress is not None:
-            on_progress(len(outcomes), total, outcomes[-1])
-    return outcomes
+    return run_in_process(
+        todo,
+        lambda r: reprocess_run_for_batch(r, archive.url, str(archive.root), reason),
+        lambda r, exc: gave_up(f"archive:{r}", "", exc, r),
+        on_progress,
+        done=skipped,
+    )
 
 
 def changed_pairs(

@@ -164,23 +164,40 @@ def process_run_for_batch(source: RunSource, archive_url: str, archive_root: str
         raise TransientError(f"{source.name}: {type(exc).__name__}: {exc}") from exc
 
 
-def call_with_retries(
-    call: Callable[[], dict[str, Any]], gave_up: Callable[[TransientError], dict[str, Any]]
-) -> dict[str, Any]:
-    """``call()`` in this process, retried as the batch flow retries its tasks.
+def run_in_process(
+    items: list[Any],
+    call: Callable[[Any], dict[str, Any]],
+    gave_up: Callable[[Any, TransientError], dict[str, Any]],
+    on_progress: Callable[[int, int, dict[str, Any]], None] | None = None,
+    done: list[dict[str, Any]] | None = None,
+) -> list[dict[str, Any]]:
+    """``call(item)`` for each item in this process, one after the other, retried as the
+    batch flow retries its tasks; the outcomes of `done` (settled before), then theirs.
 
     A `TransientError` is tried again after each of RETRY_DELAYS_S (RETRIES more
-    attempts); after the last, the outcome is ``gave_up(error)``.
+    attempts); after the last, the outcome is ``gave_up(item, error)``. `on_progress`
+    gets (outcomes so far, total, the last outcome) after each, `done` first.
     """
-    for delay in RETRY_DELAYS_S[:RETRIES]:
-        try:
-            return call()
-        except TransientError:
-            time.sleep(delay)
-    try:
-        return call()
-    except TransientError as exc:
-        return gave_up(exc)
+    outcomes: list[dict[str, Any]] = []
+    total = len(done or []) + len(items)
+    for item in done or []:
+        outcomes.append(item)
+        if on_progress is not None:
+            on_progress(len(outcomes), total, item)
+    for item in items:
+        for delay in [*RETRY_DELAYS_S[:RETRIES], None]:
+            try:
+                outcome = call(item)
+                break
+            except TransientError as exc:
+                if delay is None:
+                    outcome = gave_up(item, exc)
+                else:
+                    time.sleep(delay)
+        outcomes.append(outcome)
+        if on_progress is not None:
+            on_progress(len(outcomes), total, outcome)
+    return outcomes
 
 
 def gave_up(source: str, serial: str, exc: BaseException, run_id: str = "") -> dict[str, Any]:

@@ -25,7 +25,7 @@ from calib_core.recording import Recording
 from calib_core.run_budget import budgets_doc, run_budgets
 from calib_core.uncertainty import Budget
 from calib_core.uncertainty_sources import EquipmentSpec
-from calib_core.units import DEG
+from calib_core.units import ANGLE_UNITS, DEG
 from pipelines.ingest.manifest import RunManifest
 
 # Expanded uncertainty (k = 2) of local gravity by the site's gravity model, m/s^2: a survey
@@ -40,16 +40,6 @@ SETTINGS = {
     "turn_angle_deg": ("turn_angle", DEG),
 }
 
-
-ANGLE_UNITS = {
-    "deg": DEG,
-    "°": DEG,
-    "arcmin": DEG / 60.0,
-    "arcsec": DEG / 3600.0,
-    "rad": 1.0,
-    "mrad": 1e-3,
-    "urad": 1e-6,
-}
 # Which specification an equipment's accuracy class gives: (kind, what it states) -> field.
 ACCURACY_FIELDS = {
     ("cube", "angle"): "cube_angle",

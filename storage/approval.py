@@ -27,6 +27,7 @@ import base64
 import hashlib
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from datetime import date
 from pathlib import Path
@@ -215,18 +216,27 @@ def _sealed_revision(
     return row.id, row.revision, row.digest, row.record
 
 
-def _signature_error(ev: Any) -> str | None:
-    """Why the signature of approval event `ev` does not verify (None: it does)."""
-    d = ev.detail or {}
+def signature_error(doc: dict[str, Any], signed: Callable[[], bytes]) -> str | None:
+    """Why the Ed25519 signature of `doc` (hex ``public_key`` and ``signature``) over the
+    bytes `signed()` does not verify, by the name of what failed (a field missing or
+    malformed, InvalidSignature); None: it verifies. Approvals and signed checkpoints."""
     try:
-        public = Ed25519PublicKey.from_public_bytes(bytes.fromhex(d["public_key"]))
-        public.verify(
-            bytes.fromhex(d["signature"]),
-            message(ev.run_id, ev.revision, ev.digest, d["meaning"], d["signer"], d["public_key"]),
-        )
+        public = Ed25519PublicKey.from_public_bytes(bytes.fromhex(doc["public_key"]))
+        public.verify(bytes.fromhex(doc["signature"]), signed())
     except (InvalidSignature, KeyError, ValueError, TypeError) as exc:
         return type(exc).__name__
     return None
+
+
+def _signature_error(ev: Any) -> str | None:
+    """Why the signature of approval event `ev` does not verify (None: it does)."""
+    d = ev.detail or {}
+    return signature_error(
+        d,
+        lambda: message(
+            ev.run_id, ev.revision, ev.digest, d["meaning"], d["signer"], d["public_key"]
+        ),
+    )
 
 
 def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[seal_check.Finding]:

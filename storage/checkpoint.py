@@ -18,8 +18,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from cryptography.exceptions import InvalidSignature
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from sqlalchemy import Connection, func, select
 
 from storage import seal, seal_check, seal_record
@@ -115,12 +114,9 @@ def signature_error(doc: dict[str, Any]) -> str | None:
     """Why a signed checkpoint's signature does not verify (None: it does, or unsigned)."""
     if not any(k in doc for k in _SIGNED):
         return None
-    try:
-        public = Ed25519PublicKey.from_public_bytes(bytes.fromhex(doc["public_key"]))
-        public.verify(bytes.fromhex(doc["signature"]), _message(doc))
-    except (InvalidSignature, KeyError, ValueError, TypeError) as exc:
-        return type(exc).__name__
-    return None
+    from storage import approval
+
+    return approval.signature_error(doc, lambda: _message(doc))
 
 
 def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal_check.Finding]:

@@ -25,16 +25,14 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import Connection, insert, inspect, select, text
+from sqlalchemy import Connection, insert, select, text
 
-from storage import schema
 from storage.db import Archive
 from storage.schema import AuditEvent, Seal, utcnow
 from storage.seal_record import (
     FORMAT,
     TEXTS,
     canonical,
-    chunks,
     records,
     sha256_hex,
     without_texts,
@@ -270,41 +268,3 @@ def insert_seal(conn: Connection, cal_id: int, record: dict[str, Any]) -> str:
         row["texts"] = record[TEXTS]
     conn.execute(_INSERT_SEAL, row)
     return digest
-
-
-def seal_unsealed(conn: Connection, who: str) -> int:
-    """Seal every calibration without a seal, in id order (migration 0004, bulk loads).
-
-    The files of those revisions are not known (they were not recorded): their
-    records have no ``files``. Run by migration 0004, before 0006 gave runs their
-    own description (0006 copies it from the device row) and before 0008 gave
-    seals their ``texts``: such seals are in record format 1.
-    Returns the number sealed.
-    """
-    per_run = "model" in {c["name"] for c in inspect(conn).get_columns("runs")}
-    form = FORMAT if "texts" in {c["name"] for c in inspect(conn).get_columns("seals")} else 1
-    sealed = select(Seal.calibration_id)
-    ids = (
-        conn.execute(
-            select(schema.CalibrationRow.id)
-            .where(schema.CalibrationRow.id.not_in(sealed))
-            .order_by(schema.CalibrationRow.id)
-        )
-        .scalars()
-        .all()
-    )
-    for chunk in chunks(list(ids)):
-        recs = records(conn, chunk, per_run_description=per_run, form=form)
-        for cal_id in chunk:
-            rec = recs[cal_id]
-            digest = insert_seal(conn, cal_id, rec)
-            append_event(
-                conn,
-                "sealed",
-                run_id=rec["runs"]["run_id"],
-                revision=rec["calibrations"]["revision"],
-                digest=digest,
-                who=who,
-                reason="sealed when the archive was upgraded",
-            )
-    return len(ids)

@@ -125,7 +125,6 @@ def records(
     cal_ids: list[int],
     files: dict[int, dict[str, str]] | None = None,
     *,
-    per_run_description: bool = True,
     form: int = FORMAT,
 ) -> dict[int, dict[str, Any]]:
     """The record of each calibration revision, as its rows are now.
@@ -136,8 +135,6 @@ def records(
     cal_ids : calibration ids (a few hundred at a time: they go into IN lists).
     files : calibration id -> {path relative to the file store: sha256} of the files
         the revision wrote; missing ids get ``{}``.
-    per_run_description : False only for a schema before migration 0006, whose runs
-        have no description of their own (`seal_unsealed` decides).
     form : record format (module docstring): 1 every value decoded, 2 JSON columns
         as the SHA-256 of their stored text, which goes under ``texts``.
 
@@ -156,7 +153,7 @@ def records(
     before 0006, which copied the device row's description into the runs) keeps its
     digest; a run's field changed to differ shows as sealed "(absent)".
     """
-    head = conn.execute(_head_query(form, per_run_description), {"ids": cal_ids}).mappings()
+    head = conn.execute(_head_query(form), {"ids": cal_ids}).mappings()
     run_stored = _stored_names(schema.Run, _RUN, form)
     cal_stored = _stored_names(schema.CalibrationRow, _CAL, form)
     out: dict[int, dict[str, Any]] = {}
@@ -164,7 +161,7 @@ def records(
     for m in head:
         run_of[m["cal_pk"]] = m["run_pk"]
         out[m["cal_pk"]] = {
-            "runs": _fields(m, _RUN, "r_", run_stored) | _own_description(m, per_run_description),
+            "runs": _fields(m, _RUN, "r_", run_stored) | _own_description(m),
             "calibrations": _fields(m, _CAL, "c_", cal_stored),
             "devices": {n: m["d_" + n] for n in _DEVICE},
             "files": dict(sorted((files or {}).get(m["cal_pk"], {}).items())),
@@ -187,7 +184,7 @@ _IDS = bindparam("ids", expanding=True)
 
 
 @cache
-def _head_query(form: int, per_run_description: bool) -> Select:
+def _head_query(form: int) -> Select:
     """Each revision's run, calibration and device fields, for calibration ids ``ids``."""
     return (
         select(
@@ -196,7 +193,7 @@ def _head_query(form: int, per_run_description: bool) -> Select:
             *_cols(schema.Run, _RUN, "r_", form),
             *_cols(schema.CalibrationRow, _CAL, "c_", form),
             *_cols(schema.Device, _DEVICE, "d_"),
-            *(_cols(schema.Run, _DESCRIPTION, "u_") if per_run_description else ()),
+            *_cols(schema.Run, _DESCRIPTION, "u_"),
         )
         .join(schema.Run, schema.Run.id == schema.CalibrationRow.run_id)
         .join(schema.Device, schema.Device.id == schema.Run.device_id)
@@ -249,10 +246,8 @@ def text_digest(stored: str) -> str:
     return "sha256:" + sha256_hex(stored.encode())
 
 
-def _own_description(m: Any, per_run: bool) -> dict[str, Any]:
+def _own_description(m: Any) -> dict[str, Any]:
     """The fields of the run's own description that differ from its device row's."""
-    if not per_run:
-        return {}
     return {n: m["u_" + n] for n in _DESCRIPTION if m["u_" + n] != m["d_" + n]}
 
 

@@ -26,6 +26,7 @@ from sqlalchemy.exc import OperationalError
 
 import pipelines.process as process_module
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.calib_command import CALIB, run_calib
 from calib_testing.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
 from pipelines.ingest import IngestError
 from pipelines.run_task import RETRIES, is_transient
@@ -321,12 +322,10 @@ def test_overlapping_batches_in_two_processes_archive_each_run_once(
 def test_cli_progress_goes_to_stderr_and_options_are_checked(prefect_harness, tmp_path: Path):
     """`calib process --json --progress`: stdout is exactly the JSON document, the bar is on
     stderr; inconsistent runner options exit with status 2 and name the option."""
-    import shutil
 
     from prefect.settings import PREFECT_API_URL
 
     write_runs(tmp_path / "day", [41, 42])
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {
         **os.environ,
         "PREFECT_API_URL": PREFECT_API_URL.value(),
@@ -334,9 +333,7 @@ def test_cli_progress_goes_to_stderr_and_options_are_checked(prefect_harness, tm
     }
 
     def run(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            [calib, "process", *args], capture_output=True, text=True, env=env, timeout=300
-        )
+        return run_calib("process", *args, env=env, timeout=300)
 
     done = run(str(tmp_path / "day"), "--json", "--progress", "--workers", "2")
     assert done.returncode == 0, done.stderr[-3000:]
@@ -378,20 +375,17 @@ def test_every_task_run_reaches_the_temporary_api_with_batched_recording(tmp_pat
     batches (local_batch_settings). None may be lost or left in an early state: the
     last batch is smaller than the batch size and is written when the server stops
     with the `calib` process. Read back through a new server on the same database."""
-    import shutil
 
     from pipelines.flows import RECORDER_BATCH_SIZE
 
     folders = write_runs(tmp_path / "day", [81, 82, 83])
     assert len(folders) < RECORDER_BATCH_SIZE  # so only the periodic or final flush writes them
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}  # temporary API
     env["PREFECT_HOME"] = str(tmp_path / "prefect")  # its own Prefect database
-    done = subprocess.run(
-        [calib, "process", str(tmp_path / "day"), "--archive", str(tmp_path / "archive"), "--flow"]
-        + ["--json", "--no-progress"],
-        capture_output=True,
-        text=True,
+    archive = str(tmp_path / "archive")
+    done = run_calib(
+        *("process", str(tmp_path / "day"), "--archive", archive, "--flow", "--json"),
+        "--no-progress",
         env=env,
         timeout=SUBPROCESS_TIMEOUT_S,
     )
@@ -465,17 +459,15 @@ def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> N
     exit status 130 within seconds (Prefect alone spent 77-108 s retrying its reports),
     a message saying how far it got, no worker, forkserver or API server left running,
     an archive that verifies, and the same command run again archives the rest."""
-    import shutil
     import signal
     import time
 
     seeds = list(range(60, 76))  # 16 runs: the batch is still going when the first one ends
     write_runs(tmp_path / "day", seeds)
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}  # temporary API
     env["CALIB_TEST_TAG"] = tag = str(uuid.uuid4())
     archive = str(tmp_path / "archive")
-    cmd = [calib, "--verbose", "process", str(tmp_path / "day"), "--archive", archive]
+    cmd = [CALIB, "--verbose", "process", str(tmp_path / "day"), "--archive", archive]
     cmd.append("--no-progress")
     before = _helper_pids(tag)
     log = tmp_path / "stderr.txt"
@@ -506,9 +498,7 @@ def test_ctrl_c_stops_a_batch_at_once_and_the_rerun_goes_on(tmp_path: Path) -> N
         time.sleep(0.2)
     assert not left, [Path(f"/proc/{p}/cmdline").read_bytes()[:120] for p in left]
 
-    verify = subprocess.run(
-        [calib, "verify", "--archive", archive], capture_output=True, text=True, env=env
-    )
+    verify = run_calib("verify", "--archive", archive, env=env)
     assert verify.returncode == 0, verify.stdout[-2000:] + verify.stderr[-2000:]
     again = subprocess.run(
         [*cmd, "--json"], capture_output=True, text=True, env=env, timeout=SUBPROCESS_TIMEOUT_S

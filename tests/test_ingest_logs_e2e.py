@@ -16,9 +16,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +24,7 @@ from log_writers import write_dataflash, write_rosbag1, write_rosbag2, write_ulo
 from test_ingest_formats_e2e import manifest
 
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.calib_command import run_calib
 from pipelines.ingest import IngestError, discover_runs, load_run
 
 
@@ -93,14 +91,7 @@ def test_calib_process_every_route(tmp_path: Path, sim) -> None:
     for route in ROUTES:
         write_run(day / route, route, sim.segments)
     env = {**os.environ, "CALIB_ARCHIVE": str(tmp_path / "archive")}
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
-    proc = subprocess.run(
-        [calib, "process", str(day), "--json"],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
+    proc = run_calib("process", str(day), "--json", env=env)
     assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-3000:]
     runs = {r["serial"]: r for r in json.loads(proc.stdout)["runs"]}
     assert sorted(runs) == sorted(f"SIM-{r.upper()}" for r in ROUTES)

@@ -21,47 +21,10 @@ from mcap.writer import Writer as McapWriter
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 
+from calib_testing.ros_messages import IMU_MSGDEF, JOINT_STATE_MSGDEF, TEMPERATURE_MSGDEF
 from pipelines.ingest.cdr import FixedLayout, decode_fixed_cdr
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.mcap_reader import read_mcap
-
-# --- ROS 2 message definitions (sensor_msgs, std_msgs, geometry_msgs, builtin_interfaces) ---
-
-SEP = "=" * 80 + "\n"
-_DEPS_HEADER = (
-    SEP + "MSG: std_msgs/Header\n"
-    "# Standard metadata for higher-level stamped data types.\n"
-    "builtin_interfaces/Time stamp\n"
-    "string frame_id\n" + SEP + "MSG: builtin_interfaces/Time\n"
-    "int32 sec\n"
-    "uint32 nanosec\n"
-)
-IMU_MSGDEF = (
-    "std_msgs/Header header\n"
-    "geometry_msgs/Quaternion orientation\n"
-    "float64[9] orientation_covariance # Row major about x, y, z axes\n"
-    "geometry_msgs/Vector3 angular_velocity\n"
-    "float64[9] angular_velocity_covariance # Row major about x, y, z axes\n"
-    "geometry_msgs/Vector3 linear_acceleration\n"
-    "float64[9] linear_acceleration_covariance # Row major x, y z\n"
-    + _DEPS_HEADER
-    + SEP
-    + "MSG: geometry_msgs/Quaternion\n"
-    "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n" + SEP + "MSG: geometry_msgs/Vector3\n"
-    "float64 x\nfloat64 y\nfloat64 z\n"
-)
-TEMPERATURE_MSGDEF = (
-    "std_msgs/Header header\n"
-    "float64 temperature # Measurement of the Temperature in Degrees Celsius.\n"
-    "float64 variance # 0 is interpreted as variance unknown.\n" + _DEPS_HEADER
-)
-JOINT_STATE_MSGDEF = (
-    "std_msgs/Header header\n"
-    "string[] name\n"
-    "float64[] position\n"
-    "float64[] velocity\n"
-    "float64[] effort\n" + _DEPS_HEADER
-)
 
 T0_NS = 1_700_000_000_123_456_789  # a Unix time in 2023, ns; not a round number on purpose
 # float64 spacing at 1.7e9 s is 2**-22 s = 2.4e-7 s; t is formed with <= 2 roundings there.

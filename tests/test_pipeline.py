@@ -5,9 +5,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +12,7 @@ import pytest
 from sqlalchemy import func, select
 
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.calib_command import run_calib
 from calib_testing.run_writers import six_position_manifest, write_csv_run, write_mpu6000_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
@@ -148,12 +146,7 @@ def _serials(arch) -> list[str]:
 def test_cli_process_json_contract(lab_day, tmp_path):
     """`calib process --json`: one JSON document on stdout, exit 1 when a run failed."""
     env = {**os.environ, "CALIB_ARCHIVE": str(tmp_path / "cli-archive")}
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
-
-    def run_calib(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run([calib, *args], capture_output=True, text=True, env=env, timeout=300)
-
-    proc = run_calib("process", str(lab_day["day"]), "--json")
+    proc = run_calib("process", str(lab_day["day"]), "--json", env=env)
     assert proc.returncode == 1 and proc.stdout.startswith("{"), proc.stderr[-3000:]
     doc = json.loads(proc.stdout)
     assert set(doc) == {"runs"} and len(doc["runs"]) == 4
@@ -169,12 +162,12 @@ def test_cli_process_json_contract(lab_day, tmp_path):
         else:
             assert run["error"]
     ok_ids = [r["run_id"] for r in doc["runs"] if r["status"] == "ok"]
-    proc = run_calib("process", str(lab_day["mpu"]), "--json")
+    proc = run_calib("process", str(lab_day["mpu"]), "--json", env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     again = json.loads(proc.stdout)["runs"]
     assert again[0]["status"] == "duplicate" and again[0]["run_id"] in ok_ids
 
-    shown = run_calib("show", ok_ids[0], "--json")
+    shown = run_calib("show", ok_ids[0], "--json", env=env)
     assert shown.returncode == 0, shown.stderr[-2000:]
-    exported = run_calib("export", ok_ids[0], "--format", "json")
+    exported = run_calib("export", ok_ids[0], "--format", "json", env=env)
     assert exported.returncode == 0 and "acc.scale.x" in exported.stdout

@@ -8,8 +8,6 @@ import hashlib
 import json
 import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +16,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 import pytest
 
+from calib_testing.calib_command import run_calib
 from calib_testing.run_writers import dumps_toml
 from storage import schema
 from storage.db import resolve_archive
@@ -100,14 +99,7 @@ def calib_process(folder: Path, archive: Path) -> tuple[dict, str]:
         "CALIB_ISSUE_CERTIFICATES": "0",
         "CALIB_PROFILES": str(folder.parent / "profiles"),
     }
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
-    proc = subprocess.run(
-        [calib, "process", str(folder), "--json"],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
+    proc = run_calib("process", str(folder), "--json", env=env)
     assert proc.stdout.startswith("{"), proc.stderr[-3000:]
     (run,) = json.loads(proc.stdout)["runs"]
     assert run["status"] == "ok", run["error"]

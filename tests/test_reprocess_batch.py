@@ -14,7 +14,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ from test_batch import wait_first_run_finished
 
 import pipelines.process as process_module
 from calib_core.simulate import random_errors, six_position_integral_run
+from calib_testing.calib_command import CALIB, run_calib
 from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.changes import change_report, family
 from pipelines.direct import discover, process_in_process
@@ -255,14 +255,13 @@ def test_kill_during_a_reprocess_batch_then_rerun_reprocesses_every_run_once(
     finally:
         del os.environ["CALIB_PROFILES"]
     lab_profile(profiles, "2", acc_bias=0.4)
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
     env = {
         **os.environ,
         "PREFECT_API_URL": PREFECT_API_URL.value(),
         "CALIB_PROFILES": str(profiles),
         "PYTHONPATH": str(ROOT),
     }
-    cmd = [calib, "--verbose", "reprocess", "--all", "--reason", "profile v2"]
+    cmd = [CALIB, "--verbose", "reprocess", "--all", "--reason", "profile v2"]
     cmd += ["--archive", archive]
     cmd += ["--flow", "--workers", "2", "--no-progress"]
     log = tmp_path / "stderr.txt"
@@ -275,9 +274,7 @@ def test_kill_during_a_reprocess_batch_then_rerun_reprocesses_every_run_once(
     cut = calibrations_per_run(archive)
     assert 1 <= sum(n == 2 for n in cut.values()) < len(seeds), cut  # killed mid-batch
 
-    again = subprocess.run(
-        [*cmd, "--json"], capture_output=True, text=True, env=env, timeout=SUBPROCESS_TIMEOUT_S
-    )
+    again = run_calib(*cmd[1:], "--json", env=env, timeout=SUBPROCESS_TIMEOUT_S)
     assert again.returncode == 0, again.stderr[-3000:]
     doc = json.loads(again.stdout)
     statuses = {o["run_id"]: o["status"] for o in doc["runs"]}
@@ -290,7 +287,5 @@ def test_kill_during_a_reprocess_batch_then_rerun_reprocesses_every_run_once(
     }
     assert doc["summary"]["failed"] == 0 and doc["changes"]["runs"] == len(seeds)
     assert set(calibrations_per_run(archive).values()) == {2}  # each run reprocessed once
-    verify = subprocess.run(
-        [calib, "verify", "--archive", archive], capture_output=True, text=True, env=env
-    )
+    verify = run_calib("verify", "--archive", archive, env=env)
     assert verify.returncode == 0, verify.stdout[-2000:] + verify.stderr[-2000:]

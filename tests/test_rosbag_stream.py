@@ -13,8 +13,6 @@ import json
 import os
 import re
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +28,7 @@ from test_process_streamed import (
 )
 
 from calib_core.recording import Recording
+from calib_testing.calib_command import run_calib
 from calib_testing.run_writers import dumps_toml
 from calib_testing.streaming import assert_same_samples, streamed_memory_growth
 from calib_testing.streaming import same_error as streamed_same_error
@@ -334,10 +333,7 @@ def test_bad_bags_fail_by_name_and_the_batch_goes_on(bag, tmp_path):
         "CALIB_ISSUE_CERTIFICATES": "0",
         "CALIB_PROFILES": str(tmp_path / "profiles"),
     }
-    calib = shutil.which("calib", path=str(Path(sys.executable).parent)) or "calib"
-    proc = subprocess.run(
-        [calib, "process", str(root), "--json"], capture_output=True, text=True, env=env
-    )
+    proc = run_calib("process", str(root), "--json", env=env)
     assert proc.stdout.startswith("{"), proc.stderr[-3000:]
     runs = {Path(r["source"]).name: r for r in json.loads(proc.stdout)["runs"]}
     assert runs["a_good"]["status"] == "ok", runs["a_good"]

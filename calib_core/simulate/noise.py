@@ -64,15 +64,6 @@ def quantise(x: np.ndarray, step: float) -> np.ndarray:
     return np.round(np.asarray(x) / step) * step if step > 0 else np.asarray(x)
 
 
-def angle_quantise(x: np.ndarray, rate_hz: float, step: float) -> np.ndarray:
-    """Rate from an angle counter of resolution `step` (rad): the integrated angle is
-    rounded, then differenced (angle quantisation noise, Allan slope -1)."""
-    if step <= 0:
-        return np.asarray(x)
-    theta = np.concatenate([[0.0], np.cumsum(x) / rate_hz])
-    return np.diff(quantise(theta, step)) * rate_hz
-
-
 @dataclass(frozen=True)
 class NoiseSpec:
     """Noise mix of one channel (same for each channel of a triad).

@@ -348,11 +348,6 @@ class AxisModel:
         """(len(terms),) standard uncertainties of `coef`."""
         return self.fit.std[self._model_columns]
 
-    @property
-    def qualified_terms(self) -> tuple[str, ...]:
-        """Terms prefixed with the axis, e.g. ``"x:a_x*a_y"``."""
-        return tuple(f"{self.axis}:{t}" for t in self.terms)
-
     def error(self, f: np.ndarray) -> np.ndarray:
         """(N, 3) sensor-axis inputs, m/s^2 -> (N,) modelled error of this axis, m/s^2."""
         return term_values(f, self.terms) @ self.coef

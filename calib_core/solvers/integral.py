@@ -43,6 +43,8 @@ from calib_core.recording import Recording
 from calib_core.settings import Setting
 from calib_core.solvers.six_position import UP_CHANNEL, reference_up
 from calib_core.solvers.turn_motion import (
+    REST_S,
+    REST_SAMPLES,
     TURN_ESTIMATORS,
     cross_axis_ratios,
     face_rest_stats,
@@ -357,13 +359,11 @@ def solve_integral(
 
 
 # A turn begins and ends at rest: the mean rate over its first and last REST_S (at least
-# REST_SAMPLES samples) may differ from the static reading of its orientation by REST_FRACTION
-# of the turn's peak rate plus REST_SIGMA standard errors of that mean. Beyond it the turn is
-# a finding (a record cut a little early: imucal's annotated x_cw ends at 11 % of its peak);
-# beyond MOVING_FRACTION of the peak it was cut mid-turn (a log cut at 1.5 rad/s was archived
-# 3134 standard uncertainties off) and is refused.
-REST_S = 0.1
-REST_SAMPLES = 5
+# REST_SAMPLES samples; turn_motion's) may differ from the static reading of its orientation
+# by REST_FRACTION of the turn's peak rate plus REST_SIGMA standard errors of that mean.
+# Beyond it the turn is a finding (a record cut a little early: imucal's annotated x_cw ends
+# at 11 % of its peak); beyond MOVING_FRACTION of the peak it was cut mid-turn (a log cut at
+# 1.5 rad/s was archived 3134 standard uncertainties off) and is refused.
 REST_FRACTION = 0.05
 REST_SIGMA = 6.0
 MOVING_FRACTION = 0.25

@@ -32,6 +32,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from typing import TypedDict, Unpack
 
 import numpy as np
 
@@ -146,32 +147,37 @@ def earth_rate_removed(
     return earth
 
 
-def solve_static_bias(
-    rec: Recording,
-    *,
-    latitude_deg: float | None = None,
-    heading_deg: float | None = None,
-    remove_earth_rate: bool = False,
-    n_sigma: float = 3.0,
-    up_axis: str | None = None,
-    gravity: float = STANDARD_GRAVITY,
-    taus: str | np.ndarray = "octave",
-) -> Calibration:
-    """Gyro bias and noise (and accelerometer bias if the orientation is known).
+class StaticBiasSettings(TypedDict, total=False):
+    """The settings of a static-bias solve (`solve_static_bias`), in memory or streamed;
+    their defaults are `solve_static_bias_stream`'s."""
+
+    latitude_deg: float | None
+    heading_deg: float | None
+    remove_earth_rate: bool
+    n_sigma: float
+    up_axis: str | None
+    gravity: float
+    taus: str | np.ndarray
+
+
+def solve_static_bias(rec: Recording, **settings: Unpack[StaticBiasSettings]) -> Calibration:
+    """Gyro bias and noise (and accelerometer bias if the orientation is known): the one-chunk
+    case of `solve_static_bias_stream`.
 
     Parameters
     ----------
     rec : one static Recording, ideally >= 60 min (a warning is added if shorter).
+    settings : `StaticBiasSettings`, each optional:
     latitude_deg, heading_deg : site latitude and fixture heading (module docstring
         frame), degrees; needed when `remove_earth_rate`.
     remove_earth_rate : subtract the Earth-rate projection from the gyro means
-        (FOG/RLG-grade units); only for the level z-up fixture.
-    n_sigma : outlier rule; rejected samples are left out of mean and std and
+        (FOG/RLG-grade units); only for the level z-up fixture (default: not).
+    n_sigma : outlier rule (default 3); rejected samples are left out of mean and std and
         interpolated over for the Allan deviation.
     up_axis : body axis pointing up ("+z", "-x", ...); if given, acc.bias.* is the
         mean minus gravity along that axis.
-    gravity : local gravity, m/s^2.
-    taus : cluster times of the Allan deviation ("octave", "log" or seconds).
+    gravity : local gravity, m/s^2 (default: standard gravity).
+    taus : cluster times of the Allan deviation ("octave" (default), "log" or seconds).
 
     Returns
     -------
@@ -189,14 +195,8 @@ def solve_static_bias(
         lambda: iter([chunk]),
         label=rec.label or "record",
         first=FirstPass.of(t, both),
-        latitude_deg=latitude_deg,
-        heading_deg=heading_deg,
-        remove_earth_rate=remove_earth_rate,
-        n_sigma=n_sigma,
-        up_axis=up_axis,
-        gravity=gravity,
-        taus=taus,
         execution=_whole(both),
+        **settings,
     )
 
 

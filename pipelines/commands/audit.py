@@ -12,6 +12,7 @@ import typer
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    RevisionOpt,
     app,
     cell,
     err,
@@ -214,9 +215,7 @@ def approve(
     name: Annotated[
         str | None, typer.Option("--name", help="Signer name (default: from KEY.pub).")
     ] = None,
-    revision: Annotated[
-        int | None, typer.Option("--revision", help="Revision to sign (default: current).")
-    ] = None,
+    revision: RevisionOpt = None,
     approvers: ApproversOpt = None,
     archive: ArchiveOpt = None,
 ) -> None:

@@ -18,6 +18,7 @@ import typer
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    AtOpt,
     RevisionOpt,
     app,
     err,
@@ -110,9 +111,7 @@ def _ask(fn, *args, **kwargs):  # noqa: ANN001, ANN202 - any query function
 @query_app.command("latest")
 def latest(
     serial: str,
-    at: Annotated[
-        str | None, typer.Option("--at", help="Date (whole UTC day) or ISO date-time with zone.")
-    ] = None,
+    at: AtOpt = None,
     archive: ArchiveOpt = None,
     fmt: FormatOpt = Format.table,
 ) -> None:
@@ -242,7 +241,7 @@ def history(
 def fleet(
     model: str,
     param: str,
-    at: Annotated[str | None, typer.Option("--at", help="As of this date.")] = None,
+    at: AtOpt = None,
     archive: ArchiveOpt = None,
     fmt: FormatOpt = Format.table,
 ) -> None:

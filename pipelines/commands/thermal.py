@@ -16,6 +16,7 @@ import typer
 
 from pipelines.cli_shared import (
     ArchiveOpt,
+    AtOpt,
     DeviceIdOpt,
     JsonOpt,
     RotationOpt,
@@ -128,7 +129,7 @@ def _hyst(name: str, h: dict | None) -> str:
 @thermal_app.command("show")
 def thermal_show(
     serial: str,
-    at: Annotated[str | None, typer.Option("--at", help="The model current at this date.")] = None,
+    at: AtOpt = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -206,7 +207,7 @@ def thermal_export(
     serial: str,
     output: Path,
     fmt: Annotated[str, typer.Option("--format", help="json, px4 or ardupilot")] = "json",
-    at: Annotated[str | None, typer.Option("--at", help="Calibration valid at this date.")] = None,
+    at: AtOpt = None,
     instance: Annotated[int, typer.Option(help="PX4 sensor instance / ArduPilot IMU number.")] = -1,
     device_id: DeviceIdOpt = None,
     rotation: RotationOpt = None,
@@ -289,7 +290,7 @@ def apply(
     ],
     output: Annotated[Path, typer.Argument(help="Calibrated samples: .parquet or .csv.")],
     serial: Annotated[str, typer.Option("--serial", help="The unit.")],
-    at: Annotated[str | None, typer.Option("--at", help="Calibration valid at this date.")] = None,
+    at: AtOpt = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
