@@ -20,9 +20,9 @@ free but for their sum (the turn angle), so the information of theta is that lef
 whitened Jacobian once the span of {e_t d_t} less its uniform combination is projected out:
 I = J^T J - J^T P_all J + J^T P_sum J.
 
-The Jacobian is taken by central differences of the noise-free model: exact for the
-models linear in their parameters (the static and integral models), second-order
-accurate otherwise.
+The Jacobian is taken by differences of the noise-free model: one-sided where the model is
+linear in its parameters (the static and integral models: exact), central otherwise
+(second-order accurate).
 
 The scores of a benchmark case over its replicates (same truth, same design, independent
 noise):
@@ -51,7 +51,7 @@ Model = Callable[[Mapping[str, float]], Sequence[Segment]]
 
 
 def fisher_information(
-    model: Model, theta: Mapping[str, float], steps: Mapping[str, float]
+    model: Model, theta: Mapping[str, float], steps: Mapping[str, float], *, linear: bool = False
 ) -> tuple[list[str], np.ndarray]:
     """Fisher information of `theta` for white Gaussian noise, from the model's Jacobian.
 
@@ -62,6 +62,8 @@ def fisher_information(
     theta : the true parameter values, name -> SI value.
     steps : name -> finite-difference step (SI); small against the value's range,
         large against rounding (1e-6 relative to the data's scale is typical).
+    linear : the model is linear in theta: one-sided differences, exact and half the
+        model evaluations; otherwise central ones.
 
     Returns
     -------
@@ -74,9 +76,10 @@ def fisher_information(
     for name in names:
         h = float(steps[name])
         up = model({**theta, name: theta[name] + h})
-        dn = model({**theta, name: theta[name] - h})
+        dn = base if linear else model({**theta, name: theta[name] - h})
+        span = h if linear else 2.0 * h
         for k, ((u, s, _), (d, _, _)) in enumerate(zip(up, dn, strict=True)):
-            cols[k].append((u - d) / (2.0 * h) / np.asarray(s, float))
+            cols[k].append((u - d) / span / np.asarray(s, float))
     info = np.zeros((len(names), len(names)))
     for (_, s, nuisance), seg_cols in zip(base, cols, strict=True):
         jac = np.stack(seg_cols, axis=-1)  # (N, C, P)

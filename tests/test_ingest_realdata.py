@@ -29,7 +29,7 @@ from storage.db import resolve_archive
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 MANIFESTS = Path(__file__).resolve().parent / "realdata"
-# The Xsens session's manifest is the benchmark set's (benchmarks/validation_set.py).
+# The Xsens session's manifest is the benchmark set's (calib validate --benchmark).
 SESSIONS = Path(__file__).resolve().parents[1] / "pipelines" / "validation" / "sessions"
 FERRARIS = REALDATA / "imucal_ferraris"
 XSENS = REALDATA / "imutk_xsens"

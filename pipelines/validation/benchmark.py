@@ -1,5 +1,5 @@
 """Ground-truth benchmark, the pipeline glue: the versioned set (benchmark_set.json) run on
-the installed software and scored (benchmarks/validation_set.py, docs/validation.md).
+the installed software and scored (`calib validate --benchmark`, docs/validation.md).
 
 Each simulated case is solved as a lab runs it: the preprocessing chain, the procedure's
 solve and its budget (no equipment stated: Type A, k from its degrees of freedom). Its
@@ -25,6 +25,7 @@ from calib_core import crlb, procedures
 from calib_core.preprocess.chain import preprocess
 from calib_core.run_budget import run_budgets
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
+from pipelines.validation.benchmark_peers import PeerTally
 
 SET_FILE = Path(__file__).with_name("benchmark_set.json")
 
@@ -49,13 +50,18 @@ def load_set(path: Path = SET_FILE) -> dict[str, Any]:
     return doc
 
 
-def _replicate(design: Any, procedure: str, seed: int, index: int) -> dict[str, tuple]:
-    """One replicate solved as the pipeline solves a run: name -> (estimate, u, U)."""
+def _replicate(
+    design: Any, procedure: str, seed: int, index: int, tally: PeerTally | None = None
+) -> dict[str, tuple]:
+    """One replicate solved as the pipeline solves a run: name -> (estimate, u, U); the
+    peers of `tally` given its raw segments and our solution."""
     rng = np.random.default_rng([seed, index])
-    segments = design.draw(design.theta, rng)
-    segments, _ = preprocess(segments, design.settings, design.gravity)
+    raw = design.draw(design.theta, rng)
+    segments, _ = preprocess(raw, design.settings, design.gravity)
     cal = procedures.solve(procedure, segments, design.gravity, dict(design.settings))
     budgets = run_budgets(cal, segments, design.settings, None)
+    if tally is not None:
+        tally.add(raw, cal)
     return {n: (p.value, p.std, budgets[n].U) for n, p in cal.parameters.items() if n in budgets}
 
 
@@ -63,37 +69,58 @@ def _replicate(design: Any, procedure: str, seed: int, index: int) -> dict[str, 
 DesignOf = Callable[[Mapping[str, Any]], Any]
 
 
-def run_case(case: Mapping[str, Any], replicates: int, make_design: DesignOf) -> dict[str, Any]:
-    """Score one simulated case over `replicates` replicates of `make_design(case)`.
+def run_case(
+    case: Mapping[str, Any], replicates: int, make_design: DesignOf, peer_replicates: int = 0
+) -> dict[str, Any]:
+    """Score one simulated case over `replicates` replicates of `make_design(case)`; the
+    installed peers on the first `peer_replicates` of them (`benchmark_peers`).
 
-    Returns the case's document: id, procedure, replicates, the CRLB's parameters, per
-    parameter scores (`calib_core.crlb.ParameterScore`), the summary and the seconds taken.
+    Returns the case's document: id, procedure, the condition it stresses (None: the
+    procedure's model holds), replicates, per parameter scores
+    (`calib_core.crlb.ParameterScore`; no efficiency where the bound is not derived or the
+    case is a condition's), the summary and the seconds taken.
     """
     start = time.perf_counter()
     design = make_design(case)
-    names, info = crlb.fisher_information(design.model, design.theta, design.steps)
-    bound = dict(zip(names, crlb.crlb_variances(info), strict=True))
+    bound: dict[str, float] = {}
+    # a case beyond the model is judged by coverage alone; a design without a model has
+    # no bound derived
+    if design.condition is None and design.model is not None:
+        model_theta = design.theta if design.bounded is None else design.bounded
+        names, info = crlb.fisher_information(
+            design.model, model_theta, design.steps, linear=design.linear
+        )
+        bound = dict(zip(names, crlb.crlb_variances(info), strict=True))
     truth = {**design.theta, **design.noise}
-    runs = [_replicate(design, case["procedure"], int(case["seed"]), i) for i in range(replicates)]
-    scored = [n for n in runs[0] if n in truth] if runs else []
+    tally = PeerTally(case["procedure"], design.gravity, design.settings, truth)
+    n_peer = min(peer_replicates, replicates) if design.condition is None else 0
+    runs = [
+        _replicate(design, case["procedure"], int(case["seed"]), i, tally if i < n_peer else None)
+        for i in range(replicates)
+    ]
+    # a term a procedure keeps in some replicates only (chosen by a test) is not scored
+    kept = set.intersection(*(set(r) for r in runs)) if runs else set()
+    scored = [n for n in runs[0] if n in truth and n in kept] if runs else []
     scores = []
     for name in scored:
         est, u, big_u = (np.array([r[name][k] for r in runs], float) for k in range(3))
         scores.append(crlb.score_parameter(name, est, truth[name], u, big_u, bound.get(name)))
-    unscored = sorted(set(runs[0]) - set(scored)) if runs else []
+    unscored = sorted(set().union(*runs) - set(scored)) if runs else []
     return {
         "id": case["id"],
         "procedure": case["procedure"],
         "simulator": case["simulator"],
+        "condition": design.condition,
         "replicates": replicates,
         "summary": crlb.summarise(scores),
         "parameters": [s.to_dict() for s in scores],
         "not_scored": unscored,
+        "peers": tally.result() if n_peer else [],
         "seconds": round(time.perf_counter() - start, 2),
     }
 
 
-def _run_one(args: tuple[dict[str, Any], int, DesignOf]) -> dict[str, Any]:
+def _run_one(args: tuple[dict[str, Any], int, DesignOf, int]) -> dict[str, Any]:
     return run_case(*args)
 
 
@@ -127,8 +154,9 @@ def run_benchmark(
     jobs = []
     for case in set_doc["cases"]:
         n = int(case.get("reduced_replicates", 0) if reduced else case["replicates"])
+        n_peer = int(set_doc.get("peer_replicates", {}).get("reduced" if reduced else "full", 0))
         if n > 0:
-            jobs.append((dict(case), n, make_design))
+            jobs.append((dict(case), n, make_design, n_peer))
     if workers > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             cases = list(pool.map(_run_one, jobs))
@@ -144,27 +172,82 @@ def run_benchmark(
         "targets": set_doc["targets"],
         "cases": cases,
         "procedures": by_procedure(cases, set_doc["targets"]),
+        "conditions": conditions(cases),
         "sessions": run_sessions(set_doc, realdata),
-        "peers": peers_note(),
+        "peers": by_peer(cases),
         "seconds": round(time.perf_counter() - start, 2),
     }
 
 
-def peers_note() -> str:
-    """What the benchmark says of the peer implementations (imucal, allantools): their
-    comparisons are made on archived runs by `calib validate RUN --with ...`."""
-    import importlib.util
+def run_and_report(
+    cases: str | None,
+    *,
+    set_file: Path | None = None,
+    reduced: bool = False,
+    workers: int = 1,
+    out: Path | None = None,
+    realdata: Path | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """`calib validate --benchmark`: the set run with the cases' provider, the report written.
 
-    if importlib.util.find_spec("pipelines.validation.compare") is None:
-        return (
-            "Not compared: the peer adapters (pipelines.validation.compare) are not part of"
-            " this build, so no E_n against imucal or allantools is stated here."
-        )
-    return (
-        "E_n against imucal and allantools is computed per archived run by"
-        " `calib validate RUN --with imucal,allantools` (docs/validation.md, peers); the"
-        " simulated cases of this set are not re-solved by the peers."
+    Parameters
+    ----------
+    cases : `--cases` MODULE[:NAME], or None for the entry point group's provider
+        (`pipelines.validation.cases`).
+    set_file : a set in place of the versioned one (`SET_FILE`).
+    out : folder of the report (benchmark.json, .html, .pdf); None: not written.
+    Others as `run_benchmark`.
+
+    Returns the benchmark's document without its cases' tables, with `cases_provider` and
+    `report` (kind -> path written). Raises `cases.NoProviderError` or ValueError (a bad set).
+    """
+    from pipelines.validation import cases as providers
+    from pipelines.validation.benchmark_report import write_report
+
+    provider_name, make_design = providers.find_provider(cases)
+    set_doc = load_set(set_file) if set_file else load_set()
+    doc = run_benchmark(
+        set_doc, make_design, reduced=reduced, workers=workers, progress=progress, realdata=realdata
     )
+    written = write_report(doc, out) if out else {}
+    summary = {k: v for k, v in doc.items() if k != "cases"}
+    paths = {k: str(v) for k, v in written.items()}
+    return {**summary, "cases_provider": provider_name, "report": paths}
+
+
+def by_peer(cases: list[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per procedure and installed peer (`benchmark_peers`): whether it treats the procedure
+    (or why not), the replicates compared, the fraction of its parameters' E_n <= 1, the
+    largest E_n and which parameter, and on how many parameters with a known truth our
+    RMS error is the smaller. Cases of a condition are not given to the peers."""
+    out: dict[str, dict[str, Any]] = {}
+    for c in cases:
+        for p in c.get("peers", []):
+            key = f"{c['procedure']} / {p['peer']}"
+            row = out.setdefault(
+                key,
+                {"procedure": c["procedure"], "peer": p["peer"], "version": p["version"],
+                 "status": p["status"], "reason": p["reason"], "cases": [], "replicates": 0,
+                 "parameters": 0, "e_n_within_1": None, "e_n_max": None,
+                 "e_n_max_parameter": None, "ours_closer": 0, "with_truth": 0},
+            )  # fmt: skip
+            if p["status"] != "compared":
+                continue
+            row |= {"status": "compared", "reason": None}
+            row["cases"].append(c["id"])
+            row["replicates"] += p["replicates"]
+            params = p["parameters"]
+            within = [q["e_n_within_1"] for q in params if q["e_n_within_1"] is not None]
+            done = row["parameters"] * (row["e_n_within_1"] or 0.0)
+            row["parameters"] += len(params)
+            row["e_n_within_1"] = (done + sum(within)) / row["parameters"] if params else None
+            if p.get("e_n_max") is not None and p["e_n_max"] > (row["e_n_max"] or -1.0):
+                row["e_n_max"], row["e_n_max_parameter"] = p["e_n_max"], p["e_n_max_parameter"]
+            known = [q for q in params if q["rms_error_theirs"] is not None]
+            row["with_truth"] += len(known)
+            row["ours_closer"] += sum(q["rms_error_ours"] < q["rms_error_theirs"] for q in known)
+    return out
 
 
 def by_procedure(
@@ -172,8 +255,10 @@ def by_procedure(
 ) -> dict[str, dict[str, Any]]:
     """Per procedure: the median efficiency and the pooled coverage over its cases'
     parameters, the replicates behind them and whether they meet the set's targets (the
-    `--json` summary)."""
+    `--json` summary). The cases of a condition (a drifting truth) are left out: they
+    are shown by `conditions`."""
     out: dict[str, dict[str, Any]] = {}
+    cases = [c for c in cases if c.get("condition") is None]  # conditions: their own table
     for proc in dict.fromkeys(c["procedure"] for c in cases):
         params = [p for c in cases if c["procedure"] == proc for p in c["parameters"]]
         effs = [p["efficiency"] for p in params if p["efficiency"] is not None]
@@ -185,6 +270,28 @@ def by_procedure(
             "cases": [c["id"] for c in cases if c["procedure"] == proc],
         }
         out[proc]["meets_targets"] = meets(out[proc], targets)
+    return out
+
+
+def conditions(cases: list[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The cases that stress a condition beyond the procedure's model: per case its
+    pooled coverage, the lowest parameter's and the stated u over the observed scatter."""
+    out = []
+    for c in cases:
+        if c.get("condition") is None:
+            continue
+        low = min(c["parameters"], key=lambda p: p["coverage"])
+        out.append(
+            {
+                "id": c["id"],
+                "procedure": c["procedure"],
+                "condition": c["condition"],
+                "coverage_95": c["summary"]["coverage_95"],
+                "coverage_min": low["coverage"],
+                "coverage_min_parameter": low["name"],
+                "replicates": c["replicates"],
+            }
+        )
     return out
 
 

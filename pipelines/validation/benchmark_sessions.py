@@ -3,11 +3,13 @@ lab run and compared with its published reference values.
 
 A session names its data folder (under the real-data root, `--realdata`), the files to take
 from it, its run manifest (`sessions/` beside this module), the settings it is solved with
-and its reference: per parameter the published value and the tolerance the reference itself
-allows (a datasheet's values are nominal, so its stability figures), with their source.
-Each parameter is reported with ours, the reference, the difference, our expanded U and
-whether the difference is within the reference's tolerance. A session whose data are not
-found says so; nothing is skipped silently.
+and its reference: per parameter the published value and either the tolerance the
+reference itself allows (a datasheet's values are nominal, so its stability figures) or,
+for a result published by another implementation, its standard uncertainty (`u`, None when
+it states none), with their source. Each parameter is reported with ours, the reference,
+the difference, our expanded U and whether they agree: within the tolerance, or E_n <= 1
+(`compare.comparison_row`, k = 2, as `calib validate`). A session whose data are not found
+says so; nothing is skipped silently.
 """
 
 from __future__ import annotations
@@ -18,8 +20,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from calib_core import params
 from pipelines.ingest.run_loader import discover_runs, load_run
 from pipelines.process import solve_loaded
+from pipelines.validation.compare import comparison_row
 
 SESSIONS = Path(__file__).with_name("sessions")
 
@@ -41,19 +45,27 @@ def run_session(session: Mapping[str, Any], realdata: Path) -> dict[str, Any]:
         cal, _, _, budgets, _ = solve_loaded(loaded, settings=dict(session.get("settings", {})))
     rows = []
     for name, ref in session["reference"].items():
-        ours = cal.parameters[name].value
-        diff = ours - float(ref["value"])
-        rows.append(
-            {
-                "parameter": name,
-                "ours": ours,
-                "reference": float(ref["value"]),
-                "difference": diff,
-                "U": budgets[name].U if name in budgets else None,
-                "tolerance": float(ref["tolerance"]),
-                "within_tolerance": abs(diff) <= float(ref["tolerance"]),
-            }
-        )
+        p = cal.parameters[name]
+        diff = p.value - float(ref["value"])
+        row = {
+            "parameter": name,
+            "ours": p.value,
+            "reference": float(ref["value"]),
+            "difference": diff,
+            "U": budgets[name].U if name in budgets else None,
+            "tolerance": None,
+            "e_n": None,
+        }
+        if "tolerance" in ref:
+            row["tolerance"] = float(ref["tolerance"])
+            row["within_tolerance"] = abs(diff) <= row["tolerance"]
+        else:
+            unit = params.unit_of(name)
+            row["e_n"] = comparison_row(name, p.value, p.std, row["reference"], ref.get("u"), unit)[
+                "e_n"
+            ]
+            row["within_tolerance"] = row["e_n"] is not None and row["e_n"] <= 1.0
+        rows.append(row)
     return {**base, "status": "compared", "parameters": rows}
 
 

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from storage.db import Archive
+from storage.queries.records import RunSummary
 
 PEERS = ("imucal", "allantools")
 K_EXPANDED = 2.0  # E_n is taken with expanded uncertainties U = k u_c, k = 2 (metrology.md)
@@ -90,7 +91,7 @@ def validate_run(archive: Archive, run_id: str, peers: tuple[str, ...]) -> dict[
     return {
         "run_id": full,
         "revision": exported["revision"],
-        "procedure": summary["procedure"],
+        "procedure": summary.procedure,
         "peers": out,
     }
 
@@ -107,16 +108,28 @@ def validate_and_archive(archive: Archive, run_id: str, peers: tuple[str, ...]) 
     return doc
 
 
-def _imucal(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, list[str]]:
+def _imucal(ours: Any, loaded: Any, summary: RunSummary) -> tuple[list, list[str]]:
     """imucal against our archived parameters: every parameter both estimate."""
+    m = loaded.manifest
+    turns = int(m.run.settings.get("turns", 1))
+    turntable = any(e.kind == "rate_table" for e in summary.equipment)
+    rows, notes = imucal_rows(ours, loaded.segments, m.gravity(), turns, turntable)
+    if not rows:
+        raise ValueError(f"run {summary.run_id}: no parameter both estimate")
+    return rows, notes
+
+
+def imucal_rows(
+    ours: Any, segments: dict[str, Any], gravity: float, turns: int, turntable: bool
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """imucal's solution of the raw `segments` against our Calibration `ours`: a row
+    (`comparison_row`) per parameter both estimate, and the notes on the conventions.
+    Raises PeerCannotTreatError where imucal cannot treat the segments."""
     from calib_core import params
     from pipelines.validation.peers import imucal_parameters, imucal_turn_uncertainty
 
-    m = loaded.manifest
-    turns = int(m.run.settings.get("turns", 1))
-    turntable = any(e["kind"] == "rate_table" for e in summary["equipment"])
-    theirs = imucal_parameters(loaded.segments, m.gravity(), turns, turntable)
-    u_theirs = imucal_turn_uncertainty(loaded.segments, m.gravity(), turns)
+    theirs = imucal_parameters(segments, gravity, turns, turntable)
+    u_theirs = imucal_turn_uncertainty(segments, gravity, turns)
     rows = [
         comparison_row(name, p.value, p.std, theirs[name], u_theirs.get(name), params.unit_of(name))
         for name, p in ours.parameters.items()
@@ -124,19 +137,30 @@ def _imucal(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, list
     ]
     notes = [
         f"imucal {'TurntableCalibration' if turntable else 'FerrarisCalibration'} on the raw "
-        f"samples, gravity {m.gravity():.6g} m/s^2, {turns} turn(s) per axis; imucal states no "
+        f"samples, gravity {gravity:.6g} m/s^2, {turns} turn(s) per axis; imucal states no "
         "uncertainty: E_n takes ours alone (k = 2), but for the gyro scale and misalignment, "
         "whose Type A of imucal's method (whole records, one sense) our solver states",
         "imucal's accelerometer bias is each channel's own face pair (Ferraris eq. 20); ours "
         "averages the three pairs (docs/validation.md)",
     ]
-    if not rows:
-        raise ValueError(f"run {summary['run_id']}: no parameter both estimate")
     return rows, notes
 
 
-def _allantools(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, list[str]]:
+def _allantools(ours: Any, loaded: Any, summary: RunSummary) -> tuple[list, list[str]]:
     """allantools' Allan deviation against ours, and the noise terms read from each."""
+    from pipelines.validation.peers import PeerCannotTreatError
+
+    if loaded.streamed is not None:
+        raise PeerCannotTreatError("allantools is compared on one static record held in memory")
+    return allantools_rows(ours, loaded.segments, summary.procedure)
+
+
+def allantools_rows(
+    ours: Any, segments: dict[str, Any], procedure: str
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """allantools' Allan deviation of the one static record in `segments` against ours (in
+    the notes), and a row per noise term read from each curve by our reading. Raises
+    PeerCannotTreatError where the run keeps no Allan deviation or is not one record."""
     from calib_core.nav_noise import nav_noise
     from calib_core.noise import AllanResult, noise_parameters, white_noise_edf
     from pipelines.validation.peers import PeerCannotTreatError, allantools_curves, rate_of
@@ -144,11 +168,11 @@ def _allantools(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, 
     info = ours.info
     if "allan" not in info or "noise_parameters" not in info:
         raise PeerCannotTreatError(
-            f"procedure {summary['procedure']} keeps no Allan deviation (a static-bias run does)"
+            f"procedure {procedure} keeps no Allan deviation (a static-bias run does)"
         )
-    if loaded.streamed is not None or len(loaded.segments) != 1:
+    if len(segments) != 1:
         raise PeerCannotTreatError("allantools is compared on one static record held in memory")
-    rec = next(iter(loaded.segments.values()))
+    rec = next(iter(segments.values()))
     rate_hz = rate_of(rec)
     nav = nav_noise(info)
     rows: list[dict[str, Any]] = []
