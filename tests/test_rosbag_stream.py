@@ -112,7 +112,7 @@ def test_registered_for_the_rosbag_kind():
     assert STREAMERS["rosbag"] is stream_rosbag
 
 
-@pytest.mark.parametrize("stamp", ["header", "log"])
+@pytest.mark.parametrize("stamp", ["header", pytest.param("log", marks=pytest.mark.slow)])
 def test_same_samples_as_in_memory_hashed_and_copied(bag, tmp_path, stamp):
     streamed = stream(bag, tmp_path, stamp=stamp)
     data = bag.read_bytes()
@@ -234,6 +234,7 @@ def same_error(path: Path, tmp_path: Path, **keys) -> str:
     return streamed_same_error(read_rosbag, stream, path, tmp_path, **keys)
 
 
+@pytest.mark.slow  # three 11 MB bags; fast: test_mcap_stream's twin, the refusals below
 def test_time_going_back_and_damaged_values_numbered_in_the_whole_topic(tmp_path):
     """Errors past the first batch and chunk: the in-memory reader's text and record index."""
     n = 30_000  # 11 MB: ten chunks, several batches
@@ -355,6 +356,7 @@ def write_run(folder: Path, data: Path, settings: dict) -> Path:
     return folder
 
 
+@pytest.mark.slow  # a 27 MB bag processed twice; fast: the streamer above, test_process_streamed
 def test_streamed_bag_run_matches_the_in_memory_run(tmp_path):
     """`calib process` of a ROS 1 bag larger than a 5 MB limit gives the in-memory run's
     parameters and checks to the rounding of chunked sums (test_process_streamed's bound
@@ -372,6 +374,7 @@ def test_streamed_bag_run_matches_the_in_memory_run(tmp_path):
     assert_streamed_as_in_memory(tmp_path, runs, rel, LIMIT_MB, PROCESS_N, path)
 
 
+@pytest.mark.slow  # four runs in calib process; fast: the refusals above, test_batch_survives
 def test_bad_bags_fail_by_name_and_the_batch_goes_on(bag, tmp_path):
     """One `calib process` over four runs streamed: a truncated bag, a bag without the
     named Imu topic and a ROS 2 .db3 fail with an error naming their file; the good run
