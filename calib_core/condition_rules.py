@@ -174,36 +174,30 @@ def judge(cond: Condition, value: float | None, note: str = "") -> CheckResult:
     return CheckResult(CONDITION_PREFIX + cond.key, float(value), limit, ok, detail)
 
 
-def status(check: Mapping[str, Any]) -> str:
-    """ "pass", "fail", "warning", "info", "not recorded" or "not judged" of a check dict
-    (any check); "info" is a recorded condition that no rule judges, "not judged" a check
+def status(check: CheckResult) -> str:
+    """ "pass", "fail", "warning", "info", "not recorded" or "not judged" of a check (any
+    check); "info" is a recorded condition that no rule judges, "not judged" a check
     that needs what the run was judged without (`pipelines.judge` with no archive)."""
-    name = str(check["name"])
-    if not check["passed"] and str(check.get("detail", "")).startswith(f"{NOT_JUDGED}:"):
+    name, detail = check.name, check.detail or ""
+    if not check.passed and detail.startswith(f"{NOT_JUDGED}:"):
         return NOT_JUDGED
     entry = DEFAULT_CONDITIONS.get(name.removeprefix(CONDITION_PREFIX))
     info = name.startswith(CONDITION_PREFIX) and entry is not None and entry[2] == INFO
-    if check["passed"]:
+    if check.passed:
         return INFO if info else "pass"
     if not name.startswith(CONDITION_PREFIX):
         return "fail"
-    if check.get("value") is None and str(check.get("detail", "")).startswith(NOT_RECORDED):
+    if check.value is None and detail.startswith(NOT_RECORDED):
         return NOT_RECORDED
     return WARNING if entry is not None and entry[2] in (WARNING, INFO) else "fail"
 
 
-def requirement(check: Mapping[str, Any]) -> str:
+def requirement(check: CheckResult) -> str:
     """A condition check's detail without the "not recorded" its result already says."""
-    return str(check.get("detail") or "").removeprefix(f"{NOT_RECORDED}; ")
+    return (check.detail or "").removeprefix(f"{NOT_RECORDED}; ")
 
 
-def counts_against_verdict(check: Any) -> bool:
-    """True for a failed check (a CheckResult or any object with its fields) that counts
-    against the verdict: not a condition's warning, not "not recorded"."""
-    fields = {
-        "name": check.name,
-        "passed": check.passed,
-        "value": getattr(check, "value", None),
-        "detail": getattr(check, "detail", ""),
-    }
-    return not check.passed and status(fields) == "fail"
+def counts_against_verdict(check: CheckResult) -> bool:
+    """True for a failed check that counts against the verdict: not a condition's
+    warning, not "not recorded"."""
+    return not check.passed and status(check) == "fail"

@@ -7,12 +7,12 @@ from __future__ import annotations
 import functools
 import shutil
 import subprocess
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from html.parser import HTMLParser
 from pathlib import Path
-from typing import Any
 
+from calib_core.calibration import Parameter
 from pipelines.reports.protocol import render_protocol
 
 
@@ -69,9 +69,9 @@ def _dcc_schema(path: str):  # noqa: ANN202 - xmlschema.XMLSchema
     return xmlschema.XMLSchema(path, allow="local")
 
 
-def parameter_protocol(parameters: Sequence[Mapping[str, Any]], names: str = "canonical") -> str:
-    """The protocol text of an MPU-6000 six-position run holding `parameters` (dicts with
-    name, value, std; SI) and nothing else: no checks, verdict pass."""
+def parameter_protocol(parameters: Sequence[Parameter], names: str = "canonical") -> str:
+    """The protocol text of an MPU-6000 six-position run holding `parameters` (SI) and
+    nothing else: no checks, verdict pass."""
     return render_protocol(
         device_model="MPU-6000",
         serial="S1",

@@ -51,15 +51,15 @@ def load_compensation(
     if latest is None:
         when = "now" if at is None else at.isoformat()
         raise LookupError(f"no valid (passed, current) calibration of {serial!r} as of {when}")
-    cal = Calibration.from_dict(latest["document"])
-    temps = {p["temperature_c"] for p in latest["parameters"] if p["temperature_c"] is not None}
+    cal = Calibration.from_dict(latest.document)
+    temps = {p.temperature_c for p in latest.parameters if p.temperature_c is not None}
     cal_temp = float(temps.pop()) if len(temps) == 1 else None
     tm = queries.latest_thermal_model(archive, serial, None)
     model = None if tm is None else thermal.ThermalModel.from_dict(tm["document"])
     facts = {
         "serial": serial,
-        "run_id": latest["run_id"],
-        "calibration_id": latest["calibration_id"],
+        "run_id": latest.run_id,
+        "calibration_id": latest.calibration_id,
         "calibration_temperature_c": cal_temp,
         "thermal_model_id": None if tm is None else tm["id"],
     }

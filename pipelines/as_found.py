@@ -23,17 +23,18 @@ from calib_core.tolerances import ToleranceProfile
 from calib_core.uncertainty import Budget
 from storage import queries
 from storage.db import Archive
+from storage.queries.records import DatedRevision
 
 STEP = "as_found"
 
 
-def earlier_calibration(archive: Archive, serial: str, started: datetime) -> dict[str, Any] | None:
+def earlier_calibration(archive: Archive, serial: str, started: datetime) -> DatedRevision | None:
     """The unit's latest valid calibration from a run started before `started` (or None)."""
     return queries.latest_calibration(archive, serial, started - timedelta(microseconds=1))
 
 
 def as_found_step(
-    earlier: dict[str, Any],
+    earlier: DatedRevision,
     cal: Calibration,
     fit: Mapping[str, Recording],
     settings: Mapping[str, Any],
@@ -56,14 +57,14 @@ def as_found_step(
     """
     started = time.perf_counter()
     said = {
-        "earlier_run_id": earlier["run_id"],
-        "earlier_revision": earlier["revision"],
-        "earlier_started_at": earlier["started_at"].isoformat(),
+        "earlier_run_id": earlier.run_id,
+        "earlier_revision": earlier.revision,
+        "earlier_started_at": earlier.started_at.isoformat(),
         "method": "earlier parameters applied to this run's samples, error model solved "
         f"again by procedure {cal.procedure}",
     }
     try:
-        before = Calibration.from_dict(earlier["document"])
+        before = Calibration.from_dict(earlier.document)
         if solve_found is not None:
             found = solve_found(before)
         else:

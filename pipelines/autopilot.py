@@ -169,15 +169,15 @@ def rotated_scales(rot: Rotation, scales: np.ndarray, firmware: str) -> np.ndarr
 # --- device ids ---------------------------------------------------------------------------
 
 
-def recorded_devices(steps: list[dict[str, Any]]) -> dict[str, int]:
+def recorded_devices(ingest: dict[str, Any]) -> dict[str, int]:
     """The device ids the run's logs recorded ({"accel": id, "gyro": id} from a ULog,
-    {"imu": instance} from a DataFlash log), from the ingest step; {} when none did.
+    {"imu": instance} from a DataFlash log), from the ingest step's statistics `ingest`;
+    {} when none did.
 
     Raises ValueError when the segments name different sensors (one export, one sensor).
     """
-    ingest = next((s for s in steps if s["name"] == "ingest"), {})
     found: dict[str, int] = {}
-    for label, devices in (ingest.get("statistics", {}).get("devices") or {}).items():
+    for label, devices in (ingest.get("devices") or {}).items():
         for kind, value in devices.items():
             if found.setdefault(kind, int(value)) != int(value):
                 raise ValueError(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
@@ -34,6 +34,9 @@ from pipelines.cli_shared import (
 )
 from pipelines.commands import register_all
 from pipelines.direct import IN_PROCESS_MAX_RUNS
+
+if TYPE_CHECKING:
+    from storage.queries.records import RunSummary
 
 
 @app.command()
@@ -185,30 +188,28 @@ def show(run_id: str, archive: ArchiveOpt = None, as_json: JsonOpt = False) -> N
     except (KeyError, LookupError, ValueError) as exc:
         fail(str(exc))
     if as_json:
-        print_json(summary)
+        print_json(summary.to_dict())
         return
     _print_run(summary, arch.root)
     _print_approvals(arch, summary)
     _print_validations(summary)
 
 
-def _print_validations(summary: dict) -> None:
+def _print_validations(summary: RunSummary) -> None:
     """The revision's validation records (`calib validate`), one line per peer."""
     from pipelines.reports.validation import peer_line
 
-    for v in summary["validations"]:
-        out.print(
-            f"validation record {v['id']} ({v['created_at']:%Y-%m-%d %H:%M} UTC):", markup=False
-        )
-        for peer in v["document"]["peers"]:
+    for v in summary.validations:
+        out.print(f"validation record {v.id} ({v.created_at:%Y-%m-%d %H:%M} UTC):", markup=False)
+        for peer in v.document["peers"]:
             out.print(f"  {peer_line(peer)}", markup=False)
-    if not summary["validations"]:
+    if not summary.validations:
         out.print(
             "not validated against independent implementations (calib validate)", markup=False
         )
 
 
-def _print_approvals(arch, summary: dict) -> None:  # noqa: ANN001 - an Archive
+def _print_approvals(arch, summary: RunSummary) -> None:  # noqa: ANN001 - an Archive
     """The approvals of the shown revision, marked by the lab's approvers file."""
     from pipelines.trust import NOT_CHECKED, approval_line, lab_approvers
     from storage.approval import approval_status
@@ -217,7 +218,7 @@ def _print_approvals(arch, summary: dict) -> None:  # noqa: ANN001 - an Archive
         trust = lab_approvers()
     except ValueError as exc:
         fail(str(exc))
-    found = approval_status(arch, summary["run_id"], summary["calibration"]["revision"], trust)
+    found = approval_status(arch, summary.run_id, summary.calibration.revision, trust)
     for a, holds in found:
         changed = " (NO LONGER VALID: the record changed after signing)"
         gone = "" if holds or a.untrusted else changed
@@ -228,7 +229,7 @@ def _print_approvals(arch, summary: dict) -> None:  # noqa: ANN001 - an Archive
         out.print(NOT_CHECKED, markup=False)
 
 
-def _print_run(summary: dict, root: Path) -> None:
+def _print_run(summary: RunSummary, root: Path) -> None:
     """`calib show` for people: the unit, the run, its verdict, the parameters in display
     units with their standard uncertainty, and the checks that failed."""
     from pipelines.reports.display import (
@@ -240,58 +241,50 @@ def _print_run(summary: dict, root: Path) -> None:
         solve_warnings,
     )
 
-    cal = summary["calibration"]
-    unit = summary["device"]
+    cal, unit = summary.calibration, summary.device
     print_facts(
         {
-            "unit": f"{unit['serial']} ({unit['model']}, {unit['manufacturer']})",
-            "run": summary["run_id"],
-            "started": summary["started_at"],
-            "procedure": summary["procedure"],
-            "operator": summary["operator"],
-            "temperature_c": (summary["environment"] or {}).get("temperature_c"),
-            "verdict": f"{cal['verdict']} (profile {cal['profile_name']} "
-            f"v{cal['profile_version']})",
-            "revision": f"{cal['revision']} of {summary['revisions']}",
-            "folder": str(root / summary["run_dir"]),
+            "unit": f"{unit.serial} ({unit.model}, {unit.manufacturer})",
+            "run": summary.run_id,
+            "started": summary.started_at,
+            "procedure": summary.procedure,
+            "operator": summary.operator,
+            "temperature_c": summary.temperature_c,
+            "verdict": f"{cal.verdict} (profile {cal.profile_name} v{cal.profile_version})",
+            "revision": f"{cal.revision} of {summary.revisions}",
+            "folder": str(root / summary.run_dir),
         },
-        f"Run {summary['run_id']}",
+        f"Run {summary.run_id}",
         paths=("folder",),
     )
     rows = []
-    for p in cal["parameters"]:
-        s = shown(p["name"], p["value"], p["std"])
-        rows.append([p["name"], s.value, s.u or "-", s.unit])
+    for p in cal.parameters:
+        s = shown(p.name, p.value, p.std)
+        rows.append([p.name, s.value, s.u or "-", s.unit])
     print_table(f"Parameters ({STANDARD_U_MEANING})", ["name", "value", STANDARD_U, "unit"], rows)
     from calib_core.condition_rules import NOT_RECORDED, WARNING
     from calib_core.condition_rules import status as condition_status
 
-    failed = [c for c in cal["checks"] if condition_status(c) == "fail"]
+    failed = [c for c in cal.checks if condition_status(c) == "fail"]
     if failed:
-        rows = [
-            [c["name"], _num(c.get("value")), _limit(c.get("limit")), cell(c.get("detail") or "")]
-            for c in failed
-        ]
+        rows = [[c.name, _num(c.value), _limit(c.limit), cell(c.detail or "")] for c in failed]
         # in SI, as the archived detail beside them states them (the web page's table too)
         print_table("Failed checks", ["check", "value (SI)", "limit (SI)", "detail"], rows)
-    out.print(check_counts(cal["checks"]).sentence(), markup=False, highlight=False)
-    notes = record_notes(cal["checks"], solve_warnings(cal["steps"]))
+    out.print(check_counts(cal.checks).sentence(), markup=False, highlight=False)
+    notes = record_notes(cal.checks, solve_warnings(cal))
     if notes:  # findings about the record, samples replaced: beside the verdict, always
         print_table(
             "The record: findings, samples replaced, solver warnings",
             ["finding", "detail"],
             [[name, cell(text)] for name, text in notes],
         )
-    noted = [c for c in cal["checks"] if condition_status(c) in (WARNING, NOT_RECORDED)]
+    noted = [c for c in cal.checks if condition_status(c) in (WARNING, NOT_RECORDED)]
     if noted:  # conditions that leave the verdict as it is
-        rows = [
-            [c["name"], condition_status(c), _num(c.get("value")), cell(c.get("detail") or "")]
-            for c in noted
-        ]
+        rows = [[c.name, condition_status(c), _num(c.value), cell(c.detail or "")] for c in noted]
         print_table(
             "Conditions: warnings, not recorded", ["check", "status", "value", "detail"], rows
         )
-    out.print(f"(every field: calib show {summary['run_id']} --json)", markup=False)
+    out.print(f"(every field: calib show {summary.run_id} --json)", markup=False)
 
 
 def _num(value: float | None) -> str:

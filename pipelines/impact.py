@@ -28,6 +28,7 @@ from pipelines.lab import customer_name
 from pipelines.reference_correction import corrector
 from storage import queries
 from storage.db import Archive
+from storage.queries.records import Revision
 from storage.write_failures import describe
 
 MOVED_MIN = 0.1  # |change| / U below which a parameter is not listed as moved
@@ -65,34 +66,29 @@ def select_runs(
     return mine
 
 
-def _expanded(summary: dict[str, Any]) -> dict[str, float]:
+def _expanded(cal: Revision) -> dict[str, float]:
     """name -> U of the archived revision (its uncertainty step; 2 x std where absent)."""
-    out: dict[str, float] = {}
-    for step in summary["calibration"]["steps"]:
-        if step["name"] == "uncertainty":
-            for name, b in (step["statistics"] or {}).get("budgets", {}).items():
-                if b.get("U"):
-                    out[name] = float(b["U"])
-    for p in summary["calibration"]["parameters"]:
-        if p["name"] not in out and p.get("std"):
-            out[p["name"]] = 2.0 * float(p["std"])
+    out = {name: float(b["U"]) for name, b in cal.budgets().items() if b.get("U")}
+    for p in cal.parameters:
+        if p.name not in out and p.std:
+            out[p.name] = 2.0 * float(p.std)
     return out
 
 
-def _moves(summary: dict[str, Any], after: dict[str, float]) -> list[dict[str, Any]]:
+def _moves(cal: Revision, after: dict[str, float]) -> list[dict[str, Any]]:
     """Parameters whose value changed by >= MOVED_MIN of their archived U, largest first."""
-    U = _expanded(summary)
+    U = _expanded(cal)
     moved = []
-    for p in summary["calibration"]["parameters"]:
-        name = p["name"]
+    for p in cal.parameters:
+        name = p.name
         if name not in after or not U.get(name):
             continue
-        in_U = (after[name] - float(p["value"])) / U[name]
+        in_U = (after[name] - float(p.value)) / U[name]
         if abs(in_U) >= MOVED_MIN:
             moved.append(
                 {
                     "name": name,
-                    "before": float(p["value"]),
+                    "before": float(p.value),
                     "after": after[name],
                     "U_before": U[name],
                     "change_in_U": in_U,
@@ -101,10 +97,10 @@ def _moves(summary: dict[str, Any], after: dict[str, float]) -> list[dict[str, A
     return sorted(moved, key=lambda m: -abs(m["change_in_U"]))
 
 
-def _check_changes(summary: dict[str, Any], after: dict[str, dict]) -> list[dict[str, Any]]:
+def _check_changes(cal: Revision, after: dict[str, dict]) -> list[dict[str, Any]]:
     """The checks whose outcome the correction changed (a lab condition judged at the true
     temperature, a limit now exceeded), or that only one side has."""
-    before = {c["name"]: c for c in summary["calibration"]["checks"]}
+    before = {c.name: c.to_dict() for c in cal.checks}
     out = []
     for name in sorted(set(before) | set(after)):
         b, a = before.get(name), after.get(name)
@@ -183,7 +179,7 @@ def impact(
     customer = customer_name()
     report = []
     for run in runs:
-        summary = queries.run_summary(archive, run["run_id"])
+        cal = queries.run_summary(archive, run["run_id"]).calibration
         entry = {k: run[k] for k in ("run_id", "serial", "model", "procedure")}
         entry |= {
             "started_at": run["started_at"].isoformat(),
@@ -196,12 +192,12 @@ def impact(
             "affected": found["affected"],
             "what": found["what"],
             "verdict_after": found.get("verdict_after", run["verdict"]),
-            "moved": _moves(summary, found.get("values_after", {})),
+            "moved": _moves(cal, found.get("values_after", {})),
         }
         if "temperature_c" in found:
             entry["temperature_c"] = found["temperature_c"]
         entry["checks_changed"] = (
-            _check_changes(summary, found["checks_after"]) if "checks_after" in found else []
+            _check_changes(cal, found["checks_after"]) if "checks_after" in found else []
         )
         if "error" in found:
             entry |= {"verdict_after": None, "error": found["error"]}
@@ -284,7 +280,7 @@ def _apply(
     if outcome["status"] == "failed":
         got["error"] = outcome["error"]
     else:
-        got["revision_after"] = queries.run_summary(archive, run_id)["calibration"]["revision"]
+        got["revision_after"] = queries.run_summary(archive, run_id).calibration.revision
         got["verdict_after"] = outcome["verdict"]
     return got
 

@@ -153,7 +153,7 @@ def run_outcome(
                 "value": c.value,
                 "limit": c.limit,
                 "passed": c.passed,
-                "status": condition_status(c.to_dict()),
+                "status": condition_status(c),
             }
             for c in (checks or [])
         ],
@@ -514,13 +514,13 @@ def protocol_of(
         run_id=run_id,
         profile=f"{judged.profile.name} v{judged.profile.version}",
         gravity=cal.gravity,
-        parameters=[p.to_row() for p in archived_parameters(cal)],
-        checks=[c.to_dict() for c in judged.checks],
+        parameters=archived_parameters(cal),
+        checks=judged.checks,
         verdict=judged.verdict,
         budgets={n: b.to_dict() for n, b in (budgets or {}).items()},
         decision_rule=judged.profile.decision_rule.statement(),
         names=judged.profile.protocol_names,
-        notes=record_notes([c.to_dict() for c in judged.checks], cal.warnings),
+        notes=record_notes(judged.checks, cal.warnings),
     )
 
 

@@ -144,7 +144,7 @@ def recall_list(
     for row in units:  # each unit's latest run
         if serial is not None and row.serial != serial:
             continue
-        name = queries.run_summary(archive, row.run_id)["tolerance_profile"]
+        name = queries.run_summary(archive, row.run_id).tolerance_profile
         if name not in profiles:
             profiles[name] = load_profile(name)
         groups.setdefault((row.model, name), []).append(row.serial)

@@ -34,8 +34,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import select
-
 from storage.db import Archive
 
 STATUSES = ("identical", "differs", "changed", "failed")
@@ -83,8 +81,9 @@ def recompute_run(archive: Archive, run_id: str) -> dict[str, Any]:
     version, ``changes`` (`pipelines.changes.change_report` of the pair).
     """
     from pipelines.reprocess import ReprocessError, restore_run
+    from storage import queries
 
-    sealed = archived_revisions(archive, run_id)
+    sealed = queries.archived_revisions(archive, run_id)
     serial = sealed[0]["devices"]["serial"] if sealed else ""
     out: dict[str, Any] = {"run_id": run_id, "serial": serial, "error": None, "revisions": []}
     try:
@@ -100,33 +99,6 @@ def recompute_run(archive: Archive, run_id: str) -> dict[str, Any]:
 
 def _severity(status: str) -> int:
     return ("identical", "changed", "differs", "failed").index(status)
-
-
-def archived_revisions(archive: Archive, run_id: str) -> list[dict[str, Any]]:
-    """Each revision of the run as its rows hold it (`storage.seal_record.records`, every
-    value decoded), its files as its seal lists them, oldest first; ``cal_id`` added."""
-    from storage import schema, seal_record
-
-    with archive.engine().connect() as conn:
-        ids = conn.execute(
-            select(schema.CalibrationRow.id)
-            .join(schema.Run, schema.Run.id == schema.CalibrationRow.run_id)
-            .where(schema.Run.run_id == run_id)
-            .order_by(schema.CalibrationRow.revision)
-        ).scalars()
-        ids = list(ids)
-        if not ids:
-            raise LookupError(f"no run {run_id} in the archive")
-        files = {
-            cal_id: (record or {}).get("files") or {}
-            for cal_id, record in conn.execute(
-                select(schema.Seal.calibration_id, schema.Seal.record).where(
-                    schema.Seal.calibration_id.in_(ids)
-                )
-            )
-        }
-        found = seal_record.records(conn, ids, files, form=1)
-    return [{**found[i], "cal_id": i} for i in ids]
 
 
 def _recompute_revision(archive: Archive, source: Any, rec: dict[str, Any]) -> dict[str, Any]:

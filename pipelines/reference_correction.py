@@ -88,7 +88,7 @@ def _corrected_temperature(loaded, error: ReferenceError, stats: dict[str, Any])
 def carried_correction(archive: Archive, run_id: str):  # noqa: ANN201 - a corrector or None
     """The reference correction of the run's current revision, to apply again when the run
     is reprocessed (new software must not drop it), or None when it has none."""
-    return correction_of(queries.run_summary(archive, run_id)["calibration"].get("settings"))
+    return correction_of(queries.run_summary(archive, run_id).calibration.settings)
 
 
 def correction_of(settings: dict[str, Any] | None, impact: dict | None = None):  # noqa: ANN201

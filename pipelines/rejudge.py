@@ -128,9 +128,7 @@ def _judged_again(
         return None
     if trigger not in ids and cand["run_id"] != trigger:
         return None  # not this run's doing: the scan of the run that changed it judges it
-    checks = with_repeatability(
-        [CheckResult(**c) for c in record["checks"]], verification.repeatability(group, profile)
-    )
+    checks = with_repeatability(record["checks"], verification.repeatability(group, profile))
     verdict = overall_verdict(checks)
     stats = {
         **step["statistics"],
@@ -177,10 +175,10 @@ def as_archived_now(archive: Archive, outcomes: list[dict[str, Any]]) -> list[di
         if judged is not None:
             checks = [
                 {
-                    "name": c["name"],
-                    "value": c["value"],
-                    "limit": c["limit"],
-                    "passed": c["passed"],
+                    "name": c.name,
+                    "value": c.value,
+                    "limit": c.limit,
+                    "passed": c.passed,
                     "status": condition_status(c),
                 }
                 for c in judged["checks"]

@@ -64,35 +64,34 @@ def restore_run(archive: Archive, run_id: str, folder: Path, *, link: bool = Fal
         raise ReprocessError(str(exc)) from None
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    raw_files = summary["raw_files"]
-    has_manifest = any(r["name"] == MANIFEST_NAME for r in raw_files)
+    raw_files = summary.raw_files
+    has_manifest = any(r.name == MANIFEST_NAME for r in raw_files)
     for raw in raw_files:
         try:
-            name = check_relative_name(raw["name"])
+            name = check_relative_name(raw.name)
         except ValueError as exc:
             raise ReprocessError(f"run {run_id}: archived raw file name: {exc}") from None
-        src = rawstore.object_path(archive.root, raw["sha256"])
+        src = rawstore.object_path(archive.root, raw.sha256)
         if not src.is_file():
             raise ReprocessError(
-                f"run {run_id}: raw file {name!r} (sha256 {raw['sha256']}) is missing from "
+                f"run {run_id}: raw file {name!r} (sha256 {raw.sha256}) is missing from "
                 f"the file store at {src}"
             )
         dest = folder / name
         dest.parent.mkdir(parents=True, exist_ok=True)
         digest = _restore_file(src, dest, link and has_manifest)
-        if digest != raw["sha256"]:
+        if digest != raw.sha256:
             raise ReprocessError(
                 f"run {run_id}: raw object {src} of {name!r} hashes to {digest}, "
-                f"archived as {raw['sha256']} (the file store was altered)"
+                f"archived as {raw.sha256} (the file store was altered)"
             )
     if has_manifest:
         return RunSource(folder, "manifest")
     # No manifest: the loader synthesises one, with `started` = the newest file mtime.
-    started: datetime = summary["started_at"]
-    ns = (started.astimezone(UTC) - _EPOCH) // timedelta(microseconds=1) * 1000
+    ns = (summary.started_at.astimezone(UTC) - _EPOCH) // timedelta(microseconds=1) * 1000
     for raw in raw_files:
-        os.utime(folder / raw["name"], ns=(ns, ns))
-    return RunSource(folder, "mpu6000", summary["device"]["serial"])
+        os.utime(folder / raw.name, ns=(ns, ns))
+    return RunSource(folder, "mpu6000", summary.device.serial)
 
 
 def _restore_file(src: Path, dest: Path, link: bool) -> str:

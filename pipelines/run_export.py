@@ -113,14 +113,14 @@ def export_run(
         return Export(text.encode("ascii", "backslashreplace"), name, MEDIA_TYPE[fmt])
     model, model_id = _thermal(archive, doc["unit"]["serial"]) if thermal else (None, None)
     summary = queries.run_summary(archive, run_id)
-    cal_temp = (summary["environment"] or {}).get("temperature_c")
+    cal_temp = summary.temperature_c
     src = _Source(doc, cal, model, model_id, None if cal_temp is None else float(cal_temp))
     if fmt not in autopilot.FIRMWARES:
         data, notes = _encode(fmt, src)
         return Export(data, name, MEDIA_TYPE[fmt], notes)
     target = _Target(
         autopilot.rotation(rotation, fmt),
-        autopilot.recorded_devices(summary["calibration"]["steps"]),
+        autopilot.recorded_devices(summary.calibration.step_statistics("ingest")),
         instance,
         accel_id,
         gyro_id,

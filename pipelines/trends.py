@@ -144,7 +144,7 @@ def trend_report(
         trend = drift.fit_trend_shared(df["day"].to_numpy(), df["value"].to_numpy(), *shared)
     if profile is None:
         latest = queries.latest_calibration(archive, serial)
-        profile = None if latest is None else latest["profile_name"]
+        profile = None if latest is None else latest.profile_name
     low, high = _tolerance(profile, name)
     forecast = (
         drift.forecast_exit(trend, low, high) if math.isfinite(low) or math.isfinite(high) else None

@@ -20,6 +20,7 @@ from sqlalchemy.orm import Session
 from storage import seal
 from storage.current import CURRENT
 from storage.db import Archive
+from storage.queries.records import Validation
 from storage.schema import AuditEvent, CalibrationRow, Run, ValidationRow, utcnow
 from storage.seal_record import canonical, sha256_hex
 
@@ -96,23 +97,15 @@ _RECORDS = (
 )
 
 
-def validations(archive: Archive, run_id: str, revision: int | None = None) -> list[dict]:
-    """The validation records of a run (of one revision if given), oldest first: id,
-    created_at, software_version, revision, digest, document."""
+def validations(archive: Archive, run_id: str, revision: int | None = None) -> list[Validation]:
+    """The validation records of a run (of one revision if given), oldest first."""
     stmt = _RECORDS.where(Run.run_id == run_id)
     if revision is not None:
         stmt = stmt.where(CalibrationRow.revision == revision)
     with archive.engine().connect() as conn:
         rows = conn.execute(stmt.order_by(ValidationRow.id)).all()
     return [
-        {
-            "id": r.id,
-            "created_at": r.created_at,
-            "software_version": r.software_version,
-            "revision": r.revision,
-            "digest": r.digest,
-            "document": r.document,
-        }
+        Validation(r.id, r.created_at, r.software_version, r.revision, r.digest, r.document)
         for r in rows
     ]
 

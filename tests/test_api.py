@@ -138,13 +138,13 @@ def test_judge_lists_the_checks_every_view_of_the_run_counts(tmp_path, monkeypat
     before = pipelines.judge(run, cal, archive)
     (source,) = pipelines.discover_runs([folder])
     outcome = pipelines.process_run(source, archive)
-    kept = queries.run_summary(archive, outcome["run_id"])["calibration"]["checks"]
-    names = sorted(c["name"] for c in kept)
+    kept = queries.run_summary(archive, outcome["run_id"]).calibration.checks
+    names = sorted(c.name for c in kept)
     assert sorted(c.name for c in alone) == names == sorted(c.name for c in before)
     assert len(names) > len(calib_core.check_calibration(cal, pipelines.load_profile("mpu6000")))
     device = {c.name: c for c in alone}["device:description"]
-    assert status(device.to_dict()) == "not judged" and "needs the archive" in device.detail
+    assert status(device) == "not judged" and "needs the archive" in device.detail
     assert not counts_against_verdict(device)
     judged = {c.name: c for c in before}["device:description"]
-    assert judged.passed and judged.detail == {c["name"]: c for c in kept}[judged.name]["detail"]
+    assert judged.passed and judged.detail == {c.name: c for c in kept}[judged.name].detail
     assert calib_core.overall_verdict(alone) == calib_core.overall_verdict(before)

@@ -23,6 +23,7 @@ from calib_core.calibration import Calibration, CheckResult, Parameter, StepReco
 from storage import queries, rawstore
 from storage.archive import ArchiveError, archive_run
 from storage.db import Archive, default_archive_url, resolve_archive
+from storage.queries.records import EquipmentUse, Unit
 from storage.run_input import RawFileIn, RunIn, raw_hash_of, run_id_of
 from storage.schema import TABLES, Base
 from storage.verify import verify
@@ -155,36 +156,26 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
         "validations": 0,  # none until `calib validate`
     }
     s = queries.run_summary(archive, res.run_id)
-    assert s["raw_hash"] == raw_hash
-    assert s["started_at"] == run.started_at and s["started_at"].tzinfo == UTC
-    assert s["device"] == {
-        "serial": "0012",
-        "model": "MPU-6000",
-        "manufacturer": "InvenSense",
-        "specification": "consumer grade",
-    }
-    assert (s["site"], s["environment"], s["gravity"]) == (run.site, run.environment, run.gravity)
-    assert s["equipment"] == [
-        {
-            "kind": "rate_table",
-            "model": "AC1120",
-            "serial": "RT-7",
-            "accuracy_class": "0.01%",
-            "calibration_due": date(2024, 12, 31),
-            "calibrated_on": date(2023, 12, 31),
-        }
+    assert s.raw_hash == raw_hash
+    assert s.started_at == run.started_at and s.started_at.tzinfo == UTC
+    assert s.device == Unit("0012", "MPU-6000", "InvenSense", "consumer grade")
+    assert (s.site, s.environment, s.gravity) == (run.site, run.environment, run.gravity)
+    assert s.equipment == [
+        EquipmentUse(
+            "rate_table", "AC1120", "RT-7", "0.01%", date(2024, 12, 31), date(2023, 12, 31)
+        )
     ]
-    assert sorted((r["name"], r["sha256"], r["size"]) for r in s["raw_files"]) == sorted(
+    assert sorted((r.name, r.sha256, r.size) for r in s.raw_files) == sorted(
         (f.name, f.sha256, f.size) for f in run.raw_files
     )
-    cal = s["calibration"]
-    assert cal["revision"] == 1 and cal["verdict"] == "pass" and cal["superseded_by"] is None
-    assert {p["name"]: (p["value"], p["std"]) for p in cal["parameters"]} == {
+    cal = s.calibration
+    assert cal.revision == 1 and cal.verdict == "pass" and cal.superseded_by is None
+    assert {p.name: (p.value, p.std) for p in cal.parameters} == {
         p.name: (p.value, p.std) for p in run.parameters
     }
-    assert [st["name"] for st in cal["steps"]] == ["ingest", "solve"]
-    assert cal["steps"][1]["statistics"] == {"cond": 1.7}
-    assert cal["checks"][0]["limit"] == 0.5 and cal["checks"][0]["passed"] is True
+    assert [st.name for st in cal.steps] == ["ingest", "solve"]
+    assert cal.steps[1].statistics == {"cond": 1.7}
+    assert cal.checks[0].limit == 0.5 and cal.checks[0].passed is True
 
     exported = queries.export_calibration(archive, res.run_id)
     assert exported["calibration"] == run.calibration
@@ -197,7 +188,7 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
     assert back.column("serial").type == pa.string()
     assert set(back.column("serial").to_pylist()) == {"0012"}
     assert back.column("t_ns").to_pylist() == run.samples.column("t_ns").to_pylist()
-    assert s["samples_path"] == f"samples/serial=0012/date=2024-05-01/{res.run_id}.parquet"
+    assert s.samples_path == f"samples/serial=0012/date=2024-05-01/{res.run_id}.parquet"
 
 
 def test_identical_rearchive_is_a_duplicate_and_writes_nothing(
@@ -259,7 +250,7 @@ def test_new_settings_or_software_add_revisions_that_supersede(
     assert ph["value"].tolist() == [v1, v1 + 1e-3, v1 + 1e-3]
     cur = queries.parameter_history(archive, "0012", "acc.bias.x")
     assert cur["revision"].tolist() == [3]
-    assert queries.run_summary(archive, r1.run_id)["calibration"]["revision"] == 3
+    assert queries.run_summary(archive, r1.run_id).calibration.revision == 3
     assert queries.export_calibration(archive, r1.run_id, revision=1)["superseded"] is True
 
     # Going back to revision 1's settings and software: that processing exists already.
@@ -385,13 +376,13 @@ def test_datetimes_come_back_utc_aware(archive: Archive, tmp_path: Path) -> None
     run = make_run(tmp_path / "in", started_at=datetime(2024, 5, 1, 0, 30, tzinfo=cest))
     res = archive_run(archive, run)
     s = queries.run_summary(archive, res.run_id)
-    assert s["started_at"] == run.started_at  # the same instant...
-    assert s["started_at"].tzinfo == UTC  # ...expressed in UTC
-    assert s["started_at"].hour == 22 and s["started_at"].day == 30
+    assert s.started_at == run.started_at  # the same instant...
+    assert s.started_at.tzinfo == UTC  # ...expressed in UTC
+    assert s.started_at.hour == 22 and s.started_at.day == 30
     # The run folder is dated by the UTC day.
     assert res.run_dir.parent.name == "2024-04-30"
-    assert s["created_at"].tzinfo == UTC
-    assert abs(s["created_at"] - datetime.now(UTC)) < timedelta(minutes=5)
+    assert s.created_at.tzinfo == UTC
+    assert abs(s.created_at - datetime.now(UTC)) < timedelta(minutes=5)
     h = queries.history(archive, "0012")
     assert h["started_at"].iloc[0] == run.started_at
 
@@ -408,11 +399,11 @@ def test_latest_valid_calibration_as_of_a_date(archive: Archive, tmp_path: Path)
     )
 
     assert queries.latest_calibration(archive, "0012", t0 - timedelta(seconds=1)) is None
-    assert queries.latest_calibration(archive, "0012", t0)["run_id"] == jan.run_id
-    assert queries.latest_calibration(archive, "0012", t0 + timedelta(40))["run_id"] == feb.run_id
+    assert queries.latest_calibration(archive, "0012", t0).run_id == jan.run_id
+    assert queries.latest_calibration(archive, "0012", t0 + timedelta(40)).run_id == feb.run_id
     latest = queries.latest_calibration(archive, "0012")  # the failed March run does not count
-    assert latest["run_id"] == feb.run_id and latest["verdict"] == "pass"
-    assert len(latest["parameters"]) == 4
+    assert latest.run_id == feb.run_id and latest.verdict == "pass"
+    assert len(latest.parameters) == 4
     assert queries.latest_calibration(archive, "no-such-unit") is None
     with pytest.raises(ValueError, match="as_of"):
         queries.latest_calibration(archive, "0012", datetime(2024, 1, 1))

@@ -210,11 +210,8 @@ def test_zero_positions_of_3_minutes_and_g_steps_of_5_minutes():
 
     short = judged(2.9, 4.9)
     zero, step = short["zero_position_min"], short["g_step_min"]
-    assert (
-        conditions.status(zero.to_dict()) == conditions.WARNING
-        and "xp_zero_after_90" in zero.detail
-    )
-    assert conditions.status(step.to_dict()) == conditions.WARNING and "xp_step_20g" in step.detail
+    assert conditions.status(zero) == conditions.WARNING and "xp_zero_after_90" in zero.detail
+    assert conditions.status(step) == conditions.WARNING and "xp_step_20g" in step.detail
     assert zero.value == pytest.approx(2.9) and step.value == pytest.approx(4.9)
     full = judged(3.0, 5.0)
     assert full["zero_position_min"].passed and full["g_step_min"].passed

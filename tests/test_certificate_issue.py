@@ -139,9 +139,9 @@ def test_certificate_shows_numbers_as_the_cli_does(archived_sample) -> None:
 
     arch, run_id = archived_sample
     html = issued(arch, run_id).files["html"].read_text(encoding="utf-8")
-    for p in queries.run_summary(arch, run_id)["calibration"]["parameters"]:
-        s = shown(p["name"], p["value"], p["std"])
-        assert f"<td>{p['name']}</td><td>{s.value}</td><td>{s.u}</td><td>{s.unit}</td>" in html
+    for p in queries.run_summary(arch, run_id).calibration.parameters:
+        s = shown(p.name, p.value, p.std)
+        assert f"<td>{p.name}</td><td>{s.value}</td><td>{s.u}</td><td>{s.unit}</td>" in html
 
 
 def test_issue_can_wait_for_calib_report(tmp_path, monkeypatch) -> None:

@@ -68,7 +68,7 @@ def _checks(segments, recorded=None, *, procedure="six_position", settings=None,
 
 
 def _status(check: CheckResult) -> str:
-    return conditions.status(check.to_dict())
+    return conditions.status(check)
 
 
 @pytest.mark.parametrize(

@@ -56,10 +56,10 @@ def test_show_latest_and_web_agree_on_every_number(archived_sample) -> None:
     ro = open_readonly(arch)
     page = TestClient(create_app(ro)).get(f"/runs/{run_id}").text
     ro.dispose()
-    for p in summary["calibration"]["parameters"]:
-        s = shown(p["name"], p["value"], p["std"])
+    for p in summary.calibration.parameters:
+        s = shown(p.name, p.value, p.std)
         for text in (show, latest):
-            row = next(line for line in text.splitlines() if f" {p['name']} " in line)
+            row = next(line for line in text.splitlines() if f" {p.name} " in line)
             cells = [c.strip() for c in row.strip().strip("│").split("│")]
             assert [s.value, s.u, s.unit] == cells[1:4], row
         assert f">{s.value}</a>" in page and f">{s.u}</td>" in page
@@ -69,7 +69,7 @@ def test_show_latest_and_web_agree_on_every_number(archived_sample) -> None:
     )
     assert {r["unit"] for r in doc if r["name"].startswith("gyr.bias")} == {"rad/s"}
     # The checks are counted the same way in the terminal and on the page.
-    sentence = check_counts(summary["calibration"]["checks"]).sentence()
+    sentence = check_counts(summary.calibration.checks).sentence()
     assert sentence in " ".join(show.split()) and sentence in page
     assert "tolerance checks failed" in sentence
 
@@ -88,8 +88,8 @@ def test_lineage_of_one_parameter_is_readable_at_80_columns(archived_sample) -> 
     assert max(len(line) for line in lines) <= WIDTH
     assert len(lines) < 120
     summary = queries.run_summary(arch, run_id)
-    for f in summary["raw_files"]:
-        assert f["name"] in text and f"sha256 {f['sha256']}" in text
+    for f in summary.raw_files:
+        assert f.name in text and f"sha256 {f.sha256}" in text
     assert "Step 2: solve" in text and "replaced samples of gyr.x" in text
     assert "Uncertainty budget of gyr.scale.x" in text and "U (k=" in text
     for other in ("acc.bias.x", "gyr.scale.y", "flagged_indices", "{"):
@@ -165,9 +165,9 @@ def test_checks_are_counted_alike_everywhere(archived_sample, reported) -> None:
     from calib_core.conditions import CONDITION_PREFIX, status
 
     arch, run_id = archived_sample
-    checks = queries.run_summary(arch, run_id)["calibration"]["checks"]
+    checks = queries.run_summary(arch, run_id).calibration.checks
     counts = check_counts(checks)
-    conditions = [c for c in checks if c["name"].startswith(CONDITION_PREFIX)]
+    conditions = [c for c in checks if c.name.startswith(CONDITION_PREFIX)]
     assert counts.conditions == len(conditions) > 0
     assert counts.tolerance == len(checks) - len(conditions) > 0
     assert counts.failed == sum(status(c) == "fail" for c in checks)
@@ -189,11 +189,11 @@ def test_protocol_and_certificate_show_numbers_as_the_cli_does(archived_sample, 
     arch, run_id = archived_sample
     protocol = reported["protocol"].splitlines()
     html = reported["certificate"]
-    for p in queries.run_summary(arch, run_id)["calibration"]["parameters"]:
-        s = shown(p["name"], p["value"], p["std"])
-        line = next(x for x in protocol if x.startswith(f"{p['name']} "))
+    for p in queries.run_summary(arch, run_id).calibration.parameters:
+        s = shown(p.name, p.value, p.std)
+        line = next(x for x in protocol if x.startswith(f"{p.name} "))
         assert line.split()[1:4] == [s.signed, s.u, s.unit], line
-        assert f"<td>{p['name']}</td><td>{s.value}</td><td>{s.u}</td>" in "".join(html.split())
+        assert f"<td>{p.name}</td><td>{s.value}</td><td>{s.u}</td>" in "".join(html.split())
     header = next(x for x in protocol if x.startswith("Parameter "))
     assert header.split()[:3] == ["Parameter", "Value", "u"]
     assert "u: standard uncertainty (k = 1)" in reported["protocol"]
@@ -258,19 +258,15 @@ def test_fleet_commands_speak_the_display_unit(archived_sample) -> None:
 
     arch, run_id = archived_sample
     name = "gyr.bias.z"
-    p = next(
-        p
-        for p in queries.run_summary(arch, run_id)["calibration"]["parameters"]
-        if p["name"] == name
-    )
-    s = shown(name, p["value"], p["std"])
+    p = next(p for p in queries.run_summary(arch, run_id).calibration.parameters if p.name == name)
+    s = shown(name, p.value, p.std)
     a = ["--archive", str(arch.root)]
     table = _run("query", "fleet", "MPU-6000", name, *a)
     row = next(line for line in table.splitlines() if run_id in line)
     assert s.value in row and s.u in row, row
-    assert f"median {quantity(name, p['value'])}" in table and "deg/s" in table
+    assert f"median {quantity(name, p.value)}" in table and "deg/s" in table
     bins = _run("fleet", "MPU-6000", name, *a)
-    assert quantity(name, p["value"]) in bins, bins
+    assert quantity(name, p.value) in bins, bins
     assert f"{name} across MPU-6000 (deg/s)" in bins
     for text in (table, bins):
         assert "rad/s" not in text and "nan" not in text, text

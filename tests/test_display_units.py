@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,9 +19,10 @@ from pipelines.cli import app
 from pipelines.ingest import RunSource
 from pipelines.process import process_run
 from pipelines.reports.display import DISPLAY_UNITS, display
-from pipelines.reports.run_reports import write_reports
+from pipelines.reports.run_reports import ArchivedRun, write_reports
 from storage import queries
 from storage.db import Archive, resolve_archive
+from storage.queries.records import ParameterValue
 
 pytestmark = pytest.mark.slow
 
@@ -85,10 +87,10 @@ def test_certificate_shows_every_family(centrifuge_run, tmp_path: Path) -> None:
     example = {"acc.kp": "acc.kp.x_yz", "acc.misalign": "acc.misalign.xy"}
     example |= {"gyr.misalign": "gyr.misalign.xy", "gyr.gsens": "gyr.gsens.xy"}
     names = [example.get(family, f"{family}.x") for family in sorted(params.UNITS)]
-    summary["calibration"]["parameters"] = [
-        {"name": params.validate(n), "value": 1e-3, "std": 1e-4} for n in names
-    ]
-    written = write_reports(summary, queries.run_samples(arch, outcome["run_id"]), tmp_path / "r")
+    values = [ParameterValue(params.validate(n), 1e-3, 1e-4, "", None) for n in names]
+    given = replace(summary, calibration=replace(summary.calibration, parameters=values))
+    samples = queries.run_samples(arch, outcome["run_id"])
+    written = write_reports(ArchivedRun(given), samples, tmp_path / "r")
     html = written["html"].read_text()
     for name in names:
         unit = DISPLAY_UNITS[name.rsplit(".", 1)[0]][0]

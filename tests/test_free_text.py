@@ -92,9 +92,9 @@ def test_nul_in_operator_fails_alike_on_every_back_end(archive, tmp_path: Path) 
         assert conn.exec_driver_sql("SELECT count(*) FROM runs").scalar() == 0
 
 
-def archived_check(archive, run_id: str) -> dict:  # noqa: ANN001
-    checks = queries.run_summary(archive, run_id)["calibration"]["checks"]
-    return {c["name"]: c for c in checks}["device:description"]
+def archived_check(archive, run_id: str) -> CheckResult:  # noqa: ANN001
+    checks = queries.run_summary(archive, run_id).calibration.checks
+    return {c.name: c for c in checks}["device:description"]
 
 
 @pytest.mark.slow
@@ -104,22 +104,22 @@ def test_model_change_for_a_serial_is_flagged(archive, tmp_path: Path) -> None:
     assert out["status"] == "ok"
     first_id = out["run_id"]
     check = archived_check(archive, first_id)
-    assert check["passed"] and check["detail"] == SAME_DESCRIPTION
+    assert check.passed and check.detail == SAME_DESCRIPTION
 
     folder = copy_run(tmp_path, "swapped", 'model = "MPU-6000"', 'model = "ICM-20602"', "\n")
     (second,) = discover_runs([folder])
     out = process_run(second, archive)
     assert out["status"] == "ok"
     check = archived_check(archive, out["run_id"])
-    assert not check["passed"]
-    assert "archived as model 'MPU-6000' by 'InvenSense'" in check["detail"]
-    assert "this run says model 'ICM-20602'" in check["detail"]
+    assert not check.passed
+    assert "archived as model 'MPU-6000' by 'InvenSense'" in check.detail
+    assert "this run says model 'ICM-20602'" in check.detail
     assert out["verdict"] in ("needs review", "fail")
-    assert f"(run {first_id}, started " in check["detail"]
+    assert f"(run {first_id}, started " in check.detail
     second_id = out["run_id"]
     # Each run keeps its own description; the first one's check is as it was.
     for run_id, model in ((first_id, "MPU-6000"), (second_id, "ICM-20602")):
-        assert queries.run_summary(archive, run_id)["device"]["model"] == model
+        assert queries.run_summary(archive, run_id).device.model == model
     assert queries.earlier_descriptions(archive, "IMU-2026-0042", first_id) == []
 
     # Back to the first model: still flagged, naming the run that said otherwise.
@@ -127,9 +127,9 @@ def test_model_change_for_a_serial_is_flagged(archive, tmp_path: Path) -> None:
     (third,) = discover_runs([folder])
     out = process_run(third, archive)
     check = archived_check(archive, out["run_id"])
-    assert not check["passed"], check
-    assert f"archived as model 'ICM-20602' by 'InvenSense' (run {second_id}," in check["detail"]
-    assert "MPU-6000' by 'InvenSense' (run" not in check["detail"]
+    assert not check.passed, check
+    assert f"archived as model 'ICM-20602' by 'InvenSense' (run {second_id}," in check.detail
+    assert "MPU-6000' by 'InvenSense' (run" not in check.detail
 
 
 def test_each_other_description_names_its_latest_run_by_run_time(archive, tmp_path: Path) -> None:  # noqa: ANN001

@@ -127,7 +127,7 @@ def test_face_bias_spread_finds_a_non_linearity() -> None:
         gravity=cal.gravity,
         operator="o",
         parameters=[],
-        checks=[c.to_dict() for c in checks.values()],
+        checks=list(checks.values()),
         verdict="needs review",
     )
     assert "model:face_bias.x" in text

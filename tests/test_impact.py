@@ -133,8 +133,8 @@ def _archive(arch, folder) -> str:
     return outcome["run_id"]
 
 
-def _params(arch, run_id: str) -> dict[str, dict]:
-    return {p["name"]: p for p in queries.run_summary(arch, run_id)["calibration"]["parameters"]}
+def _params(arch, run_id: str) -> dict[str, float]:
+    return {p.name: p.value for p in queries.run_summary(arch, run_id).calibration.parameters}
 
 
 def test_parse_error_refuses_what_it_cannot_do():
@@ -168,8 +168,8 @@ def test_rate_error_re_solve_matches_the_true_reference(lab):
     std = direct.parameters["gyr.scale.x"].std
     assert abs(after_x - direct.value("gyr.scale.x")) <= 1e-3 * std
     # (1 + s) / (1 + E) was what the fast table gave: the correction restores (1 + s).
-    expected_shift = (1 + before["gyr.scale.x"]["value"]) * RATE_PPM * 1e-6
-    assert abs(after_x - before["gyr.scale.x"]["value"] - expected_shift) <= 1e-3 * std
+    expected_shift = (1 + before["gyr.scale.x"]) * RATE_PPM * 1e-6
+    assert abs(after_x - before["gyr.scale.x"] - expected_shift) <= 1e-3 * std
     m = moved["gyr.scale.x"]  # reported in units of the archived revision's U (Type B too)
     assert m["change_in_U"] == pytest.approx((after_x - m["before"]) / m["U_before"])
     assert m["change_in_U"] > 1
@@ -177,7 +177,7 @@ def test_rate_error_re_solve_matches_the_true_reference(lab):
     assert r["verdict_before"] == "pass" and r["verdict_after"] == "fail"
     assert r["affected"] and "table_rate" in r["what"]
     assert not doc["applied"] and r.get("status") is None  # a dry run writes nothing
-    assert queries.run_summary(arch, runs["A"])["revisions"] == 1
+    assert queries.run_summary(arch, runs["A"]).revisions == 1
 
 
 def test_clock_error_re_solve_matches_the_true_time(lab):
@@ -251,8 +251,8 @@ def test_apply_archives_verified_revisions_with_the_reason(lab):
     assert r["status"] == "revised" and r["revision_after"] == 2
     reason = f"out-of-tolerance reference RT-7: rate_error_ppm={RATE_PPM:g}"
     assert doc["reason"] == reason
-    summary = queries.run_summary(arch, runs["A"])
-    assert summary["calibration"]["revision"] == 2 and summary["calibration"]["verdict"] == "fail"
+    cal = queries.run_summary(arch, runs["A"]).calibration
+    assert cal.revision == 2 and cal.verdict == "fail"
     lin = queries.lineage(arch, runs["A"], "gyr.scale.x")
     steps = {s["name"]: s for s in lin["steps"]}
     assert steps["reprocess"]["settings"]["reason"] == reason
@@ -285,22 +285,22 @@ def test_reprocessing_carries_the_correction(lab, monkeypatch):
     from pipelines.reprocess import reprocess_run
 
     arch, run_a = lab["archive"], lab["runs"]["A"]
-    if queries.run_summary(arch, run_a)["calibration"]["revision"] == 1:  # run alone
+    if queries.run_summary(arch, run_a).calibration.revision == 1:  # run alone
         apply_rate_error(arch)
-    corrected = _params(arch, run_a)["gyr.scale.x"]["value"]
+    corrected = _params(arch, run_a)["gyr.scale.x"]
     monkeypatch.setattr(process, "SOFTWARE_VERSION", "99.0-test")
     outcome = reprocess_run(arch, run_a, reason="software 99")
     assert outcome["status"] == "revised", outcome
-    cal = queries.run_summary(arch, run_a)["calibration"]
-    assert cal["settings"]["reference_correction"]["quantity"] == "rate_error_ppm"
-    assert _params(arch, run_a)["gyr.scale.x"]["value"] == pytest.approx(corrected, rel=1e-12)
+    cal = queries.run_summary(arch, run_a).calibration
+    assert cal.settings["reference_correction"]["quantity"] == "rate_error_ppm"
+    assert _params(arch, run_a)["gyr.scale.x"] == pytest.approx(corrected, rel=1e-12)
     assert verify(arch).ok
     # Each revision solved again from the raw bytes with what it records (reason,
     # correction and its look-back record): the one by this "software" to the bit, those
     # by the other version differing in that version alone ("changed", as reprocess says).
     from pipelines.recompute import recompute_run
 
-    newest = cal["revision"]
+    newest = cal.revision
     for now, mine in (("99.0-test", {newest}), ("installed", None)):
         if mine is None:
             monkeypatch.undo()

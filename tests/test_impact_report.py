@@ -154,5 +154,5 @@ def test_impact_records_on_each_back_end(archive, tmp_path):
     (rec,) = impact_records(archive)
     assert rec["reason"] == REASON and rec["period"] == {"from": "2026-03-01", "to": None}
     assert [(r["run_id"], r["revision"], r["current"]) for r in rec["runs"]] == [(run_id, 2, True)]
-    cal_id = queries.run_summary(archive, run_id)["calibration"]["calibration_id"]
+    cal_id = queries.run_summary(archive, run_id).calibration.calibration_id
     assert calibration_temperatures(archive, [cal_id]) == {cal_id: 20.0}  # the manifest's

@@ -80,7 +80,7 @@ def test_chamber_offset_moves_temperatures_and_the_thermal_model(chamber):
     doc = impact(arch, "TC-5", error, "2026-05-01")
     assert [r["run_id"] for r in doc["runs"]] == ids
     true_verdicts = {
-        queries.run_summary(chamber["true_archive"], i)["calibration"]["verdict"]
+        queries.run_summary(chamber["true_archive"], i).calibration.verdict
         for i in chamber["true_ids"]
     }
     for r, temp, true_id in zip(doc["runs"], TRUE_TEMPS, chamber["true_ids"], strict=True):
@@ -90,14 +90,14 @@ def test_chamber_offset_moves_temperatures_and_the_thermal_model(chamber):
         # The lab condition read at the true temperature: 23 degC read was outside the
         # profile's 18 .. 22, the true 20 is inside, as the run archived at 20 says.
         true_checks = {
-            c["name"]: c["passed"]
-            for c in queries.run_summary(chamber["true_archive"], true_id)["calibration"]["checks"]
+            c.name: c.passed
+            for c in queries.run_summary(chamber["true_archive"], true_id).calibration.checks
         }
         for c in r["checks_changed"]:
             assert c["passed_after"] == true_checks[c["name"]], c
         changed = [c["name"] for c in r["checks_changed"]]
         assert changed == (["condition:ambient_temperature_c"] if temp == 20.0 else []), changed
-        true = queries.run_summary(chamber["true_archive"], true_id)["calibration"]["verdict"]
+        true = queries.run_summary(chamber["true_archive"], true_id).calibration.verdict
         assert r["verdict_after"] == true, (r, true_verdicts)
     (c,) = doc["campaigns"]
     assert c["serial"] == SERIAL and c["corrected"] == ids
@@ -156,7 +156,7 @@ def test_chamber_offset_apply_revises_runs_and_refits(chamber):
     reason = f"out-of-tolerance reference TC-5: {error}"
     for run_id, temp in zip(ids, TRUE_TEMPS, strict=True):
         summary = queries.run_summary(arch, run_id)
-        assert {p["temperature_c"] for p in summary["calibration"]["parameters"]} == {temp}
+        assert {p.temperature_c for p in summary.calibration.parameters} == {temp}
         lin = queries.lineage(arch, run_id, "acc.bias.x")
         assert {s["name"]: s for s in lin["steps"]}["reprocess"]["settings"]["reason"] == reason
     (c,) = doc["campaigns"]

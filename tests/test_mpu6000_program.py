@@ -169,8 +169,7 @@ def _manual_means(g: float) -> dict[str, np.ndarray]:
 
 
 def _protocol(cal: Calibration, names: str) -> str:
-    rows = [{"name": n, "value": p.value, "std": p.std} for n, p in sorted(cal.parameters.items())]
-    return parameter_protocol(rows, names)
+    return parameter_protocol([cal.parameters[n] for n in sorted(cal.parameters)], names)
 
 
 def test_protocol_prints_the_manuals_names_and_signs():

@@ -195,7 +195,7 @@ def test_certificate_section_when_the_lab_names_profiles(static_run, tmp_path, m
     summary, cert = certificate_of(archive, run_id)
     (section,) = [s for s in cert.sections if s.title.startswith("Navigation performance")]
     assert section.title == "Navigation performance: land-vehicle-outage-60s"
-    (data,) = summary["navigation"]
+    (data,) = summary.navigation
     heading = next(r for r in section.rows if r[0] == "heading")
     assert heading[1] == f"{data['end']['heading_deg']['sigma']:.3g}"
     assert data["dominant"]["heading_deg"] in heading[4]

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from calib_core.calibration import Parameter
 from calib_testing.documents import parameter_protocol
 from pipelines.cli import app
 from storage.rawstore import FILE_MODE
@@ -21,8 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_protocol_values_are_signed_and_uncertainties_are_not() -> None:
     text = parameter_protocol(
         [
-            {"name": "acc.scale.x", "value": -0.0225, "std": 1.9e-5},
-            {"name": "acc.scale.y", "value": 0.0051, "std": 2.1e-5},
+            Parameter("acc.scale.x", -0.0225, 1.9e-5),
+            Parameter("acc.scale.y", 0.0051, 2.1e-5),
         ]
     )
     rows = {line.split()[0]: line.split() for line in text.splitlines() if "acc.scale" in line}

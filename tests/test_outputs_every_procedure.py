@@ -6,6 +6,7 @@ issued (HTML and PDF, read back with pdftotext) and a DCC that PTB's DCC 3.3.0 s
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -130,7 +131,7 @@ def test_every_procedure_has_a_run(archived):
     from storage import queries
 
     archive, runs, _ = archived
-    done = {queries.run_summary(archive, r)["procedure"] for r in runs}
+    done = {queries.run_summary(archive, r).procedure for r in runs}
     assert done == set(BY_NAME), set(BY_NAME) - done
 
 
@@ -148,30 +149,29 @@ def test_every_run_has_its_certificate_issued(archived):
         words = " ".join(html_words(cert.files["html"].read_text(encoding="utf-8")))
         pages = pdf_pages(cert.files["pdf"])
         assert cert.number in words and all(cert.number in p for p in pages), run_id
-        summary = queries.run_summary(archive, run_id)
-        if summary["procedure"] == "static_bias":
+        if queries.run_summary(archive, run_id).procedure == "static_bias":
             assert "acc.noise.x" in words and NO_STANDARD_U in words
 
 
 def test_every_dcc_is_valid_against_dcc_3_3_0(archived, monkeypatch):
     from pipelines.reports.dcc import dcc_xml
-    from pipelines.reports.run_reports import archived_summary
+    from pipelines.reports.run_reports import archived_run
 
     archive, runs, profiles = archived
     monkeypatch.setenv("CALIB_PROFILES", str(profiles))
     for run_id in runs:
-        xml = dcc_xml(archived_summary(archive, run_id))
+        xml = dcc_xml(archived_run(archive, run_id))
         assert dcc_schema_errors(xml) == [], run_id
 
 
 def test_the_schema_check_can_fail(archived, monkeypatch):
     """The validation the tests rely on catches each of the three faults of DCCs before 3.3.0."""
     from pipelines.reports.dcc import dcc_xml
-    from pipelines.reports.run_reports import archived_summary
+    from pipelines.reports.run_reports import archived_run
 
     archive, runs, profiles = archived
     monkeypatch.setenv("CALIB_PROFILES", str(profiles))
-    xml = dcc_xml(archived_summary(archive, next(iter(runs)))).decode()
+    xml = dcc_xml(archived_run(archive, next(iter(runs)))).decode()
     assert dcc_schema_errors(xml.encode()) == []
     dangling = xml.replace('refId="method', 'refId="nowhere', 1)
     empty = (
@@ -188,14 +188,14 @@ def test_the_schema_check_can_fail(archived, monkeypatch):
 
 def test_a_dcc_without_what_the_schema_needs_is_refused(archived, monkeypatch, tmp_path):
     from pipelines.reports.dcc import DccRefusedError, dcc_xml
-    from pipelines.reports.run_reports import archived_summary
+    from pipelines.reports.run_reports import archived_run
 
     archive, runs, _ = archived
     (tmp_path / "lab.toml").write_text('[customer]\nname = "X"\n')
     monkeypatch.setenv("CALIB_PROFILES", str(tmp_path))
     with pytest.raises(DccRefusedError, match=r"add address = .* to \[customer\] of the lab"):
-        dcc_xml(archived_summary(archive, next(iter(runs))))
-    summary = archived_summary(archive, next(iter(runs)))
-    summary["lab"]["customer"]["address"] = "here"
+        dcc_xml(archived_run(archive, next(iter(runs))))
+    archived = archived_run(archive, next(iter(runs)))
+    archived.lab["customer"]["address"] = "here"
     with pytest.raises(DccRefusedError, match=r"\[\[equipment\]\] of run.toml\) and the lab"):
-        dcc_xml({**summary, "equipment": []})
+        dcc_xml(replace(archived, run=replace(archived.run, equipment=[])))

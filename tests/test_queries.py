@@ -117,7 +117,7 @@ def test_latest_valid_as_of_dates(archive: Archive, scenario: Scenario) -> None:
     assert queries.latest_valid(archive, "ZZ9").empty
     # The dict API agrees.
     full = queries.latest_calibration(archive, "A1", datetime(2024, 7, 1, tzinfo=UTC))
-    assert full["run_id"] == scenario.ids["r1"]
+    assert full.run_id == scenario.ids["r1"]
 
 
 def test_lineage_of_a_value(archive: Archive, scenario: Scenario) -> None:

@@ -61,22 +61,21 @@ def _process(tmp_path: Path, name: str, spikes: bool):
 def test_replaced_samples_are_archived_checked_and_shown(tmp_path):
     arch, result, injected = _process(tmp_path, "spiked", spikes=True)
     summary = queries.run_summary(arch, result["run_id"])
-    cal = summary["calibration"]
-    solve = next(s for s in cal["steps"] if s["name"] == "solve")
-    counts = solve["statistics"]["replaced_samples"]["despike"]
+    cal = summary.calibration
+    counts = cal.step_statistics("solve")["replaced_samples"]["despike"]
     assert set(counts) == set(ROTATION_LABELS)
     for label in ROTATION_LABELS:
         # Spikes in a rotation with the axis's own shaking can hide one another (within
         # 20 samples); never more are replaced than were put in.
         assert 0.5 * injected[label] <= sum(counts[label].values()) <= injected[label], label
-    checks = {c["name"]: c for c in cal["checks"]}
+    checks = {c.name: c for c in cal.checks}
     for label in ROTATION_LABELS:
         check = checks[f"model:replaced:despike:{label}"]
-        assert not check["passed"] and check["value"] == sum(counts[label].values())
+        assert not check.passed and check.value == sum(counts[label].values())
     # The unit is judged by its parameters (every one in tolerance); the replacements are
     # a finding about the record: "needs review", never "fail".
-    assert all(c["passed"] for c in cal["checks"] if c["name"].startswith("param:"))
-    assert cal["verdict"] == "needs review", [c["name"] for c in cal["checks"] if not c["passed"]]
+    assert all(c.passed for c in cal.checks if c.name.startswith("param:"))
+    assert cal.verdict == "needs review", [c.name for c in cal.checks if not c.passed]
     views = _views(tmp_path, arch, result)
     for where, text in views.items():
         flat = " ".join(text.split())
@@ -118,11 +117,10 @@ def _views(tmp_path: Path, arch, result) -> dict[str, str]:
 
 def test_a_clean_run_replaces_nothing(tmp_path):
     arch, result, _ = _process(tmp_path, "clean", spikes=False)
-    cal = queries.run_summary(arch, result["run_id"])["calibration"]
-    solve = next(s for s in cal["steps"] if s["name"] == "solve")
-    counts = solve["statistics"]["replaced_samples"]["despike"]
+    cal = queries.run_summary(arch, result["run_id"]).calibration
+    counts = cal.step_statistics("solve")["replaced_samples"]["despike"]
     assert all(sum(c.values()) == 0 for c in counts.values()), counts
-    assert all(c["passed"] for c in cal["checks"] if c["name"].startswith("model:replaced:"))
+    assert all(c.passed for c in cal.checks if c.name.startswith("model:replaced:"))
     # The counts (0) are shown all the same, beside the verdict.
     for where, text in _views(tmp_path, arch, result).items():
         assert "despike replaced 0 of" in " ".join(text.split()), where

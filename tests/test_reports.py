@@ -165,14 +165,13 @@ def test_clean_run_passes_all_and_report_is_complete(arch, tmp_path):
     assert not any(n.startswith("repeat:") for n in names)  # one run: not judged
 
     summary = queries.run_summary(arch, outcome["run_id"])
-    cal = summary["calibration"]
-    check = next(s for s in cal["steps"] if s["name"] == "check")
-    solve = next(s for s in cal["steps"] if s["name"] == "solve")
-    assert solve["statistics"]["held_out"] == ["tilt_30"]
+    cal = summary.calibration
+    check = cal.step_settings("check")
+    assert cal.step_statistics("solve")["held_out"] == ["tilt_30"]
     # the fit did not see the tilt: its residuals list only the twelve fit segments
-    assert "tilt_30" not in {r["segment"] for r in cal["document"]["residuals"]}
-    thresholds = check["settings"]["thresholds"]
-    assert check["settings"]["profile_version"] == thresholds["version"] == "3"
+    assert "tilt_30" not in {r["segment"] for r in cal.document["residuals"]}
+    thresholds = check["thresholds"]
+    assert check["profile_version"] == thresholds["version"] == "3"
     assert thresholds["verification_limits"]["acc"]["value"] == pytest.approx(0.01 * 9.80665)
 
     written = _report(arch, outcome["run_id"], tmp_path / "out")
@@ -259,8 +258,8 @@ def test_three_runs_with_2_percent_scale_change_fail_repeatability(arch, tmp_pat
     assert sorted(rows) == [("needs review", "3"), ("pass", "3"), ("pass", "3")]
     assert check_versions == {"3"}
     summary = queries.run_summary(arch, third["run_id"])
-    group = next(s for s in summary["calibration"]["steps"] if s["name"] == "check")
-    assert group["statistics"]["repeatability_group"] == [o["run_id"] for o in outcomes[::-1]]
+    group = summary.calibration.step_statistics("check")
+    assert group["repeatability_group"] == [o["run_id"] for o in outcomes[::-1]]
     written = _report(arch, third["run_id"], tmp_path / "out", pdf=False)
     assert "pdf" not in written
     text = _check_html(Path(written["html"]))
@@ -291,7 +290,7 @@ def test_calib_report_on_data_samples_csv_run(arch, tmp_path):
     # without --output the files go into the run's archive folder
     result = CliRunner().invoke(app, ["report", outcome["run_id"], "--archive", str(arch.root)])
     assert result.exit_code == 0, result.output
-    run_dir = arch.root / queries.run_summary(arch, outcome["run_id"])["run_dir"]
+    run_dir = arch.root / queries.run_summary(arch, outcome["run_id"]).run_dir
     assert {p.suffix for p in run_dir.iterdir()} >= {".txt", ".html", ".pdf"}
 
 

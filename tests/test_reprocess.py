@@ -120,15 +120,15 @@ def test_new_software_version_gives_a_new_revision_with_the_same_values(
     again = reprocess_run(arch, first["run_id"])
     assert again["status"] == "revised", again["error"]  # revision 2 of the same run
     assert again["parameters"] == first["parameters"]
-    assert queries.run_summary(arch, first["run_id"])["revisions"] == 2
+    assert queries.run_summary(arch, first["run_id"]).revisions == 2
 
 
 def test_altered_or_missing_raw_object_is_refused(tmp_path: Path, arch) -> None:
     sim = _simulated(15)
     write_csv_run(sim.segments, tmp_path / "run", MANIFEST)
     first = _first_processing(tmp_path / "run", arch)
-    raw = {r["name"]: r for r in queries.run_summary(arch, first["run_id"])["raw_files"]}
-    obj = rawstore.object_path(arch.root, raw["imu.csv"]["sha256"])
+    raw = {r.name: r for r in queries.run_summary(arch, first["run_id"]).raw_files}
+    obj = rawstore.object_path(arch.root, raw["imu.csv"].sha256)
     obj.chmod(0o644)
     obj.write_bytes(obj.read_bytes().replace(b"0", b"1", 1))
     with pytest.raises(ReprocessError, match=r"'imu\.csv'.*hashes to .*the file store was altered"):

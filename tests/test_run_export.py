@@ -250,7 +250,7 @@ def _invoke(*args: str):
 def test_cli_exports_with_the_thermal_model(serve_sample, tmp_path):
     root = str(serve_sample.archive.root)
     run_id = serve_sample.runs[THERMAL_SERIAL][2]  # the 20 deg C point of the campaign
-    temp = queries.run_summary(serve_sample.archive, run_id)["environment"]["temperature_c"]
+    temp = queries.run_summary(serve_sample.archive, run_id).temperature_c
     out = tmp_path / "th.params"
     res = _invoke(
         run_id[:8],

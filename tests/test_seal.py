@@ -257,8 +257,8 @@ def test_each_run_keeps_its_own_description_sealed(archive: Archive, tmp_path: P
     later = archive_run(archive, other, {"protocol.txt": b"run 9"}).run_id
     assert verify(archive, orphans=False).ok
     for run_id, model, maker in ((ids[0], "MPU-6000", "InvenSense"), (later, "ICM-20602", "TDK")):
-        device = queries.run_summary(archive, run_id)["device"]
-        assert (device["serial"], device["model"], device["manufacturer"]) == ("0012", model, maker)
+        device = queries.run_summary(archive, run_id).device
+        assert (device.serial, device.model, device.manufacturer) == ("0012", model, maker)
         assert queries.export_calibration(archive, run_id)["unit"]["model"] == model
     _tamper(archive, "UPDATE runs SET model = 'MPU-6000' WHERE run_id = :r", r=later)
     found = [p for p in _problems(archive, "record") if p.path == "runs/model"]

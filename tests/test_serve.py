@@ -179,15 +179,15 @@ def test_run_page_shows_the_archived_run(client, serve_sample):
     run_id = serve_sample.runs[DRIFT_SERIAL][0]
     s = queries.run_summary(serve_sample.archive, run_id)
     page = get(client, f"/runs/{run_id}")
-    assert rows(page, "parameters") == len(s["calibration"]["parameters"])
-    assert rows(page, "checks") == len(s["calibration"]["checks"])
-    assert rows(page, "steps") == len(s["calibration"]["steps"])
-    assert rows(page, "raw-files") == len(s["raw_files"])
-    for f in s["raw_files"]:
-        assert f["sha256"] in page.body
+    assert rows(page, "parameters") == len(s.calibration.parameters)
+    assert rows(page, "checks") == len(s.calibration.checks)
+    assert rows(page, "steps") == len(s.calibration.steps)
+    assert rows(page, "raw-files") == len(s.raw_files)
+    for f in s.raw_files:
+        assert f.sha256 in page.body
     # Every parameter value links to its lineage; the cube lapsed after this run's day.
-    for p in s["calibration"]["parameters"]:
-        assert f"/runs/{run_id}/lineage/{p['name']}" in page.links
+    for p in s.calibration.parameters:
+        assert f"/runs/{run_id}/lineage/{p.name}" in page.links
     assert "CUBE-D" in page.body and "valid" in page.body
     assert "<= 0.05" in page.body  # gyro noise: an upper limit (deg/s), not +-
     last = get(client, f"/runs/{serve_sample.runs[DRIFT_SERIAL][-1]}")
@@ -199,20 +199,21 @@ def test_run_page_marks_model_checks_for_review(client, serve_sample):
     """Identifiability (model:), repeatability and device checks come through the run's
     checks list; failed, they are badged "needs review" as the run's verdict counts them,
     any other failed check "fail"."""
+    from calib_core.calibration import CheckResult
     from pipelines.web.present import check_result
 
-    assert check_result({"name": "model:acc_dof", "passed": False}) == "needs review"
-    assert check_result({"name": "model:face_bias.x", "passed": True}) == "pass"
-    assert check_result({"name": "gyr.noise.x", "passed": False}) == "fail"
+    assert check_result(CheckResult("model:acc_dof", None, None, False)) == "needs review"
+    assert check_result(CheckResult("model:face_bias.x", None, None, True)) == "pass"
+    assert check_result(CheckResult("gyr.noise.x", None, None, False)) == "fail"
     run_id = serve_sample.runs[DRIFT_SERIAL][0]
-    checks = queries.run_summary(serve_sample.archive, run_id)["calibration"]["checks"]
+    checks = queries.run_summary(serve_sample.archive, run_id).calibration.checks
     html = client.get(f"/runs/{run_id}").text
-    model = [c for c in checks if c["name"].startswith("model:")]
+    model = [c for c in checks if c.name.startswith("model:")]
     assert model, "the pipeline archives its model checks with the run"
     for c in model:
-        badge = "needs review" if not c["passed"] else "pass"
+        badge = "needs review" if not c.passed else "pass"
         assert re.search(
-            rf'{re.escape(c["name"])}</td>.*?<span class="badge '
+            rf'{re.escape(c.name)}</td>.*?<span class="badge '
             rf'{badge.replace(" ", "-")}">{badge}</span>',
             html,
             re.S,
@@ -237,10 +238,10 @@ def test_lineage_page_traces_the_value_to_raw_bytes(client, serve_sample):
 def test_downloads_are_the_archived_bytes_and_documents(client, serve_sample):
     run_id = serve_sample.runs[DRIFT_SERIAL][0]
     s = queries.run_summary(serve_sample.archive, run_id)
-    for f in s["raw_files"]:
-        r = client.get(f"/runs/{run_id}/raw/{f['name']}")
+    for f in s.raw_files:
+        r = client.get(f"/runs/{run_id}/raw/{f.name}")
         assert r.status_code == 200
-        assert hashlib.sha256(r.content).hexdigest() == f["sha256"]
+        assert hashlib.sha256(r.content).hexdigest() == f.sha256
     assert client.get(f"/runs/{run_id}/raw/..%2F..%2Farchive.sqlite").status_code == 404
     r = client.get(f"/runs/{run_id}/export.json")
     assert json.loads(r.content) == json.loads(

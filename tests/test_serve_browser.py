@@ -115,13 +115,13 @@ def test_follow_runs_to_run_to_lineage_to_raw_file(page, server, serve_sample, s
     page.click("#parameters a >> nth=0")
     assert "/lineage/" in page.url
     summary = queries.run_summary(serve_sample.archive, expected[0])
-    raw = summary["raw_files"][0]
-    assert raw["sha256"] in page.inner_text("#raw-files")
+    raw = summary.raw_files[0]
+    assert raw.sha256 in page.inner_text("#raw-files")
     shots(page, "04-lineage")
     with page.expect_download() as info:
-        page.click(f"#raw-files a:text-is('{raw['name']}')")
+        page.click(f"#raw-files a:text-is('{raw.name}')")
     data = Path(info.value.path()).read_bytes()
-    assert hashlib.sha256(data).hexdigest() == raw["sha256"]
+    assert hashlib.sha256(data).hexdigest() == raw.sha256
 
 
 def test_unit_fleet_equipment_and_verify_pages(page, server, serve_sample, shots):

@@ -393,15 +393,14 @@ def test_the_certificate_marks_an_untrusted_approval_and_prints_the_chain_head(
     trust = load_approvers(keys["approvers"])
     with archive.engine().connect() as conn:
         head = seal.head(conn)
-    summary = {"lab": None, "chain_head": head}
     from storage.approval import approval_status
 
     marked = approval_status(archive, ids[0], 2, trust)  # the current revision of ids[0]
-    pairs = dict(signatures_section(summary, marked).pairs)
+    pairs = dict(signatures_section(None, head, marked).pairs)
     assert pairs["UNTRUSTED, claimed approved"].startswith(f"{JANE}, ")
     assert "is not in the approvers file" in pairs["UNTRUSTED, claimed approved"]
     assert pairs["Electronic approval"].startswith("NOT APPROVED")
     assert pairs["Audit chain at issue"] == f"event {head[0]}, hash {head[1]}"
-    unchecked = dict(signatures_section(summary, approval_status(archive, ids[0], 2)).pairs)
+    unchecked = dict(signatures_section(None, head, approval_status(archive, ids[0], 2)).pairs)
     assert "Electronically approved" in unchecked and "Electronic approval" not in unchecked
     assert "not checked" in unchecked["Approvers"]

@@ -28,10 +28,11 @@ from calib_testing.lab_profile import CUSTOMER, lab_toml
 from calib_testing.run_writers import six_position_manifest, write_csv_run
 from pipelines.ingest import discover_runs
 from pipelines.process import process_run
-from pipelines.reports.run_reports import report_run
+from pipelines.reports.run_reports import ArchivedRun, report_run
 from pipelines.tolerances import SHIPPED
 from storage import queries
 from storage.db import resolve_archive
+from storage.queries.records import RunSummary, Step
 
 G_U = 0.02  # m/s^2, expanded (k = 2) uncertainty of the gravity the simulated runs use
 
@@ -189,8 +190,7 @@ def archived(tmp_path_factory: pytest.TempPathFactory):
                 outcome = process_run(source, arch)
                 assert outcome["status"] == "ok", outcome["error"]
                 if day == 19:
-                    out["earlier"] = queries.run_summary(arch, outcome["run_id"])["calibration"]
-                    out["earlier"]["run_id"] = outcome["run_id"]
+                    out["earlier"] = queries.run_summary(arch, outcome["run_id"])
             summary = queries.run_summary(arch, outcome["run_id"])
             files = report_run(arch, outcome["run_id"], tmp / f"{serial}-reports")
             import pypdf  # loaded by the test that reads the PDF, not at collection
@@ -208,16 +208,11 @@ def archived(tmp_path_factory: pytest.TempPathFactory):
     return out
 
 
-def _budgets(summary: dict) -> dict:
-    step = next(s for s in summary["calibration"]["steps"] if s["name"] == "uncertainty")
-    return step["statistics"]["budgets"]
-
-
 @pytest.mark.slow
 def test_budget_archived_per_parameter(archived) -> None:
     outcome, summary, *_ = archived["U-KNOWN"]
-    budgets = _budgets(summary)
-    with_std = {p["name"] for p in summary["calibration"]["parameters"] if p["std"] is not None}
+    budgets = summary.calibration.budgets()
+    with_std = {p.name for p in summary.calibration.parameters if p.std is not None}
     assert set(budgets) == with_std
     scale = budgets["acc.scale.x"]
     assert scale["label"] == "Type A + Type B" and scale["coverage"] == 0.95
@@ -228,28 +223,29 @@ def test_budget_archived_per_parameter(archived) -> None:
         (1 + ACC_SCALE_X) * 0.015 / STANDARD_GRAVITY, rel=0.01
     )
     assert scale["U"] == pytest.approx(scale["k"] * scale["uc"])
-    step = next(s for s in summary["calibration"]["steps"] if s["name"] == "uncertainty")
-    assert step["settings"]["equipment_spec"]["gravity_expanded"] == 0.03
-    assert step["settings"]["equipment"] == ["cube"]
-    assert _budgets(archived["U-BARE"][1])["acc.scale.x"]["label"] == (
+    said = summary.calibration.step_settings("uncertainty")
+    assert said["equipment_spec"]["gravity_expanded"] == 0.03
+    assert said["equipment"] == ["cube"]
+    assert archived["U-BARE"][1].calibration.budgets()["acc.scale.x"]["label"] == (
         "Type A only (equipment unknown)"
     )
 
 
 def test_guard_band_verdict_of_the_run(archived) -> None:
     outcome, summary, *_ = archived["U-KNOWN"]
-    check = next(c for c in summary["calibration"]["checks"] if c["name"] == "param:acc.scale.x")
-    assert f"; {COND_PASS} (rule guard_band" in check["detail"] and not check["passed"]
+    check = next(c for c in summary.calibration.checks if c.name == "param:acc.scale.x")
+    assert f"; {COND_PASS} (rule guard_band" in check.detail and not check.passed
     # lab conditions this simulated run does not record are not failures (calib_core.conditions)
-    failed = [c["name"] for c in summary["calibration"]["checks"] if condition_status(c) == "fail"]
+    failed = [c.name for c in summary.calibration.checks if condition_status(c) == "fail"]
     assert failed == ["param:acc.scale.x"]
     assert outcome["verdict"] == NEEDS_REVIEW
 
 
-def _expected_rows(summary: dict) -> list[tuple[str, str]]:
+def _expected_rows(summary: RunSummary) -> list[tuple[str, str]]:
     from pipelines.reports.display import display
 
-    return [(name, f"{display(name, b['U'])[0]:.2g}") for name, b in _budgets(summary).items()]
+    budgets = summary.calibration.budgets()
+    return [(name, f"{display(name, b['U'])[0]:.2g}") for name, b in budgets.items()]
 
 
 @pytest.mark.parametrize("form", ["html", "pdf"])
@@ -335,8 +331,8 @@ def test_equipment_accuracy_class_read_when_it_states_one() -> None:
     assert sources["turn_angle"] == "default"
 
 
-def _as_found_step(summary: dict) -> dict:
-    return next(s for s in summary["calibration"]["steps"] if s["name"] == "as_found")
+def _as_found_step(summary: RunSummary) -> Step:
+    return summary.calibration.step("as_found")
 
 
 def test_as_found_archived_for_a_recalibrated_unit(archived) -> None:
@@ -344,30 +340,30 @@ def test_as_found_archived_for_a_recalibrated_unit(archived) -> None:
     _, summary, *_ = archived["U-BARE"]
     step = _as_found_step(summary)
     earlier = archived["earlier"]
-    assert step["settings"]["earlier_run_id"] == earlier["run_id"]
-    assert step["settings"]["earlier_started_at"].startswith("2026-11-19")
-    rows = {r["parameter"]: r for r in step["statistics"]["parameters"]}
-    before = {p["name"]: p for p in earlier["parameters"]}
-    after = {p["name"]: p["value"] for p in summary["calibration"]["parameters"]}
+    assert step.settings["earlier_run_id"] == earlier.run_id
+    assert step.settings["earlier_started_at"].startswith("2026-11-19")
+    rows = {r["parameter"]: r for r in step.statistics["parameters"]}
+    before = {p.name: p for p in earlier.calibration.parameters}
+    after = {p.name: p.value for p in summary.calibration.parameters}
     assert set(rows) == {n for n in after if ".noise." not in n}
     scale = rows["acc.scale.x"]
-    assert scale["earlier"] == before["acc.scale.x"]["value"]
+    assert scale["earlier"] == before["acc.scale.x"].value
     assert scale["as_left"] == after["acc.scale.x"]
     # The truth drifted by d = -0.002: as found d / (1 + s_old) up to second order in the
     # earlier misalignments (|d| 0.01), within 5 std of both fits (the earlier estimate's
     # error stays in the corrected samples, the new solve adds its own).
-    s_old, std_old = before["acc.scale.x"]["value"], before["acc.scale.x"]["std"]
+    s_old, std_old = before["acc.scale.x"].value, before["acc.scale.x"].std
     bound = 5 * np.hypot(scale["std"], std_old) + 0.002 * 0.01
     assert abs(scale["error"] - (-0.002) / (1 + s_old)) <= bound, (scale, bound)
     assert abs(scale["error"]) > 5 * bound
     # The parameters that did not drift: zero as found, within the same noise bound.
     for name in ("acc.scale.y", "acc.bias.x", "gyr.scale.z", "gyr.bias.y"):
         r = rows[name]
-        assert abs(r["error"]) <= 5 * np.hypot(r["std"], before[name]["std"]), (name, r)
-    budgets = _budgets(summary)
+        assert abs(r["error"]) <= 5 * np.hypot(r["std"], before[name].std), (name, r)
+    budgets = summary.calibration.budgets()
     assert scale["U"] == budgets["acc.scale.x"]["U"] and scale["k"] == budgets["acc.scale.x"]["k"]
     assert scale["verdict"] == "pass"  # |-0.002| within the 0.011 limit less w = U (~ 3e-5)
-    assert not any(s["name"] == "as_found" for s in archived["U-KNOWN"][1]["calibration"]["steps"])
+    assert archived["U-KNOWN"][1].calibration.step("as_found") is None
 
 
 @pytest.mark.parametrize("form", ["html", "pdf"])
@@ -376,11 +372,11 @@ def test_as_found_and_as_left_of_a_recalibrated_unit(archived, form) -> None:
     text = html if form == "html" else pdf
     assert "As found / as left (ISO/IEC 17025:2017 7.8.4.2)" in text
     earlier = archived["earlier"]
-    assert f"run {earlier['run_id']} of 2026-11-19, revision 1" in text
+    assert f"run {earlier.run_id} of 2026-11-19, revision 1" in text
     assert "error model solved again on the corrected" in " ".join(text.split())
     from pipelines.reports.display import display
 
-    rows = {r["parameter"]: r for r in _as_found_step(summary)["statistics"]["parameters"]}
+    rows = {r["parameter"]: r for r in _as_found_step(summary).statistics["parameters"]}
     scale = rows["acc.scale.x"]
     for shown in (
         f"{scale['earlier']:+.6g}",
@@ -421,7 +417,7 @@ def test_certificate_item(archived, item, form) -> None:
 def test_certificate_number_dates_and_end(archived, form) -> None:
     _, summary, html, pdf, _ = archived["U-KNOWN"]
     text = html if form == "html" else pdf
-    number = f"{summary['run_id']}-{summary['calibration']['revision']}"
+    number = f"{summary.run_id}-{summary.calibration.revision}"
     assert "Certificate number" in text and number in text
     assert "2026-11-20" in text and "Date of issue" in text
     issued = {(date.today() + timedelta(days=d)).isoformat() for d in (-1, 0, 1)}
@@ -446,8 +442,7 @@ def test_lab_profile_checked_and_missing_items_said(archived, tmp_path, monkeypa
         r"unknown \['phone'\]",
     ):
         load_lab_profile()
-    summary = {**archived["U-KNOWN"][1], "lab": None}
-    pairs = dict(administrative_section(summary).pairs)
+    pairs = dict(administrative_section(ArchivedRun(archived["U-KNOWN"][1])).pairs)
     assert pairs["Calibration laboratory"] == NOT_RECORDED == pairs["Customer"]
 
 
@@ -479,21 +474,21 @@ def _dcc_results(xml: str) -> dict[str, dict]:
     return out
 
 
-def _assert_dcc_matches_archive(xml: str, summary: dict) -> None:
+def _assert_dcc_matches_archive(xml: str, summary: RunSummary) -> None:
     """Every archived parameter's value, D-SI unit, U, k and coverage found in the DCC, exactly
     (the writer prints repr(float): the round trip is lossless, so equality, not a tolerance)."""
     from pipelines.reports.dcc import D_SI
 
     read = _dcc_results(xml)
-    budgets = _budgets(summary)
-    assert set(read) == {p["name"] for p in summary["calibration"]["parameters"]}
-    for p in summary["calibration"]["parameters"]:
-        real = read[p["name"]]
-        assert float(real["si:value"]["#text"]) == p["value"], p["name"]
-        assert real["si:unit"]["#text"] == D_SI[p["unit"]], p["name"]
-        b, unc = budgets[p["name"]], real["si:expandedUnc"]
-        assert float(unc["si:uncertainty"]["#text"]) == b["U"], p["name"]
-        assert float(unc["si:coverageFactor"]["#text"]) == b["k"], p["name"]
+    budgets = summary.calibration.budgets()
+    assert set(read) == {p.name for p in summary.calibration.parameters}
+    for p in summary.calibration.parameters:
+        real = read[p.name]
+        assert float(real["si:value"]["#text"]) == p.value, p.name
+        assert real["si:unit"]["#text"] == D_SI[p.unit], p.name
+        b, unc = budgets[p.name], real["si:expandedUnc"]
+        assert float(unc["si:uncertainty"]["#text"]) == b["U"], p.name
+        assert float(unc["si:coverageFactor"]["#text"]) == b["k"], p.name
         assert float(unc["si:coverageProbability"]["#text"]) == b["coverage"] == 0.95
 
 
@@ -513,7 +508,7 @@ def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("CALIB_PROFILES", str(archived["profiles"]))
     args = [
         "report",
-        summary["run_id"],
+        summary.run_id,
         "--archive",
         str(archived["archive"].root),
         "--output",
@@ -534,7 +529,7 @@ def test_dcc_round_trip(archived, tmp_path, monkeypatch) -> None:
         "dcc:measurementResults",
     ]
     admin = root["dcc:administrativeData"]
-    number = f"{summary['run_id']}-{summary['calibration']['revision']}"
+    number = f"{summary.run_id}-{summary.calibration.revision}"
     assert admin["dcc:coreData"]["dcc:uniqueIdentifier"]["#text"] == number
     assert admin["dcc:coreData"]["dcc:endPerformanceDate"]["#text"] == "2026-11-20"
     ident = admin["dcc:items"]["dcc:item"]["dcc:identifications"]["dcc:identification"]
@@ -572,7 +567,7 @@ def test_dcc_round_trip_fails_on_a_broken_dcc(archived, how) -> None:
     from pipelines.reports.dcc import dcc_xml
 
     _, summary, *_ = archived["U-KNOWN"]
-    xml = dcc_xml({**summary, "lab": tomllib.loads(LAB_TOML)}).decode("utf-8")
+    xml = dcc_xml(ArchivedRun(summary, lab=tomllib.loads(LAB_TOML))).decode("utf-8")
     _assert_dcc_matches_archive(xml, summary)
     broken = _broken(xml, how)
     assert broken != xml

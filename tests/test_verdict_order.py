@@ -48,10 +48,9 @@ def judgements(archive: Archive) -> dict[str, dict[str, Any]]:
     now = queries.current_judgements(archive, list(current["run_id"]))
     out = {}
     for run_id in current["run_id"]:
-        steps = queries.run_summary(archive, run_id)["calibration"]["steps"]
-        group = next(s for s in steps if s["name"] == "check")["statistics"]
+        group = queries.run_summary(archive, run_id).calibration.step_statistics("check")
         # The device check passes alike when the unit's runs agree on its description.
-        checks = [c for c in now[run_id]["checks"] if not c["name"].startswith("device:")]
+        checks = [c for c in now[run_id]["checks"] if not c.name.startswith("device:")]
         out[day[run_id]] = {
             "verdict": now[run_id]["verdict"],
             "checks": checks,
@@ -101,7 +100,7 @@ def test_in_process_any_order_gives_the_verdicts_of_time_order(tmp_path: Path) -
             archive.dispose()
     assert seen["reversed"] == seen["time"] and seen["shuffled"] == seen["time"]
     # the drifting bias is what does not repeat
-    failed = {c["name"] for c in seen["time"]["2026-11-03"]["checks"] if not c["passed"]}
+    failed = {c.name for c in seen["time"]["2026-11-03"]["checks"] if not c.passed}
     assert {n for n in failed if n.startswith("repeat:")} == {"repeat:acc.bias.z"}
 
 

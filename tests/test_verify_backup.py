@@ -50,17 +50,15 @@ def test_verify_reports_changed_and_missing_files(
     report = verify(archive)
     assert report.ok and report.orphans == []
     # 3 runs x 3 raw objects + 3 samples files, every byte read once.
-    raw = [f for i in ids for f in queries.run_summary(archive, i)["raw_files"]]
-    samples = [archive.root / queries.run_summary(archive, i)["samples_path"] for i in ids]
+    raw = [f for i in ids for f in queries.run_summary(archive, i).raw_files]
+    samples = [archive.root / queries.run_summary(archive, i).samples_path for i in ids]
     assert report.files_checked == len(raw) + len(samples) == 12
-    assert report.bytes_checked == sum(f["size"] for f in raw) + sum(
-        p.stat().st_size for p in samples
-    )
+    assert report.bytes_checked == sum(f.size for f in raw) + sum(p.stat().st_size for p in samples)
     res = cli(archive, "verify", monkeypatch=monkeypatch)
     assert res.exit_code == 0, res.output
 
     # Tamper with one raw object (one byte flipped) and remove one samples file.
-    victim = archive.root / raw[4]["stored_path"]
+    victim = archive.root / raw[4].stored_path
     data = bytearray(victim.read_bytes())
     data[10] ^= 0x01
     victim.write_bytes(bytes(data))
@@ -69,9 +67,9 @@ def test_verify_reports_changed_and_missing_files(
     assert not report.ok
     by_kind = {p.kind: p for p in report.problems}
     assert set(by_kind) == {"mismatch", "missing"}
-    assert by_kind["mismatch"].path == raw[4]["stored_path"]
+    assert by_kind["mismatch"].path == raw[4].stored_path
     assert by_kind["mismatch"].runs == [ids[1]]
-    assert raw[4]["sha256"] in by_kind["mismatch"].detail
+    assert raw[4].sha256 in by_kind["mismatch"].detail
     assert by_kind["missing"].path == samples[2].relative_to(archive.root).as_posix()
     assert by_kind["missing"].runs == [ids[2]]
 
@@ -80,7 +78,7 @@ def test_verify_reports_changed_and_missing_files(
     doc = json.loads(res.stdout)
     assert doc["ok"] is False and len(doc["problems"]) == 2
     res = cli(archive, "verify", monkeypatch=monkeypatch)
-    assert res.exit_code == 1 and "MISMATCH" in res.stdout and raw[4]["stored_path"] in res.stdout
+    assert res.exit_code == 1 and "MISMATCH" in res.stdout and raw[4].stored_path in res.stdout
 
 
 def test_verify_finds_broken_database_invariants(archive: Archive, tmp_path: Path) -> None:

@@ -49,7 +49,7 @@ def rate_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Archive, dict[s
 
 
 def _revisions(arch: Archive, run_id: str) -> int:
-    return queries.run_summary(arch, run_id)["calibration"]["revision"]
+    return queries.run_summary(arch, run_id).calibration.revision
 
 
 def test_impact_apply_on_a_read_only_sqlite_archive_names_the_runs_not_written(

@@ -42,7 +42,7 @@ def repeatability_command(
         runs = queries.repeatability_candidates(arch, serial, proc)
         if not runs:
             fail(f"no current calibrations of serial {serial!r} by procedure {proc!r}")
-        profile = load_profile(queries.run_summary(arch, runs[0]["run_id"])["tolerance_profile"])
+        profile = load_profile(queries.run_summary(arch, runs[0]["run_id"]).tolerance_profile)
     except (LookupError, ValueError) as exc:
         fail(str(exc))
     values = [

@@ -230,10 +230,11 @@ def thermal_export(
         )
         exports.write_json(output, doc)
     elif fmt in ("px4", "ardupilot"):
-        steps = queries.run_summary(arch, facts["run_id"])["calibration"]["steps"]
+        archived = queries.run_summary(arch, facts["run_id"]).calibration
+        ingest = archived.step_statistics("ingest")
         target = (instance, device_id, rotation, vehicle_id)
         said = (serial, facts["run_id"], header)
-        text = _run(_firmware_file, fmt, model, cal, steps, target, said)
+        text = _run(_firmware_file, fmt, model, cal, ingest, target, said)
         output.write_text(text, encoding="ascii")
     else:
         fail(f"unknown export format {fmt!r}; expected json, px4 or ardupilot")
@@ -244,12 +245,13 @@ def _firmware_file(
     fmt: str,
     model: Any,  # noqa: ANN401 - calib_core.thermal.ThermalModel
     cal: Any,  # noqa: ANN401 - calib_core.calibration.Calibration
-    steps: list[dict[str, Any]],
+    ingest: dict[str, Any],
     target: tuple[int, int | None, str | None, int],
     said: tuple[str, str, str],
 ) -> str:
-    """The PX4 / ArduPilot thermal file's text: device ids from the log or the option (else
-    refused), rotated into the firmware's axes, with the header of what to set.
+    """The PX4 / ArduPilot thermal file's text: device ids from the log (the ingest step's
+    statistics `ingest`) or the option (else refused), rotated into the firmware's axes,
+    with the header of what to set.
 
     `target`: (instance, device id, rotation, vehicle id) as given; `said`: (serial, the
     calibration's run, the line naming the calibration and thermal model)."""
@@ -257,7 +259,7 @@ def _firmware_file(
 
     instance, device_id, rotation, vehicle_id = target
     rot = autopilot.rotation(rotation, fmt)
-    recorded = autopilot.recorded_devices(steps)
+    recorded = autopilot.recorded_devices(ingest)
     common = {
         "unit": said[0],
         "run": said[1],

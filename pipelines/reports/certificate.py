@@ -24,8 +24,8 @@ in one place.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import date, datetime
-from typing import Any
+from datetime import datetime
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
@@ -59,53 +59,44 @@ from pipelines.reports.display import (
     uncertainty,
 )
 from pipelines.reports.navigation import navigation_sections
-from pipelines.reports.protocol import (
-    guard_band_of,
-    render_protocol,
-    verdict_of,
-)
+from pipelines.reports.protocol import guard_band_of, param_checks, render_protocol, verdict_of
 from pipelines.reports.recommendations import recommendations
 from pipelines.reports.render import Certificate, Section
 from pipelines.reports.signatures import signatures_section
 from pipelines.reports.validation import validation_sections
 
-
-def _step(summary: dict[str, Any], name: str) -> dict[str, Any]:
-    return next((s for s in summary["calibration"]["steps"] if s["name"] == name), {})
+if TYPE_CHECKING:
+    from calib_core.calibration import CheckResult
+    from pipelines.reports.run_reports import ArchivedRun
+    from storage.queries.records import DatedRevision, Revision, RunSummary
 
 
 def _fmt(value: float | None, digits: int = 5) -> str:
     return "" if value is None else f"{value:.{digits}g}"
 
 
-def _profile(summary: dict[str, Any]) -> ToleranceProfile | None:
+def _profile(cal: Revision) -> ToleranceProfile | None:
     """The thresholds archived with the verdict (None for runs archived before they were)."""
-    thresholds = _step(summary, "check").get("settings", {}).get("thresholds")
+    thresholds = cal.step_settings("check").get("thresholds")
     return None if thresholds is None else ToleranceProfile.from_dict(thresholds)
 
 
-def _date(value: Any) -> date | None:
-    if value is None or isinstance(value, date):
-        return value
-    return date.fromisoformat(str(value))
-
-
-def _check_table(checks: list[dict[str, Any]], prefix: str) -> Section:
+def _check_table(checks: list[CheckResult], prefix: str) -> Section:
     """Verification errors per point and sensor in the residuals' display units."""
     rows = []
     for c in checks:
-        if not c["name"].startswith(prefix):
+        if not c.name.startswith(prefix):
             continue
-        label, sensor = c["name"].removeprefix(prefix).rsplit(":", 1)
+        label, sensor = c.name.removeprefix(prefix).rsplit(":", 1)
         name, k = RESIDUAL_UNITS[sensor]
         rows.append(
             [
                 label,
                 sensor,
-                f"{number(c['value'] * k)} {name}",
-                f"{limit_text(c['limit'] * k)} {name}",
-                "pass" if c["passed"] else "FAIL",
-                c.get("detail") or "",
+                f"{number(c.value * k)} {name}",
+                f"{limit_text(c.limit * k)} {name}",
+                "pass" if c.passed else "FAIL",
+                c.detail or "",
             ]
         )
     return Section("", header=["point", "sensor", "error", "limit", "result", "detail"], rows=rows)
@@ -115,7 +106,7 @@ def _check_table(checks: list[dict[str, Any]], prefix: str) -> Section:
 class _Archived:
     """One archived run as the certificate's sections read it."""
 
-    summary: dict[str, Any]  # storage.queries.run_summary
+    archived: ArchivedRun
     samples: pa.Table  # storage.queries.run_samples
     cal: Calibration
     profile: ToleranceProfile | None
@@ -123,46 +114,50 @@ class _Archived:
     held_out: set[str]  # verification segments
 
     @property
-    def calrow(self) -> dict[str, Any]:
-        return self.summary["calibration"]
+    def summary(self) -> RunSummary:
+        return self.archived.run
 
     @property
-    def checks(self) -> list[dict[str, Any]]:
-        return self.calrow["checks"]
+    def calrow(self) -> Revision:
+        return self.archived.run.calibration
+
+    @property
+    def checks(self) -> list[CheckResult]:
+        return self.calrow.checks
 
     @property
     def started(self) -> datetime:
-        return self.summary["started_at"]
+        return self.archived.run.started_at
 
 
 def sections(
-    summary: dict[str, Any], samples: pa.Table, approvals: list[tuple[Any, bool]] | None = None
+    archived: ArchivedRun, samples: pa.Table, approvals: list[tuple[Any, bool]] | None = None
 ) -> Certificate:
     """Gather the certificate of one archived run, section by section.
 
     Parameters
     ----------
-    summary : `storage.queries.run_summary` of the run.
+    archived : the run (`pipelines.reports.run_reports.archived_run`).
     samples : the run's archived samples (`storage.queries.run_samples`).
     approvals : the electronic approvals of the revision with whether each holds
         (`storage.approval.approval_status`); None or empty: marked not approved.
     """
-    calrow = summary["calibration"]
+    summary, calrow = archived.run, archived.run.calibration
     run = _Archived(
-        summary,
+        archived,
         samples,
-        Calibration.from_dict(calrow["document"]),
-        _profile(summary),
-        _step(summary, "check").get("statistics", {}),
-        set(_step(summary, "solve").get("statistics", {}).get("held_out", [])),
+        Calibration.from_dict(calrow.document),
+        _profile(calrow),
+        calrow.step_statistics("check"),
+        set(calrow.step_statistics("solve").get("held_out", [])),
     )
     diagnosis = _diagnosis(run)
     out = [
-        iso17025.administrative_section(summary),
+        iso17025.administrative_section(archived),
         _unit_section(run),
         _run_section(run),
         _equipment_section(run),
-        iso17025.traceability_section(summary),
+        iso17025.traceability_section(archived),
         _environment_section(run),
         _conditions_section(run),
         _procedure_section(run),
@@ -174,79 +169,75 @@ def sections(
         _repeatability_section(run),
         _verification_section(run),
         _verdict_section(run),
-        *navigation_sections(summary.get("navigation")),
-        *validation_sections(summary.get("validations")),
+        *navigation_sections(archived.navigation),
+        *validation_sections(summary.validations),
         Section(
             "Recommendations",
             paragraphs=recommendations(
-                calrow["verdict"],
-                run.cal,
-                diagnosis,
-                summary["environment"] or {},
-                summary.get("recall"),
+                calrow.verdict, run.cal, diagnosis, summary.environment or {}, archived.recall
             ),
         ),
-        signatures_section(summary, approvals or []),
+        signatures_section(archived.lab, archived.chain_head, approvals or []),
     ]
-    dev = summary["device"]
-    title = f"Calibration certificate {dev['model']} {dev['serial']}"
+    dev = summary.device
+    title = f"Calibration certificate {dev.model} {dev.serial}"
     return Certificate(
         title,
-        calrow["verdict"],
+        calrow.verdict,
         out,
         _figures(run),
         _protocol(run),
-        iso17025.certificate_number(summary),
+        iso17025.certificate_number(archived),
     )
 
 
 def _unit_section(run: _Archived) -> Section:
-    dev = run.summary["device"]
+    dev = run.summary.device
     return Section(
         "Unit under test",
         pairs=[
-            ("Model", dev["model"]),
-            ("Serial", dev["serial"]),
-            ("Manufacturer", dev["manufacturer"]),
-            ("Specification", dev.get("specification") or "-"),
+            ("Model", dev.model),
+            ("Serial", dev.serial),
+            ("Manufacturer", dev.manufacturer),
+            ("Specification", dev.specification or "-"),
         ],
     )
 
 
 def _run_section(run: _Archived) -> Section:
     summary, calrow = run.summary, run.calrow
-    site = {k: "-" if v is None else v for k, v in (summary["site"] or {}).items()}
+    site = {k: "-" if v is None else v for k, v in (summary.site or {}).items()}
     return Section(
         "Run",
         pairs=[
-            ("Run id", summary["run_id"]),
+            ("Run id", summary.run_id),
             ("Date / time", f"{run.started:%Y-%m-%d %H:%M:%S %Z}"),
-            ("Operator", summary["operator"] or "-"),
+            ("Operator", summary.operator or "-"),
             (
                 "Site",
                 f"latitude {site.get('latitude_deg', '-')} deg, "
                 f"height {site.get('height_m', '-')} m, "
                 f"gravity model {site.get('gravity_model', '-')}",
             ),
-            ("Local gravity used", f"{summary['gravity']:.6f} m/s^2"),
-            ("Calibration revision", f"{calrow['revision']} (of {summary['revisions']})"),
-            ("Software", f"{calrow['software_version']} ({calrow['source_revision'] or '-'})"),
-            ("Raw data SHA-256", summary["raw_hash"]),
+            ("Local gravity used", f"{summary.gravity:.6f} m/s^2"),
+            ("Calibration revision", f"{calrow.revision} (of {summary.revisions})"),
+            ("Software", f"{calrow.software_version} ({calrow.source_revision or '-'})"),
+            ("Raw data SHA-256", summary.raw_hash),
         ],
     )
 
 
 def _equipment_section(run: _Archived) -> Section:
     eq_rows = []
-    for e in run.summary["equipment"]:
-        due = _date(e.get("calibration_due"))
+    for e in run.summary.equipment:
+        due = e.calibration_due
         status = "-" if due is None else ("valid" if due >= run.started.date() else "LAPSED")
         eq_rows.append(
             [
-                e["kind"],
-                e.get("model") or "-",
-                e["serial"],
-                e.get("accuracy_class") or "-",
+                e.kind,
+                e.model or "-",
+                e.serial,
+                e.accuracy_class or "-",
                 "-" if due is None else due.isoformat(),
                 status,
             ]
@@ -271,7 +262,7 @@ ENVIRONMENT = {
 
 
 def _environment_section(run: _Archived) -> Section:
-    env = run.summary["environment"] or {}
+    env = run.summary.environment or {}
     pairs = []
     for k, v in env.items():
         if v is not None:
@@ -293,11 +284,11 @@ def _conditions_section(run: _Archived) -> Section:
     """Lab conditions and acquisition rules, one verdict line each (calib_core.conditions)."""
     rows = []
     for c in run.checks:
-        key = c["name"].removeprefix(conditions.CONDITION_PREFIX)
-        if key == c["name"]:
+        key = c.name.removeprefix(conditions.CONDITION_PREFIX)
+        if key == c.name:
             continue
         _, _, severity, text, unit = conditions.DEFAULT_CONDITIONS.get(key, (0, 0, "", key, ""))
-        value = "" if c.get("value") is None else f"{number(c['value'])} {unit}".strip()
+        value = "" if c.value is None else f"{number(c.value)} {unit}".strip()
         rows.append(
             [text, value, _RESULT_WORD[conditions.status(c)], severity, conditions.requirement(c)]
         )
@@ -352,17 +343,17 @@ def _procedure_section(run: _Archived) -> Section:
             ]
         )
     calrow, cal = run.calrow, run.cal
-    settings = calrow["settings"] or {}
+    settings = calrow.settings or {}
     return Section(
         "Procedure",
         pairs=[
-            ("Procedure", run.summary["procedure"]),
+            ("Procedure", run.summary.procedure),
             ("Error model", "f_meas = (I + M) f_true + b;  w_meas = (I + M_g) w_true + G f + b_g"),
             ("Accelerometer model", str(settings.get("accel_model", "linear"))),
             ("Solver", str(cal.info.get("accel_solver", settings.get("accel_solver", "-")))),
             ("Condition number", _fmt(cal.info.get("condition_number"), 4)),
             ("Settings", ", ".join(f"{k}={v}" for k, v in settings.items()) or "defaults"),
-            ("Tolerance profile", f"{calrow['profile_name']} v{calrow['profile_version']}"),
+            ("Tolerance profile", f"{calrow.profile_name} v{calrow.profile_version}"),
         ],
         header=["segment", "samples", "duration (s)", "rate (Hz)", "used for"],
         rows=seg_rows,
@@ -370,16 +361,14 @@ def _procedure_section(run: _Archived) -> Section:
 
 
 def _results_section(run: _Archived) -> Section:
-    by_param = {
-        c["name"].removeprefix("param:"): c for c in run.checks if c["name"].startswith("param:")
-    }
+    by_param = param_checks(run.checks)
     res_rows = []
-    for p in run.calrow["parameters"]:
-        s = shown(p["name"], p["value"], p["std"])  # u to two digits, the value to its place
-        c = by_param.get(p["name"])
-        tol = tolerance_text(p["name"], c)
-        result = "" if c is None else ("pass" if c["passed"] else "FAIL")
-        res_rows.append([p["name"], s.value, s.u or NO_STANDARD_U, s.unit, tol, result])
+    for p in run.calrow.parameters:
+        s = shown(p.name, p.value, p.std)  # u to two digits, the value to its place
+        c = by_param.get(p.name)
+        tol = tolerance_text(p.name, c)
+        result = "" if c is None else ("pass" if c.passed else "FAIL")
+        res_rows.append([p.name, s.value, s.u or NO_STANDARD_U, s.unit, tol, result])
     return Section(
         f"Results ({STANDARD_U_MEANING})",
         header=["parameter", "value", STANDARD_U, "unit", "tolerance", "result"],
@@ -387,24 +376,17 @@ def _results_section(run: _Archived) -> Section:
     )
 
 
-def _budgets(run: _Archived) -> dict[str, dict[str, Any]]:
-    """The archived GUM budgets (step "uncertainty"; empty for runs archived before it)."""
-    return _step(run.summary, "uncertainty").get("statistics", {}).get("budgets", {})
-
-
 def _decision_rule(run: _Archived) -> str:
     """The statement of the decision rule the verdicts were judged by."""
-    said = _step(run.summary, "check").get("settings", {}).get("decision_rule")
+    said = run.calrow.step_settings("check").get("decision_rule")
     if said:
         return said
     return run.profile.decision_rule.statement() if run.profile else "not recorded"
 
 
 def _uncertainty_section(run: _Archived) -> Section:
-    budgets = _budgets(run)
-    by_param = {
-        c["name"].removeprefix("param:"): c for c in run.checks if c["name"].startswith("param:")
-    }
+    budgets = run.calrow.budgets()
+    by_param = param_checks(run.checks)
     rows = []
     for name, b in budgets.items():
         s = shown(name, b["value"], b["U"])  # U to two digits, the value to its place
@@ -460,7 +442,7 @@ def _expanded_heading(budgets: dict[str, dict[str, Any]]) -> str:
 
 def _budget_section(run: _Archived) -> Section:
     rows = []
-    for name, b in _budgets(run).items():
+    for name, b in run.calrow.budgets().items():
         for r in sorted(b["rows"], key=lambda r: -r["contribution"])[:3]:
             if r["contribution"] <= 0:
                 continue
@@ -498,10 +480,10 @@ AS_FOUND_HEADER = [
 
 def _as_found_section(run: _Archived) -> Section:
     """As found (the unit with its earlier calibration) and as left (this one), 7.8.4.2."""
-    step = _step(run.summary, "as_found")
+    step = run.calrow.step("as_found")
     if step:
-        return _as_found_evaluated(step)
-    earlier = run.summary.get("as_found")
+        return _as_found_evaluated(step.settings, step.statistics)
+    earlier = run.archived.as_found
     if not earlier:
         return Section(
             AS_FOUND_TITLE,
@@ -527,10 +509,9 @@ def _as_found_row(
     ]
 
 
-def _as_found_evaluated(step: dict[str, Any]) -> Section:
+def _as_found_evaluated(said: dict[str, Any], stats: dict[str, Any]) -> Section:
     """The archived step "as_found" (pipelines.as_found): the earlier calibration evaluated on
-    this run's data."""
-    said, stats = step["settings"], step.get("statistics", {})
+    this run's data (the step's settings and statistics)."""
     earlier = (
         f"run {said['earlier_run_id']} of {said['earlier_started_at'][:10]}, revision "
         f"{said['earlier_revision']}"
@@ -561,26 +542,26 @@ def _as_found_evaluated(step: dict[str, Any]) -> Section:
     )
 
 
-def _as_found_difference(run: _Archived, earlier: dict[str, Any]) -> Section:
+def _as_found_difference(run: _Archived, earlier: DatedRevision) -> Section:
     """As found for runs archived before the step "as_found": as left - as found."""
-    before = {p["name"]: p["value"] for p in earlier["parameters"]}
-    budgets = _budgets(run)
+    before = {p.name: p.value for p in earlier.parameters}
+    budgets = run.calrow.budgets()
     rows = []
-    for p in run.calrow["parameters"]:
-        name = p["name"]
+    for p in run.calrow.parameters:
+        name = p.name
         if name not in before or ".noise." in name:
             continue
-        error = p["value"] - before[name]
+        error = p.value - before[name]
         U = budgets.get(name, {}).get("U")
         found = None if run.profile is None else run.profile.judge(name, error, U or 0.0)
-        rows.append(_as_found_row(name, before[name], p["value"], error, U, found))
+        rows.append(_as_found_row(name, before[name], p.value, error, U, found))
     return Section(
         AS_FOUND_TITLE,
         header=AS_FOUND_HEADER,
         rows=rows,
         paragraphs=[
-            f"As found: the unit with its earlier calibration (run {earlier['run_id']} of "
-            f"{earlier['started_at']:%Y-%m-%d}, revision {earlier['revision']}). This run was "
+            f"As found: the unit with its earlier calibration (run {earlier.run_id} of "
+            f"{earlier.started_at:%Y-%m-%d}, revision {earlier.revision}). This run was "
             "archived before as-found evaluation: the error as found is the first-order "
             "difference as left - as found, judged against the tolerance with this run's U by the "
             "decision rule. As left: this calibration, to be loaded into the unit."
@@ -646,15 +627,15 @@ def _residuals_section(run: _Archived, diagnosis: ResidualDiagnosis | None) -> S
 def _repeatability_section(run: _Archived) -> Section:
     rep_rows = []
     for c in run.checks:
-        if c["name"].startswith(REPEAT_PREFIX):
-            rule = (c.get("detail") or "").split(":", 1)[0].removeprefix("rule ")
+        if c.name.startswith(REPEAT_PREFIX):
+            rule = (c.detail or "").split(":", 1)[0].removeprefix("rule ")
             rep_rows.append(
                 [
-                    c["name"].removeprefix(REPEAT_PREFIX),
+                    c.name.removeprefix(REPEAT_PREFIX),
                     rule,
-                    number(c["value"]),
-                    limit_text(c["limit"]),
-                    "pass" if c["passed"] else "FAIL",
+                    number(c.value),
+                    limit_text(c.limit),
+                    "pass" if c.passed else "FAIL",
                 ]
             )
     group = run.check_stats.get("repeatability_group", [])
@@ -695,13 +676,13 @@ def _verdict_section(run: _Archived) -> Section:
     calrow = run.calrow
     by_status: dict[str, list[str]] = {}
     for c in run.checks:
-        by_status.setdefault(conditions.status(c), []).append(c["name"])
+        by_status.setdefault(conditions.status(c), []).append(c.name)
     failed = by_status.get("fail", [])
     return Section(
         "Verdict",
         pairs=[
-            ("Overall result", calrow["verdict"].upper()),
-            ("Judged by", f"profile {calrow['profile_name']} v{calrow['profile_version']}"),
+            ("Overall result", calrow.verdict.upper()),
+            ("Judged by", f"profile {calrow.profile_name} v{calrow.profile_version}"),
             ("Decision rule", _decision_rule(run).removeprefix("Decision rule: ")),
             ("Checks", check_counts(run.checks).sentence()),
             ("Failed", ", ".join(failed) or "none"),
@@ -714,7 +695,7 @@ def _verdict_section(run: _Archived) -> Section:
 
 def _notes(run: _Archived) -> list[tuple[str, str]]:
     """The findings about the record, the samples replaced and the solve's warnings."""
-    return record_notes(run.checks, solve_warnings(run.summary["calibration"]["steps"]))
+    return record_notes(run.checks, solve_warnings(run.calrow))
 
 
 def _figures(run: _Archived) -> dict[str, str]:
@@ -737,20 +718,20 @@ def _figures(run: _Archived) -> dict[str, str]:
 
 
 def _protocol(run: _Archived) -> str:
-    summary, calrow, dev = run.summary, run.calrow, run.summary["device"]
+    summary, calrow, dev = run.summary, run.calrow, run.summary.device
     return render_protocol(
-        device_model=dev["model"],
-        serial=dev["serial"],
+        device_model=dev.model,
+        serial=dev.serial,
         started_at=run.started,
-        run_id=summary["run_id"],
-        procedure=summary["procedure"],
-        profile=f"{calrow['profile_name']} v{calrow['profile_version']}",
-        gravity=summary["gravity"],
-        operator=summary["operator"] or "",
-        parameters=calrow["parameters"],
+        run_id=summary.run_id,
+        procedure=summary.procedure,
+        profile=f"{calrow.profile_name} v{calrow.profile_version}",
+        gravity=summary.gravity,
+        operator=summary.operator or "",
+        parameters=calrow.parameters,
         checks=run.checks,
-        verdict=calrow["verdict"],
-        budgets=_budgets(run),
+        verdict=calrow.verdict,
+        budgets=calrow.budgets(),
         decision_rule=_decision_rule(run),
         names=run.profile.protocol_names if run.profile else "canonical",
         notes=_notes(run),

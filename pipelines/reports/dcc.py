@@ -1,7 +1,7 @@
 """The Digital Calibration Certificate (PTB DCC, schema 3.x structure) of one archived run.
 
-`dcc_xml(summary)` builds the document from the same archive summary the certificate reads
-(`pipelines.reports.run_reports.report_run` adds the lab profile): ``administrativeData``
+`dcc_xml(archived)` builds the document from the archived run the certificate reads
+(`pipelines.reports.run_reports.ArchivedRun`: the summary, the lab profile): ``administrativeData``
 (dccSoftware, coreData with the certificate number and performance dates, the item with its
 manufacturer, model and serial, calibrationLaboratory, respPersons, customer, statements: the
 decision rule, the results-relate-only statement and the uncertainty label) and
@@ -22,10 +22,14 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from calib_core import params
 from pipelines.reports import iso17025
+
+if TYPE_CHECKING:
+    from pipelines.reports.run_reports import ArchivedRun
+    from storage.queries.records import Revision, Unit
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
@@ -65,33 +69,33 @@ def _text(parent: ET.Element, tag: str, text: str) -> ET.Element:
     return el
 
 
-def dcc_xml(summary: dict[str, Any]) -> bytes:
+def dcc_xml(archived: ArchivedRun) -> bytes:
     """The DCC of the run as UTF-8 XML bytes."""
     root = ET.Element(
         f"{{{DCC_NS}}}digitalCalibrationCertificate", {"schemaVersion": SCHEMA_VERSION}
     )
-    _administrative(_el(root, "dcc:administrativeData"), summary)
-    _results(_el(root, "dcc:measurementResults"), summary)
+    _administrative(_el(root, "dcc:administrativeData"), archived)
+    _results(_el(root, "dcc:measurementResults"), archived)
     ET.indent(root)
     return ET.tostring(root, encoding="utf-8", xml_declaration=True)
 
 
-def _administrative(admin: ET.Element, summary: dict[str, Any]) -> None:
-    lab = summary.get("lab") or {}
+def _administrative(admin: ET.Element, archived: ArchivedRun) -> None:
+    lab, run = archived.lab or {}, archived.run
     software = _el(_el(admin, "dcc:dccSoftware"), "dcc:software")
     _text(software, "dcc:name", "calib (IMU calibration pipeline)")
-    _el(software, "dcc:release", summary["calibration"]["software_version"])
+    _el(software, "dcc:release", run.calibration.software_version)
     core = _el(admin, "dcc:coreData")
     laboratory = lab.get("laboratory", {})
     _el(core, "dcc:countryCodeISO3166_1", laboratory.get("country", "ZZ"))  # ZZ: not recorded
     _el(core, "dcc:usedLangCodeISO639_1", LANG)
     _el(core, "dcc:mandatoryLangCodeISO639_1", LANG)
-    _el(core, "dcc:uniqueIdentifier", iso17025.certificate_number(summary))
-    day = f"{summary['started_at']:%Y-%m-%d}"
+    _el(core, "dcc:uniqueIdentifier", iso17025.certificate_number(archived))
+    day = f"{run.started_at:%Y-%m-%d}"
     _el(core, "dcc:beginPerformanceDate", day)
     _el(core, "dcc:endPerformanceDate", day)
     _el(core, "dcc:performanceLocation", "laboratory")
-    _item(_el(admin, "dcc:items", id="items"), summary["device"])
+    _item(_el(admin, "dcc:items", id="items"), run.device)
     _contact(_el(_el(admin, "dcc:calibrationLaboratory"), "dcc:contact"), laboratory, "address")
     person = _el(_el(admin, "dcc:respPersons"), "dcc:respPerson")
     who = lab.get("authorised_by", {})
@@ -99,18 +103,18 @@ def _administrative(admin: ET.Element, summary: dict[str, Any]) -> None:
     _el(person, "dcc:role", who.get("function", "authorised by"))
     _contact(_el(admin, "dcc:customer", id="customer"), _customer(lab), "address")
     statements = _el(admin, "dcc:statements")
-    for said in _statements(summary):
+    for said in _statements(run.calibration):
         _text(_el(statements, "dcc:statement"), "dcc:declaration", said)
 
 
-def _item(items: ET.Element, device: dict[str, Any]) -> None:
+def _item(items: ET.Element, device: Unit) -> None:
     item = _el(items, "dcc:item")
-    _text(item, "dcc:name", f"IMU {device['model']}")
-    _text(_el(item, "dcc:manufacturer"), "dcc:name", device["manufacturer"])
-    _el(item, "dcc:model", device["model"])
+    _text(item, "dcc:name", f"IMU {device.model}")
+    _text(_el(item, "dcc:manufacturer"), "dcc:name", device.manufacturer)
+    _el(item, "dcc:model", device.model)
     ident = _el(_el(item, "dcc:identifications"), "dcc:identification")
     _el(ident, "dcc:issuer", "manufacturer")
-    _el(ident, "dcc:value", device["serial"])
+    _el(ident, "dcc:value", device.serial)
     _text(ident, "dcc:name", "Serial number")
 
 
@@ -132,70 +136,67 @@ def _contact(contact: ET.Element, entry: dict[str, str], where: str) -> None:
     _text(_el(contact, "dcc:location"), "dcc:further", entry.get(where, iso17025.NOT_RECORDED))
 
 
-def _statements(summary: dict[str, Any]) -> list[str]:
-    check = next((s for s in summary["calibration"]["steps"] if s["name"] == "check"), {})
-    rule = check.get("settings", {}).get("decision_rule", "Decision rule: not recorded")
-    labels = sorted({b["label"] for b in _budgets(summary).values()}) or ["not evaluated"]
+def _statements(cal: Revision) -> list[str]:
+    rule = cal.step_settings("check").get("decision_rule", "Decision rule: not recorded")
+    labels = sorted({b["label"] for b in cal.budgets().values()}) or ["not evaluated"]
     return [
         rule,
         iso17025.ONLY_ITEMS,
         "Uncertainty budget: " + "; ".join(labels),
-        f"Overall verdict: {summary['calibration']['verdict']}",
+        f"Overall verdict: {cal.verdict}",
     ]
 
 
-def _budgets(summary: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    step = next((s for s in summary["calibration"]["steps"] if s["name"] == "uncertainty"), {})
-    return step.get("statistics", {}).get("budgets", {})
-
-
-def _results(results_root: ET.Element, summary: dict[str, Any]) -> None:
+def _results(results_root: ET.Element, archived: ArchivedRun) -> None:
+    run = archived.run
     result = _el(results_root, "dcc:measurementResult")
     _text(result, "dcc:name", "IMU error model parameters")
     method = _el(_el(result, "dcc:usedMethods"), "dcc:usedMethod", id=METHOD_ID)
-    _text(method, "dcc:name", f"procedure {summary['procedure']}")
+    _text(method, "dcc:name", f"procedure {run.procedure}")
     equipment = _el(result, "dcc:measuringEquipments")
     ids = [METHOD_ID]
-    for i, (e, said) in enumerate(_equipment(summary), start=1):
+    for i, (name, serial) in enumerate(_equipment(archived), start=1):
         ids.append(f"equipment-{i}")
         eq = _el(equipment, "dcc:measuringEquipment", id=ids[-1])
-        _text(eq, "dcc:name", f"{e.get('kind', '')} {e.get('model') or ''}".strip() + said)
+        _text(eq, "dcc:name", name)
         ident = _el(_el(eq, "dcc:identifications"), "dcc:identification")
         _el(ident, "dcc:issuer", "manufacturer")
-        _el(ident, "dcc:value", e["serial"])
+        _el(ident, "dcc:value", serial)
         _text(ident, "dcc:name", "Serial number")
-    temperature = (summary.get("environment") or {}).get("temperature_c")
-    if temperature is not None:
+    if (temperature := run.temperature_c) is not None:
         cond = _el(_el(result, "dcc:influenceConditions"), "dcc:influenceCondition")
         _text(cond, "dcc:name", "Ambient temperature")
         quantity = _el(_el(cond, "dcc:data"), "dcc:quantity")
         _real(quantity, float(temperature) + 273.15, r"\kelvin")
-    _parameters(_el(result, "dcc:results"), summary, " ".join(ids))
+    _parameters(_el(result, "dcc:results"), run.calibration, " ".join(ids))
 
 
-def _equipment(summary: dict[str, Any]) -> list[tuple[dict[str, Any], str]]:
-    """(equipment, what the name adds) of the run, else the lab profile's references: the
+def _equipment(archived: ArchivedRun) -> list[tuple[str, str]]:
+    """(name, serial) of the run's equipment, else of the lab profile's references: the
     schema requires at least one measuring equipment."""
-    if summary["equipment"]:
-        return [(e, "") for e in summary["equipment"]]
-    listed = (summary.get("lab") or {}).get("equipment", [])
+    if archived.run.equipment:
+        return [(f"{e.kind} {e.model or ''}".strip(), e.serial) for e in archived.run.equipment]
+    listed = (archived.lab or {}).get("equipment", [])
     if not listed:
         raise DccRefusedError(
             "DCC 3.3.0 requires at least one measuring equipment: the run's manifest lists "
             "none ([[equipment]] of run.toml) and the lab profile lab.toml has no [[equipment]]"
         )
     said = " (the lab's reference from lab.toml: the run's manifest lists no equipment)"
-    return [({"kind": e.get("kind", "reference"), **e}, said) for e in listed]
+    return [
+        (f"{e.get('kind', 'reference')} {e.get('model') or ''}".strip() + said, e["serial"])
+        for e in listed
+    ]
 
 
-def _parameters(results: ET.Element, summary: dict[str, Any], used: str) -> None:
-    budgets = _budgets(summary)
-    for p in summary["calibration"]["parameters"]:
-        res = _el(results, "dcc:result", id=f"result-{p['name']}", refId=used)
-        _text(res, "dcc:name", p["name"])
+def _parameters(results: ET.Element, cal: Revision, used: str) -> None:
+    budgets = cal.budgets()
+    for p in cal.parameters:
+        res = _el(results, "dcc:result", id=f"result-{p.name}", refId=used)
+        _text(res, "dcc:name", p.name)
         quantity = _el(_el(res, "dcc:data"), "dcc:quantity")
-        _text(quantity, "dcc:name", p["name"])
-        _real(quantity, p["value"], D_SI[params.unit_of(p["name"])], budgets.get(p["name"]))
+        _text(quantity, "dcc:name", p.name)
+        _real(quantity, p.value, D_SI[params.unit_of(p.name)], budgets.get(p.name))
 
 
 def _real(parent: ET.Element, value: float, unit: str, budget: dict | None = None) -> None:
@@ -209,10 +210,10 @@ def _real(parent: ET.Element, value: float, unit: str, budget: dict | None = Non
         _el(unc, "si:coverageProbability", repr(float(budget["coverage"])))
 
 
-def write_dcc(summary: dict[str, Any], folder: Path) -> Path:
+def write_dcc(archived: ArchivedRun, folder: Path) -> Path:
     """Write `<serial>_<run>_dcc.xml` into `folder`; returns its path."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{summary['device']['serial']}_{summary['run_id']}_dcc.xml"
-    path.write_bytes(dcc_xml(summary))
+    path = folder / f"{archived.run.device.serial}_{archived.run.run_id}_dcc.xml"
+    path.write_bytes(dcc_xml(archived))
     return path

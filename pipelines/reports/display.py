@@ -9,11 +9,16 @@ use it; JSON documents and Python values stay SI with their units named."""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 from calib_core.params import UNITS
 from calib_core.units import DEG, STANDARD_GRAVITY
+
+if TYPE_CHECKING:  # numpy: not for the views that only format
+    from calib_core.calibration import CheckResult
+    from storage.queries.records import Revision
 
 # Parameter family -> (display unit, factor that turns SI into the display unit), where
 # labs read another unit than SI; every other family of calib_core.params.UNITS shows
@@ -48,19 +53,19 @@ def display(name: str, value: float | None) -> tuple[float | None, str]:
     return (None if value is None else value * factor), unit
 
 
-def tolerance(name: str, check: dict | None) -> tuple[str, float] | None:
+def tolerance(name: str, check: CheckResult | None) -> tuple[str, float] | None:
     """(relation, limit in display unit) of a parameter check, or None without a limit.
 
     relation is "+-" for a symmetric bound and "<=" for an upper-only one (noise):
     check_parameters writes its bounds into the detail as "allowed LOW .. HIGH unit"
     or "allowed at most HIGH unit".
     """
-    if check is None or check.get("limit") is None:
+    if check is None or check.limit is None:
         return None
     # "allowed -inf .." is how archives before 2026-11-25 wrote an upper bound only.
-    upper_only = check.get("detail", "").startswith(("allowed at most", "allowed -inf"))
+    upper_only = (check.detail or "").startswith(("allowed at most", "allowed -inf"))
     relation = "<=" if upper_only else "+-"
-    return relation, display(name, check["limit"])[0]
+    return relation, display(name, check.limit)[0]
 
 
 # --- one presentation of a number --------------------------------------------------------
@@ -132,7 +137,7 @@ def limit_text(limit: float) -> str:
     return f"{limit:.{LIMIT_DIGITS}g}"
 
 
-def tolerance_text(name: str, check: dict | None, plus_minus: str = "+-") -> str:
+def tolerance_text(name: str, check: CheckResult | None, plus_minus: str = "+-") -> str:
     """A parameter check's limit as people read it: "+- 0.05", "<= 0.02" (display unit);
     "" without a limit. `plus_minus` is "±" where the medium has it (HTML)."""
     tol = tolerance(name, check)
@@ -193,11 +198,11 @@ class CheckCounts:
         return text
 
 
-def check_counts(checks: list[dict[str, Any]]) -> CheckCounts:
-    """Count archived check dicts (``name``, ``passed``, ``value``, ``detail``)."""
+def check_counts(checks: Iterable[CheckResult]) -> CheckCounts:
+    """Count a calibration's checks."""
     from calib_core.condition_rules import CONDITION_PREFIX, NOT_RECORDED, WARNING, status
 
-    states = [(str(c["name"]).startswith(CONDITION_PREFIX), status(c)) for c in checks]
+    states = [(c.name.startswith(CONDITION_PREFIX), status(c)) for c in checks]
     conditions = [s for is_condition, s in states if is_condition]
     tolerance = [s for is_condition, s in states if not is_condition]
     return CheckCounts(
@@ -211,7 +216,7 @@ def check_counts(checks: list[dict[str, Any]]) -> CheckCounts:
 
 
 def record_notes(
-    checks: list[dict[str, Any]], warnings: list[str] | tuple[str, ...] = ()
+    checks: Iterable[CheckResult], warnings: list[str] | tuple[str, ...] = ()
 ) -> list[tuple[str, str]]:
     """What every view shows beside the verdict about the record rather than the unit, as
     (name, text): each ``record:`` finding (a log read to its last whole record, a turn
@@ -220,17 +225,11 @@ def record_notes(
     shown whatever it is), then the solve's `warnings` ("solve warning")."""
     from calib_core.check_names import RECORD_PREFIX, REPLACED_PREFIX
 
-    notes = [
-        (str(c["name"]), str(c.get("detail") or ""))
-        for c in checks
-        if str(c["name"]).startswith((RECORD_PREFIX, REPLACED_PREFIX))
-    ]
+    prefixes = (RECORD_PREFIX, REPLACED_PREFIX)
+    notes = [(c.name, c.detail or "") for c in checks if c.name.startswith(prefixes)]
     return notes + [("solve warning", str(w)) for w in warnings]
 
 
-def solve_warnings(steps: list[dict[str, Any]]) -> list[str]:
-    """The warnings an archived run's solve step holds (its steps as `run_summary` gives)."""
-    for step in steps:
-        if step.get("name") == "solve":
-            return [str(w) for w in (step.get("statistics") or {}).get("warnings", [])]
-    return []
+def solve_warnings(cal: Revision) -> list[str]:
+    """The warnings an archived revision's solve step holds."""
+    return [str(w) for w in cal.step_statistics("solve").get("warnings", [])]

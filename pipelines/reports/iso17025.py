@@ -2,42 +2,39 @@
 
 From the archive: the certificate number (run id and revision: unique per calibration
 revision), the dates of calibration and issue, the method, the equipment with its due dates.
-From the lab profile (`pipelines.lab`, ``summary["lab"]``): the laboratory, the customer, the
+From the lab profile (`pipelines.lab`, ``ArchivedRun.lab``): the laboratory, the customer, the
 authoriser and the calibration certificates of the reference equipment. An item neither knows
 is printed as "not recorded", never left out.
 """
 
 from __future__ import annotations
 
-from datetime import UTC, date, datetime
-from typing import Any
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any
 
 from pipelines.reports.render import Section
 
 NOT_RECORDED = "not recorded (lab profile lab.toml)"
+if TYPE_CHECKING:
+    from pipelines.reports.run_reports import ArchivedRun
+
 ONLY_ITEMS = "The results relate only to the item calibrated, as received (7.8.2.1 l)."
 
 
-def certificate_number(summary: dict[str, Any]) -> str:
+def certificate_number(archived: ArchivedRun) -> str:
     """Unique per calibration revision and issue: "<run id>-<revision>", then
     "<run id>-<revision>-<issue>" for a re-issue (`pipelines.reports.issue`)."""
-    number = f"{summary['run_id']}-{summary['calibration']['revision']}"
-    issue = summary.get("issue") or 1
-    return number if issue == 1 else f"{number}-{issue}"
+    number = f"{archived.run.run_id}-{archived.run.calibration.revision}"
+    return number if archived.issue == 1 else f"{number}-{archived.issue}"
 
 
-def _lab(summary: dict[str, Any], table: str) -> dict[str, str]:
-    return (summary.get("lab") or {}).get(table) or {}
+def _lab(lab: dict[str, Any] | None, table: str) -> dict[str, str]:
+    return (lab or {}).get(table) or {}
 
 
 def _text(entry: dict[str, str], *keys: str) -> str:
     said = [entry[k] for k in keys if entry.get(k)]
     return ", ".join(said) if said else NOT_RECORDED
-
-
-def issue_date(summary: dict[str, Any]) -> date:
-    """The date of issue: given by the report writer, else today (UTC)."""
-    return summary.get("issued") or datetime.now(UTC).date()
 
 
 def deviations(procedure: str, settings: dict[str, Any]) -> str:
@@ -59,33 +56,35 @@ def deviations(procedure: str, settings: dict[str, Any]) -> str:
     return ", ".join(departed) or "none"
 
 
-def administrative_section(summary: dict[str, Any]) -> Section:
+def administrative_section(archived: ArchivedRun) -> Section:
     """Laboratory, customer, certificate number, dates, method, place (7.8.2.1 b-k, n, p)."""
-    lab, customer = _lab(summary, "laboratory"), _lab(summary, "customer")
-    started: datetime = summary["started_at"]
-    settings = summary["calibration"].get("settings") or {}
+    lab, customer = _lab(archived.lab, "laboratory"), _lab(archived.lab, "customer")
+    run = archived.run
     return Section(
         "Certificate",
         pairs=[
-            ("Certificate number", certificate_number(summary)),
+            ("Certificate number", certificate_number(archived)),
             ("Calibration laboratory", _text(lab, "name", "address")),
             ("Accreditation", lab.get("accreditation") or "-"),
             ("Customer", _text(customer, "name", "contact")),
             ("Place of calibration", "the laboratory's site (run manifest [site])"),
             (
                 "Item",
-                f"{summary['device']['model']}, serial {summary['device']['serial']}, "
-                f"made by {summary['device']['manufacturer']}",
+                f"{run.device.model}, serial {run.device.serial}, "
+                f"made by {run.device.manufacturer}",
             ),
             ("Date of receipt", "not recorded"),
-            ("Date of calibration", f"{started:%Y-%m-%d}"),
-            ("Date of issue", issue_date(summary).isoformat()),
+            ("Date of calibration", f"{run.started_at:%Y-%m-%d}"),
+            ("Date of issue", datetime.now(UTC).date().isoformat()),
             (
                 "Method",
-                f"procedure {summary['procedure']} (docs/procedures.md), "
-                f"software {summary['calibration']['software_version']}",
+                f"procedure {run.procedure} (docs/procedures.md), "
+                f"software {run.calibration.software_version}",
             ),
-            ("Deviations from the method", deviations(summary["procedure"], settings)),
+            (
+                "Deviations from the method",
+                deviations(run.procedure, run.calibration.settings or {}),
+            ),
             ("Sampling", "not applicable (one item)"),
             ("External providers", "none: every result was measured by the laboratory"),
         ],
@@ -93,19 +92,18 @@ def administrative_section(summary: dict[str, Any]) -> Section:
     )
 
 
-def traceability_section(summary: dict[str, Any]) -> Section:
+def traceability_section(archived: ArchivedRun) -> Section:
     """The reference equipment with its calibration certificates and due dates (7.8.4.1 c)."""
-    certificates = {e["serial"]: e for e in (summary.get("lab") or {}).get("equipment", [])}
-    started: datetime = summary["started_at"]
+    certificates = {e["serial"]: e for e in (archived.lab or {}).get("equipment", [])}
+    started = archived.run.started_at
     rows = []
-    for e in summary["equipment"]:
-        cert = certificates.get(e["serial"], {})
-        due = e.get("calibration_due")
-        due = None if due is None else date.fromisoformat(str(due))
+    for e in archived.run.equipment:
+        cert = certificates.get(e.serial, {})
+        due = e.calibration_due
         rows.append(
             [
-                e["kind"],
-                e["serial"],
+                e.kind,
+                e.serial,
                 cert.get("certificate") or NOT_RECORDED,
                 cert.get("issued_by") or "-",
                 "-" if due is None else due.isoformat(),
@@ -126,9 +124,9 @@ def traceability_section(summary: dict[str, Any]) -> Section:
     )
 
 
-def authorisation_pairs(summary: dict[str, Any]) -> list[tuple[str, str]]:
+def authorisation_pairs(lab: dict[str, Any] | None) -> list[tuple[str, str]]:
     """Who authorises the certificate (7.8.2.1 o) and the clear end of the certificate."""
-    who = _lab(summary, "authorised_by")
+    who = _lab(lab, "authorised_by")
     return [
         ("Authorised by", _text(who, "name", "function")),
         ("Signature", "______________________   Date: __________"),

@@ -14,12 +14,15 @@ the earlier issues stay as they were.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from storage import rawstore, seal
 from storage.db import Archive
+
+if TYPE_CHECKING:
+    from storage.queries.records import RunSummary
 
 ISSUED = seal.ISSUED  # the audit action
 PROTOCOL = "protocol"
@@ -42,17 +45,16 @@ def _names(serial: str, run_id: str, issue: int) -> dict[str, str]:
     return {"html": f"{stem}.html", "pdf": f"{stem}.pdf"}
 
 
-def _folder(summary: dict[str, Any]) -> str:
+def _folder(run: RunSummary) -> str:
     """The revision's folder, relative to the archive root (as `storage.archive` names it)."""
-    revision = summary["calibration"]["revision"]
-    base = summary["run_dir"]
-    return base if revision == 1 else f"{base}/revision-{revision}"
+    revision = run.calibration.revision
+    return run.run_dir if revision == 1 else f"{run.run_dir}/revision-{revision}"
 
 
-def protocol_of(archive: Archive, summary: dict[str, Any]) -> Path | None:
+def protocol_of(archive: Archive, run: RunSummary) -> Path | None:
     """The test protocol archived with the run's current revision (written when the run was
     archived, issued certificate or not), None if it is not there."""
-    path = archive.root / _folder(summary) / f"{summary['device']['serial']}_result.txt"
+    path = archive.root / _folder(run) / f"{run.device.serial}_result.txt"
     return path if path.is_file() else None
 
 
@@ -60,23 +62,17 @@ def issued(archive: Archive, run_id: str) -> Issue | None:
     """The latest issued certificate of the run's current revision, None if none was issued."""
     from storage import queries
 
-    summary = queries.run_summary(archive, run_id)
-    revision = summary["calibration"]["revision"]
+    run = queries.run_summary(archive, run_id)
+    revision = run.calibration.revision
     mine = [e for e in queries.certificate_issues(archive, run_id) if e["revision"] == revision]
     if not mine:
         return None
     detail = mine[-1]["detail"]
     files = {kind: archive.root / rel for kind, rel in detail["paths"].items()}
-    if (protocol := protocol_of(archive, summary)) is not None:
+    if (protocol := protocol_of(archive, run)) is not None:
         files[PROTOCOL] = protocol
-    return Issue(
-        run_id,
-        revision,
-        detail["issue"],
-        detail["certificate"],
-        files,
-        summary["calibration"]["verdict"],
-    )
+    verdict = run.calibration.verdict
+    return Issue(run_id, revision, detail["issue"], detail["certificate"], files, verdict)
 
 
 def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
@@ -94,24 +90,20 @@ def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
     Issue, with the paths of the files written.
     """
     from pipelines.reports.render import render_html
-    from pipelines.reports.run_reports import archived_summary, certificate_for
+    from pipelines.reports.run_reports import archived_run, certificate_for
     from pipelines.reports.typeset import pdf_bytes
 
     seal.check_reason(reason)
     from storage import queries
 
-    summary = archived_summary(archive, run_id)
-    revision = summary["calibration"]["revision"]
+    archived = archived_run(archive, run_id)
+    run, revision = archived.run, archived.run.calibration.revision
     issues = queries.certificate_issues(archive, run_id)
     number = 1 + sum(e["revision"] == revision for e in issues)
-    summary["issue"] = number
-    cert = certificate_for(archive, summary)
+    cert = certificate_for(archive, replace(archived, issue=number))
     data = {"pdf": pdf_bytes(cert), "html": render_html(cert).encode()}
-    folder = _folder(summary)
-    rel = {
-        k: f"{folder}/{name}"
-        for k, name in _names(summary["device"]["serial"], run_id, number).items()
-    }
+    folder = _folder(run)
+    rel = {k: f"{folder}/{name}" for k, name in _names(run.device.serial, run_id, number).items()}
     with rawstore.PendingFiles() as pending:
         for kind, path in rel.items():
             target = archive.root / path
@@ -132,8 +124,6 @@ def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
         archive, ISSUED, run_id=run_id, revision=revision, reason=reason, detail=detail
     )
     files = {k: archive.root / p for k, p in rel.items()}
-    if (protocol := protocol_of(archive, summary)) is not None:
+    if (protocol := protocol_of(archive, run)) is not None:
         files[PROTOCOL] = protocol
-    return Issue(
-        run_id, revision, number, cert.identifier, files, summary["calibration"]["verdict"]
-    )
+    return Issue(run_id, revision, number, cert.identifier, files, run.calibration.verdict)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from calib_core import conditions
 from calib_core.params import manual_name, manual_order
@@ -26,6 +26,10 @@ from pipelines.reports.display import (
     tolerance,
 )
 
+if TYPE_CHECKING:
+    from calib_core.calibration import CheckResult, Parameter
+    from storage.queries.records import ParameterValue
+
 _RULE = "-" * 78
 
 
@@ -39,16 +43,16 @@ RESULT_MARK = {
 }
 
 
-def condition_lines(checks: Iterable[Mapping[str, Any]]) -> list[str]:
+def condition_lines(checks: Iterable[CheckResult]) -> list[str]:
     """The "Conditions" block: one verdict line per lab condition / acquisition rule."""
-    rows = [c for c in checks if c["name"].startswith(conditions.CONDITION_PREFIX)]
+    rows = [c for c in checks if c.name.startswith(conditions.CONDITION_PREFIX)]
     if not rows:
         return []
     lines = [_RULE, "Conditions", f"{'Condition':<30}{'Value':>12}  {'Result':<13}Requirement"]
     for c in rows:
-        value = "" if c.get("value") is None else number(c["value"])
+        value = "" if c.value is None else number(c.value)
         mark = RESULT_MARK[conditions.status(c)]
-        name = c["name"].removeprefix(conditions.CONDITION_PREFIX)
+        name = c.name.removeprefix(conditions.CONDITION_PREFIX)
         lines.append(f"{name:<30}{value:>12}  {mark:<13}{conditions.requirement(c)}")
     return lines
 
@@ -63,8 +67,8 @@ def render_protocol(
     profile: str,
     gravity: float,
     operator: str,
-    parameters: Iterable[Mapping[str, Any]],
-    checks: Iterable[Mapping[str, Any]],
+    parameters: Iterable[Parameter | ParameterValue],
+    checks: Iterable[CheckResult],
     verdict: str,
     budgets: Mapping[str, Mapping[str, Any]] | None = None,
     decision_rule: str | None = None,
@@ -75,8 +79,8 @@ def render_protocol(
 
     Parameters
     ----------
-    parameters : dicts with name, value, std (SI units, canonical names).
-    checks : dicts with name, value, limit, passed (``param:<name>`` checks
+    parameters : name, value, std of each (SI units, canonical names).
+    checks : the calibration's checks (``param:<name>`` checks
         give each parameter's tolerance; others are listed after the table).
     budgets : name -> `calib_core.uncertainty.Budget.to_dict()` (SI): the uncertainty table.
     decision_rule : the statement of the decision rule and its risk.
@@ -89,9 +93,7 @@ def render_protocol(
         listed beside the verdict.
     """
     checks = list(checks)
-    by_param = {
-        c["name"].removeprefix("param:"): c for c in checks if c["name"].startswith("param:")
-    }
+    by_param = param_checks(checks)
     lines = [
         "IMU CALIBRATION TEST PROTOCOL",
         _RULE,
@@ -110,30 +112,30 @@ def render_protocol(
     if names == "manual":
         lines.insert(-2, "Manual names: the MPU-6000 manual's (Axz = M[x,y], Axy = -M[x,z], ...)")
     if names == "manual":
-        parameters = sorted(parameters, key=lambda p: manual_order(p["name"]))
+        parameters = sorted(parameters, key=lambda p: manual_order(p.name))
     for p in parameters:
-        s = shown(p["name"], p["value"], p.get("std"))  # u to two digits, the value to its place
-        check = by_param.get(p["name"])
-        tol = tolerance(p["name"], check)
+        s = shown(p.name, p.value, p.std)  # u to two digits, the value to its place
+        check = by_param.get(p.name)
+        tol = tolerance(p.name, check)
         if tol is None:
             tol, mark = f"{'':>12}", " "
         else:
-            tol, mark = f"{tol[0]:>3}{limit_text(tol[1]):>9}", "+" if check["passed"] else "-"
-        line = f"{p['name']:<18}{s.signed:>13}{s.u:>13}  {s.unit:<10}{tol}  {mark}"
+            tol, mark = f"{tol[0]:>3}{limit_text(tol[1]):>9}", "+" if check.passed else "-"
+        line = f"{p.name:<18}{s.signed:>13}{s.u:>13}  {s.unit:<10}{tol}  {mark}"
         if names == "manual":
-            manual, signed = manual_name(p["name"], p["value"])
-            in_sign = shown(p["name"], signed, p.get("std")).signed
+            manual, signed = manual_name(p.name, p.value)
+            in_sign = shown(p.name, signed, p.std).signed
             line += f"       {manual:<7}{in_sign:>13}" if manual else ""
         lines.append(line)
     lines += uncertainty_lines(budgets or {}, by_param, decision_rule)
     lines += condition_lines(checks)
-    other = [c for c in checks if not c["name"].startswith(("param:", conditions.CONDITION_PREFIX))]
+    other = [c for c in checks if not c.name.startswith(("param:", conditions.CONDITION_PREFIX))]
     if other:
         lines += [_RULE, "Checks", f"{'Check':<44}{'Value':>13}{'Limit':>13}  Result"]
         for c in other:
-            limit = "" if c.get("limit") is None else limit_text(c["limit"])
-            value = "" if c.get("value") is None else number(c["value"])
-            lines.append(f"{c['name']:<44}{value:>13}{limit:>13}  {'+' if c['passed'] else '-'}")
+            limit = "" if c.limit is None else limit_text(c.limit)
+            value = "" if c.value is None else number(c.value)
+            lines.append(f"{c.name:<44}{value:>13}{limit:>13}  {'+' if c.passed else '-'}")
     notes = list(notes)
     if notes:
         lines += [_RULE, "The record: findings, samples replaced, solver warnings"]
@@ -151,16 +153,21 @@ def render_protocol(
     return "\n".join(lines)
 
 
-def verdict_of(check: Mapping[str, Any] | None) -> str:
+def param_checks(checks: Iterable[CheckResult]) -> dict[str, CheckResult]:
+    """The parameter checks (``param:<name>``) by parameter name."""
+    return {c.name.removeprefix("param:"): c for c in checks if c.name.startswith("param:")}
+
+
+def verdict_of(check: CheckResult | None) -> str:
     """The ILAC-G8 verdict a parameter check's detail states ("" without one)."""
-    detail = "" if check is None else check.get("detail") or ""
+    detail = "" if check is None else check.detail or ""
     _, sep, rest = detail.partition("; ")
     return rest.split(" (", 1)[0] if sep else ""
 
 
-def guard_band_of(check: Mapping[str, Any] | None) -> str:
+def guard_band_of(check: CheckResult | None) -> str:
     """The guard band "w = ..." a parameter check's detail states ("" without one)."""
-    detail = "" if check is None else check.get("detail") or ""
+    detail = "" if check is None else check.detail or ""
     _, sep, rest = detail.rpartition(", w = ")
     return rest.rstrip(")") if sep else ""
 
@@ -180,7 +187,7 @@ def dominant_text(budget: Mapping[str, Any], n: int = 2) -> str:
 
 def uncertainty_lines(
     budgets: Mapping[str, Mapping[str, Any]],
-    by_param: Mapping[str, Mapping[str, Any]],
+    by_param: Mapping[str, CheckResult],
     decision_rule: str | None,
 ) -> list[str]:
     """The uncertainty table (value, U, k, coverage, verdict, dominant contributions)."""

@@ -1,5 +1,5 @@
-"""The reports of an archived run, from the archive alone: the summary a certificate is
-built from (`archived_summary`: the run summary with the lab profile, the unit's interval,
+"""The reports of an archived run, from the archive alone: what a certificate is built from
+(`ArchivedRun`, `archived_run`: the run summary with the lab profile, the unit's interval,
 its calibration as found and the audit chain's head), the approvals judged against the
 lab's approvers (`trusted_approvals`), the certificate (`certificate_of`) and its files
 written into a folder (`write_reports`, `report_run`; the DCC with ``form="dcc"``).
@@ -7,6 +7,7 @@ written into a folder (`write_reports`, `report_run`; the DCC with ``form="dcc"`
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from datetime import timedelta
 from pathlib import Path
 from typing import Any
@@ -18,10 +19,24 @@ from pipelines.reports.certificate import sections
 from pipelines.reports.navigation import navigation_data
 from pipelines.reports.render import Certificate, render_html
 from pipelines.reports.typeset import render_pdf
+from storage.queries.records import DatedRevision, RunSummary
+
+
+@dataclass(frozen=True)
+class ArchivedRun:
+    """An archived run as its certificate and DCC state it: the run and what they add."""
+
+    run: RunSummary  # storage.queries.run_summary
+    lab: dict[str, Any] | None = None  # the lab profile (pipelines.lab), None without one
+    recall: dict[str, Any] | None = None  # the unit's interval (pipelines.recall), passed runs
+    as_found: DatedRevision | None = None  # its latest valid calibration before this run
+    chain_head: tuple[int, str] | None = None  # (seq, hash) of the audit chain at issue
+    navigation: list[dict[str, Any]] = field(default_factory=list)  # lab.toml [navigation]
+    issue: int = 1  # the issue number (pipelines.reports.issue)
 
 
 def write_reports(
-    summary: dict[str, Any],
+    archived: ArchivedRun,
     samples: pa.Table,
     folder: Path,
     *,
@@ -38,8 +53,8 @@ def write_reports(
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    cert = sections(summary, samples, approvals)
-    serial, run_id = summary["device"]["serial"], summary["run_id"]
+    cert = sections(archived, samples, approvals)
+    serial, run_id = archived.run.device.serial, archived.run.run_id
     out = {"protocol": folder / f"{serial}_result.txt"}
     out["protocol"].write_text(cert.protocol, encoding="utf-8")
     stem = f"{serial}_{run_id}_certificate"
@@ -79,75 +94,69 @@ def report_run(
     """
     if form not in REPORT_FORMATS:
         raise ValueError(f"report format {form!r}: expected one of {list(REPORT_FORMATS)}")
-    summary = archived_summary(archive, run_id)
-    folder = folder if folder is not None else archive.root / summary["run_dir"]
+    archived = archived_run(archive, run_id)
+    folder = folder if folder is not None else archive.root / archived.run.run_dir
+    verdict = archived.run.calibration.verdict
     if form == "dcc":
         from pipelines.reports.dcc import write_dcc
 
-        return {"verdict": summary["calibration"]["verdict"], "dcc": write_dcc(summary, folder)}
+        return {"verdict": verdict, "dcc": write_dcc(archived, folder)}
     from storage import queries
 
     samples = queries.run_samples(archive, run_id)
-    approvals = trusted_approvals(archive, summary)
-    written = write_reports(summary, samples, folder, pdf=pdf, approvals=approvals)
-    return {"verdict": summary["calibration"]["verdict"], **written}
+    approvals = trusted_approvals(archive, archived.run)
+    written = write_reports(archived, samples, folder, pdf=pdf, approvals=approvals)
+    return {"verdict": verdict, **written}
 
 
-def archived_summary(archive, run_id: str) -> dict[str, Any]:  # noqa: ANN001 - Archive
+def archived_run(archive, run_id: str, issue: int = 1) -> ArchivedRun:  # noqa: ANN001 - Archive
     """`storage.queries.run_summary` of the run with what the certificate adds: the lab
-    profile (``lab``), the unit's recalibration interval (``recall``, for a passed run),
-    its calibration before this run (``as_found``) and the audit chain's head at issue
-    (``chain_head``)."""
+    profile, the unit's recalibration interval (for a passed run), its calibration before
+    this run (as found), the audit chain's head at issue and the navigation figures."""
     from pipelines.lab import load_lab_profile
     from storage import queries
     from storage.checkpoint import chain_head
 
-    summary = queries.run_summary(archive, run_id)
+    run = queries.run_summary(archive, run_id)
     lab = load_lab_profile()
-    summary["lab"] = None if lab is None else lab[0]
-    # the interval is stated for a released unit only (`_recommendations`)
-    released = summary["calibration"]["verdict"] == PASS
-    summary["recall"] = None
-    if released:
+    serial = run.device.serial
+    recall = None
+    if run.calibration.verdict == PASS:  # the interval is stated for a released unit only
         from pipelines.recall import unit_recall  # pandas and the fleet's trends: only then
 
-        summary["recall"] = unit_recall(archive, summary["device"]["serial"], run_id)
-    summary["as_found"] = queries.latest_calibration(
-        archive, summary["device"]["serial"], summary["started_at"] - timedelta(microseconds=1)
+        recall = unit_recall(archive, serial, run_id)
+    return ArchivedRun(
+        run,
+        lab=None if lab is None else lab[0],
+        recall=recall,
+        as_found=queries.latest_calibration(
+            archive, serial, run.started_at - timedelta(microseconds=1)
+        ),
+        chain_head=chain_head(archive),
+        navigation=navigation_data(archive, run_id),
+        issue=issue,
     )
-    summary["chain_head"] = chain_head(archive)
-    summary["navigation"] = navigation_data(archive, run_id)  # lab.toml [navigation]
-    return summary
 
 
-def trusted_approvals(archive, summary: dict[str, Any]) -> list:  # noqa: ANN001 - Archive
-    """The approvals of the summary's revision, each judged against the lab's approvers file
+def trusted_approvals(archive, run: RunSummary) -> list:  # noqa: ANN001 - Archive
+    """The approvals of the run's revision, each judged against the lab's approvers file
     (pipelines.trust; none given: marked as not checked against one)."""
     from pipelines.trust import lab_approvers
     from storage.approval import approval_status
 
-    return approval_status(
-        archive, summary["run_id"], summary["calibration"]["revision"], lab_approvers()
-    )
+    return approval_status(archive, run.run_id, run.calibration.revision, lab_approvers())
 
 
-def certificate_of(
-    archive,
-    run_id: str,
-    *,
-    issue: int = 1,  # noqa: ANN001 - Archive
-) -> tuple[dict[str, Any], Certificate]:
-    """(summary, certificate) of an archived run, from the archive alone, as issue `issue`
-    (`pipelines.reports.issue`: a re-issue is a new document with its own number)."""
-    summary = archived_summary(archive, run_id)
-    summary["issue"] = issue
-    return summary, certificate_for(archive, summary)
+def certificate_of(archive, run_id: str, *, issue: int = 1) -> tuple[ArchivedRun, Certificate]:  # noqa: ANN001 - Archive
+    """(archived run, certificate) of an archived run, from the archive alone, as issue
+    `issue` (`pipelines.reports.issue`: a re-issue is a new document with its own number)."""
+    archived = archived_run(archive, run_id, issue)
+    return archived, certificate_for(archive, archived)
 
 
-def certificate_for(archive, summary: dict[str, Any]) -> Certificate:  # noqa: ANN001 - Archive
-    """The certificate of an `archived_summary` (its ``issue`` set), its samples and
-    approvals read from the archive."""
+def certificate_for(archive, archived: ArchivedRun) -> Certificate:  # noqa: ANN001 - Archive
+    """The certificate of an archived run, its samples and approvals read from the archive."""
     from storage import queries
 
-    samples = queries.run_samples(archive, summary["run_id"])
-    return sections(summary, samples, trusted_approvals(archive, summary))
+    samples = queries.run_samples(archive, archived.run.run_id)
+    return sections(archived, samples, trusted_approvals(archive, archived.run))

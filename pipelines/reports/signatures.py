@@ -11,14 +11,19 @@ from pipelines.reports import iso17025
 from pipelines.reports.render import Section
 
 
-def signatures_section(summary: dict[str, Any], approvals: list[tuple[Any, bool]]) -> Section:
+def signatures_section(
+    lab: dict[str, Any] | None,
+    chain_head: tuple[int, str] | None,
+    approvals: list[tuple[Any, bool]],
+) -> Section:
     """The signature block: who authorised the certificate (the lab profile), the electronic
     approvals of the revision with whether each holds, the audit chain at issue, and lines
     for signatures by hand.
 
     Parameters
     ----------
-    summary : the run summary the certificate is built from (with ``chain_head`` at issue).
+    lab : the lab profile (pipelines.lab), None without one.
+    chain_head : (seq, hash) of the archive's audit chain at issue.
     approvals : (approval, holds) of `storage.approval.approval_status`.
     """
     signed = [
@@ -39,13 +44,13 @@ def signatures_section(summary: dict[str, Any], approvals: list[tuple[Any, bool]
         signed.append(("Electronic approval", "NOT APPROVED (no valid approval: calib approve)"))
     if approvals and all(a.trusted is None for a, _ in approvals):
         signed.append(("Approvers", "keys not checked against the lab's list of trusted approvers"))
-    if "chain_head" in summary:  # the archive's audit chain when the certificate was issued
-        seq, head = summary["chain_head"]
+    if chain_head is not None:  # the archive's audit chain when the certificate was issued
+        seq, head = chain_head
         signed.append(("Audit chain at issue", f"event {seq}, hash {head}"))
     return Section(
         "Signatures",
         pairs=[
-            *iso17025.authorisation_pairs(summary),
+            *iso17025.authorisation_pairs(lab),
             *signed,
             ("Customer representative", "______________________   Date: __________"),
             ("Quality control", "______________________   Date: __________"),

@@ -4,9 +4,12 @@ outcome in one line (`peer_line`: `calib show`, the web run page, the certificat
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipelines.reports.render import Section
+
+if TYPE_CHECKING:
+    from storage.queries.records import Validation
 
 COLUMNS = ["parameter", "ours", "theirs", "difference", "u_c", "E_n", "unit"]
 HEADER = ["peer", *COLUMNS]
@@ -26,18 +29,18 @@ def row_texts(r: dict[str, Any]) -> list[str]:
     ]
 
 
-def validation_sections(records: list[dict[str, Any]] | None) -> list[Section]:
+def validation_sections(records: list[Validation]) -> list[Section]:
     """One "Method validation" section for the latest record; none without a record."""
     if not records:
         return []
     v = records[-1]
-    rows = [[p["peer"], *row_texts(r)] for p in v["document"]["peers"] for r in p["parameters"]]
+    rows = [[p["peer"], *row_texts(r)] for p in v.document["peers"] for r in p["parameters"]]
     paragraphs = [
-        f"Validation record {v['id']} of {v['created_at']:%Y-%m-%d} (software "
-        f"{v['software_version']}): this revision's parameters against independent public "
+        f"Validation record {v.id} of {v.created_at:%Y-%m-%d} (software "
+        f"{v.software_version}): this revision's parameters against independent public "
         "implementations run on the same raw bytes. E_n = |ours - theirs| / sqrt(U_ours^2 + "
         "U_theirs^2) with U = 2 u; a peer stating no uncertainty counts 0.",
-        *(peer_line(p) for p in v["document"]["peers"]),
+        *(peer_line(p) for p in v.document["peers"]),
     ]
     return [
         Section(

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from storage.db import Archive
+from storage.queries.records import RunSummary
 
 PEERS = ("imucal", "allantools")
 K_EXPANDED = 2.0  # E_n is taken with expanded uncertainties U = k u_c, k = 2 (metrology.md)
@@ -90,7 +91,7 @@ def validate_run(archive: Archive, run_id: str, peers: tuple[str, ...]) -> dict[
     return {
         "run_id": full,
         "revision": exported["revision"],
-        "procedure": summary["procedure"],
+        "procedure": summary.procedure,
         "peers": out,
     }
 
@@ -107,14 +108,14 @@ def validate_and_archive(archive: Archive, run_id: str, peers: tuple[str, ...]) 
     return doc
 
 
-def _imucal(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, list[str]]:
+def _imucal(ours: Any, loaded: Any, summary: RunSummary) -> tuple[list, list[str]]:
     """imucal against our archived parameters: every parameter both estimate."""
     m = loaded.manifest
     turns = int(m.run.settings.get("turns", 1))
-    turntable = any(e["kind"] == "rate_table" for e in summary["equipment"])
+    turntable = any(e.kind == "rate_table" for e in summary.equipment)
     rows, notes = imucal_rows(ours, loaded.segments, m.gravity(), turns, turntable)
     if not rows:
-        raise ValueError(f"run {summary['run_id']}: no parameter both estimate")
+        raise ValueError(f"run {summary.run_id}: no parameter both estimate")
     return rows, notes
 
 
@@ -145,13 +146,13 @@ def imucal_rows(
     return rows, notes
 
 
-def _allantools(ours: Any, loaded: Any, summary: dict[str, Any]) -> tuple[list, list[str]]:
+def _allantools(ours: Any, loaded: Any, summary: RunSummary) -> tuple[list, list[str]]:
     """allantools' Allan deviation against ours, and the noise terms read from each."""
     from pipelines.validation.peers import PeerCannotTreatError
 
     if loaded.streamed is not None:
         raise PeerCannotTreatError("allantools is compared on one static record held in memory")
-    return allantools_rows(ours, loaded.segments, summary["procedure"])
+    return allantools_rows(ours, loaded.segments, summary.procedure)
 
 
 def allantools_rows(

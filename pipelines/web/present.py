@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
 from datetime import date, datetime
-from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import quote, urlencode
 
 from pipelines.reports.display import DISPLAY_UNITS
 from pipelines.reports.display import display as reports_display
+
+if TYPE_CHECKING:
+    from calib_core.calibration import CheckResult
 
 
 def display(name: str, value: float | None) -> tuple[float | None, str]:
@@ -114,22 +115,18 @@ def equipment_url(kind: str, serial: str) -> str:
     return url("/equipment/item", kind=kind, serial=serial)
 
 
-def check_result(check: Mapping[str, Any]) -> str:
-    """The badge of one archived check (a dict with name, passed, detail): "pass", else
-    what its failure alone makes of the run's verdict (calib_core.checks.overall_verdict):
-    "needs review" for a repeatability, device or model check (``model:acc_dof``) or a
-    parameter's conditional pass, "warning" or "not recorded" for a lab condition
-    (calib_core.conditions), else "fail"."""
+def check_result(check: CheckResult) -> str:
+    """The badge of one archived check: "pass", else what its failure alone makes of the
+    run's verdict (calib_core.checks.overall_verdict): "needs review" for a repeatability,
+    device or model check (``model:acc_dof``) or a parameter's conditional pass, "warning"
+    or "not recorded" for a lab condition (calib_core.conditions), else "fail"."""
     from calib_core import checks
     from calib_core import condition_rules as conditions
 
     state = conditions.status(check)
     if state in (conditions.WARNING, conditions.NOT_RECORDED, conditions.INFO):
         return state
-    one = SimpleNamespace(
-        name=check["name"], passed=check["passed"], detail=check.get("detail") or ""
-    )
-    return checks.overall_verdict([one])
+    return checks.overall_verdict([check])
 
 
 FILTERS = {

@@ -30,6 +30,7 @@ from storage.naming import check_safe_name
 
 if TYPE_CHECKING:  # its decision rules' statistics (scipy) imported by the run page
     from calib_core.tolerances import ToleranceProfile
+    from storage.queries.records import Revision, RunSummary
 
 router = APIRouter()
 
@@ -91,36 +92,30 @@ def _run_id(run_id: str) -> str:
     return forms.checked(check_safe_name, run_id, "run id")
 
 
-def _thresholds(summary: dict[str, Any]) -> ToleranceProfile | None:
+def archived_thresholds(cal: Revision) -> ToleranceProfile | None:
     """The tolerance profile archived with the verdict (the check step's settings)."""
     from calib_core.tolerances import ToleranceProfile
 
-    step = next((s for s in summary["calibration"]["steps"] if s["name"] == "check"), {})
-    doc = (step.get("settings") or {}).get("thresholds")
+    doc = cal.step_settings("check").get("thresholds")
     try:
         return None if doc is None else ToleranceProfile.from_dict(doc)
     except (ValueError, KeyError, TypeError):
         return None
 
 
-def _parameter_rows(summary: dict[str, Any]) -> list[dict[str, Any]]:
-    checks = {c["name"]: c for c in summary["calibration"]["checks"]}
+def _parameter_rows(cal: Revision) -> list[dict[str, Any]]:
+    """Each parameter value with its display form and its tolerance check."""
+    checks = {c.name: c for c in cal.checks}
     rows = []
-    for p in summary["calibration"]["parameters"]:
-        value, unit = display(p["name"], p["value"])
-        std, _ = display(p["name"], p["std"])
-        text = shown(p["name"], p["value"], p["std"])
-        check = checks.get(p["name"]) or checks.get(f"param:{p['name']}")
-        limit = tolerance_text(p["name"], check, "±") or None
+    for p in cal.parameters:
+        check = checks.get(p.name) or checks.get(f"param:{p.name}")
         rows.append(
             {
-                **p,
-                "display_value": value,
-                "display_std": std,
-                "display_unit": unit,
-                "shown": text,
+                **p.to_dict(),
+                "display_unit": display(p.name, p.value)[1],
+                "shown": shown(p.name, p.value, p.std),
                 "check": check,
-                "display_limit": limit,
+                "display_limit": tolerance_text(p.name, check, "±") or None,
             }
         )
     return rows
@@ -132,22 +127,21 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
     archive = request.app.state.archive
     forms.params(request, ())
     summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
+    cal = summary.calibration
     revs = queries.revisions(archive, run_id)
-    day = summary["started_at"].astimezone(UTC).date()
+    day = summary.started_at.astimezone(UTC).date()
     equipment = [
         {
-            **e,
-            "valid_at_run": None if e["calibration_due"] is None else day <= e["calibration_due"],
-            "state_now": queries.due_state(e["calibration_due"]),
+            **e.to_dict(),
+            "valid_at_run": None if e.calibration_due is None else day <= e.calibration_due,
+            "state_now": queries.due_state(e.calibration_due),
         }
-        for e in summary["equipment"]
+        for e in summary.equipment
     ]
     from calib_core.condition_rules import status as condition_status
 
-    profile = _thresholds(summary)
-    for c in summary["calibration"]["checks"]:  # pass, fail, warning or not recorded
-        c["status"] = condition_status(c)
-    residuals = summary["calibration"]["document"].get("residuals") or []
+    profile = archived_thresholds(cal)
+    residuals = cal.document.get("residuals") or []
     limits = profile.residual_limits if profile else {}
     charts = [svg.residual_chart(residuals, s, *RESIDUAL_UNITS[s], limits) for s in ("acc", "gyr")]
     return render(
@@ -157,36 +151,35 @@ def run_page(request: Request, run_id: str) -> HTMLResponse:
         s=summary,
         revisions=revs,
         equipment=equipment,
-        parameters=_parameter_rows(summary),
+        parameters=_parameter_rows(cal),
         charts=[c for c in charts if c],
         profile=profile,
-        counts=check_counts(summary["calibration"]["checks"]),
-        notes=record_notes(
-            summary["calibration"]["checks"], solve_warnings(summary["calibration"]["steps"])
-        ),
+        counts=check_counts(cal.checks),
+        failed=[c for c in cal.checks if condition_status(c) == "fail"],
+        notes=record_notes(cal.checks, solve_warnings(cal)),
         validations=validation_tables(summary),
     )
 
 
-def validation_tables(summary: dict[str, Any]) -> list[dict[str, Any]]:
+def validation_tables(summary: RunSummary) -> list[dict[str, Any]]:
     """The revision's validation records as the run page shows them: per peer its line
     (pipelines.validation.compare.peer_line) and its rows, numbers as text."""
     from pipelines.reports.validation import peer_line, row_texts
 
     return [
         {
-            "id": v["id"],
-            "created_at": v["created_at"],
+            "id": v.id,
+            "created_at": v.created_at,
             "peers": [
                 {
                     "line": peer_line(p),
                     "rows": [row_texts(r) for r in p["parameters"]],
                     "notes": p.get("notes", []),
                 }
-                for p in v["document"]["peers"]
+                for p in v.document["peers"]
             ],
         }
-        for v in summary["validations"]
+        for v in summary.validations
     ]
 
 
@@ -218,11 +211,11 @@ def raw_file(request: Request, run_id: str, name: str) -> FileResponse:
     archive = request.app.state.archive
     forms.params(request, ())
     summary = forms.checked(queries.run_summary, archive, _run_id(run_id))
-    entry = next((r for r in summary["raw_files"] if r["name"] == name), None)
+    entry = next((r for r in summary.raw_files if r.name == name), None)
     if entry is None:
         raise HTTPException(404, f"run {run_id} has no raw file {name!r}")
     root = archive.root.resolve()
-    path = (root / entry["stored_path"]).resolve()
+    path = (root / entry.stored_path).resolve()
     if not path.is_relative_to(root) or not path.is_file():
         raise HTTPException(404, f"raw file {name!r} of run {run_id} is missing from the store")
     return FileResponse(
@@ -235,11 +228,11 @@ def _issued(archive, run_id: str, kind: str) -> Path:  # noqa: ANN001 - Archive
     from pipelines.reports.issue import PROTOCOL, issued, protocol_of
 
     full = _run_id(run_id)
-    forms.checked(queries.run_summary, archive, full)  # 404 for an unknown run
+    run = forms.checked(queries.run_summary, archive, full)  # 404 for an unknown run
     current = issued(archive, full)
     path = None if current is None else current.files.get(kind)
     if path is None and kind == PROTOCOL:  # archived with the run, issued or not
-        path = protocol_of(archive, queries.run_summary(archive, full))
+        path = protocol_of(archive, run)
     if path is None:
         raise HTTPException(
             404,

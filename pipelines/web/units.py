@@ -222,17 +222,11 @@ def _series(rows: list[dict[str, Any]]) -> dict[str, Series]:
 def _unit_profile(series: dict[str, Series], serial: str, archive) -> ToleranceProfile | None:  # noqa: ANN001
     """The tolerance profile of the unit's latest calibration: its archived thresholds,
     else the named profile file."""
-    from calib_core.tolerances import ToleranceProfile
+    from pipelines.web.runs import archived_thresholds
 
     latest = queries.latest_calibration(archive, serial)
-    if latest is not None:
-        step = next((s for s in latest["steps"] if s["name"] == "check"), {})
-        doc = (step.get("settings") or {}).get("thresholds")
-        if doc:
-            try:
-                return ToleranceProfile.from_dict(doc)
-            except (ValueError, KeyError, TypeError):
-                pass
+    if latest is not None and (archived := archived_thresholds(latest)) is not None:
+        return archived
     names = [r["profile_name"] for s in series.values() for r in s.rows[-1:]]
     return _profile(names[-1] if names else None)
 

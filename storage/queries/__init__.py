@@ -1,5 +1,6 @@
-"""Questions asked of the archive, answered as dicts and pandas DataFrames; one module
-per kind of question:
+"""Questions asked of the archive, answered as typed records (`records`: a run's summary
+and a revision, frozen dataclasses), dicts and pandas DataFrames; one module per kind of
+question:
 
 - `runs`: one run's summary, export, the lineage of a value, samples, repeatability group,
   how a revision was judged;
@@ -13,6 +14,7 @@ per kind of question:
 - `impact`: the runs that used one piece of equipment in a period (`calib impact`);
 - `thermal`: thermal models and campaigns;
 - `selection`: the runs a reprocessing takes, and current vs. superseded revisions;
+- `audit`: the audit trail, certificate issues, each revision as sealed;
 - `readonly`: the archive opened read-only (`open_readonly`).
 
 Which calibration is current, valid or a unit's latest is one rule (storage.current).
@@ -38,7 +40,12 @@ _API = {
         "check_text",
         "check_verdict",
     ],
-    "storage.queries.audit": ["AUDIT_COLUMNS", "audit_trail", "certificate_issues"],
+    "storage.queries.audit": [
+        "AUDIT_COLUMNS",
+        "archived_revisions",
+        "audit_trail",
+        "certificate_issues",
+    ],
     "storage.queries.equipment": [
         "LAPSED_COLUMNS",
         "due_state",

@@ -1,4 +1,5 @@
-"""The audit trail (storage.seal): who changed what in the archive, when and why."""
+"""The audit trail (storage.seal): who changed what in the archive, when and why; each
+revision of a run as its seal records it."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from sqlalchemy import select
 from storage.db import Archive
 from storage.queries._common import as_instant, check_serial, reading
 from storage.queries.runs import full_run_id
-from storage.schema import AuditEvent, Device, Run
+from storage.schema import AuditEvent, CalibrationRow, Device, Run, Seal
 from storage.seal import EVENT_FIELDS, ISSUED
 
 # An event's fields as hashed, but the previous hash, and its own hash.
@@ -66,3 +67,26 @@ def _run_ids(archive: Archive, target: str) -> list[str]:
             .all()
         )
     return list(serial_runs) or [full_run_id(archive, target)]
+
+
+def archived_revisions(archive: Archive, run_id: str) -> list[dict[str, Any]]:
+    """Each revision of the run as its rows hold it (`storage.seal_record.records`, every
+    value decoded), its files as its seal lists them, oldest first; ``cal_id`` added.
+    Raises LookupError for an unknown run."""
+    from storage import seal_record
+
+    with reading(archive) as conn:
+        ids = list(
+            conn.execute(
+                select(CalibrationRow.id)
+                .join(Run, Run.id == CalibrationRow.run_id)
+                .where(Run.run_id == run_id)
+                .order_by(CalibrationRow.revision)
+            ).scalars()
+        )
+        if not ids:
+            raise LookupError(f"no run {run_id} in the archive")
+        sealed = select(Seal.calibration_id, Seal.record).where(Seal.calibration_id.in_(ids))
+        files = {cal: (record or {}).get("files") or {} for cal, record in conn.execute(sealed)}
+        found = seal_record.records(conn, ids, files, form=1)
+    return [{**found[i], "cal_id": i} for i in ids]

@@ -42,6 +42,8 @@ if TYPE_CHECKING:
     import pandas as pd  # imported where a frame is made (slow to import)
     from sqlalchemy import Row
 
+    from storage.queries.records import DatedRevision
+
 
 HISTORY_COLUMNS = [
     "run_id",
@@ -149,7 +151,7 @@ def fleet_histories(archive: Archive, model: str, names: list[str]) -> list[Row]
 
 def latest_calibration(
     archive: Archive, serial: str, as_of: datetime | None = None
-) -> dict[str, Any] | None:
+) -> DatedRevision | None:
     """The latest valid calibration of a unit from a run started at or before `as_of`.
 
     Valid: current revision (not superseded) with verdict "pass" (module
@@ -163,8 +165,8 @@ def latest_calibration(
 
     Returns
     -------
-    None if there is none, else a dict: run_id, started_at, serial and the
-    calibration fields as in `run_summary` (parameters, checks, steps, document).
+    None if there is none, else a DatedRevision (storage.queries.records): run_id,
+    started_at, serial and the revision (parameters, checks, steps, document).
     """
     if as_of is not None and as_of.utcoffset() is None:
         raise ValueError(f"as_of: expected a time-zone-aware datetime, got {as_of!r}")
@@ -176,18 +178,14 @@ def latest_calibration(
     )
     if as_of is not None:
         stmt = stmt.where(Run.started_at <= as_of)
-    from storage.queries.runs import _cal_dict  # here: `calib history` needs no run questions
+    from storage.queries.runs import revision_record  # here: `calib history` needs no run questions
 
     with Session(archive.engine()) as s:
         row = s.execute(stmt).one_or_none()
         if row is None:
             return None
-        return {
-            "run_id": row.run_id,
-            "started_at": row.started_at,
-            "serial": serial,
-            **_cal_dict(s, row.CalibrationRow),
-        }
+        head = {"run_id": row.run_id, "started_at": row.started_at, "serial": serial}
+        return revision_record(s, row.CalibrationRow, **head)
 
 
 LATEST_COLUMNS = [

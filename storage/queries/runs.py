@@ -26,6 +26,16 @@ from storage.queries._common import (
     reading,
     select_run_calibrations,
 )
+from storage.queries.records import (
+    ArchivedFile,
+    DatedRevision,
+    EquipmentUse,
+    ParameterValue,
+    Revision,
+    RunSummary,
+    Step,
+    Unit,
+)
 from storage.schema import (
     CalibrationRow,
     CheckResultRow,
@@ -99,15 +109,8 @@ def _calibration(s: Session, run_pk: int, revision: int | None) -> CalibrationRo
     return cal
 
 
-_PROVENANCE = (
-    "settings_hash",
-    "settings",
-    "software_version",
-    "source_revision",
-    "verdict",
-    "profile_name",
-    "profile_version",
-)
+_PROVENANCE = ("settings_hash", "settings", "software_version", "source_revision", "verdict",
+               "profile_name", "profile_version")  # fmt: skip
 
 
 def _provenance(cal: Any) -> dict[str, Any]:
@@ -117,13 +120,8 @@ def _provenance(cal: Any) -> dict[str, Any]:
 
 
 # A revision's checks in the order written, its steps in order (calibration id ``cal``).
-CHECK_COLUMNS = (
-    CheckResultRow.name,
-    CheckResultRow.value,
-    CheckResultRow.limit,
-    CheckResultRow.passed,
-    CheckResultRow.detail,
-)
+CHECK_COLUMNS = (CheckResultRow.name, CheckResultRow.value, CheckResultRow.limit,
+                 CheckResultRow.passed, CheckResultRow.detail)  # fmt: skip
 _CHECKS_OF = (
     select(*CHECK_COLUMNS)
     .where(CheckResultRow.calibration_id == bindparam("cal"))
@@ -138,38 +136,28 @@ _STEPS_OF = (
 )  # fmt: skip
 
 
-def _cal_dict(s: Session, cal: CalibrationRow) -> dict[str, Any]:
+def revision_record(s: Session, cal: CalibrationRow, **run: Any) -> Revision:
+    """The revision `cal` with its parameters, checks and steps; given its `run` (run_id,
+    started_at, serial), a DatedRevision."""
+    from calib_core.calibration import CheckResult  # numpy: not for `calib audit`
+
     params = s.execute(
-        select(
-            ParameterRow.name,
-            *PARAMETER_VALUE,
-        )
+        select(ParameterRow.name, *PARAMETER_VALUE)
         .where(ParameterRow.calibration_id == cal.id)
         .order_by(ParameterRow.name, ParameterRow.temperature_c)
     ).all()
-    checks = s.execute(_CHECKS_OF, {"cal": cal.id}).all()
-    steps = s.execute(_STEPS_OF, {"cal": cal.id}).all()
-    return {
-        "calibration_id": cal.id,
-        "revision": cal.revision,
-        "created_at": cal.created_at,
+    return (DatedRevision if run else Revision)(
+        **run,
+        calibration_id=cal.id,
+        revision=cal.revision,
+        created_at=cal.created_at,
         **_provenance(cal),
-        "superseded_by": cal.superseded_by,
-        "parameters": [_dict(p) for p in params],
-        "checks": [_dict(c) for c in checks],
-        "steps": [_dict(s) for s in steps],
-        "document": cal.document,
-    }
-
-
-def _device_dict(run: Run, dev: Device) -> dict[str, Any]:
-    """The unit as the run describes it (its own model, manufacturer, specification)."""
-    return {
-        "serial": dev.serial,
-        "model": run.model,
-        "manufacturer": run.manufacturer,
-        "specification": run.specification,
-    }
+        superseded_by=cal.superseded_by,
+        parameters=[ParameterValue(*p) for p in params],
+        checks=[CheckResult(*c) for c in s.execute(_CHECKS_OF, {"cal": cal.id})],
+        steps=[Step(*row) for row in s.execute(_STEPS_OF, {"cal": cal.id})],
+        document=cal.document,
+    )
 
 
 # A run's raw files (bound parameter "run": the run's primary key), by name.
@@ -179,9 +167,22 @@ _RAW_FILES = (
     .where(RawFileRow.run_id == bindparam("run"))
     .order_by(RawFileRow.name)
 )  # fmt: skip
+_EQUIPMENT_USED = (
+    select(Equipment.kind, Equipment.model, Equipment.serial, Equipment.accuracy_class,
+           RunEquipment.calibration_due, RunEquipment.calibrated_on)
+    .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
+    .where(RunEquipment.run_id == bindparam("run"))
+    .order_by(Equipment.kind, Equipment.serial)
+)  # fmt: skip
 
 
-def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
+# The columns of a run that its summary gives as they are (RunSummary's first fields).
+_RUN_COLUMNS = ("run_id", "started_at", "operator", "procedure", "site", "gravity",
+                "environment", "tolerance_profile", "raw_hash", "run_dir", "samples_path",
+                "manifest_text", "created_at")  # fmt: skip
+
+
+def run_summary(archive: Archive, run_id: str) -> RunSummary:
     """Everything about one run and its current calibration revision.
 
     Parameters
@@ -191,8 +192,8 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
 
     Returns
     -------
-    dict with the run's fields, ``device``, ``equipment`` (with the due dates
-    valid at run time), ``raw_files``, ``revisions`` (count),
+    RunSummary (storage.queries.records): the run's fields, ``device``, ``equipment``
+    (with the due dates valid at run time), ``raw_files``, ``revisions`` (count),
     ``calibration`` (current revision: parameters, checks, steps, document) and
     ``validations`` (the current revision's validation records, storage.validation).
     Raises LookupError if there is no such run.
@@ -200,45 +201,18 @@ def run_summary(archive: Archive, run_id: str) -> dict[str, Any]:
     with Session(archive.engine()) as s:
         run, dev = _run_row(s, run_id)
         raw = s.execute(_RAW_FILES, {"run": run.id}).all()
-        equipment = s.execute(
-            select(
-                Equipment.kind,
-                Equipment.model,
-                Equipment.serial,
-                Equipment.accuracy_class,
-                RunEquipment.calibration_due,
-                RunEquipment.calibrated_on,
-            )
-            .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
-            .where(RunEquipment.run_id == run.id)
-            .order_by(Equipment.kind, Equipment.serial)
-        ).all()
-        revisions = s.execute(
-            select(CalibrationRow.revision).where(CalibrationRow.run_id == run.id)
-        ).all()
-        cal = _cal_dict(s, _calibration(s, run.id, None))
-    checked = validations(archive, run.run_id, cal["revision"])
-    return {
-        "run_id": run.run_id,
-        "started_at": run.started_at,
-        "operator": run.operator,
-        "procedure": run.procedure,
-        "site": run.site,
-        "gravity": run.gravity,
-        "environment": run.environment,
-        "tolerance_profile": run.tolerance_profile,
-        "raw_hash": run.raw_hash,
-        "run_dir": run.run_dir,
-        "samples_path": run.samples_path,
-        "manifest_text": run.manifest_text,
-        "created_at": run.created_at,
-        "device": _device_dict(run, dev),
-        "equipment": [_dict(e) for e in equipment],
-        "raw_files": [_dict(r) for r in raw],
-        "revisions": len(revisions),
-        "calibration": cal,
-        "validations": checked,
-    }
+        equipment = s.execute(_EQUIPMENT_USED, {"run": run.id}).all()
+        revisions = s.scalar(select(func.count()).where(CalibrationRow.run_id == run.id))
+        cal = revision_record(s, _calibration(s, run.id, None))
+    return RunSummary(
+        **{k: getattr(run, k) for k in _RUN_COLUMNS},
+        device=Unit(dev.serial, run.model, run.manufacturer, run.specification),
+        equipment=[EquipmentUse(*e) for e in equipment],
+        raw_files=[ArchivedFile(*r) for r in raw],
+        revisions=revisions,
+        calibration=cal,
+        validations=validations(archive, run.run_id, cal.revision),
+    )
 
 
 def export_calibration(
@@ -302,20 +276,8 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
     return (
         select(
             Run.id.label("run_pk"),
-            Run.run_id,
-            Run.started_at,
-            Run.operator,
-            Run.procedure,
-            Run.site,
-            Run.gravity,
-            Run.environment,
-            Run.tolerance_profile,
-            Run.raw_hash,
-            Run.run_dir,
-            Run.samples_path,
+            *(getattr(Run, k) for k in _RUN_COLUMNS),
             Run.samples_sha256,
-            Run.manifest_text,
-            Run.created_at,
             Device.serial,
             Run.model,
             Run.manufacturer,
@@ -324,13 +286,7 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
             CalibrationRow.revision,
             CalibrationRow.superseded_by,
             CalibrationRow.created_at.label("cal_created_at"),
-            CalibrationRow.settings_hash,
-            CalibrationRow.settings,
-            CalibrationRow.software_version,
-            CalibrationRow.source_revision,
-            CalibrationRow.verdict,
-            CalibrationRow.profile_name,
-            CalibrationRow.profile_version,
+            *(getattr(CalibrationRow, k) for k in _PROVENANCE),
             _NEWER.revision.label("superseding_revision"),
             ParameterRow.id.label("param_id"),
             *PARAMETER_VALUE,
@@ -345,13 +301,8 @@ def _lineage_head(current: bool):  # noqa: ANN202 - a select
 
 
 _LIN_HEAD = {True: _lineage_head(True), False: _lineage_head(False)}
-_LIN_EQUIPMENT = (
-    select(Equipment.kind, Equipment.serial, Equipment.model, Equipment.accuracy_class,
-           RunEquipment.calibrated_on, RunEquipment.calibration_due)
-    .join(RunEquipment, RunEquipment.equipment_id == Equipment.id)
-    .where(RunEquipment.run_id == bindparam("run"))
-    .order_by(Equipment.kind, Equipment.serial)
-)  # fmt: skip
+# A lineage's equipment fields, in its order.
+_LIN_EQUIPMENT = ("kind", "serial", "model", "accuracy_class", "calibrated_on", "calibration_due")
 
 
 def lineage(
@@ -403,7 +354,7 @@ def lineage(
             raise LookupError(f"run {run_id} revision {head.revision} has no parameter {name!r}")
         raw = conn.execute(_RAW_FILES, {"run": head.run_pk}).all()
         steps = conn.execute(_STEPS_OF, {"cal": head.cal_id}).all()
-        equipment = conn.execute(_LIN_EQUIPMENT, {"run": head.run_pk}).all()
+        equipment = conn.execute(_EQUIPMENT_USED, {"run": head.run_pk}).all()
     started = head.started_at
     return {
         "parameter": {
@@ -414,27 +365,12 @@ def lineage(
             ],
         },
         "run": {
-            "run_id": head.run_id,
-            "started_at": started,
-            "operator": head.operator,
-            "procedure": head.procedure,
-            "site": head.site,
-            "gravity": head.gravity,
-            "environment": head.environment,
-            "tolerance_profile": head.tolerance_profile,
-            "raw_hash": head.raw_hash,
-            "run_dir": head.run_dir,
-            "samples_path": head.samples_path,
+            **{k: getattr(head, k) for k in _RUN_COLUMNS[:-2]},  # as the summary's, and:
             "samples_sha256": head.samples_sha256,
             "manifest_text": head.manifest_text,
             "archived_at": head.created_at,
         },
-        "device": {
-            "serial": head.serial,
-            "model": head.model,
-            "manufacturer": head.manufacturer,
-            "specification": head.specification,
-        },
+        "device": Unit(head.serial, head.model, head.manufacturer, head.specification).to_dict(),
         "calibration": {
             "calibration_id": head.cal_id,
             "revision": head.revision,
@@ -445,7 +381,10 @@ def lineage(
         },
         "raw_files": [_dict(r) for r in raw],
         "steps": [_dict(s) for s in steps],
-        "equipment": [{**_dict(e), **_validity(started, e.calibration_due)} for e in equipment],
+        "equipment": [
+            {**{k: getattr(e, k) for k in _LIN_EQUIPMENT}, **_validity(started, e.calibration_due)}
+            for e in equipment
+        ],
     }
 
 
@@ -579,9 +518,8 @@ def repeatability_candidates(
     ]
 
 
-def calibration_revision(archive: Archive, run_id: str, revision: int) -> dict[str, Any] | None:
-    """One revision of a run, in the form of `storage.queries.latest_calibration` (run_id,
-    started_at, serial and the calibration fields); None when there is no such revision."""
+def calibration_revision(archive: Archive, run_id: str, revision: int) -> DatedRevision | None:
+    """One revision of a run with its run and unit; None when there is no such revision."""
     with Session(archive.engine()) as s:
         row = s.execute(
             select(Run.run_id, Run.started_at, Device.serial, CalibrationRow)
@@ -592,7 +530,7 @@ def calibration_revision(archive: Archive, run_id: str, revision: int) -> dict[s
         if row is None:
             return None
         head = {"run_id": row.run_id, "started_at": row.started_at, "serial": row.serial}
-        return {**head, **_cal_dict(s, row.CalibrationRow)}
+        return revision_record(s, row.CalibrationRow, **head)
 
 
 def _then(before_calibration: int | None) -> Any:
@@ -613,9 +551,11 @@ def judgement(archive: Archive, calibration_id: int) -> dict[str, Any]:
 
     Returns
     -------
-    dict: ``checks`` (name, value, limit, passed, detail, in the order written) and
-    ``check_step`` (settings, statistics; None for a revision without that step).
+    dict: ``checks`` (CheckResult, in the order written) and ``check_step`` (settings,
+    statistics; None for a revision without that step).
     """
+    from calib_core.calibration import CheckResult
+
     with Session(archive.engine()) as s:
         checks = s.execute(_CHECKS_OF, {"cal": calibration_id}).all()
         step = s.execute(
@@ -624,7 +564,7 @@ def judgement(archive: Archive, calibration_id: int) -> dict[str, Any]:
             )
         ).first()
     return {
-        "checks": [_dict(c) for c in checks],
+        "checks": [CheckResult(*c) for c in checks],
         "check_step": None if step is None else _dict(step),
     }
 
@@ -634,17 +574,15 @@ def current_judgements(archive: Archive, run_ids: list[str]) -> dict[str, dict[s
 
     Returns
     -------
-    run id -> {"verdict": str, "checks": [{name, value, limit, passed, detail}, ...]}.
+    run id -> {"verdict": str, "checks": [CheckResult, ...]}.
     """
+    from calib_core.calibration import CheckResult
+
     out: dict[str, dict[str, Any]] = {}
     with Session(archive.engine()) as s:
         for start in range(0, len(run_ids), IN_CHUNK):
             rows = s.execute(
-                select(
-                    Run.run_id,
-                    CalibrationRow.verdict,
-                    *CHECK_COLUMNS,
-                )
+                select(Run.run_id, CalibrationRow.verdict, *CHECK_COLUMNS)
                 .join(CalibrationRow, CalibrationRow.run_id == Run.id)
                 .outerjoin(CheckResultRow, CheckResultRow.calibration_id == CalibrationRow.id)
                 .where(Run.run_id.in_(run_ids[start : start + IN_CHUNK]), CURRENT)
@@ -654,12 +592,6 @@ def current_judgements(archive: Archive, run_ids: list[str]) -> dict[str, dict[s
                 judged = out.setdefault(r.run_id, {"verdict": r.verdict, "checks": []})
                 if r.name is not None:
                     judged["checks"].append(
-                        {
-                            "name": r.name,
-                            "value": r.value,
-                            "limit": r.limit,
-                            "passed": r.passed,
-                            "detail": r.detail,
-                        }
+                        CheckResult(r.name, r.value, r.limit, r.passed, r.detail)
                     )
     return out
