@@ -12,7 +12,8 @@ the turn is theta_s = +-2 pi n C_s e_z, so every sensor is a different
   patent's six IMUs: 18 equations for 12 unknowns), solved per output axis by
   `solve_accel_multi`;
 - gyro bias and g-sensitivity: the static gyro means w_s = b_g + G f_s
-  (`solve_gyro_static`);
+  (`solve_gyro_static`), each sensor's static record pooled with its turns' static data
+  (`_pooled_gyro`: the rests, and the cross-axis channels less their share of the turn);
 - gyro scale and misalignment: the vertical turn keeps f_s constant, so the
   static mean S_s is exactly the rest reading during the turn, and
   J_s+- = integral (w - S_s) dt = (I + M_g) theta_s+-. The difference
@@ -36,8 +37,9 @@ from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.recording import Recording
 from calib_core.settings import Setting, Settings, SettingsIn
 from calib_core.solvers.accel_models import solve_accel_multi
-from calib_core.solvers.integral import TURNS, noise_from_differences
+from calib_core.solvers.integral import TURNS, noise_from_differences, turn_rests
 from calib_core.solvers.multi_position import gyro_bias_and_gsens, segment_residual
+from calib_core.solvers.turn_motion import face_rest_stats
 from calib_core.stats import ChannelStats, channel_stats, trapezoid_weights
 
 PHASES = ("static", "ccw", "cw")
@@ -108,8 +110,9 @@ def solve_array(
         cal.add(name, acc_fit.params[name], acc_fit.std[name])
     cal.warnings += acc_fit.warnings
 
-    g_means = np.array([g.mean for g in gyr])
-    g_sems = np.array([g.sem for g in gyr])
+    pooled = _pooled_gyro(records, gyr)
+    g_means = np.array([g.mean for g in pooled])
+    g_sems = np.array([g.sem for g in pooled])
     gyro_bias_and_gsens(cal, f, g_means, g_sems)
 
     # Gyro matrix from the turns. Per sensor the ccw - cw difference
@@ -143,6 +146,28 @@ def _static_stats(records: list[ArrayRecords]) -> tuple[list[ChannelStats], list
         except ValueError as exc:
             raise ValueError(f"sensor {r.name} static ({r.static.source}): {exc}") from None
     return acc, gyr
+
+
+def _pooled_gyro(records: list[ArrayRecords], gyr: list[ChannelStats]) -> list[ChannelStats]:
+    """Gyro statistics of each sensor's static record pooled with the static data of its
+    turns, as the six-position family's regression estimator takes them
+    (`integral.turn_rests`): the rests outside the turn's motion window on the turning
+    channel, and each cross-axis channel less its proportion of the turn. The turn is
+    about the vertical, so the specific force, hence b_g + G f_s, is that of the static
+    record. A sensor whose vertical is not along one of its axes keeps its static record
+    alone (the turns' cross-axis reading is per sensor axis)."""
+    out = []
+    for r, g in zip(records, gyr, strict=True):
+        d = r.mount @ np.array([0.0, 0.0, 1.0])
+        j = int(np.argmax(np.abs(d)))
+        if not math.isclose(abs(d[j]), 1.0, abs_tol=1e-6):
+            out.append(g)
+            continue
+        up = f"{params.AXES[j]}_up"
+        turns = {f"{params.AXES[j]}_ccw": r.ccw, f"{params.AXES[j]}_cw": r.cw}
+        rests = turn_rests(turns, {up: g.mean}, {up: g.std})
+        out.append(face_rest_stats({up: r.static}, rests)[up])
+    return out
 
 
 def _fit_gyro_matrix(cal: Calibration, theta: np.ndarray, D: np.ndarray, U: np.ndarray) -> float:
