@@ -37,7 +37,14 @@ from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.recording import Recording
 from calib_core.settings import Setting, Settings, SettingsIn
 from calib_core.solvers.accel_models import solve_accel_multi
-from calib_core.solvers.integral import TURNS, noise_from_differences, turn_rests
+from calib_core.solvers.integral import (
+    TURNS,
+    clean_turn,
+    noise_from_differences,
+    record_spikes,
+    spike_counts,
+    turn_rests,
+)
 from calib_core.solvers.multi_position import gyro_bias_and_gsens, segment_residual
 from calib_core.solvers.turn_motion import face_rest_stats
 from calib_core.stats import ChannelStats, channel_stats, trapezoid_weights
@@ -110,7 +117,8 @@ def solve_array(
         cal.add(name, acc_fit.params[name], acc_fit.std[name])
     cal.warnings += acc_fit.warnings
 
-    pooled = _pooled_gyro(records, gyr)
+    pooled, replaced = _pooled_gyro(records, gyr)
+    record_spikes(cal, replaced)
     g_means = np.array([g.mean for g in pooled])
     g_sems = np.array([g.sem for g in pooled])
     gyro_bias_and_gsens(cal, f, g_means, g_sems)
@@ -148,15 +156,22 @@ def _static_stats(records: list[ArrayRecords]) -> tuple[list[ChannelStats], list
     return acc, gyr
 
 
-def _pooled_gyro(records: list[ArrayRecords], gyr: list[ChannelStats]) -> list[ChannelStats]:
+def _pooled_gyro(
+    records: list[ArrayRecords], gyr: list[ChannelStats]
+) -> tuple[list[ChannelStats], dict[str, dict]]:
     """Gyro statistics of each sensor's static record pooled with the static data of its
     turns, as the six-position family's regression estimator takes them
     (`integral.turn_rests`): the rests outside the turn's motion window on the turning
     channel, and each cross-axis channel less its proportion of the turn. The turn is
     about the vertical, so the specific force, hence b_g + G f_s, is that of the static
     record. A sensor whose vertical is not along one of its axes keeps its static record
-    alone (the turns' cross-axis reading is per sensor axis)."""
-    out = []
+    alone (the turns' cross-axis reading is per sensor axis).
+
+    Returns the statistics per sensor and the despiker's counts of the turn records whose
+    data were pooled (label -> `integral.spike_counts`, for `integral.record_spikes`): the
+    turns' static data are despiked, the counts are archived.
+    """
+    out, replaced = [], {}
     for r, g in zip(records, gyr, strict=True):
         d = r.mount @ np.array([0.0, 0.0, 1.0])
         j = int(np.argmax(np.abs(d)))
@@ -167,7 +182,10 @@ def _pooled_gyro(records: list[ArrayRecords], gyr: list[ChannelStats]) -> list[C
         turns = {f"{params.AXES[j]}_ccw": r.ccw, f"{params.AXES[j]}_cw": r.cw}
         rests = turn_rests(turns, {up: g.mean}, {up: g.std})
         out.append(face_rest_stats({up: r.static}, rests)[up])
-    return out
+        for sense, rec in (("ccw", r.ccw), ("cw", r.cw)):
+            n_spikes = clean_turn(rec, g.mean, j, g.std, "whole_record")[3]
+            replaced[f"{r.name}_{sense}"] = spike_counts(n_spikes, len(rec))
+    return out, replaced
 
 
 def _fit_gyro_matrix(cal: Calibration, theta: np.ndarray, D: np.ndarray, U: np.ndarray) -> float:
