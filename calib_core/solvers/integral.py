@@ -328,7 +328,7 @@ def solve_integral(
         std[:, j] = np.sqrt(sum(var[a].values()) + (dT * sem) ** 2) / denom
         C[:, j] = _signed_sum(J[a]) / denom  # (I + M_g) times the rotation axis
         if estimator == "regression":
-            C[:, j], std[:, j] = _regression_column(a, C[:, j], std[:, j], cleaned[a], used)
+            C[:, j], std[:, j] = regression_column(a, C[:, j], std[:, j], cleaned[a], used)
         if len(J[a]) == 2:
             closure[a] = float((J[a]["ccw"][j] + J[a]["cw"][j]) / 2.0)
     axes = _rotation_axes(rotations)
@@ -617,7 +617,7 @@ def _integrals(
     return J, var, duration, cleaned
 
 
-def _regression_column(
+def regression_column(
     axis: str,
     column: np.ndarray,
     std: np.ndarray,

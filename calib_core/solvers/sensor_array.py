@@ -18,7 +18,10 @@ the turn is theta_s = +-2 pi n C_s e_z, so every sensor is a different
   static mean S_s is exactly the rest reading during the turn, and
   J_s+- = integral (w - S_s) dt = (I + M_g) theta_s+-. The difference
   J_s+ - J_s- = (I + M_g) 4 pi n C_s e_z gives three equations per sensor,
-  linear in the rows of I + M_g (the sum carries no information on them).
+  linear in the rows of I + M_g (the sum carries no information on them). A sensor
+  turning about one of its axes has them read as the integral method's regression
+  estimator reads them (each turn over its motion window, the cross-axis entries as
+  slopes on the on-axis rate times the on-axis difference).
 
 The mountings must point e_z along all three sensor axes (in either sense)
 for every term to be separable; otherwise the solver says which terms are not.
@@ -42,6 +45,7 @@ from calib_core.solvers.integral import (
     clean_turn,
     noise_from_differences,
     record_spikes,
+    regression_column,
     spike_counts,
     turn_rests,
 )
@@ -127,7 +131,7 @@ def solve_array(
     # D_s = J+ - J- = (I + M_g) 4 pi n d_s (d_s = C_s e_z): the static mean's error
     # enters both integrals alike and cancels up to (T+ - T-), as in the integral
     # method, and the sensors' rows are independent.
-    theta, D, U, sigmas, durations, inferred = _turn_differences(records, gyr, turns)
+    theta, D, U, sigmas, durations, inferred, used = _turn_differences(records, gyr, turns)
     cond = _fit_gyro_matrix(cal, theta, D, U)
     _add_residuals(cal, records, f, theta, D, sigmas, durations)
     cal.info.update(
@@ -135,6 +139,7 @@ def solve_array(
             "sensors": [r.name for r in records],
             "condition_number": acc_fit.condition_number,
             "gyro_turn_condition_number": cond,
+            "misalignment_by": used,
             "acc_fit_chi2": [float(v) for v in acc_fit.chi2],
             "equations_acc": 3 * len(records),
             "turns": turns if turns is not None else sorted(set(inferred)),
@@ -286,24 +291,58 @@ def solve_sensor_array(
 
 def _turn_differences(records: list, gyr: list, turns: int | None) -> tuple:
     """Per sensor: the turn vector theta_s = 4 pi n d_s, the ccw - cw integral difference
-    D_s (rad), its standard uncertainty U_s, the gyro noise, the turns' duration (s) and
-    the inferred turn counts (when `turns` is None)."""
+    D_s (rad), its standard uncertainty U_s, the gyro noise, the turns' duration (s), the
+    inferred turn counts (when `turns` is None) and, per sensor turning about one of its
+    axes, how each cross-axis entry was read ("regression" or "integral").
+
+    A sensor whose vertical is along one of its axes has its turns read as the integral
+    method's regression estimator reads them (docs/methods.md 2.6): each turn integrated
+    over its motion window, each cross-axis entry the slope on the on-axis rate times the
+    on-axis difference where that holds and is the more precise (`integral.regression_column`);
+    any other sensor's over the whole records."""
     axis_up = np.array([0.0, 0.0, 1.0])
-    theta, D, U, sigmas, durations, inferred = [], [], [], [], [], []
+    theta, D, U, sigmas, durations, inferred, used = [], [], [], [], [], [], {}
     for r, g in zip(records, gyr, strict=True):
-        sigma = noise_from_differences(r.static.gyr)
-        w_ccw, w_cw = trapezoid_weights(r.ccw.t), trapezoid_weights(r.cw.t)
-        diff = w_ccw @ (r.ccw.gyr - g.mean) - w_cw @ (r.cw.gyr - g.mean)
-        d_t = float(w_ccw.sum() - w_cw.sum())
-        var = sigma**2 * (w_ccw @ w_ccw + w_cw @ w_cw) + (d_t * g.sem) ** 2
         d = r.mount @ axis_up
+        j = int(np.argmax(np.abs(d)))
+        if math.isclose(abs(d[j]), 1.0, abs_tol=1e-6):
+            diff, var, d_t, sigma, duration, cleaned = _windowed(r, g, j)
+            used[r.name] = {}
+            std = np.sqrt(var + (d_t * g.sem) ** 2)
+            column, std = regression_column(params.AXES[j], diff, std, cleaned, used[r.name])
+        else:
+            sigma = noise_from_differences(r.static.gyr)
+            w_ccw, w_cw = trapezoid_weights(r.ccw.t), trapezoid_weights(r.cw.t)
+            column = w_ccw @ (r.ccw.gyr - g.mean) - w_cw @ (r.cw.gyr - g.mean)
+            d_t = float(w_ccw.sum() - w_cw.sum())
+            std = np.sqrt(sigma**2 * (w_ccw @ w_ccw + w_cw @ w_cw) + (d_t * g.sem) ** 2)
+            duration = float(w_ccw.sum() + w_cw.sum())
         n = turns
         if n is None:
-            n = max(1, round(abs(diff @ d) / (4 * math.pi)))
+            n = max(1, round(abs(column @ d) / (4 * math.pi)))
             inferred.append(n)
         theta.append(4 * math.pi * n * d)
-        D.append(diff)
-        U.append(np.sqrt(var))
+        D.append(column)
+        U.append(std)
         sigmas.append(sigma)
-        durations.append(float(w_ccw.sum() + w_cw.sum()))
-    return np.array(theta), np.array(D), np.array(U), sigmas, durations, inferred
+        durations.append(duration)
+    return np.array(theta), np.array(D), np.array(U), sigmas, durations, inferred, used
+
+
+def _windowed(r: ArrayRecords, g: ChannelStats, j: int) -> tuple:
+    """The ccw - cw difference of one sensor's turns about its channel j, each integrated
+    over its motion window (`integral.clean_turn`, despiked): difference (3,) rad, its
+    noise variance (3,) rad^2, the windows' duration difference and sum (s), the noise std
+    (3,) and the despiked records with their noise (sense -> (gyr, sigma)), as
+    `integral.regression_column` takes them."""
+    parts, cleaned = {}, {}
+    for sense, rec in (("ccw", r.ccw), ("cw", r.cw)):
+        gyr_c, sigma, span, _ = clean_turn(rec, g.mean, j, g.std, "regression")
+        t = rec.t[span]
+        w = trapezoid_weights(t)
+        T = float(t[-1] - t[0])
+        parts[sense] = (w @ gyr_c[span] - g.mean * T, sigma**2 * float(w @ w), T)
+        cleaned[sense] = (gyr_c, sigma)
+    (j_p, v_p, t_p), (j_m, v_m, t_m) = parts["ccw"], parts["cw"]
+    sigma = np.max([c[1] for c in cleaned.values()], axis=0)
+    return j_p - j_m, v_p + v_m, t_p - t_m, sigma, t_p + t_m, cleaned
