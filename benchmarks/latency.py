@@ -37,6 +37,12 @@ each sample without its certificate, in pairs (`FLOW_PAIRS`, the order alternati
 (the larger sample), and ``flow_to_direct_ratio``, the median of their wall ratios (the
 smaller sample).
 
+``--batch-only``: ``calib process data_samples --workers 1`` (every sample run: the Prefect
+flow on one worker thread, certificates issued beside the next runs) against the same
+batch with ``CALIB_ISSUE_CERTIFICATES=0``, each into a new archive, in `BATCH_PAIRS` pairs
+(the order alternating): ``batch_cert_ratio``, the median of the pairs' wall-time ratios
+(target <= 1.3), with each side's median wall and CPU time.
+
 The command is started as the `calib` entry point of this interpreter's environment,
 after the project's packages are byte-compiled (`compile_project`) as an installation
 leaves them: with ``PYTHONDONTWRITEBYTECODE`` set and no ``__pycache__`` (an editable
@@ -69,6 +75,7 @@ SAMPLES = {
 REPEATS = 5
 PAIRS = 9
 FLOW_PAIRS = 3
+BATCH_PAIRS = 3
 BARE_IMPORTS = "import sqlalchemy.orm, typer, rich"
 SCIENCE_IMPORTS = "import numpy, scipy.linalg, pandas, sqlalchemy"
 
@@ -219,6 +226,38 @@ def flow_overhead(calib: list[str], env: dict[str, str], tmp: Path) -> dict[str,
     }
 
 
+def batch_certificates(calib: list[str], env: dict[str, str], tmp: Path) -> dict[str, float]:
+    """`calib process data_samples --workers 1`, with certificates and without (`--batch-only`)."""
+    without_env = {**env, "CALIB_ISSUE_CERTIFICATES": "0"}
+    pairs = []
+    for i in range(BATCH_PAIRS):
+        args = [*calib, "process", str(ROOT / "data_samples"), "--workers", "1", "--json"]
+        args += ["--no-progress", "--archive"]
+        with_cert = ([*args, str(tmp / f"with-{i}")], env)
+        without = ([*args, str(tmp / f"without-{i}")], without_env)
+        if i % 2:
+            w0, w1 = _timed(*without), _timed(*with_cert)
+        else:
+            w1, w0 = _timed(*with_cert), _timed(*without)
+        pairs.append((w1, w0))
+        log(
+            f"pair {i + 1}: with certificates {w1[0]:.2f} s (CPU {w1[1]:.2f}), without "
+            f"{w0[0]:.2f} s (CPU {w0[1]:.2f}); load {os.getloadavg()[0]:.2f}"
+        )
+    issued = len(list(tmp.glob("with-0/**/*_certificate.pdf")))
+    runs = len(list(tmp.glob("without-0/**/*_result.txt")))
+    if issued != runs or not runs:
+        raise RuntimeError(f"{issued} certificates issued for {runs} runs")
+    return {
+        "batch_cert_ratio": round(statistics.median(a[0] / b[0] for a, b in pairs), 3),
+        "batch_runs": runs,
+        "batch_with_certificates_wall_s": round(statistics.median(a[0] for a, _ in pairs), 2),
+        "batch_without_certificates_wall_s": round(statistics.median(b[0] for _, b in pairs), 2),
+        "batch_with_certificates_cpu_s": round(statistics.median(a[1] for a, _ in pairs), 2),
+        "batch_without_certificates_cpu_s": round(statistics.median(b[1] for _, b in pairs), 2),
+    }
+
+
 def _env() -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
     env.update(DO_NOT_TRACK="1", PREFECT_SERVER_ANALYTICS_ENABLED="false")
@@ -231,6 +270,7 @@ def main() -> None:
     compile_project()
     alone = {
         "--certificate-only": lambda tmp: certificate_cpu(SAMPLES["csv"], tmp),
+        "--batch-only": lambda tmp: batch_certificates(calib, env, tmp),
         "--flow-only": lambda tmp: flow_overhead(calib, env, tmp),
         "--history-only": lambda tmp: history_latency(calib, env, tmp),
     }

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from calib_core.calibration import CheckResult
+from calib_core.settings import Setting, SettingError, Settings
 
 CONDITION_PREFIX = "condition:"
 NOT_RECORDED = "not recorded"
@@ -104,6 +105,16 @@ DEFAULT_CONDITIONS: dict[str, tuple[float, float, str, str, str]] = {
         -_INF, 5.0, FAILURE, "table position deviation while held (feedback, worst segment)",
         "arcsec"),
 }  # fmt: skip
+# A profile's [conditions]: each key's table of limits in the key's unit.
+CONDITIONS = Settings(
+    *(Setting(k, "table", v[4], None, v[3]) for k, v in DEFAULT_CONDITIONS.items()),
+    noun="condition",
+)
+BOUNDS = Settings(
+    Setting("low", "number", "", None, "lowest value allowed"),
+    Setting("high", "number", "", None, "highest value allowed"),
+    noun="field",
+)
 
 
 @dataclass(frozen=True)
@@ -131,26 +142,20 @@ def conditions(overrides: Mapping[str, Mapping[str, float]] | None = None) -> di
     return out
 
 
-def parse_conditions(raw: Any) -> dict[str, dict[str, float]]:
+def parse_conditions(raw: Mapping[str, Any]) -> dict[str, dict[str, float]]:
     """Validate a profile's ``[conditions]`` table: key -> {low, high} numbers.
 
-    Raises ValueError naming ``conditions.<key>`` and what was expected.
+    Raises SettingError naming ``conditions.<key>`` and what was expected.
     """
-    if not isinstance(raw, dict):
-        raise ValueError("tolerance profile field 'conditions': expected a table")
+    CONDITIONS.validate(raw, "conditions", root="")
     out: dict[str, dict[str, float]] = {}
     for key, entry in raw.items():
         where = f"conditions.{key}"
-        if key not in DEFAULT_CONDITIONS:
-            known = list(DEFAULT_CONDITIONS)
-            raise ValueError(f"{where}: unknown condition; expected one of {known}")
-        if not isinstance(entry, dict) or not entry or set(entry) - {"low", "high"}:
-            raise ValueError(f"{where}: expected a table {{ low = <number>, high = <number> }}")
-        for side, value in entry.items():
-            if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
-                raise ValueError(f"{where}.{side}: expected a number, got {value!r}")
+        BOUNDS.validate(entry, where, root="")
+        if not entry:
+            raise SettingError(where, "expected a table { low = <number>, high = <number> }", "")
         if entry.get("low", -_INF) > entry.get("high", _INF):
-            raise ValueError(f"{where}: low ({entry['low']}) is above high ({entry['high']})")
+            raise SettingError(where, f"low ({entry['low']}) is above high ({entry['high']})", "")
         out[key] = {k: float(v) for k, v in entry.items()}
     return out
 

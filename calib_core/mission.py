@@ -180,6 +180,9 @@ def trajectory_from_segments(
     return Trajectory(t, pos, euler)
 
 
+AIDING_KINDS = ("none", "position", "velocity", "position+velocity")
+
+
 @dataclass(frozen=True)
 class Aiding:
     """External fixes while the aid is available.
@@ -203,7 +206,7 @@ class Aiding:
     height_std: float | None = None
 
     def __post_init__(self) -> None:
-        if self.kind not in ("none", "position", "velocity", "position+velocity"):
+        if self.kind not in AIDING_KINDS:
             raise ValueError(
                 f"aiding kind must be none, position, velocity or position+velocity, "
                 f"got {self.kind!r}"

@@ -11,20 +11,23 @@ import copy
 import dataclasses
 import difflib
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
+from datetime import date, datetime
 from typing import Any
 
 # What a solver's door takes: its procedure's typed values, or a mapping `Settings.parse` reads.
 SettingsIn = Any
 # The value kinds a setting may take, as TOML writes them, and their Python types.
-KINDS = ("number", "integer", "bool", "text", "table", "list")
-TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": dict, "list": list}
+TYPES = {"number": float, "integer": int, "bool": bool, "text": str, "table": dict, "list": list,
+         "date": date, "datetime": datetime}  # fmt: skip
 
 
 class SettingError(ValueError):
     """A key refused: ``key`` is its dotted name under `root` (``run.settings`` of a
-    manifest; "" for a tolerance profile's top level)."""
+    manifest; "" for a tolerance profile's top level), ``limits[2].unit`` for an entry of
+    an array of tables."""
 
     def __init__(self, key: str, problem: str, root: str = "run.settings") -> None:
         self.key = key
@@ -40,6 +43,8 @@ def _is_kind(value: Any, kind: str) -> bool:
         return isinstance(value, int | float) and not isinstance(value, bool)
     if kind == "integer":
         return isinstance(value, int) and not isinstance(value, bool)
+    if kind == "date":  # a calendar day, not a date and time
+        return isinstance(value, date) and not isinstance(value, datetime)
     return isinstance(value, TYPES[kind])
 
 
@@ -48,7 +53,8 @@ class Setting:
     """One setting of a procedure.
 
     name : the key in ``[run.settings]``.
-    kind : "number", "integer", "bool", "text", "table" or "list"; a tuple for a setting
+    kind : "number", "integer", "bool", "text", "table", "list", "date" or "datetime"; a
+        tuple for a setting
         that takes one of several kinds (e.g. "text" or "table").
     unit : the value's unit as the manifest writes it ("s", "deg/s", "deg", "1", "").
     default : the value when absent; None: absent means "not given" (inferred or unused).
@@ -94,7 +100,9 @@ class Setting:
             elif kind == "list" and self.length is not None:
                 parts.append(f"a list of {self.length} numbers")
             else:
-                parts.append({"bool": "true or false", "table": "a table"}.get(kind, kind))
+                words = {"bool": "true or false", "table": "a table", "date": "a date (YYYY-MM-DD)",
+                         "datetime": "a date and time (ISO 8601)"}  # fmt: skip
+                parts.append(words.get(kind, kind))
         return " or ".join(parts)
 
     def _number(self, kind: str) -> str:
@@ -139,14 +147,18 @@ class Settings:
     """A table's settings: the typed declaration its values are validated against.
 
     `type` is the frozen dataclass `parse` returns (named `name`), one attribute per
-    setting, typed by its kind (None where its default is None).
+    setting, typed by its kind (None where its default is None), defaulting to its default.
     """
 
-    def __init__(self, *settings: Setting, name: str = "Values") -> None:
+    def __init__(
+        self, *settings: Setting, name: str = "Values", noun: str = "setting", base: type = object
+    ) -> None:
         self.items: dict[str, Setting] = {s.name: s for s in settings}
-        self.type = dataclasses.make_dataclass(
+        self.noun = noun  # what its keys are called in a refusal ("field", "condition")
+        self.type = dataclasses.make_dataclass(  # `base`: the values' methods
             name,
-            [(s.name, s.annotation(), dataclasses.field(default=None)) for s in settings],
+            [(s.name, s.annotation(), _default(s.default)) for s in settings],
+            bases=(base,),
             frozen=True,
             namespace={"as_dict": dataclasses.asdict},
         )
@@ -169,10 +181,11 @@ class Settings:
         """
         where = f"{table}." if table else ""
         header = ".".join(p for p in (root, table) if p)
+        of = f" of [{header}]" if header else ""
         for key, value in given.items():
             if key not in self.items:
                 hint = did_you_mean(key, list(self.items))
-                raise SettingError(f"{where}{key}", f"unknown setting of [{header}]{hint}", root)
+                raise SettingError(f"{where}{key}", f"unknown {self.noun}{of}{hint}", root)
             try:
                 self.items[key].check(value)
             except SettingError as exc:
@@ -195,8 +208,48 @@ class Settings:
         return out
 
 
+def _default(value: Any) -> Any:
+    return dataclasses.field(default_factory=lambda: copy.deepcopy(value))
+
+
 def did_you_mean(key: str, known: list[str]) -> str:
     near = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
     if near:
         return f"; did you mean {near[0]}?"
     return f"; expected one of {', '.join(sorted(known))}"
+
+
+def key_path(dotted: str) -> tuple[str | int, ...]:
+    """``"limits[3].unit"`` -> ``("limits", 3, "unit")``."""
+    return tuple(int(p) if p.isdigit() else p for p in re.split(r"[.\[\]]+", dotted) if p)
+
+
+def key_line(text: str, path: tuple) -> int | None:
+    """1-based line of the key at dotted `path` (``("segments", 2, "end_s")``) in the TOML
+    `text` of a manifest or profile: the key assigned under its table's header (``[a.b]``,
+    the n-th ``[[a]]``, a ``[a.b]`` of the latest ``[[a]]``), or a dotted key under a
+    shorter header; None when it is spelt otherwise (inline tables)."""
+    keys = [p for p in path if not isinstance(p, int)]
+    counts: dict[str, int] = {}
+    header: tuple = ()
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.split("#", 1)[0].strip()
+        if stripped.startswith("["):
+            names = stripped.strip("[]").strip().split(".")
+            if stripped.startswith("[["):
+                counts[".".join(names)] = counts.get(".".join(names), -1) + 1
+            header = ()
+            for i in range(len(names)):  # each array of tables at its latest entry
+                at = counts.get(".".join(names[: i + 1]))
+                header += (names[i],) if at is None else (names[i], at)
+            continue
+        key = stripped.split("=", 1)[0].strip().strip("\"'")
+        if "=" not in stripped or not key:
+            continue
+        full = (*header, *key.replace('"', "").split("."))
+        named = [p for p in full if not isinstance(p, int)]
+        if named == keys and [p for p in full if isinstance(p, int)] == [
+            p for p in path if isinstance(p, int)
+        ]:
+            return number
+    return None

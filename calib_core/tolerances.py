@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import fnmatch
 import math
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 from calib_core import decision, params, units
 from calib_core.condition_rules import parse_conditions
 from calib_core.decision import DecisionRule
-from calib_core.settings import Setting, Settings
+from calib_core.settings import Setting, SettingError, Settings
 
 # Every canonical name a limit pattern may match.
 ALL_NAMES: list[str] = (
@@ -92,6 +91,42 @@ RECALL = Settings(
 PROTOCOL = Settings(Setting(
     "names", "text", "", "canonical", "the protocol also prints the MPU-6000 manual's names "
     "and signs (manual)", choices=PROTOCOL_NAMES))  # fmt: skip
+DECISION = Settings(
+    Setting("name", "text", "", "simple", "the ILAC-G8 rule", choices=decision.RULES),
+    Setting("r", "number", "1", 1.0, "guard band in expanded uncertainties (guard_band_r)"),
+)
+# A profile's keys; name, version and device_model must be given (`REQUIRED`).
+PROFILE = Settings(
+    Setting("name", "text", "", None, "the profile's name"),
+    Setting("version", ("text", "number"), "", None, "its version, archived with each verdict"),
+    Setting("device_model", "text", "", None, "the device type it is written for"),
+    Setting("limits", "list", "", None, "[[limits]]: pattern, unit, bound or low / high"),
+    *(Setting(k, "table", "", None, f"the table {meaning}") for k, meaning in {
+        "residual_limits": "of RESIDUAL_KEYS", "verification_limits": "of VERIFICATION_KEYS",
+        "repeatability": "REPEATABILITY", "decision_rule": "DECISION",
+        "conditions": "{ low, high } of each condition", "protocol": "PROTOCOL",
+        "recall": "RECALL"}.items()),
+    noun="field",
+)  # fmt: skip
+REQUIRED = ("name", "version", "device_model")
+LIMIT = Settings(
+    Setting("pattern", "text", "", None, "glob on canonical names, e.g. 'gyr.scale.*'"),
+    Setting("unit", "text", "", None, "unit of the bounds (parse_unit)"),
+    Setting("bound", "number", "", None, "symmetric limit -bound .. +bound"),
+    Setting("low", "number", "", None, "lower limit (absent: unbounded)"),
+    Setting("high", "number", "", None, "upper limit (absent: unbounded)"),
+    noun="field",
+)
+VALUE = Settings(
+    Setting("value", "number", "", None, "the limit", low=0.0, low_open=True),
+    Setting("unit", "text", "", None, "its unit (parse_unit)"),
+    noun="field",
+)
+RESIDUAL = Settings(*(Setting(k, "table", "", None, "{ value, unit }") for k in RESIDUAL_KEYS),
+                    noun="key")  # fmt: skip
+VERIFICATION = Settings(
+    *(Setting(k, "table", "", None, "{ value, unit }") for k in VERIFICATION_KEYS), noun="key"
+)
 DEFAULT_REPEATABILITY: dict[str, float | int] = REPEATABILITY.defaults()
 DEFAULT_RECALL: dict[str, str | float] = RECALL.defaults()
 
@@ -181,10 +216,6 @@ class ParameterLimit:
 
 
 # The top-level fields of a profile document.
-_PROFILE_FIELDS = "name version device_model limits residual_limits verification_limits "
-_PROFILE_FIELDS += "repeatability decision_rule conditions protocol recall"
-
-
 @dataclass
 class ToleranceProfile:
     """Tolerances of one device type, SI units.
@@ -300,42 +331,25 @@ class ToleranceProfile:
         """
         if not isinstance(doc, dict):
             raise ValueError(f"tolerance profile: expected a table, got {type(doc).__name__}")
-        known = set(_PROFILE_FIELDS.split())
-        unknown = sorted(set(doc) - known)
-        if unknown:
-            raise ValueError(
-                f"tolerance profile: unknown field(s) {unknown}; expected {sorted(known)}"
-            )
-        header = {}
-        for key in ("name", "version", "device_model"):
-            value = doc.get(key)
-            if isinstance(value, bool) or not isinstance(value, str | int | float) or value == "":
-                raise ValueError(f"tolerance profile field {key!r}: expected a non-empty string")
-            header[key] = str(value)
-        raw_limits = doc.get("limits", [])
-        if not isinstance(raw_limits, list):
-            raise ValueError("tolerance profile field 'limits': expected an array of tables")
-        limits = [_parse_limit(entry, f"limits[{i}]") for i, entry in enumerate(raw_limits)]
-        residual = _positive_limits(
-            doc.get("residual_limits", {}), "residual_limits", RESIDUAL_KEYS
-        )
+        PROFILE.validate(doc, "", root="")
+        for key in REQUIRED:
+            if doc.get(key) in (None, ""):
+                raise SettingError(key, "expected a non-empty string", root="")
         return cls(
-            parameter_limits=limits,
-            residual_limits=residual,
-            verification_limits=_positive_limits(
-                doc.get("verification_limits", {}), "verification_limits", VERIFICATION_KEYS
-            ),
-            repeatability=_repeatability(doc.get("repeatability", {})),
+            *(str(doc[key]) for key in REQUIRED),
+            parameter_limits=[
+                _limit(e, f"limits[{i}]") for i, e in enumerate(doc.get("limits", []))
+            ],
+            residual_limits=_positive_limits(doc, "residual_limits", RESIDUAL),
+            verification_limits=_positive_limits(doc, "verification_limits", VERIFICATION),
+            repeatability=_repeatability(doc),
             decision_rule=_decision_rule(doc.get("decision_rule", {})),
             conditions=parse_conditions(doc.get("conditions", {})),
-            protocol_names=_section(doc.get("protocol", {}), "protocol", PROTOCOL).get(
-                "names", "canonical"
-            ),
+            protocol_names=_section(doc, "protocol", PROTOCOL).get("names", "canonical"),
             recall={
                 k: v if k == "method" else float(v)
-                for k, v in _section(doc.get("recall", {}), "recall", RECALL).items()
+                for k, v in _section(doc, "recall", RECALL).items()
             },
-            **header,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -377,134 +391,92 @@ class ToleranceProfile:
         return doc
 
 
-def _decision_rule(raw: Any) -> DecisionRule:
+def _decision_rule(raw: dict[str, Any]) -> DecisionRule:
     """``decision_rule = { name = ..., r = ... }`` of a profile; simple acceptance when empty."""
-    if not isinstance(raw, dict) or set(raw) - {"name", "r"}:
-        raise ValueError(
-            "tolerance profile field 'decision_rule': expected a table with 'name' "
-            f"(simple, guard_band, guard_band_r) and optional 'r', got {raw!r}"
-        )
-    r = raw.get("r", 1.0)
-    if isinstance(r, bool) or not isinstance(r, int | float):
-        raise ValueError(f"tolerance profile field 'decision_rule.r': expected a number, got {r!r}")
+    DECISION.validate(raw, "decision_rule", root="")
+    values = DECISION.merged(raw)
     try:
-        return DecisionRule(str(raw.get("name", "simple")), float(r))
+        return DecisionRule(values["name"], float(values["r"]))
     except ValueError as exc:
-        raise ValueError(f"tolerance profile field 'decision_rule': {exc}") from exc
+        raise SettingError("decision_rule", str(exc), root="") from None
 
 
-def _entries(raw: Any, field_name: str, known: Iterable[str]) -> Iterator[tuple[str, Any, str]]:
-    """(key, value, "field.key") of the table `raw`, refusing a non-table or a key not in
-    `known` (ValueError naming the field and key)."""
-    if not isinstance(raw, dict):
-        raise ValueError(f"tolerance profile field {field_name!r}: expected a table")
-    for key, value in raw.items():
-        where = f"{field_name}.{key}"
-        if key not in known:
-            raise ValueError(f"{where}: unknown key; expected one of {list(known)}")
-        yield key, value, where
+def _section(doc: dict[str, Any], name: str, table: Settings) -> dict[str, Any]:
+    """A profile's table `name` as given, checked against its declaration (SettingError
+    naming ``name.key``)."""
+    raw = doc.get(name, {})
+    table.validate(raw, name, root="")
+    return dict(raw)
 
 
-def _positive_limits(raw: Any, field_name: str, keys: tuple[str, ...]) -> dict[str, float]:
+def _positive_limits(doc: dict[str, Any], name: str, table: Settings) -> dict[str, float]:
     """A table of positive limits as ``{value, unit}`` entries, keyed "acc..." / "gyr...", SI out.
 
     Used for ``[residual_limits]`` (acc_std, gyr_mean, ...) and ``[verification_limits]``
     (acc, gyr); the key's sensor prefix decides the unit's dimension.
     """
     out: dict[str, float] = {}
-    for key, entry, where in _entries(raw, field_name, keys):
-        value, factor = _value_in_si(entry, where, _RESIDUAL_DIMENSION[key.split("_")[0]])
-        if value <= 0:
-            raise ValueError(f"{where}.value: expected a positive number, got {value}")
-        out[key] = value * factor
+    for key, entry in _section(doc, name, table).items():
+        where = f"{name}.{key}"
+        VALUE.validate(entry, where, root="")
+        if set(entry) != {"value", "unit"}:
+            raise SettingError(where, "expected a table { value = <number>, unit = <string> }", "")
+        dimension = _RESIDUAL_DIMENSION[key.split("_")[0]]
+        dim, factor = _unit(entry["unit"], where)
+        if dim != dimension:
+            problem = f"{entry['unit']!r} is a unit of {dim}, expected a unit of {dimension}"
+            raise SettingError(f"{where}.unit", problem, root="")
+        out[key] = float(entry["value"]) * factor
     return out
 
 
-def _section(raw: Any, name: str, table: Settings) -> dict[str, Any]:
-    """A profile's table `name` as given, checked against its declaration (SettingError
-    naming ``name.key``)."""
-    if not isinstance(raw, dict):
-        raise ValueError(f"tolerance profile field {name!r}: expected a table, got {raw!r}")
-    table.validate(raw, name, root="")
-    return dict(raw)
-
-
-def _repeatability(raw: Any) -> dict[str, float | int]:
+def _repeatability(doc: dict[str, Any]) -> dict[str, float | int]:
     """``[repeatability]`` (`REPEATABILITY`), max_runs not below min_runs."""
-    out = _section(raw, "repeatability", REPEATABILITY)
+    out = _section(doc, "repeatability", REPEATABILITY)
     merged = {**DEFAULT_REPEATABILITY, **out}
     if merged["max_runs"] < merged["min_runs"]:
-        raise ValueError("repeatability.max_runs: must not be below min_runs")
+        raise SettingError("repeatability.max_runs", "must not be below min_runs", root="")
     return {k: v if k in ("min_runs", "max_runs") else float(v) for k, v in out.items()}
 
 
-def _number(entry: dict[str, Any], key: str, where: str) -> float:
-    value = entry[key]
-    if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
-        raise ValueError(f"{where}.{key}: expected a number, got {value!r}")
-    return float(value)
-
-
-def _parse_entry_unit(unit: Any, where: str) -> tuple[str, float]:
+def _unit(unit: str, where: str) -> tuple[str, float]:
     """`parse_unit` of an entry's ``unit`` field, errors naming ``<where>.unit``."""
-    if not isinstance(unit, str):
-        raise ValueError(f"{where}.unit: expected a string, got {unit!r}")
     try:
         return parse_unit(unit)
     except ValueError as exc:
-        raise ValueError(f"{where}.unit: {exc}") from None
+        raise SettingError(f"{where}.unit", str(exc), root="") from None
 
 
-def _value_in_si(entry: Any, where: str, dimension: str) -> tuple[float, float]:
-    if not isinstance(entry, dict) or set(entry) != {"value", "unit"}:
-        raise ValueError(f"{where}: expected a table {{ value = <number>, unit = <string> }}")
-    unit = entry["unit"]
-    dim, factor = _parse_entry_unit(unit, where)
-    if dim != dimension:
-        raise ValueError(
-            f"{where}.unit: {unit!r} is a unit of {dim}, expected a unit of {dimension}"
-        )
-    return _number(entry, "value", where), factor
-
-
-def _parse_limit(entry: Any, where: str) -> ParameterLimit:
+def _limit(entry: Any, where: str) -> ParameterLimit:
+    """One ``[[limits]]`` entry (`LIMIT`) in SI."""
     if not isinstance(entry, dict):
-        raise ValueError(f"{where}: expected a table with pattern, unit and bound or low/high")
-    allowed = {"pattern", "unit", "bound", "low", "high"}
-    unknown = sorted(set(entry) - allowed)
-    if unknown:
-        raise ValueError(f"{where}: unknown field(s) {unknown}; expected {sorted(allowed)}")
+        raise SettingError(where, "expected a table with pattern, unit and bound or low/high", "")
+    LIMIT.validate(entry, where, root="")
     pattern = entry.get("pattern")
-    if not isinstance(pattern, str) or not pattern:
-        raise ValueError(f"{where}.pattern: expected a glob on parameter names like 'gyr.scale.*'")
-    matched = [n for n in ALL_NAMES if fnmatch.fnmatchcase(n, pattern)]
-    if not matched:
-        raise ValueError(f"{where}.pattern: {pattern!r} matches no canonical parameter name")
-    dims = {_FAMILY_DIMENSION[family(n)] for n in matched}
-    if len(dims) > 1:
-        raise ValueError(
-            f"{where}.pattern: {pattern!r} matches parameters of different units ({sorted(dims)}); "
-            "split it into one limit per kind"
-        )
+    if not pattern:
+        raise SettingError(f"{where}.pattern", "expected a glob on names like 'gyr.scale.*'", "")
+    dims = {_FAMILY_DIMENSION[family(n)] for n in ALL_NAMES if fnmatch.fnmatchcase(n, pattern)}
+    if len(dims) != 1:
+        problem = (f"{pattern!r} matches no canonical parameter name" if not dims else
+                   f"{pattern!r} matches parameters of different units ({sorted(dims)}); "
+                   "split it into one limit per kind")  # fmt: skip
+        raise SettingError(f"{where}.pattern", problem, root="")
     if "unit" not in entry:
-        raise ValueError(f"{where}.unit: missing; the unit of the bounds must be given")
-    unit = entry["unit"]
-    dim, factor = _parse_entry_unit(unit, where)
-    expected = dims.pop()
-    if dim != expected:
-        raise ValueError(
-            f"{where}.unit: {unit!r} is a unit of {dim}, but {pattern!r} needs a unit of {expected}"
+        raise SettingError(f"{where}.unit", "missing; the unit of the bounds must be given", "")
+    dim, factor = _unit(entry["unit"], where)
+    if dim != (expected := dims.pop()):
+        problem = (
+            f"{entry['unit']!r} is a unit of {dim}, but {pattern!r} needs a unit of {expected}"
         )
-    if "bound" in entry:
-        if "low" in entry or "high" in entry:
-            raise ValueError(f"{where}: give either bound or low/high, not both")
-        bound = abs(_number(entry, "bound", where))
-        low, high = -bound, bound
-    elif "low" in entry or "high" in entry:
-        low = _number(entry, "low", where) if "low" in entry else -math.inf
-        high = _number(entry, "high", where) if "high" in entry else math.inf
-        if low > high:
-            raise ValueError(f"{where}: low ({low}) is above high ({high})")
-    else:
-        raise ValueError(f"{where}: missing bound (or low / high)")
+        raise SettingError(f"{where}.unit", problem, root="")
+    sides = {"low", "high"} & set(entry)
+    if ("bound" in entry) == bool(sides):
+        problem = (
+            "give either bound or low/high, not both" if sides else "missing bound (or low / high)"
+        )
+        raise SettingError(where, problem, root="")
+    bound = abs(entry.get("bound", math.inf))
+    low, high = float(entry.get("low", -bound)), float(entry.get("high", bound))
+    if low > high:
+        raise SettingError(where, f"low ({low}) is above high ({high})", root="")
     return ParameterLimit(pattern, low * factor, high * factor)

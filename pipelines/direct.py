@@ -79,7 +79,8 @@ def process_in_process(
     on_progress: ProgressCallback | None = None,
 ) -> list[dict[str, Any]]:
     """Process `sources` one after the other in this process; outcomes in their order
-    (each run's certificate issued beside the next run, all of them by the return).
+    (each run's certificate issued beside the next run, all of them by the return; one
+    not issued is said in its run's message).
 
     A transient failure (a locked database, a vanished share) is retried as the batch flow
     retries it (RETRIES more attempts after RETRY_DELAYS_S); then the run is reported failed.
@@ -90,10 +91,11 @@ def process_in_process(
 
     arch = resolve_archive(archive)
     arch.upgrade()
-    with issuing_beside():  # each certificate beside the next run
-        return run_in_process(
+    with issuing_beside() as certificates:  # each certificate beside the next run
+        outcomes = run_in_process(
             sources,
             lambda source: process_run_for_batch(source, arch.url, str(arch.root)),
             lambda source, exc: gave_up(str(source.folder), source.serial or "", exc),
             on_progress,
         )
+    return certificates.reported(outcomes)

@@ -268,7 +268,10 @@ def process_batch(
         runner,
         f" at {scheduler}" if scheduler else "",
     )
-    with _batch_runner(runner, workers, scheduler, has_runs=bool(sources)) as task_runner:
+    with _batch_runner(runner, workers, scheduler, has_runs=bool(sources)) as (
+        task_runner,
+        certificates,
+    ):
         arch = resolve_archive(archive)
         arch.upgrade()  # once, before any worker archives
         parameters = [
@@ -282,6 +285,7 @@ def process_batch(
         )
         if sources:  # runs judged again by later tasks (pipelines.rejudge) say so
             outcomes = as_archived_now(arch, outcomes)
+    outcomes = certificates.reported(outcomes)  # those not issued beside the runs say so
     _summary_artifact(outcomes)
     return outcomes
 
@@ -292,14 +296,14 @@ def _batch_runner(
 ) -> Iterator[Any]:
     """The batch's started task runner, with the process runner's worker processes (started
     first, so that they start while the flow gets ready; only for a batch that `has_runs`)
-    and the certificates issued beside the runs (`pipelines.issuing`). On leaving, it waits
-    for the tasks, then for the certificates."""
+    and the certificates issued beside the runs (`pipelines.issuing`, given with the runner).
+    On leaving, it waits for the tasks, then for the certificates."""
     with contextlib.ExitStack() as stack:
         if has_runs:
             stack.enter_context(_work_in_processes(runner, workers))
-        stack.enter_context(issuing_beside())
+        certificates = stack.enter_context(issuing_beside())
         stack.enter_context(_api_for_workers(runner))
-        yield stack.enter_context(make_task_runner(runner, workers, scheduler))
+        yield stack.enter_context(make_task_runner(runner, workers, scheduler)), certificates
 
 
 def _run_tasks(
@@ -417,7 +421,10 @@ def reprocess_batch(
     for n, outcome in enumerate(skipped, 1):
         if callback is not None:
             callback(n, len(skipped) + len(todo), outcome)
-    with _batch_runner(runner, workers, scheduler, has_runs=bool(todo)) as task_runner:
+    with _batch_runner(runner, workers, scheduler, has_runs=bool(todo)) as (
+        task_runner,
+        certificates,
+    ):
         parameters = [
             {"run_id": r, "archive_url": arch.url, "archive_root": str(arch.root), "reason": reason}
             for r in todo
@@ -429,6 +436,7 @@ def reprocess_batch(
             lambda i, exc: gave_up(f"archive:{todo[i]}", "", exc, todo[i]),
             done_before=len(skipped),
         )
+    outcomes = certificates.reported(outcomes)
     _summary_artifact(outcomes)
     return outcomes
 
@@ -467,7 +475,7 @@ def recompute_batch(
     check_runner(runner, workers, scheduler)
     arch = resolve_archive(archive)
     get_run_logger().info("%d run(s) to recompute; runner %s", len(run_ids), runner)
-    with _batch_runner(runner, workers, scheduler, has_runs=bool(run_ids)) as task_runner:
+    with _batch_runner(runner, workers, scheduler, has_runs=bool(run_ids)) as (task_runner, _):
         parameters = [
             {"run_id": r, "archive_url": arch.url, "archive_root": str(arch.root)} for r in run_ids
         ]

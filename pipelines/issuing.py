@@ -8,6 +8,11 @@ issues the batch's certificates in turn while the next runs are read and solved
 (typesetting releases the interpreter), and leaving the block waits for every one of
 them: a batch ends with its certificates issued, as before. Worker processes (the
 process runner, Dask) issue theirs as each run ends, in parallel with the other workers.
+
+A certificate that cannot be issued leaves its run archived (an issue writes its files
+and its audit event together, or neither: `pipelines.reports.issue`); the run's outcome
+says why in its message (`with_note`), whether it was issued alone or beside the batch
+(`Certificates.reported`).
 """
 
 from __future__ import annotations
@@ -16,8 +21,10 @@ import contextlib
 import logging
 import os
 from collections.abc import Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from contextvars import ContextVar
+from dataclasses import dataclass, field
+from typing import Any
 
 from storage import write_failures
 from storage.db import Archive
@@ -26,13 +33,44 @@ log = logging.getLogger(__name__)
 
 ISSUE_ENV = "CALIB_ISSUE_CERTIFICATES"  # "0": no certificate at archive time
 
-# The batch's certificate thread, seen by the batch's task threads (Prefect copies the
-# context into each task run).
-_beside: ContextVar[ThreadPoolExecutor | None] = ContextVar("calib_certificates", default=None)
+
+@dataclass
+class Certificates:
+    """The certificates queued in one batch (`issuing_beside`) on the batch's thread."""
+
+    thread: ThreadPoolExecutor
+    queued: list[tuple[str, Future]] = field(default_factory=list)  # (run id, its issue)
+
+    def failures(self) -> dict[str, str]:
+        """Run id -> why its certificate was not issued, once every queued one is done."""
+        return {run_id: why for run_id, f in self.queued if (why := f.result()) is not None}
+
+    def reported(self, outcomes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """The batch's outcomes, each run whose certificate was not issued saying why in
+        its message (waits for the queued certificates)."""
+        failures = self.failures()
+        return [
+            {**o, "message": with_note(o["message"], o["run_id"], failures[o["run_id"]])}
+            if o["run_id"] in failures
+            else o
+            for o in outcomes
+        ]
 
 
-def _issue_logged(archive: Archive, run_id: str) -> None:
-    """Issue the run's certificate; a failure is logged with how to issue it later."""
+# The batch's certificates, seen by the batch's task threads (Prefect copies the context
+# into each task run).
+_beside: ContextVar[Certificates | None] = ContextVar("calib_certificates", default=None)
+
+
+def with_note(message: str | None, run_id: str, why: str) -> str:
+    """An outcome's `message` with the note that the run's certificate was not issued."""
+    note = f"certificate not issued: {why}; issue it with `calib report {run_id}`"
+    return f"{message}; {note}" if message else note
+
+
+def _issue_logged(archive: Archive, run_id: str) -> str | None:
+    """Issue the run's certificate; a failure is logged with how to issue it later and
+    returned (what went wrong), None when it was issued."""
     from pipelines.reports.issue import issue
 
     try:
@@ -46,37 +84,53 @@ def _issue_logged(archive: Archive, run_id: str) -> None:
             problem,
             run_id,
         )
+        return problem
+    return None
 
 
-def issue_certificate(archive: Archive, run_id: str) -> Future | None:
+def issue_certificate(archive: Archive, run_id: str) -> str | None:
     """Issue the archived revision's certificate (HTML and PDF, `pipelines.reports.issue`).
 
     The run stays archived if this fails (a full disk, a read-only folder): the failure
     is logged with how to issue it later (`calib report RUN`). Environment
     ``CALIB_ISSUE_CERTIFICATES=0`` leaves the issue to `calib report` (bulk loads, test
     suites). Inside `issuing_beside` the issue is queued on the batch's certificate
-    thread (its future returned); else it is done before this returns (None).
+    thread; else it is done before this returns.
+
+    Returns
+    -------
+    Why the certificate was not issued; None when it was, was left to `calib report`, or
+    was queued (the batch reports its failures: `Certificates.reported`).
     """
     if os.environ.get(ISSUE_ENV, "1").strip() == "0":
         return None
-    thread = _beside.get()
-    if thread is None:
-        _issue_logged(archive, run_id)
-        return None
-    return thread.submit(_issue_logged, archive, run_id)
+    batch = _beside.get()
+    if batch is None:
+        return _issue_logged(archive, run_id)
+    batch.queued.append((run_id, batch.thread.submit(_issue_logged, archive, run_id)))
+    return None
 
 
 @contextlib.contextmanager
-def issuing_beside() -> Iterator[None]:
+def issuing_beside() -> Iterator[Certificates]:
     """Within the block, certificates are issued on one thread beside the caller's next
-    runs; leaving it waits until every one is issued (also when the block raises)."""
-    if _beside.get() is not None:  # a batch inside a batch: the outer one's thread
-        yield
+    runs; leaving it waits until every one is issued (also when the block raises). The
+    `Certificates` it gives report their failures once the block is left."""
+    outer = _beside.get()
+    if outer is not None:  # a batch inside a batch: the outer one's thread
+        batch = Certificates(outer.thread)
+        token = _beside.set(batch)
+        try:
+            yield batch
+        finally:
+            _beside.reset(token)
+            outer.queued += batch.queued
+            wait([issued for _, issued in batch.queued])  # its own, as the block promises
         return
-    thread = ThreadPoolExecutor(1, thread_name_prefix="calib-certificates")
-    token = _beside.set(thread)
+    batch = Certificates(ThreadPoolExecutor(1, thread_name_prefix="calib-certificates"))
+    token = _beside.set(batch)
     try:
-        yield
+        yield batch
     finally:
         _beside.reset(token)
-        thread.shutdown(wait=True)
+        batch.thread.shutdown(wait=True)

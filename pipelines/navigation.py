@@ -13,74 +13,78 @@ import os
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from calib_core import navigation
 from calib_core.calibration import Calibration
 from calib_core.mission import (
+    AIDING_KINDS,
     Aiding,
     MissionProfile,
     Segment,
     Trajectory,
     trajectory_from_segments,
 )
+from calib_core.settings import Setting, SettingError, Settings, key_line, key_path
 from storage import queries
 from storage.db import Archive
 from storage.naming import check_safe_name
+from storage.run_input import typed
 
 SHIPPED = Path(__file__).resolve().parent / "navprofiles"
 TRAJECTORY_COLUMNS = ("t_s", "north_m", "east_m", "down_m", "roll_deg", "pitch_deg", "yaw_deg")
 THERMAL_POINTS = 11  # temperatures sampled across the profile's range
 
 
-class _NavSection(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class _Initial(_NavSection):
-    attitude_deg: list[float] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3)
-    velocity_mps: list[float] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3)
-    position_m: list[float] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3)
-
-
-class _Aiding(_NavSection):
-    kind: Literal["none", "position", "velocity", "position+velocity"] = "none"
-    interval_s: float = Field(1.0, gt=0)
-    position_std_m: float = Field(2.0, gt=0)
-    velocity_std_mps: float = Field(0.1, gt=0)
-    until_s: float | None = Field(None, ge=0)
-    height_std_m: float | None = Field(None, gt=0)
-
-
-class _Segment(_NavSection):
-    duration_s: float = Field(gt=0)
-    forward_accel_mps2: float = 0.0
-    yaw_rate_dps: float = 0.0
-    climb_accel_mps2: float = 0.0
-
-
-class _Trajectory(_NavSection):
-    heading_deg: float = 0.0
-    tilt_with_acceleration: bool = False
-    segments: list[_Segment] = []
-    file: str | None = None
-
-
-class _Profile(_NavSection):
-    name: str
-    description: str = ""
-    duration_s: float = Field(gt=0)
-    step_s: float = Field(0.5, gt=0)
-    latitude_deg: float = Field(45.0, ge=-89, le=89)
-    height_m: float = 0.0
-    temperature_c: list[float] = Field([20.0, 25.0], min_length=2, max_length=2)
-    position_limit_m: float = Field(10.0, gt=0)
-    initial: _Initial = _Initial()
-    aiding: _Aiding = _Aiding()
-    trajectory: _Trajectory
+_POSITIVE = {"low": 0.0, "low_open": True}
+_ZERO3 = [0.0, 0.0, 0.0]
+# A mission profile file (docs/navigation.md, "Mission profiles"): its top level, [initial]
+# (one-sigma initial errors), [aiding], [trajectory] and the trajectory's segments.
+PROFILE = Settings(
+    Setting("name", "text", "", None, "the profile's name (required)"),
+    Setting("description", "text", "", "", "one line for people"),
+    Setting("duration_s", "number", "s", None, "how long it runs (required)", **_POSITIVE),
+    Setting("step_s", "number", "s", 0.5, "propagation step", **_POSITIVE),
+    Setting("latitude_deg", "number", "deg", 45.0, "where", low=-89.0, high=89.0),
+    Setting("height_m", "number", "m", 0.0, "height above the ellipsoid"),
+    Setting("temperature_c", "list", "degC", [20.0, 25.0], "temperature range", length=2),
+    Setting("position_limit_m", "number", "m", 10.0, "horizontal error allowed", **_POSITIVE),
+    Setting("initial", "table", "", {}, "INITIAL"),
+    Setting("aiding", "table", "", {}, "AIDING"),
+    Setting("trajectory", "table", "", None, "TRAJECTORY (required)"),
+    noun="field",
+)
+INITIAL = Settings(
+    Setting("attitude_deg", "list", "deg", _ZERO3, "roll, pitch, yaw", length=3),
+    Setting("velocity_mps", "list", "m/s", _ZERO3, "north, east, down", length=3),
+    Setting("position_m", "list", "m", _ZERO3, "north, east, down", length=3),
+    noun="field",
+)
+AIDING = Settings(
+    Setting("kind", "text", "", "none", "what the fixes give", choices=AIDING_KINDS),
+    Setting("interval_s", "number", "s", 1.0, "time between fixes", **_POSITIVE),
+    Setting("position_std_m", "number", "m", 2.0, "a position fix's sigma", **_POSITIVE),
+    Setting("velocity_std_mps", "number", "m/s", 0.1, "a velocity fix's sigma", **_POSITIVE),
+    Setting("until_s", "number", "s", None, "fixes end (None: never)", low=0.0),
+    Setting("height_std_m", "number", "m", None, "a height fix's sigma", **_POSITIVE),
+    noun="field",
+)
+TRAJECTORY = Settings(
+    Setting("heading_deg", "number", "deg", 0.0, "initial heading"),
+    Setting("tilt_with_acceleration", "bool", "", False, "the body tilts as it accelerates"),
+    Setting("segments", "list", "", [], "SEGMENT tables (or file)"),
+    Setting("file", "text", "", None, "a trajectory CSV beside the profile (or segments)"),
+    noun="field",
+)
+SEGMENT = Settings(
+    Setting("duration_s", "number", "s", None, "how long (required)", **_POSITIVE),
+    Setting("forward_accel_mps2", "number", "m/s^2", 0.0, "along-track acceleration"),
+    Setting("yaw_rate_dps", "number", "deg/s", 0.0, "turn rate"),
+    Setting("climb_accel_mps2", "number", "m/s^2", 0.0, "vertical acceleration"),
+    noun="field",
+)
 
 
 def profile_dirs() -> list[Path]:
@@ -126,29 +130,33 @@ def load_profile(name_or_file: str) -> MissionProfile:
     """
     path = find_profile(name_or_file)
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-        spec = _Profile.model_validate(doc)
+        text = path.read_text(encoding="utf-8")
+        return _profile(tomllib.loads(text), path)
     except OSError as exc:
         raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML ({exc})") from None
-    except ValidationError as exc:
-        e = exc.errors(include_url=False)[0]
-        where = ".".join(str(p) for p in e["loc"]) or "(top level)"
-        raise ValueError(f"{path}: field {where}: {e['msg']}") from None
-    try:
-        return _profile(spec, path)
+    except SettingError as exc:
+        key = ".".join(p for p in (exc.root, exc.key) if p)
+        line = key_line(text, key_path(key))
+        where = "" if line is None else f" line {line}"
+        raise ValueError(f"{path}{where}: field {key}: {exc.problem}") from None
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
 
 
-def _profile(spec: _Profile, path: Path) -> MissionProfile:
-    tr = spec.trajectory
+def _profile(doc: dict[str, Any], path: Path) -> MissionProfile:
+    spec = typed(PROFILE, doc, "", ("name", "duration_s", "trajectory"))
+    tr = typed(TRAJECTORY, spec.trajectory, "trajectory")
     if (tr.file is None) == (not tr.segments):
         raise ValueError("trajectory: give either segments or file, not both or neither")
     if tr.file is not None:
         trajectory = read_trajectory(path.parent / tr.file)
     else:
+        segments = [
+            typed(SEGMENT, s, f"trajectory.segments[{i}]", ("duration_s",))
+            for i, s in enumerate(tr.segments)
+        ]
         trajectory = trajectory_from_segments(
             [
                 Segment(
@@ -157,14 +165,14 @@ def _profile(spec: _Profile, path: Path) -> MissionProfile:
                     math.radians(s.yaw_rate_dps),
                     s.climb_accel_mps2,
                 )
-                for s in tr.segments
+                for s in segments
             ],
             heading=math.radians(tr.heading_deg),
             tilt_with_acceleration=tr.tilt_with_acceleration,
             step=min(0.05, spec.step_s),
         )
-    a = spec.aiding
-    ini = spec.initial
+    a = typed(AIDING, spec.aiding, "aiding")
+    ini = typed(INITIAL, spec.initial, "initial")
     return MissionProfile(
         name=spec.name,
         duration=spec.duration_s,

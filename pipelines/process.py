@@ -35,7 +35,7 @@ from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
 from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
-from pipelines.issuing import issue_certificate
+from pipelines.issuing import issue_certificate, with_note
 from pipelines.lab import lab_precheck
 from pipelines.process_streamed import (
     as_found_solver,
@@ -336,9 +336,7 @@ def verify_run(
     )
     mine = None
     if budgets:
-        rid = shared_reference.reference_id(
-            [e.model_dump(mode="json") for e in m.equipment], m.site.model_dump(mode="json")
-        )
+        rid = shared_reference.reference_id([e.as_dict() for e in m.equipment], m.site.as_dict())
         mine = {n: (rid, shared_reference.split_budget(b.to_dict())[1]) for n, b in budgets.items()}
     group = group_of(current, earlier, profile, archive if budgets else None, mine)
     checks += verification.repeatability(group, profile)
@@ -537,10 +535,10 @@ def run_record(
         **_run_identity(m),
         manufacturer=m.unit.manufacturer,
         specification=m.unit.specification,
-        site=m.site.model_dump(mode="json"),
+        site=m.site,
         gravity=cal.gravity,
-        environment=m.environment.model_dump(mode="json"),
-        equipment=[e.model_dump(mode="json") for e in m.equipment],
+        environment=m.environment,
+        equipment=m.equipment,
         manifest_text=loaded.manifest_text,
         tolerance_profile=judged.profile.name,
         raw_files=[RawFileIn(f.path, f.name, f.sha256, f.size, f.format) for f in loaded.raw_files],
@@ -721,8 +719,8 @@ def process_run(
         return _failed(where, serial, exc, archive.url)
     finally:
         pending.close()
-    if result.status != "duplicate":
-        issue_certificate(archive, result.run_id)
+    if result.status != "duplicate" and (why := issue_certificate(archive, result.run_id)):
+        message = with_note(message, result.run_id, why)
     protocol_path = result.files.get(protocol_name)
     return run_outcome(
         source=where,

@@ -40,10 +40,6 @@ STATUSES = ("identical", "differs", "changed", "failed")
 DIFFERENCES_MAX = 20  # differing fields listed per revision (all are counted)
 # The record's parts, compared in this order: the first difference names the most telling.
 PARTS = ("parameters", "check_results", "processing_steps", "calibrations", "files", "runs")
-_RUN_FIELDS = ("started_at", "operator", "procedure", "site", "gravity", "environment",
-               "manifest_text", "tolerance_profile")  # fmt: skip
-_CAL_FIELDS = ("settings_hash", "settings", "software_version", "document", "verdict",
-               "profile_name", "profile_version")  # fmt: skip
 
 
 def plan_recompute(
@@ -171,7 +167,7 @@ def expected_record(
     that step names (`storage.settings_hash`).
     """
     from storage.revision_rows import check_rows, step_row
-    from storage.run_input import calibration_document, settings_hash_of
+    from storage.run_input import calibration_document, run_row, settings_hash_of
     from storage.seal_record import labelled
     from storage.settings_hash import JUDGED_AGAINST, REJUDGE_STEP, settings_hash
 
@@ -203,7 +199,7 @@ def expected_record(
         files = {}
     checks = check_rows(0, run.checks, run.profile_name, run.profile_version)
     return {
-        "runs": {k: getattr(run, k) for k in _RUN_FIELDS},
+        "runs": run_row(run),
         "calibrations": cal,
         "parameters": {p.name: p.to_row(run.parameter_temperature_c) for p in run.parameters},
         "check_results": labelled([(c["name"], c) for c in sorted(checks, key=_name)]),
@@ -240,8 +236,7 @@ def differences(
             held = {Path(p).name: sha for p, sha in held.items()}
             found += _compare(part, held, made, at)
         elif part in ("runs", "calibrations"):
-            fields = _RUN_FIELDS if part == "runs" else _CAL_FIELDS
-            found += _compare(part, {f: held.get(f) for f in fields}, made, at)
+            found += _compare(part, {f: held.get(f) for f in made}, made, at)
         else:
             for row in sorted(set(held) | set(made)):
                 path = f"{part}/{row}"

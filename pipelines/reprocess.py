@@ -318,15 +318,18 @@ def reprocess_in_process(
     `todo` and `skipped` are what `plan_reprocess` gave; the outcomes come in the
     order of `reprocess_batch`'s (skipped first), with the same retries.
     """
+    from pipelines.issuing import issuing_beside
     from pipelines.run_task import gave_up, run_in_process
 
-    return run_in_process(
-        todo,
-        lambda r: reprocess_run_for_batch(r, archive.url, str(archive.root), reason),
-        lambda r, exc: gave_up(f"archive:{r}", "", exc, r),
-        on_progress,
-        done=skipped,
-    )
+    with issuing_beside() as certificates:  # each certificate beside the next run
+        outcomes = run_in_process(
+            todo,
+            lambda r: reprocess_run_for_batch(r, archive.url, str(archive.root), reason),
+            lambda r, exc: gave_up(f"archive:{r}", "", exc, r),
+            on_progress,
+            done=skipped,
+        )
+    return certificates.reported(outcomes)
 
 
 def changed_pairs(

@@ -12,6 +12,7 @@ import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from calib_core.settings import key_line, key_path
 from storage.naming import check_safe_name
 
 if TYPE_CHECKING:  # the science stack is loaded by load_profile, not by profile_dirs' readers
@@ -65,18 +66,16 @@ def load_profile(name: str) -> ToleranceProfile:
 
 
 # The dotted field a profile error starts with: "limits[3].unit: ...", "recall.method must".
-_FIELD = re.compile(r"^(?:tolerance profile field ')?([A-Za-z_]\w*(?:\[\d+\]|\.[A-Za-z_]\w*)*)")
+_FIELD = re.compile(r"^([A-Za-z_]\w*(?:\[\d+\]|\.[A-Za-z_]\w*)*)")
 
 
 def line_of(text: str, problem: str) -> str:
     """The " line N" of the field a `problem` starts with ("limits[3].unit: ...") in the
     TOML `text` of a profile (tolerance or lab), or "" when not found."""
-    from pipelines.ingest.manifest import key_line  # the manifest's rule (pydantic: on error)
-
     m = _FIELD.match(problem)
     if m is None:
         return ""
-    path = tuple(int(p) if p.isdigit() else p for p in re.split(r"[.\[\]]+", m[1]) if p)
+    path = key_path(m[1])
     # A key inside an inline table ("gyr_std = { value, unit }"): the line of the table.
     lines = (key_line(text, path[:n]) for n in range(len(path), 0, -1))
     line = next((n for n in lines if n is not None), None)

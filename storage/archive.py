@@ -49,6 +49,7 @@ from storage.run_input import (
     calibration_document,
     raw_hash_of,
     run_id_of,
+    run_row,
     settings_hash_of,
     validate,
 )
@@ -438,18 +439,11 @@ def _insert_run(
     row = schema.Run(
         run_id=run_id,
         device_id=device.id,
-        started_at=run.started_at,
-        operator=run.operator,
-        procedure=run.procedure,
-        site=run.site,
-        gravity=run.gravity,
-        environment=run.environment,
-        manifest_text=run.manifest_text,
+        **run_row(run),
         raw_hash=raw_hash,
         model=run.device_model,  # the run's own description, whatever the device row says
         manufacturer=run.manufacturer,
         specification=run.specification,
-        tolerance_profile=run.tolerance_profile,
         run_dir=rel_dir,
         samples_path=None if samples is None else samples[0],
         samples_sha256=None if samples is None else samples[1],

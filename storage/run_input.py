@@ -5,6 +5,7 @@ anything touches the disk (storage.archive writes it).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 from collections.abc import Mapping
@@ -16,6 +17,7 @@ from typing import Any
 import pyarrow as pa
 
 from calib_core.calibration import CheckResult, Parameter, StepRecord
+from calib_core.settings import Setting, SettingError, Settings
 from storage import rawstore
 from storage.naming import check_safe_name
 from storage.settings_hash import canonical_json, settings_hash
@@ -32,38 +34,115 @@ class RawFileIn:
     format: str  # "mpu6000-txt", "csv", "mat", "mcap", "manifest"...
 
 
-@dataclass(frozen=True)
-class EquipmentIn:
-    """A piece of reference equipment a run used (the manifest's ``[[equipment]]`` entry):
-    kind and serial identify it; its dates are those recorded with the run."""
+# A piece of reference equipment a run used (the manifest's [[equipment]] entry): kind and
+# serial identify it; its dates are those recorded with the run.
+EQUIPMENT = Settings(
+    *(Setting(key, "text", "", None, meaning) for key, meaning in {
+        "kind": "rate_table, cube, daq... (required)", "serial": "its serial (required)",
+        "model": "its model", "accuracy_class": "its accuracy class, e.g. '0.01%'"}.items()),
+    Setting("calibration_due", "date", "", None, "when its own calibration is due"),
+    Setting("calibrated_on", "date", "", None, "when it was last calibrated"),
+    name="EquipmentIn",
+    noun="field",
+)  # fmt: skip
+EquipmentIn = EQUIPMENT.type
 
-    kind: str  # "rate_table", "cube", "daq"...
-    serial: str
-    model: str | None = None
-    accuracy_class: str | None = None
-    calibration_due: date | None = None
-    calibrated_on: date | None = None
 
-    @classmethod
-    def of(cls, entry: EquipmentIn | Mapping[str, Any], where: str) -> EquipmentIn:
-        """`entry` (an EquipmentIn, or a mapping with these keys; dates as dates or ISO
-        text) typed; ValueError naming `where` and the field for a missing kind or serial
-        or a malformed date."""
-        if isinstance(entry, cls):
-            return entry
-        if not isinstance(entry, Mapping):
-            raise TypeError(f"{where}: expected a table of equipment fields, got {entry!r}")
-        for key in ("kind", "serial"):
-            if not isinstance(entry.get(key), str) or not entry.get(key):
-                raise ValueError(f"{where}.{key}: expected a non-empty string")
-        return cls(
-            entry["kind"],
-            entry["serial"],
-            entry.get("model"),
-            entry.get("accuracy_class"),
-            as_date(entry.get("calibration_due"), f"{where}.calibration_due"),
-            as_date(entry.get("calibrated_on"), f"{where}.calibrated_on"),
-        )
+def equipment_in(entry: Any, where: str, required: tuple[str, ...] = ()) -> EquipmentIn:
+    """`entry` (an EquipmentIn, or a mapping of its keys; dates as dates or ISO text) typed;
+    SettingError naming `where` and the key for a refused value or a missing kind, serial
+    or other `required` key."""
+    if isinstance(entry, Mapping):
+        entry = {k: _iso_date(v) if k.startswith("calibra") else v for k, v in entry.items()}
+    return typed(EQUIPMENT, entry, where, ("kind", "serial", *required))
+
+
+def _iso_date(value: Any) -> Any:
+    with contextlib.suppress(ValueError, TypeError):  # else refused by name as not a date
+        return date.fromisoformat(value)
+    return value
+
+
+# A run's site and lab conditions as the manifest states them ([site], [environment]), SI
+# units but for the lab's customary degC, %, hPa and minutes, named in each key.
+GRAVITY_MODELS = ("standard", "helmert", "wgs84", "measured")
+
+
+class SiteRules:
+    """What a `Site` says beyond its values: the gravity model in use and its source."""
+
+    @property
+    def model(self) -> str:
+        """The gravity model in use: as given, else helmert with a latitude, else standard."""
+        if self.gravity_model is not None:
+            return self.gravity_model
+        return "helmert" if self.latitude_deg is not None else "standard"
+
+    def source(self) -> str | None:
+        """How local gravity is obtained, for the run's checks; None for the standard value."""
+        if self.model == "standard":
+            return None
+        if self.model == "measured":
+            return f"measured {self.gravity} m/s^2"
+        where = f" (lab file {self.from_file})" if self.from_file else ""
+        return f"{self.model} at latitude {self.latitude_deg} deg, height {self.height_m} m{where}"
+
+    def check(self) -> None:
+        """SettingError naming the key a gravity model needs, or a gravity not in m/s^2."""
+        if self.gravity_model in ("helmert", "wgs84") and self.latitude_deg is None:
+            raise SettingError("latitude_deg", f"gravity_model {self.gravity_model!r} needs "
+                               "latitude_deg", "site")  # fmt: skip
+        if self.gravity_model == "measured" and self.gravity is None:
+            raise SettingError("gravity", "gravity_model 'measured' needs gravity (m/s^2)", "site")
+        if self.gravity is not None and not 9.7 < self.gravity < 9.9:
+            problem = f"gravity must be in m/s^2 (9.7 .. 9.9), got {self.gravity}"
+            raise SettingError("gravity", problem, "site")
+
+
+SITE = Settings(
+    Setting("latitude_deg", "number", "deg", None, "geodetic latitude", low=-90.0, high=90.0),
+    Setting("height_m", "number", "m", 0.0, "height above the ellipsoid"),
+    # None: Helmert's formula with the height correction when latitude_deg is known (the
+    # MPU-6000 manual's choice), else the standard value, which the run's checks warn about.
+    Setting("gravity_model", "text", "", None, "how local gravity is obtained",
+            choices=GRAVITY_MODELS),
+    Setting("gravity", "number", "m/s^2", None, "measured local gravity"),
+    Setting("from_file", "text", "", None, "the lab file latitude and height came from"),
+    name="Site",
+    base=SiteRules,
+)  # fmt: skip
+ENVIRONMENT = Settings(
+    Setting("temperature_c", "number", "degC", None, "lab temperature"),
+    Setting("temperature_drift_c_per_h", "number", "degC/h", None, "ambient drift in the run"),
+    Setting("humidity_pct", "number", "%", None, "relative humidity", low=0.0, high=100.0),
+    Setting("pressure_hpa", "number", "hPa", None, "air pressure", low=0.0, low_open=True),
+    Setting("vibration", ("number", "text"), "m/s^2", None, "a level (rms) or a description"),
+    Setting("warmup_min", "number", "min", None, "the unit's warm-up before the run", low=0.0),
+    name="Environment",
+)  # fmt: skip
+Site = SITE.type
+Environment = ENVIRONMENT.type
+
+
+def typed(table: Settings, given: Any, root: str, required: tuple[str, ...] = ()) -> Any:
+    """`given` (typed values of `table`, or a mapping of them) typed as the archive keeps
+    them: texts stripped of surrounding blanks, whole numbers of a "number" setting as
+    floats; SettingError naming ``root.key`` for a value that is not a table, an unknown
+    key, a refused value or a `required` key missing or empty."""
+    if isinstance(given, table.type):
+        return given
+    if not isinstance(given, Mapping):
+        raise SettingError(root, f"expected a table, got {given!r}", "")
+    number = {s.name for s in table if "number" in s.kinds}
+    given = {
+        k: v.strip() if isinstance(v, str) else float(v) if k in number and type(v) is int else v
+        for k, v in given.items()
+    }
+    table.validate(given, "", root)
+    for key in required:
+        if given.get(key) in (None, ""):
+            raise SettingError(key, "required field is missing", root)
+    return table.parse(given)
 
 
 @dataclass
@@ -79,10 +158,10 @@ class RunIn:
     started_at: datetime  # time zone aware
     operator: str | None
     procedure: str
-    site: dict[str, Any]
+    # Site, Environment, EquipmentIn: or mappings of their fields, typed when the RunIn is made
+    site: Site
     gravity: float  # m/s^2 used by the solver
-    environment: dict[str, Any]
-    # EquipmentIn, or mappings of its fields (typed when the RunIn is made)
+    environment: Environment
     equipment: list[EquipmentIn]
     manifest_text: str | None
     tolerance_profile: str | None
@@ -103,9 +182,24 @@ class RunIn:
     parameter_temperature_c: float | None = None
 
     def __post_init__(self) -> None:
-        self.equipment = [
-            EquipmentIn.of(e, f"equipment[{i}]") for i, e in enumerate(self.equipment)
-        ]
+        self.site = typed(SITE, self.site, "site")
+        self.environment = typed(ENVIRONMENT, self.environment, "environment")
+        self.equipment = [equipment_in(e, f"equipment[{i}]") for i, e in enumerate(self.equipment)]
+
+
+def run_row(run: RunIn) -> dict[str, Any]:
+    """The values of the run's ``runs`` row that come from the run alone (the archive adds
+    identities and paths)."""
+    return {
+        "started_at": run.started_at,
+        "operator": run.operator,
+        "procedure": run.procedure,
+        "site": run.site.as_dict(),
+        "gravity": run.gravity,
+        "environment": run.environment.as_dict(),
+        "manifest_text": run.manifest_text,
+        "tolerance_profile": run.tolerance_profile,
+    }
 
 
 def calibration_document(run: RunIn) -> dict[str, Any]:
@@ -140,20 +234,6 @@ def settings_hash_of(run: RunIn) -> str:
 # --- validation (before anything touches the disk) ---------------------------
 
 
-def as_date(value: Any, where: str) -> date | None:
-    """`value` (a date, datetime or ISO text, or None) as a date; ValueError naming `where`."""
-    if value is None or (isinstance(value, date) and not isinstance(value, datetime)):
-        return value
-    if isinstance(value, datetime):
-        return value.date()
-    if isinstance(value, str):
-        try:
-            return date.fromisoformat(value)
-        except ValueError:
-            pass
-    raise ValueError(f"{where}: expected a date (YYYY-MM-DD), got {value!r}")
-
-
 def _number(value: Any, where: str, *, optional: bool) -> float | None:
     if value is None and optional:
         return None
@@ -182,8 +262,6 @@ def validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
         if not isinstance(getattr(run, key), str) or not getattr(run, key):
             raise ValueError(f"{key}: expected a non-empty string, got {getattr(run, key)!r}")
     _number(run.gravity, "gravity", optional=False)
-    for i, eq in enumerate(run.equipment):  # typed when the RunIn was made, unless set since
-        EquipmentIn.of(eq, f"equipment[{i}]")
     _number(run.parameter_temperature_c, "parameter_temperature_c", optional=True)
     for what, items, kind in (
         ("parameters", run.parameters, Parameter),
@@ -206,8 +284,6 @@ def validate(run: RunIn, extra_files: dict[str, bytes]) -> None:
         if not isinstance(c.passed, bool):
             raise ValueError(f"checks[{i}].passed: expected true or false, got {c.passed!r}")
     for where, value in [
-        ("site", run.site),
-        ("environment", run.environment),
         ("calibration", run.calibration),
         ("steps", [st.to_dict() for st in run.steps]),
     ]:

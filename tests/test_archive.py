@@ -20,6 +20,7 @@ import pytest
 from sqlalchemy import func, select
 
 from calib_core.calibration import Calibration, CheckResult, Parameter, StepRecord
+from calib_core.settings import SettingError
 from storage import queries, rawstore
 from storage.archive import ArchiveError, archive_run
 from storage.db import Archive, default_archive_url, resolve_archive
@@ -159,7 +160,8 @@ def test_archive_a_run_and_read_it_back(archive: Archive, tmp_path: Path) -> Non
     assert s.raw_hash == raw_hash
     assert s.started_at == run.started_at and s.started_at.tzinfo == UTC
     assert s.device == Unit("0012", "MPU-6000", "InvenSense", "consumer grade")
-    assert (s.site, s.environment, s.gravity) == (run.site, run.environment, run.gravity)
+    assert (s.site, s.environment) == (run.site.as_dict(), run.environment.as_dict())
+    assert s.gravity == run.gravity
     assert s.equipment == [
         EquipmentUse(
             "rate_table", "AC1120", "RT-7", "0.01%", date(2024, 12, 31), date(2023, 12, 31)
@@ -338,6 +340,30 @@ def test_the_archive_boundary_takes_objects_not_dicts(archive: Archive, tmp_path
             archive_run(archive, replace(run, **{name: dicts}))
     assert set(counts(archive).values()) == {0}
     assert archive_run(archive, run).status == "ok"
+
+
+def test_site_environment_and_equipment_are_typed_by_name(tmp_path: Path) -> None:
+    """A RunIn's site, environment and equipment are typed when it is made, as the archive
+    keeps them (whole numbers of a number as floats, texts stripped); a wrong key or value
+    is refused naming it."""
+    run = make_run(tmp_path / "in")
+    typed = replace(run, environment={"humidity_pct": 45, "vibration": " none "})
+    assert typed.environment.humidity_pct == 45.0 and type(typed.environment.humidity_pct) is float
+    assert typed.environment.vibration == "none" and typed.environment.temperature_c is None
+    assert typed.site.latitude_deg == 55.75 and typed.equipment[0].calibration_due == date(
+        2024, 12, 31
+    )
+    for change, message in (
+        ({"site": {"latitud_deg": 55.0}}, r"site\.latitud_deg: unknown setting of \[site\]; "
+         "did you mean latitude_deg"),
+        ({"environment": {"humidity_pct": 140}}, r"environment\.humidity_pct: expected a number "
+         r"in \[0, 100\], got 140"),
+        ({"equipment": [{"kind": "cube"}]}, r"equipment\[0\]\.serial: required field"),
+        ({"equipment": [{"kind": "cube", "serial": "C1", "calibration_due": "soon"}]},
+         r"equipment\[0\]\.calibration_due: expected a date \(YYYY-MM-DD\), got 'soon'"),
+    ):  # fmt: skip
+        with pytest.raises(SettingError, match=message):
+            replace(run, **change)
 
 
 @pytest.mark.parametrize("workers", [2, 4])

@@ -148,8 +148,9 @@ def test_lineage_of_a_value(archive: Archive, scenario: Scenario) -> None:
         (i, s.name, s.settings) for i, s in enumerate(r3b.steps)
     ]
     assert lin["run"]["operator"] == r3.operator
-    assert lin["run"]["environment"] == {"temperature_c": 30.0}
-    assert (lin["run"]["site"], lin["run"]["gravity"]) == (r3.site, r3.gravity)
+    assert lin["run"]["environment"] == r3.environment.as_dict()
+    assert lin["run"]["environment"]["temperature_c"] == 30.0
+    assert (lin["run"]["site"], lin["run"]["gravity"]) == (r3.site.as_dict(), r3.gravity)
     assert lin["run"]["started_at"] == r3.started_at
     assert lin["device"]["serial"] == "A1"
     (eq,) = lin["equipment"]

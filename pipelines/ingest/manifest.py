@@ -6,9 +6,13 @@ calibration dates, the procedure and its settings, the tolerance profile, the
 layout of the data files and which file or time window holds which segment.
 docs/manifest.md describes every field with an example.
 
-Every section is a pydantic model that forbids unknown keys, so a typo in a
-field name is an error rather than a silently ignored value. The one exception
-is ``[format]``: readers of other formats (MAT, MCAP) keep their own keys there
+Every section forbids unknown keys, so a typo in a field name is an error rather
+than a silently ignored value. ``[unit]``, ``[acquisition]``, ``[site]``,
+``[environment]`` and ``[[equipment]]`` are declared as settings (calib_core.settings;
+the last three in storage.run_input, as the archive keeps them); ``[run]``,
+``[[segments]]``, ``[format]`` and the whole are still pydantic models, whose errors
+name the key a section's SettingError names. ``[format]`` is the one section with
+other keys: readers of other formats (MAT, MCAP) keep their own keys there
 (``variables``, ``topics``, ...) and read them from ``FormatSpec.model_extra``.
 
 Times: ``run.started`` may be a TOML datetime or an ISO-8601 string. A value
@@ -18,12 +22,14 @@ is always stored converted to UTC.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import difflib
 import math
 import re
 import sys
 import tomllib
-from datetime import UTC, date, datetime
+from datetime import UTC, datetime
 from pathlib import Path, PurePosixPath
 from typing import Any, Literal
 
@@ -33,15 +39,24 @@ from pydantic import (
     Field,
     ValidationError,
     field_validator,
-    model_validator,
 )
 
 from calib_core import procedures
 from calib_core.earth import local_gravity
+from calib_core.settings import Setting, SettingError, Settings, key_line, key_path
 from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import check_free_text
 from storage.naming import check_safe_name
+from storage.run_input import (
+    ENVIRONMENT,
+    SITE,
+    Environment,
+    EquipmentIn,
+    Site,
+    equipment_in,
+    typed,
+)
 
 SCHEMA_VERSION = 1
 
@@ -52,29 +67,19 @@ STATIC_LABELS = ("x_up", "x_dn", "y_up", "y_dn", "z_up", "z_dn")
 ROTATION_LABELS = ("x_ccw", "x_cw", "y_ccw", "y_cw", "z_ccw", "z_cw")
 SIX_POSITION_LABELS = STATIC_LABELS + ROTATION_LABELS
 
-EQUIPMENT_KINDS = ("rate_table", "centrifuge", "thermal_chamber", "daq", "cube")
 
-
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
-
-
-class UnitSpec(_Section):
-    """The unit under test."""
-
-    serial: str
-    model: str
-    manufacturer: str
-    specification: str | None = None  # free text: ranges, grade, data sheet reference
+UNIT = Settings(
+    Setting("serial", "text", "", None, "the unit's serial (a folder name in the archive)"),
+    Setting("model", "text", "", None, "its model"),
+    Setting("manufacturer", "text", "", None, "its manufacturer"),
+    Setting("specification", "text", "", None, "free text: ranges, grade, data sheet"),
     # The sensor's full scale as set for this run; None: the model's (MODEL_RANGES), if known.
-    gyro_range_dps: float | None = Field(default=None, gt=0)
-    acc_range_g: float | None = Field(default=None, gt=0)
-
-    @field_validator("serial")
-    @classmethod
-    def _safe_serial(cls, value: str) -> str:
-        # The serial becomes a folder name in the archive: no path tricks.
-        return check_safe_name(value, "serial")
+    Setting("gyro_range_dps", "number", "deg/s", None, "gyro full scale", low=0, low_open=True),
+    Setting("acc_range_g", "number", "g", None, "accelerometer full scale", low=0, low_open=True),
+    name="UnitSpec",
+    noun="field",
+)
+UnitSpec = UNIT.type  # the unit under test
 
 
 # Full scale (gyro deg/s, accelerometer g) of sensor models as their calibration program
@@ -97,83 +102,45 @@ def sensor_ranges(unit: UnitSpec, settings: dict[str, Any]) -> tuple[float | Non
     return (None if gyro is None else float(gyro)), acc
 
 
-class RunSpec(_Section):
-    """When, who, which procedure and tolerance profile."""
-
-    started: datetime
-    operator: str
-    procedure: str
-    tolerance_profile: str
-    settings: dict[str, Any] = Field(default_factory=dict)  # turns, gyro_range_dps, solver...
-
-    @field_validator("started")
-    @classmethod
-    def _utc(cls, value: datetime) -> datetime:
-        if value.tzinfo is None:  # documented choice: a naive time is UTC
-            return value.replace(tzinfo=UTC)
-        return value.astimezone(UTC)
-
-    @field_validator("tolerance_profile")
-    @classmethod
-    def _safe_profile(cls, value: str) -> str:
-        return check_safe_name(value, "tolerance profile name")  # names a profile file
+RUN = Settings(
+    Setting("started", "datetime", "", None, "when the run started (no offset: UTC)"),
+    Setting("operator", "text", "", None, "who ran it"),
+    Setting("procedure", "text", "", None, "calib_core.procedures' name"),
+    Setting("tolerance_profile", "text", "", None, "the profile's file name"),
+    Setting("settings", "table", "", {}, "the procedure's: turns, gyro_range_dps, solver..."),
+    name="RunSpec",
+    noun="field",
+)
+RunSpec = RUN.type  # when, who, which procedure and tolerance profile
 
 
-class SiteSpec(_Section):
-    """Where: enough to compute local gravity by the chosen model."""
-
-    latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0)
-    height_m: float = 0.0
-    # None: Helmert's formula with the height correction when latitude_deg is known (the
-    # MPU-6000 manual's choice), else the standard value, which the run's checks warn about.
-    gravity_model: Literal["standard", "helmert", "wgs84", "measured"] | None = None
-    gravity: float | None = Field(default=None, description="measured gravity, m/s^2")
-    # Where latitude and height came from when the lab profile (pipelines.lab) gave them.
-    from_file: str | None = None
-
-    @property
-    def model(self) -> str:
-        """The gravity model in use: as given, else helmert with a latitude, else standard."""
-        if self.gravity_model is not None:
-            return self.gravity_model
-        return "helmert" if self.latitude_deg is not None else "standard"
-
-    def source(self) -> str | None:
-        """How local gravity is obtained, for the run's checks; None for the standard value."""
-        if self.model == "standard":
-            return None
-        if self.model == "measured":
-            return f"measured {self.gravity} m/s^2"
-        where = f" (lab file {self.from_file})" if self.from_file else ""
-        return f"{self.model} at latitude {self.latitude_deg} deg, height {self.height_m} m{where}"
-
-    @model_validator(mode="after")
-    def _complete(self) -> SiteSpec:
-        if self.gravity_model in ("helmert", "wgs84") and self.latitude_deg is None:
-            raise ValueError(f"gravity_model '{self.gravity_model}' needs latitude_deg")
-        if self.gravity_model == "measured" and self.gravity is None:
-            raise ValueError("gravity_model 'measured' needs gravity (m/s^2)")
-        if self.gravity is not None and not 9.7 < self.gravity < 9.9:
-            raise ValueError(f"gravity must be in m/s^2 (9.7 .. 9.9), got {self.gravity}")
-        return self
+def run_spec(value: Any) -> RunSpec:
+    """``[run]`` typed: ``started`` (a TOML datetime or ISO-8601 text) in UTC, the
+    tolerance profile a safe file name; SettingError naming the key."""
+    if isinstance(value, dict) and isinstance(value.get("started"), str):
+        with contextlib.suppress(ValueError):  # else refused by name
+            value = {**value, "started": datetime.fromisoformat(value["started"].strip())}
+    run = typed(RUN, value, "run", ("started", "operator", "procedure", "tolerance_profile"))
+    try:
+        check_safe_name(run.tolerance_profile, "tolerance profile name")  # names a file
+    except ValueError as exc:
+        raise SettingError("tolerance_profile", str(exc), "run") from None
+    started = run.started  # documented choice: a naive time is UTC
+    utc = started.replace(tzinfo=UTC) if started.tzinfo is None else started.astimezone(UTC)
+    return dataclasses.replace(run, started=utc)
 
 
-class EnvironmentSpec(_Section):
-    """Lab conditions during the run; every field optional."""
-
-    temperature_c: float | None = None
-    temperature_drift_c_per_h: float | None = None  # ambient drift during the run
-    humidity_pct: float | None = Field(default=None, ge=0.0, le=100.0)
-    pressure_hpa: float | None = Field(default=None, gt=0.0)
-    vibration: float | str | None = None  # a level (m/s^2 rms) or a description
-    warmup_min: float | None = Field(default=None, ge=0.0)
+SiteSpec = Site  # [site]: storage.run_input.SITE
 
 
-class AcquisitionSpec(_Section):
-    """How the data were taken, where the files do not say it; every field optional."""
-
-    settle_s: float | None = Field(default=None, ge=0.0)  # wait before recording each attitude
-    resolution_bits: int | None = Field(default=None, gt=0)  # of the sensor's converter
+# How the data were taken, where the files do not say it; every field optional.
+ACQUISITION = Settings(
+    Setting("settle_s", "number", "s", None, "wait before recording each attitude", low=0.0),
+    Setting("resolution_bits", "integer", "bit", None, "of the sensor's converter", low=1),
+    name="AcquisitionSpec",
+    noun="field",
+)
+AcquisitionSpec = ACQUISITION.type
 
 
 # Converter resolution of sensor models (bits), by lower-case model name: the MPU-6000's
@@ -181,25 +148,7 @@ class AcquisitionSpec(_Section):
 MODEL_RESOLUTION_BITS: dict[str, int] = {"mpu-6000": 16}
 
 
-class EquipmentEntry(_Section):
-    """One piece of lab equipment; its own calibration dates make lapses traceable."""
-
-    kind: str  # one of EQUIPMENT_KINDS or another short word
-    model: str
-    serial: str
-    accuracy_class: str | None = None
-    calibration_due: date
-    calibrated_on: date | None = None
-
-    @field_validator("calibration_due", "calibrated_on", mode="before")
-    @classmethod
-    def _date_only(cls, value: Any) -> Any:
-        if isinstance(value, datetime):
-            raise ValueError(f"expected a date (YYYY-MM-DD), got a date and time {value}")
-        return value
-
-
-class SegmentSpec(_Section):
+class SegmentRules:
     """Which file (and optionally which time window of it, s) holds one segment.
 
     The window is ``start_s <= t < end_s`` on the file's own time axis after
@@ -215,58 +164,51 @@ class SegmentSpec(_Section):
     are read with the same ``[format]`` columns (kind ``csv`` only).
     """
 
-    label: str
-    file: str | None = None
-    acc_file: str | None = None
-    gyr_file: str | None = None
-    start_s: float | None = None
-    end_s: float | None = None
-    section: str | None = None  # the value of [format] section_column for this segment's rows
-    verification: bool = False
-    reference_acc: list[float] | None = None
-
-    @field_validator("reference_acc")
-    @classmethod
-    def _three_finite(cls, value: list[float] | None) -> list[float] | None:
-        if value is not None and (len(value) != 3 or not all(math.isfinite(v) for v in value)):
-            raise ValueError(f"expected 3 finite numbers (x, y, z), got {value}")
-        return value
-
-    @field_validator("label")
-    @classmethod
-    def _label(cls, value: str) -> str:
-        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}", value):
-            raise ValueError(
-                f"invalid segment label {value!r}: expected letters, digits, '_', '.', '+', '-'"
-            )
-        return value
-
-    @field_validator("file", "acc_file", "gyr_file")
-    @classmethod
-    def _inside_run_folder(cls, value: str | None) -> str | None:
-        return None if value is None else check_relative_name(value)
-
-    @model_validator(mode="after")
-    def _one_source(self) -> SegmentSpec:
-        split = (self.acc_file is not None, self.gyr_file is not None)
-        if self.file is None and split != (True, True):
-            raise ValueError(
-                "a segment needs 'file', or both 'acc_file' and 'gyr_file' (separate sensor files)"
-            )
-        if self.file is not None and any(split):
-            raise ValueError("give either 'file' or 'acc_file' + 'gyr_file', not both")
-        return self
-
     @property
     def files(self) -> tuple[str, ...]:
         """The data files of this segment: (file,) or (acc_file, gyr_file)."""
         return (self.file,) if self.file is not None else (self.acc_file, self.gyr_file)
 
-    @model_validator(mode="after")
-    def _window(self) -> SegmentSpec:
+    def check(self, where: str) -> None:
+        """SettingError naming ``where.key`` (``segments[2].file``): a label or file name
+        that may not be one, no data file or two kinds, an empty time window."""
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}", self.label):
+            raise SettingError("label", f"invalid segment label {self.label!r}: expected "
+                               "letters, digits, '_', '.', '+', '-'", where)  # fmt: skip
+        for key in ("file", "acc_file", "gyr_file"):
+            try:
+                if getattr(self, key) is not None:
+                    check_relative_name(getattr(self, key))
+            except ValueError as exc:
+                raise SettingError(key, str(exc), where) from None
+        split = (self.acc_file is not None, self.gyr_file is not None)
+        if self.file is None and split != (True, True):
+            problem = (
+                "a segment needs 'file', or both 'acc_file' and 'gyr_file' (separate sensor files)"
+            )
+            raise SettingError(where, problem, "")
+        if self.file is not None and any(split):
+            raise SettingError(where, "give either 'file' or 'acc_file' + 'gyr_file', not both", "")
         if self.start_s is not None and self.end_s is not None and not self.end_s > self.start_s:
-            raise ValueError(f"end_s ({self.end_s}) must be greater than start_s ({self.start_s})")
-        return self
+            problem = f"end_s ({self.end_s}) must be greater than start_s ({self.start_s})"
+            raise SettingError(where, problem, "")
+
+
+SEGMENT = Settings(
+    Setting("label", "text", "", None, "the segment's label (required)"),
+    *(Setting(k, "text", "", None, meaning) for k, meaning in {
+        "file": "the data file", "acc_file": "the accelerometer's file (with gyr_file)",
+        "gyr_file": "the gyro's file (with acc_file)"}.items()),
+    Setting("start_s", "number", "s", None, "window start (None: the file's)"),
+    Setting("end_s", "number", "s", None, "window end, exclusive (None: the file's)"),
+    Setting("section", "text", "", None, "the value of [format] section_column for its rows"),
+    Setting("verification", "bool", "", False, "kept out of the fit, used to verify it"),
+    Setting("reference_acc", "list", "", None, "true specific force (x, y, z)", length=3),
+    name="SegmentSpec",
+    noun="field",
+    base=SegmentRules,
+)  # fmt: skip
+SegmentSpec = SEGMENT.type
 
 
 def check_relative_name(value: str) -> str:
@@ -290,18 +232,72 @@ def check_relative_name(value: str) -> str:
     return value
 
 
-class RunManifest(_Section):
+class RunManifest(BaseModel):
     """A whole ``run.toml``. See docs/manifest.md."""
+
+    model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
 
     schema_version: Literal[1]
     unit: UnitSpec
     run: RunSpec
-    site: SiteSpec = Field(default_factory=SiteSpec)
-    environment: EnvironmentSpec = Field(default_factory=EnvironmentSpec)
-    acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)
-    equipment: list[EquipmentEntry] = Field(default_factory=list)
+    site: Site = Field(default_factory=Site)  # SITE
+    environment: Environment = Field(default_factory=Environment)  # ENVIRONMENT
+    acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)  # ACQUISITION
+    equipment: list[EquipmentIn] = Field(default_factory=list)  # EQUIPMENT
     format: FormatSpec
     segments: list[SegmentSpec] = Field(default_factory=list)
+
+    @field_validator("environment", mode="before")
+    @classmethod
+    def _environment(cls, value: Any) -> Environment:
+        return typed(ENVIRONMENT, value, "environment")  # as the archive keeps it
+
+    @field_validator("segments", mode="before")
+    @classmethod
+    def _segments(cls, value: Any) -> list[SegmentSpec]:
+        if not isinstance(value, list):
+            raise ValueError(f"expected an array of tables [[segments]], got {value!r}")
+        out = []
+        for i, entry in enumerate(value):
+            out.append(typed(SEGMENT, entry, f"segments[{i}]", ("label",)))
+            out[-1].check(f"segments[{i}]")
+        return out
+
+    @field_validator("run", mode="before")
+    @classmethod
+    def _run(cls, value: Any) -> RunSpec:
+        return run_spec(value)
+
+    @field_validator("unit", mode="before")
+    @classmethod
+    def _unit(cls, value: Any) -> UnitSpec:
+        unit = typed(UNIT, value, "unit", ("serial", "model", "manufacturer"))
+        try:  # the serial becomes a folder name in the archive: no path tricks
+            check_safe_name(unit.serial, "serial")
+        except ValueError as exc:
+            raise SettingError("serial", str(exc), "unit") from None
+        return unit
+
+    @field_validator("acquisition", mode="before")
+    @classmethod
+    def _acquisition(cls, value: Any) -> AcquisitionSpec:
+        return typed(ACQUISITION, value, "acquisition")
+
+    @field_validator("equipment", mode="before")
+    @classmethod
+    def _equipment(cls, value: Any) -> list[EquipmentIn]:
+        if not isinstance(value, list):
+            raise ValueError(f"expected an array of tables [[equipment]], got {value!r}")
+        # The lab's own equipment record: model and calibration due date too.
+        required = ("model", "calibration_due")
+        return [equipment_in(e, f"equipment[{i}]", required) for i, e in enumerate(value)]
+
+    @field_validator("site", mode="before")
+    @classmethod
+    def _site(cls, value: Any) -> Site:
+        site = typed(SITE, value, "site")
+        site.check()
+        return site
 
     def gravity(self) -> float:
         """Local gravity for this site by the manifest's model, m/s^2."""
@@ -387,37 +383,6 @@ def check_finite_numbers(data: Any, source: str, text: str, path: tuple = ()) ->
             line=key_line(text, path),
             field=_field_path(path),
         )
-
-
-def key_line(text: str, path: tuple) -> int | None:
-    """1-based line of the key at dotted `path` (``("segments", 2, "end_s")``) in manifest
-    `text`: the key assigned under its table's header (``[a.b]``, the n-th ``[[a]]``, a
-    ``[a.b]`` of the latest ``[[a]]``), or a dotted key under a shorter header; None when
-    it is spelt otherwise (inline tables)."""
-    keys = [p for p in path if not isinstance(p, int)]
-    counts: dict[str, int] = {}
-    header: tuple = ()
-    for number, line in enumerate(text.splitlines(), start=1):
-        stripped = line.split("#", 1)[0].strip()
-        if stripped.startswith("["):
-            names = stripped.strip("[]").strip().split(".")
-            if stripped.startswith("[["):
-                counts[".".join(names)] = counts.get(".".join(names), -1) + 1
-            header = ()
-            for i in range(len(names)):  # each array of tables at its latest entry
-                at = counts.get(".".join(names[: i + 1]))
-                header += (names[i],) if at is None else (names[i], at)
-            continue
-        key = stripped.split("=", 1)[0].strip().strip("\"'")
-        if "=" not in stripped or not key:
-            continue
-        full = (*header, *key.replace('"', "").split("."))
-        named = [p for p in full if not isinstance(p, int)]
-        if named == keys and [p for p in full if isinstance(p, int)] == [
-            p for p in path if isinstance(p, int)
-        ]:
-            return number
-    return None
 
 
 def _too_deep(text: str, source: str) -> IngestError:
@@ -564,6 +529,11 @@ def _as_ingest_error(exc: ValidationError, source: str, text: str = "") -> Inges
     """One IngestError for all problems pydantic found, the first one as `field` with its
     line in the manifest's `text` (as a refused ``[run.settings]`` key is named)."""
     errors = exc.errors(include_url=False)
+    for err in errors:  # a section typed by its declaration: the key it names
+        refused = (err.get("ctx") or {}).get("error")
+        if isinstance(refused, SettingError):
+            err["loc"] = (*key_path(refused.root), *key_path(refused.key))
+            err["msg"] = refused.problem
     # A misspelt key shows up as an unknown field plus a missing one: report
     # the unknown one first, with the missing name as the likely intent.
     missing = {(tuple(e["loc"][:-1]), e["loc"][-1]) for e in errors if e["type"] == "missing"}

@@ -287,7 +287,7 @@ def with_lab_site(manifest: RunManifest, source: str) -> RunManifest:
         return manifest
     values, path = lab
     return manifest.model_copy(
-        update={"site": site.model_copy(update={**values, "from_file": str(path)})}
+        update={"site": dataclasses.replace(site, **values, from_file=str(path))}
     )
 
 

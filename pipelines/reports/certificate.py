@@ -250,7 +250,7 @@ def _equipment_section(run: _Archived) -> Section:
     )
 
 
-# The manifest's [environment] keys (pipelines.ingest.manifest.EnvironmentSpec) as printed.
+# The manifest's [environment] keys (storage.run_input.ENVIRONMENT) as printed.
 ENVIRONMENT = {
     "temperature_c": ("Temperature", "deg C"),
     "temperature_drift_c_per_h": ("Temperature drift", "deg C/h"),

@@ -35,6 +35,7 @@ DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
 SCHEMA_VERSION = "3.3.0"
 LANG = "en"
+_DECLARATION = "<?xml version='1.0' encoding='utf-8'?>\n"
 METHOD_ID = "method"  # the id of the used method, which each result refers to
 # D-SI unit of each SI unit string of calib_core.params.UNITS.
 D_SI = {
@@ -77,7 +78,9 @@ def dcc_xml(archived: ArchivedRun) -> bytes:
     _administrative(_el(root, "dcc:administrativeData"), archived)
     _results(_el(root, "dcc:measurementResults"), archived)
     ET.indent(root)
-    return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+    # Serialised as text, then encoded once: ElementTree's own UTF-8 output encodes each
+    # piece apart, a third slower; the declaration is the one it writes.
+    return (_DECLARATION + ET.tostring(root, encoding="unicode")).encode("utf-8")
 
 
 def _administrative(admin: ET.Element, archived: ArchivedRun) -> None:

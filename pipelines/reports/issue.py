@@ -77,7 +77,8 @@ def issued(archive: Archive, run_id: str) -> Issue | None:
 
 def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
     """Typeset the run's certificate (current revision) from the archive, write its HTML and
-    PDF into the revision's folder and record the event that seals them.
+    PDF into the revision's folder and record the event that seals them: both, or neither
+    (files whose event cannot be recorded are removed again).
 
     Parameters
     ----------
@@ -120,10 +121,15 @@ def issue(archive: Archive, run_id: str, *, reason: str | None = None) -> Issue:
         "paths": rel,
         "files": {rel[k]: hashlib.sha256(data[k]).hexdigest() for k in rel},
     }
-    seal.record_event(
-        archive, ISSUED, run_id=run_id, revision=revision, reason=reason, detail=detail
-    )
     files = {k: archive.root / p for k, p in rel.items()}
+    try:
+        seal.record_event(
+            archive, ISSUED, run_id=run_id, revision=revision, reason=reason, detail=detail
+        )
+    except BaseException:  # not recorded: not issued, so no file of it stays behind
+        for path in files.values():
+            path.unlink(missing_ok=True)
+        raise
     if (protocol := protocol_of(archive, run)) is not None:
         files[PROTOCOL] = protocol
     return Issue(run_id, revision, number, cert.identifier, files, run.calibration.verdict)
