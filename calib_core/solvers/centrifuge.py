@@ -67,7 +67,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -283,8 +283,26 @@ def step_weights(
     return weights(kappa), kappa
 
 
+_PHI = "phi:"
+
+
 def _nuisance_name(mount: str) -> str:
-    return f"phi:{mount}"
+    return f"{_PHI}{mount}"
+
+
+def _columns(
+    names: Sequence[str], i: int, step_mounts: np.ndarray, f: np.ndarray, dphi: np.ndarray
+) -> np.ndarray:
+    """Design columns of axis i for `names`: the phi_h nuisance of a position (its rows'
+    d f_i / d phi_h, zero elsewhere) or a model term of the inputs f (steps, 3)."""
+    cols = [
+        np.where(step_mounts == n[len(_PHI) :], dphi[:, i], 0.0)
+        if n.startswith(_PHI)
+        else term_values(f, [n])[:, 0]
+        for n in names
+        if n != CONST
+    ]
+    return np.column_stack(cols) if cols else np.empty((len(f), 0))
 
 
 def _tangential_mounts(axis: str, mounts: Sequence[str]) -> list[str]:
@@ -412,6 +430,9 @@ def solve_centrifuge(
             for m, name in zip(_tangential_mounts(axis, mounts), axes[axis].nuisance, strict=True):
                 j = final.names.index(name)
                 phi_fit[m] = Estimate(phi_used[m].value + float(final.coef[j]), float(final.std[j]))
+    axes = _with_radius_covariance(
+        axes, means, radius, phi_used, settings, omega_v, step_mounts, sem
+    )
     model = CentrifugeModel(
         axes=axes,
         radius=radius,
@@ -427,6 +448,58 @@ def solve_centrifuge(
         },
     )
     return model, _step_record(settings, means, model)
+
+
+def _with_radius_covariance(
+    axes: dict[str, AxisModel],
+    means: _Means,
+    radius: dict[str, Estimate],
+    phi_h: dict[str, Estimate],
+    settings: CentrifugeSettings,
+    omega_v: float,
+    step_mounts: np.ndarray,
+    sem: np.ndarray,
+    step: float = 1e-5,
+) -> dict[str, AxisModel]:
+    """The axes' models with the covariance the effective radius adds (`AxisModel.radius_cov`).
+
+    The radius comes from the near-1 g runs and the zero records, outside the fitted
+    steps, and every input of a radial axis is proportional to it: a relative error
+    eps moves the fitted scale by about -eps and, because the scale must also explain
+    the up axis's input g, the bias by about eps g (as large as the bias's own noise at
+    a 1e-4 radius). Each final model is refitted (its terms and weights fixed) with the
+    radii of a group (all positions for a common radius, else each position) scaled by
+    1 +- `step`; d coef / d ln R times the radius's relative uncertainty adds
+    s s^T (u_R / R)^2, the groups' radii being independent.
+    """
+    groups = [list(radius)] if settings.common_radius else [[m] for m in radius]
+    g = settings.gravity
+    f, E, dphi = _regression(means, radius, phi_h, g, omega_v)
+    out = {}
+    for i, axis in enumerate(AXES):
+        m = axes[axis]
+        names = [n for n in m.fit.names if n != CONST]
+        X = _columns(names, i, step_mounts, f, dphi)
+        w, _ = step_weights(X, E[:, i] - f[:, i], names, sem[:, i], f[:, i], m.scale_instability)
+        cov = np.zeros_like(m.fit.cov)
+        for group in groups:
+            coefs = []
+            for sign in (1.0, -1.0):
+                scaled = {
+                    k: Estimate(r.value * (1.0 + sign * step if k in group else 1.0), r.std)
+                    for k, r in radius.items()
+                }
+                fs, Es, dphis = _regression(means, scaled, phi_h, g, omega_v)
+                X = _columns(names, i, step_mounts, fs, dphis)
+                fit = fit_ols(X, Es[:, i] - fs[:, i], names, add_constant=True, weights=w)
+                if fit.names != m.fit.names:
+                    raise AssertionError(f"refit columns {fit.names} != {m.fit.names}")
+                coefs.append(fit.coef)
+            sens = (coefs[0] - coefs[1]) / (2.0 * step)
+            rel = radius[group[0]].std / radius[group[0]].value
+            cov += np.outer(sens, sens) * rel**2
+        out[axis] = replace(m, radius_cov=cov)
+    return out
 
 
 def _fit_axis(
@@ -450,12 +523,9 @@ def _fit_axis(
     standard errors of the step means, m/s^2.
     """
     terms, dropped = candidates
-    tangential = _tangential_mounts(axis, mounts)
-    nuisance = tuple(_nuisance_name(m) for m in tangential)
-    X = np.column_stack(
-        [np.where(step_mounts == m, dphi[:, i], 0.0) for m in tangential] + [term_values(f, terms)]
-    )
+    nuisance = tuple(_nuisance_name(m) for m in _tangential_mounts(axis, mounts))
     names = (*nuisance, *terms)
+    X = _columns(names, i, step_mounts, f, dphi)
     y = E[:, i] - f[:, i]
     w, kappa = step_weights(X, y, names, sem[:, i], f[:, i], _instability_of(settings, axis))
     red = stepwise_reduce(

@@ -231,7 +231,7 @@ def _rank_at(x: np.ndarray, rows: np.ndarray, rank: int, side: int) -> np.ndarra
     return np.partition(x[window], rank, axis=1)[:, rank]
 
 
-def _spike_counts(n_spikes: np.ndarray, n_samples: int) -> dict:
+def spike_counts(n_spikes: np.ndarray, n_samples: int) -> dict:
     """One rotation's despiker counts: replaced samples per channel and samples tested."""
     return {
         "replaced": {f"gyr.{a}": int(n) for a, n in zip(params.AXES, n_spikes, strict=True)},
@@ -328,7 +328,7 @@ def solve_integral(
         std[:, j] = np.sqrt(sum(var[a].values()) + (dT * sem) ** 2) / denom
         C[:, j] = _signed_sum(J[a]) / denom  # (I + M_g) times the rotation axis
         if estimator == "regression":
-            C[:, j], std[:, j] = _regression_column(a, C[:, j], std[:, j], cleaned[a], used)
+            C[:, j], std[:, j] = regression_column(a, C[:, j], std[:, j], cleaned[a], used)
         if len(J[a]) == 2:
             closure[a] = float((J[a]["ccw"][j] + J[a]["cw"][j]) / 2.0)
     axes = _rotation_axes(rotations)
@@ -592,7 +592,7 @@ def _integrals(
     the integrated span, s, and (despiked gyro (N, 3), noise std (3,)) of the record
     (each a dict axis -> sense -> value). The span is the whole record, or with
     `estimator` "regression" the turn's motion window (`turn_motion.motion_window`). The
-    despiker's counts go into `replaced` (label -> `_spike_counts`)."""
+    despiker's counts go into `replaced` (label -> `spike_counts`)."""
     J: dict[str, dict[str, np.ndarray]] = {}
     var: dict[str, dict[str, np.ndarray]] = {}
     duration: dict[str, dict[str, float]] = {}
@@ -606,7 +606,7 @@ def _integrals(
             rec = rotations[f"{a}_{sense}"]
             noise = None if noise_std is None else noise_std[f"{a}_up"]
             gyr, sigma, span, n_spikes = clean_turn(rec, S, j, noise, estimator)
-            replaced[f"{a}_{sense}"] = _spike_counts(n_spikes, len(rec))
+            replaced[f"{a}_{sense}"] = spike_counts(n_spikes, len(rec))
             t = rec.t[span]
             w = trapezoid_weights(t)
             T = float(t[-1] - t[0])
@@ -617,7 +617,7 @@ def _integrals(
     return J, var, duration, cleaned
 
 
-def _regression_column(
+def regression_column(
     axis: str,
     column: np.ndarray,
     std: np.ndarray,

@@ -12,12 +12,16 @@ the turn is theta_s = +-2 pi n C_s e_z, so every sensor is a different
   patent's six IMUs: 18 equations for 12 unknowns), solved per output axis by
   `solve_accel_multi`;
 - gyro bias and g-sensitivity: the static gyro means w_s = b_g + G f_s
-  (`solve_gyro_static`);
+  (`solve_gyro_static`), each sensor's static record pooled with its turns' static data
+  (`_pooled_gyro`: the rests, and the cross-axis channels less their share of the turn);
 - gyro scale and misalignment: the vertical turn keeps f_s constant, so the
   static mean S_s is exactly the rest reading during the turn, and
   J_s+- = integral (w - S_s) dt = (I + M_g) theta_s+-. The difference
   J_s+ - J_s- = (I + M_g) 4 pi n C_s e_z gives three equations per sensor,
-  linear in the rows of I + M_g (the sum carries no information on them).
+  linear in the rows of I + M_g (the sum carries no information on them). A sensor
+  turning about one of its axes has them read as the integral method's regression
+  estimator reads them (each turn over its motion window, the cross-axis entries as
+  slopes on the on-axis rate times the on-axis difference).
 
 The mountings must point e_z along all three sensor axes (in either sense)
 for every term to be separable; otherwise the solver says which terms are not.
@@ -36,8 +40,17 @@ from calib_core.calibration import Calibration, SegmentResidual
 from calib_core.recording import Recording
 from calib_core.settings import Setting, Settings, SettingsIn
 from calib_core.solvers.accel_models import solve_accel_multi
-from calib_core.solvers.integral import TURNS, noise_from_differences
+from calib_core.solvers.integral import (
+    TURNS,
+    clean_turn,
+    noise_from_differences,
+    record_spikes,
+    regression_column,
+    spike_counts,
+    turn_rests,
+)
 from calib_core.solvers.multi_position import gyro_bias_and_gsens, segment_residual
+from calib_core.solvers.turn_motion import face_rest_stats
 from calib_core.stats import ChannelStats, channel_stats, trapezoid_weights
 
 PHASES = ("static", "ccw", "cw")
@@ -108,15 +121,17 @@ def solve_array(
         cal.add(name, acc_fit.params[name], acc_fit.std[name])
     cal.warnings += acc_fit.warnings
 
-    g_means = np.array([g.mean for g in gyr])
-    g_sems = np.array([g.sem for g in gyr])
+    pooled, replaced = _pooled_gyro(records, gyr)
+    record_spikes(cal, replaced)
+    g_means = np.array([g.mean for g in pooled])
+    g_sems = np.array([g.sem for g in pooled])
     gyro_bias_and_gsens(cal, f, g_means, g_sems)
 
     # Gyro matrix from the turns. Per sensor the ccw - cw difference
     # D_s = J+ - J- = (I + M_g) 4 pi n d_s (d_s = C_s e_z): the static mean's error
     # enters both integrals alike and cancels up to (T+ - T-), as in the integral
     # method, and the sensors' rows are independent.
-    theta, D, U, sigmas, durations, inferred = _turn_differences(records, gyr, turns)
+    theta, D, U, sigmas, durations, inferred, used = _turn_differences(records, gyr, turns)
     cond = _fit_gyro_matrix(cal, theta, D, U)
     _add_residuals(cal, records, f, theta, D, sigmas, durations)
     cal.info.update(
@@ -124,6 +139,7 @@ def solve_array(
             "sensors": [r.name for r in records],
             "condition_number": acc_fit.condition_number,
             "gyro_turn_condition_number": cond,
+            "misalignment_by": used,
             "acc_fit_chi2": [float(v) for v in acc_fit.chi2],
             "equations_acc": 3 * len(records),
             "turns": turns if turns is not None else sorted(set(inferred)),
@@ -143,6 +159,38 @@ def _static_stats(records: list[ArrayRecords]) -> tuple[list[ChannelStats], list
         except ValueError as exc:
             raise ValueError(f"sensor {r.name} static ({r.static.source}): {exc}") from None
     return acc, gyr
+
+
+def _pooled_gyro(
+    records: list[ArrayRecords], gyr: list[ChannelStats]
+) -> tuple[list[ChannelStats], dict[str, dict]]:
+    """Gyro statistics of each sensor's static record pooled with the static data of its
+    turns, as the six-position family's regression estimator takes them
+    (`integral.turn_rests`): the rests outside the turn's motion window on the turning
+    channel, and each cross-axis channel less its proportion of the turn. The turn is
+    about the vertical, so the specific force, hence b_g + G f_s, is that of the static
+    record. A sensor whose vertical is not along one of its axes keeps its static record
+    alone (the turns' cross-axis reading is per sensor axis).
+
+    Returns the statistics per sensor and the despiker's counts of the turn records whose
+    data were pooled (label -> `integral.spike_counts`, for `integral.record_spikes`): the
+    turns' static data are despiked, the counts are archived.
+    """
+    out, replaced = [], {}
+    for r, g in zip(records, gyr, strict=True):
+        d = r.mount @ np.array([0.0, 0.0, 1.0])
+        j = int(np.argmax(np.abs(d)))
+        if not math.isclose(abs(d[j]), 1.0, abs_tol=1e-6):
+            out.append(g)
+            continue
+        up = f"{params.AXES[j]}_up"
+        turns = {f"{params.AXES[j]}_ccw": r.ccw, f"{params.AXES[j]}_cw": r.cw}
+        rests = turn_rests(turns, {up: g.mean}, {up: g.std})
+        out.append(face_rest_stats({up: r.static}, rests)[up])
+        for sense, rec in (("ccw", r.ccw), ("cw", r.cw)):
+            n_spikes = clean_turn(rec, g.mean, j, g.std, "whole_record")[3]
+            replaced[f"{r.name}_{sense}"] = spike_counts(n_spikes, len(rec))
+    return out, replaced
 
 
 def _fit_gyro_matrix(cal: Calibration, theta: np.ndarray, D: np.ndarray, U: np.ndarray) -> float:
@@ -243,24 +291,58 @@ def solve_sensor_array(
 
 def _turn_differences(records: list, gyr: list, turns: int | None) -> tuple:
     """Per sensor: the turn vector theta_s = 4 pi n d_s, the ccw - cw integral difference
-    D_s (rad), its standard uncertainty U_s, the gyro noise, the turns' duration (s) and
-    the inferred turn counts (when `turns` is None)."""
+    D_s (rad), its standard uncertainty U_s, the gyro noise, the turns' duration (s), the
+    inferred turn counts (when `turns` is None) and, per sensor turning about one of its
+    axes, how each cross-axis entry was read ("regression" or "integral").
+
+    A sensor whose vertical is along one of its axes has its turns read as the integral
+    method's regression estimator reads them (docs/methods.md 2.6): each turn integrated
+    over its motion window, each cross-axis entry the slope on the on-axis rate times the
+    on-axis difference where that holds and is the more precise (`integral.regression_column`);
+    any other sensor's over the whole records."""
     axis_up = np.array([0.0, 0.0, 1.0])
-    theta, D, U, sigmas, durations, inferred = [], [], [], [], [], []
+    theta, D, U, sigmas, durations, inferred, used = [], [], [], [], [], [], {}
     for r, g in zip(records, gyr, strict=True):
-        sigma = noise_from_differences(r.static.gyr)
-        w_ccw, w_cw = trapezoid_weights(r.ccw.t), trapezoid_weights(r.cw.t)
-        diff = w_ccw @ (r.ccw.gyr - g.mean) - w_cw @ (r.cw.gyr - g.mean)
-        d_t = float(w_ccw.sum() - w_cw.sum())
-        var = sigma**2 * (w_ccw @ w_ccw + w_cw @ w_cw) + (d_t * g.sem) ** 2
         d = r.mount @ axis_up
+        j = int(np.argmax(np.abs(d)))
+        if math.isclose(abs(d[j]), 1.0, abs_tol=1e-6):
+            diff, var, d_t, sigma, duration, cleaned = _windowed(r, g, j)
+            used[r.name] = {}
+            std = np.sqrt(var + (d_t * g.sem) ** 2)
+            column, std = regression_column(params.AXES[j], diff, std, cleaned, used[r.name])
+        else:
+            sigma = noise_from_differences(r.static.gyr)
+            w_ccw, w_cw = trapezoid_weights(r.ccw.t), trapezoid_weights(r.cw.t)
+            column = w_ccw @ (r.ccw.gyr - g.mean) - w_cw @ (r.cw.gyr - g.mean)
+            d_t = float(w_ccw.sum() - w_cw.sum())
+            std = np.sqrt(sigma**2 * (w_ccw @ w_ccw + w_cw @ w_cw) + (d_t * g.sem) ** 2)
+            duration = float(w_ccw.sum() + w_cw.sum())
         n = turns
         if n is None:
-            n = max(1, round(abs(diff @ d) / (4 * math.pi)))
+            n = max(1, round(abs(column @ d) / (4 * math.pi)))
             inferred.append(n)
         theta.append(4 * math.pi * n * d)
-        D.append(diff)
-        U.append(np.sqrt(var))
+        D.append(column)
+        U.append(std)
         sigmas.append(sigma)
-        durations.append(float(w_ccw.sum() + w_cw.sum()))
-    return np.array(theta), np.array(D), np.array(U), sigmas, durations, inferred
+        durations.append(duration)
+    return np.array(theta), np.array(D), np.array(U), sigmas, durations, inferred, used
+
+
+def _windowed(r: ArrayRecords, g: ChannelStats, j: int) -> tuple:
+    """The ccw - cw difference of one sensor's turns about its channel j, each integrated
+    over its motion window (`integral.clean_turn`, despiked): difference (3,) rad, its
+    noise variance (3,) rad^2, the windows' duration difference and sum (s), the noise std
+    (3,) and the despiked records with their noise (sense -> (gyr, sigma)), as
+    `integral.regression_column` takes them."""
+    parts, cleaned = {}, {}
+    for sense, rec in (("ccw", r.ccw), ("cw", r.cw)):
+        gyr_c, sigma, span, _ = clean_turn(rec, g.mean, j, g.std, "regression")
+        t = rec.t[span]
+        w = trapezoid_weights(t)
+        T = float(t[-1] - t[0])
+        parts[sense] = (w @ gyr_c[span] - g.mean * T, sigma**2 * float(w @ w), T)
+        cleaned[sense] = (gyr_c, sigma)
+    (j_p, v_p, t_p), (j_m, v_m, t_m) = parts["ccw"], parts["cw"]
+    sigma = np.max([c[1] for c in cleaned.values()], axis=0)
+    return j_p - j_m, v_p + v_m, t_p - t_m, sigma, t_p + t_m, cleaned
