@@ -10,10 +10,10 @@ Every section forbids unknown keys, so a typo in a field name is an error rather
 than a silently ignored value. ``[unit]``, ``[acquisition]``, ``[site]``,
 ``[environment]`` and ``[[equipment]]`` are declared as settings (calib_core.settings;
 the last three in storage.run_input, as the archive keeps them); ``[run]``,
-``[[segments]]`` and the whole (`run_manifest`) too; ``[format]`` is still a pydantic model,
-whose first error becomes a SettingError naming its key. ``[format]`` is the one section with
-other keys: readers of other formats (MAT, MCAP) keep their own keys there
-(``variables``, ``topics``, ...) and read them from ``FormatSpec.model_extra``.
+``[[segments]]``, ``[format]`` (pipelines.ingest.data_format) and the whole
+(`run_manifest`) too. ``[format]`` is the one section with other keys: readers of other
+formats (MAT, MCAP) keep their own keys there (``variables``, ``topics``, ...) and read
+them from ``FormatSpec.extra``.
 
 Times: ``run.started`` may be a TOML datetime or an ISO-8601 string. A value
 without a UTC offset is taken as UTC (labs log in UTC or say their offset); it
@@ -33,12 +33,10 @@ from datetime import UTC, datetime
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from pydantic import ValidationError
-
 from calib_core import procedures
 from calib_core.earth import local_gravity
 from calib_core.settings import Setting, SettingError, Settings, key_line, key_path
-from pipelines.ingest.data_format import FormatSpec
+from pipelines.ingest.data_format import format_spec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import check_free_text
 from storage.naming import check_safe_name
@@ -264,23 +262,6 @@ MANIFEST = Settings(
     base=ManifestRules,
 )  # fmt: skip
 RunManifest = MANIFEST.type
-
-
-def format_spec(value: Any) -> FormatSpec:
-    """``[format]`` typed (still a pydantic model); SettingError naming its first refused key,
-    or the section for a problem of the whole."""
-    if not isinstance(value, dict):
-        raise SettingError("format", f"expected a table, got {value!r}", "")
-    try:
-        return FormatSpec.model_validate(value)
-    except ValidationError as exc:
-        err = exc.errors(include_url=False)[0]
-        msg = err["msg"].removeprefix("Value error, ")
-        if err["type"] != "value_error" and not isinstance(err.get("input"), dict | list):
-            msg = f"{msg}, got {err.get('input')!r}"
-        if not err["loc"]:
-            raise SettingError("format", msg, "") from None
-        raise SettingError(_field_path(err["loc"]), msg, "format") from None
 
 
 def run_manifest(data: Any) -> RunManifest:
