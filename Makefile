@@ -59,13 +59,15 @@ test: $(TEST_EXTRAS) system-packages
 	$(BIN)/python -m pytest -q
 
 # The tiers `make test-fast` leaves out (pyproject.toml; tests/conftest.py marks the tests
-# using PostgreSQL or the Prefect server by their fixtures), on both cores (pytest-xdist).
+# using PostgreSQL or the Prefect server by their fixtures), on both cores (pytest-xdist),
+# a module's tests on one of them (--dist loadscope: a module's fixtures, often an archive
+# built by the real pipeline, are built once, not once in each worker).
 FAST = not slow and not postgres and not browser and not e2e
 
 test-fast: $(TEST_EXTRAS) system-packages
 	$(BIN)/ruff check $(LINTED)
 	$(BIN)/ruff format --check $(LINTED)
-	$(BIN)/python -m pytest -q -m "$(FAST)" -n 2
+	$(BIN)/python -m pytest -q -m "$(FAST)" -n 2 --dist loadscope
 
 bench: $(TEST_EXTRAS)
 	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done

@@ -7,9 +7,9 @@ one's process tree sampled every 0.1 s: `longlog.run_child`), `calib process --j
 static_bias run of it into a new archive:
 
 - streamed: ``memory_limit_mb`` from `--memory-limit-gb` (below the bag's size), the
-  route of `pipelines.ingest.rosbag_stream`;
-- memory: a limit above the bag's size, the in-memory reader (rosbags, one decoded message
-  object per message) and solve; skipped with `--no-memory`.
+  route of `pipelines.ingest.rosbag_reader.stream_rosbag`;
+- memory: a limit above the bag's size, the same reader's chunks joined in memory
+  (`read_rosbag`) and solved; skipped with `--no-memory`.
 
 The last stdout line is a JSON object: size_gb, messages, and per route seconds,
 peak_rss_gb and mb_per_s; max_param_rel_diff, the largest relative difference of a

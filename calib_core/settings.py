@@ -98,7 +98,7 @@ class Setting:
             elif kind in ("number", "integer"):
                 parts.append(self._number(kind))
             elif kind == "list" and self.length is not None:
-                parts.append(f"a list of {self.length} numbers")
+                parts.append(f"a list of {self.length} finite numbers")
             else:
                 words = {"bool": "true or false", "table": "a table", "date": "a date (YYYY-MM-DD)",
                          "datetime": "a date and time (ISO 8601)"}  # fmt: skip
@@ -127,7 +127,10 @@ class Setting:
             or (
                 kind == "list"
                 and self.length is not None
-                and (len(value) != self.length or not all(_is_kind(v, "number") for v in value))
+                and (
+                    len(value) != self.length
+                    or not all(_is_kind(v, "number") and math.isfinite(v) for v in value)
+                )
             )
         )
         if kind == "text" and self.choices and value not in self.choices:

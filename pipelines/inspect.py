@@ -143,13 +143,9 @@ def log_sources(path: Path, kind: str) -> list:
         from pipelines.ingest.dataflash_reader import dataflash_sources, imu_rows, open_dataflash
 
         return dataflash_sources(imu_rows(open_dataflash(path)[0], path))
-    from pipelines.ingest.rosbag_reader import bag_sources, open_bag
+    from pipelines.ingest.rosbag_reader import bag_sources
 
-    reader, _ = open_bag(path)
-    try:
-        return bag_sources(reader, path)
-    finally:
-        reader.close()
+    return bag_sources(path)
 
 
 def _read_csv(path: Path, doc: dict[str, Any]) -> Recording:

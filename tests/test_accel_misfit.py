@@ -41,6 +41,7 @@ RUNS = 60
 TILT_RAD = 3e-3  # hand placement: each face's true up off its axis by this much (1 sigma)
 
 
+@pytest.mark.slow  # fast: test_validate's imucal session (E_n <= 1 on the same biases)
 def test_annotated_session_biases_agree_with_imucal_within_their_uncertainty():
     if not DATA.is_dir():
         pytest.skip(f"imucal Ferraris session not found at {DATA} (shared/realdata missing)")

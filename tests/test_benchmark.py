@@ -129,6 +129,7 @@ def reduced(tmp_path_factory):
     return json.loads(res.stdout), out
 
 
+@pytest.mark.slow  # 30 simulated replicates of every procedure; fast: test_procedures, one each
 def test_reduced_benchmark_prints_each_procedure(reduced):
     doc, out = reduced
     assert doc["report"] == {k: str(out / f"benchmark.{k}") for k in ("json", "html", "pdf")}
@@ -164,6 +165,7 @@ def test_reduced_benchmark_prints_each_procedure(reduced):
         assert peers[key]["e_n_within_1"] >= 0.8, peers[key]
 
 
+@pytest.mark.slow  # the reduced benchmark's report (the fixture above)
 def test_reduced_benchmark_report_is_readable(reduced):
     doc, out = reduced
     full = json.loads((out / "benchmark.json").read_text())

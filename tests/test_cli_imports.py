@@ -53,7 +53,9 @@ def test_read_only_commands_load_no_science_stack(archived_sample, args) -> None
 
 
 @pytest.mark.parametrize(
-    "args", [["query", "latest", "MPU0001"], ["query", "units"]], ids=["latest", "units"]
+    "args",
+    [pytest.param(["query", "latest", "MPU0001"], marks=pytest.mark.slow), ["query", "units"]],
+    ids=["latest", "units"],
 )
 def test_queries_load_no_flow_plot_or_typesetting(archived_sample, args) -> None:
     """The questions answer in DataFrames (pandas): no Prefect, plotting or typesetter."""
@@ -62,6 +64,7 @@ def test_queries_load_no_flow_plot_or_typesetting(archived_sample, args) -> None
     assert modules_loaded([*args, "--archive", str(arch.root)], watch) == []
 
 
+@pytest.mark.slow  # builds the serve sample; fast: the commands above in fresh interpreters
 def test_trend_table_loads_no_plotting(serve_sample) -> None:
     """A trend fits (numpy, scipy); its table without --plot draws nothing (matplotlib)."""
     argv = ["trend", "DRIFT-01", "acc.bias.x", "--archive", str(serve_sample.archive.root)]
@@ -139,6 +142,7 @@ def test_read_only_sqlite_archive_opens_without_psycopg(archived_sample) -> None
     subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=120)
 
 
+@pytest.mark.slow  # fast: test_read_only_sqlite_archive_opens_without_psycopg (serve's opener)
 def test_serve_start_loads_no_science_stack(archived_sample) -> None:
     """`calib serve`'s start (the application built on a read-only archive, its lifespan
     run, a page of runs) loads none of the science stack; the unit page loads what it

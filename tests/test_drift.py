@@ -165,6 +165,7 @@ def test_trend_command_on_the_archive(fleet_archive, tmp_path):
     assert rep["summary"]["tolerance"] == [-0.03, 0.03]
 
 
+@pytest.mark.slow  # 300 archived runs; fast: test_fleet_statistics_per_bin, test_cli_width's fleet
 def test_fleet_command_on_the_archive(fleet_archive, tmp_path):
     import json
 
@@ -206,10 +207,10 @@ def test_fleet_command_on_the_archive(fleet_archive, tmp_path):
     assert rows[40.0]["mean"] - rows[0.0]["mean"] == pytest.approx(80e-3, abs=1e-4)
 
 
-def test_trend_of_an_unknown_serial_is_a_clear_error(fleet_archive):
+def test_trend_of_an_unknown_serial_is_a_clear_error(tmp_path):
     from pipelines.cli import app
 
-    arch, _ = fleet_archive
+    arch = new_archive(tmp_path)
     res = CliRunner().invoke(app, ["trend", "NOPE", "gyr.scale.x", "--archive", str(arch.root)])
     assert res.exit_code == 2
     assert "no archived values of gyr.scale.x for serial 'NOPE'" in res.output

@@ -143,6 +143,7 @@ def test_chamber_offset_reported_in_words(chamber, tmp_path):
     assert "Thermal models fitted again" in html and "temperature 23 -&gt; 20 degC" in html
 
 
+@pytest.mark.slow  # fast: the dry impact above, test_impact's apply
 def test_chamber_offset_apply_revises_runs_and_refits(chamber):
     arch, ids = chamber["archive"], chamber["ids"]
     error = f"temperature_offset_c={TEMP_OFFSET:g}"

@@ -88,6 +88,7 @@ def browse_runs(arch: Archive) -> list[str]:
     return sorted(r["run_id"] for s in serials for r in queries.history_rows(arch, s))
 
 
+@pytest.mark.slow  # every sample processed, every command run; fast: test_cli_width's commands
 def test_no_command_shows_raw_values(sample_archive: Archive) -> None:
     cli_shared.out.width = cli_shared.err.width = 80
     found = {}

@@ -184,6 +184,7 @@ def write_profile(folder: Path, minutes: float = 20.0) -> None:
     (folder / "bench.toml").write_text(text, encoding="utf-8")
 
 
+@pytest.mark.slow  # the 130,000-sample CSV with its as-found solve; fast: the windowed test below
 def test_streamed_run_matches_the_in_memory_run(data, tmp_path):
     """The same record, in memory and streamed (a 4 MB limit), in two archives where an
     earlier run of the unit exists (so the as-found solve runs on both routes)."""
@@ -286,6 +287,7 @@ def mcap_data(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.slow  # fast: test_mcap_stream (the streamer), the CSV route below (calib process)
 def test_streamed_mcap_run_matches_the_in_memory_run(mcap_data, tmp_path):
     """`calib process` of a ROS 2 Imu log larger than a 1 MB limit (`stream_mcap`) gives
     the in-memory run's parameters and checks to the rounding of chunked sums (the bound

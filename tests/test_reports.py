@@ -309,3 +309,6 @@ def test_manifest_reference_acc_is_validated(tmp_path):
     with pytest.raises(IngestError) as err:
         parse_manifest(bad, "run.toml")
     assert "reference_acc" in str(err.value) and "3 finite numbers" in str(err.value)
+    nan = text.replace("reference_acc = [0.49999999999999994,", "reference_acc = [nan,")
+    with pytest.raises(IngestError, match=r"reference_acc.*not a finite number"):
+        parse_manifest(nan, "run.toml")

@@ -1,7 +1,8 @@
-"""A ROS 1 IMU record larger than the memory limit, streamed from its bag
-(pipelines.ingest.rosbag_stream): the in-memory reader's samples and time base bit for
-bit, the same parameters through `calib process`, its bytes hashed and copied in the same
-pass, memory bounded by the limit, and the in-memory reader's refusals.
+"""A ROS 1 bag read by its one reader (pipelines.ingest.ros1_bag): in memory, the values
+rosbags' own reader decodes; a record larger than the memory limit streamed from its bag
+(pipelines.ingest.rosbag_reader.stream_rosbag): the in-memory reader's samples and time
+base bit for bit, the same parameters through `calib process`, its bytes hashed and
+copied in the same pass, memory bounded by the limit, and the in-memory reader's refusals.
 
 Bags are written by rosbags' ROS 1 Writer with the ROS 1 Noetic message definitions
 (`log_writers._ros_messages`, the messages of tests/test_ingest_logs_e2e.py)."""
@@ -34,8 +35,7 @@ from calib_testing.streaming import assert_same_samples, streamed_memory_growth
 from calib_testing.streaming import same_error as streamed_same_error
 from pipelines.ingest.data_format import format_spec
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.rosbag_reader import read_rosbag
-from pipelines.ingest.rosbag_stream import stream_rosbag
+from pipelines.ingest.rosbag_reader import read_rosbag, stream_rosbag
 from pipelines.ingest.streaming import STREAMERS
 from storage.db import resolve_archive
 from storage.verify import verify
@@ -43,6 +43,7 @@ from storage.verify import verify
 G = 9.80665
 LIMIT = 5 << 20  # bytes: a quarter holds rosbags' 1 MiB chunks
 TOPIC = "/imu/data"
+IMU = "sensor_msgs/msg/Imu"
 
 
 def static_record(n: int, seed: int = 5, temp: bool = False) -> Recording:
@@ -111,7 +112,7 @@ def test_registered_for_the_rosbag_kind():
     assert STREAMERS["rosbag"] is stream_rosbag
 
 
-@pytest.mark.parametrize("stamp", ["header", "log"])
+@pytest.mark.parametrize("stamp", ["header", pytest.param("log", marks=pytest.mark.slow)])
 def test_same_samples_as_in_memory_hashed_and_copied(bag, tmp_path, stamp):
     streamed = stream(bag, tmp_path, stamp=stamp)
     data = bag.read_bytes()
@@ -124,6 +125,74 @@ def test_same_samples_as_in_memory_hashed_and_copied(bag, tmp_path, stamp):
     # Bit for bit: the same values and the same time base (Unix s from integer offsets).
     assert_same_samples(table, rec)
     assert streamed.first.step.median() == np.median(np.diff(rec.t))
+
+
+def test_read_as_rosbags_own_reader_decodes_it(tmp_path):
+    """The chunk walker's IMU samples and interpolated temperature are those of rosbags'
+    Reader (its index, its deserialiser), message by message: lz4 chunks, two Imu topics."""
+    from rosbags.rosbag1 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = write_bag(
+        tmp_path / "o.bag", static_record(3000, temp=True), compression="LZ4", slow_every=7
+    )
+    rec = read_rosbag(path, imu_topic="/imu/slow", min_rate_hz=1.0)
+    store = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(path) as reader:
+        decoded = {
+            topic: [
+                store.deserialize_ros1(raw, c.msgtype)
+                for c, _, raw in reader.messages(
+                    [c for c in reader.connections if c.topic == topic]
+                )
+            ]
+            for topic in ("/imu/slow", "/imu/temperature")
+        }
+    imu, temps = decoded["/imu/slow"], decoded["/imu/temperature"]
+    ns = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in imu])
+    assert len(rec) == len(imu) == 3000 // 7 + 1
+    assert np.array_equal(rec.t, ns[0] / 1e9 + (ns - ns[0]) / 1e9)
+    for key, field in (("acc", "linear_acceleration"), ("gyr", "angular_velocity")):
+        want = [[getattr(getattr(m, field), a) for a in "xyz"] for m in imu]
+        assert np.array_equal(getattr(rec, key), want)
+    ts = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in temps])
+    want = np.interp(ns - ns[0], ts - ns[0], [m.temperature for m in temps])
+    assert len(temps) > 10 and np.array_equal(rec.temp, want)
+
+
+def test_an_imu_of_another_definition_decoded_message_by_message(tmp_path):
+    """A bag whose Imu definition is not sensor_msgs/Imu's (here: no orientation, the
+    acceleration first; another md5) is decoded by rosbags with the bag's own definition,
+    in memory and streamed alike: the values written, not the fixed layout's offsets."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.EMPTY)
+    for text, name in (
+        ("uint32 seq\ntime stamp\nstring frame_id\n", "std_msgs/msg/Header"),
+        ("float64 x\nfloat64 y\nfloat64 z\n", "geometry_msgs/msg/Vector3"),
+        (
+            "std_msgs/Header header\ngeometry_msgs/Vector3 linear_acceleration\n"
+            "geometry_msgs/Vector3 angular_velocity\n",
+            IMU,
+        ),
+    ):
+        store.register(get_types_from_msg(text, name))
+    rec = static_record(3000)
+    types = store.types
+    path = tmp_path / "own.bag"
+    with Writer(path) as writer:
+        conn = writer.add_connection(TOPIC, IMU, typestore=store)
+        for i in range(len(rec)):
+            ns = T0_NS + i * 10_000_000
+            stamp = types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
+            a, w = (types["geometry_msgs/msg/Vector3"](*v) for v in (rec.acc[i], rec.gyr[i]))
+            msg = types[IMU](types["std_msgs/msg/Header"](i, stamp, "imu"), a, w)
+            writer.write(conn, ns, store.serialize_ros1(msg, IMU))
+    got = read_rosbag(path)
+    assert np.array_equal(got.acc, rec.acc) and np.array_equal(got.gyr, rec.gyr)
+    table = pq.read_table(stream(path, tmp_path).samples)
+    assert_same_samples(table, got)
 
 
 @pytest.mark.parametrize("compression", ["lz4", "bz2"])
@@ -165,6 +234,7 @@ def same_error(path: Path, tmp_path: Path, **keys) -> str:
     return streamed_same_error(read_rosbag, stream, path, tmp_path, **keys)
 
 
+@pytest.mark.slow  # three 11 MB bags; fast: test_mcap_stream's twin, the refusals below
 def test_time_going_back_and_damaged_values_numbered_in_the_whole_topic(tmp_path):
     """Errors past the first batch and chunk: the in-memory reader's text and record index."""
     n = 30_000  # 11 MB: ten chunks, several batches
@@ -286,6 +356,7 @@ def write_run(folder: Path, data: Path, settings: dict) -> Path:
     return folder
 
 
+@pytest.mark.slow  # a 27 MB bag processed twice; fast: the streamer above, test_process_streamed
 def test_streamed_bag_run_matches_the_in_memory_run(tmp_path):
     """`calib process` of a ROS 1 bag larger than a 5 MB limit gives the in-memory run's
     parameters and checks to the rounding of chunked sums (test_process_streamed's bound
@@ -303,6 +374,7 @@ def test_streamed_bag_run_matches_the_in_memory_run(tmp_path):
     assert_streamed_as_in_memory(tmp_path, runs, rel, LIMIT_MB, PROCESS_N, path)
 
 
+@pytest.mark.slow  # four runs in calib process; fast: the refusals above, test_batch_survives
 def test_bad_bags_fail_by_name_and_the_batch_goes_on(bag, tmp_path):
     """One `calib process` over four runs streamed: a truncated bag, a bag without the
     named Imu topic and a ROS 2 .db3 fail with an error naming their file; the good run
@@ -361,7 +433,7 @@ def test_streamed_bag_memory_bounded_by_the_limit(tmp_path):
     assert big.stat().st_size > 10 * limit
     settings = {"up_axis": "+z", "n_sigma": 3.0}
     grown = streamed_memory_growth(
-        "pipelines.ingest.rosbag_stream:stream_rosbag",
+        "pipelines.ingest.rosbag_reader:stream_rosbag",
         "rosbag",
         big,
         small,

@@ -1,48 +1,56 @@
-"""ROS 1 bag and ROS 2 sqlite3 bag (.db3) reader (rosbags) -> Recording.
+"""ROS 1 bag and ROS 2 sqlite3 bag (.db3) reader: chunks of decoded messages, joined into a
+Recording (`read_rosbag`) or streamed to the samples' Parquet (`stream_rosbag`).
 
-The bag is recognised by content: a ROS 1 bag starts ``#ROSBAG V2.0``, a ROS 2
-storage file is an SQLite database (``SQLite format 3``; the .db3 of a bag
-folder is read directly, its metadata.yaml is not needed). Messages are
-deserialised by rosbags with the bag's own message definitions (ROS 1) or its
-typestore for ROS 2 Humble (the standard sensor_msgs types).
+A ROS 1 bag (``#ROSBAG V2.0``) is walked front to back by `pipelines.ingest.ros1_bag`; a
+ROS 2 storage file (an SQLite database; the .db3 of a bag folder, its metadata.yaml not
+needed) is read by rosbags with its typestore for ROS 2 Humble, into memory only.
 
-Topics, as for MCAP (docs/manifest.md): ``imu_topic`` (default: the one
-``sensor_msgs/msg/Imu`` topic), ``temperature_topic`` (sensor_msgs/msg/Temperature,
-default: the one such topic if any), ``table_topic`` (sensor_msgs/msg/JointState:
-position -> reference ``table_angle`` rad, unwrapped; velocity -> ``table_rate``
-rad/s; joint ``table_joint``, name or index). Low-rate channels are interpolated
-onto the IMU time, holding their first / last value outside their span. Time:
-``stamp = "header"`` (default; the message header stamp) or ``"log"`` (the bag's
-receive time), Unix seconds. A bag with several Imu topics and no ``imu_topic``
-is read from the one logged at the highest rate; an IMU topic below
-``min_rate_hz`` is refused with every Imu topic's rate (pipelines.ingest.log_samples).
-A ROS 1 bag cut while written (no index) is read to its last whole chunk with the
-``record:cut:<file>`` finding (`pipelines.ingest.rosbag_cut`).
+Topics (docs/manifest.md): ``imu_topic`` (default: the one Imu topic, the fastest of
+several; below ``min_rate_hz`` refused with every rate), ``temperature_topic``,
+``table_topic`` / ``table_joint`` (JointState position -> ``table_angle`` rad, unwrapped;
+velocity -> ``table_rate`` rad/s), interpolated onto the IMU time; ``stamp`` ``"header"``
+or ``"log"``; Unix s, in log-time order. A ROS 1 bag cut while written is read into
+memory to its last whole chunk, with its finding.
+
+Streamed, a ROS 1 bag's IMU chunks go through the in-memory reader's checks
+(`log_samples.check_samples`, records numbered in the whole topic) to
+`streamed_pass.SampleSink`. Refused there with the reason: a temperature or table topic
+(interpolated onto the whole IMU time base), log times going back across chunks (the
+join sorts them), a cut bag (the route carries no findings), a ROS 2 .db3 (an SQLite
+database is not read front to back).
 """
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Unpack
 
 import numpy as np
 
 from calib_core.recording import Recording
+from pipelines.ingest.cdr import NS
+from pipelines.ingest.data_format import extra_keys
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.log_samples import (
     MIN_RATE_HZ,
     LogSource,
+    check_samples,
     checked_recording,
     choose_source,
     stamp_rate,
 )
+from pipelines.ingest.ros1_bag import IMU, MAGIC, TEMPERATURE, Ros1Bag, message_part, rate_of
 
-ROS1_MAGIC = b"#ROSBAG V2.0\n"
+if TYPE_CHECKING:
+    from pipelines.ingest.data_format import FormatSpec
+    from pipelines.ingest.streamed_pass import SampleSink, Streamed, StreamOptions
+
+ROS1_MAGIC = MAGIC
 SQLITE_MAGIC = b"SQLite format 3\x00"
-IMU = "sensor_msgs/msg/Imu"
-TEMPERATURE = "sensor_msgs/msg/Temperature"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 KEYS = ("imu_topic", "temperature_topic", "table_topic", "table_joint", "stamp", "min_rate_hz")
-NS = 1e9
 
 
 def bag_kind(path: Path) -> str:
@@ -63,88 +71,46 @@ def bag_kind(path: Path) -> str:
     )
 
 
-def open_bag(path: Path):
-    """An open rosbags reader and the deserialising function for its messages."""
-    from rosbags.typesys import Stores, get_typestore
-
-    path = Path(path)
-    kind = bag_kind(path)
-    try:
-        if kind == "rosbag1":
-            from rosbags.rosbag1 import Reader
-
-            from pipelines.ingest.rosbag_cut import CutBagReader, is_cut
-
-            reader = (CutBagReader if is_cut(path) else Reader)(path)
-            reader.open()
-            store = get_typestore(Stores.EMPTY)
-            for conn in reader.connections:
-                store.register(ros1_types(conn))
-            return reader, lambda raw, msgtype: store.deserialize_ros1(raw, msgtype)
-        from rosbags.rosbag2 import Reader
-
-        reader = Reader(path)
-        reader.open()
-        store = get_typestore(Stores.ROS2_HUMBLE)
-        return reader, lambda raw, msgtype: store.deserialize_cdr(raw, msgtype)
-    except IngestError:
-        raise
-    except Exception as exc:  # rosbags' ReaderError, sqlite3 errors, ... on damaged bags
-        raise IngestError(f"damaged {kind} ({type(exc).__name__}: {exc})", file=path) from None
-
-
-def ros1_types(conn) -> dict:
-    from rosbags.typesys import get_types_from_msg
-
-    return get_types_from_msg(conn.msgdef.data, conn.msgtype)
-
-
-def topic_connections(reader, path: Path, msgtype: str, name: str | None, key: str, required: bool):
-    """The connections of topic `name`, or of the one topic of `msgtype`."""
-    conns = [c for c in reader.connections if (c.topic == name if name else c.msgtype == msgtype)]
-    topics = sorted({c.topic for c in conns})
-    if name and conns and conns[0].msgtype != msgtype:
+def topic_connections(
+    conns: list, path: Path, msgtype: str, name: str | None, key: str, required: bool
+):
+    """The connections of topic `name`, or of the one topic of `msgtype`, among `conns`."""
+    found = [c for c in conns if (c.topic == name if name else c.msgtype == msgtype)]
+    topics = sorted({c.topic for c in found})
+    if name and found and found[0].msgtype != msgtype:
         raise IngestError(
-            f"topic {name} is {conns[0].msgtype}, expected {msgtype}",
+            f"topic {name} is {found[0].msgtype}, expected {msgtype}",
             file=path,
             field=f"format.{key}",
         )
     if len(topics) == 1 or (not required and not topics and not name):
-        return conns
-    found = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
+        return found
+    listed = ", ".join(f"{c.topic} ({c.msgtype})" for c in conns) or "none"
     what = f"topic {name!r}" if name else f"one {msgtype} topic"
     raise IngestError(
-        f"expected {what}, found {len(topics)}; the bag's topics: {found}",
+        f"expected {what}, found {len(topics)}; the bag's topics: {listed}",
         file=path,
         field=f"format.{key}",
     )
 
 
-def _messages(reader, deserialize, conns, path: Path, stamp: str, extract):
-    """(stamps in ns (N,), [extract(message)]) of the connections, in log order.
-
-    Only what `extract` takes is kept: holding 10^5 decoded messages (each with
-    numpy covariance arrays) would make the garbage collector's passes, and the
-    read, twice as slow.
-    """
-    stamps, msgs = [], []
-    try:
-        for conn, log_ns, raw in reader.messages(connections=conns):
-            msg = deserialize(raw, conn.msgtype)
-            header = getattr(msg, "header", None)
-            if stamp == "header" and header is not None:
-                stamps.append(header.stamp.sec * 1_000_000_000 + header.stamp.nanosec)
-            else:
-                stamps.append(log_ns)
-            msgs.append(extract(msg))
-    except Exception as exc:  # a truncated record or a message that does not decode
-        where = conns[0].topic if conns else "?"
-        raise IngestError(
-            f"{where} message {len(msgs)}: cannot decode ({type(exc).__name__}: {exc})",
-            file=path,
-            field=where,
-        ) from None
-    return np.array(stamps, dtype=np.int64), msgs
+def chosen_topics(
+    conns: list, path: Path, keys: dict[str, Any], sources: Callable[[], list[LogSource]]
+) -> dict[str, list]:
+    """The connections of each role (imu, temp if any, table if named) the [format] keys
+    name; of several Imu topics and none named, the fastest of `sources`."""
+    imu_topic = keys.get("imu_topic")
+    if imu_topic is None and len({c.topic for c in conns if c.msgtype == IMU}) > 1:
+        min_rate = keys.get("min_rate_hz", MIN_RATE_HZ)
+        chosen = choose_source(path, sources(), min_rate_hz=min_rate, field="format.imu_topic")
+        imu_topic = str(chosen.key)
+    out = {"imu": topic_connections(conns, path, IMU, imu_topic, "imu_topic", True)}
+    name = keys.get("temperature_topic")
+    if temps := topic_connections(conns, path, TEMPERATURE, name, "temperature_topic", False):
+        out["temp"] = temps
+    if table := keys.get("table_topic"):
+        out["table"] = topic_connections(conns, path, JOINT_STATE, table, "table_topic", True)
+    return out
 
 
 def read_rosbag(
@@ -172,54 +138,140 @@ def read_rosbag(
     time not increasing.
     """
     path = Path(path)
+    keys = {
+        "imu_topic": imu_topic,
+        "temperature_topic": temperature_topic,
+        "table_topic": table_topic,
+        "min_rate_hz": min_rate_hz,
+    }
+    check_stamp(stamp)
+    parts: dict[str, list[dict[str, np.ndarray]]] = {"imu": [], "temp": [], "table": []}
+    if bag_kind(path) == "rosbag1":
+        try:
+            with path.open("rb") as fh:
+                bag = Ros1Bag(path, fh, stamp)
+                bag.open(os.fstat(fh.fileno()).st_size, cut_ok=True)
+                bag.select(chosen_topics(bag.connections, path, keys, bag.sources), table_joint)
+                for role, _, part in bag.parts():
+                    parts[role].append(part)
+                bag.check_counts()
+        except OSError as exc:
+            raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from None
+        topics, findings = bag.topics, bag.findings
+    else:
+        topics, findings = read_db3(path, keys, stamp, table_joint, parts), ()
+    return joined_recording(path, topics, parts, findings, min_rate_hz)
+
+
+def check_stamp(stamp: str) -> None:
     if stamp not in ("header", "log"):
         raise IngestError(f"stamp must be 'header' or 'log', got {stamp!r}", field="format.stamp")
-    reader, deserialize = open_bag(path)
-    try:
-        if imu_topic is None and len({c.topic for c in reader.connections if c.msgtype == IMU}) > 1:
-            sources = bag_sources(reader, path)
-            imu_topic = str(
-                choose_source(path, sources, min_rate_hz=min_rate_hz, field="format.imu_topic").key
-            )
-        conns = topic_connections(reader, path, IMU, imu_topic, "imu_topic", True)
-        t_ns, rows = _messages(reader, deserialize, conns, path, stamp, imu_values)
-        values = np.array(rows, dtype=float).reshape(-1, 6)
-        acc, gyr = values[:, :3].copy(), values[:, 3:].copy()
-        t0 = int(t_ns[0]) if len(t_ns) else 0
-        t = t0 / NS + (t_ns - t0) / NS
-        temp = None
-        tconns = topic_connections(
-            reader, path, TEMPERATURE, temperature_topic, "temperature_topic", False
-        )
-        if tconns:
-            ts, temps = _messages(reader, deserialize, tconns, path, stamp, _temperature)
-            if len(ts):
-                temp = np.interp(t_ns - t0, ts - t0, np.array(temps, dtype=float))
-        reference = {}
-        if table_topic:
-            jconns = topic_connections(reader, path, JOINT_STATE, table_topic, "table_topic", True)
-            reference = _table(reader, deserialize, jconns, path, stamp, table_joint, t_ns)
-    finally:
-        reader.close()
-    findings = getattr(reader, "findings", ())  # a cut ROS 1 bag's (rosbag_cut)
-    rec = checked_recording(
-        path, conns[0].topic, t, {"acc": acc, "gyr": gyr}, temp=temp, findings=findings
-    )
-    rate, topic = stamp_rate(rec.t), conns[0].topic
-    if rate is None or rate < min_rate_hz:
-        choose_source(
-            path,
-            [LogSource(topic, topic, len(rec), rate, temp is not None)],
-            min_rate_hz=min_rate_hz,
-            field="format.imu_topic",
-        )
+
+
+def joined(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """A role's chunks joined, in log-time order (stable: rosbags' order on a tie)."""
+    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    order = np.argsort(out["log"], kind="stable")
+    if (order[1:] < order[:-1]).any():
+        out = {k: v[order] for k, v in out.items()}
+    return out
+
+
+def joined_recording(
+    path: Path,
+    topics: dict[str, str],
+    parts: dict[str, list[dict[str, np.ndarray]]],
+    findings: tuple[dict, ...],
+    min_rate_hz: float,
+) -> Recording:
+    """The Recording of the chunks of each role: the IMU's time base (Unix s from exact
+    integer offsets to the first stamp), temperature and table interpolated onto it."""
+    topic = topics["imu"]
+    if not parts["imu"]:
+        raise IngestError(f"{topic}: no samples", file=path, field=topic)
+    imu = joined(parts["imu"])
+    t_ns = imu["stamp"]
+    t0 = int(t_ns[0])
+    t = t0 / NS + (t_ns - t0) / NS
+    temp = None
+    if parts["temp"]:
+        temps = joined(parts["temp"])
+        temp = np.interp(t_ns - t0, temps["stamp"] - t0, temps["temp"])
+    reference = {}
+    if "table" in topics:
+        if not parts["table"]:
+            raise IngestError("no table messages", file=path, field="format.table_topic")
+        table = joined(parts["table"])
+        ts = table["stamp"]
+        for key, name, unwrap in (("table_angle", "angle", True), ("table_rate", "rate", False)):
+            if not np.isnan(series := table[name]).any():
+                series = np.unwrap(series) if unwrap else series
+                reference[key] = np.interp(t_ns - ts[0], ts - ts[0], series)
+    channels = {"acc": imu["acc"], "gyr": imu["gyr"]}
+    rec = checked_recording(path, topic, t, channels, temp=temp, findings=findings)
+    check_rate(path, topic, len(rec), stamp_rate(rec.t), min_rate_hz, temp is not None)
     rec.reference.update(reference)
     return rec
 
 
-def bag_sources(reader, path: Path) -> list[LogSource]:
-    """One source per sensor_msgs/Imu topic, its rate from the bag's log times (no message
-    is decoded), in topic order."""
+# --- ROS 2 .db3 ------------------------------------------------------------------------
+
+
+def open_db3(path: Path):
+    """An open rosbags ROS 2 reader of the .db3 at `path`."""
+    from rosbags.rosbag2 import Reader
+
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as exc:  # rosbags' ReaderError, sqlite3 errors, ... on damaged bags
+        raise IngestError(f"damaged rosbag2 ({type(exc).__name__}: {exc})", file=path) from None
+    return reader
+
+
+def read_db3(
+    path: Path, keys: dict[str, Any], stamp: str, joint: str | int, parts: dict[str, list]
+) -> dict[str, str]:
+    """A ROS 2 .db3's messages of each chosen role, as one chunk, to `parts`; the topics
+    read by role."""
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    reader = open_db3(path)
+    try:
+        chosen = chosen_topics(reader.connections, path, keys, lambda: db3_sources(reader, path))
+        for role, conns in chosen.items():
+            logs: list[int] = []
+
+            def decoded(conns: list = conns, logs: list[int] = logs):
+                # one message at a time: 10^5 decoded messages held would slow the read
+                for conn, log_ns, raw in reader.messages(connections=conns):
+                    msg = store.deserialize_cdr(raw, conn.msgtype)
+                    logs.append(log_ns)
+                    yield msg
+
+            try:
+                part = message_part(path, role, decoded(), joint)
+            except IngestError:
+                raise
+            except Exception as exc:  # a truncated record or a message that does not decode
+                raise IngestError(
+                    f"{conns[0].topic} message {len(logs)}: cannot decode "
+                    f"({type(exc).__name__}: {exc})",
+                    file=path,
+                    field=conns[0].topic,
+                ) from None
+            if logs:
+                part["log"] = np.array(logs, dtype=np.int64)
+                parts[role].append({**part, "stamp": part["log"]} if stamp == "log" else part)
+    finally:
+        reader.close()
+    return {role: conns[0].topic for role, conns in chosen.items()}
+
+
+def db3_sources(reader, path: Path) -> list[LogSource]:
+    """One source per sensor_msgs/Imu topic of a .db3, its rate from the log times (no
+    message is decoded), in topic order."""
     topics = sorted({c.topic for c in reader.connections if c.msgtype == IMU})
     has_temp = any(c.msgtype == TEMPERATURE for c in reader.connections)
     out = []
@@ -227,7 +279,7 @@ def bag_sources(reader, path: Path) -> list[LogSource]:
         conns = [c for c in reader.connections if c.topic == topic]
         try:
             stamps = np.array([ns for _, ns, _ in reader.messages(connections=conns)], float)
-        except Exception as exc:  # a damaged chunk or index
+        except Exception as exc:  # a damaged database
             raise IngestError(
                 f"{topic}: cannot read its messages ({type(exc).__name__}: {exc})",
                 file=path,
@@ -237,36 +289,123 @@ def bag_sources(reader, path: Path) -> list[LogSource]:
     return out
 
 
-def imu_values(m) -> tuple[float, ...]:
-    a, w = m.linear_acceleration, m.angular_velocity
-    return (a.x, a.y, a.z, w.x, w.y, w.z)
+def bag_sources(path: Path) -> list[LogSource]:
+    """The Imu topics of a ROS 1 or ROS 2 bag with their rates (`calib inspect`)."""
+    path = Path(path)
+    if bag_kind(path) == "rosbag2":
+        reader = open_db3(path)
+        try:
+            return db3_sources(reader, path)
+        finally:
+            reader.close()
+    with path.open("rb") as fh:
+        bag = Ros1Bag(path, fh, "header")
+        bag.open(os.fstat(fh.fileno()).st_size, cut_ok=True)
+        return bag.sources()
 
 
-def _temperature(m) -> float:
-    return m.temperature
+# --- streamed ----------------------------------------------------------------------------
 
 
-def _joint(m) -> tuple[list[str], list[float], list[float]]:
-    return list(m.name), list(m.position), list(m.velocity)
+def stream_rosbag(
+    path: Path,
+    fmt: FormatSpec,
+    samples: Path,
+    **options: Unpack[StreamOptions],
+) -> Streamed:
+    """One pass over a ROS 1 bag: hash, raw copy, samples' Parquet, statistics.
 
+    Parameters
+    ----------
+    path : the .bag file (ROS 1, format 2.0, indexed; none, bz2 or lz4 chunks).
+    fmt : the manifest's format section (kind rosbag: ``imu_topic``, ``stamp``,
+        ``min_rate_hz`` as `read_rosbag`; a temperature or table topic is refused).
+    samples : the Parquet file to write (columns segment, t, acc_*, gyr_*, temp; SI;
+        t in Unix s; temp NaN).
+    options : `streamed_pass.StreamOptions` (raw copy, label, memory limit: the rows per
+        batch and the largest chunk accepted, a quarter of it; progress, time window).
 
-def _table(reader, deserialize, conns, path, stamp, joint, t_ns) -> dict[str, np.ndarray]:
-    """table_angle (unwrapped, rad) and table_rate (rad/s) of one joint on the IMU time."""
-    ts, msgs = _messages(reader, deserialize, conns, path, stamp, _joint)
-    if not msgs:
-        raise IngestError("no table messages", file=path, field="format.table_topic")
-    names = msgs[0][0]
-    if isinstance(joint, str):
-        if joint not in names:
+    Raises
+    ------
+    IngestError as `read_rosbag`, and naming the file: a ROS 2 .db3, a bag not indexed
+    or truncated, a temperature or table topic, log times going back across chunks.
+    """
+    from pipelines.ingest.streamed_pass import streamed_pass
+
+    path = Path(path)
+    keys = {"stamp": "header", **extra_keys(fmt, "rosbag", KEYS)}
+    check_stamp(keys["stamp"])
+    if keys.get("table_topic") is not None:
+        raise IngestError(
+            "a record read in chunks gives its IMU topic only; table_topic is interpolated "
+            "onto the whole IMU time base (raise the memory limit to read it into memory)",
+            file=path,
+            field="format.table_topic",
+        )
+    if bag_kind(path) == "rosbag2":
+        raise IngestError(
+            "a ROS 2 .db3 bag is read into memory only (an SQLite database is not read front "
+            "to back in one pass); raise the memory limit, or convert the bag to MCAP "
+            "(`ros2 bag convert`), which is read in chunks",
+            file=path,
+            field="format.kind",
+        )
+    with streamed_pass(path, samples, tee=True, **options) as run:
+        # a chunk, its decompressed copy and their decoded arrays: a quarter of the limit
+        bag = Ros1Bag(path, run.tee, keys["stamp"], run.memory_limit // 4)
+        bag.open(run.size, cut_ok=False)
+        chosen = chosen_topics(bag.connections, path, keys, bag.sources)
+        if "temp" in chosen:
             raise IngestError(
-                f"joint {joint!r} not in {names}", file=path, field="format.table_joint"
+                f"the bag's temperature topic {chosen['temp'][0].topic} is interpolated onto "
+                "the whole IMU time base, which a record read in chunks does not hold (raise "
+                "the memory limit to read it into memory)",
+                file=path,
+                field="format.temperature_topic",
             )
-        joint = names.index(joint)
-    out = {}
-    for key, k, unwrap in (("table_angle", 1, True), ("table_rate", 2, False)):
-        values = [m[k] for m in msgs]
-        if all(len(v) > joint for v in values):
-            series = np.array([v[joint] for v in values], dtype=float)
-            series = np.unwrap(series) if unwrap else series
-            out[key] = np.interp(t_ns - ts[0], ts - ts[0], series)
-    return out
+        bag.select(chosen)
+        run.sink.topic = bag.topics["imu"]
+        to_sink(path, bag, run.sink)
+        bag.check_counts()
+        run.sink.finish()
+        run.tee.drain()
+    topic, sink = bag.topics["imu"], run.sink
+    if sink.done == 0:
+        raise IngestError(f"{topic}: no samples", file=path, field=topic)
+    # the rate from the exact median step of the first pass (`log_samples.stamp_rate`'s)
+    rate = rate_of(sink.steps or sink.first.step) if sink.done > 1 else None
+    check_rate(path, topic, sink.done, rate, keys.get("min_rate_hz", MIN_RATE_HZ))
+    return run.result()
+
+
+def to_sink(path: Path, bag: Ros1Bag, sink: SampleSink) -> None:
+    """Each chunk's IMU messages through `check_samples` (on the joined time base, records
+    numbered in the whole topic) to `sink`; log times going back across chunks refused."""
+    topic = bag.topics["imu"]
+    last_log, last_t, t0, read = None, None, None, 0
+    for _, pos, part in bag.parts():
+        log = part["log"]
+        if last_log is not None and log[0] < last_log:
+            raise IngestError(
+                f"{topic}: the log time of the chunk at byte {pos} goes back before the "
+                "previous chunk's; a record read in chunks keeps the file's order (raise the "
+                "memory limit to read it into memory, where messages are sorted)",
+                file=path,
+                field=topic,
+            )
+        last_log = int(log[-1])
+        t0 = part["stamp"][0] if t0 is None else t0
+        t = (part["stamp"] - t0) / NS + t0 / NS
+        channels = {"acc": part["acc"], "gyr": part["gyr"]}
+        check_samples(path, topic, t, channels, offset=read, last=last_t)
+        last_t, read = float(t[-1]), read + len(t)
+        sink.push(part)
+
+
+def check_rate(
+    path: Path, topic: str, n: int, rate: float | None, min_rate_hz: float, temp: bool = False
+) -> None:
+    """An IMU topic of `n` samples at `rate` Hz below `min_rate_hz` refused with its rate."""
+    if rate is None or rate < min_rate_hz:
+        source = LogSource(topic, topic, n, rate, temp)
+        choose_source(path, [source], min_rate_hz=min_rate_hz, field="format.imu_topic")

@@ -194,6 +194,9 @@ class HashingTee:
         finally:
             self.pool.shutdown(cancel_futures=True)
 
+    def tell(self) -> int:
+        return self.at
+
     def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
         if whence != os.SEEK_CUR or offset <= 0 or self.at != self.hashed:
             self.at = self.fh.seek(offset, whence)  # e.g. to the summary and back

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from calib_core.streamed import RecordSummary
 from pipelines.ingest.csv_reader import stream_csv
 from pipelines.ingest.mcap_reader import stream_mcap
-from pipelines.ingest.rosbag_stream import stream_rosbag
+from pipelines.ingest.rosbag_reader import stream_rosbag
 from pipelines.ingest.streamed_pass import DEFAULT_MEMORY_LIMIT, Streamed
 from storage.rawstore import SamplesFile
 
