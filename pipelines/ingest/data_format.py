@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -71,10 +70,7 @@ class FormatRules:
             except ValueError as exc:
                 raise SettingError(key, str(exc), "format") from None
         for key in ("acc_scale", "acc_offset", "gyr_scale", "gyr_offset"):
-            value = getattr(self, key)
-            if value is not None and not all(math.isfinite(v) for v in value):
-                problem = f"expected 3 finite numbers (x, y, z), got {value}"
-                raise SettingError(key, problem, "format")
+            value = getattr(self, key)  # 3 finite numbers (FORMAT), as floats
             object.__setattr__(self, key, None if value is None else [float(v) for v in value])
         for key in ("acc_columns", "gyr_columns"):
             value = getattr(self, key)
