@@ -176,9 +176,7 @@ FORMAT = Settings(
     *(Setting(f"{s}_{k}", "list", "", None, f"{s} raw counts' {k} (x, y, z)", length=3)
       for s in ("gyr",) for k in ("scale", "offset")),
     Setting("gyr_scale_unit", "text", "", "rad/s", "unit counted by gyr_scale"),
-    name="FormatSpec",
-    noun="field",
-    base=FormatRules,
+    name="FormatSpec", noun="field", base=FormatRules,
 )  # fmt: skip
 FormatSpec = FORMAT.type
 

@@ -257,9 +257,7 @@ MANIFEST = Settings(
     *(Setting(k, "table", "", None, f"[{k}]") for k in ("unit", "run", "site", "environment",
                                                          "acquisition", "format")),
     *(Setting(k, "list", "", None, f"[[{k}]]") for k in ("equipment", "segments")),
-    name="RunManifest",
-    noun="field",
-    base=ManifestRules,
+    name="RunManifest", noun="field", base=ManifestRules,
 )  # fmt: skip
 RunManifest = MANIFEST.type
 
