@@ -38,14 +38,14 @@ def streamed_memory_growth(
     """
     module, function = streamer.split(":")
     if kind.startswith("{"):
-        fmt = f"FormatSpec.model_validate_json({kind!r})"
+        fmt = f"format_spec(json.loads({kind!r}))"
     else:
-        fmt = f"FormatSpec(kind={kind!r})"
+        fmt = f"format_spec({{'kind': {kind!r}}})"
     script = textwrap.dedent(f"""
         import json, sys
         from pathlib import Path
         from pipelines.streamed_solve import solve_streamed
-        from pipelines.ingest.data_format import FormatSpec
+        from pipelines.ingest.data_format import format_spec
         from {module} import {function} as stream
 
         def status(key):

@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from calib_core.recording import Recording
+from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import FormatSpec
 
 GAP_FACTOR = 1.5  # a time step above 1.5 median steps is a gap
 SI_COLUMNS = ["t [s]", "acc x y z [m/s^2]", "gyr x y z [rad/s]", "temp [degC]"]

@@ -33,6 +33,7 @@ from calib_core.uncertainty import Budget
 from pipelines import shared_reference
 from pipelines.as_found import as_found_step, earlier_calibration
 from pipelines.ingest import LoadedRun, RunSource, load_run
+from pipelines.ingest.data_format import format_dict
 from pipelines.ingest.errors import IngestError, naming_the_run
 from pipelines.ingest.manifest import RunManifest
 from pipelines.issuing import issue_certificate, with_note
@@ -179,7 +180,7 @@ def ingest_step(loaded: LoadedRun, seconds: float) -> StepRecord:
         more = {"streamed": {"memory_limit": rec.memory_limit, "bytes": rec.result.size}}
     return StepRecord(
         "ingest",
-        settings={"format": loaded.manifest.format.model_dump(mode="json")},
+        settings={"format": format_dict(loaded.manifest.format)},
         statistics={
             "files": len(loaded.raw_files),
             "samples": samples,

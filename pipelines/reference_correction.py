@@ -74,7 +74,7 @@ def _corrected_temperature(loaded, error: ReferenceError, stats: dict[str, Any])
             }
         return loaded, stats
     after = float(t) - error.value
-    manifest = loaded.manifest.model_copy(update={"environment": replace(env, temperature_c=after)})
+    manifest = replace(loaded.manifest, environment=replace(env, temperature_c=after))
     stats = {
         **stats,
         "what": f"{stats['what']}; recorded temperature {t:g} -> {after:g} degC",

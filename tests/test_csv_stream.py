@@ -6,6 +6,7 @@ adds bounded by the limit."""
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from calib_core.preprocess.motion import motion_check
 from calib_core.solvers.static_bias import solve_static_bias
 from calib_testing.streaming import assert_same_solve, streamed_memory_growth
 from pipelines.ingest.csv_reader import read_csv, stream_csv
-from pipelines.ingest.data_format import FormatSpec
+from pipelines.ingest.data_format import FormatSpec, format_dict
 from pipelines.streamed_solve import phase_rows, solve_streamed
 
 RATE = 100.0
@@ -104,7 +105,7 @@ def test_streamed_record_memory_bounded_by_the_limit(big_csv, tmp_path):
     del lines
     grown = streamed_memory_growth(
         "pipelines.ingest.csv_reader:stream_csv",
-        FMT.model_dump_json(),
+        json.dumps(format_dict(FMT)),
         big_csv,
         quarter,
         tmp_path / "s.parquet",

@@ -26,7 +26,7 @@ from calib_core.units import DEG, STANDARD_GRAVITY
 from calib_testing.run_writers import dumps_toml
 from pipelines.ingest import IngestError, discover_runs, load_run
 from pipelines.ingest.csv_dialect import sniff
-from pipelines.ingest.manifest import FormatSpec
+from pipelines.ingest.data_format import FormatSpec
 from pipelines.process import process_run
 from storage.db import resolve_archive
 

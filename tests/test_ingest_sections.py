@@ -20,7 +20,7 @@ from test_ingest_formats_e2e import manifest
 
 from pipelines.ingest import IngestError, discover_runs, load_run
 from pipelines.ingest.csv_reader import read_csv
-from pipelines.ingest.manifest import FormatSpec
+from pipelines.ingest.data_format import FormatSpec
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 ANNOTATED = REALDATA / "imucal_ferraris" / "annotated_session.csv"

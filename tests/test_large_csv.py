@@ -41,7 +41,7 @@ def peak_rss():
 
 import rich.progress  # noqa: F401 - module code is not sample memory: load it before measuring
 from pipelines.ingest import csv_reader
-from pipelines.ingest.manifest import FormatSpec
+from pipelines.ingest.data_format import FormatSpec
 
 path, stream = Path(sys.argv[1]), sys.argv[2] == "progress"
 fmt = FormatSpec(kind="csv", time_unit="ms", acc_unit="g", gyr_unit="deg/s")  # names recognised

@@ -132,7 +132,7 @@ def test_other_gravity_models(tmp_path: Path) -> None:
 def test_format_keeps_extra_keys_for_other_readers(tmp_path: Path) -> None:
     text = EXAMPLE.replace('kind = "csv"', 'kind = "csv"\ntopics = ["/imu"]')
     m = load_manifest(write(tmp_path, text))
-    assert m.format.model_extra == {"topics": ["/imu"]}
+    assert m.format.extra == {"topics": ["/imu"]}
 
 
 # One case per kind of mistake: the edit of EXAMPLE, the field named, part of the message.

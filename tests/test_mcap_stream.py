@@ -19,7 +19,7 @@ from test_ingest_mcap import T0_NS, rewrite, write_run
 from calib_core.solvers.static_bias import solve_static_bias
 from calib_testing.streaming import assert_same_samples, assert_same_solve, streamed_memory_growth
 from calib_testing.streaming import same_error as streamed_same_error
-from pipelines.ingest.data_format import FormatSpec
+from pipelines.ingest.data_format import FormatSpec, format_spec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.mcap_reader import read_mcap, stream_mcap
 from pipelines.streamed_solve import solve_streamed
@@ -31,7 +31,7 @@ SETTINGS = {"up_axis": "+z", "n_sigma": 3.0}
 
 
 def fmt(**keys) -> FormatSpec:
-    return FormatSpec(kind="mcap", **keys)
+    return format_spec({"kind": "mcap", **keys})
 
 
 def static_acc(n: int, seed: int = 1) -> np.ndarray:

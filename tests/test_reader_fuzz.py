@@ -38,9 +38,9 @@ from sqlalchemy import text
 
 from calib_core.recording import Recording
 from pipelines.ingest.csv_reader import read_csv
+from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.dataflash_reader import read_dataflash
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import FormatSpec
 from pipelines.ingest.mpu6000 import read_mpu6000_file
 from pipelines.ingest.rosbag_reader import read_rosbag
 from pipelines.ingest.ulog_reader import read_ulog

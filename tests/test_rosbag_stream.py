@@ -33,7 +33,7 @@ from calib_testing.calib_command import run_calib
 from calib_testing.run_writers import dumps_toml
 from calib_testing.streaming import assert_same_samples, streamed_memory_growth
 from calib_testing.streaming import same_error as streamed_same_error
-from pipelines.ingest.data_format import FormatSpec
+from pipelines.ingest.data_format import format_spec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.rosbag_reader import read_rosbag, stream_rosbag
 from pipelines.ingest.streaming import STREAMERS
@@ -92,7 +92,7 @@ def write_bag(
 def stream(path: Path, out: Path, limit: int = LIMIT, **keys):
     return stream_rosbag(
         path,
-        FormatSpec(kind="rosbag", **keys),
+        format_spec({"kind": "rosbag", **keys}),
         out / "samples.parquet",
         copy_to=out / "raw",
         memory_limit=limit,

@@ -272,34 +272,34 @@ def test_protocol_has_the_uncertainty_table(archived) -> None:
 
 
 def test_equipment_spec_from_the_manifest() -> None:
-    from pipelines.ingest.manifest import RunManifest
+    from pipelines.ingest.manifest import run_manifest
     from pipelines.uncertainty import equipment_spec
 
     doc = {**_manifest("S", equipment=True), "format": {"kind": "csv"}}
-    m = RunManifest.model_validate(doc)
+    m = run_manifest(doc)
     spec = equipment_spec(m)
     assert spec.gravity_expanded == 3e-2 and spec.cube_angle is not None
     assert spec.table_rate_rel is None  # no rate table named
     doc["run"]["settings"] = {"uncertainty": {"cube_angle_deg": 0.01, "table_rate_rel": 5e-5}}
-    spec = equipment_spec(RunManifest.model_validate(doc))
+    spec = equipment_spec(run_manifest(doc))
     assert spec.cube_angle == pytest.approx(np.radians(0.01)) and spec.table_rate_rel == 5e-5
     doc["run"]["settings"] = {"uncertainty": {"cube_angle": 0.01}}
     with pytest.raises(
         ValueError,
         match="run.settings.uncertainty.cube_angle: unknown setting.*did you mean cube_angle_deg",
     ):
-        equipment_spec(RunManifest.model_validate(doc))
+        equipment_spec(run_manifest(doc))
     doc["run"]["settings"] = {"uncertainty": {"cube_angle_deg": -1}}
     with pytest.raises(
         ValueError, match="uncertainty.cube_angle_deg: expected a non-negative number, got -1"
     ):
-        equipment_spec(RunManifest.model_validate(doc))
+        equipment_spec(run_manifest(doc))
     doc = {**_manifest("S", equipment=False), "format": {"kind": "csv"}}
-    assert equipment_spec(RunManifest.model_validate(doc)) is None
+    assert equipment_spec(run_manifest(doc)) is None
 
 
 def test_equipment_accuracy_class_read_when_it_states_one() -> None:
-    from pipelines.ingest.manifest import RunManifest
+    from pipelines.ingest.manifest import run_manifest
     from pipelines.uncertainty import accuracy_of, equipment_spec_sources
 
     assert accuracy_of("0.01 deg") == ("angle", pytest.approx(np.radians(0.01)))
@@ -324,7 +324,7 @@ def test_equipment_accuracy_class_read_when_it_states_one() -> None:
             "calibration_due": "2027-11-15",
         },
     ]
-    spec, sources = equipment_spec_sources(RunManifest.model_validate(doc))
+    spec, sources = equipment_spec_sources(run_manifest(doc))
     assert spec.cube_angle == pytest.approx(np.radians(0.01))
     assert spec.table_rate_rel == pytest.approx(1e-4)
     assert sources["cube_angle"] == "accuracy_class '0.01 deg' of cube CUBE-1"

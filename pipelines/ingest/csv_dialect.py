@@ -27,8 +27,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from pipelines.ingest.data_format import FormatSpec
 from pipelines.ingest.errors import IngestError
-from pipelines.ingest.manifest import FormatSpec
 
 PROBE_LINES = 200  # lines examined to find the header and the data
 _CANDIDATES = (",", ";", "\t", "whitespace")

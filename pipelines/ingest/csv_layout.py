@@ -13,6 +13,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
+from calib_core.settings import SettingError
 from pipelines.ingest.csv_dialect import is_number, sniff, split_unit
 from pipelines.ingest.data_format import Column, FormatSpec
 from pipelines.ingest.errors import IngestError
@@ -234,7 +235,7 @@ def header_units(layout: CsvLayout, fmt: FormatSpec) -> FormatSpec:
     ):
         units = {split_unit(layout.roles[r])[1] for r in roles if r in layout.roles}
         units.discard(None)
-        if not units or key in fmt.model_fields_set:
+        if not units or key in fmt.given:
             continue
         if len(units) > 1:
             names = ", ".join(layout.roles[r] for r in roles if r in layout.roles)
@@ -249,11 +250,11 @@ def header_units(layout: CsvLayout, fmt: FormatSpec) -> FormatSpec:
     if not update:
         return fmt
     try:
-        return FormatSpec.model_validate({**fmt.model_dump(exclude_unset=True), **update})
-    except ValueError as exc:
+        return dataclasses.replace(fmt, **update, given=fmt.given | set(update))
+    except SettingError as exc:
         key = next(iter(update))
         raise IngestError(
-            f"unit in the header not understood: {exc}; set format.{key} to override",
+            f"unit in the header not understood: {exc.problem}; set format.{key} to override",
             file=layout.path,
             line=layout.data_start - 1,
             field=f"format.{key}",

@@ -10,10 +10,10 @@ Every section forbids unknown keys, so a typo in a field name is an error rather
 than a silently ignored value. ``[unit]``, ``[acquisition]``, ``[site]``,
 ``[environment]`` and ``[[equipment]]`` are declared as settings (calib_core.settings;
 the last three in storage.run_input, as the archive keeps them); ``[run]``,
-``[[segments]]``, ``[format]`` and the whole are still pydantic models, whose errors
-name the key a section's SettingError names. ``[format]`` is the one section with
-other keys: readers of other formats (MAT, MCAP) keep their own keys there
-(``variables``, ``topics``, ...) and read them from ``FormatSpec.model_extra``.
+``[[segments]]``, ``[format]`` (pipelines.ingest.data_format) and the whole
+(`run_manifest`) too. ``[format]`` is the one section with other keys: readers of other
+formats (MAT, MCAP) keep their own keys there (``variables``, ``topics``, ...) and read
+them from ``FormatSpec.extra``.
 
 Times: ``run.started`` may be a TOML datetime or an ISO-8601 string. A value
 without a UTC offset is taken as UTC (labs log in UTC or say their offset); it
@@ -31,28 +31,18 @@ import sys
 import tomllib
 from datetime import UTC, datetime
 from pathlib import Path, PurePosixPath
-from typing import Any, Literal
-
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    ValidationError,
-    field_validator,
-)
+from typing import Any
 
 from calib_core import procedures
 from calib_core.earth import local_gravity
 from calib_core.settings import Setting, SettingError, Settings, key_line, key_path
-from pipelines.ingest.data_format import FormatSpec
+from pipelines.ingest.data_format import format_spec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import check_free_text
 from storage.naming import check_safe_name
 from storage.run_input import (
     ENVIRONMENT,
     SITE,
-    Environment,
-    EquipmentIn,
     Site,
     equipment_in,
     typed,
@@ -232,72 +222,8 @@ def check_relative_name(value: str) -> str:
     return value
 
 
-class RunManifest(BaseModel):
-    """A whole ``run.toml``. See docs/manifest.md."""
-
-    model_config = ConfigDict(extra="forbid", str_strip_whitespace=True)
-
-    schema_version: Literal[1]
-    unit: UnitSpec
-    run: RunSpec
-    site: Site = Field(default_factory=Site)  # SITE
-    environment: Environment = Field(default_factory=Environment)  # ENVIRONMENT
-    acquisition: AcquisitionSpec = Field(default_factory=AcquisitionSpec)  # ACQUISITION
-    equipment: list[EquipmentIn] = Field(default_factory=list)  # EQUIPMENT
-    format: FormatSpec
-    segments: list[SegmentSpec] = Field(default_factory=list)
-
-    @field_validator("environment", mode="before")
-    @classmethod
-    def _environment(cls, value: Any) -> Environment:
-        return typed(ENVIRONMENT, value, "environment")  # as the archive keeps it
-
-    @field_validator("segments", mode="before")
-    @classmethod
-    def _segments(cls, value: Any) -> list[SegmentSpec]:
-        if not isinstance(value, list):
-            raise ValueError(f"expected an array of tables [[segments]], got {value!r}")
-        out = []
-        for i, entry in enumerate(value):
-            out.append(typed(SEGMENT, entry, f"segments[{i}]", ("label",)))
-            out[-1].check(f"segments[{i}]")
-        return out
-
-    @field_validator("run", mode="before")
-    @classmethod
-    def _run(cls, value: Any) -> RunSpec:
-        return run_spec(value)
-
-    @field_validator("unit", mode="before")
-    @classmethod
-    def _unit(cls, value: Any) -> UnitSpec:
-        unit = typed(UNIT, value, "unit", ("serial", "model", "manufacturer"))
-        try:  # the serial becomes a folder name in the archive: no path tricks
-            check_safe_name(unit.serial, "serial")
-        except ValueError as exc:
-            raise SettingError("serial", str(exc), "unit") from None
-        return unit
-
-    @field_validator("acquisition", mode="before")
-    @classmethod
-    def _acquisition(cls, value: Any) -> AcquisitionSpec:
-        return typed(ACQUISITION, value, "acquisition")
-
-    @field_validator("equipment", mode="before")
-    @classmethod
-    def _equipment(cls, value: Any) -> list[EquipmentIn]:
-        if not isinstance(value, list):
-            raise ValueError(f"expected an array of tables [[equipment]], got {value!r}")
-        # The lab's own equipment record: model and calibration due date too.
-        required = ("model", "calibration_due")
-        return [equipment_in(e, f"equipment[{i}]", required) for i, e in enumerate(value)]
-
-    @field_validator("site", mode="before")
-    @classmethod
-    def _site(cls, value: Any) -> Site:
-        site = typed(SITE, value, "site")
-        site.check()
-        return site
+class ManifestRules:
+    """What a `RunManifest` says beyond its sections: local gravity, stated conditions."""
 
     def gravity(self) -> float:
         """Local gravity for this site by the manifest's model, m/s^2."""
@@ -323,6 +249,51 @@ class RunManifest(BaseModel):
     def verification_labels(self) -> set[str]:
         """Labels of segments kept out of the fit."""
         return {s.label for s in self.segments if s.verification}
+
+
+# A whole ``run.toml`` (docs/manifest.md): its sections, each typed by `run_manifest`.
+MANIFEST = Settings(
+    Setting("schema_version", "integer", "", None, "the manifest schema (1)"),
+    *(Setting(k, "table", "", None, f"[{k}]") for k in ("unit", "run", "site", "environment",
+                                                         "acquisition", "format")),
+    *(Setting(k, "list", "", None, f"[[{k}]]") for k in ("equipment", "segments")),
+    name="RunManifest", noun="field", base=ManifestRules,
+)  # fmt: skip
+RunManifest = MANIFEST.type
+
+
+def run_manifest(data: Any) -> RunManifest:
+    """A manifest's TOML tables typed, section by section; SettingError naming the key."""
+    typed(MANIFEST, data, "", ("schema_version", "unit", "run", "format"))
+    if data["schema_version"] != SCHEMA_VERSION:
+        got = f"Input should be {SCHEMA_VERSION}, got {data['schema_version']!r}"
+        raise SettingError("schema_version", got, "")
+    unit = typed(UNIT, data["unit"], "unit", ("serial", "model", "manufacturer"))
+    try:  # the serial becomes a folder name in the archive: no path tricks
+        check_safe_name(unit.serial, "serial")
+    except ValueError as exc:
+        raise SettingError("serial", str(exc), "unit") from None
+    site = typed(SITE, data.get("site", {}), "site")
+    site.check()
+    segments = [typed(SEGMENT, e, f"segments[{i}]", ("label",))
+                for i, e in enumerate(data.get("segments", []))]  # fmt: skip
+    for i, segment in enumerate(segments):
+        segment.check(f"segments[{i}]")
+    required = ("model", "calibration_due")  # the lab's own record: model and due date too
+    return RunManifest(
+        schema_version=SCHEMA_VERSION,
+        unit=unit,
+        run=run_spec(data["run"]),
+        site=site,
+        environment=typed(ENVIRONMENT, data.get("environment", {}), "environment"),
+        acquisition=typed(ACQUISITION, data.get("acquisition", {}), "acquisition"),
+        equipment=[
+            equipment_in(e, f"equipment[{i}]", required)
+            for i, e in enumerate(data.get("equipment", []))
+        ],  # fmt: skip
+        format=format_spec(data["format"]),
+        segments=segments,
+    )
 
 
 def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
@@ -353,9 +324,12 @@ def parse_manifest(text: str, source: str = "run.toml") -> RunManifest:
     check_finite_numbers(data, source, text)
     try:
         check_free_text(data, source)
-        manifest = RunManifest.model_validate(data)
-    except ValidationError as exc:
-        raise _as_ingest_error(exc, source, text) from None
+        manifest = run_manifest(data)
+    except SettingError as exc:
+        path = (*key_path(exc.root), *key_path(exc.key))
+        raise IngestError(
+            exc.problem, file=source, line=key_line(text, path), field=_field_path(path)
+        ) from None
     except RecursionError:
         raise _too_deep(text, source) from None
     check_segments(manifest, source, text)
@@ -523,40 +497,3 @@ def _field_path(loc: tuple[Any, ...]) -> str:
     for part in loc:
         out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
     return out
-
-
-def _as_ingest_error(exc: ValidationError, source: str, text: str = "") -> IngestError:
-    """One IngestError for all problems pydantic found, the first one as `field` with its
-    line in the manifest's `text` (as a refused ``[run.settings]`` key is named)."""
-    errors = exc.errors(include_url=False)
-    for err in errors:  # a section typed by its declaration: the key it names
-        refused = (err.get("ctx") or {}).get("error")
-        if isinstance(refused, SettingError):
-            err["loc"] = (*key_path(refused.root), *key_path(refused.key))
-            err["msg"] = refused.problem
-    # A misspelt key shows up as an unknown field plus a missing one: report
-    # the unknown one first, with the missing name as the likely intent.
-    missing = {(tuple(e["loc"][:-1]), e["loc"][-1]) for e in errors if e["type"] == "missing"}
-    errors.sort(key=lambda e: e["type"] != "extra_forbidden")
-    problems: list[tuple[str, str]] = []
-    line = key_line(text, tuple(errors[0]["loc"])) if errors else None
-    for err in errors:
-        # Model-level validators report at the section; keep their text as is.
-        field = _field_path(err["loc"]) or "(top level)"
-        kind, msg = err["type"], err["msg"]
-        if kind == "value_error":
-            msg = msg.removeprefix("Value error, ")
-        elif kind == "missing":
-            msg = "required field is missing"
-        elif kind == "extra_forbidden":
-            section, name = tuple(err["loc"][:-1]), str(err["loc"][-1])
-            wanted = [str(m) for sec, m in missing if sec == section]
-            near = difflib.get_close_matches(name, wanted, n=1)
-            hint = f"did you mean '{near[0]}'?" if near else "check the spelling"
-            msg = f"unknown field; {hint} (see docs/manifest.md)"
-        elif not isinstance(err.get("input"), dict | list):
-            msg = f"{msg}, got {err.get('input')!r}"
-        problems.append((field, msg))
-    field, first = problems[0]
-    more = "".join(f"; field '{f}': {m}" for f, m in problems[1:])
-    return IngestError(first + more, file=source, line=line, field=field)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from calib_core.recording import Recording
 from pipelines.ingest.csv_reader import read_csv
-from pipelines.ingest.data_format import FormatSpec, extra_keys
+from pipelines.ingest.data_format import FormatSpec, extra_keys, format_dict, format_spec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.mpu6000 import read_mpu6000_file
 
@@ -33,7 +33,7 @@ def _read_mat(path: Path, fmt: FormatSpec) -> Recording:
     """Adapter from the manifest's [format] (``variables``, ``sample_rate_hz``) to read_mat."""
     from pipelines.ingest.matlab import read_mat
 
-    extra = fmt.model_extra or {}
+    extra = fmt.extra
     if "variables" not in extra:
         raise IngestError(
             "format kind 'mat' needs a [format.variables] table (t, acc, gyr, temp)",
@@ -106,8 +106,7 @@ IMUTK_DEFAULTS = {
 
 def imutk_format(fmt: FormatSpec) -> FormatSpec:
     """The CSV [format] of imu_tk text: `IMUTK_DEFAULTS` under the manifest's own fields."""
-    given = fmt.model_dump(exclude_unset=True)
-    return FormatSpec.model_validate({**IMUTK_DEFAULTS, **given, "kind": "csv"})
+    return format_spec({**IMUTK_DEFAULTS, **format_dict(fmt, given_only=True), "kind": "csv"})
 
 
 def reader_for(kind: str) -> Reader:

@@ -36,6 +36,7 @@ from pipelines.ingest.manifest import (
     SegmentSpec,
     check_segments,
     load_manifest,
+    run_manifest,
     sensor_ranges,
 )
 from pipelines.ingest.mpu6000 import (
@@ -255,7 +256,7 @@ def _load_mpu6000_folder(folder: Path, serial: str | None, hash_file: FileHasher
     files = runs[serial]
     procedure = check_complete(folder, serial, files)
     newest = max(p.stat().st_mtime for p in files.values())
-    manifest = RunManifest.model_validate(
+    manifest = run_manifest(
         {
             "schema_version": 1,
             "unit": {"serial": serial, "model": "MPU-6000", "manufacturer": "InvenSense"},
@@ -286,8 +287,8 @@ def with_lab_site(manifest: RunManifest, source: str) -> RunManifest:
     if lab is None:
         return manifest
     values, path = lab
-    return manifest.model_copy(
-        update={"site": dataclasses.replace(site, **values, from_file=str(path))}
+    return dataclasses.replace(
+        manifest, site=dataclasses.replace(site, **values, from_file=str(path))
     )
 
 
@@ -317,7 +318,7 @@ def _load_described(
     check_segments(manifest, source, text or "")
     manifest = with_lab_site(manifest, source)
     if manifest.format.kind == "imutk":
-        manifest = manifest.model_copy(update={"format": imutk_format(manifest.format)})
+        manifest = dataclasses.replace(manifest, format=imutk_format(manifest.format))
     kind = manifest.format.kind
     segments = manifest.segments or _mpu6000_segments(folder, manifest, source)
     reader = reader_for(kind)
