@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import ast
+import functools
 import sys
 from pathlib import Path
 
@@ -32,11 +33,18 @@ EXECUTION = {"threading", "queue", "concurrent", "mmap", "ctypes", "_thread"}
 MAX_PRIVATE_IMPORTS = 8  # private names (`_x`) imported across production modules
 
 
+@functools.cache
+def parsed(source: str) -> ast.Module:
+    """The syntax tree of a source text, parsed once for all the tests of this module (each
+    walks every production file; the trees are only read)."""
+    return ast.parse(source)
+
+
 def imported_modules(source: str, module: str) -> list[tuple[int, str]]:
     """(line, absolute dotted name) of every import in `source` (relative ones resolved)."""
     found: list[tuple[int, str]] = []
     package = module.rsplit(".", 1)[0]
-    for node in ast.walk(ast.parse(source)):
+    for node in ast.walk(parsed(source)):
         if isinstance(node, ast.Import):
             found += [(node.lineno, alias.name) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -164,7 +172,7 @@ def _import_edges(
         for child in ast.iter_child_nodes(node):
             visit(child)
 
-    visit(ast.parse(source))
+    visit(parsed(source))
     return {e for e in edges if e in known and e != module}
 
 
@@ -241,7 +249,7 @@ def test_one_class_name_per_concept() -> None:
     segment's stretch of samples and a recalibration interval) is a reader's trap."""
     where: dict[str, list[str]] = {}
     for module, path in production_modules().items():
-        for node in ast.parse(path.read_text("utf-8")).body:
+        for node in parsed(path.read_text("utf-8")).body:
             if isinstance(node, ast.ClassDef):
                 where.setdefault(node.name, []).append(module)
     assert {name: mods for name, mods in where.items() if len(mods) > 1} == {}
