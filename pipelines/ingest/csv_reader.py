@@ -7,18 +7,21 @@ a header) or, when the manifest names none, are recognised among common names
 counts with a per-axis scale and offset; time in s/ms/us/ns, MATLAB datenum,
 ISO-8601 text, a sample index, or no time column at all (``sample_rate_hz``).
 
-One chunk loop (`csv_chunks`) serves both routes: each block of the data lines is
-parsed (only the needed columns, straight to float64, by pyarrow's multithreaded parser;
-whitespace-separated text by pandas' C parser in chunks of rows), checked and converted
-to SI into the rows its caller gives. Read into memory (`read_csv`), those are the rows
-of output arrays allocated once (for an estimate of the row count; their untouched tail
-takes no memory), the blocks memory-mapped `SLICE_BYTES` slices of the file: the peak
-memory is the decoded arrays plus about one slice, whatever the size of the file.
-Streamed (`stream_csv`: a static record larger than the run's memory limit), the blocks
-are read, hashed and copied (`blocks`) and each chunk goes to the samples' Parquet
-(`pipelines.ingest.streamed_pass`). Files above `PROGRESS_THRESHOLD_BYTES` show progress
-on stderr. Only when a block holds a problem is the file read again as text, in chunks,
-to name the first bad line and column.
+Speed and memory: only the needed columns are parsed, straight to float64,
+by pyarrow's multithreaded parser over memory-mapped `SLICE_BYTES` slices of
+the file (whitespace-separated text by pandas' C parser in chunks of rows).
+The output arrays are allocated once (for an estimate of the row count; their
+untouched tail takes no memory), each slice is copied straight into its
+place and dropped, so the peak memory is the decoded arrays plus about one
+slice, whatever the size of the file (a multi-hour 1 kHz log). Files above
+`PROGRESS_THRESHOLD_BYTES` show a progress bar on stderr. Only when a block
+holds a problem is the file read again as text, in chunks, to name the first
+bad line and column.
+
+`stream_csv` is the same reader on the streamed route (a static record larger than the
+run's memory limit): the file's blocks, hashed and copied as they are read, parsed with
+the same options, converted and checked block by block, go to the samples' Parquet
+(`pipelines.ingest.streamed_pass`) instead of the arrays.
 
 The column plan of a file (which column is which role, header units) is
 pipelines.ingest.csv_layout; naming the first bad line, pipelines.ingest.csv_diagnosis.
@@ -28,7 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import mmap
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
@@ -42,7 +45,7 @@ from calib_core.recording import Recording
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
 from pipelines.ingest.csv_diagnosis import PANDAS_CHUNK_ROWS, diagnose
 from pipelines.ingest.csv_dialect import split_unit
-from pipelines.ingest.csv_layout import AXES, CsvLayout, header_units, layout_of
+from pipelines.ingest.csv_layout import AXES, CHANNELS, CsvLayout, header_units, layout_of
 from pipelines.ingest.data_format import COUNTS, PROGRESS_THRESHOLD_BYTES, FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.log_samples import impossible_reading
@@ -139,15 +142,17 @@ def _read(
     fmt = header_units(layout, fmt)
     data = _read_columns(layout, fmt, progress)
     codes = data.pop("section", None)
-    t, acc, gyr, temp = data.pop("t"), data.pop("acc"), data.pop("gyr"), data.pop("temp", None)
+    t = _time(layout, fmt, data.pop("time", None), len(data["acc"]), codes)
+    acc = sensor_si(data.pop("acc"), "acc", fmt)
+    gyr = sensor_si(data.pop("gyr"), "gyr", fmt)
+    temp = temperature_celsius(layout, data.pop("temp", None))
     reference = {role[4:]: v for role, v in data.items() if role.startswith("ref:")}
     rec = Recording(t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=str(path))
     return rec, codes, layout
 
 
 def temperature_celsius(layout: CsvLayout, temp: np.ndarray | None) -> np.ndarray | None:
-    """Temperature in deg C from the header's unit (degC, K or degF; none: degC), converted
-    in place."""
+    """Temperature in deg C from the header's unit (degC, K or degF; none: degC)."""
     if temp is None:
         return None
     unit = split_unit(layout.roles["temp"])[1] or "degC"
@@ -159,11 +164,8 @@ def temperature_celsius(layout: CsvLayout, temp: np.ndarray | None) -> np.ndarra
             line=layout.data_start - 1,
             field=layout.roles["temp"],
         )
-    if unit != "degC":
-        scale, offset = TEMPERATURE_UNITS[unit]
-        temp *= scale
-        temp += offset
-    return temp
+    scale, offset = TEMPERATURE_UNITS[unit]
+    return temp * scale + offset if unit != "degC" else temp
 
 
 def read_csv_pair(
@@ -183,9 +185,9 @@ def read_csv_pair(
     acc_layout = layout_of(Path(acc_path), fmt, ("acc",))
     gyr_layout = layout_of(Path(gyr_path), fmt, ("gyr",))
     acc_data = _read_columns(acc_layout, fmt, progress)
-    t = acc_data.pop("t")
+    t = _time(acc_layout, fmt, acc_data.pop("time", None), len(acc_data["acc"]))
     gyr_data = _read_columns(gyr_layout, fmt, progress)
-    t_gyr = gyr_data.pop("t")
+    t_gyr = _time(gyr_layout, fmt, gyr_data.pop("time", None), len(gyr_data["gyr"]))
     if len(t_gyr) != len(t):
         raise IngestError(
             f"has {len(t_gyr)} samples but the accelerometer file {acc_layout.path.name} has "
@@ -203,7 +205,9 @@ def read_csv_pair(
             line=gyr_layout.line_of_row(i),
         )
     del t_gyr
-    acc, gyr, temp = acc_data.pop("acc"), gyr_data.pop("gyr"), acc_data.pop("temp", None)
+    acc = sensor_si(acc_data.pop("acc"), "acc", fmt)
+    gyr = sensor_si(gyr_data.pop("gyr"), "gyr", fmt)
+    temp = acc_data.pop("temp", None)
     reference = {role[4:]: v for role, v in acc_data.items() if role.startswith("ref:")}
     return Recording(
         t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=f"{acc_path} + {gyr_path}"
@@ -224,139 +228,109 @@ def estimate_rows(path: Path, data_start: int) -> int:
 def _read_columns(
     layout: CsvLayout, fmt: FormatSpec, progress: bool | None
 ) -> dict[str, np.ndarray]:
-    """The file's chunks (`csv_chunks`, the streamed route's loop) joined in place.
+    """Parse the file once, filling preallocated output arrays as the blocks come.
 
     Returns
     -------
-    {"t": (N,) s, "acc": (N, 3) m/s^2, "gyr": (N, 3) rad/s, "temp": (N,) deg C,
-    "ref:<name>": (N,), "section": (N,) codes}, for the roles this file has; checked.
-    Each chunk is written straight into its rows of arrays allocated for 25 % more rows
-    than `estimate_rows` and returned as views of the rows read: the pages of unused rows
-    are never touched, so they take no memory (a rare file whose later lines are much
-    shorter makes them grow, with one copy).
+    {"time": (N,) raw time values (ISO text already as Unix s), "acc": (N, 3),
+    "gyr": (N, 3) raw values, "temp": (N,), "ref:<name>": (N,)}, for the roles
+    this file has; every value finite. Each sample is copied once, from the
+    parser's block straight into its place. The arrays are allocated for 25 %
+    more rows than `estimate_rows` and returned as views of the rows read: the
+    pages of unused rows are never touched, so they take no memory (a rare
+    file whose later lines are much shorter makes them grow, with one copy).
     """
+    iso_column = layout.roles.get("time") if fmt.time_unit == "iso" else None
     capacity = int(estimate_rows(layout.path, layout.data_start) * 1.25) + 1024
-    out = {
-        key: np.empty((capacity, 3) if key in ("acc", "gyr") else capacity)
-        for key in keys_of(layout)
-    }
-    rows = 0
-
-    def rows_of(start: int, n: int) -> dict[str, np.ndarray]:
-        nonlocal out, capacity, rows
-        if start + n > capacity:
-            capacity = 2 * (start + n)
-            for key, array in out.items():
-                grown = np.empty((capacity, *array.shape[1:]))
-                grown[:start] = array[:start]
-                out[key] = grown
-        rows = start + n
-        return {key: array[start : start + n] for key, array in out.items()}
-
+    # role -> (output array, column index in it or None)
+    out: dict[str, np.ndarray] = {}
+    target: dict[str, tuple[str, int | None]] = {}
+    for role in layout.roles:
+        sensor, _, axis = role.partition("_")
+        if sensor in ("acc", "gyr") and axis in AXES:
+            out.setdefault(sensor, np.empty((capacity, 3)))
+            target[role] = (sensor, AXES.index(axis))
+        else:
+            out[role] = np.empty(capacity)
+            target[role] = (role, None)
+    columns = list(dict.fromkeys(layout.roles.values()))
     size = layout.path.stat().st_size
     show = size > PROGRESS_THRESHOLD_BYTES if progress is None else progress
+    rows = 0
     with _progress(layout.path, size, show) as advance:
-        for _, consumed in csv_chunks(
-            layout, fmt, _slices(layout.path, layout.data_start), rows_of
-        ):
+        for batch, consumed in _batches(layout, columns, iso_column):
+            n = len(next(iter(batch.values())))
+            if rows + n > capacity:
+                capacity = 2 * (rows + n)
+                for key, array in out.items():
+                    grown = np.empty((capacity, *array.shape[1:]))
+                    grown[:rows] = array[:rows]
+                    out[key] = grown
+            for role, name in layout.roles.items():
+                values = batch[name]
+                # A NaN or an infinity makes the sum non-finite: one pass, no temporary
+                # array. A sum overflowing from finite values goes to the exact test.
+                with np.errstate(over="ignore"):
+                    suspect = not np.isfinite(values.sum())
+                bad = np.flatnonzero(~np.isfinite(values)) if suspect else ()
+                if len(bad):
+                    diagnose(layout, columns, iso_column, rows)
+                    raise IngestError(  # not reached unless the diagnosis disagrees
+                        f"expected a finite number, got {values[bad[0]]!r}",
+                        file=layout.path,
+                        line=layout.line_of_row(rows + int(bad[0])),
+                        field=layout.fields[name],
+                    )
+                key, col = target[role]
+                if col is None:
+                    out[key][rows : rows + n] = values
+                else:
+                    out[key][rows : rows + n, col] = values
+            rows += n
             advance(consumed)
     if rows == 0:
         raise IngestError("no data rows", file=layout.path)
     return {key: array[:rows] for key, array in out.items()}
 
 
-def keys_of(layout: CsvLayout) -> list[str]:
-    """The arrays a chunk of this file fills: t, and acc, gyr, temp, ref:<name>, section
-    for the roles it has."""
-    keys = ["t"]
-    for role in layout.roles:
-        sensor, _, axis = role.partition("_")
-        key = sensor if sensor in ("acc", "gyr") and axis in AXES else role
-        if key != "time" and key not in keys:
-            keys.append(key)
-    return keys
-
-
-def csv_chunks(
-    layout: CsvLayout,
-    fmt: FormatSpec,
-    texts: Iterable[tuple[Any, int]],
-    rows_of: Callable[[int, int], dict[str, np.ndarray]],
+def _batches(
+    layout: CsvLayout, columns: list[str], iso_column: str | None
 ) -> Iterator[tuple[dict[str, np.ndarray], int]]:
-    """The one chunk loop of both routes: each block of the data lines (`texts`: text and
-    bytes read so far; whitespace-separated text is read by pandas instead) parsed,
-    checked and converted to SI into ``rows_of(first row, rows)`` (`keys_of`'s arrays);
-    yielded with the bytes read.
+    """Blocks of the file as ({column: float64 array}, bytes read so far).
 
-    Raises
-    ------
-    IngestError naming the file, line and column: text that does not parse, a value that
-    is not a finite number, time that does not increase (within each section).
+    An ISO time column comes as Unix seconds.
+
+    Delimited text is parsed slice by slice (`_slices`); whitespace-separated
+    text goes through pandas' C parser in chunks of rows.
     """
-    iso = layout.roles.get("time") if fmt.time_unit == "iso" else None
-    columns = list(dict.fromkeys(layout.roles.values()))
-    rows, last = 0, None
-    for table, consumed in _tables(layout, columns, iso, texts):
-        n = len(table)
-        chunk = rows_of(rows, n)
-        fill_chunk(table, layout, fmt, chunk, rows, columns, iso, last)
-        last = {key: chunk[key][-1] for key in ("t", "section") if key in chunk}
-        rows += n
-        yield chunk, consumed
-
-
-def fill_chunk(
-    table: Any,
-    layout: CsvLayout,
-    fmt: FormatSpec,
-    chunk: dict[str, np.ndarray],
-    rows: int,
-    columns: list[str],
-    iso: str | None,
-    last: dict[str, Any] | None,
-) -> None:
-    """One parsed block (a pyarrow Table or a pandas DataFrame of `columns`) into `chunk`,
-    checked, in SI (`rows`: its first row in the file; `last`: the previous block's last
-    time and section)."""
-    for role, name in layout.roles.items():
-        sensor, _, axis = role.partition("_")
-        if sensor in ("acc", "gyr") and axis in AXES:
-            v = chunk[sensor][:, AXES.index(axis)]
-        else:
-            v = chunk["t" if role == "time" else role]
-        column = table.column(name) if isinstance(table, pa.Table) else table[name].to_numpy()
-        if name == iso:
-            v[:] = iso_seconds(column)
-        elif role == "section":
-            v[:] = _codes(layout, column)
-        elif isinstance(table, pa.Table):
-            start = 0
-            for part in column.chunks:  # no combined Arrow column: one copy
-                v[start : start + len(part)] = float_values(part)
-                start += len(part)
-        else:
-            v[:] = column
-        # A NaN or an infinity makes the sum non-finite: one pass, no temporary array.
-        # A sum overflowing from finite values goes to the exact test.
-        with np.errstate(over="ignore"):
-            suspect = not np.isfinite(v.sum())
-        bad = np.flatnonzero(~np.isfinite(v)) if suspect else ()
-        if len(bad):
-            diagnose(layout, columns, iso, rows)
-            raise IngestError(  # not reached unless the diagnosis disagrees
-                f"expected a finite number, got {v[bad[0]]!r}",
-                file=layout.path,
-                line=layout.line_of_row(rows + int(bad[0])),
-                field=layout.fields[name],
-            )
-    for sensor in ("acc", "gyr"):
-        if sensor in chunk:
-            sensor_si(chunk[sensor], sensor, fmt)
-    if "temp" in layout.roles:
-        temperature_celsius(layout, chunk["temp"])
-    elif "temp" in chunk:
-        chunk["temp"][:] = np.nan
-    _time(layout, fmt, chunk, rows, last)
+    if layout.delimiter == "whitespace":
+        yield from _pandas_batches(layout, columns, iso_column)
+        return
+    section = layout.roles.get("section")
+    options = arrow_options(layout, columns, (iso_column, section))
+    try:
+        for text, consumed in _slices(layout.path, layout.data_start):
+            table = pacsv.read_csv(pa.BufferReader(text), *options)
+            # Record batch by record batch: each column is then one Arrow array, viewed
+            # without a copy (a whole-table column would be concatenated first). Nulls
+            # (empty cells, "nan") become NaN here and are reported by the caller.
+            for batch in table.to_batches():
+                yield (
+                    {
+                        c: iso_seconds(batch.column(c))
+                        if c == iso_column
+                        else _codes(layout, batch.column(c))
+                        if c == section
+                        else float_values(batch.column(c))
+                        for c in columns
+                    },
+                    consumed,
+                )
+            del table
+    except pa.ArrowInvalid as exc:
+        # Text in a numeric column, a row with too many fields, ...: find it.
+        diagnose(layout, columns, iso_column, 0)
+        raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
 
 
 def arrow_options(
@@ -445,38 +419,14 @@ def iso_seconds(text: pa.Array | np.ndarray) -> np.ndarray:
     return seconds
 
 
-def _tables(
-    layout: CsvLayout, columns: list[str], iso: str | None, texts: Iterable[tuple[Any, int]]
-) -> Iterator[tuple[Any, int]]:
-    """Each non-empty block of the data lines parsed (`columns` only, as float64; the ISO
-    time and section columns as text), with the bytes read so far: delimited text from
-    `texts` by pyarrow's multithreaded parser, whitespace-separated text by pandas' C
-    parser in chunks of rows (a DataFrame)."""
-    section = layout.roles.get("section")
-    if layout.delimiter == "whitespace":
-        yield from _pandas_tables(layout, columns, (iso, section))
-        return
-    options = arrow_options(layout, columns, (iso, section))
-    rows = 0
-    for text, consumed in texts:
-        try:
-            table = pacsv.read_csv(pa.py_buffer(text), *options)
-        except pa.ArrowInvalid as exc:
-            # Text in a numeric column, a row with too many fields, ...: find it.
-            diagnose(layout, columns, iso, rows)
-            raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
-        if table.num_rows:  # not blank lines only
-            rows += table.num_rows
-            yield table, consumed
-
-
-def _pandas_tables(
-    layout: CsvLayout, columns: list[str], text: tuple[str | None, ...]
-) -> Iterator[tuple[Any, int]]:
+def _pandas_batches(
+    layout: CsvLayout, columns: list[str], iso_column: str | None
+) -> Iterator[tuple[dict[str, np.ndarray], int]]:
     """Whitespace-separated text through pandas' C parser, in chunks of rows."""
     import pandas as pd
 
-    dtypes = {c: ("str" if c in text else "float64") for c in columns}
+    section = layout.roles.get("section")
+    dtypes = {c: ("str" if c in (iso_column, section) else "float64") for c in columns}
     try:
         with layout.path.open("rb") as fh:  # its position tells the progress
             reader = pd.read_csv(
@@ -494,9 +444,17 @@ def _pandas_tables(
             )
             with reader:
                 for frame in reader:
-                    yield frame, fh.tell()
+                    batch = {
+                        c: iso_seconds(frame[c].to_numpy())
+                        if c == iso_column
+                        else _codes(layout, frame[c].to_numpy())
+                        if c == section
+                        else frame[c].to_numpy(dtype=np.float64)
+                        for c in columns
+                    }
+                    yield batch, fh.tell()
     except (ValueError, pd.errors.ParserError) as exc:
-        diagnose(layout, columns, text[0], 0)
+        diagnose(layout, columns, iso_column, 0)
         raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
 
 
@@ -607,30 +565,28 @@ def stream_csv(
     if layout.delimiter == "whitespace" or "section" in layout.roles:
         raise IngestError("the streamed route reads delimited text of one record only", file=path)
     fmt = header_units(layout, fmt)
-
-    def rows_of(start: int, n: int) -> dict[str, np.ndarray]:
-        # [gyr | acc]: the first pass takes it without a copy; column by column in memory,
-        # so each column is filled, reduced and handed to Arrow without a strided copy
-        both = np.empty((n, 6), order="F")
-        chunk = {key: np.empty(n) for key in ("temp", *keys_of(layout))}
-        return {**chunk, "gyr": both[:, :3], "acc": both[:, 3:]}
-
+    iso = layout.roles.get("time") if fmt.time_unit == "iso" else None
+    columns = list(dict.fromkeys(layout.roles.values()))
+    parsing = arrow_options(layout, columns, (iso,))
+    last_t = None
     with streamed_pass(path, samples, **options) as run:
         fh, sink = run.fh, run.sink
         head = b"".join(fh.readline() for _ in range(layout.data_start - 1))
         run.sha.update(head)
         if run.copy is not None:
             run.copy.write(head)
-        texts = blocks(fh, block_bytes(run.memory_limit), run.copy, run.sha)
         done = len(head)
-        for chunk, _ in csv_chunks(
-            layout, fmt, ((b, done := done + len(b)) for b in texts), rows_of
-        ):
-            found = impossible_reading({"acc": chunk["acc"], "gyr": chunk["gyr"]})
-            if found is not None:  # the in-memory route's check (run_loader: check_readings)
-                name, i, text = found
-                line = layout.line_of_row(sink.done + i)
-                raise IngestError(text, file=path, line=line, field=name)
+        for text in blocks(fh, block_bytes(run.memory_limit), run.copy, run.sha):
+            done += len(text)
+            try:
+                table = pacsv.read_csv(pa.py_buffer(text), *parsing)
+            except pa.ArrowInvalid as exc:
+                diagnose(layout, columns, iso, sink.done)  # the line and field, as in memory
+                raise IngestError(f"cannot parse the file: {exc}", file=path) from None
+            if table.num_rows == 0:  # blank lines only
+                continue
+            chunk = csv_chunk(table, layout, fmt, iso, sink.done, path, last_t)
+            last_t = float(chunk["t"][-1])
             sink.write(chunk)
             run.bar.update(done, sink.done)
         sink.finish()  # the last chunk's motion windows (computed beside the reading)
@@ -639,28 +595,96 @@ def stream_csv(
     return run.result()
 
 
+def csv_chunk(
+    table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path, last_t: float | None
+) -> dict[str, np.ndarray]:
+    """One block's samples in SI: t (n,), acc and gyr (n, 3), temp (n,) (NaN if none)."""
+    n = table.num_rows
+    # [gyr | acc]: the first pass takes it without a copy; column by column in memory, so
+    # each column is filled, reduced and handed to Arrow without a strided copy. The
+    # parser's chunks are copied straight into it (one copy, no combined Arrow column).
+    both = np.empty((n, 6), order="F")
+    values: dict[str, np.ndarray] = {}
+    for role, name in layout.roles.items():
+        col = table.column(name)
+        if name == iso:
+            v = iso_seconds(col.combine_chunks())
+        else:
+            v = both[:, CHANNELS.index(role)] if role in CHANNELS else np.empty(n)
+            _copy_values(col, v)
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            raise IngestError(
+                "expected a finite number",
+                file=path,
+                line=layout.line_of_row(rows + int(bad[0])),
+                field=layout.fields[name],
+            )
+        values[role] = v
+    gyr = sensor_si(both[:, :3], "gyr", fmt)
+    acc = sensor_si(both[:, 3:], "acc", fmt)
+    found = impossible_reading({"acc": acc, "gyr": gyr})
+    if found is not None:  # the in-memory route's check (run_loader: check_readings)
+        name, i, text = found
+        raise IngestError(text, file=path, line=layout.line_of_row(rows + i), field=name)
+    if "time" in values:
+        t = values["time"]
+        if fmt.time_unit == "samples":
+            t = t / fmt.sample_rate_hz
+        elif fmt.time_unit != "iso":
+            t = seconds(t, fmt.time_unit)
+    else:
+        t = (rows + np.arange(n)) / fmt.sample_rate_hz
+    steps = np.diff(t, prepend=-np.inf if last_t is None else last_t)
+    if (steps <= 0).any():
+        row = rows + int(np.flatnonzero(steps <= 0)[0])
+        field = layout.fields.get(layout.roles.get("time", ""), "time")
+        raise IngestError(
+            "time must increase", file=path, line=layout.line_of_row(row), field=field
+        )
+    temp = temperature_celsius(layout, values.get("temp"))
+    return {"t": t, "acc": acc, "gyr": gyr, "temp": np.full(n, np.nan) if temp is None else temp}
+
+
+def _copy_values(column: pa.ChunkedArray, out: np.ndarray) -> None:
+    """A float64 column's values into out (n,), chunk by chunk (nulls as NaN)."""
+    start = 0
+    for chunk in column.chunks:
+        out[start : start + len(chunk)] = float_values(chunk)
+        start += len(chunk)
+
+
 # --- conversion to SI ----------------------------------------------------------------
+
+
+def seconds(values: np.ndarray, unit: str) -> np.ndarray:
+    """Time values in `unit` (s, ms, us, ns, or MATLAB ``datenum`` days) as seconds.
+
+    datenum becomes Unix seconds: (dn - 719529) * 86400.
+    """
+    if unit == "datenum":
+        return (values - MATLAB_UNIX_EPOCH_DATENUM) * 86400.0
+    return values * time_factor(unit)
 
 
 def _time(
     layout: CsvLayout,
     fmt: FormatSpec,
-    chunk: dict[str, np.ndarray],
-    rows: int,
-    last: dict[str, Any] | None,
-) -> None:
-    """A chunk's time in s, converted in place (MATLAB datenum to Unix s: (dn - 719529) *
-    86400), or from the sample rate; checked after the previous chunk's `last` time. A
-    section (``chunk["section"]``, one code per row) is a time base of its own: a sample
+    raw: np.ndarray | None,
+    n: int,
+    sections: np.ndarray | None = None,
+) -> np.ndarray:
+    """Time in s from the raw time column, converted in place, or from the sample rate.
+
+    `sections` (one code per row) makes each section a time base of its own: a sample
     counter may restart in every section, time is checked within each.
 
     Raises IngestError at the first row whose time is not after the previous one (of
     its section).
     """
-    t = chunk["t"]
-    if "time" not in layout.roles:  # no time column: the sample index at the manifest's rate
-        t[:] = np.arange(rows, rows + len(t)) / fmt.sample_rate_hz
-        return
+    if raw is None:  # no time column: the sample index at the manifest's rate
+        return np.arange(n) / fmt.sample_rate_hz
+    t = raw
     if fmt.time_unit == "samples":
         t /= fmt.sample_rate_hz
     elif fmt.time_unit == "datenum":
@@ -668,19 +692,15 @@ def _time(
         t *= 86400.0
     elif fmt.time_unit != "iso" and fmt.time_unit != "s":
         t *= time_factor(fmt.time_unit)
-    ahead, restarts = (t, None) if last is None else (np.r_[last["t"], t], None)
-    if "section" in chunk:
-        codes = chunk["section"] if last is None else np.r_[last["section"], chunk["section"]]
-        restarts = np.r_[True, codes[1:] != codes[:-1]]
     check_time_increases(
-        ahead,
+        t,
         file=layout.path,
         sample="row",
         line_of=layout.line_of_row,
         field=layout.fields[layout.roles["time"]],
-        restarts=restarts,
-        offset=rows - (last is not None),
+        restarts=None if sections is None else np.r_[True, sections[1:] != sections[:-1]],
     )
+    return t
 
 
 def sensor_si(values: np.ndarray, sensor: str, fmt: FormatSpec) -> np.ndarray:
