@@ -211,6 +211,28 @@ class Settings:
         return out
 
 
+def typed(table: Settings, given: Any, root: str, required: tuple[str, ...] = ()) -> Any:
+    """`given` (typed values of `table`, or a mapping of them) typed as the archive keeps
+    them: texts stripped of surrounding blanks, whole numbers of a "number" setting as
+    floats; SettingError naming ``root.key`` for a value that is not a table, an unknown
+    key, a refused value or a `required` key missing or empty. The one reading of a
+    file's table: a manifest's, a mission profile's, a lab profile's."""
+    if isinstance(given, table.type):
+        return given
+    if not isinstance(given, Mapping):
+        raise SettingError(root, f"expected a table, got {given!r}", "")
+    number = {s.name for s in table if "number" in s.kinds}
+    given = {
+        k: v.strip() if isinstance(v, str) else float(v) if k in number and type(v) is int else v
+        for k, v in given.items()
+    }
+    table.validate(given, "", root)
+    for key in required:
+        if given.get(key) in (None, ""):
+            raise SettingError(key, "required field is missing", root)
+    return table.parse(given)
+
+
 def _default(value: Any) -> Any:
     return dataclasses.field(default_factory=lambda: copy.deepcopy(value))
 

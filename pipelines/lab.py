@@ -47,108 +47,200 @@ certificates of the reference equipment (traceability, 7.8.4.1 c)::
     [navigation]                              # the certificate's "Navigation performance"
     profiles = ["land-vehicle-outage-60s"]    # mission profiles by name (docs/navigation.md)
 
-Every key is checked; a certificate made without the file says so where the items belong.
+Each table is declared with `calib_core.settings` (LABORATORY, CUSTOMER, AUTHORISED_BY,
+EQUIPMENT with its pre-check, SITE, TRUST, SIGNING, NAVIGATION: `TABLES`), as a manifest's
+and a tolerance profile's are, and refused alike: the file, the line of the key, the dotted
+key, what was expected and what was found. A certificate made without the file says so
+where the items belong.
 """
 
 from __future__ import annotations
 
+import functools
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from pipelines.tolerances import LAB_FILE_STEM, line_of, profile_dirs
+from calib_core.settings import Setting, SettingError, Settings, typed
+from pipelines.tolerances import LAB_FILE_STEM, profile_dirs, refusal
+from storage.naming import check_safe_name
 
 LAB_PROFILE = f"{LAB_FILE_STEM}.toml"
-TABLES = {
-    "laboratory": ({"name", "address"}, {"accreditation", "country"}),
-    "customer": ({"name"}, {"contact", "address"}),
-    "authorised_by": ({"name"}, {"function"}),
-    "trust": ({"approvers"}, set()),
-    "signing": ({"certificate", "key"}, set()),
+TEXT_MAX_CHARS = 200  # each text of the lab profile: one line, as a certificate prints it
+
+
+def _texts(**meanings: str) -> tuple[Setting, ...]:
+    return tuple(Setting(key, "text", "", None, meaning) for key, meaning in meanings.items())
+
+
+# Each table of lab.toml (its keys' meanings are the documentation above).
+LABORATORY = Settings(
+    *_texts(
+        name="the laboratory's name",
+        address="its address",
+        accreditation="its accreditation",
+        country="ISO 3166-1 alpha-2 code, e.g. 'DE' (the DCC's coreData)",
+    ),
+    name="Laboratory",
+    noun="field",
+)
+CUSTOMER = Settings(
+    *_texts(name="the customer's name", contact="how to reach it", address="its location"),
+    name="Customer",
+    noun="field",
+)
+AUTHORISED_BY = Settings(
+    *_texts(name="who authorises certificates", function="their function"),
+    name="AuthorisedBy",
+    noun="field",
+)
+TRUST = Settings(
+    *_texts(approvers="the approvers file (calib keygen .pub lines), beside lab.toml"),
+    name="Trust",
+    noun="field",
+)
+SIGNING = Settings(
+    *_texts(
+        certificate="the lab's X.509 certificate (PEM), beside lab.toml",
+        key="its private key (PEM): read to sign, never archived",
+    ),
+    name="Signing",
+    noun="field",
+)
+SITE = Settings(
+    Setting("latitude_deg", "number", "deg", None, "geodetic latitude", low=-90.0, high=90.0),
+    Setting("height_m", "number", "m", None, "height above the ellipsoid"),
+    name="LabSite",
+    noun="field",
+)
+NAVIGATION = Settings(
+    Setting("profiles", "list", "", None, "mission profiles by name (docs/navigation.md)"),
+    name="Navigation",
+    noun="field",
+)
+EQUIPMENT = Settings(
+    *_texts(
+        serial="the reference's serial",
+        certificate="its calibration certificate",
+        issued_by="who issued it",
+        kind="cube, rate_table, ... (the DCC's lab references)",
+        model="its model",
+    ),
+    Setting("precheck", "table", "", None, "`precheck_table`: measured before runs"),
+    name="LabEquipment",
+    noun="field",
+)
+# One pre-check item: the value measured and the equipment's own limit, in the key's unit.
+READING = Settings(
+    Setting("value", "number", "", None, "measured", low=0.0),
+    Setting("limit", "number", "", None, "the equipment's (its data sheet or class)", low=0.0),
+    name="Reading",
+    noun="field",
+)
+# Each table: its declaration and the keys it must give.
+TABLES: dict[str, tuple[Settings, tuple[str, ...]]] = {
+    "laboratory": (LABORATORY, ("name", "address")),
+    "customer": (CUSTOMER, ("name",)),
+    "authorised_by": (AUTHORISED_BY, ("name",)),
+    "site": (SITE, ("latitude_deg", "height_m")),
+    "trust": (TRUST, ("approvers",)),
+    "signing": (SIGNING, ("certificate", "key")),
+    "navigation": (NAVIGATION, ("profiles",)),
 }
-EQUIPMENT_KEYS = ({"serial", "certificate"}, {"issued_by", "kind", "model"})
+LAB = Settings(
+    *(Setting(k, "table", "", None, f"[{k}]") for k in TABLES),
+    Setting("equipment", "list", "", None, "[[equipment]]: EQUIPMENT, one per reference"),
+    name="LabProfile",
+    noun="table",
+)
+
+
+@functools.cache
+def precheck_table() -> Settings:
+    """``[equipment.precheck]``: calib_core.conditions.PRECHECK_KEYS, each a `READING`
+    (declared when first read: the conditions load the science stack)."""
+    from calib_core.conditions import PRECHECK_KEYS
+
+    items = (Setting(k, "table", "", None, "READING: { value, limit }") for k in PRECHECK_KEYS)
+    return Settings(*items, name="Precheck", noun="pre-check item")
 
 
 def load_lab_profile() -> tuple[dict[str, Any], Path] | None:
-    """The lab profile and its file, or None when no folder holds one.
+    """The lab profile (its tables as written, each checked) and its file, or None when no
+    folder holds one.
 
-    Raises ValueError naming the file, the line of the key and the field of a bad entry.
+    Raises ValueError naming the file, the line of the key, the key, what was expected and
+    what was found.
     """
     for folder in profile_dirs():
         path = folder / LAB_PROFILE
         if path.is_file():
             text = path.read_text(encoding="utf-8")
             try:
-                return _checked(tomllib.loads(text), path), path
+                return checked(tomllib.loads(text)), path
             except tomllib.TOMLDecodeError as exc:
                 raise ValueError(f"lab profile {path}: {exc}") from exc
-            except ValueError as exc:  # "lab profile <path>: <field>: <problem>"
-                problem = str(exc).removeprefix(f"lab profile {path}: ")
-                raise ValueError(f"lab profile {path}{line_of(text, problem)}: {problem}") from None
+            except SettingError as exc:
+                raise refusal("lab profile", path, text, exc) from None
     return None
 
 
-def _checked(doc: dict[str, Any], path: Path) -> dict[str, Any]:
-    known = {*TABLES, "equipment", "site", "navigation"}
-    unknown = sorted(set(doc) - known)
-    if unknown:
-        raise ValueError(
-            f"lab profile {path}: unknown table(s) {unknown}; expected {sorted(known)}"
-        )
-    if "site" in doc:
-        _check_site(doc["site"], path)
-    if "navigation" in doc:
-        _check_navigation(doc["navigation"], path)
-    for table, keys in TABLES.items():
-        if table in doc:
-            _check_table(doc[table], keys, path, table)
+def checked(doc: dict[str, Any]) -> dict[str, Any]:
+    """`doc`, a lab profile's TOML tables, checked against their declarations (`TABLES`,
+    `EQUIPMENT`); SettingError naming the dotted key."""
+    typed(LAB, doc, "")
+    for name, value in doc.items():
+        if name in TABLES:
+            table, required = TABLES[name]
+            _table(table, value, name, required)
     country = doc.get("laboratory", {}).get("country")
     if country is not None and not (len(country) == 2 and country.isascii() and country.isupper()):
-        raise ValueError(
-            f"lab profile {path}: laboratory.country: expected an ISO 3166-1 "
-            f"alpha-2 code such as 'DE', got {country!r}"
-        )
-    equipment = doc.get("equipment", [])
-    if not isinstance(equipment, list):
-        raise ValueError(f"lab profile {path}: equipment: expected an array of tables")
-    seen: set[str] = set()
-    for i, entry in enumerate(equipment):
-        where = f"equipment[{i}]"
-        if isinstance(entry, dict) and "precheck" in entry:
-            entry = {k: v for k, v in entry.items() if k != "precheck"}
-            found = _check_precheck(doc["equipment"][i]["precheck"], path, where)
-            twice = sorted(seen & set(found))
-            if twice:
-                raise ValueError(f"lab profile {path}: {where}.precheck: {twice} given twice")
-            seen |= set(found)
-        _check_table(entry, EQUIPMENT_KEYS, path, where)
+        problem = f"expected an ISO 3166-1 alpha-2 code such as 'DE', got {country!r}"
+        raise SettingError("country", problem, "laboratory")
+    profiles = doc.get("navigation", {}).get("profiles")
+    if profiles == []:
+        problem = "expected a list of mission profile names, got []"
+        raise SettingError("profiles", problem, "navigation")
+    for i, name in enumerate(profiles or []):
+        try:
+            check_safe_name(name, "mission profile name")
+        except ValueError as exc:
+            raise SettingError(f"profiles[{i}]", str(exc), "navigation") from None
+    seen: dict[str, str] = {}  # pre-check key -> the entry that gave it
+    for i, entry in enumerate(doc.get("equipment", [])):
+        _equipment(entry, f"equipment[{i}]", seen)
     return doc
 
 
-def _check_precheck(table: Any, path: Path, where: str) -> dict[str, dict[str, float]]:
-    """``[equipment.precheck]``: key (calib_core.conditions.PRECHECK_KEYS) -> {value, limit},
-    numbers in the key's unit; the limit is the equipment's own (its data sheet or class)."""
-    from calib_core.conditions import PRECHECK_KEYS
-
-    unknown = sorted(set(table) - set(PRECHECK_KEYS)) if isinstance(table, dict) else None
-    if unknown is None or unknown:
-        raise ValueError(
-            f"lab profile {path}: {where}.precheck: expected a table of {list(PRECHECK_KEYS)}"
-            + (f", got unknown {unknown}" if unknown else "")
-        )
-    for key, entry in table.items():
-        at = f"lab profile {path}: {where}.precheck.{key}"
-        fields = set(entry) if isinstance(entry, dict) else set()
-        if "value" not in fields or fields - {"value", "limit"}:
-            raise ValueError(f"{at}: expected {{ value = <number>, limit = <number> }}")
-        bad = [(k, v) for k, v in entry.items() if isinstance(v, bool) or not _non_negative(v)]
-        if bad:
-            raise ValueError(f"{at}.{bad[0][0]}: expected a number >= 0, got {bad[0][1]!r}")
-    return table
+def _table(table: Settings, given: Any, root: str, required: tuple[str, ...] = ()) -> Any:
+    """`given` typed by `table` (calib_core.settings.typed); each text as written one line
+    of 1 .. TEXT_MAX_CHARS characters (SettingError naming ``root.key``)."""
+    for key, value in given.items() if isinstance(given, Mapping) else ():
+        if key in table and isinstance(value, str) and not _one_line(value):
+            problem = f"expected one line of text (1..{TEXT_MAX_CHARS} characters), got {value!r}"
+            raise SettingError(key, problem, root)
+    return typed(table, given, root, required)
 
 
-def _non_negative(value: Any) -> bool:
-    return isinstance(value, int | float) and value >= 0
+def _one_line(text: str) -> bool:
+    """Not blank, at most TEXT_MAX_CHARS characters, no control character below U+0020."""
+    return bool(text.strip()) and len(text) <= TEXT_MAX_CHARS and min(map(ord, text)) >= 32
+
+
+def _equipment(entry: Any, where: str, seen: dict[str, str]) -> None:
+    """One ``[[equipment]]`` entry (`EQUIPMENT`) and its pre-check, each pre-check key given
+    by one entry only."""
+    item = _table(EQUIPMENT, entry, where, ("serial", "certificate"))
+    if item.precheck is None:
+        return
+    _table(precheck_table(), item.precheck, f"{where}.precheck")
+    for key, reading in item.precheck.items():
+        _table(READING, reading, f"{where}.precheck.{key}", ("value",))
+        if key in seen:
+            problem = f"given twice: also in {seen[key]}.precheck"
+            raise SettingError(f"precheck.{key}", problem, where)
+        seen[key] = where
 
 
 def lab_precheck() -> tuple[dict[str, float], dict[str, dict[str, float]]]:
@@ -167,47 +259,6 @@ def lab_precheck() -> tuple[dict[str, float], dict[str, dict[str, float]]]:
     return values, limits
 
 
-def _check_table(table: Any, keys: tuple[set[str], set[str]], path: Path, where: str) -> None:
-    required, optional = keys
-    if not isinstance(table, dict):
-        raise ValueError(f"lab profile {path}: {where}: expected a table")
-    missing, unknown = sorted(required - set(table)), sorted(set(table) - required - optional)
-    if missing or unknown:
-        raise ValueError(
-            f"lab profile {path}: {where}: missing {missing}, unknown {unknown}; "
-            f"expected {sorted(required)} and optionally {sorted(optional)}"
-        )
-    for key, value in table.items():
-        if (
-            not isinstance(value, str)
-            or not value.strip()
-            or len(value) > 200
-            or any(ord(ch) < 32 for ch in value)
-        ):
-            raise ValueError(
-                f"lab profile {path}: {where}.{key}: expected one line of text "
-                f"(1..200 characters), got {value!r}"
-            )
-
-
-def _check_navigation(table: Any, path: Path) -> None:
-    """``[navigation]``: profiles, a list of mission-profile names (that each exists is
-    checked where they are read: `pipelines.reports.navigation`)."""
-    from storage.naming import check_safe_name
-
-    profiles = table.get("profiles") if isinstance(table, dict) else None
-    if set(table) != {"profiles"} or not isinstance(profiles, list) or not profiles:
-        raise ValueError(
-            f"lab profile {path}: navigation: expected a table with profiles = [names], "
-            f"got {table!r}"
-        )
-    for i, name in enumerate(profiles):
-        try:
-            check_safe_name(name, "mission profile name")
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"lab profile {path}: navigation.profiles[{i}]: {exc}") from None
-
-
 def lab_navigation_profiles() -> tuple[list[str], Path | None]:
     """The mission profiles the lab's certificates show (``[navigation] profiles``) and the
     lab profile's file."""
@@ -215,20 +266,6 @@ def lab_navigation_profiles() -> tuple[list[str], Path | None]:
     if found is None:
         return [], None
     return list(found[0].get("navigation", {}).get("profiles", [])), found[1]
-
-
-def _check_site(site: Any, path: Path) -> None:
-    """``[site]``: latitude_deg (-90 .. 90) and height_m, numbers."""
-    if not isinstance(site, dict) or set(site) != {"latitude_deg", "height_m"}:
-        raise ValueError(
-            f"lab profile {path}: site: expected a table with latitude_deg and "
-            f"height_m, got {site!r}"
-        )
-    for key, value in site.items():
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ValueError(f"lab profile {path}: site.{key}: expected a number, got {value!r}")
-    if not -90.0 <= site["latitude_deg"] <= 90.0:
-        raise ValueError(f"lab profile {path}: site.latitude_deg: expected -90 .. 90 degrees")
 
 
 def lab_site() -> tuple[dict[str, float], Path] | None:

@@ -27,11 +27,10 @@ from calib_core.mission import (
     Trajectory,
     trajectory_from_segments,
 )
-from calib_core.settings import Setting, SettingError, Settings, key_line, key_path
+from calib_core.settings import Setting, SettingError, Settings, key_line, key_path, typed
 from storage import queries
 from storage.db import Archive
 from storage.naming import check_safe_name
-from storage.run_input import typed
 
 SHIPPED = Path(__file__).resolve().parent / "navprofiles"
 TRAJECTORY_COLUMNS = ("t_s", "north_m", "east_m", "down_m", "roll_deg", "pitch_deg", "yaw_deg")

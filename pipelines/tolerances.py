@@ -59,8 +59,7 @@ def load_profile(name: str) -> ToleranceProfile:
             try:
                 return ToleranceProfile.from_dict(tomllib.loads(text))
             except (tomllib.TOMLDecodeError, ValueError, KeyError, TypeError) as exc:
-                where = f"{path}{line_of(text, str(exc))}"
-                raise ValueError(f"tolerance profile {where}: {exc}") from exc
+                raise refusal("tolerance profile", path, text, exc) from exc
     searched = ", ".join(str(d) for d in profile_dirs())
     raise ValueError(f"tolerance profile {name!r} not found (looked for {name}.toml in {searched})")
 
@@ -80,3 +79,10 @@ def line_of(text: str, problem: str) -> str:
     lines = (key_line(text, path[:n]) for n in range(len(path), 0, -1))
     line = next((n for n in lines if n is not None), None)
     return "" if line is None else f" line {line}"
+
+
+def refusal(what: str, path: Path, text: str, exc: Exception) -> ValueError:
+    """A profile file refused (a tolerance profile, the lab profile): ``<what> <path> line N:
+    <key>: <problem>``, N the line of the key `exc` (a SettingError) names in the TOML `text`,
+    left out when the key is not written there."""
+    return ValueError(f"{what} {path}{line_of(text, str(exc))}: {exc}")

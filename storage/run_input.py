@@ -17,7 +17,7 @@ from typing import Any
 import pyarrow as pa
 
 from calib_core.calibration import CheckResult, Parameter, StepRecord
-from calib_core.settings import Setting, SettingError, Settings
+from calib_core.settings import Setting, SettingError, Settings, typed
 from storage import rawstore
 from storage.naming import check_safe_name
 from storage.settings_hash import canonical_json, settings_hash
@@ -122,27 +122,6 @@ ENVIRONMENT = Settings(
 )  # fmt: skip
 Site = SITE.type
 Environment = ENVIRONMENT.type
-
-
-def typed(table: Settings, given: Any, root: str, required: tuple[str, ...] = ()) -> Any:
-    """`given` (typed values of `table`, or a mapping of them) typed as the archive keeps
-    them: texts stripped of surrounding blanks, whole numbers of a "number" setting as
-    floats; SettingError naming ``root.key`` for a value that is not a table, an unknown
-    key, a refused value or a `required` key missing or empty."""
-    if isinstance(given, table.type):
-        return given
-    if not isinstance(given, Mapping):
-        raise SettingError(root, f"expected a table, got {given!r}", "")
-    number = {s.name for s in table if "number" in s.kinds}
-    given = {
-        k: v.strip() if isinstance(v, str) else float(v) if k in number and type(v) is int else v
-        for k, v in given.items()
-    }
-    table.validate(given, "", root)
-    for key in required:
-        if given.get(key) in (None, ""):
-            raise SettingError(key, "required field is missing", root)
-    return table.parse(given)
 
 
 @dataclass

@@ -395,5 +395,9 @@ def test_equipment_precheck_from_the_lab_file(tmp_path, monkeypatch):
         '[[equipment]]\nserial = "RT-2"\ncertificate = "C-1"\n'
         "[equipment.precheck]\ntable_flatness = { value = 1 }\n"
     )
-    with pytest.raises(ValueError, match=r"precheck: expected a table of .* unknown \['table_fl"):
+    with pytest.raises(
+        ValueError,
+        match=r"lab.toml line 5: equipment\[0\]\.precheck\.table_flatness: unknown pre-check "
+        r"item of .*; expected one of imu_table_parallelism_arcsec, power_stability_pct, ",
+    ):
         lab_precheck()

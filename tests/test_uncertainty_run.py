@@ -438,9 +438,12 @@ def test_lab_profile_checked_and_missing_items_said(archived, tmp_path, monkeypa
     (tmp_path / "lab.toml").write_text('[laboratory]\nname = "X"\nphone = "1"\n')
     with pytest.raises(
         ValueError,
-        match=r"lab.toml: laboratory: missing \['address'\], "
-        r"unknown \['phone'\]",
+        match=r"lab.toml line 3: laboratory.phone: unknown field of \[laboratory\]; "
+        r"expected one of accreditation, address, country, name$",
     ):
+        load_lab_profile()
+    (tmp_path / "lab.toml").write_text('[laboratory]\nname = "X"\n')
+    with pytest.raises(ValueError, match=r"lab.toml: laboratory.address: required field is missing"):
         load_lab_profile()
     pairs = dict(administrative_section(ArchivedRun(archived["U-KNOWN"][1])).pairs)
     assert pairs["Calibration laboratory"] == NOT_RECORDED == pairs["Customer"]

@@ -13,10 +13,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from calib_core.settings import Setting, SettingError, Settings
+from calib_core.settings import Setting, SettingError, Settings, typed
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
 from pipelines.ingest.errors import IngestError
-from storage.run_input import typed
 
 # Formats a reader exists for; readers register in pipelines.ingest.readers.
 # Extend this tuple when adding a format.

@@ -35,18 +35,12 @@ from typing import Any
 
 from calib_core import procedures
 from calib_core.earth import local_gravity
-from calib_core.settings import Setting, SettingError, Settings, key_line, key_path
+from calib_core.settings import Setting, SettingError, Settings, key_line, key_path, typed
 from pipelines.ingest.data_format import format_spec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.free_text import check_free_text
 from storage.naming import check_safe_name
-from storage.run_input import (
-    ENVIRONMENT,
-    SITE,
-    Site,
-    equipment_in,
-    typed,
-)
+from storage.run_input import ENVIRONMENT, SITE, Site, equipment_in
 
 SCHEMA_VERSION = 1
 
