@@ -34,11 +34,10 @@ def repeatability_command(
 
     arch = open_archive(archive)
     try:
-        hist = queries.history(arch, serial)
-        if hist.empty:
+        latest = queries.latest_run(arch, serial)  # the one rule: storage.current
+        if latest is None:
             fail(f"no calibrations archived for serial {serial!r}")
-        latest = hist[~hist["superseded"]].iloc[-1]
-        proc = procedure or str(latest["procedure"])
+        proc = procedure or latest["procedure"]
         runs = queries.repeatability_candidates(arch, serial, proc)
         if not runs:
             fail(f"no current calibrations of serial {serial!r} by procedure {proc!r}")

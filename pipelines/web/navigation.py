@@ -90,19 +90,17 @@ def fleet_navigation(request: Request) -> HTMLResponse:
     model = q.get("model", "")
     forms.checked(queries.check_text, model, "model")
     profile = _profile(q)
-    runs = forms.checked(queries.units, archive, model=model, verdict="pass")
-    if runs.empty:
+    latest = forms.checked(queries.fleet_latest_valid, archive, model)  # storage.current's rule
+    if not latest:
         forms.checked(_no_units, model)
-    latest = runs.sort_values(["started_at", "run_id"]).drop_duplicates("serial", keep="last")
-    latest = latest.sort_values("serial")
     from pipelines.recall import recall_list
 
     recalls = {
-        e["serial"]: e for e in forms.checked(recall_list, archive, serial=latest["serial"].iloc[0])
+        e["serial"]: e for e in forms.checked(recall_list, archive, serial=latest[0]["serial"])
     }
     rows = [
-        forms.checked(navigation.navfit, archive, row.run_id, profile, None, recalls)
-        for row in latest.head(FLEET_NAV_MAX).itertuples(index=False)
+        forms.checked(navigation.navfit, archive, unit["run_id"], profile, None, recalls)
+        for unit in latest[:FLEET_NAV_MAX]
     ]
     rows.sort(key=lambda r: r["end"]["horizontal_position_m"]["p95"])
     return render(

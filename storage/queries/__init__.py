@@ -8,7 +8,7 @@ question:
 - `unit`: one unit as the browser shows it (device row, parameters, thermal model) and
   the revisions of a run;
 - `fleets`: a model's units by their latest run, a parameter over the fleet (derived tables);
-- `history`: a unit over time (history, latest and latest valid calibration), units,
+- `history`: a unit over time (history, latest run, latest and latest valid calibration), units,
   a model's fleet and its history;
 - `equipment`: equipment and its due dates, runs made with it past its due date;
 - `impact`: the runs that used one piece of equipment in a period (`calib impact`);
@@ -58,6 +58,7 @@ _API = {
     "storage.queries.fleets": [
         "FAILING_MAX",
         "FleetUnits",
+        "fleet_latest_valid",
         "fleet_lineage",
         "fleet_units",
         "fleet_values",
@@ -73,6 +74,7 @@ _API = {
         "fleet_histories",
         "fleet_history",
         "latest_calibration",
+        "latest_run",
         "latest_valid",
         "parameter_history",
         "serial_parameter_history",

@@ -124,6 +124,29 @@ def fleet_units(archive: Archive, model: str, failing_max: int = FAILING_MAX) ->
     )
 
 
+@functools.cache
+def _latest_valid_runs() -> Select:
+    """Each unit of the bound :model with a valid calibration: its latest valid one's run
+    (unit_latest's pick, by the rule of storage.current), by serial."""
+    return (
+        select(Device.serial, Run.run_id, Run.started_at)
+        .select_from(Device)
+        .join(UnitLatest, UnitLatest.device_id == Device.id)
+        .join(CalibrationRow, CalibrationRow.id == UnitLatest.valid_calibration_id)
+        .join(Run, Run.id == CalibrationRow.run_id)
+        .where(Device.model == bindparam("model"))
+        .order_by(Device.serial)
+    )
+
+
+def fleet_latest_valid(archive: Archive, model: str) -> list[dict[str, Any]]:
+    """The units of `model` (registered model) that have a valid calibration, by serial:
+    serial, run_id and started_at of each one's latest valid calibration."""
+    check_text(model, "model")
+    with reading(archive) as conn:
+        return [dict(r._mapping) for r in conn.execute(_latest_valid_runs(), {"model": model})]
+
+
 _FLEET_VALUES = (
     select(UnitLatestValue.serial, UnitLatestValue.calibration_id, UnitLatestValue.value,
            UnitLatestValue.temperature_c)

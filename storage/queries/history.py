@@ -188,6 +188,30 @@ def latest_calibration(
         return revision_record(s, row.CalibrationRow, **head)
 
 
+def latest_run(archive: Archive, serial: str) -> dict[str, Any] | None:
+    """A unit's latest run with its current revision, of any verdict (storage.current:
+    latest by run start, the later archived among equal starts).
+
+    Returns
+    -------
+    None if the unit has no run, else a dict: run_id, started_at, procedure, revision,
+    verdict.
+    """
+    check_serial(serial)
+    stmt = (
+        select_run_calibrations(
+            Run.run_id, Run.started_at, Run.procedure, CalibrationRow.revision,
+            CalibrationRow.verdict,
+        )
+        .where(Device.serial == serial, CURRENT)
+        .order_by(*LATEST_FIRST)
+        .limit(1)
+    )  # fmt: skip
+    with reading(archive) as conn:
+        row = conn.execute(stmt).one_or_none()
+    return None if row is None else dict(row._mapping)
+
+
 LATEST_COLUMNS = [
     "serial",
     "run_id",

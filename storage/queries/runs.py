@@ -473,7 +473,8 @@ def repeatability_candidates(
     only: Sequence[str] | None = None,
     before_calibration: int | None = None,
 ) -> list[dict[str, Any]]:
-    """Current calibrations of one unit by one procedure, most recent run first.
+    """Current calibrations of one unit by one procedure, most recent run first
+    (storage.current.LATEST_RUN_FIRST).
 
     Parameters
     ----------
@@ -494,7 +495,7 @@ def repeatability_candidates(
             Run.run_id, Run.started_at, Run.environment, CalibrationRow.id, CalibrationRow.verdict
         )
         .where(Device.serial == serial, Run.procedure == procedure, _then(before_calibration))
-        .order_by(Run.started_at.desc(), Run.id.desc())
+        .order_by(*LATEST_RUN_FIRST)
     )
     if only is not None:
         stmt = stmt.where(Run.run_id.in_(list(only)))
