@@ -295,3 +295,27 @@ def test_cli_query_formats(archive: Archive, scenario: Scenario, monkeypatch) ->
     assert res.exit_code == 2 and "verdict: expected one of pass, fail" in res.stderr
     res = call("latest", "A1", "--at", "2023-01-01", "--format", "json")
     assert res.exit_code == 1 and json.loads(res.stdout) == []
+
+
+def test_latest_run_and_fleet_pick_follow_the_current_rule(archive: Archive, tmp_path: Path):
+    """storage.current decides a unit's latest run and latest valid calibration: of two
+    runs started at one instant the later archived, whatever their run ids' order (the
+    run id text sorts the other way here); a later failed run leaves the valid one."""
+    from storage.run_input import raw_hash_of, run_id_of
+
+    t = datetime(2025, 1, 2, 8, 0, tzinfo=UTC)
+    pair = [_run(tmp_path, f"t{k}", "T1", 40 + k, t) for k in range(2)]
+    pair.sort(key=lambda r: run_id_of(raw_hash_of([f.sha256 for f in r.raw_files])))
+    first, second = pair[1], replace(pair[0], procedure="static_bias")  # later: smaller id
+    ids = [archive_run(archive, r).run_id for r in (first, second)]
+    assert ids[1] < ids[0]
+    latest = queries.latest_run(archive, "T1")
+    assert (latest["run_id"], latest["procedure"], latest["revision"]) == (ids[1], "static_bias", 1)
+    assert queries.latest_run(archive, "NONE-1") is None
+    failed = _run(tmp_path, "t3", "T1", 43, t + timedelta(days=1), verdict="fail")
+    assert archive_run(archive, failed).run_id
+    assert queries.latest_run(archive, "T1")["verdict"] == "fail"
+    model = first.device_model
+    picks = {u["serial"]: u["run_id"] for u in queries.fleet_latest_valid(archive, model)}
+    assert picks == {"T1": ids[1]}
+    assert queries.fleet_latest_valid(archive, "NO-SUCH-MODEL") == []
