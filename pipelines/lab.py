@@ -64,7 +64,7 @@ from typing import Any
 
 from calib_core.settings import Setting, SettingError, Settings, typed
 from pipelines.tolerances import LAB_FILE_STEM, profile_dirs, refusal
-from storage.naming import check_safe_name
+from storage.naming import check_safe_name, is_one_line
 
 LAB_PROFILE = f"{LAB_FILE_STEM}.toml"
 TEXT_MAX_CHARS = 200  # each text of the lab profile: one line, as a certificate prints it
@@ -217,15 +217,10 @@ def _table(table: Settings, given: Any, root: str, required: tuple[str, ...] = (
     """`given` typed by `table` (calib_core.settings.typed); each text as written one line
     of 1 .. TEXT_MAX_CHARS characters (SettingError naming ``root.key``)."""
     for key, value in given.items() if isinstance(given, Mapping) else ():
-        if key in table and isinstance(value, str) and not _one_line(value):
+        if key in table and isinstance(value, str) and not is_one_line(value, TEXT_MAX_CHARS):
             problem = f"expected one line of text (1..{TEXT_MAX_CHARS} characters), got {value!r}"
             raise SettingError(key, problem, root)
     return typed(table, given, root, required)
-
-
-def _one_line(text: str) -> bool:
-    """Not blank, at most TEXT_MAX_CHARS characters, no control character below U+0020."""
-    return bool(text.strip()) and len(text) <= TEXT_MAX_CHARS and min(map(ord, text)) >= 32
 
 
 def _equipment(entry: Any, where: str, seen: dict[str, str]) -> None:

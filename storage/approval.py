@@ -41,6 +41,7 @@ from sqlalchemy import Connection, select
 from storage import seal, seal_check, seal_record
 from storage.current import CURRENT
 from storage.db import Archive
+from storage.naming import is_one_line
 from storage.schema import AuditEvent, CalibrationRow, Run, Seal
 
 Meaning = Literal["reviewed", "approved"]
@@ -129,7 +130,7 @@ def load_key(path: Path, passphrase: str) -> Ed25519PrivateKey:
 
 
 def _check_name(name: str) -> None:
-    if not name.strip() or len(name) > 200 or any(ord(c) < 32 for c in name):
+    if not is_one_line(name):
         raise ValueError(f"signer name: 1..200 characters without control characters, got {name!r}")
 
 

@@ -23,3 +23,10 @@ def check_safe_name(value: str, what: str = "serial") -> str:
             "'.', '-', '_', not starting with '.' and without '..'"
         )
     return value
+
+
+def is_one_line(text: str, max_chars: int = 200) -> bool:
+    """Is `text` one line a person can read back: not blank, at most `max_chars`
+    characters, no control character below U+0020 (a signer's name, a lab profile's
+    texts)."""
+    return bool(text.strip()) and len(text) <= max_chars and all(ord(c) >= 32 for c in text)
