@@ -74,39 +74,32 @@ def _texts(**meanings: str) -> tuple[Setting, ...]:
     return tuple(Setting(key, "text", "", None, meaning) for key, meaning in meanings.items())
 
 
+def _text_table(type_name: str, /, **meanings: str) -> Settings:
+    """A table of one-line texts, its values' type named `type_name`."""
+    return Settings(*_texts(**meanings), name=type_name, noun="field")
+
+
 # Each table of lab.toml (its keys' meanings are the documentation above).
-LABORATORY = Settings(
-    *_texts(
-        name="the laboratory's name",
-        address="its address",
-        accreditation="its accreditation",
-        country="ISO 3166-1 alpha-2 code, e.g. 'DE' (the DCC's coreData)",
-    ),
-    name="Laboratory",
-    noun="field",
+LABORATORY = _text_table(
+    "Laboratory",
+    name="the laboratory's name",
+    address="its address",
+    accreditation="its accreditation",
+    country="ISO 3166-1 alpha-2 code, e.g. 'DE' (the DCC's coreData)",
 )
-CUSTOMER = Settings(
-    *_texts(name="the customer's name", contact="how to reach it", address="its location"),
-    name="Customer",
-    noun="field",
+CUSTOMER = _text_table(
+    "Customer", name="the customer's name", contact="how to reach it", address="its location"
 )
-AUTHORISED_BY = Settings(
-    *_texts(name="who authorises certificates", function="their function"),
-    name="AuthorisedBy",
-    noun="field",
+AUTHORISED_BY = _text_table(
+    "AuthorisedBy", name="who authorises certificates", function="their function"
 )
-TRUST = Settings(
-    *_texts(approvers="the approvers file (calib keygen .pub lines), beside lab.toml"),
-    name="Trust",
-    noun="field",
+TRUST = _text_table(
+    "Trust", approvers="the approvers file (calib keygen .pub lines), beside lab.toml"
 )
-SIGNING = Settings(
-    *_texts(
-        certificate="the lab's X.509 certificate (PEM), beside lab.toml",
-        key="its private key (PEM): read to sign, never archived",
-    ),
-    name="Signing",
-    noun="field",
+SIGNING = _text_table(
+    "Signing",
+    certificate="the lab's X.509 certificate (PEM), beside lab.toml",
+    key="its private key (PEM): read to sign, never archived",
 )
 SITE = Settings(
     Setting("latitude_deg", "number", "deg", None, "geodetic latitude", low=-90.0, high=90.0),
