@@ -443,7 +443,9 @@ def test_lab_profile_checked_and_missing_items_said(archived, tmp_path, monkeypa
     ):
         load_lab_profile()
     (tmp_path / "lab.toml").write_text('[laboratory]\nname = "X"\n')
-    with pytest.raises(ValueError, match=r"lab.toml: laboratory.address: required field is missing"):
+    with pytest.raises(
+        ValueError, match=r"lab.toml: laboratory.address: required field is missing"
+    ):
         load_lab_profile()
     pairs = dict(administrative_section(ArchivedRun(archived["U-KNOWN"][1])).pairs)
     assert pairs["Calibration laboratory"] == NOT_RECORDED == pairs["Customer"]
