@@ -369,10 +369,8 @@ def open_run(archive_arg: str | None, run_id: str):  # noqa: ANN201 - (Archive, 
     from storage import queries
 
     arch = open_archive(archive_arg)
-    try:
+    with fail_on(LookupError, ValueError):
         return arch, queries.full_run_id(arch, run_id)
-    except (LookupError, ValueError) as exc:
-        fail(str(exc))
 
 
 def fail(message: str) -> None:
@@ -381,6 +379,16 @@ def fail(message: str) -> None:
 
     err.print(f"[red]error:[/red] {escape(message)}")
     raise typer.Exit(2)
+
+
+@contextlib.contextmanager
+def fail_on(*errors: type[Exception]) -> Iterator[None]:
+    """An error of one of these kinds raised inside the block: its message printed as
+    `fail` prints it, exit 2."""
+    try:
+        yield
+    except errors as exc:
+        fail(str(exc))
 
 
 def frame_records(df: Any) -> list[dict[str, Any]]:

@@ -16,6 +16,7 @@ from pipelines.cli_shared import (
     app,
     err,
     fail,
+    fail_on,
     open_archive,
     out,
     print_json,
@@ -62,19 +63,15 @@ def impact_command(
     from pipelines.impact import applied_words, csv_report, html_report, impact
     from storage.queries import as_instant
 
-    try:
+    with fail_on(ValueError):
         err_ = parse_error(error)
         first = as_instant(since, "--from", end_of_day=False)
         last = as_instant(until, "--to", end_of_day=True)
-    except ValueError as exc:
-        fail(str(exc))
     if last is not None and last < first:
         fail(f"--to {until} is before --from {since}: the period is empty")
     arch = open_archive(archive)
-    try:
+    with fail_on(LookupError, ValueError):
         doc = impact(arch, equipment_serial, err_, since, until, apply=apply)
-    except (LookupError, ValueError) as exc:
-        fail(str(exc))
     if csv_out is not None:
         csv_out.write_text(csv_report(doc), encoding="utf-8")
         err.print(f"wrote {csv_out}", soft_wrap=True)

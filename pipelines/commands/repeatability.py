@@ -13,7 +13,16 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, fail, open_archive, out, print_json
+from pipelines.cli_shared import (
+    ArchiveOpt,
+    JsonOpt,
+    app,
+    fail,
+    fail_on,
+    open_archive,
+    out,
+    print_json,
+)
 
 
 @app.command("repeatability")
@@ -33,7 +42,7 @@ def repeatability_command(
     from storage import queries
 
     arch = open_archive(archive)
-    try:
+    with fail_on(LookupError, ValueError):
         hist = queries.history(arch, serial)
         if hist.empty:
             fail(f"no calibrations archived for serial {serial!r}")
@@ -43,8 +52,6 @@ def repeatability_command(
         if not runs:
             fail(f"no current calibrations of serial {serial!r} by procedure {proc!r}")
         profile = load_profile(queries.run_summary(arch, runs[0]["run_id"]).tolerance_profile)
-    except (LookupError, ValueError) as exc:
-        fail(str(exc))
     values = [
         RunValues(r["run_id"], (r["environment"] or {}).get("temperature_c"), r["parameters"])
         for r in runs

@@ -24,6 +24,7 @@ from pipelines.cli_shared import (
     app,
     err,
     fail,
+    fail_on,
     frame_records,
     open_archive,
     print_facts,
@@ -58,10 +59,8 @@ def parse_when(text: str | None) -> datetime | None:
 def _run(fn, *args, **kwargs) -> Any:  # noqa: ANN001 - any pipeline function
     from pipelines.ingest import IngestError
 
-    try:
+    with fail_on(ValueError, LookupError, IngestError, OSError):
         return fn(*args, **kwargs)
-    except (ValueError, LookupError, IngestError, OSError) as exc:
-        fail(str(exc))
 
 
 @thermal_app.command("fit")
