@@ -208,11 +208,11 @@ def _print_validations(summary: RunSummary) -> None:
 
 def _print_approvals(arch, summary: RunSummary) -> None:  # noqa: ANN001 - an Archive
     """The approvals of the shown revision, marked by the lab's approvers file."""
-    from pipelines.trust import NOT_CHECKED, approval_line, lab_approvers
+    from pipelines.commands.audit import load_trust
+    from pipelines.trust import NOT_CHECKED, approval_line
     from storage.approval import approval_status
 
-    with fail_on(ValueError):
-        trust = lab_approvers()
+    trust = load_trust(None)
     found = approval_status(arch, summary.run_id, summary.calibration.revision, trust)
     for a, holds in found:
         changed = " (NO LONGER VALID: the record changed after signing)"

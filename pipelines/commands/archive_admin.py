@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -10,7 +9,7 @@ from typing import Annotated
 import typer
 
 from pipelines import cli_shared as batch  # its batch options (RunnerOpt...)
-from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, err, fail_on, open_archive
+from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, err, fail_on, open_archive, print_json
 from pipelines.commands.audit import ApproversOpt, load_trust
 
 RECOMPUTE_HELP = (
@@ -94,7 +93,7 @@ def verify(
             )
     report = run_verify(arch, orphans=orphans, approvers=trust, checkpoints=heads)
     if as_json:
-        sys.stdout.write(json.dumps(report.to_dict(), indent=2) + "\n")
+        print_json(report.to_dict())
     else:
         for p in report.problems:
             runs = ", ".join(p.runs)

@@ -27,6 +27,7 @@ from pipelines.cli_shared import (
     open_run,
     out,
     print_frame,
+    print_json,
     sub_app,
 )
 
@@ -76,16 +77,16 @@ def emit(df: pd.DataFrame, fmt: Format, title: str, param: str | None = None) ->
     with parameter values in their display units (`pipelines.reports.display`), the
     parameter named by a ``name`` column or by `param`."""
     if fmt is Format.json:
-        sys.stdout.write(json.dumps(_records(df), indent=2) + "\n")
+        print_json(_records(df))
     elif fmt is Format.csv:
         df.to_csv(sys.stdout, index=False, date_format="%Y-%m-%dT%H:%M:%S%z")
     elif df.empty:
         err.print(f"{title}: no rows")
     else:
-        print_frame(_displayed(df, param), title)
+        print_frame(displayed(df, param), title)
 
 
-def _displayed(df: pd.DataFrame, param: str | None) -> pd.DataFrame:
+def displayed(df: pd.DataFrame, param: str | None) -> pd.DataFrame:
     """`df` with its value / std / unit columns as people read them: display unit, the
     uncertainty to two significant digits (column ``u``), the value to the same place."""
     from pipelines.reports.display import STANDARD_U, shown
@@ -144,7 +145,7 @@ def lineage(
     with fail_on(ValueError, LookupError):
         doc = queries.lineage(arch, run_id, param, revision)
     if fmt is Format.json:
-        sys.stdout.write(json.dumps(_plain(doc), indent=2) + "\n")
+        print_json(_plain(doc))
         return
     if fmt is Format.csv:
         long = pd.DataFrame(_flatten(doc), columns=["section", "item", "field", "value"])

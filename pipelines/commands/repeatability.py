@@ -13,16 +13,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from pipelines.cli_shared import (
-    ArchiveOpt,
-    JsonOpt,
-    app,
-    fail,
-    fail_on,
-    open_archive,
-    out,
-    print_json,
-)
+from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, fail_on, open_archive, out, print_json
 
 
 @app.command("repeatability")
@@ -45,12 +36,12 @@ def repeatability_command(
     with fail_on(LookupError, ValueError):
         hist = queries.history(arch, serial)
         if hist.empty:
-            fail(f"no calibrations archived for serial {serial!r}")
+            raise LookupError(f"no calibrations archived for serial {serial!r}")
         latest = hist[~hist["superseded"]].iloc[-1]
         proc = procedure or str(latest["procedure"])
         runs = queries.repeatability_candidates(arch, serial, proc)
         if not runs:
-            fail(f"no current calibrations of serial {serial!r} by procedure {proc!r}")
+            raise LookupError(f"no current calibrations of serial {serial!r} by procedure {proc!r}")
         profile = load_profile(queries.run_summary(arch, runs[0]["run_id"]).tolerance_profile)
     values = [
         RunValues(r["run_id"], (r["environment"] or {}).get("temperature_c"), r["parameters"])

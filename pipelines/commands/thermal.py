@@ -324,15 +324,13 @@ def trend(
     if as_json:
         print_json({"summary": rep["summary"], "rows": frame_records(rep["table"])})
         return
-    from pipelines.reports.display import STANDARD_U, quantity, shown, with_unit
+    from pipelines.commands.query import displayed
+    from pipelines.reports.display import quantity, shown, with_unit
 
-    table = rep["table"].copy()  # SI: in the display unit, as `calib show` prints it
-    texts = [shown(param, v, u) for v, u in zip(table["value"], table["std"], strict=True)]
-    table["value"] = [t.value for t in texts]
-    table["std"] = [t.u or "-" for t in texts]
+    # SI: in the display unit, as `calib show` prints it
+    table = displayed(rep["table"].assign(unit=None), param)
     table["fitted"] = [quantity(param, v) for v in table["fitted"]]
-    table["unit"] = [t.unit for t in texts]
-    print_frame(table.rename(columns={"std": STANDARD_U}), f"{param} of {serial}")
+    print_frame(table, f"{param} of {serial}")
     summary = dict(rep["summary"])
     unit = summary["unit"] = shown(param, 0.0).unit
     # every number with its display unit (a slope per year: the value's unit per year)
