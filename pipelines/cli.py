@@ -20,6 +20,7 @@ from pipelines.cli_shared import (
     cell,
     err,
     fail,
+    fail_on,
     flow_batch_console,
     frame_records,
     group_commands,
@@ -85,10 +86,8 @@ def process(
     from pipelines.direct import discover, in_process, process_in_process
     from pipelines.runners import check_runner
 
-    try:
+    with fail_on(ValueError):
         check_runner(runner, workers, scheduler)
-    except ValueError as exc:
-        fail(str(exc))
     show = err.is_terminal if progress is None else progress
     names = [str(p) for p in paths]
     sources, failed = discover(names)
@@ -183,10 +182,8 @@ def show(run_id: str, archive: ArchiveOpt = None, as_json: JsonOpt = False) -> N
     from storage import queries
 
     arch, run_id = open_run(archive, run_id)
-    try:
+    with fail_on(KeyError, LookupError, ValueError):
         summary = queries.run_summary(arch, run_id)
-    except (KeyError, LookupError, ValueError) as exc:
-        fail(str(exc))
     if as_json:
         print_json(summary.to_dict())
         return
@@ -211,13 +208,11 @@ def _print_validations(summary: RunSummary) -> None:
 
 def _print_approvals(arch, summary: RunSummary) -> None:  # noqa: ANN001 - an Archive
     """The approvals of the shown revision, marked by the lab's approvers file."""
-    from pipelines.trust import NOT_CHECKED, approval_line, lab_approvers
+    from pipelines.commands.audit import load_trust
+    from pipelines.trust import NOT_CHECKED, approval_line
     from storage.approval import approval_status
 
-    try:
-        trust = lab_approvers()
-    except ValueError as exc:
-        fail(str(exc))
+    trust = load_trust(None)
     found = approval_status(arch, summary.run_id, summary.calibration.revision, trust)
     for a, holds in found:
         changed = " (NO LONGER VALID: the record changed after signing)"
@@ -343,7 +338,7 @@ def export(
     if fmt == "mat" and output is None:
         fail("--format mat writes a binary file: give --output FILE.mat")
     arch, run_id = open_run(archive, run_id)
-    try:
+    with fail_on(KeyError, LookupError, ValueError):
         result = export_run(
             arch,
             run_id,
@@ -358,8 +353,6 @@ def export(
             rotation=rotation,
             vehicle_id=vehicle_id,
         )
-    except (KeyError, LookupError, ValueError) as exc:
-        fail(str(exc))
     for note in result.warnings:
         warn(note)
     if output is None:

@@ -369,10 +369,8 @@ def open_run(archive_arg: str | None, run_id: str):  # noqa: ANN201 - (Archive, 
     from storage import queries
 
     arch = open_archive(archive_arg)
-    try:
+    with fail_on(LookupError, ValueError):
         return arch, queries.full_run_id(arch, run_id)
-    except (LookupError, ValueError) as exc:
-        fail(str(exc))
 
 
 def fail(message: str) -> None:
@@ -381,6 +379,16 @@ def fail(message: str) -> None:
 
     err.print(f"[red]error:[/red] {escape(message)}")
     raise typer.Exit(2)
+
+
+@contextlib.contextmanager
+def fail_on(*errors: type[Exception]) -> Iterator[None]:
+    """An error of one of these kinds raised inside the block: its message printed as
+    `fail` prints it, exit 2."""
+    try:
+        yield
+    except errors as exc:
+        fail(str(exc))
 
 
 def frame_records(df: Any) -> list[dict[str, Any]]:
@@ -492,7 +500,7 @@ def print_frame(df, title: str, whole: tuple[str, ...] = ()) -> None:
     ]
     df = df[first + [c for c in df.columns if c not in first]]
     columns = [str(c) for c in df.columns]
-    rows = [[_cell(v) for v in row] for row in df.itertuples(index=False)]
+    rows = [[cell(v) for v in row] for row in df.itertuples(index=False)]
     same = [c for i, c in enumerate(columns) if len(rows) > 1 and len({r[i] for r in rows}) == 1]
     if len(columns) - len(same) < 2:
         same = []
@@ -524,9 +532,6 @@ def cell(value: Any) -> str:
     return escape(str(value))
 
 
-_cell = cell
-
-
 def print_facts(facts: dict[str, Any], title: str, paths: tuple[str, ...] = ()) -> None:
     """A flat dict as a two-column table (what, value); long values wrap, never cut.
 
@@ -540,8 +545,8 @@ def print_facts(facts: dict[str, Any], title: str, paths: tuple[str, ...] = ()) 
         if key in paths:
             continue
         if isinstance(value, list):
-            value = ", ".join(map(_cell, value)) or None
-        table.add_row(_label(key), "-" if value is None else _cell(value))
+            value = ", ".join(map(cell, value)) or None
+        table.add_row(_label(key), "-" if value is None else cell(value))
     out.print(table)
     for key in paths:
         if facts.get(key) is not None:

@@ -10,6 +10,7 @@ and deviation <= 0.5 deg/s. Each is tested just inside and just outside its limi
 from __future__ import annotations
 
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -141,14 +142,7 @@ def test_static_bias_rule_judges_the_chamber_not_the_sensor():
         return lambda t: 25.0 + total * t / 20.0
 
     def with_chamber(rec: Recording, total: float) -> Recording:
-        return Recording(
-            t=rec.t,
-            acc=rec.acc,
-            gyr=rec.gyr,
-            temp=rec.temp,
-            label=rec.label,
-            reference={"chamber_temperature": ramp(total)(rec.t)},
-        )
+        return replace(rec, reference={"chamber_temperature": ramp(total)(rec.t)})
 
     warming = _static("x_up", temp=ramp(1.0))  # the sensor warms by 1 deg C
     steady = _checks([with_chamber(warming, 0.1)], procedure="static_bias")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -10,7 +9,7 @@ from typing import Annotated
 import typer
 
 from pipelines import cli_shared as batch  # its batch options (RunnerOpt...)
-from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, err, fail, open_archive
+from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, err, fail_on, open_archive, print_json
 from pipelines.commands.audit import ApproversOpt, load_trust
 
 RECOMPUTE_HELP = (
@@ -78,10 +77,8 @@ def verify(
     from storage.verify import verify as run_verify
 
     trust = load_trust(approvers)
-    try:
+    with fail_on(ValueError):
         heads = [(str(p), checkpoints.load(p)) for p in checkpoint or []]
-    except ValueError as exc:
-        fail(str(exc))
     arch = open_archive(archive)
     if repair_orphans:
         removed = [p.relative_to(arch.root).as_posix() for p in remove_stale_temp_files(arch.root)]
@@ -96,7 +93,7 @@ def verify(
             )
     report = run_verify(arch, orphans=orphans, approvers=trust, checkpoints=heads)
     if as_json:
-        sys.stdout.write(json.dumps(report.to_dict(), indent=2) + "\n")
+        print_json(report.to_dict())
     else:
         for p in report.problems:
             runs = ", ".join(p.runs)
@@ -133,10 +130,8 @@ def backup(
     from storage.backup import BackupError
     from storage.backup import backup as run_backup
 
-    try:
+    with fail_on(BackupError, FileNotFoundError):
         manifest = run_backup(open_archive(archive), dest)
-    except (BackupError, FileNotFoundError) as exc:
-        fail(str(exc))
     err.print(
         f"backed up the {manifest['backend']} database (schema {manifest['schema_revision']}) "
         f"and {len(manifest['files'])} files to {dest}"
@@ -155,11 +150,9 @@ def restore(
     from storage.seal import record_event
     from storage.verify import verify as run_verify
 
-    try:
+    with fail_on(BackupError, FileNotFoundError, ValueError):
         target = resolve_archive(archive)
         manifest = run_restore(src, target)
-    except (BackupError, FileNotFoundError, ValueError) as exc:
-        fail(str(exc))
     record_event(
         target,
         "restored",

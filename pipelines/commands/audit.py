@@ -17,6 +17,7 @@ from pipelines.cli_shared import (
     cell,
     err,
     fail,
+    fail_on,
     open_archive,
     open_run,
     out,
@@ -48,10 +49,8 @@ def load_trust(given: Path | None):  # noqa: ANN201 - Approvers | None
     """The lab's approvers (pipelines.trust), or exit 2 naming the bad file and line."""
     from pipelines.trust import lab_approvers
 
-    try:
+    with fail_on(ValueError):
         return lab_approvers(given)
-    except ValueError as exc:
-        fail(str(exc))
 
 
 @app.command()
@@ -81,10 +80,8 @@ def audit(
 
     trust = load_trust(approvers)
     arch = open_archive(archive)
-    try:
+    with fail_on(LookupError, ValueError):
         events = queries.audit_trail(arch, target, since)
-    except (LookupError, ValueError) as exc:
-        fail(str(exc))
     approved = 0
     for ev in events:
         if ev["action"] == "approved":
@@ -198,10 +195,8 @@ def keygen(
     or asked)."""
     from storage.approval import generate_key
 
-    try:
+    with fail_on(ValueError, FileExistsError):
         public = generate_key(key, name, read_passphrase(confirm=True))
-    except (ValueError, FileExistsError) as exc:
-        fail(str(exc))
     err.print(f"key of {name} written to {key} (public key {public} in {key}.pub)")
 
 

@@ -14,7 +14,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import CalibGroup, JsonOpt, app, fail, out, print_json
+from pipelines.cli_shared import CalibGroup, JsonOpt, app, fail, fail_on, out, print_json
 
 
 class _SolveByDefault(CalibGroup):
@@ -75,13 +75,10 @@ def solve(
 
     if alpha is not None and not 0.0 < alpha < 1.0:
         fail(f"--alpha must be in (0, 1), got {alpha}")
-    try:
+    with fail_on(ValueError, IngestError, OSError):
         outcome = process_centrifuge(
             run, repeat=repeat, report_path=report, alpha=alpha, t_test=t_test, steer=steer
         )
-    except (ValueError, IngestError, OSError) as exc:
-        fail(str(exc))
-        return
     if as_json:
         print_json(outcome.to_dict())
     else:
@@ -124,7 +121,7 @@ def plan(
     if not step_s > 0:
         fail(f"--step-s must be positive, got {step_s}")
     max_rate = None if max_rpm is None else max_rpm * 2.0 * math.pi / 60.0
-    try:
+    with fail_on(ValueError):
         points = plan_rates(
             radius,
             _levels(levels),
@@ -133,9 +130,6 @@ def plan(
             sense=1 if sense == "ccw" else -1,
             max_rate=max_rate,
         )
-    except ValueError as exc:
-        fail(str(exc))
-        return
     rows = [
         {
             "g": p.n_g,

@@ -16,6 +16,7 @@ from pipelines.cli_shared import (
     app,
     err,
     fail,
+    fail_on,
     open_archive,
     out,
     print_json,
@@ -43,15 +44,10 @@ def impact_command(
     apply: Annotated[
         bool, typer.Option("--apply", help="Archive the re-solves as new sealed revisions.")
     ] = False,
-    csv_out: Annotated[
-        Path | None, typer.Option("--csv", help="Write the report as CSV to this file.")
-    ] = None,
-    html_out: Annotated[
-        Path | None, typer.Option("--html", help="Write the report as an HTML page.")
-    ] = None,
-    pdf_out: Annotated[
-        Path | None,
-        typer.Option("--pdf", help="Write the report typeset as PDF (nonconformity record)."),
+    csv: Annotated[Path | None, typer.Option(help="Write the report as CSV to this file.")] = None,
+    html: Annotated[Path | None, typer.Option(help="Write the report as an HTML page.")] = None,
+    pdf: Annotated[
+        Path | None, typer.Option(help="Write the report typeset as PDF (nonconformity record).")
     ] = None,
     archive: ArchiveOpt = None,
     as_json: JsonOpt = False,
@@ -59,33 +55,27 @@ def impact_command(
     """Out-of-tolerance look-back: the runs made on EQUIPMENT_SERIAL in the period, solved
     again from their raw bytes with the reference corrected; verdicts before and after."""
     from calib_core.reference_errors import parse_error
-    from pipelines.impact import applied_words, csv_report, html_report, impact
+    from pipelines.impact import applied_words, csv_report, html_report, impact, pdf_report
     from storage.queries import as_instant
 
-    try:
+    with fail_on(ValueError):
         err_ = parse_error(error)
         first = as_instant(since, "--from", end_of_day=False)
         last = as_instant(until, "--to", end_of_day=True)
-    except ValueError as exc:
-        fail(str(exc))
     if last is not None and last < first:
         fail(f"--to {until} is before --from {since}: the period is empty")
     arch = open_archive(archive)
-    try:
+    with fail_on(LookupError, ValueError):
         doc = impact(arch, equipment_serial, err_, since, until, apply=apply)
-    except (LookupError, ValueError) as exc:
-        fail(str(exc))
-    if csv_out is not None:
-        csv_out.write_text(csv_report(doc), encoding="utf-8")
-        err.print(f"wrote {csv_out}", soft_wrap=True)
-    if html_out is not None:
-        html_out.write_text(html_report(doc), encoding="utf-8")
-        err.print(f"wrote {html_out}", soft_wrap=True)
-    if pdf_out is not None:
-        from pipelines.impact import pdf_report
-
-        pdf_out.write_bytes(pdf_report(doc))
-        err.print(f"wrote {pdf_out}", soft_wrap=True)
+    if csv is not None:
+        csv.write_text(csv_report(doc), encoding="utf-8")
+        err.print(f"wrote {csv}", soft_wrap=True)
+    if html is not None:
+        html.write_text(html_report(doc), encoding="utf-8")
+        err.print(f"wrote {html}", soft_wrap=True)
+    if pdf is not None:
+        pdf.write_bytes(pdf_report(doc))
+        err.print(f"wrote {pdf}", soft_wrap=True)
     if as_json:
         print_json(doc)
         _exit_if_not_written(doc)

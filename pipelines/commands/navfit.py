@@ -11,7 +11,16 @@ from typing import Annotated, Any
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_run, print_facts, print_json
+from pipelines.cli_shared import (
+    ArchiveOpt,
+    app,
+    err,
+    fail,
+    fail_on,
+    open_run,
+    print_facts,
+    print_json,
+)
 
 PLOT_SUFFIXES = (".png", ".svg", ".pdf")
 
@@ -48,11 +57,9 @@ def navfit(
     if limit is not None and not limit > 0:
         fail(f"--limit must be > 0 m, got {limit:g}")
     arch, full = open_run(archive, run_id)
-    try:
+    with fail_on(LookupError, ValueError):
         prof = navigation.load_profile(profile)
         result = navigation.navfit(arch, full, prof, limit)
-    except (LookupError, ValueError) as exc:
-        fail(str(exc))
     if plot is not None:
         _write_plot(result, plot)
     if json_out:

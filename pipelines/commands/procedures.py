@@ -52,10 +52,6 @@ def _default(value: Any) -> str:
     return f"`{value:g}`" if isinstance(value, float) else f"`{value}`"
 
 
-def _kind(kinds: tuple[str, ...]) -> str:
-    return " or ".join(kinds)
-
-
 def _cell(text: str) -> str:
     return text.replace("|", "\\|")
 
@@ -68,7 +64,7 @@ def settings_markdown(settings: Settings) -> list[str]:
     ]
     for s in settings:
         lines.append(
-            f"| `{s.name}` | {_kind(s.kinds)} | {s.unit or '-'} | {_default(s.default)} | "
+            f"| `{s.name}` | {' or '.join(s.kinds)} | {s.unit or '-'} | {_default(s.default)} | "
             f"{_cell(s.allowed())} | {_cell(s.meaning)} |"
         )
     return lines

@@ -22,11 +22,12 @@ from pipelines.cli_shared import (
     RevisionOpt,
     app,
     err,
-    fail,
+    fail_on,
     open_archive,
     open_run,
     out,
     print_frame,
+    print_json,
     sub_app,
 )
 
@@ -76,16 +77,16 @@ def emit(df: pd.DataFrame, fmt: Format, title: str, param: str | None = None) ->
     with parameter values in their display units (`pipelines.reports.display`), the
     parameter named by a ``name`` column or by `param`."""
     if fmt is Format.json:
-        sys.stdout.write(json.dumps(_records(df), indent=2) + "\n")
+        print_json(_records(df))
     elif fmt is Format.csv:
         df.to_csv(sys.stdout, index=False, date_format="%Y-%m-%dT%H:%M:%S%z")
     elif df.empty:
         err.print(f"{title}: no rows")
     else:
-        print_frame(_displayed(df, param), title)
+        print_frame(displayed(df, param), title)
 
 
-def _displayed(df: pd.DataFrame, param: str | None) -> pd.DataFrame:
+def displayed(df: pd.DataFrame, param: str | None) -> pd.DataFrame:
     """`df` with its value / std / unit columns as people read them: display unit, the
     uncertainty to two significant digits (column ``u``), the value to the same place."""
     from pipelines.reports.display import STANDARD_U, shown
@@ -101,11 +102,12 @@ def _displayed(df: pd.DataFrame, param: str | None) -> pd.DataFrame:
     return out.rename(columns={"std": STANDARD_U})
 
 
-def _ask(fn, *args, **kwargs):  # noqa: ANN001, ANN202 - any query function
-    try:
-        return fn(*args, **kwargs)
-    except (ValueError, LookupError) as exc:
-        fail(str(exc))
+def _ask(fn, archive: str | None, *args, **kwargs):  # noqa: ANN001, ANN202 - any query
+    """`fn` (a `storage.queries` function) asked of the archive that `archive` names;
+    exit 2 with its message on a bad value or nothing found."""
+    arch = open_archive(archive)
+    with fail_on(ValueError, LookupError):
+        return fn(arch, *args, **kwargs)
 
 
 @query_app.command("latest")
@@ -118,7 +120,7 @@ def latest(
     """Parameters of the latest valid calibration of SERIAL as of a date (default now)."""
     from storage import queries
 
-    df = _ask(queries.latest_valid, open_archive(archive), serial, at)
+    df = _ask(queries.latest_valid, archive, serial, at)
     if df.empty:  # still print the empty CSV header / JSON list for scripts
         err.print(f"no valid calibration of {serial!r}" + (f" as of {at}" if at else ""))
     emit(df, fmt, f"Latest valid calibration of {serial}")
@@ -140,9 +142,10 @@ def lineage(
     from storage import queries
 
     arch, run_id = open_run(archive, run_id)
-    doc = _ask(queries.lineage, arch, run_id, param, revision)
+    with fail_on(ValueError, LookupError):
+        doc = queries.lineage(arch, run_id, param, revision)
     if fmt is Format.json:
-        sys.stdout.write(json.dumps(_plain(doc), indent=2) + "\n")
+        print_json(_plain(doc))
         return
     if fmt is Format.csv:
         long = pd.DataFrame(_flatten(doc), columns=["section", "item", "field", "value"])
@@ -179,7 +182,7 @@ def lapsed(
     """Runs made on EQUIPMENT_SERIAL while its own calibration had lapsed."""
     from storage import queries
 
-    df = _ask(queries.lapsed_runs, open_archive(archive), equipment_serial, kind)
+    df = _ask(queries.lapsed_runs, archive, equipment_serial, kind)
     emit(df, fmt, f"Runs on {equipment_serial} after its calibration was due")
 
 
@@ -203,7 +206,7 @@ def units(
 
     df = _ask(
         queries.units,
-        open_archive(archive),
+        archive,
         model=model,
         date_from=date_from,
         date_to=date_to,
@@ -228,11 +231,7 @@ def history(
     from storage import queries
 
     df = _ask(
-        queries.serial_parameter_history,
-        open_archive(archive),
-        serial,
-        param,
-        include_superseded=superseded,
+        queries.serial_parameter_history, archive, serial, param, include_superseded=superseded
     )
     emit(df, fmt, f"{param} of {serial}", param)
 
@@ -248,7 +247,7 @@ def fleet(
     """PARAM across every unit of MODEL (each unit's latest valid calibration)."""
     from storage import queries
 
-    df = _ask(queries.fleet, open_archive(archive), model, param, at)
+    df = _ask(queries.fleet, archive, model, param, at)
     emit(df, fmt, f"{param} across {model}", param)
     if fmt is Format.table and not df.empty:
         from pipelines.reports.display import quantity, shown

@@ -10,7 +10,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, app, fail, open_archive, print_frame
+from pipelines.cli_shared import ArchiveOpt, app, fail, fail_on, open_archive, print_frame
 from pipelines.commands.query import Format, FormatOpt, emit, query_app
 
 DUE_COLUMNS = ["due", "serial", "model", "run_id", "started_at", "verdict", "interval_months",
@@ -40,10 +40,8 @@ def due(
         day = None if before is None else date.fromisoformat(before)
     except ValueError:
         fail(f"--before: expected a date YYYY-MM-DD, got {before!r}")
-    try:
+    with fail_on(LookupError, ValueError):
         rows = recall_list(open_archive(archive), day)
-    except (LookupError, ValueError) as exc:
-        fail(str(exc))
     df = pd.DataFrame(rows, columns=DUE_COLUMNS) if rows else pd.DataFrame(columns=DUE_COLUMNS)
     title = "Units due" + ("" if before is None else f" by {before}")
     if fmt is Format.table and not df.empty:

@@ -13,6 +13,7 @@ from rich.table import Table
 from pipelines.cli_shared import (
     err,
     fail,
+    fail_on,
     flow_batch_console,
     open_archive,
     out,
@@ -53,11 +54,9 @@ def recompute(
     from pipelines.runners import check_runner
 
     arch = open_archive(archive)
-    try:
+    with fail_on(ValueError, LookupError):
         check_runner(batch["runner"], batch["workers"], batch["scheduler"])
         chosen = plan_recompute(arch, run_ids or None, sample)
-    except (ValueError, LookupError) as exc:
-        fail(str(exc))
     if in_process(len(chosen), batch["runner"], batch["flow"]):
         with progress_bar(show) as draw:
             outcomes = recompute_in_process(arch, chosen, draw)

@@ -13,7 +13,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, fail, open_archive, out, print_json
+from pipelines.cli_shared import ArchiveOpt, JsonOpt, app, fail_on, open_archive, out, print_json
 
 
 @app.command("repeatability")
@@ -33,17 +33,15 @@ def repeatability_command(
     from storage import queries
 
     arch = open_archive(archive)
-    try:
+    with fail_on(LookupError, ValueError):
         latest = queries.latest_run(arch, serial)  # the one rule: storage.current
         if latest is None:
-            fail(f"no calibrations archived for serial {serial!r}")
+            raise LookupError(f"no calibrations archived for serial {serial!r}")
         proc = procedure or latest["procedure"]
         runs = queries.repeatability_candidates(arch, serial, proc)
         if not runs:
-            fail(f"no current calibrations of serial {serial!r} by procedure {proc!r}")
+            raise LookupError(f"no current calibrations of serial {serial!r} by procedure {proc!r}")
         profile = load_profile(queries.run_summary(arch, runs[0]["run_id"]).tolerance_profile)
-    except (LookupError, ValueError) as exc:
-        fail(str(exc))
     values = [
         RunValues(r["run_id"], (r["environment"] or {}).get("temperature_c"), r["parameters"])
         for r in runs

@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, app, err, fail, open_run, print_json
+from pipelines.cli_shared import ArchiveOpt, app, err, fail, fail_on, open_run, print_json
 
 
 @app.command()
@@ -150,11 +150,9 @@ def verify_certificate(
     Exit 0 when the signature holds and covers the whole file, 1 when it does not."""
     from pipelines.reports import signing
 
-    try:
+    with fail_on(OSError, ValueError):
         cert = certificate or signing.lab_identity(need_key=False).certificate
         verdict = signing.verify(file.read_bytes(), cert.read_bytes())
-    except (OSError, ValueError) as exc:
-        fail(str(exc))
     if as_json:
         print_json({"file": str(file), **verdict.__dict__})
     else:

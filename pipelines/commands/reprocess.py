@@ -18,7 +18,7 @@ from pipelines.cli_shared import (
     WorkersOpt,
     app,
     err,
-    fail,
+    fail_on,
     flow_batch_console,
     open_archive,
     open_run,
@@ -81,11 +81,9 @@ def reprocess_command(
         "software_version": software_version,
         "profile": profile,
     }
-    try:
+    with fail_on(ValueError):
         check_reason(reason)
         _check_choice(run_id, every, selection, keep)
-    except ValueError as exc:
-        fail(str(exc))
     if run_id is not None:
         outcomes = [_one_run(archive, run_id, reason, keep)]
     else:
@@ -122,11 +120,8 @@ def _one_run(archive: str | None, run_id: str, reason: str, keep: Path | None) -
     from pipelines.reprocess import ReprocessError, reprocess_run
 
     arch, run_id = open_run(archive, run_id)
-    try:
+    with fail_on(ReprocessError):
         return reprocess_run(arch, run_id, keep, reason=reason)
-    except ReprocessError as exc:
-        fail(str(exc))
-    raise AssertionError  # fail() exits
 
 
 def _batch(
@@ -144,13 +139,11 @@ def _batch(
     from pipelines.reprocess import plan_reprocess, reprocess_in_process
     from pipelines.runners import check_runner
 
-    try:
+    with fail_on(ValueError):
         check_runner(runner, workers, scheduler)
         arch = open_archive(archive)
         arch.upgrade()
         todo, skipped = plan_reprocess(arch, selection)
-    except ValueError as exc:
-        fail(str(exc))
     if in_process(len(todo), runner, flow):
         with progress_bar(show) as draw:
             return reprocess_in_process(arch, todo, skipped, reason, draw)
@@ -175,10 +168,8 @@ def _report(
     from pipelines.reprocess import changed_pairs, summarize
 
     summary = summarize(outcomes)
-    try:
+    with fail_on(ValueError):
         changes = change_report(changed_pairs(open_archive(archive), outcomes, reason), k)
-    except ValueError as exc:
-        fail(str(exc))
     if as_json:
         print_json({"runs": outcomes, "summary": summary, "changes": changes})
         return

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from pipelines.cli_shared import ArchiveOpt, app, err, fail
+from pipelines.cli_shared import ArchiveOpt, app, err, fail, fail_on
 
 
 @app.command()
@@ -87,8 +87,6 @@ def serve_user(
     password = os.environ.get("CALIB_SERVE_PASSWORD") or typer.prompt(
         f"Password of {name}", hide_input=True, confirmation_prompt=True
     )
-    try:
+    with fail_on(ValueError):
         add_user(users, name, password)
-    except ValueError as exc:
-        fail(str(exc))
     err.print(f"user {name} added to {users}")

@@ -24,6 +24,7 @@ from pipelines.cli_shared import (
     app,
     err,
     fail,
+    fail_on,
     frame_records,
     open_archive,
     print_facts,
@@ -58,10 +59,8 @@ def parse_when(text: str | None) -> datetime | None:
 def _run(fn, *args, **kwargs) -> Any:  # noqa: ANN001 - any pipeline function
     from pipelines.ingest import IngestError
 
-    try:
+    with fail_on(ValueError, LookupError, IngestError, OSError):
         return fn(*args, **kwargs)
-    except (ValueError, LookupError, IngestError, OSError) as exc:
-        fail(str(exc))
 
 
 @thermal_app.command("fit")
@@ -325,15 +324,13 @@ def trend(
     if as_json:
         print_json({"summary": rep["summary"], "rows": frame_records(rep["table"])})
         return
-    from pipelines.reports.display import STANDARD_U, quantity, shown, with_unit
+    from pipelines.commands.query import displayed
+    from pipelines.reports.display import quantity, shown, with_unit
 
-    table = rep["table"].copy()  # SI: in the display unit, as `calib show` prints it
-    texts = [shown(param, v, u) for v, u in zip(table["value"], table["std"], strict=True)]
-    table["value"] = [t.value for t in texts]
-    table["std"] = [t.u or "-" for t in texts]
+    # SI: in the display unit, as `calib show` prints it
+    table = displayed(rep["table"].assign(unit=None), param)
     table["fitted"] = [quantity(param, v) for v in table["fitted"]]
-    table["unit"] = [t.unit for t in texts]
-    print_frame(table.rename(columns={"std": STANDARD_U}), f"{param} of {serial}")
+    print_frame(table, f"{param} of {serial}")
     summary = dict(rep["summary"])
     unit = summary["unit"] = shown(param, 0.0).unit
     # every number with its display unit (a slope per year: the value's unit per year)

@@ -17,6 +17,7 @@ from pipelines.cli_shared import (
     JsonOpt,
     app,
     fail,
+    fail_on,
     open_archive,
     print_json,
     print_table,
@@ -89,10 +90,8 @@ def validate(
         return
     if not run_ids:
         fail("give at least one run id (or --benchmark)")
-    try:
+    with fail_on(ValueError):
         chosen = compare.peer_names(peers)
-    except ValueError as exc:
-        fail(str(exc))
     arch = open_archive(archive)
     if arch.read_only:
         fail(f"{arch.root}: the archive is read-only; a validation is kept as a record in it")
@@ -132,7 +131,7 @@ def _benchmark(
     def say(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
-    try:
+    with fail_on(NoProviderError, ValueError):
         doc = run_and_report(
             cases,
             set_file=set_file,
@@ -142,8 +141,6 @@ def _benchmark(
             realdata=realdata,
             progress=say,
         )
-    except (NoProviderError, ValueError) as exc:
-        fail(str(exc))
     if json_out:
         print_json(doc)
         return

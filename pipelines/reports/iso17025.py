@@ -110,17 +110,19 @@ def traceability_section(archived: ArchivedRun) -> Section:
                 "-" if due is None else ("valid" if due >= started.date() else "LAPSED"),
             ]
         )
+    if rows:
+        chain = (
+            "The results are traceable to the SI units through the reference equipment above, "
+            "calibrated as its certificates state, and through local gravity (site model as "
+            "in the run section)."
+        )
+    else:
+        chain = "No reference equipment recorded: traceability rests on local gravity alone."
     return Section(
         "Metrological traceability (ISO/IEC 17025:2017 7.8.4.1 c)",
         header=["kind", "serial", "calibration certificate", "issued by", "due", "at calibration"],
         rows=rows,
-        paragraphs=[
-            "The results are traceable to the SI units through the reference equipment above, "
-            "calibrated as its certificates state, and through local gravity (site model as "
-            "in the run section)."
-            if rows
-            else "No reference equipment recorded: traceability rests on local gravity alone.",
-        ],
+        paragraphs=[chain],
     )
 
 

@@ -25,13 +25,12 @@ def _scalar(value: Any) -> bool:
 
 
 def _text(value: Any) -> str:
-    if value is None:
-        return "-"
+    """A scalar for people: yes / no, floats to 6 significant digits, "-" for none."""
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.6g}"
-    return str(value)
+    return "-" if value is None else str(value)
 
 
 def _bearing(value: Any, param: str, channel: str) -> str | None:

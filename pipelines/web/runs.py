@@ -4,7 +4,6 @@ exports of `calib export`: PX4, ArduPilot, CSV, MATLAB)."""
 
 from __future__ import annotations
 
-import json
 from datetime import UTC
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -275,22 +274,10 @@ def certificate_pdf(request: Request, run_id: str) -> Response:
     return _archived_file(request, run_id, "pdf", "application/pdf")
 
 
-@router.get("/runs/{run_id}/export.json")
-def export_json(request: Request, run_id: str) -> Response:
-    """The canonical calibration JSON of the current (or a given) revision."""
-    q = forms.params(request, ("revision",))
-    revision = forms.integer(q, "revision", 0, 1, 1_000_000) or None
-    doc = forms.checked(
-        queries.export_calibration, request.app.state.archive, _run_id(run_id), revision
-    )
-    text = json.dumps(doc, indent=2, default=str) + "\n"
-    suffix = f"_rev{doc['revision']}"
-    return _download(text.encode(), "application/json", f"{run_id}{suffix}.json")
-
-
 @router.get("/runs/{run_id}/export.{fmt}")
 def export_file(request: Request, run_id: str, fmt: str) -> Response:
-    """The calibration as a PX4 or ArduPilot parameter file, CSV or MATLAB file (docs/exports.md),
+    """The calibration of the current (or a given) revision as `calib export` writes it: the
+    canonical JSON, a PX4 or ArduPilot parameter file, CSV or MATLAB file (docs/exports.md),
     with the unit's current thermal model; what the format cannot carry is listed in the file.
     PX4: ``?device_id=`` names the sensor when the run's log did not (else 400 naming it)."""
     from pipelines.run_export import FORMATS, export_run

@@ -159,11 +159,13 @@ class Series:
         ]
         fit, until = None, None
         if self.trend is not None:
+            from calib_core.distributions import t_ppf
+
             end = self.trend.t_last + 365.0
             if self.forecast is not None and self.forecast.earliest is not None:
                 end = max(end, min(self.forecast.earliest + 60.0, self.trend.t_last + 1825.0))
             grid = np.linspace(self.trend.t_first, end, 120)
-            k = 1.96 if self.trend.dof <= 0 else float(_t95(self.trend.dof))
+            k = 1.96 if self.trend.dof <= 0 else float(t_ppf(0.975, self.trend.dof))
             fit = (grid, self.trend.value(grid) * scale, k * self.trend.std(grid) * scale)
             until = end
         return svg.trend_chart(
@@ -186,12 +188,6 @@ def _band_text(low: float, high: float) -> str:
     if not math.isfinite(high):
         return f">= {limit_text(low)}"
     return f"{limit_text(low)} .. {limit_text(high)}"
-
-
-def _t95(dof: int) -> float:
-    from scipy import stats
-
-    return stats.t.ppf(0.975, dof)
 
 
 def _date(day: float | None) -> str | None:
