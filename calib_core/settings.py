@@ -3,7 +3,9 @@
 dataclass, one attribute per setting) and the `SettingError` that names the refused key.
 
 The one way settings are declared and checked: a procedure's, the preprocessing tables', a
-tolerance profile's sections."""
+tolerance profile's sections, a manifest's and the lab's and mission profiles' tables
+(`typed`), the JSON files read as written (`checked`: an approvers file's lines, a
+checkpoint, the benchmark set); `refusal` is the one message of a refused file."""
 
 from __future__ import annotations
 
