@@ -3,7 +3,9 @@
 dataclass, one attribute per setting) and the `SettingError` that names the refused key.
 
 The one way settings are declared and checked: a procedure's, the preprocessing tables', a
-tolerance profile's sections."""
+tolerance profile's sections, a manifest's and the lab's and mission profiles' tables
+(`typed`), the JSON files read as written (`checked`: an approvers file's lines, a
+checkpoint, the benchmark set); `refusal` is the one message of a refused file."""
 
 from __future__ import annotations
 
@@ -226,11 +228,58 @@ def typed(table: Settings, given: Any, root: str, required: tuple[str, ...] = ()
         k: v.strip() if isinstance(v, str) else float(v) if k in number and type(v) is int else v
         for k, v in given.items()
     }
-    table.validate(given, "", root)
+    return table.parse(checked(table, given, root, required))
+
+
+def checked(
+    table: Settings,
+    given: Any,
+    root: str,
+    required: tuple[str, ...] = (),
+    others: bool = False,
+) -> Mapping[str, Any]:
+    """`given` as written, checked against `table`: SettingError naming ``root.key`` for a
+    value that is not a table (JSON: an object), an unknown key (unless `others`: keys
+    not declared are then left to their readers), a refused value or a `required` key
+    missing or empty. The check `typed` makes; JSON files' readers call it on values they
+    keep as written (an approvers file's names, a checkpoint)."""
+    if not isinstance(given, Mapping):
+        raise SettingError(
+            root or "(top level)", f"expected a table (an object), got {given!r}", ""
+        )
+    table.validate({k: v for k, v in given.items() if k in table or not others}, "", root)
     for key in required:
         if given.get(key) in (None, ""):
             raise SettingError(key, "required field is missing", root)
-    return table.parse(given)
+    return given
+
+
+# The dotted key a refusal starts with: "limits[3].unit: ...", "recall.method must".
+_KEY = re.compile(r"^([A-Za-z_]\w*(?:\[\d+\]|\.[A-Za-z_]\w*)*)")
+
+
+def line_of(text: str, problem: str) -> str:
+    """The " line N" of the key a `problem` starts with ("limits[3].unit: ...") in the
+    TOML `text` of a file (a tolerance or lab profile), or "" when not found."""
+    m = _KEY.match(problem)
+    if m is None:
+        return ""
+    path = key_path(m[1])
+    # A key inside an inline table ("gyr_std = { value, unit }"): the line of the table.
+    lines = (key_line(text, path[:n]) for n in range(len(path), 0, -1))
+    line = next((n for n in lines if n is not None), None)
+    return "" if line is None else f" line {line}"
+
+
+def refusal(
+    what: str, path: Any, text: str | None, exc: Exception, line: int | None = None
+) -> ValueError:
+    """A settings file refused: ``<what> <path> line N: <key>: <problem>``. N is `line`
+    when given (a file of one JSON object a line), else the line of the key `exc` (a
+    SettingError) names in the TOML `text`; left out when not known: a JSON document
+    (`text` None) is named by its dotted key path only."""
+    at = f" line {line}" if line is not None else line_of(text, str(exc)) if text else ""
+    return ValueError(f"{what} {path}{at}: {exc}")
 
 
 def _default(value: Any) -> Any:

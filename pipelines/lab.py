@@ -62,8 +62,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from calib_core.settings import Setting, SettingError, Settings, typed
-from pipelines.tolerances import LAB_FILE_STEM, profile_dirs, refusal
+from calib_core.settings import Setting, SettingError, Settings, refusal, typed
+from pipelines.tolerances import LAB_FILE_STEM, profile_dirs
 from storage.naming import check_safe_name, is_one_line
 
 LAB_PROFILE = f"{LAB_FILE_STEM}.toml"

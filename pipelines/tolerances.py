@@ -7,12 +7,11 @@ variable; those take precedence over the shipped ones.
 from __future__ import annotations
 
 import os
-import re
 import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from calib_core.settings import key_line, key_path
+from calib_core.settings import refusal
 from storage.naming import check_safe_name
 
 if TYPE_CHECKING:  # the science stack is loaded by load_profile, not by profile_dirs' readers
@@ -62,27 +61,3 @@ def load_profile(name: str) -> ToleranceProfile:
                 raise refusal("tolerance profile", path, text, exc) from exc
     searched = ", ".join(str(d) for d in profile_dirs())
     raise ValueError(f"tolerance profile {name!r} not found (looked for {name}.toml in {searched})")
-
-
-# The dotted field a profile error starts with: "limits[3].unit: ...", "recall.method must".
-_FIELD = re.compile(r"^([A-Za-z_]\w*(?:\[\d+\]|\.[A-Za-z_]\w*)*)")
-
-
-def line_of(text: str, problem: str) -> str:
-    """The " line N" of the field a `problem` starts with ("limits[3].unit: ...") in the
-    TOML `text` of a profile (tolerance or lab), or "" when not found."""
-    m = _FIELD.match(problem)
-    if m is None:
-        return ""
-    path = key_path(m[1])
-    # A key inside an inline table ("gyr_std = { value, unit }"): the line of the table.
-    lines = (key_line(text, path[:n]) for n in range(len(path), 0, -1))
-    line = next((n for n in lines if n is not None), None)
-    return "" if line is None else f" line {line}"
-
-
-def refusal(what: str, path: Path, text: str, exc: Exception) -> ValueError:
-    """A profile file refused (a tolerance profile, the lab profile): ``<what> <path> line N:
-    <key>: <problem>``, N the line of the key `exc` (a SettingError) names in the TOML `text`,
-    left out when the key is not written there."""
-    return ValueError(f"{what} {path}{line_of(text, str(exc))}: {exc}")

@@ -38,6 +38,7 @@ from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 from sqlalchemy import Connection, select
 
+from calib_core.settings import Setting, SettingError, Settings, checked, refusal
 from storage import seal, seal_check, seal_record
 from storage.current import CURRENT
 from storage.db import Archive
@@ -336,7 +337,16 @@ def approvals(archive: Archive, run_id: str, approvers: Approvers | None = None)
 
 APPROVERS_ENV = "CALIB_APPROVERS"
 ROLES = {"approver": MEANINGS, "reviewer": ("reviewed",)}  # role -> meanings it may sign
-_ENTRY_KEYS = {"name", "public_key", "valid_from", "valid_until", "role"}
+# One line of an approvers file (a JSON object): its keys as `load_approvers` reads them.
+APPROVER = Settings(
+    Setting("name", "text", "", None, "the signer's name, one line of 1..200 characters"),
+    Setting("public_key", "text", "", None, "the Ed25519 public key: 64 hex digits"),
+    Setting("valid_from", "text", "", None, "the first day it is valid (YYYY-MM-DD)"),
+    Setting("valid_until", "text", "", None, "the last day it is valid (YYYY-MM-DD)"),
+    Setting("role", "text", "", "approver", "what it may sign (ROLES)", choices=tuple(ROLES)),
+    name="ApproverEntry",
+    noun="field",
+)
 NOT_CHECKED = (
     "approvals were not checked against a list of trusted approvers (give one with "
     "--approvers FILE, [trust] approvers in lab.toml or CALIB_APPROVERS)"
@@ -397,21 +407,24 @@ class Approvers:
 
 
 def load_approvers(path: Path) -> Approvers:
-    """Read an approvers file: one JSON object a line, as `generate_key` writes ``.pub``
-    files (``name``, ``public_key``), optionally with ``valid_from`` and ``valid_until``
-    (YYYY-MM-DD, both days included) and ``role`` ("approver": approves and reviews,
-    the default; "reviewer": reviews only). Blank lines and lines starting with ``#``
-    are skipped. ValueError naming file, line and field for anything else."""
+    """Read an approvers file: one JSON object a line (`APPROVER`), as `generate_key`
+    writes ``.pub`` files (``name``, ``public_key``), optionally with ``valid_from`` and
+    ``valid_until`` (YYYY-MM-DD, both days included) and ``role`` ("approver": approves and
+    reviews, the default; "reviewer": reviews only). Blank lines and lines starting with
+    ``#`` are skipped. ValueError naming the file, the line, the key, what was expected
+    and what was found (calib_core.settings.refusal) for anything else."""
     path = Path(path)
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as exc:
         raise ValueError(f"approvers file {path}: cannot be read ({exc.strerror or exc})") from None
-    keys = [
-        _trusted_key(line, path, n)
-        for n, line in enumerate(lines, 1)
-        if line.strip() and not line.lstrip().startswith("#")
-    ]
+    keys = []
+    for n, line in enumerate(lines, 1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            try:
+                keys.append(_trusted_key(line))
+            except ValueError as exc:  # SettingError, or the line not JSON
+                raise refusal("approvers file", path, None, exc, line=n) from None
     if not keys:
         raise ValueError(
             f"approvers file {path}: no key in it (expected lines of calib keygen .pub files)"
@@ -419,36 +432,27 @@ def load_approvers(path: Path) -> Approvers:
     return Approvers(path, tuple(keys))
 
 
-def _trusted_key(line: str, path: Path, n: int) -> TrustedKey:
-    where = f"approvers file {path}, line {n}"
+def _trusted_key(line: str) -> TrustedKey:
+    """One line of an approvers file; SettingError naming its key, or ValueError when the
+    line is not JSON."""
     try:
         d = json.loads(line)
     except ValueError as exc:
         raise ValueError(
-            f"{where}: expected one JSON object (a calib keygen .pub line), "
-            f"found {line[:60]!r} ({exc})"
+            f"expected one JSON object (a calib keygen .pub line), got {line[:60]!r} ({exc})"
         ) from None
-    if not isinstance(d, dict) or not {"name", "public_key"} <= set(d) or set(d) - _ENTRY_KEYS:
-        shown = sorted(d) if isinstance(d, dict) else d
-        raise ValueError(
-            f"{where}: expected the keys name and public_key, optionally "
-            f"valid_from, valid_until and role; found {shown!r}"
-        )
-    public = d["public_key"]
-    if not isinstance(public, str) or len(public) != 64 or not _is_hex(public):
-        raise ValueError(f"{where}: public_key: expected 64 hex digits, found {public!r}")
-    if not isinstance(d["name"], str):
-        raise ValueError(f"{where}: name: expected text, found {d['name']!r}")
-    _check_name(d["name"])
-    role = d.get("role", "approver")
-    if role not in ROLES:
-        raise ValueError(f"{where}: role: expected one of {sorted(ROLES)}, found {role!r}")
-    days = {k: _day(d.get(k), where, k) for k in ("valid_from", "valid_until")}
-    if days["valid_from"] and days["valid_until"] and days["valid_until"] < days["valid_from"]:
-        raise ValueError(
-            f"{where}: valid_until {days['valid_until']} is before valid_from {days['valid_from']}"
-        )
-    return TrustedKey(d["name"], public.lower(), days["valid_from"], days["valid_until"], role)
+    checked(APPROVER, d, "", ("name", "public_key"))
+    public, name = d["public_key"], d["name"]
+    if len(public) != 64 or not _is_hex(public):
+        raise SettingError("public_key", f"expected 64 hex digits, got {public!r}", "")
+    if not is_one_line(name):
+        problem = f"expected one line of 1..200 characters without control characters, got {name!r}"
+        raise SettingError("name", problem, "")
+    start, end = (_day(d.get(k), k) for k in ("valid_from", "valid_until"))
+    if start and end and end < start:
+        problem = f"expected a day on or after valid_from {start}, got {end}"
+        raise SettingError("valid_until", problem, "")
+    return TrustedKey(name, public.lower(), start, end, d.get("role", "approver"))
 
 
 def _is_hex(text_: str) -> bool:
@@ -459,15 +463,15 @@ def _is_hex(text_: str) -> bool:
     return True
 
 
-def _day(value: Any, where: str, key: str) -> date | None:
+def _day(value: str | None, key: str) -> date | None:
     if value is None:
         return None
     try:
-        if not isinstance(value, str) or len(value) != 10:
+        if len(value) != 10:
             raise ValueError
         return date.fromisoformat(value)
     except ValueError:
-        raise ValueError(f"{where}: {key}: expected a date YYYY-MM-DD, found {value!r}") from None
+        raise SettingError(key, f"expected a date YYYY-MM-DD, got {value!r}", "") from None
 
 
 def check_trust(conn: Connection, approvers: Approvers) -> list[seal_check.Finding]:

@@ -21,6 +21,7 @@ from typing import Any
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from sqlalchemy import Connection, func, select
 
+from calib_core.settings import Setting, SettingError, Settings, checked, refusal
 from storage import seal, seal_check, seal_record
 from storage.db import Archive
 from storage.schema import AuditEvent, Run, Seal, utcnow
@@ -29,6 +30,17 @@ KIND = "calib-checkpoint"
 VERSION = 1
 PREFIX = 16  # hex digits of each event's hash kept: enough to name the first that differs
 _SIGNED = ("signer", "public_key", "signature")
+# What `load` reads of a checkpoint file (a JSON object); its other keys (archive, at,
+# runs, seals, the signature's) are read where they are used.
+CHECKPOINT = Settings(
+    Setting("kind", "text", "", None, "calib-checkpoint (calib checkpoint -o FILE)"),
+    Setting("version", "integer", "", None, "the format's version (VERSION)"),
+    Setting("seq", "integer", "", None, "the head's sequence number", low=0),
+    Setting("hash", "text", "", None, "the head's hash (hex)"),
+    Setting("events", "list", "", None, "each event's hash prefix up to seq, oldest first"),
+    name="CheckpointHead",
+    noun="field",
+)
 
 
 def make(
@@ -79,7 +91,9 @@ def write(doc: dict[str, Any], path: Path) -> None:
 
 
 def load(path: Path) -> dict[str, Any]:
-    """A checkpoint file's document; ValueError naming the file and what is wrong."""
+    """A checkpoint file's document, its keys checked (`CHECKPOINT`); ValueError naming the
+    file, the key (a JSON document: by its key path, no line), what was expected and what
+    was found (calib_core.settings.refusal)."""
     path = Path(path)
     try:
         doc = json.loads(Path(path).read_text(encoding="utf-8"))
@@ -87,26 +101,30 @@ def load(path: Path) -> dict[str, Any]:
         raise ValueError(f"checkpoint {path}: cannot be read ({exc.strerror or exc})") from None
     except ValueError as exc:
         raise ValueError(f"checkpoint {path}: not JSON ({exc})") from None
-    if not isinstance(doc, dict) or doc.get("kind") != KIND:
-        raise ValueError(
-            f"checkpoint {path}: expected a document of kind {KIND!r} (calib checkpoint -o FILE)"
-        )
-    if doc.get("version") != VERSION:
-        raise ValueError(
-            f"checkpoint {path}: version {doc.get('version')!r}, this calib reads version {VERSION}"
-        )
-    events, seq, head = doc.get("events"), doc.get("seq"), doc.get("hash")
-    if (
-        not isinstance(seq, int)
-        or not isinstance(events, list)
-        or len(events) != seq
-        or not isinstance(head, str)
-        or not all(isinstance(e, str) for e in events)
-    ):
-        raise ValueError(
-            f"checkpoint {path}: expected seq (a count), hash and one hash prefix "
-            "per event up to seq"
-        )
+    try:
+        return _checked(doc)
+    except SettingError as exc:
+        raise refusal("checkpoint", path, None, exc) from None
+
+
+def _checked(doc: Any) -> dict[str, Any]:
+    """`doc` if it is a checkpoint this calib reads; SettingError naming the key if not."""
+    if not isinstance(doc, dict):
+        raise SettingError("(top level)", f"expected an object of kind {KIND!r}, got {doc!r}", "")
+    if doc.get("kind") != KIND:
+        problem = f"expected {KIND!r} (a file of calib checkpoint -o FILE), got {doc.get('kind')!r}"
+        raise SettingError("kind", problem, "")
+    checked(CHECKPOINT, doc, "", tuple(CHECKPOINT.items), others=True)
+    if doc["version"] != VERSION:
+        problem = f"expected {VERSION} (the version this calib reads), got {doc['version']!r}"
+        raise SettingError("version", problem, "")
+    seq, events = doc["seq"], doc["events"]
+    if len(events) != seq:
+        problem = f"expected one hash prefix per event up to seq {seq}, got {len(events)}"
+        raise SettingError("events", problem, "")
+    for i, prefix in enumerate(events):
+        if not isinstance(prefix, str):
+            raise SettingError(f"events[{i}]", f"expected a hash prefix (text), got {prefix!r}", "")
     return doc
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -100,7 +101,20 @@ def test_scores_see_an_efficient_and_a_wasteful_estimator():
 def test_a_bad_set_names_file_and_field(tmp_path):
     path = tmp_path / "set.json"
     path.write_text(json.dumps({"name": "x", "version": "1", "targets": {}, "cases": [{}]}))
-    with pytest.raises(ValueError, match=r"set\.json: cases\[0\] \(\?\) has no 'id'"):
+    with pytest.raises(ValueError, match=r"set\.json: cases\[0\]\.id: required field is missing"):
+        benchmark.load_set(path)
+    case = {"id": "c", "procedure": "six_position", "simulator": "s", "truth": {}, "seed": 1}
+    for changed, expected in [
+        ({"replicates": "2"}, r"cases\[0\]\.replicates: expected a whole number >= 1, got '2'"),
+        ({"replicates": 2, "seed": float("nan")}, r"cases\[0\]\.seed: expected .*, got nan"),
+        ({"replicates": 2, "procedure": "six"}, r"cases\[0\]\.procedure: unknown procedure 'six'"),
+    ]:
+        doc = {"name": "x", "version": "1", "targets": {}, "cases": [case | changed]}
+        path.write_text(json.dumps(doc))
+        with pytest.raises(ValueError, match=f"^benchmark set {re.escape(str(path))}: {expected}"):
+            benchmark.load_set(path)
+    path.write_text(json.dumps({"name": "x", "version": "1", "cases": []}))
+    with pytest.raises(ValueError, match="set.json: targets: required field is missing"):
         benchmark.load_set(path)
     path.write_text("{")
     with pytest.raises(ValueError, match="set.json: cannot read"):

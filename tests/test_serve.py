@@ -15,6 +15,7 @@ import socket
 import subprocess
 import sys
 import time
+from datetime import UTC, datetime
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -516,11 +517,18 @@ def test_postgresql_is_browsed_as_the_read_only_role(postgres_url, tmp_path):
 
 def assert_fleet_pages_agree(archive, model: str) -> None:  # noqa: ANN001 - an Archive
     """The fleet page's grouped and per-unit picks (storage.queries.fleets) answer as the
-    archive's own queries: storage.queries.units (latest run of each unit, the later
-    archived of equal starts) and storage.queries.fleet (values nearest 20 deg C)."""
+    archive's own queries: storage.queries.units with each unit's latest run by the rule of
+    docs/archive.md (the run that started last; of equal starts the later archived, the
+    larger ``runs.id``, whatever the order of their run ids) and storage.queries.fleet
+    (values nearest 20 deg C)."""
     from calib_core import params
 
-    runs = queries.units(archive, model=model).sort_values(["started_at", "run_id"], kind="stable")
+    with archive.engine().connect() as conn:
+        archived = dict(conn.execute(text("SELECT run_id, id FROM runs")).all())
+    runs = queries.units(archive, model=model)
+    runs = runs.assign(archived=runs["run_id"].map(archived)).sort_values(
+        ["started_at", "archived"]
+    )
     latest = runs.groupby("serial").tail(1)
     fleet = queries.fleet_units(archive, model, failing_max=2)
     want = latest["verdict"].value_counts().to_dict()
@@ -549,3 +557,25 @@ def assert_fleet_pages_agree(archive, model: str) -> None:  # noqa: ANN001 - an 
 
 def test_browse_fleet_equals_the_archive_queries(serve_sample):
     assert_fleet_pages_agree(serve_sample.archive, "MPU-6000")
+
+
+def test_the_fleet_oracle_takes_the_later_archived_of_equal_starts(archive, tmp_path):
+    """Two runs of one unit started at one instant, the later archived failing with the
+    run id that sorts first: the unit's latest run is the failing one, by the rule, and
+    the oracle says so (a tie broken by run id text would take the passing one)."""
+    from dataclasses import replace
+
+    from test_queries import _run
+
+    from storage.archive import archive_run
+    from storage.run_input import raw_hash_of, run_id_of
+
+    t = datetime(2025, 1, 2, 8, 0, tzinfo=UTC)
+    pair = [_run(tmp_path, f"t{k}", "T1", 40 + k, t) for k in range(2)]
+    pair.sort(key=lambda r: run_id_of(raw_hash_of([f.sha256 for f in r.raw_files])))
+    first, second = pair[1], replace(pair[0], verdict="fail")  # later: its run id sorts first
+    ids = [archive_run(archive, r).run_id for r in (first, second)]
+    assert ids[1] < ids[0]
+    fleet = queries.fleet_units(archive, first.device_model, failing_max=2)
+    assert fleet.latest == {"fail": 1} and [u["run_id"] for u in fleet.failing] == [ids[1]]
+    assert_fleet_pages_agree(archive, first.device_model)

@@ -13,6 +13,7 @@ checkpoint can tell.
 from __future__ import annotations
 
 import json
+import re
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -175,7 +176,23 @@ def test_validity_dates_and_roles_of_the_approvers_file(
     ("line", "expected"),
     [
         ("not json", "line 2: expected one JSON object"),
-        ('{"name": "A"}', "line 2: expected the keys name and public_key"),
+        ('{"name": "A"}', "line 2: public_key: required field is missing"),
+        ("[1, 2]", r"line 2: \(top level\): expected a table \(an object\), got \[1, 2\]"),
+        ('{"name": 3, "public_key": "' + "ab" * 32 + '"}', "line 2: name: expected text, got 3"),
+        ('{"name": "A", "public_key": NaN}', "line 2: public_key: expected text, got nan"),
+        (
+            '{"name": "A\\u0007", "public_key": "' + "ab" * 32 + '"}',
+            "line 2: name: expected one line",
+        ),
+        (
+            '{"name": "A", "public_key": "' + "ab" * 32 + '", "rol": 1}',
+            "line 2: rol: unknown field",
+        ),
+        (
+            '{"name": "A", "public_key": "' + "ab" * 32 + '", "valid_from": "2024-02-01", '
+            '"valid_until": "2024-01-31"}',
+            "line 2: valid_until: expected a day on or after valid_from 2024-02-01, got 2024-01-31",
+        ),
         ('{"name": "A", "public_key": "zz"}', "line 2: public_key: expected 64 hex digits"),
         (
             '{"name": "A", "public_key": "' + "ab" * 32 + '", "valid_from": "2024-13-01"}',
@@ -183,7 +200,7 @@ def test_validity_dates_and_roles_of_the_approvers_file(
         ),
         (
             '{"name": "A", "public_key": "' + "ab" * 32 + '", "role": "boss"}',
-            "line 2: role: expected one of",
+            "line 2: role must be one of 'approver', 'reviewer', got 'boss'",
         ),
     ],
 )
@@ -369,15 +386,34 @@ def test_a_rollback_is_caught_by_the_checkpoint(
     assert "events 3..4 of the checkpoint" in line and "rollback or truncation" in line, line
 
 
-def test_checkpoint_files_are_checked(tmp_path: Path) -> None:
+HEAD = '"kind": "calib-checkpoint", "version": 1'
+
+
+@pytest.mark.parametrize(
+    ("doc", "expected"),
+    [
+        ('{"kind": "something else"}', "kind: expected 'calib-checkpoint'"),
+        ("[1]", r"\(top level\): expected an object of kind 'calib-checkpoint', got \[1\]"),
+        (
+            "{" + HEAD + ', "seq": 2, "hash": "x", "events": ["a"]}',
+            "events: expected one hash prefix per event up to seq 2, got 1",
+        ),  # fmt: skip
+        (
+            '{"kind": "calib-checkpoint", "version": 2, "seq": 0, "hash": "x", "events": []}',
+            "version: expected 1 .*, got 2",
+        ),  # fmt: skip
+        ("{" + HEAD + ', "seq": 1, "events": ["a"]}', "hash: required field is missing"),
+        ("{" + HEAD + ', "seq": "1", "hash": "x", "events": ["a"]}', "seq: expected .*, got '1'"),
+        ("{" + HEAD + ', "seq": NaN, "hash": "x", "events": []}', "seq: expected .*, got nan"),
+        ("{" + HEAD + ', "seq": 1, "hash": "x", "events": [7]}', r"events\[0\]: expected .*got 7"),
+    ],
+)
+def test_checkpoint_files_are_checked(tmp_path: Path, doc: str, expected: str) -> None:
+    """Refused naming the file and the key (a JSON document: its key path, no line), what
+    was expected and what was found."""
     path = tmp_path / "cp.json"
-    path.write_text('{"kind": "something else"}')
-    with pytest.raises(ValueError, match="expected a document of kind 'calib-checkpoint'"):
-        checkpoint.load(path)
-    path.write_text(
-        '{"kind": "calib-checkpoint", "version": 1, "seq": 2, "hash": "x", "events": ["a"]}'
-    )
-    with pytest.raises(ValueError, match="one hash prefix per event"):
+    path.write_text(doc)
+    with pytest.raises(ValueError, match=f"^checkpoint {re.escape(str(path))}: {expected}"):
         checkpoint.load(path)
 
 

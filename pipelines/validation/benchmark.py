@@ -24,29 +24,56 @@ import numpy as np
 from calib_core import crlb, procedures
 from calib_core.preprocess.chain import preprocess
 from calib_core.run_budget import run_budgets
+from calib_core.settings import Setting, SettingError, Settings, checked, refusal
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
 from pipelines.validation.benchmark_peers import PeerTally
 
 SET_FILE = Path(__file__).with_name("benchmark_set.json")
 
 
-def load_set(path: Path = SET_FILE) -> dict[str, Any]:
-    """The benchmark set's definition (JSON), checked for what the runner reads.
+# What `load_set` checks of the set file (a JSON object) and of each of its cases, the keys
+# the runner reads; others (description, a case's segments and simulation) are the design's.
+BENCHMARK_SET = Settings(
+    Setting("name", "text", "", None, "the set's name"),
+    Setting("version", ("text", "integer"), "", None, "the set's version"),
+    Setting("cases", "list", "", None, "the simulated cases (BENCHMARK_CASE)"),
+    Setting("targets", "table", "", None, "the scores each case must reach"),
+    name="BenchmarkSet",
+    noun="field",
+)
+BENCHMARK_CASE = Settings(
+    Setting("id", "text", "", None, "the case's name"),
+    Setting("procedure", "text", "", None, "the procedure solved (calib_core.procedures)"),
+    Setting("simulator", "text", "", None, "the design's simulator"),
+    Setting("truth", "table", "", None, "the true parameters"),
+    Setting("replicates", "integer", "", None, "replicates scored", low=1),
+    Setting("seed", "integer", "", None, "the seed of its replicates' noise", low=0),
+    name="BenchmarkCase",
+    noun="field",
+)
 
-    Raises ValueError naming the file and the field that is missing or wrong.
+
+def load_set(path: Path = SET_FILE) -> dict[str, Any]:
+    """The benchmark set's definition (JSON), checked for what the runner reads
+    (`BENCHMARK_SET`, each case a `BENCHMARK_CASE` of a known procedure).
+
+    Raises ValueError naming the file, the dotted key (a JSON file: its key path, no
+    line), what was expected and what was found (calib_core.settings.refusal).
     """
     try:
         doc = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read the benchmark set: {exc}") from None
-    for key in ("name", "version", "cases", "targets"):
-        if key not in doc:
-            raise ValueError(f"{path}: the benchmark set has no {key!r}")
-    for i, case in enumerate(doc["cases"]):
-        for key in ("id", "procedure", "simulator", "truth", "replicates", "seed"):
-            if key not in case:
-                raise ValueError(f"{path}: cases[{i}] ({case.get('id', '?')}) has no {key!r}")
-        procedures.get(case["procedure"])  # ValueError naming the known ones
+        raise ValueError(f"benchmark set {path}: cannot read it: {exc}") from None
+    try:
+        checked(BENCHMARK_SET, doc, "", tuple(BENCHMARK_SET.items), others=True)
+        for i, case in enumerate(doc["cases"]):
+            checked(BENCHMARK_CASE, case, f"cases[{i}]", tuple(BENCHMARK_CASE.items), others=True)
+            try:
+                procedures.get(case["procedure"])
+            except ValueError as exc:  # naming the known ones
+                raise SettingError("procedure", str(exc), f"cases[{i}]") from None
+    except SettingError as exc:
+        raise refusal("benchmark set", path, None, exc) from None
     return doc
 
 
