@@ -141,7 +141,7 @@ def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal_check
     """Whether the chain now extends the checkpoint `doc` (read from `source`) exactly;
     a finding naming the first event that differs, or the events gone, if not."""
     found: list[seal_check.Finding] = []
-    when = f"the checkpoint {source} of {doc.get('at', '?')[:19]}"
+    when = f"the checkpoint {source} of {str(doc.get('at', '?'))[:19]}"
     error = signature_error(doc)
     if error is not None:
         found.append(
