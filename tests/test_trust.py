@@ -337,6 +337,21 @@ def _rewrite_value(archive: Archive, run_id: str) -> None:
         unit_latest.rebuild(conn)  # the derived copy of the value, as verify expects it
 
 
+def test_a_checkpoint_dated_by_a_number_is_judged_not_crashed(
+    archive: Archive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`at` is not declared (the date is shown, not trusted): a number there is shown as
+    found and the chain still judged against the checkpoint."""
+    ids = fill(archive, tmp_path)
+    cp = _checkpoint(archive, tmp_path, monkeypatch)
+    _rewrite_value(archive, ids[1])
+    cp.write_text(json.dumps({**json.loads(cp.read_text()), "at": 20261202}))
+    res = _verify_against(archive, cp, monkeypatch)
+    assert res.exit_code == 1, res.output
+    (line,) = [x for x in res.stdout.splitlines() if x.startswith("CHECKPOINT")]
+    assert "20261202" in line and "differs from the checkpoint" in line, line
+
+
 def test_a_full_rewrite_is_caught_by_the_checkpoint(
     archive: Archive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
