@@ -282,8 +282,8 @@ def verify_run(
     profile: ToleranceProfile,
     archive: Archive | None,
     run_id: str,
-    budgets: dict[str, Budget] | None = None,
-    as_judged: AsJudged | None = None,
+    budgets: dict[str, Budget] | None,
+    as_judged: AsJudged | None,
 ) -> tuple[list[CheckResult], dict[str, Any]]:
     """Held-out verification points, repeatability against the archive, residual diagnosis.
 
