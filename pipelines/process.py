@@ -148,20 +148,22 @@ def run_outcome(
             n: {"value": p.value, "std": p.std, "unit": p.unit}
             for n, p in sorted(cal.parameters.items())
         },
-        "checks": [
-            {
-                "name": c.name,
-                "value": c.value,
-                "limit": c.limit,
-                "passed": c.passed,
-                "status": condition_status(c),
-            }
-            for c in (checks or [])
-        ],
+        "checks": [check_entry(c) for c in (checks or [])],
         "protocol": protocol,
         "verdict": verdict_,
         "source": source,
         "message": message,
+    }
+
+
+def check_entry(c: CheckResult) -> dict[str, Any]:
+    """A check as the `calib process --json` document gives it (docs/cli.md)."""
+    return {
+        "name": c.name,
+        "value": c.value,
+        "limit": c.limit,
+        "passed": c.passed,
+        "status": condition_status(c),
     }
 
 

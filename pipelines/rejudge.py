@@ -165,7 +165,7 @@ def as_archived_now(archive: Archive, outcomes: list[dict[str, Any]]) -> list[di
     A run judged again by another run of the batch (archived after it, made before it)
     reports its judgement at the batch's end, as the archive holds it.
     """
-    from calib_core.conditions import status as condition_status
+    from pipelines.process import check_entry  # process imports this module
 
     ids = [o["run_id"] for o in outcomes if o["status"] == "ok" and o["run_id"]]
     now = queries.current_judgements(archive, ids) if ids else {}
@@ -173,16 +173,7 @@ def as_archived_now(archive: Archive, outcomes: list[dict[str, Any]]) -> list[di
     for o in outcomes:
         judged = now.get(o["run_id"]) if o["status"] == "ok" else None
         if judged is not None:
-            checks = [
-                {
-                    "name": c.name,
-                    "value": c.value,
-                    "limit": c.limit,
-                    "passed": c.passed,
-                    "status": condition_status(c),
-                }
-                for c in judged["checks"]
-            ]
+            checks = [check_entry(c) for c in judged["checks"]]
             if (judged["verdict"], checks) != (o["verdict"], o["checks"]):
                 o = {**o, "verdict": judged["verdict"], "checks": checks}
         out.append(o)
