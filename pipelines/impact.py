@@ -32,9 +32,10 @@ from storage.queries.records import Revision
 from storage.write_failures import describe
 
 MOVED_MIN = 0.1  # |change| / U below which a parameter is not listed as moved
-CSV_COLUMNS = ("run_id", "serial", "model", "started_at", "procedure", "customer",
-               "affected", "verdict_before", "verdict_after", "largest_move_U",
-               "moved", "status")  # fmt: skip
+# The columns naming a run, first in both reports.
+RUN_COLUMNS = ("run_id", "serial", "model", "started_at", "procedure")
+CSV_COLUMNS = (*RUN_COLUMNS, "customer", "affected", "verdict_before", "verdict_after",
+               "largest_move_U", "moved", "status")  # fmt: skip
 
 
 def reason_of(equipment_serial: str, error: ReferenceError) -> str:
@@ -297,18 +298,14 @@ def csv_report(doc: dict[str, Any]) -> str:
         moved = "; ".join(filter(None, parts))
         w.writerow(
             (
-                r["run_id"],
-                r["serial"],
-                r["model"],
-                r["started_at"],
-                r["procedure"],
+                *(r[k] for k in RUN_COLUMNS),
                 r["customer"] or "",
                 r["affected"],
                 r["verdict_before"],
                 r["verdict_after"] or "",
                 f"{largest:+.3f}",
                 moved,
-                r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}",
+                status_text(r),
             )
         )
     return buf.getvalue()
@@ -352,22 +349,17 @@ def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
     rows = []
     for r in doc["runs"]:
         moved = "; ".join(moved_text(m) for m in r["moved"])
-        status = r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}"
         rows.append(
             "<tr>"
             + "".join(
                 cell(v)
                 for v in (
-                    r["run_id"],
-                    r["serial"],
-                    r["model"],
-                    r["started_at"],
-                    r["procedure"],
+                    *(r[k] for k in RUN_COLUMNS),
                     r["verdict_before"],
                     r["verdict_after"],
                     "; ".join(filter(None, (temperature_text(r), checks_text(r), moved)))
                     or ("no parameter moved" if r["affected"] else f"not affected: {r['what']}"),
-                    status,
+                    status_text(r),
                 )
             )
             + "</tr>"
@@ -389,6 +381,11 @@ def html_report(doc: dict[str, Any], *, for_print: bool = False) -> str:
         + _campaigns_html(doc.get("campaigns", []))
         + "</body></html>\n"
     )
+
+
+def status_text(r: dict[str, Any]) -> str:
+    """What became of a run: "dry run", its outcome's status, or "failed: <error>"."""
+    return r.get("status", "dry run") if "error" not in r else f"failed: {r['error']}"
 
 
 def moved_text(m: dict[str, Any]) -> str:

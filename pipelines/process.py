@@ -22,7 +22,6 @@ from calib_core.calibration import Calibration, CheckResult, Parameter, StepReco
 from calib_core.checks import check_calibration, overall_verdict
 from calib_core.condition_rules import NOT_JUDGED
 from calib_core.conditions import check_conditions, counts_against_verdict
-from calib_core.conditions import status as condition_status
 from calib_core.preprocess.chain import preprocess, replaced_checks
 from calib_core.preprocess.motion import static_labels
 from calib_core.recording import Recording
@@ -46,7 +45,7 @@ from pipelines.process_streamed import (
     stream_plan,
 )
 from pipelines.provenance import SOFTWARE_VERSION, source_revision
-from pipelines.rejudge import group_of, rejudge_from
+from pipelines.rejudge import check_entry, group_of, rejudge_from
 from pipelines.reports.display import record_notes
 from pipelines.reports.protocol import render_protocol
 from pipelines.tolerances import load_profile
@@ -148,16 +147,7 @@ def run_outcome(
             n: {"value": p.value, "std": p.std, "unit": p.unit}
             for n, p in sorted(cal.parameters.items())
         },
-        "checks": [
-            {
-                "name": c.name,
-                "value": c.value,
-                "limit": c.limit,
-                "passed": c.passed,
-                "status": condition_status(c),
-            }
-            for c in (checks or [])
-        ],
+        "checks": [check_entry(c) for c in (checks or [])],
         "protocol": protocol,
         "verdict": verdict_,
         "source": source,
@@ -282,8 +272,8 @@ def verify_run(
     profile: ToleranceProfile,
     archive: Archive | None,
     run_id: str,
-    budgets: dict[str, Budget] | None = None,
-    as_judged: AsJudged | None = None,
+    budgets: dict[str, Budget] | None,
+    as_judged: AsJudged | None,
 ) -> tuple[list[CheckResult], dict[str, Any]]:
     """Held-out verification points, repeatability against the archive, residual diagnosis.
 

@@ -19,6 +19,7 @@ from calib_core import verification
 from calib_core.calibration import CheckResult, StepRecord
 from calib_core.checks import DEVICE_PREFIX, REPEAT_PREFIX, overall_verdict
 from calib_core.conditions import counts_against_verdict
+from calib_core.conditions import status as condition_status
 from calib_core.tolerances import ToleranceProfile
 from pipelines import shared_reference
 from storage import queries
@@ -159,30 +160,31 @@ def _judged_again(
     return judged, {"checks": checks, "verdict": verdict}
 
 
+def check_entry(c: CheckResult) -> dict[str, Any]:
+    """A check as the `calib process --json` document gives it (docs/cli.md): a run's
+    outcome (`pipelines.process.run_outcome`) and its checks as archived now."""
+    return {
+        "name": c.name,
+        "value": c.value,
+        "limit": c.limit,
+        "passed": c.passed,
+        "status": condition_status(c),
+    }
+
+
 def as_archived_now(archive: Archive, outcomes: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The batch's outcomes with the verdict and checks their runs' current revisions hold.
 
     A run judged again by another run of the batch (archived after it, made before it)
     reports its judgement at the batch's end, as the archive holds it.
     """
-    from calib_core.conditions import status as condition_status
-
     ids = [o["run_id"] for o in outcomes if o["status"] == "ok" and o["run_id"]]
     now = queries.current_judgements(archive, ids) if ids else {}
     out = []
     for o in outcomes:
         judged = now.get(o["run_id"]) if o["status"] == "ok" else None
         if judged is not None:
-            checks = [
-                {
-                    "name": c.name,
-                    "value": c.value,
-                    "limit": c.limit,
-                    "passed": c.passed,
-                    "status": condition_status(c),
-                }
-                for c in judged["checks"]
-            ]
+            checks = [check_entry(c) for c in judged["checks"]]
             if (judged["verdict"], checks) != (o["verdict"], o["checks"]):
                 o = {**o, "verdict": judged["verdict"], "checks": checks}
         out.append(o)

@@ -193,19 +193,14 @@ def _firmware(fmt: str, src: _Source, target: _Target) -> tuple[bytes, list[str]
     doc, cal, model, cal_temp, model_id = src.doc, src.cal, src.model, src.cal_temp, src.model_id
     rng = None if model is None else (model.t_min, model.t_max)
     common = {"unit": doc["unit"]["serial"], "run": doc["run"]["run_id"], "model_range": rng}
+    applied = {"model": model, "cal_temp": cal_temp, "rot": target.rot}  # by either exporter
     if fmt == "px4":
         acc_id, gyr_id, said = autopilot.px4_device_ids(
             target.recorded, target.accel_id, target.gyro_id
         )
         instance = 0 if target.instance is None else target.instance
         rows, notes = exports.px4_calibration_parameters(
-            cal,
-            instance=instance,
-            accel_id=acc_id,
-            gyro_id=gyr_id,
-            model=model,
-            cal_temp=cal_temp,
-            rot=target.rot,
+            cal, instance=instance, accel_id=acc_id, gyro_id=gyr_id, **applied
         )
         settings = [
             f"sets CAL_ACC{instance}_* / CAL_GYRO{instance}_*"
@@ -221,9 +216,7 @@ def _firmware(fmt: str, src: _Source, target: _Target) -> tuple[bytes, list[str]
     imu = target.instance
     if imu is None:
         imu = target.recorded["imu"] + 1 if "imu" in target.recorded else 1
-    rows, notes = exports.ardupilot_calibration_parameters(
-        cal, imu=imu, model=model, cal_temp=cal_temp, rot=target.rot
-    )
+    rows, notes = exports.ardupilot_calibration_parameters(cal, imu=imu, **applied)
     settings = [
         f"sets IMU {imu} (the log's instance {imu - 1}): its offsets and scales"
         + (f", INS_TCAL{imu}_*" if model is not None else "")

@@ -125,16 +125,15 @@ def trend_report(
     if df.empty:
         raise LookupError(f"no archived values of {name} for serial {serial!r}")
     df = df.assign(day=[days_since_epoch(t) for t in df["started_at"]])
-    temps = [
-        None if t is None or (isinstance(t, float) and math.isnan(t)) else float(t)
-        for t in df["temperature_c"]
-    ]
+    import pandas as pd  # loaded already: `df` is a frame
+
+    temps = [None if pd.isna(t) else float(t) for t in df["temperature_c"]]  # NULL: NaN or None
     pooled = pooled_runs(temps)
     if len(pooled.indices) < TREND_MIN_RUNS and len(pooled.conditions) > 1:
         raise ValueError(f"{name} of {serial}: {pooled.note}")
     all_runs = len(df)
     df = df.iloc[pooled.indices].reset_index(drop=True)
-    stds = [None if s is None or (isinstance(s, float) and math.isnan(s)) else s for s in df["std"]]
+    stds = [None if pd.isna(s) else s for s in df["std"]]
     # Runs on one reference share its Type B: a generalised least-squares trend when every
     # point has a budget (pipelines.shared_reference), else the independent fit.
     shared = shared_reference.trend_inputs(archive, list(df["run_id"]), name, stds)

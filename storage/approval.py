@@ -249,29 +249,18 @@ def check(conn: Connection, digests_now: dict[tuple[str, int], str]) -> list[sea
         who = f"{d.get('meaning', '?')} by {d.get('signer', '?')} (event {ev.seq})"
         where = f"{ev.run_id} revision {ev.revision}"
         error = _signature_error(ev)
-        if error is not None:
-            found.append(
-                seal_check.Finding(
-                    "signature",
-                    "audit_events",
-                    [ev.run_id],
-                    f"{where}: the signature of the approval {who} does not "
-                    f"verify ({error}): the event was altered",
-                )
-            )
-            continue
         now = digests_now.get((ev.run_id, ev.revision))
-        if now != ev.digest:
-            found.append(
-                seal_check.Finding(
-                    "signature",
-                    "audit_events",
-                    [ev.run_id],
-                    f"{where}: the approval {who} no longer holds: the record "
-                    f"was signed with digest {ev.digest}, its rows now give "
-                    f"{now or '(rows gone)'}",
-                )
-            )
+        if error is not None:
+            problem = f"the signature of the approval {who} does not verify ({error}): the event "
+            problem += "was altered"
+        elif now != ev.digest:
+            problem = f"the approval {who} no longer holds: the record was signed with digest "
+            problem += f"{ev.digest}, its rows now give {now or '(rows gone)'}"
+        else:
+            continue
+        found.append(
+            seal_check.Finding("signature", "audit_events", [ev.run_id], f"{where}: {problem}")
+        )
     return found
 
 

@@ -140,47 +140,30 @@ def signature_error(doc: dict[str, Any]) -> str | None:
 def check(conn: Connection, doc: dict[str, Any], source: str) -> list[seal_check.Finding]:
     """Whether the chain now extends the checkpoint `doc` (read from `source`) exactly;
     a finding naming the first event that differs, or the events gone, if not."""
-    found: list[seal_check.Finding] = []
     when = f"the checkpoint {source} of {str(doc.get('at', '?'))[:19]}"
     error = signature_error(doc)
     if error is not None:
-        found.append(
-            seal_check.Finding(
-                "checkpoint",
-                source,
-                [],
-                f"the signature of {when} does not verify ({error}): the "
-                "file was altered; it is not compared",
-            )
-        )
-        return found
+        problem = f"the signature of {when} does not verify ({error}): the file was altered; "
+        return [seal_check.Finding("checkpoint", source, [], problem + "it is not compared")]
     rows = conn.execution_options(yield_per=5000).execute(
         select(AuditEvent.seq, AuditEvent.hash, AuditEvent.action, AuditEvent.run_id)
         .where(AuditEvent.seq <= doc["seq"])
         .order_by(AuditEvent.seq)
     )
-    expected, last = 1, 0
+    expected = 1  # the next event's seq
     for seq, hash_, action, run_id in rows:
-        what = f"event {seq} ({action}{' of ' + run_id if run_id else ''})"
         if seq != expected:
-            return [*found, _gone(when, expected, seq - 1, doc)]
+            return [_gone(when, expected, seq - 1, doc)]
         kept = doc["events"][seq - 1]
         full = doc["hash"] if seq == doc["seq"] else None
         if hash_[:PREFIX] != kept or (full is not None and hash_ != full):
-            found.append(
-                seal_check.Finding(
-                    "checkpoint",
-                    "audit_events",
-                    [run_id] if run_id else [],
-                    f"{what} differs from {when}: hash {hash_[:PREFIX]}... now, {kept}... then; "
-                    "the chain was rewritten from this event on",
-                )
-            )
-            return found
-        expected, last = seq + 1, seq
-    if last < doc["seq"]:
-        found.append(_gone(when, last + 1, doc["seq"], doc))
-    return found
+            what = f"event {seq} ({action}{' of ' + run_id if run_id else ''})"
+            problem = f"{what} differs from {when}: hash {hash_[:PREFIX]}... now, {kept}... "
+            problem += "then; the chain was rewritten from this event on"
+            runs = [run_id] if run_id else []
+            return [seal_check.Finding("checkpoint", "audit_events", runs, problem)]
+        expected = seq + 1
+    return [_gone(when, expected, doc["seq"], doc)] if expected <= doc["seq"] else []
 
 
 def _gone(when: str, first: int, last: int, doc: dict[str, Any]) -> seal_check.Finding:

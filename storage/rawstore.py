@@ -76,11 +76,7 @@ def _chunks(path: Path) -> Iterator[memoryview]:
 
 def hash_and_size(path: Path) -> tuple[str, int]:
     """(SHA-256 hex digest, size in bytes) of a file, read in `IO_CHUNK` chunks."""
-    h, n = hashlib.sha256(), 0
-    for chunk in _chunks(path):
-        h.update(chunk)
-        n += len(chunk)
-    return h.hexdigest(), n
+    return copy_hashing(path, None)
 
 
 def _read_umask() -> int:
@@ -133,13 +129,15 @@ def write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
-def copy_hashing(src: Path, fd: int) -> tuple[str, int]:
-    """Copy the bytes of `src` into the open file `fd` (not closed); return (sha256, size)."""
+def copy_hashing(src: Path, fd: int | None) -> tuple[str, int]:
+    """Copy the bytes of `src` into the open file `fd` (not closed; None: only hash them);
+    return (sha256, size)."""
     h, n = hashlib.sha256(), 0
     for chunk in _chunks(src):
         h.update(chunk)
         n += len(chunk)
-        write_all(fd, chunk)
+        if fd is not None:
+            write_all(fd, chunk)
     return h.hexdigest(), n
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from collections import defaultdict
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -81,29 +82,29 @@ def check(conn: Connection, root: Path) -> ChainCheck:
             if isinstance(sealed, dict) and texts is not None:
                 sealed = {**sealed, TEXTS: texts}
             findings += _check_seal(s.digest, sealed, rec, sealing)
-    for (run_id, rev), digest in sorted(sealing.items()):
-        findings.append(
-            Finding(
-                "chain",
-                "seals",
-                [run_id],
-                f"revision {rev} was sealed (digest {digest[:12]}...) but its seal row is gone",
-            )
+    findings += [
+        Finding(
+            "chain",
+            "seals",
+            [run_id],
+            f"revision {rev} was sealed (digest {digest[:12]}...) but its seal row is gone",
         )
+        for (run_id, rev), digest in sorted(sealing.items())
+    ]
     unsealed = conn.execute(
         select(schema.Run.run_id, schema.CalibrationRow.revision)
         .join(schema.Run, schema.Run.id == schema.CalibrationRow.run_id)
         .where(schema.CalibrationRow.id.not_in(select(Seal.calibration_id)))
     ).all()
-    for run_id, rev in unsealed:
-        findings.append(
-            Finding(
-                "chain",
-                "calibrations",
-                [run_id],
-                f"revision {rev} has no seal: added behind the archive's back",
-            )
+    findings += [
+        Finding(
+            "chain",
+            "calibrations",
+            [run_id],
+            f"revision {rev} has no seal: added behind the archive's back",
         )
+        for run_id, rev in unsealed
+    ]
     findings += _check_issued(conn, root)
     findings += [
         Finding("record", "validations", [run_id], detail)
@@ -188,54 +189,28 @@ def _check_chain(conn: Connection) -> tuple[list[Finding], dict[tuple[str, int],
     for row in rows:
         ev = Event(**{k: getattr(row, k) for k in EVENT_FIELDS})
         where = f"event {ev.seq} ({ev.action}{' of ' + ev.run_id if ev.run_id else ''})"
+        problems = []
         if ev.seq != prev_seq + 1:
-            findings.append(
-                Finding(
-                    "chain",
-                    "audit_events",
-                    [ev.run_id] if ev.run_id else [],
-                    f"events {prev_seq + 1}..{ev.seq - 1} are missing before {where}",
-                )
-            )
+            problems.append(f"events {prev_seq + 1}..{ev.seq - 1} are missing before {where}")
         if ev.prev_hash != prev_hash:
-            findings.append(
-                Finding(
-                    "chain",
-                    "audit_events",
-                    [ev.run_id] if ev.run_id else [],
-                    f"{where} does not follow the event before it: "
-                    f"expected previous hash {prev_hash}, found {ev.prev_hash}",
-                )
+            problems.append(
+                f"{where} does not follow the event before it: "
+                f"expected previous hash {prev_hash}, found {ev.prev_hash}"
             )
         if ev.hash() != row.hash:
-            findings.append(
-                Finding(
-                    "chain",
-                    "audit_events",
-                    [ev.run_id] if ev.run_id else [],
-                    f"{where} was changed: its fields hash to {ev.hash()}, stored hash {row.hash}",
-                )
+            problems.append(
+                f"{where} was changed: its fields hash to {ev.hash()}, stored hash {row.hash}"
             )
         if ev.action in SEALING and ev.run_id and ev.digest:
             if (ev.run_id, ev.revision) in sealing:
-                findings.append(
-                    Finding(
-                        "chain",
-                        "audit_events",
-                        [ev.run_id],
-                        f"{where} seals revision {ev.revision} a second time",
-                    )
-                )
+                problems.append(f"{where} seals revision {ev.revision} a second time")
             sealing.setdefault((ev.run_id, ev.revision), ev.digest)
         elif ev.action in SEALING:
-            findings.append(
-                Finding(
-                    "chain",
-                    "audit_events",
-                    [ev.run_id] if ev.run_id else [],
-                    f"{where} lacks its run, revision or digest: a sealing event names all three",
-                )
+            problems.append(
+                f"{where} lacks its run, revision or digest: a sealing event names all three"
             )
+        runs = [ev.run_id] if ev.run_id else []
+        findings += [Finding("chain", "audit_events", runs, p) for p in problems]
         if ev.run_id is not None or ev.action in NAMES_REVISION:
             named.append(ev)
         prev_seq, prev_hash = ev.seq, row.hash
@@ -292,50 +267,34 @@ def _check_seal(
     where = f"{run_id} revision {rev}"
     out: list[Finding] = []
     chained = sealing.pop((run_id, rev), None)
+    seal_finding = partial(Finding, "chain", "seals", [run_id])
     if digest_of(sealed) != digest or chained != digest:
         out.append(
-            Finding(
-                "chain",
-                "seals",
-                [run_id],
+            seal_finding(
                 f"the seal of {where} was changed: it no longer matches the digest "
-                f"in the audit chain ({(chained or 'none')[:12]}...)",
+                f"in the audit chain ({(chained or 'none')[:12]}...)"
             )
         )
     if record_format(sealed.get("format")) not in FORMATS:
         return [
             *out,
-            Finding(
-                "chain",
-                "seals",
-                [run_id],
+            seal_finding(
                 f"the seal of {where} is in record format {sealed.get('format')!r}, "
                 f"which this version of calib (formats {FORMATS}) cannot read: "
-                "verify with the version that wrote it",
+                "verify with the version that wrote it"
             ),
         ]
     if now is None:
-        return [
-            *out,
-            Finding(
-                "record",
-                "calibrations",
-                [run_id],
-                f"{where} is sealed but its rows are gone (deleted)",
-            ),
-        ]
+        gone = f"{where} is sealed but its rows are gone (deleted)"
+        return [*out, Finding("record", "calibrations", [run_id], gone)]
     if digest_of(now) == digest:
         return out
-    for keys, expected, found in _record_differences(sealed, now):
-        out.append(
-            Finding(
-                "record",
-                "/".join(keys),
-                [run_id],
-                f"{where}: sealed {_show(expected)}, found {_show(found)}",
-            )
+    return out + [
+        Finding(
+            "record", "/".join(keys), [run_id], f"{where}: sealed {_show(old)}, found {_show(new)}"
         )
-    return out
+        for keys, old, new in _record_differences(sealed, now)
+    ]
 
 
 _ABSENT = object()

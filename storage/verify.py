@@ -100,6 +100,10 @@ class VerifyReport:
     def to_dict(self) -> dict[str, Any]:
         return {"ok": self.ok, **asdict(self)}
 
+    def add(self, kind: str, path: str, runs: list[str], detail: str) -> None:
+        """Note one problem (`Problem`'s fields)."""
+        self.problems.append(Problem(kind, path, runs, detail))
+
 
 def _inside(root: Path, rel: str) -> Path | None:
     """root/rel if it stays inside root (a database row is not trusted to), else None."""
@@ -112,24 +116,22 @@ def _check_file(
 ) -> None:
     path = _inside(root, rel)
     if path is None:
-        report.problems.append(Problem("outside", rel, runs, "path leaves the file store"))
+        report.add("outside", rel, runs, "path leaves the file store")
         return
     if not path.is_file():
-        report.problems.append(Problem("missing", rel, runs, f"expected sha256 {sha256}"))
+        report.add("missing", rel, runs, f"expected sha256 {sha256}")
         return
     actual, n = rawstore.hash_and_size(path)
     report.files_checked += 1
     report.bytes_checked += n
     if actual != sha256 or (size is not None and n != size):
-        report.problems.append(
-            Problem(
-                "mismatch",
-                rel,
-                runs,
-                f"expected sha256 {sha256}"
-                + ("" if size is None else f" ({size} bytes)")
-                + f", found {actual} ({n} bytes)",
-            )
+        report.add(
+            "mismatch",
+            rel,
+            runs,
+            f"expected sha256 {sha256}"
+            + ("" if size is None else f" ({size} bytes)")
+            + f", found {actual} ({n} bytes)",
         )
 
 
@@ -200,7 +202,7 @@ def verify(
         _check_file(report, root, path, sha, size, runs)
     for path, sha, run_id in sample_rows:
         if sha is None:
-            report.problems.append(Problem("database", path, [run_id], "samples file has no hash"))
+            report.add("database", path, [run_id], "samples file has no hash")
             continue
         _check_file(report, root, path, sha, None, [run_id])
 
@@ -221,13 +223,11 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
         .group_by(Run.run_id)
     )
     for run_id, n in conn.execute(current.having(func.count(CalibrationRow.id) != 1)):
-        report.problems.append(
-            Problem("database", "", [run_id], f"{n} current calibration revisions, expected 1")
-        )
+        report.add("database", "", [run_id], f"{n} current calibration revisions, expected 1")
     has_raw = select(RawFileRow.id).where(RawFileRow.run_id == Run.id).exists()
     no_raw = select(Run.run_id).where(~has_raw)
     for run_id in conn.execute(no_raw).scalars():
-        report.problems.append(Problem("database", "", [run_id], "run has no raw files"))
+        report.add("database", "", [run_id], "run has no raw files")
     newer = aliased(CalibrationRow)
     bad_chain = (
         select(Run.run_id, CalibrationRow.revision)
@@ -238,14 +238,12 @@ def _check_database(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a Con
         )
     )
     for run_id, rev in conn.execute(bad_chain):
-        report.problems.append(
-            Problem(
-                "database",
-                "",
-                [run_id],
-                f"revision {rev} is superseded by a revision that is "
-                "not a later revision of the same run",
-            )
+        report.add(
+            "database",
+            "",
+            [run_id],
+            f"revision {rev} is superseded by a revision that is "
+            "not a later revision of the same run",
         )
 
 
@@ -295,14 +293,12 @@ def _check_settings_hashes(conn, report: VerifyReport) -> None:  # noqa: ANN001 
             else f"settings, procedure {r.procedure} and profile {r.profile_name} "
             f"v{r.profile_version}"
         )
-        report.problems.append(
-            Problem(
-                "record",
-                f"calibrations/{r.revision}/settings_hash",
-                [r.run_id],
-                f"revision {r.revision} ({how}): settings hash {expected} expected, "
-                f"{r.settings_hash} held",
-            )
+        report.add(
+            "record",
+            f"calibrations/{r.revision}/settings_hash",
+            [r.run_id],
+            f"revision {r.revision} ({how}): settings hash {expected} expected, "
+            f"{r.settings_hash} held",
         )
 
 
@@ -310,25 +306,21 @@ def _check_unit_latest(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a 
     """The derived tables of each unit's picks and values (storage.unit_latest) against
     their derivation."""
     for d in unit_latest.differences(conn):
-        report.problems.append(
-            Problem(
-                "database",
-                "",
-                d["run_ids"],
-                f"unit {d['serial']}: unit_latest holds {d['stored']}, "
-                f"its runs give {d['derived']} (storage.unit_latest.rebuild derives it again)",
-            )
+        report.add(
+            "database",
+            "",
+            d["run_ids"],
+            f"unit {d['serial']}: unit_latest holds {d['stored']}, "
+            f"its runs give {d['derived']} (storage.unit_latest.rebuild derives it again)",
         )
     for d in unit_latest.value_differences(conn):
-        report.problems.append(
-            Problem(
-                "database",
-                "",
-                [],
-                f"unit {d['serial']}: unit_latest_values of "
-                f"{', '.join(d['names'])} differ from its latest valid calibration's parameters "
-                f"({d['names'][0]}: {d['stored']} held, {d['derived']} derived)",
-            )
+        report.add(
+            "database",
+            "",
+            [],
+            f"unit {d['serial']}: unit_latest_values of "
+            f"{', '.join(d['names'])} differ from its latest valid calibration's parameters "
+            f"({d['names'][0]}: {d['stored']} held, {d['derived']} derived)",
         )
 
 
@@ -350,7 +342,7 @@ def _check_store(archive: Archive, report: VerifyReport) -> None:
         return
     why = store_identity.mismatch(archive)
     if why:
-        report.problems.append(Problem("missing", "", [], why))
+        report.add("missing", "", [], why)
 
 
 def _check_trust(
@@ -370,7 +362,7 @@ def _check_trust(
         report.checkpoints.append(source)
         findings += checkpoint.check(conn, doc, source)
         if approvers is not None and (why := checkpoint.untrusted_signer(doc, approvers)):
-            report.problems.append(Problem("checkpoint", source, [], why))
+            report.add("checkpoint", source, [], why)
     report.problems += [Problem(f.kind, f.path, f.runs, f.detail) for f in findings]
 
 
@@ -390,13 +382,11 @@ def _check_parameters(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a C
         )
     ):
         if name in rows[cal_id]:
-            report.problems.append(
-                Problem(
-                    "record",
-                    f"parameters/{name}",
-                    [],
-                    f"{name}: more than one parameters row in calibration id {cal_id}",
-                )
+            report.add(
+                "record",
+                f"parameters/{name}",
+                [],
+                f"{name}: more than one parameters row in calibration id {cal_id}",
             )
         rows[cal_id][name] = tuple(values)
     docs = conn.execution_options(yield_per=2000).execute(
@@ -409,16 +399,14 @@ def _check_parameters(conn, report: VerifyReport) -> None:  # noqa: ANN001 - a C
         in_doc = (document or {}).get("parameters") or {}
         for detail in _parameter_differences(rows.pop(cal_id, {}), in_doc, where):
             name = detail.split(" ", 1)[0]
-            report.problems.append(Problem("record", f"parameters/{name}", [run_id], detail))
+            report.add("record", f"parameters/{name}", [run_id], detail)
     for cal_id, stray in rows.items():
         for name in sorted(stray):
-            report.problems.append(
-                Problem(
-                    "record",
-                    f"parameters/{name}",
-                    [],
-                    f"{name}: row of calibration id {cal_id}, which does not exist",
-                )
+            report.add(
+                "record",
+                f"parameters/{name}",
+                [],
+                f"{name}: row of calibration id {cal_id}, which does not exist",
             )
 
 

@@ -9,13 +9,16 @@ about the upward axis). Its solver shares the statics' code in `six_position`; s
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
-from calib_core.procedures.base import ATTITUDES, ENVIRONMENT, Procedure
-from calib_core.procedures.six_position import INTEGRAL_SETTINGS, solve_six_position_integral
+from calib_core.procedures.six_position import (
+    INTEGRAL_SETTINGS,
+    SIX_POSITION,
+    solve_six_position_integral,
+)
 from calib_core.solvers.integral import ROTATION_LABELS
 from calib_core.solvers.six_position import STATIC_LABELS
-from calib_core.uncertainty_sources import static_model
 
 
 def missing_labels(labels: set[str], settings: Mapping[str, Any]) -> list[str]:
@@ -32,7 +35,10 @@ def missing_labels(labels: set[str], settings: Mapping[str, Any]) -> list[str]:
     return missing
 
 
-SIX_POSITION_INTEGRAL = Procedure(
+# The six-position procedure (conditions, labels, Type B model, stillness) with its
+# rotations required and solved.
+SIX_POSITION_INTEGRAL = replace(
+    SIX_POSITION,
     name="six_position_integral",
     summary="six statics plus n-turn ccw/cw rotations about each axis: the six-position "
     "parameters and gyro scale and misalignment by the integral method",
@@ -41,13 +47,9 @@ SIX_POSITION_INTEGRAL = Procedure(
     'by hand or cut by [run.settings.segmentation] (labels = "faces")',
     solver=solve_six_position_integral,
     settings=INTEGRAL_SETTINGS,
-    conditions=ENVIRONMENT + ATTITUDES,
     reference="docs/methods.md 2.1 and 2.6; MPU-6000 manual (stages 1 and 2)",
-    labels=STATIC_LABELS + ROTATION_LABELS,
     required=STATIC_LABELS + ROTATION_LABELS,
-    uncertainty=static_model,
     model_checks="the six-position checks; per rotation: saturation at gyro_range_dps, whole "
     "turns (inferred or given), the static reading from the same orientation",
     missing_rule=missing_labels,
-    static_segments="all but turns",
 )

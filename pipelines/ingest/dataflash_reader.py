@@ -24,6 +24,7 @@ from pipelines.ingest.log_samples import (
     choose_source,
     cut_tail,
     quiet,
+    read_log,
     recorded_temperature,
     stamp_rate,
 )
@@ -37,23 +38,13 @@ def open_dataflash(path: Path):
     from pymavlink.DFReader import DFReader_binary
 
     path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(3)
-    except OSError as exc:
-        raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from None
-    if head[:2] != DF_HEAD:
-        raise IngestError(
-            "not an ArduPilot DataFlash log: expected the record head a3 95, found "
-            + head.hex(" "),
-            file=path,
-        )
-    try:
-        with quiet():
-            reader = DFReader_binary(str(path), zero_time_base=False)
-    except Exception as exc:  # pymavlink raises plain exceptions on damaged logs
-        problem = f"damaged DataFlash log ({type(exc).__name__}: {exc})"
-        raise IngestError(problem, file=path) from None
+    reader = read_log(
+        path,
+        lambda name: DFReader_binary(name, zero_time_base=False),
+        magic=DF_HEAD,
+        kind="DataFlash log",
+        expected="an ArduPilot DataFlash log: expected the record head",
+    )
     findings = check_records(path, {t: f.len for t, f in reader.formats.items()})
     return reader, findings
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from typing import Literal
 
-from pipelines.ingest.errors import IngestError
+from pipelines.ingest.errors import IngestError, file_head
 
 Format = Literal["mcap", "mat5", "mat73", "text"]
 
@@ -48,11 +48,7 @@ def detect_format(path: str | os.PathLike[str]) -> Format:
         message names the file and shows its first bytes in hex.
     """
     name = os.fspath(path)
-    try:
-        with open(name, "rb") as f:
-            head = f.read(TEXT_PROBE)
-    except OSError as exc:
-        raise IngestError(f"cannot read file: {exc.strerror or exc}", file=name) from exc
+    head = file_head(name, TEXT_PROBE)
     if not head:
         raise IngestError("file is empty; expected MCAP, MATLAB .mat or text data", file=name)
 

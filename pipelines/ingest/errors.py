@@ -61,6 +61,16 @@ class IngestError(ValueError):
         return (_rebuild, (self.problem, self.file, self.line, self.field))
 
 
+def file_head(path: str | Path, size: int) -> bytes:
+    """The first `size` bytes of `path` (fewer in a shorter file); IngestError naming the
+    file when it cannot be read."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(size)
+    except OSError as exc:
+        raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from None
+
+
 def printable(text: str) -> str:
     """`text` with control and other unprintable characters escaped (``\\x00``).
 

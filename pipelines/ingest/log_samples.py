@@ -20,13 +20,15 @@ from __future__ import annotations
 
 import contextlib
 import io
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
 from calib_core.recording import Recording
-from pipelines.ingest.errors import IngestError
+from pipelines.ingest.errors import IngestError, file_head
 from pipelines.ingest.time_order import check_time_increases
 
 
@@ -48,9 +50,8 @@ def checked_recording(
     path : the log file, for messages.
     what : the topic or message type the samples come from.
     t : (N,) s.
-    channels : {"acc": (N, 3) m/s^2, "gyr": (N, 3) rad/s} with the field names
-        to report as keys ``"acc:<field>"`` optional (see `fields`).
-    temp : (N,) deg C or None.
+    channels : {"acc": (N, 3) m/s^2, "gyr": (N, 3) rad/s}.
+    temp : (N,) deg C or None; `temp_field` names it in messages.
     devices : the sensors' firmware ids the log records (`Recording.devices`).
     findings : the reader's findings about the file (`cut_tail`).
 
@@ -62,7 +63,8 @@ def checked_recording(
     """
     if len(t) == 0:
         raise IngestError(f"{what}: no samples", file=path, field=what)
-    check_samples(path, what, t, channels, temp=temp, temp_field=temp_field)
+    arrays = {"time": t, **channels} | ({} if temp is None else {temp_field: temp})
+    check_samples(path, what, arrays)
     return Recording(
         t=t,
         acc=channels["acc"],
@@ -94,11 +96,8 @@ def cut_tail(path: Path, kind: str, offset: int, dropped: int, size: int) -> dic
 def check_samples(
     path: Path,
     what: str,
-    t: np.ndarray,
-    channels: dict[str, np.ndarray],
+    arrays: dict[str, np.ndarray],
     *,
-    temp: np.ndarray | None = None,
-    temp_field: str = "temperature",
     offset: int = 0,
     last: float | None = None,
 ) -> None:
@@ -106,30 +105,31 @@ def check_samples(
 
     Parameters
     ----------
-    path, what, t, channels, temp, temp_field : as `checked_recording`.
-    offset : the record index of ``t[0]`` (a chunk read after `offset` records).
+    path, what : as `checked_recording`.
+    arrays : {"time": (N,) s, "acc": (N, 3) m/s^2, "gyr": (N, 3) rad/s}, and the
+        temperature (N,) deg C under the field name messages give it, if any.
+    offset : the record index of ``arrays["time"][0]`` (a chunk read after `offset` records).
     last : the previous chunk's last time, s (time must increase across chunks).
 
     Raises
     ------
     IngestError as `checked_recording`, records numbered in the whole record.
     """
-    arrays = {"time": t[:, None], **channels}
-    if temp is not None:
-        arrays[temp_field] = temp[:, None]
     for name, values in arrays.items():
-        bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+        rows = values.reshape(len(values), -1)
+        bad = np.flatnonzero(~np.isfinite(rows).all(axis=1))
         if bad.size:
             i = int(bad[0])
             raise IngestError(
-                f"{what} record {offset + i}: expected finite numbers, got {values[i].tolist()}",
+                f"{what} record {offset + i}: expected finite numbers, got {rows[i].tolist()}",
                 file=path,
                 field=f"{what}.{name}",
             )
-    found = impossible_reading(channels)
+    found = impossible_reading(arrays)
     if found is not None:
         name, i, text = found
         raise IngestError(f"{what} record {offset + i}: {text}", file=path, field=f"{what}.{name}")
+    t = arrays["time"]
     ahead = t if last is None else np.concatenate([[last], t])
     check_time_increases(
         ahead,
@@ -299,6 +299,25 @@ def recorded_temperature(temp: np.ndarray | None) -> np.ndarray | None:
     if np.all(np.isnan(temp)) or not np.any(temp):
         return None
     return temp
+
+
+Log = TypeVar("Log")
+
+
+def read_log(
+    path: Path, parse: Callable[[str], Log], *, magic: bytes, kind: str, expected: str
+) -> Log:
+    """``parse(str(path))`` (a log library's reader), its prints kept off stdout (`quiet`);
+    IngestError naming the file if it cannot be read, does not start with `magic` ("not
+    <expected> <magic>, found <bytes>") or is damaged ("damaged <kind> (<exception>)")."""
+    head = file_head(path, len(magic))
+    if head != magic:
+        raise IngestError(f"not {expected} {magic.hex(' ')}, found {head.hex(' ')}", file=path)
+    try:
+        with quiet():
+            return parse(str(path))
+    except Exception as exc:  # the log libraries raise plain exceptions on damaged logs
+        raise IngestError(f"damaged {kind} ({type(exc).__name__}: {exc})", file=path) from None
 
 
 def quiet():

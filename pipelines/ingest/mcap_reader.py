@@ -202,7 +202,7 @@ class McapReader:
 
     def read(self, f: Any, size: int) -> None:
         if f.read(8) != MAGIC:
-            raise IngestError("not an MCAP file (bad magic at offset 0)", file=self.name)
+            raise self.error("not an MCAP file (bad magic at offset 0)")
         self._summary_statistics(f, size)
         f.seek(8)
         pos = 8
@@ -216,11 +216,10 @@ class McapReader:
             (length,) = U64.unpack_from(head, 1)
             if length > size - pos - RECORD_HEADER:
                 if not (0x01 <= opcode <= 0x0F and length <= _MAX_CHUNK):
-                    raise IngestError(
+                    raise self.error(
                         f"damaged MCAP file: record at byte {pos} (opcode 0x{opcode:02x}) "
                         f"claims {length} bytes, only {size - pos - RECORD_HEADER} remain, "
-                        "and is no record a writer makes",
-                        file=self.name,
+                        "and is no record a writer makes"
                     )
                 self._cut(pos, size)  # its last record cut short
                 break
@@ -242,9 +241,8 @@ class McapReader:
             elif opcode == OP_FOOTER:
                 f.seek(length, 1)
                 if f.read(8) != MAGIC:
-                    raise IngestError(
-                        "MCAP footer is not followed by the closing magic (damaged file)",
-                        file=self.name,
+                    raise self.error(
+                        "MCAP footer is not followed by the closing magic (damaged file)"
                     )
                 break
             else:  # indexes, statistics, attachments, metadata: not needed
@@ -263,10 +261,9 @@ class McapReader:
         if self.sink is not None:
             (size,) = struct.unpack_from("<Q", body, 16) if len(body) >= 24 else (0,)
             if size > self.max_chunk:
-                raise IngestError(
+                raise self.error(
                     f"chunk at byte {pos} holds {size} bytes uncompressed, more than the "
-                    f"memory limit allows ({self.max_chunk}); raise the memory limit",
-                    file=self.name,
+                    f"memory limit allows ({self.max_chunk}); raise the memory limit"
                 )
         try:
             uncompressed_size, crc = struct.unpack_from("<QI", body, 16)
@@ -274,23 +271,20 @@ class McapReader:
             compression = body[32 : 32 + comp_len].decode()
             (records_len,) = U64.unpack_from(body, 32 + comp_len)
         except (struct.error, UnicodeDecodeError):
-            raise IngestError(f"damaged chunk header at byte {pos}", file=self.name) from None
+            raise self.error(f"damaged chunk header at byte {pos}") from None
         start = 40 + comp_len
         if start + records_len > len(body):
-            raise IngestError(f"chunk at byte {pos} is shorter than it claims", file=self.name)
+            raise self.error(f"chunk at byte {pos} is shorter than it claims")
         if uncompressed_size > _MAX_CHUNK:
-            raise IngestError(
+            raise self.error(
                 f"chunk at byte {pos} claims {uncompressed_size} bytes uncompressed "
-                f"(limit {_MAX_CHUNK}; damaged file?)",
-                file=self.name,
+                f"(limit {_MAX_CHUNK}; damaged file?)"
             )
         data = decompress(
             self.name, pos, compression, body[start : start + records_len], uncompressed_size
         )
         if crc and zlib.crc32(data) != crc:
-            raise IngestError(
-                f"chunk at byte {pos} fails its CRC check (damaged file)", file=self.name
-            )
+            raise self.error(f"chunk at byte {pos} fails its CRC check (damaged file)")
         self._records(data, pos)
 
     def _summary_statistics(self, f: Any, size: int) -> None:
@@ -331,7 +325,7 @@ class McapReader:
                 body, np.dtype([("id", "<u2"), ("n", "<u8")]), count=size // 10, offset=46
             )
         except (struct.error, ValueError):
-            raise IngestError(f"damaged statistics record at byte {pos}", file=self.name) from None
+            raise self.error(f"damaged statistics record at byte {pos}") from None
         self.counts = dict(zip(entries["id"].tolist(), entries["n"].tolist(), strict=True))
 
     def _definition(self, opcode: int, body: bytes, pos: int) -> None:
@@ -345,15 +339,14 @@ class McapReader:
             topic, encoding = cur.string(), cur.string()
         except (struct.error, UnicodeDecodeError, IndexError):
             kind = "schema" if opcode == OP_SCHEMA else "channel"
-            raise IngestError(f"damaged {kind} record near byte {pos}", file=self.name) from None
+            raise self.error(f"damaged {kind} record near byte {pos}") from None
         if cid in self.channels:
             return
         channel = McapChannel(cid, topic, encoding, sid)
         if sid:
             if sid not in self.schemas:
-                raise IngestError(
-                    f"channel {topic!r} refers to schema id {sid}, which is not defined before it",
-                    file=self.name,
+                raise self.error(
+                    f"channel {topic!r} refers to schema id {sid}, which is not defined before it"
                 )
             channel.schema_name, channel.schema_encoding, channel.schema_data = self.schemas[sid]
         channel.role = self._role(channel)
@@ -376,7 +369,7 @@ class McapReader:
         arr = np.frombuffer(buf, np.uint8)
         starts = record_starts(buf, arr)
         if starts is None:
-            raise IngestError(f"damaged records in the chunk at byte {pos}", file=self.name)
+            raise self.error(f"damaged records in the chunk at byte {pos}")
         ops = arr[starts]
         for i in np.flatnonzero((ops == OP_SCHEMA) | (ops == OP_CHANNEL)):
             s = int(starts[i])
@@ -387,15 +380,14 @@ class McapReader:
             return
         lengths = gather(arr, msg + 1, "<u8").astype(np.int64)
         if (lengths < MESSAGE_FIXED).any():
-            raise IngestError(f"message record too short in chunk at byte {pos}", file=self.name)
+            raise self.error(f"message record too short in chunk at byte {pos}")
         chan = gather(arr, msg + 9, "<u2")
         for cid in np.unique(chan):
             channel = self.channels.get(int(cid))
             if channel is None:
-                raise IngestError(
+                raise self.error(
                     f"message on channel id {cid}, which is not defined before it "
-                    f"(chunk at byte {pos})",
-                    file=self.name,
+                    f"(chunk at byte {pos})"
                 )
             if channel.role is None:
                 continue
@@ -429,11 +421,10 @@ class McapReader:
                 ch.parts.clear()
         if ch.full_size:
             if ch.count + n > total:
-                raise IngestError(
+                raise self.error(
                     f"topic {ch.topic!r}: more messages than the file's statistics record "
                     f"counts ({total}) by the chunk at byte {pos} (damaged file?)",
-                    file=self.name,
-                    field=ch.topic,
+                    ch.topic,
                 )
             for key, values in part.items():
                 ch.parts[0][key][ch.count : ch.count + n] = values
@@ -459,11 +450,10 @@ class McapReader:
             try:
                 part = decode_fixed_cdr(arr, start, length, layout)
             except BadMessageError as exc:
-                raise IngestError(
+                raise self.error(
                     f"message {ch.count + exc.index} (0-based) of topic {ch.topic!r} "
                     f"({ch.schema_name}): {exc.problem}",
-                    file=self.name,
-                    field=ch.topic,
+                    ch.topic,
                 ) from None
         elif ch.message_encoding == "json":
             part = self._decode_json(ch, buf, start, length)
@@ -474,13 +464,16 @@ class McapReader:
             part["stamp"] = log_ns
         return part
 
+    def error(self, problem: str, field: str | None = None) -> IngestError:
+        """The IngestError of `problem` in this file (at `field`: a topic, a manifest key)."""
+        return IngestError(problem, file=self.name, field=field)
+
     def _require(self, ch: McapChannel, schema: str) -> None:
         if ch.schema_name != schema or ch.message_encoding != "cdr":
-            raise IngestError(
+            raise self.error(
                 f"cannot decode topic {ch.topic!r}: schema {ch.schema_name or '(none)'!r} with "
                 f"message encoding {ch.message_encoding!r}; this role needs {schema} in 'cdr'",
-                file=self.name,
-                field=ch.topic,
+                ch.topic,
             )
 
     def _decode_joint_state(
@@ -503,17 +496,14 @@ class McapReader:
                 with contextlib.redirect_stderr(io.StringIO()):
                     ch.decoder = DecoderFactory().decoder_for(ch.message_encoding, schema)
             except Exception as exc:  # a broken definition text raises assorted errors
-                raise IngestError(
-                    f"cannot parse the message definition of topic {ch.topic!r}: {exc}",
-                    file=self.name,
-                    field=ch.topic,
+                raise self.error(
+                    f"cannot parse the message definition of topic {ch.topic!r}: {exc}", ch.topic
                 ) from None
             if ch.decoder is None:
-                raise IngestError(
+                raise self.error(
                     f"cannot decode topic {ch.topic!r}: schema encoding "
                     f"{ch.schema_encoding!r} is not ros2msg",
-                    file=self.name,
-                    field=ch.topic,
+                    ch.topic,
                 )
         n = len(start)
         out = {"stamp": np.empty(n, np.int64)}
@@ -524,18 +514,16 @@ class McapReader:
                 out["stamp"][k] = m.header.stamp.sec * NS + m.header.stamp.nanosec
                 joints = list(m.name)
             except Exception as exc:  # the generated decoder raises assorted errors
-                raise IngestError(
+                raise self.error(
                     f"cannot decode message {ch.count + k} (0-based) of topic {ch.topic!r}: {exc}",
-                    file=self.name,
-                    field=ch.topic,
+                    ch.topic,
                 ) from None
             if isinstance(self.table_joint, str):
                 if self.table_joint not in joints:
-                    raise IngestError(
+                    raise self.error(
                         f"message {ch.count + k} of topic {ch.topic!r} has no joint "
                         f"{self.table_joint!r} (joints: {joints})",
-                        file=self.name,
-                        field="format.table_joint",
+                        "format.table_joint",
                     )
                 idx = joints.index(self.table_joint)
             else:
@@ -560,11 +548,10 @@ class McapReader:
                     value = obj.get(key)
                     out[key].append(np.nan if value is None else float(value))
             except (ValueError, TypeError) as exc:
-                raise IngestError(
+                raise self.error(
                     f"message {ch.count + k} (0-based) of JSON topic {ch.topic!r} is not an "
                     f"object with numeric fields angle/rate/stamp: {exc}",
-                    file=self.name,
-                    field=ch.topic,
+                    ch.topic,
                 ) from None
         part = {k: np.array(out[k], dtype=np.float64) for k in ("angle", "rate")}
         stamps = np.array(out["stamp"], dtype=np.float64)
@@ -606,11 +593,10 @@ class McapReader:
             ref_ns = _concat(ch, "stamp")
             columns = {"angle": _concat(ch, "angle"), "rate": _concat(ch, "rate")}
             if all(np.isnan(v).all() for v in columns.values()):
-                raise IngestError(
+                raise self.error(
                     f"topic {ch.topic!r} carries neither angle (position) nor rate (velocity)"
                     + ("" if ch.message_encoding == "json" else f" for joint {self.table_joint!r}"),
-                    file=self.name,
-                    field=ch.topic,
+                    ch.topic,
                 )
             for key, values in columns.items():
                 if np.isnan(values).all():
@@ -637,35 +623,30 @@ class McapReader:
         )
         if role == "imu" and topic is None:
             if not chosen:
-                raise IngestError(
-                    f"no channel with schema {IMU_SCHEMA}; topics present: {present or 'none'}",
-                    file=self.name,
+                raise self.error(
+                    f"no channel with schema {IMU_SCHEMA}; topics present: {present or 'none'}"
                 )
             if len(chosen) > 1:
-                raise IngestError(
+                raise self.error(
                     f"several {IMU_SCHEMA} topics ({', '.join(c.topic for c in chosen)}); "
                     "name one as imu_topic in the manifest",
-                    file=self.name,
-                    field="format.imu_topic",
+                    "format.imu_topic",
                 )
         elif topic is None:
             return None
         elif not chosen:
-            raise IngestError(
-                f"topic {topic!r} not found; topics present: {present or 'none'}",
-                file=self.name,
-                field=topic,
+            raise self.error(
+                f"topic {topic!r} not found; topics present: {present or 'none'}", topic
             )
         ch = chosen[0]
         if ch.count == 0:
-            raise IngestError(f"topic {ch.topic!r} has no messages", file=self.name, field=ch.topic)
+            raise self.error(f"topic {ch.topic!r} has no messages", ch.topic)
         expected = None if self.counts is None else self.counts.get(ch.id)
         if expected is not None and expected != ch.count:
-            raise IngestError(
+            raise self.error(
                 f"topic {ch.topic!r}: {ch.count} messages read but the file's statistics "
                 f"record counts {expected} (damaged file?)",
-                file=self.name,
-                field=ch.topic,
+                ch.topic,
             )
         return ch
 

@@ -156,6 +156,10 @@ class Ros1Bag:
         self.deserialize: Callable[[bytes, str], Any] | None = None
         self.msgtypes: dict[int, str] = {}
 
+    def error(self, problem: str, field: str | None = None) -> IngestError:
+        """The IngestError of `problem` in this bag (at `field`: a topic, a manifest key)."""
+        return IngestError(problem, file=self.path, field=field)
+
     # --- records -----------------------------------------------------------------
 
     def _record(self, f: Any = None) -> tuple[Any, int]:
@@ -174,10 +178,9 @@ class Ros1Bag:
         too large for the memory limit), refused before it is read."""
         f = self.f if f is None else f
         if n > self.max_chunk:
-            raise IngestError(
+            raise self.error(
                 f"a record near byte {f.tell()} declares {n} bytes, more than the memory "
-                f"limit allows ({self.max_chunk}): a damaged bag, or raise the memory limit",
-                file=self.path,
+                f"limit allows ({self.max_chunk}): a damaged bag, or raise the memory limit"
             )
         return rb().read_bytes(f, n)
 
@@ -201,9 +204,8 @@ class Ros1Bag:
         except IngestError:
             raise
         except Exception as exc:
-            raise IngestError(
-                f"truncated or damaged bag near byte {self.f.tell()} ({type(exc).__name__}: {exc})",
-                file=self.path,
+            raise self.error(
+                f"truncated or damaged bag near byte {self.f.tell()} ({type(exc).__name__}: {exc})"
             ) from None
 
     # --- the bag header and the index ----------------------------------------------
@@ -213,12 +215,10 @@ class Ros1Bag:
         refused)."""
         with self.named():
             if self.f.read(len(MAGIC)) != MAGIC:
-                raise IngestError("not a ROS 1 bag: expected '#ROSBAG V2.0'", file=self.path)
+                raise self.error("not a ROS 1 bag: expected '#ROSBAG V2.0'")
             fields, length = self._record()
             if fields.get_uint8("op") != OP_BAGHEADER:
-                raise IngestError(
-                    "damaged bag: no bag header record after the magic", file=self.path
-                )
+                raise self.error("damaged bag: no bag header record after the magic")
             index_pos = fields.get_uint64("index_pos")
             self.f.seek(length, 1)  # the header's padding
             self.start = self.f.tell()
@@ -230,15 +230,13 @@ class Ros1Bag:
                 self.f.seek(self.start)
                 return
             if index_pos == 0:
-                raise IngestError(
+                raise self.error(
                     "the bag is not indexed (its recording did not end cleanly); "
-                    "run `rosbag reindex` on it first",
-                    file=self.path,
+                    "run `rosbag reindex` on it first"
                 )
             if index_pos > size:
-                raise IngestError(
-                    f"truncated: the bag's index is at byte {index_pos}, the file has {size} bytes",
-                    file=self.path,
+                raise self.error(
+                    f"truncated: the bag's index is at byte {index_pos}, the file has {size} bytes"
                 )
             self.end = index_pos
             self.f.seek(index_pos)  # read ahead: a tee hashes it when the pass gets there
@@ -250,12 +248,12 @@ class Ros1Bag:
         for _ in range(conn_count):
             fields = self._header()
             if fields.get_uint8("op") != OP_CONNECTION:
-                raise IngestError("damaged index: expected a connection record", file=self.path)
+                raise self.error("damaged index: expected a connection record")
             self.connections.append(self._connection(fields))
         for _ in range(chunk_count):
             fields, length = self._record()
             if fields.get_uint8("op") != OP_CHUNK_INFO:
-                raise IngestError("damaged index: expected a chunk info record", file=self.path)
+                raise self.error("damaged index: expected a chunk info record")
             counts = np.frombuffer(self._bytes(length), "<u4").reshape(-1, 2)
             for conn, count in counts.tolist():
                 self.expected[conn] = self.expected.get(conn, 0) + count
@@ -275,9 +273,8 @@ class Ros1Bag:
                     conns.setdefault(conn.id, conn)
                     continue
             except Exception as exc:  # rosbags' ReaderError, struct, unicode errors: damage
-                raise IngestError(
-                    f"damaged ROS 1 bag: the record at byte offset {pos} does not parse ({exc})",
-                    file=self.path,
+                raise self.error(
+                    f"damaged ROS 1 bag: the record at byte offset {pos} does not parse ({exc})"
                 ) from None
             if op == OP_CHUNK:
                 self.rebuilt[pos] = self._chunk_records(
@@ -312,10 +309,9 @@ class Ros1Bag:
             if buf.tell() != len(data):
                 raise rb().ReaderError("a record runs past the chunk's end")
         except Exception as exc:  # rosbags' ReaderError, struct, unicode errors: damage
-            raise IngestError(
+            raise self.error(
                 f"damaged ROS 1 bag: the records of the chunk at byte offset {pos} do not "
-                f"follow each other ({exc})",
-                file=self.path,
+                f"follow each other ({exc})"
             ) from None
         return {c: np.array(rows, INDEX_ENTRY) for c, rows in found.items()}
 
@@ -330,7 +326,7 @@ class Ros1Bag:
                 fh.seek(pos)
                 fields, length = self._record(fh)
                 if fields.get_uint8("op") != OP_CHUNK:
-                    raise IngestError(f"damaged index: no chunk at byte {pos}", file=self.path)
+                    raise self.error(f"damaged index: no chunk at byte {pos}")
                 fh.seek(length, 1)
                 entries = defaultdict(list)
                 for _ in range(n):
@@ -381,11 +377,10 @@ class Ros1Bag:
                 try:
                     own.register(get_types_from_msg(c.msgdef, c.msgtype))
                 except Exception as exc:  # rosbags' TypesysError on a damaged definition
-                    raise IngestError(
+                    raise self.error(
                         f"topic {c.topic}: its message definition does not parse "
                         f"({type(exc).__name__}: {exc})",
-                        file=self.path,
-                        field=c.topic,
+                        c.topic,
                     ) from None
             self.topics[role], self.read[role] = conns[0].topic, 0
         self.fast = all(c.digest == md5 for c in chosen["imu"])
@@ -412,10 +407,9 @@ class Ros1Bag:
                 elif op == OP_IDXDATA and self.rebuilt is None:
                     conn, count = fields.get_uint32("conn"), fields.get_uint32("count")
                     if length != 12 * count:
-                        raise IngestError(
+                        raise self.error(
                             f"damaged index record at byte {pos}: {length} bytes for "
-                            f"{count} messages",
-                            file=self.path,
+                            f"{count} messages"
                         )
                     if conn in self.roles:
                         entries[conn].append(np.frombuffer(self._bytes(length), INDEX_ENTRY))
@@ -424,10 +418,7 @@ class Ros1Bag:
                 else:
                     self.f.seek(length, 1)  # connection records outside chunks, ...
             if self.f.tell() != self.end:
-                raise IngestError(
-                    f"damaged bag: a record runs past the index at byte {self.end}",
-                    file=self.path,
-                )
+                raise self.error(f"damaged bag: a record runs past the index at byte {self.end}")
             if chunk is not None:
                 yield from self._decode(*chunk, entries)
 
@@ -435,30 +426,25 @@ class Ros1Bag:
         """A chunk record's data, decompressed."""
         size, compression = fields.get_uint32("size"), fields.get_string("compression")
         if size > self.max_chunk:
-            raise IngestError(
+            raise self.error(
                 f"chunk at byte {pos} holds {size} bytes uncompressed, more than the memory "
-                f"limit allows ({self.max_chunk}); raise the memory limit",
-                file=self.path,
+                f"limit allows ({self.max_chunk}); raise the memory limit"
             )
         if compression not in rb().decompressors:
-            raise IngestError(
-                f"chunk at byte {pos} uses compression {compression!r}; expected none, bz2 or lz4",
-                file=self.path,
+            raise self.error(
+                f"chunk at byte {pos} uses compression {compression!r}; expected none, bz2 or lz4"
             )
         raw = self._bytes(length)
         try:
             data = rb().decompressors[compression](raw)
         except Exception as exc:  # a damaged compressed block: bz2, lz4 raise their own
-            raise IngestError(
-                f"damaged chunk at byte {pos}: it does not decompress ({type(exc).__name__}: "
-                f"{exc})",
-                file=self.path,
+            raise self.error(
+                f"damaged chunk at byte {pos}: it does not decompress ({type(exc).__name__}: {exc})"
             ) from None
         if len(data) != size:
-            raise IngestError(
+            raise self.error(
                 f"damaged chunk at byte {pos}: {len(data)} bytes decompressed, its header says "
-                f"{size}",
-                file=self.path,
+                f"{size}"
             )
         return data
 
@@ -485,11 +471,10 @@ class Ros1Bag:
                 else:
                     part = message_part(self.path, role, self._each(buf, start, length, conn))
             except BadMessageError as bad:
-                raise IngestError(
+                raise self.error(
                     f"{topic} message {self.read[role] + bad.index}: cannot decode "
                     f"({bad.problem}; chunk at byte {pos})",
-                    file=self.path,
-                    field=topic,
+                    topic,
                 ) from None
             part["log"] = log
             if self.stamp == "log":
@@ -576,11 +561,10 @@ class Ros1Bag:
         topic = self.topics.get("imu", "?")
         want = sum(self.expected.get(c, 0) for c, role in self.roles.items() if role == "imu")
         if self.read.get("imu", 0) != want:
-            raise IngestError(
+            raise self.error(
                 f"{topic}: {self.read.get('imu', 0)} messages read but the bag's index counts "
                 f"{want} (damaged bag?)",
-                file=self.path,
-                field=topic,
+                topic,
             )
 
 

@@ -32,7 +32,7 @@ import numpy as np
 from calib_core.recording import Recording
 from pipelines.ingest.cdr import NS
 from pipelines.ingest.data_format import extra_keys
-from pipelines.ingest.errors import IngestError
+from pipelines.ingest.errors import IngestError, file_head
 from pipelines.ingest.log_samples import (
     MIN_RATE_HZ,
     LogSource,
@@ -55,11 +55,7 @@ KEYS = ("imu_topic", "temperature_topic", "table_topic", "table_joint", "stamp",
 
 def bag_kind(path: Path) -> str:
     """``"rosbag1"`` or ``"rosbag2"`` by the file's first bytes; IngestError otherwise."""
-    try:
-        with Path(path).open("rb") as fh:
-            head = fh.read(16)
-    except OSError as exc:
-        raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from None
+    head = file_head(path, 16)
     if head.startswith(ROS1_MAGIC):
         return "rosbag1"
     if head.startswith(SQLITE_MAGIC):
@@ -396,8 +392,8 @@ def to_sink(path: Path, bag: Ros1Bag, sink: SampleSink) -> None:
         last_log = int(log[-1])
         t0 = part["stamp"][0] if t0 is None else t0
         t = (part["stamp"] - t0) / NS + t0 / NS
-        channels = {"acc": part["acc"], "gyr": part["gyr"]}
-        check_samples(path, topic, t, channels, offset=read, last=last_t)
+        arrays = {"time": t, "acc": part["acc"], "gyr": part["gyr"]}
+        check_samples(path, topic, arrays, offset=read, last=last_t)
         last_t, read = float(t[-1]), read + len(t)
         sink.push(part)
 

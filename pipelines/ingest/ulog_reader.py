@@ -37,7 +37,7 @@ from pipelines.ingest.log_samples import (
     checked_recording,
     choose_source,
     cut_tail,
-    quiet,
+    read_log,
     recorded_temperature,
     stamp_rate,
 )
@@ -60,21 +60,13 @@ def load_ulog(path: Path):
     from pyulog import ULog
 
     path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(len(ULOG_MAGIC))
-    except OSError as exc:
-        raise IngestError(f"cannot read file: {exc.strerror or exc}", file=path) from None
-    if head != ULOG_MAGIC:
-        raise IngestError(
-            f"not a ULog file: expected the magic {ULOG_MAGIC.hex(' ')}, found {head.hex(' ')}",
-            file=path,
-        )
-    try:
-        with quiet():
-            ulog = ULog(str(path), list(TOPICS))
-    except Exception as exc:  # pyulog raises plain exceptions on damaged logs
-        raise IngestError(f"damaged ULog ({type(exc).__name__}: {exc})", file=path) from None
+    ulog = read_log(
+        path,
+        lambda name: ULog(name, list(TOPICS)),
+        magic=ULOG_MAGIC,
+        kind="ULog",
+        expected="a ULog file: expected the magic",
+    )
     findings = check_records(path)
     if ulog.file_corruption:
         raise IngestError(

@@ -492,7 +492,11 @@ def repeatability_candidates(
     """
     stmt = (
         select_run_calibrations(
-            Run.run_id, Run.started_at, Run.environment, CalibrationRow.id, CalibrationRow.verdict
+            Run.run_id,
+            Run.started_at,
+            Run.environment,
+            CalibrationRow.id.label("calibration_id"),
+            CalibrationRow.verdict,
         )
         .where(Device.serial == serial, Run.procedure == procedure, _then(before_calibration))
         .order_by(*LATEST_RUN_FIRST)
@@ -505,18 +509,8 @@ def repeatability_candidates(
         stmt = stmt.where(Run.run_id != exclude_run_id)
     with Session(archive.engine()) as s:
         rows = s.execute(stmt).all()
-        values = parameter_values(s, [r.id for r in rows])
-    return [
-        {
-            "run_id": row.run_id,
-            "started_at": row.started_at,
-            "environment": row.environment,
-            "calibration_id": row.id,
-            "verdict": row.verdict,
-            "parameters": values[row.id],
-        }
-        for row in rows
-    ]
+        values = parameter_values(s, [r.calibration_id for r in rows])
+    return [{**_dict(row), "parameters": values[row.calibration_id]} for row in rows]
 
 
 def calibration_revision(archive: Archive, run_id: str, revision: int) -> DatedRevision | None:
