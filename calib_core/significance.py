@@ -256,7 +256,7 @@ def fit_ols(
     total = U + Q
     r2 = U / total if total > 0 else np.nan
 
-    sigma2 = Q / dof
+    sigma2 = np.float64(Q) / dof  # an exact fit (Q = 0) gives F = inf, t = inf, not a crash
     std = np.sqrt(sigma2 * np.diag(xtx_inv))
     with np.errstate(divide="ignore", invalid="ignore"):
         t = coef / std

@@ -336,3 +336,12 @@ def test_f_then_t_follows_the_t_path_and_ends_in_a_model_that_passes_f(t_test):
     # two-sided a model whose terms all pass t(0.975) passed F here in every case;
     # one-sided (t_crit^2 = 2.8 < F_crit(1, dof) = 4.0) some lone terms fail F
     assert (longer == 0) if t_test == "two-sided" else (longer > 0)
+
+
+def test_an_exact_fit_gives_infinite_statistics_not_a_crash():
+    """Q = 0 (a stuck sensor's constant output, a noiseless design): F and t are inf
+    (or nan where the terms are zero too), never a ZeroDivisionError."""
+    exact = fit_ols(np.ones((4, 1)), np.full(4, 2.0), ["c0"])
+    assert exact.Q == 0.0 and np.isposinf(exact.F) and np.isposinf(exact.t[0])
+    flat = fit_ols(np.ones((8, 1)), np.zeros(8), ["c0"])
+    assert flat.Q == 0.0 and np.isnan(flat.F)
