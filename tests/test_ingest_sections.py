@@ -95,15 +95,7 @@ def test_time_is_checked_across_blocks_and_restarts_with_a_section(
     assert {len(line) for line in lines} == {63}
     path = tmp_path / "s.csv"
     path.write_text("\n".join(["part,samples,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z", *lines]) + "\n")
-    fmt = FormatSpec(
-        kind="csv",
-        time_column="samples",
-        time_unit="samples",
-        sample_rate_hz=RATE_HZ,
-        acc_columns=["acc_x", "acc_y", "acc_z"],
-        gyr_columns=["gyr_x", "gyr_y", "gyr_z"],
-        section_column="part",
-    )
+    fmt = FormatSpec(**FORMAT)  # the section column: "part", recognised
     if not restart:
         with pytest.raises(IngestError, match=r"line 66: field 'samples': time not strictly"):
             read_csv_sections(path, fmt)
