@@ -152,6 +152,48 @@ def test_value_no_imu_can_read_names_the_line(tmp_path):
     with pytest.raises(IngestError, match="gyr .* beyond what any IMU") as err:
         stream_csv(path, FMT, tmp_path / "s.parquet", memory_limit=1 << 20, progress=False)
     assert "line 40002" in str(err.value) and str(path) in str(err.value)
+    assert err.value.field == "gyr_y"
+
+
+def _fixed_width_lines(n: int) -> list[str]:
+    """A counter (time at 100 Hz) and six channels in data lines of 64 bytes each: a 64 kB
+    streamed block holds rows 0-1023 exactly, so does a 4 kB slice of 64 rows."""
+    lines = [f"{k:09d},0.100000,0.200000,9.800000,0.010000,0.020000,0.030000" for k in range(n)]
+    assert {len(line) for line in lines} == {63}
+    return lines
+
+
+@pytest.mark.parametrize(
+    ("row", "edit", "field"),
+    [(1024, ("000001024", "000001023"), "samples"), (1500, ("0.200000", ""), "ay")],
+)
+def test_a_refusal_is_the_same_on_both_routes(tmp_path, monkeypatch, row, edit, field):
+    """One chunk loop: time that stops increasing at the first row of a block (streamed
+    64 kB blocks and 4 kB in-memory slices both start at row 1024) and an empty cell are
+    refused naming the same file, line and column in the same words on both routes."""
+    from pipelines.ingest import csv_reader
+    from pipelines.ingest.errors import IngestError
+
+    lines = _fixed_width_lines(3000)
+    lines[row] = lines[row].replace(*edit, 1)
+    path = tmp_path / "fixed.csv"
+    path.write_text("\n".join(["samples,ax,ay,az,gx,gy,gz", *lines]) + "\n")
+    fmt = FormatSpec(
+        kind="csv",
+        time_column="samples",
+        time_unit="samples",
+        sample_rate_hz=RATE,
+        acc_columns=["ax", "ay", "az"],
+        gyr_columns=["gx", "gy", "gz"],
+    )
+    with pytest.raises(IngestError) as streamed:
+        stream_csv(path, fmt, tmp_path / "s.parquet", memory_limit=1 << 20, progress=False)
+    monkeypatch.setattr(csv_reader, "SLICE_BYTES", 4096)
+    with pytest.raises(IngestError) as in_memory:
+        read_csv(path, fmt, progress=False)
+    assert str(streamed.value) == str(in_memory.value)
+    assert (streamed.value.file, streamed.value.line) == (str(path), row + 2)
+    assert streamed.value.field == field
 
 
 def test_blocks_pass_every_byte_once_and_cut_at_line_ends():

@@ -19,7 +19,7 @@ import pytest
 from test_ingest_formats_e2e import manifest
 
 from pipelines.ingest import IngestError, discover_runs, load_run
-from pipelines.ingest.csv_reader import read_csv
+from pipelines.ingest.csv_reader import read_csv, read_csv_sections
 from pipelines.ingest.data_format import FormatSpec
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
@@ -78,3 +78,28 @@ def test_counter_going_back_inside_a_section_names_the_line(tmp_path: Path) -> N
     with pytest.raises(IngestError, match=r"line 10: field 'samples': time not strictly") as err:
         load_run(discover_runs([folder])[0])
     assert err.value.file == str(folder / "session.csv")
+
+
+@pytest.mark.parametrize("restart", [True, False])
+def test_time_is_checked_across_blocks_and_restarts_with_a_section(
+    tmp_path: Path, monkeypatch, restart: bool
+) -> None:
+    """Read in 4 kB slices of 64 lines of 64 bytes: section b's counter restarts at the
+    first row of a slice (row 64) and is read; the same counter inside one section is
+    refused at that row, the line after the previous slice's last."""
+    from pipelines.ingest import csv_reader
+
+    monkeypatch.setattr(csv_reader, "SLICE_BYTES", 4096)
+    rows = [("a", k) for k in range(64)] + [("b" if restart else "a", k) for k in range(64)]
+    lines = [f"{p},{k:07d},0.100000,0.200000,9.800000,0.010000,0.020000,0.030000" for p, k in rows]
+    assert {len(line) for line in lines} == {63}
+    path = tmp_path / "s.csv"
+    path.write_text("\n".join(["part,samples,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z", *lines]) + "\n")
+    fmt = FormatSpec(**FORMAT)  # the section column: "part", recognised
+    if not restart:
+        with pytest.raises(IngestError, match=r"line 66: field 'samples': time not strictly"):
+            read_csv_sections(path, fmt)
+        return
+    parts = read_csv_sections(path, fmt)
+    assert list(parts) == ["a", "b"]
+    assert np.array_equal(parts["b"].t, np.arange(64) / RATE_HZ)

@@ -7,21 +7,19 @@ a header) or, when the manifest names none, are recognised among common names
 counts with a per-axis scale and offset; time in s/ms/us/ns, MATLAB datenum,
 ISO-8601 text, a sample index, or no time column at all (``sample_rate_hz``).
 
-Speed and memory: only the needed columns are parsed, straight to float64,
-by pyarrow's multithreaded parser over memory-mapped `SLICE_BYTES` slices of
-the file (whitespace-separated text by pandas' C parser in chunks of rows).
-The output arrays are allocated once (for an estimate of the row count; their
-untouched tail takes no memory), each slice is copied straight into its
-place and dropped, so the peak memory is the decoded arrays plus about one
-slice, whatever the size of the file (a multi-hour 1 kHz log). Files above
-`PROGRESS_THRESHOLD_BYTES` show a progress bar on stderr. Only when a block
-holds a problem is the file read again as text, in chunks, to name the first
-bad line and column.
-
-`stream_csv` is the same reader on the streamed route (a static record larger than the
-run's memory limit): the file's blocks, hashed and copied as they are read, parsed with
-the same options, converted and checked block by block, go to the samples' Parquet
-(`pipelines.ingest.streamed_pass`) instead of the arrays.
+One chunk loop (`csv_chunks`) serves both routes: each block of the data lines is parsed
+(only the needed columns, straight to float64, by pyarrow's multithreaded parser;
+whitespace-separated text by pandas' C parser in chunks of rows), checked and converted
+to SI in the rows its caller gives, and dropped before the next block is parsed. Read
+into memory (`read_csv`), those rows are slices of output arrays allocated once (for an
+estimate of the row count; their untouched tail takes no memory) and the blocks are
+memory-mapped `SLICE_BYTES` slices of the file: the peak memory is the decoded arrays
+plus about one slice, whatever the size of the file (a multi-hour 1 kHz log). Streamed
+(`stream_csv`: a static record larger than the run's memory limit), the blocks are read,
+hashed and copied as they come (`blocks`) and each chunk goes to the samples' Parquet
+(`pipelines.ingest.streamed_pass`). Files above `PROGRESS_THRESHOLD_BYTES` show progress
+on stderr. Only when a block holds a problem is the file read again as text, in chunks,
+to name the first bad line and column.
 
 The column plan of a file (which column is which role, header units) is
 pipelines.ingest.csv_layout; naming the first bad line, pipelines.ingest.csv_diagnosis.
@@ -31,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import mmap
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
@@ -45,7 +43,7 @@ from calib_core.recording import Recording
 from calib_core.units import acceleration_factor, angular_rate_factor, time_factor
 from pipelines.ingest.csv_diagnosis import PANDAS_CHUNK_ROWS, diagnose
 from pipelines.ingest.csv_dialect import split_unit
-from pipelines.ingest.csv_layout import AXES, CHANNELS, CsvLayout, header_units, layout_of
+from pipelines.ingest.csv_layout import AXES, CsvLayout, header_units, layout_of
 from pipelines.ingest.data_format import COUNTS, PROGRESS_THRESHOLD_BYTES, FormatSpec
 from pipelines.ingest.errors import IngestError
 from pipelines.ingest.log_samples import impossible_reading
@@ -140,19 +138,16 @@ def _read(
     """(Recording, section codes per row or None, layout) of a whole file."""
     layout = layout_of(path, fmt, sections=sections)
     fmt = header_units(layout, fmt)
-    data = _read_columns(layout, fmt, progress)
+    data = _joined(layout, fmt, progress)
     codes = data.pop("section", None)
-    t = _time(layout, fmt, data.pop("time", None), len(data["acc"]), codes)
-    acc = sensor_si(data.pop("acc"), "acc", fmt)
-    gyr = sensor_si(data.pop("gyr"), "gyr", fmt)
-    temp = temperature_celsius(layout, data.pop("temp", None))
+    t, acc, gyr, temp = data.pop("t"), data.pop("acc"), data.pop("gyr"), data.pop("temp", None)
     reference = {role[4:]: v for role, v in data.items() if role.startswith("ref:")}
     rec = Recording(t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=str(path))
     return rec, codes, layout
 
 
 def temperature_celsius(layout: CsvLayout, temp: np.ndarray | None) -> np.ndarray | None:
-    """Temperature in deg C from the header's unit (degC, K or degF; none: degC)."""
+    """Temperature in deg C from the header's unit (degC, K or degF; none: degC), in place."""
     if temp is None:
         return None
     unit = split_unit(layout.roles["temp"])[1] or "degC"
@@ -164,8 +159,11 @@ def temperature_celsius(layout: CsvLayout, temp: np.ndarray | None) -> np.ndarra
             line=layout.data_start - 1,
             field=layout.roles["temp"],
         )
-    scale, offset = TEMPERATURE_UNITS[unit]
-    return temp * scale + offset if unit != "degC" else temp
+    if unit != "degC":
+        scale, offset = TEMPERATURE_UNITS[unit]
+        temp *= scale
+        temp += offset
+    return temp
 
 
 def read_csv_pair(
@@ -184,10 +182,10 @@ def read_csv_pair(
     """
     acc_layout = layout_of(Path(acc_path), fmt, ("acc",))
     gyr_layout = layout_of(Path(gyr_path), fmt, ("gyr",))
-    acc_data = _read_columns(acc_layout, fmt, progress)
-    t = _time(acc_layout, fmt, acc_data.pop("time", None), len(acc_data["acc"]))
-    gyr_data = _read_columns(gyr_layout, fmt, progress)
-    t_gyr = _time(gyr_layout, fmt, gyr_data.pop("time", None), len(gyr_data["gyr"]))
+    acc_data = _joined(acc_layout, fmt, progress)
+    t = acc_data.pop("t")
+    gyr_data = _joined(gyr_layout, fmt, progress)
+    t_gyr = gyr_data.pop("t")
     if len(t_gyr) != len(t):
         raise IngestError(
             f"has {len(t_gyr)} samples but the accelerometer file {acc_layout.path.name} has "
@@ -205,9 +203,7 @@ def read_csv_pair(
             line=gyr_layout.line_of_row(i),
         )
     del t_gyr
-    acc = sensor_si(acc_data.pop("acc"), "acc", fmt)
-    gyr = sensor_si(gyr_data.pop("gyr"), "gyr", fmt)
-    temp = acc_data.pop("temp", None)
+    acc, gyr, temp = acc_data.pop("acc"), gyr_data.pop("gyr"), acc_data.pop("temp", None)
     reference = {role[4:]: v for role, v in acc_data.items() if role.startswith("ref:")}
     return Recording(
         t=t, acc=acc, gyr=gyr, temp=temp, reference=reference, source=f"{acc_path} + {gyr_path}"
@@ -225,112 +221,184 @@ def estimate_rows(path: Path, data_start: int) -> int:
     return int(size / (sum(map(len, lines)) / len(lines) + 1)) + 1
 
 
-def _read_columns(
-    layout: CsvLayout, fmt: FormatSpec, progress: bool | None
-) -> dict[str, np.ndarray]:
-    """Parse the file once, filling preallocated output arrays as the blocks come.
+def _joined(layout: CsvLayout, fmt: FormatSpec, progress: bool | None) -> dict[str, np.ndarray]:
+    """The file's chunks (`csv_chunks`) joined in place in preallocated arrays.
 
     Returns
     -------
-    {"time": (N,) raw time values (ISO text already as Unix s), "acc": (N, 3),
-    "gyr": (N, 3) raw values, "temp": (N,), "ref:<name>": (N,)}, for the roles
-    this file has; every value finite. Each sample is copied once, from the
-    parser's block straight into its place. The arrays are allocated for 25 %
-    more rows than `estimate_rows` and returned as views of the rows read: the
-    pages of unused rows are never touched, so they take no memory (a rare
-    file whose later lines are much shorter makes them grow, with one copy).
+    {"t": (N,) s, "acc": (N, 3) m/s^2, "gyr": (N, 3) rad/s, "temp": (N,) deg C,
+    "ref:<name>": (N,), "section": (N,) codes}, for the roles this file has; checked.
+    Each sample is copied once, from the parser's block straight into its place. The
+    arrays are allocated for 25 % more rows than `estimate_rows` and returned as views of
+    the rows read: the pages of unused rows are never touched, so they take no memory (a
+    rare file whose later lines are much shorter makes them grow, with one copy).
     """
-    iso_column = layout.roles.get("time") if fmt.time_unit == "iso" else None
     capacity = int(estimate_rows(layout.path, layout.data_start) * 1.25) + 1024
-    # role -> (output array, column index in it or None)
-    out: dict[str, np.ndarray] = {}
-    target: dict[str, tuple[str, int | None]] = {}
-    for role in layout.roles:
-        sensor, _, axis = role.partition("_")
-        if sensor in ("acc", "gyr") and axis in AXES:
-            out.setdefault(sensor, np.empty((capacity, 3)))
-            target[role] = (sensor, AXES.index(axis))
-        else:
-            out[role] = np.empty(capacity)
-            target[role] = (role, None)
-    columns = list(dict.fromkeys(layout.roles.values()))
+    out = {
+        key: np.empty((capacity, 3) if key in ("acc", "gyr") else capacity) for key in _keys(layout)
+    }
+    rows = 0
+
+    def rows_of(start: int, n: int) -> dict[str, np.ndarray]:
+        nonlocal capacity, rows
+        if start + n > capacity:
+            capacity = 2 * (start + n)
+            for key, array in out.items():
+                out[key] = np.empty((capacity, *array.shape[1:]))
+                out[key][:start] = array[:start]
+        rows = start + n
+        return {key: array[start:rows] for key, array in out.items()}
+
     size = layout.path.stat().st_size
     show = size > PROGRESS_THRESHOLD_BYTES if progress is None else progress
-    rows = 0
     with _progress(layout.path, size, show) as advance:
-        for batch, consumed in _batches(layout, columns, iso_column):
-            n = len(next(iter(batch.values())))
-            if rows + n > capacity:
-                capacity = 2 * (rows + n)
-                for key, array in out.items():
-                    grown = np.empty((capacity, *array.shape[1:]))
-                    grown[:rows] = array[:rows]
-                    out[key] = grown
-            for role, name in layout.roles.items():
-                values = batch[name]
-                # A NaN or an infinity makes the sum non-finite: one pass, no temporary
-                # array. A sum overflowing from finite values goes to the exact test.
-                with np.errstate(over="ignore"):
-                    suspect = not np.isfinite(values.sum())
-                bad = np.flatnonzero(~np.isfinite(values)) if suspect else ()
-                if len(bad):
-                    diagnose(layout, columns, iso_column, rows)
-                    raise IngestError(  # not reached unless the diagnosis disagrees
-                        f"expected a finite number, got {values[bad[0]]!r}",
-                        file=layout.path,
-                        line=layout.line_of_row(rows + int(bad[0])),
-                        field=layout.fields[name],
-                    )
-                key, col = target[role]
-                if col is None:
-                    out[key][rows : rows + n] = values
-                else:
-                    out[key][rows : rows + n, col] = values
-            rows += n
+        texts = _slices(layout.path, layout.data_start)
+        for _, consumed in csv_chunks(layout, fmt, texts, rows_of):
             advance(consumed)
     if rows == 0:
         raise IngestError("no data rows", file=layout.path)
     return {key: array[:rows] for key, array in out.items()}
 
 
-def _batches(
-    layout: CsvLayout, columns: list[str], iso_column: str | None
+def _keys(layout: CsvLayout) -> list[str]:
+    """The arrays a chunk of this file fills: t, and acc, gyr, temp, ref:<name>, section
+    for the roles it has."""
+    keys = ["t"]
+    for role in layout.roles:
+        sensor, _, axis = role.partition("_")
+        key = sensor if sensor in ("acc", "gyr") and axis in AXES else role
+        if key != "time" and key not in keys:
+            keys.append(key)
+    return keys
+
+
+def csv_chunks(
+    layout: CsvLayout,
+    fmt: FormatSpec,
+    texts: Iterable[tuple[Any, int]],
+    rows_of: Callable[[int, int], dict[str, np.ndarray]],
+    *,
+    readings: bool = False,
 ) -> Iterator[tuple[dict[str, np.ndarray], int]]:
-    """Blocks of the file as ({column: float64 array}, bytes read so far).
+    """The one chunk loop of both routes: each block of the data lines parsed, checked and
+    converted to SI in ``rows_of(its first row, its rows)`` (`_keys`' arrays); yields
+    those arrays and the bytes read so far.
 
-    An ISO time column comes as Unix seconds.
+    Parameters
+    ----------
+    layout, fmt : the file's column plan and the manifest's format section.
+    texts : (block of whole data lines, bytes read so far); whitespace-separated text is
+        read from the file by pandas instead.
+    rows_of : the arrays to fill for rows [start, start + n) of the file.
+    readings : also refuse an acc or gyr reading beyond what any IMU measures (in memory,
+        run_loader's check_readings does it for every format).
 
-    Delimited text is parsed slice by slice (`_slices`); whitespace-separated
-    text goes through pandas' C parser in chunks of rows.
+    Raises
+    ------
+    IngestError naming the file, line and column: text that does not parse, a value that
+    is not a finite number, a reading no IMU makes, time that does not increase (within
+    each section; across blocks too).
     """
-    if layout.delimiter == "whitespace":
-        yield from _pandas_batches(layout, columns, iso_column)
-        return
+    iso = layout.roles.get("time") if fmt.time_unit == "iso" else None
+    columns = list(dict.fromkeys(layout.roles.values()))
+    rows, last = 0, None
+    for table, consumed in _tables(layout, columns, iso, texts):
+        chunk = rows_of(rows, len(table))
+        _fill(table, layout, chunk, rows, columns, iso)
+        del table  # freed before the next block is parsed: one block's buffers at a time
+        for sensor in ("acc", "gyr"):
+            if sensor in chunk:
+                sensor_si(chunk[sensor], sensor, fmt)
+        temperature_celsius(layout, chunk.get("temp") if "temp" in layout.roles else None)
+        if readings:
+            _check_readings(layout, chunk, rows)
+        _time(layout, fmt, chunk, rows, last)
+        last = chunk["t"][-1], chunk["section"][-1] if "section" in chunk else None
+        rows += len(chunk["t"])
+        yield chunk, consumed
+
+
+def _tables(
+    layout: CsvLayout, columns: list[str], iso: str | None, texts: Iterable[tuple[Any, int]]
+) -> Iterator[tuple[Any, int]]:
+    """Each non-empty block of the data lines parsed (`columns` only, as float64; the ISO
+    time and section columns as text), with the bytes read so far: delimited text from
+    `texts` by pyarrow's multithreaded parser (a Table), whitespace-separated text by
+    pandas' C parser in chunks of rows (a DataFrame)."""
     section = layout.roles.get("section")
-    options = arrow_options(layout, columns, (iso_column, section))
-    try:
-        for text, consumed in _slices(layout.path, layout.data_start):
-            table = pacsv.read_csv(pa.BufferReader(text), *options)
-            # Record batch by record batch: each column is then one Arrow array, viewed
-            # without a copy (a whole-table column would be concatenated first). Nulls
-            # (empty cells, "nan") become NaN here and are reported by the caller.
-            for batch in table.to_batches():
-                yield (
-                    {
-                        c: iso_seconds(batch.column(c))
-                        if c == iso_column
-                        else _codes(layout, batch.column(c))
-                        if c == section
-                        else float_values(batch.column(c))
-                        for c in columns
-                    },
-                    consumed,
+    if layout.delimiter == "whitespace":
+        yield from _pandas_frames(layout, columns, (iso, section))
+        return
+    options = arrow_options(layout, columns, (iso, section))
+    rows = 0
+    for text, consumed in texts:
+        try:
+            table = pacsv.read_csv(pa.py_buffer(text), *options)
+        except pa.ArrowInvalid as exc:
+            # Text in a numeric column, a row with too many fields, ...: find it.
+            diagnose(layout, columns, iso, rows)
+            raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
+        rows += table.num_rows
+        if table.num_rows:  # not blank lines only
+            yield table, consumed
+        del table  # not held while the next block is parsed
+
+
+def _fill(
+    table: Any,
+    layout: CsvLayout,
+    chunk: dict[str, np.ndarray],
+    rows: int,
+    columns: list[str],
+    iso: str | None,
+) -> None:
+    """A parsed block's columns (a pyarrow Table or a pandas DataFrame) copied into their
+    places in `chunk`, an ISO time as Unix s, section names as codes; `rows`: its first
+    row in the file. Raises IngestError at the first value that is not a finite number."""
+    for role, name in layout.roles.items():
+        sensor, _, axis = role.partition("_")
+        if sensor in ("acc", "gyr") and axis in AXES:
+            out = chunk[sensor][:, AXES.index(axis)]
+        else:
+            out = chunk["t" if role == "time" else role]
+        column = table.column(name) if isinstance(table, pa.Table) else table[name].to_numpy()
+        if name == iso:
+            parts = [iso_seconds(column)]
+        elif role == "section":
+            parts = [_codes(layout, column)]
+        elif isinstance(column, pa.ChunkedArray):  # no combined Arrow column: one copy
+            parts = [float_values(part) for part in column.chunks]
+        else:
+            parts = [column]
+        start = 0
+        for values in parts:
+            # A NaN or an infinity makes the sum non-finite: one pass, no temporary array.
+            # A sum overflowing from finite values goes to the exact test.
+            with np.errstate(over="ignore"):
+                suspect = not np.isfinite(values.sum())
+            bad = np.flatnonzero(~np.isfinite(values)) if suspect else ()
+            if len(bad):
+                diagnose(layout, columns, iso, rows)
+                raise IngestError(  # not reached unless the diagnosis disagrees
+                    f"expected a finite number, got {values[bad[0]]!r}",
+                    file=layout.path,
+                    line=layout.line_of_row(rows + start + int(bad[0])),
+                    field=layout.fields[name],
                 )
-            del table
-    except pa.ArrowInvalid as exc:
-        # Text in a numeric column, a row with too many fields, ...: find it.
-        diagnose(layout, columns, iso_column, 0)
-        raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
+            out[start : start + len(values)] = values
+            start += len(values)
+
+
+def _check_readings(layout: CsvLayout, chunk: dict[str, np.ndarray], rows: int) -> None:
+    """IngestError at the first acc or gyr reading of a chunk beyond what any IMU measures,
+    naming its line and column."""
+    empty = np.empty((0, 3))
+    found = impossible_reading({key: chunk.get(key, empty) for key in ("acc", "gyr")})
+    if found is not None:
+        sensor, i, text = found
+        axis = AXES[int(np.argmax(np.abs(chunk[sensor][i])))]
+        field = layout.fields[layout.roles[f"{sensor}_{axis}"]]
+        raise IngestError(text, file=layout.path, line=layout.line_of_row(rows + i), field=field)
 
 
 def arrow_options(
@@ -348,7 +416,7 @@ def arrow_options(
     )
 
 
-def _slices(path: Path, data_start: int) -> Iterator[tuple[pa.Buffer, int]]:
+def _slices(path: Path, data_start: int) -> Iterator[tuple[memoryview, int]]:
     """The data lines of a file as `SLICE_BYTES` slices cut at line ends, with bytes consumed.
 
     The file is memory-mapped, so a slice is parsed where it lies (no copy), and its pages
@@ -374,7 +442,7 @@ def _slices(path: Path, data_start: int) -> Iterator[tuple[pa.Buffer, int]]:
         if end < size:
             cut = m.rfind(b"\n", start, end)
             end = cut + 1 if cut >= 0 else (m.find(b"\n", end) + 1 or size)
-        yield pa.py_buffer(view[start:end]), end
+        yield view[start:end], end
         page_start = start - start % mmap.PAGESIZE
         m.madvise(mmap.MADV_DONTNEED, page_start, end - page_start)
         start = end
@@ -419,14 +487,14 @@ def iso_seconds(text: pa.Array | np.ndarray) -> np.ndarray:
     return seconds
 
 
-def _pandas_batches(
-    layout: CsvLayout, columns: list[str], iso_column: str | None
-) -> Iterator[tuple[dict[str, np.ndarray], int]]:
-    """Whitespace-separated text through pandas' C parser, in chunks of rows."""
+def _pandas_frames(
+    layout: CsvLayout, columns: list[str], text: tuple[str | None, ...]
+) -> Iterator[tuple[Any, int]]:
+    """Whitespace-separated text through pandas' C parser, in chunks of rows (the `text`
+    columns as strings), with the bytes read so far."""
     import pandas as pd
 
-    section = layout.roles.get("section")
-    dtypes = {c: ("str" if c in (iso_column, section) else "float64") for c in columns}
+    dtypes = {c: ("str" if c in text else "float64") for c in columns}
     try:
         with layout.path.open("rb") as fh:  # its position tells the progress
             reader = pd.read_csv(
@@ -444,17 +512,10 @@ def _pandas_batches(
             )
             with reader:
                 for frame in reader:
-                    batch = {
-                        c: iso_seconds(frame[c].to_numpy())
-                        if c == iso_column
-                        else _codes(layout, frame[c].to_numpy())
-                        if c == section
-                        else frame[c].to_numpy(dtype=np.float64)
-                        for c in columns
-                    }
-                    yield batch, fh.tell()
+                    yield frame, fh.tell()
+                    del frame  # not held while the next chunk is parsed
     except (ValueError, pd.errors.ParserError) as exc:
-        diagnose(layout, columns, iso_column, 0)
+        diagnose(layout, columns, text[0], 0)
         raise IngestError(f"cannot parse the file: {exc}", file=layout.path) from None
 
 
@@ -565,28 +626,24 @@ def stream_csv(
     if layout.delimiter == "whitespace" or "section" in layout.roles:
         raise IngestError("the streamed route reads delimited text of one record only", file=path)
     fmt = header_units(layout, fmt)
-    iso = layout.roles.get("time") if fmt.time_unit == "iso" else None
-    columns = list(dict.fromkeys(layout.roles.values()))
-    parsing = arrow_options(layout, columns, (iso,))
-    last_t = None
+
+    def rows_of(start: int, n: int) -> dict[str, np.ndarray]:
+        # [gyr | acc]: the first pass takes it without a copy; column by column in memory,
+        # so each column is filled, reduced and handed to Arrow without a strided copy
+        both = np.empty((n, 6), order="F")
+        chunk = {key: np.empty(n) for key in _keys(layout) if key not in ("acc", "gyr")}
+        return {"temp": np.full(n, np.nan), **chunk, "gyr": both[:, :3], "acc": both[:, 3:]}
+
     with streamed_pass(path, samples, **options) as run:
         fh, sink = run.fh, run.sink
         head = b"".join(fh.readline() for _ in range(layout.data_start - 1))
         run.sha.update(head)
         if run.copy is not None:
             run.copy.write(head)
+        texts = blocks(fh, block_bytes(run.memory_limit), run.copy, run.sha)
         done = len(head)
-        for text in blocks(fh, block_bytes(run.memory_limit), run.copy, run.sha):
-            done += len(text)
-            try:
-                table = pacsv.read_csv(pa.py_buffer(text), *parsing)
-            except pa.ArrowInvalid as exc:
-                diagnose(layout, columns, iso, sink.done)  # the line and field, as in memory
-                raise IngestError(f"cannot parse the file: {exc}", file=path) from None
-            if table.num_rows == 0:  # blank lines only
-                continue
-            chunk = csv_chunk(table, layout, fmt, iso, sink.done, path, last_t)
-            last_t = float(chunk["t"][-1])
+        texts = ((text, done := done + len(text)) for text in texts)
+        for chunk, _ in csv_chunks(layout, fmt, texts, rows_of, readings=True):
             sink.write(chunk)
             run.bar.update(done, sink.done)
         sink.finish()  # the last chunk's motion windows (computed beside the reading)
@@ -595,96 +652,30 @@ def stream_csv(
     return run.result()
 
 
-def csv_chunk(
-    table: pa.Table, layout, fmt: FormatSpec, iso, rows: int, path: Path, last_t: float | None
-) -> dict[str, np.ndarray]:
-    """One block's samples in SI: t (n,), acc and gyr (n, 3), temp (n,) (NaN if none)."""
-    n = table.num_rows
-    # [gyr | acc]: the first pass takes it without a copy; column by column in memory, so
-    # each column is filled, reduced and handed to Arrow without a strided copy. The
-    # parser's chunks are copied straight into it (one copy, no combined Arrow column).
-    both = np.empty((n, 6), order="F")
-    values: dict[str, np.ndarray] = {}
-    for role, name in layout.roles.items():
-        col = table.column(name)
-        if name == iso:
-            v = iso_seconds(col.combine_chunks())
-        else:
-            v = both[:, CHANNELS.index(role)] if role in CHANNELS else np.empty(n)
-            _copy_values(col, v)
-        bad = np.flatnonzero(~np.isfinite(v))
-        if bad.size:
-            raise IngestError(
-                "expected a finite number",
-                file=path,
-                line=layout.line_of_row(rows + int(bad[0])),
-                field=layout.fields[name],
-            )
-        values[role] = v
-    gyr = sensor_si(both[:, :3], "gyr", fmt)
-    acc = sensor_si(both[:, 3:], "acc", fmt)
-    found = impossible_reading({"acc": acc, "gyr": gyr})
-    if found is not None:  # the in-memory route's check (run_loader: check_readings)
-        name, i, text = found
-        raise IngestError(text, file=path, line=layout.line_of_row(rows + i), field=name)
-    if "time" in values:
-        t = values["time"]
-        if fmt.time_unit == "samples":
-            t = t / fmt.sample_rate_hz
-        elif fmt.time_unit != "iso":
-            t = seconds(t, fmt.time_unit)
-    else:
-        t = (rows + np.arange(n)) / fmt.sample_rate_hz
-    steps = np.diff(t, prepend=-np.inf if last_t is None else last_t)
-    if (steps <= 0).any():
-        row = rows + int(np.flatnonzero(steps <= 0)[0])
-        field = layout.fields.get(layout.roles.get("time", ""), "time")
-        raise IngestError(
-            "time must increase", file=path, line=layout.line_of_row(row), field=field
-        )
-    temp = temperature_celsius(layout, values.get("temp"))
-    return {"t": t, "acc": acc, "gyr": gyr, "temp": np.full(n, np.nan) if temp is None else temp}
-
-
-def _copy_values(column: pa.ChunkedArray, out: np.ndarray) -> None:
-    """A float64 column's values into out (n,), chunk by chunk (nulls as NaN)."""
-    start = 0
-    for chunk in column.chunks:
-        out[start : start + len(chunk)] = float_values(chunk)
-        start += len(chunk)
-
-
 # --- conversion to SI ----------------------------------------------------------------
-
-
-def seconds(values: np.ndarray, unit: str) -> np.ndarray:
-    """Time values in `unit` (s, ms, us, ns, or MATLAB ``datenum`` days) as seconds.
-
-    datenum becomes Unix seconds: (dn - 719529) * 86400.
-    """
-    if unit == "datenum":
-        return (values - MATLAB_UNIX_EPOCH_DATENUM) * 86400.0
-    return values * time_factor(unit)
 
 
 def _time(
     layout: CsvLayout,
     fmt: FormatSpec,
-    raw: np.ndarray | None,
-    n: int,
-    sections: np.ndarray | None = None,
-) -> np.ndarray:
-    """Time in s from the raw time column, converted in place, or from the sample rate.
-
-    `sections` (one code per row) makes each section a time base of its own: a sample
-    counter may restart in every section, time is checked within each.
+    chunk: dict[str, np.ndarray],
+    rows: int,
+    last: tuple[float, float | None] | None,
+) -> None:
+    """A chunk's time in s, converted in place (MATLAB datenum to Unix s: (dn - 719529) *
+    86400), or from the sample rate; `rows`: its first row in the file, `last`: the
+    previous chunk's last time and section code. A section (``chunk["section"]``, one
+    code per row) is a time base of its own: a sample counter may restart in every
+    section, time is checked within each.
 
     Raises IngestError at the first row whose time is not after the previous one (of
-    its section).
+    its section), this chunk's first row after the previous chunk's last one.
     """
-    if raw is None:  # no time column: the sample index at the manifest's rate
-        return np.arange(n) / fmt.sample_rate_hz
-    t = raw
+    t = chunk["t"]
+    if "time" not in layout.roles:  # no time column: the sample index at the manifest's rate
+        t[:] = np.arange(rows, rows + len(t))
+        t /= fmt.sample_rate_hz
+        return
     if fmt.time_unit == "samples":
         t /= fmt.sample_rate_hz
     elif fmt.time_unit == "datenum":
@@ -692,15 +683,13 @@ def _time(
         t *= 86400.0
     elif fmt.time_unit != "iso" and fmt.time_unit != "s":
         t *= time_factor(fmt.time_unit)
-    check_time_increases(
-        t,
-        file=layout.path,
-        sample="row",
-        line_of=layout.line_of_row,
-        field=layout.fields[layout.roles["time"]],
-        restarts=None if sections is None else np.r_[True, sections[1:] != sections[:-1]],
-    )
-    return t
+    codes = chunk.get("section")
+    field = layout.fields[layout.roles["time"]]
+    where = {"file": layout.path, "sample": "row", "line_of": layout.line_of_row, "field": field}
+    if last is not None and (codes is None or codes[0] == last[1]):
+        check_time_increases(np.array([last[0], t[0]]), offset=rows - 1, **where)
+    restarts = None if codes is None else np.r_[True, codes[1:] != codes[:-1]]
+    check_time_increases(t, restarts=restarts, offset=rows, **where)
 
 
 def sensor_si(values: np.ndarray, sensor: str, fmt: FormatSpec) -> np.ndarray:
