@@ -479,6 +479,22 @@ def solve_centrifuge(
     return model, _step_record(settings, means, model)
 
 
+def _radius_groups(radius: dict[str, Estimate], common: bool) -> list[list[str]]:
+    """The positions that share one radius: all of them for a common radius, else each."""
+    return [list(radius)] if common else [[m] for m in radius]
+
+
+def _scaled(
+    radius: dict[str, Estimate], groups: list[list[str]], factors: Sequence[float]
+) -> dict[str, Estimate]:
+    """The radii with each group's multiplied by its factor (uncertainties kept)."""
+    return {
+        m: Estimate(radius[m].value * f, radius[m].std)
+        for g, f in zip(groups, factors, strict=True)
+        for m in g
+    }
+
+
 def _with_radius_covariance(
     axes: dict[str, AxisModel],
     rows: Rows,
@@ -503,7 +519,7 @@ def _with_radius_covariance(
     1 +- `step`; d coef / d ln R times the radius's relative uncertainty adds
     s s^T (u_R / R)^2, the groups' radii being independent.
     """
-    groups = [list(radius)] if settings.common_radius else [[m] for m in radius]
+    groups = _radius_groups(radius, settings.common_radius)
     g = settings.gravity
     step_mounts = np.array([m for m, _, _ in rows])
     f, E, dphi = _regression(rows, radius, phi_h, g, omega_v)
@@ -517,10 +533,8 @@ def _with_radius_covariance(
         for group in groups:
             coefs = []
             for sign in (1.0, -1.0):
-                scaled = {
-                    k: Estimate(r.value * (1.0 + sign * step if k in group else 1.0), r.std)
-                    for k, r in radius.items()
-                }
+                factors = [1.0 + sign * step if other is group else 1.0 for other in groups]
+                scaled = _scaled(radius, groups, factors)
                 fs, Es, dphis = _regression(rows, scaled, phi_h, g, omega_v)
                 X = _columns(names, i, step_mounts, fs, dphis)
                 fit = fit_ols(X, Es[:, i] - fs[:, i], names, add_constant=True, weights=w)
@@ -556,7 +570,7 @@ def _joint_radius(
     The standard uncertainty is that of the Gauss-Newton normal equations scaled by the
     residual variance (as `fit_ols`'s). Returns radius per position, m.
     """
-    groups = [list(radius)] if settings.common_radius else [[m] for m in radius]
+    groups = _radius_groups(radius, settings.common_radius)
     g, mounts = settings.gravity, np.array([m for m, _, _ in rows])
     sem = np.array([mean.acc_std for _, _, mean in rows])
     f0, E, _ = _regression(rows, radius, phi_h, g, omega_v)
@@ -577,12 +591,7 @@ def _joint_radius(
     }
 
     def residuals(log_r: np.ndarray) -> tuple[np.ndarray, int]:
-        scaled = {
-            m: Estimate(radius[m].value * math.exp(log_r[k]), 0.0)
-            for k, group in enumerate(groups)
-            for m in group
-        }
-        f, _, dphi = _regression(rows, scaled, phi_h, g, omega_v)
+        f, _, dphi = _regression(rows, _scaled(radius, groups, np.exp(log_r)), phi_h, g, omega_v)
         out, p = [], len(groups)
         for i, a in enumerate(AXES):
             X = _columns(names[a], i, mounts, f, dphi)
