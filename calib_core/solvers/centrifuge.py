@@ -642,7 +642,17 @@ def _fit_axis(
     names = (*nuisance, *terms)
     X = _columns(names, i, step_mounts, f, dphi)
     y = E[:, i] - f[:, i]
-    w, kappa = step_weights(X, y, names, sem[:, i], f[:, i], _instability_of(settings, axis))
+    try:
+        w, kappa = step_weights(X, y, names, sem[:, i], f[:, i], _instability_of(settings, axis))
+    except ValueError as exc:
+        if settings.radius_from != "all_records":
+            raise
+        raise ValueError(
+            f'axis {axis}: {exc}. With radius_from = "all_records" the zero outputs and '
+            "near-1 g runs are rows of the fit, and a bias that moves from record to record "
+            'cannot pass for a scale instability there; radius_from = "near_1g" fits the '
+            "high-g steps alone (docs/methods.md 2.8)"
+        ) from None
     red = stepwise_reduce(
         X,
         y,
