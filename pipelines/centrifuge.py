@@ -169,7 +169,12 @@ def render_report(
         f"Omega_V = {model.omega_v:.4e} rad/s, alpha = {settings.alpha:g} "
         f"({settings.t_test} t test, reduction steered by {settings.steer})",
         "",
-        "GEOMETRY (value +- standard uncertainty)",
+        "GEOMETRY (value +- standard uncertainty; R used: "
+        + (
+            "from the near-1 g runs)"
+            if settings.radius_from == "near_1g"
+            else "refined with the models over all records)"
+        ),
         f"{'position':<9}{'R 1 g run, m':>24}{'R used, m':>24}"
         f"{'phi_h 1 g, mrad':>22}{'phi_h fit, mrad':>22}",
     ]

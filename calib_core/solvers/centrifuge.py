@@ -55,10 +55,14 @@ things make the reduction keep the true terms and only those:
   the residuals with g passes for cubic and quadratic terms.
 
 Limits the data impose (say so to users):
-- R and the radial axis's gain cannot be separated by a centrifuge; the
+- R and the radial axis's gain are hard to separate on a centrifuge; the
   1 g scale error of each axis (``acc.scale.i`` from a static calibration) is
   an input to the radius, and the remaining radius error goes one for one
-  into the fitted scale (its uncertainty includes the radius's).
+  into the fitted scale (its uncertainty includes the radius's). By default
+  (`radius_from = "all_records"`, docs/methods.md 2.8) the radius is refined
+  with every axis's model over all records, each axis's linear term held at
+  its 1 g scale, and the near-1 g runs and zero outputs are rows of the fits;
+  the paper's radius from the near-1 g runs alone is ``"near_1g"``.
 - Products of inputs need mountings with two non-zero horizontal inputs
   (e.g. the axis at 45 deg to the arm), which this procedure does not have.
 """
@@ -199,13 +203,35 @@ def _geometry(
     return phi_h, raw, radius
 
 
+Rows = list[tuple[str, float, RevolutionMean]]  # (mount, nominal g, mean) of each fitted row
+
+
+def _rows(means: _Means, settings: CentrifugeSettings) -> Rows:
+    """The records each axis's model is fitted to: the high-g steps; with the radius from
+    all records (`radius_from = "all_records"`) also each position's near-1 g run and its
+    zero output (the four table positions' mean, input g along up alone), which the
+    near-1 g radius uses up instead. A zero output measured before and after the run is
+    their mean, and the zero moved between them in a way not known: its standard
+    uncertainty adds |after - before| / (2 sqrt 3) (a rectangular distribution over the
+    change), so a zero that moved does not pass for a model term."""
+    if settings.radius_from == "near_1g":
+        return list(means.steps)
+    zeros = []
+    for m, (z, z_sem) in means.zero.items():
+        if m in means.zero_after:
+            moved = means.zero_after[m][0] - means.zero_before[m][0]
+            z_sem = np.hypot(z_sem, np.abs(moved) / (2.0 * math.sqrt(3.0)))
+        zeros.append((m, 0.0, RevolutionMean(z, z_sem, 0.0, 0.0, 0, 0)))
+    return [*zeros, *((m, 1.0, one) for m, one in means.one_g.items()), *means.steps]
+
+
 def _regression(
-    means: _Means, radius: dict[str, Estimate], phi_h: dict[str, Estimate], g: float, omega_v: float
+    rows: Rows, radius: dict[str, Estimate], phi_h: dict[str, Estimate], g: float, omega_v: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Inputs f (n, 3) and outputs E (n, 3) of all high-g steps in sensor axes,
-    and d f / d phi_h (n, 3) of each step (the phi_h nuisance columns)."""
+    """Inputs f (n, 3) and outputs E (n, 3) of the fitted rows in sensor axes,
+    and d f / d phi_h (n, 3) of each row (the phi_h nuisance columns)."""
     f, E, dphi = [], [], []
-    for mount, _, mean in means.steps:
+    for mount, _, mean in rows:
         a = centripetal_input(radius[mount].value, mean.rate, omega_v)
         phi = phi_h[mount].value
         P = MOUNTS[mount]
@@ -407,20 +433,25 @@ def solve_centrifuge(
     """
     omega_v = vertical_earth_rate(settings.latitude_deg)
     means = _collect(steps)
+    rows = _rows(means, settings)
     mounts = [m for m in MOUNTS if m in means.one_g]
-    g_levels = sorted({n_g for _, n_g, _ in means.steps})
+    g_levels = sorted({n_g for _, n_g, _ in rows})
     candidates = {
         a: identifiable_terms(a, mounts, g_levels, settings.common_radius, settings.gravity)
         for a in AXES
     }
-    step_mounts = np.array([m for m, _, _ in means.steps])
-    sem = np.array([mean.acc_std for _, _, mean in means.steps])
+    step_mounts = np.array([m for m, _, _ in rows])
+    sem = np.array([mean.acc_std for _, _, mean in rows])
     axes: dict[str, AxisModel] | None = None
     phi_fit: dict[str, Estimate] | None = None
+    joint: dict[str, Estimate] | None = None
     for _ in range(max(1, settings.iterations)):
         phi_1g, raw, radius = _geometry(means, settings, omega_v, axes, phi_fit)
         phi_used = phi_fit or phi_1g
-        f, E, dphi = _regression(means, radius, phi_used, settings.gravity, omega_v)
+        if axes and settings.radius_from == "all_records":
+            joint = _joint_radius(axes, rows, joint or radius, phi_used, settings, omega_v)
+            radius = joint
+        f, E, dphi = _regression(rows, radius, phi_used, settings.gravity, omega_v)
         axes, phi_fit = {}, {}
         for i, axis in enumerate(AXES):
             axes[axis] = _fit_axis(
@@ -430,9 +461,7 @@ def solve_centrifuge(
             for m, name in zip(_tangential_mounts(axis, mounts), axes[axis].nuisance, strict=True):
                 j = final.names.index(name)
                 phi_fit[m] = Estimate(phi_used[m].value + float(final.coef[j]), float(final.std[j]))
-    axes = _with_radius_covariance(
-        axes, means, radius, phi_used, settings, omega_v, step_mounts, sem
-    )
+    axes = _with_radius_covariance(axes, rows, radius, phi_used, settings, omega_v, sem)
     model = CentrifugeModel(
         axes=axes,
         radius=radius,
@@ -450,21 +479,39 @@ def solve_centrifuge(
     return model, _step_record(settings, means, model)
 
 
+def _radius_groups(radius: dict[str, Estimate], common: bool) -> list[list[str]]:
+    """The positions that share one radius: all of them for a common radius, else each."""
+    return [list(radius)] if common else [[m] for m in radius]
+
+
+def _scaled(
+    radius: dict[str, Estimate], groups: list[list[str]], factors: Sequence[float]
+) -> dict[str, Estimate]:
+    """The radii with each group's multiplied by its factor (uncertainties kept)."""
+    return {
+        m: Estimate(radius[m].value * f, radius[m].std)
+        for g, f in zip(groups, factors, strict=True)
+        for m in g
+    }
+
+
 def _with_radius_covariance(
     axes: dict[str, AxisModel],
-    means: _Means,
+    rows: Rows,
     radius: dict[str, Estimate],
     phi_h: dict[str, Estimate],
     settings: CentrifugeSettings,
     omega_v: float,
-    step_mounts: np.ndarray,
     sem: np.ndarray,
     step: float = 1e-5,
 ) -> dict[str, AxisModel]:
     """The axes' models with the covariance the effective radius adds (`AxisModel.radius_cov`).
 
-    The radius comes from the near-1 g runs and the zero records, outside the fitted
-    steps, and every input of a radial axis is proportional to it: a relative error
+    With `radius_from = "near_1g"` the radius comes from the near-1 g runs and the zero
+    records, outside the fitted steps; with "all_records" from the same rows as the
+    models (`_joint_radius`), some 25 times more precise, its small uncertainty added the
+    same way (its correlation with the coefficients left out). Every input of a radial
+    axis is proportional to the radius: a relative error
     eps moves the fitted scale by about -eps and, because the scale must also explain
     the up axis's input g, the bias by about eps g (as large as the bias's own noise at
     a 1e-4 radius). Each final model is refitted (its terms and weights fixed) with the
@@ -472,9 +519,10 @@ def _with_radius_covariance(
     1 +- `step`; d coef / d ln R times the radius's relative uncertainty adds
     s s^T (u_R / R)^2, the groups' radii being independent.
     """
-    groups = [list(radius)] if settings.common_radius else [[m] for m in radius]
+    groups = _radius_groups(radius, settings.common_radius)
     g = settings.gravity
-    f, E, dphi = _regression(means, radius, phi_h, g, omega_v)
+    step_mounts = np.array([m for m, _, _ in rows])
+    f, E, dphi = _regression(rows, radius, phi_h, g, omega_v)
     out = {}
     for i, axis in enumerate(AXES):
         m = axes[axis]
@@ -485,11 +533,9 @@ def _with_radius_covariance(
         for group in groups:
             coefs = []
             for sign in (1.0, -1.0):
-                scaled = {
-                    k: Estimate(r.value * (1.0 + sign * step if k in group else 1.0), r.std)
-                    for k, r in radius.items()
-                }
-                fs, Es, dphis = _regression(means, scaled, phi_h, g, omega_v)
+                factors = [1.0 + sign * step if other is group else 1.0 for other in groups]
+                scaled = _scaled(radius, groups, factors)
+                fs, Es, dphis = _regression(rows, scaled, phi_h, g, omega_v)
                 X = _columns(names, i, step_mounts, fs, dphis)
                 fit = fit_ols(X, Es[:, i] - fs[:, i], names, add_constant=True, weights=w)
                 if fit.names != m.fit.names:
@@ -499,6 +545,75 @@ def _with_radius_covariance(
             rel = radius[group[0]].std / radius[group[0]].value
             cov += np.outer(sens, sens) * rel**2
         out[axis] = replace(m, radius_cov=cov)
+    return out
+
+
+def _joint_radius(
+    axes: dict[str, AxisModel],
+    rows: Rows,
+    radius: dict[str, Estimate],
+    phi_h: dict[str, Estimate],
+    settings: CentrifugeSettings,
+    omega_v: float,
+    rounds: int = 3,
+    step: float = 1e-6,
+) -> dict[str, Estimate]:
+    """The effective radius refined with every axis's model over all fitted rows.
+
+    A centrifuge sees each radial axis's gain times the radius; with each axis's linear
+    term held at its 1 g scale (`scale_1g`, as the near-1 g radius does), every row whose
+    input has a radial part informs the radius, the high-g steps most (the input grows
+    with g, the noise of a mean does not). Gauss-Newton in ln R of each radius group (all
+    positions for a common radius, else each position) on the three axes' weighted
+    residuals stacked, each axis's other columns (its kept terms, the phi_h nuisances, the
+    constant; weights fixed at `radius`'s) refitted at every radius (variable projection).
+    The standard uncertainty is that of the Gauss-Newton normal equations scaled by the
+    residual variance (as `fit_ols`'s). Returns radius per position, m.
+    """
+    groups = _radius_groups(radius, settings.common_radius)
+    g, mounts = settings.gravity, np.array([m for m, _, _ in rows])
+    sem = np.array([mean.acc_std for _, _, mean in rows])
+    f0, E, _ = _regression(rows, radius, phi_h, g, omega_v)
+    held = {a: settings.scale_1g.get(a, 0.0) for a in AXES}
+    names = {a: [n for n in m.fit.names if n not in (CONST, f"a_{a}")] for a, m in axes.items()}
+    sqrt_w = {
+        a: np.sqrt(
+            step_weights(
+                np.empty((len(rows), 0)),
+                E[:, i],
+                [],
+                sem[:, i],
+                f0[:, i],
+                axes[a].scale_instability,
+            )[0]  # fmt: skip
+        )
+        for i, a in enumerate(AXES)
+    }
+
+    def residuals(log_r: np.ndarray) -> tuple[np.ndarray, int]:
+        f, _, dphi = _regression(rows, _scaled(radius, groups, np.exp(log_r)), phi_h, g, omega_v)
+        out, p = [], len(groups)
+        for i, a in enumerate(AXES):
+            X = _columns(names[a], i, mounts, f, dphi)
+            y = E[:, i] - (1.0 + held[a]) * f[:, i]
+            fit = fit_ols(X, y, names[a], add_constant=True, weights=sqrt_w[a] ** 2)
+            out.append(fit.residuals * sqrt_w[a])
+            p += len(fit.names)
+        return np.concatenate(out), p
+
+    log_r = np.zeros(len(groups))
+    for _ in range(rounds):
+        r0, p = residuals(log_r)
+        J = np.column_stack(
+            [(residuals(log_r + step * e)[0] - r0) / step for e in np.eye(len(groups))]
+        )
+        log_r = log_r - np.linalg.lstsq(J, r0, rcond=None)[0]
+    r0, p = residuals(log_r)
+    var = float(r0 @ r0) / (r0.size - p) * np.diag(np.linalg.inv(J.T @ J))
+    out = {}
+    for k, group in enumerate(groups):
+        value = radius[group[0]].value * math.exp(log_r[k])
+        out |= {m: Estimate(value, value * math.sqrt(var[k])) for m in group}
     return out
 
 
@@ -527,7 +642,17 @@ def _fit_axis(
     names = (*nuisance, *terms)
     X = _columns(names, i, step_mounts, f, dphi)
     y = E[:, i] - f[:, i]
-    w, kappa = step_weights(X, y, names, sem[:, i], f[:, i], _instability_of(settings, axis))
+    try:
+        w, kappa = step_weights(X, y, names, sem[:, i], f[:, i], _instability_of(settings, axis))
+    except ValueError as exc:
+        if settings.radius_from != "all_records":
+            raise
+        raise ValueError(
+            f'axis {axis}: {exc}. With radius_from = "all_records" the zero outputs and '
+            "near-1 g runs are rows of the fit, and a bias that moves from record to record "
+            'cannot pass for a scale instability there; radius_from = "near_1g" fits the '
+            "high-g steps alone (docs/methods.md 2.8)"
+        ) from None
     red = stepwise_reduce(
         X,
         y,
@@ -556,6 +681,7 @@ def _step_record(settings: CentrifugeSettings, means: _Means, model: CentrifugeM
             "common_radius": settings.common_radius,
             "iterations": settings.iterations,
             "zero_shift_limit": settings.zero_shift_limit,
+            "radius_from": settings.radius_from,
         },
         statistics={
             "zero_shift": {m: z.shift.tolist() for m, z in model.zero_shift.items()},

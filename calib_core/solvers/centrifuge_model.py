@@ -43,6 +43,9 @@ DEFAULT_ZERO_SHIFT_LIMIT = 0.002 * STANDARD_GRAVITY
 # The paper's reduction: the model F test, then the t tests (docs/methods.md 2.8); on
 # simulated runs it keeps the same terms as steering by t alone (docs/centrifuge.md).
 DEFAULT_STEER = "F-then-t"
+# Where the effective radius comes from: the near-1 g runs (the paper's) or all records
+# jointly with every axis's model (docs/methods.md 2.8).
+RADIUS_FROM = ("near_1g", "all_records")
 
 _TERM = re.compile(r"^a_([xyz])(?:\^([23]))?(?:\*a_([xyz]))?$")
 
@@ -171,6 +174,11 @@ class CentrifugeSettings:
         residuals (`step_weights`). The steps are weighted by 1 / variance.
     zero_shift_limit : allowed change of a position's zero output between the
         records before and after its run, m/s^2 (default 0.002 g).
+    radius_from : "near_1g" (default, the paper's): the effective radius from the
+        near-1 g runs and zero records alone; "all_records": the radius refined with
+        every axis's model over all records (each axis's linear term held at its
+        `scale_1g`), and the near-1 g runs and zero outputs fitted as rows of each
+        axis's model besides the high-g steps.
     """
 
     latitude_deg: float
@@ -183,8 +191,13 @@ class CentrifugeSettings:
     iterations: int = 4
     scale_instability: float | Mapping[str, float] | None = None
     zero_shift_limit: float = DEFAULT_ZERO_SHIFT_LIMIT
+    radius_from: str = "all_records"
 
     def __post_init__(self) -> None:
+        if self.radius_from not in RADIUS_FROM:
+            raise ValueError(
+                f"radius_from must be one of {list(RADIUS_FROM)}, got {self.radius_from!r}"
+            )
         if self.t_test not in T_TESTS:
             raise ValueError(f"t_test must be one of {list(T_TESTS)}, got {self.t_test!r}")
         if self.steer not in STEERING:

@@ -20,6 +20,7 @@ from calib_core.solvers.centrifuge import solve_centrifuge
 from calib_core.solvers.centrifuge_model import (
     DEFAULT_STEER,
     DEFAULT_ZERO_SHIFT_LIMIT,
+    RADIUS_FROM,
     CentrifugeModel,
     CentrifugeSettings,
     CentrifugeStep,
@@ -52,6 +53,9 @@ SETTINGS = Settings(
     Setting("zero_shift_limit", "number", "m/s^2", DEFAULT_ZERO_SHIFT_LIMIT,
             "allowed change of a position's zero output before / after its run", low=0.0,
             low_open=True),
+    Setting("radius_from", "text", "", "all_records",
+            "effective radius from the near-1 g runs (the paper's) or from all records "
+            "jointly with the model, each axis's scale held at scale_1g", choices=RADIUS_FROM),
     name="CentrifugeProcedureSettings",
 )  # fmt: skip
 
@@ -123,6 +127,7 @@ def settings_from_dict(settings: SettingsIn, gravity: float) -> CentrifugeSettin
             iterations=s.iterations,
             scale_instability=s.scale_instability,
             zero_shift_limit=float(s.zero_shift_limit),
+            radius_from=s.radius_from,
         )
     except (TypeError, ValueError) as exc:
         raise ValueError(f"centrifuge: bad settings {s.as_dict()}: {exc}") from None
