@@ -6,7 +6,7 @@ The public API below (docs/api.md) is imported on first use.
 
 from calib_core.lazy import lazy_exports
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 _API = {
     "calib_core.recording": ["Recording"],
