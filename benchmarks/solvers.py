@@ -307,13 +307,11 @@ def main() -> None:
     eff = min(efficiencies.values())
     allan_err = allan_param_rel_err_max()
     print(f"noise parameters, worst relative error of the chosen fit: {allan_err:.4f}")
+    spiky = integral_spiky_to_clean()
+    gyr, acc = spiky["integral_spiky_to_clean_gyr_m"], spiky["integral_spiky_to_clean_acc_m"]
+    print(f"integral method, spiky / clean RMS error: {gyr:.3f} (gyr), {acc:.3f} (acc)")
     out = {"seconds": seconds, "crlb_efficiency_worst": eff, "allan_param_rel_err_max": allan_err}
-    out.update(integral_spiky_to_clean())
-    print(
-        f"integral method, spiky / clean RMS error: {out['integral_spiky_to_clean_gyr_m']:.3f} "
-        f"(gyr), {out['integral_spiky_to_clean_acc_m']:.3f} (acc)"
-    )
-    print(json.dumps(out))
+    print(json.dumps(out | spiky))
 
 
 if __name__ == "__main__":

@@ -218,15 +218,19 @@ def _ros_messages(store, rec: Recording, stamps, table_rate: float | None, slow_
             yield "/table/joint_states", "sensor_msgs/msg/JointState", ns, msg
 
 
-def _write_ros(writer, store, serialize, rec: Recording, table_rate, slow_every) -> None:  # noqa: ANN001
+def _write_ros(  # noqa: ANN001
+    writer, store, serialize, rec: Recording, table_rate, slow_every, stamps=None, log_delay_ns=0
+) -> None:
     """`rec`'s messages into an open rosbags `writer`, serialised by `serialize`
-    (the typestore's CDR for ROS 2, ROS 1 for ROS 1)."""
-    stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
+    (the typestore's CDR for ROS 2, ROS 1 for ROS 1): header stamps `stamps` (ns; default
+    from rec.t), log times `log_delay_ns` later."""
+    if stamps is None:
+        stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
     conns = {}
     for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, table_rate, slow_every):
         if topic not in conns:
             conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-        writer.write(conns[topic], ns, serialize(msg, msgtype))
+        writer.write(conns[topic], ns + log_delay_ns, serialize(msg, msgtype))
 
 
 def write_rosbag2(
@@ -247,20 +251,32 @@ def write_rosbag1(
     path: Path,
     rec: Recording,
     *,
+    stamps: np.ndarray | None = None,
+    log_delay_ns: int = 0,
+    compression: str | None = None,
+    chunk_bytes: int | None = None,
     table_rate: float | None = None,
     slow_every: int | None = None,
-    chunk_bytes: int | None = None,
-) -> None:
-    """One segment as a ROS 1 bag (message definitions of ROS 1 Noetic); `chunk_bytes`:
-    rosbags' chunk threshold (default 1 MiB; ``rosbag record``'s is 768 KiB)."""
+) -> Path:
+    """One segment as a ROS 1 bag (message definitions of ROS 1 Noetic); returns `path`.
+
+    Header stamps `stamps` (ns; default from rec.t), log times `log_delay_ns` later, chunks
+    compressed by `compression` (a rosbags CompressionFormat name, e.g. "LZ4");
+    `chunk_bytes`: rosbags' chunk threshold (default 1 MiB; ``rosbag record``'s is 768 KiB).
+    """
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC)
-    with Writer(path) as writer:
-        if chunk_bytes is not None:
-            writer.chunk_threshold = chunk_bytes
-        _write_ros(writer, store, store.serialize_ros1, rec, table_rate, slow_every)
+    writer = Writer(path)
+    if compression:
+        writer.set_compression(Writer.CompressionFormat[compression])
+    if chunk_bytes is not None:
+        writer.chunk_threshold = chunk_bytes
+    with writer:
+        serialize = store.serialize_ros1
+        _write_ros(writer, store, serialize, rec, table_rate, slow_every, stamps, log_delay_ns)
+    return path
 
 
 # --- MCAP (mcap-ros2-support's writer) ------------------------------------------------

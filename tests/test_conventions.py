@@ -18,14 +18,10 @@ from calib_core.recording import Recording
 from calib_core.units import DEG, STANDARD_GRAVITY
 
 G = STANDARD_GRAVITY
-# The procedure's attitude list: label -> (pitch, roll), degrees.
+# The procedure's attitude list: label "p<pitch>r<roll>" -> (pitch, roll), degrees.
 ATTITUDES = {
-    "p0r0": (0.0, 0.0),
-    "p0r90": (0.0, 90.0),
-    "p0r180": (0.0, 180.0),
-    "p0r270": (0.0, 270.0),
-    "p90r0": (90.0, 0.0),
-    "p90r180": (90.0, 180.0),
+    f"p{p:g}r{r:g}": (p, r)
+    for p, r in [(0.0, 0.0), (0.0, 90.0), (0.0, 180.0), (0.0, 270.0), (90.0, 0.0), (90.0, 180.0)]
 }
 SETTINGS_ATTITUDES = {k: {"pitch_deg": p, "roll_deg": r} for k, (p, r) in ATTITUDES.items()}
 ACC_NOISE = 0.01  # m/s^2 per sample

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from log_writers import T0_NS, _ros_messages, write_rosbag2
+from log_writers import T0_NS, _ros_messages, write_rosbag1, write_rosbag2
 from test_process_streamed import (
     RATE,
     assert_streamed_as_in_memory,
@@ -57,36 +57,10 @@ def static_record(n: int, seed: int = 5, temp: bool = False) -> Recording:
     return Recording(t=t, acc=acc, gyr=gyr, temp=np.full(n, 25.0) if temp else None)
 
 
-def write_bag(
-    path: Path,
-    rec: Recording,
-    *,
-    stamps: np.ndarray | None = None,
-    log_delay_ns: int = 250_000,
-    compression: str | None = None,
-    chunk_bytes: int | None = None,
-    slow_every: int | None = None,
-) -> Path:
-    """`rec` as a ROS 1 bag by rosbags' Writer: header stamps `stamps` (ns; default from
-    rec.t), log times `log_delay_ns` later, chunks compressed by `compression`."""
-    from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    store = get_typestore(Stores.ROS1_NOETIC)
-    if stamps is None:
-        stamps = T0_NS + np.round((rec.t - rec.t[0]) * 1e9).astype(np.int64)
-    conns = {}
-    writer = Writer(path)
-    if compression:
-        writer.set_compression(Writer.CompressionFormat[compression])
-    if chunk_bytes:
-        writer.chunk_threshold = chunk_bytes
-    with writer:
-        for topic, msgtype, ns, msg in _ros_messages(store, rec, stamps, None, slow_every):
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-            writer.write(conns[topic], ns + log_delay_ns, store.serialize_ros1(msg, msgtype))
-    return path
+def write_bag(path: Path, rec: Recording, **options) -> Path:
+    """`rec` as a ROS 1 bag (`log_writers.write_rosbag1`), each message logged 0.25 ms after
+    its header stamp; `options` as write_rosbag1's."""
+    return write_rosbag1(path, rec, log_delay_ns=250_000, **options)
 
 
 def stream(path: Path, out: Path, limit: int = LIMIT, **keys):

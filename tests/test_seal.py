@@ -81,9 +81,6 @@ def test_fresh_archive_is_sealed_and_chained(archive: Archive, tmp_path: Path) -
             "calibrations/verdict",
             '"pass-forged"',
         ),
-        ("DELETE FROM parameters WHERE id = 2", "parameters/", "(absent)"),
-        ("DELETE FROM check_results WHERE id = 1", "check_results/", "(absent)"),
-        ("DELETE FROM processing_steps WHERE id = 1", "processing_steps/0:", "(absent)"),
         ("UPDATE runs SET operator = 'Mallory' WHERE id = 1", "runs/operator", '"Mallory"'),
         ("UPDATE runs SET manifest_text = 'forged' WHERE id = 1", "runs/manifest_text", '"forged"'),
         (
@@ -109,6 +106,28 @@ def test_fresh_archive_is_sealed_and_chained(archive: Archive, tmp_path: Path) -
 def test_each_changed_value_is_named(
     archive: Archive, tmp_path: Path, sql: str, path_part: str, found: str | None
 ) -> None:
+    _assert_named(archive, tmp_path, sql, path_part, found)
+
+
+@pytest.mark.parametrize(
+    ("sql", "path_part"),
+    [
+        ("DELETE FROM parameters WHERE id = 2", "parameters/"),
+        ("DELETE FROM check_results WHERE id = 1", "check_results/"),
+        ("DELETE FROM processing_steps WHERE id = 1", "processing_steps/0:"),
+    ],
+)
+def test_each_deleted_row_is_named(
+    archive: Archive, tmp_path: Path, sql: str, path_part: str
+) -> None:
+    _assert_named(archive, tmp_path, sql, path_part, "(absent)")
+
+
+def _assert_named(
+    archive: Archive, tmp_path: Path, sql: str, path_part: str, found: str | None
+) -> None:
+    """After `sql` on a filled archive, verify names the first run, a path holding
+    `path_part`, the sealed value and the one found (`found`, when given)."""
     fill(archive, tmp_path)
     run_id = _first_run(archive)
     _tamper(archive, sql)

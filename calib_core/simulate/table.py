@@ -125,29 +125,27 @@ def two_clocks(
     duration_s: float,
     imu_hz: float,
     ref_hz: float,
+    clock: ClockModel,
     *,
-    offset_s: float = 0.0,
-    drift_ppm: float = 0.0,
     drop_fraction: float = 0.0,
     ref_gaps: list[tuple[float, float]] | None = None,
     jitter_s: float = 0.0,
     rng: np.random.Generator | None = None,
 ) -> TwoClocks:
-    """Timestamps of two logs of one run with a known clock offset and drift.
+    """Timestamps of two logs of one run whose clocks relate as `clock` says.
 
     Parameters
     ----------
     duration_s : run length, s.
     imu_hz, ref_hz : nominal sample rates of the IMU and of the table feedback, Hz.
-    offset_s : table clock minus IMU clock at t_imu = 0, s.
-    drift_ppm : clock-rate difference, parts per million (table runs fast if > 0).
+    clock : the true relation t_ref = clock.to_ref(t_imu) (offset_s: table clock minus
+        IMU clock at t_imu = t0_s, s; drift_ppm: table runs fast if > 0).
     drop_fraction : fraction of samples dropped at random from each log.
     ref_gaps : (start, end) true-time windows where the table log is missing, s.
     jitter_s : std of white timestamp jitter added to both logs, s.
     """
     rng = np.random.default_rng() if rng is None else rng
     ref_gaps = list(ref_gaps or [])
-    clock = ClockModel(offset_s=offset_s, drift_ppm=drift_ppm, t0_s=0.0)
 
     def stamps(hz: float) -> np.ndarray:
         t = np.arange(int(round(duration_s * hz))) / hz
@@ -212,6 +210,8 @@ def rate_table_run(
     axis : IMU axis along the (upward) table axis: "x", "y" or "z".
     gyr_noise, acc_noise : white-noise std per sample, rad/s and m/s^2.
     gyr_bias : gyro bias on every axis, rad/s; gyr_scale : scale error on `axis`.
+    offset_s : table clock minus IMU clock at t_imu = 0, s.
+    drift_ppm : clock-rate difference, parts per million (table runs fast if > 0).
     Other parameters as in `rate_schedule` and `two_clocks`.
     """
     rng = np.random.default_rng(seed)
@@ -220,8 +220,7 @@ def rate_table_run(
         schedule.duration,
         imu_hz,
         ref_hz,
-        offset_s=offset_s,
-        drift_ppm=drift_ppm,
+        ClockModel(offset_s=offset_s, drift_ppm=drift_ppm, t0_s=0.0),
         drop_fraction=drop_fraction,
         ref_gaps=ref_gaps,
         rng=rng,
