@@ -241,6 +241,22 @@ def _regression(
     return np.array(f), np.array(E), np.array(dphi)
 
 
+@dataclass(frozen=True)
+class FittedRows:
+    """The rows of the fit and what places their inputs: the horizontal phi_h of each
+    position, the settings (gravity, radius groups, 1 g scales) and the vertical Earth
+    rate omega_v, rad/s; `regression(radius)` gives their inputs at a radius."""
+
+    rows: Rows
+    phi_h: dict[str, Estimate]
+    settings: CentrifugeSettings
+    omega_v: float
+
+    def regression(self, radius: dict[str, Estimate]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_regression` of these rows at `radius` (m per position)."""
+        return _regression(self.rows, radius, self.phi_h, self.settings.gravity, self.omega_v)
+
+
 def _instability_of(settings: CentrifugeSettings, axis: str) -> float | None:
     value = settings.scale_instability
     if isinstance(value, Mapping):
@@ -448,10 +464,10 @@ def solve_centrifuge(
     for _ in range(max(1, settings.iterations)):
         phi_1g, raw, radius = _geometry(means, settings, omega_v, axes, phi_fit)
         phi_used = phi_fit or phi_1g
+        fitted = FittedRows(rows, phi_used, settings, omega_v)
         if axes and settings.radius_from == "all_records":
-            joint = _joint_radius(axes, rows, joint or radius, phi_used, settings, omega_v)
-            radius = joint
-        f, E, dphi = _regression(rows, radius, phi_used, settings.gravity, omega_v)
+            radius = joint = _joint_radius(axes, fitted, joint or radius)
+        f, E, dphi = fitted.regression(radius)
         axes, phi_fit = {}, {}
         for i, axis in enumerate(AXES):
             axes[axis] = _fit_axis(
@@ -461,7 +477,7 @@ def solve_centrifuge(
             for m, name in zip(_tangential_mounts(axis, mounts), axes[axis].nuisance, strict=True):
                 j = final.names.index(name)
                 phi_fit[m] = Estimate(phi_used[m].value + float(final.coef[j]), float(final.std[j]))
-    axes = _with_radius_covariance(axes, rows, radius, phi_used, settings, omega_v, sem)
+    axes = _with_radius_covariance(axes, fitted, radius, sem)
     model = CentrifugeModel(
         axes=axes,
         radius=radius,
@@ -497,11 +513,8 @@ def _scaled(
 
 def _with_radius_covariance(
     axes: dict[str, AxisModel],
-    rows: Rows,
+    fitted: FittedRows,
     radius: dict[str, Estimate],
-    phi_h: dict[str, Estimate],
-    settings: CentrifugeSettings,
-    omega_v: float,
     sem: np.ndarray,
     step: float = 1e-5,
 ) -> dict[str, AxisModel]:
@@ -519,10 +532,9 @@ def _with_radius_covariance(
     1 +- `step`; d coef / d ln R times the radius's relative uncertainty adds
     s s^T (u_R / R)^2, the groups' radii being independent.
     """
-    groups = _radius_groups(radius, settings.common_radius)
-    g = settings.gravity
-    step_mounts = np.array([m for m, _, _ in rows])
-    f, E, dphi = _regression(rows, radius, phi_h, g, omega_v)
+    groups = _radius_groups(radius, fitted.settings.common_radius)
+    step_mounts = np.array([m for m, _, _ in fitted.rows])
+    f, E, dphi = fitted.regression(radius)
     out = {}
     for i, axis in enumerate(AXES):
         m = axes[axis]
@@ -535,7 +547,7 @@ def _with_radius_covariance(
             for sign in (1.0, -1.0):
                 factors = [1.0 + sign * step if other is group else 1.0 for other in groups]
                 scaled = _scaled(radius, groups, factors)
-                fs, Es, dphis = _regression(rows, scaled, phi_h, g, omega_v)
+                fs, Es, dphis = fitted.regression(scaled)
                 X = _columns(names, i, step_mounts, fs, dphis)
                 fit = fit_ols(X, Es[:, i] - fs[:, i], names, add_constant=True, weights=w)
                 if fit.names != m.fit.names:
@@ -550,11 +562,8 @@ def _with_radius_covariance(
 
 def _joint_radius(
     axes: dict[str, AxisModel],
-    rows: Rows,
+    fitted: FittedRows,
     radius: dict[str, Estimate],
-    phi_h: dict[str, Estimate],
-    settings: CentrifugeSettings,
-    omega_v: float,
     rounds: int = 3,
     step: float = 1e-6,
 ) -> dict[str, Estimate]:
@@ -570,16 +579,16 @@ def _joint_radius(
     The standard uncertainty is that of the Gauss-Newton normal equations scaled by the
     residual variance (as `fit_ols`'s). Returns radius per position, m.
     """
-    groups = _radius_groups(radius, settings.common_radius)
-    g, mounts = settings.gravity, np.array([m for m, _, _ in rows])
-    sem = np.array([mean.acc_std for _, _, mean in rows])
-    f0, E, _ = _regression(rows, radius, phi_h, g, omega_v)
-    held = {a: settings.scale_1g.get(a, 0.0) for a in AXES}
+    groups = _radius_groups(radius, fitted.settings.common_radius)
+    mounts = np.array([m for m, _, _ in fitted.rows])
+    sem = np.array([mean.acc_std for _, _, mean in fitted.rows])
+    f0, E, _ = fitted.regression(radius)
+    held = {a: fitted.settings.scale_1g.get(a, 0.0) for a in AXES}
     names = {a: [n for n in m.fit.names if n not in (CONST, f"a_{a}")] for a, m in axes.items()}
     sqrt_w = {
         a: np.sqrt(
             step_weights(
-                np.empty((len(rows), 0)),
+                np.empty((len(fitted.rows), 0)),
                 E[:, i],
                 [],
                 sem[:, i],
@@ -591,7 +600,7 @@ def _joint_radius(
     }
 
     def residuals(log_r: np.ndarray) -> tuple[np.ndarray, int]:
-        f, _, dphi = _regression(rows, _scaled(radius, groups, np.exp(log_r)), phi_h, g, omega_v)
+        f, _, dphi = fitted.regression(_scaled(radius, groups, np.exp(log_r)))
         out, p = [], len(groups)
         for i, a in enumerate(AXES):
             X = _columns(names[a], i, mounts, f, dphi)
