@@ -10,10 +10,12 @@ import contextlib
 import functools
 import inspect
 import json
+import math
 import os
 import signal
 import sys
 from collections.abc import Callable, Iterator
+from datetime import date, datetime
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -391,9 +393,43 @@ def fail_on(*errors: type[Exception]) -> Iterator[None]:
         fail(str(exc))
 
 
+def at_instant(text: str | None, option: str = "--at") -> datetime | None:
+    """The instant a date option of the CLI names, by `storage.queries.as_instant`'s rule.
+
+    A bare date (YYYY-MM-DD) is the end of that UTC day; a date and time needs a zone
+    (``+00:00`` or ``Z``). Anything else exits 2 naming `option`, what was expected and
+    what was found. None stays None (now).
+    """
+    from storage.queries import as_instant
+
+    with fail_on(ValueError):
+        return as_instant(text, option, end_of_day=True)
+    return None  # not reached: fail_on exits
+
+
+def plain(value: Any) -> Any:
+    """A JSON-ready value: dates and times ISO 8601 (``isoformat``), None for NaN / NaT,
+    NumPy scalars as Python numbers, dicts and lists value by value."""
+    import pandas as pd
+
+    if value is None or value is pd.NaT:
+        return None
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if isinstance(value, datetime | date | pd.Timestamp):
+        return value.isoformat()
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [plain(v) for v in value]
+    if hasattr(value, "item"):  # numpy scalars
+        return plain(value.item())
+    return value
+
+
 def frame_records(df: Any) -> list[dict[str, Any]]:
-    """A DataFrame's rows as JSON-ready dicts (dates in ISO 8601)."""
-    return json.loads(df.to_json(orient="records", date_format="iso"))
+    """A DataFrame's rows as JSON-ready dicts (`plain`): the CLI's one JSON form of a table."""
+    return [plain(r) for r in df.astype(object).to_dict(orient="records")]
 
 
 def print_json(doc: Any) -> None:

@@ -319,3 +319,53 @@ def test_latest_run_and_fleet_pick_follow_the_current_rule(archive: Archive, tmp
     picks = {u["serial"]: u["run_id"] for u in queries.fleet_latest_valid(archive, model)}
     assert picks == {"T1": ids[1]}
     assert queries.fleet_latest_valid(archive, "NO-SUCH-MODEL") == []
+
+
+@pytest.mark.parametrize(
+    "words",
+    [
+        ["query", "latest", "A1"],
+        ["query", "fleet", "MPU-6000", "acc.bias.x"],
+        ["thermal", "show", "A1"],
+        ["thermal", "export", "A1", "out.json"],
+        ["apply", "in", "out.csv", "--serial", "A1"],
+    ],
+)
+def test_every_at_option_reads_one_rule(archive: Archive, tmp_path: Path, words) -> None:  # noqa: ANN001
+    """`--at` of every command: a date-time without a zone is refused naming the option,
+    what was expected and what was found; a text that is no date likewise."""
+    cli = CliRunner()
+    for at, said in [
+        ("2024-07-01T08:00:00", "--at: 2024-07-01T08:00:00 has no time zone (add +00:00 or Z)"),
+        ("July", "--at: expected a date YYYY-MM-DD or a date-time with a zone"),
+    ]:
+        args = [w if w not in ("in", "out.csv", "out.json") else str(tmp_path / w) for w in words]
+        res = cli.invoke(app, [*args, "--at", at, "--archive", archive.url])
+        assert res.exit_code == 2 and said in res.stderr, res.output
+
+
+def test_at_with_a_zone_and_json_records_keep_the_full_values(
+    archive: Archive, scenario: Scenario
+) -> None:
+    """`--at` with a zone is the same instant in any zone; `calib history --json` and
+    `calib query --format json` write times with their microseconds and offset
+    (``isoformat``) and every double whole (repr round-trips)."""
+    cli = CliRunner()
+    docs = []
+    for at in ("2024-07-01T08:00:00Z", "2024-07-01T10:00:00+02:00"):
+        res = cli.invoke(app, ["query", "latest", "A1", "--at", at, "--archive", archive.url])
+        assert res.exit_code == 0, res.output
+        docs.append(res.stdout)
+    assert docs[0] == docs[1] and scenario.ids["r1"] in docs[0]
+    res = cli.invoke(app, ["history", "A1", "--archive", archive.url, "--json"])
+    assert res.exit_code == 0, res.output
+    held = queries.history(archive, "A1")
+    assert [r["created_at"] for r in json.loads(res.stdout)] == [
+        t.isoformat() for t in held["created_at"]
+    ]
+    res = cli.invoke(
+        app,
+        ["query", "history", "A1", "acc.bias.x", "--archive", archive.url, "--format", "json"],
+    )
+    expected = queries.serial_parameter_history(archive, "A1", "acc.bias.x")
+    assert [r["std"] for r in json.loads(res.stdout)] == expected["std"].tolist()

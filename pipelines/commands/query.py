@@ -8,9 +8,7 @@ rows for a list), 1 nothing found for `latest`, 2 invalid input or unknown run.
 from __future__ import annotations
 
 import json
-import math
 import sys
-from datetime import date, datetime
 from enum import StrEnum
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -21,11 +19,14 @@ from pipelines.cli_shared import (
     AtOpt,
     RevisionOpt,
     app,
+    at_instant,
     err,
     fail_on,
+    frame_records,
     open_archive,
     open_run,
     out,
+    plain,
     print_frame,
     print_json,
     sub_app,
@@ -49,35 +50,12 @@ class Format(StrEnum):
 FormatOpt = Annotated[Format, typer.Option("--format", help="table, csv or json.")]
 
 
-def _plain(value: Any) -> Any:
-    """A JSON-ready value: ISO 8601 dates, None for NaN/NaT."""
-    import pandas as pd
-
-    if value is None or value is pd.NaT:
-        return None
-    if isinstance(value, float) and math.isnan(value):
-        return None
-    if isinstance(value, datetime | date | pd.Timestamp):
-        return value.isoformat()
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if hasattr(value, "item"):  # numpy scalars
-        return _plain(value.item())
-    return value
-
-
-def _records(df: pd.DataFrame) -> list[dict[str, Any]]:
-    return [_plain(r) for r in df.astype(object).to_dict(orient="records")]
-
-
 def emit(df: pd.DataFrame, fmt: Format, title: str, param: str | None = None) -> None:
     """Print a DataFrame in the chosen format: JSON and CSV in SI, as queried; the table
     with parameter values in their display units (`pipelines.reports.display`), the
     parameter named by a ``name`` column or by `param`."""
     if fmt is Format.json:
-        print_json(_records(df))
+        print_json(frame_records(df))
     elif fmt is Format.csv:
         df.to_csv(sys.stdout, index=False, date_format="%Y-%m-%dT%H:%M:%S%z")
     elif df.empty:
@@ -120,7 +98,7 @@ def latest(
     """Parameters of the latest valid calibration of SERIAL as of a date (default now)."""
     from storage import queries
 
-    df = _ask(queries.latest_valid, archive, serial, at)
+    df = _ask(queries.latest_valid, archive, serial, at_instant(at))
     if df.empty:  # still print the empty CSV header / JSON list for scripts
         err.print(f"no valid calibration of {serial!r}" + (f" as of {at}" if at else ""))
     emit(df, fmt, f"Latest valid calibration of {serial}")
@@ -145,7 +123,7 @@ def lineage(
     with fail_on(ValueError, LookupError):
         doc = queries.lineage(arch, run_id, param, revision)
     if fmt is Format.json:
-        print_json(_plain(doc))
+        print_json(plain(doc))
         return
     if fmt is Format.csv:
         long = pd.DataFrame(_flatten(doc), columns=["section", "item", "field", "value"])
@@ -166,7 +144,7 @@ def _flatten(doc: dict[str, Any]) -> list[tuple[str, str, str, str]]:
             items = [{"name": body["name"], **v} for v in body["values"]]
         for i, item in enumerate(items):
             for key, value in item.items():
-                v = _plain(value)
+                v = plain(value)
                 text = json.dumps(v, sort_keys=True) if isinstance(v, dict | list) else str(v)
                 rows.append((section, str(i), key, text))
     return rows
@@ -247,7 +225,7 @@ def fleet(
     """PARAM across every unit of MODEL (each unit's latest valid calibration)."""
     from storage import queries
 
-    df = _ask(queries.fleet, archive, model, param, at)
+    df = _ask(queries.fleet, archive, model, param, at_instant(at))
     emit(df, fmt, f"{param} across {model}", param)
     if fmt is Format.table and not df.empty:
         from pipelines.reports.display import quantity, shown

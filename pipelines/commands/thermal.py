@@ -8,7 +8,6 @@ done, 2 invalid input or nothing to work on.
 
 from __future__ import annotations
 
-from datetime import UTC, date, datetime, time
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -22,6 +21,7 @@ from pipelines.cli_shared import (
     RotationOpt,
     VehicleIdOpt,
     app,
+    at_instant,
     err,
     fail,
     fail_on,
@@ -39,21 +39,6 @@ thermal_app = sub_app("Temperature compensation: fit, show and export.")
 app.add_typer(thermal_app, name="thermal")
 
 PlotOpt = Annotated[Path | None, typer.Option("--plot", help="Also draw the plot into this PNG.")]
-
-
-def parse_when(text: str | None) -> datetime | None:
-    """YYYY-MM-DD (the end of that day, UTC) or an ISO 8601 date and time (naive = UTC)."""
-    if text is None:
-        return None
-    try:
-        if len(text) == 10:
-            return datetime.combine(date.fromisoformat(text), time.max, tzinfo=UTC)
-        when = datetime.fromisoformat(text)
-    except ValueError:
-        raise typer.BadParameter(
-            f"{text!r}: expected YYYY-MM-DD or an ISO 8601 date and time"
-        ) from None
-    return when if when.tzinfo is not None else when.replace(tzinfo=UTC)
 
 
 def _run(fn, *args, **kwargs) -> Any:  # noqa: ANN001 - any pipeline function
@@ -135,7 +120,7 @@ def thermal_show(
     """The archived thermal model of SERIAL: range, reference, each parameter's curve."""
     from storage import queries
 
-    model = _run(queries.latest_thermal_model, open_archive(archive), serial, parse_when(at))
+    model = _run(queries.latest_thermal_model, open_archive(archive), serial, at_instant(at))
     if model is None:
         fail(
             f"{serial} has no thermal model"
@@ -219,7 +204,7 @@ def thermal_export(
     from storage import queries
 
     arch = open_archive(archive)
-    cal, _, model, facts = _run(load_compensation, arch, serial, parse_when(at))
+    cal, _, model, facts = _run(load_compensation, arch, serial, at_instant(at))
     if model is None:
         fail(f"{serial} has no thermal model: run `calib thermal fit {serial}` first")
     header = f"{serial} calibration {facts['run_id']} thermal model {facts['thermal_model_id']}"
@@ -298,7 +283,7 @@ def apply(
     """Apply SERIAL's latest valid calibration (and thermal model) to new raw data."""
     from pipelines.apply import apply_calibration
 
-    facts = _run(apply_calibration, open_archive(archive), serial, parse_when(at), source, output)
+    facts = _run(apply_calibration, open_archive(archive), serial, at_instant(at), source, output)
     for message in facts["warnings"]:
         warn(message)
     if as_json:
