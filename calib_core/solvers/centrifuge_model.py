@@ -174,11 +174,11 @@ class CentrifugeSettings:
         residuals (`step_weights`). The steps are weighted by 1 / variance.
     zero_shift_limit : allowed change of a position's zero output between the
         records before and after its run, m/s^2 (default 0.002 g).
-    radius_from : "near_1g" (default, the paper's): the effective radius from the
-        near-1 g runs and zero records alone; "all_records": the radius refined with
-        every axis's model over all records (each axis's linear term held at its
-        `scale_1g`), and the near-1 g runs and zero outputs fitted as rows of each
-        axis's model besides the high-g steps.
+    radius_from : "all_records" (default): the radius refined with every axis's model
+        over all records (each axis's linear term held at its `scale_1g`), and the
+        near-1 g runs and zero outputs fitted as rows of each axis's model besides the
+        high-g steps; "near_1g" (the paper's): the effective radius from the near-1 g
+        runs and zero records alone.
     """
 
     latitude_deg: float
