@@ -408,13 +408,14 @@ def at_instant(text: str | None, option: str = "--at") -> datetime | None:
 
 
 def plain(value: Any) -> Any:
-    """A JSON-ready value: dates and times ISO 8601 (``isoformat``), None for NaN / NaT,
-    NumPy scalars as Python numbers, dicts and lists value by value."""
+    """A JSON-ready value: dates and times ISO 8601 (``isoformat``), None for NaT and for
+    NaN or an infinity (JSON has neither), NumPy scalars as Python numbers, dicts and
+    lists value by value."""
     import pandas as pd
 
     if value is None or value is pd.NaT:
         return None
-    if isinstance(value, float) and math.isnan(value):
+    if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, datetime | date | pd.Timestamp):
         return value.isoformat()

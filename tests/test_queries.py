@@ -369,3 +369,14 @@ def test_at_with_a_zone_and_json_records_keep_the_full_values(
     )
     expected = queries.serial_parameter_history(archive, "A1", "acc.bias.x")
     assert [r["std"] for r in json.loads(res.stdout)] == expected["std"].tolist()
+
+
+def test_json_records_are_strict_json() -> None:
+    """JSON has no NaN or infinity: a table's non-finite numbers are null (as pandas'
+    to_json gave them before), so every JSON parser reads `--json` output."""
+    from pipelines.cli_shared import frame_records
+
+    df = pd.DataFrame({"std": [float("inf"), float("-inf"), float("nan"), 1.5e-11]})
+    records = frame_records(df)
+    assert records == [{"std": None}, {"std": None}, {"std": None}, {"std": 1.5e-11}]
+    json.dumps(records, allow_nan=False)
